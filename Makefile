@@ -1,0 +1,32 @@
+# One command per job; each creates .venv and installs what it needs.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+SCENARIO ?= scenarios/paper.toml
+
+.PHONY: run test bench lint typecheck clean
+
+$(BIN)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[test]'
+	touch $@
+
+run: $(BIN)/.installed
+	$(BIN)/formation run $(SCENARIO)
+
+test: $(BIN)/.installed lint typecheck
+	$(BIN)/pytest -q -p no:cacheprovider
+
+lint: $(BIN)/.installed
+	$(BIN)/ruff check src tests bench
+	$(BIN)/ruff format --check src tests bench
+
+typecheck: $(BIN)/.installed
+	$(BIN)/mypy
+
+bench: $(BIN)/.installed
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench
+
+clean:
+	rm -rf $(VENV) runs build *.egg-info src/*.egg-info

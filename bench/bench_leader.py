@@ -1,0 +1,274 @@
+"""Benchmark of the leader's cores: BLUE (MODEL.md §5) and Kruskal (§4), with baselines.
+
+Run ``python bench/bench_leader.py [--seed S] [--quick]``. Prints one table for
+the BLUE on two graph families (formation-like: 4 nearest neighbours in the
+plane; expander: random graph of mean degree 4, made connected) and two edge
+sets (``healthy`` = every edge, ``tree`` = the Kruskal tree), with the dense
+baseline (``np.linalg.solve`` on the ``nd × nd`` system plus ``np.linalg.inv``
+for the covariances) measured in the same run at n = 1,000; then Kruskal
+against ``scipy.sparse.csgraph.minimum_spanning_tree`` at 10,000 agents and
+40,000 edges. Times are the best of several runs, single-threaded BLAS.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ["OPENBLAS_NUM_THREADS"] = "1"  # before numpy: one core, comparable numbers
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("MKL_NUM_THREADS", "1")
+
+import argparse
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import TypeVar
+
+import numpy as np
+import numpy.typing as npt
+from scipy.sparse import coo_array
+from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
+from scipy.spatial import cKDTree
+
+try:
+    from leader.blue import BlueResult, blue
+    from leader.mst import minimum_spanning_forest
+except ImportError:  # run from a checkout without installing
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
+    from leader.blue import BlueResult, blue
+    from leader.mst import minimum_spanning_forest
+
+SEED = 20240611
+SIGMA_M = 0.01  # [m] measurement noise per coordinate (MODEL.md §8)
+T = TypeVar("T")
+IntArray = npt.NDArray[np.int64]
+FloatArray = npt.NDArray[np.float64]
+
+
+# --------------------------------------------------------------------------- graphs
+
+
+def _connect(n: int, pairs: IntArray, rng: np.random.Generator, pts: FloatArray | None) -> IntArray:
+    """Join every component to the largest one (nearest node if positions are given)."""
+    g = coo_array((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    count, lab = connected_components(g, directed=False)
+    if count == 1:
+        return pairs
+    main = int(np.bincount(lab).argmax())
+    members = np.flatnonzero(lab == main)
+    tree = cKDTree(pts[members]) if pts is not None else None
+    extra = []
+    for comp in range(count):
+        if comp == main:
+            continue
+        a = int(np.flatnonzero(lab == comp)[0])
+        if tree is not None and pts is not None:
+            b = int(members[tree.query(pts[a])[1]])
+        else:
+            b = int(rng.choice(members))
+        extra.append((min(a, b), max(a, b)))
+    return np.vstack([pairs, np.array(extra, dtype=np.int64)])
+
+
+def formation_like(n: int, rng: np.random.Generator) -> tuple[FloatArray, IntArray]:
+    """Agents uniform in a square of side √n m, each linked to its 4 nearest neighbours."""
+    pts = rng.random((n, 2)) * np.sqrt(n)
+    _, nb = cKDTree(pts).query(pts, 5)
+    a = np.repeat(np.arange(n), 4)
+    pairs = np.unique(np.sort(np.stack([a, nb[:, 1:].ravel()], 1), 1), axis=0)
+    return pts, _connect(n, pairs.astype(np.int64), rng, pts)
+
+
+def expander(n: int, rng: np.random.Generator) -> tuple[FloatArray, IntArray]:
+    """Random graph with 2n distinct edges (mean degree 4), made connected."""
+    a, b = rng.integers(0, n, 4 * n), rng.integers(0, n, 4 * n)
+    ok = a != b
+    pairs = np.unique(np.sort(np.stack([a[ok], b[ok]], 1), 1), axis=0)
+    pairs = pairs[rng.permutation(len(pairs))[: 2 * n]]
+    pts = rng.random((n, 2)) * np.sqrt(n)
+    return pts, _connect(n, pairs.astype(np.int64), rng, None)
+
+
+def measurements(
+    pts: FloatArray, pairs: IntArray, rng: np.random.Generator
+) -> tuple[IntArray, FloatArray, FloatArray]:
+    """Randomly oriented 1-based edges, measurements ``z = x_i − x_j + noise`` and ``σ² I``."""
+    flip = rng.random(len(pairs)) < 0.5
+    edges = np.where(flip[:, None], pairs[:, ::-1], pairs) + 1
+    z = pts[edges[:, 0] - 1] - pts[edges[:, 1] - 1] + SIGMA_M * rng.standard_normal((len(pairs), 2))
+    cov = np.broadcast_to(SIGMA_M**2 * np.eye(2), (len(pairs), 2, 2)).copy()
+    return edges, z, cov
+
+
+# --------------------------------------------------------------------------- timing
+
+
+def best(fn: Callable[[], T], repeat: int) -> tuple[float, T]:
+    """Best wall time [s] of ``repeat`` calls (after one warm-up call when repeating) and the result."""
+    times = []
+    out = fn() if repeat > 1 else None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    assert out is not None
+    return min(times), out
+
+
+def dense_blue(
+    n: int, edges: IntArray, z: FloatArray, cov: FloatArray, use: npt.NDArray[np.bool_]
+) -> tuple[FloatArray, FloatArray, float]:
+    """Baseline: dense ``nd × nd`` normal equations, ``np.linalg.solve`` + ``np.linalg.inv``.
+
+    Returns estimates and covariance blocks of agents 2..n and the time [s] of the
+    solve and the inverse (assembly not timed, in the baseline's favour).
+    """
+    d = z.shape[1]
+    e = edges[use] - 1
+    w = np.linalg.inv(cov[use])
+    a = np.zeros((n * d, n * d))
+    rhs = np.zeros(n * d)
+    for k, (i, j) in enumerate(e):
+        si, sj = slice(i * d, i * d + d), slice(j * d, j * d + d)
+        a[si, si] += w[k]
+        a[sj, sj] += w[k]
+        a[si, sj] -= w[k]
+        a[sj, si] -= w[k]
+        rhs[si] += w[k] @ z[use][k]
+        rhs[sj] -= w[k] @ z[use][k]
+    # reference = agent 1 at the origin: drop its rows and columns
+    a, rhs = a[d:, d:], rhs[d:]
+    t0 = time.perf_counter()
+    x = np.linalg.solve(a, rhs)
+    inv = np.linalg.inv(a)
+    elapsed = time.perf_counter() - t0
+    nb = n - 1
+    blocks = inv.reshape(nb, d, nb, d)[np.arange(nb), :, np.arange(nb), :]
+    return x.reshape(nb, d), blocks, elapsed
+
+
+# --------------------------------------------------------------------------- main
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmark and print the tables; returns 0."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seed", type=int, default=SEED)
+    parser.add_argument("--quick", action="store_true", help="n = 1,000 only, no 10k covariances")
+    args = parser.parse_args(argv)
+    seed: int = args.seed
+    sizes = (1000,) if args.quick else (1000, 10000)
+    print(f"bench_leader  seed={seed}  OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}")
+    print("BLUE, d = 2, P_e = σ²I (σ = 0.01 m), reference = agent 1 at its true position")
+    print(
+        f"{'family':<10} {'n':>6} {'m':>6} {'edges':<8} {'solver':<7} {'estimates':>10} "
+        f"{'+cov blocks':>12} {'dense':>9} {'× est':>7} {'× all':>7} {'max|Δ| dense':>13}"
+    )
+    summary: list[str] = []
+    for family_name, family in (("formation", formation_like), ("expander", expander)):
+        for n in sizes:
+            rng = np.random.default_rng([seed, n, len(family_name)])
+            pts, pairs = family(n, rng)
+            pts = pts - pts[0]  # reference (agent 1) at the origin
+            edges, z, cov = measurements(pts, pairs, rng)
+            dist = np.linalg.norm(pts[pairs[:, 0]] - pts[pairs[:, 1]], axis=1)
+            tree = minimum_spanning_forest(n, edges, dist, np.ones(len(edges), dtype=bool))
+            tree_mask = np.zeros(len(edges), dtype=bool)
+            tree_mask[tree] = True
+            for set_name, use in (("healthy", np.ones(len(edges), dtype=bool)), ("tree", tree_mask)):
+
+                def run(with_cov: bool, use: npt.NDArray[np.bool_] = use) -> BlueResult:
+                    return blue(n, 2, edges, z, cov, 1, np.zeros(2), use, covariances=with_cov)
+
+                t_est, res = best(lambda: run(False), 5)
+                cyclic_big = set_name == "healthy" and n > 1000
+                if cyclic_big and args.quick:
+                    t_all, full = float("nan"), res
+                else:
+                    t_all, full = best(lambda: run(True), 1 if cyclic_big else 5)
+                dense_s, ratio_est, ratio_all, delta = float("nan"), "", "", ""
+                if n == 1000:
+                    times = []
+                    for _ in range(3):
+                        xd, cd, elapsed = dense_blue(n, edges, z, cov, use)
+                        times.append(elapsed)
+                    dense_s = min(times)
+                    ratio_est = f"{dense_s / t_est:.0f}"
+                    ratio_all = f"{dense_s / t_all:.0f}"
+                    assert full.covariances is not None
+                    delta = (
+                        f"{np.abs(full.positions[1:] - xd).max():.1e}/"
+                        f"{np.abs(full.covariances[1:] - cd).max():.0e}"
+                    )
+                print(
+                    f"{family_name:<10} {n:>6} {int(use.sum()):>6} {set_name:<8} {res.solver:<7} "
+                    f"{t_est * 1e3:>8.1f}ms {t_all * 1e3:>10.1f}ms "
+                    f"{dense_s * 1e3:>7.0f}ms {ratio_est:>7} {ratio_all:>7} {delta:>13}"
+                )
+                if n == 10000:
+                    limit = 50.0 if set_name == "tree" else 100.0
+                    what = "estimates + covariances" if set_name == "tree" else "estimates"
+                    got = t_all if set_name == "tree" else t_est
+                    verdict = "met" if got * 1e3 <= limit else "MISSED"
+                    summary.append(
+                        f"target {family_name} {set_name} n=10000 {what} <= {limit:.0f} ms: "
+                        f"{got * 1e3:.1f} ms, {verdict}"
+                    )
+                if n == 1000:
+                    verdict = "met" if dense_s / t_all >= 50 else "MISSED"
+                    summary.append(
+                        f"target {family_name} {set_name} n=1000 >= 50x dense (estimates + "
+                        f"covariances): {dense_s / t_all:.0f}x, {verdict} "
+                        f"(estimates only: {dense_s / t_est:.0f}x)"
+                    )
+    print()
+    _bench_mst(seed, summary)
+    print()
+    for line in summary:
+        print(line)
+    return 0
+
+
+def _bench_mst(seed: int, summary: list[str]) -> None:
+    n, m = 10000, 40000
+    rng = np.random.default_rng([seed, 7])
+    a, b = rng.integers(0, n, 3 * m), rng.integers(0, n, 3 * m)
+    ok = a != b
+    pairs = np.unique(np.sort(np.stack([a[ok], b[ok]], 1), 1), axis=0)
+    pairs = pairs[rng.permutation(len(pairs))[:m]]
+    weights = rng.random(m) + 0.1  # positive: scipy reads a zero weight as no edge
+    edges = pairs + 1
+    healthy = np.ones(m, dtype=bool)
+
+    def ours() -> float:
+        return float(weights[minimum_spanning_forest(n, edges, weights, healthy)].sum())
+
+    def scipy_with_graph() -> float:
+        g = coo_array((weights, (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+        return float(minimum_spanning_tree(g).sum())
+
+    graph = coo_array((weights, (pairs[:, 0], pairs[:, 1])), shape=(n, n)).tocsr()
+
+    def scipy_only() -> float:
+        return float(minimum_spanning_tree(graph).sum())
+
+    t_ours, w_ours = best(ours, 9)
+    t_sp, w_sp = best(scipy_with_graph, 9)
+    t_sp_only, _ = best(scipy_only, 9)
+    print(f"Kruskal, n = {n}, m = {m}, random weights (seed {seed})")
+    print(f"  leader.mst.minimum_spanning_forest   {t_ours * 1e3:7.2f} ms  total weight {w_ours:.6f}")
+    print(f"  scipy, COO graph built + MST         {t_sp * 1e3:7.2f} ms  total weight {w_sp:.6f}")
+    print(f"  scipy, MST on a ready CSR graph      {t_sp_only * 1e3:7.2f} ms")
+    print(
+        f"  ratio ours/scipy: {t_ours / t_sp:.2f} (graph built), {t_ours / t_sp_only:.2f} (ready graph)"
+    )
+    verdict = "met" if t_ours <= 3 * t_sp else "MISSED"
+    summary.append(
+        f"target Kruskal within 3x scipy (graph construction included): "
+        f"{t_ours / t_sp:.2f}x, {verdict}; {t_ours / t_sp_only:.2f}x against a prebuilt CSR graph"
+    )
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

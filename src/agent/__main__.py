@@ -1,0 +1,65 @@
+"""``python -m agent --scenario F --id I`` (or ``--ids 1-50`` for a pooled process)."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+from formation import zenoh_config
+from formation.errors import TestbedError
+from formation.scenario import STRATEGIES, Scenario
+from formation.service import Service
+
+
+def parse_ids(text: str, n: int) -> list[int]:
+    """``"3"``, ``"1-5"`` or ``"1,4,7-9"`` → ids, each checked against the scenario's 1..n."""
+    ids: list[int] = []
+    for part in text.split(","):
+        lo, _, hi = part.partition("-")
+        try:
+            ids.extend(range(int(lo), int(hi or lo) + 1))
+        except ValueError:
+            raise TestbedError(f"--id {text!r}: expected ids like 3, 1-5 or 1,4,7-9") from None
+    for i in ids:
+        if not 1 <= i <= n:
+            raise TestbedError(f"--id {i}: no such agent in the scenario (agents are 1..{n})")
+    return ids
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m agent", description=__doc__)
+    p.add_argument("--scenario", required=True)
+    p.add_argument("--id", "--ids", dest="ids", required=True, help="agent id, or ids for a pool")
+    p.add_argument("--run-id", default="default")
+    p.add_argument("--strategy", choices=STRATEGIES)
+    p.add_argument("--seed", type=int)
+    p.add_argument("--epochs", type=int)
+    zenoh_config.add_arguments(p)
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
+    try:
+        scenario = Scenario.from_file(args.scenario)
+        if args.epochs is not None:
+            scenario = scenario.with_overrides(epochs=args.epochs)
+        ids = parse_ids(args.ids, scenario.n)
+    except TestbedError as exc:
+        print(f"agent: error: {exc}", file=sys.stderr)
+        return 1
+    from agent.node import AgentNode
+
+    role, ident = ("agent", ids[0]) if len(ids) == 1 else ("pool", ids[0])
+    service = Service(args.run_id, role, ident, args)
+    try:
+        node = AgentNode(service, scenario, ids, args.strategy or scenario.strategy.name,
+                         scenario.seed if args.seed is None else args.seed)  # fmt: skip
+        node.announce()
+        code = node.run(scenario.epochs)
+        service.status("done" if code == 0 else "error", max(r.epoch for r in node.runners.values()))
+        return code
+    finally:
+        service.close()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,104 @@
+"""One agent-side epoch (MODEL.md §3, §6): fill lost neighbours, consensus, step.
+
+Works on any set of agents and their in-links: the simulator passes the whole
+team, an agent process passes itself, and both get the same floats.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from agent.control import displacement_command, distance_command, step_double, step_single
+from agent.strategies import LinkMemory, StrategyName, Substitution, substitute
+from formation.scenario import Scenario
+
+Array = npt.NDArray[np.float64]
+Mask = npt.NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class InLinks:
+    """The in-links ``j → i`` of a set of agents, in the scenario's directed-link order.
+
+    index : (L,) rows of ``scenario.directed_links``; sender, receiver : (L,) agent ids;
+    receiver_row : (L,) row of the receiver within the agent set; desired : (L, d) ``d0_i − d0_j``;
+    distance_sq : (L,) ``C_ij²``.
+    """
+
+    index: npt.NDArray[np.int64]
+    sender: npt.NDArray[np.int64]
+    receiver: npt.NDArray[np.int64]
+    receiver_row: npt.NDArray[np.int64]
+    desired: Array
+    distance_sq: Array
+
+    @classmethod
+    def of(cls, scenario: Scenario, agents: npt.NDArray[np.int64]) -> InLinks:
+        links = scenario.directed_links
+        row_of = {int(a): r for r, a in enumerate(agents)}
+        index = np.array([l for l, (_, b) in enumerate(links) if int(b) in row_of], dtype=np.int64)
+        sender, receiver = links[index, 0], links[index, 1]
+        d0 = scenario.offsets
+        return cls(
+            index=index,
+            sender=sender,
+            receiver=receiver,
+            receiver_row=np.array([row_of[int(b)] for b in receiver], dtype=np.int64),
+            desired=d0[receiver - 1] - d0[sender - 1],
+            distance_sq=np.repeat(scenario.weights**2, 2)[index],
+        )
+
+
+@dataclass(frozen=True)
+class AgentStep:
+    positions: Array  # (a, d) x[k+1] [m]
+    velocities: Array  # (a, d) [m/s] (double integrator; zeros otherwise)
+    memory: LinkMemory
+    substitution: Substitution
+
+
+def agent_epoch(
+    scenario: Scenario,
+    strategy: StrategyName,
+    epoch: int,
+    links: InLinks,
+    x: Array,
+    velocities: Array,
+    arrived: Mask,
+    received: Array,
+    z: Array,
+    memory: LinkMemory,
+    estimate: Array,
+    has_estimate: Mask,
+    v_ref_prev: Array,
+    v_ref: Array,
+) -> AgentStep:
+    """Advance a set of agents from ``x[k]`` to ``x[k+1]``.
+
+    Parameters
+    ----------
+    x, velocities : (a, d) the agents' states [m], [m/s]
+    arrived : (L,) in-link packet of epoch ``k`` arrived in time; received (L, d) its ``x_j[k]``
+    z : (L, d) relative measurements where arrived [m]
+    memory : per in-link memory from epoch ``k − 1``
+    estimate : (L, d) leader's ``x̂_j[k]``; has_estimate (L,)
+    v_ref_prev : (L, d) ``v_ref[k − 1]`` as each receiver knows it; v_ref (a, d) ``v_ref[k]`` as known
+    """
+    ctl = scenario.control
+    sub, memory = substitute(
+        strategy, epoch, arrived, received, memory, estimate, has_estimate,
+        v_ref_prev, ctl.period_s, scenario.strategy.alpha,
+    )  # fmt: skip
+    relative = np.where(arrived[:, None], z, x[links.receiver_row] - sub.values)
+    a = x.shape[0]
+    if ctl.controller == "displacement":
+        cmd = displacement_command(a, links.receiver_row, relative, links.desired, sub.used, ctl.epsilon)
+    else:
+        cmd = distance_command(a, links.receiver_row, relative, links.distance_sq, sub.used, ctl.epsilon)
+    if ctl.dynamics == "single":
+        return AgentStep(step_single(x, cmd, v_ref, ctl.period_s), velocities, memory, sub)
+    nxt, vel = step_double(x, velocities, cmd, v_ref, ctl.period_s, ctl.damping)
+    return AgentStep(nxt, vel, memory, sub)

@@ -1,0 +1,15 @@
+"""The shared vocabulary of the testbed: scenario, wire messages, keys, Zenoh config."""
+
+from formation.errors import RecordingError, RuntimeFailure, ScenarioError, TestbedError
+from formation.scenario import STRATEGIES, Scenario, load, load_dict
+
+__all__ = [
+    "STRATEGIES",
+    "RecordingError",
+    "RuntimeFailure",
+    "Scenario",
+    "ScenarioError",
+    "TestbedError",
+    "load",
+    "load_dict",
+]

@@ -1,0 +1,63 @@
+"""JSON on the wire: one place encodes and decodes every message, and counts what fails."""
+
+from __future__ import annotations
+
+import struct
+import time
+from collections import Counter
+from typing import TypeVar
+
+from pydantic import BaseModel, TypeAdapter, ValidationError
+
+from formation.messages import Message
+
+M = TypeVar("M", bound=BaseModel)
+_ANY: TypeAdapter[Message] = TypeAdapter(Message)
+
+# Attachment: the routing facts netem needs without parsing the payload.
+_ATTACH = struct.Struct("<qqq")  # epoch, seq, source
+
+
+def encode(message: BaseModel) -> bytes:
+    return message.model_dump_json().encode()
+
+
+def decode(payload: bytes, model: type[M]) -> M:
+    return model.model_validate_json(payload)
+
+
+def decode_any(payload: bytes) -> Message:
+    return _ANY.validate_json(payload)
+
+
+def attachment(epoch: int, seq: int, source: int) -> bytes:
+    return _ATTACH.pack(epoch, seq, source)
+
+
+def read_attachment(data: bytes | None) -> tuple[int, int, int] | None:
+    """``(epoch, seq, source)``, or None when absent or malformed."""
+    if data is None or len(data) != _ATTACH.size:
+        return None
+    epoch, seq, source = _ATTACH.unpack(data)
+    return int(epoch), int(seq), int(source)
+
+
+def now_ns() -> int:
+    return time.monotonic_ns()
+
+
+class Malformed:
+    """Counts payloads that failed validation, per key; never raises."""
+
+    def __init__(self) -> None:
+        self.counts: Counter[str] = Counter()
+
+    def decode(self, key: str, payload: bytes, model: type[M]) -> M | None:
+        try:
+            return model.model_validate_json(payload)
+        except (ValidationError, ValueError, UnicodeDecodeError):
+            self.counts[key] += 1
+            return None
+
+
+__all__ = ["Malformed", "attachment", "decode", "decode_any", "encode", "now_ns", "read_attachment"]

@@ -1,0 +1,113 @@
+"""Key expressions of a run; every key string of the testbed is built here.
+
+All keys live under ``formation/<run_id>/``. Formation links are ``i → j``
+between agents; control links join agent ``i`` and the leader (endpoint 0).
+"""
+
+from __future__ import annotations
+
+ROOT = "formation"
+LEADER = 0  # the leader's endpoint id on control links
+
+
+def prefix(run_id: str) -> str:
+    return f"{ROOT}/{run_id}"
+
+
+def everything(run_id: str) -> str:
+    return f"{ROOT}/{run_id}/**"
+
+
+# -- what senders publish (netem subscribes) ------------------------------------------------
+def agent_state(run_id: str, i: int | str) -> str:
+    """Agent ``i``'s coordination packet ``x_i[k]`` (before netem)."""
+    return f"{ROOT}/{run_id}/agent/{i}/state"
+
+
+def agent_report(run_id: str, i: int | str) -> str:
+    """Agent ``i``'s token report to the leader (before netem)."""
+    return f"{ROOT}/{run_id}/agent/{i}/report"
+
+
+def leader_estimate_out(run_id: str) -> str:
+    """The leader's estimate message (before netem fans it out per agent)."""
+    return f"{ROOT}/{run_id}/leader/estimate"
+
+
+# -- what netem delivers ------------------------------------------------------------------------
+def link_state(run_id: str, i: int | str, j: int | str) -> str:
+    """Coordination packets delivered on formation link ``i → j``."""
+    return f"{ROOT}/{run_id}/link/{i}/{j}/state"
+
+
+def link_report(run_id: str, i: int | str) -> str:
+    """Agent ``i``'s report delivered to the leader (control link ``i → 0``)."""
+    return f"{ROOT}/{run_id}/leader/report/{i}"
+
+
+def link_estimate(run_id: str, i: int | str) -> str:
+    """The leader's estimate delivered to agent ``i`` (control link ``0 → i``)."""
+    return f"{ROOT}/{run_id}/link/{LEADER}/{i}/estimate"
+
+
+def close(run_id: str, receiver: int | str, phase: str) -> str:
+    """Epoch-close marker for ``receiver`` (0 = leader) after ``phase`` (state, report, estimate)."""
+    return f"{ROOT}/{run_id}/close/{receiver}/{phase}"
+
+
+# -- netem, clock, metrics, liveliness ---------------------------------------------------------
+def netem_decision(run_id: str) -> str:
+    return f"{ROOT}/{run_id}/netem/decision"
+
+
+def netem_config(run_id: str) -> str:
+    return f"{ROOT}/{run_id}/netem/config"
+
+
+def netem_change(run_id: str) -> str:
+    """Every accepted run-time change of a link model, as a record."""
+    return f"{ROOT}/{run_id}/netem/change"
+
+
+def control(run_id: str) -> str:
+    """Run control from the launcher: start, stop."""
+    return f"{ROOT}/{run_id}/control"
+
+
+def status(run_id: str, role: str, ident: int | str) -> str:
+    """Progress and counters a process publishes (epoch done, malformed payloads)."""
+    return f"{ROOT}/{run_id}/status/{role}/{ident}"
+
+
+def metrics(run_id: str) -> str:
+    return f"{ROOT}/{run_id}/metrics"
+
+
+def alive(run_id: str, role: str, ident: int | str) -> str:
+    """Liveliness token of a process: role is agent, leader, netem, recorder or pool."""
+    return f"{ROOT}/{run_id}/alive/{role}/{ident}"
+
+
+def alive_all(run_id: str) -> str:
+    return f"{ROOT}/{run_id}/alive/**"
+
+
+def parse_alive(key: str) -> tuple[str, str]:
+    """``(role, ident)`` of a liveliness key."""
+    parts = key.split("/")
+    return parts[-2], parts[-1]
+
+
+def scene(run_id: str) -> str:
+    """Foxglove 3D scene written by the recorder."""
+    return f"{ROOT}/{run_id}/viz/scene"
+
+
+def start(run_id: str) -> str:
+    """Liveliness token netem declares once every process is up: epoch 0 may begin."""
+    return f"{ROOT}/{run_id}/alive/clock/start"
+
+
+def flush(run_id: str) -> str:
+    """Queryable of the recorder: answers with its message counts per key (a flush barrier)."""
+    return f"{ROOT}/{run_id}/recorder/counts"

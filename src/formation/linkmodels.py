@@ -1,0 +1,144 @@
+"""Link models as the scenario names them: the vocabulary netem implements (netem/models.py).
+
+Each model is a small frozen pydantic model tagged by ``model``; a link carries a
+stack of them (e.g. an outage on top of Bernoulli loss), applied in order. Names
+follow Linux ``tc netem`` where it has one (see ``man tc-netem``).
+Epoch-valued fields are used in lockstep mode, millisecond fields in realtime.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+Probability = Annotated[float, Field(ge=0.0, le=1.0)]
+
+
+class _Spec(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
+
+
+class Up(_Spec):
+    """Always delivers."""
+
+    model: Literal["up"] = "up"
+
+
+class Down(_Spec):
+    """Never delivers."""
+
+    model: Literal["down"] = "down"
+
+
+class Bernoulli(_Spec):
+    """Independent loss with probability ``p_loss`` (tc: ``loss random P [CORR]``).
+
+    ``correlation`` follows tc netem's old correlated-random reading: the uniform
+    used at packet k is ``corr * u[k-1] + (1 - corr) * fresh``.
+    """
+
+    model: Literal["bernoulli"] = "bernoulli"
+    p_loss: Probability
+    correlation: Probability = 0.0
+
+
+class GilbertElliott(_Spec):
+    """Two-state Markov loss (tc: ``loss gemodel p [r [1-h [1-k]]]``).
+
+    ``p`` = P(good → bad), ``r`` = P(bad → good), ``1-h`` = loss probability in
+    the bad state, ``1-k`` = loss probability in the good state.
+    """
+
+    model: Literal["gilbert_elliott"] = "gilbert_elliott"
+    p: Probability
+    r: Probability = 1.0
+    one_minus_h: Probability = Field(1.0, alias="1-h")
+    one_minus_k: Probability = Field(0.0, alias="1-k")
+
+
+class Markov4(_Spec):
+    """tc netem's four-state loss model (``loss state p13 [p31 [p32 [p23 [p14]]]]``).
+
+    States: 1 good reception, 2 good-burst loss, 3 burst reception, 4 isolated loss.
+    """
+
+    model: Literal["markov4"] = "markov4"
+    p13: Probability
+    p31: Probability = 1.0
+    p32: Probability = 0.0
+    p23: Probability = 1.0
+    p14: Probability = 0.0
+
+
+class Outage(_Spec):
+    """Link down from ``start`` (inclusive) to ``end`` (exclusive; None = forever).
+
+    With ``every``, the window repeats each ``every`` epochs. ``start_s``/``end_s``
+    give the same window in seconds for realtime mode.
+    """
+
+    model: Literal["outage"] = "outage"
+    start: int = Field(0, ge=0)
+    end: int | None = Field(None, ge=0)
+    every: int | None = Field(None, gt=0)
+    start_s: float | None = Field(None, ge=0.0)
+    end_s: float | None = Field(None, ge=0.0)
+
+    @model_validator(mode="after")
+    def _window(self) -> Outage:
+        if self.end is not None and self.end <= self.start:
+            raise ValueError(f"end = {self.end} must be greater than start = {self.start}")
+        if self.every is not None and self.end is not None and self.end - self.start > self.every:
+            raise ValueError(f"window {self.start}..{self.end} is longer than every = {self.every}")
+        return self
+
+
+class Delay(_Spec):
+    """Delay with jitter (tc: ``delay TIME [JITTER [CORR]] distribution DIST``).
+
+    Lockstep delays are whole epochs (``epochs`` ± ``jitter_epochs``); realtime
+    delays are milliseconds (``ms`` ± ``jitter_ms``).
+    """
+
+    model: Literal["delay"] = "delay"
+    epochs: int = Field(0, ge=0)
+    jitter_epochs: int = Field(0, ge=0)
+    ms: float = Field(0.0, ge=0.0)
+    jitter_ms: float = Field(0.0, ge=0.0)
+    distribution: Literal["uniform", "normal", "pareto", "paretonormal"] = "uniform"
+    correlation: Probability = 0.0
+
+
+class Duplicate(_Spec):
+    """Deliver an extra copy with probability ``p`` (tc: ``duplicate P``)."""
+
+    model: Literal["duplicate"] = "duplicate"
+    p: Probability
+
+
+class Reorder(_Spec):
+    """With probability ``p`` a packet skips the delay of the stack (tc: ``reorder P gap N``)."""
+
+    model: Literal["reorder"] = "reorder"
+    p: Probability
+    gap: int = Field(1, ge=1)
+
+
+LinkModelSpec = Annotated[
+    Up | Down | Bernoulli | GilbertElliott | Markov4 | Outage | Delay | Duplicate | Reorder,
+    Field(discriminator="model"),
+]
+
+__all__ = [
+    "Bernoulli",
+    "Delay",
+    "Down",
+    "Duplicate",
+    "GilbertElliott",
+    "LinkModelSpec",
+    "Markov4",
+    "Outage",
+    "Reorder",
+    "Up",
+]

@@ -1,0 +1,188 @@
+"""Wire messages: pydantic v2 models sent as JSON (ARCHITECTURE.md "Wire").
+
+Every message carries ``run_id``, ``sender``, ``seq`` (per publisher), ``epoch``
+and ``stamp_ns`` (the sender's monotonic clock) and a ``kind`` tag. Positions
+are lists of floats; JSON floats round-trip exactly, so a distributed run and
+the in-process simulator compute on the same numbers.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class _Message(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    run_id: str
+    sender: str  # "agent/3", "leader", "netem", ...
+    seq: int = Field(ge=0)
+    epoch: int = Field(ge=-1)
+    stamp_ns: int = Field(ge=0)
+
+
+class CoordinationState(_Message):
+    """Agent ``i``'s coordination variable ``x_i[k]`` (true position in the testbed) [m]."""
+
+    kind: Literal["state"] = "state"
+    agent: int
+    position: list[float]
+    velocity: list[float] | None = None
+
+
+class Measurement(BaseModel):
+    """One neighbour in a token report: token 1/0 and the measurement ``z_ij`` if it arrived."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    neighbour: int
+    token: Literal[0, 1]
+    z: list[float] | None = None
+
+
+class TokenReport(_Message):
+    """Agent ``i``'s tokens and relative measurements of epoch ``k`` to the leader (MODEL.md §4)."""
+
+    kind: Literal["report"] = "report"
+    agent: int
+    measurements: list[Measurement]
+
+
+class LeaderEstimate(_Message):
+    """The leader's epoch-``k`` output (MODEL.md §4–§5): BLUE, tree, rigidity, reference velocity.
+
+    ``positions[i − 1]`` is agent ``i``'s estimate (None if unobservable);
+    ``covariances[i − 1]`` its d×d block. ``tree`` and ``healthy`` list edges as id pairs.
+    """
+
+    kind: Literal["estimate"] = "estimate"
+    positions: list[list[float] | None]
+    covariances: list[list[list[float]] | None]
+    observable: list[bool]
+    tree: list[tuple[int, int]]
+    healthy: list[tuple[int, int]]
+    components: int
+    rigidity_rank: int
+    rigid: bool
+    x_ref: list[float]
+    v_ref: list[float]
+    reports_received: int
+
+
+class Delivered(BaseModel):
+    """A packet delivered to a receiver within an epoch (``sent_epoch < epoch`` when delayed)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    source: int
+    seq: int
+    sent_epoch: int
+    copies: int = 1
+
+
+class EpochClose(_Message):
+    """netem to a receiver: everything of ``phase`` for ``epoch`` has been handled.
+
+    ``delivered`` lists what was forwarded (wait for exactly these); ``lost`` the
+    sources whose packet was dropped or delayed past this epoch; ``dead`` the
+    sources no longer alive (their packets count as lost).
+    """
+
+    kind: Literal["close"] = "close"
+    receiver: int
+    phase: Literal["state", "report", "estimate"]
+    delivered: list[Delivered]
+    lost: list[int]
+    dead: list[int] = []
+
+
+class Decision(BaseModel):
+    """One netem verdict on one packet (ARCHITECTURE.md: every decision recorded)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    source: int
+    target: int
+    link_class: Literal["formation", "report", "estimate"]
+    epoch: int
+    seq: int
+    verdict: Literal["pass", "drop", "duplicate", "delayed"]
+    delay_epochs: int = 0
+    delay_ms: float = 0.0
+    model: str = ""
+    state: str = ""
+
+
+class DecisionBatch(_Message):
+    """The decisions netem took in one phase of one epoch."""
+
+    kind: Literal["decisions"] = "decisions"
+    phase: Literal["state", "report", "estimate"]
+    decisions: list[Decision]
+
+
+class LinkChange(_Message):
+    """A run-time change of a link's model stack, accepted by netem (recorded)."""
+
+    kind: Literal["link_change"] = "link_change"
+    source: int
+    target: int
+    link_class: Literal["formation", "report", "estimate"]
+    models: list[dict[str, object]]
+    from_epoch: int
+
+
+class Status(_Message):
+    """A process's progress and counters (epochs done, malformed payloads per key)."""
+
+    kind: Literal["status"] = "status"
+    role: str
+    state: Literal["ready", "running", "done", "error"]
+    epochs_done: int = 0
+    malformed: dict[str, int] = {}
+    sent: dict[str, int] = {}
+    detail: str = ""
+
+
+class Control(_Message):
+    """Launcher to every process: ``start`` (epoch 0 may begin) or ``stop``."""
+
+    kind: Literal["control"] = "control"
+    command: Literal["start", "stop"]
+
+
+class EpochMetrics(_Message):
+    """Per-epoch metrics from the true states (MODEL.md §7), written by the recorder."""
+
+    kind: Literal["metrics"] = "metrics"
+    formation_error_m: float
+    shape_error_m: float
+    positions: list[list[float]]
+
+
+Message = Annotated[
+    CoordinationState
+    | TokenReport
+    | LeaderEstimate
+    | EpochClose
+    | DecisionBatch
+    | LinkChange
+    | Status
+    | Control
+    | EpochMetrics,
+    Field(discriminator="kind"),
+]
+
+ALL_MODELS: tuple[type[BaseModel], ...] = (
+    CoordinationState,
+    TokenReport,
+    LeaderEstimate,
+    EpochClose,
+    DecisionBatch,
+    LinkChange,
+    Status,
+    Control,
+    EpochMetrics,
+)

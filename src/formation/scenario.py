@@ -1,0 +1,481 @@
+"""The scenario file (TOML) as one frozen pydantic model, loaded once and passed down.
+
+``Scenario.from_file(path)`` reads and validates a file; every problem becomes a
+:class:`~formation.errors.ScenarioError` naming the file, the field path and the
+value. The model follows MODEL.md: §1 team and shape, §3 control, §4 edge rule,
+§5 estimator, §6 strategy, §8 the default experiment (``scenarios/paper.toml``).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Sequence
+from functools import cached_property
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+import numpy.typing as npt
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from formation.errors import NO_VALUE, ScenarioError
+from formation.graph import expected_rigidity_rank, is_connected, max_degree, rigidity_rank
+from formation.keyed_random import Stream, keyed_normal
+from formation.linkmodels import LinkModelSpec
+
+StrategyName = Literal["zero", "hold", "estimate", "blend", "drop"]
+STRATEGIES: tuple[StrategyName, ...] = ("zero", "hold", "estimate", "blend", "drop")
+LEADER_ENDPOINT = 0  # the leader's end of a control link, in netem's link ids
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Agent(_Model):
+    """One agent: its id and its offset ``d0`` in the shape [m]."""
+
+    id: int = Field(ge=1)
+    offset: tuple[float, ...]
+    initial: tuple[float, ...] | None = None  # overrides the random initial position
+
+
+class Edge(_Model):
+    """An undirected formation edge; ``weight`` defaults to the shape's distance ``C_ij``."""
+
+    between: tuple[int, int]
+    weight: float | None = Field(None, gt=0.0)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _from_pair(cls, data: Any) -> Any:
+        if isinstance(data, list | tuple):
+            return {"between": data}
+        return data
+
+    @field_validator("between")
+    @classmethod
+    def _distinct(cls, v: tuple[int, int]) -> tuple[int, int]:
+        if v[0] == v[1]:
+            raise ValueError(f"an edge joins two different agents, got {list(v)}")
+        return v
+
+
+class Initial(_Model):
+    """Initial positions: the shape plus N(0, spread_m²) per coordinate, keyed by the seed."""
+
+    spread_m: float = Field(0.3, ge=0.0)
+
+
+class Control(_Model):
+    """The formation controller (MODEL.md §3); ``epsilon = gain * period_s``."""
+
+    controller: Literal["displacement", "distance"] = "displacement"
+    dynamics: Literal["single", "double"] = "single"
+    gain: float = Field(0.25, gt=0.0)  # k [1/s]
+    period_s: float = Field(1.0, gt=0.0)  # T [s]
+    damping: float = Field(1.0, gt=0.0)  # c [1/s], double integrator only
+
+    @property
+    def epsilon(self) -> float:
+        return self.gain * self.period_s
+
+
+class StaticReference(_Model):
+    kind: Literal["static"] = "static"
+
+
+class LineReference(_Model):
+    kind: Literal["line"] = "line"
+    velocity: tuple[float, ...]  # [m/s]
+
+
+class CircleReference(_Model):
+    kind: Literal["circle"] = "circle"
+    radius_m: float = Field(gt=0.0)
+    angular_velocity: float  # [rad/s], in the x-y plane
+
+
+class WaypointReference(_Model):
+    kind: Literal["waypoints"] = "waypoints"
+    points: tuple[tuple[float, ...], ...] = Field(min_length=1)  # leader positions [m]
+    speed_m_s: float = Field(gt=0.0)
+    loop: bool = False
+
+
+Reference = Annotated[
+    StaticReference | LineReference | CircleReference | WaypointReference,
+    Field(discriminator="kind"),
+]
+
+
+class Noise(_Model):
+    """Relative measurement noise ``P_ij``: ``sigma_m² I`` unless a full ``covariance`` is given."""
+
+    sigma_m: float = Field(0.01, ge=0.0)
+    covariance: tuple[tuple[float, ...], ...] | None = None
+
+
+class Strategy(_Model):
+    """Loss strategy of MODEL.md §6 and the blend factor α."""
+
+    name: StrategyName = "estimate"
+    alpha: float = Field(0.5, gt=0.0, le=1.0)
+
+
+class Estimator(_Model):
+    """Which edges the BLUE uses (§5) and when an edge counts as healthy (§4)."""
+
+    edges: Literal["tree", "healthy"] = "tree"
+    edge_rule: Literal["either", "both"] = "either"
+
+
+class FormationLink(_Model):
+    """Models on a formation link; ``forward`` is ``between[0] → between[1]``."""
+
+    between: tuple[int, int]
+    direction: Literal["both", "forward", "backward"] = "both"
+    models: tuple[LinkModelSpec, ...] = ()
+
+
+class ControlLink(_Model):
+    """Models on an agent's control links: ``report`` (agent → leader), ``estimate`` (back)."""
+
+    agent: int
+    direction: Literal["both", "report", "estimate"] = "both"
+    models: tuple[LinkModelSpec, ...] = ()
+
+
+class Network(_Model):
+    formation_default: tuple[LinkModelSpec, ...] = ()
+    control_default: tuple[LinkModelSpec, ...] = ()
+    links: tuple[FormationLink, ...] = ()
+    control: tuple[ControlLink, ...] = ()
+
+
+class Runtime(_Model):
+    mode: Literal["lockstep", "realtime"] = "lockstep"
+    realtime_period_s: float | None = Field(None, gt=0.0)  # wall-clock period; default period_s
+
+
+class Recording(_Model):
+    compression: Literal["zstd", "lz4", "none"] = "zstd"
+
+
+class Scenario(_Model):
+    """A whole scenario. Agents are ids ``1..n``; row ``i − 1`` of every array is agent ``i``."""
+
+    name: str = "unnamed"
+    description: str = ""
+    seed: int = Field(0, ge=0)
+    epochs: int = Field(50, ge=1)
+    dimension: Literal[2, 3] = 2
+    leader: int = 1
+    allow_flexible: bool = False
+    agents: tuple[Agent, ...] = Field(min_length=1)
+    edges: tuple[Edge, ...] = ()
+    initial: Initial = Initial()
+    control: Control = Control()
+    reference: Reference = StaticReference()
+    noise: Noise = Noise()
+    strategy: Strategy = Strategy()
+    estimator: Estimator = Estimator()
+    network: Network = Network()
+    runtime: Runtime = Runtime()
+    recording: Recording = Recording()
+
+    # -- checks that need the whole scenario ------------------------------------------------
+    @model_validator(mode="after")
+    def _check(self) -> Scenario:
+        for problem in _problems(self):
+            raise _Problem(*problem)
+        return self
+
+    # -- derived arrays (computed once; the model is frozen) --------------------------------
+    @property
+    def n(self) -> int:
+        return len(self.agents)
+
+    @cached_property
+    def offsets(self) -> npt.NDArray[np.float64]:
+        """Shape offsets ``d0``: (n, d) array [m]."""
+        return np.array([a.offset for a in self.agents], dtype=float)
+
+    @cached_property
+    def edge_array(self) -> npt.NDArray[np.int64]:
+        """Formation edges as an (m, 2) array of agent ids, smaller id first."""
+        return np.array([sorted(e.between) for e in self.edges], dtype=np.int64).reshape(-1, 2)
+
+    @cached_property
+    def weights(self) -> npt.NDArray[np.float64]:
+        """Edge weights ``w_ij`` (the desired distances ``C_ij`` unless given): (m,) [m]."""
+        d0 = self.offsets
+        out = []
+        for e, (i, j) in zip(self.edges, self.edge_array, strict=True):
+            out.append(e.weight if e.weight is not None else float(np.linalg.norm(d0[i - 1] - d0[j - 1])))
+        return np.array(out, dtype=float)
+
+    @cached_property
+    def noise_covariance(self) -> npt.NDArray[np.float64]:
+        """``P_ij`` for every edge and epoch: (d, d) [m²]."""
+        if self.noise.covariance is not None:
+            return np.array(self.noise.covariance, dtype=float)
+        return self.noise.sigma_m**2 * np.eye(self.dimension)
+
+    def initial_positions(self, seed: int | None = None) -> npt.NDArray[np.float64]:
+        """``x[0]``: shape + N(0, spread²) keyed by ``(seed, INITIAL, i, coord)``; the leader on its reference."""
+        seed = self.seed if seed is None else seed
+        ids = np.arange(1, self.n + 1)[:, None]
+        coords = np.arange(self.dimension)[None, :]
+        x0 = self.offsets + self.initial.spread_m * keyed_normal(seed, Stream.INITIAL, ids, coords)
+        for a in self.agents:
+            if a.initial is not None:
+                x0[a.id - 1] = a.initial
+        x0[self.leader - 1] = self.offsets[self.leader - 1]
+        return x0
+
+    def formation_link_models(self, src: int, dst: int) -> tuple[LinkModelSpec, ...]:
+        """The model stack on formation link ``src → dst``.
+
+        Entries of ``network.links`` naming the link replace the default stack; several
+        entries naming the same direction stack in file order.
+        """
+        stack: list[LinkModelSpec] = []
+        named = False
+        for link in self.network.links:
+            a, b = link.between
+            forward = (a, b) == (src, dst)
+            backward = (b, a) == (src, dst)
+            if (forward and link.direction in ("both", "forward")) or (
+                backward and link.direction in ("both", "backward")
+            ):
+                stack.extend(link.models)
+                named = True
+        return tuple(stack) if named else self.network.formation_default
+
+    def control_link_models(self, agent: int, direction: Literal["report", "estimate"]) -> tuple[LinkModelSpec, ...]:
+        """The model stack on agent ``agent``'s control link (``report``: to the leader; ``estimate``: back)."""
+        stack: list[LinkModelSpec] = []
+        named = False
+        for link in self.network.control:
+            if link.agent == agent and link.direction in ("both", direction):
+                stack.extend(link.models)
+                named = True
+        return tuple(stack) if named else self.network.control_default
+
+    @cached_property
+    def directed_links(self) -> npt.NDArray[np.int64]:
+        """Formation links as (L, 2) ``(src, dst)``: for edge ``e`` row ``2e`` is ``i → j``, ``2e + 1`` is ``j → i``."""
+        e = self.edge_array
+        return np.stack([e, e[:, ::-1]], axis=1).reshape(-1, 2)
+
+    def with_overrides(self, **changes: Any) -> Scenario:
+        """A validated copy with top-level fields replaced (e.g. ``seed``, ``epochs``, ``strategy``)."""
+        data = self.model_dump(by_alias=True)
+        for key, value in changes.items():
+            data[key] = value.model_dump(by_alias=True) if isinstance(value, BaseModel) else value
+        return load_dict(data, source=f"{self.name} (overridden)")
+
+    def with_strategy(self, name: StrategyName) -> Scenario:
+        return self.with_overrides(strategy=Strategy(name=name, alpha=self.strategy.alpha))
+
+    def to_toml(self) -> str:
+        """The resolved scenario as TOML, stored with every run."""
+        return _to_toml(self.model_dump(by_alias=True, exclude_none=True))
+
+    @classmethod
+    def from_file(cls, path: str | Path) -> Scenario:
+        return load(path)
+
+
+class _Problem(ValueError):
+    """A whole-scenario problem, carried through pydantic to :func:`load_dict`."""
+
+    def __init__(self, field: str, value: object, problem: str) -> None:
+        self.field, self.value, self.problem = field, value, problem
+        super().__init__(f"{field} = {value!r}; {problem}")
+
+
+def _problems(s: Scenario) -> list[tuple[str, object, str]]:
+    d, n = s.dimension, len(s.agents)
+    ids = [a.id for a in s.agents]
+    if sorted(ids) != list(range(1, n + 1)):
+        return [("agents", ids, f"agent ids must be 1..{n} without gaps or repeats")]
+    if ids != sorted(ids):
+        return [("agents", ids, "list the agents in id order")]
+    by_id = {a.id: k for k, a in enumerate(s.agents)}
+    for k, a in enumerate(s.agents):
+        if len(a.offset) != d:
+            return [(f"agents[{k}].offset", list(a.offset), f"expected {d} coordinates")]
+        if a.initial is not None and len(a.initial) != d:
+            return [(f"agents[{k}].initial", list(a.initial), f"expected {d} coordinates")]
+    if s.leader not in by_id:
+        return [("leader", s.leader, f"no agent has this id (agents are 1..{n})")]
+    seen: set[tuple[int, int]] = set()
+    for k, e in enumerate(s.edges):
+        for i in e.between:
+            if i not in by_id:
+                return [(f"edges[{k}].between", list(e.between), f"agent {i} does not exist (agents are 1..{n})")]
+        key = (min(e.between), max(e.between))
+        if key in seen:
+            return [(f"edges[{k}].between", list(e.between), "edge listed twice")]
+        seen.add(key)
+    d0 = np.array([a.offset for a in s.agents], dtype=float)
+    pairs = np.array([sorted(e.between) for e in s.edges], dtype=np.int64).reshape(-1, 2)
+    for k, (i, j) in enumerate(pairs):
+        if np.linalg.norm(d0[i - 1] - d0[j - 1]) == 0.0:
+            return [(f"edges[{k}].between", [int(i), int(j)], "the two agents have the same offset")]
+    if n > 1 and not is_connected(n, pairs):
+        return [("edges", [list(map(int, p)) for p in pairs], "the formation graph is not connected")]
+    if n > 1 and not s.allow_flexible:
+        rank, need = rigidity_rank(d0, pairs), expected_rigidity_rank(n, d)
+        if rank < need:
+            return [
+                (
+                    "edges",
+                    f"{len(pairs)} edges",
+                    f"the shape is not rigid (rigidity rank {rank}, need {need}); "
+                    "add edges or set allow_flexible = true",
+                )
+            ]
+    delta = max_degree(n, pairs) if n > 1 else 0
+    eps = s.control.epsilon
+    if delta > 0 and eps >= 1.0 / delta:
+        return [
+            (
+                "control.gain",
+                s.control.gain,
+                f"epsilon = gain * period_s = {eps:g} must be < 1/max_degree = 1/{delta} = {1.0 / delta:g}",
+            )
+        ]
+    ref = s.reference
+    if isinstance(ref, LineReference) and len(ref.velocity) != d:
+        return [("reference.velocity", list(ref.velocity), f"expected {d} coordinates")]
+    if isinstance(ref, WaypointReference):
+        for k, p in enumerate(ref.points):
+            if len(p) != d:
+                return [(f"reference.points[{k}]", list(p), f"expected {d} coordinates")]
+    if s.noise.covariance is not None:
+        cov = np.array(s.noise.covariance, dtype=float)
+        if cov.shape != (d, d):
+            return [("noise.covariance", s.noise.covariance, f"expected a {d}x{d} matrix")]
+        if not np.allclose(cov, cov.T) or np.min(np.linalg.eigvalsh(cov)) <= 0.0:
+            return [("noise.covariance", s.noise.covariance, "expected a symmetric positive definite matrix")]
+    edge_set = {(int(i), int(j)) for i, j in pairs}
+    for k, link in enumerate(s.network.links):
+        key = (min(link.between), max(link.between))
+        if key not in edge_set:
+            return [(f"network.links[{k}].between", list(link.between), "not an edge of the formation graph")]
+    for k, c in enumerate(s.network.control):
+        if c.agent not in by_id:
+            return [(f"network.control[{k}].agent", c.agent, f"agent does not exist (agents are 1..{n})")]
+    return []
+
+
+def _loc_path(loc: Sequence[int | str]) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        elif part in _UNION_TAGS:
+            continue  # pydantic names the union member; the user wrote only the field
+        else:
+            out += f".{part}" if out else str(part)
+    return out
+
+
+_UNION_TAGS = {
+    "static", "line", "circle", "waypoints",
+    "up", "down", "bernoulli", "gilbert_elliott", "markov4", "outage", "delay", "duplicate", "reorder",
+    "function-after[_from_pair(), Edge]", "function-before[_from_pair(), Edge]",
+}  # fmt: skip
+
+
+def _lookup(data: Any, loc: Sequence[int | str]) -> object:
+    cur = data
+    for part in loc:
+        if isinstance(cur, dict) and part in cur:
+            cur = cur[part]
+        elif isinstance(cur, list | tuple) and isinstance(part, int) and part < len(cur):
+            cur = cur[part]
+        elif isinstance(part, str) and part in _UNION_TAGS:
+            continue
+        else:
+            return NO_VALUE
+    return cur
+
+
+def load_dict(data: dict[str, Any], source: str = "<scenario>") -> Scenario:
+    """Validate a scenario given as a dict; errors name ``source``, the field path and the value."""
+    try:
+        return Scenario.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        ctx = err.get("ctx") or {}
+        inner = ctx.get("error")
+        if isinstance(inner, _Problem):
+            raise ScenarioError(source, inner.field, inner.value, inner.problem) from None
+        loc = err["loc"]
+        value = err.get("input", NO_VALUE) if err["type"] != "missing" else NO_VALUE
+        if err["type"] == "extra_forbidden":
+            problem = "unknown field"
+        elif err["type"] == "missing":
+            problem = "required field is missing"
+        else:
+            problem = err["msg"].removeprefix("Value error, ")
+        if value is NO_VALUE and err["type"] != "missing":
+            value = _lookup(data, loc)
+        raise ScenarioError(source, _loc_path(loc), value, problem) from None
+
+
+def load(path: str | Path) -> Scenario:
+    """Read a scenario TOML file."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ScenarioError(str(path), "", NO_VALUE, f"cannot read the file ({exc.strerror})") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(str(path), "", NO_VALUE, f"TOML syntax error: {exc}") from None
+    return load_dict(data, source=str(path))
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return repr(v) if math.isfinite(v) else ("nan" if math.isnan(v) else ("inf" if v > 0 else "-inf"))
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{_toml_key(k)} = {_toml_value(x)}" for k, x in v.items()) + " }"
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} as TOML")
+
+
+def _toml_key(k: str) -> str:
+    return k if k.replace("_", "").isalnum() else f'"{k}"'
+
+
+def _to_toml(data: dict[str, Any]) -> str:
+    """A small TOML writer for the resolved scenario: scalars first, then tables, then arrays of tables."""
+    lines: list[str] = []
+    tables = {k: v for k, v in data.items() if isinstance(v, dict)}
+    arrays = {k: v for k, v in data.items() if isinstance(v, list | tuple) and v and all(isinstance(x, dict) for x in v)}
+    for k, v in data.items():
+        if k not in tables and k not in arrays:
+            lines.append(f"{_toml_key(k)} = {_toml_value(v)}")
+    for k, v in tables.items():
+        lines += ["", f"[{k}]"]
+        for kk, vv in v.items():
+            lines.append(f"{_toml_key(kk)} = {_toml_value(vv)}")
+    for k, v in arrays.items():
+        for item in v:
+            lines += ["", f"[[{k}]]"] + [f"{_toml_key(kk)} = {_toml_value(vv)}" for kk, vv in item.items()]
+    return "\n".join(lines) + "\n"

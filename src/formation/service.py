@@ -1,0 +1,166 @@
+"""The shell every service shares: a Zenoh session, liveliness, the start barrier, signals.
+
+Incoming samples go into one queue that the service's main thread drains, so
+node logic runs single-threaded and in arrival order.
+"""
+
+from __future__ import annotations
+
+import queue
+import signal
+import sys
+import threading
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import zenoh
+from pydantic import BaseModel
+
+from formation import keys
+from formation.codec import Malformed, encode, now_ns
+from formation.messages import Status
+from formation.zenoh_config import session_config
+
+
+@dataclass(frozen=True)
+class Incoming:
+    key: str
+    payload: bytes
+    attachment: bytes | None
+
+
+class Service:
+    """A Zenoh-connected process of role ``role`` and id ``ident`` in run ``run_id``."""
+
+    def __init__(self, run_id: str, role: str, ident: int | str, args: Any) -> None:
+        self.run_id, self.role, self.ident = run_id, role, ident
+        self.name = f"{role}/{ident}" if role in ("agent", "pool") else role
+        self.session = zenoh.open(session_config(args.mode, args.connect, args.listen))
+        self.inbox: queue.SimpleQueue[Incoming] = queue.SimpleQueue()
+        self.stopping = threading.Event()
+        self.malformed = Malformed()
+        self.sent: Counter[str] = Counter()
+        self._seq: Counter[str] = Counter()
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._keep: list[Any] = []
+        self._alive: set[str] = set()
+        self._alive_lock = threading.Lock()
+        self._started = threading.Event()
+        self._signals = 0
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, self._on_signal)
+
+    # -- signals ------------------------------------------------------------------------------
+    def _on_signal(self, signum: int, frame: Any) -> None:
+        self._signals += 1
+        self.stopping.set()
+        if self._signals > 1:
+            sys.exit(128 + signum)
+
+    # -- publishing ---------------------------------------------------------------------------
+    def next_seq(self, key: str) -> int:
+        seq = self._seq[key]
+        self._seq[key] += 1
+        return seq
+
+    def put(self, key: str, payload: bytes, attachment: bytes | None = None) -> None:
+        pub = self._publishers.get(key)
+        if pub is None:
+            pub = self.session.declare_publisher(
+                key, congestion_control=zenoh.CongestionControl.BLOCK, express=True
+            )
+            self._publishers[key] = pub
+        pub.put(payload, attachment=attachment)
+        self.sent[key] += 1
+
+    def publish(self, key: str, message: BaseModel, attachment: bytes | None = None) -> None:
+        self.put(key, encode(message), attachment)
+
+    def header(self, key: str, epoch: int) -> dict[str, Any]:
+        """The common fields of a message about to be published on ``key``."""
+        return {"run_id": self.run_id, "sender": self.name, "seq": self.next_seq(key), "epoch": epoch, "stamp_ns": now_ns()}
+
+    def status(self, state: str, epochs_done: int = 0, detail: str = "") -> None:
+        key = keys.status(self.run_id, self.role, self.ident)
+        msg = Status(
+            **self.header(key, epochs_done - 1), role=self.role, state=state,  # type: ignore[arg-type]
+            epochs_done=epochs_done, malformed=dict(self.malformed.counts), sent=dict(self.sent), detail=detail,
+        )  # fmt: skip
+        self.publish(key, msg)
+
+    # -- subscribing --------------------------------------------------------------------------
+    def subscribe(self, key: str, callback: Callable[[zenoh.Sample], None] | None = None) -> None:
+        """Subscribe ``key``; samples go to ``callback`` or, by default, into :attr:`inbox`."""
+
+        def to_inbox(sample: zenoh.Sample) -> None:
+            att = sample.attachment
+            self.inbox.put(Incoming(str(sample.key_expr), sample.payload.to_bytes(), att.to_bytes() if att else None))
+
+        self._keep.append(self.session.declare_subscriber(key, callback or to_inbox))
+
+    def queryable(self, key: str, callback: Callable[[zenoh.Query], None]) -> None:
+        self._keep.append(self.session.declare_queryable(key, callback))
+
+    # -- liveliness ---------------------------------------------------------------------------
+    def announce(self) -> None:
+        """Declare this process alive (after its subscribers exist, so readiness means ready)."""
+        self._keep.append(self.session.liveliness().declare_token(keys.alive(self.run_id, self.role, self.ident)))
+
+    def watch_alive(self, on_change: Callable[[str, str, bool], None] | None = None) -> None:
+        """Track liveliness tokens of the run; ``on_change(role, ident, alive)`` is called on a Zenoh thread."""
+
+        def changed(sample: zenoh.Sample) -> None:
+            key = str(sample.key_expr)
+            alive = sample.kind == zenoh.SampleKind.PUT
+            with self._alive_lock:
+                (self._alive.add if alive else self._alive.discard)(key)
+            if key == keys.start(self.run_id) and alive:
+                self._started.set()
+            if on_change is not None:
+                role, ident = keys.parse_alive(key)
+                on_change(role, ident, alive)
+
+        self._keep.append(
+            self.session.liveliness().declare_subscriber(keys.alive_all(self.run_id), changed, history=True)
+        )
+
+    def is_alive(self, role: str, ident: int | str) -> bool:
+        with self._alive_lock:
+            return keys.alive(self.run_id, role, ident) in self._alive
+
+    def alive_keys(self) -> set[str]:
+        with self._alive_lock:
+            return set(self._alive)
+
+    def wait_started(self, timeout_s: float | None = None) -> bool:
+        """Block until netem declares the start token, or until stopped."""
+        deadline = None if timeout_s is None else now_ns() + int(timeout_s * 1e9)
+        while not self.stopping.is_set():
+            if self._started.wait(0.05):
+                return True
+            if deadline is not None and now_ns() > deadline:
+                return False
+        return False
+
+    def declare_start(self) -> None:
+        self._keep.append(self.session.liveliness().declare_token(keys.start(self.run_id)))
+
+    def next_incoming(self, timeout_s: float = 0.1) -> Incoming | None:
+        try:
+            return self.inbox.get(timeout=timeout_s)
+        except queue.Empty:
+            return None
+
+    def close(self) -> None:
+        for obj in reversed(self._keep):
+            try:
+                obj.undeclare()
+            except Exception:  # noqa: BLE001 - closing anyway
+                pass
+        self._keep.clear()
+        for pub in self._publishers.values():
+            pub.undeclare()
+        self._publishers.clear()
+        self.session.close()

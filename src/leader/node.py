@@ -1,0 +1,116 @@
+"""The leader process: each epoch, the reports that netem delivered → tree, BLUE, rigidity → estimate."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import numpy.typing as npt
+
+from formation import keys
+from formation.codec import attachment, read_attachment
+from formation.messages import EpochClose, LeaderEstimate, TokenReport
+from formation.reference import reference_positions, reference_velocities
+from formation.scenario import Scenario
+from formation.service import Incoming, Service
+from leader.epoch import LeaderEpoch, leader_epoch
+
+log = logging.getLogger("leader")
+
+
+def reports_to_measurements(
+    scenario: Scenario, reports: list[TokenReport]
+) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.float64]]:
+    """Reports → ``known`` (L,) and ``z`` (L, d) in the scenario's directed-link order."""
+    links = scenario.directed_links
+    index = {(int(a), int(b)): l for l, (a, b) in enumerate(links)}
+    known = np.zeros(len(links), dtype=bool)
+    z = np.zeros((len(links), scenario.dimension))
+    for report in reports:
+        for m in report.measurements:
+            l = index.get((m.neighbour, report.agent))
+            if l is not None and m.token == 1 and m.z is not None and len(m.z) == scenario.dimension:
+                known[l], z[l] = True, m.z
+    return known, z
+
+
+def estimate_message(head: dict[str, object], lead: LeaderEpoch, x_ref: list[float], v_ref: list[float],
+                     edges: npt.NDArray[np.int64], reports: int) -> LeaderEstimate:
+    res = lead.estimate
+    return LeaderEstimate(
+        **head,  # type: ignore[arg-type]
+        positions=[[float(v) for v in p] if ok else None for p, ok in zip(res.positions, res.observable, strict=True)],
+        covariances=[c.tolist() if ok else None for c, ok in zip(res.covariances, res.observable, strict=True)],
+        observable=[bool(o) for o in res.observable],
+        tree=[(int(a), int(b)) for a, b in edges[lead.tree]],
+        healthy=[(int(a), int(b)) for a, b in edges[lead.healthy]],
+        components=lead.components,
+        rigidity_rank=lead.rigidity_rank,
+        rigid=lead.rigid,
+        x_ref=x_ref,
+        v_ref=v_ref,
+        reports_received=reports,
+    )
+
+
+class LeaderNode:
+    def __init__(self, service: Service, scenario: Scenario) -> None:
+        self.service, self.scenario = service, scenario
+        self.run_id = service.run_id
+        period = scenario.control.period_s
+        self.ref_x = reference_positions(scenario.reference, scenario.offsets[scenario.leader - 1], period, scenario.epochs)
+        self.ref_v = reference_velocities(self.ref_x, period)
+        self.reports: dict[tuple[int, int], object] = {}  # (agent, seq) → TokenReport or None if malformed
+        self.closes: dict[int, EpochClose] = {}
+        self.epoch = 0
+        service.subscribe(f"{keys.prefix(self.run_id)}/leader/report/*")
+        service.subscribe(keys.close(self.run_id, keys.LEADER, "report"))
+        service.watch_alive()
+
+    def _route(self, msg: Incoming) -> None:
+        if "/close/" in msg.key:
+            close = self.service.malformed.decode(msg.key, msg.payload, EpochClose)
+            if close is not None:
+                self.closes[close.epoch] = close
+            return
+        report = self.service.malformed.decode(msg.key, msg.payload, TokenReport)
+        meta = read_attachment(msg.attachment)
+        if report is not None:
+            self.reports[(report.agent, report.seq)] = report
+        elif meta is not None:
+            self.reports[(meta[2], meta[1])] = None
+
+    def _try_epoch(self) -> bool:
+        k = self.epoch
+        close = self.closes.get(k)
+        if close is None or any((d.source, d.seq) not in self.reports for d in close.delivered):
+            return False
+        got = [self.reports.pop((d.source, d.seq)) for d in close.delivered]
+        reports = [r for r, d in zip(got, close.delivered, strict=True) if isinstance(r, TokenReport) and d.sent_epoch == k]
+        del self.closes[k]
+        known, z = reports_to_measurements(self.scenario, reports)
+        lead = leader_epoch(self.scenario, known, z, self.ref_x[k])
+        if not lead.estimate.observable.all():
+            log.info("epoch %d: %d agents unobservable from the reference", k, int((~lead.estimate.observable).sum()))
+        key = keys.leader_estimate_out(self.run_id)
+        head = self.service.header(key, k)
+        msg = estimate_message(head, lead, [float(v) for v in self.ref_x[k]], [float(v) for v in self.ref_v[k]],
+                               self.scenario.edge_array, len(reports))  # fmt: skip
+        self.service.publish(key, msg, attachment(k, int(head["seq"]), keys.LEADER))  # type: ignore[arg-type]
+        self.epoch = k + 1
+        return True
+
+    def run(self) -> int:
+        if not self.service.wait_started():
+            return 1
+        while self.epoch < self.scenario.epochs and not self.service.stopping.is_set():
+            msg = self.service.next_incoming(0.2)
+            if msg is None:
+                if not self.service.is_alive("netem", 0):
+                    log.error("netem is gone; stopping")
+                    return 2
+                continue
+            self._route(msg)
+            while self._try_epoch():
+                pass
+        return 0 if self.epoch >= self.scenario.epochs else 130

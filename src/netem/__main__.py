@@ -1,0 +1,47 @@
+"""``python -m netem --scenario F``: the dropping proxy every message crosses."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+from formation import zenoh_config
+from formation.errors import TestbedError
+from formation.scenario import Scenario
+from formation.service import Service
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m netem", description=__doc__)
+    p.add_argument("--scenario", required=True)
+    p.add_argument("--run-id", default="default")
+    p.add_argument("--seed", type=int)
+    p.add_argument("--epochs", type=int)
+    p.add_argument("--no-recorder", action="store_true", help="start without waiting for a recorder")
+    zenoh_config.add_arguments(p)
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
+    try:
+        scenario = Scenario.from_file(args.scenario)
+        if args.epochs is not None:
+            scenario = scenario.with_overrides(epochs=args.epochs)
+    except TestbedError as exc:
+        print(f"netem: error: {exc}", file=sys.stderr)
+        return 1
+    from netem.node import NetemNode
+
+    service = Service(args.run_id, "netem", 0, args)
+    try:
+        node = NetemNode(service, scenario, scenario.seed if args.seed is None else args.seed,
+                         wait_for_recorder=not args.no_recorder)  # fmt: skip
+        service.announce()
+        code = node.run()
+        service.status("done" if code == 0 else "error", node.estimates_done)
+        return code
+    finally:
+        service.close()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""The ``formation`` command, the process launcher, the in-process simulator and experiments."""

@@ -1,0 +1,290 @@
+"""``formation run``: a router, the recorder, netem, the leader and the agents as real processes.
+
+The launcher waits for every process's liveliness before epoch 0 (netem declares
+the start), follows the run over Zenoh (progress, drops, final states), ends
+every process by PID on exit, error or Ctrl-C, and leaves ``runs/<run_id>/``.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import zenoh
+
+from formation import keys
+from formation.codec import Malformed
+from formation.errors import RuntimeFailure
+from formation.messages import CoordinationState, DecisionBatch, LeaderEstimate, Status
+from formation.scenario import Scenario, StrategyName
+from formation.zenoh_config import session_config
+from recorder.metrics import formation_error, shape_error
+from testbed.processes import ProcessGroup, free_port, wait_for_port
+
+HOST = "127.0.0.1"
+
+
+@dataclass
+class RunOutcome:
+    """What a distributed run produced, as the launcher observed it over Zenoh."""
+
+    run_id: str
+    run_dir: Path
+    scenario: Scenario
+    strategy: str
+    seed: int
+    positions: npt.NDArray[np.float64]  # (E + 1, n, d) true states x[k] [m], NaN where never seen
+    estimates: dict[int, LeaderEstimate]
+    decisions: list[Any]
+    malformed: dict[str, int]
+    sent: dict[str, int]
+    pids: list[int]
+    wall_s: float
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def formation_error(self) -> npt.NDArray[np.float64]:
+        return formation_error(self.positions, self.scenario.edge_array, self.scenario.weights)
+
+    @property
+    def shape_error(self) -> npt.NDArray[np.float64]:
+        return shape_error(self.positions, self.scenario.edge_array, self.scenario.offsets)
+
+    def drops_per_link(self) -> dict[str, tuple[int, int]]:
+        """``"src->dst" → (sent, dropped)`` over every decision."""
+        sent: Counter[str] = Counter()
+        dropped: Counter[str] = Counter()
+        for d in self.decisions:
+            link = f"{d.source}->{d.target}"
+            sent[link] += 1
+            dropped[link] += d.verdict == "drop"
+        return {k: (sent[k], dropped[k]) for k in sorted(sent)}
+
+    def summary(self) -> dict[str, Any]:
+        drops = self.drops_per_link()
+        return {
+            "run_id": self.run_id,
+            "strategy": self.strategy,
+            "seed": self.seed,
+            "epochs": int(self.positions.shape[0] - 1),
+            "final_formation_error_m": float(self.formation_error[-1]),
+            "final_shape_error_m": float(self.shape_error[-1]),
+            "packets_sent": sum(s for s, _ in drops.values()),
+            "packets_dropped": sum(d for _, d in drops.values()),
+            "dropped_links": {k: v for k, v in drops.items() if v[1]},
+            "malformed": self.malformed,
+            "wall_s": self.wall_s,
+        }
+
+
+class _Observer:
+    """The launcher's own Zenoh view of the run: progress, drops, states, statuses."""
+
+    def __init__(self, session: zenoh.Session, run_id: str, scenario: Scenario) -> None:
+        self.lock = threading.Lock()
+        self.scenario = scenario
+        e, n, d = scenario.epochs, scenario.n, scenario.dimension
+        self.positions = np.full((e + 1, n, d), np.nan)
+        self.estimates: dict[int, LeaderEstimate] = {}
+        self.decisions: list[Any] = []
+        self.statuses: dict[str, Status] = {}
+        self.alive: set[str] = set()
+        self.malformed = Malformed()
+        self.drops = 0
+        self.run_id = run_id
+        p = keys.prefix(run_id)
+        self._subs = [
+            session.declare_subscriber(f"{p}/agent/*/state", self._on_state),
+            session.declare_subscriber(keys.leader_estimate_out(run_id), self._on_estimate),
+            session.declare_subscriber(keys.netem_decision(run_id), self._on_decisions),
+            session.declare_subscriber(f"{p}/status/**", self._on_status),
+            session.liveliness().declare_subscriber(keys.alive_all(run_id), self._on_alive, history=True),
+        ]
+
+    def _decode(self, sample: zenoh.Sample, model: Any) -> Any:
+        return self.malformed.decode(str(sample.key_expr), sample.payload.to_bytes(), model)
+
+    def _on_state(self, sample: zenoh.Sample) -> None:
+        msg = self._decode(sample, CoordinationState)
+        if msg is not None and 0 <= msg.epoch <= self.scenario.epochs and 1 <= msg.agent <= self.scenario.n:
+            with self.lock:
+                self.positions[msg.epoch, msg.agent - 1] = msg.position
+
+    def _on_estimate(self, sample: zenoh.Sample) -> None:
+        msg = self._decode(sample, LeaderEstimate)
+        if msg is not None:
+            with self.lock:
+                self.estimates[msg.epoch] = msg
+
+    def _on_decisions(self, sample: zenoh.Sample) -> None:
+        msg = self._decode(sample, DecisionBatch)
+        if msg is not None:
+            with self.lock:
+                self.decisions.extend(msg.decisions)
+                self.drops += sum(d.verdict == "drop" for d in msg.decisions)
+
+    def _on_status(self, sample: zenoh.Sample) -> None:
+        msg = self._decode(sample, Status)
+        if msg is not None:
+            with self.lock:
+                self.statuses[msg.sender] = msg
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        with self.lock:
+            (self.alive.add if sample.kind == zenoh.SampleKind.PUT else self.alive.discard)(key)
+
+    def is_alive(self, role: str, ident: int | str) -> bool:
+        with self.lock:
+            return keys.alive(self.run_id, role, ident) in self.alive
+
+    def close(self) -> None:
+        for s in self._subs:
+            s.undeclare()
+
+
+def make_run_id(scenario: Scenario, strategy: str, seed: int) -> str:
+    stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%S%f")
+    return f"{scenario.name}-{strategy}-s{seed}-{stamp}"
+
+
+def _pools(n: int, pool: int | None) -> list[list[int]]:
+    if not pool:
+        return [[i] for i in range(1, n + 1)]
+    return [list(map(int, ids)) for ids in np.array_split(np.arange(1, n + 1), min(pool, n)) if len(ids)]
+
+
+def launch(
+    scenario: Scenario,
+    strategy: StrategyName | None = None,
+    seed: int | None = None,
+    runs_dir: Path = Path("runs"),
+    pool: int | None = None,
+    record: bool = True,
+    startup_timeout_s: float = 60.0,
+    epoch_timeout_s: float = 30.0,
+    progress: Any = None,
+    run_id: str | None = None,
+) -> RunOutcome:
+    """Run ``scenario`` as real processes; returns what was observed. Every child ends by PID."""
+    strategy = strategy or scenario.strategy.name
+    seed = scenario.seed if seed is None else seed
+    scenario = scenario.with_overrides(seed=seed, strategy={"name": strategy, "alpha": scenario.strategy.alpha})
+    run_id = run_id or make_run_id(scenario, strategy, seed)
+    run_dir = runs_dir / run_id
+    run_dir.mkdir(parents=True, exist_ok=True)
+    scenario_path = run_dir / "scenario.toml"
+    scenario_path.write_text(scenario.to_toml())
+    group = ProcessGroup(run_dir / "logs")
+    port = free_port(HOST)
+    endpoint = f"tcp/{HOST}:{port}"
+    common = ["--run-id", run_id, "--mode", "client", "--connect", endpoint]
+    started = time.monotonic()
+    session = None
+    observer = None
+    try:
+        router = group.start("router", "testbed.router", "--listen", endpoint)
+        wait_for_port(HOST, port, 10.0)
+        session = zenoh.open(session_config("client", endpoint, None))
+        observer = _Observer(session, run_id, scenario)
+        if record:
+            group.start("recorder", "recorder", *common, "--out", str(run_dir), "--scenario", str(scenario_path))
+            _wait(lambda: observer.is_alive("recorder", 0), group, startup_timeout_s, "the recorder to come up")
+        netem_args = ["--scenario", str(scenario_path), *common] + ([] if record else ["--no-recorder"])
+        group.start("netem", "netem", *netem_args)
+        group.start("leader", "leader", "--scenario", str(scenario_path), *common)
+        for ids in _pools(scenario.n, pool):
+            name = f"agent-{ids[0]}" if len(ids) == 1 else f"pool-{ids[0]}-{ids[-1]}"
+            ident = str(ids[0]) if len(ids) == 1 else f"{ids[0]}-{ids[-1]}"
+            group.start(name, "agent", "--scenario", str(scenario_path), "--id", ident, *common)
+        _wait(lambda: observer.is_alive("clock", "start"), group, startup_timeout_s, "every process to come up")
+        services = [c for c in group.children if c.name not in ("router", "recorder")]
+        last_progress, last_count = time.monotonic(), -1
+        while any(c.proc.poll() is None for c in services):
+            failed = [c for c in services if c.proc.poll() not in (None, 0)]
+            if failed:
+                c = failed[0]
+                raise RuntimeFailure(f"{c.name} (pid {c.pid}) exited with code {c.proc.returncode}:\n{c.tail()}")
+            with observer.lock:
+                count, drops = len(observer.estimates), observer.drops
+            if progress is not None:
+                progress(count, scenario.epochs, drops)
+            if count != last_count:
+                last_progress, last_count = time.monotonic(), count
+            elif time.monotonic() - last_progress > epoch_timeout_s:
+                raise RuntimeFailure(f"no epoch finished for {epoch_timeout_s:g} s (stuck at epoch {count})")
+            time.sleep(0.02)
+        failed = [c for c in services if c.proc.returncode != 0]
+        if failed:
+            c = failed[0]
+            raise RuntimeFailure(f"{c.name} (pid {c.pid}) exited with code {c.proc.returncode}:\n{c.tail()}")
+        if progress is not None:
+            progress(scenario.epochs, scenario.epochs, observer.drops)
+        _wait(lambda: _all_final(observer), group, 10.0, "the final states")
+        if record:
+            _flush_recorder(session, run_id, observer)
+            rec = next(c for c in group.children if c.name == "recorder")
+            code = group.stop(rec, timeout_s=30.0)
+            if code not in (0, None):
+                raise RuntimeFailure(f"recorder (pid {rec.pid}) exited with code {code}:\n{rec.tail()}")
+        _ = router
+        with observer.lock:
+            malformed: Counter[str] = Counter(observer.malformed.counts)
+            sent: Counter[str] = Counter()
+            for st in observer.statuses.values():
+                malformed.update(st.malformed)
+                sent.update(st.sent)
+            return RunOutcome(
+                run_id=run_id, run_dir=run_dir, scenario=scenario, strategy=strategy, seed=seed,
+                positions=observer.positions.copy(), estimates=dict(observer.estimates),
+                decisions=list(observer.decisions), malformed=dict(malformed), sent=dict(sent),
+                pids=group.pids, wall_s=time.monotonic() - started,
+            )  # fmt: skip
+    finally:
+        if observer is not None:
+            observer.close()
+        if session is not None:
+            session.close()
+        group.stop_all()
+
+
+def _all_final(observer: _Observer) -> bool:
+    with observer.lock:
+        return bool(np.isfinite(observer.positions[-1]).all())
+
+
+def _flush_recorder(session: zenoh.Session, run_id: str, observer: _Observer) -> None:
+    """Wait until the recorder has every status message the services sent (they are sent last)."""
+    with observer.lock:
+        expected = len(observer.statuses)
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline:
+        for reply in session.get(keys.flush(run_id), timeout=1.0):
+            if reply.ok is None:
+                continue
+            import json
+
+            counts = json.loads(reply.ok.payload.to_bytes())
+            got = sum(v for k, v in counts.items() if "/status/" in k)
+            if got >= expected:
+                return
+        time.sleep(0.02)
+
+
+def _wait(cond: Any, group: ProcessGroup, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        failed = group.failed()
+        if failed:
+            c = failed[0]
+            raise RuntimeFailure(f"{c.name} (pid {c.pid}) exited with code {c.proc.returncode} while waiting for {what}:\n{c.tail()}")
+        if time.monotonic() > deadline:
+            raise RuntimeFailure(f"timed out after {timeout_s:g} s waiting for {what}")
+        time.sleep(0.01)

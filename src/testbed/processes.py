@@ -1,0 +1,97 @@
+"""Child processes of a run: started in their own session, ended by PID, never by name."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from formation.errors import RuntimeFailure
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    """A TCP port nobody listens on right now (the OS picks it)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def wait_for_port(host: str, port: int, timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            with socket.create_connection((host, port), timeout=0.2):
+                return
+        except OSError:
+            time.sleep(0.01)
+    raise RuntimeFailure(f"nothing listens on {host}:{port} after {timeout_s:g} s")
+
+
+@dataclass
+class Child:
+    name: str
+    proc: subprocess.Popen[bytes]
+    log_path: Path
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
+
+    def tail(self, lines: int = 15) -> str:
+        try:
+            text = self.log_path.read_text(errors="replace").splitlines()
+        except OSError:
+            return ""
+        return "\n".join(text[-lines:])
+
+
+@dataclass
+class ProcessGroup:
+    """Every process a run started; :meth:`stop_all` ends each by PID (TERM, then KILL)."""
+
+    log_dir: Path
+    children: list[Child] = field(default_factory=list)
+
+    def start(self, name: str, module: str, *args: str, env: dict[str, str] | None = None) -> Child:
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        log_path = self.log_dir / f"{name.replace('/', '-')}.log"
+        with log_path.open("wb") as log:
+            proc = subprocess.Popen(
+                [sys.executable, "-m", module, *args],
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL,
+                env={**os.environ, **(env or {})},
+                start_new_session=True,  # Ctrl-C reaches the launcher only; it stops children in order
+            )
+        child = Child(name, proc, log_path)
+        self.children.append(child)
+        return child
+
+    def failed(self) -> list[Child]:
+        """Children that exited with a non-zero code."""
+        return [c for c in self.children if c.proc.poll() not in (None, 0)]
+
+    def stop(self, child: Child, timeout_s: float = 5.0) -> int | None:
+        if child.proc.poll() is None:
+            child.proc.send_signal(signal.SIGTERM)
+            try:
+                child.proc.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                child.proc.kill()
+                child.proc.wait(5.0)
+        return child.proc.returncode
+
+    def stop_all(self, keep_last: int = 0) -> None:
+        """End children newest first; the ``keep_last`` oldest (router, recorder) go last, in reverse order."""
+        for child in reversed(self.children):
+            self.stop(child)
+
+    @property
+    def pids(self) -> list[int]:
+        return [c.pid for c in self.children]

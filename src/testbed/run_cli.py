@@ -1,0 +1,83 @@
+"""``formation run``: the distributed run from the terminal, with a progress bar and a summary."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from formation.scenario import Scenario
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from testbed.cli import _strategies
+    from testbed.launcher import launch
+
+    console = Console(stderr=True)
+    scenario = Scenario.from_file(args.scenario)
+    if args.epochs is not None:
+        scenario = scenario.with_overrides(epochs=args.epochs)
+    if args.mode == "realtime":
+        scenario = scenario.with_overrides(runtime={"mode": "realtime"})
+    outcomes = []
+    for strategy in _strategies(args.strategy, scenario):
+        with Progress(
+            TextColumn(f"[bold]{strategy}[/]"), BarColumn(), MofNCompleteColumn(),
+            TextColumn("{task.fields[rate]:.1f} epochs/s"), TextColumn("drops {task.fields[drops]}"),
+            TimeElapsedColumn(), console=console, transient=False, disable=not console.is_terminal,
+        ) as bar:  # fmt: skip
+            task = bar.add_task("run", total=scenario.epochs, rate=0.0, drops=0)
+
+            def progress(done: int, total: int, drops: int, _t: Any = task) -> None:
+                elapsed = bar.tasks[0].elapsed or 0.0
+                bar.update(_t, completed=done, rate=done / elapsed if elapsed else 0.0, drops=drops)
+
+            outcome = launch(scenario, strategy=strategy, seed=args.seed, runs_dir=Path(args.runs_dir),
+                             pool=args.pool, record=not args.no_record, progress=progress)  # fmt: skip
+        outcomes.append(outcome)
+        if not args.no_record:
+            _report(outcome.run_dir, console)
+        console.print(f"{strategy}: files in [bold]{outcome.run_dir}[/]")
+    _print_summary(outcomes, Console())
+    return 0
+
+
+def _report(run_dir: Path, console: Console) -> None:
+    try:
+        from recorder.report import write_report
+    except ImportError:  # the recorder service is optional in a minimal install
+        return
+    path = write_report(run_dir / "run.mcap", run_dir)
+    console.print(f"report: {path}")
+
+
+def _print_summary(outcomes: list[Any], console: Console) -> None:
+    table = Table(title="formation run: summary")
+    for col in ("strategy", "seed", "epochs", "final form. err [m]", "final shape err [m]", "sent", "dropped",
+                "links with drops (sent/dropped)", "malformed", "wall [s]"):  # fmt: skip
+        table.add_column(col)
+    for o in outcomes:
+        s = o.summary()
+        links = ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in s["dropped_links"].items()) or "-"
+        table.add_row(
+            s["strategy"], str(s["seed"]), str(s["epochs"]), f"{s['final_formation_error_m']:.4g}",
+            f"{s['final_shape_error_m']:.4g}", str(s["packets_sent"]), str(s["packets_dropped"]), links,
+            str(sum(s["malformed"].values())), f"{s['wall_s']:.1f}",
+        )  # fmt: skip
+    console.print(table)
+
+
+def register(sub: Any) -> None:
+    from testbed.cli import _add_common
+
+    p = sub.add_parser("run", help="run a scenario as real processes over Zenoh")
+    _add_common(p)
+    p.add_argument("--mode", choices=["lockstep", "realtime"], default="lockstep")
+    p.add_argument("--pool", type=int, help="run the agents in K processes")
+    p.add_argument("--runs-dir", default="runs", help="where run folders go (default: runs)")
+    p.add_argument("--no-record", action="store_true", help="run without the recorder")
+    p.set_defaults(func=cmd_run)

@@ -1,0 +1,28 @@
+"""Terminal tables of run summaries, with rich."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from rich.console import Console
+from rich.table import Table
+
+
+def _fmt(v: Any, spec: str = ".3g") -> str:
+    return "-" if v is None else format(v, spec)
+
+
+def print_summaries(summaries: list[dict[str, Any]], title: str, console: Console | None = None) -> None:
+    """One row per run: formation/shape error, substitution and estimation figures."""
+    table = Table(title=title)
+    for col in ("strategy", "seed", "epochs", "formation\nfinal [m]", "formation\npeak [m]",
+                "shape\nfinal [m]", "subst.\ncov tr [m²]", "fall-\nbacks", "estim.\ncov tr [m²]", "NEES"):
+        table.add_column(col, justify="right" if col != "strategy" else "left", no_wrap=True)
+    for s in summaries:
+        table.add_row(
+            s["strategy"], str(s["seed"]), str(s["epochs"]),
+            _fmt(s["final_formation_error_m"]), _fmt(s["peak_formation_error_m"]),
+            _fmt(s["final_shape_error_m"]), _fmt(s["substitution_cov_trace_m2"]),
+            str(s["fallbacks"]), _fmt(s["estimation_cov_trace_m2"]), _fmt(s["nees_mean"], ".3f"),
+        )  # fmt: skip
+    (console or Console()).print(table)

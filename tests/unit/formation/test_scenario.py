@@ -1,0 +1,144 @@
+"""The scenario file: shipped scenarios load; every kind of bad input names file, field and value."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from formation.errors import ScenarioError
+from formation.scenario import Scenario, load, load_dict
+
+SCENARIOS = Path(__file__).resolve().parents[3] / "scenarios"
+TRIANGLE = """
+name = "tri"
+edges = [[1, 2], [2, 3], [1, 3]]
+[[agents]]
+id = 1
+offset = [0.0, 0.0]
+[[agents]]
+id = 2
+offset = [1.0, 0.0]
+[[agents]]
+id = 3
+offset = [0.0, 1.0]
+"""
+
+
+def write(tmp_path: Path, text: str, name: str = "bad.toml") -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("path", sorted(SCENARIOS.glob("*.toml")), ids=lambda p: p.name)
+def test_shipped_scenarios_load(path: Path) -> None:
+    s = Scenario.from_file(path)
+    assert s.n == len(s.agents) and s.edge_array.shape == (len(s.edges), 2)
+
+
+def test_paper_geometry_is_the_model_md_pentagon(paper: Scenario) -> None:
+    angles = np.deg2rad(90 + 72 * np.arange(5))
+    np.testing.assert_allclose(paper.offsets, np.c_[np.cos(angles), np.sin(angles)], atol=1e-12)
+    assert paper.edge_array.tolist() == [[1, 2], [1, 3], [2, 3], [2, 4], [1, 4], [3, 5], [4, 5]]
+    assert paper.control.epsilon == 0.25
+    assert paper.formation_link_models(1, 2)[0].model == "outage"
+    assert paper.formation_link_models(2, 1)[0].model == "outage"
+    assert paper.formation_link_models(2, 3) == ()
+
+
+def test_weights_default_to_shape_distances(tmp_path: Path) -> None:
+    s = load(write(tmp_path, TRIANGLE))
+    np.testing.assert_allclose(s.weights, [1.0, np.sqrt(2), 1.0])
+
+
+def test_resolved_toml_round_trips(paper: Scenario, tmp_path: Path) -> None:
+    again = load(write(tmp_path, paper.to_toml(), "again.toml"))
+    assert again == paper
+
+
+def test_initial_positions_depend_only_on_seed(paper: Scenario) -> None:
+    a, b, c = paper.initial_positions(3), paper.initial_positions(3), paper.initial_positions(4)
+    np.testing.assert_array_equal(a, b)
+    assert not np.allclose(a, c)
+    np.testing.assert_array_equal(a[0], paper.offsets[0])  # the leader starts on its reference
+
+
+BAD = [
+    ("unknown field", TRIANGLE + "colour = 3\n", r"bad\.toml: colour = 3; unknown field"),
+    ("wrong type", TRIANGLE.replace('name = "tri"', 'name = "tri"\nepochs = "many"'), r"bad\.toml: epochs = 'many'; .*integer"),
+    (
+        "negative weight",
+        TRIANGLE.replace("edges = [[1, 2], [2, 3], [1, 3]]", "edges = [[1, 2], [2, 3], {between = [1, 3], weight = -1.0}]"),
+        r"bad\.toml: edges\[2\]\.weight = -1\.0; .*greater than 0",
+    ),
+    (
+        "edge to a missing agent",
+        TRIANGLE.replace("[1, 3]]", "[1, 7]]"),
+        r"bad\.toml: edges\[2\]\.between = \[1, 7\]; agent 7 does not exist \(agents are 1\.\.3\)",
+    ),
+    (
+        "disconnected graph",
+        TRIANGLE.replace("edges = [[1, 2], [2, 3], [1, 3]]", "allow_flexible = true\nedges = [[1, 2]]"),
+        r"bad\.toml: edges = \[\[1, 2\]\]; the formation graph is not connected",
+    ),
+    (
+        "non-rigid shape",
+        TRIANGLE.replace("edges = [[1, 2], [2, 3], [1, 3]]", "edges = [[1, 2], [2, 3]]"),
+        r"bad\.toml: edges = '2 edges'; the shape is not rigid \(rigidity rank 2, need 3\)",
+    ),
+    (
+        "epsilon too large",
+        TRIANGLE + "[control]\ngain = 0.6\n",
+        r"bad\.toml: control\.gain = 0\.6; epsilon = gain \* period_s = 0\.6 must be < 1/max_degree = 1/2 = 0\.5",
+    ),
+    ("TOML syntax error", TRIANGLE + "[control\n", r"bad\.toml: TOML syntax error"),
+    (
+        "bad link model probability",
+        TRIANGLE + '[[network.links]]\nbetween = [1, 2]\nmodels = [{model = "bernoulli", p_loss = 1.5}]\n',
+        r"bad\.toml: network\.links\[0\]\.models\[0\]\.p_loss = 1\.5; .*less than or equal to 1",
+    ),
+    (
+        "link not in the graph",
+        TRIANGLE.replace("edges = [[1, 2], [2, 3], [1, 3]]", "edges = [[1, 2], [2, 3], [1, 3]]")
+        + "[[network.links]]\nbetween = [1, 4]\n",
+        r"network\.links\[0\]\.between = \[1, 4\]; not an edge of the formation graph",
+    ),
+]
+
+
+@pytest.mark.parametrize(("case", "text", "pattern"), BAD, ids=[b[0] for b in BAD])
+def test_bad_scenarios_name_file_field_and_value(tmp_path: Path, case: str, text: str, pattern: str) -> None:
+    with pytest.raises(ScenarioError, match=pattern):
+        load(write(tmp_path, text))
+
+
+def test_non_rigid_is_accepted_when_allowed(tmp_path: Path) -> None:
+    text = TRIANGLE.replace("edges = [[1, 2], [2, 3], [1, 3]]", "allow_flexible = true\nedges = [[1, 2], [2, 3]]")
+    assert load(write(tmp_path, text)).allow_flexible
+
+
+def test_missing_file_is_named(tmp_path: Path) -> None:
+    with pytest.raises(ScenarioError, match=r"nope\.toml: cannot read the file"):
+        load(tmp_path / "nope.toml")
+
+
+def test_load_dict_names_its_source() -> None:
+    with pytest.raises(ScenarioError, match=r"^mine: agents = \[\]; "):
+        load_dict({"agents": []}, source="mine")
+
+
+def test_cli_exits_nonzero_with_one_message_and_writes_nothing(tmp_path: Path) -> None:
+    bad = write(tmp_path, TRIANGLE + "[control]\ngain = 0.6\n")
+    runs = tmp_path / "runs"
+    for cmd in (["simulate", str(bad)], ["run", str(bad), "--runs-dir", str(runs)]):
+        proc = subprocess.run(
+            [sys.executable, "-m", "testbed.cli", *cmd], capture_output=True, text=True, timeout=60, cwd=tmp_path
+        )
+        assert proc.returncode == 1
+        lines = proc.stderr.strip().splitlines()
+        assert len(lines) == 1 and "bad.toml: control.gain = 0.6" in lines[0], proc.stderr
+        assert not runs.exists()
