@@ -176,10 +176,18 @@ def main(argv: list[str] | None = None) -> int:
             tree = minimum_spanning_forest(n, edges, dist, np.ones(len(edges), dtype=bool))
             tree_mask = np.zeros(len(edges), dtype=bool)
             tree_mask[tree] = True
-            for set_name, use in (("healthy", np.ones(len(edges), dtype=bool)), ("tree", tree_mask)):
+            for set_name, use in (
+                ("healthy", np.ones(len(edges), dtype=bool)),
+                ("tree", tree_mask),
+            ):
 
-                def run(with_cov: bool, use: npt.NDArray[np.bool_] = use) -> BlueResult:
-                    return blue(n, 2, edges, z, cov, 1, np.zeros(2), use, covariances=with_cov)
+                def run(
+                    with_cov: bool,
+                    problem: tuple[int, IntArray, FloatArray, FloatArray] = (n, edges, z, cov),
+                    use: npt.NDArray[np.bool_] = use,
+                ) -> BlueResult:
+                    size, e, zz, pp = problem
+                    return blue(size, 2, e, zz, pp, 1, np.zeros(2), use, covariances=with_cov)
 
                 t_est, res = best(lambda: run(False), 5)
                 cyclic_big = set_name == "healthy" and n > 1000
@@ -257,7 +265,9 @@ def _bench_mst(seed: int, summary: list[str]) -> None:
     t_sp, w_sp = best(scipy_with_graph, 9)
     t_sp_only, _ = best(scipy_only, 9)
     print(f"Kruskal, n = {n}, m = {m}, random weights (seed {seed})")
-    print(f"  leader.mst.minimum_spanning_forest   {t_ours * 1e3:7.2f} ms  total weight {w_ours:.6f}")
+    print(
+        f"  leader.mst.minimum_spanning_forest   {t_ours * 1e3:7.2f} ms  total weight {w_ours:.6f}"
+    )
     print(f"  scipy, COO graph built + MST         {t_sp * 1e3:7.2f} ms  total weight {w_sp:.6f}")
     print(f"  scipy, MST on a ready CSR graph      {t_sp_only * 1e3:7.2f} ms")
     print(

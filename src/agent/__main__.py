@@ -49,7 +49,11 @@ def main(argv: list[str] | None = None) -> int:
     from agent.node import AgentNode
 
     role, ident = ("agent", ids[0]) if len(ids) == 1 else ("pool", ids[0])
-    service = Service(args.run_id, role, ident, args)
+    try:
+        service = Service(args.run_id, role, ident, args)
+    except TestbedError as exc:
+        print(f"agent: error: {exc}", file=sys.stderr)
+        return 1
     try:
         node = AgentNode(service, scenario, ids, args.strategy or scenario.strategy.name,
                          scenario.seed if args.seed is None else args.seed)  # fmt: skip
@@ -57,6 +61,9 @@ def main(argv: list[str] | None = None) -> int:
         code = node.run(scenario.epochs)
         service.status("done" if code == 0 else "error", max(r.epoch for r in node.runners.values()))
         return code
+    except TestbedError as exc:
+        print(f"agent: error: {exc}", file=sys.stderr)
+        return 1
     finally:
         service.close()
 

@@ -107,9 +107,9 @@ def as_edge_mask(mask: npt.ArrayLike | None, m: int, name: str = "mask") -> Bool
     arr = np.asarray(mask)
     if arr.shape != (m,):
         raise ShapeError(name, arr.shape, f"({m},)")
-    if arr.dtype != np.bool_ and arr.size:
-        if not np.issubdtype(arr.dtype, np.integer) or not np.isin(arr, (0, 1)).all():
-            raise GraphInputError(f"{name} has dtype {arr.dtype}", "booleans (or 0/1)")
+    integral = np.issubdtype(arr.dtype, np.integer) and bool(np.isin(arr, (0, 1)).all())
+    if arr.dtype != np.bool_ and arr.size and not integral:
+        raise GraphInputError(f"{name} has dtype {arr.dtype}", "booleans (or 0/1)")
     return arr.astype(np.bool_, copy=False)
 
 

@@ -20,6 +20,7 @@ from pydantic import BaseModel
 
 from formation import keys
 from formation.codec import Malformed, encode, now_ns
+from formation.errors import RuntimeFailure
 from formation.messages import Status
 from formation.zenoh_config import session_config
 
@@ -37,7 +38,12 @@ class Service:
     def __init__(self, run_id: str, role: str, ident: int | str, args: Any) -> None:
         self.run_id, self.role, self.ident = run_id, role, ident
         self.name = f"{role}/{ident}" if role in ("agent", "pool") else role
-        self.session = zenoh.open(session_config(args.mode, args.connect, args.listen))
+        try:
+            self.session = zenoh.open(session_config(args.mode, args.connect, args.listen))
+        except zenoh.ZError as exc:
+            where = args.connect or args.listen or "the default endpoints"
+            raise RuntimeFailure(f"cannot open a Zenoh session ({where}): {exc}".split(" at /")[0]) from None
+        self.start_timeout_s: float | None = getattr(args, "start_timeout", None)
         self.inbox: queue.SimpleQueue[Incoming] = queue.SimpleQueue()
         self.stopping = threading.Event()
         self.malformed = Malformed()
@@ -134,14 +140,18 @@ class Service:
         with self._alive_lock:
             return set(self._alive)
 
-    def wait_started(self, timeout_s: float | None = None) -> bool:
-        """Block until netem declares the start token, or until stopped."""
+    def wait_started(self) -> bool:
+        """Block until netem declares the start token; False when stopped.
+
+        Raises :class:`RuntimeFailure` after ``--start-timeout`` seconds without a start.
+        """
+        timeout_s = self.start_timeout_s
         deadline = None if timeout_s is None else now_ns() + int(timeout_s * 1e9)
         while not self.stopping.is_set():
             if self._started.wait(0.05):
                 return True
             if deadline is not None and now_ns() > deadline:
-                return False
+                raise RuntimeFailure(f"{self.name}: no start from netem within {timeout_s:g} s (is netem running and reachable?)")
         return False
 
     def declare_start(self) -> None:

@@ -29,13 +29,20 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     from leader.node import LeaderNode
 
-    service = Service(args.run_id, "leader", 0, args)
+    try:
+        service = Service(args.run_id, "leader", 0, args)
+    except TestbedError as exc:
+        print(f"leader: error: {exc}", file=sys.stderr)
+        return 1
     try:
         node = LeaderNode(service, scenario)
         service.announce()
         code = node.run()
         service.status("done" if code == 0 else "error", node.epoch)
         return code
+    except TestbedError as exc:
+        print(f"leader: error: {exc}", file=sys.stderr)
+        return 1
     finally:
         service.close()
 

@@ -283,18 +283,14 @@ def _check_ref(ref: int, n: int) -> int:
     return r - 1
 
 
-def _as_finite(
-    value: npt.ArrayLike, name: str, shape: tuple[int, ...], what: str
-) -> FloatArray:
+def _as_finite(value: npt.ArrayLike, name: str, shape: tuple[int, ...], what: str) -> FloatArray:
     arr = np.asarray(value, dtype=np.float64)
     if arr.shape != shape:
         raise ShapeError(name, arr.shape, str(shape))
-    finite = np.isfinite(arr.reshape(shape[0], -1)).all(axis=1) if arr.ndim > 1 else None
-    if finite is None:
-        if not np.isfinite(arr).all():
+    if not np.isfinite(arr).all():
+        if arr.ndim == 1:
             raise GraphInputError(f"{name} is not finite", f"finite {what}")
-    elif not finite.all():
-        k = int(np.flatnonzero(~finite)[0])
+        k = int(np.flatnonzero(~np.isfinite(arr.reshape(shape[0], -1)).all(axis=1))[0])
         raise GraphInputError(f"{name}[{k}] is not finite", f"finite {what}")
     return arr
 
@@ -442,7 +438,12 @@ class _System:
         d, s = self.d, self.size
         w = np.linalg.inv(self.p)  # (m, d, d), symmetric
         a = np.arange(d)
-        blocks = [(self.i, self.i, w), (self.j, self.j, w), (self.i, self.j, -w), (self.j, self.i, -w)]
+        blocks = [
+            (self.i, self.i, w),
+            (self.j, self.j, w),
+            (self.i, self.j, -w),
+            (self.j, self.i, -w),
+        ]
         rows, cols, vals = [], [], []
         for bi, bj, bw in blocks:
             keep = (bi < s) & (bj < s)

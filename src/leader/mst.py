@@ -99,7 +99,7 @@ def _union_find_scan(n: int, u: IntArray, v: IntArray) -> IntArray:
     chunk = n
     while pending.size and len(kept) < need:
         take, pending = pending[:chunk], pending[chunk:]
-        for k, a, b in zip(take.tolist(), u[take].tolist(), v[take].tolist()):
+        for k, a, b in zip(take.tolist(), u[take].tolist(), v[take].tolist(), strict=True):
             ra = a
             while parent[ra] != ra:
                 ra = parent[ra]

@@ -51,4 +51,3 @@ def healthy_rigidity(
     keep = as_edge_mask(healthy_mask, e.shape[0], "healthy_mask")
     rank = rigidity_rank(x, e[keep])
     return rank, rank == expected_rank(n, d)
-

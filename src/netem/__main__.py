@@ -31,7 +31,11 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     from netem.node import NetemNode
 
-    service = Service(args.run_id, "netem", 0, args)
+    try:
+        service = Service(args.run_id, "netem", 0, args)
+    except TestbedError as exc:
+        print(f"netem: error: {exc}", file=sys.stderr)
+        return 1
     try:
         node = NetemNode(service, scenario, scenario.seed if args.seed is None else args.seed,
                          wait_for_recorder=not args.no_recorder)  # fmt: skip
@@ -39,6 +43,9 @@ def main(argv: list[str] | None = None) -> int:
         code = node.run()
         service.status("done" if code == 0 else "error", node.estimates_done)
         return code
+    except TestbedError as exc:
+        print(f"netem: error: {exc}", file=sys.stderr)
+        return 1
     finally:
         service.close()
 

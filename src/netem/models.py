@@ -68,6 +68,18 @@ latest one given with ``from_epoch <= k``. A stateful layer of the new stack
 continues the state of the old stack's layer of the same kind and occurrence (a
 Gilbert–Elliott replaced by another Gilbert–Elliott keeps its good/bad state; its
 draws stay the same keyed numbers), otherwise it starts in its initial state.
+
+Cost: ``LinkModel.decide`` computes blocks of epochs with the vectorised form
+(the same code as ``schedule``), checkpoints the chains at block starts and
+serves decisions from a small cache, about a million decisions per second per
+link; ``bench/bench_netem_models.py`` measures it.
+
+References: Linux ``net/sched/sch_netem.c`` (``loss_4state``,
+``loss_gilb_ell``, ``get_crandom``, ``tabledist``, ``netem_enqueue``); iproute2
+``tc/q_netem.c`` (``1-h`` is sent to the kernel as ``h``) and
+``netem/{normal,pareto,paretonormal}.c``; S. Salsano, F. Ludovici, A. Ordine,
+"Definition of a general and intuitive loss model for packet networks and its
+implementation in the Netem module in the Linux kernel" (NetemCLG).
 """
 
 from __future__ import annotations
@@ -338,11 +350,11 @@ class _Outage(_Layer):
         super().__init__(spec, occurrence)
         self.o = spec
         self.timed = spec.start_s is not None or spec.end_s is not None
+        self.start_s = spec.start_s if spec.start_s is not None else 0.0
+        self.end_s = spec.end_s if spec.end_s is not None else math.inf
 
     def down_at(self, time_s: Floats) -> Bools:
-        start = self.o.start_s if self.o.start_s is not None else 0.0
-        end = self.o.end_s if self.o.end_s is not None else math.inf
-        return np.asarray((time_s >= start) & (time_s < end), dtype=np.bool_)
+        return np.asarray((time_s >= self.start_s) & (time_s < self.end_s), dtype=np.bool_)
 
     def run(self, keys: _Keys, epochs: Ints, carry: npt.NDArray[Any] | None) -> tuple[_Out, Any]:
         o = self.o
@@ -668,6 +680,9 @@ class _Block:
     pieces: list[_Piece]
     decisions: list[Decision]
     timed: bool
+    by_seq: dict[tuple[int, int], tuple[list[int], list[int], list[float]]] = field(
+        default_factory=dict
+    )  # (piece, seq) → extra copies, delay [epochs], delay [ms] of packet `seq` of each epoch
 
 
 class LinkModel:
@@ -750,7 +765,9 @@ class LinkModel:
             return blk.decisions[epoch - blk.start]
         return self._decide_slow(blk, epoch, seq, time_s)
 
-    def schedule(self, n_epochs: int, start: int = 0, times_s: Floats | None = None) -> Schedule:
+    def schedule(
+        self, n_epochs: int, start: int = 0, times_s: npt.ArrayLike | None = None
+    ) -> Schedule:
         """Decisions of epochs ``start .. start + n_epochs - 1`` (``seq = 0``) as arrays.
 
         ``times_s`` ``(n_epochs,)`` [s]: packet times, needed when a realtime outage is in force.
@@ -851,9 +868,29 @@ class LinkModel:
                     f"end_s = {o.end_s}); the decision needs the packet time time_s",
                 )
 
+    def _packet_draws(self, p: _Piece, seq: int) -> tuple[list[int], list[int], list[float]]:
+        """Extra copies and delays of packet ``seq`` of every epoch of a piece."""
+        epochs = np.arange(p.start, p.start + p.n, dtype=np.int64)
+        dup = np.zeros(p.n, dtype=np.int64)
+        de = np.zeros(p.n, dtype=np.int64)
+        dms = np.zeros(p.n, dtype=np.float64)
+        for i, layer in enumerate(p.stack.layers):
+            if isinstance(layer, _Duplicate):
+                dup += layer.draw(self._keys, epochs, seq)[0]
+            elif isinstance(layer, _Delay):
+                u = layer.fresh(self._keys, epochs, seq)
+                if layer.stateful:
+                    c = layer.d.correlation
+                    u = (1.0 - c) * u + c * p.chain_prev[i]
+                e, ms = layer.values(u)
+                de += e[0]
+                dms += ms[0]
+        return dup.tolist(), de.tolist(), dms.tolist()
+
     def _decide_slow(self, blk: _Block, epoch: int, seq: int, time_s: float | None) -> Decision:
         """Packets with ``seq > 0`` or under a realtime window: one packet, from the block's chains."""
-        p = next(p for p in reversed(blk.pieces) if p.start <= epoch)
+        which = next(i for i in reversed(range(len(blk.pieces))) if blk.pieces[i].start <= epoch)
+        p = blk.pieces[which]
         j = epoch - p.start
         layers = p.stack.layers
         first = int(p.first[0, j])
@@ -862,18 +899,10 @@ class LinkModel:
         if seq != 0:
             if seq < 0 or seq >= _KEY_LIMIT:
                 raise LinkModelError(self.link, f"seq = {seq}; expected an integer in [0, 2**63)")
-            at = np.array([epoch], dtype=np.int64)
-            dup, de, dms = 0, 0, 0.0
-            for i, layer in enumerate(layers):
-                if isinstance(layer, _Duplicate):
-                    dup += int(layer.draw(self._keys, at, seq)[0, 0])
-                elif isinstance(layer, _Delay):
-                    u = layer.fresh(self._keys, at, seq)
-                    if layer.stateful:
-                        c = layer.d.correlation
-                        u = (1.0 - c) * u + c * p.chain_prev[i][:, j : j + 1]
-                    e, ms = layer.values(u)
-                    de, dms = de + int(e[0, 0]), dms + float(ms[0, 0])
+            extra = blk.by_seq.get((which, seq))
+            if extra is None:
+                extra = blk.by_seq[(which, seq)] = self._packet_draws(p, seq)
+            dup, de, dms = extra[0][j], extra[1][j], extra[2][j]
         if p.stack.timed:
             if time_s is None:
                 self._require_times([p])
@@ -881,7 +910,7 @@ class LinkModel:
                 for i in p.stack.timed:
                     layer = layers[i]
                     assert isinstance(layer, _Outage)
-                    down = bool(layer.down_at(np.array([time_s]))[0])
+                    down = layer.start_s <= time_s < layer.end_s
                     codes[i] = int(down)
                     if down and (first < 0 or i < first):
                         first = i
@@ -964,7 +993,7 @@ def schedule(
     src: int,
     dst: int,
     n_epochs: int,
-    times_s: Floats | None = None,
+    times_s: npt.ArrayLike | None = None,
 ) -> Schedule:
     """Decisions of link ``src → dst`` for epochs ``0 .. n_epochs - 1``, vectorised.
 
@@ -978,7 +1007,7 @@ def delivery_matrix(
     seed: int,
     links: npt.ArrayLike,
     n_epochs: int,
-    times_s: Floats | None = None,
+    times_s: npt.ArrayLike | None = None,
 ) -> LinkMatrix:
     """Decisions of many links at once, for the in-process simulator and sweeps.
 
@@ -1009,6 +1038,9 @@ def delivery_matrix(
         raise LinkModelError(
             "matrix", f"{len(specs_per_link)} stacks for {pairs.shape[0]} links; expected one each"
         )
+    times = None if times_s is None else np.asarray(times_s, dtype=np.float64)
+    if times is not None and times.shape != (n_epochs,):
+        raise LinkModelError("matrix", f"times_s has shape {times.shape}; expected ({n_epochs},)")
     n_links = pairs.shape[0]
     delivered = np.zeros((n_links, n_epochs), np.bool_)
     copies = np.zeros((n_links, n_epochs), np.int8)
@@ -1028,8 +1060,8 @@ def delivery_matrix(
         stack = _build_stack(stack_specs, name)
         keys = _Keys(seed, pairs[idx, 0:1], pairs[idx, 1:2])
         piece, _ = _run_stack(stack, keys, 0, n_epochs, {})
-        if times_s is not None:
-            piece.apply_times(np.asarray(times_s, dtype=np.float64))
+        if times is not None:
+            piece.apply_times(times)
         elif stack.timed:
             raise LinkModelError(name, "a stack has an outage in seconds; pass times_s")
         d, c, de, dms, r = piece.final()

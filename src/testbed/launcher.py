@@ -7,6 +7,7 @@ every process by PID on exit, error or Ctrl-C, and leaves ``runs/<run_id>/``.
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from collections import Counter
@@ -191,6 +192,7 @@ def launch(
     observer = None
     try:
         router = group.start("router", "testbed.router", "--listen", endpoint)
+        group.on_start = lambda: (run_dir / "pids.json").write_text(json.dumps(group.pid_map()))
         wait_for_port(HOST, port, 10.0)
         session = zenoh.open(session_config("client", endpoint, None))
         observer = _Observer(session, run_id, scenario)
@@ -269,8 +271,6 @@ def _flush_recorder(session: zenoh.Session, run_id: str, observer: _Observer) ->
         for reply in session.get(keys.flush(run_id), timeout=1.0):
             if reply.ok is None:
                 continue
-            import json
-
             counts = json.loads(reply.ok.payload.to_bytes())
             got = sum(v for k, v in counts.items() if "/status/" in k)
             if got >= expected:

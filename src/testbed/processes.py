@@ -8,6 +8,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -56,6 +57,7 @@ class ProcessGroup:
 
     log_dir: Path
     children: list[Child] = field(default_factory=list)
+    on_start: Callable[[], object] | None = None  # called after each start (e.g. to write pids.json)
 
     def start(self, name: str, module: str, *args: str, env: dict[str, str] | None = None) -> Child:
         self.log_dir.mkdir(parents=True, exist_ok=True)
@@ -71,7 +73,12 @@ class ProcessGroup:
             )
         child = Child(name, proc, log_path)
         self.children.append(child)
+        if self.on_start is not None:
+            self.on_start()
         return child
+
+    def pid_map(self) -> dict[str, int]:
+        return {c.name: c.pid for c in self.children}
 
     def failed(self) -> list[Child]:
         """Children that exited with a non-zero code."""
@@ -87,8 +94,8 @@ class ProcessGroup:
                 child.proc.wait(5.0)
         return child.proc.returncode
 
-    def stop_all(self, keep_last: int = 0) -> None:
-        """End children newest first; the ``keep_last`` oldest (router, recorder) go last, in reverse order."""
+    def stop_all(self) -> None:
+        """End children newest first, so the router and the recorder (started first) go last."""
         for child in reversed(self.children):
             self.stop(child)
 

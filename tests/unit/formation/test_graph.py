@@ -45,7 +45,9 @@ def test_edge_array_wrong_shape_says_expected() -> None:
 
 
 def test_edge_array_id_out_of_range_names_edge_and_agent() -> None:
-    with pytest.raises(AgentIdError, match=r"^edges\[1\] = \(2, 9\) names agent 9; expected ids in 1\.\.5$"):
+    with pytest.raises(
+        AgentIdError, match=r"^edges\[1\] = \(2, 9\) names agent 9; expected ids in 1\.\.5$"
+    ):
         as_edge_array(5, [(1, 2), (2, 9)])
     with pytest.raises(AgentIdError, match=r"names agent 0; expected ids in 1\.\.5$"):
         as_edge_array(5, [(0, 2)])
@@ -54,7 +56,9 @@ def test_edge_array_id_out_of_range_names_edge_and_agent() -> None:
 def test_edge_array_rejects_self_loops_and_floats() -> None:
     with pytest.raises(AgentIdError, match=r"^edges\[0\] = \(2, 2\) is a self-loop; expected two"):
         as_edge_array(3, [(2, 2)])
-    with pytest.raises(GraphInputError, match=r"^edges has dtype float64; expected integer agent ids$"):
+    with pytest.raises(
+        GraphInputError, match=r"^edges has dtype float64; expected integer agent ids$"
+    ):
         as_edge_array(3, [(1.0, 2.0)])
 
 
@@ -111,7 +115,9 @@ def test_rigidity_matrix_rows() -> None:
 
 @PROPERTY
 @given(st.integers(0, 2**32 - 1), st.integers(2, 7), st.sampled_from([2, 3]))
-def test_rigidity_matrix_is_half_the_derivative_of_squared_lengths(seed: int, n: int, d: int) -> None:
+def test_rigidity_matrix_is_half_the_derivative_of_squared_lengths(
+    seed: int, n: int, d: int
+) -> None:
     rng = np.random.default_rng(seed)
     x = rng.standard_normal((n, d))
     edges = np.array([(i, j) for i in range(1, n + 1) for j in range(i + 1, n + 1)])
@@ -128,7 +134,17 @@ def test_rigidity_matrix_is_half_the_derivative_of_squared_lengths(seed: int, n:
 
 @pytest.mark.parametrize(
     ("n", "d", "rank"),
-    [(1, 2, 0), (2, 2, 1), (3, 2, 3), (5, 2, 7), (1, 3, 0), (2, 3, 1), (3, 3, 3), (4, 3, 6), (5, 3, 9)],
+    [
+        (1, 2, 0),
+        (2, 2, 1),
+        (3, 2, 3),
+        (5, 2, 7),
+        (1, 3, 0),
+        (2, 3, 1),
+        (3, 3, 3),
+        (4, 3, 6),
+        (5, 3, 9),
+    ],
 )
 def test_expected_rigidity_rank(n: int, d: int, rank: int) -> None:
     assert expected_rigidity_rank(n, d) == rank

@@ -161,7 +161,9 @@ def test_bad_inputs_say_expected_vs_actual() -> None:
         minimum_spanning_forest(3, edges, [1.0, 2.0, 3.0], [True, True])
     with pytest.raises(ShapeError, match=r"^healthy has shape \(1,\); expected \(2,\)$"):
         minimum_spanning_forest(3, edges, [1.0, 2.0], [True])
-    with pytest.raises(AgentIdError, match=r"^edges\[1\] = \(2, 4\) names agent 4; expected ids in 1\.\.3$"):
+    with pytest.raises(
+        AgentIdError, match=r"^edges\[1\] = \(2, 4\) names agent 4; expected ids in 1\.\.3$"
+    ):
         minimum_spanning_forest(3, [(1, 2), (2, 4)], [1.0, 2.0], [True, True])
     with pytest.raises(ValueError, match=r"^weights\[0\] = nan; expected a finite weight$"):
         minimum_spanning_forest(3, edges, [np.nan, 2.0], [True, True])

@@ -90,7 +90,9 @@ def test_tetrahedron_rigid_missing_edge_flexible() -> None:
 
 
 def test_triangular_bipyramid_missing_edge_is_flexible_in_3d() -> None:
-    x = np.array([[1.0, 0.0, 0.0], [-0.5, 0.8, 0.1], [-0.4, -0.9, 0.0], [0.1, 0.0, 1.2], [0.0, 0.1, -1.1]])
+    x = np.array(
+        [[1.0, 0.0, 0.0], [-0.5, 0.8, 0.1], [-0.4, -0.9, 0.0], [0.1, 0.0, 1.2], [0.0, 0.1, -1.1]]
+    )
     edges = [(1, 2), (2, 3), (3, 1)] + [(a, 4) for a in (1, 2, 3)] + [(a, 5) for a in (1, 2, 3)]
     assert len(edges) == 3 * 5 - 6
     assert is_rigid(x, edges)
@@ -110,7 +112,8 @@ def test_few_agents_in_3d() -> None:
 
 
 @pytest.mark.parametrize(
-    ("n", "d", "rank"), [(1, 2, 0), (2, 2, 1), (10, 2, 17), (1, 3, 0), (2, 3, 1), (3, 3, 3), (10, 3, 24)]
+    ("n", "d", "rank"),
+    [(1, 2, 0), (2, 2, 1), (10, 2, 17), (1, 3, 0), (2, 3, 1), (3, 3, 3), (10, 3, 24)],
 )
 def test_expected_rank(n: int, d: int, rank: int) -> None:
     assert expected_rank(n, d) == rank

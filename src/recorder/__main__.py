@@ -1,0 +1,7 @@
+"""``python -m recorder``: record a run's traffic into MCAP."""
+
+import sys
+
+from recorder.node import main
+
+sys.exit(main())

@@ -1,0 +1,316 @@
+"""The recorder process: Zenoh in, MCAP out (``python -m recorder``).
+
+Zenoh callbacks only append the raw sample ``(key, payload, attachment, timestamp,
+receive time)`` to a list under a lock; a writer thread swaps the list out every
+few milliseconds and writes the batch (:class:`recorder.writer.Recording`). Nothing
+is parsed on the way except the agents' states and the leader's estimates, which
+feed the per-epoch metrics and the Foxglove scene when ``--scenario`` is given.
+If the queue reaches ``--max-queue`` messages the sample is counted per key, never
+dropped silently. The liveliness token is declared after the subscribers, so a
+launcher that waits for it knows the recorder hears everything published after.
+
+Stopping: the first SIGINT/SIGTERM stops intake, drains the queue and finishes the
+file (summary, indexes); a second one exits at once, leaving every complete chunk
+readable (``formation recover``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import signal
+import sys
+import threading
+import time
+from collections import Counter
+from pathlib import Path
+from time import time_ns
+from typing import Any
+
+import zenoh
+
+from formation import keys, zenoh_config
+from formation.codec import encode, now_ns
+from formation.errors import TestbedError
+from formation.messages import Status
+from formation.scenario import Scenario
+from recorder.display import Display
+from recorder.epochs import EpochAssembler
+from recorder.schemas import FOXGLOVE_MISSING, LivelinessEvent
+from recorder.writer import COMPRESSIONS, Raw, Recording
+
+log = logging.getLogger("recorder")
+POLL_S = 0.005  # the writer thread's wait between batches [s]
+SNAPSHOT_NS = 500_000_000  # how often the writer thread refreshes the per-key counts [ns]
+COUNTS_WAIT_S = 2.0  # longest a flush query waits for fresh counts [s]
+TAPS = ("agent_state", "leader_estimate")  # kinds the epoch assembler reads
+
+
+class Intake:
+    """Where Zenoh callbacks put samples: a list swapped out under a lock by the writer."""
+
+    def __init__(self, limit: int) -> None:
+        self.limit = limit
+        self.dropped: Counter[str] = Counter()
+        self.peak = 0
+        self._lock = threading.Lock()
+        self._items: list[Raw] = []
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        att = sample.attachment
+        item = (
+            str(sample.key_expr),
+            sample.payload.to_bytes(),
+            None if att is None else att.to_bytes(),
+            sample.timestamp,
+            time_ns(),
+        )
+        with self._lock:
+            if len(self._items) < self.limit:
+                self._items.append(item)
+            else:
+                self.dropped[item[0]] += 1
+
+    def push(self, item: Raw) -> None:
+        with self._lock:
+            self._items.append(item)
+
+    def drain(self) -> list[Raw]:
+        with self._lock:
+            items, self._items = self._items, []
+        self.peak = max(self.peak, len(items))
+        return items
+
+    def backlog(self) -> int:
+        return len(self._items)
+
+
+class Recorder:
+    """One recording: session, subscribers, token, writer thread."""
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.args, self.run_id = args, args.run_id
+        self.scenario = Scenario.from_file(args.scenario) if args.scenario else None
+        compression = args.compression or (
+            self.scenario.recording.compression if self.scenario else "zstd"
+        )
+        self.out_dir = Path(args.out or Path("runs") / self.run_id)
+        self.filters = _filters(args.keys, self.run_id)
+        metadata = {"recorder": {"run_id": self.run_id, "keys": json.dumps(self.filters)}}
+        if self.scenario is not None:
+            toml = self.scenario.to_toml()
+            metadata["scenario"] = {"name": self.scenario.name, "toml": toml, "source": str(args.scenario)}
+            self.out_dir.mkdir(parents=True, exist_ok=True)
+            resolved = self.out_dir / "scenario.toml"
+            if not resolved.exists():
+                resolved.write_text(toml, encoding="utf-8")
+        self.recording = Recording(
+            self.out_dir / args.file,
+            compression=compression,
+            chunk_size=args.chunk_size,
+            chunk_interval_s=args.chunk_interval,
+            split_size=args.split_size,
+            split_duration_s=args.split_duration,
+            fsync_interval_s=args.fsync_interval,
+            metadata=metadata,
+            taps=TAPS if self.scenario else (),
+        )
+        self.assembler = EpochAssembler(self.scenario, self.run_id) if self.scenario else None
+        self.intake = Intake(args.max_queue)
+        self.stop = threading.Event()
+        self._writer_done = threading.Event()
+        self.error: BaseException | None = None
+        self.written = 0
+        self.counts: dict[str, int] = {}  # per key, refreshed by the writer thread
+        self._want_counts = threading.Event()
+        self._fresh_counts = threading.Event()
+        self._signals = 0
+
+    # -- signals ----------------------------------------------------------------------------
+    def on_signal(self, signum: int, frame: Any) -> None:
+        self._signals += 1
+        if self._signals > 1:
+            os._exit(128 + signum)  # every flushed chunk stays readable
+        self.stop.set()
+
+    # -- writer thread ------------------------------------------------------------------------
+    def _writer(self) -> None:
+        snapshot_ns = 0
+        try:
+            while True:
+                draining = self._writer_done.is_set()
+                wanted = self._want_counts.is_set()  # seen before the drain: the drain follows the query
+                batch = self.intake.drain()
+                if batch:
+                    self._write(batch)
+                now = time.monotonic_ns()
+                self.recording.tick(now)
+                if wanted or now - snapshot_ns > SNAPSHOT_NS:
+                    if wanted:
+                        self._want_counts.clear()
+                    self.counts, snapshot_ns = self.recording.counts(), now
+                    if wanted:
+                        self._fresh_counts.set()
+                if not batch:
+                    if draining:
+                        return
+                    self._writer_done.wait(POLL_S)
+        except BaseException as exc:  # noqa: BLE001 - reported by the main thread
+            self.error = exc
+            self.stop.set()
+
+    def _write(self, batch: list[Raw]) -> None:
+        tapped = self.recording.write_batch(batch)
+        self.written += len(batch)
+        asm = self.assembler
+        if asm is None:
+            return
+        for kind, key, data, recv in tapped:
+            on = asm.on_state if kind == "agent_state" else asm.on_estimate
+            for out_key, payload in on(key, data, recv):
+                self.recording.write(out_key, payload, time_ns())
+
+    # -- liveliness -------------------------------------------------------------------------
+    def on_alive(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        role, ident = keys.parse_alive(key)
+        alive = sample.kind == zenoh.SampleKind.PUT
+        event = LivelinessEvent(key=key, role=role, ident=ident, alive=alive)
+        self.intake.push((key, event.model_dump_json().encode(), None, None, time_ns()))
+
+    def on_counts(self, query: zenoh.Query) -> None:
+        """The flush barrier (``keys.flush``): counts per key of everything received before the query."""
+        self._fresh_counts.clear()
+        self._want_counts.set()
+        self._fresh_counts.wait(COUNTS_WAIT_S)
+        query.reply(query.key_expr, json.dumps(self.counts).encode())
+
+    def _status(self, session: zenoh.Session, state: str, detail: str = "") -> None:
+        key = keys.status(self.run_id, "recorder", 0)
+        msg = Status(
+            run_id=self.run_id, sender="recorder", seq=0 if state == "ready" else 1, epoch=-1,
+            stamp_ns=now_ns(), role="recorder", state=state, detail=detail,  # type: ignore[arg-type]
+        )  # fmt: skip
+        session.put(key, encode(msg))
+
+    # -- the run ------------------------------------------------------------------------------
+    def run(self) -> int:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, self.on_signal)
+        session = zenoh_config.open_session(self.args)
+        try:
+            return self._record(session)
+        finally:
+            session.close()
+
+    def _record(self, session: zenoh.Session) -> int:
+        subs = [session.declare_subscriber(f, self.intake.on_sample) for f in self.filters]
+        liveliness = session.liveliness()
+        subs.append(liveliness.declare_subscriber(keys.alive_all(self.run_id), self.on_alive, history=True))
+        subs.append(session.declare_queryable(keys.flush(self.run_id), self.on_counts))
+        writer = threading.Thread(target=self._writer, name="recorder-writer", daemon=True)
+        writer.start()
+        token = liveliness.declare_token(keys.alive(self.run_id, "recorder", 0))
+        self._status(session, "ready")
+        log.info("recording %s into %s", ", ".join(self.filters), self.recording.files[0])
+        display = Display(self, self.args.live, self.args.log_interval)
+        with display:
+            while not self.stop.wait(display.period_s):
+                display.update()
+        for sub in subs:
+            sub.undeclare()
+        self._writer_done.set()
+        while writer.is_alive():
+            writer.join(0.1)
+        if self.error is None:
+            self._finish()
+        detail = self.summary()
+        self._status(session, "error" if self.error else "done", detail)
+        token.undeclare()
+        print(f"recorder {self.run_id}: {detail}", file=sys.stderr)
+        if self.error is not None:
+            print(f"recorder {self.run_id}: error: {self.error!r}", file=sys.stderr)
+            return 1
+        return 0
+
+    def _finish(self) -> None:
+        if self.assembler is not None:
+            for key, payload in self.assembler.finish(time_ns()):
+                self.recording.write(key, payload, time_ns())
+        stats = {
+            "written": str(self.written),
+            "dropped": str(sum(self.intake.dropped.values())),
+            "dropped_by_key": json.dumps(dict(self.intake.dropped)),
+            "peak_backlog": str(self.intake.peak),
+            "foxglove_schemas_missing": json.dumps(FOXGLOVE_MISSING),
+        }
+        if self.assembler is not None:
+            stats["derived_malformed"] = json.dumps(dict(self.assembler.malformed.counts))
+            stats["epochs_incomplete"] = str(self.assembler.given_up)
+        self.recording.add_metadata("recorder_stats", stats)
+        self.recording.close()
+
+    def summary(self) -> str:
+        dropped = sum(self.intake.dropped.values())
+        files = ", ".join(str(f) for f in self.recording.files)
+        text = f"{self.written} messages written to {files}; peak backlog {self.intake.peak}"
+        text += f"; {dropped} could not be kept (queue full)" if dropped else "; nothing dropped"
+        return text
+
+
+def _filters(given: list[str] | None, run_id: str) -> list[str]:
+    """Key filters from ``--keys`` (repeatable, comma-separated); overlapping filters are refused."""
+    filters = [f.strip() for g in (given or []) for f in g.split(",") if f.strip()]
+    filters = filters or [keys.everything(run_id)]
+    for a_index, a in enumerate(filters):
+        for b in filters[a_index + 1 :]:
+            if zenoh.KeyExpr(a).intersects(zenoh.KeyExpr(b)):
+                raise TestbedError(f"--keys {a} and {b} overlap: a message on both would be recorded twice")
+    return filters
+
+
+def _size(text: str) -> int:
+    """``"100M"`` → 104857600; plain integers are bytes."""
+    units = {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30}
+    text = text.strip().upper().removesuffix("B")
+    if text and text[-1] in units:
+        return int(float(text[:-1]) * units[text[-1]])
+    return int(text)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m recorder", description=__doc__.split("\n")[0])
+    p.add_argument("--run-id", required=True, help="run id: records formation/<run_id>/**")
+    p.add_argument("--out", help="output directory (default runs/<run_id>)")
+    p.add_argument("--file", default="run.mcap", help="file name; rotated files get -001, -002, ...")
+    p.add_argument("--scenario", help="scenario TOML: stored as metadata, enables metrics and scene")
+    p.add_argument("--keys", action="append", help="key filter(s), comma-separated or repeated")
+    p.add_argument("--compression", choices=COMPRESSIONS, help="default: the scenario's, else zstd")
+    p.add_argument("--chunk-size", type=_size, default=1 << 20, help="bytes per chunk (default 1M)")
+    p.add_argument("--chunk-interval", type=float, default=0.5, help="close a chunk after s (0.5)")
+    p.add_argument("--split-size", type=_size, help="start a new file after this many bytes")
+    p.add_argument("--split-duration", type=float, help="start a new file after this many seconds")
+    p.add_argument("--fsync-interval", type=float, default=1.0, help="fsync at most every s (1.0)")
+    p.add_argument("--max-queue", type=int, default=5_000_000, help="messages queued before counting drops")
+    p.add_argument("--live", action=argparse.BooleanOptionalAction, help="live table (default: on a TTY)")
+    p.add_argument("--log-interval", type=float, default=10.0, help="progress log line every s")
+    zenoh_config.add_arguments(p)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
+    args = build_parser().parse_args(argv)
+    try:
+        return Recorder(args).run()
+    except TestbedError as exc:
+        print(f"recorder: error: {exc}", file=sys.stderr)
+        return 1
+    except zenoh.ZError as exc:
+        print(f"recorder: error: cannot open the Zenoh session: {exc}", file=sys.stderr)
+        return 1
+
+
+__all__ = ["Intake", "Recorder", "build_parser", "main"]

@@ -1,0 +1,225 @@
+"""One run as arrays, from a recording or from the in-process simulator, for one report.
+
+:class:`RunData` uses the field names of ``testbed.simulate.SimResult``, so both
+sources feed :func:`recorder.report.write_report_from`. From a recording
+(:func:`read_run`): true positions from ``agent/<i>/state`` (sender side), the
+leader's output from ``leader/estimate``, link delivery from netem's decisions.
+Substitution errors are not on the wire (an agent does not publish what it
+substituted), so a recorded run has none; the report says so.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from formation.errors import RecordingError
+from formation.scenario import Scenario
+from recorder.epochs import edge_mask
+from recorder.metrics import formation_error, nees, shape_error
+from recorder.recording import iter_messages, metadata, open_recording, scenario_of
+from recorder.schemas import classify
+
+Array = npt.NDArray[np.float64]
+Bools = npt.NDArray[np.bool_]
+Ints = npt.NDArray[np.int64]
+_ARRAYS = (
+    "positions", "formation_error", "shape_error", "estimates", "estimate_cov", "observable",
+    "delivered", "healthy", "tree", "components", "rigidity_rank", "substitution_errors",
+    "nees_values", "estimation_errors",
+)  # fmt: skip
+
+
+@dataclass
+class RunData:
+    """A run as arrays; row ``i − 1`` is agent ``i``; ``P`` epochs of states, ``E`` of estimates.
+
+    positions : (P, n, d) true positions [m], NaN where not recorded
+    formation_error, shape_error : (P,) [m]
+    estimates : (E, n, d) [m]; estimate_cov : (E, n, d, d) [m²]; observable : (E, n)
+    delivered : (E, L) formation link ``links[l]`` delivered in time at epoch ``k``
+    decided : (E, L) whether that delivery is known (always True from the simulator)
+    healthy, tree : (E, m) per formation edge; components, rigidity_rank : (E,), −1 if unknown
+    substitution_errors : (N, d); nees_values : (M,); estimation_errors : (M, d) [m]
+    """
+
+    label: str
+    scenario: Scenario
+    strategy: str
+    seed: int
+    positions: Array
+    formation_error: Array
+    shape_error: Array
+    estimates: Array
+    estimate_cov: Array
+    observable: Bools
+    delivered: Bools
+    healthy: Bools
+    tree: Bools
+    components: Ints
+    rigidity_rank: Ints
+    substitution_errors: Array
+    nees_values: Array
+    estimation_errors: Array
+    decided: Bools | None = None
+    source: str = "simulation"
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.decided is None:
+            self.decided = np.ones_like(self.delivered, dtype=bool)
+
+    @property
+    def links(self) -> Ints:
+        """Directed formation links (L, 2), the columns of :attr:`delivered`."""
+        return self.scenario.directed_links
+
+    @classmethod
+    def from_result(cls, result: Any, label: str | None = None) -> RunData:
+        """From anything with ``SimResult``'s fields (the in-process simulator's result)."""
+        arrays = {name: np.asarray(getattr(result, name)) for name in _ARRAYS}
+        strategy = str(getattr(result, "strategy", ""))
+        return cls(
+            label=label or strategy,
+            scenario=result.scenario,
+            strategy=strategy,
+            seed=int(getattr(result, "seed", 0)),
+            **arrays,
+        )
+
+
+def _positions(states: dict[int, dict[int, list[float]]], n: int, d: int) -> Array:
+    count = max(states) + 1 if states else 0
+    x = np.full((count, n, d), np.nan)
+    for k, by_agent in states.items():
+        for i, pos in by_agent.items():
+            if 1 <= i <= n and len(pos) == d:
+                x[k, i - 1] = pos
+    return x
+
+
+def _estimates(scenario: Scenario, ests: dict[int, dict[str, Any]], count: int) -> dict[str, Any]:
+    n, d, m = scenario.n, scenario.dimension, len(scenario.edges)
+    out: dict[str, Any] = {
+        "estimates": np.full((count, n, d), np.nan),
+        "estimate_cov": np.full((count, n, d, d), np.nan),
+        "observable": np.zeros((count, n), dtype=bool),
+        "healthy": np.zeros((count, m), dtype=bool),
+        "tree": np.zeros((count, m), dtype=bool),
+        "components": np.full(count, -1, dtype=np.int64),
+        "rigidity_rank": np.full(count, -1, dtype=np.int64),
+    }
+    for k, e in ests.items():
+        for i, (p, c) in enumerate(zip(e["positions"], e["covariances"], strict=False)):
+            if p is not None and c is not None and i < n:
+                out["estimates"][k, i], out["estimate_cov"][k, i] = p, c
+        out["observable"][k, : len(e["observable"][:n])] = e["observable"][:n]
+        out["healthy"][k] = edge_mask(scenario.edge_array, [tuple(p) for p in e["healthy"]])
+        out["tree"][k] = edge_mask(scenario.edge_array, [tuple(p) for p in e["tree"]])
+        out["components"][k], out["rigidity_rank"][k] = e["components"], e["rigidity_rank"]
+    return out
+
+
+def _consistency(scenario: Scenario, x: Array, est: dict[str, Any]) -> tuple[Array, Array]:
+    """NEES values and estimation errors ``x̂ − x`` of observable followers, epoch by epoch."""
+    d = scenario.dimension
+    followers = np.arange(scenario.n) != scenario.leader - 1
+    values, errors = [], []
+    for k in range(min(len(x), len(est["estimates"]))):
+        truth = x[k]
+        mask = est["observable"][k] & followers & np.isfinite(truth).all(axis=1)
+        mask &= np.isfinite(est["estimates"][k]).all(axis=1)
+        if mask.any():
+            values.append(nees(est["estimates"][k], est["estimate_cov"][k], truth, mask))
+            errors.append(est["estimates"][k][mask] - truth[mask])
+    nees_values = np.concatenate(values) if values else np.zeros(0)
+    return nees_values, np.concatenate(errors) if errors else np.zeros((0, d))
+
+
+def read_run(path: Path, label: str | None = None) -> RunData:
+    """A recording as :class:`RunData`; needs the scenario stored as metadata."""
+    with open_recording(path) as (reader, _):
+        meta = metadata(reader)
+        scenario = scenario_of(meta, path)
+        if scenario is None:
+            raise RecordingError(str(path), "no scenario in the metadata (record with --scenario)")
+        states: dict[int, dict[int, list[float]]] = {}
+        ests: dict[int, dict[str, Any]] = {}
+        verdicts: list[tuple[int, int, int, bool]] = []
+        recorded: dict[int, float] = {}
+        malformed = 0
+        for _, channel, msg in iter_messages(path, reader, log_time_order=False):
+            kind = channel.metadata.get("kind") or classify(channel.topic)
+            if kind not in ("agent_state", "leader_estimate", "decision", "metrics"):
+                continue
+            try:
+                body = json.loads(msg.data)
+                if kind == "agent_state":
+                    states.setdefault(int(body["epoch"]), {})[int(body["agent"])] = body["position"]
+                elif kind == "leader_estimate":
+                    ests[int(body["epoch"])] = body
+                elif kind == "metrics":
+                    recorded[int(body["epoch"])] = float(body["formation_error_m"])
+                else:
+                    for dec in body["decisions"]:
+                        if dec["link_class"] == "formation":
+                            on_time = dec["verdict"] in ("pass", "duplicate") and dec.get("delay_epochs", 0) == 0
+                            verdicts.append((int(dec["epoch"]), int(dec["source"]), int(dec["target"]), on_time))
+            except (ValueError, KeyError, TypeError):
+                malformed += 1
+    return _assemble(scenario, path, label, states, ests, verdicts, recorded, meta, malformed)
+
+
+def _assemble(
+    scenario: Scenario,
+    path: Path,
+    label: str | None,
+    states: dict[int, dict[int, list[float]]],
+    ests: dict[int, dict[str, Any]],
+    verdicts: list[tuple[int, int, int, bool]],
+    recorded: dict[int, float],
+    meta: dict[str, dict[str, str]],
+    malformed: int,
+) -> RunData:
+    n, d = scenario.n, scenario.dimension
+    x = _positions(states, n, d)
+    epochs = [*ests, *(v[0] for v in verdicts)]
+    count = max(epochs) + 1 if epochs else max(len(x) - 1, 0)
+    est = _estimates(scenario, ests, count)
+    column = {(int(a), int(b)): c for c, (a, b) in enumerate(scenario.directed_links)}
+    delivered = np.zeros((count, len(column)), dtype=bool)
+    decided = np.zeros_like(delivered)
+    for k, a, b, ok in verdicts:
+        c = column.get((a, b))
+        if c is not None and 0 <= k < count:
+            delivered[k, c], decided[k, c] = ok, True
+    nees_values, est_errors = _consistency(scenario, x, est)
+    recorded_fe = np.full(len(x), np.nan)
+    for k, v in recorded.items():
+        if k < len(x):
+            recorded_fe[k] = v
+    return RunData(
+        label=label or f"{scenario.name} {scenario.strategy.name}",
+        scenario=scenario,
+        strategy=scenario.strategy.name,
+        seed=scenario.seed,
+        positions=x,
+        formation_error=formation_error(x, scenario.edge_array, scenario.weights),
+        shape_error=shape_error(x, scenario.edge_array, scenario.offsets),
+        substitution_errors=np.zeros((0, d)),
+        nees_values=nees_values,
+        estimation_errors=est_errors,
+        delivered=delivered,
+        decided=decided,
+        source=str(path),
+        extra={"recorded_formation_error": recorded_fe, "metadata": meta, "malformed": malformed},
+        **est,
+    )
+
+
+__all__ = ["RunData", "read_run"]
