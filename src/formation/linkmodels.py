@@ -60,7 +60,9 @@ class GilbertElliott(_Spec):
 class Markov4(_Spec):
     """tc netem's four-state loss model (``loss state p13 [p31 [p32 [p23 [p14]]]]``).
 
-    States: 1 good reception, 2 good-burst loss, 3 burst reception, 4 isolated loss.
+    States as in Linux ``sch_netem.c``: 1 good reception, 2 burst reception, 3 loss
+    within a burst, 4 isolated loss; the chain moves first, then the packet is lost if
+    the new state is 3 or 4.
     """
 
     model: Literal["markov4"] = "markov4"
@@ -69,6 +71,14 @@ class Markov4(_Spec):
     p32: Probability = 0.0
     p23: Probability = 1.0
     p14: Probability = 0.0
+
+    @model_validator(mode="after")
+    def _rows(self) -> Markov4:
+        if self.p13 + self.p14 > 1.0:
+            raise ValueError(f"p13 + p14 = {self.p13 + self.p14:g} must be <= 1")
+        if self.p31 + self.p32 > 1.0:
+            raise ValueError(f"p31 + p32 = {self.p31 + self.p32:g} must be <= 1")
+        return self
 
 
 class Outage(_Spec):

@@ -27,10 +27,11 @@ Semantics (tc netem's where it has them, see ``man tc-netem`` and Linux
   ``k`` is lost with the loss probability of the state the chain is in when it
   arrives (``1-k`` good, ``1-h`` bad), then the chain moves (``p`` good→bad,
   ``r`` bad→good); it starts good. ``state`` reports that entry state.
-* **Four-state** (tc ``loss state p13 p31 p32 p23 p14``), numbered as in Linux
-  ``loss_4state`` (``TX_IN_GAP_PERIOD`` = 1, ``TX_IN_BURST_PERIOD`` = 2,
-  ``LOST_IN_BURST_PERIOD`` = 3, ``LOST_IN_GAP_PERIOD`` = 4; Salsano et al.'s GI
-  model): 1 good reception, 2 reception inside a burst, 3 loss inside a burst,
+* **Four-state** (tc ``loss state p13 p31 p32 p23 p14``), states numbered as the
+  parameter names number them (Salsano et al.'s GI model; in Linux
+  ``loss_4state`` 1 = ``TX_IN_GAP_PERIOD``, 2 = ``TX_IN_BURST_PERIOD``, 3 =
+  ``LOST_IN_BURST_PERIOD``, 4 = ``LOST_IN_GAP_PERIOD``, whatever the kernel's enum
+  values): 1 good reception, 2 reception inside a burst, 3 loss inside a burst,
   4 isolated loss. Per packet the chain first moves (1→4 w.p. ``p14``, 1→3 w.p.
   ``p13``; 2→3 w.p. ``p23``; 3→2 w.p. ``p32``, 3→1 w.p. ``p31``; 4→1 always),
   then the packet is lost iff the new state is 3 or 4. The chain starts in 1.
@@ -732,6 +733,16 @@ class LinkModel:
     def __repr__(self) -> str:
         changes = ", ".join(f"{f}: {list(s.specs)!r}" for f, s in self._timeline)
         return f"LinkModel({self.link}, seed={self.seed}, stacks={{{changes}}})"
+
+    @property
+    def specs(self) -> tuple[LinkModelSpec, ...]:
+        """The latest stack given (in force from its ``from_epoch`` on)."""
+        return self._timeline[-1][1].specs
+
+    @property
+    def timeline(self) -> tuple[tuple[int, tuple[LinkModelSpec, ...]], ...]:
+        """Every stack with the epoch it starts at, ``((0, specs), (from_epoch, specs), ...)``."""
+        return tuple((f, s.specs) for f, s in self._timeline)
 
     def specs_at(self, epoch: int) -> tuple[LinkModelSpec, ...]:
         """The stack in force at ``epoch``."""

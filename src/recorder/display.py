@@ -65,7 +65,9 @@ class Display:
 
         s = self.source
         dropped = s.intake.dropped
-        table = Table(title=f"recorder {s.run_id}: {self._rate():.0f} msg/s, backlog {s.intake.backlog()}")
+        table = Table(
+            title=f"recorder {s.run_id}: {self._rate():.0f} msg/s, backlog {s.intake.backlog()}"
+        )
         table.add_column("key")
         table.add_column("messages", justify="right")
         table.add_column("dropped", justify="right")

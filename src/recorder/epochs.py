@@ -40,7 +40,11 @@ class EpochAssembler:
     """Collects true states per epoch; emits metrics and scenes for the recording."""
 
     def __init__(
-        self, scenario: Scenario, run_id: str, sender: str = "recorder", clock: Callable[[], int] = now_ns
+        self,
+        scenario: Scenario,
+        run_id: str,
+        sender: str = "recorder",
+        clock: Callable[[], int] = now_ns,
     ) -> None:
         self.scenario, self.run_id, self.sender, self._clock = scenario, run_id, sender, clock
         self.n, self.d = scenario.n, scenario.dimension
@@ -101,7 +105,13 @@ class EpochAssembler:
     def _header(self, key: str, epoch: int) -> dict[str, object]:
         seq = self._seq[key]
         self._seq[key] += 1
-        return {"run_id": self.run_id, "sender": self.sender, "seq": seq, "epoch": epoch, "stamp_ns": self._clock()}
+        return {
+            "run_id": self.run_id,
+            "sender": self.sender,
+            "seq": seq,
+            "epoch": epoch,
+            "stamp_ns": self._clock(),
+        }
 
     def _metrics(self, k: int, x: npt.NDArray[np.float64]) -> Derived:
         s = self.scenario

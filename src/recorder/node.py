@@ -101,7 +101,11 @@ class Recorder:
         metadata = {"recorder": {"run_id": self.run_id, "keys": json.dumps(self.filters)}}
         if self.scenario is not None:
             toml = self.scenario.to_toml()
-            metadata["scenario"] = {"name": self.scenario.name, "toml": toml, "source": str(args.scenario)}
+            metadata["scenario"] = {
+                "name": self.scenario.name,
+                "toml": toml,
+                "source": str(args.scenario),
+            }
             self.out_dir.mkdir(parents=True, exist_ok=True)
             resolved = self.out_dir / "scenario.toml"
             if not resolved.exists():
@@ -141,7 +145,9 @@ class Recorder:
         try:
             while True:
                 draining = self._writer_done.is_set()
-                wanted = self._want_counts.is_set()  # seen before the drain: the drain follows the query
+                wanted = (
+                    self._want_counts.is_set()
+                )  # seen before the drain: the drain follows the query
                 batch = self.intake.drain()
                 if batch:
                     self._write(batch)
@@ -208,7 +214,9 @@ class Recorder:
     def _record(self, session: zenoh.Session) -> int:
         subs = [session.declare_subscriber(f, self.intake.on_sample) for f in self.filters]
         liveliness = session.liveliness()
-        subs.append(liveliness.declare_subscriber(keys.alive_all(self.run_id), self.on_alive, history=True))
+        subs.append(
+            liveliness.declare_subscriber(keys.alive_all(self.run_id), self.on_alive, history=True)
+        )
         subs.append(session.declare_queryable(keys.flush(self.run_id), self.on_counts))
         writer = threading.Thread(target=self._writer, name="recorder-writer", daemon=True)
         writer.start()
@@ -267,7 +275,9 @@ def _filters(given: list[str] | None, run_id: str) -> list[str]:
     for a_index, a in enumerate(filters):
         for b in filters[a_index + 1 :]:
             if zenoh.KeyExpr(a).intersects(zenoh.KeyExpr(b)):
-                raise TestbedError(f"--keys {a} and {b} overlap: a message on both would be recorded twice")
+                raise TestbedError(
+                    f"--keys {a} and {b} overlap: a message on both would be recorded twice"
+                )
     return filters
 
 
@@ -284,8 +294,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m recorder", description=__doc__.split("\n")[0])
     p.add_argument("--run-id", required=True, help="run id: records formation/<run_id>/**")
     p.add_argument("--out", help="output directory (default runs/<run_id>)")
-    p.add_argument("--file", default="run.mcap", help="file name; rotated files get -001, -002, ...")
-    p.add_argument("--scenario", help="scenario TOML: stored as metadata, enables metrics and scene")
+    p.add_argument(
+        "--file", default="run.mcap", help="file name; rotated files get -001, -002, ..."
+    )
+    p.add_argument(
+        "--scenario", help="scenario TOML: stored as metadata, enables metrics and scene"
+    )
     p.add_argument("--keys", action="append", help="key filter(s), comma-separated or repeated")
     p.add_argument("--compression", choices=COMPRESSIONS, help="default: the scenario's, else zstd")
     p.add_argument("--chunk-size", type=_size, default=1 << 20, help="bytes per chunk (default 1M)")
@@ -293,8 +307,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--split-size", type=_size, help="start a new file after this many bytes")
     p.add_argument("--split-duration", type=float, help="start a new file after this many seconds")
     p.add_argument("--fsync-interval", type=float, default=1.0, help="fsync at most every s (1.0)")
-    p.add_argument("--max-queue", type=int, default=5_000_000, help="messages queued before counting drops")
-    p.add_argument("--live", action=argparse.BooleanOptionalAction, help="live table (default: on a TTY)")
+    p.add_argument(
+        "--max-queue", type=int, default=5_000_000, help="messages queued before counting drops"
+    )
+    p.add_argument(
+        "--live", action=argparse.BooleanOptionalAction, help="live table (default: on a TTY)"
+    )
     p.add_argument("--log-interval", type=float, default=10.0, help="progress log line every s")
     zenoh_config.add_arguments(p)
     return p

@@ -139,12 +139,16 @@ def describe(path: Path) -> RecordingInfo:
         for cid, ch in sorted(summary.channels.items()):
             schema = summary.schemas.get(ch.schema_id)
             kind = ch.metadata.get("kind", classify(ch.topic))
-            channels.append(ChannelInfo(ch.topic, schema.name if schema else "", kind, counts.get(cid, 0)))
+            channels.append(
+                ChannelInfo(ch.topic, schema.name if schema else "", kind, counts.get(cid, 0))
+            )
         decision_topics = [c.topic for c in channels if c.kind == "decision"]
         sent: Counter[str] = Counter()
         drops: Counter[str] = Counter()
         if decision_topics:
-            for _, _, msg in iter_messages(path, reader, topics=decision_topics, log_time_order=False):
+            for _, _, msg in iter_messages(
+                path, reader, topics=decision_topics, log_time_order=False
+            ):
                 for d in json.loads(msg.data).get("decisions", []):
                     sent[link_name(d)] += 1
                     if d.get("verdict") == "drop":

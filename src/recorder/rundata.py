@@ -66,12 +66,12 @@ class RunData:
     substitution_errors: Array
     nees_values: Array
     estimation_errors: Array
-    decided: Bools | None = None
+    decided: Bools = field(default_factory=lambda: np.zeros(0, dtype=bool))
     source: str = "simulation"
     extra: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if self.decided is None:
+        if self.decided.shape != self.delivered.shape:  # the simulator knows every delivery
             self.decided = np.ones_like(self.delivered, dtype=bool)
 
     @property
@@ -168,8 +168,13 @@ def read_run(path: Path, label: str | None = None) -> RunData:
                 else:
                     for dec in body["decisions"]:
                         if dec["link_class"] == "formation":
-                            on_time = dec["verdict"] in ("pass", "duplicate") and dec.get("delay_epochs", 0) == 0
-                            verdicts.append((int(dec["epoch"]), int(dec["source"]), int(dec["target"]), on_time))
+                            on_time = (
+                                dec["verdict"] in ("pass", "duplicate")
+                                and dec.get("delay_epochs", 0) == 0
+                            )
+                            verdicts.append(
+                                (int(dec["epoch"]), int(dec["source"]), int(dec["target"]), on_time)
+                            )
             except (ValueError, KeyError, TypeError):
                 malformed += 1
     return _assemble(scenario, path, label, states, ests, verdicts, recorded, meta, malformed)

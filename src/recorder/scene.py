@@ -83,7 +83,9 @@ def edge_colors(
     if healthy is None:
         return [UNKNOWN] * m
     in_tree = np.zeros(m, dtype=bool) if tree is None else tree
-    return [TREE if t else (HEALTHY if h else BROKEN) for h, t in zip(healthy, in_tree, strict=True)]
+    return [
+        TREE if t else (HEALTHY if h else BROKEN) for h, t in zip(healthy, in_tree, strict=True)
+    ]
 
 
 def scene_update(

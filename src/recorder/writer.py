@@ -126,7 +126,10 @@ class McapFile:
 
     def add(self, channel_id: int, log_time: int, data: bytes, publish_time: int, seq: int) -> None:
         """Append one message to the open chunk (the batch path inlines this)."""
-        self.parts += (_MESSAGE.pack(5, 22 + len(data), channel_id, seq, log_time, publish_time), data)
+        self.parts += (
+            _MESSAGE.pack(5, 22 + len(data), channel_id, seq, log_time, publish_time),
+            data,
+        )
         self.size += _MESSAGE.size + len(data)
 
     def close_chunk(self) -> None:
@@ -405,10 +408,16 @@ class Recording:
                 self._chunk_opened = now_ns
             elif now_ns - self._chunk_opened >= self.chunk_interval_ns:
                 self._close_chunk()
-        if self.split_duration_s is not None and now_ns - self._file_opened >= self.split_duration_s * 1e9:
+        if (
+            self.split_duration_s is not None
+            and now_ns - self._file_opened >= self.split_duration_s * 1e9
+        ):
             self._close_chunk()
             self._rotate()
-        if self.fsync_interval_ns is not None and now_ns - self._last_fsync >= self.fsync_interval_ns:
+        if (
+            self.fsync_interval_ns is not None
+            and now_ns - self._last_fsync >= self.fsync_interval_ns
+        ):
             self._file.fsync()
             self._last_fsync = now_ns
 

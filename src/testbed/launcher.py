@@ -173,6 +173,7 @@ def launch(
     epoch_timeout_s: float = 30.0,
     progress: Any = None,
     run_id: str | None = None,
+    on_started: Any = None,
 ) -> RunOutcome:
     """Run ``scenario`` as real processes; returns what was observed. Every child ends by PID."""
     strategy = strategy or scenario.strategy.name
@@ -192,7 +193,9 @@ def launch(
     observer = None
     try:
         router = group.start("router", "testbed.router", "--listen", endpoint)
-        group.on_start = lambda: (run_dir / "pids.json").write_text(json.dumps(group.pid_map()))
+        group.on_start = lambda: (run_dir / "pids.json").write_text(
+            json.dumps({"endpoint": endpoint, "pids": group.pid_map()})
+        )
         wait_for_port(HOST, port, 10.0)
         session = zenoh.open(session_config("client", endpoint, None))
         observer = _Observer(session, run_id, scenario)
@@ -207,6 +210,8 @@ def launch(
             ident = str(ids[0]) if len(ids) == 1 else f"{ids[0]}-{ids[-1]}"
             group.start(name, "agent", "--scenario", str(scenario_path), "--id", ident, *common)
         _wait(lambda: observer.is_alive("clock", "start"), group, startup_timeout_s, "every process to come up")
+        if on_started is not None:
+            on_started(run_id, endpoint)
         services = [c for c in group.children if c.name not in ("router", "recorder")]
         last_progress, last_count = time.monotonic(), -1
         while any(c.proc.poll() is None for c in services):

@@ -22,13 +22,13 @@ from formation.graph import (
     rigidity_rank,
 )
 
-SEED = 20240611
 PROPERTY = settings(max_examples=60, deadline=None, derandomize=True, database=None)
 
 
 @pytest.fixture
-def rng() -> np.random.Generator:
-    return np.random.default_rng(SEED)
+def rng(seed: int) -> np.random.Generator:
+    """Generator from the suite's ``seed`` fixture (tests/conftest.py)."""
+    return np.random.default_rng(seed)
 
 
 # --------------------------------------------------------------------------- edge checks

@@ -12,13 +12,13 @@ from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 from formation.graph import AgentIdError, ShapeError
 from leader.mst import components, minimum_spanning_forest
 
-SEED = 20240611
 PROPERTY = settings(max_examples=300, deadline=None, derandomize=True, database=None)
 
 
 @pytest.fixture
-def rng() -> np.random.Generator:
-    return np.random.default_rng(SEED)
+def rng(seed: int) -> np.random.Generator:
+    """Generator from the suite's ``seed`` fixture (tests/conftest.py)."""
+    return np.random.default_rng(seed)
 
 
 def random_graph(

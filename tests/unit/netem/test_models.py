@@ -286,6 +286,8 @@ def test_replace_keeps_earlier_decisions(seed: int) -> None:
     assert [model.decide(k) for k in range(300)] == before[:300]
     assert {model.decide(k).model for k in range(300, 1_000)} == {"down"}
     assert model.specs_at(299) == (GE,) and model.specs_at(300) == (Down(),)
+    assert model.specs == (Down(),)
+    assert model.timeline == ((0, (GE,)), (300, (Down(),)))
 
 
 def test_replace_by_the_same_kind_carries_the_markov_state(seed: int) -> None:

@@ -1,0 +1,48 @@
+"""The recorder service: every packet of a run into MCAP, replay, analysis and the report.
+
+``python -m recorder`` records (:mod:`recorder.node`); the functions here read a
+recording back, recover a cut one and write the report. The report functions
+import matplotlib, so they load on first use.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+from recorder.metrics import error_statistics, formation_error, longest_run, nees, shape_error
+from recorder.recording import RecordingInfo, describe, validate
+from recorder.recover import Recovered, recover
+from recorder.rundata import RunData, read_run
+from recorder.writer import Recording
+
+if TYPE_CHECKING:
+    from recorder.report import write_report, write_report_from
+
+_LAZY = {"write_report": "recorder.report", "write_report_from": "recorder.report"}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'recorder' has no attribute {name!r}")
+
+
+__all__ = [
+    "Recording",
+    "RecordingInfo",
+    "Recovered",
+    "RunData",
+    "describe",
+    "error_statistics",
+    "formation_error",
+    "longest_run",
+    "nees",
+    "read_run",
+    "recover",
+    "shape_error",
+    "validate",
+    "write_report",
+    "write_report_from",
+]

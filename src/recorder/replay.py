@@ -1,0 +1,265 @@
+"""``formation replay``: a recording published back onto Zenoh with its original timing.
+
+Messages go out in log-time order, message ``m`` at ``t0 + (log_m − log_first) / rate``
+of the wall clock. ``--prefix`` replaces the recorded ``formation/<run_id>`` so a
+fresh process can consume the traffic under another run id. The codec attachment
+``(epoch, seq, source)`` is not stored in MCAP; it is rebuilt from the payload
+(``source`` = the ``agent`` field, or the leader's endpoint for estimates).
+Liveliness logs are not replayed (a put is not a token).
+
+A running replay answers on ``<prefix>/replay/control`` (a queryable): the query's
+parameters or JSON payload give ``command`` = ``pause``, ``resume``, ``seek``
+(``value`` seconds from the start of the recording), ``rate`` (``value``) or
+``status``; the reply is the state as JSON.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from formation import codec, keys
+from formation.errors import RecordingError, TestbedError
+from recorder.recording import iter_messages, open_recording
+from recorder.schemas import classify, run_id_of
+
+SKIP = frozenset({"alive"})  # channel kinds never replayed
+WAIT_SLICE_S = 0.05  # longest sleep between control checks [s]
+LEADER_KINDS = frozenset({"leader_estimate", "link_estimate"})
+
+
+def control_key(prefix: str) -> str:
+    """The replay's control queryable under a run prefix ``formation/<run_id>``."""
+    return f"{prefix}/replay/control"
+
+
+@dataclass
+class State:
+    """What a running replay reports; times in seconds from the recording's first message."""
+
+    paused: bool = False
+    rate: float = 1.0
+    position_s: float = 0.0
+    published: int = 0
+    loops: int = 0
+    done: bool = False
+
+
+def rebuild_attachment(kind: str, payload: bytes) -> bytes | None:
+    """The codec attachment ``(epoch, seq, source)`` of a recorded payload, if it had one."""
+    if kind in SKIP or kind == "unknown":
+        return None
+    try:
+        body = json.loads(payload)
+        epoch, seq = int(body["epoch"]), int(body["seq"])
+    except (ValueError, KeyError, TypeError):
+        return None
+    if isinstance(body.get("agent"), int):
+        return codec.attachment(epoch, seq, body["agent"])
+    if kind in LEADER_KINDS:
+        return codec.attachment(epoch, seq, keys.LEADER)
+    return None
+
+
+class Replayer:
+    """Publishes a recording; :meth:`command` changes a running replay (thread-safe)."""
+
+    def __init__(
+        self,
+        path: Path,
+        rate: float = 1.0,
+        loop: bool = False,
+        start_s: float = 0.0,
+        topics: list[str] | None = None,
+        prefix: str | None = None,
+    ) -> None:
+        if rate <= 0:
+            raise TestbedError(f"--rate {rate}; expected > 0")
+        self.path, self.loop = Path(path), loop
+        self.state = State(rate=rate, position_s=start_s)
+        self._filters = [zenoh.KeyExpr(t) for t in topics or []]
+        self._lock = threading.Lock()
+        self._changed = threading.Event()
+        self._seek: float | None = start_s
+        self._base_wall = 0.0  # [s] monotonic
+        self._base_log: int | None = None  # [ns] log time published at _base_wall
+        with open_recording(self.path) as (_, summary):
+            self.channels = {
+                cid: ch
+                for cid, ch in summary.channels.items()
+                if self._wanted(ch.topic, ch.metadata)
+            }
+            stats = summary.statistics
+            self.first_ns = stats.message_start_time if stats else 0
+            self.duration_s = (stats.message_end_time - self.first_ns) / 1e9 if stats else 0.0
+        recorded = {run_id_of(ch.topic) for ch in summary.channels.values()} - {None}
+        self.recorded_prefix = keys.prefix(sorted(recorded)[0]) if recorded else keys.ROOT
+        self.prefix = prefix or self.recorded_prefix
+
+    def _wanted(self, topic: str, metadata: dict[str, str]) -> bool:
+        if metadata.get("kind", classify(topic)) in SKIP:
+            return False
+        key = zenoh.KeyExpr(topic)
+        return not self._filters or any(f.intersects(key) for f in self._filters)
+
+    def out_key(self, topic: str) -> str:
+        if topic.startswith(self.recorded_prefix + "/"):
+            return self.prefix + topic[len(self.recorded_prefix) :]
+        return topic
+
+    # -- control ----------------------------------------------------------------------------
+    # Timing: message at log time ``t`` is due at ``base_wall + (t − base_log) / rate``.
+    # Pause, resume and rate changes move the anchor so the replay continues where it is;
+    # a seek clears it so the next message is due at once.
+    def _virtual_log(self) -> int:
+        """The log time [ns] that corresponds to now (with the lock held)."""
+        if self._base_log is None:
+            return self.first_ns
+        if self.state.paused:
+            return self._base_log
+        return self._base_log + int((time.monotonic() - self._base_wall) * 1e9 * self.state.rate)
+
+    def command(self, command: str, value: float | None = None) -> State:
+        with self._lock:
+            if command == "pause" and not self.state.paused:
+                self._base_log, self._base_wall = self._virtual_log(), time.monotonic()
+                self.state.paused = True
+            elif command == "resume" and self.state.paused:
+                self._base_wall = time.monotonic()
+                self.state.paused = False
+            elif command == "seek":
+                if value is None or value < 0:
+                    raise TestbedError(f"seek needs a value in seconds >= 0, got {value}")
+                self._seek, self._base_log = float(value), None
+            elif command == "rate":
+                if value is None or value <= 0:
+                    raise TestbedError(f"rate needs a value > 0, got {value}")
+                self._base_log, self._base_wall = self._virtual_log(), time.monotonic()
+                self.state.rate = float(value)
+            elif command not in ("status", "pause", "resume"):
+                raise TestbedError(
+                    f"unknown command {command!r}; expected pause, resume, seek, rate or status"
+                )
+            self._changed.set()
+            return State(**asdict(self.state))
+
+    def on_query(self, query: zenoh.Query) -> None:
+        """The control queryable: parameters ``?command=seek;value=3`` or a JSON payload."""
+        params: dict[str, Any] = dict(query.parameters)
+        if query.payload is not None and query.payload.to_bytes():
+            try:
+                params.update(json.loads(query.payload.to_bytes()))
+            except ValueError:
+                query.reply_err(b"payload is not JSON")
+                return
+        try:
+            value = params.get("value")
+            state = self.command(
+                str(params.get("command", "status")), None if value is None else float(value)
+            )
+        except (TestbedError, ValueError) as exc:
+            query.reply_err(str(exc).encode())
+            return
+        query.reply(query.key_expr, json.dumps(asdict(state)).encode())
+
+    # -- the loop -----------------------------------------------------------------------------
+    def _messages(self, from_s: float) -> Iterator[tuple[str, str, bytes, int]]:
+        with open_recording(self.path) as (reader, _):
+            topics = [ch.topic for ch in self.channels.values()]
+            start = self.first_ns + int(from_s * 1e9)
+            for _, ch, msg in iter_messages(self.path, reader, topics=topics, starting_at=start):
+                yield ch.metadata.get("kind", classify(ch.topic)), ch.topic, msg.data, msg.log_time
+
+    def run(
+        self, publish: Callable[[str, bytes, bytes | None], None], stop: threading.Event
+    ) -> State:
+        """Publish until the end (or forever with ``loop``) or until ``stop`` is set."""
+        while not stop.is_set():
+            with self._lock:
+                from_s, self._seek, self._base_log = self._seek or 0.0, None, None
+            interrupted = False
+            for kind, topic, data, log_ns in self._messages(from_s):
+                if not self._wait_until(log_ns, stop):
+                    interrupted = True
+                    break
+                publish(self.out_key(topic), data, rebuild_attachment(kind, data))
+                with self._lock:
+                    self.state.published += 1
+            if interrupted:
+                continue  # a seek restarts the pass; a stop ends the loop
+            with self._lock:
+                self.state.loops += 1
+                if not self.loop:
+                    self.state.done = True
+                    break
+        with self._lock:
+            return State(**asdict(self.state))
+
+    def _wait_until(self, log_ns: int, stop: threading.Event) -> bool:
+        """Sleep until ``log_ns`` is due; False if stopped or a seek was asked for."""
+        while not stop.is_set():
+            with self._lock:
+                if self._seek is not None:
+                    return False
+                if self._base_log is None:
+                    self._base_log, self._base_wall = log_ns, time.monotonic()
+                self._changed.clear()
+                delay = WAIT_SLICE_S
+                if not self.state.paused:
+                    due = self._base_wall + (log_ns - self._base_log) / 1e9 / self.state.rate
+                    delay = due - time.monotonic()
+                    if delay <= 0:
+                        self.state.position_s = (log_ns - self.first_ns) / 1e9
+                        return True
+            self._changed.wait(min(delay, WAIT_SLICE_S))
+        return False
+
+
+def replay(args: Any) -> int:
+    """``formation replay``: the CLI entry (``args`` from :mod:`testbed.recorder_cli`)."""
+    from formation.zenoh_config import open_session
+
+    replayer = Replayer(
+        args.recording, args.rate, args.loop, args.start, _split(args.topics), args.prefix
+    )
+    stop = threading.Event()
+    session = open_session(args)
+    publishers: dict[str, zenoh.Publisher] = {}
+
+    def publish(key: str, data: bytes, attachment: bytes | None) -> None:
+        pub = publishers.get(key)
+        if pub is None:
+            pub = publishers[key] = session.declare_publisher(
+                key, congestion_control=zenoh.CongestionControl.BLOCK
+            )
+        pub.put(data, attachment=attachment)
+
+    queryable = session.declare_queryable(control_key(replayer.prefix), replayer.on_query)
+    try:
+        state = replayer.run(publish, stop)
+    except KeyboardInterrupt:
+        stop.set()
+        state = replayer.state
+    finally:
+        queryable.undeclare()
+        for pub in publishers.values():
+            pub.undeclare()
+        session.close()
+    print(
+        f"replayed {state.published} messages from {replayer.path} onto {replayer.prefix}/** ({state.loops} passes)"
+    )
+    return 0
+
+
+def _split(value: str | None) -> list[str] | None:
+    return [v.strip() for v in value.split(",") if v.strip()] if value else None
+
+
+__all__ = ["Replayer", "State", "control_key", "rebuild_attachment", "replay"]

@@ -1,0 +1,214 @@
+"""``report.md``, ``summary.json`` and PNG figures for one run or several runs compared.
+
+:func:`write_report` reads a recording (what ``formation run`` calls at the end);
+:func:`write_report_from` takes :class:`~recorder.rundata.RunData` from anywhere,
+e.g. ``RunData.from_result(simulate(...))`` for the in-process simulator. The
+numbers are those of MODEL.md §7, recomputed from the arrays.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from formation.graph import expected_rigidity_rank
+from recorder import plots
+from recorder.metrics import error_statistics, longest_run
+from recorder.rundata import RunData, read_run
+
+FIGURES = {
+    "errors": "Formation and shape error",
+    "trajectories": "Trajectories, formation drawn at chosen epochs",
+    "links": "Per-link delivered / dropped timeline",
+    "topology": "MST changes, rigidity rank and components",
+    "covariance": "Substitution and estimation error covariance",
+    "nees": "NEES (normalised estimation error squared)",
+}
+
+
+def _last_finite(values: np.ndarray) -> float | None:
+    finite = values[np.isfinite(values)]
+    return float(finite[-1]) if finite.size else None
+
+
+def _peak(values: np.ndarray) -> float | None:
+    finite = values[np.isfinite(values)]
+    return float(finite.max()) if finite.size else None
+
+
+def _num(v: float) -> float | None:
+    return None if v is None or not math.isfinite(v) else float(v)
+
+
+def summarize(run: RunData) -> dict[str, Any]:
+    """The headline numbers of a run (MODEL.md §7); None where the run has no data."""
+    s = run.scenario
+    links = [f"{a}->{b}" for a, b in run.links]
+    lost = run.decided & ~run.delivered
+    _, _, sub_trace = error_statistics(run.substitution_errors)
+    _, _, est_trace = error_statistics(run.estimation_errors)
+    known = run.rigidity_rank >= 0
+    tree = run.tree[known]
+    expected = expected_rigidity_rank(s.n, s.dimension)
+    out: dict[str, Any] = {
+        "label": run.label,
+        "source": run.source,
+        "scenario": s.name,
+        "strategy": run.strategy,
+        "seed": run.seed,
+        "epochs_with_states": int(np.isfinite(run.positions).all(axis=(1, 2)).sum()),
+        "epochs_with_estimates": int(known.sum()),
+        "final_formation_error_m": _last_finite(run.formation_error),
+        "peak_formation_error_m": _peak(run.formation_error),
+        "final_shape_error_m": _last_finite(run.shape_error),
+        "peak_shape_error_m": _peak(run.shape_error),
+        "substitutions": int(run.substitution_errors.shape[0]),
+        "substitution_cov_trace_m2": _num(sub_trace),
+        "estimation_cov_trace_m2": _num(est_trace),
+        "nees_mean": _num(float(run.nees_values.mean())) if run.nees_values.size else None,
+        "nees_expected": s.dimension,
+        "drops": {links[c]: int(v) for c, v in enumerate(lost.sum(axis=0)) if v},
+        "longest_outage": {
+            links[c]: longest_run(lost[:, c]) for c in range(len(links)) if lost[:, c].any()
+        },
+        "tree_changes": int((tree[1:] != tree[:-1]).any(axis=1).sum()) if len(tree) > 1 else 0,
+        "epochs_not_rigid": int((run.rigidity_rank[known] < expected).sum()),
+        "expected_rigidity_rank": expected,
+        "epochs_split": int((run.components[known] > 1).sum()),
+    }
+    recorded = run.extra.get("recorded_formation_error")
+    if recorded is not None and np.isfinite(recorded).any():
+        both = np.isfinite(recorded) & np.isfinite(run.formation_error)
+        gap = np.abs(recorded[both] - run.formation_error[both])
+        out["recorded_metrics_max_gap_m"] = float(gap.max()) if gap.size else None
+    return out
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return "–"
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return str(v)
+
+
+_ROWS = (
+    ("epochs with all states", "epochs_with_states"),
+    ("epochs with an estimate", "epochs_with_estimates"),
+    ("final formation error [m]", "final_formation_error_m"),
+    ("peak formation error [m]", "peak_formation_error_m"),
+    ("final shape error [m]", "final_shape_error_m"),
+    ("peak shape error [m]", "peak_shape_error_m"),
+    ("substitutions", "substitutions"),
+    ("substitution error cov. trace [m²]", "substitution_cov_trace_m2"),
+    ("estimation error cov. trace [m²]", "estimation_cov_trace_m2"),
+    ("NEES mean (expected d)", "nees_mean"),
+    ("MST changes", "tree_changes"),
+    ("epochs not rigid", "epochs_not_rigid"),
+    ("epochs split (components > 1)", "epochs_split"),
+)
+
+
+def _markdown(
+    title: str, runs: Sequence[RunData], sums: list[dict[str, Any]], figures: dict[str, str]
+) -> str:
+    lines = [f"# {title}", ""]
+    for run in runs:
+        lines.append(
+            f"- **{run.label}**: `{run.source}` (scenario {run.scenario.name}, seed {run.seed})"
+        )
+    lines += ["", "## Numbers", "", "| | " + " | ".join(s["label"] for s in sums) + " |"]
+    lines.append("|---|" + "---|" * len(sums))
+    for name, key in _ROWS:
+        lines.append(f"| {name} | " + " | ".join(_fmt(s[key]) for s in sums) + " |")
+    lines += ["", "## Drops per link (longest outage in epochs)", ""]
+    for s in sums:
+        drops = ", ".join(f"{k}: {v} ({s['longest_outage'][k]})" for k, v in s["drops"].items())
+        lines.append(f"- {s['label']}: {drops or 'none'}")
+    notes = []
+    for run, s in zip(runs, sums, strict=True):
+        if run.source != "simulation" and s["substitutions"] == 0:
+            notes.append(
+                f"{run.label}: substitution errors are not on the wire, so a recording has none."
+            )
+        gap = s.get("recorded_metrics_max_gap_m")
+        if gap is not None:
+            notes.append(
+                f"{run.label}: the recorder's live metrics match the recomputed ones within {gap:.3g} m."
+            )
+    if notes:
+        lines += ["", "## Notes", ""] + [f"- {n}" for n in notes]
+    lines += ["", "## Figures", ""]
+    for name, file in figures.items():
+        lines += [f"### {FIGURES[name]}", "", f"![{FIGURES[name]}]({file})", ""]
+    return "\n".join(lines)
+
+
+def write_report_from(runs: Sequence[RunData], out_dir: Path, title: str | None = None) -> Path:
+    """Figures, ``report.md`` and ``summary.json`` in ``out_dir`` for ``runs`` (compared on shared axes)."""
+    if not runs:
+        raise ValueError("write_report_from needs at least one run")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    first = runs[0]
+    s = first.scenario
+    links = [f"{a}→{b}" for a, b in first.links]
+    length = max(len(r.positions) for r in runs)
+    chosen = sorted({0, length // 4, length // 2, max(length - 1, 0)})
+    files = {
+        "errors": plots.errors(
+            [(r.label, r.formation_error, r.shape_error) for r in runs], out_dir / "errors.png"
+        ),
+        "trajectories": plots.trajectories(
+            [(r.label, r.positions) for r in runs],
+            s.edge_array,
+            s.leader,
+            chosen,
+            out_dir / "trajectories.png",
+        ),
+        "links": plots.link_timeline(
+            [(r.label, r.delivered, r.decided) for r in runs],
+            links,
+            out_dir / "links.png",
+        ),
+        "topology": plots.topology(
+            [(r.label, r.tree, r.rigidity_rank, r.components) for r in runs],
+            expected_rigidity_rank(s.n, s.dimension),
+            out_dir / "topology.png",
+        ),
+        "covariance": plots.covariance(
+            [(r.label, r.substitution_errors, r.estimation_errors) for r in runs],
+            out_dir / "covariance.png",
+        ),
+        "nees": plots.nees(
+            [(r.label, r.nees_values) for r in runs], s.dimension, out_dir / "nees.png"
+        ),
+    }
+    sums = [summarize(r) for r in runs]
+    (out_dir / "summary.json").write_text(json.dumps(sums, indent=2) + "\n", encoding="utf-8")
+    title = title or f"Report: {s.name}"
+    text = _markdown(title, runs, sums, {k: p.name for k, p in files.items()})
+    path = out_dir / "report.md"
+    path.write_text(text + "\n", encoding="utf-8")
+    return path
+
+
+def write_report(mcap_path: Path, out_dir: Path | None = None) -> Path:
+    """The report of one recording, next to it unless ``out_dir`` is given; returns ``report.md``."""
+    mcap_path = Path(mcap_path)
+    run = read_run(mcap_path)
+    return write_report_from([run], out_dir or mcap_path.parent, title=f"Report: {mcap_path}")
+
+
+def write_reports(paths: Sequence[Path], out_dir: Path | None = None) -> Path:
+    """Several recordings (e.g. one per strategy) compared in one report."""
+    runs = [read_run(Path(p)) for p in paths]
+    target = out_dir or Path(paths[0]).parent
+    return write_report_from(runs, target, title="Report: " + ", ".join(str(p) for p in paths))
+
+
+__all__ = ["FIGURES", "summarize", "write_report", "write_report_from", "write_reports"]

@@ -1,0 +1,138 @@
+"""``formation report | info | recover | replay``: the recorder's subcommands.
+
+:func:`register` adds them to the ``formation`` parser (``testbed.cli._EXTRA_COMMANDS``).
+Every bad file (missing, empty, not MCAP, truncated) is a ``RecordingError`` naming
+it, which the CLI prints before exiting with 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from formation import zenoh_config
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from recorder.report import write_reports
+
+    path = write_reports(args.recordings, args.out)
+    print(f"report: {path}")
+    return 0
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from recorder.recording import describe, validate
+
+    info = describe(args.recording)
+    console = Console()
+    s = info.scenario
+    console.print(
+        f"[bold]{info.path}[/]: {info.size_bytes} bytes, {info.messages} messages in {info.chunks} chunks ({info.compression})"
+    )
+    console.print(f"duration {info.duration_s:.3f} s (log time {info.start_ns} … {info.end_ns} ns)")
+    if s is None:
+        console.print("scenario: none stored")
+    else:
+        console.print(
+            f"scenario: {s.name} (seed {s.seed}, {s.n} agents, d = {s.dimension}, {s.epochs} epochs, "
+            f"strategy {s.strategy.name}, {s.runtime.mode})"
+        )
+    stats = info.metadata.get("recorder_stats")
+    if stats:
+        console.print(
+            f"recorder: {stats.get('written')} written, {stats.get('dropped')} could not be kept"
+        )
+    table = Table(title="channels")
+    for col in ("topic", "schema", "messages"):
+        table.add_column(col, justify="right" if col == "messages" else "left")
+    for ch in info.channels:
+        table.add_row(ch.topic, ch.schema, str(ch.messages))
+    console.print(table)
+    if info.sent:
+        links = Table(title="netem decisions per link")
+        for col in ("link", "packets", "dropped"):
+            links.add_column(col, justify="left" if col == "link" else "right")
+        for link in sorted(info.sent):
+            links.add_row(link, str(info.sent[link]), str(info.drops.get(link, 0)))
+        console.print(links)
+    else:
+        console.print("no netem decisions recorded")
+    if args.validate:
+        check = validate(args.recording)
+        console.print(
+            f"validated {check.checked} messages against their JSON Schemas: {check.failures} invalid"
+        )
+        for topic, log_ns, problem in check.examples:
+            console.print(f"  {topic} @ {log_ns}: {problem}")
+        return 1 if check.failures else 0
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "channels": {c.topic: c.messages for c in info.channels},
+                    "drops": dict(info.drops),
+                }
+            )
+        )
+    return 0
+
+
+def cmd_recover(args: argparse.Namespace) -> int:
+    from recorder.recover import recover
+
+    result = recover(args.recording, args.output, args.compression)
+    print(result.describe())
+    return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from recorder.replay import replay
+
+    return replay(args)
+
+
+def register(sub: Any) -> None:
+    """Add ``report``, ``info``, ``recover`` and ``replay`` to the ``formation`` subparsers."""
+    p = sub.add_parser("report", help="report.md and PNG plots from one or more recordings")
+    p.add_argument(
+        "recordings", nargs="+", type=Path, help="run.mcap file(s); several are compared"
+    )
+    p.add_argument(
+        "-o", "--out", type=Path, help="output directory (default: beside the first file)"
+    )
+    p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser("info", help="scenario, duration, channels, message counts, drops per link")
+    p.add_argument("recording", type=Path)
+    p.add_argument(
+        "--validate", action="store_true", help="check every message against its JSON Schema"
+    )
+    p.add_argument("--json", action="store_true", help="also print counts and drops as JSON")
+    p.set_defaults(func=cmd_info)
+
+    p = sub.add_parser("recover", help="a clean MCAP file from a recording cut short")
+    p.add_argument("recording", type=Path)
+    p.add_argument("-o", "--output", type=Path, help="default: <name>-recovered.mcap")
+    p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
+    p.set_defaults(func=cmd_recover)
+
+    p = sub.add_parser("replay", help="publish a recording back onto Zenoh with its timing")
+    p.add_argument("recording", type=Path)
+    p.add_argument("--rate", type=float, default=1.0, help="speed factor (2 = twice as fast)")
+    p.add_argument("--loop", action="store_true", help="start again at the end")
+    p.add_argument(
+        "--start", type=float, default=0.0, help="seconds into the recording to start at"
+    )
+    p.add_argument("--topics", help="key expressions to replay, comma-separated (default: all)")
+    p.add_argument("--prefix", help="publish under this prefix instead of formation/<run_id>")
+    zenoh_config.add_arguments(p)
+    p.set_defaults(func=cmd_replay)
+
+
+__all__ = ["register"]
