@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import sys
 
@@ -58,8 +59,10 @@ def main(argv: list[str] | None = None) -> int:
         node = AgentNode(service, scenario, ids, args.strategy or scenario.strategy.name,
                          scenario.seed if args.seed is None else args.seed)  # fmt: skip
         node.announce()
-        code = node.run(scenario.epochs)
-        service.status("done" if code == 0 else "error", max(r.epoch for r in node.runners.values()))
+        realtime = scenario.runtime.mode == "realtime"
+        code = node.run_realtime() if realtime else node.run(scenario.epochs)
+        detail = json.dumps(node.deadline) if realtime else ""
+        service.status("done" if code == 0 else "error", max(r.epoch for r in node.runners.values()), detail)
         return code
     except TestbedError as exc:
         print(f"agent: error: {exc}", file=sys.stderr)

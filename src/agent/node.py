@@ -8,6 +8,7 @@ measurements; wait for the estimate phase's marker; step to ``x_i[k+1]``.
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import dataclass, field
 
 from agent.runner import AgentRunner, Packet
@@ -20,6 +21,7 @@ from formation.messages import (
     Measurement,
     TokenReport,
 )
+from formation.realtime import ESTIMATE_DEADLINE, STATE_DEADLINE, fetch_clock, sleep_until
 from formation.scenario import Scenario, StrategyName
 from formation.service import Incoming, Service
 
@@ -46,6 +48,8 @@ class AgentNode:
         self.inbox = {i: _Inbox() for i in ids}
         self.phase = dict.fromkeys(ids, "state")  # waiting for the close of this phase
         self.done: set[int] = set()
+        self.taken = dict.fromkeys(ids, -1)  # realtime: last epoch whose packets were taken
+        self.deadline = {"packets": 0, "late_packets": 0, "estimates": 0, "late_estimates": 0, "overruns": 0}
         for i in ids:
             service.subscribe(f"{keys.prefix(self.run_id)}/link/*/{i}/state")
             service.subscribe(keys.link_estimate(self.run_id, i))
@@ -79,11 +83,16 @@ class AgentNode:
                     return
                 meta = (state.epoch, state.seq, state.agent)
             sent_epoch, seq, source = meta
+            if sent_epoch <= self.taken[receiver]:
+                self.deadline["late_packets"] += 1  # realtime: arrived after its epoch's deadline
+                return
             value: object = _BAD if state is None else Packet(source, sent_epoch, tuple(state.position))
             self.inbox[receiver].packets[(source, seq)] = value
         elif kind == "estimate":
             est = self.service.malformed.decode(msg.key, msg.payload, LeaderEstimate)
-            if est is not None:
+            if est is not None and self.taken[receiver] >= 0 and est.epoch < self.runners[receiver].epoch:
+                self.deadline["late_estimates"] += 1
+            elif est is not None:
                 self.inbox[receiver].estimates[est.epoch] = est
             elif meta is not None:
                 self.inbox[receiver].estimates[meta[0]] = _BAD
@@ -163,3 +172,54 @@ class AgentNode:
                     step = self._try_state_phase if self.phase[i] == "state" else self._try_estimate_phase
                     progressed |= step(i)
         return 0 if len(self.done) == len(self.runners) else 130
+
+    # -- realtime ---------------------------------------------------------------------------------
+    def _drain_until(self, t_ns: int) -> None:
+        while True:
+            left = (t_ns - time.time_ns()) / 1e9
+            if left <= 0:
+                return
+            msg = self.service.next_incoming(min(left, 0.05))
+            if msg is not None:
+                self._route(msg)
+
+    def run_realtime(self) -> int:
+        """Fixed period; what has not arrived by a phase's deadline is lost (ARCHITECTURE.md "Time")."""
+        if not self.service.wait_started():
+            return 1
+        clock = fetch_clock(self.service.session, self.run_id)
+        for k in range(self.scenario.epochs):
+            if self.service.stopping.is_set():
+                return 130
+            if time.time_ns() > clock.at(k, STATE_DEADLINE):
+                self.deadline["overruns"] += 1
+            sleep_until(clock.at(k))
+            for runner in self.runners.values():
+                self._publish_state(runner)
+            self._drain_until(clock.at(k, STATE_DEADLINE))
+            for i, runner in self.runners.items():
+                box = self.inbox[i]
+                packets = [p for p in box.packets.values() if isinstance(p, Packet) and p.sent_epoch <= k]
+                self.deadline["packets"] += sum(p.sent_epoch == k for p in packets)
+                box.packets.clear()
+                self.taken[i] = k
+                report = runner.receive(packets)
+                key = keys.agent_report(self.run_id, i)
+                head = self.service.header(key, k)
+                msg = TokenReport(**head, agent=i, measurements=[
+                    Measurement(neighbour=j, token=1 if t else 0, z=z) for j, t, z in report])  # fmt: skip
+                self.service.publish(key, msg, attachment(k, head["seq"], i))
+            self._drain_until(clock.at(k, ESTIMATE_DEADLINE))
+            for i, runner in self.runners.items():
+                est = self.inbox[i].estimates.pop(k, None)
+                self.inbox[i].estimates.clear()
+                if isinstance(est, LeaderEstimate):
+                    self.deadline["estimates"] += 1
+                    runner.step(est.positions, est.v_ref)
+                else:
+                    runner.step(None, None)
+        sleep_until(clock.at(self.scenario.epochs))
+        for runner in self.runners.values():
+            self._publish_state(runner)
+        self.done = set(self.runners)
+        return 0

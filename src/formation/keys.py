@@ -111,3 +111,8 @@ def start(run_id: str) -> str:
 def flush(run_id: str) -> str:
     """Queryable of the recorder: answers with its message counts per key (a flush barrier)."""
     return f"{ROOT}/{run_id}/recorder/counts"
+
+
+def clock(run_id: str) -> str:
+    """Queryable of netem in realtime mode: the run's start time and period."""
+    return f"{ROOT}/{run_id}/clock"

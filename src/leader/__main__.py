@@ -37,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         node = LeaderNode(service, scenario)
         service.announce()
-        code = node.run()
+        code = node.run_realtime() if scenario.runtime.mode == "realtime" else node.run()
         service.status("done" if code == 0 else "error", node.epoch)
         return code
     except TestbedError as exc:

@@ -16,7 +16,9 @@ estimate is computed on the reference's component and the other agents are
 reported unobservable. ``A`` is assembled sparse and never inverted densely;
 the solver follows the structure of the used graph:
 
-* **tree** (the component has ``size − 1`` edges): ``H_b`` is square and
+* **tree** (the component has ``size − 1`` distinct links; repeated
+  measurements of one pair, such as both directions of a link, are first fused
+  into one by adding their information): ``H_b`` is square and
   invertible, so ``x̂`` is the path sum of the signed measurements from ``r``
   and the covariance of agent ``v`` is the sum of ``P_e`` along its path
   (independent noises add). Both by pointer jumping over the BFS tree, ``O(n log depth)``.
@@ -211,18 +213,19 @@ def blue(
     if size == 1:
         return BlueResult(positions, blocks, observable, "none")
 
-    is_tree = inside.size == size - 1
+    fe, fz, fp = _fuse_parallel(count, e[inside] - 1, zz[inside], pp[inside])
+    is_tree = fe.shape[0] == size - 1
     if solver == "tree" and not is_tree:
         raise GraphInputError(
             f"solver = 'tree' but the reference's component has {size} agents and "
-            f"{inside.size} used edges",
-            f"{size - 1} edges (a tree)",
+            f"{fe.shape[0]} distinct used links",
+            f"{size - 1} (a tree)",
         )
     if solver == "tree" or (solver == "auto" and is_tree):
-        _tree_solve(graph, e[inside] - 1, zz[inside], pp[inside], r, xr, positions, blocks)
+        _tree_solve(graph, fe, fz, fp, r, xr, positions, blocks)
         return BlueResult(positions, blocks, observable, "tree")
 
-    system = _System(count, r, observable, e[inside] - 1, zz[inside], pp[inside], xr, diagonal)
+    system = _System(count, r, observable, fe, fz, fp, xr, diagonal)
     method = solver if solver != "auto" else _choose_method(system, graph, r)
     system.solve(method, positions, blocks)
     return BlueResult(positions, blocks, observable, system.method)
@@ -337,6 +340,33 @@ def _not_spd(k: int, smallest: float) -> CovarianceError:
 # --------------------------------------------------------------------------- tree
 
 
+def _fuse_parallel(
+    n: int, e: IntArray, z: FloatArray, p: FloatArray
+) -> tuple[IntArray, FloatArray, FloatArray]:
+    """Merge measurements of the same pair (e.g. both directions of a link) into one.
+
+    Two independent measurements of ``x_i − x_j`` are one with information
+    ``Σ P_k⁻¹`` and value ``(Σ P_k⁻¹)⁻¹ Σ P_k⁻¹ z_k``; the BLUE is unchanged and a
+    tree measured in both directions is still solved as a tree. Edges are 0-based.
+    """
+    lo, hi = np.minimum(e[:, 0], e[:, 1]), np.maximum(e[:, 0], e[:, 1])
+    keys, group = np.unique(lo * n + hi, return_inverse=True)
+    if keys.size == e.shape[0]:
+        return e, z, p
+    d = z.shape[1]
+    oriented = np.where((e[:, 0] == lo)[:, None], z, -z)  # measures x_lo − x_hi
+    info = np.linalg.inv(p)
+    info_sum = np.zeros((keys.size, d, d))
+    np.add.at(info_sum, group, info)
+    weighted = np.zeros((keys.size, d))
+    np.add.at(weighted, group, np.einsum("eab,eb->ea", info, oriented))
+    fused_p = np.linalg.inv(info_sum)
+    fused_p = 0.5 * (fused_p + fused_p.transpose(0, 2, 1))
+    fused_z = np.einsum("eab,eb->ea", fused_p, weighted)
+    fused_e = np.stack([keys // n, keys % n], axis=1)
+    return fused_e, fused_z, fused_p
+
+
 def _adjacency(n: int, e: IntArray) -> csr_array:
     ones = np.ones(e.shape[0], dtype=np.int8)
     return csr_array(coo_array((ones, (e[:, 0], e[:, 1])), shape=(n, n)))
@@ -418,12 +448,27 @@ class _System:
         self.p = p
         self.diagonal = diagonal
         self.method = ""
+        self._first: csr_array | None = None
 
     # -- structure
 
     def pattern(self) -> csr_array:
-        """Node-level sparsity of the grounded Laplacian (unit weights), with its diagonal."""
+        """Node-level sparsity of the grounded Laplacian, with its diagonal.
+
+        In the diagonal case this is the first coordinate's Laplacian itself,
+        kept so that ``solve`` does not assemble it twice.
+        """
+        if self.diagonal:
+            if self._first is None:
+                self._first = self._laplacian(self._weights()[:, 0])
+            return self._first
         return self._laplacian(np.ones(self.i.size))
+
+    def _weights(self) -> FloatArray:
+        """Edge weights ``1 / P_e[k, k]`` per coordinate (diagonal case): (m, d)."""
+        d = self.d
+        w: FloatArray = 1.0 / self.p[:, np.arange(d), np.arange(d)]
+        return w
 
     def _laplacian(self, w: FloatArray) -> csr_array:
         i, j, s = self.i, self.j, self.size
@@ -485,9 +530,12 @@ class _System:
         cov = np.zeros((s, d, d)) if blocks is not None else None
         used: set[str] = set()
         if self.diagonal:
-            weights = 1.0 / self.p[:, np.arange(d), np.arange(d)]  # (m, d)
+            weights = self._weights()
             for cols in _equal_columns(weights):
-                mat = self._laplacian(weights[:, cols[0]])
+                if cols[0] == 0 and self._first is not None:
+                    mat = self._first
+                else:
+                    mat = self._laplacian(weights[:, cols[0]])
                 rhs = self._rhs(weights[:, cols[0]], cols)
                 sol, how, lu = _solve(mat, rhs, method, None)
                 used.add(how)
@@ -570,14 +618,15 @@ def _pcg(mat: csr_array, rhs: FloatArray, block: int | None) -> FloatArray | Non
     Jacobi preconditioner (``block=None``) or block-Jacobi with ``block × block``
     diagonal blocks. Stops when every column's residual is below ``CG_RTOL`` of
     its right-hand side; returns ``None`` if that takes more than ``10 n + 100``
-    iterations (the caller then factorises).
+    iterations (the caller then factorises). Works on the transposed layout
+    (one contiguous row per right-hand side) so the inner products are fast.
     """
     size = rhs.shape[0]
     if block is None:
         inv_diag = 1.0 / mat.diagonal()
 
         def precond(v: FloatArray) -> FloatArray:
-            out: FloatArray = inv_diag[:, None] * v
+            out: FloatArray = v * inv_diag
             return out
     else:
         nodes = size // block
@@ -585,29 +634,36 @@ def _pcg(mat: csr_array, rhs: FloatArray, block: int | None) -> FloatArray | Non
 
         def precond(v: FloatArray) -> FloatArray:
             out: FloatArray = np.einsum(
-                "tab,tbc->tac", inv_blocks, v.reshape(nodes, block, -1)
-            ).reshape(size, -1)
+                "tab,ktb->kta", inv_blocks, v.reshape(-1, nodes, block)
+            ).reshape(v.shape)
             return out
 
-    x = np.zeros_like(rhs)
-    res = rhs.copy()
-    target = CG_RTOL**2 * np.einsum("ij,ij->j", rhs, rhs)
+    def apply(v: FloatArray) -> FloatArray:
+        out = np.empty_like(v)
+        for k in range(v.shape[0]):
+            out[k] = mat @ v[k]
+        return out
+
+    b = np.ascontiguousarray(rhs.T)
+    x = np.zeros_like(b)
+    res = b.copy()
+    target = CG_RTOL**2 * np.einsum("ij,ij->i", b, b)
     if not np.any(target > 0):
-        return x
+        return x.T.copy()
     zv = precond(res)
     direction = zv.copy()
-    rz = np.einsum("ij,ij->j", res, zv)
+    rz = np.einsum("ij,ij->i", res, zv)
     for _ in range(10 * size + 100):
-        ad = mat @ direction
-        curv = np.einsum("ij,ij->j", direction, ad)
-        alpha = np.divide(rz, curv, out=np.zeros_like(rz), where=curv > 0)
+        ad = apply(direction)
+        curv = np.einsum("ij,ij->i", direction, ad)
+        alpha = np.divide(rz, curv, out=np.zeros_like(rz), where=curv > 0)[:, None]
         x += alpha * direction
         res -= alpha * ad
-        if np.all(np.einsum("ij,ij->j", res, res) <= target):
-            return x
+        if np.all(np.einsum("ij,ij->i", res, res) <= target):
+            return x.T.copy()
         zv = precond(res)
-        rz_new = np.einsum("ij,ij->j", res, zv)
-        beta = np.divide(rz_new, rz, out=np.zeros_like(rz), where=rz > 0)
+        rz_new = np.einsum("ij,ij->i", res, zv)
+        beta = np.divide(rz_new, rz, out=np.zeros_like(rz), where=rz > 0)[:, None]
         direction = zv + beta * direction
         rz = rz_new
     return None

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import time
 
 import numpy as np
 import numpy.typing as npt
@@ -10,6 +11,7 @@ import numpy.typing as npt
 from formation import keys
 from formation.codec import attachment, read_attachment
 from formation.messages import EpochClose, LeaderEstimate, TokenReport
+from formation.realtime import REPORT_DEADLINE, fetch_clock
 from formation.reference import reference_positions, reference_velocities
 from formation.scenario import Scenario
 from formation.service import Incoming, Service
@@ -63,6 +65,7 @@ class LeaderNode:
         self.reports: dict[tuple[int, int], object] = {}  # (agent, seq) → TokenReport or None if malformed
         self.closes: dict[int, EpochClose] = {}
         self.epoch = 0
+        self.late_reports = 0
         service.subscribe(f"{keys.prefix(self.run_id)}/leader/report/*")
         service.subscribe(keys.close(self.run_id, keys.LEADER, "report"))
         service.watch_alive()
@@ -88,6 +91,10 @@ class LeaderNode:
         got = [self.reports.pop((d.source, d.seq)) for d in close.delivered]
         reports = [r for r, d in zip(got, close.delivered, strict=True) if isinstance(r, TokenReport) and d.sent_epoch == k]
         del self.closes[k]
+        self._estimate(k, reports)
+        return True
+
+    def _estimate(self, k: int, reports: list[TokenReport]) -> None:
         known, z = reports_to_measurements(self.scenario, reports)
         lead = leader_epoch(self.scenario, known, z, self.ref_x[k])
         if not lead.estimate.observable.all():
@@ -98,7 +105,24 @@ class LeaderNode:
                                self.scenario.edge_array, len(reports))  # fmt: skip
         self.service.publish(key, msg, attachment(k, int(head["seq"]), keys.LEADER))  # type: ignore[arg-type]
         self.epoch = k + 1
-        return True
+
+    def run_realtime(self) -> int:
+        """Each period, the reports that arrived by the report deadline; later ones are lost."""
+        if not self.service.wait_started():
+            return 1
+        clock = fetch_clock(self.service.session, self.run_id)
+        for k in range(self.scenario.epochs):
+            while time.time_ns() < clock.at(k, REPORT_DEADLINE):
+                if self.service.stopping.is_set():
+                    return 130
+                msg = self.service.next_incoming(max(0.0, min(0.05, (clock.at(k, REPORT_DEADLINE) - time.time_ns()) / 1e9)))
+                if msg is not None and "/close/" not in msg.key:
+                    self._route(msg)
+            reports = [r for r in self.reports.values() if isinstance(r, TokenReport) and r.epoch == k]
+            self.late_reports += sum(1 for r in self.reports.values() if isinstance(r, TokenReport) and r.epoch < k)
+            self.reports.clear()
+            self._estimate(k, reports)
+        return 0
 
     def run(self) -> int:
         if not self.service.wait_started():

@@ -40,7 +40,10 @@ def main(argv: list[str] | None = None) -> int:
         node = NetemNode(service, scenario, scenario.seed if args.seed is None else args.seed,
                          wait_for_recorder=not args.no_recorder)  # fmt: skip
         service.announce()
-        code = node.run()
+        if scenario.runtime.mode == "realtime":
+            code = node.run_realtime(scenario.runtime.realtime_period_s or scenario.control.period_s)
+        else:
+            code = node.run()
         service.status("done" if code == 0 else "error", node.estimates_done)
         return code
     except TestbedError as exc:

@@ -10,7 +10,9 @@ epochs: a delayed packet is delivered with the close of a later epoch.
 
 from __future__ import annotations
 
+import heapq
 import json
+import time
 import logging
 import threading
 from collections import defaultdict
@@ -24,6 +26,7 @@ from formation import keys
 from formation.codec import attachment, read_attachment
 from formation.linkmodels import LinkModelSpec
 from formation.messages import Decision, DecisionBatch, Delivered, EpochClose, LinkChange
+from formation.realtime import Clock
 from formation.scenario import LEADER_ENDPOINT, Scenario
 from formation.service import Incoming, Service
 from netem.models import LinkModel
@@ -93,6 +96,8 @@ class NetemNode:
         service.subscribe(f"{prefix}/agent/*/report")
         service.subscribe(keys.leader_estimate_out(self.run_id))
         service.queryable(keys.netem_config(self.run_id), self._on_config)
+        self.clock: Clock | None = None
+        service.queryable(keys.clock(self.run_id), self._on_clock)
         service.watch_alive(self._on_alive)
 
     # -- liveliness ---------------------------------------------------------------------------
@@ -265,6 +270,90 @@ class NetemNode:
                             models=[s.model_dump(by_alias=True) for s in specs], from_epoch=from_epoch)  # fmt: skip
         self.service.publish(key, change)
         return {"ok": True, "link": link, "class": cls, "from_epoch": from_epoch}
+
+    # -- realtime --------------------------------------------------------------------------------------
+    def _on_clock(self, query: zenoh.Query) -> None:
+        if self.clock is None:
+            query.reply_err(b"not started")
+        else:
+            query.reply(query.key_expr, self.clock.to_json())
+
+    def _forward_realtime(self, cls: LinkClass, src: int, dst: int, key: str, msg: Incoming,
+                          epoch: int, seq: int, due: list[tuple[int, int, str, bytes, bytes]]) -> None:  # fmt: skip
+        assert self.clock is not None
+        now = time.time_ns()
+        d = self.models[(cls, src, dst)].decide(epoch, time_s=(now - self.clock.t0_ns) / 1e9)
+        self.decisions[(_PHASE_OF[cls], epoch)].append(
+            Decision(source=src, target=dst, link_class=cls, epoch=epoch, seq=seq, verdict=d.verdict,  # type: ignore[arg-type]
+                     delay_ms=d.delay_ms, model=d.model, state=d.state)  # fmt: skip
+        )
+        if not d.delivered:
+            return
+        att = attachment(epoch, seq, src)
+        if d.delay_ms <= 0:
+            for _ in range(d.copies):
+                self.service.put(key, msg.payload, att)
+        else:
+            for _ in range(d.copies):
+                heapq.heappush(due, (now + int(d.delay_ms * 1e6), len(due), key, msg.payload, att))
+
+    def _handle_realtime(self, msg: Incoming, due: list[tuple[int, int, str, bytes, bytes]]) -> None:
+        meta = read_attachment(msg.attachment)
+        if msg.key.startswith("dead/"):
+            self.dead.add(int(msg.key.split("/")[1]))
+            return
+        if meta is None:
+            self.service.malformed.counts[msg.key] += 1
+            return
+        epoch, seq, source = meta
+        parts = msg.key.split("/")
+        if parts[2] == "agent":
+            if int(parts[3]) != source or source not in self.agents:
+                self.service.malformed.counts[msg.key] += 1
+                return
+            if parts[-1] == "state":
+                self.epoch_seen = max(self.epoch_seen, epoch)
+                if epoch >= self.scenario.epochs:
+                    self.final_states.add(source)
+                    return
+                for dst in self.out_links[source]:
+                    self._forward_realtime("formation", source, dst, keys.link_state(self.run_id, source, dst),
+                                           msg, epoch, seq, due)  # fmt: skip
+            elif parts[-1] == "report":
+                self._forward_realtime("report", source, LEADER_ENDPOINT, keys.link_report(self.run_id, source),
+                                       msg, epoch, seq, due)  # fmt: skip
+        elif parts[2] == "leader" and parts[-1] == "estimate":
+            for i in self.agents:
+                self._forward_realtime("estimate", LEADER_ENDPOINT, i, keys.link_estimate(self.run_id, i),
+                                       msg, epoch, seq, due)  # fmt: skip
+            self.estimates_done = max(self.estimates_done, epoch + 1)
+
+    def run_realtime(self, period_s: float) -> int:
+        """Forward each packet as it comes (after its model's delay in ms); no epoch closes."""
+        while not self.everyone_up():
+            if self.service.stopping.wait(0.02):
+                return 130
+        self.clock = Clock(time.time_ns() + int(0.3e9), int(period_s * 1e9))
+        self.service.declare_start()
+        due: list[tuple[int, int, str, bytes, bytes]] = []
+        next_flush = self.clock.at(1)
+        while not (self.finished() and not due) and not self.service.stopping.is_set():
+            now = time.time_ns()
+            while due and due[0][0] <= now:
+                _, _, key, payload, att = heapq.heappop(due)
+                self.service.put(key, payload, att)
+            if now >= next_flush:
+                for phase, epoch in sorted(self.decisions):
+                    self._publish_decisions(phase, epoch)
+                next_flush += self.clock.period_ns
+            wait = 0.05 if not due else max(0.0, min(0.05, (due[0][0] - now) / 1e9))
+            msg = self.service.next_incoming(wait)
+            if msg is not None:
+                with self.lock:
+                    self._handle_realtime(msg, due)
+        for phase, epoch in sorted(self.decisions):
+            self._publish_decisions(phase, epoch)
+        return 0 if self.finished() else 130
 
     # -- main loop -------------------------------------------------------------------------------------
     def run(self) -> int:

@@ -163,7 +163,7 @@ class Recorder:
                     if draining:
                         return
                     self._writer_done.wait(POLL_S)
-        except BaseException as exc:  # noqa: BLE001 - reported by the main thread
+        except BaseException as exc:
             self.error = exc
             self.stop.set()
 
@@ -205,14 +205,16 @@ class Recorder:
     def run(self) -> int:
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, self.on_signal)
-        session = zenoh_config.open_session(self.args)
+        session: Any = zenoh_config.open_session(self.args)  # zenoh's stubs leave close() untyped
         try:
             return self._record(session)
         finally:
             session.close()
 
     def _record(self, session: zenoh.Session) -> int:
-        subs = [session.declare_subscriber(f, self.intake.on_sample) for f in self.filters]
+        subs: list[Any] = [
+            session.declare_subscriber(f, self.intake.on_sample) for f in self.filters
+        ]
         liveliness = session.liveliness()
         subs.append(
             liveliness.declare_subscriber(keys.alive_all(self.run_id), self.on_alive, history=True)
@@ -220,7 +222,7 @@ class Recorder:
         subs.append(session.declare_queryable(keys.flush(self.run_id), self.on_counts))
         writer = threading.Thread(target=self._writer, name="recorder-writer", daemon=True)
         writer.start()
-        token = liveliness.declare_token(keys.alive(self.run_id, "recorder", 0))
+        token: Any = liveliness.declare_token(keys.alive(self.run_id, "recorder", 0))
         self._status(session, "ready")
         log.info("recording %s into %s", ", ".join(self.filters), self.recording.files[0])
         display = Display(self, self.args.live, self.args.log_interval)

@@ -87,7 +87,7 @@ def _copy(src: object, out: McapFile, source: Path, target: Path, size: int) -> 
             record = next(records)
         except StopIteration:
             break
-        except Exception as exc:  # noqa: BLE001 - any failure ends the readable prefix
+        except Exception as exc:
             problem = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
             break
         readable = src.tell()  # type: ignore[attr-defined]

@@ -26,7 +26,7 @@ from typing import Any
 import zenoh
 
 from formation import codec, keys
-from formation.errors import RecordingError, TestbedError
+from formation.errors import TestbedError
 from recorder.recording import iter_messages, open_recording
 from recorder.schemas import classify, run_id_of
 
@@ -79,11 +79,12 @@ class Replayer:
         start_s: float = 0.0,
         topics: list[str] | None = None,
         prefix: str | None = None,
+        paused: bool = False,
     ) -> None:
         if rate <= 0:
             raise TestbedError(f"--rate {rate}; expected > 0")
         self.path, self.loop = Path(path), loop
-        self.state = State(rate=rate, position_s=start_s)
+        self.state = State(paused=paused, rate=rate, position_s=start_s)
         self._filters = [zenoh.KeyExpr(t) for t in topics or []]
         self._lock = threading.Lock()
         self._changed = threading.Event()
@@ -99,8 +100,8 @@ class Replayer:
             stats = summary.statistics
             self.first_ns = stats.message_start_time if stats else 0
             self.duration_s = (stats.message_end_time - self.first_ns) / 1e9 if stats else 0.0
-        recorded = {run_id_of(ch.topic) for ch in summary.channels.values()} - {None}
-        self.recorded_prefix = keys.prefix(sorted(recorded)[0]) if recorded else keys.ROOT
+        recorded = sorted(r for ch in summary.channels.values() if (r := run_id_of(ch.topic)))
+        self.recorded_prefix = keys.prefix(recorded[0]) if recorded else keys.ROOT
         self.prefix = prefix or self.recorded_prefix
 
     def _wanted(self, topic: str, metadata: dict[str, str]) -> bool:
@@ -152,7 +153,8 @@ class Replayer:
 
     def on_query(self, query: zenoh.Query) -> None:
         """The control queryable: parameters ``?command=seek;value=3`` or a JSON payload."""
-        params: dict[str, Any] = dict(query.parameters)
+        given = query.parameters
+        params: dict[str, Any] = {k: given.get(k) for k in ("command", "value") if k in given}
         if query.payload is not None and query.payload.to_bytes():
             try:
                 params.update(json.loads(query.payload.to_bytes()))
@@ -227,11 +229,11 @@ def replay(args: Any) -> int:
     from formation.zenoh_config import open_session
 
     replayer = Replayer(
-        args.recording, args.rate, args.loop, args.start, _split(args.topics), args.prefix
+        args.recording, args.rate, args.loop, args.start, _split(args.topics), args.prefix, args.paused
     )
     stop = threading.Event()
-    session = open_session(args)
-    publishers: dict[str, zenoh.Publisher] = {}
+    session: Any = open_session(args)  # zenoh's stubs leave close/undeclare untyped
+    publishers: dict[str, Any] = {}
 
     def publish(key: str, data: bytes, attachment: bytes | None) -> None:
         pub = publishers.get(key)
@@ -241,7 +243,7 @@ def replay(args: Any) -> int:
             )
         pub.put(data, attachment=attachment)
 
-    queryable = session.declare_queryable(control_key(replayer.prefix), replayer.on_query)
+    queryable: Any = session.declare_queryable(control_key(replayer.prefix), replayer.on_query)
     try:
         state = replayer.run(publish, stop)
     except KeyboardInterrupt:

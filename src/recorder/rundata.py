@@ -82,7 +82,7 @@ class RunData:
     @classmethod
     def from_result(cls, result: Any, label: str | None = None) -> RunData:
         """From anything with ``SimResult``'s fields (the in-process simulator's result)."""
-        arrays = {name: np.asarray(getattr(result, name)) for name in _ARRAYS}
+        arrays: dict[str, Any] = {name: np.asarray(getattr(result, name)) for name in _ARRAYS}
         strategy = str(getattr(result, "strategy", ""))
         return cls(
             label=label or strategy,

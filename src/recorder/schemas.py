@@ -91,7 +91,9 @@ def classify(key: str) -> str:
     """The channel kind of ``key`` (``"agent_state"``, ``"scene"``, ... or ``"unknown"``)."""
     parts = key.split("/")
     for kind, pattern in _SPLIT:
-        if len(parts) == len(pattern) and all(p in (_W, x) for p, x in zip(pattern, parts)):
+        if len(parts) == len(pattern) and all(
+            p in (_W, x) for p, x in zip(pattern, parts, strict=True)
+        ):
             return kind
     return UNKNOWN
 

@@ -101,7 +101,7 @@ class McapFile:
 
     def _record(self, record: Any) -> int:
         """Write a record from :mod:`mcap.records` outside any chunk; returns its offset."""
-        builder = RecordBuilder()
+        builder: Any = RecordBuilder()  # untyped in mcap
         record.write(builder)
         offset = self.position
         self._raw(builder.end())
@@ -117,7 +117,7 @@ class McapFile:
         self._record(channel)
 
     def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
-        builder = RecordBuilder()
+        builder: Any = RecordBuilder()
         Metadata(name=name, metadata=dict(data)).write(builder)
         offset = self.position
         self._raw(builder.end())
@@ -206,7 +206,7 @@ class McapFile:
         self.close_chunk()
         self._record(DataEnd(data_section_crc=0))
         summary_start = self.position
-        builder = RecordBuilder()
+        builder: Any = RecordBuilder()
         offsets: list[SummaryOffset] = []
         groups: list[tuple[Opcode, Iterable[Any]]] = [
             (Opcode.SCHEMA, self.schemas.values()),
@@ -374,12 +374,7 @@ class Recording:
                 cid = self.channel(key)
             if cid in taps:
                 tapped.append((taps[cid], key, data, recv))
-            seq = 0
-            if att is not None:
-                try:
-                    seq = seq_of(att)[0] & _MASK32
-                except struct.error:
-                    pass
+            seq = 0 if att is None or len(att) != _SEQ.size else seq_of(att)[0] & _MASK32
             pub = recv if ts is None else ts.get_time_as_ntp64().as_nanos()
             parts += (pack(5, 22 + len(data), cid, seq, recv, pub), data)
             size += 31 + len(data)

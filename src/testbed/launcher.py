@@ -68,6 +68,14 @@ class RunOutcome:
             dropped[link] += d.verdict == "drop"
         return {k: (sent[k], dropped[k]) for k in sorted(sent)}
 
+    def deadline_miss_rate(self) -> float | None:
+        """Realtime: packets and estimates that arrived after their deadline, over all that arrived."""
+        d = self.extra.get("deadline") or {}
+        total = sum(d.get(k, 0) for k in ("packets", "late_packets", "estimates", "late_estimates"))
+        if not total:
+            return None
+        return (d.get("late_packets", 0) + d.get("late_estimates", 0)) / total
+
     def summary(self) -> dict[str, Any]:
         drops = self.drops_per_link()
         return {
@@ -81,6 +89,9 @@ class RunOutcome:
             "packets_dropped": sum(d for _, d in drops.values()),
             "dropped_links": {k: v for k, v in drops.items() if v[1]},
             "malformed": self.malformed,
+            "mode": self.scenario.runtime.mode,
+            "deadline_miss_rate": self.deadline_miss_rate(),
+            "deadline": self.extra.get("deadline", {}),
             "wall_s": self.wall_s,
         }
 
@@ -193,8 +204,8 @@ def launch(
     observer = None
     try:
         router = group.start("router", "testbed.router", "--listen", endpoint)
-        group.on_start = lambda: (run_dir / "pids.json").write_text(
-            json.dumps({"endpoint": endpoint, "pids": group.pid_map()})
+        group.on_start = lambda: _write_atomic(
+            run_dir / "pids.json", json.dumps({"endpoint": endpoint, "pids": group.pid_map()})
         )
         wait_for_port(HOST, port, 10.0)
         session = zenoh.open(session_config("client", endpoint, None))
@@ -245,14 +256,17 @@ def launch(
         with observer.lock:
             malformed: Counter[str] = Counter(observer.malformed.counts)
             sent: Counter[str] = Counter()
+            deadline: Counter[str] = Counter()
             for st in observer.statuses.values():
                 malformed.update(st.malformed)
                 sent.update(st.sent)
+                if st.role in ("agent", "pool") and st.detail.startswith("{"):
+                    deadline.update(json.loads(st.detail))
             return RunOutcome(
                 run_id=run_id, run_dir=run_dir, scenario=scenario, strategy=strategy, seed=seed,
                 positions=observer.positions.copy(), estimates=dict(observer.estimates),
                 decisions=list(observer.decisions), malformed=dict(malformed), sent=dict(sent),
-                pids=group.pids, wall_s=time.monotonic() - started,
+                pids=group.pids, wall_s=time.monotonic() - started, extra={"deadline": dict(deadline)},
             )  # fmt: skip
     finally:
         if observer is not None:
@@ -260,6 +274,13 @@ def launch(
         if session is not None:
             session.close()
         group.stop_all()
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    """Readers never see half a file: write beside it, then rename over it."""
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
 
 
 def _all_final(observer: _Observer) -> bool:

@@ -1,0 +1,56 @@
+"""Wall-clock epochs for realtime mode: one period, fixed phase deadlines within it.
+
+Epoch ``k`` spans ``[t0 + kP, t0 + (k+1)P)``: agents publish ``x_i[k]`` at its
+start, take what arrived by ``STATE_DEADLINE·P`` and report, the leader takes the
+reports that arrived by ``REPORT_DEADLINE·P``, agents take the estimate that
+arrived by ``ESTIMATE_DEADLINE·P`` and step. What arrives later is lost (and
+counted as a deadline miss). Times are ``time.time_ns()`` so hosts share them.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+
+import zenoh
+
+from formation import keys
+from formation.errors import RuntimeFailure
+
+STATE_DEADLINE = 0.35
+REPORT_DEADLINE = 0.60
+ESTIMATE_DEADLINE = 0.85
+
+
+@dataclass(frozen=True)
+class Clock:
+    t0_ns: int
+    period_ns: int
+
+    def at(self, epoch: int, fraction: float = 0.0) -> int:
+        return self.t0_ns + int((epoch + fraction) * self.period_ns)
+
+    def epoch_of(self, t_ns: int) -> int:
+        return (t_ns - self.t0_ns) // self.period_ns
+
+    def to_json(self) -> bytes:
+        return json.dumps({"t0_ns": self.t0_ns, "period_ns": self.period_ns}).encode()
+
+
+def sleep_until(t_ns: int) -> None:
+    delay = (t_ns - time.time_ns()) / 1e9
+    if delay > 0:
+        time.sleep(delay)
+
+
+def fetch_clock(session: zenoh.Session, run_id: str, timeout_s: float = 10.0) -> Clock:
+    """Ask netem for the run's clock (after the start token)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        for reply in session.get(keys.clock(run_id), timeout=1.0):
+            if reply.ok is not None:
+                data = json.loads(reply.ok.payload.to_bytes())
+                return Clock(int(data["t0_ns"]), int(data["period_ns"]))
+        time.sleep(0.01)
+    raise RuntimeFailure(f"no answer from netem's clock ({keys.clock(run_id)}) within {timeout_s:g} s")

@@ -1,0 +1,125 @@
+"""Realtime mode, Ctrl-C, a dying process, malformed payloads and bad endpoints: clear outcomes, no orphans."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from formation import keys
+from formation.errors import RuntimeFailure
+from formation.scenario import Scenario
+from formation.zenoh_config import session_config
+from testbed.launcher import launch
+from testbed.processes import free_port
+
+from .conftest import pid_alive, run_pids
+
+pytestmark = pytest.mark.integration
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def wait_for(cond, timeout_s: float, what: str) -> None:  # type: ignore[no-untyped-def]
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.02)
+
+
+@pytest.mark.slow
+def test_realtime_twenty_agents_at_20_hz_for_10_s(runs_dir: Path) -> None:
+    scenario = Scenario.from_file(ROOT / "scenarios/grid20.toml").with_overrides(
+        epochs=200, runtime={"mode": "realtime", "realtime_period_s": 0.05}
+    )
+    outcome = launch(scenario, runs_dir=runs_dir, record=False)
+    rate = outcome.deadline_miss_rate()
+    assert rate is not None and 0.0 <= rate < 0.5, outcome.extra
+    assert outcome.extra["deadline"]["packets"] > 0.5 * 200 * len(scenario.directed_links)
+    assert np.isfinite(outcome.positions).all()
+    assert outcome.shape_error[-1] < 0.1 < outcome.shape_error[0]
+    print(f"realtime 20 agents @ 20 Hz, 10 s: deadline-miss rate {rate:.4f}, {outcome.extra['deadline']}")
+
+
+def test_ctrl_c_stops_every_process_and_exits(paper_path: Path, runs_dir: Path) -> None:
+    env = {**os.environ, "COLUMNS": "120"}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "testbed.cli", "run", str(paper_path), "--epochs", "100000", "--no-record",
+         "--runs-dir", str(runs_dir)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+    )  # fmt: skip
+    try:
+        pids_file = lambda: next(runs_dir.glob("*/pids.json"), None)  # noqa: E731
+        wait_for(lambda: pids_file() is not None and len(json.loads(pids_file().read_text())["pids"]) == 8, 60, "all processes")
+        wait_for(lambda: all(pid_alive(p) for p in run_pids(runs_dir)), 10, "processes running")
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+        assert proc.returncode == 130, err
+        assert b"interrupted" in err
+        wait_for(lambda: not any(pid_alive(p) for p in run_pids(runs_dir)), 20, "children to end")
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def test_a_killed_agent_is_reported_and_nothing_is_left(paper: Scenario, runs_dir: Path) -> None:
+    scenario = paper.with_overrides(epochs=100000)
+    killed: list[int] = []
+
+    def kill_agent(run_id: str, endpoint: str) -> None:
+        pids = json.loads((runs_dir / run_id / "pids.json").read_text())["pids"]
+        killed.append(pids["agent-3"])
+        os.kill(pids["agent-3"], signal.SIGKILL)
+
+    with pytest.raises(RuntimeFailure, match=r"agent-3 \(pid \d+\) exited with code -9"):
+        launch(scenario, runs_dir=runs_dir, record=False, on_started=kill_agent)
+    assert killed and not any(pid_alive(p) for p in run_pids(runs_dir))
+
+
+def test_malformed_payloads_are_counted_and_skipped(paper: Scenario, runs_dir: Path) -> None:
+    sent = threading.Event()
+
+    def inject(run_id: str, endpoint: str) -> None:
+        with zenoh.open(session_config("client", endpoint, None)) as s:
+            s.put(keys.agent_state(run_id, 2), b"not json at all")  # no attachment: netem rejects it
+            s.put(keys.link_state(run_id, 1, 3), b'{"kind": "state"}', attachment=b"\\x00" * 24)
+            s.put(keys.close(run_id, 4, "state"), b"{broken")
+            s.put(keys.link_report(run_id, 2), b"[]")
+        sent.set()
+
+    outcome = launch(paper, runs_dir=runs_dir, record=False, on_started=inject)
+    assert sent.is_set()
+    assert np.isfinite(outcome.positions).all()
+    bad = outcome.malformed
+    assert bad.get(keys.agent_state(outcome.run_id, 2), 0) >= 1  # counted by netem
+    assert bad.get(keys.close(outcome.run_id, 4, "state"), 0) >= 1  # counted by agent 4
+    assert bad.get(keys.link_report(outcome.run_id, 2), 0) >= 1  # counted by the leader
+
+
+@pytest.mark.parametrize("service", ["agent", "leader", "netem"])
+def test_unreachable_endpoint_is_a_clear_error(paper_path: Path, service: str) -> None:
+    port = free_port()
+    args = ["--scenario", str(paper_path), "--mode", "client", "--connect", f"tcp/127.0.0.1:{port}"]
+    if service == "agent":
+        args += ["--id", "2"]
+    proc = subprocess.run([sys.executable, "-m", service, *args], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 1
+    assert f"{service}: error: cannot open a Zenoh session (tcp/127.0.0.1:{port})" in proc.stderr
+
+
+def test_unknown_agent_id_is_a_clear_error(paper_path: Path) -> None:
+    proc = subprocess.run(
+        [sys.executable, "-m", "agent", "--scenario", str(paper_path), "--id", "9"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert proc.returncode == 1
+    assert "agent: error: --id 9: no such agent in the scenario (agents are 1..5)" in proc.stderr

@@ -1,0 +1,105 @@
+"""Fixtures for the recorder's unit tests: Foxglove schemas, simulated runs, synthetic recordings."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import pytest
+
+from formation import keys
+from formation.codec import attachment, encode
+from formation.messages import CoordinationState, Decision, DecisionBatch, LeaderEstimate
+from formation.scenario import Scenario
+from recorder.epochs import EpochAssembler
+from recorder.writer import Recording
+
+ROOT = Path(__file__).resolve().parents[3]
+SHARED = ROOT.parent / "shared"
+RUN = "synthetic"
+EPOCH_NS = 1_000_000_000  # log time between epochs in the synthetic recording [ns]
+
+
+def _header(sender: str, seq: int, epoch: int) -> dict[str, Any]:
+    return {"run_id": RUN, "sender": sender, "seq": seq, "epoch": epoch, "stamp_ns": 1000 + epoch}
+
+
+def traffic(result: Any) -> list[tuple[str, bytes, bytes | None, int]]:
+    """What a distributed run of ``result`` (a SimResult) puts on the wire, in epoch order."""
+    s: Scenario = result.scenario
+    out: list[tuple[str, bytes, bytes | None, int]] = []
+    edges = [tuple(int(v) for v in e) for e in s.edge_array]
+    x = result.positions
+    for k in range(len(x)):
+        t = k * EPOCH_NS
+        for i in range(1, s.n + 1):
+            msg = CoordinationState(**_header(f"agent/{i}", k, k), agent=i, position=x[k, i - 1].tolist())
+            out.append((keys.agent_state(RUN, i), encode(msg), attachment(k, k, i), t + i))
+        if k >= len(result.estimates):
+            continue
+        decisions = [
+            Decision(source=int(a), target=int(b), link_class="formation", epoch=k, seq=k,
+                     verdict="pass" if result.delivered[k, c] else "drop")
+            for c, (a, b) in enumerate(s.directed_links)
+        ]  # fmt: skip
+        batch = DecisionBatch(**_header("netem", k, k), phase="state", decisions=decisions)
+        out.append((keys.netem_decision(RUN), encode(batch), None, t + 100))
+        est, cov, obs = result.estimates[k], result.estimate_cov[k], result.observable[k]
+        msg = LeaderEstimate(
+            **_header("leader", k, k),
+            positions=[est[i].tolist() if obs[i] else None for i in range(s.n)],
+            covariances=[cov[i].tolist() if obs[i] else None for i in range(s.n)],
+            observable=obs.tolist(),
+            tree=[e for e, t_ in zip(edges, result.tree[k], strict=True) if t_],
+            healthy=[e for e, h in zip(edges, result.healthy[k], strict=True) if h],
+            components=int(result.components[k]),
+            rigidity_rank=int(result.rigidity_rank[k]),
+            rigid=bool(result.rigidity_rank[k] >= 2 * s.n - 3),
+            x_ref=x[k, s.leader - 1].tolist(),
+            v_ref=[0.0] * s.dimension,
+            reports_received=s.n,
+        )
+        out.append((keys.leader_estimate_out(RUN), encode(msg), attachment(k, k, 0), t + 200))
+    return out
+
+
+def write_synthetic(path: Path, result: Any, compression: str = "zstd") -> dict[str, int]:
+    """Record ``traffic(result)`` as the recorder would (with metrics and scene); counts per key."""
+    s = result.scenario
+    meta = {"scenario": {"name": s.name, "toml": s.to_toml()}}
+    rec = Recording(path, compression=compression, chunk_size=64 * 1024, metadata=meta,
+                    taps=("agent_state", "leader_estimate"))  # fmt: skip
+    asm = EpochAssembler(s, RUN, clock=lambda: 0)
+    for key, data, att, t in traffic(result):
+        for kind, k_, d_, recv in rec.write_batch([(key, data, att, None, t)]):
+            on = asm.on_state if kind == "agent_state" else asm.on_estimate
+            for out_key, payload in on(k_, d_, recv):
+                rec.write(out_key, payload, recv + 1)
+    for out_key, payload in asm.finish(len(result.positions) * EPOCH_NS):
+        rec.write(out_key, payload, len(result.positions) * EPOCH_NS)
+    counts = rec.counts()
+    rec.close()
+    return counts
+
+
+
+@pytest.fixture(scope="session")
+def synth() -> SimpleNamespace:
+    """Synthetic recordings: ``synth.write(path, result)``, ``synth.traffic(result)``, ``synth.RUN``."""
+    return SimpleNamespace(RUN=RUN, EPOCH_NS=EPOCH_NS, write=write_synthetic, traffic=traffic)
+
+
+@pytest.fixture(scope="session")
+def scene_schema() -> dict[str, Any]:
+    return json.loads((SHARED / "schemas" / "foxglove" / "SceneUpdate.json").read_text())
+
+
+@pytest.fixture(scope="session")
+def sim_results() -> dict[str, Any]:
+    """The paper scenario simulated with two strategies (seed from the scenario file)."""
+    from testbed.simulate import simulate
+
+    s = Scenario.from_file(ROOT / "scenarios" / "paper.toml")
+    return {name: simulate(s, strategy=name) for name in ("hold", "estimate")}

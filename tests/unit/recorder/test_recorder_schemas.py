@@ -1,0 +1,83 @@
+"""Key → channel kind → schema, with every key formation.keys builds."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from jsonschema.validators import validator_for
+
+from formation import keys
+from formation.messages import ALL_MODELS
+from recorder import schemas
+
+RUN = "run-7"
+
+CASES = [
+    (keys.agent_state(RUN, 3), "agent_state", "formation.CoordinationState"),
+    (keys.link_state(RUN, 1, 2), "link_state", "formation.CoordinationState"),
+    (keys.agent_report(RUN, 4), "agent_report", "formation.TokenReport"),
+    (keys.link_report(RUN, 4), "leader_report", "formation.TokenReport"),
+    (keys.leader_estimate_out(RUN), "leader_estimate", "formation.LeaderEstimate"),
+    (keys.link_estimate(RUN, 5), "link_estimate", "formation.LeaderEstimate"),
+    (keys.close(RUN, 0, "report"), "close", "formation.EpochClose"),
+    (keys.netem_decision(RUN), "decision", "formation.DecisionBatch"),
+    (keys.netem_change(RUN), "link_change", "formation.LinkChange"),
+    (keys.status(RUN, "agent", 2), "status", "formation.Status"),
+    (keys.control(RUN), "control", "formation.Control"),
+    (keys.metrics(RUN), "metrics", "formation.EpochMetrics"),
+    (keys.scene(RUN), "scene", "foxglove.SceneUpdate"),
+    (keys.alive(RUN, "leader", 0), "alive", "formation.LivelinessEvent"),
+    (keys.netem_config(RUN), "unknown", "unknown"),
+    ("somewhere/else", "unknown", "unknown"),
+]
+
+
+@pytest.mark.parametrize(("key", "kind", "schema"), CASES)
+def test_every_key_maps_to_its_schema(key: str, kind: str, schema: str) -> None:
+    assert schemas.classify(key) == kind
+    assert schemas.schema_for_key(key).name == schema
+
+
+def test_every_wire_model_has_a_channel_kind() -> None:
+    assert set(ALL_MODELS) <= set(schemas.MODELS.values())
+
+
+@pytest.mark.parametrize("model", [*ALL_MODELS, schemas.LivelinessEvent])
+def test_model_schemas_are_valid_json_schemas(model: type) -> None:
+    spec = schemas.model_schema(model)
+    doc = json.loads(spec.data)
+    validator_for(doc).check_schema(doc)
+    assert spec.encoding == "jsonschema"
+
+
+def test_run_id_of() -> None:
+    assert schemas.run_id_of(keys.agent_state(RUN, 1)) == RUN
+    assert schemas.run_id_of("other/x/y") is None
+
+
+def test_foxglove_schema_from_formation_shared(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    folder = tmp_path / "schemas" / "foxglove"
+    folder.mkdir(parents=True)
+    (folder / "Probe.json").write_text('{"title": "foxglove.Probe"}')
+    monkeypatch.setenv("FORMATION_SHARED", str(tmp_path))
+    schemas.foxglove_schema.cache_clear()
+    try:
+        assert schemas.shared_dir() == tmp_path
+        assert schemas.foxglove_schema("Probe").data == b'{"title": "foxglove.Probe"}'
+    finally:
+        schemas.foxglove_schema.cache_clear()
+
+
+def test_missing_foxglove_file_keeps_the_name_and_says_so(monkeypatch: pytest.MonkeyPatch) -> None:
+    schemas.foxglove_schema.cache_clear()
+    missing_before = list(schemas.FOXGLOVE_MISSING)
+    try:
+        spec = schemas.foxglove_schema("NoSuchSchema")
+        assert spec.name == "foxglove.NoSuchSchema"
+        assert json.loads(spec.data)["title"] == "foxglove.NoSuchSchema"
+        assert schemas.FOXGLOVE_MISSING[-1] == "foxglove.NoSuchSchema"
+    finally:
+        schemas.foxglove_schema.cache_clear()
+        schemas.FOXGLOVE_MISSING[:] = missing_before
