@@ -66,9 +66,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _extra_commands() -> list[Callable[[Any], None]]:
     """Subcommands that live in their own modules (run, report, replay, ...)."""
-    from testbed import run_cli
+    from testbed import netem_cli, run_cli
 
-    return [run_cli.register]
+    return [run_cli.register, netem_cli.register]
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -1,0 +1,99 @@
+"""``formation netem show|set``: read and change a running run's link models through netem's queryable."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import zenoh
+from rich.console import Console
+from rich.table import Table
+
+from formation import keys
+from formation.errors import TestbedError
+from formation.zenoh_config import session_config
+
+
+def parse_models(words: list[str]) -> list[dict[str, Any]]:
+    """``outage start=10 + bernoulli p_loss=0.2`` → model dicts (validated by netem)."""
+    models: list[dict[str, Any]] = []
+    for group in " ".join(words).split("+"):
+        parts = group.split()
+        if not parts:
+            raise TestbedError("expected a model name, e.g. bernoulli p_loss=0.2")
+        spec: dict[str, Any] = {"model": parts[0]}
+        for kv in parts[1:]:
+            key, sep, value = kv.partition("=")
+            if not sep:
+                raise TestbedError(f"{kv!r}: expected NAME=VALUE, e.g. p_loss=0.2")
+            try:
+                spec[key] = json.loads(value)
+            except json.JSONDecodeError:
+                spec[key] = value
+        models.append(spec)
+    return models
+
+
+def find_run(args: argparse.Namespace) -> tuple[str, str]:
+    """The run id and endpoint: from flags, or the newest run under ``--runs-dir`` that has a pids.json."""
+    if args.run_id and args.connect:
+        return str(args.run_id), str(args.connect)
+    runs = sorted(Path(args.runs_dir).glob("*/pids.json"), key=lambda p: p.stat().st_mtime)
+    if args.run_id:
+        runs = [p for p in runs if p.parent.name == args.run_id]
+    if not runs:
+        raise TestbedError(f"no running run found under {args.runs_dir}/ (give --run-id and --connect)")
+    path = runs[-1]
+    return path.parent.name, str(args.connect or json.loads(path.read_text())["endpoint"])
+
+
+def ask(run_id: str, endpoint: str, request: dict[str, Any], timeout_s: float = 5.0) -> dict[str, Any]:
+    try:
+        session = zenoh.open(session_config("client", endpoint, None))
+    except zenoh.ZError as exc:
+        raise TestbedError(f"cannot reach {endpoint}: {str(exc).split(' at /')[0]}") from None
+    try:
+        for reply in session.get(keys.netem_config(run_id), payload=json.dumps(request).encode(), timeout=timeout_s):
+            if reply.ok is not None:
+                answer: dict[str, Any] = json.loads(reply.ok.payload.to_bytes())
+                return answer
+    finally:
+        session.close()
+    raise TestbedError(f"netem of run {run_id} did not answer on {endpoint}")
+
+
+def cmd_netem(args: argparse.Namespace) -> int:
+    run_id, endpoint = find_run(args)
+    console = Console()
+    if args.action == "show":
+        answer = ask(run_id, endpoint, {"op": "show"})
+        table = Table(title=f"netem of {run_id} (epoch {answer['epoch']})")
+        for col in ("link", "class", "models"):
+            table.add_column(col)
+        for link in answer["links"]:
+            models = " + ".join(
+                m["model"] + "".join(f" {k}={v}" for k, v in m.items() if k != "model") for m in link["models"]
+            )
+            table.add_row(link["link"], link["class"], models or "up")
+        console.print(table)
+        return 0
+    if not args.link or not args.model:
+        raise TestbedError("usage: formation netem set LINK MODEL [NAME=VALUE ...] [+ MODEL ...]")
+    answer = ask(run_id, endpoint, {"op": "set", "link": args.link, "models": parse_models(args.model)})
+    if not answer.get("ok"):
+        raise TestbedError(f"netem refused the change: {answer.get('error')}")
+    console.print(f"link {answer['link']} ({answer['class']}): new models from epoch {answer['from_epoch']}")
+    return 0
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("netem", help="show or change a running run's link models")
+    p.add_argument("action", choices=["show", "set"])
+    p.add_argument("link", nargs="?", help="SRC->DST, e.g. 1->2 (0 is the leader)")
+    p.add_argument("model", nargs="*", help="e.g. bernoulli p_loss=0.3, or outage start=0 + bernoulli p_loss=0.1")
+    p.add_argument("--runs-dir", default="runs")
+    p.add_argument("--run-id")
+    p.add_argument("--connect", help="the run's Zenoh endpoint (default: from its pids.json)")
+    p.set_defaults(func=cmd_netem)
