@@ -14,9 +14,11 @@ class ScenarioError(TestbedError):
 
     def __init__(self, path: str, field: str, value: object, problem: str) -> None:
         self.path, self.field, self.value, self.problem = path, field, value, problem
-        where = f"{path}: {field}" if field else path
+        if not field:
+            super().__init__(f"{path}: {problem}")
+            return
         shown = "" if value is _NO_VALUE else f" = {value!r}"
-        super().__init__(f"{where}{shown}; {problem}")
+        super().__init__(f"{path}: {field}{shown}; {problem}")
 
 
 class _NoValue:

@@ -168,7 +168,7 @@ class McapFile:
             index_offsets[channel] = self.position
             self._raw(_INDEX.pack(Opcode.MESSAGE_INDEX, 6 + len(records), channel, len(records)))
             self._raw(records)
-            self.counts[channel] = self.counts.get(channel, 0) + (hi - lo)
+            self.counts[channel] = self.counts.get(channel, 0) + int(hi - lo)
         self._chunk_indexes.append(
             ChunkIndex(
                 message_start_time=start,

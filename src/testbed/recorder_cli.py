@@ -12,7 +12,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from formation import zenoh_config
+from formation import keys, zenoh_config
 
 
 def cmd_report(args: argparse.Namespace) -> int:
@@ -48,11 +48,14 @@ def cmd_info(args: argparse.Namespace) -> int:
         console.print(
             f"recorder: {stats.get('written')} written, {stats.get('dropped')} could not be kept"
         )
-    table = Table(title="channels")
+    run_id = info.metadata.get("recorder", {}).get("run_id")
+    prefix = f"{keys.prefix(run_id)}/" if run_id else ""
+    table = Table(title=f"channels under {prefix}" if prefix else "channels")
     for col in ("topic", "schema", "messages"):
-        table.add_column(col, justify="right" if col == "messages" else "left")
+        table.add_column(col, justify="right" if col == "messages" else "left", overflow="fold")
     for ch in info.channels:
-        table.add_row(ch.topic, ch.schema, str(ch.messages))
+        topic = ch.topic.removeprefix(prefix) if prefix else ch.topic
+        table.add_row(topic, ch.schema, str(ch.messages))
     console.print(table)
     if info.sent:
         links = Table(title="netem decisions per link")

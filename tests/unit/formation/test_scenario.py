@@ -68,7 +68,8 @@ def test_initial_positions_depend_only_on_seed(paper: Scenario) -> None:
 
 
 BAD = [
-    ("unknown field", TRIANGLE + "colour = 3\n", r"bad\.toml: colour = 3; unknown field"),
+    ("unknown field", "colour = 3\n" + TRIANGLE, r"bad\.toml: colour = 3; unknown field"),
+    ("unknown nested field", TRIANGLE + "colour = 3\n", r"bad\.toml: agents\[2\]\.colour = 3; unknown field"),
     ("wrong type", TRIANGLE.replace('name = "tri"', 'name = "tri"\nepochs = "many"'), r"bad\.toml: epochs = 'many'; .*integer"),
     (
         "negative weight",

@@ -13,8 +13,19 @@ from testbed import cli, recorder_cli
 
 @pytest.fixture
 def formation(monkeypatch: pytest.MonkeyPatch) -> Callable[..., int]:
-    """``testbed.cli.main`` with the recorder's subcommands registered."""
-    monkeypatch.setattr(cli, "_EXTRA_COMMANDS", [*cli._EXTRA_COMMANDS, recorder_cli.register])
+    """``testbed.cli.main`` with the recorder's subcommands registered (once)."""
+    if hasattr(cli, "_extra_commands"):
+        original = cli._extra_commands
+
+        def extra() -> list[Callable[[Any], None]]:
+            found = original()
+            return found if recorder_cli.register in found else [*found, recorder_cli.register]
+
+        monkeypatch.setattr(cli, "_extra_commands", extra)
+    else:
+        found = list(getattr(cli, "_EXTRA_COMMANDS", []))
+        if recorder_cli.register not in found:
+            monkeypatch.setattr(cli, "_EXTRA_COMMANDS", [*found, recorder_cli.register])
     return lambda *argv: cli.main([str(a) for a in argv])
 
 

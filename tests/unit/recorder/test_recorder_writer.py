@@ -190,6 +190,7 @@ def test_live_counts_include_the_open_chunk() -> None:
     counts = rec.counts()
     assert sum(counts.values()) == 100
     assert counts[KEYS[0]] == 25
+    assert json.loads(json.dumps(counts)) == counts  # plain ints: the flush queryable sends JSON
 
 
 def test_unknown_compression_is_refused() -> None:
