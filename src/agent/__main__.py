@@ -62,7 +62,9 @@ def main(argv: list[str] | None = None) -> int:
         realtime = scenario.runtime.mode == "realtime"
         code = node.run_realtime() if realtime else node.run(scenario.epochs)
         detail = json.dumps(node.deadline) if realtime else ""
-        service.status("done" if code == 0 else "error", max(r.epoch for r in node.runners.values()), detail)
+        service.status(
+            "done" if code == 0 else "error", max(r.epoch for r in node.runners.values()), detail
+        )
         return code
     except TestbedError as exc:
         print(f"agent: error: {exc}", file=sys.stderr)

@@ -39,7 +39,9 @@ class InLinks:
     def of(cls, scenario: Scenario, agents: npt.NDArray[np.int64]) -> InLinks:
         links = scenario.directed_links
         row_of = {int(a): r for r, a in enumerate(agents)}
-        index = np.array([l for l, (_, b) in enumerate(links) if int(b) in row_of], dtype=np.int64)
+        index = np.array(
+            [row for row, (_, b) in enumerate(links) if int(b) in row_of], dtype=np.int64
+        )
         sender, receiver = links[index, 0], links[index, 1]
         d0 = scenario.offsets
         return cls(
@@ -95,9 +97,13 @@ def agent_epoch(
     relative = np.where(arrived[:, None], z, x[links.receiver_row] - sub.values)
     a = x.shape[0]
     if ctl.controller == "displacement":
-        cmd = displacement_command(a, links.receiver_row, relative, links.desired, sub.used, ctl.epsilon)
+        cmd = displacement_command(
+            a, links.receiver_row, relative, links.desired, sub.used, ctl.epsilon
+        )
     else:
-        cmd = distance_command(a, links.receiver_row, relative, links.distance_sq, sub.used, ctl.epsilon)
+        cmd = distance_command(
+            a, links.receiver_row, relative, links.distance_sq, sub.used, ctl.epsilon
+        )
     if ctl.dynamics == "single":
         return AgentStep(step_single(x, cmd, v_ref, ctl.period_s), velocities, memory, sub)
     nxt, vel = step_double(x, velocities, cmd, v_ref, ctl.period_s, ctl.damping)

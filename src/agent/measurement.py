@@ -33,7 +33,13 @@ def measurement_noise(cov: Array, seed: int, receivers: Any, senders: Any, epoch
 
 
 def relative_measurement(
-    x_receiver: Array, x_sender: Array, cov: Array, seed: int, receivers: Any, senders: Any, epoch: int
+    x_receiver: Array,
+    x_sender: Array,
+    cov: Array,
+    seed: int,
+    receivers: Any,
+    senders: Any,
+    epoch: int,
 ) -> Array:
     """``z_ij = x_i − x_j + ε_ij``: (L, d) [m] for receivers ``i`` and senders ``j``."""
     return x_receiver - x_sender + measurement_noise(cov, seed, receivers, senders, epoch)

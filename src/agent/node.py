@@ -41,7 +41,14 @@ class _Inbox:
 class AgentNode:
     """Drives :class:`AgentRunner` instances from Zenoh traffic, one phase at a time."""
 
-    def __init__(self, service: Service, scenario: Scenario, ids: list[int], strategy: StrategyName, seed: int) -> None:
+    def __init__(
+        self,
+        service: Service,
+        scenario: Scenario,
+        ids: list[int],
+        strategy: StrategyName,
+        seed: int,
+    ) -> None:
         self.service, self.scenario = service, scenario
         self.run_id = service.run_id
         self.runners = {i: AgentRunner(scenario, i, strategy, seed) for i in ids}
@@ -49,7 +56,13 @@ class AgentNode:
         self.phase = dict.fromkeys(ids, "state")  # waiting for the close of this phase
         self.done: set[int] = set()
         self.taken = dict.fromkeys(ids, -1)  # realtime: last epoch whose packets were taken
-        self.deadline = {"packets": 0, "late_packets": 0, "estimates": 0, "late_estimates": 0, "overruns": 0}
+        self.deadline = {
+            "packets": 0,
+            "late_packets": 0,
+            "estimates": 0,
+            "late_estimates": 0,
+            "overruns": 0,
+        }
         for i in ids:
             service.subscribe(f"{keys.prefix(self.run_id)}/link/*/{i}/state")
             service.subscribe(keys.link_estimate(self.run_id, i))
@@ -86,11 +99,17 @@ class AgentNode:
             if sent_epoch <= self.taken[receiver]:
                 self.deadline["late_packets"] += 1  # realtime: arrived after its epoch's deadline
                 return
-            value: object = _BAD if state is None else Packet(source, sent_epoch, tuple(state.position))
+            value: object = (
+                _BAD if state is None else Packet(source, sent_epoch, tuple(state.position))
+            )
             self.inbox[receiver].packets[(source, seq)] = value
         elif kind == "estimate":
             est = self.service.malformed.decode(msg.key, msg.payload, LeaderEstimate)
-            if est is not None and self.taken[receiver] >= 0 and est.epoch < self.runners[receiver].epoch:
+            if (
+                est is not None
+                and self.taken[receiver] >= 0
+                and est.epoch < self.runners[receiver].epoch
+            ):
                 self.deadline["late_estimates"] += 1
             elif est is not None:
                 self.inbox[receiver].estimates[est.epoch] = est
@@ -169,7 +188,11 @@ class AgentNode:
                 for i in self.runners:
                     if i in self.done:
                         continue
-                    step = self._try_state_phase if self.phase[i] == "state" else self._try_estimate_phase
+                    step = (
+                        self._try_state_phase
+                        if self.phase[i] == "state"
+                        else self._try_estimate_phase
+                    )
                     progressed |= step(i)
         return 0 if len(self.done) == len(self.runners) else 130
 
@@ -199,7 +222,9 @@ class AgentNode:
             self._drain_until(clock.at(k, STATE_DEADLINE))
             for i, runner in self.runners.items():
                 box = self.inbox[i]
-                packets = [p for p in box.packets.values() if isinstance(p, Packet) and p.sent_epoch <= k]
+                packets = [
+                    p for p in box.packets.values() if isinstance(p, Packet) and p.sent_epoch <= k
+                ]
                 self.deadline["packets"] += sum(p.sent_epoch == k for p in packets)
                 box.packets.clear()
                 self.taken[i] = k

@@ -32,9 +32,13 @@ class Packet:
 class AgentRunner:
     """Agent ``agent_id``: ``x_i[k]`` now, and what it remembers of its in-links."""
 
-    def __init__(self, scenario: Scenario, agent_id: int, strategy: StrategyName, seed: int) -> None:
+    def __init__(
+        self, scenario: Scenario, agent_id: int, strategy: StrategyName, seed: int
+    ) -> None:
         if not 1 <= agent_id <= scenario.n:
-            raise ValueError(f"agent id {agent_id} is not in the scenario (agents are 1..{scenario.n})")
+            raise ValueError(
+                f"agent id {agent_id} is not in the scenario (agents are 1..{scenario.n})"
+            )
         self.scenario, self.id, self.strategy, self.seed = scenario, agent_id, strategy, seed
         self.is_reference = agent_id == scenario.leader
         self.links = InLinks.of(scenario, np.array([agent_id]))
@@ -46,7 +50,10 @@ class AgentRunner:
         self.epoch = 0
         if self.is_reference:
             self._ref = reference_positions(
-                scenario.reference, scenario.offsets[agent_id - 1], scenario.control.period_s, scenario.epochs
+                scenario.reference,
+                scenario.offsets[agent_id - 1],
+                scenario.control.period_s,
+                scenario.epochs,
             )
             self.x = self._ref[0:1].copy()
         self._arrived = np.zeros(len(self.links.index), dtype=bool)
@@ -74,7 +81,11 @@ class AgentRunner:
             sent = np.full(n_links, -1, dtype=np.int64)
             mask = np.zeros(n_links, dtype=bool)
             for p in sorted(late, key=lambda p: p.sent_epoch):
-                values[row[p.source]], sent[row[p.source]], mask[row[p.source]] = p.position, p.sent_epoch, True
+                values[row[p.source]], sent[row[p.source]], mask[row[p.source]] = (
+                    p.position,
+                    p.sent_epoch,
+                    True,
+                )
             self.memory = self.memory.receive_late(values, sent, mask)
         self._arrived[:] = False
         self._received[:] = 0.0
@@ -91,7 +102,9 @@ class AgentRunner:
             for r, (s, a) in enumerate(zip(self.links.sender, self._arrived, strict=True))
         ]
 
-    def step(self, estimate: list[list[float] | None] | None, v_ref: list[float] | None) -> list[float]:
+    def step(
+        self, estimate: list[list[float] | None] | None, v_ref: list[float] | None
+    ) -> list[float]:
         """Close epoch ``k`` with the leader's estimate (None if it was lost); returns ``x_i[k+1]``."""
         k, n_links, d = self.epoch, len(self.links.index), self.scenario.dimension
         v_prev = self.v_known.copy()

@@ -44,7 +44,9 @@ class LinkMemory:
     def has_last(self) -> Mask:
         return self.last_epoch >= 0
 
-    def receive_late(self, values: Array, sent_epoch: npt.NDArray[np.int64], mask: Mask) -> LinkMemory:
+    def receive_late(
+        self, values: Array, sent_epoch: npt.NDArray[np.int64], mask: Mask
+    ) -> LinkMemory:
         """A delayed packet arrives: it becomes the held value if newer than what is held."""
         newer = mask & (sent_epoch > self.last_epoch)
         return replace(
@@ -121,7 +123,9 @@ def substitute(
         predicted = blend + period_s * v_ref_prev
         est = lost & has_estimate
         # b[k] = α x̂ + (1 − α)(b[k−1] + T v_ref[k−1]); a filter with no past starts at the estimate.
-        filtered = np.where(has_blend[:, None], alpha * estimate + (1.0 - alpha) * predicted, estimate)
+        filtered = np.where(
+            has_blend[:, None], alpha * estimate + (1.0 - alpha) * predicted, estimate
+        )
         fallback = lost & ~has_estimate
         held = fallback & hold_ok
         values = np.where(est[:, None], filtered, np.where(held[:, None], memory.last, values))
@@ -132,7 +136,9 @@ def substitute(
     elif strategy == "drop":
         have = np.zeros_like(arrived)
     else:
-        raise ValueError(f"unknown strategy {strategy!r}; expected zero, hold, estimate, blend or drop")
+        raise ValueError(
+            f"unknown strategy {strategy!r}; expected zero, hold, estimate, blend or drop"
+        )
 
     # A packet that arrives restarts the filter from the received value and is the new held value.
     new_memory = LinkMemory(
@@ -141,5 +147,7 @@ def substitute(
         blend=np.where(arrived[:, None], received, blend),
         has_blend=has_blend | arrived,
     )
-    substitution = Substitution(values=values, used=arrived | have, substituted=have, fallback=fallback)
+    substitution = Substitution(
+        values=values, used=arrived | have, substituted=have, fallback=fallback
+    )
     return substitution, new_memory

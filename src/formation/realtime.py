@@ -53,4 +53,6 @@ def fetch_clock(session: zenoh.Session, run_id: str, timeout_s: float = 10.0) ->
                 data = json.loads(reply.ok.payload.to_bytes())
                 return Clock(int(data["t0_ns"]), int(data["period_ns"]))
         time.sleep(0.01)
-    raise RuntimeFailure(f"no answer from netem's clock ({keys.clock(run_id)}) within {timeout_s:g} s")
+    raise RuntimeFailure(
+        f"no answer from netem's clock ({keys.clock(run_id)}) within {timeout_s:g} s"
+    )

@@ -39,7 +39,9 @@ def reference_positions(
     if isinstance(reference, StaticReference):
         return np.tile(x0, (n_epochs + 1, 1))
     if isinstance(reference, LineReference):
-        return x0 + t[:, None] * np.asarray(reference.velocity, dtype=float)
+        return np.asarray(
+            x0 + t[:, None] * np.asarray(reference.velocity, dtype=float), dtype=float
+        )
     if isinstance(reference, CircleReference):
         # The leader starts on the circle at angle 0 around a centre radius_m to its -x side.
         angle = reference.angular_velocity * t
@@ -52,7 +54,9 @@ def reference_positions(
     raise TypeError(f"unknown reference {reference!r}")
 
 
-def _waypoints(ref: WaypointReference, x0: npt.NDArray[np.float64], t: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+def _waypoints(
+    ref: WaypointReference, x0: npt.NDArray[np.float64], t: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
     points = np.vstack([x0, np.asarray(ref.points, dtype=float)])
     if ref.loop:
         points = np.vstack([points, x0])
@@ -65,6 +69,8 @@ def _waypoints(ref: WaypointReference, x0: npt.NDArray[np.float64], t: npt.NDArr
     return np.stack([np.interp(s, arc, points[:, c]) for c in range(points.shape[1])], axis=1)
 
 
-def reference_velocities(positions: npt.NDArray[np.float64], period_s: float) -> npt.NDArray[np.float64]:
+def reference_velocities(
+    positions: npt.NDArray[np.float64], period_s: float
+) -> npt.NDArray[np.float64]:
     """``v_ref[k] = (x_r[k+1] − x_r[k]) / T``: (n_epochs, d) [m/s], so ``x + T v_ref`` tracks exactly."""
     return np.diff(positions, axis=0) / period_s

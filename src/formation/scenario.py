@@ -9,7 +9,6 @@ value. The model follows MODEL.md: §1 team and shape, §3 control, §4 edge rul
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Sequence
 from functools import cached_property
 from pathlib import Path
@@ -17,6 +16,7 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 import numpy.typing as npt
+import tomllib
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from formation.errors import NO_VALUE, ScenarioError
@@ -213,7 +213,9 @@ class Scenario(_Model):
         d0 = self.offsets
         out = []
         for e, (i, j) in zip(self.edges, self.edge_array, strict=True):
-            out.append(e.weight if e.weight is not None else float(np.linalg.norm(d0[i - 1] - d0[j - 1])))
+            out.append(
+                e.weight if e.weight is not None else float(np.linalg.norm(d0[i - 1] - d0[j - 1]))
+            )
         return np.array(out, dtype=float)
 
     @cached_property
@@ -254,7 +256,9 @@ class Scenario(_Model):
                 named = True
         return tuple(stack) if named else self.network.formation_default
 
-    def control_link_models(self, agent: int, direction: Literal["report", "estimate"]) -> tuple[LinkModelSpec, ...]:
+    def control_link_models(
+        self, agent: int, direction: Literal["report", "estimate"]
+    ) -> tuple[LinkModelSpec, ...]:
         """The model stack on agent ``agent``'s control link (``report``: to the leader; ``estimate``: back)."""
         stack: list[LinkModelSpec] = []
         named = False
@@ -316,7 +320,13 @@ def _problems(s: Scenario) -> list[tuple[str, object, str]]:
     for k, e in enumerate(s.edges):
         for i in e.between:
             if i not in by_id:
-                return [(f"edges[{k}].between", list(e.between), f"agent {i} does not exist (agents are 1..{n})")]
+                return [
+                    (
+                        f"edges[{k}].between",
+                        list(e.between),
+                        f"agent {i} does not exist (agents are 1..{n})",
+                    )
+                ]
         key = (min(e.between), max(e.between))
         if key in seen:
             return [(f"edges[{k}].between", list(e.between), "edge listed twice")]
@@ -325,9 +335,13 @@ def _problems(s: Scenario) -> list[tuple[str, object, str]]:
     pairs = np.array([sorted(e.between) for e in s.edges], dtype=np.int64).reshape(-1, 2)
     for k, (i, j) in enumerate(pairs):
         if np.linalg.norm(d0[i - 1] - d0[j - 1]) == 0.0:
-            return [(f"edges[{k}].between", [int(i), int(j)], "the two agents have the same offset")]
+            return [
+                (f"edges[{k}].between", [int(i), int(j)], "the two agents have the same offset")
+            ]
     if n > 1 and not is_connected(n, pairs):
-        return [("edges", [list(map(int, p)) for p in pairs], "the formation graph is not connected")]
+        return [
+            ("edges", [list(map(int, p)) for p in pairs], "the formation graph is not connected")
+        ]
     if n > 1 and not s.allow_flexible:
         rank, need = rigidity_rank(d0, pairs), expected_rigidity_rank(n, d)
         if rank < need:
@@ -361,15 +375,33 @@ def _problems(s: Scenario) -> list[tuple[str, object, str]]:
         if cov.shape != (d, d):
             return [("noise.covariance", s.noise.covariance, f"expected a {d}x{d} matrix")]
         if not np.allclose(cov, cov.T) or np.min(np.linalg.eigvalsh(cov)) <= 0.0:
-            return [("noise.covariance", s.noise.covariance, "expected a symmetric positive definite matrix")]
+            return [
+                (
+                    "noise.covariance",
+                    s.noise.covariance,
+                    "expected a symmetric positive definite matrix",
+                )
+            ]
     edge_set = {(int(i), int(j)) for i, j in pairs}
     for k, link in enumerate(s.network.links):
         key = (min(link.between), max(link.between))
         if key not in edge_set:
-            return [(f"network.links[{k}].between", list(link.between), "not an edge of the formation graph")]
+            return [
+                (
+                    f"network.links[{k}].between",
+                    list(link.between),
+                    "not an edge of the formation graph",
+                )
+            ]
     for k, c in enumerate(s.network.control):
         if c.agent not in by_id:
-            return [(f"network.control[{k}].agent", c.agent, f"agent does not exist (agents are 1..{n})")]
+            return [
+                (
+                    f"network.control[{k}].agent",
+                    c.agent,
+                    f"agent does not exist (agents are 1..{n})",
+                )
+            ]
     return []
 
 
@@ -395,9 +427,9 @@ _UNION_TAGS = {
 def _lookup(data: Any, loc: Sequence[int | str]) -> object:
     cur = data
     for part in loc:
-        if isinstance(cur, dict) and part in cur:
-            cur = cur[part]
-        elif isinstance(cur, list | tuple) and isinstance(part, int) and part < len(cur):
+        if (isinstance(cur, dict) and part in cur) or (
+            isinstance(cur, list | tuple) and isinstance(part, int) and part < len(cur)
+        ):
             cur = cur[part]
         elif isinstance(part, str) and part in _UNION_TAGS:
             continue
@@ -435,7 +467,9 @@ def load(path: str | Path) -> Scenario:
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
-        raise ScenarioError(str(path), "", NO_VALUE, f"cannot read the file ({exc.strerror})") from None
+        raise ScenarioError(
+            str(path), "", NO_VALUE, f"cannot read the file ({exc.strerror})"
+        ) from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -449,7 +483,11 @@ def _toml_value(v: Any) -> str:
     if isinstance(v, int):
         return str(v)
     if isinstance(v, float):
-        return repr(v) if math.isfinite(v) else ("nan" if math.isnan(v) else ("inf" if v > 0 else "-inf"))
+        return (
+            repr(v)
+            if math.isfinite(v)
+            else ("nan" if math.isnan(v) else ("inf" if v > 0 else "-inf"))
+        )
     if isinstance(v, str):
         return '"' + v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
     if isinstance(v, dict):
@@ -467,7 +505,11 @@ def _to_toml(data: dict[str, Any]) -> str:
     """A small TOML writer for the resolved scenario: scalars first, then tables, then arrays of tables."""
     lines: list[str] = []
     tables = {k: v for k, v in data.items() if isinstance(v, dict)}
-    arrays = {k: v for k, v in data.items() if isinstance(v, list | tuple) and v and all(isinstance(x, dict) for x in v)}
+    arrays = {
+        k: v
+        for k, v in data.items()
+        if isinstance(v, list | tuple) and v and all(isinstance(x, dict) for x in v)
+    }
     for k, v in data.items():
         if k not in tables and k not in arrays:
             lines.append(f"{_toml_key(k)} = {_toml_value(v)}")
@@ -477,5 +519,7 @@ def _to_toml(data: dict[str, Any]) -> str:
             lines.append(f"{_toml_key(kk)} = {_toml_value(vv)}")
     for k, v in arrays.items():
         for item in v:
-            lines += ["", f"[[{k}]]"] + [f"{_toml_key(kk)} = {_toml_value(vv)}" for kk, vv in item.items()]
+            lines += ["", f"[[{k}]]"] + [
+                f"{_toml_key(kk)} = {_toml_value(vv)}" for kk, vv in item.items()
+            ]
     return "\n".join(lines) + "\n"

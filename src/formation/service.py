@@ -6,6 +6,7 @@ node logic runs single-threaded and in arrival order.
 
 from __future__ import annotations
 
+import contextlib
 import queue
 import signal
 import sys
@@ -42,7 +43,9 @@ class Service:
             self.session = zenoh.open(session_config(args.mode, args.connect, args.listen))
         except zenoh.ZError as exc:
             where = args.connect or args.listen or "the default endpoints"
-            raise RuntimeFailure(f"cannot open a Zenoh session ({where}): {exc}".split(" at /")[0]) from None
+            raise RuntimeFailure(
+                f"cannot open a Zenoh session ({where}): {exc}".split(" at /")[0]
+            ) from None
         self.start_timeout_s: float | None = getattr(args, "start_timeout", None)
         self.inbox: queue.SimpleQueue[Incoming] = queue.SimpleQueue()
         self.stopping = threading.Event()
@@ -86,12 +89,18 @@ class Service:
 
     def header(self, key: str, epoch: int) -> dict[str, Any]:
         """The common fields of a message about to be published on ``key``."""
-        return {"run_id": self.run_id, "sender": self.name, "seq": self.next_seq(key), "epoch": epoch, "stamp_ns": now_ns()}
+        return {
+            "run_id": self.run_id,
+            "sender": self.name,
+            "seq": self.next_seq(key),
+            "epoch": epoch,
+            "stamp_ns": now_ns(),
+        }
 
     def status(self, state: str, epochs_done: int = 0, detail: str = "") -> None:
         key = keys.status(self.run_id, self.role, self.ident)
         msg = Status(
-            **self.header(key, epochs_done - 1), role=self.role, state=state,  # type: ignore[arg-type]
+            **self.header(key, epochs_done - 1), role=self.role, state=state,
             epochs_done=epochs_done, malformed=dict(self.malformed.counts), sent=dict(self.sent), detail=detail,
         )  # fmt: skip
         self.publish(key, msg)
@@ -102,7 +111,11 @@ class Service:
 
         def to_inbox(sample: zenoh.Sample) -> None:
             att = sample.attachment
-            self.inbox.put(Incoming(str(sample.key_expr), sample.payload.to_bytes(), att.to_bytes() if att else None))
+            self.inbox.put(
+                Incoming(
+                    str(sample.key_expr), sample.payload.to_bytes(), att.to_bytes() if att else None
+                )
+            )
 
         self._keep.append(self.session.declare_subscriber(key, callback or to_inbox))
 
@@ -112,7 +125,9 @@ class Service:
     # -- liveliness ---------------------------------------------------------------------------
     def announce(self) -> None:
         """Declare this process alive (after its subscribers exist, so readiness means ready)."""
-        self._keep.append(self.session.liveliness().declare_token(keys.alive(self.run_id, self.role, self.ident)))
+        self._keep.append(
+            self.session.liveliness().declare_token(keys.alive(self.run_id, self.role, self.ident))
+        )
 
     def watch_alive(self, on_change: Callable[[str, str, bool], None] | None = None) -> None:
         """Track liveliness tokens of the run; ``on_change(role, ident, alive)`` is called on a Zenoh thread."""
@@ -129,7 +144,9 @@ class Service:
                 on_change(role, ident, alive)
 
         self._keep.append(
-            self.session.liveliness().declare_subscriber(keys.alive_all(self.run_id), changed, history=True)
+            self.session.liveliness().declare_subscriber(
+                keys.alive_all(self.run_id), changed, history=True
+            )
         )
 
     def is_alive(self, role: str, ident: int | str) -> bool:
@@ -151,7 +168,9 @@ class Service:
             if self._started.wait(0.05):
                 return True
             if deadline is not None and now_ns() > deadline:
-                raise RuntimeFailure(f"{self.name}: no start from netem within {timeout_s:g} s (is netem running and reachable?)")
+                raise RuntimeFailure(
+                    f"{self.name}: no start from netem within {timeout_s:g} s (is netem running and reachable?)"
+                )
         return False
 
     def declare_start(self) -> None:
@@ -165,10 +184,8 @@ class Service:
 
     def close(self) -> None:
         for obj in reversed(self._keep):
-            try:
+            with contextlib.suppress(Exception):
                 obj.undeclare()
-            except Exception:  # noqa: BLE001 - closing anyway
-                pass
         self._keep.clear()
         for pub in self._publishers.values():
             pub.undeclare()

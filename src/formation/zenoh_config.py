@@ -49,11 +49,21 @@ def session_config(
 
 def add_arguments(parser: Any) -> None:
     """The ``--mode/--connect/--listen`` flags every service takes."""
-    parser.add_argument("--mode", choices=["peer", "client", "router"], help="zenoh mode (env ZENOH_MODE)")
-    parser.add_argument("--connect", help="endpoints to connect to, comma-separated (env ZENOH_CONNECT)")
-    parser.add_argument("--listen", help="endpoints to listen on, comma-separated (env ZENOH_LISTEN)")
-    parser.add_argument("--start-timeout", type=float, default=120.0,
-                        help="seconds to wait for the run to start before giving up (default 120)")
+    parser.add_argument(
+        "--mode", choices=["peer", "client", "router"], help="zenoh mode (env ZENOH_MODE)"
+    )
+    parser.add_argument(
+        "--connect", help="endpoints to connect to, comma-separated (env ZENOH_CONNECT)"
+    )
+    parser.add_argument(
+        "--listen", help="endpoints to listen on, comma-separated (env ZENOH_LISTEN)"
+    )
+    parser.add_argument(
+        "--start-timeout",
+        type=float,
+        default=120.0,
+        help="seconds to wait for the run to start before giving up (default 120)",
+    )
 
 
 def open_session(args: Any) -> zenoh.Session:

@@ -52,7 +52,10 @@ def leader_epoch(scenario: Scenario, known: Mask, z: Array, x_ref: Array) -> Lea
     links = scenario.directed_links
     m = len(edges)
     per_edge = known.reshape(m, 2)
-    healthy = per_edge.any(axis=1) if scenario.estimator.edge_rule == "either" else per_edge.all(axis=1)
+    rule_any = scenario.estimator.edge_rule == "either"
+    healthy: Mask = np.asarray(
+        per_edge.any(axis=1) if rule_any else per_edge.all(axis=1), dtype=bool
+    )
     tree_idx = minimum_spanning_forest(n, edges, weights, healthy)
     tree = np.zeros(m, dtype=bool)
     tree[tree_idx] = True

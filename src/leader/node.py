@@ -25,24 +25,42 @@ def reports_to_measurements(
 ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.float64]]:
     """Reports → ``known`` (L,) and ``z`` (L, d) in the scenario's directed-link order."""
     links = scenario.directed_links
-    index = {(int(a), int(b)): l for l, (a, b) in enumerate(links)}
+    index = {(int(a), int(b)): row for row, (a, b) in enumerate(links)}
     known = np.zeros(len(links), dtype=bool)
     z = np.zeros((len(links), scenario.dimension))
     for report in reports:
         for m in report.measurements:
-            l = index.get((m.neighbour, report.agent))
-            if l is not None and m.token == 1 and m.z is not None and len(m.z) == scenario.dimension:
-                known[l], z[l] = True, m.z
+            row = index.get((m.neighbour, report.agent))
+            if (
+                row is not None
+                and m.token == 1
+                and m.z is not None
+                and len(m.z) == scenario.dimension
+            ):
+                known[row], z[row] = True, m.z
     return known, z
 
 
-def estimate_message(head: dict[str, object], lead: LeaderEpoch, x_ref: list[float], v_ref: list[float],
-                     edges: npt.NDArray[np.int64], reports: int) -> LeaderEstimate:
+def estimate_message(
+    head: dict[str, object],
+    lead: LeaderEpoch,
+    x_ref: list[float],
+    v_ref: list[float],
+    edges: npt.NDArray[np.int64],
+    reports: int,
+) -> LeaderEstimate:
     res = lead.estimate
+    assert res.covariances is not None  # blue computes them unless told not to
     return LeaderEstimate(
-        **head,  # type: ignore[arg-type]
-        positions=[[float(v) for v in p] if ok else None for p, ok in zip(res.positions, res.observable, strict=True)],
-        covariances=[c.tolist() if ok else None for c, ok in zip(res.covariances, res.observable, strict=True)],
+        **head,
+        positions=[
+            [float(v) for v in p] if ok else None
+            for p, ok in zip(res.positions, res.observable, strict=True)
+        ],
+        covariances=[
+            c.tolist() if ok else None
+            for c, ok in zip(res.covariances, res.observable, strict=True)
+        ],
         observable=[bool(o) for o in res.observable],
         tree=[(int(a), int(b)) for a, b in edges[lead.tree]],
         healthy=[(int(a), int(b)) for a, b in edges[lead.healthy]],
@@ -60,9 +78,13 @@ class LeaderNode:
         self.service, self.scenario = service, scenario
         self.run_id = service.run_id
         period = scenario.control.period_s
-        self.ref_x = reference_positions(scenario.reference, scenario.offsets[scenario.leader - 1], period, scenario.epochs)
+        self.ref_x = reference_positions(
+            scenario.reference, scenario.offsets[scenario.leader - 1], period, scenario.epochs
+        )
         self.ref_v = reference_velocities(self.ref_x, period)
-        self.reports: dict[tuple[int, int], object] = {}  # (agent, seq) → TokenReport or None if malformed
+        self.reports: dict[
+            tuple[int, int], object
+        ] = {}  # (agent, seq) → TokenReport or None if malformed
         self.closes: dict[int, EpochClose] = {}
         self.epoch = 0
         self.late_reports = 0
@@ -89,7 +111,11 @@ class LeaderNode:
         if close is None or any((d.source, d.seq) not in self.reports for d in close.delivered):
             return False
         got = [self.reports.pop((d.source, d.seq)) for d in close.delivered]
-        reports = [r for r, d in zip(got, close.delivered, strict=True) if isinstance(r, TokenReport) and d.sent_epoch == k]
+        reports = [
+            r
+            for r, d in zip(got, close.delivered, strict=True)
+            if isinstance(r, TokenReport) and d.sent_epoch == k
+        ]
         del self.closes[k]
         self._estimate(k, reports)
         return True
@@ -98,12 +124,16 @@ class LeaderNode:
         known, z = reports_to_measurements(self.scenario, reports)
         lead = leader_epoch(self.scenario, known, z, self.ref_x[k])
         if not lead.estimate.observable.all():
-            log.info("epoch %d: %d agents unobservable from the reference", k, int((~lead.estimate.observable).sum()))
+            log.info(
+                "epoch %d: %d agents unobservable from the reference",
+                k,
+                int((~lead.estimate.observable).sum()),
+            )
         key = keys.leader_estimate_out(self.run_id)
         head = self.service.header(key, k)
         msg = estimate_message(head, lead, [float(v) for v in self.ref_x[k]], [float(v) for v in self.ref_v[k]],
                                self.scenario.edge_array, len(reports))  # fmt: skip
-        self.service.publish(key, msg, attachment(k, int(head["seq"]), keys.LEADER))  # type: ignore[arg-type]
+        self.service.publish(key, msg, attachment(k, int(head["seq"]), keys.LEADER))
         self.epoch = k + 1
 
     def run_realtime(self) -> int:
@@ -115,11 +145,17 @@ class LeaderNode:
             while time.time_ns() < clock.at(k, REPORT_DEADLINE):
                 if self.service.stopping.is_set():
                     return 130
-                msg = self.service.next_incoming(max(0.0, min(0.05, (clock.at(k, REPORT_DEADLINE) - time.time_ns()) / 1e9)))
+                msg = self.service.next_incoming(
+                    max(0.0, min(0.05, (clock.at(k, REPORT_DEADLINE) - time.time_ns()) / 1e9))
+                )
                 if msg is not None and "/close/" not in msg.key:
                     self._route(msg)
-            reports = [r for r in self.reports.values() if isinstance(r, TokenReport) and r.epoch == k]
-            self.late_reports += sum(1 for r in self.reports.values() if isinstance(r, TokenReport) and r.epoch < k)
+            reports = [
+                r for r in self.reports.values() if isinstance(r, TokenReport) and r.epoch == k
+            ]
+            self.late_reports += sum(
+                1 for r in self.reports.values() if isinstance(r, TokenReport) and r.epoch < k
+            )
             self.reports.clear()
             self._estimate(k, reports)
         return 0

@@ -18,7 +18,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--run-id", default="default")
     p.add_argument("--seed", type=int)
     p.add_argument("--epochs", type=int)
-    p.add_argument("--no-recorder", action="store_true", help="start without waiting for a recorder")
+    p.add_argument(
+        "--no-recorder", action="store_true", help="start without waiting for a recorder"
+    )
     zenoh_config.add_arguments(p)
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
@@ -41,7 +43,9 @@ def main(argv: list[str] | None = None) -> int:
                          wait_for_recorder=not args.no_recorder)  # fmt: skip
         service.announce()
         if scenario.runtime.mode == "realtime":
-            code = node.run_realtime(scenario.runtime.realtime_period_s or scenario.control.period_s)
+            code = node.run_realtime(
+                scenario.runtime.realtime_period_s or scenario.control.period_s
+            )
         else:
             code = node.run()
         service.status("done" if code == 0 else "error", node.estimates_done)

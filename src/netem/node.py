@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import heapq
 import json
-import time
 import logging
 import threading
+import time
 from collections import defaultdict
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -34,7 +34,11 @@ from netem.models import LinkModel
 log = logging.getLogger("netem")
 LinkClass = Literal["formation", "report", "estimate"]
 Phase = Literal["state", "report", "estimate"]
-_PHASE_OF: dict[LinkClass, Phase] = {"formation": "state", "report": "report", "estimate": "estimate"}
+_PHASE_OF: dict[LinkClass, Phase] = {
+    "formation": "state",
+    "report": "report",
+    "estimate": "estimate",
+}
 _SPECS: TypeAdapter[list[LinkModelSpec]] = TypeAdapter(list[LinkModelSpec])
 
 
@@ -60,7 +64,9 @@ class _Open:
 
 
 class NetemNode:
-    def __init__(self, service: Service, scenario: Scenario, seed: int, wait_for_recorder: bool = True) -> None:
+    def __init__(
+        self, service: Service, scenario: Scenario, seed: int, wait_for_recorder: bool = True
+    ) -> None:
         self.service, self.scenario, self.seed = service, scenario, seed
         self.run_id = service.run_id
         self.wait_for_recorder = wait_for_recorder
@@ -72,7 +78,9 @@ class NetemNode:
         self.out_links: dict[int, list[int]] = defaultdict(list)
         for a, b in scenario.directed_links:
             a, b = int(a), int(b)
-            self.models[("formation", a, b)] = LinkModel(scenario.formation_link_models(a, b), seed, a, b)
+            self.models[("formation", a, b)] = LinkModel(
+                scenario.formation_link_models(a, b), seed, a, b
+            )
             self.out_links[a].append(b)
             self.in_links[b].append(a)
         for i in self.agents:
@@ -116,9 +124,17 @@ class NetemNode:
         decision = self.models[(cls, src, dst)].decide(epoch)
         self.decisions[(_PHASE_OF[cls], epoch)].append(
             Decision(
-                source=src, target=dst, link_class=cls, epoch=epoch, seq=seq, verdict=decision.verdict,  # type: ignore[arg-type]
-                delay_epochs=decision.delay_epochs, delay_ms=decision.delay_ms, model=decision.model, state=decision.state,
-            )  # fmt: skip
+                source=src,
+                target=dst,
+                link_class=cls,
+                epoch=epoch,
+                seq=seq,
+                verdict=decision.verdict,
+                delay_epochs=decision.delay_epochs,
+                delay_ms=decision.delay_ms,
+                model=decision.model,
+                state=decision.state,
+            )
         )
         return decision
 
@@ -135,7 +151,9 @@ class NetemNode:
             box.delivered.append(Delivered(source=src, seq=seq, sent_epoch=epoch, copies=d.copies))
         else:
             box.lost.append(src)  # lost for this epoch; arrives with a later one
-            self.held[(phase, dst, epoch + d.delay_epochs)].append(_Held(key, payload, src, seq, epoch, d.copies))
+            self.held[(phase, dst, epoch + d.delay_epochs)].append(
+                _Held(key, payload, src, seq, epoch, d.copies)
+            )
 
     def _senders(self, phase: Phase, receiver: int) -> list[int]:
         if phase == "state":
@@ -158,7 +176,9 @@ class NetemNode:
             for h in self.held.pop((phase, receiver, epoch), []):
                 for _ in range(h.copies):
                     self.service.put(h.key, h.payload, attachment(h.sent_epoch, h.seq, h.source))
-                box.delivered.append(Delivered(source=h.source, seq=h.seq, sent_epoch=h.sent_epoch, copies=h.copies))
+                box.delivered.append(
+                    Delivered(source=h.source, seq=h.seq, sent_epoch=h.sent_epoch, copies=h.copies)
+                )
             key = keys.close(self.run_id, receiver, phase)
             dead = sorted(s for s in self._senders(phase, receiver) if s in self.dead)
             msg = EpochClose(**self.service.header(key, epoch), receiver=receiver, phase=phase,
@@ -173,7 +193,9 @@ class NetemNode:
     def _publish_decisions(self, phase: Phase, epoch: int) -> None:
         batch = self.decisions.pop((phase, epoch), [])
         key = keys.netem_decision(self.run_id)
-        self.service.publish(key, DecisionBatch(**self.service.header(key, epoch), phase=phase, decisions=batch))
+        self.service.publish(
+            key, DecisionBatch(**self.service.header(key, epoch), phase=phase, decisions=batch)
+        )
 
     # -- inbound ----------------------------------------------------------------------------------
     def handle(self, msg: Incoming) -> None:
@@ -227,7 +249,9 @@ class NetemNode:
 
     def finished(self) -> bool:
         live = [i for i in self.agents if i not in self.dead]
-        return self.estimates_done >= self.scenario.epochs and all(i in self.final_states for i in live)
+        return self.estimates_done >= self.scenario.epochs and all(
+            i in self.final_states for i in live
+        )
 
     # -- run-time changes ----------------------------------------------------------------------------
     def _on_config(self, query: zenoh.Query) -> None:
@@ -236,7 +260,7 @@ class NetemNode:
             with self.lock:
                 answer = self._config(request)
             query.reply(query.key_expr, json.dumps(answer).encode())
-        except Exception as exc:  # noqa: BLE001 - every bad request gets an answer, never a crash
+        except Exception as exc:
             query.reply(query.key_expr, json.dumps({"ok": False, "error": str(exc)}).encode())
 
     def _config(self, request: dict[str, Any]) -> dict[str, Any]:
@@ -253,8 +277,17 @@ class NetemNode:
             src_text, dst_text = link.split("->")
             src, dst = int(src_text), int(dst_text)
         except ValueError:
-            return {"ok": False, "error": f"link {link!r}: expected SRC->DST, e.g. 1->2 (0 is the leader)"}
-        cls: LinkClass = "report" if dst == LEADER_ENDPOINT else "estimate" if src == LEADER_ENDPOINT else "formation"
+            return {
+                "ok": False,
+                "error": f"link {link!r}: expected SRC->DST, e.g. 1->2 (0 is the leader)",
+            }
+        cls: LinkClass = (
+            "report"
+            if dst == LEADER_ENDPOINT
+            else "estimate"
+            if src == LEADER_ENDPOINT
+            else "formation"
+        )
         if (cls, src, dst) not in self.models:
             return {"ok": False, "error": f"link {link!r}: no such link in the scenario"}
         try:
@@ -284,8 +317,17 @@ class NetemNode:
         now = time.time_ns()
         d = self.models[(cls, src, dst)].decide(epoch, time_s=(now - self.clock.t0_ns) / 1e9)
         self.decisions[(_PHASE_OF[cls], epoch)].append(
-            Decision(source=src, target=dst, link_class=cls, epoch=epoch, seq=seq, verdict=d.verdict,  # type: ignore[arg-type]
-                     delay_ms=d.delay_ms, model=d.model, state=d.state)  # fmt: skip
+            Decision(
+                source=src,
+                target=dst,
+                link_class=cls,
+                epoch=epoch,
+                seq=seq,
+                verdict=d.verdict,
+                delay_ms=d.delay_ms,
+                model=d.model,
+                state=d.state,
+            )
         )
         if not d.delivered:
             return
@@ -297,7 +339,9 @@ class NetemNode:
             for _ in range(d.copies):
                 heapq.heappush(due, (now + int(d.delay_ms * 1e6), len(due), key, msg.payload, att))
 
-    def _handle_realtime(self, msg: Incoming, due: list[tuple[int, int, str, bytes, bytes]]) -> None:
+    def _handle_realtime(
+        self, msg: Incoming, due: list[tuple[int, int, str, bytes, bytes]]
+    ) -> None:
         meta = read_attachment(msg.attachment)
         if msg.key.startswith("dead/"):
             self.dead.add(int(msg.key.split("/")[1]))
@@ -364,12 +408,13 @@ class NetemNode:
         while not self.finished() and not self.service.stopping.is_set():
             msg = self.service.next_incoming(0.2)
             if msg is None:
-                if not self.service.is_alive("leader", 0) and self.estimates_done < self.scenario.epochs:
+                if (
+                    not self.service.is_alive("leader", 0)
+                    and self.estimates_done < self.scenario.epochs
+                ):
                     log.error("the leader is gone; stopping")
                     return 2
                 continue
             with self.lock:
                 self.handle(msg)
         return 0 if self.finished() else 130
-
-

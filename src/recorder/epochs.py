@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 from collections import Counter
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -102,7 +103,7 @@ class EpochAssembler:
         for k in [k for k in self._health if k < self._newest - STALE_EPOCHS]:
             del self._health[k]
 
-    def _header(self, key: str, epoch: int) -> dict[str, object]:
+    def _header(self, key: str, epoch: int) -> dict[str, Any]:
         seq = self._seq[key]
         self._seq[key] += 1
         return {
@@ -117,7 +118,7 @@ class EpochAssembler:
         s = self.scenario
         key = keys.metrics(self.run_id)
         msg = EpochMetrics(
-            **self._header(key, k),  # type: ignore[arg-type]
+            **self._header(key, k),
             formation_error_m=float(formation_error(x, self.edges, s.weights)),
             shape_error_m=float(shape_error(x, self.edges, s.offsets)),
             positions=x.tolist(),

@@ -27,7 +27,7 @@ import time
 from collections import Counter
 from pathlib import Path
 from time import time_ns
-from typing import Any
+from typing import Any, Literal
 
 import zenoh
 
@@ -42,6 +42,7 @@ from recorder.schemas import FOXGLOVE_MISSING, LivelinessEvent
 from recorder.writer import COMPRESSIONS, Raw, Recording
 
 log = logging.getLogger("recorder")
+StatusState = Literal["ready", "running", "done", "error"]
 POLL_S = 0.005  # the writer thread's wait between batches [s]
 SNAPSHOT_NS = 500_000_000  # how often the writer thread refreshes the per-key counts [ns]
 COUNTS_WAIT_S = 2.0  # longest a flush query waits for fresh counts [s]
@@ -127,6 +128,8 @@ class Recorder:
         self._writer_done = threading.Event()
         self.error: BaseException | None = None
         self.written = 0
+        self.first_recv_ns: int | None = None  # receive time of the first sample [ns]
+        self.last_write_ns = 0  # when the last batch had been written [ns]
         self.counts: dict[str, int] = {}  # per key, refreshed by the writer thread
         self._want_counts = threading.Event()
         self._fresh_counts = threading.Event()
@@ -168,8 +171,11 @@ class Recorder:
             self.stop.set()
 
     def _write(self, batch: list[Raw]) -> None:
+        if self.first_recv_ns is None:
+            self.first_recv_ns = batch[0][4]
         tapped = self.recording.write_batch(batch)
         self.written += len(batch)
+        self.last_write_ns = time_ns()
         asm = self.assembler
         if asm is None:
             return
@@ -193,11 +199,11 @@ class Recorder:
         self._fresh_counts.wait(COUNTS_WAIT_S)
         query.reply(query.key_expr, json.dumps(self.counts).encode())
 
-    def _status(self, session: zenoh.Session, state: str, detail: str = "") -> None:
+    def _status(self, session: zenoh.Session, state: StatusState, detail: str = "") -> None:
         key = keys.status(self.run_id, "recorder", 0)
         msg = Status(
             run_id=self.run_id, sender="recorder", seq=0 if state == "ready" else 1, epoch=-1,
-            stamp_ns=now_ns(), role="recorder", state=state, detail=detail,  # type: ignore[arg-type]
+            stamp_ns=now_ns(), role="recorder", state=state, detail=detail,
         )  # fmt: skip
         session.put(key, encode(msg))
 
@@ -205,7 +211,7 @@ class Recorder:
     def run(self) -> int:
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, self.on_signal)
-        session: Any = zenoh_config.open_session(self.args)  # zenoh's stubs leave close() untyped
+        session = zenoh_config.open_session(self.args)
         try:
             return self._record(session)
         finally:
@@ -222,7 +228,7 @@ class Recorder:
         subs.append(session.declare_queryable(keys.flush(self.run_id), self.on_counts))
         writer = threading.Thread(target=self._writer, name="recorder-writer", daemon=True)
         writer.start()
-        token: Any = liveliness.declare_token(keys.alive(self.run_id, "recorder", 0))
+        token = liveliness.declare_token(keys.alive(self.run_id, "recorder", 0))
         self._status(session, "ready")
         log.info("recording %s into %s", ", ".join(self.filters), self.recording.files[0])
         display = Display(self, self.args.live, self.args.log_interval)
@@ -254,6 +260,8 @@ class Recorder:
             "dropped": str(sum(self.intake.dropped.values())),
             "dropped_by_key": json.dumps(dict(self.intake.dropped)),
             "peak_backlog": str(self.intake.peak),
+            "first_recv_ns": str(self.first_recv_ns or 0),
+            "last_write_ns": str(self.last_write_ns),
             "foxglove_schemas_missing": json.dumps(FOXGLOVE_MISSING),
         }
         if self.assembler is not None:

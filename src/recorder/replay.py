@@ -229,11 +229,17 @@ def replay(args: Any) -> int:
     from formation.zenoh_config import open_session
 
     replayer = Replayer(
-        args.recording, args.rate, args.loop, args.start, _split(args.topics), args.prefix, args.paused
+        args.recording,
+        args.rate,
+        args.loop,
+        args.start,
+        _split(args.topics),
+        args.prefix,
+        args.paused,
     )
     stop = threading.Event()
-    session: Any = open_session(args)  # zenoh's stubs leave close/undeclare untyped
-    publishers: dict[str, Any] = {}
+    session = open_session(args)
+    publishers: dict[str, zenoh.Publisher] = {}
 
     def publish(key: str, data: bytes, attachment: bytes | None) -> None:
         pub = publishers.get(key)
@@ -243,7 +249,7 @@ def replay(args: Any) -> int:
             )
         pub.put(data, attachment=attachment)
 
-    queryable: Any = session.declare_queryable(control_key(replayer.prefix), replayer.on_query)
+    queryable = session.declare_queryable(control_key(replayer.prefix), replayer.on_query)
     try:
         state = replayer.run(publish, stop)
     except KeyboardInterrupt:

@@ -22,7 +22,9 @@ def _strategies(arg: str | None, scenario: Scenario) -> list[Any]:
     names = [s.strip() for s in arg.split(",")]
     for name in names:
         if name not in STRATEGIES:
-            raise TestbedError(f"--strategy {name!r}: expected one of {', '.join(STRATEGIES)} or all")
+            raise TestbedError(
+                f"--strategy {name!r}: expected one of {', '.join(STRATEGIES)} or all"
+            )
     return names
 
 
@@ -34,7 +36,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     if args.epochs is not None:
         scenario = scenario.with_overrides(epochs=args.epochs)
     seed = scenario.seed if args.seed is None else args.seed
-    summaries = [simulate(scenario, strategy=s, seed=seed).summary() for s in _strategies(args.strategy, scenario)]
+    summaries = [
+        simulate(scenario, strategy=s, seed=seed).summary()
+        for s in _strategies(args.strategy, scenario)
+    ]
     for s in summaries:
         s["scenario_file"] = str(args.scenario)
     if args.json:
@@ -45,7 +50,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_common(p: argparse.ArgumentParser, strategy_help: str = "zero|hold|estimate|blend|drop|all") -> None:
+def _add_common(
+    p: argparse.ArgumentParser, strategy_help: str = "zero|hold|estimate|blend|drop|all"
+) -> None:
     p.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO, help="scenario TOML file")
     p.add_argument("--strategy", help=strategy_help)
     p.add_argument("--seed", type=int, help="overrides the scenario's seed")
@@ -68,7 +75,9 @@ def _extra_commands() -> list[Callable[[Any], None]]:
     """Subcommands that live in their own modules (run, report, replay, ...)."""
     from testbed import netem_cli, run_cli
 
-    return [run_cli.register, netem_cli.register]
+    from testbed import deploy_cli
+
+    return [run_cli.register, netem_cli.register, deploy_cli.register]
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -70,11 +70,11 @@ class RunOutcome:
 
     def deadline_miss_rate(self) -> float | None:
         """Realtime: packets and estimates that arrived after their deadline, over all that arrived."""
-        d = self.extra.get("deadline") or {}
+        d: dict[str, int] = self.extra.get("deadline") or {}
         total = sum(d.get(k, 0) for k in ("packets", "late_packets", "estimates", "late_estimates"))
         if not total:
             return None
-        return (d.get("late_packets", 0) + d.get("late_estimates", 0)) / total
+        return float(d.get("late_packets", 0) + d.get("late_estimates", 0)) / total
 
     def summary(self) -> dict[str, Any]:
         drops = self.drops_per_link()
@@ -117,7 +117,9 @@ class _Observer:
             session.declare_subscriber(keys.leader_estimate_out(run_id), self._on_estimate),
             session.declare_subscriber(keys.netem_decision(run_id), self._on_decisions),
             session.declare_subscriber(f"{p}/status/**", self._on_status),
-            session.liveliness().declare_subscriber(keys.alive_all(run_id), self._on_alive, history=True),
+            session.liveliness().declare_subscriber(
+                keys.alive_all(run_id), self._on_alive, history=True
+            ),
         ]
 
     def _decode(self, sample: zenoh.Sample, model: Any) -> Any:
@@ -125,7 +127,11 @@ class _Observer:
 
     def _on_state(self, sample: zenoh.Sample) -> None:
         msg = self._decode(sample, CoordinationState)
-        if msg is not None and 0 <= msg.epoch <= self.scenario.epochs and 1 <= msg.agent <= self.scenario.n:
+        if (
+            msg is not None
+            and 0 <= msg.epoch <= self.scenario.epochs
+            and 1 <= msg.agent <= self.scenario.n
+        ):
             with self.lock:
                 self.positions[msg.epoch, msg.agent - 1] = msg.position
 
@@ -170,7 +176,9 @@ def make_run_id(scenario: Scenario, strategy: str, seed: int) -> str:
 def _pools(n: int, pool: int | None) -> list[list[int]]:
     if not pool:
         return [[i] for i in range(1, n + 1)]
-    return [list(map(int, ids)) for ids in np.array_split(np.arange(1, n + 1), min(pool, n)) if len(ids)]
+    return [
+        list(map(int, ids)) for ids in np.array_split(np.arange(1, n + 1), min(pool, n)) if len(ids)
+    ]
 
 
 def launch(
@@ -189,7 +197,9 @@ def launch(
     """Run ``scenario`` as real processes; returns what was observed. Every child ends by PID."""
     strategy = strategy or scenario.strategy.name
     seed = scenario.seed if seed is None else seed
-    scenario = scenario.with_overrides(seed=seed, strategy={"name": strategy, "alpha": scenario.strategy.alpha})
+    scenario = scenario.with_overrides(
+        seed=seed, strategy={"name": strategy, "alpha": scenario.strategy.alpha}
+    )
     run_id = run_id or make_run_id(scenario, strategy, seed)
     run_dir = runs_dir / run_id
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -211,16 +221,36 @@ def launch(
         session = zenoh.open(session_config("client", endpoint, None))
         observer = _Observer(session, run_id, scenario)
         if record:
-            group.start("recorder", "recorder", *common, "--out", str(run_dir), "--scenario", str(scenario_path))
-            _wait(lambda: observer.is_alive("recorder", 0), group, startup_timeout_s, "the recorder to come up")
-        netem_args = ["--scenario", str(scenario_path), *common] + ([] if record else ["--no-recorder"])
+            group.start(
+                "recorder",
+                "recorder",
+                *common,
+                "--out",
+                str(run_dir),
+                "--scenario",
+                str(scenario_path),
+            )
+            _wait(
+                lambda: observer.is_alive("recorder", 0),
+                group,
+                startup_timeout_s,
+                "the recorder to come up",
+            )
+        netem_args = ["--scenario", str(scenario_path), *common] + (
+            [] if record else ["--no-recorder"]
+        )
         group.start("netem", "netem", *netem_args)
         group.start("leader", "leader", "--scenario", str(scenario_path), *common)
         for ids in _pools(scenario.n, pool):
             name = f"agent-{ids[0]}" if len(ids) == 1 else f"pool-{ids[0]}-{ids[-1]}"
             ident = str(ids[0]) if len(ids) == 1 else f"{ids[0]}-{ids[-1]}"
             group.start(name, "agent", "--scenario", str(scenario_path), "--id", ident, *common)
-        _wait(lambda: observer.is_alive("clock", "start"), group, startup_timeout_s, "every process to come up")
+        _wait(
+            lambda: observer.is_alive("clock", "start"),
+            group,
+            startup_timeout_s,
+            "every process to come up",
+        )
         if on_started is not None:
             on_started(run_id, endpoint)
         services = [c for c in group.children if c.name not in ("router", "recorder")]
@@ -229,7 +259,9 @@ def launch(
             failed = [c for c in services if c.proc.poll() not in (None, 0)]
             if failed:
                 c = failed[0]
-                raise RuntimeFailure(f"{c.name} (pid {c.pid}) exited with code {c.proc.returncode}:\n{c.tail()}")
+                raise RuntimeFailure(
+                    f"{c.name} (pid {c.pid}) exited with code {c.proc.returncode}:\n{c.tail()}"
+                )
             with observer.lock:
                 count, drops = len(observer.estimates), observer.drops
             if progress is not None:
@@ -237,12 +269,16 @@ def launch(
             if count != last_count:
                 last_progress, last_count = time.monotonic(), count
             elif time.monotonic() - last_progress > epoch_timeout_s:
-                raise RuntimeFailure(f"no epoch finished for {epoch_timeout_s:g} s (stuck at epoch {count})")
+                raise RuntimeFailure(
+                    f"no epoch finished for {epoch_timeout_s:g} s (stuck at epoch {count})"
+                )
             time.sleep(0.02)
         failed = [c for c in services if c.proc.returncode != 0]
         if failed:
             c = failed[0]
-            raise RuntimeFailure(f"{c.name} (pid {c.pid}) exited with code {c.proc.returncode}:\n{c.tail()}")
+            raise RuntimeFailure(
+                f"{c.name} (pid {c.pid}) exited with code {c.proc.returncode}:\n{c.tail()}"
+            )
         if progress is not None:
             progress(scenario.epochs, scenario.epochs, observer.drops)
         _wait(lambda: _all_final(observer), group, 10.0, "the final states")
@@ -251,7 +287,9 @@ def launch(
             rec = next(c for c in group.children if c.name == "recorder")
             code = group.stop(rec, timeout_s=30.0)
             if code not in (0, None):
-                raise RuntimeFailure(f"recorder (pid {rec.pid}) exited with code {code}:\n{rec.tail()}")
+                raise RuntimeFailure(
+                    f"recorder (pid {rec.pid}) exited with code {code}:\n{rec.tail()}"
+                )
         _ = router
         with observer.lock:
             malformed: Counter[str] = Counter(observer.malformed.counts)
@@ -310,7 +348,9 @@ def _wait(cond: Any, group: ProcessGroup, timeout_s: float, what: str) -> None:
         failed = group.failed()
         if failed:
             c = failed[0]
-            raise RuntimeFailure(f"{c.name} (pid {c.pid}) exited with code {c.proc.returncode} while waiting for {what}:\n{c.tail()}")
+            raise RuntimeFailure(
+                f"{c.name} (pid {c.pid}) exited with code {c.proc.returncode} while waiting for {what}:\n{c.tail()}"
+            )
         if time.monotonic() > deadline:
             raise RuntimeFailure(f"timed out after {timeout_s:g} s waiting for {what}")
         time.sleep(0.01)

@@ -44,18 +44,24 @@ def find_run(args: argparse.Namespace) -> tuple[str, str]:
     if args.run_id:
         runs = [p for p in runs if p.parent.name == args.run_id]
     if not runs:
-        raise TestbedError(f"no running run found under {args.runs_dir}/ (give --run-id and --connect)")
+        raise TestbedError(
+            f"no running run found under {args.runs_dir}/ (give --run-id and --connect)"
+        )
     path = runs[-1]
     return path.parent.name, str(args.connect or json.loads(path.read_text())["endpoint"])
 
 
-def ask(run_id: str, endpoint: str, request: dict[str, Any], timeout_s: float = 5.0) -> dict[str, Any]:
+def ask(
+    run_id: str, endpoint: str, request: dict[str, Any], timeout_s: float = 5.0
+) -> dict[str, Any]:
     try:
         session = zenoh.open(session_config("client", endpoint, None))
     except zenoh.ZError as exc:
         raise TestbedError(f"cannot reach {endpoint}: {str(exc).split(' at /')[0]}") from None
     try:
-        for reply in session.get(keys.netem_config(run_id), payload=json.dumps(request).encode(), timeout=timeout_s):
+        for reply in session.get(
+            keys.netem_config(run_id), payload=json.dumps(request).encode(), timeout=timeout_s
+        ):
             if reply.ok is not None:
                 answer: dict[str, Any] = json.loads(reply.ok.payload.to_bytes())
                 return answer
@@ -74,17 +80,22 @@ def cmd_netem(args: argparse.Namespace) -> int:
             table.add_column(col)
         for link in answer["links"]:
             models = " + ".join(
-                m["model"] + "".join(f" {k}={v}" for k, v in m.items() if k != "model") for m in link["models"]
+                m["model"] + "".join(f" {k}={v}" for k, v in m.items() if k != "model")
+                for m in link["models"]
             )
             table.add_row(link["link"], link["class"], models or "up")
         console.print(table)
         return 0
     if not args.link or not args.model:
         raise TestbedError("usage: formation netem set LINK MODEL [NAME=VALUE ...] [+ MODEL ...]")
-    answer = ask(run_id, endpoint, {"op": "set", "link": args.link, "models": parse_models(args.model)})
+    answer = ask(
+        run_id, endpoint, {"op": "set", "link": args.link, "models": parse_models(args.model)}
+    )
     if not answer.get("ok"):
         raise TestbedError(f"netem refused the change: {answer.get('error')}")
-    console.print(f"link {answer['link']} ({answer['class']}): new models from epoch {answer['from_epoch']}")
+    console.print(
+        f"link {answer['link']} ({answer['class']}): new models from epoch {answer['from_epoch']}"
+    )
     return 0
 
 
@@ -92,7 +103,11 @@ def register(sub: Any) -> None:
     p = sub.add_parser("netem", help="show or change a running run's link models")
     p.add_argument("action", choices=["show", "set"])
     p.add_argument("link", nargs="?", help="SRC->DST, e.g. 1->2 (0 is the leader)")
-    p.add_argument("model", nargs="*", help="e.g. bernoulli p_loss=0.3, or outage start=0 + bernoulli p_loss=0.1")
+    p.add_argument(
+        "model",
+        nargs="*",
+        help="e.g. bernoulli p_loss=0.3, or outage start=0 + bernoulli p_loss=0.1",
+    )
     p.add_argument("--runs-dir", default="runs")
     p.add_argument("--run-id")
     p.add_argument("--connect", help="the run's Zenoh endpoint (default: from its pids.json)")

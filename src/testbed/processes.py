@@ -57,7 +57,9 @@ class ProcessGroup:
 
     log_dir: Path
     children: list[Child] = field(default_factory=list)
-    on_start: Callable[[], object] | None = None  # called after each start (e.g. to write pids.json)
+    on_start: Callable[[], object] | None = (
+        None  # called after each start (e.g. to write pids.json)
+    )
 
     def start(self, name: str, module: str, *args: str, env: dict[str, str] | None = None) -> Child:
         self.log_dir.mkdir(parents=True, exist_ok=True)

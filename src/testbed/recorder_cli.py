@@ -134,7 +134,9 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--topics", help="key expressions to replay, comma-separated (default: all)")
     p.add_argument("--prefix", help="publish under this prefix instead of formation/<run_id>")
-    p.add_argument("--paused", action="store_true", help="wait for a resume command before publishing")
+    p.add_argument(
+        "--paused", action="store_true", help="wait for a resume command before publishing"
+    )
     zenoh_config.add_arguments(p)
     p.set_defaults(func=cmd_replay)
 

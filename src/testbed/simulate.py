@@ -15,8 +15,8 @@ import numpy as np
 import numpy.typing as npt
 
 from agent.epoch import InLinks, agent_epoch
-from agent.strategies import LinkMemory
 from agent.measurement import relative_measurement
+from agent.strategies import LinkMemory
 from formation.reference import reference_positions, reference_velocities
 from formation.scenario import LEADER_ENDPOINT, Scenario, StrategyName
 from leader.epoch import leader_epoch
@@ -65,8 +65,8 @@ class SimResult:
 
     def summary(self) -> dict[str, Any]:
         """The headline numbers of the run (what ``formation simulate`` prints)."""
-        _, sub_cov, sub_trace = error_statistics(self.substitution_errors)
-        _, est_cov, est_trace = error_statistics(self.estimation_errors)
+        _, _sub_cov, sub_trace = error_statistics(self.substitution_errors)
+        _, _est_cov, est_trace = error_statistics(self.estimation_errors)
         drops = (~self.delivered).sum(axis=0)
         links = self.scenario.directed_links
         return {
@@ -82,8 +82,12 @@ class SimResult:
             "substitution_cov_trace_m2": _none_if_nan(sub_trace),
             "fallbacks": self.fallbacks,
             "estimation_cov_trace_m2": _none_if_nan(est_trace),
-            "nees_mean": _none_if_nan(float(self.nees_values.mean()) if self.nees_values.size else float("nan")),
-            "drops": {f"{int(a)}->{int(b)}": int(c) for (a, b), c in zip(links, drops, strict=True) if c},
+            "nees_mean": _none_if_nan(
+                float(self.nees_values.mean()) if self.nees_values.size else float("nan")
+            ),
+            "drops": {
+                f"{int(a)}->{int(b)}": int(c) for (a, b), c in zip(links, drops, strict=True) if c
+            },
             "longest_outage": {
                 f"{int(a)}->{int(b)}": longest_run(~self.delivered[:, k])
                 for k, (a, b) in enumerate(links)
@@ -109,14 +113,24 @@ def link_schedules(scenario: Scenario, seed: int, n_epochs: int) -> dict[str, np
     estimate_ok = np.zeros((n_epochs, n), dtype=bool)
     for i in range(1, n + 1):
         up = schedule(scenario.control_link_models(i, "report"), seed, i, LEADER_ENDPOINT, n_epochs)
-        down = schedule(scenario.control_link_models(i, "estimate"), seed, LEADER_ENDPOINT, i, n_epochs)
+        down = schedule(
+            scenario.control_link_models(i, "estimate"), seed, LEADER_ENDPOINT, i, n_epochs
+        )
         report_ok[:, i - 1] = up.delivered & (up.delay_epochs == 0)
         estimate_ok[:, i - 1] = down.delivered & (down.delay_epochs == 0)
-    return {"delivered": delivered, "delay": delay, "report_ok": report_ok, "estimate_ok": estimate_ok}
+    return {
+        "delivered": delivered,
+        "delay": delay,
+        "report_ok": report_ok,
+        "estimate_ok": estimate_ok,
+    }
 
 
 def simulate(
-    scenario: Scenario, strategy: StrategyName | None = None, seed: int | None = None, epochs: int | None = None
+    scenario: Scenario,
+    strategy: StrategyName | None = None,
+    seed: int | None = None,
+    epochs: int | None = None,
 ) -> SimResult:
     """Run ``scenario`` in one process.
 
@@ -151,8 +165,8 @@ def simulate(
     memory = LinkMemory.empty(len(links), d)
     v_known = np.zeros((n, d))  # each agent's last received v_ref
     late: dict[int, list[tuple[int, int]]] = {}
-    for k, l in zip(*np.nonzero(sched["delivered"] & (sched["delay"] > 0)), strict=True):
-        late.setdefault(int(k + sched["delay"][k, l]), []).append((int(l), int(k)))
+    for k, link in zip(*np.nonzero(sched["delivered"] & (sched["delay"] > 0)), strict=True):
+        late.setdefault(int(k + sched["delay"][k, link]), []).append((int(link), int(k)))
 
     m = len(edges)
     est = np.full((n_epochs, n, d), np.nan)
@@ -170,9 +184,9 @@ def simulate(
 
     for k in range(n_epochs):
         xk = x[k]
-        for l, sent in late.get(k, []):
+        for link, sent in late.get(k, []):
             mask = np.zeros(len(links), dtype=bool)
-            mask[l] = True
+            mask[link] = True
             memory = memory.receive_late(x[sent][src - 1], np.full(len(links), sent), mask)
         arrived = on_time[k]
         z = relative_measurement(xk[dst - 1], xk[src - 1], cov, seed, dst, src, k)
@@ -184,6 +198,7 @@ def simulate(
         est[k], est_cov[k], observable[k] = res.positions, res.covariances, res.observable
         healthy_all[k], tree_all[k] = lead.healthy, lead.tree
         components[k], rig_rank[k] = lead.components, lead.rigidity_rank
+        assert res.covariances is not None  # blue computes them unless told not to
         scored = observable[k] & followers
         if scored.any():
             nees_vals.append(nees(res.positions, res.covariances, xk, scored))
@@ -233,4 +248,3 @@ def simulate(
         nees_values=np.concatenate(nees_vals) if nees_vals else np.zeros(0),
         estimation_errors=np.concatenate(est_err) if est_err else np.zeros((0, d)),
     )
-

@@ -12,11 +12,23 @@ def _fmt(v: Any, spec: str = ".3g") -> str:
     return "-" if v is None else format(v, spec)
 
 
-def print_summaries(summaries: list[dict[str, Any]], title: str, console: Console | None = None) -> None:
+def print_summaries(
+    summaries: list[dict[str, Any]], title: str, console: Console | None = None
+) -> None:
     """One row per run: formation/shape error, substitution and estimation figures."""
     table = Table(title=title)
-    for col in ("strategy", "seed", "epochs", "formation\nfinal [m]", "formation\npeak [m]",
-                "shape\nfinal [m]", "subst.\ncov tr [m²]", "fall-\nbacks", "estim.\ncov tr [m²]", "NEES"):
+    for col in (
+        "strategy",
+        "seed",
+        "epochs",
+        "formation\nfinal [m]",
+        "formation\npeak [m]",
+        "shape\nfinal [m]",
+        "subst.\ncov tr [m²]",
+        "fall-\nbacks",
+        "estim.\ncov tr [m²]",
+        "NEES",
+    ):
         table.add_column(col, justify="right" if col != "strategy" else "left", no_wrap=True)
     for s in summaries:
         table.add_row(

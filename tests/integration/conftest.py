@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -36,10 +37,8 @@ def end_pids(pids: list[int]) -> list[int]:
     """Kill what still runs, by PID; returns the PIDs that had been left running."""
     left = [p for p in pids if pid_alive(p)]
     for p in left:
-        try:
+        with contextlib.suppress(ProcessLookupError):
             os.kill(p, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
     return left
 
 

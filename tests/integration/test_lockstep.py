@@ -31,10 +31,14 @@ def test_lockstep_run_equals_the_simulator(paper: Scenario, runs_dir: Path, stra
     verdicts = formation_verdicts(outcome)
     links = paper.directed_links
     expected = {
-        (int(a), int(b), k): bool(sim.delivered[k, l]) for k in range(paper.epochs) for l, (a, b) in enumerate(links)
+        (int(a), int(b), k): bool(sim.delivered[k, row])
+        for k in range(paper.epochs)
+        for row, (a, b) in enumerate(links)
     }
     assert verdicts == expected
-    assert sum(not v for v in verdicts.values()) == 2 * (paper.epochs - 1)  # link 1-2 down from epoch 1
+    assert sum(not v for v in verdicts.values()) == 2 * (
+        paper.epochs - 1
+    )  # link 1-2 down from epoch 1
     assert outcome.malformed == {}
 
 

@@ -31,7 +31,9 @@ def test_live_change_and_refusals(paper: Scenario, runs_dir: Path) -> None:
         results["bad_p"] = cli(runs_dir, "set", "2->3", "bernoulli", "p_loss=1.5")
         results["show"] = cli(runs_dir, "show")
 
-    outcome = launch(paper.with_overrides(epochs=800), runs_dir=runs_dir, record=False, on_started=change)
+    outcome = launch(
+        paper.with_overrides(epochs=800), runs_dir=runs_dir, record=False, on_started=change
+    )
     assert results["show"].returncode == 0 and "2->3" in results["show"].stdout
     assert results["unknown"].returncode == 1
     assert "link '1->5': no such link in the scenario" in results["unknown"].stderr
@@ -45,6 +47,8 @@ def test_live_change_and_refusals(paper: Scenario, runs_dir: Path) -> None:
     verdicts = {d.epoch: d.verdict for d in outcome.decisions if (d.source, d.target) == (2, 3)}
     assert len(verdicts) == 800
     assert all(v == "pass" for e, v in verdicts.items() if e < start)
-    assert all(v == "drop" for e, v in verdicts.items() if e >= start)  # the refused changes left it so
+    assert all(
+        v == "drop" for e, v in verdicts.items() if e >= start
+    )  # the refused changes left it so
     assert "bernoulli p_loss=1.0" in results["show"].stdout
     assert all(d.verdict == "pass" for d in outcome.decisions if (d.source, d.target) == (3, 2))

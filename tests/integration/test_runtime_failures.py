@@ -46,7 +46,9 @@ def test_realtime_twenty_agents_at_20_hz_for_10_s(runs_dir: Path) -> None:
     assert outcome.extra["deadline"]["packets"] > 0.5 * 200 * len(scenario.directed_links)
     assert np.isfinite(outcome.positions).all()
     assert outcome.shape_error[-1] < 0.1 < outcome.shape_error[0]
-    print(f"realtime 20 agents @ 20 Hz, 10 s: deadline-miss rate {rate:.4f}, {outcome.extra['deadline']}")
+    print(
+        f"realtime 20 agents @ 20 Hz, 10 s: deadline-miss rate {rate:.4f}, {outcome.extra['deadline']}"
+    )
 
 
 def test_ctrl_c_stops_every_process_and_exits(paper_path: Path, runs_dir: Path) -> None:
@@ -58,7 +60,13 @@ def test_ctrl_c_stops_every_process_and_exits(paper_path: Path, runs_dir: Path) 
     )  # fmt: skip
     try:
         pids_file = lambda: next(runs_dir.glob("*/pids.json"), None)  # noqa: E731
-        wait_for(lambda: pids_file() is not None and len(json.loads(pids_file().read_text())["pids"]) == 8, 60, "all processes")
+        wait_for(
+            lambda: (
+                pids_file() is not None and len(json.loads(pids_file().read_text())["pids"]) == 8
+            ),
+            60,
+            "all processes",
+        )
         wait_for(lambda: all(pid_alive(p) for p in run_pids(runs_dir)), 10, "processes running")
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=60)
@@ -90,7 +98,9 @@ def test_malformed_payloads_are_counted_and_skipped(paper: Scenario, runs_dir: P
 
     def inject(run_id: str, endpoint: str) -> None:
         with zenoh.open(session_config("client", endpoint, None)) as s:
-            s.put(keys.agent_state(run_id, 2), b"not json at all")  # no attachment: netem rejects it
+            s.put(
+                keys.agent_state(run_id, 2), b"not json at all"
+            )  # no attachment: netem rejects it
             s.put(keys.link_state(run_id, 1, 3), b'{"kind": "state"}', attachment=b"\\x00" * 24)
             s.put(keys.close(run_id, 4, "state"), b"{broken")
             s.put(keys.link_report(run_id, 2), b"[]")
@@ -111,7 +121,9 @@ def test_unreachable_endpoint_is_a_clear_error(paper_path: Path, service: str) -
     args = ["--scenario", str(paper_path), "--mode", "client", "--connect", f"tcp/127.0.0.1:{port}"]
     if service == "agent":
         args += ["--id", "2"]
-    proc = subprocess.run([sys.executable, "-m", service, *args], capture_output=True, text=True, timeout=60)
+    proc = subprocess.run(
+        [sys.executable, "-m", service, *args], capture_output=True, text=True, timeout=60
+    )
     assert proc.returncode == 1
     assert f"{service}: error: cannot open a Zenoh session (tcp/127.0.0.1:{port})" in proc.stderr
 

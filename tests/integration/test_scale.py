@@ -31,4 +31,6 @@ def test_two_hundred_agents_pooled_in_four_processes(runs_dir: Path) -> None:
     assert len(outcome.pids) == 4 + 3
     assert outcome.shape_error[0] > 0.1
     assert outcome.shape_error[-1] < 0.05
-    np.testing.assert_allclose(outcome.positions[-1], simulate(scenario).positions[-1], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(
+        outcome.positions[-1], simulate(scenario).positions[-1], rtol=0, atol=1e-9
+    )

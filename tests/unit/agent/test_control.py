@@ -59,7 +59,9 @@ def test_double_integrator_settles_at_the_shape() -> None:
     x, v = d0 + 0.2, np.zeros((3, 2))
     x[0] = d0[0]
     for _ in range(400):
-        cmd = displacement_command(3, dst, x[dst] - x[src], d0[dst] - d0[src], np.ones(6, bool), 0.25)
+        cmd = displacement_command(
+            3, dst, x[dst] - x[src], d0[dst] - d0[src], np.ones(6, bool), 0.25
+        )
         x_new, v = step_double(x, v, cmd, np.zeros(2), 1.0, 1.0)
         x_new[0], v[0] = d0[0], 0.0
         x = x_new

@@ -10,14 +10,28 @@ from agent.strategies import LinkMemory, substitute
 D = 2
 
 
-def step(strategy, memory, arrived, received=None, estimate=None, has_estimate=None, v_prev=None, epoch=1, alpha=0.5):  # type: ignore[no-untyped-def]
+def step(
+    strategy,
+    memory,
+    arrived,
+    received=None,
+    estimate=None,
+    has_estimate=None,
+    v_prev=None,
+    epoch=1,
+    alpha=0.5,
+):  # type: ignore[no-untyped-def]
     n = len(arrived)
     arrived = np.asarray(arrived, dtype=bool)
     received = np.zeros((n, D)) if received is None else np.asarray(received, dtype=float)
     estimate = np.zeros((n, D)) if estimate is None else np.asarray(estimate, dtype=float)
-    has_estimate = np.zeros(n, dtype=bool) if has_estimate is None else np.asarray(has_estimate, dtype=bool)
+    has_estimate = (
+        np.zeros(n, dtype=bool) if has_estimate is None else np.asarray(has_estimate, dtype=bool)
+    )
     v_prev = np.zeros(D) if v_prev is None else np.asarray(v_prev, dtype=float)
-    return substitute(strategy, epoch, arrived, received, memory, estimate, has_estimate, v_prev, 1.0, alpha)
+    return substitute(
+        strategy, epoch, arrived, received, memory, estimate, has_estimate, v_prev, 1.0, alpha
+    )
 
 
 def test_arrived_packets_are_used_as_received_by_every_strategy() -> None:
@@ -46,7 +60,13 @@ def test_hold_uses_the_last_received_value_and_drops_before_the_first() -> None:
 
 def test_estimate_uses_the_leader_estimate_and_falls_back_to_hold_counted() -> None:
     _, mem = step("estimate", LinkMemory.empty(2, D), [True, False], received=[[1.0, 1.0], [0, 0]])
-    sub, _ = step("estimate", mem, [False, False], estimate=[[5.0, 5.0], [6.0, 6.0]], has_estimate=[True, False])
+    sub, _ = step(
+        "estimate",
+        mem,
+        [False, False],
+        estimate=[[5.0, 5.0], [6.0, 6.0]],
+        has_estimate=[True, False],
+    )
     np.testing.assert_array_equal(sub.values[0], [5.0, 5.0])
     assert list(sub.fallback) == [False, True]
     assert list(sub.used) == [True, False]  # link 1 has no estimate and nothing to hold: dropped
@@ -55,7 +75,9 @@ def test_estimate_uses_the_leader_estimate_and_falls_back_to_hold_counted() -> N
 def test_blend_filters_estimates_and_restarts_on_arrival() -> None:
     mem = LinkMemory.empty(1, D)
     _, mem = step("blend", mem, [True], received=[[0.0, 0.0]])
-    sub, mem = step("blend", mem, [False], estimate=[[1.0, 0.0]], has_estimate=[True], v_prev=[0.5, 0.0])
+    sub, mem = step(
+        "blend", mem, [False], estimate=[[1.0, 0.0]], has_estimate=[True], v_prev=[0.5, 0.0]
+    )
     # b = α x̂ + (1 − α)(b_prev + T v_ref) = 0.5·1 + 0.5·(0 + 0.5)
     np.testing.assert_allclose(sub.values[0], [0.75, 0.0])
     sub, mem = step("blend", mem, [False], estimate=[[1.0, 0.0]], has_estimate=[True])
@@ -81,7 +103,9 @@ def test_blend_variance_is_alpha_over_two_minus_alpha_of_estimate(alpha: float) 
     truth = np.array([1.0, -2.0])
     steps, links, sigma = 400, 200, 0.1
     mem = LinkMemory.empty(links, D)
-    _, mem = step("blend", mem, np.ones(links, bool), received=np.tile(truth, (links, 1)), alpha=alpha)
+    _, mem = step(
+        "blend", mem, np.ones(links, bool), received=np.tile(truth, (links, 1)), alpha=alpha
+    )
     est_err, blend_err = [], []
     for k in range(steps):
         estimate = truth + sigma * rng.standard_normal((links, D))

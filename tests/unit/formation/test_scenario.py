@@ -69,11 +69,22 @@ def test_initial_positions_depend_only_on_seed(paper: Scenario) -> None:
 
 BAD = [
     ("unknown field", "colour = 3\n" + TRIANGLE, r"bad\.toml: colour = 3; unknown field"),
-    ("unknown nested field", TRIANGLE + "colour = 3\n", r"bad\.toml: agents\[2\]\.colour = 3; unknown field"),
-    ("wrong type", TRIANGLE.replace('name = "tri"', 'name = "tri"\nepochs = "many"'), r"bad\.toml: epochs = 'many'; .*integer"),
+    (
+        "unknown nested field",
+        TRIANGLE + "colour = 3\n",
+        r"bad\.toml: agents\[2\]\.colour = 3; unknown field",
+    ),
+    (
+        "wrong type",
+        TRIANGLE.replace('name = "tri"', 'name = "tri"\nepochs = "many"'),
+        r"bad\.toml: epochs = 'many'; .*integer",
+    ),
     (
         "negative weight",
-        TRIANGLE.replace("edges = [[1, 2], [2, 3], [1, 3]]", "edges = [[1, 2], [2, 3], {between = [1, 3], weight = -1.0}]"),
+        TRIANGLE.replace(
+            "edges = [[1, 2], [2, 3], [1, 3]]",
+            "edges = [[1, 2], [2, 3], {between = [1, 3], weight = -1.0}]",
+        ),
         r"bad\.toml: edges\[2\]\.weight = -1\.0; .*greater than 0",
     ),
     (
@@ -83,7 +94,9 @@ BAD = [
     ),
     (
         "disconnected graph",
-        TRIANGLE.replace("edges = [[1, 2], [2, 3], [1, 3]]", "allow_flexible = true\nedges = [[1, 2]]"),
+        TRIANGLE.replace(
+            "edges = [[1, 2], [2, 3], [1, 3]]", "allow_flexible = true\nedges = [[1, 2]]"
+        ),
         r"bad\.toml: edges = \[\[1, 2\]\]; the formation graph is not connected",
     ),
     (
@@ -99,7 +112,8 @@ BAD = [
     ("TOML syntax error", TRIANGLE + "[control\n", r"bad\.toml: TOML syntax error"),
     (
         "bad link model probability",
-        TRIANGLE + '[[network.links]]\nbetween = [1, 2]\nmodels = [{model = "bernoulli", p_loss = 1.5}]\n',
+        TRIANGLE
+        + '[[network.links]]\nbetween = [1, 2]\nmodels = [{model = "bernoulli", p_loss = 1.5}]\n',
         r"bad\.toml: network\.links\[0\]\.models\[0\]\.p_loss = 1\.5; .*less than or equal to 1",
     ),
     (
@@ -112,13 +126,17 @@ BAD = [
 
 
 @pytest.mark.parametrize(("case", "text", "pattern"), BAD, ids=[b[0] for b in BAD])
-def test_bad_scenarios_name_file_field_and_value(tmp_path: Path, case: str, text: str, pattern: str) -> None:
+def test_bad_scenarios_name_file_field_and_value(
+    tmp_path: Path, case: str, text: str, pattern: str
+) -> None:
     with pytest.raises(ScenarioError, match=pattern):
         load(write(tmp_path, text))
 
 
 def test_non_rigid_is_accepted_when_allowed(tmp_path: Path) -> None:
-    text = TRIANGLE.replace("edges = [[1, 2], [2, 3], [1, 3]]", "allow_flexible = true\nedges = [[1, 2], [2, 3]]")
+    text = TRIANGLE.replace(
+        "edges = [[1, 2], [2, 3], [1, 3]]", "allow_flexible = true\nedges = [[1, 2], [2, 3]]"
+    )
     assert load(write(tmp_path, text)).allow_flexible
 
 
@@ -137,7 +155,11 @@ def test_cli_exits_nonzero_with_one_message_and_writes_nothing(tmp_path: Path) -
     runs = tmp_path / "runs"
     for cmd in (["simulate", str(bad)], ["run", str(bad), "--runs-dir", str(runs)]):
         proc = subprocess.run(
-            [sys.executable, "-m", "testbed.cli", *cmd], capture_output=True, text=True, timeout=60, cwd=tmp_path
+            [sys.executable, "-m", "testbed.cli", *cmd],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=tmp_path,
         )
         assert proc.returncode == 1
         lines = proc.stderr.strip().splitlines()

@@ -35,7 +35,9 @@ def traffic(result: Any) -> list[tuple[str, bytes, bytes | None, int]]:
     for k in range(len(x)):
         t = k * EPOCH_NS
         for i in range(1, s.n + 1):
-            msg = CoordinationState(**_header(f"agent/{i}", k, k), agent=i, position=x[k, i - 1].tolist())
+            msg = CoordinationState(
+                **_header(f"agent/{i}", k, k), agent=i, position=x[k, i - 1].tolist()
+            )
             out.append((keys.agent_state(RUN, i), encode(msg), attachment(k, k, i), t + i))
         if k >= len(result.estimates):
             continue
@@ -82,7 +84,6 @@ def write_synthetic(path: Path, result: Any, compression: str = "zstd") -> dict[
     counts = rec.counts()
     rec.close()
     return counts
-
 
 
 @pytest.fixture(scope="session")

@@ -45,16 +45,25 @@ def bad(tmp_path: Path, sim_results: dict[str, Any], synth: Any) -> dict[str, Pa
 @pytest.mark.parametrize("command", ["report", "info", "replay"])
 @pytest.mark.parametrize("which", ["empty", "text", "cut"])
 def test_bad_files_fail_with_the_file_named(
-    formation: Callable[..., int], bad: dict[str, Path], capsys: pytest.CaptureFixture[str], command: str, which: str
+    formation: Callable[..., int],
+    bad: dict[str, Path],
+    capsys: pytest.CaptureFixture[str],
+    command: str,
+    which: str,
 ) -> None:
     assert formation(command, bad[which]) == 1
     err = capsys.readouterr().err
     assert err.startswith(f"formation {command}: error: {bad[which]}: ")
-    assert {"empty": "empty file", "text": "not an MCAP file", "cut": "truncated MCAP file"}[which] in err
+    assert {"empty": "empty file", "text": "not an MCAP file", "cut": "truncated MCAP file"}[
+        which
+    ] in err
 
 
 def test_recover_then_info_and_report(
-    formation: Callable[..., int], bad: dict[str, Path], capsys: pytest.CaptureFixture[str], tmp_path: Path
+    formation: Callable[..., int],
+    bad: dict[str, Path],
+    capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
 ) -> None:
     fixed = tmp_path / "fixed" / "run.mcap"
     fixed.parent.mkdir()
@@ -68,6 +77,8 @@ def test_recover_then_info_and_report(
     assert (fixed.parent / "report.md").is_file()
 
 
-def test_recover_refuses_a_non_mcap_file(formation: Callable[..., int], bad: dict[str, Path], capsys: pytest.CaptureFixture[str]) -> None:
+def test_recover_refuses_a_non_mcap_file(
+    formation: Callable[..., int], bad: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
     assert formation("recover", bad["text"]) == 1
     assert f"{bad['text']}: not an MCAP file" in capsys.readouterr().err

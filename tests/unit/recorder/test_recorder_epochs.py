@@ -23,7 +23,9 @@ def state(i: int, k: int, x: np.ndarray) -> tuple[str, bytes]:
     return keys.agent_state(RUN, i), encode(msg)
 
 
-def estimate(s: Scenario, k: int, healthy: list[tuple[int, int]], tree: list[tuple[int, int]]) -> bytes:
+def estimate(
+    s: Scenario, k: int, healthy: list[tuple[int, int]], tree: list[tuple[int, int]]
+) -> bytes:
     msg = LeaderEstimate(
         run_id=RUN, sender="leader", seq=k, epoch=k, stamp_ns=1,
         positions=[None] * s.n, covariances=[None] * s.n, observable=[False] * s.n,
@@ -61,7 +63,9 @@ def test_scene_waits_for_the_estimate_of_its_epoch(paper: Scenario) -> None:
     asm = EpochAssembler(paper, RUN)
     feed_epoch(asm, 0, paper.offsets)
     healthy = [(1, 3), (2, 3), (2, 4), (1, 4), (3, 5), (4, 5)]  # 1-2 down
-    out = asm.on_estimate(keys.leader_estimate_out(RUN), estimate(paper, 0, healthy, [(1, 3), (1, 4)]), 5)
+    out = asm.on_estimate(
+        keys.leader_estimate_out(RUN), estimate(paper, 0, healthy, [(1, 3), (1, 4)]), 5
+    )
     assert [key for key, _ in out] == [keys.scene(RUN)]
     scene = json.loads(out[0][1])
     lines = scene["entities"][0]["lines"]

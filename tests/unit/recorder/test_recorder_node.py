@@ -41,7 +41,9 @@ def test_key_filters() -> None:
         "formation/r/leader/**",
         "formation/r/netem/*",
     ]
-    with pytest.raises(TestbedError, match="--keys formation/r/\\*\\* and formation/r/agent/1/state overlap"):
+    with pytest.raises(
+        TestbedError, match="--keys formation/r/\\*\\* and formation/r/agent/1/state overlap"
+    ):
         _filters(["formation/r/**", "formation/r/agent/1/state"], "r")
 
 

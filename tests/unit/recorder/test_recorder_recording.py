@@ -37,9 +37,14 @@ def test_bad_files_are_named_in_the_error(tmp_path: Path, good: Path) -> None:
     files = bad_files(tmp_path, good)
     with pytest.raises(RecordingError, match=r"empty\.mcap: empty file \(0 bytes\)"):
         check_file(files["empty"])
-    with pytest.raises(RecordingError, match=r"text\.mcap: not an MCAP file \(starts with b'not an m'\)"):
+    with pytest.raises(
+        RecordingError, match=r"text\.mcap: not an MCAP file \(starts with b'not an m'\)"
+    ):
         check_file(files["text"])
-    with pytest.raises(RecordingError, match=r"cut\.mcap: truncated MCAP file \(\d+ bytes, no footer\).*`formation recover "):
+    with pytest.raises(
+        RecordingError,
+        match=r"cut\.mcap: truncated MCAP file \(\d+ bytes, no footer\).*`formation recover ",
+    ):
         check_file(files["cut"])
     with pytest.raises(RecordingError, match=r"nothing\.mcap: no such file"):
         describe(tmp_path / "nothing.mcap")

@@ -24,7 +24,10 @@ def write_chunks(path: Path, compression: str) -> list[tuple[int, int]]:
     f: McapFile = rec._file
     for c in range(N_CHUNKS):
         rec.write_batch(
-            [(f"formation/r/agent/{k % 3 + 1}/state", b'{"k": %d}' % k, None, None, k) for k in range(c * PER_CHUNK, (c + 1) * PER_CHUNK)]
+            [
+                (f"formation/r/agent/{k % 3 + 1}/state", b'{"k": %d}' % k, None, None, k)
+                for k in range(c * PER_CHUNK, (c + 1) * PER_CHUNK)
+            ]
         )
         f.close_chunk()
         index = f._chunk_indexes[-1]
@@ -44,7 +47,13 @@ def test_cut_anywhere_keeps_the_complete_chunks(tmp_path: Path, compression: str
     marks = write_chunks(source, compression)
     data = source.read_bytes()
     # at a chunk's end, in its message index, one byte short of a chunk, mid-chunk, in the first chunk
-    cuts = [marks[2][0], marks[2][0] + 5, marks[3][0] - 1, (marks[3][0] + marks[4][0]) // 2, marks[0][0] - 3]
+    cuts = [
+        marks[2][0],
+        marks[2][0] + 5,
+        marks[3][0] - 1,
+        (marks[3][0] + marks[4][0]) // 2,
+        marks[0][0] - 3,
+    ]
     for cut in cuts:
         cut_file = tmp_path / f"cut-{cut}.mcap"
         cut_file.write_bytes(data[:cut])

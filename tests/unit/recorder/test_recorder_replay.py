@@ -20,7 +20,9 @@ GAP_NS = 100_000_000  # 0.1 s between recorded messages
 
 
 def state(i: int, k: int) -> bytes:
-    msg = CoordinationState(run_id=RUN, sender=f"agent/{i}", seq=k, epoch=k, stamp_ns=0, agent=i, position=[k, 0.0])
+    msg = CoordinationState(
+        run_id=RUN, sender=f"agent/{i}", seq=k, epoch=k, stamp_ns=0, agent=i, position=[k, 0.0]
+    )
     return encode(msg)
 
 
@@ -48,7 +50,9 @@ def test_replays_in_order_with_scaled_timing_and_a_new_prefix(recording: Path) -
     rp = Replayer(recording, rate=4.0, prefix="formation/again")
     state_ = rp.run(sink, threading.Event())
     assert state_.done and state_.published == 10
-    assert [k for _, k, _, _ in sink.got] == [f"formation/again/agent/{1 + k % 2}/state" for k in range(10)]
+    assert [k for _, k, _, _ in sink.got] == [
+        f"formation/again/agent/{1 + k % 2}/state" for k in range(10)
+    ]
     assert [read_attachment(a) for _, _, _, a in sink.got] == [(k, k, 1 + k % 2) for k in range(10)]
     elapsed = sink.got[-1][0] - sink.got[0][0]
     assert 9 * 0.1 / 4 <= elapsed < 9 * 0.1 / 4 + 0.5  # upper bound: scheduling slack
@@ -56,8 +60,12 @@ def test_replays_in_order_with_scaled_timing_and_a_new_prefix(recording: Path) -
 
 def test_start_offset_and_topic_filter(recording: Path) -> None:
     sink = Sink()
-    Replayer(recording, rate=50.0, start_s=0.5, topics=[f"formation/{RUN}/agent/2/state"]).run(sink, threading.Event())
-    assert [k for _, k, _, _ in sink.got] == [keys.agent_state(RUN, 2)] * 3  # agent 2 sends odd epochs
+    Replayer(recording, rate=50.0, start_s=0.5, topics=[f"formation/{RUN}/agent/2/state"]).run(
+        sink, threading.Event()
+    )
+    assert [k for _, k, _, _ in sink.got] == [
+        keys.agent_state(RUN, 2)
+    ] * 3  # agent 2 sends odd epochs
     assert [read_attachment(a)[0] for *_, a in sink.got] == [5, 7, 9]  # type: ignore[index]
 
 
@@ -95,8 +103,12 @@ def test_pause_resume_rate_and_seek(recording: Path) -> None:
 
 def test_rebuilt_attachments() -> None:
     assert rebuild_attachment("control", b'{"epoch": 1, "seq": 2}') is None
-    assert rebuild_attachment("leader_estimate", b'{"epoch": 1, "seq": 2}') == attachment(1, 2, keys.LEADER)
-    assert rebuild_attachment("link_state", b'{"epoch": 3, "seq": 4, "agent": 5}') == attachment(3, 4, 5)
+    assert rebuild_attachment("leader_estimate", b'{"epoch": 1, "seq": 2}') == attachment(
+        1, 2, keys.LEADER
+    )
+    assert rebuild_attachment("link_state", b'{"epoch": 3, "seq": 4, "agent": 5}') == attachment(
+        3, 4, 5
+    )
     assert rebuild_attachment("agent_state", b"not json") is None
 
 

@@ -27,7 +27,9 @@ def test_scene_of_the_paper_formation(paper: Scenario, scene_schema: dict[str, A
     healthy[0] = False
     tree = np.zeros(len(paper.edges), dtype=bool)
     tree[[1, 2, 4, 5]] = True
-    scene = scene_update(7, 1_500_000_000, x, paper.edge_array, paper.offsets, paper.leader, healthy, tree)
+    scene = scene_update(
+        7, 1_500_000_000, x, paper.edge_array, paper.offsets, paper.leader, healthy, tree
+    )
     check(scene, scene_schema)
     (team,) = scene["entities"]
     assert set(PRIMITIVES) <= set(team)
@@ -52,7 +54,9 @@ def test_edge_colours() -> None:
     x=arrays(np.float64, (4, 3), elements=st.floats(-1e3, 1e3)),
     healthy=arrays(np.bool_, (5,)),
 )
-def test_any_3d_scene_is_valid(x: np.ndarray, healthy: np.ndarray, scene_schema: dict[str, Any]) -> None:
+def test_any_3d_scene_is_valid(
+    x: np.ndarray, healthy: np.ndarray, scene_schema: dict[str, Any]
+) -> None:
     edges = np.array([[1, 2], [2, 3], [3, 4], [1, 4], [1, 3]])
     offsets = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 1]])
     scene = scene_update(0, 0, x, edges, offsets, 1, healthy, ~healthy)

@@ -57,7 +57,9 @@ def test_run_id_of() -> None:
     assert schemas.run_id_of("other/x/y") is None
 
 
-def test_foxglove_schema_from_formation_shared(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_foxglove_schema_from_formation_shared(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     folder = tmp_path / "schemas" / "foxglove"
     folder.mkdir(parents=True)
     (folder / "Probe.json").write_text('{"title": "foxglove.Probe"}')

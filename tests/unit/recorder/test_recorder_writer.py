@@ -13,7 +13,7 @@ import zstandard
 from mcap.exceptions import EndOfFile
 from mcap.reader import NonSeekingReader, make_reader
 from mcap.records import Chunk, Message, MessageIndex
-from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.stream_reader import StreamReader
 
 from formation import keys
 from formation.codec import attachment
@@ -37,7 +37,9 @@ def batch(count: int, start: int = 0) -> list[tuple[str, bytes, bytes | None, No
 @pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
 def test_round_trip_through_bytesio(compression: str) -> None:
     buf = io.BytesIO()
-    rec = Recording(buf, compression=compression, chunk_size=2048, metadata={"scenario": {"toml": "a = 1"}})
+    rec = Recording(
+        buf, compression=compression, chunk_size=2048, metadata={"scenario": {"toml": "a = 1"}}
+    )
     sent = batch(500)
     rec.write_batch(sent)
     rec.write(keys.metrics(RUN), b'{"m": 1}', 99_999)
@@ -49,7 +51,9 @@ def test_round_trip_through_bytesio(compression: str) -> None:
     assert summary is not None and summary.statistics is not None
     assert summary.statistics.message_count == 501
     assert len(summary.chunk_indexes) > 5
-    assert {c.compression for c in summary.chunk_indexes} == {"" if compression == "none" else compression}
+    assert {c.compression for c in summary.chunk_indexes} == {
+        "" if compression == "none" else compression
+    }
     got = list(reader.iter_messages(log_time_order=False))
     assert len(got) == 501
     for (key, data, att, _, log_time), (schema, channel, msg) in zip(sent, got, strict=False):
@@ -82,14 +86,16 @@ def test_every_message_index_points_at_its_message() -> None:
     for record in records:
         if isinstance(record, Chunk):
             chunk = record
-            body = zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=chunk.uncompressed_size)
+            body = zstandard.ZstdDecompressor().decompress(
+                chunk.data, max_output_size=chunk.uncompressed_size
+            )
             assert zlib.crc32(body) == chunk.uncompressed_crc
         elif isinstance(record, MessageIndex):
             assert chunk is not None
             times = [t for t, _ in record.records]
             assert times == sorted(times)
             for log_time, offset in record.records:
-                opcode, length = struct.unpack_from("<BQ", body, offset)
+                opcode, _ = struct.unpack_from("<BQ", body, offset)
                 channel, _, msg_time = struct.unpack_from("<HIQ", body, offset + 9)
                 assert (opcode, channel, msg_time) == (5, record.channel_id, log_time)
                 checked += 1

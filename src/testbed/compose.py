@@ -1,0 +1,220 @@
+"""``formation compose SCENARIO > compose.yaml``: the deployment of a scenario as Compose services.
+
+One image (the repository's ``Dockerfile``), one service per process of a run:
+``router`` (``python -m testbed.router``), ``recorder``, ``netem``, ``leader``
+and ``agent-<i>`` for every agent of the scenario. Every service reaches the
+others only through the router, in ``client`` mode, by the service name
+``router``; nothing names a host address. The scenario file is mounted (a
+Compose config), the run directory is a volume, the run id comes from
+``RUN_ID`` (default: the scenario's name).
+
+Closed by default: each service gets its own Zenoh config as a Compose secret
+(``formation keys keys/`` writes them; see :mod:`testbed.security`), the router
+checks passwords and enforces access control. ``--open`` leaves both out (a
+trusted network only); ``--tls`` puts the links on TLS (``formation keys --tls``).
+
+The recorder's container runs :mod:`testbed.recording_service`: on
+``docker compose down`` it finishes ``run.mcap`` and writes ``report.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+from typing import Any
+
+import yaml
+
+from formation.scenario import Scenario
+from testbed import security
+
+ROUTER = "router"
+PORT = 7447
+APP = PurePosixPath("/app")
+RUNS = APP / "runs"
+SCENARIO = APP / "scenario.toml"
+SECRETS = PurePosixPath("/run/secrets")
+ZENOH_CONFIG = "zenoh.json5"  # each service's secret, mounted as /run/secrets/zenoh.json5
+PASSWORDS = security.PASSWORDS_FILE
+IMAGE = "${FORMATION_IMAGE:-formation-testbed:latest}"
+KEYS_DIR = "${FORMATION_KEYS:-./keys}"
+RUNS_DIR = "${FORMATION_RUNS:-./runs}"
+STOP_GRACE = "2m"  # the recorder finishes the MCAP file and writes the report [s]
+
+UPSTREAM_ROUTER = """\
+# The router may also be the upstream Zenoh router image instead of ours (same
+# config, same secrets; match the image's version to eclipse-zenoh in pyproject.toml):
+#   router:
+#     image: eclipse/zenoh:1.10.2
+#     command: ["-c", "/run/secrets/zenoh.json5", "-l", "tcp/router:7447",
+#               "--cfg", "transport/auth/usrpwd/dictionary_file:\\"/run/secrets/passwords.txt\\""]
+"""
+
+
+@dataclass(frozen=True)
+class ComposeOptions:
+    """How the deployment is secured and where its image comes from."""
+
+    secure: bool = True  # usrpwd authentication and access control (formation keys)
+    tls: bool = False  # tls/ endpoints; needs `formation keys --tls`
+    image: str = IMAGE
+
+    @property
+    def endpoint(self) -> str:
+        return f"{'tls' if self.tls else 'tcp'}/{ROUTER}:{PORT}"
+
+
+def compose_path(scenario_path: str | Path) -> str:
+    """The scenario file as the compose file names it: ``./`` + the path for a relative one."""
+    p = Path(scenario_path)
+    return p.as_posix() if p.is_absolute() else f"./{p.as_posix()}"
+
+
+def document(scenario: Scenario, scenario_path: str | Path, options: ComposeOptions) -> dict[str, Any]:
+    """The compose file as a mapping, services in start order."""
+    run_id = f"${{RUN_ID:-{scenario.name}}}"
+    scenario_args = ["--scenario", str(SCENARIO), "--run-id", run_id]
+    services: dict[str, dict[str, Any]] = {
+        ROUTER: _router(options),
+        "recorder": _service(
+            options, "recorder",
+            ["python", "-m", "testbed.recording_service", "--report", "--run-id", run_id,
+             "--out", f"{RUNS}/{run_id}", "--scenario", str(SCENARIO)],
+            extra={"volumes": [f"{RUNS_DIR}:{RUNS}"], "stop_grace_period": STOP_GRACE},
+        ),
+        "netem": _service(options, "netem", ["python", "-m", "netem", *scenario_args],
+                          after=["recorder"]),
+        "leader": _service(options, "leader", ["python", "-m", "leader", *scenario_args]),
+    }  # fmt: skip
+    for i in range(1, scenario.n + 1):
+        name = security.agent_user(i)
+        services[name] = _service(
+            options, name, ["python", "-m", "agent", *scenario_args, "--id", str(i)]
+        )
+    doc: dict[str, Any] = {
+        "name": "formation",
+        "services": services,
+        "configs": {"scenario": {"file": compose_path(scenario_path)}},
+    }
+    if options.secure:
+        users = [ROUTER, *(name for name in services if name != ROUTER)]
+        doc["secrets"] = {
+            u: {"file": f"{KEYS_DIR}/{security.ROUTER_CONFIG if u == ROUTER else u + '.json5'}"}
+            for u in users
+        }
+        doc["secrets"][PASSWORDS.removesuffix(".txt")] = {"file": f"{KEYS_DIR}/{PASSWORDS}"}
+    return doc
+
+
+def _common(options: ComposeOptions) -> dict[str, Any]:
+    return {"image": options.image, "build": {"context": ".", "dockerfile": "Dockerfile"}}
+
+
+def _secrets(options: ComposeOptions, user: str) -> dict[str, Any]:
+    if not options.secure:
+        return {}
+    return {"secrets": [{"source": user, "target": ZENOH_CONFIG}]}
+
+
+def _zenoh_config(options: ComposeOptions) -> dict[str, str]:
+    return {"ZENOH_CONFIG": str(SECRETS / ZENOH_CONFIG)} if options.secure else {}
+
+
+def _router(options: ComposeOptions) -> dict[str, Any]:
+    command = ["python", "-m", "testbed.router"]
+    secrets_: dict[str, Any] = {}
+    if options.secure:
+        command += ["--passwords", str(SECRETS / PASSWORDS)]
+        secrets_ = {
+            "secrets": [
+                {"source": ROUTER, "target": ZENOH_CONFIG},
+                {"source": PASSWORDS.removesuffix(".txt"), "target": PASSWORDS},
+            ]
+        }
+    probe = f"import socket; socket.create_connection(('{ROUTER}', {PORT}), 2).close()"
+    return {
+        **_common(options),
+        "command": command,
+        "environment": {"ZENOH_LISTEN": options.endpoint, **_zenoh_config(options)},
+        **secrets_,
+        "healthcheck": {
+            "test": ["CMD", "python", "-c", probe],
+            "interval": "2s",
+            "timeout": "3s",
+            "retries": 30,
+        },
+        "init": True,
+    }
+
+
+def _service(
+    options: ComposeOptions,
+    user: str,
+    command: list[str],
+    after: list[str] | None = None,
+    extra: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    depends: dict[str, Any] = {ROUTER: {"condition": "service_healthy"}}
+    for name in after or []:
+        depends[name] = {"condition": "service_started"}
+    return {
+        **_common(options),
+        "command": command,
+        "environment": {
+            "ZENOH_MODE": "client",
+            "ZENOH_CONNECT": options.endpoint,
+            **_zenoh_config(options),
+        },
+        "configs": [{"source": "scenario", "target": str(SCENARIO)}],
+        **_secrets(options, user),
+        **(extra or {}),
+        "depends_on": depends,
+        "init": True,
+    }
+
+
+class _Dumper(yaml.SafeDumper):
+    """Block style, except lists of scalars (commands, volumes) on one line."""
+
+
+def _represent_list(dumper: yaml.SafeDumper, data: list[Any]) -> yaml.Node:
+    flow = all(isinstance(x, (str, int, float, bool)) for x in data)
+    return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flow)
+
+
+_Dumper.add_representer(list, _represent_list)
+
+
+def render(
+    scenario_path: str | Path, options: ComposeOptions | None = None, scenario: Scenario | None = None
+) -> str:
+    """The compose file's text for ``scenario_path`` (what ``formation compose`` prints)."""
+    options = options or ComposeOptions()
+    scenario = scenario or Scenario.from_file(scenario_path)
+    flags = ("" if options.secure else " --open") + (" --tls" if options.tls else "")
+    keys_cmd = f"formation keys keys/ {Path(scenario_path).as_posix()}" + (" --tls" if options.tls else "")
+    usage = [
+        f"# Generated by `formation compose {Path(scenario_path).as_posix()}{flags}`; do not edit.",
+        f"# Scenario {scenario.name!r}: {scenario.n} agents, {scenario.epochs} epochs.",
+        "#",
+    ]
+    if options.secure:
+        usage.append(f"#   {keys_cmd}    # credentials and access control, once (not in git)")
+    usage += [
+        "#   docker compose up --build -d",
+        "#   docker compose wait netem       # the run is over when netem exits",
+        "#   docker compose down             # the recorder finishes run.mcap and report.md",
+        "# Files: ./runs/$RUN_ID/ (RUN_ID defaults to the scenario's name).",
+        "#",
+    ]
+    body = yaml.dump(
+        document(scenario, scenario_path, options),
+        Dumper=_Dumper,
+        sort_keys=False,
+        width=100,
+        default_flow_style=False,
+    )
+    return "\n".join(usage) + "\n" + UPSTREAM_ROUTER + body
+
+
+__all__ = ["ComposeOptions", "compose_path", "document", "render"]

@@ -1,0 +1,56 @@
+"""``formation compose | keys``: the deployment's compose file and its development credentials."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from formation.scenario import Scenario
+
+
+def cmd_compose(args: argparse.Namespace) -> int:
+    from testbed.compose import ComposeOptions, render
+
+    options = ComposeOptions(secure=not args.open, tls=args.tls)
+    if args.open and args.tls:
+        options = ComposeOptions(secure=False, tls=True)
+    sys.stdout.write(render(args.scenario, options))
+    return 0
+
+
+def cmd_keys(args: argparse.Namespace) -> int:
+    from testbed.security import generate
+
+    scenario = Scenario.from_file(args.scenario)
+    hosts = args.tls_host or ["router"]
+    keyset = generate(Path(args.out_dir), scenario.n, tls=args.tls, tls_hosts=hosts, force=args.force)
+    users = ", ".join(sorted(keyset.configs))
+    print(
+        f"keys: {keyset.out_dir}: {keyset.passwords_file.name}, {keyset.router_config.name} "
+        f"(access control for {scenario.n} agents), one config per user ({users})"
+        + (f"; TLS for {', '.join(hosts)}" if args.tls else ""),
+        file=sys.stderr,
+    )
+    return 0
+
+
+def register(sub: Any) -> None:
+    from testbed.cli import DEFAULT_SCENARIO
+
+    p = sub.add_parser("compose", help="print compose.yaml for a scenario (one service per process)")
+    p.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO, help="scenario TOML file")
+    p.add_argument("--open", action="store_true",
+                   help="no authentication or access control (trusted networks only)")
+    p.add_argument("--tls", action="store_true", help="TLS links (needs `formation keys --tls`)")
+    p.set_defaults(func=cmd_compose)
+
+    p = sub.add_parser("keys", help="write development credentials and the router's access control")
+    p.add_argument("out_dir", help="folder for the files (e.g. keys/, never committed)")
+    p.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO, help="scenario TOML file")
+    p.add_argument("--tls", action="store_true", help="also a CA and the router's TLS certificate")
+    p.add_argument("--tls-host", action="append",
+                   help="name or IP in the router's certificate (repeatable; default: router)")
+    p.add_argument("--force", action="store_true", help="overwrite a non-empty folder")
+    p.set_defaults(func=cmd_keys)

@@ -1,0 +1,44 @@
+"""``python -m testbed.recording_service --report RECORDER-ARGS``: the recorder as deployed.
+
+Runs ``python -m recorder`` with the same arguments in this process; when it
+has finished the MCAP file (on SIGTERM, e.g. ``docker compose down``), writes
+``report.md``, ``summary.json`` and the plots beside it with ``--report``. This
+is what ``formation run`` does from the launcher, done by the recorder's own
+container so that stopping the deployment loses nothing and leaves the report.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from recorder import node
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        prog="python -m testbed.recording_service",
+        description=__doc__.split("\n")[0] if __doc__ else None,
+        add_help=False,
+    )
+    p.add_argument("--report", action="store_true", help="write report.md after the recording")
+    ours, rest = p.parse_known_args(sys.argv[1:] if argv is None else argv)
+    args = node.build_parser().parse_args(rest)  # exits with the recorder's usage on bad args
+    code = node.main(rest)
+    if code != 0 or not ours.report:
+        return code
+    from recorder.report import write_report
+
+    out_dir = Path(args.out or Path("runs") / args.run_id)
+    try:
+        path = write_report(out_dir / args.file, out_dir)
+    except Exception as exc:  # noqa: BLE001 - the recording is safe; say why the report is not
+        print(f"recording_service: error: no report for {out_dir / args.file}: {exc}", file=sys.stderr)
+        return 1
+    print(f"recording_service: report {path}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
