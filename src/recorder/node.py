@@ -9,6 +9,13 @@ If the queue reaches ``--max-queue`` messages the sample is counted per key, nev
 dropped silently. The liveliness token is declared after the subscribers, so a
 launcher that waits for it knows the recorder hears everything published after.
 
+Times: log time = receive time (``time.time_ns()``); publish time = the sample's
+Zenoh timestamp (the sender's clock, present when the sender's session has
+timestamping enabled), else the receive time, since the sender's ``stamp_ns`` is
+monotonic and inside the payload. The MCAP ``sequence`` is the ``seq`` of the codec
+attachment. ``keys.flush`` is a queryable answering the counts per key of everything
+received before the query (a flush barrier for the launcher).
+
 Stopping: the first SIGINT/SIGTERM stops intake, drains the queue and finishes the
 file (summary, indexes); a second one exits at once, leaving every complete chunk
 readable (``formation recover``).
@@ -211,7 +218,11 @@ class Recorder:
     def run(self) -> int:
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, self.on_signal)
-        session = zenoh_config.open_session(self.args)
+        try:
+            session = zenoh_config.open_session(self.args)
+        except zenoh.ZError:
+            self.recording.close()  # a complete, empty recording rather than a torn one
+            raise
         try:
             return self._record(session)
         finally:
@@ -318,7 +329,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--split-duration", type=float, help="start a new file after this many seconds")
     p.add_argument("--fsync-interval", type=float, default=1.0, help="fsync at most every s (1.0)")
     p.add_argument(
-        "--max-queue", type=int, default=5_000_000, help="messages queued before counting drops"
+        "--max-queue", type=int, default=2_000_000, help="messages queued before counting drops"
     )
     p.add_argument(
         "--live", action=argparse.BooleanOptionalAction, help="live table (default: on a TTY)"

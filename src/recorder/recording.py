@@ -23,7 +23,7 @@ from mcap.summary import Summary
 from formation.errors import RecordingError, TestbedError
 from formation.scenario import Scenario, load_dict
 from recorder.schemas import classify
-from recorder.writer import MAGIC
+from recorder.writer import MAGIC, rotated_path
 
 READ_ERRORS = (Exception,)  # the mcap reader raises McapError, struct.error, zstd/lz4 errors, ...
 
@@ -49,6 +49,14 @@ def check_file(path: Path) -> None:
             f"truncated MCAP file ({size} bytes, no footer): the recording did not finish; "
             f"`formation recover {path}` writes a clean file from its complete chunks",
         )
+
+
+def parts(path: Path) -> list[Path]:
+    """``path`` and the files a rotating recorder continued it in (``run-001.mcap``, ...)."""
+    found = [path]
+    while (nxt := rotated_path(path, len(found))).exists():
+        found.append(nxt)
+    return found
 
 
 @contextmanager
@@ -220,6 +228,7 @@ __all__ = [
     "link_name",
     "metadata",
     "open_recording",
+    "parts",
     "scenario_of",
     "validate",
 ]

@@ -250,6 +250,11 @@ def replay(args: Any) -> int:
         pub.put(data, attachment=attachment)
 
     queryable = session.declare_queryable(control_key(replayer.prefix), replayer.on_query)
+    how = "paused; send resume" if replayer.state.paused else f"rate {replayer.state.rate:g}"
+    print(
+        f"replaying {replayer.path} onto {replayer.prefix}/** ({how}); control: {control_key(replayer.prefix)}",
+        flush=True,
+    )
     try:
         state = replayer.run(publish, stop)
     except KeyboardInterrupt:

@@ -22,7 +22,7 @@ from formation.errors import RecordingError
 from formation.scenario import Scenario
 from recorder.epochs import edge_mask
 from recorder.metrics import formation_error, nees, shape_error
-from recorder.recording import iter_messages, metadata, open_recording, scenario_of
+from recorder.recording import iter_messages, metadata, open_recording, parts, scenario_of
 from recorder.schemas import classify
 
 Array = npt.NDArray[np.float64]
@@ -141,58 +141,75 @@ def _consistency(scenario: Scenario, x: Array, est: dict[str, Any]) -> tuple[Arr
     return nees_values, np.concatenate(errors) if errors else np.zeros((0, d))
 
 
+class _Collected:
+    """What :func:`read_run` takes from the messages of one or more files."""
+
+    def __init__(self) -> None:
+        self.states: dict[int, dict[int, list[float]]] = {}
+        self.ests: dict[int, dict[str, Any]] = {}
+        self.verdicts: list[tuple[int, int, int, bool]] = []
+        self.recorded: dict[int, float] = {}
+        self.malformed = 0
+
+    def add(self, kind: str, data: bytes) -> None:
+        try:
+            body = json.loads(data)
+            if kind == "agent_state":
+                self.states.setdefault(int(body["epoch"]), {})[int(body["agent"])] = body[
+                    "position"
+                ]
+            elif kind == "leader_estimate":
+                self.ests[int(body["epoch"])] = body
+            elif kind == "metrics":
+                self.recorded[int(body["epoch"])] = float(body["formation_error_m"])
+            else:
+                for dec in body["decisions"]:
+                    if dec["link_class"] == "formation":
+                        on_time = (
+                            dec["verdict"] in ("pass", "duplicate")
+                            and dec.get("delay_epochs", 0) == 0
+                        )
+                        self.verdicts.append(
+                            (int(dec["epoch"]), int(dec["source"]), int(dec["target"]), on_time)
+                        )
+        except (ValueError, KeyError, TypeError):
+            self.malformed += 1
+
+
+_WANTED = frozenset({"agent_state", "leader_estimate", "decision", "metrics"})
+
+
 def read_run(path: Path, label: str | None = None) -> RunData:
-    """A recording as :class:`RunData`; needs the scenario stored as metadata."""
-    with open_recording(path) as (reader, _):
-        meta = metadata(reader)
-        scenario = scenario_of(meta, path)
-        if scenario is None:
-            raise RecordingError(str(path), "no scenario in the metadata (record with --scenario)")
-        states: dict[int, dict[int, list[float]]] = {}
-        ests: dict[int, dict[str, Any]] = {}
-        verdicts: list[tuple[int, int, int, bool]] = []
-        recorded: dict[int, float] = {}
-        malformed = 0
-        for _, channel, msg in iter_messages(path, reader, log_time_order=False):
-            kind = channel.metadata.get("kind") or classify(channel.topic)
-            if kind not in ("agent_state", "leader_estimate", "decision", "metrics"):
-                continue
-            try:
-                body = json.loads(msg.data)
-                if kind == "agent_state":
-                    states.setdefault(int(body["epoch"]), {})[int(body["agent"])] = body["position"]
-                elif kind == "leader_estimate":
-                    ests[int(body["epoch"])] = body
-                elif kind == "metrics":
-                    recorded[int(body["epoch"])] = float(body["formation_error_m"])
-                else:
-                    for dec in body["decisions"]:
-                        if dec["link_class"] == "formation":
-                            on_time = (
-                                dec["verdict"] in ("pass", "duplicate")
-                                and dec.get("delay_epochs", 0) == 0
-                            )
-                            verdicts.append(
-                                (int(dec["epoch"]), int(dec["source"]), int(dec["target"]), on_time)
-                            )
-            except (ValueError, KeyError, TypeError):
-                malformed += 1
-    return _assemble(scenario, path, label, states, ests, verdicts, recorded, meta, malformed)
+    """A recording as :class:`RunData`, with its rotated parts (``run-001.mcap``, ...) if any.
+
+    Needs the scenario stored as metadata.
+    """
+    got = _Collected()
+    meta: dict[str, dict[str, str]] = {}
+    for part in parts(path):
+        with open_recording(part) as (reader, _):
+            if not meta:
+                meta = metadata(reader)
+            for _, channel, msg in iter_messages(part, reader, log_time_order=False):
+                kind = channel.metadata.get("kind") or classify(channel.topic)
+                if kind in _WANTED:
+                    got.add(kind, msg.data)
+    scenario = scenario_of(meta, path)
+    if scenario is None:
+        raise RecordingError(str(path), "no scenario in the metadata (record with --scenario)")
+    return _assemble(scenario, path, label, got, meta)
 
 
 def _assemble(
     scenario: Scenario,
     path: Path,
     label: str | None,
-    states: dict[int, dict[int, list[float]]],
-    ests: dict[int, dict[str, Any]],
-    verdicts: list[tuple[int, int, int, bool]],
-    recorded: dict[int, float],
+    got: _Collected,
     meta: dict[str, dict[str, str]],
-    malformed: int,
 ) -> RunData:
     n, d = scenario.n, scenario.dimension
-    x = _positions(states, n, d)
+    x = _positions(got.states, n, d)
+    ests, verdicts, recorded = got.ests, got.verdicts, got.recorded
     epochs = [*ests, *(v[0] for v in verdicts)]
     count = max(epochs) + 1 if epochs else max(len(x) - 1, 0)
     est = _estimates(scenario, ests, count)
@@ -222,7 +239,11 @@ def _assemble(
         delivered=delivered,
         decided=decided,
         source=str(path),
-        extra={"recorded_formation_error": recorded_fe, "metadata": meta, "malformed": malformed},
+        extra={
+            "recorded_formation_error": recorded_fe,
+            "metadata": meta,
+            "malformed": got.malformed,
+        },
         **est,
     )
 

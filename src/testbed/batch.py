@@ -353,18 +353,13 @@ def batch_blue(
     """
     size, m = counts.shape
     d = fused.shape[2]
-    lo, hi = edges[:, 0] - 1, edges[:, 1] - 1
+    inc = np.zeros((m, n))  # oriented incidence: +1 at lo, −1 at hi
+    inc[np.arange(m), edges[:, 0] - 1] = 1.0
+    inc[np.arange(m), edges[:, 1] - 1] = -1.0
     c = counts.astype(np.float64)
-    lap = np.zeros((size, n, n))
-    rows = np.arange(size)[:, None]
-    np.add.at(lap, (rows, lo[None, :], lo[None, :]), c)
-    np.add.at(lap, (rows, hi[None, :], hi[None, :]), c)
-    np.add.at(lap, (rows, lo[None, :], hi[None, :]), -c)
-    np.add.at(lap, (rows, hi[None, :], lo[None, :]), -c)
-    rhs = np.zeros((size, n, d))
-    weighted = c[:, :, None] * fused
-    np.add.at(rhs, (rows, lo[None, :]), weighted)
-    np.add.at(rhs, (rows, hi[None, :]), -weighted)
+    outer = (inc[:, :, None] * inc[:, None, :]).reshape(m, n * n)
+    lap = (c @ outer).reshape(size, n, n)  # Σ_e c_e h_e h_eᵀ
+    rhs = np.matmul(inc.T, c[:, :, None] * fused)  # Σ_e c_e h_e ȳ_eᵀ: (B, n, d)
     keep = np.arange(n) != ref - 1
     grounded = lap[:, keep][:, :, keep]
     # Agents off the reference's component have no equations: an identity row keeps the

@@ -131,7 +131,7 @@ def _router(options: ComposeOptions) -> dict[str, Any]:
                 {"source": PASSWORDS.removesuffix(".txt"), "target": PASSWORDS},
             ]
         }
-    probe = f"import socket; socket.create_connection(('{ROUTER}', {PORT}), 2).close()"
+    probe = f'import socket; socket.create_connection(("{ROUTER}", {PORT}), 2).close()'
     return {
         **_common(options),
         "command": command,
@@ -174,7 +174,10 @@ def _service(
 
 
 class _Dumper(yaml.SafeDumper):
-    """Block style, except lists of scalars (commands, volumes) on one line."""
+    """Block style with indented sequences, except lists of scalars (commands) in flow style."""
+
+    def increase_indent(self, flow: bool = False, indentless: bool = False) -> None:
+        super().increase_indent(flow, False)
 
 
 def _represent_list(dumper: yaml.SafeDumper, data: list[Any]) -> yaml.Node:

@@ -193,6 +193,7 @@ def launch(
     progress: Any = None,
     run_id: str | None = None,
     on_started: Any = None,
+    zenoh_mode: str = "peer",
 ) -> RunOutcome:
     """Run ``scenario`` as real processes; returns what was observed. Every child ends by PID."""
     strategy = strategy or scenario.strategy.name
@@ -208,7 +209,9 @@ def launch(
     group = ProcessGroup(run_dir / "logs")
     port = free_port(HOST)
     endpoint = f"tcp/{HOST}:{port}"
-    common = ["--run-id", run_id, "--mode", "client", "--connect", endpoint]
+    common = ["--run-id", run_id, "--mode", zenoh_mode, "--connect", endpoint]
+    if zenoh_mode == "peer":
+        common += ["--listen", f"tcp/{HOST}:0"]  # peers meet directly, on loopback only
     started = time.monotonic()
     session = None
     observer = None

@@ -35,6 +35,8 @@ from ipaddress import ip_address
 from pathlib import Path
 from typing import Any
 
+import zenoh
+
 from formation import keys
 from formation.errors import TestbedError
 
@@ -184,6 +186,18 @@ def router_config(
     return {"transport": transport, "access_control": access_control(members)}
 
 
+def client_session_config(endpoint: str, config_file: Path | None = None) -> zenoh.Config:
+    """A ``client`` session's :class:`zenoh.Config` from a user's JSON5 file and an endpoint.
+
+    What ``ZENOH_CONFIG`` + ``ZENOH_CONNECT`` give a service, for a tool or test in this process.
+    """
+    conf = zenoh.Config.from_file(str(config_file)) if config_file else zenoh.Config()
+    conf.insert_json5("mode", json.dumps("client"))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    return conf
+
+
 def _b64(data: bytes) -> str:
     return base64.b64encode(data).decode("ascii")
 
@@ -280,7 +294,7 @@ def generate(
     out_dir = Path(out_dir)
     if out_dir.exists() and any(out_dir.iterdir()) and not force:
         raise KeysError(out_dir, "exists and is not empty (use --force to overwrite)")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
     members = principals(n_agents)
     users = [p.user for p in members]
     passwords = {u: secrets.token_urlsafe(24) for u in [ROUTER_USER, *users]}
@@ -317,6 +331,7 @@ __all__ = [
     "access_control",
     "agent_user",
     "client_config",
+    "client_session_config",
     "generate",
     "make_tls",
     "principals",

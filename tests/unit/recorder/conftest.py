@@ -67,12 +67,15 @@ def traffic(result: Any) -> list[tuple[str, bytes, bytes | None, int]]:
     return out
 
 
-def write_synthetic(path: Path, result: Any, compression: str = "zstd") -> dict[str, int]:
-    """Record ``traffic(result)`` as the recorder would (with metrics and scene); counts per key."""
+def write_synthetic(path: Path, result: Any, **options: Any) -> dict[str, int]:
+    """Record ``traffic(result)`` as the recorder would (with metrics and scene); counts per key.
+
+    ``options`` go to :class:`Recording` (e.g. ``split_size``).
+    """
     s = result.scenario
     meta = {"scenario": {"name": s.name, "toml": s.to_toml()}}
-    rec = Recording(path, compression=compression, chunk_size=64 * 1024, metadata=meta,
-                    taps=("agent_state", "leader_estimate"))  # fmt: skip
+    options = {"chunk_size": 64 * 1024, **options}
+    rec = Recording(path, metadata=meta, taps=("agent_state", "leader_estimate"), **options)
     asm = EpochAssembler(s, RUN, clock=lambda: 0)
     for key, data, att, t in traffic(result):
         for kind, k_, d_, recv in rec.write_batch([(key, data, att, None, t)]):

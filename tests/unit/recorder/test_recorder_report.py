@@ -44,6 +44,19 @@ def test_read_run_gives_back_the_simulated_arrays(
     assert run.strategy == "estimate" and run.seed == result.scenario.seed
 
 
+def test_a_rotated_recording_reads_as_one(
+    tmp_path: Path, sim_results: dict[str, Any], synth: Any
+) -> None:
+    result = sim_results["hold"]
+    single, rotated = tmp_path / "one" / "run.mcap", tmp_path / "many" / "run.mcap"
+    synth.write(single, result)
+    synth.write(rotated, result, chunk_size=4096, split_size=40_000)
+    assert (rotated.parent / "run-003.mcap").exists()
+    a, b = read_run(single), read_run(rotated)
+    for name in ("positions", "estimates", "delivered", "tree", "rigidity_rank", "nees_values"):
+        assert np.array_equal(getattr(a, name), getattr(b, name), equal_nan=True), name
+
+
 def non_trivial_png(path: Path) -> None:
     assert path.stat().st_size > 10_000, path
     pixels = imread(path)

@@ -1,0 +1,193 @@
+"""compose.yaml: generated, valid Compose, closed by default; the keys and the access control behind it."""
+
+from __future__ import annotations
+
+import json
+import stat
+from pathlib import Path
+
+import jsonschema
+import pytest
+import yaml
+import zenoh
+
+from formation import keys
+from formation.scenario import Scenario
+from testbed import security
+from testbed.cli import main as formation
+from testbed.compose import ComposeOptions, render
+from testbed.loopback import LoopbackDeployment, interpolate, parse_duration_s
+
+ROOT = Path(__file__).resolve().parents[3]
+COMPOSE = ROOT / "compose.yaml"
+SCHEMA = ROOT.parent / "shared" / "schemas" / "compose-spec.json"
+DEFAULT = "scenarios/paper.toml"
+OPTIONS = [ComposeOptions(), ComposeOptions(secure=False), ComposeOptions(tls=True)]
+
+
+def _render(path: str, options: ComposeOptions | None = None) -> str:
+    return render(path, options, Scenario.from_file(ROOT / path))
+
+
+@pytest.fixture(scope="module")
+def compose_schema() -> dict:
+    return json.loads(SCHEMA.read_text())
+
+
+def test_committed_compose_file_is_what_the_generator_writes_now() -> None:
+    assert COMPOSE.read_text() == _render(DEFAULT), "regenerate: formation compose > compose.yaml"
+
+
+def test_formation_compose_prints_the_file(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(ROOT)
+    assert formation(["compose"]) == 0
+    assert capsys.readouterr().out == COMPOSE.read_text()
+
+
+@pytest.mark.parametrize("scenario", sorted(p.name for p in (ROOT / "scenarios").glob("*.toml")))
+@pytest.mark.parametrize("options", OPTIONS, ids=["closed", "open", "tls"])
+def test_every_scenario_gives_a_valid_compose_file(scenario: str, options: ComposeOptions, compose_schema: dict) -> None:
+    text = _render(f"scenarios/{scenario}", options)
+    doc = yaml.safe_load(text)
+    jsonschema.validate(doc, compose_schema)
+    n = Scenario.from_file(ROOT / "scenarios" / scenario).n
+    agents = [s for s in doc["services"] if s.startswith("agent-")]
+    assert agents == [f"agent-{i}" for i in range(1, n + 1)]
+    assert list(doc["services"])[:4] == ["router", "recorder", "netem", "leader"]
+    assert doc["configs"]["scenario"]["file"] == f"./scenarios/{scenario}"
+    for banned in ("localhost", "127.", "0.0.0.0", "::"):  # names only; compose resolves them
+        assert banned not in yaml.safe_dump(doc["services"])
+    proto = "tls" if options.tls else "tcp"
+    for name, svc in doc["services"].items():
+        env = svc["environment"]
+        if name == "router":
+            assert env["ZENOH_LISTEN"] == f"{proto}/router:7447"
+            continue
+        assert env["ZENOH_MODE"] == "client" and env["ZENOH_CONNECT"] == f"{proto}/router:7447"
+        assert svc["depends_on"]["router"] == {"condition": "service_healthy"}
+        assert "--scenario" in svc["command"] and "/app/scenario.toml" in svc["command"]
+        assert any(c["target"] == "/app/scenario.toml" for c in svc["configs"])
+        assert "${RUN_ID:-" in " ".join(svc["command"])
+
+
+def test_committed_compose_file_validates_against_the_compose_spec(compose_schema: dict) -> None:
+    jsonschema.validate(yaml.safe_load(COMPOSE.read_text()), compose_schema)
+
+
+def test_closed_by_default_each_service_has_its_own_credentials() -> None:
+    doc = yaml.safe_load(COMPOSE.read_text())
+    n = Scenario.from_file(ROOT / DEFAULT).n
+    users = {p.user for p in security.principals(n)} - {security.OPERATOR}
+    assert set(doc["services"]) - {"router"} == users
+    for name, svc in doc["services"].items():
+        assert svc["environment"]["ZENOH_CONFIG"] == "/run/secrets/zenoh.json5"
+        assert {"source": name, "target": "zenoh.json5"} in svc["secrets"]
+        assert doc["secrets"][name]["file"].startswith("${FORMATION_KEYS:-./keys}/")
+    assert "--passwords" in doc["services"]["router"]["command"]
+    recorder = doc["services"]["recorder"]
+    assert "--report" in recorder["command"] and recorder["volumes"] == ["${FORMATION_RUNS:-./runs}:/app/runs"]
+    assert (ROOT / "Dockerfile").is_file() and "keys" in (ROOT / ".dockerignore").read_text().split()
+    open_doc = yaml.safe_load(_render(DEFAULT, ComposeOptions(secure=False)))
+    assert "secrets" not in open_doc and all("secrets" not in s for s in open_doc["services"].values())
+
+
+# -- the access control --------------------------------------------------------------------------
+def _allows(acl: dict, user: str, message: str, flow: str, key: str) -> bool:
+    """Whether ``acl`` lets ``user`` send ``message`` on ``key`` (explicit allow; default deny)."""
+    policy = next(p for p in acl["policies"] if p["subjects"] == [user])
+    rules = [r for r in acl["rules"] if r["id"] in policy["rules"]]
+    return any(
+        message in r["messages"] and flow in r["flows"]
+        and any(zenoh.KeyExpr(e).includes(zenoh.KeyExpr(key)) for e in r["key_exprs"])
+        for r in rules
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("user", "key", "allowed"),
+    [
+        ("agent-1", keys.agent_state("r", 1), True),
+        ("agent-1", keys.agent_report("r", 1), True),
+        ("agent-1", keys.status("r", "agent", 1), True),
+        ("agent-1", keys.agent_state("r", 2), False),
+        ("agent-1", keys.link_state("r", 1, 2), False),
+        ("agent-1", keys.leader_estimate_out("r"), False),
+        ("agent-2", keys.agent_state("r", 2), True),
+        ("netem", keys.link_state("r", 1, 2), True),
+        ("netem", keys.link_report("r", 3), True),
+        ("netem", keys.link_estimate("r", 3), True),
+        ("netem", keys.close("r", 0, "report"), True),
+        ("netem", keys.netem_decision("r"), True),
+        ("netem", keys.agent_state("r", 1), False),
+        ("netem", keys.leader_estimate_out("r"), False),
+        ("leader", keys.leader_estimate_out("r"), True),
+        ("leader", keys.link_estimate("r", 1), False),
+        ("recorder", keys.status("r", "recorder", 0), True),
+        ("recorder", keys.agent_state("r", 1), False),
+        ("operator", keys.agent_state("r", 1), False),
+    ],
+)
+def test_each_user_may_publish_only_its_own_keys(user: str, key: str, allowed: bool) -> None:
+    acl = security.access_control(security.principals(5))
+    assert acl["default_permission"] == "deny"
+    assert _allows(acl, user, "put", "ingress", key) is allowed
+    assert _allows(acl, user, "declare_subscriber", "ingress", keys.everything("r"))
+    assert _allows(acl, user, "put", "egress", key)  # everyone authenticated may read the run
+
+
+def test_liveliness_tokens_and_queryables_belong_to_their_owner() -> None:
+    acl = security.access_control(security.principals(3))
+    assert _allows(acl, "agent-3", "liveliness_token", "ingress", keys.alive("r", "agent", 3))
+    assert not _allows(acl, "agent-3", "liveliness_token", "ingress", keys.alive("r", "agent", 2))
+    assert not _allows(acl, "agent-3", "liveliness_token", "ingress", keys.start("r"))
+    assert _allows(acl, "netem", "liveliness_token", "ingress", keys.start("r"))
+    assert _allows(acl, "netem", "declare_queryable", "ingress", keys.netem_config("r"))
+    assert not _allows(acl, "agent-1", "declare_queryable", "ingress", keys.netem_config("r"))
+    assert _allows(acl, "operator", "query", "ingress", keys.flush("r"))
+    assert not _allows(acl, "agent-1", "query", "ingress", keys.flush("r"))
+
+
+def test_generated_keys_are_private_and_load_as_zenoh_configs(tmp_path: Path) -> None:
+    keyset = security.generate(tmp_path / "k", n_agents=2)
+    files = sorted(p.name for p in (tmp_path / "k").iterdir())
+    assert files == sorted(["passwords.txt", "router.json5", "recorder.json5", "netem.json5", "leader.json5",
+                            "agent-1.json5", "agent-2.json5", "operator.json5"])  # fmt: skip
+    for p in (tmp_path / "k").iterdir():
+        assert stat.S_IMODE(p.stat().st_mode) == 0o600, p
+    assert len(set(keyset.passwords.values())) == len(keyset.passwords)
+    lines = keyset.passwords_file.read_text().splitlines()
+    assert lines == [f"{u}:{keyset.passwords[u]}" for u in keyset.configs]
+    for path in [keyset.router_config, *keyset.configs.values()]:
+        zenoh.Config.from_file(str(path))
+    agent = json.loads(keyset.config("agent-1").read_text().split("\n", 1)[1])
+    assert agent == {"transport": {"auth": {"usrpwd": {"user": "agent-1", "password": keyset.passwords["agent-1"]}}}}
+    with pytest.raises(security.KeysError, match=r"k: exists and is not empty \(use --force to overwrite\)"):
+        security.generate(tmp_path / "k", n_agents=2)
+
+
+# -- the loopback translation the integration test relies on ------------------------------------
+def test_interpolation_and_durations_follow_compose() -> None:
+    env = {"A": "x", "EMPTY": ""}
+    assert interpolate("${A:-d}/${B:-d}/${EMPTY:-d}/${EMPTY-d}/$A/$$A", env) == "x/d/d//x/$A"
+    assert [parse_duration_s(t) for t in ("2m", "1m30s", "500ms", "10s", None)] == [120, 90, 0.5, 10, 10]
+    with pytest.raises(Exception, match="cannot read duration '2 min'"):
+        parse_duration_s("2 min")
+
+
+def test_loopback_maps_names_paths_and_secrets(tmp_path: Path) -> None:
+    env = {"FORMATION_KEYS": str(tmp_path / "keys"), "FORMATION_RUNS": str(tmp_path / "runs"), "RUN_ID": "r1"}
+    dep = LoopbackDeployment(COMPOSE, tmp_path / "logs", env, subnet=(10, 20))
+    assert dep.addresses["router"] == "127.10.20.2" and dep.host_address == "127.10.20.1"
+    assert [s.name for s in dep.services][:3] == ["router", "recorder", "netem"]
+    router = dep.service("router")
+    assert router.env["ZENOH_LISTEN"] == "tcp/127.10.20.2:7447" and router.listen == [("127.10.20.2", 7447)]
+    assert router.env["ZENOH_CONFIG"] == str(tmp_path / "keys" / "router.json5")
+    assert router.argv[-1] == str(tmp_path / "keys" / "passwords.txt")
+    agent = dep.service("agent-2")
+    assert agent.env["ZENOH_CONNECT"] == f"tcp/127.10.20.2:7447#bind={agent.address}:0"
+    assert agent.env["ZENOH_CONFIG"] == str(tmp_path / "keys" / "agent-2.json5")
+    assert str(ROOT / DEFAULT) in agent.argv and "r1" in agent.argv
+    recorder = dep.service("recorder")
+    assert str(tmp_path / "runs" / "r1") in recorder.argv and recorder.grace_s == 60.0
+    assert dep.bound("tcp/router:7447") == "tcp/127.10.20.2:7447#bind=127.10.20.1:0"
+    assert not dep.started
