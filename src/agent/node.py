@@ -177,7 +177,7 @@ class AgentNode:
         while len(self.done) < len(self.runners) and not self.service.stopping.is_set():
             msg = self.service.next_incoming(0.2)
             if msg is None:
-                if not self.service.is_alive("netem", 0):
+                if self.service.gone_for("netem", 0):
                     log.error("netem is gone; stopping")
                     return 2
                 continue

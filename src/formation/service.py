@@ -57,6 +57,7 @@ class Service:
         self._alive: set[str] = set()
         self._alive_lock = threading.Lock()
         self._started = threading.Event()
+        self._missing_since: dict[tuple[str, str], int] = {}
         self._signals = 0
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, self._on_signal)
@@ -148,6 +149,19 @@ class Service:
                 keys.alive_all(self.run_id), changed, history=True
             )
         )
+
+    def gone_for(self, role: str, ident: int | str, grace_s: float = 5.0) -> bool:
+        """True once ``role/ident`` has had no liveliness token for ``grace_s`` seconds.
+
+        A loaded machine can miss a lease for a moment; a crash stays gone.
+        """
+        now = now_ns()
+        key = (role, str(ident))
+        if self.is_alive(role, ident):
+            self._missing_since.pop(key, None)
+            return False
+        since = self._missing_since.setdefault(key, now)
+        return now - since > grace_s * 1e9
 
     def is_alive(self, role: str, ident: int | str) -> bool:
         with self._alive_lock:

@@ -16,7 +16,7 @@ import os
 import struct
 import time
 import zlib
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
 
@@ -354,7 +354,7 @@ class Recording:
         return cid
 
     # -- messages -------------------------------------------------------------------------
-    def write_batch(self, batch: list[Raw]) -> list[tuple[str, str, bytes, int]]:
+    def write_batch(self, batch: Sequence[Raw]) -> list[tuple[str, str, bytes, int]]:
         """Write received samples in order; returns ``(kind, key, payload, recv_ns)`` of tapped kinds."""
         tapped: list[tuple[str, str, bytes, int]] = []
         start = 0
@@ -364,7 +364,9 @@ class Recording:
                 self._close_chunk()
         return tapped
 
-    def _fill(self, batch: list[Raw], start: int, tapped: list[tuple[str, str, bytes, int]]) -> int:
+    def _fill(
+        self, batch: Sequence[Raw], start: int, tapped: list[tuple[str, str, bytes, int]]
+    ) -> int:
         f, ids, taps, limit = self._file, self.ids, self._tapped, self.chunk_size
         parts, pack, seq_of, size = f.parts, _MESSAGE.pack, _SEQ.unpack, f.size
         for j in range(start, len(batch)):

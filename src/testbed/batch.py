@@ -353,13 +353,21 @@ def batch_blue(
     """
     size, m = counts.shape
     d = fused.shape[2]
-    inc = np.zeros((m, n))  # oriented incidence: +1 at lo, −1 at hi
-    inc[np.arange(m), edges[:, 0] - 1] = 1.0
-    inc[np.arange(m), edges[:, 1] - 1] = -1.0
+    lo, hi = edges[:, 0] - 1, edges[:, 1] - 1
     c = counts.astype(np.float64)
-    outer = (inc[:, :, None] * inc[:, None, :]).reshape(m, n * n)
-    lap = (c @ outer).reshape(size, n, n)  # Σ_e c_e h_e h_eᵀ
-    rhs = np.matmul(inc.T, c[:, :, None] * fused)  # Σ_e c_e h_e ȳ_eᵀ: (B, n, d)
+    # bincount, not matmul: a threaded BLAS call on these small arrays only spins (measured)
+    base_nn = (np.arange(size, dtype=np.int64) * n * n)[:, None]
+    cells = np.concatenate([lo * n + lo, hi * n + hi, lo * n + hi, hi * n + lo])[None, :]
+    lap = np.bincount(
+        (base_nn + cells).ravel(), np.concatenate([c, c, -c, -c], axis=1).ravel(), size * n * n
+    ).reshape(size, n, n)  # Σ_e c_e h_e h_eᵀ, h_e = +1 at lo, −1 at hi
+    base_n = (np.arange(size, dtype=np.int64) * n)[:, None]
+    at = np.concatenate([base_n + lo[None, :], base_n + hi[None, :]], axis=1).ravel()
+    weighted = c[:, :, None] * fused
+    rhs = np.stack(
+        [np.bincount(at, np.concatenate([weighted[:, :, a], -weighted[:, :, a]], axis=1).ravel(),
+                     size * n) for a in range(d)], axis=1,
+    ).reshape(size, n, d)  # Σ_e c_e h_e ȳ_eᵀ  # fmt: skip
     keep = np.arange(n) != ref - 1
     grounded = lap[:, keep][:, :, keep]
     # Agents off the reference's component have no equations: an identity row keeps the

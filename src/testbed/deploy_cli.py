@@ -25,7 +25,9 @@ def cmd_keys(args: argparse.Namespace) -> int:
 
     scenario = Scenario.from_file(args.scenario)
     hosts = args.tls_host or ["router"]
-    keyset = generate(Path(args.out_dir), scenario.n, tls=args.tls, tls_hosts=hosts, force=args.force)
+    keyset = generate(
+        Path(args.out_dir), scenario.n, tls=args.tls, tls_hosts=hosts, force=args.force
+    )
     users = ", ".join(sorted(keyset.configs))
     print(
         f"keys: {keyset.out_dir}: {keyset.passwords_file.name}, {keyset.router_config.name} "
@@ -39,10 +41,15 @@ def cmd_keys(args: argparse.Namespace) -> int:
 def register(sub: Any) -> None:
     from testbed.cli import DEFAULT_SCENARIO
 
-    p = sub.add_parser("compose", help="print compose.yaml for a scenario (one service per process)")
+    p = sub.add_parser(
+        "compose", help="print compose.yaml for a scenario (one service per process)"
+    )
     p.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO, help="scenario TOML file")
-    p.add_argument("--open", action="store_true",
-                   help="no authentication or access control (trusted networks only)")
+    p.add_argument(
+        "--open",
+        action="store_true",
+        help="no authentication or access control (trusted networks only)",
+    )
     p.add_argument("--tls", action="store_true", help="TLS links (needs `formation keys --tls`)")
     p.set_defaults(func=cmd_compose)
 
@@ -50,7 +57,10 @@ def register(sub: Any) -> None:
     p.add_argument("out_dir", help="folder for the files (e.g. keys/, never committed)")
     p.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO, help="scenario TOML file")
     p.add_argument("--tls", action="store_true", help="also a CA and the router's TLS certificate")
-    p.add_argument("--tls-host", action="append",
-                   help="name or IP in the router's certificate (repeatable; default: router)")
+    p.add_argument(
+        "--tls-host",
+        action="append",
+        help="name or IP in the router's certificate (repeatable; default: router)",
+    )
     p.add_argument("--force", action="store_true", help="overwrite a non-empty folder")
     p.set_defaults(func=cmd_keys)

@@ -82,7 +82,9 @@ def parse_duration_s(text: str | int | float | None, default: float = DEFAULT_GR
         total += float(m.group(1)) * units[m.group(2)]
         pos = m.end()
     if pos != len(text) or not text:
-        raise ComposeFileError("compose file", "stop_grace_period", f"cannot read duration {text!r}")
+        raise ComposeFileError(
+            "compose file", "stop_grace_period", f"cannot read duration {text!r}"
+        )
     return total
 
 
@@ -157,12 +159,18 @@ class LoopbackDeployment:
             if isinstance(vol, str):
                 parts = interpolate(vol, self.env).split(":")
                 if len(parts) < 2:
-                    raise ComposeFileError(self.file, f"services.{name}.volumes", f"{vol!r} is not a bind mount")
+                    raise ComposeFileError(
+                        self.file, f"services.{name}.volumes", f"{vol!r} is not a bind mount"
+                    )
                 source, target = parts[0], parts[1]
             else:
                 source, target = vol.get("source", ""), vol["target"]
             if not (source.startswith((".", "/", "$"))):
-                raise ComposeFileError(self.file, f"services.{name}.volumes", f"named volume {source!r} is not supported")
+                raise ComposeFileError(
+                    self.file,
+                    f"services.{name}.volumes",
+                    f"named volume {source!r} is not supported",
+                )
             mounts[target] = self._host_file(source)
         for kind, default_dir in (("secrets", SECRETS), ("configs", PurePosixPath("/"))):
             top = self.doc.get(kind) or {}
@@ -205,7 +213,9 @@ class LoopbackDeployment:
             address=address,
             argv=argv,
             env=env,
-            depends_on={d: (c or {}).get("condition", "service_started") for d, c in depends.items()},
+            depends_on={
+                d: (c or {}).get("condition", "service_started") for d, c in depends.items()
+            },
             grace_s=min(parse_duration_s(spec.get("stop_grace_period")), self.max_grace_s),
             listen=listen,
         )
@@ -249,7 +259,11 @@ class LoopbackDeployment:
                 return
             if condition == "service_healthy" and dep.child is not None:
                 if not dep.listen:
-                    raise ComposeFileError(self.file, f"services.{dep.name}", "service_healthy needs a listen endpoint to probe")
+                    raise ComposeFileError(
+                        self.file,
+                        f"services.{dep.name}",
+                        "service_healthy needs a listen endpoint to probe",
+                    )
                 if all(_accepts(host, port) for host, port in dep.listen):
                     return
             if condition == "service_completed_successfully" and dep.child is not None:
@@ -257,7 +271,9 @@ class LoopbackDeployment:
                 if code == 0:
                     return
             if time.monotonic() > deadline:
-                raise RuntimeFailure(f"timed out after {timeout_s:g} s waiting for {dep.name} ({condition})")
+                raise RuntimeFailure(
+                    f"timed out after {timeout_s:g} s waiting for {dep.name} ({condition})"
+                )
             time.sleep(0.01)
 
     def check(self, *names: str) -> None:
@@ -282,7 +298,9 @@ class LoopbackDeployment:
                 return {n: 0 for n in names}
             if time.monotonic() > deadline:
                 running = [n for n, c in codes.items() if c is None]
-                raise RuntimeFailure(f"timed out after {timeout_s:g} s; still running: {', '.join(running)}")
+                raise RuntimeFailure(
+                    f"timed out after {timeout_s:g} s; still running: {', '.join(running)}"
+                )
             time.sleep(0.02)
 
     def stop(self, name: str) -> int | None:
@@ -312,7 +330,10 @@ class LoopbackDeployment:
         return self
 
     def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
     ) -> None:
         for svc in reversed(self.started):  # on error, do not wait out long grace periods
             if exc_type is not None:
@@ -358,4 +379,10 @@ def _free_subnet() -> tuple[int, int]:
     return rng.randint(1, 254), rng.randint(1, 254)
 
 
-__all__ = ["ComposeFileError", "LocalService", "LoopbackDeployment", "interpolate", "parse_duration_s"]
+__all__ = [
+    "ComposeFileError",
+    "LocalService",
+    "LoopbackDeployment",
+    "interpolate",
+    "parse_duration_s",
+]

@@ -33,8 +33,10 @@ def main(argv: list[str] | None = None) -> int:
     out_dir = Path(args.out or Path("runs") / args.run_id)
     try:
         path = write_report(out_dir / args.file, out_dir)
-    except Exception as exc:  # noqa: BLE001 - the recording is safe; say why the report is not
-        print(f"recording_service: error: no report for {out_dir / args.file}: {exc}", file=sys.stderr)
+    except Exception as exc:  # the recording is safe; say why the report is not
+        print(
+            f"recording_service: error: no report for {out_dir / args.file}: {exc}", file=sys.stderr
+        )
         return 1
     print(f"recording_service: report {path}", file=sys.stderr)
     return 0

@@ -39,7 +39,9 @@ def main(argv: list[str] | None = None) -> int:
     extra = {"transport/auth/usrpwd/dictionary_file": args.passwords} if args.passwords else None
     zenoh.try_init_log_from_env()
     try:
-        session = zenoh.open(zenoh_config.session_config("router", args.connect, args.listen, extra))
+        session = zenoh.open(
+            zenoh_config.session_config("router", args.connect, args.listen, extra)
+        )
     except zenoh.ZError as exc:
         print(f"router: error: cannot listen on {where}: {exc}", file=sys.stderr)
         return 1

@@ -91,13 +91,17 @@ def principals(n_agents: int) -> list[Principal]:
         Principal(
             "netem",
             publish=(
-                keys.link_state(r, "*", "*"), keys.link_report(r, "*"), keys.link_estimate(r, "*"),
-                keys.close(r, "*", "*"), keys.netem_decision(r), keys.netem_change(r),
+                keys.link_state(r, "*", "*"),
+                keys.link_report(r, "*"),
+                keys.link_estimate(r, "*"),
+                keys.close(r, "*", "*"),
+                keys.netem_decision(r),
+                keys.netem_change(r),
                 keys.status(r, "netem", 0),
             ),
             tokens=(keys.alive(r, "netem", 0), keys.start(r)),
             queryables=(keys.netem_config(r), keys.clock(r)),
-        ),  # fmt: skip
+        ),
         Principal(
             "leader",
             publish=(keys.leader_estimate_out(r), keys.status(r, "leader", 0)),
@@ -109,7 +113,11 @@ def principals(n_agents: int) -> list[Principal]:
         out.append(
             Principal(
                 agent_user(i),
-                publish=(keys.agent_state(r, i), keys.agent_report(r, i), keys.status(r, "agent", i)),
+                publish=(
+                    keys.agent_state(r, i),
+                    keys.agent_report(r, i),
+                    keys.status(r, "agent", i),
+                ),
                 tokens=(keys.alive(r, "agent", i),),
                 queries=(keys.clock(r),),
             )

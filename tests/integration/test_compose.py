@@ -44,7 +44,13 @@ def _tcp_sockets() -> list[tuple[str, str, str]]:
     out = []
     for line in Path("/proc/net/tcp").read_text().splitlines()[1:]:
         cols = line.split()
-        out.append((addr(cols[1]), addr(cols[2]), {"0A": "listen", "01": "established"}.get(cols[3], cols[3])))
+        out.append(
+            (
+                addr(cols[1]),
+                addr(cols[2]),
+                {"0A": "listen", "01": "established"}.get(cols[3], cols[3]),
+            )
+        )
     return out
 
 
@@ -67,7 +73,10 @@ def _recorded(mcap_path: Path) -> tuple[Counter[str], dict[str, dict], dict[str,
 def test_compose_services_run_as_separate_hosts_and_record_everything(tmp_path: Path) -> None:
     doc = yaml.safe_load(COMPOSE.read_text())
     scenario = Scenario.from_file(ROOT / doc["configs"]["scenario"]["file"])
-    assert formation(["keys", str(tmp_path / "keys"), str(ROOT / doc["configs"]["scenario"]["file"])]) == 0
+    assert (
+        formation(["keys", str(tmp_path / "keys"), str(ROOT / doc["configs"]["scenario"]["file"])])
+        == 0
+    )
     runs = tmp_path / "runs"
     env = {"FORMATION_KEYS": str(tmp_path / "keys"), "FORMATION_RUNS": str(runs), "RUN_ID": RUN_ID}
     workers = [n for n in doc["services"] if n not in ("router", "recorder")]
@@ -84,7 +93,9 @@ def test_compose_services_run_as_separate_hosts_and_record_everything(tmp_path: 
             assert svc.env["ZENOH_CONNECT"].startswith(f"tcp/{router}:")
         dep.up(timeout_s=30)
         endpoint = dep.bound(doc["services"]["router"]["environment"]["ZENOH_LISTEN"])
-        session = zenoh.open(security.client_session_config(endpoint, tmp_path / "keys" / "operator.json5"))
+        session = zenoh.open(
+            security.client_session_config(endpoint, tmp_path / "keys" / "operator.json5")
+        )
         try:
             started = threading.Event()
             token = session.liveliness().declare_subscriber(
@@ -101,10 +112,16 @@ def test_compose_services_run_as_separate_hosts_and_record_everything(tmp_path: 
             ]  # fmt: skip
             assert {s[0].split(":")[0] for s in inside if s[2] == "listen"} == {router}
             peers = {
-                s[0].split(":")[0] for s in inside if s[2] == "established" and s[1].startswith(router + ":")
+                s[0].split(":")[0]
+                for s in inside
+                if s[2] == "established" and s[1].startswith(router + ":")
             }
             assert {dep.addresses[n] for n in doc["services"] if n != "router"} <= peers
-            assert all(router in (s[0].split(":")[0], s[1].split(":")[0]) for s in inside if s[2] == "established")
+            assert all(
+                router in (s[0].split(":")[0], s[1].split(":")[0])
+                for s in inside
+                if s[2] == "established"
+            )
             dep.wait_exit(workers, timeout_s=90)
             _flush(session, {keys.status(RUN_ID, *_role(n)) for n in workers})
             token.undeclare()
@@ -124,7 +141,8 @@ def test_compose_services_run_as_separate_hosts_and_record_everything(tmp_path: 
         k: (v, counts[k]) for k, v in sent.items() if counts[k] != v
     }
     assert {k: e for k, e in epochs.items()} == {
-        keys.agent_state(RUN_ID, i): set(range(scenario.epochs + 1)) for i in range(1, scenario.n + 1)
+        keys.agent_state(RUN_ID, i): set(range(scenario.epochs + 1))
+        for i in range(1, scenario.n + 1)
     }
     assert counts[keys.leader_estimate_out(RUN_ID)] == scenario.epochs
 
@@ -143,4 +161,6 @@ def _flush(session: zenoh.Session, status_keys: set[str], timeout_s: float = 15.
         for reply in session.get(keys.flush(RUN_ID), timeout=2.0):
             if reply.ok is not None and status_keys <= set(json.loads(reply.ok.payload.to_bytes())):
                 return
-    raise AssertionError(f"the recorder did not receive {sorted(status_keys)} within {timeout_s:g} s")
+    raise AssertionError(
+        f"the recorder did not receive {sorted(status_keys)} within {timeout_s:g} s"
+    )

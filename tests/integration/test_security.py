@@ -47,7 +47,9 @@ class Network:
         return zenoh.open(security.client_session_config(self.endpoint, path))
 
 
-def _start_router(tmp: Path, keyset: security.KeySet, tls: bool = False) -> tuple[ProcessGroup, str]:
+def _start_router(
+    tmp: Path, keyset: security.KeySet, tls: bool = False
+) -> tuple[ProcessGroup, str]:
     group = ProcessGroup(tmp / "logs")
     port = free_port(HOST)
     endpoint = f"{'tls' if tls else 'tcp'}/{HOST}:{port}"
@@ -71,12 +73,18 @@ def network(tmp_path: Path) -> Iterator[Network]:
 
 
 def test_sessions_without_valid_credentials_are_refused(network: Network) -> None:
-    attempts = {"no credentials": None, "unknown user": ("intruder", "x"), "wrong password": ("agent-1", "x")}
+    attempts = {
+        "no credentials": None,
+        "unknown user": ("intruder", "x"),
+        "wrong password": ("agent-1", "x"),
+    }
     refused = Counter[str]()
     for what, cred in attempts.items():
         conf = security.client_session_config(network.endpoint)
         if cred is not None:
-            conf.insert_json5("transport/auth/usrpwd", json.dumps({"user": cred[0], "password": cred[1]}))
+            conf.insert_json5(
+                "transport/auth/usrpwd", json.dumps({"user": cred[0], "password": cred[1]})
+            )
         try:
             zenoh.open(conf).close()
         except zenoh.ZError:
@@ -126,7 +134,9 @@ def test_each_user_publishes_only_its_own_keys(network: Network) -> None:
         "--connect", network.endpoint, env={"ZENOH_CONFIG": str(network.keyset.config("recorder"))},
     )  # fmt: skip
     try:
-        _wait(lambda: keys.alive(RUN, "recorder", 0) in tokens_seen, "the recorder's token", network)
+        _wait(
+            lambda: keys.alive(RUN, "recorder", 0) in tokens_seen, "the recorder's token", network
+        )
         attempts: Counter[tuple[str, str]] = Counter()  # (key, sender) of every forged message
         # an unauthenticated peer: it may open, but nothing it says gets in
         try:
@@ -154,9 +164,15 @@ def test_each_user_publishes_only_its_own_keys(network: Network) -> None:
             if user == "agent-1":
                 keep.append(s.liveliness().declare_token(keys.alive(RUN, "agent", 1)))
         legit = Counter({(k, user): N for user, ks_ in allowed.items() for k in ks_})
-        _wait(lambda: all(heard[k] >= n for k, n in legit.items()), "the allowed messages at agent 2", network)
+        _wait(
+            lambda: all(heard[k] >= n for k, n in legit.items()),
+            "the allowed messages at agent 2",
+            network,
+        )
         _wait(lambda: keys.alive(RUN, "agent", 1) in tokens_seen, "agent 1's own token", network)
-        counts = _recorder_counts(operator, lambda c: all(c.get(k, 0) >= n for (k, _), n in legit.items()))
+        counts = _recorder_counts(
+            operator, lambda c: all(c.get(k, 0) >= n for (k, _), n in legit.items())
+        )
         replies = list(operator.get(keys.netem_config(RUN), timeout=1.0))
     finally:
         for s in [*sessions.values()]:
@@ -196,7 +212,10 @@ def test_tls_links_with_generated_keys(tmp_path: Path) -> None:
         assert got.is_set()
         # credentials without the CA: the router's certificate is not trusted
         conf = security.client_session_config(endpoint)
-        conf.insert_json5("transport/auth/usrpwd", json.dumps({"user": "agent-2", "password": keyset.passwords["agent-2"]}))
+        conf.insert_json5(
+            "transport/auth/usrpwd",
+            json.dumps({"user": "agent-2", "password": keyset.passwords["agent-2"]}),
+        )
         with pytest.raises(zenoh.ZError):
             zenoh.open(conf)
         sub.undeclare()

@@ -30,15 +30,21 @@ def _render(path: str, options: ComposeOptions | None = None) -> str:
 
 
 @pytest.fixture(scope="module")
-def compose_schema() -> dict:
-    return json.loads(SCHEMA.read_text())
+def compose_schema() -> jsonschema.Draft7Validator:
+    """The Compose Specification's schema; it declares draft-07 by a URL jsonschema does not know."""
+    schema = json.loads(SCHEMA.read_text())
+    assert schema["$schema"].startswith("https://json-schema.org/draft-07/")
+    jsonschema.Draft7Validator.check_schema(schema)
+    return jsonschema.Draft7Validator(schema)
 
 
 def test_committed_compose_file_is_what_the_generator_writes_now() -> None:
     assert COMPOSE.read_text() == _render(DEFAULT), "regenerate: formation compose > compose.yaml"
 
 
-def test_formation_compose_prints_the_file(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+def test_formation_compose_prints_the_file(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
     monkeypatch.chdir(ROOT)
     assert formation(["compose"]) == 0
     assert capsys.readouterr().out == COMPOSE.read_text()
@@ -46,10 +52,12 @@ def test_formation_compose_prints_the_file(capsys: pytest.CaptureFixture[str], m
 
 @pytest.mark.parametrize("scenario", sorted(p.name for p in (ROOT / "scenarios").glob("*.toml")))
 @pytest.mark.parametrize("options", OPTIONS, ids=["closed", "open", "tls"])
-def test_every_scenario_gives_a_valid_compose_file(scenario: str, options: ComposeOptions, compose_schema: dict) -> None:
+def test_every_scenario_gives_a_valid_compose_file(
+    scenario: str, options: ComposeOptions, compose_schema: jsonschema.Draft7Validator
+) -> None:
     text = _render(f"scenarios/{scenario}", options)
     doc = yaml.safe_load(text)
-    jsonschema.validate(doc, compose_schema)
+    compose_schema.validate(doc)
     n = Scenario.from_file(ROOT / "scenarios" / scenario).n
     agents = [s for s in doc["services"] if s.startswith("agent-")]
     assert agents == [f"agent-{i}" for i in range(1, n + 1)]
@@ -70,8 +78,14 @@ def test_every_scenario_gives_a_valid_compose_file(scenario: str, options: Compo
         assert "${RUN_ID:-" in " ".join(svc["command"])
 
 
-def test_committed_compose_file_validates_against_the_compose_spec(compose_schema: dict) -> None:
-    jsonschema.validate(yaml.safe_load(COMPOSE.read_text()), compose_schema)
+def test_committed_compose_file_validates_against_the_compose_spec(
+    compose_schema: jsonschema.Draft7Validator,
+) -> None:
+    doc = yaml.safe_load(COMPOSE.read_text())
+    compose_schema.validate(doc)
+    doc["services"]["netem"]["restart_policy"] = "always"  # a typo of `restart`: the check is live
+    with pytest.raises(jsonschema.ValidationError, match="'restart_policy' does not match any of the regexes"):
+        compose_schema.validate(doc)
 
 
 def test_closed_by_default_each_service_has_its_own_credentials() -> None:
@@ -85,10 +99,16 @@ def test_closed_by_default_each_service_has_its_own_credentials() -> None:
         assert doc["secrets"][name]["file"].startswith("${FORMATION_KEYS:-./keys}/")
     assert "--passwords" in doc["services"]["router"]["command"]
     recorder = doc["services"]["recorder"]
-    assert "--report" in recorder["command"] and recorder["volumes"] == ["${FORMATION_RUNS:-./runs}:/app/runs"]
-    assert (ROOT / "Dockerfile").is_file() and "keys" in (ROOT / ".dockerignore").read_text().split()
+    assert "--report" in recorder["command"] and recorder["volumes"] == [
+        "${FORMATION_RUNS:-./runs}:/app/runs"
+    ]
+    assert (ROOT / "Dockerfile").is_file() and "keys" in (
+        ROOT / ".dockerignore"
+    ).read_text().split()
     open_doc = yaml.safe_load(_render(DEFAULT, ComposeOptions(secure=False)))
-    assert "secrets" not in open_doc and all("secrets" not in s for s in open_doc["services"].values())
+    assert "secrets" not in open_doc and all(
+        "secrets" not in s for s in open_doc["services"].values()
+    )
 
 
 # -- the access control --------------------------------------------------------------------------
@@ -160,8 +180,14 @@ def test_generated_keys_are_private_and_load_as_zenoh_configs(tmp_path: Path) ->
     for path in [keyset.router_config, *keyset.configs.values()]:
         zenoh.Config.from_file(str(path))
     agent = json.loads(keyset.config("agent-1").read_text().split("\n", 1)[1])
-    assert agent == {"transport": {"auth": {"usrpwd": {"user": "agent-1", "password": keyset.passwords["agent-1"]}}}}
-    with pytest.raises(security.KeysError, match=r"k: exists and is not empty \(use --force to overwrite\)"):
+    assert agent == {
+        "transport": {
+            "auth": {"usrpwd": {"user": "agent-1", "password": keyset.passwords["agent-1"]}}
+        }
+    }
+    with pytest.raises(
+        security.KeysError, match=r"k: exists and is not empty \(use --force to overwrite\)"
+    ):
         security.generate(tmp_path / "k", n_agents=2)
 
 
@@ -169,18 +195,30 @@ def test_generated_keys_are_private_and_load_as_zenoh_configs(tmp_path: Path) ->
 def test_interpolation_and_durations_follow_compose() -> None:
     env = {"A": "x", "EMPTY": ""}
     assert interpolate("${A:-d}/${B:-d}/${EMPTY:-d}/${EMPTY-d}/$A/$$A", env) == "x/d/d//x/$A"
-    assert [parse_duration_s(t) for t in ("2m", "1m30s", "500ms", "10s", None)] == [120, 90, 0.5, 10, 10]
+    assert [parse_duration_s(t) for t in ("2m", "1m30s", "500ms", "10s", None)] == [
+        120,
+        90,
+        0.5,
+        10,
+        10,
+    ]
     with pytest.raises(Exception, match="cannot read duration '2 min'"):
         parse_duration_s("2 min")
 
 
 def test_loopback_maps_names_paths_and_secrets(tmp_path: Path) -> None:
-    env = {"FORMATION_KEYS": str(tmp_path / "keys"), "FORMATION_RUNS": str(tmp_path / "runs"), "RUN_ID": "r1"}
+    env = {
+        "FORMATION_KEYS": str(tmp_path / "keys"),
+        "FORMATION_RUNS": str(tmp_path / "runs"),
+        "RUN_ID": "r1",
+    }
     dep = LoopbackDeployment(COMPOSE, tmp_path / "logs", env, subnet=(10, 20))
     assert dep.addresses["router"] == "127.10.20.2" and dep.host_address == "127.10.20.1"
     assert [s.name for s in dep.services][:3] == ["router", "recorder", "netem"]
     router = dep.service("router")
-    assert router.env["ZENOH_LISTEN"] == "tcp/127.10.20.2:7447" and router.listen == [("127.10.20.2", 7447)]
+    assert router.env["ZENOH_LISTEN"] == "tcp/127.10.20.2:7447" and router.listen == [
+        ("127.10.20.2", 7447)
+    ]
     assert router.env["ZENOH_CONFIG"] == str(tmp_path / "keys" / "router.json5")
     assert router.argv[-1] == str(tmp_path / "keys" / "passwords.txt")
     agent = dep.service("agent-2")

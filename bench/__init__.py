@@ -1,0 +1,1 @@
+"""Benchmarks: each module has ``main()`` printing its baseline, the ratios against it, and the seed."""

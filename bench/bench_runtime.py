@@ -1,0 +1,146 @@
+"""Distributed runtime: lockstep epochs/s vs the in-process simulator, netem hop latency, memory.
+
+Baselines are measured in the same run: the simulator on the same scenario for
+throughput, a direct subscriber on the sender's key for the netem hop.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+from formation import keys
+from formation.codec import attachment, encode, now_ns
+from formation.messages import CoordinationState
+from formation.scenario import Scenario
+from formation.zenoh_config import session_config
+from testbed.launcher import launch
+from testbed.processes import ProcessGroup, free_port, wait_for_port
+from testbed.simulate import simulate
+from testbed.teams import henneberg_team
+
+ROOT = Path(__file__).resolve().parents[1]
+SEED = 1
+
+
+def _rss_kib(pid: int) -> int:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1])
+    except OSError:
+        pass
+    return 0
+
+
+def lockstep_rate(scenario: Scenario, pool: int | None, runs: Path) -> tuple[float, float, int]:
+    """(distributed epochs/s, simulator epochs/s, peak RSS of an agent process in KiB)."""
+    marks: dict[int, float] = {}
+    peak = [0]
+
+    def progress(done: int, total: int, drops: int) -> None:
+        marks.setdefault(done, time.monotonic())
+        if done >= total - 2 and not peak[0]:
+            pids = json.loads(next(runs.glob("*/pids.json")).read_text())["pids"]
+            agents = [p for name, p in pids.items() if name.startswith(("agent", "pool"))]
+            peak[0] = max(_rss_kib(p) for p in agents)
+
+    launch(scenario, seed=SEED, runs_dir=runs, record=False, pool=pool, progress=progress)
+    seen = sorted(k for k in marks if 2 <= k <= scenario.epochs - 2)
+    rate = (seen[-1] - seen[0]) / (marks[seen[-1]] - marks[seen[0]])
+    start = time.perf_counter()
+    simulate(scenario, seed=SEED)
+    sim_rate = scenario.epochs / (time.perf_counter() - start)
+    for p in runs.glob("*"):
+        subprocess.run(["rm", "-rf", str(p)], check=False)
+    return rate, sim_rate, peak[0]
+
+
+def netem_hop_latency(packets: int = 2000) -> tuple[np.ndarray, np.ndarray]:
+    """One-way latencies [µs] of the same packets: direct (sender's key) and through netem."""
+    with tempfile.TemporaryDirectory() as tmp:
+        scen = ROOT / "scenarios" / "paper.toml"
+        scenario = Scenario.from_file(scen).with_overrides(epochs=packets + 10, network={})
+        path = Path(tmp) / "s.toml"
+        path.write_text(scenario.to_toml())
+        port = free_port()
+        endpoint = f"tcp/127.0.0.1:{port}"
+        group = ProcessGroup(Path(tmp) / "logs")
+        try:
+            group.start("router", "testbed.router", "--listen", endpoint)
+            wait_for_port("127.0.0.1", port, 10)
+            group.start("netem", "netem", "--scenario", str(path), "--run-id", "bench", "--mode", "peer",
+                        "--connect", endpoint, "--listen", "tcp/127.0.0.1:0", "--no-recorder")  # fmt: skip
+            conf = session_config("peer", endpoint, "tcp/127.0.0.1:0")
+            with zenoh.open(conf) as s:
+                direct: dict[int, int] = {}
+                hop: dict[int, int] = {}
+
+                def on(sample: zenoh.Sample, into: dict[int, int]) -> None:
+                    att = sample.attachment.to_bytes() if sample.attachment else b""
+                    into[int.from_bytes(att[8:16], "little")] = now_ns()
+
+                subs = [
+                    s.declare_subscriber(keys.agent_state("bench", 1), lambda x: on(x, direct)),
+                    s.declare_subscriber(keys.link_state("bench", 1, 2), lambda x: on(x, hop)),
+                ]
+                tokens = [s.liveliness().declare_token(keys.alive("bench", "agent", i)) for i in range(1, 6)]
+                tokens.append(s.liveliness().declare_token(keys.alive("bench", "leader", 0)))
+                got_start = []
+                watch = s.liveliness().declare_subscriber(
+                    keys.start("bench"), lambda x: got_start.append(1), history=True
+                )
+                deadline = time.monotonic() + 30
+                while not got_start and time.monotonic() < deadline:
+                    time.sleep(0.01)
+                pub = s.declare_publisher(keys.agent_state("bench", 1), congestion_control=zenoh.CongestionControl.BLOCK, express=True)
+                sent: dict[int, int] = {}
+                for k in range(packets):
+                    msg = CoordinationState(run_id="bench", sender="agent/1", seq=k, epoch=k, stamp_ns=now_ns(),
+                                            agent=1, position=[0.1, 0.2])  # fmt: skip
+                    payload = encode(msg)
+                    sent[k] = now_ns()
+                    pub.put(payload, attachment=attachment(k, k, 1))
+                    time.sleep(0.001)
+                deadline = time.monotonic() + 10
+                while len(hop) < packets * 0.99 and time.monotonic() < deadline:
+                    time.sleep(0.01)
+                for x in [*subs, *tokens, watch, pub]:
+                    x.undeclare()
+            common = [k for k in sent if k in direct and k in hop and k >= 100]
+            d = np.array([direct[k] - sent[k] for k in common]) / 1e3
+            h = np.array([hop[k] - sent[k] for k in common]) / 1e3
+            return d, h
+        finally:
+            group.stop_all()
+
+
+def main() -> None:
+    print(f"seed {SEED}; lockstep runs in peer mode on 127.0.0.1; baseline: the in-process simulator")
+    cases = [
+        ("paper, 5 agent processes", Scenario.from_file(ROOT / "scenarios/paper.toml").with_overrides(epochs=400), None),
+        ("20 agent processes", henneberg_team(20, epochs=150), None),
+        ("50 agent processes", henneberg_team(50, epochs=80), None),
+        ("200 agents pooled in 4", henneberg_team(200, epochs=40), 4),
+        ("1000 agents pooled in 8", henneberg_team(1000, epochs=12), 8),
+    ]
+    print(f"{'case':28} {'epochs/s':>9} {'sim ep/s':>9} {'ratio':>7} {'agent RSS MiB':>14}")
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, scenario, pool in cases:
+            rate, sim_rate, rss = lockstep_rate(scenario, pool, Path(tmp))
+            print(f"{name:28} {rate:9.1f} {sim_rate:9.1f} {rate / sim_rate:7.3f} {rss / 1024:14.1f}", flush=True)
+    direct, hop = netem_hop_latency()
+    p50d, p99d, p50h, p99h = (float(np.percentile(a, q)) for a, q in ((direct, 50), (direct, 99), (hop, 50), (hop, 99)))
+    print(f"one-way latency over {len(direct)} packets [µs]: direct p50 {p50d:.0f} p99 {p99d:.0f}; "
+          f"through netem p50 {p50h:.0f} p99 {p99h:.0f}; ratio p50 {p50h / p50d:.2f}, p99 {p99h / p99d:.2f}")  # fmt: skip
+
+
+if __name__ == "__main__":
+    sys.exit(main())

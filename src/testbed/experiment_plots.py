@@ -1,0 +1,216 @@
+"""Figures of ``formation experiment`` and ``formation sweep`` (matplotlib, Agg, no pyplot state).
+
+Each function takes arrays and writes one PNG. Kept out of ``recorder/plots.py`` (the per-run
+report's plots) because these compare many runs; the same conventions: SI units on the axes,
+one colour per strategy, files written once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import numpy.typing as npt
+from matplotlib.figure import Figure
+
+if TYPE_CHECKING:
+    from testbed.sweep import SweepSummary
+
+Array = npt.NDArray[np.float64]
+COLOURS = {"zero": "tab:red", "hold": "tab:orange", "estimate": "tab:blue", "blend": "tab:green",
+           "drop": "tab:purple"}  # fmt: skip
+_META = {"Software": None}  # no version string in the file: same inputs, same bytes
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    fig.savefig(path, dpi=110, metadata=_META)
+    return path
+
+
+def agent_positions(
+    positions: Mapping[str, Array], desired: Array, agents: Sequence[int], path: Path, title: str
+) -> Path:
+    """x and y of ``agents`` over the epochs, one column per strategy (figs 7.7–7.11).
+
+    positions : strategy → (E + 1, n, d) true positions [m]; desired : (E + 1, n, d) the slots
+    ``x_ref + d0_i − d0_r`` [m].
+    """
+    names = list(positions)
+    fig = Figure(figsize=(3.2 * len(names), 5.2), layout="constrained")
+    axes = fig.subplots(2, len(names), sharex=True, sharey="row", squeeze=False)
+    styles = ["-", "--", ":", "-."]
+    for c, name in enumerate(names):
+        x = positions[name]
+        epochs = np.arange(x.shape[0])
+        for row, coord in enumerate("xy"):
+            ax = axes[row, c]
+            for a_i, agent in enumerate(agents):
+                ls = styles[a_i % len(styles)]
+                ax.plot(epochs, x[:, agent - 1, row], ls, color=COLOURS.get(name, "k"), label=f"agent {agent}")
+                ax.plot(epochs, desired[:, agent - 1, row], ls, color="0.6", lw=0.8,
+                        label=f"slot of {agent}" if a_i == 0 else None)  # fmt: skip
+            ax.set_ylabel(f"{coord} [m]" if c == 0 else "")
+            if row == 0:
+                ax.set_title(name)
+            else:
+                ax.set_xlabel("epoch")
+            ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7)
+    fig.suptitle(title, fontsize=10)
+    return _save(fig, path)
+
+
+def trajectories(positions: Mapping[str, Array], desired: Array, agents: Sequence[int], path: Path, title: str) -> Path:
+    """The plane paths of ``agents`` per strategy, with their slots (grey)."""
+    names = list(positions)
+    fig = Figure(figsize=(3.0 * len(names), 3.3), layout="constrained")
+    axes = fig.subplots(1, len(names), sharex=True, sharey=True, squeeze=False)[0]
+    for ax, name in zip(axes, names, strict=True):
+        x = positions[name]
+        for agent in agents:
+            ax.plot(desired[:, agent - 1, 0], desired[:, agent - 1, 1], color="0.6", lw=0.8)
+            ax.plot(x[:, agent - 1, 0], x[:, agent - 1, 1], color=COLOURS.get(name, "k"))
+            ax.plot(*x[-1, agent - 1, :2], "o", color=COLOURS.get(name, "k"), ms=3)
+            ax.annotate(str(agent), x[-1, agent - 1, :2], fontsize=7)
+        ax.set_title(name)
+        ax.set_xlabel("x [m]")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("y [m]")
+    fig.suptitle(title, fontsize=10)
+    return _save(fig, path)
+
+
+def error_bands(
+    series: Mapping[str, Array], path: Path, title: str, ylabel: str, log: bool = True,
+    marks: Sequence[tuple[int, str]] = (),
+) -> Path:
+    """Median and 10–90 % band over seeds of a per-epoch quantity per strategy.
+
+    series : strategy → (E + 1, S) values [m] (seeds in columns); marks : (epoch, label) lines.
+    """
+    fig = Figure(figsize=(7.0, 4.0), layout="constrained")
+    ax = fig.subplots()
+    for name, v in series.items():
+        epochs = np.arange(v.shape[0])
+        with np.errstate(all="ignore"):
+            lo, med, hi = np.nanpercentile(v, [10, 50, 90], axis=1)
+        ax.plot(epochs, med, color=COLOURS.get(name, "k"), label=name)
+        ax.fill_between(epochs, lo, hi, color=COLOURS.get(name, "k"), alpha=0.15, lw=0)
+    for epoch, label in marks:
+        ax.axvline(epoch, color="0.3", ls="--", lw=0.8)
+        ax.annotate(label, (epoch, 1.0), xycoords=("data", "axes fraction"), fontsize=7,
+                    ha="left", va="top", rotation=90)  # fmt: skip
+    if log:
+        ax.set_yscale("log")
+    ax.set_xlabel("epoch")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    return _save(fig, path)
+
+
+def covariance_over_epochs(traces: Mapping[str, Array], path: Path, title: str) -> Path:
+    """Trace of the substitution error covariance at each epoch (over seeds), per strategy.
+
+    traces : strategy → (E,) [m²], NaN where fewer than two errors.
+    """
+    fig = Figure(figsize=(7.0, 4.0), layout="constrained")
+    ax = fig.subplots()
+    for name, v in traces.items():
+        ax.plot(np.arange(v.shape[0]), v, color=COLOURS.get(name, "k"), label=name)
+    ax.set_yscale("log")
+    ax.set_xlabel("epoch")
+    ax.set_ylabel("tr Cov(x̃ − x) [m²]")
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    return _save(fig, path)
+
+
+def alpha_curve(alphas: Array, curves: Mapping[str, Array], best: Mapping[str, float], path: Path, title: str) -> Path:
+    """A quantity against blend's ``α``, one line per measurement, the best ``α`` marked."""
+    fig = Figure(figsize=(6.5, 4.0), layout="constrained")
+    ax = fig.subplots()
+    for i, (label, v) in enumerate(curves.items()):
+        colour = f"C{i}"
+        ax.plot(alphas, v, "o-", color=colour, ms=3, label=label)
+        if label in best:
+            j = int(np.argmin(np.abs(alphas - best[label])))
+            ax.plot(alphas[j], v[j], "*", color=colour, ms=12)
+    ax.set_yscale("log")
+    ax.set_xlabel("α (blend)")
+    ax.set_ylabel("relative to α = 1 (estimate)")
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7)
+    return _save(fig, path)
+
+
+def phase_plot(summary: SweepSummary, path: Path) -> Path:
+    """Success fraction over loss rate × strategy, one panel per topology and loss model."""
+    spec = summary.spec
+    rows, cols = len(spec.models), len(spec.topologies)
+    fig = Figure(figsize=(3.6 * cols + 0.8, 0.45 * len(spec.strategies) * rows + 1.4 * rows), layout="constrained")
+    axes = fig.subplots(rows, cols, squeeze=False, sharex=True)
+    losses = np.asarray(spec.losses)
+    step = float(np.min(np.diff(losses))) if losses.size > 1 else 0.05
+    image: Any = None
+    for r, model in enumerate(spec.models):
+        for c, (name, _) in enumerate(spec.topologies):
+            ax = axes[r, c]
+            grid = np.array([summary.success[(name, model, s)] for s in spec.strategies])
+            image = ax.imshow(grid, aspect="auto", cmap="viridis", vmin=0.0, vmax=1.0, interpolation="nearest",
+                              extent=(losses[0] - step / 2, losses[-1] + step / 2, len(spec.strategies) - 0.5, -0.5))  # fmt: skip
+            for i, s in enumerate(spec.strategies):
+                crit = summary.critical[(name, model, s)]
+                if crit is not None:
+                    ax.plot([crit + step / 2] * 2, [i - 0.5, i + 0.5], color="w", lw=2)
+            ax.set_yticks(range(len(spec.strategies)), list(spec.strategies))
+            ax.set_title(f"{name}, {model}", fontsize=9)
+            if r == rows - 1:
+                ax.set_xlabel("loss rate")
+    if image is not None:
+        fig.colorbar(image, ax=axes, shrink=0.8, label=f"fraction of seeds with shape error < {spec.threshold_m:g} m")
+    return _save(fig, path)
+
+
+def dynamic_plot(
+    shape_err: Mapping[str, Array], tree_edges: Array, leave: int, join: int, path: Path, title: str
+) -> Path:
+    """Shape error over the active edges (median over seeds) and the leader's tree size."""
+    fig = Figure(figsize=(7.0, 5.5), layout="constrained")
+    ax, ax2 = fig.subplots(2, 1, sharex=True, height_ratios=(3, 1))
+    for name, v in shape_err.items():
+        with np.errstate(all="ignore"):
+            med = np.nanmedian(v, axis=1)
+        ax.plot(np.arange(v.shape[0]), med, color=COLOURS.get(name, "k"), label=name)
+    for a in (ax, ax2):
+        a.axvline(leave, color="0.3", ls="--", lw=0.8)
+        a.axvline(join, color="0.3", ls=":", lw=0.8)
+        a.grid(alpha=0.3)
+    ax.annotate("leaves", (leave, 1.0), xycoords=("data", "axes fraction"), fontsize=7, va="top")
+    ax.annotate("joins", (join, 1.0), xycoords=("data", "axes fraction"), fontsize=7, va="top")
+    ax.set_yscale("log")
+    ax.set_ylabel("shape error, active edges [m]")
+    ax.legend(fontsize=8)
+    ax.set_title(title, fontsize=10)
+    ax2.step(np.arange(tree_edges.shape[0]), tree_edges, where="post", color="k")
+    ax2.set_ylabel("tree edges")
+    ax2.set_xlabel("epoch")
+    return _save(fig, path)
+
+
+__all__ = [
+    "COLOURS",
+    "agent_positions",
+    "alpha_curve",
+    "covariance_over_epochs",
+    "dynamic_plot",
+    "error_bands",
+    "phase_plot",
+    "trajectories",
+]
