@@ -91,7 +91,10 @@ def netem_hop_latency(packets: int = 2000) -> tuple[np.ndarray, np.ndarray]:
                     s.declare_subscriber(keys.agent_state("bench", 1), lambda x: on(x, direct)),
                     s.declare_subscriber(keys.link_state("bench", 1, 2), lambda x: on(x, hop)),
                 ]
-                tokens = [s.liveliness().declare_token(keys.alive("bench", "agent", i)) for i in range(1, 6)]
+                tokens = [
+                    s.liveliness().declare_token(keys.alive("bench", "agent", i))
+                    for i in range(1, 6)
+                ]
                 tokens.append(s.liveliness().declare_token(keys.alive("bench", "leader", 0)))
                 got_start = []
                 watch = s.liveliness().declare_subscriber(
@@ -100,7 +103,11 @@ def netem_hop_latency(packets: int = 2000) -> tuple[np.ndarray, np.ndarray]:
                 deadline = time.monotonic() + 30
                 while not got_start and time.monotonic() < deadline:
                     time.sleep(0.01)
-                pub = s.declare_publisher(keys.agent_state("bench", 1), congestion_control=zenoh.CongestionControl.BLOCK, express=True)
+                pub = s.declare_publisher(
+                    keys.agent_state("bench", 1),
+                    congestion_control=zenoh.CongestionControl.BLOCK,
+                    express=True,
+                )
                 sent: dict[int, int] = {}
                 for k in range(packets):
                     msg = CoordinationState(run_id="bench", sender="agent/1", seq=k, epoch=k, stamp_ns=now_ns(),
@@ -123,9 +130,15 @@ def netem_hop_latency(packets: int = 2000) -> tuple[np.ndarray, np.ndarray]:
 
 
 def main() -> None:
-    print(f"seed {SEED}; lockstep runs in peer mode on 127.0.0.1; baseline: the in-process simulator")
+    print(
+        f"seed {SEED}; lockstep runs in peer mode on 127.0.0.1; baseline: the in-process simulator"
+    )
     cases = [
-        ("paper, 5 agent processes", Scenario.from_file(ROOT / "scenarios/paper.toml").with_overrides(epochs=400), None),
+        (
+            "paper, 5 agent processes",
+            Scenario.from_file(ROOT / "scenarios/paper.toml").with_overrides(epochs=400),
+            None,
+        ),
         ("20 agent processes", henneberg_team(20, epochs=150), None),
         ("50 agent processes", henneberg_team(50, epochs=80), None),
         ("200 agents pooled in 4", henneberg_team(200, epochs=40), 4),
@@ -135,9 +148,14 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for name, scenario, pool in cases:
             rate, sim_rate, rss = lockstep_rate(scenario, pool, Path(tmp))
-            print(f"{name:28} {rate:9.1f} {sim_rate:9.1f} {rate / sim_rate:7.3f} {rss / 1024:14.1f}", flush=True)
+            print(
+                f"{name:28} {rate:9.1f} {sim_rate:9.1f} {rate / sim_rate:7.3f} {rss / 1024:14.1f}",
+                flush=True,
+            )
     direct, hop = netem_hop_latency()
-    p50d, p99d, p50h, p99h = (float(np.percentile(a, q)) for a, q in ((direct, 50), (direct, 99), (hop, 50), (hop, 99)))
+    p50d, p99d, p50h, p99h = (
+        float(np.percentile(a, q)) for a, q in ((direct, 50), (direct, 99), (hop, 50), (hop, 99))
+    )
     print(f"one-way latency over {len(direct)} packets [µs]: direct p50 {p50d:.0f} p99 {p99d:.0f}; "
           f"through netem p50 {p50h:.0f} p99 {p99h:.0f}; ratio p50 {p50h / p50d:.2f}, p99 {p99h / p99d:.2f}")  # fmt: skip
 

@@ -409,7 +409,7 @@ class NetemNode:
             msg = self.service.next_incoming(0.2)
             if msg is None:
                 if (
-                    not self.service.is_alive("leader", 0)
+                    self.service.gone_for("leader", 0)
                     and self.estimates_done < self.scenario.epochs
                 ):
                     log.error("the leader is gone; stopping")

@@ -142,7 +142,9 @@ def plan_batch(
     else:
         members = tuple(scenarios)
     if len(members) != seed_arr.size or not members:
-        raise BatchError(f"{len(members)} scenarios for {seed_arr.size} seeds; expected one each (≥ 1)")
+        raise BatchError(
+            f"{len(members)} scenarios for {seed_arr.size} seeds; expected one each (≥ 1)"
+        )
     base = members[0]
     n_epochs = base.epochs if epochs is None else int(epochs)
     shared = _structure(base)
@@ -155,7 +157,8 @@ def plan_batch(
     links = base.directed_links
     n_links = len(links)
     ctl_links = np.array(
-        [(i, LEADER_ENDPOINT) for i in range(1, n + 1)] + [(LEADER_ENDPOINT, i) for i in range(1, n + 1)],
+        [(i, LEADER_ENDPOINT) for i in range(1, n + 1)]
+        + [(LEADER_ENDPOINT, i) for i in range(1, n + 1)],
         dtype=np.int64,
     )
     all_links = np.concatenate([links, ctl_links])
@@ -195,7 +198,11 @@ def plan_batch(
             late_sent.append(k_sent)
     late: dict[int, tuple[Ints, Ints]] = {}
     if late_k:
-        ks, flat, sent = np.concatenate(late_k), np.concatenate(late_flat), np.concatenate(late_sent)
+        ks, flat, sent = (
+            np.concatenate(late_k),
+            np.concatenate(late_flat),
+            np.concatenate(late_sent),
+        )
         for k in np.unique(ks).tolist():
             sel = ks == k
             # several packets of one link landing at once: the newest one is what memory keeps
@@ -217,7 +224,9 @@ def plan_batch(
         if act.shape != (n_epochs + 1, n):
             raise BatchError(f"active has shape {act.shape}; expected ({n_epochs + 1}, {n})")
         if not act[:, base.leader - 1].all():
-            raise BatchError(f"active: the reference agent {base.leader} must take part in every epoch")
+            raise BatchError(
+                f"active: the reference agent {base.leader} must take part in every epoch"
+            )
     return BatchPlan(
         base=base, scenarios=members, seeds=seed_arr, epochs=n_epochs, on_time=on_time,
         late=late, report_ok=report_ok, estimate_ok=estimate_ok, noise=noise,
@@ -542,7 +551,9 @@ def run_batch(
         fallbacks += sub_fallback.reshape(size, n_links).sum(axis=1)
         if detail and sub_idx.size:
             b_of, l_of = sub_idx // n_links, sub_idx % n_links
-            subs.append((b_of, np.full(sub_idx.size, k), l_of, sub_values - xk[b_of, src[l_of] - 1]))
+            subs.append(
+                (b_of, np.full(sub_idx.size, k), l_of, sub_values - xk[b_of, src[l_of] - 1])
+            )
         nxt = step.positions.reshape(size, n, d)
         vel = step.velocities
         if act is not None:

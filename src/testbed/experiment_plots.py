@@ -48,7 +48,13 @@ def agent_positions(
             ax = axes[row, c]
             for a_i, agent in enumerate(agents):
                 ls = styles[a_i % len(styles)]
-                ax.plot(epochs, x[:, agent - 1, row], ls, color=COLOURS.get(name, "k"), label=f"agent {agent}")
+                ax.plot(
+                    epochs,
+                    x[:, agent - 1, row],
+                    ls,
+                    color=COLOURS.get(name, "k"),
+                    label=f"agent {agent}",
+                )
                 ax.plot(epochs, desired[:, agent - 1, row], ls, color="0.6", lw=0.8,
                         label=f"slot of {agent}" if a_i == 0 else None)  # fmt: skip
             ax.set_ylabel(f"{coord} [m]" if c == 0 else "")
@@ -62,7 +68,9 @@ def agent_positions(
     return _save(fig, path)
 
 
-def trajectories(positions: Mapping[str, Array], desired: Array, agents: Sequence[int], path: Path, title: str) -> Path:
+def trajectories(
+    positions: Mapping[str, Array], desired: Array, agents: Sequence[int], path: Path, title: str
+) -> Path:
     """The plane paths of ``agents`` per strategy, with their slots (grey)."""
     names = list(positions)
     fig = Figure(figsize=(3.0 * len(names), 3.3), layout="constrained")
@@ -84,7 +92,11 @@ def trajectories(positions: Mapping[str, Array], desired: Array, agents: Sequenc
 
 
 def error_bands(
-    series: Mapping[str, Array], path: Path, title: str, ylabel: str, log: bool = True,
+    series: Mapping[str, Array],
+    path: Path,
+    title: str,
+    ylabel: str,
+    log: bool = True,
     marks: Sequence[tuple[int, str]] = (),
 ) -> Path:
     """Median and 10–90 % band over seeds of a per-epoch quantity per strategy.
@@ -131,7 +143,9 @@ def covariance_over_epochs(traces: Mapping[str, Array], path: Path, title: str) 
     return _save(fig, path)
 
 
-def alpha_curve(alphas: Array, curves: Mapping[str, Array], best: Mapping[str, float], path: Path, title: str) -> Path:
+def alpha_curve(
+    alphas: Array, curves: Mapping[str, Array], best: Mapping[str, float], path: Path, title: str
+) -> Path:
     """A quantity against blend's ``α``, one line per measurement, the best ``α`` marked."""
     fig = Figure(figsize=(6.5, 4.0), layout="constrained")
     ax = fig.subplots()
@@ -154,7 +168,10 @@ def phase_plot(summary: SweepSummary, path: Path) -> Path:
     """Success fraction over loss rate × strategy, one panel per topology and loss model."""
     spec = summary.spec
     rows, cols = len(spec.models), len(spec.topologies)
-    fig = Figure(figsize=(3.6 * cols + 0.8, 0.45 * len(spec.strategies) * rows + 1.4 * rows), layout="constrained")
+    fig = Figure(
+        figsize=(3.6 * cols + 0.8, 0.45 * len(spec.strategies) * rows + 1.4 * rows),
+        layout="constrained",
+    )
     axes = fig.subplots(rows, cols, squeeze=False, sharex=True)
     losses = np.asarray(spec.losses)
     step = float(np.min(np.diff(losses))) if losses.size > 1 else 0.05
@@ -174,7 +191,12 @@ def phase_plot(summary: SweepSummary, path: Path) -> Path:
             if r == rows - 1:
                 ax.set_xlabel("loss rate")
     if image is not None:
-        fig.colorbar(image, ax=axes, shrink=0.8, label=f"fraction of seeds with shape error < {spec.threshold_m:g} m")
+        fig.colorbar(
+            image,
+            ax=axes,
+            shrink=0.8,
+            label=f"fraction of seeds with shape error < {spec.threshold_m:g} m",
+        )
     return _save(fig, path)
 
 

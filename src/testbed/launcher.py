@@ -188,7 +188,7 @@ def launch(
     runs_dir: Path = Path("runs"),
     pool: int | None = None,
     record: bool = True,
-    startup_timeout_s: float = 60.0,
+    startup_timeout_s: float | None = None,
     epoch_timeout_s: float = 30.0,
     progress: Any = None,
     run_id: str | None = None,
@@ -197,6 +197,10 @@ def launch(
 ) -> RunOutcome:
     """Run ``scenario`` as real processes; returns what was observed. Every child ends by PID."""
     strategy = strategy or scenario.strategy.name
+    if startup_timeout_s is None:
+        startup_timeout_s = (
+            60.0 + 0.2 * scenario.n
+        )  # large pools take a while to declare their subscribers
     seed = scenario.seed if seed is None else seed
     scenario = scenario.with_overrides(
         seed=seed, strategy={"name": strategy, "alpha": scenario.strategy.alpha}

@@ -45,14 +45,18 @@ def mean_std(v: Array, spec: str = ".3g") -> str:
 def drop_links(scenario: Scenario, links: Sequence[tuple[int, int]], start: int = 0) -> Scenario:
     """``scenario`` with ``links`` down in both directions from epoch ``start`` on."""
     net = scenario.network.model_dump(by_alias=True)
-    net["links"] = [{"between": list(p), "models": [{"model": "outage", "start": start}]} for p in links]
+    net["links"] = [
+        {"between": list(p), "models": [{"model": "outage", "start": start}]} for p in links
+    ]
     return scenario.with_overrides(network=net)
 
 
 def lossy_links(scenario: Scenario, links: Sequence[tuple[int, int]], p_loss: float) -> Scenario:
     """``scenario`` with Bernoulli loss ``p_loss`` on ``links`` (both directions) for the whole run."""
     net = scenario.network.model_dump(by_alias=True)
-    net["links"] = [{"between": list(p), "models": [{"model": "bernoulli", "p_loss": p_loss}]} for p in links]
+    net["links"] = [
+        {"between": list(p), "models": [{"model": "bernoulli", "p_loss": p_loss}]} for p in links
+    ]
     return scenario.with_overrides(network=net)
 
 
@@ -63,7 +67,9 @@ def all_lossy(scenario: Scenario, p_loss: float) -> Scenario:
     return scenario.with_overrides(network=net)
 
 
-def substitution_trace(res: BatchResult, first_epoch: int = 0, last_epoch: int | None = None) -> float:
+def substitution_trace(
+    res: BatchResult, first_epoch: int = 0, last_epoch: int | None = None
+) -> float:
     """tr Cov of every substitution error of every member in epochs ``[first, last)`` [m²]."""
     sel = res.sub_epoch >= first_epoch
     if last_epoch is not None:
@@ -98,7 +104,11 @@ class ControllerStudy:
         return case.rigid if controller == "distance" else case.connected
 
     def holds(self) -> bool:
-        return all((c.kept(k) >= KEEP_FRACTION) == self.predicted(c, k) for c in self.cases for k in self.gains)
+        return all(
+            (c.kept(k) >= KEEP_FRACTION) == self.predicted(c, k)
+            for c in self.cases
+            for k in self.gains
+        )
 
     def markdown(self) -> str:
         lines = [
@@ -155,7 +165,9 @@ def controller_study(
             with np.errstate(all="ignore"):
                 res = run_batch(plan_batch(s, seeds, epochs), "drop", detail=False)
             finals[controller] = np.nan_to_num(res.formation_error[-1], nan=np.inf)
-        cases.append(ControllerCase(label, dropped, bool(rigid), is_connected(scen.n, edges[keep]), finals))
+        cases.append(
+            ControllerCase(label, dropped, bool(rigid), is_connected(scen.n, edges[keep]), finals)
+        )
     return ControllerStudy(tuple(cases), gains, epochs, tuple(seeds))
 
 
@@ -249,7 +261,11 @@ class AlphaStudy:
         lines = ["| α | " + " | ".join(f"{c.label} [{c.unit}]" for c in self.curves) + " |",
                  "|" + " --- |" * (1 + len(self.curves))]  # fmt: skip
         for i, a in enumerate(alphas):
-            lines.append(f"| {a:g} | " + " | ".join(f"{fmt(c.values[i])} ({c.relative[i]:.2f})" for c in self.curves) + " |")
+            lines.append(
+                f"| {a:g} | "
+                + " | ".join(f"{fmt(c.values[i])} ({c.relative[i]:.2f})" for c in self.curves)
+                + " |"
+            )
         lines.append("| **best α** | " + " | ".join(f"**{c.best:g}**" for c in self.curves) + " |")
         return "\n".join(lines) + "\n"
 
@@ -269,10 +285,14 @@ def alpha_study(paper: Scenario, seeds: Sequence[int], alphas: Sequence[float] =
     plan_lossy = plan_batch(lossy, seeds, lossy_epochs)
     for alpha in a.tolist():
         strat = {"name": "blend", "alpha": alpha}
-        res = run_batch(_rebase(plan_long, paper.with_overrides(strategy=strat)), "blend", rigidity=False)
+        res = run_batch(
+            _rebase(plan_long, paper.with_overrides(strategy=strat)), "blend", rigidity=False
+        )
         chapter.append(substitution_trace(res, 0, paper.epochs))
         steady.append(substitution_trace(res, 20))
-        res = run_batch(_rebase(plan_lossy, lossy.with_overrides(strategy=strat)), "blend", rigidity=False)
+        res = run_batch(
+            _rebase(plan_lossy, lossy.with_overrides(strategy=strat)), "blend", rigidity=False
+        )
         lossy_sub.append(substitution_trace(res, 20))
         lossy_final.append(float(np.mean(res.formation_error[-1])))
     n = f"{len(seeds)} seeds"
@@ -363,7 +383,11 @@ def dynamic_study(
     for s in strategies:
         res = run_batch(plan, s, rigidity=False)
         x = res.positions  # (E + 1, S, n, d)
-        diff = x[:, :, edges[:, 0] - 1] - x[:, :, edges[:, 1] - 1] - (d0[edges[:, 0] - 1] - d0[edges[:, 1] - 1])
+        diff = (
+            x[:, :, edges[:, 0] - 1]
+            - x[:, :, edges[:, 1] - 1]
+            - (d0[edges[:, 0] - 1] - d0[edges[:, 1] - 1])
+        )
         sq = np.where(on[:, None, :], np.sum(diff**2, axis=-1), 0.0)
         shape[s] = np.sqrt(sq.sum(axis=2) / on.sum(axis=1)[:, None])
         assert res.tree is not None and res.observable is not None

@@ -61,7 +61,9 @@ def loss_grid(text: str) -> tuple[float, ...]:
         else:
             values = [float(v) for v in text.split(",") if v.strip()]
     except ValueError:
-        raise SweepError(f"--loss {text!r}: expected START:STOP:STEP or a comma list of rates") from None
+        raise SweepError(
+            f"--loss {text!r}: expected START:STOP:STEP or a comma list of rates"
+        ) from None
     bad = [v for v in values if not 0.0 <= v <= 1.0]
     if not values or bad:
         raise SweepError(f"--loss {text!r}: rates must be in [0, 1], got {bad or 'none'}")
@@ -91,7 +93,12 @@ def with_loss(scenario: Scenario, model: str, rate: float, burst_epochs: float =
     if model == "bernoulli":
         spec: dict[str, Any] = {"model": "bernoulli", "p_loss": rate}
     elif model == "gilbert_elliott":
-        spec = {"model": "gilbert_elliott", **gilbert_elliott_at(rate, burst_epochs), "1-h": 1.0, "1-k": 0.0}
+        spec = {
+            "model": "gilbert_elliott",
+            **gilbert_elliott_at(rate, burst_epochs),
+            "1-h": 1.0,
+            "1-k": 0.0,
+        }
     else:
         raise SweepError(f"loss model {model!r}: expected one of {', '.join(MODELS)}")
     net = scenario.network.model_dump(by_alias=True)
@@ -143,13 +150,18 @@ class Chunk:
 
 def run_chunk(chunk: Chunk) -> list[dict[str, Any]]:
     """Simulate the cells of ``chunk`` not in ``chunk.done``; one CSV row per cell."""
-    variants = {p: with_loss(chunk.scenario, chunk.model, p, chunk.burst_epochs) for p in chunk.losses}
+    variants = {
+        p: with_loss(chunk.scenario, chunk.model, p, chunk.burst_epochs) for p in chunk.losses
+    }
     members = [(p, seed) for p in chunk.losses for seed in chunk.seeds]
     plan = plan_batch([variants[p] for p, _ in members], [s for _, s in members], chunk.epochs)
     measured = 1.0 - plan.on_time.mean(axis=(0, 2))
     rows: list[dict[str, Any]] = []
     for strategy in chunk.strategies:
-        keys = [(chunk.topology, chunk.model, loss_label(p), strategy, seed, chunk.epochs) for p, seed in members]
+        keys = [
+            (chunk.topology, chunk.model, loss_label(p), strategy, seed, chunk.epochs)
+            for p, seed in members
+        ]
         todo = [b for b, key in enumerate(keys) if key not in chunk.done]
         if not todo:
             continue
@@ -272,7 +284,15 @@ def _write_canonical(path: Path, rows: list[dict[str, Any]], spec: SweepSpec) ->
         unique.setdefault(_key(r), r)
 
     def order(k: Key) -> tuple[Any, ...]:
-        return (topo.get(k[0], len(topo)), k[0], model.get(k[1], 9), float(k[2]), strat.get(k[3], 9), k[4], k[5])
+        return (
+            topo.get(k[0], len(topo)),
+            k[0],
+            model.get(k[1], 9),
+            float(k[2]),
+            strat.get(k[3], 9),
+            k[4],
+            k[5],
+        )
 
     tmp = path.with_suffix(".csv.tmp")
     with tmp.open("w", newline="") as f:
@@ -298,7 +318,9 @@ class SweepSummary:
     critical: dict[tuple[str, str, str], float | None]
 
 
-def critical_rate(losses: Sequence[float], success: np.ndarray, keep: float = KEEP_FRACTION) -> float | None:
+def critical_rate(
+    losses: Sequence[float], success: np.ndarray, keep: float = KEEP_FRACTION
+) -> float | None:
     """Largest grid rate such that every rate up to it is kept (success ≥ ``keep``)."""
     best = None
     for p, frac in zip(losses, success, strict=True):
@@ -380,7 +402,9 @@ def write_tables(summary: SweepSummary, out_dir: Path) -> None:
         f"Topologies: {topo}.\n\n" + critical_table(summary)
     )
     (out_dir / "critical.md").write_text(text)
-    (out_dir / "success.md").write_text("# Fraction of seeds keeping the formation\n" + success_table(summary))
+    (out_dir / "success.md").write_text(
+        "# Fraction of seeds keeping the formation\n" + success_table(summary)
+    )
     from testbed.experiment_plots import phase_plot
 
     phase_plot(summary, out_dir / "phase.png")

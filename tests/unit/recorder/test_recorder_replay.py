@@ -101,6 +101,25 @@ def test_pause_resume_rate_and_seek(recording: Path) -> None:
     assert rp.state.published == len(sink.got)
 
 
+def test_loop_starts_again_until_stopped(recording: Path) -> None:
+    sink = Sink()
+    rp = Replayer(recording, rate=100.0, loop=True)
+    stop = threading.Event()
+    worker = threading.Thread(target=rp.run, args=(sink, stop))
+    worker.start()
+    try:
+        deadline = time.monotonic() + 10
+        while rp.command("status").loops < 2 and time.monotonic() < deadline:
+            time.sleep(0.005)
+    finally:
+        stop.set()
+        worker.join(5)
+    assert not worker.is_alive()
+    epochs = [read_attachment(a)[0] for *_, a in sink.got]  # type: ignore[index]
+    assert epochs[:20] == list(range(10)) * 2
+    assert not rp.state.done
+
+
 def test_rebuilt_attachments() -> None:
     assert rebuild_attachment("control", b'{"epoch": 1, "seq": 2}') is None
     assert rebuild_attachment("leader_estimate", b'{"epoch": 1, "seq": 2}') == attachment(
