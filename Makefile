@@ -13,7 +13,7 @@ $(BIN)/.installed: pyproject.toml
 	touch $@
 
 run: $(BIN)/.installed
-	$(BIN)/formation run $(SCENARIO)
+	$(BIN)/formation run $(SCENARIO) --strategy all
 
 test: $(BIN)/.installed lint typecheck
 	$(BIN)/pytest -q -p no:cacheprovider

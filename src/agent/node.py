@@ -19,6 +19,7 @@ from formation.messages import (
     EpochClose,
     LeaderEstimate,
     Measurement,
+    Substitute,
     TokenReport,
 )
 from formation.realtime import ESTIMATE_DEADLINE, STATE_DEADLINE, fetch_clock, sleep_until
@@ -120,7 +121,8 @@ class AgentNode:
     def _publish_state(self, runner: AgentRunner) -> None:
         key = keys.agent_state(self.run_id, runner.id)
         head = self.service.header(key, runner.epoch)
-        msg = CoordinationState(**head, agent=runner.id, position=runner.position)
+        subs = [Substitute(neighbour=j, value=v, fallback=f) for j, v, f in runner.substituted]
+        msg = CoordinationState(**head, agent=runner.id, position=runner.position, substituted=subs)
         self.service.publish(key, msg, attachment(runner.epoch, head["seq"], runner.id))
 
     def _try_state_phase(self, i: int) -> bool:

@@ -59,6 +59,7 @@ class AgentRunner:
         self._arrived = np.zeros(len(self.links.index), dtype=bool)
         self._received = np.zeros((len(self.links.index), d))
         self._z = np.zeros((len(self.links.index), d))
+        self.substituted: list[tuple[int, list[float], bool]] = []  # used at the last step
 
     @property
     def neighbours(self) -> list[int]:
@@ -123,6 +124,11 @@ class AgentRunner:
         )  # fmt: skip
         self.memory, self.velocity = result.memory, result.velocities
         self.x = self._ref[k + 1 : k + 2].copy() if self.is_reference else result.positions
-        self.last_substitution = result.substitution
+        sub = result.substitution
+        self.substituted = [
+            (int(s), [float(v) for v in sub.values[r]], bool(sub.fallback[r]))
+            for r, s in enumerate(self.links.sender)
+            if sub.substituted[r]
+        ]
         self.epoch = k + 1
         return self.position

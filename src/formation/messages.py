@@ -23,13 +23,28 @@ class _Message(BaseModel):
     stamp_ns: int = Field(ge=0)
 
 
+class Substitute(BaseModel):
+    """A value ``x̃_j`` an agent used for neighbour ``j``'s lost packet (MODEL.md §6)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    neighbour: int
+    value: list[float]
+    fallback: bool = False
+
+
 class CoordinationState(_Message):
-    """Agent ``i``'s coordination variable ``x_i[k]`` (true position in the testbed) [m]."""
+    """Agent ``i``'s coordination variable ``x_i[k]`` (true position in the testbed) [m].
+
+    ``substituted`` lists the values the agent used at epoch ``k − 1`` for lost
+    packets, so a recording can measure the substitution error against the truth.
+    """
 
     kind: Literal["state"] = "state"
     agent: int
     position: list[float]
     velocity: list[float] | None = None
+    substituted: list[Substitute] = []
 
 
 class Measurement(BaseModel):

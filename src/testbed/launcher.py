@@ -48,6 +48,7 @@ class RunOutcome:
     sent: dict[str, int]
     pids: list[int]
     wall_s: float
+    substitutions: list[tuple[int, int, int, list[float]]]
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -67,6 +68,12 @@ class RunOutcome:
             sent[link] += 1
             dropped[link] += d.verdict == "drop"
         return {k: (sent[k], dropped[k]) for k in sorted(sent)}
+
+    def substitution_errors(self) -> npt.NDArray[np.float64]:
+        """``x̃_j[k] − x_j[k]`` of every substituted variable, ordered by (epoch, agent, neighbour)."""
+        d = self.scenario.dimension
+        rows = [np.asarray(v) - self.positions[k, j - 1] for k, _, j, v in self.substitutions]
+        return np.array(rows).reshape(-1, d)
 
     def deadline_miss_rate(self) -> float | None:
         """Realtime: packets and estimates that arrived after their deadline, over all that arrived."""
@@ -106,6 +113,9 @@ class _Observer:
         self.positions = np.full((e + 1, n, d), np.nan)
         self.estimates: dict[int, LeaderEstimate] = {}
         self.decisions: list[Any] = []
+        self.substitutions: list[
+            tuple[int, int, int, list[float]]
+        ] = []  # (epoch, agent, neighbour, x̃)
         self.statuses: dict[str, Status] = {}
         self.alive: set[str] = set()
         self.malformed = Malformed()
@@ -134,6 +144,8 @@ class _Observer:
         ):
             with self.lock:
                 self.positions[msg.epoch, msg.agent - 1] = msg.position
+                for s in msg.substituted:  # used at the previous epoch
+                    self.substitutions.append((msg.epoch - 1, msg.agent, s.neighbour, s.value))
 
     def _on_estimate(self, sample: zenoh.Sample) -> None:
         msg = self._decode(sample, LeaderEstimate)
@@ -310,7 +322,8 @@ def launch(
             return RunOutcome(
                 run_id=run_id, run_dir=run_dir, scenario=scenario, strategy=strategy, seed=seed,
                 positions=observer.positions.copy(), estimates=dict(observer.estimates),
-                decisions=list(observer.decisions), malformed=dict(malformed), sent=dict(sent),
+                decisions=list(observer.decisions), substitutions=sorted(observer.substitutions),
+                malformed=dict(malformed), sent=dict(sent),
                 pids=group.pids, wall_s=time.monotonic() - started, extra={"deadline": dict(deadline)},
             )  # fmt: skip
     finally:

@@ -45,8 +45,10 @@ def cmd_info(args: argparse.Namespace) -> int:
         )
     stats = info.metadata.get("recorder_stats")
     if stats:
+        received = int(stats.get("written", 0))
         console.print(
-            f"recorder: {stats.get('written')} written, {stats.get('dropped')} could not be kept"
+            f"recorder: {received} received and written, {stats.get('dropped')} could not be kept; "
+            f"{info.messages - received} derived (metrics, scene)"
         )
     run_id = info.metadata.get("recorder", {}).get("run_id")
     prefix = f"{keys.prefix(run_id)}/" if run_id else ""

@@ -178,6 +178,7 @@ def simulate(
     rig_rank = np.zeros(n_epochs, dtype=np.int64)
     sub_err: list[Array] = []
     sub_epoch: list[npt.NDArray[np.int64]] = []
+    sub_pairs: list[npt.NDArray[np.int64]] = []
     nees_vals: list[Array] = []
     est_err: list[Array] = []
     fallbacks = 0
@@ -221,10 +222,12 @@ def simulate(
         if lost_sub.any():
             sub_err.append(sub.values[lost_sub] - xk[src[lost_sub] - 1])
             sub_epoch.append(np.full(int(lost_sub.sum()), k))
+            sub_pairs.append(links[lost_sub])
         nxt, vel = step.positions, step.velocities
         nxt[r - 1] = ref_x[k + 1]
         x[k + 1] = nxt
 
+    pairs = np.concatenate(sub_pairs) if sub_pairs else np.zeros((0, 2), dtype=np.int64)
     return SimResult(
         scenario=scenario,
         strategy=strategy,
@@ -247,4 +250,8 @@ def simulate(
         fallbacks=fallbacks,
         nees_values=np.concatenate(nees_vals) if nees_vals else np.zeros(0),
         estimation_errors=np.concatenate(est_err) if est_err else np.zeros((0, d)),
+        extra={
+            "substitution_senders": pairs[:, 0],
+            "substitution_receivers": pairs[:, 1],
+        },
     )

@@ -29,7 +29,10 @@ def run_pids(runs_dir: Path) -> list[int]:
     """Every PID the launcher recorded in ``runs_dir/*/pids.json``."""
     pids: list[int] = []
     for path in runs_dir.glob("*/pids.json"):
-        pids.extend(json.loads(path.read_text())["pids"].values())
+        try:
+            pids.extend(json.loads(path.read_text())["pids"].values())
+        except (OSError, ValueError, KeyError):
+            continue  # written atomically; a failure here must not hide live processes elsewhere
     return pids
 
 

@@ -40,6 +40,17 @@ def test_lockstep_run_equals_the_simulator(paper: Scenario, runs_dir: Path, stra
         paper.epochs - 1
     )  # link 1-2 down from epoch 1
     assert outcome.malformed == {}
+    # The substitutions the agents report equal the simulator's, in (epoch, receiver, sender) order.
+    order = np.lexsort(
+        (
+            sim.extra["substitution_senders"],
+            sim.extra["substitution_receivers"],
+            sim.substitution_epochs,
+        )
+    )
+    np.testing.assert_allclose(
+        outcome.substitution_errors(), sim.substitution_errors[order], rtol=0, atol=1e-9
+    )
 
 
 def lossy(paper: Scenario) -> Scenario:

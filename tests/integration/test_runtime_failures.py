@@ -74,9 +74,13 @@ def test_ctrl_c_stops_every_process_and_exits(paper_path: Path, runs_dir: Path) 
         assert b"interrupted" in err
         wait_for(lambda: not any(pid_alive(p) for p in run_pids(runs_dir)), 20, "children to end")
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        if proc.poll() is None:  # let the launcher end its children first; kill it only if it hangs
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
 
 
 def test_a_killed_agent_is_reported_and_nothing_is_left(paper: Scenario, runs_dir: Path) -> None:

@@ -418,9 +418,13 @@ def test_the_scenario_refuses_impossible_markov4_rows() -> None:
 
 def test_bad_inputs_are_named(seed: int) -> None:
     with pytest.raises(LinkModelError, match=r"link 1→2: stack\[0\] markov4 has p13 \+ p14 = 1.2"):
-        LinkModel([Markov4.model_construct(p13=0.7, p14=0.5, p31=1.0, p32=0.0, p23=1.0)], seed, 1, 2)
+        LinkModel(
+            [Markov4.model_construct(p13=0.7, p14=0.5, p31=1.0, p32=0.0, p23=1.0)], seed, 1, 2
+        )
     with pytest.raises(LinkModelError, match=r"p31 \+ p32 = 1.5; expected <= 1"):
-        LinkModel([Markov4.model_construct(p13=0.1, p31=0.9, p32=0.6, p23=1.0, p14=0.0)], seed, 1, 2)
+        LinkModel(
+            [Markov4.model_construct(p13=0.1, p31=0.9, p32=0.6, p23=1.0, p14=0.0)], seed, 1, 2
+        )
     with pytest.raises(LinkModelError, match=r"link 1→2: seed = -1; expected an integer in"):
         LinkModel([Up()], -1, 1, 2)
     with pytest.raises(LinkModelError, match=r"link 1→2: epoch = -3; expected >= 0"):

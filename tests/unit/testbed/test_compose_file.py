@@ -84,7 +84,9 @@ def test_committed_compose_file_validates_against_the_compose_spec(
     doc = yaml.safe_load(COMPOSE.read_text())
     compose_schema.validate(doc)
     doc["services"]["netem"]["restart_policy"] = "always"  # a typo of `restart`: the check is live
-    with pytest.raises(jsonschema.ValidationError, match="'restart_policy' does not match any of the regexes"):
+    with pytest.raises(
+        jsonschema.ValidationError, match="'restart_policy' does not match any of the regexes"
+    ):
         compose_schema.validate(doc)
 
 
