@@ -132,10 +132,6 @@ def _markdown(
         lines.append(f"- {s['label']}: {drops or 'none'}")
     notes = []
     for run, s in zip(runs, sums, strict=True):
-        if run.source != "simulation" and s["substitutions"] == 0:
-            notes.append(
-                f"{run.label}: substitution errors are not on the wire, so a recording has none."
-            )
         gap = s.get("recorded_metrics_max_gap_m")
         if gap is not None:
             notes.append(

@@ -4,8 +4,8 @@
 sources feed :func:`recorder.report.write_report_from`. From a recording
 (:func:`read_run`): true positions from ``agent/<i>/state`` (sender side), the
 leader's output from ``leader/estimate``, link delivery from netem's decisions.
-Substitution errors are not on the wire (an agent does not publish what it
-substituted), so a recorded run has none; the report says so.
+Substitution errors from the ``substituted`` values each agent publishes with its
+next state, against the recorded truth.
 """
 
 from __future__ import annotations
@@ -141,11 +141,19 @@ def _consistency(scenario: Scenario, x: Array, est: dict[str, Any]) -> tuple[Arr
     return nees_values, np.concatenate(errors) if errors else np.zeros((0, d))
 
 
+def _substitution_errors(x: Array, subs: list[tuple[int, int, int, list[float]]], d: int) -> Array:
+    """``x̃_j[k] − x_j[k]`` for every recorded substitute whose truth was recorded."""
+    rows = [np.asarray(v, dtype=float) - x[k, j - 1] for k, _, j, v in subs if 0 <= k < len(x)]
+    rows = [r for r in rows if np.isfinite(r).all()]
+    return np.array(rows).reshape(-1, d)
+
+
 class _Collected:
     """What :func:`read_run` takes from the messages of one or more files."""
 
     def __init__(self) -> None:
         self.states: dict[int, dict[int, list[float]]] = {}
+        self.substitutes: list[tuple[int, int, int, list[float]]] = []  # (epoch used, agent, j, x̃)
         self.ests: dict[int, dict[str, Any]] = {}
         self.verdicts: list[tuple[int, int, int, bool]] = []
         self.recorded: dict[int, float] = {}
@@ -158,6 +166,15 @@ class _Collected:
                 self.states.setdefault(int(body["epoch"]), {})[int(body["agent"])] = body[
                     "position"
                 ]
+                for s in body.get("substituted", []):
+                    self.substitutes.append(
+                        (
+                            int(body["epoch"]) - 1,
+                            int(body["agent"]),
+                            int(s["neighbour"]),
+                            s["value"],
+                        )
+                    )
             elif kind == "leader_estimate":
                 self.ests[int(body["epoch"])] = body
             elif kind == "metrics":
@@ -233,7 +250,7 @@ def _assemble(
         positions=x,
         formation_error=formation_error(x, scenario.edge_array, scenario.weights),
         shape_error=shape_error(x, scenario.edge_array, scenario.offsets),
-        substitution_errors=np.zeros((0, d)),
+        substitution_errors=_substitution_errors(x, sorted(got.substitutes), d),
         nees_values=nees_values,
         estimation_errors=est_errors,
         delivered=delivered,

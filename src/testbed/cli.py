@@ -73,9 +73,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _extra_commands() -> list[Callable[[Any], None]]:
     """Subcommands that live in their own modules (run, report, replay, ...)."""
-    from testbed import deploy_cli, netem_cli, recorder_cli, run_cli
+    from testbed import deploy_cli, experiment_cli, netem_cli, recorder_cli, run_cli
 
-    return [run_cli.register, netem_cli.register, recorder_cli.register, deploy_cli.register]
+    return [
+        run_cli.register,
+        netem_cli.register,
+        recorder_cli.register,
+        deploy_cli.register,
+        experiment_cli.register,
+    ]
 
 
 def main(argv: Sequence[str] | None = None) -> int:

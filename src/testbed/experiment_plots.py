@@ -74,7 +74,7 @@ def trajectories(
     """The plane paths of ``agents`` per strategy, with their slots (grey)."""
     names = list(positions)
     fig = Figure(figsize=(3.0 * len(names), 3.3), layout="constrained")
-    axes = fig.subplots(1, len(names), sharex=True, sharey=True, squeeze=False)[0]
+    axes = fig.subplots(1, len(names), squeeze=False)[0]
     for ax, name in zip(axes, names, strict=True):
         x = positions[name]
         for agent in agents:

@@ -22,6 +22,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import zenoh
 from mcap.reader import make_reader
@@ -429,6 +430,17 @@ def test_default_run_report_and_replay_into_a_fresh_leader(
     assert summary["recorded_metrics_max_gap_m"] == 0.0
     assert summary["drops"] == {"1->2": paper.epochs - 1, "2->1": paper.epochs - 1}
     assert summary["nees_mean"] == pytest.approx(float(sim.nees_values.mean()), rel=1e-9)
+    # Substitution errors from the substitutes the agents published, against the recorded truth.
+    order = np.lexsort(
+        (
+            sim.extra["substitution_senders"],
+            sim.extra["substitution_receivers"],
+            sim.substitution_epochs,
+        )
+    )
+    assert run.substitution_errors.shape == sim.substitution_errors.shape == (2 * (paper.epochs - 1), 2)
+    np.testing.assert_allclose(run.substitution_errors, sim.substitution_errors[order], atol=1e-9)
+    assert summary["substitutions"] == 2 * (paper.epochs - 1)
 
     live = recorded_estimates(mcap, outcome.run_id)
     assert sorted(live) == list(range(paper.epochs))
