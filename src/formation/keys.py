@@ -116,3 +116,8 @@ def flush(run_id: str) -> str:
 def clock(run_id: str) -> str:
     """Queryable of netem in realtime mode: the run's start time and period."""
     return f"{ROOT}/{run_id}/clock"
+
+
+def replay_control(prefix_key: str) -> str:
+    """Queryable of a running replay under ``prefix_key`` (a run prefix): pause, resume, seek, rate."""
+    return f"{prefix_key}/replay/control"

@@ -6,7 +6,7 @@ the same inputs in the same order and give the same floats.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -62,8 +62,12 @@ def leader_epoch(scenario: Scenario, known: Mask, z: Array, x_ref: Array) -> Lea
     use_edge = tree if scenario.estimator.edges == "tree" else healthy
     use = known & np.repeat(use_edge, 2)
     oriented = links[use][:, ::-1]  # (receiver i, sender j): z = x_i − x_j
-    cov = np.broadcast_to(scenario.noise_covariance, (int(use.sum()), d, d))
+    noise = scenario.noise_covariance
+    exact = not np.any(noise)  # ideal sensors: any equal weighting is exact
+    cov = np.broadcast_to(np.eye(d) if exact else noise, (int(use.sum()), d, d))
     estimate = blue(n, d, oriented, z[use], cov, scenario.leader, x_ref)
+    if exact and estimate.covariances is not None:
+        estimate = replace(estimate, covariances=np.where(np.isnan(estimate.covariances), np.nan, 0.0))
     rank, rigid = healthy_rigidity(scenario.offsets, edges, healthy)
     return LeaderEpoch(
         healthy=healthy,

@@ -37,7 +37,7 @@ LEADER_KINDS = frozenset({"leader_estimate", "link_estimate"})
 
 def control_key(prefix: str) -> str:
     """The replay's control queryable under a run prefix ``formation/<run_id>``."""
-    return f"{prefix}/replay/control"
+    return keys.replay_control(prefix)
 
 
 @dataclass

@@ -134,6 +134,7 @@ def _consistency(scenario: Scenario, x: Array, est: dict[str, Any]) -> tuple[Arr
         truth = x[k]
         mask = est["observable"][k] & followers & np.isfinite(truth).all(axis=1)
         mask &= np.isfinite(est["estimates"][k]).all(axis=1)
+        mask &= np.abs(np.linalg.det(np.nan_to_num(est["estimate_cov"][k]))) > 0  # ideal sensors
         if mask.any():
             values.append(nees(est["estimates"][k], est["estimate_cov"][k], truth, mask))
             errors.append(est["estimates"][k][mask] - truth[mask])

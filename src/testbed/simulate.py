@@ -201,7 +201,7 @@ def simulate(
         components[k], rig_rank[k] = lead.components, lead.rigidity_rank
         assert res.covariances is not None  # blue computes them unless told not to
         scored = observable[k] & followers
-        if scored.any():
+        if scored.any() and np.any(cov):  # NEES is undefined for ideal (noise-free) sensors
             nees_vals.append(nees(res.positions, res.covariances, xk, scored))
             est_err.append(res.positions[scored] - xk[scored])
 
