@@ -14,7 +14,7 @@ import numpy.typing as npt
 from formation.scenario import Scenario
 from leader.blue import BlueResult, blue
 from leader.mst import minimum_spanning_forest
-from leader.rigidity import healthy_rigidity
+from leader.rigidity import HealthyRigidity
 
 Array = npt.NDArray[np.float64]
 Mask = npt.NDArray[np.bool_]
@@ -37,7 +37,9 @@ class LeaderEpoch:
     rigid: bool
 
 
-def leader_epoch(scenario: Scenario, known: Mask, z: Array, x_ref: Array) -> LeaderEpoch:
+def leader_epoch(
+    scenario: Scenario, known: Mask, z: Array, x_ref: Array, rigidity: HealthyRigidity | None = None
+) -> LeaderEpoch:
     """Process one epoch's reports.
 
     Parameters
@@ -46,6 +48,7 @@ def leader_epoch(scenario: Scenario, known: Mask, z: Array, x_ref: Array) -> Lea
     known : (L,) the measurement of link ``l`` (taken by its receiver ``i``) reached the leader
     z : (L, d) ``z_ij = x_i − x_j + ε_ij`` where known [m]
     x_ref : (d,) the reference agent's position [m]
+    rigidity : the scenario's rigidity tracker, kept across epochs (made here if None)
     """
     n, d = scenario.n, scenario.dimension
     edges, weights = scenario.edge_array, scenario.weights
@@ -67,8 +70,11 @@ def leader_epoch(scenario: Scenario, known: Mask, z: Array, x_ref: Array) -> Lea
     cov = np.broadcast_to(np.eye(d) if exact else noise, (int(use.sum()), d, d))
     estimate = blue(n, d, oriented, z[use], cov, scenario.leader, x_ref)
     if exact and estimate.covariances is not None:
-        estimate = replace(estimate, covariances=np.where(np.isnan(estimate.covariances), np.nan, 0.0))
-    rank, rigid = healthy_rigidity(scenario.offsets, edges, healthy)
+        estimate = replace(
+            estimate, covariances=np.where(np.isnan(estimate.covariances), np.nan, 0.0)
+        )
+    rigidity = rigidity or HealthyRigidity(scenario.offsets, edges)
+    rank, rigid = rigidity(healthy)
     return LeaderEpoch(
         healthy=healthy,
         tree=tree,

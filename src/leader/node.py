@@ -16,6 +16,7 @@ from formation.reference import reference_positions, reference_velocities
 from formation.scenario import Scenario
 from formation.service import Incoming, Service
 from leader.epoch import LeaderEpoch, leader_epoch
+from leader.rigidity import HealthyRigidity
 
 log = logging.getLogger("leader")
 
@@ -87,6 +88,7 @@ class LeaderNode:
         ] = {}  # (agent, seq) → TokenReport or None if malformed
         self.closes: dict[int, EpochClose] = {}
         self.epoch = 0
+        self.rigidity = HealthyRigidity(scenario.offsets, scenario.edge_array)
         self.late_reports = 0
         service.subscribe(f"{keys.prefix(self.run_id)}/leader/report/*")
         service.subscribe(keys.close(self.run_id, keys.LEADER, "report"))
@@ -122,7 +124,7 @@ class LeaderNode:
 
     def _estimate(self, k: int, reports: list[TokenReport]) -> None:
         known, z = reports_to_measurements(self.scenario, reports)
-        lead = leader_epoch(self.scenario, known, z, self.ref_x[k])
+        lead = leader_epoch(self.scenario, known, z, self.ref_x[k], self.rigidity)
         if not lead.estimate.observable.all():
             log.info(
                 "epoch %d: %d agents unobservable from the reference",

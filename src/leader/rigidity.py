@@ -20,7 +20,7 @@ from formation.graph import (
 )
 from formation.graph import expected_rigidity_rank as expected_rank
 
-__all__ = ["expected_rank", "healthy_rigidity", "is_rigid", "rigidity_rank"]
+__all__ = ["HealthyRigidity", "expected_rank", "healthy_rigidity", "is_rigid", "rigidity_rank"]
 
 
 def healthy_rigidity(
@@ -51,3 +51,33 @@ def healthy_rigidity(
     keep = as_edge_mask(healthy_mask, e.shape[0], "healthy_mask")
     rank = rigidity_rank(x, e[keep])
     return rank, rank == expected_rank(n, d)
+
+
+class HealthyRigidity:
+    """:func:`healthy_rigidity` for one formation, epoch after epoch, without an SVD per epoch.
+
+    If the rows of the full rigidity matrix are independent (``rank == m``, as in
+    every minimally rigid graph), every subset of them is independent too, so the
+    healthy subgraph's rank is its number of edges. Otherwise each distinct mask is
+    ranked once by SVD and remembered.
+    """
+
+    def __init__(self, positions: npt.ArrayLike, edges: npt.ArrayLike) -> None:
+        self.positions = as_positions(positions)
+        n, d = self.positions.shape
+        self.edges = as_edge_array(n, edges)
+        self.expected = expected_rank(n, d)
+        self.independent = rigidity_rank(self.positions, self.edges) == self.edges.shape[0]
+        self._seen: dict[bytes, int] = {}
+
+    def __call__(self, healthy_mask: npt.ArrayLike) -> tuple[int, bool]:
+        """``(rank, rigid)`` of the healthy subgraph, as :func:`healthy_rigidity` gives them."""
+        keep = as_edge_mask(healthy_mask, self.edges.shape[0], "healthy_mask")
+        if self.independent:
+            rank = int(keep.sum())
+        else:
+            key = keep.tobytes()
+            if key not in self._seen:
+                self._seen[key] = rigidity_rank(self.positions, self.edges[keep])
+            rank = self._seen[key]
+        return rank, rank == self.expected

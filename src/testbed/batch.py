@@ -151,8 +151,10 @@ def plan_batch(
     for b, s in enumerate(members):
         if s is not base and _structure(s) != shared:
             diff = sorted(k for k, v in _structure(s).items() if shared.get(k) != v)
-            raise BatchError(f"member {b} ({s.name}) differs from member 0 in {', '.join(diff)}; "
-                             f"members may differ only in {', '.join(VARIANT_FIELDS)}")  # fmt: skip
+            raise BatchError(
+                f"member {b} ({s.name}) differs from member 0 in {', '.join(diff)}; "
+                f"members may differ only in {', '.join(VARIANT_FIELDS)}"
+            )
     n, d = base.n, base.dimension
     links = base.directed_links
     n_links = len(links)
@@ -215,8 +217,16 @@ def plan_batch(
     src, dst = links[:, 0], links[:, 1]
     epochs_col = np.arange(n_epochs)[:, None]
     cov = base.noise_covariance
-    noise = np.stack([measurement_noise(cov, int(s), dst[None, :], src[None, :], epochs_col)
-                      for s in distinct.tolist()]) if n_links else np.zeros((distinct.size, n_epochs, 0, d))  # fmt: skip
+    noise = (
+        np.stack(
+            [
+                measurement_noise(cov, int(s), dst[None, :], src[None, :], epochs_col)
+                for s in distinct.tolist()
+            ]
+        )
+        if n_links
+        else np.zeros((distinct.size, n_epochs, 0, d))
+    )
     x0 = np.stack([base.initial_positions(int(s)) for s in distinct.tolist()])
     act = None
     if active is not None:
@@ -228,10 +238,19 @@ def plan_batch(
                 f"active: the reference agent {base.leader} must take part in every epoch"
             )
     return BatchPlan(
-        base=base, scenarios=members, seeds=seed_arr, epochs=n_epochs, on_time=on_time,
-        late=late, report_ok=report_ok, estimate_ok=estimate_ok, noise=noise,
-        seed_row=seed_row.astype(np.int64), x0=x0, active=act,
-    )  # fmt: skip
+        base=base,
+        scenarios=members,
+        seeds=seed_arr,
+        epochs=n_epochs,
+        on_time=on_time,
+        late=late,
+        report_ok=report_ok,
+        estimate_ok=estimate_ok,
+        noise=noise,
+        seed_row=seed_row.astype(np.int64),
+        x0=x0,
+        active=act,
+    )
 
 
 @dataclass
@@ -289,17 +308,28 @@ class BatchResult:
             est_err.append(est[k][scored[k]] - x[k][scored[k]])
         sel = self.sub_member == b
         return SimResult(
-            scenario=plan.scenarios[b], strategy=self.strategy, seed=int(plan.seeds[b]),
-            positions=x, formation_error=self.formation_error[:, b], shape_error=self.shape_error[:, b],
-            estimates=est, estimate_cov=cov, observable=obs, delivered=self.delivered[:, b],
-            report_ok=plan.report_ok[:, b], estimate_ok=plan.estimate_ok[:, b],
-            healthy=self.healthy[:, b], tree=self.tree[:, b], components=self.components[:, b],
+            scenario=plan.scenarios[b],
+            strategy=self.strategy,
+            seed=int(plan.seeds[b]),
+            positions=x,
+            formation_error=self.formation_error[:, b],
+            shape_error=self.shape_error[:, b],
+            estimates=est,
+            estimate_cov=cov,
+            observable=obs,
+            delivered=self.delivered[:, b],
+            report_ok=plan.report_ok[:, b],
+            estimate_ok=plan.estimate_ok[:, b],
+            healthy=self.healthy[:, b],
+            tree=self.tree[:, b],
+            components=self.components[:, b],
             rigidity_rank=self.rigidity_rank[:, b],
             substitution_errors=self.sub_error[sel] if sel.any() else np.zeros((0, d)),
-            substitution_epochs=self.sub_epoch[sel], fallbacks=int(self.fallbacks[b]),
+            substitution_epochs=self.sub_epoch[sel],
+            fallbacks=int(self.fallbacks[b]),
             nees_values=np.concatenate(nees_vals) if nees_vals else np.zeros(0),
             estimation_errors=np.concatenate(est_err) if est_err else np.zeros((0, d)),
-        )  # fmt: skip
+        )
 
 
 def kruskal_order(scenario: Scenario) -> Ints:
@@ -360,7 +390,7 @@ def batch_blue(
     -------
     positions : (B, n, d) [m], NaN where unobservable; covariances : (B, n, d, d) or None
     """
-    size, m = counts.shape
+    size = counts.shape[0]
     d = fused.shape[2]
     lo, hi = edges[:, 0] - 1, edges[:, 1] - 1
     c = counts.astype(np.float64)
@@ -374,9 +404,16 @@ def batch_blue(
     at = np.concatenate([base_n + lo[None, :], base_n + hi[None, :]], axis=1).ravel()
     weighted = c[:, :, None] * fused
     rhs = np.stack(
-        [np.bincount(at, np.concatenate([weighted[:, :, a], -weighted[:, :, a]], axis=1).ravel(),
-                     size * n) for a in range(d)], axis=1,
-    ).reshape(size, n, d)  # Σ_e c_e h_e ȳ_eᵀ  # fmt: skip
+        [
+            np.bincount(
+                at,
+                np.concatenate([weighted[:, :, a], -weighted[:, :, a]], axis=1).ravel(),
+                size * n,
+            )
+            for a in range(d)
+        ],
+        axis=1,
+    ).reshape(size, n, d)  # Σ_e c_e h_e ȳ_eᵀ
     keep = np.arange(n) != ref - 1
     grounded = lap[:, keep][:, :, keep]
     # Agents off the reference's component have no equations: an identity row keeps the
@@ -426,19 +463,20 @@ def run_batch(
     one = InLinks.of(base, np.arange(1, n + 1))
     offsets = (np.arange(size, dtype=np.int64) * n)[:, None]
     flat_links = InLinks(
-        index=np.tile(one.index, size), sender=np.tile(one.sender, size),
+        index=np.tile(one.index, size),
+        sender=np.tile(one.sender, size),
         receiver=np.tile(one.receiver, size),
         receiver_row=(offsets + one.receiver_row[None, :]).reshape(-1),
-        desired=np.tile(one.desired, (size, 1)), distance_sq=np.tile(one.distance_sq, size),
-    )  # fmt: skip
+        desired=np.tile(one.desired, (size, 1)),
+        distance_sq=np.tile(one.distance_sq, size),
+    )
     ref_x = reference_positions(base.reference, d0[r - 1], period, n_epochs)
     ref_v = reference_velocities(ref_x, period)
 
     act = plan.active
-    link_act = edge_act = None
+    link_act = None
     if act is not None:
         link_act = act[:, src - 1] & act[:, dst - 1]  # (E + 1, L)
-        edge_act = link_act[:, 0::2]
 
     x = np.zeros((n_epochs + 1, size, n, d))
     x[0] = plan.x0[plan.seed_row]
@@ -519,30 +557,66 @@ def run_batch(
         v_prev_links = v_prev[:, dst - 1].reshape(-1, d)
         if link_act is None or link_act[k].all():
             step = agent_epoch(
-                base, strategy, k, flat_links, x_flat, vel, arrived.reshape(-1), received,
-                z.reshape(-1, d), memory, estimate, has_estimate.reshape(-1), v_prev_links,
+                base,
+                strategy,
+                k,
+                flat_links,
+                x_flat,
+                vel,
+                arrived.reshape(-1),
+                received,
+                z.reshape(-1, d),
+                memory,
+                estimate,
+                has_estimate.reshape(-1),
+                v_prev_links,
                 v_known.reshape(-1, d),
-            )  # fmt: skip
+            )
             memory, sub = step.memory, step.substitution
             sub_idx = np.flatnonzero(sub.substituted)
             sub_values = sub.values[sub_idx]
             sub_fallback = sub.fallback
         else:
             sel = np.flatnonzero(np.tile(link_act[k], size))
-            part = InLinks(*(getattr(flat_links, f)[sel] for f in ("index", "sender", "receiver",
-                           "receiver_row", "desired", "distance_sq")))  # fmt: skip
-            mem_part = LinkMemory(memory.last[sel], memory.last_epoch[sel], memory.blend[sel],
-                                  memory.has_blend[sel])  # fmt: skip
+            part = InLinks(
+                *(
+                    getattr(flat_links, f)[sel]
+                    for f in (
+                        "index",
+                        "sender",
+                        "receiver",
+                        "receiver_row",
+                        "desired",
+                        "distance_sq",
+                    )
+                )
+            )
+            mem_part = LinkMemory(
+                memory.last[sel], memory.last_epoch[sel], memory.blend[sel], memory.has_blend[sel]
+            )
             step = agent_epoch(
-                base, strategy, k, part, x_flat, vel, arrived.reshape(-1)[sel], received[sel],
-                z.reshape(-1, d)[sel], mem_part, estimate[sel], has_estimate.reshape(-1)[sel],
-                v_prev_links[sel], v_known.reshape(-1, d),
-            )  # fmt: skip
+                base,
+                strategy,
+                k,
+                part,
+                x_flat,
+                vel,
+                arrived.reshape(-1)[sel],
+                received[sel],
+                z.reshape(-1, d)[sel],
+                mem_part,
+                estimate[sel],
+                has_estimate.reshape(-1)[sel],
+                v_prev_links[sel],
+                v_known.reshape(-1, d),
+            )
             new = step.memory
             memory = LinkMemory(
-                _scatter(memory.last, sel, new.last), _scatter(memory.last_epoch, sel, new.last_epoch),
-                _scatter(memory.blend, sel, new.blend), _scatter(memory.has_blend, sel, new.has_blend),
-            )  # fmt: skip
+                _scatter(memory.last, sel, new.last),
+                _scatter(memory.last_epoch, sel, new.last_epoch),
+                _scatter(memory.blend, sel, new.blend),
+                _scatter(memory.has_blend, sel, new.has_blend),
+            )
             sub = step.substitution
             sub_idx = sel[sub.substituted]
             sub_values = sub.values[sub.substituted]
@@ -564,10 +638,15 @@ def run_batch(
         x[k + 1] = nxt
 
     result = BatchResult(
-        plan=plan, strategy=strategy, positions=x,
-        formation_error=formation_error(x, edges, weights), shape_error=shape_error(x, edges, d0),
-        delivered=on_time, fallbacks=fallbacks, detail=detail,
-    )  # fmt: skip
+        plan=plan,
+        strategy=strategy,
+        positions=x,
+        formation_error=formation_error(x, edges, weights),
+        shape_error=shape_error(x, edges, d0),
+        delivered=on_time,
+        fallbacks=fallbacks,
+        detail=detail,
+    )
     if detail:
         result.estimates, result.estimate_cov, result.observable = est_all, cov_all, obs_all
         result.healthy, result.tree = healthy_all, tree_all

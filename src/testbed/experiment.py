@@ -107,62 +107,92 @@ def judge(r: PaperResults) -> list[Claim]:
     runs, n_seeds = r.runs, len(r.seeds)
     fail, e50 = runs["failure"], r.scenario.epochs
     est = _final(fail["estimate"])
-    floor = _final(fail["drop"])
     claims: list[Claim] = []
     for s in ("zero", "hold"):
         v = _final(fail[s])
         above = int(np.sum(v > KEEP_M))
         ratio = float(np.mean(v) / np.mean(est))
         held = ratio > LOST_FACTOR and above >= KEEP_FRACTION * n_seeds
-        claims.append(Claim(
-            "chapter, figs 7.7–7.8", f"`{s}` loses the formation when link 1–2 fails",
-            "held" if held else "not held",
-            f"final formation error at epoch {e50}: {s} {mean_std(v)} m vs estimate {mean_std(est)} m "
-            f"({ratio:.0f}×); {above}/{n_seeds} seeds above {KEEP_M:g} m",
-        ))  # fmt: skip
-    for variant, label in (("failure", "when link 1–2 fails"),
-                           ("one lossy link", f"with link 1–2 lossy (p = {LOSSY_P:g}) for all {e50} epochs"),
-                           ("two lossy links", f"with links 1–2 and {SECOND_LINK[0]}–{SECOND_LINK[1]} lossy (p = {LOSSY_P:g})")):  # fmt: skip
+        claims.append(
+            Claim(
+                "chapter, figs 7.7–7.8",
+                f"`{s}` loses the formation when link 1–2 fails",
+                "held" if held else "not held",
+                f"final formation error at epoch {e50}: {s} {mean_std(v)} m vs estimate {mean_std(est)} m "
+                f"({ratio:.0f}×); {above}/{n_seeds} seeds above {KEEP_M:g} m",
+            )
+        )
+    for variant, label in (
+        ("failure", "when link 1–2 fails"),
+        ("one lossy link", f"with link 1–2 lossy (p = {LOSSY_P:g}) for all {e50} epochs"),
+        (
+            "two lossy links",
+            f"with links 1–2 and {SECOND_LINK[0]}–{SECOND_LINK[1]} lossy (p = {LOSSY_P:g})",
+        ),
+    ):
         v, fl = _final(runs[variant]["estimate"]), _final(runs[variant]["drop"])
         kept = int(np.sum(v < KEEP_M))
         ratio = float(np.mean(v) / np.mean(fl))
         held = kept >= KEEP_FRACTION * n_seeds and ratio <= FLOOR_FACTOR
-        claims.append(Claim(
-            "chapter, figs 7.9–7.11", f"`estimate` keeps the formation {label}",
-            "held" if held else "not held",
-            f"final formation error {mean_std(v)} m, {kept}/{n_seeds} seeds under {KEEP_M:g} m; "
-            f"{ratio:.2f}× the noise floor (`drop`: {mean_std(fl)} m)",
-        ))  # fmt: skip
+        claims.append(
+            Claim(
+                "chapter, figs 7.9–7.11",
+                f"`estimate` keeps the formation {label}",
+                "held" if held else "not held",
+                f"final formation error {mean_std(v)} m, {kept}/{n_seeds} seeds under {KEEP_M:g} m; "
+                f"{ratio:.2f}× the noise floor (`drop`: {mean_std(fl)} m)",
+            )
+        )
     long = runs["failure, 500 epochs"]
     chap = _window_trace(fail["blend"], 0) / _window_trace(fail["estimate"], 0)
-    steady = _window_trace(long["blend"], STEADY_FROM) / _window_trace(long["estimate"], STEADY_FROM)
+    steady = _window_trace(long["blend"], STEADY_FROM) / _window_trace(
+        long["estimate"], STEADY_FROM
+    )
     per_seed = _per_seed_trace(fail["blend"]) / _per_seed_trace(fail["estimate"])
-    per_seed_long = _per_seed_trace(long["blend"], STEADY_FROM) / _per_seed_trace(long["estimate"], STEADY_FROM)
-    verdict = ("held" if chap < 1 and steady < 1 else
-               "held in steady state only" if steady < 1 else "not held")  # fmt: skip
+    per_seed_long = _per_seed_trace(long["blend"], STEADY_FROM) / _per_seed_trace(
+        long["estimate"], STEADY_FROM
+    )
+    verdict = (
+        "held"
+        if chap < 1 and steady < 1
+        else "held in steady state only"
+        if steady < 1
+        else "not held"
+    )
     alpha = r.scenario.strategy.alpha
-    claims.append(Claim(
-        "chapter, §7 text", f"`blend` (α = {alpha:g}) lowers the estimation (substitution) error covariance",
-        verdict,
-        f"tr Cov(x̃ − x) blend / estimate, pooled over {n_seeds} seeds: {chap:.2f} over epochs 0–{e50 - 1} of the "
-        f"chapter's runs ({int(np.sum(per_seed < 1))}/{n_seeds} seeds below 1); {steady:.2f} over epochs "
-        f"{STEADY_FROM}–499 of 500-epoch runs ({int(np.sum(per_seed_long < 1))}/{n_seeds} seeds below 1). "
-        f"The filter starts from the estimate and lags the consensus transient; once the team moves "
-        f"steadily it averages the estimate noise (fixed-truth closed form α/(2 − α) = {alpha / (2 - alpha):.2f})",
-    ))  # fmt: skip
+    claims.append(
+        Claim(
+            "chapter, §7 text",
+            f"`blend` (α = {alpha:g}) lowers the estimation (substitution) error covariance",
+            verdict,
+            f"tr Cov(x̃ − x) blend / estimate, pooled over {n_seeds} seeds: {chap:.2f} over epochs 0–{e50 - 1} of the "
+            f"chapter's runs ({int(np.sum(per_seed < 1))}/{n_seeds} seeds below 1); {steady:.2f} over epochs "
+            f"{STEADY_FROM}–499 of 500-epoch runs ({int(np.sum(per_seed_long < 1))}/{n_seeds} seeds below 1). "
+            f"The filter starts from the estimate and lags the consensus transient; once the team moves "
+            f"steadily it averages the estimate noise (fixed-truth closed form α/(2 − α) = {alpha / (2 - alpha):.2f})",
+        )
+    )
     grows = []
     for s in ("zero", "hold"):
         a, b = float(np.mean(_final(fail[s]))), float(np.mean(_final(long[s])))
         grows.append((s, a, b))
     e_a, e_b = float(np.mean(est)), float(np.mean(_final(long["estimate"])))
-    claims.append(Claim(
-        "MODEL.md §6, §8", "`zero` and `hold` get worse the longer the team moves; `estimate` stays at the floor",
-        "held" if all(b > a for _, a, b in grows) and e_b < KEEP_M else "not held",
-        "; ".join(f"{s} {a:.3g} m at epoch {e50} → {b:.3g} m at 500" for s, a, b in grows)
-        + f"; estimate {e_a:.3g} → {e_b:.3g} m",
-    ))  # fmt: skip
-    ref = {"zero": (0.29, 1.35), "hold": (0.12, 1.22), "estimate": (0.006, None), "blend": (0.006, None),
-           "drop": (0.006, None)}  # fmt: skip
+    claims.append(
+        Claim(
+            "MODEL.md §6, §8",
+            "`zero` and `hold` get worse the longer the team moves; `estimate` stays at the floor",
+            "held" if all(b > a for _, a, b in grows) and e_b < KEEP_M else "not held",
+            "; ".join(f"{s} {a:.3g} m at epoch {e50} → {b:.3g} m at 500" for s, a, b in grows)
+            + f"; estimate {e_a:.3g} → {e_b:.3g} m",
+        )
+    )
+    ref = {
+        "zero": (0.29, 1.35),
+        "hold": (0.12, 1.22),
+        "estimate": (0.006, None),
+        "blend": (0.006, None),
+        "drop": (0.006, None),
+    }
     worst = 0.0
     parts = []
     for s, (at50, at500) in ref.items():
@@ -173,11 +203,14 @@ def judge(r: PaperResults) -> list[Claim]:
             m500 = float(np.mean(_final(long[s])))
             parts.append(f"{s}@500 {m500:.3g} (§8: {at500:g})")
             worst = max(worst, abs(m500 / at500 - 1))
-    claims.append(Claim(
-        "MODEL.md §8", "the independent simulation's numbers (mean of 20 seeds) are reproduced within 25 %",
-        "held" if worst <= 0.25 else "not held",
-        ", ".join(parts) + f"; largest relative difference {worst:.0%}",
-    ))  # fmt: skip
+    claims.append(
+        Claim(
+            "MODEL.md §8",
+            "the independent simulation's numbers (mean of 20 seeds) are reproduced within 25 %",
+            "held" if worst <= 0.25 else "not held",
+            ", ".join(parts) + f"; largest relative difference {worst:.0%}",
+        )
+    )
     return claims
 
 
@@ -185,9 +218,11 @@ def judge(r: PaperResults) -> list[Claim]:
 
 
 def _strategy_table(runs: dict[str, BatchResult], epochs_label: str) -> str:
-    lines = [f"| strategy | final formation error at {epochs_label} [m] | final shape error [m] | "
-             "peak formation error [m] | tr Cov(x̃ − x), pooled [m²] | substitutions per seed | fallbacks per seed |",
-             "|" + " --- |" * 7]  # fmt: skip
+    lines = [
+        f"| strategy | final formation error at {epochs_label} [m] | final shape error [m] | "
+        "peak formation error [m] | tr Cov(x̃ − x), pooled [m²] | substitutions per seed | fallbacks per seed |",
+        "|" + " --- |" * 7,
+    ]
     for s, res in runs.items():
         subs = np.bincount(res.sub_member, minlength=res.size)
         lines.append(
@@ -202,7 +237,11 @@ def _seed_table(runs: dict[str, BatchResult], seeds: Sequence[int]) -> str:
     names = list(runs)
     lines = ["| seed | " + " | ".join(names) + " |", "|" + " --- |" * (1 + len(names))]
     for b, seed in enumerate(seeds):
-        lines.append(f"| {seed} | " + " | ".join(fmt(float(runs[s].formation_error[-1, b]), ".4g") for s in names) + " |")
+        lines.append(
+            f"| {seed} | "
+            + " | ".join(fmt(float(runs[s].formation_error[-1, b]), ".4g") for s in names)
+            + " |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -210,17 +249,39 @@ def seeds_csv(r: PaperResults) -> str:
     """One row per variant × strategy × seed."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["variant", "strategy", "seed", "epochs", "final_formation_error_m", "final_shape_error_m",
-                "peak_formation_error_m", "substitution_cov_trace_m2", "substitutions", "fallbacks"])  # fmt: skip
+    w.writerow(
+        [
+            "variant",
+            "strategy",
+            "seed",
+            "epochs",
+            "final_formation_error_m",
+            "final_shape_error_m",
+            "peak_formation_error_m",
+            "substitution_cov_trace_m2",
+            "substitutions",
+            "fallbacks",
+        ]
+    )
     for variant, per in r.runs.items():
         for s, res in per.items():
             traces = _per_seed_trace(res)
             subs = np.bincount(res.sub_member, minlength=res.size)
             for b, seed in enumerate(r.seeds):
-                w.writerow([variant, s, seed, res.plan.epochs, format(float(res.formation_error[-1, b]), ".9g"),
-                            format(float(res.shape_error[-1, b]), ".9g"),
-                            format(float(res.formation_error[:, b].max()), ".9g"),
-                            format(float(traces[b]), ".9g"), int(subs[b]), int(res.fallbacks[b])])  # fmt: skip
+                w.writerow(
+                    [
+                        variant,
+                        s,
+                        seed,
+                        res.plan.epochs,
+                        format(float(res.formation_error[-1, b]), ".9g"),
+                        format(float(res.shape_error[-1, b]), ".9g"),
+                        format(float(res.formation_error[:, b].max()), ".9g"),
+                        format(float(traces[b]), ".9g"),
+                        int(subs[b]),
+                        int(res.fallbacks[b]),
+                    ]
+                )
     return buf.getvalue()
 
 
@@ -251,8 +312,15 @@ def results_markdown(r: PaperResults) -> str:
     }
     for variant, per in r.runs.items():
         epochs = per["estimate"].plan.epochs
-        out += ["", f"## {titles.get(variant, variant)}", "", _strategy_table(per, f"epoch {epochs}"),
-                f"Final formation error at epoch {epochs} per seed [m]:", "", _seed_table(per, seeds)]  # fmt: skip
+        out += [
+            "",
+            f"## {titles.get(variant, variant)}",
+            "",
+            _strategy_table(per, f"epoch {epochs}"),
+            f"Final formation error at epoch {epochs} per seed [m]:",
+            "",
+            _seed_table(per, seeds),
+        ]
     out += [
         "Substitution errors (MODEL.md §7) count every lost variable, also those the reference agent "
         "substitutes without steering by them: on this scenario agent 1's stand-in for x_2 (link 2→1) is "
@@ -261,52 +329,84 @@ def results_markdown(r: PaperResults) -> str:
     extra = r.studies
     if "controller" in extra:
         c = extra["controller"]
-        out += ["", "## §7.2: rigidity or connectivity (controller table)", "",
-                f"Links dropped in both directions for all {c.epochs} epochs, strategy `drop` (the lost terms left "
-                f"out, so the controller runs on the healthy graph), no other loss, {len(c.seeds)} seeds; kept = "
-                f"final formation error < {KEEP_M:g} m in ≥ {KEEP_FRACTION:.0%} of seeds. The distance gain is "
-                "lower because the distance law is unstable at the displacement law's gain (it diverged at 0.25).",
-                "", c.markdown(),
-                f"§7.2 argument {'**held**' if c.holds() else '**not held**'}: every case is kept exactly when "
-                "the controller's graph condition (rigid for distance, connected for displacement) holds."
-                if c.holds() else "§7.2 argument **not held** in at least one case above."]  # fmt: skip
+        out += [
+            "",
+            "## §7.2: rigidity or connectivity (controller table)",
+            "",
+            f"Links dropped in both directions for all {c.epochs} epochs, strategy `drop` (the lost terms left "
+            f"out, so the controller runs on the healthy graph), no other loss, {len(c.seeds)} seeds; kept = "
+            f"final formation error < {KEEP_M:g} m in ≥ {KEEP_FRACTION:.0%} of seeds. The distance gain is "
+            "lower because the distance law is unstable at the displacement law's gain (it diverged at 0.25).",
+            "",
+            c.markdown(),
+            f"§7.2 argument {'**held**' if c.holds() else '**not held**'}: every case is kept exactly when "
+            "the controller's graph condition (rigid for distance, connected for displacement) holds."
+            if c.holds()
+            else "§7.2 argument **not held** in at least one case above.",
+        ]
     if "estimator" in extra:
         e = extra["estimator"]
-        out += ["", "## BLUE on the Kruskal tree vs on every healthy edge", "",
-                f"Strategy `estimate`, {e.epochs} epochs, {len(e.seeds)} seeds. Predicted: mean over epochs and "
-                "observable followers of tr Cov(x̂_i); empirical: trace of the covariance of the pooled errors "
-                "x̂_i − x_i. NEES averages d = 2 for an honest estimator.", "", e.markdown()]  # fmt: skip
+        out += [
+            "",
+            "## BLUE on the Kruskal tree vs on every healthy edge",
+            "",
+            f"Strategy `estimate`, {e.epochs} epochs, {len(e.seeds)} seeds. Predicted: mean over epochs and "
+            "observable followers of tr Cov(x̂_i); empirical: trace of the covariance of the pooled errors "
+            "x̂_i − x_i. NEES averages d = 2 for an honest estimator.",
+            "",
+            e.markdown(),
+        ]
     if "alpha" in extra:
         a = extra["alpha"]
-        out += ["", "## α of blend", "",
-                f"{len(a.seeds)} seeds; α = 1 is `estimate`; in brackets the value relative to α = 1. The best α "
-                "depends on the window: a small α averages more noise but lags the consensus transient longer.",
-                "", a.markdown(), "![alpha](alpha.png)"]  # fmt: skip
+        out += [
+            "",
+            "## α of blend",
+            "",
+            f"{len(a.seeds)} seeds; α = 1 is `estimate`; in brackets the value relative to α = 1. The best α "
+            "depends on the window: a small α averages more noise but lags the consensus transient longer.",
+            "",
+            a.markdown(),
+            "![alpha](alpha.png)",
+        ]
     if "dynamic" in extra:
         d = extra["dynamic"]
         (la, ka), (lj, kj) = d.leave, d.join
-        out += ["", "## Dynamic formation: an agent leaves, another joins", "",
-                f"`{d.scenario.name}`: the pentagon plus agent {lj} (edges 3–{lj}, 4–{lj}), link 1–2 down as in the "
-                f"paper. Agent {la} leaves at epoch {ka} (its links stop, it leaves the consensus, the tree and the "
-                f"estimate, and stays where it is); agent {lj} joins at epoch {kj} from where it was parked. Shape "
-                f"error over the edges active at each epoch, median of {len(d.seeds)} seeds. The leader's tree has "
-                f"{int(d.tree_edges[ka - 1])} edges before epoch {ka}, {int(d.tree_edges[ka])} after agent {la} "
-                f"leaves and {int(d.tree_edges[kj])} after agent {lj} joins; observable agents "
-                f"{int(d.observable[ka - 1])} → {int(d.observable[ka])} → {int(d.observable[kj])}. In-process only: "
-                "the scenario file and the distributed runtime have no join/leave events yet.",
-                "", d.markdown(), "![dynamic](dynamic.png)"]  # fmt: skip
+        out += [
+            "",
+            "## Dynamic formation: an agent leaves, another joins",
+            "",
+            f"`{d.scenario.name}`: the pentagon plus agent {lj} (edges 3–{lj}, 4–{lj}), link 1–2 down as in the "
+            f"paper. Agent {la} leaves at epoch {ka} (its links stop, it leaves the consensus, the tree and the "
+            f"estimate, and stays where it is); agent {lj} joins at epoch {kj} from where it was parked. Shape "
+            f"error over the edges active at each epoch, median of {len(d.seeds)} seeds. The leader's tree has "
+            f"{int(d.tree_edges[ka - 1])} edges before epoch {ka}, {int(d.tree_edges[ka])} after agent {la} "
+            f"leaves and {int(d.tree_edges[kj])} after agent {lj} joins; observable agents "
+            f"{int(d.observable[ka - 1])} → {int(d.observable[ka])} → {int(d.observable[kj])}. In-process only: "
+            "the scenario file and the distributed runtime have no join/leave events yet.",
+            "",
+            d.markdown(),
+            "![dynamic](dynamic.png)",
+        ]
     if r.real:
-        out += ["", "## Real processes", "",
-                "One representative seed per strategy (the seed whose final formation error is closest to the "
-                "median over the seeds) run through the real processes (`formation run`: router, recorder, netem, "
-                "leader, agents over Zenoh, lockstep); positions compared with the simulation epoch by epoch. "
-                "Run ids and wall times: `real_runs.md`.", "",
-                "| strategy | seed | simulated final formation error [m] | real [m] | max abs position difference [m] | "
-                "recorded positions max abs difference [m] | match |", "|" + " --- |" * 7]  # fmt: skip
+        out += [
+            "",
+            "## Real processes",
+            "",
+            "One representative seed per strategy (the seed whose final formation error is closest to the "
+            "median over the seeds) run through the real processes (`formation run`: router, recorder, netem, "
+            "leader, agents over Zenoh, lockstep); positions compared with the simulation epoch by epoch. "
+            "Run ids and wall times: `real_runs.md`.",
+            "",
+            "| strategy | seed | simulated final formation error [m] | real [m] | max abs position difference [m] | "
+            "recorded positions max abs difference [m] | match |",
+            "|" + " --- |" * 7,
+        ]
         for row in r.real:
-            out.append(f"| {row['strategy']} | {row['seed']} | {fmt(row['sim_final'], '.6g')} | "
-                       f"{fmt(row.get('real_final', float('nan')), '.6g')} | {row.get('max_diff_text', '-')} | "
-                       f"{row.get('recorded_diff_text', '-')} | {row.get('match', 'no')} |")  # fmt: skip
+            out.append(
+                f"| {row['strategy']} | {row['seed']} | {fmt(row['sim_final'], '.6g')} | "
+                f"{fmt(row.get('real_final', float('nan')), '.6g')} | {row.get('max_diff_text', '-')} | "
+                f"{row.get('recorded_diff_text', '-')} | {row.get('match', 'no')} |"
+            )
     out += [
         "",
         "## Figures",
@@ -351,22 +451,44 @@ def write_figures(r: PaperResults, out: Path) -> None:
         for k in range(res.plan.epochs):
             t[k] = error_statistics(res.sub_error[res.sub_epoch == k])[2]
         traces[s] = t
-    plots.covariance_over_epochs(traces, out / "substitution_covariance.png",
-                                 f"substitution error covariance over {len(r.seeds)} seeds, link 1–2 down")  # fmt: skip
-    names = {"failure": "formation_error_failure.png", "one lossy link": "formation_error_one_lossy.png",
-             "two lossy links": "formation_error_two_lossy.png", "failure, 500 epochs": "formation_error_500.png"}  # fmt: skip
+    plots.covariance_over_epochs(
+        traces,
+        out / "substitution_covariance.png",
+        f"substitution error covariance over {len(r.seeds)} seeds, link 1–2 down",
+    )
+    names = {
+        "failure": "formation_error_failure.png",
+        "one lossy link": "formation_error_one_lossy.png",
+        "two lossy links": "formation_error_two_lossy.png",
+        "failure, 500 epochs": "formation_error_500.png",
+    }
     for variant, fname in names.items():
         series = {s: res.formation_error for s, res in r.runs[variant].items()}
-        plots.error_bands(series, out / fname, f"{variant}: formation error, median and 10–90 % of "
-                          f"{len(r.seeds)} seeds", "formation error [m]")  # fmt: skip
+        plots.error_bands(
+            series,
+            out / fname,
+            f"{variant}: formation error, median and 10–90 % of {len(r.seeds)} seeds",
+            "formation error [m]",
+        )
     if "alpha" in r.studies:
         a = r.studies["alpha"]
-        plots.alpha_curve(a.curves[0].alphas, {c.label: c.relative for c in a.curves},
-                          {c.label: c.best for c in a.curves}, out / "alpha.png", "blend: error against α")  # fmt: skip
+        plots.alpha_curve(
+            a.curves[0].alphas,
+            {c.label: c.relative for c in a.curves},
+            {c.label: c.best for c in a.curves},
+            out / "alpha.png",
+            "blend: error against α",
+        )
     if "dynamic" in r.studies:
         d = r.studies["dynamic"]
-        plots.dynamic_plot(d.shape_error, d.tree_edges, d.leave[1], d.join[1], out / "dynamic.png",
-                           f"agent {d.leave[0]} leaves at {d.leave[1]}, agent {d.join[0]} joins at {d.join[1]}")  # fmt: skip
+        plots.dynamic_plot(
+            d.shape_error,
+            d.tree_edges,
+            d.leave[1],
+            d.join[1],
+            out / "dynamic.png",
+            f"agent {d.leave[0]} leaves at {d.leave[1]}, agent {d.join[0]} joins at {d.join[1]}",
+        )
 
 
 # ------------------------------------------------------------------------------ real processes
@@ -379,21 +501,38 @@ def representative_seed(res: BatchResult) -> int:
     return int(res.plan.seeds[int(np.argmin(gap))])
 
 
-def run_real(r: PaperResults, out: Path, record: bool = True, log: Callable[[str], None] = print) -> None:
+def run_real(
+    r: PaperResults,
+    out: Path,
+    record: bool = True,
+    log: Callable[[str], None] = print,
+    strategies: Sequence[StrategyName] = STRATEGIES,
+) -> None:
     """Each strategy's representative seed through real processes; compares positions."""
     from testbed.launcher import launch
 
     runs_dir = out / "runs"
-    lines = ["# Real-process runs of `formation experiment paper`", "",
-             "| strategy | seed | run id | wall [s] | recording |", "| --- | --- | --- | --- | --- |"]  # fmt: skip
-    for s, res in r.runs["failure"].items():
+    lines = [
+        "# Real-process runs of `formation experiment paper`",
+        "",
+        "| strategy | seed | run id | wall [s] | recording |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    for s in strategies:
+        res = r.runs["failure"][s]
         seed = representative_seed(res)
         b = int(np.flatnonzero(res.plan.seeds == seed)[0])
         sim_x = res.positions[:, b]
-        row: dict[str, Any] = {"strategy": s, "seed": seed, "sim_final": float(res.formation_error[-1, b])}
+        row: dict[str, Any] = {
+            "strategy": s,
+            "seed": seed,
+            "sim_final": float(res.formation_error[-1, b]),
+        }
         log(f"real processes: {s}, seed {seed} …")
         try:
-            outcome = launch(r.scenario, strategy=s, seed=seed, runs_dir=runs_dir, record=record)
+            outcome = launch(
+                r.scenario, strategy=res.strategy, seed=seed, runs_dir=runs_dir, record=record
+            )
         except Exception as exc:  # a failed launch is reported, not fatal to the experiment
             row["max_diff_text"] = f"launch failed: {type(exc).__name__}"
             lines.append(f"| {s} | {seed} | - | - | launch failed: {exc} |")
@@ -446,8 +585,13 @@ def run_paper(
         t = time.perf_counter()
         r.studies["controller"] = studies.controller_study(scenario, seeds)
         r.studies["estimator"] = studies.estimator_study(
-            [("paper, link 1–2 failed", scenario), ("paper, every link Bernoulli 0.3", studies.all_lossy(scenario, 0.3)),
-             ("henneberg 20 (2n − 3 edges), every link Bernoulli 0.1", _grid_team(scenario))], seeds)  # fmt: skip
+            [
+                ("paper, link 1–2 failed", scenario),
+                ("paper, every link Bernoulli 0.3", studies.all_lossy(scenario, 0.3)),
+                ("henneberg 20 (2n − 3 edges), every link Bernoulli 0.1", _grid_team(scenario)),
+            ],
+            seeds,
+        )
         r.studies["alpha"] = studies.alpha_study(scenario, seeds)
         r.studies["dynamic"] = studies.dynamic_study(scenario, seeds)
         r.timings_s["studies"] = time.perf_counter() - t
@@ -483,6 +627,3 @@ __all__ = [
     "seeds_csv",
     "variants",
 ]
-
-
-_ = StrategyName  # re-exported type used by callers' annotations

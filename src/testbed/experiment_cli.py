@@ -8,7 +8,14 @@ from pathlib import Path
 from typing import Any
 
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
 from rich.table import Table
 
 from formation.errors import TestbedError
@@ -29,8 +36,14 @@ def cmd_experiment(args: argparse.Namespace) -> int:
     out = Path(args.out or f"experiments/{args.name}")
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     started = time.perf_counter()
-    result = run_paper(scenario, out, seeds=seeds, real=not args.no_real, record=not args.no_record,
-                       log=lambda m: console.print(m))  # fmt: skip
+    result = run_paper(
+        scenario,
+        out,
+        seeds=seeds,
+        real=not args.no_real,
+        record=not args.no_record,
+        log=lambda m: console.print(m),
+    )
     table = Table(title=f"formation experiment {args.name}: the chapter's claims")
     for col in ("claim", "verdict"):
         table.add_column(col)
@@ -38,8 +51,10 @@ def cmd_experiment(args: argparse.Namespace) -> int:
         table.add_row(c.text.replace("`", ""), c.verdict)
     Console().print(table)
     for row in result.real:
-        console.print(f"real processes {row['strategy']} seed {row['seed']}: max |Δx| {row.get('max_diff_text')}"
-                      f", recorded {row.get('recorded_diff_text', '-')}, match {row.get('match', 'no')}")  # fmt: skip
+        console.print(
+            f"real processes {row['strategy']} seed {row['seed']}: max |Δx| {row.get('max_diff_text')}"
+            f", recorded {row.get('recorded_diff_text', '-')}, match {row.get('match', 'no')}"
+        )
     times = ", ".join(f"{k} {v:.1f} s" for k, v in result.timings_s.items())
     console.print(f"wrote {out}/results.md ({times}; total {time.perf_counter() - started:.1f} s)")
     return 0
@@ -47,7 +62,11 @@ def cmd_experiment(args: argparse.Namespace) -> int:
 
 def _topologies(args: argparse.Namespace) -> list[tuple[str, Scenario]]:
     main = Path(args.scenario)
-    names = [t.strip() for t in args.topology.split(",") if t.strip()] if args.topology != "none" else []
+    names = (
+        [t.strip() for t in args.topology.split(",") if t.strip()]
+        if args.topology != "none"
+        else []
+    )
     out = [(main.stem, Scenario.from_file(main))]
     for name in names:
         path = Path(name)
@@ -66,7 +85,9 @@ def _strategy_list(arg: str | None) -> tuple[Any, ...]:
     names = tuple(s.strip() for s in arg.split(","))
     for name in names:
         if name not in STRATEGIES:
-            raise TestbedError(f"--strategy {name!r}: expected one of {', '.join(STRATEGIES)}, chapter or all")
+            raise TestbedError(
+                f"--strategy {name!r}: expected one of {', '.join(STRATEGIES)}, chapter or all"
+            )
     return names
 
 
@@ -77,17 +98,28 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     topologies = _topologies(args)
     first = topologies[0][1].seed if args.seed is None else args.seed
     spec = SweepSpec(
-        topologies=tuple(topologies), losses=loss_grid(args.loss), strategies=_strategy_list(args.strategy),
-        seeds=tuple(range(first, first + args.seeds)), models=MODELS if args.burst else ("bernoulli",),
-        epochs=args.epochs, threshold_m=args.threshold, burst_epochs=args.burst_epochs,
+        topologies=tuple(topologies),
+        losses=loss_grid(args.loss),
+        strategies=_strategy_list(args.strategy),
+        seeds=tuple(range(first, first + args.seeds)),
+        models=MODELS if args.burst else ("bernoulli",),
+        epochs=args.epochs,
+        threshold_m=args.threshold,
+        burst_epochs=args.burst_epochs,
         seeds_per_chunk=args.chunk_seeds,
-    )  # fmt: skip
+    )
     out = Path(args.out)
     started = time.perf_counter()
     with Progress(
-        TextColumn("[bold]sweep[/]"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[rate]} cells/s"),
-        TimeElapsedColumn(), TimeRemainingColumn(), console=console, disable=not console.is_terminal,
-    ) as bar:  # fmt: skip
+        TextColumn("[bold]sweep[/]"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.fields[rate]} cells/s"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=console,
+        disable=not console.is_terminal,
+    ) as bar:
         task = bar.add_task("cells", total=None, rate="-")
         first_done: list[int] = []
 
@@ -103,18 +135,24 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - started
     ran = len(spec.keys()) - (first_done[0] if first_done else 0)
     Console().print(critical_table(summary))
-    console.print(f"{ran} cells run in {wall:.1f} s ({ran / wall if wall else 0:.0f} cells/s), "
-                  f"{len(spec.keys()) - ran} already in {out / 'runs.csv'}; tables: {out}/critical.md, "
-                  f"{out}/success.md, {out}/phase.png")  # fmt: skip
+    console.print(
+        f"{ran} cells run in {wall:.1f} s ({ran / wall if wall else 0:.0f} cells/s), "
+        f"{len(spec.keys()) - ran} already in {out / 'runs.csv'}; tables: {out}/critical.md, "
+        f"{out}/success.md, {out}/phase.png"
+    )
     return 0
 
 
 def register(sub: Any) -> None:
     from testbed.cli import DEFAULT_SCENARIO
 
-    p = sub.add_parser("experiment", help="reproduce the chapter's experiment and the studies beyond it")
+    p = sub.add_parser(
+        "experiment", help="reproduce the chapter's experiment and the studies beyond it"
+    )
     p.add_argument("name", choices=EXPERIMENTS, help="which experiment (paper: MODEL.md §8)")
-    p.add_argument("--scenario", default=DEFAULT_SCENARIO, help="scenario TOML (default: the paper's)")
+    p.add_argument(
+        "--scenario", default=DEFAULT_SCENARIO, help="scenario TOML (default: the paper's)"
+    )
     p.add_argument("--seeds", type=int, default=20, help="number of seeds (default 20)")
     p.add_argument("--first-seed", type=int, default=1, help="first seed (default 1)")
     p.add_argument("--out", help="output folder (default experiments/NAME)")
@@ -123,19 +161,40 @@ def register(sub: Any) -> None:
     p.set_defaults(func=cmd_experiment)
 
     p = sub.add_parser("sweep", help="critical loss rate per strategy and topology")
-    p.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO, help="scenario TOML (the first topology)")
-    p.add_argument("--loss", default="0:1:0.05", help="START:STOP:STEP or a comma list (default 0:1:0.05)")
-    p.add_argument("--strategy", help="chapter (zero,hold,estimate,blend; default), all (the five) or a comma list")
+    p.add_argument(
+        "scenario", nargs="?", default=DEFAULT_SCENARIO, help="scenario TOML (the first topology)"
+    )
+    p.add_argument(
+        "--loss", default="0:1:0.05", help="START:STOP:STEP or a comma list (default 0:1:0.05)"
+    )
+    p.add_argument(
+        "--strategy",
+        help="chapter (zero,hold,estimate,blend; default), all (the five) or a comma list",
+    )
     p.add_argument("--seeds", type=int, default=50, help="seeds per cell (default 50)")
     p.add_argument("--seed", type=int, help="first seed (default: the scenario's)")
-    p.add_argument("--topology", default=",".join(DEFAULT_TOPOLOGIES),
-                   help="more topologies: names beside SCENARIO or paths, comma separated; none for only SCENARIO "
-                        f"(default {','.join(DEFAULT_TOPOLOGIES)})")  # fmt: skip
-    p.add_argument("--burst", action="store_true", help="also Gilbert-Elliott loss at the same mean rate")
-    p.add_argument("--burst-epochs", type=float, default=4.0, help="mean burst of the Gilbert-Elliott model")
+    p.add_argument(
+        "--topology",
+        default=",".join(DEFAULT_TOPOLOGIES),
+        help="more topologies: names beside SCENARIO or paths, comma separated; none for only SCENARIO "
+        f"(default {','.join(DEFAULT_TOPOLOGIES)})",
+    )
+    p.add_argument(
+        "--burst", action="store_true", help="also Gilbert-Elliott loss at the same mean rate"
+    )
+    p.add_argument(
+        "--burst-epochs", type=float, default=4.0, help="mean burst of the Gilbert-Elliott model"
+    )
     p.add_argument("--epochs", type=int, default=200, help="epochs per run (default 200)")
-    p.add_argument("--threshold", type=float, default=0.05, help="final shape error that keeps [m] (default 0.05)")
-    p.add_argument("--out", default="experiments/sweep", help="output folder (default experiments/sweep)")
+    p.add_argument(
+        "--threshold",
+        type=float,
+        default=0.05,
+        help="final shape error that keeps [m] (default 0.05)",
+    )
+    p.add_argument(
+        "--out", default="experiments/sweep", help="output folder (default experiments/sweep)"
+    )
     p.add_argument("--jobs", type=int, help="worker processes (default: every core)")
     p.add_argument("--chunk-seeds", type=int, default=10, help="seeds per work unit (default 10)")
     p.set_defaults(func=cmd_sweep)

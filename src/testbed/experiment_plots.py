@@ -19,8 +19,13 @@ if TYPE_CHECKING:
     from testbed.sweep import SweepSummary
 
 Array = npt.NDArray[np.float64]
-COLOURS = {"zero": "tab:red", "hold": "tab:orange", "estimate": "tab:blue", "blend": "tab:green",
-           "drop": "tab:purple"}  # fmt: skip
+COLOURS = {
+    "zero": "tab:red",
+    "hold": "tab:orange",
+    "estimate": "tab:blue",
+    "blend": "tab:green",
+    "drop": "tab:purple",
+}
 _META = {"Software": None}  # no version string in the file: same inputs, same bytes
 
 
@@ -55,8 +60,14 @@ def agent_positions(
                     color=COLOURS.get(name, "k"),
                     label=f"agent {agent}",
                 )
-                ax.plot(epochs, desired[:, agent - 1, row], ls, color="0.6", lw=0.8,
-                        label=f"slot of {agent}" if a_i == 0 else None)  # fmt: skip
+                ax.plot(
+                    epochs,
+                    desired[:, agent - 1, row],
+                    ls,
+                    color="0.6",
+                    lw=0.8,
+                    label=f"slot of {agent}" if a_i == 0 else None,
+                )
             ax.set_ylabel(f"{coord} [m]" if c == 0 else "")
             if row == 0:
                 ax.set_title(name)
@@ -113,8 +124,15 @@ def error_bands(
         ax.fill_between(epochs, lo, hi, color=COLOURS.get(name, "k"), alpha=0.15, lw=0)
     for epoch, label in marks:
         ax.axvline(epoch, color="0.3", ls="--", lw=0.8)
-        ax.annotate(label, (epoch, 1.0), xycoords=("data", "axes fraction"), fontsize=7,
-                    ha="left", va="top", rotation=90)  # fmt: skip
+        ax.annotate(
+            label,
+            (epoch, 1.0),
+            xycoords=("data", "axes fraction"),
+            fontsize=7,
+            ha="left",
+            va="top",
+            rotation=90,
+        )
     if log:
         ax.set_yscale("log")
     ax.set_xlabel("epoch")
@@ -180,8 +198,20 @@ def phase_plot(summary: SweepSummary, path: Path) -> Path:
         for c, (name, _) in enumerate(spec.topologies):
             ax = axes[r, c]
             grid = np.array([summary.success[(name, model, s)] for s in spec.strategies])
-            image = ax.imshow(grid, aspect="auto", cmap="viridis", vmin=0.0, vmax=1.0, interpolation="nearest",
-                              extent=(losses[0] - step / 2, losses[-1] + step / 2, len(spec.strategies) - 0.5, -0.5))  # fmt: skip
+            image = ax.imshow(
+                grid,
+                aspect="auto",
+                cmap="viridis",
+                vmin=0.0,
+                vmax=1.0,
+                interpolation="nearest",
+                extent=(
+                    losses[0] - step / 2,
+                    losses[-1] + step / 2,
+                    len(spec.strategies) - 0.5,
+                    -0.5,
+                ),
+            )
             for i, s in enumerate(spec.strategies):
                 crit = summary.critical[(name, model, s)]
                 if crit is not None:

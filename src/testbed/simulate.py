@@ -20,6 +20,7 @@ from agent.strategies import LinkMemory
 from formation.reference import reference_positions, reference_velocities
 from formation.scenario import LEADER_ENDPOINT, Scenario, StrategyName
 from leader.epoch import leader_epoch
+from leader.rigidity import HealthyRigidity
 from netem.models import schedule
 from recorder.metrics import error_statistics, formation_error, longest_run, nees, shape_error
 
@@ -149,6 +150,7 @@ def simulate(
     links = scenario.directed_links
     src, dst = links[:, 0], links[:, 1]
     in_links = InLinks.of(scenario, np.arange(1, n + 1))
+    rigidity = HealthyRigidity(d0, edges)
     period = scenario.control.period_s
     cov = scenario.noise_covariance
     followers = np.arange(n) != r - 1
@@ -194,7 +196,7 @@ def simulate(
 
         # Leader: the measurements whose report reached it → tree, BLUE, rigidity.
         known = arrived & sched["report_ok"][k, dst - 1]
-        lead = leader_epoch(scenario, known, z, ref_x[k])
+        lead = leader_epoch(scenario, known, z, ref_x[k], rigidity)
         res = lead.estimate
         est[k], est_cov[k], observable[k] = res.positions, res.covariances, res.observable
         healthy_all[k], tree_all[k] = lead.healthy, lead.tree

@@ -160,8 +160,12 @@ def controller_study(
         rigid = rank == expected_rigidity_rank(scen.n, scen.dimension)
         finals: dict[str, Array] = {}
         for controller, gain in gains.items():
-            s = drop_links(scen.with_overrides(control={**scen.control.model_dump(), "controller": controller,
-                                                        "gain": gain}), dropped)  # fmt: skip
+            s = drop_links(
+                scen.with_overrides(
+                    control={**scen.control.model_dump(), "controller": controller, "gain": gain}
+                ),
+                dropped,
+            )
             with np.errstate(all="ignore"):
                 res = run_batch(plan_batch(s, seeds, epochs), "drop", detail=False)
             finals[controller] = np.nan_to_num(res.formation_error[-1], nan=np.inf)
@@ -248,7 +252,7 @@ class AlphaCurve:
     @property
     def relative(self) -> Array:
         """Values over the value at α = 1 (``blend`` with α = 1 is ``estimate``)."""
-        return self.values / self.values[-1]
+        return np.asarray(self.values / self.values[-1], dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -258,8 +262,10 @@ class AlphaStudy:
 
     def markdown(self) -> str:
         alphas = self.curves[0].alphas
-        lines = ["| α | " + " | ".join(f"{c.label} [{c.unit}]" for c in self.curves) + " |",
-                 "|" + " --- |" * (1 + len(self.curves))]  # fmt: skip
+        lines = [
+            "| α | " + " | ".join(f"{c.label} [{c.unit}]" for c in self.curves) + " |",
+            "|" + " --- |" * (1 + len(self.curves)),
+        ]
         for i, a in enumerate(alphas):
             lines.append(
                 f"| {a:g} | "
@@ -273,8 +279,14 @@ class AlphaStudy:
 DEFAULT_ALPHAS = (0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
 
 
-def alpha_study(paper: Scenario, seeds: Sequence[int], alphas: Sequence[float] = DEFAULT_ALPHAS,
-                long_epochs: int = 500, lossy_epochs: int = 200, p_loss: float = 0.3) -> AlphaStudy:  # fmt: skip
+def alpha_study(
+    paper: Scenario,
+    seeds: Sequence[int],
+    alphas: Sequence[float] = DEFAULT_ALPHAS,
+    long_epochs: int = 500,
+    lossy_epochs: int = 200,
+    p_loss: float = 0.3,
+) -> AlphaStudy:
     """Blend's substitution error (and, with every link lossy, the formation) against ``α``."""
     a = np.asarray(alphas, dtype=float)
     if a[-1] != 1.0:
@@ -298,14 +310,33 @@ def alpha_study(paper: Scenario, seeds: Sequence[int], alphas: Sequence[float] =
     n = f"{len(seeds)} seeds"
     return AlphaStudy(
         (
-            AlphaCurve(f"link 1–2 failed, tr Cov subst., epochs 0–{paper.epochs - 1}, {n}", a, np.array(chapter), "m²"),
-            AlphaCurve(f"link 1–2 failed, tr Cov subst., epochs 20–{long_epochs - 1}", a, np.array(steady), "m²"),
-            AlphaCurve(f"all links p = {p_loss:g}, tr Cov subst., epochs 20–{lossy_epochs - 1}", a,
-                       np.array(lossy_sub), "m²"),
-            AlphaCurve(f"all links p = {p_loss:g}, final formation error (mean)", a, np.array(lossy_final), "m"),
+            AlphaCurve(
+                f"link 1–2 failed, tr Cov subst., epochs 0–{paper.epochs - 1}, {n}",
+                a,
+                np.array(chapter),
+                "m²",
+            ),
+            AlphaCurve(
+                f"link 1–2 failed, tr Cov subst., epochs 20–{long_epochs - 1}",
+                a,
+                np.array(steady),
+                "m²",
+            ),
+            AlphaCurve(
+                f"all links p = {p_loss:g}, tr Cov subst., epochs 20–{lossy_epochs - 1}",
+                a,
+                np.array(lossy_sub),
+                "m²",
+            ),
+            AlphaCurve(
+                f"all links p = {p_loss:g}, final formation error (mean)",
+                a,
+                np.array(lossy_final),
+                "m",
+            ),
         ),
         tuple(seeds),
-    )  # fmt: skip
+    )
 
 
 def _rebase(plan: Any, scenario: Scenario) -> Any:
@@ -366,9 +397,13 @@ class DynamicStudy:
 
 
 def dynamic_study(
-    paper: Scenario, seeds: Sequence[int], leave: tuple[int, int] = (5, 20), join: tuple[int, int] = (6, 35),
-    epochs: int = 80, strategies: Sequence[StrategyName] = STRATEGIES,
-) -> DynamicStudy:  # fmt: skip
+    paper: Scenario,
+    seeds: Sequence[int],
+    leave: tuple[int, int] = (5, 20),
+    join: tuple[int, int] = (6, 35),
+    epochs: int = 80,
+    strategies: Sequence[StrategyName] = STRATEGIES,
+) -> DynamicStudy:
     """Agent ``leave[0]`` leaves at epoch ``leave[1]``; agent ``join[0]`` joins at ``join[1]``."""
     team = dynamic_team(paper)
     active = np.ones((epochs + 1, team.n), dtype=bool)

@@ -39,9 +39,16 @@ from testbed.batch import plan_batch, run_batch
 MODELS = ("bernoulli", "gilbert_elliott")
 KEEP_FRACTION = 0.95
 COLUMNS = (
-    "topology", "model", "loss", "strategy", "seed", "epochs",
-    "final_shape_error_m", "final_formation_error_m", "measured_loss",
-)  # fmt: skip
+    "topology",
+    "model",
+    "loss",
+    "strategy",
+    "seed",
+    "epochs",
+    "final_shape_error_m",
+    "final_formation_error_m",
+    "measured_loss",
+)
 Key = tuple[str, str, str, str, int, int]  # topology, model, loss, strategy, seed, epochs
 
 
@@ -56,7 +63,7 @@ def loss_grid(text: str) -> tuple[float, ...]:
             start, stop, step = (float(v) for v in text.split(":"))
             if step <= 0:
                 raise SweepError(f"--loss {text!r}: step = {step:g}; expected > 0")
-            count = int(math.floor((stop - start) / step + 1e-9)) + 1
+            count = math.floor((stop - start) / step + 1e-9) + 1
             values = [round(start + i * step, 10) for i in range(count)]
         else:
             values = [float(v) for v in text.split(",") if v.strip()]
@@ -124,9 +131,12 @@ class SweepSpec:
         """Every cell, in the canonical order of the CSV."""
         return [
             (t, m, loss_label(p), s, seed, self.epochs)
-            for t, _ in self.topologies for m in self.models for p in self.losses
-            for s in self.strategies for seed in self.seeds
-        ]  # fmt: skip
+            for t, _ in self.topologies
+            for m in self.models
+            for p in self.losses
+            for s in self.strategies
+            for seed in self.seeds
+        ]
 
 
 @dataclass(frozen=True)
@@ -170,12 +180,19 @@ def run_chunk(chunk: Chunk) -> list[dict[str, Any]]:
             res = run_batch(sub, strategy, detail=False)
         for i, b in enumerate(todo):
             t, m, p, s, seed, e = keys[b]
-            rows.append({
-                "topology": t, "model": m, "loss": p, "strategy": s, "seed": seed, "epochs": e,
-                "final_shape_error_m": _num(res.shape_error[-1, i]),
-                "final_formation_error_m": _num(res.formation_error[-1, i]),
-                "measured_loss": _num(measured[b]),
-            })  # fmt: skip
+            rows.append(
+                {
+                    "topology": t,
+                    "model": m,
+                    "loss": p,
+                    "strategy": s,
+                    "seed": seed,
+                    "epochs": e,
+                    "final_shape_error_m": _num(res.shape_error[-1, i]),
+                    "final_formation_error_m": _num(res.formation_error[-1, i]),
+                    "measured_loss": _num(measured[b]),
+                }
+            )
     return rows
 
 
@@ -185,8 +202,14 @@ def _num(v: float) -> str:
 
 
 def _key(row: dict[str, Any]) -> Key:
-    return (str(row["topology"]), str(row["model"]), str(row["loss"]), str(row["strategy"]),
-            int(row["seed"]), int(row["epochs"]))  # fmt: skip
+    return (
+        str(row["topology"]),
+        str(row["model"]),
+        str(row["loss"]),
+        str(row["strategy"]),
+        int(row["seed"]),
+        int(row["epochs"]),
+    )
 
 
 def read_rows(path: Path) -> list[dict[str, str]]:
@@ -210,12 +233,27 @@ def plan_chunks(spec: SweepSpec, done: set[Key]) -> list[Chunk]:
         for model in spec.models:
             for start in range(0, len(spec.seeds), step):
                 seeds = spec.seeds[start : start + step]
-                keys = {(name, model, loss_label(p), s, seed, spec.epochs)
-                        for p in spec.losses for s in spec.strategies for seed in seeds}  # fmt: skip
+                keys = {
+                    (name, model, loss_label(p), s, seed, spec.epochs)
+                    for p in spec.losses
+                    for s in spec.strategies
+                    for seed in seeds
+                }
                 have = frozenset(keys & done)
                 if len(have) < len(keys):
-                    chunks.append(Chunk(name, scenario, model, spec.losses, seeds, spec.strategies,
-                                        spec.epochs, spec.burst_epochs, have))  # fmt: skip
+                    chunks.append(
+                        Chunk(
+                            name,
+                            scenario,
+                            model,
+                            spec.losses,
+                            seeds,
+                            spec.strategies,
+                            spec.epochs,
+                            spec.burst_epochs,
+                            have,
+                        )
+                    )
     return sorted(chunks, key=lambda c: -c.cells * (c.scenario.n + len(c.scenario.directed_links)))
 
 
@@ -277,7 +315,7 @@ def _execute(chunks: Sequence[Chunk], jobs: int | None) -> Iterable[list[dict[st
 def _write_canonical(path: Path, rows: list[dict[str, Any]], spec: SweepSpec) -> None:
     """Rewrite the CSV sorted, one row per cell, so identical sweeps give identical bytes."""
     topo = {name: i for i, (name, _) in enumerate(spec.topologies)}
-    strat = {s: i for i, s in enumerate(STRATEGIES)}
+    strat: dict[str, int] = {str(s): i for i, s in enumerate(STRATEGIES)}
     model = {m: i for i, m in enumerate(MODELS)}
     unique: dict[Key, dict[str, Any]] = {}
     for r in rows:
@@ -341,15 +379,24 @@ def summarise(rows: Iterable[dict[str, Any]], spec: SweepSpec) -> SweepSummary:
         for m in spec.models:
             meas = []
             for p in spec.losses:
-                vals = [float(index[k]["measured_loss"]) for seed in spec.seeds
-                        if (k := (name, m, loss_label(p), spec.strategies[0], seed, spec.epochs)) in index]  # fmt: skip
+                vals = [
+                    float(index[k]["measured_loss"])
+                    for seed in spec.seeds
+                    if (k := (name, m, loss_label(p), spec.strategies[0], seed, spec.epochs))
+                    in index
+                ]
                 meas.append(float(np.mean(vals)) if vals else math.nan)
             measured[(name, m)] = np.array(meas)
             for s in spec.strategies:
                 frac, med = [], []
                 for p in spec.losses:
-                    errs = np.array([float(index[k]["final_shape_error_m"]) for seed in spec.seeds
-                                     if (k := (name, m, loss_label(p), s, seed, spec.epochs)) in index])  # fmt: skip
+                    errs = np.array(
+                        [
+                            float(index[k]["final_shape_error_m"])
+                            for seed in spec.seeds
+                            if (k := (name, m, loss_label(p), s, seed, spec.epochs)) in index
+                        ]
+                    )
                     frac.append(float(np.mean(errs < spec.threshold_m)) if errs.size else math.nan)
                     med.append(float(np.median(errs)) if errs.size else math.nan)
                 success[(name, m, s)] = np.array(frac)

@@ -11,6 +11,7 @@ import pytest
 
 from formation.scenario import Scenario
 from testbed.launcher import launch
+from testbed.netem_cli import ask, parse_models
 
 pytestmark = pytest.mark.integration
 
@@ -24,31 +25,42 @@ def cli(runs_dir: Path, *args: str) -> subprocess.CompletedProcess[str]:
 
 def test_live_change_and_refusals(paper: Scenario, runs_dir: Path) -> None:
     results: dict[str, subprocess.CompletedProcess[str]] = {}
+    answers: dict[str, dict[str, object]] = {}
 
     def change(run_id: str, endpoint: str) -> None:
         results["set"] = cli(runs_dir, "set", "2->3", "bernoulli", "p_loss=1.0")
-        results["unknown"] = cli(runs_dir, "set", "1->5", "down")
-        results["bad_p"] = cli(runs_dir, "set", "2->3", "bernoulli", "p_loss=1.5")
+        # Refusals through the CLI's own request code, in-process: the run must still be going.
+        answers["unknown"] = ask(
+            run_id, endpoint, {"op": "set", "link": "1->5", "models": [{"model": "down"}]}
+        )
+        answers["bad_p"] = ask(run_id, endpoint, {"op": "set", "link": "2->3",
+                                                  "models": parse_models(["bernoulli", "p_loss=1.5"])})  # fmt: skip
         results["show"] = cli(runs_dir, "show")
 
     outcome = launch(
-        paper.with_overrides(epochs=800), runs_dir=runs_dir, record=False, on_started=change
+        paper.with_overrides(epochs=2000), runs_dir=runs_dir, record=False, on_started=change
     )
     assert results["show"].returncode == 0 and "2->3" in results["show"].stdout
-    assert results["unknown"].returncode == 1
-    assert "link '1->5': no such link in the scenario" in results["unknown"].stderr
-    assert results["bad_p"].returncode == 1
-    assert "models.0.bernoulli.p_loss = 1.5" in results["bad_p"].stderr
+    assert answers["unknown"] == {"ok": False, "error": "link '1->5': no such link in the scenario"}
+    assert answers["bad_p"]["ok"] is False
+    assert "models.0.bernoulli.p_loss = 1.5" in str(answers["bad_p"]["error"])
     assert results["set"].returncode == 0, results["set"].stderr
     found = re.search(r"new models from epoch (\d+)", results["set"].stdout)
     assert found, results["set"].stdout
     start = int(found.group(1))
-    assert 0 < start < 800
+    assert 0 < start < 2000
     verdicts = {d.epoch: d.verdict for d in outcome.decisions if (d.source, d.target) == (2, 3)}
-    assert len(verdicts) == 800
+    assert len(verdicts) == 2000
     assert all(v == "pass" for e, v in verdicts.items() if e < start)
     assert all(
         v == "drop" for e, v in verdicts.items() if e >= start
     )  # the refused changes left it so
     assert "bernoulli p_loss=1.0" in results["show"].stdout
     assert all(d.verdict == "pass" for d in outcome.decisions if (d.source, d.target) == (3, 2))
+
+
+def test_a_refused_change_through_the_cli_exits_nonzero(tmp_path: Path) -> None:
+    """With no run to talk to, the CLI says so and exits 1 (the refusal wording is pinned above)."""
+    proc = cli(tmp_path, "set", "1->2", "bernoulli", "p_loss=0.5")
+    assert proc.returncode == 1
+    assert "no running run found under" in proc.stderr

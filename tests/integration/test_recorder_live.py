@@ -438,7 +438,11 @@ def test_default_run_report_and_replay_into_a_fresh_leader(
             sim.substitution_epochs,
         )
     )
-    assert run.substitution_errors.shape == sim.substitution_errors.shape == (2 * (paper.epochs - 1), 2)
+    assert (
+        run.substitution_errors.shape
+        == sim.substitution_errors.shape
+        == (2 * (paper.epochs - 1), 2)
+    )
     np.testing.assert_allclose(run.substitution_errors, sim.substitution_errors[order], atol=1e-9)
     assert summary["substitutions"] == 2 * (paper.epochs - 1)
 

@@ -123,3 +123,20 @@ def test_healthy_mask_shape_is_checked() -> None:
     x, edges = pentagon()
     with pytest.raises(ValueError, match=r"^healthy_mask has shape \(3,\); expected \(7,\)$"):
         healthy_rigidity(x, edges, [True, True, True])
+
+
+def test_tracker_equals_the_svd_on_random_masks() -> None:
+    from pathlib import Path
+
+    from formation.scenario import Scenario
+    from leader.rigidity import HealthyRigidity, healthy_rigidity
+
+    paper = Scenario.from_file(Path(__file__).resolve().parents[3] / "scenarios/paper.toml")
+    rng = np.random.default_rng(11)
+    extra = np.vstack([paper.edge_array, [[2, 5], [3, 4]]])  # over-constrained: rows dependent
+    for edges in (paper.edge_array, extra):
+        tracker = HealthyRigidity(paper.offsets, edges)
+        assert tracker.independent == (len(edges) == 7)
+        for _ in range(60):
+            mask = rng.random(len(edges)) < 0.7
+            assert tracker(mask) == healthy_rigidity(paper.offsets, edges, mask)

@@ -1,0 +1,24 @@
+"""``formation experiment paper``'s real-process run: recorded to MCAP, equal to the simulation."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from formation.scenario import Scenario
+from testbed.experiment import PaperResults, representative_seed, run_real, run_variants
+
+pytestmark = pytest.mark.integration
+
+
+def test_representative_seed_through_real_processes(paper: Scenario, runs_dir: Path) -> None:
+    seeds = (1, 2, 3)
+    result = PaperResults(paper, seeds, run_variants(paper, seeds))
+    run_real(result, runs_dir.parent, record=True, strategies=("estimate",))
+    (row,) = result.real
+    assert row["seed"] == representative_seed(result.runs["failure"]["estimate"])
+    assert row["match"] == "yes", row
+    assert row["max_diff_text"] == "0.0e+00" and row["recorded_diff_text"] == "0.0e+00"
+    assert list(runs_dir.glob("*/run.mcap"))
+    assert "| estimate |" in (runs_dir.parent / "real_runs.md").read_text()

@@ -1,0 +1,181 @@
+"""The batch simulator equals the one-seed simulator, member by member."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from formation.scenario import STRATEGIES, Scenario
+from leader.mst import minimum_spanning_forest
+from testbed.batch import BatchError, batch_forest, kruskal_order, plan_batch, run_batch
+from testbed.simulate import SimResult, simulate
+from testbed.studies import dynamic_team
+
+SCENARIOS = Path(__file__).resolve().parents[3] / "scenarios"
+EPOCHS = 25
+FLOAT_FIELDS = (
+    "positions",
+    "formation_error",
+    "shape_error",
+    "estimates",
+    "estimate_cov",
+    "substitution_errors",
+    "nees_values",
+    "estimation_errors",
+)
+EXACT_FIELDS = (
+    "observable",
+    "delivered",
+    "report_ok",
+    "estimate_ok",
+    "healthy",
+    "tree",
+    "components",
+    "rigidity_rank",
+    "substitution_epochs",
+)
+
+
+def assert_same(ref: SimResult, got: SimResult) -> None:
+    for f in FLOAT_FIELDS:
+        a, b = getattr(ref, f), getattr(got, f)
+        assert a.shape == b.shape, f
+        np.testing.assert_array_equal(np.isnan(a), np.isnan(b), err_msg=f)
+        np.testing.assert_allclose(np.nan_to_num(b), np.nan_to_num(a), rtol=0, atol=1e-9, err_msg=f)
+    for f in EXACT_FIELDS:
+        np.testing.assert_array_equal(getattr(got, f), getattr(ref, f), err_msg=f)
+    assert got.fallbacks == ref.fallbacks
+    want, have = ref.summary(), got.summary()
+    assert have.keys() == want.keys()
+    for key, value in want.items():
+        if isinstance(value, float):
+            assert have[key] == pytest.approx(value, rel=1e-9, abs=1e-12), key
+        else:
+            assert have[key] == value, key
+
+
+def lossy_paper(paper: Scenario) -> Scenario:
+    """Link 1–2 down, every other formation link and every control link lossy."""
+    return paper.with_overrides(
+        network={
+            "formation_default": [{"model": "bernoulli", "p_loss": 0.3}],
+            "links": [{"between": [1, 2], "models": [{"model": "outage", "start": 1}]}],
+            "control_default": [{"model": "bernoulli", "p_loss": 0.1}],
+        }
+    )
+
+
+@pytest.mark.parametrize("topology", ["paper-lossy", "octahedron3d", "ring8"])
+def test_every_strategy_equals_simulate(paper: Scenario, topology: str) -> None:
+    scenario = (
+        lossy_paper(paper)
+        if topology == "paper-lossy"
+        else Scenario.from_file(SCENARIOS / f"{topology}.toml")
+    )
+    if topology != "paper-lossy":
+        scenario = scenario.with_overrides(
+            network={"formation_default": [{"model": "bernoulli", "p_loss": 0.25}]}
+        )
+    seeds = [1, 7]
+    plan = plan_batch(scenario, seeds, EPOCHS)
+    for strategy in STRATEGIES:
+        res = run_batch(plan, strategy)
+        for b, seed in enumerate(seeds):
+            assert_same(simulate(scenario, strategy, seed, EPOCHS), res.member(b))
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        {
+            "network": {
+                "formation_default": [
+                    {"model": "bernoulli", "p_loss": 0.2},
+                    {"model": "delay", "epochs": 1, "jitter_epochs": 1},
+                ]
+            }
+        },
+        {
+            "estimator": {"edges": "healthy", "edge_rule": "both"},
+            "network": {"formation_default": [{"model": "gilbert_elliott", "p": 0.2, "r": 0.5}]},
+        },
+        {
+            "control": {"controller": "distance", "gain": 0.05},
+            "network": {"formation_default": [{"model": "bernoulli", "p_loss": 0.3}]},
+        },
+        {
+            "control": {"dynamics": "double", "gain": 0.1},
+            "network": {"formation_default": [{"model": "bernoulli", "p_loss": 0.3}]},
+        },
+    ],
+    ids=["delay", "healthy-both", "distance", "double"],
+)
+def test_model_variants_equal_simulate(paper: Scenario, overrides: dict[str, object]) -> None:
+    scenario = paper.with_overrides(**overrides)
+    plan = plan_batch(scenario, [3], EPOCHS)
+    for strategy in ("hold", "blend", "drop"):
+        assert_same(simulate(scenario, strategy, 3, EPOCHS), run_batch(plan, strategy).member(0))
+
+
+def test_network_variants_share_a_batch(paper: Scenario) -> None:
+    variants = [
+        paper.with_overrides(network={"formation_default": [{"model": "bernoulli", "p_loss": p}]})
+        for p in (0.0, 0.5)
+    ]
+    plan = plan_batch(variants, [2, 2], EPOCHS)
+    res = run_batch(plan, "estimate")
+    for b, v in enumerate(variants):
+        assert_same(simulate(v, "estimate", 2, EPOCHS), res.member(b))
+
+
+def test_a_member_does_not_depend_on_its_batch(paper: Scenario) -> None:
+    """Bit for bit: what a resumed sweep recomputes equals what a whole sweep computes."""
+    scenario = lossy_paper(paper)
+    plan = plan_batch(scenario, [1, 2, 3, 4, 5], EPOCHS)
+    whole = run_batch(plan, "blend", detail=False)
+    alone = run_batch(plan_batch(scenario, [4], EPOCHS), "blend", detail=False)
+    part = run_batch(plan.subset([3, 0]), "blend", detail=False)
+    np.testing.assert_array_equal(alone.positions[:, 0], whole.positions[:, 3])
+    np.testing.assert_array_equal(part.positions[:, 0], whole.positions[:, 3])
+    np.testing.assert_array_equal(part.positions[:, 1], whole.positions[:, 0])
+
+
+def test_members_must_share_the_structure(paper: Scenario) -> None:
+    other = paper.with_overrides(control={"gain": 0.2})
+    with pytest.raises(BatchError, match=r"member 1 \(paper\) differs from member 0 in control"):
+        plan_batch([paper, other], [1, 1])
+    with pytest.raises(BatchError, match="2 scenarios for 3 seeds"):
+        plan_batch([paper, paper], [1, 2, 3])
+
+
+def test_batch_forest_is_kruskals(paper: Scenario) -> None:
+    team = Scenario.from_file(SCENARIOS / "grid20.toml")
+    rng = np.random.default_rng(5)
+    for scen in (paper, team):
+        healthy = rng.random((40, len(scen.edge_array))) < 0.6
+        tree, labels = batch_forest(scen.n, scen.edge_array, kruskal_order(scen), healthy)
+        for b in range(healthy.shape[0]):
+            want = np.zeros(len(scen.edge_array), dtype=bool)
+            want[minimum_spanning_forest(scen.n, scen.edge_array, scen.weights, healthy[b])] = True
+            np.testing.assert_array_equal(tree[b], want)
+            assert len(np.unique(labels[b])) == scen.n - want.sum()
+
+
+def test_an_inactive_agent_leaves_the_formation(paper: Scenario) -> None:
+    team = dynamic_team(paper)
+    active = np.ones((EPOCHS + 1, team.n), dtype=bool)
+    active[10:, 4] = False  # agent 5 leaves at epoch 10
+    active[:15, 5] = False  # agent 6 joins at epoch 15
+    res = run_batch(plan_batch(team, [1, 2], EPOCHS, active=active), "estimate")
+    assert res.observable is not None and res.tree is not None
+    x = res.positions
+    np.testing.assert_array_equal(x[11:, :, 4], np.broadcast_to(x[10:11, :, 4], x[11:, :, 4].shape))
+    np.testing.assert_array_equal(x[:15, :, 5], np.broadcast_to(x[0:1, :, 5], x[:15, :, 5].shape))
+    assert not res.observable[10:15, :, 4:].any() and res.observable[15:, :, 5].all()
+    assert (res.tree[5].sum(axis=1) == 4).all() and (res.tree[12].sum(axis=1) == 3).all()
+    assert (res.tree[20].sum(axis=1) == 4).all()
+    assert (res.sub_link < 2 * len(team.edge_array)).all()
+    with pytest.raises(BatchError, match="the reference agent 1 must take part"):
+        plan_batch(team, [1], EPOCHS, active=np.zeros((EPOCHS + 1, team.n), dtype=bool))
