@@ -19,6 +19,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int)
     p.add_argument("--epochs", type=int)
     p.add_argument(
+        "--passthrough", action="store_true", help="benchmark baseline: forward all, decide nothing"
+    )
+    p.add_argument(
         "--no-recorder", action="store_true", help="start without waiting for a recorder"
     )
     zenoh_config.add_arguments(p)
@@ -40,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     try:
         node = NetemNode(service, scenario, scenario.seed if args.seed is None else args.seed,
-                         wait_for_recorder=not args.no_recorder)  # fmt: skip
+                         wait_for_recorder=not args.no_recorder, passthrough=args.passthrough)  # fmt: skip
         service.announce()
         if scenario.runtime.mode == "realtime":
             code = node.run_realtime(

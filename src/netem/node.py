@@ -65,11 +65,19 @@ class _Open:
 
 class NetemNode:
     def __init__(
-        self, service: Service, scenario: Scenario, seed: int, wait_for_recorder: bool = True
+        self,
+        service: Service,
+        scenario: Scenario,
+        seed: int,
+        wait_for_recorder: bool = True,
+        passthrough: bool = False,
     ) -> None:
         self.service, self.scenario, self.seed = service, scenario, seed
         self.run_id = service.run_id
         self.wait_for_recorder = wait_for_recorder
+        self.passthrough = (
+            passthrough  # benchmark baseline: forward everything, decide and record nothing
+        )
         self.lock = threading.Lock()
         n = scenario.n
         self.agents = list(range(1, n + 1))
@@ -100,9 +108,13 @@ class NetemNode:
         self.estimates_done = 0
         self.epoch_seen = 0
         prefix = keys.prefix(self.run_id)
-        service.subscribe(f"{prefix}/agent/*/state")
-        service.subscribe(f"{prefix}/agent/*/report")
-        service.subscribe(keys.leader_estimate_out(self.run_id))
+        self.inline = False  # lockstep: handle samples on Zenoh's thread, no queue hand-off
+        for key in (
+            f"{prefix}/agent/*/state",
+            f"{prefix}/agent/*/report",
+            keys.leader_estimate_out(self.run_id),
+        ):
+            service.subscribe(key, self._on_sample)
         service.queryable(keys.netem_config(self.run_id), self._on_config)
         self.clock: Clock | None = None
         service.queryable(keys.clock(self.run_id), self._on_clock)
@@ -122,8 +134,9 @@ class NetemNode:
     # -- decisions ------------------------------------------------------------------------------
     def _decide(self, cls: LinkClass, src: int, dst: int, epoch: int, seq: int) -> Any:
         decision = self.models[(cls, src, dst)].decide(epoch)
+        # model_construct: the values come from our own models, so the per-packet cost stays low.
         self.decisions[(_PHASE_OF[cls], epoch)].append(
-            Decision(
+            Decision.model_construct(
                 source=src,
                 target=dst,
                 link_class=cls,
@@ -148,7 +161,9 @@ class NetemNode:
         elif d.delay_epochs == 0:
             for _ in range(d.copies):
                 self.service.put(key, payload, attachment(epoch, seq, src))
-            box.delivered.append(Delivered(source=src, seq=seq, sent_epoch=epoch, copies=d.copies))
+            box.delivered.append(
+                Delivered.model_construct(source=src, seq=seq, sent_epoch=epoch, copies=d.copies)
+            )
         else:
             box.lost.append(src)  # lost for this epoch; arrives with a later one
             self.held[(phase, dst, epoch + d.delay_epochs)].append(
@@ -177,7 +192,9 @@ class NetemNode:
                 for _ in range(h.copies):
                     self.service.put(h.key, h.payload, attachment(h.sent_epoch, h.seq, h.source))
                 box.delivered.append(
-                    Delivered(source=h.source, seq=h.seq, sent_epoch=h.sent_epoch, copies=h.copies)
+                    Delivered.model_construct(
+                        source=h.source, seq=h.seq, sent_epoch=h.sent_epoch, copies=h.copies
+                    )
                 )
             key = keys.close(self.run_id, receiver, phase)
             dead = sorted(s for s in self._senders(phase, receiver) if s in self.dead)
@@ -197,6 +214,21 @@ class NetemNode:
             key, DecisionBatch(**self.service.header(key, epoch), phase=phase, decisions=batch)
         )
 
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        att = sample.attachment
+        msg = Incoming(
+            str(sample.key_expr), sample.payload.to_bytes(), att.to_bytes() if att else None
+        )
+        if not self.inline:
+            self.service.inbox.put(msg)
+            return
+        with self.lock:
+            try:
+                self.handle(msg)
+            except Exception:  # a bad packet must never stop netem; it is counted and logged
+                self.service.malformed.counts[msg.key] += 1
+                log.exception("while handling %s", msg.key)
+
     # -- inbound ----------------------------------------------------------------------------------
     def handle(self, msg: Incoming) -> None:
         if msg.key.startswith("dead/"):
@@ -209,6 +241,12 @@ class NetemNode:
         epoch, seq, source = meta
         parts = msg.key.split("/")
         kind = parts[-1]
+        if self.passthrough and kind == "state" and parts[2] == "agent":
+            for dst in self.out_links.get(source, ()):
+                self.service.put(
+                    keys.link_state(self.run_id, source, dst), msg.payload, msg.attachment
+                )
+            return
         if parts[2] == "agent":
             if int(parts[3]) != source or source not in self.agents:
                 self.service.malformed.counts[msg.key] += 1
@@ -401,6 +439,7 @@ class NetemNode:
 
     # -- main loop -------------------------------------------------------------------------------------
     def run(self) -> int:
+        self.inline = True
         while not self.everyone_up():
             if self.service.stopping.wait(0.02):
                 return 130

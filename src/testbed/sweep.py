@@ -23,9 +23,10 @@ from __future__ import annotations
 
 import csv
 import math
+import multiprocessing
 import os
+import signal
 from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -222,7 +223,19 @@ def read_rows(path: Path) -> list[dict[str, str]]:
             raise SweepError(
                 f"{path}: columns {reader.fieldnames}; expected {list(COLUMNS)} (move the file away to start afresh)"
             )
-        return [row for row in reader if row.get("epochs")]
+        return [row for row in reader if _complete(row)]
+
+
+def _complete(row: dict[str, Any]) -> bool:
+    """A whole row (an interrupted write can leave the last one cut short)."""
+    if None in row or any(row.get(c) in (None, "") for c in COLUMNS):
+        return False
+    try:
+        _key(row)
+        float(row["final_shape_error_m"])
+    except ValueError:
+        return False
+    return True
 
 
 def plan_chunks(spec: SweepSpec, done: set[Key]) -> list[Chunk]:
@@ -280,6 +293,9 @@ def run_sweep(
         progress(finished, total)
     if chunks:
         new_file = not path.exists()
+        if not new_file and not path.read_bytes().endswith(b"\n"):
+            with path.open("a") as f:
+                f.write("\n")  # end a row cut short, so the next one starts on its own line
         with path.open("a", newline="") as f:
             writer = csv.DictWriter(f, fieldnames=COLUMNS, lineterminator="\n")
             if new_file:
@@ -304,12 +320,23 @@ def _execute(chunks: Sequence[Chunk], jobs: int | None) -> Iterable[list[dict[st
         for c in chunks:
             yield run_chunk(c)
         return
-    with ProcessPoolExecutor(max_workers=min(workers, len(chunks))) as pool:
-        pending: set[Future[list[dict[str, Any]]]] = {pool.submit(run_chunk, c) for c in chunks}
-        while pending:
-            ready, pending = wait(pending, return_when=FIRST_COMPLETED)
-            for fut in ready:
-                yield fut.result()
+    pool = multiprocessing.get_context().Pool(min(workers, len(chunks)), initializer=_ignore_sigint)
+    try:
+        yield from pool.imap_unordered(run_chunk, chunks)
+    except BaseException:
+        # Ctrl-C or a failed chunk: end the workers now rather than after the queued chunks;
+        # what finished is already in the CSV, and a re-run resumes from there.
+        pool.terminate()
+        raise
+    else:
+        pool.close()
+    finally:
+        pool.join()
+
+
+def _ignore_sigint() -> None:
+    """Workers leave Ctrl-C to the parent, which ends them (a worker would skip one chunk only)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _write_canonical(path: Path, rows: list[dict[str, Any]], spec: SweepSpec) -> None:

@@ -3,9 +3,9 @@
 A router (``python -m testbed.router``) with the generated access control and
 password file, a real recorder process with its own credentials, and sessions in
 this process acting as agents, netem, the leader, the operator and intruders.
-Zenoh exposes no counter of the messages its access control refuses (the
-decisions are cached per key and logged only at trace level, when cached), so
-refusals are counted on the receiving side: every attempt is tallied, and an
+Zenoh exposes no counter of the messages its access control refuses (its
+decisions show only in trace-level logs), so refusals are counted on the
+receiving side: every attempt is tallied, and an
 attempt is refused when it reached neither the recording nor a subscribing agent.
 """
 

@@ -72,7 +72,7 @@ def test_a_rerun_gives_byte_identical_tables_and_resumes(paper: Scenario, tmp_pa
     run_sweep(spec, tmp_path / "b", jobs=2)
     for name in TABLES:
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name
-    # interrupted: only some seeds ran, and a half-written row; the re-run finishes the rest
+    # interrupted: only some seeds ran, a row cut short, then Ctrl-C after one more chunk
     part = tmp_path / "c"
     run_sweep(
         small_spec(paper, seeds=SEEDS[:2], strategies=("hold", "estimate"), losses=(0.0, 0.5)),
@@ -81,9 +81,17 @@ def test_a_rerun_gives_byte_identical_tables_and_resumes(paper: Scenario, tmp_pa
     )
     with (part / "runs.csv").open("a") as f:
         f.write("paper,bernoulli,0.5,hold,3,")
+
+    def interrupt(done: int, total: int) -> None:
+        if done > 8:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(spec, part, jobs=1, progress=interrupt)
+    assert len(read_rows(part / "runs.csv")) == 20  # 8 before, the 12 of seeds 4–6 (heaviest first)
     done: list[tuple[int, int]] = []
     run_sweep(spec, part, jobs=1, progress=lambda d, t: done.append((d, t)))
-    assert done[0] == (8, 24) and done[-1] == (24, 24)
+    assert done[0] == (20, 24) and done[-1] == (24, 24)
     for name in TABLES:
         assert (part / name).read_bytes() == (tmp_path / "a" / name).read_bytes(), name
     calls: list[tuple[int, int]] = []
