@@ -51,7 +51,7 @@ def forward_rate(passthrough: bool) -> tuple[float, float]:
                     agent=1,
                     position=[0.1 * k, 0.2],
                 )
-            )  # fmt: skip
+            )
             for k in range(PACKETS)
         ]
         start = time.perf_counter_ns()

@@ -12,9 +12,9 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from formation.scenario import Scenario  # noqa: E402
-from testbed.simulate import simulate  # noqa: E402
-from testbed.teams import henneberg_team  # noqa: E402
+from formation.scenario import Scenario
+from testbed.simulate import simulate
+from testbed.teams import henneberg_team
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 1

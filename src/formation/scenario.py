@@ -427,13 +427,13 @@ _UNION_TAGS = {
 def _lookup(data: Any, loc: Sequence[int | str]) -> object:
     cur = data
     for part in loc:
-        if (isinstance(cur, dict) and part in cur) or (
-            isinstance(cur, list | tuple) and isinstance(part, int) and part < len(cur)
-        ):
+        if isinstance(cur, dict) and part in cur:
             cur = cur[part]
-        elif isinstance(part, str) and part in _UNION_TAGS:
             continue
-        else:
+        if isinstance(cur, list | tuple) and isinstance(part, int) and part < len(cur):
+            cur = cur[part]
+            continue
+        if not (isinstance(part, str) and part in _UNION_TAGS):
             return NO_VALUE
     return cur
 

@@ -142,7 +142,7 @@ class NetemNode:
                 link_class=cls,
                 epoch=epoch,
                 seq=seq,
-                verdict=decision.verdict,
+                verdict=decision.verdict,  # type: ignore[arg-type]  # one of Decision's verdicts
                 delay_epochs=decision.delay_epochs,
                 delay_ms=decision.delay_ms,
                 model=decision.model,
