@@ -416,6 +416,16 @@ def test_default_run_report_and_replay_into_a_fresh_leader(
     check = validate(mcap)
     assert check.failures == 0, check.examples
 
+    # Nothing lost at the recorder: per channel, what the services say they sent.
+    from collections import Counter
+
+    from mcap.reader import make_reader
+
+    with mcap.open("rb") as f:
+        recorded = Counter(ch.topic for _, ch, _ in make_reader(f).iter_messages())
+    assert outcome.sent, "the services report what they sent in their final status"
+    for key, count in outcome.sent.items():
+        assert recorded[key] == count, key
     report = write_report(mcap)
     for name in FIGURES:
         non_trivial_png(report.parent / f"{name}.png")
