@@ -56,6 +56,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / "scenarios" / "paper.toml"
 RUN_ID = "bench-deploy"
 WARMUP = 100  # latency packets left out [packets]
+PROBE = 10**9  # seq of the packets that wait for the route
 
 
 def estimate_rate(mcap_path: Path, epochs: int) -> float:
@@ -151,14 +152,14 @@ def one_way_latency_us(work: Path, kind: str, packets: int) -> np.ndarray:
         )
         deadline = time.monotonic() + 10  # the route is up when a probe arrives
         while not first.wait(0.01) and time.monotonic() < deadline:
-            publisher.put(_packet(-1))
+            publisher.put(_packet(PROBE))
         for k in range(packets):
             payload = _packet(k)
             sent[k] = now_ns()
             publisher.put(payload)
             time.sleep(0.001)
         deadline = time.monotonic() + 10
-        while len(got) < packets and time.monotonic() < deadline:
+        while sum(k < PROBE for k in got) < packets and time.monotonic() < deadline:
             time.sleep(0.01)
         subscriber.undeclare()
         publisher.undeclare()
@@ -170,14 +171,14 @@ def one_way_latency_us(work: Path, kind: str, packets: int) -> np.ndarray:
 
 
 def _packet(seq: int) -> bytes:
-    msg = CoordinationState(run_id=RUN_ID, sender="agent/1", seq=seq, epoch=max(seq, 0),
+    msg = CoordinationState(run_id=RUN_ID, sender="agent/1", seq=seq, epoch=seq,
                             stamp_ns=now_ns(), agent=1, position=[0.1, 0.2])  # fmt: skip
     return encode(msg)
 
 
-def _timed(label: str, fn: Callable[[], float]) -> float:
+def _timed(label: str, fn: Callable[[Path], float], work: Path) -> float:
     start = time.perf_counter()
-    value = fn()
+    value = fn(work)
     print(f"  ({label}: {time.perf_counter() - start:.1f} s)", file=sys.stderr, flush=True)
     return value
 
@@ -186,40 +187,50 @@ def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0] if __doc__ else None)
     p.add_argument("--epochs", type=int, default=100, help="lockstep epochs (default 100)")
     p.add_argument("--packets", type=int, default=2000, help="latency packets (default 2000)")
+    p.add_argument("--repeat", type=int, default=3, help="runs per case, interleaved (default 3)")
     args = p.parse_args([] if argv is None else argv)
     scenario = Scenario.from_file(SCENARIO).with_overrides(epochs=args.epochs)
-    print(f"scenario {SCENARIO.name} (seed {scenario.seed}, {scenario.n} agents, "
-          f"{scenario.epochs} epochs, lockstep); load average {os.getloadavg()[0]:.1f}")  # fmt: skip
+    print(f"scenario {SCENARIO.name} (seed {scenario.seed}, {scenario.n} agents, {scenario.epochs} "
+          f"epochs, lockstep); best and median of {args.repeat} interleaved runs per case; "
+          f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")  # fmt: skip
     with tempfile.TemporaryDirectory(prefix="bench-deploy-") as tmp:
         work = Path(tmp)
-        cases: list[tuple[str, Callable[[], float]]] = [
+        cases: list[tuple[str, Callable[[Path], float]]] = [
             ("plain loopback run (peer, 127.0.0.1) [baseline]",
-             lambda: launcher_rate(scenario, work / "peer", "peer")),
-            ("launcher through its router (client)",
-             lambda: launcher_rate(scenario, work / "client", "client")),
+             lambda d: launcher_rate(scenario, d, "peer")),
+            ("launcher through its router (client)", lambda d: launcher_rate(scenario, d, "client")),
             ("compose hosts 127.A.B.N, open",
-             lambda: compose_rate(scenario, work / "open", ComposeOptions(secure=False))),
-            ("compose hosts, usrpwd + ACL (default)",
-             lambda: compose_rate(scenario, work / "closed", ComposeOptions())),
+             lambda d: compose_rate(scenario, d, ComposeOptions(secure=False))),
+            ("compose hosts, usrpwd + ACL (the default)",
+             lambda d: compose_rate(scenario, d, ComposeOptions())),
             ("compose hosts, usrpwd + ACL over TLS",
-             lambda: compose_rate(scenario, work / "tls", ComposeOptions(tls=True))),
+             lambda d: compose_rate(scenario, d, ComposeOptions(tls=True))),
         ]  # fmt: skip
-        print(f"{'lockstep epochs/s':52} {'epochs/s':>9} {'ratio':>7}")
-        base = None
-        for label, fn in cases:
-            rate = _timed(label, fn)
-            base = base or rate
-            print(f"{label:52} {rate:9.1f} {rate / base:7.3f}", flush=True)
-        print(f"\none-way latency, {args.packets} packets 1 ms apart, first {WARMUP} left out [µs]")
-        print(f"{'link':32} {'p50':>7} {'p90':>7} {'p99':>7} {'p50 ratio':>10}")
+        rates: dict[str, list[float]] = {label: [] for label, _ in cases}
+        for r in range(args.repeat):
+            for c, (label, fn) in enumerate(cases):
+                rates[label].append(_timed(label, fn, work / f"lockstep-{c}-{r}"))
+        print(f"{'lockstep epochs/s':46} {'best':>7} {'median':>7} {'best ratio':>11}")
+        base = max(rates[cases[0][0]])
+        for label, values in rates.items():
+            best, median = max(values), float(np.median(values))
+            print(f"{label:46} {best:7.1f} {median:7.1f} {best / base:11.3f}")
+        kinds = (("tcp", "tcp [baseline]"), ("tcp+auth", "tcp, usrpwd + ACL"),
+                 ("tls+auth", "tls, usrpwd + ACL"))  # fmt: skip
+        runs: dict[str, list[np.ndarray]] = {kind: [] for kind, _ in kinds}
+        for r in range(args.repeat):
+            for kind, _ in kinds:
+                runs[kind].append(one_way_latency_us(work / f"latency-{r}", kind, args.packets))
+        print(f"\none-way latency 127.A.B.3 -> router 127.A.B.2 -> 127.A.B.4, {args.packets} packets "
+              f"1 ms apart, first {WARMUP} left out; the run with the lowest p50 of {args.repeat} [µs]")  # fmt: skip
+        print(f"{'link':24} {'p50':>7} {'p90':>7} {'p99':>7} {'p50 ratio':>10} {'received':>9}")
         base_p50 = None
-        for kind, label in (("tcp", "tcp [baseline]"), ("tcp+auth", "tcp, usrpwd + ACL"),
-                            ("tls+auth", "tls, usrpwd + ACL")):  # fmt: skip
-            lat = one_way_latency_us(work, kind, args.packets)
+        for kind, label in kinds:
+            lat = min(runs[kind], key=lambda a: float(np.percentile(a, 50)))
             p50, p90, p99 = (float(np.percentile(lat, q)) for q in (50, 90, 99))
             base_p50 = base_p50 or p50
-            print(f"{label:32} {p50:7.0f} {p90:7.0f} {p99:7.0f} {p50 / base_p50:10.2f}  "
-                  f"({len(lat)} received)", flush=True)  # fmt: skip
+            print(f"{label:24} {p50:7.0f} {p90:7.0f} {p99:7.0f} {p50 / base_p50:10.2f} "
+                  f"{len(lat):9d}", flush=True)  # fmt: skip
 
 
 if __name__ == "__main__":

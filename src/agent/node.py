@@ -77,6 +77,15 @@ class AgentNode:
             )
 
     # -- inbound --------------------------------------------------------------------------------
+    @staticmethod
+    def _receiver(key: str) -> int | None:
+        """The agent a delivered key is for: ``close/<i>/...`` or ``link/<j>/<i>/...``."""
+        parts = key.split("/")
+        try:
+            return int(parts[3]) if parts[2] == "close" else int(parts[4])
+        except (IndexError, ValueError):
+            return None
+
     def _route(self, msg: Incoming) -> None:
         parts = msg.key.split("/")
         kind = parts[-1]
@@ -183,19 +192,17 @@ class AgentNode:
                     log.error("netem is gone; stopping")
                     return 2
                 continue
+            receiver = self._receiver(msg.key)
             self._route(msg)
-            progressed = True
-            while progressed:
-                progressed = False
-                for i in self.runners:
-                    if i in self.done:
-                        continue
-                    step = (
-                        self._try_state_phase
-                        if self.phase[i] == "state"
-                        else self._try_estimate_phase
-                    )
-                    progressed |= step(i)
+            # Only the agent this message was for can have moved on.
+            while receiver in self.runners and receiver not in self.done:
+                step = (
+                    self._try_state_phase
+                    if self.phase[receiver] == "state"
+                    else self._try_estimate_phase
+                )
+                if not step(receiver):
+                    break
         return 0 if len(self.done) == len(self.runners) else 130
 
     # -- realtime ---------------------------------------------------------------------------------

@@ -9,7 +9,10 @@ from typing import Any
 
 import zenoh
 
-LEASE_MS = 2000  # liveliness of a hung process noticed within ~2 s instead of zenoh's 10 s
+LEASE_MS = 5000  # a hung process is noticed within ~5 s instead of zenoh's 10 s
+# With CongestionControl.BLOCK, zenoh closes a link whose reader stalls this long (default 5 s),
+# losing what was queued; lockstep needs every packet, so a loaded machine must not trip it.
+BLOCK_BEFORE_CLOSE_US = 60_000_000
 
 
 def endpoints(value: str | Sequence[str] | None, env: str) -> list[str]:
@@ -36,6 +39,10 @@ def session_config(
     conf.insert_json5("mode", json.dumps(mode or os.environ.get("ZENOH_MODE", "peer")))
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("transport/link/tx/lease", str(LEASE_MS))
+    conf.insert_json5(
+        "transport/link/tx/queue/congestion_control/block/wait_before_close",
+        str(BLOCK_BEFORE_CLOSE_US),
+    )
     conn = endpoints(connect, "ZENOH_CONNECT")
     lst = endpoints(listen, "ZENOH_LISTEN")
     if conn:

@@ -122,8 +122,18 @@ class NetemNode:
 
     # -- liveliness ---------------------------------------------------------------------------
     def _on_alive(self, role: str, ident: str, alive: bool) -> None:
-        if role == "agent" and not alive and self.service._started.is_set():
-            self.service.inbox.put(Incoming(f"dead/{ident}", b"", None))
+        pass  # deaths are decided by _check_dead, after a grace period
+
+    def _check_dead(self, grace_s: float = 3.0) -> None:
+        """Agents whose liveliness token has been gone ``grace_s`` are no longer waited for."""
+        for i in self.agents:
+            if (
+                i not in self.dead
+                and i not in self.final_states
+                and self.service.gone_for("agent", i, grace_s)
+            ):
+                with self.lock:
+                    self._on_dead(i)
 
     def everyone_up(self) -> bool:
         need = [("agent", i) for i in self.agents] + [("leader", 0)]
@@ -430,6 +440,7 @@ class NetemNode:
                 next_flush += self.clock.period_ns
             wait = 0.05 if not due else max(0.0, min(0.05, (due[0][0] - now) / 1e9))
             msg = self.service.next_incoming(wait)
+            self._check_dead()
             if msg is not None:
                 with self.lock:
                     self._handle_realtime(msg, due)
@@ -446,6 +457,7 @@ class NetemNode:
         self.service.declare_start()
         while not self.finished() and not self.service.stopping.is_set():
             msg = self.service.next_incoming(0.2)
+            self._check_dead()
             if msg is None:
                 if (
                     self.service.gone_for("leader", 0)

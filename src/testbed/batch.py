@@ -7,7 +7,7 @@ every member are flattened into the batch dimension of the agent core
 (:func:`agent.epoch.agent_epoch`, vectorised over any set of links), the links' decisions come
 from netem's :func:`netem.models.delivery_matrix`, the measurement noise from
 :func:`agent.measurement.measurement_noise` (same keys), and the leader (MODEL.md §4–§5) runs
-batched:
+batched (``testbed.batch_leader``):
 
 * **Kruskal** over a fixed edge order ``(w, lo, hi, index)`` (the order of
   ``leader.mst``): the forest is the unique greedy one, so a component-label sweep over the
@@ -42,6 +42,7 @@ from formation.scenario import LEADER_ENDPOINT, Scenario, StrategyName
 from leader.rigidity import healthy_rigidity
 from netem.models import delivery_matrix
 from recorder.metrics import formation_error, nees, shape_error
+from testbed.batch_leader import batch_blue, batch_forest, kruskal_order
 from testbed.simulate import SimResult
 
 Array = npt.NDArray[np.float64]
@@ -148,8 +149,12 @@ def plan_batch(
     base = members[0]
     n_epochs = base.epochs if epochs is None else int(epochs)
     shared = _structure(base)
+    checked = {id(base)}
     for b, s in enumerate(members):
-        if s is not base and _structure(s) != shared:
+        if id(s) in checked:
+            continue
+        checked.add(id(s))
+        if _structure(s) != shared:
             diff = sorted(k for k, v in _structure(s).items() if shared.get(k) != v)
             raise BatchError(
                 f"member {b} ({s.name}) differs from member 0 in {', '.join(diff)}; "
@@ -330,113 +335,6 @@ class BatchResult:
             nees_values=np.concatenate(nees_vals) if nees_vals else np.zeros(0),
             estimation_errors=np.concatenate(est_err) if est_err else np.zeros((0, d)),
         )
-
-
-def kruskal_order(scenario: Scenario) -> Ints:
-    """Edge indices in Kruskal's order ``(w, min(i, j), max(i, j), index)`` (``leader.mst``)."""
-    e, w = scenario.edge_array, scenario.weights
-    order: Ints = np.lexsort((np.arange(len(e)), e[:, 1], e[:, 0], w)).astype(np.int64)
-    return order
-
-
-def batch_forest(n: int, edges: Ints, order: Ints, healthy: Mask) -> tuple[Mask, Ints]:
-    """Minimum spanning forests of ``B`` healthy edge sets at once (MODEL.md §4).
-
-    Parameters
-    ----------
-    n : agents; edges : (m, 2) agent ids; order : (m,) Kruskal's edge order
-    healthy : (B, m) the edges each member may use
-
-    Returns
-    -------
-    tree : (B, m) the forest's edges; labels : (B, n) a component label per agent
-    """
-    size = healthy.shape[0]
-    labels = np.broadcast_to(np.arange(n, dtype=np.int64), (size, n)).copy()
-    tree = np.zeros_like(healthy)
-    for e in order.tolist():
-        u, v = int(edges[e, 0]) - 1, int(edges[e, 1]) - 1
-        lu, lv = labels[:, u], labels[:, v]
-        keep = healthy[:, e] & (lu != lv)
-        if not keep.any():
-            continue
-        tree[:, e] = keep
-        move = keep[:, None] & (labels == lv[:, None])
-        labels = np.where(move, lu[:, None], labels)
-    return tree, labels
-
-
-def batch_blue(
-    n: int,
-    edges: Ints,
-    counts: Ints,
-    fused: Array,
-    observable: Mask,
-    ref: int,
-    x_ref: Array,
-    cov: Array,
-    covariances: bool,
-) -> tuple[Array, Array | None]:
-    """BLUE of ``B`` members at once for one noise covariance ``P`` on every edge (MODEL.md §5).
-
-    Parameters
-    ----------
-    edges : (m, 2) agent ids ``(lo, hi)``; counts : (B, m) measurements used per edge (0, 1, 2)
-    fused : (B, m, d) mean measured ``x_lo − x_hi`` of each used edge [m]
-    observable : (B, n) agents joined to the reference by used edges
-    ref : the reference agent; x_ref : (d,) its position [m]; cov : (d, d) ``P`` [m²]
-
-    Returns
-    -------
-    positions : (B, n, d) [m], NaN where unobservable; covariances : (B, n, d, d) or None
-    """
-    size = counts.shape[0]
-    d = fused.shape[2]
-    lo, hi = edges[:, 0] - 1, edges[:, 1] - 1
-    c = counts.astype(np.float64)
-    # bincount, not matmul: a threaded BLAS call on these small arrays only spins (measured)
-    base_nn = (np.arange(size, dtype=np.int64) * n * n)[:, None]
-    cells = np.concatenate([lo * n + lo, hi * n + hi, lo * n + hi, hi * n + lo])[None, :]
-    lap = np.bincount(
-        (base_nn + cells).ravel(), np.concatenate([c, c, -c, -c], axis=1).ravel(), size * n * n
-    ).reshape(size, n, n)  # Σ_e c_e h_e h_eᵀ, h_e = +1 at lo, −1 at hi
-    base_n = (np.arange(size, dtype=np.int64) * n)[:, None]
-    at = np.concatenate([base_n + lo[None, :], base_n + hi[None, :]], axis=1).ravel()
-    weighted = c[:, :, None] * fused
-    rhs = np.stack(
-        [
-            np.bincount(
-                at,
-                np.concatenate([weighted[:, :, a], -weighted[:, :, a]], axis=1).ravel(),
-                size * n,
-            )
-            for a in range(d)
-        ],
-        axis=1,
-    ).reshape(size, n, d)  # Σ_e c_e h_e ȳ_eᵀ
-    keep = np.arange(n) != ref - 1
-    grounded = lap[:, keep][:, :, keep]
-    # Agents off the reference's component have no equations: an identity row keeps the
-    # system regular and their rows are discarded.
-    off = ~observable[:, keep]
-    idx = np.arange(n - 1)
-    grounded[:, idx, idx] += off
-    positions = np.full((size, n, d), np.nan)
-    positions[:, ref - 1] = x_ref
-    blocks = None
-    if covariances:
-        blocks = np.full((size, n, d, d), np.nan)
-        blocks[:, ref - 1] = 0.0
-    if n == 1:
-        return positions, blocks
-    solved = np.linalg.solve(grounded, rhs[:, keep])
-    rel = np.where(off[:, :, None], np.nan, solved)
-    positions[:, keep] = x_ref + rel
-    if blocks is not None:
-        diag = np.linalg.inv(grounded)[:, idx, idx]
-        diag = np.where(off, np.nan, diag)
-        blocks[:, keep] = diag[:, :, None, None] * cov
-    return positions, blocks
 
 
 def run_batch(
@@ -686,9 +584,6 @@ __all__ = [
     "BatchError",
     "BatchPlan",
     "BatchResult",
-    "batch_blue",
-    "batch_forest",
-    "kruskal_order",
     "plan_batch",
     "run_batch",
     "simulate_batch",

@@ -19,12 +19,14 @@ The recorder's container runs :mod:`testbed.recording_service`: on
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any
 
 import yaml
 
+from formation.errors import TestbedError
 from formation.scenario import Scenario
 from testbed import security
 
@@ -41,15 +43,6 @@ KEYS_DIR = "${FORMATION_KEYS:-./keys}"
 RUNS_DIR = "${FORMATION_RUNS:-./runs}"
 STOP_GRACE = "2m"  # the recorder finishes the MCAP file and writes the report [s]
 
-UPSTREAM_ROUTER = """\
-# The router may also be the upstream Zenoh router image instead of ours (same
-# config, same secrets; match the image's version to eclipse-zenoh in pyproject.toml):
-#   router:
-#     image: eclipse/zenoh:1.10.2
-#     command: ["-c", "/run/secrets/zenoh.json5", "-l", "tcp/router:7447",
-#               "--cfg", "transport/auth/usrpwd/dictionary_file:\\"/run/secrets/passwords.txt\\""]
-"""
-
 
 @dataclass(frozen=True)
 class ComposeOptions:
@@ -62,6 +55,31 @@ class ComposeOptions:
     @property
     def endpoint(self) -> str:
         return f"{'tls' if self.tls else 'tcp'}/{ROUTER}:{PORT}"
+
+    def __post_init__(self) -> None:
+        if self.tls and not self.secure:
+            raise TestbedError("--tls needs the keys (the router's certificate); not with --open")
+
+
+def upstream_router(options: ComposeOptions) -> str:
+    """A comment: the upstream Zenoh router image as the ``router`` service instead of ours."""
+    args = ["-l", options.endpoint, "--no-multicast-scouting"]
+    if options.secure:
+        dictionary = f'transport/auth/usrpwd/dictionary_file:"{SECRETS / PASSWORDS}"'
+        args = ["-c", str(SECRETS / ZENOH_CONFIG), *args, "--cfg", dictionary]
+    head, tail = (args[:5], args[5:]) if options.secure else (args, [])  # two lines if long
+    lines = [
+        "The upstream Zenoh router image may replace ours as the router service (match its",
+        "version to eclipse-zenoh in pyproject.toml)"
+        + (", with the same secrets:" if options.secure else ":"),
+        "  router:",
+        "    image: eclipse/zenoh:1.10.2",
+        f"    command: {json.dumps(head)}",
+    ]
+    if tail:
+        lines[-1] = lines[-1].removesuffix("]") + ","
+        lines.append(f"              {json.dumps(tail).removeprefix('[')}")
+    return "".join(f"# {line}\n" for line in lines)
 
 
 def compose_path(scenario_path: str | Path) -> str:
@@ -221,7 +239,7 @@ def render(
         width=100,
         default_flow_style=False,
     )
-    return "\n".join(usage) + "\n" + UPSTREAM_ROUTER + body
+    return "\n".join(usage) + "\n" + upstream_router(options) + body
 
 
 __all__ = ["ComposeOptions", "compose_path", "document", "render"]

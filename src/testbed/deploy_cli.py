@@ -14,8 +14,6 @@ def cmd_compose(args: argparse.Namespace) -> int:
     from testbed.compose import ComposeOptions, render
 
     options = ComposeOptions(secure=not args.open, tls=args.tls)
-    if args.open and args.tls:
-        options = ComposeOptions(secure=False, tls=True)
     sys.stdout.write(render(args.scenario, options))
     return 0
 

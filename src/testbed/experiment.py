@@ -16,8 +16,6 @@ Variants of the default scenario, all 50 epochs (the chapter's) over seeds ``1..
 
 from __future__ import annotations
 
-import csv
-import io
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -32,7 +30,7 @@ from recorder.metrics import error_statistics
 from testbed import experiment_plots as plots
 from testbed import studies
 from testbed.batch import BatchResult, plan_batch, run_batch
-from testbed.studies import KEEP_FRACTION, KEEP_M, fmt, mean_std
+from testbed.studies import KEEP_FRACTION, KEEP_M, mean_std
 
 Array = npt.NDArray[np.float64]
 LOSSY_P = 0.5  # Bernoulli loss of the "lossy link" variants
@@ -84,15 +82,16 @@ def run_variants(paper: Scenario, seeds: Sequence[int]) -> dict[str, dict[str, B
     return out
 
 
-def _final(res: BatchResult) -> Array:
+def final_errors(res: BatchResult) -> Array:
+    """(S,) final formation error of every seed [m]."""
     return np.asarray(res.formation_error[-1])
 
 
-def _window_trace(res: BatchResult, first: int, last: int | None = None) -> float:
+def window_trace(res: BatchResult, first: int, last: int | None = None) -> float:
     return studies.substitution_trace(res, first, last)
 
 
-def _per_seed_trace(res: BatchResult, first: int = 0, last: int | None = None) -> Array:
+def per_seed_trace(res: BatchResult, first: int = 0, last: int | None = None) -> Array:
     out = np.full(res.size, np.nan)
     for b in range(res.size):
         sel = (res.sub_member == b) & (res.sub_epoch >= first)
@@ -106,10 +105,10 @@ def judge(r: PaperResults) -> list[Claim]:
     """The chapter's claims (§8 of MODEL.md), each held or not, with numbers."""
     runs, n_seeds = r.runs, len(r.seeds)
     fail, e50 = runs["failure"], r.scenario.epochs
-    est = _final(fail["estimate"])
+    est = final_errors(fail["estimate"])
     claims: list[Claim] = []
     for s in ("zero", "hold"):
-        v = _final(fail[s])
+        v = final_errors(fail[s])
         above = int(np.sum(v > KEEP_M))
         ratio = float(np.mean(v) / np.mean(est))
         held = ratio > LOST_FACTOR and above >= KEEP_FRACTION * n_seeds
@@ -130,7 +129,7 @@ def judge(r: PaperResults) -> list[Claim]:
             f"with links 1–2 and {SECOND_LINK[0]}–{SECOND_LINK[1]} lossy (p = {LOSSY_P:g})",
         ),
     ):
-        v, fl = _final(runs[variant]["estimate"]), _final(runs[variant]["drop"])
+        v, fl = final_errors(runs[variant]["estimate"]), final_errors(runs[variant]["drop"])
         kept = int(np.sum(v < KEEP_M))
         ratio = float(np.mean(v) / np.mean(fl))
         held = kept >= KEEP_FRACTION * n_seeds and ratio <= FLOOR_FACTOR
@@ -144,12 +143,10 @@ def judge(r: PaperResults) -> list[Claim]:
             )
         )
     long = runs["failure, 500 epochs"]
-    chap = _window_trace(fail["blend"], 0) / _window_trace(fail["estimate"], 0)
-    steady = _window_trace(long["blend"], STEADY_FROM) / _window_trace(
-        long["estimate"], STEADY_FROM
-    )
-    per_seed = _per_seed_trace(fail["blend"]) / _per_seed_trace(fail["estimate"])
-    per_seed_long = _per_seed_trace(long["blend"], STEADY_FROM) / _per_seed_trace(
+    chap = window_trace(fail["blend"], 0) / window_trace(fail["estimate"], 0)
+    steady = window_trace(long["blend"], STEADY_FROM) / window_trace(long["estimate"], STEADY_FROM)
+    per_seed = per_seed_trace(fail["blend"]) / per_seed_trace(fail["estimate"])
+    per_seed_long = per_seed_trace(long["blend"], STEADY_FROM) / per_seed_trace(
         long["estimate"], STEADY_FROM
     )
     verdict = (
@@ -174,9 +171,9 @@ def judge(r: PaperResults) -> list[Claim]:
     )
     grows = []
     for s in ("zero", "hold"):
-        a, b = float(np.mean(_final(fail[s]))), float(np.mean(_final(long[s])))
+        a, b = float(np.mean(final_errors(fail[s]))), float(np.mean(final_errors(long[s])))
         grows.append((s, a, b))
-    e_a, e_b = float(np.mean(est)), float(np.mean(_final(long["estimate"])))
+    e_a, e_b = float(np.mean(est)), float(np.mean(final_errors(long["estimate"])))
     claims.append(
         Claim(
             "MODEL.md §6, §8",
@@ -196,11 +193,11 @@ def judge(r: PaperResults) -> list[Claim]:
     worst = 0.0
     parts = []
     for s, (at50, at500) in ref.items():
-        m50 = float(np.mean(_final(fail[s])))
+        m50 = float(np.mean(final_errors(fail[s])))
         parts.append(f"{s} {m50:.3g} (§8: {at50:g})")
         worst = max(worst, abs(m50 / at50 - 1))
         if at500 is not None:
-            m500 = float(np.mean(_final(long[s])))
+            m500 = float(np.mean(final_errors(long[s])))
             parts.append(f"{s}@500 {m500:.3g} (§8: {at500:g})")
             worst = max(worst, abs(m500 / at500 - 1))
     claims.append(
@@ -212,215 +209,6 @@ def judge(r: PaperResults) -> list[Claim]:
         )
     )
     return claims
-
-
-# ------------------------------------------------------------------------------ tables
-
-
-def _strategy_table(runs: dict[str, BatchResult], epochs_label: str) -> str:
-    lines = [
-        f"| strategy | final formation error at {epochs_label} [m] | final shape error [m] | "
-        "peak formation error [m] | tr Cov(x̃ − x), pooled [m²] | substitutions per seed | fallbacks per seed |",
-        "|" + " --- |" * 7,
-    ]
-    for s, res in runs.items():
-        subs = np.bincount(res.sub_member, minlength=res.size)
-        lines.append(
-            f"| {s} | {mean_std(_final(res))} | {mean_std(res.shape_error[-1])} | "
-            f"{mean_std(res.formation_error.max(axis=0))} | {fmt(_window_trace(res, 0))} | "
-            f"{fmt(float(subs.mean()), '.1f')} | {fmt(float(res.fallbacks.mean()), '.1f')} |"
-        )
-    return "\n".join(lines) + "\n"
-
-
-def _seed_table(runs: dict[str, BatchResult], seeds: Sequence[int]) -> str:
-    names = list(runs)
-    lines = ["| seed | " + " | ".join(names) + " |", "|" + " --- |" * (1 + len(names))]
-    for b, seed in enumerate(seeds):
-        lines.append(
-            f"| {seed} | "
-            + " | ".join(fmt(float(runs[s].formation_error[-1, b]), ".4g") for s in names)
-            + " |"
-        )
-    return "\n".join(lines) + "\n"
-
-
-def seeds_csv(r: PaperResults) -> str:
-    """One row per variant × strategy × seed."""
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(
-        [
-            "variant",
-            "strategy",
-            "seed",
-            "epochs",
-            "final_formation_error_m",
-            "final_shape_error_m",
-            "peak_formation_error_m",
-            "substitution_cov_trace_m2",
-            "substitutions",
-            "fallbacks",
-        ]
-    )
-    for variant, per in r.runs.items():
-        for s, res in per.items():
-            traces = _per_seed_trace(res)
-            subs = np.bincount(res.sub_member, minlength=res.size)
-            for b, seed in enumerate(r.seeds):
-                w.writerow(
-                    [
-                        variant,
-                        s,
-                        seed,
-                        res.plan.epochs,
-                        format(float(res.formation_error[-1, b]), ".9g"),
-                        format(float(res.shape_error[-1, b]), ".9g"),
-                        format(float(res.formation_error[:, b].max()), ".9g"),
-                        format(float(traces[b]), ".9g"),
-                        int(subs[b]),
-                        int(res.fallbacks[b]),
-                    ]
-                )
-    return buf.getvalue()
-
-
-def results_markdown(r: PaperResults) -> str:
-    s, seeds = r.scenario, r.seeds
-    n = len(seeds)
-    out = [
-        "# The chapter's experiment, reproduced",
-        "",
-        f"`formation experiment paper` on `{s.name}` (MODEL.md §8): {s.n} agents, link 1–2 down from epoch 1, "
-        f"reference moving along a line, noise σ = {s.noise.sigma_m:g} m, ε = {s.control.epsilon:g}; "
-        f"{n} seeds ({seeds[0]}–{seeds[-1]}), {s.epochs} epochs as in the chapter and 500 for steady state. "
-        f"In-process batch simulation (`testbed/batch.py`, equal to `formation simulate` per seed). "
-        f"Mean ± standard deviation over the seeds. A run keeps the formation when its final formation "
-        f"error is under {KEEP_M:g} m.",
-        "",
-        "## The chapter's claims",
-        "",
-        "| source | claim | verdict | numbers |",
-        "| --- | --- | --- | --- |",
-    ]
-    out += [f"| {c.source} | {c.text} | **{c.verdict}** | {c.evidence} |" for c in r.claims]
-    titles = {
-        "failure": f"Link 1–2 fails (figs 7.7–7.11), {s.epochs} epochs",
-        "failure, 500 epochs": "Link 1–2 fails, 500 epochs (steady state)",
-        "one lossy link": f"One lossy link: 1–2 with Bernoulli loss {LOSSY_P:g} for all {s.epochs} epochs",
-        "two lossy links": f"Two lossy links: 1–2 and {SECOND_LINK[0]}–{SECOND_LINK[1]}, Bernoulli loss {LOSSY_P:g}",
-    }
-    for variant, per in r.runs.items():
-        epochs = per["estimate"].plan.epochs
-        out += [
-            "",
-            f"## {titles.get(variant, variant)}",
-            "",
-            _strategy_table(per, f"epoch {epochs}"),
-            f"Final formation error at epoch {epochs} per seed [m]:",
-            "",
-            _seed_table(per, seeds),
-        ]
-    out += [
-        "Substitution errors (MODEL.md §7) count every lost variable, also those the reference agent "
-        "substitutes without steering by them: on this scenario agent 1's stand-in for x_2 (link 2→1) is "
-        "the only one with estimation error, since the leader knows x_1 exactly.",
-    ]
-    extra = r.studies
-    if "controller" in extra:
-        c = extra["controller"]
-        out += [
-            "",
-            "## §7.2: rigidity or connectivity (controller table)",
-            "",
-            f"Links dropped in both directions for all {c.epochs} epochs, strategy `drop` (the lost terms left "
-            f"out, so the controller runs on the healthy graph), no other loss, {len(c.seeds)} seeds; kept = "
-            f"final formation error < {KEEP_M:g} m in ≥ {KEEP_FRACTION:.0%} of seeds. The distance gain is "
-            "lower because the distance law is unstable at the displacement law's gain (it diverged at 0.25).",
-            "",
-            c.markdown(),
-            f"§7.2 argument {'**held**' if c.holds() else '**not held**'}: every case is kept exactly when "
-            "the controller's graph condition (rigid for distance, connected for displacement) holds."
-            if c.holds()
-            else "§7.2 argument **not held** in at least one case above.",
-        ]
-    if "estimator" in extra:
-        e = extra["estimator"]
-        out += [
-            "",
-            "## BLUE on the Kruskal tree vs on every healthy edge",
-            "",
-            f"Strategy `estimate`, {e.epochs} epochs, {len(e.seeds)} seeds. Predicted: mean over epochs and "
-            "observable followers of tr Cov(x̂_i); empirical: trace of the covariance of the pooled errors "
-            "x̂_i − x_i. NEES averages d = 2 for an honest estimator.",
-            "",
-            e.markdown(),
-        ]
-    if "alpha" in extra:
-        a = extra["alpha"]
-        out += [
-            "",
-            "## α of blend",
-            "",
-            f"{len(a.seeds)} seeds; α = 1 is `estimate`; in brackets the value relative to α = 1. The best α "
-            "depends on the window: a small α averages more noise but lags the consensus transient longer.",
-            "",
-            a.markdown(),
-            "![alpha](alpha.png)",
-        ]
-    if "dynamic" in extra:
-        d = extra["dynamic"]
-        (la, ka), (lj, kj) = d.leave, d.join
-        out += [
-            "",
-            "## Dynamic formation: an agent leaves, another joins",
-            "",
-            f"`{d.scenario.name}`: the pentagon plus agent {lj} (edges 3–{lj}, 4–{lj}), link 1–2 down as in the "
-            f"paper. Agent {la} leaves at epoch {ka} (its links stop, it leaves the consensus, the tree and the "
-            f"estimate, and stays where it is); agent {lj} joins at epoch {kj} from where it was parked. Shape "
-            f"error over the edges active at each epoch, median of {len(d.seeds)} seeds. The leader's tree has "
-            f"{int(d.tree_edges[ka - 1])} edges before epoch {ka}, {int(d.tree_edges[ka])} after agent {la} "
-            f"leaves and {int(d.tree_edges[kj])} after agent {lj} joins; observable agents "
-            f"{int(d.observable[ka - 1])} → {int(d.observable[ka])} → {int(d.observable[kj])}. In-process only: "
-            "the scenario file and the distributed runtime have no join/leave events yet.",
-            "",
-            d.markdown(),
-            "![dynamic](dynamic.png)",
-        ]
-    if r.real:
-        out += [
-            "",
-            "## Real processes",
-            "",
-            "One representative seed per strategy (the seed whose final formation error is closest to the "
-            "median over the seeds) run through the real processes (`formation run`: router, recorder, netem, "
-            "leader, agents over Zenoh, lockstep); positions compared with the simulation epoch by epoch. "
-            "Run ids and wall times: `real_runs.md`.",
-            "",
-            "| strategy | seed | simulated final formation error [m] | real [m] | max abs position difference [m] | "
-            "recorded positions max abs difference [m] | match |",
-            "|" + " --- |" * 7,
-        ]
-        for row in r.real:
-            out.append(
-                f"| {row['strategy']} | {row['seed']} | {fmt(row['sim_final'], '.6g')} | "
-                f"{fmt(row.get('real_final', float('nan')), '.6g')} | {row.get('max_diff_text', '-')} | "
-                f"{row.get('recorded_diff_text', '-')} | {row.get('match', 'no')} |"
-            )
-    out += [
-        "",
-        "## Figures",
-        "",
-        "![positions](positions.png)",
-        "![trajectories](trajectories.png)",
-        "![substitution covariance](substitution_covariance.png)",
-        "![failure](formation_error_failure.png)",
-        "![one lossy link](formation_error_one_lossy.png)",
-        "![two lossy links](formation_error_two_lossy.png)",
-        "",
-        "Every number per seed: `seeds.csv`.",
-    ]
-    return "\n".join(out) + "\n"
 
 
 # ------------------------------------------------------------------------------ figures
@@ -496,7 +284,7 @@ def write_figures(r: PaperResults, out: Path) -> None:
 
 def representative_seed(res: BatchResult) -> int:
     """The seed whose final formation error is closest to the median (lowest seed on ties)."""
-    v = _final(res)
+    v = final_errors(res)
     gap = np.abs(v - np.median(v))
     return int(res.plan.seeds[int(np.argmin(gap))])
 
@@ -572,8 +360,13 @@ def run_paper(
     record: bool = True,
     extras: bool = True,
     log: Callable[[str], None] = print,
+    figures: bool = True,
 ) -> PaperResults:
-    """Run the paper experiment and write ``out``; returns everything measured."""
+    """Run the paper experiment and write ``out``; returns everything measured.
+
+    ``extras``: the studies beyond the chapter (§7.2 controllers, estimator, α, dynamic);
+    ``real``/``record``: the real-process runs and their recording; ``figures``: the PNGs.
+    """
     out.mkdir(parents=True, exist_ok=True)
     seeds = tuple(int(s) for s in seeds)
     r = PaperResults(scenario, seeds, {})
@@ -595,13 +388,16 @@ def run_paper(
         r.studies["alpha"] = studies.alpha_study(scenario, seeds)
         r.studies["dynamic"] = studies.dynamic_study(scenario, seeds)
         r.timings_s["studies"] = time.perf_counter() - t
-    t = time.perf_counter()
-    write_figures(r, out)
-    r.timings_s["figures"] = time.perf_counter() - t
+    if figures:
+        t = time.perf_counter()
+        write_figures(r, out)
+        r.timings_s["figures"] = time.perf_counter() - t
     if real:
         t = time.perf_counter()
         run_real(r, out, record=record, log=log)
         r.timings_s["real processes"] = time.perf_counter() - t
+    from testbed.experiment_report import results_markdown, seeds_csv
+
     (out / "seeds.csv").write_text(seeds_csv(r))
     (out / "results.md").write_text(results_markdown(r))
     return r
@@ -620,10 +416,8 @@ __all__ = [
     "PaperResults",
     "judge",
     "representative_seed",
-    "results_markdown",
     "run_paper",
     "run_real",
     "run_variants",
-    "seeds_csv",
     "variants",
 ]

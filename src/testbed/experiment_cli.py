@@ -70,8 +70,9 @@ def _topologies(args: argparse.Namespace) -> list[tuple[str, Scenario]]:
     out = [(main.stem, Scenario.from_file(main))]
     for name in names:
         path = Path(name)
-        if not path.suffix:
-            path = main.parent / f"{name}.toml"
+        if not path.suffix:  # a name: beside SCENARIO, else in ./scenarios
+            beside, shipped = main.parent / f"{name}.toml", Path("scenarios") / f"{name}.toml"
+            path = beside if beside.exists() or not shipped.exists() else shipped
         if path.stem not in {n for n, _ in out}:
             out.append((path.stem, Scenario.from_file(path)))
     return out

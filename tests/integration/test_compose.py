@@ -72,11 +72,9 @@ def _recorded(mcap_path: Path) -> tuple[Counter[str], dict[str, dict], dict[str,
 
 def test_compose_services_run_as_separate_hosts_and_record_everything(tmp_path: Path) -> None:
     doc = yaml.safe_load(COMPOSE.read_text())
-    scenario = Scenario.from_file(ROOT / doc["configs"]["scenario"]["file"])
-    assert (
-        formation(["keys", str(tmp_path / "keys"), str(ROOT / doc["configs"]["scenario"]["file"])])
-        == 0
-    )
+    scenario_file = ROOT / doc["configs"]["scenario"]["file"]
+    scenario = Scenario.from_file(scenario_file)
+    assert formation(["keys", str(tmp_path / "keys"), str(scenario_file)]) == 0
     runs = tmp_path / "runs"
     env = {"FORMATION_KEYS": str(tmp_path / "keys"), "FORMATION_RUNS": str(runs), "RUN_ID": RUN_ID}
     workers = [n for n in doc["services"] if n not in ("router", "recorder")]
@@ -98,16 +96,23 @@ def test_compose_services_run_as_separate_hosts_and_record_everything(tmp_path: 
         )
         try:
             started = threading.Event()
+            sockets: list[tuple[str, str, str]] = []
+
+            def on_start(sample: zenoh.Sample) -> None:  # every service is connected by now
+                if not started.is_set():
+                    sockets.extend(_tcp_sockets())
+                    started.set()
+
             token = session.liveliness().declare_subscriber(
-                keys.start(RUN_ID), lambda s: started.set(), history=True
+                keys.start(RUN_ID), on_start, history=True
             )
             deadline = time.monotonic() + 60
             while not started.wait(0.05):
                 dep.check()
                 assert time.monotonic() < deadline, "netem never declared the start"
-            # while the run goes: only the router listens, every connection has the router at one end
+            # at the start: only the router listens, every connection has the router at one end
             inside = [
-                s for s in _tcp_sockets()
+                s for s in sockets
                 if ip_address(s[0].split(":")[0]) in subnet or ip_address(s[1].split(":")[0]) in subnet
             ]  # fmt: skip
             assert {s[0].split(":")[0] for s in inside if s[2] == "listen"} == {router}
@@ -128,6 +133,7 @@ def test_compose_services_run_as_separate_hosts_and_record_everything(tmp_path: 
         finally:
             session.close()
         codes = dep.down()  # docker compose down: the recorder finishes the file and the report
+    assert all(svc.child is not None and svc.child.proc.poll() is not None for svc in dep.started)
     assert codes == {**{n: 0 for n in workers}, "recorder": 0, "router": 0}
     run_dir = runs / RUN_ID
     assert (run_dir / "report.md").is_file() and (run_dir / "summary.json").is_file()

@@ -9,7 +9,8 @@ import pytest
 
 from formation.scenario import STRATEGIES, Scenario
 from leader.mst import minimum_spanning_forest
-from testbed.batch import BatchError, batch_forest, kruskal_order, plan_batch, run_batch
+from testbed.batch import BatchError, plan_batch, run_batch
+from testbed.batch_leader import batch_forest, kruskal_order
 from testbed.simulate import SimResult, simulate
 from testbed.studies import dynamic_team
 

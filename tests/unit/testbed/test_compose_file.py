@@ -12,6 +12,7 @@ import yaml
 import zenoh
 
 from formation import keys
+from formation.errors import TestbedError
 from formation.scenario import Scenario
 from testbed import security
 from testbed.cli import main as formation
@@ -111,6 +112,33 @@ def test_closed_by_default_each_service_has_its_own_credentials() -> None:
     assert "secrets" not in open_doc and all(
         "secrets" not in s for s in open_doc["services"].values()
     )
+
+
+@pytest.mark.parametrize("options", OPTIONS[:2], ids=["closed", "open"])
+def test_the_upstream_router_alternative_is_a_valid_service_once_uncommented(
+    options: ComposeOptions, compose_schema: jsonschema.Draft7Validator
+) -> None:
+    text = _render(DEFAULT, options)
+    block = [line[2:] for line in text.splitlines() if line.startswith("#   ")]
+    alternative = yaml.safe_load(
+        "\n".join(line for line in block if not line.lstrip().startswith(("formation", "docker")))
+    )
+    doc = yaml.safe_load(text)
+    doc["services"]["router"] = {
+        **alternative["router"],
+        "secrets": doc["services"]["router"].get("secrets", []),
+    }
+    compose_schema.validate(doc)
+    command = alternative["router"]["command"]
+    assert command[command.index("-l") + 1] == "tcp/router:7447"
+    assert ("-c" in command) is options.secure
+
+
+def test_tls_needs_the_keys() -> None:
+    with pytest.raises(
+        TestbedError, match=r"--tls needs the keys \(the router's certificate\); not with --open"
+    ):
+        ComposeOptions(secure=False, tls=True)
 
 
 # -- the access control --------------------------------------------------------------------------
