@@ -22,7 +22,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.epochs is not None:
         scenario = scenario.with_overrides(epochs=args.epochs)
     if args.mode == "realtime":
-        scenario = scenario.with_overrides(runtime={"mode": "realtime"})
+        period = args.period_s or scenario.runtime.realtime_period_s
+        scenario = scenario.with_overrides(
+            runtime={"mode": "realtime", "realtime_period_s": period}
+        )
     outcomes = []
     for strategy in _strategies(args.strategy, scenario):
         with Progress(
@@ -56,18 +59,29 @@ def _report(run_dir: Path, console: Console) -> None:
 
 
 def _print_summary(outcomes: list[Any], console: Console) -> None:
+    realtime = any(o.scenario.runtime.mode == "realtime" for o in outcomes)
     table = Table(title="formation run: summary")
-    for col in ("strategy", "seed", "epochs", "final form. err [m]", "final shape err [m]", "sent", "dropped",
-                "links with drops (sent/dropped)", "malformed", "wall [s]"):  # fmt: skip
-        table.add_column(col)
+    cols = ["strategy", "seed", "epochs", "formation\nfinal [m]", "shape\nfinal [m]", "sent", "dropped",
+            "links with drops\n(sent/dropped)", "mal-\nformed", "wall [s]"]  # fmt: skip
+    if realtime:
+        cols.append("deadline\nmisses")
+    for col in cols:
+        table.add_column(col, justify="left" if col in ("strategy", cols[7]) else "right")
     for o in outcomes:
         s = o.summary()
-        links = ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in s["dropped_links"].items()) or "-"
-        table.add_row(
+        worst = sorted(s["dropped_links"].items(), key=lambda kv: -kv[1][1])
+        links = ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in worst[:4]) or "-"
+        if len(worst) > 4:
+            links += f" (+{len(worst) - 4} more)"
+        row = [
             s["strategy"], str(s["seed"]), str(s["epochs"]), f"{s['final_formation_error_m']:.4g}",
             f"{s['final_shape_error_m']:.4g}", str(s["packets_sent"]), str(s["packets_dropped"]), links,
             str(sum(s["malformed"].values())), f"{s['wall_s']:.1f}",
-        )  # fmt: skip
+        ]  # fmt: skip
+        if realtime:
+            rate = s["deadline_miss_rate"]
+            row.append("-" if rate is None else f"{100 * rate:.2f} %")
+        table.add_row(*row)
     console.print(table)
 
 
@@ -77,6 +91,11 @@ def register(sub: Any) -> None:
     p = sub.add_parser("run", help="run a scenario as real processes over Zenoh")
     _add_common(p)
     p.add_argument("--mode", choices=["lockstep", "realtime"], default="lockstep")
+    p.add_argument(
+        "--period-s",
+        type=float,
+        help="realtime: wall-clock epoch period [s] (default: the scenario's)",
+    )
     p.add_argument("--pool", type=int, help="run the agents in K processes")
     p.add_argument("--runs-dir", default="runs", help="where run folders go (default: runs)")
     p.add_argument("--no-record", action="store_true", help="run without the recorder")
