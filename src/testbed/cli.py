@@ -60,7 +60,10 @@ def _add_common(
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="formation", description=__doc__)
+    parser = argparse.ArgumentParser(
+        prog="formation",
+        description="Formation control over packet-dropping links: simulate, run, record, analyse.",
+    )
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("simulate", help="run the model in one process (no Zenoh)")
     _add_common(p)
