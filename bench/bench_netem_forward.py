@@ -24,7 +24,7 @@ OUT_LINKS = 3  # agent 1 → 2, 3, 4
 
 def forward_rate(passthrough: bool) -> tuple[float, float]:
     """(forwarded packets/s, sent packets/s)."""
-    with netem_rig(epochs=PACKETS + 10, passthrough=passthrough) as session:
+    with netem_rig(epochs=PACKETS + 10, passthrough=passthrough) as (session, _):
         lock = threading.Lock()
         got = {"n": 0, "first": 0, "last": 0}
 

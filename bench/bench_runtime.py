@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from bench.netem_rig import RUN, netem_rig
 from formation import keys
 from formation.codec import attachment, encode, now_ns
 from formation.messages import CoordinationState
 from formation.scenario import Scenario
 from formation.zenoh_config import session_config
 from testbed.launcher import launch
-from testbed.processes import ProcessGroup, free_port, wait_for_port
 from testbed.simulate import simulate
 from testbed.teams import henneberg_team
 
@@ -64,69 +64,54 @@ def lockstep_rate(scenario: Scenario, pool: int | None, runs: Path) -> tuple[flo
 
 
 def netem_hop_latency(packets: int = 2000) -> tuple[np.ndarray, np.ndarray]:
-    """One-way latencies [µs] of the same packets: direct (sender's key) and through netem."""
-    with tempfile.TemporaryDirectory() as tmp:
-        scen = ROOT / "scenarios" / "paper.toml"
-        scenario = Scenario.from_file(scen).with_overrides(epochs=packets + 10, network={})
-        path = Path(tmp) / "s.toml"
-        path.write_text(scenario.to_toml())
-        port = free_port()
-        endpoint = f"tcp/127.0.0.1:{port}"
-        group = ProcessGroup(Path(tmp) / "logs")
-        try:
-            group.start("router", "testbed.router", "--listen", endpoint)
-            wait_for_port("127.0.0.1", port, 10)
-            group.start("netem", "netem", "--scenario", str(path), "--run-id", "bench", "--mode", "peer",
-                        "--connect", endpoint, "--listen", "tcp/127.0.0.1:0", "--no-recorder")  # fmt: skip
-            conf = session_config("peer", endpoint, "tcp/127.0.0.1:0")
-            with zenoh.open(conf) as s:
-                direct: dict[int, int] = {}
-                hop: dict[int, int] = {}
+    """One-way latencies [µs] of the same packets, publisher and subscriber in separate sessions.
 
-                def on(sample: zenoh.Sample, into: dict[int, int]) -> None:
-                    att = sample.attachment.to_bytes() if sample.attachment else b""
-                    into[int.from_bytes(att[8:16], "little")] = now_ns()
+    Direct: the subscriber's session receives the sender's key straight from the
+    publisher's session (one TCP hop on 127.0.0.1). Through netem: the same packet
+    forwarded by the netem process (two hops). Both measured on the same packets.
+    """
+    # The receiver is a peer of its own: gossip gives it direct links to the sender and netem.
+    with (
+        netem_rig(epochs=packets + 10) as (sender, endpoint),
+        zenoh.open(session_config("peer", endpoint, "tcp/127.0.0.1:0")) as receiver,
+    ):
+        direct: dict[int, int] = {}
+        hop: dict[int, int] = {}
 
-                subs = [
-                    s.declare_subscriber(keys.agent_state("bench", 1), lambda x: on(x, direct)),
-                    s.declare_subscriber(keys.link_state("bench", 1, 2), lambda x: on(x, hop)),
-                ]
-                tokens = [
-                    s.liveliness().declare_token(keys.alive("bench", "agent", i))
-                    for i in range(1, 6)
-                ]
-                tokens.append(s.liveliness().declare_token(keys.alive("bench", "leader", 0)))
-                got_start = []
-                watch = s.liveliness().declare_subscriber(
-                    keys.start("bench"), lambda x: got_start.append(1), history=True
-                )
-                deadline = time.monotonic() + 30
-                while not got_start and time.monotonic() < deadline:
-                    time.sleep(0.01)
-                pub = s.declare_publisher(
-                    keys.agent_state("bench", 1),
-                    congestion_control=zenoh.CongestionControl.BLOCK,
-                    express=True,
-                )
-                sent: dict[int, int] = {}
-                for k in range(packets):
-                    msg = CoordinationState(run_id="bench", sender="agent/1", seq=k, epoch=k, stamp_ns=now_ns(),
-                                            agent=1, position=[0.1, 0.2])  # fmt: skip
-                    payload = encode(msg)
-                    sent[k] = now_ns()
-                    pub.put(payload, attachment=attachment(k, k, 1))
-                    time.sleep(0.001)
-                deadline = time.monotonic() + 10
-                while len(hop) < packets * 0.99 and time.monotonic() < deadline:
-                    time.sleep(0.01)
-                for x in [*subs, *tokens, watch, pub]:
-                    x.undeclare()
-            common = [k for k in sent if k in direct and k in hop and k >= 100]
-            d = np.array([direct[k] - sent[k] for k in common]) / 1e3
-            h = np.array([hop[k] - sent[k] for k in common]) / 1e3
-            return d, h
-        finally:
-            group.stop_all()
+        def on(sample: zenoh.Sample, into: dict[int, int]) -> None:
+            att = sample.attachment.to_bytes() if sample.attachment else b""
+            into[int.from_bytes(att[8:16], "little")] = now_ns()
+
+        subs = [
+            receiver.declare_subscriber(keys.agent_state(RUN, 1), lambda x: on(x, direct)),
+            receiver.declare_subscriber(keys.link_state(RUN, 1, 2), lambda x: on(x, hop)),
+        ]
+        pub = sender.declare_publisher(
+            keys.agent_state(RUN, 1),
+            congestion_control=zenoh.CongestionControl.BLOCK,
+            express=True,
+        )
+        while not direct:  # until the receiver's subscription reached the sender
+            pub.put(b"{}", attachment=attachment(10**9, 10**9, 1))
+            time.sleep(0.05)
+        direct.clear()
+        sent: dict[int, int] = {}
+        for k in range(packets):
+            msg = CoordinationState(run_id=RUN, sender="agent/1", seq=k, epoch=k, stamp_ns=now_ns(),
+                                    agent=1, position=[0.1, 0.2])  # fmt: skip
+            payload = encode(msg)
+            sent[k] = now_ns()
+            pub.put(payload, attachment=attachment(k, k, 1))
+            time.sleep(0.001)
+        deadline = time.monotonic() + 10
+        while len(hop) < packets * 0.99 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        for x in [*subs, pub]:
+            x.undeclare()
+    common = [k for k in sent if k in direct and k in hop and k >= 100]
+    d = np.array([direct[k] - sent[k] for k in common]) / 1e3
+    h = np.array([hop[k] - sent[k] for k in common]) / 1e3
+    return d, h
 
 
 def main() -> None:

@@ -20,8 +20,8 @@ RUN = "bench"
 
 
 @contextmanager
-def netem_rig(epochs: int, passthrough: bool = False) -> Iterator[zenoh.Session]:
-    """Yield a session connected to a running netem (paper scenario, no loss) after its start."""
+def netem_rig(epochs: int, passthrough: bool = False) -> Iterator[tuple[zenoh.Session, str]]:
+    """Yield ``(session, router endpoint)`` once netem (paper scenario, no loss) has started."""
     with tempfile.TemporaryDirectory() as tmp:
         scenario = Scenario.from_file(ROOT / "scenarios/paper.toml").with_overrides(
             epochs=epochs, network={}
@@ -50,7 +50,7 @@ def netem_rig(epochs: int, passthrough: bool = False) -> Iterator[zenoh.Session]
                     if time.monotonic() > deadline:
                         raise RuntimeError("netem did not start:\n" + group.children[-1].tail())
                     time.sleep(0.01)
-                yield session
+                yield session, endpoint
                 watch.undeclare()
                 for t in tokens:
                     t.undeclare()
