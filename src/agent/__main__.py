@@ -60,11 +60,9 @@ def main(argv: list[str] | None = None) -> int:
                          scenario.seed if args.seed is None else args.seed)  # fmt: skip
         node.announce()
         realtime = scenario.runtime.mode == "realtime"
-        code = node.run_realtime() if realtime else node.run(scenario.epochs)
+        code = node.run_realtime() if realtime else node.run()
         detail = json.dumps(node.deadline) if realtime else ""
-        service.status(
-            "done" if code == 0 else "error", max(r.epoch for r in node.runners.values()), detail
-        )
+        service.status("done" if code == 0 else "error", node.runner.epoch, detail)
         return code
     except TestbedError as exc:
         print(f"agent: error: {exc}", file=sys.stderr)

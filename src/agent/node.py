@@ -1,8 +1,10 @@
-"""The agent process: one agent, or a pool of agents sharing one Zenoh session (``--pool``).
+"""The agent process: one agent, or a pool of agents sharing one Zenoh session (``--ids``).
 
 Lockstep (ARCHITECTURE.md "Time"): publish ``x_i[k]``; wait for netem's close
 marker of the state phase and exactly the packets it lists; report tokens and
-measurements; wait for the estimate phase's marker; step to ``x_i[k+1]``.
+measurements; wait for the estimate phase's marker; step to ``x_i[k+1]``. A pool
+takes each phase for all its agents at once, in one vectorised step (the leader
+waits for every report anyway, so this costs no time).
 """
 
 from __future__ import annotations
@@ -11,7 +13,7 @@ import logging
 import time
 from dataclasses import dataclass, field
 
-from agent.runner import AgentRunner, Packet
+from agent.runner import AgentRunner, Estimate, Packet
 from formation import keys
 from formation.codec import attachment, read_attachment
 from formation.messages import (
@@ -27,20 +29,20 @@ from formation.scenario import Scenario, StrategyName
 from formation.service import Incoming, Service
 
 log = logging.getLogger("agent")
-_BAD = object()
+_BAD = object()  # a payload that failed validation: the packet counts as lost
 
 
 @dataclass
 class _Inbox:
     """What has arrived for one agent and not yet been used."""
 
-    packets: dict[tuple[int, int], object] = field(default_factory=dict)  # (source, seq) → position
+    packets: dict[tuple[int, int], object] = field(default_factory=dict)  # (source, seq) → Packet
     closes: dict[tuple[str, int], EpochClose] = field(default_factory=dict)
     estimates: dict[int, object] = field(default_factory=dict)  # epoch → LeaderEstimate
 
 
 class AgentNode:
-    """Drives :class:`AgentRunner` instances from Zenoh traffic, one phase at a time."""
+    """Drives one :class:`AgentRunner` (one agent or a pool) from Zenoh traffic, phase by phase."""
 
     def __init__(
         self,
@@ -52,11 +54,12 @@ class AgentNode:
     ) -> None:
         self.service, self.scenario = service, scenario
         self.run_id = service.run_id
-        self.runners = {i: AgentRunner(scenario, i, strategy, seed) for i in ids}
+        self.runner = AgentRunner(scenario, ids, strategy, seed)
         self.inbox = {i: _Inbox() for i in ids}
-        self.phase = dict.fromkeys(ids, "state")  # waiting for the close of this phase
-        self.done: set[int] = set()
-        self.taken = dict.fromkeys(ids, -1)  # realtime: last epoch whose packets were taken
+        self.phase = "state"  # waiting for the close of this phase, for every agent
+        self.done = False
+        self.taken = -1  # realtime: the last epoch whose packets were taken
+        self._last_estimate: tuple[bytes, LeaderEstimate | None] = (b"", None)
         self.deadline = {
             "packets": 0,
             "late_packets": 0,
@@ -70,22 +73,17 @@ class AgentNode:
             service.subscribe(f"{keys.prefix(self.run_id)}/close/{i}/*")
         service.watch_alive()
 
+    @property
+    def ids(self) -> list[int]:
+        return self.runner.ids
+
     def announce(self) -> None:
-        for i in self.runners:
+        for i in self.ids:
             self.service._keep.append(
                 self.service.session.liveliness().declare_token(keys.alive(self.run_id, "agent", i))
             )
 
     # -- inbound --------------------------------------------------------------------------------
-    @staticmethod
-    def _receiver(key: str) -> int | None:
-        """The agent a delivered key is for: ``close/<i>/...`` or ``link/<j>/<i>/...``."""
-        parts = key.split("/")
-        try:
-            return int(parts[3]) if parts[2] == "close" else int(parts[4])
-        except (IndexError, ValueError):
-            return None
-
     def _route(self, msg: Incoming) -> None:
         parts = msg.key.split("/")
         kind = parts[-1]
@@ -106,104 +104,122 @@ class AgentNode:
                     return
                 meta = (state.epoch, state.seq, state.agent)
             sent_epoch, seq, source = meta
-            if sent_epoch <= self.taken[receiver]:
+            if sent_epoch <= self.taken:
                 self.deadline["late_packets"] += 1  # realtime: arrived after its epoch's deadline
                 return
             value: object = (
-                _BAD if state is None else Packet(source, sent_epoch, tuple(state.position))
+                _BAD
+                if state is None
+                else Packet(receiver, source, sent_epoch, tuple(state.position))
             )
             self.inbox[receiver].packets[(source, seq)] = value
         elif kind == "estimate":
-            est = self.service.malformed.decode(msg.key, msg.payload, LeaderEstimate)
-            if (
-                est is not None
-                and self.taken[receiver] >= 0
-                and est.epoch < self.runners[receiver].epoch
-            ):
+            # In a pool every agent gets the same payload: decode it once.
+            cached_payload, cached = self._last_estimate
+            if msg.payload == cached_payload:
+                est = cached
+            else:
+                est = self.service.malformed.decode(msg.key, msg.payload, LeaderEstimate)
+                self._last_estimate = (msg.payload, est)
+            if est is not None and self.taken >= 0 and est.epoch < self.runner.epoch:
                 self.deadline["late_estimates"] += 1
             elif est is not None:
                 self.inbox[receiver].estimates[est.epoch] = est
             elif meta is not None:
                 self.inbox[receiver].estimates[meta[0]] = _BAD
 
-    # -- phases -----------------------------------------------------------------------------------
-    def _publish_state(self, runner: AgentRunner) -> None:
-        key = keys.agent_state(self.run_id, runner.id)
-        head = self.service.header(key, runner.epoch)
-        subs = [Substitute(neighbour=j, value=v, fallback=f) for j, v, f in runner.substituted]
-        msg = CoordinationState(**head, agent=runner.id, position=runner.position, substituted=subs)
-        self.service.publish(key, msg, attachment(runner.epoch, head["seq"], runner.id))
+    # -- publishing -------------------------------------------------------------------------------
+    def _publish_states(self) -> None:
+        k = self.runner.epoch
+        for i in self.ids:
+            key = keys.agent_state(self.run_id, i)
+            head = self.service.header(key, k)
+            subs = [
+                Substitute(neighbour=j, value=v, fallback=f)
+                for j, v, f in self.runner.substituted[i]
+            ]
+            msg = CoordinationState(
+                **head, agent=i, position=self.runner.position(i), substituted=subs
+            )
+            self.service.publish(key, msg, attachment(k, head["seq"], i))
 
-    def _try_state_phase(self, i: int) -> bool:
-        runner, box = self.runners[i], self.inbox[i]
-        close = box.closes.get(("state", runner.epoch))
-        if close is None or any((d.source, d.seq) not in box.packets for d in close.delivered):
-            return False
+    def _publish_reports(self, packets: list[Packet]) -> None:
+        k = self.runner.epoch
+        for i, report in self.runner.receive(packets).items():
+            key = keys.agent_report(self.run_id, i)
+            head = self.service.header(key, k)
+            measurements = [
+                Measurement(neighbour=j, token=1 if t else 0, z=z) for j, t, z in report
+            ]
+            self.service.publish(
+                key,
+                TokenReport(**head, agent=i, measurements=measurements),
+                attachment(k, head["seq"], i),
+            )
+
+    # -- lockstep phases ---------------------------------------------------------------------------
+    def _try_state_phase(self) -> bool:
+        k = self.runner.epoch
+        closes = {i: self.inbox[i].closes.get(("state", k)) for i in self.ids}
+        for i, close in closes.items():
+            if close is None or any(
+                (d.source, d.seq) not in self.inbox[i].packets for d in close.delivered
+            ):
+                return False
         packets = []
-        for d in close.delivered:
-            value = box.packets.pop((d.source, d.seq))
-            if isinstance(value, Packet):  # a malformed payload counts as lost
-                packets.append(Packet(d.source, d.sent_epoch, value.position))
-        del box.closes[("state", runner.epoch)]
-        report = runner.receive(packets)
-        key = keys.agent_report(self.run_id, i)
-        head = self.service.header(key, runner.epoch)
-        msg = TokenReport(
-            **head, agent=i,
-            measurements=[Measurement(neighbour=j, token=1 if t else 0, z=z) for j, t, z in report],
-        )  # fmt: skip
-        self.service.publish(key, msg, attachment(runner.epoch, head["seq"], i))
-        self.phase[i] = "estimate"
+        for i, close in closes.items():
+            assert close is not None
+            box = self.inbox[i]
+            for d in close.delivered:
+                value = box.packets.pop((d.source, d.seq))
+                if isinstance(value, Packet):
+                    packets.append(Packet(i, d.source, d.sent_epoch, value.position))
+            del box.closes[("state", k)]
+        self._publish_reports(packets)
+        self.phase = "estimate"
         return True
 
-    def _try_estimate_phase(self, i: int) -> bool:
-        runner, box = self.runners[i], self.inbox[i]
-        k = runner.epoch
-        close = box.closes.get(("estimate", k))
-        if close is None:
-            return False
-        on_time = [d for d in close.delivered if d.sent_epoch == k]
-        if on_time and k not in box.estimates:
-            return False
-        est = box.estimates.pop(k, None)
-        for old in [e for e in box.estimates if e < k]:
-            del box.estimates[old]
-        del box.closes[("estimate", k)]
-        if isinstance(est, LeaderEstimate):
-            runner.step(est.positions, est.v_ref)
-        else:
-            runner.step(None, None)
-        self.phase[i] = "state"
-        self._publish_state(runner)
-        if runner.epoch >= self.scenario.epochs:
-            self.done.add(i)
+    def _try_estimate_phase(self) -> bool:
+        k = self.runner.epoch
+        got: dict[int, Estimate | None] = {}
+        for i in self.ids:
+            box = self.inbox[i]
+            close = box.closes.get(("estimate", k))
+            if close is None:
+                return False
+            if any(d.sent_epoch == k for d in close.delivered) and k not in box.estimates:
+                return False
+        for i in self.ids:
+            box = self.inbox[i]
+            est = box.estimates.pop(k, None)
+            for old in [e for e in box.estimates if e < k]:
+                del box.estimates[old]
+            del box.closes[("estimate", k)]
+            got[i] = Estimate(est.positions, est.v_ref) if isinstance(est, LeaderEstimate) else None
+        self.runner.step(got)
+        self.phase = "state"
+        self._publish_states()
+        self.done = self.runner.epoch >= self.scenario.epochs
         return True
 
-    def run(self, max_epochs: int) -> int:
-        """Run every agent to ``max_epochs``; returns an exit code."""
+    def run(self) -> int:
+        """Run every agent to the scenario's last epoch; returns an exit code."""
         if not self.service.wait_started():
             return 1
-        for runner in self.runners.values():
-            self._publish_state(runner)
-        while len(self.done) < len(self.runners) and not self.service.stopping.is_set():
+        self._publish_states()
+        while not self.done and not self.service.stopping.is_set():
             msg = self.service.next_incoming(0.2)
             if msg is None:
                 if self.service.gone_for("netem", 0):
                     log.error("netem is gone; stopping")
                     return 2
                 continue
-            receiver = self._receiver(msg.key)
             self._route(msg)
-            # Only the agent this message was for can have moved on.
-            while receiver in self.runners and receiver not in self.done:
-                step = (
-                    self._try_state_phase
-                    if self.phase[receiver] == "state"
-                    else self._try_estimate_phase
-                )
-                if not step(receiver):
+            while not self.done:
+                step = self._try_state_phase if self.phase == "state" else self._try_estimate_phase
+                if not step():
                     break
-        return 0 if len(self.done) == len(self.runners) else 130
+        return 0 if self.done else 130
 
     # -- realtime ---------------------------------------------------------------------------------
     def _drain_until(self, t_ns: int) -> None:
@@ -226,34 +242,30 @@ class AgentNode:
             if time.time_ns() > clock.at(k, STATE_DEADLINE):
                 self.deadline["overruns"] += 1
             sleep_until(clock.at(k))
-            for runner in self.runners.values():
-                self._publish_state(runner)
+            self._publish_states()
             self._drain_until(clock.at(k, STATE_DEADLINE))
-            for i, runner in self.runners.items():
+            packets = []
+            for i in self.ids:
                 box = self.inbox[i]
-                packets = [
+                packets += [
                     p for p in box.packets.values() if isinstance(p, Packet) and p.sent_epoch <= k
                 ]
-                self.deadline["packets"] += sum(p.sent_epoch == k for p in packets)
                 box.packets.clear()
-                self.taken[i] = k
-                report = runner.receive(packets)
-                key = keys.agent_report(self.run_id, i)
-                head = self.service.header(key, k)
-                msg = TokenReport(**head, agent=i, measurements=[
-                    Measurement(neighbour=j, token=1 if t else 0, z=z) for j, t, z in report])  # fmt: skip
-                self.service.publish(key, msg, attachment(k, head["seq"], i))
+            self.deadline["packets"] += sum(p.sent_epoch == k for p in packets)
+            self.taken = k
+            self._publish_reports(packets)
             self._drain_until(clock.at(k, ESTIMATE_DEADLINE))
-            for i, runner in self.runners.items():
+            got: dict[int, Estimate | None] = {}
+            for i in self.ids:
                 est = self.inbox[i].estimates.pop(k, None)
                 self.inbox[i].estimates.clear()
                 if isinstance(est, LeaderEstimate):
                     self.deadline["estimates"] += 1
-                    runner.step(est.positions, est.v_ref)
+                    got[i] = Estimate(est.positions, est.v_ref)
                 else:
-                    runner.step(None, None)
+                    got[i] = None
+            self.runner.step(got)
         sleep_until(clock.at(self.scenario.epochs))
-        for runner in self.runners.values():
-            self._publish_state(runner)
-        self.done = set(self.runners)
+        self._publish_states()
+        self.done = True
         return 0

@@ -1,7 +1,7 @@
-"""One agent's epoch-by-epoch state, with no network: the node feeds it what arrived.
+"""The epoch-by-epoch state of a set of agents (one, or a pool), with no network.
 
-The same :func:`agent.epoch.agent_epoch` the simulator runs, applied to this
-agent and its in-links.
+The node feeds it what arrived; it runs the same :func:`agent.epoch.agent_epoch`
+the simulator runs, on these agents and their in-links at once.
 """
 
 from __future__ import annotations
@@ -18,117 +18,130 @@ from formation.reference import reference_positions
 from formation.scenario import Scenario
 
 Array = npt.NDArray[np.float64]
+Report = list[tuple[int, int, list[float] | None]]  # (neighbour, token, z_ij) per in-link
 
 
 @dataclass(frozen=True)
 class Packet:
-    """A coordination packet as delivered: its source, the epoch it was sent, ``x_j`` [m]."""
+    """A coordination packet as delivered to ``receiver``: its source, sent epoch and ``x_j`` [m]."""
 
+    receiver: int
     source: int
     sent_epoch: int
     position: tuple[float, ...]
 
 
+@dataclass(frozen=True)
+class Estimate:
+    """What the leader's epoch-``k`` message gave one agent: ``x̂`` per agent (None: unobservable), ``v_ref``."""
+
+    positions: list[list[float] | None]
+    v_ref: list[float]
+
+
 class AgentRunner:
-    """Agent ``agent_id``: ``x_i[k]`` now, and what it remembers of its in-links."""
+    """Agents ``ids``: ``x_i[k]`` now, and what each remembers of its in-links."""
 
     def __init__(
-        self, scenario: Scenario, agent_id: int, strategy: StrategyName, seed: int
+        self, scenario: Scenario, ids: list[int], strategy: StrategyName, seed: int
     ) -> None:
-        if not 1 <= agent_id <= scenario.n:
-            raise ValueError(
-                f"agent id {agent_id} is not in the scenario (agents are 1..{scenario.n})"
-            )
-        self.scenario, self.id, self.strategy, self.seed = scenario, agent_id, strategy, seed
-        self.is_reference = agent_id == scenario.leader
-        self.links = InLinks.of(scenario, np.array([agent_id]))
-        d = scenario.dimension
-        self.x = scenario.initial_positions(seed)[agent_id - 1 : agent_id].copy()
-        self.velocity = np.zeros((1, d))
-        self.memory = LinkMemory.empty(len(self.links.index), d)
-        self.v_known = np.zeros((1, d))
+        for i in ids:
+            if not 1 <= i <= scenario.n:
+                raise ValueError(
+                    f"agent id {i} is not in the scenario (agents are 1..{scenario.n})"
+                )
+        self.scenario, self.ids, self.strategy, self.seed = scenario, list(ids), strategy, seed
+        self.row = {i: r for r, i in enumerate(self.ids)}
+        self.links = InLinks.of(scenario, np.array(self.ids))
+        self.link_of = {
+            (int(b), int(a)): r
+            for r, (a, b) in enumerate(zip(self.links.sender, self.links.receiver, strict=True))
+        }  # (receiver, sender) → in-link row
+        n_links, d = len(self.links.index), scenario.dimension
+        rows = np.array(self.ids) - 1
+        self.x = scenario.initial_positions(seed)[rows].copy()
+        self.velocity = np.zeros((len(ids), d))
+        self.memory = LinkMemory.empty(n_links, d)
+        self.v_known = np.zeros((len(ids), d))
         self.epoch = 0
-        if self.is_reference:
+        self.ref_row = self.row.get(scenario.leader)
+        if self.ref_row is not None:
             self._ref = reference_positions(
                 scenario.reference,
-                scenario.offsets[agent_id - 1],
+                scenario.offsets[scenario.leader - 1],
                 scenario.control.period_s,
                 scenario.epochs,
             )
-            self.x = self._ref[0:1].copy()
-        self._arrived = np.zeros(len(self.links.index), dtype=bool)
-        self._received = np.zeros((len(self.links.index), d))
-        self._z = np.zeros((len(self.links.index), d))
-        self.substituted: list[tuple[int, list[float], bool]] = []  # used at the last step
+            self.x[self.ref_row] = self._ref[0]
+        self._arrived = np.zeros(n_links, dtype=bool)
+        self._received = np.zeros((n_links, d))
+        self._z = np.zeros((n_links, d))
+        self.substituted: dict[int, list[tuple[int, list[float], bool]]] = {i: [] for i in ids}
 
-    @property
-    def neighbours(self) -> list[int]:
-        return [int(s) for s in self.links.sender]
+    def position(self, agent: int) -> list[float]:
+        return [float(v) for v in self.x[self.row[agent]]]
 
-    @property
-    def position(self) -> list[float]:
-        return [float(v) for v in self.x[0]]
-
-    def receive(self, packets: list[Packet]) -> list[tuple[int, int, list[float] | None]]:
-        """Epoch ``k``'s delivered packets → the report: ``(neighbour, token, z_ij)`` per in-link.
+    def receive(self, packets: list[Packet]) -> dict[int, Report]:
+        """Epoch ``k``'s delivered packets → each agent's report.
 
         Packets sent before ``k`` (delayed) only refresh the held value.
         """
         k, n_links = self.epoch, len(self.links.index)
-        row = {int(s): r for r, s in enumerate(self.links.sender)}
-        late = [p for p in packets if p.sent_epoch < k and p.source in row]
+        late = sorted((p for p in packets if p.sent_epoch < k), key=lambda p: p.sent_epoch)
         if late:
             values = np.zeros((n_links, self.scenario.dimension))
             sent = np.full(n_links, -1, dtype=np.int64)
             mask = np.zeros(n_links, dtype=bool)
-            for p in sorted(late, key=lambda p: p.sent_epoch):
-                values[row[p.source]], sent[row[p.source]], mask[row[p.source]] = (
-                    p.position,
-                    p.sent_epoch,
-                    True,
-                )
+            for p in late:
+                r = self.link_of.get((p.receiver, p.source))
+                if r is not None:
+                    values[r], sent[r], mask[r] = p.position, p.sent_epoch, True
             self.memory = self.memory.receive_late(values, sent, mask)
         self._arrived[:] = False
         self._received[:] = 0.0
         for p in packets:
-            if p.sent_epoch == k and p.source in row:
-                self._arrived[row[p.source]] = True
-                self._received[row[p.source]] = p.position
+            r = self.link_of.get((p.receiver, p.source))
+            if p.sent_epoch == k and r is not None:
+                self._arrived[r] = True
+                self._received[r] = p.position
         self._z = relative_measurement(
-            np.repeat(self.x, n_links, axis=0), self._received, self.scenario.noise_covariance,
+            self.x[self.links.receiver_row], self._received, self.scenario.noise_covariance,
             self.seed, self.links.receiver, self.links.sender, k,
         )  # fmt: skip
-        return [
-            (int(s), int(a), [float(v) for v in self._z[r]] if a else None)
-            for r, (s, a) in enumerate(zip(self.links.sender, self._arrived, strict=True))
-        ]
+        reports: dict[int, Report] = {i: [] for i in self.ids}
+        for r, (i, j, a) in enumerate(
+            zip(self.links.receiver, self.links.sender, self._arrived, strict=True)
+        ):
+            reports[int(i)].append((int(j), int(a), [float(v) for v in self._z[r]] if a else None))
+        return reports
 
-    def step(
-        self, estimate: list[list[float] | None] | None, v_ref: list[float] | None
-    ) -> list[float]:
-        """Close epoch ``k`` with the leader's estimate (None if it was lost); returns ``x_i[k+1]``."""
+    def step(self, estimates: dict[int, Estimate | None]) -> None:
+        """Close epoch ``k`` with what each agent got from the leader (None if lost); ``x`` becomes ``x[k+1]``."""
         k, n_links, d = self.epoch, len(self.links.index), self.scenario.dimension
         v_prev = self.v_known.copy()
-        if v_ref is not None:
-            self.v_known = np.array([v_ref], dtype=float)
+        for i, e in estimates.items():
+            if e is not None:
+                self.v_known[self.row[i]] = e.v_ref
         est = np.zeros((n_links, d))
         has = np.zeros(n_links, dtype=bool)
-        if estimate is not None:
-            for r, s in enumerate(self.links.sender):
-                value = estimate[int(s) - 1]
-                if value is not None:
-                    est[r], has[r] = value, True
+        for r, (i, j) in enumerate(zip(self.links.receiver, self.links.sender, strict=True)):
+            e = estimates.get(int(i))
+            value = None if e is None else e.positions[int(j) - 1]
+            if value is not None:
+                est[r], has[r] = value, True
         result = agent_epoch(
             self.scenario, self.strategy, k, self.links, self.x, self.velocity, self._arrived,
-            self._received, self._z, self.memory, est, has, np.repeat(v_prev, n_links, axis=0), self.v_known,
+            self._received, self._z, self.memory, est, has, v_prev[self.links.receiver_row], self.v_known,
         )  # fmt: skip
         self.memory, self.velocity = result.memory, result.velocities
-        self.x = self._ref[k + 1 : k + 2].copy() if self.is_reference else result.positions
+        self.x = result.positions
+        if self.ref_row is not None:
+            self.x[self.ref_row] = self._ref[k + 1]
         sub = result.substitution
-        self.substituted = [
-            (int(s), [float(v) for v in sub.values[r]], bool(sub.fallback[r]))
-            for r, s in enumerate(self.links.sender)
-            if sub.substituted[r]
-        ]
+        self.substituted = {i: [] for i in self.ids}
+        for row in np.flatnonzero(sub.substituted):
+            receiver, sender = int(self.links.receiver[row]), int(self.links.sender[row])
+            self.substituted[receiver].append(
+                (sender, [float(v) for v in sub.values[row]], bool(sub.fallback[row]))
+            )
         self.epoch = k + 1
-        return self.position
