@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import leader.blue as blue_module
+import leader.laplacian as laplacian_module
 from formation.graph import AgentIdError, GraphInputError, ShapeError
 from leader.blue import BlueResult, CovarianceError, blue, nees
 from leader.mst import minimum_spanning_forest
@@ -216,8 +216,8 @@ def test_chunked_covariance_blocks_and_structure_choice(
     rng: np.random.Generator, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # shrink the thresholds so a small problem takes the large-n code paths
-    monkeypatch.setattr(blue_module, "DIRECT_MAX_UNKNOWNS", 10)
-    monkeypatch.setattr(blue_module, "INVERSE_CHUNK_COLUMNS", 7)
+    monkeypatch.setattr(laplacian_module, "DIRECT_MAX_UNKNOWNS", 10)
+    monkeypatch.setattr(laplacian_module, "INVERSE_CHUNK_COLUMNS", 7)
     n, d = 80, 3
     x = rng.standard_normal((n, d))
     edges = connected_graph(rng, n, n // 2)

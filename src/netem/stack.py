@@ -1,0 +1,336 @@
+"""A stack of layers run over epochs, and the records of what it decides (MODEL.md §4).
+
+``_run_stack`` runs a stack's layers over consecutive epochs for one or more
+links; ``Decision``, ``Schedule`` and ``LinkMatrix`` are what netem answers with.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+from formation.errors import TestbedError
+from formation.linkmodels import LinkModelSpec, Markov4
+from netem.layers import (
+    _KIND_CODE,
+    _LAYER_OF,
+    MODEL_NAMES,
+    Bools,
+    Codes,
+    Floats,
+    Ints,
+    _Down,
+    _GilbertElliott,
+    _Keys,
+    _Layer,
+    _Markov4,
+    _Outage,
+)
+
+Carry = dict[tuple[str, int], npt.NDArray[Any]]
+
+_KEY_LIMIT = 2**63
+
+
+class LinkModelError(TestbedError):
+    """A link model that cannot be built or asked: names the link and the broken rule."""
+
+    def __init__(self, link: str, problem: str) -> None:
+        self.link, self.problem = link, problem
+        super().__init__(f"link {link}: {problem}")
+
+
+class Decision(NamedTuple):
+    """What netem does with one packet (one link, one epoch, one ``seq``)."""
+
+    delivered: bool
+    delay_epochs: int  # [epochs] lockstep
+    delay_ms: float  # [ms] realtime
+    copies: int  # 0 dropped, 1, 2 when duplicated
+    verdict: str  # "pass" | "drop" | "duplicate" | "delayed"
+    model: str  # the model that dropped the packet, "" when delivered
+    state: str  # e.g. "bad", "3", "down"; layers' states joined by ","; "" when none
+    reordered: bool = False  # skipped the stack's delay
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """Decisions of one link over consecutive epochs (``seq = 0``); arrays of shape ``(n,)``.
+
+    ``state_codes`` and ``layer_kinds`` are ``(n, w)``: per stack layer, its state
+    code (gilbert_elliott 0 good / 1 bad; markov4 1..4; outage and down 1 when
+    down; else 0) and its kind as an index into ``MODEL_NAMES``; ``-1`` pads
+    stacks shorter than ``w``. ``drop_model`` is the ``MODEL_NAMES`` index of the
+    model that dropped, ``-1`` when delivered.
+    """
+
+    epochs: Ints
+    delivered: Bools
+    copies: npt.NDArray[np.int8]
+    delay_epochs: Ints
+    delay_ms: Floats
+    reordered: Bools
+    drop_model: Codes
+    state_codes: Codes
+    layer_kinds: Codes
+
+    def __len__(self) -> int:
+        return int(self.epochs.shape[0])
+
+    def decision(self, i: int) -> Decision:
+        """The decision at index ``i`` (epoch ``epochs[i]``), as ``LinkModel.decide`` gives it."""
+        kinds = [k for k in self.layer_kinds[i].tolist() if k >= 0]
+        codes = self.state_codes[i].tolist()[: len(kinds)]
+        dm = int(self.drop_model[i])
+        return _make_decision(
+            MODEL_NAMES[dm] if dm >= 0 else "",
+            int(self.copies[i]),
+            int(self.delay_epochs[i]),
+            float(self.delay_ms[i]),
+            bool(self.reordered[i]),
+            _state_string([MODEL_NAMES[k] for k in kinds], codes),
+        )
+
+    def state_of(self, model: str, occurrence: int = 0) -> Codes:
+        """State codes ``(n,)`` of the ``occurrence``-th layer of kind ``model``; -1 where absent."""
+        kind = _KIND_CODE[model]
+        is_kind = self.layer_kinds == kind
+        rank = np.cumsum(is_kind, axis=1) - 1
+        hit = is_kind & (rank == occurrence)
+        found = hit.any(axis=1)
+        col = np.argmax(hit, axis=1)
+        codes = self.state_codes[np.arange(len(self)), col]
+        return np.where(found, codes, -1).astype(np.int8)
+
+
+@dataclass(frozen=True)
+class LinkMatrix:
+    """Decisions of ``L`` links over ``n`` epochs (``seq = 0``); every array is ``(n, L)``."""
+
+    delivered: Bools
+    copies: npt.NDArray[np.int8]
+    delay_epochs: Ints
+    delay_ms: Floats
+    reordered: Bools
+
+
+# ----------------------------------------------------------------------------- stacks
+
+
+@dataclass(frozen=True)
+class _Stack:
+    specs: tuple[LinkModelSpec, ...]
+    layers: tuple[_Layer, ...]
+
+    @property
+    def stateful(self) -> bool:
+        return any(layer.stateful for layer in self.layers)
+
+    @property
+    def timed(self) -> tuple[int, ...]:
+        return tuple(i for i, layer in enumerate(self.layers) if layer.timed)
+
+
+def _build_stack(specs: Sequence[LinkModelSpec], link: str) -> _Stack:
+    layers: list[_Layer] = []
+    seen: dict[str, int] = {}
+    for i, spec in enumerate(specs):
+        cls = _LAYER_OF.get(type(spec))
+        if cls is None:
+            raise LinkModelError(link, f"stack[{i}] = {spec!r}; expected a LinkModelSpec")
+        if isinstance(spec, Markov4) and spec.p13 + spec.p14 > 1.0:
+            raise LinkModelError(
+                link, f"stack[{i}] markov4 has p13 + p14 = {spec.p13 + spec.p14:g}; expected <= 1"
+            )
+        if isinstance(spec, Markov4) and spec.p31 + spec.p32 > 1.0:
+            raise LinkModelError(
+                link, f"stack[{i}] markov4 has p31 + p32 = {spec.p31 + spec.p32:g}; expected <= 1"
+            )
+        occ = seen.get(spec.model, 0)
+        seen[spec.model] = occ + 1
+        layers.append(cls(spec, occ))
+    return _Stack(tuple(specs), tuple(layers))
+
+
+# ----------------------------------------------------------------------------- one run of a stack
+
+
+@dataclass
+class _Piece:
+    """A stack run over epochs ``start .. start + n - 1`` for ``L`` links (raw, before drops)."""
+
+    start: int
+    stack: _Stack
+    first: npt.NDArray[np.int16]  # (L, n) first dropping layer, -1 none
+    dup: npt.NDArray[np.int8]  # (L, n) extra copies
+    delay_epochs: Ints  # (L, n) summed over delay layers
+    delay_ms: Floats
+    reorder: Bools
+    states: Codes  # (L, n, len(layers))
+    chain_prev: dict[int, Floats] = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        return int(self.first.shape[1])
+
+    def apply_times(self, time_s: Floats) -> None:
+        """Drop by the realtime outage windows at packet times ``time_s`` ``(n,)`` [s]."""
+        for i in self.stack.timed:
+            layer = self.stack.layers[i]
+            assert isinstance(layer, _Outage)
+            down = np.broadcast_to(layer.down_at(time_s), self.first.shape)
+            self.first = np.where(down & ((self.first < 0) | (self.first > i)), i, self.first)
+            self.first = self.first.astype(np.int16)
+            self.states[:, :, i] = down
+
+    def final(self) -> tuple[Bools, npt.NDArray[np.int8], Ints, Floats, Bools]:
+        """``delivered, copies, delay_epochs, delay_ms, reordered``, each ``(L, n)``."""
+        delivered = self.first < 0
+        copies = np.where(delivered, 1 + self.dup, 0).astype(np.int8)
+        reordered = delivered & self.reorder
+        delayed = delivered & ~self.reorder
+        return (
+            delivered,
+            copies,
+            np.where(delayed, self.delay_epochs, 0),
+            np.where(delayed, self.delay_ms, 0.0),
+            reordered,
+        )
+
+
+def _run_stack(
+    stack: _Stack, keys: _Keys, start: int, n: int, carry: Carry
+) -> tuple[_Piece, Carry]:
+    epochs = np.arange(start, start + n, dtype=np.int64)
+    shape = (keys.n_links, n)
+    first = np.full(shape, -1, dtype=np.int16)
+    dup = np.zeros(shape, dtype=np.int8)
+    delay_epochs = np.zeros(shape, dtype=np.int64)
+    delay_ms = np.zeros(shape, dtype=np.float64)
+    reorder = np.zeros(shape, dtype=np.bool_)
+    states = np.zeros((*shape, len(stack.layers)), dtype=np.int8)
+    drops: list[tuple[int, Bools]] = []
+    chain_prev: dict[int, Floats] = {}
+    after: Carry = {}
+    for i, layer in enumerate(stack.layers):
+        out, end = layer.run(keys, epochs, carry.get(layer.ident))
+        if end is not None:
+            after[layer.ident] = end
+        if out.drop is not None:
+            drops.append((i, out.drop))
+        if out.state is not None:
+            states[:, :, i] = out.state
+        if out.delay_epochs is not None and out.delay_ms is not None:
+            delay_epochs += out.delay_epochs
+            delay_ms += out.delay_ms
+        if out.dup is not None:
+            dup += out.dup.astype(np.int8)
+        if out.reorder is not None:
+            reorder |= out.reorder
+        if out.chain_prev is not None:
+            chain_prev[i] = out.chain_prev
+    for i, drop in reversed(drops):
+        first = np.where(drop, np.int16(i), first).astype(np.int16)
+    piece = _Piece(start, stack, first, dup, delay_epochs, delay_ms, reorder, states, chain_prev)
+    return piece, after
+
+
+def _state_string(kinds: Sequence[str], codes: Sequence[int]) -> str:
+    names = []
+    for kind, code in zip(kinds, codes, strict=False):
+        name = _STATE_NAMES[kind][code] if code >= 0 else ""
+        if name:
+            names.append(name)
+    return ",".join(names)
+
+
+_STATE_NAMES = {name: ("",) for name in MODEL_NAMES} | {
+    "down": _Down.state_names,
+    "outage": _Outage.state_names,
+    "gilbert_elliott": _GilbertElliott.state_names,
+    "markov4": _Markov4.state_names,
+}
+
+
+def _make_decision(
+    model: str, copies: int, delay_epochs: int, delay_ms: float, reordered: bool, state: str
+) -> Decision:
+    if model:
+        return Decision(False, 0, 0.0, 0, "drop", model, state, False)
+    if copies > 1:
+        verdict = "duplicate"
+    elif delay_epochs > 0 or delay_ms > 0.0:
+        verdict = "delayed"
+    else:
+        verdict = "pass"
+    return Decision(True, delay_epochs, delay_ms, copies, verdict, "", state, reordered)
+
+
+def _check_key(link: str, name: str, value: int) -> None:
+    if not 0 <= value < _KEY_LIMIT:
+        raise LinkModelError(link, f"{name} = {value}; expected an integer in [0, 2**63)")
+
+
+def _trim(pieces: list[_Piece], start: int) -> list[_Piece]:
+    """Drop epochs before ``start`` from pieces that begin at a block start."""
+    out = []
+    for p in pieces:
+        end = p.start + p.n
+        if end <= start:
+            continue
+        if p.start < start:
+            s = start - p.start
+            p = _Piece(
+                start,
+                p.stack,
+                p.first[:, s:],
+                p.dup[:, s:],
+                p.delay_epochs[:, s:],
+                p.delay_ms[:, s:],
+                p.reorder[:, s:],
+                p.states[:, s:],
+                {i: v[:, s:] for i, v in p.chain_prev.items()},
+            )
+        out.append(p)
+    return out
+
+
+def _schedule_of(pieces: Sequence[_Piece], start: int, n: int) -> Schedule:
+    width = max((len(p.stack.layers) for p in pieces), default=0)
+    cols: dict[str, list[npt.NDArray[Any]]] = {
+        k: [] for k in ("delivered", "copies", "de", "dms", "reo", "drop", "codes", "kinds")
+    }
+    for p in pieces:
+        delivered, copies, de, dms, reo = p.final()
+        kinds = np.array([_KIND_CODE[layer.kind] for layer in p.stack.layers], dtype=np.int8)
+        pad = width - kinds.shape[0]
+        kind_of_layer = np.concatenate([kinds, [-1]]).astype(np.int8)  # index -1 → -1
+        cols["delivered"].append(delivered[0])
+        cols["copies"].append(copies[0])
+        cols["de"].append(de[0])
+        cols["dms"].append(dms[0])
+        cols["reo"].append(reo[0])
+        cols["drop"].append(kind_of_layer[p.first[0]])
+        cols["codes"].append(np.pad(p.states[0], ((0, 0), (0, pad)), constant_values=-1))
+        kinds_row = np.concatenate([kinds, np.full(pad, -1, np.int8)])
+        cols["kinds"].append(np.broadcast_to(kinds_row, (p.n, width)))
+
+    def cat(name: str, dtype: type, *shape: int) -> npt.NDArray[Any]:
+        parts = cols[name]
+        return np.concatenate(parts).astype(dtype) if parts else np.zeros(shape, dtype)
+
+    return Schedule(
+        epochs=np.arange(start, start + n, dtype=np.int64),
+        delivered=cat("delivered", np.bool_, 0),
+        copies=cat("copies", np.int8, 0),
+        delay_epochs=cat("de", np.int64, 0),
+        delay_ms=cat("dms", np.float64, 0),
+        reordered=cat("reo", np.bool_, 0),
+        drop_model=cat("drop", np.int8, 0),
+        state_codes=cat("codes", np.int8, 0, width),
+        layer_kinds=cat("kinds", np.int8, 0, width),
+    )
