@@ -14,18 +14,27 @@ from formation.scenario import STRATEGIES, Scenario
 DEFAULT_SCENARIO = "scenarios/paper.toml"
 
 
-def _strategies(arg: str | None, scenario: Scenario) -> list[Any]:
+def parse_strategies(
+    arg: str | None, default: Sequence[Any], named: dict[str, Sequence[Any]] | None = None
+) -> list[Any]:
+    """``--strategy``: ``None`` → ``default``; ``all``, another name in ``named``, or ``a,b,...``."""
     if arg is None:
-        return [scenario.strategy.name]
-    if arg == "all":
-        return list(STRATEGIES)
+        return list(default)
+    choices = {"all": STRATEGIES, **(named or {})}
+    if arg in choices:
+        return list(choices[arg])
     names = [s.strip() for s in arg.split(",")]
     for name in names:
         if name not in STRATEGIES:
+            words = ", ".join(sorted(choices))
             raise TestbedError(
-                f"--strategy {name!r}: expected one of {', '.join(STRATEGIES)} or all"
+                f"--strategy {name!r}: expected one of {', '.join(STRATEGIES)} or {words}"
             )
     return names
+
+
+def _strategies(arg: str | None, scenario: Scenario) -> list[Any]:
+    return parse_strategies(arg, [scenario.strategy.name])
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:

@@ -19,7 +19,7 @@ from rich.progress import (
 from rich.table import Table
 
 from formation.errors import TestbedError
-from formation.scenario import STRATEGIES, Scenario
+from formation.scenario import Scenario
 
 EXPERIMENTS = ("paper",)
 DEFAULT_TOPOLOGIES = ("ring8", "grid20", "octahedron3d")
@@ -79,17 +79,9 @@ def _topologies(args: argparse.Namespace) -> list[tuple[str, Scenario]]:
 
 
 def _strategy_list(arg: str | None) -> tuple[Any, ...]:
-    if arg is None or arg == "chapter":
-        return CHAPTER_STRATEGIES
-    if arg == "all":
-        return STRATEGIES
-    names = tuple(s.strip() for s in arg.split(","))
-    for name in names:
-        if name not in STRATEGIES:
-            raise TestbedError(
-                f"--strategy {name!r}: expected one of {', '.join(STRATEGIES)}, chapter or all"
-            )
-    return names
+    from testbed.cli import parse_strategies
+
+    return tuple(parse_strategies(arg, CHAPTER_STRATEGIES, {"chapter": CHAPTER_STRATEGIES}))
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:

@@ -88,3 +88,17 @@ def test_simulate_command_prints_json_per_strategy(paper_path) -> None:  # type:
                     "substitution_cov_trace_m2", "nees_mean"):  # fmt: skip
             assert key in r
     assert rows[0]["final_formation_error_m"] > 10 * rows[2]["final_formation_error_m"]
+
+
+def test_unknown_strategy_is_named_by_every_command() -> None:
+    from formation.errors import TestbedError
+    from testbed.cli import parse_strategies
+
+    assert parse_strategies(None, ["estimate"]) == ["estimate"]
+    assert parse_strategies("all", ["estimate"]) == ["zero", "hold", "estimate", "blend", "drop"]
+    assert parse_strategies("zero,drop", ["estimate"]) == ["zero", "drop"]
+    with pytest.raises(
+        TestbedError,
+        match=r"--strategy 'guess': expected one of zero, hold, estimate, blend, drop or all$",
+    ):
+        parse_strategies("zero,guess", ["estimate"])
