@@ -202,23 +202,29 @@ class AgentNode:
         self.done = self.runner.epoch >= self.scenario.epochs
         return True
 
+    def _on_message(self, msg: Incoming) -> None:
+        self._route(msg)
+        while not self.done:
+            step = self._try_state_phase if self.phase == "state" else self._try_estimate_phase
+            if not step():
+                break
+
     def run(self) -> int:
-        """Run every agent to the scenario's last epoch; returns an exit code."""
+        """Run every agent to the scenario's last epoch; returns an exit code.
+
+        Messages are handled as they arrive, on Zenoh's thread; this thread only watches.
+        """
         if not self.service.wait_started():
             return 1
-        self._publish_states()
-        while not self.done and not self.service.stopping.is_set():
-            msg = self.service.next_incoming(0.2)
-            if msg is None:
-                if self.service.gone_for("netem", 0):
-                    log.error("netem is gone; stopping")
-                    return 2
-                continue
-            self._route(msg)
-            while not self.done:
-                step = self._try_state_phase if self.phase == "state" else self._try_estimate_phase
-                if not step():
-                    break
+        with self.service.inline_lock:
+            self.service.inline = self._on_message
+            while (early := self.service.next_incoming(0)) is not None:
+                self._on_message(early)
+            self._publish_states()
+        while not self.done and not self.service.stopping.wait(0.05):
+            if self.service.gone_for("netem", 0):
+                log.error("netem is gone; stopping")
+                return 2
         return 0 if self.done else 130
 
     # -- realtime ---------------------------------------------------------------------------------

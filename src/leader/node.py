@@ -162,17 +162,21 @@ class LeaderNode:
             self._estimate(k, reports)
         return 0
 
+    def _on_message(self, msg: Incoming) -> None:
+        self._route(msg)
+        while self.epoch < self.scenario.epochs and self._try_epoch():
+            pass
+
     def run(self) -> int:
+        """Lockstep: reports are handled as they arrive, on Zenoh's thread; this thread only watches."""
         if not self.service.wait_started():
             return 1
-        while self.epoch < self.scenario.epochs and not self.service.stopping.is_set():
-            msg = self.service.next_incoming(0.2)
-            if msg is None:
-                if self.service.gone_for("netem", 0):
-                    log.error("netem is gone; stopping")
-                    return 2
-                continue
-            self._route(msg)
-            while self._try_epoch():
-                pass
+        with self.service.inline_lock:
+            self.service.inline = self._on_message
+            while (early := self.service.next_incoming(0)) is not None:
+                self._on_message(early)
+        while self.epoch < self.scenario.epochs and not self.service.stopping.wait(0.05):
+            if self.service.gone_for("netem", 0):
+                log.error("netem is gone; stopping")
+                return 2
         return 0 if self.epoch >= self.scenario.epochs else 130

@@ -13,7 +13,6 @@ from __future__ import annotations
 import heapq
 import json
 import logging
-import threading
 import time
 from collections import defaultdict
 from dataclasses import dataclass, field
@@ -78,7 +77,7 @@ class NetemNode:
         self.passthrough = (
             passthrough  # benchmark baseline: forward everything, decide and record nothing
         )
-        self.lock = threading.Lock()
+        self.lock = service.inline_lock  # the config queryable and the inline handler share it
         n = scenario.n
         self.agents = list(range(1, n + 1))
         self.models: dict[tuple[LinkClass, int, int], LinkModel] = {}
@@ -108,13 +107,12 @@ class NetemNode:
         self.estimates_done = 0
         self.epoch_seen = 0
         prefix = keys.prefix(self.run_id)
-        self.inline = False  # lockstep: handle samples on Zenoh's thread, no queue hand-off
         for key in (
             f"{prefix}/agent/*/state",
             f"{prefix}/agent/*/report",
             keys.leader_estimate_out(self.run_id),
         ):
-            service.subscribe(key, self._on_sample)
+            service.subscribe(key)
         service.queryable(keys.netem_config(self.run_id), self._on_config)
         self.clock: Clock | None = None
         service.queryable(keys.clock(self.run_id), self._on_clock)
@@ -223,21 +221,6 @@ class NetemNode:
         self.service.publish(
             key, DecisionBatch(**self.service.header(key, epoch), phase=phase, decisions=batch)
         )
-
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        att = sample.attachment
-        msg = Incoming(
-            str(sample.key_expr), sample.payload.to_bytes(), att.to_bytes() if att else None
-        )
-        if not self.inline:
-            self.service.inbox.put(msg)
-            return
-        with self.lock:
-            try:
-                self.handle(msg)
-            except Exception:  # a bad packet must never stop netem; it is counted and logged
-                self.service.malformed.counts[msg.key] += 1
-                log.exception("while handling %s", msg.key)
 
     # -- inbound ----------------------------------------------------------------------------------
     def handle(self, msg: Incoming) -> None:
@@ -450,7 +433,7 @@ class NetemNode:
 
     # -- main loop -------------------------------------------------------------------------------------
     def run(self) -> int:
-        self.inline = True
+        self.service.inline = self.handle  # lockstep: handled on Zenoh's thread, no queue hand-off
         while not self.everyone_up():
             if self.service.stopping.wait(0.02):
                 return 130
