@@ -8,7 +8,9 @@ delivers on ``link/1/*/state``. Seed: the scenario's (1); no loss configured.
 
 from __future__ import annotations
 
-import threading
+import json
+import subprocess
+import sys
 import time
 
 import zenoh
@@ -23,49 +25,49 @@ OUT_LINKS = 3  # agent 1 → 2, 3, 4
 
 
 def forward_rate(passthrough: bool) -> tuple[float, float]:
-    """(forwarded packets/s, sent packets/s)."""
-    with netem_rig(epochs=PACKETS + 10, passthrough=passthrough) as (session, _):
-        lock = threading.Lock()
-        got = {"n": 0, "first": 0, "last": 0}
-
-        def count(_: zenoh.Sample) -> None:
-            t = time.perf_counter_ns()
-            with lock:
-                got["n"] += 1
-                got["first"] = got["first"] or t
-                got["last"] = t
-
-        sub = session.declare_subscriber(f"{keys.prefix(RUN)}/link/1/*/state", count)
-        pub = session.declare_publisher(
-            keys.agent_state(RUN, 1), congestion_control=zenoh.CongestionControl.BLOCK
-        )
-        time.sleep(0.3)  # let the subscription reach netem's session before the first packet
-        payloads = [
-            encode(
-                CoordinationState(
-                    run_id=RUN,
-                    sender="agent/1",
-                    seq=k,
-                    epoch=k,
-                    stamp_ns=now_ns(),
-                    agent=1,
-                    position=[0.1 * k, 0.2],
-                )
+    """(forwarded packets/s as a separate subscriber process sees them, sent packets/s)."""
+    expected = PACKETS * OUT_LINKS
+    with netem_rig(epochs=PACKETS + 10, passthrough=passthrough) as (session, endpoint):
+        counter = subprocess.Popen(
+            [sys.executable, "-m", "bench.count_subscriber", endpoint, f"{keys.prefix(RUN)}/link/1/*/state",
+             str(expected), "60"],
+            stdout=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        try:
+            assert counter.stdout is not None
+            if counter.stdout.readline().strip() != "ready":
+                raise RuntimeError("the counting subscriber did not start")
+            pub = session.declare_publisher(
+                keys.agent_state(RUN, 1), congestion_control=zenoh.CongestionControl.BLOCK
             )
-            for k in range(PACKETS)
-        ]
-        start = time.perf_counter_ns()
-        for k, payload in enumerate(payloads):
-            pub.put(payload, attachment=attachment(k, k, 1))
-        sent_s = (time.perf_counter_ns() - start) / 1e9
-        deadline = time.monotonic() + 60
-        while got["n"] < PACKETS * OUT_LINKS and time.monotonic() < deadline:
-            time.sleep(0.01)
-        sub.undeclare()
-        pub.undeclare()
-        if got["n"] < PACKETS * OUT_LINKS:
-            print(f"  warning: {got['n']} of {PACKETS * OUT_LINKS} forwarded packets seen")
-        return got["n"] / ((got["last"] - start) / 1e9), PACKETS / sent_s
+            time.sleep(0.5)  # the counter's subscription travels to netem through gossip
+            payloads = [
+                encode(
+                    CoordinationState(
+                        run_id=RUN,
+                        sender="agent/1",
+                        seq=k,
+                        epoch=k,
+                        stamp_ns=now_ns(),
+                        agent=1,
+                        position=[0.1 * k, 0.2],
+                    )
+                )
+                for k in range(PACKETS)
+            ]
+            start = time.time_ns()
+            for k, payload in enumerate(payloads):
+                pub.put(payload, attachment=attachment(k, k, 1))
+            sent_s = (time.time_ns() - start) / 1e9
+            result = json.loads(counter.communicate(timeout=90)[0].strip().splitlines()[-1])
+            pub.undeclare()
+        finally:
+            if counter.poll() is None:
+                counter.kill()
+                counter.wait()
+    if result["count"] < expected:
+        print(f"  warning: {result['count']} of {expected} forwarded packets seen")
+    return result["count"] / ((result["last_ns"] - start) / 1e9), PACKETS / sent_s
 
 
 def main() -> None:
