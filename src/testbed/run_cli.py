@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +46,13 @@ def cmd_run(args: argparse.Namespace) -> int:
         if not args.no_record:
             _report(outcome.run_dir, console)
         console.print(f"{strategy}: files in [bold]{outcome.run_dir}[/]")
+    if len(outcomes) > 1 and not args.no_record:
+        from recorder.report import write_reports
+
+        stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%S")
+        compare = Path(args.runs_dir) / f"{scenario.name}-compare-{stamp}"
+        report = write_reports([o.run_dir / "run.mcap" for o in outcomes], compare)
+        console.print(f"comparison of the {len(outcomes)} runs: [bold]{report}[/]")
     _print_summary(outcomes, Console())
     return 0
 
