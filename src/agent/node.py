@@ -79,9 +79,7 @@ class AgentNode:
 
     def announce(self) -> None:
         for i in self.ids:
-            self.service._keep.append(
-                self.service.session.liveliness().declare_token(keys.alive(self.run_id, "agent", i))
-            )
+            self.service.announce("agent", i)
 
     # -- inbound --------------------------------------------------------------------------------
     def _route(self, msg: Incoming) -> None:

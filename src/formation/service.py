@@ -139,11 +139,10 @@ class Service:
         self._keep.append(self.session.declare_queryable(key, callback))
 
     # -- liveliness ---------------------------------------------------------------------------
-    def announce(self) -> None:
-        """Declare this process alive (after its subscribers exist, so readiness means ready)."""
-        self._keep.append(
-            self.session.liveliness().declare_token(keys.alive(self.run_id, self.role, self.ident))
-        )
+    def announce(self, role: str | None = None, ident: int | str | None = None) -> None:
+        """Declare this process (or one agent of its pool) alive, after its subscribers exist."""
+        key = keys.alive(self.run_id, role or self.role, self.ident if ident is None else ident)
+        self._keep.append(self.session.liveliness().declare_token(key))
 
     def watch_alive(self, on_change: Callable[[str, str, bool], None] | None = None) -> None:
         """Track liveliness tokens of the run; ``on_change(role, ident, alive)`` is called on a Zenoh thread."""

@@ -116,12 +116,9 @@ class NetemNode:
         service.queryable(keys.netem_config(self.run_id), self._on_config)
         self.clock: Clock | None = None
         service.queryable(keys.clock(self.run_id), self._on_clock)
-        service.watch_alive(self._on_alive)
+        service.watch_alive()
 
     # -- liveliness ---------------------------------------------------------------------------
-    def _on_alive(self, role: str, ident: str, alive: bool) -> None:
-        pass  # deaths are decided by _check_dead, after a grace period
-
     def _check_dead(self, grace_s: float = 3.0) -> None:
         """Agents whose liveliness token has been gone ``grace_s`` are no longer waited for."""
         for i in self.agents:
@@ -224,9 +221,6 @@ class NetemNode:
 
     # -- inbound ----------------------------------------------------------------------------------
     def handle(self, msg: Incoming) -> None:
-        if msg.key.startswith("dead/"):
-            self._on_dead(int(msg.key.split("/")[1]))
-            return
         meta = read_attachment(msg.attachment)
         if meta is None:
             self.service.malformed.counts[msg.key] += 1
@@ -374,9 +368,6 @@ class NetemNode:
         self, msg: Incoming, due: list[tuple[int, int, str, bytes, bytes]]
     ) -> None:
         meta = read_attachment(msg.attachment)
-        if msg.key.startswith("dead/"):
-            self.dead.add(int(msg.key.split("/")[1]))
-            return
         if meta is None:
             self.service.malformed.counts[msg.key] += 1
             return
