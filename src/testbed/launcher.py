@@ -232,7 +232,7 @@ def launch(
     session = None
     observer = None
     try:
-        router = group.start("router", "testbed.router", "--listen", endpoint)
+        group.start("router", "testbed.router", "--listen", endpoint)
         group.on_start = lambda: _write_atomic(
             run_dir / "pids.json", json.dumps({"endpoint": endpoint, "pids": group.pid_map()})
         )
@@ -309,7 +309,6 @@ def launch(
                 raise RuntimeFailure(
                     f"recorder (pid {rec.pid}) exited with code {code}:\n{rec.tail()}"
                 )
-        _ = router
         with observer.lock:
             malformed: Counter[str] = Counter(observer.malformed.counts)
             sent: Counter[str] = Counter()
