@@ -28,19 +28,26 @@ from recorder.writer import MAGIC, rotated_path
 READ_ERRORS = (Exception,)  # the mcap reader raises McapError, struct.error, zstd/lz4 errors, ...
 
 
-def check_file(path: Path) -> None:
-    """Raise :class:`RecordingError` unless ``path`` looks like a complete MCAP file."""
+def check_head(path: Path, when_empty: str = "not an MCAP recording") -> int:
+    """Raise :class:`RecordingError` unless ``path`` is a non-empty file starting as MCAP; its size."""
     if not path.exists():
         raise RecordingError(str(path), "no such file")
     if not path.is_file():
         raise RecordingError(str(path), "not a file")
     size = path.stat().st_size
     if size == 0:
-        raise RecordingError(str(path), "empty file (0 bytes); not an MCAP recording")
+        raise RecordingError(str(path), f"empty file (0 bytes); {when_empty}")
     with open(path, "rb") as f:
         head = f.read(len(MAGIC))
-        if head != MAGIC:
-            raise RecordingError(str(path), f"not an MCAP file (starts with {head[:8]!r})")
+    if head != MAGIC:
+        raise RecordingError(str(path), f"not an MCAP file (starts with {head[:8]!r})")
+    return size
+
+
+def check_file(path: Path) -> None:
+    """Raise :class:`RecordingError` unless ``path`` looks like a complete MCAP file."""
+    size = check_head(path)
+    with open(path, "rb") as f:
         f.seek(max(size - len(MAGIC), 0))
         tail = f.read(len(MAGIC))
     if size < 2 * len(MAGIC) + 9 or tail != MAGIC:

@@ -18,6 +18,7 @@ from mcap.records import Channel, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
 from formation.errors import RecordingError
+from recorder.recording import check_head
 from recorder.schemas import SchemaSpec
 from recorder.writer import MAGIC, McapFile
 
@@ -61,18 +62,9 @@ def recover(source: Path, target: Path | None = None, compression: str = "zstd")
     target = Path(target) if target is not None else default_target(source)
     if source.resolve() == target.resolve():
         raise RecordingError(str(source), "recover needs a different output file (-o)")
-    if not source.is_file():
-        raise RecordingError(str(source), "no such file")
-    size = source.stat().st_size
-    if size == 0:
-        raise RecordingError(str(source), "empty file (0 bytes); nothing to recover")
-    with open(source, "rb") as src:
-        head = src.read(len(MAGIC))
-        if head != MAGIC:
-            raise RecordingError(str(source), f"not an MCAP file (starts with {head[:8]!r})")
-        src.seek(0)
-        with open(target, "wb") as dst:
-            return _copy(src, McapFile(dst, compression), source, target, size)
+    size = check_head(source, when_empty="nothing to recover")
+    with open(source, "rb") as src, open(target, "wb") as dst:
+        return _copy(src, McapFile(dst, compression), source, target, size)
 
 
 def _copy(src: object, out: McapFile, source: Path, target: Path, size: int) -> Recovered:
