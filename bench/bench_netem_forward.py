@@ -1,35 +1,52 @@
 """netem process: forwarded coordination packets per second, deciding and recording, vs pass-through.
 
 Baseline: the same netem process with ``--passthrough`` (forwards every packet,
-decides and records nothing), in the same run. One sender (agent 1 of the paper
-scenario, 3 out-links) publishes as fast as it can; a subscriber counts what netem
-delivers on ``link/1/*/state``. Seed: the scenario's (1); no loss configured.
+decides, closes and records nothing), in the same run. The workload is the
+lockstep state phase of the paper scenario in steady state: one bench session
+publishes ``x_i[k]`` for all 5 agents, epoch after epoch, as fast as netem takes
+them (BLOCK); netem forwards each on its out-links (14 directed links), and in
+lockstep also decides every packet, closes every receiver's epoch and publishes
+each epoch's decision batch. A separate subscriber process counts what netem
+delivers on ``link/*/*/state``. Seed: the scenario's (1); no loss configured.
+
+Reported: forwarded packets/s (wall clock, as the subscriber sees them) and netem's
+own CPU time per forwarded packet (from /proc), which the sender and the counter,
+sharing the machine's cores, do not disturb.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import zenoh
 
-from bench.netem_rig import RUN, netem_rig
+from bench.netem_rig import ROOT, RUN, netem_rig
 from formation import keys
 from formation.codec import attachment, encode, now_ns
 from formation.messages import CoordinationState
+from formation.scenario import Scenario
 
-PACKETS = 40_000
-OUT_LINKS = 3  # agent 1 → 2, 3, 4
+EPOCHS = 8_000
+AGENTS = 5
+LINKS = len(Scenario.from_file(ROOT / "scenarios/paper.toml").directed_links)  # 14
 
 
-def forward_rate(passthrough: bool) -> tuple[float, float]:
-    """(forwarded packets/s as a separate subscriber process sees them, sent packets/s)."""
-    expected = PACKETS * OUT_LINKS
-    with netem_rig(epochs=PACKETS + 10, passthrough=passthrough) as (session, endpoint):
+def _cpu_s(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def forward_rate(passthrough: bool, epochs: int = EPOCHS) -> tuple[float, float, float]:
+    """(forwarded packets/s, netem CPU µs per forwarded packet, offered packets/s)."""
+    expected = epochs * LINKS
+    with netem_rig(epochs=epochs + 10, passthrough=passthrough) as (session, endpoint, pid):
         counter = subprocess.Popen(
-            [sys.executable, "-m", "bench.count_subscriber", endpoint, f"{keys.prefix(RUN)}/link/1/*/state",
+            [sys.executable, "-m", "bench.count_subscriber", endpoint, f"{keys.prefix(RUN)}/link/*/*/state",
              str(expected), "60"],
             stdout=subprocess.PIPE, text=True,
         )  # fmt: skip
@@ -37,51 +54,56 @@ def forward_rate(passthrough: bool) -> tuple[float, float]:
             assert counter.stdout is not None
             if counter.stdout.readline().strip() != "ready":
                 raise RuntimeError("the counting subscriber did not start")
-            pub = session.declare_publisher(
-                keys.agent_state(RUN, 1), congestion_control=zenoh.CongestionControl.BLOCK
-            )
+            pubs = [
+                session.declare_publisher(
+                    keys.agent_state(RUN, i), congestion_control=zenoh.CongestionControl.BLOCK
+                )
+                for i in range(1, AGENTS + 1)
+            ]
             time.sleep(0.5)  # the counter's subscription travels to netem through gossip
             payloads = [
-                encode(
-                    CoordinationState(
-                        run_id=RUN,
-                        sender="agent/1",
-                        seq=k,
-                        epoch=k,
-                        stamp_ns=now_ns(),
-                        agent=1,
-                        position=[0.1 * k, 0.2],
-                    )
-                )
-                for k in range(PACKETS)
-            ]
+                encode(CoordinationState(run_id=RUN, sender=f"agent/{i}", seq=k, epoch=k,
+                                         stamp_ns=now_ns(), agent=i, position=[0.1 * k, 0.2]))
+                for k in range(epochs)
+                for i in range(1, AGENTS + 1)
+            ]  # fmt: skip
+            cpu0 = _cpu_s(pid)
             start = time.time_ns()
-            for k, payload in enumerate(payloads):
-                pub.put(payload, attachment=attachment(k, k, 1))
+            for n, payload in enumerate(payloads):
+                k, i = divmod(n, AGENTS)
+                pubs[i].put(payload, attachment=attachment(k, k, i + 1))
             sent_s = (time.time_ns() - start) / 1e9
-            result = json.loads(counter.communicate(timeout=90)[0].strip().splitlines()[-1])
-            pub.undeclare()
+            result = json.loads(counter.communicate(timeout=150)[0].strip().splitlines()[-1])
+            cpu = _cpu_s(pid) - cpu0
+            for pub in pubs:
+                pub.undeclare()
         finally:
             if counter.poll() is None:
                 counter.kill()
                 counter.wait()
-    if result["count"] < expected:
-        print(f"  warning: {result['count']} of {expected} forwarded packets seen")
-    return result["count"] / ((result["last_ns"] - start) / 1e9), PACKETS / sent_s
+    count = result["count"]
+    if count < expected:
+        print(
+            f"  warning ({'pass-through' if passthrough else 'lockstep'}): {count} of {expected} forwarded packets seen"
+        )
+    return (
+        count / ((result["last_ns"] - start) / 1e9),
+        1e6 * cpu / max(count, 1),
+        len(payloads) / sent_s,
+    )
 
 
 def main() -> None:
-    print(
-        f"{PACKETS} packets from one sender with {OUT_LINKS} out-links; baseline: netem --passthrough"
-    )
-    base, base_sent = forward_rate(passthrough=True)
-    rate, sent = forward_rate(passthrough=False)
-    print(f"pass-through      {base:10.0f} forwarded/s (sender offered {base_sent:.0f} packets/s)")
-    print(f"lockstep netem    {rate:10.0f} forwarded/s (sender offered {sent:.0f} packets/s)")
-    cost = 100 * (base / rate - 1)
-    print(
-        f"ratio netem / pass-through {rate / base:.2f} (the loss logic costs {cost:.0f}% more per packet)"
-    )
+    print(f"{EPOCHS} lockstep epochs of the paper scenario's state phase: {AGENTS} senders, "
+          f"{LINKS} directed links; baseline: netem --passthrough in the same run")  # fmt: skip
+    base, base_cpu, base_sent = forward_rate(passthrough=True)
+    rate, cpu, sent = forward_rate(passthrough=False)
+    print(f"pass-through   {base:9.0f} forwarded/s  netem CPU {base_cpu:5.2f} µs/packet  "
+          f"(sender offered {base_sent:.0f} packets/s)")  # fmt: skip
+    print(f"lockstep netem {rate:9.0f} forwarded/s  netem CPU {cpu:5.2f} µs/packet  "
+          f"(sender offered {sent:.0f} packets/s)")  # fmt: skip
+    print(f"ratio lockstep / pass-through: rate {rate / base:.2f}; "
+          f"CPU per packet {cpu / base_cpu:.2f} (the loss logic costs {100 * (cpu / base_cpu - 1):.0f}% more)")  # fmt: skip
 
 
 if __name__ == "__main__":

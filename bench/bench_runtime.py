@@ -72,7 +72,7 @@ def netem_hop_latency(packets: int = 2000) -> tuple[np.ndarray, np.ndarray]:
     """
     # The receiver is a peer of its own: gossip gives it direct links to the sender and netem.
     with (
-        netem_rig(epochs=packets + 10) as (sender, endpoint),
+        netem_rig(epochs=packets + 10) as (sender, endpoint, _),
         zenoh.open(session_config("peer", endpoint, "tcp/127.0.0.1:0")) as receiver,
     ):
         direct: dict[int, int] = {}

@@ -20,8 +20,8 @@ RUN = "bench"
 
 
 @contextmanager
-def netem_rig(epochs: int, passthrough: bool = False) -> Iterator[tuple[zenoh.Session, str]]:
-    """Yield ``(session, router endpoint)`` once netem (paper scenario, no loss) has started."""
+def netem_rig(epochs: int, passthrough: bool = False) -> Iterator[tuple[zenoh.Session, str, int]]:
+    """Yield ``(session, router endpoint, netem pid)`` once netem (paper scenario, no loss) started."""
     with tempfile.TemporaryDirectory() as tmp:
         scenario = Scenario.from_file(ROOT / "scenarios/paper.toml").with_overrides(
             epochs=epochs, network={}
@@ -35,7 +35,7 @@ def netem_rig(epochs: int, passthrough: bool = False) -> Iterator[tuple[zenoh.Se
             group.start("router", "testbed.router", "--listen", endpoint)
             wait_for_port("127.0.0.1", port, 10)
             extra = ["--passthrough"] if passthrough else []
-            group.start("netem", "netem", "--scenario", str(path), "--run-id", RUN, "--mode", "peer",
+            netem = group.start("netem", "netem", "--scenario", str(path), "--run-id", RUN, "--mode", "peer",
                         "--connect", endpoint, "--listen", "tcp/127.0.0.1:0", "--no-recorder", *extra)  # fmt: skip
             with zenoh.open(session_config("peer", endpoint, "tcp/127.0.0.1:0")) as session:
                 live = session.liveliness()
@@ -50,7 +50,7 @@ def netem_rig(epochs: int, passthrough: bool = False) -> Iterator[tuple[zenoh.Se
                     if time.monotonic() > deadline:
                         raise RuntimeError("netem did not start:\n" + group.children[-1].tail())
                     time.sleep(0.01)
-                yield session, endpoint
+                yield session, endpoint, netem.pid
                 watch.undeclare()
                 for t in tokens:
                     t.undeclare()

@@ -82,14 +82,24 @@ class Service:
         self._seq[key] += 1
         return seq
 
-    def put(self, key: str, payload: bytes, attachment: bytes | None = None) -> None:
+    def publisher(self, key: str) -> zenoh.Publisher:
+        """The publisher of ``key``, declared once.
+
+        BLOCK: a publisher never silently drops what netem is meant to decide on. Not
+        express: zenoh still sends at once when its queue is idle, but batches a burst
+        (netem's fan-out) into few writes; express cost netem 5x its forwarding rate.
+        """
         pub = self._publishers.get(key)
         if pub is None:
             pub = self.session.declare_publisher(
-                key, congestion_control=zenoh.CongestionControl.BLOCK, express=True
+                key, congestion_control=zenoh.CongestionControl.BLOCK
             )
             self._publishers[key] = pub
-        pub.put(payload, attachment=attachment)
+        return pub
+
+    def put(self, key: str, payload: Any, attachment: Any = None) -> None:
+        """Publish raw bytes (or a received ``ZBytes``, forwarded without a copy) on ``key``."""
+        self.publisher(key).put(payload, attachment=attachment)
         self.sent[key] += 1
 
     def publish(self, key: str, message: BaseModel, attachment: bytes | None = None) -> None:

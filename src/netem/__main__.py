@@ -51,6 +51,7 @@ def main(argv: list[str] | None = None) -> int:
             )
         else:
             code = node.run()
+        service.sent.update(node.sent_counts())
         service.status("done" if code == 0 else "error", node.estimates_done)
         return code
     except TestbedError as exc:

@@ -14,7 +14,7 @@ import heapq
 import json
 import logging
 import time
-from collections import defaultdict
+from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -22,13 +22,14 @@ import zenoh
 from pydantic import TypeAdapter, ValidationError
 
 from formation import keys
-from formation.codec import attachment, read_attachment
+from formation.codec import read_attachment
 from formation.linkmodels import LinkModelSpec
-from formation.messages import Decision, DecisionBatch, Delivered, EpochClose, LinkChange
+from formation.messages import LinkChange
 from formation.realtime import Clock
 from formation.scenario import LEADER_ENDPOINT, Scenario
 from formation.service import Incoming, Service
 from netem.models import LinkModel
+from netem.records import Forwarded, Record, decision_batch, epoch_close
 
 log = logging.getLogger("netem")
 LinkClass = Literal["formation", "report", "estimate"]
@@ -38,6 +39,9 @@ _PHASE_OF: dict[LinkClass, Phase] = {
     "report": "report",
     "estimate": "estimate",
 }
+_Due = tuple[
+    int, int, zenoh.Publisher, bytes, "bytes | None"
+]  # (due ns, tie, link, payload, attachment)
 _SPECS: TypeAdapter[list[LinkModelSpec]] = TypeAdapter(list[LinkModelSpec])
 
 
@@ -45,8 +49,10 @@ _SPECS: TypeAdapter[list[LinkModelSpec]] = TypeAdapter(list[LinkModelSpec])
 class _Held:
     """A packet held for a later epoch (delay), forwarded with that epoch's close."""
 
-    key: str
-    payload: bytes
+    pub: zenoh.Publisher
+    link: tuple[LinkClass, int, int]
+    payload: Any  # bytes or the received ZBytes
+    attachment: Any
     source: int
     seq: int
     sent_epoch: int
@@ -58,7 +64,7 @@ class _Open:
     """An epoch of one phase into one receiver, not yet closed."""
 
     handled: set[int] = field(default_factory=set)
-    delivered: list[Delivered] = field(default_factory=list)
+    delivered: list[Forwarded] = field(default_factory=list)
     lost: list[int] = field(default_factory=list)
 
 
@@ -77,7 +83,7 @@ class NetemNode:
         self.passthrough = (
             passthrough  # benchmark baseline: forward everything, decide and record nothing
         )
-        self.lock = service.inline_lock  # the config queryable and the inline handler share it
+        self.lock = service.inline_lock  # the config queryable and the sample handler share it
         n = scenario.n
         self.agents = list(range(1, n + 1))
         self.models: dict[tuple[LinkClass, int, int], LinkModel] = {}
@@ -100,19 +106,23 @@ class NetemNode:
         self.open: dict[tuple[Phase, int, int], _Open] = {}  # (phase, receiver, epoch)
         self.held: dict[tuple[Phase, int, int], list[_Held]] = defaultdict(list)
         self.next_close: dict[tuple[Phase, int], int] = defaultdict(int)
-        self.decisions: dict[tuple[Phase, int], list[Decision]] = defaultdict(list)
+        self.decisions: dict[tuple[Phase, int], list[Record]] = defaultdict(list)
         self.closed_count: dict[tuple[Phase, int], int] = defaultdict(int)
+        self.forwarded: Counter[tuple[LinkClass, int, int]] = Counter()
+        self._links: dict[tuple[LinkClass, int, int], tuple[zenoh.Publisher, LinkModel]] = {}
+        self._routes: dict[str, tuple[str, int] | None] = {}  # inbound key → (kind, source)
         self.dead: set[int] = set()
         self.final_states: set[int] = set()
         self.estimates_done = 0
         self.epoch_seen = 0
+        self.running = False  # lockstep: samples are handled on Zenoh's thread once True
         prefix = keys.prefix(self.run_id)
         for key in (
             f"{prefix}/agent/*/state",
             f"{prefix}/agent/*/report",
             keys.leader_estimate_out(self.run_id),
         ):
-            service.subscribe(key)
+            service.subscribe(key, self._on_sample)
         service.queryable(keys.netem_config(self.run_id), self._on_config)
         self.clock: Clock | None = None
         service.queryable(keys.clock(self.run_id), self._on_clock)
@@ -136,43 +146,51 @@ class NetemNode:
             need.append(("recorder", 0))
         return all(self.service.is_alive(role, ident) for role, ident in need)
 
-    # -- decisions ------------------------------------------------------------------------------
-    def _decide(self, cls: LinkClass, src: int, dst: int, epoch: int, seq: int) -> Any:
-        decision = self.models[(cls, src, dst)].decide(epoch)
-        # model_construct: the values come from our own models, so the per-packet cost stays low.
-        self.decisions[(_PHASE_OF[cls], epoch)].append(
-            Decision.model_construct(
-                source=src,
-                target=dst,
-                link_class=cls,
-                epoch=epoch,
-                seq=seq,
-                verdict=decision.verdict,  # type: ignore[arg-type]  # one of Decision's verdicts
-                delay_epochs=decision.delay_epochs,
-                delay_ms=decision.delay_ms,
-                model=decision.model,
-                state=decision.state,
+    # -- links --------------------------------------------------------------------------------
+    def _link(self, cls: LinkClass, src: int, dst: int) -> tuple[zenoh.Publisher, LinkModel]:
+        """The publisher of a link's delivered packets and its model, looked up once."""
+        got = self._links.get((cls, src, dst))
+        if got is None:
+            if cls == "formation":
+                key = keys.link_state(self.run_id, src, dst)
+            elif cls == "report":
+                key = keys.link_report(self.run_id, src)
+            else:
+                key = keys.link_estimate(self.run_id, dst)
+            got = self._links[(cls, src, dst)] = (
+                self.service.publisher(key),
+                self.models[(cls, src, dst)],
             )
-        )
-        return decision
+        return got
 
-    def _route_packet(self, phase: Phase, cls: LinkClass, src: int, dst: int, key: str, payload: bytes,
-                      epoch: int, seq: int) -> None:  # fmt: skip
-        box = self.open.setdefault((phase, dst, epoch), _Open())
+    def sent_counts(self) -> dict[str, int]:
+        """Forwarded packets per delivered key (for the final status)."""
+        out: dict[str, int] = {}
+        for (cls, src, dst), count in self.forwarded.items():
+            pub, _ = self._link(cls, src, dst)
+            out[str(pub.key_expr)] = count
+        return out
+
+    def _route_packet(self, phase: Phase, cls: LinkClass, src: int, dst: int, payload: Any,
+                      att: Any, epoch: int, seq: int) -> None:  # fmt: skip
+        box = self.open.get((phase, dst, epoch))
+        if box is None:
+            box = self.open[(phase, dst, epoch)] = _Open()
         box.handled.add(src)
-        d = self._decide(cls, src, dst, epoch, seq)
+        pub, model = self._link(cls, src, dst)
+        d = model.decide(epoch)
+        self.decisions[(phase, epoch)].append(Record(src, dst, cls, epoch, seq, d))
         if not d.delivered:
             box.lost.append(src)
         elif d.delay_epochs == 0:
             for _ in range(d.copies):
-                self.service.put(key, payload, attachment(epoch, seq, src))
-            box.delivered.append(
-                Delivered.model_construct(source=src, seq=seq, sent_epoch=epoch, copies=d.copies)
-            )
+                pub.put(payload, attachment=att)
+            self.forwarded[(cls, src, dst)] += d.copies
+            box.delivered.append(Forwarded(src, seq, epoch, d.copies))
         else:
             box.lost.append(src)  # lost for this epoch; arrives with a later one
             self.held[(phase, dst, epoch + d.delay_epochs)].append(
-                _Held(key, payload, src, seq, epoch, d.copies)
+                _Held(pub, (cls, src, dst), payload, att, src, seq, epoch, d.copies)
             )
 
     def _senders(self, phase: Phase, receiver: int) -> list[int]:
@@ -182,85 +200,114 @@ class NetemNode:
             return self.agents
         return [LEADER_ENDPOINT]
 
+    def _all_handled(self, box: _Open, senders: list[int]) -> bool:
+        if not self.dead:  # a receiver only hears from its senders: counting is enough
+            return len(box.handled) >= len(senders)
+        return all(s in box.handled for s in senders if s not in self.dead)
+
     def _try_close(self, phase: Phase, receiver: int) -> None:
+        senders = self._senders(phase, receiver)
         while True:
             epoch = self.next_close[(phase, receiver)]
             box = self.open.get((phase, receiver, epoch))
-            waiting = [s for s in self._senders(phase, receiver) if s not in self.dead]
-            if box is None or any(s not in box.handled for s in waiting):
-                if box is None and not waiting and epoch < self.scenario.epochs:
-                    box = self.open.setdefault((phase, receiver, epoch), _Open())
-                else:
+            if box is None:
+                if epoch >= self.scenario.epochs or any(s not in self.dead for s in senders):
                     return
-            del self.open[(phase, receiver, epoch)]
+                box = _Open()  # every sender is dead: close the epoch empty
+            elif not self._all_handled(box, senders):
+                return
+            self.open.pop((phase, receiver, epoch), None)
             for h in self.held.pop((phase, receiver, epoch), []):
                 for _ in range(h.copies):
-                    self.service.put(h.key, h.payload, attachment(h.sent_epoch, h.seq, h.source))
-                box.delivered.append(
-                    Delivered.model_construct(
-                        source=h.source, seq=h.seq, sent_epoch=h.sent_epoch, copies=h.copies
-                    )
-                )
+                    h.pub.put(h.payload, attachment=h.attachment)
+                self.forwarded[h.link] += h.copies
+                box.delivered.append(Forwarded(h.source, h.seq, h.sent_epoch, h.copies))
             key = keys.close(self.run_id, receiver, phase)
-            dead = sorted(s for s in self._senders(phase, receiver) if s in self.dead)
-            msg = EpochClose(**self.service.header(key, epoch), receiver=receiver, phase=phase,
-                             delivered=box.delivered, lost=sorted(box.lost), dead=dead)  # fmt: skip
-            self.service.publish(key, msg)
+            dead = [s for s in senders if s in self.dead] if self.dead else []
+            header = self.service.header(key, epoch)
+            self.service.put(
+                key, epoch_close(header, receiver, phase, box.delivered, box.lost, dead)
+            )
             self.next_close[(phase, receiver)] = epoch + 1
             self.closed_count[(phase, epoch)] += 1
             receivers = len(self.agents) - len(self.dead) if phase != "report" else 1
             if self.closed_count[(phase, epoch)] >= receivers:
+                del self.closed_count[(phase, epoch)]
                 self._publish_decisions(phase, epoch)
 
     def _publish_decisions(self, phase: Phase, epoch: int) -> None:
         batch = self.decisions.pop((phase, epoch), [])
         key = keys.netem_decision(self.run_id)
-        self.service.publish(
-            key, DecisionBatch(**self.service.header(key, epoch), phase=phase, decisions=batch)
-        )
+        self.service.put(key, decision_batch(self.service.header(key, epoch), phase, batch))
 
     # -- inbound ----------------------------------------------------------------------------------
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        """Every inbound packet: handled at once on Zenoh's thread in lockstep, else queued."""
+        att = sample.attachment
+        if not self.running:
+            raw = None if att is None else att.to_bytes()
+            self.service.inbox.put(Incoming(str(sample.key_expr), sample.payload.to_bytes(), raw))
+            return
+        key = str(sample.key_expr)
+        with self.lock:
+            try:
+                self._handle(key, sample.payload, att)
+            except Exception:  # a bad message must never stop netem: count it, log it
+                self.service.malformed.counts[key] += 1
+                log.exception("while handling %s", key)
+
     def handle(self, msg: Incoming) -> None:
-        meta = read_attachment(msg.attachment)
-        if meta is None:
-            self.service.malformed.counts[msg.key] += 1
+        """A queued packet (one that came before the start)."""
+        self._handle(msg.key, msg.payload, msg.attachment)
+
+    def _route_of(self, key: str) -> tuple[str, int] | None:
+        """``(kind, source)`` of an inbound key, parsed once per key; None if not ours."""
+        if key not in self._routes:
+            parts = key.split("/")
+            route: tuple[str, int] | None = None
+            if len(parts) == 5 and parts[2] == "agent" and parts[3].isdigit():
+                if int(parts[3]) in self.agents and parts[4] in ("state", "report"):
+                    route = (parts[4], int(parts[3]))
+            elif parts[2:] == ["leader", "estimate"]:
+                route = ("estimate", LEADER_ENDPOINT)
+            self._routes[key] = route
+        return self._routes[key]
+
+    def _handle(self, key: str, payload: Any, att: Any) -> None:
+        raw = att if att is None or isinstance(att, bytes) else att.to_bytes()
+        meta = read_attachment(raw)
+        route = self._route_of(key)
+        if meta is None or route is None or meta[2] != route[1]:
+            self.service.malformed.counts[key] += 1
             return
         epoch, seq, source = meta
-        parts = msg.key.split("/")
-        kind = parts[-1]
-        if self.passthrough and kind == "state" and parts[2] == "agent":
-            for dst in self.out_links.get(source, ()):
-                self.service.put(
-                    keys.link_state(self.run_id, source, dst), msg.payload, msg.attachment
-                )
-            return
-        if parts[2] == "agent":
-            if int(parts[3]) != source or source not in self.agents:
-                self.service.malformed.counts[msg.key] += 1
+        kind = route[0]
+        if kind == "state":
+            if self.passthrough:
+                for dst in self.out_links[source]:
+                    self._link("formation", source, dst)[0].put(payload, attachment=att)
                 return
-            if kind == "state":
-                self.epoch_seen = max(self.epoch_seen, epoch)
-                if epoch >= self.scenario.epochs:
-                    self.final_states.add(source)
-                    return
-                for dst in self.out_links[source]:
-                    if dst in self.dead:
-                        continue
-                    self._route_packet("state", "formation", source, dst,
-                                       keys.link_state(self.run_id, source, dst), msg.payload, epoch, seq)  # fmt: skip
-                for dst in self.out_links[source]:
-                    self._try_close("state", dst)
-            elif kind == "report":
-                self._route_packet("report", "report", source, LEADER_ENDPOINT,
-                                   keys.link_report(self.run_id, source), msg.payload, epoch, seq)  # fmt: skip
-                self._try_close("report", LEADER_ENDPOINT)
-        elif kind == "estimate" and parts[2] == "leader":
+            self.epoch_seen = max(self.epoch_seen, epoch)
+            if epoch >= self.scenario.epochs:
+                self.final_states.add(source)
+                return
+            out = self.out_links[source]
+            for dst in out:
+                if dst not in self.dead:
+                    self._route_packet("state", "formation", source, dst, payload, att, epoch, seq)
+            for dst in out:
+                self._try_close("state", dst)
+        elif kind == "report":
+            self._route_packet(
+                "report", "report", source, LEADER_ENDPOINT, payload, att, epoch, seq
+            )
+            self._try_close("report", LEADER_ENDPOINT)
+        else:
             for i in self.agents:
-                if i in self.dead:
-                    continue
-                self._route_packet("estimate", "estimate", LEADER_ENDPOINT, i,
-                                   keys.link_estimate(self.run_id, i), msg.payload, epoch, seq)  # fmt: skip
-                self._try_close("estimate", i)
+                if i not in self.dead:
+                    self._route_packet("estimate", "estimate", LEADER_ENDPOINT, i, payload, att,
+                                       epoch, seq)  # fmt: skip
+                    self._try_close("estimate", i)
             self.estimates_done = max(self.estimates_done, epoch + 1)
 
     def _on_dead(self, agent: int) -> None:
@@ -336,62 +383,43 @@ class NetemNode:
         else:
             query.reply(query.key_expr, self.clock.to_json())
 
-    def _forward_realtime(self, cls: LinkClass, src: int, dst: int, key: str, msg: Incoming,
-                          epoch: int, seq: int, due: list[tuple[int, int, str, bytes, bytes]]) -> None:  # fmt: skip
+    def _forward_realtime(self, cls: LinkClass, src: int, dst: int, msg: Incoming, epoch: int,
+                          seq: int, due: list[_Due]) -> None:  # fmt: skip
         assert self.clock is not None
         now = time.time_ns()
-        d = self.models[(cls, src, dst)].decide(epoch, time_s=(now - self.clock.t0_ns) / 1e9)
-        self.decisions[(_PHASE_OF[cls], epoch)].append(
-            Decision(
-                source=src,
-                target=dst,
-                link_class=cls,
-                epoch=epoch,
-                seq=seq,
-                verdict=d.verdict,
-                delay_ms=d.delay_ms,
-                model=d.model,
-                state=d.state,
-            )
-        )
+        pub, model = self._link(cls, src, dst)
+        d = model.decide(epoch, time_s=(now - self.clock.t0_ns) / 1e9)
+        self.decisions[(_PHASE_OF[cls], epoch)].append(Record(src, dst, cls, epoch, seq, d))
         if not d.delivered:
             return
-        att = attachment(epoch, seq, src)
-        if d.delay_ms <= 0:
-            for _ in range(d.copies):
-                self.service.put(key, msg.payload, att)
-        else:
-            for _ in range(d.copies):
-                heapq.heappush(due, (now + int(d.delay_ms * 1e6), len(due), key, msg.payload, att))
+        self.forwarded[(cls, src, dst)] += d.copies
+        for _ in range(d.copies):
+            if d.delay_ms <= 0:
+                pub.put(msg.payload, attachment=msg.attachment)
+            else:
+                due_ns = now + int(d.delay_ms * 1e6)
+                heapq.heappush(due, (due_ns, len(due), pub, msg.payload, msg.attachment))
 
-    def _handle_realtime(
-        self, msg: Incoming, due: list[tuple[int, int, str, bytes, bytes]]
-    ) -> None:
+    def _handle_realtime(self, msg: Incoming, due: list[_Due]) -> None:
         meta = read_attachment(msg.attachment)
-        if meta is None:
+        route = self._route_of(msg.key)
+        if meta is None or route is None or meta[2] != route[1]:
             self.service.malformed.counts[msg.key] += 1
             return
         epoch, seq, source = meta
-        parts = msg.key.split("/")
-        if parts[2] == "agent":
-            if int(parts[3]) != source or source not in self.agents:
-                self.service.malformed.counts[msg.key] += 1
+        kind = route[0]
+        if kind == "state":
+            self.epoch_seen = max(self.epoch_seen, epoch)
+            if epoch >= self.scenario.epochs:
+                self.final_states.add(source)
                 return
-            if parts[-1] == "state":
-                self.epoch_seen = max(self.epoch_seen, epoch)
-                if epoch >= self.scenario.epochs:
-                    self.final_states.add(source)
-                    return
-                for dst in self.out_links[source]:
-                    self._forward_realtime("formation", source, dst, keys.link_state(self.run_id, source, dst),
-                                           msg, epoch, seq, due)  # fmt: skip
-            elif parts[-1] == "report":
-                self._forward_realtime("report", source, LEADER_ENDPOINT, keys.link_report(self.run_id, source),
-                                       msg, epoch, seq, due)  # fmt: skip
-        elif parts[2] == "leader" and parts[-1] == "estimate":
+            for dst in self.out_links[source]:
+                self._forward_realtime("formation", source, dst, msg, epoch, seq, due)
+        elif kind == "report":
+            self._forward_realtime("report", source, LEADER_ENDPOINT, msg, epoch, seq, due)
+        else:
             for i in self.agents:
-                self._forward_realtime("estimate", LEADER_ENDPOINT, i, keys.link_estimate(self.run_id, i),
-                                       msg, epoch, seq, due)  # fmt: skip
+                self._forward_realtime("estimate", LEADER_ENDPOINT, i, msg, epoch, seq, due)
             self.estimates_done = max(self.estimates_done, epoch + 1)
 
     def run_realtime(self, period_s: float) -> int:
@@ -401,13 +429,13 @@ class NetemNode:
                 return 130
         self.clock = Clock(time.time_ns() + int(0.3e9), int(period_s * 1e9))
         self.service.declare_start()
-        due: list[tuple[int, int, str, bytes, bytes]] = []
+        due: list[_Due] = []
         next_flush = self.clock.at(1)
         while not (self.finished() and not due) and not self.service.stopping.is_set():
             now = time.time_ns()
             while due and due[0][0] <= now:
-                _, _, key, payload, att = heapq.heappop(due)
-                self.service.put(key, payload, att)
+                _, _, pub, payload, att = heapq.heappop(due)
+                pub.put(payload, attachment=att)
             if now >= next_flush:
                 for phase, epoch in sorted(self.decisions):
                     self._publish_decisions(phase, epoch)
@@ -424,7 +452,8 @@ class NetemNode:
 
     # -- main loop -------------------------------------------------------------------------------------
     def run(self) -> int:
-        self.service.inline = self.handle  # lockstep: handled on Zenoh's thread, no queue hand-off
+        with self.lock:  # lockstep: handled on Zenoh's thread from now on, no queue hand-off
+            self.running = True
         while not self.everyone_up():
             if self.service.stopping.wait(0.02):
                 return 130
