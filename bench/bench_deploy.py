@@ -5,8 +5,8 @@ bench_deploy``). Two measurements, each against a baseline measured in the same 
 
 1. Lockstep epochs/s of the default scenario (``scenarios/paper.toml``, seed from
    the file, ``--epochs`` overriding its length). Baseline: the plain loopback run
-   (``formation run``: peer mode, every process on 127.0.0.1). Compared with the
-   launcher in client mode through its router, and with ``formation compose``'s
+   with every process a zenoh peer on 127.0.0.1. Compared with the launcher in
+   client mode through its router (``formation run``'s default), and with ``formation compose``'s
    services run as processes on their own loopback hosts 127.A.B.N
    (:mod:`testbed.loopback`), every service a ``client`` of the router: open, closed
    (user/password + access control) and closed over TLS. The rate is taken from

@@ -39,26 +39,61 @@ def _mix(z: npt.NDArray[np.uint64]) -> npt.NDArray[np.uint64]:
     return z ^ (z >> np.uint64(31))
 
 
+_M64 = (1 << 64) - 1
+_G, _C1, _C2 = int(_GOLDEN), int(_MUL1), int(_MUL2)
+_START = 0x243F6A8885A308D3
+
+
+def _mix_int(z: int) -> int:
+    """``_mix`` on one Python int: a scalar key costs no numpy call (an agent draws a handful)."""
+    z = ((z ^ (z >> 30)) * _C1) & _M64
+    z = ((z ^ (z >> 27)) * _C2) & _M64
+    return z ^ (z >> 31)
+
+
+def _chain(h: int | npt.NDArray[np.uint64], key: KeyLike) -> int | npt.NDArray[np.uint64]:
+    """The hash state after one more key word: ``mix(h + G + mix(key + G))``."""
+    if isinstance(h, int) and isinstance(key, (int, np.integer)):
+        return _mix_int((h + _G + _mix_int((int(key) + _G) & _M64)) & _M64)
+    a = np.asarray(key, dtype=np.int64).astype(np.uint64)
+    with np.errstate(over="ignore"):
+        return (
+            _mix(np.uint64(h) + _GOLDEN + _mix(a + _GOLDEN))
+            if isinstance(h, int)
+            else _mix(h + _GOLDEN + _mix(a + _GOLDEN))
+        )
+
+
+def _state(keys: tuple[KeyLike, ...]) -> int | npt.NDArray[np.uint64]:
+    h: int | npt.NDArray[np.uint64] = _START
+    for k in keys:
+        h = _chain(h, k)
+    return h
+
+
+def _as_bits(h: int | npt.NDArray[np.uint64]) -> npt.NDArray[np.uint64]:
+    return np.atleast_1d(np.asarray(h, dtype=np.uint64))
+
+
 def keyed_bits(*keys: KeyLike) -> npt.NDArray[np.uint64]:
     """64 random bits per broadcast element of the integer key arrays (non-negative, < 2**63)."""
-    arrays = [np.atleast_1d(np.asarray(k, dtype=np.int64)).astype(np.uint64) for k in keys]
-    shape = np.broadcast_shapes(*(a.shape for a in arrays))
-    h = np.full(shape, 0x243F6A8885A308D3, dtype=np.uint64)
-    with np.errstate(over="ignore"):
-        for a in arrays:
-            h = _mix(h + _GOLDEN + _mix(a + _GOLDEN))
-    return h
+    return _as_bits(_state(keys))
+
+
+def _uniform(bits: npt.NDArray[np.uint64]) -> npt.NDArray[np.float64]:
+    return (bits >> np.uint64(11)).astype(np.float64) * _TWO_POW_M53
 
 
 def keyed_uniform(*keys: KeyLike) -> npt.NDArray[np.float64]:
     """Uniform draws in [0, 1), one per broadcast element of the keys."""
-    return (keyed_bits(*keys) >> np.uint64(11)).astype(np.float64) * _TWO_POW_M53
+    return _uniform(keyed_bits(*keys))
 
 
 def keyed_normal(*keys: KeyLike) -> npt.NDArray[np.float64]:
     """Standard normal draws, one per broadcast element of the keys (Box–Muller)."""
-    u1 = keyed_uniform(*keys, 0)
-    u2 = keyed_uniform(*keys, 1)
+    h = _state(keys)  # shared by both uniforms, keyed (*keys, 0) and (*keys, 1)
+    u1 = _uniform(_as_bits(_chain(h, 0)))
+    u2 = _uniform(_as_bits(_chain(h, 1)))
     radius = np.sqrt(-2.0 * np.log1p(-u1))  # 1 - u1 in (0, 1]: log is finite
     return radius * np.cos(2.0 * np.pi * u2)
 
@@ -66,5 +101,8 @@ def keyed_normal(*keys: KeyLike) -> npt.NDArray[np.float64]:
 def keyed_normal_vector(d: int, *keys: KeyLike) -> npt.NDArray[np.float64]:
     """Standard normal vectors of length ``d``: shape ``broadcast(keys) + (d,)``."""
     coord = np.arange(d, dtype=np.int64)
-    expanded = [np.asarray(k, dtype=np.int64)[..., None] for k in keys]
+    expanded = [
+        k if isinstance(k, (int, np.integer)) else np.asarray(k, dtype=np.int64)[..., None]
+        for k in keys
+    ]
     return keyed_normal(*expanded, coord)

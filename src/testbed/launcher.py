@@ -205,9 +205,14 @@ def launch(
     progress: Any = None,
     run_id: str | None = None,
     on_started: Any = None,
-    zenoh_mode: str = "peer",
+    zenoh_mode: str = "client",
 ) -> RunOutcome:
-    """Run ``scenario`` as real processes; returns what was observed. Every child ends by PID."""
+    """Run ``scenario`` as real processes; returns what was observed. Every child ends by PID.
+
+    Client mode, through the router, is the default: zenoh batches each process's traffic on
+    its one link (bench/bench_runtime.py, seed 1: 50 agents 16.8 epochs/s against 11.4 as
+    peers; 1,000 pooled 1.8 against 1.2; 5 agents the same within noise).
+    """
     strategy = strategy or scenario.strategy.name
     if startup_timeout_s is None:
         startup_timeout_s = (
