@@ -17,9 +17,9 @@ from agent.runner import AgentRunner, Estimate, Packet
 from formation import keys
 from formation.codec import attachment, read_attachment
 from formation.messages import (
+    AgentEstimate,
     CoordinationState,
     EpochClose,
-    LeaderEstimate,
     Measurement,
     Substitute,
     TokenReport,
@@ -38,7 +38,13 @@ class _Inbox:
 
     packets: dict[tuple[int, int], object] = field(default_factory=dict)  # (source, seq) → Packet
     closes: dict[tuple[str, int], EpochClose] = field(default_factory=dict)
-    estimates: dict[int, object] = field(default_factory=dict)  # epoch → LeaderEstimate
+    estimates: dict[int, object] = field(default_factory=dict)  # epoch → AgentEstimate
+
+
+def _estimate(est: object) -> Estimate | None:
+    if not isinstance(est, AgentEstimate):
+        return None  # lost, or malformed
+    return Estimate(dict(zip(est.neighbours, est.positions, strict=False)), est.v_ref)
 
 
 class AgentNode:
@@ -59,7 +65,6 @@ class AgentNode:
         self.phase = "state"  # waiting for the close of this phase, for every agent
         self.done = False
         self.taken = -1  # realtime: the last epoch whose packets were taken
-        self._last_estimate: tuple[bytes, LeaderEstimate | None] = (b"", None)
         self.deadline = {
             "packets": 0,
             "late_packets": 0,
@@ -112,13 +117,10 @@ class AgentNode:
             )
             self.inbox[receiver].packets[(source, seq)] = value
         elif kind == "estimate":
-            # In a pool every agent gets the same payload: decode it once.
-            cached_payload, cached = self._last_estimate
-            if msg.payload == cached_payload:
-                est = cached
-            else:
-                est = self.service.malformed.decode(msg.key, msg.payload, LeaderEstimate)
-                self._last_estimate = (msg.payload, est)
+            est = self.service.malformed.decode(msg.key, msg.payload, AgentEstimate)
+            if est is not None and est.agent != receiver:
+                self.service.malformed.counts[msg.key] += 1  # another agent's part: unusable
+                est = None
             if est is not None and self.taken >= 0 and est.epoch < self.runner.epoch:
                 self.deadline["late_estimates"] += 1
             elif est is not None:
@@ -193,7 +195,7 @@ class AgentNode:
             for old in [e for e in box.estimates if e < k]:
                 del box.estimates[old]
             del box.closes[("estimate", k)]
-            got[i] = Estimate(est.positions, est.v_ref) if isinstance(est, LeaderEstimate) else None
+            got[i] = _estimate(est)
         self.runner.step(got)
         self.phase = "state"
         self._publish_states()
@@ -263,11 +265,8 @@ class AgentNode:
             for i in self.ids:
                 est = self.inbox[i].estimates.pop(k, None)
                 self.inbox[i].estimates.clear()
-                if isinstance(est, LeaderEstimate):
-                    self.deadline["estimates"] += 1
-                    got[i] = Estimate(est.positions, est.v_ref)
-                else:
-                    got[i] = None
+                got[i] = _estimate(est)
+                self.deadline["estimates"] += got[i] is not None
             self.runner.step(got)
         sleep_until(clock.at(self.scenario.epochs))
         self._publish_states()

@@ -33,9 +33,10 @@ class Packet:
 
 @dataclass(frozen=True)
 class Estimate:
-    """What the leader's epoch-``k`` message gave one agent: ``x̂`` per agent (None: unobservable), ``v_ref``."""
+    """What the leader's epoch-``k`` message gave one agent: ``x̂_j`` per in-neighbour ``j``
+    (None: unobservable), and ``v_ref``."""
 
-    positions: list[list[float] | None]
+    positions: dict[int, list[float] | None]
     v_ref: list[float]
 
 
@@ -126,7 +127,7 @@ class AgentRunner:
         has = np.zeros(n_links, dtype=bool)
         for r, (i, j) in enumerate(zip(self.links.receiver, self.links.sender, strict=True)):
             e = estimates.get(int(i))
-            value = None if e is None else e.positions[int(j) - 1]
+            value = None if e is None else e.positions.get(int(j))
             if value is not None:
                 est[r], has[r] = value, True
         result = agent_epoch(

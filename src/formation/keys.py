@@ -30,8 +30,13 @@ def agent_report(run_id: str, i: int | str) -> str:
 
 
 def leader_estimate_out(run_id: str) -> str:
-    """The leader's estimate message (before netem fans it out per agent)."""
+    """The leader's whole estimate, for the recorder and observers (netem does not forward it)."""
     return f"{ROOT}/{run_id}/leader/estimate"
+
+
+def leader_estimate_for(run_id: str, i: int | str) -> str:
+    """What agent ``i`` uses of the estimate (before netem, which forwards it on link ``0 → i``)."""
+    return f"{ROOT}/{run_id}/leader/estimate/{i}"
 
 
 # -- what netem delivers ------------------------------------------------------------------------
@@ -46,7 +51,7 @@ def link_report(run_id: str, i: int | str) -> str:
 
 
 def link_estimate(run_id: str, i: int | str) -> str:
-    """The leader's estimate delivered to agent ``i`` (control link ``0 → i``)."""
+    """Agent ``i``'s part of the estimate, delivered to it (control link ``0 → i``)."""
     return f"{ROOT}/{run_id}/link/{LEADER}/{i}/estimate"
 
 

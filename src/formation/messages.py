@@ -86,6 +86,21 @@ class LeaderEstimate(_Message):
     reports_received: int
 
 
+class AgentEstimate(_Message):
+    """What agent ``agent`` uses of the leader's epoch-``k`` estimate (MODEL.md §6).
+
+    ``positions[m]`` is ``x̂_j`` of ``j = neighbours[m]`` (None if unobservable), for
+    every in-neighbour ``j``; ``v_ref`` the reference velocity. One per agent, so
+    netem's control link ``0 → i`` carries what ``i`` needs, not the whole team's.
+    """
+
+    kind: Literal["agent_estimate"] = "agent_estimate"
+    agent: int
+    neighbours: list[int]
+    positions: list[list[float] | None]
+    v_ref: list[float]
+
+
 class Delivered(BaseModel):
     """A packet delivered to a receiver within an epoch (``sent_epoch < epoch`` when delayed)."""
 
@@ -181,6 +196,7 @@ Message = Annotated[
     CoordinationState
     | TokenReport
     | LeaderEstimate
+    | AgentEstimate
     | EpochClose
     | DecisionBatch
     | LinkChange
@@ -194,6 +210,7 @@ ALL_MODELS: tuple[type[BaseModel], ...] = (
     CoordinationState,
     TokenReport,
     LeaderEstimate,
+    AgentEstimate,
     EpochClose,
     DecisionBatch,
     LinkChange,

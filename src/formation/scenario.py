@@ -274,6 +274,14 @@ class Scenario(_Model):
         e = self.edge_array
         return np.stack([e, e[:, ::-1]], axis=1).reshape(-1, 2)
 
+    @cached_property
+    def in_neighbours(self) -> list[list[int]]:
+        """Per agent ``i`` (row ``i − 1``), the ids ``j`` of its in-links ``j → i``, ascending."""
+        senders: list[list[int]] = [[] for _ in range(self.n)]
+        for j, i in self.directed_links.tolist():
+            senders[i - 1].append(j)
+        return [sorted(s) for s in senders]
+
     def with_overrides(self, **changes: Any) -> Scenario:
         """A validated copy with top-level fields replaced (e.g. ``seed``, ``epochs``, ``strategy``)."""
         data = self.model_dump(by_alias=True)

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable, Iterator
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+import orjson
 
 from formation import keys
 from formation.codec import attachment, read_attachment
@@ -74,6 +77,29 @@ def estimate_message(
     )
 
 
+def agent_estimate_payloads(
+    scenario: Scenario,
+    header: Callable[[int], dict[str, Any]],
+    lead: LeaderEpoch,
+    v_ref: list[float],
+) -> Iterator[tuple[int, bytes]]:
+    """``(i, AgentEstimate JSON)`` per agent: its in-neighbours' ``x̂`` and ``v_ref``.
+
+    Built as plain dicts (orjson): at 1,000 agents the leader sends 1,000 of them an
+    epoch. ``header(i)`` gives the common fields of agent ``i``'s message.
+    """
+    res = lead.estimate
+    positions = [
+        p if ok else None
+        for p, ok in zip(res.positions.tolist(), res.observable.tolist(), strict=True)
+    ]
+    for i, neighbours in enumerate(scenario.in_neighbours, start=1):
+        yield i, orjson.dumps({
+            **header(i), "kind": "agent_estimate", "agent": i, "neighbours": neighbours,
+            "positions": [positions[j - 1] for j in neighbours], "v_ref": v_ref,
+        })  # fmt: skip
+
+
 class LeaderNode:
     def __init__(self, service: Service, scenario: Scenario) -> None:
         self.service, self.scenario = service, scenario
@@ -131,9 +157,19 @@ class LeaderNode:
                 k,
                 int((~lead.estimate.observable).sum()),
             )
+        v_ref = [float(v) for v in self.ref_v[k]]
+        heads: dict[int, dict[str, Any]] = {}
+
+        def header(i: int) -> dict[str, Any]:
+            heads[i] = self.service.header(keys.leader_estimate_for(self.run_id, i), k)
+            return heads[i]
+
+        for i, payload in agent_estimate_payloads(self.scenario, header, lead, v_ref):
+            att = attachment(k, int(heads[i]["seq"]), keys.LEADER)
+            self.service.put(keys.leader_estimate_for(self.run_id, i), payload, att)
         key = keys.leader_estimate_out(self.run_id)
         head = self.service.header(key, k)
-        msg = estimate_message(head, lead, [float(v) for v in self.ref_x[k]], [float(v) for v in self.ref_v[k]],
+        msg = estimate_message(head, lead, [float(v) for v in self.ref_x[k]], v_ref,
                                self.scenario.edge_array, len(reports))  # fmt: skip
         self.service.publish(key, msg, attachment(k, int(head["seq"]), keys.LEADER))
         self.epoch = k + 1

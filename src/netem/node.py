@@ -42,6 +42,7 @@ _PHASE_OF: dict[LinkClass, Phase] = {
 _Due = tuple[
     int, int, zenoh.Publisher, bytes, "bytes | None"
 ]  # (due ns, tie, link, payload, attachment)
+_Route = tuple[str, int, int]
 _SPECS: TypeAdapter[list[LinkModelSpec]] = TypeAdapter(list[LinkModelSpec])
 
 
@@ -110,7 +111,8 @@ class NetemNode:
         self.closed_count: dict[tuple[Phase, int], int] = defaultdict(int)
         self.forwarded: Counter[tuple[LinkClass, int, int]] = Counter()
         self._links: dict[tuple[LinkClass, int, int], tuple[zenoh.Publisher, LinkModel]] = {}
-        self._routes: dict[str, tuple[str, int] | None] = {}  # inbound key → (kind, source)
+        self._routes: dict[str, _Route | None] = {}  # inbound key → (kind, source, target)
+        self._estimates_seen: Counter[int] = Counter()  # epoch → agents' estimates handled
         self.dead: set[int] = set()
         self.final_states: set[int] = set()
         self.estimates_done = 0
@@ -120,7 +122,7 @@ class NetemNode:
         for key in (
             f"{prefix}/agent/*/state",
             f"{prefix}/agent/*/report",
-            keys.leader_estimate_out(self.run_id),
+            keys.leader_estimate_for(self.run_id, "*"),
         ):
             service.subscribe(key, self._on_sample)
         service.queryable(keys.netem_config(self.run_id), self._on_config)
@@ -260,18 +262,34 @@ class NetemNode:
         """A queued packet (one that came before the start)."""
         self._handle(msg.key, msg.payload, msg.attachment)
 
-    def _route_of(self, key: str) -> tuple[str, int] | None:
-        """``(kind, source)`` of an inbound key, parsed once per key; None if not ours."""
+    def _route_of(self, key: str) -> _Route | None:
+        """``(kind, source, target)`` of an inbound key, parsed once per key; None if not ours.
+
+        ``agent/<i>/state`` and ``agent/<i>/report`` come from ``i`` (target unused, 0);
+        ``leader/estimate/<i>`` from the leader to ``i``.
+        """
         if key not in self._routes:
             parts = key.split("/")
-            route: tuple[str, int] | None = None
-            if len(parts) == 5 and parts[2] == "agent" and parts[3].isdigit():
-                if int(parts[3]) in self.agents and parts[4] in ("state", "report"):
-                    route = (parts[4], int(parts[3]))
-            elif parts[2:] == ["leader", "estimate"]:
-                route = ("estimate", LEADER_ENDPOINT)
+            route: _Route | None = None
+            if len(parts) == 5 and parts[3].isdigit() and int(parts[3]) in self.agents:
+                if parts[2] == "agent" and parts[4] in ("state", "report"):
+                    route = (parts[4], int(parts[3]), 0)
+            elif (
+                len(parts) == 5
+                and parts[2:4] == ["leader", "estimate"]
+                and parts[4].isdigit()
+                and int(parts[4]) in self.agents
+            ):
+                route = ("estimate", LEADER_ENDPOINT, int(parts[4]))
             self._routes[key] = route
         return self._routes[key]
+
+    def _estimate_handled(self, epoch: int) -> None:
+        """The leader sends one estimate per agent: the epoch is done once all were handled."""
+        self._estimates_seen[epoch] += 1
+        if self._estimates_seen[epoch] >= len(self.agents):
+            del self._estimates_seen[epoch]
+            self.estimates_done = max(self.estimates_done, epoch + 1)
 
     def _handle(self, key: str, payload: Any, att: Any) -> None:
         raw = att if att is None or isinstance(att, bytes) else att.to_bytes()
@@ -303,12 +321,12 @@ class NetemNode:
             )
             self._try_close("report", LEADER_ENDPOINT)
         else:
-            for i in self.agents:
-                if i not in self.dead:
-                    self._route_packet("estimate", "estimate", LEADER_ENDPOINT, i, payload, att,
-                                       epoch, seq)  # fmt: skip
-                    self._try_close("estimate", i)
-            self.estimates_done = max(self.estimates_done, epoch + 1)
+            dst = route[2]
+            if dst not in self.dead:
+                self._route_packet("estimate", "estimate", LEADER_ENDPOINT, dst, payload, att,
+                                   epoch, seq)  # fmt: skip
+                self._try_close("estimate", dst)
+            self._estimate_handled(epoch)
 
     def _on_dead(self, agent: int) -> None:
         if agent in self.dead or agent in self.final_states:
@@ -418,9 +436,8 @@ class NetemNode:
         elif kind == "report":
             self._forward_realtime("report", source, LEADER_ENDPOINT, msg, epoch, seq, due)
         else:
-            for i in self.agents:
-                self._forward_realtime("estimate", LEADER_ENDPOINT, i, msg, epoch, seq, due)
-            self.estimates_done = max(self.estimates_done, epoch + 1)
+            self._forward_realtime("estimate", LEADER_ENDPOINT, route[2], msg, epoch, seq, due)
+            self._estimate_handled(epoch)
 
     def run_realtime(self, period_s: float) -> int:
         """Forward each packet as it comes (after its model's delay in ms); no epoch closes."""

@@ -32,7 +32,7 @@ from recorder.schemas import classify, run_id_of
 
 SKIP = frozenset({"alive"})  # channel kinds never replayed
 WAIT_SLICE_S = 0.05  # longest sleep between control checks [s]
-LEADER_KINDS = frozenset({"leader_estimate", "link_estimate"})
+LEADER_KINDS = frozenset({"leader_estimate", "agent_estimate", "link_estimate"})
 
 
 def control_key(prefix: str) -> str:
@@ -61,10 +61,10 @@ def rebuild_attachment(kind: str, payload: bytes) -> bytes | None:
         epoch, seq = int(body["epoch"]), int(body["seq"])
     except (ValueError, KeyError, TypeError):
         return None
+    if kind in LEADER_KINDS:  # before "agent": an agent's estimate comes from the leader
+        return codec.attachment(epoch, seq, keys.LEADER)
     if isinstance(body.get("agent"), int):
         return codec.attachment(epoch, seq, body["agent"])
-    if kind in LEADER_KINDS:
-        return codec.attachment(epoch, seq, keys.LEADER)
     return None
 
 

@@ -21,6 +21,7 @@ from pydantic import BaseModel, ConfigDict
 
 from formation import keys
 from formation.messages import (
+    AgentEstimate,
     Control,
     CoordinationState,
     DecisionBatch,
@@ -56,6 +57,7 @@ _PATTERNS: tuple[tuple[str, str], ...] = (
     ("agent_state", keys.agent_state(_W, _W)),
     ("agent_report", keys.agent_report(_W, _W)),
     ("leader_estimate", keys.leader_estimate_out(_W)),
+    ("agent_estimate", keys.leader_estimate_for(_W, _W)),
     ("link_state", keys.link_state(_W, _W, _W)),
     ("leader_report", keys.link_report(_W, _W)),
     ("link_estimate", keys.link_estimate(_W, _W)),
@@ -76,7 +78,8 @@ MODELS: dict[str, type[BaseModel]] = {
     "agent_report": TokenReport,
     "leader_report": TokenReport,
     "leader_estimate": LeaderEstimate,
-    "link_estimate": LeaderEstimate,
+    "agent_estimate": AgentEstimate,
+    "link_estimate": AgentEstimate,
     "close": EpochClose,
     "decision": DecisionBatch,
     "link_change": LinkChange,

@@ -8,7 +8,7 @@ denies by default and allows each user to publish only its own keys:
   ``agent/<i>/report``), its status and its liveliness token;
 - ``netem``: the delivered links (``link/…``, ``leader/report/…``), epoch-close
   markers, its decisions and changes, the start token and its queryables;
-- ``leader``: the estimate (``leader/estimate``), its status and token;
+- ``leader``: the estimate (``leader/estimate`` and each agent's ``leader/estimate/<i>``), its status and token;
 - ``recorder``: its status, token and the ``recorder/counts`` queryable;
 - ``operator``: publishes nothing; may query ``recorder/counts``,
   ``netem/config`` and ``clock`` (a person or a tool watching the run).
@@ -104,7 +104,11 @@ def principals(n_agents: int) -> list[Principal]:
         ),
         Principal(
             "leader",
-            publish=(keys.leader_estimate_out(r), keys.status(r, "leader", 0)),
+            publish=(
+                keys.leader_estimate_out(r),
+                keys.leader_estimate_for(r, "*"),
+                keys.status(r, "leader", 0),
+            ),
             tokens=(keys.alive(r, "leader", 0),),
             queries=(keys.clock(r),),
         ),

@@ -1,0 +1,44 @@
+"""Each agent gets its in-neighbours' part of the leader's estimate, and nothing else."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from formation.messages import AgentEstimate
+from formation.scenario import Scenario
+from leader.epoch import leader_epoch
+from leader.node import agent_estimate_payloads
+from testbed.teams import henneberg_team
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+HEAD = {"run_id": "r", "sender": "leader", "seq": 0, "epoch": 4, "stamp_ns": 1}
+
+
+def _exact_measurements(scenario: Scenario) -> tuple[np.ndarray, np.ndarray]:
+    links = scenario.directed_links
+    x = scenario.offsets
+    z = x[links[:, 1] - 1] - x[links[:, 0] - 1]
+    known = np.ones(len(links), dtype=bool)
+    return known, z
+
+
+def test_every_agent_gets_its_in_neighbours_estimates() -> None:
+    for scenario in (Scenario.from_file(ROOT / "scenarios/paper.toml"), henneberg_team(30)):
+        known, z = _exact_measurements(scenario)
+        x_ref = scenario.offsets[scenario.leader - 1]
+        lead = leader_epoch(scenario, known, z, x_ref)
+        got = {
+            i: AgentEstimate.model_validate_json(p)
+            for i, p in agent_estimate_payloads(scenario, lambda i: HEAD, lead, [0.1, 0.2])
+        }
+        assert sorted(got) == list(range(1, scenario.n + 1))
+        links = scenario.directed_links
+        for i, est in got.items():
+            assert est.agent == i and est.epoch == 4 and est.v_ref == [0.1, 0.2]
+            assert est.neighbours == sorted(int(j) for j, r in links if r == i)
+            for j, p in zip(est.neighbours, est.positions, strict=True):
+                assert p == lead.estimate.positions[j - 1].tolist()
