@@ -63,6 +63,7 @@ class AgentNode:
         self.runner = AgentRunner(scenario, ids, strategy, seed)
         self.inbox = {i: _Inbox() for i in ids}
         self.phase = "state"  # waiting for the close of this phase, for every agent
+        self.waiting: set[int] = set(ids)  # agents not yet ready for the phase
         self.done = False
         self.taken = -1  # realtime: the last epoch whose packets were taken
         self.deadline = {
@@ -87,29 +88,31 @@ class AgentNode:
             self.service.announce("agent", i)
 
     # -- inbound --------------------------------------------------------------------------------
-    def _route(self, msg: Incoming) -> None:
+    def _route(self, msg: Incoming) -> int | None:
+        """File a message in its receiver's inbox; returns that receiver (None if none of ours)."""
         parts = msg.key.split("/")
         kind = parts[-1]
         if parts[2] == "close":
             receiver = int(parts[3])
             close = self.service.malformed.decode(msg.key, msg.payload, EpochClose)
-            if close is not None and receiver in self.inbox:
-                self.inbox[receiver].closes[(close.phase, close.epoch)] = close
-            return
+            if close is None or receiver not in self.inbox:
+                return None
+            self.inbox[receiver].closes[(close.phase, close.epoch)] = close
+            return receiver
         receiver = int(parts[4])
         if receiver not in self.inbox:
-            return
+            return None
         meta = read_attachment(msg.attachment)
         if kind == "state":
             state = self.service.malformed.decode(msg.key, msg.payload, CoordinationState)
             if meta is None:
                 if state is None:
-                    return
+                    return None
                 meta = (state.epoch, state.seq, state.agent)
             sent_epoch, seq, source = meta
             if sent_epoch <= self.taken:
                 self.deadline["late_packets"] += 1  # realtime: arrived after its epoch's deadline
-                return
+                return None
             value: object = (
                 _BAD
                 if state is None
@@ -127,6 +130,7 @@ class AgentNode:
                 self.inbox[receiver].estimates[est.epoch] = est
             elif meta is not None:
                 self.inbox[receiver].estimates[meta[0]] = _BAD
+        return receiver
 
     # -- publishing -------------------------------------------------------------------------------
     def _publish_states(self) -> None:
@@ -158,37 +162,37 @@ class AgentNode:
             )
 
     # -- lockstep phases ---------------------------------------------------------------------------
-    def _try_state_phase(self) -> bool:
+    def _ready(self, i: int) -> bool:
+        """Agent ``i`` has everything of the current phase: netem's close and what it lists."""
+        k, box = self.runner.epoch, self.inbox[i]
+        close = box.closes.get((self.phase, k))
+        if close is None:
+            return False
+        if self.phase == "state":
+            return all((d.source, d.seq) in box.packets for d in close.delivered)
+        return k in box.estimates or all(d.sent_epoch != k for d in close.delivered)
+
+    def _start_phase(self, phase: str) -> None:
+        self.phase = phase
+        self.waiting = {i for i in self.ids if not self._ready(i)}
+
+    def _state_phase(self) -> None:
         k = self.runner.epoch
-        closes = {i: self.inbox[i].closes.get(("state", k)) for i in self.ids}
-        for i, close in closes.items():
-            if close is None or any(
-                (d.source, d.seq) not in self.inbox[i].packets for d in close.delivered
-            ):
-                return False
         packets = []
-        for i, close in closes.items():
-            assert close is not None
+        for i in self.ids:
             box = self.inbox[i]
+            close = box.closes[("state", k)]
             for d in close.delivered:
                 value = box.packets.pop((d.source, d.seq))
                 if isinstance(value, Packet):
                     packets.append(Packet(i, d.source, d.sent_epoch, value.position))
             del box.closes[("state", k)]
         self._publish_reports(packets)
-        self.phase = "estimate"
-        return True
+        self._start_phase("estimate")
 
-    def _try_estimate_phase(self) -> bool:
+    def _estimate_phase(self) -> None:
         k = self.runner.epoch
         got: dict[int, Estimate | None] = {}
-        for i in self.ids:
-            box = self.inbox[i]
-            close = box.closes.get(("estimate", k))
-            if close is None:
-                return False
-            if any(d.sent_epoch == k for d in close.delivered) and k not in box.estimates:
-                return False
         for i in self.ids:
             box = self.inbox[i]
             est = box.estimates.pop(k, None)
@@ -197,17 +201,20 @@ class AgentNode:
             del box.closes[("estimate", k)]
             got[i] = _estimate(est)
         self.runner.step(got)
-        self.phase = "state"
         self._publish_states()
         self.done = self.runner.epoch >= self.scenario.epochs
-        return True
+        self._start_phase("state")
 
     def _on_message(self, msg: Incoming) -> None:
-        self._route(msg)
-        while not self.done:
-            step = self._try_state_phase if self.phase == "state" else self._try_estimate_phase
-            if not step():
-                break
+        # Only the receiver a message is for can become ready: a pool of hundreds checks one.
+        receiver = self._route(msg)
+        if receiver in self.waiting and self._ready(receiver):
+            self.waiting.discard(receiver)
+        while not self.done and not self.waiting:
+            if self.phase == "state":
+                self._state_phase()
+            else:
+                self._estimate_phase()
 
     def run(self) -> int:
         """Run every agent to the scenario's last epoch; returns an exit code.
