@@ -29,6 +29,7 @@ import yaml
 from formation.errors import TestbedError
 from formation.scenario import Scenario
 from testbed import security
+from testbed.processes import SERVICE_ENV
 
 ROUTER = "router"
 PORT = 7447
@@ -184,6 +185,7 @@ def _service(
             "ZENOH_MODE": "client",
             "ZENOH_CONNECT": options.endpoint,
             **_zenoh_config(options),
+            **SERVICE_ENV,
         },
         "configs": [{"source": "scenario", "target": str(SCENARIO)}],
         **_secrets(options, user),

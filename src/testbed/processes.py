@@ -14,6 +14,11 @@ from pathlib import Path
 
 from formation.errors import RuntimeFailure
 
+# One BLAS thread per service: a run is many processes on few cores, and OpenBLAS's idle
+# workers spin-wait, taking the cores the other services need (seen: a 1,000-agent pool
+# process spent most of its CPU in blas_thread_server). The user's environment wins.
+SERVICE_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
 
 def free_port(host: str = "127.0.0.1") -> int:
     """A TCP port nobody listens on right now (the OS picks it)."""
@@ -70,7 +75,7 @@ class ProcessGroup:
                 stdout=log,
                 stderr=subprocess.STDOUT,
                 stdin=subprocess.DEVNULL,
-                env={**os.environ, **(env or {})},
+                env={**SERVICE_ENV, **os.environ, **(env or {})},
                 start_new_session=True,  # Ctrl-C reaches the launcher only; it stops children in order
             )
         child = Child(name, proc, log_path)
