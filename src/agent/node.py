@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 from agent.runner import AgentRunner, Estimate, Packet
 from formation import keys
-from formation.codec import attachment, read_attachment
+from formation.codec import CLOSE_FOLLOWS, attachment, attachment_flags, read_attachment
 from formation.messages import (
     AgentEstimate,
     CoordinationState,
@@ -37,7 +37,9 @@ class _Inbox:
     """What has arrived for one agent and not yet been used."""
 
     packets: dict[tuple[int, int], object] = field(default_factory=dict)  # (source, seq) → Packet
+    arrived: dict[int, dict[int, int]] = field(default_factory=dict)  # sent epoch → source → seq
     closes: dict[tuple[str, int], EpochClose] = field(default_factory=dict)
+    close_follows: set[tuple[str, int]] = field(default_factory=set)  # netem said: wait for it
     estimates: dict[int, object] = field(default_factory=dict)  # epoch → AgentEstimate
 
 
@@ -64,6 +66,7 @@ class AgentNode:
         self.inbox = {i: _Inbox() for i in ids}
         self.phase = "state"  # waiting for the close of this phase, for every agent
         self.waiting: set[int] = set(ids)  # agents not yet ready for the phase
+        self.senders = {i: scenario.in_neighbours[i - 1] for i in ids}
         self.done = False
         self.taken = -1  # realtime: the last epoch whose packets were taken
         self.deadline = {
@@ -95,8 +98,8 @@ class AgentNode:
         if parts[2] == "close":
             receiver = int(parts[3])
             close = self.service.malformed.decode(msg.key, msg.payload, EpochClose)
-            if close is None or receiver not in self.inbox:
-                return None
+            if close is None or receiver not in self.inbox or close.epoch < self.runner.epoch:
+                return None  # (an epoch already done: complete without it, nothing to add)
             self.inbox[receiver].closes[(close.phase, close.epoch)] = close
             return receiver
         receiver = int(parts[4])
@@ -118,7 +121,11 @@ class AgentNode:
                 if state is None
                 else Packet(receiver, source, sent_epoch, tuple(state.position))
             )
-            self.inbox[receiver].packets[(source, seq)] = value
+            box = self.inbox[receiver]
+            box.packets[(source, seq)] = value
+            box.arrived.setdefault(sent_epoch, {})[source] = seq
+            if attachment_flags(msg.attachment) & CLOSE_FOLLOWS:
+                box.close_follows.add(("state", sent_epoch))
         elif kind == "estimate":
             est = self.service.malformed.decode(msg.key, msg.payload, AgentEstimate)
             if est is not None and est.agent != receiver:
@@ -130,6 +137,8 @@ class AgentNode:
                 self.inbox[receiver].estimates[est.epoch] = est
             elif meta is not None:
                 self.inbox[receiver].estimates[meta[0]] = _BAD
+            if meta is not None and attachment_flags(msg.attachment) & CLOSE_FOLLOWS:
+                self.inbox[receiver].close_follows.add(("estimate", meta[0]))
         return receiver
 
     # -- publishing -------------------------------------------------------------------------------
@@ -166,8 +175,13 @@ class AgentNode:
         """Agent ``i`` has everything of the current phase: netem's close and what it lists."""
         k, box = self.runner.epoch, self.inbox[i]
         close = box.closes.get((self.phase, k))
-        if close is None:
-            return False
+        if close is None:  # implicit close: netem sends none when every packet went through
+            if (self.phase, k) in box.close_follows:
+                return False
+            if self.phase == "state":
+                got = box.arrived.get(k, {})
+                return all(j in got for j in self.senders[i])
+            return k in box.estimates
         if self.phase == "state":
             return all((d.source, d.seq) in box.packets for d in close.delivered)
         return k in box.estimates or all(d.sent_epoch != k for d in close.delivered)
@@ -181,12 +195,19 @@ class AgentNode:
         packets = []
         for i in self.ids:
             box = self.inbox[i]
-            close = box.closes[("state", k)]
-            for d in close.delivered:
-                value = box.packets.pop((d.source, d.seq))
+            close = box.closes.pop(("state", k), None)
+            if close is None:
+                got = box.arrived[k]
+                delivered = [(j, got[j], k) for j in self.senders[i]]
+            else:
+                delivered = [(d.source, d.seq, d.sent_epoch) for d in close.delivered]
+            for source, seq, sent_epoch in delivered:
+                value = box.packets.pop((source, seq))
                 if isinstance(value, Packet):
-                    packets.append(Packet(i, d.source, d.sent_epoch, value.position))
-            del box.closes[("state", k)]
+                    packets.append(Packet(i, source, sent_epoch, value.position))
+            for e in [e for e in box.arrived if e <= k]:
+                del box.arrived[e]
+            box.close_follows.discard(("state", k))
         self._publish_reports(packets)
         self._start_phase("estimate")
 
@@ -198,7 +219,8 @@ class AgentNode:
             est = box.estimates.pop(k, None)
             for old in [e for e in box.estimates if e < k]:
                 del box.estimates[old]
-            del box.closes[("estimate", k)]
+            box.closes.pop(("estimate", k), None)
+            box.close_follows.discard(("estimate", k))
             got[i] = _estimate(est)
         self.runner.step(got)
         self._publish_states()

@@ -12,7 +12,7 @@ import numpy.typing as npt
 import orjson
 
 from formation import keys
-from formation.codec import attachment, read_attachment
+from formation.codec import CLOSE_FOLLOWS, attachment, attachment_flags, read_attachment
 from formation.messages import EpochClose, LeaderEstimate, TokenReport
 from formation.realtime import REPORT_DEADLINE, fetch_clock
 from formation.reference import reference_positions, reference_velocities
@@ -113,6 +113,8 @@ class LeaderNode:
             tuple[int, int], object
         ] = {}  # (agent, seq) → TokenReport or None if malformed
         self.closes: dict[int, EpochClose] = {}
+        self.arrived: dict[int, dict[int, int]] = {}  # sent epoch → agent → seq
+        self.close_follows: set[int] = set()  # epochs netem marked: wait for the close
         self.epoch = 0
         self.rigidity = HealthyRigidity(scenario.offsets, scenario.edge_array)
         self.late_reports = 0
@@ -123,28 +125,50 @@ class LeaderNode:
     def _route(self, msg: Incoming) -> None:
         if "/close/" in msg.key:
             close = self.service.malformed.decode(msg.key, msg.payload, EpochClose)
-            if close is not None:
+            if close is not None and close.epoch >= self.epoch:
                 self.closes[close.epoch] = close
             return
         report = self.service.malformed.decode(msg.key, msg.payload, TokenReport)
         meta = read_attachment(msg.attachment)
         if report is not None:
             self.reports[(report.agent, report.seq)] = report
+            self.arrived.setdefault(report.epoch, {})[report.agent] = report.seq
         elif meta is not None:
             self.reports[(meta[2], meta[1])] = None
+            self.arrived.setdefault(meta[0], {})[meta[2]] = meta[1]
+        if meta is not None and attachment_flags(msg.attachment) & CLOSE_FOLLOWS:
+            self.close_follows.add(meta[0])
+
+    def _delivered(self, k: int) -> list[tuple[int, int, int]] | None:
+        """``(agent, seq, sent epoch)`` of epoch ``k``'s reports once all are here, else None.
+
+        Without a close from netem (implicit: every report went through at once), all
+        agents' epoch-``k`` reports are the epoch.
+        """
+        close = self.closes.get(k)
+        if close is not None:
+            listed = [(d.source, d.seq, d.sent_epoch) for d in close.delivered]
+            return listed if all((a, s) in self.reports for a, s, _ in listed) else None
+        got = self.arrived.get(k, {})
+        if k in self.close_follows or len(got) < self.scenario.n:
+            return None
+        return [(a, got[a], k) for a in range(1, self.scenario.n + 1)]
 
     def _try_epoch(self) -> bool:
         k = self.epoch
-        close = self.closes.get(k)
-        if close is None or any((d.source, d.seq) not in self.reports for d in close.delivered):
+        delivered = self._delivered(k)
+        if delivered is None:
             return False
-        got = [self.reports.pop((d.source, d.seq)) for d in close.delivered]
+        got = [self.reports.pop((a, s)) for a, s, _ in delivered]
         reports = [
             r
-            for r, d in zip(got, close.delivered, strict=True)
-            if isinstance(r, TokenReport) and d.sent_epoch == k
+            for r, (_, _, sent) in zip(got, delivered, strict=True)
+            if isinstance(r, TokenReport) and sent == k
         ]
-        del self.closes[k]
+        self.closes.pop(k, None)
+        self.close_follows.discard(k)
+        for e in [e for e in self.arrived if e <= k]:
+            del self.arrived[e]
         self._estimate(k, reports)
         return True
 
@@ -195,6 +219,7 @@ class LeaderNode:
                 1 for r in self.reports.values() if isinstance(r, TokenReport) and r.epoch < k
             )
             self.reports.clear()
+            self.arrived.clear()
             self._estimate(k, reports)
         return 0
 

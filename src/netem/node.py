@@ -22,7 +22,7 @@ import zenoh
 from pydantic import TypeAdapter, ValidationError
 
 from formation import keys
-from formation.codec import read_attachment
+from formation.codec import CLOSE_FOLLOWS, attachment, read_attachment
 from formation.linkmodels import LinkModelSpec
 from formation.messages import LinkChange
 from formation.realtime import Clock
@@ -67,6 +67,7 @@ class _Open:
     handled: set[int] = field(default_factory=set)
     delivered: list[Forwarded] = field(default_factory=list)
     lost: list[int] = field(default_factory=list)
+    clean: bool = True  # every packet so far passed at once, one copy: the close may be implicit
 
 
 class NetemNode:
@@ -184,13 +185,19 @@ class NetemNode:
         self.decisions[(phase, epoch)].append(Record(src, dst, cls, epoch, seq, d))
         if not d.delivered:
             box.lost.append(src)
+            box.clean = False
         elif d.delay_epochs == 0:
+            if d.copies != 1 or (phase, dst, epoch) in self.held:
+                # The receiver will have every sender's packet, yet a close follows: say so.
+                box.clean = False
+                att = attachment(epoch, seq, src, CLOSE_FOLLOWS)
             for _ in range(d.copies):
                 pub.put(payload, attachment=att)
             self.forwarded[(cls, src, dst)] += d.copies
             box.delivered.append(Forwarded(src, seq, epoch, d.copies))
         else:
             box.lost.append(src)  # lost for this epoch; arrives with a later one
+            box.clean = False
             self.held[(phase, dst, epoch + d.delay_epochs)].append(
                 _Held(pub, (cls, src, dst), payload, att, src, seq, epoch, d.copies)
             )
@@ -219,17 +226,20 @@ class NetemNode:
             elif not self._all_handled(box, senders):
                 return
             self.open.pop((phase, receiver, epoch), None)
-            for h in self.held.pop((phase, receiver, epoch), []):
+            held = self.held.pop((phase, receiver, epoch), [])
+            for h in held:
                 for _ in range(h.copies):
                     h.pub.put(h.payload, attachment=h.attachment)
                 self.forwarded[h.link] += h.copies
                 box.delivered.append(Forwarded(h.source, h.seq, h.sent_epoch, h.copies))
-            key = keys.close(self.run_id, receiver, phase)
             dead = [s for s in senders if s in self.dead] if self.dead else []
-            header = self.service.header(key, epoch)
-            self.service.put(
-                key, epoch_close(header, receiver, phase, box.delivered, box.lost, dead)
-            )
+            # Implicit close: every sender's packet went through at once, so the receiver
+            # knows the epoch is complete when it has them all; a marker would add nothing.
+            if not (box.clean and not held and not dead):
+                key = keys.close(self.run_id, receiver, phase)
+                header = self.service.header(key, epoch)
+                payload = epoch_close(header, receiver, phase, box.delivered, box.lost, dead)
+                self.service.put(key, payload)
             self.next_close[(phase, receiver)] = epoch + 1
             self.closed_count[(phase, epoch)] += 1
             receivers = len(self.agents) - len(self.dead) if phase != "report" else 1

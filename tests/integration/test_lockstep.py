@@ -70,3 +70,27 @@ def test_same_seed_same_run_different_seed_different_run(paper: Scenario, runs_d
     assert not np.allclose(a.positions, c.positions)
     assert formation_verdicts(a) != formation_verdicts(c)
     np.testing.assert_allclose(a.positions, simulate(scenario, seed=3).positions, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("strategy", ["hold", "estimate"])
+def test_delays_duplicates_and_control_loss_equal_the_simulator(
+    paper: Scenario, runs_dir: Path, strategy: str
+) -> None:
+    # The paths where netem must send a close although every packet arrived (a delayed
+    # packet delivered with a later epoch, a duplicate) and where it needs none.
+    scenario = paper.with_overrides(
+        epochs=40,
+        network={
+            "formation_default": [
+                {"model": "bernoulli", "p_loss": 0.15},
+                {"model": "delay", "epochs": 0, "jitter_epochs": 1},
+                {"model": "duplicate", "p": 0.2},
+            ],
+            "control_default": [{"model": "bernoulli", "p_loss": 0.1}],
+        },
+    )
+    outcome = launch(scenario, strategy=strategy, runs_dir=runs_dir, record=False)  # type: ignore[arg-type]
+    sim = simulate(scenario, strategy=strategy)  # type: ignore[arg-type]
+    np.testing.assert_allclose(outcome.positions, sim.positions, rtol=0, atol=1e-9)
+    verdicts = {d.verdict for d in outcome.decisions}
+    assert {"pass", "drop", "delayed", "duplicate"} <= verdicts
