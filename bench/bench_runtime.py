@@ -116,7 +116,7 @@ def netem_hop_latency(packets: int = 2000) -> tuple[np.ndarray, np.ndarray]:
 
 def main() -> None:
     print(
-        f"seed {SEED}; lockstep runs in peer mode on 127.0.0.1; baseline: the in-process simulator"
+        f"seed {SEED}; lockstep runs, services as zenoh clients of a router on 127.0.0.1; baseline: the in-process simulator"
     )
     cases = [
         (
