@@ -175,14 +175,21 @@ class NetemNode:
         return out
 
     def _route_packet(self, phase: Phase, cls: LinkClass, src: int, dst: int, payload: Any,
-                      att: Any, epoch: int, seq: int) -> None:  # fmt: skip
-        box = self.open.get((phase, dst, epoch))
+                      att: Any, epoch: int, seq: int) -> _Open:  # fmt: skip
+        """Decide, record and forward one packet; returns its receiver's open epoch."""
+        key = (phase, dst, epoch)
+        box = self.open.get(key)
         if box is None:
-            box = self.open[(phase, dst, epoch)] = _Open()
+            box = self.open[key] = _Open()
         box.handled.add(src)
         pub, model = self._link(cls, src, dst)
         d = model.decide(epoch)
-        self.decisions[(phase, epoch)].append(Record(src, dst, cls, epoch, seq, d))
+        self.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
+        if d.verdict == "pass" and key not in self.held:  # the common case, kept short
+            pub.put(payload, attachment=att)
+            self.forwarded[(cls, src, dst)] += 1
+            box.delivered.append((src, seq, epoch, 1))
+            return box
         if not d.delivered:
             box.lost.append(src)
             box.clean = False
@@ -194,13 +201,14 @@ class NetemNode:
             for _ in range(d.copies):
                 pub.put(payload, attachment=att)
             self.forwarded[(cls, src, dst)] += d.copies
-            box.delivered.append(Forwarded(src, seq, epoch, d.copies))
+            box.delivered.append((src, seq, epoch, d.copies))
         else:
             box.lost.append(src)  # lost for this epoch; arrives with a later one
             box.clean = False
             self.held[(phase, dst, epoch + d.delay_epochs)].append(
                 _Held(pub, (cls, src, dst), payload, att, src, seq, epoch, d.copies)
             )
+        return box
 
     def _senders(self, phase: Phase, receiver: int) -> list[int]:
         if phase == "state":
@@ -231,7 +239,7 @@ class NetemNode:
                 for _ in range(h.copies):
                     h.pub.put(h.payload, attachment=h.attachment)
                 self.forwarded[h.link] += h.copies
-                box.delivered.append(Forwarded(h.source, h.seq, h.sent_epoch, h.copies))
+                box.delivered.append((h.source, h.seq, h.sent_epoch, h.copies))
             dead = [s for s in senders if s in self.dead] if self.dead else []
             # Implicit close: every sender's packet went through at once, so the receiver
             # knows the epoch is complete when it has them all; a marker would add nothing.
@@ -319,17 +327,25 @@ class NetemNode:
             if epoch >= self.scenario.epochs:
                 self.final_states.add(source)
                 return
-            out = self.out_links[source]
-            for dst in out:
-                if dst not in self.dead:
-                    self._route_packet("state", "formation", source, dst, payload, att, epoch, seq)
-            for dst in out:
-                self._try_close("state", dst)
+            for dst in self.out_links[source]:
+                if self.dead:  # rare: the careful way
+                    if dst not in self.dead:
+                        self._route_packet(
+                            "state", "formation", source, dst, payload, att, epoch, seq
+                        )
+                    self._try_close("state", dst)
+                    continue
+                box = self._route_packet(
+                    "state", "formation", source, dst, payload, att, epoch, seq
+                )
+                if len(box.handled) >= len(self.in_links[dst]):  # else nothing can close yet
+                    self._try_close("state", dst)
         elif kind == "report":
-            self._route_packet(
+            box = self._route_packet(
                 "report", "report", source, LEADER_ENDPOINT, payload, att, epoch, seq
             )
-            self._try_close("report", LEADER_ENDPOINT)
+            if self.dead or len(box.handled) >= len(self.agents):
+                self._try_close("report", LEADER_ENDPOINT)
         else:
             dst = route[2]
             if dst not in self.dead:
@@ -417,7 +433,7 @@ class NetemNode:
         now = time.time_ns()
         pub, model = self._link(cls, src, dst)
         d = model.decide(epoch, time_s=(now - self.clock.t0_ns) / 1e9)
-        self.decisions[(_PHASE_OF[cls], epoch)].append(Record(src, dst, cls, epoch, seq, d))
+        self.decisions[(_PHASE_OF[cls], epoch)].append((src, dst, cls, epoch, seq, d))
         if not d.delivered:
             return
         self.forwarded[(cls, src, dst)] += d.copies

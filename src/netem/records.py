@@ -10,31 +10,18 @@ exactly what :class:`~formation.messages.DecisionBatch` and
 from __future__ import annotations
 
 from collections.abc import Iterable
-from typing import Any, NamedTuple
+from typing import Any
 
 import orjson
 
 from netem.stack import Decision as ModelDecision
 
-
-class Record(NamedTuple):
-    """One decision on one packet, as the hot path keeps it."""
-
-    source: int
-    target: int
-    link_class: str
-    epoch: int
-    seq: int
-    decision: ModelDecision
-
-
-class Forwarded(NamedTuple):
-    """A packet delivered to a receiver within an epoch (``sent_epoch < epoch`` when delayed)."""
-
-    source: int
-    seq: int
-    sent_epoch: int
-    copies: int
+# One decision on one packet, as the hot path keeps it (a plain tuple: built per packet):
+# (source, target, link class, epoch, seq, the model's decision).
+Record = tuple[int, int, str, int, int, ModelDecision]
+# A packet delivered to a receiver within an epoch (sent epoch < epoch when delayed):
+# (source, seq, sent epoch, copies).
+Forwarded = tuple[int, int, int, int]
 
 
 def decision_batch(header: dict[str, Any], phase: str, records: Iterable[Record]) -> bytes:
@@ -46,18 +33,18 @@ def decision_batch(header: dict[str, Any], phase: str, records: Iterable[Record]
             "phase": phase,
             "decisions": [
                 {
-                    "source": r.source,
-                    "target": r.target,
-                    "link_class": r.link_class,
-                    "epoch": r.epoch,
-                    "seq": r.seq,
-                    "verdict": r.decision.verdict,
-                    "delay_epochs": r.decision.delay_epochs,
-                    "delay_ms": float(r.decision.delay_ms),
-                    "model": r.decision.model,
-                    "state": r.decision.state,
+                    "source": source,
+                    "target": target,
+                    "link_class": link_class,
+                    "epoch": epoch,
+                    "seq": seq,
+                    "verdict": d.verdict,
+                    "delay_epochs": d.delay_epochs,
+                    "delay_ms": float(d.delay_ms),
+                    "model": d.model,
+                    "state": d.state,
                 }
-                for r in records
+                for source, target, link_class, epoch, seq, d in records
             ],
         }
     )
@@ -79,8 +66,8 @@ def epoch_close(
             "receiver": receiver,
             "phase": phase,
             "delivered": [
-                {"source": f.source, "seq": f.seq, "sent_epoch": f.sent_epoch, "copies": f.copies}
-                for f in delivered
+                {"source": source, "seq": seq, "sent_epoch": sent_epoch, "copies": copies}
+                for source, seq, sent_epoch, copies in delivered
             ],
             "lost": sorted(lost),
             "dead": sorted(dead),
