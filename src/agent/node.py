@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 
 from agent.runner import AgentRunner, Estimate, Packet
 from formation import keys
-from formation.codec import CLOSE_FOLLOWS, attachment, attachment_flags, read_attachment
+from formation.arrivals import Arrivals, Delivered
+from formation.codec import attachment, read_attachment
 from formation.messages import (
     AgentEstimate,
     CoordinationState,
@@ -37,10 +38,10 @@ class _Inbox:
     """What has arrived for one agent and not yet been used."""
 
     packets: dict[tuple[int, int], object] = field(default_factory=dict)  # (source, seq) → Packet
-    arrived: dict[int, dict[int, int]] = field(default_factory=dict)  # sent epoch → source → seq
-    closes: dict[tuple[str, int], EpochClose] = field(default_factory=dict)
-    close_follows: set[tuple[str, int]] = field(default_factory=set)  # netem said: wait for it
     estimates: dict[int, object] = field(default_factory=dict)  # epoch → AgentEstimate
+    phases: dict[str, Arrivals] = field(
+        default_factory=lambda: {"state": Arrivals(), "estimate": Arrivals()}
+    )
 
 
 def _estimate(est: object) -> Estimate | None:
@@ -98,10 +99,10 @@ class AgentNode:
         if parts[2] == "close":
             receiver = int(parts[3])
             close = self.service.malformed.decode(msg.key, msg.payload, EpochClose)
-            if close is None or receiver not in self.inbox or close.epoch < self.runner.epoch:
-                return None  # (an epoch already done: complete without it, nothing to add)
-            self.inbox[receiver].closes[(close.phase, close.epoch)] = close
-            return receiver
+            if close is None or receiver not in self.inbox or close.phase == "report":
+                return None
+            done = self.inbox[receiver].phases[close.phase].close(close, self.runner.epoch)
+            return receiver if done else None
         receiver = int(parts[4])
         if receiver not in self.inbox:
             return None
@@ -123,9 +124,7 @@ class AgentNode:
             )
             box = self.inbox[receiver]
             box.packets[(source, seq)] = value
-            box.arrived.setdefault(sent_epoch, {})[source] = seq
-            if attachment_flags(msg.attachment) & CLOSE_FOLLOWS:
-                box.close_follows.add(("state", sent_epoch))
+            box.phases["state"].packet(sent_epoch, source, seq, msg.attachment)
         elif kind == "estimate":
             est = self.service.malformed.decode(msg.key, msg.payload, AgentEstimate)
             if est is not None and est.agent != receiver:
@@ -137,8 +136,11 @@ class AgentNode:
                 self.inbox[receiver].estimates[est.epoch] = est
             elif meta is not None:
                 self.inbox[receiver].estimates[meta[0]] = _BAD
-            if meta is not None and attachment_flags(msg.attachment) & CLOSE_FOLLOWS:
-                self.inbox[receiver].close_follows.add(("estimate", meta[0]))
+            arrivals = self.inbox[receiver].phases["estimate"]
+            if meta is not None:
+                arrivals.packet(meta[0], keys.LEADER, meta[1], msg.attachment)
+            elif est is not None:
+                arrivals.packet(est.epoch, keys.LEADER, est.seq, None)
         return receiver
 
     # -- publishing -------------------------------------------------------------------------------
@@ -171,20 +173,13 @@ class AgentNode:
             )
 
     # -- lockstep phases ---------------------------------------------------------------------------
+    def _delivered(self, i: int) -> list[Delivered] | None:
+        """What netem delivered to agent ``i`` in the current phase, once all of it is here."""
+        senders = self.senders[i] if self.phase == "state" else [keys.LEADER]
+        return self.inbox[i].phases[self.phase].delivered(self.runner.epoch, senders)
+
     def _ready(self, i: int) -> bool:
-        """Agent ``i`` has everything of the current phase: netem's close and what it lists."""
-        k, box = self.runner.epoch, self.inbox[i]
-        close = box.closes.get((self.phase, k))
-        if close is None:  # implicit close: netem sends none when every packet went through
-            if (self.phase, k) in box.close_follows:
-                return False
-            if self.phase == "state":
-                got = box.arrived.get(k, {})
-                return all(j in got for j in self.senders[i])
-            return k in box.estimates
-        if self.phase == "state":
-            return all((d.source, d.seq) in box.packets for d in close.delivered)
-        return k in box.estimates or all(d.sent_epoch != k for d in close.delivered)
+        return self._delivered(i) is not None
 
     def _start_phase(self, phase: str) -> None:
         self.phase = phase
@@ -195,19 +190,13 @@ class AgentNode:
         packets = []
         for i in self.ids:
             box = self.inbox[i]
-            close = box.closes.pop(("state", k), None)
-            if close is None:
-                got = box.arrived[k]
-                delivered = [(j, got[j], k) for j in self.senders[i]]
-            else:
-                delivered = [(d.source, d.seq, d.sent_epoch) for d in close.delivered]
+            delivered = self._delivered(i)
+            assert delivered is not None  # every agent is ready
             for source, seq, sent_epoch in delivered:
                 value = box.packets.pop((source, seq))
                 if isinstance(value, Packet):
                     packets.append(Packet(i, source, sent_epoch, value.position))
-            for e in [e for e in box.arrived if e <= k]:
-                del box.arrived[e]
-            box.close_follows.discard(("state", k))
+            box.phases["state"].forget(k)
         self._publish_reports(packets)
         self._start_phase("estimate")
 
@@ -219,8 +208,7 @@ class AgentNode:
             est = box.estimates.pop(k, None)
             for old in [e for e in box.estimates if e < k]:
                 del box.estimates[old]
-            box.closes.pop(("estimate", k), None)
-            box.close_follows.discard(("estimate", k))
+            box.phases["estimate"].forget(k)
             got[i] = _estimate(est)
         self.runner.step(got)
         self._publish_states()
@@ -286,6 +274,7 @@ class AgentNode:
                     p for p in box.packets.values() if isinstance(p, Packet) and p.sent_epoch <= k
                 ]
                 box.packets.clear()
+                box.phases["state"].forget(k)  # realtime has no closes: only bounded memory
             self.deadline["packets"] += sum(p.sent_epoch == k for p in packets)
             self.taken = k
             self._publish_reports(packets)
@@ -294,6 +283,7 @@ class AgentNode:
             for i in self.ids:
                 est = self.inbox[i].estimates.pop(k, None)
                 self.inbox[i].estimates.clear()
+                self.inbox[i].phases["estimate"].forget(k)
                 got[i] = _estimate(est)
                 self.deadline["estimates"] += got[i] is not None
             self.runner.step(got)

@@ -56,12 +56,9 @@ def _chain(h: int | npt.NDArray[np.uint64], key: KeyLike) -> int | npt.NDArray[n
     if isinstance(h, int) and isinstance(key, (int, np.integer)):
         return _mix_int((h + _G + _mix_int((int(key) + _G) & _M64)) & _M64)
     a = np.asarray(key, dtype=np.int64).astype(np.uint64)
+    state = np.uint64(h) if isinstance(h, int) else h
     with np.errstate(over="ignore"):
-        return (
-            _mix(np.uint64(h) + _GOLDEN + _mix(a + _GOLDEN))
-            if isinstance(h, int)
-            else _mix(h + _GOLDEN + _mix(a + _GOLDEN))
-        )
+        return _mix(state + _GOLDEN + _mix(a + _GOLDEN))
 
 
 def _state(keys: tuple[KeyLike, ...]) -> int | npt.NDArray[np.uint64]:

@@ -135,15 +135,22 @@ class Service:
             handler = self.inline
             if handler is None:
                 self.inbox.put(msg)
-                return
-            with self.inline_lock:
-                try:
-                    handler(msg)
-                except Exception:  # a bad message must never stop the process: count it, log it
-                    self.malformed.counts[msg.key] += 1
-                    log.exception("while handling %s", msg.key)
+            else:
+                self.handle_inline(msg.key, handler, msg)
 
         self._keep.append(self.session.declare_subscriber(key, callback or to_inbox))
+
+    def handle_inline(self, key: str, handler: Callable[..., None], *args: Any) -> None:
+        """``handler(*args)`` under :attr:`inline_lock`, for a message on ``key``.
+
+        A bad message must never stop the process: an exception is counted and logged.
+        """
+        with self.inline_lock:
+            try:
+                handler(*args)
+            except Exception:
+                self.malformed.counts[key] += 1
+                log.exception("while handling %s", key)
 
     def queryable(self, key: str, callback: Callable[[zenoh.Query], None]) -> None:
         self._keep.append(self.session.declare_queryable(key, callback))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -12,7 +12,8 @@ import numpy.typing as npt
 import orjson
 
 from formation import keys
-from formation.codec import CLOSE_FOLLOWS, attachment, attachment_flags, read_attachment
+from formation.arrivals import Arrivals
+from formation.codec import attachment, read_attachment
 from formation.messages import EpochClose, LeaderEstimate, TokenReport
 from formation.realtime import REPORT_DEADLINE, fetch_clock
 from formation.reference import reference_positions, reference_velocities
@@ -77,16 +78,13 @@ def estimate_message(
     )
 
 
-def agent_estimate_payloads(
-    scenario: Scenario,
-    header: Callable[[int], dict[str, Any]],
-    lead: LeaderEpoch,
-    v_ref: list[float],
-) -> Iterator[tuple[int, bytes]]:
-    """``(i, AgentEstimate JSON)`` per agent: its in-neighbours' ``x̂`` and ``v_ref``.
+def agent_estimates(
+    scenario: Scenario, lead: LeaderEpoch, v_ref: list[float]
+) -> Iterator[tuple[int, dict[str, Any]]]:
+    """``(i, AgentEstimate fields)`` per agent: its in-neighbours' ``x̂`` and ``v_ref``.
 
-    Built as plain dicts (orjson): at 1,000 agents the leader sends 1,000 of them an
-    epoch. ``header(i)`` gives the common fields of agent ``i``'s message.
+    Plain dicts, sent with orjson: at 1,000 agents the leader sends 1,000 of them an epoch.
+    The common header fields are the sender's to add.
     """
     res = lead.estimate
     positions = [
@@ -94,10 +92,10 @@ def agent_estimate_payloads(
         for p, ok in zip(res.positions.tolist(), res.observable.tolist(), strict=True)
     ]
     for i, neighbours in enumerate(scenario.in_neighbours, start=1):
-        yield i, orjson.dumps({
-            **header(i), "kind": "agent_estimate", "agent": i, "neighbours": neighbours,
+        yield i, {
+            "kind": "agent_estimate", "agent": i, "neighbours": neighbours,
             "positions": [positions[j - 1] for j in neighbours], "v_ref": v_ref,
-        })  # fmt: skip
+        }  # fmt: skip
 
 
 class LeaderNode:
@@ -112,9 +110,8 @@ class LeaderNode:
         self.reports: dict[
             tuple[int, int], object
         ] = {}  # (agent, seq) → TokenReport or None if malformed
-        self.closes: dict[int, EpochClose] = {}
-        self.arrived: dict[int, dict[int, int]] = {}  # sent epoch → agent → seq
-        self.close_follows: set[int] = set()  # epochs netem marked: wait for the close
+        self.arrivals = Arrivals()  # the report phase's packets and closes
+        self.agents = list(range(1, scenario.n + 1))
         self.epoch = 0
         self.rigidity = HealthyRigidity(scenario.offsets, scenario.edge_array)
         self.late_reports = 0
@@ -125,38 +122,21 @@ class LeaderNode:
     def _route(self, msg: Incoming) -> None:
         if "/close/" in msg.key:
             close = self.service.malformed.decode(msg.key, msg.payload, EpochClose)
-            if close is not None and close.epoch >= self.epoch:
-                self.closes[close.epoch] = close
+            if close is not None:
+                self.arrivals.close(close, self.epoch)
             return
         report = self.service.malformed.decode(msg.key, msg.payload, TokenReport)
         meta = read_attachment(msg.attachment)
         if report is not None:
             self.reports[(report.agent, report.seq)] = report
-            self.arrived.setdefault(report.epoch, {})[report.agent] = report.seq
+            self.arrivals.packet(report.epoch, report.agent, report.seq, msg.attachment)
         elif meta is not None:
             self.reports[(meta[2], meta[1])] = None
-            self.arrived.setdefault(meta[0], {})[meta[2]] = meta[1]
-        if meta is not None and attachment_flags(msg.attachment) & CLOSE_FOLLOWS:
-            self.close_follows.add(meta[0])
-
-    def _delivered(self, k: int) -> list[tuple[int, int, int]] | None:
-        """``(agent, seq, sent epoch)`` of epoch ``k``'s reports once all are here, else None.
-
-        Without a close from netem (implicit: every report went through at once), all
-        agents' epoch-``k`` reports are the epoch.
-        """
-        close = self.closes.get(k)
-        if close is not None:
-            listed = [(d.source, d.seq, d.sent_epoch) for d in close.delivered]
-            return listed if all((a, s) in self.reports for a, s, _ in listed) else None
-        got = self.arrived.get(k, {})
-        if k in self.close_follows or len(got) < self.scenario.n:
-            return None
-        return [(a, got[a], k) for a in range(1, self.scenario.n + 1)]
+            self.arrivals.packet(meta[0], meta[2], meta[1], msg.attachment)
 
     def _try_epoch(self) -> bool:
         k = self.epoch
-        delivered = self._delivered(k)
+        delivered = self.arrivals.delivered(k, self.agents)
         if delivered is None:
             return False
         got = [self.reports.pop((a, s)) for a, s, _ in delivered]
@@ -165,10 +145,7 @@ class LeaderNode:
             for r, (_, _, sent) in zip(got, delivered, strict=True)
             if isinstance(r, TokenReport) and sent == k
         ]
-        self.closes.pop(k, None)
-        self.close_follows.discard(k)
-        for e in [e for e in self.arrived if e <= k]:
-            del self.arrived[e]
+        self.arrivals.forget(k)
         self._estimate(k, reports)
         return True
 
@@ -182,15 +159,11 @@ class LeaderNode:
                 int((~lead.estimate.observable).sum()),
             )
         v_ref = [float(v) for v in self.ref_v[k]]
-        heads: dict[int, dict[str, Any]] = {}
-
-        def header(i: int) -> dict[str, Any]:
-            heads[i] = self.service.header(keys.leader_estimate_for(self.run_id, i), k)
-            return heads[i]
-
-        for i, payload in agent_estimate_payloads(self.scenario, header, lead, v_ref):
-            att = attachment(k, int(heads[i]["seq"]), keys.LEADER)
-            self.service.put(keys.leader_estimate_for(self.run_id, i), payload, att)
+        for i, fields in agent_estimates(self.scenario, lead, v_ref):
+            key = keys.leader_estimate_for(self.run_id, i)
+            head = self.service.header(key, k)
+            att = attachment(k, int(head["seq"]), keys.LEADER)
+            self.service.put(key, orjson.dumps({**head, **fields}), att)
         key = keys.leader_estimate_out(self.run_id)
         head = self.service.header(key, k)
         msg = estimate_message(head, lead, [float(v) for v in self.ref_x[k]], v_ref,
@@ -219,7 +192,7 @@ class LeaderNode:
                 1 for r in self.reports.values() if isinstance(r, TokenReport) and r.epoch < k
             )
             self.reports.clear()
-            self.arrived.clear()
+            self.arrivals.forget(k)
             self._estimate(k, reports)
         return 0
 

@@ -194,7 +194,7 @@ class NetemNode:
             box.lost.append(src)
             box.clean = False
         elif d.delay_epochs == 0:
-            if d.copies != 1 or (phase, dst, epoch) in self.held:
+            if d.copies != 1 or key in self.held:
                 # The receiver will have every sender's packet, yet a close follows: say so.
                 box.clean = False
                 att = attachment(epoch, seq, src, CLOSE_FOLLOWS)
@@ -269,12 +269,7 @@ class NetemNode:
             self.service.inbox.put(Incoming(str(sample.key_expr), sample.payload.to_bytes(), raw))
             return
         key = str(sample.key_expr)
-        with self.lock:
-            try:
-                self._handle(key, sample.payload, att)
-            except Exception:  # a bad message must never stop netem: count it, log it
-                self.service.malformed.counts[key] += 1
-                log.exception("while handling %s", key)
+        self.service.handle_inline(key, self._handle, key, sample.payload, att)
 
     def handle(self, msg: Incoming) -> None:
         """A queued packet (one that came before the start)."""
@@ -328,23 +323,18 @@ class NetemNode:
                 self.final_states.add(source)
                 return
             for dst in self.out_links[source]:
-                if self.dead:  # rare: the careful way
-                    if dst not in self.dead:
-                        self._route_packet(
-                            "state", "formation", source, dst, payload, att, epoch, seq
-                        )
-                    self._try_close("state", dst)
+                if dst in self.dead:
                     continue
                 box = self._route_packet(
                     "state", "formation", source, dst, payload, att, epoch, seq
                 )
-                if len(box.handled) >= len(self.in_links[dst]):  # else nothing can close yet
+                if self._all_handled(box, self.in_links[dst]):  # else nothing can close yet
                     self._try_close("state", dst)
         elif kind == "report":
             box = self._route_packet(
                 "report", "report", source, LEADER_ENDPOINT, payload, att, epoch, seq
             )
-            if self.dead or len(box.handled) >= len(self.agents):
+            if self._all_handled(box, self.agents):
                 self._try_close("report", LEADER_ENDPOINT)
         else:
             dst = route[2]

@@ -5,11 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import orjson
 
 from formation.messages import AgentEstimate
 from formation.scenario import Scenario
 from leader.epoch import leader_epoch
-from leader.node import agent_estimate_payloads
+from leader.node import agent_estimates
 from testbed.teams import henneberg_team
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -32,8 +33,8 @@ def test_every_agent_gets_its_in_neighbours_estimates() -> None:
         x_ref = scenario.offsets[scenario.leader - 1]
         lead = leader_epoch(scenario, known, z, x_ref)
         got = {
-            i: AgentEstimate.model_validate_json(p)
-            for i, p in agent_estimate_payloads(scenario, lambda i: HEAD, lead, [0.1, 0.2])
+            i: AgentEstimate.model_validate_json(orjson.dumps({**HEAD, **fields}))
+            for i, fields in agent_estimates(scenario, lead, [0.1, 0.2])
         }
         assert sorted(got) == list(range(1, scenario.n + 1))
         links = scenario.directed_links
