@@ -93,7 +93,6 @@ from __future__ import annotations
 import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -136,6 +135,8 @@ class _Block:
     pieces: list[_Piece]
     decisions: list[Decision]
     timed: bool
+    codes: npt.NDArray[np.int64]  # decisions[j] is table[codes[j]]
+    table: list[Decision]
     by_seq: dict[tuple[int, int], tuple[list[int], list[int], list[float]]] = field(
         default_factory=dict
     )  # (piece, seq) → extra copies, delay [epochs], delay [ms] of packet `seq` of each epoch
@@ -231,6 +232,30 @@ class LinkModel:
             return blk.decisions[epoch - blk.start]
         return self._decide_slow(blk, epoch, seq, time_s)
 
+    def coded(
+        self, start: int, n_epochs: int
+    ) -> tuple[npt.NDArray[np.int64], list[Decision | None]]:
+        """Epochs ``start .. start + n_epochs - 1`` as ``(codes, table)``: ``decide(k)`` is
+        ``table[codes[k - start]]`` (packet 0), for vectorised use of many epochs.
+
+        Under a realtime window the verdict needs the packet's time; such epochs get
+        ``None`` in place of a decision.
+        """
+        codes: list[npt.NDArray[np.int64]] = []
+        table: list[Decision | None] = []
+        k, end = start, start + n_epochs
+        while k < end:
+            blk = self._blocks.get(k // self._b)
+            if blk is None:
+                if k < 0:
+                    raise LinkModelError(self.link, f"epoch = {k}; expected >= 0")
+                blk = self._block(k // self._b)
+            stop = min(end, blk.start + self._b)
+            codes.append(blk.codes[k - blk.start : stop - blk.start] + len(table))
+            table.extend([None] * len(blk.table) if blk.timed else blk.table)
+            k = stop
+        return np.concatenate(codes), table
+
     def schedule(
         self, n_epochs: int, start: int = 0, times_s: npt.ArrayLike | None = None
     ) -> Schedule:
@@ -295,29 +320,26 @@ class LinkModel:
         a = k * self._b
         pieces, end = self._run_range(a, a + self._b, self._carry_at(k))
         self._carries[k + 1] = end
-        decisions: list[Decision] = []
-        memo: dict[tuple[Any, ...], Decision] = {}
+        # Epochs with equal outcomes share one Decision: rows are coded by np.unique, and
+        # only the few distinct rows are turned into Python objects.
+        table: list[Decision] = []
+        codes = []
         for p in pieces:
             kinds = [layer.kind for layer in p.stack.layers]
             _, copies, de, dms, reo = p.final()
-            rows = zip(
-                p.first[0].tolist(),
-                copies[0].tolist(),
-                de[0].tolist(),
-                dms[0].tolist(),
-                reo[0].tolist(),
-                map(tuple, p.states[0].tolist()),
-                strict=True,
-            )
-            for row in rows:
-                d = memo.get(row)
-                if d is None:
-                    first, c, e, ms, r, codes = row
-                    model = kinds[first] if first >= 0 else ""
-                    d = memo[row] = _make_decision(model, c, e, ms, r, _state_string(kinds, codes))
-                decisions.append(d)
-            memo.clear()  # kinds differ between pieces
-        blk = _Block(a, pieces, decisions, any(p.stack.timed for p in pieces))
+            rows = np.column_stack(
+                [p.first[0], copies[0], de[0], dms[0].view(np.int64), reo[0], p.states[0]]
+            ).astype(np.int64)
+            as_one = rows.view(np.dtype((np.void, rows.itemsize * rows.shape[1]))).ravel()
+            _, index, inverse = np.unique(as_one, return_index=True, return_inverse=True)
+            codes.append(inverse.reshape(-1) + len(table))
+            for first, c, e, ms_bits, r, *state in rows[index].tolist():
+                model = kinds[first] if first >= 0 else ""
+                ms = float(np.int64(ms_bits).view(np.float64))
+                table.append(_make_decision(model, c, e, ms, bool(r), _state_string(kinds, state)))
+        coded = np.concatenate(codes)
+        decisions = [table[c] for c in coded.tolist()]
+        blk = _Block(a, pieces, decisions, any(p.stack.timed for p in pieces), coded, table)
         while len(self._blocks) >= self._cache_blocks:
             del self._blocks[next(iter(self._blocks))]
         self._blocks[k] = blk

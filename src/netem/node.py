@@ -28,8 +28,9 @@ from formation.messages import LinkChange
 from formation.realtime import Clock
 from formation.scenario import LEADER_ENDPOINT, Scenario
 from formation.service import Incoming, Service
+from netem.clean import CleanEpochs, Stream
 from netem.models import LinkModel
-from netem.records import Forwarded, Record, decision_batch, epoch_close
+from netem.records import Forwarded, Record, decision_batch, decision_batch_of, epoch_close
 
 log = logging.getLogger("netem")
 LinkClass = Literal["formation", "report", "estimate"]
@@ -43,6 +44,9 @@ _Due = tuple[
     int, int, zenoh.Publisher, bytes, "bytes | None"
 ]  # (due ns, tie, link, payload, attachment)
 _Route = tuple[str, int, int]
+# Clean epochs' records go out together: one batch per this many packets' records (and at
+# least every loop wake-up of the main thread, 0.2 s), instead of one per epoch.
+_FLUSH_CHUNKS = 256
 _SPECS: TypeAdapter[list[LinkModelSpec]] = TypeAdapter(list[LinkModelSpec])
 
 
@@ -114,6 +118,8 @@ class NetemNode:
         self._links: dict[tuple[LinkClass, int, int], tuple[zenoh.Publisher, LinkModel]] = {}
         self._routes: dict[str, _Route | None] = {}  # inbound key → (kind, source, target)
         self._estimates_seen: Counter[int] = Counter()  # epoch → agents' estimates handled
+        self.clean: dict[Phase, CleanEpochs] = {}  # lockstep, set up by run()
+        self._slow: set[tuple[Phase, int]] = set()  # epochs handled packet by packet
         self.dead: set[int] = set()
         self.final_states: set[int] = set()
         self.estimates_done = 0
@@ -169,7 +175,12 @@ class NetemNode:
     def sent_counts(self) -> dict[str, int]:
         """Forwarded packets per delivered key (for the final status)."""
         out: dict[str, int] = {}
-        for (cls, src, dst), count in self.forwarded.items():
+        total = Counter(self.forwarded)
+        for ce in self.clean.values():
+            for stream, count in ce.forwarded.items():
+                for link in ce.streams[stream].links:
+                    total[link] += count  # type: ignore[index]
+        for (cls, src, dst), count in total.items():
             pub, _ = self._link(cls, src, dst)
             out[str(pub.key_expr)] = count
         return out
@@ -210,6 +221,77 @@ class NetemNode:
             )
         return box
 
+    # -- clean epochs: every link of the phase passes (netem.clean) --------------------------
+    def _setup_clean(self) -> None:
+        def stream(links: list[tuple[LinkClass, int, int]]) -> Stream:
+            got = [self._link(*link) for link in links]
+            return Stream(tuple(links), tuple(p for p, _ in got), tuple(m for _, m in got))
+
+        self.clean = {
+            "state": CleanEpochs({
+                s: stream([("formation", s, d) for d in self.out_links[s]])
+                for s in self.agents if self.out_links[s]
+            }),
+            "report": CleanEpochs({s: stream([("report", s, LEADER_ENDPOINT)]) for s in self.agents}),
+            "estimate": CleanEpochs({d: stream([("estimate", LEADER_ENDPOINT, d)]) for d in self.agents}),
+        }  # fmt: skip
+
+    def _done(self, phase: Phase) -> set[int]:
+        ce = self.clean.get(phase)
+        return ce.done if ce is not None else set()
+
+    def _forward_clean(self, phase: Phase, stream: int, epoch: int, seq: int, payload: Any,
+                       att: Any) -> bool:  # fmt: skip
+        """Forward a packet of a clean epoch at once; False when the epoch needs the full path."""
+        ce = self.clean.get(phase)
+        if ce is None or (phase, epoch) in self._slow:
+            return False
+        if self.dead or self.held or not ce.clean(epoch) or stream not in ce.streams:
+            self._go_slow(phase, epoch)
+            return False
+        for pub in ce.streams[stream].pubs:
+            pub.put(payload, attachment=att)
+        got = ce.pending.get(epoch)
+        if got is None:
+            got = ce.pending[epoch] = {}
+        got[stream] = seq
+        ce.forwarded[stream] += 1
+        if len(got) >= ce.expected:
+            del ce.pending[epoch]
+            ce.finish(epoch, got)
+            if len(ce.chunks) >= _FLUSH_CHUNKS:
+                self._flush_clean(phase)
+        return True
+
+    def _flush_clean(self, phase: Phase) -> None:
+        """Publish the records of the clean epochs finished since the last flush, in one batch."""
+        ce = self.clean.get(phase)
+        if ce is None or not ce.chunks:
+            return
+        key = keys.netem_decision(self.run_id)
+        header = self.service.header(key, ce.last_done)
+        self.service.put(key, decision_batch_of(header, phase, ce.chunks))
+        ce.chunks = []
+
+    def _go_slow(self, phase: Phase, epoch: int) -> None:
+        """From now on ``epoch`` of ``phase`` takes the full path; what went fast is recorded as such."""
+        self._slow.add((phase, epoch))
+        got = self.clean[phase].pending.pop(epoch, None)
+        if got is None:
+            return
+        touched: set[int] = set()
+        for (src, dst, cls, _, seq, d), link in self.clean[phase].records(epoch, got):
+            box = self.open.get((phase, dst, epoch))
+            if box is None:
+                box = self.open[(phase, dst, epoch)] = _Open()
+            box.handled.add(src)
+            box.delivered.append((src, seq, epoch, 1))
+            self.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
+            self.forwarded[link] += 1  # type: ignore[index]
+            touched.add(dst)
+        for dst in touched:
+            self._try_close(phase, dst)
+
     def _senders(self, phase: Phase, receiver: int) -> list[int]:
         if phase == "state":
             return self.in_links[receiver]
@@ -227,6 +309,9 @@ class NetemNode:
         while True:
             epoch = self.next_close[(phase, receiver)]
             box = self.open.get((phase, receiver, epoch))
+            if box is None and epoch in self._done(phase):
+                self.next_close[(phase, receiver)] = epoch + 1  # closed implicitly
+                continue
             if box is None:
                 if epoch >= self.scenario.epochs or any(s not in self.dead for s in senders):
                     return
@@ -255,8 +340,12 @@ class NetemNode:
                 del self.closed_count[(phase, epoch)]
                 self._publish_decisions(phase, epoch)
 
-    def _publish_decisions(self, phase: Phase, epoch: int) -> None:
-        batch = self.decisions.pop((phase, epoch), [])
+    def _publish_decisions(
+        self, phase: Phase, epoch: int, batch: list[Record] | None = None
+    ) -> None:
+        if batch is None:
+            batch = self.decisions.pop((phase, epoch), [])
+        self._flush_clean(phase)  # records stay in epoch order
         key = keys.netem_decision(self.run_id)
         self.service.put(key, decision_batch(self.service.header(key, epoch), phase, batch))
 
@@ -322,6 +411,8 @@ class NetemNode:
             if epoch >= self.scenario.epochs:
                 self.final_states.add(source)
                 return
+            if self._forward_clean("state", source, epoch, seq, payload, att):
+                return
             for dst in self.out_links[source]:
                 if dst in self.dead:
                     continue
@@ -331,6 +422,8 @@ class NetemNode:
                 if self._all_handled(box, self.in_links[dst]):  # else nothing can close yet
                     self._try_close("state", dst)
         elif kind == "report":
+            if self._forward_clean("report", source, epoch, seq, payload, att):
+                return
             box = self._route_packet(
                 "report", "report", source, LEADER_ENDPOINT, payload, att, epoch, seq
             )
@@ -338,7 +431,9 @@ class NetemNode:
                 self._try_close("report", LEADER_ENDPOINT)
         else:
             dst = route[2]
-            if dst not in self.dead:
+            if self._forward_clean("estimate", dst, epoch, seq, payload, att):
+                pass
+            elif dst not in self.dead:
                 self._route_packet("estimate", "estimate", LEADER_ENDPOINT, dst, payload, att,
                                    epoch, seq)  # fmt: skip
                 self._try_close("estimate", dst)
@@ -349,6 +444,9 @@ class NetemNode:
             return
         log.warning("agent %d is gone: its packets count as lost from now on", agent)
         self.dead.add(agent)
+        for phase, ce in self.clean.items():
+            for epoch in list(ce.pending):
+                self._go_slow(phase, epoch)
         for j in self.out_links[agent]:
             self._try_close("state", j)
         self._try_close("report", LEADER_ENDPOINT)
@@ -404,6 +502,8 @@ class NetemNode:
             return {"ok": False, "error": f"models.{where} = {err.get('input')!r}; {err['msg']}"}
         from_epoch = self.epoch_seen + 1
         self.models[(cls, src, dst)].replace(specs, from_epoch)
+        for ce in self.clean.values():
+            ce.invalidate()
         key = keys.netem_change(self.run_id)
         change = LinkChange(**self.service.header(key, from_epoch), source=src, target=dst, link_class=cls,
                             models=[s.model_dump(by_alias=True) for s in specs], from_epoch=from_epoch)  # fmt: skip
@@ -486,14 +586,28 @@ class NetemNode:
     # -- main loop -------------------------------------------------------------------------------------
     def run(self) -> int:
         with self.lock:  # lockstep: handled on Zenoh's thread from now on, no queue hand-off
+            if not self.passthrough:
+                self._setup_clean()
             self.running = True
         while not self.everyone_up():
             if self.service.stopping.wait(0.02):
                 return 130
         self.service.declare_start()
+        try:
+            return self._lockstep_loop()
+        finally:
+            self._flush_all()
+
+    def _flush_all(self) -> None:
+        with self.lock:
+            for phase in self.clean:
+                self._flush_clean(phase)
+
+    def _lockstep_loop(self) -> int:
         while not self.finished() and not self.service.stopping.is_set():
             msg = self.service.next_incoming(0.2)
             self._check_dead()
+            self._flush_all()  # clean epochs' records wait at most this long
             if msg is None:
                 if (
                     self.service.gone_for("leader", 0)

@@ -24,30 +24,61 @@ Record = tuple[int, int, str, int, int, ModelDecision]
 Forwarded = tuple[int, int, int, int]
 
 
-def decision_batch(header: dict[str, Any], phase: str, records: Iterable[Record]) -> bytes:
-    """A ``DecisionBatch`` payload: ``header`` from ``Service.header``, one entry per record."""
+def _decision_json(d: ModelDecision) -> bytes:
+    """The fields of a record that come from the decision, as JSON after ``"seq":N``."""
     return orjson.dumps(
         {
-            **header,
-            "kind": "decisions",
-            "phase": phase,
-            "decisions": [
-                {
-                    "source": source,
-                    "target": target,
-                    "link_class": link_class,
-                    "epoch": epoch,
-                    "seq": seq,
-                    "verdict": d.verdict,
-                    "delay_epochs": d.delay_epochs,
-                    "delay_ms": float(d.delay_ms),
-                    "model": d.model,
-                    "state": d.state,
-                }
-                for source, target, link_class, epoch, seq, d in records
-            ],
+            "verdict": d.verdict,
+            "delay_epochs": d.delay_epochs,
+            "delay_ms": float(d.delay_ms),
+            "model": d.model,
+            "state": d.state,
         }
+    ).replace(b"{", b",", 1)
+
+
+# A link's records differ only in epoch, seq and decision; decisions are shared objects
+# (a model memoises them per block), so both halves are encoded once and spliced.
+_LINK_JSON: dict[tuple[int, int, str], bytes] = {}
+_DECISION_JSON: dict[int, tuple[ModelDecision, bytes]] = {}  # by id; the entry keeps d alive
+
+
+def record_head(source: int, target: int, link_class: str) -> bytes:
+    """A record's JSON up to (not including) ``,"epoch":``."""
+    head = _LINK_JSON.get((source, target, link_class))
+    if head is None:
+        head = _LINK_JSON[(source, target, link_class)] = orjson.dumps(
+            {"source": source, "target": target, "link_class": link_class}
+        )[:-1]
+    return head
+
+
+def record_tail(d: ModelDecision) -> bytes:
+    """A record's JSON after ``"seq":N``: the fields that come from the decision."""
+    tail = _DECISION_JSON.get(id(d))
+    if tail is None or tail[0] is not d:
+        if len(_DECISION_JSON) > 100_000:
+            _DECISION_JSON.clear()
+        tail = _DECISION_JSON[id(d)] = (d, _decision_json(d))
+    return tail[1]
+
+
+def decision_batch(header: dict[str, Any], phase: str, records: Iterable[Record]) -> bytes:
+    """A ``DecisionBatch`` payload: ``header`` from ``Service.header``, one entry per record."""
+    return decision_batch_of(
+        header,
+        phase,
+        [
+            b'%s,"epoch":%d,"seq":%d%s' % (record_head(s, t, c), e, q, record_tail(d))
+            for s, t, c, e, q, d in records
+        ],
     )
+
+
+def decision_batch_of(header: dict[str, Any], phase: str, records: list[bytes]) -> bytes:
+    """A ``DecisionBatch`` payload from records already encoded (comma-joined groups allowed)."""
+    head = orjson.dumps({**header, "kind": "decisions", "phase": phase})[:-1]
+    return b'%s,"decisions":[%s]}' % (head, b",".join(records))
 
 
 def epoch_close(

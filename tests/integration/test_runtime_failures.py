@@ -110,7 +110,10 @@ def test_malformed_payloads_are_counted_and_skipped(paper: Scenario, runs_dir: P
             s.put(keys.link_report(run_id, 2), b"[]")
         sent.set()
 
-    outcome = launch(paper, runs_dir=runs_dir, record=False, on_started=inject)
+    # Long enough (a few seconds) that the injector's session is up well before the end.
+    outcome = launch(
+        paper.with_overrides(epochs=600), runs_dir=runs_dir, record=False, on_started=inject
+    )
     assert sent.is_set()
     assert np.isfinite(outcome.positions).all()
     bad = outcome.malformed

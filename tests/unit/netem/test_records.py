@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import orjson
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -55,3 +56,18 @@ def test_epoch_close_validates_sorted(
     assert close.receiver == 4 and close.phase == "state"
     assert [(d.source, d.seq, d.sent_epoch, d.copies) for d in close.delivered] == delivered
     assert close.lost == sorted(lost) and close.dead == sorted(dead)
+
+
+def _reference_batch(header: dict[str, object], phase: str, recs: list[Record]) -> bytes:
+    """The batch as one orjson dump of plain dicts: what the spliced encoding must equal."""
+    return orjson.dumps({**header, "kind": "decisions", "phase": phase, "decisions": [
+        {"source": s, "target": t, "link_class": c, "epoch": e, "seq": q, "verdict": d.verdict,
+         "delay_epochs": d.delay_epochs, "delay_ms": float(d.delay_ms), "model": d.model,
+         "state": d.state}
+        for s, t, c, e, q, d in recs
+    ]})  # fmt: skip
+
+
+@given(st.lists(records, max_size=20), st.sampled_from(["state", "report", "estimate"]))
+def test_decision_batch_is_byte_for_byte_one_json_dump(recs: list[Record], phase: str) -> None:
+    assert decision_batch(HEADER, phase, recs) == _reference_batch(HEADER, phase, recs)

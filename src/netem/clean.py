@@ -1,0 +1,137 @@
+"""Epochs in which every link of a phase passes: forwarded with no per-receiver bookkeeping.
+
+In such an epoch netem has nothing to tell any receiver (each close is implicit,
+ARCHITECTURE.md "Time"), so each packet goes out on its links at once and only its
+``(stream, seq)`` is kept. Whether an epoch is clean depends only on the links'
+models, so it is computed ahead, vectorised, for a block of epochs, together with
+each stream's records as a template that needs only the epoch and the seq. If
+something else happens in the middle of a clean epoch (an agent dies), the node
+turns what was kept into its per-receiver records (``records``).
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Iterator
+from typing import Any, NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+from netem.models import LinkModel
+from netem.records import Record, record_head, record_tail
+from netem.stack import Decision
+
+Link = tuple[str, int, int]  # (link class, source, target)
+
+
+class Stream(NamedTuple):
+    """Where one inbound key's packets go: its links, their publishers and models."""
+
+    links: tuple[Link, ...]
+    pubs: tuple[Any, ...]  # zenoh.Publisher
+    models: tuple[LinkModel, ...]
+
+
+class CleanEpochs:
+    """One phase's streams, its clean epochs and the records of those epochs."""
+
+    def __init__(self, streams: dict[int, Stream], block: int = 256) -> None:
+        self.streams = streams
+        self.expected = len(streams)  # packets per epoch: one per stream
+        self.pending: dict[int, dict[int, int]] = {}  # epoch → stream → seq, forwarded
+        self.done: set[int] = set()  # epochs finished here: no receiver has anything open
+        self.forwarded: Counter[int] = Counter()  # per stream, packets of clean epochs
+        self.chunks: list[bytes] = []  # encoded records of finished epochs, not yet published
+        self.last_done = -1
+        self._block = block
+        self._blocks: dict[int, tuple[list[bool], dict[int, list[bytes]]]] = {}
+        self._heads = {
+            sid: [record_head(src, dst, cls).replace(b"%", b"%%") for cls, src, dst in s.links]
+            for sid, s in streams.items()
+        }
+        self._tail_ids: dict[bytes, int] = {}
+        self._tails: list[bytes] = []
+        self._templates: dict[tuple[int, tuple[int, ...]], bytes] = {}
+
+    def clean(self, epoch: int) -> bool:
+        """Does every link of the phase pass packet 0 of ``epoch`` straight through?"""
+        k = epoch // self._block
+        got = self._blocks.get(k)
+        if got is None:
+            got = self._compute(k)
+        return got[0][epoch - k * self._block]
+
+    def finish(self, epoch: int, got: dict[int, int]) -> None:
+        """Every stream's packet of clean ``epoch`` went out: encode their records."""
+        k = epoch // self._block
+        got_block = self._blocks.get(k)
+        templates = (got_block if got_block is not None else self._compute(k))[1]
+        j = epoch - k * self._block
+        for stream, seq in got.items():
+            template = templates[stream][j]
+            self.chunks.append(template % ((epoch, seq) * len(self.streams[stream].links)))
+        self.done.add(epoch)
+        self.last_done = max(self.last_done, epoch)
+
+    def invalidate(self) -> None:
+        """A link's model changed: compute again."""
+        self._blocks.clear()
+
+    def records(self, epoch: int, got: dict[int, int]) -> Iterator[tuple[Record, Link]]:
+        """The decision record of every packet forwarded in ``epoch``, with its link."""
+        for stream, seq in got.items():
+            s = self.streams[stream]
+            for link, model in zip(s.links, s.models, strict=True):
+                cls, src, dst = link
+                yield (src, dst, cls, epoch, seq, model.decide(epoch)), link
+
+    # internals ----------------------------------------------------------------------------------
+
+    def _tail_id(self, d: Decision | None) -> int:
+        """An id of a passing decision's encoded fields; -1 when it does not pass."""
+        if d is None or d.verdict != "pass":
+            return -1
+        tail = record_tail(d)
+        got = self._tail_ids.get(tail)
+        if got is None:
+            got = self._tail_ids[tail] = len(self._tails)
+            self._tails.append(tail)
+        return got
+
+    def _template(self, stream: int, tails: tuple[int, ...]) -> bytes:
+        """The records of ``stream``'s packet as a ``%`` template of ``(epoch, seq)`` per link."""
+        got = self._templates.get((stream, tails))
+        if got is None:
+            got = self._templates[(stream, tails)] = b",".join(
+                head + b',"epoch":%d,"seq":%d' + self._tails[t].replace(b"%", b"%%")
+                for head, t in zip(self._heads[stream], tails, strict=True)
+            )
+        return got
+
+    def _compute(self, k: int) -> tuple[list[bool], dict[int, list[bytes]]]:
+        start, size = k * self._block, self._block
+        clean = np.ones(size, dtype=np.bool_)
+        ids_of: dict[int, npt.NDArray[np.int64]] = {}
+        for sid, s in self.streams.items():
+            ids = np.empty((len(s.models), size), dtype=np.int64)
+            for row, model in enumerate(s.models):
+                codes, table = model.coded(start, size)
+                ids[row] = np.array([self._tail_id(d) for d in table], dtype=np.int64)[codes]
+            clean &= (ids >= 0).all(axis=0)
+            ids_of[sid] = ids
+        templates: dict[int, list[bytes]] = {}
+        some = np.flatnonzero(clean)
+        for sid, ids in ids_of.items():
+            if not len(some):
+                break  # no clean epoch in the block: no templates needed
+            ids = np.where(clean, ids, ids[:, some[:1]])  # unclean epochs: never used
+            if (ids == ids[:, :1]).all():  # the usual case: one template for the block
+                templates[sid] = [self._template(sid, tuple(ids[:, 0].tolist()))] * size
+            else:
+                templates[sid] = [self._template(sid, t) for t in zip(*ids.tolist(), strict=True)]
+        if len(self._blocks) >= 4:
+            del self._blocks[next(iter(self._blocks))]
+        flags = clean.tolist()
+        self._blocks[k] = (flags, templates)
+        return self._blocks[k]

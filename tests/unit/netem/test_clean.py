@@ -1,0 +1,61 @@
+"""netem's clean epochs: the vectorised verdicts and spliced records equal the per-packet ones."""
+
+from __future__ import annotations
+
+from formation.linkmodels import Bernoulli, Delay, GilbertElliott, Outage
+from formation.messages import DecisionBatch
+from netem.clean import CleanEpochs, Stream
+from netem.models import LinkModel
+from netem.records import decision_batch, decision_batch_of
+
+HEADER = {"run_id": "r", "sender": "netem", "seq": 0, "epoch": 0, "stamp_ns": 1}
+
+
+def streams() -> dict[int, Stream]:
+    stacks = {
+        (1, 2): [Bernoulli(p_loss=0.05)],
+        (1, 3): [GilbertElliott(p=0.01, r=0.5)],  # a state in every record, loss rare
+        (2, 1): [Outage(start=300, end=320)],
+        (3, 1): [Delay(epochs=0, jitter_epochs=1)],
+    }
+    out: dict[int, Stream] = {}
+    for src in (1, 2, 3):
+        links = [("formation", s, d) for s, d in stacks if s == src]
+        models = [LinkModel(stacks[(s, d)], 7, s, d) for _, s, d in links]
+        out[src] = Stream(tuple(links), (), tuple(models))
+    return out
+
+
+def test_clean_epochs_are_those_where_every_link_passes() -> None:
+    ce = CleanEpochs(streams(), block=64)
+    models = [m for s in ce.streams.values() for m in s.models]
+    flags = [ce.clean(k) for k in range(700)]
+    assert flags == [all(m.decide(k).verdict == "pass" for m in models) for k in range(700)]
+    assert 0 < sum(flags) < 700 and not any(flags[300:320])
+
+
+def test_finished_epochs_encode_exactly_their_records() -> None:
+    ce = CleanEpochs(streams(), block=64)
+    clean = [k for k in range(400) if ce.clean(k)]
+    expected = []
+    for k in clean:
+        got = {1: 10 * k, 3: 10 * k + 3, 2: 10 * k + 2}  # arrival order, any seq
+        ce.finish(k, got)
+        expected.extend(record for record, _ in ce.records(k, got))
+    assert ce.done == set(clean) and ce.last_done == clean[-1]
+    batch = decision_batch_of(HEADER, "state", ce.chunks)
+    assert batch == decision_batch(HEADER, "state", expected)
+    parsed = DecisionBatch.model_validate_json(batch)
+    assert {d.state for d in parsed.decisions} >= {"good"}
+    assert {d.verdict for d in parsed.decisions} == {"pass"}
+
+
+def test_a_changed_model_is_seen_after_invalidate() -> None:
+    ss = streams()
+    ce = CleanEpochs(ss, block=64)
+    assert ce.clean(100) or ce.clean(101)
+    for s in ss.values():
+        for m in s.models:
+            m.replace([Bernoulli(p_loss=1.0)], 90)
+    ce.invalidate()
+    assert not any(ce.clean(k) for k in range(90, 200))
