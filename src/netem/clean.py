@@ -11,7 +11,6 @@ turns what was kept into its per-receiver records (``records``).
 
 from __future__ import annotations
 
-from collections import Counter
 from collections.abc import Iterator
 from typing import Any, NamedTuple
 
@@ -41,7 +40,8 @@ class CleanEpochs:
         self.expected = len(streams)  # packets per epoch: one per stream
         self.pending: dict[int, dict[int, int]] = {}  # epoch → stream → seq, forwarded
         self.done: set[int] = set()  # epochs finished here: no receiver has anything open
-        self.forwarded: Counter[int] = Counter()  # per stream, packets of clean epochs
+        self.slow: set[int] = set()  # epochs the node handles packet by packet
+        self.pubs = {sid: s.pubs for sid, s in streams.items()}
         self.chunks: list[bytes] = []  # encoded records of finished epochs, not yet published
         self.last_done = -1
         self._block = block

@@ -119,7 +119,6 @@ class NetemNode:
         self._routes: dict[str, _Route | None] = {}  # inbound key → (kind, source, target)
         self._estimates_seen: Counter[int] = Counter()  # epoch → agents' estimates handled
         self.clean: dict[Phase, CleanEpochs] = {}  # lockstep, set up by run()
-        self._slow: set[tuple[Phase, int]] = set()  # epochs handled packet by packet
         self.dead: set[int] = set()
         self.final_states: set[int] = set()
         self.estimates_done = 0
@@ -177,9 +176,9 @@ class NetemNode:
         out: dict[str, int] = {}
         total = Counter(self.forwarded)
         for ce in self.clean.values():
-            for stream, count in ce.forwarded.items():
-                for link in ce.streams[stream].links:
-                    total[link] += count  # type: ignore[index]
+            for stream in ce.streams.values():  # each finished epoch had one packet per stream
+                for link in stream.links:
+                    total[link] += len(ce.done)  # type: ignore[index]
         for (cls, src, dst), count in total.items():
             pub, _ = self._link(cls, src, dst)
             out[str(pub.key_expr)] = count
@@ -244,18 +243,18 @@ class NetemNode:
                        att: Any) -> bool:  # fmt: skip
         """Forward a packet of a clean epoch at once; False when the epoch needs the full path."""
         ce = self.clean.get(phase)
-        if ce is None or (phase, epoch) in self._slow:
+        if ce is None or epoch in ce.slow:
             return False
-        if self.dead or self.held or not ce.clean(epoch) or stream not in ce.streams:
+        pubs = ce.pubs.get(stream)
+        if pubs is None or self.dead or self.held or not ce.clean(epoch):
             self._go_slow(phase, epoch)
             return False
-        for pub in ce.streams[stream].pubs:
+        for pub in pubs:
             pub.put(payload, attachment=att)
         got = ce.pending.get(epoch)
         if got is None:
             got = ce.pending[epoch] = {}
         got[stream] = seq
-        ce.forwarded[stream] += 1
         if len(got) >= ce.expected:
             del ce.pending[epoch]
             ce.finish(epoch, got)
@@ -275,7 +274,7 @@ class NetemNode:
 
     def _go_slow(self, phase: Phase, epoch: int) -> None:
         """From now on ``epoch`` of ``phase`` takes the full path; what went fast is recorded as such."""
-        self._slow.add((phase, epoch))
+        self.clean[phase].slow.add(epoch)
         got = self.clean[phase].pending.pop(epoch, None)
         if got is None:
             return
