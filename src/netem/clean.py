@@ -35,17 +35,20 @@ class Stream(NamedTuple):
 class CleanEpochs:
     """One phase's streams, its clean epochs and the records of those epochs."""
 
-    def __init__(self, streams: dict[int, Stream], block: int = 256) -> None:
+    def __init__(self, streams: dict[int, Stream], block: int = 1024) -> None:
         self.streams = streams
         self.expected = len(streams)  # packets per epoch: one per stream
         self.pending: dict[int, dict[int, int]] = {}  # epoch → stream → seq, forwarded
         self.done: set[int] = set()  # epochs finished here: no receiver has anything open
         self.slow: set[int] = set()  # epochs the node handles packet by packet
         self.pubs = {sid: s.pubs for sid, s in streams.items()}
+        self._width = {sid: len(s.links) for sid, s in streams.items()}
+        self.flags: dict[int, bool] = {}  # epoch → clean, for the blocks computed: a plain lookup
         self.chunks: list[bytes] = []  # encoded records of finished epochs, not yet published
         self.last_done = -1
         self._block = block
-        self._blocks: dict[int, tuple[list[bool], dict[int, list[bytes]]]] = {}
+        # block → (clean flags, stream → its records' template: one for the block, or per epoch)
+        self._blocks: dict[int, tuple[list[bool], dict[int, bytes | list[bytes]]]] = {}
         self._heads = {
             sid: [record_head(src, dst, cls).replace(b"%", b"%%") for cls, src, dst in s.links]
             for sid, s in streams.items()
@@ -65,18 +68,25 @@ class CleanEpochs:
     def finish(self, epoch: int, got: dict[int, int]) -> None:
         """Every stream's packet of clean ``epoch`` went out: encode their records."""
         k = epoch // self._block
-        got_block = self._blocks.get(k)
-        templates = (got_block if got_block is not None else self._compute(k))[1]
-        j = epoch - k * self._block
-        for stream, seq in got.items():
-            template = templates[stream][j]
-            self.chunks.append(template % ((epoch, seq) * len(self.streams[stream].links)))
+        block = self._blocks.get(k)
+        templates = (block if block is not None else self._compute(k))[1]
+        j, width = epoch - k * self._block, self._width
+        self.chunks.append(
+            b",".join(
+                [
+                    (t if isinstance(t := templates[s], bytes) else t[j]) % ((epoch, q) * width[s])
+                    for s, q in got.items()
+                ]
+            )
+        )
         self.done.add(epoch)
-        self.last_done = max(self.last_done, epoch)
+        if epoch > self.last_done:
+            self.last_done = epoch
 
     def invalidate(self) -> None:
         """A link's model changed: compute again."""
         self._blocks.clear()
+        self.flags.clear()
 
     def records(self, epoch: int, got: dict[int, int]) -> Iterator[tuple[Record, Link]]:
         """The decision record of every packet forwarded in ``epoch``, with its link."""
@@ -109,7 +119,7 @@ class CleanEpochs:
             )
         return got
 
-    def _compute(self, k: int) -> tuple[list[bool], dict[int, list[bytes]]]:
+    def _compute(self, k: int) -> tuple[list[bool], dict[int, bytes | list[bytes]]]:
         start, size = k * self._block, self._block
         clean = np.ones(size, dtype=np.bool_)
         ids_of: dict[int, npt.NDArray[np.int64]] = {}
@@ -120,18 +130,22 @@ class CleanEpochs:
                 ids[row] = np.array([self._tail_id(d) for d in table], dtype=np.int64)[codes]
             clean &= (ids >= 0).all(axis=0)
             ids_of[sid] = ids
-        templates: dict[int, list[bytes]] = {}
+        templates: dict[int, bytes | list[bytes]] = {}
         some = np.flatnonzero(clean)
         for sid, ids in ids_of.items():
             if not len(some):
                 break  # no clean epoch in the block: no templates needed
             ids = np.where(clean, ids, ids[:, some[:1]])  # unclean epochs: never used
             if (ids == ids[:, :1]).all():  # the usual case: one template for the block
-                templates[sid] = [self._template(sid, tuple(ids[:, 0].tolist()))] * size
+                templates[sid] = self._template(sid, tuple(ids[:, 0].tolist()))
             else:
                 templates[sid] = [self._template(sid, t) for t in zip(*ids.tolist(), strict=True)]
-        if len(self._blocks) >= 4:
-            del self._blocks[next(iter(self._blocks))]
+        if len(self._blocks) >= 2:
+            old = next(iter(self._blocks))
+            del self._blocks[old]
+            for e in range(old * size, (old + 1) * size):
+                self.flags.pop(e, None)
         flags = clean.tolist()
+        self.flags.update(zip(range(start, start + size), flags, strict=True))
         self._blocks[k] = (flags, templates)
         return self._blocks[k]

@@ -133,9 +133,9 @@ class _Block:
 
     start: int
     pieces: list[_Piece]
-    decisions: list[Decision]
+    code_list: list[int]  # epoch start + j is decided by table[code_list[j]]
     timed: bool
-    codes: npt.NDArray[np.int64]  # decisions[j] is table[codes[j]]
+    codes: npt.NDArray[np.int64]  # code_list as an array
     table: list[Decision]
     by_seq: dict[tuple[int, int], tuple[list[int], list[int], list[float]]] = field(
         default_factory=dict
@@ -229,7 +229,7 @@ class LinkModel:
                 raise LinkModelError(self.link, f"epoch = {epoch}; expected >= 0")
             blk = self._block(epoch // self._b)
         if seq == 0 and not blk.timed:
-            return blk.decisions[epoch - blk.start]
+            return blk.table[blk.code_list[epoch - blk.start]]
         return self._decide_slow(blk, epoch, seq, time_s)
 
     def coded(
@@ -330,16 +330,18 @@ class LinkModel:
             rows = np.column_stack(
                 [p.first[0], copies[0], de[0], dms[0].view(np.int64), reo[0], p.states[0]]
             ).astype(np.int64)
-            as_one = rows.view(np.dtype((np.void, rows.itemsize * rows.shape[1]))).ravel()
-            _, index, inverse = np.unique(as_one, return_index=True, return_inverse=True)
+            if (rows == rows[0]).all():  # the usual block: nothing happens on the link
+                index, inverse = np.zeros(1, np.int64), np.zeros(len(rows), np.int64)
+            else:
+                as_one = rows.view(np.dtype((np.void, rows.itemsize * rows.shape[1]))).ravel()
+                _, index, inverse = np.unique(as_one, return_index=True, return_inverse=True)
             codes.append(inverse.reshape(-1) + len(table))
             for first, c, e, ms_bits, r, *state in rows[index].tolist():
                 model = kinds[first] if first >= 0 else ""
                 ms = float(np.int64(ms_bits).view(np.float64))
                 table.append(_make_decision(model, c, e, ms, bool(r), _state_string(kinds, state)))
         coded = np.concatenate(codes)
-        decisions = [table[c] for c in coded.tolist()]
-        blk = _Block(a, pieces, decisions, any(p.stack.timed for p in pieces), coded, table)
+        blk = _Block(a, pieces, coded.tolist(), any(p.stack.timed for p in pieces), coded, table)
         while len(self._blocks) >= self._cache_blocks:
             del self._blocks[next(iter(self._blocks))]
         self._blocks[k] = blk

@@ -44,9 +44,9 @@ _Due = tuple[
     int, int, zenoh.Publisher, bytes, "bytes | None"
 ]  # (due ns, tie, link, payload, attachment)
 _Route = tuple[str, int, int]
-# Clean epochs' records go out together: one batch per this many packets' records (and at
+# Clean epochs' records go out together: one batch per this many epochs' records (and at
 # least every loop wake-up of the main thread, 0.2 s), instead of one per epoch.
-_FLUSH_CHUNKS = 256
+_FLUSH_CHUNKS = 64  # epochs
 _SPECS: TypeAdapter[list[LinkModelSpec]] = TypeAdapter(list[LinkModelSpec])
 
 
@@ -92,6 +92,7 @@ class NetemNode:
         self.lock = service.inline_lock  # the config queryable and the sample handler share it
         n = scenario.n
         self.agents = list(range(1, n + 1))
+        self.epochs = scenario.epochs
         self.models: dict[tuple[LinkClass, int, int], LinkModel] = {}
         self.in_links: dict[int, list[int]] = defaultdict(list)
         self.out_links: dict[int, list[int]] = defaultdict(list)
@@ -246,7 +247,10 @@ class NetemNode:
         if ce is None or epoch in ce.slow:
             return False
         pubs = ce.pubs.get(stream)
-        if pubs is None or self.dead or self.held or not ce.clean(epoch):
+        clean = ce.flags.get(epoch)
+        if clean is None:
+            clean = ce.clean(epoch)
+        if pubs is None or self.dead or self.held or not clean:
             self._go_slow(phase, epoch)
             return False
         for pub in pubs:
@@ -406,8 +410,9 @@ class NetemNode:
                 for dst in self.out_links[source]:
                     self._link("formation", source, dst)[0].put(payload, attachment=att)
                 return
-            self.epoch_seen = max(self.epoch_seen, epoch)
-            if epoch >= self.scenario.epochs:
+            if epoch > self.epoch_seen:
+                self.epoch_seen = epoch
+            if epoch >= self.epochs:
                 self.final_states.add(source)
                 return
             if self._forward_clean("state", source, epoch, seq, payload, att):
