@@ -146,7 +146,7 @@ class Decision(BaseModel):
 
 
 class DecisionBatch(_Message):
-    """The decisions netem took in one phase of one epoch."""
+    """Decisions netem took in one phase: of one epoch, or of several clean ones (each record has its epoch)."""
 
     kind: Literal["decisions"] = "decisions"
     phase: Literal["state", "report", "estimate"]
