@@ -47,8 +47,8 @@ class CleanEpochs:
         self.chunks: list[bytes] = []  # encoded records of finished epochs, not yet published
         self.last_done = -1
         self._block = block
-        # block → (clean flags, stream → its records' template: one for the block, or per epoch)
-        self._blocks: dict[int, tuple[list[bool], dict[int, bytes | list[bytes]]]] = {}
+        # block → stream → its records' template: one for the block, or one per epoch
+        self._blocks: dict[int, dict[int, bytes | list[bytes]]] = {}
         self._heads = {
             sid: [record_head(src, dst, cls).replace(b"%", b"%%") for cls, src, dst in s.links]
             for sid, s in streams.items()
@@ -59,17 +59,22 @@ class CleanEpochs:
 
     def clean(self, epoch: int) -> bool:
         """Does every link of the phase pass packet 0 of ``epoch`` straight through?"""
-        k = epoch // self._block
-        got = self._blocks.get(k)
-        if got is None:
-            got = self._compute(k)
-        return got[0][epoch - k * self._block]
+        flag = self.flags.get(epoch)
+        if flag is None:
+            self._compute(epoch // self._block)
+            flag = self.flags[epoch]
+        return flag
+
+    def mark_slow(self, epoch: int) -> None:
+        """``epoch`` is handled packet by packet from now on (it counts as not clean)."""
+        self.slow.add(epoch)
+        self.flags[epoch] = False
 
     def finish(self, epoch: int, got: dict[int, int]) -> None:
         """Every stream's packet of clean ``epoch`` went out: encode their records."""
         k = epoch // self._block
         block = self._blocks.get(k)
-        templates = (block if block is not None else self._compute(k))[1]
+        templates = block if block is not None else self._compute(k)
         j, width = epoch - k * self._block, self._width
         self.chunks.append(
             b",".join(
@@ -119,7 +124,7 @@ class CleanEpochs:
             )
         return got
 
-    def _compute(self, k: int) -> tuple[list[bool], dict[int, bytes | list[bytes]]]:
+    def _compute(self, k: int) -> dict[int, bytes | list[bytes]]:
         start, size = k * self._block, self._block
         clean = np.ones(size, dtype=np.bool_)
         ids_of: dict[int, npt.NDArray[np.int64]] = {}
@@ -145,7 +150,9 @@ class CleanEpochs:
             del self._blocks[old]
             for e in range(old * size, (old + 1) * size):
                 self.flags.pop(e, None)
-        flags = clean.tolist()
-        self.flags.update(zip(range(start, start + size), flags, strict=True))
-        self._blocks[k] = (flags, templates)
-        return self._blocks[k]
+        self.flags.update(zip(range(start, start + size), clean.tolist(), strict=True))
+        for e in self.slow:
+            if start <= e < start + size:
+                self.flags[e] = False
+        self._blocks[k] = templates
+        return templates

@@ -244,13 +244,15 @@ class NetemNode:
                        att: Any) -> bool:  # fmt: skip
         """Forward a packet of a clean epoch at once; False when the epoch needs the full path."""
         ce = self.clean.get(phase)
-        if ce is None or epoch in ce.slow:
+        if ce is None:
             return False
-        pubs = ce.pubs.get(stream)
         clean = ce.flags.get(epoch)
         if clean is None:
             clean = ce.clean(epoch)
-        if pubs is None or self.dead or self.held or not clean:
+        if not clean:  # by the models, or already handled packet by packet
+            return False
+        pubs = ce.pubs.get(stream)
+        if pubs is None or self.dead or self.held:
             self._go_slow(phase, epoch)
             return False
         for pub in pubs:
@@ -278,7 +280,7 @@ class NetemNode:
 
     def _go_slow(self, phase: Phase, epoch: int) -> None:
         """From now on ``epoch`` of ``phase`` takes the full path; what went fast is recorded as such."""
-        self.clean[phase].slow.add(epoch)
+        self.clean[phase].mark_slow(epoch)
         got = self.clean[phase].pending.pop(epoch, None)
         if got is None:
             return

@@ -59,3 +59,13 @@ def test_a_changed_model_is_seen_after_invalidate() -> None:
             m.replace([Bernoulli(p_loss=1.0)], 90)
     ce.invalidate()
     assert not any(ce.clean(k) for k in range(90, 200))
+
+
+def test_an_epoch_marked_slow_stays_unclean_after_its_block_is_computed_again() -> None:
+    ce = CleanEpochs(streams(), block=64)
+    k = next(k for k in range(64) if ce.clean(k))
+    ce.mark_slow(k)
+    assert not ce.clean(k)
+    for far in (64, 128, 192):  # evicts the first block
+        ce.clean(far)
+    assert k not in ce.flags and not ce.clean(k)
