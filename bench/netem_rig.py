@@ -7,6 +7,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import zenoh
 
@@ -19,13 +20,22 @@ ROOT = Path(__file__).resolve().parents[1]
 RUN = "bench"
 
 
+def bench_scenario(epochs: int, network: dict[str, Any] | None = None) -> Scenario:
+    return Scenario.from_file(ROOT / "scenarios/paper.toml").with_overrides(
+        epochs=epochs, network=network or {}
+    )
+
+
 @contextmanager
-def netem_rig(epochs: int, passthrough: bool = False) -> Iterator[tuple[zenoh.Session, str, int]]:
-    """Yield ``(session, router endpoint, netem pid)`` once netem (paper scenario, no loss) started."""
+def netem_rig(
+    epochs: int, passthrough: bool = False, network: dict[str, Any] | None = None
+) -> Iterator[tuple[zenoh.Session, str, int]]:
+    """Yield ``(session, router endpoint, netem pid)`` once netem started.
+
+    The scenario is the paper's with ``network`` (default: no loss).
+    """
     with tempfile.TemporaryDirectory() as tmp:
-        scenario = Scenario.from_file(ROOT / "scenarios/paper.toml").with_overrides(
-            epochs=epochs, network={}
-        )
+        scenario = bench_scenario(epochs, network)
         path = Path(tmp) / "s.toml"
         path.write_text(scenario.to_toml())
         port = free_port()
