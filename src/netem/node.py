@@ -264,8 +264,8 @@ class NetemNode:
         if len(got) >= ce.expected:
             del ce.pending[epoch]
             ce.finish(epoch, got)
-            if len(ce.chunks) >= _FLUSH_CHUNKS:
-                self._flush_clean(phase)
+            if len(ce.chunks) >= _FLUSH_CHUNKS or epoch >= self.epochs - 1:
+                self._flush_clean(phase)  # the last epoch's go out while the run still goes
         return True
 
     def _flush_clean(self, phase: Phase) -> None:

@@ -41,6 +41,13 @@ def test_lockstep_run_equals_the_simulator(paper: Scenario, runs_dir: Path, stra
         paper.epochs - 1
     )  # link 1-2 down from epoch 1
     assert outcome.malformed == {}
+    # Every packet's record, also those of the clean report and estimate phases, which netem
+    # publishes in batches: the last batch must not trail the run's end.
+    assert Counter(d.link_class for d in outcome.decisions) == {
+        "formation": len(links) * paper.epochs,
+        "report": paper.n * paper.epochs,
+        "estimate": paper.n * paper.epochs,
+    }
     # The substitutions the agents report equal the simulator's, in (epoch, receiver, sender) order.
     order = np.lexsort(
         (
