@@ -43,7 +43,10 @@ class Arrivals:
             here = all(self.arrived.get(e, {}).get(s) == q for s, q, e in listed)
             return listed if here else None
         got = self.arrived.get(epoch, {})
-        if epoch in self.close_follows or any(s not in got for s in senders):
+        # Counting first: called on every packet, a full check would cost O(senders) each time.
+        if len(got) < len(senders) or epoch in self.close_follows:
+            return None
+        if any(s not in got for s in senders):
             return None
         return [(s, got[s], epoch) for s in senders]
 

@@ -7,6 +7,7 @@ node logic runs single-threaded and in arrival order.
 from __future__ import annotations
 
 import contextlib
+import gc
 import logging
 import queue
 import signal
@@ -34,6 +35,16 @@ class Incoming:
     key: str
     payload: bytes
     attachment: bytes | None
+
+
+def settle_heap() -> None:
+    """Keep what setup allocated out of the garbage collector's sight for the rest of the run.
+
+    The scenario, models and Zenoh objects live until exit; tracing them again on every
+    full collection cost the leader a quarter of its CPU at 1,000 agents.
+    """
+    gc.collect()
+    gc.freeze()
 
 
 class Service:
@@ -211,6 +222,7 @@ class Service:
         deadline = None if timeout_s is None else now_ns() + int(timeout_s * 1e9)
         while not self.stopping.is_set():
             if self._started.wait(0.05):
+                settle_heap()
                 return True
             if deadline is not None and now_ns() > deadline:
                 raise RuntimeFailure(

@@ -27,7 +27,7 @@ from formation.linkmodels import LinkModelSpec
 from formation.messages import LinkChange
 from formation.realtime import Clock
 from formation.scenario import LEADER_ENDPOINT, Scenario
-from formation.service import Incoming, Service
+from formation.service import Incoming, Service, settle_heap
 from netem.clean import CleanEpochs, Stream
 from netem.models import LinkModel
 from netem.records import Forwarded, Record, decision_batch, decision_batch_of, epoch_close
@@ -598,6 +598,7 @@ class NetemNode:
         while not self.everyone_up():
             if self.service.stopping.wait(0.02):
                 return 130
+        settle_heap()
         self.service.declare_start()
         try:
             return self._lockstep_loop()
