@@ -1,8 +1,9 @@
 """The agent process: one agent, or a pool of agents sharing one Zenoh session (``--ids``).
 
-Lockstep (ARCHITECTURE.md "Time"): publish ``x_i[k]``; wait for netem's close
-marker of the state phase and exactly the packets it lists; report tokens and
-measurements; wait for the estimate phase's marker; step to ``x_i[k+1]``. A pool
+Lockstep (ARCHITECTURE.md "Time"): publish ``x_i[k]``; wait for netem's delivery
+of the state phase (every packet it passed this epoch, in one message); report
+tokens and measurements; wait for the estimate phase's delivery; step to
+``x_i[k+1]``. Realtime: packets come one per link, until a deadline. A pool
 takes each phase for all its agents at once, in one vectorised step (the leader
 waits for every report anyway, so this costs no time).
 """
@@ -15,12 +16,11 @@ from dataclasses import dataclass, field
 
 from agent.runner import AgentRunner, Estimate, Packet
 from formation import keys
-from formation.arrivals import Arrivals, Delivered
 from formation.codec import attachment, read_attachment
 from formation.messages import (
     AgentEstimate,
     CoordinationState,
-    EpochClose,
+    Delivery,
     Measurement,
     Substitute,
     TokenReport,
@@ -39,9 +39,7 @@ class _Inbox:
 
     packets: dict[tuple[int, int], object] = field(default_factory=dict)  # (source, seq) → Packet
     estimates: dict[int, object] = field(default_factory=dict)  # epoch → AgentEstimate
-    phases: dict[str, Arrivals] = field(
-        default_factory=lambda: {"state": Arrivals(), "estimate": Arrivals()}
-    )
+    deliveries: dict[tuple[str, int], Delivery] = field(default_factory=dict)  # lockstep
 
 
 def _estimate(est: object) -> Estimate | None:
@@ -67,7 +65,6 @@ class AgentNode:
         self.inbox = {i: _Inbox() for i in ids}
         self.phase = "state"  # waiting for the close of this phase, for every agent
         self.waiting: set[int] = set(ids)  # agents not yet ready for the phase
-        self.senders = {i: scenario.in_neighbours[i - 1] for i in ids}
         self.done = False
         self.taken = -1  # realtime: the last epoch whose packets were taken
         self.deadline = {
@@ -78,9 +75,11 @@ class AgentNode:
             "overruns": 0,
         }
         for i in ids:
-            service.subscribe(f"{keys.prefix(self.run_id)}/link/*/{i}/state")
-            service.subscribe(keys.link_estimate(self.run_id, i))
-            service.subscribe(f"{keys.prefix(self.run_id)}/close/{i}/*")
+            if scenario.runtime.mode == "realtime":
+                service.subscribe(keys.link_state(self.run_id, "*", i))
+                service.subscribe(keys.link_estimate(self.run_id, i))
+            else:  # one subscription per agent: a pool's session matches every sample against all
+                service.subscribe(keys.inbox(self.run_id, i, "*"))
         service.watch_alive()
 
     @property
@@ -91,40 +90,68 @@ class AgentNode:
         for i in self.ids:
             self.service.announce("agent", i)
 
-    # -- inbound --------------------------------------------------------------------------------
-    def _route(self, msg: Incoming) -> int | None:
-        """File a message in its receiver's inbox; returns that receiver (None if none of ours)."""
-        parts = msg.key.split("/")
-        kind = parts[-1]
-        if parts[2] == "close":
-            receiver = int(parts[3])
-            close = self.service.malformed.decode(msg.key, msg.payload, EpochClose)
-            if close is None or receiver not in self.inbox or close.phase == "report":
-                return None
-            done = self.inbox[receiver].phases[close.phase].close(close, self.runner.epoch)
-            return receiver if done else None
-        receiver = int(parts[4])
-        if receiver not in self.inbox:
+    # -- inbound ----------------------------------------------------------------------------------
+    def _take_delivery(self, msg: Incoming) -> int | None:
+        """Lockstep: keep netem's delivery for its receiver; returns that receiver if ours."""
+        delivery = self.service.malformed.decode(msg.key, msg.payload, Delivery)
+        if delivery is None:
             return None
+        receiver = delivery.receiver
+        if receiver not in self.inbox or not msg.key.endswith(f"/{receiver}/{delivery.phase}"):
+            self.service.malformed.counts[msg.key] += 1  # another receiver's: unusable
+            return None
+        if delivery.epoch < self.runner.epoch:
+            return None  # a copy of one already used
+        self.inbox[receiver].deliveries[(delivery.phase, delivery.epoch)] = delivery
+        return receiver
+
+    def _packets(self, i: int, delivery: Delivery) -> list[Packet]:
+        """The coordination packets of a state delivery; a malformed one is counted and lost."""
+        out = []
+        for p in delivery.packets:
+            key = keys.link_state(self.run_id, p.source, i)
+            state = self.service.malformed.decode(key, p.message, CoordinationState)
+            if state is not None and state.agent == p.source:
+                out.append(Packet(i, p.source, p.sent_epoch, tuple(state.position)))
+            elif state is not None:
+                self.service.malformed.counts[key] += 1
+        return out
+
+    def _estimate_of(self, i: int, delivery: Delivery) -> Estimate | None:
+        key = keys.link_estimate(self.run_id, i)
+        for p in delivery.packets:
+            if p.sent_epoch != delivery.epoch:
+                continue  # delayed past its epoch: of no use any more
+            est = self.service.malformed.decode(key, p.message, AgentEstimate)
+            if est is not None and est.agent != i:
+                self.service.malformed.counts[key] += 1  # another agent's part: unusable
+            elif est is not None:
+                return _estimate(est)
+        return None
+
+    def _route(self, msg: Incoming) -> None:
+        """Realtime: file a packet forwarded on a link in its receiver's inbox."""
+        parts = msg.key.split("/")
+        kind, receiver = parts[-1], int(parts[4])
+        if receiver not in self.inbox:
+            return
         meta = read_attachment(msg.attachment)
         if kind == "state":
             state = self.service.malformed.decode(msg.key, msg.payload, CoordinationState)
             if meta is None:
                 if state is None:
-                    return None
+                    return
                 meta = (state.epoch, state.seq, state.agent)
             sent_epoch, seq, source = meta
             if sent_epoch <= self.taken:
-                self.deadline["late_packets"] += 1  # realtime: arrived after its epoch's deadline
-                return None
+                self.deadline["late_packets"] += 1  # arrived after its epoch's deadline
+                return
             value: object = (
                 _BAD
                 if state is None
                 else Packet(receiver, source, sent_epoch, tuple(state.position))
             )
-            box = self.inbox[receiver]
-            box.packets[(source, seq)] = value
-            box.phases["state"].packet(sent_epoch, source, seq, msg.attachment)
+            self.inbox[receiver].packets[(source, seq)] = value
         elif kind == "estimate":
             est = self.service.malformed.decode(msg.key, msg.payload, AgentEstimate)
             if est is not None and est.agent != receiver:
@@ -136,12 +163,6 @@ class AgentNode:
                 self.inbox[receiver].estimates[est.epoch] = est
             elif meta is not None:
                 self.inbox[receiver].estimates[meta[0]] = _BAD
-            arrivals = self.inbox[receiver].phases["estimate"]
-            if meta is not None:
-                arrivals.packet(meta[0], keys.LEADER, meta[1], msg.attachment)
-            elif est is not None:
-                arrivals.packet(est.epoch, keys.LEADER, est.seq, None)
-        return receiver
 
     # -- publishing -------------------------------------------------------------------------------
     def _publish_states(self) -> None:
@@ -173,13 +194,8 @@ class AgentNode:
             )
 
     # -- lockstep phases ---------------------------------------------------------------------------
-    def _delivered(self, i: int) -> list[Delivered] | None:
-        """What netem delivered to agent ``i`` in the current phase, once all of it is here."""
-        senders = self.senders[i] if self.phase == "state" else [keys.LEADER]
-        return self.inbox[i].phases[self.phase].delivered(self.runner.epoch, senders)
-
     def _ready(self, i: int) -> bool:
-        return self._delivered(i) is not None
+        return (self.phase, self.runner.epoch) in self.inbox[i].deliveries
 
     def _start_phase(self, phase: str) -> None:
         self.phase = phase
@@ -189,27 +205,15 @@ class AgentNode:
         k = self.runner.epoch
         packets = []
         for i in self.ids:
-            box = self.inbox[i]
-            delivered = self._delivered(i)
-            assert delivered is not None  # every agent is ready
-            for source, seq, sent_epoch in delivered:
-                value = box.packets.pop((source, seq))
-                if isinstance(value, Packet):
-                    packets.append(Packet(i, source, sent_epoch, value.position))
-            box.phases["state"].forget(k)
+            packets += self._packets(i, self.inbox[i].deliveries.pop(("state", k)))
         self._publish_reports(packets)
         self._start_phase("estimate")
 
     def _estimate_phase(self) -> None:
         k = self.runner.epoch
-        got: dict[int, Estimate | None] = {}
-        for i in self.ids:
-            box = self.inbox[i]
-            est = box.estimates.pop(k, None)
-            for old in [e for e in box.estimates if e < k]:
-                del box.estimates[old]
-            box.phases["estimate"].forget(k)
-            got[i] = _estimate(est)
+        got = {
+            i: self._estimate_of(i, self.inbox[i].deliveries.pop(("estimate", k))) for i in self.ids
+        }
         self.runner.step(got)
         self._publish_states()
         self.done = self.runner.epoch >= self.scenario.epochs
@@ -217,7 +221,7 @@ class AgentNode:
 
     def _on_message(self, msg: Incoming) -> None:
         # Only the receiver a message is for can become ready: a pool of hundreds checks one.
-        receiver = self._route(msg)
+        receiver = self._take_delivery(msg)
         if receiver in self.waiting and self._ready(receiver):
             self.waiting.discard(receiver)
         while not self.done and not self.waiting:
@@ -274,7 +278,6 @@ class AgentNode:
                     p for p in box.packets.values() if isinstance(p, Packet) and p.sent_epoch <= k
                 ]
                 box.packets.clear()
-                box.phases["state"].forget(k)  # realtime has no closes: only bounded memory
             self.deadline["packets"] += sum(p.sent_epoch == k for p in packets)
             self.taken = k
             self._publish_reports(packets)
@@ -283,7 +286,6 @@ class AgentNode:
             for i in self.ids:
                 est = self.inbox[i].estimates.pop(k, None)
                 self.inbox[i].estimates.clear()
-                self.inbox[i].phases["estimate"].forget(k)
                 got[i] = _estimate(est)
                 self.deadline["estimates"] += got[i] is not None
             self.runner.step(got)

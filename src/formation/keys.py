@@ -39,7 +39,7 @@ def leader_estimate_for(run_id: str, i: int | str) -> str:
     return f"{ROOT}/{run_id}/leader/estimate/{i}"
 
 
-# -- what netem delivers ------------------------------------------------------------------------
+# -- what netem delivers: per link in realtime, per receiver and epoch in lockstep -------------
 def link_state(run_id: str, i: int | str, j: int | str) -> str:
     """Coordination packets delivered on formation link ``i → j``."""
     return f"{ROOT}/{run_id}/link/{i}/{j}/state"
@@ -55,9 +55,9 @@ def link_estimate(run_id: str, i: int | str) -> str:
     return f"{ROOT}/{run_id}/link/{LEADER}/{i}/estimate"
 
 
-def close(run_id: str, receiver: int | str, phase: str) -> str:
-    """Epoch-close marker for ``receiver`` (0 = leader) after ``phase`` (state, report, estimate)."""
-    return f"{ROOT}/{run_id}/close/{receiver}/{phase}"
+def inbox(run_id: str, receiver: int | str, phase: str) -> str:
+    """Lockstep: netem's one :class:`Delivery` per epoch to ``receiver`` (0 = leader) in ``phase``."""
+    return f"{ROOT}/{run_id}/inbox/{receiver}/{phase}"
 
 
 # -- netem, clock, metrics, liveliness ---------------------------------------------------------

@@ -101,8 +101,12 @@ class AgentEstimate(_Message):
     v_ref: list[float]
 
 
-class Delivered(BaseModel):
-    """A packet delivered to a receiver within an epoch (``sent_epoch < epoch`` when delayed)."""
+class DeliveredPacket(BaseModel):
+    """One packet netem delivers in a :class:`Delivery` (``sent_epoch < epoch`` when delayed).
+
+    ``message`` is the sender's payload exactly as published: netem does not parse it, the
+    receiver validates it (a malformed one is counted and skipped, the rest still count).
+    """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -110,20 +114,21 @@ class Delivered(BaseModel):
     seq: int
     sent_epoch: int
     copies: int = 1
+    message: str
 
 
-class EpochClose(_Message):
-    """netem to a receiver: everything of ``phase`` for ``epoch`` has been handled.
+class Delivery(_Message):
+    """netem to one receiver, lockstep: everything of ``phase`` it gets at ``epoch``, at once.
 
-    ``delivered`` lists what was forwarded (wait for exactly these); ``lost`` the
-    sources whose packet was dropped or delayed past this epoch; ``dead`` the
-    sources no longer alive (their packets count as lost).
+    Sent once every live sender's packet of the epoch was handled, so it also closes
+    the epoch: ``packets`` is all there is; ``lost`` lists the sources whose packet was
+    dropped or delayed past this epoch; ``dead`` the sources no longer alive.
     """
 
-    kind: Literal["close"] = "close"
+    kind: Literal["delivery"] = "delivery"
     receiver: int
     phase: Literal["state", "report", "estimate"]
-    delivered: list[Delivered]
+    packets: list[DeliveredPacket]
     lost: list[int]
     dead: list[int] = []
 
@@ -172,7 +177,8 @@ class Status(_Message):
     state: Literal["ready", "running", "done", "error"]
     epochs_done: int = 0
     malformed: dict[str, int] = {}
-    sent: dict[str, int] = {}
+    sent: dict[str, int] = {}  # messages published per key
+    delivered: dict[str, int] = {}  # netem: packets delivered per link, named by its key
     detail: str = ""
 
 
@@ -197,7 +203,7 @@ Message = Annotated[
     | TokenReport
     | LeaderEstimate
     | AgentEstimate
-    | EpochClose
+    | Delivery
     | DecisionBatch
     | LinkChange
     | Status
@@ -211,7 +217,7 @@ ALL_MODELS: tuple[type[BaseModel], ...] = (
     TokenReport,
     LeaderEstimate,
     AgentEstimate,
-    EpochClose,
+    Delivery,
     DecisionBatch,
     LinkChange,
     Status,

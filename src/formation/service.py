@@ -126,11 +126,13 @@ class Service:
             "stamp_ns": now_ns(),
         }
 
-    def status(self, state: str, epochs_done: int = 0, detail: str = "") -> None:
+    def status(self, state: str, epochs_done: int = 0, detail: str = "",
+               delivered: dict[str, int] | None = None) -> None:  # fmt: skip
         key = keys.status(self.run_id, self.role, self.ident)
         msg = Status(
             **self.header(key, epochs_done - 1), role=self.role, state=state,
-            epochs_done=epochs_done, malformed=dict(self.malformed.counts), sent=dict(self.sent), detail=detail,
+            epochs_done=epochs_done, malformed=dict(self.malformed.counts), sent=dict(self.sent),
+            delivered=delivered or {}, detail=detail,
         )  # fmt: skip
         self.publish(key, msg)
 

@@ -12,9 +12,8 @@ import numpy.typing as npt
 import orjson
 
 from formation import keys
-from formation.arrivals import Arrivals
-from formation.codec import attachment, read_attachment
-from formation.messages import EpochClose, LeaderEstimate, TokenReport
+from formation.codec import attachment
+from formation.messages import Delivery, LeaderEstimate, TokenReport
 from formation.realtime import REPORT_DEADLINE, fetch_clock
 from formation.reference import reference_positions, reference_velocities
 from formation.scenario import Scenario
@@ -107,45 +106,48 @@ class LeaderNode:
             scenario.reference, scenario.offsets[scenario.leader - 1], period, scenario.epochs
         )
         self.ref_v = reference_velocities(self.ref_x, period)
-        self.reports: dict[
-            tuple[int, int], object
-        ] = {}  # (agent, seq) → TokenReport or None if malformed
-        self.arrivals = Arrivals()  # the report phase's packets and closes
+        self.reports: dict[tuple[int, int], TokenReport] = {}  # realtime: (agent, seq) → report
+        self.deliveries: dict[int, Delivery] = {}  # lockstep: epoch → netem's reports of it
         self.agents = list(range(1, scenario.n + 1))
         self.epoch = 0
         self.rigidity = HealthyRigidity(scenario.offsets, scenario.edge_array)
         self.late_reports = 0
-        service.subscribe(f"{keys.prefix(self.run_id)}/leader/report/*")
-        service.subscribe(keys.close(self.run_id, keys.LEADER, "report"))
+        if scenario.runtime.mode == "realtime":
+            service.subscribe(keys.link_report(self.run_id, "*"))
+        else:
+            service.subscribe(keys.inbox(self.run_id, keys.LEADER, "report"))
         service.watch_alive()
 
     def _route(self, msg: Incoming) -> None:
-        if "/close/" in msg.key:
-            close = self.service.malformed.decode(msg.key, msg.payload, EpochClose)
-            if close is not None:
-                self.arrivals.close(close, self.epoch)
-            return
+        """Realtime: a report forwarded on its link."""
         report = self.service.malformed.decode(msg.key, msg.payload, TokenReport)
-        meta = read_attachment(msg.attachment)
         if report is not None:
             self.reports[(report.agent, report.seq)] = report
-            self.arrivals.packet(report.epoch, report.agent, report.seq, msg.attachment)
-        elif meta is not None:
-            self.reports[(meta[2], meta[1])] = None
-            self.arrivals.packet(meta[0], meta[2], meta[1], msg.attachment)
+
+    def _take_delivery(self, msg: Incoming) -> None:
+        delivery = self.service.malformed.decode(msg.key, msg.payload, Delivery)
+        if delivery is None:
+            return
+        if delivery.receiver != keys.LEADER or delivery.phase != "report":
+            self.service.malformed.counts[msg.key] += 1  # not the leader's: unusable
+        elif delivery.epoch >= self.epoch:
+            self.deliveries[delivery.epoch] = delivery
 
     def _try_epoch(self) -> bool:
         k = self.epoch
-        delivered = self.arrivals.delivered(k, self.agents)
-        if delivered is None:
+        delivery = self.deliveries.pop(k, None)
+        if delivery is None:
             return False
-        got = [self.reports.pop((a, s)) for a, s, _ in delivered]
-        reports = [
-            r
-            for r, (_, _, sent) in zip(got, delivered, strict=True)
-            if isinstance(r, TokenReport) and sent == k
-        ]
-        self.arrivals.forget(k)
+        reports = []
+        for p in delivery.packets:
+            if p.sent_epoch != k:
+                continue  # delayed past its epoch: the leader only fuses epoch k's
+            key = keys.link_report(self.run_id, p.source)
+            report = self.service.malformed.decode(key, p.message, TokenReport)
+            if report is not None and report.agent != p.source:
+                self.service.malformed.counts[key] += 1
+            elif report is not None:
+                reports.append(report)
         self._estimate(k, reports)
         return True
 
@@ -183,7 +185,7 @@ class LeaderNode:
                 msg = self.service.next_incoming(
                     max(0.0, min(0.05, (clock.at(k, REPORT_DEADLINE) - time.time_ns()) / 1e9))
                 )
-                if msg is not None and "/close/" not in msg.key:
+                if msg is not None:
                     self._route(msg)
             reports = [
                 r for r in self.reports.values() if isinstance(r, TokenReport) and r.epoch == k
@@ -192,12 +194,11 @@ class LeaderNode:
                 1 for r in self.reports.values() if isinstance(r, TokenReport) and r.epoch < k
             )
             self.reports.clear()
-            self.arrivals.forget(k)
             self._estimate(k, reports)
         return 0
 
     def _on_message(self, msg: Incoming) -> None:
-        self._route(msg)
+        self._take_delivery(msg)
         while self.epoch < self.scenario.epochs and self._try_epoch():
             pass
 

@@ -1,12 +1,12 @@
-"""Epochs in which every link of a phase passes: forwarded with no per-receiver bookkeeping.
+"""Epochs in which every link of a phase passes: delivered with no per-packet decisions.
 
-In such an epoch netem has nothing to tell any receiver (each close is implicit,
-ARCHITECTURE.md "Time"), so each packet goes out on its links at once and only its
-``(stream, seq)`` is kept. Whether an epoch is clean depends only on the links'
-models, so it is computed ahead, vectorised, for a block of epochs, together with
-each stream's records as a template that needs only the epoch and the seq. If
-something else happens in the middle of a clean epoch (an agent dies), the node
-turns what was kept into its per-receiver records (``records``).
+In such an epoch every receiver gets exactly one packet from each of its senders,
+so a packet only joins its receivers' deliveries and its ``(stream, seq)`` is kept.
+Whether an epoch is clean depends only on the links' models, so it is computed
+ahead, vectorised, for a block of epochs, together with each stream's records as a
+template that needs only the epoch and the seq. If something else happens in the
+middle of a clean epoch (an agent dies), the node turns what was kept into its
+per-receiver records (``records``).
 """
 
 from __future__ import annotations
@@ -25,23 +25,26 @@ Link = tuple[str, int, int]  # (link class, source, target)
 
 
 class Stream(NamedTuple):
-    """Where one inbound key's packets go: its links, their publishers and models."""
+    """Where one inbound key's packets go: its links, their receivers and models."""
 
     links: tuple[Link, ...]
-    pubs: tuple[Any, ...]  # zenoh.Publisher
+    receivers: tuple[int, ...]
     models: tuple[LinkModel, ...]
 
 
 class CleanEpochs:
     """One phase's streams, its clean epochs and the records of those epochs."""
 
-    def __init__(self, streams: dict[int, Stream], block: int = 1024) -> None:
+    def __init__(self, streams: dict[int, Stream], need: dict[int, int], block: int = 1024) -> None:
         self.streams = streams
+        self.need = need  # receiver → packets it gets in a clean epoch (one per sender)
         self.expected = len(streams)  # packets per epoch: one per stream
-        self.pending: dict[int, dict[int, int]] = {}  # epoch → stream → seq, forwarded
+        self.pending: dict[int, dict[int, int]] = {}  # epoch → stream → seq, taken
+        # epoch → receiver → its packets so far, or an empty marker list once delivered
+        self.gather: dict[int, dict[int, list[Any]]] = {}
         self.done: set[int] = set()  # epochs finished here: no receiver has anything open
         self.slow: set[int] = set()  # epochs the node handles packet by packet
-        self.pubs = {sid: s.pubs for sid, s in streams.items()}
+        self.receivers = {sid: s.receivers for sid, s in streams.items()}
         self._width = {sid: len(s.links) for sid, s in streams.items()}
         self.flags: dict[int, bool] = {}  # epoch → clean, for the blocks computed: a plain lookup
         self.chunks: list[bytes] = []  # encoded records of finished epochs, not yet published

@@ -1,11 +1,14 @@
 """The netem process: every message between services crosses it as a directed link.
 
 Lockstep (ARCHITECTURE.md "Time"): for each packet netem asks the link's model
-(keyed by seed, link and epoch, so any process gets the same verdict), forwards
-the payload unparsed (epoch, seq and source ride in the attachment), and once
-every live sender's epoch-``k`` packet into a receiver is handled it sends that
-receiver an :class:`EpochClose` listing what was delivered. Delays are whole
-epochs: a delayed packet is delivered with the close of a later epoch.
+(keyed by seed, link and epoch, so any process gets the same verdict). Once every
+live sender's epoch-``k`` packet into a receiver is handled, it sends that receiver
+one :class:`Delivery` with the payloads it passed, unparsed: the delivery is also
+the epoch's close. Delays are whole epochs: a delayed packet goes out with a later
+epoch's delivery. One message per receiver and phase, instead of one per link and a
+close, is what lets a pool of hundreds of agents keep up.
+
+Realtime: each packet is forwarded on its link's key as it comes, after its delay.
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ import zenoh
 from pydantic import TypeAdapter, ValidationError
 
 from formation import keys
-from formation.codec import CLOSE_FOLLOWS, attachment, read_attachment
+from formation.codec import read_attachment
 from formation.linkmodels import LinkModelSpec
 from formation.messages import LinkChange
 from formation.realtime import Clock
@@ -30,7 +33,7 @@ from formation.scenario import LEADER_ENDPOINT, Scenario
 from formation.service import Incoming, Service, settle_heap
 from netem.clean import CleanEpochs, Stream
 from netem.models import LinkModel
-from netem.records import Forwarded, Record, decision_batch, decision_batch_of, epoch_close
+from netem.records import Packet, Record, decision_batch, decision_batch_of, delivery
 
 log = logging.getLogger("netem")
 LinkClass = Literal["formation", "report", "estimate"]
@@ -48,16 +51,15 @@ _Route = tuple[str, int, int]
 # least every loop wake-up of the main thread, 0.2 s), instead of one per epoch.
 _FLUSH_CHUNKS = 64  # epochs
 _SPECS: TypeAdapter[list[LinkModelSpec]] = TypeAdapter(list[LinkModelSpec])
+_DELIVERED: list[Packet] = []  # marks a receiver whose delivery of a clean epoch went out
 
 
 @dataclass
 class _Held:
-    """A packet held for a later epoch (delay), forwarded with that epoch's close."""
+    """A packet held for a later epoch (delay), delivered with that epoch's packets."""
 
-    pub: zenoh.Publisher
     link: tuple[LinkClass, int, int]
     payload: Any  # bytes or the received ZBytes
-    attachment: Any
     source: int
     seq: int
     sent_epoch: int
@@ -69,9 +71,8 @@ class _Open:
     """An epoch of one phase into one receiver, not yet closed."""
 
     handled: set[int] = field(default_factory=set)
-    delivered: list[Forwarded] = field(default_factory=list)
+    packets: list[Packet] = field(default_factory=list)
     lost: list[int] = field(default_factory=list)
-    clean: bool = True  # every packet so far passed at once, one copy: the close may be implicit
 
 
 class NetemNode:
@@ -156,93 +157,81 @@ class NetemNode:
         return all(self.service.is_alive(role, ident) for role, ident in need)
 
     # -- links --------------------------------------------------------------------------------
+    def _link_key(self, cls: LinkClass, src: int, dst: int) -> str:
+        """The key a link's packets are forwarded on in realtime (and named by in lockstep)."""
+        if cls == "formation":
+            return keys.link_state(self.run_id, src, dst)
+        if cls == "report":
+            return keys.link_report(self.run_id, src)
+        return keys.link_estimate(self.run_id, dst)
+
     def _link(self, cls: LinkClass, src: int, dst: int) -> tuple[zenoh.Publisher, LinkModel]:
-        """The publisher of a link's delivered packets and its model, looked up once."""
+        """Realtime: the publisher of a link's forwarded packets and its model, looked up once."""
         got = self._links.get((cls, src, dst))
         if got is None:
-            if cls == "formation":
-                key = keys.link_state(self.run_id, src, dst)
-            elif cls == "report":
-                key = keys.link_report(self.run_id, src)
-            else:
-                key = keys.link_estimate(self.run_id, dst)
             got = self._links[(cls, src, dst)] = (
-                self.service.publisher(key),
+                self.service.publisher(self._link_key(cls, src, dst)),
                 self.models[(cls, src, dst)],
             )
         return got
 
     def sent_counts(self) -> dict[str, int]:
-        """Forwarded packets per delivered key (for the final status)."""
-        out: dict[str, int] = {}
+        """Delivered packets per link, named by the link's key (for the final status)."""
         total = Counter(self.forwarded)
         for ce in self.clean.values():
             for stream in ce.streams.values():  # each finished epoch had one packet per stream
                 for link in stream.links:
                     total[link] += len(ce.done)  # type: ignore[index]
-        for (cls, src, dst), count in total.items():
-            pub, _ = self._link(cls, src, dst)
-            out[str(pub.key_expr)] = count
-        return out
+        return {self._link_key(*link): count for link, count in total.items()}
+
+    def _deliver(self, phase: Phase, receiver: int, epoch: int, packets: list[Packet],
+                 lost: list[int], dead: list[int]) -> None:  # fmt: skip
+        key = keys.inbox(self.run_id, receiver, phase)
+        header = self.service.header(key, epoch)
+        self.service.put(key, delivery(header, receiver, phase, packets, lost, dead))
 
     def _route_packet(self, phase: Phase, cls: LinkClass, src: int, dst: int, payload: Any,
-                      att: Any, epoch: int, seq: int) -> _Open:  # fmt: skip
-        """Decide, record and forward one packet; returns its receiver's open epoch."""
+                      epoch: int, seq: int) -> _Open:  # fmt: skip
+        """Decide and record one packet, and put it in its receiver's open epoch (returned)."""
         key = (phase, dst, epoch)
         box = self.open.get(key)
         if box is None:
             box = self.open[key] = _Open()
         box.handled.add(src)
-        pub, model = self._link(cls, src, dst)
-        d = model.decide(epoch)
+        d = self.models[(cls, src, dst)].decide(epoch)
         self.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
-        if d.verdict == "pass" and key not in self.held:  # the common case, kept short
-            pub.put(payload, attachment=att)
-            self.forwarded[(cls, src, dst)] += 1
-            box.delivered.append((src, seq, epoch, 1))
-            return box
         if not d.delivered:
             box.lost.append(src)
-            box.clean = False
         elif d.delay_epochs == 0:
-            if d.copies != 1 or key in self.held:
-                # The receiver will have every sender's packet, yet a close follows: say so.
-                box.clean = False
-                att = attachment(epoch, seq, src, CLOSE_FOLLOWS)
-            for _ in range(d.copies):
-                pub.put(payload, attachment=att)
+            box.packets.append((src, seq, epoch, d.copies, payload))
             self.forwarded[(cls, src, dst)] += d.copies
-            box.delivered.append((src, seq, epoch, d.copies))
         else:
             box.lost.append(src)  # lost for this epoch; arrives with a later one
-            box.clean = False
             self.held[(phase, dst, epoch + d.delay_epochs)].append(
-                _Held(pub, (cls, src, dst), payload, att, src, seq, epoch, d.copies)
+                _Held((cls, src, dst), payload, src, seq, epoch, d.copies)
             )
         return box
 
     # -- clean epochs: every link of the phase passes (netem.clean) --------------------------
     def _setup_clean(self) -> None:
         def stream(links: list[tuple[LinkClass, int, int]]) -> Stream:
-            got = [self._link(*link) for link in links]
-            return Stream(tuple(links), tuple(p for p, _ in got), tuple(m for _, m in got))
+            models = tuple(self.models[link] for link in links)
+            return Stream(tuple(links), tuple(dst for _, _, dst in links), models)
 
         self.clean = {
             "state": CleanEpochs({
                 s: stream([("formation", s, d) for d in self.out_links[s]])
                 for s in self.agents if self.out_links[s]
-            }),
-            "report": CleanEpochs({s: stream([("report", s, LEADER_ENDPOINT)]) for s in self.agents}),
-            "estimate": CleanEpochs({d: stream([("estimate", LEADER_ENDPOINT, d)]) for d in self.agents}),
+            }, {j: len(self.in_links[j]) for j in self.agents}),
+            "report": CleanEpochs({s: stream([("report", s, LEADER_ENDPOINT)]) for s in self.agents},
+                                  {LEADER_ENDPOINT: len(self.agents)}),
+            "estimate": CleanEpochs({d: stream([("estimate", LEADER_ENDPOINT, d)]) for d in self.agents},
+                                    dict.fromkeys(self.agents, 1)),
         }  # fmt: skip
 
-    def _done(self, phase: Phase) -> set[int]:
-        ce = self.clean.get(phase)
-        return ce.done if ce is not None else set()
-
-    def _forward_clean(self, phase: Phase, stream: int, epoch: int, seq: int, payload: Any,
-                       att: Any) -> bool:  # fmt: skip
-        """Forward a packet of a clean epoch at once; False when the epoch needs the full path."""
+    def _forward_clean(self, phase: Phase, stream: int, epoch: int, seq: int, payload: Any) -> bool:
+        """Take a packet of a clean epoch with no per-packet decision; False when the epoch
+        needs the full path. A receiver's delivery goes out once all its senders' are here."""
         ce = self.clean.get(phase)
         if ce is None:
             return False
@@ -251,19 +240,33 @@ class NetemNode:
             clean = ce.clean(epoch)
         if not clean:  # by the models, or already handled packet by packet
             return False
-        pubs = ce.pubs.get(stream)
-        if pubs is None or self.dead or self.held:
+        receivers = ce.receivers.get(stream)
+        if receivers is None or self.dead or self.held:
             self._go_slow(phase, epoch)
             return False
-        for pub in pubs:
-            pub.put(payload, attachment=att)
-        got = ce.pending.get(epoch)
-        if got is None:
-            got = ce.pending[epoch] = {}
-        got[stream] = seq
-        if len(got) >= ce.expected:
-            del ce.pending[epoch]
-            ce.finish(epoch, got)
+        pending = ce.pending.get(epoch)
+        if pending is None:
+            pending = ce.pending[epoch] = {}
+        elif stream in pending:
+            return True  # a second packet of one sender's epoch (not one of ours): ignored
+        pending[stream] = seq
+        gather = ce.gather.get(epoch)
+        if gather is None:
+            gather = ce.gather[epoch] = {}
+        packet = (stream, seq, epoch, 1, payload)
+        for r in receivers:
+            got = gather.get(r)
+            if got is None:
+                got = gather[r] = []
+            got.append(packet)
+            if len(got) >= ce.need[r]:
+                gather[r] = _DELIVERED
+                self._deliver(phase, r, epoch, got, [], [])
+                # Epochs into a receiver finish in order: its senders need its previous one.
+                self.next_close[(phase, r)] = epoch + 1
+        if len(pending) >= ce.expected:
+            del ce.pending[epoch], ce.gather[epoch]
+            ce.finish(epoch, pending)
             if len(ce.chunks) >= _FLUSH_CHUNKS or epoch >= self.epochs - 1:
                 self._flush_clean(phase)  # the last epoch's go out while the run still goes
         return True
@@ -280,20 +283,26 @@ class NetemNode:
 
     def _go_slow(self, phase: Phase, epoch: int) -> None:
         """From now on ``epoch`` of ``phase`` takes the full path; what went fast is recorded as such."""
-        self.clean[phase].mark_slow(epoch)
-        got = self.clean[phase].pending.pop(epoch, None)
+        ce = self.clean[phase]
+        ce.mark_slow(epoch)
+        got = ce.pending.pop(epoch, None)
+        gather = ce.gather.pop(epoch, {})
         if got is None:
             return
+        payloads = {p[0]: p[4] for packets in gather.values() if packets for p in packets}
         touched: set[int] = set()
-        for (src, dst, cls, _, seq, d), link in self.clean[phase].records(epoch, got):
+        for (src, dst, cls, _, seq, d), link in ce.records(epoch, got):
+            self.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
+            self.forwarded[link] += 1  # type: ignore[index]
+            if gather.get(dst) is _DELIVERED:
+                continue
             box = self.open.get((phase, dst, epoch))
             if box is None:
                 box = self.open[(phase, dst, epoch)] = _Open()
             box.handled.add(src)
-            box.delivered.append((src, seq, epoch, 1))
-            self.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
-            self.forwarded[link] += 1  # type: ignore[index]
+            box.packets.append((src, seq, epoch, 1, payloads[src]))
             touched.add(dst)
+        self.closed_count[(phase, epoch)] += sum(p is _DELIVERED for p in gather.values())
         for dst in touched:
             self._try_close(phase, dst)
 
@@ -314,9 +323,6 @@ class NetemNode:
         while True:
             epoch = self.next_close[(phase, receiver)]
             box = self.open.get((phase, receiver, epoch))
-            if box is None and epoch in self._done(phase):
-                self.next_close[(phase, receiver)] = epoch + 1  # closed implicitly
-                continue
             if box is None:
                 if epoch >= self.scenario.epochs or any(s not in self.dead for s in senders):
                     return
@@ -324,20 +330,11 @@ class NetemNode:
             elif not self._all_handled(box, senders):
                 return
             self.open.pop((phase, receiver, epoch), None)
-            held = self.held.pop((phase, receiver, epoch), [])
-            for h in held:
-                for _ in range(h.copies):
-                    h.pub.put(h.payload, attachment=h.attachment)
+            for h in self.held.pop((phase, receiver, epoch), []):
                 self.forwarded[h.link] += h.copies
-                box.delivered.append((h.source, h.seq, h.sent_epoch, h.copies))
+                box.packets.append((h.source, h.seq, h.sent_epoch, h.copies, h.payload))
             dead = [s for s in senders if s in self.dead] if self.dead else []
-            # Implicit close: every sender's packet went through at once, so the receiver
-            # knows the epoch is complete when it has them all; a marker would add nothing.
-            if not (box.clean and not held and not dead):
-                key = keys.close(self.run_id, receiver, phase)
-                header = self.service.header(key, epoch)
-                payload = epoch_close(header, receiver, phase, box.delivered, box.lost, dead)
-                self.service.put(key, payload)
+            self._deliver(phase, receiver, epoch, box.packets, box.lost, dead)
             self.next_close[(phase, receiver)] = epoch + 1
             self.closed_count[(phase, epoch)] += 1
             receivers = len(self.agents) - len(self.dead) if phase != "report" else 1
@@ -417,31 +414,30 @@ class NetemNode:
             if epoch >= self.epochs:
                 self.final_states.add(source)
                 return
-            if self._forward_clean("state", source, epoch, seq, payload, att):
+            if self._forward_clean("state", source, epoch, seq, payload):
                 return
             for dst in self.out_links[source]:
                 if dst in self.dead:
                     continue
-                box = self._route_packet(
-                    "state", "formation", source, dst, payload, att, epoch, seq
-                )
+                box = self._route_packet("state", "formation", source, dst, payload, epoch, seq)
                 if self._all_handled(box, self.in_links[dst]):  # else nothing can close yet
                     self._try_close("state", dst)
         elif kind == "report":
-            if self._forward_clean("report", source, epoch, seq, payload, att):
+            if self._forward_clean("report", source, epoch, seq, payload):
                 return
             box = self._route_packet(
-                "report", "report", source, LEADER_ENDPOINT, payload, att, epoch, seq
+                "report", "report", source, LEADER_ENDPOINT, payload, epoch, seq
             )
             if self._all_handled(box, self.agents):
                 self._try_close("report", LEADER_ENDPOINT)
         else:
             dst = route[2]
-            if self._forward_clean("estimate", dst, epoch, seq, payload, att):
+            if self._forward_clean("estimate", dst, epoch, seq, payload):
                 pass
             elif dst not in self.dead:
-                self._route_packet("estimate", "estimate", LEADER_ENDPOINT, dst, payload, att,
-                                   epoch, seq)  # fmt: skip
+                self._route_packet(
+                    "estimate", "estimate", LEADER_ENDPOINT, dst, payload, epoch, seq
+                )
                 self._try_close("estimate", dst)
             self._estimate_handled(epoch)
 

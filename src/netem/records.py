@@ -1,10 +1,10 @@
 """netem's outgoing records as JSON, built from tuples instead of pydantic objects.
 
-netem takes one decision per packet; building a ``Decision`` and ``Delivered`` model
+netem takes one decision per packet; building a ``Decision`` and ``DeliveredPacket`` model
 per packet cost more than the forwarding itself. The hot path keeps plain tuples,
-and these functions encode a whole batch or close at once with orjson. The JSON is
+and these functions encode a whole batch or delivery at once with orjson. The JSON is
 exactly what :class:`~formation.messages.DecisionBatch` and
-:class:`~formation.messages.EpochClose` validate (the tests parse it with them).
+:class:`~formation.messages.Delivery` validate (the tests parse it with them).
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ from netem.stack import Decision as ModelDecision
 # (source, target, link class, epoch, seq, the model's decision).
 Record = tuple[int, int, str, int, int, ModelDecision]
 # A packet delivered to a receiver within an epoch (sent epoch < epoch when delayed):
-# (source, seq, sent epoch, copies).
-Forwarded = tuple[int, int, int, int]
+# (source, seq, sent epoch, copies, payload as received: bytes or ZBytes).
+Packet = tuple[int, int, int, int, Any]
 
 
 def _decision_json(d: ModelDecision) -> bytes:
@@ -81,26 +81,38 @@ def decision_batch_of(header: dict[str, Any], phase: str, records: list[bytes]) 
     return b'%s,"decisions":[%s]}' % (head, b",".join(records))
 
 
-def epoch_close(
+def delivery(
     header: dict[str, Any],
     receiver: int,
     phase: str,
-    delivered: Iterable[Forwarded],
+    packets: Iterable[Packet],
     lost: Iterable[int],
     dead: Iterable[int],
 ) -> bytes:
-    """An ``EpochClose`` payload for ``receiver`` after ``phase``."""
+    """A ``Delivery`` payload for ``receiver``: the packets of ``phase`` it gets this epoch."""
     return orjson.dumps(
         {
             **header,
-            "kind": "close",
+            "kind": "delivery",
             "receiver": receiver,
             "phase": phase,
-            "delivered": [
-                {"source": source, "seq": seq, "sent_epoch": sent_epoch, "copies": copies}
-                for source, seq, sent_epoch, copies in delivered
+            "packets": [
+                {
+                    "source": source,
+                    "seq": seq,
+                    "sent_epoch": sent_epoch,
+                    "copies": copies,
+                    "message": _text(payload),
+                }
+                for source, seq, sent_epoch, copies, payload in packets
             ],
             "lost": sorted(lost),
             "dead": sorted(dead),
         }
     )
+
+
+def _text(payload: Any) -> str:
+    """A payload as the JSON string it should be; bytes that are not UTF-8 stay visible as such."""
+    raw = payload if isinstance(payload, bytes) else payload.to_bytes()
+    return raw.decode("utf-8", "replace")

@@ -46,11 +46,12 @@ class RunOutcome:
     estimated_epochs: list[int]  # epochs whose estimate the leader published
     decisions: list[Verdict]
     malformed: dict[str, int]
-    sent: dict[str, int]
+    sent: dict[str, int]  # messages published per key
     pids: list[int]
     wall_s: float
     substitutions: list[tuple[int, int, int, list[float]]]
     extra: dict[str, Any] = field(default_factory=dict)
+    delivered: dict[str, int] = field(default_factory=dict)  # packets netem delivered per link
 
     @property
     def formation_error(self) -> npt.NDArray[np.float64]:
@@ -353,17 +354,19 @@ def launch(
         with observer.lock:
             malformed: Counter[str] = Counter(observer.malformed.counts)
             sent: Counter[str] = Counter()
+            delivered: Counter[str] = Counter()
             deadline: Counter[str] = Counter()
             for st in observer.statuses.values():
                 malformed.update(st.malformed)
                 sent.update(st.sent)
+                delivered.update(st.delivered)
                 if st.role in ("agent", "pool") and st.detail.startswith("{"):
                     deadline.update(json.loads(st.detail))
             return RunOutcome(
                 run_id=run_id, run_dir=run_dir, scenario=scenario, strategy=strategy, seed=seed,
                 positions=observer.positions.copy(), estimated_epochs=sorted(observer.estimated),
                 decisions=list(observer.decisions), substitutions=sorted(observer.substitutions),
-                malformed=dict(malformed), sent=dict(sent),
+                malformed=dict(malformed), sent=dict(sent), delivered=dict(delivered),
                 pids=group.pids, wall_s=time.monotonic() - started, extra={"deadline": dict(deadline)},
             )  # fmt: skip
     finally:

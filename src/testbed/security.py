@@ -6,8 +6,8 @@ denies by default and allows each user to publish only its own keys:
 
 - ``agent-<i>``: its coordination packet and report (``agent/<i>/state``,
   ``agent/<i>/report``), its status and its liveliness token;
-- ``netem``: the delivered links (``link/…``, ``leader/report/…``), epoch-close
-  markers, its decisions and changes, the start token and its queryables;
+- ``netem``: the delivered links (``link/…``, ``leader/report/…``) and lockstep
+  deliveries (``inbox/…``), its decisions and changes, the start token and its queryables;
 - ``leader``: the estimate (``leader/estimate`` and each agent's ``leader/estimate/<i>``), its status and token;
 - ``recorder``: its status, token and the ``recorder/counts`` queryable;
 - ``operator``: publishes nothing; may query ``recorder/counts``,
@@ -94,7 +94,7 @@ def principals(n_agents: int) -> list[Principal]:
                 keys.link_state(r, "*", "*"),
                 keys.link_report(r, "*"),
                 keys.link_estimate(r, "*"),
-                keys.close(r, "*", "*"),
+                keys.inbox(r, "*", "*"),
                 keys.netem_decision(r),
                 keys.netem_change(r),
                 keys.status(r, "netem", 0),

@@ -84,8 +84,7 @@ def test_same_seed_same_run_different_seed_different_run(paper: Scenario, runs_d
 def test_delays_duplicates_and_control_loss_equal_the_simulator(
     paper: Scenario, runs_dir: Path, strategy: str
 ) -> None:
-    # The paths where netem must send a close although every packet arrived (a delayed
-    # packet delivered with a later epoch, a duplicate) and where it needs none.
+    # The full path: delayed packets delivered with a later epoch, duplicates, control loss.
     scenario = paper.with_overrides(
         epochs=40,
         network={
@@ -107,7 +106,7 @@ def test_delays_duplicates_and_control_loss_equal_the_simulator(
 def test_clean_and_unclean_epochs_mixed_equal_the_simulator(
     paper: Scenario, runs_dir: Path
 ) -> None:
-    # netem forwards an epoch in which every link passes without per-receiver bookkeeping
+    # netem takes an epoch in which every link passes without per-packet decisions
     # (netem.clean); here such epochs alternate with an outage window, delays that deliver a
     # held packet into an otherwise clean epoch, and control-link loss.
     scenario = paper.with_overrides(
@@ -139,12 +138,19 @@ def test_clean_and_unclean_epochs_mixed_equal_the_simulator(
     verdicts = Counter(d.verdict for d in outcome.decisions)
     assert verdicts["pass"] > 0 and verdicts["drop"] > 0 and verdicts["delayed"] > 0
     # Every packet netem passed went out once, and every delayed one (by one epoch) went out
-    # with the next epoch's close, also when that epoch was otherwise clean.
+    # with the next epoch's delivery, also when that epoch was otherwise clean.
     due: Counter[str] = Counter()
     for d in outcome.decisions:
         if d.link_class == "formation" and (
             d.verdict == "pass" or (d.verdict == "delayed" and d.epoch + 1 < scenario.epochs)
         ):
             due[f"link/{d.source}/{d.target}/state"] += 1
-    forwarded = {k.split("/", 2)[2]: v for k, v in outcome.sent.items() if "/link/" in k}
+    forwarded = {k.split("/", 2)[2]: v for k, v in outcome.delivered.items() if "/link/" in k}
     assert {k: v for k, v in forwarded.items() if k.endswith("/state")} == dict(due)
+    # ... in one delivery per receiver, phase and epoch.
+    deliveries = {k.split("/", 2)[2]: v for k, v in outcome.sent.items() if "/inbox/" in k}
+    assert deliveries == {
+        **{f"inbox/{j}/{phase}": scenario.epochs for j in range(1, scenario.n + 1)
+           for phase in ("state", "estimate")},
+        "inbox/0/report": scenario.epochs,
+    }  # fmt: skip

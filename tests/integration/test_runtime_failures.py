@@ -16,6 +16,7 @@ import pytest
 import zenoh
 
 from formation import keys
+from formation.codec import attachment
 from formation.errors import RuntimeFailure
 from formation.scenario import Scenario
 from formation.zenoh_config import session_config
@@ -105,9 +106,11 @@ def test_malformed_payloads_are_counted_and_skipped(paper: Scenario, runs_dir: P
             s.put(
                 keys.agent_state(run_id, 2), b"not json at all"
             )  # no attachment: netem rejects it
-            s.put(keys.link_state(run_id, 1, 3), b'{"kind": "state"}', attachment=b"\\x00" * 24)
-            s.put(keys.close(run_id, 4, "state"), b"{broken")
-            s.put(keys.link_report(run_id, 2), b"[]")
+            # Well routed, badly formed: netem delivers it as agent 2's packet of epoch 590;
+            # its receivers count it and take it as lost.
+            s.put(keys.agent_state(run_id, 2), b"{oops", attachment=attachment(590, 10**6, 2))
+            s.put(keys.inbox(run_id, 4, "state"), b"{broken")
+            s.put(keys.inbox(run_id, keys.LEADER, "report"), b"[]")
         sent.set()
 
     # Long enough (a few seconds) that the injector's session is up well before the end.
@@ -118,8 +121,11 @@ def test_malformed_payloads_are_counted_and_skipped(paper: Scenario, runs_dir: P
     assert np.isfinite(outcome.positions).all()
     bad = outcome.malformed
     assert bad.get(keys.agent_state(outcome.run_id, 2), 0) >= 1  # counted by netem
-    assert bad.get(keys.close(outcome.run_id, 4, "state"), 0) >= 1  # counted by agent 4
-    assert bad.get(keys.link_report(outcome.run_id, 2), 0) >= 1  # counted by the leader
+    assert bad.get(keys.inbox(outcome.run_id, 4, "state"), 0) >= 1  # counted by agent 4
+    receivers = [j for j, senders in enumerate(paper.in_neighbours, start=1) if 2 in senders]
+    inside = [keys.link_state(outcome.run_id, 2, j) for j in receivers]
+    assert sum(bad.get(k, 0) for k in inside) >= 1, bad  # counted by agent 2's receivers
+    assert bad.get(keys.inbox(outcome.run_id, keys.LEADER, "report"), 0) >= 1  # by the leader
 
 
 @pytest.mark.parametrize("service", ["agent", "leader", "netem"])

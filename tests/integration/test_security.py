@@ -97,12 +97,12 @@ def test_each_user_publishes_only_its_own_keys(network: Network) -> None:
     ks = keys
     allowed = {
         "agent-1": [ks.agent_state(RUN, 1), ks.agent_report(RUN, 1)],
-        "netem": [ks.link_state(RUN, 1, 2), ks.close(RUN, 2, "state"), ks.netem_decision(RUN)],
+        "netem": [ks.link_state(RUN, 1, 2), ks.inbox(RUN, 2, "state"), ks.netem_decision(RUN)],
         "leader": [ks.leader_estimate_out(RUN)],
     }
     forged = {
         "agent-1": [ks.agent_state(RUN, 2), ks.agent_report(RUN, 3), ks.link_state(RUN, 1, 2),
-                    ks.leader_estimate_out(RUN), ks.close(RUN, 2, "state"), ks.status(RUN, "agent", 2),
+                    ks.leader_estimate_out(RUN), ks.inbox(RUN, 2, "state"), ks.status(RUN, "agent", 2),
                     ks.netem_decision(RUN)],
         "netem": [ks.agent_state(RUN, 1), ks.leader_estimate_out(RUN)],
         "leader": [ks.link_estimate(RUN, 1), ks.agent_report(RUN, 3)],

@@ -27,7 +27,7 @@ def streams() -> dict[int, Stream]:
 
 
 def test_clean_epochs_are_those_where_every_link_passes() -> None:
-    ce = CleanEpochs(streams(), block=64)
+    ce = CleanEpochs(streams(), {}, block=64)
     models = [m for s in ce.streams.values() for m in s.models]
     flags = [ce.clean(k) for k in range(700)]
     assert flags == [all(m.decide(k).verdict == "pass" for m in models) for k in range(700)]
@@ -35,7 +35,7 @@ def test_clean_epochs_are_those_where_every_link_passes() -> None:
 
 
 def test_finished_epochs_encode_exactly_their_records() -> None:
-    ce = CleanEpochs(streams(), block=64)
+    ce = CleanEpochs(streams(), {}, block=64)
     clean = [k for k in range(400) if ce.clean(k)]
     expected = []
     for k in clean:
@@ -52,7 +52,7 @@ def test_finished_epochs_encode_exactly_their_records() -> None:
 
 def test_a_changed_model_is_seen_after_invalidate() -> None:
     ss = streams()
-    ce = CleanEpochs(ss, block=64)
+    ce = CleanEpochs(ss, {}, block=64)
     assert ce.clean(100) or ce.clean(101)
     for s in ss.values():
         for m in s.models:
@@ -62,7 +62,7 @@ def test_a_changed_model_is_seen_after_invalidate() -> None:
 
 
 def test_an_epoch_marked_slow_stays_unclean_after_its_block_is_computed_again() -> None:
-    ce = CleanEpochs(streams(), block=64)
+    ce = CleanEpochs(streams(), {}, block=64)
     k = next(k for k in range(64) if ce.clean(k))
     ce.mark_slow(k)
     assert not ce.clean(k)

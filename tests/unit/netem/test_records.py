@@ -6,8 +6,8 @@ import orjson
 from hypothesis import given
 from hypothesis import strategies as st
 
-from formation.messages import DecisionBatch, EpochClose
-from netem.records import Forwarded, Record, decision_batch, epoch_close
+from formation.messages import CoordinationState, DecisionBatch, Delivery
+from netem.records import Packet, Record, decision_batch, delivery
 from netem.stack import Decision
 
 HEADER = {"run_id": "r", "sender": "netem", "seq": 3, "epoch": 7, "stamp_ns": 11}
@@ -43,19 +43,42 @@ def test_decision_batch_validates_and_keeps_every_field(recs: list[Record], phas
         )  # fmt: skip
 
 
+payloads = st.one_of(
+    st.builds(
+        lambda k, x: (
+            CoordinationState(
+                run_id="r", sender="agent/1", seq=k, epoch=k, stamp_ns=1, agent=1, position=[x, -x]
+            )
+            .model_dump_json()
+            .encode()
+        ),
+        st.integers(0, 99),
+        st.floats(allow_nan=False, allow_infinity=False),
+    ),
+    st.binary(max_size=40),  # whatever a sender put on the wire: the receiver judges it
+)
+
+
 @given(
     st.lists(st.tuples(st.integers(0, 99), st.integers(0, 99), st.integers(0, 99),
-                       st.integers(1, 2)), max_size=8),
+                       st.integers(1, 2), payloads), max_size=8),
     st.lists(st.integers(0, 99), max_size=8),
     st.lists(st.integers(0, 99), max_size=4),
 )  # fmt: skip
-def test_epoch_close_validates_sorted(
-    delivered: list[Forwarded], lost: list[int], dead: list[int]
+def test_delivery_validates_sorted_with_every_payload(
+    packets: list[Packet], lost: list[int], dead: list[int]
 ) -> None:
-    close = EpochClose.model_validate_json(epoch_close(HEADER, 4, "state", delivered, lost, dead))
-    assert close.receiver == 4 and close.phase == "state"
-    assert [(d.source, d.seq, d.sent_epoch, d.copies) for d in close.delivered] == delivered
-    assert close.lost == sorted(lost) and close.dead == sorted(dead)
+    got = Delivery.model_validate_json(delivery(HEADER, 4, "state", packets, lost, dead))
+    assert got.receiver == 4 and got.phase == "state"
+    assert [(p.source, p.seq, p.sent_epoch, p.copies) for p in got.packets] == [
+        p[:4] for p in packets
+    ]
+    assert got.lost == sorted(lost) and got.dead == sorted(dead)
+    for p, sent in zip(got.packets, packets, strict=True):
+        if sent[4].startswith(b"{"):  # a well-formed message comes through unchanged
+            assert CoordinationState.model_validate_json(p.message) == (
+                CoordinationState.model_validate_json(sent[4])
+            )
 
 
 def _reference_batch(header: dict[str, object], phase: str, recs: list[Record]) -> bytes:

@@ -22,7 +22,7 @@ CASES = [
     (keys.leader_estimate_out(RUN), "leader_estimate", "formation.LeaderEstimate"),
     (keys.leader_estimate_for(RUN, 5), "agent_estimate", "formation.AgentEstimate"),
     (keys.link_estimate(RUN, 5), "link_estimate", "formation.AgentEstimate"),
-    (keys.close(RUN, 0, "report"), "close", "formation.EpochClose"),
+    (keys.inbox(RUN, 0, "report"), "delivery", "formation.Delivery"),
     (keys.netem_decision(RUN), "decision", "formation.DecisionBatch"),
     (keys.netem_change(RUN), "link_change", "formation.LinkChange"),
     (keys.status(RUN, "agent", 2), "status", "formation.Status"),

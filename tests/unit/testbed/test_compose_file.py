@@ -166,7 +166,7 @@ def _allows(acl: dict, user: str, message: str, flow: str, key: str) -> bool:
         ("netem", keys.link_state("r", 1, 2), True),
         ("netem", keys.link_report("r", 3), True),
         ("netem", keys.link_estimate("r", 3), True),
-        ("netem", keys.close("r", 0, "report"), True),
+        ("netem", keys.inbox("r", 0, "report"), True),
         ("netem", keys.netem_decision("r"), True),
         ("netem", keys.agent_state("r", 1), False),
         ("netem", keys.leader_estimate_out("r"), False),
