@@ -79,7 +79,7 @@ class AgentNode:
                 service.subscribe(keys.link_state(self.run_id, "*", i))
                 service.subscribe(keys.link_estimate(self.run_id, i))
             else:  # one subscription per agent: a pool's session matches every sample against all
-                service.subscribe(keys.inbox(self.run_id, i, "*"))
+                service.subscribe(keys.inbox(self.run_id, i, "*"), direct=len(ids) > 1)
         service.watch_alive()
 
     @property
