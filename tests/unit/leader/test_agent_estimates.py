@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import orjson
 
-from formation.messages import AgentEstimate
+from formation.messages import AgentEstimate, LeaderEstimate
 from formation.scenario import Scenario
 from leader.epoch import leader_epoch
-from leader.node import agent_estimates
+from leader.node import agent_estimates, estimate_message
 from testbed.teams import henneberg_team
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -43,3 +43,33 @@ def test_every_agent_gets_its_in_neighbours_estimates() -> None:
             assert est.neighbours == sorted(int(j) for j, r in links if r == i)
             for j, p in zip(est.neighbours, est.positions, strict=True):
                 assert p == lead.estimate.positions[j - 1].tolist()
+
+
+def test_whole_estimate_is_a_valid_message_with_every_field() -> None:
+    scenario = henneberg_team(30)
+    known, z = _exact_measurements(scenario)
+    cut = scenario.directed_links[:, 1] == scenario.n  # the last agent hears nobody: unobservable
+    cut |= scenario.directed_links[:, 0] == scenario.n
+    lead = leader_epoch(scenario, known & ~cut, z, scenario.offsets[scenario.leader - 1])
+    assert not lead.estimate.observable.all()
+    raw = estimate_message(HEAD, lead, [1.0, 2.0], [0.1, 0.2], scenario.edge_array, 29)
+    msg = LeaderEstimate.model_validate_json(raw)
+    res = lead.estimate
+    assert res.covariances is not None
+    for i in range(scenario.n):
+        ok = bool(res.observable[i])
+        assert msg.observable[i] == ok
+        assert msg.positions[i] == (res.positions[i].tolist() if ok else None)
+        assert msg.covariances[i] == (res.covariances[i].tolist() if ok else None)
+    edges = scenario.edge_array
+    assert msg.tree == [tuple(e) for e in edges[lead.tree].tolist()]
+    assert msg.healthy == [tuple(e) for e in edges[lead.healthy].tolist()]
+    assert (msg.components, msg.rigidity_rank, msg.rigid) == (
+        lead.components, lead.rigidity_rank, lead.rigid,
+    )  # fmt: skip
+    assert (msg.x_ref, msg.v_ref, msg.reports_received, msg.epoch) == (
+        [1.0, 2.0],
+        [0.1, 0.2],
+        29,
+        4,
+    )
