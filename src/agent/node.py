@@ -13,18 +13,14 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
-from agent.runner import AgentRunner, Estimate, Packet
+import orjson
+
+from agent.runner import AgentRunner, Estimate, Packet, Report
 from formation import keys
 from formation.codec import attachment, read_attachment
-from formation.messages import (
-    AgentEstimate,
-    CoordinationState,
-    Delivery,
-    Measurement,
-    Substitute,
-    TokenReport,
-)
+from formation.messages import AgentEstimate, CoordinationState, Delivery
 from formation.realtime import ESTIMATE_DEADLINE, STATE_DEADLINE, fetch_clock, sleep_until
 from formation.scenario import Scenario, StrategyName
 from formation.service import Incoming, Service
@@ -40,6 +36,26 @@ class _Inbox:
     packets: dict[tuple[int, int], object] = field(default_factory=dict)  # (source, seq) → Packet
     estimates: dict[int, object] = field(default_factory=dict)  # epoch → AgentEstimate
     deliveries: dict[tuple[str, int], Delivery] = field(default_factory=dict)  # lockstep
+
+
+def state_message(
+    head: dict[str, Any], agent: int, position: list[float],
+    substituted: list[tuple[int, list[float], bool]],
+) -> bytes:  # fmt: skip
+    """A :class:`CoordinationState` as JSON, built with orjson: a pool of hundreds sends one
+    per agent and epoch, and the pydantic model cost more than the rest of its step."""
+    return orjson.dumps({
+        **head, "kind": "state", "agent": agent, "position": position, "velocity": None,
+        "substituted": [{"neighbour": j, "value": v, "fallback": f} for j, v, f in substituted],
+    })  # fmt: skip
+
+
+def report_message(head: dict[str, Any], agent: int, report: Report) -> bytes:
+    """A :class:`TokenReport` as JSON, built with orjson (see :func:`state_message`)."""
+    return orjson.dumps({
+        **head, "kind": "report", "agent": agent,
+        "measurements": [{"neighbour": j, "token": 1 if t else 0, "z": z} for j, t, z in report],
+    })  # fmt: skip
 
 
 def _estimate(est: object) -> Estimate | None:
@@ -170,28 +186,15 @@ class AgentNode:
         for i in self.ids:
             key = keys.agent_state(self.run_id, i)
             head = self.service.header(key, k)
-            subs = [
-                Substitute(neighbour=j, value=v, fallback=f)
-                for j, v, f in self.runner.substituted[i]
-            ]
-            msg = CoordinationState(
-                **head, agent=i, position=self.runner.position(i), substituted=subs
-            )
-            self.service.publish(key, msg, attachment(k, head["seq"], i))
+            msg = state_message(head, i, self.runner.position(i), self.runner.substituted[i])
+            self.service.put(key, msg, attachment(k, head["seq"], i))
 
     def _publish_reports(self, packets: list[Packet]) -> None:
         k = self.runner.epoch
         for i, report in self.runner.receive(packets).items():
             key = keys.agent_report(self.run_id, i)
             head = self.service.header(key, k)
-            measurements = [
-                Measurement(neighbour=j, token=1 if t else 0, z=z) for j, t, z in report
-            ]
-            self.service.publish(
-                key,
-                TokenReport(**head, agent=i, measurements=measurements),
-                attachment(k, head["seq"], i),
-            )
+            self.service.put(key, report_message(head, i, report), attachment(k, head["seq"], i))
 
     # -- lockstep phases ---------------------------------------------------------------------------
     def _ready(self, i: int) -> bool:
