@@ -142,7 +142,9 @@ class _Observer:
         p = keys.prefix(run_id)
         self._subs = [
             session.declare_subscriber(f"{p}/agent/*/state", self._on_state),
-            session.declare_subscriber(keys.leader_estimate_out(run_id), self._on_estimate),
+            # Agent 1's part says the leader finished the epoch as well as the whole estimate
+            # does, at a thousandth of its size with 1,000 agents.
+            session.declare_subscriber(keys.leader_estimate_for(run_id, 1), self._on_estimate),
             session.declare_subscriber(keys.netem_decision(run_id), self._on_decisions),
             session.declare_subscriber(f"{p}/status/**", self._on_status),
             session.liveliness().declare_subscriber(
@@ -342,7 +344,8 @@ def launch(
             )
         if progress is not None:
             progress(scenario.epochs, scenario.epochs, observer.drops)
-        _wait(lambda: _all_final(observer), group, 10.0, "the final states")
+        _wait(lambda: _all_final(observer), group, 10.0, "the final states",
+              lambda: _missing_final(observer))  # fmt: skip
         if record:
             _flush_recorder(session, run_id, observer)
             rec = next(c for c in group.children if c.name == "recorder")
@@ -389,6 +392,13 @@ def _all_final(observer: _Observer) -> bool:
         return bool(np.isfinite(observer.positions[-1]).all())
 
 
+def _missing_final(observer: _Observer) -> str:
+    with observer.lock:
+        missing = np.flatnonzero(~np.isfinite(observer.positions[-1]).all(axis=1)) + 1
+    shown = ", ".join(str(i) for i in missing[:10]) + (", ..." if len(missing) > 10 else "")
+    return f" of {len(missing)} agents ({shown})"
+
+
 def _flush_recorder(session: zenoh.Session, run_id: str, observer: _Observer) -> None:
     """Wait until the recorder has every status message the services sent (they are sent last)."""
     with observer.lock:
@@ -405,7 +415,7 @@ def _flush_recorder(session: zenoh.Session, run_id: str, observer: _Observer) ->
         time.sleep(0.02)
 
 
-def _wait(cond: Any, group: ProcessGroup, timeout_s: float, what: str) -> None:
+def _wait(cond: Any, group: ProcessGroup, timeout_s: float, what: str, detail: Any = None) -> None:
     deadline = time.monotonic() + timeout_s
     while not cond():
         failed = group.failed()
@@ -415,5 +425,6 @@ def _wait(cond: Any, group: ProcessGroup, timeout_s: float, what: str) -> None:
                 f"{c.name} (pid {c.pid}) exited with code {c.proc.returncode} while waiting for {what}:\n{c.tail()}"
             )
         if time.monotonic() > deadline:
-            raise RuntimeFailure(f"timed out after {timeout_s:g} s waiting for {what}")
+            more = "" if detail is None else detail()
+            raise RuntimeFailure(f"timed out after {timeout_s:g} s waiting for {what}{more}")
         time.sleep(0.01)
