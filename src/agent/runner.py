@@ -78,9 +78,16 @@ class AgentRunner:
         self._received = np.zeros((n_links, d))
         self._z = np.zeros((n_links, d))
         self.substituted: dict[int, list[tuple[int, list[float], bool]]] = {i: [] for i in ids}
+        # Per in-link (receiver, sender) as Python ints: a pool walks them every epoch.
+        self._pairs = list(
+            zip(self.links.receiver.tolist(), self.links.sender.tolist(), strict=True)
+        )
+        self._positions: list[list[float]] | None = None
 
     def position(self, agent: int) -> list[float]:
-        return [float(v) for v in self.x[self.row[agent]]]
+        if self._positions is None:
+            self._positions = self.x.tolist()  # one conversion for the whole pool
+        return self._positions[self.row[agent]]
 
     def receive(self, packets: list[Packet]) -> dict[int, Report]:
         """Epoch ``k``'s delivered packets → each agent's report.
@@ -110,10 +117,9 @@ class AgentRunner:
             self.seed, self.links.receiver, self.links.sender, k,
         )  # fmt: skip
         reports: dict[int, Report] = {i: [] for i in self.ids}
-        for r, (i, j, a) in enumerate(
-            zip(self.links.receiver, self.links.sender, self._arrived, strict=True)
-        ):
-            reports[int(i)].append((int(j), int(a), [float(v) for v in self._z[r]] if a else None))
+        z = self._z.tolist()
+        for (i, j), a, z_ij in zip(self._pairs, self._arrived.tolist(), z, strict=True):
+            reports[i].append((j, int(a), z_ij if a else None))
         return reports
 
     def step(self, estimates: dict[int, Estimate | None]) -> None:
@@ -125,9 +131,9 @@ class AgentRunner:
                 self.v_known[self.row[i]] = e.v_ref
         est = np.zeros((n_links, d))
         has = np.zeros(n_links, dtype=bool)
-        for r, (i, j) in enumerate(zip(self.links.receiver, self.links.sender, strict=True)):
-            e = estimates.get(int(i))
-            value = None if e is None else e.positions.get(int(j))
+        for r, (i, j) in enumerate(self._pairs):
+            e = estimates.get(i)
+            value = None if e is None else e.positions.get(j)
             if value is not None:
                 est[r], has[r] = value, True
         result = agent_epoch(
@@ -136,13 +142,14 @@ class AgentRunner:
         )  # fmt: skip
         self.memory, self.velocity = result.memory, result.velocities
         self.x = result.positions
+        self._positions = None
         if self.ref_row is not None:
             self.x[self.ref_row] = self._ref[k + 1]
         sub = result.substitution
         self.substituted = {i: [] for i in self.ids}
-        for row in np.flatnonzero(sub.substituted):
-            receiver, sender = int(self.links.receiver[row]), int(self.links.sender[row])
+        for row in np.flatnonzero(sub.substituted).tolist():
+            receiver, sender = self._pairs[row]
             self.substituted[receiver].append(
-                (sender, [float(v) for v in sub.values[row]], bool(sub.fallback[row]))
+                (sender, sub.values[row].tolist(), bool(sub.fallback[row]))
             )
         self.epoch = k + 1
