@@ -4,10 +4,11 @@ Baseline: the same netem process with ``--passthrough`` (forwards every packet,
 decides, closes and records nothing), in the same run. The workload is the
 lockstep state phase of the paper scenario in steady state: one bench session
 publishes ``x_i[k]`` for all 5 agents, epoch after epoch, as fast as netem takes
-them (BLOCK); netem forwards each on its out-links (14 directed links), and in
-lockstep also decides every packet, closes every receiver's epoch and publishes
-each epoch's decision batch. A separate subscriber process counts what netem
-delivers on ``link/*/*/state``. Seed: the scenario's (1); no loss configured.
+them (BLOCK). Pass-through forwards each on its out-links' keys (14 directed links,
+``link/*/*/state``); lockstep netem decides every packet, sends each receiver one
+delivery per epoch with its packets (``inbox/*/state``) and publishes the decision
+records. A separate subscriber process counts the packets delivered. Seed: the
+scenario's (1); no loss configured.
 
 Reported: forwarded packets/s (wall clock, as the subscriber sees them) and netem's
 own CPU time per forwarded packet (from /proc), which the sender and the counter,
@@ -60,9 +61,13 @@ def forward_rate(
     expected = epochs * LINKS if passthrough else _expected(epochs, network)
     rig = netem_rig(epochs=epochs + 10, passthrough=passthrough, network=network)
     with rig as (session, endpoint, pid):
+        counted = (
+            [keys.link_state(RUN, "*", "*")] if passthrough
+            else [keys.inbox(RUN, "*", "state"), "deliveries"]
+        )  # fmt: skip
         counter = subprocess.Popen(
-            [sys.executable, "-m", "bench.count_subscriber", endpoint, f"{keys.prefix(RUN)}/link/*/*/state",
-             str(expected), "60"],
+            [sys.executable, "-m", "bench.count_subscriber", endpoint, counted[0], str(expected),
+             "60", *counted[1:]],
             stdout=subprocess.PIPE, text=True,
         )  # fmt: skip
         try:
@@ -119,7 +124,7 @@ def main() -> None:
           f"(sender offered {sent:.0f} packets/s)")  # fmt: skip
     print(f"ratio lockstep / pass-through: rate {rate / base:.2f}; "
           f"CPU per packet {cpu / base_cpu:.2f} (the loss logic costs {100 * (cpu / base_cpu - 1):.0f}% more)")  # fmt: skip
-    # With loss most epochs are not clean and take netem's full path (closes, per-receiver state).
+    # With loss most epochs are not clean and take netem's full path (per-packet decisions).
     lossy = {"formation_default": [{"model": "bernoulli", "p_loss": 0.1}]}
     rate, cpu, _ = forward_rate(passthrough=False, network=lossy)
     print(f"lockstep, Bernoulli 0.1 on every link (about 23% of epochs clean): {rate:9.0f} forwarded/s  "

@@ -1,8 +1,9 @@
 """A subscriber process for the benches: counts samples on a key, then prints JSON and exits.
 
-``python -m bench.count_subscriber ENDPOINT KEY EXPECTED TIMEOUT_S`` prints
+``python -m bench.count_subscriber ENDPOINT KEY EXPECTED TIMEOUT_S [deliveries]`` prints
 ``{"count": N, "first_ns": t0, "last_ns": t1}`` (``time.time_ns()``, shared by
 processes on one machine) once ``EXPECTED`` samples arrived or the time is up.
+With ``deliveries``, each sample is a lockstep ``Delivery`` and counts its packets' copies.
 It prints ``ready`` first, once its subscriber is declared.
 """
 
@@ -13,6 +14,7 @@ import sys
 import threading
 import time
 
+import orjson
 import zenoh
 
 from formation.zenoh_config import session_config
@@ -20,14 +22,19 @@ from formation.zenoh_config import session_config
 
 def main(argv: list[str]) -> int:
     endpoint, key, expected, timeout_s = argv[0], argv[1], int(argv[2]), float(argv[3])
+    deliveries = argv[4:] == ["deliveries"]
     got = {"count": 0, "first_ns": 0, "last_ns": 0}
     done = threading.Event()
 
-    def count(_: zenoh.Sample) -> None:
+    def count(sample: zenoh.Sample) -> None:
         t = time.time_ns()
         got["first_ns"] = got["first_ns"] or t
         got["last_ns"] = t
-        got["count"] += 1
+        if deliveries:
+            packets = orjson.loads(sample.payload.to_bytes())["packets"]
+            got["count"] += sum(p["copies"] for p in packets)
+        else:
+            got["count"] += 1
         if got["count"] >= expected:
             done.set()
 

@@ -21,6 +21,7 @@ from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+import orjson
 import zenoh
 from pydantic import TypeAdapter, ValidationError
 
@@ -33,7 +34,7 @@ from formation.scenario import LEADER_ENDPOINT, Scenario
 from formation.service import Incoming, Service, settle_heap
 from netem.clean import CleanEpochs, Stream
 from netem.models import LinkModel
-from netem.records import Packet, Record, decision_batch, decision_batch_of, delivery
+from netem.records import Record, decision_batch, decision_batch_of, delivery, packet_json
 
 log = logging.getLogger("netem")
 LinkClass = Literal["formation", "report", "estimate"]
@@ -51,7 +52,7 @@ _Route = tuple[str, int, int]
 # least every loop wake-up of the main thread, 0.2 s), instead of one per epoch.
 _FLUSH_CHUNKS = 64  # epochs
 _SPECS: TypeAdapter[list[LinkModelSpec]] = TypeAdapter(list[LinkModelSpec])
-_DELIVERED: list[Packet] = []  # marks a receiver whose delivery of a clean epoch went out
+_DELIVERED: list[bytes] = []  # marks a receiver whose delivery of a clean epoch went out
 
 
 @dataclass
@@ -71,7 +72,7 @@ class _Open:
     """An epoch of one phase into one receiver, not yet closed."""
 
     handled: set[int] = field(default_factory=set)
-    packets: list[Packet] = field(default_factory=list)
+    packets: list[bytes] = field(default_factory=list)  # each encoded by packet_json
     lost: list[int] = field(default_factory=list)
 
 
@@ -119,6 +120,7 @@ class NetemNode:
         self.forwarded: Counter[tuple[LinkClass, int, int]] = Counter()
         self._links: dict[tuple[LinkClass, int, int], tuple[zenoh.Publisher, LinkModel]] = {}
         self._routes: dict[str, _Route | None] = {}  # inbound key → (kind, source, target)
+        self._inboxes: dict[tuple[Phase, int], tuple[str, zenoh.Publisher]] = {}
         self._estimates_seen: Counter[int] = Counter()  # epoch → agents' estimates handled
         self.clean: dict[Phase, CleanEpochs] = {}  # lockstep, set up by run()
         self.dead: set[int] = set()
@@ -184,11 +186,15 @@ class NetemNode:
                     total[link] += len(ce.done)  # type: ignore[index]
         return {self._link_key(*link): count for link, count in total.items()}
 
-    def _deliver(self, phase: Phase, receiver: int, epoch: int, packets: list[Packet],
+    def _deliver(self, phase: Phase, receiver: int, epoch: int, packets: list[bytes],
                  lost: list[int], dead: list[int]) -> None:  # fmt: skip
-        key = keys.inbox(self.run_id, receiver, phase)
-        header = self.service.header(key, epoch)
-        self.service.put(key, delivery(header, receiver, phase, packets, lost, dead))
+        out = self._inboxes.get((phase, receiver))
+        if out is None:
+            key = keys.inbox(self.run_id, receiver, phase)
+            out = self._inboxes[(phase, receiver)] = (key, self.service.publisher(key))
+        key, pub = out
+        pub.put(delivery(self.service.header(key, epoch), receiver, phase, packets, lost, dead))
+        self.service.sent[key] += 1
 
     def _route_packet(self, phase: Phase, cls: LinkClass, src: int, dst: int, payload: Any,
                       epoch: int, seq: int) -> _Open:  # fmt: skip
@@ -203,7 +209,7 @@ class NetemNode:
         if not d.delivered:
             box.lost.append(src)
         elif d.delay_epochs == 0:
-            box.packets.append((src, seq, epoch, d.copies, payload))
+            box.packets.append(packet_json(src, seq, epoch, d.copies, payload))
             self.forwarded[(cls, src, dst)] += d.copies
         else:
             box.lost.append(src)  # lost for this epoch; arrives with a later one
@@ -253,7 +259,7 @@ class NetemNode:
         gather = ce.gather.get(epoch)
         if gather is None:
             gather = ce.gather[epoch] = {}
-        packet = (stream, seq, epoch, 1, payload)
+        packet = packet_json(stream, seq, epoch, 1, payload)
         for r in receivers:
             got = gather.get(r)
             if got is None:
@@ -289,7 +295,11 @@ class NetemNode:
         gather = ce.gather.pop(epoch, {})
         if got is None:
             return
-        payloads = {p[0]: p[4] for packets in gather.values() if packets for p in packets}
+        # A stream's packet, as already encoded for the receivers still open (one copy each).
+        encoded = {}
+        for packets in gather.values():
+            for p in packets:
+                encoded[orjson.loads(p)["source"]] = p
         touched: set[int] = set()
         for (src, dst, cls, _, seq, d), link in ce.records(epoch, got):
             self.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
@@ -300,7 +310,7 @@ class NetemNode:
             if box is None:
                 box = self.open[(phase, dst, epoch)] = _Open()
             box.handled.add(src)
-            box.packets.append((src, seq, epoch, 1, payloads[src]))
+            box.packets.append(encoded[src])
             touched.add(dst)
         self.closed_count[(phase, epoch)] += sum(p is _DELIVERED for p in gather.values())
         for dst in touched:
@@ -332,7 +342,7 @@ class NetemNode:
             self.open.pop((phase, receiver, epoch), None)
             for h in self.held.pop((phase, receiver, epoch), []):
                 self.forwarded[h.link] += h.copies
-                box.packets.append((h.source, h.seq, h.sent_epoch, h.copies, h.payload))
+                box.packets.append(packet_json(h.source, h.seq, h.sent_epoch, h.copies, h.payload))
             dead = [s for s in senders if s in self.dead] if self.dead else []
             self._deliver(phase, receiver, epoch, box.packets, box.lost, dead)
             self.next_close[(phase, receiver)] = epoch + 1

@@ -19,9 +19,6 @@ from netem.stack import Decision as ModelDecision
 # One decision on one packet, as the hot path keeps it (a plain tuple: built per packet):
 # (source, target, link class, epoch, seq, the model's decision).
 Record = tuple[int, int, str, int, int, ModelDecision]
-# A packet delivered to a receiver within an epoch (sent epoch < epoch when delayed):
-# (source, seq, sent epoch, copies, payload as received: bytes or ZBytes).
-Packet = tuple[int, int, int, int, Any]
 
 
 def _decision_json(d: ModelDecision) -> bytes:
@@ -81,35 +78,27 @@ def decision_batch_of(header: dict[str, Any], phase: str, records: list[bytes]) 
     return b'%s,"decisions":[%s]}' % (head, b",".join(records))
 
 
+def packet_json(source: int, seq: int, sent_epoch: int, copies: int, payload: Any) -> bytes:
+    """One packet of a ``Delivery``, encoded once however many receivers' deliveries carry it."""
+    return b'{"source":%d,"seq":%d,"sent_epoch":%d,"copies":%d,"message":%s}' % (
+        source, seq, sent_epoch, copies, orjson.dumps(_text(payload)),
+    )  # fmt: skip
+
+
 def delivery(
     header: dict[str, Any],
     receiver: int,
     phase: str,
-    packets: Iterable[Packet],
+    packets: Iterable[bytes],
     lost: Iterable[int],
     dead: Iterable[int],
 ) -> bytes:
-    """A ``Delivery`` payload for ``receiver``: the packets of ``phase`` it gets this epoch."""
-    return orjson.dumps(
-        {
-            **header,
-            "kind": "delivery",
-            "receiver": receiver,
-            "phase": phase,
-            "packets": [
-                {
-                    "source": source,
-                    "seq": seq,
-                    "sent_epoch": sent_epoch,
-                    "copies": copies,
-                    "message": _text(payload),
-                }
-                for source, seq, sent_epoch, copies, payload in packets
-            ],
-            "lost": sorted(lost),
-            "dead": sorted(dead),
-        }
-    )
+    """A ``Delivery`` payload for ``receiver``: the packets of ``phase`` (:func:`packet_json`)
+    it gets this epoch, spliced."""
+    head = orjson.dumps({**header, "kind": "delivery", "receiver": receiver, "phase": phase})
+    return b'%s,"packets":[%s],"lost":%s,"dead":%s}' % (
+        head[:-1], b",".join(packets), orjson.dumps(sorted(lost)), orjson.dumps(sorted(dead)),
+    )  # fmt: skip
 
 
 def _text(payload: Any) -> str:
