@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import orjson
 import zenoh
 
 from bench.netem_rig import RUN, netem_rig
@@ -66,9 +67,11 @@ def lockstep_rate(scenario: Scenario, pool: int | None, runs: Path) -> tuple[flo
 def netem_hop_latency(packets: int = 2000) -> tuple[np.ndarray, np.ndarray]:
     """One-way latencies [µs] of the same packets, publisher and subscriber in separate sessions.
 
-    Direct: the subscriber's session receives the sender's key straight from the
-    publisher's session (one TCP hop on 127.0.0.1). Through netem: the same packet
-    forwarded by the netem process (two hops). Both measured on the same packets.
+    Direct: the subscriber's session receives agent 1's key straight from the
+    publisher's session (one TCP hop on 127.0.0.1). Through netem: the lockstep
+    delivery to agent 2 that carries the same packet (two hops). Agent 2's other
+    senders (3 and 4) publish their packet of the epoch first, so agent 1's is the
+    last one netem waits for: the delivery leaves as soon as netem has handled it.
     """
     # The receiver is a peer of its own: gossip gives it direct links to the sender and netem.
     with (
@@ -78,35 +81,47 @@ def netem_hop_latency(packets: int = 2000) -> tuple[np.ndarray, np.ndarray]:
         direct: dict[int, int] = {}
         hop: dict[int, int] = {}
 
-        def on(sample: zenoh.Sample, into: dict[int, int]) -> None:
+        def on_direct(sample: zenoh.Sample) -> None:
+            t = now_ns()
             att = sample.attachment.to_bytes() if sample.attachment else b""
-            into[int.from_bytes(att[8:16], "little")] = now_ns()
+            direct[int.from_bytes(att[8:16], "little")] = t
+
+        def on_delivery(sample: zenoh.Sample) -> None:
+            t = now_ns()
+            hop[orjson.loads(sample.payload.to_bytes())["epoch"]] = t
 
         subs = [
-            receiver.declare_subscriber(keys.agent_state(RUN, 1), lambda x: on(x, direct)),
-            receiver.declare_subscriber(keys.link_state(RUN, 1, 2), lambda x: on(x, hop)),
+            receiver.declare_subscriber(keys.agent_state(RUN, 1), on_direct),
+            receiver.declare_subscriber(keys.inbox(RUN, 2, "state"), on_delivery),
         ]
-        pub = sender.declare_publisher(
-            keys.agent_state(RUN, 1),
-            congestion_control=zenoh.CongestionControl.BLOCK,
-            express=True,
-        )
+        pubs = {
+            i: sender.declare_publisher(
+                keys.agent_state(RUN, i),
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                express=True,
+            )
+            for i in (1, 3, 4)  # agent 2's senders in the paper scenario
+        }
         while not direct:  # until the receiver's subscription reached the sender
-            pub.put(b"{}", attachment=attachment(10**9, 10**9, 1))
+            pubs[1].put(b"{}", attachment=attachment(10**9, 10**9, 1))
             time.sleep(0.05)
         direct.clear()
         sent: dict[int, int] = {}
         for k in range(packets):
-            msg = CoordinationState(run_id=RUN, sender="agent/1", seq=k, epoch=k, stamp_ns=now_ns(),
-                                    agent=1, position=[0.1, 0.2])  # fmt: skip
-            payload = encode(msg)
+            payloads = {
+                i: encode(CoordinationState(run_id=RUN, sender=f"agent/{i}", seq=k, epoch=k,
+                                            stamp_ns=now_ns(), agent=i, position=[0.1, 0.2]))
+                for i in (3, 4, 1)
+            }  # fmt: skip
+            for i in (3, 4):
+                pubs[i].put(payloads[i], attachment=attachment(k, k, i))
             sent[k] = now_ns()
-            pub.put(payload, attachment=attachment(k, k, 1))
+            pubs[1].put(payloads[1], attachment=attachment(k, k, 1))
             time.sleep(0.001)
         deadline = time.monotonic() + 10
         while len(hop) < packets * 0.99 and time.monotonic() < deadline:
             time.sleep(0.01)
-        for x in [*subs, pub]:
+        for x in [*subs, *pubs.values()]:
             x.undeclare()
     common = [k for k in sent if k in direct and k in hop and k >= 100]
     d = np.array([direct[k] - sent[k] for k in common]) / 1e3
