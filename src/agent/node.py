@@ -79,7 +79,7 @@ class AgentNode:
         self.run_id = service.run_id
         self.runner = AgentRunner(scenario, ids, strategy, seed)
         self.inbox = {i: _Inbox() for i in ids}
-        self.phase = "state"  # waiting for the close of this phase, for every agent
+        self.phase = "state"  # waiting for the delivery of this phase, for every agent
         self.waiting: set[int] = set(ids)  # agents not yet ready for the phase
         self.done = False
         self.taken = -1  # realtime: the last epoch whose packets were taken
