@@ -12,7 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 from agent.epoch import InLinks, agent_epoch
-from agent.measurement import relative_measurement
+from agent.measurement import NoiseKeys, relative_measurement
 from agent.strategies import LinkMemory, StrategyName
 from formation.reference import reference_positions
 from formation.scenario import Scenario
@@ -83,6 +83,7 @@ class AgentRunner:
             zip(self.links.receiver.tolist(), self.links.sender.tolist(), strict=True)
         )
         self._positions: list[list[float]] | None = None
+        self._noise = NoiseKeys(seed, self.links.receiver, self.links.sender)
 
     def position(self, agent: int) -> list[float]:
         if self._positions is None:
@@ -114,7 +115,7 @@ class AgentRunner:
                 self._received[r] = p.position
         self._z = relative_measurement(
             self.x[self.links.receiver_row], self._received, self.scenario.noise_covariance,
-            self.seed, self.links.receiver, self.links.sender, k,
+            self.seed, self.links.receiver, self.links.sender, k, self._noise,
         )  # fmt: skip
         reports: dict[int, Report] = {i: [] for i in self.ids}
         z = self._z.tolist()

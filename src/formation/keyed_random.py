@@ -86,9 +86,29 @@ def keyed_uniform(*keys: KeyLike) -> npt.NDArray[np.float64]:
     return _uniform(keyed_bits(*keys))
 
 
+def keyed_state(*keys: KeyLike) -> int | npt.NDArray[np.uint64]:
+    """The hash state after ``keys``: a prefix many draws share, computed once
+    (:func:`keyed_normal_after`)."""
+    return _state(keys)
+
+
+def keyed_normal_after(
+    state: int | npt.NDArray[np.uint64], *keys: KeyLike
+) -> npt.NDArray[np.float64]:
+    """``keyed_normal(*prefix, *keys)`` from ``state = keyed_state(*prefix)``, bit for bit."""
+    h = state
+    for k in keys:
+        h = _chain(h, k)
+    return _box_muller(h)
+
+
 def keyed_normal(*keys: KeyLike) -> npt.NDArray[np.float64]:
     """Standard normal draws, one per broadcast element of the keys (Box–Muller)."""
-    h = _state(keys)  # shared by both uniforms, keyed (*keys, 0) and (*keys, 1)
+    return _box_muller(_state(keys))
+
+
+def _box_muller(h: int | npt.NDArray[np.uint64]) -> npt.NDArray[np.float64]:
+    # h is shared by both uniforms, keyed (*keys, 0) and (*keys, 1)
     u1 = _uniform(_as_bits(_chain(h, 0)))
     u2 = _uniform(_as_bits(_chain(h, 1)))
     radius = np.sqrt(-2.0 * np.log1p(-u1))  # 1 - u1 in (0, 1]: log is finite

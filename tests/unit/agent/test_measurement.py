@@ -1,0 +1,26 @@
+"""Relative-measurement noise: prehashed link keys give the same draws, bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given
+from hypothesis import strategies as st
+
+from agent.measurement import NoiseKeys, measurement_noise
+
+
+@given(
+    st.integers(0, 2**62),
+    st.lists(st.tuples(st.integers(1, 10**4), st.integers(1, 10**4)), min_size=1, max_size=6),
+    st.integers(0, 10**6),
+)
+def test_prehashed_links_draw_the_same_noise(
+    seed: int, links: list[tuple[int, int]], epoch: int
+) -> None:
+    receivers, senders = (np.array(c) for c in zip(*links, strict=True))
+    cov = np.array([[0.04, 0.01], [0.01, 0.09]])
+    keys = NoiseKeys(seed, receivers, senders)
+    assert np.array_equal(
+        measurement_noise(cov, seed, receivers, senders, epoch, keys),
+        measurement_noise(cov, seed, receivers, senders, epoch),
+    )
