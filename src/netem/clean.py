@@ -42,6 +42,7 @@ class CleanEpochs:
         self.pending: dict[int, dict[int, int]] = {}  # epoch → stream → seq, taken
         # epoch → receiver → its packets so far, or an empty marker list once delivered
         self.gather: dict[int, dict[int, list[Any]]] = {}
+        self.encoded: dict[int, dict[int, bytes]] = {}  # epoch → stream → its packet, encoded
         self.done: set[int] = set()  # epochs finished here: no receiver has anything open
         self.slow: set[int] = set()  # epochs the node handles packet by packet
         self.receivers = {sid: s.receivers for sid, s in streams.items()}

@@ -21,7 +21,6 @@ from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-import orjson
 import zenoh
 from pydantic import TypeAdapter, ValidationError
 
@@ -259,7 +258,8 @@ class NetemNode:
         gather = ce.gather.get(epoch)
         if gather is None:
             gather = ce.gather[epoch] = {}
-        packet = packet_json(stream, seq, epoch, 1, payload)
+            ce.encoded[epoch] = {}
+        packet = ce.encoded[epoch][stream] = packet_json(stream, seq, epoch, 1, payload)
         for r in receivers:
             got = gather.get(r)
             if got is None:
@@ -271,7 +271,7 @@ class NetemNode:
                 # Epochs into a receiver finish in order: its senders need its previous one.
                 self.next_close[(phase, r)] = epoch + 1
         if len(pending) >= ce.expected:
-            del ce.pending[epoch], ce.gather[epoch]
+            del ce.pending[epoch], ce.gather[epoch], ce.encoded[epoch]
             ce.finish(epoch, pending)
             if len(ce.chunks) >= _FLUSH_CHUNKS or epoch >= self.epochs - 1:
                 self._flush_clean(phase)  # the last epoch's go out while the run still goes
@@ -293,13 +293,9 @@ class NetemNode:
         ce.mark_slow(epoch)
         got = ce.pending.pop(epoch, None)
         gather = ce.gather.pop(epoch, {})
+        encoded = ce.encoded.pop(epoch, {})
         if got is None:
             return
-        # A stream's packet, as already encoded for the receivers still open (one copy each).
-        encoded = {}
-        for packets in gather.values():
-            for p in packets:
-                encoded[orjson.loads(p)["source"]] = p
         touched: set[int] = set()
         for (src, dst, cls, _, seq, d), link in ce.records(epoch, got):
             self.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
