@@ -7,6 +7,7 @@ throughput, a direct subscriber on the sender's key for the netem hop.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -41,25 +42,53 @@ def _rss_kib(pid: int) -> int:
     return 0
 
 
-def lockstep_rate(scenario: Scenario, pool: int | None, runs: Path) -> tuple[float, float, int]:
-    """(distributed epochs/s, simulator epochs/s, peak RSS of an agent process in KiB)."""
+def _cpu_s(pid: int) -> float:
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _role(name: str) -> str:
+    return "agents" if name.startswith(("agent", "pool")) else name
+
+
+def lockstep_rate(
+    scenario: Scenario, pool: int | None, runs: Path
+) -> tuple[float, float, int, dict[str, float]]:
+    """(distributed epochs/s, simulator epochs/s, peak RSS of an agent process in KiB,
+    CPU ms per epoch by role), the CPU between the same epoch marks as the rate."""
     marks: dict[int, float] = {}
+    cpu: dict[int, dict[str, float]] = {}
     peak = [0]
+    first, last = 2, scenario.epochs - 2
 
     def progress(done: int, total: int, drops: int) -> None:
         marks.setdefault(done, time.monotonic())
+        if done >= first and len(cpu) < 2 and (not cpu or done >= last):
+            pids = json.loads(next(runs.glob("*/pids.json")).read_text())["pids"]
+            pids["launcher"] = os.getpid()
+            cpu[done] = {name: _cpu_s(p) for name, p in pids.items()}
         if done >= total - 2 and not peak[0]:
             pids = json.loads(next(runs.glob("*/pids.json")).read_text())["pids"]
             agents = [p for name, p in pids.items() if name.startswith(("agent", "pool"))]
             peak[0] = max(_rss_kib(p) for p in agents)
 
     launch(scenario, seed=SEED, runs_dir=runs, record=False, pool=pool, progress=progress)
-    seen = sorted(k for k in marks if 2 <= k <= scenario.epochs - 2)
+    seen = sorted(k for k in marks if first <= k <= last)
     rate = (seen[-1] - seen[0]) / (marks[seen[-1]] - marks[seen[0]])
+    by_role: dict[str, float] = {}
+    (k0, c0), (k1, c1) = sorted(cpu.items())
+    for name, t in c1.items():
+        if not t:
+            continue  # exited before the second mark
+        role = _role(name)
+        by_role[role] = by_role.get(role, 0.0) + 1e3 * (t - c0.get(name, 0.0)) / max(k1 - k0, 1)
     sim_rate = simulator_rate(scenario)
     for p in runs.glob("*"):
         subprocess.run(["rm", "-rf", str(p)], check=False)
-    return rate, sim_rate, peak[0]
+    return rate, sim_rate, peak[0], by_role
 
 
 def simulator_rate(scenario: Scenario) -> float:
@@ -168,6 +197,11 @@ def main() -> None:
                 f"{name:28} {rate:9.1f} {sim_rate:9.1f} {rate / sim_rate:7.3f} {rss / 1024:14.1f}  {spread}",
                 flush=True,
             )
+            cpu = runs[-1][3]  # where an epoch's CPU goes, last run
+            agents = min(pool or scenario.n, scenario.n)
+            print(f"{'':28}   CPU ms/epoch: agents {cpu.pop('agents', 0):.1f} "
+                  f"({agents} processes), "
+                  + ", ".join(f"{role} {ms:.1f}" for role, ms in sorted(cpu.items())), flush=True)  # fmt: skip
     direct, hop = netem_hop_latency()
     p50d, p99d, p50h, p99h = (
         float(np.percentile(a, q)) for a, q in ((direct, 50), (direct, 99), (hop, 50), (hop, 99))
