@@ -1,0 +1,86 @@
+"""netem's lockstep paths driven directly, over a real Zenoh session: a sender that dies in
+the middle of a clean epoch, after some receivers already got their delivery."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import Counter
+from pathlib import Path
+from types import SimpleNamespace
+
+import orjson
+
+from formation import keys
+from formation.codec import attachment, encode, now_ns
+from formation.messages import CoordinationState, DecisionBatch, Delivery
+from formation.scenario import Scenario
+from formation.service import Service
+from netem.node import NetemNode
+
+ROOT = Path(__file__).resolve().parents[2]
+RUN = "netem-node"
+
+
+def _state(i: int, k: int) -> tuple[str, bytes, bytes]:
+    msg = CoordinationState(run_id=RUN, sender=f"agent/{i}", seq=k, epoch=k, stamp_ns=now_ns(),
+                            agent=i, position=[float(i), float(k)])  # fmt: skip
+    return keys.agent_state(RUN, i), encode(msg), attachment(k, k, i)
+
+
+def test_a_sender_dying_mid_clean_epoch_closes_every_receiver_once() -> None:
+    scenario = Scenario.from_file(ROOT / "scenarios/paper.toml").with_overrides(
+        epochs=10, network={}
+    )  # no loss: every epoch of every phase is clean
+    args = SimpleNamespace(mode="peer", connect=None, listen="tcp/127.0.0.1:0", start_timeout=5)
+    service = Service(RUN, "netem", 0, args)
+    got: list[Delivery] = []
+    records: list[DecisionBatch] = []
+    lock = threading.Lock()
+
+    def on_delivery(sample) -> None:  # type: ignore[no-untyped-def]
+        with lock:
+            got.append(Delivery.model_validate_json(sample.payload.to_bytes()))
+
+    def on_records(sample) -> None:  # type: ignore[no-untyped-def]
+        with lock:
+            records.append(DecisionBatch.model_validate_json(sample.payload.to_bytes()))
+
+    subs = [
+        service.session.declare_subscriber(keys.inbox(RUN, "*", "state"), on_delivery),
+        service.session.declare_subscriber(keys.netem_decision(RUN), on_records),
+    ]
+    try:
+        node = NetemNode(service, scenario, seed=1, wait_for_recorder=False)
+        with node.lock:
+            node._setup_clean()
+            node.running = True
+        senders = scenario.in_neighbours  # paper: 5 hears 3 and 4 only
+        for i in (3, 4, 1, 2):  # agent 5's packet of epoch 0 never comes
+            node._handle(*_state(i, 0))
+        # Receiver 5 heard from all its senders (3, 4): delivered on the clean path already.
+        with node.lock:
+            node._on_dead(5)  # the rest take the full path now, and 5 counts as lost
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            with lock:
+                if len(got) >= 5 and records:
+                    break
+            time.sleep(0.01)
+    finally:
+        for s in subs:
+            s.undeclare()
+        service.close()
+    by_receiver = Counter(d.receiver for d in got)
+    assert by_receiver == dict.fromkeys(range(1, 6), 1), by_receiver  # each closed exactly once
+    for d in got:
+        assert d.epoch == 0
+        want = [j for j in senders[d.receiver - 1] if j != 5]
+        assert sorted(p.source for p in d.packets) == want
+        assert d.dead == ([5] if 5 in senders[d.receiver - 1] else [])
+        for p in d.packets:
+            assert orjson.loads(p.message)["agent"] == p.source
+    # One decision record per packet that came: every out-link of agents 1-4, exactly once.
+    rec = Counter((r.source, r.target) for b in records for r in b.decisions if r.epoch == 0)
+    want_links = {(int(a), int(b)) for a, b in scenario.directed_links if int(a) != 5}
+    assert set(rec) == want_links and set(rec.values()) == {1}
