@@ -3,6 +3,7 @@ the middle of a clean epoch, after some receivers already got their delivery."""
 
 from __future__ import annotations
 
+import signal
 import threading
 import time
 from collections import Counter
@@ -33,7 +34,8 @@ def test_a_sender_dying_mid_clean_epoch_closes_every_receiver_once() -> None:
         epochs=10, network={}
     )  # no loss: every epoch of every phase is clean
     args = SimpleNamespace(mode="peer", connect=None, listen="tcp/127.0.0.1:0", start_timeout=5)
-    service = Service(RUN, "netem", 0, args)
+    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    service = Service(RUN, "netem", 0, args)  # a service takes the signals: given back below
     got: list[Delivery] = []
     records: list[DecisionBatch] = []
     lock = threading.Lock()
@@ -71,6 +73,8 @@ def test_a_sender_dying_mid_clean_epoch_closes_every_receiver_once() -> None:
         for s in subs:
             s.undeclare()
         service.close()
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
     by_receiver = Counter(d.receiver for d in got)
     assert by_receiver == dict.fromkeys(range(1, 6), 1), by_receiver  # each closed exactly once
     for d in got:
