@@ -17,7 +17,6 @@ class NoiseKeys:
     an agent draws its in-links' noise every epoch."""
 
     def __init__(self, seed: int, receivers: Any, senders: Any) -> None:
-        self.shape = np.broadcast_shapes(np.shape(receivers), np.shape(senders))
         r, s = (np.asarray(a, dtype=np.int64)[..., None] for a in (receivers, senders))
         self.state = keyed_state(seed, Stream.NOISE, r, s)  # as keyed_normal_vector expands them
 

@@ -116,7 +116,6 @@ class LeaderNode:
         self.ref_v = reference_velocities(self.ref_x, period)
         self.reports: dict[tuple[int, int], TokenReport] = {}  # realtime: (agent, seq) → report
         self.deliveries: dict[int, Delivery] = {}  # lockstep: epoch → netem's reports of it
-        self.agents = list(range(1, scenario.n + 1))
         self.epoch = 0
         self.rigidity = HealthyRigidity(scenario.offsets, scenario.edge_array)
         self.link_rows = link_rows(scenario)
@@ -196,12 +195,8 @@ class LeaderNode:
                 )
                 if msg is not None:
                     self._route(msg)
-            reports = [
-                r for r in self.reports.values() if isinstance(r, TokenReport) and r.epoch == k
-            ]
-            self.late_reports += sum(
-                1 for r in self.reports.values() if isinstance(r, TokenReport) and r.epoch < k
-            )
+            reports = [r for r in self.reports.values() if r.epoch == k]
+            self.late_reports += sum(1 for r in self.reports.values() if r.epoch < k)
             self.reports.clear()
             self._estimate(k, reports)
         return 0

@@ -59,11 +59,8 @@ class _Held:
     """A packet held for a later epoch (delay), delivered with that epoch's packets."""
 
     link: tuple[LinkClass, int, int]
-    payload: Any  # bytes or the received ZBytes
-    source: int
-    seq: int
-    sent_epoch: int
     copies: int
+    packet: bytes  # encoded by packet_json, with its sent epoch
 
 
 @dataclass
@@ -213,7 +210,7 @@ class NetemNode:
         else:
             box.lost.append(src)  # lost for this epoch; arrives with a later one
             self.held[(phase, dst, epoch + d.delay_epochs)].append(
-                _Held((cls, src, dst), payload, src, seq, epoch, d.copies)
+                _Held((cls, src, dst), d.copies, packet_json(src, seq, epoch, d.copies, payload))
             )
         return box
 
@@ -338,7 +335,7 @@ class NetemNode:
             self.open.pop((phase, receiver, epoch), None)
             for h in self.held.pop((phase, receiver, epoch), []):
                 self.forwarded[h.link] += h.copies
-                box.packets.append(packet_json(h.source, h.seq, h.sent_epoch, h.copies, h.payload))
+                box.packets.append(h.packet)
             dead = [s for s in senders if s in self.dead] if self.dead else []
             self._deliver(phase, receiver, epoch, box.packets, box.lost, dead)
             self.next_close[(phase, receiver)] = epoch + 1
@@ -348,11 +345,8 @@ class NetemNode:
                 del self.closed_count[(phase, epoch)]
                 self._publish_decisions(phase, epoch)
 
-    def _publish_decisions(
-        self, phase: Phase, epoch: int, batch: list[Record] | None = None
-    ) -> None:
-        if batch is None:
-            batch = self.decisions.pop((phase, epoch), [])
+    def _publish_decisions(self, phase: Phase, epoch: int) -> None:
+        batch = self.decisions.pop((phase, epoch), [])
         self._flush_clean(phase)  # records stay in epoch order
         key = keys.netem_decision(self.run_id)
         self.service.put(key, decision_batch(self.service.header(key, epoch), phase, batch))
