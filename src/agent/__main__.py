@@ -63,6 +63,8 @@ def main(argv: list[str] | None = None) -> int:
         code = node.run_realtime() if realtime else node.run()
         detail = json.dumps(node.deadline) if realtime else ""
         service.status("done" if code == 0 else "error", node.runner.epoch, detail)
+        if code == 0:
+            node.confirm_final()
         return code
     except TestbedError as exc:
         print(f"agent: error: {exc}", file=sys.stderr)

@@ -187,9 +187,9 @@ class AgentNode:
                 self.inbox[receiver].estimates[meta[0]] = _BAD
 
     # -- publishing -------------------------------------------------------------------------------
-    def _publish_states(self) -> None:
+    def _publish_states(self, ids: list[int] | None = None) -> None:
         k = self.runner.epoch
-        for i in self.ids:
+        for i in self.ids if ids is None else ids:
             key = keys.agent_state(self.run_id, i)
             head = self.service.header(key, k)
             msg = state_message(head, i, self.runner.position(i), self.runner.substituted[i])
@@ -201,6 +201,28 @@ class AgentNode:
             key = keys.agent_report(self.run_id, i)
             head = self.service.header(key, k)
             self.service.put(key, report_message(head, i, report), attachment(k, head["seq"], i))
+
+    def confirm_final(self, timeout_s: float = 10.0) -> bool:
+        """Republish what netem says it lacks of our final states, until it has them all.
+
+        Called last, before the session closes (the query also goes out after everything
+        published before it). False if netem did not answer: it has finished (so it had
+        them) or is gone, which the launcher reports on its own.
+        """
+        deadline = time.monotonic() + timeout_s
+        key = keys.netem_final(self.run_id)
+        while True:
+            answer = self.service.ask(key, {"agents": self.ids})
+            if answer is None:
+                return False
+            missing = [i for i in answer.get("missing", []) if i in self.inbox]
+            if not missing:
+                return True
+            log.warning("netem lacks the final states of agents %s: publishing them again", missing)
+            self._publish_states(missing)
+            if time.monotonic() > deadline:
+                log.error("netem still lacks the final states of agents %s", missing)
+                return False
 
     # -- lockstep phases ---------------------------------------------------------------------------
     def _ready(self, i: int) -> bool:

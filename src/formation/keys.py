@@ -69,6 +69,11 @@ def netem_config(run_id: str) -> str:
     return f"{ROOT}/{run_id}/netem/config"
 
 
+def netem_final(run_id: str) -> str:
+    """Queryable of netem: which of the asker's last messages it still lacks (see netem.node)."""
+    return f"{ROOT}/{run_id}/netem/final"
+
+
 def netem_change(run_id: str) -> str:
     """Every accepted run-time change of a link model, as a record."""
     return f"{ROOT}/{run_id}/netem/change"

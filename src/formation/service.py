@@ -18,6 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import orjson
 import zenoh
 from pydantic import BaseModel
 
@@ -174,6 +175,18 @@ class Service:
             except Exception:
                 self.malformed.counts[key] += 1
                 log.exception("while handling %s", key)
+
+    def ask(self, key: str, body: dict[str, Any], timeout_s: float = 5.0) -> Any:
+        """The first answer of the queryable on ``key`` to the JSON ``body``; None if none answers.
+
+        A reply also means that what this session published before the query has left it:
+        the query follows it on the same link.
+        """
+        for reply in self.session.get(key, payload=orjson.dumps(body), timeout=timeout_s):
+            if reply.ok is not None:
+                with contextlib.suppress(orjson.JSONDecodeError):
+                    return orjson.loads(reply.ok.payload.to_bytes())
+        return None
 
     def queryable(self, key: str, callback: Callable[[zenoh.Query], None]) -> None:
         self._keep.append(self.session.declare_queryable(key, callback))

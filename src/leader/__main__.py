@@ -39,6 +39,8 @@ def main(argv: list[str] | None = None) -> int:
         service.announce()
         code = node.run_realtime() if scenario.runtime.mode == "realtime" else node.run()
         service.status("done" if code == 0 else "error", node.epoch)
+        if code == 0:
+            node.confirm_last()
         return code
     except TestbedError as exc:
         print(f"leader: error: {exc}", file=sys.stderr)

@@ -100,7 +100,7 @@ def principals(n_agents: int) -> list[Principal]:
                 keys.status(r, "netem", 0),
             ),
             tokens=(keys.alive(r, "netem", 0), keys.start(r)),
-            queryables=(keys.netem_config(r), keys.clock(r)),
+            queryables=(keys.netem_config(r), keys.clock(r), keys.netem_final(r)),
         ),
         Principal(
             "leader",
@@ -110,7 +110,7 @@ def principals(n_agents: int) -> list[Principal]:
                 keys.status(r, "leader", 0),
             ),
             tokens=(keys.alive(r, "leader", 0),),
-            queries=(keys.clock(r),),
+            queries=(keys.clock(r), keys.netem_final(r)),
         ),
     ]
     for i in range(1, n_agents + 1):
@@ -123,7 +123,7 @@ def principals(n_agents: int) -> list[Principal]:
                     keys.status(r, "agent", i),
                 ),
                 tokens=(keys.alive(r, "agent", i),),
-                queries=(keys.clock(r),),
+                queries=(keys.clock(r), keys.netem_final(r)),
             )
         )
     out.append(Principal(OPERATOR, queries=(keys.flush(r), keys.netem_config(r), keys.clock(r))))

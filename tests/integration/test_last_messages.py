@@ -1,0 +1,112 @@
+"""A sender leaves only once netem has its last messages: netem's ``netem/final`` queryable and
+the agent's republishing, each driven directly over a real Zenoh session."""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections import Counter
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from agent.node import AgentNode
+from formation import keys
+from formation.codec import attachment, encode, now_ns
+from formation.messages import CoordinationState
+from formation.scenario import Scenario
+from formation.service import Service
+from netem.node import FINAL_WAIT_S, NetemNode
+
+pytestmark = pytest.mark.integration
+ROOT = Path(__file__).resolve().parents[2]
+RUN = "last-messages"
+
+
+@contextmanager
+def service(role: str, ident: int) -> Iterator[Service]:
+    """A service on loopback; it takes the signals, which go back to pytest afterwards."""
+    args = SimpleNamespace(mode="peer", connect=None, listen="tcp/127.0.0.1:0", start_timeout=5)
+    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    svc = Service(RUN, role, ident, args)
+    try:
+        yield svc
+    finally:
+        svc.close()
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
+
+
+def _final_state(i: int, epochs: int) -> tuple[str, bytes, bytes]:
+    msg = CoordinationState(run_id=RUN, sender=f"agent/{i}", seq=epochs, epoch=epochs,
+                            stamp_ns=now_ns(), agent=i, position=[float(i), 0.0])  # fmt: skip
+    return keys.agent_state(RUN, i), encode(msg), attachment(epochs, epochs, i)
+
+
+@pytest.fixture
+def scenario() -> Scenario:
+    return Scenario.from_file(ROOT / "scenarios/paper.toml").with_overrides(epochs=10)
+
+
+def test_netem_says_which_final_states_it_lacks(scenario: Scenario) -> None:
+    final_key = keys.netem_final(RUN)
+    with service("netem", 0) as svc:
+        node = NetemNode(svc, scenario, seed=1, wait_for_recorder=False)
+        assert svc.ask(final_key, {"agents": [1, 2]}) == {"missing": [1, 2], "estimates_done": 0}
+        node._handle(*_final_state(1, scenario.epochs))
+        assert svc.ask(final_key, {"agents": [1, 2]})["missing"] == [2]
+        # A final state that arrives while the query waits is counted before the answer.
+        late = threading.Timer(FINAL_WAIT_S / 5, node._handle, _final_state(2, scenario.epochs))
+        late.start()
+        try:
+            assert svc.ask(final_key, {"agents": [1, 2]})["missing"] == []
+        finally:
+            late.join()
+        assert svc.ask(final_key, {"estimates": True})["estimates_done"] == 0
+        # A malformed question gets an error, is counted, and changes nothing.
+        assert svc.ask(final_key, {"agents": "two"}) is None
+        assert svc.malformed.counts[final_key] == 1
+        assert node.final_states == {1, 2}
+
+
+@pytest.mark.parametrize("answers", [[[2], []], [[2], [2], [2]]], ids=["acked", "never"])
+def test_an_agent_republishes_the_final_states_netem_lacks(
+    scenario: Scenario, answers: list[list[int]]
+) -> None:
+    published: Counter[int] = Counter()
+    asked = []
+    lock = threading.Lock()
+
+    def on_state(sample) -> None:  # type: ignore[no-untyped-def]
+        with lock:
+            published[int(str(sample.key_expr).split("/")[-2])] += 1
+
+    def on_final(query) -> None:  # type: ignore[no-untyped-def]
+        with lock:
+            asked.append(query.payload.to_bytes())
+            missing = answers[min(len(asked), len(answers)) - 1]
+        query.reply(query.key_expr, f'{{"missing": {missing}, "estimates_done": 10}}'.encode())
+
+    with service("pool", 1) as svc:
+        node = AgentNode(svc, scenario, [1, 2], "estimate", seed=1)
+        sub = svc.session.declare_subscriber(keys.agent_state(RUN, "*"), on_state)
+        qbl = svc.session.declare_queryable(keys.netem_final(RUN), on_final)
+        try:
+            confirmed = node.confirm_final(timeout_s=0.0 if len(answers) > 2 else 10.0)
+        finally:
+            qbl.undeclare()
+            sub.undeclare()
+    assert asked[0] == b'{"agents":[1,2]}'
+    if answers[-1]:
+        assert not confirmed and len(asked) == 1 and published == {2: 1}
+    else:  # netem lacked agent 2's: published again, then acknowledged
+        assert confirmed and len(asked) == 2 and published == {2: 1}
+
+
+def test_an_agent_without_netem_leaves_at_once(scenario: Scenario) -> None:
+    with service("agent", 1) as svc:
+        node = AgentNode(svc, scenario, [1], "estimate", seed=1)
+        assert node.confirm_final() is False  # nobody answers: nothing to wait for
