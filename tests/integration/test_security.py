@@ -153,7 +153,14 @@ def test_each_user_publishes_only_its_own_keys(network: Network) -> None:
             if user == "agent-1":
                 keep += [s.liveliness().declare_token(keys.alive(RUN, "agent", 3)),
                          s.liveliness().declare_token(keys.start(RUN)),
-                         s.declare_queryable(keys.netem_config(RUN), lambda q: q.reply(q.key_expr, b"forged"))]  # fmt: skip
+                         s.declare_queryable(keys.netem_config(RUN), lambda q: q.reply(q.key_expr, b"forged")),
+                         s.declare_queryable(keys.netem_final(RUN), lambda q: q.reply(q.key_expr, b"forged"))]  # fmt: skip
+            if user == "netem":
+                keep.append(
+                    s.declare_queryable(
+                        keys.netem_final(RUN), lambda q: q.reply(q.key_expr, b"netem")
+                    )
+                )
             for key in forged[user]:
                 for _ in range(N):
                     s.put(key, _payload(user))
@@ -174,6 +181,17 @@ def test_each_user_publishes_only_its_own_keys(network: Network) -> None:
             operator, lambda c: all(c.get(k, 0) >= n for (k, _), n in legit.items())
         )
         replies = list(operator.get(keys.netem_config(RUN), timeout=1.0))
+        final: list[bytes] = []  # the leader asks netem for what it lacks (netem/final)
+
+        def ask_final() -> bool:
+            final[:] = [
+                r.ok.payload.to_bytes()
+                for r in sessions["leader"].get(keys.netem_final(RUN), timeout=1.0)
+                if r.ok
+            ]
+            return bool(final)
+
+        _wait(ask_final, "netem's answer on netem/final", network)
     finally:
         for s in [*sessions.values()]:
             s.close()
@@ -194,6 +212,7 @@ def test_each_user_publishes_only_its_own_keys(network: Network) -> None:
     assert recorded[keys.alive(RUN, "agent", 3), ""] == 0 and recorded[keys.start(RUN), ""] == 0
     assert recorded[keys.alive(RUN, "agent", 1), ""] >= 1
     assert replies == []  # agent 1's forged netem/config queryable is not reachable
+    assert final == [b"netem"]  # netem's netem/final is, agent 1's forged one is not
 
 
 @pytest.mark.skipif(shutil.which("openssl") is None, reason="needs the openssl command")
