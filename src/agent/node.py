@@ -213,9 +213,10 @@ class AgentNode:
         key = keys.netem_final(self.run_id)
         while True:
             answer = self.service.ask(key, {"agents": self.ids})
-            if answer is None:
-                return False
-            missing = [i for i in answer.get("missing", []) if i in self.inbox]
+            lacks = None if answer is None else answer.get("missing")
+            if not isinstance(lacks, list):
+                return False  # no answer, or not one we can read (counted by ask)
+            missing = [i for i in lacks if i in self.inbox]
             if not missing:
                 return True
             log.warning("netem lacks the final states of agents %s: publishing them again", missing)

@@ -176,16 +176,22 @@ class Service:
                 self.malformed.counts[key] += 1
                 log.exception("while handling %s", key)
 
-    def ask(self, key: str, body: dict[str, Any], timeout_s: float = 5.0) -> Any:
-        """The first answer of the queryable on ``key`` to the JSON ``body``; None if none answers.
+    def ask(self, key: str, body: dict[str, Any], timeout_s: float = 5.0) -> dict[str, Any] | None:
+        """The first JSON object a queryable on ``key`` answers to ``body``; None if none does
+        (an answer that is not one is counted as malformed).
 
-        A reply also means that what this session published before the query has left it:
-        the query follows it on the same link.
+        The query leaves after what this session published before it, on the same link.
         """
         for reply in self.session.get(key, payload=orjson.dumps(body), timeout=timeout_s):
-            if reply.ok is not None:
-                with contextlib.suppress(orjson.JSONDecodeError):
-                    return orjson.loads(reply.ok.payload.to_bytes())
+            if reply.ok is None:
+                continue
+            try:
+                answer = orjson.loads(reply.ok.payload.to_bytes())
+            except orjson.JSONDecodeError:
+                answer = None
+            if isinstance(answer, dict):
+                return answer
+            self.malformed.counts[key] += 1
         return None
 
     def queryable(self, key: str, callback: Callable[[zenoh.Query], None]) -> None:

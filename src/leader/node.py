@@ -185,9 +185,11 @@ class LeaderNode:
         """Before the session closes, wait until netem has the last epoch's estimates (it
         answers once it has, or after a moment): the query also goes out after them."""
         answer = self.service.ask(keys.netem_final(self.run_id), {"estimates": True})
-        if answer is not None and answer.get("estimates_done", 0) < self.scenario.epochs:
-            log.warning("netem has handled estimates of %s epochs of %d",
-                        answer.get("estimates_done"), self.scenario.epochs)  # fmt: skip
+        done = None if answer is None else answer.get("estimates_done")
+        if isinstance(done, int) and done < self.scenario.epochs:
+            log.warning(
+                "netem has handled estimates of %d epochs of %d", done, self.scenario.epochs
+            )
 
     def run_realtime(self) -> int:
         """Each period, the reports that arrived by the report deadline; later ones are lost."""

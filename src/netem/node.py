@@ -531,7 +531,7 @@ class NetemNode:
         those agents' final states, ``{"estimates": true}`` for the leader's last epoch.
 
         A sender asks before it closes its session and republishes what is missing: a
-        state published just before a close was seen lost under load, once in about 30
+        state published just before a close was seen lost under load, in about 1 of 70
         realtime runs. Samples and queries come on different threads, so netem first
         waits a moment for what may still be on its way.
         """

@@ -110,3 +110,18 @@ def test_an_agent_without_netem_leaves_at_once(scenario: Scenario) -> None:
     with service("agent", 1) as svc:
         node = AgentNode(svc, scenario, [1], "estimate", seed=1)
         assert node.confirm_final() is False  # nobody answers: nothing to wait for
+
+
+@pytest.mark.parametrize("garbled", [b"not json", b"[2]"], ids=["not-json", "not-an-object"])
+def test_a_garbled_answer_is_counted_and_the_agent_leaves(
+    scenario: Scenario, garbled: bytes
+) -> None:
+    with service("agent", 1) as svc:
+        node = AgentNode(svc, scenario, [1], "estimate", seed=1)
+        key = keys.netem_final(RUN)
+        qbl = svc.session.declare_queryable(key, lambda q: q.reply(q.key_expr, garbled))
+        try:
+            assert node.confirm_final() is False
+        finally:
+            qbl.undeclare()
+        assert svc.malformed.counts[key] == 1
