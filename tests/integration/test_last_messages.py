@@ -3,6 +3,7 @@ the agent's republishing, each driven directly over a real Zenoh session."""
 
 from __future__ import annotations
 
+import logging
 import signal
 import threading
 from collections import Counter
@@ -19,6 +20,7 @@ from formation.codec import attachment, encode, now_ns
 from formation.messages import CoordinationState
 from formation.scenario import Scenario
 from formation.service import Service
+from leader.node import LeaderNode
 from netem.node import FINAL_WAIT_S, NetemNode
 
 pytestmark = pytest.mark.integration
@@ -125,3 +127,28 @@ def test_a_garbled_answer_is_counted_and_the_agent_leaves(
         finally:
             qbl.undeclare()
         assert svc.malformed.counts[key] == 1
+
+
+@pytest.mark.parametrize("done", [10, 3])
+def test_the_leader_asks_for_its_last_estimates(
+    scenario: Scenario, done: int, caplog: pytest.LogCaptureFixture
+) -> None:
+    asked: list[bytes] = []
+
+    def on_final(query) -> None:  # type: ignore[no-untyped-def]
+        asked.append(query.payload.to_bytes())
+        query.reply(query.key_expr, f'{{"missing": [], "estimates_done": {done}}}'.encode())
+
+    with service("leader", 0) as svc:
+        node = LeaderNode(svc, scenario)
+        qbl = svc.session.declare_queryable(keys.netem_final(RUN), on_final)
+        try:
+            with caplog.at_level(logging.WARNING, logger="leader"):
+                node.confirm_last()
+        finally:
+            qbl.undeclare()
+    assert asked == [b'{"estimates":true}']
+    warned = [r.getMessage() for r in caplog.records if r.name == "leader"]
+    assert warned == (
+        [] if done == scenario.epochs else ["netem has handled estimates of 3 epochs of 10"]
+    )
