@@ -127,29 +127,22 @@ class AgentNode:
 
     def _packets(self, i: int, delivery: Delivery) -> list[Packet]:
         """The coordination packets of a state delivery; a malformed one is counted and lost."""
-        out = []
-        for p in delivery.packets:
-            try:
-                state = CoordinationState.model_validate_json(p.message)
-            except ValueError:  # pydantic's ValidationError is one
-                state = None
-            if state is not None and state.agent == p.source:
-                out.append(Packet(i, p.source, p.sent_epoch, tuple(state.position)))
-            else:  # counted on the link it came by
-                self.service.malformed.counts[keys.link_state(self.run_id, p.source, i)] += 1
-        return out
+        decoded = self.service.malformed.decode_packets(
+            delivery.packets, CoordinationState,
+            lambda p: keys.link_state(self.run_id, p.source, i),
+            lambda p, state: state.agent == p.source,
+        )  # fmt: skip
+        return [Packet(i, p.source, p.sent_epoch, tuple(s.position)) for p, s in decoded]
 
     def _estimate_of(self, i: int, delivery: Delivery) -> Estimate | None:
-        key = keys.link_estimate(self.run_id, i)
-        for p in delivery.packets:
-            if p.sent_epoch != delivery.epoch:
-                continue  # delayed past its epoch: of no use any more
-            est = self.service.malformed.decode(key, p.message, AgentEstimate)
-            if est is not None and est.agent != i:
-                self.service.malformed.counts[key] += 1  # another agent's part: unusable
-            elif est is not None:
-                return _estimate(est)
-        return None
+        current = (p for p in delivery.packets if p.sent_epoch == delivery.epoch)  # delayed: no use
+        decoded = self.service.malformed.decode_packets(
+            current, AgentEstimate,
+            lambda p: keys.link_estimate(self.run_id, i),
+            lambda p, est: est.agent == i,  # another agent's part is unusable
+        )  # fmt: skip
+        first = next(decoded, None)
+        return None if first is None else _estimate(first[1])
 
     def _route(self, msg: Incoming) -> None:
         """Realtime: file a packet forwarded on a link in its receiver's inbox."""

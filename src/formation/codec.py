@@ -5,11 +5,12 @@ from __future__ import annotations
 import struct
 import time
 from collections import Counter
+from collections.abc import Callable, Iterable, Iterator
 from typing import TypeVar
 
 from pydantic import BaseModel, TypeAdapter, ValidationError
 
-from formation.messages import Message
+from formation.messages import DeliveredPacket, Message
 
 M = TypeVar("M", bound=BaseModel)
 _ANY: TypeAdapter[Message] = TypeAdapter(Message)
@@ -58,6 +59,26 @@ class Malformed:
         except (ValidationError, ValueError, UnicodeDecodeError):
             self.counts[key] += 1
             return None
+
+    def decode_packets(
+        self,
+        packets: Iterable[DeliveredPacket],
+        model: type[M],
+        key_of: Callable[[DeliveredPacket], str],
+        belongs: Callable[[DeliveredPacket, M], bool],
+    ) -> Iterator[tuple[DeliveredPacket, M]]:
+        """The payloads of a delivery's packets as ``model``, lazily. One that fails validation,
+        or that ``belongs`` says its link cannot carry, is counted on its link's key
+        (``key_of``, built only then) and skipped."""
+        for p in packets:
+            try:
+                msg: M | None = model.model_validate_json(p.message)
+            except (ValidationError, ValueError, UnicodeDecodeError):
+                msg = None
+            if msg is not None and belongs(p, msg):
+                yield p, msg
+            else:
+                self.counts[key_of(p)] += 1
 
 
 __all__ = [

@@ -146,17 +146,13 @@ class LeaderNode:
         delivery = self.deliveries.pop(k, None)
         if delivery is None:
             return False
-        reports = []
-        for p in delivery.packets:
-            if p.sent_epoch != k:
-                continue  # delayed past its epoch: the leader only fuses epoch k's
-            key = keys.link_report(self.run_id, p.source)
-            report = self.service.malformed.decode(key, p.message, TokenReport)
-            if report is not None and report.agent != p.source:
-                self.service.malformed.counts[key] += 1
-            elif report is not None:
-                reports.append(report)
-        self._estimate(k, reports)
+        current = (p for p in delivery.packets if p.sent_epoch == k)  # only epoch k's are fused
+        decoded = self.service.malformed.decode_packets(
+            current, TokenReport,
+            lambda p: keys.link_report(self.run_id, p.source),
+            lambda p, report: report.agent == p.source,
+        )  # fmt: skip
+        self._estimate(k, [report for _, report in decoded])
         return True
 
     def _estimate(self, k: int, reports: list[TokenReport]) -> None:
