@@ -12,13 +12,50 @@ from formation.keyed_random import Stream, keyed_normal_after, keyed_normal_vect
 Array = npt.NDArray[np.float64]
 
 
+NOISE_BLOCK = 64  # epochs of draws made at once by NoiseKeys
+
+
 class NoiseKeys:
-    """The links ``(i, j)`` of a fixed set, with their draws' shared key prefix hashed once:
-    an agent draws its in-links' noise every epoch."""
+    """The links ``(i, j)`` of a fixed set, with their draws' shared key prefix hashed once.
+
+    An agent draws its in-links' noise every epoch; :meth:`noise` draws
+    :data:`NOISE_BLOCK` epochs in one vectorised pass, since a dozen numpy calls
+    per epoch on three links cost an agent process most of its step.
+    """
 
     def __init__(self, seed: int, receivers: Any, senders: Any) -> None:
         r, s = (np.asarray(a, dtype=np.int64)[..., None] for a in (receivers, senders))
         self.state = keyed_state(seed, Stream.NOISE, r, s)  # as keyed_normal_vector expands them
+        self._cov: Array | None = None
+        self._start = -1
+        self._block: Array = np.zeros((0, 0, 0))  # (epoch in block, link, d)
+
+    def noise(self, cov: Array, epoch: int) -> Array:
+        """``measurement_noise(cov, seed, receivers, senders, epoch)`` for these links, bit for bit."""
+        if cov is not self._cov or not 0 <= epoch - self._start < NOISE_BLOCK:
+            self._cov, self._start = cov, epoch
+            epochs = np.arange(epoch, epoch + NOISE_BLOCK, dtype=np.int64)
+            links = np.shape(self.state)[:-1]  # the state carries a trailing axis for coord
+            block = _correlate(cov, lambda: keyed_normal_after(
+                self.state[..., None, :], epochs[:, None], np.arange(cov.shape[0], dtype=np.int64)
+            ), (*links, NOISE_BLOCK))  # fmt: skip
+            self._block = np.ascontiguousarray(np.moveaxis(block, -2, 0))
+        return self._block[epoch - self._start]
+
+
+def _correlate(cov: Array, standard: Any, shape: tuple[int, ...]) -> Array:
+    """``L·std`` with ``L L^T = cov`` for standard normal draws ``standard()`` of ``shape + (d,)``."""
+    d = cov.shape[0]
+    if not np.any(cov):
+        return np.zeros((*shape, d))
+    chol = np.linalg.cholesky(cov)
+    std = standard().reshape(*shape, d)
+    # Elementwise, not a matrix product: BLAS kernels differ with batch size, and one agent
+    # must get the same last bit as the whole team in the simulator.
+    out = np.zeros((*shape, d))
+    for b in range(d):
+        out += std[..., b : b + 1] * chol[:, b]
+    return out
 
 
 def measurement_noise(
@@ -30,24 +67,14 @@ def measurement_noise(
     keys : the same seed and links, prehashed (then ``epoch`` must be one int).
     Returns (..., d) [m]; the same numbers in every process that asks.
     """
-    d = cov.shape[0]
     shape = np.broadcast_shapes(np.shape(receivers), np.shape(senders), np.shape(epoch))
-    if not np.any(cov):
-        return np.zeros((*shape, d))
-    chol = np.linalg.cholesky(cov)
     if keys is not None:
-        coord = np.arange(d, dtype=np.int64)
-        std = keyed_normal_after(keys.state, int(epoch), coord).reshape(*shape, d)
-    else:
-        std = keyed_normal_vector(d, seed, Stream.NOISE, receivers, senders, epoch).reshape(
-            *shape, d
-        )
-    # Elementwise, not a matrix product: BLAS kernels differ with batch size, and one agent
-    # must get the same last bit as the whole team in the simulator.
-    out = np.zeros((*shape, d))
-    for b in range(d):
-        out += std[..., b : b + 1] * chol[:, b]
-    return out
+        return keys.noise(cov, int(epoch)).reshape(*shape, cov.shape[0])
+    return _correlate(
+        cov,
+        lambda: keyed_normal_vector(cov.shape[0], seed, Stream.NOISE, receivers, senders, epoch),
+        shape,
+    )
 
 
 def relative_measurement(
