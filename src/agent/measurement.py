@@ -67,9 +67,9 @@ def measurement_noise(
     keys : the same seed and links, prehashed (then ``epoch`` must be one int).
     Returns (..., d) [m]; the same numbers in every process that asks.
     """
-    shape = np.broadcast_shapes(np.shape(receivers), np.shape(senders), np.shape(epoch))
     if keys is not None:
-        return keys.noise(cov, int(epoch)).reshape(*shape, cov.shape[0])
+        return keys.noise(cov, int(epoch))  # (L, d): the keys' links are receivers × senders
+    shape = np.broadcast_shapes(np.shape(receivers), np.shape(senders), np.shape(epoch))
     return _correlate(
         cov,
         lambda: keyed_normal_vector(cov.shape[0], seed, Stream.NOISE, receivers, senders, epoch),

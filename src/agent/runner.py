@@ -96,8 +96,9 @@ class AgentRunner:
         Packets sent before ``k`` (delayed) only refresh the held value.
         """
         k, n_links = self.epoch, len(self.links.index)
-        late = sorted((p for p in packets if p.sent_epoch < k), key=lambda p: p.sent_epoch)
+        late = [p for p in packets if p.sent_epoch < k]
         if late:
+            late.sort(key=lambda p: p.sent_epoch)
             values = np.zeros((n_links, self.scenario.dimension))
             sent = np.full(n_links, -1, dtype=np.int64)
             mask = np.zeros(n_links, dtype=bool)
