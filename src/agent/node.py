@@ -11,6 +11,7 @@ waits for every report anyway, so this costs no time).
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -26,6 +27,7 @@ from formation.scenario import Scenario, StrategyName
 from formation.service import Incoming, Service
 
 log = logging.getLogger("agent")
+WATCH_S = 0.25  # how often the main thread looks for netem's liveliness and a signal
 _BAD = object()  # a payload that failed validation: the packet counts as lost
 
 
@@ -82,6 +84,7 @@ class AgentNode:
         self.phase = "state"  # waiting for the delivery of this phase, for every agent
         self.waiting: set[int] = set(ids)  # agents not yet ready for the phase
         self.done = False
+        self.finished = threading.Event()  # set with done: the watching thread leaves at once
         self.taken = -1  # realtime: the last epoch whose packets were taken
         self.deadline = {
             "packets": 0,
@@ -242,6 +245,8 @@ class AgentNode:
         self.runner.step(got)
         self._publish_states()
         self.done = self.runner.epoch >= self.scenario.epochs
+        if self.done:
+            self.finished.set()
         self._start_phase("state")
 
     def _on_message(self, msg: Incoming) -> None:
@@ -267,7 +272,8 @@ class AgentNode:
             while (early := self.service.next_incoming(0)) is not None:
                 self._on_message(early)
             self._publish_states()
-        while not self.done and not self.service.stopping.wait(0.05):
+        # A slow watch: 50 agent processes waking 20 times a second cost 2 % of the machine.
+        while not self.finished.wait(WATCH_S) and not self.service.stopping.is_set():
             if self.service.gone_for("netem", 0):
                 log.error("netem is gone; stopping")
                 return 2
