@@ -25,7 +25,8 @@ class NoiseKeys:
 
     def __init__(self, seed: int, receivers: Any, senders: Any) -> None:
         r, s = (np.asarray(a, dtype=np.int64)[..., None] for a in (receivers, senders))
-        self.state = keyed_state(seed, Stream.NOISE, r, s)  # as keyed_normal_vector expands them
+        # (..., 1): as keyed_normal_vector expands them, with an axis for the coordinate
+        self.state: npt.NDArray[np.uint64] = np.asarray(keyed_state(seed, Stream.NOISE, r, s))
         self._cov: Array | None = None
         self._start = -1
         self._block: Array = np.zeros((0, 0, 0))  # (epoch in block, link, d)
@@ -35,12 +36,13 @@ class NoiseKeys:
         if cov is not self._cov or not 0 <= epoch - self._start < NOISE_BLOCK:
             self._cov, self._start = cov, epoch
             epochs = np.arange(epoch, epoch + NOISE_BLOCK, dtype=np.int64)
-            links = np.shape(self.state)[:-1]  # the state carries a trailing axis for coord
+            links = self.state.shape[:-1]
             block = _correlate(cov, lambda: keyed_normal_after(
                 self.state[..., None, :], epochs[:, None], np.arange(cov.shape[0], dtype=np.int64)
             ), (*links, NOISE_BLOCK))  # fmt: skip
             self._block = np.ascontiguousarray(np.moveaxis(block, -2, 0))
-        return self._block[epoch - self._start]
+        row: Array = self._block[epoch - self._start]
+        return row
 
 
 def _correlate(cov: Array, standard: Any, shape: tuple[int, ...]) -> Array:
