@@ -20,6 +20,7 @@ from rich.table import Table
 
 from formation.errors import TestbedError
 from formation.scenario import Scenario
+from testbed.tables import print_table
 
 EXPERIMENTS = ("paper",)
 DEFAULT_TOPOLOGIES = ("ring8", "grid20", "octahedron3d")
@@ -49,7 +50,7 @@ def cmd_experiment(args: argparse.Namespace) -> int:
         table.add_column(col)
     for c in result.claims:
         table.add_row(c.text.replace("`", ""), c.verdict)
-    Console().print(table)
+    print_table(table)
     for row in result.real:
         console.print(
             f"real processes {row['strategy']} seed {row['seed']}: max |Δx| {row.get('max_diff_text')}"

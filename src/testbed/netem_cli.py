@@ -14,6 +14,7 @@ from rich.table import Table
 from formation import keys
 from formation.errors import TestbedError
 from formation.zenoh_config import session_config
+from testbed.tables import print_table
 
 
 def parse_models(words: list[str]) -> list[dict[str, Any]]:
@@ -84,7 +85,7 @@ def cmd_netem(args: argparse.Namespace) -> int:
                 for m in link["models"]
             )
             table.add_row(link["link"], link["class"], models or "up")
-        console.print(table)
+        print_table(table, console)
         return 0
     if not args.link or not args.model:
         raise TestbedError("usage: formation netem set LINK MODEL [NAME=VALUE ...] [+ MODEL ...]")

@@ -28,6 +28,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     from recorder.recording import describe, validate
+    from testbed.tables import print_table
 
     info = describe(args.recording)
     console = Console()
@@ -58,7 +59,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     for ch in info.channels:
         topic = ch.topic.removeprefix(prefix) if prefix else ch.topic
         table.add_row(topic, ch.schema, str(ch.messages))
-    console.print(table)
+    print_table(table, console)
     if info.sent:
         links = Table(title="netem decisions per link")
         for col in ("link", "packets", "dropped"):

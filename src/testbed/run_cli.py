@@ -12,6 +12,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from formation.scenario import Scenario
+from testbed.tables import print_table
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -90,7 +91,7 @@ def _print_summary(outcomes: list[Any], console: Console) -> None:
             rate = s["deadline_miss_rate"]
             row.append("-" if rate is None else f"{100 * rate:.2f} %")
         table.add_row(*row)
-    console.print(table)
+    print_table(table, console)
 
 
 def register(sub: Any) -> None:

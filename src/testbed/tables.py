@@ -8,6 +8,17 @@ from rich.console import Console
 from rich.table import Table
 
 
+def print_table(table: Table, console: Console | None = None) -> None:
+    """Print ``table`` whole. Off a terminal (a pipe, a log file, CI) rich assumes 80 columns
+    and cuts cells to "0.28…"; there the table gets the width it needs instead."""
+    console = console or Console()
+    if not console.is_terminal:
+        natural = console.measure(table, options=console.options.update_width(10_000)).maximum
+        if natural > console.width:
+            console = Console(file=console.file, width=natural)
+    console.print(table)
+
+
 def _fmt(v: Any, spec: str = ".3g") -> str:
     return "-" if v is None else format(v, spec)
 
@@ -37,4 +48,4 @@ def print_summaries(
             _fmt(s["final_shape_error_m"]), _fmt(s["substitution_cov_trace_m2"]),
             str(s["fallbacks"]), _fmt(s["estimation_cov_trace_m2"]), _fmt(s["nees_mean"], ".3f"),
         )  # fmt: skip
-    (console or Console()).print(table)
+    print_table(table, console)

@@ -17,7 +17,8 @@ def test_formation_run_records_reports_and_compares(paper_path: Path, runs_dir: 
     proc = subprocess.run(
         [sys.executable, "-m", "testbed.cli", "run", str(paper_path), "--strategy", "zero,estimate",
          "--epochs", "20", "--runs-dir", str(runs_dir)],
-        capture_output=True, text=True, timeout=300, env={**os.environ, "COLUMNS": "160"},
+        capture_output=True, text=True, timeout=300,
+        env={k: v for k, v in os.environ.items() if k != "COLUMNS"},  # a pipe: rich assumes 80
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     assert "formation run: summary" in proc.stdout
@@ -35,3 +36,6 @@ def test_formation_run_records_reports_and_compares(paper_path: Path, runs_dir: 
         > 10 * by_strategy["estimate"]["final_formation_error_m"]
     )
     assert f"comparison of the 2 runs: {compare}" in proc.stderr.replace("\n", "")
+    for s in summaries:  # the summary table shows every run's numbers whole, even in a pipe
+        assert f" {s['final_formation_error_m']:.4g} " in proc.stdout, proc.stdout
+    assert "…" not in proc.stdout, proc.stdout
