@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -45,7 +46,7 @@ class NoiseKeys:
         return row
 
 
-def _correlate(cov: Array, standard: Any, shape: tuple[int, ...]) -> Array:
+def _correlate(cov: Array, standard: Callable[[], Array], shape: tuple[int, ...]) -> Array:
     """``L·std`` with ``L L^T = cov`` for standard normal draws ``standard()`` of ``shape + (d,)``."""
     d = cov.shape[0]
     if not np.any(cov):

@@ -83,8 +83,7 @@ class AgentNode:
         self.inbox = {i: _Inbox() for i in ids}
         self.phase = "state"  # waiting for the delivery of this phase, for every agent
         self.waiting: set[int] = set(ids)  # agents not yet ready for the phase
-        self.done = False
-        self.finished = threading.Event()  # set with done: the watching thread leaves at once
+        self.finished = threading.Event()  # the last epoch is done: the watching thread leaves
         self.taken = -1  # realtime: the last epoch whose packets were taken
         self.deadline = {
             "packets": 0,
@@ -104,6 +103,10 @@ class AgentNode:
                 for phase in ("state", "estimate"):
                     service.subscribe(keys.inbox(self.run_id, i, phase), direct=len(ids) > 1)
         service.watch_alive()
+
+    @property
+    def done(self) -> bool:
+        return self.finished.is_set()
 
     @property
     def ids(self) -> list[int]:
@@ -244,8 +247,7 @@ class AgentNode:
         }
         self.runner.step(got)
         self._publish_states()
-        self.done = self.runner.epoch >= self.scenario.epochs
-        if self.done:
+        if self.runner.epoch >= self.scenario.epochs:
             self.finished.set()
         self._start_phase("state")
 
@@ -322,5 +324,5 @@ class AgentNode:
             self.runner.step(got)
         sleep_until(clock.at(self.scenario.epochs))
         self._publish_states()
-        self.done = True
+        self.finished.set()
         return 0
