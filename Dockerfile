@@ -12,8 +12,13 @@ ENV PYTHONUNBUFFERED=1 \
 WORKDIR /app
 # Only what the package needs: credentials, runs and the checkout's history stay out (.dockerignore).
 COPY pyproject.toml README.md ./
-COPY src ./src
-RUN pip install . && rm -rf src
+COPY formation ./formation
+COPY agent ./agent
+COPY leader ./leader
+COPY netem ./netem
+COPY recorder ./recorder
+COPY testbed ./testbed
+RUN pip install . && rm -rf formation agent leader netem recorder testbed build
 COPY scenarios ./scenarios
 
 # Each service sets its own command; a bare `docker run` prints the CLI's help.

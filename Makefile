@@ -1,5 +1,6 @@
 # One command per job; each creates .venv and installs what it needs.
 PYTHON ?= python3
+PACKAGES := formation agent leader netem recorder testbed
 VENV := .venv
 BIN := $(VENV)/bin
 SCENARIO ?= scenarios/paper.toml
@@ -19,8 +20,8 @@ test: $(BIN)/.installed lint typecheck
 	$(BIN)/pytest -q -p no:cacheprovider
 
 lint: $(BIN)/.installed
-	$(BIN)/ruff check src tests bench
-	$(BIN)/ruff format --check src tests bench
+	$(BIN)/ruff check $(PACKAGES) tests bench
+	$(BIN)/ruff format --check $(PACKAGES) tests bench
 
 typecheck: $(BIN)/.installed
 	$(BIN)/mypy
@@ -29,4 +30,4 @@ bench: $(BIN)/.installed
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench
 
 clean:
-	rm -rf $(VENV) runs build *.egg-info src/*.egg-info
+	rm -rf $(VENV) runs build *.egg-info

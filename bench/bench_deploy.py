@@ -38,11 +38,7 @@ import numpy as np
 import zenoh
 from mcap.reader import make_reader
 
-try:
-    from formation import keys
-except ImportError:  # run from a checkout without installing
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
-    from formation import keys
+from formation import keys
 from formation.codec import encode, now_ns
 from formation.messages import CoordinationState
 from formation.scenario import Scenario

@@ -22,7 +22,6 @@ import argparse
 import sys
 import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import TypeVar
 
 import numpy as np
@@ -31,13 +30,8 @@ from scipy.sparse import coo_array
 from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
-try:
-    from leader.blue import BlueResult, blue
-    from leader.mst import minimum_spanning_forest
-except ImportError:  # run from a checkout without installing
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
-    from leader.blue import BlueResult, blue
-    from leader.mst import minimum_spanning_forest
+from leader.blue import BlueResult, blue
+from leader.mst import minimum_spanning_forest
 
 SEED = 20240611
 SIGMA_M = 0.01  # [m] measurement noise per coordinate (MODEL.md §8)

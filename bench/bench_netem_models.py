@@ -19,39 +19,23 @@ os.environ["OPENBLAS_NUM_THREADS"] = "1"  # before numpy: one core, comparable n
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse
-import sys
 import time
 from collections.abc import Callable
 from functools import partial
-from pathlib import Path
 
 import numpy as np
 
-try:
-    from formation.linkmodels import (
-        Bernoulli,
-        Delay,
-        Duplicate,
-        GilbertElliott,
-        LinkModelSpec,
-        Markov4,
-        Outage,
-        Reorder,
-    )
-    from netem.models import LinkModel, delivery_matrix, schedule
-except ImportError:  # run from a checkout without installing
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
-    from formation.linkmodels import (
-        Bernoulli,
-        Delay,
-        Duplicate,
-        GilbertElliott,
-        LinkModelSpec,
-        Markov4,
-        Outage,
-        Reorder,
-    )
-    from netem.models import LinkModel, delivery_matrix, schedule
+from formation.linkmodels import (
+    Bernoulli,
+    Delay,
+    Duplicate,
+    GilbertElliott,
+    LinkModelSpec,
+    Markov4,
+    Outage,
+    Reorder,
+)
+from netem.models import LinkModel, delivery_matrix, schedule
 
 SEED = 20240601
 N_LINKS = 100  # links of the delivery_matrix case

@@ -32,16 +32,9 @@ from typing import Any
 
 import numpy as np
 
-SRC = Path(__file__).resolve().parents[1] / "src"
-try:
-    from formation import keys
-    from formation.codec import attachment
-    from formation.zenoh_config import session_config
-except ImportError:  # run from a checkout without installing
-    sys.path.insert(0, str(SRC))
-    from formation import keys
-    from formation.codec import attachment
-    from formation.zenoh_config import session_config
+from formation import keys
+from formation.codec import attachment
+from formation.zenoh_config import session_config
 
 SEED = 20240611
 RUN = "bench"
@@ -168,10 +161,7 @@ def end_to_end(seed: int, count: int, n_keys: int, out: Path) -> dict[str, Any]:
     from mcap.reader import make_reader
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    env = dict(
-        os.environ,
-        PYTHONPATH=os.pathsep.join(filter(None, [str(SRC), os.environ.get("PYTHONPATH")])),
-    )
+    env = dict(os.environ)
     rec_args = [
         "-m",
         "recorder",

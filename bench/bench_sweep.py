@@ -25,12 +25,7 @@ import tempfile
 import time
 from pathlib import Path
 
-try:
-    from formation.scenario import Scenario, StrategyName
-except ImportError:  # run from a checkout without installing
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
-    from formation.scenario import Scenario, StrategyName
-
+from formation.scenario import Scenario, StrategyName
 from testbed.simulate import simulate
 from testbed.sweep import SweepSpec, run_sweep, with_loss
 

@@ -127,7 +127,7 @@ def shared_dir() -> Path | None:
     """The shared directory: ``$FORMATION_SHARED`` or ``shared/`` beside the repository root."""
     env = os.environ.get("FORMATION_SHARED")
     candidates = [Path(env)] if env else []
-    candidates.append(Path(__file__).resolve().parents[3] / "shared")
+    candidates.append(Path(__file__).resolve().parents[2] / "shared")
     for path in candidates:
         if (path / "schemas" / "foxglove").is_dir():
             return path
