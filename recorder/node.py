@@ -45,7 +45,7 @@ from formation.messages import Status
 from formation.scenario import Scenario
 from recorder.display import Display
 from recorder.epochs import EpochAssembler
-from recorder.schemas import FOXGLOVE_MISSING, LivelinessEvent
+from recorder.schemas import LivelinessEvent
 from recorder.writer import COMPRESSIONS, Raw, Recording
 
 log = logging.getLogger("recorder")
@@ -273,7 +273,6 @@ class Recorder:
             "peak_backlog": str(self.intake.peak),
             "first_recv_ns": str(self.first_recv_ns or 0),
             "last_write_ns": str(self.last_write_ns),
-            "foxglove_schemas_missing": json.dumps(FOXGLOVE_MISSING),
         }
         if self.assembler is not None:
             stats["derived_malformed"] = json.dumps(dict(self.assembler.malformed.counts))

@@ -2,24 +2,22 @@
 
 Key patterns come from :mod:`formation.keys` (built with ``*`` wildcards), so a key
 renamed there is followed here. Wire messages get their JSON Schema from the pydantic
-model (``model_json_schema()``); ``foxglove.*`` schemas are read from the files in
-``shared/schemas/foxglove/`` (env ``FORMATION_SHARED``, else ``../shared`` beside the
-repository). When those files cannot be found the channel still gets the schema
-*name* Foxglove recognises and a minimal object schema, and :data:`FOXGLOVE_MISSING`
-says so; nothing is retyped here.
+model (``model_json_schema()``); ``foxglove.*`` schemas are Foxglove's own JSON Schema
+files, shipped as package data in ``recorder/foxglove_schemas/`` (MIT, see the LICENSE
+there); nothing is retyped here, and a recording always carries the real schema.
 """
 
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass
 from functools import cache
-from pathlib import Path
+from importlib import resources
 
 from pydantic import BaseModel, ConfigDict
 
 from formation import keys
+from formation.errors import RecordingError
 from formation.messages import (
     AgentEstimate,
     Control,
@@ -123,32 +121,24 @@ def model_schema(model: type[BaseModel]) -> SchemaSpec:
     return SchemaSpec(f"formation.{model.__name__}", JSONSCHEMA, data)
 
 
-def shared_dir() -> Path | None:
-    """The shared directory: ``$FORMATION_SHARED`` or ``shared/`` beside the repository root."""
-    env = os.environ.get("FORMATION_SHARED")
-    candidates = [Path(env)] if env else []
-    candidates.append(Path(__file__).resolve().parents[2] / "shared")
-    for path in candidates:
-        if (path / "schemas" / "foxglove").is_dir():
-            return path
-    return None
-
-
-FOXGLOVE_MISSING: list[str] = []  # names of foxglove schemas written without their file
+FOXGLOVE_DIR = "foxglove_schemas"  # package data of ``recorder``
 
 
 @cache
 def foxglove_schema(name: str) -> SchemaSpec:
-    """``foxglove.<name>`` from its JSON Schema file; a minimal stand-in if the file is missing."""
-    full = f"foxglove.{name}"
-    root = shared_dir()
-    if root is not None:
-        path = root / "schemas" / "foxglove" / f"{name}.json"
-        if path.is_file():
-            return SchemaSpec(full, JSONSCHEMA, path.read_bytes())
-    FOXGLOVE_MISSING.append(full)
-    stand_in = {"title": full, "type": "object", "$comment": "schema file not found at recording"}
-    return SchemaSpec(full, JSONSCHEMA, json.dumps(stand_in).encode())
+    """``foxglove.<name>`` from Foxglove's JSON Schema file shipped with the package.
+
+    Raises :class:`RecordingError` if the package lacks the file (a broken install).
+    """
+    path = resources.files("recorder") / FOXGLOVE_DIR / f"{name}.json"
+    try:
+        data = path.read_bytes()
+    except OSError:
+        raise RecordingError(
+            f"recorder/{FOXGLOVE_DIR}/{name}.json",
+            f"Foxglove's schema of foxglove.{name} is not in the installed package",
+        ) from None
+    return SchemaSpec(f"foxglove.{name}", JSONSCHEMA, data)
 
 
 UNKNOWN_SCHEMA = SchemaSpec(UNKNOWN, JSONSCHEMA, b"{}")  # the empty schema accepts any JSON
@@ -167,7 +157,7 @@ def schema_for_key(key: str) -> SchemaSpec:
 
 
 __all__ = [
-    "FOXGLOVE_MISSING",
+    "FOXGLOVE_DIR",
     "JSON",
     "JSONSCHEMA",
     "MODELS",
@@ -182,5 +172,4 @@ __all__ = [
     "run_id_of",
     "schema_for_key",
     "schema_for_kind",
-    "shared_dir",
 ]

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
+from importlib import resources
 
 import pytest
 from jsonschema.validators import validator_for
 
 from formation import keys
+from formation.errors import RecordingError
 from formation.messages import ALL_MODELS
 from recorder import schemas
 
@@ -58,29 +59,25 @@ def test_run_id_of() -> None:
     assert schemas.run_id_of("other/x/y") is None
 
 
-def test_foxglove_schema_from_formation_shared(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    folder = tmp_path / "schemas" / "foxglove"
-    folder.mkdir(parents=True)
-    (folder / "Probe.json").write_text('{"title": "foxglove.Probe"}')
-    monkeypatch.setenv("FORMATION_SHARED", str(tmp_path))
-    schemas.foxglove_schema.cache_clear()
-    try:
-        assert schemas.shared_dir() == tmp_path
-        assert schemas.foxglove_schema("Probe").data == b'{"title": "foxglove.Probe"}'
-    finally:
-        schemas.foxglove_schema.cache_clear()
+def test_foxglove_scene_schema_is_foxglove_s_own_file() -> None:
+    spec = schemas.schema_for_kind("scene")
+    doc = json.loads(spec.data)
+    assert (spec.name, spec.encoding) == ("foxglove.SceneUpdate", "jsonschema")
+    assert doc["title"] == "foxglove.SceneUpdate"
+    assert "entities" in doc["required"] and "deletions" in doc["required"]
+    validator_for(doc).check_schema(doc)
+    assert len(spec.data) > 10_000  # the real schema, not a stand-in
 
 
-def test_missing_foxglove_file_keeps_the_name_and_says_so(monkeypatch: pytest.MonkeyPatch) -> None:
-    schemas.foxglove_schema.cache_clear()
-    missing_before = list(schemas.FOXGLOVE_MISSING)
-    try:
-        spec = schemas.foxglove_schema("NoSuchSchema")
-        assert spec.name == "foxglove.NoSuchSchema"
-        assert json.loads(spec.data)["title"] == "foxglove.NoSuchSchema"
-        assert schemas.FOXGLOVE_MISSING[-1] == "foxglove.NoSuchSchema"
-    finally:
-        schemas.foxglove_schema.cache_clear()
-        schemas.FOXGLOVE_MISSING[:] = missing_before
+def test_foxglove_schema_ships_with_its_licence() -> None:
+    folder = resources.files("recorder") / schemas.FOXGLOVE_DIR
+    assert "MIT License" in (folder / "LICENSE").read_text()
+    assert "Foxglove" in (folder / "README.md").read_text()
+
+
+def test_missing_foxglove_file_is_an_error() -> None:
+    with pytest.raises(
+        RecordingError,
+        match=r"NoSuchSchema\.json: Foxglove's schema of foxglove\.NoSuchSchema is not in the installed package",
+    ):
+        schemas.foxglove_schema("NoSuchSchema")
