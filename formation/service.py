@@ -26,7 +26,7 @@ from formation import keys
 from formation.codec import Malformed, encode, now_ns
 from formation.errors import RuntimeFailure
 from formation.messages import Status
-from formation.zenoh_config import session_config
+from formation.zenoh_config import open_session
 
 log = logging.getLogger("service")
 
@@ -54,13 +54,7 @@ class Service:
     def __init__(self, run_id: str, role: str, ident: int | str, args: Any) -> None:
         self.run_id, self.role, self.ident = run_id, role, ident
         self.name = f"{role}/{ident}" if role in ("agent", "pool") else role
-        try:
-            self.session = zenoh.open(session_config(args.mode, args.connect, args.listen))
-        except zenoh.ZError as exc:
-            where = args.connect or args.listen or "the default endpoints"
-            raise RuntimeFailure(
-                f"cannot open a Zenoh session ({where}): {exc}".split(" at /")[0]
-            ) from None
+        self.session = open_session(args)  # a client retries until its router answers
         self.start_timeout_s: float | None = getattr(args, "start_timeout", None)
         self.inbox: queue.SimpleQueue[Incoming] = queue.SimpleQueue()
         self.stopping = threading.Event()

@@ -4,15 +4,23 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import zenoh
+
+from formation.errors import RuntimeFailure
 
 LEASE_MS = 5000  # a hung process is noticed within ~5 s instead of zenoh's 10 s
 # With CongestionControl.BLOCK, zenoh closes a link whose reader stalls this long (default 5 s),
 # losing what was queued; lockstep needs every packet, so a loaded machine must not trip it.
 BLOCK_BEFORE_CLOSE_US = 60_000_000
+# A client started before its router (compose starts services in any order, and podman-compose
+# ignores health conditions) retries this long; a wrong endpoint or credentials fail at the end.
+CONNECT_TIMEOUT_S = 60.0
+RETRY_FIRST_S = 0.1  # first pause between attempts; doubles up to RETRY_MAX_S
+RETRY_MAX_S = 1.0
 
 
 def endpoints(value: str | Sequence[str] | None, env: str) -> list[str]:
@@ -66,6 +74,13 @@ def add_arguments(parser: Any) -> None:
         "--listen", help="endpoints to listen on, comma-separated (env ZENOH_LISTEN)"
     )
     parser.add_argument(
+        "--connect-timeout",
+        type=float,
+        default=None,
+        help="seconds a client retries until its router answers "
+        f"(env ZENOH_CONNECT_TIMEOUT_S, default {CONNECT_TIMEOUT_S:g})",
+    )
+    parser.add_argument(
         "--start-timeout",
         type=float,
         default=120.0,
@@ -73,5 +88,64 @@ def add_arguments(parser: Any) -> None:
     )
 
 
+def connect_timeout_s(value: float | None = None) -> float:
+    """The retry bound: the flag, else ``ZENOH_CONNECT_TIMEOUT_S``, else :data:`CONNECT_TIMEOUT_S`."""
+    if value is not None:
+        return value
+    env = os.environ.get("ZENOH_CONNECT_TIMEOUT_S", "").strip()
+    if not env:
+        return CONNECT_TIMEOUT_S
+    try:
+        return float(env)
+    except ValueError:
+        raise RuntimeFailure(f"ZENOH_CONNECT_TIMEOUT_S = {env!r}; expected seconds") from None
+
+
+def open_with_retry(
+    conf: zenoh.Config,
+    where: str,
+    timeout_s: float,
+    retry: bool = True,
+    sleep: Callable[[float], None] = time.sleep,
+    clock: Callable[[], float] = time.monotonic,
+) -> zenoh.Session:
+    """``zenoh.open(conf)``, retried with a growing pause until it succeeds or ``timeout_s`` passes.
+
+    A client whose router is not listening yet fails at once (connection refused); it tries
+    again, so services need not start in order. Raises :class:`RuntimeFailure` naming
+    ``where`` and the time waited; ``retry=False`` (peers, routers) tries once.
+    """
+    deadline = clock() + timeout_s
+    pause = RETRY_FIRST_S
+    attempts = 0
+    while True:
+        attempts += 1
+        try:
+            return zenoh.open(conf)
+        except zenoh.ZError as exc:
+            reason = str(exc).split(" at /")[0].strip()
+            left = deadline - clock()
+            if not retry or left <= 0:
+                waited = f" within {timeout_s:g} s ({attempts} attempts)" if retry else ""
+                raise RuntimeFailure(
+                    f"cannot open a Zenoh session ({where}){waited}: {reason}"
+                ) from None
+        sleep(min(pause, max(left, 0.0)))
+        pause = min(pause * 2, RETRY_MAX_S)
+
+
 def open_session(args: Any) -> zenoh.Session:
-    return zenoh.open(session_config(args.mode, args.connect, args.listen))
+    """A session from the service flags; a client retries until its router answers.
+
+    Raises :class:`RuntimeFailure` after ``--connect-timeout`` seconds without a router.
+    """
+    mode = args.mode or os.environ.get("ZENOH_MODE", "peer")
+    where = (
+        args.connect or args.listen or os.environ.get("ZENOH_CONNECT") or "the default endpoints"
+    )
+    return open_with_retry(
+        session_config(args.mode, args.connect, args.listen),
+        where,
+        connect_timeout_s(getattr(args, "connect_timeout", None)),
+        retry=mode == "client",
+    )

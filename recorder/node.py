@@ -220,7 +220,7 @@ class Recorder:
             signal.signal(sig, self.on_signal)
         try:
             session = zenoh_config.open_session(self.args)
-        except zenoh.ZError:
+        except (zenoh.ZError, TestbedError):
             self.recording.close()  # a complete, empty recording rather than a torn one
             raise
         try:

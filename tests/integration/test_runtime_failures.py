@@ -20,8 +20,8 @@ from formation.codec import attachment
 from formation.errors import RuntimeFailure
 from formation.scenario import Scenario
 from formation.zenoh_config import session_config
-from testbed.launcher import launch
-from testbed.processes import free_port
+from testbed.runtime.launcher import launch
+from testbed.runtime.processes import free_port
 
 from .conftest import pid_alive, run_pids
 
@@ -132,6 +132,7 @@ def test_malformed_payloads_are_counted_and_skipped(paper: Scenario, runs_dir: P
 def test_unreachable_endpoint_is_a_clear_error(paper_path: Path, service: str) -> None:
     port = free_port()
     args = ["--scenario", str(paper_path), "--mode", "client", "--connect", f"tcp/127.0.0.1:{port}"]
+    args += ["--connect-timeout", "1"]  # a client retries until its router answers; not for long
     if service == "agent":
         args += ["--id", "2"]
     proc = subprocess.run(

@@ -1,0 +1,96 @@
+"""The session opener: a client retries until its router answers, for a bounded time."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+import pytest
+import zenoh
+
+from formation import zenoh_config
+from formation.errors import RuntimeFailure
+
+
+class FakeClock:
+    """Time that moves only when slept through."""
+
+    def __init__(self) -> None:
+        self.now_s = 0.0
+        self.pauses: list[float] = []
+
+    def sleep(self, s: float) -> None:
+        self.pauses.append(s)
+        self.now_s += s
+
+    def __call__(self) -> float:
+        return self.now_s
+
+
+def refusing(monkeypatch: pytest.MonkeyPatch, failures: int) -> list[int]:
+    """zenoh.open fails ``failures`` times (as with nobody listening), then returns a stand-in."""
+    calls = [0]
+
+    def fake_open(conf: Any) -> Any:
+        calls[0] += 1
+        if calls[0] <= failures:
+            raise zenoh.ZError("Unable to connect to any of [tcp/router:7447]!  at /src/x.rs:1.")
+        return "session"
+
+    monkeypatch.setattr(zenoh, "open", fake_open)
+    return calls
+
+
+def test_a_client_retries_until_the_router_answers(monkeypatch: pytest.MonkeyPatch) -> None:
+    calls = refusing(monkeypatch, failures=5)
+    clock = FakeClock()
+    got = zenoh_config.open_with_retry(
+        zenoh.Config(), "tcp/router:7447", 60.0, sleep=clock.sleep, clock=clock
+    )
+    assert got == "session"
+    assert calls[0] == 6
+    assert clock.pauses == [0.1, 0.2, 0.4, 0.8, 1.0]  # doubling, capped at RETRY_MAX_S
+
+
+def test_no_router_within_the_bound_is_a_clear_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    refusing(monkeypatch, failures=10**6)
+    clock = FakeClock()
+    with pytest.raises(
+        RuntimeFailure,
+        match=r"^cannot open a Zenoh session \(tcp/router:7447\) within 5 s \(\d+ attempts\): "
+        r"Unable to connect to any of \[tcp/router:7447\]!$",
+    ):
+        zenoh_config.open_with_retry(
+            zenoh.Config(), "tcp/router:7447", 5.0, sleep=clock.sleep, clock=clock
+        )
+    assert clock.now_s == pytest.approx(5.0)  # never sleeps past the bound
+
+
+def test_a_peer_tries_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    calls = refusing(monkeypatch, failures=1)
+    with pytest.raises(RuntimeFailure, match=r"^cannot open a Zenoh session \(x\): Unable"):
+        zenoh_config.open_with_retry(zenoh.Config(), "x", 60.0, retry=False)
+    assert calls[0] == 1
+
+
+def test_only_clients_retry(monkeypatch: pytest.MonkeyPatch) -> None:
+    seen: list[bool] = []
+    monkeypatch.setattr(
+        zenoh_config, "open_with_retry", lambda conf, where, t, retry: seen.append(retry)
+    )
+    monkeypatch.delenv("ZENOH_MODE", raising=False)
+    for mode in ("client", "peer", "router", None):
+        args = argparse.Namespace(mode=mode, connect=None, listen=None, connect_timeout=1.0)
+        zenoh_config.open_session(args)
+    assert seen == [True, False, False, False]
+
+
+def test_connect_timeout_from_flag_env_or_default(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("ZENOH_CONNECT_TIMEOUT_S", raising=False)
+    assert zenoh_config.connect_timeout_s() == zenoh_config.CONNECT_TIMEOUT_S
+    monkeypatch.setenv("ZENOH_CONNECT_TIMEOUT_S", "7.5")
+    assert zenoh_config.connect_timeout_s() == 7.5
+    assert zenoh_config.connect_timeout_s(2.0) == 2.0
+    monkeypatch.setenv("ZENOH_CONNECT_TIMEOUT_S", "soon")
+    with pytest.raises(RuntimeFailure, match=r"ZENOH_CONNECT_TIMEOUT_S = 'soon'; expected seconds"):
+        zenoh_config.connect_timeout_s()
