@@ -1,37 +1,46 @@
-"""Link models as the scenario names them: the vocabulary netem implements (netem/models.py).
+"""Link models as the scenario names them: the vocabulary netem implements (``netem.linkmodels``).
 
 Each model is a small frozen pydantic model tagged by ``model``; a link carries a
 stack of them (e.g. an outage on top of Bernoulli loss), applied in order. Names
 follow Linux ``tc netem`` where it has one (see ``man tc-netem``).
 Epoch-valued fields are used in lockstep mode, millisecond fields in realtime.
+
+``LinkModelSpec`` is the one list of models: the scenario's tags, ``MODEL_NAMES``
+and ``SPEC_OF`` are read from it. A model's position in it is its kind code in
+netem's keyed draws, so a new model is appended, never inserted (how to add one:
+``netem/linkmodels/__init__.py``).
 """
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 Probability = Annotated[float, Field(ge=0.0, le=1.0)]
 
 
-class _Spec(BaseModel):
+class Spec(BaseModel):
+    """Base of the link model specs; ``model`` is the tag a subclass fixes with a literal."""
+
     model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
 
+    model: str
 
-class Up(_Spec):
+
+class Up(Spec):
     """Always delivers."""
 
     model: Literal["up"] = "up"
 
 
-class Down(_Spec):
+class Down(Spec):
     """Never delivers."""
 
     model: Literal["down"] = "down"
 
 
-class Bernoulli(_Spec):
+class Bernoulli(Spec):
     """Independent loss with probability ``p_loss`` (tc: ``loss random P [CORR]``).
 
     ``correlation`` follows tc netem's old correlated-random reading: the uniform
@@ -43,7 +52,7 @@ class Bernoulli(_Spec):
     correlation: Probability = 0.0
 
 
-class GilbertElliott(_Spec):
+class GilbertElliott(Spec):
     """Two-state Markov loss (tc: ``loss gemodel p [r [1-h [1-k]]]``).
 
     ``p`` = P(good → bad), ``r`` = P(bad → good), ``1-h`` = loss probability in
@@ -57,7 +66,7 @@ class GilbertElliott(_Spec):
     one_minus_k: Probability = Field(0.0, alias="1-k")
 
 
-class Markov4(_Spec):
+class Markov4(Spec):
     """tc netem's four-state loss model (``loss state p13 [p31 [p32 [p23 [p14]]]]``).
 
     States as in Linux ``sch_netem.c``: 1 good reception, 2 burst reception, 3 loss
@@ -81,7 +90,7 @@ class Markov4(_Spec):
         return self
 
 
-class Outage(_Spec):
+class Outage(Spec):
     """Link down from ``start`` (inclusive) to ``end`` (exclusive; None = forever).
 
     With ``every``, the window repeats each ``every`` epochs. ``start_s``/``end_s``
@@ -104,7 +113,7 @@ class Outage(_Spec):
         return self
 
 
-class Delay(_Spec):
+class Delay(Spec):
     """Delay with jitter (tc: ``delay TIME [JITTER [CORR]] distribution DIST``).
 
     Lockstep delays are whole epochs (``epochs`` ± ``jitter_epochs``); realtime
@@ -120,14 +129,14 @@ class Delay(_Spec):
     correlation: Probability = 0.0
 
 
-class Duplicate(_Spec):
+class Duplicate(Spec):
     """Deliver an extra copy with probability ``p`` (tc: ``duplicate P``)."""
 
     model: Literal["duplicate"] = "duplicate"
     p: Probability
 
 
-class Reorder(_Spec):
+class Reorder(Spec):
     """With probability ``p`` a packet skips the delay of the stack (tc: ``reorder P gap N``)."""
 
     model: Literal["reorder"] = "reorder"
@@ -140,7 +149,14 @@ LinkModelSpec = Annotated[
     Field(discriminator="model"),
 ]
 
+SPEC_OF: dict[str, type[Spec]] = {
+    cls.model_fields["model"].default: cls for cls in get_args(get_args(LinkModelSpec)[0])
+}  # tag → spec class, in the union's order
+MODEL_NAMES: tuple[str, ...] = tuple(SPEC_OF)  # a tag's index is its kind code in keyed draws
+
 __all__ = [
+    "MODEL_NAMES",
+    "SPEC_OF",
     "Bernoulli",
     "Delay",
     "Down",
@@ -150,5 +166,6 @@ __all__ = [
     "Markov4",
     "Outage",
     "Reorder",
+    "Spec",
     "Up",
 ]

@@ -12,7 +12,7 @@ import math
 from collections.abc import Sequence
 from functools import cached_property
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args
 
 import numpy as np
 import numpy.typing as npt
@@ -413,36 +413,50 @@ def _problems(s: Scenario) -> list[tuple[str, object, str]]:
     return []
 
 
-def _loc_path(loc: Sequence[int | str]) -> str:
-    out = ""
-    for part in loc:
+def _field_loc(loc: Sequence[int | str]) -> list[int | str]:
+    """``loc`` without pydantic's labels of union members and validators (``"line"``, ``"delay"``).
+
+    A name is kept when a model the path is in has a field or alias of that name, or
+    when it comes last (an unknown key); any other name is a label pydantic added.
+    """
+    models: list[type[BaseModel]] = [Scenario]
+    out: list[int | str] = []
+    for k, part in enumerate(loc):
         if isinstance(part, int):
-            out += f"[{part}]"
-        elif part in _UNION_TAGS:
-            continue  # pydantic names the union member; the user wrote only the field
-        else:
-            out += f".{part}" if out else str(part)
+            out.append(part)
+            continue
+        fields = [f for m in models for n, f in m.model_fields.items() if part in (n, f.alias)]
+        if fields:
+            models = [m for f in fields for m in _models_in(f.annotation)]
+        if fields or k == len(loc) - 1:
+            out.append(part)
     return out
 
 
-_UNION_TAGS = {
-    "static", "line", "circle", "waypoints",
-    "up", "down", "bernoulli", "gilbert_elliott", "markov4", "outage", "delay", "duplicate", "reorder",
-    "function-after[_from_pair(), Edge]", "function-before[_from_pair(), Edge]",
-}  # fmt: skip
+def _models_in(annotation: Any) -> list[type[BaseModel]]:
+    """The models a field's type can hold, through tuples, unions and ``Annotated``."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return [annotation]
+    return [m for arg in get_args(annotation) for m in _models_in(arg)]
+
+
+def _loc_path(loc: Sequence[int | str]) -> str:
+    out = ""
+    for part in _field_loc(loc):
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else part)
+    return out
 
 
 def _lookup(data: Any, loc: Sequence[int | str]) -> object:
     cur = data
-    for part in loc:
+    for part in _field_loc(loc):
         if isinstance(cur, dict) and part in cur:
             cur = cur[part]
             continue
         if isinstance(cur, list | tuple) and isinstance(part, int) and part < len(cur):
             cur = cur[part]
             continue
-        if not (isinstance(part, str) and part in _UNION_TAGS):
-            return NO_VALUE
+        return NO_VALUE
     return cur
 
 
