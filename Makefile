@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 SCENARIO ?= scenarios/paper.toml
 
-.PHONY: run test bench lint typecheck clean
+.PHONY: run test bench lint typecheck architecture clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -16,7 +16,7 @@ $(BIN)/.installed: pyproject.toml
 run: $(BIN)/.installed
 	$(BIN)/formation run $(SCENARIO) --strategy all
 
-test: $(BIN)/.installed lint typecheck
+test: $(BIN)/.installed lint typecheck architecture
 	$(BIN)/pytest -q -p no:cacheprovider
 
 lint: $(BIN)/.installed
@@ -25,6 +25,9 @@ lint: $(BIN)/.installed
 
 typecheck: $(BIN)/.installed
 	$(BIN)/mypy
+
+architecture: $(BIN)/.installed
+	$(BIN)/lint-imports
 
 bench: $(BIN)/.installed
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench

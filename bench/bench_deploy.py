@@ -8,7 +8,7 @@ bench_deploy``). Two measurements, each against a baseline measured in the same 
    with every process a zenoh peer on 127.0.0.1. Compared with the launcher in
    client mode through its router (``formation run``'s default), and with ``formation compose``'s
    services run as processes on their own loopback hosts 127.A.B.N
-   (:mod:`testbed.loopback`), every service a ``client`` of the router: open, closed
+   (:mod:`testbed.deploy.loopback`), every service a ``client`` of the router: open, closed
    (user/password + access control) and closed over TLS. The rate is taken from
    the recording (the recorder's receive times of ``leader/estimate``, epochs 2 to
    E − 2), so every case is timed the same way.
@@ -42,11 +42,11 @@ from formation import keys
 from formation.codec import encode, now_ns
 from formation.messages import CoordinationState
 from formation.scenario import Scenario
-from testbed import security
-from testbed.compose import ComposeOptions, render
-from testbed.launcher import launch
-from testbed.loopback import LoopbackDeployment
-from testbed.processes import ProcessGroup, wait_for_port
+from testbed.deploy import security
+from testbed.deploy.compose import ComposeOptions, render
+from testbed.deploy.loopback import LoopbackDeployment
+from testbed.runtime.launcher import launch
+from testbed.runtime.processes import ProcessGroup, wait_for_port
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / "scenarios" / "paper.toml"
@@ -129,7 +129,7 @@ def one_way_latency_us(work: Path, kind: str, packets: int) -> np.ndarray:
         env["ZENOH_CONFIG"] = str(keyset.router_config)
         pub_conf, sub_conf = keyset.config("agent-1"), keyset.config("agent-2")
     try:
-        group.start("router", "testbed.router", *args, env=env)
+        group.start("router", "testbed.runtime.router", *args, env=env)
         wait_for_port(router, 7447, 10.0)
         sub = zenoh.open(security.client_session_config(f"{endpoint}#bind={dst}:0", sub_conf))
         pub = zenoh.open(security.client_session_config(f"{endpoint}#bind={src}:0", pub_conf))

@@ -24,9 +24,9 @@ from formation.codec import attachment, encode, now_ns
 from formation.messages import CoordinationState
 from formation.scenario import Scenario
 from formation.zenoh_config import session_config
-from testbed.launcher import launch
-from testbed.simulate import simulate
-from testbed.teams import henneberg_team
+from testbed.runtime.launcher import launch
+from testbed.sim.simulate import simulate
+from testbed.sim.teams import henneberg_team
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 1

@@ -1,8 +1,8 @@
 """Sweep throughput: cells per second of ``formation sweep`` against a loop of ``simulate()``.
 
 A cell is one topology × strategy × loss rate × seed run of 200 epochs. The baseline, measured in
-the same run, is a single-process loop of ``testbed.simulate.simulate`` over a sample of the same
-cells (every topology × strategy at loss 0.5). The sweep runs batched (``testbed.batch``) in one
+the same run, is a single-process loop of ``testbed.sim.simulate.simulate`` over a sample of the same
+cells (every topology × strategy at loss 0.5). The sweep runs batched (``testbed.sim.batch``) in one
 process and on two worker processes, from scratch each time. Prints the seed, the load average
 (wall times on a shared machine are loaded; CPU seconds are not) and the time the full default
 sweep (21 loss rates × 4 strategies × 50 seeds × 4 topologies = 16,800 cells) would take at the
@@ -26,8 +26,9 @@ import time
 from pathlib import Path
 
 from formation.scenario import Scenario, StrategyName
-from testbed.simulate import simulate
-from testbed.sweep import SweepSpec, run_sweep, with_loss
+from testbed.experiments.lossy import with_loss
+from testbed.experiments.sweep import SweepSpec, run_sweep
+from testbed.sim.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 1

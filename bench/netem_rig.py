@@ -14,7 +14,7 @@ import zenoh
 from formation import keys
 from formation.scenario import Scenario
 from formation.zenoh_config import session_config
-from testbed.processes import ProcessGroup, free_port, wait_for_port
+from testbed.runtime.processes import ProcessGroup, free_port, wait_for_port
 
 ROOT = Path(__file__).resolve().parents[1]
 RUN = "bench"
@@ -42,7 +42,7 @@ def netem_rig(
         endpoint = f"tcp/127.0.0.1:{port}"
         group = ProcessGroup(Path(tmp) / "logs")
         try:
-            group.start("router", "testbed.router", "--listen", endpoint)
+            group.start("router", "testbed.runtime.router", "--listen", endpoint)
             wait_for_port("127.0.0.1", port, 10)
             extra = ["--passthrough"] if passthrough else []
             netem = group.start("netem", "netem", "--scenario", str(path), "--run-id", RUN, "--mode", "peer",

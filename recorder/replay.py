@@ -225,7 +225,7 @@ class Replayer:
 
 
 def replay(args: Any) -> int:
-    """``formation replay``: the CLI entry (``args`` from :mod:`testbed.recorder_cli`)."""
+    """``formation replay``: the CLI entry (``args`` from :mod:`testbed.cli.recorder`)."""
     from formation.zenoh_config import open_session
 
     replayer = Replayer(

@@ -1,6 +1,6 @@
 """One run as arrays, from a recording or from the in-process simulator, for one report.
 
-:class:`RunData` uses the field names of ``testbed.simulate.SimResult``, so both
+:class:`RunData` uses the field names of ``testbed.sim.simulate.SimResult``, so both
 sources feed :func:`recorder.report.write_report_from`. From a recording
 (:func:`read_run`): true positions from ``agent/<i>/state`` (sender side), the
 leader's output from ``leader/estimate``, link delivery from netem's decisions.

@@ -8,19 +8,18 @@ from pathlib import Path
 from typing import Any
 
 from formation.scenario import Scenario
+from testbed.cli.common import DEFAULT_SCENARIO
+from testbed.deploy.compose import ComposeOptions, render
+from testbed.deploy.security import generate
 
 
 def cmd_compose(args: argparse.Namespace) -> int:
-    from testbed.compose import ComposeOptions, render
-
     options = ComposeOptions(secure=not args.open, tls=args.tls)
     sys.stdout.write(render(args.scenario, options))
     return 0
 
 
 def cmd_keys(args: argparse.Namespace) -> int:
-    from testbed.security import generate
-
     scenario = Scenario.from_file(args.scenario)
     hosts = args.tls_host or ["router"]
     keyset = generate(
@@ -37,8 +36,6 @@ def cmd_keys(args: argparse.Namespace) -> int:
 
 
 def register(sub: Any) -> None:
-    from testbed.cli import DEFAULT_SCENARIO
-
     p = sub.add_parser(
         "compose", help="print compose.yaml for a scenario (one service per process)"
     )

@@ -20,7 +20,11 @@ from rich.table import Table
 
 from formation.errors import TestbedError
 from formation.scenario import Scenario
-from testbed.tables import print_table
+from testbed.cli.common import DEFAULT_SCENARIO, parse_strategies
+from testbed.cli.tables import print_table
+from testbed.experiments.lossy import MODELS
+from testbed.experiments.paper_run import run_paper
+from testbed.experiments.sweep import SweepSpec, critical_table, loss_grid, run_sweep
 
 EXPERIMENTS = ("paper",)
 DEFAULT_TOPOLOGIES = ("ring8", "grid20", "octahedron3d")
@@ -28,8 +32,6 @@ CHAPTER_STRATEGIES = ("zero", "hold", "estimate", "blend")
 
 
 def cmd_experiment(args: argparse.Namespace) -> int:
-    from testbed.experiment import run_paper
-
     if args.name not in EXPERIMENTS:
         raise TestbedError(f"experiment {args.name!r}: expected one of {', '.join(EXPERIMENTS)}")
     console = Console(stderr=True)
@@ -80,14 +82,10 @@ def _topologies(args: argparse.Namespace) -> list[tuple[str, Scenario]]:
 
 
 def _strategy_list(arg: str | None) -> tuple[Any, ...]:
-    from testbed.cli import parse_strategies
-
     return tuple(parse_strategies(arg, CHAPTER_STRATEGIES, {"chapter": CHAPTER_STRATEGIES}))
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from testbed.sweep import MODELS, SweepSpec, critical_table, loss_grid, run_sweep
-
     console = Console(stderr=True)
     topologies = _topologies(args)
     first = topologies[0][1].seed if args.seed is None else args.seed
@@ -138,8 +136,6 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def register(sub: Any) -> None:
-    from testbed.cli import DEFAULT_SCENARIO
-
     p = sub.add_parser(
         "experiment", help="reproduce the chapter's experiment and the studies beyond it"
     )

@@ -14,7 +14,7 @@ from rich.table import Table
 from formation import keys
 from formation.errors import TestbedError
 from formation.zenoh_config import session_config
-from testbed.tables import print_table
+from testbed.cli.tables import print_table
 
 
 def parse_models(words: list[str]) -> list[dict[str, Any]]:

@@ -1,6 +1,6 @@
 """``formation report | info | recover | replay``: the recorder's subcommands.
 
-:func:`register` adds them to the ``formation`` parser (``testbed.cli._EXTRA_COMMANDS``).
+:func:`register` adds them to the ``formation`` parser (:mod:`testbed.cli`).
 Every bad file (missing, empty, not MCAP, truncated) is a ``RecordingError`` naming
 it, which the CLI prints before exiting with 1.
 """
@@ -12,24 +12,24 @@ import json
 from pathlib import Path
 from typing import Any
 
+from rich.console import Console
+from rich.table import Table
+
 from formation import keys, zenoh_config
+from recorder.recording import describe, validate
+from recorder.recover import recover
+from recorder.replay import replay
+from recorder.report import write_reports
+from testbed.cli.tables import print_table
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from recorder.report import write_reports
-
     path = write_reports(args.recordings, args.out)
     print(f"report: {path}")
     return 0
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    from rich.console import Console
-    from rich.table import Table
-
-    from recorder.recording import describe, validate
-    from testbed.tables import print_table
-
     info = describe(args.recording)
     console = Console()
     s = info.scenario
@@ -90,16 +90,12 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def cmd_recover(args: argparse.Namespace) -> int:
-    from recorder.recover import recover
-
     result = recover(args.recording, args.output, args.compression)
     print(result.describe())
     return 0
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from recorder.replay import replay
-
     return replay(args)
 
 

@@ -12,13 +12,13 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from formation.scenario import Scenario
-from testbed.tables import print_table
+from recorder.report import write_report, write_reports
+from testbed.cli.common import add_common, scenario_strategies
+from testbed.cli.tables import print_table
+from testbed.runtime.launcher import launch
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from testbed.cli import _strategies
-    from testbed.launcher import launch
-
     console = Console(stderr=True)
     scenario = Scenario.from_file(args.scenario)
     if args.epochs is not None:
@@ -29,7 +29,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             runtime={"mode": "realtime", "realtime_period_s": period}
         )
     outcomes = []
-    for strategy in _strategies(args.strategy, scenario):
+    for strategy in scenario_strategies(args.strategy, scenario):
         with Progress(
             TextColumn(f"[bold]{strategy}[/]"), BarColumn(), MofNCompleteColumn(),
             TextColumn("{task.fields[rate]:.1f} epochs/s"), TextColumn("drops {task.fields[drops]}"),
@@ -48,8 +48,6 @@ def cmd_run(args: argparse.Namespace) -> int:
             _report(outcome.run_dir, console)
         console.print(f"{strategy}: files in [bold]{outcome.run_dir}[/]")
     if len(outcomes) > 1 and not args.no_record:
-        from recorder.report import write_reports
-
         stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%S")
         compare = Path(args.runs_dir) / f"{scenario.name}-compare-{stamp}"
         report = write_reports([o.run_dir / "run.mcap" for o in outcomes], compare)
@@ -59,10 +57,6 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _report(run_dir: Path, console: Console) -> None:
-    try:
-        from recorder.report import write_report
-    except ImportError:  # the recorder service is optional in a minimal install
-        return
     path = write_report(run_dir / "run.mcap", run_dir)
     console.print(f"report: {path}")
 
@@ -95,10 +89,8 @@ def _print_summary(outcomes: list[Any], console: Console) -> None:
 
 
 def register(sub: Any) -> None:
-    from testbed.cli import _add_common
-
     p = sub.add_parser("run", help="run a scenario as real processes over Zenoh")
-    _add_common(p)
+    add_common(p)
     p.add_argument("--mode", choices=["lockstep", "realtime"], default="lockstep")
     p.add_argument(
         "--period-s",

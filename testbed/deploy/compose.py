@@ -1,7 +1,7 @@
 """``formation compose SCENARIO > compose.yaml``: the deployment of a scenario as Compose services.
 
 One image (the repository's ``Dockerfile``), one service per process of a run:
-``router`` (``python -m testbed.router``), ``recorder``, ``netem``, ``leader``
+``router`` (``python -m testbed.runtime.router``), ``recorder``, ``netem``, ``leader``
 and ``agent-<i>`` for every agent of the scenario. Every service reaches the
 others only through the router, in ``client`` mode, by the service name
 ``router``; nothing names a host address. The scenario file is mounted (a
@@ -9,11 +9,11 @@ Compose config), the run directory is a volume, the run id comes from
 ``RUN_ID`` (default: the scenario's name).
 
 Closed by default: each service gets its own Zenoh config as a Compose secret
-(``formation keys keys/`` writes them; see :mod:`testbed.security`), the router
+(``formation keys keys/`` writes them; see :mod:`testbed.deploy.security`), the router
 checks passwords and enforces access control. ``--open`` leaves both out (a
 trusted network only); ``--tls`` puts the links on TLS (``formation keys --tls``).
 
-The recorder's container runs :mod:`testbed.recording_service`: on
+The recorder's container runs :mod:`testbed.runtime.recording_service`: on
 ``docker compose down`` it finishes ``run.mcap`` and writes ``report.md``.
 """
 
@@ -28,8 +28,8 @@ import yaml
 
 from formation.errors import TestbedError
 from formation.scenario import Scenario
-from testbed import security
-from testbed.processes import SERVICE_ENV
+from testbed.deploy import security
+from testbed.runtime.processes import SERVICE_ENV
 
 ROUTER = "router"
 PORT = 7447
@@ -99,7 +99,7 @@ def document(
         ROUTER: _router(options),
         "recorder": _service(
             options, "recorder",
-            ["python", "-m", "testbed.recording_service", "--report", "--run-id", run_id,
+            ["python", "-m", "testbed.runtime.recording_service", "--report", "--run-id", run_id,
              "--out", f"{RUNS}/{run_id}", "--scenario", str(SCENARIO)],
             extra={"volumes": [f"{RUNS_DIR}:{RUNS}"], "stop_grace_period": STOP_GRACE},
         ),
@@ -142,7 +142,7 @@ def _zenoh_config(options: ComposeOptions) -> dict[str, str]:
 
 
 def _router(options: ComposeOptions) -> dict[str, Any]:
-    command = ["python", "-m", "testbed.router"]
+    command = ["python", "-m", "testbed.runtime.router"]
     secrets_: dict[str, Any] = {}
     if options.secure:
         command += ["--passwords", str(SECRETS / PASSWORDS)]

@@ -35,7 +35,7 @@ from typing import Any
 import yaml
 
 from formation.errors import RuntimeFailure, TestbedError
-from testbed.processes import Child
+from testbed.runtime.processes import Child
 
 _VAR = re.compile(r"\$(?:(\$)|\{(\w+)(?:(:?-)([^}]*))?\}|(\w+))")
 ENDPOINT = re.compile(r"\b(tcp|tls|udp|quic)/([A-Za-z0-9_.\-]+):(\d+)")

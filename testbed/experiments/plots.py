@@ -9,14 +9,11 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 from matplotlib.figure import Figure
-
-if TYPE_CHECKING:
-    from testbed.sweep import SweepSummary
 
 Array = npt.NDArray[np.float64]
 COLOURS = {
@@ -182,41 +179,53 @@ def alpha_curve(
     return _save(fig, path)
 
 
-def phase_plot(summary: SweepSummary, path: Path) -> Path:
-    """Success fraction over loss rate × strategy, one panel per topology and loss model."""
-    spec = summary.spec
-    rows, cols = len(spec.models), len(spec.topologies)
+def phase_plot(
+    success: Mapping[tuple[str, str, str], Array],
+    critical: Mapping[tuple[str, str, str], float | None],
+    losses: Sequence[float],
+    grid: tuple[Sequence[str], Sequence[str], Sequence[str]],
+    threshold_m: float,
+    path: Path,
+) -> Path:
+    """Success fraction over loss rate × strategy, one panel per topology and loss model.
+
+    ``success[(topology, model, strategy)]`` : (L,) fraction of seeds kept at each of ``losses``;
+    ``critical`` the critical rate of each (None: not even the first); ``grid`` is (topologies,
+    models, strategies).
+    """
+    topologies, models, strategies = grid
+    rows, cols = len(models), len(topologies)
     fig = Figure(
-        figsize=(3.6 * cols + 0.8, 0.45 * len(spec.strategies) * rows + 1.4 * rows),
+        figsize=(3.6 * cols + 0.8, 0.45 * len(strategies) * rows + 1.4 * rows),
         layout="constrained",
     )
     axes = fig.subplots(rows, cols, squeeze=False, sharex=True)
-    losses = np.asarray(spec.losses)
-    step = float(np.min(np.diff(losses))) if losses.size > 1 else 0.05
+    xs = np.asarray(losses, dtype=float)
+    step = float(np.min(np.diff(xs))) if xs.size > 1 else 0.05
     image: Any = None
-    for r, model in enumerate(spec.models):
-        for c, (name, _) in enumerate(spec.topologies):
+    for r, model in enumerate(models):
+        for c, name in enumerate(topologies):
             ax = axes[r, c]
-            grid = np.array([summary.success[(name, model, s)] for s in spec.strategies])
+            cells = np.array([success[(name, model, s)] for s in strategies])
             image = ax.imshow(
-                grid,
+                cells,
                 aspect="auto",
                 cmap="viridis",
                 vmin=0.0,
                 vmax=1.0,
                 interpolation="nearest",
                 extent=(
-                    losses[0] - step / 2,
-                    losses[-1] + step / 2,
-                    len(spec.strategies) - 0.5,
+                    xs[0] - step / 2,
+                    xs[-1] + step / 2,
+                    len(strategies) - 0.5,
                     -0.5,
                 ),
             )
-            for i, s in enumerate(spec.strategies):
-                crit = summary.critical[(name, model, s)]
+            for i, s in enumerate(strategies):
+                crit = critical[(name, model, s)]
                 if crit is not None:
                     ax.plot([crit + step / 2] * 2, [i - 0.5, i + 0.5], color="w", lw=2)
-            ax.set_yticks(range(len(spec.strategies)), list(spec.strategies))
+            ax.set_yticks(range(len(strategies)), list(strategies))
             ax.set_title(f"{name}, {model}", fontsize=9)
             if r == rows - 1:
                 ax.set_xlabel("loss rate")
@@ -225,7 +234,7 @@ def phase_plot(summary: SweepSummary, path: Path) -> Path:
             image,
             ax=axes,
             shrink=0.8,
-            label=f"fraction of seeds with shape error < {spec.threshold_m:g} m",
+            label=f"fraction of seeds with shape error < {threshold_m:g} m",
         )
     return _save(fig, path)
 

@@ -12,8 +12,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from testbed.batch import BatchResult
-from testbed.experiment import (
+from testbed.sim.batch import BatchResult
+from testbed.experiments.paper import (
     LOSSY_P,
     SECOND_LINK,
     PaperResults,
@@ -21,7 +21,7 @@ from testbed.experiment import (
     per_seed_trace,
     window_trace,
 )
-from testbed.studies import KEEP_FRACTION, KEEP_M, fmt, mean_std
+from testbed.experiments.studies import KEEP_FRACTION, KEEP_M, fmt, mean_std
 
 
 def _strategy_table(runs: dict[str, BatchResult], epochs_label: str) -> str:

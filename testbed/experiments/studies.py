@@ -9,14 +9,14 @@
 * :func:`dynamic_study`: an agent leaves at epoch ``a`` and another joins at ``b`` (in-process:
   ``plan_batch(active=...)``); the leader's tree and the estimates follow the active team.
 
-Every function runs batches (``testbed.batch``) over seeds and returns a small frozen result with
+Every function runs batches (``testbed.sim.batch``) over seeds and returns a small frozen result with
 a ``markdown()`` table; nothing here writes files.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -25,7 +25,8 @@ import numpy.typing as npt
 from formation.graph import expected_rigidity_rank, is_connected, rigidity_rank
 from formation.scenario import STRATEGIES, Scenario, StrategyName, load_dict
 from recorder.metrics import error_statistics
-from testbed.batch import BatchResult, plan_batch, run_batch
+from testbed.experiments.lossy import with_loss
+from testbed.sim.batch import BatchResult, plan_batch, run_batch
 
 Array = npt.NDArray[np.float64]
 KEEP_M = 0.05  # [m] a run keeps the formation when its final error is under this
@@ -57,13 +58,6 @@ def lossy_links(scenario: Scenario, links: Sequence[tuple[int, int]], p_loss: fl
     net["links"] = [
         {"between": list(p), "models": [{"model": "bernoulli", "p_loss": p_loss}]} for p in links
     ]
-    return scenario.with_overrides(network=net)
-
-
-def all_lossy(scenario: Scenario, p_loss: float) -> Scenario:
-    """Every formation link under Bernoulli loss ``p_loss`` (the scenario's own links replaced)."""
-    net = scenario.network.model_dump(by_alias=True)
-    net.update(formation_default=[{"model": "bernoulli", "p_loss": p_loss}], links=[])
     return scenario.with_overrides(network=net)
 
 
@@ -292,7 +286,7 @@ def alpha_study(
     if a[-1] != 1.0:
         raise ValueError(f"alphas must end with 1.0 (the estimate baseline), got {a[-1]:g}")
     chapter, steady, lossy_sub, lossy_final = [], [], [], []
-    lossy = all_lossy(paper, p_loss)
+    lossy = with_loss(paper, "bernoulli", p_loss)
     plan_long = plan_batch(paper, seeds, long_epochs)
     plan_lossy = plan_batch(lossy, seeds, lossy_epochs)
     for alpha in a.tolist():
@@ -341,8 +335,6 @@ def alpha_study(
 
 def _rebase(plan: Any, scenario: Scenario) -> Any:
     """The same draws with another strategy block (α): the plan's base carries it."""
-    from dataclasses import replace
-
     return replace(plan, base=scenario, scenarios=tuple(scenario for _ in plan.scenarios))
 
 
@@ -436,7 +428,6 @@ __all__ = [
     "ControllerStudy",
     "DynamicStudy",
     "EstimatorStudy",
-    "all_lossy",
     "alpha_study",
     "controller_study",
     "drop_links",

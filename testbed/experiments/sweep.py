@@ -12,7 +12,7 @@ the bad state and mean burst ``β`` epochs (``r = 1/β``, ``p = ρ r / (1 − ρ
 exceeds 1, ``p = 1`` and ``r = (1 − ρ)/ρ``, longer bursts), so ``π_bad = ρ``
 (``netem.models.expected_loss_rate`` checks it).
 
-Runs are batched (``testbed.batch``) in chunks of one topology × model × seed group (every loss
+Runs are batched (``testbed.sim.batch``) in chunks of one topology × model × seed group (every loss
 rate and strategy: the noise is drawn once per seed, the schedules once per rate and seed) and the
 chunks go to a process pool. Every finished chunk is appended to ``runs.csv``; a re-run skips the
 cells already there, and the final CSV and tables are written in a canonical order, so the same
@@ -35,10 +35,11 @@ import numpy as np
 
 from formation.errors import TestbedError
 from formation.scenario import STRATEGIES, Scenario, StrategyName
-from testbed.batch import plan_batch, run_batch
+from testbed.experiments.lossy import MODELS, with_loss
+from testbed.experiments.plots import phase_plot
+from testbed.experiments.studies import KEEP_FRACTION
+from testbed.sim.batch import plan_batch, run_batch
 
-MODELS = ("bernoulli", "gilbert_elliott")
-KEEP_FRACTION = 0.95
 COLUMNS = (
     "topology",
     "model",
@@ -81,37 +82,6 @@ def loss_grid(text: str) -> tuple[float, ...]:
 def loss_label(rate: float) -> str:
     """The loss rate as written in the CSV and the tables (e.g. ``0.05``)."""
     return f"{rate:.6g}"
-
-
-def gilbert_elliott_at(rate: float, burst_epochs: float) -> dict[str, float]:
-    """Gilbert–Elliott parameters with long-run loss ``rate`` and mean burst ``burst_epochs``."""
-    if rate <= 0.0:
-        return {"p": 0.0, "r": 1.0 / burst_epochs}
-    if rate >= 1.0:
-        return {"p": 1.0, "r": 0.0}
-    r = 1.0 / burst_epochs
-    p = rate * r / (1.0 - rate)
-    if p > 1.0:
-        p, r = 1.0, (1.0 - rate) / rate
-    return {"p": p, "r": r}
-
-
-def with_loss(scenario: Scenario, model: str, rate: float, burst_epochs: float = 4.0) -> Scenario:
-    """``scenario`` with every formation link under ``model`` at mean loss ``rate``."""
-    if model == "bernoulli":
-        spec: dict[str, Any] = {"model": "bernoulli", "p_loss": rate}
-    elif model == "gilbert_elliott":
-        spec = {
-            "model": "gilbert_elliott",
-            **gilbert_elliott_at(rate, burst_epochs),
-            "1-h": 1.0,
-            "1-k": 0.0,
-        }
-    else:
-        raise SweepError(f"loss model {model!r}: expected one of {', '.join(MODELS)}")
-    net = scenario.network.model_dump(by_alias=True)
-    net.update(formation_default=[spec], links=[])
-    return scenario.with_overrides(network=net)
 
 
 @dataclass(frozen=True)
@@ -479,27 +449,26 @@ def write_tables(summary: SweepSummary, out_dir: Path) -> None:
     (out_dir / "success.md").write_text(
         "# Fraction of seeds keeping the formation\n" + success_table(summary)
     )
-    from testbed.experiment_plots import phase_plot
-
-    phase_plot(summary, out_dir / "phase.png")
+    names = [n for n, _ in spec.topologies]
+    grid = (names, spec.models, spec.strategies)
+    phase_plot(
+        summary.success, summary.critical, spec.losses, grid, spec.threshold_m, out_dir / "phase.png"
+    )
 
 
 __all__ = [
     "COLUMNS",
-    "MODELS",
     "Chunk",
     "SweepError",
     "SweepSpec",
     "SweepSummary",
     "critical_rate",
     "critical_table",
-    "gilbert_elliott_at",
     "loss_grid",
     "loss_label",
     "read_rows",
     "run_chunk",
     "run_sweep",
     "summarise",
-    "with_loss",
     "write_tables",
 ]

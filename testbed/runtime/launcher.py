@@ -28,7 +28,7 @@ from formation.messages import Status
 from formation.scenario import Scenario, StrategyName
 from formation.zenoh_config import session_config
 from recorder.metrics import formation_error, shape_error
-from testbed.processes import ProcessGroup, free_port, wait_for_port
+from testbed.runtime.processes import ProcessGroup, free_port, wait_for_port
 
 HOST = "127.0.0.1"
 
@@ -276,7 +276,7 @@ def launch(
     session = None
     observer = None
     try:
-        group.start("router", "testbed.router", "--listen", endpoint)
+        group.start("router", "testbed.runtime.router", "--listen", endpoint)
         group.on_start = lambda: _write_atomic(
             run_dir / "pids.json", json.dumps({"endpoint": endpoint, "pids": group.pid_map()})
         )

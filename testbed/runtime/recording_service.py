@@ -1,4 +1,4 @@
-"""``python -m testbed.recording_service --report RECORDER-ARGS``: the recorder as deployed.
+"""``python -m testbed.runtime.recording_service --report RECORDER-ARGS``: the recorder as deployed.
 
 Runs ``python -m recorder`` with the same arguments in this process; when it
 has finished the MCAP file (on SIGTERM, e.g. ``docker compose down``), writes
@@ -18,7 +18,7 @@ from recorder import node
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
-        prog="python -m testbed.recording_service",
+        prog="python -m testbed.runtime.recording_service",
         description=__doc__.split("\n")[0] if __doc__ else None,
         add_help=False,
     )
@@ -28,6 +28,7 @@ def main(argv: list[str] | None = None) -> int:
     code = node.main(rest)
     if code != 0 or not ours.report:
         return code
+    # Imported only now: the recording process starts without matplotlib.
     from recorder.report import write_report
 
     out_dir = Path(args.out or Path("runs") / args.run_id)

@@ -1,9 +1,9 @@
-"""``python -m testbed.router --listen tcp/127.0.0.1:7447``: a Zenoh router of our own.
+"""``python -m testbed.runtime.router --listen tcp/127.0.0.1:7447``: a Zenoh router of our own.
 
 A Zenoh session in ``router`` mode routes between ``client`` sessions; it runs
 until SIGINT/SIGTERM. Used by ``formation run`` and by compose. ``ZENOH_CONFIG``
 may name a JSON5 file loaded first (access control, TLS, the router's own
-credentials, see :mod:`testbed.security`); ``--passwords`` names the
+credentials, see :mod:`testbed.deploy.security`); ``--passwords`` names the
 ``user:password`` file clients authenticate against. ``RUST_LOG`` turns on
 Zenoh's own log.
 """
@@ -21,7 +21,7 @@ from formation import zenoh_config
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m testbed.router", description=__doc__)
+    p = argparse.ArgumentParser(prog="python -m testbed.runtime.router", description=__doc__)
     p.add_argument("--listen", help="endpoints, comma-separated (env ZENOH_LISTEN)")
     p.add_argument("--connect", help="other routers to connect to (env ZENOH_CONNECT)")
     p.add_argument("--passwords", help="user:password file; clients must authenticate (usrpwd)")

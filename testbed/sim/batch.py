@@ -1,13 +1,13 @@
 """The batch simulator: many seeds (and network variants) of one scenario at once, in one process.
 
-:func:`simulate` (``testbed.simulate``) runs one seed epoch by epoch; a sweep needs thousands of
+:func:`simulate` (``testbed.sim.simulate``) runs one seed epoch by epoch; a sweep needs thousands of
 runs. Here the members of a batch (``B`` pairs of a network variant and a seed, all sharing the
 team, graph, controller, reference, noise and estimator) advance together: agents and links of
 every member are flattened into the batch dimension of the agent core
 (:func:`agent.epoch.agent_epoch`, vectorised over any set of links), the links' decisions come
 from netem's :func:`netem.models.delivery_matrix`, the measurement noise from
 :func:`agent.measurement.measurement_noise` (same keys), and the leader (MODEL.md §4–§5) runs
-batched (``testbed.batch_leader``):
+batched (``testbed.sim.batch_leader``):
 
 * **Kruskal** over a fixed edge order ``(w, lo, hi, index)`` (the order of
   ``leader.mst``): the forest is the unique greedy one, so a component-label sweep over the
@@ -19,7 +19,7 @@ batched (``testbed.batch_leader``):
   ``(B, n − 1, n − 1)``: on a tree it equals the path sum of ``leader.blue``, on all healthy
   edges the sparse solve, to rounding.
 
-The results equal :func:`testbed.simulate.simulate` member by member to rounding (tests hold
+The results equal :func:`testbed.sim.simulate.simulate` member by member to rounding (tests hold
 them to 1e-9). Cost: the noise, the schedules and the initial positions do not depend on the
 strategy, so a :class:`BatchPlan` is built once and run for every strategy.
 """
@@ -42,8 +42,8 @@ from formation.scenario import LEADER_ENDPOINT, Scenario, StrategyName
 from leader.rigidity import healthy_rigidity
 from netem.models import delivery_matrix
 from recorder.metrics import formation_error, nees, shape_error
-from testbed.batch_leader import batch_blue, batch_forest, kruskal_order
-from testbed.simulate import SimResult
+from testbed.sim.batch_leader import batch_blue, batch_forest, kruskal_order
+from testbed.sim.simulate import SimResult
 
 Array = npt.NDArray[np.float64]
 Mask = npt.NDArray[np.bool_]
@@ -340,7 +340,7 @@ class BatchResult:
 def run_batch(
     plan: BatchPlan, strategy: StrategyName, *, detail: bool = True, rigidity: bool = True
 ) -> BatchResult:
-    """Run every member of ``plan`` with ``strategy``; mirrors ``testbed.simulate`` step by step.
+    """Run every member of ``plan`` with ``strategy``; mirrors ``testbed.sim.simulate`` step by step.
 
     ``detail`` keeps the leader's per-epoch outputs and the substitutions (``member()`` needs it);
     ``rigidity`` adds the rigidity rank of each healthy subgraph (cached per pattern).

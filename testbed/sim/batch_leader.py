@@ -1,6 +1,6 @@
 """The leader's epoch (MODEL.md §4–§5) for a batch of independent members at once.
 
-Used by ``testbed.batch``; see its docstring for why a component-label sweep gives Kruskal's
+Used by ``testbed.sim.batch``; see its docstring for why a component-label sweep gives Kruskal's
 forest and a dense grounded-Laplacian solve gives the BLUE of ``leader.blue``.
 """
 

@@ -1,6 +1,6 @@
 """compose.yaml as the source of truth: its services as real processes, each on its own host address.
 
-Nothing about the services is written here: :class:`testbed.loopback.LoopbackDeployment`
+Nothing about the services is written here: :class:`testbed.deploy.loopback.LoopbackDeployment`
 parses the file, runs each ``command`` with its ``environment``, maps service names
 to ``127.A.B.N`` and container paths to host files. The network is closed as
 deployed: credentials from ``formation keys``, the router's access control on.
@@ -22,9 +22,9 @@ from mcap.reader import make_reader
 
 from formation import keys
 from formation.scenario import Scenario
-from testbed import security
 from testbed.cli import main as formation
-from testbed.loopback import LoopbackDeployment
+from testbed.deploy import security
+from testbed.deploy.loopback import LoopbackDeployment
 
 pytestmark = pytest.mark.integration
 

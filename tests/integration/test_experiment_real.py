@@ -7,7 +7,8 @@ from pathlib import Path
 import pytest
 
 from formation.scenario import Scenario
-from testbed.experiment import PaperResults, representative_seed, run_real, run_variants
+from testbed.experiments.paper import PaperResults, run_variants
+from testbed.experiments.paper_run import representative_seed, run_real
 
 pytestmark = pytest.mark.integration
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from formation.scenario import STRATEGIES, Scenario
-from testbed.launcher import launch
-from testbed.simulate import simulate
+from testbed.runtime.launcher import launch
+from testbed.sim.simulate import simulate
 
 pytestmark = pytest.mark.integration
 

@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 
 from formation.scenario import Scenario
-from testbed.launcher import launch
-from testbed.netem_cli import ask, parse_models
+from testbed.cli.netem import ask, parse_models
+from testbed.runtime.launcher import launch
 
 pytestmark = pytest.mark.integration
 

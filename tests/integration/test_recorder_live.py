@@ -46,7 +46,7 @@ HOST = "127.0.0.1"
 WAIT_S = 30.0  # longest wait for any readiness [s]
 REPLAY_CLI = (
     "import argparse, sys\n"
-    "from testbed.recorder_cli import register\n"
+    "from testbed.cli.recorder import register\n"
     "p = argparse.ArgumentParser(); register(p.add_subparsers(dest='command'))\n"
     "a = p.parse_args(sys.argv[1:]); sys.exit(a.func(a))\n"
 )
@@ -407,8 +407,8 @@ def test_default_run_report_and_replay_into_a_fresh_leader(
     replayed into a fresh leader under another run id, give the same estimates (same inputs, same outputs)."""
     from recorder.report import FIGURES, write_report
     from recorder.rundata import read_run
-    from testbed.launcher import launch
-    from testbed.simulate import simulate
+    from testbed.runtime.launcher import launch
+    from testbed.sim.simulate import simulate
 
     outcome = launch(paper, strategy="estimate", runs_dir=runs_dir, record=True)
     mcap = outcome.run_dir / "run.mcap"

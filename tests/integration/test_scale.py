@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from formation.scenario import Scenario
-from testbed.launcher import launch
-from testbed.simulate import simulate
-from testbed.teams import henneberg_team
+from testbed.runtime.launcher import launch
+from testbed.sim.simulate import simulate
+from testbed.sim.teams import henneberg_team
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"

@@ -1,6 +1,6 @@
 """The closed network on 127.0.0.1: authentication and access control with `formation keys`' files.
 
-A router (``python -m testbed.router``) with the generated access control and
+A router (``python -m testbed.runtime.router``) with the generated access control and
 password file, a real recorder process with its own credentials, and sessions in
 this process acting as agents, netem, the leader, the operator and intruders.
 Zenoh exposes no counter of the messages its access control refuses (its
@@ -25,8 +25,8 @@ import zenoh
 from mcap.reader import make_reader
 
 from formation import keys
-from testbed import security
-from testbed.processes import ProcessGroup, free_port, wait_for_port
+from testbed.deploy import security
+from testbed.runtime.processes import ProcessGroup, free_port, wait_for_port
 
 pytestmark = pytest.mark.integration
 
@@ -54,7 +54,7 @@ def _start_router(
     port = free_port(HOST)
     endpoint = f"{'tls' if tls else 'tcp'}/{HOST}:{port}"
     group.start(
-        "router", "testbed.router", "--listen", endpoint, "--passwords", str(keyset.passwords_file),
+        "router", "testbed.runtime.router", "--listen", endpoint, "--passwords", str(keyset.passwords_file),
         env={"ZENOH_CONFIG": str(keyset.router_config)},
     )  # fmt: skip
     wait_for_port(HOST, port, 10.0)

@@ -103,7 +103,7 @@ def scene_schema() -> dict[str, Any]:
 @pytest.fixture(scope="session")
 def sim_results() -> dict[str, Any]:
     """The paper scenario simulated with two strategies (seed from the scenario file)."""
-    from testbed.simulate import simulate
+    from testbed.sim.simulate import simulate
 
     s = Scenario.from_file(ROOT / "scenarios" / "paper.toml")
     return {name: simulate(s, strategy=name) for name in ("hold", "estimate")}

@@ -8,24 +8,12 @@ from typing import Any
 
 import pytest
 
-from testbed import cli, recorder_cli
+from testbed import cli
 
 
 @pytest.fixture
-def formation(monkeypatch: pytest.MonkeyPatch) -> Callable[..., int]:
-    """``testbed.cli.main`` with the recorder's subcommands registered (once)."""
-    if hasattr(cli, "_extra_commands"):
-        original = cli._extra_commands
-
-        def extra() -> list[Callable[[Any], None]]:
-            found = original()
-            return found if recorder_cli.register in found else [*found, recorder_cli.register]
-
-        monkeypatch.setattr(cli, "_extra_commands", extra)
-    else:
-        found = list(getattr(cli, "_EXTRA_COMMANDS", []))
-        if recorder_cli.register not in found:
-            monkeypatch.setattr(cli, "_EXTRA_COMMANDS", [*found, recorder_cli.register])
+def formation() -> Callable[..., int]:
+    """``testbed.cli.main``, the recorder's subcommands among its own."""
     return lambda *argv: cli.main([str(a) for a in argv])
 
 

@@ -9,10 +9,10 @@ import pytest
 
 from formation.scenario import STRATEGIES, Scenario
 from leader.mst import minimum_spanning_forest
-from testbed.batch import BatchError, plan_batch, run_batch
-from testbed.batch_leader import batch_forest, kruskal_order
-from testbed.simulate import SimResult, simulate
-from testbed.studies import dynamic_team
+from testbed.experiments.studies import dynamic_team
+from testbed.sim.batch import BatchError, plan_batch, run_batch
+from testbed.sim.batch_leader import batch_forest, kruskal_order
+from testbed.sim.simulate import SimResult, simulate
 
 SCENARIOS = Path(__file__).resolve().parents[3] / "scenarios"
 EPOCHS = 25

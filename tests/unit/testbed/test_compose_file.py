@@ -14,10 +14,10 @@ import zenoh
 from formation import keys
 from formation.errors import TestbedError
 from formation.scenario import Scenario
-from testbed import security
 from testbed.cli import main as formation
-from testbed.compose import ComposeOptions, render
-from testbed.loopback import LoopbackDeployment, interpolate, parse_duration_s
+from testbed.deploy import security
+from testbed.deploy.compose import ComposeOptions, render
+from testbed.deploy.loopback import LoopbackDeployment, interpolate, parse_duration_s
 
 ROOT = Path(__file__).resolve().parents[3]
 COMPOSE = ROOT / "compose.yaml"

@@ -10,14 +10,15 @@ import pytest
 from formation.linkmodels import GilbertElliott
 from formation.scenario import Scenario
 from netem.models import expected_loss_rate
-from testbed import studies
 from testbed.cli import main
-from testbed.experiment import PaperResults, judge, run_paper, run_variants
-from testbed.sweep import (
+from testbed.experiments import studies
+from testbed.experiments.lossy import gilbert_elliott_at
+from testbed.experiments.paper import PaperResults, judge, run_variants
+from testbed.experiments.paper_run import run_paper
+from testbed.experiments.sweep import (
     SweepError,
     SweepSpec,
     critical_rate,
-    gilbert_elliott_at,
     loss_grid,
     read_rows,
     run_sweep,

@@ -7,7 +7,7 @@ import io
 from rich.console import Console
 from rich.table import Table
 
-from testbed.tables import print_table
+from testbed.cli.tables import print_table
 
 
 def _wide_table() -> Table:

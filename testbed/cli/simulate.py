@@ -1,0 +1,39 @@
+"""``formation simulate``: the model in one process, no Zenoh."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+from formation.scenario import Scenario
+from testbed.cli.common import add_common, scenario_strategies
+from testbed.cli.tables import print_summaries
+from testbed.sim.simulate import simulate
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    scenario = Scenario.from_file(args.scenario)
+    if args.epochs is not None:
+        scenario = scenario.with_overrides(epochs=args.epochs)
+    seed = scenario.seed if args.seed is None else args.seed
+    summaries = [
+        simulate(scenario, strategy=s, seed=seed).summary()
+        for s in scenario_strategies(args.strategy, scenario)
+    ]
+    for s in summaries:
+        s["scenario_file"] = str(args.scenario)
+    if args.json:
+        json.dump(summaries, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        print_summaries(summaries, title=f"formation simulate {args.scenario} (seed {seed})")
+    return 0
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("simulate", help="run the model in one process (no Zenoh)")
+    add_common(p)
+    p.add_argument("--json", action="store_true", help="print the summaries as JSON")
+    p.set_defaults(func=cmd_simulate)

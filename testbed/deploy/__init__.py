@@ -1,0 +1,1 @@
+"""Deployment: the compose file, credentials and access control."""

@@ -1,0 +1,1 @@
+"""Real processes on one machine: the launcher, process groups, the Zenoh router, the recording service."""
