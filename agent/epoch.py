@@ -12,8 +12,8 @@ import numpy as np
 import numpy.typing as npt
 
 from agent.control import displacement_command, distance_command, step_double, step_single
-from agent.strategies import LinkMemory, StrategyName, Substitution, substitute
-from formation.scenario import Scenario
+from agent.strategies import LinkMemory, Substitution, substitute
+from formation.scenario import Scenario, StrategyName
 
 Array = npt.NDArray[np.float64]
 Mask = npt.NDArray[np.bool_]

@@ -13,9 +13,9 @@ import numpy.typing as npt
 
 from agent.epoch import InLinks, agent_epoch
 from agent.measurement import NoiseKeys, relative_measurement
-from agent.strategies import LinkMemory, StrategyName
+from agent.strategies import LinkMemory
 from formation.reference import reference_positions
-from formation.scenario import Scenario
+from formation.scenario import Scenario, StrategyName
 
 Array = npt.NDArray[np.float64]
 Report = list[tuple[int, int, list[float] | None]]  # (neighbour, token, z_ij) per in-link

@@ -8,14 +8,14 @@ new memory rather than changing the old one.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
 
+from formation.scenario import StrategyName
+
 Array = npt.NDArray[np.float64]
 Mask = npt.NDArray[np.bool_]
-StrategyName = Literal["zero", "hold", "estimate", "blend", "drop"]
 
 
 @dataclass(frozen=True)

@@ -93,10 +93,10 @@ def recorder_writer(
     msgs: list[tuple[str, bytes, bytes]], compression: str = "zstd"
 ) -> tuple[float, int]:
     """The recorder's writer fed batches of 1,000 samples; returns (msg/s, bytes)."""
-    from recorder.writer import Recording
+    from recorder.writer import RecordingWriter
 
     buf = io.BytesIO()
-    rec = Recording(buf, compression=compression, fsync_interval_s=None)
+    rec = RecordingWriter(buf, compression=compression, fsync_interval_s=None)
     raw = [(key, data, att, None, 10**18 + n) for n, (key, data, att) in enumerate(msgs)]
     t0 = time.perf_counter()
     for start in range(0, len(raw), 1000):

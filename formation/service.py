@@ -1,7 +1,8 @@
 """The shell every service shares: a Zenoh session, liveliness, the start barrier, signals.
 
-Incoming samples go into one queue that the service's main thread drains, so
-node logic runs single-threaded and in arrival order.
+Incoming samples go into one queue that the service's main thread drains, in arrival
+order; or, when a node sets :attr:`Service.inline`, they are handled on Zenoh's
+receiving thread under :attr:`Service.inline_lock`. Either way one handler runs at a time.
 """
 
 from __future__ import annotations
@@ -233,10 +234,6 @@ class Service:
     def is_alive(self, role: str, ident: int | str) -> bool:
         with self._alive_lock:
             return keys.alive(self.run_id, role, ident) in self._alive
-
-    def alive_keys(self) -> set[str]:
-        with self._alive_lock:
-            return set(self._alive)
 
     def wait_started(self) -> bool:
         """Block until netem declares the start token; False when stopped.

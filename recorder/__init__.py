@@ -10,10 +10,10 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from recorder.metrics import error_statistics, formation_error, longest_run, nees, shape_error
-from recorder.recording import RecordingInfo, describe, validate
+from recorder.reader import RecordingInfo, describe, validate
 from recorder.recover import Recovered, recover
 from recorder.rundata import RunData, read_run
-from recorder.writer import Recording
+from recorder.writer import RecordingWriter
 
 if TYPE_CHECKING:
     from recorder.report import write_report, write_report_from
@@ -30,8 +30,8 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = [
-    "Recording",
     "RecordingInfo",
+    "RecordingWriter",
     "Recovered",
     "RunData",
     "describe",

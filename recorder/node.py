@@ -2,7 +2,7 @@
 
 Zenoh callbacks only append the raw sample ``(key, payload, attachment, timestamp,
 receive time)`` to a list under a lock; a writer thread swaps the list out every
-few milliseconds and writes the batch (:class:`recorder.writer.Recording`). Nothing
+few milliseconds and writes the batch (:class:`recorder.writer.RecordingWriter`). Nothing
 is parsed on the way except the agents' states and the leader's estimates, which
 feed the per-epoch metrics and the Foxglove scene when ``--scenario`` is given.
 If the queue reaches ``--max-queue`` messages the sample is counted per key, never
@@ -46,7 +46,7 @@ from formation.scenario import Scenario
 from recorder.display import Display
 from recorder.epochs import EpochAssembler
 from recorder.schemas import LivelinessEvent
-from recorder.writer import COMPRESSIONS, Raw, Recording
+from recorder.writer import COMPRESSIONS, Raw, RecordingWriter
 
 log = logging.getLogger("recorder")
 StatusState = Literal["ready", "running", "done", "error"]
@@ -118,7 +118,7 @@ class Recorder:
             resolved = self.out_dir / "scenario.toml"
             if not resolved.exists():
                 resolved.write_text(toml, encoding="utf-8")
-        self.recording = Recording(
+        self.recording = RecordingWriter(
             self.out_dir / args.file,
             compression=compression,
             chunk_size=args.chunk_size,

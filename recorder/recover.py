@@ -18,7 +18,7 @@ from mcap.records import Channel, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
 from formation.errors import RecordingError
-from recorder.recording import check_head
+from recorder.reader import check_head
 from recorder.schemas import SchemaSpec
 from recorder.writer import MAGIC, McapFile
 

@@ -27,7 +27,7 @@ import zenoh
 
 from formation import codec, keys
 from formation.errors import TestbedError
-from recorder.recording import iter_messages, open_recording
+from recorder.reader import iter_messages, open_recording
 from recorder.schemas import classify, run_id_of
 
 SKIP = frozenset({"alive"})  # channel kinds never replayed

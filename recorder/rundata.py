@@ -22,7 +22,7 @@ from formation.errors import RecordingError
 from formation.scenario import Scenario
 from recorder.epochs import edge_mask
 from recorder.metrics import formation_error, nees, shape_error
-from recorder.recording import iter_messages, metadata, open_recording, parts, scenario_of
+from recorder.reader import iter_messages, metadata, open_recording, parts, scenario_of
 from recorder.schemas import classify
 
 Array = npt.NDArray[np.float64]

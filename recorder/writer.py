@@ -253,7 +253,7 @@ def rotated_path(path: Path, index: int) -> Path:
     return path if index == 0 else path.with_name(f"{path.stem}-{index:03d}{path.suffix}")
 
 
-class Recording:
+class RecordingWriter:
     """A recording of keyed JSON payloads into one MCAP file or a rotated series of them.
 
     Channels are created on first sight of a key and keep their ids across files;
@@ -438,4 +438,4 @@ class Recording:
         return list(self.files)
 
 
-__all__ = ["COMPRESSIONS", "MAGIC", "McapFile", "Raw", "Recording", "rotated_path"]
+__all__ = ["COMPRESSIONS", "MAGIC", "McapFile", "Raw", "RecordingWriter", "rotated_path"]

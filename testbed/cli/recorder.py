@@ -16,7 +16,7 @@ from rich.console import Console
 from rich.table import Table
 
 from formation import keys, zenoh_config
-from recorder.recording import describe, validate
+from recorder.reader import describe, validate
 from recorder.recover import recover
 from recorder.replay import replay
 from recorder.report import write_reports

@@ -35,10 +35,10 @@ from formation.errors import RecordingError
 from formation.messages import CoordinationState, Decision, DecisionBatch, Status
 from formation.scenario import Scenario
 from formation.zenoh_config import session_config
-from recorder.recording import describe, validate
+from recorder.reader import describe, validate
 from recorder.recover import recover
 from recorder.replay import control_key
-from recorder.writer import Recording
+from recorder.writer import RecordingWriter
 
 pytestmark = pytest.mark.integration
 ROOT = Path(__file__).resolve().parents[2]
@@ -314,7 +314,7 @@ def test_kill_9_loses_at_most_the_open_chunk(tmp_path: Path) -> None:
 def test_replay_publishes_the_recording_and_obeys_its_queryable(tmp_path: Path) -> None:
     """20 recorded states 50 ms apart, replayed at rate 2 under a new prefix, started by ``resume``."""
     path, log = tmp_path / "run.mcap", tmp_path / "replay.log"
-    rec = Recording(path)
+    rec = RecordingWriter(path)
     for k in range(20):
         rec.write(
             keys.agent_state("orig", 1 + k % 2),

@@ -14,7 +14,7 @@ from formation.codec import attachment, encode
 from formation.messages import CoordinationState, Decision, DecisionBatch, LeaderEstimate
 from formation.scenario import Scenario
 from recorder.epochs import EpochAssembler
-from recorder.writer import Recording
+from recorder.writer import RecordingWriter
 
 ROOT = Path(__file__).resolve().parents[3]
 SHARED = ROOT.parent / "shared"
@@ -70,12 +70,12 @@ def traffic(result: Any) -> list[tuple[str, bytes, bytes | None, int]]:
 def write_synthetic(path: Path, result: Any, **options: Any) -> dict[str, int]:
     """Record ``traffic(result)`` as the recorder would (with metrics and scene); counts per key.
 
-    ``options`` go to :class:`Recording` (e.g. ``split_size``).
+    ``options`` go to :class:`RecordingWriter` (e.g. ``split_size``).
     """
     s = result.scenario
     meta = {"scenario": {"name": s.name, "toml": s.to_toml()}}
     options = {"chunk_size": 64 * 1024, **options}
-    rec = Recording(path, metadata=meta, taps=("agent_state", "leader_estimate"), **options)
+    rec = RecordingWriter(path, metadata=meta, taps=("agent_state", "leader_estimate"), **options)
     asm = EpochAssembler(s, RUN, clock=lambda: 0)
     for key, data, att, t in traffic(result):
         for kind, k_, d_, recv in rec.write_batch([(key, data, att, None, t)]):

@@ -9,7 +9,7 @@ from mcap.reader import make_reader
 
 from formation.errors import RecordingError
 from recorder.recover import recover
-from recorder.writer import McapFile, Recording
+from recorder.writer import McapFile, RecordingWriter
 
 N_CHUNKS, PER_CHUNK = 6, 40
 
@@ -20,7 +20,7 @@ def write_chunks(path: Path, compression: str) -> list[tuple[int, int]]:
     A chunk is complete when its record is: the message indexes after it are not needed.
     """
     marks = []
-    rec = Recording(path, compression=compression, chunk_size=1 << 30, fsync_interval_s=None)
+    rec = RecordingWriter(path, compression=compression, chunk_size=1 << 30, fsync_interval_s=None)
     f: McapFile = rec._file
     for c in range(N_CHUNKS):
         rec.write_batch(

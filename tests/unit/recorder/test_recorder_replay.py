@@ -13,7 +13,7 @@ from formation.codec import attachment, encode, read_attachment
 from formation.errors import TestbedError
 from formation.messages import CoordinationState
 from recorder.replay import Replayer, rebuild_attachment
-from recorder.writer import Recording
+from recorder.writer import RecordingWriter
 
 RUN = "rp"
 GAP_NS = 100_000_000  # 0.1 s between recorded messages
@@ -29,7 +29,7 @@ def state(i: int, k: int) -> bytes:
 @pytest.fixture
 def recording(tmp_path: Path) -> Path:
     path = tmp_path / "run.mcap"
-    rec = Recording(path)
+    rec = RecordingWriter(path)
     for k in range(10):
         rec.write(keys.agent_state(RUN, 1 + k % 2), state(1 + k % 2, k), 10**12 + k * GAP_NS)
     rec.write(keys.alive(RUN, "agent", 1), b'{"alive": true}', 10**12)

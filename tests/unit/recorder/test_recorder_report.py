@@ -14,7 +14,7 @@ from formation.errors import RecordingError
 from recorder.metrics import error_statistics, formation_error, shape_error
 from recorder.report import FIGURES, summarize, write_report, write_report_from
 from recorder.rundata import RunData, read_run
-from recorder.writer import Recording
+from recorder.writer import RecordingWriter
 
 
 def finite_equal(a: np.ndarray, b: np.ndarray) -> bool:
@@ -120,7 +120,7 @@ def test_summary_of_a_run_without_data(sim_results: dict[str, Any]) -> None:
 
 def test_report_needs_the_scenario(tmp_path: Path) -> None:
     path = tmp_path / "plain.mcap"
-    rec = Recording(path)
+    rec = RecordingWriter(path)
     rec.write("x/y", b"{}", 1)
     rec.close()
     with pytest.raises(RecordingError, match=r"plain\.mcap: no scenario in the metadata"):

@@ -18,7 +18,7 @@ from mcap.stream_reader import StreamReader
 from formation import keys
 from formation.codec import attachment
 from recorder.schemas import foxglove_schema
-from recorder.writer import Recording, rotated_path
+from recorder.writer import RecordingWriter, rotated_path
 
 RUN = "r1"
 KEYS = [keys.agent_state(RUN, 1), keys.agent_state(RUN, 2), keys.netem_decision(RUN), "elsewhere/x"]
@@ -37,7 +37,7 @@ def batch(count: int, start: int = 0) -> list[tuple[str, bytes, bytes | None, No
 @pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
 def test_round_trip_through_bytesio(compression: str) -> None:
     buf = io.BytesIO()
-    rec = Recording(
+    rec = RecordingWriter(
         buf, compression=compression, chunk_size=2048, metadata={"scenario": {"toml": "a = 1"}}
     )
     sent = batch(500)
@@ -76,7 +76,7 @@ def test_round_trip_through_bytesio(compression: str) -> None:
 
 def test_every_message_index_points_at_its_message() -> None:
     buf = io.BytesIO()
-    rec = Recording(buf, compression="zstd", chunk_size=4096)
+    rec = RecordingWriter(buf, compression="zstd", chunk_size=4096)
     rec.write_batch(batch(300))
     rec.close()
     buf.seek(0)
@@ -104,7 +104,7 @@ def test_every_message_index_points_at_its_message() -> None:
 
 def test_stream_and_non_seeking_readers_agree() -> None:
     buf = io.BytesIO()
-    rec = Recording(buf, chunk_size=1000)
+    rec = RecordingWriter(buf, chunk_size=1000)
     rec.write_batch(batch(200))
     rec.close()
     buf.seek(0)
@@ -128,7 +128,7 @@ def readable_messages(data: bytes) -> list[Message]:
 
 def test_a_chunk_open_too_long_is_written_on_tick() -> None:
     buf = io.BytesIO()
-    rec = Recording(buf, chunk_size=1 << 20, chunk_interval_s=0.5, fsync_interval_s=None)
+    rec = RecordingWriter(buf, chunk_size=1 << 20, chunk_interval_s=0.5, fsync_interval_s=None)
     rec.write_batch(batch(10))
     rec.tick(0)  # the chunk is first seen open now
     rec.tick(400_000_000)
@@ -140,7 +140,7 @@ def test_a_chunk_open_too_long_is_written_on_tick() -> None:
 def test_rotation_by_size_repeats_schemas_channels_and_scenario(tmp_path: Path) -> None:
     path = tmp_path / "run.mcap"
     meta = {"scenario": {"toml": "name = 'x'"}}
-    rec = Recording(path, chunk_size=2000, split_size=6000, metadata=meta)
+    rec = RecordingWriter(path, chunk_size=2000, split_size=6000, metadata=meta)
     sent = batch(1200)
     rec.write_batch(sent)
     files = rec.close()
@@ -161,7 +161,7 @@ def test_rotation_by_size_repeats_schemas_channels_and_scenario(tmp_path: Path) 
 
 
 def test_rotation_by_duration(tmp_path: Path) -> None:
-    rec = Recording(tmp_path / "run.mcap", split_duration_s=1.0, fsync_interval_s=None)
+    rec = RecordingWriter(tmp_path / "run.mcap", split_duration_s=1.0, fsync_interval_s=None)
     rec.write_batch(batch(10))
     rec.tick(rec._file_opened + 999_000_000)
     assert len(rec.files) == 1
@@ -178,7 +178,7 @@ def test_rotation_by_duration(tmp_path: Path) -> None:
 
 def test_scene_channel_gets_the_foxglove_schema_file() -> None:
     buf = io.BytesIO()
-    rec = Recording(buf)
+    rec = RecordingWriter(buf)
     rec.write(keys.scene(RUN), b'{"deletions": [], "entities": []}', 5)
     rec.close()
     buf.seek(0)
@@ -191,7 +191,7 @@ def test_scene_channel_gets_the_foxglove_schema_file() -> None:
 
 
 def test_live_counts_include_the_open_chunk() -> None:
-    rec = Recording(io.BytesIO(), chunk_size=1500)
+    rec = RecordingWriter(io.BytesIO(), chunk_size=1500)
     rec.write_batch(batch(100))
     counts = rec.counts()
     assert sum(counts.values()) == 100
@@ -201,4 +201,4 @@ def test_live_counts_include_the_open_chunk() -> None:
 
 def test_unknown_compression_is_refused() -> None:
     with pytest.raises(ValueError, match="compression 'brotli'; expected one of zstd, lz4, none"):
-        Recording(io.BytesIO(), compression="brotli")
+        RecordingWriter(io.BytesIO(), compression="brotli")

@@ -10,8 +10,8 @@ import pytest
 
 from formation import keys
 from formation.errors import RecordingError
-from recorder.recording import check_file, describe, validate
-from recorder.writer import Recording
+from recorder.reader import check_file, describe, validate
+from recorder.writer import RecordingWriter
 
 RUN = "synthetic"  # the run id of conftest's synthetic recordings
 
@@ -81,7 +81,7 @@ def test_every_message_validates_against_its_stored_schema(good: Path) -> None:
 
 def test_validation_reports_a_bad_message(tmp_path: Path) -> None:
     path = tmp_path / "bad.mcap"
-    rec = Recording(path)
+    rec = RecordingWriter(path)
     rec.write(keys.agent_state(RUN, 1), b'{"kind": "state", "agent": "one"}', 1)
     rec.write(keys.control(RUN), b"not json", 2)
     rec.write("free/form", b'{"anything": [1, 2]}', 3)
