@@ -5,23 +5,27 @@ so a packet only joins its receivers' deliveries and its ``(stream, seq)`` is ke
 Whether an epoch is clean depends only on the links' models, so it is computed
 ahead, vectorised, for a block of epochs, together with each stream's records as a
 template that needs only the epoch and the seq. If something else happens in the
-middle of a clean epoch (an agent dies), the node turns what was kept into its
-per-receiver records (``records``).
+middle of a clean epoch (an agent dies, a packet is held), :meth:`CleanEpochs.go_slow`
+hands what was kept to the lockstep core, which turns it into per-packet records
+(``records``) and open epochs.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
+from formation.scenario import LEADER_ENDPOINT
+from netem.links import Link, Links, Phase
 from netem.models import LinkModel
-from netem.records import Record, record_head, record_tail
+from netem.records import Record, packet_json, record_head, record_tail
 from netem.stack import Decision
 
-Link = tuple[str, int, int]  # (link class, source, target)
+Deliver = Callable[[int, int, list[bytes]], None]  # (receiver, epoch, its packets)
 
 
 class Stream(NamedTuple):
@@ -32,6 +36,16 @@ class Stream(NamedTuple):
     models: tuple[LinkModel, ...]
 
 
+@dataclass
+class Gathering:
+    """A clean epoch whose packets are coming: who sent, who got its delivery."""
+
+    seqs: dict[int, int] = field(default_factory=dict)  # stream → seq of its packet
+    packets: dict[int, bytes] = field(default_factory=dict)  # stream → its packet, encoded
+    waiting: dict[int, list[bytes]] = field(default_factory=dict)  # receiver → packets so far
+    delivered: set[int] = field(default_factory=set)  # receivers whose delivery went out
+
+
 class CleanEpochs:
     """One phase's streams, its clean epochs and the records of those epochs."""
 
@@ -39,10 +53,7 @@ class CleanEpochs:
         self.streams = streams
         self.need = need  # receiver → packets it gets in a clean epoch (one per sender)
         self.expected = len(streams)  # packets per epoch: one per stream
-        self.pending: dict[int, dict[int, int]] = {}  # epoch → stream → seq, taken
-        # epoch → receiver → its packets so far, or an empty marker list once delivered
-        self.gather: dict[int, dict[int, list[Any]]] = {}
-        self.encoded: dict[int, dict[int, bytes]] = {}  # epoch → stream → its packet, encoded
+        self.gathering: dict[int, Gathering] = {}  # epoch → its packets so far
         self.done: set[int] = set()  # epochs finished here: no receiver has anything open
         self.slow: set[int] = set()  # epochs the node handles packet by packet
         self.receivers = {sid: s.receivers for sid, s in streams.items()}
@@ -73,6 +84,41 @@ class CleanEpochs:
         """``epoch`` is handled packet by packet from now on (it counts as not clean)."""
         self.slow.add(epoch)
         self.flags[epoch] = False
+
+    def take(self, stream: int, epoch: int, seq: int, payload: Any, deliver: Deliver) -> bool:
+        """Add ``stream``'s packet to its receivers' deliveries of clean ``epoch``.
+
+        ``deliver`` gets each receiver whose senders' packets are all here. True when
+        this was the epoch's last packet: its records are then in :attr:`chunks`.
+        A second packet of one stream's epoch (not one of ours) is ignored.
+        """
+        g = self.gathering.get(epoch)
+        if g is None:
+            g = self.gathering[epoch] = Gathering()
+        elif stream in g.seqs:
+            return False
+        g.seqs[stream] = seq
+        packet = g.packets[stream] = packet_json(stream, seq, epoch, 1, payload)
+        waiting, need = g.waiting, self.need
+        for r in self.receivers[stream]:
+            got = waiting.get(r)
+            if got is None:
+                got = waiting[r] = []
+            got.append(packet)
+            if len(got) >= need[r]:
+                del waiting[r]
+                g.delivered.add(r)
+                deliver(r, epoch, got)
+        if len(g.seqs) < self.expected:
+            return False
+        del self.gathering[epoch]
+        self.finish(epoch, g.seqs)
+        return True
+
+    def go_slow(self, epoch: int) -> Gathering | None:
+        """``epoch`` takes the full path from now on: what it gathered so far, if anything."""
+        self.mark_slow(epoch)
+        return self.gathering.pop(epoch, None)
 
     def finish(self, epoch: int, got: dict[int, int]) -> None:
         """Every stream's packet of clean ``epoch`` went out: encode their records."""
@@ -160,3 +206,23 @@ class CleanEpochs:
                 self.flags[e] = False
         self._blocks[k] = templates
         return templates
+
+
+def clean_epochs(links: Links) -> dict[Phase, CleanEpochs]:
+    """Each phase's streams: an agent's states fan out on its out-links, a report goes to
+    the leader, the leader's estimate for ``i`` to ``i``."""
+
+    def stream(chosen: list[Link]) -> Stream:
+        models = tuple(links.models[link] for link in chosen)
+        return Stream(tuple(chosen), tuple(dst for _, _, dst in chosen), models)
+
+    agents, out_links, in_links = links.agents, links.out_links, links.in_links
+    return {
+        "state": CleanEpochs({
+            s: stream([("formation", s, d) for d in out_links[s]]) for s in agents if out_links[s]
+        }, {j: len(in_links[j]) for j in agents}),
+        "report": CleanEpochs({s: stream([("report", s, LEADER_ENDPOINT)]) for s in agents},
+                              {LEADER_ENDPOINT: len(agents)}),
+        "estimate": CleanEpochs({d: stream([("estimate", LEADER_ENDPOINT, d)]) for d in agents},
+                                dict.fromkeys(agents, 1)),
+    }  # fmt: skip

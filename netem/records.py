@@ -4,21 +4,35 @@ netem takes one decision per packet; building a ``Decision`` and ``DeliveredPack
 per packet cost more than the forwarding itself. The hot path keeps plain tuples,
 and these functions encode a whole batch or delivery at once with orjson. The JSON is
 exactly what :class:`~formation.messages.DecisionBatch` and
-:class:`~formation.messages.Delivery` validate (the tests parse it with them).
+:class:`~formation.messages.Delivery` validate (the tests parse it with them). The
+:class:`Ledger` keeps the records until their batch goes out, and counts what was forwarded.
 """
 
 from __future__ import annotations
 
+from collections import Counter, defaultdict
 from collections.abc import Iterable
 from typing import Any
 
 import orjson
 
+from netem.links import Link, Phase
 from netem.stack import Decision as ModelDecision
 
 # One decision on one packet, as the hot path keeps it (a plain tuple: built per packet):
 # (source, target, link class, epoch, seq, the model's decision).
 Record = tuple[int, int, str, int, int, ModelDecision]
+
+
+class Ledger:
+    """What netem decided and forwarded: records not yet published, packets per link.
+
+    A node has one, which its lockstep and realtime paths both write to.
+    """
+
+    def __init__(self) -> None:
+        self.decisions: defaultdict[tuple[Phase, int], list[Record]] = defaultdict(list)
+        self.forwarded: Counter[Link] = Counter()  # packets delivered per link
 
 
 def _decision_json(d: ModelDecision) -> bytes:

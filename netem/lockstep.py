@@ -1,0 +1,282 @@
+"""netem's lockstep as pure logic: packets and deaths in, deliveries and records out.
+
+ARCHITECTURE.md "Time": for each packet netem asks the link's model (keyed by seed,
+link and epoch, so any process gets the same verdict). Once every live sender's
+epoch-``k`` packet into a receiver is handled, that receiver gets one delivery of the
+phase with the payloads passed, unparsed: the delivery is also the epoch's close.
+Epochs into a receiver close in order. Delays are whole epochs: a delayed packet is
+held and goes out with a later epoch's delivery. Once every receiver of a phase's
+epoch is closed, that epoch's decision records go out in one batch.
+
+An epoch in which every link of the phase passes takes the clean path
+(:mod:`netem.clean`): no per-packet decision, records spliced from templates and
+published together (:meth:`Lockstep.flush_clean`).
+
+:class:`Lockstep` has no network, clock or thread: the node calls it under its lock
+and publishes what it hands to the :class:`Outbox`, in the order it hands it.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import defaultdict
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from formation.scenario import LEADER_ENDPOINT
+from netem.clean import CleanEpochs, Deliver, clean_epochs
+from netem.links import Link, LinkClass, Links, Phase, Route
+from netem.progress import Progress
+from netem.records import Ledger, Record, packet_json
+
+log = logging.getLogger("netem")
+# Clean epochs' records go out together: one batch per this many epochs' records (and at
+# least every loop wake-up of the node's main thread, 0.2 s), instead of one per epoch.
+FLUSH_CHUNKS = 64  # epochs
+
+
+class Outbox(Protocol):
+    """Where the core's outputs go; the node publishes each as it comes."""
+
+    def deliver(self, phase: Phase, receiver: int, epoch: int, packets: list[bytes],
+                lost: list[int], dead: list[int]) -> None:  # fmt: skip
+        """``receiver``'s delivery of ``phase`` and ``epoch`` (its close)."""
+
+    def records(self, phase: Phase, epoch: int, records: list[Record]) -> None:
+        """The decision records of ``epoch`` of ``phase``, every receiver of it closed."""
+
+    def clean_records(self, phase: Phase, last_epoch: int, chunks: list[bytes]) -> None:
+        """Records of clean epochs, encoded (:meth:`netem.clean.CleanEpochs.finish`)."""
+
+
+@dataclass
+class Held:
+    """A packet held for a later epoch (delay), delivered with that epoch's packets."""
+
+    link: Link
+    copies: int
+    packet: bytes  # encoded by packet_json, with its sent epoch
+
+
+@dataclass
+class OpenEpoch:
+    """An epoch of one phase into one receiver, not yet closed."""
+
+    handled: set[int] = field(default_factory=set)
+    packets: list[bytes] = field(default_factory=list)  # each encoded by packet_json
+    lost: list[int] = field(default_factory=list)
+
+
+class Lockstep:
+    """The lockstep state machine of one run: every phase, receiver and epoch."""
+
+    def __init__(self, links: Links, epochs: int, progress: Progress, ledger: Ledger,
+                 outbox: Outbox) -> None:  # fmt: skip
+        self.links, self.epochs = links, epochs
+        self.progress, self.ledger, self.outbox = progress, ledger, outbox
+        self.open: dict[tuple[Phase, int, int], OpenEpoch] = {}  # (phase, receiver, epoch)
+        self.held: dict[tuple[Phase, int, int], list[Held]] = defaultdict(list)
+        self.next_close: dict[tuple[Phase, int], int] = defaultdict(int)
+        self.closed_count: dict[tuple[Phase, int], int] = defaultdict(int)
+        self.clean: dict[Phase, CleanEpochs] = {}  # none until setup_clean
+        self._clean_deliver: dict[Phase, Deliver] = {}
+        self.dead: set[int] = set()
+
+    def setup_clean(self) -> None:
+        """Take clean epochs on the clean path from now on."""
+        self.clean = clean_epochs(self.links)
+        self._clean_deliver = {phase: self._clean_delivery(phase) for phase in self.clean}
+
+    # -- events in ----------------------------------------------------------------------------
+    def packet(self, route: Route, epoch: int, seq: int, payload: Any) -> None:
+        """A sender's packet of ``epoch`` on ``route``, its seq and payload (bytes or ZBytes)."""
+        kind, source, _ = route
+        links, dead = self.links, self.dead
+        if kind == "state":
+            progress = self.progress
+            if epoch > progress.epoch_seen:
+                progress.epoch_seen = epoch
+            if epoch >= self.epochs:
+                progress.final_state(source)
+                return
+            if self._forward_clean("state", source, epoch, seq, payload):
+                return
+            for dst in links.out_links[source]:
+                if dst in dead:
+                    continue
+                box = self._route_packet("state", "formation", source, dst, payload, epoch, seq)
+                if self._all_handled(box, links.in_links[dst]):  # else nothing can close yet
+                    self._try_close("state", dst)
+        elif kind == "report":
+            if self._forward_clean("report", source, epoch, seq, payload):
+                return
+            box = self._route_packet(
+                "report", "report", source, LEADER_ENDPOINT, payload, epoch, seq
+            )
+            if self._all_handled(box, links.agents):
+                self._try_close("report", LEADER_ENDPOINT)
+        else:
+            dst = route[2]
+            if self._forward_clean("estimate", dst, epoch, seq, payload):
+                pass
+            elif dst not in dead:
+                self._route_packet(
+                    "estimate", "estimate", LEADER_ENDPOINT, dst, payload, epoch, seq
+                )
+                self._try_close("estimate", dst)
+            self.progress.estimate_handled(epoch)
+
+    def sender_died(self, agent: int) -> None:
+        """``agent`` is gone: its packets count as lost, and nobody waits for them."""
+        if agent in self.dead or agent in self.progress.final_states:
+            return
+        log.warning("agent %d is gone: its packets count as lost from now on", agent)
+        self.dead.add(agent)
+        for phase, ce in self.clean.items():
+            for epoch in list(ce.gathering):
+                self._go_slow(phase, epoch)
+        for j in self.links.out_links[agent]:
+            self._try_close("state", j)
+        self._try_close("report", LEADER_ENDPOINT)
+
+    def models_changed(self) -> None:
+        """A link's model changed: which epochs are clean is computed again."""
+        for ce in self.clean.values():
+            ce.invalidate()
+
+    def flush_clean(self) -> None:
+        """Hand out the records of every clean epoch finished since the last flush."""
+        for phase in self.clean:
+            self._flush_clean(phase)
+
+    # -- state out ----------------------------------------------------------------------------
+    def finished(self) -> bool:
+        return self.progress.finished(self.dead)
+
+    def forwarded(self) -> dict[Link, int]:
+        """Delivered packets per link, clean epochs' included (for the final status)."""
+        total = self.ledger.forwarded.copy()
+        for ce in self.clean.values():
+            for stream in ce.streams.values():  # each finished epoch had one packet per stream
+                for link in stream.links:
+                    total[link] += len(ce.done)
+        return dict(total)
+
+    # -- the full path ------------------------------------------------------------------------
+    def _route_packet(self, phase: Phase, cls: LinkClass, src: int, dst: int, payload: Any,
+                      epoch: int, seq: int) -> OpenEpoch:  # fmt: skip
+        """Decide and record one packet, and put it in its receiver's open epoch (returned)."""
+        key = (phase, dst, epoch)
+        box = self.open.get(key)
+        if box is None:
+            box = self.open[key] = OpenEpoch()
+        box.handled.add(src)
+        link: Link = (cls, src, dst)
+        d = self.links.models[link].decide(epoch)
+        self.ledger.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
+        if not d.delivered:
+            box.lost.append(src)
+        elif d.delay_epochs == 0:
+            box.packets.append(packet_json(src, seq, epoch, d.copies, payload))
+            self.ledger.forwarded[link] += d.copies
+        else:
+            box.lost.append(src)  # lost for this epoch; arrives with a later one
+            self.held[(phase, dst, epoch + d.delay_epochs)].append(
+                Held(link, d.copies, packet_json(src, seq, epoch, d.copies, payload))
+            )
+        return box
+
+    def _all_handled(self, box: OpenEpoch, senders: list[int]) -> bool:
+        if not self.dead:  # a receiver only hears from its senders: counting is enough
+            return len(box.handled) >= len(senders)
+        return all(s in box.handled for s in senders if s not in self.dead)
+
+    def _try_close(self, phase: Phase, receiver: int) -> None:
+        senders = self.links.senders(phase, receiver)
+        dead = self.dead
+        while True:
+            epoch = self.next_close[(phase, receiver)]
+            box = self.open.get((phase, receiver, epoch))
+            if box is None:
+                if epoch >= self.epochs or any(s not in dead for s in senders):
+                    return
+                box = OpenEpoch()  # every sender is dead: close the epoch empty
+            elif not self._all_handled(box, senders):
+                return
+            self.open.pop((phase, receiver, epoch), None)
+            for h in self.held.pop((phase, receiver, epoch), []):
+                self.ledger.forwarded[h.link] += h.copies
+                box.packets.append(h.packet)
+            gone = [s for s in senders if s in dead] if dead else []
+            self.outbox.deliver(phase, receiver, epoch, box.packets, box.lost, gone)
+            self.next_close[(phase, receiver)] = epoch + 1
+            self.closed_count[(phase, epoch)] += 1
+            receivers = len(self.links.agents) - len(dead) if phase != "report" else 1
+            if self.closed_count[(phase, epoch)] >= receivers:
+                del self.closed_count[(phase, epoch)]
+                self._publish_decisions(phase, epoch)
+
+    def _publish_decisions(self, phase: Phase, epoch: int) -> None:
+        batch = self.ledger.decisions.pop((phase, epoch), [])
+        self._flush_clean(phase)  # records stay in epoch order
+        self.outbox.records(phase, epoch, batch)
+
+    # -- the clean path -----------------------------------------------------------------------
+    def _clean_delivery(self, phase: Phase) -> Deliver:
+        outbox, next_close = self.outbox, self.next_close
+
+        def deliver(receiver: int, epoch: int, packets: list[bytes]) -> None:
+            outbox.deliver(phase, receiver, epoch, packets, [], [])
+            # Epochs into a receiver finish in order: its senders need its previous one.
+            next_close[(phase, receiver)] = epoch + 1
+
+        return deliver
+
+    def _forward_clean(self, phase: Phase, stream: int, epoch: int, seq: int, payload: Any) -> bool:
+        """Take a packet of a clean epoch with no per-packet decision; False when the epoch
+        needs the full path. A receiver's delivery goes out once all its senders' are here."""
+        ce = self.clean.get(phase)
+        if ce is None:
+            return False
+        clean = ce.flags.get(epoch)
+        if clean is None:
+            clean = ce.clean(epoch)
+        if not clean:  # by the models, or already handled packet by packet
+            return False
+        if stream not in ce.receivers or self.dead or self.held:
+            self._go_slow(phase, epoch)
+            return False
+        if ce.take(stream, epoch, seq, payload, self._clean_deliver[phase]) and (
+            len(ce.chunks) >= FLUSH_CHUNKS or epoch >= self.epochs - 1
+        ):
+            self._flush_clean(phase)  # the last epoch's go out while the run still goes
+        return True
+
+    def _flush_clean(self, phase: Phase) -> None:
+        ce = self.clean.get(phase)
+        if ce is None or not ce.chunks:
+            return
+        self.outbox.clean_records(phase, ce.last_done, ce.chunks)
+        ce.chunks = []
+
+    def _go_slow(self, phase: Phase, epoch: int) -> None:
+        """From now on ``epoch`` of ``phase`` takes the full path; what went fast is recorded as such."""
+        ce = self.clean[phase]
+        g = ce.go_slow(epoch)
+        if g is None:
+            return
+        touched: set[int] = set()
+        for (src, dst, cls, _, seq, d), link in ce.records(epoch, g.seqs):
+            self.ledger.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
+            self.ledger.forwarded[link] += 1
+            if dst in g.delivered:
+                continue
+            box = self.open.get((phase, dst, epoch))
+            if box is None:
+                box = self.open[(phase, dst, epoch)] = OpenEpoch()
+            box.handled.add(src)
+            box.packets.append(g.packets[src])
+            touched.add(dst)
+        self.closed_count[(phase, epoch)] += len(g.delivered)
+        for dst in touched:
+            self._try_close(phase, dst)

@@ -1,0 +1,182 @@
+"""netem's lockstep core without a network: packets and deaths in, deliveries and records out.
+
+The outbox encodes what the node would publish and parses it back as a receiver and
+the recorder do, so the tests read the same messages as the integration tests.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import Any
+
+import numpy as np
+import pytest
+
+from formation.messages import Decision, DecisionBatch, Delivery
+from formation.scenario import Scenario
+from netem.links import Links, Phase, Route
+from netem.lockstep import Lockstep
+from netem.progress import Progress
+from netem.records import Ledger, Record, decision_batch, decision_batch_of, delivery
+
+
+def header(epoch: int) -> dict[str, Any]:
+    return {"run_id": "r", "sender": "netem", "seq": 0, "epoch": epoch, "stamp_ns": 1}
+
+
+class Wire:
+    """An outbox keeping every delivery and decision record, parsed from the bytes sent."""
+
+    def __init__(self, receivers: dict[Phase, list[int]]) -> None:
+        self.receivers = receivers  # who closes an epoch of each phase
+        self.deliveries: list[Delivery] = []
+        self.decisions: list[Decision] = []
+        self.closed: Counter[tuple[str, int]] = Counter()  # (phase, epoch) → receivers closed
+        self.early: list[tuple[str, int]] = []  # records out before every receiver closed
+
+    def deliver(self, phase: Phase, receiver: int, epoch: int, packets: list[bytes],
+                lost: list[int], dead: list[int]) -> None:  # fmt: skip
+        wire = delivery(header(epoch), receiver, phase, packets, lost, dead)
+        self.deliveries.append(Delivery.model_validate_json(wire))
+        self.closed[(phase, epoch)] += 1
+
+    def records(self, phase: Phase, epoch: int, records: list[Record]) -> None:
+        self._batch(phase, decision_batch(header(epoch), phase, records))
+
+    def clean_records(self, phase: Phase, last_epoch: int, chunks: list[bytes]) -> None:
+        self._batch(phase, decision_batch_of(header(last_epoch), phase, chunks))
+
+    def _batch(self, phase: Phase, wire: bytes) -> None:
+        batch = DecisionBatch.model_validate_json(wire)
+        live = len(self.receivers[phase])
+        self.early += [
+            (phase, d.epoch) for d in batch.decisions if self.closed[(phase, d.epoch)] < live
+        ]
+        self.decisions += batch.decisions
+
+
+def receivers(scenario: Scenario) -> dict[Phase, list[int]]:
+    agents = list(range(1, scenario.n + 1))
+    return {"state": agents, "report": [0], "estimate": agents}
+
+
+def lockstep(scenario: Scenario, seed: int) -> tuple[Lockstep, Wire]:
+    links, wire = Links(scenario, seed), Wire(receivers(scenario))
+    core = Lockstep(links, scenario.epochs, Progress(links.agents, scenario.epochs, lambda: None),
+                    Ledger(), wire)  # fmt: skip
+    core.setup_clean()
+    return core, wire
+
+
+def state(i: int, k: int) -> tuple[Route, int, int, bytes]:
+    return ("state", i, 0), k, k, b'{"agent":%d,"epoch":%d}' % (i, k)
+
+
+@pytest.mark.parametrize(
+    "network", [{}, {"formation_default": [{"model": "bernoulli", "p_loss": 0.3}]}],
+    ids=["clean", "lossy"],
+)  # fmt: skip
+def test_a_sender_dying_mid_epoch_closes_every_receiver_once(
+    paper: Scenario, seed: int, network: dict[str, Any]
+) -> None:
+    scenario = paper.with_overrides(epochs=10, network=network)
+    core, wire = lockstep(scenario, seed)
+    assert core.clean["state"].clean(0) == (not network)  # both paths are covered
+    senders = scenario.in_neighbours  # paper: 5 hears 3 and 4 only
+    for i in (3, 4, 1, 2):  # agent 5's packet of epoch 0 never comes
+        core.packet(*state(i, 0))
+    early = sorted(d.receiver for d in wire.deliveries)
+    assert early == [r for r in range(1, 6) if 5 not in senders[r - 1]]  # their senders all came
+    core.sender_died(5)
+    by_receiver = Counter(d.receiver for d in wire.deliveries)
+    assert by_receiver == dict.fromkeys(range(1, 6), 1), by_receiver
+    assert not core.open  # nothing of epoch 0 waits for a close that will not come
+    for d in wire.deliveries:
+        want = [j for j in senders[d.receiver - 1] if j != 5]
+        assert (d.phase, d.epoch) == ("state", 0)
+        assert sorted([p.source for p in d.packets] + d.lost) == want
+        assert d.dead == ([5] if 5 in senders[d.receiver - 1] else [])
+    # One record per packet that came: every out-link of agents 1-4, exactly once.
+    rec = Counter((r.source, r.target) for r in wire.decisions)
+    want_links = {(int(a), int(b)) for a, b in scenario.directed_links if int(a) != 5}
+    assert set(rec) == want_links and set(rec.values()) == {1}
+
+
+def test_a_delayed_packet_due_in_a_clean_epoch_goes_out_with_that_epochs_delivery(
+    paper: Scenario, seed: int
+) -> None:
+    delay = {"model": "delay", "epochs": 0, "jitter_epochs": 1}
+    network = {"links": [{"between": [3, 5], "direction": "forward", "models": [delay]}]}
+    scenario = paper.with_overrides(epochs=60, network=network)
+    core, wire = lockstep(scenario, seed)
+    late = core.links.models[("formation", 3, 5)]
+    k = next(
+        k for k in range(scenario.epochs - 1)
+        if late.decide(k).delay_epochs == 1 and core.clean["state"].clean(k + 1)
+    )  # fmt: skip
+    for epoch in range(k + 2):
+        for i in range(1, 6):
+            core.packet(*state(i, epoch))
+    closes = Counter((d.receiver, d.epoch) for d in wire.deliveries)
+    assert closes == {(r, e): 1 for r in range(1, 6) for e in range(k + 2)}
+    into_5 = {d.epoch: d for d in wire.deliveries if d.receiver == 5}
+    assert 3 in into_5[k].lost and 3 not in [p.source for p in into_5[k].packets]
+    got = sorted((p.source, p.sent_epoch) for p in into_5[k + 1].packets)
+    assert got == [(3, k), (3, k + 1), (4, k + 1)] and into_5[k + 1].lost == []
+    assert not core.held
+    rec = Counter((r.source, r.target, r.epoch) for r in wire.decisions if r.epoch >= k)
+    assert set(rec.values()) == {1} and len(rec) == 2 * len(scenario.directed_links)
+
+
+def test_every_receiver_closes_once_per_phase_and_epoch_under_random_loss(
+    paper: Scenario, seed: int
+) -> None:
+    lossy = {"model": "bernoulli", "p_loss": 0.04}
+    network = {
+        "formation_default": [lossy],
+        "control_default": [lossy],
+        "links": [
+            {"between": [3, 5], "direction": "forward",
+             "models": [lossy, {"model": "delay", "epochs": 0, "jitter_epochs": 1}]},
+            {"between": [1, 3], "direction": "forward",
+             "models": [lossy, {"model": "duplicate", "p": 0.2}]},
+        ],
+    }  # fmt: skip
+    scenario = paper.with_overrides(epochs=80, network=network)
+    core, wire = lockstep(scenario, seed)
+    rng = np.random.default_rng(seed)
+    agents = list(range(1, scenario.n + 1))
+    for k in range(scenario.epochs):  # an epoch's states and reports in any order, then estimates
+        first: list[Route] = [("state", i, 0) for i in agents] + [("report", i, 0) for i in agents]
+        for n in rng.permutation(len(first)):
+            core.packet(first[n], k, k, b"{}")
+        for i in rng.permutation(agents):
+            core.packet(("estimate", 0, int(i)), k, k, b"{}")
+    for i in agents:
+        core.packet(*state(i, scenario.epochs))  # final states
+    assert core.finished()
+    epochs = list(range(scenario.epochs))
+    closes = Counter((d.phase, d.receiver, d.epoch) for d in wire.deliveries)
+    assert closes == {
+        (ph, r, e): 1 for ph, rs in wire.receivers.items() for r in rs for e in epochs
+    }
+    for phase, receivers in wire.receivers.items():
+        for r in receivers:  # in epoch order
+            assert [
+                d.epoch for d in wire.deliveries if (d.phase, d.receiver) == (phase, r)
+            ] == epochs
+    for d in wire.deliveries:
+        now = [p.source for p in d.packets if p.sent_epoch == d.epoch]
+        if d.phase == "estimate":  # the clean path names the packet by its receiver, not by 0
+            assert len(now + d.lost) == 1
+        else:
+            assert sorted(now + d.lost) == sorted(core.links.senders(d.phase, d.receiver))
+    # One record per packet, each published once its epoch was closed everywhere.
+    rec = Counter((r.link_class, r.source, r.target, r.epoch) for r in wire.decisions)
+    assert set(rec.values()) == {1}
+    assert len(rec) == (len(scenario.directed_links) + 2 * scenario.n) * scenario.epochs
+    assert not wire.early
+    # Both paths ran, and delayed and duplicated packets went out.
+    assert 0 < len(core.clean["state"].done) < scenario.epochs
+    assert any(p.sent_epoch < d.epoch for d in wire.deliveries for p in d.packets)
+    assert any(p.copies == 2 for d in wire.deliveries for p in d.packets)
