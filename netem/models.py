@@ -23,44 +23,10 @@ Semantics (tc netem's where it has them, see ``man tc-netem`` and Linux
   ``(epoch, seq)`` where ``seq`` is the index of the packet among the link's
   packets of that epoch (0 for the first; the lockstep protocol sends one), not
   the publisher's wire sequence number, which the simulator does not have.
-* **Gilbert–Elliott** (tc ``loss gemodel p r 1-h 1-k``): the packet of epoch
-  ``k`` is lost with the loss probability of the state the chain is in when it
-  arrives (``1-k`` good, ``1-h`` bad), then the chain moves (``p`` good→bad,
-  ``r`` bad→good); it starts good. ``state`` reports that entry state.
-* **Four-state** (tc ``loss state p13 p31 p32 p23 p14``), states numbered as the
-  parameter names number them (Salsano et al.'s GI model; in Linux
-  ``loss_4state`` 1 = ``TX_IN_GAP_PERIOD``, 2 = ``TX_IN_BURST_PERIOD``, 3 =
-  ``LOST_IN_BURST_PERIOD``, 4 = ``LOST_IN_GAP_PERIOD``, whatever the kernel's enum
-  values): 1 good reception, 2 reception inside a burst, 3 loss inside a burst,
-  4 isolated loss. Per packet the chain first moves (1→4 w.p. ``p14``, 1→3 w.p.
-  ``p13``; 2→3 w.p. ``p23``; 3→2 w.p. ``p32``, 3→1 w.p. ``p31``; 4→1 always),
-  then the packet is lost iff the new state is 3 or 4. The chain starts in 1.
-  (Note: the docstring of ``formation.linkmodels.Markov4`` swaps the names of
-  states 2 and 3; the transition names follow the kernel, as here.)
-* **Bernoulli** with ``correlation`` ``c`` uses tc's correlated uniform
-  ``u[k] = (1 - c) fresh[k] + c u[k-1]`` (``u[-1]`` a keyed draw) and drops when
-  ``u[k] < p_loss``; its stationary loss rate is far below ``p_loss`` for
-  ``c > 0`` (``expected_loss_rate`` computes it).
-* **Outage** drops in ``[start, end)`` epochs (repeating every ``every``
-  epochs). With ``start_s``/``end_s`` it is a realtime window in seconds instead:
-  its epoch fields are ignored, and ``decide`` needs ``time_s`` (seconds since
-  the run started); such a window does not repeat.
-* **Delay**: lockstep ``delay_epochs = max(0, epochs + J)``, with ``J`` uniform
-  on the integers ``-j..j`` (``distribution = "uniform"``) or
-  ``round(j * Z)``; realtime ``delay_ms = max(0, ms + jitter_ms * Z)``, with
-  ``Z = 2u - 1`` (uniform) or the continuous inverse of tc's tables (normal;
-  pareto with shape 3, centred and scaled by 4/3; paretonormal = (normal + 3
-  pareto) / 4 on one quantile), clipped to the tables' int16 range. Correlation
-  ``c`` runs tc's correlated uniform over epochs (packets with ``seq > 0`` use
-  ``(1 - c) fresh + c u[k-1]``). Several delay layers add up.
-* **Duplicate** adds a copy w.p. ``p`` to a delivered packet; both copies share
-  the delay. Unlike tc, a dropped packet is dropped whole, so loss rates keep
-  their closed forms.
-* **Reorder** (tc ``reorder P gap N``): once ``N - 1`` epochs have passed since
-  the last reordered one, each epoch's packets skip all delay of the stack with
-  probability ``P`` (``gap = 1``: every epoch independently; ``P = 1``: every
-  ``N``-th epoch). Unlike tc, the counter counts epochs, dropped or not, so
-  layers stay independent.
+* **Each model's own semantics** (Gilbert–Elliott and four-state chains,
+  correlated Bernoulli, outage windows in epochs or seconds, delay
+  distributions, duplicate, reorder) are in the docstring of its module,
+  ``netem/linkmodels/<tag>.py``, beside its layer and closed forms.
 * ``verdict``: ``"drop"``; else ``"duplicate"`` when ``copies > 1``; else
   ``"delayed"`` when ``delay_epochs > 0`` or ``delay_ms > 0``; else ``"pass"``.
 
@@ -75,10 +41,12 @@ Cost: ``LinkModel.decide`` computes blocks of epochs with the vectorised form
 serves decisions from a small cache, about a million decisions per second per
 link; ``bench/bench_netem_models.py`` measures it.
 
-Layout: the layers are in ``netem.layers``, a stack's run and the records
-(``Decision``, ``Schedule``, ``LinkMatrix``) in ``netem.stack``, the closed forms
-in ``netem.closed_forms``; this module holds ``LinkModel`` and the batch forms
-and re-exports the rest.
+Layout: the specs are in ``formation.linkmodels``; each model's layer and closed
+forms in ``netem.linkmodels.<tag>`` (the registry, ``netem.linkmodels``, says how
+to add one); a stack's run and the records (``Decision``, ``Schedule``,
+``LinkMatrix``) in ``netem.stack``; the closed forms of a stack in
+``netem.closed_forms``. This module holds ``LinkModel`` and the batch forms and
+re-exports the rest.
 
 References: Linux ``net/sched/sch_netem.c`` (``loss_4state``,
 ``loss_gilb_ell``, ``get_crandom``, ``tabledist``, ``netem_enqueue``); iproute2
@@ -97,7 +65,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from formation.linkmodels import LinkModelSpec, Outage
+from formation.linkmodels import MODEL_NAMES, LinkModelSpec
 from netem.closed_forms import (
     DelayMoments,
     delay_moments,
@@ -105,23 +73,22 @@ from netem.closed_forms import (
     expected_loss_rate,
     stationary_distribution,
 )
-from netem.layers import MODEL_NAMES, _Delay, _Duplicate, _Keys, _Outage
+from netem.layer import Keys, LinkModelError
 from netem.stack import (
-    _KEY_LIMIT,
+    KEY_LIMIT,
     Carry,
     Decision,
     LinkMatrix,
-    LinkModelError,
+    Piece,
     Schedule,
-    _build_stack,
-    _check_key,
-    _make_decision,
-    _Piece,
-    _run_stack,
-    _schedule_of,
-    _Stack,
-    _state_string,
-    _trim,
+    Stack,
+    build_stack,
+    check_key,
+    make_decision,
+    run_stack,
+    schedule_of,
+    state_string,
+    trim_pieces,
 )
 
 # ----------------------------------------------------------------------------- one link
@@ -132,7 +99,7 @@ class _Block:
     """Decisions of epochs ``start .. start + block - 1`` (``seq = 0``, no realtime windows)."""
 
     start: int
-    pieces: list[_Piece]
+    pieces: list[Piece]
     code_list: list[int]  # epoch start + j is decided by table[code_list[j]]
     timed: bool
     codes: npt.NDArray[np.int64]  # code_list as an array
@@ -172,17 +139,17 @@ class LinkModel:
     ) -> None:
         self.link = f"{src}→{dst}"
         for name, value in (("seed", seed), ("src", src), ("dst", dst)):
-            _check_key(self.link, name, value)
+            check_key(self.link, name, value)
         if block_epochs < 1 or cache_blocks < 1:
             raise LinkModelError(
                 self.link,
                 f"block_epochs = {block_epochs}, cache_blocks = {cache_blocks}; expected >= 1",
             )
         self.seed, self.src, self.dst = seed, src, dst
-        self._keys = _Keys(seed, np.array([[src]], np.int64), np.array([[dst]], np.int64))
+        self._keys = Keys(seed, np.array([[src]], np.int64), np.array([[dst]], np.int64))
         self._b = block_epochs
         self._cache_blocks = cache_blocks
-        self._timeline: list[tuple[int, _Stack]] = [(0, _build_stack(specs, self.link))]
+        self._timeline: list[tuple[int, Stack]] = [(0, build_stack(specs, self.link))]
         self._carries: dict[int, Carry] = {0: {}}
         self._blocks: dict[int, _Block] = {}
 
@@ -210,8 +177,8 @@ class LinkModel:
         Later changes already given are superseded. Stateful layers carry their
         state into a layer of the same kind and occurrence (module docstring).
         """
-        _check_key(self.link, "from_epoch", from_epoch)
-        stack = _build_stack(specs, self.link)
+        check_key(self.link, "from_epoch", from_epoch)
+        stack = build_stack(specs, self.link)
         kept = [(f, s) for f, s in self._timeline if f < from_epoch]  # the first starts at 0
         self._timeline = [*kept, (from_epoch, stack)]
         k = from_epoch // self._b
@@ -270,7 +237,7 @@ class LinkModel:
         k = start // self._b
         carry = self._carry_at(k)
         pieces, _ = self._run_range(k * self._b, start + n_epochs, carry)
-        pieces = _trim(pieces, start)
+        pieces = trim_pieces(pieces, start)
         if times_s is not None:
             times = np.asarray(times_s, dtype=np.float64)
             if times.shape != (n_epochs,):
@@ -281,18 +248,18 @@ class LinkModel:
                 p.apply_times(times[p.start - start : p.start - start + p.n])
         else:
             self._require_times(pieces)
-        return _schedule_of(pieces, start, n_epochs)
+        return schedule_of(pieces, start, n_epochs)
 
     # internals ----------------------------------------------------------------------------------
 
-    def _stack_at(self, epoch: int) -> _Stack:
+    def _stack_at(self, epoch: int) -> Stack:
         stack = self._timeline[0][1]
         for f, s in self._timeline:
             if f <= epoch:
                 stack = s
         return stack
 
-    def _run_range(self, a: int, b: int, carry: Carry) -> tuple[list[_Piece], Carry]:
+    def _run_range(self, a: int, b: int, carry: Carry) -> tuple[list[Piece], Carry]:
         """Run epochs ``a .. b - 1`` from ``carry``, split where the stack changes."""
         cuts = sorted({a, b, *(f for f, _ in self._timeline if a < f < b)})
         pieces = []
@@ -300,7 +267,7 @@ class LinkModel:
             stack = self._stack_at(s)
             idents = {layer.ident for layer in stack.layers if layer.stateful}
             carry = {ident: v for ident, v in carry.items() if ident in idents}
-            piece, carry = _run_stack(stack, self._keys, s, e - s, carry)
+            piece, carry = run_stack(stack, self._keys, s, e - s, carry)
             pieces.append(piece)
         return pieces, carry
 
@@ -339,7 +306,7 @@ class LinkModel:
             for first, c, e, ms_bits, r, *state in rows[index].tolist():
                 model = kinds[first] if first >= 0 else ""
                 ms = float(np.int64(ms_bits).view(np.float64))
-                table.append(_make_decision(model, c, e, ms, bool(r), _state_string(kinds, state)))
+                table.append(make_decision(model, c, e, ms, bool(r), state_string(kinds, state)))
         coded = np.concatenate(codes)
         blk = _Block(a, pieces, coded.tolist(), any(p.stack.timed for p in pieces), coded, table)
         while len(self._blocks) >= self._cache_blocks:
@@ -347,34 +314,29 @@ class LinkModel:
         self._blocks[k] = blk
         return blk
 
-    def _require_times(self, pieces: Sequence[_Piece]) -> None:
+    def _require_times(self, pieces: Sequence[Piece]) -> None:
         for p in pieces:
             for i in p.stack.timed:
-                o = p.stack.specs[i]
-                assert isinstance(o, Outage)
                 raise LinkModelError(
                     self.link,
-                    f"stack[{i}] outage is given in seconds (start_s = {o.start_s}, "
-                    f"end_s = {o.end_s}); the decision needs the packet time time_s",
+                    f"stack[{i}] {p.stack.layers[i].timing()}; the decision needs the packet time time_s",
                 )
 
-    def _packet_draws(self, p: _Piece, seq: int) -> tuple[list[int], list[int], list[float]]:
+    def _packet_draws(self, p: Piece, seq: int) -> tuple[list[int], list[int], list[float]]:
         """Extra copies and delays of packet ``seq`` of every epoch of a piece."""
         epochs = np.arange(p.start, p.start + p.n, dtype=np.int64)
         dup = np.zeros(p.n, dtype=np.int64)
         de = np.zeros(p.n, dtype=np.int64)
         dms = np.zeros(p.n, dtype=np.float64)
         for i, layer in enumerate(p.stack.layers):
-            if isinstance(layer, _Duplicate):
-                dup += layer.draw(self._keys, epochs, seq)[0]
-            elif isinstance(layer, _Delay):
-                u = layer.fresh(self._keys, epochs, seq)
-                if layer.stateful:
-                    c = layer.d.correlation
-                    u = (1.0 - c) * u + c * p.chain_prev[i]
-                e, ms = layer.values(u)
-                de += e[0]
-                dms += ms[0]
+            out = layer.packet(self._keys, epochs, seq, p.chain_prev.get(i))
+            if out is None:
+                continue
+            if out.dup is not None:
+                dup += out.dup[0]
+            if out.delay_epochs is not None and out.delay_ms is not None:
+                de += out.delay_epochs[0]
+                dms += out.delay_ms[0]
         return dup.tolist(), de.tolist(), dms.tolist()
 
     def _decide_slow(self, blk: _Block, epoch: int, seq: int, time_s: float | None) -> Decision:
@@ -387,7 +349,7 @@ class LinkModel:
         codes = p.states[0, j].tolist()
         dup, de, dms = int(p.dup[0, j]), int(p.delay_epochs[0, j]), float(p.delay_ms[0, j])
         if seq != 0:
-            if seq < 0 or seq >= _KEY_LIMIT:
+            if seq < 0 or seq >= KEY_LIMIT:
                 raise LinkModelError(self.link, f"seq = {seq}; expected an integer in [0, 2**63)")
             extra = blk.by_seq.get((which, seq))
             if extra is None:
@@ -398,19 +360,17 @@ class LinkModel:
                 self._require_times([p])
             else:
                 for i in p.stack.timed:
-                    layer = layers[i]
-                    assert isinstance(layer, _Outage)
-                    down = layer.start_s <= time_s < layer.end_s
+                    down = layers[i].drops_at_time(time_s)
                     codes[i] = int(down)
                     if down and (first < 0 or i < first):
                         first = i
         kinds = [layer.kind for layer in layers]
         reordered = bool(p.reorder[0, j])
         if first >= 0:
-            return _make_decision(kinds[first], 0, 0, 0.0, False, _state_string(kinds, codes))
+            return make_decision(kinds[first], 0, 0, 0.0, False, state_string(kinds, codes))
         if reordered:
             de, dms = 0, 0.0
-        return _make_decision("", 1 + dup, de, dms, reordered, _state_string(kinds, codes))
+        return make_decision("", 1 + dup, de, dms, reordered, state_string(kinds, codes))
 
 
 # ----------------------------------------------------------------------------- batch forms
@@ -484,11 +444,11 @@ def delivery_matrix(
         name = f"{pairs[idx[0], 0]}→{pairs[idx[0], 1]}"
         for j in (0, 1):
             for v in pairs[idx, j].tolist():
-                _check_key(name, "src" if j == 0 else "dst", v)
-        _check_key(name, "seed", seed)
-        stack = _build_stack(stack_specs, name)
-        keys = _Keys(seed, pairs[idx, 0:1], pairs[idx, 1:2])
-        piece, _ = _run_stack(stack, keys, 0, n_epochs, {})
+                check_key(name, "src" if j == 0 else "dst", v)
+        check_key(name, "seed", seed)
+        stack = build_stack(stack_specs, name)
+        keys = Keys(seed, pairs[idx, 0:1], pairs[idx, 1:2])
+        piece, _ = run_stack(stack, keys, 0, n_epochs, {})
         if times is not None:
             piece.apply_times(times)
         elif stack.timed:

@@ -1,7 +1,8 @@
 """A stack of layers run over epochs, and the records of what it decides (MODEL.md §4).
 
-``_run_stack`` runs a stack's layers over consecutive epochs for one or more
+``run_stack`` runs a stack's layers over consecutive epochs for one or more
 links; ``Decision``, ``Schedule`` and ``LinkMatrix`` are what netem answers with.
+Nothing here knows a model: each layer comes from ``netem.linkmodels`` by its tag.
 """
 
 from __future__ import annotations
@@ -13,35 +14,13 @@ from typing import Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from formation.errors import TestbedError
-from formation.linkmodels import LinkModelSpec, Markov4
-from netem.layers import (
-    _KIND_CODE,
-    _LAYER_OF,
-    MODEL_NAMES,
-    Bools,
-    Codes,
-    Floats,
-    Ints,
-    _Down,
-    _GilbertElliott,
-    _Keys,
-    _Layer,
-    _Markov4,
-    _Outage,
-)
+from formation.linkmodels import MODEL_NAMES, LinkModelSpec
+from netem.layer import KIND_CODE, Bools, Codes, Floats, Ints, Keys, Layer, LinkModelError
+from netem.linkmodels import STATE_NAMES, layer_of
 
-Carry = dict[tuple[str, int], npt.NDArray[Any]]
+Carry = dict[tuple[str, int], npt.NDArray[Any]]  # chain state per layer ident (kind, occurrence)
 
-_KEY_LIMIT = 2**63
-
-
-class LinkModelError(TestbedError):
-    """A link model that cannot be built or asked: names the link and the broken rule."""
-
-    def __init__(self, link: str, problem: str) -> None:
-        self.link, self.problem = link, problem
-        super().__init__(f"link {link}: {problem}")
+KEY_LIMIT = 2**63  # keys (seed, link ends, epochs, seq) are integers in [0, 2**63)
 
 
 class Decision(NamedTuple):
@@ -86,18 +65,18 @@ class Schedule:
         kinds = [k for k in self.layer_kinds[i].tolist() if k >= 0]
         codes = self.state_codes[i].tolist()[: len(kinds)]
         dm = int(self.drop_model[i])
-        return _make_decision(
+        return make_decision(
             MODEL_NAMES[dm] if dm >= 0 else "",
             int(self.copies[i]),
             int(self.delay_epochs[i]),
             float(self.delay_ms[i]),
             bool(self.reordered[i]),
-            _state_string([MODEL_NAMES[k] for k in kinds], codes),
+            state_string([MODEL_NAMES[k] for k in kinds], codes),
         )
 
     def state_of(self, model: str, occurrence: int = 0) -> Codes:
         """State codes ``(n,)`` of the ``occurrence``-th layer of kind ``model``; -1 where absent."""
-        kind = _KIND_CODE[model]
+        kind = KIND_CODE[model]
         is_kind = self.layer_kinds == kind
         rank = np.cumsum(is_kind, axis=1) - 1
         hit = is_kind & (rank == occurrence)
@@ -122,9 +101,11 @@ class LinkMatrix:
 
 
 @dataclass(frozen=True)
-class _Stack:
+class Stack:
+    """The specs of a link and their layers, in stack order."""
+
     specs: tuple[LinkModelSpec, ...]
-    layers: tuple[_Layer, ...]
+    layers: tuple[Layer[Any], ...]
 
     @property
     def stateful(self) -> bool:
@@ -135,36 +116,33 @@ class _Stack:
         return tuple(i for i, layer in enumerate(self.layers) if layer.timed)
 
 
-def _build_stack(specs: Sequence[LinkModelSpec], link: str) -> _Stack:
-    layers: list[_Layer] = []
+def build_stack(specs: Sequence[LinkModelSpec], link: str) -> Stack:
+    """The layers of ``specs``, each keyed by its kind and occurrence; errors name ``link``."""
+    layers: list[Layer[Any]] = []
     seen: dict[str, int] = {}
     for i, spec in enumerate(specs):
-        cls = _LAYER_OF.get(type(spec))
+        cls = layer_of(spec)
         if cls is None:
             raise LinkModelError(link, f"stack[{i}] = {spec!r}; expected a LinkModelSpec")
-        if isinstance(spec, Markov4) and spec.p13 + spec.p14 > 1.0:
-            raise LinkModelError(
-                link, f"stack[{i}] markov4 has p13 + p14 = {spec.p13 + spec.p14:g}; expected <= 1"
-            )
-        if isinstance(spec, Markov4) and spec.p31 + spec.p32 > 1.0:
-            raise LinkModelError(
-                link, f"stack[{i}] markov4 has p31 + p32 = {spec.p31 + spec.p32:g}; expected <= 1"
-            )
         occ = seen.get(spec.model, 0)
         seen[spec.model] = occ + 1
-        layers.append(cls(spec, occ))
-    return _Stack(tuple(specs), tuple(layers))
+        layer = cls(spec, occ)
+        problem = layer.problem()
+        if problem is not None:
+            raise LinkModelError(link, f"stack[{i}] {problem}")
+        layers.append(layer)
+    return Stack(tuple(specs), tuple(layers))
 
 
 # ----------------------------------------------------------------------------- one run of a stack
 
 
 @dataclass
-class _Piece:
+class Piece:
     """A stack run over epochs ``start .. start + n - 1`` for ``L`` links (raw, before drops)."""
 
     start: int
-    stack: _Stack
+    stack: Stack
     first: npt.NDArray[np.int16]  # (L, n) first dropping layer, -1 none
     dup: npt.NDArray[np.int8]  # (L, n) extra copies
     delay_epochs: Ints  # (L, n) summed over delay layers
@@ -180,9 +158,7 @@ class _Piece:
     def apply_times(self, time_s: Floats) -> None:
         """Drop by the realtime outage windows at packet times ``time_s`` ``(n,)`` [s]."""
         for i in self.stack.timed:
-            layer = self.stack.layers[i]
-            assert isinstance(layer, _Outage)
-            down = np.broadcast_to(layer.down_at(time_s), self.first.shape)
+            down = np.broadcast_to(self.stack.layers[i].drops_at(time_s), self.first.shape)
             self.first = np.where(down & ((self.first < 0) | (self.first > i)), i, self.first)
             self.first = self.first.astype(np.int16)
             self.states[:, :, i] = down
@@ -202,9 +178,11 @@ class _Piece:
         )
 
 
-def _run_stack(
-    stack: _Stack, keys: _Keys, start: int, n: int, carry: Carry
-) -> tuple[_Piece, Carry]:
+def run_stack(stack: Stack, keys: Keys, start: int, n: int, carry: Carry) -> tuple[Piece, Carry]:
+    """Run ``stack`` over epochs ``start .. start + n - 1`` from chain states ``carry``.
+
+    Returns the raw piece (before drops are applied) and the chain states after it.
+    """
     epochs = np.arange(start, start + n, dtype=np.int64)
     shape = (keys.n_links, n)
     first = np.full(shape, -1, dtype=np.int16)
@@ -235,30 +213,24 @@ def _run_stack(
             chain_prev[i] = out.chain_prev
     for i, drop in reversed(drops):
         first = np.where(drop, np.int16(i), first).astype(np.int16)
-    piece = _Piece(start, stack, first, dup, delay_epochs, delay_ms, reorder, states, chain_prev)
+    piece = Piece(start, stack, first, dup, delay_epochs, delay_ms, reorder, states, chain_prev)
     return piece, after
 
 
-def _state_string(kinds: Sequence[str], codes: Sequence[int]) -> str:
+def state_string(kinds: Sequence[str], codes: Sequence[int]) -> str:
+    """``Decision.state``: the named states of the layers ``kinds`` with codes ``codes``, by ","."""
     names = []
     for kind, code in zip(kinds, codes, strict=False):
-        name = _STATE_NAMES[kind][code] if code >= 0 else ""
+        name = STATE_NAMES[kind][code] if code >= 0 else ""
         if name:
             names.append(name)
     return ",".join(names)
 
 
-_STATE_NAMES = {name: ("",) for name in MODEL_NAMES} | {
-    "down": _Down.state_names,
-    "outage": _Outage.state_names,
-    "gilbert_elliott": _GilbertElliott.state_names,
-    "markov4": _Markov4.state_names,
-}
-
-
-def _make_decision(
+def make_decision(
     model: str, copies: int, delay_epochs: int, delay_ms: float, reordered: bool, state: str
 ) -> Decision:
+    """The decision with its verdict; ``model`` is the dropping model, "" when delivered."""
     if model:
         return Decision(False, 0, 0.0, 0, "drop", model, state, False)
     if copies > 1:
@@ -270,12 +242,13 @@ def _make_decision(
     return Decision(True, delay_epochs, delay_ms, copies, verdict, "", state, reordered)
 
 
-def _check_key(link: str, name: str, value: int) -> None:
-    if not 0 <= value < _KEY_LIMIT:
+def check_key(link: str, name: str, value: int) -> None:
+    """Raise unless ``value`` can be a key (an integer in ``[0, 2**63)``)."""
+    if not 0 <= value < KEY_LIMIT:
         raise LinkModelError(link, f"{name} = {value}; expected an integer in [0, 2**63)")
 
 
-def _trim(pieces: list[_Piece], start: int) -> list[_Piece]:
+def trim_pieces(pieces: list[Piece], start: int) -> list[Piece]:
     """Drop epochs before ``start`` from pieces that begin at a block start."""
     out = []
     for p in pieces:
@@ -284,7 +257,7 @@ def _trim(pieces: list[_Piece], start: int) -> list[_Piece]:
             continue
         if p.start < start:
             s = start - p.start
-            p = _Piece(
+            p = Piece(
                 start,
                 p.stack,
                 p.first[:, s:],
@@ -299,14 +272,15 @@ def _trim(pieces: list[_Piece], start: int) -> list[_Piece]:
     return out
 
 
-def _schedule_of(pieces: Sequence[_Piece], start: int, n: int) -> Schedule:
+def schedule_of(pieces: Sequence[Piece], start: int, n: int) -> Schedule:
+    """The pieces' decisions of epochs ``start .. start + n - 1`` as one ``Schedule``."""
     width = max((len(p.stack.layers) for p in pieces), default=0)
     cols: dict[str, list[npt.NDArray[Any]]] = {
         k: [] for k in ("delivered", "copies", "de", "dms", "reo", "drop", "codes", "kinds")
     }
     for p in pieces:
         delivered, copies, de, dms, reo = p.final()
-        kinds = np.array([_KIND_CODE[layer.kind] for layer in p.stack.layers], dtype=np.int8)
+        kinds = np.array([KIND_CODE[layer.kind] for layer in p.stack.layers], dtype=np.int8)
         pad = width - kinds.shape[0]
         kind_of_layer = np.concatenate([kinds, [-1]]).astype(np.int8)  # index -1 → -1
         cols["delivered"].append(delivered[0])
@@ -334,3 +308,22 @@ def _schedule_of(pieces: Sequence[_Piece], start: int, n: int) -> Schedule:
         state_codes=cat("codes", np.int8, 0, width),
         layer_kinds=cat("kinds", np.int8, 0, width),
     )
+
+
+__all__ = [
+    "KEY_LIMIT",
+    "Carry",
+    "Decision",
+    "LinkMatrix",
+    "LinkModelError",
+    "Piece",
+    "Schedule",
+    "Stack",
+    "build_stack",
+    "check_key",
+    "make_decision",
+    "run_stack",
+    "schedule_of",
+    "state_string",
+    "trim_pieces",
+]

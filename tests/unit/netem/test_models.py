@@ -16,6 +16,8 @@ from hypothesis import strategies as st
 
 import netem.models
 from formation.linkmodels import (
+    MODEL_NAMES,
+    SPEC_OF,
     Bernoulli,
     Delay,
     Down,
@@ -27,6 +29,7 @@ from formation.linkmodels import (
     Reorder,
     Up,
 )
+from netem.linkmodels import LAYERS, layer_of
 from netem.models import (
     Decision,
     LinkModel,
@@ -431,3 +434,20 @@ def test_bad_inputs_are_named(seed: int) -> None:
         LinkModel([Up()], seed, 1, 2).decide(-3)
     with pytest.raises(LinkModelError, match=r"times_s has shape \(4,\); expected \(5,\)"):
         LinkModel([Up()], seed, 1, 2).schedule(5, times_s=np.zeros(4))
+
+
+def test_every_tag_has_a_layer_and_keeps_its_kind_code() -> None:
+    # A tag's position is its kind code in every keyed draw: new models are appended.
+    assert MODEL_NAMES == (
+        "up",
+        "down",
+        "bernoulli",
+        "gilbert_elliott",
+        "markov4",
+        "outage",
+        "delay",
+        "duplicate",
+        "reorder",
+    )
+    assert list(LAYERS) == list(MODEL_NAMES) == list(SPEC_OF)
+    assert all(layer_of(cls.model_construct()) is LAYERS[tag] for tag, cls in SPEC_OF.items())
