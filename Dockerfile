@@ -1,5 +1,6 @@
 # The testbed's one image: every service of compose.yaml runs from it (`formation compose`).
 # Build: docker build -t formation-testbed .   (docker compose up --build does it for you)
+# Under podman without a registry, deploy/podman.sh makes this FROM image locally (README).
 FROM python:3.12-slim
 
 ENV PYTHONUNBUFFERED=1 \
@@ -10,16 +11,21 @@ ENV PYTHONUNBUFFERED=1 \
     MPLCONFIGDIR=/tmp/matplotlib
 
 WORKDIR /app
-# Only what the package needs: credentials, runs and the checkout's history stay out (.dockerignore).
+# The dependencies first, in a layer of their own: a change to the code does not reinstall them.
+# (The packages' folders are empty here; the project itself is uninstalled again.)
 COPY pyproject.toml README.md ./
+RUN mkdir formation agent leader netem recorder testbed \
+    && pip install . && pip uninstall -y formation-testbed \
+    && rm -rf formation agent leader netem recorder testbed build *.egg-info
+# Only what the package needs: credentials, runs and the checkout's history stay out (.dockerignore).
 COPY formation ./formation
 COPY agent ./agent
 COPY leader ./leader
 COPY netem ./netem
 COPY recorder ./recorder
 COPY testbed ./testbed
-RUN pip install . && rm -rf formation agent leader netem recorder testbed build
+RUN pip install --no-deps . && rm -rf formation agent leader netem recorder testbed build *.egg-info
 COPY scenarios ./scenarios
 
-# Each service sets its own command; a bare `docker run` prints the CLI's help.
+# Each service sets its own command (and compose its user); a bare `docker run` prints the CLI's help.
 CMD ["formation", "--help"]

@@ -4,9 +4,18 @@ One image (the repository's ``Dockerfile``), one service per process of a run:
 ``router`` (``python -m testbed.runtime.router``), ``recorder``, ``netem``, ``leader``
 and ``agent-<i>`` for every agent of the scenario. Every service reaches the
 others only through the router, in ``client`` mode, by the service name
-``router``; nothing names a host address. The scenario file is mounted (a
-Compose config), the run directory is a volume, the run id comes from
-``RUN_ID`` (default: the scenario's name).
+``router``; nothing names a host address. The scenario file is a read-only bind
+mount, the run directory a volume, the run id comes from ``RUN_ID`` (default:
+the scenario's name).
+
+Portable between Docker Compose and podman-compose: only the ``router`` service
+builds the image, the others use it by name (``image:``); no ``configs:``
+(podman-compose ignores them) and no health conditions (podman-compose ignores
+them too): a client retries until the router answers
+(:func:`formation.zenoh_config.open_with_retry`), ``depends_on`` keeps the start
+order only. Every service runs as ``${FORMATION_UID:-1000}:${FORMATION_GID:-1000}``,
+the invoking user's ids when those are exported, so what it writes in ``./runs``
+is theirs and it can read its 0600 secret.
 
 Closed by default: each service gets its own Zenoh config as a Compose secret
 (``formation keys keys/`` writes them; see :mod:`testbed.deploy.security`), the router
@@ -43,6 +52,7 @@ IMAGE = "${FORMATION_IMAGE:-formation-testbed:latest}"
 KEYS_DIR = "${FORMATION_KEYS:-./keys}"
 RUNS_DIR = "${FORMATION_RUNS:-./runs}"
 STOP_GRACE = "2m"  # the recorder finishes the MCAP file and writes the report [s]
+USER = "${FORMATION_UID:-1000}:${FORMATION_GID:-1000}"  # the invoking user (export them)
 
 
 @dataclass(frozen=True)
@@ -93,30 +103,34 @@ def document(
     scenario: Scenario, scenario_path: str | Path, options: ComposeOptions
 ) -> dict[str, Any]:
     """The compose file as a mapping, services in start order."""
+    mount = (
+        f"{compose_path(scenario_path)}:{SCENARIO}:ro"  # not configs: podman-compose ignores them
+    )
     run_id = f"${{RUN_ID:-{scenario.name}}}"
     scenario_args = ["--scenario", str(SCENARIO), "--run-id", run_id]
     services: dict[str, dict[str, Any]] = {
         ROUTER: _router(options),
         "recorder": _service(
             options, "recorder",
-            ["python", "-m", "testbed.runtime.recording_service", "--report", "--run-id", run_id,
-             "--out", f"{RUNS}/{run_id}", "--scenario", str(SCENARIO)],
-            extra={"volumes": [f"{RUNS_DIR}:{RUNS}"], "stop_grace_period": STOP_GRACE},
+            ["python", "-m", "testbed.runtime.recording_service", "--report",
+             "--host-out", f"{RUNS_DIR}/{run_id}", "--run-id", run_id, "--out", f"{RUNS}/{run_id}",
+             "--scenario", str(SCENARIO)],
+            volumes=[mount, f"{RUNS_DIR}:{RUNS}"], extra={"stop_grace_period": STOP_GRACE},
         ),
         "netem": _service(options, "netem", ["python", "-m", "netem", *scenario_args],
-                          after=["recorder"]),
-        "leader": _service(options, "leader", ["python", "-m", "leader", *scenario_args]),
+                          volumes=[mount], after=["recorder"]),
+        "leader": _service(options, "leader", ["python", "-m", "leader", *scenario_args],
+                           volumes=[mount]),
     }  # fmt: skip
     for i in range(1, scenario.n + 1):
         name = security.agent_user(i)
         services[name] = _service(
-            options, name, ["python", "-m", "agent", *scenario_args, "--id", str(i)]
+            options,
+            name,
+            ["python", "-m", "agent", *scenario_args, "--id", str(i)],
+            volumes=[mount],
         )
-    doc: dict[str, Any] = {
-        "name": "formation",
-        "services": services,
-        "configs": {"scenario": {"file": compose_path(scenario_path)}},
-    }
+    doc: dict[str, Any] = {"name": "formation", "services": services}
     if options.secure:
         users = [ROUTER, *(name for name in services if name != ROUTER)]
         doc["secrets"] = {
@@ -127,8 +141,10 @@ def document(
     return doc
 
 
-def _common(options: ComposeOptions) -> dict[str, Any]:
-    return {"image": options.image, "build": {"context": ".", "dockerfile": "Dockerfile"}}
+def _common(options: ComposeOptions, build: bool = False) -> dict[str, Any]:
+    """The image; only the router's service builds it (``up --build`` builds it once)."""
+    built = {"build": {"context": ".", "dockerfile": "Dockerfile"}} if build else {}
+    return {"image": options.image, **built, "user": USER}
 
 
 def _secrets(options: ComposeOptions, user: str) -> dict[str, Any]:
@@ -152,18 +168,11 @@ def _router(options: ComposeOptions) -> dict[str, Any]:
                 {"source": PASSWORDS.removesuffix(".txt"), "target": PASSWORDS},
             ]
         }
-    probe = f'import socket; socket.create_connection(("{ROUTER}", {PORT}), 2).close()'
     return {
-        **_common(options),
+        **_common(options, build=True),
         "command": command,
         "environment": {"ZENOH_LISTEN": options.endpoint, **_zenoh_config(options)},
         **secrets_,
-        "healthcheck": {
-            "test": ["CMD", "python", "-c", probe],
-            "interval": "2s",
-            "timeout": "3s",
-            "retries": 30,
-        },
         "init": True,
     }
 
@@ -172,12 +181,14 @@ def _service(
     options: ComposeOptions,
     user: str,
     command: list[str],
+    volumes: list[str],
     after: list[str] | None = None,
     extra: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    depends: dict[str, Any] = {ROUTER: {"condition": "service_healthy"}}
-    for name in after or []:
-        depends[name] = {"condition": "service_started"}
+    depends = [
+        ROUTER,
+        *(after or []),
+    ]  # start order only: a client retries until the router answers
     return {
         **_common(options),
         "command": command,
@@ -187,8 +198,8 @@ def _service(
             **_zenoh_config(options),
             **SERVICE_ENV,
         },
-        "configs": [{"source": "scenario", "target": str(SCENARIO)}],
         **_secrets(options, user),
+        "volumes": volumes,
         **(extra or {}),
         "depends_on": depends,
         "init": True,
@@ -228,10 +239,12 @@ def render(
     if options.secure:
         usage.append(f"#   {keys_cmd}    # credentials and access control, once (not in git)")
     usage += [
+        "#   mkdir -p runs; export FORMATION_UID=$(id -u) FORMATION_GID=$(id -g)",
         "#   docker compose up --build -d",
         "#   docker compose wait netem       # the run is over when netem exits",
         "#   docker compose down             # the recorder finishes run.mcap and report.md",
-        "# Files: ./runs/$RUN_ID/ (RUN_ID defaults to the scenario's name).",
+        "# Files: ./runs/$RUN_ID/ (RUN_ID defaults to the scenario's name). podman-compose runs it",
+        "# too (README, Deployment; no `wait`: `podman wait formation_netem_1`).",
         "#",
     ]
     body: str = yaml.dump(

@@ -5,13 +5,15 @@ has finished the MCAP file (on SIGTERM, e.g. ``docker compose down``), writes
 ``report.md``, ``summary.json`` and the plots beside it with ``--report``. This
 is what ``formation run`` does from the launcher, done by the recorder's own
 container so that stopping the deployment loses nothing and leaves the report.
+``--host-out DIR`` names the run directory as the host sees it (``runs/<RUN_ID>``,
+not ``/app/runs/...``) in the report and in what this prints.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 from recorder import node
 
@@ -23,23 +25,29 @@ def main(argv: list[str] | None = None) -> int:
         add_help=False,
     )
     p.add_argument("--report", action="store_true", help="write report.md after the recording")
+    p.add_argument(
+        "--host-out", help="the run directory as the host names it (for the report's text)"
+    )
     ours, rest = p.parse_known_args(sys.argv[1:] if argv is None else argv)
     args = node.build_parser().parse_args(rest)  # exits with the recorder's usage on bad args
     code = node.main(rest)
     if code != 0 or not ours.report:
         return code
     # Imported only now: the recording process starts without matplotlib.
-    from recorder.report import write_report
+    from recorder.report import write_report_from
+    from recorder.rundata import read_run
 
     out_dir = Path(args.out or Path("runs") / args.run_id)
+    shown = PurePosixPath(ours.host_out or out_dir)  # what the host calls out_dir
     try:
-        path = write_report(out_dir / args.file, out_dir)
+        run = read_run(out_dir / args.file)
+        write_report_from([run], out_dir, title=f"Report: {shown / args.file}")
     except Exception as exc:  # the recording is safe; say why the report is not
         print(
-            f"recording_service: error: no report for {out_dir / args.file}: {exc}", file=sys.stderr
+            f"recording_service: error: no report for {shown / args.file}: {exc}", file=sys.stderr
         )
         return 1
-    print(f"recording_service: report {path}", file=sys.stderr)
+    print(f"recording_service: report {shown / 'report.md'}", file=sys.stderr)
     return 0
 
 

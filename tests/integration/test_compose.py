@@ -1,6 +1,6 @@
 """compose.yaml as the source of truth: its services as real processes, each on its own host address.
 
-Nothing about the services is written here: :class:`testbed.deploy.loopback.LoopbackDeployment`
+Nothing about the services is written here: :class:`tests.support.loopback.LoopbackDeployment`
 parses the file, runs each ``command`` with its ``environment``, maps service names
 to ``127.A.B.N`` and container paths to host files. The network is closed as
 deployed: credentials from ``formation keys``, the router's access control on.
@@ -22,9 +22,10 @@ from mcap.reader import make_reader
 
 from formation import keys
 from formation.scenario import Scenario
+from formation.zenoh_config import open_with_retry
 from testbed.cli import main as formation
 from testbed.deploy import security
-from testbed.deploy.loopback import LoopbackDeployment
+from tests.support.loopback import LoopbackDeployment
 
 pytestmark = pytest.mark.integration
 
@@ -70,9 +71,15 @@ def _recorded(mcap_path: Path) -> tuple[Counter[str], dict[str, dict], dict[str,
     return counts, statuses, epochs
 
 
+def _scenario_file(doc: dict) -> Path:
+    """The host file bind-mounted as the services' scenario."""
+    mounts = [v.split(":") for v in doc["services"]["netem"]["volumes"]]
+    return ROOT / next(src for src, target, *_ in mounts if target == "/app/scenario.toml")
+
+
 def test_compose_services_run_as_separate_hosts_and_record_everything(tmp_path: Path) -> None:
     doc = yaml.safe_load(COMPOSE.read_text())
-    scenario_file = ROOT / doc["configs"]["scenario"]["file"]
+    scenario_file = _scenario_file(doc)
     scenario = Scenario.from_file(scenario_file)
     assert formation(["keys", str(tmp_path / "keys"), str(scenario_file)]) == 0
     runs = tmp_path / "runs"
@@ -91,9 +98,8 @@ def test_compose_services_run_as_separate_hosts_and_record_everything(tmp_path: 
             assert svc.env["ZENOH_CONNECT"].startswith(f"tcp/{router}:")
         dep.up(timeout_s=30)
         endpoint = dep.bound(doc["services"]["router"]["environment"]["ZENOH_LISTEN"])
-        session = zenoh.open(
-            security.client_session_config(endpoint, tmp_path / "keys" / "operator.json5")
-        )
+        operator = security.client_session_config(endpoint, tmp_path / "keys" / "operator.json5")
+        session = open_with_retry(operator, endpoint, 30.0)  # nothing waits for the router
         try:
             started = threading.Event()
             sockets: list[tuple[str, str, str]] = []
@@ -137,6 +143,35 @@ def test_compose_services_run_as_separate_hosts_and_record_everything(tmp_path: 
     assert codes == {**{n: 0 for n in workers}, "recorder": 0, "router": 0}
     run_dir = runs / RUN_ID
     assert (run_dir / "report.md").is_file() and (run_dir / "summary.json").is_file()
+    _check_complete(run_dir, scenario, workers)
+
+
+def test_router_started_late_still_gives_a_complete_run(tmp_path: Path) -> None:
+    """The router starts 10 s after every other service: the clients retry until it answers."""
+    doc = yaml.safe_load(COMPOSE.read_text())
+    scenario_file = _scenario_file(doc)
+    scenario = Scenario.from_file(scenario_file)
+    assert formation(["keys", str(tmp_path / "keys"), str(scenario_file)]) == 0
+    runs = tmp_path / "runs"
+    env = {"FORMATION_KEYS": str(tmp_path / "keys"), "FORMATION_RUNS": str(runs), "RUN_ID": RUN_ID}
+    workers = [n for n in doc["services"] if n not in ("router", "recorder")]
+    with LoopbackDeployment(COMPOSE, tmp_path / "logs", env) as dep:
+        t0 = time.monotonic()
+        dep.up(timeout_s=30, late={"router": 10.0})
+        assert time.monotonic() - t0 >= 10.0
+        assert all(dep.service(n).child.proc.poll() is None for n in workers)  # type: ignore[union-attr]
+        dep.wait_exit(workers, timeout_s=120)
+        codes = dep.down()
+    assert codes == {**{n: 0 for n in workers}, "recorder": 0, "router": 0}
+    logs = (tmp_path / "logs" / "recorder.log").read_text()
+    assert f"report {runs / RUN_ID / 'report.md'}" in logs  # the host's path, not /app/...
+    report = (runs / RUN_ID / "report.md").read_text()
+    assert f"Report: {runs / RUN_ID / 'run.mcap'}" in report and "/app/" not in report
+    _check_complete(runs / RUN_ID, scenario, workers)
+
+
+def _check_complete(run_dir: Path, scenario: Scenario, workers: list[str]) -> None:
+    """Every sender's count recorded, every epoch of every agent, the leader's every estimate."""
     counts, statuses, epochs = _recorded(run_dir / "run.mcap")
     sent: Counter[str] = Counter()
     for name in workers:

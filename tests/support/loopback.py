@@ -13,7 +13,9 @@ listen endpoints accept connections, ``service_completed_successfully`` until
 it has exited with 0. Every process is ended by PID (TERM, then KILL after its
 ``stop_grace_period``) by :meth:`LoopbackDeployment.down`, also on error.
 
-Used by the compose tests and ``bench/bench_deploy.py``.
+A test harness, not part of the product (it is not in the wheel): used by the compose
+tests and ``bench/bench_deploy.py`` (``python -m bench`` from the checkout). ``up(late=...)``
+starts some services that many seconds after the others, as an engine might.
 """
 
 from __future__ import annotations
@@ -227,13 +229,27 @@ class LoopbackDeployment:
                 return s
         raise KeyError(name)
 
-    def up(self, timeout_s: float = 30.0) -> None:
-        """Start every service in dependency order, waiting on the conditions of ``depends_on``."""
+    def up(self, timeout_s: float = 30.0, late: Mapping[str, float] | None = None) -> None:
+        """Start every service in dependency order, waiting on the conditions of ``depends_on``.
+
+        ``late``: services started that many seconds after the others are up; nothing waits
+        for them (a dependency on one is skipped), as when an engine ignores the conditions.
+        """
         self.log_dir.mkdir(parents=True, exist_ok=True)
+        late = dict(late or {})
         for svc in self.services:
+            if svc.name in late:
+                continue
             for dep, condition in svc.depends_on.items():
-                self._wait_condition(self.service(dep), condition, timeout_s)
+                if dep not in late:
+                    self._wait_condition(self.service(dep), condition, timeout_s)
             self._start(svc)
+        t0 = time.monotonic()
+        for name, delay_s in sorted(late.items(), key=lambda item: item[1]):
+            while time.monotonic() - t0 < delay_s:
+                self.check()  # a service that gave up early fails the wait at once
+                time.sleep(0.05)
+            self._start(self.service(name))
 
     def _start(self, svc: LocalService) -> None:
         base = {k: v for k, v in os.environ.items() if not k.startswith("ZENOH_")}
