@@ -65,6 +65,8 @@ class ZenohOutbox:
 
 
 class NetemNode:
+    """netem's shell: Zenoh in and out, queryables and liveliness; the logic is the cores'."""
+
     def __init__(
         self,
         service: Service,

@@ -69,3 +69,27 @@ def test_an_epoch_marked_slow_stays_unclean_after_its_block_is_computed_again() 
     for far in (64, 128, 192):  # evicts the first block
         ce.clean(far)
     assert k not in ce.flags and not ce.clean(k)
+
+
+def test_a_receiver_gets_its_delivery_once_all_its_senders_packets_are_in() -> None:
+    links = {1: [("formation", 1, 2), ("formation", 1, 3)], 2: [("formation", 2, 3)]}
+    ss = {
+        s: Stream(tuple(ls), tuple(d for _, _, d in ls), tuple(LinkModel([], 7, s, d) for _, s, d in ls))
+        for s, ls in links.items()
+    }  # fmt: skip
+    ce = CleanEpochs(ss, {2: 1, 3: 2}, block=64)
+    got: list[tuple[int, int, int]] = []
+
+    def deliver(receiver: int, epoch: int, packets: list[bytes]) -> None:
+        got.append((receiver, epoch, len(packets)))
+
+    assert ce.clean(5) and not ce.take(1, 5, 50, b"{}", deliver)
+    assert got == [(2, 5, 1)] and ce.gathering[5].delivered == {2}
+    assert not ce.take(1, 5, 51, b"{}", deliver)  # a second packet of stream 1: ignored
+    assert ce.take(2, 5, 52, b"{}", deliver)  # the epoch's last packet
+    assert got == [(2, 5, 1), (3, 5, 2)] and 5 not in ce.gathering and ce.done == {5}
+    assert ce.chunks and ce.go_slow(5) is None  # finished: nothing left to hand back
+    ce.take(1, 6, 60, b"{}", deliver)
+    g = ce.go_slow(6)
+    assert g is not None and g.seqs == {1: 60} and g.delivered == {2} and g.waiting.keys() == {3}
+    assert not ce.clean(6)
