@@ -1,0 +1,1 @@
+"""The experiments: the chapter's, the studies beyond it, and the critical-loss sweep."""

@@ -1,0 +1,226 @@
+"""``formation experiment paper``, the whole run: the study, its figures, its real-process runs and its files.
+
+The study itself (variants, claims) is :mod:`testbed.experiments.paper`; the text of
+``results.md`` and ``seeds.csv`` is :mod:`testbed.experiments.report`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from formation.reference import reference_positions
+from formation.scenario import STRATEGIES, Scenario, StrategyName
+from recorder.metrics import error_statistics
+from recorder.rundata import read_run
+from testbed.experiments import plots, studies
+from testbed.experiments.lossy import with_loss
+from testbed.experiments.paper import (
+    PLOTTED_AGENTS,
+    Array,
+    PaperResults,
+    final_errors,
+    judge,
+    run_variants,
+)
+from testbed.experiments.report import results_markdown, seeds_csv
+from testbed.runtime.launcher import launch
+from testbed.sim.batch import BatchResult
+from testbed.sim.teams import henneberg_team
+
+
+# ------------------------------------------------------------------------------ figures
+
+
+def _desired(res: BatchResult) -> Array:
+    base = res.plan.base
+    d0, r = base.offsets, base.leader
+    ref = reference_positions(base.reference, d0[r - 1], base.control.period_s, res.plan.epochs)
+    return np.asarray(ref[:, None, :] + (d0 - d0[r - 1])[None, :, :])
+
+
+def write_figures(r: PaperResults, out: Path) -> None:
+    fail = r.runs["failure"]
+    desired = _desired(fail["estimate"])
+    b = 0  # the scenario's seed (first of the list) for the position figures
+    pos = {s: res.positions[:, b] for s, res in fail.items()}
+    title = f"{r.scenario.name}: link 1–2 down from epoch 1, seed {r.seeds[b]}"
+    plots.agent_positions(pos, desired, PLOTTED_AGENTS, out / "positions.png", title)
+    plots.trajectories(pos, desired, PLOTTED_AGENTS, out / "trajectories.png", title)
+    traces = {}
+    for s, res in fail.items():
+        if s == "drop":
+            continue
+        t = np.full(res.plan.epochs, np.nan)
+        for k in range(res.plan.epochs):
+            t[k] = error_statistics(res.sub_error[res.sub_epoch == k])[2]
+        traces[s] = t
+    plots.covariance_over_epochs(
+        traces,
+        out / "substitution_covariance.png",
+        f"substitution error covariance over {len(r.seeds)} seeds, link 1–2 down",
+    )
+    names = {
+        "failure": "formation_error_failure.png",
+        "one lossy link": "formation_error_one_lossy.png",
+        "two lossy links": "formation_error_two_lossy.png",
+        "failure, 500 epochs": "formation_error_500.png",
+    }
+    for variant, fname in names.items():
+        series = {s: res.formation_error for s, res in r.runs[variant].items()}
+        plots.error_bands(
+            series,
+            out / fname,
+            f"{variant}: formation error, median and 10–90 % of {len(r.seeds)} seeds",
+            "formation error [m]",
+        )
+    if "alpha" in r.studies:
+        a = r.studies["alpha"]
+        plots.alpha_curve(
+            a.curves[0].alphas,
+            {c.label: c.relative for c in a.curves},
+            {c.label: c.best for c in a.curves},
+            out / "alpha.png",
+            "blend: error against α",
+        )
+    if "dynamic" in r.studies:
+        d = r.studies["dynamic"]
+        plots.dynamic_plot(
+            d.shape_error,
+            d.tree_edges,
+            d.leave[1],
+            d.join[1],
+            out / "dynamic.png",
+            f"agent {d.leave[0]} leaves at {d.leave[1]}, agent {d.join[0]} joins at {d.join[1]}",
+        )
+
+
+# ------------------------------------------------------------------------------ real processes
+
+
+def representative_seed(res: BatchResult) -> int:
+    """The seed whose final formation error is closest to the median (lowest seed on ties)."""
+    v = final_errors(res)
+    gap = np.abs(v - np.median(v))
+    return int(res.plan.seeds[int(np.argmin(gap))])
+
+
+def run_real(
+    r: PaperResults,
+    out: Path,
+    record: bool = True,
+    log: Callable[[str], None] = print,
+    strategies: Sequence[StrategyName] = STRATEGIES,
+) -> None:
+    """Each strategy's representative seed through real processes; compares positions."""
+    runs_dir = out / "runs"
+    lines = [
+        "# Real-process runs of `formation experiment paper`",
+        "",
+        "| strategy | seed | run id | wall [s] | recording |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    for s in strategies:
+        res = r.runs["failure"][s]
+        seed = representative_seed(res)
+        b = int(np.flatnonzero(res.plan.seeds == seed)[0])
+        sim_x = res.positions[:, b]
+        row: dict[str, Any] = {
+            "strategy": s,
+            "seed": seed,
+            "sim_final": float(res.formation_error[-1, b]),
+        }
+        log(f"real processes: {s}, seed {seed} …")
+        try:
+            outcome = launch(
+                r.scenario, strategy=res.strategy, seed=seed, runs_dir=runs_dir, record=record
+            )
+        except Exception as exc:  # a failed launch is reported, not fatal to the experiment
+            row["max_diff_text"] = f"launch failed: {type(exc).__name__}"
+            lines.append(f"| {s} | {seed} | - | - | launch failed: {exc} |")
+            r.real.append(row)
+            continue
+        diff = float(np.max(np.abs(outcome.positions - sim_x)))
+        row["real_final"] = float(outcome.formation_error[-1])
+        row["max_diff_text"] = f"{diff:.1e}"
+        ok = diff <= 1e-9
+        rec_note = "not recorded (--no-record)"
+        if record:
+            rec_note = str(outcome.run_dir / "run.mcap")
+            try:
+                rec = read_run(outcome.run_dir / "run.mcap")
+                rdiff = float(np.max(np.abs(rec.positions - sim_x)))
+                row["recorded_diff_text"] = f"{rdiff:.1e}"
+                ok = ok and rdiff <= 1e-9
+            except Exception as exc:  # the recording is checked, its reader is another module
+                row["recorded_diff_text"] = f"unreadable: {type(exc).__name__}"
+                rec_note += f" (read failed: {exc})"
+        row["match"] = "yes" if ok else "no"
+        lines.append(f"| {s} | {seed} | `{outcome.run_id}` | {outcome.wall_s:.1f} | {rec_note} |")
+        r.real.append(row)
+    (out / "real_runs.md").write_text("\n".join(lines) + "\n")
+
+
+# ------------------------------------------------------------------------------ the whole experiment
+
+
+def run_paper(
+    scenario: Scenario,
+    out: Path,
+    seeds: Sequence[int] = tuple(range(1, 21)),
+    real: bool = True,
+    record: bool = True,
+    extras: bool = True,
+    log: Callable[[str], None] = print,
+    figures: bool = True,
+) -> PaperResults:
+    """Run the paper experiment and write ``out``; returns everything measured.
+
+    ``extras``: the studies beyond the chapter (§7.2 controllers, estimator, α, dynamic);
+    ``real``/``record``: the real-process runs and their recording; ``figures``: the PNGs.
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    seeds = tuple(int(s) for s in seeds)
+    r = PaperResults(scenario, seeds, {})
+    t0 = time.perf_counter()
+    r.runs = run_variants(scenario, seeds)
+    r.timings_s["variants"] = time.perf_counter() - t0
+    r.claims = judge(r)
+    if extras:
+        t = time.perf_counter()
+        r.studies["controller"] = studies.controller_study(scenario, seeds)
+        r.studies["estimator"] = studies.estimator_study(
+            [
+                ("paper, link 1–2 failed", scenario),
+                ("paper, every link Bernoulli 0.3", with_loss(scenario, "bernoulli", 0.3)),
+                ("henneberg 20 (2n − 3 edges), every link Bernoulli 0.1", _grid_team(scenario)),
+            ],
+            seeds,
+        )
+        r.studies["alpha"] = studies.alpha_study(scenario, seeds)
+        r.studies["dynamic"] = studies.dynamic_study(scenario, seeds)
+        r.timings_s["studies"] = time.perf_counter() - t
+    if figures:
+        t = time.perf_counter()
+        write_figures(r, out)
+        r.timings_s["figures"] = time.perf_counter() - t
+    if real:
+        t = time.perf_counter()
+        run_real(r, out, record=record, log=log)
+        r.timings_s["real processes"] = time.perf_counter() - t
+    (out / "seeds.csv").write_text(seeds_csv(r))
+    (out / "results.md").write_text(results_markdown(r))
+    return r
+
+
+def _grid_team(paper: Scenario) -> Scenario:
+    """A 20-agent minimally rigid team with every link lossy (the scenario files are not needed)."""
+    team = henneberg_team(20, seed=1)
+    return with_loss(team, "bernoulli", 0.1)
+
+
+__all__ = ["representative_seed", "run_paper", "run_real", "write_figures"]
