@@ -5,7 +5,7 @@ link and epoch, so any process gets the same verdict). Once every live sender's
 epoch-``k`` packet into a receiver is handled, that receiver gets one delivery of the
 phase with the payloads passed, unparsed: the delivery is also the epoch's close.
 Epochs into a receiver close in order. Delays are whole epochs: a delayed packet is
-held and goes out with a later epoch's delivery. Once every receiver of a phase's
+held and goes out with a later epoch's delivery. Once every live receiver of a phase's
 epoch is closed, that epoch's decision records go out in one batch.
 
 An epoch in which every link of the phase passes takes the clean path
