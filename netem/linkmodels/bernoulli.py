@@ -49,3 +49,5 @@ class BernoulliLayer(Layer[Bernoulli]):
 
 
 LAYER = BernoulliLayer
+
+__all__ = ["LAYER", "BernoulliLayer"]

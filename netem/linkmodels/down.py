@@ -25,3 +25,5 @@ class DownLayer(Layer[Down]):
 
 
 LAYER = DownLayer
+
+__all__ = ["LAYER", "DownLayer"]

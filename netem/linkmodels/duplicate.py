@@ -36,3 +36,5 @@ class DuplicateLayer(Layer[Duplicate]):
 
 
 LAYER = DuplicateLayer
+
+__all__ = ["LAYER", "DuplicateLayer"]

@@ -47,3 +47,5 @@ class GilbertElliottLayer(Layer[GilbertElliott]):
 
 
 LAYER = GilbertElliottLayer
+
+__all__ = ["LAYER", "GilbertElliottLayer"]

@@ -64,3 +64,5 @@ class Markov4Layer(Layer[Markov4]):
 
 
 LAYER = Markov4Layer
+
+__all__ = ["LAYER", "Markov4Layer"]

@@ -62,3 +62,5 @@ class OutageLayer(Layer[Outage]):
 
 
 LAYER = OutageLayer
+
+__all__ = ["LAYER", "OutageLayer"]

@@ -46,3 +46,5 @@ class ReorderLayer(Layer[Reorder]):
 
 
 LAYER = ReorderLayer
+
+__all__ = ["LAYER", "ReorderLayer"]

@@ -12,3 +12,5 @@ class UpLayer(Layer[Up]):
 
 
 LAYER = UpLayer
+
+__all__ = ["LAYER", "UpLayer"]
