@@ -22,6 +22,7 @@ from formation.errors import TestbedError
 from formation.scenario import Scenario
 from testbed.cli.common import DEFAULT_SCENARIO, parse_strategies
 from testbed.cli.tables import print_table
+from testbed.experiments.executors import SCHEDULER_FORMS, executor_for
 from testbed.experiments.lossy import MODELS
 from testbed.experiments.paper_run import run_paper
 from testbed.experiments.sweep import SweepSpec, critical_table, loss_grid, run_sweep
@@ -87,6 +88,7 @@ def _strategy_list(arg: str | None) -> tuple[Any, ...]:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     console = Console(stderr=True)
+    executor = executor_for(args.scheduler, args.jobs)
     topologies = _topologies(args)
     first = topologies[0][1].seed if args.seed is None else args.seed
     spec = SweepSpec(
@@ -123,7 +125,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             rate = f"{ran / elapsed:.0f}" if elapsed > 0 and ran else "-"
             bar.update(task, completed=done, total=total, rate=rate)
 
-        summary = run_sweep(spec, out, jobs=args.jobs, progress=progress)
+        summary = run_sweep(spec, out, progress=progress, executor=executor)
     wall = time.perf_counter() - started
     ran = len(spec.keys()) - (first_done[0] if first_done else 0)
     Console().print(critical_table(summary))
@@ -185,8 +187,20 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--out", default="experiments/sweep", help="output folder (default experiments/sweep)"
     )
-    p.add_argument("--jobs", type=int, help="worker processes (default: every core)")
-    p.add_argument("--chunk-seeds", type=int, default=10, help="seeds per work unit (default 10)")
+    p.add_argument(
+        "--jobs", type=int, help="worker processes of the local pool (default: every core)"
+    )
+    p.add_argument(
+        "--scheduler",
+        help=f"run the cells on a Dask cluster: {SCHEDULER_FORMS} (a local cluster of N "
+        "workers); default: the local pool",
+    )
+    p.add_argument(
+        "--chunk-seeds",
+        type=int,
+        default=10,
+        help="seeds per task (default 10; more where a task would be too short for its overhead)",
+    )
     p.set_defaults(func=cmd_sweep)
 
 

@@ -14,20 +14,19 @@ exceeds 1, ``p = 1`` and ``r = (1 − ρ)/ρ``, longer bursts), so ``π_bad = ρ
 
 Runs are batched (``testbed.sim.batch``) in chunks of one topology × model × seed group (every loss
 rate and strategy: the noise is drawn once per seed, the schedules once per rate and seed) and the
-chunks go to a process pool. Every finished chunk is appended to ``runs.csv``; a re-run skips the
-cells already there, and the final CSV and tables are written in a canonical order, so the same
-sweep gives byte-identical files however it was interrupted.
+chunks go to an executor (``testbed.experiments.executors``: the local process pool, or a Dask
+cluster), with enough seeds per chunk that a task's overhead stays under 5 % of it. Every finished
+chunk is appended to ``runs.csv`` as it comes; a re-run, on any executor, skips the cells already
+there, and the final CSV and tables are written in a canonical order, so the same sweep gives
+byte-identical files however and wherever it ran or was interrupted.
 """
 
 from __future__ import annotations
 
 import csv
 import math
-import multiprocessing
-import os
-import signal
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +34,7 @@ import numpy as np
 
 from formation.errors import TestbedError
 from formation.scenario import STRATEGIES, Scenario, StrategyName
+from testbed.experiments.executors import Executor, LocalPool, seeds_per_task
 from testbed.experiments.lossy import MODELS, with_loss
 from testbed.experiments.plots import phase_plot
 from testbed.experiments.studies import KEEP_FRACTION
@@ -245,12 +245,17 @@ def run_sweep(
     out_dir: Path,
     jobs: int | None = None,
     progress: Callable[[int, int], None] | None = None,
+    executor: Executor | None = None,
 ) -> SweepSummary:
     """Run the sweep into ``out_dir/runs.csv`` (resuming it) and write the tables.
 
-    ``jobs``: worker processes (default: every core; 1 runs in this process).
-    ``progress(done, total)`` is called as cells finish.
+    ``executor`` runs the chunks (default: the local pool of ``jobs`` worker processes, every
+    core by default; 1 runs in this process). ``progress(done, total)`` is called as cells finish.
     """
+    executor = executor or LocalPool(jobs)
+    per_seed = len(spec.losses) * len(spec.strategies)
+    seeds = seeds_per_task(spec.seeds_per_chunk, per_seed, spec.epochs, executor.task_overhead_s)
+    spec = replace(spec, seeds_per_chunk=seeds)  # the rows do not depend on the chunking
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / "runs.csv"
     rows = read_rows(path)
@@ -271,7 +276,7 @@ def run_sweep(
             if new_file:
                 writer.writeheader()
                 f.flush()
-            for got in _execute(chunks, jobs):
+            for got in executor.map_unordered(run_chunk, chunks):
                 writer.writerows(got)
                 f.flush()
                 rows.extend({k: str(v) for k, v in r.items()} for r in got)
@@ -282,31 +287,6 @@ def run_sweep(
     summary = summarise(rows, spec)
     write_tables(summary, out_dir)
     return summary
-
-
-def _execute(chunks: Sequence[Chunk], jobs: int | None) -> Iterable[list[dict[str, Any]]]:
-    workers = jobs or os.cpu_count() or 1
-    if workers <= 1 or len(chunks) == 1:
-        for c in chunks:
-            yield run_chunk(c)
-        return
-    pool = multiprocessing.get_context().Pool(min(workers, len(chunks)), initializer=_ignore_sigint)
-    try:
-        yield from pool.imap_unordered(run_chunk, chunks)
-    except BaseException:
-        # Ctrl-C or a failed chunk: end the workers now rather than after the queued chunks;
-        # what finished is already in the CSV, and a re-run resumes from there.
-        pool.terminate()
-        raise
-    else:
-        pool.close()
-    finally:
-        pool.join()
-
-
-def _ignore_sigint() -> None:
-    """Workers leave Ctrl-C to the parent, which ends them (a worker would skip one chunk only)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _write_canonical(path: Path, rows: list[dict[str, Any]], spec: SweepSpec) -> None:
@@ -452,7 +432,12 @@ def write_tables(summary: SweepSummary, out_dir: Path) -> None:
     names = [n for n, _ in spec.topologies]
     grid = (names, spec.models, spec.strategies)
     phase_plot(
-        summary.success, summary.critical, spec.losses, grid, spec.threshold_m, out_dir / "phase.png"
+        summary.success,
+        summary.critical,
+        spec.losses,
+        grid,
+        spec.threshold_m,
+        out_dir / "phase.png",
     )
 
 
