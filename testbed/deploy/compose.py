@@ -52,6 +52,8 @@ IMAGE = "${FORMATION_IMAGE:-formation-testbed:latest}"
 KEYS_DIR = "${FORMATION_KEYS:-./keys}"
 RUNS_DIR = "${FORMATION_RUNS:-./runs}"
 STOP_GRACE = "2m"  # the recorder finishes the MCAP file and writes the report [s]
+# A crashed agent or leader comes back and rejoins the run (issue 20); netem's exit ends it.
+RESTART = {"restart": "on-failure"}
 USER = "${FORMATION_UID:-1000}:${FORMATION_GID:-1000}"  # the invoking user (export them)
 
 
@@ -120,7 +122,7 @@ def document(
         "netem": _service(options, "netem", ["python", "-m", "netem", *scenario_args],
                           volumes=[mount], after=["recorder"]),
         "leader": _service(options, "leader", ["python", "-m", "leader", *scenario_args],
-                           volumes=[mount]),
+                           volumes=[mount], extra=RESTART),
     }  # fmt: skip
     for i in range(1, scenario.n + 1):
         name = security.agent_user(i)
@@ -129,6 +131,7 @@ def document(
             name,
             ["python", "-m", "agent", *scenario_args, "--id", str(i)],
             volumes=[mount],
+            extra=RESTART,
         )
     doc: dict[str, Any] = {"name": "formation", "services": services}
     if options.secure:

@@ -43,6 +43,15 @@ def test_committed_compose_file_is_what_the_generator_writes_now() -> None:
     assert COMPOSE.read_text() == _render(DEFAULT), "regenerate: formation compose > compose.yaml"
 
 
+def test_agents_and_the_leader_restart_on_failure_and_nothing_else_does() -> None:
+    """A crashed agent or leader rejoins the run (issue 20); netem, router and recorder do not
+    restart: netem's exit is the run's end, and a recorder restarted would start a new file."""
+    doc = yaml.safe_load(COMPOSE.read_text())
+    restarts = {name for name, svc in doc["services"].items() if svc.get("restart") == "on-failure"}
+    assert restarts == {"leader", *(s for s in doc["services"] if s.startswith("agent-"))}
+    assert not any("restart" in doc["services"][s] for s in ("router", "recorder", "netem"))
+
+
 def test_formation_compose_prints_the_file(
     capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
