@@ -8,7 +8,6 @@ value. The model follows MODEL.md: §1 team and shape, §3 control, §4 edge rul
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from functools import cached_property
 from pathlib import Path
@@ -16,6 +15,7 @@ from typing import Annotated, Any, Literal, get_args
 
 import numpy as np
 import numpy.typing as npt
+import tomli_w
 import tomllib
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -68,7 +68,7 @@ class Initial(_Model):
     spread_m: float = Field(0.3, ge=0.0)
 
 
-class Control(_Model):
+class Controller(_Model):
     """The formation controller (MODEL.md §3); ``epsilon = gain * period_s``."""
 
     controller: Literal["displacement", "distance"] = "displacement"
@@ -159,7 +159,7 @@ class Runtime(_Model):
     realtime_period_s: float | None = Field(None, gt=0.0)  # wall-clock period; default period_s
 
 
-class Recording(_Model):
+class RecordingSettings(_Model):
     compression: Literal["zstd", "lz4", "none"] = "zstd"
 
 
@@ -176,14 +176,14 @@ class Scenario(_Model):
     agents: tuple[Agent, ...] = Field(min_length=1)
     edges: tuple[Edge, ...] = ()
     initial: Initial = Initial()
-    control: Control = Control()
+    control: Controller = Controller()
     reference: Reference = StaticReference()
     noise: Noise = Noise()
     strategy: Strategy = Strategy()
     estimator: Estimator = Estimator()
     network: Network = Network()
     runtime: Runtime = Runtime()
-    recording: Recording = Recording()
+    recording: RecordingSettings = RecordingSettings()
 
     # -- checks that need the whole scenario ------------------------------------------------
     @model_validator(mode="after")
@@ -289,12 +289,9 @@ class Scenario(_Model):
             data[key] = value.model_dump(by_alias=True) if isinstance(value, BaseModel) else value
         return load_dict(data, source=f"{self.name} (overridden)")
 
-    def with_strategy(self, name: StrategyName) -> Scenario:
-        return self.with_overrides(strategy=Strategy(name=name, alpha=self.strategy.alpha))
-
     def to_toml(self) -> str:
         """The resolved scenario as TOML, stored with every run."""
-        return _to_toml(self.model_dump(by_alias=True, exclude_none=True))
+        return tomli_w.dumps(self.model_dump(by_alias=True, exclude_none=True))
 
     @classmethod
     def from_file(cls, path: str | Path) -> Scenario:
@@ -497,51 +494,3 @@ def load(path: str | Path) -> Scenario:
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(str(path), "", NO_VALUE, f"TOML syntax error: {exc}") from None
     return load_dict(data, source=str(path))
-
-
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        return (
-            repr(v)
-            if math.isfinite(v)
-            else ("nan" if math.isnan(v) else ("inf" if v > 0 else "-inf"))
-        )
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
-    if isinstance(v, dict):
-        return "{ " + ", ".join(f"{_toml_key(k)} = {_toml_value(x)}" for k, x in v.items()) + " }"
-    if isinstance(v, list | tuple):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {type(v).__name__} as TOML")
-
-
-def _toml_key(k: str) -> str:
-    return k if k.replace("_", "").isalnum() else f'"{k}"'
-
-
-def _to_toml(data: dict[str, Any]) -> str:
-    """A small TOML writer for the resolved scenario: scalars first, then tables, then arrays of tables."""
-    lines: list[str] = []
-    tables = {k: v for k, v in data.items() if isinstance(v, dict)}
-    arrays = {
-        k: v
-        for k, v in data.items()
-        if isinstance(v, list | tuple) and v and all(isinstance(x, dict) for x in v)
-    }
-    for k, v in data.items():
-        if k not in tables and k not in arrays:
-            lines.append(f"{_toml_key(k)} = {_toml_value(v)}")
-    for k, v in tables.items():
-        lines += ["", f"[{k}]"]
-        for kk, vv in v.items():
-            lines.append(f"{_toml_key(kk)} = {_toml_value(vv)}")
-    for k, v in arrays.items():
-        for item in v:
-            lines += ["", f"[[{k}]]"] + [
-                f"{_toml_key(kk)} = {_toml_value(vv)}" for kk, vv in item.items()
-            ]
-    return "\n".join(lines) + "\n"
