@@ -21,11 +21,12 @@ import numpy as np
 import numpy.typing as npt
 
 from formation import keys
-from formation.codec import Malformed, encode, now_ns
+from formation.codec import encode, now_ns
 from formation.messages import CoordinationState, EpochMetrics, LeaderEstimate
 from formation.scenario import Scenario
 from recorder.metrics import formation_error, shape_error
 from recorder.scene import scene_update
+from recorder.trust import Gate
 
 Derived = tuple[str, bytes]
 STALE_EPOCHS = 8  # an incomplete epoch this far behind the newest complete one is given up
@@ -55,15 +56,18 @@ class EpochAssembler:
         self._health: dict[int, tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]]] = {}
         self._newest = -1
         self._seq: Counter[str] = Counter()
-        self.malformed = Malformed()
+        self.gate = Gate(scenario, conflicts=False)  # what it skips: gate.skipped
         self.given_up = 0  # epochs whose states never all arrived
 
     def on_state(self, key: str, payload: bytes, stamp_ns: int) -> list[Derived]:
-        """A ``CoordinationState`` from ``agent/<i>/state``."""
-        state = self.malformed.decode(key, payload, CoordinationState)
-        if state is None or not 1 <= state.agent <= self.n or len(state.position) != self.d:
+        """A ``CoordinationState`` from ``agent/<i>/state``; only one its agent sent about itself
+        (:class:`recorder.trust.Gate`), the first of its epoch."""
+        state = self.gate.check(key, payload, "agent_state")
+        if not isinstance(state, CoordinationState):
             return []
         got = self._states.setdefault(state.epoch, {})
+        if state.agent in got:
+            return []
         got[state.agent] = state.position
         if len(got) < self.n:
             return []
@@ -81,8 +85,8 @@ class EpochAssembler:
 
     def on_estimate(self, key: str, payload: bytes, stamp_ns: int) -> list[Derived]:
         """A ``LeaderEstimate`` from ``leader/estimate``: health and tree of its epoch."""
-        est = self.malformed.decode(key, payload, LeaderEstimate)
-        if est is None:
+        est = self.gate.check(key, payload, "leader_estimate")
+        if not isinstance(est, LeaderEstimate):
             return []
         self._health[est.epoch] = (
             edge_mask(self.edges, list(est.healthy)),

@@ -275,7 +275,7 @@ class Recorder:
             "last_write_ns": str(self.last_write_ns),
         }
         if self.assembler is not None:
-            stats["derived_malformed"] = json.dumps(dict(self.assembler.malformed.counts))
+            stats["derived_malformed"] = json.dumps(self.assembler.gate.skipped.by_channel())
             stats["epochs_incomplete"] = str(self.assembler.given_up)
         self.recording.add_metadata("recorder_stats", stats)
         self.recording.close()

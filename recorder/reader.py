@@ -21,8 +21,10 @@ from mcap.records import Channel, Message, Schema
 from mcap.summary import Summary
 
 from formation.errors import RecordingError, TestbedError
+from formation.messages import DecisionBatch
 from formation.scenario import Scenario, load_dict
 from recorder.schemas import classify
+from recorder.trust import Gate, Skipped, derived_channels
 from recorder.writer import MAGIC, rotated_path
 
 READ_ERRORS = (Exception,)  # the mcap reader raises McapError, struct.error, zstd/lz4 errors, ...
@@ -133,6 +135,7 @@ class RecordingInfo:
     scenario: Scenario | None
     sent: Counter[str] = field(default_factory=Counter)  # per link: packets netem decided on
     drops: Counter[str] = field(default_factory=Counter)  # per link: verdict drop
+    skipped: Skipped = field(default_factory=Skipped)  # messages not trusted (recorder.trust)
 
     @property
     def duration_s(self) -> float:
@@ -145,9 +148,15 @@ def link_name(decision: dict[str, Any]) -> str:
 
 
 def describe(path: Path) -> RecordingInfo:
-    """Scenario, duration, channels with message counts, and netem's drops per link."""
+    """Scenario, duration, channels with message counts, and netem's drops per link.
+
+    Every message is checked (:class:`recorder.trust.Gate`): the drops count only decisions
+    that netem published and the scenario has, and ``skipped`` counts the rest per channel.
+    """
     with open_recording(path) as (reader, summary):
         meta = metadata(reader)
+        scenario = scenario_of(meta, path)
+        gate = Gate(scenario, derived_channels(summary.channels))
         stats = summary.statistics
         counts = stats.channel_message_counts if stats else {}
         channels = []
@@ -157,17 +166,17 @@ def describe(path: Path) -> RecordingInfo:
             channels.append(
                 ChannelInfo(ch.topic, schema.name if schema else "", kind, counts.get(cid, 0))
             )
-        decision_topics = [c.topic for c in channels if c.kind == "decision"]
         sent: Counter[str] = Counter()
         drops: Counter[str] = Counter()
-        if decision_topics:
-            for _, _, msg in iter_messages(
-                path, reader, topics=decision_topics, log_time_order=False
-            ):
-                for d in json.loads(msg.data).get("decisions", []):
-                    sent[link_name(d)] += 1
-                    if d.get("verdict") == "drop":
-                        drops[link_name(d)] += 1
+        for _, ch, msg in iter_messages(path, reader, log_time_order=False):
+            kind = ch.metadata.get("kind", classify(ch.topic))
+            checked = gate.check(ch.topic, msg.data, kind, ch.id)
+            if kind == "decision" and isinstance(checked, DecisionBatch):
+                for d in checked.decisions:
+                    name = link_name(d.model_dump())
+                    sent[name] += 1
+                    if d.verdict == "drop":
+                        drops[name] += 1
         comp = {c.compression or "none" for c in summary.chunk_indexes}
         return RecordingInfo(
             path=path,
@@ -179,9 +188,10 @@ def describe(path: Path) -> RecordingInfo:
             compression=",".join(sorted(comp)) or "-",
             channels=channels,
             metadata=meta,
-            scenario=scenario_of(meta, path),
+            scenario=scenario,
             sent=sent,
             drops=drops,
+            skipped=gate.skipped,
         )
 
 

@@ -5,7 +5,9 @@ of the wall clock. ``--prefix`` replaces the recorded ``formation/<run_id>`` so 
 fresh process can consume the traffic under another run id. The codec attachment
 ``(epoch, seq, source)`` is not stored in MCAP; it is rebuilt from the payload
 (``source`` = the ``agent`` field, or the leader's endpoint for estimates).
-Liveliness logs are not replayed (a put is not a token).
+Liveliness logs are not replayed (a put is not a token). A message that does not
+validate or whose sender does not own its key (:mod:`recorder.trust`) is not replayed
+either; each pass counts them in :attr:`Replayer.skipped`.
 
 A running replay answers on ``<prefix>/replay/control`` (a queryable): the query's
 parameters or JSON payload give ``command`` = ``pause``, ``resume``, ``seek``
@@ -27,8 +29,9 @@ import zenoh
 
 from formation import codec, keys
 from formation.errors import TestbedError
-from recorder.reader import iter_messages, open_recording
+from recorder.reader import iter_messages, metadata, open_recording, scenario_of
 from recorder.schemas import classify, run_id_of
+from recorder.trust import Gate, Skipped, derived_channels
 
 SKIP = frozenset({"alive"})  # channel kinds never replayed
 WAIT_SLICE_S = 0.05  # longest sleep between control checks [s]
@@ -48,6 +51,7 @@ class State:
     rate: float = 1.0
     position_s: float = 0.0
     published: int = 0
+    skipped: int = 0  # messages of this pass not trusted (recorder.trust), not published
     loops: int = 0
     done: bool = False
 
@@ -91,7 +95,10 @@ class Replayer:
         self._seek: float | None = start_s
         self._base_wall = 0.0  # [s] monotonic
         self._base_log: int | None = None  # [ns] log time published at _base_wall
-        with open_recording(self.path) as (_, summary):
+        with open_recording(self.path) as (reader, summary):
+            self.scenario = scenario_of(metadata(reader), self.path)
+            self.derived = derived_channels(summary.channels)
+            self.skipped = Skipped()
             self.channels = {
                 cid: ch
                 for cid, ch in summary.channels.items()
@@ -173,11 +180,20 @@ class Replayer:
 
     # -- the loop -----------------------------------------------------------------------------
     def _messages(self, from_s: float) -> Iterator[tuple[str, str, bytes, int]]:
+        """The trusted messages from ``from_s`` on; a fresh gate (and skip count) per pass."""
+        gate = Gate(self.scenario, self.derived)
+        with self._lock:
+            self.skipped, self.state.skipped = gate.skipped, 0
         with open_recording(self.path) as (reader, _):
             topics = [ch.topic for ch in self.channels.values()]
             start = self.first_ns + int(from_s * 1e9)
             for _, ch, msg in iter_messages(self.path, reader, topics=topics, starting_at=start):
-                yield ch.metadata.get("kind", classify(ch.topic)), ch.topic, msg.data, msg.log_time
+                kind = ch.metadata.get("kind", classify(ch.topic))
+                if gate.check(ch.topic, msg.data, kind, ch.id) is None:
+                    with self._lock:
+                        self.state.skipped += 1
+                    continue
+                yield kind, ch.topic, msg.data, msg.log_time
 
     def run(
         self, publish: Callable[[str, bytes, bytes | None], None], stop: threading.Event
@@ -268,6 +284,10 @@ def replay(args: Any) -> int:
     print(
         f"replayed {state.published} messages from {replayer.path} onto {replayer.prefix}/** ({state.loops} passes)"
     )
+    if replayer.skipped.total:
+        print(f"not replayed (last pass): {replayer.skipped.describe()}")
+        for topic, count in replayer.skipped.by_channel().items():
+            print(f"  {topic}: {count}")
     return 0
 
 

@@ -81,6 +81,9 @@ def summarize(run: RunData) -> dict[str, Any]:
         "expected_rigidity_rank": expected,
         "epochs_split": int((run.components[known] > 1).sum()),
     }
+    skipped = run.extra.get("skipped")
+    if skipped is not None:
+        out["skipped"] = skipped.as_json()
     recorded = run.extra.get("recorded_formation_error")
     if recorded is not None and np.isfinite(recorded).any():
         both = np.isfinite(recorded) & np.isfinite(run.formation_error)
@@ -137,6 +140,23 @@ def _markdown(
             notes.append(
                 f"{run.label}: the recorder's live metrics match the recomputed ones within {gap:.3g} m."
             )
+    skips = [(run, s["skipped"]) for run, s in zip(runs, sums, strict=True) if "skipped" in s]
+    if skips:
+        lines += ["", "## Messages not trusted", ""]
+        lines.append(
+            "Every recorded message is validated against its model and its sender checked "
+            "against the key's owner, the scenario's epochs and agents; these were skipped:"
+        )
+        lines.append("")
+        for run, sk in skips:
+            if not sk["total"]:
+                lines.append(f"- {run.label}: none")
+                continue
+            reasons = ", ".join(f"{r} {v}" for r, v in sk["by_reason"].items())
+            lines.append(f"- {run.label}: {sk['total']} ({reasons})")
+            for topic, by_reason in sk["by_channel"].items():
+                what = ", ".join(f"{r} {v}" for r, v in by_reason.items())
+                lines.append(f"  - `{topic}`: {what}")
     if notes:
         lines += ["", "## Notes", ""] + [f"- {n}" for n in notes]
     lines += ["", "## Figures", ""]

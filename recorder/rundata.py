@@ -10,20 +10,23 @@ next state, against the recorded truth.
 
 from __future__ import annotations
 
-import json
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from mcap.records import Channel, Message
 
 from formation.errors import RecordingError
+from formation.messages import CoordinationState, LeaderEstimate
 from formation.scenario import Scenario
 from recorder.epochs import edge_mask
 from recorder.metrics import formation_error, nees, shape_error
 from recorder.reader import iter_messages, metadata, open_recording, parts, scenario_of
 from recorder.schemas import classify
+from recorder.trust import Gate, Skipped, derived_channels
 
 Array = npt.NDArray[np.float64]
 Bools = npt.NDArray[np.bool_]
@@ -150,72 +153,97 @@ def _substitution_errors(x: Array, subs: list[tuple[int, int, int, list[float]]]
 
 
 class _Collected:
-    """What :func:`read_run` takes from the messages of one or more files."""
+    """What :func:`read_run` takes from the messages of one or more files, each one first
+    validated and its owner checked by a :class:`~recorder.trust.Gate` (skips are counted there)."""
 
     def __init__(self) -> None:
         self.states: dict[int, dict[int, list[float]]] = {}
-        self.substitutes: list[tuple[int, int, int, list[float]]] = []  # (epoch used, agent, j, x̃)
+        self.subs: dict[tuple[int, int], list[tuple[int, list[float]]]] = {}  # (epoch, agent)
         self.ests: dict[int, dict[str, Any]] = {}
         self.verdicts: list[tuple[int, int, int, bool]] = []
         self.recorded: dict[int, float] = {}
-        self.malformed = 0
 
-    def add(self, kind: str, data: bytes) -> None:
-        try:
-            body = json.loads(data)
-            if kind == "agent_state":
-                self.states.setdefault(int(body["epoch"]), {})[int(body["agent"])] = body[
-                    "position"
+    def add(self, kind: str, msg: Any) -> None:
+        if kind == "agent_state":
+            state: CoordinationState = msg
+            self.states.setdefault(state.epoch, {})[state.agent] = state.position
+            if state.substituted:  # used at the previous epoch; a repeat replaces, never adds
+                self.subs[state.epoch - 1, state.agent] = [
+                    (s.neighbour, s.value) for s in state.substituted
                 ]
-                for s in body.get("substituted", []):
-                    self.substitutes.append(
-                        (
-                            int(body["epoch"]) - 1,
-                            int(body["agent"]),
-                            int(s["neighbour"]),
-                            s["value"],
-                        )
-                    )
-            elif kind == "leader_estimate":
-                self.ests[int(body["epoch"])] = body
-            elif kind == "metrics":
-                self.recorded[int(body["epoch"])] = float(body["formation_error_m"])
-            else:
-                for dec in body["decisions"]:
-                    if dec["link_class"] == "formation":
-                        on_time = (
-                            dec["verdict"] in ("pass", "duplicate")
-                            and dec.get("delay_epochs", 0) == 0
-                        )
-                        self.verdicts.append(
-                            (int(dec["epoch"]), int(dec["source"]), int(dec["target"]), on_time)
-                        )
-        except (ValueError, KeyError, TypeError):
-            self.malformed += 1
+        elif kind == "leader_estimate":
+            est: LeaderEstimate = msg
+            self.ests[est.epoch] = {
+                "positions": est.positions,
+                "covariances": est.covariances,
+                "observable": est.observable,
+                "healthy": est.healthy,
+                "tree": est.tree,
+                "components": est.components,
+                "rigidity_rank": est.rigidity_rank,
+            }
+        elif kind == "metrics":
+            self.recorded[msg.epoch] = msg.formation_error_m
+        elif kind == "decision":
+            for dec in msg.decisions:
+                if dec.link_class == "formation":
+                    on_time = dec.verdict in ("pass", "duplicate") and dec.delay_epochs == 0
+                    self.verdicts.append((dec.epoch, dec.source, dec.target, on_time))
+
+    @property
+    def substitutes(self) -> list[tuple[int, int, int, list[float]]]:
+        """``(epoch used, agent, neighbour, x̃)``, sorted."""
+        return sorted((k, i, j, v) for (k, i), rows in self.subs.items() for j, v in rows)
 
 
 _WANTED = frozenset({"agent_state", "leader_estimate", "decision", "metrics"})
 
 
+def iter_trusted(
+    path: Path, gate_of: Any = None
+) -> Iterator[tuple[str, Channel, Message, Any, Gate]]:
+    """Every message of a recording (and its rotated parts) that its :class:`Gate` passes:
+    ``(kind, channel, record, validated message, gate)``; the skips are in ``gate.skipped``.
+
+    ``gate_of(meta)`` builds the gate once the first file's metadata is read (default: one
+    for the stored scenario).
+    """
+    gate: Gate | None = None
+    for part in parts(path):
+        with open_recording(part) as (reader, summary):
+            if gate is None:
+                meta = metadata(reader)
+                gate = gate_of(meta) if gate_of else Gate(scenario_of(meta, path))
+            gate.derived_channels = derived_channels(summary.channels)
+            for _, channel, msg in iter_messages(part, reader, log_time_order=False):
+                kind = channel.metadata.get("kind") or classify(channel.topic)
+                checked = gate.check(channel.topic, msg.data, kind, channel.id)
+                if checked is not None:
+                    yield kind, channel, msg, checked, gate
+
+
 def read_run(path: Path, label: str | None = None) -> RunData:
     """A recording as :class:`RunData`, with its rotated parts (``run-001.mcap``, ...) if any.
 
-    Needs the scenario stored as metadata.
+    Needs the scenario stored as metadata. Every message is validated and its owner
+    checked first (:mod:`recorder.trust`); ``extra["skipped"]`` counts what was not trusted.
     """
     got = _Collected()
-    meta: dict[str, dict[str, str]] = {}
-    for part in parts(path):
-        with open_recording(part) as (reader, _):
-            if not meta:
-                meta = metadata(reader)
-            for _, channel, msg in iter_messages(part, reader, log_time_order=False):
-                kind = channel.metadata.get("kind") or classify(channel.topic)
-                if kind in _WANTED:
-                    got.add(kind, msg.data)
-    scenario = scenario_of(meta, path)
-    if scenario is None:
-        raise RecordingError(str(path), "no scenario in the metadata (record with --scenario)")
-    return _assemble(scenario, path, label, got, meta)
+    holder: dict[str, Any] = {}
+
+    def gate_of(meta: dict[str, dict[str, str]]) -> Gate:
+        scenario = scenario_of(meta, path)
+        if scenario is None:
+            raise RecordingError(str(path), "no scenario in the metadata (record with --scenario)")
+        holder["meta"], holder["scenario"] = meta, scenario
+        holder["gate"] = Gate(scenario)
+        return holder["gate"]  # type: ignore[no-any-return]
+
+    for kind, _, _, msg, _ in iter_trusted(path, gate_of):
+        if kind in _WANTED:
+            got.add(kind, msg)
+    gate: Gate = holder["gate"]
+    return _assemble(holder["scenario"], path, label, got, holder["meta"], gate.skipped)
 
 
 def _assemble(
@@ -224,6 +252,7 @@ def _assemble(
     label: str | None,
     got: _Collected,
     meta: dict[str, dict[str, str]],
+    skipped: Skipped,
 ) -> RunData:
     n, d = scenario.n, scenario.dimension
     x = _positions(got.states, n, d)
@@ -251,7 +280,7 @@ def _assemble(
         positions=x,
         formation_error=formation_error(x, scenario.edge_array, scenario.weights),
         shape_error=shape_error(x, scenario.edge_array, scenario.offsets),
-        substitution_errors=_substitution_errors(x, sorted(got.substitutes), d),
+        substitution_errors=_substitution_errors(x, got.substitutes, d),
         nees_values=nees_values,
         estimation_errors=est_errors,
         delivered=delivered,
@@ -260,10 +289,10 @@ def _assemble(
         extra={
             "recorded_formation_error": recorded_fe,
             "metadata": meta,
-            "malformed": got.malformed,
+            "skipped": skipped,
         },
         **est,
     )
 
 
-__all__ = ["RunData", "read_run"]
+__all__ = ["RunData", "iter_trusted", "read_run"]

@@ -37,6 +37,7 @@ from mcap.records import (
 )
 
 from recorder.schemas import JSON, SchemaSpec, classify, schema_for_kind
+from recorder.trust import ORIGIN, RECORDER
 
 MAGIC = b"\x89MCAP0\r\n"
 LIBRARY = "formation-recorder"
@@ -283,6 +284,8 @@ class RecordingWriter:
         self._sticky = {name: dict(data) for name, data in (metadata or {}).items()}
         self._taps = frozenset(taps)
         self.ids: dict[str, int] = {}
+        self._derived_ids: dict[str, int] = {}  # the recorder's own messages (metrics, scene)
+        self.derived: set[int] = set()
         self.topics: dict[int, str] = {}
         self.kinds: dict[int, str] = {}
         self._tapped: dict[int, str] = {}
@@ -314,12 +317,15 @@ class RecordingWriter:
         return f
 
     def _channel_record(self, cid: int, topic: str) -> Channel:
+        metadata = {"kind": self.kinds[cid]}
+        if cid in self.derived:
+            metadata[ORIGIN] = RECORDER
         return Channel(
             id=cid,
             topic=topic,
             message_encoding=JSON,
             schema_id=self._schema_ids[schema_for_kind(self.kinds[cid]).name],
-            metadata={"kind": self.kinds[cid]},
+            metadata=metadata,
         )
 
     def _rotate(self) -> None:
@@ -335,9 +341,15 @@ class RecordingWriter:
             self._closed_counts[cid] = self._closed_counts.get(cid, 0) + count
 
     # -- channels -------------------------------------------------------------------------
-    def channel(self, key: str) -> int:
-        """The channel id of ``key``, registering its schema and channel on first use."""
-        cid = self.ids.get(key)
+    def channel(self, key: str, derived: bool = False) -> int:
+        """The channel id of ``key``, registering its schema and channel on first use.
+
+        ``derived``: the channel of what the recorder itself writes on ``key`` (metadata
+        ``origin = recorder``), apart from what arrived on that key over Zenoh, so that
+        a reader can tell the recorder's metrics and scenes from forged ones.
+        """
+        ids = self._derived_ids if derived else self.ids
+        cid = ids.get(key)
         if cid is not None:
             return cid
         kind = classify(key)
@@ -346,9 +358,11 @@ class RecordingWriter:
             schema_id = len(self._schema_ids) + 1
             self._schema_ids[spec.name], self._schemas[schema_id] = schema_id, spec
             self._file.add_schema(schema_id, spec)
-        cid = len(self.ids) + 1
-        self.ids[key], self.topics[cid], self.kinds[cid] = cid, key, kind
-        if kind in self._taps:
+        cid = len(self.topics) + 1
+        ids[key], self.topics[cid], self.kinds[cid] = cid, key, kind
+        if derived:
+            self.derived.add(cid)
+        elif kind in self._taps:
             self._tapped[cid] = kind
         self._file.add_channel(self._channel_record(cid, key))
         return cid
@@ -388,7 +402,7 @@ class RecordingWriter:
 
     def write(self, key: str, data: bytes, log_time: int) -> None:
         """Write one message the recorder made itself (metrics, scene); publish time = log time."""
-        self._file.add(self.channel(key), log_time, data, log_time, 0)
+        self._file.add(self.channel(key, derived=True), log_time, data, log_time, 0)
         if self._file.size >= self.chunk_size:
             self._close_chunk()
 
@@ -430,7 +444,11 @@ class RecordingWriter:
         for source in (self._file.counts, self._file.open_chunk_counts()):
             for cid, count in source.items():
                 total[cid] = total.get(cid, 0) + count
-        return {self.topics[cid]: count for cid, count in sorted(total.items())}
+        out: dict[str, int] = {}
+        for cid, count in sorted(total.items()):
+            topic = self.topics[cid]
+            out[topic] = out.get(topic, 0) + count
+        return out
 
     def close(self) -> list[Path]:
         """Finish the current file (summary, indexes, footer); returns every file written."""

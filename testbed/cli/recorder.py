@@ -69,6 +69,9 @@ def cmd_info(args: argparse.Namespace) -> int:
         console.print(links)
     else:
         console.print("no netem decisions recorded")
+    console.print(f"checked every message (model, owner, scenario): {info.skipped.describe()}")
+    for topic, count in info.skipped.by_channel().items():
+        console.print(f"  skipped on {topic.removeprefix(prefix)}: {count}")
     if args.validate:
         check = validate(args.recording)
         console.print(
@@ -83,6 +86,7 @@ def cmd_info(args: argparse.Namespace) -> int:
                 {
                     "channels": {c.topic: c.messages for c in info.channels},
                     "drops": dict(info.drops),
+                    "skipped": info.skipped.as_json(),
                 }
             )
         )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -45,7 +46,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                              pool=args.pool, record=not args.no_record, progress=progress)  # fmt: skip
         outcomes.append(outcome)
         if not args.no_record:
-            _report(outcome.run_dir, console)
+            outcome.extra["skipped"] = _report(outcome.run_dir, console)
         console.print(f"{strategy}: files in [bold]{outcome.run_dir}[/]")
     if len(outcomes) > 1 and not args.no_record:
         stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%S")
@@ -56,16 +57,26 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _report(run_dir: Path, console: Console) -> None:
+def _report(run_dir: Path, console: Console) -> dict[str, Any]:
+    """Writes the report; what it skipped as not trusted (``summary.json``'s ``skipped``)."""
     path = write_report(run_dir / "run.mcap", run_dir)
     console.print(f"report: {path}")
+    (summary,) = json.loads((run_dir / "summary.json").read_text())
+    skipped: dict[str, Any] = summary.get("skipped", {})
+    if skipped.get("total"):
+        reasons = ", ".join(f"{r} {v}" for r, v in skipped["by_reason"].items())
+        console.print(
+            f"the report skipped {skipped['total']} recorded messages it does not trust "
+            f"({reasons}) on {len(skipped['by_channel'])} channels: see {path}"
+        )
+    return skipped
 
 
 def _print_summary(outcomes: list[Any], console: Console) -> None:
     realtime = any(o.scenario.runtime.mode == "realtime" for o in outcomes)
     table = Table(title="formation run: summary")
     cols = ["strategy", "seed", "epochs", "formation\nfinal [m]", "shape\nfinal [m]", "sent", "dropped",
-            "links with drops\n(sent/dropped)", "mal-\nformed", "wall [s]"]  # fmt: skip
+            "links with drops\n(sent/dropped)", "mal-\nformed", "skipped", "wall [s]"]  # fmt: skip
     if realtime:
         cols.append("deadline\nmisses")
     for col in cols:
@@ -79,7 +90,8 @@ def _print_summary(outcomes: list[Any], console: Console) -> None:
         row = [
             s["strategy"], str(s["seed"]), str(s["epochs"]), f"{s['final_formation_error_m']:.4g}",
             f"{s['final_shape_error_m']:.4g}", str(s["packets_sent"]), str(s["packets_dropped"]), links,
-            str(sum(s["malformed"].values())), f"{s['wall_s']:.1f}",
+            str(sum(s["malformed"].values())), str(o.extra.get("skipped", {}).get("total", "-")),
+            f"{s['wall_s']:.1f}",
         ]  # fmt: skip
         if realtime:
             rate = s["deadline_miss_rate"]

@@ -165,6 +165,7 @@ class _Observer:
             ]
             ok = 0 <= k <= self.scenario.epochs and 1 <= i <= self.scenario.n
             ok = ok and len(position) == self.scenario.dimension
+            ok = ok and str(sample.key_expr).split("/")[-2] == str(i)  # its own key only
         except (orjson.JSONDecodeError, KeyError, TypeError, ValueError):
             ok = False
         if not ok:
@@ -201,7 +202,12 @@ class _Observer:
 
     def _on_status(self, sample: zenoh.Sample) -> None:
         msg = self._decode(sample, Status)
-        if msg is not None:
+        role, ident = str(sample.key_expr).split("/")[-2:]
+        if msg is not None and msg.sender != (
+            f"{role}/{ident}" if role in ("agent", "pool") else role
+        ):
+            self.malformed.counts[str(sample.key_expr)] += 1  # another process's status
+        elif msg is not None:
             with self.lock:
                 self.statuses[msg.sender] = msg
 

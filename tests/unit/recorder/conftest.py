@@ -67,9 +67,15 @@ def traffic(result: Any) -> list[tuple[str, bytes, bytes | None, int]]:
     return out
 
 
-def write_synthetic(path: Path, result: Any, **options: Any) -> dict[str, int]:
+def write_synthetic(
+    path: Path,
+    result: Any,
+    inject: list[tuple[str, bytes, bytes | None, int]] = (),  # type: ignore[assignment]
+    **options: Any,
+) -> dict[str, int]:
     """Record ``traffic(result)`` as the recorder would (with metrics and scene); counts per key.
 
+    ``inject``: more ``(key, payload, attachment, log time)`` received among them (forgeries);
     ``options`` go to :class:`RecordingWriter` (e.g. ``split_size``).
     """
     s = result.scenario
@@ -77,7 +83,7 @@ def write_synthetic(path: Path, result: Any, **options: Any) -> dict[str, int]:
     options = {"chunk_size": 64 * 1024, **options}
     rec = RecordingWriter(path, metadata=meta, taps=("agent_state", "leader_estimate"), **options)
     asm = EpochAssembler(s, RUN, clock=lambda: 0)
-    for key, data, att, t in traffic(result):
+    for key, data, att, t in sorted([*traffic(result), *inject], key=lambda m: m[3]):
         for kind, k_, d_, recv in rec.write_batch([(key, data, att, None, t)]):
             on = asm.on_state if kind == "agent_state" else asm.on_estimate
             for out_key, payload in on(k_, d_, recv):

@@ -88,7 +88,7 @@ def test_scene_without_estimate_goes_out_when_a_later_epoch_completes(paper: Sce
 def test_malformed_states_are_counted_and_stale_epochs_given_up(paper: Scenario) -> None:
     asm = EpochAssembler(paper, RUN)
     assert asm.on_state(keys.agent_state(RUN, 1), b"{not json", 0) == []
-    assert asm.malformed.counts[keys.agent_state(RUN, 1)] == 1
+    assert asm.gate.skipped.by_channel()[keys.agent_state(RUN, 1)] == 1
     asm.on_state(*state(1, 0, paper.offsets[0]), stamp_ns=0)  # epoch 0 never completes
     for k in range(1, STALE_EPOCHS + 3):
         feed_epoch(asm, k, paper.offsets)
