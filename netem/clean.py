@@ -23,12 +23,12 @@ from formation.scenario import LEADER_ENDPOINT
 from netem.links import Link, Links, Phase
 from netem.models import LinkModel
 from netem.records import Record, packet_json, record_head, record_tail
-from netem.stack import Decision
+from netem.stack import Outcome
 
 Deliver = Callable[[int, int, list[bytes]], None]  # (receiver, epoch, its packets)
 
 
-class Stream(NamedTuple):
+class CleanStream(NamedTuple):
     """Where one inbound key's packets go: its links, their receivers and models."""
 
     links: tuple[Link, ...]
@@ -49,7 +49,9 @@ class Gathering:
 class CleanEpochs:
     """One phase's streams, its clean epochs and the records of those epochs."""
 
-    def __init__(self, streams: dict[int, Stream], need: dict[int, int], block: int = 1024) -> None:
+    def __init__(
+        self, streams: dict[int, CleanStream], need: dict[int, int], block: int = 1024
+    ) -> None:
         self.streams = streams
         self.need = need  # receiver → packets it gets in a clean epoch (one per sender)
         self.expected = len(streams)  # packets per epoch: one per stream
@@ -153,7 +155,7 @@ class CleanEpochs:
 
     # internals ----------------------------------------------------------------------------------
 
-    def _tail_id(self, d: Decision | None) -> int:
+    def _tail_id(self, d: Outcome | None) -> int:
         """An id of a passing decision's encoded fields; -1 when it does not pass."""
         if d is None or d.verdict != "pass":
             return -1
@@ -212,9 +214,9 @@ def clean_epochs(links: Links) -> dict[Phase, CleanEpochs]:
     """Each phase's streams: an agent's states fan out on its out-links, a report goes to
     the leader, the leader's estimate for ``i`` to ``i``."""
 
-    def stream(chosen: list[Link]) -> Stream:
+    def stream(chosen: list[Link]) -> CleanStream:
         models = tuple(links.models[link] for link in chosen)
-        return Stream(tuple(chosen), tuple(dst for _, _, dst in chosen), models)
+        return CleanStream(tuple(chosen), tuple(dst for _, _, dst in chosen), models)
 
     agents, out_links, in_links = links.agents, links.out_links, links.in_links
     return {

@@ -93,7 +93,7 @@ class Layer(Generic[S]):
 
     stateful = False  # carries chain state from one block of epochs into the next
     timed = False  # drops by packet time [s] (``drops_at``), applied after the run
-    state_names: tuple[str, ...] = ("",)  # state code → its name in ``Decision.state``
+    state_names: tuple[str, ...] = ("",)  # state code → its name in ``Outcome.state``
 
     def __init__(self, spec: S, occurrence: int) -> None:
         self.spec = spec

@@ -12,7 +12,7 @@ Semantics (tc netem's where it has them, see ``man tc-netem`` and Linux
 
 * **A stack** of specs is applied in order. Loss layers (up, down, bernoulli,
   gilbert_elliott, markov4, outage) each decide independently; a packet is
-  dropped when any of them drops it, and ``Decision.model`` names the first one
+  dropped when any of them drops it, and ``Outcome.model`` names the first one
   in stack order that did. Every layer's chain runs whether or not another layer
   dropped the packet, so adding an outage on top of a Bernoulli loss leaves the
   Bernoulli decisions outside the window unchanged (draws are keyed by the
@@ -43,7 +43,7 @@ link; ``bench/bench_netem_models.py`` measures it.
 
 Layout: the specs are in ``formation.linkmodels``; each model's layer and closed
 forms in ``netem.linkmodels.<tag>`` (the registry, ``netem.linkmodels``, says how
-to add one); a stack's run and the records (``Decision``, ``Schedule``,
+to add one); a stack's run and the records (``Outcome``, ``Schedule``,
 ``LinkMatrix``) in ``netem.stack``; the closed forms of a stack in
 ``netem.closed_forms``. This module holds ``LinkModel`` and the batch forms and
 re-exports the rest.
@@ -77,8 +77,8 @@ from netem.layer import Keys, LinkModelError
 from netem.stack import (
     KEY_LIMIT,
     Carry,
-    Decision,
     LinkMatrix,
+    Outcome,
     Piece,
     Schedule,
     Stack,
@@ -103,7 +103,7 @@ class _Block:
     code_list: list[int]  # epoch start + j is decided by table[code_list[j]]
     timed: bool
     codes: npt.NDArray[np.int64]  # code_list as an array
-    table: list[Decision]
+    table: list[Outcome]
     by_seq: dict[tuple[int, int], tuple[list[int], list[int], list[float]]] = field(
         default_factory=dict
     )  # (piece, seq) → extra copies, delay [epochs], delay [ms] of packet `seq` of each epoch
@@ -185,7 +185,7 @@ class LinkModel:
         self._blocks = {i: blk for i, blk in self._blocks.items() if i < k}
         self._carries = {i: c for i, c in self._carries.items() if i <= k}
 
-    def decide(self, epoch: int, seq: int = 0, time_s: float | None = None) -> Decision:
+    def decide(self, epoch: int, seq: int = 0, time_s: float | None = None) -> Outcome:
         """The decision for packet ``seq`` of ``epoch`` (realtime windows at ``time_s`` [s]).
 
         The same answer for the same arguments, in any order of calls, in any process.
@@ -201,7 +201,7 @@ class LinkModel:
 
     def coded(
         self, start: int, n_epochs: int
-    ) -> tuple[npt.NDArray[np.int64], list[Decision | None]]:
+    ) -> tuple[npt.NDArray[np.int64], list[Outcome | None]]:
         """Epochs ``start .. start + n_epochs - 1`` as ``(codes, table)``: ``decide(k)`` is
         ``table[codes[k - start]]`` (packet 0), for vectorised use of many epochs.
 
@@ -209,7 +209,7 @@ class LinkModel:
         ``None`` in place of a decision.
         """
         codes: list[npt.NDArray[np.int64]] = []
-        table: list[Decision | None] = []
+        table: list[Outcome | None] = []
         k, end = start, start + n_epochs
         while k < end:
             blk = self._blocks.get(k // self._b)
@@ -287,9 +287,9 @@ class LinkModel:
         a = k * self._b
         pieces, end = self._run_range(a, a + self._b, self._carry_at(k))
         self._carries[k + 1] = end
-        # Epochs with equal outcomes share one Decision: rows are coded by np.unique, and
+        # Epochs with equal outcomes share one Outcome: rows are coded by np.unique, and
         # only the few distinct rows are turned into Python objects.
-        table: list[Decision] = []
+        table: list[Outcome] = []
         codes = []
         for p in pieces:
             kinds = [layer.kind for layer in p.stack.layers]
@@ -339,7 +339,7 @@ class LinkModel:
                 dms += out.delay_ms[0]
         return dup.tolist(), de.tolist(), dms.tolist()
 
-    def _decide_slow(self, blk: _Block, epoch: int, seq: int, time_s: float | None) -> Decision:
+    def _decide_slow(self, blk: _Block, epoch: int, seq: int, time_s: float | None) -> Outcome:
         """Packets with ``seq > 0`` or under a realtime window: one packet, from the block's chains."""
         which = next(i for i in reversed(range(len(blk.pieces))) if blk.pieces[i].start <= epoch)
         p = blk.pieces[which]
@@ -472,11 +472,11 @@ def delivery_matrix(
 
 __all__ = [
     "MODEL_NAMES",
-    "Decision",
     "DelayMoments",
     "LinkMatrix",
     "LinkModel",
     "LinkModelError",
+    "Outcome",
     "Schedule",
     "delay_moments",
     "delivery_matrix",

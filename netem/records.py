@@ -1,6 +1,6 @@
 """netem's outgoing records as JSON, built from tuples instead of pydantic objects.
 
-netem takes one decision per packet; building a ``Decision`` and ``DeliveredPacket`` model
+netem takes one decision per packet; building an ``Outcome`` and ``DeliveredPacket`` model
 per packet cost more than the forwarding itself. The hot path keeps plain tuples,
 and these functions encode a whole batch or delivery at once with orjson. The JSON is
 exactly what :class:`~formation.messages.DecisionBatch` and
@@ -17,11 +17,11 @@ from typing import Any
 import orjson
 
 from netem.links import Link, Phase
-from netem.stack import Decision as ModelDecision
+from netem.stack import Outcome
 
 # One decision on one packet, as the hot path keeps it (a plain tuple: built per packet):
 # (source, target, link class, epoch, seq, the model's decision).
-Record = tuple[int, int, str, int, int, ModelDecision]
+Record = tuple[int, int, str, int, int, Outcome]
 
 
 class Ledger:
@@ -35,7 +35,7 @@ class Ledger:
         self.forwarded: Counter[Link] = Counter()  # packets delivered per link
 
 
-def _decision_json(d: ModelDecision) -> bytes:
+def _decision_json(d: Outcome) -> bytes:
     """The fields of a record that come from the decision, as JSON after ``"seq":N``."""
     return orjson.dumps(
         {
@@ -51,7 +51,7 @@ def _decision_json(d: ModelDecision) -> bytes:
 # A link's records differ only in epoch, seq and decision; decisions are shared objects
 # (a model memoises them per block), so both halves are encoded once and spliced.
 _LINK_JSON: dict[tuple[int, int, str], bytes] = {}
-_DECISION_JSON: dict[int, tuple[ModelDecision, bytes]] = {}  # by id; the entry keeps d alive
+_DECISION_JSON: dict[int, tuple[Outcome, bytes]] = {}  # by id; the entry keeps d alive
 
 
 def record_head(source: int, target: int, link_class: str) -> bytes:
@@ -64,7 +64,7 @@ def record_head(source: int, target: int, link_class: str) -> bytes:
     return head
 
 
-def record_tail(d: ModelDecision) -> bytes:
+def record_tail(d: Outcome) -> bytes:
     """A record's JSON after ``"seq":N``: the fields that come from the decision."""
     tail = _DECISION_JSON.get(id(d))
     if tail is None or tail[0] is not d:

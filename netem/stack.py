@@ -1,7 +1,7 @@
 """A stack of layers run over epochs, and the records of what it decides (MODEL.md §4).
 
 ``run_stack`` runs a stack's layers over consecutive epochs for one or more
-links; ``Decision``, ``Schedule`` and ``LinkMatrix`` are what netem answers with.
+links; ``Outcome``, ``Schedule`` and ``LinkMatrix`` are what netem answers with.
 Nothing here knows a model: each layer comes from ``netem.linkmodels`` by its tag.
 """
 
@@ -23,7 +23,7 @@ Carry = dict[tuple[str, int], npt.NDArray[Any]]  # chain state per layer ident (
 KEY_LIMIT = 2**63  # keys (seed, link ends, epochs, seq) are integers in [0, 2**63)
 
 
-class Decision(NamedTuple):
+class Outcome(NamedTuple):
     """What netem does with one packet (one link, one epoch, one ``seq``)."""
 
     delivered: bool
@@ -60,7 +60,7 @@ class Schedule:
     def __len__(self) -> int:
         return int(self.epochs.shape[0])
 
-    def decision(self, i: int) -> Decision:
+    def decision(self, i: int) -> Outcome:
         """The decision at index ``i`` (epoch ``epochs[i]``), as ``LinkModel.decide`` gives it."""
         kinds = [k for k in self.layer_kinds[i].tolist() if k >= 0]
         codes = self.state_codes[i].tolist()[: len(kinds)]
@@ -218,7 +218,7 @@ def run_stack(stack: Stack, keys: Keys, start: int, n: int, carry: Carry) -> tup
 
 
 def state_string(kinds: Sequence[str], codes: Sequence[int]) -> str:
-    """``Decision.state``: the named states of the layers ``kinds`` with codes ``codes``, by ","."""
+    """``Outcome.state``: the named states of the layers ``kinds`` with codes ``codes``, by ","."""
     names = []
     for kind, code in zip(kinds, codes, strict=False):
         name = STATE_NAMES[kind][code] if code >= 0 else ""
@@ -229,17 +229,17 @@ def state_string(kinds: Sequence[str], codes: Sequence[int]) -> str:
 
 def make_decision(
     model: str, copies: int, delay_epochs: int, delay_ms: float, reordered: bool, state: str
-) -> Decision:
+) -> Outcome:
     """The decision with its verdict; ``model`` is the dropping model, "" when delivered."""
     if model:
-        return Decision(False, 0, 0.0, 0, "drop", model, state, False)
+        return Outcome(False, 0, 0.0, 0, "drop", model, state, False)
     if copies > 1:
         verdict = "duplicate"
     elif delay_epochs > 0 or delay_ms > 0.0:
         verdict = "delayed"
     else:
         verdict = "pass"
-    return Decision(True, delay_epochs, delay_ms, copies, verdict, "", state, reordered)
+    return Outcome(True, delay_epochs, delay_ms, copies, verdict, "", state, reordered)
 
 
 def check_key(link: str, name: str, value: int) -> None:
@@ -313,9 +313,9 @@ def schedule_of(pieces: Sequence[Piece], start: int, n: int) -> Schedule:
 __all__ = [
     "KEY_LIMIT",
     "Carry",
-    "Decision",
     "LinkMatrix",
     "LinkModelError",
+    "Outcome",
     "Piece",
     "Schedule",
     "Stack",

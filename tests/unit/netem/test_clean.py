@@ -4,25 +4,25 @@ from __future__ import annotations
 
 from formation.linkmodels import Bernoulli, Delay, GilbertElliott, Outage
 from formation.messages import DecisionBatch
-from netem.clean import CleanEpochs, Stream
+from netem.clean import CleanEpochs, CleanStream
 from netem.models import LinkModel
 from netem.records import decision_batch, decision_batch_of
 
 HEADER = {"run_id": "r", "sender": "netem", "seq": 0, "epoch": 0, "stamp_ns": 1}
 
 
-def streams() -> dict[int, Stream]:
+def streams() -> dict[int, CleanStream]:
     stacks = {
         (1, 2): [Bernoulli(p_loss=0.05)],
         (1, 3): [GilbertElliott(p=0.01, r=0.5)],  # a state in every record, loss rare
         (2, 1): [Outage(start=300, end=320)],
         (3, 1): [Delay(epochs=0, jitter_epochs=1)],
     }
-    out: dict[int, Stream] = {}
+    out: dict[int, CleanStream] = {}
     for src in (1, 2, 3):
         links = [("formation", s, d) for s, d in stacks if s == src]
         models = [LinkModel(stacks[(s, d)], 7, s, d) for _, s, d in links]
-        out[src] = Stream(tuple(links), (), tuple(models))
+        out[src] = CleanStream(tuple(links), (), tuple(models))
     return out
 
 
@@ -74,7 +74,7 @@ def test_an_epoch_marked_slow_stays_unclean_after_its_block_is_computed_again() 
 def test_a_receiver_gets_its_delivery_once_all_its_senders_packets_are_in() -> None:
     links = {1: [("formation", 1, 2), ("formation", 1, 3)], 2: [("formation", 2, 3)]}
     ss = {
-        s: Stream(tuple(ls), tuple(d for _, _, d in ls), tuple(LinkModel([], 7, s, d) for _, s, d in ls))
+        s: CleanStream(tuple(ls), tuple(d for _, _, d in ls), tuple(LinkModel([], 7, s, d) for _, s, d in ls))
         for s, ls in links.items()
     }  # fmt: skip
     ce = CleanEpochs(ss, {2: 1, 3: 2}, block=64)

@@ -31,9 +31,9 @@ from formation.linkmodels import (
 )
 from netem.linkmodels import LAYERS, layer_of
 from netem.models import (
-    Decision,
     LinkModel,
     LinkModelError,
+    Outcome,
     delivery_matrix,
     expected_burst_length,
     expected_loss_rate,
@@ -207,10 +207,10 @@ def test_first_dropping_layer_names_the_drop(seed: int) -> None:
 
 
 def test_verdicts(seed: int) -> None:
-    assert schedule([Up()], seed, 1, 2, 5).decision(0) == Decision(
+    assert schedule([Up()], seed, 1, 2, 5).decision(0) == Outcome(
         True, 0, 0.0, 1, "pass", "", "", False
     )
-    assert schedule([Down()], seed, 1, 2, 5).decision(0) == Decision(
+    assert schedule([Down()], seed, 1, 2, 5).decision(0) == Outcome(
         False, 0, 0.0, 0, "drop", "down", "down", False
     )
     assert schedule([Delay(epochs=2)], seed, 1, 2, 5).decision(0).verdict == "delayed"
@@ -244,7 +244,7 @@ def test_reorder_with_gap_sends_every_nth_epoch_at_once(seed: int) -> None:
     assert np.flatnonzero(s.reordered).tolist() == list(range(2, 30, 3))
     assert np.all(s.delay_epochs[s.reordered] == 0)
     assert np.all(s.delay_epochs[~s.reordered] == 2)
-    assert s.decision(2) == Decision(True, 0, 0.0, 1, "pass", "", "", True)
+    assert s.decision(2) == Outcome(True, 0, 0.0, 1, "pass", "", "", True)
 
 
 def test_later_packets_of_an_epoch_share_the_loss_and_draw_their_own_delay(seed: int) -> None:

@@ -8,16 +8,16 @@ from hypothesis import strategies as st
 
 from formation.messages import CoordinationState, DecisionBatch, Delivery
 from netem.records import Record, decision_batch, delivery, packet_json
-from netem.stack import Decision
+from netem.stack import Outcome
 
 HEADER = {"run_id": "r", "sender": "netem", "seq": 3, "epoch": 7, "stamp_ns": 11}
 
 decisions = st.sampled_from(
     [
-        Decision(True, 0, 0.0, 1, "pass", "", ""),
-        Decision(False, 0, 0.0, 0, "drop", "gilbert_elliott", "bad"),
-        Decision(True, 2, 0.0, 1, "delayed", "", ""),
-        Decision(True, 0, 12.5, 2, "duplicate", "", "3,down"),
+        Outcome(True, 0, 0.0, 1, "pass", "", ""),
+        Outcome(False, 0, 0.0, 0, "drop", "gilbert_elliott", "bad"),
+        Outcome(True, 2, 0.0, 1, "delayed", "", ""),
+        Outcome(True, 0, 12.5, 2, "duplicate", "", "3,down"),
     ]
 )
 records = st.tuples(
