@@ -18,6 +18,7 @@ def main(argv: list[str]) -> int:
         print(f"\n=== {name} ===", flush=True)
         start = time.perf_counter()
         module = importlib.import_module(f"bench.{name.removeprefix('bench.')}")
+        sys.argv = [f"bench.{name}"]  # a benchmark's own argument parser sees no names
         module.main()
         print(f"({name}: {time.perf_counter() - start:.1f} s)", flush=True)
     return 0
