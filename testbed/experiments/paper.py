@@ -16,21 +16,18 @@ Variants of the default scenario, all 50 epochs (the chapter's) over seeds ``1..
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from formation.scenario import STRATEGIES, Scenario, StrategyName
+from formation.scenario import STRATEGIES, Scenario
 from recorder.metrics import error_statistics
-from testbed.experiments import plots
 from testbed.experiments import studies
-from testbed.sim.batch import BatchResult, plan_batch, run_batch
 from testbed.experiments.studies import KEEP_FRACTION, KEEP_M, mean_std
+from testbed.sim.batch import BatchResult, plan_batch, run_batch
 
 Array = npt.NDArray[np.float64]
 LOSSY_P = 0.5  # Bernoulli loss of the "lossy link" variants

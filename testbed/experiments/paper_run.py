@@ -32,7 +32,6 @@ from testbed.runtime.launcher import launch
 from testbed.sim.batch import BatchResult
 from testbed.sim.teams import henneberg_team
 
-
 # ------------------------------------------------------------------------------ figures
 
 

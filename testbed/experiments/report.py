@@ -12,7 +12,6 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from testbed.sim.batch import BatchResult
 from testbed.experiments.paper import (
     LOSSY_P,
     SECOND_LINK,
@@ -22,6 +21,7 @@ from testbed.experiments.paper import (
     window_trace,
 )
 from testbed.experiments.studies import KEEP_FRACTION, KEEP_M, fmt, mean_std
+from testbed.sim.batch import BatchResult
 
 
 def _strategy_table(runs: dict[str, BatchResult], epochs_label: str) -> str:
