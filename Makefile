@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 SCENARIO ?= scenarios/paper.toml
 
-.PHONY: run test bench lint typecheck architecture clean
+.PHONY: run test bench lint typecheck architecture clean compose-test
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -28,6 +28,13 @@ typecheck: $(BIN)/.installed
 
 architecture: $(BIN)/.installed
 	$(BIN)/lint-imports
+
+# The unchanged compose.yaml under podman-compose, loopback only (deploy/compose.loopback.yaml),
+# checked against a native run: installs podman and podman-compose if missing, makes the base
+# image when no registry serves it, builds the image (both cached in podman's store).
+compose-test: $(BIN)/.installed
+	deploy/podman.sh engine base build
+	env $$(deploy/podman.sh env) $(BIN)/pytest -q -p no:cacheprovider -m containers -s tests/containers
 
 bench: $(BIN)/.installed
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench

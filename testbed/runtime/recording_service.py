@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path, PurePosixPath
 
 from recorder import node
@@ -40,8 +41,8 @@ def main(argv: list[str] | None = None) -> int:
     out_dir = Path(args.out or Path("runs") / args.run_id)
     shown = PurePosixPath(ours.host_out or out_dir)  # what the host calls out_dir
     try:
-        run = read_run(out_dir / args.file)
-        write_report_from([run], out_dir, title=f"Report: {shown / args.file}")
+        run = replace(read_run(out_dir / args.file), source=str(shown / args.file))
+        write_report_from([run], out_dir, title=f"Report: {run.source}")
     except Exception as exc:  # the recording is safe; say why the report is not
         print(
             f"recording_service: error: no report for {shown / args.file}: {exc}", file=sys.stderr

@@ -1,0 +1,183 @@
+"""The unchanged compose.yaml under podman-compose, loopback only, against a native run.
+
+Run by ``make compose-test`` (after ``deploy/podman.sh engine base build``), which sets
+``PODMAN_COMPOSE`` and ``CONTAINERS_CONF``; skipped otherwise. The services run from the
+image on the host's network, each service name on its own 127.0.0.N
+(``deploy/compose.loopback.yaml``); ``up``, wait for netem to exit, ``down``. The
+recording must hold every sender's count and every epoch, Foxglove's real SceneUpdate
+schema, and equal a native ``formation run`` of the same scenario and seed.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from collections import Counter
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+from mcap.reader import make_reader
+
+from formation import keys
+from formation.scenario import Scenario
+from recorder.rundata import read_run
+
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.containers]
+
+ROOT = Path(__file__).resolve().parents[2]
+COMPOSE = ROOT / "compose.yaml"
+OVERRIDE = ROOT / "deploy" / "compose.loopback.yaml"
+PODMAN_COMPOSE = os.environ.get("PODMAN_COMPOSE", "")
+WAIT_S = 300  # netem's exit; the default scenario takes seconds
+DOWN_S = 180  # the recorder's stop_grace_period is 2 min
+
+needs_podman = pytest.mark.skipif(
+    not PODMAN_COMPOSE or not os.environ.get("CONTAINERS_CONF"),
+    reason="needs podman-compose: run `make compose-test`",
+)
+
+
+def _compose(*args: str, env: dict[str, str], timeout_s: float) -> subprocess.CompletedProcess[str]:
+    argv = [PODMAN_COMPOSE, "-f", str(COMPOSE), "-f", str(OVERRIDE), *args]
+    return subprocess.run(
+        argv, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout_s, check=False
+    )
+
+
+def _containers(project: str) -> dict[str, str]:
+    """Container name → status line, of the compose project."""
+    out = subprocess.run(
+        ["podman", "ps", "-a", "--filter", f"label=io.podman.compose.project={project}",
+         "--format", "{{.Names}}\t{{.Status}}"],
+        capture_output=True, text=True, check=True, timeout=60,
+    ).stdout  # fmt: skip
+    return dict(line.split("\t", 1) for line in out.splitlines() if "\t" in line)
+
+
+def _wait_netem(project: str, timeout_s: float) -> int:
+    """netem's exit code; fails early, with its log, when another service fails."""
+    netem = f"{project}_netem_1"
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        states = _containers(project)
+        failed = {n: s for n, s in states.items() if s.startswith("Exited") and "(0)" not in s}
+        if failed:
+            name = next(iter(failed))
+            log = subprocess.run(["podman", "logs", name], capture_output=True, text=True).stderr
+            raise AssertionError(f"{failed}; {name}'s log:\n{log[-3000:]}")
+        if states.get(netem, "").startswith("Exited"):
+            code = subprocess.run(
+                ["podman", "wait", netem], capture_output=True, text=True, check=True, timeout=60
+            )
+            return int(code.stdout.strip())
+        time.sleep(0.2)
+    raise AssertionError(f"netem did not exit within {timeout_s} s: {_containers(project)}")
+
+
+def _recording(path: Path, run_id: str) -> dict[str, Any]:
+    """Counts per topic, last status per topic, agents' epochs, schemas; the run id as ``RUN``."""
+    counts: Counter[str] = Counter()
+    statuses: dict[str, dict[str, Any]] = {}
+    epochs: dict[str, set[int]] = {}
+    schemas: dict[str, tuple[str, bytes]] = {}
+    with path.open("rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages(log_time_order=False):
+            topic = channel.topic.replace(f"/{run_id}/", "/RUN/", 1)
+            counts[topic] += 1
+            if schema is not None:
+                schemas[topic] = (schema.name, schema.data)
+            if "/status/" in topic:
+                statuses[topic] = json.loads(message.data)
+            elif topic.endswith("/state") and "/agent/" in topic:
+                epochs.setdefault(topic, set()).add(json.loads(message.data)["epoch"])
+    return {"counts": counts, "statuses": statuses, "epochs": epochs, "schemas": schemas}
+
+
+@needs_podman
+def test_compose_yaml_under_podman_equals_a_native_run(tmp_path: Path) -> None:
+    doc = yaml.safe_load(COMPOSE.read_text())
+    project = doc["name"]
+    mount = doc["services"]["netem"]["volumes"][0].split(":")[0]
+    scenario_file = (ROOT / mount).resolve()
+    scenario = Scenario.from_file(scenario_file)
+    run_id = f"podman-{os.getpid()}"
+    subprocess.run(
+        [sys.executable, "-m", "testbed.cli", "keys", str(tmp_path / "keys"), str(scenario_file)],
+        check=True, capture_output=True, timeout=120,
+    )  # fmt: skip
+    (ROOT / "runs").mkdir(exist_ok=True)
+    env = {
+        **os.environ,
+        "FORMATION_KEYS": str(tmp_path / "keys"),
+        "RUN_ID": run_id,
+        "FORMATION_UID": str(os.getuid()),
+        "FORMATION_GID": str(os.getgid()),
+    }
+    env.pop("FORMATION_RUNS", None)  # the default, ./runs, as a user runs it
+    _compose("down", env=env, timeout_s=DOWN_S)  # leftovers of an interrupted run
+    t0 = time.monotonic()
+    try:
+        up = _compose("up", "-d", env=env, timeout_s=300)
+        assert up.returncode == 0, up.stdout[-2000:] + up.stderr[-3000:]
+        t_up = time.monotonic()
+        assert _wait_netem(project, WAIT_S) == 0
+        t_exit = time.monotonic()
+    finally:
+        down = _compose("down", env=env, timeout_s=DOWN_S)
+    t_down = time.monotonic()
+    assert down.returncode == 0, down.stderr[-3000:]
+    containers = t_down - t0
+
+    run_dir = ROOT / "runs" / run_id
+    got = _recording(run_dir / "run.mcap", run_id)
+    # every sender's count recorded, every epoch present
+    workers = [n for n in doc["services"] if n not in ("router", "recorder")]
+    sent: Counter[str] = Counter()
+    for name in workers:
+        role, ident = ("agent", int(name[6:])) if name.startswith("agent-") else (name, 0)
+        status = got["statuses"][keys.status("RUN", role, ident)]
+        assert status["state"] == "done", (name, status)
+        sent.update({k.replace(f"/{run_id}/", "/RUN/", 1): v for k, v in status["sent"].items()
+                     if "/status/" not in k})  # fmt: skip
+    assert sent and all(got["counts"][k] == v for k, v in sent.items()), {
+        k: (v, got["counts"][k]) for k, v in sent.items() if got["counts"][k] != v
+    }
+    assert got["epochs"] == {
+        keys.agent_state("RUN", i): set(range(scenario.epochs + 1))
+        for i in range(1, scenario.n + 1)
+    }
+    # Foxglove's real schema, as the package ships it
+    shipped = (resources.files("recorder") / "foxglove_schemas" / "SceneUpdate.json").read_bytes()
+    assert got["schemas"][keys.scene("RUN")] == ("foxglove.SceneUpdate", shipped)
+    # the report, naming host paths; the files belong to the invoking user
+    report = (run_dir / "report.md").read_text()
+    assert f"runs/{run_id}/run.mcap" in report and "/app/" not in report
+    owners = {p.stat().st_uid for p in [run_dir, *run_dir.iterdir()]}
+    assert owners == {os.getuid()}
+
+    # the same scenario and seed, natively
+    native_runs = tmp_path / "native"
+    t1 = time.monotonic()
+    native = subprocess.run(
+        [sys.executable, "-m", "testbed.cli", "run", str(scenario_file), "--runs-dir",
+         str(native_runs)],
+        capture_output=True, text=True, timeout=300, cwd=tmp_path,
+    )  # fmt: skip
+    native_s = time.monotonic() - t1
+    assert native.returncode == 0, native.stderr[-3000:]
+    (native_dir,) = [p for p in native_runs.iterdir() if (p / "run.mcap").is_file()]
+    mine = _recording(native_dir / "run.mcap", native_dir.name)
+    assert set(mine["counts"]) == set(got["counts"])  # the same channels
+    ours, theirs = read_run(run_dir / "run.mcap"), read_run(native_dir / "run.mcap")
+    assert abs(ours.formation_error[-1] - theirs.formation_error[-1]) <= 1e-9
+    print(
+        f"\npodman-compose: up {t_up - t0:.1f} s, netem's exit after {t_exit - t_up:.1f} s, "
+        f"down {t_down - t_exit:.1f} s: {containers:.1f} s in all; native formation run "
+        f"{native_s:.1f} s; final formation error {ours.formation_error[-1]:.6g} m (both)"
+    )
