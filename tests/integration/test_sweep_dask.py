@@ -1,0 +1,236 @@
+"""``formation sweep --scheduler``: a real Dask scheduler and workers as processes on 127.0.0.1.
+
+The tables must be byte-identical to the local pool's, also when the workers are killed in the
+middle of a sweep (new workers finish it) and when the sweep itself is interrupted (the local pool
+finishes it from the CSV).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from testbed.cli import main
+from testbed.experiments.sweep import SweepError, read_rows
+from testbed.runtime.processes import free_port, wait_for_port
+
+distributed = pytest.importorskip("distributed")
+
+pytestmark = [pytest.mark.integration, pytest.mark.slow]
+
+HOST = "127.0.0.1"
+WAIT_S = 60.0
+TABLES = ("runs.csv", "critical.md", "success.md", "phase.png")
+# paper.toml alone: 5 rates × 2 strategies × 160 seeds = 1,600 cells of 100 epochs. Dask's
+# chunks get 40 seeds (executors.seeds_per_task), so 4 tasks: the workers die between them.
+SWEEP = (
+    "--topology",
+    "none",
+    "--loss",
+    "0:1:0.25",
+    "--strategy",
+    "hold,estimate",
+    "--seeds",
+    "160",
+    "--seed",
+    "1",
+    "--epochs",
+    "100",
+)
+CELLS = 5 * 2 * 160
+
+
+def child_env() -> dict[str, str]:
+    return {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+
+
+def end(proc: subprocess.Popen[bytes]) -> None:
+    """Kill by PID if it still runs, and reap it."""
+    if proc.poll() is None:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=10)
+
+
+class Cluster:
+    """A ``dask scheduler`` and its ``dask worker`` processes, every one ended by PID."""
+
+    def __init__(self, logs: Path) -> None:
+        self.logs = logs
+        self.port = free_port(HOST)
+        self.address = f"tcp://{HOST}:{self.port}"
+        self.procs: list[subprocess.Popen[bytes]] = []
+        self.workers: list[subprocess.Popen[bytes]] = []
+
+    def _start(self, name: str, *args: str) -> subprocess.Popen[bytes]:
+        with (self.logs / f"{name}.log").open("wb") as log:
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "dask", *args],
+                env=child_env(),
+                stdout=log,
+                stderr=subprocess.STDOUT,
+            )
+        self.procs.append(proc)
+        return proc
+
+    def start_scheduler(self) -> None:
+        # --idle-timeout: a scheduler this test failed to end leaves by itself.
+        self._start(
+            "scheduler",
+            "scheduler",
+            "--host",
+            HOST,
+            "--port",
+            str(self.port),
+            "--no-dashboard",
+            "--idle-timeout",
+            "300",
+        )
+        wait_for_port(HOST, self.port, WAIT_S)
+
+    def start_workers(self, count: int) -> None:
+        """``count`` single-threaded workers; returns once the scheduler has them all."""
+        for _ in range(count):
+            # --no-nanny: the PID is the worker itself (a nanny killed by PID leaves its worker).
+            self.workers.append(
+                self._start(
+                    f"worker-{len(self.workers)}",
+                    "worker",
+                    self.address,
+                    "--host",
+                    HOST,
+                    "--nworkers",
+                    "1",
+                    "--nthreads",
+                    "1",
+                    "--no-nanny",
+                    "--no-dashboard",
+                    "--death-timeout",
+                    "60",
+                )
+            )
+        with distributed.Client(self.address, timeout=WAIT_S, set_as_default=False) as client:
+            client.wait_for_workers(len(self.live_workers()), timeout=WAIT_S)
+
+    def live_workers(self) -> list[subprocess.Popen[bytes]]:
+        return [w for w in self.workers if w.poll() is None]
+
+    def kill_workers(self) -> None:
+        for w in self.live_workers():
+            os.kill(w.pid, signal.SIGKILL)
+            w.wait(timeout=10)
+
+    def end(self) -> None:
+        for proc in reversed(self.procs):
+            end(proc)
+
+
+@pytest.fixture
+def cluster(tmp_path: Path) -> Iterator[Cluster]:
+    logs = tmp_path / "dask-logs"
+    logs.mkdir()
+    c = Cluster(logs)
+    try:
+        c.start_scheduler()
+        c.start_workers(2)
+        yield c
+    finally:
+        c.end()
+
+
+def sweep(paper_path: Path, out: Path, *extra: str, log: Path) -> subprocess.Popen[bytes]:
+    """``formation sweep`` as its own process."""
+    with log.open("wb") as f:
+        return subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "testbed.cli",
+                "sweep",
+                str(paper_path),
+                *SWEEP,
+                "--out",
+                str(out),
+                *extra,
+            ],
+            env=child_env(),
+            stdout=f,
+            stderr=subprocess.STDOUT,
+        )
+
+
+def wait_for(
+    condition: Callable[[], bool], proc: subprocess.Popen[bytes], what: str, log: Path
+) -> None:
+    deadline = time.monotonic() + WAIT_S
+    while not condition():
+        if proc.poll() is not None:
+            pytest.fail(
+                f"sweep exited ({proc.returncode}) before {what}:\n{log.read_text()[-3000:]}"
+            )
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out waiting for {what}:\n{log.read_text()[-3000:]}")
+        time.sleep(0.02)
+
+
+def rows_in(out: Path) -> int:
+    try:
+        return len(read_rows(out / "runs.csv"))
+    except SweepError:  # the header half written
+        return 0
+
+
+def finish(proc: subprocess.Popen[bytes], log: Path) -> int:
+    try:
+        return proc.wait(timeout=WAIT_S)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"sweep did not finish in {WAIT_S:g} s:\n{log.read_text()[-3000:]}")
+
+
+def assert_same_tables(a: Path, b: Path) -> None:
+    for name in TABLES:
+        assert (a / name).read_bytes() == (b / name).read_bytes(), name
+
+
+def test_sweep_on_a_dask_cluster_matches_the_local_pool_and_survives_its_workers(
+    cluster: Cluster, paper_path: Path, tmp_path: Path
+) -> None:
+    pool = tmp_path / "pool"
+    assert main(["sweep", str(paper_path), *SWEEP, "--out", str(pool), "--jobs", "2"]) == 0
+    assert len(read_rows(pool / "runs.csv")) == CELLS
+
+    # through the scheduler; its workers die mid-sweep, new ones join and the same sweep completes
+    killed, log = tmp_path / "killed", tmp_path / "killed.log"
+    proc = sweep(paper_path, killed, "--scheduler", cluster.address, log=log)
+    try:
+        wait_for(lambda: rows_in(killed) > 0, proc, "the first rows", log)
+        cluster.kill_workers()
+        assert 0 < rows_in(killed) < CELLS
+        cluster.start_workers(2)
+        assert finish(proc, log) == 0, log.read_text()[-3000:]
+    finally:
+        end(proc)
+    assert_same_tables(pool, killed)
+
+    # the workers die and the sweep is interrupted; the local pool runs the rest from the CSV
+    moved, log = tmp_path / "moved", tmp_path / "moved.log"
+    proc = sweep(paper_path, moved, "--scheduler", cluster.address, log=log)
+    try:
+        wait_for(lambda: rows_in(moved) > 0, proc, "the first rows", log)
+        cluster.kill_workers()
+        proc.send_signal(signal.SIGINT)
+        assert finish(proc, log) == 130, log.read_text()[-3000:]
+    finally:
+        end(proc)
+    kept = rows_in(moved)
+    assert 0 < kept < CELLS
+    assert main(["sweep", str(paper_path), *SWEEP, "--out", str(moved), "--jobs", "2"]) == 0
+    assert_same_tables(pool, moved)
