@@ -2,7 +2,8 @@
 
 ``python -m recorder`` records (:mod:`recorder.node`); the functions here read a
 recording back, recover a cut one and write the report. The report functions
-import matplotlib, so they load on first use.
+import matplotlib, and :func:`load_run` (the recording as pandas DataFrames) imports
+pandas, so they load on first use.
 """
 
 from __future__ import annotations
@@ -16,9 +17,15 @@ from recorder.rundata import RunData, read_run
 from recorder.writer import RecordingWriter
 
 if TYPE_CHECKING:
+    from recorder.frames import Run, load_run
     from recorder.report import write_report, write_report_from
 
-_LAZY = {"write_report": "recorder.report", "write_report_from": "recorder.report"}
+_LAZY = {
+    "write_report": "recorder.report",
+    "write_report_from": "recorder.report",
+    "load_run": "recorder.frames",  # pandas loads on first use
+    "Run": "recorder.frames",
+}
 
 
 def __getattr__(name: str) -> Any:
@@ -33,10 +40,12 @@ __all__ = [
     "RecordingInfo",
     "RecordingWriter",
     "Recovered",
+    "Run",
     "RunData",
     "describe",
     "error_statistics",
     "formation_error",
+    "load_run",
     "longest_run",
     "nees",
     "read_run",

@@ -2,7 +2,7 @@
 
 The true positions of epoch ``k`` are the ``position`` fields of the
 ``CoordinationState`` messages on ``agent/<i>/state`` (sender side, before loss).
-When all ``n`` have arrived the assembler emits ``EpochMetrics`` (MODEL.md §7).
+When all ``n`` have arrived the assembler emits ``EpochMetrics`` (docs/model.md §7).
 The scene of epoch ``k`` also needs the leader's estimate of ``k`` (link health,
 tree); it is emitted when that estimate arrives, or when a later epoch completes,
 or at the end, whichever comes first (edges then drawn grey). No clock, no I/O:

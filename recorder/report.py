@@ -3,7 +3,7 @@
 :func:`write_report` reads a recording (what ``formation run`` calls at the end);
 :func:`write_report_from` takes :class:`~recorder.rundata.RunData` from anywhere,
 e.g. ``RunData.from_result(simulate(...))`` for the in-process simulator. The
-numbers are those of MODEL.md §7, recomputed from the arrays.
+numbers are those of docs/model.md §7, recomputed from the arrays.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ def _num(v: float) -> float | None:
 
 
 def summarize(run: RunData) -> dict[str, Any]:
-    """The headline numbers of a run (MODEL.md §7); None where the run has no data."""
+    """The headline numbers of a run (docs/model.md §7); None where the run has no data."""
     s = run.scenario
     links = [f"{a}->{b}" for a, b in run.links]
     lost = run.decided & ~run.delivered

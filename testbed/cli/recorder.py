@@ -1,4 +1,4 @@
-"""``formation report | info | recover | replay``: the recorder's subcommands.
+"""``formation report | info | recover | export | replay``: the recorder's subcommands.
 
 :func:`register` adds them to the ``formation`` parser (:mod:`testbed.cli`).
 Every bad file (missing, empty, not MCAP, truncated) is a ``RecordingError`` naming
@@ -99,12 +99,25 @@ def cmd_recover(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    from recorder.frames import export, load_run
+
+    run = load_run(args.recording)
+    files = export(run, args.out_dir, args.format)
+    sizes = ", ".join(f"{name} {len(frame)}" for name, frame in run.tables().items())
+    print(f"exported {args.recording} to {args.out_dir} ({args.format}): rows {sizes}")
+    print(f"checked every message: {run.skipped.describe()}")
+    for f in files:
+        print(f"  {f}")
+    return 0
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     return replay(args)
 
 
 def register(sub: Any) -> None:
-    """Add ``report``, ``info``, ``recover`` and ``replay`` to the ``formation`` subparsers."""
+    """Add ``report``, ``info``, ``recover``, ``export`` and ``replay`` to the ``formation`` subparsers."""
     p = sub.add_parser("report", help="report.md and PNG plots from one or more recordings")
     p.add_argument(
         "recordings", nargs="+", type=Path, help="run.mcap file(s); several are compared"
@@ -127,6 +140,12 @@ def register(sub: Any) -> None:
     p.add_argument("-o", "--output", type=Path, help="default: <name>-recovered.mcap")
     p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
     p.set_defaults(func=cmd_recover)
+
+    p = sub.add_parser("export", help="a recording's tables (states, estimates, ...) as files")
+    p.add_argument("recording", type=Path)
+    p.add_argument("out_dir", type=Path, help="directory for <table>.parquet or <table>.csv")
+    p.add_argument("--format", choices=("parquet", "csv"), default="parquet")
+    p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("replay", help="publish a recording back onto Zenoh with its timing")
     p.add_argument("recording", type=Path)

@@ -3,7 +3,7 @@
 An independent Zenoh client puts :func:`tests.support.forgeries.forgeries` on the run's keys
 while ``formation run`` is in the middle of a lockstep run. The run completes with exit 0,
 ``report.md`` is written, and the report's summary counts each forgery on its channel; its
-numbers are those of the same run without them. ``formation report`` and ``formation info``
+numbers are those of the same run without them, and ``load_run``'s DataFrames agree with it. ``formation report`` and ``formation info``
 on that file exit 0 as well.
 """
 
@@ -23,6 +23,8 @@ import zenoh
 from formation import keys
 from formation.scenario import Scenario
 from formation.zenoh_config import session_config
+from recorder import load_run
+from recorder.metrics import error_statistics
 from tests.support.forgeries import forgeries
 
 pytestmark = pytest.mark.integration
@@ -86,6 +88,14 @@ def test_forged_payloads_on_every_key_of_a_live_run(paper_path: Path, runs_dir: 
     assert "formation run: summary" in proc.stdout and "skipped" in proc.stdout
     assert f"the report skipped {done['count']} recorded messages" in " ".join(proc.stderr.split())
     mcap = run_dir / "run.mcap"
+    run = load_run(mcap)  # the DataFrames of a real run agree with its summary.json
+    lost = run.decisions[(run.decisions.link_class == "formation") & ~run.decisions.on_time]
+    assert lost.groupby("link").size().to_dict() == summary["drops"]
+    assert run.metrics["formation_error_m"].iloc[-1] == summary["final_formation_error_m"]
+    assert run.skipped.as_json() == skipped
+    errors = run.substitutions[["error_x", "error_y"]].to_numpy()
+    assert len(errors) == summary["substitutions"]
+    assert error_statistics(errors)[2] == pytest.approx(summary["substitution_cov_trace_m2"])
     for cmd in (["report", str(mcap)], ["info", str(mcap), "--json"]):
         again = subprocess.run(
             [sys.executable, "-m", "testbed.cli", *cmd], capture_output=True, text=True, timeout=120

@@ -66,7 +66,7 @@ def forgeries(run_id: str, s: Scenario, epoch: int = 7) -> list[tuple[str, bytes
         (keys.agent_state(run_id, 1), _state(run_id, "agent/1", k, 2, far)),  # claims agent 2
         (keys.agent_state(run_id, 1), _state(run_id, "agent/1", s.epochs + 50, 1, far)),
         (keys.agent_state(run_id, n + 7), _state(run_id, f"agent/{n + 7}", k, n + 7, far)),
-        (keys.agent_report(run_id, 1), b"[1e308, \"x\"]"),
+        (keys.agent_report(run_id, 1), b'[1e308, "x"]'),
         (keys.link_state(run_id, a, b), _state(run_id, f"agent/{b}", k, b, far)),
         (keys.inbox(run_id, 1, "state"), json.dumps(delivery).encode()),  # for 2 on 1's inbox
         (keys.inbox(run_id, 1, "report"), b"{}"),
@@ -75,7 +75,7 @@ def forgeries(run_id: str, s: Scenario, epoch: int = 7) -> list[tuple[str, bytes
         (keys.leader_estimate_for(run_id, 1), b"\x00\xff"),
         (keys.link_estimate(run_id, 1), b"null"),
         (keys.netem_decision(run_id), json.dumps(decisions).encode()),
-        (keys.netem_change(run_id), b"{\"kind\": \"link_change\"}"),
+        (keys.netem_change(run_id), b'{"kind": "link_change"}'),
         # the recorder's own channels, the statuses, liveliness, control, a key nobody uses
         (keys.metrics(run_id), json.dumps(metrics).encode()),
         (keys.scene(run_id), json.dumps({"entities": [], "deletions": []}).encode()),
@@ -83,7 +83,7 @@ def forgeries(run_id: str, s: Scenario, epoch: int = 7) -> list[tuple[str, bytes
         (keys.status(run_id, "agent", 1), json.dumps(status).encode()),
         (keys.status(run_id, "netem", 0), b""),
         (keys.alive(run_id, "agent", 1), json.dumps(alive).encode()),
-        (keys.control(run_id), b"{\"command\": \"stop\"}"),
+        (keys.control(run_id), b'{"command": "stop"}'),
         (f"{keys.prefix(run_id)}/nobody/publishes/here", b"{}"),
     ]
 

@@ -71,11 +71,13 @@ def write_synthetic(
     path: Path,
     result: Any,
     inject: list[tuple[str, bytes, bytes | None, int]] = (),  # type: ignore[assignment]
+    messages: list[tuple[str, bytes, bytes | None, int]] | None = None,
     **options: Any,
 ) -> dict[str, int]:
     """Record ``traffic(result)`` as the recorder would (with metrics and scene); counts per key.
 
     ``inject``: more ``(key, payload, attachment, log time)`` received among them (forgeries);
+    ``messages``: what to record instead of ``traffic(result)``;
     ``options`` go to :class:`RecordingWriter` (e.g. ``split_size``).
     """
     s = result.scenario
@@ -83,7 +85,8 @@ def write_synthetic(
     options = {"chunk_size": 64 * 1024, **options}
     rec = RecordingWriter(path, metadata=meta, taps=("agent_state", "leader_estimate"), **options)
     asm = EpochAssembler(s, RUN, clock=lambda: 0)
-    for key, data, att, t in sorted([*traffic(result), *inject], key=lambda m: m[3]):
+    wire = traffic(result) if messages is None else messages
+    for key, data, att, t in sorted([*wire, *inject], key=lambda m: m[3]):
         for kind, k_, d_, recv in rec.write_batch([(key, data, att, None, t)]):
             on = asm.on_state if kind == "agent_state" else asm.on_estimate
             for out_key, payload in on(k_, d_, recv):
