@@ -1,4 +1,4 @@
-"""Discrete formation control (MODEL.md §3) and the agents' dynamics.
+"""Discrete formation control (docs/model.md §3) and the agents' dynamics.
 
 All functions work on a batch of directed in-links ``j → i`` at once, so one
 agent (its own in-links) and a whole team (every link) run the same code.
@@ -49,7 +49,7 @@ def distance_command(
     used: npt.NDArray[np.bool_],
     epsilon: float,
 ) -> Array:
-    """Distance-based law (MODEL.md §2 note): ``−ε Σ_j (||z̃_ij||² − C_ij²) z̃_ij``.
+    """Distance-based law (docs/model.md §2 note): ``−ε Σ_j (||z̃_ij||² − C_ij²) z̃_ij``.
 
     ``distance_sq`` is (L,) ``C_ij²`` [m²]; the other arguments as in :func:`displacement_command`.
     """

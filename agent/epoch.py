@@ -1,4 +1,4 @@
-"""One agent-side epoch (MODEL.md §3, §6): fill lost neighbours, consensus, step.
+"""One agent-side epoch (docs/model.md §3, §6): fill lost neighbours, consensus, step.
 
 Works on any set of agents and their in-links: the simulator passes the whole
 team, an agent process passes itself, and both get the same floats.

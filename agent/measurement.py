@@ -1,4 +1,4 @@
-"""Relative measurements ``z_ij[k] = x_i[k] − x_j[k] + ε_ij[k]`` (MODEL.md §3, §5)."""
+"""Relative measurements ``z_ij[k] = x_i[k] − x_j[k] + ε_ij[k]`` (docs/model.md §3, §5)."""
 
 from __future__ import annotations
 

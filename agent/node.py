@@ -1,6 +1,6 @@
 """The agent process: one agent, or a pool of agents sharing one Zenoh session (``--ids``).
 
-Lockstep (ARCHITECTURE.md "Time"): publish ``x_i[k]``; wait for netem's delivery
+Lockstep (docs/architecture.md "Time"): publish ``x_i[k]``; wait for netem's delivery
 of the state phase (every packet it passed this epoch, in one message); report
 tokens and measurements; wait for the estimate phase's delivery; step to
 ``x_i[k+1]``. Realtime: packets come one per link, until a deadline. A pool
@@ -292,7 +292,7 @@ class AgentNode:
                 self._route(msg)
 
     def run_realtime(self) -> int:
-        """Fixed period; what has not arrived by a phase's deadline is lost (ARCHITECTURE.md "Time")."""
+        """Fixed period; what has not arrived by a phase's deadline is lost (docs/architecture.md "Time")."""
         if not self.service.wait_started():
             return 1
         clock = fetch_clock(self.service.session, self.run_id)

@@ -1,4 +1,4 @@
-"""Loss strategies (MODEL.md §6): the value ``x̃_j[k]`` an agent uses for a lost packet.
+"""Loss strategies (docs/model.md §6): the value ``x̃_j[k]`` an agent uses for a lost packet.
 
 Vectorised over a batch of directed in-links ``j → i``. ``LinkMemory`` is what a
 receiver remembers of each in-link; :func:`substitute` is pure and returns the
@@ -130,7 +130,7 @@ def substitute(
         held = fallback & hold_ok
         values = np.where(est[:, None], filtered, np.where(held[:, None], memory.last, values))
         have = est | held
-        # Without an estimate the filter only predicts; the value used is the held one (MODEL.md §6).
+        # Without an estimate the filter only predicts; the value used is the held one (docs/model.md §6).
         blend = np.where(est[:, None], filtered, np.where(fallback[:, None], predicted, blend))
         has_blend = has_blend | est
     elif strategy == "drop":

@@ -1,4 +1,4 @@
-"""Benchmark of the leader's cores: BLUE (MODEL.md §5) and Kruskal (§4), with baselines.
+"""Benchmark of the leader's cores: BLUE (docs/model.md §5) and Kruskal (§4), with baselines.
 
 Run ``python bench/bench_leader.py [--seed S] [--quick]``. Prints one table for
 the BLUE on two graph families (formation-like: 4 nearest neighbours in the
@@ -34,7 +34,7 @@ from leader.blue import BlueResult, blue
 from leader.mst import minimum_spanning_forest
 
 SEED = 20240611
-SIGMA_M = 0.01  # [m] measurement noise per coordinate (MODEL.md §8)
+SIGMA_M = 0.01  # [m] measurement noise per coordinate (docs/model.md §8)
 T = TypeVar("T")
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]

@@ -1,4 +1,4 @@
-"""The formation graph as arrays: edge checks, connectivity, degree and rigidity (MODEL.md §1, §2).
+"""The formation graph as arrays: edge checks, connectivity, degree and rigidity (docs/model.md §1, §2).
 
 Agents have ids ``1..n``; an edge list is an ``(m, 2)`` integer array of ids and
 row ``i − 1`` of a positions array is agent ``i``. These functions live in the
@@ -23,7 +23,7 @@ FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
 RANK_RTOL = 1e-9
-"""Singular values at most this fraction of the largest one count as zero (MODEL.md §2)."""
+"""Singular values at most this fraction of the largest one count as zero (docs/model.md §2)."""
 
 
 class GraphInputError(TestbedError, ValueError):
@@ -153,7 +153,7 @@ def is_connected(n: int, edges: npt.ArrayLike) -> bool:
 
 
 def max_degree(n: int, edges: npt.ArrayLike) -> int:
-    """Largest number of distinct neighbours of any agent (Δ_max of MODEL.md §3); 0 if no edges."""
+    """Largest number of distinct neighbours of any agent (Δ_max of docs/model.md §3); 0 if no edges."""
     count = check_agent_count(n)
     e = as_edge_array(count, edges)
     if e.shape[0] == 0:
@@ -174,7 +174,7 @@ def as_positions(positions: npt.ArrayLike, name: str = "positions") -> FloatArra
 
 
 def rigidity_matrix(positions: npt.ArrayLike, edges: npt.ArrayLike) -> FloatArray:
-    """Rigidity matrix ``R(q)`` of a framework (MODEL.md §2).
+    """Rigidity matrix ``R(q)`` of a framework (docs/model.md §2).
 
     Parameters
     ----------
@@ -204,7 +204,7 @@ def rigidity_matrix(positions: npt.ArrayLike, edges: npt.ArrayLike) -> FloatArra
 
 
 def rigidity_rank(positions: npt.ArrayLike, edges: npt.ArrayLike) -> int:
-    """Rank of the rigidity matrix by SVD, singular values ``> 1e-9 · σ_max`` counted (MODEL.md §2).
+    """Rank of the rigidity matrix by SVD, singular values ``> 1e-9 · σ_max`` counted (docs/model.md §2).
 
     The SVD is dense, ``O(min(m, nd)² · max(m, nd))``: fine for formations of a
     few hundred agents, not for thousands.
@@ -230,7 +230,7 @@ def expected_rigidity_rank(n: int, d: int) -> int:
 
     ``n·d − d(d+1)/2`` (``2n − 3`` in the plane, ``3n − 6`` in space) once
     ``n > d``; ``n(n−1)/2`` for ``n ≤ d + 1`` (every pair an edge: the
-    **[fix]** of MODEL.md §2 for ``n < 3`` in 3-D). Both agree at ``n = d + 1``.
+    **[fix]** of docs/model.md §2 for ``n < 3`` in 3-D). Both agree at ``n = d + 1``.
     """
     count = check_agent_count(n)
     dim = operator.index(d)

@@ -1,8 +1,8 @@
 """Counter-based random numbers keyed by integers, e.g. ``(seed, stream, i, j, epoch)``.
 
 A draw depends only on its key, never on how many draws came before, so every
-process, in any order of calls, gets the same number for the same key (MODEL.md
-§3, ARCHITECTURE.md "Time"). The hash is SplitMix64's finaliser chained over the
+process, in any order of calls, gets the same number for the same key (docs/model.md
+§3, docs/architecture.md "Time"). The hash is SplitMix64's finaliser chained over the
 key words, vectorised with numpy so whole schedules are drawn at once.
 """
 

@@ -1,4 +1,4 @@
-"""Wire messages: pydantic v2 models sent as JSON (ARCHITECTURE.md "Wire").
+"""Wire messages: pydantic v2 models sent as JSON (docs/architecture.md "Wire").
 
 Every message carries ``run_id``, ``sender``, ``seq`` (per publisher), ``epoch``
 and ``stamp_ns`` (the sender's monotonic clock) and a ``kind`` tag. Positions
@@ -24,7 +24,7 @@ class _Message(BaseModel):
 
 
 class Substitute(BaseModel):
-    """A value ``x̃_j`` an agent used for neighbour ``j``'s lost packet (MODEL.md §6)."""
+    """A value ``x̃_j`` an agent used for neighbour ``j``'s lost packet (docs/model.md §6)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -58,7 +58,7 @@ class Measurement(BaseModel):
 
 
 class TokenReport(_Message):
-    """Agent ``i``'s tokens and relative measurements of epoch ``k`` to the leader (MODEL.md §4)."""
+    """Agent ``i``'s tokens and relative measurements of epoch ``k`` to the leader (docs/model.md §4)."""
 
     kind: Literal["report"] = "report"
     agent: int
@@ -66,7 +66,7 @@ class TokenReport(_Message):
 
 
 class LeaderEstimate(_Message):
-    """The leader's epoch-``k`` output (MODEL.md §4–§5): BLUE, tree, rigidity, reference velocity.
+    """The leader's epoch-``k`` output (docs/model.md §4–§5): BLUE, tree, rigidity, reference velocity.
 
     ``positions[i − 1]`` is agent ``i``'s estimate (None if unobservable);
     ``covariances[i − 1]`` its d×d block. ``tree`` and ``healthy`` list edges as id pairs.
@@ -87,7 +87,7 @@ class LeaderEstimate(_Message):
 
 
 class AgentEstimate(_Message):
-    """What agent ``agent`` uses of the leader's epoch-``k`` estimate (MODEL.md §6).
+    """What agent ``agent`` uses of the leader's epoch-``k`` estimate (docs/model.md §6).
 
     ``positions[m]`` is ``x̂_j`` of ``j = neighbours[m]`` (None if unobservable), for
     every in-neighbour ``j``; ``v_ref`` the reference velocity. One per agent, so
@@ -134,7 +134,7 @@ class Delivery(_Message):
 
 
 class Decision(BaseModel):
-    """One netem verdict on one packet (ARCHITECTURE.md: every decision recorded)."""
+    """One netem verdict on one packet (docs/architecture.md "Wire": every decision recorded)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -190,7 +190,7 @@ class Control(_Message):
 
 
 class EpochMetrics(_Message):
-    """Per-epoch metrics from the true states (MODEL.md §7), written by the recorder."""
+    """Per-epoch metrics from the true states (docs/model.md §7), written by the recorder."""
 
     kind: Literal["metrics"] = "metrics"
     formation_error_m: float

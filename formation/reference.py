@@ -1,4 +1,4 @@
-"""The reference trajectory (MODEL.md §3): static, line, circle, waypoints.
+"""The reference trajectory (docs/model.md §3): static, line, circle, waypoints.
 
 In formation/ rather than leader/ because both the leader (v_ref for the
 followers) and the reference agent (its own motion) evaluate it.

@@ -2,7 +2,7 @@
 
 ``Scenario.from_file(path)`` reads and validates a file; every problem becomes a
 :class:`~formation.errors.ScenarioError` naming the file, the field path and the
-value. The model follows MODEL.md: §1 team and shape, §3 control, §4 edge rule,
+value. The model follows docs/model.md: §1 team and shape, §3 control, §4 edge rule,
 §5 estimator, §6 strategy, §8 the default experiment (``scenarios/paper.toml``).
 """
 
@@ -69,7 +69,7 @@ class Initial(_Model):
 
 
 class Controller(_Model):
-    """The formation controller (MODEL.md §3); ``epsilon = gain * period_s``."""
+    """The formation controller (docs/model.md §3); ``epsilon = gain * period_s``."""
 
     controller: Literal["displacement", "distance"] = "displacement"
     dynamics: Literal["single", "double"] = "single"
@@ -118,7 +118,7 @@ class Noise(_Model):
 
 
 class Strategy(_Model):
-    """Loss strategy of MODEL.md §6 and the blend factor α."""
+    """Loss strategy of docs/model.md §6 and the blend factor α."""
 
     name: StrategyName = "estimate"
     alpha: float = Field(0.5, gt=0.0, le=1.0)

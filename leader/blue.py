@@ -1,4 +1,4 @@
-"""Best linear unbiased estimate of every agent's position from relative measurements (MODEL.md §5).
+"""Best linear unbiased estimate of every agent's position from relative measurements (docs/model.md §5).
 
 Measurement on the used edge ``e = (i, j)``::
 
@@ -83,7 +83,7 @@ class CovarianceError(GraphInputError):
 
 @dataclass(frozen=True, eq=False)
 class BlueResult:
-    """The BLUE of one epoch (MODEL.md §5).
+    """The BLUE of one epoch (docs/model.md §5).
 
     Attributes
     ----------
@@ -119,7 +119,7 @@ def blue(
     covariances: bool = True,
     solver: Solver = "auto",
 ) -> BlueResult:
-    """BLUE of all agents' positions relative to the reference (MODEL.md §5).
+    """BLUE of all agents' positions relative to the reference (docs/model.md §5).
 
     Parameters
     ----------
@@ -209,7 +209,7 @@ def blue(
 
 
 def nees(result: BlueResult, x_true: npt.ArrayLike) -> FloatArray:
-    """Normalised estimation error squared per agent (MODEL.md §5, "Consistency").
+    """Normalised estimation error squared per agent (docs/model.md §5, "Consistency").
 
     ``NEES_i = (x̂_i − x_i)ᵀ Cov(x̂_i)⁻¹ (x̂_i − x_i)``; for an honest estimator with
     Gaussian noise it is χ²-distributed with ``d`` degrees of freedom, mean ``d``.

@@ -1,4 +1,4 @@
-"""One leader epoch (MODEL.md §4–§5): healthy edges → Kruskal tree → BLUE → rigidity.
+"""One leader epoch (docs/model.md §4–§5): healthy edges → Kruskal tree → BLUE → rigidity.
 
 Shared by the leader process and the in-process simulator, so both compute on
 the same inputs in the same order and give the same floats.

@@ -1,4 +1,4 @@
-"""The grounded weighted Laplacian of the BLUE on a cyclic graph: assembly and solves (MODEL.md §5).
+"""The grounded weighted Laplacian of the BLUE on a cyclic graph: assembly and solves (docs/model.md §5).
 
 ``A = H_bᵀ P⁻¹ H_b`` on the reference's component, assembled sparse (one
 Laplacian per coordinate when every ``P_e`` is diagonal, ``d × d`` blocks

@@ -1,4 +1,4 @@
-"""Kruskal's minimum spanning forest over the healthy edges of an epoch (MODEL.md §4).
+"""Kruskal's minimum spanning forest over the healthy edges of an epoch (docs/model.md §4).
 
 The leader keeps the forest's edges (the ``tree`` edge set of the estimator)
 and its components (agents outside the reference's component are unobservable
@@ -27,7 +27,7 @@ IntArray = npt.NDArray[np.int64]
 def minimum_spanning_forest(
     n: int, edges: npt.ArrayLike, weights: npt.ArrayLike, healthy: npt.ArrayLike
 ) -> list[int]:
-    """Minimum spanning forest of the healthy edges by Kruskal's algorithm (MODEL.md §4).
+    """Minimum spanning forest of the healthy edges by Kruskal's algorithm (docs/model.md §4).
 
     Edges are taken in increasing ``(weight, min(i, j), max(i, j), index)``, a
     strict total order, so the forest is unique and does not depend on how the

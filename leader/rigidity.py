@@ -1,4 +1,4 @@
-"""Infinitesimal rigidity of the formation and of each epoch's healthy links (MODEL.md §2).
+"""Infinitesimal rigidity of the formation and of each epoch's healthy links (docs/model.md §2).
 
 The math lives in ``formation.graph`` (the scenario loader checks the shape with
 it); this module re-exports it under the leader's names and adds the per-epoch
@@ -32,7 +32,7 @@ def healthy_rigidity(
     ----------
     positions : (n, d) array_like [m]
         Where to evaluate the rigidity matrix, row ``i − 1`` = agent ``i``;
-        generic positions such as the shape offsets ``d0`` (MODEL.md §2).
+        generic positions such as the shape offsets ``d0`` (docs/model.md §2).
     edges : (m, 2) array_like of int
         The formation graph's edges, agent ids ``1..n``.
     healthy_mask : (m,) array_like of bool

@@ -1,8 +1,8 @@
 """Markov chains and tc's correlated uniform: running them over epochs and their long-run forms.
 
-``run_chain`` and ``run_ar1`` step many links at once (MODEL.md §4); ``cesaro`` and
+``run_chain`` and ``run_ar1`` step many links at once (docs/model.md §4); ``cesaro`` and
 ``ar1_uniform_cdf`` are the long-run quantities the closed forms are built from
-(MODEL.md §8). Pure numpy, no draws.
+(docs/model.md §8). Pure numpy, no draws.
 """
 
 from __future__ import annotations

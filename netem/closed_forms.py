@@ -1,7 +1,7 @@
 """Closed forms of the link models: long-run loss rate, burst length, occupancy, delay moments.
 
 The numbers the statistical tests and sweeps check ``netem.models`` against
-(MODEL.md §4, §8); pure functions of the specs, no draws. Each model gives its
+(docs/model.md §4, §8); pure functions of the specs, no draws. Each model gives its
 own pieces (``Layer.loss_chain``, ``Layer.loss_rate``, in ``netem.linkmodels``);
 this module combines them over a stack.
 """

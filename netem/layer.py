@@ -4,7 +4,7 @@ A layer turns the keyed uniforms of ``(links, epochs)`` into drops, states,
 delays, duplicates or reorderings (a ``LayerOutput``) and gives its model's
 closed forms (``loss_chain``, ``loss_rate``). Every model's layer lives in its own
 module of ``netem.linkmodels``; ``netem.stack`` runs a stack of them and
-``netem.models`` gives the semantics (MODEL.md §4, §8).
+``netem.models`` gives the semantics (docs/model.md §4, §8).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """netem's links: the directed links of a scenario, their models, and the inbound keys' routes.
 
-Three classes of link, each directed (ARCHITECTURE.md "Wire"): ``formation`` links
+Three classes of link, each directed (docs/architecture.md "Wire"): ``formation`` links
 ``i → j`` carry coordination states, ``report`` links ``i → 0`` the token reports and
 ``estimate`` links ``0 → i`` the leader's estimates (0 is the leader). Each class
 belongs to one lockstep phase.

@@ -1,6 +1,6 @@
 """netem's lockstep as pure logic: packets and deaths in, deliveries and records out.
 
-ARCHITECTURE.md "Time": for each packet netem asks the link's model (keyed by seed,
+docs/architecture.md "Time": for each packet netem asks the link's model (keyed by seed,
 link and epoch, so any process gets the same verdict). Once every live sender's
 epoch-``k`` packet into a receiver is handled, that receiver gets one delivery of the
 phase with the payloads passed, unparsed: the delivery is also the epoch's close.

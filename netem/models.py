@@ -1,6 +1,6 @@
 """What netem does to each packet of a directed link: pass, drop, delay, duplicate, reorder.
 
-The functional core of netem (ARCHITECTURE.md "Time"; MODEL.md §4, §8): numpy in,
+The functional core of netem (docs/architecture.md "Time"; docs/model.md §4, §8): numpy in,
 numpy out, no clocks, no Zenoh, no global random state. Every draw comes from
 ``formation.keyed_random`` keyed by ``(seed, stream, src, dst, kind, occurrence,
 epoch[, seq], slot)``, so a decision depends only on its key: any process, asking
@@ -17,7 +17,7 @@ Semantics (tc netem's where it has them, see ``man tc-netem`` and Linux
   dropped the packet, so adding an outage on top of a Bernoulli loss leaves the
   Bernoulli decisions outside the window unchanged (draws are keyed by the
   layer's kind and its occurrence among layers of that kind, not by position).
-* **Loss is per epoch.** A link is healthy or not at an epoch (MODEL.md §4): all
+* **Loss is per epoch.** A link is healthy or not at an epoch (docs/model.md §4): all
   packets of one epoch on one link share the loss verdict and the Markov state;
   chains step once per epoch. **Delay and duplication are per packet**, keyed by
   ``(epoch, seq)`` where ``seq`` is the index of the packet among the link's
@@ -110,7 +110,7 @@ class _Block:
 
 
 class LinkModel:
-    """Decisions of one directed link ``src → dst`` (MODEL.md §4; ARCHITECTURE.md "Time").
+    """Decisions of one directed link ``src → dst`` (docs/model.md §4; docs/architecture.md "Time").
 
     Parameters
     ----------

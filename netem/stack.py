@@ -1,4 +1,4 @@
-"""A stack of layers run over epochs, and the records of what it decides (MODEL.md §4).
+"""A stack of layers run over epochs, and the records of what it decides (docs/model.md §4).
 
 ``run_stack`` runs a stack's layers over consecutive epochs for one or more
 links; ``Outcome``, ``Schedule`` and ``LinkMatrix`` are what netem answers with.

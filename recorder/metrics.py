@@ -1,4 +1,4 @@
-"""What a run measures (MODEL.md §7), from true states the agents never see. Pure numpy."""
+"""What a run measures (docs/model.md §7), from true states the agents never see. Pure numpy."""
 
 from __future__ import annotations
 
@@ -40,7 +40,7 @@ def nees(estimates: Array, covariances: Array, truth: Array, mask: npt.NDArray[n
     """Normalised estimation error squared ``(x̂ − x)ᵀ Cov⁻¹ (x̂ − x)`` per masked agent.
 
     estimates, truth : (n, d) [m]; covariances : (n, d, d) [m²]; mask : (n,) agents to score.
-    Returns (mask.sum(),); its mean is ``d`` for an honest estimator (MODEL.md §5).
+    Returns (mask.sum(),); its mean is ``d`` for an honest estimator (docs/model.md §5).
     """
     err = (estimates - truth)[mask]
     cov = covariances[mask]

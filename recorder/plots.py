@@ -1,4 +1,4 @@
-"""The report's figures (MODEL.md §7): arrays in, a PNG out. The experiments draw theirs in ``testbed.experiments.plots``.
+"""The report's figures (docs/model.md §7): arrays in, a PNG out. The experiments draw theirs in ``testbed.experiments.plots``.
 
 Each function takes plain numpy arrays and labels, so a recording and the
 in-process simulator plot the same way; functions taking a list of series draw

@@ -1,6 +1,6 @@
 """The team as a ``foxglove.SceneUpdate``: agents as spheres, formation edges as lines.
 
-Edges are coloured by link health at the epoch (MODEL.md §4): green when healthy,
+Edges are coloured by link health at the epoch (docs/model.md §4): green when healthy,
 red when not, grey when the recorder has no estimate for the epoch; edges of the
 leader's minimum spanning tree are drawn thicker and gold. The desired shape,
 anchored at the leader, is drawn as thin translucent lines. Every primitive array
@@ -109,7 +109,7 @@ def scene_update(
         The shape ``d0``; drawn anchored at the leader's position.
     leader : the reference agent's id
     healthy, tree : (m,) bool arrays or None
-        Link health and MST membership of each edge at this epoch (MODEL.md §4).
+        Link health and MST membership of each edge at this epoch (docs/model.md §4).
     """
     n = positions.shape[0]
     span = float(np.ptp(offsets, axis=0).max()) if n > 1 else 1.0

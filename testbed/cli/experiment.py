@@ -141,7 +141,7 @@ def register(sub: Any) -> None:
     p = sub.add_parser(
         "experiment", help="reproduce the chapter's experiment and the studies beyond it"
     )
-    p.add_argument("name", choices=EXPERIMENTS, help="which experiment (paper: MODEL.md §8)")
+    p.add_argument("name", choices=EXPERIMENTS, help="which experiment (paper: docs/model.md §8)")
     p.add_argument(
         "--scenario", default=DEFAULT_SCENARIO, help="scenario TOML (default: the paper's)"
     )

@@ -1,4 +1,4 @@
-"""``formation experiment paper``: the chapter's experiment (MODEL.md §8), reproduced and extended.
+"""``formation experiment paper``: the chapter's experiment (docs/model.md §8), reproduced and extended.
 
 Writes ``experiments/paper/``: ``results.md`` (every table, each of the chapter's claims held or
 not held with its numbers), ``seeds.csv`` (one row per variant × strategy × seed), the figures
@@ -9,7 +9,7 @@ same bytes. Run ids and wall times, which do not, go to ``real_runs.md`` and the
 Variants of the default scenario, all 50 epochs (the chapter's) over seeds ``1..20``:
 
 * ``failure``: link 1–2 delivers at epoch 0 and is down from epoch 1 (``scenarios/paper.toml``);
-  also run for 500 epochs (steady state, MODEL.md §8);
+  also run for 500 epochs (steady state, docs/model.md §8);
 * ``one lossy link``: link 1–2 with Bernoulli loss 0.5 for all 50 epochs;
 * ``two lossy links``: links 1–2 and 3–5 with Bernoulli loss 0.5 for all 50 epochs.
 """
@@ -99,7 +99,7 @@ def per_seed_trace(res: BatchResult, first: int = 0, last: int | None = None) ->
 
 
 def judge(r: PaperResults) -> list[Claim]:
-    """The chapter's claims (§8 of MODEL.md), each held or not, with numbers."""
+    """The chapter's claims (§8 of docs/model.md), each held or not, with numbers."""
     runs, n_seeds = r.runs, len(r.seeds)
     fail, e50 = runs["failure"], r.scenario.epochs
     est = final_errors(fail["estimate"])
@@ -173,7 +173,7 @@ def judge(r: PaperResults) -> list[Claim]:
     e_a, e_b = float(np.mean(est)), float(np.mean(final_errors(long["estimate"])))
     claims.append(
         Claim(
-            "MODEL.md §6, §8",
+            "docs/model.md §6, §8",
             "`zero` and `hold` get worse the longer the team moves; `estimate` stays at the floor",
             "held" if all(b > a for _, a, b in grows) and e_b < KEEP_M else "not held",
             "; ".join(f"{s} {a:.3g} m at epoch {e50} → {b:.3g} m at 500" for s, a, b in grows)
@@ -199,7 +199,7 @@ def judge(r: PaperResults) -> list[Claim]:
             worst = max(worst, abs(m500 / at500 - 1))
     claims.append(
         Claim(
-            "MODEL.md §8",
+            "docs/model.md §8",
             "the independent simulation's numbers (mean of 20 seeds) are reproduced within 25 %",
             "held" if worst <= 0.25 else "not held",
             ", ".join(parts) + f"; largest relative difference {worst:.0%}",

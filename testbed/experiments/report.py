@@ -98,7 +98,7 @@ def results_markdown(r: PaperResults) -> str:
     out = [
         "# The chapter's experiment, reproduced",
         "",
-        f"`formation experiment paper` on `{s.name}` (MODEL.md §8): {s.n} agents, link 1–2 down from epoch 1, "
+        f"`formation experiment paper` on `{s.name}` (docs/model.md §8): {s.n} agents, link 1–2 down from epoch 1, "
         f"reference moving along a line, noise σ = {s.noise.sigma_m:g} m, ε = {s.control.epsilon:g}; "
         f"{n} seeds ({seeds[0]}–{seeds[-1]}), {s.epochs} epochs as in the chapter and 500 for steady state. "
         f"In-process batch simulation (`testbed/batch.py`, equal to `formation simulate` per seed). "
@@ -129,7 +129,7 @@ def results_markdown(r: PaperResults) -> str:
             _seed_table(per, seeds),
         ]
     out += [
-        "Substitution errors (MODEL.md §7) count every lost variable, also those the reference agent "
+        "Substitution errors (docs/model.md §7) count every lost variable, also those the reference agent "
         "substitutes without steering by them: on this scenario agent 1's stand-in for x_2 (link 2→1) is "
         "the only one with estimation error, since the leader knows x_1 exactly.",
     ]

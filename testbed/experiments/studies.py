@@ -1,9 +1,9 @@
 """The comparisons the chapter does not make, each a function from a scenario to numbers.
 
-* :func:`controller_study`: §7.2 made testable (MODEL.md §2 note): links dropped for the whole
+* :func:`controller_study`: §7.2 made testable (docs/model.md §2 note): links dropped for the whole
   run, the displacement controller against the distance-based one; the first needs a connected
   healthy graph, the second a rigid one.
-* :func:`estimator_study`: the BLUE on the Kruskal tree against every healthy edge (MODEL.md §5):
+* :func:`estimator_study`: the BLUE on the Kruskal tree against every healthy edge (docs/model.md §5):
   predicted and empirical covariance trace, NEES.
 * :func:`alpha_study`: how ``α`` of ``blend`` moves the substitution error and the formation.
 * :func:`dynamic_study`: an agent leaves at epoch ``a`` and another joins at ``b`` (in-process:

@@ -1,10 +1,10 @@
 """``formation sweep``: the critical loss rate of each strategy, per topology and loss model.
 
-The question the chapter leaves open (MODEL.md §8): the largest loss rate at which a strategy still
+The question the chapter leaves open (docs/model.md §8): the largest loss rate at which a strategy still
 keeps the formation. A **cell** is one topology × loss model × loss rate × strategy × seed run of
 ``epochs`` epochs with every formation link under the same loss (the scenario's own formation
 network is replaced; its control links are kept). A cell **keeps the formation** when its final
-shape error (MODEL.md §7) is under ``threshold_m``; a loss rate is kept when ≥ 95 % of the seeds
+shape error (docs/model.md §7) is under ``threshold_m``; a loss rate is kept when ≥ 95 % of the seeds
 keep it; the **critical loss rate** is the largest grid rate up to which every rate is kept.
 
 Loss models at equal mean rate ``ρ``: Bernoulli ``p_loss = ρ``; Gilbert–Elliott with loss only in

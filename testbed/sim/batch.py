@@ -6,13 +6,13 @@ team, graph, controller, reference, noise and estimator) advance together: agent
 every member are flattened into the batch dimension of the agent core
 (:func:`agent.epoch.agent_epoch`, vectorised over any set of links), the links' decisions come
 from netem's :func:`netem.models.delivery_matrix`, the measurement noise from
-:func:`agent.measurement.measurement_noise` (same keys), and the leader (MODEL.md §4–§5) runs
+:func:`agent.measurement.measurement_noise` (same keys), and the leader (docs/model.md §4–§5) runs
 batched (``testbed.sim.batch_leader``):
 
 * **Kruskal** over a fixed edge order ``(w, lo, hi, index)`` (the order of
   ``leader.mst``): the forest is the unique greedy one, so a component-label sweep over the
   ``m`` edges, vectorised across members, keeps exactly the edges union-find keeps.
-* **BLUE** (MODEL.md §5) with one ``P`` for every edge: fusing the one or two measurements of an
+* **BLUE** (docs/model.md §5) with one ``P`` for every edge: fusing the one or two measurements of an
   edge (``c_e`` of them, mean value, covariance ``P / c_e``) gives ``A = L_c ⊗ P⁻¹`` with
   ``L_c`` the grounded Laplacian weighted by ``c_e``, so ``x̂_b − x_r = L_c⁻¹ Σ_e c_e h_e ȳ_eᵀ``
   and ``Cov(x̂_v) = (L_c⁻¹)_vv P`` whatever ``P`` is. A batched dense solve over

@@ -1,4 +1,4 @@
-"""The in-process simulator: the model of MODEL.md epoch by epoch, in one process, no Zenoh.
+"""The in-process simulator: the model of docs/model.md epoch by epoch, in one process, no Zenoh.
 
 It composes the same cores the services run (``netem.models``, ``agent.control``,
 ``agent.strategies``, ``leader.mst``, ``leader.blue``, ``leader.rigidity``,
@@ -218,7 +218,7 @@ def simulate(
         )  # fmt: skip
         memory, sub = step.memory, step.substitution
         fallbacks += int(sub.fallback.sum())
-        # Every lost variable counts (MODEL.md §7), also those the reference agent substitutes
+        # Every lost variable counts (docs/model.md §7), also those the reference agent substitutes
         # without steering by them: on the default scenario they are the only ones with error.
         lost_sub = sub.substituted
         if lost_sub.any():

@@ -1,4 +1,4 @@
-"""Consensus formation control (MODEL.md §3): convergence, the sign fix, the distance law."""
+"""Consensus formation control (docs/model.md §3): convergence, the sign fix, the distance law."""
 
 from __future__ import annotations
 

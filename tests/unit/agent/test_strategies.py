@@ -1,4 +1,4 @@
-"""Loss strategies exactly as MODEL.md §6 defines them, and blend's closed-form variance gain."""
+"""Loss strategies exactly as docs/model.md §6 defines them, and blend's closed-form variance gain."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Edge checks, connectivity, degree and the rigidity matrix of formation.graph (MODEL.md §1, §2)."""
+"""Edge checks, connectivity, degree and the rigidity matrix of formation.graph (docs/model.md §1, §2)."""
 
 from __future__ import annotations
 
@@ -95,7 +95,7 @@ def test_max_degree_counts_distinct_neighbours() -> None:
     assert max_degree(4, [(1, 2), (1, 3), (1, 4), (2, 3)]) == 3
     assert max_degree(3, [(1, 2), (2, 1), (1, 2)]) == 1  # parallel edges: one neighbour
     pentagon = [(1, 2), (1, 3), (2, 3), (2, 4), (1, 4), (3, 5), (4, 5)]
-    assert max_degree(5, pentagon) == 3  # MODEL.md §8: Δ_max = 3
+    assert max_degree(5, pentagon) == 3  # docs/model.md §8: Δ_max = 3
 
 
 # --------------------------------------------------------------------------- rigidity matrix

@@ -1,4 +1,4 @@
-"""BLUE of positions relative to the reference (MODEL.md §5), against independent dense solutions."""
+"""BLUE of positions relative to the reference (docs/model.md §5), against independent dense solutions."""
 
 from __future__ import annotations
 

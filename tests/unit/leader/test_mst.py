@@ -1,4 +1,4 @@
-"""Kruskal's minimum spanning forest over healthy edges (MODEL.md §4)."""
+"""Kruskal's minimum spanning forest over healthy edges (docs/model.md §4)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Rigidity of frameworks and of the healthy subgraph (MODEL.md §2)."""
+"""Rigidity of frameworks and of the healthy subgraph (docs/model.md §2)."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ TETRA_EDGES = [(1, 2), (1, 3), (1, 4), (2, 3), (2, 4), (3, 4)]
 
 
 def pentagon() -> tuple[np.ndarray, list[tuple[int, int]]]:
-    """The default scenario's shape (MODEL.md §8)."""
+    """The default scenario's shape (docs/model.md §8)."""
     angles = np.deg2rad(90.0 + 72.0 * np.arange(5))
     x = np.stack([np.cos(angles), np.sin(angles)], axis=1)
     return x, [(1, 2), (1, 3), (2, 3), (2, 4), (1, 4), (3, 5), (4, 5)]

@@ -1,4 +1,4 @@
-"""The in-process simulator: the chapter's claims on the default scenario (MODEL.md §8), seeds fixed."""
+"""The in-process simulator: the chapter's claims on the default scenario (docs/model.md §8), seeds fixed."""
 
 from __future__ import annotations
 
