@@ -144,8 +144,58 @@ class Reorder(Spec):
     gap: int = Field(1, ge=1)
 
 
+class Range(Spec):
+    """Distance: delivered iff the link's length ``d`` at the epoch is at most ``max_range_m``.
+
+    Distance models (``range``, ``logistic``, ``log_distance``) decide by the true
+    positions of the link's ends at the epoch: a control link's leader end is the
+    scenario's ``network.access_point``.
+    """
+
+    model: Literal["range"] = "range"
+    max_range_m: float = Field(gt=0.0)  # [m]
+
+
+class Logistic(Spec):
+    """Distance: packet reception ratio ``1 / (1 + exp((d − d50_m) / width_m))`` at length ``d``."""
+
+    model: Literal["logistic"] = "logistic"
+    d50_m: float = Field(gt=0.0)  # [m] where half the packets arrive
+    width_m: float = Field(gt=0.0)  # [m] how gradual the fall is
+
+
+class LogDistance(Spec):
+    """Distance: log-distance path loss with log-normal shadowing and a receiver threshold.
+
+    ``PL(d) = PL(d0) + 10 n log10(d / d0) + X_σ`` [dB] (Rappaport, *Wireless
+    Communications*, 2nd ed., eq. 4.69); the packet arrives iff
+    ``tx_power_dbm − PL(d) ≥ sensitivity_dbm``. ``X_σ`` ~ N(0, sigma_db²) per link
+    and epoch, AR(1) over epochs with ``shadowing_correlation``; ``d < d0_m`` counts as ``d0_m``.
+    """
+
+    model: Literal["log_distance"] = "log_distance"
+    tx_power_dbm: float = 0.0  # P_t [dBm]
+    path_loss_d0_db: float = 40.0  # PL(d0) [dB]
+    d0_m: float = Field(1.0, gt=0.0)  # reference distance [m]
+    n: float = Field(2.0, gt=0.0)  # path-loss exponent
+    sigma_db: float = Field(0.0, ge=0.0)  # shadowing standard deviation [dB]
+    shadowing_correlation: float = Field(0.0, ge=0.0, lt=1.0)  # per epoch
+    sensitivity_dbm: float = -70.0  # receiver threshold [dBm]
+
+
 LinkModelSpec = Annotated[
-    Up | Down | Bernoulli | GilbertElliott | Markov4 | Outage | Delay | Duplicate | Reorder,
+    Up
+    | Down
+    | Bernoulli
+    | GilbertElliott
+    | Markov4
+    | Outage
+    | Delay
+    | Duplicate
+    | Reorder
+    | Range
+    | Logistic
+    | LogDistance,
     Field(discriminator="model"),
 ]
 
@@ -153,8 +203,10 @@ SPEC_OF: dict[str, type[Spec]] = {
     cls.model_fields["model"].default: cls for cls in get_args(get_args(LinkModelSpec)[0])
 }  # tag → spec class, in the union's order
 MODEL_NAMES: tuple[str, ...] = tuple(SPEC_OF)  # a tag's index is its kind code in keyed draws
+DISTANCE_MODELS: tuple[type[Spec], ...] = (Range, Logistic, LogDistance)  # decide by link length
 
 __all__ = [
+    "DISTANCE_MODELS",
     "MODEL_NAMES",
     "SPEC_OF",
     "Bernoulli",
@@ -163,8 +215,11 @@ __all__ = [
     "Duplicate",
     "GilbertElliott",
     "LinkModelSpec",
+    "LogDistance",
+    "Logistic",
     "Markov4",
     "Outage",
+    "Range",
     "Reorder",
     "Spec",
     "Up",

@@ -13,6 +13,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from formation.linkmodels import GilbertElliott, LinkModelSpec, Markov4
 from netem.chains import cesaro
@@ -65,6 +66,25 @@ def expected_loss_rate(specs: LinkModelSpec | Sequence[LinkModelSpec]) -> float:
     return 1.0 - keep
 
 
+def expected_delivery_at(
+    specs: LinkModelSpec | Sequence[LinkModelSpec], distance_m: npt.ArrayLike
+) -> Floats:
+    """Long-run fraction of epochs delivered by a stack on a link ``distance_m`` long [m].
+
+    Layers drop independently: ``Π_r P_r(d) · Π_l (1 − ρ_l)``, with ``P_r(d)`` each
+    distance layer's delivery at ``d`` (range ``1[d ≤ max_range_m]``; logistic
+    ``1 / (1 + exp((d − d50_m) / width_m))``; log_distance ``Φ(m(d) / σ)``, see
+    ``netem/linkmodels/log_distance.py``) and ``ρ_l`` every other layer's loss rate
+    (:func:`expected_loss_rate`). ``distance_m`` any shape; the result has its shape.
+    """
+    d = np.asarray(distance_m, dtype=np.float64)
+    keep = np.ones(d.shape, dtype=np.float64)
+    for spec in _as_stack(specs):
+        layer = _layer(spec)
+        keep = keep * (layer.delivery_at(d) if layer.ranged else 1.0 - layer.loss_rate())
+    return keep
+
+
 def expected_burst_length(specs: LinkModelSpec | Sequence[LinkModelSpec]) -> float:
     """Long-run mean length of runs of consecutive dropped epochs.
 
@@ -100,6 +120,7 @@ __all__ = [
     "DelayMoments",
     "delay_moments",
     "expected_burst_length",
+    "expected_delivery_at",
     "expected_loss_rate",
     "stationary_distribution",
 ]

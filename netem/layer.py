@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from formation.errors import TestbedError
-from formation.keyed_random import Stream, keyed_uniform
+from formation.keyed_random import Stream, keyed_normal, keyed_uniform
 from formation.linkmodels import MODEL_NAMES, Spec
 from netem.chains import cesaro
 
@@ -57,6 +57,19 @@ class Keys:
             *rest,
         )
 
+    def normal(self, stream: Stream, kind: str, occ: int, epochs: Ints, *rest: int) -> Floats:
+        """Standard normals ``(L, n)`` for ``epochs`` ``(n,)``."""
+        return keyed_normal(
+            self.seed,
+            int(stream),
+            self.src,
+            self.dst,
+            KIND_CODE[kind],
+            occ,
+            epochs[None, :],
+            *rest,
+        )
+
     @property
     def n_links(self) -> int:
         return int(self.src.shape[0])
@@ -73,6 +86,7 @@ class LayerOutput:
     dup: Bools | None = None
     reorder: Bools | None = None
     chain_prev: Floats | None = None  # delay: correlated uniform before each epoch
+    draws: Floats | None = None  # a distance layer's draws, decided later by ``Layer.keeps``
 
 
 def lossless() -> tuple[Floats, Floats]:
@@ -93,6 +107,7 @@ class Layer(Generic[S]):
 
     stateful = False  # carries chain state from one block of epochs into the next
     timed = False  # drops by packet time [s] (``drops_at``), applied after the run
+    ranged = False  # drops by the link's length [m] (``keeps``), applied after the run
     state_names: tuple[str, ...] = ("",)  # state code → its name in ``Outcome.state``
 
     def __init__(self, spec: S, occurrence: int) -> None:
@@ -125,6 +140,15 @@ class Layer(Generic[S]):
         """``drops_at`` for one packet time [s]."""
         return False
 
+    def keeps(self, draws: Floats | None, distance_m: Floats) -> Bools:
+        """A distance layer's verdicts: delivered at link lengths ``distance_m`` [m] given the run's
+        ``draws`` (same shape, or None for a layer without draws)."""
+        return np.ones(np.shape(distance_m), dtype=np.bool_)
+
+    def delivery_at(self, distance_m: Floats) -> Floats:
+        """A distance layer's closed form: P(delivered) at link lengths ``distance_m`` [m]."""
+        return np.ones(np.shape(distance_m), dtype=np.float64)
+
     def timing(self) -> str:
         """What a timed layer needs, for the error when no packet time is given."""
         return f"{self.kind} is given in seconds"
@@ -142,6 +166,10 @@ class Layer(Generic[S]):
     def loss_rate(self) -> float:
         """Long-run fraction of epochs the layer drops: ``π · loss`` of its chain."""
         chain = self.loss_chain()
+        if chain is None and self.ranged:
+            raise LinkModelError(
+                "closed form", f"{self.kind} depends on distance; use expected_delivery_at"
+            )
         if chain is None:
             raise LinkModelError("closed form", f"{self.kind} has no closed-form loss rate")
         t, loss = chain

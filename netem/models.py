@@ -70,10 +70,12 @@ from netem.closed_forms import (
     DelayMoments,
     delay_moments,
     expected_burst_length,
+    expected_delivery_at,
     expected_loss_rate,
     stationary_distribution,
 )
 from netem.layer import Keys, LinkModelError
+from netem.matrix import delivery_matrix, link_lengths
 from netem.stack import (
     KEY_LIMIT,
     Carry,
@@ -103,6 +105,7 @@ class _Block:
     code_list: list[int]  # epoch start + j is decided by table[code_list[j]]
     timed: bool
     codes: npt.NDArray[np.int64]  # code_list as an array
+    ranged: bool  # a piece has a distance layer: table entries are before those layers
     table: list[Outcome]
     by_seq: dict[tuple[int, int], tuple[list[int], list[int], list[float]]] = field(
         default_factory=dict
@@ -185,8 +188,11 @@ class LinkModel:
         self._blocks = {i: blk for i, blk in self._blocks.items() if i < k}
         self._carries = {i: c for i, c in self._carries.items() if i <= k}
 
-    def decide(self, epoch: int, seq: int = 0, time_s: float | None = None) -> Outcome:
-        """The decision for packet ``seq`` of ``epoch`` (realtime windows at ``time_s`` [s]).
+    def decide(
+        self, epoch: int, seq: int = 0, time_s: float | None = None, distance_m: float | None = None
+    ) -> Outcome:
+        """The decision for packet ``seq`` of ``epoch`` (realtime windows at ``time_s`` [s]; distance
+        models at the link's length ``distance_m`` [m] at the epoch).
 
         The same answer for the same arguments, in any order of calls, in any process.
         """
@@ -196,8 +202,14 @@ class LinkModel:
                 raise LinkModelError(self.link, f"epoch = {epoch}; expected >= 0")
             blk = self._block(epoch // self._b)
         if seq == 0 and not blk.timed:
-            return blk.table[blk.code_list[epoch - blk.start]]
-        return self._decide_slow(blk, epoch, seq, time_s)
+            out = blk.table[blk.code_list[epoch - blk.start]]
+            return out if not blk.ranged else self._at_distance(blk, epoch, out, distance_m)
+        return self._decide_slow(blk, epoch, seq, time_s, distance_m)
+
+    @property
+    def ranged(self) -> bool:
+        """Does a stack of the link decide by the link's length (``decide`` needs ``distance_m``)?"""
+        return any(s.ranged for _, s in self._timeline)
 
     def coded(
         self, start: int, n_epochs: int
@@ -205,8 +217,8 @@ class LinkModel:
         """Epochs ``start .. start + n_epochs - 1`` as ``(codes, table)``: ``decide(k)`` is
         ``table[codes[k - start]]`` (packet 0), for vectorised use of many epochs.
 
-        Under a realtime window the verdict needs the packet's time; such epochs get
-        ``None`` in place of a decision.
+        Under a realtime window or a distance model the verdict needs the packet's time
+        or the link's length; such epochs get ``None`` in place of a decision.
         """
         codes: list[npt.NDArray[np.int64]] = []
         table: list[Outcome | None] = []
@@ -219,16 +231,21 @@ class LinkModel:
                 blk = self._block(k // self._b)
             stop = min(end, blk.start + self._b)
             codes.append(blk.codes[k - blk.start : stop - blk.start] + len(table))
-            table.extend([None] * len(blk.table) if blk.timed else blk.table)
+            table.extend([None] * len(blk.table) if blk.timed or blk.ranged else blk.table)
             k = stop
         return np.concatenate(codes), table
 
     def schedule(
-        self, n_epochs: int, start: int = 0, times_s: npt.ArrayLike | None = None
+        self,
+        n_epochs: int,
+        start: int = 0,
+        times_s: npt.ArrayLike | None = None,
+        distances_m: npt.ArrayLike | None = None,
     ) -> Schedule:
         """Decisions of epochs ``start .. start + n_epochs - 1`` (``seq = 0``) as arrays.
 
-        ``times_s`` ``(n_epochs,)`` [s]: packet times, needed when a realtime outage is in force.
+        ``times_s`` ``(n_epochs,)`` [s]: packet times, needed when a realtime outage is in force;
+        ``distances_m`` ``(n_epochs,)`` [m]: the link's lengths, needed by a distance model.
         """
         if n_epochs < 0 or start < 0:
             raise LinkModelError(
@@ -248,6 +265,16 @@ class LinkModel:
                 p.apply_times(times[p.start - start : p.start - start + p.n])
         else:
             self._require_times(pieces)
+        if distances_m is not None:
+            dist = np.asarray(distances_m, dtype=np.float64)
+            if dist.shape != (n_epochs,):
+                raise LinkModelError(
+                    self.link, f"distances_m has shape {dist.shape}; expected ({n_epochs},)"
+                )
+            for p in pieces:
+                p.apply_distances(dist[None, p.start - start : p.start - start + p.n])
+        else:
+            self._require_distance(pieces)
         return schedule_of(pieces, start, n_epochs)
 
     # internals ----------------------------------------------------------------------------------
@@ -308,7 +335,9 @@ class LinkModel:
                 ms = float(np.int64(ms_bits).view(np.float64))
                 table.append(make_decision(model, c, e, ms, bool(r), state_string(kinds, state)))
         coded = np.concatenate(codes)
-        blk = _Block(a, pieces, coded.tolist(), any(p.stack.timed for p in pieces), coded, table)
+        timed = any(p.stack.timed for p in pieces)
+        ranged = any(p.stack.ranged for p in pieces)
+        blk = _Block(a, pieces, coded.tolist(), timed, coded, ranged, table)
         while len(self._blocks) >= self._cache_blocks:
             del self._blocks[next(iter(self._blocks))]
         self._blocks[k] = blk
@@ -321,6 +350,41 @@ class LinkModel:
                     self.link,
                     f"stack[{i}] {p.stack.layers[i].timing()}; the decision needs the packet time time_s",
                 )
+
+    def _require_distance(self, pieces: Sequence[Piece]) -> None:
+        for p in pieces:
+            for i in p.stack.ranged:
+                raise LinkModelError(
+                    self.link,
+                    f"stack[{i}] {p.stack.layers[i].kind} decides by distance; "
+                    "the decision needs the link's length distance_m",
+                )
+
+    def _ranged_drop(self, p: Piece, j: int, distance_m: float | None) -> int:
+        """The first distance layer of piece ``p`` that drops its epoch ``j``; -1 if none does."""
+        if not p.stack.ranged:
+            return -1
+        if distance_m is None:
+            self._require_distance([p])
+        d = np.full((1, 1), distance_m, dtype=np.float64)
+        for i in p.stack.ranged:
+            draws = p.draws.get(i)
+            if not p.stack.layers[i].keeps(None if draws is None else draws[:, j : j + 1], d)[0, 0]:
+                return i
+        return -1
+
+    def _at_distance(
+        self, blk: _Block, epoch: int, out: Outcome, distance_m: float | None
+    ) -> Outcome:
+        """``out``, the decision without the distance layers, with them at ``distance_m`` [m]."""
+        which = next(i for i in reversed(range(len(blk.pieces))) if blk.pieces[i].start <= epoch)
+        p = blk.pieces[which]
+        j = epoch - p.start
+        drop = self._ranged_drop(p, j, distance_m)
+        first = int(p.first[0, j])
+        if drop < 0 or 0 <= first < drop:
+            return out
+        return make_decision(p.stack.layers[drop].kind, 0, 0, 0.0, False, out.state)
 
     def _packet_draws(self, p: Piece, seq: int) -> tuple[list[int], list[int], list[float]]:
         """Extra copies and delays of packet ``seq`` of every epoch of a piece."""
@@ -339,7 +403,9 @@ class LinkModel:
                 dms += out.delay_ms[0]
         return dup.tolist(), de.tolist(), dms.tolist()
 
-    def _decide_slow(self, blk: _Block, epoch: int, seq: int, time_s: float | None) -> Outcome:
+    def _decide_slow(
+        self, blk: _Block, epoch: int, seq: int, time_s: float | None, distance_m: float | None
+    ) -> Outcome:
         """Packets with ``seq > 0`` or under a realtime window: one packet, from the block's chains."""
         which = next(i for i in reversed(range(len(blk.pieces))) if blk.pieces[i].start <= epoch)
         p = blk.pieces[which]
@@ -364,6 +430,9 @@ class LinkModel:
                     codes[i] = int(down)
                     if down and (first < 0 or i < first):
                         first = i
+        drop = self._ranged_drop(p, j, distance_m)
+        if drop >= 0 and (first < 0 or drop < first):
+            first = drop
         kinds = [layer.kind for layer in layers]
         reordered = bool(p.reorder[0, j])
         if first >= 0:
@@ -391,85 +460,6 @@ def schedule(
     return LinkModel(specs, seed, src, dst).schedule(n_epochs, times_s=times_s)
 
 
-def delivery_matrix(
-    specs_per_link: Sequence[Sequence[LinkModelSpec]],
-    seed: int,
-    links: npt.ArrayLike,
-    n_epochs: int,
-    times_s: npt.ArrayLike | None = None,
-) -> LinkMatrix:
-    """Decisions of many links at once, for the in-process simulator and sweeps.
-
-    Links with equal stacks are computed together: stateless layers over
-    ``(links, epochs)`` in one go, Markov chains vectorised across links with a
-    loop over epochs. Column ``l`` equals ``schedule(specs_per_link[l], seed,
-    *links[l], n_epochs)``.
-
-    Parameters
-    ----------
-    specs_per_link : sequence of L stacks
-    seed : int
-    links : (L, 2) int array
-        ``(src, dst)`` of each directed link.
-    n_epochs : int
-    times_s : (n_epochs,) array [s], optional
-        Packet times, needed when a realtime outage window is in a stack.
-
-    Returns
-    -------
-    LinkMatrix
-        ``delivered``, ``copies``, ``delay_epochs``, ``delay_ms``, ``reordered``, each ``(n_epochs, L)``.
-    """
-    pairs = np.asarray(links, dtype=np.int64)
-    if pairs.ndim != 2 or pairs.shape[1] != 2:
-        raise LinkModelError("matrix", f"links has shape {pairs.shape}; expected (L, 2)")
-    if len(specs_per_link) != pairs.shape[0]:
-        raise LinkModelError(
-            "matrix", f"{len(specs_per_link)} stacks for {pairs.shape[0]} links; expected one each"
-        )
-    times = None if times_s is None else np.asarray(times_s, dtype=np.float64)
-    if times is not None and times.shape != (n_epochs,):
-        raise LinkModelError("matrix", f"times_s has shape {times.shape}; expected ({n_epochs},)")
-    n_links = pairs.shape[0]
-    delivered = np.zeros((n_links, n_epochs), np.bool_)
-    copies = np.zeros((n_links, n_epochs), np.int8)
-    delay_epochs = np.zeros((n_links, n_epochs), np.int64)
-    delay_ms = np.zeros((n_links, n_epochs), np.float64)
-    reordered = np.zeros((n_links, n_epochs), np.bool_)
-    groups: dict[tuple[LinkModelSpec, ...], list[int]] = {}
-    for i, specs in enumerate(specs_per_link):
-        groups.setdefault(tuple(specs), []).append(i)
-    for stack_specs, members in groups.items():
-        idx = np.asarray(members)
-        name = f"{pairs[idx[0], 0]}→{pairs[idx[0], 1]}"
-        for j in (0, 1):
-            for v in pairs[idx, j].tolist():
-                check_key(name, "src" if j == 0 else "dst", v)
-        check_key(name, "seed", seed)
-        stack = build_stack(stack_specs, name)
-        keys = Keys(seed, pairs[idx, 0:1], pairs[idx, 1:2])
-        piece, _ = run_stack(stack, keys, 0, n_epochs, {})
-        if times is not None:
-            piece.apply_times(times)
-        elif stack.timed:
-            raise LinkModelError(name, "a stack has an outage in seconds; pass times_s")
-        d, c, de, dms, r = piece.final()
-        delivered[idx], copies[idx], delay_epochs[idx], delay_ms[idx], reordered[idx] = (
-            d,
-            c,
-            de,
-            dms,
-            r,
-        )
-    return LinkMatrix(
-        np.ascontiguousarray(delivered.T),
-        np.ascontiguousarray(copies.T),
-        np.ascontiguousarray(delay_epochs.T),
-        np.ascontiguousarray(delay_ms.T),
-        np.ascontiguousarray(reordered.T),
-    )
-
-
 __all__ = [
     "MODEL_NAMES",
     "DelayMoments",
@@ -481,7 +471,9 @@ __all__ = [
     "delay_moments",
     "delivery_matrix",
     "expected_burst_length",
+    "expected_delivery_at",
     "expected_loss_rate",
+    "link_lengths",
     "schedule",
     "stationary_distribution",
 ]

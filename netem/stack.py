@@ -115,6 +115,11 @@ class Stack:
     def timed(self) -> tuple[int, ...]:
         return tuple(i for i, layer in enumerate(self.layers) if layer.timed)
 
+    @property
+    def ranged(self) -> tuple[int, ...]:
+        """Indices of the layers that decide by the link's length."""
+        return tuple(i for i, layer in enumerate(self.layers) if layer.ranged)
+
 
 def build_stack(specs: Sequence[LinkModelSpec], link: str) -> Stack:
     """The layers of ``specs``, each keyed by its kind and occurrence; errors name ``link``."""
@@ -150,6 +155,7 @@ class Piece:
     reorder: Bools
     states: Codes  # (L, n, len(layers))
     chain_prev: dict[int, Floats] = field(default_factory=dict)
+    draws: dict[int, Floats | None] = field(default_factory=dict)  # distance layer → (L, n)
 
     @property
     def n(self) -> int:
@@ -162,6 +168,13 @@ class Piece:
             self.first = np.where(down & ((self.first < 0) | (self.first > i)), i, self.first)
             self.first = self.first.astype(np.int16)
             self.states[:, :, i] = down
+
+    def apply_distances(self, distance_m: Floats) -> None:
+        """Drop by the distance layers at link lengths ``distance_m`` ``(L, n)`` [m]."""
+        for i in self.stack.ranged:
+            lost = ~self.stack.layers[i].keeps(self.draws.get(i), distance_m)
+            self.first = np.where(lost & ((self.first < 0) | (self.first > i)), i, self.first)
+            self.first = self.first.astype(np.int16)
 
     def final(self) -> tuple[Bools, npt.NDArray[np.int8], Ints, Floats, Bools]:
         """``delivered, copies, delay_epochs, delay_ms, reordered``, each ``(L, n)``."""
@@ -193,6 +206,7 @@ def run_stack(stack: Stack, keys: Keys, start: int, n: int, carry: Carry) -> tup
     states = np.zeros((*shape, len(stack.layers)), dtype=np.int8)
     drops: list[tuple[int, Bools]] = []
     chain_prev: dict[int, Floats] = {}
+    draws: dict[int, Floats | None] = {}
     after: Carry = {}
     for i, layer in enumerate(stack.layers):
         out, end = layer.run(keys, epochs, carry.get(layer.ident))
@@ -211,9 +225,13 @@ def run_stack(stack: Stack, keys: Keys, start: int, n: int, carry: Carry) -> tup
             reorder |= out.reorder
         if out.chain_prev is not None:
             chain_prev[i] = out.chain_prev
+        if layer.ranged:
+            draws[i] = out.draws
     for i, drop in reversed(drops):
         first = np.where(drop, np.int16(i), first).astype(np.int16)
-    piece = Piece(start, stack, first, dup, delay_epochs, delay_ms, reorder, states, chain_prev)
+    piece = Piece(
+        start, stack, first, dup, delay_epochs, delay_ms, reorder, states, chain_prev, draws
+    )
     return piece, after
 
 
@@ -267,6 +285,7 @@ def trim_pieces(pieces: list[Piece], start: int) -> list[Piece]:
                 p.reorder[:, s:],
                 p.states[:, s:],
                 {i: v[:, s:] for i, v in p.chain_prev.items()},
+                {i: None if v is None else v[:, s:] for i, v in p.draws.items()},
             )
         out.append(p)
     return out

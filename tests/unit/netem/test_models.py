@@ -448,6 +448,9 @@ def test_every_tag_has_a_layer_and_keeps_its_kind_code() -> None:
         "delay",
         "duplicate",
         "reorder",
+        "range",
+        "logistic",
+        "log_distance",
     )
     assert list(LAYERS) == list(MODEL_NAMES) == list(SPEC_OF)
     assert all(layer_of(cls.model_construct()) is LAYERS[tag] for tag, cls in SPEC_OF.items())

@@ -1,0 +1,36 @@
+"""``range``: a hard cutoff, delivered iff the link's length ``d ≤ max_range_m``.
+
+A distance model: the verdict of link ``i → j`` at epoch ``k`` uses the true
+positions of both ends at ``k`` (``Layer.keeps``); it has no draws. Closed form:
+``P(delivered | d) = 1[d ≤ max_range_m]``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from formation.linkmodels import Range
+from netem.layer import Bools, Floats, Ints, Keys, Layer, LayerOutput
+
+
+class RangeLayer(Layer[Range]):
+    ranged = True
+
+    def run(
+        self, keys: Keys, epochs: Ints, carry: npt.NDArray[Any] | None
+    ) -> tuple[LayerOutput, Any]:
+        return LayerOutput(), None
+
+    def keeps(self, draws: Floats | None, distance_m: Floats) -> Bools:
+        return np.asarray(distance_m <= self.spec.max_range_m, dtype=np.bool_)
+
+    def delivery_at(self, distance_m: Floats) -> Floats:
+        return np.asarray(distance_m <= self.spec.max_range_m, dtype=np.float64)
+
+
+LAYER = RangeLayer
+
+__all__ = ["LAYER", "RangeLayer"]
