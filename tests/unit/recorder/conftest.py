@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from importlib import resources
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -17,7 +18,6 @@ from recorder.epochs import EpochAssembler
 from recorder.writer import RecordingWriter
 
 ROOT = Path(__file__).resolve().parents[3]
-SHARED = ROOT.parent / "shared"
 RUN = "synthetic"
 EPOCH_NS = 1_000_000_000  # log time between epochs in the synthetic recording [ns]
 
@@ -106,7 +106,10 @@ def synth() -> SimpleNamespace:
 
 @pytest.fixture(scope="session")
 def scene_schema() -> dict[str, Any]:
-    return json.loads((SHARED / "schemas" / "foxglove" / "SceneUpdate.json").read_text())
+    """Foxglove's SceneUpdate schema as the recorder package ships it."""
+    return json.loads(
+        (resources.files("recorder") / "foxglove_schemas" / "SceneUpdate.json").read_text()
+    )
 
 
 @pytest.fixture(scope="session")
