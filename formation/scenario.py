@@ -8,6 +8,7 @@ value. The model follows docs/model.md: §1 team and shape, §3 control, §4 edg
 
 from __future__ import annotations
 
+import tomllib
 from collections.abc import Sequence
 from functools import cached_property
 from pathlib import Path
@@ -16,7 +17,6 @@ from typing import Annotated, Any, Literal, get_args
 import numpy as np
 import numpy.typing as npt
 import tomli_w
-import tomllib
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from formation.errors import NO_VALUE, ScenarioError

@@ -8,6 +8,7 @@ missing, empty, not MCAP, truncated (no footer: the recorder did not finish,
 from __future__ import annotations
 
 import json
+import tomllib
 from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -15,7 +16,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import tomllib
 from mcap.reader import McapReader, make_reader
 from mcap.records import Channel, Message, Schema
 from mcap.summary import Summary

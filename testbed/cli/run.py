@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -49,7 +49,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             outcome.extra["skipped"] = _report(outcome.run_dir, console)
         console.print(f"{strategy}: files in [bold]{outcome.run_dir}[/]")
     if len(outcomes) > 1 and not args.no_record:
-        stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%S")
+        stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
         compare = Path(args.runs_dir) / f"{scenario.name}-compare-{stamp}"
         report = write_reports([o.run_dir / "run.mcap" for o in outcomes], compare)
         console.print(f"comparison of the {len(outcomes)} runs: [bold]{report}[/]")
