@@ -282,3 +282,18 @@ def test_loopback_maps_names_paths_and_secrets(tmp_path: Path) -> None:
     assert str(tmp_path / "runs" / "r1") in recorder.argv and recorder.grace_s == 60.0
     assert dep.bound("tcp/router:7447") == "tcp/127.10.20.2:7447#bind=127.10.20.1:0"
     assert not dep.started
+
+
+def test_the_loopback_override_covers_every_service_on_its_own_loopback_address(
+    compose_schema: jsonschema.Draft7Validator,
+) -> None:
+    """deploy/compose.loopback.yaml: host network, each service name → its own 127.0.0.N."""
+    doc = yaml.safe_load(COMPOSE.read_text())
+    override = yaml.safe_load((ROOT / "deploy" / "compose.loopback.yaml").read_text())
+    assert list(override["services"]) == list(doc["services"])
+    expected = [f"{name}:127.0.0.{k + 2}" for k, name in enumerate(doc["services"])]
+    for name, svc in override["services"].items():
+        assert svc["network_mode"] == "host"
+        assert svc["extra_hosts"] == expected, name
+        merged = {**doc["services"][name], **svc}
+        compose_schema.validate({**doc, "services": {name: merged}})
