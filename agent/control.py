@@ -77,3 +77,54 @@ def step_double(
     accel = command / period_s**2 - damping * (v - v_ref)
     v_next = v + period_s * accel
     return x + period_s * v_next, v_next
+
+
+def step_unicycle(
+    x: Array,
+    heading: Array,
+    command: Array,
+    v_ref: Array,
+    period_s: float,
+    limits: tuple[float, float, float, int],
+) -> tuple[Array, Array, npt.NDArray[np.int64]]:
+    """Unicycles driven through the near-identity transform, with speed limits.
+
+    The agent's position is its look-ahead point ``p = c + l h(θ)``, ``h(θ) = (cos θ,
+    sin θ)``, ``c`` the axle's centre. The consensus step asks ``p`` to move at
+    ``u = command / T + v_ref``; the transform (Robotarium's ``si_to_uni``, Olfati-Saber's
+    near-identity diffeomorphism) gives ``v = h · u`` and ``ω = h⊥ · u / l``, ``h⊥ = (−sin θ,
+    cos θ)``, under which ``ṗ = u`` exactly. ``v``, ``ω`` are clipped to the limits and
+    held for each of ``inner_steps`` sub-steps of ``T / inner_steps``, over which the
+    unicycle ``ċ = v h(θ)``, ``θ̇ = ω`` is integrated exactly (an arc).
+
+    Parameters
+    ----------
+    x : (a, 2) look-ahead points ``p[k]`` [m]
+    heading : (a,) ``θ[k]`` [rad]
+    command : (a, 2) consensus increment [m]; v_ref : (a, 2) [m/s]
+    period_s : ``T`` [s]
+    limits : ``(max_speed_m_s, max_turn_rad_s, lookahead_m, inner_steps)``
+
+    Returns
+    -------
+    (a, 2) ``p[k+1]`` [m], (a,) ``θ[k+1]`` in ``[−π, π)`` [rad], (a,) sub-steps with a clipped speed
+    """
+    v_max, w_max, look, steps = limits
+    u = command / period_s + v_ref
+    dt = period_s / steps
+    p, th = x.copy(), heading.copy()
+    saturated = np.zeros(x.shape[0], dtype=np.int64)
+    for _ in range(steps):
+        cos, sin = np.cos(th), np.sin(th)
+        v_want = cos * u[:, 0] + sin * u[:, 1]
+        w_want = (cos * u[:, 1] - sin * u[:, 0]) / look
+        v, w = np.clip(v_want, -v_max, v_max), np.clip(w_want, -w_max, w_max)
+        saturated += (v != v_want) | (w != w_want)
+        turn = w * dt
+        mid = th + 0.5 * turn
+        arc = v * dt * np.sinc(turn / (2.0 * np.pi))  # chord of the arc: v dt sin(Δ/2) / (Δ/2)
+        centre = p - look * np.stack([cos, sin], axis=1)
+        th = th + turn
+        centre = centre + arc[:, None] * np.stack([np.cos(mid), np.sin(mid)], axis=1)
+        p = centre + look * np.stack([np.cos(th), np.sin(th)], axis=1)
+    return p, np.mod(th + np.pi, 2.0 * np.pi) - np.pi, saturated

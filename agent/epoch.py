@@ -11,7 +11,13 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from agent.control import displacement_command, distance_command, step_double, step_single
+from agent.control import (
+    displacement_command,
+    distance_command,
+    step_double,
+    step_single,
+    step_unicycle,
+)
 from agent.strategies import LinkMemory, Substitution, substitute
 from formation.scenario import Scenario, StrategyName
 
@@ -60,6 +66,8 @@ class AgentStep:
     velocities: Array  # (a, d) [m/s] (double integrator; zeros otherwise)
     memory: LinkMemory
     substitution: Substitution
+    headings: Array | None = None  # (a,) θ[k+1] [rad] (unicycle; None otherwise)
+    saturated: npt.NDArray[np.int64] | None = None  # (a,) sub-steps of epoch k with a clipped speed
 
 
 def agent_epoch(
@@ -77,6 +85,7 @@ def agent_epoch(
     has_estimate: Mask,
     v_ref_prev: Array,
     v_ref: Array,
+    headings: Array | None = None,
 ) -> AgentStep:
     """Advance a set of agents from ``x[k]`` to ``x[k+1]``.
 
@@ -88,6 +97,7 @@ def agent_epoch(
     memory : per in-link memory from epoch ``k − 1``
     estimate : (L, d) leader's ``x̂_j[k]``; has_estimate (L,)
     v_ref_prev : (L, d) ``v_ref[k − 1]`` as each receiver knows it; v_ref (a, d) ``v_ref[k]`` as known
+    headings : (a,) ``θ[k]`` [rad], unicycle dynamics only (``x`` are then the look-ahead points)
     """
     ctl = scenario.control
     sub, memory = substitute(
@@ -106,5 +116,12 @@ def agent_epoch(
         )
     if ctl.dynamics == "single":
         return AgentStep(step_single(x, cmd, v_ref, ctl.period_s), velocities, memory, sub)
+    if ctl.dynamics == "unicycle":
+        if headings is None:
+            raise ValueError("dynamics = 'unicycle' needs the agents' headings")
+        uni = ctl.unicycle
+        limits = (uni.max_speed_m_s, uni.max_turn_rad_s, uni.lookahead_m, uni.inner_steps)
+        nxt, th, sat = step_unicycle(x, headings, cmd, v_ref, ctl.period_s, limits)
+        return AgentStep(nxt, velocities, memory, sub, th, sat)
     nxt, vel = step_double(x, velocities, cmd, v_ref, ctl.period_s, ctl.damping)
     return AgentStep(nxt, vel, memory, sub)

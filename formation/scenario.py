@@ -9,20 +9,21 @@ value. The model follows docs/model.md: §1 team and shape, §3 control, §4 edg
 from __future__ import annotations
 
 import tomllib
-from collections.abc import Sequence
 from functools import cached_property
 from pathlib import Path
-from typing import Annotated, Any, Literal, get_args
+from typing import Annotated, Any, Literal
 
 import numpy as np
 import numpy.typing as npt
 import tomli_w
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from formation.error_paths import loc_path, lookup
 from formation.errors import NO_VALUE, ScenarioError
 from formation.graph import expected_rigidity_rank, is_connected, max_degree, rigidity_rank
 from formation.keyed_random import Stream, keyed_normal
 from formation.linkmodels import LinkModelSpec
+from formation.robots import Safety, Unicycle, robot_problems
 
 StrategyName = Literal["zero", "hold", "estimate", "blend", "drop"]
 STRATEGIES: tuple[StrategyName, ...] = ("zero", "hold", "estimate", "blend", "drop")
@@ -72,10 +73,11 @@ class Controller(_Model):
     """The formation controller (docs/model.md §3); ``epsilon = gain * period_s``."""
 
     controller: Literal["displacement", "distance"] = "displacement"
-    dynamics: Literal["single", "double"] = "single"
+    dynamics: Literal["single", "double", "unicycle"] = "single"
     gain: float = Field(0.25, gt=0.0)  # k [1/s]
     period_s: float = Field(1.0, gt=0.0)  # T [s]
     damping: float = Field(1.0, gt=0.0)  # c [1/s], double integrator only
+    unicycle: Unicycle = Unicycle()  # limits and look-ahead, dynamics = "unicycle" only
 
     @property
     def epsilon(self) -> float:
@@ -152,6 +154,7 @@ class Network(_Model):
     control_default: tuple[LinkModelSpec, ...] = ()
     links: tuple[FormationLink, ...] = ()
     control: tuple[ControlLink, ...] = ()
+    access_point: tuple[float, ...] | None = None  # [m] control links' radio end (distance models)
 
 
 class Runtime(_Model):
@@ -184,6 +187,7 @@ class Scenario(_Model):
     network: Network = Network()
     runtime: Runtime = Runtime()
     recording: RecordingSettings = RecordingSettings()
+    safety: Safety = Safety()
 
     # -- checks that need the whole scenario ------------------------------------------------
     @model_validator(mode="after")
@@ -407,54 +411,24 @@ def _problems(s: Scenario) -> list[tuple[str, object, str]]:
                     f"agent does not exist (agents are 1..{n})",
                 )
             ]
-    return []
+    return robot_problems(s.dimension, s.control.dynamics, s.runtime.mode, s.safety,
+                          s.network.access_point, _edge_lengths(s, d0, pairs), *_stacks(s))  # fmt: skip
 
 
-def _field_loc(loc: Sequence[int | str]) -> list[int | str]:
-    """``loc`` without pydantic's labels of union members and validators (``"line"``, ``"delay"``).
-
-    A name is kept when a model the path is in has a field or alias of that name, or
-    when it comes last (an unknown key); any other name is a label pydantic added.
-    """
-    models: list[type[BaseModel]] = [Scenario]
-    out: list[int | str] = []
-    for k, part in enumerate(loc):
-        if isinstance(part, int):
-            out.append(part)
-            continue
-        fields = [f for m in models for n, f in m.model_fields.items() if part in (n, f.alias)]
-        if fields:
-            models = [m for f in fields for m in _models_in(f.annotation)]
-        if fields or k == len(loc) - 1:
-            out.append(part)
-    return out
+def _edge_lengths(
+    s: Scenario, d0: npt.NDArray[np.float64], pairs: npt.NDArray[np.int64]
+) -> list[tuple[str, float]]:
+    return [(f"{i}–{j}", float(np.linalg.norm(d0[i - 1] - d0[j - 1]))) for i, j in pairs.tolist()]
 
 
-def _models_in(annotation: Any) -> list[type[BaseModel]]:
-    """The models a field's type can hold, through tuples, unions and ``Annotated``."""
-    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
-        return [annotation]
-    return [m for arg in get_args(annotation) for m in _models_in(arg)]
-
-
-def _loc_path(loc: Sequence[int | str]) -> str:
-    out = ""
-    for part in _field_loc(loc):
-        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else part)
-    return out
-
-
-def _lookup(data: Any, loc: Sequence[int | str]) -> object:
-    cur = data
-    for part in _field_loc(loc):
-        if isinstance(cur, dict) and part in cur:
-            cur = cur[part]
-            continue
-        if isinstance(cur, list | tuple) and isinstance(part, int) and part < len(cur):
-            cur = cur[part]
-            continue
-        return NO_VALUE
-    return cur
+def _stacks(s: Scenario) -> tuple[list[tuple[str, Any]], list[tuple[str, Any]]]:
+    """The formation and control link stacks as ``(field, models)``."""
+    net = s.network
+    formation = [("network.formation_default", net.formation_default)]
+    formation += [(f"network.links[{k}].models", link.models) for k, link in enumerate(net.links)]
+    control = [("network.control_default", net.control_default)]
+    control += [(f"network.control[{k}].models", c.models) for k, c in enumerate(net.control)]
+    return formation, control
 
 
 def load_dict(data: dict[str, Any], source: str = "<scenario>") -> Scenario:
@@ -476,8 +450,8 @@ def load_dict(data: dict[str, Any], source: str = "<scenario>") -> Scenario:
         else:
             problem = err["msg"].removeprefix("Value error, ")
         if value is NO_VALUE and err["type"] != "missing":
-            value = _lookup(data, loc)
-        raise ScenarioError(source, _loc_path(loc), value, problem) from None
+            value = lookup(Scenario, data, loc)
+        raise ScenarioError(source, loc_path(Scenario, loc), value, problem) from None
 
 
 def load(path: str | Path) -> Scenario:
