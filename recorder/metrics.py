@@ -57,3 +57,46 @@ def longest_run(flags: npt.NDArray[np.bool_]) -> int:
     padded = np.concatenate([[False], flags, [False]]).astype(np.int8)
     edges = np.flatnonzero(np.diff(padded))
     return int(np.max(edges[1::2] - edges[::2]))
+
+
+def pair_distances(positions: Array) -> Array:
+    """Distances between every pair ``i < j`` (``np.triu_indices`` order).
+
+    positions : (..., n, d) [m]. Returns (..., n (n − 1) / 2) [m].
+    """
+    i, j = np.triu_indices(positions.shape[-2], k=1)
+    diff = positions[..., i, :] - positions[..., j, :]
+    return np.asarray(np.sqrt(np.sum(diff * diff, axis=-1)), dtype=float)
+
+
+def min_distance(positions: Array) -> Array:
+    """The minimum inter-agent distance per epoch: positions (T, n, d) [m] → (T,) [m] (inf if n < 2)."""
+    dist = pair_distances(positions)
+    if dist.shape[-1] == 0:
+        return np.full(positions.shape[:-2], np.inf)
+    return np.asarray(dist.min(axis=-1), dtype=float)
+
+
+def collisions(
+    positions: Array, body_diameter_m: float
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """Collisions per pair: times two bodies ``body_diameter_m`` across come closer than that.
+
+    positions : (T, n, d) [m]. A collision is an epoch in contact after one out of contact
+    (or the first epoch): a pair that stays in contact counts once. Returns ``pairs``
+    (P, 2) agent ids and ``counts`` (P,), both in ``np.triu_indices`` order; 0 diameter, no counts.
+    """
+    n = positions.shape[-2]
+    i, j = np.triu_indices(n, k=1)
+    pairs = np.stack([i + 1, j + 1], axis=1).astype(np.int64)
+    if body_diameter_m <= 0.0 or positions.shape[0] == 0:
+        return pairs, np.zeros(pairs.shape[0], dtype=np.int64)
+    touch = pair_distances(positions) < body_diameter_m  # (T, P)
+    starts = touch & ~np.concatenate([np.zeros((1, touch.shape[1]), bool), touch[:-1]], axis=0)
+    return pairs, starts.sum(axis=0).astype(np.int64)
+
+
+def time_out_of_bounds(positions: Array, low_m: Array, high_m: Array, period_s: float) -> Array:
+    """Time each agent spends outside the box ``[low_m, high_m]`` (d,) [m]: positions (T, n, d) → (n,) [s]."""
+    outside = ((positions < low_m) | (positions > high_m)).any(axis=-1)
+    return np.asarray(outside.sum(axis=0) * period_s, dtype=float)
