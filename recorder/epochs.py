@@ -4,8 +4,8 @@ The true positions of epoch ``k`` are the ``position`` fields of the
 ``CoordinationState`` messages on ``agent/<i>/state`` (sender side, before loss).
 When all ``n`` have arrived the assembler emits ``EpochMetrics`` (docs/model.md §7).
 The scene of epoch ``k`` also needs the leader's estimate of ``k`` (link health,
-tree); it is emitted when that estimate arrives, or when a later epoch completes,
-or at the end, whichever comes first (edges then drawn grey). No clock, no I/O:
+tree, BLUE) and netem's decisions on the formation links of ``k``; it is emitted once
+all are in, in epoch order (:class:`EpochAssembler`). No clock, no I/O:
 payloads in, ``(key, payload)`` out; the
 messages' ``stamp_ns`` comes from an injected clock.
 """
@@ -22,7 +22,7 @@ import numpy.typing as npt
 
 from formation import keys
 from formation.codec import encode, now_ns
-from formation.messages import CoordinationState, EpochMetrics, LeaderEstimate
+from formation.messages import CoordinationState, DecisionBatch, EpochMetrics, LeaderEstimate
 from formation.scenario import Scenario
 from recorder.metrics import formation_error, shape_error
 from recorder.scene import scene_update
@@ -30,6 +30,8 @@ from recorder.trust import Gate
 
 Derived = tuple[str, bytes]
 STALE_EPOCHS = 8  # an incomplete epoch this far behind the newest complete one is given up
+WAIT_EPOCHS = 256  # a scene waits this far behind for its epoch's estimate and decisions
+TAPS = ("agent_state", "leader_estimate", "decision")  # the channel kinds the assembler reads
 
 
 def edge_mask(edges: npt.NDArray[np.int64], pairs: list[tuple[int, int]]) -> npt.NDArray[np.bool_]:
@@ -39,7 +41,16 @@ def edge_mask(edges: npt.NDArray[np.int64], pairs: list[tuple[int, int]]) -> npt
 
 
 class EpochAssembler:
-    """Collects true states per epoch; emits metrics and scenes for the recording."""
+    """Collects true states, estimates and decisions per epoch; emits metrics and scenes.
+
+    The scene of epoch ``k`` is drawn once everything it shows is in: all ``n`` states of
+    ``k``, the leader's estimate of ``k`` and netem's decision on every formation link of
+    ``k`` (one per directed link; netem sends the decisions of clean epochs in batches,
+    so they may come many epochs late). Scenes go out in epoch order, so the same seed
+    gives the same scenes whatever the timing. An epoch still missing a part when the
+    newest complete epoch is :data:`WAIT_EPOCHS` ahead (a dead sender, a recording that
+    filters decisions out) is drawn with what it has, as is every epoch left at the end.
+    """
 
     def __init__(
         self,
@@ -51,19 +62,24 @@ class EpochAssembler:
         self.scenario, self.run_id, self.sender, self._clock = scenario, run_id, sender, clock
         self.n, self.d = scenario.n, scenario.dimension
         self.edges = scenario.edge_array
+        self.links = len(scenario.directed_links)  # formation decisions per epoch
         self._states: dict[int, dict[int, list[float]]] = {}
         self._waiting: dict[int, npt.NDArray[np.float64]] = {}  # complete, scene not yet out
-        self._health: dict[int, tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]]] = {}
+        self._est: dict[int, LeaderEstimate] = {}
+        self._decided: Counter[int] = Counter()
+        self._lost: dict[int, list[tuple[int, int]]] = {}
+        self._next_scene = 0
         self._newest = -1
         self._seq: Counter[str] = Counter()
         self.gate = Gate(scenario, conflicts=False)  # what it skips: gate.skipped
         self.given_up = 0  # epochs whose states never all arrived
+        self.drawn_early = 0  # scenes drawn before every part of their epoch was in
 
     def on_state(self, key: str, payload: bytes, stamp_ns: int) -> list[Derived]:
         """A ``CoordinationState`` from ``agent/<i>/state``; only one its agent sent about itself
         (:class:`recorder.trust.Gate`), the first of its epoch."""
         state = self.gate.check(key, payload, "agent_state")
-        if not isinstance(state, CoordinationState):
+        if not isinstance(state, CoordinationState) or state.epoch < self._next_scene:
             return []
         got = self._states.setdefault(state.epoch, {})
         if state.agent in got:
@@ -74,38 +90,79 @@ class EpochAssembler:
         k = state.epoch
         del self._states[k]
         x = np.array([got[i] for i in range(1, self.n + 1)], dtype=float)
-        out = [self._metrics(k, x)]
         self._newest = max(self._newest, k)
         self._waiting[k] = x
-        for j in sorted(self._waiting):
-            if j in self._health or j < k:
-                out.append(self._scene(j, stamp_ns))
+        out = [self._metrics(k, x)]
         self._prune()
-        return out
+        return out + self._scenes(stamp_ns)
 
     def on_estimate(self, key: str, payload: bytes, stamp_ns: int) -> list[Derived]:
-        """A ``LeaderEstimate`` from ``leader/estimate``: health and tree of its epoch."""
+        """A ``LeaderEstimate`` from ``leader/estimate``: health, tree and BLUE of its epoch."""
         est = self.gate.check(key, payload, "leader_estimate")
-        if not isinstance(est, LeaderEstimate):
+        if not isinstance(est, LeaderEstimate) or est.epoch < self._next_scene:
             return []
-        self._health[est.epoch] = (
-            edge_mask(self.edges, list(est.healthy)),
-            edge_mask(self.edges, list(est.tree)),
-        )
-        if est.epoch in self._waiting:
-            return [self._scene(est.epoch, stamp_ns)]
-        return []
+        self._est.setdefault(est.epoch, est)
+        return self._scenes(stamp_ns)
+
+    def on_decision(self, key: str, payload: bytes, stamp_ns: int) -> list[Derived]:
+        """A ``DecisionBatch`` from ``netem/decision``: which formation packets were lost."""
+        batch = self.gate.check(key, payload, "decision")
+        if not isinstance(batch, DecisionBatch):
+            return []
+        for dec in batch.decisions:
+            if dec.link_class != "formation" or dec.epoch < self._next_scene:
+                continue
+            self._decided[dec.epoch] += 1
+            if dec.verdict not in ("pass", "duplicate") or dec.delay_epochs:
+                self._lost.setdefault(dec.epoch, []).append((dec.source, dec.target))
+        return self._scenes(stamp_ns)
+
+    def on(self, kind: str, key: str, payload: bytes, stamp_ns: int) -> list[Derived]:
+        """Any tapped message by its channel kind (:data:`TAPS`)."""
+        return self._on[kind](key, payload, stamp_ns)
+
+    @property
+    def _on(self) -> dict[str, Callable[[str, bytes, int], list[Derived]]]:
+        return {
+            "agent_state": self.on_state,
+            "leader_estimate": self.on_estimate,
+            "decision": self.on_decision,
+        }
 
     def finish(self, stamp_ns: int) -> list[Derived]:
-        """Scenes of every complete epoch still waiting for an estimate."""
-        return [self._scene(k, stamp_ns) for k in sorted(self._waiting)]
+        """Scenes of every complete epoch still waiting, with what they have."""
+        out = []
+        for k in sorted(self._waiting):
+            self.drawn_early += not self._ready(k)
+            out.append(self._scene(k, stamp_ns))
+        return out
+
+    def _ready(self, k: int) -> bool:
+        if k >= self.scenario.epochs:  # the final states: no estimate, no decisions
+            return True
+        return k in self._est and self._decided[k] >= self.links
+
+    def _scenes(self, stamp_ns: int) -> list[Derived]:
+        """Scenes of the epochs now ready, in epoch order from the next one to draw."""
+        out = []
+        while True:
+            k = self._next_scene
+            if k in self._waiting:
+                late = self._newest - k > WAIT_EPOCHS
+                if not (self._ready(k) or late):
+                    break
+                self.drawn_early += late and not self._ready(k)
+                out.append(self._scene(k, stamp_ns))
+            elif k in self._states or k >= self._newest:
+                break  # its states are still coming (or nothing newer is complete)
+            self._next_scene = k + 1  # drawn, or its states were given up
+            self._est.pop(k, None), self._decided.pop(k, None), self._lost.pop(k, None)
+        return out
 
     def _prune(self) -> None:
         for k in [k for k in self._states if k < self._newest - STALE_EPOCHS]:
             del self._states[k]
             self.given_up += 1
-        for k in [k for k in self._health if k < self._newest - STALE_EPOCHS]:
-            del self._health[k]
 
     def _header(self, key: str, epoch: int) -> dict[str, Any]:
         seq = self._seq[key]
@@ -131,10 +188,19 @@ class EpochAssembler:
 
     def _scene(self, k: int, stamp_ns: int) -> Derived:
         x = self._waiting.pop(k)
-        healthy, tree = self._health.pop(k, (None, None))
+        est = self._est.pop(k, None)
+        self._decided.pop(k, None)
+        lost = self._lost.pop(k, [])
         s = self.scenario
-        scene = scene_update(k, stamp_ns, x, self.edges, s.offsets, s.leader, healthy, tree)
+        healthy = tree = None
+        if est is not None:
+            healthy = edge_mask(self.edges, list(est.healthy))
+            tree = edge_mask(self.edges, list(est.tree))
+        scene = scene_update(
+            k, stamp_ns, x, self.edges, s.offsets, s.leader, healthy, tree, lost,
+            None if est is None else est.positions, None if est is None else est.covariances,
+        )  # fmt: skip
         return keys.scene(self.run_id), json.dumps(scene, separators=(",", ":")).encode()
 
 
-__all__ = ["STALE_EPOCHS", "Derived", "EpochAssembler", "edge_mask"]
+__all__ = ["STALE_EPOCHS", "TAPS", "WAIT_EPOCHS", "Derived", "EpochAssembler", "edge_mask"]

@@ -3,8 +3,9 @@
 Zenoh callbacks only append the raw sample ``(key, payload, attachment, timestamp,
 receive time)`` to a list under a lock; a writer thread swaps the list out every
 few milliseconds and writes the batch (:class:`recorder.writer.RecordingWriter`). Nothing
-is parsed on the way except the agents' states and the leader's estimates, which
-feed the per-epoch metrics and the Foxglove scene when ``--scenario`` is given.
+is parsed on the way except the agents' states, the leader's estimates and netem's
+decisions, which feed the per-epoch metrics and the Foxglove scene when ``--scenario``
+is given.
 If the queue reaches ``--max-queue`` messages the sample is counted per key, never
 dropped silently. The liveliness token is declared after the subscribers, so a
 launcher that waits for it knows the recorder hears everything published after.
@@ -44,7 +45,7 @@ from formation.errors import TestbedError
 from formation.messages import Status
 from formation.scenario import Scenario
 from recorder.display import Display
-from recorder.epochs import EpochAssembler
+from recorder.epochs import TAPS, EpochAssembler
 from recorder.schemas import LivelinessEvent
 from recorder.writer import COMPRESSIONS, Raw, RecordingWriter
 
@@ -53,7 +54,6 @@ StatusState = Literal["ready", "running", "done", "error"]
 POLL_S = 0.005  # the writer thread's wait between batches [s]
 SNAPSHOT_NS = 500_000_000  # how often the writer thread refreshes the per-key counts [ns]
 COUNTS_WAIT_S = 2.0  # longest a flush query waits for fresh counts [s]
-TAPS = ("agent_state", "leader_estimate")  # kinds the epoch assembler reads
 
 
 class Intake:
@@ -187,8 +187,7 @@ class Recorder:
         if asm is None:
             return
         for kind, key, data, recv in tapped:
-            on = asm.on_state if kind == "agent_state" else asm.on_estimate
-            for out_key, payload in on(key, data, recv):
+            for out_key, payload in asm.on(kind, key, data, recv):
                 self.recording.write(out_key, payload, time_ns())
 
     # -- liveliness -------------------------------------------------------------------------
@@ -277,6 +276,7 @@ class Recorder:
         if self.assembler is not None:
             stats["derived_malformed"] = json.dumps(self.assembler.gate.skipped.by_channel())
             stats["epochs_incomplete"] = str(self.assembler.given_up)
+            stats["scenes_drawn_early"] = str(self.assembler.drawn_early)
         self.recording.add_metadata("recorder_stats", stats)
         self.recording.close()
 

@@ -2,8 +2,11 @@
 
 Edges are coloured by link health at the epoch (docs/model.md §4): green when healthy,
 red when not, grey when the recorder has no estimate for the epoch; edges of the
-leader's minimum spanning tree are drawn thicker and gold. The desired shape,
-anchored at the leader, is drawn as thin translucent lines. Every primitive array
+leader's minimum spanning tree are drawn thicker and gold. A directed link whose packet
+of the epoch netem did not deliver in time is drawn red on its sender's half of the edge.
+The leader's estimates are small violet spheres with their 2σ covariance ellipse (the
+x–y block in 3-D). The desired shape, anchored at the leader, is drawn as thin
+translucent lines. Every primitive array
 of a ``SceneEntity`` is present (Foxglove's schema requires them), empty when
 unused. Pure: arrays in, a JSON-ready dict out.
 """
@@ -24,7 +27,12 @@ BROKEN: Color = (0.84, 0.15, 0.16, 1.0)
 UNKNOWN: Color = (0.6, 0.6, 0.6, 1.0)
 TREE: Color = (1.0, 0.84, 0.0, 1.0)
 SHAPE: Color = (0.5, 0.5, 0.5, 0.35)
-LINE_LIST = 2  # foxglove.LineType
+LOST: Color = (0.84, 0.15, 0.16, 1.0)
+ESTIMATE: Color = (0.58, 0.4, 0.74, 0.8)
+LINE_LOOP = 1  # foxglove.LineType
+LINE_LIST = 2
+ELLIPSE_POINTS = 24
+SIGMAS = 2.0  # the ellipse drawn: x̂ + 2σ
 
 _PRIMITIVES = ("arrows", "cubes", "spheres", "cylinders", "lines", "triangles", "texts", "models")
 _IDENTITY = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
@@ -48,9 +56,11 @@ def _pose(p: npt.NDArray[np.float64] | None = None) -> dict[str, Any]:
     return {"position": origin if p is None else _vec(p), "orientation": dict(_IDENTITY)}
 
 
-def _lines(points: list[dict[str, float]], color: Color, thickness: float) -> dict[str, Any]:
+def _lines(
+    points: list[dict[str, float]], color: Color, thickness: float, kind: int = LINE_LIST
+) -> dict[str, Any]:
     return {
-        "type": LINE_LIST,
+        "type": kind,
         "pose": _pose(),
         "thickness": thickness,
         "scale_invariant": True,
@@ -97,6 +107,9 @@ def scene_update(
     leader: int,
     healthy: npt.NDArray[np.bool_] | None = None,
     tree: npt.NDArray[np.bool_] | None = None,
+    lost: list[tuple[int, int]] | None = None,
+    estimates: list[list[float] | None] | None = None,
+    covariances: list[list[list[float]] | None] | None = None,
 ) -> dict[str, Any]:
     """The scene of one epoch.
 
@@ -141,8 +154,43 @@ def scene_update(
         shape_pts += [_vec(anchor + offsets[i - 1]), _vec(anchor + offsets[j - 1])]
     if shape_pts:
         lines.append(_lines(shape_pts, SHAPE, 1.0))
+    half: list[dict[str, float]] = []
+    for i, j in sorted(lost or []):
+        a, b = positions[i - 1], positions[j - 1]
+        half += [_vec(a), _vec((a + b) / 2)]
+    if half:
+        lines.append(_lines(half, LOST, 3.0))
+    for p, c in zip(estimates or [], covariances or [], strict=False):
+        if p is None:
+            continue
+        centre = np.asarray(p, dtype=float)
+        e_size = {"x": radius, "y": radius, "z": radius}
+        spheres.append({"pose": _pose(centre), "size": e_size, "color": _color(ESTIMATE)})
+        if c is not None:
+            ring = ellipse(centre, np.asarray(c, dtype=float))
+            if ring:
+                lines.append(_lines(ring, ESTIMATE, 1.0, LINE_LOOP))
     team = entity("formation", stamp_ns, epoch, spheres=spheres, lines=lines, texts=texts)
     return {"deletions": [], "entities": [team]}
 
 
-__all__ = ["FRAME", "edge_colors", "entity", "scene_update"]
+def ellipse(
+    centre: npt.NDArray[np.float64], cov: npt.NDArray[np.float64]
+) -> list[dict[str, float]]:
+    """Points of the ``SIGMAS``-σ ellipse of the x–y block of ``cov`` around ``centre``."""
+    block = cov[:2, :2]
+    if not np.isfinite(block).all():
+        return []
+    values, vectors = np.linalg.eigh((block + block.T) / 2)
+    axes = vectors * (SIGMAS * np.sqrt(np.clip(values, 0.0, None)))
+    t = np.linspace(0.0, 2 * np.pi, ELLIPSE_POINTS, endpoint=False)
+    ring = (axes @ np.stack([np.cos(t), np.sin(t)])).T
+    out = []
+    for r in ring:
+        p = centre.copy()
+        p[:2] += r
+        out.append(_vec(p))
+    return out
+
+
+__all__ = ["FRAME", "edge_colors", "ellipse", "entity", "scene_update"]

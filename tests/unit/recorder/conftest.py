@@ -14,7 +14,7 @@ from formation import keys
 from formation.codec import attachment, encode
 from formation.messages import CoordinationState, Decision, DecisionBatch, LeaderEstimate
 from formation.scenario import Scenario
-from recorder.epochs import EpochAssembler
+from recorder.epochs import TAPS, EpochAssembler
 from recorder.writer import RecordingWriter
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -83,13 +83,12 @@ def write_synthetic(
     s = result.scenario
     meta = {"scenario": {"name": s.name, "toml": s.to_toml()}}
     options = {"chunk_size": 64 * 1024, **options}
-    rec = RecordingWriter(path, metadata=meta, taps=("agent_state", "leader_estimate"), **options)
+    rec = RecordingWriter(path, metadata=meta, taps=TAPS, **options)
     asm = EpochAssembler(s, RUN, clock=lambda: 0)
     wire = traffic(result) if messages is None else messages
     for key, data, att, t in sorted([*wire, *inject], key=lambda m: m[3]):
         for kind, k_, d_, recv in rec.write_batch([(key, data, att, None, t)]):
-            on = asm.on_state if kind == "agent_state" else asm.on_estimate
-            for out_key, payload in on(k_, d_, recv):
+            for out_key, payload in asm.on(kind, k_, d_, recv):
                 rec.write(out_key, payload, recv + 1)
     for out_key, payload in asm.finish(len(result.positions) * EPOCH_NS):
         rec.write(out_key, payload, len(result.positions) * EPOCH_NS)

@@ -8,9 +8,15 @@ import numpy as np
 
 from formation import keys
 from formation.codec import encode
-from formation.messages import CoordinationState, EpochMetrics, LeaderEstimate
+from formation.messages import (
+    CoordinationState,
+    Decision,
+    DecisionBatch,
+    EpochMetrics,
+    LeaderEstimate,
+)
 from formation.scenario import Scenario
-from recorder.epochs import STALE_EPOCHS, EpochAssembler
+from recorder.epochs import STALE_EPOCHS, WAIT_EPOCHS, EpochAssembler
 from recorder.metrics import formation_error, shape_error
 
 RUN = "e1"
@@ -59,30 +65,81 @@ def test_metrics_when_all_states_are_in(paper: Scenario) -> None:
     assert m.positions == x.tolist()
 
 
-def test_scene_waits_for_the_estimate_of_its_epoch(paper: Scenario) -> None:
+def decisions(s: Scenario, epochs: list[int], lost: set[tuple[int, int]]) -> bytes:
+    """netem's formation decisions of ``epochs`` in one batch (as a clean-epoch flush sends them)."""
+    rows = [
+        Decision(source=int(a), target=int(b), link_class="formation", epoch=k, seq=k,
+                 verdict="drop" if (int(a), int(b)) in lost else "pass")
+        for k in epochs for a, b in s.directed_links
+    ]  # fmt: skip
+    return encode(
+        DecisionBatch(run_id=RUN, sender="netem", seq=0, epoch=epochs[-1], stamp_ns=1,
+                      phase="state", decisions=rows)
+    )  # fmt: skip
+
+
+HEALTHY_EDGES = [(1, 3), (2, 3), (2, 4), (1, 4), (3, 5), (4, 5)]  # 1-2 down
+
+
+def test_scene_waits_for_the_estimate_and_the_decisions_of_its_epoch(paper: Scenario) -> None:
     asm = EpochAssembler(paper, RUN)
-    feed_epoch(asm, 0, paper.offsets)
-    healthy = [(1, 3), (2, 3), (2, 4), (1, 4), (3, 5), (4, 5)]  # 1-2 down
-    out = asm.on_estimate(
-        keys.leader_estimate_out(RUN), estimate(paper, 0, healthy, [(1, 3), (1, 4)]), 5
-    )
+    assert [key for key, _ in feed_epoch(asm, 0, paper.offsets)] == [keys.metrics(RUN)]
+    est = estimate(paper, 0, HEALTHY_EDGES, [(1, 3), (1, 4)])
+    assert asm.on_estimate(keys.leader_estimate_out(RUN), est, 5) == []  # decisions not in
+    out = asm.on_decision(keys.netem_decision(RUN), decisions(paper, [0], {(1, 2), (2, 1)}), 6)
     assert [key for key, _ in out] == [keys.scene(RUN)]
     scene = json.loads(out[0][1])
     lines = scene["entities"][0]["lines"]
-    colors = {(ln["color"]["r"], ln["color"]["g"]): len(ln["points"]) // 2 for ln in lines}
-    assert colors[(0.84, 0.15)] == 1  # the broken edge 1-2
-    assert colors[(1.0, 0.84)] == 2  # tree edges
+    colors = {(ln["color"]["r"], ln["color"]["g"], ln["thickness"]): len(ln["points"]) // 2
+              for ln in lines}  # fmt: skip
+    assert colors[(0.84, 0.15, 2.0)] == 1  # the broken edge 1-2
+    assert colors[(1.0, 0.84, 4.0)] == 2  # tree edges
+    assert colors[(0.84, 0.15, 3.0)] == 2  # lost packets 1->2 and 2->1, half an edge each
+    assert asm.drawn_early == 0
 
 
-def test_scene_without_estimate_goes_out_when_a_later_epoch_completes(paper: Scenario) -> None:
+def scenes_of(paper: Scenario, order: list[str]) -> list[dict]:
+    """Four epochs fed in ``order`` ("s<k>" states, "e<k>" estimate, "d" all decisions)."""
+    asm = EpochAssembler(paper, RUN, clock=lambda: 0)
+    rng = np.random.default_rng(3)
+    xs = [paper.offsets + 0.01 * rng.standard_normal(paper.offsets.shape) for _ in range(4)]
+    out: list[tuple[str, bytes]] = []
+    for step in order:
+        if step[0] == "s":
+            out += feed_epoch(asm, int(step[1]), xs[int(step[1])])
+        elif step[0] == "e":
+            est = estimate(paper, int(step[1]), HEALTHY_EDGES, [(1, 3)])
+            out += asm.on_estimate(keys.leader_estimate_out(RUN), est, 0)
+        else:
+            out += asm.on_decision(
+                keys.netem_decision(RUN), decisions(paper, [0, 1, 2, 3], set()), 0
+            )
+    out += asm.finish(0)
+    return [json.loads(p) for key, p in out if key == keys.scene(RUN)]
+
+
+def test_the_same_epochs_give_the_same_scenes_whatever_the_arrival(paper: Scenario) -> None:
+    """The decisions of clean epochs come in a batch, late: the scenes wait and keep their order."""
+    steps = ["s0", "e0", "s1", "e1", "s2", "e2", "s3", "e3"]
+    in_time = scenes_of(paper, ["s0", "e0", "d", "s1", "e1", "s2", "e2", "s3", "e3"])
+    late = scenes_of(paper, [*steps, "d"])
+    mixed = scenes_of(paper, ["s0", "s1", "e1", "s2", "d", "e0", "s3", "e2", "e3"])
+    assert in_time == late == mixed
+    assert [sc["entities"][0]["metadata"][0]["value"] for sc in late] == ["0", "1", "2", "3"]
+    assert all(ln["color"]["r"] != 0.6 for sc in late for ln in sc["entities"][0]["lines"])
+
+
+def test_a_scene_missing_parts_is_drawn_late_or_at_the_end(paper: Scenario) -> None:
+    paper = paper.with_overrides(epochs=1000)
     asm = EpochAssembler(paper, RUN)
-    feed_epoch(asm, 0, paper.offsets)
-    out = feed_epoch(asm, 1, paper.offsets)
-    assert [key for key, _ in out] == [keys.metrics(RUN), keys.scene(RUN)]
-    assert json.loads(out[1][1])["entities"][0]["metadata"][0]["value"] == "0"
+    out = []
+    for k in range(WAIT_EPOCHS + 2):  # no estimate, no decisions ever
+        out += feed_epoch(asm, k, paper.offsets)
+    scenes = [json.loads(p) for key, p in out if key == keys.scene(RUN)]
+    assert [sc["entities"][0]["metadata"][0]["value"] for sc in scenes] == ["0"]
     final = asm.finish(9)
-    assert [json.loads(p)["entities"][0]["metadata"][0]["value"] for _, p in final] == ["1"]
-    assert asm.finish(9) == []
+    assert len(final) == WAIT_EPOCHS + 1 and asm.finish(9) == []
+    assert asm.drawn_early == WAIT_EPOCHS + 2
 
 
 def test_malformed_states_are_counted_and_stale_epochs_given_up(paper: Scenario) -> None:
