@@ -31,6 +31,8 @@ class Links:
 
     def __init__(self, scenario: Scenario, seed: int) -> None:
         self.agents = list(range(1, scenario.n + 1))
+        ap = scenario.network.access_point
+        self.access_point = None if ap is None else list(ap)  # [m] control links' leader end
         self.models: dict[Link, LinkModel] = {}
         self.in_links: dict[int, list[int]] = defaultdict(list)
         self.out_links: dict[int, list[int]] = defaultdict(list)

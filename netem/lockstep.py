@@ -26,6 +26,7 @@ from typing import Any, Protocol
 from formation.scenario import LEADER_ENDPOINT
 from netem.clean import CleanEpochs, Deliver, clean_epochs
 from netem.links import Link, LinkClass, Links, Phase, Route
+from netem.positions import Positions
 from netem.progress import Progress
 from netem.records import Ledger, Record, packet_json
 
@@ -80,6 +81,7 @@ class Lockstep:
         self.closed_count: dict[tuple[Phase, int], int] = defaultdict(int)
         self.clean: dict[Phase, CleanEpochs] = {}  # none until setup_clean
         self._clean_deliver: dict[Phase, Deliver] = {}
+        self.positions = Positions(links)  # for distance models: read from the states
         self.dead: set[int] = set()
 
     def setup_clean(self) -> None:
@@ -90,6 +92,17 @@ class Lockstep:
     # -- events in ----------------------------------------------------------------------------
     def packet(self, route: Route, epoch: int, seq: int, payload: Any) -> None:
         """A sender's packet of ``epoch`` on ``route``, its seq and payload (bytes or ZBytes)."""
+        if not self.positions.needed:
+            self._packet(route, epoch, seq, payload)
+        elif self.positions.admit(route, epoch, seq, payload, self.dead):
+            self._packet(route, epoch, seq, payload)  # else held until the positions come
+            self._release_held()
+
+    def _release_held(self) -> None:
+        for held in self.positions.release(self.dead):
+            self._packet(*held)
+
+    def _packet(self, route: Route, epoch: int, seq: int, payload: Any) -> None:
         kind, source, _ = route
         links, dead = self.links, self.dead
         if kind == "state":
@@ -132,6 +145,8 @@ class Lockstep:
             return
         log.warning("agent %d is gone: its packets count as lost from now on", agent)
         self.dead.add(agent)
+        if self.positions.needed:
+            self._release_held()  # nobody waits for its position
         for phase, ce in self.clean.items():
             for epoch in list(ce.gathering):
                 self._go_slow(phase, epoch)
@@ -143,6 +158,7 @@ class Lockstep:
         """A link's model changed: which epochs are clean is computed again."""
         for ce in self.clean.values():
             ce.invalidate()
+        self.positions.refresh()
 
     def flush_clean(self) -> None:
         """Hand out the records of every clean epoch finished since the last flush."""
@@ -172,7 +188,7 @@ class Lockstep:
             box = self.open[key] = OpenEpoch()
         box.handled.add(src)
         link: Link = (cls, src, dst)
-        d = self.links.models[link].decide(epoch)
+        d = self.links.models[link].decide(epoch, distance_m=self.positions.length(link, epoch))
         self.ledger.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
         if not d.delivered:
             box.lost.append(src)

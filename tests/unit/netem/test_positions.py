@@ -1,0 +1,136 @@
+"""netem's lockstep with distance models: positions read from the states, packets held until known.
+
+Every formation link has a ``logistic`` model and the control links a ``range`` to an
+access point; packets arrive in adversarial orders (a sender's state before its
+receivers'), and every decision must be the link model's at the true distance.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from formation.scenario import Scenario
+from netem.links import Links, Route
+from netem.lockstep import Lockstep
+from netem.models import LinkModel, link_lengths
+from netem.progress import Progress
+from netem.records import Ledger
+from tests.unit.netem.test_lockstep import Wire, receivers
+
+NETWORK = {
+    "formation_default": [{"model": "logistic", "d50_m": 1.2, "width_m": 0.1}],
+    "control_default": [{"model": "range", "max_range_m": 1.0}],
+    "access_point": [0.0, 0.2],
+}
+
+
+def wireless(paper: Scenario) -> Scenario:
+    return paper.with_overrides(network=NETWORK, epochs=6)
+
+
+def core(scenario: Scenario, seed: int) -> tuple[Lockstep, Wire]:
+    links, wire = Links(scenario, seed), Wire(receivers(scenario))
+    lock = Lockstep(links, scenario.epochs, Progress(links.agents, scenario.epochs, lambda: None),
+                    Ledger(), wire)  # fmt: skip
+    lock.setup_clean()
+    return lock, wire
+
+
+def state(i: int, k: int, x: np.ndarray) -> tuple[Route, int, int, bytes]:
+    msg = {"agent": i, "epoch": k, "position": x[i - 1].tolist()}
+    return ("state", i, 0), k, k, json.dumps(msg).encode()
+
+
+def positions(seed: int, k: int, n: int) -> np.ndarray:
+    return np.random.default_rng(seed * 100 + k).uniform(-1.0, 1.0, size=(n, 2))
+
+
+@pytest.mark.parametrize("order", ["ascending", "descending"])
+def test_decisions_are_the_models_at_the_true_distances(
+    paper: Scenario, seed: int, order: str
+) -> None:
+    scenario = wireless(paper)
+    lock, wire = core(scenario, seed)
+    n, ap = scenario.n, np.array([0.0, 0.2])
+    agents = list(range(1, n + 1)) if order == "ascending" else list(range(n, 0, -1))
+    xs = {}
+    for k in range(scenario.epochs):
+        xs[k] = x = positions(seed, k, n)
+        for i in agents:
+            lock.packet(*state(i, k, x))
+        for i in agents:
+            lock.packet(("report", i, 0), k, k, b"{}")
+        for i in agents:
+            lock.packet(("estimate", 0, i), k, k, b"{}")
+    assert lock.positions.held == {} or all(not v for v in lock.positions.held.values())
+    decided = {(d.link_class, d.source, d.target, d.epoch): d for d in wire.decisions}
+    assert len(decided) == scenario.epochs * (len(scenario.directed_links) + 2 * n)
+    for (cls, src, dst, k), d in decided.items():
+        x = xs[k]
+        a = ap if src == 0 else x[src - 1]
+        b = ap if dst == 0 else x[dst - 1]
+        length = float(link_lengths(a[None], b[None])[0])
+        specs = (
+            scenario.formation_link_models(src, dst)
+            if cls == "formation"
+            else (
+                scenario.control_link_models(
+                    dst if src == 0 else src, "estimate" if src == 0 else "report"
+                )
+            )
+        )
+        want = LinkModel(specs, seed, src, dst).decide(k, distance_m=length)
+        assert (d.verdict, d.model) == (want.verdict, want.model), (cls, src, dst, k)
+    verdicts = {d.verdict for d in decided.values()}
+    assert verdicts == {"pass", "drop"}  # the distances straddle d50 and the range
+    # every receiver closed each epoch once
+    assert all(c == len(wire.receivers[p]) for (p, _), c in wire.closed.items())
+
+
+def test_a_packet_waits_for_its_receivers_position(paper: Scenario, seed: int) -> None:
+    scenario = wireless(paper)
+    lock, wire = core(scenario, seed)
+    x = positions(seed, 0, scenario.n)
+    lock.packet(*state(1, 0, x))  # 1 → 2, 1 → 3, 1 → 4: their receivers' positions unknown
+    assert not any(d.epoch == 0 and d.source == 1 for d in wire.decisions) and not wire.deliveries
+    assert sum(len(v) for v in lock.positions.held.values()) == 1
+    for i in (2, 3, 4, 5):
+        lock.packet(*state(i, 0, x))
+    assert not any(v for v in lock.positions.held.values())
+    assert {d.receiver for d in wire.deliveries if d.phase == "state"} == {1, 2, 3, 4, 5}
+
+
+def test_a_dead_receiver_releases_what_waited_for_it(paper: Scenario, seed: int) -> None:
+    scenario = wireless(paper)
+    lock, wire = core(scenario, seed)
+    x = positions(seed, 0, scenario.n)
+    for i in (1, 2, 3, 5):
+        lock.packet(*state(i, 0, x))  # 4 never sends: 1, 2 and 5 wait on it
+    assert any(v for v in lock.positions.held.values())
+    lock.sender_died(4)
+    assert not any(v for v in lock.positions.held.values())
+    got = {d.receiver for d in wire.deliveries if d.phase == "state" and d.epoch == 0}
+    assert got == {1, 2, 3, 5}
+
+
+def test_an_unreadable_position_is_counted_and_out_of_range(paper: Scenario, seed: int) -> None:
+    scenario = wireless(paper)
+    lock, wire = core(scenario, seed)
+    x = positions(seed, 0, scenario.n)
+    lock.packet(("state", 2, 0), 0, 0, b"not json")
+    lock.packet(("state", 1, 0), 0, 0, b'{"position": ["a"]}')
+    for i in (3, 4, 5):
+        lock.packet(*state(i, 0, x))
+    assert lock.positions.malformed == 2
+    from_bad = [d for d in wire.decisions if d.source in (1, 2) and d.link_class == "formation"]
+    assert from_bad and all(d.verdict == "drop" and d.model == "logistic" for d in from_bad)
+
+
+def test_without_distance_models_no_state_is_read(paper: Scenario, seed: int) -> None:
+    lock, _ = core(paper, seed)
+    assert not lock.positions.needed
+    lock.packet(("state", 1, 0), 0, 0, b"not json")
+    assert lock.positions.malformed == 0 and not lock.positions.at
