@@ -86,7 +86,7 @@ class LayerOutput:
     dup: Bools | None = None
     reorder: Bools | None = None
     chain_prev: Floats | None = None  # delay: correlated uniform before each epoch
-    draws: Floats | None = None  # a distance layer's draws, decided later by ``Layer.keeps``
+    reach_m: Floats | None = None  # a distance layer: delivered iff the link is no longer [m]
 
 
 def lossless() -> tuple[Floats, Floats]:
@@ -140,10 +140,11 @@ class Layer(Generic[S]):
         """``drops_at`` for one packet time [s]."""
         return False
 
-    def keeps(self, draws: Floats | None, distance_m: Floats) -> Bools:
-        """A distance layer's verdicts: delivered at link lengths ``distance_m`` [m] given the run's
-        ``draws`` (same shape, or None for a layer without draws)."""
-        return np.ones(np.shape(distance_m), dtype=np.bool_)
+    @staticmethod
+    def keeps(reach_m: Floats, distance_m: Floats) -> Bools:
+        """A distance layer's verdicts: delivered iff the link's length ``distance_m`` is at most
+        the run's ``reach_m`` (same shape) [m]: one comparison, the same in every process."""
+        return np.asarray(distance_m <= reach_m, dtype=np.bool_)
 
     def delivery_at(self, distance_m: Floats) -> Floats:
         """A distance layer's closed form: P(delivered) at link lengths ``distance_m`` [m]."""

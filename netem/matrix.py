@@ -23,11 +23,11 @@ from netem.stack import LinkMatrix, build_stack, check_key, run_stack
 
 @dataclass(frozen=True)
 class DistanceGroup:
-    """Links sharing a stack with distance layers: their columns, those layers and their draws."""
+    """Links sharing a stack with distance layers: their columns, those layers and their reach [m]."""
 
     columns: Ints  # (g,) columns of the matrix
     layers: tuple[Layer[Any], ...]
-    draws: tuple[Floats | None, ...]  # per layer (g, n_epochs), None for a layer without draws
+    reach_m: tuple[Floats, ...]  # per layer (g, n_epochs) [m]: delivered iff no longer
 
 
 @dataclass(frozen=True)
@@ -53,8 +53,8 @@ class DeliveryPlan:
         for g in self.groups:
             d = distance_m[g.columns]
             ok = np.ones(g.columns.shape, dtype=np.bool_)
-            for layer, draws in zip(g.layers, g.draws, strict=True):
-                ok &= layer.keeps(None if draws is None else draws[:, epoch], d)
+            for layer, reach_m in zip(g.layers, g.reach_m, strict=True):
+                ok &= layer.keeps(reach_m[:, epoch], d)
             keep[g.columns] = ok
         return keep
 
@@ -87,8 +87,8 @@ class DeliveryPlan:
         keep = np.ones(d.shape, dtype=np.bool_)
         for g in self.groups:
             ok = np.ones((g.columns.shape[0], d.shape[0]), dtype=np.bool_)
-            for layer, draws in zip(g.layers, g.draws, strict=True):
-                ok &= layer.keeps(draws, d[:, g.columns].T)
+            for layer, reach_m in zip(g.layers, g.reach_m, strict=True):
+                ok &= layer.keeps(reach_m, d[:, g.columns].T)
             keep[:, g.columns] = ok.T
         return LinkMatrix(
             b.delivered & keep,
@@ -158,7 +158,7 @@ def delivery_plan(
             raise LinkModelError(name, "a stack has an outage in seconds; pass times_s")
         if stack.ranged:
             layers = tuple(stack.layers[i] for i in stack.ranged)
-            ranged.append(DistanceGroup(idx, layers, tuple(piece.draws[i] for i in stack.ranged)))
+            ranged.append(DistanceGroup(idx, layers, tuple(piece.reach_m[i] for i in stack.ranged)))
         d, c, de, dms, r = piece.final()
         delivered[idx], copies[idx], delay_epochs[idx], delay_ms[idx], reordered[idx] = (
             d,

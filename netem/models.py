@@ -365,11 +365,11 @@ class LinkModel:
         if not p.stack.ranged:
             return -1
         if distance_m is None:
-            self._require_distance([p])
-        d = np.full((1, 1), distance_m, dtype=np.float64)
+            self._require_distance([p])  # raises: the stack has a distance layer
+            return -1
+        d = float(distance_m)
         for i in p.stack.ranged:
-            draws = p.draws.get(i)
-            if not p.stack.layers[i].keeps(None if draws is None else draws[:, j : j + 1], d)[0, 0]:
+            if not d <= p.reach_m[i][0, j]:  # Layer.keeps, for one packet
                 return i
         return -1
 

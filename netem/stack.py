@@ -155,7 +155,7 @@ class Piece:
     reorder: Bools
     states: Codes  # (L, n, len(layers))
     chain_prev: dict[int, Floats] = field(default_factory=dict)
-    draws: dict[int, Floats | None] = field(default_factory=dict)  # distance layer → (L, n)
+    reach_m: dict[int, Floats] = field(default_factory=dict)  # distance layer → (L, n) [m]
 
     @property
     def n(self) -> int:
@@ -172,7 +172,7 @@ class Piece:
     def apply_distances(self, distance_m: Floats) -> None:
         """Drop by the distance layers at link lengths ``distance_m`` ``(L, n)`` [m]."""
         for i in self.stack.ranged:
-            lost = ~self.stack.layers[i].keeps(self.draws.get(i), distance_m)
+            lost = ~self.stack.layers[i].keeps(self.reach_m[i], distance_m)
             self.first = np.where(lost & ((self.first < 0) | (self.first > i)), i, self.first)
             self.first = self.first.astype(np.int16)
 
@@ -206,7 +206,7 @@ def run_stack(stack: Stack, keys: Keys, start: int, n: int, carry: Carry) -> tup
     states = np.zeros((*shape, len(stack.layers)), dtype=np.int8)
     drops: list[tuple[int, Bools]] = []
     chain_prev: dict[int, Floats] = {}
-    draws: dict[int, Floats | None] = {}
+    reach_m: dict[int, Floats] = {}
     after: Carry = {}
     for i, layer in enumerate(stack.layers):
         out, end = layer.run(keys, epochs, carry.get(layer.ident))
@@ -225,12 +225,12 @@ def run_stack(stack: Stack, keys: Keys, start: int, n: int, carry: Carry) -> tup
             reorder |= out.reorder
         if out.chain_prev is not None:
             chain_prev[i] = out.chain_prev
-        if layer.ranged:
-            draws[i] = out.draws
+        if layer.ranged and out.reach_m is not None:
+            reach_m[i] = out.reach_m
     for i, drop in reversed(drops):
         first = np.where(drop, np.int16(i), first).astype(np.int16)
     piece = Piece(
-        start, stack, first, dup, delay_epochs, delay_ms, reorder, states, chain_prev, draws
+        start, stack, first, dup, delay_epochs, delay_ms, reorder, states, chain_prev, reach_m
     )
     return piece, after
 
@@ -285,7 +285,7 @@ def trim_pieces(pieces: list[Piece], start: int) -> list[Piece]:
                 p.reorder[:, s:],
                 p.states[:, s:],
                 {i: v[:, s:] for i, v in p.chain_prev.items()},
-                {i: None if v is None else v[:, s:] for i, v in p.draws.items()},
+                {i: v[:, s:] for i, v in p.reach_m.items()},
             )
         out.append(p)
     return out

@@ -25,7 +25,7 @@ from scipy.special import ndtr
 from formation.keyed_random import Stream
 from formation.linkmodels import LogDistance
 from netem.chains import run_ar1
-from netem.layer import Bools, Floats, Ints, Keys, Layer, LayerOutput, LinkModelError
+from netem.layer import Floats, Ints, Keys, Layer, LayerOutput
 
 
 class LogDistanceLayer(Layer[LogDistance]):
@@ -39,16 +39,25 @@ class LogDistanceLayer(Layer[LogDistance]):
     def run(
         self, keys: Keys, epochs: Ints, carry: npt.NDArray[Any] | None
     ) -> tuple[LayerOutput, Any]:
+        shape = (keys.n_links, epochs.shape[0])
         if self.sigma == 0.0:
-            return LayerOutput(draws=np.zeros((keys.n_links, epochs.shape[0]))), None
+            return LayerOutput(reach_m=self.reach(np.zeros(shape))), None
         fresh = keys.normal(Stream.LOSS, self.kind, self.occ, epochs, 0)
         if not self.stateful:
-            return LayerOutput(draws=self.sigma * fresh), None
+            return LayerOutput(reach_m=self.reach(self.sigma * fresh)), None
         if carry is None:
             first = keys.normal(Stream.LOSS, self.kind, self.occ, np.zeros(1, np.int64), 1)
             carry = self.sigma * first[:, 0]
         x = run_ar1(math.sqrt(1.0 - self.c**2) * self.sigma, self.c, fresh, carry)
-        return LayerOutput(draws=x), x[:, -1]
+        return LayerOutput(reach_m=self.reach(x)), x[:, -1]
+
+    def reach(self, shadowing_db: Floats) -> Floats:
+        """The longest link that delivers under shadowing ``X`` [dB]: ``m(d) ≥ X`` ⟺
+        ``d ≤ d0 10^(M / 10n)``, ``M = P_t − PL(d0) − sensitivity − X``; −inf when ``M < 0``."""
+        s = self.spec
+        budget = s.tx_power_dbm - s.path_loss_d0_db - s.sensitivity_dbm - shadowing_db
+        reach = s.d0_m * np.power(10.0, budget / (10.0 * s.n))
+        return np.asarray(np.where(budget >= 0.0, reach, -np.inf), dtype=np.float64)
 
     def margin_db(self, distance_m: Floats) -> Floats:
         """``m(d)`` [dB]: received power above the threshold without shadowing."""
@@ -56,11 +65,6 @@ class LogDistanceLayer(Layer[LogDistance]):
         d = np.maximum(np.asarray(distance_m, dtype=np.float64), s.d0_m)
         path_loss = s.path_loss_d0_db + 10.0 * s.n * np.log10(d / s.d0_m)
         return np.asarray(s.tx_power_dbm - path_loss - s.sensitivity_dbm, dtype=np.float64)
-
-    def keeps(self, draws: Floats | None, distance_m: Floats) -> Bools:
-        if draws is None:
-            raise LinkModelError(self.kind, "keeps needs the draws of the run")
-        return np.asarray(draws <= self.margin_db(distance_m), dtype=np.bool_)
 
     def delivery_at(self, distance_m: Floats) -> Floats:
         m = self.margin_db(distance_m)
