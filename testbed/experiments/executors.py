@@ -143,7 +143,7 @@ class DaskCluster:
                         threads_per_worker=1,
                         processes=True,
                         host="127.0.0.1",
-                        dashboard_address=None,
+                        dashboard_address="127.0.0.1:0",  # None still takes :8787
                     )
                 )
             try:
@@ -158,10 +158,10 @@ class DaskCluster:
             # Pickled both ways: Dask walks a task's arguments and results looking for futures,
             # which for a chunk and its rows costs about as much again as the bytes (measured).
             # Priorities keep the caller's order (heaviest first); the keys alone are random.
+            # Dask's pickle falls back to cloudpickle, so fn may live in __main__ or be a lambda.
+            dumps = distributed.protocol.pickle.dumps
             futures = [
-                client.submit(
-                    run_pickled, pickle.dumps((fn, item)), pure=False, priority=len(items) - i
-                )
+                client.submit(run_pickled, dumps((fn, item)), pure=False, priority=len(items) - i)
                 for i, item in enumerate(items)
             ]
             try:

@@ -7,8 +7,6 @@ finishes it from the CSV).
 
 from __future__ import annotations
 
-import contextlib
-import os
 import signal
 import subprocess
 import sys
@@ -20,13 +18,10 @@ import pytest
 
 from testbed.cli import main
 from testbed.experiments.sweep import SweepError, read_rows
-from testbed.runtime.processes import free_port, wait_for_port
-
-distributed = pytest.importorskip("distributed")
+from tests.support.dask_processes import DaskProcesses, child_env, end
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
-HOST = "127.0.0.1"
 WAIT_S = 60.0
 TABLES = ("runs.csv", "critical.md", "success.md", "phase.png")
 # paper.toml alone: 5 rates × 2 strategies × 160 seeds = 1,600 cells of 100 epochs. Dask's
@@ -48,107 +43,11 @@ SWEEP = (
 CELLS = 5 * 2 * 160
 
 
-def child_env() -> dict[str, str]:
-    return {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
-
-
-def end(proc: subprocess.Popen[bytes]) -> None:
-    """Kill by PID if it still runs, and reap it."""
-    if proc.poll() is None:
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(proc.pid, signal.SIGKILL)
-    proc.wait(timeout=10)
-
-
-class Cluster:
-    """A ``dask scheduler`` and its ``dask worker`` processes, every one ended by PID."""
-
-    def __init__(self, logs: Path) -> None:
-        self.logs = logs
-        self.port = free_port(HOST)
-        self.address = f"tcp://{HOST}:{self.port}"
-        self.procs: list[subprocess.Popen[bytes]] = []
-        self.workers: list[subprocess.Popen[bytes]] = []
-
-    def _start(self, name: str, *args: str) -> subprocess.Popen[bytes]:
-        with (self.logs / f"{name}.log").open("wb") as log:
-            proc = subprocess.Popen(
-                [sys.executable, "-m", "dask", *args],
-                env=child_env(),
-                stdout=log,
-                stderr=subprocess.STDOUT,
-            )
-        self.procs.append(proc)
-        return proc
-
-    def start_scheduler(self) -> None:
-        # --idle-timeout: a scheduler this test failed to end leaves by itself.
-        self._start(
-            "scheduler",
-            "scheduler",
-            "--host",
-            HOST,
-            "--port",
-            str(self.port),
-            "--no-dashboard",
-            "--idle-timeout",
-            "300",
-        )
-        wait_for_port(HOST, self.port, WAIT_S)
-
-    def start_workers(self, count: int) -> None:
-        """``count`` single-threaded workers; returns once the scheduler has them all."""
-        for _ in range(count):
-            # --no-nanny: the PID is the worker itself (a nanny killed by PID leaves its worker).
-            self.workers.append(
-                self._start(
-                    f"worker-{len(self.workers)}",
-                    "worker",
-                    self.address,
-                    "--host",
-                    HOST,
-                    "--nworkers",
-                    "1",
-                    "--nthreads",
-                    "1",
-                    "--no-nanny",
-                    "--no-dashboard",
-                    "--death-timeout",
-                    "60",
-                )
-            )
-        with distributed.Client(self.address, timeout=WAIT_S, set_as_default=False) as client:
-            client.wait_for_workers(len(self.live_workers()), timeout=WAIT_S)
-
-    def live_workers(self) -> list[subprocess.Popen[bytes]]:
-        return [w for w in self.workers if w.poll() is None]
-
-    def unfinished_tasks(self) -> int:
-        """Tasks the scheduler holds that have no result yet (waiting for a worker, or running)."""
-        with distributed.Client(self.address, timeout=WAIT_S, set_as_default=False) as client:
-            count: int = client.run_on_scheduler(
-                lambda dask_scheduler: sum(
-                    ts.state in ("no-worker", "queued", "waiting", "processing")
-                    for ts in dask_scheduler.tasks.values()
-                )
-            )
-        return count
-
-    def kill_workers(self) -> None:
-        for w in self.live_workers():
-            os.kill(w.pid, signal.SIGKILL)
-            w.wait(timeout=10)
-
-    def end(self) -> None:
-        for proc in reversed(self.procs):
-            end(proc)
-
-
 @pytest.fixture
-def cluster(tmp_path: Path) -> Iterator[Cluster]:
+def cluster(tmp_path: Path) -> Iterator[DaskProcesses]:
     logs = tmp_path / "dask-logs"
     logs.mkdir()
-    c = Cluster(logs)
+    c = DaskProcesses(logs)
     try:
         c.start_scheduler()
         c.start_workers(2)
@@ -212,8 +111,10 @@ def assert_same_tables(a: Path, b: Path) -> None:
 
 
 def test_sweep_on_a_dask_cluster_matches_the_local_pool_and_survives_its_workers(
-    cluster: Cluster, paper_path: Path, tmp_path: Path
+    cluster: DaskProcesses, paper_path: Path, tmp_path: Path
 ) -> None:
+    listening = cluster.listening()
+    assert len(listening) >= 6 and all(a.startswith("127.") for a in listening), listening
     pool = tmp_path / "pool"
     assert main(["sweep", str(paper_path), *SWEEP, "--out", str(pool), "--jobs", "2"]) == 0
     assert len(read_rows(pool / "runs.csv")) == CELLS
