@@ -104,7 +104,10 @@ class DaskProcesses:
             client.wait_for_workers(len(self.live_workers()), timeout=WAIT_S)
 
     def client(self) -> distributed.Client:
-        return distributed.Client(self.address, timeout=WAIT_S, set_as_default=False)
+        client: distributed.Client = distributed.Client(  # type: ignore[no-untyped-call]
+            self.address, timeout=WAIT_S, set_as_default=False
+        )
+        return client
 
     def live_workers(self) -> list[subprocess.Popen[bytes]]:
         return [w for w in self.workers if w.poll() is None]
