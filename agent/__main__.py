@@ -58,7 +58,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         node = AgentNode(service, scenario, ids, args.strategy or scenario.strategy.name,
                          scenario.seed if args.seed is None else args.seed)  # fmt: skip
+        restarted = scenario.runtime.mode == "lockstep" and service.run_started()
         node.announce()
+        if restarted:
+            node.rejoin()
         realtime = scenario.runtime.mode == "realtime"
         code = node.run_realtime() if realtime else node.run()
         detail = json.dumps(node.deadline) if realtime else ""

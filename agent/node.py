@@ -21,6 +21,7 @@ import orjson
 from agent.runner import AgentRunner, Estimate, Packet, Report
 from formation import keys
 from formation.codec import attachment, read_attachment
+from formation.errors import RuntimeFailure
 from formation.messages import AgentEstimate, CoordinationState, Delivery
 from formation.realtime import ESTIMATE_DEADLINE, STATE_DEADLINE, fetch_clock, sleep_until
 from formation.scenario import Scenario, StrategyName
@@ -115,6 +116,31 @@ class AgentNode:
     def announce(self) -> None:
         for i in self.ids:
             self.service.announce("agent", i)
+
+    def rejoin(self) -> int:
+        """Restarted into a running run: ask netem from which epoch these agents take part
+        and where their bodies are (its last forwarded states); returns that epoch."""
+        answer = self.service.ask(keys.netem_rejoin(self.run_id), {"agents": self.ids})
+        try:
+            if answer is None:
+                raise KeyError("no answer")
+            given = {i: answer["agents"][str(i)] for i in self.ids}
+            epochs = {int(g["from_epoch"]) for g in given.values()}
+            positions = {
+                i: None if g["state"] is None else [float(v) for v in g["state"]["position"]]
+                for i, g in given.items()
+            }
+        except (KeyError, TypeError, ValueError):
+            raise RuntimeFailure(
+                f"{self.service.name}: restarted into a running run, and netem did not say "
+                f"from which epoch to take part (answer {answer!r})"
+            ) from None
+        if len(epochs) != 1:
+            raise RuntimeFailure(f"{self.service.name}: netem gave a pool several epochs {epochs}")
+        (epoch,) = epochs
+        self.runner.resume(epoch, positions)
+        log.warning("restarted: taking part again from epoch %d at %s", epoch, positions)
+        return epoch
 
     # -- inbound ----------------------------------------------------------------------------------
     def _take_delivery(self, msg: Incoming) -> int | None:

@@ -85,6 +85,19 @@ class AgentRunner:
         self._positions: list[list[float]] | None = None
         self._noise = NoiseKeys(seed, self.links.receiver, self.links.sender)
 
+    def resume(self, epoch: int, positions: dict[int, list[float] | None]) -> None:
+        """Rejoin a running run at ``epoch``: each body where the run last saw it (None: where
+        the scenario starts it), at rest, with no memory of its links (issue 20, restart)."""
+        for i, p in positions.items():
+            if p is not None:
+                self.x[self.row[i]] = p
+        self.velocity[:] = 0.0  # a crashed body stopped where it was
+        self.memory = LinkMemory.empty(len(self.links.index), self.scenario.dimension)
+        self.v_known[:] = 0.0
+        self.substituted = {i: [] for i in self.ids}
+        self._positions = None
+        self.epoch = epoch
+
     def position(self, agent: int) -> list[float]:
         if self._positions is None:
             self._positions = self.x.tolist()  # one conversion for the whole pool

@@ -74,6 +74,12 @@ def netem_final(run_id: str) -> str:
     return f"{ROOT}/{run_id}/netem/final"
 
 
+def netem_rejoin(run_id: str) -> str:
+    """Queryable of netem: a restarted sender asks from which epoch it takes part again, and
+    (an agent) its body's last state as netem forwarded it (see netem.node)."""
+    return f"{ROOT}/{run_id}/netem/rejoin"
+
+
 def netem_change(run_id: str) -> str:
     """Every accepted run-time change of a link model, as a record."""
     return f"{ROOT}/{run_id}/netem/change"

@@ -252,6 +252,25 @@ class Service:
                 )
         return False
 
+    def run_started(self, timeout_s: float = 0.5) -> bool:
+        """Whether netem declared the start already: asked before this process announces itself,
+        True means it was restarted into a running run (netem waits for every process first).
+
+        Asked again for ``timeout_s``: a liveliness query right after the session opens can
+        come back empty, about one time in three (seen with zenoh 1.x in client mode).
+        """
+        deadline = now_ns() + int(timeout_s * 1e9)
+        while True:
+            replies = self.session.liveliness().get(keys.start(self.run_id), timeout=timeout_s)
+            if any(reply.ok is not None for reply in replies) or self._started.is_set():
+                return True
+            if now_ns() > deadline or self.stopping.wait(0.05):
+                return False
+
+    def seen_now(self, role: str, ident: int | str) -> None:
+        """Forget since when ``role/ident`` was missing: it is back, its token on its way."""
+        self._missing_since.pop((role, str(ident)), None)
+
     def declare_start(self) -> None:
         self._keep.append(self.session.liveliness().declare_token(keys.start(self.run_id)))
 

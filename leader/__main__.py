@@ -36,7 +36,10 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     try:
         node = LeaderNode(service, scenario)
+        restarted = scenario.runtime.mode == "lockstep" and service.run_started()
         service.announce()
+        if restarted:
+            node.rejoin()
         code = node.run_realtime() if scenario.runtime.mode == "realtime" else node.run()
         service.status("done" if code == 0 else "error", node.epoch)
         if code == 0:

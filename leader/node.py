@@ -13,6 +13,7 @@ import orjson
 
 from formation import keys
 from formation.codec import attachment
+from formation.errors import RuntimeFailure
 from formation.messages import Delivery, TokenReport
 from formation.realtime import REPORT_DEADLINE, fetch_clock
 from formation.reference import reference_positions, reference_velocities
@@ -125,6 +126,22 @@ class LeaderNode:
         else:
             service.subscribe(keys.inbox(self.run_id, keys.LEADER, "report"))
         service.watch_alive()
+
+    def rejoin(self) -> int:
+        """Restarted into a running run: netem says from which epoch (the reference's there)."""
+        answer = self.service.ask(keys.netem_rejoin(self.run_id), {"leader": True})
+        try:
+            if answer is None:
+                raise KeyError("no answer")
+            epoch = int(answer["leader"]["from_epoch"])
+        except (KeyError, TypeError, ValueError):
+            raise RuntimeFailure(
+                f"leader: restarted into a running run, and netem did not say from which "
+                f"epoch to take part (answer {answer!r})"
+            ) from None
+        log.warning("restarted: estimating again from epoch %d", epoch)
+        self.epoch = epoch
+        return epoch
 
     def _route(self, msg: Incoming) -> None:
         """Realtime: a report forwarded on its link."""

@@ -82,7 +82,11 @@ class Lockstep:
         self.clean: dict[Phase, CleanEpochs] = {}  # none until setup_clean
         self._clean_deliver: dict[Phase, Deliver] = {}
         self.positions = Positions(links)  # for distance models: read from the states
-        self.dead: set[int] = set()
+        self.dead: set[int] = set()  # senders down (agents, or the leader as 0)
+        # A dead sender that came back takes part again from this epoch on (issue 20).
+        self.revive: dict[int, int] = {}
+        self.last_state: dict[int, tuple[int, Any]] = {}  # agent → (epoch, payload) last handled
+        self.last_report: dict[int, int] = {}  # agent → epoch of its last report handled
 
     def setup_clean(self) -> None:
         """Take clean epochs on the clean path from now on."""
@@ -109,30 +113,34 @@ class Lockstep:
             progress = self.progress
             if epoch > progress.epoch_seen:
                 progress.epoch_seen = epoch
+            self.last_state[source] = (epoch, payload)
             if epoch >= self.epochs:
                 progress.final_state(source)
                 return
             if self._forward_clean("state", source, epoch, seq, payload):
                 return
             for dst in links.out_links[source]:
-                if dst in dead:
+                if dst in dead and self.is_dead(dst, epoch):
                     continue
                 box = self._route_packet("state", "formation", source, dst, payload, epoch, seq)
-                if self._all_handled(box, links.in_links[dst]):  # else nothing can close yet
+                if self._all_handled(box, links.in_links[dst], epoch):  # else none can close yet
                     self._try_close("state", dst)
         elif kind == "report":
+            self.last_report[source] = epoch
             if self._forward_clean("report", source, epoch, seq, payload):
                 return
             box = self._route_packet(
                 "report", "report", source, LEADER_ENDPOINT, payload, epoch, seq
             )
-            if self._all_handled(box, links.agents):
+            if self._all_handled(box, links.agents, epoch):
                 self._try_close("report", LEADER_ENDPOINT)
+            if LEADER_ENDPOINT in dead:
+                self._close_estimates_without_leader(source)
         else:
             dst = route[2]
             if self._forward_clean("estimate", dst, epoch, seq, payload):
                 pass
-            elif dst not in dead:
+            elif not (dst in dead and self.is_dead(dst, epoch)):
                 self._route_packet(
                     "estimate", "estimate", LEADER_ENDPOINT, dst, payload, epoch, seq
                 )
@@ -140,19 +148,81 @@ class Lockstep:
             self.progress.estimate_handled(epoch)
 
     def sender_died(self, agent: int) -> None:
-        """``agent`` is gone: its packets count as lost, and nobody waits for them."""
-        if agent in self.dead or agent in self.progress.final_states:
+        """``agent`` is gone (0: the leader): its packets count as lost, nobody waits for them."""
+        if agent in self.progress.final_states:
             return
-        log.warning("agent %d is gone: its packets count as lost from now on", agent)
+        if agent in self.dead and self.revive.pop(agent, None) is None:
+            return  # already down; else it died again after coming back
+        log.warning("%s is gone: its packets count as lost from now on", _name(agent))
         self.dead.add(agent)
         if self.positions.needed:
             self._release_held()  # nobody waits for its position
         for phase, ce in self.clean.items():
             for epoch in list(ce.gathering):
                 self._go_slow(phase, epoch)
+        if agent == LEADER_ENDPOINT:
+            for j in self.links.agents:
+                self._close_estimates_without_leader(j)
+            return
         for j in self.links.out_links[agent]:
             self._try_close("state", j)
         self._try_close("report", LEADER_ENDPOINT)
+
+    def rejoin(self, sender: int) -> int:
+        """``sender`` (0: the leader) is back: the epoch from which it takes part again.
+
+        No packet of that epoch has been handled yet (the newest state or report seen,
+        plus one), so every receiver of it still waits for the sender's packets.
+        """
+        if sender not in self.dead:
+            self.sender_died(sender)  # back before netem saw it go: down until it rejoins
+        if sender in self.revive:
+            return self.revive[sender]
+        newest = max([self.progress.epoch_seen, *self.last_report.values()])
+        epoch = min(newest + 1, self.epochs)
+        self.revive[sender] = epoch
+        if sender != LEADER_ENDPOINT:  # the leader just ignores the report deliveries before
+            for phase in ("state", "estimate"):
+                key: tuple[Phase, int] = (phase, sender)
+                self.next_close[key] = max(self.next_close[key], epoch)
+                for stale in [e for (p, r, e) in self.open if p == phase and r == sender]:
+                    if stale < epoch:
+                        del self.open[(phase, sender, stale)]
+        log.warning("%s is back: it takes part again from epoch %d", _name(sender), epoch)
+        return epoch
+
+    def is_dead(self, sender: int, epoch: int) -> bool:
+        """Whether ``sender``'s packets of ``epoch`` count as lost without waiting for them."""
+        if sender not in self.dead:
+            return False
+        back = self.revive.get(sender)
+        return back is None or epoch < back
+
+    def is_down(self, sender: int) -> bool:
+        """Down now, and not yet back (the liveliness watch looks for a second death otherwise)."""
+        return sender in self.dead and sender not in self.revive
+
+    def state_of(self, agent: int) -> tuple[int, Any] | None:
+        """``(epoch, payload)`` of the last state netem handled from ``agent``, if any."""
+        return self.last_state.get(agent)
+
+    def _dead_at(self, epoch: int) -> set[int]:
+        if not self.revive:
+            return self.dead
+        return {s for s in self.dead if self.is_dead(s, epoch)}
+
+    def _close_estimates_without_leader(self, agent: int) -> None:
+        """The leader is down: ``agent``'s estimate epochs close empty up to its last report."""
+        last = self.last_report.get(agent, -1)
+        key: tuple[Phase, int, int]
+        for epoch in range(self.next_close[("estimate", agent)], min(last + 1, self.epochs)):
+            if not self.is_dead(LEADER_ENDPOINT, epoch) or self.is_dead(agent, epoch):
+                break
+            key = ("estimate", agent, epoch)
+            if key not in self.open:
+                self.open[key] = OpenEpoch()
+                self.progress.estimate_skipped(epoch)
+        self._try_close("estimate", agent)
 
     def models_changed(self) -> None:
         """A link's model changed: which epochs are clean is computed again."""
@@ -167,7 +237,7 @@ class Lockstep:
 
     # -- state out ----------------------------------------------------------------------------
     def finished(self) -> bool:
-        return self.progress.finished(self.dead)
+        return self.progress.finished({s for s in self.dead if s not in self.revive})
 
     def forwarded(self) -> dict[Link, int]:
         """Delivered packets per link, clean epochs' included (for the final status)."""
@@ -202,22 +272,29 @@ class Lockstep:
             )
         return box
 
-    def _all_handled(self, box: OpenEpoch, senders: list[int]) -> bool:
+    def _all_handled(self, box: OpenEpoch, senders: list[int], epoch: int) -> bool:
         if not self.dead:  # a receiver only hears from its senders: counting is enough
             return len(box.handled) >= len(senders)
-        return all(s in box.handled for s in senders if s not in self.dead)
+        dead = self._dead_at(epoch)
+        return all(s in box.handled for s in senders if s not in dead)
 
     def _try_close(self, phase: Phase, receiver: int) -> None:
         senders = self.links.senders(phase, receiver)
-        dead = self.dead
         while True:
             epoch = self.next_close[(phase, receiver)]
+            dead = self._dead_at(epoch)
             box = self.open.get((phase, receiver, epoch))
             if box is None:
-                if epoch >= self.epochs or any(s not in dead for s in senders):
+                # Every sender dead: close the epoch empty. Not the estimates: with the leader
+                # down, each epoch closes when its report comes (the agent is there).
+                if (
+                    epoch >= self.epochs
+                    or phase == "estimate"
+                    or any(s not in dead for s in senders)
+                ):
                     return
-                box = OpenEpoch()  # every sender is dead: close the epoch empty
-            elif not self._all_handled(box, senders):
+                box = OpenEpoch()
+            elif not self._all_handled(box, senders, epoch):
                 return
             self.open.pop((phase, receiver, epoch), None)
             for h in self.held.pop((phase, receiver, epoch), []):
@@ -227,7 +304,8 @@ class Lockstep:
             self.outbox.deliver(phase, receiver, epoch, box.packets, box.lost, gone)
             self.next_close[(phase, receiver)] = epoch + 1
             self.closed_count[(phase, epoch)] += 1
-            receivers = len(self.links.agents) - len(dead) if phase != "report" else 1
+            down = len(dead) - (LEADER_ENDPOINT in dead)
+            receivers = len(self.links.agents) - down if phase != "report" else 1
             if self.closed_count[(phase, epoch)] >= receivers:
                 del self.closed_count[(phase, epoch)]
                 self._publish_decisions(phase, epoch)
@@ -296,3 +374,7 @@ class Lockstep:
         self.closed_count[(phase, epoch)] += len(g.delivered)
         for dst in touched:
             self._try_close(phase, dst)
+
+
+def _name(sender: int) -> str:
+    return "the leader" if sender == LEADER_ENDPOINT else f"agent {sender}"

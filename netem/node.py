@@ -105,6 +105,7 @@ class NetemNode:
         service.queryable(keys.netem_config(self.run_id), self._on_config)
         service.queryable(keys.clock(self.run_id), self._on_clock)
         service.queryable(keys.netem_final(self.run_id), self._on_final)
+        service.queryable(keys.netem_rejoin(self.run_id), self._on_rejoin)
         service.watch_alive()
 
     @property
@@ -127,19 +128,41 @@ class NetemNode:
         return {link_key(self.run_id, link): n for link, n in self.lockstep.forwarded().items()}
 
     # -- liveliness ---------------------------------------------------------------------------
-    def _check_dead(self, grace_s: float = 3.0) -> None:
-        """Agents whose liveliness token has been gone ``grace_s`` are no longer waited for."""
+    def _check_dead(self, grace_s: float = 3.0, leader: bool = True) -> None:
+        """Senders whose liveliness token has been gone ``grace_s`` are no longer waited for
+        (the leader too: agents fall back on lost estimates until it comes back)."""
         for i in self.agents:
             if (
-                i not in self.dead
+                not self.lockstep.is_down(i)
                 and i not in self.final_states
                 and self.service.gone_for("agent", i, grace_s)
             ):
                 with self.lock:
                     self._on_dead(i)
+        if (
+            leader
+            and not self.lockstep.is_down(LEADER_ENDPOINT)
+            and self.estimates_done < self.epochs
+            and self.service.gone_for("leader", 0, grace_s)
+        ):
+            with self.lock:
+                self._on_dead(LEADER_ENDPOINT)
 
-    def _on_dead(self, agent: int) -> None:
-        self.lockstep.sender_died(agent)
+    def _on_dead(self, sender: int) -> None:
+        self.lockstep.sender_died(sender)
+        self.team_changed(f"lost {_sender_name(sender)}")
+
+    def team_changed(self, event: str) -> None:
+        """A ``running`` status naming who takes part from which epoch (recorded, and read
+        by the launcher's live view): issue 20, who was in the team at each epoch."""
+        ls = self.lockstep
+        team = {
+            "event": event,
+            "epoch": self.progress.epoch_seen,
+            "down": sorted(i for i in ls.dead if ls.is_down(i)),
+            "back": {str(i): k for i, k in sorted(ls.revive.items())},
+        }
+        self.service.status("running", self.estimates_done, orjson.dumps(team).decode())
 
     def everyone_up(self) -> bool:
         need = [("agent", i) for i in self.agents] + [("leader", 0)]
@@ -264,6 +287,40 @@ class NetemNode:
         answer = {"missing": missing(), "estimates_done": self.estimates_done}
         query.reply(query.key_expr, orjson.dumps(answer))
 
+    def _on_rejoin(self, query: zenoh.Query) -> None:
+        """A restarted sender's question: ``{"agents": [ids]}`` or ``{"leader": true}``.
+
+        The answer gives, per sender, the epoch it takes part from and, for an agent, the
+        last state netem handled from it (``{"epoch": c, "position": [...]}``, or None):
+        netem sees every state in lockstep and is always there, unlike the recorder, so
+        it is where a body's true state is kept.
+        """
+        try:
+            ask = orjson.loads(query.payload.to_bytes()) if query.payload else {}
+            ids = [int(i) for i in ask.get("agents", [])]
+            leader = bool(ask.get("leader", False))
+            if any(i not in self.agents for i in ids):
+                raise ValueError("unknown agent")
+        except (orjson.JSONDecodeError, AttributeError, TypeError, ValueError):
+            self.service.malformed.counts[str(query.key_expr)] += 1
+            query.reply_err(b'expected {"agents": [ids]} or {"leader": true}')
+            return
+        answer: dict[str, Any] = {"agents": {}}
+        for i in ids:
+            self.service.seen_now("agent", i)
+        if leader:
+            self.service.seen_now("leader", 0)
+        with self.lock:
+            for i in ids:
+                epoch = self.lockstep.rejoin(i)
+                last = self.lockstep.state_of(i)
+                answer["agents"][str(i)] = {"from_epoch": epoch, "state": _state_of(last)}
+            if leader:
+                answer["leader"] = {"from_epoch": self.lockstep.rejoin(LEADER_ENDPOINT)}
+            names = [f"agent {i}" for i in ids] + (["the leader"] if leader else [])
+            self.team_changed(f"back {', '.join(names)}")
+        query.reply(query.key_expr, orjson.dumps(answer))
+
     # -- realtime --------------------------------------------------------------------------------------
     def _on_clock(self, query: zenoh.Query) -> None:
         clock = self.realtime.clock
@@ -274,7 +331,11 @@ class NetemNode:
 
     def run_realtime(self, period_s: float) -> int:
         """Forward each packet as it comes (after its model's delay in ms); no epoch closes."""
-        return self.realtime.run(period_s, self.lock, self.everyone_up, self._check_dead,
+
+        def check_agents() -> None:  # realtime: no leader restart (issue 20 covers lockstep)
+            self._check_dead(leader=False)
+
+        return self.realtime.run(period_s, self.lock, self.everyone_up, check_agents,
                                  self.finished)  # fmt: skip
 
     # -- main loop -------------------------------------------------------------------------------------
@@ -303,13 +364,24 @@ class NetemNode:
             self._check_dead()
             self._flush_all()  # clean epochs' records wait at most this long
             if msg is None:
-                if (
-                    self.service.gone_for("leader", 0)
-                    and self.estimates_done < self.scenario.epochs
-                ):
-                    log.error("the leader is gone; stopping")
-                    return 2
                 continue
             with self.lock:
                 self.handle(msg)
         return 0 if self.finished() else 130
+
+
+def _sender_name(sender: int) -> str:
+    return "the leader" if sender == LEADER_ENDPOINT else f"agent {sender}"
+
+
+def _state_of(last: tuple[int, Any] | None) -> dict[str, Any] | None:
+    """The epoch and position of a state packet netem handled (its payload, unparsed)."""
+    if last is None:
+        return None
+    epoch, payload = last
+    raw = payload if isinstance(payload, bytes) else payload.to_bytes()
+    try:
+        position = [float(v) for v in orjson.loads(raw)["position"]]
+    except (orjson.JSONDecodeError, KeyError, TypeError, ValueError):
+        return None  # a malformed last packet: the agent starts from the scenario's position
+    return {"epoch": epoch, "position": position}

@@ -37,6 +37,11 @@ class Progress:
             self.estimates_done = max(self.estimates_done, epoch + 1)
             self.on_change()
 
+    def estimate_skipped(self, epoch: int) -> None:
+        """The leader is down at ``epoch``: its estimates will not come (agents fall back)."""
+        self.estimates_done = max(self.estimates_done, epoch + 1)
+        self.on_change()
+
     def finished(self, dead: Collection[int]) -> bool:
         """Every estimate handled, and every live agent's final state seen."""
         live = [i for i in self.agents if i not in dead]

@@ -16,6 +16,7 @@ from formation.scenario import Scenario
 from recorder.report import write_report, write_reports
 from testbed.cli.common import add_common, scenario_strategies
 from testbed.cli.tables import print_table
+from testbed.runtime.faults import RESTART_POLICIES
 from testbed.runtime.launcher import launch
 
 
@@ -43,7 +44,8 @@ def cmd_run(args: argparse.Namespace) -> int:
                 bar.update(_t, completed=done, rate=done / elapsed if elapsed else 0.0, drops=drops)
 
             outcome = launch(scenario, strategy=strategy, seed=args.seed, runs_dir=Path(args.runs_dir),
-                             pool=args.pool, record=not args.no_record, progress=progress)  # fmt: skip
+                             pool=args.pool, record=not args.no_record, progress=progress,
+                             restart=args.restart)  # fmt: skip
         outcomes.append(outcome)
         if not args.no_record:
             outcome.extra["skipped"] = _report(outcome.run_dir, console)
@@ -54,7 +56,25 @@ def cmd_run(args: argparse.Namespace) -> int:
         report = write_reports([o.run_dir / "run.mcap" for o in outcomes], compare)
         console.print(f"comparison of the {len(outcomes)} runs: [bold]{report}[/]")
     _print_summary(outcomes, Console())
+    _print_losses(outcomes, Console())
     return 0
+
+
+def _print_losses(outcomes: list[Any], console: Console) -> None:
+    """Each process lost during a run: when, its drops, and whether it came back."""
+    for o in outcomes:
+        for loss in o.summary().get("losses", []):
+            back = loss["back_from_epoch"]
+            again = (
+                ""
+                if loss["restarted_pid"] is None
+                else f", restarted as pid {loss['restarted_pid']}"
+            )
+            console.print(
+                f"{o.strategy}: {loss['name']} (pid {loss['pid']}) lost at epoch {loss['epoch']} "
+                f"(exit code {loss['code']}, {loss['dropped']} packets dropped on its links)"
+                f"{again}" + ("" if back is None else f", back from epoch {back}")
+            )
 
 
 def _report(run_dir: Path, console: Console) -> dict[str, Any]:
@@ -112,4 +132,6 @@ def register(sub: Any) -> None:
     p.add_argument("--pool", type=int, help="run the agents in K processes")
     p.add_argument("--runs-dir", default="runs", help="where run folders go (default: runs)")
     p.add_argument("--no-record", action="store_true", help="run without the recorder")
+    p.add_argument("--restart", choices=RESTART_POLICIES, default="no",
+                   help="on-failure: start a dead agent or leader again; it rejoins the run")  # fmt: skip
     p.set_defaults(func=cmd_run)

@@ -28,6 +28,12 @@ from formation.messages import Status
 from formation.scenario import Scenario, StrategyName
 from formation.zenoh_config import session_config
 from recorder.metrics import formation_error, shape_error
+from testbed.runtime.faults import (
+    RestartPolicy,
+    Supervisor,
+    first_missing_epoch,
+    team_intervals,
+)
 from testbed.runtime.processes import ProcessGroup, free_port, wait_for_port
 
 HOST = "127.0.0.1"
@@ -102,7 +108,22 @@ class RunOutcome:
             "deadline_miss_rate": self.deadline_miss_rate(),
             "deadline": self.extra.get("deadline", {}),
             "wall_s": self.wall_s,
+            **self.faults_summary(),
         }
+
+    def faults_summary(self) -> dict[str, Any]:
+        """Who died, when and whether it came back, and who was in the team at each epoch."""
+        losses = self.extra.get("losses", [])
+        if not losses:
+            return {}
+        drops = self.drops_per_link()
+        for loss in losses:  # its drops: decisions on its links, and the epochs it missed
+            name = loss["name"]
+            ident = "0" if name == "leader" else name.removeprefix("agent-")
+            loss["dropped"] = sum(d for link, (_, d) in drops.items() if ident in link.split("->"))
+        seen = np.asarray(np.isfinite(self.positions).all(axis=2), dtype=bool)
+        team = {str(i): spans for i, spans in team_intervals(seen).items()}
+        return {"losses": losses, "team": team, "fallbacks": self.extra.get("fallbacks", 0)}
 
 
 class Verdict(NamedTuple):
@@ -138,6 +159,9 @@ class _Observer:
         self.alive: set[str] = set()
         self.malformed = Malformed()
         self.drops = 0
+        self.fallbacks = 0  # substituted values that fell back (no estimate to use)
+        self.returns: dict[int, tuple[int, float]] = {}  # agent → (epoch, t) first after a gap
+        self.team_events: list[tuple[float, str]] = []  # netem's running statuses (t, detail)
         self.run_id = run_id
         p = keys.prefix(run_id)
         self._subs = [
@@ -172,9 +196,12 @@ class _Observer:
             self.malformed.counts[str(sample.key_expr)] += 1
             return
         with self.lock:
+            if k > 0 and np.isnan(self.positions[k - 1, i - 1, 0]):
+                self.returns[i] = (k, time.monotonic())
             self.positions[k, i - 1] = position
             for j, value in subs:  # used at the previous epoch
                 self.substitutions.append((k - 1, i, j, value))
+            self.fallbacks += sum(bool(s.get("fallback")) for s in msg["substituted"])
 
     def _on_estimate(self, sample: zenoh.Sample) -> None:
         att = sample.attachment
@@ -210,6 +237,8 @@ class _Observer:
         elif msg is not None:
             with self.lock:
                 self.statuses[msg.sender] = msg
+                if msg.role == "netem" and msg.state == "running":
+                    self.team_events.append((time.monotonic(), msg.detail))
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
@@ -251,9 +280,12 @@ def launch(
     run_id: str | None = None,
     on_started: Any = None,
     zenoh_mode: str = "client",
+    restart: RestartPolicy = "no",
 ) -> RunOutcome:
     """Run ``scenario`` as real processes; returns what was observed. Every child ends by PID.
 
+    An agent or the leader that dies is a loss, not the end (``restart="on-failure"``
+    starts it again and it rejoins); netem, the router or the recorder dying is an error.
     Client mode, through the router, is the default: zenoh batches each process's traffic on
     its one link (bench/bench_runtime.py, seed 1: 50 agents 16.8 epochs/s against 11.4 as
     peers; 1,000 pooled 1.8 against 1.2; 5 agents the same within noise).
@@ -282,7 +314,9 @@ def launch(
     session = None
     observer = None
     try:
-        group.start("router", "testbed.runtime.router", "--listen", endpoint)
+        supervisor = Supervisor(group, restart, time.monotonic())
+        supervisor.track(group.start("router", "testbed.runtime.router", "--listen", endpoint),
+                         "testbed.runtime.router")  # fmt: skip
         group.on_start = lambda: _write_atomic(
             run_dir / "pids.json", json.dumps({"endpoint": endpoint, "pids": group.pid_map()})
         )
@@ -290,15 +324,8 @@ def launch(
         session = zenoh.open(session_config("client", endpoint, None))
         observer = _Observer(session, run_id, scenario)
         if record:
-            group.start(
-                "recorder",
-                "recorder",
-                *common,
-                "--out",
-                str(run_dir),
-                "--scenario",
-                str(scenario_path),
-            )
+            rec_args = [*common, "--out", str(run_dir), "--scenario", str(scenario_path)]
+            supervisor.track(group.start("recorder", "recorder", *rec_args), "recorder", *rec_args)
             _wait(
                 lambda: observer.is_alive("recorder", 0),
                 group,
@@ -308,12 +335,14 @@ def launch(
         netem_args = ["--scenario", str(scenario_path), *common] + (
             [] if record else ["--no-recorder"]
         )
-        group.start("netem", "netem", *netem_args)
-        group.start("leader", "leader", "--scenario", str(scenario_path), *common)
+        supervisor.track(group.start("netem", "netem", *netem_args), "netem", *netem_args)
+        leader_args = ["--scenario", str(scenario_path), *common]
+        supervisor.track(group.start("leader", "leader", *leader_args), "leader", *leader_args)
         for ids in _pools(scenario.n, pool):
             name = f"agent-{ids[0]}" if len(ids) == 1 else f"pool-{ids[0]}-{ids[-1]}"
             ident = str(ids[0]) if len(ids) == 1 else f"{ids[0]}-{ids[-1]}"
-            group.start(name, "agent", "--scenario", str(scenario_path), "--id", ident, *common)
+            agent_args = ["--scenario", str(scenario_path), "--id", ident, *common]
+            supervisor.track(group.start(name, "agent", *agent_args), "agent", *agent_args)
         _wait(
             lambda: observer.is_alive("clock", "start"),
             group,
@@ -322,15 +351,21 @@ def launch(
         )
         if on_started is not None:
             on_started(run_id, endpoint)
-        services = [c for c in group.children if c.name not in ("router", "recorder")]
+        supervisor.started = time.monotonic()
+        agent_names = [n for n in supervisor.current if n.startswith(("agent-", "pool-"))]
+
+        def first_missing(name: str) -> int:
+            with observer.lock:
+                if name == "leader":
+                    return len(observer.estimated)
+                ids = _ids_of(name)
+                return min(first_missing_epoch(np.isfinite(observer.positions[:, i - 1, 0]))
+                           for i in ids)  # fmt: skip
+
         last_progress, last_count = time.monotonic(), -1
-        while any(c.proc.poll() is None for c in services):
-            failed = [c for c in services if c.proc.poll() not in (None, 0)]
-            if failed:
-                c = failed[0]
-                raise RuntimeFailure(
-                    f"{c.name} (pid {c.pid}) exited with code {c.proc.returncode}:\n{c.tail()}"
-                )
+        while supervisor.running():
+            supervisor.check(first_missing)
+            supervisor.check_team(agent_names)
             with observer.lock:
                 count, drops = len(observer.estimated), observer.drops
             if progress is not None:
@@ -342,16 +377,14 @@ def launch(
                     f"no epoch finished for {epoch_timeout_s:g} s (stuck at epoch {count})"
                 )
             time.sleep(0.02)
-        failed = [c for c in services if c.proc.returncode != 0]
-        if failed:
-            c = failed[0]
-            raise RuntimeFailure(
-                f"{c.name} (pid {c.pid}) exited with code {c.proc.returncode}:\n{c.tail()}"
-            )
+        supervisor.check(first_missing)
+        supervisor.check_team(agent_names)
+        gone = supervisor.gone_for_good()
         if progress is not None:
             progress(scenario.epochs, scenario.epochs, observer.drops)
-        _wait(lambda: _all_final(observer), group, 10.0, "the final states",
-              lambda: _missing_final(observer))  # fmt: skip
+        present = [i for n in agent_names if n not in gone for i in _ids_of(n)]
+        _wait(lambda: _all_final(observer, present), group, 10.0, "the final states",
+              lambda: _missing_final(observer, present), ignore=supervisor.losses)  # fmt: skip
         if record:
             _flush_recorder(session, run_id, observer)
             rec = next(c for c in group.children if c.name == "recorder")
@@ -371,12 +404,16 @@ def launch(
                 delivered.update(st.delivered)
                 if st.role in ("agent", "pool") and st.detail.startswith("{"):
                     deadline.update(json.loads(st.detail))
+            supervisor.note_returns(np.isfinite(observer.positions).all(axis=2), observer.returns)
+            losses = [loss.as_json() for loss in supervisor.losses]
             return RunOutcome(
                 run_id=run_id, run_dir=run_dir, scenario=scenario, strategy=strategy, seed=seed,
                 positions=observer.positions.copy(), estimated_epochs=sorted(observer.estimated),
                 decisions=list(observer.decisions), substitutions=sorted(observer.substitutions),
                 malformed=dict(malformed), sent=dict(sent), delivered=dict(delivered),
-                pids=group.pids, wall_s=time.monotonic() - started, extra={"deadline": dict(deadline)},
+                pids=group.pids, wall_s=time.monotonic() - started,
+                extra={"deadline": dict(deadline), "losses": losses, "fallbacks": observer.fallbacks,
+                       "team_events": list(observer.team_events)},
             )  # fmt: skip
     finally:
         if observer is not None:
@@ -393,14 +430,21 @@ def _write_atomic(path: Path, text: str) -> None:
     tmp.replace(path)
 
 
-def _all_final(observer: _Observer) -> bool:
-    with observer.lock:
-        return bool(np.isfinite(observer.positions[-1]).all())
+def _ids_of(name: str) -> list[int]:
+    """The agent ids of a process's name: ``agent-3`` → [3], ``pool-1-25`` → 1..25."""
+    parts = [int(p) for p in name.split(".")[0].split("-")[1:]]
+    return list(range(parts[0], parts[-1] + 1))
 
 
-def _missing_final(observer: _Observer) -> str:
+def _all_final(observer: _Observer, ids: list[int]) -> bool:
     with observer.lock:
-        missing = np.flatnonzero(~np.isfinite(observer.positions[-1]).all(axis=1)) + 1
+        return bool(np.isfinite(observer.positions[-1, np.array(ids, dtype=int) - 1]).all())
+
+
+def _missing_final(observer: _Observer, ids: list[int]) -> str:
+    with observer.lock:
+        have = np.isfinite(observer.positions[-1]).all(axis=1)
+        missing = np.array([i for i in ids if not have[i - 1]], dtype=int)
     shown = ", ".join(str(i) for i in missing[:10]) + (", ..." if len(missing) > 10 else "")
     return f" of {len(missing)} agents ({shown})"
 
@@ -421,10 +465,13 @@ def _flush_recorder(session: zenoh.Session, run_id: str, observer: _Observer) ->
         time.sleep(0.02)
 
 
-def _wait(cond: Any, group: ProcessGroup, timeout_s: float, what: str, detail: Any = None) -> None:
+def _wait(cond: Any, group: ProcessGroup, timeout_s: float, what: str, detail: Any = None,
+          ignore: Any = ()) -> None:  # fmt: skip
+    """Wait for ``cond``; a child failing meanwhile is an error unless among the ``ignore``d losses."""
     deadline = time.monotonic() + timeout_s
     while not cond():
-        failed = group.failed()
+        lost = {loss.pid for loss in ignore}
+        failed = [c for c in group.failed() if c.pid not in lost]
         if failed:
             c = failed[0]
             raise RuntimeFailure(

@@ -1,0 +1,162 @@
+"""Unplanned faults during a run: who died, when, and whether it came back (issue 20).
+
+An agent or the leader that exits with a non-zero code is a *loss*, not the run's end:
+netem stops waiting for a dead sender, the rest of the team goes on, and with the
+``on-failure`` policy (Compose's name) the launcher starts it again and it rejoins
+(netem's ``netem/rejoin`` says from which epoch). netem, the router or the recorder
+dying ends the run with an error naming the process; the recording is kept.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+from typing import Any, Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from formation.errors import RuntimeFailure
+from testbed.runtime.processes import Child, ProcessGroup
+
+RestartPolicy = Literal["no", "on-failure"]
+RESTART_POLICIES: tuple[RestartPolicy, ...] = ("no", "on-failure")
+ESSENTIAL = ("router", "recorder", "netem")  # the run cannot go on without them
+MAX_RESTARTS = 3  # per process: one that dies again at once is not restarted forever
+
+
+@dataclass
+class Loss:
+    """One process that died before the run's end, as the launcher saw it."""
+
+    name: str  # agent-3, leader, pool-1-25
+    pid: int
+    code: int | None
+    epoch: int  # the first epoch it did not finish (its state or estimate never came)
+    after_start_s: float  # when the launcher saw it gone, from the start of epoch 0 [s]
+    restarted_pid: int | None = None
+    back_from_epoch: int | None = None  # first epoch recorded of it after the restart
+    back_after_s: float | None = None  # from the loss to that epoch's record [s]
+
+    def as_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class Incarnation:
+    """The newest process of a role and what it was started as."""
+
+    child: Child
+    module: str
+    args: tuple[str, ...]
+    restarts: int = 0
+
+
+class Supervisor:
+    """Watches a run's processes between epochs: losses, restarts, the essential ones."""
+
+    def __init__(self, group: ProcessGroup, policy: RestartPolicy, started: float) -> None:
+        self.group, self.policy, self.started = group, policy, started
+        self.current: dict[str, Incarnation] = {}
+        self.losses: list[Loss] = []
+
+    def track(self, child: Child, module: str, *args: str) -> None:
+        self.current[child.name] = Incarnation(child, module, tuple(args))
+
+    def running(self, names: list[str] | None = None) -> bool:
+        """Whether any current process other than the router and the recorder still runs."""
+        return any(
+            inc.child.proc.poll() is None
+            for name, inc in self.current.items()
+            if name not in ("router", "recorder") and (names is None or name in names)
+        )
+
+    def code_of(self, name: str) -> int | None:
+        return self.current[name].child.proc.poll()
+
+    def check(self, first_missing: Any) -> None:
+        """Raise for a dead essential process; note (and restart) a dead agent or leader.
+
+        ``first_missing(name)`` is the first epoch the launcher has not seen of ``name``.
+        """
+        for name, inc in list(self.current.items()):
+            code = inc.child.proc.poll()
+            if code is None or (code == 0 and name not in ESSENTIAL[:2]):
+                continue
+            c = inc.child
+            if name in ESSENTIAL:
+                what = "the Zenoh router" if name == "router" else name
+                raise RuntimeFailure(
+                    f"{what} (pid {c.pid}) exited with code {code}; the run cannot go on:\n{c.tail()}"
+                )
+            if any(loss.pid == c.pid for loss in self.losses):
+                continue
+            loss = Loss(name, c.pid, code, int(first_missing(name)),
+                        time.monotonic() - self.started)  # fmt: skip
+            self.losses.append(loss)
+            if self.policy == "on-failure" and inc.restarts < MAX_RESTARTS:
+                inc.restarts += 1
+                new = self.group.start(f"{name}.{inc.restarts}", inc.module, *inc.args)
+                inc.child, loss.restarted_pid = new, new.pid
+
+    def check_team(self, agents: list[str]) -> None:
+        """Raise once every agent process is gone for good: there is no team left."""
+        if agents and set(agents) <= self.gone_for_good():
+            names = ", ".join(loss.name for loss in self.losses)
+            raise RuntimeFailure(f"every agent is gone ({names}); the run cannot go on")
+
+    def gone_for_good(self) -> set[str]:
+        """Names whose newest process died and was not started again."""
+        return {
+            name
+            for name, inc in self.current.items()
+            if inc.child.proc.poll() not in (None, 0) and name not in ESSENTIAL
+        }
+
+    def note_returns(
+        self, seen: npt.NDArray[np.bool_], returns: dict[int, tuple[int, float]]
+    ) -> None:
+        """Fill in each restarted agent's first epoch back and how long after its loss it came.
+
+        seen : (E + 1, n) states recorded; returns : agent → (epoch, monotonic time) of its
+        first state after a gap
+        """
+        for loss in self.losses:
+            if loss.restarted_pid is None or not loss.name.startswith("agent-"):
+                continue
+            i = int(loss.name.removeprefix("agent-"))
+            later = np.flatnonzero(seen[loss.epoch :, i - 1])
+            if len(later):
+                loss.back_from_epoch = loss.epoch + int(later[0])
+                epoch, at = returns.get(i, (None, 0.0))
+                if epoch == loss.back_from_epoch:
+                    loss.back_after_s = at - self.started - loss.after_start_s
+
+
+def first_missing_epoch(seen: npt.NDArray[np.bool_]) -> int:
+    """The epoch after the last one seen (``seen``: (E + 1,) a state of each epoch came)."""
+    got = np.flatnonzero(seen)
+    return int(got[-1]) + 1 if len(got) else 0
+
+
+def team_intervals(seen: npt.NDArray[np.bool_]) -> dict[int, list[tuple[int, int]]]:
+    """Who was in the team at each epoch: agent → ``[(first, last), ...]`` epochs with a state.
+
+    seen : (E + 1, n) whether agent ``i``'s state of epoch ``k`` was recorded
+    """
+    out: dict[int, list[tuple[int, int]]] = {}
+    for col in range(seen.shape[1]):
+        on = np.concatenate(([False], seen[:, col], [False])).astype(np.int8)
+        edges = np.flatnonzero(np.diff(on))
+        out[col + 1] = [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+    return out
+
+
+__all__ = [
+    "RESTART_POLICIES",
+    "Loss",
+    "RestartPolicy",
+    "Supervisor",
+    "first_missing_epoch",
+    "team_intervals",
+]
