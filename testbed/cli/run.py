@@ -12,6 +12,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from formation.errors import TestbedError
 from formation.scenario import Scenario
 from recorder.report import write_report, write_reports
 from testbed.cli.common import add_common, scenario_strategies
@@ -45,7 +46,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
             outcome = launch(scenario, strategy=strategy, seed=args.seed, runs_dir=Path(args.runs_dir),
                              pool=args.pool, record=not args.no_record, progress=progress,
-                             restart=args.restart)  # fmt: skip
+                             restart=args.restart, recorder_args=_live_args(args))  # fmt: skip
         outcomes.append(outcome)
         if not args.no_record:
             outcome.extra["skipped"] = _report(outcome.run_dir, console)
@@ -58,6 +59,17 @@ def cmd_run(args: argparse.Namespace) -> int:
     _print_summary(outcomes, Console())
     _print_losses(outcomes, Console())
     return 0
+
+
+def _live_args(args: argparse.Namespace) -> tuple[str, ...]:
+    """The recorder's live-view arguments (``--foxglove PORT [--foxglove-wait]``)."""
+    if args.foxglove is None:
+        return ()
+    if args.no_record:
+        raise TestbedError(
+            "--foxglove needs the recorder (it serves the live view); drop --no-record"
+        )
+    return ("--foxglove", str(args.foxglove)) + (("--foxglove-wait",) if args.foxglove_wait else ())
 
 
 def _print_losses(outcomes: list[Any], console: Console) -> None:
@@ -134,4 +146,15 @@ def register(sub: Any) -> None:
     p.add_argument("--no-record", action="store_true", help="run without the recorder")
     p.add_argument("--restart", choices=RESTART_POLICIES, default="no",
                    help="on-failure: start a dead agent or leader again; it rejoins the run")  # fmt: skip
+    p.add_argument(
+        "--foxglove",
+        type=int,
+        metavar="PORT",
+        help="watch it live: Foxglove's WebSocket server on ws://127.0.0.1:PORT",
+    )
+    p.add_argument(
+        "--foxglove-wait",
+        action="store_true",
+        help="with --foxglove: start once a viewer watches the scene (at most 50 s)",
+    )
     p.set_defaults(func=cmd_run)

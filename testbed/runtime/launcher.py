@@ -281,6 +281,7 @@ def launch(
     on_started: Any = None,
     zenoh_mode: str = "client",
     restart: RestartPolicy = "no",
+    recorder_args: tuple[str, ...] = (),
 ) -> RunOutcome:
     """Run ``scenario`` as real processes; returns what was observed. Every child ends by PID.
 
@@ -324,7 +325,8 @@ def launch(
         session = zenoh.open(session_config("client", endpoint, None))
         observer = _Observer(session, run_id, scenario)
         if record:
-            rec_args = [*common, "--out", str(run_dir), "--scenario", str(scenario_path)]
+            rec_args = [*common, "--out", str(run_dir), "--scenario", str(scenario_path),
+                        *recorder_args]  # fmt: skip
             supervisor.track(group.start("recorder", "recorder", *rec_args), "recorder", *rec_args)
             _wait(
                 lambda: observer.is_alive("recorder", 0),
