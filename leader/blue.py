@@ -21,7 +21,8 @@ the solver follows the structure of the used graph:
   into one by adding their information): ``H_b`` is square and
   invertible, so ``x̂`` is the path sum of the signed measurements from ``r``
   and the covariance of agent ``v`` is the sum of ``P_e`` along its path
-  (independent noises add). Both by pointer jumping over the BFS tree, ``O(n log depth)``.
+  (independent noises add). Both by pointer jumping over the BFS tree,
+  ``O(n log depth)`` (``leader.tree``).
 * **diagonal** ``P_e`` (scalar-times-identity or any diagonal): the ``d``
   coordinates decouple, ``A = ⊕_k L_k`` with ``L_k`` the ``n_b × n_b`` grounded
   Laplacian weighted by ``1 / P_e[k, k]``; coordinates with equal weights share
@@ -43,6 +44,14 @@ only the diagonal blocks are kept, ``O(n_b · nnz(LU))`` time and
 ``O(n_b · 256)`` extra memory. This is exact but not cheap at scale (seconds at
 10,000 agents; see the benchmark); a selected inversion (Takahashi) would be
 the next step. Pass ``covariances=False`` to skip it.
+
+:func:`blue` is one epoch of one run; :func:`blue_batch` is one epoch of ``B``
+independent runs of one graph (a batch of seeds) and :func:`blue` is its batch
+of one. The batch is one graph of ``B·n`` agents (member ``b``'s agent ``i`` is
+``b·n + i``): components and fusion are found for all members at once, every
+member whose used graph is a tree is solved in one pass of path sums, and a
+member with cycles gets its own grounded system. Each member gets the floats it
+would get alone, so a run of a batch equals the run of the leader process.
 """
 
 from __future__ import annotations
@@ -53,8 +62,7 @@ from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
-from scipy.sparse import coo_array, csr_array
-from scipy.sparse.csgraph import breadth_first_order, connected_components
+from scipy.sparse.csgraph import connected_components
 
 from formation.graph import (
     AgentIdError,
@@ -64,14 +72,25 @@ from formation.graph import (
     as_edge_mask,
     check_agent_count,
 )
-from leader.laplacian import _choose_method, _System
+from leader.dense import dense_blue
+from leader.laplacian import GroundedSystem, choose_method
+from leader.tree import adjacency, fuse_parallel, tree_solve
 
-__all__ = ["BlueResult", "CovarianceError", "Solver", "blue", "nees"]
+__all__ = [
+    "BlueBatch",
+    "BlueResult",
+    "CovarianceError",
+    "MeasurementGraph",
+    "Solver",
+    "blue",
+    "blue_batch",
+    "nees",
+]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
-Solver = Literal["auto", "tree", "direct", "cg"]
+Solver = Literal["auto", "tree", "direct", "cg", "dense"]
 
 SYMMETRY_RTOL = 1e-10
 """A covariance counts as symmetric when ``|P − Pᵀ| ≤ 1e-10 · max|P|``."""
@@ -104,6 +123,33 @@ class BlueResult:
     covariances: FloatArray | None
     observable: BoolArray
     solver: str
+
+
+@dataclass(frozen=True, eq=False)
+class BlueBatch:
+    """The BLUE of ``B`` independent members of one graph at one epoch (docs/model.md §5).
+
+    Attributes
+    ----------
+    positions : (B, n, d) float64 array [m]
+        Member ``b``'s :attr:`BlueResult.positions` in row ``b``.
+    covariances : (B, n, d, d) float64 array [m²] or None
+        Likewise the covariance blocks; ``None`` when not requested.
+    observable : (B, n) bool array
+        Agents joined to the reference by the member's used edges.
+    solvers : tuple of str, one per member
+        As :attr:`BlueResult.solver`.
+    """
+
+    positions: FloatArray
+    covariances: FloatArray | None
+    observable: BoolArray
+    solvers: tuple[str, ...]
+
+    def member(self, b: int) -> BlueResult:
+        """Member ``b`` as the one-run result."""
+        cov = None if self.covariances is None else self.covariances[b]
+        return BlueResult(self.positions[b], cov, self.observable[b], self.solvers[b])
 
 
 def blue(
@@ -147,7 +193,8 @@ def blue(
     solver : {"auto", "tree", "direct", "cg"}
         ``"auto"`` chooses by structure (module docstring). ``"tree"`` needs the
         reference's component to be a tree; ``"direct"`` and ``"cg"`` force the
-        cyclic solvers (``"cg"`` still factorises for covariance blocks).
+        cyclic solvers (``"cg"`` still factorises for covariance blocks);
+        ``"dense"`` (``leader.dense``, small teams) needs one covariance for every edge.
 
     Returns
     -------
@@ -170,42 +217,200 @@ def blue(
     r = _check_ref(ref, count)
     xr = _as_finite(x_ref, "x_ref", (dim,), "coordinates")
     used = as_edge_mask(use, m, "use")
-    if solver not in ("auto", "tree", "direct", "cg"):
-        raise GraphInputError(f"solver = {solver!r}", "'auto', 'tree', 'direct' or 'cg'")
+    _check_solver(solver)
     diagonal = _check_covariances(pp)
+    batch = _estimate(count, e - 1, zz[None], pp, r, xr, used[None], diagonal, covariances, solver)
+    return batch.member(0)
 
-    idx = np.flatnonzero(used)
-    ue = e[idx] - 1  # 0-based agents
-    graph = _adjacency(count, ue)
-    labels: IntArray = connected_components(graph, directed=False)[1]
-    observable = labels == labels[r]
-    inside = idx[observable[ue[:, 0]]]  # used edges within the reference's component
-    size = int(np.count_nonzero(observable))
 
-    positions = np.full((count, dim), np.nan)
-    positions[r] = xr
-    blocks = np.full((count, dim, dim), np.nan) if covariances else None
-    if blocks is not None:
-        blocks[r] = 0.0
-    if size == 1:
-        return BlueResult(positions, blocks, observable, "none")
+def blue_batch(
+    n: int,
+    d: int,
+    edges: npt.ArrayLike,
+    z: npt.ArrayLike,
+    cov: npt.ArrayLike,
+    ref: int,
+    x_ref: npt.ArrayLike,
+    use: npt.ArrayLike,
+    *,
+    covariances: bool = True,
+    solver: Solver = "auto",
+) -> BlueBatch:
+    """:func:`blue` for ``B`` members sharing the graph, the covariances and the reference.
 
-    fe, fz, fp = _fuse_parallel(count, e[inside] - 1, zz[inside], pp[inside])
-    is_tree = fe.shape[0] == size - 1
-    if solver == "tree" and not is_tree:
-        raise GraphInputError(
-            f"solver = 'tree' but the reference's component has {size} agents and "
-            f"{fe.shape[0]} distinct used links",
-            f"{size - 1} (a tree)",
+    Parameters
+    ----------
+    n, d, edges, ref, x_ref, covariances, solver
+        As in :func:`blue`, shared by every member.
+    z : (B, m, d) array_like [m]
+        Member ``b``'s measurements in row ``b``. Not checked for finiteness: a
+        member whose used measurements are not finite (a diverged run) gets
+        non-finite estimates, and the other members are not affected.
+    cov : (m, d, d) or (d, d) array_like [m²]
+        Noise covariance of each measurement, or one for all; symmetric positive definite.
+    use : (B, m) array_like of bool
+        The measurements each member uses.
+
+    Returns
+    -------
+    BlueBatch
+        Member ``b`` equal, bit for bit, to :func:`blue` on member ``b`` alone.
+    """
+    graph = MeasurementGraph.of(n, d, edges, cov, ref)
+    mask = np.asarray(use)
+    m = graph.edges.shape[0]
+    if mask.ndim != 2 or mask.shape[1] != m:
+        raise ShapeError("use", mask.shape, f"(B, {m})")
+    used = as_edge_mask(mask.reshape(-1), mask.size, "use").reshape(mask.shape)
+    return graph.estimate(z, x_ref, used, covariances=covariances, solver=solver)
+
+
+@dataclass(frozen=True, eq=False)
+class MeasurementGraph:
+    """Oriented measurement edges, their noise and the reference, checked once for many epochs.
+
+    n, d : agents and dimension; edges : (m, 2) 0-based ``(i, j)``; cov : (m, d, d) [m²];
+    ref : the reference, 0-based; diagonal : every ``cov[e]`` is diagonal
+    """
+
+    n: int
+    d: int
+    edges: IntArray
+    cov: FloatArray
+    ref: int
+    diagonal: bool
+
+    @classmethod
+    def of(
+        cls, n: int, d: int, edges: npt.ArrayLike, cov: npt.ArrayLike, ref: int
+    ) -> MeasurementGraph:
+        """Check the graph as :func:`blue` does; ``cov`` is (m, d, d), or (d, d) for every edge."""
+        count = check_agent_count(n)
+        dim = _check_dimension(d)
+        e = as_edge_array(count, edges)
+        m = e.shape[0]
+        shared = np.ndim(cov) == 2
+        pp = _as_finite(cov, "cov", (dim, dim) if shared else (m, dim, dim), "covariances")
+        pp = pp[None] if shared else pp
+        diagonal = _check_covariances(pp)
+        pp = np.broadcast_to(pp, (m, dim, dim)) if shared else pp
+        return cls(count, dim, e - 1, pp, _check_ref(ref, count), diagonal)
+
+    def estimate(
+        self,
+        z: npt.ArrayLike,
+        x_ref: npt.ArrayLike,
+        use: BoolArray,
+        *,
+        covariances: bool = True,
+        solver: Solver = "auto",
+        labels: IntArray | None = None,
+    ) -> BlueBatch:
+        """:func:`blue_batch` on this graph: ``z`` (B, m, d), ``use`` (B, m) bool.
+
+        ``labels`` (B, n): component labels of each member's used graph, when the caller has
+        them (the leader's Kruskal forest spans it); not checked.
+        """
+        m, dim = self.edges.shape[0], self.d
+        zz = np.asarray(z, dtype=np.float64)
+        if zz.ndim != 3 or zz.shape[1:] != (m, dim) or zz.shape[0] < 1:
+            raise ShapeError("z", zz.shape, f"(B, {m}, {dim}) with B ≥ 1")
+        if use.shape != zz.shape[:2] or use.dtype != np.bool_:
+            raise ShapeError("use", use.shape, f"{zz.shape[:2]} bool")
+        xr = _as_finite(x_ref, "x_ref", (dim,), "coordinates")
+        _check_solver(solver)
+        return _estimate(
+            self.n, self.edges, zz, self.cov, self.ref, xr, use, self.diagonal,
+            covariances, solver, labels,
+        )  # fmt: skip
+
+
+def _estimate(
+    n: int,
+    e: IntArray,
+    z: FloatArray,
+    p: FloatArray,
+    r: int,
+    x_r: FloatArray,
+    used: BoolArray,
+    diagonal: bool,
+    covariances: bool,
+    solver: Solver,
+    labels: IntArray | None = None,
+) -> BlueBatch:
+    """The BLUE of every member: ``e`` (m, 2) 0-based, ``z`` (B, m, d), ``used`` (B, m), ``r`` 0-based.
+
+    ``labels`` (B, n): the components of the used graphs, if known.
+    """
+    size, _, dim = z.shape
+    member, edge = np.nonzero(used)  # member-major, each member's edges in their order
+    if solver == "dense":
+        if p.shape[0] and not (p == p[0]).all():
+            raise GraphInputError(
+                "solver = 'dense' with different covariances", "one covariance for every edge"
+            )
+        shared = p[0] if p.shape[0] else np.eye(dim)
+        reach = None if labels is None else labels == labels[:, r : r + 1]
+        pos, cov, obs = dense_blue(
+            size, n, member, e[edge], z[member, edge], shared, r, x_r, covariances, reach
         )
-    if solver == "tree" or (solver == "auto" and is_tree):
-        _tree_solve(graph, fe, fz, fp, r, xr, positions, blocks)
-        return BlueResult(positions, blocks, observable, "tree")
+        names = tuple("dense" if k > 1 else "none" for k in obs.sum(axis=1).tolist())
+        return BlueBatch(pos, cov, obs, names)
+    ue = e[edge] + (member * n)[:, None]  # agent i of member b is b·n + i
+    graph = adjacency(size * n, ue)
+    if labels is None:
+        labels = connected_components(graph, directed=False)[1].reshape(size, n)
+    observable: BoolArray = labels == labels[:, r : r + 1]
+    inside = observable.reshape(-1)[ue[:, 0]]  # used edges within the reference's component
+    fe, fz, fp = fuse_parallel(
+        size * n, ue[inside], z[member[inside], edge[inside]], p[edge[inside]]
+    )
+    owner = fe[:, 0] // n
+    agents = observable.sum(axis=1)
+    links = np.bincount(owner, minlength=size)
+    is_tree = links == agents - 1
 
-    system = _System(count, r, observable, fe, fz, fp, xr, diagonal)
-    method = solver if solver != "auto" else _choose_method(system, graph, r)
-    system.solve(method, positions, blocks)
-    return BlueResult(positions, blocks, observable, system.method)
+    positions = np.full((size, n, dim), np.nan)
+    positions[:, r] = x_r
+    blocks = np.full((size, n, dim, dim), np.nan) if covariances else None
+    if blocks is not None:
+        blocks[:, r] = 0.0
+    solvers = ["none"] * size
+    alone = agents > 1
+    if solver == "tree" and (alone & ~is_tree).any():
+        b = int(np.flatnonzero(alone & ~is_tree)[0])
+        raise GraphInputError(
+            f"solver = 'tree' but the reference's component has {agents[b]} agents and "
+            f"{links[b]} distinct used links",
+            f"{agents[b] - 1} (a tree)",
+        )
+    on_tree = alone & is_tree if solver in ("auto", "tree") else np.zeros(size, dtype=bool)
+    if on_tree.any():
+        mine = on_tree[owner]
+        tree_solve(
+            size * n,
+            fe[mine],
+            fz[mine],
+            fp[mine],
+            np.flatnonzero(on_tree) * n + r,
+            x_r,
+            positions.reshape(size * n, dim),
+            None if blocks is None else blocks.reshape(size * n, dim, dim),
+        )
+        for b in np.flatnonzero(on_tree).tolist():
+            solvers[b] = "tree"
+    for b in np.flatnonzero(alone & ~on_tree).tolist():
+        mine = owner == b
+        system = GroundedSystem(
+            n, r, observable[b], fe[mine] - b * n, fz[mine], fp[mine], x_r, diagonal
+        )
+        if solver == "auto":
+            method = choose_method(system, adjacency(n, ue[member == b] - b * n), r)
+        else:
+            method = solver
+        system.solve(method, positions[b], None if blocks is None else blocks[b])
+        solvers[b] = system.method
+    return BlueBatch(positions, blocks, observable, tuple(solvers))
 
 
 def nees(result: BlueResult, x_true: npt.ArrayLike) -> FloatArray:
@@ -251,6 +456,11 @@ def _check_dimension(d: int) -> int:
     if dim < 1:
         raise GraphInputError(f"d = {dim}", "a dimension of at least 1")
     return dim
+
+
+def _check_solver(solver: str) -> None:
+    if solver not in ("auto", "tree", "direct", "cg", "dense"):
+        raise GraphInputError(f"solver = {solver!r}", "'auto', 'tree', 'direct', 'cg' or 'dense'")
 
 
 def _check_ref(ref: int, n: int) -> int:
@@ -312,83 +522,3 @@ def _not_spd(k: int, smallest: float) -> CovarianceError:
     return CovarianceError(
         f"cov[{k}] has smallest eigenvalue {smallest:.3g}", "a symmetric positive definite matrix"
     )
-
-
-# --------------------------------------------------------------------------- tree
-
-
-def _fuse_parallel(
-    n: int, e: IntArray, z: FloatArray, p: FloatArray
-) -> tuple[IntArray, FloatArray, FloatArray]:
-    """Merge measurements of the same pair (e.g. both directions of a link) into one.
-
-    Two independent measurements of ``x_i − x_j`` are one with information
-    ``Σ P_k⁻¹`` and value ``(Σ P_k⁻¹)⁻¹ Σ P_k⁻¹ z_k``; the BLUE is unchanged and a
-    tree measured in both directions is still solved as a tree. Edges are 0-based.
-    """
-    lo, hi = np.minimum(e[:, 0], e[:, 1]), np.maximum(e[:, 0], e[:, 1])
-    keys, group = np.unique(lo * n + hi, return_inverse=True)
-    if keys.size == e.shape[0]:
-        return e, z, p
-    d = z.shape[1]
-    oriented = np.where((e[:, 0] == lo)[:, None], z, -z)  # measures x_lo − x_hi
-    info = np.linalg.inv(p)
-    info_sum = np.zeros((keys.size, d, d))
-    np.add.at(info_sum, group, info)
-    weighted = np.zeros((keys.size, d))
-    np.add.at(weighted, group, np.einsum("eab,eb->ea", info, oriented))
-    fused_p = np.linalg.inv(info_sum)
-    fused_p = 0.5 * (fused_p + fused_p.transpose(0, 2, 1))
-    fused_z = np.einsum("eab,eb->ea", fused_p, weighted)
-    fused_e = np.stack([keys // n, keys % n], axis=1)
-    return fused_e, fused_z, fused_p
-
-
-def _adjacency(n: int, e: IntArray) -> csr_array:
-    ones = np.ones(e.shape[0], dtype=np.int8)
-    return csr_array(coo_array((ones, (e[:, 0], e[:, 1])), shape=(n, n)))
-
-
-def _tree_solve(
-    graph: csr_array,
-    e: IntArray,
-    z: FloatArray,
-    p: FloatArray,
-    r: int,
-    x_r: FloatArray,
-    positions: FloatArray,
-    blocks: FloatArray | None,
-) -> None:
-    """Path sums from the reference over the tree ``e`` (0-based), written into the outputs."""
-    n = graph.shape[0]
-    order, pred = breadth_first_order(graph, r, directed=False, return_predecessors=True)
-    nodes: IntArray = order[1:].astype(np.int64)
-    parents: IntArray = pred[nodes].astype(np.int64)
-    # the tree edge joining each node to its parent, by key lo·n + hi
-    lo, hi = np.minimum(e[:, 0], e[:, 1]), np.maximum(e[:, 0], e[:, 1])
-    keys = lo * n + hi
-    sort = np.argsort(keys)
-    want = np.minimum(nodes, parents) * n + np.maximum(nodes, parents)
-    edge = sort[np.searchsorted(keys, want, sorter=sort)]
-    # z_e = x_i − x_j, so x_node − x_parent = +z_e when the node is i, −z_e when it is j
-    sign = np.where(e[edge, 0] == nodes, 1.0, -1.0)
-    anc = np.arange(n)
-    anc[nodes] = parents
-    rel = np.zeros((n, z.shape[1]))
-    rel[nodes] = sign[:, None] * z[edge]
-    acc = None
-    if blocks is not None:
-        acc = np.zeros((n, *p.shape[1:]))
-        acc[nodes] = p[edge]
-    # pointer jumping: rel[v] = x_v − x_anc[v]; doubling the jump each round
-    while True:
-        up = anc[anc]
-        if np.array_equal(up, anc):
-            break
-        rel = rel + rel[anc]
-        if acc is not None:
-            acc = acc + acc[anc]
-        anc = up
-    positions[nodes] = x_r + rel[nodes]
-    if blocks is not None and acc is not None:
-        blocks[nodes] = acc[nodes]

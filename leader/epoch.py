@@ -1,23 +1,28 @@
 """One leader epoch (docs/model.md §4–§5): healthy edges → Kruskal tree → BLUE → rigidity.
 
-Shared by the leader process and the in-process simulator, so both compute on
-the same inputs in the same order and give the same floats.
+:class:`Leader` checks a scenario's graphs once and runs the epoch for ``B``
+independent runs of it at once (the batch simulator's seeds);
+:func:`leader_epoch`, what the leader process runs, is its batch of one. Every
+run of a batch gets the floats it gets alone, so the leader process, the
+simulator and the batch agree bit for bit.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
 from formation.scenario import Scenario
-from leader.blue import BlueResult, blue
-from leader.mst import minimum_spanning_forest
+from leader.blue import BlueBatch, BlueResult, MeasurementGraph, Solver
+from leader.dense import DENSE_MAX_AGENTS
+from leader.mst import KruskalGraph
 from leader.rigidity import HealthyRigidity
 
 Array = npt.NDArray[np.float64]
 Mask = npt.NDArray[np.bool_]
+Ints = npt.NDArray[np.int64]
 
 
 @dataclass(frozen=True)
@@ -37,10 +42,101 @@ class LeaderEpoch:
     rigid: bool
 
 
+@dataclass(frozen=True)
+class LeaderEpochs:
+    """What the leader knows after epoch ``k`` in each of ``B`` runs; axis 0 is the run.
+
+    healthy, tree : (B, m) per formation edge; components : (B,) forest components
+    estimate : the BLUE of every run (positions (B, n, d), covariances (B, n, d, d) or None,
+    observable (B, n))
+    rigidity_rank, rigid : (B,), or None when no rigidity tracker was given
+    """
+
+    healthy: Mask
+    tree: Mask
+    components: Ints
+    estimate: BlueBatch
+    rigidity_rank: Ints | None
+    rigid: Mask | None
+
+    def member(self, b: int) -> LeaderEpoch:
+        """Run ``b`` as one leader epoch (needs the rigidity)."""
+        if self.rigidity_rank is None or self.rigid is None:
+            raise ValueError("member(): these epochs were computed without a rigidity tracker")
+        return LeaderEpoch(
+            healthy=self.healthy[b],
+            tree=self.tree[b],
+            components=int(self.components[b]),
+            estimate=self.estimate.member(b),
+            rigidity_rank=int(self.rigidity_rank[b]),
+            rigid=bool(self.rigid[b]),
+        )
+
+
+class Leader:
+    """The leader's epoch for one scenario, its graphs checked once, run epoch after epoch.
+
+    Parameters
+    ----------
+    scenario : the runs' scenario; ``scenario.directed_links[l] = (j, i)`` is link ``j → i``
+    rigidity : the scenario's rigidity tracker, kept across epochs (None: no rigidity)
+    """
+
+    def __init__(self, scenario: Scenario, rigidity: HealthyRigidity | None) -> None:
+        n, d = scenario.n, scenario.dimension
+        self.scenario = scenario
+        self.rigidity = rigidity
+        self.forest = KruskalGraph.of(n, scenario.edge_array, scenario.weights)
+        noise = scenario.noise_covariance
+        self.exact = not np.any(noise)  # ideal sensors: any equal weighting is exact
+        # (receiver i, sender j) of each link: z = x_i − x_j
+        oriented = scenario.directed_links[:, ::-1]
+        cov = np.eye(d) if self.exact else noise
+        self.measurements = MeasurementGraph.of(n, d, oriented, cov, scenario.leader)
+        self.solver: Solver = "dense" if n <= DENSE_MAX_AGENTS else "auto"  # never by batch size
+        self.either = scenario.estimator.edge_rule == "either"
+        self.on_tree = scenario.estimator.edges == "tree"
+
+    def epochs(
+        self, known: Mask, z: Array, x_ref: Array, *, covariances: bool = True
+    ) -> LeaderEpochs:
+        """Process one epoch's reports of ``B`` runs.
+
+        Parameters
+        ----------
+        known : (B, L) the measurement of link ``l`` (taken by its receiver ``i``) reached the leader
+        z : (B, L, d) ``z_ij = x_i − x_j + ε_ij`` where known [m]
+        x_ref : (d,) the reference agent's position [m]
+        covariances : whether to compute the estimate's covariance blocks
+        """
+        size, n = known.shape[0], self.scenario.n
+        per_edge = known.reshape(size, -1, 2)  # links 2e and 2e + 1: the two directions of edge e
+        healthy = np.asarray(per_edge.any(axis=2) if self.either else per_edge.all(axis=2))
+        tree, labels = self.forest.forests(healthy)
+        use = known & np.repeat(tree if self.on_tree else healthy, 2, axis=1)
+        # Every used-edge set spans the healthy graph, as the forest does: the forest's components.
+        estimate = self.measurements.estimate(
+            z, x_ref, use, covariances=covariances, solver=self.solver, labels=labels
+        )
+        if self.exact and estimate.covariances is not None:
+            estimate.covariances[~np.isnan(estimate.covariances)] = 0.0
+        ranks = None if self.rigidity is None else self.rigidity.ranks(healthy)
+        return LeaderEpochs(
+            healthy=healthy,
+            tree=tree,
+            components=n - tree.sum(axis=1, dtype=np.int64),
+            estimate=estimate,
+            rigidity_rank=ranks,
+            rigid=None
+            if ranks is None or self.rigidity is None
+            else ranks == self.rigidity.expected,
+        )
+
+
 def leader_epoch(
     scenario: Scenario, known: Mask, z: Array, x_ref: Array, rigidity: HealthyRigidity | None = None
 ) -> LeaderEpoch:
-    """Process one epoch's reports.
+    """Process one epoch's reports: :meth:`Leader.epochs` for one run.
 
     Parameters
     ----------
@@ -50,36 +146,7 @@ def leader_epoch(
     x_ref : (d,) the reference agent's position [m]
     rigidity : the scenario's rigidity tracker, kept across epochs (made here if None)
     """
-    n, d = scenario.n, scenario.dimension
-    edges, weights = scenario.edge_array, scenario.weights
-    links = scenario.directed_links
-    m = len(edges)
-    per_edge = known.reshape(m, 2)
-    rule_any = scenario.estimator.edge_rule == "either"
-    healthy: Mask = np.asarray(
-        per_edge.any(axis=1) if rule_any else per_edge.all(axis=1), dtype=bool
-    )
-    tree_idx = minimum_spanning_forest(n, edges, weights, healthy)
-    tree = np.zeros(m, dtype=bool)
-    tree[tree_idx] = True
-    use_edge = tree if scenario.estimator.edges == "tree" else healthy
-    use = known & np.repeat(use_edge, 2)
-    oriented = links[use][:, ::-1]  # (receiver i, sender j): z = x_i − x_j
-    noise = scenario.noise_covariance
-    exact = not np.any(noise)  # ideal sensors: any equal weighting is exact
-    cov = np.broadcast_to(np.eye(d) if exact else noise, (int(use.sum()), d, d))
-    estimate = blue(n, d, oriented, z[use], cov, scenario.leader, x_ref)
-    if exact and estimate.covariances is not None:
-        estimate = replace(
-            estimate, covariances=np.where(np.isnan(estimate.covariances), np.nan, 0.0)
-        )
-    rigidity = rigidity or HealthyRigidity(scenario.offsets, edges)
-    rank, rigid = rigidity(healthy)
-    return LeaderEpoch(
-        healthy=healthy,
-        tree=tree,
-        components=n - len(tree_idx),
-        estimate=estimate,
-        rigidity_rank=int(rank),
-        rigid=bool(rigid),
-    )
+    tracker = rigidity or HealthyRigidity(scenario.offsets, scenario.edge_array)
+    leader = Leader(scenario, tracker)
+    batch = leader.epochs(np.asarray(known, dtype=bool)[None], np.asarray(z)[None], x_ref)
+    return batch.member(0)

@@ -17,6 +17,8 @@ from scipy.sparse import coo_array, csr_array
 from scipy.sparse.csgraph import dijkstra, reverse_cuthill_mckee
 from scipy.sparse.linalg import splu
 
+__all__ = ["CG_RTOL", "DIRECT_MAX_UNKNOWNS", "GroundedSystem", "choose_method"]
+
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
@@ -41,8 +43,16 @@ class _Factor(Protocol):
     def solve(self, rhs: FloatArray) -> FloatArray: ...
 
 
-class _System:
-    """The grounded weighted Laplacian system of the reference's component (``leader.blue``)."""
+class GroundedSystem:
+    """The grounded weighted Laplacian system of the reference's component (``leader.blue``).
+
+    Parameters
+    ----------
+    n : agents; r : the reference (0-based); observable : (n,) the reference's component
+    e : (k, 2) used links inside the component, 0-based; z : (k, d) ``x_i − x_j`` measured [m]
+    p : (k, d, d) their noise covariances [m²]; x_r : (d,) the reference's position [m]
+    diagonal : every ``p[e]`` is diagonal (the ``d`` coordinates decouple)
+    """
 
     def __init__(
         self,
@@ -191,7 +201,7 @@ def _equal_columns(weights: FloatArray) -> list[list[int]]:
     return groups
 
 
-def _choose_method(system: _System, graph: csr_array, r: int) -> str:
+def choose_method(system: GroundedSystem, graph: csr_array, r: int) -> str:
     """``"direct"`` when the structure promises little fill, else ``"cg"`` (``leader.blue``)."""
     unknowns = system.size * (1 if system.diagonal else system.d)
     if unknowns <= DIRECT_MAX_UNKNOWNS:

@@ -3,9 +3,18 @@
 The leader keeps the forest's edges (the ``tree`` edge set of the estimator)
 and its components (agents outside the reference's component are unobservable
 this epoch). Pure: arrays in, arrays out.
+
+:func:`minimum_spanning_forest` is one epoch of one run; :func:`spanning_forests`
+is one epoch of ``B`` independent runs of one graph (a batch of seeds), through
+the same order: the batch is one graph of ``B·n`` agents, and Kruskal's forest
+of a disjoint union is the union of the members' forests, so one union-find scan
+serves. For many members of a small graph a scan by component labels, one
+vectorised step per edge across the members, keeps the same edges faster.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -19,9 +28,14 @@ from formation.graph import (
 )
 from formation.graph import component_labels as components
 
-__all__ = ["components", "minimum_spanning_forest"]
+__all__ = ["KruskalGraph", "components", "minimum_spanning_forest", "spanning_forests"]
 
 IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
+
+LABEL_SWEEP_RATIO = 12
+"""A batch scans by labels when ``m × 12 < B n``: ``m`` numpy steps cost less than ``B n``
+Python union-find steps (measured on the sweep's teams, ``bench/bench_sweep.py``)."""
 
 
 def minimum_spanning_forest(
@@ -60,6 +74,122 @@ def minimum_spanning_forest(
     GraphInputError
         On wrong shapes, agent ids outside ``1..n``, self-loops or non-finite weights.
     """
+    count, e, w = _check_graph(n, edges, weights)
+    cand = np.flatnonzero(as_edge_mask(healthy, e.shape[0], "healthy"))
+    if cand.size == 0 or count == 1:
+        return []
+    lo = np.minimum(e[cand, 0], e[cand, 1]) - 1
+    hi = np.maximum(e[cand, 0], e[cand, 1]) - 1
+    order = _kruskal_order(w[cand], lo, hi)
+    chosen, _ = _union_find_scan(count, lo[order], hi[order])
+    result: list[int] = cand[order[chosen]].tolist()
+    return result
+
+
+@dataclass(frozen=True, eq=False)
+class KruskalGraph:
+    """A graph checked once, its edges in Kruskal's order, for the forests of many epochs.
+
+    lo, hi : (m,) 0-based ends of each edge, ``lo < hi``; order : (m,) Kruskal's edge order
+    """
+
+    n: int
+    lo: IntArray
+    hi: IntArray
+    order: IntArray
+
+    @classmethod
+    def of(cls, n: int, edges: npt.ArrayLike, weights: npt.ArrayLike) -> KruskalGraph:
+        """Check ``n``, the ``(m, 2)`` edges and the ``(m,)`` weights; sort once."""
+        count, e, w = _check_graph(n, edges, weights)
+        lo = np.minimum(e[:, 0], e[:, 1]) - 1
+        hi = np.maximum(e[:, 0], e[:, 1]) - 1
+        return cls(count, lo, hi, _kruskal_order(w, lo, hi))
+
+    def forests(self, healthy: BoolArray) -> tuple[BoolArray, IntArray]:
+        """:func:`spanning_forests` of this graph: ``healthy`` (B, m) bool."""
+        size, m, count = healthy.shape[0], self.lo.size, self.n
+        if healthy.shape != (size, m) or healthy.dtype != np.bool_:
+            raise ShapeError("healthy", healthy.shape, f"(B, {m}) bool")
+        if m * LABEL_SWEEP_RATIO < size * count:
+            return _label_sweep(count, self.lo, self.hi, self.order, healthy)
+        rank, member = np.nonzero(healthy[:, self.order].T)  # edge-major: members keep the order
+        edge = self.order[rank]
+        base = member * count
+        chosen, parent = _union_find_scan(size * count, base + self.lo[edge], base + self.hi[edge])
+        tree = np.zeros(healthy.shape, dtype=bool)
+        tree[member[chosen], edge[chosen]] = True
+        return tree, _roots(parent).reshape(size, count)
+
+
+def spanning_forests(
+    n: int, edges: npt.ArrayLike, weights: npt.ArrayLike, healthy: npt.ArrayLike
+) -> tuple[BoolArray, IntArray]:
+    """Kruskal's forest of each of ``B`` healthy edge sets of one graph (docs/model.md §4).
+
+    Member ``b``'s agent ``i`` is agent ``b·n + i`` of one graph of ``B·n`` agents;
+    its edges are scanned in the members' common order (the order of
+    :func:`minimum_spanning_forest`, member after member for each edge), so the
+    one union-find scan gives each member exactly its own forest. Many members of
+    a small graph are scanned edge by edge across members instead, with labels
+    for the components: the same edges kept, in fewer steps.
+
+    Parameters
+    ----------
+    n : int
+        Number of agents of each member; ids ``1..n``.
+    edges : (m, 2) array_like of int
+        The graph's undirected edges, shared by the members.
+    weights : (m,) array_like of float
+        Edge weights (finite).
+    healthy : (B, m) array_like of bool
+        The edges each member may use.
+
+    Returns
+    -------
+    tree : (B, m) bool array
+        The forest's edges of each member.
+    labels : (B, n) int array
+        A component label per agent (distinct across members): agents share a
+        label when the member's forest joins them.
+    """
+    graph = KruskalGraph.of(n, edges, weights)
+    m = graph.lo.size
+    arr = np.asarray(healthy)
+    if arr.ndim != 2 or arr.shape[1] != m:
+        raise ShapeError("healthy", arr.shape, f"(B, {m})")
+    mask = as_edge_mask(arr.reshape(-1), arr.size, "healthy").reshape(arr.shape)
+    return graph.forests(mask)
+
+
+def _label_sweep(
+    n: int, lo: IntArray, hi: IntArray, order: IntArray, healthy: BoolArray
+) -> tuple[BoolArray, IntArray]:
+    """Kruskal's scan for many members of a small graph: one step per edge, across members.
+
+    Each member's components are kept as labels; an edge is kept where its ends carry
+    different labels, and one label then takes the other's agents. ``O(m · B n)`` work in
+    ``m`` vectorised steps, where the union-find takes ``B n`` Python steps.
+    """
+    size = healthy.shape[0]
+    labels = np.broadcast_to(np.arange(n, dtype=np.int64), (size, n)).copy()
+    tree = np.zeros_like(healthy)
+    for e in order.tolist():
+        lu, lv = labels[:, lo[e]], labels[:, hi[e]]
+        keep = healthy[:, e] & (lu != lv)
+        if not keep.any():
+            continue
+        tree[:, e] = keep
+        move = keep[:, None] & (labels == lv[:, None])
+        labels = np.where(move, lu[:, None], labels)
+    labels += (np.arange(size, dtype=np.int64) * n)[:, None]  # distinct across members
+    return tree, labels
+
+
+def _check_graph(
+    n: int, edges: npt.ArrayLike, weights: npt.ArrayLike
+) -> tuple[int, IntArray, npt.NDArray[np.float64]]:
+    """The agent count, the ``(m, 2)`` edges and the finite ``(m,)`` weights, checked."""
     count = check_agent_count(n)
     e = as_edge_array(count, edges)
     m = e.shape[0]
@@ -69,15 +199,7 @@ def minimum_spanning_forest(
     if not np.isfinite(w).all():
         k = int(np.flatnonzero(~np.isfinite(w))[0])
         raise GraphInputError(f"weights[{k}] = {w[k]}", "a finite weight")
-    cand = np.flatnonzero(as_edge_mask(healthy, m, "healthy"))
-    if cand.size == 0 or count == 1:
-        return []
-    lo = np.minimum(e[cand, 0], e[cand, 1]) - 1
-    hi = np.maximum(e[cand, 0], e[cand, 1]) - 1
-    order = _kruskal_order(w[cand], lo, hi)
-    chosen = _union_find_scan(count, lo[order], hi[order])
-    result: list[int] = cand[order[chosen]].tolist()
-    return result
+    return count, e, w
 
 
 def _kruskal_order(w: npt.NDArray[np.float64], lo: IntArray, hi: IntArray) -> IntArray:
@@ -89,8 +211,11 @@ def _kruskal_order(w: npt.NDArray[np.float64], lo: IntArray, hi: IntArray) -> In
     return order
 
 
-def _union_find_scan(n: int, u: IntArray, v: IntArray) -> IntArray:
-    """Kruskal's scan of sorted edges ``(u[k], v[k])`` (0-based nodes): positions of kept edges."""
+def _union_find_scan(n: int, u: IntArray, v: IntArray) -> tuple[IntArray, IntArray]:
+    """Kruskal's scan of sorted edges ``(u[k], v[k])`` (0-based nodes).
+
+    Returns the positions of the kept edges and the union-find's parent array.
+    """
     parent = list(range(n))
     rank = [0] * n
     kept: list[int] = []
@@ -127,7 +252,7 @@ def _union_find_scan(n: int, u: IntArray, v: IntArray) -> IntArray:
             parent = roots.tolist()  # full compression keeps the union-find valid
             pending = pending[roots[u[pending]] != roots[v[pending]]]
             chunk *= 2
-    return np.asarray(kept, dtype=np.int64)
+    return np.asarray(kept, dtype=np.int64), np.asarray(parent, dtype=np.int64)
 
 
 def _roots(parent: IntArray) -> IntArray:

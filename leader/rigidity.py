@@ -9,6 +9,7 @@ reports when it does.
 
 from __future__ import annotations
 
+import numpy as np
 import numpy.typing as npt
 
 from formation.graph import (
@@ -73,11 +74,18 @@ class HealthyRigidity:
     def __call__(self, healthy_mask: npt.ArrayLike) -> tuple[int, bool]:
         """``(rank, rigid)`` of the healthy subgraph, as :func:`healthy_rigidity` gives them."""
         keep = as_edge_mask(healthy_mask, self.edges.shape[0], "healthy_mask")
+        rank = int(self.ranks(keep[None])[0])
+        return rank, rank == self.expected
+
+    def ranks(self, healthy: npt.NDArray[np.bool_]) -> npt.NDArray[np.int64]:
+        """Rigidity rank of each of ``B`` healthy subgraphs: ``healthy`` (B, m) → (B,)."""
         if self.independent:
-            rank = int(keep.sum())
-        else:
+            counts: npt.NDArray[np.int64] = healthy.sum(axis=1, dtype=np.int64)
+            return counts
+        out = np.zeros(healthy.shape[0], dtype=np.int64)
+        for b, keep in enumerate(healthy):
             key = keep.tobytes()
             if key not in self._seen:
                 self._seen[key] = rigidity_rank(self.positions, self.edges[keep])
-            rank = self._seen[key]
-        return rank, rank == self.expected
+            out[b] = self._seen[key]
+        return out

@@ -1,261 +1,42 @@
-"""The batch simulator: many seeds (and network variants) of one scenario at once, in one process.
+"""The simulator's epoch loop: many seeds (and network variants) of one scenario at once, one process.
 
-:func:`simulate` (``testbed.sim.simulate``) runs one seed epoch by epoch; a sweep needs thousands of
-runs. Here the members of a batch (``B`` pairs of a network variant and a seed, all sharing the
-team, graph, controller, reference, noise and estimator) advance together: agents and links of
-every member are flattened into the batch dimension of the agent core
-(:func:`agent.epoch.agent_epoch`, vectorised over any set of links), the links' decisions come
-from netem's :func:`netem.models.delivery_matrix`, the measurement noise from
-:func:`agent.measurement.measurement_noise` (same keys), and the leader (docs/model.md §4–§5) runs
-batched (``testbed.sim.batch_leader``):
+:func:`run_batch` is the only epoch loop: :func:`testbed.sim.simulate.simulate` is a batch of one
+seed. The members of a batch (``B`` pairs of a network variant and a seed, see
+``testbed.sim.plan``) advance together through the cores the services run, each over an extra
+batch axis:
 
-* **Kruskal** over a fixed edge order ``(w, lo, hi, index)`` (the order of
-  ``leader.mst``): the forest is the unique greedy one, so a component-label sweep over the
-  ``m`` edges, vectorised across members, keeps exactly the edges union-find keeps.
-* **BLUE** (docs/model.md §5) with one ``P`` for every edge: fusing the one or two measurements of an
-  edge (``c_e`` of them, mean value, covariance ``P / c_e``) gives ``A = L_c ⊗ P⁻¹`` with
-  ``L_c`` the grounded Laplacian weighted by ``c_e``, so ``x̂_b − x_r = L_c⁻¹ Σ_e c_e h_e ȳ_eᵀ``
-  and ``Cov(x̂_v) = (L_c⁻¹)_vv P`` whatever ``P`` is. A batched dense solve over
-  ``(B, n − 1, n − 1)``: on a tree it equals the path sum of ``leader.blue``, on all healthy
-  edges the sparse solve, to rounding.
+* the agents (docs/model.md §3, §6): agents and links of every member are flattened into the rows of
+  :func:`agent.epoch.agent_epoch`, the function an agent process runs on its own in-links;
+* the leader (docs/model.md §4–§5): :class:`leader.epoch.Leader`, whose batch of one is what the
+  leader process runs (Kruskal over the disjoint union of the members' graphs, the BLUE's path sums
+  for all tree members in one pass).
 
-The results equal :func:`testbed.sim.simulate.simulate` member by member to rounding (tests hold
-them to 1e-9). Cost: the noise, the schedules and the initial positions do not depend on the
-strategy, so a :class:`BatchPlan` is built once and run for every strategy.
+Each member gets the floats it gets alone, so a batch, a lone ``simulate`` and a distributed
+lockstep run of the same scenario and seed agree bit for bit. Cost: the noise, the schedules and the
+initial positions do not depend on the strategy, so a plan is built once and run for every strategy.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from agent.epoch import InLinks, agent_epoch
-from agent.measurement import measurement_noise
-from agent.strategies import LinkMemory
-from formation.errors import TestbedError
+from agent.epoch import AgentStep, InLinks, agent_epoch
+from agent.strategies import LinkMemory, Substitution
 from formation.reference import reference_positions, reference_velocities
-from formation.scenario import LEADER_ENDPOINT, Scenario, StrategyName
-from leader.rigidity import healthy_rigidity
-from netem.models import delivery_matrix
+from formation.scenario import Scenario, StrategyName
+from leader.epoch import Leader, LeaderEpochs
+from leader.rigidity import HealthyRigidity
 from recorder.metrics import formation_error, nees, shape_error
-from testbed.sim.batch_leader import batch_blue, batch_forest, kruskal_order
-from testbed.sim.simulate import SimResult
+from testbed.sim.plan import VARIANT_FIELDS, BatchError, BatchPlan, plan_batch
+from testbed.sim.result import SimResult
 
 Array = npt.NDArray[np.float64]
 Mask = npt.NDArray[np.bool_]
 Ints = npt.NDArray[np.int64]
-
-# Fields members of one batch may differ in: the rest is the shared structure.
-VARIANT_FIELDS = ("name", "description", "seed", "epochs", "network", "runtime", "recording")
-
-
-class BatchError(TestbedError):
-    """Members that cannot share a batch; names the member and the differing field."""
-
-
-@dataclass(frozen=True)
-class BatchPlan:
-    """The strategy-independent inputs of a batch of ``B`` members over ``E`` epochs.
-
-    base : the shared structure (first member's scenario)
-    scenarios : (B,) each member's scenario (its network); seeds : (B,) each member's seed
-    on_time : (E, B, L) formation link delivered with no delay
-    late : arrival epoch → (flat link index ``b·L + l``, sent epoch) of delayed deliveries
-    report_ok, estimate_ok : (E, B, n) control links delivered in time
-    noise : (S, E, L, d) measurement noise of the distinct seeds [m]; seed_row : (B,) row per member
-    x0 : (S, n, d) initial positions of the distinct seeds [m]
-    active : (E + 1, n) agents taking part at each epoch (None: all, always)
-    """
-
-    base: Scenario
-    scenarios: tuple[Scenario, ...]
-    seeds: Ints
-    epochs: int
-    on_time: Mask
-    late: dict[int, tuple[Ints, Ints]]
-    report_ok: Mask
-    estimate_ok: Mask
-    noise: Array
-    seed_row: Ints
-    x0: Array
-    active: Mask | None = None
-
-    @property
-    def size(self) -> int:
-        return int(self.seeds.shape[0])
-
-    def subset(self, members: Sequence[int]) -> BatchPlan:
-        """The plan of some members only (e.g. those a resumed sweep still has to run)."""
-        idx = np.asarray(members, dtype=np.int64)
-        n_links = self.on_time.shape[2]
-        late: dict[int, tuple[Ints, Ints]] = {}
-        new_row = np.full(self.size, -1, dtype=np.int64)
-        new_row[idx] = np.arange(idx.size)
-        for k, (flat, sent) in self.late.items():
-            b, link = flat // n_links, flat % n_links
-            keep = new_row[b] >= 0
-            if keep.any():
-                late[k] = (new_row[b[keep]] * n_links + link[keep], sent[keep])
-        return replace(
-            self,
-            scenarios=tuple(self.scenarios[i] for i in idx.tolist()),
-            seeds=self.seeds[idx],
-            on_time=self.on_time[:, idx],
-            late=late,
-            report_ok=self.report_ok[:, idx],
-            estimate_ok=self.estimate_ok[:, idx],
-            seed_row=self.seed_row[idx],
-        )
-
-
-def _structure(s: Scenario) -> dict[str, Any]:
-    data = s.model_dump()
-    for key in VARIANT_FIELDS:
-        data.pop(key, None)
-    return data
-
-
-def plan_batch(
-    scenarios: Scenario | Sequence[Scenario],
-    seeds: Sequence[int],
-    epochs: int | None = None,
-    active: npt.ArrayLike | None = None,
-) -> BatchPlan:
-    """Draw everything a batch needs that no strategy changes.
-
-    Parameters
-    ----------
-    scenarios : one scenario for every member, or a sequence of ``B`` variants that differ only
-        in ``VARIANT_FIELDS`` (e.g. the network: one loss rate each)
-    seeds : (B,) the members' seeds
-    epochs : number of epochs (default: the first scenario's)
-    active : (E + 1, n) bool, optional; agents taking part at each epoch (dynamic formations,
-        in-process only): links of an inactive agent carry nothing and leave the consensus,
-        the leader's graph and the estimate; an inactive agent stays where it is.
-    """
-    seed_arr = np.asarray(seeds, dtype=np.int64).reshape(-1)
-    if isinstance(scenarios, Scenario):
-        members: tuple[Scenario, ...] = (scenarios,) * seed_arr.size
-    else:
-        members = tuple(scenarios)
-    if len(members) != seed_arr.size or not members:
-        raise BatchError(
-            f"{len(members)} scenarios for {seed_arr.size} seeds; expected one each (≥ 1)"
-        )
-    base = members[0]
-    n_epochs = base.epochs if epochs is None else int(epochs)
-    shared = _structure(base)
-    checked = {id(base)}
-    for b, s in enumerate(members):
-        if id(s) in checked:
-            continue
-        checked.add(id(s))
-        if _structure(s) != shared:
-            diff = sorted(k for k, v in _structure(s).items() if shared.get(k) != v)
-            raise BatchError(
-                f"member {b} ({s.name}) differs from member 0 in {', '.join(diff)}; "
-                f"members may differ only in {', '.join(VARIANT_FIELDS)}"
-            )
-    n, d = base.n, base.dimension
-    links = base.directed_links
-    n_links = len(links)
-    ctl_links = np.array(
-        [(i, LEADER_ENDPOINT) for i in range(1, n + 1)]
-        + [(LEADER_ENDPOINT, i) for i in range(1, n + 1)],
-        dtype=np.int64,
-    )
-    all_links = np.concatenate([links, ctl_links])
-    size = seed_arr.size
-    on_time = np.zeros((n_epochs, size, n_links), dtype=bool)
-    report_ok = np.zeros((n_epochs, size, n), dtype=bool)
-    estimate_ok = np.zeros((n_epochs, size, n), dtype=bool)
-    late_k: list[Ints] = []
-    late_flat: list[Ints] = []
-    late_sent: list[Ints] = []
-    stacks: dict[str, list[Any]] = {}
-    net_of: dict[int, str] = {}
-    cache: dict[tuple[str, int], tuple[Mask, Ints, Mask]] = {}
-    for b, (s, seed) in enumerate(zip(members, seed_arr.tolist(), strict=True)):
-        if id(s) not in net_of:
-            net_of[id(s)] = s.network.model_dump_json()
-        net = net_of[id(s)]
-        if net not in stacks:
-            stacks[net] = (
-                [s.formation_link_models(int(a), int(c)) for a, c in links]
-                + [s.control_link_models(i, "report") for i in range(1, n + 1)]
-                + [s.control_link_models(i, "estimate") for i in range(1, n + 1)]
-            )
-        key = (net, seed)
-        if key not in cache:
-            mat = delivery_matrix(stacks[net], seed, all_links, n_epochs)
-            ok = mat.delivered & (mat.delay_epochs == 0)
-            cache[key] = (mat.delivered[:, :n_links], mat.delay_epochs[:, :n_links], ok)
-        delivered, delay, ok = cache[key]
-        on_time[:, b] = ok[:, :n_links]
-        report_ok[:, b] = ok[:, n_links : n_links + n]
-        estimate_ok[:, b] = ok[:, n_links + n :]
-        k_sent, link = np.nonzero(delivered & (delay > 0))
-        if k_sent.size:
-            late_k.append(k_sent + delay[k_sent, link])
-            late_flat.append(b * n_links + link)
-            late_sent.append(k_sent)
-    late: dict[int, tuple[Ints, Ints]] = {}
-    if late_k:
-        ks, flat, sent = (
-            np.concatenate(late_k),
-            np.concatenate(late_flat),
-            np.concatenate(late_sent),
-        )
-        for k in np.unique(ks).tolist():
-            sel = ks == k
-            # several packets of one link landing at once: the newest one is what memory keeps
-            f, s_ep = flat[sel], sent[sel]
-            order = np.lexsort((s_ep, f))
-            last = np.r_[f[order][1:] != f[order][:-1], True]
-            late[int(k)] = (f[order][last], s_ep[order][last])
-
-    distinct, seed_row = np.unique(seed_arr, return_inverse=True)
-    src, dst = links[:, 0], links[:, 1]
-    epochs_col = np.arange(n_epochs)[:, None]
-    cov = base.noise_covariance
-    noise = (
-        np.stack(
-            [
-                measurement_noise(cov, int(s), dst[None, :], src[None, :], epochs_col)
-                for s in distinct.tolist()
-            ]
-        )
-        if n_links
-        else np.zeros((distinct.size, n_epochs, 0, d))
-    )
-    x0 = np.stack([base.initial_positions(int(s)) for s in distinct.tolist()])
-    act = None
-    if active is not None:
-        act = np.asarray(active, dtype=bool)
-        if act.shape != (n_epochs + 1, n):
-            raise BatchError(f"active has shape {act.shape}; expected ({n_epochs + 1}, {n})")
-        if not act[:, base.leader - 1].all():
-            raise BatchError(
-                f"active: the reference agent {base.leader} must take part in every epoch"
-            )
-    return BatchPlan(
-        base=base,
-        scenarios=members,
-        seeds=seed_arr,
-        epochs=n_epochs,
-        on_time=on_time,
-        late=late,
-        report_ok=report_ok,
-        estimate_ok=estimate_ok,
-        noise=noise,
-        seed_row=seed_row.astype(np.int64),
-        x0=x0,
-        active=act,
-    )
 
 
 @dataclass
@@ -308,10 +89,12 @@ class BatchResult:
         scored = obs & (np.arange(base.n) != r - 1)[None, :]
         nees_vals: list[Array] = []
         est_err: list[Array] = []
-        for k in np.flatnonzero(scored.any(axis=1)).tolist():
-            nees_vals.append(nees(est[k], cov[k], x[k], scored[k]))
-            est_err.append(est[k][scored[k]] - x[k][scored[k]])
+        if np.any(base.noise_covariance):  # NEES is undefined for ideal (noise-free) sensors
+            for k in np.flatnonzero(scored.any(axis=1)).tolist():
+                nees_vals.append(nees(est[k], cov[k], x[k], scored[k]))
+                est_err.append(est[k][scored[k]] - x[k][scored[k]])
         sel = self.sub_member == b
+        pairs = base.directed_links[self.sub_link[sel]]
         return SimResult(
             scenario=plan.scenarios[b],
             strategy=self.strategy,
@@ -334,33 +117,104 @@ class BatchResult:
             fallbacks=int(self.fallbacks[b]),
             nees_values=np.concatenate(nees_vals) if nees_vals else np.zeros(0),
             estimation_errors=np.concatenate(est_err) if est_err else np.zeros((0, d)),
+            extra={"substitution_senders": pairs[:, 0], "substitution_receivers": pairs[:, 1]},
         )
 
 
 def run_batch(
     plan: BatchPlan, strategy: StrategyName, *, detail: bool = True, rigidity: bool = True
 ) -> BatchResult:
-    """Run every member of ``plan`` with ``strategy``; mirrors ``testbed.sim.simulate`` step by step.
+    """Run every member of ``plan`` with ``strategy``, epoch by epoch (docs/model.md §3–§6).
 
-    ``detail`` keeps the leader's per-epoch outputs and the substitutions (``member()`` needs it);
-    ``rigidity`` adds the rigidity rank of each healthy subgraph (cached per pattern).
+    Parameters
+    ----------
+    plan : the members and their strategy-independent inputs (``testbed.sim.plan.plan_batch``)
+    strategy : the loss strategy every member runs
+    detail : keep the leader's per-epoch outputs and the substitutions (``member()`` needs it)
+    rigidity : with ``detail``, the rigidity rank of each healthy subgraph
+
+    Returns
+    -------
+    BatchResult
     """
     base = plan.base
     size, n_epochs = plan.size, plan.epochs
     n, d, r = base.n, base.dimension, base.leader
-    edges, weights, d0 = base.edge_array, base.weights, base.offsets
+    edges, d0 = base.edge_array, base.offsets
     links = base.directed_links
-    m, n_links = len(edges), len(links)
+    n_links = len(links)
     src, dst = links[:, 0], links[:, 1]
-    period = base.control.period_s
-    cov = base.noise_covariance
-    order = kruskal_order(base)
-    both = base.estimator.edge_rule == "both"
-    use_tree = base.estimator.edges == "tree"
+    ref_x = reference_positions(base.reference, d0[r - 1], base.control.period_s, n_epochs)
+    ref_v = reference_velocities(ref_x, base.control.period_s)
+    team = _team_links(InLinks.of(base, np.arange(1, n + 1)), size, n)
+    act = plan.active
+    link_act = None if act is None else act[:, src - 1] & act[:, dst - 1]  # (E + 1, L)
+    on_time = plan.on_time if link_act is None else plan.on_time & link_act[:-1, None, :]
+    leader = Leader(base, HealthyRigidity(d0, edges) if detail and rigidity else None)
+    log = _Log(size, n_epochs, n, d, len(edges)) if detail else None
 
-    one = InLinks.of(base, np.arange(1, n + 1))
+    x = np.zeros((n_epochs + 1, size, n, d))
+    x[0] = plan.x0[plan.seed_row]
+    vel = np.zeros((size * n, d))
+    memory = LinkMemory.empty(size * n_links, d)
+    v_known = np.zeros((size, n, d))  # each agent's last received v_ref
+    fallbacks = np.zeros(size, dtype=np.int64)
+    for k in range(n_epochs + 1):
+        x[k, :, r - 1] = ref_x[k]  # the reference agent follows the trajectory (docs/model.md §3)
+        if k == n_epochs:
+            break
+        xk = x[k]
+        if k in plan.late:
+            memory = _receive_late(memory, plan.late[k], x, src, link_act, k)
+        arrived = on_time[k]  # (B, L)
+        z = xk[:, dst - 1] - xk[:, src - 1] + plan.noise[plan.seed_row, k]
+
+        # Leader: the measurements whose report reached it → tree, BLUE, rigidity.
+        known = arrived & plan.report_ok[k][:, dst - 1]
+        lead = leader.epochs(known, z, ref_x[k], covariances=detail)
+        observable = lead.estimate.observable
+
+        # Estimates reach the agents over their control links, with v_ref[k].
+        got_est = plan.estimate_ok[k] if act is None else plan.estimate_ok[k] & act[k][None, :]
+        v_prev = v_known.copy()
+        v_known[got_est] = ref_v[k]
+        has_estimate = got_est[:, dst - 1] & observable[:, src - 1]
+        step = _agents_step(
+            base, strategy, k, team, None if link_act is None else link_act[k],
+            xk.reshape(size * n, d), vel, arrived.reshape(-1), xk[:, src - 1].reshape(-1, d),
+            z.reshape(-1, d), memory, np.nan_to_num(lead.estimate.positions[:, src - 1]).reshape(-1, d),
+            has_estimate.reshape(-1), v_prev[:, dst - 1].reshape(-1, d), v_known.reshape(-1, d),
+        )  # fmt: skip
+        memory, sub = step.memory, step.substitution
+        fallbacks += sub.fallback.reshape(size, n_links).sum(axis=1)
+        if log is not None:
+            log.epoch(k, lead, sub, xk, src, n_links)
+        nxt, vel = step.positions.reshape(size, n, d), step.velocities
+        if act is not None:
+            frozen = ~act[k]  # an agent out of the formation stays where it is
+            nxt[:, frozen] = xk[:, frozen]
+            vel.reshape(size, n, d)[:, frozen] = 0.0
+        x[k + 1] = nxt
+
+    result = BatchResult(
+        plan=plan,
+        strategy=strategy,
+        positions=x,
+        formation_error=formation_error(x, edges, base.weights),
+        shape_error=shape_error(x, edges, d0),
+        delivered=on_time,
+        fallbacks=fallbacks,
+        detail=detail,
+    )
+    if log is not None:
+        log.fill(result, d)
+    return result
+
+
+def _team_links(one: InLinks, size: int, n: int) -> InLinks:
+    """The in-links of every agent of ``size`` members, member after member (rows ``b·n + i``)."""
     offsets = (np.arange(size, dtype=np.int64) * n)[:, None]
-    flat_links = InLinks(
+    return InLinks(
         index=np.tile(one.index, size),
         sender=np.tile(one.sender, size),
         receiver=np.tile(one.receiver, size),
@@ -368,197 +222,88 @@ def run_batch(
         desired=np.tile(one.desired, (size, 1)),
         distance_sq=np.tile(one.distance_sq, size),
     )
-    ref_x = reference_positions(base.reference, d0[r - 1], period, n_epochs)
-    ref_v = reference_velocities(ref_x, period)
 
-    act = plan.active
-    link_act = None
-    if act is not None:
-        link_act = act[:, src - 1] & act[:, dst - 1]  # (E + 1, L)
 
-    x = np.zeros((n_epochs + 1, size, n, d))
-    x[0] = plan.x0[plan.seed_row]
-    x[0, :, r - 1] = ref_x[0]
-    vel = np.zeros((size * n, d))
-    memory = LinkMemory.empty(size * n_links, d)
-    v_known = np.zeros((size, n, d))
-    on_time = plan.on_time if link_act is None else plan.on_time & link_act[:-1, None, :]
-    fallbacks = np.zeros(size, dtype=np.int64)
+def _receive_late(
+    memory: LinkMemory,
+    late: tuple[Ints, Ints],
+    x: Array,
+    src: Ints,
+    link_act: Mask | None,
+    k: int,
+) -> LinkMemory:
+    """Delayed packets landing at epoch ``k``: (flat link ``b·L + l``, sent epoch) each."""
+    n_links = src.size
+    flat, sent = late
+    if link_act is not None:
+        keep = link_act[k, flat % n_links]
+        flat, sent = flat[keep], sent[keep]
+    values = np.zeros(memory.last.shape)
+    values[flat] = x[sent, flat // n_links, src[flat % n_links] - 1]
+    sent_full = np.zeros(memory.last_epoch.shape, dtype=np.int64)
+    sent_full[flat] = sent
+    mask = np.zeros(memory.last_epoch.shape, dtype=bool)
+    mask[flat] = True
+    return memory.receive_late(values, sent_full, mask)
 
-    if detail:
-        est_all = np.full((n_epochs, size, n, d), np.nan)
-        cov_all = np.full((n_epochs, size, n, d, d), np.nan)
-        obs_all = np.zeros((n_epochs, size, n), dtype=bool)
-        healthy_all = np.zeros((n_epochs, size, m), dtype=bool)
-        tree_all = np.zeros((n_epochs, size, m), dtype=bool)
-        comp_all = np.zeros((n_epochs, size), dtype=np.int64)
-        rank_all = np.zeros((n_epochs, size), dtype=np.int64)
-    rank_cache: dict[bytes, int] = {}
-    subs: list[tuple[Ints, Ints, Ints, Array]] = []
 
-    for k in range(n_epochs):
-        xk = x[k]
-        if k in plan.late:
-            flat, sent = plan.late[k]
-            if link_act is not None:
-                keep = link_act[k, flat % n_links]
-                flat, sent = flat[keep], sent[keep]
-            values = np.zeros((size * n_links, d))
-            b_of, l_of = flat // n_links, flat % n_links
-            values[flat] = x[sent, b_of, src[l_of] - 1]
-            sent_full = np.zeros(size * n_links, dtype=np.int64)
-            sent_full[flat] = sent
-            mask = np.zeros(size * n_links, dtype=bool)
-            mask[flat] = True
-            memory = memory.receive_late(values, sent_full, mask)
-        arrived = on_time[k]  # (B, L)
-        z = xk[:, dst - 1] - xk[:, src - 1] + plan.noise[plan.seed_row, k]
+def _agents_step(
+    base: Scenario,
+    strategy: StrategyName,
+    k: int,
+    team: InLinks,
+    active_links: Mask | None,
+    x: Array,
+    vel: Array,
+    arrived: Mask,
+    received: Array,
+    z: Array,
+    memory: LinkMemory,
+    estimate: Array,
+    has_estimate: Mask,
+    v_prev: Array,
+    v_known: Array,
+) -> AgentStep:
+    """:func:`agent.epoch.agent_epoch` over the links of active agents (all, when None).
 
-        # Leader: reported measurements → healthy edges → Kruskal forest → BLUE.
-        known = arrived & plan.report_ok[k][:, dst - 1]
-        per_edge = known.reshape(size, m, 2)
-        healthy = per_edge.all(axis=2) if both else per_edge.any(axis=2)
-        tree, labels = batch_forest(n, edges, order, healthy)
-        use_edge = tree if use_tree else healthy
-        used = per_edge & use_edge[:, :, None]
-        counts = used.sum(axis=2)
-        # link 2e is lo → hi (z = x_hi − x_lo), 2e + 1 is hi → lo (z = x_lo − x_hi)
-        zz = z.reshape(size, m, 2, d)
-        oriented = np.where(used[:, :, 1, None], zz[:, :, 1], 0.0) - np.where(
-            used[:, :, 0, None], zz[:, :, 0], 0.0
-        )
-        fused = oriented / np.maximum(counts, 1)[:, :, None]
-        observable = labels == labels[:, r - 1 : r]
-        est, est_cov = batch_blue(n, edges, counts, fused, observable, r, ref_x[k], cov, detail)
-        if detail:
-            assert est_cov is not None
-            est_all[k], cov_all[k], obs_all[k] = est, est_cov, observable
-            healthy_all[k], tree_all[k] = healthy, tree
-            comp_all[k] = n - tree.sum(axis=1)
-            if rigidity:
-                for b in range(size):
-                    key = healthy[b].tobytes()
-                    if key not in rank_cache:
-                        rank_cache[key] = healthy_rigidity(d0, edges, healthy[b])[0]
-                    rank_all[k, b] = rank_cache[key]
-
-        # Estimates (with v_ref[k]) reach the agents over their control links.
-        got_est = plan.estimate_ok[k]
-        if act is not None:
-            got_est = got_est & act[k][None, :]
-        v_prev = v_known.copy()
-        v_known[got_est] = ref_v[k]
-        has_estimate = got_est[:, dst - 1] & observable[:, src - 1]
-        x_flat = xk.reshape(size * n, d)
-        received = xk[:, src - 1].reshape(-1, d)
-        estimate = np.nan_to_num(est[:, src - 1]).reshape(-1, d)
-        v_prev_links = v_prev[:, dst - 1].reshape(-1, d)
-        if link_act is None or link_act[k].all():
-            step = agent_epoch(
-                base,
-                strategy,
-                k,
-                flat_links,
-                x_flat,
-                vel,
-                arrived.reshape(-1),
-                received,
-                z.reshape(-1, d),
-                memory,
-                estimate,
-                has_estimate.reshape(-1),
-                v_prev_links,
-                v_known.reshape(-1, d),
-            )
-            memory, sub = step.memory, step.substitution
-            sub_idx = np.flatnonzero(sub.substituted)
-            sub_values = sub.values[sub_idx]
-            sub_fallback = sub.fallback
-        else:
-            sel = np.flatnonzero(np.tile(link_act[k], size))
-            part = InLinks(
-                *(
-                    getattr(flat_links, f)[sel]
-                    for f in (
-                        "index",
-                        "sender",
-                        "receiver",
-                        "receiver_row",
-                        "desired",
-                        "distance_sq",
-                    )
-                )
-            )
-            mem_part = LinkMemory(
-                memory.last[sel], memory.last_epoch[sel], memory.blend[sel], memory.has_blend[sel]
-            )
-            step = agent_epoch(
-                base,
-                strategy,
-                k,
-                part,
-                x_flat,
-                vel,
-                arrived.reshape(-1)[sel],
-                received[sel],
-                z.reshape(-1, d)[sel],
-                mem_part,
-                estimate[sel],
-                has_estimate.reshape(-1)[sel],
-                v_prev_links[sel],
-                v_known.reshape(-1, d),
-            )
-            new = step.memory
-            memory = LinkMemory(
-                _scatter(memory.last, sel, new.last),
-                _scatter(memory.last_epoch, sel, new.last_epoch),
-                _scatter(memory.blend, sel, new.blend),
-                _scatter(memory.has_blend, sel, new.has_blend),
-            )
-            sub = step.substitution
-            sub_idx = sel[sub.substituted]
-            sub_values = sub.values[sub.substituted]
-            sub_fallback = np.zeros(size * n_links, dtype=bool)
-            sub_fallback[sel] = sub.fallback
-        fallbacks += sub_fallback.reshape(size, n_links).sum(axis=1)
-        if detail and sub_idx.size:
-            b_of, l_of = sub_idx // n_links, sub_idx % n_links
-            subs.append(
-                (b_of, np.full(sub_idx.size, k), l_of, sub_values - xk[b_of, src[l_of] - 1])
-            )
-        nxt = step.positions.reshape(size, n, d)
-        vel = step.velocities
-        if act is not None:
-            frozen = ~act[k]  # an agent out of the formation stays where it is
-            nxt[:, frozen] = xk[:, frozen]
-            vel.reshape(size, n, d)[:, frozen] = 0.0
-        nxt[:, r - 1] = ref_x[k + 1]
-        x[k + 1] = nxt
-
-    result = BatchResult(
-        plan=plan,
-        strategy=strategy,
-        positions=x,
-        formation_error=formation_error(x, edges, weights),
-        shape_error=shape_error(x, edges, d0),
-        delivered=on_time,
-        fallbacks=fallbacks,
-        detail=detail,
+    An inactive agent's links leave the consensus; their memory is kept and they substitute
+    nothing (the returned memory and substitution cover every link).
+    """
+    if active_links is None or active_links.all():
+        return agent_epoch(
+            base, strategy, k, team, x, vel, arrived, received, z, memory,
+            estimate, has_estimate, v_prev, v_known,
+        )  # fmt: skip
+    sel = np.flatnonzero(np.tile(active_links, arrived.size // active_links.size))
+    part = InLinks(
+        index=team.index[sel],
+        sender=team.sender[sel],
+        receiver=team.receiver[sel],
+        receiver_row=team.receiver_row[sel],
+        desired=team.desired[sel],
+        distance_sq=team.distance_sq[sel],
     )
-    if detail:
-        result.estimates, result.estimate_cov, result.observable = est_all, cov_all, obs_all
-        result.healthy, result.tree = healthy_all, tree_all
-        result.components, result.rigidity_rank = comp_all, rank_all
-        if subs:
-            mem_b = np.concatenate([s[0] for s in subs])
-            order_b = np.argsort(mem_b, kind="stable")  # per member: epoch-major, link order
-            result.sub_member = mem_b[order_b]
-            result.sub_epoch = np.concatenate([s[1] for s in subs])[order_b]
-            result.sub_link = np.concatenate([s[2] for s in subs])[order_b]
-            result.sub_error = np.concatenate([s[3] for s in subs])[order_b]
-        else:
-            result.sub_error = np.zeros((0, d))
-    return result
+    mem = LinkMemory(
+        memory.last[sel], memory.last_epoch[sel], memory.blend[sel], memory.has_blend[sel]
+    )
+    step = agent_epoch(
+        base, strategy, k, part, x, vel, arrived[sel], received[sel], z[sel], mem,
+        estimate[sel], has_estimate[sel], v_prev[sel], v_known,
+    )  # fmt: skip
+    new, sub = step.memory, step.substitution
+    full = Substitution(
+        values=_scatter(np.zeros_like(received), sel, sub.values),
+        used=_scatter(np.zeros_like(arrived), sel, sub.used),
+        substituted=_scatter(np.zeros_like(arrived), sel, sub.substituted),
+        fallback=_scatter(np.zeros_like(arrived), sel, sub.fallback),
+    )
+    kept = LinkMemory(
+        _scatter(memory.last, sel, new.last),
+        _scatter(memory.last_epoch, sel, new.last_epoch),
+        _scatter(memory.blend, sel, new.blend),
+        _scatter(memory.has_blend, sel, new.has_blend),
+    )
+    return AgentStep(step.positions, step.velocities, kept, full)
 
 
 def _scatter(full: npt.NDArray[Any], sel: Ints, part: npt.NDArray[Any]) -> npt.NDArray[Any]:
@@ -567,24 +312,57 @@ def _scatter(full: npt.NDArray[Any], sel: Ints, part: npt.NDArray[Any]) -> npt.N
     return out
 
 
-def simulate_batch(
-    scenario: Scenario,
-    strategy: StrategyName | None = None,
-    seeds: Sequence[int] = (0,),
-    epochs: int | None = None,
-    *,
-    detail: bool = True,
-) -> BatchResult:
-    """Every seed of ``seeds`` of one scenario at once (``simulate`` for many seeds)."""
-    plan = plan_batch(scenario, seeds, epochs)
-    return run_batch(plan, strategy or scenario.strategy.name, detail=detail)
+class _Log:
+    """The leader's per-epoch outputs and the substitutions of a batch run with ``detail``."""
+
+    def __init__(self, size: int, n_epochs: int, n: int, d: int, m: int) -> None:
+        self.est = np.full((n_epochs, size, n, d), np.nan)
+        self.cov = np.full((n_epochs, size, n, d, d), np.nan)
+        self.obs = np.zeros((n_epochs, size, n), dtype=bool)
+        self.healthy = np.zeros((n_epochs, size, m), dtype=bool)
+        self.tree = np.zeros((n_epochs, size, m), dtype=bool)
+        self.components = np.zeros((n_epochs, size), dtype=np.int64)
+        self.rank = np.zeros((n_epochs, size), dtype=np.int64)
+        self.subs: list[tuple[Ints, Ints, Ints, Array]] = []
+
+    def epoch(
+        self, k: int, lead: LeaderEpochs, sub: Substitution, xk: Array, src: Ints, n_links: int
+    ) -> None:
+        est = lead.estimate
+        self.est[k], self.obs[k] = est.positions, est.observable
+        if est.covariances is not None:
+            self.cov[k] = est.covariances
+        self.healthy[k], self.tree[k], self.components[k] = lead.healthy, lead.tree, lead.components
+        if lead.rigidity_rank is not None:
+            self.rank[k] = lead.rigidity_rank
+        # Every lost variable counts (docs/model.md §7), also those the reference agent substitutes
+        # without steering by them: on the default scenario they are the only ones with error.
+        idx = np.flatnonzero(sub.substituted)
+        if idx.size:
+            b_of, l_of = idx // n_links, idx % n_links
+            error = sub.values[idx] - xk[b_of, src[l_of] - 1]
+            self.subs.append((b_of, np.full(idx.size, k), l_of, error))
+
+    def fill(self, result: BatchResult, d: int) -> None:
+        result.estimates, result.estimate_cov, result.observable = self.est, self.cov, self.obs
+        result.healthy, result.tree = self.healthy, self.tree
+        result.components, result.rigidity_rank = self.components, self.rank
+        if not self.subs:
+            result.sub_error = np.zeros((0, d))
+            return
+        member = np.concatenate([s[0] for s in self.subs])
+        order = np.argsort(member, kind="stable")  # per member: epoch-major, link order
+        result.sub_member = member[order]
+        result.sub_epoch = np.concatenate([s[1] for s in self.subs])[order]
+        result.sub_link = np.concatenate([s[2] for s in self.subs])[order]
+        result.sub_error = np.concatenate([s[3] for s in self.subs])[order]
 
 
 __all__ = [
+    "VARIANT_FIELDS",
     "BatchError",
     "BatchPlan",
     "BatchResult",
     "plan_batch",
     "run_batch",
-    "simulate_batch",
 ]

@@ -8,10 +8,9 @@ import numpy as np
 import pytest
 
 from formation.scenario import STRATEGIES, Scenario
-from leader.mst import minimum_spanning_forest
+from leader.mst import minimum_spanning_forest, spanning_forests
 from testbed.experiments.studies import dynamic_team
 from testbed.sim.batch import BatchError, plan_batch, run_batch
-from testbed.sim.batch_leader import batch_forest, kruskal_order
 from testbed.sim.simulate import SimResult, simulate
 
 SCENARIOS = Path(__file__).resolve().parents[3] / "scenarios"
@@ -156,7 +155,7 @@ def test_batch_forest_is_kruskals(paper: Scenario) -> None:
     rng = np.random.default_rng(5)
     for scen in (paper, team):
         healthy = rng.random((40, len(scen.edge_array))) < 0.6
-        tree, labels = batch_forest(scen.n, scen.edge_array, kruskal_order(scen), healthy)
+        tree, labels = spanning_forests(scen.n, scen.edge_array, scen.weights, healthy)
         for b in range(healthy.shape[0]):
             want = np.zeros(len(scen.edge_array), dtype=bool)
             want[minimum_spanning_forest(scen.n, scen.edge_array, scen.weights, healthy[b])] = True

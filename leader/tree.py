@@ -1,0 +1,148 @@
+"""The BLUE on a tree (docs/model.md §5): fusing repeated measurements, then path sums from the root.
+
+On a tree ``H_b`` is square and invertible, so ``x̂_v − x_r`` is the sum of the
+signed measurements on the path from the reference ``r`` to ``v``, and
+``Cov(x̂_v)`` the sum of the ``P_e`` on it (independent noises add). Both are
+computed for every node at once by pointer jumping over the BFS tree,
+``O(n log depth)``. Several trees (the members of a batch, one root each) are
+solved in one pass: each node's sums follow only its own path, so a tree gets
+the same floats alone as beside others. ``leader.blue`` chooses this solver.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+from scipy.sparse import coo_array, csr_array
+from scipy.sparse.csgraph import breadth_first_order
+
+__all__ = ["adjacency", "fuse_parallel", "tree_solve"]
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+
+def adjacency(n: int, e: IntArray) -> csr_array:
+    """The ``(n, n)`` adjacency pattern of the links ``e`` (``(k, 2)``, 0-based nodes)."""
+    ones = np.ones(e.shape[0], dtype=np.int8)
+    return csr_array(coo_array((ones, (e[:, 0], e[:, 1])), shape=(n, n)))
+
+
+def fuse_parallel(
+    n: int, e: IntArray, z: FloatArray, p: FloatArray
+) -> tuple[IntArray, FloatArray, FloatArray]:
+    """Merge measurements of the same pair (e.g. both directions of a link) into one.
+
+    Two independent measurements of ``x_i − x_j`` are one with information
+    ``Σ P_k⁻¹`` and value ``(Σ P_k⁻¹)⁻¹ Σ P_k⁻¹ z_k``; the BLUE is unchanged and a
+    tree measured in both directions is still solved as a tree.
+
+    Parameters
+    ----------
+    n : int
+        Number of nodes (0-based ids below ``n``).
+    e : (k, 2) int array
+        Measured pairs ``(i, j)``, 0-based.
+    z : (k, d) float array [m]
+        ``z[q]`` measures ``x_i − x_j``.
+    p : (k, d, d) float array [m²]
+        Noise covariances.
+
+    Returns
+    -------
+    e, z, p
+        One row per distinct pair, where it first appears. A pair measured once
+        is passed on as it came (same orientation, same floats); a fused one is
+        oriented ``(min, max)``. So every pair's row depends only on its own
+        measurements, whatever else is in the arrays (a batch's other members).
+    """
+    lo, hi = np.minimum(e[:, 0], e[:, 1]), np.maximum(e[:, 0], e[:, 1])
+    keys, first, group, counts = np.unique(
+        lo * n + hi, return_index=True, return_inverse=True, return_counts=True
+    )
+    if keys.size == e.shape[0]:
+        return e, z, p
+    d = z.shape[1]
+    rows = np.flatnonzero(counts[group] > 1)
+    oriented = np.where((e[rows, 0] == lo[rows])[:, None], z[rows], -z[rows])  # x_lo − x_hi
+    info = np.linalg.inv(p[rows])
+    info_sum = np.zeros((keys.size, d, d))
+    np.add.at(info_sum, group[rows], info)
+    weighted = np.zeros((keys.size, d))
+    np.add.at(weighted, group[rows], np.einsum("eab,eb->ea", info, oriented))
+    multi = np.flatnonzero(counts > 1)
+    fused_p = np.linalg.inv(info_sum[multi])
+    fused_p = 0.5 * (fused_p + fused_p.transpose(0, 2, 1))
+    out_e, out_z, out_p = e[first], z[first], p[first]
+    out_e[multi] = np.stack([keys[multi] // n, keys[multi] % n], axis=1)
+    out_z[multi] = np.einsum("eab,eb->ea", fused_p, weighted[multi])
+    out_p[multi] = fused_p
+    order = np.argsort(first)
+    return out_e[order], out_z[order], out_p[order]
+
+
+def tree_solve(
+    n: int,
+    e: IntArray,
+    z: FloatArray,
+    p: FloatArray,
+    roots: IntArray,
+    x_r: FloatArray,
+    positions: FloatArray,
+    blocks: FloatArray | None,
+) -> None:
+    """Path sums from the roots over the trees ``e``, written into the outputs.
+
+    Parameters
+    ----------
+    n : int
+        Number of nodes (rows of the outputs).
+    e : (k, 2) int array
+        The trees' links, 0-based, one per pair (after :func:`fuse_parallel`).
+    z : (k, d) float array [m]
+        ``z[q] = x_i − x_j`` for ``e[q] = (i, j)``.
+    p : (k, d, d) float array [m²]
+        Their noise covariances.
+    roots : (R,) int array
+        One root per tree (the reference of each member), at ``x_r``.
+    x_r : (d,) float array [m]
+        The roots' known position.
+    positions : (n, d) float array [m]
+        Written at every non-root node of the trees.
+    blocks : (n, d, d) float array [m²] or None
+        Covariance blocks, written likewise when given.
+    """
+    virtual = n  # one extra node joined to every root: one BFS orders all the trees
+    pairs = np.concatenate([e, np.stack([np.full(roots.size, virtual), roots], axis=1)])
+    graph = adjacency(n + 1, pairs)
+    order, pred = breadth_first_order(graph, virtual, directed=False, return_predecessors=True)
+    nodes: IntArray = order[1 + roots.size :].astype(np.int64)  # the roots come first
+    parents: IntArray = pred[nodes].astype(np.int64)
+    # the tree link joining each node to its parent, by key lo·n + hi
+    lo, hi = np.minimum(e[:, 0], e[:, 1]), np.maximum(e[:, 0], e[:, 1])
+    keys = lo * n + hi
+    sort = np.argsort(keys)
+    want = np.minimum(nodes, parents) * n + np.maximum(nodes, parents)
+    edge = sort[np.searchsorted(keys, want, sorter=sort)]
+    # z_e = x_i − x_j, so x_node − x_parent = +z_e when the node is i, −z_e when it is j
+    sign = np.where(e[edge, 0] == nodes, 1.0, -1.0)
+    anc = np.arange(n)
+    anc[nodes] = parents
+    rel = np.zeros((n, z.shape[1]))
+    rel[nodes] = sign[:, None] * z[edge]
+    acc = None
+    if blocks is not None:
+        acc = np.zeros((n, *p.shape[1:]))
+        acc[nodes] = p[edge]
+    # pointer jumping: rel[v] = x_v − x_anc[v]; doubling the jump each round (a root adds 0)
+    while True:
+        up = anc[anc]
+        if np.array_equal(up, anc):
+            break
+        rel = rel + rel[anc]
+        if acc is not None:
+            acc = acc + acc[anc]
+        anc = up
+    positions[nodes] = x_r + rel[nodes]
+    if blocks is not None and acc is not None:
+        blocks[nodes] = acc[nodes]

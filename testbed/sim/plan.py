@@ -1,0 +1,238 @@
+"""What a batch of runs needs that no strategy changes (docs/model.md §3–§5, §8).
+
+The members of a batch (``B`` pairs of a network variant and a seed, sharing the team, graph,
+controller, reference, noise and estimator) draw their links' decisions from netem's
+:func:`netem.models.delivery_matrix`, their measurement noise from
+:func:`agent.measurement.measurement_noise` (the keys an agent process uses) and their initial
+positions from the scenario, once: :func:`testbed.sim.batch.run_batch` runs the plan for every
+strategy.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from agent.measurement import measurement_noise
+from formation.errors import TestbedError
+from formation.scenario import LEADER_ENDPOINT, Scenario
+from netem.models import delivery_matrix
+
+Mask = npt.NDArray[np.bool_]
+Ints = npt.NDArray[np.int64]
+Array = npt.NDArray[np.float64]
+
+# Fields members of one batch may differ in: the rest is the shared structure.
+VARIANT_FIELDS = ("name", "description", "seed", "epochs", "network", "runtime", "recording")
+
+
+class BatchError(TestbedError):
+    """Members that cannot share a batch; names the member and the differing field."""
+
+
+@dataclass(frozen=True)
+class BatchPlan:
+    """The strategy-independent inputs of a batch of ``B`` members over ``E`` epochs.
+
+    base : the shared structure (first member's scenario)
+    scenarios : (B,) each member's scenario (its network); seeds : (B,) each member's seed
+    on_time : (E, B, L) formation link delivered with no delay
+    late : arrival epoch → (flat link index ``b·L + l``, sent epoch) of delayed deliveries
+    report_ok, estimate_ok : (E, B, n) control links delivered in time
+    noise : (S, E, L, d) measurement noise of the distinct seeds [m]; seed_row : (B,) row per member
+    x0 : (S, n, d) initial positions of the distinct seeds [m]
+    active : (E + 1, n) agents taking part at each epoch (None: all, always)
+    """
+
+    base: Scenario
+    scenarios: tuple[Scenario, ...]
+    seeds: Ints
+    epochs: int
+    on_time: Mask
+    late: dict[int, tuple[Ints, Ints]]
+    report_ok: Mask
+    estimate_ok: Mask
+    noise: Array
+    seed_row: Ints
+    x0: Array
+    active: Mask | None = None
+
+    @property
+    def size(self) -> int:
+        return int(self.seeds.shape[0])
+
+    def subset(self, members: Sequence[int]) -> BatchPlan:
+        """The plan of some members only (e.g. those a resumed sweep still has to run)."""
+        idx = np.asarray(members, dtype=np.int64)
+        n_links = self.on_time.shape[2]
+        late: dict[int, tuple[Ints, Ints]] = {}
+        new_row = np.full(self.size, -1, dtype=np.int64)
+        new_row[idx] = np.arange(idx.size)
+        for k, (flat, sent) in self.late.items():
+            b, link = flat // n_links, flat % n_links
+            keep = new_row[b] >= 0
+            if keep.any():
+                late[k] = (new_row[b[keep]] * n_links + link[keep], sent[keep])
+        return replace(
+            self,
+            scenarios=tuple(self.scenarios[i] for i in idx.tolist()),
+            seeds=self.seeds[idx],
+            on_time=self.on_time[:, idx],
+            late=late,
+            report_ok=self.report_ok[:, idx],
+            estimate_ok=self.estimate_ok[:, idx],
+            seed_row=self.seed_row[idx],
+        )
+
+
+def _structure(s: Scenario) -> dict[str, Any]:
+    data = s.model_dump()
+    for key in VARIANT_FIELDS:
+        data.pop(key, None)
+    return data
+
+
+def plan_batch(
+    scenarios: Scenario | Sequence[Scenario],
+    seeds: Sequence[int],
+    epochs: int | None = None,
+    active: npt.ArrayLike | None = None,
+) -> BatchPlan:
+    """Draw everything a batch needs that no strategy changes.
+
+    Parameters
+    ----------
+    scenarios : one scenario for every member, or a sequence of ``B`` variants that differ only
+        in ``VARIANT_FIELDS`` (e.g. the network: one loss rate each)
+    seeds : (B,) the members' seeds
+    epochs : number of epochs (default: the first scenario's)
+    active : (E + 1, n) bool, optional; agents taking part at each epoch (dynamic formations,
+        in-process only): links of an inactive agent carry nothing and leave the consensus,
+        the leader's graph and the estimate; an inactive agent stays where it is.
+    """
+    seed_arr = np.asarray(seeds, dtype=np.int64).reshape(-1)
+    if isinstance(scenarios, Scenario):
+        members: tuple[Scenario, ...] = (scenarios,) * seed_arr.size
+    else:
+        members = tuple(scenarios)
+    if len(members) != seed_arr.size or not members:
+        raise BatchError(
+            f"{len(members)} scenarios for {seed_arr.size} seeds; expected one each (≥ 1)"
+        )
+    base = members[0]
+    n_epochs = base.epochs if epochs is None else int(epochs)
+    shared = _structure(base)
+    checked = {id(base)}
+    for b, s in enumerate(members):
+        if id(s) in checked:
+            continue
+        checked.add(id(s))
+        if _structure(s) != shared:
+            diff = sorted(k for k, v in _structure(s).items() if shared.get(k) != v)
+            raise BatchError(
+                f"member {b} ({s.name}) differs from member 0 in {', '.join(diff)}; "
+                f"members may differ only in {', '.join(VARIANT_FIELDS)}"
+            )
+    n, d = base.n, base.dimension
+    links = base.directed_links
+    n_links = len(links)
+    ctl_links = np.array(
+        [(i, LEADER_ENDPOINT) for i in range(1, n + 1)]
+        + [(LEADER_ENDPOINT, i) for i in range(1, n + 1)],
+        dtype=np.int64,
+    )
+    all_links = np.concatenate([links, ctl_links])
+    size = seed_arr.size
+    on_time = np.zeros((n_epochs, size, n_links), dtype=bool)
+    report_ok = np.zeros((n_epochs, size, n), dtype=bool)
+    estimate_ok = np.zeros((n_epochs, size, n), dtype=bool)
+    late_k: list[Ints] = []
+    late_flat: list[Ints] = []
+    late_sent: list[Ints] = []
+    stacks: dict[str, list[Any]] = {}
+    net_of: dict[int, str] = {}
+    cache: dict[tuple[str, int], tuple[Mask, Ints, Mask]] = {}
+    for b, (s, seed) in enumerate(zip(members, seed_arr.tolist(), strict=True)):
+        if id(s) not in net_of:
+            net_of[id(s)] = s.network.model_dump_json()
+        net = net_of[id(s)]
+        if net not in stacks:
+            stacks[net] = (
+                [s.formation_link_models(int(a), int(c)) for a, c in links]
+                + [s.control_link_models(i, "report") for i in range(1, n + 1)]
+                + [s.control_link_models(i, "estimate") for i in range(1, n + 1)]
+            )
+        key = (net, seed)
+        if key not in cache:
+            mat = delivery_matrix(stacks[net], seed, all_links, n_epochs)
+            ok = mat.delivered & (mat.delay_epochs == 0)
+            cache[key] = (mat.delivered[:, :n_links], mat.delay_epochs[:, :n_links], ok)
+        delivered, delay, ok = cache[key]
+        on_time[:, b] = ok[:, :n_links]
+        report_ok[:, b] = ok[:, n_links : n_links + n]
+        estimate_ok[:, b] = ok[:, n_links + n :]
+        k_sent, link = np.nonzero(delivered & (delay > 0))
+        if k_sent.size:
+            late_k.append(k_sent + delay[k_sent, link])
+            late_flat.append(b * n_links + link)
+            late_sent.append(k_sent)
+    late: dict[int, tuple[Ints, Ints]] = {}
+    if late_k:
+        ks, flat, sent = (
+            np.concatenate(late_k),
+            np.concatenate(late_flat),
+            np.concatenate(late_sent),
+        )
+        for k in np.unique(ks).tolist():
+            sel = ks == k
+            # several packets of one link landing at once: the newest one is what memory keeps
+            f, s_ep = flat[sel], sent[sel]
+            order = np.lexsort((s_ep, f))
+            last = np.r_[f[order][1:] != f[order][:-1], True]
+            late[int(k)] = (f[order][last], s_ep[order][last])
+
+    distinct, seed_row = np.unique(seed_arr, return_inverse=True)
+    src, dst = links[:, 0], links[:, 1]
+    epochs_col = np.arange(n_epochs)[:, None]
+    cov = base.noise_covariance
+    noise = (
+        np.stack(
+            [
+                measurement_noise(cov, int(s), dst[None, :], src[None, :], epochs_col)
+                for s in distinct.tolist()
+            ]
+        )
+        if n_links
+        else np.zeros((distinct.size, n_epochs, 0, d))
+    )
+    x0 = np.stack([base.initial_positions(int(s)) for s in distinct.tolist()])
+    act = None
+    if active is not None:
+        act = np.asarray(active, dtype=bool)
+        if act.shape != (n_epochs + 1, n):
+            raise BatchError(f"active has shape {act.shape}; expected ({n_epochs + 1}, {n})")
+        if not act[:, base.leader - 1].all():
+            raise BatchError(
+                f"active: the reference agent {base.leader} must take part in every epoch"
+            )
+    return BatchPlan(
+        base=base,
+        scenarios=members,
+        seeds=seed_arr,
+        epochs=n_epochs,
+        on_time=on_time,
+        late=late,
+        report_ok=report_ok,
+        estimate_ok=estimate_ok,
+        noise=noise,
+        seed_row=seed_row.astype(np.int64),
+        x0=x0,
+        active=act,
+    )
+
+
+__all__ = ["VARIANT_FIELDS", "BatchError", "BatchPlan", "plan_batch"]
