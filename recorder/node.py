@@ -46,7 +46,9 @@ from formation.messages import Status
 from formation.scenario import Scenario
 from recorder.display import Display
 from recorder.epochs import TAPS, EpochAssembler
-from recorder.schemas import LivelinessEvent
+from recorder.live import LiveServer
+from recorder.schemas import LivelinessEvent, classify
+from recorder.trust import Gate
 from recorder.writer import COMPRESSIONS, Raw, RecordingWriter
 
 log = logging.getLogger("recorder")
@@ -54,6 +56,7 @@ StatusState = Literal["ready", "running", "done", "error"]
 POLL_S = 0.005  # the writer thread's wait between batches [s]
 SNAPSHOT_NS = 500_000_000  # how often the writer thread refreshes the per-key counts [ns]
 COUNTS_WAIT_S = 2.0  # longest a flush query waits for fresh counts [s]
+VIEWER_WAIT_S = 50.0  # --foxglove-wait: longest wait for a viewer (the launcher waits 60 s) [s]
 
 
 class Intake:
@@ -130,6 +133,12 @@ class Recorder:
             taps=TAPS if self.scenario else (),
         )
         self.assembler = EpochAssembler(self.scenario, self.run_id) if self.scenario else None
+        self.live: LiveServer | None = None
+        if args.foxglove is not None:
+            if self.scenario is None:
+                raise TestbedError("--foxglove needs --scenario (the live view draws the scene)")
+            gate = Gate(self.scenario, conflicts=False)
+            self.live = LiveServer(self.scenario, args.foxglove, gate).start()
         self.intake = Intake(args.max_queue)
         self.stop = threading.Event()
         self._writer_done = threading.Event()
@@ -186,9 +195,14 @@ class Recorder:
         asm = self.assembler
         if asm is None:
             return
+        live = self.live
         for kind, key, data, recv in tapped:
+            if live is not None:
+                live.offer(kind, key, data)  # netem's decisions; the live view ignores the rest
             for out_key, payload in asm.on(kind, key, data, recv):
                 self.recording.write(out_key, payload, time_ns())
+                if live is not None:
+                    live.offer(classify(out_key), out_key, payload)
 
     # -- liveliness -------------------------------------------------------------------------
     def on_alive(self, sample: zenoh.Sample) -> None:
@@ -226,6 +240,8 @@ class Recorder:
             return self._record(session)
         finally:
             session.close()
+            if self.live is not None:
+                self.live.close(linger_s=0.0)  # after an error; stops a stopped server again
 
     def _record(self, session: zenoh.Session) -> int:
         subs: list[Any] = [
@@ -238,9 +254,12 @@ class Recorder:
         subs.append(session.declare_queryable(keys.flush(self.run_id), self.on_counts))
         writer = threading.Thread(target=self._writer, name="recorder-writer", daemon=True)
         writer.start()
+        self._wait_for_viewer()
         token = liveliness.declare_token(keys.alive(self.run_id, "recorder", 0))
         self._status(session, "ready")
         log.info("recording %s into %s", ", ".join(self.filters), self.recording.files[0])
+        if self.live is not None:
+            log.info("live view for Foxglove on %s", self.live.url)
         display = Display(self, self.args.live, self.args.log_interval)
         with display:
             while not self.stop.wait(display.period_s):
@@ -261,10 +280,22 @@ class Recorder:
             return 1
         return 0
 
+    def _wait_for_viewer(self) -> None:
+        """``--foxglove-wait``: hold the run (its liveliness token) until a viewer watches."""
+        if self.live is None or not self.args.foxglove_wait:
+            return
+        log.info("waiting for a Foxglove viewer on %s (at most %g s)", self.live.url, VIEWER_WAIT_S)
+        if not self.live.wait_for_viewer(VIEWER_WAIT_S):
+            log.warning("no viewer after %g s; the run starts without one", VIEWER_WAIT_S)
+
     def _finish(self) -> None:
         if self.assembler is not None:
             for key, payload in self.assembler.finish(time_ns()):
                 self.recording.write(key, payload, time_ns())
+                if self.live is not None:
+                    self.live.offer(classify(key), key, payload)
+        if self.live is not None:
+            self.live.finish()  # its counts are final; the viewers get the end after the file
         stats = {
             "written": str(self.written),
             "dropped": str(sum(self.intake.dropped.values())),
@@ -277,14 +308,21 @@ class Recorder:
             stats["derived_malformed"] = json.dumps(self.assembler.gate.skipped.by_channel())
             stats["epochs_incomplete"] = str(self.assembler.given_up)
             stats["scenes_drawn_early"] = str(self.assembler.drawn_early)
+        if self.live is not None:
+            stats["live"] = json.dumps(self.live.stats("done"))
         self.recording.add_metadata("recorder_stats", stats)
         self.recording.close()
+        if self.live is not None:
+            self.live.close()
 
     def summary(self) -> str:
         dropped = sum(self.intake.dropped.values())
         files = ", ".join(str(f) for f in self.recording.files)
         text = f"{self.written} messages written to {files}; peak backlog {self.intake.peak}"
         text += f"; {dropped} could not be kept (queue full)" if dropped else "; nothing dropped"
+        if self.live is not None:
+            live = self.live
+            text += f"; live view sent {live.sent}, dropped {live.dropped} of {live.offered}"
         return text
 
 
@@ -334,6 +372,17 @@ def build_parser() -> argparse.ArgumentParser:
         "--live", action=argparse.BooleanOptionalAction, help="live table (default: on a TTY)"
     )
     p.add_argument("--log-interval", type=float, default=10.0, help="progress log line every s")
+    p.add_argument(
+        "--foxglove",
+        type=int,
+        metavar="PORT",
+        help="serve the run live to Foxglove on ws://127.0.0.1:PORT (0: any free port)",
+    )
+    p.add_argument(
+        "--foxglove-wait",
+        action="store_true",
+        help=f"start the run once a viewer watches the scene (at most {VIEWER_WAIT_S:g} s)",
+    )
     zenoh_config.add_arguments(p)
     return p
 
