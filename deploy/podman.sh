@@ -15,7 +15,7 @@ cd "$(dirname "$0")/.."
 
 CACHE=${FORMATION_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/formation-testbed}
 IMAGE=${FORMATION_IMAGE:-formation-testbed:latest}
-BASE=$(awk 'toupper($1) == "FROM" { print $2; exit }' Dockerfile)
+BASE=${FORMATION_BASE:-$(awk 'toupper($1) == "FROM" { print $2; exit }' Dockerfile)}  # bench: another tag
 COMPOSE_VENV=$CACHE/podman-compose
 PODMAN_COMPOSE_VERSION=1.6.0
 export CONTAINERS_CONF=$CACHE/containers.conf
@@ -136,7 +136,9 @@ base() {
 
 build() {
   local t0; t0=$(now)
-  podman build --pull=never -q -t "$IMAGE" . >/dev/null || fail "podman build of $IMAGE failed"
+  # shellcheck disable=SC2086
+  podman build --pull=never -q ${FORMATION_BUILD_FLAGS:-} -t "$IMAGE" . >/dev/null ||
+    fail "podman build of $IMAGE failed"
   say "image $IMAGE built in $(took "$t0") s, $(podman image inspect "$IMAGE" --format '{{.Size}}' | awk '{ printf "%.0f MB", $1 / 1e6 }')"
 }
 
