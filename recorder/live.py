@@ -153,17 +153,9 @@ class LiveServer:
         self._cond = threading.Condition()
         self._closing = False
         self._subs = _Subscriptions()
-        self._context = foxglove.Context()
-        try:
-            self.server = foxglove.start_server(
-                name=name, host=HOST, port=port, context=self._context,
-                capabilities=[Capability.Time], server_listener=self._subs,
-                message_backlog_size=BACKLOG,
-            )  # fmt: skip
-        except RuntimeError as exc:  # FoxgloveError: the port is taken, or not ours to bind
-            raise TestbedError(f"--foxglove {port}: cannot serve on {HOST}:{port}: {exc}") from None
-        self.port = self.server.port
-        ctx = self._context
+        # The channels exist before the server: a viewer connecting at once sees them all (a
+        # channel made while a viewer connects was advertised but unknown to its subscribe).
+        ctx = self._context = foxglove.Context()
         self._scene = foxglove.Channel(
             SCENE_TOPIC, schema=_schema(foxglove_schema("SceneUpdate")), message_encoding="json",
             context=ctx,
@@ -178,6 +170,15 @@ class LiveServer:
             context=ctx,
         )  # fmt: skip
         self._stats = foxglove.Channel(STATS_TOPIC, schema=STATS_SCHEMA, context=ctx)
+        try:
+            self.server = foxglove.start_server(
+                name=name, host=HOST, port=port, context=ctx,
+                capabilities=[Capability.Time], server_listener=self._subs,
+                message_backlog_size=BACKLOG,
+            )  # fmt: skip
+        except RuntimeError as exc:  # FoxgloveError: the port is taken, or not ours to bind
+            raise TestbedError(f"--foxglove {port}: cannot serve on {HOST}:{port}: {exc}") from None
+        self.port = self.server.port
         self._thread = threading.Thread(target=self._serve, name="recorder-live", daemon=True)
 
     def start(self) -> LiveServer:

@@ -9,6 +9,10 @@ Liveliness logs are not replayed (a put is not a token). A message that does not
 validate or whose sender does not own its key (:mod:`recorder.trust`) is not replayed
 either; each pass counts them in :attr:`Replayer.skipped`.
 
+With ``--foxglove PORT`` the replay goes to Foxglove instead of Zenoh: the recorded
+scenes, metrics and decisions are served as a live run is (:mod:`recorder.live`), nothing
+dropped, from when a viewer subscribes to the scene.
+
 A running replay answers on ``<prefix>/replay/control`` (a queryable): the query's
 parameters or JSON payload give ``command`` = ``pause``, ``resume``, ``seek``
 (``value`` seconds from the start of the recording), ``rate`` (``value``) or
@@ -29,6 +33,7 @@ import zenoh
 
 from formation import codec, keys
 from formation.errors import TestbedError
+from recorder.live import LiveServer
 from recorder.reader import iter_messages, metadata, open_recording, scenario_of
 from recorder.schemas import classify, run_id_of
 from recorder.trust import Gate, Skipped, derived_channels
@@ -244,6 +249,8 @@ def replay(args: Any) -> int:
     """``formation replay``: the CLI entry (``args`` from :mod:`testbed.cli.recorder`)."""
     from formation.zenoh_config import open_session
 
+    if args.foxglove is not None:
+        return replay_live(args)
     replayer = Replayer(
         args.recording,
         args.rate,
@@ -291,8 +298,45 @@ def replay(args: Any) -> int:
     return 0
 
 
+# What a live view shows of a recording; the frames come from the metrics.
+LIVE_KEYS = (keys.scene("*"), keys.metrics("*"), keys.netem_decision("*"))
+VIEWER_POLL_S = 1.0  # how often the wait for a viewer checks for Ctrl-C [s]
+
+
+def replay_live(args: Any) -> int:
+    """``formation replay --foxglove PORT``: the recording served to Foxglove, not to Zenoh."""
+    replayer = Replayer(
+        args.recording, args.rate, args.loop, args.start, _split(args.topics) or list(LIVE_KEYS)
+    )
+    if replayer.scenario is None:
+        raise TestbedError(f"{replayer.path}: no scenario stored; --foxglove needs its period_s")
+    live = LiveServer(replayer.scenario, args.foxglove, block=True).start()
+    stop = threading.Event()
+    print(f"serving {replayer.path} to Foxglove on {live.url}; waiting for a viewer", flush=True)
+    try:
+        while not live.wait_for_viewer(VIEWER_POLL_S):
+            pass
+        state = replayer.run(lambda key, data, _: live.offer(classify(key), key, data), stop)
+    except KeyboardInterrupt:
+        stop.set()
+        state = replayer.state
+    finally:
+        live.close()
+    print(f"served {state.published} messages from {replayer.path} on {live.url} "
+          f"({state.loops} passes, {live.sent} sent)")  # fmt: skip
+    return 0
+
+
 def _split(value: str | None) -> list[str] | None:
     return [v.strip() for v in value.split(",") if v.strip()] if value else None
 
 
-__all__ = ["Replayer", "State", "control_key", "rebuild_attachment", "replay"]
+__all__ = [
+    "LIVE_KEYS",
+    "Replayer",
+    "State",
+    "control_key",
+    "rebuild_attachment",
+    "replay",
+    "replay_live",
+]
