@@ -45,9 +45,9 @@ only the diagonal blocks are kept, ``O(n_b · nnz(LU))`` time and
 10,000 agents; see the benchmark); a selected inversion (Takahashi) would be
 the next step. Pass ``covariances=False`` to skip it.
 
-:func:`blue` is one epoch of one run; :func:`blue_batch` is one epoch of ``B``
-independent runs of one graph (a batch of seeds) and :func:`blue` is its batch
-of one. The batch is one graph of ``B·n`` agents (member ``b``'s agent ``i`` is
+:func:`blue` is one epoch of one run; :meth:`MeasurementGraph.estimate` is one
+epoch of ``B`` independent runs of one graph (a batch of seeds), and :func:`blue`
+is its batch of one. The batch is one graph of ``B·n`` agents (member ``b``'s agent ``i`` is
 ``b·n + i``): components and fusion are found for all members at once, every
 member whose used graph is a tree is solved in one pass of path sums, and a
 member with cycles gets its own grounded system. Each member gets the floats it
@@ -83,7 +83,6 @@ __all__ = [
     "MeasurementGraph",
     "Solver",
     "blue",
-    "blue_batch",
     "nees",
 ]
 
@@ -210,64 +209,22 @@ def blue(
     """
     count = check_agent_count(n)
     dim = _check_dimension(d)
-    e = as_edge_array(count, edges)
-    m = e.shape[0]
+    m = as_edge_array(count, edges).shape[0]
     zz = _as_finite(z, "z", (m, dim), "measurements")
-    pp = _as_finite(cov, "cov", (m, dim, dim), "covariances")
-    r = _check_ref(ref, count)
-    xr = _as_finite(x_ref, "x_ref", (dim,), "coordinates")
+    _as_finite(cov, "cov", (m, dim, dim), "covariances")
     used = as_edge_mask(use, m, "use")
     _check_solver(solver)
-    diagonal = _check_covariances(pp)
-    batch = _estimate(count, e - 1, zz[None], pp, r, xr, used[None], diagonal, covariances, solver)
+    graph = MeasurementGraph.of(count, dim, edges, cov, ref)
+    batch = graph.estimate(zz[None], x_ref, used[None], covariances=covariances, solver=solver)
     return batch.member(0)
-
-
-def blue_batch(
-    n: int,
-    d: int,
-    edges: npt.ArrayLike,
-    z: npt.ArrayLike,
-    cov: npt.ArrayLike,
-    ref: int,
-    x_ref: npt.ArrayLike,
-    use: npt.ArrayLike,
-    *,
-    covariances: bool = True,
-    solver: Solver = "auto",
-) -> BlueBatch:
-    """:func:`blue` for ``B`` members sharing the graph, the covariances and the reference.
-
-    Parameters
-    ----------
-    n, d, edges, ref, x_ref, covariances, solver
-        As in :func:`blue`, shared by every member.
-    z : (B, m, d) array_like [m]
-        Member ``b``'s measurements in row ``b``. Not checked for finiteness: a
-        member whose used measurements are not finite (a diverged run) gets
-        non-finite estimates, and the other members are not affected.
-    cov : (m, d, d) or (d, d) array_like [m²]
-        Noise covariance of each measurement, or one for all; symmetric positive definite.
-    use : (B, m) array_like of bool
-        The measurements each member uses.
-
-    Returns
-    -------
-    BlueBatch
-        Member ``b`` equal, bit for bit, to :func:`blue` on member ``b`` alone.
-    """
-    graph = MeasurementGraph.of(n, d, edges, cov, ref)
-    mask = np.asarray(use)
-    m = graph.edges.shape[0]
-    if mask.ndim != 2 or mask.shape[1] != m:
-        raise ShapeError("use", mask.shape, f"(B, {m})")
-    used = as_edge_mask(mask.reshape(-1), mask.size, "use").reshape(mask.shape)
-    return graph.estimate(z, x_ref, used, covariances=covariances, solver=solver)
 
 
 @dataclass(frozen=True, eq=False)
 class MeasurementGraph:
     """Oriented measurement edges, their noise and the reference, checked once for many epochs.
+
+    :meth:`estimate` is the BLUE of a batch of members over this graph; :func:`blue` is its
+    batch of one.
 
     n, d : agents and dimension; edges : (m, 2) 0-based ``(i, j)``; cov : (m, d, d) [m²];
     ref : the reference, 0-based; diagonal : every ``cov[e]`` is diagonal
@@ -306,10 +263,28 @@ class MeasurementGraph:
         solver: Solver = "auto",
         labels: IntArray | None = None,
     ) -> BlueBatch:
-        """:func:`blue_batch` on this graph: ``z`` (B, m, d), ``use`` (B, m) bool.
+        """The BLUE of ``B`` members of this graph at once; member ``b`` as :func:`blue` alone.
 
-        ``labels`` (B, n): component labels of each member's used graph, when the caller has
-        them (the leader's Kruskal forest spans it); not checked.
+        Parameters
+        ----------
+        z : (B, m, d) array_like [m]
+            Member ``b``'s measurements in row ``b``. Not checked for finiteness: a
+            member whose used measurements are not finite (a diverged run) gets
+            non-finite estimates, and the other members are not affected.
+        x_ref : (d,) array_like [m]
+            The reference's known position, the same in every member.
+        use : (B, m) bool array
+            The measurements each member uses.
+        covariances, solver
+            As in :func:`blue`.
+        labels : (B, n) int array, optional
+            Component labels of each member's used graph, when the caller has them
+            (the leader's Kruskal forest spans it); not checked.
+
+        Returns
+        -------
+        BlueBatch
+            Member ``b`` equal, bit for bit, to :func:`blue` on member ``b`` alone.
         """
         m, dim = self.edges.shape[0], self.d
         zz = np.asarray(z, dtype=np.float64)

@@ -27,7 +27,7 @@ import numpy.typing as npt
 from agent.epoch import AgentStep, InLinks, agent_epoch
 from agent.strategies import LinkMemory, Substitution
 from formation.reference import reference_positions, reference_velocities
-from formation.scenario import Scenario, StrategyName
+from formation.scenario import StrategyName
 from leader.epoch import Leader, LeaderEpochs
 from leader.rigidity import HealthyRigidity
 from recorder.metrics import formation_error, nees, shape_error
@@ -179,13 +179,19 @@ def run_batch(
         v_prev = v_known.copy()
         v_known[got_est] = ref_v[k]
         has_estimate = got_est[:, dst - 1] & observable[:, src - 1]
-        step = _agents_step(
-            base, strategy, k, team, None if link_act is None else link_act[k],
-            xk.reshape(size * n, d), vel, arrived.reshape(-1), xk[:, src - 1].reshape(-1, d),
-            z.reshape(-1, d), memory, np.nan_to_num(lead.estimate.positions[:, src - 1]).reshape(-1, d),
-            has_estimate.reshape(-1), v_prev[:, dst - 1].reshape(-1, d), v_known.reshape(-1, d),
+        # An inactive agent's links leave the consensus; their memory waits for its return.
+        sel = _active_rows(None if link_act is None else link_act[k], size)
+        links_k, memory_k, (got, received, measured, estimate, with_estimate, v_before) = _take(
+            sel, team, memory,
+            (arrived.reshape(-1), xk[:, src - 1].reshape(-1, d), z.reshape(-1, d),
+             np.nan_to_num(lead.estimate.positions[:, src - 1]).reshape(-1, d),
+             has_estimate.reshape(-1), v_prev[:, dst - 1].reshape(-1, d)),
         )  # fmt: skip
-        memory, sub = step.memory, step.substitution
+        step = agent_epoch(
+            base, strategy, k, links_k, xk.reshape(size * n, d), vel, got, received, measured,
+            memory_k, estimate, with_estimate, v_before, v_known.reshape(-1, d),
+        )  # fmt: skip
+        memory, sub = _put(sel, memory, step)
         fallbacks += sub.fallback.reshape(size, n_links).sum(axis=1)
         if log is not None:
             log.epoch(k, lead, sub, xk, src, n_links)
@@ -247,55 +253,44 @@ def _receive_late(
     return memory.receive_late(values, sent_full, mask)
 
 
-def _agents_step(
-    base: Scenario,
-    strategy: StrategyName,
-    k: int,
-    team: InLinks,
-    active_links: Mask | None,
-    x: Array,
-    vel: Array,
-    arrived: Mask,
-    received: Array,
-    z: Array,
-    memory: LinkMemory,
-    estimate: Array,
-    has_estimate: Mask,
-    v_prev: Array,
-    v_known: Array,
-) -> AgentStep:
-    """:func:`agent.epoch.agent_epoch` over the links of active agents (all, when None).
-
-    An inactive agent's links leave the consensus; their memory is kept and they substitute
-    nothing (the returned memory and substitution cover every link).
-    """
+def _active_rows(active_links: Mask | None, size: int) -> Ints | None:
+    """Rows of the flattened links whose agents both take part (None: every row)."""
     if active_links is None or active_links.all():
-        return agent_epoch(
-            base, strategy, k, team, x, vel, arrived, received, z, memory,
-            estimate, has_estimate, v_prev, v_known,
-        )  # fmt: skip
-    sel = np.flatnonzero(np.tile(active_links, arrived.size // active_links.size))
-    part = InLinks(
-        index=team.index[sel],
-        sender=team.sender[sel],
-        receiver=team.receiver[sel],
-        receiver_row=team.receiver_row[sel],
-        desired=team.desired[sel],
-        distance_sq=team.distance_sq[sel],
-    )
-    mem = LinkMemory(
+        return None
+    return np.flatnonzero(np.tile(active_links, size))
+
+
+def _take(
+    sel: Ints | None, team: InLinks, memory: LinkMemory, per_link: tuple[npt.NDArray[Any], ...]
+) -> tuple[InLinks, LinkMemory, tuple[npt.NDArray[Any], ...]]:
+    """The links ``sel`` of the team, their memory and their rows of ``per_link`` (all: None)."""
+    if sel is None:
+        return team, memory, per_link
+    links = InLinks(
+        team.index[sel], team.sender[sel], team.receiver[sel], team.receiver_row[sel],
+        team.desired[sel], team.distance_sq[sel],
+    )  # fmt: skip
+    kept = LinkMemory(
         memory.last[sel], memory.last_epoch[sel], memory.blend[sel], memory.has_blend[sel]
     )
-    step = agent_epoch(
-        base, strategy, k, part, x, vel, arrived[sel], received[sel], z[sel], mem,
-        estimate[sel], has_estimate[sel], v_prev[sel], v_known,
-    )  # fmt: skip
+    return links, kept, tuple(a[sel] for a in per_link)
+
+
+def _put(sel: Ints | None, memory: LinkMemory, step: AgentStep) -> tuple[LinkMemory, Substitution]:
+    """The memory and substitution of every link after a step over the links ``sel``.
+
+    The links left out keep their memory and substitute nothing.
+    """
+    if sel is None:
+        return step.memory, step.substitution
     new, sub = step.memory, step.substitution
-    full = Substitution(
-        values=_scatter(np.zeros_like(received), sel, sub.values),
-        used=_scatter(np.zeros_like(arrived), sel, sub.used),
-        substituted=_scatter(np.zeros_like(arrived), sel, sub.substituted),
-        fallback=_scatter(np.zeros_like(arrived), sel, sub.fallback),
+    size = memory.last_epoch.size
+    none = np.zeros(size, dtype=bool)
+    substitution = Substitution(
+        values=_scatter(np.zeros_like(memory.last), sel, sub.values),
+        used=_scatter(none, sel, sub.used),
+        substituted=_scatter(none, sel, sub.substituted),
+        fallback=_scatter(none, sel, sub.fallback),
     )
     kept = LinkMemory(
         _scatter(memory.last, sel, new.last),
@@ -303,7 +298,7 @@ def _agents_step(
         _scatter(memory.blend, sel, new.blend),
         _scatter(memory.has_blend, sel, new.has_blend),
     )
-    return AgentStep(step.positions, step.velocities, kept, full)
+    return kept, substitution
 
 
 def _scatter(full: npt.NDArray[Any], sel: Ints, part: npt.NDArray[Any]) -> npt.NDArray[Any]:
