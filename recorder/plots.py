@@ -38,8 +38,15 @@ def _log_axis(ax: Axes, values: Sequence[Array]) -> None:
         ax.set_yscale("log")
 
 
-def errors(series: Sequence[tuple[str, Array, Array]], path: Path) -> Path:
-    """Formation and shape error over epochs: ``series`` of ``(label, formation (P,), shape (P,))`` [m]."""
+def errors(
+    series: Sequence[tuple[str, Array, Array]],
+    path: Path,
+    marks: Sequence[tuple[int, str]] = (),
+) -> Path:
+    """Formation and shape error over epochs: ``series`` of ``(label, formation (P,), shape (P,))`` [m].
+
+    ``marks``: ``(epoch, text)`` drawn as vertical lines, e.g. an agent lost or back.
+    """
     fig = Figure(figsize=(9, 6.5), layout="constrained")
     top, bottom = fig.subplots(2, 1, sharex=True)
     for label, form, shape in series:
@@ -51,6 +58,12 @@ def errors(series: Sequence[tuple[str, Array, Array]], path: Path) -> Path:
     top.set_title("RMS over edges of ||x_i − x_j|| − C_ij")
     bottom.set_ylabel("shape error [m]")
     bottom.set_xlabel("epoch")
+    for epoch, text in marks:
+        color = "tab:red" if text.startswith("lost") else "tab:green"
+        for ax in (top, bottom):
+            ax.axvline(epoch, color=color, linestyle="--", linewidth=0.8, alpha=0.7)
+        top.annotate(text, (epoch, 1.0), xycoords=("data", "axes fraction"), fontsize="x-small",
+                     color=color, rotation=90, va="top", ha="right")  # fmt: skip
     for ax in (top, bottom):
         ax.grid(True, alpha=0.3)
         ax.legend(loc="best", fontsize="small")

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from formation.graph import expected_rigidity_rank
-from recorder import plots
+from recorder import membership, plots
 from recorder.metrics import error_statistics, longest_run
 from recorder.rundata import RunData, read_run
 
@@ -84,12 +84,56 @@ def summarize(run: RunData) -> dict[str, Any]:
     skipped = run.extra.get("skipped")
     if skipped is not None:
         out["skipped"] = skipped.as_json()
+    out.update(_team(run))
     recorded = run.extra.get("recorded_formation_error")
     if recorded is not None and np.isfinite(recorded).any():
         both = np.isfinite(recorded) & np.isfinite(run.formation_error)
         gap = np.abs(recorded[both] - run.formation_error[both])
         out["recorded_metrics_max_gap_m"] = float(gap.max()) if gap.size else None
     return out
+
+
+def _team(run: RunData) -> dict[str, Any]:
+    """Who was in the team at each epoch, when it changed, and the transient after each."""
+    team = membership.present(run.positions)
+    if team.all() or not team.any():
+        return {}
+    shape = membership.team_shape_error(
+        run.positions, run.scenario.edge_array, run.scenario.offsets
+    )
+    return {
+        "team": {str(i): s for i, s in membership.spans(team).items()},
+        "team_changes": [vars(c) for c in membership.changes(team, shape)],
+        "shape_threshold_m": membership.SHAPE_THRESHOLD_M,
+    }
+
+
+def _team_shape(run: RunData) -> np.ndarray:
+    """The shape error, over the edges between present agents where some agent is absent."""
+    team = membership.team_shape_error(run.positions, run.scenario.edge_array, run.scenario.offsets)
+    return np.where(np.isfinite(run.shape_error), run.shape_error, team)
+
+
+def _team_lines(sums: list[dict[str, Any]]) -> list[str]:
+    if not any("team" in s for s in sums):
+        return []
+    lines = ["", "## Team", ""]
+    for s in sums:
+        if "team" not in s:
+            lines.append(f"- {s['label']}: every agent at every epoch")
+            continue
+        spans = "; ".join(
+            f"{i}: " + ", ".join(f"{a}–{b}" for a, b in v) for i, v in s["team"].items()
+        )
+        lines.append(f"- {s['label']}: agent: epochs in the team — {spans}")
+        for c in s["team_changes"]:
+            t = c["transient_epochs"]
+            back = "never" if t is None else f"after {t} epochs"
+            lines.append(
+                f"  - epoch {c['epoch']}: agent {c['agent']} {c['what']}; shape error under "
+                f"{s['shape_threshold_m']:g} m {back}"
+            )
+    return lines
 
 
 def _fmt(v: Any) -> str:
@@ -157,6 +201,7 @@ def _markdown(
             for topic, by_reason in sk["by_channel"].items():
                 what = ", ".join(f"{r} {v}" for r, v in by_reason.items())
                 lines.append(f"  - `{topic}`: {what}")
+    lines += _team_lines(sums)
     if notes:
         lines += ["", "## Notes", ""] + [f"- {n}" for n in notes]
     lines += ["", "## Figures", ""]
@@ -175,9 +220,16 @@ def write_report_from(runs: Sequence[RunData], out_dir: Path, title: str | None 
     links = [f"{a}→{b}" for a, b in first.links]
     length = max(len(r.positions) for r in runs)
     chosen = sorted({0, length // 4, length // 2, max(length - 1, 0)})
+    sums = [summarize(r) for r in runs]
     files = {
         "errors": plots.errors(
-            [(r.label, r.formation_error, r.shape_error) for r in runs], out_dir / "errors.png"
+            [(r.label, r.formation_error, _team_shape(r)) for r in runs],
+            out_dir / "errors.png",
+            marks=[
+                (c["epoch"], f"{c['what']} {c['agent']}")
+                for x in sums
+                for c in x.get("team_changes", [])
+            ],
         ),
         "trajectories": plots.trajectories(
             [(r.label, r.positions) for r in runs],
@@ -204,7 +256,6 @@ def write_report_from(runs: Sequence[RunData], out_dir: Path, title: str | None 
             [(r.label, r.nees_values) for r in runs], s.dimension, out_dir / "nees.png"
         ),
     }
-    sums = [summarize(r) for r in runs]
     (out_dir / "summary.json").write_text(json.dumps(sums, indent=2) + "\n", encoding="utf-8")
     title = title or f"Report: {s.name}"
     text = _markdown(title, runs, sums, {k: p.name for k, p in files.items()})

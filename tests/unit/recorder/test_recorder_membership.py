@@ -1,0 +1,26 @@
+"""Who was in the team at each epoch, its changes and their transients (issue 20 item 4)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from recorder.membership import changes, present, spans, team_shape_error
+
+
+def test_a_loss_and_a_return_are_changes_with_the_epochs_back_under_the_threshold() -> None:
+    edges = np.array([[1, 2], [2, 3], [1, 3]])
+    offsets = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    x = np.repeat(offsets[None], 10, axis=0).copy()  # (10, 3, 2): held shape
+    x[3:6, 2] = np.nan  # agent 3 absent at epochs 3-5
+    x[6:8, 2] += 0.5  # back displaced: two epochs over the threshold
+    team = present(x)
+    assert spans(team) == {1: [(0, 9)], 2: [(0, 9)], 3: [(0, 2), (6, 9)]}
+    shape = team_shape_error(x, edges, offsets)
+    assert np.isfinite(shape).all() and shape[4] == 0.0  # edge 1-2 only while 3 is away
+    got = [(c.epoch, c.agent, c.what, c.transient_epochs) for c in changes(team, shape, 0.05)]
+    assert got == [(3, 3, "lost", 0), (6, 3, "back", 2)]
+
+
+def test_a_full_team_has_no_change() -> None:
+    x = np.zeros((5, 4, 2))
+    assert changes(present(x), np.zeros(5)) == []
