@@ -208,9 +208,13 @@ class LiveServer:
 
     def wait_for_viewer(self, timeout_s: float) -> bool:
         """Wait until a viewer has subscribed to the scene; False on timeout."""
+        return self.wait_for_topics({SCENE_TOPIC}, timeout_s)
+
+    def wait_for_topics(self, topics: set[str], timeout_s: float) -> bool:
+        """Wait until viewers have subscribed to every one of ``topics``; False on timeout."""
         deadline = time.monotonic() + timeout_s
         with self._subs.lock:
-            while SCENE_TOPIC not in self._subs.topics:
+            while not topics <= self._subs.topics:
                 left = deadline - time.monotonic()
                 if left <= 0:
                     return False
