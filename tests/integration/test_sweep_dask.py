@@ -147,3 +147,24 @@ def test_sweep_on_a_dask_cluster_matches_the_local_pool_and_survives_its_workers
     assert 0 < kept < CELLS
     assert main(["sweep", str(paper_path), *SWEEP, "--out", str(moved), "--jobs", "2"]) == 0
     assert_same_tables(pool, moved)
+
+
+def test_sweep_on_a_local_dask_cluster_matches_the_local_pool(
+    paper_path: Path, tmp_path: Path
+) -> None:
+    small = ["--topology", "none", "--loss", "0,0.5", "--strategy", "hold", "--seeds", "4"]
+    pool, local, log = tmp_path / "pool", tmp_path / "local", tmp_path / "local.log"
+    assert main(["sweep", str(paper_path), *small, "--out", str(pool), "--jobs", "2"]) == 0
+    cli = [sys.executable, "-m", "testbed.cli", "sweep", str(paper_path), *small]
+    with log.open("wb") as f:
+        proc = subprocess.Popen(
+            [*cli, "--out", str(local), "--scheduler", "local:2"],
+            env=child_env(),
+            stdout=f,
+            stderr=subprocess.STDOUT,
+        )
+    try:
+        assert finish(proc, log) == 0, log.read_text()[-3000:]
+    finally:
+        end(proc)
+    assert_same_tables(pool, local)
