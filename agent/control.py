@@ -128,3 +128,15 @@ def step_unicycle(
         centre = centre + arc[:, None] * np.stack([np.cos(mid), np.sin(mid)], axis=1)
         p = centre + look * np.stack([np.cos(th), np.sin(th)], axis=1)
     return p, np.mod(th + np.pi, 2.0 * np.pi) - np.pi, saturated
+
+
+def reference_heading(heading: Array, step_m: Array) -> Array:
+    """The reference agent's heading: the direction it moved in, unchanged while at rest.
+
+    The reference agent follows its trajectory (docs/model.md §3) instead of its unicycle's
+    step; its heading follows that motion. heading : (a,) [rad]; step_m : (a, 2) or (2,) ``x[k+1] − x[k]`` [m].
+    """
+    moving = np.any(step_m != 0.0, axis=-1)
+    return np.asarray(
+        np.where(moving, np.arctan2(step_m[..., 1], step_m[..., 0]), heading), dtype=np.float64
+    )

@@ -43,14 +43,18 @@ class _Inbox:
 
 def state_message(
     head: dict[str, Any], agent: int, position: list[float],
-    substituted: list[tuple[int, list[float], bool]],
+    substituted: list[tuple[int, list[float], bool]], pose: tuple[float, int] | None = None,
 ) -> bytes:  # fmt: skip
     """A :class:`CoordinationState` as JSON, built with orjson: a pool of hundreds sends one
-    per agent and epoch, and the pydantic model cost more than the rest of its step."""
-    return orjson.dumps({
+    per agent and epoch, and the pydantic model cost more than the rest of its step.
+    ``pose``: a unicycle's heading [rad] and saturated sub-steps (omitted for point agents)."""
+    msg = {
         **head, "kind": "state", "agent": agent, "position": position, "velocity": None,
         "substituted": [{"neighbour": j, "value": v, "fallback": f} for j, v, f in substituted],
-    })  # fmt: skip
+    }  # fmt: skip
+    if pose is not None:
+        msg["heading"], msg["saturated"] = pose
+    return orjson.dumps(msg)
 
 
 def report_message(head: dict[str, Any], agent: int, report: Report) -> bytes:
@@ -130,6 +134,11 @@ class AgentNode:
                 i: None if g["state"] is None else [float(v) for v in g["state"]["position"]]
                 for i, g in given.items()
             }
+            headings = {
+                i: None if g["state"] is None or g["state"].get("heading") is None
+                else float(g["state"]["heading"])
+                for i, g in given.items()
+            }  # fmt: skip
         except (KeyError, TypeError, ValueError):
             raise RuntimeFailure(
                 f"{self.service.name}: restarted into a running run, and netem did not say "
@@ -138,7 +147,7 @@ class AgentNode:
         if len(epochs) != 1:
             raise RuntimeFailure(f"{self.service.name}: netem gave a pool several epochs {epochs}")
         (epoch,) = epochs
-        self.runner.resume(epoch, positions)
+        self.runner.resume(epoch, positions, headings)
         log.warning("restarted: taking part again from epoch %d at %s", epoch, positions)
         return epoch
 
@@ -217,7 +226,9 @@ class AgentNode:
         for i in self.ids if ids is None else ids:
             key = keys.agent_state(self.run_id, i)
             head = self.service.header(key, k)
-            msg = state_message(head, i, self.runner.position(i), self.runner.substituted[i])
+            msg = state_message(
+                head, i, self.runner.position(i), self.runner.substituted[i], self.runner.pose(i)
+            )
             self.service.put(key, msg, attachment(k, head["seq"], i))
 
     def _publish_reports(self, packets: list[Packet]) -> None:

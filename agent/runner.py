@@ -11,10 +11,12 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from agent.control import reference_heading
 from agent.epoch import InLinks, agent_epoch
 from agent.measurement import NoiseKeys, relative_measurement
 from agent.strategies import LinkMemory
 from formation.reference import reference_positions
+from formation.robots import initial_headings
 from formation.scenario import Scenario, StrategyName
 
 Array = npt.NDArray[np.float64]
@@ -62,6 +64,10 @@ class AgentRunner:
         rows = np.array(self.ids) - 1
         self.x = scenario.initial_positions(seed)[rows].copy()
         self.velocity = np.zeros((len(ids), d))
+        self.unicycle = scenario.control.dynamics == "unicycle"
+        # θ[k] [rad] and the sub-steps of epoch k − 1 with a clipped speed (unicycle only)
+        self.heading = initial_headings(seed, scenario.n)[rows].copy() if self.unicycle else None
+        self.saturated = np.zeros(len(ids), dtype=np.int64) if self.unicycle else None
         self.memory = LinkMemory.empty(n_links, d)
         self.v_known = np.zeros((len(ids), d))
         self.epoch = 0
@@ -85,18 +91,34 @@ class AgentRunner:
         self._positions: list[list[float]] | None = None
         self._noise = NoiseKeys(seed, self.links.receiver, self.links.sender)
 
-    def resume(self, epoch: int, positions: dict[int, list[float] | None]) -> None:
+    def resume(
+        self,
+        epoch: int,
+        positions: dict[int, list[float] | None],
+        headings: dict[int, float | None] | None = None,
+    ) -> None:
         """Rejoin a running run at ``epoch``: each body where the run last saw it (None: where
-        the scenario starts it), at rest, with no memory of its links (issue 20, restart)."""
+        the scenario starts it), at rest, with no memory of its links (issue 20, restart);
+        a unicycle facing its last recorded heading."""
         for i, p in positions.items():
             if p is not None:
                 self.x[self.row[i]] = p
+        for i, h in (headings or {}).items():
+            if h is not None and self.heading is not None:
+                self.heading[self.row[i]] = h
         self.velocity[:] = 0.0  # a crashed body stopped where it was
         self.memory = LinkMemory.empty(len(self.links.index), self.scenario.dimension)
         self.v_known[:] = 0.0
         self.substituted = {i: [] for i in self.ids}
         self._positions = None
         self.epoch = epoch
+
+    def pose(self, agent: int) -> tuple[float, int] | None:
+        """A unicycle's heading ``θ_i[k]`` [rad] and its saturated sub-steps of epoch ``k − 1``."""
+        if self.heading is None or self.saturated is None:
+            return None
+        r = self.row[agent]
+        return float(self.heading[r]), int(self.saturated[r])
 
     def position(self, agent: int) -> list[float]:
         if self._positions is None:
@@ -154,12 +176,20 @@ class AgentRunner:
         result = agent_epoch(
             self.scenario, self.strategy, k, self.links, self.x, self.velocity, self._arrived,
             self._received, self._z, self.memory, est, has, v_prev[self.links.receiver_row], self.v_known,
+            headings=self.heading,
         )  # fmt: skip
         self.memory, self.velocity = result.memory, result.velocities
         self.x = result.positions
         self._positions = None
+        before = self.heading
+        if result.headings is not None and result.saturated is not None:
+            self.heading, self.saturated = result.headings, result.saturated
         if self.ref_row is not None:
             self.x[self.ref_row] = self._ref[k + 1]
+            if before is not None and self.heading is not None and self.saturated is not None:
+                step = self._ref[k + 1] - self._ref[k]
+                self.heading[self.ref_row] = reference_heading(before[self.ref_row], step)
+                self.saturated[self.ref_row] = 0  # it does not steer by its command
         sub = result.substitution
         self.substituted = {i: [] for i in self.ids}
         for row in np.flatnonzero(sub.substituted).tolist():

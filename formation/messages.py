@@ -38,6 +38,9 @@ class CoordinationState(_Message):
 
     ``substituted`` lists the values the agent used at epoch ``k − 1`` for lost
     packets, so a recording can measure the substitution error against the truth.
+    A unicycle (``dynamics = "unicycle"``; ``position`` is its look-ahead point) adds its
+    ``heading`` ``θ_i[k]`` [rad] and ``saturated``, the sub-steps of epoch ``k − 1`` whose
+    speed command was clipped to its limits.
     """
 
     kind: Literal["state"] = "state"
@@ -45,6 +48,8 @@ class CoordinationState(_Message):
     position: list[float]
     velocity: list[float] | None = None
     substituted: list[Substitute] = []
+    heading: float | None = None
+    saturated: int | None = Field(None, ge=0)
 
 
 class Measurement(BaseModel):

@@ -24,14 +24,17 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from agent.control import reference_heading
 from agent.epoch import AgentStep, InLinks, agent_epoch
 from agent.strategies import LinkMemory, Substitution
 from formation.reference import reference_positions, reference_velocities
+from formation.robots import initial_headings
 from formation.scenario import StrategyName
 from leader.epoch import Leader, LeaderEpochs
 from leader.rigidity import HealthyRigidity
 from recorder.metrics import formation_error, nees, shape_error
-from testbed.sim.plan import VARIANT_FIELDS, BatchError, BatchPlan, plan_batch
+from testbed.sim.plan import VARIANT_FIELDS, BatchError, BatchPlan, newest_late, plan_batch
+from testbed.sim.ranged import RangedEpochs
 from testbed.sim.result import SimResult
 
 Array = npt.NDArray[np.float64]
@@ -45,6 +48,10 @@ class BatchResult:
 
     positions : (E + 1, B, n, d) true positions [m]; formation_error, shape_error : (E + 1, B) [m]
     delivered : (E, B, L) formation link delivered in time
+    report_ok, estimate_ok : (E, B, n) control links delivered in time (the plan's, and the
+    ranged members' as the epochs decided them)
+    headings : (E + 1, B, n) [rad] and saturated : (E, B, n) sub-steps with a clipped speed,
+    unicycle dynamics only
     With ``detail``: estimates (E, B, n, d) (NaN where unobservable), estimate_cov
     (E, B, n, d, d), observable (E, B, n), healthy and tree (E, B, m), components and
     rigidity_rank (E, B), and every substitution as (member, epoch, link, error (N, d)).
@@ -65,6 +72,10 @@ class BatchResult:
     tree: Mask | None = None
     components: Ints | None = None
     rigidity_rank: Ints | None = None
+    report_ok: Mask | None = None
+    estimate_ok: Mask | None = None
+    headings: Array | None = None
+    saturated: Ints | None = None
     sub_member: Ints = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     sub_epoch: Ints = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     sub_link: Ints = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
@@ -95,6 +106,8 @@ class BatchResult:
                 est_err.append(est[k][scored[k]] - x[k][scored[k]])
         sel = self.sub_member == b
         pairs = base.directed_links[self.sub_link[sel]]
+        report_ok = plan.report_ok if self.report_ok is None else self.report_ok
+        estimate_ok = plan.estimate_ok if self.estimate_ok is None else self.estimate_ok
         return SimResult(
             scenario=plan.scenarios[b],
             strategy=self.strategy,
@@ -106,8 +119,8 @@ class BatchResult:
             estimate_cov=cov,
             observable=obs,
             delivered=self.delivered[:, b],
-            report_ok=plan.report_ok[:, b],
-            estimate_ok=plan.estimate_ok[:, b],
+            report_ok=report_ok[:, b],
+            estimate_ok=estimate_ok[:, b],
             healthy=self.healthy[:, b],
             tree=self.tree[:, b],
             components=self.components[:, b],
@@ -118,6 +131,8 @@ class BatchResult:
             nees_values=np.concatenate(nees_vals) if nees_vals else np.zeros(0),
             estimation_errors=np.concatenate(est_err) if est_err else np.zeros((0, d)),
             extra={"substitution_senders": pairs[:, 0], "substitution_receivers": pairs[:, 1]},
+            headings=None if self.headings is None else self.headings[:, b],
+            saturated=None if self.saturated is None else self.saturated[:, b],
         )
 
 
@@ -150,6 +165,10 @@ def run_batch(
     act = plan.active
     link_act = None if act is None else act[:, src - 1] & act[:, dst - 1]  # (E + 1, L)
     on_time = plan.on_time if link_act is None else plan.on_time & link_act[:-1, None, :]
+    report_ok, estimate_ok = plan.report_ok, plan.estimate_ok
+    ranged = RangedEpochs(plan) if plan.ranged else None
+    if ranged is not None:  # these members' rows are decided epoch by epoch, from the positions
+        on_time, report_ok, estimate_ok = on_time.copy(), report_ok.copy(), estimate_ok.copy()
     leader = Leader(base, HealthyRigidity(d0, edges) if detail and rigidity else None)
     log = _Log(size, n_epochs, n, d, len(edges)) if detail else None
 
@@ -159,23 +178,33 @@ def run_batch(
     memory = LinkMemory.empty(size * n_links, d)
     v_known = np.zeros((size, n, d))  # each agent's last received v_ref
     fallbacks = np.zeros(size, dtype=np.int64)
+    unicycle = base.control.dynamics == "unicycle"
+    th = np.zeros((n_epochs + 1, size, n)) if unicycle else None
+    saturated = np.zeros((n_epochs, size, n), dtype=np.int64) if unicycle else None
+    if th is not None:
+        th[0] = np.stack([initial_headings(int(s), n) for s in plan.seeds.tolist()])
     for k in range(n_epochs + 1):
         x[k, :, r - 1] = ref_x[k]  # the reference agent follows the trajectory (docs/model.md §3)
         if k == n_epochs:
             break
         xk = x[k]
-        if k in plan.late:
-            memory = _receive_late(memory, plan.late[k], x, src, link_act, k)
+        if ranged is not None:
+            ranged.decide(k, xk, on_time, report_ok, estimate_ok)
+            if link_act is not None:
+                on_time[k] &= link_act[k][None, :]
+        landing = _landing(plan, ranged, k)
+        if landing is not None:
+            memory = _receive_late(memory, landing, x, src, link_act, k)
         arrived = on_time[k]  # (B, L)
         z = xk[:, dst - 1] - xk[:, src - 1] + plan.noise[plan.seed_row, k]
 
         # Leader: the measurements whose report reached it → tree, BLUE, rigidity.
-        known = arrived & plan.report_ok[k][:, dst - 1]
+        known = arrived & report_ok[k][:, dst - 1]
         lead = leader.epochs(known, z, ref_x[k], covariances=detail)
         observable = lead.estimate.observable
 
         # Estimates reach the agents over their control links, with v_ref[k].
-        got_est = plan.estimate_ok[k] if act is None else plan.estimate_ok[k] & act[k][None, :]
+        got_est = estimate_ok[k] if act is None else estimate_ok[k] & act[k][None, :]
         v_prev = v_known.copy()
         v_known[got_est] = ref_v[k]
         has_estimate = got_est[:, dst - 1] & observable[:, src - 1]
@@ -190,16 +219,26 @@ def run_batch(
         step = agent_epoch(
             base, strategy, k, links_k, xk.reshape(size * n, d), vel, got, received, measured,
             memory_k, estimate, with_estimate, v_before, v_known.reshape(-1, d),
+            headings=None if th is None else th[k].reshape(-1),
         )  # fmt: skip
         memory, sub = _put(sel, memory, step)
         fallbacks += sub.fallback.reshape(size, n_links).sum(axis=1)
         if log is not None:
             log.epoch(k, lead, sub, xk, src, n_links)
         nxt, vel = step.positions.reshape(size, n, d), step.velocities
+        if th is not None and saturated is not None and step.headings is not None:
+            th[k + 1] = step.headings.reshape(size, n)
+            th[k + 1, :, r - 1] = reference_heading(th[k, :, r - 1], ref_x[k + 1] - ref_x[k])
+            assert step.saturated is not None
+            saturated[k] = step.saturated.reshape(size, n)
+            saturated[k, :, r - 1] = 0  # the reference agent does not steer by its command
         if act is not None:
             frozen = ~act[k]  # an agent out of the formation stays where it is
             nxt[:, frozen] = xk[:, frozen]
             vel.reshape(size, n, d)[:, frozen] = 0.0
+            if th is not None and saturated is not None:
+                th[k + 1, :, frozen] = th[k, :, frozen]
+                saturated[k, :, frozen] = 0
         x[k + 1] = nxt
 
     result = BatchResult(
@@ -211,6 +250,10 @@ def run_batch(
         delivered=on_time,
         fallbacks=fallbacks,
         detail=detail,
+        report_ok=report_ok,
+        estimate_ok=estimate_ok,
+        headings=th,
+        saturated=saturated,
     )
     if log is not None:
         log.fill(result, d)
@@ -228,6 +271,16 @@ def _team_links(one: InLinks, size: int, n: int) -> InLinks:
         desired=np.tile(one.desired, (size, 1)),
         distance_sq=np.tile(one.distance_sq, size),
     )
+
+
+def _landing(plan: BatchPlan, ranged: RangedEpochs | None, k: int) -> tuple[Ints, Ints] | None:
+    """The delayed packets landing at epoch ``k``, the plan's and the ranged members', or None."""
+    planned = plan.late.get(k)
+    extra = [] if ranged is None else ranged.landing(k)
+    if not extra:
+        return planned
+    parts = extra if planned is None else [planned, *extra]
+    return newest_late(np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]))
 
 
 def _receive_late(

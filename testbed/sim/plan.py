@@ -2,16 +2,18 @@
 
 The members of a batch (``B`` pairs of a network variant and a seed, sharing the team, graph,
 controller, reference, noise and estimator) draw their links' decisions from netem's
-:func:`netem.models.delivery_matrix`, their measurement noise from
+:func:`netem.matrix.delivery_plan`, their measurement noise from
 :func:`agent.measurement.measurement_noise` (the keys an agent process uses) and their initial
 positions from the scenario, once: :func:`testbed.sim.batch.run_batch` runs the plan for every
-strategy.
+strategy. A member with a distance model (``range``, ``logistic``, ``log_distance``) keeps its
+:class:`netem.matrix.DeliveryPlan`: the epoch loop decides those links from the positions it
+computes (:class:`RangedMember`), with the same draws netem uses.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -20,7 +22,7 @@ import numpy.typing as npt
 from agent.measurement import measurement_noise
 from formation.errors import TestbedError
 from formation.scenario import LEADER_ENDPOINT, Scenario
-from netem.models import delivery_matrix
+from netem.matrix import DeliveryPlan, delivery_plan
 
 Mask = npt.NDArray[np.bool_]
 Ints = npt.NDArray[np.int64]
@@ -35,6 +37,28 @@ class BatchError(TestbedError):
 
 
 @dataclass(frozen=True)
+class RangedMember:
+    """A member whose links decide by their length: its decisions and its access point.
+
+    decisions : over every link of ``plan_batch``'s order (formation links, reports, estimates)
+    access_point : (d,) control links' leader end [m] (None: no control link has a distance model)
+    """
+
+    decisions: DeliveryPlan
+    access_point: Array | None
+
+
+def newest_late(flat: Ints, sent: Ints) -> tuple[Ints, Ints]:
+    """Delayed packets landing at one epoch, one per link: the newest is what memory keeps.
+
+    flat : (P,) flat link ``b·L + l`` of each packet; sent : (P,) its sent epoch.
+    """
+    order = np.lexsort((sent, flat))
+    last = np.r_[flat[order][1:] != flat[order][:-1], True]
+    return flat[order][last], sent[order][last]
+
+
+@dataclass(frozen=True)
 class BatchPlan:
     """The strategy-independent inputs of a batch of ``B`` members over ``E`` epochs.
 
@@ -46,6 +70,8 @@ class BatchPlan:
     noise : (S, E, L, d) measurement noise of the distinct seeds [m]; seed_row : (B,) row per member
     x0 : (S, n, d) initial positions of the distinct seeds [m]
     active : (E + 1, n) agents taking part at each epoch (None: all, always)
+    ranged : member → its distance-model decisions; for these members ``on_time``,
+        ``report_ok``, ``estimate_ok`` and ``late`` are decided by the epoch loop, not here
     """
 
     base: Scenario
@@ -60,6 +86,7 @@ class BatchPlan:
     seed_row: Ints
     x0: Array
     active: Mask | None = None
+    ranged: dict[int, RangedMember] = field(default_factory=dict)
 
     @property
     def size(self) -> int:
@@ -86,6 +113,7 @@ class BatchPlan:
             report_ok=self.report_ok[:, idx],
             estimate_ok=self.estimate_ok[:, idx],
             seed_row=self.seed_row[idx],
+            ranged={int(new_row[b]): m for b, m in self.ranged.items() if new_row[b] >= 0},
         )
 
 
@@ -155,7 +183,8 @@ def plan_batch(
     late_sent: list[Ints] = []
     stacks: dict[str, list[Any]] = {}
     net_of: dict[int, str] = {}
-    cache: dict[tuple[str, int], tuple[Mask, Ints, Mask]] = {}
+    cache: dict[tuple[str, int], tuple[Mask, Ints, Mask, DeliveryPlan | None]] = {}
+    ranged: dict[int, RangedMember] = {}
     for b, (s, seed) in enumerate(zip(members, seed_arr.tolist(), strict=True)):
         if id(s) not in net_of:
             net_of[id(s)] = s.network.model_dump_json()
@@ -168,13 +197,23 @@ def plan_batch(
             )
         key = (net, seed)
         if key not in cache:
-            mat = delivery_matrix(stacks[net], seed, all_links, n_epochs)
+            decided = delivery_plan(stacks[net], seed, all_links, n_epochs)
+            mat = decided.base
             ok = mat.delivered & (mat.delay_epochs == 0)
-            cache[key] = (mat.delivered[:, :n_links], mat.delay_epochs[:, :n_links], ok)
-        delivered, delay, ok = cache[key]
+            cache[key] = (
+                mat.delivered[:, :n_links],
+                mat.delay_epochs[:, :n_links],
+                ok,
+                decided if decided.ranged else None,
+            )
+        delivered, delay, ok, by_length = cache[key]
         on_time[:, b] = ok[:, :n_links]
         report_ok[:, b] = ok[:, n_links : n_links + n]
         estimate_ok[:, b] = ok[:, n_links + n :]
+        if by_length is not None:
+            ap = s.network.access_point
+            ranged[b] = RangedMember(by_length, None if ap is None else np.asarray(ap, float))
+            continue  # its decisions and late packets come epoch by epoch
         k_sent, link = np.nonzero(delivered & (delay > 0))
         if k_sent.size:
             late_k.append(k_sent + delay[k_sent, link])
@@ -189,11 +228,7 @@ def plan_batch(
         )
         for k in np.unique(ks).tolist():
             sel = ks == k
-            # several packets of one link landing at once: the newest one is what memory keeps
-            f, s_ep = flat[sel], sent[sel]
-            order = np.lexsort((s_ep, f))
-            last = np.r_[f[order][1:] != f[order][:-1], True]
-            late[int(k)] = (f[order][last], s_ep[order][last])
+            late[int(k)] = newest_late(flat[sel], sent[sel])
 
     distinct, seed_row = np.unique(seed_arr, return_inverse=True)
     src, dst = links[:, 0], links[:, 1]
@@ -232,7 +267,8 @@ def plan_batch(
         seed_row=seed_row.astype(np.int64),
         x0=x0,
         active=act,
+        ranged=ranged,
     )
 
 
-__all__ = ["VARIANT_FIELDS", "BatchError", "BatchPlan", "plan_batch"]
+__all__ = ["VARIANT_FIELDS", "BatchError", "BatchPlan", "RangedMember", "newest_late", "plan_batch"]

@@ -26,6 +26,7 @@ class SimResult:
     healthy, tree : (E, m) per formation edge
     components, rigidity_rank : (E,)
     substitution_errors : (N, d) ``x̃_j − x_j`` of every substituted variable [m]
+    headings : (E + 1, n) [rad], saturated : (E, n) sub-steps with a clipped speed (unicycle only)
     """
 
     scenario: Scenario
@@ -50,6 +51,8 @@ class SimResult:
     nees_values: Array
     estimation_errors: Array
     extra: dict[str, Any] = field(default_factory=dict)
+    headings: Array | None = None
+    saturated: npt.NDArray[np.int64] | None = None
 
     def summary(self) -> dict[str, Any]:
         """The headline numbers of the run (what ``formation simulate`` prints)."""
