@@ -2,7 +2,7 @@
 
 A 3D panel on the scene in frame ``world`` (the agents' frames from ``/tf``), the formation
 and shape error plotted against sim time, netem's decisions of the last batch as a link
-table, and the live view's counts. ``foxglove/formation-layout.json`` at the top of the
+table, and the live view's counts. ``foxglove-layout/formation-layout.json`` at the top of the
 repository is :func:`layout_json` (a test keeps them equal); import it in Foxglove.
 """
 
@@ -15,7 +15,7 @@ from foxglove import layouts as fl
 from recorder.live import DECISIONS_TOPIC, METRICS_TOPIC, SCENE_TOPIC, STATS_TOPIC
 from recorder.scene import FRAME
 
-LAYOUT_FILE = "foxglove/formation-layout.json"  # from the repository's top
+LAYOUT_FILE = "foxglove-layout/formation-layout.json"  # from the repository's top
 
 
 def formation_layout() -> fl.Layout:

@@ -2,7 +2,7 @@
 
 :class:`LiveServer` runs Foxglove's SDK server on ``127.0.0.1:<port>`` (subprotocol
 ``foxglove.sdk.v1``, the ``foxglove.websocket.v1`` protocol under its new name) with
-these channels, whatever the run id, so one layout (``foxglove/formation-layout.json``)
+these channels, whatever the run id, so one layout (``foxglove-layout/formation-layout.json``)
 fits every run:
 
 - ``/formation/scene``: the recorder's ``foxglove.SceneUpdate`` of each epoch, the bytes
@@ -247,6 +247,14 @@ class LiveServer:
 
     # -- the server's thread --------------------------------------------------------------------
     def _serve(self) -> None:
+        try:
+            self._serve_queue()
+        finally:  # ended, or failed: a blocked producer must not wait for it
+            with self._cond:
+                self._closing = True
+                self._cond.notify_all()
+
+    def _serve_queue(self) -> None:
         next_stats = time.monotonic()
         while True:
             with self._cond:
@@ -274,6 +282,7 @@ class LiveServer:
 
     def _advance(self, epoch: int) -> int:
         """The sim time of ``epoch`` [ns]; the timeline moves when it is the newest."""
+        epoch = max(epoch, 0)  # log times are unsigned
         stamp = epoch * self.period_ns
         if epoch > self.epoch:
             self.epoch = epoch
