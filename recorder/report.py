@@ -20,6 +20,7 @@ from formation.graph import expected_rigidity_rank
 from recorder import membership, plots
 from recorder.metrics import error_statistics, longest_run
 from recorder.rundata import RunData, read_run
+from recorder.safety import safety_counts, safety_lines
 
 FIGURES = {
     "errors": "Formation and shape error",
@@ -85,6 +86,7 @@ def summarize(run: RunData) -> dict[str, Any]:
     if skipped is not None:
         out["skipped"] = skipped.as_json()
     out.update(_team(run))
+    out["safety"] = safety_counts(s, run.positions, run.headings, run.saturated)
     recorded = run.extra.get("recorded_formation_error")
     if recorded is not None and np.isfinite(recorded).any():
         both = np.isfinite(recorded) & np.isfinite(run.formation_error)
@@ -201,6 +203,9 @@ def _markdown(
             for topic, by_reason in sk["by_channel"].items():
                 what = ", ".join(f"{r} {v}" for r, v in by_reason.items())
                 lines.append(f"  - `{topic}`: {what}")
+    lines += ["", "## Safety", ""]
+    for s in sums:
+        lines += safety_lines(s["label"], s["safety"])
     lines += _team_lines(sums)
     if notes:
         lines += ["", "## Notes", ""] + [f"- {n}" for n in notes]

@@ -49,6 +49,8 @@ class RunData:
     decided : (E, L) whether that delivery is known (always True from the simulator)
     healthy, tree : (E, m) per formation edge; components, rigidity_rank : (E,), −1 if unknown
     substitution_errors : (N, d); nees_values : (M,); estimation_errors : (M, d) [m]
+    headings : (P, n) [rad], NaN where not recorded; saturated : (P − 1, n) sub-steps of the step
+    from epoch ``k`` with a clipped speed, −1 where not recorded (unicycle only, else None)
     """
 
     label: str
@@ -72,6 +74,8 @@ class RunData:
     decided: Bools = field(default_factory=lambda: np.zeros(0, dtype=bool))
     source: str = "simulation"
     extra: dict[str, Any] = field(default_factory=dict)
+    headings: Array | None = None
+    saturated: Ints | None = None
 
     def __post_init__(self) -> None:
         if self.decided.shape != self.delivered.shape:  # the simulator knows every delivery
@@ -92,6 +96,8 @@ class RunData:
             scenario=result.scenario,
             strategy=strategy,
             seed=int(getattr(result, "seed", 0)),
+            headings=getattr(result, "headings", None),
+            saturated=getattr(result, "saturated", None),
             **arrays,
         )
 
@@ -162,11 +168,14 @@ class _Collected:
         self.ests: dict[int, dict[str, Any]] = {}
         self.verdicts: list[tuple[int, int, int, bool]] = []
         self.recorded: dict[int, float] = {}
+        self.poses: dict[tuple[int, int], tuple[float | None, int | None]] = {}  # unicycles
 
     def add(self, kind: str, msg: Any) -> None:
         if kind == "agent_state":
             state: CoordinationState = msg
             self.states.setdefault(state.epoch, {})[state.agent] = state.position
+            if state.heading is not None or state.saturated is not None:
+                self.poses[state.epoch, state.agent] = (state.heading, state.saturated)
             if state.substituted:  # used at the previous epoch; a repeat replaces, never adds
                 self.subs[state.epoch - 1, state.agent] = [
                     (s.neighbour, s.value) for s in state.substituted
@@ -268,6 +277,7 @@ def _assemble(
         if c is not None and 0 <= k < count:
             delivered[k, c], decided[k, c] = ok, True
     nees_values, est_errors = _consistency(scenario, x, est)
+    headings, saturated = _poses(scenario, got.poses, len(x))
     recorded_fe = np.full(len(x), np.nan)
     for k, v in recorded.items():
         if k < len(x):
@@ -291,8 +301,27 @@ def _assemble(
             "metadata": meta,
             "skipped": skipped,
         },
+        headings=headings,
+        saturated=saturated,
         **est,
     )
+
+
+def _poses(
+    scenario: Scenario, poses: dict[tuple[int, int], tuple[float | None, int | None]], count: int
+) -> tuple[Array | None, Ints | None]:
+    """Recorded headings (P, n) and saturation counts (P − 1, n) of a unicycle team, else None."""
+    if scenario.control.dynamics != "unicycle":
+        return None, None
+    headings = np.full((count, scenario.n), np.nan)
+    saturated = np.full((max(count - 1, 0), scenario.n), -1, dtype=np.int64)
+    for (k, i), (h, sat) in poses.items():
+        if 0 <= k < count and 1 <= i <= scenario.n:
+            if h is not None:
+                headings[k, i - 1] = h
+            if sat is not None and k >= 1:
+                saturated[k - 1, i - 1] = sat  # a state of k counts the step from k − 1
+    return headings, saturated
 
 
 __all__ = ["RunData", "iter_trusted", "read_run"]

@@ -15,6 +15,7 @@ from rich.table import Table
 from formation.errors import TestbedError
 from formation.scenario import Scenario
 from recorder.report import write_report, write_reports
+from recorder.safety import safety_counts
 from testbed.cli.common import add_common, scenario_strategies
 from testbed.cli.tables import print_table
 from testbed.runtime.faults import RESTART_POLICIES
@@ -108,13 +109,15 @@ def _print_summary(outcomes: list[Any], console: Console) -> None:
     realtime = any(o.scenario.runtime.mode == "realtime" for o in outcomes)
     table = Table(title="formation run: summary")
     cols = ["strategy", "seed", "epochs", "formation\nfinal [m]", "shape\nfinal [m]", "sent", "dropped",
-            "links with drops\n(sent/dropped)", "mal-\nformed", "skipped", "wall [s]"]  # fmt: skip
+            "links with drops\n(sent/dropped)", "mal-\nformed", "skipped", "min dist\n[m]",
+            "colli-\nsions", "wall [s]"]  # fmt: skip
     if realtime:
         cols.append("deadline\nmisses")
     for col in cols:
         table.add_column(col, justify="left" if col in ("strategy", cols[7]) else "right")
     for o in outcomes:
         s = o.summary()
+        safe = safety_counts(o.scenario, o.positions)
         worst = sorted(s["dropped_links"].items(), key=lambda kv: -kv[1][1])
         links = ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in worst[:4]) or "-"
         if len(worst) > 4:
@@ -123,7 +126,8 @@ def _print_summary(outcomes: list[Any], console: Console) -> None:
             s["strategy"], str(s["seed"]), str(s["epochs"]), f"{s['final_formation_error_m']:.4g}",
             f"{s['final_shape_error_m']:.4g}", str(s["packets_sent"]), str(s["packets_dropped"]), links,
             str(sum(s["malformed"].values())), str(o.extra.get("skipped", {}).get("total", "-")),
-            f"{s['wall_s']:.1f}",
+            "-" if safe["min_distance_m"] is None else f"{safe['min_distance_m']:.3g}",
+            str(safe["collisions_total"]), f"{s['wall_s']:.1f}",
         ]  # fmt: skip
         if realtime:
             rate = s["deadline_miss_rate"]

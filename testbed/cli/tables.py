@@ -39,6 +39,8 @@ def print_summaries(
         "fall-\nbacks",
         "estim.\ncov tr [m²]",
         "NEES",
+        "min dist\n[m]",
+        "colli-\nsions",
     ):
         table.add_column(col, justify="right" if col != "strategy" else "left", no_wrap=True)
     for s in summaries:
@@ -47,5 +49,6 @@ def print_summaries(
             _fmt(s["final_formation_error_m"]), _fmt(s["peak_formation_error_m"]),
             _fmt(s["final_shape_error_m"]), _fmt(s["substitution_cov_trace_m2"]),
             str(s["fallbacks"]), _fmt(s["estimation_cov_trace_m2"]), _fmt(s["nees_mean"], ".3f"),
+            _fmt(s["safety"]["min_distance_m"]), str(s["safety"]["collisions_total"]),
         )  # fmt: skip
     print_table(table, console)

@@ -10,6 +10,7 @@ import numpy.typing as npt
 
 from formation.scenario import Scenario, StrategyName
 from recorder.metrics import error_statistics, longest_run
+from recorder.safety import safety_counts
 
 Array = npt.NDArray[np.float64]
 
@@ -84,6 +85,7 @@ class SimResult:
                 for k, (a, b) in enumerate(links)
                 if drops[k]
             },
+            "safety": safety_counts(self.scenario, self.positions, self.headings, self.saturated),
         }
 
 

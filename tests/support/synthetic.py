@@ -29,11 +29,18 @@ def traffic(result: Any) -> list[tuple[str, bytes, bytes | None, int]]:
     out: list[tuple[str, bytes, bytes | None, int]] = []
     edges = [tuple(int(v) for v in e) for e in s.edge_array]
     x = result.positions
+    th, sat = getattr(result, "headings", None), getattr(result, "saturated", None)
     for k in range(len(x)):
         t = k * EPOCH_NS
         for i in range(1, s.n + 1):
+            pose = (
+                {}
+                if th is None or sat is None
+                else {"heading": float(th[k, i - 1]),
+                      "saturated": int(sat[k - 1, i - 1]) if k else 0}
+            )  # fmt: skip
             msg = CoordinationState(
-                **_header(f"agent/{i}", k, k), agent=i, position=x[k, i - 1].tolist()
+                **_header(f"agent/{i}", k, k), agent=i, position=x[k, i - 1].tolist(), **pose
             )
             out.append((keys.agent_state(RUN, i), encode(msg), attachment(k, k, i), t + i))
         if k >= len(result.estimates):
