@@ -207,14 +207,12 @@ def blue(
     CovarianceError
         A covariance that is not symmetric positive definite.
     """
-    count = check_agent_count(n)
-    dim = _check_dimension(d)
-    m = as_edge_array(count, edges).shape[0]
-    zz = _as_finite(z, "z", (m, dim), "measurements")
-    _as_finite(cov, "cov", (m, dim, dim), "covariances")
+    m = as_edge_array(check_agent_count(n), edges).shape[0]
+    if np.ndim(cov) == 2:  # one covariance for all is MeasurementGraph's, not blue's
+        raise ShapeError("cov", np.shape(cov), f"({m}, {d}, {d})")
+    graph = MeasurementGraph.of(n, d, edges, cov, ref)
+    zz = _as_finite(z, "z", (m, graph.d), "measurements")
     used = as_edge_mask(use, m, "use")
-    _check_solver(solver)
-    graph = MeasurementGraph.of(count, dim, edges, cov, ref)
     batch = graph.estimate(zz[None], x_ref, used[None], covariances=covariances, solver=solver)
     return batch.member(0)
 
@@ -317,8 +315,10 @@ def _estimate(
 
     ``labels`` (B, n): the components of the used graphs, if known.
     """
-    size, _, dim = z.shape
-    member, edge = np.nonzero(used)  # member-major, each member's edges in their order
+    size, m, dim = z.shape
+    flat = np.flatnonzero(used)  # member-major, each member's edges in their order
+    member, edge = np.divmod(flat, m)
+    zq = z.reshape(-1, dim)[flat]
     if solver == "dense":
         if p.shape[0] and not (p == p[0]).all():
             raise GraphInputError(
@@ -326,20 +326,17 @@ def _estimate(
             )
         shared = p[0] if p.shape[0] else np.eye(dim)
         reach = None if labels is None else labels == labels[:, r : r + 1]
-        pos, cov, obs = dense_blue(
-            size, n, member, e[edge], z[member, edge], shared, r, x_r, covariances, reach
-        )
+        pos, cov, obs = dense_blue(size, n, member, e[edge], zq, shared, r, x_r, covariances, reach)
         names = tuple("dense" if k > 1 else "none" for k in obs.sum(axis=1).tolist())
         return BlueBatch(pos, cov, obs, names)
     ue = e[edge] + (member * n)[:, None]  # agent i of member b is b·n + i
-    graph = adjacency(size * n, ue)
+    graph = None
     if labels is None:
+        graph = adjacency(size * n, ue)
         labels = connected_components(graph, directed=False)[1].reshape(size, n)
     observable: BoolArray = labels == labels[:, r : r + 1]
     inside = observable.reshape(-1)[ue[:, 0]]  # used edges within the reference's component
-    fe, fz, fp = fuse_parallel(
-        size * n, ue[inside], z[member[inside], edge[inside]], p[edge[inside]]
-    )
+    fe, fz, fp = fuse_parallel(size * n, ue[inside], zq[inside], p[edge[inside]])
     owner = fe[:, 0] // n
     agents = observable.sum(axis=1)
     links = np.bincount(owner, minlength=size)
@@ -361,7 +358,7 @@ def _estimate(
         )
     on_tree = alone & is_tree if solver in ("auto", "tree") else np.zeros(size, dtype=bool)
     if on_tree.any():
-        mine = on_tree[owner]
+        mine = slice(None) if on_tree.all() else on_tree[owner]
         tree_solve(
             size * n,
             fe[mine],
@@ -371,6 +368,7 @@ def _estimate(
             x_r,
             positions.reshape(size * n, dim),
             None if blocks is None else blocks.reshape(size * n, dim, dim),
+            graph,
         )
         for b in np.flatnonzero(on_tree).tolist():
             solvers[b] = "tree"

@@ -57,11 +57,13 @@ def fuse_parallel(
         measurements, whatever else is in the arrays (a batch's other members).
     """
     lo, hi = np.minimum(e[:, 0], e[:, 1]), np.maximum(e[:, 0], e[:, 1])
-    keys, first, group, counts = np.unique(
-        lo * n + hi, return_index=True, return_inverse=True, return_counts=True
-    )
-    if keys.size == e.shape[0]:
+    pair = lo * n + hi
+    ordered = np.sort(pair)
+    if not np.any(ordered[1:] == ordered[:-1]):
         return e, z, p
+    keys, first, group, counts = np.unique(
+        pair, return_index=True, return_inverse=True, return_counts=True
+    )
     d = z.shape[1]
     rows = np.flatnonzero(counts[group] > 1)
     oriented = np.where((e[rows, 0] == lo[rows])[:, None], z[rows], -z[rows])  # x_lo − x_hi
@@ -90,6 +92,7 @@ def tree_solve(
     x_r: FloatArray,
     positions: FloatArray,
     blocks: FloatArray | None,
+    graph: csr_array | None = None,
 ) -> None:
     """Path sums from the roots over the trees ``e``, written into the outputs.
 
@@ -111,12 +114,20 @@ def tree_solve(
         Written at every non-root node of the trees.
     blocks : (n, d, d) float array [m²] or None
         Covariance blocks, written likewise when given.
+    graph : (n, n) csr_array, optional
+        With one root: an adjacency whose root's component is its tree (the caller's,
+        so none is built here).
     """
-    virtual = n  # one extra node joined to every root: one BFS orders all the trees
-    pairs = np.concatenate([e, np.stack([np.full(roots.size, virtual), roots], axis=1)])
-    graph = adjacency(n + 1, pairs)
-    order, pred = breadth_first_order(graph, virtual, directed=False, return_predecessors=True)
-    nodes: IntArray = order[1 + roots.size :].astype(np.int64)  # the roots come first
+    if roots.size == 1:
+        source, skip = int(roots[0]), 1
+        if graph is None:
+            graph = adjacency(n, e)
+    else:
+        source, skip = n, 1 + roots.size  # one extra node joined to every root: one BFS
+        pairs = np.concatenate([e, np.stack([np.full(roots.size, n), roots], axis=1)])
+        graph = adjacency(n + 1, pairs)
+    order, pred = breadth_first_order(graph, source, directed=False, return_predecessors=True)
+    nodes: IntArray = order[skip:].astype(np.int64)  # the roots come first
     parents: IntArray = pred[nodes].astype(np.int64)
     # the tree link joining each node to its parent, by key lo·n + hi
     lo, hi = np.minimum(e[:, 0], e[:, 1]), np.maximum(e[:, 0], e[:, 1])
