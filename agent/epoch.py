@@ -59,6 +59,11 @@ class InLinks:
             distance_sq=np.repeat(scenario.weights**2, 2)[index],
         )
 
+    def take(self, rows: npt.NDArray[np.int64]) -> InLinks:
+        """The links ``rows`` only (the rest are out of the formation graph this epoch)."""
+        return InLinks(self.index[rows], self.sender[rows], self.receiver[rows],
+                       self.receiver_row[rows], self.desired[rows], self.distance_sq[rows])  # fmt: skip
+
 
 @dataclass(frozen=True)
 class AgentStep:

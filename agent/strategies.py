@@ -8,6 +8,7 @@ new memory rather than changing the old one.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -40,6 +41,24 @@ class LinkMemory:
             has_blend=np.zeros(n_links, dtype=bool),
         )
 
+    def take(self, rows: npt.NDArray[np.int64]) -> LinkMemory:
+        """The memory of the links ``rows`` only."""
+        return LinkMemory(self.last[rows], self.last_epoch[rows], self.blend[rows],
+                          self.has_blend[rows])  # fmt: skip
+
+    def put(self, rows: npt.NDArray[np.int64], part: LinkMemory) -> LinkMemory:
+        """This memory with the links ``rows`` replaced by ``part`` (the others kept)."""
+        return LinkMemory(_scatter(self.last, rows, part.last),
+                          _scatter(self.last_epoch, rows, part.last_epoch),
+                          _scatter(self.blend, rows, part.blend),
+                          _scatter(self.has_blend, rows, part.has_blend))  # fmt: skip
+
+    def forget(self, rows: Mask) -> LinkMemory:
+        """The links ``rows`` (L,) remember nothing: a receiver that (re)starts (issue 20)."""
+        keep = ~rows
+        return LinkMemory(self.last * keep[:, None], np.where(keep, self.last_epoch, -1),
+                          self.blend * keep[:, None], self.has_blend & keep)  # fmt: skip
+
     @property
     def has_last(self) -> Mask:
         return self.last_epoch >= 0
@@ -70,6 +89,20 @@ class Substitution:
     used: Mask
     substituted: Mask
     fallback: Mask
+
+    def spread(self, rows: npt.NDArray[np.int64], size: int) -> Substitution:
+        """This substitution of the links ``rows`` over all ``size`` links (the others: none)."""
+        none = np.zeros(size, dtype=bool)
+        return Substitution(_scatter(np.zeros((size, self.values.shape[1])), rows, self.values),
+                            _scatter(none, rows, self.used), _scatter(none, rows, self.substituted),
+                            _scatter(none, rows, self.fallback))  # fmt: skip
+
+
+def _scatter(full: npt.NDArray[Any], rows: npt.NDArray[np.int64], part: npt.NDArray[Any]
+             ) -> npt.NDArray[Any]:  # fmt: skip
+    out = full.copy()
+    out[rows] = part
+    return out
 
 
 def substitute(

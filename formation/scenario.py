@@ -20,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from formation.error_paths import loc_path, lookup
 from formation.errors import NO_VALUE, ScenarioError
+from formation.events import Event, Membership, event_problems, membership
 from formation.graph import expected_rigidity_rank, is_connected, max_degree, rigidity_rank
 from formation.keyed_random import Stream, keyed_normal
 from formation.linkmodels import LinkModelSpec
@@ -176,6 +177,7 @@ class Scenario(_Model):
     dimension: Literal[2, 3] = 2
     leader: int = 1
     allow_flexible: bool = False
+    allow_split: bool = False  # events may split the team taking part
     agents: tuple[Agent, ...] = Field(min_length=1)
     edges: tuple[Edge, ...] = ()
     initial: Initial = Initial()
@@ -188,6 +190,7 @@ class Scenario(_Model):
     runtime: Runtime = Runtime()
     recording: RecordingSettings = RecordingSettings()
     safety: Safety = Safety()
+    events: tuple[Event, ...] = ()  # leave, join, crash, restart (formation.events)
 
     # -- checks that need the whole scenario ------------------------------------------------
     @model_validator(mode="after")
@@ -200,6 +203,11 @@ class Scenario(_Model):
     @property
     def n(self) -> int:
         return len(self.agents)
+
+    @cached_property
+    def membership(self) -> Membership:
+        """Who takes part at each epoch, from ``events`` (:class:`formation.events.Membership`)."""
+        return membership(self.n, self.epochs, self.events)
 
     @cached_property
     def offsets(self) -> npt.NDArray[np.float64]:
@@ -411,6 +419,9 @@ def _problems(s: Scenario) -> list[tuple[str, object, str]]:
                     f"agent does not exist (agents are 1..{n})",
                 )
             ]
+    events = event_problems(n, s.leader, s.epochs, pairs, s.events, s.allow_split)
+    if events:
+        return events
     return robot_problems(s.dimension, s.control.dynamics, s.runtime.mode, s.safety,
                           s.network.access_point, _edge_lengths(s, d0, pairs), *_stacks(s))  # fmt: skip
 

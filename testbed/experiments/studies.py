@@ -6,8 +6,9 @@
 * :func:`estimator_study`: the BLUE on the Kruskal tree against every healthy edge (docs/model.md §5):
   predicted and empirical covariance trace, NEES.
 * :func:`alpha_study`: how ``α`` of ``blend`` moves the substitution error and the formation.
-* :func:`dynamic_study`: an agent leaves at epoch ``a`` and another joins at ``b`` (in-process:
-  ``plan_batch(active=...)``); the leader's tree and the estimates follow the active team.
+* :func:`dynamic_study`: an agent leaves at epoch ``a`` and another joins at ``b``, as the
+  scenario's events (``formation.events``, the same a real run carries out); the leader's tree
+  and the estimates follow the team taking part.
 
 Every function runs batches (``testbed.sim.batch``) over seeds and returns a small frozen result with
 a ``markdown()`` table; nothing here writes files.
@@ -341,13 +342,22 @@ def _rebase(plan: Any, scenario: Scenario) -> Any:
 # ------------------------------------------------------------------------------ dynamic formation
 
 
-def dynamic_team(paper: Scenario) -> Scenario:
-    """The paper's pentagon plus agent 6 below edge 3–4 (edges 3–6, 4–6): 6 agents, 9 = 2n − 3 edges."""
+def dynamic_team(
+    paper: Scenario, leave: tuple[int, int] | None = None, join: tuple[int, int] | None = None
+) -> Scenario:
+    """The paper's pentagon plus agent 6 below edge 3–4 (edges 3–6, 4–6): 6 agents, 9 = 2n − 3 edges.
+
+    ``leave``, ``join``: ``(agent, epoch)`` events (a joining agent is absent until then).
+    """
     data = paper.model_dump(by_alias=True)
     data["name"] = "pentagon-join-leave"
     data["agents"] = [*data["agents"], {"id": 6, "offset": [0.0, -1.6]}]
     data["edges"] = [list(e.between) for e in paper.edges] + [[3, 6], [4, 6]]
     data["control"] = {**data["control"], "gain": 0.2}  # max degree 4
+    events = [] if leave is None else [{"epoch": leave[1], "agent": leave[0], "action": "leave"}]
+    if join is not None:
+        events.append({"epoch": join[1], "agent": join[0], "action": "join"})
+    data["events"] = events
     return load_dict(data, source="dynamic team")
 
 
@@ -397,13 +407,11 @@ def dynamic_study(
     strategies: Sequence[StrategyName] = STRATEGIES,
 ) -> DynamicStudy:
     """Agent ``leave[0]`` leaves at epoch ``leave[1]``; agent ``join[0]`` joins at ``join[1]``."""
-    team = dynamic_team(paper)
-    active = np.ones((epochs + 1, team.n), dtype=bool)
-    active[leave[1] :, leave[0] - 1] = False
-    active[: join[1], join[0] - 1] = False
-    plan = plan_batch(team, seeds, epochs, active=active)
+    team = dynamic_team(paper, leave, join).with_overrides(epochs=epochs)
+    plan = plan_batch(team, seeds)
     edges = team.edge_array
-    on = active[:, edges[:, 0] - 1] & active[:, edges[:, 1] - 1]  # (E + 1, m)
+    taking_part = team.membership.present
+    on = taking_part[:, edges[:, 0] - 1] & taking_part[:, edges[:, 1] - 1]  # (E + 1, m)
     d0 = team.offsets
     shape: dict[str, Array] = {}
     tree_edges = observable = np.zeros(0)

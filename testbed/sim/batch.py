@@ -34,6 +34,7 @@ from leader.epoch import Leader, LeaderEpochs
 from leader.rigidity import HealthyRigidity
 from recorder.metrics import formation_error, nees, shape_error
 from testbed.sim.plan import VARIANT_FIELDS, BatchError, BatchPlan, newest_late, plan_batch
+from testbed.sim.presence import Presence
 from testbed.sim.ranged import RangedEpochs
 from testbed.sim.result import SimResult
 
@@ -162,9 +163,8 @@ def run_batch(
     ref_x = reference_positions(base.reference, d0[r - 1], base.control.period_s, n_epochs)
     ref_v = reference_velocities(ref_x, base.control.period_s)
     team = _team_links(InLinks.of(base, np.arange(1, n + 1)), size, n)
-    act = plan.active
-    link_act = None if act is None else act[:, src - 1] & act[:, dst - 1]  # (E + 1, L)
-    on_time = plan.on_time if link_act is None else plan.on_time & link_act[:-1, None, :]
+    team_on = Presence.of(plan.team, src, dst, size)  # the scenario's events (issue 20)
+    on_time = plan.on_time if team_on is None else plan.on_time & team_on.link_on[:-1, None, :]
     report_ok, estimate_ok = plan.report_ok, plan.estimate_ok
     ranged = RangedEpochs(plan) if plan.ranged else None
     if ranged is not None:  # these members' rows are decided epoch by epoch, from the positions
@@ -190,11 +190,13 @@ def run_batch(
         xk = x[k]
         if ranged is not None:
             ranged.decide(k, xk, on_time, report_ok, estimate_ok)
-            if link_act is not None:
-                on_time[k] &= link_act[k][None, :]
+            if team_on is not None:
+                on_time[k] &= team_on.link_on[k][None, :]
+        if team_on is not None:
+            memory = team_on.restart(k, memory, v_known)
         landing = _landing(plan, ranged, k)
         if landing is not None:
-            memory = _receive_late(memory, landing, x, src, link_act, k)
+            memory = _receive_late(memory, landing, x, src, team_on, k)
         arrived = on_time[k]  # (B, L)
         z = xk[:, dst - 1] - xk[:, src - 1] + plan.noise[plan.seed_row, k]
 
@@ -204,12 +206,12 @@ def run_batch(
         observable = lead.estimate.observable
 
         # Estimates reach the agents over their control links, with v_ref[k].
-        got_est = estimate_ok[k] if act is None else estimate_ok[k] & act[k][None, :]
+        got_est = estimate_ok[k] if team_on is None else estimate_ok[k] & team_on.present[k]
         v_prev = v_known.copy()
         v_known[got_est] = ref_v[k]
         has_estimate = got_est[:, dst - 1] & observable[:, src - 1]
-        # An inactive agent's links leave the consensus; their memory waits for its return.
-        sel = _active_rows(None if link_act is None else link_act[k], size)
+        # Links out of the graph leave the consensus; their memory waits for their return.
+        sel = None if team_on is None else team_on.rows(k)
         links_k, memory_k, (got, received, measured, estimate, with_estimate, v_before) = _take(
             sel, team, memory,
             (arrived.reshape(-1), xk[:, src - 1].reshape(-1, d), z.reshape(-1, d),
@@ -232,8 +234,8 @@ def run_batch(
             assert step.saturated is not None
             saturated[k] = step.saturated.reshape(size, n)
             saturated[k, :, r - 1] = 0  # the reference agent does not steer by its command
-        if act is not None:
-            frozen = ~act[k]  # an agent out of the formation stays where it is
+        if team_on is not None:
+            frozen = ~team_on.present[k]  # an agent out of the team stays where it is, at rest
             nxt[:, frozen] = xk[:, frozen]
             vel.reshape(size, n, d)[:, frozen] = 0.0
             if th is not None and saturated is not None:
@@ -288,14 +290,14 @@ def _receive_late(
     late: tuple[Ints, Ints],
     x: Array,
     src: Ints,
-    link_act: Mask | None,
+    team_on: Presence | None,
     k: int,
 ) -> LinkMemory:
     """Delayed packets landing at epoch ``k``: (flat link ``b·L + l``, sent epoch) each."""
     n_links = src.size
     flat, sent = late
-    if link_act is not None:
-        keep = link_act[k, flat % n_links]
+    if team_on is not None:
+        keep = team_on.landing(k, flat, sent)
         flat, sent = flat[keep], sent[keep]
     values = np.zeros(memory.last.shape)
     values[flat] = x[sent, flat // n_links, src[flat % n_links] - 1]
@@ -306,27 +308,13 @@ def _receive_late(
     return memory.receive_late(values, sent_full, mask)
 
 
-def _active_rows(active_links: Mask | None, size: int) -> Ints | None:
-    """Rows of the flattened links whose agents both take part (None: every row)."""
-    if active_links is None or active_links.all():
-        return None
-    return np.flatnonzero(np.tile(active_links, size))
-
-
 def _take(
     sel: Ints | None, team: InLinks, memory: LinkMemory, per_link: tuple[npt.NDArray[Any], ...]
 ) -> tuple[InLinks, LinkMemory, tuple[npt.NDArray[Any], ...]]:
     """The links ``sel`` of the team, their memory and their rows of ``per_link`` (all: None)."""
     if sel is None:
         return team, memory, per_link
-    links = InLinks(
-        team.index[sel], team.sender[sel], team.receiver[sel], team.receiver_row[sel],
-        team.desired[sel], team.distance_sq[sel],
-    )  # fmt: skip
-    kept = LinkMemory(
-        memory.last[sel], memory.last_epoch[sel], memory.blend[sel], memory.has_blend[sel]
-    )
-    return links, kept, tuple(a[sel] for a in per_link)
+    return team.take(sel), memory.take(sel), tuple(a[sel] for a in per_link)
 
 
 def _put(sel: Ints | None, memory: LinkMemory, step: AgentStep) -> tuple[LinkMemory, Substitution]:
@@ -336,28 +324,7 @@ def _put(sel: Ints | None, memory: LinkMemory, step: AgentStep) -> tuple[LinkMem
     """
     if sel is None:
         return step.memory, step.substitution
-    new, sub = step.memory, step.substitution
-    size = memory.last_epoch.size
-    none = np.zeros(size, dtype=bool)
-    substitution = Substitution(
-        values=_scatter(np.zeros_like(memory.last), sel, sub.values),
-        used=_scatter(none, sel, sub.used),
-        substituted=_scatter(none, sel, sub.substituted),
-        fallback=_scatter(none, sel, sub.fallback),
-    )
-    kept = LinkMemory(
-        _scatter(memory.last, sel, new.last),
-        _scatter(memory.last_epoch, sel, new.last_epoch),
-        _scatter(memory.blend, sel, new.blend),
-        _scatter(memory.has_blend, sel, new.has_blend),
-    )
-    return kept, substitution
-
-
-def _scatter(full: npt.NDArray[Any], sel: Ints, part: npt.NDArray[Any]) -> npt.NDArray[Any]:
-    out = full.copy()
-    out[sel] = part
-    return out
+    return memory.put(sel, step.memory), step.substitution.spread(sel, memory.last_epoch.size)
 
 
 class _Log:

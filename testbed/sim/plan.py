@@ -21,6 +21,7 @@ import numpy.typing as npt
 
 from agent.measurement import measurement_noise
 from formation.errors import TestbedError
+from formation.events import Membership, membership
 from formation.scenario import LEADER_ENDPOINT, Scenario
 from netem.matrix import DeliveryPlan, delivery_plan
 
@@ -69,7 +70,7 @@ class BatchPlan:
     report_ok, estimate_ok : (E, B, n) control links delivered in time
     noise : (S, E, L, d) measurement noise of the distinct seeds [m]; seed_row : (B,) row per member
     x0 : (S, n, d) initial positions of the distinct seeds [m]
-    active : (E + 1, n) agents taking part at each epoch (None: all, always)
+    team : who takes part at each epoch, from the scenario's events (None: all, always)
     ranged : member → its distance-model decisions; for these members ``on_time``,
         ``report_ok``, ``estimate_ok`` and ``late`` are decided by the epoch loop, not here
     """
@@ -85,7 +86,7 @@ class BatchPlan:
     noise: Array
     seed_row: Ints
     x0: Array
-    active: Mask | None = None
+    team: Membership | None = None
     ranged: dict[int, RangedMember] = field(default_factory=dict)
 
     @property
@@ -128,7 +129,6 @@ def plan_batch(
     scenarios: Scenario | Sequence[Scenario],
     seeds: Sequence[int],
     epochs: int | None = None,
-    active: npt.ArrayLike | None = None,
 ) -> BatchPlan:
     """Draw everything a batch needs that no strategy changes.
 
@@ -138,9 +138,9 @@ def plan_batch(
         in ``VARIANT_FIELDS`` (e.g. the network: one loss rate each)
     seeds : (B,) the members' seeds
     epochs : number of epochs (default: the first scenario's)
-    active : (E + 1, n) bool, optional; agents taking part at each epoch (dynamic formations,
-        in-process only): links of an inactive agent carry nothing and leave the consensus,
-        the leader's graph and the estimate; an inactive agent stays where it is.
+
+    The members share the scenario's events (``formation.events``): who takes part at each
+    epoch is the plan's ``team`` (events past ``epochs`` are left out).
     """
     seed_arr = np.asarray(seeds, dtype=np.int64).reshape(-1)
     if isinstance(scenarios, Scenario):
@@ -245,15 +245,7 @@ def plan_batch(
         else np.zeros((distinct.size, n_epochs, 0, d))
     )
     x0 = np.stack([base.initial_positions(int(s)) for s in distinct.tolist()])
-    act = None
-    if active is not None:
-        act = np.asarray(active, dtype=bool)
-        if act.shape != (n_epochs + 1, n):
-            raise BatchError(f"active has shape {act.shape}; expected ({n_epochs + 1}, {n})")
-        if not act[:, base.leader - 1].all():
-            raise BatchError(
-                f"active: the reference agent {base.leader} must take part in every epoch"
-            )
+    team = membership(n, n_epochs, base.events) if base.events else None
     return BatchPlan(
         base=base,
         scenarios=members,
@@ -266,7 +258,7 @@ def plan_batch(
         noise=noise,
         seed_row=seed_row.astype(np.int64),
         x0=x0,
-        active=act,
+        team=None if team is None or team.everyone else team,
         ranged=ranged,
     )
 

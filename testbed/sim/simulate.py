@@ -7,8 +7,6 @@ a distributed lockstep run with the same scenario and seed gives the same number
 
 from __future__ import annotations
 
-import numpy.typing as npt
-
 from formation.scenario import Scenario, StrategyName
 from testbed.sim.batch import run_batch
 from testbed.sim.plan import plan_batch
@@ -20,7 +18,6 @@ def simulate(
     strategy: StrategyName | None = None,
     seed: int | None = None,
     epochs: int | None = None,
-    active: npt.ArrayLike | None = None,
 ) -> SimResult:
     """Run ``scenario`` in one process.
 
@@ -30,9 +27,8 @@ def simulate(
     strategy : overrides ``scenario.strategy.name``
     seed : overrides ``scenario.seed``
     epochs : overrides ``scenario.epochs``
-    active : (E + 1, n) bool, optional; agents taking part at each epoch (``plan_batch``)
     """
-    plan = plan_batch(scenario, [scenario.seed if seed is None else seed], epochs, active)
+    plan = plan_batch(scenario, [scenario.seed if seed is None else seed], epochs)
     return run_batch(plan, strategy or scenario.strategy.name).member(0)
 
 

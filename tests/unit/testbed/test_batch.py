@@ -163,12 +163,9 @@ def test_batch_forest_is_kruskals(paper: Scenario) -> None:
             assert len(np.unique(labels[b])) == scen.n - want.sum()
 
 
-def test_an_inactive_agent_leaves_the_formation(paper: Scenario) -> None:
-    team = dynamic_team(paper)
-    active = np.ones((EPOCHS + 1, team.n), dtype=bool)
-    active[10:, 4] = False  # agent 5 leaves at epoch 10
-    active[:15, 5] = False  # agent 6 joins at epoch 15
-    res = run_batch(plan_batch(team, [1, 2], EPOCHS, active=active), "estimate")
+def test_an_agent_that_leaves_or_has_not_joined_is_out_of_the_formation(paper: Scenario) -> None:
+    team = dynamic_team(paper, leave=(5, 10), join=(6, 15))  # events (formation.events)
+    res = run_batch(plan_batch(team, [1, 2], EPOCHS), "estimate")
     assert res.observable is not None and res.tree is not None
     x = res.positions
     np.testing.assert_array_equal(x[11:, :, 4], np.broadcast_to(x[10:11, :, 4], x[11:, :, 4].shape))
@@ -177,5 +174,3 @@ def test_an_inactive_agent_leaves_the_formation(paper: Scenario) -> None:
     assert (res.tree[5].sum(axis=1) == 4).all() and (res.tree[12].sum(axis=1) == 3).all()
     assert (res.tree[20].sum(axis=1) == 4).all()
     assert (res.sub_link < 2 * len(team.edge_array)).all()
-    with pytest.raises(BatchError, match="the reference agent 1 must take part"):
-        plan_batch(team, [1], EPOCHS, active=np.zeros((EPOCHS + 1, team.n), dtype=bool))
