@@ -18,6 +18,7 @@ given: it is an optional extra, and importing ``distributed`` costs about 0.5 s 
 
 from __future__ import annotations
 
+import logging
 import math
 import multiprocessing
 import os
@@ -149,6 +150,9 @@ class DaskCluster:
                         processes=True,
                         host="127.0.0.1",
                         dashboard_address="127.0.0.1:0",  # None still takes :8787
+                        # a task's failure comes back through its future; what the workers
+                        # log is noise here (a heartbeat racing the close logs a traceback)
+                        silence_logs=logging.CRITICAL,
                     )
                 )
             try:
