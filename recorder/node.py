@@ -322,7 +322,7 @@ class Recorder:
         text += f"; {dropped} could not be kept (queue full)" if dropped else "; nothing dropped"
         if self.live is not None:
             live = self.live
-            text += f"; live view sent {live.sent}, dropped {live.dropped} of {live.offered}"
+            text += f"; live view: {live.offered} offered, {live.dropped} dropped, {live.sent} sent"
         return text
 
 
