@@ -65,6 +65,7 @@ class EpochAssembler:
         self.links = len(scenario.directed_links)  # formation decisions per epoch
         self._states: dict[int, dict[int, list[float]]] = {}
         self._waiting: dict[int, npt.NDArray[np.float64]] = {}  # complete, scene not yet out
+        self._headings: dict[int, dict[int, float]] = {}  # unicycles' θ_i[k] [rad]
         self._est: dict[int, LeaderEstimate] = {}
         self._decided: Counter[int] = Counter()
         self._lost: dict[int, list[tuple[int, int]]] = {}
@@ -85,6 +86,8 @@ class EpochAssembler:
         if state.agent in got:
             return []
         got[state.agent] = state.position
+        if state.heading is not None:
+            self._headings.setdefault(state.epoch, {})[state.agent] = state.heading
         if len(got) < self.n:
             return []
         k = state.epoch
@@ -162,6 +165,7 @@ class EpochAssembler:
     def _prune(self) -> None:
         for k in [k for k in self._states if k < self._newest - STALE_EPOCHS]:
             del self._states[k]
+            self._headings.pop(k, None)
             self.given_up += 1
 
     def _header(self, key: str, epoch: int) -> dict[str, Any]:
@@ -191,6 +195,7 @@ class EpochAssembler:
         est = self._est.pop(k, None)
         self._decided.pop(k, None)
         lost = self._lost.pop(k, [])
+        th = self._headings.pop(k, None)
         s = self.scenario
         healthy = tree = None
         if est is not None:
@@ -199,6 +204,7 @@ class EpochAssembler:
         scene = scene_update(
             k, stamp_ns, x, self.edges, s.offsets, s.leader, healthy, tree, lost,
             None if est is None else est.positions, None if est is None else est.covariances,
+            None if th is None else np.array([th.get(i, np.nan) for i in range(1, self.n + 1)]),
         )  # fmt: skip
         return keys.scene(self.run_id), json.dumps(scene, separators=(",", ":")).encode()
 

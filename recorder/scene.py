@@ -6,7 +6,7 @@ leader's minimum spanning tree are drawn thicker and gold. A directed link whose
 of the epoch netem did not deliver in time is drawn red on its sender's half of the edge.
 The leader's estimates are small violet spheres with their 2σ covariance ellipse (the
 x–y block in 3-D). The desired shape, anchored at the leader, is drawn as thin
-translucent lines. Every primitive array
+translucent lines. A unicycle's heading is an arrow from its position. Every primitive array
 of a ``SceneEntity`` is present (Foxglove's schema requires them), empty when
 unused. Pure: arrays in, a JSON-ready dict out.
 """
@@ -29,6 +29,7 @@ TREE: Color = (1.0, 0.84, 0.0, 1.0)
 SHAPE: Color = (0.5, 0.5, 0.5, 0.35)
 LOST: Color = (0.84, 0.15, 0.16, 1.0)
 ESTIMATE: Color = (0.58, 0.4, 0.74, 0.8)
+HEADING: Color = (1.0, 1.0, 1.0, 0.9)
 LINE_LOOP = 1  # foxglove.LineType
 LINE_LIST = 2
 ELLIPSE_POINTS = 24
@@ -110,6 +111,7 @@ def scene_update(
     lost: list[tuple[int, int]] | None = None,
     estimates: list[list[float] | None] | None = None,
     covariances: list[list[list[float]] | None] | None = None,
+    headings: npt.NDArray[np.float64] | None = None,
 ) -> dict[str, Any]:
     """The scene of one epoch.
 
@@ -123,6 +125,8 @@ def scene_update(
     leader : the reference agent's id
     healthy, tree : (m,) bool arrays or None
         Link health and MST membership of each edge at this epoch (docs/model.md §4).
+    headings : (n,) array [rad] or None
+        Unicycles' headings ``θ_i[k]`` in the x–y plane, drawn as arrows (NaN: not drawn).
     """
     n = positions.shape[0]
     span = float(np.ptp(offsets, axis=0).max()) if n > 1 else 1.0
@@ -170,8 +174,30 @@ def scene_update(
             ring = ellipse(centre, np.asarray(c, dtype=float))
             if ring:
                 lines.append(_lines(ring, ESTIMATE, 1.0, LINE_LOOP))
-    team = entity("formation", stamp_ns, epoch, spheres=spheres, lines=lines, texts=texts)
+    arrows = [] if headings is None else heading_arrows(positions, headings, radius)
+    team = entity(
+        "formation", stamp_ns, epoch, spheres=spheres, lines=lines, texts=texts, arrows=arrows
+    )
     return {"deletions": [], "entities": [team]}
+
+
+def heading_arrows(
+    positions: npt.NDArray[np.float64], headings: npt.NDArray[np.float64], radius: float
+) -> list[dict[str, Any]]:
+    """``foxglove.ArrowPrimitive`` per agent: from ``positions`` (n, d) [m] along ``headings``
+    (n,) [rad], a yaw about z (an arrow points along its pose's +x)."""
+    out = []
+    for p, th in zip(positions, headings, strict=True):
+        if not np.isfinite(th):
+            continue
+        yaw = {"x": 0.0, "y": 0.0, "z": float(np.sin(th / 2)), "w": float(np.cos(th / 2))}
+        out.append({
+            "pose": {"position": _vec(p), "orientation": yaw},
+            "shaft_length": 3.0 * radius, "shaft_diameter": 0.4 * radius,
+            "head_length": 1.5 * radius, "head_diameter": 1.0 * radius,
+            "color": _color(HEADING),
+        })  # fmt: skip
+    return out
 
 
 def ellipse(
@@ -193,4 +219,4 @@ def ellipse(
     return out
 
 
-__all__ = ["FRAME", "edge_colors", "ellipse", "entity", "scene_update"]
+__all__ = ["FRAME", "edge_colors", "ellipse", "entity", "heading_arrows", "scene_update"]
