@@ -90,6 +90,7 @@ class AgentNode:
         self.waiting: set[int] = set(ids)  # agents not yet ready for the phase
         self.finished = threading.Event()  # the last epoch is done: the watching thread leaves
         self.taken = -1  # realtime: the last epoch whose packets were taken
+        self.end = scenario.epochs  # lockstep: the epoch of this process's last state
         self.deadline = {
             "packets": 0,
             "late_packets": 0,
@@ -114,6 +115,24 @@ class AgentNode:
         return self.finished.is_set()
 
     @property
+    def last_epoch(self) -> int:
+        """The epoch of this process's last state: the end of the run, or a leave or crash
+        the scenario's events give (``formation.events``)."""
+        k, team = self.runner.epoch, self.scenario.membership
+        ends = [
+            last for i in self.ids for first, last in team.incarnations(i) if first <= k <= last
+        ]
+        return min(ends, default=self.scenario.epochs)
+
+    @property
+    def crashes(self) -> bool:
+        """Whether this process's part ends in a crash event (it then waits to be killed)."""
+        k = self.last_epoch
+        return k < self.scenario.epochs and bool(
+            self.scenario.membership.crashed[k, [i - 1 for i in self.ids]].any()
+        )
+
+    @property
     def ids(self) -> list[int]:
         return self.runner.ids
 
@@ -125,6 +144,11 @@ class AgentNode:
         """Restarted into a running run: ask netem from which epoch these agents take part
         and where their bodies are (its last forwarded states); returns that epoch."""
         answer = self.service.ask(keys.netem_rejoin(self.run_id), {"agents": self.ids})
+        # A scheduled join or restart (scenario events) is answered once the run is near it.
+        while (
+            isinstance(answer, dict) and answer.get("wait") and not self.service.stopping.is_set()
+        ):
+            answer = self.service.ask(keys.netem_rejoin(self.run_id), {"agents": self.ids})
         try:
             if answer is None:
                 raise KeyError("no answer")
@@ -284,7 +308,7 @@ class AgentNode:
         }
         self.runner.step(got)
         self._publish_states()
-        if self.runner.epoch >= self.scenario.epochs:
+        if self.runner.epoch >= self.end:
             self.finished.set()
         self._start_phase("state")
 
@@ -306,6 +330,7 @@ class AgentNode:
         """
         if not self.service.wait_started():
             return 1
+        self.end = self.last_epoch
         with self.service.inline_lock:
             self.service.inline = self._on_message
             while (early := self.service.next_incoming(0)) is not None:
@@ -316,6 +341,10 @@ class AgentNode:
             if self.service.gone_for("netem", 0):
                 log.error("netem is gone; stopping")
                 return 2
+        if self.done and self.crashes:  # a crash event: no goodbye, no final status
+            log.warning("crash at epoch %d (a scenario event): taking no further part", self.end)
+            self.service.stopping.wait()
+            return 130
         return 0 if self.done else 130
 
     # -- realtime ---------------------------------------------------------------------------------

@@ -90,6 +90,8 @@ class AgentRunner:
         )
         self._positions: list[list[float]] | None = None
         self._noise = NoiseKeys(seed, self.links.receiver, self.links.sender)
+        team = scenario.membership  # the scenario's events (formation.events)
+        self._in_graph = None if team.everyone else team.in_graph[:, self.links.sender - 1]
 
     def resume(
         self,
@@ -173,12 +175,24 @@ class AgentRunner:
             value = None if e is None else e.positions.get(j)
             if value is not None:
                 est[r], has[r] = value, True
-        result = agent_epoch(
-            self.scenario, self.strategy, k, self.links, self.x, self.velocity, self._arrived,
-            self._received, self._z, self.memory, est, has, v_prev[self.links.receiver_row], self.v_known,
-            headings=self.heading,
-        )  # fmt: skip
-        self.memory, self.velocity = result.memory, result.velocities
+        v_before = v_prev[self.links.receiver_row]
+        if self._in_graph is None or self._in_graph[k].all():
+            result = agent_epoch(
+                self.scenario, self.strategy, k, self.links, self.x, self.velocity, self._arrived,
+                self._received, self._z, self.memory, est, has, v_before, self.v_known,
+                headings=self.heading,
+            )  # fmt: skip
+            self.memory, sub = result.memory, result.substitution
+        else:  # a neighbour out of the team: its edge leaves the consensus, its memory waits
+            rows = np.flatnonzero(self._in_graph[k])
+            result = agent_epoch(
+                self.scenario, self.strategy, k, self.links.take(rows), self.x, self.velocity,
+                self._arrived[rows], self._received[rows], self._z[rows], self.memory.take(rows),
+                est[rows], has[rows], v_before[rows], self.v_known, headings=self.heading,
+            )  # fmt: skip
+            self.memory = self.memory.put(rows, result.memory)
+            sub = result.substitution.spread(rows, n_links)
+        self.velocity = result.velocities
         self.x = result.positions
         self._positions = None
         before = self.heading
@@ -190,7 +204,6 @@ class AgentRunner:
                 step = self._ref[k + 1] - self._ref[k]
                 self.heading[self.ref_row] = reference_heading(before[self.ref_row], step)
                 self.saturated[self.ref_row] = 0  # it does not steer by its command
-        sub = result.substitution
         self.substituted = {i: [] for i in self.ids}
         for row in np.flatnonzero(sub.substituted).tolist():
             receiver, sender = self._pairs[row]

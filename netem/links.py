@@ -12,6 +12,7 @@ from collections import defaultdict
 from typing import Literal
 
 from formation import keys
+from formation.events import Membership
 from formation.scenario import LEADER_ENDPOINT, Scenario
 from netem.models import LinkModel
 
@@ -31,6 +32,8 @@ class Links:
 
     def __init__(self, scenario: Scenario, seed: int) -> None:
         self.agents = list(range(1, scenario.n + 1))
+        # Who takes part at each epoch, from the scenario's events (None: everyone, always).
+        self.team: Membership | None = None if scenario.membership.everyone else scenario.membership
         ap = scenario.network.access_point
         self.access_point = None if ap is None else list(ap)  # [m] control links' leader end
         self.models: dict[Link, LinkModel] = {}

@@ -87,6 +87,23 @@ class Lockstep:
         self.revive: dict[int, int] = {}
         self.last_state: dict[int, tuple[int, Any]] = {}  # agent → (epoch, payload) last handled
         self.last_report: dict[int, int] = {}  # agent → epoch of its last report handled
+        # Scenario events (issue 20), from the scenario alone so every run drops the same:
+        # epoch → agents out of the team then (left, crashed, not yet joined), each agent's
+        # scheduled (re)starts, who is away by plan now, and the epoch each was given back.
+        team = links.team
+        self.out: dict[int, frozenset[int]] = {}
+        self.starts: dict[int, list[int]] = {}
+        self.away: set[int] = set()
+        self.rejoined: dict[int, int] = {}
+        if team is not None:
+            for k in range(epochs + 1):
+                if not team.present[k].all():
+                    self.out[k] = frozenset(int(i) + 1 for i in (~team.present[k]).nonzero()[0])
+            for i in links.agents:
+                firsts = [first for first, _ in team.incarnations(i)]
+                self.starts[i] = [k for k in firsts if k > 0]
+                if not team.present[0, i - 1]:
+                    self.away.add(i)
 
     def setup_clean(self) -> None:
         """Take clean epochs on the clean path from now on."""
@@ -98,7 +115,7 @@ class Lockstep:
         """A sender's packet of ``epoch`` on ``route``, its seq and payload (bytes or ZBytes)."""
         if not self.positions.needed:
             self._packet(route, epoch, seq, payload)
-        elif self.positions.admit(route, epoch, seq, payload, self.dead):
+        elif self.positions.admit(route, epoch, seq, payload, self._dead_at(epoch)):
             self._packet(route, epoch, seq, payload)  # else held until the positions come
             self._release_held()
 
@@ -117,15 +134,20 @@ class Lockstep:
             if epoch >= self.epochs:
                 progress.final_state(source)
                 return
+            if self.out and source in self.out.get(epoch, ()):
+                self._goodbye(source)
+                return
             if self._forward_clean("state", source, epoch, seq, payload):
                 return
             for dst in links.out_links[source]:
-                if dst in dead and self.is_dead(dst, epoch):
+                if (dst in dead or self.out) and self.is_dead(dst, epoch):
                     continue
                 box = self._route_packet("state", "formation", source, dst, payload, epoch, seq)
                 if self._all_handled(box, links.in_links[dst], epoch):  # else none can close yet
                     self._try_close("state", dst)
         elif kind == "report":
+            if self.out and source in self.out.get(epoch, ()):
+                return  # not one of ours: that agent is out of the team at this epoch
             self.last_report[source] = epoch
             if self._forward_clean("report", source, epoch, seq, payload):
                 return
@@ -140,7 +162,7 @@ class Lockstep:
             dst = route[2]
             if self._forward_clean("estimate", dst, epoch, seq, payload):
                 pass
-            elif not (dst in dead and self.is_dead(dst, epoch)):
+            elif not ((dst in dead or self.out) and self.is_dead(dst, epoch)):
                 self._route_packet(
                     "estimate", "estimate", LEADER_ENDPOINT, dst, payload, epoch, seq
                 )
@@ -149,8 +171,8 @@ class Lockstep:
 
     def sender_died(self, agent: int) -> None:
         """``agent`` is gone (0: the leader): its packets count as lost, nobody waits for them."""
-        if agent in self.progress.final_states:
-            return
+        if agent in self.progress.final_states or agent in self.away:
+            return  # its part is over, or it is out by the scenario's events
         if agent in self.dead and self.revive.pop(agent, None) is None:
             return  # already down; else it died again after coming back
         log.warning("%s is gone: its packets count as lost from now on", _name(agent))
@@ -174,6 +196,9 @@ class Lockstep:
         No packet of that epoch has been handled yet (the newest state or report seen,
         plus one), so every receiver of it still waits for the sender's packets.
         """
+        planned = self.planned_start(sender)
+        if planned is not None:
+            return self._rejoin_planned(sender, planned)
         if sender not in self.dead:
             self.sender_died(sender)  # back before netem saw it go: down until it rejoins
         if sender in self.revive:
@@ -191,8 +216,52 @@ class Lockstep:
         log.warning("%s is back: it takes part again from epoch %d", _name(sender), epoch)
         return epoch
 
+    def planned_start(self, agent: int) -> int | None:
+        """The epoch of ``agent``'s next scheduled join or restart, None if it has none."""
+        if agent in self.rejoined:
+            return self.rejoined[agent]
+        starts = self.starts.get(agent)
+        if not starts:
+            return None
+        last = self.last_state[agent][0] if agent in self.last_state else -1
+        return next((k for k in starts if k > last), None)
+
+    def _rejoin_planned(self, agent: int, epoch: int) -> int:
+        """A scheduled (re)start: its receivers' epochs before ``epoch`` are not its own."""
+        if self.rejoined.get(agent) == epoch:
+            return epoch  # asked again
+        self.rejoined[agent] = epoch
+        self.away.discard(agent)
+        self.progress.final_states.discard(agent)  # its next last state is still to come
+        self._skip_to(agent, epoch)
+        for phase in ("state", "estimate"):  # what is complete already goes out now
+            self._try_close(phase, agent)
+        log.warning("agent %d takes part from epoch %d (a scenario event)", agent, epoch)
+        return epoch
+
+    def _skip_to(self, agent: int, epoch: int) -> None:
+        for phase in ("state", "estimate"):
+            key: tuple[Phase, int] = (phase, agent)
+            self.next_close[key] = max(self.next_close[key], epoch)
+            for stale in [e for (p, r, e) in self.open if p == phase and r == agent]:
+                if stale < epoch:
+                    del self.open[(phase, agent, stale)]
+
+    def _goodbye(self, agent: int) -> None:
+        """``agent``'s last state before a leave or crash event: kept (its body's state, for a
+        restart), not forwarded; nobody waits for it until its next scheduled start."""
+        self.away.add(agent)
+        self.rejoined.pop(agent, None)
+        self.progress.final_state(agent)  # what netem/final answers a leaving agent
+
+    def _back(self, agent: int, epoch: int) -> int:
+        """The first epoch from ``epoch`` at which ``agent`` takes part again (or the end)."""
+        return next((k for k in self.starts.get(agent, []) if k > epoch), self.epochs)
+
     def is_dead(self, sender: int, epoch: int) -> bool:
         """Whether ``sender``'s packets of ``epoch`` count as lost without waiting for them."""
+        if self.out and sender in self.out.get(epoch, ()):
+            return True
         if sender not in self.dead:
             return False
         back = self.revive.get(sender)
@@ -207,9 +276,9 @@ class Lockstep:
         return self.last_state.get(agent)
 
     def _dead_at(self, epoch: int) -> set[int]:
-        if not self.revive:
-            return self.dead
-        return {s for s in self.dead if self.is_dead(s, epoch)}
+        out = self.out.get(epoch) if self.out else None
+        dead = self.dead if not self.revive else {s for s in self.dead if self.is_dead(s, epoch)}
+        return dead | out if out else dead
 
     def _close_estimates_without_leader(self, agent: int) -> None:
         """The leader is down: ``agent``'s estimate epochs close empty up to its last report."""
@@ -237,7 +306,8 @@ class Lockstep:
 
     # -- state out ----------------------------------------------------------------------------
     def finished(self) -> bool:
-        return self.progress.finished({s for s in self.dead if s not in self.revive})
+        gone = {s for s in self.dead if s not in self.revive}
+        return self.progress.finished(gone | self.out.get(self.epochs, frozenset()))
 
     def forwarded(self) -> dict[Link, int]:
         """Delivered packets per link, clean epochs' included (for the final status)."""
@@ -267,21 +337,28 @@ class Lockstep:
             self.ledger.forwarded[link] += d.copies
         else:
             box.lost.append(src)  # lost for this epoch; arrives with a later one
-            self.held[(phase, dst, epoch + d.delay_epochs)].append(
-                Held(link, d.copies, packet_json(src, seq, epoch, d.copies, payload))
-            )
+            due = epoch + d.delay_epochs
+            if not (self.out and dst in self.out.get(due, ())):  # else its receiver is out then
+                self.held[(phase, dst, due)].append(
+                    Held(link, d.copies, packet_json(src, seq, epoch, d.copies, payload))
+                )
         return box
 
     def _all_handled(self, box: OpenEpoch, senders: list[int], epoch: int) -> bool:
-        if not self.dead:  # a receiver only hears from its senders: counting is enough
+        if not self.dead and epoch not in self.out:  # counting is enough: only its senders send
             return len(box.handled) >= len(senders)
         dead = self._dead_at(epoch)
         return all(s in box.handled for s in senders if s not in dead)
 
     def _try_close(self, phase: Phase, receiver: int) -> None:
+        if receiver in self.away:
+            return  # out by the scenario's events, its next process not up: it would miss it
         senders = self.links.senders(phase, receiver)
         while True:
             epoch = self.next_close[(phase, receiver)]
+            if self.out and epoch < self.epochs and receiver in self.out.get(epoch, ()):
+                self.next_close[(phase, receiver)] = self._back(receiver, epoch)  # out: skip
+                continue
             dead = self._dead_at(epoch)
             box = self.open.get((phase, receiver, epoch))
             if box is None:
@@ -337,7 +414,7 @@ class Lockstep:
             clean = ce.clean(epoch)
         if not clean:  # by the models, or already handled packet by packet
             return False
-        if stream not in ce.receivers or self.dead or self.held:
+        if stream not in ce.receivers or self.dead or self.held or epoch in self.out:
             self._go_slow(phase, epoch)
             return False
         if ce.take(stream, epoch, seq, payload, self._clean_deliver[phase]) and (

@@ -135,6 +135,7 @@ class NetemNode:
             if (
                 not self.lockstep.is_down(i)
                 and i not in self.final_states
+                and i not in self.lockstep.away  # out by the scenario's events: expected
                 and self.service.gone_for("agent", i, grace_s)
             ):
                 with self.lock:
@@ -165,7 +166,9 @@ class NetemNode:
         self.service.status("running", self.estimates_done, orjson.dumps(team).decode())
 
     def everyone_up(self) -> bool:
-        need = [("agent", i) for i in self.agents] + [("leader", 0)]
+        # An agent that joins later (a scenario event) is not waited for at the start.
+        need = [("agent", i) for i in self.agents if i not in self.lockstep.away]
+        need.append(("leader", 0))
         if self.wait_for_recorder:
             need.append(("recorder", 0))
         return all(self.service.is_alive(role, ident) for role, ident in need)
@@ -305,6 +308,9 @@ class NetemNode:
             self.service.malformed.counts[str(query.key_expr)] += 1
             query.reply_err(b'expected {"agents": [ids]} or {"leader": true}')
             return
+        if not self._planned_ready(ids):
+            query.reply(query.key_expr, orjson.dumps({"wait": True}))  # it asks again
+            return
         answer: dict[str, Any] = {"agents": {}}
         for i in ids:
             self.service.seen_now("agent", i)
@@ -320,6 +326,24 @@ class NetemNode:
             names = [f"agent {i}" for i in ids] + (["the leader"] if leader else [])
             self.team_changed(f"back {', '.join(names)}")
         query.reply(query.key_expr, orjson.dumps(answer))
+
+    def _planned_ready(self, ids: list[int], wait_s: float = 2.0) -> bool:
+        """Whether agents with a scheduled join or restart at ``r`` may start now: their last
+        part is over and the run has reached epoch ``r − 1`` (so their ``x[r]`` comes in step
+        with the others'); waits up to ``wait_s`` for that."""
+        ls = self.lockstep
+
+        def ready() -> bool:
+            for i in ids:
+                r = ls.planned_start(i)
+                if r is not None and not (
+                    (i in ls.away or i in ls.rejoined) and self.estimates_done >= r - 1
+                ):
+                    return False
+            return True
+
+        with self._last_seen:
+            return self._last_seen.wait_for(ready, timeout=wait_s)
 
     # -- realtime --------------------------------------------------------------------------------------
     def _on_clock(self, query: zenoh.Query) -> None:

@@ -9,6 +9,8 @@ dying ends the run with an error naming the process; the recording is kept.
 
 from __future__ import annotations
 
+import os
+import signal
 import time
 from dataclasses import asdict, dataclass
 from typing import Any, Literal
@@ -59,6 +61,21 @@ class Supervisor:
         self.group, self.policy, self.started = group, policy, started
         self.current: dict[str, Incarnation] = {}
         self.losses: list[Loss] = []
+        self.planned: set[int] = set()  # pids a crash event ended: not losses
+
+    def kill_planned(self, name: str) -> None:
+        """A crash event: ``name``'s process killed by PID, without a goodbye (issue 20)."""
+        pid = self.current[name].child.pid
+        self.planned.add(pid)
+        os.kill(pid, signal.SIGKILL)
+
+    def start_planned(self, name: str, module: str, *args: str) -> Child:
+        """A join or restart event: a new process for ``name`` (it asks netem from when)."""
+        inc = self.current.get(name)
+        count = 0 if inc is None else inc.restarts + 1
+        child = self.group.start(name if inc is None else f"{name}.e{count}", module, *args)
+        self.current[name] = Incarnation(child, module, tuple(args), count)
+        return child
 
     def track(self, child: Child, module: str, *args: str) -> None:
         self.current[child.name] = Incarnation(child, module, tuple(args))
@@ -89,7 +106,7 @@ class Supervisor:
                 raise RuntimeFailure(
                     f"{what} (pid {c.pid}) exited with code {code}; the run cannot go on:\n{c.tail()}"
                 )
-            if any(loss.pid == c.pid for loss in self.losses):
+            if c.pid in self.planned or any(loss.pid == c.pid for loss in self.losses):
                 continue
             loss = Loss(name, c.pid, code, int(first_missing(name)),
                         time.monotonic() - self.started)  # fmt: skip

@@ -28,6 +28,7 @@ from formation.messages import Status
 from formation.scenario import Scenario, StrategyName
 from formation.zenoh_config import session_config
 from recorder.metrics import formation_error, shape_error
+from testbed.runtime.events import EventDriver
 from testbed.runtime.faults import (
     RestartPolicy,
     Supervisor,
@@ -340,10 +341,15 @@ def launch(
         supervisor.track(group.start("netem", "netem", *netem_args), "netem", *netem_args)
         leader_args = ["--scenario", str(scenario_path), *common]
         supervisor.track(group.start("leader", "leader", *leader_args), "leader", *leader_args)
+        EventDriver.check(scenario, pool)
+        events = EventDriver(scenario, supervisor,
+                             lambda i: ["--scenario", str(scenario_path), "--id", str(i), *common])  # fmt: skip
         for ids in _pools(scenario.n, pool):
             name = f"agent-{ids[0]}" if len(ids) == 1 else f"pool-{ids[0]}-{ids[-1]}"
             ident = str(ids[0]) if len(ids) == 1 else f"{ids[0]}-{ids[-1]}"
             agent_args = ["--scenario", str(scenario_path), "--id", ident, *common]
+            if len(ids) == 1 and events.starts_later(ids[0]):
+                continue  # it joins later (a scenario event)
             supervisor.track(group.start(name, "agent", *agent_args), "agent", *agent_args)
         _wait(
             lambda: observer.is_alive("clock", "start"),
@@ -353,7 +359,7 @@ def launch(
         )
         if on_started is not None:
             on_started(run_id, endpoint)
-        supervisor.started = time.monotonic()
+        supervisor.started = events.began = time.monotonic()
         agent_names = [n for n in supervisor.current if n.startswith(("agent-", "pool-"))]
 
         def first_missing(name: str) -> int:
@@ -378,6 +384,8 @@ def launch(
                 raise RuntimeFailure(
                     f"no epoch finished for {epoch_timeout_s:g} s (stuck at epoch {count})"
                 )
+            with observer.lock:
+                events.step(count, lambda i, k: bool(np.isfinite(observer.positions[k, i - 1, 0])))
             time.sleep(0.02)
         supervisor.check(first_missing)
         supervisor.check_team(agent_names)
@@ -385,8 +393,9 @@ def launch(
         if progress is not None:
             progress(scenario.epochs, scenario.epochs, observer.drops)
         present = [i for n in agent_names if n not in gone for i in _ids_of(n)]
+        present = events.finishing(gone) if scenario.events else present
         _wait(lambda: _all_final(observer, present), group, 10.0, "the final states",
-              lambda: _missing_final(observer, present), ignore=supervisor.losses)  # fmt: skip
+              lambda: _missing_final(observer, present), ignore=[*supervisor.losses, *supervisor.planned])  # fmt: skip
         if record:
             _flush_recorder(session, run_id, observer)
             rec = next(c for c in group.children if c.name == "recorder")
@@ -472,7 +481,7 @@ def _wait(cond: Any, group: ProcessGroup, timeout_s: float, what: str, detail: A
     """Wait for ``cond``; a child failing meanwhile is an error unless among the ``ignore``d losses."""
     deadline = time.monotonic() + timeout_s
     while not cond():
-        lost = {loss.pid for loss in ignore}
+        lost = {getattr(loss, "pid", loss) for loss in ignore}  # losses, or planned pids
         failed = [c for c in group.failed() if c.pid not in lost]
         if failed:
             c = failed[0]

@@ -1,0 +1,93 @@
+"""The scenario's events carried out on real processes (issue 20 item 1).
+
+netem and the agents derive who takes part at each epoch from the scenario
+(``formation.events``), so what each process does at an event is fixed by its epoch: an agent
+publishes its last state ``x[c]`` at a leave (its goodbye, then it exits) or a crash (then it
+waits). The launcher's part is the processes themselves:
+
+* a crash: once the agent's ``x[c]`` is seen (netem keeps it as the body's state), its process
+  is killed by PID with SIGKILL, no goodbye; the supervisor does not count it as a loss;
+* a join or a restart at ``r``: a new process is started a little before the run reaches ``r``
+  (``lead_s`` at the current rate); it asks netem's ``netem/rejoin``, which answers once the
+  run is at ``r − 1`` with ``r`` and, for a restart, the body's state; netem waits for its
+  ``x[r]`` as for anyone's, so a late start costs time, never a different run.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from formation.errors import RuntimeFailure
+from formation.scenario import Scenario
+from testbed.runtime.faults import Supervisor
+
+LEAD_S = 3.0  # [s] a (re)started process needs about 1 s to come up on a loaded machine
+
+
+@dataclass
+class Step:
+    """One thing the launcher does: ``kill`` agent's process after ``x[epoch]``, or ``start`` one."""
+
+    epoch: int
+    action: str  # "kill" or "start"
+    agent: int
+    done: bool = False
+
+
+class EventDriver:
+    """Kills and starts agent processes as the scenario's events say, from the run's progress."""
+
+    def __init__(self, scenario: Scenario, supervisor: Supervisor,
+                 agent_args: Callable[[int], list[str]], lead_s: float = LEAD_S) -> None:  # fmt: skip
+        self.team, self.epochs = scenario.membership, scenario.epochs
+        self.supervisor, self.agent_args, self.lead_s = supervisor, agent_args, lead_s
+        self.steps: list[Step] = []
+        for i in range(1, scenario.n + 1):
+            for first, last in self.team.incarnations(i):
+                if first > 0:
+                    self.steps.append(Step(first, "start", i))
+                if last < self.epochs and self.team.crashed[last, i - 1]:
+                    self.steps.append(Step(last, "kill", i))
+        self.steps.sort(key=lambda s: (s.epoch, s.action != "kill"))
+        self.began = time.monotonic()
+
+    @staticmethod
+    def check(scenario: Scenario, pool: int | None) -> None:
+        """Events need one process per agent: a pool shares one process between agents."""
+        if scenario.events and pool:
+            raise RuntimeFailure(
+                f"--pool {pool} with scenario events: an event stops or starts one agent's "
+                "process, so run one process per agent (no --pool)"
+            )
+
+    def starts_later(self, agent: int) -> bool:
+        """Whether ``agent`` is absent at epoch 0 (it joins later: started by :meth:`step`)."""
+        return not bool(self.team.present[0, agent - 1])
+
+    def step(self, count: int, seen: Callable[[int, int], bool]) -> None:
+        """Do what is due: ``count`` epochs are estimated so far; ``seen(i, k)``: ``x_i[k]`` came."""
+        elapsed = max(time.monotonic() - self.began, 1e-3)
+        ahead = count + self.lead_s * count / elapsed  # the epoch the run reaches in lead_s
+        for s in self.steps:
+            if s.done:
+                continue
+            name = f"agent-{s.agent}"
+            if s.action == "kill":
+                if not seen(s.agent, s.epoch):
+                    continue
+                self.supervisor.kill_planned(name)
+            else:
+                earlier = [t for t in self.steps if t.agent == s.agent and t.epoch < s.epoch]
+                if any(not t.done for t in earlier) or ahead < s.epoch - 1:
+                    continue
+                self.supervisor.start_planned(name, "agent", *self.agent_args(s.agent))
+            s.done = True
+
+    def finishing(self, gone: set[str]) -> list[int]:
+        """Agents whose final state ``x[E]`` is due: taking part at the end and not lost."""
+        return [i for i in self.team.taking_part(self.epochs) if f"agent-{i}" not in gone]
+
+
+__all__ = ["LEAD_S", "EventDriver", "Step"]

@@ -1,0 +1,73 @@
+"""Scenario events through the real processes (issue 20 item 1): a lockstep run with crash,
+restart, leave and join equals ``formation simulate``, positions and drop decisions.
+
+The launcher kills a crashing agent's process by PID once its last state is seen and starts
+joining and restarted ones as the run nears their epoch; every process is ended by PID (the
+``runs_dir`` fixture fails the test if one is left).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from formation.scenario import Scenario
+from testbed.runtime.launcher import RunOutcome, launch
+from testbed.sim.simulate import simulate
+
+from .conftest import pid_alive, run_pids
+
+pytestmark = pytest.mark.integration
+SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"
+
+
+def assert_equals_the_simulator(outcome: RunOutcome, scenario: Scenario, strategy: str) -> None:
+    sim = simulate(scenario, strategy=strategy)  # type: ignore[arg-type]
+    team = scenario.membership
+    seen = np.isfinite(outcome.positions).all(axis=2)  # (E + 1, n)
+    expected = np.zeros_like(seen)
+    for i in range(1, scenario.n + 1):
+        for first, last in team.incarnations(i):
+            expected[first : last + 1, i - 1] = True  # its states, up to its goodbye or crash
+    np.testing.assert_array_equal(seen, expected)
+    np.testing.assert_array_equal(outcome.positions[seen], sim.positions[seen])  # bit for bit
+    verdicts = {
+        (d.source, d.target, d.epoch): d.verdict in ("pass", "duplicate")
+        for d in outcome.decisions
+        if d.link_class == "formation"
+    }
+    want = {
+        (int(a), int(b), k): bool(sim.delivered[k, row])
+        for k in range(scenario.epochs)
+        for row, (a, b) in enumerate(scenario.directed_links)
+        if team.present[k, a - 1] and team.present[k, b - 1]
+    }
+    assert verdicts == want, "a decision for every packet between agents taking part, no other"
+    assert outcome.malformed == {}
+    assert "losses" not in outcome.summary(), "an event is not an unplanned loss"
+
+
+def test_crash_restart_and_leave_equal_the_simulator(paper: Scenario, runs_dir: Path) -> None:
+    scenario = paper.with_overrides(
+        epochs=60,
+        network={"formation_default": [{"model": "bernoulli", "p_loss": 0.2}]},
+        events=[{"epoch": 15, "agent": 3, "action": "crash"},
+                {"epoch": 30, "agent": 3, "action": "restart"},
+                {"epoch": 45, "agent": 5, "action": "leave"}],
+    )  # fmt: skip
+    outcome = launch(scenario, strategy="estimate", runs_dir=runs_dir, record=False)
+    assert_equals_the_simulator(outcome, scenario, "estimate")
+    x3 = outcome.positions[:, 2]
+    assert np.array_equal(x3[30], x3[15]), "restarted where its body stopped"
+    assert outcome.extra["fallbacks"] >= 0 and outcome.substitutions
+    assert not any(pid_alive(p) for p in run_pids(runs_dir))
+
+
+def test_a_join_and_every_other_event_equal_the_simulator(runs_dir: Path) -> None:
+    scenario = Scenario.from_file(SCENARIOS / "events.toml")
+    outcome = launch(scenario, strategy="hold", runs_dir=runs_dir, record=False)
+    assert_equals_the_simulator(outcome, scenario, "hold")
+    x6 = outcome.positions[:, 5]
+    assert np.array_equal(x6[15], scenario.initial_positions()[5]), "starts where it is declared"
