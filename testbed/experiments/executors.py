@@ -36,8 +36,9 @@ from formation.errors import TestbedError
 T = TypeVar("T")
 R = TypeVar("R")
 
-# Measured with bench/bench_sweep.py's --overhead on this 2-core machine (local:2, a chunk of
-# ~6 kB in, 84 rows out): 7-16 ms per task, loaded; rounded up. The pool's is ~2 ms.
+# Per task, beyond its work (bench/bench_sweep.py --overhead: a grid20 chunk in, 84 rows out,
+# 2 workers, this 2-core machine at load 5-12): Dask 6.5-16 ms (local:2 6.5, a scheduler 9.8),
+# the pool 1.5-2.1 ms. Sized on about twice the worst, as loads vary.
 DASK_TASK_OVERHEAD_S = 0.02
 POOL_TASK_OVERHEAD_S = 0.002
 OVERHEAD_SHARE = 0.05  # a task's overhead stays under 5 % of the task
