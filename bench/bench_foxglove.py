@@ -1,6 +1,6 @@
 """The live view and the DataFrames: what watching and analysing cost.
 
-1. Lockstep epochs/s of the same run (paper.toml, seed 1) without ``--foxglove``, with it and
+1. Lockstep epochs/s (and the recorder's CPU per epoch) of the same run (paper.toml, seed 1) without ``--foxglove``, with it and
    one subscribed client that reads everything, and with that client and a second one that
    subscribes and never reads; the runs interleaved, each configuration ``REPEATS`` times,
    the median reported with its ratio to the run without a viewer. The rate is taken
@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import os
 import socket
 import statistics
 import tempfile
@@ -111,9 +112,20 @@ class Viewer(threading.Thread):
         return (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 else 0.0
 
 
-def lockstep_rate(scenario: Scenario, runs: Path, viewers: int) -> tuple[float, float]:
-    """(epochs/s between epoch marks, messages/s to the reading client or 0)."""
+def _cpu_s(pid: int) -> float:
+    """User + system CPU time of ``pid`` so far [s]."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def lockstep_rate(scenario: Scenario, runs: Path, viewers: int) -> tuple[float, float, float]:
+    """(epochs/s between epoch marks, messages/s to the reading client or 0, the recorder's
+    CPU ms per epoch between the same marks)."""
     marks: dict[int, float] = {}
+    cpu: dict[int, float] = {}
     first, last = 5, scenario.epochs - 2
     extra: tuple[str, ...] = ()
     viewer = None
@@ -125,16 +137,21 @@ def lockstep_rate(scenario: Scenario, runs: Path, viewers: int) -> tuple[float, 
 
     def progress(done: int, total: int, drops: int) -> None:
         marks.setdefault(done, time.monotonic())
+        if (done >= first and not cpu) or (done >= last and len(cpu) == 1):
+            pids = json.loads(next(runs.glob("*/pids.json")).read_text())["pids"]
+            cpu[done] = _cpu_s(pids["recorder"])
 
     launch(scenario, seed=SEED, runs_dir=runs, progress=progress, recorder_args=extra)
     seen = sorted(k for k in marks if first <= k <= last)
     rate = (seen[-1] - seen[0]) / (marks[seen[-1]] - marks[seen[0]])
+    (k0, c0), (k1, c1) = sorted(cpu.items())
+    cpu_ms = 1e3 * (c1 - c0) / max(k1 - k0, 1)
     if viewer is None:
-        return rate, 0.0
+        return rate, 0.0, cpu_ms
     viewer.join(60.0)
     if viewer.error is not None:
         raise viewer.error
-    return rate, viewer.rate()
+    return rate, viewer.rate(), cpu_ms
 
 
 def server_capacity(path: Path, scenario: Scenario) -> tuple[float, int, int]:
@@ -187,13 +204,15 @@ def main() -> None:
     scenario = paper.with_overrides(epochs=args.epochs)
     names = {0: "no viewer", 1: "--foxglove, 1 reading client", 2: "--foxglove, + 1 never reading"}
     rates: dict[int, list[float]] = {v: [] for v in names}
+    cpu: dict[int, list[float]] = {v: [] for v in names}
     sent: list[float] = []
     with tempfile.TemporaryDirectory() as tmp:
         for rep in range(args.repeats):
             for viewers in names:
                 runs = Path(tmp) / f"runs-{rep}-{viewers}"
-                rate, msgs = lockstep_rate(scenario, runs, viewers)
+                rate, msgs, cpu_ms = lockstep_rate(scenario, runs, viewers)
                 rates[viewers].append(rate)
+                cpu[viewers].append(cpu_ms)
                 if viewers:
                     sent.append(msgs)
         print(f"lockstep, paper.toml, {args.epochs} epochs, seed {SEED}, {args.repeats} runs each "
@@ -202,7 +221,8 @@ def main() -> None:
         for viewers, name in names.items():
             med = statistics.median(rates[viewers])
             each = ", ".join(f"{r:.1f}" for r in rates[viewers])
-            print(f"  {name:32s} {med:7.1f} epochs/s  ({each})  ratio {med / base:.2f}")
+            print(f"  {name:32s} {med:7.1f} epochs/s  ({each})  ratio {med / base:.2f};  "
+                  f"recorder {statistics.median(cpu[viewers]):.2f} CPU ms/epoch")  # fmt: skip
         print(f"  live server → reading client: {statistics.median(sent):.0f} messages/s (median; "
               f"{', '.join(f'{m:.0f}' for m in sent)})")  # fmt: skip
 
