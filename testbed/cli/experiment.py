@@ -26,8 +26,15 @@ from testbed.experiments.executors import SCHEDULER_FORMS, executor_for
 from testbed.experiments.lossy import MODELS
 from testbed.experiments.paper_run import run_paper
 from testbed.experiments.sweep import SweepSpec, critical_table, loss_grid, run_sweep
+from testbed.experiments.wireless import (
+    WirelessSpec,
+    critical_markdown,
+    run_wireless,
+    write_outputs,
+)
+from testbed.experiments.wireless import run_real as run_wireless_real
 
-EXPERIMENTS = ("paper",)
+EXPERIMENTS = ("paper", "wireless")
 DEFAULT_TOPOLOGIES = ("ring8", "grid20", "octahedron3d")
 CHAPTER_STRATEGIES = ("zero", "hold", "estimate", "blend")
 
@@ -40,6 +47,8 @@ def cmd_experiment(args: argparse.Namespace) -> int:
     out = Path(args.out or f"experiments/{args.name}")
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     started = time.perf_counter()
+    if args.name == "wireless":
+        return _wireless(args, scenario, out, tuple(seeds), console)
     result = run_paper(
         scenario,
         out,
@@ -61,6 +70,29 @@ def cmd_experiment(args: argparse.Namespace) -> int:
         )
     times = ", ".join(f"{k} {v:.1f} s" for k, v in result.timings_s.items())
     console.print(f"wrote {out}/results.md ({times}; total {time.perf_counter() - started:.1f} s)")
+    return 0
+
+
+def _wireless(
+    args: argparse.Namespace, scenario: Scenario, out: Path, seeds: tuple[int, ...], console: Any
+) -> int:
+    """``formation experiment wireless``: success against radio range, then the real runs."""
+    started = time.perf_counter()
+    spec = WirelessSpec(scenario, seeds=seeds, epochs=args.epochs or 100)
+    result = run_wireless(spec, log=lambda m: console.print(m))
+    if not args.no_real:
+        run_wireless_real(result, out, record=not args.no_record, log=lambda m: console.print(m))
+    write_outputs(result, out)
+    Console().print(critical_markdown(result))
+    for row in result.real:
+        console.print(
+            f"real processes {row['case']}, {row['strategy']} seed {row['seed']}: "
+            f"max |Δx| {row['max_diff']}, recorded {row['recorded_diff']}, match {row['match']}"
+        )
+    console.print(
+        f"wrote {out}/results.md, critical.md, runs.csv, phase.png "
+        f"({time.perf_counter() - started:.1f} s)"
+    )
     return 0
 
 
@@ -141,7 +173,11 @@ def register(sub: Any) -> None:
     p = sub.add_parser(
         "experiment", help="reproduce the chapter's experiment and the studies beyond it"
     )
-    p.add_argument("name", choices=EXPERIMENTS, help="which experiment (paper: docs/model.md §8)")
+    p.add_argument(
+        "name",
+        choices=EXPERIMENTS,
+        help="which experiment (paper: docs/model.md §8; wireless: success against radio range)",
+    )
     p.add_argument(
         "--scenario", default=DEFAULT_SCENARIO, help="scenario TOML (default: the paper's)"
     )
@@ -150,6 +186,7 @@ def register(sub: Any) -> None:
     p.add_argument("--out", help="output folder (default experiments/NAME)")
     p.add_argument("--no-real", action="store_true", help="skip the runs through real processes")
     p.add_argument("--no-record", action="store_true", help="real processes without the recorder")
+    p.add_argument("--epochs", type=int, help="wireless: epochs per run (default 100)")
     p.set_defaults(func=cmd_experiment)
 
     p = sub.add_parser("sweep", help="critical loss rate per strategy and topology")

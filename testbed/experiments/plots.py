@@ -265,6 +265,50 @@ def dynamic_plot(
     return _save(fig, path)
 
 
+def range_phase_plot(
+    success: Mapping[tuple[str, str], Array],
+    critical: Mapping[tuple[str, str], float | None],
+    ranges: Sequence[float],
+    cases: Sequence[str],
+    strategies: Sequence[str],
+    threshold_m: float,
+    path: Path,
+) -> Path:
+    """Success fraction over radio range × strategy, one panel per controller case.
+
+    ``success[(case, strategy)]`` : (R,) fraction of seeds kept at each of ``ranges`` (multiples
+    of the longest edge); ``critical`` the least range from which every larger one keeps
+    (None: not even the largest), marked white on its left edge.
+    """
+    fig = Figure(
+        figsize=(4.2 * len(cases) + 0.8, 0.45 * len(strategies) + 1.6), layout="constrained"
+    )
+    axes = fig.subplots(1, len(cases), squeeze=False, sharey=True)[0]
+    xs = np.asarray(ranges, dtype=float)
+    step = float(np.min(np.diff(xs))) if xs.size > 1 else 0.25
+    image: Any = None
+    for ax, case in zip(axes, cases, strict=True):
+        cells = np.array([success[(case, s)] for s in strategies])
+        image = ax.imshow(
+            cells, aspect="auto", cmap="viridis", vmin=0.0, vmax=1.0, interpolation="nearest",
+            extent=(xs[0] - step / 2, xs[-1] + step / 2, len(strategies) - 0.5, -0.5),
+        )  # fmt: skip
+        for i, s in enumerate(strategies):
+            crit = critical[(case, s)]
+            if crit is not None:
+                ax.plot([crit - step / 2] * 2, [i - 0.5, i + 0.5], color="w", lw=2)
+        ax.axvline(1.0, color="0.8", lw=0.8, ls="--")  # below: the longest links out of range
+        ax.set_yticks(range(len(strategies)), list(strategies))
+        ax.set_title(case, fontsize=9)
+        ax.set_xlabel("radio range d50 / longest edge")
+    if image is not None:
+        fig.colorbar(
+            image, ax=axes, shrink=0.8,
+            label=f"fraction of seeds with final error < {threshold_m:g} m",
+        )  # fmt: skip
+    return _save(fig, path)
+
+
 __all__ = [
     "COLOURS",
     "agent_positions",
@@ -273,5 +317,6 @@ __all__ = [
     "dynamic_plot",
     "error_bands",
     "phase_plot",
+    "range_phase_plot",
     "trajectories",
 ]

@@ -1,0 +1,320 @@
+"""``formation experiment wireless``: keeping the formation as the radio range shrinks (issue 19).
+
+Every formation link gets the ``logistic`` distance model, its ``d50_m`` (the radio range,
+where half the packets arrive) a multiple ``ρ`` of the formation's longest edge and its
+``width_m`` a fixed fraction of that edge; the control links stay as the scenario has them
+(infrastructure: they reach the leader at any distance). Two controllers: the displacement
+law with single integrators, and the distance law with unicycles (docs/model.md §3). A seed
+keeps the formation when its final error is under the threshold: the shape error for the
+displacement law, the edge-length error (``formation_error``) for the distance law, which
+controls lengths only and leaves the formation free to rotate. The critical range of a
+strategy is the least ``ρ`` of the grid from which every larger one keeps the formation in
+≥ 95 % of the seeds. Below ``ρ = 1`` the longest formation links are mostly out of range
+while the leader is still reached: which strategies keep the formation there is the
+question the chapter does not ask.
+
+Runs on the batch simulator (:func:`testbed.sim.batch.run_batch`, every range and seed of a
+controller in one batch); one real-process run per strategy checks it, recorded.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from formation.scenario import STRATEGIES, Scenario, StrategyName
+from recorder.rundata import read_run
+from testbed.experiments.plots import range_phase_plot
+from testbed.experiments.studies import KEEP_FRACTION
+from testbed.runtime.launcher import launch
+from testbed.sim.batch import BatchResult, plan_batch, run_batch
+
+RANGES = tuple(round(0.5 + 0.25 * i, 2) for i in range(11))  # ρ: 0.5 … 3 × the longest edge
+WIDTH_FRACTION = 0.1  # logistic width_m / longest edge
+THRESHOLD_M = 0.05
+
+
+@dataclass(frozen=True)
+class Case:
+    """A controller and the robots it drives; ``gain`` None keeps the scenario's."""
+
+    controller: str
+    dynamics: str
+    gain: float | None = None
+
+    @property
+    def label(self) -> str:
+        return f"{self.controller}, {self.dynamics}"
+
+
+# The distance law's step grows with C²: the scenario's gain (0.25) diverges on the pentagon
+# (C up to 1.9 m) and 0.05 is the largest of 0.02, 0.05, 0.1 that converges for every seed.
+CASES = (Case("displacement", "single"), Case("distance", "unicycle", 0.05))
+COLUMNS = ("case", "strategy", "range_multiple", "d50_m", "seed", "final_error_m", "kept",
+           "formation_delivered", "saturated_steps")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class WirelessSpec:
+    scenario: Scenario
+    ranges: tuple[float, ...] = RANGES
+    seeds: tuple[int, ...] = tuple(range(1, 21))
+    strategies: tuple[StrategyName, ...] = STRATEGIES
+    cases: tuple[Case, ...] = CASES
+    epochs: int = 100
+    threshold_m: float = THRESHOLD_M
+    width_fraction: float = WIDTH_FRACTION
+
+
+@dataclass
+class WirelessResult:
+    """success, critical : (case label, strategy) → (R,) fraction kept / the critical ``ρ``."""
+
+    spec: WirelessSpec
+    rows: list[dict[str, Any]]
+    success: dict[tuple[str, str], np.ndarray]
+    critical: dict[tuple[str, str], float | None]
+    real: list[dict[str, Any]] = field(default_factory=list)
+
+
+def longest_edge(scenario: Scenario) -> float:
+    """The formation's longest edge ``max C_ij`` [m]."""
+    return float(np.max(scenario.weights))
+
+
+def wireless_variant(spec: WirelessSpec, case: Case, multiple: float) -> Scenario:
+    """The scenario with every formation link ``logistic`` at ``d50 = multiple × longest edge``."""
+    s, edge = spec.scenario, longest_edge(spec.scenario)
+    net = s.network.model_dump(by_alias=True)
+    logistic = {
+        "model": "logistic",
+        "d50_m": multiple * edge,
+        "width_m": spec.width_fraction * edge,
+    }
+    net.update(formation_default=[logistic], links=[])
+    control: dict[str, Any] = {"controller": case.controller, "dynamics": case.dynamics}
+    if case.gain is not None:
+        control["gain"] = case.gain
+    return s.with_overrides(network=net, control=control, epochs=spec.epochs)
+
+
+def final_errors(case: Case, res: BatchResult) -> np.ndarray:
+    """(B,) the final error that decides whether a member kept the formation [m]."""
+    err = res.formation_error if case.controller == "distance" else res.shape_error
+    return np.asarray(err[-1], dtype=float)
+
+
+def critical_range(
+    ranges: Sequence[float], success: np.ndarray, keep: float = KEEP_FRACTION
+) -> float | None:
+    """Least ``ρ`` such that every grid range from it up keeps (success ≥ ``keep``); None: not 3."""
+    best = None
+    for rho, frac in zip(reversed(ranges), reversed(success.tolist()), strict=True):
+        if not frac >= keep:
+            break
+        best = rho
+    return best
+
+
+def run_wireless(spec: WirelessSpec, log: Callable[[str], None] = print) -> WirelessResult:
+    """Every case, strategy, range and seed on the batch simulator."""
+    rows: list[dict[str, Any]] = []
+    success: dict[tuple[str, str], np.ndarray] = {}
+    critical: dict[tuple[str, str], float | None] = {}
+    n_r, n_s = len(spec.ranges), len(spec.seeds)
+    for case in spec.cases:
+        variants = [wireless_variant(spec, case, rho) for rho in spec.ranges]
+        members = [v for v in variants for _ in spec.seeds]
+        plan = plan_batch(members, [seed for _ in variants for seed in spec.seeds])
+        for strategy in spec.strategies:
+            log(f"wireless: {case.label}, {strategy} …")
+            res = run_batch(plan, strategy, detail=False)
+            errors = final_errors(case, res).reshape(n_r, n_s)
+            kept = errors < spec.threshold_m
+            delivered = res.delivered.mean(axis=(0, 2)).reshape(n_r, n_s)
+            sat = (
+                np.zeros((n_r, n_s), dtype=np.int64)
+                if res.saturated is None
+                else res.saturated.sum(axis=(0, 2)).reshape(n_r, n_s)
+            )
+            for i, rho in enumerate(spec.ranges):
+                d50 = variants[i].network.formation_default[0].d50_m  # type: ignore[union-attr]
+                for j, seed in enumerate(spec.seeds):
+                    rows.append({
+                        "case": case.label, "strategy": strategy, "range_multiple": rho,
+                        "d50_m": d50, "seed": seed, "final_error_m": float(errors[i, j]),
+                        "kept": bool(kept[i, j]), "formation_delivered": float(delivered[i, j]),
+                        "saturated_steps": int(sat[i, j]),
+                    })  # fmt: skip
+            frac = kept.mean(axis=1)
+            success[(case.label, strategy)] = frac
+            critical[(case.label, strategy)] = critical_range(spec.ranges, frac)
+    return WirelessResult(spec, rows, success, critical)
+
+
+def keep_out_of_range(r: WirelessResult, case: Case) -> dict[str, list[float]]:
+    """Strategies that keep the formation at some ``ρ < 1`` (formation links out of range,
+    the leader reached), with those ``ρ``."""
+    out: dict[str, list[float]] = {}
+    for s in r.spec.strategies:
+        frac = r.success[(case.label, s)]
+        below = [
+            rho
+            for rho, f in zip(r.spec.ranges, frac, strict=True)
+            if rho < 1 and f >= KEEP_FRACTION
+        ]
+        if below:
+            out[s] = below
+    return out
+
+
+def critical_markdown(r: WirelessResult) -> str:
+    """The table of critical ranges: strategies (rows) × cases (columns)."""
+    spec = r.spec
+    lines = ["| strategy | " + " | ".join(c.label for c in spec.cases) + " |"]
+    lines.append("|" + " --- |" * (1 + len(spec.cases)))
+    for s in spec.strategies:
+        cells = []
+        for c in spec.cases:
+            crit = r.critical[(c.label, s)]
+            cells.append("none" if crit is None else f"{crit:g} ×")
+        lines.append(f"| {s} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def success_markdown(r: WirelessResult) -> str:
+    spec = r.spec
+    out = []
+    for c in spec.cases:
+        out += [f"\n### {c.label}\n", "| ρ | " + " | ".join(spec.strategies) + " |"]
+        out.append("|" + " --- |" * (1 + len(spec.strategies)))
+        for i, rho in enumerate(spec.ranges):
+            cells = [f"{r.success[(c.label, s)][i]:.2f}" for s in spec.strategies]
+            out.append(f"| {rho:g} | " + " | ".join(cells) + " |")
+    return "\n".join(out) + "\n"
+
+
+def results_markdown(r: WirelessResult) -> str:
+    spec = r.spec
+    edge = longest_edge(spec.scenario)
+    text = [
+        "# Wireless: the formation against radio range",
+        "",
+        f"Scenario `{spec.scenario.name}` (n = {spec.scenario.n}, initial spread "
+        f"{spec.scenario.initial.spread_m:g} m), {spec.epochs} epochs, seeds "
+        f"{spec.seeds[0]}–{spec.seeds[-1]} ({len(spec.seeds)}). Every formation link `logistic`, "
+        f"d50 = ρ × the longest edge ({edge:.4g} m), width {spec.width_fraction:g} × that edge; "
+        "control links as the scenario has them (they reach the leader). Kept: final error < "
+        f"{spec.threshold_m:g} m (shape error for the displacement law, edge-length error for "
+        f"the distance law); critical range: the least ρ from which every larger one keeps in "
+        f"≥ {KEEP_FRACTION:.0%} of the seeds.",
+        "",
+        "## Critical range per strategy",
+        "",
+        critical_markdown(r),
+        "## Formation links out of range, the leader reached (ρ < 1)",
+        "",
+    ]
+    below = [i for i, rho in enumerate(spec.ranges) if rho < 1]
+    for c in spec.cases:
+        kept = keep_out_of_range(r, c)
+        said = "; ".join(
+            f"{s} (ρ = {', '.join(f'{v:g}' for v in rhos)})" for s, rhos in kept.items()
+        )
+        best = sorted(
+            ((float(r.success[(c.label, s)][i]), -spec.ranges[i], s) for s in spec.strategies
+             for i in below), reverse=True,
+        )[:3]  # fmt: skip
+        most = ", ".join(f"{s} {f:.2f} at ρ = {-rho:g}" for f, rho, s in best)
+        text.append(
+            f"- {c.label}: {said or f'no strategy keeps it in ≥ {KEEP_FRACTION:.0%} of the seeds'}"
+            + (f"; most kept: {most}" if best else "")
+        )
+    text += ["", "## Fraction of seeds keeping the formation", success_markdown(r)]
+    if r.real:
+        text += ["## Real-process runs (recorded)", "",
+                 "| case | strategy | ρ | seed | max abs(Δx) | recorded | match | recording |",
+                 "| --- | --- | --- | --- | --- | --- | --- | --- |"]  # fmt: skip
+        for row in r.real:
+            text.append(
+                f"| {row['case']} | {row['strategy']} | {row['range_multiple']:g} | {row['seed']} "
+                f"| {row['max_diff']} | {row['recorded_diff']} | {row['match']} | {row['recording']} |"
+            )
+    text += ["", "![success against range](phase.png)", ""]
+    return "\n".join(text)
+
+
+def run_real(r: WirelessResult, out: Path, multiple: float = 1.0, record: bool = True,
+             log: Callable[[str], None] = print) -> None:  # fmt: skip
+    """One real-process run per strategy and case at ``ρ = multiple``, the median seed's."""
+    spec = r.spec
+    for case in spec.cases:
+        scenario = wireless_variant(spec, case, multiple)
+        for s in spec.strategies:
+            errs = {row["seed"]: row["final_error_m"] for row in r.rows if row["case"] == case.label
+                    and row["strategy"] == s and row["range_multiple"] == multiple}  # fmt: skip
+            median = float(np.median(list(errs.values())))
+            seed = min(errs, key=lambda k: (abs(errs[k] - median), k))
+            log(f"wireless, real processes: {case.label}, {s}, seed {seed} …")
+            sim = run_batch(plan_batch(scenario, [seed]), s, detail=False).positions[:, 0]
+            row: dict[str, Any] = {"case": case.label, "strategy": s, "range_multiple": multiple,
+                                   "seed": seed, "recorded_diff": "-", "recording": "-"}  # fmt: skip
+            try:
+                o = launch(scenario, strategy=s, seed=seed, runs_dir=out / "runs", record=record)
+            except Exception as exc:  # a failed launch is reported, not fatal to the experiment
+                row.update(max_diff=f"launch failed: {type(exc).__name__}", match="no")
+                r.real.append(row)
+                continue
+            diff = float(np.max(np.abs(o.positions - sim)))
+            ok = diff == 0.0
+            if record:
+                rec = read_run(o.run_dir / "run.mcap")
+                rdiff = float(np.max(np.abs(rec.positions - sim)))
+                ok = ok and rdiff == 0.0
+                row.update(recorded_diff=f"{rdiff:.1e}", recording=f"`{o.run_dir / 'run.mcap'}`")
+            row.update(max_diff=f"{diff:.1e}", match="yes" if ok else "no")
+            r.real.append(row)
+
+
+def write_outputs(r: WirelessResult, out: Path) -> None:
+    """``runs.csv``, ``critical.md``, ``results.md`` and ``phase.png`` in ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    with (out / "runs.csv").open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=COLUMNS)
+        writer.writeheader()
+        for row in r.rows:
+            writer.writerow({k: _cell(v) for k, v in row.items()})
+    (out / "critical.md").write_text(
+        "# Critical radio range per strategy\n\n" + critical_markdown(r)
+    )
+    (out / "results.md").write_text(results_markdown(r))
+    labels = [c.label for c in r.spec.cases]
+    range_phase_plot(r.success, r.critical, r.spec.ranges, labels, r.spec.strategies,
+                     r.spec.threshold_m, out / "phase.png")  # fmt: skip
+
+
+def _cell(v: Any) -> Any:
+    return repr(v) if isinstance(v, float) and math.isfinite(v) else v
+
+
+__all__ = [
+    "CASES",
+    "COLUMNS",
+    "RANGES",
+    "Case",
+    "WirelessResult",
+    "WirelessSpec",
+    "critical_range",
+    "keep_out_of_range",
+    "longest_edge",
+    "run_real",
+    "run_wireless",
+    "wireless_variant",
+    "write_outputs",
+]
