@@ -119,7 +119,7 @@ class KruskalGraph:
         chosen, parent = _union_find_scan(size * count, base + self.lo[edge], base + self.hi[edge])
         tree = np.zeros(healthy.shape, dtype=bool)
         tree[member[chosen], edge[chosen]] = True
-        return tree, _roots(parent).reshape(size, count)
+        return tree, _roots(np.asarray(parent, dtype=np.int64)).reshape(size, count)
 
 
 def spanning_forests(
@@ -211,7 +211,7 @@ def _kruskal_order(w: npt.NDArray[np.float64], lo: IntArray, hi: IntArray) -> In
     return order
 
 
-def _union_find_scan(n: int, u: IntArray, v: IntArray) -> tuple[IntArray, IntArray]:
+def _union_find_scan(n: int, u: IntArray, v: IntArray) -> tuple[IntArray, list[int]]:
     """Kruskal's scan of sorted edges ``(u[k], v[k])`` (0-based nodes).
 
     Returns the positions of the kept edges and the union-find's parent array.
@@ -252,7 +252,7 @@ def _union_find_scan(n: int, u: IntArray, v: IntArray) -> tuple[IntArray, IntArr
             parent = roots.tolist()  # full compression keeps the union-find valid
             pending = pending[roots[u[pending]] != roots[v[pending]]]
             chunk *= 2
-    return np.asarray(kept, dtype=np.int64), np.asarray(parent, dtype=np.int64)
+    return np.asarray(kept, dtype=np.int64), parent
 
 
 def _roots(parent: IntArray) -> IntArray:
