@@ -98,7 +98,8 @@ def wireless_variant(spec: WirelessSpec, case: Case, multiple: float) -> Scenari
         "width_m": spec.width_fraction * edge,
     }
     net.update(formation_default=[logistic], links=[])
-    control: dict[str, Any] = {"controller": case.controller, "dynamics": case.dynamics}
+    control = s.control.model_dump()  # the scenario's period, gain, limits ... kept
+    control.update(controller=case.controller, dynamics=case.dynamics)
     if case.gain is not None:
         control["gain"] = case.gain
     return s.with_overrides(network=net, control=control, epochs=spec.epochs)
