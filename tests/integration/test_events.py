@@ -52,13 +52,16 @@ def assert_equals_the_simulator(outcome: RunOutcome, scenario: Scenario, strateg
 def test_crash_restart_and_leave_equal_the_simulator(paper: Scenario, runs_dir: Path) -> None:
     scenario = paper.with_overrides(
         epochs=60,
-        network={"formation_default": [{"model": "bernoulli", "p_loss": 0.2}]},
+        network={"formation_default": [{"model": "bernoulli", "p_loss": 0.2}],
+                 # 2 -> 3 lost as agent 3 comes back: its new process has no value to hold
+                 "links": [{"between": [2, 3], "direction": "forward",
+                            "models": [{"model": "outage", "start": 30, "end": 33}]}]},
         events=[{"epoch": 15, "agent": 3, "action": "crash"},
                 {"epoch": 30, "agent": 3, "action": "restart"},
                 {"epoch": 45, "agent": 5, "action": "leave"}],
     )  # fmt: skip
-    outcome = launch(scenario, strategy="estimate", runs_dir=runs_dir, record=False)
-    assert_equals_the_simulator(outcome, scenario, "estimate")
+    outcome = launch(scenario, strategy="hold", runs_dir=runs_dir, record=False)
+    assert_equals_the_simulator(outcome, scenario, "hold")
     x3 = outcome.positions[:, 2]
     assert np.array_equal(x3[30], x3[15]), "restarted where its body stopped"
     assert outcome.extra["fallbacks"] >= 0 and outcome.substitutions
@@ -67,7 +70,7 @@ def test_crash_restart_and_leave_equal_the_simulator(paper: Scenario, runs_dir: 
 
 def test_a_join_and_every_other_event_equal_the_simulator(runs_dir: Path) -> None:
     scenario = Scenario.from_file(SCENARIOS / "events.toml")
-    outcome = launch(scenario, strategy="hold", runs_dir=runs_dir, record=False)
-    assert_equals_the_simulator(outcome, scenario, "hold")
+    outcome = launch(scenario, strategy="estimate", runs_dir=runs_dir, record=False)
+    assert_equals_the_simulator(outcome, scenario, "estimate")
     x6 = outcome.positions[:, 5]
     assert np.array_equal(x6[15], scenario.initial_positions()[5]), "starts where it is declared"
