@@ -9,6 +9,7 @@ decision by decision, given the same link lengths.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -199,10 +200,31 @@ def delivery_matrix(
 def link_lengths(src_m: npt.ArrayLike, dst_m: npt.ArrayLike) -> Floats:
     """Distances ``(L,)`` [m] between the ends ``src_m``, ``dst_m`` ``(L, d)`` [m] of ``L`` links.
 
-    netem and the simulator both measure a link with this, so their verdicts agree bit for bit.
+    The simulator measures its links with this and netem each packet's with :func:`link_length`:
+    both sum the squared coordinates in coordinate order (IEEE operations, one by one), so
+    their verdicts agree bit for bit.
     """
     diff = np.asarray(src_m, dtype=np.float64) - np.asarray(dst_m, dtype=np.float64)
-    return np.asarray(np.sqrt(np.sum(diff * diff, axis=-1)), dtype=np.float64)
+    total = diff[..., 0] * diff[..., 0]
+    for c in range(1, diff.shape[-1]):
+        total = total + diff[..., c] * diff[..., c]
+    return np.asarray(np.sqrt(total), dtype=np.float64)
 
 
-__all__ = ["DeliveryPlan", "DistanceGroup", "delivery_matrix", "delivery_plan", "link_lengths"]
+def link_length(src_m: Sequence[float], dst_m: Sequence[float]) -> float:
+    """One link's :func:`link_lengths` [m], in plain floats (netem measures every packet's)."""
+    total = 0.0
+    for c, (a, b) in enumerate(zip(src_m, dst_m, strict=True)):
+        diff = a - b
+        total = diff * diff if c == 0 else total + diff * diff
+    return math.sqrt(total)
+
+
+__all__ = [
+    "DeliveryPlan",
+    "DistanceGroup",
+    "delivery_matrix",
+    "delivery_plan",
+    "link_length",
+    "link_lengths",
+]

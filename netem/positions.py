@@ -18,12 +18,11 @@ from collections import defaultdict
 from collections.abc import Collection, Iterator
 from typing import Any
 
-import numpy as np
 import orjson
 
 from formation.scenario import LEADER_ENDPOINT
 from netem.links import Link, Links, Route
-from netem.matrix import link_lengths
+from netem.matrix import link_length
 
 Held = tuple[Route, int, int, Any]  # (route, epoch, seq, payload) of a packet put back
 KEEP_EPOCHS = 256  # positions of older epochs are forgotten (lockstep never lags that far)
@@ -122,7 +121,7 @@ class Positions:
         b = self.access_point if dst == LEADER_ENDPOINT else known.get(dst)
         if a is None or b is None or len(a) != len(b):
             return math.inf
-        return float(link_lengths(np.array([a]), np.array([b]))[0])
+        return link_length(a, b)
 
 
 __all__ = ["KEEP_EPOCHS", "Held", "Positions"]

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -115,9 +116,9 @@ class Stack:
     def timed(self) -> tuple[int, ...]:
         return tuple(i for i, layer in enumerate(self.layers) if layer.timed)
 
-    @property
+    @cached_property
     def ranged(self) -> tuple[int, ...]:
-        """Indices of the layers that decide by the link's length."""
+        """Indices of the layers that decide by the link's length (asked for every packet)."""
         return tuple(i for i, layer in enumerate(self.layers) if layer.ranged)
 
 
