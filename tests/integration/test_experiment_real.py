@@ -17,7 +17,9 @@ def test_representative_seed_through_real_processes(paper: Scenario, runs_dir: P
     seeds = (1, 2, 3)
     result = PaperResults(paper, seeds, run_variants(paper, seeds))
     run_real(result, runs_dir.parent, record=True, strategies=("estimate",))
-    (row,) = result.real
+    row, events = result.real
+    assert events["match"] == "yes", events  # the dynamic team's leave and join, as events
+    assert events["real_final"] == events["sim_final"]
     assert row["seed"] == representative_seed(result.runs["failure"]["estimate"])
     assert row["match"] == "yes", row
     assert row["max_diff_text"] == "0.0e+00" and row["recorded_diff_text"] == "0.0e+00"
