@@ -13,10 +13,15 @@ scenario's (1); no loss configured.
 Reported: forwarded packets/s (wall clock, as the subscriber sees them) and netem's
 own CPU time per forwarded packet (from /proc), which the sender and the counter,
 sharing the machine's cores, do not disturb.
+
+Distance models (issue 19; ``--distance`` runs only this): a ``logistic`` model on every
+formation link, the agents on the pentagon drifting together (netem reads each state's
+position, and no epoch is clean), against Bernoulli at the same mean loss in the same run.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import subprocess
@@ -25,18 +30,32 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import zenoh
 
 from bench.netem_rig import ROOT, RUN, bench_scenario, netem_rig
 from formation import keys
 from formation.codec import attachment, encode, now_ns
+from formation.linkmodels import Logistic
 from formation.messages import CoordinationState
 from formation.scenario import Scenario
+from netem.closed_forms import expected_delivery_at
+from netem.matrix import link_lengths
 from netem.models import delivery_matrix
 
 EPOCHS = 8_000
 AGENTS = 5
 LINKS = len(Scenario.from_file(ROOT / "scenarios/paper.toml").directed_links)  # 14
+LINK_PAIRS = [
+    (int(a), int(b)) for a, b in Scenario.from_file(ROOT / "scenarios/paper.toml").directed_links
+]
+OFFSETS = Scenario.from_file(ROOT / "scenarios/paper.toml").offsets
+LOGISTIC = {"model": "logistic", "d50_m": 2.2, "width_m": 0.15}  # diagonals lose 12 %, sides 0
+
+
+def position(k: int, i: int) -> list[float]:
+    """Agent ``i``'s position at epoch ``k`` [m]: its place on the pentagon, drifting along x."""
+    return [float(OFFSETS[i - 1, 0] + 1e-3 * k), float(OFFSETS[i - 1, 1])]
 
 
 def _cpu_s(pid: int) -> float:
@@ -51,7 +70,14 @@ def _expected(epochs: int, network: dict[str, Any] | None) -> int:
     scenario = bench_scenario(epochs, network)
     links = scenario.directed_links
     specs = [scenario.formation_link_models(int(a), int(b)) for a, b in links]
-    return int(delivery_matrix(specs, scenario.seed, links, epochs).copies.sum())
+    x = [[position(k, i) for i in range(1, AGENTS + 1)] for k in range(epochs)]
+    lengths = link_lengths(
+        [[x[k][a - 1] for a, _ in links] for k in range(epochs)],
+        [[x[k][b - 1] for _, b in links] for k in range(epochs)],
+    )  # (epochs, L), as netem measures them
+    return int(
+        delivery_matrix(specs, scenario.seed, links, epochs, distances_m=lengths).copies.sum()
+    )
 
 
 def forward_rate(
@@ -83,7 +109,7 @@ def forward_rate(
             time.sleep(0.5)  # the counter's subscription travels to netem through gossip
             payloads = [
                 encode(CoordinationState(run_id=RUN, sender=f"agent/{i}", seq=k, epoch=k,
-                                         stamp_ns=now_ns(), agent=i, position=[0.1 * k, 0.2]))
+                                         stamp_ns=now_ns(), agent=i, position=position(k, i)))
                 for k in range(epochs)
                 for i in range(1, AGENTS + 1)
             ]  # fmt: skip
@@ -113,7 +139,32 @@ def forward_rate(
     )
 
 
+def distance_against_bernoulli() -> None:
+    """A distance model on every formation link against Bernoulli at its mean loss, same run."""
+    lengths = link_lengths(
+        OFFSETS[[a - 1 for a, _ in LINK_PAIRS]], OFFSETS[[b - 1 for _, b in LINK_PAIRS]]
+    )
+    loss = float(np.mean(1.0 - expected_delivery_at(Logistic(**LOGISTIC), lengths)))
+    bernoulli = {"formation_default": [{"model": "bernoulli", "p_loss": loss}]}
+    ranged = {"formation_default": [LOGISTIC]}
+    print(f"{EPOCHS} lockstep epochs; logistic d50 {LOGISTIC['d50_m']} m, width "
+          f"{LOGISTIC['width_m']} m on every formation link (mean loss {loss:.3f}); baseline: "
+          "Bernoulli at that loss, in the same run")  # fmt: skip
+    b_rate, b_cpu, _ = forward_rate(passthrough=False, network=bernoulli)
+    d_rate, d_cpu, _ = forward_rate(passthrough=False, network=ranged)
+    print(f"Bernoulli {loss:.3f}   {b_rate:9.0f} forwarded/s  netem CPU {b_cpu:5.2f} µs/packet")
+    print(f"logistic        {d_rate:9.0f} forwarded/s  netem CPU {d_cpu:5.2f} µs/packet")
+    print(f"ratio logistic / Bernoulli: rate {d_rate / b_rate:.2f} "
+          f"({100 * (1 - d_rate / b_rate):.0f}% slower; target <= 25%), CPU per packet "
+          f"{d_cpu / b_cpu:.2f}")  # fmt: skip
+
+
 def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--distance", action="store_true", help="only the distance-model comparison")
+    if p.parse_args().distance:
+        distance_against_bernoulli()
+        return
     print(f"{EPOCHS} lockstep epochs of the paper scenario's state phase: {AGENTS} senders, "
           f"{LINKS} directed links; baseline: netem --passthrough in the same run")  # fmt: skip
     base, base_cpu, base_sent = forward_rate(passthrough=True)
@@ -129,6 +180,7 @@ def main() -> None:
     rate, cpu, _ = forward_rate(passthrough=False, network=lossy)
     print(f"lockstep, Bernoulli 0.1 on every link (about 23% of epochs clean): {rate:9.0f} forwarded/s  "
           f"netem CPU {cpu:5.2f} µs/packet, {cpu / base_cpu:.2f}x pass-through")  # fmt: skip
+    distance_against_bernoulli()
 
 
 if __name__ == "__main__":

@@ -2,6 +2,9 @@
 
 Baseline: the 5-agent paper scenario in the same run (ratios are agent-epochs/s
 against it). Seed 1; the `estimate` strategy, tree estimator.
+
+Unicycles (issue 19): the same teams with ``dynamics = "unicycle"`` (20 inner steps per
+epoch), against their single-integrator run measured just before.
 """
 
 from __future__ import annotations
@@ -43,6 +46,13 @@ def main() -> None:
         r = rate(scenario)
         base = base or r
         print(f"{name:26} {r:15.0f} {r / scenario.n:10.1f} {r / base:7.2f}", flush=True)
+    print("unicycle against single integrator, the same team and seed (best of 3, this run)")
+    print(f"{'case':26} {'single':>12} {'unicycle':>12} {'ratio':>7}")
+    for name, scenario in cases[:2]:
+        single = rate(scenario)
+        control = {**scenario.control.model_dump(), "dynamics": "unicycle"}
+        uni = rate(scenario.with_overrides(control=control))
+        print(f"{name:26} {single:12.0f} {uni:12.0f} {uni / single:7.2f}", flush=True)
 
 
 if __name__ == "__main__":
