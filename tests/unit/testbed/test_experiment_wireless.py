@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from formation.scenario import STRATEGIES, Scenario
+from testbed.cli import main
 from testbed.experiments.wireless import (
     CASES,
     WirelessResult,
@@ -101,3 +102,13 @@ def test_outputs(small: WirelessResult, tmp_path: Path) -> None:
     results = (tmp_path / "results.md").read_text()
     assert "out of range, the leader reached" in results
     assert (tmp_path / "phase.png").stat().st_size > 0
+
+
+def test_the_command_writes_the_tables(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code = main(["experiment", "wireless", "--seeds", "1", "--epochs", "30", "--no-real",
+                 "--out", str(tmp_path)])  # fmt: skip
+    assert code == 0
+    assert "| estimate |" in capsys.readouterr().out
+    for name in ("runs.csv", "critical.md", "results.md", "phase.png"):
+        assert (tmp_path / name).exists(), name
+    assert "Real-process runs" not in (tmp_path / "results.md").read_text()
