@@ -3,29 +3,48 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 from collections.abc import Sequence
 
 from formation.errors import TestbedError
-from testbed.cli import deploy, experiment, netem, recorder, run, simulate
 
-_SUBCOMMANDS = (simulate, run, netem, recorder, deploy, experiment)
+# The module that registers each subcommand. Only the one asked for is imported: the
+# experiments and reports pull in matplotlib, pandas and the simulators (seconds on a loaded
+# machine), which `formation netem set` on a live run should not wait for.
+COMMANDS: dict[str, str] = {
+    "simulate": "testbed.cli.simulate",
+    "run": "testbed.cli.run",
+    "netem": "testbed.cli.netem",
+    "report": "testbed.cli.recorder",
+    "info": "testbed.cli.recorder",
+    "recover": "testbed.cli.recorder",
+    "export": "testbed.cli.recorder",
+    "replay": "testbed.cli.recorder",
+    "compose": "testbed.cli.deploy",
+    "keys": "testbed.cli.deploy",
+    "experiment": "testbed.cli.experiment",
+    "sweep": "testbed.cli.experiment",
+}
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser with ``command``'s subcommands, or with every one when ``command`` is None."""
     parser = argparse.ArgumentParser(
         prog="formation",
         description="Formation control over packet-dropping links: simulate, run, record, analyse.",
     )
     sub = parser.add_subparsers(dest="command", required=True)
-    for module in _SUBCOMMANDS:
-        module.register(sub)
+    chosen = [COMMANDS[command]] if command in COMMANDS else COMMANDS.values()
+    for module in dict.fromkeys(chosen):
+        importlib.import_module(module).register(sub)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    args_in = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(args_in[0] if args_in else None)
+    args = parser.parse_args(args_in)
     try:
         code: int = args.func(args)
     except TestbedError as exc:
@@ -37,4 +56,4 @@ def main(argv: Sequence[str] | None = None) -> int:
     return code
 
 
-__all__ = ["build_parser", "main"]
+__all__ = ["COMMANDS", "build_parser", "main"]
