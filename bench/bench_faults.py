@@ -4,10 +4,15 @@ take part again; the lockstep rate of a run with a kill against the same run wit
 Noticing is netem's ``lost agent i`` status (after its 3 s liveliness grace, or at once when a
 restarted process asks to rejoin first); taking part again is the first state of the restarted
 agent the launcher sees.
+
+``--events``: lockstep epochs/s of the default scenario with three scenario events (agent 3
+crashes at epoch 500 and restarts at 1000, agent 5 leaves at 1250) against the same scenario
+without events, the two interleaved ``--repeat`` times in the same run (issue 20 item 1).
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import signal
@@ -22,6 +27,11 @@ from testbed.runtime.launcher import RunOutcome, launch
 
 SEED = 1
 EPOCHS = 1500
+EVENTS = [
+    {"epoch": 500, "agent": 3, "action": "crash"},
+    {"epoch": 1000, "agent": 3, "action": "restart"},
+    {"epoch": 1250, "agent": 5, "action": "leave"},
+]
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -56,7 +66,34 @@ def noticed(outcome: RunOutcome, killed: float) -> tuple[float, Any]:
     return float("nan"), None
 
 
+def events_rate(repeat: int) -> None:
+    """Epochs/s with the three events against without, best of ``repeat`` interleaved runs."""
+    paper = Scenario.from_file(ROOT / "scenarios/paper.toml").with_overrides(epochs=EPOCHS)
+    with_events = paper.with_overrides(events=EVENTS)
+    shown = ", ".join(f"{e['action']} {e['agent']} at {e['epoch']}" for e in EVENTS)
+    print(f"seed {SEED}; default scenario (paper.toml), {EPOCHS} epochs, lockstep, real "
+          f"processes; events: {shown}")  # fmt: skip
+    walls: dict[str, list[float]] = {"without events": [], "with 3 events": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        for _ in range(repeat):
+            for label, scenario in (("without events", paper), ("with 3 events", with_events)):
+                out = launch(scenario, seed=SEED, runs_dir=Path(tmp), record=False)
+                walls[label].append(out.wall_s)
+    base, ev = min(walls["without events"]), min(walls["with 3 events"])
+    for label, w in walls.items():
+        print(f"{label}: {EPOCHS / min(w):.1f} epochs/s (best of {len(w)}: "
+              f"{', '.join(f'{x:.2f}' for x in w)} s)")  # fmt: skip
+    print(f"ratio with/without events: {(EPOCHS / ev) / (EPOCHS / base):.2f}x the epochs/s")
+
+
 def main() -> None:
+    p = argparse.ArgumentParser(prog="bench_faults", description=__doc__)
+    p.add_argument("--events", action="store_true", help="only the scenario events' rate")
+    p.add_argument("--repeat", type=int, default=2)
+    args = p.parse_args()
+    if args.events:
+        events_rate(args.repeat)
+        return
     print(f"seed {SEED}; default scenario (paper.toml), {EPOCHS} epochs, lockstep, real processes")
     with tempfile.TemporaryDirectory() as tmp:
         runs = Path(tmp)
@@ -77,6 +114,7 @@ def main() -> None:
           f"lost at epoch {loss2['epoch']}, back from epoch {loss2['back_from_epoch']} "
           f"({loss2['back_after_s'] and 1e3 * loss2['back_after_s']:.0f} ms after the launcher saw it die); "
           f"ratio {back.wall_s / base.wall_s:.2f}x the wall time")  # fmt: skip
+    events_rate(1)
 
 
 if __name__ == "__main__":
