@@ -6,7 +6,9 @@ One pass over the recording and its rotated parts, every message through the
 
 ``states`` — one row per recorded true state ``x_i[k]`` (sender side, before loss):
     ``epoch``, ``agent``, ``x``, ``y`` [, ``z``], ``substituted`` (how many lost neighbour
-    values the agent filled in at this epoch, from what it reported with its next state).
+    values the agent filled in at this epoch, from what it reported with its next state);
+    unicycles (``dynamics = "unicycle"``) add ``heading`` [rad] and ``saturated`` (sub-steps of
+    the step into this epoch with a clipped speed; NaN / −1 where not recorded).
 ``estimates`` — the leader's BLUE, one row per epoch and agent:
     ``epoch``, ``agent``, ``observable``, ``x``, ``y`` [, ``z``] (NaN if unobservable),
     ``cov_xx``, ``cov_xy``, ... (every entry of the d×d covariance block, NaN if unobservable).
@@ -83,6 +85,7 @@ class _Rows:
     def __init__(self, s: Scenario) -> None:
         self.s, self.d = s, s.dimension
         self.states: dict[tuple[int, int], list[float]] = {}
+        self.poses: dict[tuple[int, int], tuple[float | None, int | None]] = {}
         self.subs: dict[tuple[int, int], list[tuple[int, bool, list[float]]]] = {}
         self.ests: dict[int, LeaderEstimate] = {}
         self.decisions: list[tuple[Any, ...]] = []
@@ -92,6 +95,7 @@ class _Rows:
         if kind == "agent_state":
             st: CoordinationState = msg
             self.states[st.epoch, st.agent] = st.position
+            self.poses[st.epoch, st.agent] = (st.heading, st.saturated)
             if st.substituted:
                 self.subs[st.epoch - 1, st.agent] = [
                     (u.neighbour, u.fallback, u.value) for u in st.substituted
@@ -125,6 +129,14 @@ class _Rows:
                 "substituted": np.array([subs_per.get(k, 0) for k in keys_sorted], dtype=np.int64),
             }
         )
+        if s.control.dynamics == "unicycle":
+            poses = [self.poses.get(k, (None, None)) for k in keys_sorted]
+            states["heading"] = np.array(
+                [np.nan if h is None else h for h, _ in poses], dtype=float
+            )
+            states["saturated"] = np.array(
+                [-1 if n is None else n for _, n in poses], dtype=np.int64
+            )
         count = int(states["epoch"].max()) + 1 if len(states) else 0
         x = np.full((count, s.n, d), np.nan)
         if len(states):

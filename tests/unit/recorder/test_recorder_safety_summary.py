@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from formation.scenario import Scenario
+from recorder.frames import load_run
 from recorder.report import write_report, write_report_from
 from recorder.rundata import RunData, read_run
 from recorder.safety import axle_speeds, safety_counts
@@ -78,3 +79,17 @@ def test_axle_speed_is_the_chord_of_the_axles_path() -> None:
     th = np.array([[0.0], [np.pi / 2]])
     p = 0.05 * np.stack([np.cos(th), np.sin(th)], axis=-1)
     np.testing.assert_allclose(axle_speeds(p, th, 0.05, 1.0), [[0.0]], atol=1e-15)
+
+
+def test_load_run_gives_a_unicycles_heading_and_saturation(
+    robots: Scenario, tmp_path: Path, synth: Any
+) -> None:
+    result = simulate(robots)
+    path = tmp_path / "run.mcap"
+    synth.write(path, result)
+    states = load_run(path).states
+    for i in range(1, robots.n + 1):
+        mine = states[states.agent == i].sort_values("epoch")
+        np.testing.assert_array_equal(mine.heading.to_numpy(), result.headings[:, i - 1])
+        sat = mine.saturated.to_numpy()
+        np.testing.assert_array_equal(sat[1:], result.saturated[:, i - 1])  # the step into k
