@@ -15,7 +15,7 @@ import numpy as np
 
 from formation.reference import reference_positions
 from formation.scenario import STRATEGIES, Scenario, StrategyName
-from recorder.metrics import error_statistics, formation_error
+from recorder.metrics import error_statistics
 from recorder.rundata import read_run
 from testbed.experiments import plots, studies
 from testbed.experiments.lossy import with_loss
@@ -185,10 +185,7 @@ def run_events_real(
         return f"| {label} | {scenario.seed} | - | - | launch failed: {exc} |"
     seen = np.isfinite(outcome.positions)
     diff = float(np.max(np.abs(outcome.positions[seen] - sim.positions[seen])))
-    held = outcome.positions.copy()  # a body out of the team stays where it last was
-    for k in range(1, len(held)):
-        held[k] = np.where(np.isnan(held[k]), held[k - 1], held[k])
-    row["real_final"] = float(formation_error(held, scenario.edge_array, scenario.weights)[-1])
+    row["real_final"] = float(outcome.formation_error[-1])  # bodies out of the team held
     row["max_diff_text"] = f"{diff:.1e} (published states)"
     row["match"] = "yes" if diff <= 1e-9 else "no"
     r.real.append(row)

@@ -19,6 +19,9 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numpy as np
+import numpy.typing as npt
+
 from formation.errors import RuntimeFailure
 from formation.scenario import Scenario
 from testbed.runtime.faults import Supervisor
@@ -90,4 +93,19 @@ class EventDriver:
         return [i for i in self.team.taking_part(self.epochs) if f"agent-{i}" not in gone]
 
 
-__all__ = ["LEAD_S", "EventDriver", "Step"]
+def bodies(
+    positions: npt.NDArray[np.float64], x0: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """Where every body is at each epoch, from the states published: an agent out of the team
+    stays where its last state put it, one not yet joined where the scenario starts it.
+
+    positions : (E + 1, n, d) published states, NaN where none [m]; x0 : (n, d) initial [m]
+    """
+    out = positions.copy()
+    out[0] = np.where(np.isnan(out[0]), x0, out[0])
+    for k in range(1, len(out)):
+        out[k] = np.where(np.isnan(out[k]), out[k - 1], out[k])
+    return out
+
+
+__all__ = ["LEAD_S", "EventDriver", "Step", "bodies"]

@@ -28,7 +28,7 @@ from formation.messages import Status
 from formation.scenario import Scenario, StrategyName
 from formation.zenoh_config import session_config
 from recorder.metrics import formation_error, shape_error
-from testbed.runtime.events import EventDriver
+from testbed.runtime.events import EventDriver, bodies
 from testbed.runtime.faults import (
     RestartPolicy,
     Supervisor,
@@ -61,12 +61,17 @@ class RunOutcome:
     delivered: dict[str, int] = field(default_factory=dict)  # packets netem delivered per link
 
     @property
+    def bodies(self) -> npt.NDArray[np.float64]:
+        """(E + 1, n, d) positions, a body without a state where it last was (events, losses)."""
+        return bodies(self.positions, self.scenario.initial_positions(self.seed))
+
+    @property
     def formation_error(self) -> npt.NDArray[np.float64]:
-        return formation_error(self.positions, self.scenario.edge_array, self.scenario.weights)
+        return formation_error(self.bodies, self.scenario.edge_array, self.scenario.weights)
 
     @property
     def shape_error(self) -> npt.NDArray[np.float64]:
-        return shape_error(self.positions, self.scenario.edge_array, self.scenario.offsets)
+        return shape_error(self.bodies, self.scenario.edge_array, self.scenario.offsets)
 
     def drops_per_link(self) -> dict[str, tuple[int, int]]:
         """``"src->dst" → (sent, dropped)`` over every decision."""

@@ -33,6 +33,8 @@ def assert_equals_the_simulator(outcome: RunOutcome, scenario: Scenario, strateg
             expected[first : last + 1, i - 1] = True  # its states, up to its goodbye or crash
     np.testing.assert_array_equal(seen, expected)
     np.testing.assert_array_equal(outcome.positions[seen], sim.positions[seen])  # bit for bit
+    np.testing.assert_array_equal(outcome.bodies, sim.positions)  # out of the team: where it was
+    np.testing.assert_array_equal(outcome.formation_error, sim.formation_error)
     verdicts = {
         (d.source, d.target, d.epoch): d.verdict in ("pass", "duplicate")
         for d in outcome.decisions
