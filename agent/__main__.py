@@ -58,7 +58,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         node = AgentNode(service, scenario, ids, args.strategy or scenario.strategy.name,
                          scenario.seed if args.seed is None else args.seed)  # fmt: skip
-        restarted = scenario.runtime.mode == "lockstep" and service.run_started()
+        # Restarted into a running run, or joining it later (a scenario event): ask netem.
+        joins = not scenario.membership.present[0, [i - 1 for i in ids]].all()
+        restarted = scenario.runtime.mode == "lockstep" and (joins or service.run_started())
         node.announce()
         if restarted:
             node.rejoin()
