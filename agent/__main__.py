@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import sys
 
-from formation import zenoh_config
+from agent.node import AgentNode
 from formation.errors import TestbedError
-from formation.scenario import STRATEGIES, Scenario
-from formation.service import Service
+from formation.scenario import STRATEGIES
+from formation.service import Service, load_scenario, serve, service_parser
 
 
 def parse_ids(text: str, n: int) -> list[int]:
@@ -29,33 +28,21 @@ def parse_ids(text: str, n: int) -> list[int]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m agent", description=__doc__)
-    p.add_argument("--scenario", required=True)
+    p = service_parser("python -m agent", __doc__)
     p.add_argument("--id", "--ids", dest="ids", required=True, help="agent id, or ids for a pool")
-    p.add_argument("--run-id", default="default")
     p.add_argument("--strategy", choices=STRATEGIES)
     p.add_argument("--seed", type=int)
-    p.add_argument("--epochs", type=int)
-    zenoh_config.add_arguments(p)
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
     try:
-        scenario = Scenario.from_file(args.scenario)
-        if args.epochs is not None:
-            scenario = scenario.with_overrides(epochs=args.epochs)
+        scenario = load_scenario(args)
         ids = parse_ids(args.ids, scenario.n)
     except TestbedError as exc:
         print(f"agent: error: {exc}", file=sys.stderr)
         return 1
-    from agent.node import AgentNode
-
     role, ident = ("agent", ids[0]) if len(ids) == 1 else ("pool", ids[0])
-    try:
-        service = Service(args.run_id, role, ident, args)
-    except TestbedError as exc:
-        print(f"agent: error: {exc}", file=sys.stderr)
-        return 1
-    try:
+
+    def body(service: Service) -> int:
         node = AgentNode(service, scenario, ids, args.strategy or scenario.strategy.name,
                          scenario.seed if args.seed is None else args.seed)  # fmt: skip
         # Restarted into a running run, or joining it later (a scenario event): ask netem.
@@ -71,11 +58,8 @@ def main(argv: list[str] | None = None) -> int:
         if code == 0:
             node.confirm_final()
         return code
-    except TestbedError as exc:
-        print(f"agent: error: {exc}", file=sys.stderr)
-        return 1
-    finally:
-        service.close()
+
+    return serve("agent", lambda: Service(args.run_id, role, ident, args), body)
 
 
 if __name__ == "__main__":

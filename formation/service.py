@@ -7,6 +7,7 @@ receiving thread under :attr:`Service.inline_lock`. Either way one handler runs 
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import gc
 import logging
@@ -23,10 +24,11 @@ import orjson
 import zenoh
 from pydantic import BaseModel
 
-from formation import keys
+from formation import keys, zenoh_config
 from formation.codec import Malformed, encode, now_ns
-from formation.errors import RuntimeFailure
+from formation.errors import RuntimeFailure, TestbedError
 from formation.messages import Status
+from formation.scenario import Scenario
 from formation.zenoh_config import open_session
 
 log = logging.getLogger("service")
@@ -289,3 +291,36 @@ class Service:
             pub.undeclare()
         self._publishers.clear()
         self.session.close()
+
+
+def service_parser(prog: str, description: str | None) -> argparse.ArgumentParser:
+    """A service's command line: ``--scenario``, ``--run-id``, ``--epochs`` and Zenoh's flags."""
+    p = argparse.ArgumentParser(prog=prog, description=description)
+    p.add_argument("--scenario", required=True)
+    p.add_argument("--run-id", default="default")
+    p.add_argument("--epochs", type=int, help="overrides the scenario's epochs")
+    zenoh_config.add_arguments(p)
+    return p
+
+
+def load_scenario(args: argparse.Namespace) -> Scenario:
+    """The scenario of ``--scenario``, with ``--epochs`` applied."""
+    scenario = Scenario.from_file(args.scenario)
+    return scenario if args.epochs is None else scenario.with_overrides(epochs=args.epochs)
+
+
+def serve(name: str, open_service: Callable[[], Service], body: Callable[[Service], int]) -> int:
+    """Open the service, run ``body`` and close it; a :class:`TestbedError` is printed as
+    ``name: error: …`` with exit code 1."""
+    try:
+        service = open_service()
+    except TestbedError as exc:
+        print(f"{name}: error: {exc}", file=sys.stderr)
+        return 1
+    try:
+        return body(service)
+    except TestbedError as exc:
+        print(f"{name}: error: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        service.close()

@@ -2,46 +2,32 @@
 
 from __future__ import annotations
 
-import argparse
 import logging
 import sys
 
-from formation import zenoh_config
 from formation.errors import TestbedError
-from formation.scenario import Scenario
-from formation.service import Service
+from formation.service import Service, load_scenario, serve, service_parser
+from netem.node import NetemNode
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m netem", description=__doc__)
-    p.add_argument("--scenario", required=True)
-    p.add_argument("--run-id", default="default")
+    p = service_parser("python -m netem", __doc__)
     p.add_argument("--seed", type=int)
-    p.add_argument("--epochs", type=int)
     p.add_argument(
         "--passthrough", action="store_true", help="benchmark baseline: forward all, decide nothing"
     )
     p.add_argument(
         "--no-recorder", action="store_true", help="start without waiting for a recorder"
     )
-    zenoh_config.add_arguments(p)
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
     try:
-        scenario = Scenario.from_file(args.scenario)
-        if args.epochs is not None:
-            scenario = scenario.with_overrides(epochs=args.epochs)
+        scenario = load_scenario(args)
     except TestbedError as exc:
         print(f"netem: error: {exc}", file=sys.stderr)
         return 1
-    from netem.node import NetemNode
 
-    try:
-        service = Service(args.run_id, "netem", 0, args)
-    except TestbedError as exc:
-        print(f"netem: error: {exc}", file=sys.stderr)
-        return 1
-    try:
+    def body(service: Service) -> int:
         node = NetemNode(service, scenario, scenario.seed if args.seed is None else args.seed,
                          wait_for_recorder=not args.no_recorder, passthrough=args.passthrough)  # fmt: skip
         service.announce()
@@ -56,11 +42,8 @@ def main(argv: list[str] | None = None) -> int:
             service.sent.update(delivered)
         service.status("done" if code == 0 else "error", node.estimates_done, delivered=delivered)
         return code
-    except TestbedError as exc:
-        print(f"netem: error: {exc}", file=sys.stderr)
-        return 1
-    finally:
-        service.close()
+
+    return serve("netem", lambda: Service(args.run_id, "netem", 0, args), body)
 
 
 if __name__ == "__main__":
