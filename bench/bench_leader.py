@@ -5,9 +5,12 @@ the BLUE on two graph families (formation-like: 4 nearest neighbours in the
 plane; expander: random graph of mean degree 4, made connected) and two edge
 sets (``healthy`` = every edge, ``tree`` = the Kruskal tree), with the dense
 baseline (``np.linalg.solve`` on the ``nd × nd`` system plus ``np.linalg.inv``
-for the covariances) measured in the same run at n = 1,000; then Kruskal
-against ``scipy.sparse.csgraph.minimum_spanning_tree`` at 10,000 agents and
-40,000 edges. Times are the best of several runs, single-threaded BLAS.
+for the covariances) measured in the same run at n = 1,000; every covariance
+block on the cyclic ``healthy`` sets comes from the selected inversion of
+``leader.covariance``. Then Kruskal against
+``scipy.sparse.csgraph.minimum_spanning_tree`` at 10,000 agents and 40,000
+edges. Times are the best of several runs, single-threaded BLAS; the load
+average is printed with them (the machine is shared).
 """
 
 from __future__ import annotations
@@ -33,7 +36,7 @@ from scipy.spatial import cKDTree
 from leader.blue import BlueResult, blue
 from leader.mst import minimum_spanning_forest
 
-SEED = 20240611
+SEED = 7  # the seed of issue 18's figures
 SIGMA_M = 0.01  # [m] measurement noise per coordinate (docs/model.md §8)
 T = TypeVar("T")
 IntArray = npt.NDArray[np.int64]
@@ -153,7 +156,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args([] if argv is None else argv)  # a runner's argv is not ours
     seed: int = args.seed
     sizes = (1000,) if args.quick else (1000, 10000)
-    print(f"bench_leader  seed={seed}  OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}")
+    print(
+        f"bench_leader  seed={seed}  OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}  "
+        f"load average {_load()}"
+    )
     print("BLUE, d = 2, P_e = σ²I (σ = 0.01 m), reference = agent 1 at its true position")
     print(
         f"{'family':<10} {'n':>6} {'m':>6} {'edges':<8} {'solver':<7} {'estimates':>10} "
@@ -188,7 +194,7 @@ def main(argv: list[str] | None = None) -> int:
                 if cyclic_big and args.quick:
                     t_all, full = float("nan"), res
                 else:
-                    t_all, full = best(lambda: run(True), 1 if cyclic_big else 5)
+                    t_all, full = best(lambda: run(True), 2 if cyclic_big else 5)  # a warm-up first
                 dense_s, ratio_est, ratio_all, delta = float("nan"), "", "", ""
                 if n == 1000:
                     times = []
@@ -211,24 +217,27 @@ def main(argv: list[str] | None = None) -> int:
                     f"{dense_txt} {ratio_est:>7} {ratio_all:>7} {delta:>13}"
                 )
                 if n == 10000:
-                    limit = 50.0 if set_name == "tree" else 100.0
-                    what = "estimates + covariances" if set_name == "tree" else "estimates"
-                    got = t_all if set_name == "tree" else t_est
-                    verdict = "met" if got * 1e3 <= limit else "MISSED"
-                    summary.append(
-                        f"target {family_name} {set_name} n=10000 {what} <= {limit:.0f} ms: "
-                        f"{got * 1e3:.1f} ms, {verdict}"
-                    )
+                    targets = [("estimates", t_est, 50.0 if set_name == "tree" else 100.0)]
+                    if set_name == "tree" or np.isfinite(t_all):
+                        cov_limit = {"tree": 50.0, "formation": 500.0, "expander": 5000.0}
+                        key = "tree" if set_name == "tree" else family_name
+                        targets.append(("estimates + covariances", t_all, cov_limit[key]))
+                    for what, got, limit in targets:
+                        verdict = "met" if got * 1e3 <= limit else "MISSED"
+                        summary.append(
+                            f"target {family_name} {set_name} n=10000 {what} <= {limit:.0f} ms: "
+                            f"{got * 1e3:.1f} ms, {verdict} (load {_load()})"
+                        )
                 if n == 1000:
-                    verdict = "met" if dense_s / t_all >= 50 else "MISSED"
+                    verdict = "met" if dense_s / t_all >= 100 else "MISSED"
                     summary.append(
-                        f"target {family_name} {set_name} n=1000 >= 50x dense (estimates + "
+                        f"target {family_name} {set_name} n=1000 >= 100x dense (estimates + "
                         f"covariances): {dense_s / t_all:.0f}x, {verdict} "
                         f"(estimates only: {dense_s / t_est:.0f}x)"
                     )
     print(
         "estimates: blue(covariances=False); +cov blocks: blue() with every d×d block (on cyclic\n"
-        "graphs by solving the LU factor against identity columns, after CG if CG was chosen);\n"
+        "graphs by selected inversion of the LU factor, leader.covariance; after CG if chosen);\n"
         "dense: np.linalg.solve + np.linalg.inv on the nd×nd system (assembly not timed);\n"
         "× est / × all: dense time over ours; max|Δ| dense: positions/covariance blocks vs dense"
     )
@@ -238,6 +247,11 @@ def main(argv: list[str] | None = None) -> int:
     for line in summary:
         print(line)
     return 0
+
+
+def _load() -> str:
+    """The 1-minute load average (other engineers' tests share the 2 cores)."""
+    return f"{os.getloadavg()[0]:.1f}"
 
 
 def _bench_mst(seed: int, summary: list[str]) -> None:

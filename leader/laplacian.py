@@ -3,12 +3,14 @@
 ``A = H_bᵀ P⁻¹ H_b`` on the reference's component, assembled sparse (one
 Laplacian per coordinate when every ``P_e`` is diagonal, ``d × d`` blocks
 otherwise), solved by sparse LU or preconditioned conjugate gradients, with the
-diagonal blocks of ``A⁻¹`` as covariances. ``leader.blue``'s docstring explains
-how the solver is chosen.
+diagonal blocks of ``A⁻¹`` as covariances (selected inversion over the LU
+factor, ``leader.covariance``). ``leader.blue``'s docstring explains how the
+solver is chosen.
 """
 
 from __future__ import annotations
 
+import logging
 from typing import Protocol
 
 import numpy as np
@@ -17,7 +19,11 @@ from scipy.sparse import coo_array, csr_array
 from scipy.sparse.csgraph import dijkstra, reverse_cuthill_mckee
 from scipy.sparse.linalg import splu
 
+from leader.covariance import LDLFactor, PatternError, inverse_diagonal_blocks
+
 __all__ = ["CG_RTOL", "DIRECT_MAX_UNKNOWNS", "GroundedSystem", "choose_method"]
+
+log = logging.getLogger("leader")
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -32,13 +38,11 @@ DIRECT_WORK_RATIO = 10.0
 CG_ITERATIONS_PER_LEVEL = 8
 """CG iterations per BFS level from the reference, measured (Jacobi-PCG to 1e-12)."""
 INVERSE_CHUNK_COLUMNS = 256
-"""Identity columns solved at once when extracting covariance blocks from the factorisation."""
+"""Identity columns solved at once when the selected inversion cannot read the factor."""
 
 
-class _Factor(Protocol):
+class _Factor(LDLFactor, Protocol):
     """What the code needs of a sparse factorisation (``scipy.sparse.linalg.SuperLU``)."""
-
-    shape: tuple[int, int]
 
     def solve(self, rhs: FloatArray) -> FloatArray: ...
 
@@ -172,7 +176,7 @@ class GroundedSystem:
                 used.add(how)
                 est[:, cols] = sol
                 if cov is not None:
-                    var = _diagonal_blocks_of_inverse(lu if lu is not None else _factor(mat), 1)
+                    var = _covariance_blocks(lu if lu is not None else _factor(mat), 1)
                     for c in cols:
                         cov[:, c, c] = var[:, 0, 0]
         else:
@@ -181,7 +185,7 @@ class GroundedSystem:
             used.add(how)
             est[:] = sol.reshape(s, d)
             if cov is not None:
-                cov[:] = _diagonal_blocks_of_inverse(lu if lu is not None else _factor(mat), d)
+                cov[:] = _covariance_blocks(lu if lu is not None else _factor(mat), d)
         self.method = "cg" if "cg" in used else "direct"
         positions[self.nodes] = est
         if blocks is not None and cov is not None:
@@ -311,7 +315,16 @@ def _diag_blocks(mat: csr_array, block: int) -> FloatArray:
     return out
 
 
-def _diagonal_blocks_of_inverse(lu: _Factor, block: int) -> FloatArray:
+def _covariance_blocks(lu: _Factor, block: int) -> FloatArray:
+    """Diagonal ``block × block`` blocks of ``A⁻¹``: selected inversion of the factor."""
+    try:
+        return inverse_diagonal_blocks(lu, block)
+    except PatternError as err:  # not seen with SuperLU's symmetric mode; exact either way
+        log.warning("covariances by identity-column solves: %s", err)
+        return _diagonal_blocks_by_solves(lu, block)
+
+
+def _diagonal_blocks_by_solves(lu: _Factor, block: int) -> FloatArray:
     """Diagonal ``block × block`` blocks of ``A⁻¹`` from a factorisation of ``A``.
 
     Solves against ``INVERSE_CHUNK_COLUMNS`` identity columns at a time and keeps

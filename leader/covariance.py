@@ -1,0 +1,338 @@
+"""Covariance blocks on a cyclic graph: selected inversion of the grounded Laplacian (docs/model.md §5).
+
+``Cov(x̂_b) = A⁻¹`` with ``A = H_bᵀ P⁻¹ H_b`` SPD; the leader reports only its
+``d × d`` diagonal blocks. With the fill-reducing factorisation ``A = Q L D Lᵀ Qᵀ``
+(``L`` unit lower triangular, the sparse LU of ``leader.laplacian`` in symmetric
+mode, which is an LDLᵀ), the entries of ``Z = (L D Lᵀ)⁻¹`` on the pattern of
+``L`` follow from the Takahashi recurrences, column ``j`` from the later ones::
+
+    Z[S_j, j] = −Z[S_j, S_j] L[S_j, j],     Z_jj = 1 / D_j − L[S_j, j]ᵀ Z[S_j, j]
+
+(``S_j`` the rows below the diagonal of column ``j``: ancestors of ``j`` in the
+elimination tree, a clique of the filled graph, so ``Z[S_j, S_j]`` is on the
+pattern too). Nothing off the pattern is ever formed: exact, with the work of
+the factorisation (Takahashi, Fagan, Chen 1973; Erisman, Tinney 1975).
+
+Two ways to run the recurrence, chosen per column:
+
+* **levels**: columns at the same depth of the elimination tree do not need
+  each other, so all of a depth are done at once by flat gathers and
+  ``bincount`` sums (formation-like graphs: a few hundred depths);
+* **core**: the columns whose ``|S_j|`` is large (the dense trailing fronts of an
+  expander), closed under ancestors, are a trailing block of a valid elimination
+  order, so ``Z`` on them is the dense inverse of their Schur complement,
+  ``(L_CC D_C L_CCᵀ)⁻¹``, by LAPACK's ``potri`` on ``L_CC D_C^½``.
+
+The split is chosen by a cost model (gathers against dense flops,
+``CORE_*`` below; bench/bench_leader.py measured it). The result does not
+depend on the split beyond rounding.
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import Any, Protocol
+
+import numpy as np
+import numpy.typing as npt
+from scipy.linalg.lapack import dpotri
+from scipy.sparse import csc_array
+
+__all__ = ["LDLFactor", "PatternError", "inverse_diagonal_blocks"]
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
+
+CORE_GATHER_S = 1e-7
+"""Cost of one gathered entry of ``Z[S_j, S_j]`` on the levels [s] (measured)."""
+CORE_FLOP_S = 5e-11
+"""Cost of one flop of the dense core's inverse (``c³·2/3`` flops) [s] (measured)."""
+CORE_THRESHOLDS = (8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096)
+"""Column counts ``|S_j|`` tried as the core's threshold (and no core at all)."""
+PATTERN_REPAIRS = 16
+"""Restarts allowed to put back entries of ``L`` that the factorisation left out as zeros."""
+LEVEL_CHUNK = 1 << 22
+"""Most gathered entries held at once on one level (memory: ~40 bytes each)."""
+
+
+class PatternError(RuntimeError):
+    """The factor is not an ``L D Lᵀ`` this module can read; the caller computes the blocks
+    another way."""
+
+
+class LDLFactor(Protocol):
+    """What is read of a symmetric-mode ``scipy.sparse.linalg.SuperLU``."""
+
+    shape: tuple[int, int]
+    perm_r: npt.NDArray[np.int32]
+    perm_c: npt.NDArray[np.int32]
+
+    @property
+    def L(self) -> Any: ...  # SuperLU's names; a scipy sparse matrix
+
+    @property
+    def U(self) -> Any: ...
+
+
+def inverse_diagonal_blocks(
+    factor: LDLFactor, block: int, *, core: int | None = None
+) -> FloatArray:
+    """The ``block × block`` diagonal blocks of ``A⁻¹`` by selected inversion.
+
+    Parameters
+    ----------
+    factor : SuperLU
+        ``A``'s factorisation with symmetric pivoting (``perm_r == perm_c``, no
+        row interchanges), so that ``U = D Lᵀ``.
+    block : int
+        Unknowns per node; node ``t``'s unknowns are ``t·block … t·block + block − 1``.
+    core : int, optional
+        Do the columns with ``|S_j| ≥ core`` (and their ancestors) densely; default:
+        the threshold of least modelled cost. Any value gives the same blocks.
+
+    Returns
+    -------
+    (N / block, block, block) float64 array
+        ``(A⁻¹)[t·block + a, t·block + b]``, symmetric.
+
+    Raises
+    ------
+    PatternError
+        When the factor was not symmetric or a needed entry is off its pattern.
+    """
+    if not np.array_equal(factor.perm_r, factor.perm_c):
+        raise PatternError("the factorisation pivoted rows; its L D Lᵀ is not A's")
+    low = csc_array(factor.L)
+    low.sort_indices()
+    size = low.shape[0]
+    ptr, idx, val = low.indptr.astype(np.int64), low.indices.astype(np.int64), low.data
+    if size and not np.array_equal(idx[ptr[:-1]], np.arange(size)):
+        raise PatternError("a column of L does not start at its diagonal")
+    pos = factor.perm_c.astype(np.int64)  # unknown u sits at row pos[u] of the factor
+    nodes = size // block
+    a, b = np.triu_indices(block)
+    i, k = pos.reshape(nodes, block)[:, a].ravel(), pos.reshape(nodes, block)[:, b].ravel()
+    off = i != k
+    wanted = np.minimum(i, k)[off] * size + np.maximum(i, k)[off]  # the blocks' own entries
+    diag = factor.U.diagonal()
+    for _ in range(PATTERN_REPAIRS):
+        # SuperLU leaves out entries of L that came out exactly zero; the recurrence needs
+        # its closed pattern, so they come back as zeros and it starts again
+        ptr, idx, val = _with_entries(size, ptr, idx, val, wanted)
+        try:
+            inv = _SelectedInverse(size, ptr, idx, val, diag, core)
+            break
+        except _OffPattern as missing:
+            wanted = missing.keys
+    else:
+        raise PatternError(f"L's pattern still not closed after {PATTERN_REPAIRS} repairs")
+    got = inv.values(i, k).reshape(nodes, a.size)
+    out = np.empty((nodes, block, block))
+    out[:, a, b] = got
+    out[:, b, a] = got
+    return out
+
+
+class _OffPattern(Exception):
+    """Entries (keys ``col·N + row``) the recurrence needs that are not on the pattern."""
+
+    def __init__(self, keys: IntArray) -> None:
+        super().__init__(f"{keys.size} entries off the pattern")
+        self.keys = keys
+
+
+def _with_entries(
+    size: int, ptr: IntArray, idx: IntArray, val: FloatArray, keys: IntArray
+) -> tuple[IntArray, IntArray, FloatArray]:
+    """The CSC arrays of ``L`` with the entries ``keys`` (``col·N + row``) added as zeros."""
+    have = np.repeat(np.arange(size, dtype=np.int64), np.diff(ptr)) * size + idx  # sorted
+    at = np.minimum(np.searchsorted(have, keys), max(have.size - 1, 0))
+    missing = keys[have[at] != keys] if have.size else keys
+    if missing.size == 0:
+        return ptr, idx, val
+    new = np.unique(missing)
+    merged = np.concatenate([have, new])
+    order = np.argsort(merged, kind="stable")
+    merged = merged[order]
+    values = np.concatenate([val, np.zeros(new.size)])[order]
+    counts = np.bincount(merged // size, minlength=size)
+    return np.concatenate([[0], np.cumsum(counts)]), merged % size, values
+
+
+class _SelectedInverse:
+    """``Z = (L D Lᵀ)⁻¹`` on the pattern of ``L``.
+
+    ``L`` (N, N) unit lower triangular as sorted CSC arrays ``ptr, idx, val`` (each column
+    starting at its diagonal), ``D`` (N,); ``threshold`` as ``core`` of
+    :func:`inverse_diagonal_blocks`. Raises :class:`_OffPattern` when the pattern is not closed.
+    """
+
+    def __init__(
+        self,
+        size: int,
+        ptr: IntArray,
+        idx: IntArray,
+        val: FloatArray,
+        diag: FloatArray,
+        threshold: int | None,
+    ) -> None:
+        self.size = size
+        self.ptr, self.idx, self.val = ptr, idx, val
+        self.keys = np.repeat(np.arange(size, dtype=np.int64), np.diff(ptr)) * size + idx
+        count = np.diff(ptr) - 1  # |S_j|
+        parent = np.full(size, size, dtype=np.int64)
+        has = count > 0
+        parent[has] = idx[ptr[:-1][has] + 1]
+        if threshold is None:
+            core = _choose_core(count, parent)
+        else:
+            core = _ancestor_closure(count >= threshold, parent)
+        self.core = np.flatnonzero(core)
+        self.core_pos = np.full(size, -1, dtype=np.int64)
+        self.core_pos[self.core] = np.arange(self.core.size)
+        # Z in one flat store: on L's pattern (L's entry order), the diagonal, the dense core
+        nnz, c = idx.size, self.core.size
+        self.diag_at, self.core_at = nnz, nnz + size
+        self.z = np.zeros(nnz + size + c * c)
+        self._core_inverse(diag)
+        depth = _depths(parent, core)
+        rest = np.flatnonzero(~core)
+        order = rest[np.argsort(depth[rest], kind="stable")]
+        s = ptr[order + 1] - ptr[order] - 1
+        for batch, steps in _batches(depth[order], s * s):
+            self._columns(order[batch], s[batch], steps, diag)
+
+    def _core_inverse(self, diag: FloatArray) -> None:
+        """``(L_CC D_C L_CCᵀ)⁻¹``, dense: the Schur complement onto the core, inverted.
+
+        Only the lower triangle is filled (column-major in the store): ``[i, k]`` with ``i ≥ k``
+        is all that :meth:`sources` reads.
+        """
+        c = self.core.size
+        if c == 0:
+            return
+        cols = self.core
+        starts, stops = self.ptr[cols], self.ptr[cols + 1]
+        lens = stops - starts
+        at = np.repeat(starts - np.cumsum(lens) + lens, lens) + np.arange(int(lens.sum()))
+        # R = L_CC D_C^½, so that R Rᵀ is the Schur complement; potri gives (R Rᵀ)⁻¹ in place
+        chol = self.z[self.core_at :].reshape((c, c), order="F")
+        col = np.repeat(np.arange(c), lens)
+        chol[self.core_pos[self.idx[at]], col] = self.val[at] * np.sqrt(diag[cols])[col]
+        inv, info = dpotri(chol, lower=1, overwrite_c=1)
+        if info != 0:
+            raise PatternError(f"the core's factor is singular (LAPACK info {info})")
+        if not np.shares_memory(inv, chol):
+            chol[:] = inv
+        self.z[self.diag_at + cols] = np.diagonal(chol)
+
+    def _columns(self, cols: IntArray, s: IntArray, steps: list[int], diag: FloatArray) -> None:
+        """Takahashi for the columns ``cols`` (|S_j| ``s``), in steps of columns that do not need
+        each other (``steps``: where each begins, and the end): the gathers for all at once."""
+        per = s * s
+        first = self.ptr[cols] + 1  # where S_j starts in L's arrays
+        offset = np.cumsum(s) - s  # where S_j starts among this batch's entries
+        seg = np.repeat(np.arange(cols.size), per)
+        t = np.arange(int(per.sum())) - np.repeat(np.cumsum(per) - per, per)
+        width = s[seg]
+        a, b = first[seg] + t // width, first[seg] + t % width  # entries (S_j[a], j), (S_j[b], j)
+        source = self.sources(self.idx[a], self.idx[b])
+        weight = self.val[b]
+        slot = offset[seg] + (a - first[seg])  # y[a] = Σ_b Z[S_j[a], S_j[b]] L[S_j[b], j]
+        owner = np.repeat(np.arange(cols.size), s)
+        entry = first[owner] + np.arange(int(s.sum())) - offset[owner]
+        pairs = np.concatenate([[0], np.cumsum(per)])
+        slots = np.concatenate([[0], np.cumsum(s)])
+        z = self.z
+        for c0, c1 in itertools.pairwise(steps):
+            p0, p1, e0, e1 = pairs[c0], pairs[c1], slots[c0], slots[c1]
+            y = np.bincount(slot[p0:p1] - e0, z[source[p0:p1]] * weight[p0:p1], minlength=e1 - e0)
+            z[entry[e0:e1]] = -y
+            done = cols[c0:c1]
+            z[self.diag_at + done] = 1.0 / diag[done] + np.bincount(
+                owner[e0:e1] - c0, self.val[entry[e0:e1]] * y, minlength=c1 - c0
+            )
+
+    def values(self, i: IntArray, k: IntArray) -> FloatArray:
+        """``Z[i, k]`` for factor rows ``i, k`` whose pair is on the pattern (or both in the core)."""
+        out: FloatArray = self.z[self.sources(i, k)]
+        return out
+
+    def sources(self, i: IntArray, k: IntArray) -> IntArray:
+        """Where ``Z[i, k]`` is in the store; raises :class:`_OffPattern` for pairs off the pattern."""
+        hi, lo = np.maximum(i, k), np.minimum(i, k)
+        out = np.empty(hi.size, dtype=np.int64)
+        same = hi == lo
+        out[same] = self.diag_at + hi[same]
+        ci, ck = self.core_pos[hi], self.core_pos[lo]
+        dense = ~same & (ck >= 0)  # on a closed pattern, hi is an ancestor: in the core too
+        if (ci[dense] < 0).any():
+            odd = dense & (ci < 0)
+            raise _OffPattern(np.unique(lo[odd] * self.size + hi[odd]))
+        out[dense] = self.core_at + ck[dense] * self.core.size + ci[dense]
+        rest = ~same & ~dense
+        key = lo[rest] * self.size + hi[rest]
+        at = np.minimum(np.searchsorted(self.keys, key), max(self.keys.size - 1, 0))
+        found = self.keys[at] == key
+        if not found.all():
+            raise _OffPattern(np.unique(key[~found]))
+        out[rest] = at
+        return out
+
+
+def _batches(depth: IntArray, per: IntArray) -> list[tuple[slice, list[int]]]:
+    """Columns sorted by depth, cut into batches of at most ``LEVEL_CHUNK`` gathers (one column
+    at least), each with its steps: runs of one depth, local bounds ``[0, …, size]``."""
+    out: list[tuple[slice, list[int]]] = []
+    total = np.cumsum(per)
+    start, size = 0, depth.size
+    while start < size:
+        base = total[start - 1] if start else 0
+        stop = max(int(np.searchsorted(total, base + LEVEL_CHUNK, side="right")), start + 1)
+        cuts = np.flatnonzero(np.diff(depth[start:stop])) + 1
+        out.append((slice(start, stop), [0, *cuts.tolist(), stop - start]))
+        start = stop
+    return out
+
+
+def _choose_core(count: IntArray, parent: IntArray) -> BoolArray:
+    """The columns done densely: those with ``|S_j| ≥ T`` and their ancestors, ``T`` by cost."""
+    size = count.size
+    work = count.astype(np.float64) ** 2
+    best, best_cost = np.zeros(size, dtype=bool), CORE_GATHER_S * float(work.sum())
+    for threshold in CORE_THRESHOLDS:
+        if threshold > count.max(initial=0):
+            break
+        core = _ancestor_closure(count >= threshold, parent)
+        c = float(core.sum())
+        cost = CORE_GATHER_S * float(work[~core].sum()) + CORE_FLOP_S * 2.0 / 3.0 * c**3
+        if cost < best_cost:
+            best, best_cost = core, cost
+    return best
+
+
+def _ancestor_closure(marked: BoolArray, parent: IntArray) -> BoolArray:
+    """``marked`` with every ancestor in the elimination tree (``parent[j] > j``; ``size``: a root)."""
+    out = marked.copy()
+    par = parent.tolist()
+    size = out.size
+    flags = out.tolist()
+    for j in range(size):
+        if flags[j] and par[j] < size:
+            flags[par[j]] = True
+    out[:] = flags
+    return out
+
+
+def _depths(parent: IntArray, core: BoolArray) -> IntArray:
+    """Depth of each column below the core (or below its tree's root): a column after its parent."""
+    size = parent.size
+    depth = [0] * size
+    par = parent.tolist()
+    in_core = core.tolist()
+    for j in range(size - 1, -1, -1):
+        p = par[j]
+        if not in_core[j] and p < size:
+            depth[j] = depth[p] + 1
+    return np.asarray(depth, dtype=np.int64)

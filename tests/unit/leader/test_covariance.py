@@ -1,0 +1,143 @@
+"""Covariance blocks by selected inversion (leader.covariance, docs/model.md §5) against the dense inverse."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.sparse import coo_array, csc_array
+from scipy.sparse.linalg import splu
+
+from leader.blue import blue
+from leader.covariance import PatternError, inverse_diagonal_blocks
+
+PROPERTY = settings(max_examples=40, deadline=None, derandomize=True, database=None)
+Kind = Literal["diagonal", "full"]
+TOL = 1e-9  # [m²] every block entry against the dense inverse
+
+
+def random_graph(rng: np.random.Generator, n: int, extra: int, tree: bool) -> np.ndarray:
+    """A random spanning tree of agents 1..n (plus ``extra`` random edges unless ``tree``)."""
+    edges = [(k, int(rng.integers(1, k))) for k in range(2, n + 1)]
+    while not tree and len(edges) < n - 1 + extra:
+        a, b = (int(v) for v in rng.integers(1, n + 1, 2))
+        if a != b:
+            edges.append((a, b))
+    out = np.array(edges, dtype=np.int64).reshape(-1, 2)
+    flip = rng.random(len(out)) < 0.5
+    return np.where(flip[:, None], out[:, ::-1], out)
+
+
+def noise(rng: np.random.Generator, m: int, d: int, kind: Kind) -> np.ndarray:
+    """(m, d, d) SPD covariances [m²]: diagonal, or full with random correlations."""
+    if kind == "diagonal":
+        return rng.uniform(1e-4, 1.0, (m, d))[:, :, None] * np.eye(d)
+    a = rng.standard_normal((m, d, d)) * rng.uniform(0.01, 1.0, (m, 1, 1))
+    return a @ a.transpose(0, 2, 1) + 1e-3 * np.eye(d)
+
+
+def dense_blocks(
+    n: int, edges: np.ndarray, cov: np.ndarray, ref: int, observable: np.ndarray
+) -> np.ndarray:
+    """Diagonal blocks of ``(H_bᵀ P⁻¹ H_b)⁻¹`` over the reference's component, densely: (n, d, d)."""
+    d = cov.shape[1]
+    nodes = [a for a in range(n) if observable[a] and a != ref - 1]
+    col = {a: k for k, a in enumerate(nodes)}
+    mat = np.zeros((len(nodes) * d, len(nodes) * d))
+    for (i, j), p in zip(edges.tolist(), cov, strict=True):
+        w = np.linalg.inv(p)
+        for a, sa in ((i - 1, 1.0), (j - 1, -1.0)):
+            for b, sb in ((i - 1, 1.0), (j - 1, -1.0)):
+                if a in col and b in col:
+                    ra, rb = col[a] * d, col[b] * d
+                    mat[ra : ra + d, rb : rb + d] += sa * sb * w
+    inv = np.linalg.inv(mat).reshape(len(nodes), d, len(nodes), d)
+    out = np.full((n, d, d), np.nan)
+    out[ref - 1] = 0.0
+    out[nodes] = inv[np.arange(len(nodes)), :, np.arange(len(nodes)), :]
+    return out
+
+
+@PROPERTY
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(2, 300),
+    d=st.sampled_from([2, 3]),
+    kind=st.sampled_from(["diagonal", "full"]),
+    shape=st.sampled_from(["cyclic", "tree"]),
+    cycles=st.floats(0.05, 2.0),
+    unobservable=st.integers(0, 12),
+)
+def test_every_block_equals_the_dense_inverse(
+    seed: int, n: int, d: int, kind: Kind, shape: str, cycles: float, unobservable: int
+) -> None:
+    rng = np.random.default_rng(seed)
+    edges = random_graph(rng, n, max(1, int(cycles * n)), shape == "tree")
+    # agents n+1 .. n+u: a second component (or loners) the reference cannot see
+    stray = random_graph(rng, unobservable, unobservable // 2, False) + n if unobservable else None
+    total = n + unobservable
+    if stray is not None and unobservable > 1:
+        edges = np.concatenate([edges, stray])
+    cov = noise(rng, len(edges), d, kind)
+    z = rng.standard_normal((len(edges), d))
+    ref = int(rng.integers(1, n + 1))
+    # "direct": the grounded system and its factor even on a tree (auto would sum paths)
+    got = blue(total, d, edges, z, cov, ref, np.zeros(d), solver="direct")
+    assert got.covariances is not None
+    observable = np.arange(total) < n
+    assert np.array_equal(got.observable, observable)
+    want = dense_blocks(total, edges, cov, ref, observable)
+    assert np.isnan(got.covariances[~observable]).all()
+    err = np.abs(got.covariances[observable] - want[observable]).max()
+    assert err <= TOL, f"max |Δ| = {err:.3g}"
+
+
+def block_system(rng: np.random.Generator, nodes: int, block: int, extra: int) -> csc_array:
+    """A sparse SPD matrix of ``nodes`` × ``block`` unknowns coupled like a grounded Laplacian."""
+    edges = random_graph(rng, nodes + 1, extra, False) - 1  # node 0 is grounded away
+    w = noise(rng, len(edges), block, "full")
+    inv_w = np.linalg.inv(w)
+    rows, cols, vals = [], [], []
+    a = np.arange(block)
+    for (i, j), m in zip(edges.tolist(), inv_w, strict=True):
+        for p, q, s in ((i, i, 1.0), (j, j, 1.0), (i, j, -1.0), (j, i, -1.0)):
+            if p and q:
+                rows.append(np.repeat((p - 1) * block + a, block))
+                cols.append(np.tile((q - 1) * block + a, block))
+                vals.append(s * m.ravel())
+    size = nodes * block
+    coo = coo_array(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), (size, size)
+    )
+    return csc_array(coo)
+
+
+def symmetric_lu(mat: csc_array):  # type: ignore[no-untyped-def]
+    return splu(
+        mat, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
+    )
+
+
+@pytest.mark.parametrize("core", [None, 0, 3, 10**9])
+@pytest.mark.parametrize("block", [1, 2, 3])
+def test_dense_core_and_levels_give_the_same_blocks(
+    seed: int, core: int | None, block: int
+) -> None:
+    rng = np.random.default_rng(seed)
+    mat = block_system(rng, 150, block, 400)
+    want = np.linalg.inv(mat.toarray()).reshape(150, block, 150, block)
+    want = want[np.arange(150), :, np.arange(150), :]
+    got = inverse_diagonal_blocks(symmetric_lu(mat), block, core=core)
+    assert np.abs(got - want).max() <= 1e-12 * np.abs(want).max()
+
+
+def test_a_factor_that_pivoted_rows_is_refused() -> None:
+    # column 0's largest entry is off the diagonal: threshold pivoting swaps the rows
+    mat = csc_array(np.array([[1.0, 2.0], [2.0, 5.0]]))
+    lu = splu(mat, permc_spec="NATURAL", diag_pivot_thresh=1.0)
+    assert not np.array_equal(lu.perm_r, lu.perm_c)
+    with pytest.raises(PatternError, match="pivoted rows"):
+        inverse_diagonal_blocks(lu, 1)
