@@ -8,6 +8,13 @@ template that needs only the epoch and the seq. If something else happens in the
 middle of a clean epoch (an agent dies, a packet is held), :meth:`CleanEpochs.go_slow`
 hands what was kept to the lockstep core, which turns it into per-packet records
 (``records``) and open epochs.
+
+With a distance model on a state link (``gated``) an epoch is clean when every link
+passes before its distance layers (known ahead) and every length is within its reach:
+its packets are kept as they come (:meth:`CleanEpochs.gather`, in the order the core
+routes them) and, once all are in, judged at once (:meth:`CleanEpochs.within_reach`, one
+vectorised ``length <= reach``) and handed out as a clean epoch's (:meth:`CleanEpochs.open_gate`),
+or handed back to be decided packet by packet.
 """
 
 from __future__ import annotations
@@ -44,15 +51,24 @@ class Gathering:
     packets: dict[int, bytes] = field(default_factory=dict)  # stream → its packet, encoded
     waiting: dict[int, list[bytes]] = field(default_factory=dict)  # receiver → packets so far
     delivered: set[int] = field(default_factory=set)  # receivers whose delivery went out
+    payloads: dict[int, Any] = field(default_factory=dict)  # stream → payload (gated epochs)
 
 
 class CleanEpochs:
     """One phase's streams, its clean epochs and the records of those epochs."""
 
     def __init__(
-        self, streams: dict[int, CleanStream], need: dict[int, int], block: int = 1024
+        self,
+        streams: dict[int, CleanStream],
+        need: dict[int, int],
+        block: int = 1024,
+        gate: bool = False,
     ) -> None:
         self.streams = streams
+        self.gate = gate  # may judge distance models by the epoch's lengths (the state phase)
+        self.links = tuple(link for s in streams.values() for link in s.links)  # reach's rows
+        self._reach: dict[int, npt.NDArray[np.float64]] = {}  # block → (links, block) [m]
+        self._base: dict[int, list[tuple[npt.NDArray[np.int64], list[Outcome | None]]]] = {}
         self.need = need  # receiver → packets it gets in a clean epoch (one per sender)
         self.expected = len(streams)  # packets per epoch: one per stream
         self.gathering: dict[int, Gathering] = {}  # epoch → its packets so far
@@ -73,6 +89,8 @@ class CleanEpochs:
         self._tail_ids: dict[bytes, int] = {}
         self._tails: list[bytes] = []
         self._templates: dict[tuple[int, tuple[int, ...]], bytes] = {}
+        self.gated = False
+        self.invalidate()
 
     def clean(self, epoch: int) -> bool:
         """Does every link of the phase pass packet 0 of ``epoch`` straight through?"""
@@ -100,7 +118,65 @@ class CleanEpochs:
         elif stream in g.seqs:
             return False
         g.seqs[stream] = seq
-        packet = g.packets[stream] = packet_json(stream, seq, epoch, 1, payload)
+        self._hand_out(g, stream, packet_json(stream, seq, epoch, 1, payload), epoch, deliver)
+        if len(g.seqs) < self.expected:
+            return False
+        del self.gathering[epoch]
+        self.finish(epoch, g.seqs)
+        return True
+
+    def gather(self, stream: int, epoch: int, seq: int, payload: Any) -> Gathering | None:
+        """Keep ``stream``'s packet of gated ``epoch``; its gathering once every stream's is in.
+
+        A second packet of one stream's epoch (not one of ours) is ignored.
+        """
+        g = self.gathering.get(epoch)
+        if g is None:
+            g = self.gathering[epoch] = Gathering()
+        elif stream in g.seqs:
+            return None
+        g.seqs[stream] = seq
+        g.payloads[stream] = payload
+        return g if len(g.seqs) >= self.expected else None
+
+    def within_reach(self, epoch: int, lengths_m: npt.NDArray[np.float64]) -> bool:
+        """Does every link keep packet 0 of ``epoch`` at lengths ``lengths_m`` ``(len(links),)``?"""
+        k = epoch // self._block
+        reach = self._reach.get(k)
+        if reach is None:
+            self._compute(k)
+            reach = self._reach[k]
+        return bool((lengths_m <= reach[:, epoch - k * self._block]).all())
+
+    def verdicts(self, epoch: int, lengths_m: npt.NDArray[np.float64]) -> dict[Link, Outcome]:
+        """Every link's decision of packet 0 of gated ``epoch`` at ``lengths_m``, each the
+        model's ``decide(epoch, distance_m=length)``: within reach, the one before distance."""
+        k = epoch // self._block
+        if k not in self._base:
+            self._compute(k)
+        j, reach, base = epoch - k * self._block, self._reach[k], self._base[k]
+        out: dict[Link, Outcome] = {}
+        models = (m for s in self.streams.values() for m in s.models)
+        for row, (link, model, d) in enumerate(
+            zip(self.links, models, lengths_m.tolist(), strict=True)
+        ):
+            codes, table = base[row]
+            kept = table[codes[j]] if d <= reach[row, j] else None
+            out[link] = kept if kept is not None else model.decide(epoch, distance_m=d)
+        return out
+
+    def open_gate(self, epoch: int, g: Gathering, deliver: Deliver) -> None:
+        """Hand out gated ``epoch``, all its links within reach, as a clean epoch (gathered order)."""
+        del self.gathering[epoch]
+        for stream, seq in g.seqs.items():
+            packet = packet_json(stream, seq, epoch, 1, g.payloads[stream])
+            self._hand_out(g, stream, packet, epoch, deliver)
+        self.finish(epoch, g.seqs)
+
+    def _hand_out(self, g: Gathering, stream: int, packet: bytes, epoch: int,
+                  deliver: Deliver) -> None:  # fmt: skip
+        """Add ``stream``'s packet to its receivers' deliveries; deliver the complete ones."""
+        g.packets[stream] = packet
         waiting, need = g.waiting, self.need
         for r in self.receivers[stream]:
             got = waiting.get(r)
@@ -111,11 +187,6 @@ class CleanEpochs:
                 del waiting[r]
                 g.delivered.add(r)
                 deliver(r, epoch, got)
-        if len(g.seqs) < self.expected:
-            return False
-        del self.gathering[epoch]
-        self.finish(epoch, g.seqs)
-        return True
 
     def go_slow(self, epoch: int) -> Gathering | None:
         """``epoch`` takes the full path from now on: what it gathered so far, if anything."""
@@ -143,7 +214,10 @@ class CleanEpochs:
     def invalidate(self) -> None:
         """A link's model changed: compute again."""
         self._blocks.clear()
+        self._reach.clear()
+        self._base.clear()
         self.flags.clear()
+        self.gated = self.gate and any(m.ranged for s in self.streams.values() for m in s.models)
 
     def records(self, epoch: int, got: dict[int, int]) -> Iterator[tuple[Record, Link]]:
         """The decision record of every packet forwarded in ``epoch``, with its link."""
@@ -180,10 +254,16 @@ class CleanEpochs:
         start, size = k * self._block, self._block
         clean = np.ones(size, dtype=np.bool_)
         ids_of: dict[int, npt.NDArray[np.int64]] = {}
+        if self.gated:  # a model without distance layers reaches everywhere (inf)
+            models = [m for s in self.streams.values() for m in s.models]  # as self.links
+            self._reach[k] = np.array([m.reach(start, size) for m in models])
+            self._base[k] = []
         for sid, s in self.streams.items():
             ids = np.empty((len(s.models), size), dtype=np.int64)
             for row, model in enumerate(s.models):
-                codes, table = model.coded(start, size)
+                codes, table = model.coded(start, size, before_distance=self.gated)
+                if self.gated:
+                    self._base[k].append((codes, table))
                 ids[row] = np.array([self._tail_id(d) for d in table], dtype=np.int64)[codes]
             clean &= (ids >= 0).all(axis=0)
             ids_of[sid] = ids
@@ -200,6 +280,8 @@ class CleanEpochs:
         if len(self._blocks) >= 2:
             old = next(iter(self._blocks))
             del self._blocks[old]
+            self._reach.pop(old, None)
+            self._base.pop(old, None)
             for e in range(old * size, (old + 1) * size):
                 self.flags.pop(e, None)
         self.flags.update(zip(range(start, start + size), clean.tolist(), strict=True))
@@ -222,7 +304,7 @@ def clean_epochs(links: Links) -> dict[Phase, CleanEpochs]:
     return {
         "state": CleanEpochs({
             s: stream([("formation", s, d) for d in out_links[s]]) for s in agents if out_links[s]
-        }, {j: len(in_links[j]) for j in agents}),
+        }, {j: len(in_links[j]) for j in agents}, gate=True),
         "report": CleanEpochs({s: stream([("report", s, LEADER_ENDPOINT)]) for s in agents},
                               {LEADER_ENDPOINT: len(agents)}),
         "estimate": CleanEpochs({d: stream([("estimate", LEADER_ENDPOINT, d)]) for d in agents},

@@ -29,6 +29,7 @@ from netem.links import Link, LinkClass, Links, Phase, Route
 from netem.positions import Positions
 from netem.progress import Progress
 from netem.records import Ledger, Record, packet_json
+from netem.stack import Outcome
 
 log = logging.getLogger("netem")
 # Clean epochs' records go out together: one batch per this many epochs' records (and at
@@ -137,14 +138,8 @@ class Lockstep:
             if self.out and source in self.out.get(epoch, ()):
                 self._goodbye(source)
                 return
-            if self._forward_clean("state", source, epoch, seq, payload):
-                return
-            for dst in links.out_links[source]:
-                if (dst in dead or self.out) and self.is_dead(dst, epoch):
-                    continue
-                box = self._route_packet("state", "formation", source, dst, payload, epoch, seq)
-                if self._all_handled(box, links.in_links[dst], epoch):  # else none can close yet
-                    self._try_close("state", dst)
+            if not self._forward_clean("state", source, epoch, seq, payload):
+                self._route_state(source, epoch, seq, payload)
         elif kind == "report":
             if self.out and source in self.out.get(epoch, ()):
                 return  # not one of ours: that agent is out of the team at this epoch
@@ -169,6 +164,17 @@ class Lockstep:
                 self._try_close("estimate", dst)
             self.progress.estimate_handled(epoch)
 
+    def _route_state(self, source: int, epoch: int, seq: int, payload: Any,
+                     verdicts: dict[Link, Outcome] | None = None) -> None:  # fmt: skip
+        links, dead = self.links, self.dead
+        for dst in links.out_links[source]:
+            if (dst in dead or self.out) and self.is_dead(dst, epoch):
+                continue
+            d = verdicts[("formation", source, dst)] if verdicts is not None else None
+            box = self._route_packet("state", "formation", source, dst, payload, epoch, seq, d)
+            if self._all_handled(box, links.in_links[dst], epoch):  # else none can close yet
+                self._try_close("state", dst)
+
     def sender_died(self, agent: int) -> None:
         """``agent`` is gone (0: the leader): its packets count as lost, nobody waits for them."""
         if agent in self.progress.final_states or agent in self.away:
@@ -176,6 +182,7 @@ class Lockstep:
         if agent in self.dead and self.revive.pop(agent, None) is None:
             return  # already down; else it died again after coming back
         log.warning("%s is gone: its packets count as lost from now on", _name(agent))
+        self._ungate()  # what was gathered was routed while the agent was alive
         self.dead.add(agent)
         if self.positions.needed:
             self._release_held()  # nobody waits for its position
@@ -295,6 +302,7 @@ class Lockstep:
 
     def models_changed(self) -> None:
         """A link's model changed: which epochs are clean is computed again."""
+        self._ungate()  # decided by the models in force at their epochs, as they came
         for ce in self.clean.values():
             ce.invalidate()
         self.positions.refresh()
@@ -320,15 +328,18 @@ class Lockstep:
 
     # -- the full path ------------------------------------------------------------------------
     def _route_packet(self, phase: Phase, cls: LinkClass, src: int, dst: int, payload: Any,
-                      epoch: int, seq: int) -> OpenEpoch:  # fmt: skip
-        """Decide and record one packet, and put it in its receiver's open epoch (returned)."""
+                      epoch: int, seq: int, decided: Outcome | None = None) -> OpenEpoch:  # fmt: skip
+        """Decide (unless ``decided``) and record one packet, and put it in its receiver's open
+        epoch (returned)."""
         key = (phase, dst, epoch)
         box = self.open.get(key)
         if box is None:
             box = self.open[key] = OpenEpoch()
         box.handled.add(src)
         link: Link = (cls, src, dst)
-        d = self.links.models[link].decide(epoch, distance_m=self.positions.length(link, epoch))
+        d = decided or self.links.models[link].decide(
+            epoch, distance_m=self.positions.length(link, epoch)
+        )
         self.ledger.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
         if not d.delivered:
             box.lost.append(src)
@@ -417,11 +428,34 @@ class Lockstep:
         if stream not in ce.receivers or self.dead or self.held or epoch in self.out:
             self._go_slow(phase, epoch)
             return False
+        if ce.gated:
+            self._gate(ce, stream, epoch, seq, payload)
+            return True
         if ce.take(stream, epoch, seq, payload, self._clean_deliver[phase]) and (
             len(ce.chunks) >= FLUSH_CHUNKS or epoch >= self.epochs - 1
         ):
             self._flush_clean(phase)  # the last epoch's go out while the run still goes
         return True
+
+    def _gate(self, ce: CleanEpochs, stream: int, epoch: int, seq: int, payload: Any) -> None:
+        """Gather a state of a gated epoch; once all are in, judge their lengths at once."""
+        g = ce.gather(stream, epoch, seq, payload)
+        if g is None:
+            return
+        lengths = self.positions.lengths(ce.links, epoch)
+        if not ce.within_reach(epoch, lengths):  # a link out of reach: the full path, its
+            self._go_slow("state", epoch, ce.verdicts(epoch, lengths))  # decisions from these
+            return
+        ce.open_gate(epoch, g, self._clean_deliver["state"])
+        if len(ce.chunks) >= FLUSH_CHUNKS or epoch >= self.epochs - 1:
+            self._flush_clean("state")
+
+    def _ungate(self) -> None:
+        """Gated epochs being gathered take the full path, routed in the order they came."""
+        ce = self.clean.get("state")
+        if ce is not None and ce.gated:
+            for epoch in list(ce.gathering):
+                self._go_slow("state", epoch)
 
     def _flush_clean(self, phase: Phase) -> None:
         ce = self.clean.get(phase)
@@ -430,11 +464,17 @@ class Lockstep:
         self.outbox.clean_records(phase, ce.last_done, ce.chunks)
         ce.chunks = []
 
-    def _go_slow(self, phase: Phase, epoch: int) -> None:
+    def _go_slow(
+        self, phase: Phase, epoch: int, verdicts: dict[Link, Outcome] | None = None
+    ) -> None:
         """From now on ``epoch`` of ``phase`` takes the full path; what went fast is recorded as such."""
         ce = self.clean[phase]
         g = ce.go_slow(epoch)
         if g is None:
+            return
+        if ce.gated:  # nothing went out yet: route each as the full path would have
+            for src, seq in g.seqs.items():
+                self._route_state(src, epoch, seq, g.payloads[src], verdicts)
             return
         touched: set[int] = set()
         for (src, dst, cls, _, seq, d), link in ce.records(epoch, g.seqs):

@@ -74,7 +74,7 @@ from netem.closed_forms import (
     expected_loss_rate,
     stationary_distribution,
 )
-from netem.layer import Keys, LinkModelError
+from netem.layer import Floats, Keys, LinkModelError
 from netem.matrix import delivery_matrix, link_lengths
 from netem.stack import (
     KEY_LIMIT,
@@ -212,13 +212,15 @@ class LinkModel:
         return any(s.ranged for _, s in self._timeline)
 
     def coded(
-        self, start: int, n_epochs: int
+        self, start: int, n_epochs: int, before_distance: bool = False
     ) -> tuple[npt.NDArray[np.int64], list[Outcome | None]]:
         """Epochs ``start .. start + n_epochs - 1`` as ``(codes, table)``: ``decide(k)`` is
         ``table[codes[k - start]]`` (packet 0), for vectorised use of many epochs.
 
         Under a realtime window or a distance model the verdict needs the packet's time
-        or the link's length; such epochs get ``None`` in place of a decision.
+        or the link's length; such epochs get ``None`` in place of a decision, or with
+        ``before_distance`` under a distance model the decision before its distance layers
+        (a passing one stays as it is iff the length is within :meth:`reach`).
         """
         codes: list[npt.NDArray[np.int64]] = []
         table: list[Outcome | None] = []
@@ -231,9 +233,26 @@ class LinkModel:
                 blk = self._block(k // self._b)
             stop = min(end, blk.start + self._b)
             codes.append(blk.codes[k - blk.start : stop - blk.start] + len(table))
-            table.extend([None] * len(blk.table) if blk.timed or blk.ranged else blk.table)
+            unknown = blk.timed or (blk.ranged and not before_distance)
+            table.extend([None] * len(blk.table) if unknown else blk.table)
             k = stop
         return np.concatenate(codes), table
+
+    def reach(self, start: int, n_epochs: int) -> Floats:
+        """The least reach [m] of the distance layers at epochs ``start .. start + n_epochs - 1``,
+        ``(n_epochs,)``: a length ``d`` keeps packet 0 of epoch ``k`` iff ``d <= reach[k - start]``
+        (``Layer.keeps`` of every such layer); inf where none is in force."""
+        out = np.full(n_epochs, np.inf)
+        k, end = start, start + n_epochs
+        while k < end:
+            blk = self._blocks.get(k // self._b) or self._block(k // self._b)
+            for p in blk.pieces:
+                a, b = max(k, p.start), min(end, p.start + p.n)
+                for i in p.stack.ranged if a < b else ():
+                    part = out[a - start : b - start]
+                    np.minimum(part, p.reach_m[i][0, a - p.start : b - p.start], out=part)
+            k = blk.start + self._b
+        return out
 
     def schedule(
         self,

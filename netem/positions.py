@@ -18,11 +18,13 @@ from collections import defaultdict
 from collections.abc import Collection, Iterator
 from typing import Any
 
+import numpy as np
 import orjson
 
 from formation.scenario import LEADER_ENDPOINT
+from netem.layer import Floats, Ints
 from netem.links import Link, Links, Route
-from netem.matrix import link_length
+from netem.matrix import link_length, link_lengths
 
 Held = tuple[Route, int, int, Any]  # (route, epoch, seq, payload) of a packet put back
 KEEP_EPOCHS = 256  # positions of older epochs are forgotten (lockstep never lags that far)
@@ -51,6 +53,7 @@ class Positions:
         self.held: dict[tuple[int, int], list[Held]] = defaultdict(list)  # (epoch, agent) awaited
         self.malformed = 0
         self._ready: list[tuple[int, int]] = []  # (epoch, agent) whose position just came
+        self._ends: dict[tuple[Link, ...], tuple[Ints, Ints]] = {}  # links → rows of their ends
         self.refresh()
 
     def refresh(self) -> None:
@@ -115,8 +118,27 @@ class Positions:
         """
         if link not in self.ranged:
             return None
-        _, src, dst = link
+        return self._measure(link, self.at.get(epoch, {}))
+
+    def lengths(self, links: tuple[Link, ...], epoch: int) -> Floats:
+        """The lengths ``(len(links),)`` [m] of formation ``links`` at ``epoch``, vectorised: each
+        what :meth:`length` gives (:func:`link_lengths` and :func:`link_length` agree bit for bit)."""
         known = self.at.get(epoch, {})
+        rows = [known.get(i) for i in self.links.agents]
+        ends = self._ends.get(links)
+        if ends is None:
+            row = {agent: r for r, agent in enumerate(self.links.agents)}
+            ends = self._ends[links] = (
+                np.array([row[src] for _, src, _ in links], dtype=np.int64),
+                np.array([row[dst] for _, _, dst in links], dtype=np.int64),
+            )
+        if any(r is None for r in rows) or len({len(r) for r in rows if r is not None}) != 1:
+            return np.array([self._measure(link, known) for link in links], dtype=np.float64)
+        x = np.array(rows, dtype=np.float64)
+        return link_lengths(x[ends[0]], x[ends[1]])
+
+    def _measure(self, link: Link, known: dict[int, list[float] | None]) -> float:
+        _, src, dst = link
         a = self.access_point if src == LEADER_ENDPOINT else known.get(src)
         b = self.access_point if dst == LEADER_ENDPOINT else known.get(dst)
         if a is None or b is None or len(a) != len(b):
