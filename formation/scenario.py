@@ -132,6 +132,9 @@ class Estimator(_Model):
 
     edges: Literal["tree", "healthy"] = "tree"
     edge_rule: Literal["either", "both"] = "either"
+    # the leader's covariance blocks on epochs k with k % covariance_every == 0 (seconds at
+    # 10,000 agents on an expander); the estimates go out every epoch regardless
+    covariance_every: int = Field(1, ge=1)
 
 
 class FormationLink(_Model):

@@ -113,13 +113,7 @@ class Leader:
         per_edge = known.reshape(size, -1, 2)  # links 2e and 2e + 1: the two directions of edge e
         healthy = np.asarray(per_edge.any(axis=2) if self.either else per_edge.all(axis=2))
         tree, labels = self.forest.forests(healthy)
-        use = known & np.repeat(tree if self.on_tree else healthy, 2, axis=1)
-        # Every used-edge set spans the healthy graph, as the forest does: the forest's components.
-        estimate = self.measurements.estimate(
-            z, x_ref, use, covariances=covariances, solver=self.solver, labels=labels
-        )
-        if self.exact and estimate.covariances is not None:
-            estimate.covariances[~np.isnan(estimate.covariances)] = 0.0
+        estimate = self._estimate(known, z, x_ref, healthy, tree, labels, covariances)
         ranks = None if self.rigidity is None else self.rigidity.ranks(healthy)
         return LeaderEpochs(
             healthy=healthy,
@@ -131,6 +125,36 @@ class Leader:
             if ranks is None or self.rigidity is None
             else ranks == self.rigidity.expected,
         )
+
+    def covariances(self, known: Mask, z: Array, x_ref: Array, epochs: LeaderEpochs) -> Array:
+        """The covariance blocks of ``epochs`` (computed without them), after their estimates.
+
+        known, z, x_ref : as given to :meth:`epochs`. Returns (B, n, d, d) [m²], the floats
+        :meth:`epochs` gives with ``covariances=True``.
+        """
+        est = self._estimate(known, z, x_ref, epochs.healthy, epochs.tree, None, True)
+        if est.covariances is None:  # MeasurementGraph.estimate returns what it is asked for
+            raise RuntimeError("the estimate came back without the covariances it was asked for")
+        return est.covariances
+
+    def _estimate(
+        self,
+        known: Mask,
+        z: Array,
+        x_ref: Array,
+        healthy: Mask,
+        tree: Mask,
+        labels: Ints | None,
+        covariances: bool,
+    ) -> BlueBatch:
+        use = known & np.repeat(tree if self.on_tree else healthy, 2, axis=1)
+        # Every used-edge set spans the healthy graph, as the forest does: the forest's components.
+        estimate = self.measurements.estimate(
+            z, x_ref, use, covariances=covariances, solver=self.solver, labels=labels
+        )
+        if self.exact and estimate.covariances is not None:
+            estimate.covariances[~np.isnan(estimate.covariances)] = 0.0
+        return estimate
 
 
 def leader_epoch(

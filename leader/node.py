@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -19,7 +20,7 @@ from formation.realtime import REPORT_DEADLINE, fetch_clock
 from formation.reference import reference_positions, reference_velocities
 from formation.scenario import Scenario
 from formation.service import Incoming, Service
-from leader.epoch import LeaderEpoch, leader_epoch
+from leader.epoch import Leader, LeaderEpoch
 from leader.rigidity import HealthyRigidity
 
 log = logging.getLogger("leader")
@@ -65,15 +66,18 @@ def estimate_message(
     reports: int,
 ) -> bytes:
     """The whole :class:`LeaderEstimate` as JSON, built with orjson (at 1,000 agents the
-    pydantic model cost 4 ms an epoch; a test checks the model validates every field)."""
+    pydantic model cost 4 ms an epoch; a test checks the model validates every field).
+
+    An epoch computed without covariances (``estimator.covariance_every``) has ``None`` for
+    every agent's block."""
     res = lead.estimate
-    assert res.covariances is not None  # blue computes them unless told not to
     observable = res.observable.tolist()
+    blocks = [None] * len(observable) if res.covariances is None else res.covariances.tolist()
     return orjson.dumps({
         **head,
         "kind": "estimate",
         "positions": [p if ok else None for p, ok in zip(res.positions.tolist(), observable, strict=True)],
-        "covariances": [c if ok else None for c, ok in zip(res.covariances.tolist(), observable, strict=True)],
+        "covariances": [c if ok else None for c, ok in zip(blocks, observable, strict=True)],
         "observable": observable,
         "tree": edges[lead.tree].tolist(),
         "healthy": edges[lead.healthy].tolist(),
@@ -119,6 +123,8 @@ class LeaderNode:
         self.deliveries: dict[int, Delivery] = {}  # lockstep: epoch → netem's reports of it
         self.epoch = 0
         self.rigidity = HealthyRigidity(scenario.offsets, scenario.edge_array)
+        self.leader = Leader(scenario, self.rigidity)
+        self.covariance_every = scenario.estimator.covariance_every
         self.link_rows = link_rows(scenario)
         self.late_reports = 0
         if scenario.runtime.mode == "realtime":
@@ -175,7 +181,9 @@ class LeaderNode:
 
     def _estimate(self, k: int, reports: list[TokenReport]) -> None:
         known, z = reports_to_measurements(self.scenario, reports, self.link_rows)
-        lead = leader_epoch(self.scenario, known, z, self.ref_x[k], self.rigidity)
+        # the estimates go out before the covariances are computed: agents never wait for them
+        batch = self.leader.epochs(known[None], z[None], self.ref_x[k], covariances=False)
+        lead = batch.member(0)
         if not lead.estimate.observable.all():
             log.info(
                 "epoch %d: %d agents unobservable from the reference",
@@ -188,6 +196,9 @@ class LeaderNode:
             head = self.service.header(key, k)
             att = attachment(k, int(head["seq"]), keys.LEADER)
             self.service.put(key, orjson.dumps({**head, **fields}), att)
+        if k % self.covariance_every == 0:
+            blocks = self.leader.covariances(known[None], z[None], self.ref_x[k], batch)[0]
+            lead = replace(lead, estimate=replace(lead.estimate, covariances=blocks))
         key = keys.leader_estimate_out(self.run_id)
         head = self.service.header(key, k)
         msg = estimate_message(head, lead, [float(v) for v in self.ref_x[k]], v_ref,

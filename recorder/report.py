@@ -73,6 +73,7 @@ def summarize(run: RunData) -> dict[str, Any]:
         "estimation_cov_trace_m2": _num(est_trace),
         "nees_mean": _num(float(run.nees_values.mean())) if run.nees_values.size else None,
         "nees_expected": s.dimension,
+        "covariance_every": s.estimator.covariance_every,
         "drops": {links[c]: int(v) for c, v in enumerate(lost.sum(axis=0)) if v},
         "longest_outage": {
             links[c]: longest_run(lost[:, c]) for c in range(len(links)) if lost[:, c].any()
@@ -181,6 +182,13 @@ def _markdown(
         lines.append(f"- {s['label']}: {drops or 'none'}")
     notes = []
     for run, s in zip(runs, sums, strict=True):
+        every = s["covariance_every"]
+        if every > 1:
+            notes.append(
+                f"{run.label}: the leader computed covariances every {every} epochs "
+                f"(estimator.covariance_every = {every}); NEES and the estimation error "
+                "covariance are over those epochs only."
+            )
         gap = s.get("recorded_metrics_max_gap_m")
         if gap is not None:
             notes.append(

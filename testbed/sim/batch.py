@@ -202,7 +202,8 @@ def run_batch(
 
         # Leader: the measurements whose report reached it → tree, BLUE, rigidity.
         known = arrived & report_ok[k][:, dst - 1]
-        lead = leader.epochs(known, z, ref_x[k], covariances=detail)
+        with_cov = detail and k % base.estimator.covariance_every == 0  # as the leader's
+        lead = leader.epochs(known, z, ref_x[k], covariances=with_cov)
         observable = lead.estimate.observable
 
         # Estimates reach the agents over their control links, with v_ref[k].

@@ -8,6 +8,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from formation import keys
 from formation.codec import attachment, encode
 from formation.messages import CoordinationState, Decision, DecisionBatch, LeaderEstimate
@@ -56,7 +58,11 @@ def traffic(result: Any) -> list[tuple[str, bytes, bytes | None, int]]:
         msg = LeaderEstimate(
             **_header("leader", k, k),
             positions=[est[i].tolist() if obs[i] else None for i in range(s.n)],
-            covariances=[cov[i].tolist() if obs[i] else None for i in range(s.n)],
+            # None where the leader computed no covariances (estimator.covariance_every)
+            covariances=[
+                cov[i].tolist() if obs[i] and not np.isnan(cov[i]).any() else None
+                for i in range(s.n)
+            ],
             observable=obs.tolist(),
             tree=[e for e, t_ in zip(edges, result.tree[k], strict=True) if t_],
             healthy=[e for e, h in zip(edges, result.healthy[k], strict=True) if h],
