@@ -443,7 +443,8 @@ class Lockstep:
         if g is None:
             return
         lengths = self.positions.lengths(ce.links, epoch)
-        if not ce.within_reach(epoch, lengths):  # a link out of reach: the full path, its
+        behind = any(self.next_close[("state", r)] != epoch for r in ce.need)
+        if behind or not ce.within_reach(epoch, lengths):  # out of turn or reach: full path, its
             self._go_slow("state", epoch, ce.verdicts(epoch, lengths))  # decisions from these
             return
         ce.open_gate(epoch, g, self._clean_deliver["state"])

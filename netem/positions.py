@@ -132,10 +132,12 @@ class Positions:
                 np.array([row[src] for _, src, _ in links], dtype=np.int64),
                 np.array([row[dst] for _, _, dst in links], dtype=np.int64),
             )
-        if any(r is None for r in rows) or len({len(r) for r in rows if r is not None}) != 1:
-            return np.array([self._measure(link, known) for link in links], dtype=np.float64)
-        x = np.array(rows, dtype=np.float64)
-        return link_lengths(x[ends[0]], x[ends[1]])
+        if None not in rows:
+            x = np.array(rows, dtype=object)
+            if x.ndim == 2:  # every position has as many coordinates
+                x = x.astype(np.float64)
+                return link_lengths(x[ends[0]], x[ends[1]])
+        return np.array([self._measure(link, known) for link in links], dtype=np.float64)
 
     def _measure(self, link: Link, known: dict[int, list[float] | None]) -> float:
         _, src, dst = link
