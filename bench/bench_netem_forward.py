@@ -16,7 +16,8 @@ sharing the machine's cores, do not disturb.
 
 Distance models (issue 19; ``--distance`` runs only this): a ``logistic`` model on every
 formation link, the agents on the pentagon drifting together (netem reads each state's
-position, and no epoch is clean), against Bernoulli at the same mean loss in the same run.
+position; an epoch is clean when its positions put every link within reach), against
+Bernoulli at the same mean loss in the same run.
 """
 
 from __future__ import annotations
