@@ -29,7 +29,7 @@ import numpy.typing as npt
 from formation.scenario import LEADER_ENDPOINT
 from netem.links import Link, Links, Phase
 from netem.models import LinkModel
-from netem.records import Record, packet_json, record_head, record_tail
+from netem.records import Ledger, Record, packet_json, record_head, record_tail
 from netem.stack import Outcome
 
 Deliver = Callable[[int, int, list[bytes]], None]  # (receiver, epoch, its packets)
@@ -164,6 +164,31 @@ class CleanEpochs:
             kept = table[codes[j]] if d <= reach[row, j] else None
             out[link] = kept if kept is not None else model.decide(epoch, distance_m=d)
         return out
+
+    def judged(self, epoch: int, g: Gathering, verdicts: dict[Link, Outcome], ledger: Ledger,
+               deliver: Callable[[int, int, list[bytes], list[int]], None]) -> None:  # fmt: skip
+        """Hand out gated ``epoch``, a link out of reach, as the full path would: each link's
+        record and count in gathered order, a receiver's delivery once its senders are in."""
+        self.go_slow(epoch)
+        records, forwarded = ledger.decisions[("state", epoch)], ledger.forwarded
+        boxes: dict[int, tuple[list[bytes], list[int]]] = {}
+        for stream, seq in g.seqs.items():
+            packet = None
+            for link in self.streams[stream].links:
+                cls, src, dst = link
+                d = verdicts[link]
+                records.append((src, dst, cls, epoch, seq, d))
+                box = boxes.get(dst)
+                if box is None:
+                    box = boxes[dst] = ([], [])
+                if d.delivered:  # passes (copies 1, no delay) or is dropped by distance
+                    packet = packet or packet_json(src, seq, epoch, 1, g.payloads[stream])
+                    box[0].append(packet)
+                    forwarded[link] += 1
+                else:
+                    box[1].append(src)
+                if len(box[0]) + len(box[1]) >= self.need[dst]:
+                    deliver(dst, epoch, *box)
 
     def open_gate(self, epoch: int, g: Gathering, deliver: Deliver) -> None:
         """Hand out gated ``epoch``, all its links within reach, as a clean epoch (gathered order)."""

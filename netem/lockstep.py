@@ -20,53 +20,21 @@ from __future__ import annotations
 
 import logging
 from collections import defaultdict
-from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any
 
 from formation.scenario import LEADER_ENDPOINT
 from netem.clean import CleanEpochs, Deliver, clean_epochs
+from netem.epochs import Held, OpenEpoch, Outbox
 from netem.links import Link, LinkClass, Links, Phase, Route
 from netem.positions import Positions
 from netem.progress import Progress
-from netem.records import Ledger, Record, packet_json
+from netem.records import Ledger, packet_json
 from netem.stack import Outcome
 
 log = logging.getLogger("netem")
 # Clean epochs' records go out together: one batch per this many epochs' records (and at
 # least every loop wake-up of the node's main thread, 0.2 s), instead of one per epoch.
 FLUSH_CHUNKS = 64  # epochs
-
-
-class Outbox(Protocol):
-    """Where the core's outputs go; the node publishes each as it comes."""
-
-    def deliver(self, phase: Phase, receiver: int, epoch: int, packets: list[bytes],
-                lost: list[int], dead: list[int]) -> None:  # fmt: skip
-        """``receiver``'s delivery of ``phase`` and ``epoch`` (its close)."""
-
-    def records(self, phase: Phase, epoch: int, records: list[Record]) -> None:
-        """The decision records of ``epoch`` of ``phase``, every receiver of it closed."""
-
-    def clean_records(self, phase: Phase, last_epoch: int, chunks: list[bytes]) -> None:
-        """Records of clean epochs, encoded (:meth:`netem.clean.CleanEpochs.finish`)."""
-
-
-@dataclass
-class Held:
-    """A packet held for a later epoch (delay), delivered with that epoch's packets."""
-
-    link: Link
-    copies: int
-    packet: bytes  # encoded by packet_json, with its sent epoch
-
-
-@dataclass
-class OpenEpoch:
-    """An epoch of one phase into one receiver, not yet closed."""
-
-    handled: set[int] = field(default_factory=set)
-    packets: list[bytes] = field(default_factory=list)  # each encoded by packet_json
-    lost: list[int] = field(default_factory=list)
 
 
 class Lockstep:
@@ -443,13 +411,27 @@ class Lockstep:
         if g is None:
             return
         lengths = self.positions.lengths(ce.links, epoch)
-        behind = any(self.next_close[("state", r)] != epoch for r in ce.need)
-        if behind or not ce.within_reach(epoch, lengths):  # out of turn or reach: full path, its
-            self._go_slow("state", epoch, ce.verdicts(epoch, lengths))  # decisions from these
+        if any(self.next_close[("state", r)] != epoch for r in ce.need):  # out of turn
+            self._go_slow("state", epoch, ce.verdicts(epoch, lengths))
+            return
+        if not ce.within_reach(epoch, lengths):  # decided as the full path would, from these
+            ce.judged(epoch, g, ce.verdicts(epoch, lengths), self.ledger, self._close_judged)
             return
         ce.open_gate(epoch, g, self._clean_deliver["state"])
         if len(ce.chunks) >= FLUSH_CHUNKS or epoch >= self.epochs - 1:
             self._flush_clean("state")
+
+    def _close_judged(
+        self, receiver: int, epoch: int, packets: list[bytes], lost: list[int]
+    ) -> None:
+        """A judged gated epoch's delivery into ``receiver``, closed as :meth:`_try_close` does."""
+        self.outbox.deliver("state", receiver, epoch, packets, lost, [])
+        self.next_close[("state", receiver)] = epoch + 1
+        self.closed_count[("state", epoch)] += 1
+        if self.closed_count[("state", epoch)] >= len(self.links.agents):
+            del self.closed_count[("state", epoch)]
+            self._publish_decisions("state", epoch)
+        self._try_close("state", receiver)  # its later epochs, complete already, go out now
 
     def _ungate(self) -> None:
         """Gated epochs being gathered take the full path, routed in the order they came."""

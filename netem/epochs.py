@@ -1,0 +1,44 @@
+"""What netem's lockstep core keeps per epoch and where it hands its outputs (:mod:`netem.lockstep`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol
+
+from netem.links import Link, Phase
+from netem.records import Record
+
+
+class Outbox(Protocol):
+    """Where the core's outputs go; the node publishes each as it comes."""
+
+    def deliver(self, phase: Phase, receiver: int, epoch: int, packets: list[bytes],
+                lost: list[int], dead: list[int]) -> None:  # fmt: skip
+        """``receiver``'s delivery of ``phase`` and ``epoch`` (its close)."""
+
+    def records(self, phase: Phase, epoch: int, records: list[Record]) -> None:
+        """The decision records of ``epoch`` of ``phase``, every receiver of it closed."""
+
+    def clean_records(self, phase: Phase, last_epoch: int, chunks: list[bytes]) -> None:
+        """Records of clean epochs, encoded (:meth:`netem.clean.CleanEpochs.finish`)."""
+
+
+@dataclass
+class Held:
+    """A packet held for a later epoch (delay), delivered with that epoch's packets."""
+
+    link: Link
+    copies: int
+    packet: bytes  # encoded by packet_json, with its sent epoch
+
+
+@dataclass
+class OpenEpoch:
+    """An epoch of one phase into one receiver, not yet closed."""
+
+    handled: set[int] = field(default_factory=set)
+    packets: list[bytes] = field(default_factory=list)  # each encoded by packet_json
+    lost: list[int] = field(default_factory=list)
+
+
+__all__ = ["Held", "OpenEpoch", "Outbox"]
