@@ -21,9 +21,10 @@ import orjson
 from agent.runner import AgentRunner, Estimate, Packet, Report
 from formation import keys
 from formation.codec import attachment, read_attachment
+from formation.deadlines import CAUSES, cause, drain_last
 from formation.errors import RuntimeFailure
 from formation.messages import AgentEstimate, CoordinationState, Delivery
-from formation.realtime import ESTIMATE_DEADLINE, STATE_DEADLINE, fetch_clock, sleep_until
+from formation.realtime import ESTIMATE_DEADLINE, STATE_DEADLINE, Clock, fetch_clock, sleep_until
 from formation.scenario import Scenario, StrategyName
 from formation.service import Incoming, Service
 
@@ -97,7 +98,11 @@ class AgentNode:
             "estimates": 0,
             "late_estimates": 0,
             "overruns": 0,
+            "in_time": 0,
+            **dict.fromkeys(CAUSES, 0),
         }
+        self.clock: Clock | None = None  # realtime: set by run_realtime
+        self.held: list[Incoming] = []  # realtime: queued after a deadline, routed after it
         for i in ids:
             if scenario.runtime.mode == "realtime":
                 service.subscribe(keys.link_state(self.run_id, "*", i))
@@ -224,7 +229,8 @@ class AgentNode:
                 meta = (state.epoch, state.seq, state.agent)
             sent_epoch, seq, source = meta
             if sent_epoch <= self.taken:
-                self.deadline["late_packets"] += 1  # arrived after its epoch's deadline
+                if state is not None:  # arrived after its epoch's deadline (else malformed)
+                    self._missed("state", sent_epoch, state.stamp_ns, msg.arrived_ns)
                 return
             value: object = (
                 _BAD
@@ -238,11 +244,17 @@ class AgentNode:
                 self.service.malformed.counts[msg.key] += 1  # another agent's part: unusable
                 est = None
             if est is not None and self.taken >= 0 and est.epoch < self.runner.epoch:
-                self.deadline["late_estimates"] += 1
+                self._missed("estimate", est.epoch, est.stamp_ns, msg.arrived_ns)
             elif est is not None:
                 self.inbox[receiver].estimates[est.epoch] = est
             elif meta is not None:
                 self.inbox[receiver].estimates[meta[0]] = _BAD
+
+    def _missed(self, kind: str, epoch: int, stamp_ns: int, arrived_ns: int) -> None:
+        """Count a packet that missed its deadline, and its cause (formation.deadlines)."""
+        assert self.clock is not None
+        self.deadline["late_packets" if kind == "state" else "late_estimates"] += 1
+        self.deadline[cause(self.clock, kind, epoch, stamp_ns, arrived_ns)] += 1
 
     # -- publishing -------------------------------------------------------------------------------
     def _publish_states(self, ids: list[int] | None = None) -> None:
@@ -349,19 +361,27 @@ class AgentNode:
 
     # -- realtime ---------------------------------------------------------------------------------
     def _drain_until(self, t_ns: int) -> None:
-        while True:
-            left = (t_ns - time.time_ns()) / 1e9
-            if left <= 0:
-                return
+        """Route what arrives until ``t_ns``, then what had been queued by then: a packet in
+        the queue in time is in time, however late this process wakes (else: scheduling)."""
+        held, self.held = self.held, []
+        for queued in held:
+            self._route(queued)
+        while (left := (t_ns - time.time_ns()) / 1e9) > 0:
             msg = self.service.next_incoming(min(left, 0.05))
             if msg is not None:
+                self._route(msg)
+        while (msg := self.service.next_incoming(0)) is not None:
+            if msg.arrived_ns > t_ns:
+                self.held.append(msg)  # after the deadline: routed once it has been taken
+                break  # the queue is in order: the rest came later still
+            else:
                 self._route(msg)
 
     def run_realtime(self) -> int:
         """Fixed period; what has not arrived by a phase's deadline is lost (docs/architecture.md "Time")."""
         if not self.service.wait_started():
             return 1
-        clock = fetch_clock(self.service.session, self.run_id)
+        clock = self.clock = fetch_clock(self.service.session, self.run_id)
         for k in range(self.scenario.epochs):
             if self.service.stopping.is_set():
                 return 130
@@ -376,19 +396,31 @@ class AgentNode:
                 packets += [
                     p for p in box.packets.values() if isinstance(p, Packet) and p.sent_epoch <= k
                 ]
-                box.packets.clear()
-            self.deadline["packets"] += sum(p.sent_epoch == k for p in packets)
+                # a neighbour ahead of this process: its next epoch's packets wait for it
+                box.packets = {
+                    q: p
+                    for q, p in box.packets.items()
+                    if isinstance(p, Packet) and p.sent_epoch > k
+                }
+            self.deadline["packets"] += (fresh := sum(p.sent_epoch == k for p in packets))
+            self.deadline["in_time"] += fresh
             self.taken = k
             self._publish_reports(packets)
             self._drain_until(clock.at(k, ESTIMATE_DEADLINE))
             got: dict[int, Estimate | None] = {}
             for i in self.ids:
                 est = self.inbox[i].estimates.pop(k, None)
-                self.inbox[i].estimates.clear()
+                self.inbox[i].estimates = {
+                    e: v for e, v in self.inbox[i].estimates.items() if e > k
+                }
                 got[i] = _estimate(est)
                 self.deadline["estimates"] += got[i] is not None
+                self.deadline["in_time"] += got[i] is not None
             self.runner.step(got)
-        sleep_until(clock.at(self.scenario.epochs))
+        self._drain_until(clock.at(self.scenario.epochs))
         self._publish_states()
+        for queued in self.held:
+            self._route(queued)
+        drain_last(self.service, self._route)
         self.finished.set()
         return 0

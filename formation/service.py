@@ -15,6 +15,7 @@ import queue
 import signal
 import sys
 import threading
+import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -39,6 +40,7 @@ class Incoming:
     key: str
     payload: bytes
     attachment: bytes | None
+    arrived_ns: int = 0  # wall time it was queued (realtime: late by scheduling or on the way)
 
 
 def settle_heap() -> None:
@@ -148,7 +150,10 @@ class Service:
         def to_inbox(sample: zenoh.Sample) -> None:
             att = sample.attachment
             msg = Incoming(
-                str(sample.key_expr), sample.payload.to_bytes(), att.to_bytes() if att else None
+                str(sample.key_expr),
+                sample.payload.to_bytes(),
+                att.to_bytes() if att else None,
+                time.time_ns(),
             )
             handler = self.inline
             if handler is None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import sys
 
@@ -26,7 +27,9 @@ def main(argv: list[str] | None = None) -> int:
         if restarted:
             node.rejoin()
         code = node.run_realtime() if scenario.runtime.mode == "realtime" else node.run()
-        service.status("done" if code == 0 else "error", node.epoch)
+        realtime = scenario.runtime.mode == "realtime"
+        service.status("done" if code == 0 else "error", node.epoch,
+                       json.dumps(node.deadline) if realtime else "")  # fmt: skip
         if code == 0:
             node.confirm_last()
         return code

@@ -14,9 +14,10 @@ import orjson
 
 from formation import keys
 from formation.codec import attachment
+from formation.deadlines import CAUSES, cause, drain_last
 from formation.errors import RuntimeFailure
 from formation.messages import Delivery, TokenReport
-from formation.realtime import REPORT_DEADLINE, fetch_clock
+from formation.realtime import REPORT_DEADLINE, Clock, fetch_clock
 from formation.reference import reference_positions, reference_velocities
 from formation.scenario import Scenario
 from formation.service import Incoming, Service
@@ -127,6 +128,8 @@ class LeaderNode:
         self.covariance_every = scenario.estimator.covariance_every
         self.link_rows = link_rows(scenario)
         self.late_reports = 0
+        self.clock: Clock | None = None  # realtime: set by run_realtime
+        self.deadline = {"in_time": 0, **dict.fromkeys(CAUSES, 0)}  # realtime: reports, by cause
         if scenario.runtime.mode == "realtime":
             service.subscribe(keys.link_report(self.run_id, "*"))
         else:
@@ -153,7 +156,13 @@ class LeaderNode:
     def _route(self, msg: Incoming) -> None:
         """Realtime: a report forwarded on its link."""
         report = self.service.malformed.decode(msg.key, msg.payload, TokenReport)
-        if report is not None:
+        if report is None:
+            return
+        if self.clock is not None and report.epoch < self.epoch:  # after its epoch's deadline
+            self.late_reports += 1
+            self.deadline[cause(self.clock, "report", report.epoch, report.stamp_ns,
+                                msg.arrived_ns)] += 1  # fmt: skip
+        else:
             self.reports[(report.agent, report.seq)] = report
 
     def _take_delivery(self, msg: Incoming) -> None:
@@ -220,19 +229,32 @@ class LeaderNode:
         """Each period, the reports that arrived by the report deadline; later ones are lost."""
         if not self.service.wait_started():
             return 1
-        clock = fetch_clock(self.service.session, self.run_id)
-        for k in range(self.scenario.epochs):
-            while time.time_ns() < clock.at(k, REPORT_DEADLINE):
+        clock = self.clock = fetch_clock(self.service.session, self.run_id)
+        held: list[Incoming] = []
+        for k in range(self.scenario.epochs + 1):  # the last: late reports of the last epoch
+            end = clock.at(k, REPORT_DEADLINE) if k < self.scenario.epochs else clock.at(k)
+            for queued in held:
+                self._route(queued)
+            while (left := end - time.time_ns()) > 0:
                 if self.service.stopping.is_set():
                     return 130
-                msg = self.service.next_incoming(
-                    max(0.0, min(0.05, (clock.at(k, REPORT_DEADLINE) - time.time_ns()) / 1e9))
-                )
+                msg = self.service.next_incoming(min(0.05, left / 1e9))
                 if msg is not None:
                     self._route(msg)
+            # what was queued by the deadline is in time, however late this process woke
+            held = []
+            while (msg := self.service.next_incoming(0)) is not None:
+                if msg.arrived_ns > end and k < self.scenario.epochs:
+                    held.append(msg)  # after the deadline: routed once it has been taken
+                    break  # the queue is in order: the rest came later still
+                else:
+                    self._route(msg)
+            if k == self.scenario.epochs:
+                drain_last(self.service, self._route)  # the last epoch's late reports
+                break
             reports = [r for r in self.reports.values() if r.epoch == k]
-            self.late_reports += sum(1 for r in self.reports.values() if r.epoch < k)
-            self.reports.clear()
+            self.reports = {q: r for q, r in self.reports.items() if r.epoch > k}  # agents ahead
+            self.deadline["in_time"] += len(reports)
             self._estimate(k, reports)
         return 0
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import sys
 
@@ -40,7 +41,8 @@ def main(argv: list[str] | None = None) -> int:
         delivered = node.sent_counts()
         if scenario.runtime.mode == "realtime":  # forwarded on the links' keys, past Service.put
             service.sent.update(delivered)
-        service.status("done" if code == 0 else "error", node.estimates_done, delivered=delivered)
+        detail = json.dumps(node.realtime.deadline) if scenario.runtime.mode == "realtime" else ""
+        service.status("done" if code == 0 else "error", node.estimates_done, detail, delivered)
         return code
 
     return serve("netem", lambda: Service(args.run_id, "netem", 0, args), body)

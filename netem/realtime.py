@@ -10,11 +10,13 @@ from __future__ import annotations
 import heapq
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable
 
 import zenoh
 
 from formation.codec import read_attachment
+from formation.deadlines import PHASES
 from formation.realtime import Clock
 from formation.scenario import LEADER_ENDPOINT
 from formation.service import Incoming, Service
@@ -24,6 +26,7 @@ from netem.progress import Progress
 from netem.records import Ledger, Record
 
 Due = tuple[int, int, zenoh.Publisher, bytes, "bytes | None"]  # (due ns, tie, link, payload, att)
+KIND_OF: dict[LinkClass, str] = {"formation": "state", "report": "report", "estimate": "estimate"}
 PublishRecords = Callable[[Phase, int, list[Record]], None]
 
 
@@ -36,6 +39,8 @@ class Realtime:
         self.progress, self.ledger, self.publish_records = progress, ledger, publish_records
         self.clock: Clock | None = None  # set by run()
         self._links: dict[Link, tuple[zenoh.Publisher, LinkModel]] = {}
+        # packets whose modelled delay takes them past their deadline: modelled losses
+        self.deadline: Counter[str] = Counter()
 
     def link(self, cls: LinkClass, src: int, dst: int) -> tuple[zenoh.Publisher, LinkModel]:
         """The publisher of a link's forwarded packets and its model, looked up once."""
@@ -58,11 +63,13 @@ class Realtime:
         if not d.delivered:
             return
         self.ledger.forwarded[(cls, src, dst)] += d.copies
+        due_ns = now + int(d.delay_ms * 1e6)
+        if d.delay_ms > 0 and due_ns > self.clock.at(epoch, PHASES[KIND_OF[cls]][1]):
+            self.deadline["modelled_late"] += d.copies
         for _ in range(d.copies):
             if d.delay_ms <= 0:
                 pub.put(msg.payload, attachment=msg.attachment)
             else:
-                due_ns = now + int(d.delay_ms * 1e6)
                 heapq.heappush(due, (due_ns, len(due), pub, msg.payload, msg.attachment))
 
     def handle(self, msg: Incoming, due: list[Due]) -> None:

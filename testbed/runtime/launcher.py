@@ -28,6 +28,7 @@ from formation.messages import Status
 from formation.scenario import Scenario, StrategyName
 from formation.zenoh_config import session_config
 from recorder.metrics import formation_error, shape_error
+from testbed.runtime.deadline_accounting import deadline_counts, realtime_accounting
 from testbed.runtime.events import EventDriver, bodies
 from testbed.runtime.faults import (
     RestartPolicy,
@@ -89,13 +90,13 @@ class RunOutcome:
         rows = [np.asarray(v) - self.positions[k, j - 1] for k, _, j, v in self.substitutions]
         return np.array(rows).reshape(-1, d)
 
+    def deadline_accounting(self) -> dict[str, Any]:
+        """Realtime: modelled losses, deadline misses by cause, in time (lockstep: no rate)."""
+        return realtime_accounting(self.extra.get("deadline") or {}, self.drops_per_link())
+
     def deadline_miss_rate(self) -> float | None:
-        """Realtime: packets and estimates that arrived after their deadline, over all that arrived."""
-        d: dict[str, int] = self.extra.get("deadline") or {}
-        total = sum(d.get(k, 0) for k in ("packets", "late_packets", "estimates", "late_estimates"))
-        if not total:
-            return None
-        return float(d.get("late_packets", 0) + d.get("late_estimates", 0)) / total
+        """Realtime: deadline misses of the testbed's own making, over the packets sent."""
+        return self.deadline_accounting().get("deadline_miss_rate")
 
     def summary(self) -> dict[str, Any]:
         drops = self.drops_per_link()
@@ -111,8 +112,8 @@ class RunOutcome:
             "dropped_links": {k: v for k, v in drops.items() if v[1]},
             "malformed": self.malformed,
             "mode": self.scenario.runtime.mode,
-            "deadline_miss_rate": self.deadline_miss_rate(),
             "deadline": self.extra.get("deadline", {}),
+            **self.deadline_accounting(),
             "wall_s": self.wall_s,
             **self.faults_summary(),
         }
@@ -413,13 +414,10 @@ def launch(
             malformed: Counter[str] = Counter(observer.malformed.counts)
             sent: Counter[str] = Counter()
             delivered: Counter[str] = Counter()
-            deadline: Counter[str] = Counter()
             for st in observer.statuses.values():
                 malformed.update(st.malformed)
                 sent.update(st.sent)
                 delivered.update(st.delivered)
-                if st.role in ("agent", "pool") and st.detail.startswith("{"):
-                    deadline.update(json.loads(st.detail))
             supervisor.note_returns(np.isfinite(observer.positions).all(axis=2), observer.returns)
             losses = [loss.as_json() for loss in supervisor.losses]
             return RunOutcome(
@@ -428,7 +426,7 @@ def launch(
                 decisions=list(observer.decisions), substitutions=sorted(observer.substitutions),
                 malformed=dict(malformed), sent=dict(sent), delivered=dict(delivered),
                 pids=group.pids, wall_s=time.monotonic() - started,
-                extra={"deadline": dict(deadline), "losses": losses, "fallbacks": observer.fallbacks,
+                extra={"deadline": deadline_counts(observer.statuses.values()), "losses": losses, "fallbacks": observer.fallbacks,
                        "team_events": list(observer.team_events)},
             )  # fmt: skip
     finally:

@@ -1,0 +1,91 @@
+"""Realtime deadline misses by cause: which part of the testbed made a packet late.
+
+A packet that missed its phase's deadline (docs/architecture.md "Time") is put down to
+the first of, in order:
+
+- ``late_sender`` / ``late_leader``: its sender (an agent, or the leader for estimates)
+  published it more than :data:`SLACK` of a period after its phase started;
+- ``scheduling``: it had arrived in the receiver's queue by the deadline, but the
+  receiver took it out later;
+- ``late_netem``: neither, so it was late on its way through netem. netem counts apart
+  the packets whose *modelled* delay took them past the deadline (``modelled_late``):
+  those are modelled losses, not misses of the testbed's own.
+
+Stamps (``stamp_ns``) are the sender's monotonic clock, turned into wall time with the
+receiver's own offset: exact between processes of one host (CLOCK_MONOTONIC is shared).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from typing import NamedTuple
+
+from formation.realtime import ESTIMATE_DEADLINE, REPORT_DEADLINE, STATE_DEADLINE, Clock
+from formation.service import Incoming, Service
+
+SLACK = 0.10  # of a period: a sender publishing later than this after its phase start is late
+CAUSES = ("late_sender", "late_netem", "late_leader", "scheduling")
+PHASES = {  # the phase a packet kind travels in: (start, deadline) as fractions of a period
+    "state": (0.0, STATE_DEADLINE),
+    "report": (STATE_DEADLINE, REPORT_DEADLINE),
+    "estimate": (REPORT_DEADLINE, ESTIMATE_DEADLINE),
+}
+
+
+def wall_of(stamp_ns: int) -> int:
+    """A monotonic stamp of a process on this host as ``time.time_ns()`` wall time."""
+    return stamp_ns + time.time_ns() - time.monotonic_ns()
+
+
+def cause(clock: Clock, kind: str, epoch: int, stamp_ns: int, arrived_ns: int) -> str:
+    """The cause of a deadline miss of a ``kind`` packet of ``epoch`` (see the module doc).
+
+    ``stamp_ns``: the sender's monotonic stamp; ``arrived_ns``: wall time it was queued here.
+    """
+    start, deadline = PHASES[kind]
+    if wall_of(stamp_ns) > clock.at(epoch, start + SLACK):
+        return "late_leader" if kind == "estimate" else "late_sender"
+    if arrived_ns <= clock.at(epoch, deadline):
+        return "scheduling"
+    return "late_netem"
+
+
+class Accounting(NamedTuple):
+    """A run's receivers' packets: taken in time, and missed by cause (netem's modelled apart)."""
+
+    in_time: int
+    by_cause: dict[str, int]
+    modelled_late: int  # delayed past their deadline by netem's models: modelled losses
+
+    @property
+    def misses(self) -> int:
+        return sum(self.by_cause.values())
+
+
+def summarise(received: Mapping[str, int], netem: Mapping[str, int]) -> Accounting:
+    """The run's deadline accounting from the receivers' and netem's counts.
+
+    ``received``: the agents' and the leader's counters (``in_time`` and one per cause);
+    ``netem``: its ``modelled_late``. The receivers saw those packets late on the way, so
+    they are taken from ``late_netem``.
+    """
+    by_cause = {c: int(received.get(c, 0)) for c in CAUSES}
+    modelled = min(int(netem.get("modelled_late", 0)), by_cause["late_netem"])
+    by_cause["late_netem"] -= modelled
+    return Accounting(int(received.get("in_time", 0)), by_cause, modelled)
+
+
+def drain_last(service: Service, route: Callable[[Incoming], None], timeout_s: float = 5.0,
+               settle_s: float = 0.1) -> None:  # fmt: skip
+    """After the last epoch, route what still comes until netem has gone (it forwards every
+    packet due before it leaves; at most ``timeout_s``), then for ``settle_s``: a packet
+    still on its way when the run ends is counted as a miss, not left out of the books."""
+    end = time.monotonic() + timeout_s
+    while service.is_alive("netem", 0) and time.monotonic() < end:
+        if (msg := service.next_incoming(0.02)) is not None:
+            route(msg)
+    end = time.monotonic() + settle_s
+    while (left := end - time.monotonic()) > 0:
+        if (msg := service.next_incoming(left)) is not None:
+            route(msg)

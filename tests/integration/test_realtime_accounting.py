@@ -1,0 +1,43 @@
+"""Realtime, 20 agent processes at 20 Hz for 200 epochs: every packet netem decided is
+accounted for, as a modelled loss, a deadline miss (by cause) or delivered in time.
+
+Nothing here depends on how fast the machine is: the miss rate is a figure for
+``bench/``, not an assertion.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from formation.deadlines import CAUSES
+from formation.scenario import Scenario
+from testbed.runtime.launcher import launch
+
+pytestmark = pytest.mark.integration
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.mark.slow
+def test_twenty_agents_at_20_hz_account_for_every_packet(runs_dir: Path) -> None:
+    scenario = Scenario.from_file(ROOT / "scenarios/grid20.toml").with_overrides(
+        epochs=200, runtime={"mode": "realtime", "realtime_period_s": 0.05}
+    )
+    outcome = launch(scenario, runs_dir=runs_dir, record=False)
+    s = outcome.summary()
+    assert outcome.estimated_epochs == list(range(200))
+    assert np.isfinite(outcome.positions[-1]).all()
+    misses = s["deadline_misses"]
+    assert set(misses["by_cause"]) == set(CAUSES)
+    assert sum(misses["by_cause"].values()) == misses["total"]
+    modelled = s["modelled_losses"]
+    assert modelled["dropped"] == s["packets_dropped"] > 0  # grid20's links drop packets
+    assert modelled["total"] == modelled["dropped"] + modelled["delayed_past_deadline"]
+    assert s["delivered_in_time"] > 0
+    books = (modelled["total"], misses["total"], s["delivered_in_time"], s["packets_sent"])
+    assert books[0] + books[1] + books[2] == books[3], (books, s["deadline"])
+    assert s["unaccounted"] == 0
+    assert s["deadline_miss_rate"] == misses["total"] / s["packets_sent"]
+    print(f"realtime 20 agents @ 20 Hz, 200 epochs: {s['deadline_misses']}, {s['deadline']}")
