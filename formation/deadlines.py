@@ -25,6 +25,7 @@ from formation.realtime import ESTIMATE_DEADLINE, REPORT_DEADLINE, STATE_DEADLIN
 from formation.service import Incoming, Service
 
 SLACK = 0.10  # of a period: a sender publishing later than this after its phase start is late
+WARN_RATE = 0.001  # misses above this share of the packets sent: a warning (issue 18)
 CAUSES = ("late_sender", "late_netem", "late_leader", "scheduling")
 PHASES = {  # the phase a packet kind travels in: (start, deadline) as fractions of a period
     "state": (0.0, STATE_DEADLINE),

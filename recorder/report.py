@@ -18,6 +18,7 @@ import numpy as np
 
 from formation.graph import expected_rigidity_rank
 from recorder import membership, plots
+from recorder.deadlines import deadline_lines, read_deadlines
 from recorder.metrics import error_statistics, longest_run
 from recorder.rundata import RunData, read_run
 from recorder.safety import safety_counts, safety_lines
@@ -86,6 +87,8 @@ def summarize(run: RunData) -> dict[str, Any]:
     skipped = run.extra.get("skipped")
     if skipped is not None:
         out["skipped"] = skipped.as_json()
+    if (timed := run.extra.get("deadlines")) is not None:
+        out["deadlines"] = timed
     out.update(_team(run))
     out["safety"] = safety_counts(s, run.positions, run.headings, run.saturated)
     recorded = run.extra.get("recorded_formation_error")
@@ -180,6 +183,11 @@ def _markdown(
     for s in sums:
         drops = ", ".join(f"{k}: {v} ({s['longest_outage'][k]})" for k, v in s["drops"].items())
         lines.append(f"- {s['label']}: {drops or 'none'}")
+    timed = [(run, s["deadlines"]) for run, s in zip(runs, sums, strict=True) if "deadlines" in s]
+    if timed:
+        lines += ["", "## Realtime: modelled losses and deadline misses", ""]
+        for run, d in timed:
+            lines += deadline_lines(run.label, d)
     notes = []
     for run, s in zip(runs, sums, strict=True):
         every = s["covariance_every"]
@@ -281,12 +289,15 @@ def write_report(mcap_path: Path, out_dir: Path | None = None) -> Path:
     """The report of one recording, next to it unless ``out_dir`` is given; returns ``report.md``."""
     mcap_path = Path(mcap_path)
     run = read_run(mcap_path)
+    run.extra["deadlines"] = read_deadlines(mcap_path.parent)
     return write_report_from([run], out_dir or mcap_path.parent, title=f"Report: {mcap_path}")
 
 
 def write_reports(paths: Sequence[Path], out_dir: Path | None = None) -> Path:
     """Several recordings (e.g. one per strategy) compared in one report."""
     runs = [read_run(Path(p)) for p in paths]
+    for run, p in zip(runs, paths, strict=True):
+        run.extra["deadlines"] = read_deadlines(Path(p).parent)
     target = out_dir or Path(paths[0]).parent
     return write_report_from(runs, target, title="Report: " + ", ".join(str(p) for p in paths))
 

@@ -17,6 +17,7 @@ from formation.scenario import Scenario
 from recorder.report import write_report, write_reports
 from recorder.safety import safety_counts
 from testbed.cli.common import add_common, scenario_strategies
+from testbed.cli.deadline_lines import deadline_cells, deadline_notes, write_deadlines
 from testbed.cli.tables import print_table
 from testbed.runtime.faults import RESTART_POLICIES
 from testbed.runtime.launcher import launch
@@ -49,6 +50,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                              pool=args.pool, record=not args.no_record, progress=progress,
                              restart=args.restart, recorder_args=_live_args(args))  # fmt: skip
         outcomes.append(outcome)
+        write_deadlines(outcome)
         if not args.no_record:
             outcome.extra["skipped"] = _report(outcome.run_dir, console)
         console.print(f"{strategy}: files in [bold]{outcome.run_dir}[/]")
@@ -112,7 +114,7 @@ def _print_summary(outcomes: list[Any], console: Console) -> None:
             "links with drops\n(sent/dropped)", "mal-\nformed", "skipped", "min dist\n[m]",
             "colli-\nsions", "wall [s]"]  # fmt: skip
     if realtime:
-        cols.append("deadline\nmisses")
+        cols += ["modelled\nlosses", "deadline\nmisses"]
     for col in cols:
         table.add_column(col, justify="left" if col in ("strategy", cols[7]) else "right")
     for o in outcomes:
@@ -130,10 +132,12 @@ def _print_summary(outcomes: list[Any], console: Console) -> None:
             str(safe["collisions_total"]), f"{s['wall_s']:.1f}",
         ]  # fmt: skip
         if realtime:
-            rate = s["deadline_miss_rate"]
-            row.append("-" if rate is None else f"{100 * rate:.2f} %")
+            row += deadline_cells(s)
         table.add_row(*row)
     print_table(table, console)
+    for o in outcomes:
+        for line in deadline_notes(o.strategy, o.summary()):
+            console.print(line)
 
 
 def register(sub: Any) -> None:

@@ -12,11 +12,10 @@ from collections import Counter
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from formation.deadlines import summarise
+from formation.deadlines import WARN_RATE, summarise
 from formation.messages import Status
 
 NETEM = "netem."  # the prefix of netem's counts among the run's
-WARN_RATE = 0.001  # deadline misses above this share of the packets sent: a warning
 
 
 def deadline_counts(statuses: Iterable[Status]) -> dict[str, int]:

@@ -1,0 +1,60 @@
+"""The report's realtime section: modelled losses and deadline misses, apart.
+
+``formation run --mode realtime`` writes the run's accounting (testbed's outcome summary)
+as ``deadlines.json`` beside the recording; a report of that recording reads it back. A
+file that does not hold the expected numbers is skipped with a note, never trusted.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from formation.deadlines import CAUSES, WARN_RATE
+
+FILE = "deadlines.json"
+
+
+def read_deadlines(run_dir: Path) -> dict[str, Any] | None:
+    """The accounting beside a recording: None if absent; ``{"unreadable": why}`` if bad."""
+    path = run_dir / FILE
+    if not path.exists():
+        return None
+    try:
+        got = json.loads(path.read_text(encoding="utf-8"))
+        misses = got["deadline_misses"]
+        return {
+            "sent": int(got["packets_sent"]),
+            "modelled": int(got["modelled_losses"]["total"]),
+            "delayed_past_deadline": int(got["modelled_losses"]["delayed_past_deadline"]),
+            "misses": int(misses["total"]),
+            "by_cause": {c: int(misses["by_cause"][c]) for c in CAUSES},
+            "in_time": int(got["delivered_in_time"]),
+        }
+    except (OSError, ValueError, TypeError, KeyError) as exc:
+        return {"unreadable": f"{path}: {type(exc).__name__}: {exc}"}
+
+
+def deadline_lines(label: str, d: dict[str, Any]) -> list[str]:
+    """Markdown lines for one run's accounting (:func:`read_deadlines`)."""
+    if "unreadable" in d:
+        return [f"- {label}: the deadline accounting was skipped, not trusted ({d['unreadable']})"]
+    sent = d["sent"] or 1
+
+    def pct(n: int) -> str:
+        return f"{n} ({100 * n / sent:.2f} %)"
+
+    causes = ", ".join(f"{c} {n}" for c, n in d["by_cause"].items())
+    lines = [
+        f"- {label}: {d['sent']} packets sent; modelled losses {pct(d['modelled'])} "
+        f"(of which delayed past the deadline by the link model {d['delayed_past_deadline']}); "
+        f"deadline misses of the testbed's own making {pct(d['misses'])} ({causes}); "
+        f"delivered in time {pct(d['in_time'])}"
+    ]
+    if d["misses"] > WARN_RATE * d["sent"]:
+        lines.append(
+            f"- **warning** ({label}): deadline misses exceed {100 * WARN_RATE:g} % of the "
+            "packets; this run cannot tell modelled losses of that size from the testbed's own"
+        )
+    return lines
