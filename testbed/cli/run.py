@@ -21,6 +21,7 @@ from testbed.cli.deadline_lines import deadline_cells, deadline_notes, write_dea
 from testbed.cli.tables import print_table
 from testbed.runtime.faults import RESTART_POLICIES
 from testbed.runtime.launcher import launch
+from testbed.runtime.layout import realtime_layout
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -28,11 +29,16 @@ def cmd_run(args: argparse.Namespace) -> int:
     scenario = Scenario.from_file(args.scenario)
     if args.epochs is not None:
         scenario = scenario.with_overrides(epochs=args.epochs)
+    pool = args.pool
     if args.mode == "realtime":
         period = args.period_s or scenario.runtime.realtime_period_s
         scenario = scenario.with_overrides(
             runtime={"mode": "realtime", "realtime_period_s": period}
         )
+        if pool is None:
+            layout = realtime_layout(scenario.n, period or scenario.control.period_s)
+            pool = layout.pools
+            console.print(f"realtime layout: {layout.why}; --pool K to choose")
     outcomes = []
     for strategy in scenario_strategies(args.strategy, scenario):
         with Progress(
@@ -47,7 +53,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                 bar.update(_t, completed=done, rate=done / elapsed if elapsed else 0.0, drops=drops)
 
             outcome = launch(scenario, strategy=strategy, seed=args.seed, runs_dir=Path(args.runs_dir),
-                             pool=args.pool, record=not args.no_record, progress=progress,
+                             pool=pool, record=not args.no_record, progress=progress,
                              restart=args.restart, recorder_args=_live_args(args))  # fmt: skip
         outcomes.append(outcome)
         write_deadlines(outcome)

@@ -7,6 +7,10 @@ Nothing here depends on how fast the machine is: the miss rate is a figure for
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +19,7 @@ import pytest
 from formation.deadlines import CAUSES
 from formation.scenario import Scenario
 from testbed.runtime.launcher import launch
+from testbed.runtime.layout import realtime_layout
 
 pytestmark = pytest.mark.integration
 ROOT = Path(__file__).resolve().parents[2]
@@ -41,3 +46,31 @@ def test_twenty_agents_at_20_hz_account_for_every_packet(runs_dir: Path) -> None
     assert s["unaccounted"] == 0
     assert s["deadline_miss_rate"] == misses["total"] / s["packets_sent"]
     print(f"realtime 20 agents @ 20 Hz, 200 epochs: {s['deadline_misses']}, {s['deadline']}")
+
+
+@pytest.mark.slow
+def test_formation_run_realtime_picks_and_says_a_layout_and_records_the_accounting(
+    runs_dir: Path,
+) -> None:
+    cores = os.cpu_count() or 1
+    layout = realtime_layout(20, 0.05, cores)
+    proc = subprocess.run(
+        [sys.executable, "-m", "testbed.cli", "run", str(ROOT / "scenarios/grid20.toml"),
+         "--mode", "realtime", "--period-s", "0.05", "--epochs", "40", "--runs-dir", str(runs_dir)],
+        capture_output=True, text=True, timeout=300,
+        env={k: v for k, v in os.environ.items() if k != "COLUMNS"},
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    err = proc.stderr
+    assert f"realtime layout: {layout.why}" in " ".join(err.split()), err
+    (run,) = runs_dir.iterdir()
+    agents = [
+        n
+        for n in json.loads((run / "pids.json").read_text())["pids"]
+        if n.startswith(("agent-", "pool-"))
+    ]
+    assert len(agents) == (layout.pools or 20)
+    books = json.loads((run / "deadlines.json").read_text())
+    assert books["unaccounted"] == 0
+    assert "deadline misses by cause" in proc.stdout
+    assert "## Realtime: modelled losses and deadline misses" in (run / "report.md").read_text()

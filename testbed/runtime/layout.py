@@ -1,0 +1,38 @@
+"""How many agent processes a realtime run can afford on this machine (issue 18 item 3).
+
+Every agent process wakes several times per epoch (publish, two deadlines), and a wake-up
+that finds the cores busy comes late: the packet is then a deadline miss of the testbed's
+own making. On 2 cores at 20 Hz, 5 agent processes missed none and 20 missed 1.2–1.9 %
+(issue 18's figures), so the budget is :data:`PROCESSES_PER_CORE_AT_10HZ` agent processes
+per core at 10 epochs/s, in proportion to the period. A pool steps all its agents at once
+(agent/node.py), so fewer, larger pools cost little.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+PROCESSES_PER_CORE_AT_10HZ = 5.0
+
+
+@dataclass(frozen=True)
+class Layout:
+    """``pools``: agent processes (None: one per agent, the launcher's default); ``why``."""
+
+    pools: int | None
+    why: str
+
+
+def realtime_layout(n: int, period_s: float, cores: int | None = None) -> Layout:
+    """The layout for ``n`` agents at one epoch per ``period_s`` on ``cores`` (os.cpu_count())."""
+    cores = cores or os.cpu_count() or 1
+    budget = max(1, int(cores * PROCESSES_PER_CORE_AT_10HZ * period_s / 0.1))
+    rule = (
+        f"{cores} cores, {n} agents, {1 / period_s:g} epochs/s: at most {budget} agent "
+        f"processes ({PROCESSES_PER_CORE_AT_10HZ:g} per core at 10 epochs/s)"
+    )
+    if n <= budget:
+        return Layout(None, f"one process per agent ({rule})")
+    size = -(-n // budget)  # ceil
+    return Layout(budget, f"{budget} pools of up to {size} agents ({rule})")
