@@ -5,11 +5,15 @@ the first of, in order:
 
 - ``late_sender`` / ``late_leader``: its sender (an agent, or the leader for estimates)
   published it more than :data:`SLACK` of a period after its phase started;
-- ``scheduling``: it had arrived in the receiver's queue by the deadline, but the
-  receiver took it out later;
-- ``late_netem``: neither, so it was late on its way through netem. netem counts apart
-  the packets whose *modelled* delay took them past the deadline (``modelled_late``):
-  those are modelled losses, not misses of the testbed's own.
+- ``late_netem``: netem forwarded it after the deadline, though it had it (and its
+  model's delay had ended) in time: netem counts these itself (``late_forwards``);
+- ``scheduling``: the rest: queued at the receiver in time but taken late, or late on
+  the way past netem (the router, the receiver's Zenoh thread).
+
+A receiver first counts a packet neither late sent nor queued in time as ``late_netem``;
+:func:`summarise` then takes netem's ``modelled_late`` (its model delayed the packet past
+the deadline: a modelled loss, not a miss) and moves what exceeds ``late_forwards`` to
+``scheduling``.
 
 Stamps (``stamp_ns``) are the sender's monotonic clock, turned into wall time with the
 receiver's own offset: exact between processes of one host (CLOCK_MONOTONIC is shared).
@@ -68,12 +72,13 @@ def summarise(received: Mapping[str, int], netem: Mapping[str, int]) -> Accounti
     """The run's deadline accounting from the receivers' and netem's counts.
 
     ``received``: the agents' and the leader's counters (``in_time`` and one per cause);
-    ``netem``: its ``modelled_late``. The receivers saw those packets late on the way, so
-    they are taken from ``late_netem``.
+    ``netem``: its ``modelled_late`` and ``late_forwards`` (see the module doc).
     """
     by_cause = {c: int(received.get(c, 0)) for c in CAUSES}
     modelled = min(int(netem.get("modelled_late", 0)), by_cause["late_netem"])
-    by_cause["late_netem"] -= modelled
+    on_the_way = by_cause["late_netem"] - modelled
+    by_cause["late_netem"] = min(on_the_way, int(netem.get("late_forwards", 0)))
+    by_cause["scheduling"] += on_the_way - by_cause["late_netem"]
     return Accounting(int(received.get("in_time", 0)), by_cause, modelled)
 
 

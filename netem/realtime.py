@@ -25,7 +25,8 @@ from netem.models import LinkModel
 from netem.progress import Progress
 from netem.records import Ledger, Record
 
-Due = tuple[int, int, zenoh.Publisher, bytes, "bytes | None"]  # (due ns, tie, link, payload, att)
+# (due ns, tie, link, payload, attachment, its phase's deadline ns)
+Due = tuple[int, int, zenoh.Publisher, bytes, "bytes | None", int]
 KIND_OF: dict[LinkClass, str] = {"formation": "state", "report": "report", "estimate": "estimate"}
 PublishRecords = Callable[[Phase, int, list[Record]], None]
 
@@ -39,7 +40,8 @@ class Realtime:
         self.progress, self.ledger, self.publish_records = progress, ledger, publish_records
         self.clock: Clock | None = None  # set by run()
         self._links: dict[Link, tuple[zenoh.Publisher, LinkModel]] = {}
-        # packets whose modelled delay takes them past their deadline: modelled losses
+        # modelled_late: packets a model delayed past their deadline (modelled losses);
+        # late_forwards: packets in time here (and by their model) put out after it
         self.deadline: Counter[str] = Counter()
 
     def link(self, cls: LinkClass, src: int, dst: int) -> tuple[zenoh.Publisher, LinkModel]:
@@ -64,13 +66,17 @@ class Realtime:
             return
         self.ledger.forwarded[(cls, src, dst)] += d.copies
         due_ns = now + int(d.delay_ms * 1e6)
-        if d.delay_ms > 0 and due_ns > self.clock.at(epoch, PHASES[KIND_OF[cls]][1]):
+        deadline_ns = self.clock.at(epoch, PHASES[KIND_OF[cls]][1])
+        if d.delay_ms > 0 and due_ns > deadline_ns:
             self.deadline["modelled_late"] += d.copies
+        elif d.delay_ms <= 0 and msg.arrived_ns <= deadline_ns < now:
+            self.deadline["late_forwards"] += d.copies
         for _ in range(d.copies):
             if d.delay_ms <= 0:
                 pub.put(msg.payload, attachment=msg.attachment)
             else:
-                heapq.heappush(due, (due_ns, len(due), pub, msg.payload, msg.attachment))
+                item = (due_ns, len(due), pub, msg.payload, msg.attachment, deadline_ns)
+                heapq.heappush(due, item)
 
     def handle(self, msg: Incoming, due: list[Due]) -> None:
         """One inbound packet: forwarded on each of its links (a final state only noted)."""
@@ -119,7 +125,8 @@ class Realtime:
         while not (finished() and not due) and not service.stopping.is_set():
             now = time.time_ns()
             while due and due[0][0] <= now:
-                _, _, pub, payload, att = heapq.heappop(due)
+                due_ns, _, pub, payload, att, deadline_ns = heapq.heappop(due)
+                self.deadline["late_forwards"] += due_ns <= deadline_ns < time.time_ns()
                 pub.put(payload, attachment=att)
             if now >= next_flush:
                 self.publish_decisions()

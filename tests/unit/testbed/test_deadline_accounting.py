@@ -38,7 +38,7 @@ def test_the_books_balance_and_modelled_losses_stand_apart_from_misses() -> None
     c = deadline_counts([
         status("agent", counts(in_time=85, late_netem=3, scheduling=1)),
         status("leader", counts(late_leader=1)),
-        status("netem", json.dumps({"modelled_late": 2})),
+        status("netem", json.dumps({"modelled_late": 2, "late_forwards": 1})),
     ])  # fmt: skip
     got = realtime_accounting(c, {"1->2": (60, 6), "2->1": (40, 2)})
     assert got["modelled_losses"] == {"total": 10, "dropped": 8, "delayed_past_deadline": 2}
