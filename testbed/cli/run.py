@@ -36,7 +36,8 @@ def cmd_run(args: argparse.Namespace) -> int:
             runtime={"mode": "realtime", "realtime_period_s": period}
         )
         if pool is None:
-            layout = realtime_layout(scenario.n, period or scenario.control.period_s)
+            packets = len(scenario.directed_links) + 2 * scenario.n
+            layout = realtime_layout(scenario.n, period or scenario.control.period_s, None, packets)
             pool = layout.pools
             console.print(f"realtime layout: {layout.why}; --pool K to choose")
     outcomes = []

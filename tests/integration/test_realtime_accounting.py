@@ -53,7 +53,8 @@ def test_formation_run_realtime_picks_and_says_a_layout_and_records_the_accounti
     runs_dir: Path,
 ) -> None:
     cores = os.cpu_count() or 1
-    layout = realtime_layout(20, 0.05, cores)
+    scenario = Scenario.from_file(ROOT / "scenarios/grid20.toml")
+    layout = realtime_layout(20, 0.05, cores, len(scenario.directed_links) + 40)
     proc = subprocess.run(
         [sys.executable, "-m", "testbed.cli", "run", str(ROOT / "scenarios/grid20.toml"),
          "--mode", "realtime", "--period-s", "0.05", "--epochs", "40", "--runs-dir", str(runs_dir)],

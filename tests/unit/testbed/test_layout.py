@@ -29,3 +29,9 @@ def test_pools_follow_cores_and_period(
 def test_it_says_what_it_picked() -> None:
     assert realtime_layout(20, 0.05, 2).why.startswith("5 pools of up to 4 agents")
     assert realtime_layout(5, 0.05, 2).why.startswith("one process per agent")
+
+
+def test_it_warns_when_netem_would_forward_more_than_it_keeps_up_with() -> None:
+    assert "warning" not in realtime_layout(20, 0.05, 2, packets_per_epoch=90).why
+    why = realtime_layout(100, 0.1, 2, packets_per_epoch=594).why
+    assert "warning: netem would forward 5,940 packets/s, above the 2,000" in why
