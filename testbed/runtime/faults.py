@@ -12,11 +12,13 @@ from __future__ import annotations
 import os
 import signal
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
+import orjson
 
 from formation.errors import RuntimeFailure
 from testbed.runtime.processes import Child, ProcessGroup
@@ -131,23 +133,54 @@ class Supervisor:
         }
 
     def note_returns(
-        self, seen: npt.NDArray[np.bool_], returns: dict[int, tuple[int, float]]
+        self,
+        seen: npt.NDArray[np.bool_],
+        returns: dict[int, tuple[int, float]],
+        team_events: Sequence[tuple[float, str]] = (),
     ) -> None:
-        """Fill in each restarted agent's first epoch back and how long after its loss it came.
+        """Settle each agent loss from what was recorded: the epoch it was lost at, and for a
+        restarted one its first epoch back and how long after its loss it came.
 
         seen : (E + 1, n) states recorded; returns : agent → (epoch, monotonic time) of its
-        first state after a gap
+        first state after a gap; team_events : netem's running statuses (monotonic time,
+        JSON detail), whose ``back`` names the epoch a restarted sender takes part from.
         """
         for loss in self.losses:
-            if loss.restarted_pid is None or not loss.name.startswith("agent-"):
+            if not loss.name.startswith("agent-"):
                 continue
             i = int(loss.name.removeprefix("agent-"))
-            later = np.flatnonzero(seen[loss.epoch :, i - 1])
-            if len(later):
-                loss.back_from_epoch = loss.epoch + int(later[0])
+            col = seen[:, i - 1]
+            back = None
+            if loss.restarted_pid is not None:
+                back = _netem_back(team_events, i, self.started + loss.after_start_s)
+            # Its last states can reach the launcher after it saw the process gone.
+            stop = len(col) if back is None else back
+            while loss.epoch < stop and col[loss.epoch]:
+                loss.epoch += 1
+            if loss.restarted_pid is None:
+                continue
+            later = np.flatnonzero(col[loss.epoch :])
+            if back is None and len(later):
+                back = loss.epoch + int(later[0])
+            if back is not None and back < len(col) and col[back]:
+                loss.back_from_epoch = back
                 epoch, at = returns.get(i, (None, 0.0))
-                if epoch == loss.back_from_epoch:
+                if epoch == back:
                     loss.back_after_s = at - self.started - loss.after_start_s
+
+
+def _netem_back(team_events: Sequence[tuple[float, str]], agent: int, since: float) -> int | None:
+    """The epoch netem said ``agent`` takes part from, in its first team event after ``since``."""
+    for t, detail in team_events:
+        if t < since:
+            continue
+        try:
+            back = orjson.loads(detail).get("back", {})
+            if str(agent) in back:
+                return int(back[str(agent)])
+        except (orjson.JSONDecodeError, AttributeError, TypeError, ValueError):
+            continue  # not a team event
+    return None
 
 
 def first_missing_epoch(seen: npt.NDArray[np.bool_]) -> int:

@@ -418,7 +418,9 @@ def launch(
                 malformed.update(st.malformed)
                 sent.update(st.sent)
                 delivered.update(st.delivered)
-            supervisor.note_returns(np.isfinite(observer.positions).all(axis=2), observer.returns)
+            supervisor.note_returns(
+                np.isfinite(observer.positions).all(axis=2), observer.returns, observer.team_events
+            )
             losses = [loss.as_json() for loss in supervisor.losses]
             return RunOutcome(
                 run_id=run_id, run_dir=run_dir, scenario=scenario, strategy=strategy, seed=seed,
