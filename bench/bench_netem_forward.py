@@ -140,8 +140,9 @@ def forward_rate(
     )
 
 
-def distance_against_bernoulli() -> None:
-    """A distance model on every formation link against Bernoulli at its mean loss, same run."""
+def distance_against_bernoulli(repeats: int = 1) -> None:
+    """A distance model on every formation link against Bernoulli at its mean loss, same run:
+    ``repeats`` pairs, interleaved (the machine is shared), medians compared."""
     lengths = link_lengths(
         OFFSETS[[a - 1 for a, _ in LINK_PAIRS]], OFFSETS[[b - 1 for _, b in LINK_PAIRS]]
     )
@@ -150,21 +151,34 @@ def distance_against_bernoulli() -> None:
     ranged = {"formation_default": [LOGISTIC]}
     print(f"{EPOCHS} lockstep epochs; logistic d50 {LOGISTIC['d50_m']} m, width "
           f"{LOGISTIC['width_m']} m on every formation link (mean loss {loss:.3f}); baseline: "
-          "Bernoulli at that loss, in the same run")  # fmt: skip
-    b_rate, b_cpu, _ = forward_rate(passthrough=False, network=bernoulli)
-    d_rate, d_cpu, _ = forward_rate(passthrough=False, network=ranged)
-    print(f"Bernoulli {loss:.3f}   {b_rate:9.0f} forwarded/s  netem CPU {b_cpu:5.2f} µs/packet")
-    print(f"logistic        {d_rate:9.0f} forwarded/s  netem CPU {d_cpu:5.2f} µs/packet")
+          f"Bernoulli at that loss, in the same run, {repeats} interleaved pair(s); seed 1")  # fmt: skip
+    runs: dict[str, list[tuple[float, float, float]]] = {"Bernoulli": [], "logistic": []}
+    for r in range(repeats):
+        load = os.getloadavg()[0]
+        for name, network in (("Bernoulli", bernoulli), ("logistic", ranged)):
+            runs[name].append(got := forward_rate(passthrough=False, network=network))
+            print(f"  pair {r + 1} {name:9s} {got[0]:9.0f} forwarded/s  netem CPU "
+                  f"{got[1]:5.2f} µs/packet  (offered {got[2]:.0f} states/s; load {load:.1f})")  # fmt: skip
+    (b_rate, b_cpu), (d_rate, d_cpu) = (
+        (float(np.median([g[0] for g in runs[n]])), float(np.median([g[1] for g in runs[n]])))
+        for n in ("Bernoulli", "logistic")
+    )
+    print(
+        f"Bernoulli {loss:.3f}   {b_rate:9.0f} forwarded/s  netem CPU {b_cpu:5.2f} µs/packet (median)"
+    )
+    print(f"logistic        {d_rate:9.0f} forwarded/s  netem CPU {d_cpu:5.2f} µs/packet (median)")
     print(f"ratio logistic / Bernoulli: rate {d_rate / b_rate:.2f} "
           f"({100 * (1 - d_rate / b_rate):.0f}% slower; target <= 25%), CPU per packet "
-          f"{d_cpu / b_cpu:.2f}")  # fmt: skip
+          f"{d_cpu / b_cpu:.2f}; load average {os.getloadavg()[0]:.1f} at the end")  # fmt: skip
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--distance", action="store_true", help="only the distance-model comparison")
-    if p.parse_args().distance:
-        distance_against_bernoulli()
+    p.add_argument("--repeats", type=int, default=1, help="interleaved distance/Bernoulli pairs")
+    args = p.parse_args()
+    if args.distance:
+        distance_against_bernoulli(args.repeats)
         return
     print(f"{EPOCHS} lockstep epochs of the paper scenario's state phase: {AGENTS} senders, "
           f"{LINKS} directed links; baseline: netem --passthrough in the same run")  # fmt: skip
@@ -181,7 +195,7 @@ def main() -> None:
     rate, cpu, _ = forward_rate(passthrough=False, network=lossy)
     print(f"lockstep, Bernoulli 0.1 on every link (about 23% of epochs clean): {rate:9.0f} forwarded/s  "
           f"netem CPU {cpu:5.2f} µs/packet, {cpu / base_cpu:.2f}x pass-through")  # fmt: skip
-    distance_against_bernoulli()
+    distance_against_bernoulli(args.repeats)
 
 
 if __name__ == "__main__":
