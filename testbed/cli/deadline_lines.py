@@ -32,6 +32,8 @@ def deadline_notes(strategy: str, summary: dict[str, Any]) -> list[str]:
         return []
     by_cause = ", ".join(f"{c} {n}" for c, n in summary["deadline_misses"]["by_cause"].items())
     lines = [f"{strategy}: deadline misses by cause: {by_cause}"]
+    if summary.get("priorities"):
+        lines.append(f"{strategy}: {summary['priorities']}")
     if summary["unaccounted"]:
         lines.append(
             f"{strategy}: {summary['unaccounted']} packets unaccounted for "

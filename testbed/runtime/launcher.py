@@ -8,23 +8,18 @@ every process by PID on exit, error or Ctrl-C, and leaves ``runs/<run_id>/``.
 from __future__ import annotations
 
 import json
-import threading
 import time
 from collections import Counter
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-import orjson
 import zenoh
 
-from formation import keys
-from formation.codec import Malformed, read_attachment
 from formation.errors import RuntimeFailure
-from formation.messages import Status
 from formation.scenario import Scenario, StrategyName
 from formation.zenoh_config import session_config
 from recorder.metrics import formation_error, shape_error
@@ -36,6 +31,8 @@ from testbed.runtime.faults import (
     first_missing_epoch,
     team_intervals,
 )
+from testbed.runtime.observer import Observer, Verdict, all_final, flush_recorder, missing_final
+from testbed.runtime.priorities import favour_shared
 from testbed.runtime.processes import ProcessGroup, free_port, wait_for_port
 
 HOST = "127.0.0.1"
@@ -114,6 +111,7 @@ class RunOutcome:
             "mode": self.scenario.runtime.mode,
             "deadline": self.extra.get("deadline", {}),
             **self.deadline_accounting(),
+            "priorities": self.extra.get("priorities"),  # realtime: what the launcher set
             "wall_s": self.wall_s,
             **self.faults_summary(),
         }
@@ -131,134 +129,6 @@ class RunOutcome:
         seen = np.asarray(np.isfinite(self.positions).all(axis=2), dtype=bool)
         team = {str(i): spans for i, spans in team_intervals(seen).items()}
         return {"losses": losses, "team": team, "fallbacks": self.extra.get("fallbacks", 0)}
-
-
-class Verdict(NamedTuple):
-    """One netem decision as the launcher keeps it (the recording has the whole record)."""
-
-    source: int
-    target: int
-    link_class: str
-    epoch: int
-    seq: int
-    verdict: str
-
-
-class _Observer:
-    """The launcher's own Zenoh view of the run: progress, drops, states, statuses.
-
-    It shares the machine with the run, so it reads only the fields it needs (orjson,
-    not the models: at 1,000 agents full validation cost it a tenth of the run's CPU).
-    What it cannot read is counted as malformed.
-    """
-
-    def __init__(self, session: zenoh.Session, run_id: str, scenario: Scenario) -> None:
-        self.lock = threading.Lock()
-        self.scenario = scenario
-        e, n, d = scenario.epochs, scenario.n, scenario.dimension
-        self.positions = np.full((e + 1, n, d), np.nan)
-        self.estimated: set[int] = set()
-        self.decisions: list[Verdict] = []
-        self.substitutions: list[
-            tuple[int, int, int, list[float]]
-        ] = []  # (epoch, agent, neighbour, x̃)
-        self.statuses: dict[str, Status] = {}
-        self.alive: set[str] = set()
-        self.malformed = Malformed()
-        self.drops = 0
-        self.fallbacks = 0  # substituted values that fell back (no estimate to use)
-        self.returns: dict[int, tuple[int, float]] = {}  # agent → (epoch, t) first after a gap
-        self.team_events: list[tuple[float, str]] = []  # netem's running statuses (t, detail)
-        self.run_id = run_id
-        p = keys.prefix(run_id)
-        self._subs = [
-            session.declare_subscriber(f"{p}/agent/*/state", self._on_state),
-            # Agent 1's part says the leader finished the epoch as well as the whole estimate
-            # does, at a thousandth of its size with 1,000 agents.
-            session.declare_subscriber(keys.leader_estimate_for(run_id, 1), self._on_estimate),
-            session.declare_subscriber(keys.netem_decision(run_id), self._on_decisions),
-            session.declare_subscriber(f"{p}/status/**", self._on_status),
-            session.liveliness().declare_subscriber(
-                keys.alive_all(run_id), self._on_alive, history=True
-            ),
-        ]
-
-    def _decode(self, sample: zenoh.Sample, model: Any) -> Any:
-        return self.malformed.decode(str(sample.key_expr), sample.payload.to_bytes(), model)
-
-    def _on_state(self, sample: zenoh.Sample) -> None:
-        try:
-            msg = orjson.loads(sample.payload.to_bytes())
-            k, i = int(msg["epoch"]), int(msg["agent"])
-            position = [float(v) for v in msg["position"]]
-            subs = [
-                (int(s["neighbour"]), [float(v) for v in s["value"]]) for s in msg["substituted"]
-            ]
-            ok = 0 <= k <= self.scenario.epochs and 1 <= i <= self.scenario.n
-            ok = ok and len(position) == self.scenario.dimension
-            ok = ok and str(sample.key_expr).split("/")[-2] == str(i)  # its own key only
-        except (orjson.JSONDecodeError, KeyError, TypeError, ValueError):
-            ok = False
-        if not ok:
-            self.malformed.counts[str(sample.key_expr)] += 1
-            return
-        with self.lock:
-            if k > 0 and np.isnan(self.positions[k - 1, i - 1, 0]):
-                self.returns[i] = (k, time.monotonic())
-            self.positions[k, i - 1] = position
-            for j, value in subs:  # used at the previous epoch
-                self.substitutions.append((k - 1, i, j, value))
-            self.fallbacks += sum(bool(s.get("fallback")) for s in msg["substituted"])
-
-    def _on_estimate(self, sample: zenoh.Sample) -> None:
-        att = sample.attachment
-        meta = read_attachment(None if att is None else att.to_bytes())
-        if meta is None:
-            self.malformed.counts[str(sample.key_expr)] += 1
-            return
-        with self.lock:
-            self.estimated.add(meta[0])
-
-    def _on_decisions(self, sample: zenoh.Sample) -> None:
-        try:
-            rows = [
-                Verdict(
-                    d["source"], d["target"], d["link_class"], d["epoch"], d["seq"], d["verdict"]
-                )
-                for d in orjson.loads(sample.payload.to_bytes())["decisions"]
-            ]
-        except (orjson.JSONDecodeError, KeyError, TypeError):
-            self.malformed.counts[str(sample.key_expr)] += 1
-            return
-        with self.lock:
-            self.decisions.extend(rows)
-            self.drops += sum(d.verdict == "drop" for d in rows)
-
-    def _on_status(self, sample: zenoh.Sample) -> None:
-        msg = self._decode(sample, Status)
-        role, ident = str(sample.key_expr).split("/")[-2:]
-        if msg is not None and msg.sender != (
-            f"{role}/{ident}" if role in ("agent", "pool") else role
-        ):
-            self.malformed.counts[str(sample.key_expr)] += 1  # another process's status
-        elif msg is not None:
-            with self.lock:
-                self.statuses[msg.sender] = msg
-                if msg.role == "netem" and msg.state == "running":
-                    self.team_events.append((time.monotonic(), msg.detail))
-
-    def _on_alive(self, sample: zenoh.Sample) -> None:
-        key = str(sample.key_expr)
-        with self.lock:
-            (self.alive.add if sample.kind == zenoh.SampleKind.PUT else self.alive.discard)(key)
-
-    def is_alive(self, role: str, ident: int | str) -> bool:
-        with self.lock:
-            return keys.alive(self.run_id, role, ident) in self.alive
-
-    def close(self) -> None:
-        for s in self._subs:
-            s.undeclare()
 
 
 def make_run_id(scenario: Scenario, strategy: str, seed: int) -> str:
@@ -330,7 +200,7 @@ def launch(
         )
         wait_for_port(HOST, port, 10.0)
         session = zenoh.open(session_config("client", endpoint, None))
-        observer = _Observer(session, run_id, scenario)
+        observer = Observer(session, run_id, scenario)
         if record:
             rec_args = [*common, "--out", str(run_dir), "--scenario", str(scenario_path),
                         *recorder_args]  # fmt: skip
@@ -347,6 +217,8 @@ def launch(
         supervisor.track(group.start("netem", "netem", *netem_args), "netem", *netem_args)
         leader_args = ["--scenario", str(scenario_path), *common]
         supervisor.track(group.start("leader", "leader", *leader_args), "leader", *leader_args)
+        realtime = scenario.runtime.mode == "realtime"
+        priorities = favour_shared(group.pid_map()) if realtime else None
         EventDriver.check(scenario, pool)
         events = EventDriver(scenario, supervisor,
                              lambda i: ["--scenario", str(scenario_path), "--id", str(i), *common])  # fmt: skip
@@ -400,10 +272,10 @@ def launch(
             progress(scenario.epochs, scenario.epochs, observer.drops)
         present = [i for n in agent_names if n not in gone for i in _ids_of(n)]
         present = events.finishing(gone) if scenario.events else present
-        _wait(lambda: _all_final(observer, present), group, 10.0, "the final states",
-              lambda: _missing_final(observer, present), ignore=[*supervisor.losses, *supervisor.planned])  # fmt: skip
+        _wait(lambda: all_final(observer, present), group, 10.0, "the final states",
+              lambda: missing_final(observer, present), ignore=[*supervisor.losses, *supervisor.planned])  # fmt: skip
         if record:
-            _flush_recorder(session, run_id, observer)
+            flush_recorder(session, run_id, observer)
             rec = next(c for c in group.children if c.name == "recorder")
             code = group.stop(rec, timeout_s=30.0)
             if code not in (0, None):
@@ -429,7 +301,7 @@ def launch(
                 malformed=dict(malformed), sent=dict(sent), delivered=dict(delivered),
                 pids=group.pids, wall_s=time.monotonic() - started,
                 extra={"deadline": deadline_counts(observer.statuses.values()), "losses": losses, "fallbacks": observer.fallbacks,
-                       "team_events": list(observer.team_events)},
+                       "team_events": list(observer.team_events), "priorities": priorities},
             )  # fmt: skip
     finally:
         if observer is not None:
@@ -450,35 +322,6 @@ def _ids_of(name: str) -> list[int]:
     """The agent ids of a process's name: ``agent-3`` → [3], ``pool-1-25`` → 1..25."""
     parts = [int(p) for p in name.split(".")[0].split("-")[1:]]
     return list(range(parts[0], parts[-1] + 1))
-
-
-def _all_final(observer: _Observer, ids: list[int]) -> bool:
-    with observer.lock:
-        return bool(np.isfinite(observer.positions[-1, np.array(ids, dtype=int) - 1]).all())
-
-
-def _missing_final(observer: _Observer, ids: list[int]) -> str:
-    with observer.lock:
-        have = np.isfinite(observer.positions[-1]).all(axis=1)
-        missing = np.array([i for i in ids if not have[i - 1]], dtype=int)
-    shown = ", ".join(str(i) for i in missing[:10]) + (", ..." if len(missing) > 10 else "")
-    return f" of {len(missing)} agents ({shown})"
-
-
-def _flush_recorder(session: zenoh.Session, run_id: str, observer: _Observer) -> None:
-    """Wait until the recorder has every status message the services sent (they are sent last)."""
-    with observer.lock:
-        expected = len(observer.statuses)
-    deadline = time.monotonic() + 10.0
-    while time.monotonic() < deadline:
-        for reply in session.get(keys.flush(run_id), timeout=1.0):
-            if reply.ok is None:
-                continue
-            counts = json.loads(reply.ok.payload.to_bytes())
-            got = sum(v for k, v in counts.items() if "/status/" in k)
-            if got >= expected:
-                return
-        time.sleep(0.02)
 
 
 def _wait(cond: Any, group: ProcessGroup, timeout_s: float, what: str, detail: Any = None,

@@ -33,6 +33,7 @@ def test_twenty_agents_at_20_hz_account_for_every_packet(runs_dir: Path) -> None
     outcome = launch(scenario, runs_dir=runs_dir, record=False)
     s = outcome.summary()
     assert outcome.estimated_epochs == list(range(200))
+    assert "nice" in s["priorities"] or "unchanged" in s["priorities"], "it says what it set"
     assert np.isfinite(outcome.positions[-1]).all()
     misses = s["deadline_misses"]
     assert set(misses["by_cause"]) == set(CAUSES)

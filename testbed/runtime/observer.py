@@ -1,0 +1,177 @@
+"""The launcher's own Zenoh view of a run: progress, drops, states, statuses, final states."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from typing import Any, NamedTuple
+
+import numpy as np
+import orjson
+import zenoh
+
+from formation import keys
+from formation.codec import Malformed, read_attachment
+from formation.messages import Status
+from formation.scenario import Scenario
+
+
+class Verdict(NamedTuple):
+    """One netem decision as the launcher keeps it (the recording has the whole record)."""
+
+    source: int
+    target: int
+    link_class: str
+    epoch: int
+    seq: int
+    verdict: str
+
+
+class Observer:
+    """The launcher's own Zenoh view of the run: progress, drops, states, statuses.
+
+    It shares the machine with the run, so it reads only the fields it needs (orjson,
+    not the models: at 1,000 agents full validation cost it a tenth of the run's CPU).
+    What it cannot read is counted as malformed.
+    """
+
+    def __init__(self, session: zenoh.Session, run_id: str, scenario: Scenario) -> None:
+        self.lock = threading.Lock()
+        self.scenario = scenario
+        e, n, d = scenario.epochs, scenario.n, scenario.dimension
+        self.positions = np.full((e + 1, n, d), np.nan)
+        self.estimated: set[int] = set()
+        self.decisions: list[Verdict] = []
+        self.substitutions: list[
+            tuple[int, int, int, list[float]]
+        ] = []  # (epoch, agent, neighbour, x̃)
+        self.statuses: dict[str, Status] = {}
+        self.alive: set[str] = set()
+        self.malformed = Malformed()
+        self.drops = 0
+        self.fallbacks = 0  # substituted values that fell back (no estimate to use)
+        self.returns: dict[int, tuple[int, float]] = {}  # agent → (epoch, t) first after a gap
+        self.team_events: list[tuple[float, str]] = []  # netem's running statuses (t, detail)
+        self.run_id = run_id
+        p = keys.prefix(run_id)
+        self._subs = [
+            session.declare_subscriber(f"{p}/agent/*/state", self._on_state),
+            # Agent 1's part says the leader finished the epoch as well as the whole estimate
+            # does, at a thousandth of its size with 1,000 agents.
+            session.declare_subscriber(keys.leader_estimate_for(run_id, 1), self._on_estimate),
+            session.declare_subscriber(keys.netem_decision(run_id), self._on_decisions),
+            session.declare_subscriber(f"{p}/status/**", self._on_status),
+            session.liveliness().declare_subscriber(
+                keys.alive_all(run_id), self._on_alive, history=True
+            ),
+        ]
+
+    def _decode(self, sample: zenoh.Sample, model: Any) -> Any:
+        return self.malformed.decode(str(sample.key_expr), sample.payload.to_bytes(), model)
+
+    def _on_state(self, sample: zenoh.Sample) -> None:
+        try:
+            msg = orjson.loads(sample.payload.to_bytes())
+            k, i = int(msg["epoch"]), int(msg["agent"])
+            position = [float(v) for v in msg["position"]]
+            subs = [
+                (int(s["neighbour"]), [float(v) for v in s["value"]]) for s in msg["substituted"]
+            ]
+            ok = 0 <= k <= self.scenario.epochs and 1 <= i <= self.scenario.n
+            ok = ok and len(position) == self.scenario.dimension
+            ok = ok and str(sample.key_expr).split("/")[-2] == str(i)  # its own key only
+        except (orjson.JSONDecodeError, KeyError, TypeError, ValueError):
+            ok = False
+        if not ok:
+            self.malformed.counts[str(sample.key_expr)] += 1
+            return
+        with self.lock:
+            if k > 0 and np.isnan(self.positions[k - 1, i - 1, 0]):
+                self.returns[i] = (k, time.monotonic())
+            self.positions[k, i - 1] = position
+            for j, value in subs:  # used at the previous epoch
+                self.substitutions.append((k - 1, i, j, value))
+            self.fallbacks += sum(bool(s.get("fallback")) for s in msg["substituted"])
+
+    def _on_estimate(self, sample: zenoh.Sample) -> None:
+        att = sample.attachment
+        meta = read_attachment(None if att is None else att.to_bytes())
+        if meta is None:
+            self.malformed.counts[str(sample.key_expr)] += 1
+            return
+        with self.lock:
+            self.estimated.add(meta[0])
+
+    def _on_decisions(self, sample: zenoh.Sample) -> None:
+        try:
+            rows = [
+                Verdict(
+                    d["source"], d["target"], d["link_class"], d["epoch"], d["seq"], d["verdict"]
+                )
+                for d in orjson.loads(sample.payload.to_bytes())["decisions"]
+            ]
+        except (orjson.JSONDecodeError, KeyError, TypeError):
+            self.malformed.counts[str(sample.key_expr)] += 1
+            return
+        with self.lock:
+            self.decisions.extend(rows)
+            self.drops += sum(d.verdict == "drop" for d in rows)
+
+    def _on_status(self, sample: zenoh.Sample) -> None:
+        msg = self._decode(sample, Status)
+        role, ident = str(sample.key_expr).split("/")[-2:]
+        if msg is not None and msg.sender != (
+            f"{role}/{ident}" if role in ("agent", "pool") else role
+        ):
+            self.malformed.counts[str(sample.key_expr)] += 1  # another process's status
+        elif msg is not None:
+            with self.lock:
+                self.statuses[msg.sender] = msg
+                if msg.role == "netem" and msg.state == "running":
+                    self.team_events.append((time.monotonic(), msg.detail))
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        with self.lock:
+            (self.alive.add if sample.kind == zenoh.SampleKind.PUT else self.alive.discard)(key)
+
+    def is_alive(self, role: str, ident: int | str) -> bool:
+        with self.lock:
+            return keys.alive(self.run_id, role, ident) in self.alive
+
+    def close(self) -> None:
+        for s in self._subs:
+            s.undeclare()
+
+
+def all_final(observer: Observer, ids: list[int]) -> bool:
+    with observer.lock:
+        return bool(np.isfinite(observer.positions[-1, np.array(ids, dtype=int) - 1]).all())
+
+
+def missing_final(observer: Observer, ids: list[int]) -> str:
+    with observer.lock:
+        have = np.isfinite(observer.positions[-1]).all(axis=1)
+        missing = np.array([i for i in ids if not have[i - 1]], dtype=int)
+    shown = ", ".join(str(i) for i in missing[:10]) + (", ..." if len(missing) > 10 else "")
+    return f" of {len(missing)} agents ({shown})"
+
+
+def flush_recorder(session: zenoh.Session, run_id: str, observer: Observer) -> None:
+    """Wait until the recorder has every status message the services sent (they are sent last)."""
+    with observer.lock:
+        expected = len(observer.statuses)
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline:
+        for reply in session.get(keys.flush(run_id), timeout=1.0):
+            if reply.ok is None:
+                continue
+            counts = json.loads(reply.ok.payload.to_bytes())
+            got = sum(v for k, v in counts.items() if "/status/" in k)
+            if got >= expected:
+                return
+        time.sleep(0.02)
+
+
+__all__ = ["Observer", "Verdict", "all_final", "flush_recorder", "missing_final"]
