@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import logging
 import threading
+import time
 from typing import Any
 
 import orjson
@@ -179,11 +180,16 @@ class NetemNode:
 
     # -- inbound ----------------------------------------------------------------------------------
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        """Every inbound packet: handled at once on Zenoh's thread in lockstep, else queued."""
+        """Every inbound packet: handled at once on Zenoh's thread (lockstep, and realtime once its
+        clock runs), else queued, stamped with its arrival (a realtime deadline's cause)."""
         att = sample.attachment
         if not self.running:
             raw = None if att is None else att.to_bytes()
-            self.service.inbox.put(Incoming(str(sample.key_expr), sample.payload.to_bytes(), raw))
+            msg = Incoming(str(sample.key_expr), sample.payload.to_bytes(), raw, time.time_ns())
+            if self.realtime.inline:  # no lock: a packet queued meanwhile is taken from there
+                self.service.handle_inline(msg.key, self.realtime.take, msg)
+            else:
+                self.service.inbox.put(msg)
             return
         key = str(sample.key_expr)
         self.service.handle_inline(key, self._handle, key, sample.payload, att)
