@@ -382,13 +382,13 @@ class AgentNode:
         if not self.service.wait_started():
             return 1
         clock = self.clock = fetch_clock(self.service.session, self.run_id)
+        sleep_until(clock.at(0))
+        self._publish_states()
         for k in range(self.scenario.epochs):
             if self.service.stopping.is_set():
                 return 130
             if time.time_ns() > clock.at(k, STATE_DEADLINE):
                 self.deadline["overruns"] += 1
-            sleep_until(clock.at(k))
-            self._publish_states()
             self._drain_until(clock.at(k, STATE_DEADLINE))
             packets = []
             for i in self.ids:
@@ -417,8 +417,10 @@ class AgentNode:
                 self.deadline["estimates"] += got[i] is not None
                 self.deadline["in_time"] += got[i] is not None
             self.runner.step(got)
+            # x[k+1] is known now: out at once, so the state phase's burst of every agent's
+            # packets has the rest of this period as well as its own 0.35 to arrive.
+            self._publish_states()
         self._drain_until(clock.at(self.scenario.epochs))
-        self._publish_states()
         for queued in self.held:
             self._route(queued)
         drain_last(self.service, self._route)
