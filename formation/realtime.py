@@ -1,7 +1,9 @@
 """Wall-clock epochs for realtime mode: one period, fixed phase deadlines within it.
 
-Epoch ``k`` spans ``[t0 + kP, t0 + (k+1)P)``: agents publish ``x_i[k]`` at its
-start, take what arrived by ``STATE_DEADLINE·P`` and report, the leader takes the
+Epoch ``k`` spans ``[t0 + kP, t0 + (k+1)P)``: agents publish ``x_i[k]`` as soon as
+they have it (``x[0]`` at ``t0``, ``x[k]`` when epoch ``k − 1``'s step is done, so the
+burst of states has epoch ``k − 1``'s last part as slack), take what arrived by
+``STATE_DEADLINE·P`` and report, the leader takes the
 reports that arrived by ``REPORT_DEADLINE·P``, agents take the estimate that
 arrived by ``ESTIMATE_DEADLINE·P`` and step. What arrives later is lost (and
 counted as a deadline miss). Times are ``time.time_ns()`` so hosts share them.
