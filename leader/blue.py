@@ -27,7 +27,7 @@ the solver follows the structure of the used graph:
   coordinates decouple, ``A = ⊕_k L_k`` with ``L_k`` the ``n_b × n_b`` grounded
   Laplacian weighted by ``1 / P_e[k, k]``; coordinates with equal weights share
   one matrix (one factorisation for all ``d`` when ``P_e = σ_e² I``).
-* **full** ``P_e``: the ``(n_b d) × (n_b d)`` block system with blocks ``±P_e⁻¹``.
+* **full** ``P_e``: the block system, blocks ``±P_e⁻¹``; if all ``P_e = c_e R``, ``L_w ⊗ R⁻¹``.
 
 A cyclic system (``leader.laplacian``) is solved by sparse LU (SuperLU,
 minimum-degree ordering; the matrix is SPD so no pivoting is needed) when the

@@ -6,6 +6,15 @@ otherwise), solved by sparse LU or preconditioned conjugate gradients, with the
 diagonal blocks of ``A⁻¹`` as covariances (selected inversion over the LU
 factor, ``leader.covariance``). ``leader.blue``'s docstring explains how the
 solver is chosen.
+
+**Kronecker structure.** When every ``P_e = c_e R`` for one full ``d × d`` ``R``
+(one sensor's noise, scaled per edge), ``A = L_w ⊗ R⁻¹`` with ``L_w`` the scalar
+grounded Laplacian weighted by ``w_e = 1 / c_e``, so ``A⁻¹ = L_w⁻¹ ⊗ R``: agent
+``t``'s block is ``(L_w⁻¹)_tt R``, and ``L_w X = H_bᵀ W Y`` gives the estimates
+(``R`` cancels). One ``n_b × n_b`` factorisation and selected inversion instead
+of the ``n_b d × n_b d`` block one: ``d³`` fewer flops in the dense core, ``d²``
+fewer gathers. :func:`common_shape` detects it (``P_e`` equal to ``c_e R`` to
+``SHAPE_RTOL``, rounding); otherwise the block system is solved.
 """
 
 from __future__ import annotations
@@ -21,7 +30,7 @@ from scipy.sparse.linalg import splu
 
 from leader.covariance import LDLFactor, PatternError, inverse_diagonal_blocks
 
-__all__ = ["CG_RTOL", "DIRECT_MAX_UNKNOWNS", "GroundedSystem", "choose_method"]
+__all__ = ["CG_RTOL", "DIRECT_MAX_UNKNOWNS", "GroundedSystem", "choose_method", "common_shape"]
 
 log = logging.getLogger("leader")
 
@@ -39,6 +48,8 @@ CG_ITERATIONS_PER_LEVEL = 8
 """CG iterations per BFS level from the reference, measured (Jacobi-PCG to 1e-12)."""
 INVERSE_CHUNK_COLUMNS = 256
 """Identity columns solved at once when the selected inversion cannot read the factor."""
+SHAPE_RTOL = 1e-12
+"""``P_e`` counts as ``c_e R`` when no entry is off by more than this times ``max |P_e|``."""
 
 
 class _Factor(LDLFactor, Protocol):
@@ -56,6 +67,9 @@ class GroundedSystem:
     e : (k, 2) used links inside the component, 0-based; z : (k, d) ``x_i − x_j`` measured [m]
     p : (k, d, d) their noise covariances [m²]; x_r : (d,) the reference's position [m]
     diagonal : every ``p[e]`` is diagonal (the ``d`` coordinates decouple)
+
+    ``shape`` is ``R`` when the full ``p`` have the Kronecker structure (:func:`common_shape`),
+    else ``None``; then, as in the diagonal case, the systems are scalar (``block == 1``).
     """
 
     def __init__(
@@ -82,6 +96,13 @@ class GroundedSystem:
         self.y = y
         self.p = p
         self.diagonal = diagonal
+        self.scale: FloatArray | None = None
+        self.shape: FloatArray | None = None
+        if not diagonal:
+            found = common_shape(p)
+            if found is not None:
+                self.scale, self.shape = found
+        self.block = 1 if diagonal or self.shape is not None else self.d
         self.method = ""
         self._first: csr_array | None = None
 
@@ -90,18 +111,21 @@ class GroundedSystem:
     def pattern(self) -> csr_array:
         """Node-level sparsity of the grounded Laplacian, with its diagonal.
 
-        In the diagonal case this is the first coordinate's Laplacian itself,
+        For scalar systems this is the first coordinate's Laplacian itself,
         kept so that ``solve`` does not assemble it twice.
         """
-        if self.diagonal:
+        if self.block == 1:
             if self._first is None:
                 self._first = self._laplacian(self._weights()[:, 0])
             return self._first
         return self._laplacian(np.ones(self.i.size))
 
     def _weights(self) -> FloatArray:
-        """Edge weights ``1 / P_e[k, k]`` per coordinate (diagonal case): (m, d)."""
+        """Edge weights per coordinate of the scalar systems: ``1 / P_e[k, k]``, or ``1 / c_e``
+        for all ``k`` with the Kronecker structure: (m, d)."""
         d = self.d
+        if self.scale is not None:
+            return np.repeat(1.0 / self.scale[:, None], d, axis=1)
         w: FloatArray = 1.0 / self.p[:, np.arange(d), np.arange(d)]
         return w
 
@@ -164,7 +188,7 @@ class GroundedSystem:
         est = np.empty((s, d))
         cov = np.zeros((s, d, d)) if blocks is not None else None
         used: set[str] = set()
-        if self.diagonal:
+        if self.block == 1:
             weights = self._weights()
             for cols in _equal_columns(weights):
                 if cols[0] == 0 and self._first is not None:
@@ -177,8 +201,10 @@ class GroundedSystem:
                 est[:, cols] = sol
                 if cov is not None:
                     var = _covariance_blocks(lu if lu is not None else _factor(mat), 1)
-                    for c in cols:
-                        cov[:, c, c] = var[:, 0, 0]
+                    if self.shape is not None:  # one group of all d: A⁻¹ = L_w⁻¹ ⊗ R
+                        cov[:] = var[:, 0, 0, None, None] * self.shape
+                    else:
+                        cov[:, cols, cols] = var[:, :1, 0]
         else:
             mat, rhs = self._block_laplacian()
             sol, how, lu = _solve(mat, rhs, method, d)
@@ -190,6 +216,28 @@ class GroundedSystem:
         positions[self.nodes] = est
         if blocks is not None and cov is not None:
             blocks[self.nodes] = cov
+
+
+def common_shape(p: FloatArray) -> tuple[FloatArray, FloatArray] | None:
+    """``(c, R)`` with ``p[e] = c[e] R`` for every edge (to ``SHAPE_RTOL``), or ``None``.
+
+    Parameters
+    ----------
+    p : (m, d, d) SPD covariances [m²]
+
+    Returns
+    -------
+    c : (m,) positive scales; R : (d, d) ``p[0]`` (so ``c[0] = 1``)
+    """
+    if p.shape[0] == 0:
+        return None
+    shape = p[0]
+    # least-squares scale per edge; positive since both are SPD (Frobenius product)
+    scale = np.einsum("eab,ab->e", p, shape) / float(np.einsum("ab,ab->", shape, shape))
+    off = np.abs(p - scale[:, None, None] * shape).max(axis=(1, 2))
+    if (off > SHAPE_RTOL * np.abs(p).max(axis=(1, 2))).any():
+        return None
+    return scale, shape
 
 
 def _equal_columns(weights: FloatArray) -> list[list[int]]:
@@ -207,7 +255,7 @@ def _equal_columns(weights: FloatArray) -> list[list[int]]:
 
 def choose_method(system: GroundedSystem, graph: csr_array, r: int) -> str:
     """``"direct"`` when the structure promises little fill, else ``"cg"`` (``leader.blue``)."""
-    unknowns = system.size * (1 if system.diagonal else system.d)
+    unknowns = system.size * system.block
     if unknowns <= DIRECT_MAX_UNKNOWNS:
         return "direct"
     pat = system.pattern()
@@ -217,7 +265,7 @@ def choose_method(system: GroundedSystem, graph: csr_array, r: int) -> str:
     width = np.maximum(np.arange(system.size) - first, 0).astype(np.float64)
     dist = dijkstra(graph, directed=False, indices=r, unweighted=True)
     depth = float(dist[np.isfinite(dist)].max())
-    block = 1 if system.diagonal else system.d
+    block = system.block
     direct_work = float(width @ width) * block  # blocks: d³ flops per entry vs d² for CG
     cg_work = CG_ITERATIONS_PER_LEVEL * depth * (2 * pat.nnz + 12 * system.size)
     return "direct" if direct_work <= DIRECT_WORK_RATIO * cg_work else "cg"

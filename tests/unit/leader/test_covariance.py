@@ -13,9 +13,10 @@ from scipy.sparse.linalg import splu
 
 from leader.blue import blue
 from leader.covariance import PatternError, inverse_diagonal_blocks
+from leader.laplacian import GroundedSystem
 
 PROPERTY = settings(max_examples=40, deadline=None, derandomize=True, database=None)
-Kind = Literal["diagonal", "full"]
+Kind = Literal["diagonal", "full", "scaled"]
 TOL = 1e-9  # [m²] every block entry against the dense inverse
 
 
@@ -32,9 +33,13 @@ def random_graph(rng: np.random.Generator, n: int, extra: int, tree: bool) -> np
 
 
 def noise(rng: np.random.Generator, m: int, d: int, kind: Kind) -> np.ndarray:
-    """(m, d, d) SPD covariances [m²]: diagonal, or full with random correlations."""
+    """(m, d, d) SPD covariances [m²]: diagonal, full with random correlations, or ``scaled``:
+    one full matrix times a random scale per edge (the Kronecker structure)."""
     if kind == "diagonal":
         return rng.uniform(1e-4, 1.0, (m, d))[:, :, None] * np.eye(d)
+    if kind == "scaled":
+        a = rng.standard_normal((d, d))
+        return rng.uniform(0.01, 1.0, (m, 1, 1)) * (a @ a.T + 1e-2 * np.eye(d))
     a = rng.standard_normal((m, d, d)) * rng.uniform(0.01, 1.0, (m, 1, 1))
     return a @ a.transpose(0, 2, 1) + 1e-3 * np.eye(d)
 
@@ -66,7 +71,7 @@ def dense_blocks(
     seed=st.integers(0, 2**32 - 1),
     n=st.integers(2, 300),
     d=st.sampled_from([2, 3]),
-    kind=st.sampled_from(["diagonal", "full"]),
+    kind=st.sampled_from(["diagonal", "full", "scaled"]),
     shape=st.sampled_from(["cyclic", "tree"]),
     cycles=st.floats(0.05, 2.0),
     unobservable=st.integers(0, 12),
@@ -141,3 +146,45 @@ def test_a_factor_that_pivoted_rows_is_refused() -> None:
     assert not np.array_equal(lu.perm_r, lu.perm_c)
     with pytest.raises(PatternError, match="pivoted rows"):
         inverse_diagonal_blocks(lu, 1)
+
+
+@PROPERTY
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(3, 200),
+    d=st.sampled_from([2, 3]),
+    odd_edge=st.booleans(),
+)
+def test_kronecker_path_only_when_every_covariance_is_a_multiple_of_one(
+    seed: int, n: int, d: int, odd_edge: bool
+) -> None:
+    rng = np.random.default_rng(seed)
+    edges = random_graph(rng, n, n // 2 + 1, False)
+    cov = noise(rng, len(edges), d, "scaled")
+    if odd_edge:  # one edge's noise is not a multiple of the others'
+        k = int(rng.integers(len(edges)))
+        cov[k] += np.diag(rng.uniform(0.1, 1.0, d)) * np.abs(cov[k]).max()
+    z = rng.standard_normal((len(edges), d))
+    everyone = np.ones(n, dtype=bool)
+    system = GroundedSystem(n, 0, everyone, edges - 1, z, cov, np.zeros(d), diagonal=False)
+    assert (system.shape is None) == odd_edge
+    assert system.block == (d if odd_edge else 1)
+    positions, blocks = np.zeros((n, d)), np.zeros((n, d, d))
+    system.solve("direct", positions, blocks)
+    want = dense_blocks(n, edges, cov, 1, everyone)
+    assert np.abs(blocks[1:] - want[1:]).max() <= TOL
+    assert np.abs(positions[1:] - dense_estimates(n, edges, z, cov)).max() <= TOL
+
+
+def dense_estimates(n: int, edges: np.ndarray, z: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """``x̂_b`` of agents 2..n with agent 1 at the origin, by dense normal equations: (n − 1, d)."""
+    d = cov.shape[1]
+    h = np.zeros((len(edges), n))
+    h[np.arange(len(edges)), edges[:, 0] - 1] = 1.0
+    h[np.arange(len(edges)), edges[:, 1] - 1] = -1.0
+    big_h = np.kron(h[:, 1:], np.eye(d))
+    info = np.zeros((len(edges) * d, len(edges) * d))
+    for k, w in enumerate(np.linalg.inv(cov)):
+        info[k * d : k * d + d, k * d : k * d + d] = w
+    gain = big_h.T @ info
+    return np.linalg.solve(gain @ big_h, gain @ z.ravel()).reshape(n - 1, d)
