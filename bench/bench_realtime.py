@@ -1,15 +1,24 @@
-"""Realtime deadline-miss rate by team, layout and rate, with the load average next to each.
+"""Realtime deadline-miss rate by team, layout and rate, with CPU per epoch per role.
 
 Misses of the testbed's own making (formation.deadlines), over the packets netem decided;
 the layout ``picked`` is what ``formation run --mode realtime`` chooses on this machine
 (testbed.runtime.layout). A miss rate is a fidelity figure, not a speed: there is no
 baseline to divide by, but the load average says how busy the machine was around it.
+CPU per epoch per role: user + system time of the role's processes (from /proc, sampled
+until each ends) over the epochs, in ms; ``agents`` is per agent process.
+
+``--quick`` runs the issue's two target cases only (20 processes at 20 Hz, 100 pooled at
+10 Hz).
 """
 
 from __future__ import annotations
 
+import argparse
+import json
 import os
 import tempfile
+import threading
+from collections import defaultdict
 from pathlib import Path
 
 from testbed.runtime.launcher import launch
@@ -18,44 +27,93 @@ from testbed.sim.teams import henneberg_team
 
 SEED = 1
 EPOCHS = 100
+TICK_S = os.sysconf("SC_CLK_TCK")
 CASES = [  # (label, agents, agent processes: None = one per agent, "picked" = the layout's)
     ("5 processes", 5, None),
     ("20 processes", 20, None),
-    ("20 picked", 20, "picked"),
+    ("50 processes", 50, None),
     ("100 picked", 100, "picked"),
+    ("200 picked", 200, "picked"),
 ]
+QUICK = [(20.0, "20 processes", 20, None), (10.0, "100 picked", 100, "picked")]
 
 
-def main() -> None:
-    print(f"seed {SEED}, {EPOCHS} epochs, {os.cpu_count()} cores")
-    print(
-        f"{'case':14} {'Hz':>3} {'pools':>6} {'misses':>8} {'rate':>8}  {'load 1 min':>10}  causes"
+def _cpu_s(pid: int) -> float | None:
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / TICK_S  # utime, stime
+
+
+class CpuWatch:
+    """The CPU time of a run's processes, sampled until each ends (the last sample counts)."""
+
+    def __init__(self, runs_dir: Path) -> None:
+        self.runs_dir, self.done = runs_dir, threading.Event()
+        self.last: dict[str, float] = {}
+        self.thread: threading.Thread | None = None
+
+    def hook(self, run_id: str, endpoint: str) -> None:
+        pids = json.loads((self.runs_dir / run_id / "pids.json").read_text())["pids"]
+        self.thread = threading.Thread(target=self._watch, args=(pids,), daemon=True)
+        self.thread.start()
+
+    def _watch(self, pids: dict[str, int]) -> None:
+        while not self.done.is_set():
+            for name, pid in pids.items():
+                if (t := _cpu_s(pid)) is not None:
+                    self.last[name] = t
+            self.done.wait(0.1)
+
+    def per_role_ms(self, epochs: int) -> dict[str, float]:
+        self.done.set()
+        if self.thread is not None:
+            self.thread.join()
+        roles: dict[str, list[float]] = defaultdict(list)
+        for name, t in self.last.items():
+            role = "agents" if name.startswith(("agent-", "pool-")) else name.split(".")[0]
+            roles[role].append(t)
+        return {
+            role: 1e3 * (sum(ts) / len(ts) if role == "agents" else sum(ts)) / epochs
+            for role, ts in roles.items()
+        }
+
+
+def run_case(tmp: Path, hz: float, label: str, n: int, layout: str | None) -> str:
+    period = 1.0 / hz
+    scenario = henneberg_team(n, seed=SEED, epochs=EPOCHS).with_overrides(
+        runtime={"mode": "realtime", "realtime_period_s": period}
     )
+    packets = len(scenario.directed_links) + 2 * n
+    pools = realtime_layout(n, period, None, packets).pools if layout == "picked" else None
+    load = os.getloadavg()[0]
+    watch = CpuWatch(tmp)
+    s = launch(
+        scenario, seed=SEED, runs_dir=tmp, pool=pools, record=False, on_started=watch.hook
+    ).summary()
+    cpu = watch.per_role_ms(EPOCHS)
+    misses = s["deadline_misses"]
+    causes = ", ".join(f"{c} {k}" for c, k in misses["by_cause"].items() if k)
+    cpu_txt = " ".join(f"{r} {cpu.get(r, 0):.1f}" for r in ("netem", "router", "leader", "agents"))
+    return (
+        f"{label:14} {hz:>4g} {pools or n:>6} {misses['total']:>7} "
+        f"{100 * s['deadline_miss_rate']:>7.2f}%  {load:>4.1f}-{os.getloadavg()[0]:<4.1f}  "
+        f"{cpu_txt}  {causes or '-'}"
+    )
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--quick", action="store_true", help="the two target cases only")
+    args = p.parse_args(argv)
+    print(f"seed {SEED}, {EPOCHS} epochs, {os.cpu_count()} cores; CPU ms per epoch")
+    print(f"{'case':14} {'Hz':>4} {'procs':>6} {'misses':>7} {'rate':>8}  {'load':>9}  "
+          "CPU netem router leader agents(each)  causes")  # fmt: skip
+    grid = QUICK if args.quick else [(hz, *c) for hz in (10.0, 20.0, 50.0) for c in CASES]
     with tempfile.TemporaryDirectory() as tmp:
-        for hz in (10, 20):
-            period = 1.0 / hz
-            for label, n, layout in CASES:
-                scenario = henneberg_team(n, seed=SEED, epochs=EPOCHS).with_overrides(
-                    runtime={"mode": "realtime", "realtime_period_s": period}
-                )
-                packets = len(scenario.directed_links) + 2 * n
-                pools = (
-                    realtime_layout(n, period, None, packets).pools
-                    if layout == "picked"
-                    else layout
-                )
-                load = os.getloadavg()[0]
-                s = launch(
-                    scenario, seed=SEED, runs_dir=Path(tmp), pool=pools, record=False
-                ).summary()
-                misses = s["deadline_misses"]
-                causes = ", ".join(f"{c} {k}" for c, k in misses["by_cause"].items() if k)
-                print(
-                    f"{label:14} {hz:>3} {pools or n:>6} {misses['total']:>8} "
-                    f"{100 * s['deadline_miss_rate']:>7.2f}%  {load:>4.2f}-{os.getloadavg()[0]:<5.2f}"
-                    f"  {causes or '-'}",
-                    flush=True,
-                )
+        for hz, label, n, layout in grid:
+            print(run_case(Path(tmp), hz, label, n, layout), flush=True)
 
 
 if __name__ == "__main__":
