@@ -67,8 +67,9 @@ class CleanEpochs:
         self.streams = streams
         self.gate = gate  # may judge distance models by the epoch's lengths (the state phase)
         self.links = tuple(link for s in streams.values() for link in s.links)  # reach's rows
-        self._reach: dict[int, npt.NDArray[np.float64]] = {}  # block → (links, block) [m]
-        self._base: dict[int, list[tuple[npt.NDArray[np.int64], list[Outcome | None]]]] = {}
+        self._models = tuple(m for s in streams.values() for m in s.models)  # as links
+        self._reach: dict[int, list[list[float]]] = {}  # block → epoch → each link's [m]
+        self._base: dict[int, list[tuple[list[int], list[Outcome | None]]]] = {}  # (codes, table)
         self.need = need  # receiver → packets it gets in a clean epoch (one per sender)
         self.expected = len(streams)  # packets per epoch: one per stream
         self.gathering: dict[int, Gathering] = {}  # epoch → its packets so far
@@ -139,31 +140,30 @@ class CleanEpochs:
         g.payloads[stream] = payload
         return g if len(g.seqs) >= self.expected else None
 
-    def within_reach(self, epoch: int, lengths_m: npt.NDArray[np.float64]) -> bool:
-        """Does every link keep packet 0 of ``epoch`` at lengths ``lengths_m`` ``(len(links),)``?"""
-        k = epoch // self._block
-        reach = self._reach.get(k)
-        if reach is None:
-            self._compute(k)
-            reach = self._reach[k]
-        return bool((lengths_m <= reach[:, epoch - k * self._block]).all())
+    def within_reach(self, epoch: int, lengths_m: list[float]) -> bool:
+        """Does every link keep packet 0 of ``epoch`` at lengths ``lengths_m`` (one per link)?"""
+        return all(d <= r for d, r in zip(lengths_m, self._reach_at(epoch), strict=True))
 
-    def verdicts(self, epoch: int, lengths_m: npt.NDArray[np.float64]) -> dict[Link, Outcome]:
+    def verdicts(self, epoch: int, lengths_m: list[float]) -> dict[Link, Outcome]:
         """Every link's decision of packet 0 of gated ``epoch`` at ``lengths_m``, each the
         model's ``decide(epoch, distance_m=length)``: within reach, the one before distance."""
-        k = epoch // self._block
-        if k not in self._base:
-            self._compute(k)
-        j, reach, base = epoch - k * self._block, self._reach[k], self._base[k]
-        out: dict[Link, Outcome] = {}
-        models = (m for s in self.streams.values() for m in s.models)
-        for row, (link, model, d) in enumerate(
-            zip(self.links, models, lengths_m.tolist(), strict=True)
+        reach, k = self._reach_at(epoch), epoch // self._block
+        j, out = epoch - k * self._block, {}
+        for link, model, d, r, (codes, table) in zip(
+            self.links, self._models, lengths_m, reach, self._base[k], strict=True
         ):
-            codes, table = base[row]
-            kept = table[codes[j]] if d <= reach[row, j] else None
+            kept = table[codes[j]] if d <= r else None
             out[link] = kept if kept is not None else model.decide(epoch, distance_m=d)
         return out
+
+    def _reach_at(self, epoch: int) -> list[float]:
+        """Each link's reach [m] at ``epoch`` (:meth:`LinkModel.reach`), one per link."""
+        k = epoch // self._block
+        rows = self._reach.get(k)
+        if rows is None:
+            self._compute(k)
+            rows = self._reach[k]
+        return rows[epoch - k * self._block]
 
     def judged(self, epoch: int, g: Gathering, verdicts: dict[Link, Outcome], ledger: Ledger,
                deliver: Callable[[int, int, list[bytes], list[int]], None]) -> None:  # fmt: skip
@@ -280,15 +280,15 @@ class CleanEpochs:
         clean = np.ones(size, dtype=np.bool_)
         ids_of: dict[int, npt.NDArray[np.int64]] = {}
         if self.gated:  # a model without distance layers reaches everywhere (inf)
-            models = [m for s in self.streams.values() for m in s.models]  # as self.links
-            self._reach[k] = np.array([m.reach(start, size) for m in models])
+            reach = np.array([m.reach(start, size) for m in self._models])  # (links, block)
+            self._reach[k] = reach.T.tolist()
             self._base[k] = []
         for sid, s in self.streams.items():
             ids = np.empty((len(s.models), size), dtype=np.int64)
             for row, model in enumerate(s.models):
                 codes, table = model.coded(start, size, before_distance=self.gated)
                 if self.gated:
-                    self._base[k].append((codes, table))
+                    self._base[k].append((codes.tolist(), table))
                 ids[row] = np.array([self._tail_id(d) for d in table], dtype=np.int64)[codes]
             clean &= (ids >= 0).all(axis=0)
             ids_of[sid] = ids

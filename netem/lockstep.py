@@ -86,10 +86,11 @@ class Lockstep:
             self._packet(route, epoch, seq, payload)
         elif self.positions.admit(route, epoch, seq, payload, self._dead_at(epoch)):
             self._packet(route, epoch, seq, payload)  # else held until the positions come
+        if self.positions.ready:
             self._release_held()
 
-    def _release_held(self) -> None:
-        for held in self.positions.release(self.dead):
+    def _release_held(self, gone: int | None = None) -> None:
+        for held in self.positions.release(gone):
             self._packet(*held)
 
     def _packet(self, route: Route, epoch: int, seq: int, payload: Any) -> None:
@@ -152,8 +153,7 @@ class Lockstep:
         log.warning("%s is gone: its packets count as lost from now on", _name(agent))
         self._ungate()  # what was gathered was routed while the agent was alive
         self.dead.add(agent)
-        if self.positions.needed:
-            self._release_held()  # nobody waits for its position
+        self._release_held(agent)  # nobody waits for its positions
         for phase, ce in self.clean.items():
             for epoch in list(ce.gathering):
                 self._go_slow(phase, epoch)

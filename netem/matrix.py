@@ -213,6 +213,9 @@ def link_lengths(src_m: npt.ArrayLike, dst_m: npt.ArrayLike) -> Floats:
 
 def link_length(src_m: Sequence[float], dst_m: Sequence[float]) -> float:
     """One link's :func:`link_lengths` [m], in plain floats (netem measures every packet's)."""
+    if len(src_m) == 2 == len(dst_m):  # the plane, unrolled: the same operations in that order
+        dx, dy = src_m[0] - dst_m[0], src_m[1] - dst_m[1]
+        return math.sqrt(dx * dx + dy * dy)
     total = 0.0
     for c, (a, b) in enumerate(zip(src_m, dst_m, strict=True)):
         diff = a - b

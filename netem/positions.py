@@ -7,14 +7,15 @@ agent ``i``'s state packet of epoch ``k``, decoded only when such a model is
 configured. A packet whose decision needs a position netem has not read yet is held
 (:meth:`Positions.admit`) and handed back once it has (:meth:`Positions.release`):
 an agent's epoch-``k`` state never waits on anything of epoch ``k``, so nothing
-waits forever. A state whose position cannot be read counts (``malformed``) and
-puts its sender out of range for that epoch.
+waits forever. It waits on each agent missing, counted once; one not waited for at the
+epoch (down, out by the scenario's events) or gone meanwhile counts as read. A state
+whose position cannot be read counts (``malformed``) and puts its sender out of range
+for that epoch.
 """
 
 from __future__ import annotations
 
 import math
-from collections import defaultdict
 from collections.abc import Collection, Iterator
 from typing import Any
 
@@ -22,94 +23,146 @@ import numpy as np
 import orjson
 
 from formation.scenario import LEADER_ENDPOINT
-from netem.layer import Floats, Ints
+from netem.layer import Ints
 from netem.links import Link, Links, Route
 from netem.matrix import link_length, link_lengths
 
 Held = tuple[Route, int, int, Any]  # (route, epoch, seq, payload) of a packet put back
 KEEP_EPOCHS = 256  # positions of older epochs are forgotten (lockstep never lags that far)
+VECTOR_LINKS = 64  # from this many links numpy measures an epoch faster than one by one
+_NUMBER = (float, int, bool)  # what orjson gives for a JSON number (and true/false, as before)
 
 
 def _position(payload: Any) -> list[float] | None:
     """``position`` of a state payload (bytes or ZBytes); None when it is not a list of numbers."""
-    raw = payload.to_bytes() if hasattr(payload, "to_bytes") else payload
     try:
-        msg = orjson.loads(raw)
+        msg = orjson.loads(payload if type(payload) is bytes else payload.to_bytes())
     except orjson.JSONDecodeError:
         return None
-    pos = msg.get("position") if isinstance(msg, dict) else None
-    if not isinstance(pos, list) or not pos or not all(isinstance(v, int | float) for v in pos):
+    pos = msg.get("position") if type(msg) is dict else None
+    if type(pos) is not list or not pos:
         return None
-    return [float(v) for v in pos]
+    floats = True
+    for v in pos:
+        t = type(v)
+        if t is not float:
+            if t not in _NUMBER:
+                return None
+            floats = False
+    return pos if floats else [float(v) for v in pos]
+
+
+class _Wait:
+    """A held packet and how many of the positions it needs are still to come."""
+
+    __slots__ = ("held", "missing", "ticket")
+
+    def __init__(self, held: Held, missing: int, ticket: int) -> None:
+        self.held, self.missing, self.ticket = held, missing, ticket
 
 
 class Positions:
-    """Positions read per epoch, and the packets held until the positions they need are read."""
+    """Positions read per epoch, and the packets held until the positions they need are read.
+
+    A held packet waits on each agent whose position it lacks, counted once: it is handed
+    back when the last of them is read (or gone), the held in the order they were held.
+    """
 
     def __init__(self, links: Links) -> None:
         self.links = links
         self.access_point = links.access_point
-        self.at: dict[int, dict[int, list[float] | None]] = defaultdict(dict)  # epoch → agent →
-        self.held: dict[tuple[int, int], list[Held]] = defaultdict(list)  # (epoch, agent) awaited
+        self.at: dict[int, dict[int, list[float] | None]] = {}  # epoch → agent → position
+        self.held: dict[int, dict[int, _Wait]] = {}  # epoch → ticket → a packet held
         self.malformed = 0
-        self._ready: list[tuple[int, int]] = []  # (epoch, agent) whose position just came
+        self._waits: dict[tuple[int, int], list[_Wait]] = {}  # (epoch, agent) awaited → waits
+        self._ready: list[tuple[int, int]] = []  # (epoch, agent) read or gone, someone waiting
+        self._tickets = 0
         self._ends: dict[tuple[Link, ...], tuple[Ints, Ints]] = {}  # links → rows of their ends
+        self._pairs: dict[tuple[Link, ...], list[tuple[int, int]]] = {}  # links → their ends
         self.refresh()
 
     def refresh(self) -> None:
         """Which links have a distance model (again, after a change of models)."""
         self.ranged: set[Link] = {link for link, m in self.links.models.items() if m.ranged}
         self.needed = bool(self.ranged)
+        out = self.links.out_links
+        # The agents whose epoch position each kind of packet's decisions need.
+        self._state_needs = {
+            i: tuple(j for j in out[i] if ("formation", i, j) in self.ranged) for i in out
+        }
+        self._own_needs = {
+            (kind, i): (i,) if link in self.ranged else ()
+            for i in self.links.agents
+            for kind, link in (
+                ("report", ("report", i, LEADER_ENDPOINT)),
+                ("estimate", ("estimate", LEADER_ENDPOINT, i)),
+            )
+        }
 
-    def _needs(self, route: Route, epoch: int, dead: Collection[int]) -> int | None:
-        """An agent whose epoch position the packet's decisions need and netem lacks; None if none."""
-        kind, source, target = route
-        known = self.at.get(epoch, {})
-        if kind == "state":
-            for dst in self.links.out_links[source]:
-                if (
-                    ("formation", source, dst) in self.ranged
-                    and dst not in known
-                    and dst not in dead
-                ):
-                    return dst
-            return None
-        agent, link = (
-            (source, ("report", source, LEADER_ENDPOINT))
-            if kind == "report"
-            else (target, ("estimate", LEADER_ENDPOINT, target))
-        )
-        if link in self.ranged and agent not in known and agent not in dead:
-            return agent
-        return None
+    @property
+    def ready(self) -> bool:
+        """Whether held packets may be handed back now (:meth:`release`)."""
+        return bool(self._ready)
 
     def admit(
         self, route: Route, epoch: int, seq: int, payload: Any, dead: Collection[int]
     ) -> bool:
-        """Read a state's position; True when the packet can be decided now, else it is held."""
-        kind, source, _ = route
-        if kind == "state" and source not in self.at.get(epoch, {}):
-            pos = _position(payload)
-            if pos is None:
-                self.malformed += 1
-            self.at[epoch][source] = pos
-            self._ready.append((epoch, source))
-            self.at.pop(epoch - KEEP_EPOCHS, None)
-        waiting = self._needs(route, epoch, dead)
-        if waiting is None:
+        """Read a state's position; True when the packet can be decided now, else it is held.
+
+        ``dead``: the senders not waited for at ``epoch``.
+        """
+        kind, source, target = route
+        known = self.at.get(epoch)
+        if kind == "state":
+            if known is None:
+                known = self.at[epoch] = {}
+                self.at.pop(epoch - KEEP_EPOCHS, None)
+            if source not in known:
+                pos = _position(payload)
+                if pos is None:
+                    self.malformed += 1
+                known[source] = pos
+                if (epoch, source) in self._waits:
+                    self._ready.append((epoch, source))
+            needs = self._state_needs.get(source, ())
+        else:
+            needs = self._own_needs.get((kind, source if kind == "report" else target), ())
+        if not needs:
             return True
-        self.held[(epoch, waiting)].append((route, epoch, seq, payload))
+        if known is None:
+            missing = [a for a in needs if a not in dead]
+        else:
+            missing = [a for a in needs if a not in known and a not in dead]
+        if not missing:
+            return True
+        self._tickets += 1
+        wait = _Wait((route, epoch, seq, payload), len(missing), self._tickets)
+        self.held.setdefault(epoch, {})[wait.ticket] = wait
+        waits = self._waits
+        for a in missing:
+            got = waits.get((epoch, a))
+            if got is None:
+                waits[(epoch, a)] = [wait]
+            else:
+                got.append(wait)
         return False
 
-    def release(self, dead: Collection[int]) -> Iterator[Held]:
-        """The held packets that can be decided now (positions read, or their agent gone)."""
-        while self._ready or (dead and any(a in dead for _, a in self.held)):
-            keys = self._ready + [k for k in self.held if k[1] in dead]
-            self._ready = []
-            for key in keys:
-                for route, epoch, seq, payload in self.held.pop(key, []):
-                    if self.admit(route, epoch, seq, payload, dead):
-                        yield route, epoch, seq, payload
+    def release(self, gone: int | None = None) -> Iterator[Held]:
+        """The held packets that can be decided now: the positions they need read, or the
+        agents they wait for down (``gone``: one just now)."""
+        if gone is not None:
+            self._ready += sorted(key for key in self._waits if key[1] == gone)
+        ready, waits, held = self._ready, self._waits, self.held
+        while ready:
+            epoch, agent = ready.pop(0)
+            for wait in waits.pop((epoch, agent), ()):
+                wait.missing -= 1
+                if wait.missing == 0:
+                    of_epoch = held[epoch]
+                    del of_epoch[wait.ticket]
+                    if not of_epoch:
+                        del held[epoch]
+                    yield wait.held
 
     def length(self, link: Link, epoch: int) -> float | None:
         """The length [m] of ``link`` at ``epoch`` if it has a distance model, else None.
@@ -120,10 +173,22 @@ class Positions:
             return None
         return self._measure(link, self.at.get(epoch, {}))
 
-    def lengths(self, links: tuple[Link, ...], epoch: int) -> Floats:
-        """The lengths ``(len(links),)`` [m] of formation ``links`` at ``epoch``, vectorised: each
-        what :meth:`length` gives (:func:`link_lengths` and :func:`link_length` agree bit for bit)."""
+    def lengths(self, links: tuple[Link, ...], epoch: int) -> list[float]:
+        """The lengths [m] of formation ``links`` at ``epoch``, each what :meth:`length` gives:
+        one by one for a few links, vectorised for many (:func:`link_lengths` and
+        :func:`link_length` agree bit for bit)."""
         known = self.at.get(epoch, {})
+        if len(links) < VECTOR_LINKS:
+            pairs = self._pairs.get(links)
+            if pairs is None:
+                pairs = self._pairs[links] = [(src, dst) for _, src, dst in links]
+            out = []
+            for src, dst in pairs:
+                a, b = known.get(src), known.get(dst)
+                out.append(
+                    math.inf if a is None or b is None or len(a) != len(b) else link_length(a, b)
+                )
+            return out
         rows = [known.get(i) for i in self.links.agents]
         ends = self._ends.get(links)
         if ends is None:
@@ -136,8 +201,8 @@ class Positions:
             x = np.array(rows, dtype=object)
             if x.ndim == 2:  # every position has as many coordinates
                 x = x.astype(np.float64)
-                return link_lengths(x[ends[0]], x[ends[1]])
-        return np.array([self._measure(link, known) for link in links], dtype=np.float64)
+                return link_lengths(x[ends[0]], x[ends[1]]).tolist()  # type: ignore[no-any-return]
+        return [self._measure(link, known) for link in links]
 
     def _measure(self, link: Link, known: dict[int, list[float] | None]) -> float:
         _, src, dst = link

@@ -11,6 +11,7 @@ import json
 
 import numpy as np
 import pytest
+import zenoh
 
 from formation.scenario import Scenario
 from netem.links import Links, Route
@@ -134,3 +135,94 @@ def test_without_distance_models_no_state_is_read(paper: Scenario, seed: int) ->
     assert not lock.positions.needed
     lock.packet(("state", 1, 0), 0, 0, b"not json")
     assert lock.positions.malformed == 0 and not lock.positions.at
+
+
+def true_decisions(scenario: Scenario, seed: int, wire: Wire, xs: dict[int, np.ndarray],
+                   epochs: range) -> None:  # fmt: skip
+    """Every formation decision of ``epochs`` is the link model's at the true distance."""
+    seen = 0
+    for d in wire.decisions:
+        if d.link_class != "formation" or d.epoch not in epochs:
+            continue
+        x = xs[d.epoch]
+        length = float(link_lengths(x[d.source - 1][None], x[d.target - 1][None])[0])
+        model = LinkModel(scenario.formation_link_models(d.source, d.target), seed, d.source,
+                          d.target)  # fmt: skip
+        want = model.decide(d.epoch, distance_m=length)
+        assert (d.verdict, d.model) == (want.verdict, want.model), d
+        seen += 1
+    assert seen
+
+
+def test_an_agent_back_is_waited_for_with_its_position(paper: Scenario, seed: int) -> None:
+    """After a death and a rejoin the agent's receivers wait for its real position again (they
+    were once released at the next packet, the agent counted as out of range)."""
+    scenario = paper.with_overrides(network=NETWORK, epochs=9)
+    lock, wire = core(scenario, seed)
+    xs = {k: offsets(scenario) for k in range(scenario.epochs)}
+    for k in range(2):
+        for i in (1, 2, 3, 4, 5):
+            lock.packet(*state(i, k, xs[k]))
+    lock.sender_died(3)
+    for k in range(2, 4):
+        for i in (1, 2, 4, 5):
+            lock.packet(*state(i, k, xs[k]))
+    back = lock.rejoin(3)
+    for k in range(back, scenario.epochs):
+        for i in (1, 2, 5, 4, 3):  # 4 goes at once (no link to 3), the rest wait for 3
+            lock.packet(*state(i, k, xs[k]))
+    assert not lock.positions.held
+    true_decisions(scenario, seed, wire, xs, range(back, scenario.epochs))
+    into_3 = [d for d in wire.decisions if d.target == 3 and d.epoch >= back]
+    assert into_3 and all(d.verdict == "pass" for d in into_3)  # a small pentagon: all in range
+
+
+def test_a_packet_is_not_held_for_an_agent_out_by_the_scenario(paper: Scenario, seed: int) -> None:
+    """An agent that left (a scenario event) sends no position: nothing waits for it."""
+    events = [{"epoch": 2, "agent": 4, "action": "leave"}]
+    scenario = paper.with_overrides(network=NETWORK, epochs=5, events=events)
+    lock, wire = core(scenario, seed)
+    xs = {k: offsets(scenario) for k in range(scenario.epochs)}
+    for k in range(scenario.epochs):
+        for i in (1, 2, 3, 5) if k >= 2 else (1, 2, 3, 4, 5):
+            lock.packet(*state(i, k, xs[k]))
+    assert not lock.positions.held
+    got = {(d.receiver, d.epoch) for d in wire.deliveries if d.phase == "state"}
+    assert got >= {(j, k) for j in (1, 2, 3, 5) for k in range(scenario.epochs)}
+    true_decisions(scenario, seed, wire, xs, range(scenario.epochs))
+
+
+def offsets(scenario: Scenario) -> np.ndarray:
+    """A small pentagon: every link well within the logistic's d50 (1.2 m)."""
+    return np.asarray(scenario.offsets[:, :2], dtype=np.float64) * 0.3
+
+
+@pytest.mark.parametrize(
+    ("payload", "read"),
+    [
+        (b'{"position": [0, 1]}', [0.0, 1.0]),  # integers are numbers
+        (b'{"position": [0.0, true]}', [0.0, 1.0]),  # as before: JSON true counted as 1
+        (b'{"position": [0.0, 0.3], "x": }', None),  # broken after the position
+        (b'{"position": [[0.0], 0.3]}', None),
+        (b'{"position": {"x": 0.0}}', None),
+        (b'{"position": []}', None),
+        (b"[0.0, 0.3]", None),
+        (b'{"position": [0.0, "0.3"]}', None),
+    ],
+)
+def test_a_forged_position_in_a_gated_epoch(paper: Scenario, seed: int, payload: bytes,
+                                            read: list[float] | None) -> None:  # fmt: skip
+    """Read as the whole state's JSON says (also from Zenoh's bytes): an unreadable one is
+    counted and puts its sender out of range."""
+    scenario = wireless(paper)
+    lock, wire = core(scenario, seed)
+    x = offsets(scenario)
+    lock.packet(("state", 1, 0), 0, 0, zenoh.ZBytes(payload))
+    for i in (2, 3, 4, 5):
+        lock.packet(*state(i, 0, x))
+    assert lock.positions.at[0][1] == read
+    assert lock.positions.malformed == (read is None)
+    from_1 = [d for d in wire.decisions if d.source == 1 and d.link_class == "formation"]
+    if read is None:
+        assert from_1 and all(d.verdict == "drop" and d.model == "logistic" for d in from_1)
+    assert {d.receiver for d in wire.deliveries if d.phase == "state"} == {1, 2, 3, 4, 5}
