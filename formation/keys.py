@@ -119,6 +119,16 @@ def scene(run_id: str) -> str:
     return f"{ROOT}/{run_id}/viz/scene"
 
 
+def frames(run_id: str) -> str:
+    """The agents' frames (``foxglove.FrameTransforms``) written by the recorder."""
+    return f"{ROOT}/{run_id}/viz/tf"
+
+
+def log(run_id: str) -> str:
+    """The run's log lines (``foxglove.Log``) written by the recorder."""
+    return f"{ROOT}/{run_id}/viz/log"
+
+
 def start(run_id: str) -> str:
     """Liveliness token netem declares once every process is up: epoch 0 may begin."""
     return f"{ROOT}/{run_id}/alive/clock/start"

@@ -1,18 +1,19 @@
-"""What the recorder derives per epoch while recording: metrics and the Foxglove scene.
+"""What the recorder derives while recording: metrics, the agents' frames, the scene, the log.
 
 The true positions of epoch ``k`` are the ``position`` fields of the
 ``CoordinationState`` messages on ``agent/<i>/state`` (sender side, before loss).
-When all ``n`` have arrived the assembler emits ``EpochMetrics`` (docs/model.md §7).
+When all ``n`` have arrived the assembler emits ``EpochMetrics`` (docs/model.md §7)
+and the agents' ``foxglove.FrameTransforms``.
 The scene of epoch ``k`` also needs the leader's estimate of ``k`` (link health,
 tree, BLUE) and netem's decisions on the formation links of ``k``; it is emitted once
-all are in, in epoch order (:class:`EpochAssembler`). No clock, no I/O:
+all are in, in epoch order (:class:`EpochAssembler`). Statuses and netem's link changes
+become ``foxglove.Log`` lines (:mod:`recorder.logs`). No clock, no I/O:
 payloads in, ``(key, payload)`` out; the
 messages' ``stamp_ns`` comes from an injected clock.
 """
 
 from __future__ import annotations
 
-import json
 from collections import Counter
 from collections.abc import Callable
 from typing import Any
@@ -22,16 +23,25 @@ import numpy.typing as npt
 
 from formation import keys
 from formation.codec import encode, now_ns
-from formation.messages import CoordinationState, DecisionBatch, EpochMetrics, LeaderEstimate
+from formation.messages import (
+    CoordinationState,
+    DecisionBatch,
+    EpochMetrics,
+    LeaderEstimate,
+    LinkChange,
+    Status,
+)
 from formation.scenario import Scenario
+from recorder.logs import change_log, status_log
 from recorder.metrics import formation_error, shape_error
-from recorder.scene import scene_update
+from recorder.scene import frame_transforms, scene_update
 from recorder.trust import Gate
 
 Derived = tuple[str, bytes]
 STALE_EPOCHS = 8  # an incomplete epoch this far behind the newest complete one is given up
 WAIT_EPOCHS = 256  # a scene waits this far behind for its epoch's estimate and decisions
-TAPS = ("agent_state", "leader_estimate", "decision")  # the channel kinds the assembler reads
+# The channel kinds the assembler reads.
+TAPS = ("agent_state", "leader_estimate", "decision", "status", "link_change")
 
 
 def edge_mask(edges: npt.NDArray[np.int64], pairs: list[tuple[int, int]]) -> npt.NDArray[np.bool_]:
@@ -95,7 +105,10 @@ class EpochAssembler:
         x = np.array([got[i] for i in range(1, self.n + 1)], dtype=float)
         self._newest = max(self._newest, k)
         self._waiting[k] = x
-        out = [self._metrics(k, x)]
+        out = [
+            self._metrics(k, x),
+            (keys.frames(self.run_id), frame_transforms(x, stamp_ns).encode()),
+        ]
         self._prune()
         return out + self._scenes(stamp_ns)
 
@@ -120,6 +133,19 @@ class EpochAssembler:
                 self._lost.setdefault(dec.epoch, []).append((dec.source, dec.target))
         return self._scenes(stamp_ns)
 
+    def on_status(self, key: str, payload: bytes, stamp_ns: int) -> list[Derived]:
+        """A process's ``Status``: a log line when it says something (:func:`status_log`)."""
+        status = self.gate.check(key, payload, "status")
+        line = status_log(status, stamp_ns) if isinstance(status, Status) else None
+        return [] if line is None else [(keys.log(self.run_id), line.encode())]
+
+    def on_link_change(self, key: str, payload: bytes, stamp_ns: int) -> list[Derived]:
+        """netem's ``LinkChange``: a log line."""
+        change = self.gate.check(key, payload, "link_change")
+        if not isinstance(change, LinkChange):
+            return []
+        return [(keys.log(self.run_id), change_log(change, stamp_ns).encode())]
+
     def on(self, kind: str, key: str, payload: bytes, stamp_ns: int) -> list[Derived]:
         """Any tapped message by its channel kind (:data:`TAPS`)."""
         return self._on[kind](key, payload, stamp_ns)
@@ -130,6 +156,8 @@ class EpochAssembler:
             "agent_state": self.on_state,
             "leader_estimate": self.on_estimate,
             "decision": self.on_decision,
+            "status": self.on_status,
+            "link_change": self.on_link_change,
         }
 
     def finish(self, stamp_ns: int) -> list[Derived]:
@@ -206,7 +234,7 @@ class EpochAssembler:
             None if est is None else est.positions, None if est is None else est.covariances,
             None if th is None else np.array([th.get(i, np.nan) for i in range(1, self.n + 1)]),
         )  # fmt: skip
-        return keys.scene(self.run_id), json.dumps(scene, separators=(",", ":")).encode()
+        return keys.scene(self.run_id), scene.encode()
 
 
 __all__ = ["STALE_EPOCHS", "TAPS", "WAIT_EPOCHS", "Derived", "EpochAssembler", "edge_mask"]

@@ -2,7 +2,7 @@
 
 A 3D panel on the scene in frame ``world`` (the agents' frames from ``/tf``), the formation
 and shape error plotted against sim time, netem's decisions of the last batch as a link
-table, and the live view's counts. ``foxglove-layout/formation-layout.json`` at the top of the
+table, the run's log lines, and the live view's counts. ``foxglove-layout/formation-layout.json`` at the top of the
 repository is :func:`layout_json` (a test keeps them equal); import it in Foxglove.
 """
 
@@ -12,14 +12,14 @@ import json
 
 from foxglove import layouts as fl
 
-from recorder.live import DECISIONS_TOPIC, METRICS_TOPIC, SCENE_TOPIC, STATS_TOPIC
+from recorder.live import DECISIONS_TOPIC, LOG_TOPIC, METRICS_TOPIC, SCENE_TOPIC, STATS_TOPIC
 from recorder.scene import FRAME
 
 LAYOUT_FILE = "foxglove-layout/formation-layout.json"  # from the repository's top
 
 
 def formation_layout() -> fl.Layout:
-    """3D scene | (error plot / link table / live counts)."""
+    """3D scene | (error plot / link table / log / live counts)."""
     scene = fl.ThreeDeePanel(
         title="formation",
         config=fl.ThreeDeeConfig(
@@ -41,6 +41,7 @@ def formation_layout() -> fl.Layout:
         title="netem decisions (link, verdict, model)",
         config=fl.TableConfig(topic_path=f"{DECISIONS_TOPIC}.decisions"),
     )
+    log = fl.LogPanel(title="log", config=fl.LogConfig(topic_to_render=LOG_TOPIC, show_name=True))
     counts = fl.RawMessagesPanel(
         title="live view: offered, sent, dropped",
         config=fl.RawMessagesConfig(topic_path=STATS_TOPIC),
@@ -50,6 +51,7 @@ def formation_layout() -> fl.Layout:
         items=[
             fl.SplitItem(proportion=2, content=errors),
             fl.SplitItem(proportion=2, content=links),
+            fl.SplitItem(proportion=1, content=log),
             fl.SplitItem(proportion=1, content=counts),
         ],
     )

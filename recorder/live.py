@@ -5,10 +5,13 @@
 these channels, whatever the run id, so one layout (``foxglove-layout/formation-layout.json``)
 fits every run:
 
-- ``/formation/scene``: the recorder's ``foxglove.SceneUpdate`` of each epoch, the bytes
-  it records (:mod:`recorder.scene`, one drawing for the file and the viewer);
+- ``/formation/scene``: the recorder's ``foxglove.SceneUpdate`` (protobuf) of each epoch,
+  the bytes it records (:mod:`recorder.scene`, one drawing for the file and the viewer);
 - ``/tf``: ``foxglove.FrameTransforms``, frame ``agent<i>`` at agent ``i``'s true position
-  in ``world``, from the epoch's metrics;
+  in ``world``, from the epoch's metrics (:func:`recorder.scene.frame_transforms`, as the
+  recording's, stamped with the sim time);
+- ``/formation/log``: the recorder's ``foxglove.Log`` lines (:mod:`recorder.logs`), the
+  bytes it records;
 - ``/formation/metrics``: ``EpochMetrics`` (formation and shape error per epoch, plottable);
 - ``/netem/decisions``: netem's ``DecisionBatch``es (only those the trust gate passes);
 - ``/formation/live``: what the live view offered, sent and dropped, every second and at
@@ -39,14 +42,14 @@ from typing import Any
 import foxglove
 import orjson
 from foxglove.channels import FrameTransformsChannel
-from foxglove.messages import FrameTransform, FrameTransforms, Quaternion, Timestamp, Vector3
 from foxglove.websocket import Capability, ChannelView, Client, ServerListener
 
 from formation.errors import TestbedError
 from formation.messages import DecisionBatch, EpochMetrics
 from formation.scenario import Scenario
-from recorder.scene import FRAME
-from recorder.schemas import SchemaSpec, foxglove_schema, model_schema
+from recorder.decoder import DecodeError, decode_kind
+from recorder.scene import frame_transforms
+from recorder.schemas import SchemaSpec, foxglove_schema, message_encoding, model_schema
 from recorder.trust import Gate
 
 log = logging.getLogger("recorder")
@@ -55,10 +58,11 @@ QUEUE_LIMIT = 4096  # messages waiting for the server's thread before the oldest
 BACKLOG = 4096  # per viewer, in the SDK (it drops a slow viewer's oldest)
 LINGER_S = 2.0  # longest wait at the end for viewers to take the last messages [s]
 STATS_PERIOD_S = 1.0  # how often /formation/live goes out [s]
-LIVE_KINDS = ("scene", "metrics", "decision")  # channel kinds a live view takes
+LIVE_KINDS = ("scene", "log", "metrics", "decision")  # channel kinds a live view takes
 
 SCENE_TOPIC = "/formation/scene"
 TF_TOPIC = "/tf"
+LOG_TOPIC = "/formation/log"
 METRICS_TOPIC = "/formation/metrics"
 DECISIONS_TOPIC = "/netem/decisions"
 STATS_TOPIC = "/formation/live"
@@ -76,39 +80,27 @@ STATS_SCHEMA = {
 }
 
 
-def agent_frame(i: int) -> str:
-    """The frame id of agent ``i`` on ``/tf``."""
-    return f"agent{i}"
+def _channel(topic: str, kind: str, ctx: foxglove.Context) -> foxglove.Channel:
+    """A channel of the recorder's messages of ``kind``, with the schema and encoding it records."""
+    spec = foxglove_schema(kind)
+    return foxglove.Channel(
+        topic, schema=_schema(spec), message_encoding=message_encoding(kind), context=ctx
+    )
 
 
 def _schema(spec: SchemaSpec) -> foxglove.Schema:
     return foxglove.Schema(name=spec.name, encoding=spec.encoding, data=spec.data)
 
 
-def frame_transforms(positions: list[list[float]], stamp_ns: int) -> FrameTransforms:
-    """``agent<i>`` in ``world`` for each row of ``positions`` (n, d) [m]; z = 0 in the plane."""
-    stamp = Timestamp(sec=stamp_ns // 1_000_000_000, nsec=stamp_ns % 1_000_000_000)
-    identity = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
-    return FrameTransforms(
-        transforms=[
-            FrameTransform(
-                timestamp=stamp,
-                parent_frame_id=FRAME,
-                child_frame_id=agent_frame(i + 1),
-                translation=Vector3(x=p[0], y=p[1], z=p[2] if len(p) > 2 else 0.0),
-                rotation=identity,
-            )
-            for i, p in enumerate(positions)
-        ]
-    )
-
-
 def scene_epoch(payload: bytes) -> int:
-    """The epoch a recorder scene is of (its entity's ``epoch`` metadata); -1 if none."""
-    for ent in orjson.loads(payload).get("entities", []):
-        for item in ent.get("metadata", []):
-            if item.get("key") == "epoch":
-                return int(item["value"])
+    """The epoch a recorder scene is of (its entity's ``epoch`` metadata); -1 if none.
+
+    Raises :class:`~recorder.decoder.DecodeError` if ``payload`` is not a protobuf scene.
+    """
+    for ent in decode_kind("scene", payload).entities:
+        for item in ent.metadata:
+            if item.key == "epoch":
+                return int(item.value)
     return -1
 
 
@@ -156,11 +148,9 @@ class LiveServer:
         # The channels exist before the server: a viewer connecting at once sees them all (a
         # channel made while a viewer connects was advertised but unknown to its subscribe).
         ctx = self._context = foxglove.Context()
-        self._scene = foxglove.Channel(
-            SCENE_TOPIC, schema=_schema(foxglove_schema("SceneUpdate")), message_encoding="json",
-            context=ctx,
-        )  # fmt: skip
+        self._scene = _channel(SCENE_TOPIC, "scene", ctx)
         self._tf = FrameTransformsChannel(TF_TOPIC, context=ctx)
+        self._log = _channel(LOG_TOPIC, "log", ctx)
         self._metrics = foxglove.Channel(
             METRICS_TOPIC, schema=_schema(model_schema(EpochMetrics)), message_encoding="json",
             context=ctx,
@@ -267,7 +257,7 @@ class LiveServer:
             for kind, key, payload in items:
                 try:
                     self._send(kind, key, payload)
-                except (ValueError, KeyError, TypeError, IndexError) as exc:
+                except (ValueError, KeyError, TypeError, IndexError, DecodeError) as exc:
                     self.skipped += 1  # never the recorder's own output; a forged one at worst
                     log.warning("live view: a %s message not shown: %s", kind, exc)
             if done:
@@ -293,6 +283,10 @@ class LiveServer:
         if kind == "scene":
             self._scene.log(payload, log_time=self._advance(scene_epoch(payload)))
             self.sent += 1
+        elif kind == "log":
+            decode_kind("log", payload)  # a forged line goes no further
+            self._log.log(payload, log_time=self._now())
+            self.sent += 1
         elif kind == "metrics":
             body = orjson.loads(payload)
             stamp = self._advance(int(body["epoch"]))
@@ -313,13 +307,12 @@ __all__ = [
     "HOST",
     "LINGER_S",
     "LIVE_KINDS",
+    "LOG_TOPIC",
     "METRICS_TOPIC",
     "QUEUE_LIMIT",
     "SCENE_TOPIC",
     "STATS_TOPIC",
     "TF_TOPIC",
     "LiveServer",
-    "agent_frame",
-    "frame_transforms",
     "scene_epoch",
 ]

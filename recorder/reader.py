@@ -23,7 +23,8 @@ from mcap.summary import Summary
 from formation.errors import RecordingError, TestbedError
 from formation.messages import DecisionBatch
 from formation.scenario import Scenario, load_dict
-from recorder.schemas import classify
+from recorder.decoder import DecodeError, decode
+from recorder.schemas import PROTOBUF, classify
 from recorder.trust import Gate, Skipped, derived_channels
 from recorder.writer import MAGIC, rotated_path
 
@@ -197,7 +198,7 @@ def describe(path: Path) -> RecordingInfo:
 
 @dataclass
 class Validation:
-    """Messages checked against their channel's stored JSON Schema, and the failures."""
+    """Messages checked against their channel's stored schema, and the failures."""
 
     checked: int = 0
     failures: int = 0
@@ -206,7 +207,8 @@ class Validation:
 
 
 def validate(path: Path, limit: int = 20) -> Validation:
-    """Validate every message against the JSON Schema stored in its channel's schema record."""
+    """Check every message against the schema stored in its channel's schema record: JSON
+    Schema for JSON, the FileDescriptorSet for protobuf (it must decode)."""
     from jsonschema.validators import validator_for
 
     out = Validation()
@@ -216,19 +218,26 @@ def validate(path: Path, limit: int = 20) -> Validation:
             out.checked += 1
             name = schema.name if schema else "(none)"
             out.by_schema[name] += 1
-            check = validators.get(channel.schema_id)
-            if check is None:
-                doc = json.loads(schema.data) if schema and schema.data else {}
-                check = validators[channel.schema_id] = validator_for(doc)(doc)
-            try:
-                instance = json.loads(msg.data)
-            except ValueError as exc:
-                problem = f"not JSON ({exc})"
-            else:
-                error = next(iter(check.iter_errors(instance)), None)
-                if error is None:
+            if schema is not None and schema.encoding == PROTOBUF:
+                try:
+                    decode(schema.name, schema.data, msg.data)
                     continue
-                problem = f"{name}: {error.message} at {list(error.absolute_path)}"
+                except DecodeError as exc:
+                    problem = f"{name}: not protobuf ({exc})"
+            else:
+                check = validators.get(channel.schema_id)
+                if check is None:
+                    doc = json.loads(schema.data) if schema and schema.data else {}
+                    check = validators[channel.schema_id] = validator_for(doc)(doc)
+                try:
+                    instance = json.loads(msg.data)
+                except ValueError as exc:
+                    problem = f"not JSON ({exc})"
+                else:
+                    error = next(iter(check.iter_errors(instance)), None)
+                    if error is None:
+                        continue
+                    problem = f"{name}: {error.message} at {list(error.absolute_path)}"
             out.failures += 1
             if len(out.examples) < limit:
                 out.examples.append((channel.topic, msg.log_time, problem))

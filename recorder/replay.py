@@ -10,8 +10,10 @@ validate or whose sender does not own its key (:mod:`recorder.trust`) is not rep
 either; each pass counts them in :attr:`Replayer.skipped`.
 
 With ``--foxglove PORT`` the replay goes to Foxglove instead of Zenoh: the recorded
-scenes, metrics and decisions are served as a live run is (:mod:`recorder.live`), nothing
-dropped, from when a viewer subscribes to the scene.
+scenes, log lines, metrics and decisions are served as a live run is (:mod:`recorder.live`):
+the recorded bytes (protobuf for the scene and the log, with the SDK's schema the recording
+carries), nothing dropped, from when a viewer subscribes to the scene. A scene or log line
+that does not decode is counted and skipped by the trust gate like any malformed message.
 
 A running replay answers on ``<prefix>/replay/control`` (a queryable): the query's
 parameters or JSON payload give ``command`` = ``pause``, ``resume``, ``seek``
@@ -35,7 +37,7 @@ from formation import codec, keys
 from formation.errors import TestbedError
 from recorder.live import LiveServer
 from recorder.reader import iter_messages, metadata, open_recording, scenario_of
-from recorder.schemas import classify, run_id_of
+from recorder.schemas import FOXGLOVE, classify, run_id_of
 from recorder.trust import Gate, Skipped, derived_channels
 
 SKIP = frozenset({"alive"})  # channel kinds never replayed
@@ -63,8 +65,8 @@ class State:
 
 def rebuild_attachment(kind: str, payload: bytes) -> bytes | None:
     """The codec attachment ``(epoch, seq, source)`` of a recorded payload, if it had one."""
-    if kind in SKIP or kind == "unknown":
-        return None
+    if kind in SKIP or kind in FOXGLOVE or kind == "unknown":
+        return None  # the recorder's protobuf messages never had one
     try:
         body = json.loads(payload)
         epoch, seq = int(body["epoch"]), int(body["seq"])
@@ -299,7 +301,7 @@ def replay(args: Any) -> int:
 
 
 # What a live view shows of a recording; the frames come from the metrics.
-LIVE_KEYS = (keys.scene("*"), keys.metrics("*"), keys.netem_decision("*"))
+LIVE_KEYS = (keys.scene("*"), keys.log("*"), keys.metrics("*"), keys.netem_decision("*"))
 VIEWER_POLL_S = 1.0  # how often the wait for a viewer checks for Ctrl-C [s]
 
 

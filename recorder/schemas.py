@@ -1,10 +1,11 @@
-"""Which schema a key carries: key → channel kind → JSON Schema, without parsing a payload.
+"""Which schema a key carries: key → channel kind → schema and encoding, without parsing a payload.
 
 Key patterns come from :mod:`formation.keys` (built with ``*`` wildcards), so a key
-renamed there is followed here. Wire messages get their JSON Schema from the pydantic
-model (``model_json_schema()``); ``foxglove.*`` schemas are Foxglove's own JSON Schema
-files, shipped as package data in ``recorder/foxglove_schemas/`` (MIT, see the LICENSE
-there); nothing is retyped here, and a recording always carries the real schema.
+renamed there is followed here. Wire messages are JSON with the JSON Schema of their
+pydantic model (``model_json_schema()``); what Foxglove's panels read (the scene, the
+agents' frames, the log) is protobuf with the schema of the SDK's typed message
+(``foxglove.messages.X.get_schema()``, a FileDescriptorSet). Nothing is retyped or copied
+here, and a recording always carries the real schema.
 """
 
 from __future__ import annotations
@@ -12,12 +13,11 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from functools import cache
-from importlib import resources
 
+from foxglove.messages import FrameTransforms, Log, SceneUpdate
 from pydantic import BaseModel, ConfigDict
 
 from formation import keys
-from formation.errors import RecordingError
 from formation.messages import (
     AgentEstimate,
     Control,
@@ -33,8 +33,11 @@ from formation.messages import (
 
 JSON = "json"  # message encoding
 JSONSCHEMA = "jsonschema"  # schema encoding
+PROTOBUF = "protobuf"  # message and schema encoding of the Foxglove channels
 UNKNOWN = "unknown"  # schema name of keys this module does not know
-SCENE_SCHEMA = "foxglove.SceneUpdate"
+FoxgloveMessage = type[SceneUpdate] | type[FrameTransforms] | type[Log]
+# The recorder's channels that Foxglove's panels read, by kind: the SDK's typed message.
+FOXGLOVE: dict[str, FoxgloveMessage] = {"scene": SceneUpdate, "tf": FrameTransforms, "log": Log}
 
 
 class LivelinessEvent(BaseModel):
@@ -66,6 +69,8 @@ _PATTERNS: tuple[tuple[str, str], ...] = (
     ("control", keys.control(_W)),
     ("metrics", keys.metrics(_W)),
     ("scene", keys.scene(_W)),
+    ("tf", keys.frames(_W)),
+    ("log", keys.log(_W)),
     ("alive", keys.alive(_W, _W, _W)),
 )
 _SPLIT = tuple((kind, tuple(p.split("/"))) for kind, p in _PATTERNS)
@@ -121,24 +126,11 @@ def model_schema(model: type[BaseModel]) -> SchemaSpec:
     return SchemaSpec(f"formation.{model.__name__}", JSONSCHEMA, data)
 
 
-FOXGLOVE_DIR = "foxglove_schemas"  # package data of ``recorder``
-
-
 @cache
-def foxglove_schema(name: str) -> SchemaSpec:
-    """``foxglove.<name>`` from Foxglove's JSON Schema file shipped with the package.
-
-    Raises :class:`RecordingError` if the package lacks the file (a broken install).
-    """
-    path = resources.files("recorder") / FOXGLOVE_DIR / f"{name}.json"
-    try:
-        data = path.read_bytes()
-    except OSError:
-        raise RecordingError(
-            f"recorder/{FOXGLOVE_DIR}/{name}.json",
-            f"Foxglove's schema of foxglove.{name} is not in the installed package",
-        ) from None
-    return SchemaSpec(f"foxglove.{name}", JSONSCHEMA, data)
+def foxglove_schema(kind: str) -> SchemaSpec:
+    """The SDK's protobuf schema of the Foxglove channel ``kind`` (:data:`FOXGLOVE`)."""
+    schema = FOXGLOVE[kind].get_schema()
+    return SchemaSpec(schema.name, schema.encoding, bytes(schema.data))
 
 
 UNKNOWN_SCHEMA = SchemaSpec(UNKNOWN, JSONSCHEMA, b"{}")  # the empty schema accepts any JSON
@@ -146,8 +138,8 @@ UNKNOWN_SCHEMA = SchemaSpec(UNKNOWN, JSONSCHEMA, b"{}")  # the empty schema acce
 
 def schema_for_kind(kind: str) -> SchemaSpec:
     """The schema written for channels of ``kind``."""
-    if kind == "scene":
-        return foxglove_schema("SceneUpdate")
+    if kind in FOXGLOVE:
+        return foxglove_schema(kind)
     model = MODELS.get(kind)
     return UNKNOWN_SCHEMA if model is None else model_schema(model)
 
@@ -156,18 +148,24 @@ def schema_for_key(key: str) -> SchemaSpec:
     return schema_for_kind(classify(key))
 
 
+def message_encoding(kind: str) -> str:
+    """How messages of channels of ``kind`` are encoded: protobuf for Foxglove's, else JSON."""
+    return PROTOBUF if kind in FOXGLOVE else JSON
+
+
 __all__ = [
-    "FOXGLOVE_DIR",
+    "FOXGLOVE",
     "JSON",
     "JSONSCHEMA",
     "MODELS",
-    "SCENE_SCHEMA",
+    "PROTOBUF",
     "UNKNOWN",
     "UNKNOWN_SCHEMA",
     "LivelinessEvent",
     "SchemaSpec",
     "classify",
     "foxglove_schema",
+    "message_encoding",
     "model_schema",
     "run_id_of",
     "schema_for_key",

@@ -6,11 +6,12 @@ analysis (``formation report``, ``info``, ``replay``, the run's summary, the exp
 :func:`recorder.load_run`) goes through one :class:`Gate`, which passes a message only when
 
 - it validates against the pydantic model of its channel's kind (:data:`recorder.schemas.MODELS`),
-  with finite numbers of the scenario's dimension;
+  with finite numbers of the scenario's dimension; the recorder's Foxglove channels (scene,
+  frames, log) decode as the SDK's protobuf message (:mod:`recorder.decoder`);
 - its sender owns the key: ``agent/<i>/…`` and link ``i → j`` carry ``agent/<i>`` (or a pool
   ``pool/<a>`` with ``a ≤ i``) and ``agent = i``; the leader's keys ``leader``; netem's
-  ``netem``; ``status/<role>/<id>`` its process; the recorder's own channels (metrics, scene)
-  only what the recorder wrote itself (channel metadata ``origin = recorder``);
+  ``netem``; ``status/<role>/<id>`` its process; the recorder's own channels (metrics, scene,
+  frames, log) only what the recorder wrote itself (channel metadata ``origin = recorder``);
 - its epoch, agent ids, links and edges exist in the scenario;
 - it does not contradict an earlier message of the same key and epoch (the first one
   stays; an identical repeat, e.g. a republished final state, is not a fault).
@@ -27,7 +28,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-import orjson
+from google.protobuf.message import Message
 from pydantic import BaseModel, ValidationError
 
 from formation import keys
@@ -43,9 +44,10 @@ from formation.messages import (
     TokenReport,
 )
 from formation.scenario import Scenario
-from recorder.schemas import MODELS, UNKNOWN, LivelinessEvent, classify
+from recorder.decoder import DecodeError, decode_kind
+from recorder.schemas import FOXGLOVE, MODELS, UNKNOWN, LivelinessEvent, classify
 
-INVALID = "invalid"  # not JSON, wrong fields or types, non-finite or mis-sized numbers
+INVALID = "invalid"  # not JSON (protobuf), wrong fields or types, non-finite or mis-sized numbers
 FORGED = "forged"  # the sender does not own the key, or claims another agent's id
 OUT_OF_RANGE = "out of range"  # an epoch, agent id, link or edge the scenario does not have
 CONFLICT = "conflict"  # a second, different message of the same key and epoch
@@ -54,7 +56,7 @@ REASONS = (INVALID, FORGED, OUT_OF_RANGE, CONFLICT, UNKNOWN_KEY)
 
 ORIGIN = "origin"  # channel metadata of what the recorder derived itself
 RECORDER = "recorder"
-DERIVED = frozenset({"metrics", "scene"})  # kinds only the recorder writes
+DERIVED = frozenset({"metrics", *FOXGLOVE})  # kinds only the recorder writes
 _REPEATED = frozenset({"status", "decision", "alive", "control", "link_change"})  # many per epoch
 
 
@@ -149,8 +151,9 @@ class Gate:
     # -- the one entry ----------------------------------------------------------------------
     def check(
         self, topic: str, data: bytes, kind: str | None = None, channel_id: int | None = None
-    ) -> BaseModel | dict[str, Any] | None:
-        """The validated message (a model; a dict for scenes), or None after counting the skip."""
+    ) -> BaseModel | Message | None:
+        """The validated message (a model; a decoded protobuf message for the Foxglove
+        channels), or None after counting the skip."""
         kind = kind or classify(topic)
         try:
             msg = self._check(kind, topic, data, channel_id)
@@ -162,12 +165,12 @@ class Gate:
 
     def _check(
         self, kind: str, topic: str, data: bytes, channel_id: int | None
-    ) -> BaseModel | dict[str, Any]:
+    ) -> BaseModel | Message:
         derived = self.derived_channels
         if kind in DERIVED and derived is not None and channel_id not in derived:
             raise Skip(FORGED, f"{kind} not written by the recorder")
-        if kind == "scene":
-            return self._scene(data)
+        if kind in FOXGLOVE:
+            return self._foxglove(kind, data)
         model = MODELS.get(kind)
         if model is None or kind == UNKNOWN:
             raise Skip(UNKNOWN_KEY, f"no process publishes on {topic}")
@@ -375,20 +378,17 @@ class Gate:
         if msg.key.split("/")[2:] != parts[2:] or (msg.role, msg.ident) != (parts[-2], parts[-1]):
             raise Skip(FORGED, f"liveliness of {msg.key} on another key")
 
-    def _scene(self, data: bytes) -> dict[str, Any]:
-        """A ``foxglove.SceneUpdate`` as JSON: an object with lists of entities and deletions."""
+    def _foxglove(self, kind: str, data: bytes) -> Message:
+        """A scene, frames or log line: the SDK's protobuf message; a scene's entities have ids."""
         try:
-            body = orjson.loads(data)
-        except orjson.JSONDecodeError:
-            raise Skip(INVALID, "a scene that is not JSON") from None
-        if not isinstance(body, dict) or not isinstance(body.get("entities"), list):
-            raise Skip(INVALID, "a scene without a list of entities")
-        if not isinstance(body.get("deletions", []), list):
-            raise Skip(INVALID, "a scene whose deletions are not a list")
-        for e in body["entities"]:
-            if not isinstance(e, dict) or not isinstance(e.get("id"), str):
-                raise Skip(INVALID, "a scene entity without an id")
-        return body
+            msg = decode_kind(kind, data)
+        except DecodeError:
+            raise Skip(
+                INVALID, f"a {kind} that is not a protobuf {FOXGLOVE[kind].__name__}"
+            ) from None
+        if kind == "scene" and not all(e.id for e in msg.entities):
+            raise Skip(INVALID, "a scene entity without an id")
+        return msg
 
 
 def derived_channels(channels: Mapping[int, Any]) -> set[int] | None:

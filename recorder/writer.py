@@ -1,4 +1,4 @@
-"""MCAP writing: one channel per key, JSON Schemas, chunk compression, rotation.
+"""MCAP writing: one channel per key with its schema, chunk compression, rotation.
 
 The hot path does one ``struct.pack`` and two list appends per message: message
 records go into the open chunk as bytes, and the chunk's message indexes,
@@ -36,7 +36,7 @@ from mcap.records import (
     SummaryOffset,
 )
 
-from recorder.schemas import JSON, SchemaSpec, classify, schema_for_kind
+from recorder.schemas import SchemaSpec, classify, message_encoding, schema_for_kind
 from recorder.trust import ORIGIN, RECORDER
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -255,7 +255,7 @@ def rotated_path(path: Path, index: int) -> Path:
 
 
 class RecordingWriter:
-    """A recording of keyed JSON payloads into one MCAP file or a rotated series of them.
+    """A recording of keyed payloads into one MCAP file or a rotated series of them.
 
     Channels are created on first sight of a key and keep their ids across files;
     every file repeats the schemas, the channels and the sticky metadata (the scenario).
@@ -323,7 +323,7 @@ class RecordingWriter:
         return Channel(
             id=cid,
             topic=topic,
-            message_encoding=JSON,
+            message_encoding=message_encoding(self.kinds[cid]),
             schema_id=self._schema_ids[schema_for_kind(self.kinds[cid]).name],
             metadata=metadata,
         )

@@ -75,7 +75,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     if args.validate:
         check = validate(args.recording)
         console.print(
-            f"validated {check.checked} messages against their JSON Schemas: {check.failures} invalid"
+            f"validated {check.checked} messages against their schemas: {check.failures} invalid"
         )
         for topic, log_ns, problem in check.examples:
             console.print(f"  {topic} @ {log_ns}: {problem}")

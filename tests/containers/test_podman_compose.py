@@ -4,7 +4,7 @@ Run by ``make compose-test`` (after ``deploy/podman.sh engine base build``), whi
 ``PODMAN_COMPOSE`` and ``CONTAINERS_CONF``; skipped otherwise. The services run from the
 image on the host's network, each service name on its own 127.0.0.N
 (``deploy/compose.loopback.yaml``); ``up``, wait for netem to exit, ``down``. The
-recording must hold every sender's count and every epoch, Foxglove's real SceneUpdate
+recording must hold every sender's count and every epoch, the SDK's protobuf SceneUpdate
 schema, and equal a native ``formation run`` of the same scenario and seed.
 """
 
@@ -16,12 +16,12 @@ import subprocess
 import sys
 import time
 from collections import Counter
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import pytest
 import yaml
+from foxglove.messages import SceneUpdate
 from mcap.reader import make_reader
 
 from formation import keys
@@ -85,13 +85,13 @@ def _recording(path: Path, run_id: str) -> dict[str, Any]:
     counts: Counter[str] = Counter()
     statuses: dict[str, dict[str, Any]] = {}
     epochs: dict[str, set[int]] = {}
-    schemas: dict[str, tuple[str, bytes]] = {}
+    schemas: dict[str, tuple[str, str, bytes]] = {}
     with path.open("rb") as f:
         for schema, channel, message in make_reader(f).iter_messages(log_time_order=False):
             topic = channel.topic.replace(f"/{run_id}/", "/RUN/", 1)
             counts[topic] += 1
             if schema is not None:
-                schemas[topic] = (schema.name, schema.data)
+                schemas[topic] = (schema.name, schema.encoding, schema.data)
             if "/status/" in topic:
                 statuses[topic] = json.loads(message.data)
             elif topic.endswith("/state") and "/agent/" in topic:
@@ -152,9 +152,9 @@ def test_compose_yaml_under_podman_equals_a_native_run(tmp_path: Path) -> None:
         keys.agent_state("RUN", i): set(range(scenario.epochs + 1))
         for i in range(1, scenario.n + 1)
     }
-    # Foxglove's real schema, as the package ships it
-    shipped = (resources.files("recorder") / "foxglove_schemas" / "SceneUpdate.json").read_bytes()
-    assert got["schemas"][keys.scene("RUN")] == ("foxglove.SceneUpdate", shipped)
+    # the scene in Foxglove's own protobuf schema, from the SDK (the image's pins the checkout's)
+    sdk = SceneUpdate.get_schema()
+    assert got["schemas"][keys.scene("RUN")] == (sdk.name, "protobuf", bytes(sdk.data))
     # the report, naming host paths; the files belong to the invoking user
     report = (run_dir / "report.md").read_text()
     assert f"runs/{run_id}/run.mcap" in report and "/app/" not in report

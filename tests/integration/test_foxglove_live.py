@@ -8,6 +8,7 @@ A second client subscribes and never reads; the run must still finish with every
 from __future__ import annotations
 
 import asyncio
+import base64
 import json
 import os
 import socket
@@ -18,9 +19,18 @@ from typing import Any
 
 import pytest
 import websockets
+from foxglove.messages import FrameTransforms, Log, SceneUpdate
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap.reader import make_reader
 
-from recorder.live import DECISIONS_TOPIC, METRICS_TOPIC, SCENE_TOPIC, STATS_TOPIC, TF_TOPIC
+from recorder.live import (
+    DECISIONS_TOPIC,
+    LOG_TOPIC,
+    METRICS_TOPIC,
+    SCENE_TOPIC,
+    STATS_TOPIC,
+    TF_TOPIC,
+)
 from testbed.runtime.processes import free_port
 from tests.support import foxglove_client as fc
 
@@ -28,15 +38,22 @@ pytestmark = [pytest.mark.integration, pytest.mark.slow]
 EPOCHS = 25
 PERIOD_NS = 1_000_000_000  # paper.toml's control.period_s
 # Scene last: --foxglove-wait lets the run start once the scene is subscribed.
-TOPICS = [DECISIONS_TOPIC, TF_TOPIC, METRICS_TOPIC, STATS_TOPIC, SCENE_TOPIC]
+TOPICS = [DECISIONS_TOPIC, TF_TOPIC, LOG_TOPIC, METRICS_TOPIC, STATS_TOPIC, SCENE_TOPIC]
 SCHEMAS = {
-    SCENE_TOPIC: ("foxglove.SceneUpdate", "json", "jsonschema"),
+    SCENE_TOPIC: ("foxglove.SceneUpdate", "protobuf", "protobuf"),
     TF_TOPIC: ("foxglove.FrameTransforms", "protobuf", "protobuf"),
+    LOG_TOPIC: ("foxglove.Log", "protobuf", "protobuf"),
     METRICS_TOPIC: ("formation.EpochMetrics", "json", "jsonschema"),
     DECISIONS_TOPIC: ("formation.DecisionBatch", "json", "jsonschema"),
     STATS_TOPIC: ("formation.LiveStats", "json", "jsonschema"),
 }
-RECORDED_KINDS = {"scene": SCENE_TOPIC, "metrics": METRICS_TOPIC, "decision": DECISIONS_TOPIC}
+SDK = {SCENE_TOPIC: SceneUpdate, TF_TOPIC: FrameTransforms, LOG_TOPIC: Log}
+RECORDED_KINDS = {
+    "scene": SCENE_TOPIC,
+    "log": LOG_TOPIC,
+    "metrics": METRICS_TOPIC,
+    "decision": DECISIONS_TOPIC,
+}
 
 
 def _done(topic: str, payload: bytes) -> bool:
@@ -86,9 +103,19 @@ def _recorded(path: Path) -> dict[str, list[bytes]]:
     return out
 
 
-def _epoch_of_scene(payload: bytes) -> int:
-    (entity,) = json.loads(payload)["entities"]
-    return int({m["key"]: m["value"] for m in entity["metadata"]}["epoch"])
+def _protobuf_class(schema_b64: str, name: str) -> Any:
+    """The message class ``name`` of an advertised protobuf schema (a base64 FileDescriptorSet),
+    built with the protobuf package alone (not the recorder's decoder)."""
+    files = descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(schema_b64))
+    pool = descriptor_pool.DescriptorPool()
+    for proto in files.file:
+        pool.Add(proto)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(name))
+
+
+def _epoch_of_scene(scene_class: Any, payload: bytes) -> int:
+    (entity,) = scene_class.FromString(payload).entities
+    return int({m.key: m.value for m in entity.metadata}["epoch"])
 
 
 def _serve(cmd: list[str], log: Path, port: int, idle: bool) -> fc.Received:
@@ -128,19 +155,29 @@ def test_live_run_and_replay_reach_an_independent_client(
         assert ch["schema"], topic
         if schema_encoding == "jsonschema":
             assert json.loads(ch["schema"])["type"] == "object", topic
+        else:  # the SDK's FileDescriptorSet, base64 on the wire
+            assert base64.b64decode(ch["schema"]) == bytes(SDK[topic].get_schema().data), topic
+    scene_class = _protobuf_class(by_topic[SCENE_TOPIC]["schema"], "foxglove.SceneUpdate")
+    tf_class = _protobuf_class(by_topic[TF_TOPIC]["schema"], "foxglove.FrameTransforms")
+    log_class = _protobuf_class(by_topic[LOG_TOPIC]["schema"], "foxglove.Log")
 
     (mcap_path,) = runs_dir.glob("*/run.mcap")
     recorded = _recorded(mcap_path)
     every = list(range(EPOCHS + 1))  # the final states are epoch EPOCHS
     scenes, metrics = got.on(SCENE_TOPIC), got.on(METRICS_TOPIC)
-    assert [_epoch_of_scene(s) for s in scenes] == every
+    assert [_epoch_of_scene(scene_class, s) for s in scenes] == every
     assert [json.loads(m)["epoch"] for m in metrics] == every
     assert scenes == recorded[SCENE_TOPIC]  # one drawing: the bytes the file holds
     assert metrics == recorded[METRICS_TOPIC]
     assert got.log_times(SCENE_TOPIC) == [k * PERIOD_NS for k in every]  # sim time
     assert got.times == [k * PERIOD_NS for k in every]  # the timeline follows the run
-    tf = got.on(TF_TOPIC)
-    assert len(tf) == len(every) and all(b"agent5" in t and b"world" in t for t in tf)
+    tf = [tf_class.FromString(t).transforms for t in got.on(TF_TOPIC)]
+    assert len(tf) == len(every)
+    assert all([t.child_frame_id for t in frames] == [f"agent{i}" for i in range(1, 6)]
+               and {t.parent_frame_id for t in frames} == {"world"} for frames in tf)  # fmt: skip
+    logs = [log_class.FromString(line) for line in got.on(LOG_TOPIC)]
+    assert logs and got.on(LOG_TOPIC) == recorded[LOG_TOPIC]  # the processes' ends, as recorded
+    assert {line.name for line in logs} >= {"netem", "leader", "agent/1"}
     assert got.on(DECISIONS_TOPIC) == recorded[DECISIONS_TOPIC]
     stats = json.loads(got.on(STATS_TOPIC)[-1])
     assert stats["state"] == "done" and stats["epoch"] == EPOCHS

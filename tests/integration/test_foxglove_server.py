@@ -98,6 +98,20 @@ def test_a_forged_decision_never_reaches_the_viewer(paper: Scenario) -> None:
     assert json.loads(got.on(STATS_TOPIC)[-1])["skipped"] == 2
 
 
+def test_a_scene_or_log_line_that_is_not_protobuf_is_skipped(paper: Scenario) -> None:
+    live = LiveServer(paper, 0).start()
+
+    def feed() -> None:
+        live.offer("scene", keys.scene(RUN), b'{"entities": []}')  # a JSON scene of old
+        live.offer("log", keys.log(RUN), b"\xff\xff")
+        live.offer("decision", keys.netem_decision(RUN), _decisions("netem", 4))
+
+    got = _watch(live, feed)
+
+    assert got.on(DECISIONS_TOPIC) == [_decisions("netem", 4)]  # the server went on
+    assert json.loads(got.on(STATS_TOPIC)[-1])["skipped"] == 2
+
+
 def test_a_taken_port_is_a_clear_error(paper: Scenario) -> None:
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))

@@ -15,6 +15,11 @@ pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = ROOT / "scenarios" / "paper.toml"
+SDK_SCHEMAS = (
+    "import json; from foxglove.messages import FrameTransforms, Log, SceneUpdate; "
+    "print(json.dumps({m.get_schema().name: bytes(m.get_schema().data).hex() "
+    "for m in (SceneUpdate, FrameTransforms, Log)}))"
+)
 
 
 def _run(argv: list[str], cwd: Path, timeout_s: float) -> subprocess.CompletedProcess[str]:
@@ -33,8 +38,7 @@ def installed(tmp_path_factory: pytest.TempPathFactory) -> Path:
     names = zipfile.ZipFile(wheel).namelist()
     tops = {n.split("/")[0] for n in names if not n.split("/")[0].endswith(".dist-info")}
     assert tops == {"formation", "agent", "leader", "netem", "recorder", "testbed"}
-    assert "recorder/foxglove_schemas/SceneUpdate.json" in names
-    assert "recorder/foxglove_schemas/LICENSE" in names
+    assert not [n for n in names if "foxglove_schemas" in n]  # the SDK's schemas, no copies
     assert not [n for n in names if "loopback" in n or n.startswith("tests/")]
     venv = tmp / "venv"
     _run([sys.executable, "-m", "venv", str(venv)], tmp, 120)
@@ -61,6 +65,11 @@ def test_the_installed_commands_simulate_compose_and_run(installed: Path, tmp_pa
     with mcap_path.open("rb") as f:
         summary = make_reader(f).get_summary()
     assert summary is not None
-    scene = [s for s in summary.schemas.values() if s.name == "foxglove.SceneUpdate"]
-    shipped = (ROOT / "recorder" / "foxglove_schemas" / "SceneUpdate.json").read_bytes()
-    assert len(scene) == 1 and scene[0].encoding == "jsonschema" and scene[0].data == shipped
+    # the Foxglove channels carry the installed SDK's protobuf schemas
+    sdk = _run([str(installed / "bin" / "python"), "-c", SDK_SCHEMAS], work, 60)
+    theirs = {name: bytes.fromhex(data) for name, data in json.loads(sdk.stdout).items()}
+    channels = {summary.schemas[ch.schema_id].name: ch for ch in summary.channels.values()}
+    for name, data in theirs.items():
+        schema = summary.schemas[channels[name].schema_id]
+        assert (schema.encoding, channels[name].message_encoding) == ("protobuf", "protobuf")
+        assert schema.data == data, name

@@ -82,12 +82,15 @@ def write_synthetic(
     result: Any,
     inject: list[tuple[str, bytes, bytes | None, int]] = (),  # type: ignore[assignment]
     messages: list[tuple[str, bytes, bytes | None, int]] | None = None,
+    derived: list[tuple[str, bytes, int]] = (),  # type: ignore[assignment]
     **options: Any,
 ) -> dict[str, int]:
     """Record ``traffic(result)`` as the recorder would (with metrics and scene); counts per key.
 
     ``inject``: more ``(key, payload, attachment, log time)`` received among them (forgeries);
     ``messages``: what to record instead of ``traffic(result)``;
+    ``derived``: more ``(key, payload, log time)`` on the recorder's own channels (as if it
+    wrote them: a corrupt or older recorder);
     ``options`` go to :class:`RecordingWriter` (e.g. ``split_size``).
     """
     s = result.scenario
@@ -96,10 +99,17 @@ def write_synthetic(
     rec = RecordingWriter(path, metadata=meta, taps=TAPS, **options)
     asm = EpochAssembler(s, RUN, clock=lambda: 0)
     wire = traffic(result) if messages is None else messages
+    extra = iter(sorted(derived, key=lambda m: m[2]))
+    pending = next(extra, None)
     for key, data, att, t in sorted([*wire, *inject], key=lambda m: m[3]):
+        while pending is not None and pending[2] <= t:
+            rec.write(*pending)
+            pending = next(extra, None)
         for kind, k_, d_, recv in rec.write_batch([(key, data, att, None, t)]):
             for out_key, payload in asm.on(kind, k_, d_, recv):
                 rec.write(out_key, payload, recv + 1)
+    for forged in [*([pending] if pending else []), *extra]:
+        rec.write(*forged)
     for out_key, payload in asm.finish(len(result.positions) * EPOCH_NS):
         rec.write(out_key, payload, len(result.positions) * EPOCH_NS)
     counts = rec.counts()

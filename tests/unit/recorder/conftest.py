@@ -1,9 +1,7 @@
-"""Fixtures for the recorder's unit tests: Foxglove schemas, simulated runs, synthetic recordings."""
+"""Fixtures for the recorder's unit tests: simulated runs, synthetic recordings."""
 
 from __future__ import annotations
 
-import json
-from importlib import resources
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -20,14 +18,6 @@ ROOT = Path(__file__).resolve().parents[3]
 def synth() -> SimpleNamespace:
     """Synthetic recordings: ``synth.write(path, result)``, ``synth.traffic(result)``, ``synth.RUN``."""
     return SimpleNamespace(RUN=RUN, EPOCH_NS=EPOCH_NS, write=write_synthetic, traffic=traffic)
-
-
-@pytest.fixture(scope="session")
-def scene_schema() -> dict[str, Any]:
-    """Foxglove's SceneUpdate schema as the recorder package ships it."""
-    return json.loads(
-        (resources.files("recorder") / "foxglove_schemas" / "SceneUpdate.json").read_text()
-    )
 
 
 @pytest.fixture(scope="session")

@@ -1,8 +1,9 @@
-"""The recorder's per-epoch derivations: metrics when all states are in, the scene with health."""
+"""The recorder's per-epoch derivations: metrics and frames when all states are in, the scene
+with health (protobuf, decoded by the SDK's schema), log lines from statuses."""
 
 from __future__ import annotations
 
-import json
+from typing import Any
 
 import numpy as np
 
@@ -14,12 +15,20 @@ from formation.messages import (
     DecisionBatch,
     EpochMetrics,
     LeaderEstimate,
+    LinkChange,
+    Status,
 )
 from formation.scenario import Scenario
+from recorder.decoder import as_dict, decode_kind
 from recorder.epochs import STALE_EPOCHS, WAIT_EPOCHS, EpochAssembler
 from recorder.metrics import formation_error, shape_error
 
 RUN = "e1"
+
+
+def decoded_scene(payload: bytes) -> dict[str, Any]:
+    """A recorded scene as plain data (it must decode as the SDK's protobuf SceneUpdate)."""
+    return as_dict(decode_kind("scene", payload))
 
 
 def state(i: int, k: int, x: np.ndarray) -> tuple[str, bytes]:
@@ -57,12 +66,17 @@ def test_metrics_when_all_states_are_in(paper: Scenario) -> None:
         out += asm.on_state(*state(i, 0, x[i - 1]), stamp_ns=0)
     assert out == []
     out = asm.on_state(*state(paper.n, 0, x[-1]), stamp_ns=0)
-    assert [key for key, _ in out] == [keys.metrics(RUN)]
+    assert [key for key, _ in out] == [keys.metrics(RUN), keys.frames(RUN)]
     m = EpochMetrics.model_validate_json(out[0][1])
     assert m.epoch == 0 and m.stamp_ns == 42 and m.sender == "recorder"
     assert m.formation_error_m == float(formation_error(x, paper.edge_array, paper.weights))
     assert m.shape_error_m == float(shape_error(x, paper.edge_array, paper.offsets))
     assert m.positions == x.tolist()
+    tf = as_dict(decode_kind("tf", out[1][1]))["transforms"]
+    assert [t["child_frame_id"] for t in tf] == [f"agent{i}" for i in range(1, paper.n + 1)]
+    assert {t["parent_frame_id"] for t in tf} == {"world"}
+    assert [[t["translation"]["x"], t["translation"]["y"]] for t in tf] == x.tolist()
+    assert {t["translation"]["z"] for t in tf} == {0.0}
 
 
 def decisions(s: Scenario, epochs: list[int], lost: set[tuple[int, int]]) -> bytes:
@@ -83,12 +97,15 @@ HEALTHY_EDGES = [(1, 3), (2, 3), (2, 4), (1, 4), (3, 5), (4, 5)]  # 1-2 down
 
 def test_scene_waits_for_the_estimate_and_the_decisions_of_its_epoch(paper: Scenario) -> None:
     asm = EpochAssembler(paper, RUN)
-    assert [key for key, _ in feed_epoch(asm, 0, paper.offsets)] == [keys.metrics(RUN)]
+    assert [key for key, _ in feed_epoch(asm, 0, paper.offsets)] == [
+        keys.metrics(RUN),
+        keys.frames(RUN),
+    ]
     est = estimate(paper, 0, HEALTHY_EDGES, [(1, 3), (1, 4)])
     assert asm.on_estimate(keys.leader_estimate_out(RUN), est, 5) == []  # decisions not in
     out = asm.on_decision(keys.netem_decision(RUN), decisions(paper, [0], {(1, 2), (2, 1)}), 6)
     assert [key for key, _ in out] == [keys.scene(RUN)]
-    scene = json.loads(out[0][1])
+    scene = decoded_scene(out[0][1])
     lines = scene["entities"][0]["lines"]
     colors = {(ln["color"]["r"], ln["color"]["g"], ln["thickness"]): len(ln["points"]) // 2
               for ln in lines}  # fmt: skip
@@ -115,7 +132,7 @@ def scenes_of(paper: Scenario, order: list[str]) -> list[dict]:
                 keys.netem_decision(RUN), decisions(paper, [0, 1, 2, 3], set()), 0
             )
     out += asm.finish(0)
-    return [json.loads(p) for key, p in out if key == keys.scene(RUN)]
+    return [decoded_scene(p) for key, p in out if key == keys.scene(RUN)]
 
 
 def test_the_same_epochs_give_the_same_scenes_whatever_the_arrival(paper: Scenario) -> None:
@@ -135,7 +152,7 @@ def test_a_scene_missing_parts_is_drawn_late_or_at_the_end(paper: Scenario) -> N
     out = []
     for k in range(WAIT_EPOCHS + 2):  # no estimate, no decisions ever
         out += feed_epoch(asm, k, paper.offsets)
-    scenes = [json.loads(p) for key, p in out if key == keys.scene(RUN)]
+    scenes = [decoded_scene(p) for key, p in out if key == keys.scene(RUN)]
     assert [sc["entities"][0]["metadata"][0]["value"] for sc in scenes] == ["0"]
     final = asm.finish(9)
     assert len(final) == WAIT_EPOCHS + 1 and asm.finish(9) == []
@@ -150,3 +167,43 @@ def test_malformed_states_are_counted_and_stale_epochs_given_up(paper: Scenario)
     for k in range(1, STALE_EPOCHS + 3):
         feed_epoch(asm, k, paper.offsets)
     assert asm.given_up == 1
+
+
+def _status(state: str, detail: str = "", malformed: dict[str, int] | None = None) -> bytes:
+    msg = Status(
+        run_id=RUN, sender="netem", seq=0, epoch=3, stamp_ns=1, role="netem", state=state,
+        detail=detail, malformed=malformed or {},
+    )  # fmt: skip
+    return encode(msg)
+
+
+def test_statuses_that_say_something_and_link_changes_are_log_lines(paper: Scenario) -> None:
+    asm = EpochAssembler(paper, RUN)
+    key = keys.status(RUN, "netem", 0)
+    assert asm.on("status", key, _status("running"), 5) == []  # bare progress
+    team = '{"event": "lost agent 3", "epoch": 3}'
+    got = [
+        *asm.on("status", key, _status("running", team), 5_000_000_007),
+        *asm.on("status", key, _status("done", "", {"x": 2}), 6),
+        *asm.on("status", key, _status("error", "boom"), 7),
+        *asm.on("status", keys.status(RUN, "agent", 1), _status("running", "forged"), 8),
+    ]
+    change = LinkChange(
+        run_id=RUN, sender="netem", seq=0, epoch=-1, stamp_ns=1, source=1, target=2,
+        link_class="formation", models=[{"kind": "bernoulli", "p_drop": 0.5}], from_epoch=9,
+    )  # fmt: skip
+    got += asm.on("link_change", keys.netem_change(RUN), encode(change), 9)
+    assert {k for k, _ in got} == {keys.log(RUN)}
+    lines = [as_dict(decode_kind("log", p)) for _, p in got]
+    assert [(ln["level"], ln["name"]) for ln in lines] == [
+        ("INFO", "netem"), ("WARNING", "netem"), ("ERROR", "netem"), ("INFO", "netem"),
+    ]  # fmt: skip
+    assert lines[0]["message"] == f"running: {team}"
+    assert lines[0]["timestamp"] == "1970-01-01T00:00:05.000000007Z"
+    assert lines[1]["message"] == 'done; malformed payloads {"x": 2}'
+    assert (
+        as_dict(decode_kind("log", asm.on("status", key, _status("done"), 1)[0][1]))["message"]
+        == "done"
+    )  # the end of a process, said or not
+    assert lines[3]["message"].startswith("link 1->2 (formation) from epoch 9: ")
+    assert asm.gate.skipped.by_channel() == {keys.status(RUN, "agent", 1): 1}  # not agent 1's

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from recorder.layout import LAYOUT_FILE, layout_json
-from recorder.live import DECISIONS_TOPIC, METRICS_TOPIC, SCENE_TOPIC
+from recorder.live import DECISIONS_TOPIC, LOG_TOPIC, METRICS_TOPIC, SCENE_TOPIC
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -34,3 +34,4 @@ def test_it_opens_with_a_3d_panel_error_plots_and_a_link_table() -> None:
         f"{METRICS_TOPIC}.shape_error_m",
     ]
     assert panels["Table"]["topicPath"] == f"{DECISIONS_TOPIC}.decisions"
+    assert panels["Log"]["topicToRender"] == LOG_TOPIC

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 import numpy as np
 
 from formation import keys
 from formation.scenario import Scenario
+from recorder.decoder import as_dict, decode_kind
 from recorder.epochs import EpochAssembler
 from recorder.scene import scene_update
 from testbed.sim.simulate import simulate
@@ -21,11 +21,10 @@ def yaw(arrow: dict[str, Any]) -> float:
     return float(2.0 * np.arctan2(q["z"], q["w"]))
 
 
-def test_headings_are_arrows_from_each_agent(paper: Scenario, scene_schema: dict[str, Any]) -> None:
+def test_headings_are_arrows_from_each_agent(paper: Scenario) -> None:
     x = paper.offsets + 0.1
     th = np.array([0.0, np.pi / 2, -2.0, np.nan, 3.0])  # agent 4's heading unknown
-    scene = scene_update(3, 0, x, paper.edge_array, paper.offsets, paper.leader, headings=th)
-    check(scene, scene_schema)
+    scene = check(scene_update(3, 0, x, paper.edge_array, paper.offsets, paper.leader, headings=th))
     (team,) = scene["entities"]
     arrows = team["arrows"]
     assert len(arrows) == 4
@@ -33,13 +32,11 @@ def test_headings_are_arrows_from_each_agent(paper: Scenario, scene_schema: dict
         assert np.isclose(yaw(arrow), th[i])
         p = arrow["pose"]["position"]
         assert (p["x"], p["y"]) == (x[i, 0], x[i, 1])
-    bare = scene_update(3, 0, x, paper.edge_array, paper.offsets, paper.leader)
+    bare = check(scene_update(3, 0, x, paper.edge_array, paper.offsets, paper.leader))
     assert bare["entities"][0]["arrows"] == []
 
 
-def test_the_recorder_draws_the_recorded_headings(
-    paper: Scenario, synth: Any, scene_schema: dict[str, Any]
-) -> None:
+def test_the_recorder_draws_the_recorded_headings(paper: Scenario, synth: Any) -> None:
     robots = paper.with_overrides(epochs=6, control={"dynamics": "unicycle"})
     result = simulate(robots)
     asm = EpochAssembler(robots, synth.RUN, clock=lambda: 42)
@@ -54,8 +51,7 @@ def test_the_recorder_draws_the_recorded_headings(
             scenes += [p for k, p in asm.on(kind, key, payload, t) if k == keys.scene(synth.RUN)]
     assert len(scenes) == robots.epochs + 1
     for k, raw in enumerate(scenes):
-        scene = json.loads(raw)
-        check(scene, scene_schema)
+        scene = as_dict(decode_kind("scene", raw))
         got = np.array([yaw(a) for a in scene["entities"][0]["arrows"]])
         turn = np.angle(np.exp(1j * (got - result.headings[k])))  # the difference, wrapped
         np.testing.assert_allclose(turn, 0.0, atol=1e-12)

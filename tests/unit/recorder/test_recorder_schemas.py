@@ -3,15 +3,15 @@
 from __future__ import annotations
 
 import json
-from importlib import resources
 
 import pytest
+from foxglove.messages import FrameTransforms, Log, SceneUpdate
 from jsonschema.validators import validator_for
 
 from formation import keys
-from formation.errors import RecordingError
 from formation.messages import ALL_MODELS
 from recorder import schemas
+from recorder.decoder import message_class
 
 RUN = "run-7"
 
@@ -30,6 +30,8 @@ CASES = [
     (keys.control(RUN), "control", "formation.Control"),
     (keys.metrics(RUN), "metrics", "formation.EpochMetrics"),
     (keys.scene(RUN), "scene", "foxglove.SceneUpdate"),
+    (keys.frames(RUN), "tf", "foxglove.FrameTransforms"),
+    (keys.log(RUN), "log", "foxglove.Log"),
     (keys.alive(RUN, "leader", 0), "alive", "formation.LivelinessEvent"),
     (keys.netem_config(RUN), "unknown", "unknown"),
     ("somewhere/else", "unknown", "unknown"),
@@ -59,25 +61,17 @@ def test_run_id_of() -> None:
     assert schemas.run_id_of("other/x/y") is None
 
 
-def test_foxglove_scene_schema_is_foxglove_s_own_file() -> None:
-    spec = schemas.schema_for_kind("scene")
-    doc = json.loads(spec.data)
-    assert (spec.name, spec.encoding) == ("foxglove.SceneUpdate", "jsonschema")
-    assert doc["title"] == "foxglove.SceneUpdate"
-    assert "entities" in doc["required"] and "deletions" in doc["required"]
-    validator_for(doc).check_schema(doc)
-    assert len(spec.data) > 10_000  # the real schema, not a stand-in
+@pytest.mark.parametrize(
+    ("kind", "sdk"), [("scene", SceneUpdate), ("tf", FrameTransforms), ("log", Log)]
+)
+def test_foxglove_channels_carry_the_sdk_s_protobuf_schema(kind: str, sdk: type) -> None:
+    spec = schemas.schema_for_kind(kind)
+    theirs = sdk.get_schema()
+    assert (spec.name, spec.encoding, spec.data) == (theirs.name, "protobuf", bytes(theirs.data))
+    assert schemas.message_encoding(kind) == "protobuf"
+    assert message_class(spec.name, spec.data).DESCRIPTOR.full_name == spec.name  # it parses
 
 
-def test_foxglove_schema_ships_with_its_licence() -> None:
-    folder = resources.files("recorder") / schemas.FOXGLOVE_DIR
-    assert "MIT License" in (folder / "LICENSE").read_text()
-    assert "Foxglove" in (folder / "README.md").read_text()
-
-
-def test_missing_foxglove_file_is_an_error() -> None:
-    with pytest.raises(
-        RecordingError,
-        match=r"NoSuchSchema\.json: Foxglove's schema of foxglove\.NoSuchSchema is not in the installed package",
-    ):
-        schemas.foxglove_schema("NoSuchSchema")
+def test_wire_channels_are_json() -> None:
+    assert schemas.message_encoding("agent_state") == "json"
+    assert schemas.message_encoding("unknown") == "json"

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 import zstandard
+from foxglove.messages import SceneUpdate
 from mcap.exceptions import EndOfFile
 from mcap.reader import NonSeekingReader, make_reader
 from mcap.records import Chunk, Message, MessageIndex
@@ -17,6 +18,7 @@ from mcap.stream_reader import StreamReader
 
 from formation import keys
 from formation.codec import attachment
+from recorder.decoder import decode_kind
 from recorder.schemas import foxglove_schema
 from recorder.writer import RecordingWriter, rotated_path
 
@@ -176,18 +178,32 @@ def test_rotation_by_duration(tmp_path: Path) -> None:
     assert counts == [10, 10]
 
 
-def test_scene_channel_gets_the_foxglove_schema_file() -> None:
+def test_foxglove_channels_get_the_sdk_s_protobuf_schema() -> None:
     buf = io.BytesIO()
     rec = RecordingWriter(buf)
-    rec.write(keys.scene(RUN), b'{"deletions": [], "entities": []}', 5)
+    rec.write(keys.scene(RUN), SceneUpdate().encode(), 5)
+    rec.write(keys.frames(RUN), b"", 5)
+    rec.write(keys.log(RUN), b"", 5)
+    rec.write(keys.metrics(RUN), b"{}", 5)
     rec.close()
     buf.seek(0)
-    summary = make_reader(buf).get_summary()
+    reader = make_reader(buf)
+    summary = reader.get_summary()
     assert summary is not None
-    (schema,) = summary.schemas.values()
-    assert schema.name == "foxglove.SceneUpdate"
-    assert schema.data == foxglove_schema("SceneUpdate").data
-    assert json.loads(schema.data)["title"] == "foxglove.SceneUpdate"
+    by_topic = {
+        ch.topic: (ch.message_encoding, summary.schemas[ch.schema_id])
+        for ch in summary.channels.values()
+    }
+    for key, kind in ((keys.scene(RUN), "scene"), (keys.frames(RUN), "tf"), (keys.log(RUN), "log")):
+        encoding, schema = by_topic[key]
+        assert (encoding, schema.encoding) == ("protobuf", "protobuf")
+        assert (schema.name, schema.data) == (
+            foxglove_schema(kind).name,
+            foxglove_schema(kind).data,
+        )
+    assert by_topic[keys.metrics(RUN)][0] == "json"
+    (_, _, msg), *_ = reader.iter_messages(topics=[keys.scene(RUN)])
+    assert decode_kind("scene", msg.data).entities is not None
 
 
 def test_live_counts_include_the_open_chunk() -> None:
