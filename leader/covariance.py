@@ -16,8 +16,9 @@ the factorisation (Takahashi, Fagan, Chen 1973; Erisman, Tinney 1975).
 Two ways to run the recurrence, chosen per column:
 
 * **levels**: columns at the same depth of the elimination tree do not need
-  each other, so all of a depth are done at once by flat gathers and
-  ``bincount`` sums (formation-like graphs: a few hundred depths);
+  each other, so all of a depth are done at once by flat gathers (each pair of the
+  symmetric ``Z[S_j, S_j]`` once) and ``bincount`` sums (formation-like graphs: a
+  few hundred depths);
 * **core**: the columns whose ``|S_j|`` is large (the dense trailing fronts of an
   expander), closed under ancestors, are a trailing block of a valid elimination
   order, so ``Z`` on them is the dense inverse of their Schur complement,
@@ -45,7 +46,7 @@ IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
 
 CORE_GATHER_S = 1e-7
-"""Cost of one gathered entry of ``Z[S_j, S_j]`` on the levels [s] (measured)."""
+"""Cost of one gathered pair ``a ≥ b`` of ``Z[S_j, S_j]`` on the levels [s] (measured)."""
 CORE_FLOP_S = 5e-11
 """Cost of one flop of the dense core's inverse (``c³·2/3`` flops) [s] (measured)."""
 CORE_THRESHOLDS = (8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096)
@@ -184,10 +185,9 @@ class _SelectedInverse:
         parent = np.full(size, size, dtype=np.int64)
         has = count > 0
         parent[has] = idx[ptr[:-1][has] + 1]
-        if threshold is None:
-            core = _choose_core(count, parent)
-        else:
-            core = _ancestor_closure(count >= threshold, parent)
+        top = _subtree_max(count, parent)
+        # |S_k| ≥ T somewhere in j's subtree: j is a descendant's ancestor, so in the core
+        core = _choose_core(count, top) if threshold is None else top >= threshold
         self.core = np.flatnonzero(core)
         self.core_pos = np.full(size, -1, dtype=np.int64)
         self.core_pos[self.core] = np.arange(self.core.size)
@@ -200,7 +200,7 @@ class _SelectedInverse:
         rest = np.flatnonzero(~core)
         order = rest[np.argsort(depth[rest], kind="stable")]
         s = ptr[order + 1] - ptr[order] - 1
-        for batch, steps in _batches(depth[order], s * s):
+        for batch, steps in _batches(depth[order], s * (s + 1) // 2):
             self._columns(order[batch], s[batch], steps, diag)
 
     def _core_inverse(self, diag: FloatArray) -> None:
@@ -229,17 +229,21 @@ class _SelectedInverse:
 
     def _columns(self, cols: IntArray, s: IntArray, steps: list[int], diag: FloatArray) -> None:
         """Takahashi for the columns ``cols`` (|S_j| ``s``), in steps of columns that do not need
-        each other (``steps``: where each begins, and the end): the gathers for all at once."""
-        per = s * s
+        each other (``steps``: where each begins, and the end): the gathers for all at once.
+
+        ``Z[S_j, S_j]`` is symmetric: each pair ``a ≥ b`` is gathered once and counts for
+        ``y[a]`` (times ``L[S_j[b], j]``) and, off the diagonal, for ``y[b]``."""
+        per = s * (s + 1) // 2
         first = self.ptr[cols] + 1  # where S_j starts in L's arrays
         offset = np.cumsum(s) - s  # where S_j starts among this batch's entries
         seg = np.repeat(np.arange(cols.size), per)
         t = np.arange(int(per.sum())) - np.repeat(np.cumsum(per) - per, per)
-        width = s[seg]
-        a, b = first[seg] + t // width, first[seg] + t % width  # entries (S_j[a], j), (S_j[b], j)
+        ta, tb = _triangle(t)
+        a, b = first[seg] + ta, first[seg] + tb  # entries (S_j[a], j), (S_j[b], j)
         source = self.sources(self.idx[a], self.idx[b])
-        weight = self.val[b]
-        slot = offset[seg] + (a - first[seg])  # y[a] = Σ_b Z[S_j[a], S_j[b]] L[S_j[b], j]
+        weight, mirror = self.val[b], np.where(ta > tb, self.val[a], 0.0)
+        # y[a] = Σ_b Z[S_j[a], S_j[b]] L[S_j[b], j]: pair (a, b) adds to slots a and b
+        slot, slot_b = offset[seg] + ta, offset[seg] + tb
         owner = np.repeat(np.arange(cols.size), s)
         entry = first[owner] + np.arange(int(s.sum())) - offset[owner]
         pairs = np.concatenate([[0], np.cumsum(per)])
@@ -247,7 +251,9 @@ class _SelectedInverse:
         z = self.z
         for c0, c1 in itertools.pairwise(steps):
             p0, p1, e0, e1 = pairs[c0], pairs[c1], slots[c0], slots[c1]
-            y = np.bincount(slot[p0:p1] - e0, z[source[p0:p1]] * weight[p0:p1], minlength=e1 - e0)
+            got = z[source[p0:p1]]
+            y = np.bincount(slot[p0:p1] - e0, got * weight[p0:p1], minlength=e1 - e0)
+            y += np.bincount(slot_b[p0:p1] - e0, got * mirror[p0:p1], minlength=e1 - e0)
             z[entry[e0:e1]] = -y
             done = cols[c0:c1]
             z[self.diag_at + done] = 1.0 / diag[done] + np.bincount(
@@ -281,6 +287,14 @@ class _SelectedInverse:
         return out
 
 
+def _triangle(t: IntArray) -> tuple[IntArray, IntArray]:
+    """Row and column ``a ≥ b`` of the ``t``-th entry of a lower triangle stored row by row."""
+    a = ((np.sqrt(8.0 * t + 1.0) - 1.0) / 2.0).astype(np.int64)
+    a -= a * (a + 1) // 2 > t  # the square root's rounding, either way
+    a += (a + 1) * (a + 2) // 2 <= t
+    return a, t - a * (a + 1) // 2
+
+
 def _batches(depth: IntArray, per: IntArray) -> list[tuple[slice, list[int]]]:
     """Columns sorted by depth, cut into batches of at most ``LEVEL_CHUNK`` gathers (one column
     at least), each with its steps: runs of one depth, local bounds ``[0, …, size]``."""
@@ -296,15 +310,16 @@ def _batches(depth: IntArray, per: IntArray) -> list[tuple[slice, list[int]]]:
     return out
 
 
-def _choose_core(count: IntArray, parent: IntArray) -> BoolArray:
-    """The columns done densely: those with ``|S_j| ≥ T`` and their ancestors, ``T`` by cost."""
+def _choose_core(count: IntArray, top: IntArray) -> BoolArray:
+    """The columns done densely: those with ``|S_j| ≥ T`` and their ancestors (``top ≥ T``, ``top``
+    from :func:`_subtree_max`), ``T`` by cost."""
     size = count.size
-    work = count.astype(np.float64) ** 2
+    work = count.astype(np.float64) * (count + 1) / 2
     best, best_cost = np.zeros(size, dtype=bool), CORE_GATHER_S * float(work.sum())
     for threshold in CORE_THRESHOLDS:
         if threshold > count.max(initial=0):
             break
-        core = _ancestor_closure(count >= threshold, parent)
+        core = top >= threshold
         c = float(core.sum())
         cost = CORE_GATHER_S * float(work[~core].sum()) + CORE_FLOP_S * 2.0 / 3.0 * c**3
         if cost < best_cost:
@@ -312,17 +327,17 @@ def _choose_core(count: IntArray, parent: IntArray) -> BoolArray:
     return best
 
 
-def _ancestor_closure(marked: BoolArray, parent: IntArray) -> BoolArray:
-    """``marked`` with every ancestor in the elimination tree (``parent[j] > j``; ``size``: a root)."""
-    out = marked.copy()
+def _subtree_max(count: IntArray, parent: IntArray) -> IntArray:
+    """Largest ``count`` in each column's subtree of the elimination tree, itself included
+    (``parent[j] > j``; ``size``: a root), so ``top ≥ T`` is ``count ≥ T`` closed under ancestors."""
+    top = count.tolist()
     par = parent.tolist()
-    size = out.size
-    flags = out.tolist()
+    size = len(top)
     for j in range(size):
-        if flags[j] and par[j] < size:
-            flags[par[j]] = True
-    out[:] = flags
-    return out
+        p = par[j]
+        if p < size and top[j] > top[p]:
+            top[p] = top[j]
+    return np.asarray(top, dtype=np.int64)
 
 
 def _depths(parent: IntArray, core: BoolArray) -> IntArray:
