@@ -377,10 +377,7 @@ def _estimate(
         system = GroundedSystem(
             n, r, observable[b], fe[mine] - b * n, fz[mine], fp[mine], x_r, diagonal
         )
-        if solver == "auto":
-            method = choose_method(system, adjacency(n, ue[member == b] - b * n), r)
-        else:
-            method = solver
+        method = choose_method(system, ue[member == b] - b * n, r) if solver == "auto" else solver
         system.solve(method, positions[b], None if blocks is None else blocks[b])
         solvers[b] = system.method
     return BlueBatch(positions, blocks, observable, tuple(solvers))

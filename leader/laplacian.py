@@ -29,6 +29,7 @@ from scipy.sparse.csgraph import dijkstra, reverse_cuthill_mckee
 from scipy.sparse.linalg import splu
 
 from leader.covariance import LDLFactor, PatternError, inverse_diagonal_blocks
+from leader.tree import adjacency
 
 __all__ = ["CG_RTOL", "DIRECT_MAX_UNKNOWNS", "GroundedSystem", "choose_method", "common_shape"]
 
@@ -253,11 +254,16 @@ def _equal_columns(weights: FloatArray) -> list[list[int]]:
     return groups
 
 
-def choose_method(system: GroundedSystem, graph: csr_array, r: int) -> str:
-    """``"direct"`` when the structure promises little fill, else ``"cg"`` (``leader.blue``)."""
+def choose_method(system: GroundedSystem, links: IntArray, r: int) -> str:
+    """``"direct"`` when the structure promises little fill, else ``"cg"`` (``leader.blue``).
+
+    ``links`` (k, 2): the used links, 0-based, for the BFS depth from ``r``; read only for a
+    system too large to factorise unasked.
+    """
     unknowns = system.size * system.block
     if unknowns <= DIRECT_MAX_UNKNOWNS:
         return "direct"
+    graph = adjacency(max(r, int(links.max(initial=0))) + 1, links)
     pat = system.pattern()
     perm = reverse_cuthill_mckee(pat, symmetric_mode=True)
     permuted = csr_array(pat[perm][:, perm])
