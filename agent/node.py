@@ -105,10 +105,8 @@ class AgentNode:
         self.held: list[Incoming] = []  # realtime: queued after a deadline, routed after it
         for i in ids:
             if scenario.runtime.mode == "realtime":
-                # Queued (and stamped) on Zenoh's own thread: a Python thread per
-                # subscription is one more wake-up per packet before its arrival counts.
-                service.subscribe(keys.link_state(self.run_id, "*", i), direct=True)
-                service.subscribe(keys.link_estimate(self.run_id, i), direct=True)
+                service.subscribe(keys.link_state(self.run_id, "*", i))
+                service.subscribe(keys.link_estimate(self.run_id, i))
             else:
                 # Exact keys, no wildcard: Zenoh finds an exact key's subscribers in its key
                 # tree, while a wildcard is matched against every sample (a pool of 125 spent

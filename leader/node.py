@@ -131,7 +131,7 @@ class LeaderNode:
         self.clock: Clock | None = None  # realtime: set by run_realtime
         self.deadline = {"in_time": 0, **dict.fromkeys(CAUSES, 0)}  # realtime: reports, by cause
         if scenario.runtime.mode == "realtime":
-            service.subscribe(keys.link_report(self.run_id, "*"), direct=True)  # see agent/node.py
+            service.subscribe(keys.link_report(self.run_id, "*"))
         else:
             service.subscribe(keys.inbox(self.run_id, keys.LEADER, "report"))
         service.watch_alive()
