@@ -55,10 +55,10 @@ def _position(payload: Any) -> list[float] | None:
 class _Wait:
     """A held packet and how many of the positions it needs are still to come."""
 
-    __slots__ = ("held", "missing", "ticket")
+    __slots__ = ("held", "missing")
 
-    def __init__(self, held: Held, missing: int, ticket: int) -> None:
-        self.held, self.missing, self.ticket = held, missing, ticket
+    def __init__(self, held: Held, missing: int) -> None:
+        self.held, self.missing = held, missing
 
 
 class Positions:
@@ -72,11 +72,9 @@ class Positions:
         self.links = links
         self.access_point = links.access_point
         self.at: dict[int, dict[int, list[float] | None]] = {}  # epoch → agent → position
-        self.held: dict[int, dict[int, _Wait]] = {}  # epoch → ticket → a packet held
         self.malformed = 0
         self._waits: dict[tuple[int, int], list[_Wait]] = {}  # (epoch, agent) awaited → waits
         self._ready: list[tuple[int, int]] = []  # (epoch, agent) read or gone, someone waiting
-        self._tickets = 0
         self._ends: dict[tuple[Link, ...], tuple[Ints, Ints]] = {}  # links → rows of their ends
         self._pairs: dict[tuple[Link, ...], list[tuple[int, int]]] = {}  # links → their ends
         self.refresh()
@@ -98,6 +96,18 @@ class Positions:
                 ("estimate", ("estimate", LEADER_ENDPOINT, i)),
             )
         }
+
+    @property
+    def held(self) -> dict[int, list[Held]]:
+        """The packets held, by epoch, in the order they were held."""
+        out: dict[int, list[Held]] = {}
+        seen: set[int] = set()
+        for (epoch, _), waits in sorted(self._waits.items()):
+            for wait in waits:
+                if id(wait) not in seen:
+                    seen.add(id(wait))
+                    out.setdefault(epoch, []).append(wait.held)
+        return out
 
     @property
     def ready(self) -> bool:
@@ -135,9 +145,7 @@ class Positions:
             missing = [a for a in needs if a not in known and a not in dead]
         if not missing:
             return True
-        self._tickets += 1
-        wait = _Wait((route, epoch, seq, payload), len(missing), self._tickets)
-        self.held.setdefault(epoch, {})[wait.ticket] = wait
+        wait = _Wait((route, epoch, seq, payload), len(missing))
         waits = self._waits
         for a in missing:
             got = waits.get((epoch, a))
@@ -152,16 +160,11 @@ class Positions:
         agents they wait for down (``gone``: one just now)."""
         if gone is not None:
             self._ready += sorted(key for key in self._waits if key[1] == gone)
-        ready, waits, held = self._ready, self._waits, self.held
+        ready, waits = self._ready, self._waits
         while ready:
-            epoch, agent = ready.pop(0)
-            for wait in waits.pop((epoch, agent), ()):
+            for wait in waits.pop(ready.pop(0), ()):
                 wait.missing -= 1
                 if wait.missing == 0:
-                    of_epoch = held[epoch]
-                    del of_epoch[wait.ticket]
-                    if not of_epoch:
-                        del held[epoch]
                     yield wait.held
 
     def length(self, link: Link, epoch: int) -> float | None:
