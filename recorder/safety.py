@@ -51,7 +51,9 @@ def safety_counts(
     ``body_diameter_m``, ``collisions`` per pair ``"i-j"`` (pairs with one or more),
     ``collisions_total``, ``time_out_of_bounds_s`` per agent (with bounds), and for unicycles
     ``saturated_steps`` per agent and ``max_speed_m_s`` (the fastest axle speed seen,
-    each epoch's chord of the axle's path over ``T``) against ``max_speed_limit_m_s``.
+    each epoch's chord of the axle's path over ``T``) against ``max_speed_limit_m_s``, and
+    ``max_turn_rad_s`` (:func:`turn_rates`, the reference agent aside: it turns with the
+    reference trajectory) against ``max_turn_limit_rad_s``.
     """
     safety, period = scenario.safety, scenario.control.period_s
     per_epoch = _min_present(positions) if len(positions) else np.zeros(0)
@@ -80,6 +82,10 @@ def safety_counts(
         speed = axle_speeds(positions, headings, uni.lookahead_m, period)
         out["max_speed_m_s"] = float(np.nanmax(speed)) if np.isfinite(speed).any() else None
         out["max_speed_limit_m_s"] = uni.max_speed_m_s
+        turn = turn_rates(headings, period)
+        turn[:, scenario.leader - 1] = np.nan  # the reference agent turns with the reference
+        out["max_turn_rad_s"] = float(np.nanmax(turn)) if np.isfinite(turn).any() else None
+        out["max_turn_limit_rad_s"] = uni.max_turn_rad_s
     return out
 
 
@@ -93,6 +99,17 @@ def axle_speeds(positions: Array, headings: Array, lookahead_m: float, period_s:
     centre = positions - lookahead_m * np.stack([np.cos(headings), np.sin(headings)], axis=-1)
     step = np.diff(centre, axis=0)
     return np.asarray(np.sqrt(np.sum(step * step, axis=-1)) / period_s, dtype=np.float64)
+
+
+def turn_rates(headings: Array, period_s: float) -> Array:
+    """Each epoch's turn rate as the recording shows it: ``|wrap(θ[k+1] − θ[k])| / T``.
+
+    headings : (T, n) [rad]. Returns (T − 1, n) [rad/s], NaN where a heading is missing.
+    The wrapped change is never more than the angle turned, so a turn limit that holds on
+    every sub-step holds here too; above ``π / T`` the limit cannot be seen from headings.
+    """
+    change = np.mod(np.diff(headings, axis=0) + np.pi, 2.0 * np.pi) - np.pi
+    return np.asarray(np.abs(change) / period_s, dtype=np.float64)
 
 
 SAFETY_ROWS = (
@@ -124,7 +141,12 @@ def safety_lines(label: str, s: dict[str, Any]) -> list[str]:
             f"saturated sub-steps {sat}, fastest axle {'–' if top is None else f'{top:.4g}'} m/s"
             f" (limit {s['max_speed_limit_m_s']:g})"
         )
+        turn = s.get("max_turn_rad_s")
+        parts.append(
+            f"fastest turn {'–' if turn is None else f'{turn:.4g}'} rad/s"
+            f" (limit {s['max_turn_limit_rad_s']:g})"
+        )
     return [f"- {label}: " + "; ".join(parts)]
 
 
-__all__ = ["SAFETY_ROWS", "axle_speeds", "safety_counts", "safety_lines"]
+__all__ = ["SAFETY_ROWS", "axle_speeds", "safety_counts", "safety_lines", "turn_rates"]

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from formation.scenario import LEADER_ENDPOINT, Scenario
+from recorder.report import summarize
 from recorder.rundata import read_run
-from recorder.safety import axle_speeds
+from recorder.safety import axle_speeds, turn_rates
 from testbed.runtime.launcher import launch
 from testbed.sim.simulate import simulate
 
@@ -96,3 +97,24 @@ def test_unicycles_with_no_loss_reach_the_shape_within_their_limits_as_recorded(
     speed = axle_speeds(run.positions, run.headings, uni.lookahead_m, scenario.control.period_s)
     assert np.isfinite(speed).all() and speed.max() <= uni.max_speed_m_s * (1 + 1e-12)
     assert int(run.saturated.sum()) == 0
+
+
+def test_unicycles_hold_a_low_turn_limit_as_recorded_and_count_its_saturation(
+    paper: Scenario, runs_dir: Path
+) -> None:
+    # 0.5 rad/s over a 1 s epoch is a turn the epoch's headings can show (the default 3.6
+    # rad/s is more than π per epoch, which headings alone cannot tell from less).
+    scenario = paper.with_overrides(
+        network={},
+        control={"dynamics": "unicycle", "gain": 0.1, "unicycle": {"max_turn_rad_s": 0.5}},
+        epochs=20,
+    )
+    outcome = launch(scenario, strategy="estimate", seed=2, runs_dir=runs_dir)
+    run = read_run(outcome.run_dir / "run.mcap")
+    sim = simulate(scenario, strategy="estimate", seed=2)
+    assert run.headings is not None and run.saturated is not None
+    np.testing.assert_array_equal(run.headings, sim.headings)
+    turn = np.delete(turn_rates(run.headings, scenario.control.period_s), scenario.leader - 1, 1)
+    assert np.isfinite(turn).all() and turn.max() <= 0.5 * (1 + 1e-12)
+    assert int(run.saturated.sum()) > 0
+    assert summarize(run)["safety"]["max_turn_rad_s"] == turn.max()

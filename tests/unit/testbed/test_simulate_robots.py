@@ -11,7 +11,7 @@ import pytest
 from formation.scenario import LEADER_ENDPOINT, Scenario
 from netem.matrix import link_lengths
 from netem.models import LinkModel
-from recorder.safety import axle_speeds
+from recorder.safety import axle_speeds, safety_counts, turn_rates
 from testbed.sim.batch import plan_batch, run_batch
 from testbed.sim.simulate import simulate
 
@@ -115,6 +115,25 @@ def test_saturation_is_counted_when_the_gain_is_too_high(paper: Scenario) -> Non
         return int(sim.saturated.sum())
 
     assert saturated(0.1) == 0 < saturated(0.2) < saturated(0.3)
+
+
+def test_a_low_turn_limit_is_held_and_its_saturation_counted(paper: Scenario) -> None:
+    s = paper.with_overrides(
+        network={},
+        control={"dynamics": "unicycle", "gain": 0.1, "unicycle": {"max_turn_rad_s": 0.5}},
+    )
+    sim = simulate(s)
+    turn = turn_rates(sim.headings, s.control.period_s)  # 0.5 rad per epoch: visible (< π)
+    followers = np.delete(turn, s.leader - 1, axis=1)
+    assert followers.max() <= 0.5 * (1 + 1e-12)
+    assert followers.max() > 0.5 * (1 - 1e-9), "turning as fast as allowed at first"
+    assert sim.saturated.sum() > 0
+    counts = safety_counts(s, sim.positions, sim.headings, sim.saturated)
+    assert counts["max_turn_rad_s"] == followers.max() and counts["max_turn_limit_rad_s"] == 0.5
+    loose = simulate(
+        paper.with_overrides(network={}, control={"dynamics": "unicycle", "gain": 0.1})
+    )
+    assert turn_rates(loose.headings, 1.0)[:, 1:].max() > 0.5, "the limit is what held it"
 
 
 def test_initial_headings_are_keyed_by_the_seed(paper: Scenario) -> None:
