@@ -4,8 +4,9 @@ Misses of the testbed's own making (formation.deadlines), over the packets netem
 the layout ``picked`` is what ``formation run --mode realtime`` chooses on this machine
 (testbed.runtime.layout). A miss rate is a fidelity figure, not a speed: there is no
 baseline to divide by, but the load average says how busy the machine was around it.
-CPU per epoch per role: user + system time of the role's processes (from /proc, sampled
-until each ends) over the epochs, in ms; ``agents`` is per agent process.
+CPU per epoch per role: user + system time of the role's processes from the start of
+epoch 0 until each ends (from /proc, sampled), over the epochs, in ms; ``agents`` is per
+agent process.
 
 ``--quick`` runs the issue's two target cases only (20 processes at 20 Hz, 100 pooled at
 10 Hz).
@@ -51,6 +52,7 @@ class CpuWatch:
 
     def __init__(self, runs_dir: Path) -> None:
         self.runs_dir, self.done = runs_dir, threading.Event()
+        self.first: dict[str, float] = {}
         self.last: dict[str, float] = {}
         self.thread: threading.Thread | None = None
 
@@ -60,6 +62,8 @@ class CpuWatch:
         self.thread.start()
 
     def _watch(self, pids: dict[str, int]) -> None:
+        for name, pid in pids.items():  # start-up (imports, sessions) is not the run's
+            self.first[name] = _cpu_s(pid) or 0.0
         while not self.done.is_set():
             for name, pid in pids.items():
                 if (t := _cpu_s(pid)) is not None:
@@ -73,7 +77,7 @@ class CpuWatch:
         roles: dict[str, list[float]] = defaultdict(list)
         for name, t in self.last.items():
             role = "agents" if name.startswith(("agent-", "pool-")) else name.split(".")[0]
-            roles[role].append(t)
+            roles[role].append(t - self.first.get(name, 0.0))
         return {
             role: 1e3 * (sum(ts) / len(ts) if role == "agents" else sum(ts)) / epochs
             for role, ts in roles.items()
