@@ -8,6 +8,8 @@ receivers'), and every decision must be the link model's at the true distance.
 from __future__ import annotations
 
 import json
+import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,6 +23,7 @@ from netem.progress import Progress
 from netem.records import Ledger
 from tests.unit.netem.test_lockstep import Wire, receivers
 
+ROOT = Path(__file__).resolve().parents[3]
 NETWORK = {
     "formation_default": [{"model": "logistic", "d50_m": 1.2, "width_m": 0.1}],
     "control_default": [{"model": "range", "max_range_m": 1.0}],
@@ -226,3 +229,32 @@ def test_a_forged_position_in_a_gated_epoch(paper: Scenario, seed: int, payload:
     if read is None:
         assert from_1 and all(d.verdict == "drop" and d.model == "logistic" for d in from_1)
     assert {d.receiver for d in wire.deliveries if d.phase == "state"} == {1, 2, 3, 4, 5}
+
+
+@pytest.mark.parametrize("unreadable", [(), (2,), (1, 4)])
+@pytest.mark.parametrize("name", ["paper", "grid20"])
+def test_lengths_one_by_one_equal_the_vectorised(name: str, unreadable: tuple[int, ...],
+                                                monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """An epoch's lengths, one link at a time (a few links) or vectorised (many), to the last
+    bit; an unreadable position, or one of another dimension, makes its links infinitely long."""
+    import netem.positions
+
+    scenario = Scenario.from_file(ROOT / f"scenarios/{name}.toml").with_overrides(network=NETWORK)
+    pos = Links(scenario, 1)
+    positions = netem.positions.Positions(pos)
+    rng = np.random.default_rng(len(unreadable))
+    x = rng.normal(scale=rng.choice([1e-3, 1.0, 1e3], size=(scenario.n, 1)), size=(scenario.n, 2))
+    positions.at[0] = {i: x[i - 1].tolist() for i in pos.agents}
+    positions.at[1] = {**positions.at[0], 3: [0.0, 0.0, 1.0]}  # one of three coordinates
+    for i in unreadable:
+        positions.at[0][i] = positions.at[1][i] = None
+    links = tuple(link for link in pos.models if link[0] == "formation")
+    got = {}
+    for threshold in (0, 10**9):
+        monkeypatch.setattr(netem.positions, "VECTOR_LINKS", threshold)
+        got[threshold] = [positions.lengths(links, k) for k in (0, 1)]
+    assert got[0] == got[10**9]
+    for k in (0, 1):
+        assert got[0][k] == [positions.length(link, k) for link in links]
+        out = {positions.at[k][i] is None or len(positions.at[k][i]) != 2 for i in pos.agents}
+        assert (math.inf in got[0][k]) == (True in out)
