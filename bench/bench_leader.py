@@ -38,6 +38,7 @@ from leader.mst import minimum_spanning_forest
 
 SEED = 7  # the seed of issue 18's figures
 SIGMA_M = 0.01  # [m] measurement noise per coordinate (docs/model.md §8)
+SCALED_SHAPE = np.array([[2.0, 0.8], [0.8, 0.5]])  # --scaled: a correlated, anisotropic R
 T = TypeVar("T")
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
@@ -88,13 +89,16 @@ def expander(n: int, rng: np.random.Generator) -> tuple[FloatArray, IntArray]:
 
 
 def measurements(
-    pts: FloatArray, pairs: IntArray, rng: np.random.Generator
+    pts: FloatArray, pairs: IntArray, rng: np.random.Generator, scaled: bool = False
 ) -> tuple[IntArray, FloatArray, FloatArray]:
-    """Randomly oriented 1-based edges, measurements ``z = x_i − x_j + noise`` and ``σ² I``."""
+    """Randomly oriented 1-based edges, measurements ``z = x_i − x_j + noise`` and ``σ² I``
+    (``scaled``: ``c_e σ² R``, ``R`` full and ``c_e`` uniform in [0.5, 2], the Kronecker case)."""
     flip = rng.random(len(pairs)) < 0.5
     edges = np.where(flip[:, None], pairs[:, ::-1], pairs) + 1
     z = pts[edges[:, 0] - 1] - pts[edges[:, 1] - 1] + SIGMA_M * rng.standard_normal((len(pairs), 2))
     cov = np.broadcast_to(SIGMA_M**2 * np.eye(2), (len(pairs), 2, 2)).copy()
+    if scaled:
+        cov = rng.uniform(0.5, 2.0, (len(pairs), 1, 1)) * (SIGMA_M**2 * SCALED_SHAPE)
     return edges, z, cov
 
 
@@ -153,6 +157,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=SEED)
     parser.add_argument("--quick", action="store_true", help="n = 1,000 only, no 10k covariances")
+    parser.add_argument(
+        "--scaled", action="store_true", help="P_e = c_e σ² R with one full R (Kronecker path)"
+    )
     args = parser.parse_args([] if argv is None else argv)  # a runner's argv is not ours
     seed: int = args.seed
     sizes = (1000,) if args.quick else (1000, 10000)
@@ -160,7 +167,8 @@ def main(argv: list[str] | None = None) -> int:
         f"bench_leader  seed={seed}  OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}  "
         f"load average {_load()}"
     )
-    print("BLUE, d = 2, P_e = σ²I (σ = 0.01 m), reference = agent 1 at its true position")
+    noise = "c_e σ² R, R = [[2, .8], [.8, .5]]" if args.scaled else "σ²I"
+    print(f"BLUE, d = 2, P_e = {noise} (σ = 0.01 m), reference = agent 1 at its true position")
     print(
         f"{'family':<10} {'n':>6} {'m':>6} {'edges':<8} {'solver':<7} {'estimates':>10} "
         f"{'+cov blocks':>12} {'dense':>9} {'× est':>7} {'× all':>7} {'max|Δ| dense':>13}"
@@ -171,7 +179,7 @@ def main(argv: list[str] | None = None) -> int:
             rng = np.random.default_rng([seed, n, len(family_name)])
             pts, pairs = family(n, rng)
             pts = pts - pts[0]  # reference (agent 1) at the origin
-            edges, z, cov = measurements(pts, pairs, rng)
+            edges, z, cov = measurements(pts, pairs, rng, args.scaled)
             dist = np.linalg.norm(pts[pairs[:, 0]] - pts[pairs[:, 1]], axis=1)
             tree = minimum_spanning_forest(n, edges, dist, np.ones(len(edges), dtype=bool))
             tree_mask = np.zeros(len(edges), dtype=bool)
