@@ -49,7 +49,7 @@ def cmd_info(args: argparse.Namespace) -> int:
         received = int(stats.get("written", 0))
         console.print(
             f"recorder: {received} received and written, {stats.get('dropped')} could not be kept; "
-            f"{info.messages - received} derived (metrics, scene)"
+            f"{info.messages - received} derived (metrics, frames, scene, log)"
         )
     run_id = info.metadata.get("recorder", {}).get("run_id")
     prefix = f"{keys.prefix(run_id)}/" if run_id else ""
