@@ -35,10 +35,10 @@ VECTOR_LINKS = (
 _NUMBER = (float, int, bool)  # what orjson gives for a JSON number (and true/false, as before)
 
 
-def _position(payload: Any) -> list[float] | None:
-    """``position`` of a state payload (bytes or ZBytes); None when it is not a list of numbers."""
+def _position(raw: bytes) -> list[float] | None:
+    """``position`` of a state payload; None when it is not a list of numbers."""
     try:
-        msg = orjson.loads(payload if type(payload) is bytes else payload.to_bytes())
+        msg = orjson.loads(raw)
     except orjson.JSONDecodeError:
         return None
     pos = msg.get("position") if type(msg) is dict else None
@@ -130,6 +130,8 @@ class Positions:
                 known = self.at[epoch] = {}
                 self.at.pop(epoch - KEEP_EPOCHS, None)
             if source not in known:
+                if type(payload) is not bytes:  # held as bytes: Zenoh's buffer goes back at once
+                    payload = payload.to_bytes()
                 pos = _position(payload)
                 if pos is None:
                     self.malformed += 1
