@@ -142,7 +142,7 @@ def forward_rate(
 
 def distance_against_bernoulli(repeats: int = 1) -> None:
     """A distance model on every formation link against Bernoulli at its mean loss, same run:
-    ``repeats`` pairs, interleaved (the machine is shared), medians compared."""
+    ``repeats`` pairs, interleaved in turn (the machine is shared), medians compared."""
     lengths = link_lengths(
         OFFSETS[[a - 1 for a, _ in LINK_PAIRS]], OFFSETS[[b - 1 for _, b in LINK_PAIRS]]
     )
@@ -155,7 +155,8 @@ def distance_against_bernoulli(repeats: int = 1) -> None:
     runs: dict[str, list[tuple[float, float, float]]] = {"Bernoulli": [], "logistic": []}
     for r in range(repeats):
         load = os.getloadavg()[0]
-        for name, network in (("Bernoulli", bernoulli), ("logistic", ranged)):
+        pair = [("Bernoulli", bernoulli), ("logistic", ranged)]
+        for name, network in pair if r % 2 == 0 else pair[::-1]:  # neither always first
             runs[name].append(got := forward_rate(passthrough=False, network=network))
             print(f"  pair {r + 1} {name:9s} {got[0]:9.0f} forwarded/s  netem CPU "
                   f"{got[1]:5.2f} µs/packet  (offered {got[2]:.0f} states/s; load {load:.1f})")  # fmt: skip
