@@ -140,7 +140,7 @@ def forward_rate(
     )
 
 
-def distance_against_bernoulli(repeats: int = 1) -> None:
+def distance_against_bernoulli(repeats: int = 1, epochs: int = EPOCHS) -> None:
     """A distance model on every formation link against Bernoulli at its mean loss, same run:
     ``repeats`` pairs, interleaved in turn (the machine is shared), medians compared."""
     lengths = link_lengths(
@@ -149,7 +149,7 @@ def distance_against_bernoulli(repeats: int = 1) -> None:
     loss = float(np.mean(1.0 - expected_delivery_at(Logistic(**LOGISTIC), lengths)))
     bernoulli = {"formation_default": [{"model": "bernoulli", "p_loss": loss}]}
     ranged = {"formation_default": [LOGISTIC]}
-    print(f"{EPOCHS} lockstep epochs; logistic d50 {LOGISTIC['d50_m']} m, width "
+    print(f"{epochs} lockstep epochs; logistic d50 {LOGISTIC['d50_m']} m, width "
           f"{LOGISTIC['width_m']} m on every formation link (mean loss {loss:.3f}); baseline: "
           f"Bernoulli at that loss, in the same run, {repeats} interleaved pair(s); seed 1")  # fmt: skip
     runs: dict[str, list[tuple[float, float, float]]] = {"Bernoulli": [], "logistic": []}
@@ -157,7 +157,7 @@ def distance_against_bernoulli(repeats: int = 1) -> None:
         load = os.getloadavg()[0]
         pair = [("Bernoulli", bernoulli), ("logistic", ranged)]
         for name, network in pair if r % 2 == 0 else pair[::-1]:  # neither always first
-            runs[name].append(got := forward_rate(passthrough=False, network=network))
+            runs[name].append(got := forward_rate(False, epochs, network))
             print(f"  pair {r + 1} {name:9s} {got[0]:9.0f} forwarded/s  netem CPU "
                   f"{got[1]:5.2f} µs/packet  (offered {got[2]:.0f} states/s; load {load:.1f})")  # fmt: skip
     (b_rate, b_cpu), (d_rate, d_cpu) = (
@@ -177,9 +177,10 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--distance", action="store_true", help="only the distance-model comparison")
     p.add_argument("--repeats", type=int, default=1, help="interleaved distance/Bernoulli pairs")
+    p.add_argument("--epochs", type=int, default=EPOCHS, help="epochs of the distance comparison")
     args = p.parse_args()
     if args.distance:
-        distance_against_bernoulli(args.repeats)
+        distance_against_bernoulli(args.repeats, args.epochs)
         return
     print(f"{EPOCHS} lockstep epochs of the paper scenario's state phase: {AGENTS} senders, "
           f"{LINKS} directed links; baseline: netem --passthrough in the same run")  # fmt: skip
