@@ -32,7 +32,8 @@ depend on the split beyond rounding.
 from __future__ import annotations
 
 import itertools
-from typing import Any, Protocol
+from collections.abc import Hashable, MutableMapping
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -45,8 +46,9 @@ FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
 
-CORE_GATHER_S = 1e-7
-"""Cost of one gathered pair ``a ≥ b`` of ``Z[S_j, S_j]`` on the levels [s] (measured)."""
+CORE_GATHER_S = 3e-8
+"""Cost of one gathered pair ``a ≥ b`` of ``Z[S_j, S_j]`` on the levels [s] (measured with the
+plan kept, the leader's steady state; building the plan costs about 1e-7 more, once)."""
 CORE_FLOP_S = 5e-11
 """Cost of one flop of the dense core's inverse (``c³·2/3`` flops) [s] (measured)."""
 CORE_THRESHOLDS = (8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096)
@@ -77,7 +79,11 @@ class LDLFactor(Protocol):
 
 
 def inverse_diagonal_blocks(
-    factor: LDLFactor, block: int, *, core: int | None = None
+    factor: LDLFactor,
+    block: int,
+    *,
+    core: int | None = None,
+    plans: MutableMapping[Hashable, Any] | None = None,
 ) -> FloatArray:
     """The ``block × block`` diagonal blocks of ``A⁻¹`` by selected inversion.
 
@@ -91,6 +97,10 @@ def inverse_diagonal_blocks(
     core : int, optional
         Do the columns with ``|S_j| ≥ core`` (and their ancestors) densely; default:
         the threshold of least modelled cost. Any value gives the same blocks.
+    plans : dict, optional
+        Where the pattern-only part (elimination tree, levels, core, gather indices) is kept
+        for the next factor of this pattern (``leader.symbolic``). It is reused only when
+        ``L``'s pattern and the order are the same, so the blocks do not depend on it.
 
     Returns
     -------
@@ -105,34 +115,71 @@ def inverse_diagonal_blocks(
     if not np.array_equal(factor.perm_r, factor.perm_c):
         raise PatternError("the factorisation pivoted rows; its L D Lᵀ is not A's")
     low = csc_array(factor.L)
-    low.sort_indices()
-    size = low.shape[0]
-    ptr, idx, val = low.indptr.astype(np.int64), low.indices.astype(np.int64), low.data
-    if size and not np.array_equal(idx[ptr[:-1]], np.arange(size)):
-        raise PatternError("a column of L does not start at its diagonal")
-    pos = factor.perm_c.astype(np.int64)  # unknown u sits at row pos[u] of the factor
-    nodes = size // block
-    a, b = np.triu_indices(block)
-    i, k = pos.reshape(nodes, block)[:, a].ravel(), pos.reshape(nodes, block)[:, b].ravel()
-    off = i != k
-    wanted = np.minimum(i, k)[off] * size + np.maximum(i, k)[off]  # the blocks' own entries
-    diag = factor.U.diagonal()
-    for _ in range(PATTERN_REPAIRS):
-        # SuperLU leaves out entries of L that came out exactly zero; the recurrence needs
-        # its closed pattern, so they come back as zeros and it starts again
-        ptr, idx, val = _with_entries(size, ptr, idx, val, wanted)
-        try:
-            inv = _SelectedInverse(size, ptr, idx, val, diag, core)
-            break
-        except _OffPattern as missing:
-            wanted = missing.keys
-    else:
-        raise PatternError(f"L's pattern still not closed after {PATTERN_REPAIRS} repairs")
-    got = inv.values(i, k).reshape(nodes, a.size)
-    out = np.empty((nodes, block, block))
-    out[:, a, b] = got
-    out[:, b, a] = got
-    return out
+    key = ("selected inversion", block, core)
+    plan = None if plans is None else plans.get(key)
+    if not isinstance(plan, _Plan) or not plan.fits(low, factor.perm_c):
+        plan = _Plan(low, factor.perm_c, block, core)
+        if plans is not None:
+            plans[key] = plan
+    return plan.blocks(low.data, factor.U.diagonal())
+
+
+class _Plan:
+    """What the selected inversion needs of ``L``'s pattern and the order, for many values.
+
+    ``low``: ``L`` as SuperLU gives it (CSC, rows unsorted within a column); ``pos`` (N,):
+    factor row of each unknown.
+    """
+
+    def __init__(
+        self, low: csc_array, pos: npt.NDArray[np.int32], block: int, core: int | None
+    ) -> None:
+        self.raw_ptr, self.raw_idx, self.pos = low.indptr.copy(), low.indices.copy(), pos.copy()
+        size = low.shape[0]
+        ptr, idx = low.indptr.astype(np.int64), low.indices.astype(np.int64)
+        column = np.repeat(np.arange(size, dtype=np.int64), np.diff(ptr))
+        src = np.argsort(column * size + idx, kind="stable")  # rows sorted within each column
+        idx = idx[src]
+        if size and not np.array_equal(idx[ptr[:-1]], np.arange(size)):
+            raise PatternError("a column of L does not start at its diagonal")
+        at = pos.astype(np.int64)  # unknown u sits at row at[u] of the factor
+        nodes = size // block
+        a, b = np.triu_indices(block)
+        i, k = at.reshape(nodes, block)[:, a].ravel(), at.reshape(nodes, block)[:, b].ravel()
+        off = i != k
+        wanted = np.minimum(i, k)[off] * size + np.maximum(i, k)[off]  # the blocks' own entries
+        zero = low.data.size  # where L's values get a trailing 0.0
+        for _ in range(PATTERN_REPAIRS):
+            # SuperLU leaves out entries of L that came out exactly zero; the recurrence needs
+            # its closed pattern, so they come back as zeros and it starts again
+            ptr, idx, src = _with_entries(size, ptr, idx, src, wanted, zero)
+            try:
+                self.inverse = _SelectedInverse(size, ptr, idx, core)
+                break
+            except _OffPattern as missing:
+                wanted = missing.keys
+        else:
+            raise PatternError(f"L's pattern still not closed after {PATTERN_REPAIRS} repairs")
+        self.src = np.append(src, zero)  # one more 0.0 after L's entries, for the gathers
+        self.out = self.inverse.sources(i, k)
+        self.nodes, self.block, self.a, self.b = nodes, block, a, b
+
+    def fits(self, low: csc_array, pos: npt.NDArray[np.int32]) -> bool:
+        """Whether ``low`` has this plan's pattern, in the same order."""
+        return (
+            np.array_equal(low.indptr, self.raw_ptr)
+            and np.array_equal(low.indices, self.raw_idx)
+            and np.array_equal(pos, self.pos)
+        )
+
+    def blocks(self, data: FloatArray, diag: FloatArray) -> FloatArray:
+        """The diagonal blocks of ``A⁻¹`` from ``L``'s values (SuperLU's order) and ``D``."""
+        val = np.append(data, 0.0)[self.src]
+        got = self.inverse.invert(val, diag)[self.out].reshape(self.nodes, self.a.size)
+        out = np.empty((self.nodes, self.block, self.block))
+        out[:, self.a, self.b] = got
+        out[:, self.b, self.a] = got
+        return out
 
 
 class _OffPattern(Exception):
@@ -144,42 +191,59 @@ class _OffPattern(Exception):
 
 
 def _with_entries(
-    size: int, ptr: IntArray, idx: IntArray, val: FloatArray, keys: IntArray
-) -> tuple[IntArray, IntArray, FloatArray]:
-    """The CSC arrays of ``L`` with the entries ``keys`` (``col·N + row``) added as zeros."""
+    size: int, ptr: IntArray, idx: IntArray, src: IntArray, keys: IntArray, zero: int
+) -> tuple[IntArray, IntArray, IntArray]:
+    """The CSC arrays of ``L`` with the entries ``keys`` (``col·N + row``) added; ``src`` says
+    where each entry's value is, ``zero`` for the added ones."""
     have = np.repeat(np.arange(size, dtype=np.int64), np.diff(ptr)) * size + idx  # sorted
     at = np.minimum(np.searchsorted(have, keys), max(have.size - 1, 0))
     missing = keys[have[at] != keys] if have.size else keys
     if missing.size == 0:
-        return ptr, idx, val
+        return ptr, idx, src
     new = np.unique(missing)
     merged = np.concatenate([have, new])
     order = np.argsort(merged, kind="stable")
     merged = merged[order]
-    values = np.concatenate([val, np.zeros(new.size)])[order]
+    sources = np.concatenate([src, np.full(new.size, zero, dtype=np.int64)])[order]
     counts = np.bincount(merged // size, minlength=size)
-    return np.concatenate([[0], np.cumsum(counts)]), merged % size, values
+    return np.concatenate([[0], np.cumsum(counts)]), merged % size, sources
+
+
+class _Columns(NamedTuple):
+    """One batch of columns done by flat gathers (:meth:`_SelectedInverse.invert`).
+
+    cols (c,), steps: runs of columns that do not need each other; pairs, slots (c + 1,):
+    where each column's pairs and ``S_j`` entries begin; per pair ``a ≥ b``: ``source`` of
+    ``Z[S_j[a], S_j[b]]``, ``weight`` (``L[S_j[b], j]``) and ``mirror`` (``L[S_j[a], j]``, or
+    the 0.0 on the diagonal) as indices into ``L``'s values, ``slot``/``slot_b`` in ``y``
+    (local to the step); per entry of ``S_j``: ``entry`` in ``L`` and its column ``owner``
+    (local to the step).
+    """
+
+    cols: IntArray
+    steps: list[int]
+    pairs: IntArray
+    slots: IntArray
+    source: IntArray
+    weight: IntArray
+    mirror: IntArray
+    slot: IntArray
+    slot_b: IntArray
+    entry: IntArray
+    owner: IntArray
 
 
 class _SelectedInverse:
-    """``Z = (L D Lᵀ)⁻¹`` on the pattern of ``L``.
+    """``Z = (L D Lᵀ)⁻¹`` on the pattern of ``L``: the structure once, :meth:`invert` per values.
 
-    ``L`` (N, N) unit lower triangular as sorted CSC arrays ``ptr, idx, val`` (each column
-    starting at its diagonal), ``D`` (N,); ``threshold`` as ``core`` of
-    :func:`inverse_diagonal_blocks`. Raises :class:`_OffPattern` when the pattern is not closed.
+    ``L`` (N, N) unit lower triangular as sorted CSC arrays ``ptr, idx`` (each column
+    starting at its diagonal); ``threshold`` as ``core`` of :func:`inverse_diagonal_blocks`.
+    Raises :class:`_OffPattern` when the pattern is not closed.
     """
 
-    def __init__(
-        self,
-        size: int,
-        ptr: IntArray,
-        idx: IntArray,
-        val: FloatArray,
-        diag: FloatArray,
-        threshold: int | None,
-    ) -> None:
+    def __init__(self, size: int, ptr: IntArray, idx: IntArray, threshold: int | None) -> None:
         self.size = size
-        self.ptr, self.idx, self.val = ptr, idx, val
+        self.ptr, self.idx = ptr, idx
         self.keys = np.repeat(np.arange(size, dtype=np.int64), np.diff(ptr)) * size + idx
         count = np.diff(ptr) - 1  # |S_j|
         parent = np.full(size, size, dtype=np.int64)
@@ -193,17 +257,32 @@ class _SelectedInverse:
         self.core_pos[self.core] = np.arange(self.core.size)
         # Z in one flat store: on L's pattern (L's entry order), the diagonal, the dense core
         nnz, c = idx.size, self.core.size
-        self.diag_at, self.core_at = nnz, nnz + size
-        self.z = np.zeros(nnz + size + c * c)
-        self._core_inverse(diag)
+        self.diag_at, self.core_at, self.stored = nnz, nnz + size, nnz + size + c * c
+        # the core's entries of L: their place in L and in the dense core (row, column)
+        starts, lens = ptr[self.core], ptr[self.core + 1] - ptr[self.core]
+        self.core_entry = np.repeat(starts - np.cumsum(lens) + lens, lens) + np.arange(
+            int(lens.sum())
+        )
+        self.core_col = np.repeat(np.arange(c), lens)
+        self.core_row = self.core_pos[idx[self.core_entry]]
         depth = _depths(parent, core)
         rest = np.flatnonzero(~core)
         order = rest[np.argsort(depth[rest], kind="stable")]
         s = ptr[order + 1] - ptr[order] - 1
-        for batch, steps in _batches(depth[order], s * (s + 1) // 2):
-            self._columns(order[batch], s[batch], steps, diag)
+        self.batches = [
+            self._columns(order[batch], s[batch], steps)
+            for batch, steps in _batches(depth[order], s * (s + 1) // 2)
+        ]
 
-    def _core_inverse(self, diag: FloatArray) -> None:
+    def invert(self, val: FloatArray, diag: FloatArray) -> FloatArray:
+        """The store of ``Z`` for ``L``'s values ``val`` (on the pattern, then one 0.0) and ``D``."""
+        z = np.zeros(self.stored)
+        self._core_inverse(z, val, diag)
+        for batch in self.batches:
+            self._takahashi(z, batch, val, diag)
+        return z
+
+    def _core_inverse(self, z: FloatArray, val: FloatArray, diag: FloatArray) -> None:
         """``(L_CC D_C L_CCᵀ)⁻¹``, dense: the Schur complement onto the core, inverted.
 
         Only the lower triangle is filled (column-major in the store): ``[i, k]`` with ``i ≥ k``
@@ -212,24 +291,20 @@ class _SelectedInverse:
         c = self.core.size
         if c == 0:
             return
-        cols = self.core
-        starts, stops = self.ptr[cols], self.ptr[cols + 1]
-        lens = stops - starts
-        at = np.repeat(starts - np.cumsum(lens) + lens, lens) + np.arange(int(lens.sum()))
         # R = L_CC D_C^½, so that R Rᵀ is the Schur complement; potri gives (R Rᵀ)⁻¹ in place
-        chol = self.z[self.core_at :].reshape((c, c), order="F")
-        col = np.repeat(np.arange(c), lens)
-        chol[self.core_pos[self.idx[at]], col] = self.val[at] * np.sqrt(diag[cols])[col]
+        chol = z[self.core_at :].reshape((c, c), order="F")
+        col = self.core_col
+        chol[self.core_row, col] = val[self.core_entry] * np.sqrt(diag[self.core])[col]
         inv, info = dpotri(chol, lower=1, overwrite_c=1)
         if info != 0:
             raise PatternError(f"the core's factor is singular (LAPACK info {info})")
         if not np.shares_memory(inv, chol):
             chol[:] = inv
-        self.z[self.diag_at + cols] = np.diagonal(chol)
+        z[self.diag_at + self.core] = np.diagonal(chol)
 
-    def _columns(self, cols: IntArray, s: IntArray, steps: list[int], diag: FloatArray) -> None:
-        """Takahashi for the columns ``cols`` (|S_j| ``s``), in steps of columns that do not need
-        each other (``steps``: where each begins, and the end): the gathers for all at once.
+    def _columns(self, cols: IntArray, s: IntArray, steps: list[int]) -> _Columns:
+        """The gathers of Takahashi's recurrence for the columns ``cols`` (|S_j| ``s``), in steps
+        of columns that do not need each other (``steps``: where each begins, and the end).
 
         ``Z[S_j, S_j]`` is symmetric: each pair ``a ≥ b`` is gathered once and counts for
         ``y[a]`` (times ``L[S_j[b], j]``) and, off the diagonal, for ``y[b]``."""
@@ -241,29 +316,37 @@ class _SelectedInverse:
         ta, tb = _triangle(t)
         a, b = first[seg] + ta, first[seg] + tb  # entries (S_j[a], j), (S_j[b], j)
         source = self.sources(self.idx[a], self.idx[b])
-        weight, mirror = self.val[b], np.where(ta > tb, self.val[a], 0.0)
+        mirror = np.where(ta > tb, a, self.idx.size)  # the 0.0 after L's values
         # y[a] = Σ_b Z[S_j[a], S_j[b]] L[S_j[b], j]: pair (a, b) adds to slots a and b
         slot, slot_b = offset[seg] + ta, offset[seg] + tb
         owner = np.repeat(np.arange(cols.size), s)
         entry = first[owner] + np.arange(int(s.sum())) - offset[owner]
         pairs = np.concatenate([[0], np.cumsum(per)])
         slots = np.concatenate([[0], np.cumsum(s)])
-        z = self.z
-        for c0, c1 in itertools.pairwise(steps):
+        for c0, c1 in itertools.pairwise(steps):  # local to each step
+            p0, p1, e0, e1 = pairs[c0], pairs[c1], slots[c0], slots[c1]
+            slot[p0:p1] -= e0
+            slot_b[p0:p1] -= e0
+            owner[e0:e1] -= c0
+        return _Columns(cols, steps, pairs, slots, source, b, mirror, slot, slot_b, entry, owner)
+
+    def _takahashi(self, z: FloatArray, batch: _Columns, val: FloatArray, diag: FloatArray) -> None:
+        """Takahashi's recurrence for one batch of columns, into the store ``z``."""
+        pairs, slots, source, slot, slot_b, entry, owner = (
+            batch.pairs, batch.slots, batch.source, batch.slot, batch.slot_b, batch.entry,
+            batch.owner,
+        )  # fmt: skip
+        weight, mirror, on_entry = val[batch.weight], val[batch.mirror], val[entry]
+        for c0, c1 in itertools.pairwise(batch.steps):
             p0, p1, e0, e1 = pairs[c0], pairs[c1], slots[c0], slots[c1]
             got = z[source[p0:p1]]
-            y = np.bincount(slot[p0:p1] - e0, got * weight[p0:p1], minlength=e1 - e0)
-            y += np.bincount(slot_b[p0:p1] - e0, got * mirror[p0:p1], minlength=e1 - e0)
+            y = np.bincount(slot[p0:p1], got * weight[p0:p1], minlength=e1 - e0)
+            y += np.bincount(slot_b[p0:p1], got * mirror[p0:p1], minlength=e1 - e0)
             z[entry[e0:e1]] = -y
-            done = cols[c0:c1]
+            done = batch.cols[c0:c1]
             z[self.diag_at + done] = 1.0 / diag[done] + np.bincount(
-                owner[e0:e1] - c0, self.val[entry[e0:e1]] * y, minlength=c1 - c0
+                owner[e0:e1], on_entry[e0:e1] * y, minlength=c1 - c0
             )
-
-    def values(self, i: IntArray, k: IntArray) -> FloatArray:
-        """``Z[i, k]`` for factor rows ``i, k`` whose pair is on the pattern (or both in the core)."""
-        out: FloatArray = self.z[self.sources(i, k)]
-        return out
 
     def sources(self, i: IntArray, k: IntArray) -> IntArray:
         """Where ``Z[i, k]`` is in the store; raises :class:`_OffPattern` for pairs off the pattern."""

@@ -2,7 +2,8 @@
 
 ``A = H_bᵀ P⁻¹ H_b`` on the reference's component, assembled sparse (one
 Laplacian per coordinate when every ``P_e`` is diagonal, ``d × d`` blocks
-otherwise), solved by sparse LU or preconditioned conjugate gradients, with the
+otherwise), solved by sparse LU (in the fill-reducing order of its pattern, analysed once per
+pattern: ``leader.symbolic``) or preconditioned conjugate gradients, with the
 diagonal blocks of ``A⁻¹`` as covariances (selected inversion over the LU
 factor, ``leader.covariance``). ``leader.blue``'s docstring explains how the
 solver is chosen.
@@ -20,15 +21,14 @@ fewer gathers. :func:`common_shape` detects it (``P_e`` equal to ``c_e R`` to
 from __future__ import annotations
 
 import logging
-from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
 from scipy.sparse import coo_array, csr_array
 from scipy.sparse.csgraph import dijkstra, reverse_cuthill_mckee
-from scipy.sparse.linalg import splu
 
-from leader.covariance import LDLFactor, PatternError, inverse_diagonal_blocks
+from leader.covariance import PatternError, inverse_diagonal_blocks
+from leader.symbolic import PermutedFactor, factorise
 from leader.tree import adjacency
 
 __all__ = ["CG_RTOL", "DIRECT_MAX_UNKNOWNS", "GroundedSystem", "choose_method", "common_shape"]
@@ -51,12 +51,6 @@ INVERSE_CHUNK_COLUMNS = 256
 """Identity columns solved at once when the selected inversion cannot read the factor."""
 SHAPE_RTOL = 1e-12
 """``P_e`` counts as ``c_e R`` when no entry is off by more than this times ``max |P_e|``."""
-
-
-class _Factor(LDLFactor, Protocol):
-    """What the code needs of a sparse factorisation (``scipy.sparse.linalg.SuperLU``)."""
-
-    def solve(self, rhs: FloatArray) -> FloatArray: ...
 
 
 class GroundedSystem:
@@ -201,7 +195,7 @@ class GroundedSystem:
                 used.add(how)
                 est[:, cols] = sol
                 if cov is not None:
-                    var = _covariance_blocks(lu if lu is not None else _factor(mat), 1)
+                    var = _covariance_blocks(lu if lu is not None else factorise(mat), 1)
                     if self.shape is not None:  # one group of all d: A⁻¹ = L_w⁻¹ ⊗ R
                         cov[:] = var[:, 0, 0, None, None] * self.shape
                     else:
@@ -212,7 +206,7 @@ class GroundedSystem:
             used.add(how)
             est[:] = sol.reshape(s, d)
             if cov is not None:
-                cov[:] = _covariance_blocks(lu if lu is not None else _factor(mat), d)
+                cov[:] = _covariance_blocks(lu if lu is not None else factorise(mat), d)
         self.method = "cg" if "cg" in used else "direct"
         positions[self.nodes] = est
         if blocks is not None and cov is not None:
@@ -277,28 +271,16 @@ def choose_method(system: GroundedSystem, links: IntArray, r: int) -> str:
     return "direct" if direct_work <= DIRECT_WORK_RATIO * cg_work else "cg"
 
 
-def _factor(mat: csr_array) -> _Factor:
-    # SPD: symmetric ordering and no pivoting are safe and keep the factor small
-    lu: _Factor = splu(
-        mat.tocsc(),
-        permc_spec="MMD_AT_PLUS_A",
-        diag_pivot_thresh=0.0,
-        options={"SymmetricMode": True},
-    )
-    return lu
-
-
 def _solve(
     mat: csr_array, rhs: FloatArray, method: str, block: int | None
-) -> tuple[FloatArray, str, _Factor | None]:
+) -> tuple[FloatArray, str, PermutedFactor | None]:
     """Solve ``mat @ x = rhs``; returns the solution, the method used and the factor if any."""
     if method == "cg":
         sol = _pcg(mat, rhs, block)
         if sol is not None:
             return sol, "cg", None
-    lu = _factor(mat)
-    out = np.asarray(lu.solve(np.asfortranarray(rhs)))
-    return out.reshape(rhs.shape), "direct", lu
+    lu = factorise(mat)
+    return lu.solve(rhs), "direct", lu
 
 
 def _pcg(mat: csr_array, rhs: FloatArray, block: int | None) -> FloatArray | None:
@@ -369,16 +351,16 @@ def _diag_blocks(mat: csr_array, block: int) -> FloatArray:
     return out
 
 
-def _covariance_blocks(lu: _Factor, block: int) -> FloatArray:
+def _covariance_blocks(lu: PermutedFactor, block: int) -> FloatArray:
     """Diagonal ``block × block`` blocks of ``A⁻¹``: selected inversion of the factor."""
     try:
-        return inverse_diagonal_blocks(lu, block)
+        return inverse_diagonal_blocks(lu, block, plans=lu.plans)
     except PatternError as err:  # not seen with SuperLU's symmetric mode; exact either way
         log.warning("covariances by identity-column solves: %s", err)
         return _diagonal_blocks_by_solves(lu, block)
 
 
-def _diagonal_blocks_by_solves(lu: _Factor, block: int) -> FloatArray:
+def _diagonal_blocks_by_solves(lu: PermutedFactor, block: int) -> FloatArray:
     """Diagonal ``block × block`` blocks of ``A⁻¹`` from a factorisation of ``A``.
 
     Solves against ``INVERSE_CHUNK_COLUMNS`` identity columns at a time and keeps
