@@ -197,7 +197,7 @@ def main() -> None:
     rate, cpu, _ = forward_rate(passthrough=False, network=lossy)
     print(f"lockstep, Bernoulli 0.1 on every link (about 23% of epochs clean): {rate:9.0f} forwarded/s  "
           f"netem CPU {cpu:5.2f} µs/packet, {cpu / base_cpu:.2f}x pass-through")  # fmt: skip
-    distance_against_bernoulli(args.repeats)
+    distance_against_bernoulli(args.repeats, args.epochs)
 
 
 if __name__ == "__main__":
