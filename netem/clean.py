@@ -12,9 +12,10 @@ hands what was kept to the lockstep core, which turns it into per-packet records
 With a distance model on a state link (``gated``) an epoch is clean when every link
 passes before its distance layers (known ahead) and every length is within its reach:
 its packets are kept as they come (:meth:`CleanEpochs.gather`, in the order the core
-routes them) and, once all are in, judged at once (:meth:`CleanEpochs.within_reach`, one
-vectorised ``length <= reach``) and handed out as a clean epoch's (:meth:`CleanEpochs.open_gate`),
-or handed back to be decided packet by packet.
+routes them) and, once all are in, judged at once (:meth:`CleanEpochs.within_reach`:
+``length <= reach`` per link, the reach computed ahead for the block) and handed out as a
+clean epoch's (:meth:`CleanEpochs.open_gate`), or decided as the full path would
+(:meth:`CleanEpochs.judged`).
 """
 
 from __future__ import annotations
