@@ -164,6 +164,15 @@ class _Plan:
         self.out = self.inverse.sources(i, k)
         self.nodes, self.block, self.a, self.b = nodes, block, a, b
 
+    @property
+    def nbytes(self) -> int:
+        """Memory held [bytes] (``leader.symbolic`` bounds its cache by it)."""
+        inv = self.inverse
+        arrays = [self.raw_ptr, self.raw_idx, self.pos, self.src, self.out, inv.ptr, inv.idx]
+        arrays += [inv.keys, inv.core, inv.core_pos, inv.core_lens, inv.core_entry, inv.core_flat]
+        arrays += [a for batch in inv.batches for a in batch if isinstance(a, np.ndarray)]
+        return sum(a.nbytes for a in arrays)
+
     def fits(self, low: csc_array, pos: npt.NDArray[np.int32]) -> bool:
         """Whether ``low`` has this plan's pattern, in the same order."""
         return (
@@ -258,13 +267,14 @@ class _SelectedInverse:
         # Z in one flat store: on L's pattern (L's entry order), the diagonal, the dense core
         nnz, c = idx.size, self.core.size
         self.diag_at, self.core_at, self.stored = nnz, nnz + size, nnz + size + c * c
-        # the core's entries of L: their place in L and in the dense core (row, column)
-        starts, lens = ptr[self.core], ptr[self.core + 1] - ptr[self.core]
+        # the core's entries of L: their place in L and in the store (the core column-major)
+        starts, self.core_lens = ptr[self.core], ptr[self.core + 1] - ptr[self.core]
+        lens = self.core_lens
         self.core_entry = np.repeat(starts - np.cumsum(lens) + lens, lens) + np.arange(
             int(lens.sum())
         )
-        self.core_col = np.repeat(np.arange(c), lens)
-        self.core_row = self.core_pos[idx[self.core_entry]]
+        col = np.repeat(np.arange(c), lens)
+        self.core_flat = self.core_at + col * c + self.core_pos[idx[self.core_entry]]
         depth = _depths(parent, core)
         rest = np.flatnonzero(~core)
         order = rest[np.argsort(depth[rest], kind="stable")]
@@ -292,9 +302,9 @@ class _SelectedInverse:
         if c == 0:
             return
         # R = L_CC D_C^½, so that R Rᵀ is the Schur complement; potri gives (R Rᵀ)⁻¹ in place
+        scale = np.repeat(np.sqrt(diag[self.core]), self.core_lens)
+        z[self.core_flat] = val[self.core_entry] * scale
         chol = z[self.core_at :].reshape((c, c), order="F")
-        col = self.core_col
-        chol[self.core_row, col] = val[self.core_entry] * np.sqrt(diag[self.core])[col]
         inv, info = dpotri(chol, lower=1, overwrite_c=1)
         if info != 0:
             raise PatternError(f"the core's factor is singular (LAPACK info {info})")

@@ -13,8 +13,8 @@ for a pattern included, runs on the matrix explicitly permuted by it with SuperL
 order: a cold and a warm call do the same arithmetic, bit for bit, so the batch simulator and
 the leader process agree whatever each has cached.
 
-The cache is per process and bounded (least recently used of :data:`CACHE_PATTERNS`
-patterns). A lock guards its table; an :class:`Analysis` is not changed once made, except
+The cache is per process and bounded (the least recently used of :data:`CACHE_PATTERNS`
+patterns, and of :data:`CACHE_BYTES`). A lock guards its table; an :class:`Analysis` is not changed once made, except
 that ``plans`` gains entries (two threads may both compute one, the same one). The leader
 computes on one thread.
 """
@@ -30,13 +30,24 @@ import numpy.typing as npt
 from scipy.sparse import csc_array, csr_array
 from scipy.sparse.linalg import spilu, splu
 
-__all__ = ["CACHE", "CACHE_PATTERNS", "Analysis", "PermutedFactor", "SymbolicCache", "factorise"]
+__all__ = [
+    "CACHE",
+    "CACHE_BYTES",
+    "CACHE_PATTERNS",
+    "Analysis",
+    "PermutedFactor",
+    "SymbolicCache",
+    "factorise",
+]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
 CACHE_PATTERNS = 8
 """Patterns kept per process (the healthy sets an epoch loop alternates between)."""
+CACHE_BYTES = 512 * 2**20
+"""Older patterns are forgotten while the cache holds more than this [bytes] (an expander of
+10,000 agents: 165 MB with its selected inversion's plan); the newest is always kept."""
 _ORDER_DROP_TOL = 1e10
 """spilu drops every entry below this times its column's norm: only the order is wanted."""
 
@@ -65,6 +76,13 @@ class Analysis:
         counts = np.bincount(key[self.take] // size, minlength=size)
         self.indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
         self.plans: dict[Any, Any] = {}
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held [bytes], the plans kept with it included."""
+        arrays = (self.order, self.position, self.take, self.indices, self.indptr)
+        plans = sum(int(getattr(plan, "nbytes", 0)) for plan in list(self.plans.values()))
+        return sum(a.nbytes for a in arrays) + plans
 
 
 class PermutedFactor:
@@ -98,13 +116,14 @@ class PermutedFactor:
 class SymbolicCache:
     """Least-recently-used analyses of up to ``capacity`` patterns, keyed by the exact pattern.
 
-    ``hits`` and ``misses`` count :meth:`analyse`'s lookups.
+    When a pattern is added, the oldest are forgotten while more than ``capacity`` are kept or
+    they hold more than ``max_bytes``. ``hits`` and ``misses`` count :meth:`analyse`'s lookups.
     """
 
-    def __init__(self, capacity: int = CACHE_PATTERNS) -> None:
+    def __init__(self, capacity: int = CACHE_PATTERNS, max_bytes: int = CACHE_BYTES) -> None:
         if capacity < 1:
             raise ValueError(f"capacity = {capacity}; expected at least 1")
-        self.capacity = capacity
+        self.capacity, self.max_bytes = capacity, max_bytes
         self.hits = 0
         self.misses = 0
         self._table: OrderedDict[tuple[int, str, bytes, bytes], Analysis] = OrderedDict()
@@ -127,9 +146,16 @@ class SymbolicCache:
         with self._lock:
             self._table[key] = made
             self._table.move_to_end(key)
-            while len(self._table) > self.capacity:
+            while len(self._table) > self.capacity or (
+                len(self._table) > 1 and self.nbytes > self.max_bytes
+            ):
                 self._table.popitem(last=False)
         return made
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held by the analyses kept [bytes]."""
+        return sum(analysis.nbytes for analysis in list(self._table.values()))
 
     def clear(self) -> None:
         """Forget every pattern and zero the counters."""

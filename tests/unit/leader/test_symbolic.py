@@ -134,6 +134,23 @@ def test_the_cache_keeps_the_most_recent_patterns(seed: int) -> None:
         SymbolicCache(capacity=0)
 
 
+def test_the_cache_forgets_old_patterns_past_its_bytes(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    mats = [csr_array(block_system(rng, 60, 2, 100 + k)) for k in range(3)]
+    one = SymbolicCache()
+    factor = factorise(mats[0], one)
+    bare = one.nbytes
+    inverse_diagonal_blocks(factor, 2, plans=factor.plans)
+    assert one.nbytes > bare > 0  # the plan kept with the pattern counts too
+    cache = SymbolicCache(max_bytes=one.nbytes)  # one pattern with its plan, not two
+    for mat in mats:
+        factor = factorise(mat, cache)
+        inverse_diagonal_blocks(factor, 2, plans=factor.plans)
+    assert len(cache) == 1 and cache.misses == 3
+    cache.analyse(mats[2])  # the newest is kept
+    assert cache.hits == 1
+
+
 def test_the_order_depends_on_the_pattern_only(seed: int) -> None:
     rng = np.random.default_rng(seed)
     mat = csr_array(block_system(rng, 100, 1, 250))
