@@ -27,6 +27,12 @@ Two ways to run the recurrence, chosen per column:
 The split is chosen by a cost model (gathers against dense flops,
 ``CORE_*`` below; bench/bench_leader.py measured it). The result does not
 depend on the split beyond rounding.
+
+Everything but the arithmetic depends on ``L``'s pattern and the order only
+(sorting, repairs, the tree, the split, the levels, every gather index): it is a
+plan, made once and kept by the caller for the next factor of that pattern
+(``leader.symbolic``), and reused only when the pattern is identical, so it never
+changes the floats.
 """
 
 from __future__ import annotations
