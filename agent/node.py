@@ -382,7 +382,7 @@ class AgentNode:
         if not self.service.wait_started():
             return 1
         clock = self.clock = fetch_clock(self.service.session, self.run_id)
-        sleep_until(clock.at(0))
+        sleep_until(clock.at(-1, ESTIMATE_DEADLINE))  # x[0] when later states go out
         self._publish_states()
         for k in range(self.scenario.epochs):
             if self.service.stopping.is_set():
@@ -417,8 +417,8 @@ class AgentNode:
                 self.deadline["estimates"] += got[i] is not None
                 self.deadline["in_time"] += got[i] is not None
             self.runner.step(got)
-            # x[k+1] is known now: out at once, so the state phase's burst of every agent's
-            # packets has the rest of this period as well as its own 0.35 to arrive.
+            # x[k+1] is known now: out at once, so the burst of every agent's states has
+            # the rest of this period as well as the next one's first 0.2 to arrive.
             self._publish_states()
         self._drain_until(clock.at(self.scenario.epochs))
         for queued in self.held:
