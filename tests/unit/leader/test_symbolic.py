@@ -193,3 +193,22 @@ def test_a_batch_member_gets_the_floats_it_gets_alone_whatever_was_cached(
             assert alone.covariances is not None and batch.covariances is not None
             assert np.array_equal(alone.positions, batch.positions[b])
             assert np.array_equal(alone.covariances, batch.covariances[b])
+
+
+def test_the_permuted_factor_is_superlus_own_to_rounding(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    mat = csr_array(block_system(rng, 150, 1, 300))
+    ours = factorise(mat, SymbolicCache())
+    theirs = splu(
+        mat.tocsc(),
+        permc_spec="MMD_AT_PLUS_A",
+        diag_pivot_thresh=0.0,
+        options={"SymmetricMode": True},
+    )
+    assert np.array_equal(ours.perm_c, theirs.perm_c)
+    for mine, other in ((ours.L, theirs.L), (ours.U, theirs.U)):
+        a, b = csc_array(mine), csc_array(other)
+        a.sort_indices()
+        b.sort_indices()
+        assert np.array_equal(a.indptr, b.indptr) and np.array_equal(a.indices, b.indices)
+        assert np.abs(a.data - b.data).max() <= 1e-12 * np.abs(b.data).max()
