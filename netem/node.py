@@ -180,16 +180,13 @@ class NetemNode:
 
     # -- inbound ----------------------------------------------------------------------------------
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        """Every inbound packet: handled at once on Zenoh's thread (lockstep, and realtime once its
-        clock runs), else queued, stamped with its arrival (a realtime deadline's cause)."""
+        """Every inbound packet: handled at once on Zenoh's thread in lockstep, else queued,
+        stamped with its arrival (netem counts only its own late forwards in realtime)."""
         att = sample.attachment
         if not self.running:
             raw = None if att is None else att.to_bytes()
             msg = Incoming(str(sample.key_expr), sample.payload.to_bytes(), raw, time.time_ns())
-            if self.realtime.inline:  # no lock: a packet queued meanwhile is taken from there
-                self.service.handle_inline(msg.key, self.realtime.take, msg)
-            else:
-                self.service.inbox.put(msg)
+            self.service.inbox.put(msg)
             return
         key = str(sample.key_expr)
         self.service.handle_inline(key, self._handle, key, sample.payload, att)

@@ -4,10 +4,10 @@ No epoch closes: a link's model decides each packet from its epoch and the time 
 the clock's start (a realtime outage), and a delayed packet waits in a heap until due.
 The decision records go out once per period, one batch per phase and epoch.
 
-Once the clock runs, a packet is handled on the thread it arrives on (:meth:`Realtime.take`):
-a hand-off to the main thread cost two wake-ups and a GIL switch per packet, and made
-netem the first cause of deadline misses (bench_realtime). The main thread only puts out
-delayed packets when due, flushes the records and watches liveliness.
+Packets are queued by Zenoh's threads and handled here, on the main thread, a whole queue
+at a time, so Zenoh's threads never wait on netem. Handled where it arrived, a packet kept
+its receiving thread in a blocking put; under overload (100 and 200 agents at 20 Hz) two
+runs then stalled for 30 s, the router, netem and the agents waiting on each other.
 """
 
 from __future__ import annotations
@@ -48,9 +48,7 @@ class Realtime:
         # modelled_late: packets a model delayed past their deadline (modelled losses);
         # late_forwards: packets in time here (and by their model) put out after it
         self.deadline: Counter[str] = Counter()
-        self.inline = False  # packets handled where they arrive (once the clock runs)
         self.due: list[Due] = []  # delayed packets, by due time
-        self.wake = threading.Event()  # set when a packet is due earlier than awaited
 
     def link(self, cls: LinkClass, src: int, dst: int) -> tuple[zenoh.Publisher, LinkModel]:
         """The publisher of a link's forwarded packets and its model, looked up once."""
@@ -115,38 +113,24 @@ class Realtime:
         for phase, epoch in sorted(decisions):
             self.publish_records(phase, epoch, decisions.pop((phase, epoch), []))
 
-    def take(self, msg: Incoming) -> None:
-        """A packet on Zenoh's thread, under the caller's lock: handled at once."""
-        head = self.due[0][0] if self.due else None
-        self.handle(msg, self.due)
-        if self.due and self.due[0][0] != head:
-            self.wake.set()  # an earlier packet is due: the main thread's wait is too long
-
     def run(self, period_s: float, lock: threading.Lock, ready: Callable[[], bool],
             check_dead: Callable[[], None], finished: Callable[[], bool]) -> int:  # fmt: skip
         """Forward until ``finished`` and nothing is due (0), or until stopped (130).
 
-        The clock starts once ``ready``; from then packets are handled where they arrive
-        (:meth:`take`, the caller takes ``lock``), what came before from the queue here.
-        ``check_dead`` is called on every wake-up.
+        The clock starts once ``ready``; ``check_dead`` is called on every wake-up and
+        packets are handled under ``lock``, every queued one at each wake-up.
         """
         service = self.service
         while not ready():
             if service.stopping.wait(0.02):
                 return 130
         self.clock = Clock(time.time_ns() + int(0.3e9), int(period_s * 1e9))
-        with lock:
-            self.inline = True
         service.declare_start()
         due = self.due
         next_flush = self.clock.at(1)
-        while not service.stopping.is_set():
+        while not (finished() and not due) and not service.stopping.is_set():
+            now = time.time_ns()
             with lock:
-                while (msg := service.next_incoming(0)) is not None:
-                    self.handle(msg, due)  # queued before the start
-                if finished() and not due:
-                    break
-                now = time.time_ns()
                 while due and due[0][0] <= now:
                     due_ns, _, pub, payload, att, deadline_ns = heapq.heappop(due)
                     self.deadline["late_forwards"] += due_ns <= deadline_ns < time.time_ns()
@@ -154,11 +138,14 @@ class Realtime:
                 if now >= next_flush:
                     self.publish_decisions()
                     next_flush += self.clock.period_ns
-                until = min(next_flush, due[0][0]) if due else next_flush
-                self.wake.clear()
+            until = min(next_flush, due[0][0]) if due else next_flush
+            msg = service.next_incoming(max(0.0, min(0.05, (until - now) / 1e9)))
             check_dead()
-            self.wake.wait(max(0.0, min(0.05, (until - time.time_ns()) / 1e9)))
+            if msg is not None:
+                with lock:
+                    self.handle(msg, due)
+                    while (more := service.next_incoming(0)) is not None:
+                        self.handle(more, due)
         with lock:
-            self.inline = False
             self.publish_decisions()
         return 0 if finished() else 130
