@@ -274,6 +274,7 @@ def launch(
         present = events.finishing(gone) if scenario.events else present
         _wait(lambda: all_final(observer, present), group, 10.0, "the final states",
               lambda: missing_final(observer, present), ignore=[*supervisor.losses, *supervisor.planned])  # fmt: skip
+        observer.netem_done()  # its last decisions are in the summary (no error: it has exited)
         if record:
             flush_recorder(session, run_id, observer)
             rec = next(c for c in group.children if c.name == "recorder")

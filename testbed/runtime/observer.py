@@ -136,6 +136,21 @@ class Observer:
         with self.lock:
             (self.alive.add if sample.kind == zenoh.SampleKind.PUT else self.alive.discard)(key)
 
+    def netem_done(self, timeout_s: float = 10.0) -> bool:
+        """Wait until netem's last status (done or error) has come, at most ``timeout_s``.
+
+        netem publishes it after its last decisions, over the same session, so once it is
+        here every decision is too (a summary taken earlier could miss the last batch).
+        """
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            with self.lock:
+                st = self.statuses.get("netem")
+                if st is not None and st.state in ("done", "error"):
+                    return True
+            time.sleep(0.01)
+        return False
+
     def is_alive(self, role: str, ident: int | str) -> bool:
         with self.lock:
             return keys.alive(self.run_id, role, ident) in self.alive
