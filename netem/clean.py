@@ -114,12 +114,9 @@ class CleanEpochs:
         this was the epoch's last packet: its records are then in :attr:`chunks`.
         A second packet of one stream's epoch (not one of ours) is ignored.
         """
-        g = self.gathering.get(epoch)
+        g = self._admit(stream, epoch, seq)
         if g is None:
-            g = self.gathering[epoch] = Gathering()
-        elif stream in g.seqs:
             return False
-        g.seqs[stream] = seq
         self._hand_out(g, stream, packet_json(stream, seq, epoch, 1, payload), epoch, deliver)
         if len(g.seqs) < self.expected:
             return False
@@ -127,17 +124,24 @@ class CleanEpochs:
         self.finish(epoch, g.seqs)
         return True
 
-    def gather(self, stream: int, epoch: int, seq: int, payload: Any) -> Gathering | None:
-        """Keep ``stream``'s packet of gated ``epoch``; its gathering once every stream's is in.
-
-        A second packet of one stream's epoch (not one of ours) is ignored.
-        """
+    def _admit(self, stream: int, epoch: int, seq: int) -> Gathering | None:
+        """``epoch``'s gathering with ``stream``'s seq noted; None for a stream's second packet."""
         g = self.gathering.get(epoch)
         if g is None:
             g = self.gathering[epoch] = Gathering()
         elif stream in g.seqs:
             return None
         g.seqs[stream] = seq
+        return g
+
+    def gather(self, stream: int, epoch: int, seq: int, payload: Any) -> Gathering | None:
+        """Keep ``stream``'s packet of gated ``epoch``; its gathering once every stream's is in.
+
+        A second packet of one stream's epoch (not one of ours) is ignored.
+        """
+        g = self._admit(stream, epoch, seq)
+        if g is None:
+            return None
         g.payloads[stream] = payload
         return g if len(g.seqs) >= self.expected else None
 

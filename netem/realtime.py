@@ -48,7 +48,6 @@ class Realtime:
         # modelled_late: packets a model delayed past their deadline (modelled losses);
         # late_forwards: packets in time here (and by their model) put out after it
         self.deadline: Counter[str] = Counter()
-        self.due: list[Due] = []  # delayed packets, by due time
 
     def link(self, cls: LinkClass, src: int, dst: int) -> tuple[zenoh.Publisher, LinkModel]:
         """The publisher of a link's forwarded packets and its model, looked up once."""
@@ -126,7 +125,7 @@ class Realtime:
                 return 130
         self.clock = Clock(time.time_ns() + int(0.3e9), int(period_s * 1e9))
         service.declare_start()
-        due = self.due
+        due: list[Due] = []  # delayed packets, by due time
         next_flush = self.clock.at(1)
         while not (finished() and not due) and not service.stopping.is_set():
             now = time.time_ns()
