@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from jsonschema.validators import validator_for
 from mcap.reader import McapReader, make_reader
 from mcap.records import Channel, Message, Schema
 from mcap.summary import Summary
@@ -209,8 +210,6 @@ class Validation:
 def validate(path: Path, limit: int = 20) -> Validation:
     """Check every message against the schema stored in its channel's schema record: JSON
     Schema for JSON, the FileDescriptorSet for protobuf (it must decode)."""
-    from jsonschema.validators import validator_for
-
     out = Validation()
     validators: dict[int, Any] = {}
     with open_recording(path) as (reader, _):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import zipfile
@@ -65,6 +66,9 @@ def test_the_installed_commands_simulate_compose_and_run(installed: Path, tmp_pa
     with mcap_path.open("rb") as f:
         summary = make_reader(f).get_summary()
     assert summary is not None
+    # every recorded message against its stored schema (jsonschema is a runtime dependency)
+    info = _run([formation, "info", str(mcap_path), "--validate"], work, 300)
+    assert re.search(r"validated [1-9]\d* messages against their schemas: 0 invalid", info.stdout)
     # the Foxglove channels carry the installed SDK's protobuf schemas
     sdk = _run([str(installed / "bin" / "python"), "-c", SDK_SCHEMAS], work, 60)
     theirs = {name: bytes.fromhex(data) for name, data in json.loads(sdk.stdout).items()}
