@@ -8,12 +8,11 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
 from typing import TypeVar
 
-from pydantic import BaseModel, TypeAdapter, ValidationError
+from pydantic import BaseModel, ValidationError
 
-from formation.messages import DeliveredPacket, Message
+from formation.messages import DeliveredPacket
 
 M = TypeVar("M", bound=BaseModel)
-_ANY: TypeAdapter[Message] = TypeAdapter(Message)
 
 # Attachment: the routing facts netem needs without parsing the payload.
 _ATTACH = struct.Struct("<qqq")  # epoch, seq, source
@@ -25,10 +24,6 @@ def encode(message: BaseModel) -> bytes:
 
 def decode(payload: bytes, model: type[M]) -> M:
     return model.model_validate_json(payload)
-
-
-def decode_any(payload: bytes) -> Message:
-    return _ANY.validate_json(payload)
 
 
 def attachment(epoch: int, seq: int, source: int) -> bytes:
@@ -85,7 +80,6 @@ __all__ = [
     "Malformed",
     "attachment",
     "decode",
-    "decode_any",
     "encode",
     "now_ns",
     "read_attachment",

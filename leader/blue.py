@@ -83,7 +83,6 @@ __all__ = [
     "MeasurementGraph",
     "Solver",
     "blue",
-    "nees",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -381,38 +380,6 @@ def _estimate(
         system.solve(method, positions[b], None if blocks is None else blocks[b])
         solvers[b] = system.method
     return BlueBatch(positions, blocks, observable, tuple(solvers))
-
-
-def nees(result: BlueResult, x_true: npt.ArrayLike) -> FloatArray:
-    """Normalised estimation error squared per agent (docs/model.md §5, "Consistency").
-
-    ``NEES_i = (x̂_i − x_i)ᵀ Cov(x̂_i)⁻¹ (x̂_i − x_i)``; for an honest estimator with
-    Gaussian noise it is χ²-distributed with ``d`` degrees of freedom, mean ``d``.
-
-    Parameters
-    ----------
-    result : BlueResult
-        An estimate computed with ``covariances=True``.
-    x_true : (n, d) array_like [m]
-        True positions, row ``i − 1`` = agent ``i``.
-
-    Returns
-    -------
-    (n,) float64 array
-        NaN for unobservable agents and for the reference (its covariance is zero).
-    """
-    if result.covariances is None:
-        raise GraphInputError("result has no covariances", "a result of blue(covariances=True)")
-    shape = result.positions.shape
-    x = np.asarray(x_true, dtype=np.float64)
-    if x.shape != shape:
-        raise ShapeError("x_true", x.shape, f"{shape}")
-    out = np.full(shape[0], np.nan)
-    err = result.positions - x
-    has = result.observable & (np.abs(result.covariances).sum(axis=(1, 2)) > 0)
-    solved = np.linalg.solve(result.covariances[has], err[has][..., None])[..., 0]
-    out[has] = np.einsum("ij,ij->i", err[has], solved)
-    return out
 
 
 # --------------------------------------------------------------------------- input checks

@@ -170,10 +170,6 @@ class LinkModel:
         """Every stack with the epoch it starts at, ``((0, specs), (from_epoch, specs), ...)``."""
         return tuple((f, s.specs) for f, s in self._timeline)
 
-    def specs_at(self, epoch: int) -> tuple[LinkModelSpec, ...]:
-        """The stack in force at ``epoch``."""
-        return self._stack_at(epoch).specs
-
     def replace(self, specs: Sequence[LinkModelSpec], from_epoch: int) -> None:
         """Use ``specs`` from ``from_epoch`` on; decisions before it stay what they were.
 

@@ -90,9 +90,6 @@ class Supervisor:
             if name not in ("router", "recorder") and (names is None or name in names)
         )
 
-    def code_of(self, name: str) -> int | None:
-        return self.current[name].child.proc.poll()
-
     def check(self, first_missing: Any) -> None:
         """Raise for a dead essential process; note (and restart) a dead agent or leader.
 

@@ -282,13 +282,18 @@ def test_realtime_outage_needs_the_packet_time(seed: int) -> None:
 # ------------------------------------------------------------------------- run-time change
 
 
+def specs_at(model: LinkModel, epoch: int) -> tuple[LinkModelSpec, ...]:
+    """The stack in force at ``epoch``: the last of ``model.timeline`` starting at or before it."""
+    return next(specs for start, specs in reversed(model.timeline) if start <= epoch)
+
+
 def test_replace_keeps_earlier_decisions(seed: int) -> None:
     model = LinkModel([GE], seed, 1, 2, block_epochs=64)
     before = [model.decide(k) for k in range(1_000)]
     model.replace([Down()], from_epoch=300)
     assert [model.decide(k) for k in range(300)] == before[:300]
     assert {model.decide(k).model for k in range(300, 1_000)} == {"down"}
-    assert model.specs_at(299) == (GE,) and model.specs_at(300) == (Down(),)
+    assert specs_at(model, 299) == (GE,) and specs_at(model, 300) == (Down(),)
     assert model.specs == (Down(),)
     assert model.timeline == ((0, (GE,)), (300, (Down(),)))
 
@@ -323,7 +328,7 @@ def test_replace_supersedes_later_changes(seed: int) -> None:
     model.replace([Down()], from_epoch=50)
     model.replace([Bernoulli(p_loss=0.0)], from_epoch=20)
     assert all(model.decide(k).delivered for k in range(100))
-    assert model.specs_at(60) == (Bernoulli(p_loss=0.0),)
+    assert specs_at(model, 60) == (Bernoulli(p_loss=0.0),)
 
 
 # ------------------------------------------------------------------------- closed forms
