@@ -15,6 +15,8 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
+from recorder.metrics import shape_error
+
 Array = npt.NDArray[np.float64]
 Mask = npt.NDArray[np.bool_]
 SHAPE_THRESHOLD_M = 0.05  # the sweep's default: a formation is held under this shape error [m]
@@ -41,14 +43,9 @@ def team_shape_error(positions: Array, edges: npt.NDArray[np.int64], offsets: Ar
     positions : (P, n, d) [m], NaN where absent; edges : (m, 2) agent ids; offsets : (n, d).
     Returns (P,) [m], NaN at an epoch without a present edge.
     """
-    i, j = edges[:, 0] - 1, edges[:, 1] - 1
-    diff = positions[:, i, :] - positions[:, j, :] - (offsets[i] - offsets[j])
-    sq = np.sum(diff**2, axis=-1)  # (P, m), NaN where an end is absent
-    on = np.isfinite(sq)
-    count = on.sum(axis=1)
-    total = np.where(on, sq, 0.0).sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.asarray(np.where(count > 0, np.sqrt(total / count), np.nan), dtype=float)
+    team = present(positions)
+    on = team[:, edges[:, 0] - 1] & team[:, edges[:, 1] - 1]  # (P, m)
+    return shape_error(np.nan_to_num(positions), edges, offsets, on)
 
 
 def changes(team: Mask, shape: Array, threshold_m: float = SHAPE_THRESHOLD_M) -> list[TeamChange]:

@@ -6,24 +6,42 @@ import numpy as np
 import numpy.typing as npt
 
 Array = npt.NDArray[np.float64]
+Mask = npt.NDArray[np.bool_]
 
 
-def formation_error(positions: Array, edges: npt.NDArray[np.int64], weights: Array) -> Array:
+def formation_error(
+    positions: Array, edges: npt.NDArray[np.int64], weights: Array, on: Mask | None = None
+) -> Array:
     """RMS over edges of ``||x_i − x_j|| − C_ij``.
 
-    positions : (..., n, d) [m]; edges : (m, 2) agent ids; weights : (m,) ``C_ij`` [m].
-    Returns (...) [m].
+    positions : (..., n, d) [m]; edges : (m, 2) agent ids; weights : (m,) ``C_ij`` [m];
+    on : (..., m) the edges counted, broadcast against ``positions``' leading axes (None:
+    every edge; with events, the edges between agents taking part). Returns (...) [m],
+    NaN where no edge counts.
     """
     diff = positions[..., edges[:, 0] - 1, :] - positions[..., edges[:, 1] - 1, :]
     gap = np.linalg.norm(diff, axis=-1) - weights
-    return np.asarray(np.sqrt(np.mean(gap**2, axis=-1)), dtype=float)
+    return _rms(gap**2, on)
 
 
-def shape_error(positions: Array, edges: npt.NDArray[np.int64], offsets: Array) -> Array:
+def shape_error(
+    positions: Array, edges: npt.NDArray[np.int64], offsets: Array, on: Mask | None = None
+) -> Array:
     """RMS over edges of ``||(x_i − x_j) − (d0_i − d0_j)||``; shapes as in :func:`formation_error`."""
     i, j = edges[:, 0] - 1, edges[:, 1] - 1
     diff = positions[..., i, :] - positions[..., j, :] - (offsets[i] - offsets[j])
-    return np.asarray(np.sqrt(np.mean(np.sum(diff**2, axis=-1), axis=-1)), dtype=float)
+    return _rms(np.sum(diff**2, axis=-1), on)
+
+
+def _rms(sq: Array, on: Mask | None) -> Array:
+    """Root mean over the last axis of ``sq`` (..., m), of the entries ``on`` only."""
+    if on is None:
+        return np.asarray(np.sqrt(np.mean(sq, axis=-1)), dtype=float)
+    on = np.broadcast_to(on, sq.shape)
+    count = on.sum(axis=-1)
+    total = np.where(on, sq, 0.0).sum(axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.asarray(np.where(count > 0, np.sqrt(total / count), np.nan), dtype=float)
 
 
 def error_statistics(errors: Array) -> tuple[Array, Array, float]:

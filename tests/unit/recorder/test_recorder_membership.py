@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from recorder.membership import changes, present, spans, team_shape_error
+from recorder.metrics import formation_error, shape_error
 
 
 def test_a_loss_and_a_return_are_changes_with_the_epochs_back_under_the_threshold() -> None:
@@ -24,3 +25,18 @@ def test_a_loss_and_a_return_are_changes_with_the_epochs_back_under_the_threshol
 def test_a_full_team_has_no_change() -> None:
     x = np.zeros((5, 4, 2))
     assert changes(present(x), np.zeros(5)) == []
+
+
+def test_the_errors_over_chosen_edges_are_those_of_the_edges_kept() -> None:
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(6, 4, 2))  # (P, n, d)
+    edges = np.array([[1, 2], [2, 3], [3, 4], [1, 4]])
+    offsets, weights = rng.normal(size=(4, 2)), np.ones(4)
+    on = np.ones((6, 4), dtype=bool)
+    on[2, [1, 2]] = False  # epoch 2: edges 1-2 and 1-4 only
+    on[4] = False  # epoch 4: no edge
+    for metric, arg in ((shape_error, offsets), (formation_error, weights)):
+        got = metric(x, edges, arg, on)
+        np.testing.assert_allclose(got[[0, 1, 3, 5]], metric(x, edges, arg)[[0, 1, 3, 5]])
+        kept = metric(x[2], edges[[0, 3]], arg if metric is shape_error else weights[[0, 3]])
+        assert got[2] == kept and np.isnan(got[4])
