@@ -4,7 +4,8 @@ The question the chapter leaves open (docs/model.md §8): the largest loss rate 
 keeps the formation. A **cell** is one topology × loss model × loss rate × strategy × seed run of
 ``epochs`` epochs with every formation link under the same loss (the scenario's own formation
 network is replaced; its control links are kept). A cell **keeps the formation** when its final
-shape error (docs/model.md §7) is under ``threshold_m``; a loss rate is kept when ≥ 95 % of the seeds
+shape error (docs/model.md §7; with scenario events, over the edges between the agents taking part
+at the end, ``BatchResult.team_errors``) is under ``threshold_m``; a loss rate is kept when ≥ 95 % of the seeds
 keep it; the **critical loss rate** is the largest grid rate up to which every rate is kept.
 
 Loss models at equal mean rate ``ρ``: Bernoulli ``p_loss = ρ``; Gilbert–Elliott with loss only in
@@ -149,6 +150,7 @@ def run_chunk(chunk: Chunk) -> list[dict[str, Any]]:
         sub = plan if len(todo) == len(members) else plan.subset(todo)
         with np.errstate(all="ignore"):  # a diverging run is a lost formation, not an error
             res = run_batch(sub, strategy, detail=False)
+            formation, shape = res.team_errors()  # with events: the team taking part at the end
         for i, b in enumerate(todo):
             t, m, p, s, seed, e = keys[b]
             rows.append(
@@ -159,8 +161,8 @@ def run_chunk(chunk: Chunk) -> list[dict[str, Any]]:
                     "strategy": s,
                     "seed": seed,
                     "epochs": e,
-                    "final_shape_error_m": _num(res.shape_error[-1, i]),
-                    "final_formation_error_m": _num(res.formation_error[-1, i]),
+                    "final_shape_error_m": _num(shape[-1, i]),
+                    "final_formation_error_m": _num(formation[-1, i]),
                     "measured_loss": _num(measured[b]),
                 }
             )

@@ -86,6 +86,25 @@ class BatchResult:
     def size(self) -> int:
         return self.plan.size
 
+    def team_errors(self) -> tuple[Array, Array]:
+        """Formation and shape error (E + 1, B) [m] over the edges between agents taking part.
+
+        An agent out of the team (left, crashed, not yet joined) stands where it last was
+        while the team moves on, so its edges would count a team that holds its shape as
+        losing it (docs/model.md §7; the report's team shape error and the dynamic study
+        count the same edges). Without events: :attr:`formation_error`, :attr:`shape_error`.
+        """
+        team = self.plan.team
+        if team is None:
+            return self.formation_error, self.shape_error
+        base = self.plan.base
+        edges = base.edge_array
+        on = (team.present[:, edges[:, 0] - 1] & team.present[:, edges[:, 1] - 1])[:, None, :]
+        return (
+            formation_error(self.positions, edges, base.weights, on),
+            shape_error(self.positions, edges, base.offsets, on),
+        )
+
     def member(self, b: int) -> SimResult:
         """Member ``b`` as the one-seed simulator's :class:`SimResult` (needs ``detail``)."""
         if not self.detail:

@@ -67,7 +67,7 @@ def lossy_paper(paper: Scenario) -> Scenario:
     )
 
 
-@pytest.mark.parametrize("topology", ["paper-lossy", "octahedron3d", "ring8"])
+@pytest.mark.parametrize("topology", ["paper-lossy", "octahedron3d", "ring8", "events"])
 def test_every_strategy_equals_simulate(paper: Scenario, topology: str) -> None:
     scenario = (
         lossy_paper(paper)
@@ -78,12 +78,17 @@ def test_every_strategy_equals_simulate(paper: Scenario, topology: str) -> None:
         scenario = scenario.with_overrides(
             network={"formation_default": [{"model": "bernoulli", "p_loss": 0.25}]}
         )
+    # events.toml: 6 joins at 15, 3 crashes at 25 and restarts at 40, 5 leaves at 60
+    epochs = scenario.epochs if topology == "events" else EPOCHS
+    if topology == "events":
+        team = scenario.membership
+        assert team.crashed.any() and team.starts[40, 2] and not team.present[-1, 4]
     seeds = [1, 7]
-    plan = plan_batch(scenario, seeds, EPOCHS)
+    plan = plan_batch(scenario, seeds, epochs)
     for strategy in STRATEGIES:
         res = run_batch(plan, strategy)
         for b, seed in enumerate(seeds):
-            assert_same(simulate(scenario, strategy, seed, EPOCHS), res.member(b))
+            assert_same(simulate(scenario, strategy, seed, epochs), res.member(b))
 
 
 @pytest.mark.parametrize(
@@ -174,3 +179,27 @@ def test_an_agent_that_leaves_or_has_not_joined_is_out_of_the_formation(paper: S
     assert (res.tree[5].sum(axis=1) == 4).all() and (res.tree[12].sum(axis=1) == 3).all()
     assert (res.tree[20].sum(axis=1) == 4).all()
     assert (res.sub_link < 2 * len(team.edge_array)).all()
+
+
+def test_the_team_errors_count_the_edges_between_agents_taking_part() -> None:
+    """An agent that left stands still while the team moves on: its edges are not the team's."""
+    scenario = Scenario.from_file(SCENARIOS / "events.toml")  # agent 5 leaves at 60 of 80
+    res = run_batch(plan_batch(scenario, [1, 2], scenario.epochs), "estimate", detail=False)
+    formation, shape = res.team_errors()
+    edges, x = scenario.edge_array, res.positions[-1]  # (B, n, d) at the last epoch
+    kept = (edges != 5).all(axis=1)  # edges 3-5 and 4-5 are gone with agent 5
+    i, j = edges[kept, 0] - 1, edges[kept, 1] - 1
+    d0 = scenario.offsets
+    want = np.sqrt(np.mean(np.sum((x[:, i] - x[:, j] - (d0[i] - d0[j])) ** 2, axis=-1), axis=-1))
+    np.testing.assert_allclose(shape[-1], want, rtol=1e-12)
+    gap = np.linalg.norm(x[:, i] - x[:, j], axis=-1) - scenario.weights[kept]
+    np.testing.assert_allclose(formation[-1], np.sqrt(np.mean(gap**2, axis=-1)), rtol=1e-12)
+    assert (shape[-1] < 0.05).all() and (res.shape_error[-1] > 0.05).all()
+    assert (res.shape_error[:15] > shape[:15]).all()  # agent 6 waits below edge 3-4 until it joins
+    # With everyone there (epochs 40-59) every edge counts; without events the arrays are the
+    # batch's own.
+    np.testing.assert_array_equal(shape[40:60], res.shape_error[40:60])
+    np.testing.assert_array_equal(formation[40:60], res.formation_error[40:60])
+    plain = run_batch(plan_batch(scenario.with_overrides(events=[]), [1], 20), "hold", detail=False)
+    assert plain.team_errors()[0] is plain.formation_error
+    assert plain.team_errors()[1] is plain.shape_error

@@ -187,3 +187,14 @@ def test_cli_sweep_and_experiment(
     assert (out / "phase.png").stat().st_size > 10_000
     assert main(["sweep", "--strategy", "bogus", "--out", str(out)]) == 1
     assert "--strategy 'bogus'" in capsys.readouterr().err
+
+
+def test_an_event_scenario_is_judged_on_the_team_taking_part(tmp_path: Path) -> None:
+    """events.toml: agent 5 leaves at 60 of 80 and stands still; the team goes on in shape."""
+    events = Scenario.from_file(Path(__file__).resolve().parents[3] / "scenarios" / "events.toml")
+    spec = SweepSpec(topologies=(("events", events),), losses=(0.0,), strategies=("estimate",),
+                     seeds=(1, 2), epochs=events.epochs, seeds_per_chunk=2)  # fmt: skip
+    run_sweep(spec, tmp_path, jobs=1)
+    rows = read_rows(tmp_path / "runs.csv")
+    assert [float(r["final_shape_error_m"]) < 0.05 for r in rows] == [True, True]
+    assert "| events | bernoulli | 0 |" in (tmp_path / "critical.md").read_text()  # kept at 0
