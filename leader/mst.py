@@ -4,12 +4,9 @@ The leader keeps the forest's edges (the ``tree`` edge set of the estimator)
 and its components (agents outside the reference's component are unobservable
 this epoch). Pure: arrays in, arrays out.
 
-:func:`minimum_spanning_forest` is one epoch of one run; :func:`spanning_forests`
-is one epoch of ``B`` independent runs of one graph (a batch of seeds), through
-the same order: the batch is one graph of ``B·n`` agents, and Kruskal's forest
-of a disjoint union is the union of the members' forests, so one union-find scan
-serves. For many members of a small graph a scan by component labels, one
-vectorised step per edge across the members, keeps the same edges faster.
+The leader runs :meth:`KruskalGraph.forests`: one epoch of ``B`` independent runs of
+one graph (a batch of seeds; one run is a batch of one), in the order of
+:func:`minimum_spanning_forest`, the one-run form the tests hold the batch to.
 """
 
 from __future__ import annotations
@@ -28,14 +25,15 @@ from formation.graph import (
 )
 from formation.graph import component_labels as components
 
-__all__ = ["KruskalGraph", "components", "minimum_spanning_forest", "spanning_forests"]
+__all__ = ["KruskalGraph", "components", "minimum_spanning_forest"]
 
 IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
 
 LABEL_SWEEP_RATIO = 12
 """A batch scans by labels when ``m × 12 < B n``: ``m`` numpy steps cost less than ``B n``
-Python union-find steps (measured on the sweep's teams, ``bench/bench_sweep.py``)."""
+Python union-find steps (measured on the sweep's teams, ``bench/bench_sweep.py``; see
+:meth:`KruskalGraph.forests` for a timing)."""
 
 
 def minimum_spanning_forest(
@@ -43,7 +41,9 @@ def minimum_spanning_forest(
 ) -> list[int]:
     """Minimum spanning forest of the healthy edges by Kruskal's algorithm (docs/model.md §4).
 
-    Edges are taken in increasing ``(weight, min(i, j), max(i, j), index)``, a
+    The one-run form: the leader calls :meth:`KruskalGraph.forests` (a batch); this is the
+    reference the tests hold that to (and check against SciPy and a textbook Kruskal), and
+    the baseline ``bench/bench_leader.py`` times. Edges are taken in increasing ``(weight, min(i, j), max(i, j), index)``, a
     strict total order, so the forest is unique and does not depend on how the
     edges are listed (up to the index of parallel edges). An edge is kept when
     its endpoints are in different trees of a union-find with path compression
@@ -107,7 +107,36 @@ class KruskalGraph:
         return cls(count, lo, hi, _kruskal_order(w, lo, hi))
 
     def forests(self, healthy: BoolArray) -> tuple[BoolArray, IntArray]:
-        """:func:`spanning_forests` of this graph: ``healthy`` (B, m) bool."""
+        """Kruskal's forest of each of ``B`` healthy edge sets of this graph (docs/model.md §4).
+
+        Member ``b``'s agent ``i`` is agent ``b·n + i`` of one graph of ``B·n`` agents; its
+        edges are scanned in the members' common order (that of
+        :func:`minimum_spanning_forest`, member after member for each edge). Kruskal's forest
+        of a disjoint union is the union of the members' forests, so one union-find scan
+        gives each member exactly its own forest.
+
+        Many members of a small graph (``m × LABEL_SWEEP_RATIO < B n``) are scanned edge by
+        edge across the members instead, with labels for the components
+        (:func:`_label_sweep`): the union-find's ``B n`` Python steps become ``m`` numpy
+        steps. The same edges are kept (``tests/unit/leader/test_mst.py`` holds both paths
+        to :func:`minimum_spanning_forest`); where the sweep is taken it is faster (seed 5,
+        60 % of edges healthy, best of 7: paper, n = 5, B = 100 / 1,000 / 4,000: 0.13 / 1.2 /
+        11.7 ms by union-find, 0.06 / 0.19 / 0.64 ms by labels; grid20, n = 20, B = 100 /
+        1,000: 0.98 / 12.8 ms against 0.38 / 1.8 ms).
+
+        Parameters
+        ----------
+        healthy : (B, m) bool array
+            The edges each member may use.
+
+        Returns
+        -------
+        tree : (B, m) bool array
+            The forest's edges of each member.
+        labels : (B, n) int array
+            A component label per agent (distinct across members): agents share a
+            label when the member's forest joins them.
+        """
         size, m, count = healthy.shape[0], self.lo.size, self.n
         if healthy.shape != (size, m) or healthy.dtype != np.bool_:
             raise ShapeError("healthy", healthy.shape, f"(B, {m}) bool")
@@ -120,46 +149,6 @@ class KruskalGraph:
         tree = np.zeros(healthy.shape, dtype=bool)
         tree[member[chosen], edge[chosen]] = True
         return tree, _roots(np.asarray(parent, dtype=np.int64)).reshape(size, count)
-
-
-def spanning_forests(
-    n: int, edges: npt.ArrayLike, weights: npt.ArrayLike, healthy: npt.ArrayLike
-) -> tuple[BoolArray, IntArray]:
-    """Kruskal's forest of each of ``B`` healthy edge sets of one graph (docs/model.md §4).
-
-    Member ``b``'s agent ``i`` is agent ``b·n + i`` of one graph of ``B·n`` agents;
-    its edges are scanned in the members' common order (the order of
-    :func:`minimum_spanning_forest`, member after member for each edge), so the
-    one union-find scan gives each member exactly its own forest. Many members of
-    a small graph are scanned edge by edge across members instead, with labels
-    for the components: the same edges kept, in fewer steps.
-
-    Parameters
-    ----------
-    n : int
-        Number of agents of each member; ids ``1..n``.
-    edges : (m, 2) array_like of int
-        The graph's undirected edges, shared by the members.
-    weights : (m,) array_like of float
-        Edge weights (finite).
-    healthy : (B, m) array_like of bool
-        The edges each member may use.
-
-    Returns
-    -------
-    tree : (B, m) bool array
-        The forest's edges of each member.
-    labels : (B, n) int array
-        A component label per agent (distinct across members): agents share a
-        label when the member's forest joins them.
-    """
-    graph = KruskalGraph.of(n, edges, weights)
-    m = graph.lo.size
-    arr = np.asarray(healthy)
-    if arr.ndim != 2 or arr.shape[1] != m:
-        raise ShapeError("healthy", arr.shape, f"(B, {m})")
-    mask = as_edge_mask(arr.reshape(-1), arr.size, "healthy").reshape(arr.shape)
-    return graph.forests(mask)
 
 
 def _label_sweep(

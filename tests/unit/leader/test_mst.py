@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -9,9 +11,12 @@ from hypothesis import strategies as st
 from scipy.sparse import coo_array
 from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 
+import leader.mst
 from formation.graph import AgentIdError, ShapeError
-from leader.mst import components, minimum_spanning_forest
+from formation.scenario import Scenario
+from leader.mst import KruskalGraph, components, minimum_spanning_forest
 
+SCENARIOS = Path(__file__).resolve().parents[3] / "scenarios"
 PROPERTY = settings(max_examples=300, deadline=None, derandomize=True, database=None)
 
 
@@ -169,3 +174,22 @@ def test_bad_inputs_say_expected_vs_actual() -> None:
         minimum_spanning_forest(3, edges, [np.nan, 2.0], [True, True])
     with pytest.raises(ValueError, match=r"^healthy has dtype float64; expected booleans"):
         minimum_spanning_forest(3, edges, [1.0, 2.0], [0.5, 1.0])
+
+
+@pytest.mark.parametrize("sweep_ratio", [0, 10**9], ids=["label sweep", "union-find"])
+def test_batch_forest_is_kruskals(
+    paper: Scenario, sweep_ratio: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Both scans of :meth:`KruskalGraph.forests` (forced by ``LABEL_SWEEP_RATIO``) keep
+    each member's Kruskal forest."""
+    monkeypatch.setattr(leader.mst, "LABEL_SWEEP_RATIO", sweep_ratio)
+    team = Scenario.from_file(SCENARIOS / "grid20.toml")
+    rng = np.random.default_rng(5)
+    for scen in (paper, team):
+        healthy = rng.random((40, len(scen.edge_array))) < 0.6
+        tree, labels = KruskalGraph.of(scen.n, scen.edge_array, scen.weights).forests(healthy)
+        for b in range(healthy.shape[0]):
+            want = np.zeros(len(scen.edge_array), dtype=bool)
+            want[minimum_spanning_forest(scen.n, scen.edge_array, scen.weights, healthy[b])] = True
+            np.testing.assert_array_equal(tree[b], want)
+            assert len(np.unique(labels[b])) == scen.n - want.sum()

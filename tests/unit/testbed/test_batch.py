@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from formation.scenario import STRATEGIES, Scenario
-from leader.mst import minimum_spanning_forest, spanning_forests
 from testbed.experiments.studies import dynamic_team
 from testbed.sim.batch import BatchError, plan_batch, run_batch
 from testbed.sim.simulate import SimResult, simulate
@@ -153,19 +152,6 @@ def test_members_must_share_the_structure(paper: Scenario) -> None:
         plan_batch([paper, other], [1, 1])
     with pytest.raises(BatchError, match="2 scenarios for 3 seeds"):
         plan_batch([paper, paper], [1, 2, 3])
-
-
-def test_batch_forest_is_kruskals(paper: Scenario) -> None:
-    team = Scenario.from_file(SCENARIOS / "grid20.toml")
-    rng = np.random.default_rng(5)
-    for scen in (paper, team):
-        healthy = rng.random((40, len(scen.edge_array))) < 0.6
-        tree, labels = spanning_forests(scen.n, scen.edge_array, scen.weights, healthy)
-        for b in range(healthy.shape[0]):
-            want = np.zeros(len(scen.edge_array), dtype=bool)
-            want[minimum_spanning_forest(scen.n, scen.edge_array, scen.weights, healthy[b])] = True
-            np.testing.assert_array_equal(tree[b], want)
-            assert len(np.unique(labels[b])) == scen.n - want.sum()
 
 
 def test_an_agent_that_leaves_or_has_not_joined_is_out_of_the_formation(paper: Scenario) -> None:
