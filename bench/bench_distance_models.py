@@ -29,7 +29,7 @@ from netem.models import LinkModel, delivery_matrix
 SEED = 20240601
 N_LINKS = 100
 
-MODELS: dict[str, list[LinkModelSpec]] = {
+STACKS: dict[str, list[LinkModelSpec]] = {
     "bernoulli": [Bernoulli(p_loss=0.1)],
     "range": [Range(max_range_m=10.0)],
     "logistic": [Logistic(d50_m=10.0, width_m=1.5)],
@@ -88,7 +88,7 @@ def main() -> None:
     links = np.stack([np.arange(1, N_LINKS + 1), np.arange(2, N_LINKS + 2)], axis=1)
     rows = [
         (name, *measure(stack, name != "bernoulli", args.seed, links, dist, n_packets))
-        for name, stack in MODELS.items()
+        for name, stack in STACKS.items()
     ]
     base = rows[0]
     print(

@@ -40,7 +40,7 @@ from netem.models import LinkModel, delivery_matrix, schedule
 SEED = 20240601
 N_LINKS = 100  # links of the delivery_matrix case
 
-MODELS: dict[str, list[LinkModelSpec]] = {
+STACKS: dict[str, list[LinkModelSpec]] = {
     "bernoulli": [Bernoulli(p_loss=0.1)],
     "outage+bernoulli": [Outage(start=100, end=200, every=1000), Bernoulli(p_loss=0.1)],
     "bernoulli corr": [Bernoulli(p_loss=0.3, correlation=0.5)],
@@ -90,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     links = np.array([(i % 10 + 1, (i * 3) % 17 + 1) for i in range(N_LINKS)])
     t_start = time.perf_counter()
 
-    baseline = per_packet_rate(MODELS["bernoulli"], seed, n_packet)
+    baseline = per_packet_rate(STACKS["bernoulli"], seed, n_packet)
     print(f"netem link models, seed {seed}; rates in decisions per second (best of 3)")
     print(f"baseline: per-packet decide, bernoulli: {baseline:,.0f}/s")
     print()
@@ -98,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     header += f" {'matrix ' + str(N_LINKS) + ' links':>18} {'×':>6}"
     print(header)
     print("-" * len(header))
-    for name, stack in MODELS.items():
+    for name, stack in STACKS.items():
         packet = baseline if name == "bernoulli" else per_packet_rate(stack, seed, n_packet)
         batch = n_batch / best_of(partial(schedule, stack, seed, 1, 2, n_batch))
         stacks = [stack] * N_LINKS
@@ -123,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"per-packet decide with a realtime outage (time_s): {rate:,.0f}/s ({rate / baseline:.2f}×)"
     )
-    delayed = MODELS["delay normal"]
+    delayed = STACKS["delay normal"]
     n_seq = n_packet // 4
 
     def second_packet() -> None:

@@ -24,7 +24,7 @@ class Outbox(Protocol):
 
 
 @dataclass
-class Held:
+class Delayed:
     """A packet held for a later epoch (delay), delivered with that epoch's packets."""
 
     link: Link
@@ -41,4 +41,4 @@ class OpenEpoch:
     lost: list[int] = field(default_factory=list)
 
 
-__all__ = ["Held", "OpenEpoch", "Outbox"]
+__all__ = ["Delayed", "OpenEpoch", "Outbox"]

@@ -24,7 +24,7 @@ from typing import Any
 
 from formation.scenario import LEADER_ENDPOINT
 from netem.clean import CleanEpochs, Deliver, clean_epochs
-from netem.epochs import Held, OpenEpoch, Outbox
+from netem.epochs import Delayed, OpenEpoch, Outbox
 from netem.links import Link, LinkClass, Links, Phase, Route
 from netem.positions import Positions
 from netem.progress import Progress
@@ -45,7 +45,7 @@ class Lockstep:
         self.links, self.epochs = links, epochs
         self.progress, self.ledger, self.outbox = progress, ledger, outbox
         self.open: dict[tuple[Phase, int, int], OpenEpoch] = {}  # (phase, receiver, epoch)
-        self.held: dict[tuple[Phase, int, int], list[Held]] = defaultdict(list)
+        self.delayed: dict[tuple[Phase, int, int], list[Delayed]] = defaultdict(list)
         self.next_close: dict[tuple[Phase, int], int] = defaultdict(int)
         self.closed_count: dict[tuple[Phase, int], int] = defaultdict(int)
         self.clean: dict[Phase, CleanEpochs] = {}  # none until setup_clean
@@ -318,8 +318,8 @@ class Lockstep:
             box.lost.append(src)  # lost for this epoch; arrives with a later one
             due = epoch + d.delay_epochs
             if not (self.out and dst in self.out.get(due, ())):  # else its receiver is out then
-                self.held[(phase, dst, due)].append(
-                    Held(link, d.copies, packet_json(src, seq, epoch, d.copies, payload))
+                self.delayed[(phase, dst, due)].append(
+                    Delayed(link, d.copies, packet_json(src, seq, epoch, d.copies, payload))
                 )
         return box
 
@@ -353,7 +353,7 @@ class Lockstep:
             elif not self._all_handled(box, senders, epoch):
                 return
             self.open.pop((phase, receiver, epoch), None)
-            for h in self.held.pop((phase, receiver, epoch), []):
+            for h in self.delayed.pop((phase, receiver, epoch), []):
                 self.ledger.forwarded[h.link] += h.copies
                 box.packets.append(h.packet)
             gone = [s for s in senders if s in dead] if dead else []
@@ -393,7 +393,7 @@ class Lockstep:
             clean = ce.clean(epoch)
         if not clean:  # by the models, or already handled packet by packet
             return False
-        if stream not in ce.receivers or self.dead or self.held or epoch in self.out:
+        if stream not in ce.receivers or self.dead or self.delayed or epoch in self.out:
             self._go_slow(phase, epoch)
             return False
         if ce.gated:

@@ -38,7 +38,7 @@ def _log_axis(ax: Axes, values: Sequence[Array]) -> None:
         ax.set_yscale("log")
 
 
-def errors(
+def plot_errors(
     series: Sequence[tuple[str, Array, Array]],
     path: Path,
     marks: Sequence[tuple[int, str]] = (),
@@ -70,7 +70,7 @@ def errors(
     return _save(fig, path)
 
 
-def trajectories(
+def plot_trajectories(
     runs: Sequence[tuple[str, Array]],
     edges: npt.NDArray[np.int64],
     leader: int,
@@ -117,7 +117,7 @@ def trajectories(
     return _save(fig, path)
 
 
-def link_timeline(
+def plot_link_timeline(
     runs: Sequence[tuple[str, npt.NDArray[np.bool_], npt.NDArray[np.bool_]]],
     link_labels: Sequence[str],
     path: Path,
@@ -139,7 +139,7 @@ def link_timeline(
     return _save(fig, path)
 
 
-def topology(
+def plot_topology(
     runs: Sequence[tuple[str, npt.NDArray[np.bool_], npt.NDArray[np.int64], npt.NDArray[np.int64]]],
     expected_rank: int,
     path: Path,
@@ -191,7 +191,7 @@ def _ellipse(ax: Axes, errors: Array, color: str) -> None:
     )
 
 
-def covariance(runs: Sequence[tuple[str, Array, Array]], path: Path) -> Path:
+def plot_covariance(runs: Sequence[tuple[str, Array, Array]], path: Path) -> Path:
     """Substitution errors ``x̃ − x`` and estimation errors ``x̂ − x`` with 2-σ ellipses; ``(label, sub (N, d), est (M, d))``."""
     fig = Figure(figsize=(11, 5), layout="constrained")
     ax_sub, ax_est = fig.subplots(1, 2)
@@ -225,7 +225,7 @@ def covariance(runs: Sequence[tuple[str, Array, Array]], path: Path) -> Path:
     return _save(fig, path)
 
 
-def nees(runs: Sequence[tuple[str, Array]], d: int, path: Path) -> Path:
+def plot_nees(runs: Sequence[tuple[str, Array]], d: int, path: Path) -> Path:
     """NEES per scored agent and epoch: histogram and running mean against ``d`` (honest estimator)."""
     fig = Figure(figsize=(11, 4.5), layout="constrained")
     ax_hist, ax_mean = fig.subplots(1, 2)
@@ -253,4 +253,11 @@ def nees(runs: Sequence[tuple[str, Array]], d: int, path: Path) -> Path:
     return _save(fig, path)
 
 
-__all__ = ["covariance", "errors", "link_timeline", "nees", "topology", "trajectories"]
+__all__ = [
+    "plot_covariance",
+    "plot_errors",
+    "plot_link_timeline",
+    "plot_nees",
+    "plot_topology",
+    "plot_trajectories",
+]

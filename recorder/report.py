@@ -243,7 +243,7 @@ def write_report_from(runs: Sequence[RunData], out_dir: Path, title: str | None 
     chosen = sorted({0, length // 4, length // 2, max(length - 1, 0)})
     sums = [summarize(r) for r in runs]
     files = {
-        "errors": plots.errors(
+        "errors": plots.plot_errors(
             [(r.label, r.formation_error, _team_shape(r)) for r in runs],
             out_dir / "errors.png",
             marks=[
@@ -252,28 +252,28 @@ def write_report_from(runs: Sequence[RunData], out_dir: Path, title: str | None 
                 for c in x.get("team_changes", [])
             ],
         ),
-        "trajectories": plots.trajectories(
+        "trajectories": plots.plot_trajectories(
             [(r.label, r.positions) for r in runs],
             s.edge_array,
             s.leader,
             chosen,
             out_dir / "trajectories.png",
         ),
-        "links": plots.link_timeline(
+        "links": plots.plot_link_timeline(
             [(r.label, r.delivered, r.decided) for r in runs],
             links,
             out_dir / "links.png",
         ),
-        "topology": plots.topology(
+        "topology": plots.plot_topology(
             [(r.label, r.tree, r.rigidity_rank, r.components) for r in runs],
             expected_rigidity_rank(s.n, s.dimension),
             out_dir / "topology.png",
         ),
-        "covariance": plots.covariance(
+        "covariance": plots.plot_covariance(
             [(r.label, r.substitution_errors, r.estimation_errors) for r in runs],
             out_dir / "covariance.png",
         ),
-        "nees": plots.nees(
+        "nees": plots.plot_nees(
             [(r.label, r.nees_values) for r in runs], s.dimension, out_dir / "nees.png"
         ),
     }

@@ -75,7 +75,7 @@ _PATTERNS: tuple[tuple[str, str], ...] = (
 )
 _SPLIT = tuple((kind, tuple(p.split("/"))) for kind, p in _PATTERNS)
 
-MODELS: dict[str, type[BaseModel]] = {
+MESSAGE_MODELS: dict[str, type[BaseModel]] = {
     "agent_state": CoordinationState,
     "link_state": CoordinationState,
     "agent_report": TokenReport,
@@ -140,7 +140,7 @@ def schema_for_kind(kind: str) -> SchemaSpec:
     """The schema written for channels of ``kind``."""
     if kind in FOXGLOVE:
         return foxglove_schema(kind)
-    model = MODELS.get(kind)
+    model = MESSAGE_MODELS.get(kind)
     return UNKNOWN_SCHEMA if model is None else model_schema(model)
 
 
@@ -157,7 +157,7 @@ __all__ = [
     "FOXGLOVE",
     "JSON",
     "JSONSCHEMA",
-    "MODELS",
+    "MESSAGE_MODELS",
     "PROTOBUF",
     "UNKNOWN",
     "UNKNOWN_SCHEMA",

@@ -5,7 +5,7 @@ agent can still put anything on its own keys. Everything that reads a recording 
 analysis (``formation report``, ``info``, ``replay``, the run's summary, the experiments,
 :func:`recorder.load_run`) goes through one :class:`Gate`, which passes a message only when
 
-- it validates against the pydantic model of its channel's kind (:data:`recorder.schemas.MODELS`),
+- it validates against the pydantic model of its channel's kind (:data:`recorder.schemas.MESSAGE_MODELS`),
   with finite numbers of the scenario's dimension; the recorder's Foxglove channels (scene,
   frames, log) decode as the SDK's protobuf message (:mod:`recorder.decoder`);
 - its sender owns the key: ``agent/<i>/…`` and link ``i → j`` carry ``agent/<i>`` (or a pool
@@ -45,7 +45,7 @@ from formation.messages import (
 )
 from formation.scenario import Scenario
 from recorder.decoder import DecodeError, decode_kind
-from recorder.schemas import FOXGLOVE, MODELS, UNKNOWN, LivelinessEvent, classify
+from recorder.schemas import FOXGLOVE, MESSAGE_MODELS, UNKNOWN, LivelinessEvent, classify
 
 INVALID = "invalid"  # not JSON (protobuf), wrong fields or types, non-finite or mis-sized numbers
 FORGED = "forged"  # the sender does not own the key, or claims another agent's id
@@ -171,7 +171,7 @@ class Gate:
             raise Skip(FORGED, f"{kind} not written by the recorder")
         if kind in FOXGLOVE:
             return self._foxglove(kind, data)
-        model = MODELS.get(kind)
+        model = MESSAGE_MODELS.get(kind)
         if model is None or kind == UNKNOWN:
             raise Skip(UNKNOWN_KEY, f"no process publishes on {topic}")
         try:

@@ -23,16 +23,16 @@ from formation.scenario import Scenario
 from testbed.cli.common import DEFAULT_SCENARIO, parse_strategies
 from testbed.cli.tables import print_table
 from testbed.experiments.executors import SCHEDULER_FORMS, executor_for
-from testbed.experiments.lossy import MODELS
+from testbed.experiments.lossy import LOSS_MODELS
 from testbed.experiments.paper_run import run_paper
 from testbed.experiments.sweep import SweepSpec, critical_table, loss_grid, run_sweep
 from testbed.experiments.wireless import (
     WirelessSpec,
     critical_markdown,
     run_wireless,
+    run_wireless_real,
     write_outputs,
 )
-from testbed.experiments.wireless import run_real as run_wireless_real
 
 EXPERIMENTS = ("paper", "wireless")
 DEFAULT_TOPOLOGIES = ("ring8", "grid20", "octahedron3d")
@@ -128,7 +128,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         losses=loss_grid(args.loss),
         strategies=_strategy_list(args.strategy),
         seeds=tuple(range(first, first + args.seeds)),
-        models=MODELS if args.burst else ("bernoulli",),
+        models=LOSS_MODELS if args.burst else ("bernoulli",),
         epochs=args.epochs,
         threshold_m=args.threshold,
         burst_epochs=args.burst_epochs,

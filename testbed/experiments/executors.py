@@ -45,7 +45,7 @@ OVERHEAD_SHARE = 0.05  # a task's overhead stays under 5 % of the task
 # The cheapest cell per epoch, batched: paper.toml (5 agents, 14 links), ~2 ms for 200 epochs
 # unloaded. Every other topology costs more, so chunks sized on it are long enough for all.
 CHEAPEST_CELL_EPOCH_S = 1e-5
-CONNECT_TIMEOUT_S = 30.0  # how long a scheduler address may take to answer
+SCHEDULER_TIMEOUT_S = 30.0  # how long a scheduler address may take to answer
 SCHEDULER_FORMS = "tcp://HOST:PORT, tls://HOST:PORT or local:N"
 
 
@@ -158,12 +158,12 @@ class DaskCluster:
                 )
             try:
                 client = stack.enter_context(
-                    distributed.Client(target, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
+                    distributed.Client(target, timeout=SCHEDULER_TIMEOUT_S, set_as_default=False)
                 )
             except OSError as exc:
                 raise ExecutorError(
                     f"--scheduler {self.address}: no Dask scheduler answered within "
-                    f"{CONNECT_TIMEOUT_S:g} s ({exc})"
+                    f"{SCHEDULER_TIMEOUT_S:g} s ({exc})"
                 ) from None
             # Pickled both ways: Dask walks a task's arguments and results looking for futures,
             # which for a chunk and its rows costs about as much again as the bytes (measured).

@@ -11,14 +11,14 @@ from typing import Any
 from formation.errors import TestbedError
 from formation.scenario import Scenario
 
-MODELS = ("bernoulli", "gilbert_elliott")
+LOSS_MODELS = ("bernoulli", "gilbert_elliott")
 
 
 class UnknownLossModel(TestbedError):
-    """A loss model name that is not one of :data:`MODELS`."""
+    """A loss model name that is not one of :data:`LOSS_MODELS`."""
 
     def __init__(self, model: str) -> None:
-        super().__init__(f"loss model {model!r}: expected one of {', '.join(MODELS)}")
+        super().__init__(f"loss model {model!r}: expected one of {', '.join(LOSS_MODELS)}")
 
 
 def gilbert_elliott_at(rate: float, burst_epochs: float) -> dict[str, float]:
@@ -52,4 +52,4 @@ def with_loss(scenario: Scenario, model: str, rate: float, burst_epochs: float =
     return scenario.with_overrides(network=net)
 
 
-__all__ = ["MODELS", "UnknownLossModel", "gilbert_elliott_at", "with_loss"]
+__all__ = ["LOSS_MODELS", "UnknownLossModel", "gilbert_elliott_at", "with_loss"]

@@ -49,8 +49,8 @@ def write_figures(r: PaperResults, out: Path) -> None:
     b = 0  # the scenario's seed (first of the list) for the position figures
     pos = {s: res.positions[:, b] for s, res in fail.items()}
     title = f"{r.scenario.name}: link 1–2 down from epoch 1, seed {r.seeds[b]}"
-    plots.agent_positions(pos, desired, PLOTTED_AGENTS, out / "positions.png", title)
-    plots.trajectories(pos, desired, PLOTTED_AGENTS, out / "trajectories.png", title)
+    plots.plot_agent_positions(pos, desired, PLOTTED_AGENTS, out / "positions.png", title)
+    plots.plot_strategy_paths(pos, desired, PLOTTED_AGENTS, out / "trajectories.png", title)
     traces = {}
     for s, res in fail.items():
         if s == "drop":
@@ -59,7 +59,7 @@ def write_figures(r: PaperResults, out: Path) -> None:
         for k in range(res.plan.epochs):
             t[k] = error_statistics(res.sub_error[res.sub_epoch == k])[2]
         traces[s] = t
-    plots.covariance_over_epochs(
+    plots.plot_covariance_over_epochs(
         traces,
         out / "substitution_covariance.png",
         f"substitution error covariance over {len(r.seeds)} seeds, link 1–2 down",
@@ -72,7 +72,7 @@ def write_figures(r: PaperResults, out: Path) -> None:
     }
     for variant, fname in names.items():
         series = {s: res.formation_error for s, res in r.runs[variant].items()}
-        plots.error_bands(
+        plots.plot_error_bands(
             series,
             out / fname,
             f"{variant}: formation error, median and 10–90 % of {len(r.seeds)} seeds",
@@ -80,7 +80,7 @@ def write_figures(r: PaperResults, out: Path) -> None:
         )
     if "alpha" in r.studies:
         a = r.studies["alpha"]
-        plots.alpha_curve(
+        plots.plot_alpha_curve(
             a.curves[0].alphas,
             {c.label: c.relative for c in a.curves},
             {c.label: c.best for c in a.curves},
@@ -89,7 +89,7 @@ def write_figures(r: PaperResults, out: Path) -> None:
         )
     if "dynamic" in r.studies:
         d = r.studies["dynamic"]
-        plots.dynamic_plot(
+        plots.plot_dynamic(
             d.shape_error,
             d.tree_edges,
             d.leave[1],

@@ -31,7 +31,7 @@ def _save(fig: Figure, path: Path) -> Path:
     return path
 
 
-def agent_positions(
+def plot_agent_positions(
     positions: Mapping[str, Array], desired: Array, agents: Sequence[int], path: Path, title: str
 ) -> Path:
     """x and y of ``agents`` over the epochs, one column per strategy (figs 7.7–7.11).
@@ -76,7 +76,7 @@ def agent_positions(
     return _save(fig, path)
 
 
-def trajectories(
+def plot_strategy_paths(
     positions: Mapping[str, Array], desired: Array, agents: Sequence[int], path: Path, title: str
 ) -> Path:
     """The plane paths of ``agents`` per strategy, with their slots (grey)."""
@@ -99,7 +99,7 @@ def trajectories(
     return _save(fig, path)
 
 
-def error_bands(
+def plot_error_bands(
     series: Mapping[str, Array],
     path: Path,
     title: str,
@@ -140,7 +140,7 @@ def error_bands(
     return _save(fig, path)
 
 
-def covariance_over_epochs(traces: Mapping[str, Array], path: Path, title: str) -> Path:
+def plot_covariance_over_epochs(traces: Mapping[str, Array], path: Path, title: str) -> Path:
     """Trace of the substitution error covariance at each epoch (over seeds), per strategy.
 
     traces : strategy → (E,) [m²], NaN where fewer than two errors.
@@ -158,7 +158,7 @@ def covariance_over_epochs(traces: Mapping[str, Array], path: Path, title: str) 
     return _save(fig, path)
 
 
-def alpha_curve(
+def plot_alpha_curve(
     alphas: Array, curves: Mapping[str, Array], best: Mapping[str, float], path: Path, title: str
 ) -> Path:
     """A quantity against blend's ``α``, one line per measurement, the best ``α`` marked."""
@@ -179,7 +179,7 @@ def alpha_curve(
     return _save(fig, path)
 
 
-def phase_plot(
+def plot_phase(
     success: Mapping[tuple[str, str, str], Array],
     critical: Mapping[tuple[str, str, str], float | None],
     losses: Sequence[float],
@@ -239,7 +239,7 @@ def phase_plot(
     return _save(fig, path)
 
 
-def dynamic_plot(
+def plot_dynamic(
     shape_err: Mapping[str, Array], tree_edges: Array, leave: int, join: int, path: Path, title: str
 ) -> Path:
     """Shape error over the active edges (median over seeds) and the leader's tree size."""
@@ -265,7 +265,7 @@ def dynamic_plot(
     return _save(fig, path)
 
 
-def range_phase_plot(
+def plot_range_phase(
     success: Mapping[tuple[str, str], Array],
     critical: Mapping[tuple[str, str], float | None],
     ranges: Sequence[float],
@@ -311,12 +311,12 @@ def range_phase_plot(
 
 __all__ = [
     "COLOURS",
-    "agent_positions",
-    "alpha_curve",
-    "covariance_over_epochs",
-    "dynamic_plot",
-    "error_bands",
-    "phase_plot",
-    "range_phase_plot",
-    "trajectories",
+    "plot_agent_positions",
+    "plot_alpha_curve",
+    "plot_covariance_over_epochs",
+    "plot_dynamic",
+    "plot_error_bands",
+    "plot_phase",
+    "plot_range_phase",
+    "plot_strategy_paths",
 ]

@@ -36,8 +36,8 @@ import numpy as np
 from formation.errors import TestbedError
 from formation.scenario import STRATEGIES, Scenario, StrategyName
 from testbed.experiments.executors import Executor, LocalPool, seeds_per_task
-from testbed.experiments.lossy import MODELS, with_loss
-from testbed.experiments.plots import phase_plot
+from testbed.experiments.lossy import LOSS_MODELS, with_loss
+from testbed.experiments.plots import plot_phase
 from testbed.experiments.studies import KEEP_FRACTION
 from testbed.sim.batch import plan_batch, run_batch
 
@@ -295,7 +295,7 @@ def _write_canonical(path: Path, rows: list[dict[str, Any]], spec: SweepSpec) ->
     """Rewrite the CSV sorted, one row per cell, so identical sweeps give identical bytes."""
     topo = {name: i for i, (name, _) in enumerate(spec.topologies)}
     strat: dict[str, int] = {str(s): i for i, s in enumerate(STRATEGIES)}
-    model = {m: i for i, m in enumerate(MODELS)}
+    model = {m: i for i, m in enumerate(LOSS_MODELS)}
     unique: dict[Key, dict[str, Any]] = {}
     for r in rows:
         unique.setdefault(_key(r), r)
@@ -433,7 +433,7 @@ def write_tables(summary: SweepSummary, out_dir: Path) -> None:
     )
     names = [n for n, _ in spec.topologies]
     grid = (names, spec.models, spec.strategies)
-    phase_plot(
+    plot_phase(
         summary.success,
         summary.critical,
         spec.losses,

@@ -30,7 +30,7 @@ import numpy as np
 
 from formation.scenario import STRATEGIES, Scenario, StrategyName
 from recorder.rundata import read_run
-from testbed.experiments.plots import range_phase_plot
+from testbed.experiments.plots import plot_range_phase
 from testbed.experiments.studies import KEEP_FRACTION
 from testbed.runtime.launcher import launch
 from testbed.sim.batch import BatchResult, plan_batch, run_batch
@@ -105,7 +105,7 @@ def wireless_variant(spec: WirelessSpec, case: Case, multiple: float) -> Scenari
     return s.with_overrides(network=net, control=control, epochs=spec.epochs)
 
 
-def final_errors(case: Case, res: BatchResult) -> np.ndarray:
+def final_judged_errors(case: Case, res: BatchResult) -> np.ndarray:
     """(B,) the final error that decides whether a member kept the formation [m]."""
     err = res.formation_error if case.controller == "distance" else res.shape_error
     return np.asarray(err[-1], dtype=float)
@@ -136,7 +136,7 @@ def run_wireless(spec: WirelessSpec, log: Callable[[str], None] = print) -> Wire
         for strategy in spec.strategies:
             log(f"wireless: {case.label}, {strategy} …")
             res = run_batch(plan, strategy, detail=False)
-            errors = final_errors(case, res).reshape(n_r, n_s)
+            errors = final_judged_errors(case, res).reshape(n_r, n_s)
             kept = errors < spec.threshold_m
             delivered = res.delivered.mean(axis=(0, 2)).reshape(n_r, n_s)
             sat = (
@@ -201,7 +201,7 @@ def success_markdown(r: WirelessResult) -> str:
     return "\n".join(out) + "\n"
 
 
-def results_markdown(r: WirelessResult) -> str:
+def wireless_results_markdown(r: WirelessResult) -> str:
     spec = r.spec
     edge = longest_edge(spec.scenario)
     text = [
@@ -251,8 +251,8 @@ def results_markdown(r: WirelessResult) -> str:
     return "\n".join(text)
 
 
-def run_real(r: WirelessResult, out: Path, multiple: float = 1.0, record: bool = True,
-             log: Callable[[str], None] = print) -> None:  # fmt: skip
+def run_wireless_real(r: WirelessResult, out: Path, multiple: float = 1.0, record: bool = True,
+                      log: Callable[[str], None] = print) -> None:  # fmt: skip
     """One real-process run per strategy and case at ``ρ = multiple``, the median seed's."""
     spec = r.spec
     for case in spec.cases:
@@ -294,9 +294,9 @@ def write_outputs(r: WirelessResult, out: Path) -> None:
     (out / "critical.md").write_text(
         "# Critical radio range per strategy\n\n" + critical_markdown(r)
     )
-    (out / "results.md").write_text(results_markdown(r))
+    (out / "results.md").write_text(wireless_results_markdown(r))
     labels = [c.label for c in r.spec.cases]
-    range_phase_plot(r.success, r.critical, r.spec.ranges, labels, r.spec.strategies,
+    plot_range_phase(r.success, r.critical, r.spec.ranges, labels, r.spec.strategies,
                      r.spec.threshold_m, out / "phase.png")  # fmt: skip
 
 
@@ -314,8 +314,8 @@ __all__ = [
     "critical_range",
     "keep_out_of_range",
     "longest_edge",
-    "run_real",
     "run_wireless",
+    "run_wireless_real",
     "wireless_variant",
     "write_outputs",
 ]

@@ -123,7 +123,7 @@ def test_a_delayed_packet_due_in_a_clean_epoch_goes_out_with_that_epochs_deliver
     assert 3 in into_5[k].lost and 3 not in [p.source for p in into_5[k].packets]
     got = sorted((p.source, p.sent_epoch) for p in into_5[k + 1].packets)
     assert got == [(3, k), (3, k + 1), (4, k + 1)] and into_5[k + 1].lost == []
-    assert not core.held
+    assert not core.delayed
     rec = Counter((r.source, r.target, r.epoch) for r in wire.decisions if r.epoch >= k)
     assert set(rec.values()) == {1} and len(rec) == 2 * len(scenario.directed_links)
 

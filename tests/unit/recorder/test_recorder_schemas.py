@@ -45,7 +45,7 @@ def test_every_key_maps_to_its_schema(key: str, kind: str, schema: str) -> None:
 
 
 def test_every_wire_model_has_a_channel_kind() -> None:
-    assert set(ALL_MODELS) <= set(schemas.MODELS.values())
+    assert set(ALL_MODELS) <= set(schemas.MESSAGE_MODELS.values())
 
 
 @pytest.mark.parametrize("model", [*ALL_MODELS, schemas.LivelinessEvent])
