@@ -8,6 +8,7 @@ pandas, so they load on first use.
 
 from __future__ import annotations
 
+import importlib
 from typing import TYPE_CHECKING, Any
 
 from recorder.metrics import error_statistics, formation_error, longest_run, nees, shape_error
@@ -30,8 +31,6 @@ _LAZY = {
 
 def __getattr__(name: str) -> Any:
     if name in _LAZY:
-        import importlib
-
         return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'recorder' has no attribute {name!r}")
 

@@ -30,7 +30,7 @@ class Display:
 
     def __enter__(self) -> Display:
         if self.live:
-            from rich.live import Live
+            from rich.live import Live  # here: rich (30 ms) loads only for a terminal's table
 
             self._rich = Live(self._table(), refresh_per_second=2, transient=False)
             self._rich.__enter__()
@@ -61,7 +61,7 @@ class Display:
         )  # fmt: skip
 
     def _table(self) -> Any:
-        from rich.table import Table
+        from rich.table import Table  # only when live (see __enter__)
 
         s = self.source
         dropped = s.intake.dropped

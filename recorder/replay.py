@@ -35,6 +35,7 @@ import zenoh
 
 from formation import codec, keys
 from formation.errors import TestbedError
+from formation.zenoh_config import open_session
 from recorder.live import LiveServer
 from recorder.reader import iter_messages, metadata, open_recording, scenario_of
 from recorder.schemas import FOXGLOVE, classify, run_id_of
@@ -249,8 +250,6 @@ class Replayer:
 
 def replay(args: Any) -> int:
     """``formation replay``: the CLI entry (``args`` from :mod:`testbed.cli.recorder`)."""
-    from formation.zenoh_config import open_session
-
     if args.foxglove is not None:
         return replay_live(args)
     replayer = Replayer(

@@ -20,7 +20,9 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
 
+import lz4.frame
 import numpy as np
+import zstandard
 from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import (
@@ -64,12 +66,8 @@ Raw = tuple[str, bytes, "bytes | None", Any, int]
 
 def _compressor(name: str) -> Callable[[bytes], bytes]:
     if name == "zstd":
-        import zstandard
-
         return zstandard.ZstdCompressor(level=3).compress
     if name == "lz4":
-        import lz4.frame
-
         return lz4.frame.compress  # type: ignore[no-any-return]
     if name == "none":
         return bytes

@@ -100,7 +100,7 @@ def cmd_recover(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from recorder.frames import export, load_run
+    from recorder.frames import export, load_run  # here: pandas loads only for this command
 
     run = load_run(args.recording)
     files = export(run, args.out_dir, args.format)

@@ -17,6 +17,7 @@ from dataclasses import replace
 from pathlib import Path, PurePosixPath
 
 from recorder import node
+from recorder.rundata import read_run
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -34,9 +35,8 @@ def main(argv: list[str] | None = None) -> int:
     code = node.main(rest)
     if code != 0 or not ours.report:
         return code
-    # Imported only now: the recording process starts without matplotlib.
+    # Imported only now: the recording process starts without matplotlib (the report's plots).
     from recorder.report import write_report_from
-    from recorder.rundata import read_run
 
     out_dir = Path(args.out or Path("runs") / args.run_id)
     shown = PurePosixPath(ours.host_out or out_dir)  # what the host calls out_dir
