@@ -302,6 +302,7 @@ def launch(
                 malformed=dict(malformed), sent=dict(sent), delivered=dict(delivered),
                 pids=group.pids, wall_s=time.monotonic() - started,
                 extra={"deadline": deadline_counts(observer.statuses.values()), "losses": losses, "fallbacks": observer.fallbacks,
+                       "fallback_epochs": dict(sorted(observer.fallback_epochs.items())),
                        "team_events": list(observer.team_events), "priorities": priorities},
             )  # fmt: skip
     finally:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import threading
 import time
+from collections import Counter
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -51,6 +52,7 @@ class Observer:
         self.malformed = Malformed()
         self.drops = 0
         self.fallbacks = 0  # substituted values that fell back (no estimate to use)
+        self.fallback_epochs: Counter[int] = Counter()  # epoch → those used at it
         self.returns: dict[int, tuple[int, float]] = {}  # agent → (epoch, t) first after a gap
         self.team_events: list[tuple[float, str]] = []  # netem's running statuses (t, detail)
         self.run_id = run_id
@@ -92,7 +94,10 @@ class Observer:
             self.positions[k, i - 1] = position
             for j, value in subs:  # used at the previous epoch
                 self.substitutions.append((k - 1, i, j, value))
-            self.fallbacks += sum(bool(s.get("fallback")) for s in msg["substituted"])
+            fell = sum(bool(s.get("fallback")) for s in msg["substituted"])
+            if fell:
+                self.fallbacks += fell
+                self.fallback_epochs[k - 1] += fell
 
     def _on_estimate(self, sample: zenoh.Sample) -> None:
         att = sample.attachment
