@@ -95,7 +95,8 @@ def _print_losses(outcomes: list[Any], console: Console) -> None:
             console.print(
                 f"{o.strategy}: {loss['name']} (pid {loss['pid']}) lost at epoch {loss['epoch']} "
                 f"(exit code {loss['code']}, {loss['dropped']} packets dropped on its links)"
-                f"{again}" + ("" if back is None else f", back from epoch {back}")
+                f"{again}" + ("" if back is None else f", back from epoch {back}"),
+                soft_wrap=True,  # one line even in a pipe, for grep
             )
 
 
