@@ -7,7 +7,7 @@ from the image on the host's network, each service name on its own 127.0.0.N
 (``deploy/compose.loopback.yaml``); ``up``, wait for netem to exit, ``down``. The recording
 must hold every sender's count and every epoch, the SDK's protobuf SceneUpdate schema, and
 equal a native ``formation run`` of the same scenario and seed. What the services write in
-``./runs`` must belong to the invoking user.
+``./runs`` must belong to the user they run as, a non-root one (as root, :data:`NON_ROOT`).
 """
 
 from __future__ import annotations
@@ -42,6 +42,9 @@ PODMAN_COMPOSE = os.environ.get("PODMAN_COMPOSE", "")
 REQUIRED = os.environ.get("FORMATION_REQUIRE_CONTAINERS", "") == "1"  # set by make compose-test
 WAIT_S = 300  # netem's exit; the default scenario takes seconds
 DOWN_S = 180  # the recorder's stop_grace_period is 2 min
+# As root the services run as this user, not compose's default 1000, so the check also shows
+# FORMATION_UID reaching them; the keys and the run directory are handed to it as a user's are.
+NON_ROOT = (1001, 1001)
 
 
 @dataclass(frozen=True)
@@ -84,14 +87,26 @@ def _require_podman() -> None:
     pytest.skip(f"needs podman-compose: {why}; run `make compose-test`")
 
 
+def _run_as() -> tuple[tuple[int, int], int]:
+    """The services' uid:gid, and the host uid that must own their files.
+
+    As root the containers would run as root too and an ownership check would show nothing,
+    so they run as :data:`NON_ROOT`. Without root, podman is rootless: the container's root is
+    the invoking user (README, Deployment).
+    """
+    if os.getuid() == 0:
+        return NON_ROOT, NON_ROOT[0]
+    return (0, 0), os.getuid()
+
+
 @pytest.fixture
 def deployment(tmp_path: Path) -> Iterator[Deployment]:
-    """Keys and a fresh ``runs/<RUN_ID>``, removed after the test."""
+    """Keys and ``runs/<RUN_ID>`` owned by the services' user; the run directory removed after."""
     _require_podman()
     doc = yaml.safe_load(COMPOSE.read_text())
     mount = doc["services"]["netem"]["volumes"][0].split(":")[0]
     scenario_file = (ROOT / mount).resolve()
-    uid, gid = os.getuid(), os.getgid()
+    (uid, gid), owner = _run_as()
     run_id = f"podman-{os.getpid()}"
     subprocess.run(
         [sys.executable, "-m", "testbed.cli", "keys", str(tmp_path / "keys"), str(scenario_file)],
@@ -101,6 +116,9 @@ def deployment(tmp_path: Path) -> Iterator[Deployment]:
     made_runs = not runs.exists()
     run_dir = runs / run_id
     run_dir.mkdir(parents=True)  # as a user does before `up`
+    if os.getuid() == 0:  # hand the user its keys (0600) and its run directory
+        for path in [tmp_path / "keys", *(tmp_path / "keys").rglob("*"), run_dir]:
+            os.chown(path, uid, gid)
     env = {
         **os.environ,
         "FORMATION_KEYS": str(tmp_path / "keys"),
@@ -109,7 +127,7 @@ def deployment(tmp_path: Path) -> Iterator[Deployment]:
         "FORMATION_GID": str(gid),
     }
     env.pop("FORMATION_RUNS", None)  # the default, ./runs, as a user runs it
-    dep = Deployment(doc, scenario_file, Scenario.from_file(scenario_file), run_id, env, uid)
+    dep = Deployment(doc, scenario_file, Scenario.from_file(scenario_file), run_id, env, owner)
     _compose("down", env=env, timeout_s=DOWN_S)  # leftovers of an interrupted run
     try:
         yield dep
@@ -204,7 +222,7 @@ def _check_run(dep: Deployment) -> dict[str, Any]:
     # the report, naming host paths
     report = (dep.run_dir / "report.md").read_text()
     assert f"runs/{dep.run_id}/run.mcap" in report and "/app/" not in report
-    # everything the services wrote belongs to the invoking user
+    # everything the services wrote belongs to the user they ran as
     written = list(dep.run_dir.rglob("*"))
     assert written and {p.stat().st_uid for p in written} == {dep.owner}, {
         str(p.relative_to(dep.run_dir)): p.stat().st_uid for p in written
