@@ -6,8 +6,9 @@ podman-compose these tests then fail; elsewhere (``make test``) they skip. The s
 from the image on the host's network, each service name on its own 127.0.0.N
 (``deploy/compose.loopback.yaml``); ``up``, wait for netem to exit, ``down``. The recording
 must hold every sender's count and every epoch, the SDK's protobuf SceneUpdate schema, and
-equal a native ``formation run`` of the same scenario and seed. What the services write in
-``./runs`` must belong to the user they run as, a non-root one (as root, :data:`NON_ROOT`).
+equal a native ``formation run`` of the same scenario and seed; a second run starts the
+router 10 s after every other service. What the services write in ``./runs`` must belong to
+the user they run as, a non-root one (as root, :data:`NON_ROOT`).
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ PODMAN_COMPOSE = os.environ.get("PODMAN_COMPOSE", "")
 REQUIRED = os.environ.get("FORMATION_REQUIRE_CONTAINERS", "") == "1"  # set by make compose-test
 WAIT_S = 300  # netem's exit; the default scenario takes seconds
 DOWN_S = 180  # the recorder's stop_grace_period is 2 min
+LATE_S = 10.0  # the router's delay in the start-up test
 # As root the services run as this user, not compose's default 1000, so the check also shows
 # FORMATION_UID reaching them; the keys and the run directory are handed to it as a user's are.
 NON_ROOT = (1001, 1001)
@@ -100,14 +102,15 @@ def _run_as() -> tuple[tuple[int, int], int]:
 
 
 @pytest.fixture
-def deployment(tmp_path: Path) -> Iterator[Deployment]:
+def deployment(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Deployment]:
     """Keys and ``runs/<RUN_ID>`` owned by the services' user; the run directory removed after."""
     _require_podman()
     doc = yaml.safe_load(COMPOSE.read_text())
     mount = doc["services"]["netem"]["volumes"][0].split(":")[0]
     scenario_file = (ROOT / mount).resolve()
     (uid, gid), owner = _run_as()
-    run_id = f"podman-{os.getpid()}"
+    suffix = "-late" if "late" in request.node.name else ""
+    run_id = f"podman{suffix}-{os.getpid()}"
     subprocess.run(
         [sys.executable, "-m", "testbed.cli", "keys", str(tmp_path / "keys"), str(scenario_file)],
         check=True, capture_output=True, timeout=120,
@@ -269,3 +272,37 @@ def test_compose_yaml_under_podman_equals_a_native_run(
         f"{native_s:.1f} s; final formation error {ours.formation_error[-1]:.6g} m (both); "
         f"files owned by uid {dep.owner}"
     )
+
+
+def test_router_started_late_under_podman_still_gives_a_complete_run(
+    deployment: Deployment,
+) -> None:
+    """Every service but the router up first; the router 10 s later: the clients retry."""
+    dep = deployment
+    clients = [n for n in dep.doc["services"] if n != "router"]
+    try:
+        up = _compose("up", "-d", "--no-deps", *clients, env=dep.env, timeout_s=300)
+        assert up.returncode == 0, up.stdout[-2000:] + up.stderr[-3000:]
+        t_up = time.monotonic()
+        while time.monotonic() - t_up < LATE_S:  # the delay is the test; no one may give up
+            _failed(dep.project)
+            time.sleep(0.5)
+        states = _containers(dep.project)
+        assert sorted(states) == sorted(f"{dep.project}_{n}_1" for n in clients), states
+        assert all(s.startswith("Up") for s in states.values()), states
+        router = _compose("up", "-d", "--no-deps", "router", env=dep.env, timeout_s=120)
+        assert router.returncode == 0, router.stdout[-2000:] + router.stderr[-3000:]
+        assert _wait_netem(dep.project, WAIT_S) == 0
+        # the clients waited for the router; `restart: on-failure` did not start them again
+        restarts = subprocess.run(
+            ["podman", "inspect", "--format", "{{.Name}} {{.RestartCount}}",
+             *(f"{dep.project}_{n}_1" for n in clients)],
+            capture_output=True, text=True, check=True, timeout=60,
+        ).stdout  # fmt: skip
+        assert dict(line.split() for line in restarts.splitlines()) == {
+            f"{dep.project}_{n}_1": "0" for n in clients
+        }
+    finally:
+        down = _compose("down", env=dep.env, timeout_s=DOWN_S)
+    assert down.returncode == 0, down.stderr[-3000:]
+    _check_run(dep)
