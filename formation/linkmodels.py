@@ -13,7 +13,7 @@ netem's keyed draws, so a new model is appended, never inserted (how to add one:
 
 from __future__ import annotations
 
-from typing import Annotated, Literal, get_args
+from typing import Annotated, ClassVar, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -21,9 +21,14 @@ Probability = Annotated[float, Field(ge=0.0, le=1.0)]
 
 
 class Spec(BaseModel):
-    """Base of the link model specs; ``model`` is the tag a subclass fixes with a literal."""
+    """Base of the link model specs; ``model`` is the tag a subclass fixes with a literal.
+
+    A distance model (its verdict depends on the link's length at the epoch) sets the class
+    attribute ``by_distance = True``; :data:`DISTANCE_MODELS` is read from it.
+    """
 
     model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
+    by_distance: ClassVar[bool] = False
 
     model: str
 
@@ -152,6 +157,7 @@ class Range(Spec):
     scenario's ``network.access_point``.
     """
 
+    by_distance: ClassVar[bool] = True
     model: Literal["range"] = "range"
     max_range_m: float = Field(gt=0.0)  # [m]
 
@@ -159,6 +165,7 @@ class Range(Spec):
 class Logistic(Spec):
     """Distance: packet reception ratio ``1 / (1 + exp((d − d50_m) / width_m))`` at length ``d``."""
 
+    by_distance: ClassVar[bool] = True
     model: Literal["logistic"] = "logistic"
     d50_m: float = Field(gt=0.0)  # [m] where half the packets arrive
     width_m: float = Field(gt=0.0)  # [m] how gradual the fall is
@@ -173,6 +180,7 @@ class LogDistance(Spec):
     and epoch, AR(1) over epochs with ``shadowing_correlation``; ``d < d0_m`` counts as ``d0_m``.
     """
 
+    by_distance: ClassVar[bool] = True
     model: Literal["log_distance"] = "log_distance"
     tx_power_dbm: float = 0.0  # P_t [dBm]
     path_loss_d0_db: float = 40.0  # PL(d0) [dB]
@@ -203,7 +211,7 @@ SPEC_OF: dict[str, type[Spec]] = {
     cls.model_fields["model"].default: cls for cls in get_args(get_args(LinkModelSpec)[0])
 }  # tag → spec class, in the union's order
 MODEL_NAMES: tuple[str, ...] = tuple(SPEC_OF)  # a tag's index is its kind code in keyed draws
-DISTANCE_MODELS: tuple[type[Spec], ...] = (Range, Logistic, LogDistance)  # decide by link length
+DISTANCE_MODELS: tuple[type[Spec], ...] = tuple(c for c in SPEC_OF.values() if c.by_distance)
 
 __all__ = [
     "DISTANCE_MODELS",

@@ -11,7 +11,7 @@ from __future__ import annotations
 import tomllib
 from functools import cached_property
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args
 
 import numpy as np
 import numpy.typing as npt
@@ -27,7 +27,7 @@ from formation.linkmodels import LinkModelSpec
 from formation.robots import Safety, Unicycle, robot_problems
 
 StrategyName = Literal["zero", "hold", "estimate", "blend", "drop"]
-STRATEGIES: tuple[StrategyName, ...] = ("zero", "hold", "estimate", "blend", "drop")
+STRATEGIES: tuple[StrategyName, ...] = get_args(StrategyName)  # in the literal's order
 LEADER_ENDPOINT = 0  # the leader's end of a control link, in netem's link ids
 
 

@@ -1,4 +1,4 @@
-"""Decisions of many links at once, for the in-process simulator and sweeps (MODEL.md §4).
+"""Decisions of many links at once, for the in-process simulator and sweeps (docs/model.md §4).
 
 ``delivery_plan`` runs every link's stack over all epochs, vectorised over links
 with equal stacks; what a distance model decides (``range``, ``logistic``,

@@ -5,7 +5,8 @@ To add a model, touch two files:
 1. ``formation/linkmodels.py``: its spec, a subclass of ``Spec`` with
    ``model: Literal["<tag>"] = "<tag>"``, appended at the end of the
    ``LinkModelSpec`` union. Scenarios accept the tag at once. Append, never
-   insert: a model's position in the union is its kind code in every keyed draw.
+   insert: a model's position in the union is its kind code in every keyed draw. A model
+   that decides by the link's length sets ``by_distance = True`` (``DISTANCE_MODELS``).
 2. ``netem/linkmodels/<tag>.py``: its behaviour and closed forms, a subclass of
    ``netem.layer.Layer`` overriding ``run`` (and, as the model needs, ``state_names``,
    ``packet``, ``problem``, ``loss_chain``, ``loss_rate``), exported as ``LAYER``.
