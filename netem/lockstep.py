@@ -64,6 +64,8 @@ class Lockstep:
         self.starts: dict[int, list[int]] = {}
         self.away: set[int] = set()
         self.rejoined: dict[int, int] = {}
+        # (action, agent, epoch) of each event as it is applied, for the node to announce.
+        self.applied: list[tuple[str, int, int]] = []
         if team is not None:
             for k in range(epochs + 1):
                 if not team.present[k].all():
@@ -105,7 +107,7 @@ class Lockstep:
                 progress.final_state(source)
                 return
             if self.out and source in self.out.get(epoch, ()):
-                self._goodbye(source)
+                self._goodbye(source, epoch)
                 return
             if not self._forward_clean("state", source, epoch, seq, payload):
                 self._route_state(source, epoch, seq, payload)
@@ -208,6 +210,9 @@ class Lockstep:
         self.rejoined[agent] = epoch
         self.away.discard(agent)
         self.progress.final_states.discard(agent)  # its next last state is still to come
+        team = self.links.team
+        again = team is not None and bool(team.present[:epoch, agent - 1].any())
+        self.applied.append(("restart" if again else "join", agent, epoch))
         self._skip_to(agent, epoch)
         for phase in ("state", "estimate"):  # what is complete already goes out now
             self._try_close(phase, agent)
@@ -222,9 +227,13 @@ class Lockstep:
                 if stale < epoch:
                     del self.open[(phase, agent, stale)]
 
-    def _goodbye(self, agent: int) -> None:
+    def _goodbye(self, agent: int, epoch: int) -> None:
         """``agent``'s last state before a leave or crash event: kept (its body's state, for a
         restart), not forwarded; nobody waits for it until its next scheduled start."""
+        if agent not in self.away:
+            team = self.links.team
+            crash = team is not None and bool(team.crashed[epoch, agent - 1])
+            self.applied.append(("crash" if crash else "leave", agent, epoch))
         self.away.add(agent)
         self.rejoined.pop(agent, None)
         self.progress.final_state(agent)  # what netem/final answers a leaving agent

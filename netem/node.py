@@ -154,17 +154,31 @@ class NetemNode:
         self.lockstep.sender_died(sender)
         self.team_changed(f"lost {_sender_name(sender)}")
 
-    def team_changed(self, event: str) -> None:
+    def team_changed(self, event: str, epoch: int | None = None) -> None:
         """A ``running`` status naming who takes part from which epoch (recorded, and read
-        by the launcher's live view): issue 20, who was in the team at each epoch."""
+        by the launcher's live view): issue 20, who was in the team at each epoch.
+
+        ``epoch``: a scenario event's own epoch (else the newest epoch netem has seen);
+        ``team`` the agents taking part now, ``away`` those out by the scenario's events.
+        """
         ls = self.lockstep
+        down = sorted(i for i in ls.dead if ls.is_down(i))
         team = {
             "event": event,
-            "epoch": self.progress.epoch_seen,
-            "down": sorted(i for i in ls.dead if ls.is_down(i)),
+            "epoch": self.progress.epoch_seen if epoch is None else epoch,
+            "team": [i for i in self.agents if i not in ls.away and i not in down],
+            "away": sorted(ls.away),
+            "down": down,
             "back": {str(i): k for i, k in sorted(ls.revive.items())},
         }
         self.service.status("running", self.estimates_done, orjson.dumps(team).decode())
+
+    def _announce_applied(self) -> None:
+        """A status for each scenario event the lockstep core has applied since the last call:
+        ``leave``/``crash`` at the agent's last state, ``join``/``restart`` at its rejoin."""
+        applied, self.lockstep.applied = self.lockstep.applied, []
+        for action, agent, epoch in applied:
+            self.team_changed(f"{action} agent {agent}", epoch)
 
     def everyone_up(self) -> bool:
         # An agent that joins later (a scenario event) is not waited for at the start.
@@ -208,6 +222,8 @@ class NetemNode:
                 self.realtime.link("formation", source, dst)[0].put(payload, attachment=att)
             return
         self.lockstep.packet(route, epoch, seq, payload)
+        if self.lockstep.applied:
+            self._announce_applied()
 
     def _setup_clean(self) -> None:
         self.lockstep.setup_clean()
@@ -320,14 +336,17 @@ class NetemNode:
         if leader:
             self.service.seen_now("leader", 0)
         with self.lock:
+            unplanned = [i for i in ids if self.lockstep.planned_start(i) is None]
             for i in ids:
                 epoch = self.lockstep.rejoin(i)
                 last = self.lockstep.state_of(i)
                 answer["agents"][str(i)] = {"from_epoch": epoch, "state": _state_of(last)}
             if leader:
                 answer["leader"] = {"from_epoch": self.lockstep.rejoin(LEADER_ENDPOINT)}
-            names = [f"agent {i}" for i in ids] + (["the leader"] if leader else [])
-            self.team_changed(f"back {', '.join(names)}")
+            self._announce_applied()  # a scheduled join or restart: named by the scenario
+            names = [f"agent {i}" for i in unplanned] + (["the leader"] if leader else [])
+            if names:
+                self.team_changed(f"back {', '.join(names)}")
         query.reply(query.key_expr, orjson.dumps(answer))
 
     def _planned_ready(self, ids: list[int], wait_s: float = 2.0) -> bool:

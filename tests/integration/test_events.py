@@ -8,6 +8,7 @@ joining and restarted ones as the run nears their epoch; every process is ended 
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -76,3 +77,11 @@ def test_a_join_and_every_other_event_equal_the_simulator(runs_dir: Path) -> Non
     assert_equals_the_simulator(outcome, scenario, "estimate")
     x6 = outcome.positions[:, 5]
     assert np.array_equal(x6[15], scenario.initial_positions()[5]), "starts where it is declared"
+    # netem's live status names each event as it applies it, and who takes part from then.
+    team = [json.loads(d) for _, d in outcome.extra["team_events"]]
+    assert [(t["event"], t["epoch"], t["team"], t["away"]) for t in team] == [
+        ("join agent 6", 15, [1, 2, 3, 4, 5, 6], []),
+        ("crash agent 3", 25, [1, 2, 4, 5, 6], [3]),
+        ("restart agent 3", 40, [1, 2, 3, 4, 5, 6], []),
+        ("leave agent 5", 60, [1, 2, 3, 4, 6], [5]),
+    ]

@@ -44,8 +44,11 @@ def test_crash_restart_and_leave_are_keyed_to_their_epochs(
     team = scenario.membership
     for k in range(3):
         epoch_of(core, k, team.taking_part(k))
+    assert core.applied == []
     core.packet(("state", 3, 0), 3, 3, state(3, 3))  # its last state: the body's, kept
     assert core.state_of(3) == (3, state(3, 3)) and 3 in core.away
+    core.packet(("state", 3, 0), 3, 3, state(3, 3))  # the same again: applied once
+    assert core.applied == [("crash", 3, 3)]  # for the node to announce (a team status)
     assert core.planned_start(3) == 6
     for k in range(3, 6):
         epoch_of(core, k, team.taking_part(k))
@@ -56,6 +59,7 @@ def test_crash_restart_and_leave_are_keyed_to_their_epochs(
         epoch_of(core, k, team.taking_part(k))
     core.packet(("state", 5, 0), 8, 8, state(5, 8))  # agent 5's goodbye
     assert 5 in core.progress.final_states
+    assert core.applied == [("crash", 3, 3), ("restart", 3, 6), ("leave", 5, 8)]
     for k in range(8, scenario.epochs):
         epoch_of(core, k, team.taking_part(k))
     assert not core.finished()
@@ -89,7 +93,7 @@ def test_an_agent_that_joins_is_not_waited_for_before_its_epoch(paper: Scenario,
     for k in range(4):
         epoch_of(core, k, [1, 2, 3, 4])
     assert closes(wire, "state", 3) == [0, 1, 2, 3] and closes(wire, "state", 5) == []
-    assert core.rejoin(5) == 4
+    assert core.rejoin(5) == 4 and core.applied == [("join", 5, 4)]
     for k in range(4, 8):
         epoch_of(core, k, [1, 2, 3, 4, 5])
     assert closes(wire, "state", 5) == [4, 5, 6, 7]
