@@ -117,18 +117,22 @@ class RunOutcome:
         }
 
     def faults_summary(self) -> dict[str, Any]:
-        """Who died, when and whether it came back, and who was in the team at each epoch."""
+        """Who died, when and whether it came back, and who was in the team at each epoch
+        (``team``: agent → its spans of epochs with a state, with losses and whenever some
+        agent lacks a state at some epoch, as with the scenario's events)."""
         losses = self.extra.get("losses", [])
+        seen = np.asarray(np.isfinite(self.positions).all(axis=2), dtype=bool)
+        out: dict[str, Any] = {}
+        if losses or not seen.all():
+            out["team"] = {str(i): spans for i, spans in team_intervals(seen).items()}
         if not losses:
-            return {}
+            return out
         drops = self.drops_per_link()
         for loss in losses:  # its drops: decisions on its links, and the epochs it missed
             name = loss["name"]
             ident = "0" if name == "leader" else name.removeprefix("agent-")
             loss["dropped"] = sum(d for link, (_, d) in drops.items() if ident in link.split("->"))
-        seen = np.asarray(np.isfinite(self.positions).all(axis=2), dtype=bool)
-        team = {str(i): spans for i, spans in team_intervals(seen).items()}
-        return {"losses": losses, "team": team, "fallbacks": self.extra.get("fallbacks", 0)}
+        return {"losses": losses, **out, "fallbacks": self.extra.get("fallbacks", 0)}
 
 
 def make_run_id(scenario: Scenario, strategy: str, seed: int) -> str:

@@ -50,6 +50,8 @@ def assert_equals_the_simulator(outcome: RunOutcome, scenario: Scenario, strateg
     assert verdicts == want, "a decision for every packet between agents taking part, no other"
     assert outcome.malformed == {}
     assert "losses" not in outcome.summary(), "an event is not an unplanned loss"
+    incarnations = {str(i): team.incarnations(i) for i in range(1, scenario.n + 1)}
+    assert outcome.summary()["team"] == incarnations, "who was in the team, by epoch"
 
 
 def test_crash_restart_and_leave_equal_the_simulator(paper: Scenario, runs_dir: Path) -> None:
