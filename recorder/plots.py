@@ -45,7 +45,9 @@ def plot_errors(
 ) -> Path:
     """Formation and shape error over epochs: ``series`` of ``(label, formation (P,), shape (P,))`` [m].
 
-    ``marks``: ``(epoch, text)`` drawn as vertical lines, e.g. an agent lost or back.
+    ``marks``: ``(epoch, text)`` drawn as vertical lines, the text starting with the change:
+    red where an agent goes out (``lost``, ``leave``, ``crash``), green where it comes in;
+    dashed when unplanned (``lost``, ``back``), dotted for the scenario's events.
     """
     fig = Figure(figsize=(9, 6.5), layout="constrained")
     top, bottom = fig.subplots(2, 1, sharex=True)
@@ -59,11 +61,14 @@ def plot_errors(
     bottom.set_ylabel("shape error [m]")
     bottom.set_xlabel("epoch")
     for epoch, text in marks:
-        color = "tab:red" if text.startswith("lost") else "tab:green"
+        what = text.split()[0]
+        color = "tab:red" if what in ("lost", "leave", "crash") else "tab:green"
+        style = "--" if what in ("lost", "back") else ":"
         for ax in (top, bottom):
-            ax.axvline(epoch, color=color, linestyle="--", linewidth=0.8, alpha=0.7)
-        top.annotate(text, (epoch, 1.0), xycoords=("data", "axes fraction"), fontsize="x-small",
-                     color=color, rotation=90, va="top", ha="right")  # fmt: skip
+            ax.axvline(epoch, color=color, linestyle=style, linewidth=0.9, alpha=0.8)
+        top.annotate(text, (epoch, 0.98), xycoords=("data", "axes fraction"), fontsize="small",
+                     color=color, rotation=90, va="top", ha="right", zorder=5,
+                     bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.8})  # fmt: skip
     for ax in (top, bottom):
         ax.grid(True, alpha=0.3)
         ax.legend(loc="best", fontsize="small")

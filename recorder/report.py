@@ -107,9 +107,10 @@ def _team(run: RunData) -> dict[str, Any]:
     shape = membership.team_shape_error(
         run.positions, run.scenario.edge_array, run.scenario.offsets
     )
+    events = [(e.epoch, e.agent, e.action) for e in run.scenario.events]
     return {
         "team": {str(i): s for i, s in membership.spans(team).items()},
-        "team_changes": [vars(c) for c in membership.changes(team, shape)],
+        "team_changes": [vars(c) for c in membership.changes(team, shape, events=events)],
         "shape_threshold_m": membership.SHAPE_THRESHOLD_M,
     }
 
@@ -118,6 +119,18 @@ def _team_shape(run: RunData) -> np.ndarray:
     """The shape error, over the edges between present agents where some agent is absent."""
     team = membership.team_shape_error(run.positions, run.scenario.edge_array, run.scenario.offsets)
     return np.where(np.isfinite(run.shape_error), run.shape_error, team)
+
+
+def _team_formation(run: RunData) -> np.ndarray:
+    """The formation error, likewise (:func:`_team_shape`)."""
+    s = run.scenario
+    team = membership.team_formation_error(run.positions, s.edge_array, s.weights)
+    return np.where(np.isfinite(run.formation_error), run.formation_error, team)
+
+
+_CHANGE = {"lost": "lost", "back": "back", "leave": "leaves (scenario event)",
+           "crash": "crashes (scenario event)", "join": "joins (scenario event)",
+           "restart": "restarts (scenario event)"}  # fmt: skip
 
 
 def _team_lines(sums: list[dict[str, Any]]) -> list[str]:
@@ -136,8 +149,8 @@ def _team_lines(sums: list[dict[str, Any]]) -> list[str]:
             t = c["transient_epochs"]
             back = "never" if t is None else f"after {t} epochs"
             lines.append(
-                f"  - epoch {c['epoch']}: agent {c['agent']} {c['what']}; shape error under "
-                f"{s['shape_threshold_m']:g} m {back}"
+                f"  - epoch {c['epoch']}: agent {c['agent']} {_CHANGE[c['what']]}; shape error "
+                f"under {s['shape_threshold_m']:g} m {back}"
             )
     return lines
 
@@ -244,7 +257,7 @@ def write_report_from(runs: Sequence[RunData], out_dir: Path, title: str | None 
     sums = [summarize(r) for r in runs]
     files = {
         "errors": plots.plot_errors(
-            [(r.label, r.formation_error, _team_shape(r)) for r in runs],
+            [(r.label, _team_formation(r), _team_shape(r)) for r in runs],
             out_dir / "errors.png",
             marks=[
                 (c["epoch"], f"{c['what']} {c['agent']}")

@@ -9,11 +9,16 @@ joining and restarted ones as the run nears their epoch; every process is ended 
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
+from formation.messages import Status
 from formation.scenario import Scenario
 from testbed.runtime.launcher import RunOutcome, launch
 from testbed.sim.simulate import simulate
@@ -87,3 +92,40 @@ def test_a_join_and_every_other_event_equal_the_simulator(runs_dir: Path) -> Non
         ("restart agent 3", 40, [1, 2, 3, 4, 5, 6], []),
         ("leave agent 5", 60, [1, 2, 3, 4, 6], [5]),
     ]
+
+
+def test_a_recorded_event_run_reports_who_was_in_the_team(runs_dir: Path) -> None:
+    """``formation run`` records and reports events.toml: the Team section names each event,
+    its transient and the spans; netem's statuses in the recording name them too."""
+    proc = subprocess.run(
+        [str(Path(sys.executable).with_name("formation")), "run", str(SCENARIOS / "events.toml"),
+         "--runs-dir", str(runs_dir)],
+        capture_output=True, text=True, timeout=300,
+        env={k: v for k, v in os.environ.items() if k != "COLUMNS"},
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "lost at epoch" not in proc.stdout, "an event is not a loss"
+    (run_dir,) = runs_dir.iterdir()
+    text = (run_dir / "report.md").read_text()
+    (summary,) = json.loads((run_dir / "summary.json").read_text())
+    changes = [(c["epoch"], c["agent"], c["what"]) for c in summary["team_changes"]]
+    assert changes == [(15, 6, "join"), (25, 3, "crash"), (40, 3, "restart"), (60, 5, "leave")]
+    assert "1: 0–80; 2: 0–80; 3: 0–25, 40–80; 4: 0–80; 5: 0–60; 6: 15–80" in text
+    verbs = {"join": "joins", "crash": "crashes", "restart": "restarts", "leave": "leaves"}
+    for c in summary["team_changes"]:
+        assert c["transient_epochs"] is not None and 0 <= c["transient_epochs"] <= 20
+        assert (
+            f"  - epoch {c['epoch']}: agent {c['agent']} {verbs[c['what']]} (scenario event); "
+            f"shape error under 0.05 m after {c['transient_epochs']} epochs"
+        ) in text
+    assert (run_dir / "errors.png").stat().st_size > 10_000
+    with (run_dir / "run.mcap").open("rb") as f:
+        details = [
+            json.loads(Status.model_validate_json(m.data).detail)
+            for _, ch, m in make_reader(f).iter_messages()
+            if ch.topic.endswith("/status/netem/0") and b"agent" in m.data
+        ]
+    assert [(d["event"], d["team"]) for d in details] == [
+        ("join agent 6", [1, 2, 3, 4, 5, 6]), ("crash agent 3", [1, 2, 4, 5, 6]),
+        ("restart agent 3", [1, 2, 3, 4, 5, 6]), ("leave agent 5", [1, 2, 3, 4, 6]),
+    ]  # fmt: skip

@@ -40,3 +40,17 @@ def test_the_errors_over_chosen_edges_are_those_of_the_edges_kept() -> None:
         np.testing.assert_allclose(got[[0, 1, 3, 5]], metric(x, edges, arg)[[0, 1, 3, 5]])
         kept = metric(x[2], edges[[0, 3]], arg if metric is shape_error else weights[[0, 3]])
         assert got[2] == kept and np.isnan(got[4])
+
+
+def test_a_change_the_scenario_planned_is_named_by_its_event() -> None:
+    team = np.ones((12, 4), dtype=bool)
+    team[:4, 3] = False  # agent 4 joins at 4
+    team[6:9, 2] = False  # agent 3 crashes at 5 (its last state x[5]) and restarts at 9
+    team[10:, 1] = False  # agent 2 leaves at 9 (its last state x[9])
+    team[3:7, 0] = False  # agent 1 lost at 3, back at 7: no event says so
+    events = [(4, 4, "join"), (5, 3, "crash"), (9, 3, "restart"), (9, 2, "leave")]
+    got = [(c.epoch, c.agent, c.what) for c in changes(team, np.zeros(12), events=events)]
+    assert got == [(3, 1, "lost"), (4, 4, "join"), (5, 3, "crash"), (7, 1, "back"),
+                   (9, 2, "leave"), (9, 3, "restart")]  # fmt: skip
+    unplanned = [(c.epoch, c.what) for c in changes(team, np.zeros(12)) if c.agent == 3]
+    assert unplanned == [(6, "lost"), (9, "back")]

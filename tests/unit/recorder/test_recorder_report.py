@@ -11,10 +11,13 @@ import pytest
 from matplotlib.image import imread
 
 from formation.errors import RecordingError
+from formation.scenario import Scenario
+from recorder import membership, plots
 from recorder.metrics import error_statistics, formation_error, shape_error
 from recorder.report import FIGURES, summarize, write_report, write_report_from
 from recorder.rundata import RunData, read_run
 from recorder.writer import RecordingWriter
+from testbed.sim.simulate import simulate
 
 
 def finite_equal(a: np.ndarray, b: np.ndarray) -> bool:
@@ -125,3 +128,60 @@ def test_report_needs_the_scenario(tmp_path: Path) -> None:
     rec.close()
     with pytest.raises(RecordingError, match=r"plain\.mcap: no scenario in the metadata"):
         read_run(path)
+
+
+def test_the_report_shows_the_team_and_marks_each_change_by_its_event(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """events.toml as a recording holds it: no state of an agent out of the team."""
+    scenario = Scenario.from_file(Path(__file__).resolve().parents[3] / "scenarios" / "events.toml")
+    run = RunData.from_result(simulate(scenario, "estimate"))
+    x = run.positions.copy()
+    for i in range(1, scenario.n + 1):
+        published = np.zeros(len(x), dtype=bool)
+        for first, last in scenario.membership.incarnations(i):
+            published[first : last + 1] = True
+        x[~published, i - 1] = np.nan
+    run.positions = x
+    run.formation_error = formation_error(x, scenario.edge_array, scenario.weights)
+    run.shape_error = shape_error(x, scenario.edge_array, scenario.offsets)
+    figures: dict[str, Any] = {}
+
+    def keep(fig: Any, path: Path) -> Path:  # the figure as it is saved
+        figures[path.name] = fig
+        return saved(fig, path)
+
+    saved = plots._save
+    monkeypatch.setattr(plots, "_save", keep)
+    text = write_report_from([run], tmp_path).read_text()
+    (summary,) = json.loads((tmp_path / "summary.json").read_text())
+    changes = [(c["epoch"], c["agent"], c["what"]) for c in summary["team_changes"]]
+    assert changes == [(15, 6, "join"), (25, 3, "crash"), (40, 3, "restart"), (60, 5, "leave")]
+    team = membership.team_shape_error(x, scenario.edge_array, scenario.offsets)
+    for c in summary["team_changes"]:  # epochs from the event until the team's shape is held
+        k = c["epoch"]
+        assert c["transient_epochs"] == int(np.flatnonzero(team[k:] < 0.05)[0])
+    assert (
+        "- estimate: agent: epochs in the team — 1: 0–80; 2: 0–80; 3: 0–25, 40–80; 4: 0–80; 5: 0–60; 6: 15–80"
+        in text
+    )
+    for k, i, verb in [
+        (15, 6, "joins"),
+        (25, 3, "crashes"),
+        (40, 3, "restarts"),
+        (60, 5, "leaves"),
+    ]:
+        assert (
+            f"  - epoch {k}: agent {i} {verb} (scenario event); shape error under 0.05 m after "
+            in text
+        )
+    top, bottom = figures["errors.png"].axes
+    for ax in (top, bottom):  # the team's errors where some agent is out: no gap in the curves
+        assert np.isfinite(ax.get_lines()[0].get_ydata()).all()
+    assert [t.get_text() for t in top.texts] == ["join 6", "crash 3", "restart 3", "leave 5"]
+    for ax in (top, bottom):
+        marks = [ln for ln in ax.get_lines() if len(set(ln.get_xdata())) == 1]
+        assert [(ln.get_xdata()[0], ln.get_color(), ln.get_linestyle()) for ln in marks] == [
+            (15, "tab:green", ":"), (25, "tab:red", ":"), (40, "tab:green", ":"), (60, "tab:red", ":")
+        ]  # fmt: skip
+    non_trivial_png(tmp_path / "errors.png")
