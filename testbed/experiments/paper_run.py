@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from formation.reference import reference_positions
 from formation.scenario import STRATEGIES, Scenario, StrategyName
@@ -121,8 +122,8 @@ def run_real(
     lines = [
         "# Real-process runs of `formation experiment paper`",
         "",
-        "| strategy | seed | run id | wall [s] | recording |",
-        "| --- | --- | --- | --- | --- |",
+        "| strategy | seed | run id | wall [s] | recording | skipped |",
+        "| --- | --- | --- | --- | --- | --- |",
     ]
     for s in strategies:
         res = r.runs["failure"][s]
@@ -141,29 +142,55 @@ def run_real(
             )
         except Exception as exc:  # a failed launch is reported, not fatal to the experiment
             row["max_diff_text"] = f"launch failed: {type(exc).__name__}"
-            lines.append(f"| {s} | {seed} | - | - | launch failed: {exc} |")
+            lines.append(f"| {s} | {seed} | - | - | launch failed: {exc} | - |")
             r.real.append(row)
             continue
         diff = float(np.max(np.abs(outcome.positions - sim_x)))
         row["real_final"] = float(outcome.formation_error[-1])
         row["max_diff_text"] = f"{diff:.1e}"
         ok = diff <= 1e-9
-        rec_note = "not recorded (--no-record)"
+        rec_note, skipped = "not recorded (--no-record)", "-"
         if record:
-            rec_note = str(outcome.run_dir / "run.mcap")
-            try:
-                rec = read_run(outcome.run_dir / "run.mcap")
-                rdiff = float(np.max(np.abs(rec.positions - sim_x)))
-                row["recorded_diff_text"] = f"{rdiff:.1e}"
-                ok = ok and rdiff <= 1e-9
-            except Exception as exc:  # the recording is checked, its reader is another module
-                row["recorded_diff_text"] = f"unreadable: {type(exc).__name__}"
-                rec_note += f" (read failed: {exc})"
+            rec_note, skipped = check_recording(row, outcome.run_dir / "run.mcap", sim_x)
+            ok = ok and row.get("recorded_diff", np.inf) <= 1e-9
         row["match"] = "yes" if ok else "no"
-        lines.append(f"| {s} | {seed} | `{outcome.run_id}` | {outcome.wall_s:.1f} | {rec_note} |")
+        lines.append(
+            f"| {s} | {seed} | `{outcome.run_id}` | {outcome.wall_s:.1f} | {rec_note} | {skipped} |"
+        )
         r.real.append(row)
     lines.append(run_events_real(r, runs_dir, record, log))
+    lines += ["", SKIPPED_NOTE]
     (out / "real_runs.md").write_text("\n".join(lines) + "\n")
+
+
+SKIPPED_NOTE = (
+    "skipped: recorded messages the reader did not trust and left out (not valid against their "
+    "model, a sender that is not the key's owner, an epoch or agent outside the scenario; "
+    "`recorder.trust`), by reason; each run's `report.md` has them per channel."
+)
+
+
+def check_recording(
+    row: dict[str, Any], mcap: Path, sim_x: Array, published: npt.NDArray[np.bool_] | None = None
+) -> tuple[str, str]:
+    """Read a real run's recording back: its positions against the simulation's
+    (``row["recorded_diff"]``, NaN if one is missing; ``published``: (E + 1, n, d) the states
+    the agents published, default all) and what the reader skipped (``row["skipped"]``);
+    returns the table's recording and skipped cells."""
+    try:
+        rec = read_run(mcap)
+    except Exception as exc:  # the recording is checked, its reader is another module
+        row["recorded_diff_text"] = f"unreadable: {type(exc).__name__}"
+        return f"{mcap} (read failed: {exc})", "-"
+    on = np.ones(sim_x.shape, dtype=bool) if published is None else published
+    row["recorded_diff"] = rdiff = float(np.max(np.abs(rec.positions[on] - sim_x[on])))
+    row["recorded_diff_text"] = f"{rdiff:.1e}" + (
+        "" if published is None else " (published states)"
+    )
+    skipped = rec.extra["skipped"]
+    row["skipped"] = skipped.total
+    reasons = ", ".join(f"{k} {v}" for k, v in skipped.by_reason().items())
+    return str(mcap), f"{skipped.total}" + (f" ({reasons})" if reasons else "")
 
 
 def run_events_real(
@@ -182,15 +209,22 @@ def run_events_real(
     except Exception as exc:  # a failed launch is reported, not fatal to the experiment
         row["max_diff_text"] = f"launch failed: {type(exc).__name__}"
         r.real.append(row)
-        return f"| {label} | {scenario.seed} | - | - | launch failed: {exc} |"
+        return f"| {label} | {scenario.seed} | - | - | launch failed: {exc} | - |"
     seen = np.isfinite(outcome.positions)
     diff = float(np.max(np.abs(outcome.positions[seen] - sim.positions[seen])))
     row["real_final"] = float(outcome.formation_error[-1])  # bodies out of the team held
     row["max_diff_text"] = f"{diff:.1e} (published states)"
-    row["match"] = "yes" if diff <= 1e-9 else "no"
+    ok = diff <= 1e-9
+    where, skipped = "not recorded (--no-record)", "-"
+    if record:
+        where, skipped = check_recording(row, outcome.run_dir / "run.mcap", sim.positions, seen)
+        ok = ok and row.get("recorded_diff", np.inf) <= 1e-9
+    row["match"] = "yes" if ok else "no"
     r.real.append(row)
-    where = str(outcome.run_dir / "run.mcap") if record else "not recorded (--no-record)"
-    return f"| {label} | {scenario.seed} | `{outcome.run_id}` | {outcome.wall_s:.1f} | {where} |"
+    return (
+        f"| {label} | {scenario.seed} | `{outcome.run_id}` | {outcome.wall_s:.1f} | {where} "
+        f"| {skipped} |"
+    )
 
 
 # ------------------------------------------------------------------------------ the whole experiment
@@ -251,4 +285,12 @@ def _grid_team(paper: Scenario) -> Scenario:
     return with_loss(team, "bernoulli", 0.1)
 
 
-__all__ = ["representative_seed", "run_events_real", "run_paper", "run_real", "write_figures"]
+__all__ = [
+    "SKIPPED_NOTE",
+    "check_recording",
+    "representative_seed",
+    "run_events_real",
+    "run_paper",
+    "run_real",
+    "write_figures",
+]

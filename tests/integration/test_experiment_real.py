@@ -8,7 +8,7 @@ import pytest
 
 from formation.scenario import Scenario
 from testbed.experiments.paper import PaperResults, run_variants
-from testbed.experiments.paper_run import representative_seed, run_real
+from testbed.experiments.paper_run import SKIPPED_NOTE, representative_seed, run_real
 
 pytestmark = pytest.mark.integration
 
@@ -24,4 +24,10 @@ def test_representative_seed_through_real_processes(paper: Scenario, runs_dir: P
     assert row["match"] == "yes", row
     assert row["max_diff_text"] == "0.0e+00" and row["recorded_diff_text"] == "0.0e+00"
     assert list(runs_dir.glob("*/run.mcap"))
-    assert "| estimate |" in (runs_dir.parent / "real_runs.md").read_text()
+    text = (runs_dir.parent / "real_runs.md").read_text()
+    assert "| estimate |" in text
+    # Each recording read back: nothing skipped as untrusted, and the table and note say so.
+    assert row["skipped"] == 0 and events["skipped"] == 0
+    assert events["recorded_diff_text"] == "0.0e+00 (published states)"
+    assert "| recording | skipped |" in text and SKIPPED_NOTE in text
+    assert sum(line.endswith("run.mcap | 0 |") for line in text.splitlines()) == 2

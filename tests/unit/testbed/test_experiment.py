@@ -14,7 +14,7 @@ from testbed.cli import main
 from testbed.experiments import studies
 from testbed.experiments.lossy import gilbert_elliott_at
 from testbed.experiments.paper import PaperResults, judge, run_variants
-from testbed.experiments.paper_run import run_paper
+from testbed.experiments.paper_run import check_recording, run_paper
 from testbed.experiments.sweep import (
     SweepError,
     SweepSpec,
@@ -23,6 +23,9 @@ from testbed.experiments.sweep import (
     read_rows,
     run_sweep,
 )
+from testbed.sim.simulate import simulate
+from tests.support.forgeries import forgeries
+from tests.support.synthetic import EPOCH_NS, RUN, write_synthetic
 
 SEEDS = (1, 2, 3, 4, 5, 6)
 TABLES = ("runs.csv", "critical.md", "success.md")
@@ -198,3 +201,21 @@ def test_an_event_scenario_is_judged_on_the_team_taking_part(tmp_path: Path) -> 
     rows = read_rows(tmp_path / "runs.csv")
     assert [float(r["final_shape_error_m"]) < 0.05 for r in rows] == [True, True]
     assert "| events | bernoulli | 0 |" in (tmp_path / "critical.md").read_text()  # kept at 0
+
+
+def test_a_real_runs_recording_is_read_back_with_what_was_skipped(
+    paper: Scenario, tmp_path: Path
+) -> None:
+    """A real run's row states the messages its recording's reader did not trust."""
+    result = simulate(paper.with_overrides(epochs=10), "hold")
+    bad = forgeries(RUN, result.scenario, epoch=7)
+    inject = [(key, data, None, 7 * EPOCH_NS + 50 + m) for m, (key, data) in enumerate(bad)]
+    path = tmp_path / "run.mcap"
+    write_synthetic(path, result, inject=inject)
+    row: dict[str, object] = {}
+    where, cell = check_recording(row, path, result.positions)
+    assert where == str(path) and row["recorded_diff"] == 0.0, row
+    assert row["skipped"] == len(bad) and cell.startswith(f"{len(bad)} (invalid ")
+    clean = tmp_path / "clean.mcap"
+    write_synthetic(clean, result)
+    assert check_recording({}, clean, result.positions)[1] == "0"
