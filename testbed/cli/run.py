@@ -94,7 +94,13 @@ def _print_losses(outcomes: list[Any], console: Console) -> None:
             )
             console.print(
                 f"{o.strategy}: {loss['name']} (pid {loss['pid']}) lost at epoch {loss['epoch']} "
-                f"(exit code {loss['code']}, {loss['dropped']} packets dropped on its links)"
+                f"(exit code {loss['code']}, {loss['dropped']} packets dropped on its links"
+                + (
+                    ""
+                    if "missed" not in loss
+                    else f", {loss['missed']} states its receivers missed"
+                )
+                + ")"
                 f"{again}" + ("" if back is None else f", back from epoch {back}"),
                 soft_wrap=True,  # one line even in a pipe, for grep
             )

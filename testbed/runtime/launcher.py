@@ -128,10 +128,15 @@ class RunOutcome:
         if not losses:
             return out
         drops = self.drops_per_link()
+        links = self.scenario.directed_links
         for loss in losses:  # its drops: decisions on its links, and the epochs it missed
             name = loss["name"]
             ident = "0" if name == "leader" else name.removeprefix("agent-")
             loss["dropped"] = sum(d for link, (_, d) in drops.items() if ident in link.split("->"))
+            if name != "leader":  # the states its receivers went without while it was out
+                i = int(ident)
+                absent = int((~seen[loss["epoch"] :, i - 1]).sum())
+                loss["missed"] = absent * int((links[:, 0] == i).sum())
         return {"losses": losses, **out, "fallbacks": self.extra.get("fallbacks", 0)}
 
 

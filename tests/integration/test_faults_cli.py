@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from formation.scenario import Scenario
 from recorder.frames import load_run
 from recorder.rundata import read_run
 from tests.support.run_watch import KillAtEpoch, end_process, read_pids, wait_for_run
@@ -80,11 +81,14 @@ def test_formation_run_names_the_agent_killed_and_the_epoch_it_was_lost(
     assert code == 0, err
     lost = re.search(
         rf"estimate: agent-3 \(pid {killed['agent-3']}\) lost at epoch (\d+) \(exit code -9, "
-        r"(\d+) packets dropped on its links\)\n",
+        r"(\d+) packets dropped on its links, (\d+) states its receivers missed\)\n",
         out,
     )
     assert lost, out
     assert KILL_AT - 5 <= int(lost[1]) <= KILL_AT + 5  # its last state came near agent 1's
+    # from the epoch it was lost to the last (states x[0] .. x[EPOCHS]), on each of its out-links
+    receivers = int((Scenario.from_file(paper_path).directed_links[:, 0] == 3).sum())
+    assert int(lost[3]) == (EPOCHS + 1 - int(lost[1])) * receivers > 0
     assert "restarted" not in out
     assert "Traceback" not in err
     assert not any(pid_alive(p) for p in run_pids(runs_dir))
