@@ -71,7 +71,8 @@ class ProcessGroup:
         log_path = self.log_dir / f"{name.replace('/', '-')}.log"
         with log_path.open("wb") as log:
             proc = subprocess.Popen(
-                [sys.executable, "-m", module, *args],
+                # -P: the services import what the launcher imported, not a checkout in the cwd
+                [sys.executable, "-P", "-m", module, *args],
                 stdout=log,
                 stderr=subprocess.STDOUT,
                 stdin=subprocess.DEVNULL,
