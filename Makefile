@@ -47,10 +47,11 @@ architecture: $(BIN)/.installed
 # The unchanged compose.yaml under podman-compose, loopback only (deploy/compose.loopback.yaml),
 # checked against a native run: installs podman and podman-compose if missing, makes the base
 # image when no registry serves it, builds the image (both cached in podman's store). The tests
-# fail, not skip, without podman-compose (FORMATION_REQUIRE_CONTAINERS=1).
-compose-test: $(BIN)/.installed
+# fail, not skip, without podman-compose (FORMATION_REQUIRE_CONTAINERS=1). The native run they
+# compare with is the installed product, as for make test (.product: the checkout as edited).
+compose-test: $(BIN)/.product
 	deploy/podman.sh engine base build
-	env FORMATION_REQUIRE_CONTAINERS=1 $$(deploy/podman.sh env) $(BIN)/pytest -q -p no:cacheprovider -m containers -s tests/containers
+	env PYTHONSAFEPATH=1 FORMATION_REQUIRE_CONTAINERS=1 $$(deploy/podman.sh env) $(BIN)/pytest -q -p no:cacheprovider -m containers -s tests/containers
 
 bench: $(BIN)/.installed
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench
