@@ -12,11 +12,12 @@ ENV PYTHONUNBUFFERED=1 \
 
 WORKDIR /app
 # The dependencies first, in a layer of their own: a change to the code does not reinstall them.
-# (The packages' folders are empty here; the project itself is uninstalled again.)
-COPY pyproject.toml README.md ./
-RUN mkdir formation agent leader netem recorder testbed \
+# (The packages' folders and the README are empty here, so an edit to them does not reinstall
+# the dependencies; the project itself is uninstalled again.)
+COPY pyproject.toml ./
+RUN mkdir formation agent leader netem recorder testbed && touch README.md \
     && pip install . && pip uninstall -y formation-testbed \
-    && rm -rf formation agent leader netem recorder testbed build *.egg-info
+    && rm -rf formation agent leader netem recorder testbed build *.egg-info README.md
 # Only what the package needs: credentials, runs and the checkout's history stay out (.dockerignore).
 COPY formation ./formation
 COPY agent ./agent
@@ -24,6 +25,7 @@ COPY leader ./leader
 COPY netem ./netem
 COPY recorder ./recorder
 COPY testbed ./testbed
+COPY README.md ./
 RUN pip install --no-deps . && rm -rf formation agent leader netem recorder testbed build *.egg-info
 COPY scenarios ./scenarios
 
