@@ -54,7 +54,7 @@ compose-test: $(BIN)/.product
 	env PYTHONSAFEPATH=1 FORMATION_REQUIRE_CONTAINERS=1 $$(deploy/podman.sh env) $(BIN)/pytest -q -p no:cacheprovider -m containers -s tests/containers
 
 bench: $(BIN)/.product
-	PYTHONSAFEPATH=1 OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench
+	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench
 
 clean:
 	rm -rf $(VENV) runs build *.egg-info
