@@ -60,6 +60,24 @@ def team_formation_error(positions: Array, edges: npt.NDArray[np.int64], weights
     return formation_error(np.nan_to_num(positions), edges, weights, on)
 
 
+def final_team_errors(
+    last: Array, edges: npt.NDArray[np.int64], weights: Array, offsets: Array
+) -> tuple[float, float] | None:
+    """Formation and shape error [m] at the last epoch over the edges between the agents
+    taking part then; None when every agent does (the errors over every edge stand).
+
+    last : (n, d) [m], NaN rows for the agents out of the team. A body that left or crashed
+    stands where it was while the team moves on, so its edges would judge the team on it.
+    """
+    if np.isfinite(last).all():
+        return None
+    one = last[None]
+    return (
+        float(team_formation_error(one, edges, weights)[0]),
+        float(team_shape_error(one, edges, offsets)[0]),
+    )
+
+
 def _present_edges(positions: Array, edges: npt.NDArray[np.int64]) -> Mask:
     """(P, m) both ends of the edge present at the epoch."""
     team = present(positions)
@@ -117,6 +135,7 @@ __all__ = [
     "Action",
     "TeamChange",
     "changes",
+    "final_team_errors",
     "present",
     "spans",
     "team_formation_error",

@@ -65,9 +65,10 @@ def summarize(run: RunData) -> dict[str, Any]:
         "seed": run.seed,
         "epochs_with_states": int(np.isfinite(run.positions).all(axis=(1, 2)).sum()),
         "epochs_with_estimates": int(known.sum()),
-        "final_formation_error_m": _last_finite(run.formation_error),
+        # with an agent out, over the team taking part (as drawn), not the last full epoch
+        "final_formation_error_m": _last_finite(_team_formation(run)),
         "peak_formation_error_m": _peak(run.formation_error),
-        "final_shape_error_m": _last_finite(run.shape_error),
+        "final_shape_error_m": _last_finite(_team_shape(run)),
         "peak_shape_error_m": _peak(run.shape_error),
         "substitutions": int(run.substitution_errors.shape[0]),
         "substitution_cov_trace_m2": _num(sub_trace),
@@ -118,14 +119,20 @@ def _team(run: RunData) -> dict[str, Any]:
 def _team_shape(run: RunData) -> np.ndarray:
     """The shape error, over the edges between present agents where some agent is absent."""
     team = membership.team_shape_error(run.positions, run.scenario.edge_array, run.scenario.offsets)
-    return np.where(np.isfinite(run.shape_error), run.shape_error, team)
+    return np.where(_someone_out(run), team, run.shape_error)
 
 
 def _team_formation(run: RunData) -> np.ndarray:
     """The formation error, likewise (:func:`_team_shape`)."""
     s = run.scenario
     team = membership.team_formation_error(run.positions, s.edge_array, s.weights)
-    return np.where(np.isfinite(run.formation_error), run.formation_error, team)
+    return np.where(_someone_out(run), team, run.formation_error)
+
+
+def _someone_out(run: RunData) -> np.ndarray:
+    """(E + 1,) some agent has no recorded state at the epoch, and some has."""
+    present = membership.present(run.positions)
+    return ~present.all(axis=1) & present.any(axis=1)
 
 
 _CHANGE = {"lost": "lost", "back": "back", "leave": "leaves (scenario event)",

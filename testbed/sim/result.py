@@ -9,6 +9,7 @@ import numpy as np
 import numpy.typing as npt
 
 from formation.scenario import Scenario, StrategyName
+from recorder.membership import final_team_errors
 from recorder.metrics import error_statistics, longest_run
 from recorder.safety import safety_counts
 
@@ -60,15 +61,21 @@ class SimResult:
         _, _sub_cov, sub_trace = error_statistics(self.substitution_errors)
         _, _est_cov, est_trace = error_statistics(self.estimation_errors)
         drops = (~self.delivered).sum(axis=0)
-        links = self.scenario.directed_links
+        s = self.scenario
+        links = s.directed_links
+        last = np.where(s.membership.present[-1][:, None], self.positions[-1], np.nan)
+        final = final_team_errors(last, s.edge_array, s.weights, s.offsets) or (
+            float(self.formation_error[-1]),
+            float(self.shape_error[-1]),
+        )  # over the team taking part at the end, as formation run and the sweep judge it
         return {
-            "scenario": self.scenario.name,
+            "scenario": s.name,
             "strategy": self.strategy,
             "seed": self.seed,
             "epochs": int(self.positions.shape[0] - 1),
-            "final_formation_error_m": float(self.formation_error[-1]),
+            "final_formation_error_m": final[0],
             "peak_formation_error_m": float(self.formation_error.max()),
-            "final_shape_error_m": float(self.shape_error[-1]),
+            "final_shape_error_m": final[1],
             "peak_shape_error_m": float(self.shape_error.max()),
             "substitutions": int(self.substitution_errors.shape[0]),
             "substitution_cov_trace_m2": _none_if_nan(sub_trace),

@@ -57,6 +57,12 @@ def assert_equals_the_simulator(outcome: RunOutcome, scenario: Scenario, strateg
     assert "losses" not in outcome.summary(), "an event is not an unplanned loss"
     incarnations = {str(i): team.incarnations(i) for i in range(1, scenario.n + 1)}
     assert outcome.summary()["team"] == incarnations, "who was in the team, by epoch"
+    # the final errors are the team's at the end (not a departed body's), the simulator's too
+    ours, theirs = outcome.summary(), sim.summary()
+    for name in ("final_formation_error_m", "final_shape_error_m"):
+        assert ours[name] == theirs[name], name
+    if not team.present[-1].all():
+        assert ours["final_formation_error_m"] != outcome.formation_error[-1]
 
 
 def test_crash_restart_and_leave_equal_the_simulator(paper: Scenario, runs_dir: Path) -> None:
@@ -110,6 +116,10 @@ def test_a_recorded_event_run_reports_who_was_in_the_team(runs_dir: Path) -> Non
     (summary,) = json.loads((run_dir / "summary.json").read_text())
     changes = [(c["epoch"], c["agent"], c["what"]) for c in summary["team_changes"]]
     assert changes == [(15, 6, "join"), (25, 3, "crash"), (40, 3, "restart"), (60, 5, "leave")]
+    # the report's final errors are the team's at epoch 80, as formation simulate gives them
+    sim = simulate(Scenario.from_file(SCENARIOS / "events.toml"), strategy="estimate").summary()
+    for name in ("final_formation_error_m", "final_shape_error_m"):
+        assert summary[name] == sim[name], name
     assert "1: 0–80; 2: 0–80; 3: 0–25, 40–80; 4: 0–80; 5: 0–60; 6: 15–80" in text
     verbs = {"join": "joins", "crash": "crashes", "restart": "restarts", "leave": "leaves"}
     for c in summary["team_changes"]:

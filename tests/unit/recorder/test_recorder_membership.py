@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from recorder.membership import changes, present, spans, team_shape_error
+from recorder.membership import changes, final_team_errors, present, spans, team_shape_error
 from recorder.metrics import formation_error, shape_error
 
 
@@ -54,3 +54,20 @@ def test_a_change_the_scenario_planned_is_named_by_its_event() -> None:
                    (9, 2, "leave"), (9, 3, "restart")]  # fmt: skip
     unplanned = [(c.epoch, c.what) for c in changes(team, np.zeros(12)) if c.agent == 3]
     assert unplanned == [(6, "lost"), (9, "back")]
+
+
+def test_the_final_errors_are_the_team_s_at_the_end_and_none_when_all_take_part() -> None:
+    edges = np.array([[1, 2], [2, 3], [1, 3]])
+    offsets = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    weights = np.array([1.0, np.sqrt(2.0), 1.0])
+    last = offsets + np.array([[0.0, 0.0], [0.0, 0.1], [5.0, 0.0]])  # agent 3 far off
+    assert final_team_errors(last, edges, weights, offsets) is None
+    last[2] = np.nan  # agent 3 out of the team: only edge 1-2 counts
+    got = final_team_errors(last, edges, weights, offsets)
+    keep = np.array([[True, False, False]])
+    pair = np.nan_to_num(last)[None]
+    assert got == (
+        float(formation_error(pair, edges, weights, keep)[0]),
+        float(shape_error(pair, edges, offsets, keep)[0]),
+    )
+    assert got[1] == 0.1 and got[0] < 0.01  # agent 2's 0.1 m off its slot, not agent 3's 5 m
