@@ -132,7 +132,7 @@ def _team_formation(run: RunData) -> np.ndarray:
 def _someone_out(run: RunData) -> np.ndarray:
     """(E + 1,) some agent has no recorded state at the epoch, and some has."""
     present = membership.present(run.positions)
-    return ~present.all(axis=1) & present.any(axis=1)
+    return np.asarray(~present.all(axis=1) & present.any(axis=1), dtype=bool)
 
 
 _CHANGE = {"lost": "lost", "back": "back", "leave": "leaves (scenario event)",
