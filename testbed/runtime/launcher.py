@@ -98,8 +98,8 @@ class RunOutcome:
 
     def summary(self) -> dict[str, Any]:
         drops = self.drops_per_link()
-        s = self.scenario
-        final = final_team_errors(self.positions[-1], s.edge_array, s.weights, s.offsets) or (
+        sc = self.scenario
+        final = final_team_errors(self.positions[-1], sc.edge_array, sc.weights, sc.offsets) or (
             float(self.formation_error[-1]),
             float(self.shape_error[-1]),
         )  # over the team taking part at the end, as the report and the sweep judge it
