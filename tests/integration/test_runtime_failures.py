@@ -41,9 +41,15 @@ def test_realtime_twenty_agents_at_20_hz_for_10_s(runs_dir: Path) -> None:
         epochs=200, runtime={"mode": "realtime", "realtime_period_s": 0.05}
     )
     outcome = launch(scenario, runs_dir=runs_dir, record=False)
-    rate = outcome.deadline_miss_rate()
-    assert rate is not None and 0.0 <= rate < 0.5, outcome.extra
-    assert outcome.extra["deadline"]["packets"] > 0.5 * 200 * len(scenario.directed_links)
+    # How many packets miss depends on the machine's load (CI once missed 45 % on 2 busy
+    # cores), so that is measured by bench_realtime, not asserted here. What must hold at
+    # any load: every packet netem decided is booked once, and most epochs carried some.
+    s = outcome.summary()
+    books = s["modelled_losses"]["total"] + s["deadline_misses"]["total"] + s["delivered_in_time"]
+    assert s["unaccounted"] == 0 and books == s["packets_sent"], s
+    assert s["packets_sent"] >= 200 * len(scenario.directed_links), s
+    assert s["delivered_in_time"] > 0 and 0.0 <= s["deadline_miss_rate"] < 1.0, s
+    rate = s["deadline_miss_rate"]
     assert np.isfinite(outcome.positions).all()
     assert outcome.shape_error[-1] < 0.1 < outcome.shape_error[0]
     print(
