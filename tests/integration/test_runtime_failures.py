@@ -1,4 +1,4 @@
-"""Realtime mode, Ctrl-C, a dying process, malformed payloads and bad endpoints: clear outcomes, no orphans."""
+"""Ctrl-C, a dying process, malformed payloads and bad endpoints: clear outcomes, no orphans (realtime: test_realtime_accounting)."""
 
 from __future__ import annotations
 
@@ -33,28 +33,6 @@ def wait_for(cond, timeout_s: float, what: str) -> None:  # type: ignore[no-unty
     while not cond():
         assert time.monotonic() < deadline, f"timed out waiting for {what}"
         time.sleep(0.02)
-
-
-@pytest.mark.slow
-def test_realtime_twenty_agents_at_20_hz_for_10_s(runs_dir: Path) -> None:
-    scenario = Scenario.from_file(ROOT / "scenarios/grid20.toml").with_overrides(
-        epochs=200, runtime={"mode": "realtime", "realtime_period_s": 0.05}
-    )
-    outcome = launch(scenario, runs_dir=runs_dir, record=False)
-    # How many packets miss depends on the machine's load (CI once missed 45 % on 2 busy
-    # cores), so that is measured by bench_realtime, not asserted here. What must hold at
-    # any load: every packet netem decided is booked once, and most epochs carried some.
-    s = outcome.summary()
-    books = s["modelled_losses"]["total"] + s["deadline_misses"]["total"] + s["delivered_in_time"]
-    assert s["unaccounted"] == 0 and books == s["packets_sent"], s
-    assert s["packets_sent"] >= 200 * len(scenario.directed_links), s
-    assert s["delivered_in_time"] > 0 and 0.0 <= s["deadline_miss_rate"] < 1.0, s
-    rate = s["deadline_miss_rate"]
-    assert np.isfinite(outcome.positions).all()
-    assert outcome.shape_error[-1] < 0.1 < outcome.shape_error[0]
-    print(
-        f"realtime 20 agents @ 20 Hz, 10 s: deadline-miss rate {rate:.4f}, {outcome.extra['deadline']}"
-    )
 
 
 def test_ctrl_c_stops_every_process_and_exits(paper_path: Path, runs_dir: Path) -> None:
