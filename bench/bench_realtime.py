@@ -84,7 +84,9 @@ class CpuWatch:
         }
 
 
-def run_case(tmp: Path, hz: float, label: str, n: int, layout: str | None) -> str:
+def run_case(
+    tmp: Path, hz: float, label: str, n: int, layout: str | None, zenoh_mode: str = "client"
+) -> str:
     period = 1.0 / hz
     scenario = henneberg_team(n, seed=SEED, epochs=EPOCHS).with_overrides(
         runtime={"mode": "realtime", "realtime_period_s": period}
@@ -94,8 +96,9 @@ def run_case(tmp: Path, hz: float, label: str, n: int, layout: str | None) -> st
     load = os.getloadavg()[0]
     watch = CpuWatch(tmp)
     s = launch(
-        scenario, seed=SEED, runs_dir=tmp, pool=pools, record=False, on_started=watch.hook
-    ).summary()
+        scenario, seed=SEED, runs_dir=tmp, pool=pools, record=False, on_started=watch.hook,
+        zenoh_mode=zenoh_mode,
+    ).summary()  # fmt: skip
     cpu = watch.per_role_ms(EPOCHS)
     misses = s["deadline_misses"]
     causes = ", ".join(f"{c} {k}" for c, k in misses["by_cause"].items() if k)
@@ -110,6 +113,8 @@ def run_case(tmp: Path, hz: float, label: str, n: int, layout: str | None) -> st
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="the two target cases only")
+    p.add_argument("--zenoh-mode", choices=("client", "peer"), default="client",
+                   help="client: every packet through the router (the default); peer: direct")  # fmt: skip
     args = p.parse_args(argv)
     print(f"seed {SEED}, {EPOCHS} epochs, {os.cpu_count()} cores; CPU ms per epoch")
     print(f"{'case':14} {'Hz':>4} {'procs':>6} {'misses':>7} {'rate':>8}  {'load':>9}  "
@@ -117,7 +122,7 @@ def main(argv: list[str] | None = None) -> None:
     grid = QUICK if args.quick else [(hz, *c) for hz in (10.0, 20.0, 50.0) for c in CASES]
     with tempfile.TemporaryDirectory() as tmp:
         for hz, label, n, layout in grid:
-            print(run_case(Path(tmp), hz, label, n, layout), flush=True)
+            print(run_case(Path(tmp), hz, label, n, layout, args.zenoh_mode), flush=True)
 
 
 if __name__ == "__main__":
