@@ -361,21 +361,7 @@ class AgentNode:
 
     # -- realtime ---------------------------------------------------------------------------------
     def _drain_until(self, t_ns: int) -> None:
-        """Route what arrives until ``t_ns``, then what had been queued by then: a packet in
-        the queue in time is in time, however late this process wakes (else: scheduling)."""
-        held, self.held = self.held, []
-        for queued in held:
-            self._route(queued)
-        while (left := (t_ns - time.time_ns()) / 1e9) > 0:
-            msg = self.service.next_incoming(min(left, 0.05))
-            if msg is not None:
-                self._route(msg)
-        while (msg := self.service.next_incoming(0)) is not None:
-            if msg.arrived_ns > t_ns:
-                self.held.append(msg)  # after the deadline: routed once it has been taken
-                break  # the queue is in order: the rest came later still
-            else:
-                self._route(msg)
+        self.held = self.service.take_by(t_ns, self._route, self.held)
 
     def run_realtime(self) -> int:
         """Fixed period; what has not arrived by a phase's deadline is lost (docs/architecture.md "Time")."""

@@ -287,6 +287,25 @@ class Service:
         except queue.Empty:
             return None
 
+    def take_by(
+        self, t_ns: int, route: Callable[[Incoming], None], held: list[Incoming]
+    ) -> list[Incoming]:
+        """Realtime: route ``held``, sleep until ``t_ns``, then route what was queued by then.
+
+        Returns what was queued later, for the caller to route once it has taken this
+        deadline's epoch. One wake-up per deadline, not one per message: a message queued in
+        time is in time however late this thread wakes (else the miss is ``scheduling``).
+        """
+        for early in held:
+            route(early)
+        if (left := (t_ns - time.time_ns()) / 1e9) > 0:
+            self.stopping.wait(left)
+        while (msg := self.next_incoming(0)) is not None:
+            if msg.arrived_ns > t_ns:
+                return [msg]  # the queue is in order: the rest came later still
+            route(msg)
+        return []
+
     def close(self) -> None:
         for obj in reversed(self._keep):
             with contextlib.suppress(Exception):

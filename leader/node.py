@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-import time
 from collections.abc import Iterator
 from dataclasses import replace
 from typing import Any
@@ -233,23 +232,12 @@ class LeaderNode:
         held: list[Incoming] = []
         for k in range(self.scenario.epochs + 1):  # the last: late reports of the last epoch
             end = clock.at(k, REPORT_DEADLINE) if k < self.scenario.epochs else clock.at(k)
-            for queued in held:
-                self._route(queued)
-            while (left := end - time.time_ns()) > 0:
-                if self.service.stopping.is_set():
-                    return 130
-                msg = self.service.next_incoming(min(0.05, left / 1e9))
-                if msg is not None:
-                    self._route(msg)
-            # what was queued by the deadline is in time, however late this process woke
-            held = []
-            while (msg := self.service.next_incoming(0)) is not None:
-                if msg.arrived_ns > end and k < self.scenario.epochs:
-                    held.append(msg)  # after the deadline: routed once it has been taken
-                    break  # the queue is in order: the rest came later still
-                else:
-                    self._route(msg)
+            held = self.service.take_by(end, self._route, held)
+            if self.service.stopping.is_set():
+                return 130
             if k == self.scenario.epochs:
+                for queued in held:
+                    self._route(queued)
                 drain_last(self.service, self._route)  # the last epoch's late reports
                 break
             reports = [r for r in self.reports.values() if r.epoch == k]

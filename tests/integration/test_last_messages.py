@@ -4,13 +4,9 @@ the agent's republishing, each driven directly over a real Zenoh session."""
 from __future__ import annotations
 
 import logging
-import signal
 import threading
 from collections import Counter
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
-from types import SimpleNamespace
 
 import pytest
 
@@ -19,27 +15,13 @@ from formation import keys
 from formation.codec import attachment, encode, now_ns
 from formation.messages import CoordinationState
 from formation.scenario import Scenario
-from formation.service import Service
 from leader.node import LeaderNode
 from netem.node import FINAL_WAIT_S, NetemNode
+from tests.support.zenoh_peer import peer_service
 
 pytestmark = pytest.mark.integration
 ROOT = Path(__file__).resolve().parents[2]
 RUN = "last-messages"
-
-
-@contextmanager
-def service(role: str, ident: int) -> Iterator[Service]:
-    """A service on loopback; it takes the signals, which go back to pytest afterwards."""
-    args = SimpleNamespace(mode="peer", connect=None, listen="tcp/127.0.0.1:0", start_timeout=5)
-    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
-    svc = Service(RUN, role, ident, args)
-    try:
-        yield svc
-    finally:
-        svc.close()
-        for sig, handler in handlers.items():
-            signal.signal(sig, handler)
 
 
 def _final_state(i: int, epochs: int) -> tuple[str, bytes, bytes]:
@@ -55,7 +37,7 @@ def scenario() -> Scenario:
 
 def test_netem_says_which_final_states_it_lacks(scenario: Scenario) -> None:
     final_key = keys.netem_final(RUN)
-    with service("netem", 0) as svc:
+    with peer_service(RUN, "netem", 0) as svc:
         node = NetemNode(svc, scenario, seed=1, wait_for_recorder=False)
         assert svc.ask(final_key, {"agents": [1, 2]}) == {"missing": [1, 2], "estimates_done": 0}
         node._handle(*_final_state(1, scenario.epochs))
@@ -92,7 +74,7 @@ def test_an_agent_republishes_the_final_states_netem_lacks(
             missing = answers[min(len(asked), len(answers)) - 1]
         query.reply(query.key_expr, f'{{"missing": {missing}, "estimates_done": 10}}'.encode())
 
-    with service("pool", 1) as svc:
+    with peer_service(RUN, "pool", 1) as svc:
         node = AgentNode(svc, scenario, [1, 2], "estimate", seed=1)
         sub = svc.session.declare_subscriber(keys.agent_state(RUN, "*"), on_state)
         qbl = svc.session.declare_queryable(keys.netem_final(RUN), on_final)
@@ -109,7 +91,7 @@ def test_an_agent_republishes_the_final_states_netem_lacks(
 
 
 def test_an_agent_without_netem_leaves_at_once(scenario: Scenario) -> None:
-    with service("agent", 1) as svc:
+    with peer_service(RUN, "agent", 1) as svc:
         node = AgentNode(svc, scenario, [1], "estimate", seed=1)
         assert node.confirm_final() is False  # nobody answers: nothing to wait for
 
@@ -118,7 +100,7 @@ def test_an_agent_without_netem_leaves_at_once(scenario: Scenario) -> None:
 def test_a_garbled_answer_is_counted_and_the_agent_leaves(
     scenario: Scenario, garbled: bytes
 ) -> None:
-    with service("agent", 1) as svc:
+    with peer_service(RUN, "agent", 1) as svc:
         node = AgentNode(svc, scenario, [1], "estimate", seed=1)
         key = keys.netem_final(RUN)
         qbl = svc.session.declare_queryable(key, lambda q: q.reply(q.key_expr, garbled))
@@ -139,7 +121,7 @@ def test_the_leader_asks_for_its_last_estimates(
         asked.append(query.payload.to_bytes())
         query.reply(query.key_expr, f'{{"missing": [], "estimates_done": {done}}}'.encode())
 
-    with service("leader", 0) as svc:
+    with peer_service(RUN, "leader", 0) as svc:
         node = LeaderNode(svc, scenario)
         qbl = svc.session.declare_queryable(keys.netem_final(RUN), on_final)
         try:

@@ -18,6 +18,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -25,6 +26,7 @@ import zenoh
 
 from formation.codec import encode
 from formation.messages import CoordinationState
+from formation.service import Service
 from formation.zenoh_config import session_config
 
 HOST = "127.0.0.1"
@@ -110,3 +112,18 @@ def state(run_id: str, i: int, k: int, x: list[float]) -> bytes:
             position=x,
         )
     )
+
+
+@contextmanager
+def peer_service(run_id: str, role: str, ident: int) -> Iterator[Service]:
+    """A service of this process, a peer on loopback; it takes the signals, which go back to
+    pytest afterwards."""
+    args = SimpleNamespace(mode="peer", connect=None, listen="tcp/127.0.0.1:0", start_timeout=5)
+    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    svc = Service(run_id, role, ident, args)
+    try:
+        yield svc
+    finally:
+        svc.close()
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
