@@ -17,6 +17,8 @@ from formation.errors import RuntimeFailure
 # One BLAS thread per service: a run is many processes on few cores, and OpenBLAS's idle
 # workers spin-wait, taking the cores the other services need (seen: a 1,000-agent pool
 # process spent most of its CPU in blas_thread_server). The user's environment wins.
+# Zenoh's own threads are left as they are: all of them on one (ZENOH_RUNTIME with
+# `handover: app`) halved the router's CPU but stalled realtime runs, in the router alone too.
 SERVICE_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
