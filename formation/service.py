@@ -30,6 +30,7 @@ from formation.codec import Malformed, encode, now_ns
 from formation.errors import RuntimeFailure, TestbedError
 from formation.messages import Status
 from formation.scenario import Scenario
+from formation.stacks import dump_stacks_on_signal
 from formation.zenoh_config import open_session
 
 log = logging.getLogger("service")
@@ -336,6 +337,7 @@ def load_scenario(args: argparse.Namespace) -> Scenario:
 def serve(name: str, open_service: Callable[[], Service], body: Callable[[Service], int]) -> int:
     """Open the service, run ``body`` and close it; a :class:`TestbedError` is printed as
     ``name: error: …`` with exit code 1."""
+    dump_stacks_on_signal()
     try:
         service = open_service()
     except TestbedError as exc:

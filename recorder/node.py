@@ -44,6 +44,7 @@ from formation.codec import encode, now_ns
 from formation.errors import TestbedError
 from formation.messages import Status
 from formation.scenario import Scenario
+from formation.stacks import dump_stacks_on_signal
 from recorder.display import Display
 from recorder.epochs import TAPS, EpochAssembler
 from recorder.live import LiveServer
@@ -389,6 +390,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
+    dump_stacks_on_signal()
     args = build_parser().parse_args(argv)
     try:
         return Recorder(args).run()

@@ -276,8 +276,10 @@ def launch(
             if count != last_count:
                 last_progress, last_count = time.monotonic(), count
             elif time.monotonic() - last_progress > epoch_timeout_s:
+                group.dump_stacks()
                 raise RuntimeFailure(
-                    f"no epoch finished for {epoch_timeout_s:g} s (stuck at epoch {count})"
+                    f"no epoch finished for {epoch_timeout_s:g} s (stuck at epoch {count}); "
+                    f"each process's threads are at the end of its log in {group.log_dir}"
                 )
             with observer.lock:
                 events.step(count, lambda i, k: bool(np.isfinite(observer.positions[k, i - 1, 0])))
@@ -357,5 +359,9 @@ def _wait(cond: Any, group: ProcessGroup, timeout_s: float, what: str, detail: A
             )
         if time.monotonic() > deadline:
             more = "" if detail is None else detail()
-            raise RuntimeFailure(f"timed out after {timeout_s:g} s waiting for {what}{more}")
+            group.dump_stacks()
+            raise RuntimeFailure(
+                f"timed out after {timeout_s:g} s waiting for {what}{more}; "
+                f"each process's threads are at the end of its log in {group.log_dir}"
+            )
         time.sleep(0.01)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import socket
@@ -13,6 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from formation.errors import RuntimeFailure
+from formation.stacks import DUMP_SIGNAL
 
 # One BLAS thread per service: a run is many processes on few cores, and OpenBLAS's idle
 # workers spin-wait, taking the cores the other services need (seen: a 1,000-agent pool
@@ -103,6 +105,22 @@ class ProcessGroup:
                 child.proc.kill()
                 child.proc.wait(5.0)
         return child.proc.returncode
+
+    def dump_stacks(self, settle_s: float = 0.2, timeout_s: float = 3.0) -> None:
+        """Ask every live child for its threads' stacks (into its log); wait until the logs settle."""
+        live = [c for c in self.children if c.proc.poll() is None]
+        for child in live:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(child.pid, DUMP_SIGNAL)
+        sizes, stable_since = None, time.monotonic()
+        deadline = stable_since + timeout_s
+        while time.monotonic() < deadline:
+            now = [c.log_path.stat().st_size if c.log_path.exists() else 0 for c in live]
+            if now != sizes:
+                sizes, stable_since = now, time.monotonic()
+            elif time.monotonic() - stable_since >= settle_s:
+                return
+            time.sleep(0.02)
 
     def stop_all(self) -> None:
         """End children newest first, so the router and the recorder (started first) go last."""

@@ -18,6 +18,7 @@ import threading
 import zenoh
 
 from formation import zenoh_config
+from formation.stacks import dump_stacks_on_signal
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -33,6 +34,7 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 1
+    dump_stacks_on_signal()
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

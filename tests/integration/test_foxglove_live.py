@@ -128,12 +128,20 @@ def _serve(cmd: list[str], log: Path, port: int, idle: bool) -> fc.Received:
         )  # fmt: skip
         try:
             got = asyncio.run(_watch(f"ws://127.0.0.1:{port}", idle))
-            assert proc.wait(timeout=120) == 0, log.read_text()
+            assert proc.wait(timeout=120) == 0, log.read_text() + _process_logs(cmd)
         finally:
             if proc.poll() is None:
                 proc.kill()
                 proc.wait(10)
     return got
+
+
+def _process_logs(cmd: list[str]) -> str:
+    """The ends of a failed run's process logs (with the stacks a stalled run dumps)."""
+    if "--runs-dir" not in cmd:
+        return ""
+    logs = sorted(Path(cmd[cmd.index("--runs-dir") + 1]).glob("*/logs/*.log"))
+    return "".join(f"\n--- {p.name}\n" + "\n".join(p.read_text().splitlines()[-80:]) for p in logs)
 
 
 def test_live_run_and_replay_reach_an_independent_client(

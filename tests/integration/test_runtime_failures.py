@@ -17,6 +17,7 @@ import zenoh
 
 from formation import keys
 from formation.codec import attachment
+from formation.errors import RuntimeFailure
 from formation.scenario import Scenario
 from formation.zenoh_config import session_config
 from testbed.runtime.launcher import launch
@@ -118,3 +119,29 @@ def test_unknown_agent_id_is_a_clear_error(paper_path: Path) -> None:
     )  # fmt: skip
     assert proc.returncode == 1
     assert "agent: error: --id 9: no such agent in the scenario (agents are 1..5)" in proc.stderr
+
+
+def test_a_stalled_run_says_where_each_process_waits(paper: Scenario, runs_dir: Path) -> None:
+    """netem frozen (SIGSTOP): the launcher gives up after the epoch timeout, and before it ends
+    the processes each live one has written its threads' stacks into its log."""
+    frozen: list[int] = []
+
+    def freeze_netem(run_id: str, endpoint: str) -> None:
+        pids = json.loads((runs_dir / run_id / "pids.json").read_text())["pids"]
+        frozen.append(pids["netem"])
+        os.kill(pids["netem"], signal.SIGSTOP)
+
+    try:
+        with pytest.raises(RuntimeFailure, match=r"no epoch finished for 2 s") as err:
+            launch(paper.with_overrides(epochs=100_000), runs_dir=runs_dir, record=False,
+                   on_started=freeze_netem, epoch_timeout_s=2.0)  # fmt: skip
+    finally:
+        for pid in frozen:  # ended by the launcher already; a leftover must not stay stopped
+            if pid_alive(pid):
+                os.kill(pid, signal.SIGCONT)
+    (log_dir,) = runs_dir.glob("*/logs")
+    assert str(log_dir) in str(err.value)
+    for name in ["router", "leader", "agent-1", "agent-5"]:
+        text = (log_dir / f"{name}.log").read_text()
+        assert "most recent call first" in text and 'File "' in text, (name, text[-2000:])
+    assert "most recent call first" not in (log_dir / "netem.log").read_text()  # it was frozen
