@@ -3,7 +3,8 @@
 Lockstep (docs/architecture.md "Time"): publish ``x_i[k]``; wait for netem's delivery
 of the state phase (every packet it passed this epoch, in one message); report
 tokens and measurements; wait for the estimate phase's delivery; step to
-``x_i[k+1]``. Realtime: packets come one per link, until a deadline. A pool
+``x_i[k+1]``. Realtime: what netem forwarded comes as it goes, a delivery per wake-up of
+netem's, until a deadline. A pool
 takes each phase for all its agents at once, in one vectorised step (the leader
 waits for every report anyway, so this costs no time).
 """
@@ -20,7 +21,7 @@ import orjson
 
 from agent.runner import AgentRunner, Estimate, Packet, Report
 from formation import keys
-from formation.codec import attachment, read_attachment
+from formation.codec import attachment
 from formation.deadlines import CAUSES, cause, drain_last
 from formation.errors import RuntimeFailure
 from formation.messages import AgentEstimate, CoordinationState, Delivery
@@ -30,7 +31,6 @@ from formation.service import Incoming, Service
 
 log = logging.getLogger("agent")
 WATCH_S = 0.25  # how often the main thread looks for netem's liveliness and a signal
-_BAD = object()  # a payload that failed validation: the packet counts as lost
 
 
 @dataclass
@@ -103,16 +103,15 @@ class AgentNode:
         }
         self.clock: Clock | None = None  # realtime: set by run_realtime
         self.held: list[Incoming] = []  # realtime: queued after a deadline, routed after it
+        # Realtime: queued, taken at each deadline (Service.take_by); lockstep: a pool handles
+        # each delivery on Zenoh's thread.
+        direct = len(ids) > 1 and scenario.runtime.mode != "realtime"
         for i in ids:
-            if scenario.runtime.mode == "realtime":
-                service.subscribe(keys.link_state(self.run_id, "*", i))
-                service.subscribe(keys.link_estimate(self.run_id, i))
-            else:
-                # Exact keys, no wildcard: Zenoh finds an exact key's subscribers in its key
-                # tree, while a wildcard is matched against every sample (a pool of 125 spent
-                # a third of its CPU there).
-                for phase in ("state", "estimate"):
-                    service.subscribe(keys.inbox(self.run_id, i, phase), direct=len(ids) > 1)
+            # Exact keys, no wildcard: Zenoh finds an exact key's subscribers in its key
+            # tree, while a wildcard is matched against every sample (a pool of 125 spent
+            # a third of its CPU there).
+            for phase in ("state", "estimate"):
+                service.subscribe(keys.inbox(self.run_id, i, phase), direct=direct)
         service.watch_alive()
 
     @property
@@ -181,8 +180,8 @@ class AgentNode:
         return epoch
 
     # -- inbound ----------------------------------------------------------------------------------
-    def _take_delivery(self, msg: Incoming) -> int | None:
-        """Lockstep: keep netem's delivery for its receiver; returns that receiver if ours."""
+    def _delivery(self, msg: Incoming) -> Delivery | None:
+        """netem's delivery, if it is for one of this process's agents on its own key."""
         delivery = self.service.malformed.decode(msg.key, msg.payload, Delivery)
         if delivery is None:
             return None
@@ -190,8 +189,14 @@ class AgentNode:
         if receiver not in self.inbox or not msg.key.endswith(f"/{receiver}/{delivery.phase}"):
             self.service.malformed.counts[msg.key] += 1  # another receiver's: unusable
             return None
-        if delivery.epoch < self.runner.epoch:
-            return None  # a copy of one already used
+        return delivery
+
+    def _take_delivery(self, msg: Incoming) -> int | None:
+        """Lockstep: keep netem's delivery for its receiver; returns that receiver if ours."""
+        delivery = self._delivery(msg)
+        if delivery is None or delivery.epoch < self.runner.epoch:
+            return None  # not ours, or a copy of one already used
+        receiver = delivery.receiver
         self.inbox[receiver].deliveries[(delivery.phase, delivery.epoch)] = delivery
         return receiver
 
@@ -215,40 +220,35 @@ class AgentNode:
         return None if first is None else _estimate(first[1])
 
     def _route(self, msg: Incoming) -> None:
-        """Realtime: file a packet forwarded on a link in its receiver's inbox."""
-        parts = msg.key.split("/")
-        kind, receiver = parts[-1], int(parts[4])
-        if receiver not in self.inbox:
+        """Realtime: file what netem forwarded at one wake-up in its receiver's inbox.
+
+        A packet of an epoch already taken missed its deadline (counted by cause)."""
+        delivery = self._delivery(msg)
+        if delivery is None:
             return
-        meta = read_attachment(msg.attachment)
-        if kind == "state":
-            state = self.service.malformed.decode(msg.key, msg.payload, CoordinationState)
-            if meta is None:
-                if state is None:
-                    return
-                meta = (state.epoch, state.seq, state.agent)
-            sent_epoch, seq, source = meta
-            if sent_epoch <= self.taken:
-                if state is not None:  # arrived after its epoch's deadline (else malformed)
-                    self._missed("state", sent_epoch, state.stamp_ns, msg.arrived_ns)
-                return
-            value: object = (
-                _BAD
-                if state is None
-                else Packet(receiver, source, sent_epoch, tuple(state.position))
-            )
-            self.inbox[receiver].packets[(source, seq)] = value
-        elif kind == "estimate":
-            est = self.service.malformed.decode(msg.key, msg.payload, AgentEstimate)
-            if est is not None and est.agent != receiver:
-                self.service.malformed.counts[msg.key] += 1  # another agent's part: unusable
-                est = None
-            if est is not None and self.taken >= 0 and est.epoch < self.runner.epoch:
+        i = delivery.receiver
+        box = self.inbox[i]
+        if delivery.phase == "state":
+            for p, state in self.service.malformed.decode_packets(
+                delivery.packets, CoordinationState,
+                lambda p: keys.link_state(self.run_id, p.source, i),
+                lambda p, state: state.agent == p.source,
+            ):  # fmt: skip
+                if p.sent_epoch <= self.taken:
+                    self._missed("state", p.sent_epoch, state.stamp_ns, msg.arrived_ns)
+                else:
+                    position = tuple(state.position)
+                    box.packets[(p.source, p.seq)] = Packet(i, p.source, p.sent_epoch, position)
+            return
+        for _, est in self.service.malformed.decode_packets(
+            delivery.packets, AgentEstimate,
+            lambda p: keys.link_estimate(self.run_id, i),
+            lambda p, est: est.agent == i,  # another agent's part is unusable
+        ):  # fmt: skip
+            if self.taken >= 0 and est.epoch < self.runner.epoch:
                 self._missed("estimate", est.epoch, est.stamp_ns, msg.arrived_ns)
-            elif est is not None:
-                self.inbox[receiver].estimates[est.epoch] = est
-            elif meta is not None:
-                self.inbox[receiver].estimates[meta[0]] = _BAD
+            else:
+                box.estimates[est.epoch] = est
 
     def _missed(self, kind: str, epoch: int, stamp_ns: int, arrived_ns: int) -> None:
         """Count a packet that missed its deadline, and its cause (formation.deadlines)."""

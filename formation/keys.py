@@ -41,22 +41,24 @@ def leader_estimate_for(run_id: str, i: int | str) -> str:
 
 # -- what netem delivers: per link in realtime, per receiver and epoch in lockstep -------------
 def link_state(run_id: str, i: int | str, j: int | str) -> str:
-    """Coordination packets delivered on formation link ``i → j``."""
+    """Formation link ``i → j``: names its packets (counts, malformed ones); ``--passthrough``
+    forwards on it."""
     return f"{ROOT}/{run_id}/link/{i}/{j}/state"
 
 
 def link_report(run_id: str, i: int | str) -> str:
-    """Agent ``i``'s report delivered to the leader (control link ``i → 0``)."""
+    """Control link ``i → 0`` (agent ``i``'s report to the leader), by name."""
     return f"{ROOT}/{run_id}/leader/report/{i}"
 
 
 def link_estimate(run_id: str, i: int | str) -> str:
-    """Agent ``i``'s part of the estimate, delivered to it (control link ``0 → i``)."""
+    """Control link ``0 → i`` (agent ``i``'s part of the estimate), by name."""
     return f"{ROOT}/{run_id}/link/{LEADER}/{i}/estimate"
 
 
 def inbox(run_id: str, receiver: int | str, phase: str) -> str:
-    """Lockstep: netem's one :class:`Delivery` per epoch to ``receiver`` (0 = leader) in ``phase``."""
+    """netem's :class:`Delivery` to ``receiver`` (0 = leader) in ``phase``: one per epoch in
+    lockstep, one per wake-up that forwarded something to it in realtime."""
     return f"{ROOT}/{run_id}/inbox/{receiver}/{phase}"
 
 

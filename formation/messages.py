@@ -123,11 +123,13 @@ class DeliveredPacket(BaseModel):
 
 
 class Delivery(_Message):
-    """netem to one receiver, lockstep: everything of ``phase`` it gets at ``epoch``, at once.
+    """netem to one receiver: the packets of ``phase`` it passed to it.
 
-    Sent once every live sender's packet of the epoch was handled, so it also closes
-    the epoch: ``packets`` is all there is; ``lost`` lists the sources whose packet was
-    dropped or delayed past this epoch; ``dead`` the sources no longer alive.
+    Lockstep: everything of ``epoch``, at once. Sent once every live sender's packet of
+    the epoch was handled, so it also closes the epoch: ``packets`` is all there is;
+    ``lost`` lists the sources whose packet was dropped or delayed past this epoch;
+    ``dead`` the sources no longer alive. Realtime: what one wake-up of netem's forwarded
+    to the receiver; ``epoch`` is the newest packet's, ``lost`` and ``dead`` are empty.
     """
 
     kind: Literal["delivery"] = "delivery"

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import replace
 from typing import Any
 
@@ -15,7 +15,7 @@ from formation import keys
 from formation.codec import attachment
 from formation.deadlines import CAUSES, cause, drain_last
 from formation.errors import RuntimeFailure
-from formation.messages import Delivery, TokenReport
+from formation.messages import DeliveredPacket, Delivery, TokenReport
 from formation.realtime import REPORT_DEADLINE, Clock, fetch_clock
 from formation.reference import reference_positions, reference_velocities
 from formation.scenario import Scenario
@@ -129,10 +129,7 @@ class LeaderNode:
         self.late_reports = 0
         self.clock: Clock | None = None  # realtime: set by run_realtime
         self.deadline = {"in_time": 0, **dict.fromkeys(CAUSES, 0)}  # realtime: reports, by cause
-        if scenario.runtime.mode == "realtime":
-            service.subscribe(keys.link_report(self.run_id, "*"))
-        else:
-            service.subscribe(keys.inbox(self.run_id, keys.LEADER, "report"))
+        service.subscribe(keys.inbox(self.run_id, keys.LEADER, "report"))
         service.watch_alive()
 
     def rejoin(self) -> int:
@@ -153,24 +150,42 @@ class LeaderNode:
         return epoch
 
     def _route(self, msg: Incoming) -> None:
-        """Realtime: a report forwarded on its link."""
-        report = self.service.malformed.decode(msg.key, msg.payload, TokenReport)
-        if report is None:
-            return
-        if self.clock is not None and report.epoch < self.epoch:  # after its epoch's deadline
-            self.late_reports += 1
-            self.deadline[cause(self.clock, "report", report.epoch, report.stamp_ns,
-                                msg.arrived_ns)] += 1  # fmt: skip
-        else:
-            self.reports[(report.agent, report.seq)] = report
-
-    def _take_delivery(self, msg: Incoming) -> None:
-        delivery = self.service.malformed.decode(msg.key, msg.payload, Delivery)
+        """Realtime: the reports netem forwarded at one wake-up; one of an epoch already
+        estimated missed its deadline (counted by cause)."""
+        delivery = self._delivery(msg)
         if delivery is None:
             return
-        if delivery.receiver != keys.LEADER or delivery.phase != "report":
+        for _, report in self._reports(delivery.packets):
+            if self.clock is not None and report.epoch < self.epoch:
+                self.late_reports += 1
+                self.deadline[cause(self.clock, "report", report.epoch, report.stamp_ns,
+                                    msg.arrived_ns)] += 1  # fmt: skip
+            else:
+                self.reports[(report.agent, report.seq)] = report
+
+    def _delivery(self, msg: Incoming) -> Delivery | None:
+        """netem's delivery of reports to the leader, or None (counted if it is not one)."""
+        delivery = self.service.malformed.decode(msg.key, msg.payload, Delivery)
+        if delivery is not None and (
+            delivery.receiver != keys.LEADER or delivery.phase != "report"
+        ):
             self.service.malformed.counts[msg.key] += 1  # not the leader's: unusable
-        elif delivery.epoch >= self.epoch:
+            return None
+        return delivery
+
+    def _reports(
+        self, packets: Iterable[DeliveredPacket]
+    ) -> Iterator[tuple[DeliveredPacket, TokenReport]]:
+        """The valid reports among ``packets``; the others counted on their links' keys."""
+        return self.service.malformed.decode_packets(
+            packets, TokenReport,
+            lambda p: keys.link_report(self.run_id, p.source),
+            lambda p, report: report.agent == p.source,
+        )  # fmt: skip
+
+    def _take_delivery(self, msg: Incoming) -> None:
+        delivery = self._delivery(msg)
+        if delivery is not None and delivery.epoch >= self.epoch:
             self.deliveries[delivery.epoch] = delivery
 
     def _try_epoch(self) -> bool:
@@ -179,12 +194,7 @@ class LeaderNode:
         if delivery is None:
             return False
         current = (p for p in delivery.packets if p.sent_epoch == k)  # only epoch k's are fused
-        decoded = self.service.malformed.decode_packets(
-            current, TokenReport,
-            lambda p: keys.link_report(self.run_id, p.source),
-            lambda p, report: report.agent == p.source,
-        )  # fmt: skip
-        self._estimate(k, [report for _, report in decoded])
+        self._estimate(k, [report for _, report in self._reports(current)])
         return True
 
     def _estimate(self, k: int, reports: list[TokenReport]) -> None:

@@ -93,7 +93,13 @@ class NetemNode:
         self.lockstep = Lockstep(self.links, self.epochs, self.progress, self.ledger, self.outbox)
         self.routes = Routes(self.agents)
         self.realtime = Realtime(
-            service, self.links, self.routes, self.progress, self.ledger, self.outbox.records
+            service,
+            self.links,
+            self.routes,
+            self.progress,
+            self.ledger,
+            self.outbox.records,
+            self.outbox.deliver,
         )
         self.running = False  # lockstep: samples are handled on Zenoh's thread once True
         prefix = keys.prefix(self.run_id)
@@ -219,7 +225,7 @@ class NetemNode:
         epoch, seq, source = meta
         if self.passthrough and route[0] == "state":
             for dst in self.links.out_links[source]:
-                self.realtime.link("formation", source, dst)[0].put(payload, attachment=att)
+                self.service.put(link_key(self.run_id, ("formation", source, dst)), payload, att)
             return
         self.lockstep.packet(route, epoch, seq, payload)
         if self.lockstep.applied:

@@ -1,7 +1,11 @@
-"""netem in realtime: each packet forwarded on its link's key as it comes, after its delay.
+"""netem in realtime: each packet forwarded as it comes, after its delay, batched per receiver.
 
 No epoch closes: a link's model decides each packet from its epoch and the time since
 the clock's start (a realtime outage), and a delayed packet waits in a heap until due.
+What one wake-up forwards to a receiver in a phase goes out as one :class:`Delivery` on
+``inbox/<receiver>/<phase>`` (``lost`` and ``dead`` empty: nothing closes), not one
+message per link: a burst of states crosses Zenoh as a message per receiver, which cut
+the puts 2-2.5x (20 agents at 20 Hz; 100 pooled at 10 Hz).
 The decision records go out once per period, one batch per phase and epoch.
 
 Packets are queued by Zenoh's threads and handled here, on the main thread, a whole queue
@@ -15,73 +19,102 @@ from __future__ import annotations
 import heapq
 import threading
 import time
-from collections import Counter
+from collections import Counter, defaultdict
 from collections.abc import Callable
-
-import zenoh
+from dataclasses import dataclass, field
 
 from formation.codec import read_attachment
 from formation.deadlines import PHASES
 from formation.realtime import Clock
 from formation.scenario import LEADER_ENDPOINT
 from formation.service import Incoming, Service
-from netem.links import PHASE_OF, Link, LinkClass, Links, Phase, Routes, link_key
-from netem.models import LinkModel
+from netem.links import PHASE_OF, LinkClass, Links, Phase, Routes
 from netem.progress import Progress
-from netem.records import Ledger, Record
+from netem.records import Ledger, Record, message_json, packet_json_of
 
-# (due ns, tie, link, payload, attachment, its phase's deadline ns)
-Due = tuple[int, int, zenoh.Publisher, bytes, "bytes | None", int]
+Inbox = tuple[Phase, int]  # (phase, receiver)
+# (due ns, tie, its receiver's inbox, sent epoch, packet JSON, copies, its phase's deadline ns)
+Due = tuple[int, int, Inbox, int, bytes, int, int]
 KIND_OF: dict[LinkClass, str] = {"formation": "state", "report": "report", "estimate": "estimate"}
 PublishRecords = Callable[[Phase, int, list[Record]], None]
+# (phase, receiver, epoch, packets, lost, dead): netem.node.ZenohOutbox.deliver
+Deliver = Callable[[Phase, int, int, list[bytes], list[int], list[int]], None]
+# A burst is flushed at least this often while netem works through it: batching must not
+# hold the first packets back until the last is decided [ns].
+FLUSH_NS = 1_000_000
+
+
+@dataclass
+class _Outgoing:
+    """What one receiver's inbox gets at the next flush."""
+
+    epoch: int = -1  # the newest packet's sent epoch
+    packets: list[bytes] = field(default_factory=list)
+    # (ready ns, deadline ns, copies): ready (arrived, or its delay over) by the deadline,
+    # but put out after it, a packet is netem's miss ("late_forwards")
+    timing: list[tuple[int, int, int]] = field(default_factory=list)
 
 
 class Realtime:
-    """Forwards packets on their links' keys, after their models' delays."""
+    """Forwards packets after their models' delays, batched per receiver (:meth:`flush`)."""
 
     def __init__(self, service: Service, links: Links, routes: Routes, progress: Progress,
-                 ledger: Ledger, publish_records: PublishRecords) -> None:  # fmt: skip
+                 ledger: Ledger, publish_records: PublishRecords, deliver: Deliver) -> None:  # fmt: skip
         self.service, self.links, self.routes = service, links, routes
         self.progress, self.ledger, self.publish_records = progress, ledger, publish_records
+        self.deliver = deliver
         self.clock: Clock | None = None  # set by run()
-        self._links: dict[Link, tuple[zenoh.Publisher, LinkModel]] = {}
         # modelled_late: packets a model delayed past their deadline (modelled losses);
         # late_forwards: packets in time here (and by their model) put out after it
         self.deadline: Counter[str] = Counter()
-
-    def link(self, cls: LinkClass, src: int, dst: int) -> tuple[zenoh.Publisher, LinkModel]:
-        """The publisher of a link's forwarded packets and its model, looked up once."""
-        got = self._links.get((cls, src, dst))
-        if got is None:
-            got = self._links[(cls, src, dst)] = (
-                self.service.publisher(link_key(self.service.run_id, (cls, src, dst))),
-                self.links.models[(cls, src, dst)],
-            )
-        return got
+        self._out: defaultdict[Inbox, _Outgoing] = defaultdict(_Outgoing)
+        self._oldest_ns = 0  # when the oldest unflushed packet was queued (0: none)
 
     def forward(self, cls: LinkClass, src: int, dst: int, msg: Incoming, epoch: int, seq: int,
-                due: list[Due]) -> None:  # fmt: skip
-        """Decide one packet on one link: put it now, push it on ``due``, or drop it."""
+                text: bytes, due: list[Due]) -> None:  # fmt: skip
+        """Decide one packet on one link: out at the next flush, pushed on ``due``, or dropped.
+
+        ``text``: the payload as a JSON string (:func:`~netem.records.message_json`), once
+        for every link it takes."""
         assert self.clock is not None
         now = time.time_ns()
-        pub, model = self.link(cls, src, dst)
-        d = model.decide(epoch, time_s=(now - self.clock.t0_ns) / 1e9)
-        self.ledger.decisions[(PHASE_OF[cls], epoch)].append((src, dst, cls, epoch, seq, d))
+        d = self.links.models[(cls, src, dst)].decide(epoch, time_s=(now - self.clock.t0_ns) / 1e9)
+        phase = PHASE_OF[cls]
+        self.ledger.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
         if not d.delivered:
             return
         self.ledger.forwarded[(cls, src, dst)] += d.copies
-        due_ns = now + int(d.delay_ms * 1e6)
         deadline_ns = self.clock.at(epoch, PHASES[KIND_OF[cls]][1])
-        if d.delay_ms > 0 and due_ns > deadline_ns:
+        packet = packet_json_of(src, seq, epoch, d.copies, text)
+        if d.delay_ms <= 0:
+            self.queue((phase, dst), epoch, packet, msg.arrived_ns, deadline_ns, d.copies)
+            return
+        due_ns = now + int(d.delay_ms * 1e6)
+        if due_ns > deadline_ns:
             self.deadline["modelled_late"] += d.copies
-        elif d.delay_ms <= 0 and msg.arrived_ns <= deadline_ns < now:
-            self.deadline["late_forwards"] += d.copies
-        for _ in range(d.copies):
-            if d.delay_ms <= 0:
-                pub.put(msg.payload, attachment=msg.attachment)
-            else:
-                item = (due_ns, len(due), pub, msg.payload, msg.attachment, deadline_ns)
-                heapq.heappush(due, item)
+        heapq.heappush(due, (due_ns, len(due), (phase, dst), epoch, packet, d.copies, deadline_ns))
+
+    def queue(self, inbox: Inbox, epoch: int, packet: bytes, ready_ns: int, deadline_ns: int,
+              copies: int) -> None:  # fmt: skip
+        """A packet for ``inbox`` at the next flush."""
+        out = self._out[inbox]
+        out.packets.append(packet)
+        out.epoch = max(out.epoch, epoch)
+        if ready_ns <= deadline_ns:
+            out.timing.append((ready_ns, deadline_ns, copies))
+        if not self._oldest_ns:
+            self._oldest_ns = time.time_ns()
+
+    def flush(self, unless_newer_than_ns: int = 0) -> None:
+        """One delivery per receiver's inbox of everything queued since the last flush; with
+        ``unless_newer_than_ns``, only once the oldest has waited that long."""
+        if not self._oldest_ns or time.time_ns() - self._oldest_ns < unless_newer_than_ns:
+            return
+        out, self._out, self._oldest_ns = self._out, defaultdict(_Outgoing), 0
+        for (phase, receiver), o in out.items():
+            now = time.time_ns()
+            self.deadline["late_forwards"] += sum(c for _, dl, c in o.timing if dl < now)
+            self.deliver(phase, receiver, o.epoch, o.packets, [], [])
 
     def handle(self, msg: Incoming, due: list[Due]) -> None:
         """One inbound packet: forwarded on each of its links (a final state only noted)."""
@@ -98,12 +131,15 @@ class Realtime:
             if epoch >= progress.epochs:
                 progress.final_state(source)
                 return
+            text = message_json(msg.payload)
             for dst in self.links.out_links[source]:
-                self.forward("formation", source, dst, msg, epoch, seq, due)
+                self.forward("formation", source, dst, msg, epoch, seq, text, due)
         elif kind == "report":
-            self.forward("report", source, LEADER_ENDPOINT, msg, epoch, seq, due)
+            self.forward("report", source, LEADER_ENDPOINT, msg, epoch, seq,
+                         message_json(msg.payload), due)  # fmt: skip
         else:
-            self.forward("estimate", LEADER_ENDPOINT, route[2], msg, epoch, seq, due)
+            self.forward("estimate", LEADER_ENDPOINT, route[2], msg, epoch, seq,
+                         message_json(msg.payload), due)  # fmt: skip
             progress.estimate_handled(epoch)
 
     def publish_decisions(self) -> None:
@@ -131,9 +167,9 @@ class Realtime:
             now = time.time_ns()
             with lock:
                 while due and due[0][0] <= now:
-                    due_ns, _, pub, payload, att, deadline_ns = heapq.heappop(due)
-                    self.deadline["late_forwards"] += due_ns <= deadline_ns < time.time_ns()
-                    pub.put(payload, attachment=att)
+                    due_ns, _, inbox, epoch, packet, copies, deadline_ns = heapq.heappop(due)
+                    self.queue(inbox, epoch, packet, due_ns, deadline_ns, copies)
+                self.flush()
                 if now >= next_flush:
                     self.publish_decisions()
                     next_flush += self.clock.period_ns
@@ -145,6 +181,8 @@ class Realtime:
                     self.handle(msg, due)
                     while (more := service.next_incoming(0)) is not None:
                         self.handle(more, due)
+                        self.flush(unless_newer_than_ns=FLUSH_NS)
+                    self.flush()
         with lock:
             self.publish_decisions()
         return 0 if finished() else 130

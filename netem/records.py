@@ -94,8 +94,18 @@ def decision_batch_of(header: dict[str, Any], phase: str, records: list[bytes]) 
 
 def packet_json(source: int, seq: int, sent_epoch: int, copies: int, payload: Any) -> bytes:
     """One packet of a ``Delivery``, encoded once however many receivers' deliveries carry it."""
+    return packet_json_of(source, seq, sent_epoch, copies, message_json(payload))
+
+
+def message_json(payload: Any) -> bytes:
+    """A payload as the JSON string a ``DeliveredPacket``'s ``message`` holds."""
+    return orjson.dumps(_text(payload))
+
+
+def packet_json_of(source: int, seq: int, sent_epoch: int, copies: int, message: bytes) -> bytes:
+    """:func:`packet_json` with the message already encoded (:func:`message_json`)."""
     return b'{"source":%d,"seq":%d,"sent_epoch":%d,"copies":%d,"message":%s}' % (
-        source, seq, sent_epoch, copies, orjson.dumps(_text(payload)),
+        source, seq, sent_epoch, copies, message,
     )  # fmt: skip
 
 

@@ -91,9 +91,7 @@ def principals(n_agents: int) -> list[Principal]:
         Principal(
             "netem",
             publish=(
-                keys.link_state(r, "*", "*"),
-                keys.link_report(r, "*"),
-                keys.link_estimate(r, "*"),
+                keys.link_state(r, "*", "*"),  # --passthrough, the benchmarks' baseline
                 keys.inbox(r, "*", "*"),
                 keys.netem_decision(r),
                 keys.netem_change(r),

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections import Counter
 from pathlib import Path
 
@@ -80,6 +81,11 @@ def test_an_agent_republishes_the_final_states_netem_lacks(
         qbl = svc.session.declare_queryable(keys.netem_final(RUN), on_final)
         try:
             confirmed = node.confirm_final(timeout_s=0.0 if len(answers) > 2 else 10.0)
+            # The republished state reaches the subscriber on Zenoh's thread: wait for it
+            # (a loaded machine delivered it after the undeclare), bounded.
+            deadline = time.monotonic() + 10.0
+            while not published and time.monotonic() < deadline:
+                time.sleep(0.01)
         finally:
             qbl.undeclare()
             sub.undeclare()

@@ -187,8 +187,8 @@ def _allows(acl: dict, user: str, message: str, flow: str, key: str) -> bool:
         ("agent-1", keys.leader_estimate_out("r"), False),
         ("agent-2", keys.agent_state("r", 2), True),
         ("netem", keys.link_state("r", 1, 2), True),
-        ("netem", keys.link_report("r", 3), True),
-        ("netem", keys.link_estimate("r", 3), True),
+        ("netem", keys.link_report("r", 3), False),  # realtime delivers on inbox keys too
+        ("netem", keys.link_estimate("r", 3), False),
         ("netem", keys.inbox("r", 0, "report"), True),
         ("netem", keys.netem_decision("r"), True),
         ("netem", keys.agent_state("r", 1), False),

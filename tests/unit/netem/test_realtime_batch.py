@@ -1,0 +1,95 @@
+"""netem's realtime forwarding, without Zenoh: a burst of states leaves as one delivery per
+receiver holding each packet its links passed, and a packet put out after its deadline
+though it was ready in time is netem's own miss."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from formation import keys
+from formation.codec import Malformed, attachment, encode
+from formation.messages import CoordinationState, DeliveredPacket
+from formation.realtime import Clock
+from formation.scenario import Scenario
+from formation.service import Incoming
+from netem.links import Links, Routes
+from netem.progress import Progress
+from netem.realtime import Realtime
+from netem.records import Ledger
+
+ROOT = Path(__file__).resolve().parents[3]
+RUN = "batch"
+
+
+def _rig(clock: Clock) -> tuple[Realtime, list[tuple[str, int, int, list[bytes]]], Links]:
+    scenario = Scenario.from_file(ROOT / "scenarios/grid20.toml")
+    links = Links(scenario, seed=1)
+    sent: list[tuple[str, int, int, list[bytes]]] = []
+    rt = Realtime(
+        SimpleNamespace(malformed=Malformed()),  # type: ignore[arg-type]  # only its counts
+        links, Routes(links.agents), Progress(links.agents, scenario.epochs, lambda: None),
+        Ledger(), lambda *_: None,
+        lambda phase, receiver, epoch, packets, lost, dead: sent.append((phase, receiver, epoch, packets)),
+    )  # fmt: skip
+    rt.clock = clock
+    return rt, sent, links
+
+
+def _burst(rt: Realtime, links: Links, epoch: int, arrived_ns: int) -> dict[int, bytes]:
+    payloads = {}
+    for i in links.agents:
+        payloads[i] = encode(CoordinationState(run_id=RUN, sender=f"agent/{i}", seq=epoch,
+                                               epoch=epoch, stamp_ns=0, agent=i,
+                                               position=[float(i), 0.5]))  # fmt: skip
+        msg = Incoming(
+            keys.agent_state(RUN, i), payloads[i], attachment(epoch, epoch, i), arrived_ns
+        )
+        rt.handle(msg, due := [])
+        assert not due  # grid20 delays nothing
+    return payloads
+
+
+def test_a_burst_goes_out_as_one_delivery_per_receiver() -> None:
+    now = time.time_ns()
+    rt, sent, links = _rig(Clock(now, 10_000_000_000))  # deadlines far ahead
+    payloads = _burst(rt, links, 0, now)
+    assert sent == []  # nothing before the flush
+    rt.flush()
+    receivers = [r for _, r, _, _ in sent]
+    assert sorted(receivers) == sorted(set(receivers))  # one delivery each
+    got = {
+        (p.source, r): p
+        for _, r, _, packets in sent
+        for p in map(DeliveredPacket.model_validate_json, packets)
+    }
+    passed = {(s, r) for (cls, s, r), n in rt.ledger.forwarded.items() if cls == "formation" and n}
+    assert set(got) == passed and len(passed) > len(receivers)  # fewer messages than packets
+    assert passed < {(s, r) for r in links.agents for s in links.in_links[r]}  # grid20 drops
+    for (s, _), p in got.items():
+        assert (p.sent_epoch, p.seq, p.copies) == (0, 0, 1)
+        assert p.message.encode() == payloads[s]  # the sender's payload, unparsed
+    assert {(phase, epoch) for phase, _, epoch, _ in sent} == {("state", 0)}
+    assert rt.deadline["late_forwards"] == 0
+
+
+def test_a_packet_ready_in_time_but_put_out_late_is_netems_miss() -> None:
+    now = time.time_ns()
+    period = 1_000_000_000
+    rt, sent, links = _rig(Clock(now - period, period))  # epoch 0's state deadline has passed
+    _burst(rt, links, 0, arrived_ns=now - period)  # arrived at epoch 0's start: in time
+    rt.flush()
+    delivered = sum(len(packets) for *_, packets in sent)
+    assert delivered == rt.deadline["late_forwards"] > 0
+
+
+@pytest.mark.parametrize("wait_ns", [0, 10**12])
+def test_a_flush_waits_only_as_long_as_asked(wait_ns: int) -> None:
+    now = time.time_ns()
+    rt, sent, links = _rig(Clock(now, 10_000_000_000))
+    _burst(rt, links, 0, now)
+    rt.flush(unless_newer_than_ns=wait_ns)
+    assert bool(sent) == (wait_ns == 0)
