@@ -4,6 +4,7 @@ though it was ready in time is netem's own miss."""
 
 from __future__ import annotations
 
+import threading
 import time
 from pathlib import Path
 from types import SimpleNamespace
@@ -13,12 +14,12 @@ import pytest
 from formation import keys
 from formation.codec import Malformed, attachment, encode
 from formation.messages import CoordinationState, DeliveredPacket
-from formation.realtime import Clock
+from formation.realtime import REPORT_DEADLINE, Clock
 from formation.scenario import Scenario
 from formation.service import Incoming
 from netem.links import Links, Routes
 from netem.progress import Progress
-from netem.realtime import Realtime
+from netem.realtime import RECORDS_AT, Due, Realtime
 from netem.records import Ledger
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -48,7 +49,8 @@ def _burst(rt: Realtime, links: Links, epoch: int, arrived_ns: int) -> dict[int,
         msg = Incoming(
             keys.agent_state(RUN, i), payloads[i], attachment(epoch, epoch, i), arrived_ns
         )
-        rt.handle(msg, due := [])
+        due: list[Due] = []
+        rt.handle(msg, due)
         assert not due  # grid20 delays nothing
     return payloads
 
@@ -93,3 +95,22 @@ def test_a_flush_waits_only_as_long_as_asked(wait_ns: int) -> None:
     _burst(rt, links, 0, now)
     rt.flush(unless_newer_than_ns=wait_ns)
     assert bool(sent) == (wait_ns == 0)
+
+
+def test_the_decision_records_go_out_when_netem_idles() -> None:
+    """Once a period, at RECORDS_AT of it (after the reports, before the leader's estimates),
+    not at the period's start, in the middle of the states' burst."""
+    published: list[int] = []
+    rt, _, _ = _rig(Clock(0, 1))
+    rt.publish_records = lambda phase, epoch, records: published.append(time.time_ns())
+    rt.ledger.decisions[("state", 0)].append((1, 2, "formation", 0, 0, None))  # type: ignore[arg-type]
+    service = SimpleNamespace(
+        stopping=threading.Event(),
+        declare_start=lambda: None,
+        next_incoming=lambda timeout: time.sleep(timeout),
+    )
+    rt.service = service  # type: ignore[assignment]
+    assert rt.run(0.2, threading.Lock(), lambda: True, lambda: None, lambda: bool(published)) == 0
+    assert rt.clock is not None
+    (at,) = published
+    assert rt.clock.at(0, RECORDS_AT) <= at < rt.clock.at(0, REPORT_DEADLINE)
