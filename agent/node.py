@@ -112,6 +112,9 @@ class AgentNode:
             # a third of its CPU there).
             for phase in ("state", "estimate"):
                 service.subscribe(keys.inbox(self.run_id, i, phase), direct=direct)
+        service.declare_publishers(
+            key(self.run_id, i) for i in ids for key in (keys.agent_state, keys.agent_report)
+        )
         service.watch_alive()
 
     @property

@@ -17,7 +17,7 @@ import sys
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -108,6 +108,12 @@ class Service:
             )
             self._publishers[key] = pub
         return pub
+
+    def declare_publishers(self, keys: Iterable[str]) -> None:
+        """Declare these publishers now, before the run's clock starts: declared at their first
+        put, they made realtime's first epochs late (a declaration per key, all in one burst)."""
+        for key in keys:
+            self.publisher(key)
 
     def put(self, key: str, payload: Any, attachment: Any = None) -> None:
         """Publish raw bytes (or a received ``ZBytes``, forwarded without a copy) on ``key``."""

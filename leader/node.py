@@ -130,6 +130,10 @@ class LeaderNode:
         self.clock: Clock | None = None  # realtime: set by run_realtime
         self.deadline = {"in_time": 0, **dict.fromkeys(CAUSES, 0)}  # realtime: reports, by cause
         service.subscribe(keys.inbox(self.run_id, keys.LEADER, "report"))
+        service.declare_publishers(
+            [keys.leader_estimate_out(self.run_id)]
+            + [keys.leader_estimate_for(self.run_id, i) for i in range(1, scenario.n + 1)]
+        )
         service.watch_alive()
 
     def rejoin(self) -> int:

@@ -44,14 +44,26 @@ class ZenohOutbox:
         self._inboxes: dict[tuple[Phase, int], tuple[str, zenoh.Publisher]] = {}
         self._decision_key = keys.netem_decision(service.run_id)
 
+    def declare(self, agents: list[int]) -> None:
+        """Declare every inbox's publisher now, before the clock starts (as
+        :meth:`~formation.service.Service.declare_publishers`)."""
+        for i in agents:
+            for phase in ("state", "estimate"):
+                self._inbox(phase, i)
+        self._inbox("report", LEADER_ENDPOINT)
+        self.service.publisher(self._decision_key)
+
+    def _inbox(self, phase: Phase, receiver: int) -> tuple[str, zenoh.Publisher]:
+        out = self._inboxes.get((phase, receiver))
+        if out is None:
+            key = keys.inbox(self.service.run_id, receiver, phase)
+            out = self._inboxes[(phase, receiver)] = (key, self.service.publisher(key))
+        return out
+
     def deliver(self, phase: Phase, receiver: int, epoch: int, packets: list[bytes],
                 lost: list[int], dead: list[int]) -> None:  # fmt: skip
         service = self.service
-        out = self._inboxes.get((phase, receiver))
-        if out is None:
-            key = keys.inbox(service.run_id, receiver, phase)
-            out = self._inboxes[(phase, receiver)] = (key, service.publisher(key))
-        key, pub = out
+        key, pub = self._inbox(phase, receiver)
         pub.put(delivery(service.header(key, epoch), receiver, phase, packets, lost, dead))
         service.sent[key] += 1
 
@@ -90,6 +102,7 @@ class NetemNode:
         self.progress = Progress(self.agents, self.epochs, self._notify_last_seen)
         self.ledger = Ledger()
         self.outbox = ZenohOutbox(service)
+        self.outbox.declare(self.agents)
         self.lockstep = Lockstep(self.links, self.epochs, self.progress, self.ledger, self.outbox)
         self.routes = Routes(self.agents)
         self.realtime = Realtime(

@@ -19,7 +19,7 @@ from formation.scenario import Scenario
 from formation.service import Incoming
 from netem.links import Links, Routes
 from netem.progress import Progress
-from netem.realtime import RECORDS_AT, Due, Realtime
+from netem.realtime import PREPARE_AHEAD, RECORDS_AT, Due, Realtime
 from netem.records import Ledger
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -114,3 +114,20 @@ def test_the_decision_records_go_out_when_netem_idles() -> None:
     assert rt.clock is not None
     (at,) = published
     assert rt.clock.at(0, RECORDS_AT) <= at < rt.clock.at(0, REPORT_DEADLINE)
+
+
+def test_decision_blocks_are_computed_ahead_a_share_of_links_per_epoch() -> None:
+    """A new block of decisions (epoch N = 3 blocks in) is computed for every link by the
+    preparations of epochs N - PREPARE_AHEAD .. N - 1, a share of the links in each; the
+    decisions stay what they would be computed on demand."""
+    rt, _, links = _rig(Clock(0, 1))
+    block = 1024  # LinkModel's default block_epochs
+    needed = 3 * block
+    assert not any(m.prepared(needed) for m in links.models.values())
+    for k in range(needed - PREPARE_AHEAD, needed):
+        assert not all(m.prepared(needed) for m in links.models.values())
+        rt.prepare(k)
+    assert all(m.prepared(needed) for m in links.models.values())
+    fresh = Links(Scenario.from_file(ROOT / "scenarios/grid20.toml"), seed=1)
+    for link, model in links.models.items():  # the same decisions as computed on demand
+        assert model.decide(needed) == fresh.models[link].decide(needed)
