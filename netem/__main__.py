@@ -39,8 +39,6 @@ def main(argv: list[str] | None = None) -> int:
         else:
             code = node.run()
         delivered = node.sent_counts()
-        if scenario.runtime.mode == "realtime":  # forwarded on the links' keys, past Service.put
-            service.sent.update(delivered)
         detail = json.dumps(node.realtime.deadline) if scenario.runtime.mode == "realtime" else ""
         service.status("done" if code == 0 else "error", node.estimates_done, detail, delivered)
         return code

@@ -36,7 +36,11 @@ def test_lockstep_run_equals_the_simulator(paper: Scenario, runs_dir: Path, stra
         for k in range(paper.epochs)
         for row, (a, b) in enumerate(links)
     }
-    assert verdicts == expected
+    missing = sorted(set(expected) - set(verdicts))
+    assert verdicts == expected, (  # which records did not come, and was something unreadable
+        f"{len(missing)} records missing, epochs {missing[0][2] if missing else '-'}.."
+        f"{missing[-1][2] if missing else '-'}; malformed {outcome.malformed}"
+    )
     assert sum(not v for v in verdicts.values()) == 2 * (
         paper.epochs - 1
     )  # link 1-2 down from epoch 1

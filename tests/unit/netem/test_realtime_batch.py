@@ -19,7 +19,7 @@ from formation.scenario import Scenario
 from formation.service import Incoming
 from netem.links import Links, Routes
 from netem.progress import Progress
-from netem.realtime import PREPARE_AHEAD, RECORDS_AT, Due, Realtime
+from netem.realtime import PREPARE_AHEAD, RECORDS_AT, START_LEAD_S, Due, Realtime
 from netem.records import Ledger
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -110,8 +110,10 @@ def test_the_decision_records_go_out_when_netem_idles() -> None:
         next_incoming=lambda timeout: time.sleep(timeout),
     )
     rt.service = service  # type: ignore[assignment]
+    began = time.time_ns()
     assert rt.run(0.2, threading.Lock(), lambda: True, lambda: None, lambda: bool(published)) == 0
     assert rt.clock is not None
+    assert rt.clock.t0_ns - began >= START_LEAD_S * 1e9  # time for every agent to fetch it
     (at,) = published
     assert rt.clock.at(0, RECORDS_AT) <= at < rt.clock.at(0, REPORT_DEADLINE)
 
