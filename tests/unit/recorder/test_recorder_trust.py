@@ -19,7 +19,7 @@ import pytest
 
 from formation import keys
 from formation.codec import encode
-from formation.messages import CoordinationState
+from formation.messages import CoordinationState, DeliveredPacket, Delivery
 from recorder.reader import describe
 from recorder.replay import Replayer
 from recorder.report import write_report
@@ -111,6 +111,25 @@ def test_a_different_second_message_of_an_epoch_is_a_conflict(paper: Any) -> Non
     assert gate.check(key, state(1.0)) is not None  # a republished final state is no fault
     assert gate.check(key, state(2.0)) is None
     assert gate.skipped.by_reason() == {CONFLICT: 1}
+
+
+@pytest.mark.parametrize("mode", ["lockstep", "realtime"])
+def test_several_deliveries_of_an_epoch_are_a_conflict_in_lockstep_only(
+    paper: Any, mode: str
+) -> None:
+    """Lockstep: one delivery per receiver, phase and epoch; realtime: one per netem wake-up."""
+    gate = Gate(paper.with_overrides(runtime={"mode": mode, "realtime_period_s": 0.05}))
+    key = keys.inbox("r", 2, "state")
+
+    def delivery(source: int) -> bytes:
+        packet = DeliveredPacket(source=source, seq=3, sent_epoch=3, message="{}")
+        return encode(Delivery(run_id="r", sender="netem", seq=source, epoch=3, stamp_ns=1,
+                               receiver=2, phase="state", packets=[packet], lost=[]))  # fmt: skip
+
+    assert gate.check(key, delivery(1)) is not None
+    second = gate.check(key, delivery(3))
+    assert (second is None) == (mode == "lockstep")
+    assert gate.skipped.by_reason() == ({CONFLICT: 1} if mode == "lockstep" else {})
 
 
 def test_pooled_agents_own_their_ids(paper: Any) -> None:
