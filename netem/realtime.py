@@ -23,6 +23,7 @@ import time
 from collections import Counter, defaultdict
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from itertools import islice
 
 from formation.codec import read_attachment
 from formation.deadlines import PHASES
@@ -159,10 +160,9 @@ class Realtime:
     def prepare(self, epoch: int) -> None:
         """The decision blocks of epoch ``epoch + PREPARE_AHEAD``, for one link in
         ``PREPARE_AHEAD`` (a different share each epoch)."""
-        share = epoch % PREPARE_AHEAD
-        for n, model in enumerate(self.links.models.values()):
-            if n % PREPARE_AHEAD == share:
-                model.prepare(epoch + PREPARE_AHEAD)
+        share = islice(self.links.models.values(), epoch % PREPARE_AHEAD, None, PREPARE_AHEAD)
+        for model in share:
+            model.prepare(epoch + PREPARE_AHEAD)
 
     def publish_decisions(self) -> None:
         """Every record not yet published, one batch per phase and epoch, in order."""
