@@ -11,10 +11,12 @@ waits for every report anyway, so this costs no time).
 
 from __future__ import annotations
 
+import copy
 import logging
 import threading
 import time
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import orjson
@@ -24,7 +26,7 @@ from formation import keys
 from formation.codec import attachment
 from formation.deadlines import CAUSES, cause, drain_last
 from formation.errors import RuntimeFailure
-from formation.messages import AgentEstimate, CoordinationState, Delivery
+from formation.messages import AgentEstimate, CoordinationState, Delivery, TokenReport
 from formation.realtime import ESTIMATE_DEADLINE, STATE_DEADLINE, Clock, fetch_clock, sleep_until
 from formation.scenario import Scenario, StrategyName
 from formation.service import Incoming, Service
@@ -98,6 +100,7 @@ class AgentNode:
             "estimates": 0,
             "late_estimates": 0,
             "overruns": 0,
+            "early_steps": 0,  # steps before the estimate deadline: every estimate was in
             "in_time": 0,
             **dict.fromkeys(CAUSES, 0),
         }
@@ -249,7 +252,10 @@ class AgentNode:
             lambda p, est: est.agent == i,  # another agent's part is unusable
         ):  # fmt: skip
             if self.taken >= 0 and est.epoch < self.runner.epoch:
-                self._missed("estimate", est.epoch, est.stamp_ns, msg.arrived_ns)
+                assert self.clock is not None  # realtime
+                if msg.arrived_ns > self.clock.at(est.epoch, ESTIMATE_DEADLINE):
+                    self._missed("estimate", est.epoch, est.stamp_ns, msg.arrived_ns)
+                # else a copy of one already used, in a step before the deadline
             else:
                 box.estimates[est.epoch] = est
 
@@ -366,8 +372,41 @@ class AgentNode:
     def _drain_until(self, t_ns: int) -> None:
         self.held = self.service.take_by(t_ns, self._route, self.held)
 
+    def _has_estimates(self, epoch: int) -> bool:
+        return all(epoch in self.inbox[i].estimates for i in self.ids)
+
+    def _rehearse(self, times: int = 3) -> None:
+        """This process's own work of an epoch, on a copy of its agents, before the clock starts.
+
+        The first epoch's cost 3x the CPU of later ones (0.5 against 0.1 ms to take the
+        states, 0.7 against 0.2 to report, 20 agents at 20 Hz: CPython specialises code as
+        it runs it), and 20 agents doing it at once at the first deadline made the first
+        epochs' reports and estimates late. Nothing is published; the copy is dropped.
+        """
+        runner = copy.deepcopy(self.runner)
+        senders: dict[int, list[int]] = {i: [] for i in self.ids}
+        for j, i in self.scenario.directed_links.tolist():
+            if i in senders:
+                senders[i].append(j)
+        head = {"run_id": self.run_id, "sender": self.service.name, "seq": 0, "stamp_ns": 0}
+        for _ in range(times):
+            k = runner.epoch
+            states = {
+                i: state_message({**head, "epoch": k}, i, runner.position(i), [], runner.pose(i))
+                for i in self.ids
+            }
+            packets = []
+            for i, js in senders.items():
+                for j in js:  # another agent's state, as this agent's own would read
+                    state = CoordinationState.model_validate_json(states[i])
+                    packets.append(Packet(i, j, k, tuple(state.position)))
+            for i, report in runner.receive(packets).items():
+                TokenReport.model_validate_json(report_message({**head, "epoch": k}, i, report))
+            runner.step({i: None for i in self.ids})
+
     def run_realtime(self) -> int:
         """Fixed period; what has not arrived by a phase's deadline is lost (docs/architecture.md "Time")."""
+        self._rehearse()  # while the others start: the clock is not running yet
         if not self.service.wait_started():
             return 1
         clock = self.clock = fetch_clock(self.service.session, self.run_id)
@@ -395,7 +434,14 @@ class AgentNode:
             self.deadline["in_time"] += fresh
             self.taken = k
             self._publish_reports(packets)
-            self._drain_until(clock.at(k, ESTIMATE_DEADLINE))
+            # Stepping once every estimate here is in gives the step what the deadline would
+            # (only epoch k's estimate counts) and the states more time: woken at once at the
+            # deadline, 20 agents stepped one after another on 2 cores, the last ones late.
+            self.held = self.service.take_by(
+                clock.at(k, ESTIMATE_DEADLINE), self._route, self.held,
+                complete=partial(self._has_estimates, k),
+            )  # fmt: skip
+            self.deadline["early_steps"] += time.time_ns() < clock.at(k, ESTIMATE_DEADLINE)
             got: dict[int, Estimate | None] = {}
             for i in self.ids:
                 est = self.inbox[i].estimates.pop(k, None)
@@ -406,8 +452,8 @@ class AgentNode:
                 self.deadline["estimates"] += got[i] is not None
                 self.deadline["in_time"] += got[i] is not None
             self.runner.step(got)
-            # x[k+1] is known now: out at once, so the burst of every agent's states has
-            # the rest of this period as well as the next one's first 0.2 to arrive.
+            # x[k+1] is known now: out at once, so the states have the rest of this period
+            # as well as the next one's first 0.2 to arrive.
             self._publish_states()
         self._drain_until(clock.at(self.scenario.epochs))
         for queued in self.held:

@@ -1,12 +1,13 @@
 """Wall-clock epochs for realtime mode: one period, fixed phase deadlines within it.
 
 Epoch ``k`` spans ``[t0 + kP, t0 + (k+1)P)``: agents publish ``x_i[k]`` as soon as
-they have it (``x[k]`` when epoch ``k − 1``'s step is done, at its ``ESTIMATE_DEADLINE``,
-``x[0]`` as early before ``t0``), take what arrived by
-``STATE_DEADLINE·P`` and report, the leader takes the
-reports that arrived by ``REPORT_DEADLINE·P``, agents take the estimate that
-arrived by ``ESTIMATE_DEADLINE·P`` and step. What arrives later is lost (and
-counted as a deadline miss). Times are ``time.time_ns()`` so hosts share them.
+they have it (``x[0]`` just before ``t0``), take what arrived by ``STATE_DEADLINE·P``
+and report, the leader takes the reports that arrived by ``REPORT_DEADLINE·P`` (or
+estimates at once when every agent's report is in), agents take the estimate that arrived
+by ``ESTIMATE_DEADLINE·P`` (or step at once when it is in) and publish ``x[k+1]``. What
+arrives later is lost (and counted as a deadline miss). Deciding before a deadline
+once nothing more can come gives what the deadline would, and the next phase more
+time. Times are ``time.time_ns()`` so hosts share them.
 """
 
 from __future__ import annotations
@@ -20,8 +21,9 @@ import zenoh
 from formation import keys
 from formation.errors import RuntimeFailure
 
-# States go out at the previous epoch's 0.85, so 0.20 gives them 0.35 of a period, as long
-# as before, and the reports 0.40 instead of 0.25 (bench_realtime: late reports led the misses).
+# States go out at the previous epoch's 0.85 at the latest (at once, when the estimates
+# come early), so 0.20 gives them 0.35 of a period or more, and the reports 0.40
+# (bench_realtime: late reports led the misses at 0.25).
 STATE_DEADLINE = 0.20
 REPORT_DEADLINE = 0.60
 ESTIMATE_DEADLINE = 0.85

@@ -295,19 +295,31 @@ class Service:
             return None
 
     def take_by(
-        self, t_ns: int, route: Callable[[Incoming], None], held: list[Incoming]
+        self,
+        t_ns: int,
+        route: Callable[[Incoming], None],
+        held: list[Incoming],
+        complete: Callable[[], bool] | None = None,
     ) -> list[Incoming]:
         """Realtime: route ``held``, sleep until ``t_ns``, then route what was queued by then.
 
         Returns what was queued later, for the caller to route once it has taken this
         deadline's epoch. One wake-up per deadline, not one per message: a message queued in
         time is in time however late this thread wakes (else the miss is ``scheduling``).
+        With ``complete`` (nothing more the caller would take can come once it holds), it
+        wakes per message instead, and returns as soon as ``complete()``: what the deadline
+        would give, sooner.
         """
         for early in held:
             route(early)
-        if (left := (t_ns - time.time_ns()) / 1e9) > 0:
+        if complete is None and (left := (t_ns - time.time_ns()) / 1e9) > 0:
             self.stopping.wait(left)
-        while (msg := self.next_incoming(0)) is not None:
+        while not (complete is not None and complete()):
+            msg = self.next_incoming(
+                0 if complete is None else max(0.0, (t_ns - time.time_ns()) / 1e9)
+            )
+            if msg is None:
+                return []
             if msg.arrived_ns > t_ns:
                 return [msg]  # the queue is in order: the rest came later still
             route(msg)

@@ -27,7 +27,7 @@ from itertools import islice
 
 from formation.codec import read_attachment
 from formation.deadlines import PHASES
-from formation.realtime import REPORT_DEADLINE, Clock
+from formation.realtime import Clock
 from formation.scenario import LEADER_ENDPOINT
 from formation.service import Incoming, Service
 from netem.links import PHASE_OF, LinkClass, Links, Phase, Routes
@@ -44,10 +44,12 @@ Deliver = Callable[[Phase, int, int, list[bytes], list[int], list[int]], None]
 # A burst is flushed at least this often while netem works through it: batching must not
 # hold the first packets back until the last is decided [ns].
 FLUSH_NS = 1_000_000
-# The decision records go out once a period at this fraction of it: after the reports' burst
-# and before the leader's estimates (at the report deadline, 0.60), when netem idles. At 0.0
-# they landed in the states' burst (0.85 to 0.20), on netem and on every subscriber.
-RECORDS_AT = REPORT_DEADLINE - 0.15
+# The decision records go out once a period at this fraction of it, when netem idles: the
+# agents report at the state deadline (0.20), the leader estimates once every report is in
+# and each agent steps once its estimate is in, so the states mostly left by 0.5; an agent
+# whose estimate is late steps at its deadline (0.85). At 0.0 the records landed in the
+# states' burst, on netem and on every subscriber.
+RECORDS_AT = 0.70
 # Link models decide in blocks of epochs, computed at a block's first decision. netem
 # computes them ahead instead: every model's first before the clock starts (else the first
 # epochs went out late: 8 ms of decisions at 20 agents, 67 ms at 100, against 0.3 and 2.5 ms

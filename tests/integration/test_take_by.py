@@ -59,3 +59,38 @@ def test_returns_at_once_when_stopping() -> None:
         started = time.monotonic()
         assert svc.take_by(time.time_ns() + int(30e9), lambda m: None, []) == []
         assert time.monotonic() - started < 10.0
+
+
+def test_with_complete_it_returns_once_complete_and_leaves_the_rest_queued() -> None:
+    with peer_service(RUN, "agent", 3) as svc:
+        key = f"{RUN}/complete"
+        svc.subscribe(key)
+        pub = svc.session.declare_publisher(key)
+        routed: list[bytes] = []
+        deadline = time.time_ns() + int(20e9)
+        for payload in (b"first", b"second", b"after"):
+            pub.put(payload)
+        wait_for(lambda: svc.inbox.qsize() == 3)
+        started = time.monotonic()
+        held = svc.take_by(deadline, lambda m: routed.append(m.payload), [],
+                           complete=lambda: len(routed) == 2)  # fmt: skip
+        assert time.monotonic() - started < 10.0, "it returned once complete, not at the deadline"
+        assert routed == [b"first", b"second"] and held == []
+        assert svc.inbox.qsize() == 1  # the next phase's, still queued
+        pub.undeclare()
+
+
+def test_with_complete_it_still_stops_at_the_deadline() -> None:
+    with peer_service(RUN, "agent", 4) as svc:
+        key = f"{RUN}/incomplete"
+        svc.subscribe(key)
+        pub = svc.session.declare_publisher(key)
+        routed: list[bytes] = []
+        pub.put(b"only one")
+        wait_for(lambda: svc.inbox.qsize() == 1)
+        deadline = time.time_ns() + int(0.3e9)
+        held = svc.take_by(deadline, lambda m: routed.append(m.payload), [],
+                           complete=lambda: len(routed) == 2)  # fmt: skip
+        assert time.time_ns() >= deadline, "nothing more came: it waited for the deadline"
+        assert routed == [b"only one"] and held == []
+        pub.undeclare()
