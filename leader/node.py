@@ -258,11 +258,11 @@ class LeaderNode:
                 "stamp_ns": 0}  # fmt: skip
         v_ref = [float(v) for v in self.ref_v[0]]
         for _ in range(times):
-            lead = self.leader.epochs(
-                known[None], z[None], self.ref_x[0], covariances=False
-            ).member(0)
-            for _i, fields in agent_estimates(self.scenario, lead, v_ref):
+            batch = self.leader.epochs(known[None], z[None], self.ref_x[0], covariances=False)
+            for _i, fields in agent_estimates(self.scenario, batch.member(0), v_ref):
                 orjson.dumps({**head, **fields})
+        # epoch 0's covariances come right after its estimates, while the agents step
+        self.leader.covariances(known[None], z[None], self.ref_x[0], batch)
 
     def run_realtime(self) -> int:
         """Each period, the reports that arrived by the report deadline; later ones are lost."""
