@@ -14,7 +14,7 @@ import pytest
 from formation import keys
 from formation.codec import Malformed, attachment, encode
 from formation.messages import CoordinationState, DeliveredPacket
-from formation.realtime import REPORT_DEADLINE, Clock
+from formation.realtime import ESTIMATE_DEADLINE, REPORT_DEADLINE, Clock
 from formation.scenario import Scenario
 from formation.service import Incoming
 from netem.links import Links, Routes
@@ -98,8 +98,8 @@ def test_a_flush_waits_only_as_long_as_asked(wait_ns: int) -> None:
 
 
 def test_the_decision_records_go_out_when_netem_idles() -> None:
-    """Once a period, at RECORDS_AT of it (after the reports, before the leader's estimates),
-    not at the period's start, in the middle of the states' burst."""
+    """Once a period, at RECORDS_AT of it (after the early estimates and states, before the
+    estimate deadline's late steps), not at the period's start, in the states' burst."""
     published: list[int] = []
     rt, _, _ = _rig(Clock(0, 1))
     rt.publish_records = lambda phase, epoch, records: published.append(time.time_ns())
@@ -115,7 +115,8 @@ def test_the_decision_records_go_out_when_netem_idles() -> None:
     assert rt.clock is not None
     assert rt.clock.t0_ns - began >= START_LEAD_S * 1e9  # time for every agent to fetch it
     (at,) = published
-    assert rt.clock.at(0, RECORDS_AT) <= at < rt.clock.at(0, REPORT_DEADLINE)
+    assert REPORT_DEADLINE < RECORDS_AT < ESTIMATE_DEADLINE
+    assert rt.clock.at(0, RECORDS_AT) <= at < rt.clock.at(0, ESTIMATE_DEADLINE)
 
 
 def test_decision_blocks_are_computed_ahead_a_share_of_links_per_epoch() -> None:
