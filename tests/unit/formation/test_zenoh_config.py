@@ -94,3 +94,18 @@ def test_connect_timeout_from_flag_env_or_default(monkeypatch: pytest.MonkeyPatc
     monkeypatch.setenv("ZENOH_CONNECT_TIMEOUT_S", "soon")
     with pytest.raises(RuntimeFailure, match=r"ZENOH_CONNECT_TIMEOUT_S = 'soon'; expected seconds"):
         zenoh_config.connect_timeout_s()
+
+
+def test_shared_memory_is_off_even_under_a_users_config_file(
+    tmp_path: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # zenoh's default moves puts over 3 KB into shared memory, mapped on first receipt
+    assert zenoh.Config().get_json("transport/shared_memory/enabled") == "true"
+    assert (
+        zenoh_config.session_config("client").get_json("transport/shared_memory/enabled") == "false"
+    )
+    config = tmp_path / "zenoh.json5"
+    config.write_text("{transport: {shared_memory: {enabled: true}}}")
+    monkeypatch.setenv("ZENOH_CONFIG", str(config))
+    conf = zenoh_config.session_config("peer")
+    assert conf.get_json("transport/shared_memory/enabled") == "false"
