@@ -33,5 +33,6 @@ def test_it_says_what_it_picked() -> None:
 
 def test_it_warns_when_netem_would_forward_more_than_it_keeps_up_with() -> None:
     assert "warning" not in realtime_layout(20, 0.05, 2, packets_per_epoch=90).why
-    why = realtime_layout(100, 0.1, 2, packets_per_epoch=594).why
-    assert "warning: netem would forward 5,940 packets/s, above the 2,000" in why
+    assert "warning" not in realtime_layout(100, 0.1, 2, packets_per_epoch=594).why
+    why = realtime_layout(200, 0.1, 2, packets_per_epoch=1194).why
+    assert "warning: netem would forward 11,940 packets/s, above the 8,000" in why
