@@ -4,7 +4,7 @@ Misses of the testbed's own making (formation.deadlines), over the packets netem
 the layout ``picked`` is what ``formation run --mode realtime`` chooses on this machine
 (testbed.runtime.layout). A miss rate is a fidelity figure, not a speed: there is no
 baseline to divide by, but the load average says how busy the machine was around it, and
-``steal`` how much of the machine's CPU its hypervisor took meanwhile (/proc/stat): on a
+``steal`` how much of the machine's CPU its hypervisor took meanwhile (testbed.runtime.steal): on a
 shared VM, 10 % steal turned 0.3 % misses into 30 % (20 processes at 20 Hz, seed 1).
 CPU per epoch per role: user + system time of the role's processes from the start of
 epoch 0 until each ends (from /proc, sampled), over the epochs, in ms; ``agents`` is per
@@ -24,6 +24,7 @@ import threading
 from collections import defaultdict
 from pathlib import Path
 
+from testbed.runtime import steal
 from testbed.runtime.launcher import launch
 from testbed.runtime.layout import realtime_layout
 from testbed.sim.teams import henneberg_team
@@ -39,12 +40,6 @@ CASES = [  # (label, agents, agent processes: None = one per agent, "picked" = t
     ("200 picked", 200, "picked"),
 ]
 QUICK = [(20.0, "20 processes", 20, None), (10.0, "100 picked", 100, "picked")]
-
-
-def _steal() -> tuple[int, int]:
-    """(all CPU ticks, ticks the hypervisor took: steal) of this machine so far, from /proc/stat."""
-    fields = [int(f) for f in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
-    return sum(fields), fields[7] if len(fields) > 7 else 0
 
 
 def _cpu_s(pid: int) -> float | None:
@@ -102,22 +97,21 @@ def run_case(
     packets = len(scenario.directed_links) + 2 * n
     pools = realtime_layout(n, period, None, packets).pools if layout == "picked" else None
     load = os.getloadavg()[0]
-    ticks = _steal()
+    before = steal.ticks()
     watch = CpuWatch(tmp)
     s = launch(
         scenario, seed=SEED, runs_dir=tmp, pool=pools, record=False, on_started=watch.hook,
         zenoh_mode=zenoh_mode,
     ).summary()  # fmt: skip
     cpu = watch.per_role_ms(EPOCHS)
-    total, stolen = (b - a for a, b in zip(ticks, _steal(), strict=True))
-    steal = 100 * stolen / total if total else 0.0
+    stolen = 100 * (steal.share(before, steal.ticks()) or 0.0)
     misses = s["deadline_misses"]
     causes = ", ".join(f"{c} {k}" for c, k in misses["by_cause"].items() if k)
     cpu_txt = " ".join(f"{r} {cpu.get(r, 0):.1f}" for r in ("netem", "router", "leader", "agents"))
     return (
         f"{label:14} {hz:>4g} {pools or n:>6} {misses['total']:>7} "
         f"{100 * s['deadline_miss_rate']:>7.2f}%  {load:>4.1f}-{os.getloadavg()[0]:<4.1f} "
-        f"{steal:>5.1f}%  "
+        f"{stolen:>5.1f}%  "
         f"{cpu_txt}  {causes or '-'}"
     )
 

@@ -31,6 +31,7 @@ def read_deadlines(run_dir: Path) -> dict[str, Any] | None:
             "misses": int(misses["total"]),
             "by_cause": {c: int(misses["by_cause"][c]) for c in CAUSES},
             "in_time": int(got["delivered_in_time"]),
+            "cpu_steal": None if got.get("cpu_steal") is None else float(got["cpu_steal"]),
         }
     except (OSError, ValueError, TypeError, KeyError) as exc:
         return {"unreadable": f"{path}: {type(exc).__name__}: {exc}"}
@@ -56,5 +57,11 @@ def deadline_lines(label: str, d: dict[str, Any]) -> list[str]:
         lines.append(
             f"- **warning** ({label}): deadline misses exceed {100 * WARN_RATE:g} % of the "
             "packets; this run cannot tell modelled losses of that size from the testbed's own"
+            + (
+                f"; the hypervisor took {100 * d['cpu_steal']:.1f} % of the machine's CPU "
+                "meanwhile (steal)"
+                if d.get("cpu_steal")
+                else ""
+            )
         )
     return lines

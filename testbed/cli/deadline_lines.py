@@ -8,7 +8,7 @@ from typing import Any
 from recorder.deadlines import FILE
 
 KEYS = ("packets_sent", "modelled_losses", "deadline_misses", "delivered_in_time",
-        "unaccounted", "deadline_miss_rate")  # fmt: skip
+        "unaccounted", "deadline_miss_rate", "cpu_steal")  # fmt: skip
 
 
 def _pct(n: int, sent: int) -> str:

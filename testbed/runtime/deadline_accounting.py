@@ -35,14 +35,18 @@ def deadline_counts(statuses: Iterable[Status]) -> dict[str, int]:
 
 
 def realtime_accounting(
-    counts: Mapping[str, int], drops: Mapping[str, tuple[int, int]]
+    counts: Mapping[str, int],
+    drops: Mapping[str, tuple[int, int]],
+    cpu_steal: float | None = None,
 ) -> dict[str, Any]:
     """Every packet netem decided, as modelled losses, deadline misses or delivered in time.
 
     ``counts``: :func:`deadline_counts` (none in lockstep: only ``deadline_miss_rate``, None);
     ``drops``: netem's ``link → (sent, dropped)`` by its models. ``unaccounted``: the
     packets none of the three took (e.g. still on their way when the run ended); 0 when
-    the books balance. ``warning``: a line to print when misses exceed :data:`WARN_RATE`.
+    the books balance. ``warning``: a line to print when misses exceed :data:`WARN_RATE`;
+    it names ``cpu_steal`` (the hypervisor's share of the CPU during the run) when some was
+    taken: on a shared VM that, more than the testbed, made the misses.
     """
     if not counts:
         return {"deadline_miss_rate": None}
@@ -60,6 +64,11 @@ def realtime_accounting(
             f"of the testbed's own making ({causes}), above {100 * WARN_RATE:g} %: "
             f"this run cannot tell modelled losses of that size from the testbed's"
         )
+        if cpu_steal:
+            warning += (
+                f"; the hypervisor took {100 * cpu_steal:.1f} % of this machine's CPU meanwhile "
+                "(steal): its stalls count as misses"
+            )
     return {
         "deadline_misses": misses,
         "modelled_losses": {

@@ -24,6 +24,7 @@ from formation.scenario import Scenario, StrategyName
 from formation.zenoh_config import session_config
 from recorder.membership import final_team_errors
 from recorder.metrics import formation_error, shape_error
+from testbed.runtime import steal
 from testbed.runtime.deadline_accounting import deadline_counts, realtime_accounting
 from testbed.runtime.events import EventDriver, bodies
 from testbed.runtime.faults import (
@@ -90,7 +91,9 @@ class RunOutcome:
 
     def deadline_accounting(self) -> dict[str, Any]:
         """Realtime: modelled losses, deadline misses by cause, in time (lockstep: no rate)."""
-        return realtime_accounting(self.extra.get("deadline") or {}, self.drops_per_link())
+        return realtime_accounting(
+            self.extra.get("deadline") or {}, self.drops_per_link(), self.extra.get("cpu_steal")
+        )
 
     def deadline_miss_rate(self) -> float | None:
         """Realtime: deadline misses of the testbed's own making, over the packets sent."""
@@ -118,6 +121,7 @@ class RunOutcome:
             "deadline": self.extra.get("deadline", {}),
             **self.deadline_accounting(),
             "priorities": self.extra.get("priorities"),  # realtime: what the launcher set
+            "cpu_steal": self.extra.get("cpu_steal"),  # the hypervisor's share of the CPU
             "wall_s": self.wall_s,
             **self.faults_summary(),
         }
@@ -255,6 +259,7 @@ def launch(
         if on_started is not None:
             on_started(run_id, endpoint)
         supervisor.started = events.began = time.monotonic()
+        cpu_before = steal.ticks()
         agent_names = [n for n in supervisor.current if n.startswith(("agent-", "pool-"))]
 
         def first_missing(name: str) -> int:
@@ -286,6 +291,7 @@ def launch(
             time.sleep(0.02)
         supervisor.check(first_missing)
         supervisor.check_team(agent_names)
+        cpu_stolen = steal.share(cpu_before, steal.ticks())
         gone = supervisor.gone_for_good()
         if progress is not None:
             progress(scenario.epochs, scenario.epochs, observer.drops)
@@ -322,7 +328,8 @@ def launch(
                 pids=group.pids, wall_s=time.monotonic() - started,
                 extra={"deadline": deadline_counts(observer.statuses.values()), "losses": losses, "fallbacks": observer.fallbacks,
                        "fallback_epochs": dict(sorted(observer.fallback_epochs.items())),
-                       "team_events": list(observer.team_events), "priorities": priorities},
+                       "team_events": list(observer.team_events), "priorities": priorities,
+                       "cpu_steal": cpu_stolen},
             )  # fmt: skip
     finally:
         if observer is not None:

@@ -33,8 +33,13 @@ def test_the_report_shows_modelled_losses_and_misses_apart_and_warns_above_a_tho
     assert "deadline misses of the testbed's own making 20 (0.20 %)" in lines[0]
     assert "late_netem 10" in lines[0] and "delivered in time 9680" in lines[0]
     assert len(lines) == 2 and "warning" in lines[1]
+    assert "hypervisor" not in lines[1]  # no steal in the file: none said
     d["misses"] = 10
     assert len(deadline_lines("run", d)) == 1  # 0.1 %: no warning
+    (tmp_path / FILE).write_text(json.dumps({**SUMMARY, "cpu_steal": 0.052}))
+    stolen = read_deadlines(tmp_path)
+    assert stolen is not None and stolen["cpu_steal"] == 0.052
+    assert "the hypervisor took 5.2 % of the machine's CPU" in deadline_lines("run", stolen)[1]
 
 
 def test_a_missing_or_forged_accounting_file_is_none_or_skipped_with_a_note(

@@ -58,3 +58,13 @@ def test_no_warning_at_or_below_a_thousandth_and_none_in_lockstep() -> None:
     assert got["deadline_miss_rate"] == 0.001 and got["deadline_warning"] is None
     assert got["unaccounted"] == 0
     assert realtime_accounting({}, {"1->2": (1000, 0)}) == {"deadline_miss_rate": None}
+
+
+def test_the_warning_names_the_hypervisors_steal_when_some_was_taken() -> None:
+    c = deadline_counts([status("agent", counts(in_time=95, scheduling=5))])
+    stolen = realtime_accounting(c, {"1->2": (100, 0)}, cpu_steal=0.071)
+    assert "the hypervisor took 7.1 % of this machine's CPU meanwhile" in stolen["deadline_warning"]
+    for none in (0.0, None):
+        assert (
+            "hypervisor" not in realtime_accounting(c, {"1->2": (100, 0)}, none)["deadline_warning"]
+        )
