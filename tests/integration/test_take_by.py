@@ -5,10 +5,13 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import pytest
+import zenoh
 
-from formation.service import Incoming
+from formation.service import Incoming, Service
 from tests.support.zenoh_peer import peer_service
 
 pytestmark = pytest.mark.integration
@@ -22,11 +25,21 @@ def wait_for(cond, timeout_s: float = 10.0) -> None:  # type: ignore[no-untyped-
         time.sleep(0.01)
 
 
-def test_routes_what_came_by_the_deadline_and_holds_the_rest() -> None:
-    with peer_service(RUN, "agent", 1) as svc:
-        key = f"{RUN}/probe"
+@contextmanager
+def probe(ident: int) -> Iterator[tuple[Service, zenoh.Publisher, str]]:
+    """A peer service subscribed to a key of its own, and a publisher on that key."""
+    with peer_service(RUN, "agent", ident) as svc:
+        key = f"{RUN}/probe/{ident}"
         svc.subscribe(key)
         pub = svc.session.declare_publisher(key)
+        try:
+            yield svc, pub, key
+        finally:
+            pub.undeclare()
+
+
+def test_routes_what_came_by_the_deadline_and_holds_the_rest() -> None:
+    with probe(1) as (svc, pub, key):
         routed: list[bytes] = []
         pub.put(b"in time")
         wait_for(lambda: svc.inbox.qsize() == 1)
@@ -50,7 +63,6 @@ def test_routes_what_came_by_the_deadline_and_holds_the_rest() -> None:
         assert [m.payload for m in held] in ([], [b"late"])
         later = svc.take_by(time.time_ns(), lambda m: routed.append(m.payload), held)
         assert routed == [b"held from before", b"in time", b"late"] and later == []
-        pub.undeclare()
 
 
 def test_returns_at_once_when_stopping() -> None:
@@ -62,10 +74,7 @@ def test_returns_at_once_when_stopping() -> None:
 
 
 def test_with_complete_it_returns_once_complete_and_leaves_the_rest_queued() -> None:
-    with peer_service(RUN, "agent", 3) as svc:
-        key = f"{RUN}/complete"
-        svc.subscribe(key)
-        pub = svc.session.declare_publisher(key)
+    with probe(3) as (svc, pub, _):
         routed: list[bytes] = []
         deadline = time.time_ns() + int(20e9)
         for payload in (b"first", b"second", b"after"):
@@ -77,14 +86,10 @@ def test_with_complete_it_returns_once_complete_and_leaves_the_rest_queued() -> 
         assert time.monotonic() - started < 10.0, "it returned once complete, not at the deadline"
         assert routed == [b"first", b"second"] and held == []
         assert svc.inbox.qsize() == 1  # the next phase's, still queued
-        pub.undeclare()
 
 
 def test_with_complete_it_still_stops_at_the_deadline() -> None:
-    with peer_service(RUN, "agent", 4) as svc:
-        key = f"{RUN}/incomplete"
-        svc.subscribe(key)
-        pub = svc.session.declare_publisher(key)
+    with probe(4) as (svc, pub, _):
         routed: list[bytes] = []
         pub.put(b"only one")
         wait_for(lambda: svc.inbox.qsize() == 1)
@@ -93,4 +98,3 @@ def test_with_complete_it_still_stops_at_the_deadline() -> None:
                            complete=lambda: len(routed) == 2)  # fmt: skip
         assert time.time_ns() >= deadline, "nothing more came: it waited for the deadline"
         assert routed == [b"only one"] and held == []
-        pub.undeclare()
