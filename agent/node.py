@@ -384,22 +384,20 @@ class AgentNode:
         epochs' reports and estimates late. Nothing is published; the copy is dropped.
         """
         runner = copy.deepcopy(self.runner)
-        senders: dict[int, list[int]] = {i: [] for i in self.ids}
-        for j, i in self.scenario.directed_links.tolist():
-            if i in senders:
-                senders[i].append(j)
+        in_links = list(
+            zip(runner.links.receiver.tolist(), runner.links.sender.tolist(), strict=True)
+        )
         head = {"run_id": self.run_id, "sender": self.service.name, "seq": 0, "stamp_ns": 0}
         for _ in range(times):
             k = runner.epoch
-            states = {
-                i: state_message({**head, "epoch": k}, i, runner.position(i), [], runner.pose(i))
+            read = {
+                i: CoordinationState.model_validate_json(
+                    state_message({**head, "epoch": k}, i, runner.position(i), [], runner.pose(i))
+                )
                 for i in self.ids
             }
-            packets = []
-            for i, js in senders.items():
-                for j in js:  # another agent's state, as this agent's own would read
-                    state = CoordinationState.model_validate_json(states[i])
-                    packets.append(Packet(i, j, k, tuple(state.position)))
+            # each in-neighbour's state, as this agent's own would read
+            packets = [Packet(i, j, k, tuple(read[i].position)) for i, j in in_links]
             for i, report in runner.receive(packets).items():
                 TokenReport.model_validate_json(report_message({**head, "epoch": k}, i, report))
             runner.step({i: None for i in self.ids})
@@ -437,11 +435,11 @@ class AgentNode:
             # Stepping once every estimate here is in gives the step what the deadline would
             # (only epoch k's estimate counts) and the states more time: woken at once at the
             # deadline, 20 agents stepped one after another on 2 cores, the last ones late.
+            due = clock.at(k, ESTIMATE_DEADLINE)
             self.held = self.service.take_by(
-                clock.at(k, ESTIMATE_DEADLINE), self._route, self.held,
-                complete=partial(self._has_estimates, k),
-            )  # fmt: skip
-            self.deadline["early_steps"] += time.time_ns() < clock.at(k, ESTIMATE_DEADLINE)
+                due, self._route, self.held, complete=partial(self._has_estimates, k)
+            )
+            self.deadline["early_steps"] += time.time_ns() < due
             got: dict[int, Estimate | None] = {}
             for i in self.ids:
                 est = self.inbox[i].estimates.pop(k, None)
