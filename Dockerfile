@@ -15,18 +15,19 @@ WORKDIR /app
 # (The packages' folders and the README are empty here, so an edit to them does not reinstall
 # the dependencies; the project itself is uninstalled again.)
 COPY pyproject.toml ./
-RUN mkdir formation agent leader netem recorder testbed && touch README.md \
+RUN mkdir formation shell agent leader netem recorder testbed && touch README.md \
     && pip install . && pip uninstall -y formation-testbed \
-    && rm -rf formation agent leader netem recorder testbed build *.egg-info README.md
+    && rm -rf formation shell agent leader netem recorder testbed build *.egg-info README.md
 # Only what the package needs: credentials, runs and the checkout's history stay out (.dockerignore).
 COPY formation ./formation
+COPY shell ./shell
 COPY agent ./agent
 COPY leader ./leader
 COPY netem ./netem
 COPY recorder ./recorder
 COPY testbed ./testbed
 COPY README.md ./
-RUN pip install --no-deps . && rm -rf formation agent leader netem recorder testbed build *.egg-info
+RUN pip install --no-deps . && rm -rf formation shell agent leader netem recorder testbed build *.egg-info
 COPY scenarios ./scenarios
 
 # Each service sets its own command (and compose its user); a bare `docker run` prints the CLI's help.

@@ -9,7 +9,8 @@ import sys
 from agent.node import AgentNode
 from formation.errors import TestbedError
 from formation.scenario import STRATEGIES
-from formation.service import Service, load_scenario, serve, service_parser
+from shell.serve import load_scenario, serve, service_parser
+from shell.service import Service
 
 
 def parse_ids(text: str, n: int) -> list[int]:

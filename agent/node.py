@@ -24,12 +24,13 @@ import orjson
 from agent.runner import AgentRunner, Estimate, Packet, Report
 from formation import keys
 from formation.codec import attachment
-from formation.deadlines import CAUSES, cause, drain_last
+from formation.deadlines import CAUSES, cause
 from formation.errors import RuntimeFailure
 from formation.messages import AgentEstimate, CoordinationState, Delivery, TokenReport
-from formation.realtime import ESTIMATE_DEADLINE, STATE_DEADLINE, Clock, fetch_clock, sleep_until
+from formation.realtime import ESTIMATE_DEADLINE, STATE_DEADLINE, Clock, sleep_until
 from formation.scenario import Scenario, StrategyName
-from formation.service import Incoming, Service
+from shell.clock import fetch_clock
+from shell.service import Incoming, Service, drain_last
 
 log = logging.getLogger("agent")
 WATCH_S = 0.25  # how often the main thread looks for netem's liveliness and a signal

@@ -34,7 +34,7 @@ import numpy as np
 
 from formation import keys
 from formation.codec import attachment
-from formation.zenoh_config import session_config
+from shell.zenoh_config import session_config
 
 SEED = 20240611
 RUN = "bench"

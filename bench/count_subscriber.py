@@ -17,7 +17,7 @@ import time
 import orjson
 import zenoh
 
-from formation.zenoh_config import session_config
+from shell.zenoh_config import session_config
 
 
 def main(argv: list[str]) -> int:

@@ -22,11 +22,10 @@ receiver's own offset: exact between processes of one host (CLOCK_MONOTONIC is s
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from typing import NamedTuple
 
 from formation.realtime import ESTIMATE_DEADLINE, REPORT_DEADLINE, STATE_DEADLINE, Clock
-from formation.service import Incoming, Service
 
 SLACK = 0.10  # of a period: a sender publishing later than this after its phase start is late
 WARN_RATE = 0.001  # misses above this share of the packets sent: a warning (issue 18)
@@ -80,18 +79,3 @@ def summarise(received: Mapping[str, int], netem: Mapping[str, int]) -> Accounti
     by_cause["late_netem"] = min(on_the_way, int(netem.get("late_forwards", 0)))
     by_cause["scheduling"] += on_the_way - by_cause["late_netem"]
     return Accounting(int(received.get("in_time", 0)), by_cause, modelled)
-
-
-def drain_last(service: Service, route: Callable[[Incoming], None], timeout_s: float = 5.0,
-               settle_s: float = 0.1) -> None:  # fmt: skip
-    """After the last epoch, route what still comes until netem has gone (it forwards every
-    packet due before it leaves; at most ``timeout_s``), then for ``settle_s``: a packet
-    still on its way when the run ends is counted as a miss, not left out of the books."""
-    end = time.monotonic() + timeout_s
-    while service.is_alive("netem", 0) and time.monotonic() < end:
-        if (msg := service.next_incoming(0.02)) is not None:
-            route(msg)
-    end = time.monotonic() + settle_s
-    while (left := end - time.monotonic()) > 0:
-        if (msg := service.next_incoming(left)) is not None:
-            route(msg)

@@ -16,11 +16,6 @@ import json
 import time
 from dataclasses import dataclass
 
-import zenoh
-
-from formation import keys
-from formation.errors import RuntimeFailure
-
 # States go out at the previous epoch's 0.85 at the latest (at once, when the estimates
 # come early), so 0.20 gives them 0.35 of a period or more, and the reports 0.40
 # (bench_realtime: late reports led the misses at 0.25).
@@ -45,17 +40,3 @@ def sleep_until(t_ns: int) -> None:
     delay = (t_ns - time.time_ns()) / 1e9
     if delay > 0:
         time.sleep(delay)
-
-
-def fetch_clock(session: zenoh.Session, run_id: str, timeout_s: float = 10.0) -> Clock:
-    """Ask netem for the run's clock (after the start token)."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        for reply in session.get(keys.clock(run_id), timeout=1.0):
-            if reply.ok is not None:
-                data = json.loads(reply.ok.payload.to_bytes())
-                return Clock(int(data["t0_ns"]), int(data["period_ns"]))
-        time.sleep(0.01)
-    raise RuntimeFailure(
-        f"no answer from netem's clock ({keys.clock(run_id)}) within {timeout_s:g} s"
-    )

@@ -15,15 +15,16 @@ import orjson
 
 from formation import keys
 from formation.codec import attachment
-from formation.deadlines import CAUSES, cause, drain_last
+from formation.deadlines import CAUSES, cause
 from formation.errors import RuntimeFailure
 from formation.messages import DeliveredPacket, Delivery, TokenReport
-from formation.realtime import REPORT_DEADLINE, Clock, fetch_clock
+from formation.realtime import REPORT_DEADLINE, Clock
 from formation.reference import reference_positions, reference_velocities
 from formation.scenario import Scenario
-from formation.service import Incoming, Service
 from leader.epoch import Leader, LeaderEpoch
 from leader.rigidity import HealthyRigidity
+from shell.clock import fetch_clock
+from shell.service import Incoming, Service, drain_last
 
 log = logging.getLogger("leader")
 

@@ -7,8 +7,9 @@ import logging
 import sys
 
 from formation.errors import TestbedError
-from formation.service import Service, load_scenario, serve, service_parser
 from netem.node import NetemNode
+from shell.serve import load_scenario, serve, service_parser
+from shell.service import Service
 
 
 def main(argv: list[str] | None = None) -> int:

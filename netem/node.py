@@ -23,12 +23,12 @@ from formation.codec import read_attachment
 from formation.linkmodels import LinkModelSpec
 from formation.messages import LinkChange
 from formation.scenario import LEADER_ENDPOINT, Scenario
-from formation.service import Incoming, Service, settle_heap
 from netem.links import LinkClass, Links, Phase, Routes, link_key
 from netem.lockstep import Lockstep
 from netem.progress import Progress
 from netem.realtime import Realtime
 from netem.records import Ledger, Record, decision_batch, decision_batch_of, delivery
+from shell.service import Incoming, Service, settle_heap
 
 log = logging.getLogger("netem")
 FINAL_WAIT_S = 0.5  # how long a last-messages query waits for what may still be on its way
@@ -46,7 +46,7 @@ class ZenohOutbox:
 
     def declare(self, agents: list[int]) -> None:
         """Declare every inbox's publisher now, before the clock starts (as
-        :meth:`~formation.service.Service.declare_publishers`)."""
+        :meth:`~shell.service.Service.declare_publishers`)."""
         for i in agents:
             for phase in ("state", "estimate"):
                 self._inbox(phase, i)

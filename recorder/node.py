@@ -39,18 +39,19 @@ from typing import Any, Literal
 
 import zenoh
 
-from formation import keys, zenoh_config
+from formation import keys
 from formation.codec import encode, now_ns
 from formation.errors import TestbedError
 from formation.messages import Status
 from formation.scenario import Scenario
-from formation.stacks import dump_stacks_on_signal
 from recorder.display import Display
 from recorder.epochs import TAPS, EpochAssembler
 from recorder.live import LiveServer
 from recorder.schemas import LivelinessEvent, classify
 from recorder.trust import Gate
 from recorder.writer import COMPRESSIONS, Raw, RecordingWriter
+from shell import zenoh_config
+from shell.stack_dump import dump_stacks_on_signal
 
 log = logging.getLogger("recorder")
 StatusState = Literal["ready", "running", "done", "error"]

@@ -15,11 +15,12 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-from formation import keys, zenoh_config
+from formation import keys
 from recorder.reader import describe, validate
 from recorder.recover import recover
 from recorder.replay import replay
 from recorder.report import write_reports
+from shell import zenoh_config
 from testbed.cli.tables import print_table
 
 

@@ -12,7 +12,7 @@ Portable between Docker Compose and podman-compose: only the ``router`` service
 builds the image, the others use it by name (``image:``); no ``configs:``
 (podman-compose ignores them) and no health conditions (podman-compose ignores
 them too): a client retries until the router answers
-(:func:`formation.zenoh_config.open_with_retry`), ``depends_on`` keeps the start
+(:func:`shell.zenoh_config.open_with_retry`), ``depends_on`` keeps the start
 order only. Every service runs as ``${FORMATION_UID:-1000}:${FORMATION_GID:-1000}``,
 the invoking user's ids when those are exported, so what it writes in ``./runs``
 is theirs and it can read its 0600 secret.

@@ -17,8 +17,8 @@ import threading
 
 import zenoh
 
-from formation import zenoh_config
-from formation.stacks import dump_stacks_on_signal
+from shell import zenoh_config
+from shell.stack_dump import dump_stacks_on_signal
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -12,7 +12,7 @@ import pytest
 import zenoh
 
 from formation.errors import RuntimeFailure
-from formation.zenoh_config import open_session, session_config
+from shell.zenoh_config import open_session, session_config
 
 pytestmark = pytest.mark.integration
 

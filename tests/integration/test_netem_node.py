@@ -16,8 +16,8 @@ from formation import keys
 from formation.codec import attachment, encode, now_ns
 from formation.messages import CoordinationState, DecisionBatch, Delivery
 from formation.scenario import Scenario
-from formation.service import Service
 from netem.node import NetemNode
+from shell.service import Service
 
 ROOT = Path(__file__).resolve().parents[2]
 RUN = "netem-node"

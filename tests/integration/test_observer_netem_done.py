@@ -12,7 +12,7 @@ import zenoh
 from formation import keys
 from formation.messages import Status
 from formation.scenario import Scenario
-from formation.zenoh_config import session_config
+from shell.zenoh_config import session_config
 from testbed.runtime.observer import Observer
 
 pytestmark = pytest.mark.integration

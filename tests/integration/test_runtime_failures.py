@@ -19,7 +19,7 @@ from formation import keys
 from formation.codec import attachment
 from formation.errors import RuntimeFailure
 from formation.scenario import Scenario
-from formation.zenoh_config import session_config
+from shell.zenoh_config import session_config
 from testbed.runtime.launcher import launch
 from testbed.runtime.processes import free_port
 

@@ -11,7 +11,7 @@ from contextlib import contextmanager
 import pytest
 import zenoh
 
-from formation.service import Incoming, Service
+from shell.service import Incoming, Service
 from tests.support.zenoh_peer import peer_service
 
 pytestmark = pytest.mark.integration

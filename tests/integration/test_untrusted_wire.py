@@ -22,9 +22,9 @@ import zenoh
 
 from formation import keys
 from formation.scenario import Scenario
-from formation.zenoh_config import session_config
 from recorder import load_run
 from recorder.metrics import error_statistics
+from shell.zenoh_config import session_config
 from tests.support.forgeries import forgeries
 
 pytestmark = pytest.mark.integration

@@ -23,7 +23,7 @@ import orjson
 import zenoh
 
 from formation import keys
-from formation.zenoh_config import session_config
+from shell.zenoh_config import session_config
 
 
 def read_pids(run_dir: Path) -> dict[str, int]:

@@ -26,8 +26,8 @@ import zenoh
 
 from formation.codec import encode
 from formation.messages import CoordinationState
-from formation.service import Service
-from formation.zenoh_config import session_config
+from shell.service import Service
+from shell.zenoh_config import session_config
 
 HOST = "127.0.0.1"
 WAIT_S = 30.0  # longest wait for any readiness [s]

@@ -6,7 +6,7 @@ import importlib
 
 import pytest
 
-PACKAGES = ("formation", "agent", "leader", "netem", "recorder")
+PACKAGES = ("formation", "shell", "agent", "leader", "netem", "recorder")
 
 
 @pytest.mark.parametrize("name", PACKAGES)

@@ -16,11 +16,11 @@ from formation.codec import Malformed, attachment, encode
 from formation.messages import CoordinationState, DeliveredPacket
 from formation.realtime import ESTIMATE_DEADLINE, REPORT_DEADLINE, Clock
 from formation.scenario import Scenario
-from formation.service import Incoming
 from netem.links import Links, Routes
 from netem.progress import Progress
 from netem.realtime import PREPARE_AHEAD, RECORDS_AT, START_LEAD_S, Due, Realtime
 from netem.records import Ledger
+from shell.service import Incoming
 
 ROOT = Path(__file__).resolve().parents[3]
 RUN = "batch"

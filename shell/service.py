@@ -1,4 +1,4 @@
-"""The shell every service shares: a Zenoh session, liveliness, the start barrier, signals.
+"""A service's Zenoh session: publishers, subscribers, liveliness, the start barrier, signals.
 
 Incoming samples go into one queue that the service's main thread drains, in arrival
 order; or, when a node sets :attr:`Service.inline`, they are handled on Zenoh's
@@ -7,7 +7,6 @@ receiving thread under :attr:`Service.inline_lock`. Either way one handler runs 
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import gc
 import logging
@@ -25,13 +24,11 @@ import orjson
 import zenoh
 from pydantic import BaseModel
 
-from formation import keys, zenoh_config
+from formation import keys
 from formation.codec import Malformed, encode, now_ns
-from formation.errors import RuntimeFailure, TestbedError
+from formation.errors import RuntimeFailure
 from formation.messages import Status
-from formation.scenario import Scenario
-from formation.stacks import dump_stacks_on_signal
-from formation.zenoh_config import open_session
+from shell.zenoh_config import open_session
 
 log = logging.getLogger("service")
 
@@ -336,35 +333,16 @@ class Service:
         self.session.close()
 
 
-def service_parser(prog: str, description: str | None) -> argparse.ArgumentParser:
-    """A service's command line: ``--scenario``, ``--run-id``, ``--epochs`` and Zenoh's flags."""
-    p = argparse.ArgumentParser(prog=prog, description=description)
-    p.add_argument("--scenario", required=True)
-    p.add_argument("--run-id", default="default")
-    p.add_argument("--epochs", type=int, help="overrides the scenario's epochs")
-    zenoh_config.add_arguments(p)
-    return p
-
-
-def load_scenario(args: argparse.Namespace) -> Scenario:
-    """The scenario of ``--scenario``, with ``--epochs`` applied."""
-    scenario = Scenario.from_file(args.scenario)
-    return scenario if args.epochs is None else scenario.with_overrides(epochs=args.epochs)
-
-
-def serve(name: str, open_service: Callable[[], Service], body: Callable[[Service], int]) -> int:
-    """Open the service, run ``body`` and close it; a :class:`TestbedError` is printed as
-    ``name: error: …`` with exit code 1."""
-    dump_stacks_on_signal()
-    try:
-        service = open_service()
-    except TestbedError as exc:
-        print(f"{name}: error: {exc}", file=sys.stderr)
-        return 1
-    try:
-        return body(service)
-    except TestbedError as exc:
-        print(f"{name}: error: {exc}", file=sys.stderr)
-        return 1
-    finally:
-        service.close()
+def drain_last(service: Service, route: Callable[[Incoming], None], timeout_s: float = 5.0,
+               settle_s: float = 0.1) -> None:  # fmt: skip
+    """After the last epoch, route what still comes until netem has gone (it forwards every
+    packet due before it leaves; at most ``timeout_s``), then for ``settle_s``: a packet
+    still on its way when the run ends is counted as a miss, not left out of the books."""
+    end = time.monotonic() + timeout_s
+    while service.is_alive("netem", 0) and time.monotonic() < end:
+        if (msg := service.next_incoming(0.02)) is not None:
+            route(msg)
+    end = time.monotonic() + settle_s
+    while (left := end - time.monotonic()) > 0:
+        if (msg := service.next_incoming(left)) is not None:
+            route(msg)

@@ -8,8 +8,8 @@ from typing import Any
 import pytest
 import zenoh
 
-from formation import zenoh_config
 from formation.errors import RuntimeFailure
+from shell import zenoh_config
 
 
 class FakeClock:
