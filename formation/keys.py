@@ -97,6 +97,11 @@ def status(run_id: str, role: str, ident: int | str) -> str:
     return f"{ROOT}/{run_id}/status/{role}/{ident}"
 
 
+def status_all(run_id: str) -> str:
+    """Every process's status (a subscriber's key expression)."""
+    return f"{ROOT}/{run_id}/status/**"
+
+
 def metrics(run_id: str) -> str:
     return f"{ROOT}/{run_id}/metrics"
 

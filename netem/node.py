@@ -115,10 +115,9 @@ class NetemNode:
             self.outbox.deliver,
         )
         self.running = False  # lockstep: samples are handled on Zenoh's thread once True
-        prefix = keys.prefix(self.run_id)
         for key in (
-            f"{prefix}/agent/*/state",
-            f"{prefix}/agent/*/report",
+            keys.agent_state(self.run_id, "*"),
+            keys.agent_report(self.run_id, "*"),
             keys.leader_estimate_for(self.run_id, "*"),
         ):
             service.subscribe(key, self._on_sample)

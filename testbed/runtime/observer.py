@@ -56,14 +56,13 @@ class Observer:
         self.returns: dict[int, tuple[int, float]] = {}  # agent → (epoch, t) first after a gap
         self.team_events: list[tuple[float, str]] = []  # netem's running statuses (t, detail)
         self.run_id = run_id
-        p = keys.prefix(run_id)
         self._subs = [
-            session.declare_subscriber(f"{p}/agent/*/state", self._on_state),
+            session.declare_subscriber(keys.agent_state(run_id, "*"), self._on_state),
             # Agent 1's part says the leader finished the epoch as well as the whole estimate
             # does, at a thousandth of its size with 1,000 agents.
             session.declare_subscriber(keys.leader_estimate_for(run_id, 1), self._on_estimate),
             session.declare_subscriber(keys.netem_decision(run_id), self._on_decisions),
-            session.declare_subscriber(f"{p}/status/**", self._on_status),
+            session.declare_subscriber(keys.status_all(run_id), self._on_status),
             session.liveliness().declare_subscriber(
                 keys.alive_all(run_id), self._on_alive, history=True
             ),
