@@ -11,10 +11,13 @@ PRODUCT_FILES := $(shell find $(PACKAGES) -name __pycache__ -prune -o -print)
 
 # The tools and the dependencies. setuptools and wheel (= [build-system] requires) let the
 # product reinstall without build isolation: offline, in seconds.
-$(BIN)/.installed: pyproject.toml
+# testkit/ (what the tests and benchmarks share) is a development package beside the product:
+# editable, as it is not the product under test.
+$(BIN)/.installed: pyproject.toml testkit/pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip 'setuptools>=77' wheel
 	$(BIN)/pip install --quiet '.[test]'
+	$(BIN)/pip install --quiet --no-deps --no-build-isolation -e testkit
 	touch $@
 
 # The product as a user installs it, not editable: the tests import it from site-packages,
@@ -35,8 +38,8 @@ test: $(BIN)/.product lint typecheck architecture
 	PYTHONSAFEPATH=1 $(BIN)/pytest -q -p no:cacheprovider
 
 lint: $(BIN)/.installed
-	$(BIN)/ruff check $(PACKAGES) tests bench
-	$(BIN)/ruff format --check $(PACKAGES) tests bench
+	$(BIN)/ruff check $(PACKAGES) tests bench testkit
+	$(BIN)/ruff format --check $(PACKAGES) tests bench testkit
 
 typecheck: $(BIN)/.installed
 	$(BIN)/mypy

@@ -1,17 +1,21 @@
-"""The agent service: dynamics, consensus formation control and loss strategies."""
+"""The agent service: dynamics, consensus formation control and loss strategies.
 
-from agent.control import displacement_command, distance_command, step_double, step_single
-from agent.measurement import measurement_noise, relative_measurement
-from agent.strategies import LinkMemory, Substitution, substitute
+``python -m agent`` runs one agent (or a pool) over Zenoh (:mod:`agent.node`); the testbed's
+simulator runs the same epoch, :func:`agent_epoch`, over a batch of seeds, with the same
+measurement noise and link memory.
+"""
+
+from agent.control import reference_heading
+from agent.epoch import AgentStep, InLinks, agent_epoch
+from agent.measurement import measurement_noise
+from agent.strategies import LinkMemory, Substitution
 
 __all__ = [
+    "AgentStep",
+    "InLinks",
     "LinkMemory",
     "Substitution",
-    "displacement_command",
-    "distance_command",
+    "agent_epoch",
     "measurement_noise",
-    "relative_measurement",
-    "step_double",
-    "step_single",
-    "substitute",
+    "reference_heading",
 ]

@@ -9,8 +9,7 @@ import sys
 from agent.node import AgentNode
 from formation.errors import TestbedError
 from formation.scenario import STRATEGIES
-from shell.serve import load_scenario, serve, service_parser
-from shell.service import Service
+from shell import Service, load_scenario, serve, service_parser
 
 
 def parse_ids(text: str, n: int) -> list[int]:

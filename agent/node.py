@@ -29,8 +29,7 @@ from formation.errors import RuntimeFailure
 from formation.messages import AgentEstimate, CoordinationState, Delivery, TokenReport
 from formation.realtime import ESTIMATE_DEADLINE, STATE_DEADLINE, Clock, sleep_until
 from formation.scenario import Scenario, StrategyName
-from shell.clock import fetch_clock
-from shell.service import Incoming, Service, drain_last
+from shell import Incoming, Service, drain_last, fetch_clock
 
 log = logging.getLogger("agent")
 WATCH_S = 0.25  # how often the main thread looks for netem's liveliness and a signal

@@ -8,7 +8,7 @@ bench_deploy``). Two measurements, each against a baseline measured in the same 
    with every process a zenoh peer on 127.0.0.1. Compared with the launcher in
    client mode through its router (``formation run``'s default), and with ``formation compose``'s
    services run as processes on their own loopback hosts 127.A.B.N
-   (:mod:`tests.support.loopback`), every service a ``client`` of the router: open, closed
+   (:mod:`testkit.loopback`), every service a ``client`` of the router: open, closed
    (user/password + access control) and closed over TLS. The rate is taken from
    the recording (the recorder's receive times of ``leader/estimate``, epochs 2 to
    E − 2), so every case is timed the same way.
@@ -46,7 +46,7 @@ from testbed.deploy import security
 from testbed.deploy.compose import ComposeOptions, render
 from testbed.runtime.launcher import launch
 from testbed.runtime.processes import ProcessGroup, wait_for_port
-from tests.support.loopback import LoopbackDeployment
+from testkit.loopback import LoopbackDeployment
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / "scenarios" / "paper.toml"

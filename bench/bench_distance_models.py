@@ -23,8 +23,7 @@ from collections.abc import Callable
 import numpy as np
 
 from formation.linkmodels import Bernoulli, LinkModelSpec, LogDistance, Logistic, Range
-from netem.matrix import delivery_plan
-from netem.models import LinkModel, delivery_matrix
+from netem import LinkModel, delivery_matrix, delivery_plan
 
 SEED = 20240601
 N_LINKS = 100

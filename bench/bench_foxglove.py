@@ -10,7 +10,7 @@
    those runs (bounded by the run), and at capacity: the recorded scenes and metrics of the
    synthetic recording below offered as fast as the server takes them (``block=True``).
 3. ``recorder.load_run`` on a 10,000-epoch synthetic recording (the paper scenario
-   simulated and recorded as the recorder would, tests/support/synthetic.py) against the
+   simulated and recorded as the recorder would, testkit/src/testkit/synthetic.py) against the
    same file read with the ``mcap`` library alone (every message decompressed), and with
    ``mcap`` plus decoding every payload (``orjson.loads``; the recorder's protobuf scenes,
    frames and log lines by their schema), the least any table needs.
@@ -35,21 +35,13 @@ import websockets
 from mcap.reader import make_reader
 
 from formation.scenario import Scenario
-from recorder.decoder import decode
-from recorder.frames import load_run
-from recorder.live import (
-    DECISIONS_TOPIC,
-    METRICS_TOPIC,
-    SCENE_TOPIC,
-    STATS_TOPIC,
-    TF_TOPIC,
-    LiveServer,
-)
+from formation.topics import DECISIONS_TOPIC, METRICS_TOPIC, SCENE_TOPIC, STATS_TOPIC, TF_TOPIC
+from recorder import LiveServer, decode, load_run
 from testbed.runtime.launcher import launch
 from testbed.runtime.processes import free_port
 from testbed.sim.simulate import simulate
-from tests.support import foxglove_client as fc
-from tests.support.synthetic import write_synthetic
+from testkit import foxglove_client as fc
+from testkit.synthetic import write_synthetic
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 1
@@ -60,7 +52,7 @@ TOPICS = [DECISIONS_TOPIC, TF_TOPIC, METRICS_TOPIC, STATS_TOPIC, SCENE_TOPIC]  #
 
 
 class Viewer(threading.Thread):
-    """The independent client (tests/support/foxglove_client.py) reading a live run to its end,
+    """The independent client (testkit/src/testkit/foxglove_client.py) reading a live run to its end,
     with, if ``idle``, a second client that subscribes and never reads."""
 
     def __init__(self, port: int, idle: bool) -> None:

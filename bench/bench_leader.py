@@ -36,9 +36,7 @@ from scipy.sparse import coo_array
 from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
-from leader.blue import BlueResult, blue
-from leader.mst import minimum_spanning_forest
-from leader.symbolic import CACHE
+from leader import BlueResult, blue, clear_cache, minimum_spanning_forest
 
 SEED = 7  # the seed of issue 18's figures
 SIGMA_M = 0.01  # [m] measurement noise per coordinate (docs/model.md §8)
@@ -222,7 +220,7 @@ def main(argv: list[str] | None = None) -> int:
                 if not (cyclic_big and args.quick):
                     repeat = 2 if cyclic_big else 5
                     t_all, _ = best(lambda: run(True), repeat)  # a warm-up first
-                    t_cold, _ = best(lambda: run(True), repeat, before=CACHE.clear)
+                    t_cold, _ = best(lambda: run(True), repeat, before=clear_cache)
                 dense_s, ratio_est, ratio_all, ratio_cold, delta = float("nan"), "", "", "", ""
                 if n == 1000:
                     full = run(True, fixed=0)

@@ -40,9 +40,7 @@ from formation.codec import attachment, encode, now_ns
 from formation.linkmodels import Logistic
 from formation.messages import CoordinationState
 from formation.scenario import Scenario
-from netem.closed_forms import expected_delivery_at
-from netem.matrix import link_lengths
-from netem.models import delivery_matrix
+from netem import delivery_matrix, expected_delivery_at, link_lengths
 
 EPOCHS = 8_000
 AGENTS = 5

@@ -34,7 +34,7 @@ import numpy as np
 
 from formation import keys
 from formation.codec import attachment
-from shell.zenoh_config import session_config
+from shell import session_config
 
 SEED = 20240611
 RUN = "bench"
@@ -70,7 +70,7 @@ def mcap_library(
     """The baseline: mcap's Writer, channels registered up front; returns (msg/s, bytes)."""
     from mcap.writer import CompressionType, Writer
 
-    from recorder.schemas import schema_for_key
+    from recorder import schema_for_key
 
     buf = io.BytesIO()
     writer: Any = Writer(buf, chunk_size=1 << 20, compression=CompressionType[compression.upper()])
@@ -93,7 +93,7 @@ def recorder_writer(
     msgs: list[tuple[str, bytes, bytes]], compression: str = "zstd"
 ) -> tuple[float, int]:
     """The recorder's writer fed batches of 1,000 samples; returns (msg/s, bytes)."""
-    from recorder.writer import RecordingWriter
+    from recorder import RecordingWriter
 
     buf = io.BytesIO()
     rec = RecordingWriter(buf, compression=compression, fsync_interval_s=None)

@@ -23,7 +23,7 @@ from formation import keys
 from formation.codec import attachment, encode, now_ns
 from formation.messages import CoordinationState
 from formation.scenario import Scenario
-from shell.zenoh_config import session_config
+from shell import session_config
 from testbed.runtime.launcher import launch
 from testbed.sim.simulate import simulate
 from testbed.sim.teams import henneberg_team

@@ -40,7 +40,7 @@ from testbed.experiments.executors import DaskCluster, Executor, LocalPool
 from testbed.experiments.lossy import with_loss
 from testbed.experiments.sweep import COLUMNS, Chunk, SweepSpec, plan_chunks, run_sweep
 from testbed.sim.simulate import simulate
-from tests.support.dask_processes import DaskProcesses
+from testkit.dask_processes import DaskProcesses
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 1

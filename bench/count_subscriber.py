@@ -17,7 +17,7 @@ import time
 import orjson
 import zenoh
 
-from shell.zenoh_config import session_config
+from shell import session_config
 
 
 def main(argv: list[str]) -> int:

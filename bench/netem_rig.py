@@ -13,7 +13,7 @@ import zenoh
 
 from formation import keys
 from formation.scenario import Scenario
-from shell.zenoh_config import session_config
+from shell import session_config
 from testbed.runtime.processes import ProcessGroup, free_port, wait_for_port
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -9,7 +9,7 @@ measured both ways counts twice), so with ``u = x − x_r``::
 whatever ``P`` is. For a team of a few dozen agents one batched LAPACK solve over
 ``(B, n − 1, n − 1)`` costs less than building any sparse structure (the
 simulator's sweeps run hundreds of such teams per epoch; ``bench/bench_sweep.py``);
-larger teams take the tree and sparse solvers of ``leader.blue``. Each run's
+larger teams take the tree and sparse solvers of ``leader.estimation``. Each run's
 system is assembled and solved on its own, so a run gets the same floats in any
 batch, alone included.
 """

@@ -15,8 +15,8 @@ import numpy as np
 import numpy.typing as npt
 
 from formation.scenario import Scenario
-from leader.blue import BlueBatch, BlueResult, MeasurementGraph, Solver
 from leader.dense import DENSE_MAX_AGENTS
+from leader.estimation import BlueBatch, BlueResult, MeasurementGraph, Solver
 from leader.mst import KruskalGraph
 from leader.rigidity import HealthyRigidity
 

@@ -5,7 +5,7 @@ Laplacian per coordinate when every ``P_e`` is diagonal, ``d × d`` blocks
 otherwise), solved by sparse LU (in the fill-reducing order of its pattern, analysed once per
 pattern: ``leader.symbolic``) or preconditioned conjugate gradients, with the
 diagonal blocks of ``A⁻¹`` as covariances (selected inversion over the LU
-factor, ``leader.covariance``). ``leader.blue``'s docstring explains how the
+factor, ``leader.covariance``). ``leader.estimation``'s docstring explains how the
 solver is chosen.
 
 **Kronecker structure.** When every ``P_e = c_e R`` for one full ``d × d`` ``R``
@@ -54,7 +54,7 @@ SHAPE_RTOL = 1e-12
 
 
 class GroundedSystem:
-    """The grounded weighted Laplacian system of the reference's component (``leader.blue``).
+    """The grounded weighted Laplacian system of the reference's component (``leader.estimation``).
 
     Parameters
     ----------
@@ -249,7 +249,7 @@ def _equal_columns(weights: FloatArray) -> list[list[int]]:
 
 
 def choose_method(system: GroundedSystem, links: IntArray, r: int) -> str:
-    """``"direct"`` when the structure promises little fill, else ``"cg"`` (``leader.blue``).
+    """``"direct"`` when the structure promises little fill, else ``"cg"`` (``leader.estimation``).
 
     ``links`` (k, 2): the used links, 0-based, for the BFS depth from ``r``; read only for a
     system too large to factorise unasked.

@@ -23,8 +23,7 @@ from formation.reference import reference_positions, reference_velocities
 from formation.scenario import Scenario
 from leader.epoch import Leader, LeaderEpoch
 from leader.rigidity import HealthyRigidity
-from shell.clock import fetch_clock
-from shell.service import Incoming, Service, drain_last
+from shell import Incoming, Service, drain_last, fetch_clock
 
 log = logging.getLogger("leader")
 

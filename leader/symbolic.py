@@ -37,6 +37,7 @@ __all__ = [
     "Analysis",
     "PermutedFactor",
     "SymbolicCache",
+    "clear_cache",
     "factorise",
 ]
 
@@ -165,6 +166,13 @@ class SymbolicCache:
 
 
 CACHE = SymbolicCache()
+
+
+def clear_cache() -> None:
+    """Forget every analysis (a benchmark's cold start)."""
+    CACHE.clear()
+
+
 """The process's cache (``leader.laplacian`` factorises through it)."""
 
 

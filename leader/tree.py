@@ -6,7 +6,7 @@ signed measurements on the path from the reference ``r`` to ``v``, and
 computed for every node at once by pointer jumping over the BFS tree,
 ``O(n log depth)``. Several trees (the members of a batch, one root each) are
 solved in one pass: each node's sums follow only its own path, so a tree gets
-the same floats alone as beside others. ``leader.blue`` chooses this solver.
+the same floats alone as beside others. ``leader.estimation`` chooses this solver.
 """
 
 from __future__ import annotations

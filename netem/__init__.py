@@ -2,9 +2,21 @@
 
 ``python -m netem`` runs it over Zenoh (:mod:`netem.node`); the testbed's simulator takes the
 same decisions for a batch of seeds from :func:`delivery_plan`, and measures link lengths with
-:func:`link_lengths` as netem does.
+:func:`link_lengths` as netem does. :class:`LinkModel`, :func:`delivery_matrix`,
+:func:`schedule` and :func:`expected_delivery_at` are the link-model library the benchmarks
+time and check against closed forms.
 """
 
+from netem.closed_forms import expected_delivery_at
 from netem.matrix import DeliveryPlan, delivery_plan, link_lengths
+from netem.models import LinkModel, delivery_matrix, schedule
 
-__all__ = ["DeliveryPlan", "delivery_plan", "link_lengths"]
+__all__ = [
+    "DeliveryPlan",
+    "LinkModel",
+    "delivery_matrix",
+    "delivery_plan",
+    "expected_delivery_at",
+    "link_lengths",
+    "schedule",
+]

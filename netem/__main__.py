@@ -8,8 +8,7 @@ import sys
 
 from formation.errors import TestbedError
 from netem.node import NetemNode
-from shell.serve import load_scenario, serve, service_parser
-from shell.service import Service
+from shell import Service, load_scenario, serve, service_parser
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -28,7 +28,7 @@ from netem.lockstep import Lockstep
 from netem.progress import Progress
 from netem.realtime import Realtime
 from netem.records import Ledger, Record, decision_batch, decision_batch_of, delivery
-from shell.service import Incoming, Service, settle_heap
+from shell import Incoming, Service, settle_heap
 
 log = logging.getLogger("netem")
 FINAL_WAIT_S = 0.5  # how long a last-messages query waits for what may still be on its way

@@ -1,9 +1,9 @@
 """The recorder service: every packet of a run into MCAP, replay, analysis and the report.
 
-``python -m recorder`` records (:mod:`recorder.node`); the functions here read a
-recording back, recover a cut one and write the report. The report functions
-import matplotlib, and :func:`load_run` (the recording as pandas DataFrames) imports
-pandas, so they load on first use.
+``python -m recorder`` records (:mod:`recorder.node`; :func:`record` in a process of ours); the functions here read a recording
+back, recover a cut one, replay it, serve it live and write the report. The report functions
+import matplotlib, and :func:`load_run` and :func:`export` (the recording as pandas
+DataFrames) import pandas, so they load on first use.
 """
 
 from __future__ import annotations
@@ -11,20 +11,31 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
+from recorder.deadlines import FILE as DEADLINES_FILE
+from recorder.decoder import decode
+from recorder.live import LiveServer
+from recorder.membership import final_team_errors
 from recorder.metrics import error_statistics, formation_error, longest_run, nees, shape_error
+from recorder.node import build_parser as recorder_parser
+from recorder.node import main as record
+from recorder.player import replay
 from recorder.reader import RecordingInfo, describe, validate
-from recorder.recover import Recovered, recover
+from recorder.recovery import Recovered, recover
 from recorder.rundata import RunData, read_run
+from recorder.safety import safety_counts
+from recorder.schemas import schema_for_key
 from recorder.writer import RecordingWriter
 
 if TYPE_CHECKING:
-    from recorder.frames import Run, load_run
-    from recorder.report import write_report, write_report_from
+    from recorder.frames import Run, export, load_run
+    from recorder.report import write_report, write_report_from, write_reports
 
 _LAZY = {
-    "write_report": "recorder.report",
+    "write_report": "recorder.report",  # matplotlib loads on first use
     "write_report_from": "recorder.report",
+    "write_reports": "recorder.report",
     "load_run": "recorder.frames",  # pandas loads on first use
+    "export": "recorder.frames",
     "Run": "recorder.frames",
 }
 
@@ -36,21 +47,32 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = [
+    "DEADLINES_FILE",
+    "LiveServer",
     "RecordingInfo",
     "RecordingWriter",
     "Recovered",
     "Run",
     "RunData",
+    "decode",
     "describe",
     "error_statistics",
+    "export",
+    "final_team_errors",
     "formation_error",
     "load_run",
     "longest_run",
     "nees",
     "read_run",
+    "record",
+    "recorder_parser",
     "recover",
+    "replay",
+    "safety_counts",
+    "schema_for_key",
     "shape_error",
     "validate",
     "write_report",
     "write_report_from",
+    "write_reports",
 ]

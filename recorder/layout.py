@@ -12,7 +12,7 @@ import json
 
 from foxglove import layouts as fl
 
-from recorder.live import DECISIONS_TOPIC, LOG_TOPIC, METRICS_TOPIC, SCENE_TOPIC, STATS_TOPIC
+from formation.topics import DECISIONS_TOPIC, LOG_TOPIC, METRICS_TOPIC, SCENE_TOPIC, STATS_TOPIC
 from recorder.scene import FRAME
 
 LAYOUT_FILE = "foxglove-layout/formation-layout.json"  # from the repository's top

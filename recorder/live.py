@@ -47,6 +47,14 @@ from foxglove.websocket import Capability, ChannelView, Client, ServerListener
 from formation.errors import TestbedError
 from formation.messages import DecisionBatch, EpochMetrics
 from formation.scenario import Scenario
+from formation.topics import (
+    DECISIONS_TOPIC,
+    LOG_TOPIC,
+    METRICS_TOPIC,
+    SCENE_TOPIC,
+    STATS_TOPIC,
+    TF_TOPIC,
+)
 from recorder.decoder import DecodeError, decode_kind
 from recorder.scene import frame_transforms
 from recorder.schemas import SchemaSpec, foxglove_schema, message_encoding, model_schema
@@ -60,12 +68,6 @@ LINGER_S = 2.0  # longest wait at the end for viewers to take the last messages 
 STATS_PERIOD_S = 1.0  # how often /formation/live goes out [s]
 LIVE_KINDS = ("scene", "log", "metrics", "decision")  # channel kinds a live view takes
 
-SCENE_TOPIC = "/formation/scene"
-TF_TOPIC = "/tf"
-LOG_TOPIC = "/formation/log"
-METRICS_TOPIC = "/formation/metrics"
-DECISIONS_TOPIC = "/netem/decisions"
-STATS_TOPIC = "/formation/live"
 STATS_SCHEMA = {
     "type": "object",
     "title": "formation.LiveStats",

@@ -50,8 +50,7 @@ from recorder.live import LiveServer
 from recorder.schemas import LivelinessEvent, classify
 from recorder.trust import Gate
 from recorder.writer import COMPRESSIONS, Raw, RecordingWriter
-from shell import zenoh_config
-from shell.stack_dump import dump_stacks_on_signal
+from shell import add_arguments, dump_stacks_on_signal, open_session
 
 log = logging.getLogger("recorder")
 StatusState = Literal["ready", "running", "done", "error"]
@@ -234,7 +233,7 @@ class Recorder:
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, self.on_signal)
         try:
-            session = zenoh_config.open_session(self.args)
+            session = open_session(self.args)
         except (zenoh.ZError, TestbedError):
             self.recording.close()  # a complete, empty recording rather than a torn one
             raise
@@ -385,7 +384,7 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help=f"start the run once a viewer watches the scene (at most {VIEWER_WAIT_S:g} s)",
     )
-    zenoh_config.add_arguments(p)
+    add_arguments(p)
     return p
 
 

@@ -4,17 +4,25 @@ Between the vocabulary (:mod:`formation`, no Zenoh) and the services.
 """
 
 from shell.clock import fetch_clock
-from shell.serve import load_scenario, serve, service_parser
 from shell.service import Incoming, Service, drain_last, settle_heap
+from shell.serving import load_scenario, serve, service_parser
 from shell.stack_dump import DUMP_SIGNAL, dump_stacks_on_signal
-from shell.zenoh_config import open_session, open_with_retry, session_config
+from shell.zenoh_config import (
+    add_arguments,
+    endpoints,
+    open_session,
+    open_with_retry,
+    session_config,
+)
 
 __all__ = [
     "DUMP_SIGNAL",
     "Incoming",
     "Service",
+    "add_arguments",
     "drain_last",
     "dump_stacks_on_signal",
+    "endpoints",
     "fetch_clock",
     "load_scenario",
     "open_session",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from recorder.deadlines import FILE
+from recorder import DEADLINES_FILE
 
 KEYS = ("packets_sent", "modelled_losses", "deadline_misses", "delivered_in_time",
         "unaccounted", "deadline_miss_rate", "cpu_steal")  # fmt: skip
@@ -49,4 +49,4 @@ def write_deadlines(outcome: Any) -> None:
     summary = outcome.summary()
     if "deadline_misses" in summary:
         text = json.dumps({k: summary[k] for k in KEYS}, indent=2) + "\n"
-        (outcome.run_dir / FILE).write_text(text, encoding="utf-8")
+        (outcome.run_dir / DEADLINES_FILE).write_text(text, encoding="utf-8")

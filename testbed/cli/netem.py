@@ -13,7 +13,7 @@ from rich.table import Table
 
 from formation import keys
 from formation.errors import TestbedError
-from shell.zenoh_config import session_config
+from shell import session_config
 from testbed.cli.tables import print_table
 
 

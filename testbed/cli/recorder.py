@@ -16,11 +16,8 @@ from rich.console import Console
 from rich.table import Table
 
 from formation import keys
-from recorder.reader import describe, validate
-from recorder.recover import recover
-from recorder.replay import replay
-from recorder.report import write_reports
-from shell import zenoh_config
+from recorder import describe, recover, replay, validate, write_reports
+from shell import add_arguments
 from testbed.cli.tables import print_table
 
 
@@ -101,7 +98,7 @@ def cmd_recover(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from recorder.frames import export, load_run  # here: pandas loads only for this command
+    from recorder import export, load_run  # here: pandas loads only for this command
 
     run = load_run(args.recording)
     files = export(run, args.out_dir, args.format)
@@ -162,7 +159,7 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--foxglove", type=int, metavar="PORT",
                    help="serve it to Foxglove on ws://127.0.0.1:PORT instead of Zenoh")  # fmt: skip
-    zenoh_config.add_arguments(p)
+    add_arguments(p)
     p.set_defaults(func=cmd_replay)
 
 

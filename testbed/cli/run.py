@@ -14,8 +14,7 @@ from rich.table import Table
 
 from formation.errors import TestbedError
 from formation.scenario import Scenario
-from recorder.report import write_report, write_reports
-from recorder.safety import safety_counts
+from recorder import safety_counts, write_report, write_reports
 from testbed.cli.common import add_common, scenario_strategies
 from testbed.cli.deadline_lines import deadline_cells, deadline_notes, write_deadlines
 from testbed.cli.tables import print_table

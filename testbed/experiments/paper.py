@@ -24,7 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from formation.scenario import STRATEGIES, Scenario
-from recorder.metrics import error_statistics
+from recorder import error_statistics
 from testbed.experiments import studies
 from testbed.experiments.studies import KEEP_FRACTION, KEEP_M, mean_std
 from testbed.sim.batch import BatchResult, plan_batch, run_batch

@@ -16,8 +16,7 @@ import numpy.typing as npt
 
 from formation.reference import reference_positions
 from formation.scenario import STRATEGIES, Scenario, StrategyName
-from recorder.metrics import error_statistics
-from recorder.rundata import read_run
+from recorder import error_statistics, read_run
 from testbed.experiments import plots, studies
 from testbed.experiments.lossy import with_loss
 from testbed.experiments.paper import (

@@ -25,7 +25,7 @@ import numpy.typing as npt
 
 from formation.graph import expected_rigidity_rank, is_connected, rigidity_rank
 from formation.scenario import STRATEGIES, Scenario, StrategyName, load_dict
-from recorder.metrics import error_statistics
+from recorder import error_statistics
 from testbed.experiments.lossy import with_loss
 from testbed.sim.batch import BatchResult, plan_batch, run_batch
 

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from formation.scenario import STRATEGIES, Scenario, StrategyName
-from recorder.rundata import read_run
+from recorder import read_run
 from testbed.experiments.plots import plot_range_phase
 from testbed.experiments.studies import KEEP_FRACTION
 from testbed.runtime.launcher import launch

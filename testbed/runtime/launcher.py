@@ -21,9 +21,8 @@ import zenoh
 
 from formation.errors import RuntimeFailure
 from formation.scenario import Scenario, StrategyName
-from recorder.membership import final_team_errors
-from recorder.metrics import formation_error, shape_error
-from shell.zenoh_config import session_config
+from recorder import final_team_errors, formation_error, shape_error
+from shell import session_config
 from testbed.runtime import steal
 from testbed.runtime.deadline_accounting import deadline_counts, realtime_accounting
 from testbed.runtime.events import EventDriver, bodies

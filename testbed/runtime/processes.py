@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from formation.errors import RuntimeFailure
-from shell.stack_dump import DUMP_SIGNAL
+from shell import DUMP_SIGNAL
 
 # One BLAS thread per service: a run is many processes on few cores, and OpenBLAS's idle
 # workers spin-wait, taking the cores the other services need (seen: a 1,000-agent pool

@@ -16,8 +16,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path, PurePosixPath
 
-from recorder import node
-from recorder.rundata import read_run
+from recorder import read_run, record, recorder_parser
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -31,12 +30,12 @@ def main(argv: list[str] | None = None) -> int:
         "--host-out", help="the run directory as the host names it (for the report's text)"
     )
     ours, rest = p.parse_known_args(sys.argv[1:] if argv is None else argv)
-    args = node.build_parser().parse_args(rest)  # exits with the recorder's usage on bad args
-    code = node.main(rest)
+    args = recorder_parser().parse_args(rest)  # exits with the recorder's usage on bad args
+    code = record(rest)
     if code != 0 or not ours.report:
         return code
     # Imported only now: the recording process starts without matplotlib (the report's plots).
-    from recorder.report import write_report_from
+    from recorder import write_report_from
 
     out_dir = Path(args.out or Path("runs") / args.run_id)
     shown = PurePosixPath(ours.host_out or out_dir)  # what the host calls out_dir

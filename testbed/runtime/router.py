@@ -17,8 +17,7 @@ import threading
 
 import zenoh
 
-from shell import zenoh_config
-from shell.stack_dump import dump_stacks_on_signal
+from shell import dump_stacks_on_signal, endpoints, session_config
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -27,7 +26,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--connect", help="other routers to connect to (env ZENOH_CONNECT)")
     p.add_argument("--passwords", help="user:password file; clients must authenticate (usrpwd)")
     args = p.parse_args(argv)
-    where = ",".join(zenoh_config.endpoints(args.listen, "ZENOH_LISTEN"))
+    where = ",".join(endpoints(args.listen, "ZENOH_LISTEN"))
     if not where:
         print(
             "router: error: --listen (or ZENOH_LISTEN) is required, e.g. tcp/127.0.0.1:7447",
@@ -41,9 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     extra = {"transport/auth/usrpwd/dictionary_file": args.passwords} if args.passwords else None
     zenoh.try_init_log_from_env()
     try:
-        session = zenoh.open(
-            zenoh_config.session_config("router", args.connect, args.listen, extra)
-        )
+        session = zenoh.open(session_config("router", args.connect, args.listen, extra))
     except zenoh.ZError as exc:
         print(f"router: error: cannot listen on {where}: {exc}", file=sys.stderr)
         return 1

@@ -24,15 +24,12 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from agent.control import reference_heading
-from agent.epoch import AgentStep, InLinks, agent_epoch
-from agent.strategies import LinkMemory, Substitution
+from agent import AgentStep, InLinks, LinkMemory, Substitution, agent_epoch, reference_heading
 from formation.reference import reference_positions, reference_velocities
 from formation.robots import initial_headings
 from formation.scenario import StrategyName
-from leader.epoch import Leader, LeaderEpochs
-from leader.rigidity import HealthyRigidity
-from recorder.metrics import formation_error, nees, shape_error
+from leader import HealthyRigidity, Leader, LeaderEpochs
+from recorder import formation_error, nees, shape_error
 from testbed.sim.plan import VARIANT_FIELDS, BatchError, BatchPlan, newest_late, plan_batch
 from testbed.sim.presence import Presence
 from testbed.sim.ranged import RangedEpochs

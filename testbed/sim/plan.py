@@ -19,11 +19,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from agent.measurement import measurement_noise
+from agent import measurement_noise
 from formation.errors import TestbedError
 from formation.events import Membership, membership
 from formation.scenario import LEADER_ENDPOINT, Scenario
-from netem.matrix import DeliveryPlan, delivery_plan
+from netem import DeliveryPlan, delivery_plan
 
 Mask = npt.NDArray[np.bool_]
 Ints = npt.NDArray[np.int64]

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from agent.strategies import LinkMemory
+from agent import LinkMemory
 from formation.events import Membership
 
 Array = npt.NDArray[np.float64]

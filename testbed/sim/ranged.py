@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from netem.matrix import link_lengths
+from netem import link_lengths
 from testbed.sim.plan import BatchPlan
 
 Array = npt.NDArray[np.float64]

@@ -9,9 +9,7 @@ import numpy as np
 import numpy.typing as npt
 
 from formation.scenario import Scenario, StrategyName
-from recorder.membership import final_team_errors
-from recorder.metrics import error_statistics, longest_run
-from recorder.safety import safety_counts
+from recorder import error_statistics, final_team_errors, longest_run, safety_counts
 
 Array = npt.NDArray[np.float64]
 

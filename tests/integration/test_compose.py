@@ -1,6 +1,6 @@
 """compose.yaml as the source of truth: its services as real processes, each on its own host address.
 
-Nothing about the services is written here: :class:`tests.support.loopback.LoopbackDeployment`
+Nothing about the services is written here: :class:`testkit.loopback.LoopbackDeployment`
 parses the file, runs each ``command`` with its ``environment``, maps service names
 to ``127.A.B.N`` and container paths to host files. The network is closed as
 deployed: credentials from ``formation keys``, the router's access control on.
@@ -22,10 +22,10 @@ from mcap.reader import make_reader
 
 from formation import keys
 from formation.scenario import Scenario
-from shell.zenoh_config import open_with_retry
+from shell import open_with_retry
 from testbed.cli import main as formation
 from testbed.deploy import security
-from tests.support.loopback import LoopbackDeployment
+from testkit.loopback import LoopbackDeployment
 
 pytestmark = pytest.mark.integration
 

@@ -21,16 +21,16 @@ import pytest
 
 from formation.errors import RuntimeFailure
 from formation.scenario import Scenario
-from recorder.recover import recover
+from recorder.recovery import recover
 from recorder.rundata import read_run
 from testbed.runtime.launcher import RunOutcome, launch
-from tests.support.run_watch import KillAtEpoch
+from testkit.run_watch import KillAtEpoch
 
 from .conftest import pid_alive, run_pids
 
 pytestmark = pytest.mark.integration
 EPOCHS = 1500  # long enough that the kill lands mid-run on a loaded machine
-SHORT, KILL_AT = 300, 40  # a kill at agent 1's state of KILL_AT (tests.support.run_watch)
+SHORT, KILL_AT = 300, 40  # a kill at agent 1's state of KILL_AT (testkit.run_watch)
 
 
 def kill_later(runs_dir: Path, name: str, after_s: float = 0.5) -> tuple[Any, list[int]]:

@@ -2,7 +2,7 @@
 subprocess, a process of it killed by PID mid-run from outside.
 
 The PIDs come from the run's ``pids.json`` and the kill lands once agent 1's state of
-``KILL_AT`` is seen (:mod:`tests.support.run_watch`). ``formation run`` itself is ended by
+``KILL_AT`` is seen (:mod:`testkit.run_watch`). ``formation run`` itself is ended by
 PID in a ``finally``; the ``runs_dir`` fixture fails the test if a process of the run is left.
 """
 
@@ -22,7 +22,7 @@ import pytest
 from formation.scenario import Scenario
 from recorder.frames import load_run
 from recorder.rundata import read_run
-from tests.support.run_watch import KillAtEpoch, end_process, read_pids, wait_for_run
+from testkit.run_watch import KillAtEpoch, end_process, read_pids, wait_for_run
 
 from .conftest import pid_alive, run_pids
 

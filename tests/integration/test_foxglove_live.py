@@ -23,7 +23,7 @@ from foxglove.messages import FrameTransforms, Log, SceneUpdate
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap.reader import make_reader
 
-from recorder.live import (
+from formation.topics import (
     DECISIONS_TOPIC,
     LOG_TOPIC,
     METRICS_TOPIC,
@@ -32,7 +32,7 @@ from recorder.live import (
     TF_TOPIC,
 )
 from testbed.runtime.processes import free_port
-from tests.support import foxglove_client as fc
+from testkit import foxglove_client as fc
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 EPOCHS = 25

@@ -18,9 +18,10 @@ from formation.codec import encode
 from formation.errors import TestbedError
 from formation.messages import Decision, DecisionBatch, EpochMetrics
 from formation.scenario import Scenario
-from recorder.live import DECISIONS_TOPIC, METRICS_TOPIC, STATS_TOPIC, TF_TOPIC, LiveServer
+from formation.topics import DECISIONS_TOPIC, METRICS_TOPIC, STATS_TOPIC, TF_TOPIC
+from recorder.live import LiveServer
 from recorder.trust import Gate
-from tests.support import foxglove_client as fc
+from testkit import foxglove_client as fc
 
 pytestmark = pytest.mark.integration
 RUN = "live-test"

@@ -18,7 +18,7 @@ from formation.messages import CoordinationState
 from formation.scenario import Scenario
 from leader.node import LeaderNode
 from netem.node import FINAL_WAIT_S, NetemNode
-from tests.support.zenoh_peer import peer_service
+from testkit.zenoh_peer import peer_service
 
 pytestmark = pytest.mark.integration
 ROOT = Path(__file__).resolve().parents[2]

@@ -1,7 +1,7 @@
 """The recorder as a real process over Zenoh on 127.0.0.1: counts, schemas, kill -9.
 
 The test process is a Zenoh peer listening on a free port; the recorder connects to it in
-client mode, as the launcher starts it (``tests/support/zenoh_peer.py``). Readiness is a
+client mode, as the launcher starts it (``testkit/src/testkit/zenoh_peer.py``). Readiness is a
 liveliness token or a queryable's reply, never a fixed sleep; every process is ended by PID
 in a ``finally``. Replaying a recording: ``test_recorder_replay.py``.
 """
@@ -27,8 +27,8 @@ from formation.errors import RecordingError
 from formation.messages import Decision, DecisionBatch, Status
 from formation.scenario import Scenario
 from recorder.reader import describe, validate
-from recorder.recover import recover
-from tests.support.zenoh_peer import WAIT_S, peer, process, state, token_seen, wait_for
+from recorder.recovery import recover
+from testkit.zenoh_peer import WAIT_S, peer, process, state, token_seen, wait_for
 
 pytestmark = pytest.mark.integration
 

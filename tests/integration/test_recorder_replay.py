@@ -2,7 +2,7 @@
 replayed into a fresh leader.
 
 The test process is a Zenoh peer listening on a free port; the replay and the leader connect
-to it in client mode, as the launcher starts them (``tests/support/zenoh_peer.py``).
+to it in client mode, as the launcher starts them (``testkit/src/testkit/zenoh_peer.py``).
 Readiness is a liveliness token or a queryable's reply, never a fixed sleep; every process is
 ended by PID in a ``finally``. The recorder itself: ``test_recorder_live.py``.
 """
@@ -22,10 +22,10 @@ from formation import keys
 from formation.codec import read_attachment
 from formation.messages import CoordinationState
 from formation.scenario import Scenario
+from recorder.player import control_key
 from recorder.reader import validate
-from recorder.replay import control_key
 from recorder.writer import RecordingWriter
-from tests.support.zenoh_peer import WAIT_S, peer, process, state, token_seen, wait_for
+from testkit.zenoh_peer import WAIT_S, peer, process, state, token_seen, wait_for
 
 pytestmark = pytest.mark.integration
 REPLAY_CLI = (

@@ -11,7 +11,7 @@ import pytest
 from agent.node import AgentNode
 from formation.scenario import Scenario
 from leader.node import LeaderNode
-from tests.support.zenoh_peer import peer_service
+from testkit.zenoh_peer import peer_service
 
 pytestmark = pytest.mark.integration
 ROOT = Path(__file__).resolve().parents[2]

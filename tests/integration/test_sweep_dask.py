@@ -18,7 +18,7 @@ import pytest
 
 from testbed.cli import main
 from testbed.experiments.sweep import SweepError, read_rows
-from tests.support.dask_processes import DaskProcesses, child_env, end
+from testkit.dask_processes import DaskProcesses, child_env, end
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 

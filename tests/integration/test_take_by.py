@@ -12,7 +12,7 @@ import pytest
 import zenoh
 
 from shell.service import Incoming, Service
-from tests.support.zenoh_peer import peer_service
+from testkit.zenoh_peer import peer_service
 
 pytestmark = pytest.mark.integration
 RUN = "take-by"

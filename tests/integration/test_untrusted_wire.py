@@ -1,6 +1,6 @@
 """Malformed and forged payloads on every kind of key during a live run (issue 20, item 3).
 
-An independent Zenoh client puts :func:`tests.support.forgeries.forgeries` on the run's keys
+An independent Zenoh client puts :func:`testkit.forgeries.forgeries` on the run's keys
 while ``formation run`` is in the middle of a lockstep run. The run completes with exit 0,
 ``report.md`` is written, and the report's summary counts each forgery on its channel; its
 numbers are those of the same run without them, and ``load_run``'s DataFrames agree with it. ``formation report`` and ``formation info``
@@ -25,7 +25,7 @@ from formation.scenario import Scenario
 from recorder import load_run
 from recorder.metrics import error_statistics
 from shell.zenoh_config import session_config
-from tests.support.forgeries import forgeries
+from testkit.forgeries import forgeries
 
 pytestmark = pytest.mark.integration
 EPOCHS = 200

@@ -16,10 +16,13 @@ def test_draws_keep_their_values() -> None:
         16268291095379784883,
     ]
     assert keyed_uniform(42, 1, 2, 3, 9).tolist() == [0.9761377409195685]
-    assert keyed_normal_vector(2, 1, 3, np.array([1, 2]), np.array([2, 1]), 4).tolist() == [
-        [-0.017598516292053126, 1.4399333776499879],
-        [-1.130210593918367, -0.33492905362266645],
-    ]
+    # The normals go through cos and log1p, which numpy dispatches by CPU (AVX-512 or not):
+    # bit for bit on one machine (the equivalence tests), within an ulp across machines.
+    normal = keyed_normal_vector(2, 1, 3, np.array([1, 2]), np.array([2, 1]), 4)
+    first = np.array(
+        [[-0.017598516292053126, 1.4399333776499879], [-1.130210593918367, -0.33492905362266645]]
+    )
+    assert np.all(np.abs(normal - first) <= 2 * np.spacing(np.abs(first)))
 
 
 @given(

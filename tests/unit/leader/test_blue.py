@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 import leader.laplacian as laplacian_module
 from formation.graph import AgentIdError, GraphInputError, ShapeError
-from leader.blue import BlueResult, CovarianceError, blue
+from leader.estimation import BlueResult, CovarianceError, blue
 from leader.mst import minimum_spanning_forest
 from recorder.metrics import nees
 

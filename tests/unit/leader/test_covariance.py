@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 from scipy.sparse import coo_array, csc_array
 from scipy.sparse.linalg import splu
 
-from leader.blue import blue
 from leader.covariance import PatternError, inverse_diagonal_blocks
+from leader.estimation import blue
 from leader.laplacian import GroundedSystem
 
 PROPERTY = settings(max_examples=40, deadline=None, derandomize=True, database=None)

@@ -8,8 +8,8 @@ import pytest
 from scipy.sparse import csc_array, csr_array
 from scipy.sparse.linalg import splu
 
-from leader.blue import BlueResult, MeasurementGraph, blue
 from leader.covariance import inverse_diagonal_blocks
+from leader.estimation import BlueResult, MeasurementGraph, blue
 from leader.symbolic import CACHE, SymbolicCache, factorise
 from tests.unit.leader.test_covariance import (
     TOL,

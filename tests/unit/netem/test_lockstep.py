@@ -12,52 +12,12 @@ from typing import Any
 import numpy as np
 import pytest
 
-from formation.messages import Decision, DecisionBatch, Delivery
 from formation.scenario import Scenario
-from netem.links import Links, Phase, Route
+from netem.links import Links, Route
 from netem.lockstep import Lockstep
 from netem.progress import Progress
-from netem.records import Ledger, Record, decision_batch, decision_batch_of, delivery
-
-
-def header(epoch: int) -> dict[str, Any]:
-    return {"run_id": "r", "sender": "netem", "seq": 0, "epoch": epoch, "stamp_ns": 1}
-
-
-class Wire:
-    """An outbox keeping every delivery and decision record, parsed from the bytes sent."""
-
-    def __init__(self, receivers: dict[Phase, list[int]]) -> None:
-        self.receivers = receivers  # who closes an epoch of each phase
-        self.deliveries: list[Delivery] = []
-        self.decisions: list[Decision] = []
-        self.closed: Counter[tuple[str, int]] = Counter()  # (phase, epoch) → receivers closed
-        self.early: list[tuple[str, int]] = []  # records out before every receiver closed
-
-    def deliver(self, phase: Phase, receiver: int, epoch: int, packets: list[bytes],
-                lost: list[int], dead: list[int]) -> None:  # fmt: skip
-        wire = delivery(header(epoch), receiver, phase, packets, lost, dead)
-        self.deliveries.append(Delivery.model_validate_json(wire))
-        self.closed[(phase, epoch)] += 1
-
-    def records(self, phase: Phase, epoch: int, records: list[Record]) -> None:
-        self._batch(phase, decision_batch(header(epoch), phase, records))
-
-    def clean_records(self, phase: Phase, last_epoch: int, chunks: list[bytes]) -> None:
-        self._batch(phase, decision_batch_of(header(last_epoch), phase, chunks))
-
-    def _batch(self, phase: Phase, wire: bytes) -> None:
-        batch = DecisionBatch.model_validate_json(wire)
-        live = len(self.receivers[phase])
-        self.early += [
-            (phase, d.epoch) for d in batch.decisions if self.closed[(phase, d.epoch)] < live
-        ]
-        self.decisions += batch.decisions
-
-
-def receivers(scenario: Scenario) -> dict[Phase, list[int]]:
-    agents = list(range(1, scenario.n + 1))
-    return {"state": agents, "report": [0], "estimate": agents}
+from netem.records import Ledger
+from testkit.lockstep_wire import Wire, receivers
 
 
 def lockstep(scenario: Scenario, seed: int) -> tuple[Lockstep, Wire]:
@@ -160,8 +120,8 @@ def test_every_receiver_closes_once_per_phase_and_epoch_under_random_loss(
     assert closes == {
         (ph, r, e): 1 for ph, rs in wire.receivers.items() for r in rs for e in epochs
     }
-    for phase, receivers in wire.receivers.items():
-        for r in receivers:  # in epoch order
+    for phase, closers in wire.receivers.items():
+        for r in closers:  # in epoch order
             assert [
                 d.epoch for d in wire.deliveries if (d.phase, d.receiver) == (phase, r)
             ] == epochs

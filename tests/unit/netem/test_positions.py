@@ -21,7 +21,7 @@ from netem.lockstep import Lockstep
 from netem.models import LinkModel, link_lengths
 from netem.progress import Progress
 from netem.records import Ledger
-from tests.unit.netem.test_lockstep import Wire, receivers
+from testkit.lockstep_wire import Wire, receivers
 
 ROOT = Path(__file__).resolve().parents[3]
 NETWORK = {

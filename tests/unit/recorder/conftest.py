@@ -9,7 +9,7 @@ from typing import Any
 import pytest
 
 from formation.scenario import Scenario
-from tests.support.synthetic import EPOCH_NS, RUN, traffic, write_synthetic
+from testkit.synthetic import EPOCH_NS, RUN, traffic, write_synthetic
 
 ROOT = Path(__file__).resolve().parents[3]
 

@@ -16,9 +16,9 @@ from mcap.reader import make_reader
 from formation import keys
 from recorder.decoder import as_dict, decode, decode_kind
 from recorder.frames import load_run
+from recorder.player import Replayer
 from recorder.reader import validate
-from recorder.recover import recover
-from recorder.replay import Replayer
+from recorder.recovery import recover
 from recorder.scene import AGENT_COLOR, LEADER_COLOR, TREE
 from recorder.schemas import foxglove_schema
 from recorder.trust import INVALID

@@ -18,7 +18,7 @@ from formation.messages import CoordinationState, Substitute
 from recorder import load_run
 from recorder.metrics import error_statistics
 from recorder.report import write_report
-from tests.support.forgeries import forgeries
+from testkit.forgeries import forgeries
 
 ROOT = Path(__file__).resolve().parents[3]
 EPOCH_NS = 1_000_000_000

@@ -6,8 +6,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from formation.topics import DECISIONS_TOPIC, LOG_TOPIC, METRICS_TOPIC, SCENE_TOPIC
 from recorder.layout import LAYOUT_FILE, layout_json
-from recorder.live import DECISIONS_TOPIC, LOG_TOPIC, METRICS_TOPIC, SCENE_TOPIC
 
 ROOT = Path(__file__).resolve().parents[3]
 

@@ -8,7 +8,7 @@ import pytest
 from mcap.reader import make_reader
 
 from formation.errors import RecordingError
-from recorder.recover import recover
+from recorder.recovery import recover
 from recorder.writer import McapFile, RecordingWriter
 
 N_CHUNKS, PER_CHUNK = 6, 40

@@ -12,7 +12,7 @@ from formation import keys
 from formation.codec import attachment, encode, read_attachment
 from formation.errors import TestbedError
 from formation.messages import CoordinationState
-from recorder.replay import Replayer, rebuild_attachment
+from recorder.player import Replayer, rebuild_attachment
 from recorder.writer import RecordingWriter
 
 RUN = "rp"

@@ -3,24 +3,16 @@ by link health."""
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
-from foxglove.messages import SceneUpdate
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from formation.scenario import Scenario
-from recorder.decoder import as_dict, decode_kind
 from recorder.scene import BROKEN, HEALTHY, TREE, UNKNOWN, edge_colors, scene_update
+from testkit.scene_readback import check
 
 PRIMITIVES = ("arrows", "cubes", "spheres", "cylinders", "lines", "triangles", "texts", "models")
-
-
-def check(scene: SceneUpdate) -> dict[str, Any]:
-    """The scene as it is recorded (protobuf) and read back by the SDK's schema, as plain data."""
-    return as_dict(decode_kind("scene", scene.encode()))
 
 
 def test_scene_of_the_paper_formation(paper: Scenario) -> None:

@@ -12,7 +12,7 @@ from recorder.decoder import as_dict, decode_kind
 from recorder.epochs import EpochAssembler
 from recorder.scene import scene_update
 from testbed.sim.simulate import simulate
-from tests.unit.recorder.test_recorder_scene import check
+from testkit.scene_readback import check
 
 
 def yaw(arrow: dict[str, Any]) -> float:

@@ -1,6 +1,6 @@
 """Analysis never trusts the wire: forged and malformed recorded messages are skipped and counted.
 
-A synthetic recording of a simulated run with :func:`tests.support.forgeries.forgeries` mixed in
+A synthetic recording of a simulated run with :func:`testkit.forgeries.forgeries` mixed in
 (the same set the live test puts on a real run's keys): every reader gives the numbers of
 the clean run and counts each forgery once, on its channel.
 """
@@ -20,12 +20,12 @@ import pytest
 from formation import keys
 from formation.codec import encode
 from formation.messages import CoordinationState, DeliveredPacket, Delivery
+from recorder.player import Replayer
 from recorder.reader import describe
-from recorder.replay import Replayer
 from recorder.report import write_report
 from recorder.rundata import read_run
 from recorder.trust import CONFLICT, FORGED, INVALID, OUT_OF_RANGE, UNKNOWN_KEY, Gate
-from tests.support.forgeries import forgeries
+from testkit.forgeries import forgeries
 
 EPOCH_NS = 1_000_000_000
 

@@ -17,7 +17,7 @@ from formation.scenario import Scenario
 from testbed.cli import main as formation
 from testbed.deploy import security
 from testbed.deploy.compose import ComposeOptions, render
-from tests.support.loopback import LoopbackDeployment, interpolate, parse_duration_s
+from testkit.loopback import LoopbackDeployment, interpolate, parse_duration_s
 
 ROOT = Path(__file__).resolve().parents[3]
 COMPOSE = ROOT / "compose.yaml"

@@ -24,8 +24,8 @@ from testbed.experiments.sweep import (
     run_sweep,
 )
 from testbed.sim.simulate import simulate
-from tests.support.forgeries import forgeries
-from tests.support.synthetic import EPOCH_NS, RUN, write_synthetic
+from testkit.forgeries import forgeries
+from testkit.synthetic import EPOCH_NS, RUN, write_synthetic
 
 SEEDS = (1, 2, 3, 4, 5, 6)
 TABLES = ("runs.csv", "critical.md", "success.md")

@@ -39,7 +39,7 @@ from recorder.live import LiveServer
 from recorder.reader import iter_messages, metadata, open_recording, scenario_of
 from recorder.schemas import FOXGLOVE, classify, run_id_of
 from recorder.trust import Gate, Skipped, derived_channels
-from shell.zenoh_config import open_session
+from shell import open_session
 
 SKIP = frozenset({"alive"})  # channel kinds never replayed
 WAIT_SLICE_S = 0.05  # longest sleep between control checks [s]
