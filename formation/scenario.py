@@ -18,7 +18,7 @@ import numpy.typing as npt
 import tomli_w
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from formation.error_paths import loc_path, lookup
+from formation._error_paths import loc_path, lookup
 from formation.errors import NO_VALUE, ScenarioError
 from formation.events import Event, Membership, event_problems, membership
 from formation.graph import expected_rigidity_rank, is_connected, max_degree, rigidity_rank
