@@ -61,8 +61,14 @@ class InLinks:
 
     def take(self, rows: npt.NDArray[np.int64]) -> InLinks:
         """The links ``rows`` only (the rest are out of the formation graph this epoch)."""
-        return InLinks(self.index[rows], self.sender[rows], self.receiver[rows],
-                       self.receiver_row[rows], self.desired[rows], self.distance_sq[rows])  # fmt: skip
+        return InLinks(
+            self.index[rows],
+            self.sender[rows],
+            self.receiver[rows],
+            self.receiver_row[rows],
+            self.desired[rows],
+            self.distance_sq[rows],
+        )
 
 
 @dataclass(frozen=True)
@@ -106,9 +112,17 @@ def agent_epoch(
     """
     ctl = scenario.control
     sub, memory = substitute(
-        strategy, epoch, arrived, received, memory, estimate, has_estimate,
-        v_ref_prev, ctl.period_s, scenario.strategy.alpha,
-    )  # fmt: skip
+        strategy,
+        epoch,
+        arrived,
+        received,
+        memory,
+        estimate,
+        has_estimate,
+        v_ref_prev,
+        ctl.period_s,
+        scenario.strategy.alpha,
+    )
     relative = np.where(arrived[:, None], z, x[links.receiver_row] - sub.values)
     a = x.shape[0]
     if ctl.controller == "displacement":

@@ -38,9 +38,15 @@ class NoiseKeys:
             self._cov, self._start = cov, epoch
             epochs = np.arange(epoch, epoch + NOISE_BLOCK, dtype=np.int64)
             links = self.state.shape[:-1]
-            block = _correlate(cov, lambda: keyed_normal_after(
-                self.state[..., None, :], epochs[:, None], np.arange(cov.shape[0], dtype=np.int64)
-            ), (*links, NOISE_BLOCK))  # fmt: skip
+            block = _correlate(
+                cov,
+                lambda: keyed_normal_after(
+                    self.state[..., None, :],
+                    epochs[:, None],
+                    np.arange(cov.shape[0], dtype=np.int64),
+                ),
+                (*links, NOISE_BLOCK),
+            )
             self._block = np.ascontiguousarray(np.moveaxis(block, -2, 0))
         row: Array = self._block[epoch - self._start]
         return row

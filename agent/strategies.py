@@ -43,21 +43,28 @@ class LinkMemory:
 
     def take(self, rows: npt.NDArray[np.int64]) -> LinkMemory:
         """The memory of the links ``rows`` only."""
-        return LinkMemory(self.last[rows], self.last_epoch[rows], self.blend[rows],
-                          self.has_blend[rows])  # fmt: skip
+        return LinkMemory(
+            self.last[rows], self.last_epoch[rows], self.blend[rows], self.has_blend[rows]
+        )
 
     def put(self, rows: npt.NDArray[np.int64], part: LinkMemory) -> LinkMemory:
         """This memory with the links ``rows`` replaced by ``part`` (the others kept)."""
-        return LinkMemory(_scatter(self.last, rows, part.last),
-                          _scatter(self.last_epoch, rows, part.last_epoch),
-                          _scatter(self.blend, rows, part.blend),
-                          _scatter(self.has_blend, rows, part.has_blend))  # fmt: skip
+        return LinkMemory(
+            _scatter(self.last, rows, part.last),
+            _scatter(self.last_epoch, rows, part.last_epoch),
+            _scatter(self.blend, rows, part.blend),
+            _scatter(self.has_blend, rows, part.has_blend),
+        )
 
     def forget(self, rows: Mask) -> LinkMemory:
         """The links ``rows`` (L,) remember nothing: a receiver that (re)starts (issue 20)."""
         keep = ~rows
-        return LinkMemory(self.last * keep[:, None], np.where(keep, self.last_epoch, -1),
-                          self.blend * keep[:, None], self.has_blend & keep)  # fmt: skip
+        return LinkMemory(
+            self.last * keep[:, None],
+            np.where(keep, self.last_epoch, -1),
+            self.blend * keep[:, None],
+            self.has_blend & keep,
+        )
 
     @property
     def has_last(self) -> Mask:
@@ -93,13 +100,17 @@ class Substitution:
     def spread(self, rows: npt.NDArray[np.int64], size: int) -> Substitution:
         """This substitution of the links ``rows`` over all ``size`` links (the others: none)."""
         none = np.zeros(size, dtype=bool)
-        return Substitution(_scatter(np.zeros((size, self.values.shape[1])), rows, self.values),
-                            _scatter(none, rows, self.used), _scatter(none, rows, self.substituted),
-                            _scatter(none, rows, self.fallback))  # fmt: skip
+        return Substitution(
+            _scatter(np.zeros((size, self.values.shape[1])), rows, self.values),
+            _scatter(none, rows, self.used),
+            _scatter(none, rows, self.substituted),
+            _scatter(none, rows, self.fallback),
+        )
 
 
-def _scatter(full: npt.NDArray[Any], rows: npt.NDArray[np.int64], part: npt.NDArray[Any]
-             ) -> npt.NDArray[Any]:  # fmt: skip
+def _scatter(
+    full: npt.NDArray[Any], rows: npt.NDArray[np.int64], part: npt.NDArray[Any]
+) -> npt.NDArray[Any]:
     out = full.copy()
     out[rows] = part
     return out

@@ -128,19 +128,33 @@ def _absent_at_start(events: Sequence[Event]) -> set[int]:
 
 
 def event_problems(
-    n: int, leader: int, epochs: int, edges: npt.NDArray[np.int64], events: Sequence[Event],
+    n: int,
+    leader: int,
+    epochs: int,
+    edges: npt.NDArray[np.int64],
+    events: Sequence[Event],
     allow_split: bool,
-) -> list[Problem]:  # fmt: skip
+) -> list[Problem]:
     """What is wrong with a schedule, as ``(field, value, problem)``; empty when nothing is."""
     for k, e in enumerate(events):
         if not 1 <= e.agent <= n:
             return [(f"events[{k}].agent", e.agent, f"agent does not exist (agents are 1..{n})")]
         if e.agent == leader:
-            return [(f"events[{k}].agent", e.agent,
-                     "the reference agent follows the trajectory and takes part in every epoch")]  # fmt: skip
+            return [
+                (
+                    f"events[{k}].agent",
+                    e.agent,
+                    "the reference agent follows the trajectory and takes part in every epoch",
+                )
+            ]
         if e.epoch >= epochs:
-            return [(f"events[{k}].epoch", e.epoch,
-                     f"past the end (epochs = {epochs}; an event takes effect at 1..{epochs - 1})")]  # fmt: skip
+            return [
+                (
+                    f"events[{k}].epoch",
+                    e.epoch,
+                    f"past the end (epochs = {epochs}; an event takes effect at 1..{epochs - 1})",
+                )
+            ]
     order = sorted(range(len(events)), key=lambda k: events[k].epoch)
     absent = _absent_at_start(events)
     state = {i: "absent" if i in absent else "present" for i in range(1, n + 1)}
@@ -148,13 +162,24 @@ def event_problems(
     for k in order:
         e = events[k]
         if (e.agent, e.epoch) in seen:
-            return [(f"events[{k}].epoch", e.epoch, f"agent {e.agent} has another event at this "
-                     f"epoch (events[{seen[(e.agent, e.epoch)]}])")]  # fmt: skip
+            return [
+                (
+                    f"events[{k}].epoch",
+                    e.epoch,
+                    f"agent {e.agent} has another event at this "
+                    f"epoch (events[{seen[(e.agent, e.epoch)]}])",
+                )
+            ]
         seen[(e.agent, e.epoch)] = k
         nxt = _AFTER[state[e.agent]].get(e.action)
         if nxt is None:
-            return [(f"events[{k}].action", e.action, f"agent {e.agent} is {state[e.agent]} "
-                     f"at epoch {e.epoch}: {_WHY[e.action]}")]  # fmt: skip
+            return [
+                (
+                    f"events[{k}].action",
+                    e.action,
+                    f"agent {e.agent} is {state[e.agent]} at epoch {e.epoch}: {_WHY[e.action]}",
+                )
+            ]
         state[e.agent] = nxt
     if allow_split or not events:
         return []
@@ -165,8 +190,14 @@ def event_problems(
         parts = split_of(team.present[epoch], edges)
         if len(parts) > 1:
             shown = " and ".join(str(p) for p in parts)
-            return [(field, value, f"from epoch {epoch} the team taking part is split into "
-                     f"{shown}; set allow_split = true to allow it")]  # fmt: skip
+            return [
+                (
+                    field,
+                    value,
+                    f"from epoch {epoch} the team taking part is split into "
+                    f"{shown}; set allow_split = true to allow it",
+                )
+            ]
     return []
 
 

@@ -86,11 +86,14 @@ def robot_problems(
     if edge_lengths:
         name, shortest = min(edge_lengths, key=lambda e: e[1])
         if safety.body_diameter_m > shortest:
-            return [(
-                "safety.body_diameter_m", safety.body_diameter_m,
-                f"larger than the shape's shortest edge ({name}: {shortest:g} m): "
-                "the robots could not hold the shape without touching",
-            )]  # fmt: skip
+            return [
+                (
+                    "safety.body_diameter_m",
+                    safety.body_diameter_m,
+                    f"larger than the shape's shortest edge ({name}: {shortest:g} m): "
+                    "the robots could not hold the shape without touching",
+                )
+            ]
     b = safety.bounds
     if b is not None:
         for name, corner in (("min_m", b.min_m), ("max_m", b.max_m)):
@@ -122,10 +125,13 @@ def robot_problems(
         for field, stack in control_stacks:
             for k, spec in enumerate(stack):
                 if is_distance_model(spec):
-                    return [(
-                        f"{field}[{k}].model", spec.model,
-                        "a distance model on a control link needs network.access_point (the leader's radio)",
-                    )]  # fmt: skip
+                    return [
+                        (
+                            f"{field}[{k}].model",
+                            spec.model,
+                            "a distance model on a control link needs network.access_point (the leader's radio)",
+                        )
+                    ]
     return []
 
 

@@ -425,8 +425,15 @@ def _problems(s: Scenario) -> list[tuple[str, object, str]]:
     events = event_problems(n, s.leader, s.epochs, pairs, s.events, s.allow_split)
     if events:
         return events
-    return robot_problems(s.dimension, s.control.dynamics, s.runtime.mode, s.safety,
-                          s.network.access_point, _edge_lengths(s, d0, pairs), *_stacks(s))  # fmt: skip
+    return robot_problems(
+        s.dimension,
+        s.control.dynamics,
+        s.runtime.mode,
+        s.safety,
+        s.network.access_point,
+        _edge_lengths(s, d0, pairs),
+        *_stacks(s),
+    )
 
 
 def _edge_lengths(

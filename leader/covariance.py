@@ -349,9 +349,14 @@ class _SelectedInverse:
     def _takahashi(self, z: FloatArray, batch: _Columns, val: FloatArray, diag: FloatArray) -> None:
         """Takahashi's recurrence for one batch of columns, into the store ``z``."""
         pairs, slots, source, slot, slot_b, entry, owner = (
-            batch.pairs, batch.slots, batch.source, batch.slot, batch.slot_b, batch.entry,
+            batch.pairs,
+            batch.slots,
+            batch.source,
+            batch.slot,
+            batch.slot_b,
+            batch.entry,
             batch.owner,
-        )  # fmt: skip
+        )
         weight, mirror, on_entry = val[batch.weight], val[batch.mirror], val[entry]
         for c0, c1 in itertools.pairwise(batch.steps):
             p0, p1, e0, e1 = pairs[c0], pairs[c1], slots[c0], slots[c1]

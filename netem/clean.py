@@ -170,8 +170,14 @@ class CleanEpochs:
             rows = self._reach[k]
         return rows[epoch - k * self._block]
 
-    def judged(self, epoch: int, g: Gathering, verdicts: dict[Link, Outcome], ledger: Ledger,
-               deliver: Callable[[int, int, list[bytes], list[int]], None]) -> None:  # fmt: skip
+    def judged(
+        self,
+        epoch: int,
+        g: Gathering,
+        verdicts: dict[Link, Outcome],
+        ledger: Ledger,
+        deliver: Callable[[int, int, list[bytes], list[int]], None],
+    ) -> None:
         """Hand out gated ``epoch``, a link out of reach, as the full path would: each link's
         record and count in gathered order, a receiver's delivery once its senders are in."""
         self.go_slow(epoch)
@@ -203,8 +209,9 @@ class CleanEpochs:
             self._hand_out(g, stream, packet, epoch, deliver)
         self.finish(epoch, g.seqs)
 
-    def _hand_out(self, g: Gathering, stream: int, packet: bytes, epoch: int,
-                  deliver: Deliver) -> None:  # fmt: skip
+    def _hand_out(
+        self, g: Gathering, stream: int, packet: bytes, epoch: int, deliver: Deliver
+    ) -> None:
         """Add ``stream``'s packet to its receivers' deliveries; deliver the complete ones."""
         g.packets[stream] = packet
         waiting, need = g.waiting, self.need
@@ -332,11 +339,21 @@ def clean_epochs(links: Links) -> dict[Phase, CleanEpochs]:
 
     agents, out_links, in_links = links.agents, links.out_links, links.in_links
     return {
-        "state": CleanEpochs({
-            s: stream([("formation", s, d) for d in out_links[s]]) for s in agents if out_links[s]
-        }, {j: len(in_links[j]) for j in agents}, gate=True),
-        "report": CleanEpochs({s: stream([("report", s, LEADER_ENDPOINT)]) for s in agents},
-                              {LEADER_ENDPOINT: len(agents)}),
-        "estimate": CleanEpochs({d: stream([("estimate", LEADER_ENDPOINT, d)]) for d in agents},
-                                dict.fromkeys(agents, 1)),
-    }  # fmt: skip
+        "state": CleanEpochs(
+            {
+                s: stream([("formation", s, d) for d in out_links[s]])
+                for s in agents
+                if out_links[s]
+            },
+            {j: len(in_links[j]) for j in agents},
+            gate=True,
+        ),
+        "report": CleanEpochs(
+            {s: stream([("report", s, LEADER_ENDPOINT)]) for s in agents},
+            {LEADER_ENDPOINT: len(agents)},
+        ),
+        "estimate": CleanEpochs(
+            {d: stream([("estimate", LEADER_ENDPOINT, d)]) for d in agents},
+            dict.fromkeys(agents, 1),
+        ),
+    }

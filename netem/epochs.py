@@ -12,8 +12,15 @@ from netem.records import Record
 class Outbox(Protocol):
     """Where the core's outputs go; the node publishes each as it comes."""
 
-    def deliver(self, phase: Phase, receiver: int, epoch: int, packets: list[bytes],
-                lost: list[int], dead: list[int]) -> None:  # fmt: skip
+    def deliver(
+        self,
+        phase: Phase,
+        receiver: int,
+        epoch: int,
+        packets: list[bytes],
+        lost: list[int],
+        dead: list[int],
+    ) -> None:
         """``receiver``'s delivery of ``phase`` and ``epoch`` (its close)."""
 
     def records(self, phase: Phase, epoch: int, records: list[Record]) -> None:

@@ -105,8 +105,12 @@ def message_json(payload: Any) -> bytes:
 def packet_json_of(source: int, seq: int, sent_epoch: int, copies: int, message: bytes) -> bytes:
     """:func:`packet_json` with the message already encoded (:func:`message_json`)."""
     return b'{"source":%d,"seq":%d,"sent_epoch":%d,"copies":%d,"message":%s}' % (
-        source, seq, sent_epoch, copies, message,
-    )  # fmt: skip
+        source,
+        seq,
+        sent_epoch,
+        copies,
+        message,
+    )
 
 
 def delivery(
@@ -121,8 +125,11 @@ def delivery(
     it gets this epoch, spliced."""
     head = orjson.dumps({**header, "kind": "delivery", "receiver": receiver, "phase": phase})
     return b'%s,"packets":[%s],"lost":%s,"dead":%s}' % (
-        head[:-1], b",".join(packets), orjson.dumps(sorted(lost)), orjson.dumps(sorted(dead)),
-    )  # fmt: skip
+        head[:-1],
+        b",".join(packets),
+        orjson.dumps(sorted(lost)),
+        orjson.dumps(sorted(dead)),
+    )
 
 
 def _text(payload: Any) -> str:

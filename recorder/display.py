@@ -57,8 +57,13 @@ class Display:
         dropped = sum(s.intake.dropped.values())
         log.info(
             "%s: %d messages on %d keys (%.0f/s), backlog %d, dropped %d",
-            s.run_id, s.written, len(s.counts), self._rate(), s.intake.backlog(), dropped,
-        )  # fmt: skip
+            s.run_id,
+            s.written,
+            len(s.counts),
+            self._rate(),
+            s.intake.backlog(),
+            dropped,
+        )
 
     def _table(self) -> Any:
         from rich.table import Table  # only when live (see __enter__)

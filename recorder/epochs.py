@@ -230,10 +230,19 @@ class EpochAssembler:
             healthy = edge_mask(self.edges, list(est.healthy))
             tree = edge_mask(self.edges, list(est.tree))
         scene = scene_update(
-            k, stamp_ns, x, self.edges, s.offsets, s.leader, healthy, tree, lost,
-            None if est is None else est.positions, None if est is None else est.covariances,
+            k,
+            stamp_ns,
+            x,
+            self.edges,
+            s.offsets,
+            s.leader,
+            healthy,
+            tree,
+            lost,
+            None if est is None else est.positions,
+            None if est is None else est.covariances,
             None if th is None else np.array([th.get(i, np.nan) for i in range(1, self.n + 1)]),
-        )  # fmt: skip
+        )
         return keys.scene(self.run_id), scene.encode()
 
 

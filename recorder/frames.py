@@ -107,10 +107,22 @@ class _Rows:
             for c in batch.decisions:
                 on_time = c.verdict in ("pass", "duplicate") and c.delay_epochs == 0
                 self.decisions.append(
-                    (c.epoch, batch.phase, c.link_class, c.source, c.target,
-                     f"{c.source}->{c.target}", c.seq, c.verdict, on_time, c.delay_epochs,
-                     c.delay_ms, c.model, c.state)
-                )  # fmt: skip
+                    (
+                        c.epoch,
+                        batch.phase,
+                        c.link_class,
+                        c.source,
+                        c.target,
+                        f"{c.source}->{c.target}",
+                        c.seq,
+                        c.verdict,
+                        on_time,
+                        c.delay_epochs,
+                        c.delay_ms,
+                        c.model,
+                        c.state,
+                    )
+                )
         elif kind == "metrics":
             m: EpochMetrics = msg
             self.recorded[m.epoch] = m.formation_error_m
@@ -146,13 +158,27 @@ class _Rows:
             "estimates": self._estimates(axes),
             "decisions": pd.DataFrame(
                 self.decisions,
-                columns=["epoch", "phase", "link_class", "source", "target", "link", "seq",
-                         "verdict", "on_time", "delay_epochs", "delay_ms", "model", "state"],
-            ).sort_values(["epoch", "link_class", "source", "target"], kind="stable",
-                          ignore_index=True),
+                columns=[
+                    "epoch",
+                    "phase",
+                    "link_class",
+                    "source",
+                    "target",
+                    "link",
+                    "seq",
+                    "verdict",
+                    "on_time",
+                    "delay_epochs",
+                    "delay_ms",
+                    "model",
+                    "state",
+                ],
+            ).sort_values(
+                ["epoch", "link_class", "source", "target"], kind="stable", ignore_index=True
+            ),
             "metrics": self._metrics(x),
             "substitutions": self._substitutions(x, axes),
-        }  # fmt: skip
+        }
 
     def _estimates(self, axes: list[str]) -> pd.DataFrame:
         n, d = self.s.n, self.d
@@ -195,10 +221,14 @@ class _Rows:
             if e is None:
                 return np.nan
             return float(
-                {"components": e.components, "rigidity_rank": e.rigidity_rank,
-                 "tree_edges": len(e.tree), "healthy_edges": len(e.healthy),
-                 "observable": sum(e.observable)}[what]
-            )  # fmt: skip
+                {
+                    "components": e.components,
+                    "rigidity_rank": e.rigidity_rank,
+                    "tree_edges": len(e.tree),
+                    "healthy_edges": len(e.healthy),
+                    "observable": sum(e.observable),
+                }[what]
+            )
 
         ks = complete.tolist()
         out = pd.DataFrame(

@@ -23,10 +23,12 @@ def formation_layout() -> fl.Layout:
     scene = fl.ThreeDeePanel(
         title="formation",
         config=fl.ThreeDeeConfig(
-            fixed_frame=FRAME, follow_tf=FRAME, follow_mode="follow-none",
+            fixed_frame=FRAME,
+            follow_tf=FRAME,
+            follow_mode="follow-none",
             topics={SCENE_TOPIC: fl.BaseRendererSceneUpdateTopicSettings(visible=True)},
         ),
-    )  # fmt: skip
+    )
     errors = fl.PlotPanel(
         title="formation and shape error [m]",
         config=fl.PlotConfig(
@@ -34,9 +36,11 @@ def formation_layout() -> fl.Layout:
                 fl.PlotSeries(value=f"{METRICS_TOPIC}.formation_error_m", label="formation error"),
                 fl.PlotSeries(value=f"{METRICS_TOPIC}.shape_error_m", label="shape error"),
             ],
-            x_axis_val="timestamp", show_legend=True, y_axis_label="m",
+            x_axis_val="timestamp",
+            show_legend=True,
+            y_axis_label="m",
         ),
-    )  # fmt: skip
+    )
     links = fl.TablePanel(
         title="netem decisions (link, verdict, model)",
         config=fl.TableConfig(topic_path=f"{DECISIONS_TOPIC}.decisions"),

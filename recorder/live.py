@@ -154,20 +154,28 @@ class LiveServer:
         self._tf = FrameTransformsChannel(TF_TOPIC, context=ctx)
         self._log = _channel(LOG_TOPIC, "log", ctx)
         self._metrics = foxglove.Channel(
-            METRICS_TOPIC, schema=_schema(model_schema(EpochMetrics)), message_encoding="json",
+            METRICS_TOPIC,
+            schema=_schema(model_schema(EpochMetrics)),
+            message_encoding="json",
             context=ctx,
-        )  # fmt: skip
+        )
         self._decisions = foxglove.Channel(
-            DECISIONS_TOPIC, schema=_schema(model_schema(DecisionBatch)), message_encoding="json",
+            DECISIONS_TOPIC,
+            schema=_schema(model_schema(DecisionBatch)),
+            message_encoding="json",
             context=ctx,
-        )  # fmt: skip
+        )
         self._stats = foxglove.Channel(STATS_TOPIC, schema=STATS_SCHEMA, context=ctx)
         try:
             self.server = foxglove.start_server(
-                name=name, host=HOST, port=port, context=ctx,
-                capabilities=[Capability.Time], server_listener=self._subs,
+                name=name,
+                host=HOST,
+                port=port,
+                context=ctx,
+                capabilities=[Capability.Time],
+                server_listener=self._subs,
                 message_backlog_size=BACKLOG,
-            )  # fmt: skip
+            )
         except RuntimeError as exc:  # FoxgloveError: the port is taken, or not ours to bind
             raise TestbedError(f"--foxglove {port}: cannot serve on {HOST}:{port}: {exc}") from None
         self.port = self.server.port
@@ -233,9 +241,13 @@ class LiveServer:
 
     def stats(self, state: str = "running") -> dict[str, Any]:
         return {
-            "state": state, "epoch": self.epoch, "offered": self.offered, "sent": self.sent,
-            "dropped": self.dropped, "skipped": self.skipped,
-        }  # fmt: skip
+            "state": state,
+            "epoch": self.epoch,
+            "offered": self.offered,
+            "sent": self.sent,
+            "dropped": self.dropped,
+            "skipped": self.skipped,
+        }
 
     # -- the server's thread --------------------------------------------------------------------
     def _serve(self) -> None:

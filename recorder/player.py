@@ -323,8 +323,10 @@ def replay_live(args: Any) -> int:
         state = replayer.state
     finally:
         live.close()
-    print(f"served {state.published} messages from {replayer.path} on {live.url} "
-          f"({state.loops} passes, {live.sent} sent)")  # fmt: skip
+    print(
+        f"served {state.published} messages from {replayer.path} on {live.url} "
+        f"({state.loops} passes, {live.sent} sent)"
+    )
     return 0
 
 

@@ -66,9 +66,18 @@ def plot_errors(
         style = "--" if what in ("lost", "back") else ":"
         for ax in (top, bottom):
             ax.axvline(epoch, color=color, linestyle=style, linewidth=0.9, alpha=0.8)
-        top.annotate(text, (epoch, 0.98), xycoords=("data", "axes fraction"), fontsize="small",
-                     color=color, rotation=90, va="top", ha="right", zorder=5,
-                     bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.8})  # fmt: skip
+        top.annotate(
+            text,
+            (epoch, 0.98),
+            xycoords=("data", "axes fraction"),
+            fontsize="small",
+            color=color,
+            rotation=90,
+            va="top",
+            ha="right",
+            zorder=5,
+            bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.8},
+        )
     for ax in (top, bottom):
         ax.grid(True, alpha=0.3)
         ax.legend(loc="best", fontsize="small")

@@ -125,9 +125,12 @@ def safety_lines(label: str, s: dict[str, Any]) -> list[str]:
         f"min inter-agent distance {'–' if md is None else f'{md:.4g}'} m "
         f"(body {s['body_diameter_m']:g} m)",
         f"collisions {s['collisions_total']}"
-        + (" (" + ", ".join(f"{p}: {c}" for p, c in s["collisions"].items()) + ")"
-           if s["collisions"] else ""),
-    ]  # fmt: skip
+        + (
+            " (" + ", ".join(f"{p}: {c}" for p, c in s["collisions"].items()) + ")"
+            if s["collisions"]
+            else ""
+        ),
+    ]
     if "time_out_of_bounds_s" in s:
         out = {a: t for a, t in s["time_out_of_bounds_s"].items() if t}
         parts.append(

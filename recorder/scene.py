@@ -78,9 +78,11 @@ def _identity() -> Quaternion:
 def _pose(p: npt.NDArray[np.float64] | None = None, yaw: float | None = None) -> Pose:
     """At ``p`` (the origin if None), turned by ``yaw`` [rad] about z (none if None)."""
     x, y, z = (0.0, 0.0, 0.0) if p is None else _xyz(p)
-    turn = _identity() if yaw is None else Quaternion(
-        x=0.0, y=0.0, z=float(np.sin(yaw / 2)), w=float(np.cos(yaw / 2))
-    )  # fmt: skip
+    turn = (
+        _identity()
+        if yaw is None
+        else Quaternion(x=0.0, y=0.0, z=float(np.sin(yaw / 2)), w=float(np.cos(yaw / 2)))
+    )
     return Pose(position=Vector3(x=x, y=y, z=z), orientation=turn)
 
 
@@ -91,9 +93,13 @@ def _lines(
     kind: LinePrimitiveLineType = LinePrimitiveLineType.LineList,
 ) -> LinePrimitive:
     return LinePrimitive(
-        type=kind, pose=_pose(), thickness=thickness, scale_invariant=True,
-        points=points, color=_color(color),
-    )  # fmt: skip
+        type=kind,
+        pose=_pose(),
+        thickness=thickness,
+        scale_invariant=True,
+        points=points,
+        color=_color(color),
+    )
 
 
 def entity(
@@ -108,10 +114,15 @@ def entity(
 ) -> SceneEntity:
     """A ``foxglove.SceneEntity`` in :data:`FRAME`, its epoch as metadata."""
     return SceneEntity(
-        timestamp=timestamp(stamp_ns), frame_id=FRAME, id=entity_id,
+        timestamp=timestamp(stamp_ns),
+        frame_id=FRAME,
+        id=entity_id,
         metadata=[KeyValuePair(key="epoch", value=str(epoch))],
-        spheres=spheres, lines=lines, texts=texts, arrows=arrows,
-    )  # fmt: skip
+        spheres=spheres,
+        lines=lines,
+        texts=texts,
+        arrows=arrows,
+    )
 
 
 def edge_colors(

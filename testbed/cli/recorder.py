@@ -157,8 +157,12 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--paused", action="store_true", help="wait for a resume command before publishing"
     )
-    p.add_argument("--foxglove", type=int, metavar="PORT",
-                   help="serve it to Foxglove on ws://127.0.0.1:PORT instead of Zenoh")  # fmt: skip
+    p.add_argument(
+        "--foxglove",
+        type=int,
+        metavar="PORT",
+        help="serve it to Foxglove on ws://127.0.0.1:PORT instead of Zenoh",
+    )
     add_arguments(p)
     p.set_defaults(func=cmd_replay)
 

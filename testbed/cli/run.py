@@ -42,19 +42,33 @@ def cmd_run(args: argparse.Namespace) -> int:
     outcomes = []
     for strategy in scenario_strategies(args.strategy, scenario):
         with Progress(
-            TextColumn(f"[bold]{strategy}[/]"), BarColumn(), MofNCompleteColumn(),
-            TextColumn("{task.fields[rate]:.1f} epochs/s"), TextColumn("drops {task.fields[drops]}"),
-            TimeElapsedColumn(), console=console, transient=False, disable=not console.is_terminal,
-        ) as bar:  # fmt: skip
+            TextColumn(f"[bold]{strategy}[/]"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("{task.fields[rate]:.1f} epochs/s"),
+            TextColumn("drops {task.fields[drops]}"),
+            TimeElapsedColumn(),
+            console=console,
+            transient=False,
+            disable=not console.is_terminal,
+        ) as bar:
             task = bar.add_task("run", total=scenario.epochs, rate=0.0, drops=0)
 
             def progress(done: int, total: int, drops: int, _t: Any = task) -> None:
                 elapsed = bar.tasks[0].elapsed or 0.0
                 bar.update(_t, completed=done, rate=done / elapsed if elapsed else 0.0, drops=drops)
 
-            outcome = launch(scenario, strategy=strategy, seed=args.seed, runs_dir=Path(args.runs_dir),
-                             pool=pool, record=not args.no_record, progress=progress,
-                             restart=args.restart, recorder_args=_live_args(args))  # fmt: skip
+            outcome = launch(
+                scenario,
+                strategy=strategy,
+                seed=args.seed,
+                runs_dir=Path(args.runs_dir),
+                pool=pool,
+                record=not args.no_record,
+                progress=progress,
+                restart=args.restart,
+                recorder_args=_live_args(args),
+            )
         outcomes.append(outcome)
         write_deadlines(outcome)
         if not args.no_record:
@@ -123,9 +137,21 @@ def _report(run_dir: Path, console: Console) -> dict[str, Any]:
 def _print_summary(outcomes: list[Any], console: Console) -> None:
     realtime = any(o.scenario.runtime.mode == "realtime" for o in outcomes)
     table = Table(title="formation run: summary")
-    cols = ["strategy", "seed", "epochs", "formation\nfinal [m]", "shape\nfinal [m]", "sent", "dropped",
-            "links with drops\n(sent/dropped)", "mal-\nformed", "skipped", "min dist\n[m]",
-            "colli-\nsions", "wall [s]"]  # fmt: skip
+    cols = [
+        "strategy",
+        "seed",
+        "epochs",
+        "formation\nfinal [m]",
+        "shape\nfinal [m]",
+        "sent",
+        "dropped",
+        "links with drops\n(sent/dropped)",
+        "mal-\nformed",
+        "skipped",
+        "min dist\n[m]",
+        "colli-\nsions",
+        "wall [s]",
+    ]
     if realtime:
         cols += ["modelled\nlosses", "deadline\nmisses"]
     for col in cols:
@@ -138,12 +164,20 @@ def _print_summary(outcomes: list[Any], console: Console) -> None:
         if len(worst) > 4:
             links += f" (+{len(worst) - 4} more)"
         row = [
-            s["strategy"], str(s["seed"]), str(s["epochs"]), f"{s['final_formation_error_m']:.4g}",
-            f"{s['final_shape_error_m']:.4g}", str(s["packets_sent"]), str(s["packets_dropped"]), links,
-            str(sum(s["malformed"].values())), str(o.extra.get("skipped", {}).get("total", "-")),
+            s["strategy"],
+            str(s["seed"]),
+            str(s["epochs"]),
+            f"{s['final_formation_error_m']:.4g}",
+            f"{s['final_shape_error_m']:.4g}",
+            str(s["packets_sent"]),
+            str(s["packets_dropped"]),
+            links,
+            str(sum(s["malformed"].values())),
+            str(o.extra.get("skipped", {}).get("total", "-")),
             "-" if safe["min_distance_m"] is None else f"{safe['min_distance_m']:.3g}",
-            str(safe["collisions_total"]), f"{s['wall_s']:.1f}",
-        ]  # fmt: skip
+            str(safe["collisions_total"]),
+            f"{s['wall_s']:.1f}",
+        ]
         if realtime:
             row += deadline_cells(s)
         table.add_row(*row)
@@ -165,8 +199,12 @@ def register(sub: Any) -> None:
     p.add_argument("--pool", type=int, help="run the agents in K processes")
     p.add_argument("--runs-dir", default="runs", help="where run folders go (default: runs)")
     p.add_argument("--no-record", action="store_true", help="run without the recorder")
-    p.add_argument("--restart", choices=RESTART_POLICIES, default="no",
-                   help="on-failure: start a dead agent or leader again; it rejoins the run")  # fmt: skip
+    p.add_argument(
+        "--restart",
+        choices=RESTART_POLICIES,
+        default="no",
+        help="on-failure: start a dead agent or leader again; it rejoins the run",
+    )
     p.add_argument(
         "--foxglove",
         type=int,

@@ -45,10 +45,17 @@ def print_summaries(
         table.add_column(col, justify="right" if col != "strategy" else "left", no_wrap=True)
     for s in summaries:
         table.add_row(
-            s["strategy"], str(s["seed"]), str(s["epochs"]),
-            _fmt(s["final_formation_error_m"]), _fmt(s["peak_formation_error_m"]),
-            _fmt(s["final_shape_error_m"]), _fmt(s["substitution_cov_trace_m2"]),
-            str(s["fallbacks"]), _fmt(s["estimation_cov_trace_m2"]), _fmt(s["nees_mean"], ".3f"),
-            _fmt(s["safety"]["min_distance_m"]), str(s["safety"]["collisions_total"]),
-        )  # fmt: skip
+            s["strategy"],
+            str(s["seed"]),
+            str(s["epochs"]),
+            _fmt(s["final_formation_error_m"]),
+            _fmt(s["peak_formation_error_m"]),
+            _fmt(s["final_shape_error_m"]),
+            _fmt(s["substitution_cov_trace_m2"]),
+            str(s["fallbacks"]),
+            _fmt(s["estimation_cov_trace_m2"]),
+            _fmt(s["nees_mean"], ".3f"),
+            _fmt(s["safety"]["min_distance_m"]),
+            str(s["safety"]["collisions_total"]),
+        )
     print_table(table, console)

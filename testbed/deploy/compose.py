@@ -113,17 +113,40 @@ def document(
     services: dict[str, dict[str, Any]] = {
         ROUTER: _router(options),
         "recorder": _service(
-            options, "recorder",
-            ["python", "-m", "testbed.runtime.recording_service", "--report",
-             "--host-out", f"{RUNS_DIR}/{run_id}", "--run-id", run_id, "--out", f"{RUNS}/{run_id}",
-             "--scenario", str(SCENARIO)],
-            volumes=[mount, f"{RUNS_DIR}:{RUNS}"], extra={"stop_grace_period": STOP_GRACE},
+            options,
+            "recorder",
+            [
+                "python",
+                "-m",
+                "testbed.runtime.recording_service",
+                "--report",
+                "--host-out",
+                f"{RUNS_DIR}/{run_id}",
+                "--run-id",
+                run_id,
+                "--out",
+                f"{RUNS}/{run_id}",
+                "--scenario",
+                str(SCENARIO),
+            ],
+            volumes=[mount, f"{RUNS_DIR}:{RUNS}"],
+            extra={"stop_grace_period": STOP_GRACE},
         ),
-        "netem": _service(options, "netem", ["python", "-m", "netem", *scenario_args],
-                          volumes=[mount], after=["recorder"]),
-        "leader": _service(options, "leader", ["python", "-m", "leader", *scenario_args],
-                           volumes=[mount], extra=RESTART),
-    }  # fmt: skip
+        "netem": _service(
+            options,
+            "netem",
+            ["python", "-m", "netem", *scenario_args],
+            volumes=[mount],
+            after=["recorder"],
+        ),
+        "leader": _service(
+            options,
+            "leader",
+            ["python", "-m", "leader", *scenario_args],
+            volumes=[mount],
+            extra=RESTART,
+        ),
+    }
     for i in range(1, scenario.n + 1):
         name = security.agent_user(i)
         services[name] = _service(

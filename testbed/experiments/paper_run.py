@@ -200,8 +200,11 @@ def run_events_real(
     scenario = studies.dynamic_team(r.scenario, leave=(5, 20), join=(6, 35))
     label = "estimate (events: 5 leaves at 20, 6 joins at 35)"
     sim = simulate(scenario, strategy="estimate")
-    row: dict[str, Any] = {"strategy": label, "seed": scenario.seed,
-                           "sim_final": float(sim.formation_error[-1])}  # fmt: skip
+    row: dict[str, Any] = {
+        "strategy": label,
+        "seed": scenario.seed,
+        "sim_final": float(sim.formation_error[-1]),
+    }
     log(f"real processes: {label} …")
     try:
         outcome = launch(scenario, strategy="estimate", runs_dir=runs_dir, record=record)

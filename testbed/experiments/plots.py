@@ -290,9 +290,14 @@ def plot_range_phase(
     for ax, case in zip(axes, cases, strict=True):
         cells = np.array([success[(case, s)] for s in strategies])
         image = ax.imshow(
-            cells, aspect="auto", cmap="viridis", vmin=0.0, vmax=1.0, interpolation="nearest",
+            cells,
+            aspect="auto",
+            cmap="viridis",
+            vmin=0.0,
+            vmax=1.0,
+            interpolation="nearest",
             extent=(xs[0] - step / 2, xs[-1] + step / 2, len(strategies) - 0.5, -0.5),
-        )  # fmt: skip
+        )
         for i, s in enumerate(strategies):
             crit = critical[(case, s)]
             if crit is not None:
@@ -303,9 +308,11 @@ def plot_range_phase(
         ax.set_xlabel("radio range d50 / longest edge")
     if image is not None:
         fig.colorbar(
-            image, ax=axes, shrink=0.8,
+            image,
+            ax=axes,
+            shrink=0.8,
             label=f"fraction of seeds with final error < {threshold_m:g} m",
-        )  # fmt: skip
+        )
     return _save(fig, path)
 
 

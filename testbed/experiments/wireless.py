@@ -56,8 +56,17 @@ class Case:
 # The distance law's step grows with C²: the scenario's gain (0.25) diverges on the pentagon
 # (C up to 1.9 m) and 0.05 is the largest of 0.02, 0.05, 0.1 that converges for every seed.
 CASES = (Case("displacement", "single"), Case("distance", "unicycle", 0.05))
-COLUMNS = ("case", "strategy", "range_multiple", "d50_m", "seed", "final_error_m", "kept",
-           "formation_delivered", "saturated_steps")  # fmt: skip
+COLUMNS = (
+    "case",
+    "strategy",
+    "range_multiple",
+    "d50_m",
+    "seed",
+    "final_error_m",
+    "kept",
+    "formation_delivered",
+    "saturated_steps",
+)
 
 
 @dataclass(frozen=True)
@@ -147,12 +156,19 @@ def run_wireless(spec: WirelessSpec, log: Callable[[str], None] = print) -> Wire
             for i, rho in enumerate(spec.ranges):
                 d50 = variants[i].network.formation_default[0].d50_m  # type: ignore[union-attr]
                 for j, seed in enumerate(spec.seeds):
-                    rows.append({
-                        "case": case.label, "strategy": strategy, "range_multiple": rho,
-                        "d50_m": d50, "seed": seed, "final_error_m": float(errors[i, j]),
-                        "kept": bool(kept[i, j]), "formation_delivered": float(delivered[i, j]),
-                        "saturated_steps": int(sat[i, j]),
-                    })  # fmt: skip
+                    rows.append(
+                        {
+                            "case": case.label,
+                            "strategy": strategy,
+                            "range_multiple": rho,
+                            "d50_m": d50,
+                            "seed": seed,
+                            "final_error_m": float(errors[i, j]),
+                            "kept": bool(kept[i, j]),
+                            "formation_delivered": float(delivered[i, j]),
+                            "saturated_steps": int(sat[i, j]),
+                        }
+                    )
             frac = kept.mean(axis=1)
             success[(case.label, strategy)] = frac
             critical[(case.label, strategy)] = critical_range(spec.ranges, frac)
@@ -229,9 +245,13 @@ def wireless_results_markdown(r: WirelessResult) -> str:
             f"{s} (ρ = {', '.join(f'{v:g}' for v in rhos)})" for s, rhos in kept.items()
         )
         best = sorted(
-            ((float(r.success[(c.label, s)][i]), -spec.ranges[i], s) for s in spec.strategies
-             for i in below), reverse=True,
-        )[:3]  # fmt: skip
+            (
+                (float(r.success[(c.label, s)][i]), -spec.ranges[i], s)
+                for s in spec.strategies
+                for i in below
+            ),
+            reverse=True,
+        )[:3]
         most = ", ".join(f"{s} {f:.2f} at ρ = {-rho:g}" for f, rho, s in best)
         text.append(
             f"- {c.label}: {said or f'no strategy keeps it in ≥ {KEEP_FRACTION:.0%} of the seeds'}"
@@ -239,9 +259,12 @@ def wireless_results_markdown(r: WirelessResult) -> str:
         )
     text += ["", "## Fraction of seeds keeping the formation", success_markdown(r)]
     if r.real:
-        text += ["## Real-process runs (recorded)", "",
-                 "| case | strategy | ρ | seed | max abs(Δx) | recorded | match | recording |",
-                 "| --- | --- | --- | --- | --- | --- | --- | --- |"]  # fmt: skip
+        text += [
+            "## Real-process runs (recorded)",
+            "",
+            "| case | strategy | ρ | seed | max abs(Δx) | recorded | match | recording |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- |",
+        ]
         for row in r.real:
             text.append(
                 f"| {row['case']} | {row['strategy']} | {row['range_multiple']:g} | {row['seed']} "
@@ -251,21 +274,37 @@ def wireless_results_markdown(r: WirelessResult) -> str:
     return "\n".join(text)
 
 
-def run_wireless_real(r: WirelessResult, out: Path, multiple: float = 1.0, record: bool = True,
-                      log: Callable[[str], None] = print) -> None:  # fmt: skip
+def run_wireless_real(
+    r: WirelessResult,
+    out: Path,
+    multiple: float = 1.0,
+    record: bool = True,
+    log: Callable[[str], None] = print,
+) -> None:
     """One real-process run per strategy and case at ``ρ = multiple``, the median seed's."""
     spec = r.spec
     for case in spec.cases:
         scenario = wireless_variant(spec, case, multiple)
         for s in spec.strategies:
-            errs = {row["seed"]: row["final_error_m"] for row in r.rows if row["case"] == case.label
-                    and row["strategy"] == s and row["range_multiple"] == multiple}  # fmt: skip
+            errs = {
+                row["seed"]: row["final_error_m"]
+                for row in r.rows
+                if row["case"] == case.label
+                and row["strategy"] == s
+                and row["range_multiple"] == multiple
+            }
             median = float(np.median(list(errs.values())))
             seed = min(errs, key=lambda k: (abs(errs[k] - median), k))
             log(f"wireless, real processes: {case.label}, {s}, seed {seed} …")
             sim = run_batch(plan_batch(scenario, [seed]), s, detail=False).positions[:, 0]
-            row: dict[str, Any] = {"case": case.label, "strategy": s, "range_multiple": multiple,
-                                   "seed": seed, "recorded_diff": "-", "recording": "-"}  # fmt: skip
+            row: dict[str, Any] = {
+                "case": case.label,
+                "strategy": s,
+                "range_multiple": multiple,
+                "seed": seed,
+                "recorded_diff": "-",
+                "recording": "-",
+            }
             try:
                 o = launch(scenario, strategy=s, seed=seed, runs_dir=out / "runs", record=record)
             except Exception as exc:  # a failed launch is reported, not fatal to the experiment
@@ -296,8 +335,15 @@ def write_outputs(r: WirelessResult, out: Path) -> None:
     )
     (out / "results.md").write_text(wireless_results_markdown(r))
     labels = [c.label for c in r.spec.cases]
-    plot_range_phase(r.success, r.critical, r.spec.ranges, labels, r.spec.strategies,
-                     r.spec.threshold_m, out / "phase.png")  # fmt: skip
+    plot_range_phase(
+        r.success,
+        r.critical,
+        r.spec.ranges,
+        labels,
+        r.spec.strategies,
+        r.spec.threshold_m,
+        out / "phase.png",
+    )
 
 
 def _cell(v: Any) -> Any:

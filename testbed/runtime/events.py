@@ -42,8 +42,13 @@ class Step:
 class EventDriver:
     """Kills and starts agent processes as the scenario's events say, from the run's progress."""
 
-    def __init__(self, scenario: Scenario, supervisor: Supervisor,
-                 agent_args: Callable[[int], list[str]], lead_s: float = LEAD_S) -> None:  # fmt: skip
+    def __init__(
+        self,
+        scenario: Scenario,
+        supervisor: Supervisor,
+        agent_args: Callable[[int], list[str]],
+        lead_s: float = LEAD_S,
+    ) -> None:
         self.team, self.epochs = scenario.membership, scenario.epochs
         self.supervisor, self.agent_args, self.lead_s = supervisor, agent_args, lead_s
         self.steps: list[Step] = []
