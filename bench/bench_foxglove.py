@@ -22,16 +22,13 @@ import argparse
 import asyncio
 import json
 import os
-import socket
 import statistics
 import tempfile
 import threading
 import time
 from pathlib import Path
-from typing import Any
 
 import orjson
-import websockets
 from mcap.reader import make_reader
 
 from formation.scenario import Scenario
@@ -71,7 +68,7 @@ class Viewer(threading.Thread):
         ws = await fc.connect(self.url, 120.0)
         got = fc.Received()
         await fc.advertised(ws, got, set(TOPICS))
-        stalled = await self._stalled(got.channels) if self.idle else None
+        stalled = await fc.idle_subscriber(self.url, got.channels) if self.idle else None
         subs = await fc.subscribe(ws, got, TOPICS)
 
         def done(topic: str, payload: bytes) -> bool:
@@ -84,21 +81,6 @@ class Viewer(threading.Thread):
         await ws.close()
         if stalled is not None:
             stalled.transport.abort()
-
-    async def _stalled(self, channels: dict[int, Any]) -> Any:
-        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # before connect: it sticks
-        sock.connect(("127.0.0.1", int(self.url.rsplit(":", 1)[1])))
-        ws = await websockets.connect(
-            self.url,
-            sock=sock,
-            subprotocols=fc.SUBPROTOCOLS,
-            max_queue=1,
-            ping_interval=None,  # type: ignore[arg-type]
-        )
-        subs = [{"id": i, "channelId": cid} for i, cid in enumerate(channels)]
-        await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
-        return ws
 
     def rate(self) -> float:
         """Data frames per second between the first and the last [1/s]."""

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import socket
 import struct
 import time
 from dataclasses import dataclass, field
@@ -115,3 +116,21 @@ __all__ = [
     "read_until",
     "subscribe",
 ]
+
+
+async def idle_subscriber(url: str, channels: dict[int, Any]) -> ClientConnection:
+    """Subscribes to every channel, then never reads (a tiny receive buffer, one queued frame)."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # before connect: it sticks
+    host, port = url.removeprefix("ws://").rsplit(":", 1)
+    sock.connect((host, int(port)))
+    ws = await websockets.connect(
+        url,
+        sock=sock,
+        subprotocols=SUBPROTOCOLS,
+        max_queue=1,
+        ping_interval=None,  # type: ignore[arg-type]
+    )
+    subs = [{"id": i, "channelId": cid} for i, cid in enumerate(channels)]
+    await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+    return ws
