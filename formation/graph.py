@@ -46,15 +46,23 @@ class AgentIdError(GraphInputError):
     """An agent id outside ``1..n`` (or an edge joining an agent to itself)."""
 
 
+def check_positive(value: int, name: str, integer: str, at_least_one: str) -> int:
+    """Return ``value`` as an ``int`` after checking that it is an integer ``>= 1``.
+
+    ``integer`` and ``at_least_one`` say what was expected when it is not.
+    """
+    try:
+        count = operator.index(value)
+    except TypeError:
+        raise GraphInputError(f"{name} = {value!r}", integer) from None
+    if count < 1:
+        raise GraphInputError(f"{name} = {count}", at_least_one)
+    return count
+
+
 def check_agent_count(n: int, name: str = "n") -> int:
     """Return ``n`` as an ``int`` after checking that it is an integer ``>= 1``."""
-    try:
-        count = operator.index(n)
-    except TypeError:
-        raise GraphInputError(f"{name} = {n!r}", "an integer number of agents") from None
-    if count < 1:
-        raise GraphInputError(f"{name} = {count}", "at least 1 agent")
-    return count
+    return check_positive(n, name, "an integer number of agents", "at least 1 agent")
 
 
 def as_edge_array(n: int, edges: npt.ArrayLike, name: str = "edges") -> IntArray:

@@ -71,6 +71,7 @@ from formation.graph import (
     as_edge_array,
     as_edge_mask,
     check_agent_count,
+    check_positive,
 )
 from leader.dense import dense_blue
 from leader.laplacian import GroundedSystem, choose_method
@@ -386,13 +387,7 @@ def _estimate(
 
 
 def _check_dimension(d: int) -> int:
-    try:
-        dim = operator.index(d)
-    except TypeError:
-        raise GraphInputError(f"d = {d!r}", "an integer dimension") from None
-    if dim < 1:
-        raise GraphInputError(f"d = {dim}", "a dimension of at least 1")
-    return dim
+    return check_positive(d, "d", "an integer dimension", "a dimension of at least 1")
 
 
 def _check_solver(solver: str) -> None:
