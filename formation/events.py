@@ -51,7 +51,7 @@ _WHY = {
 class Event(BaseModel):
     """One ``[[events]]`` entry: ``agent`` does ``action`` at the start of ``epoch``."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     epoch: int = Field(ge=1)
     agent: int

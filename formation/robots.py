@@ -22,7 +22,7 @@ HEADING_SLOT = 1_000_000  # key word of the initial heading, beside the position
 
 
 class _Settings(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Unicycle(_Settings):

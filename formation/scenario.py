@@ -32,7 +32,7 @@ LEADER_ENDPOINT = 0  # the leader's end of a control link, in netem's link ids
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Agent(_Model):

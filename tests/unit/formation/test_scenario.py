@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+import copy
+import math
+import re
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -165,3 +170,46 @@ def test_cli_exits_nonzero_with_one_message_and_writes_nothing(tmp_path: Path) -
         lines = proc.stderr.strip().splitlines()
         assert len(lines) == 1 and "bad.toml: control.gain = 0.6" in lines[0], proc.stderr
         assert not runs.exists()
+
+
+def _plain(data: Any) -> Any:
+    """A dumped scenario with its tuples as lists, so that a leaf can be replaced."""
+    if isinstance(data, dict):
+        return {k: _plain(v) for k, v in data.items()}
+    if isinstance(data, (list, tuple)):
+        return [_plain(v) for v in data]
+    return data
+
+
+def _float_leaves(data: Any, path: str = "") -> Iterator[tuple[str, list[Any]]]:
+    """Every float of a dumped scenario: its field path as the error names it, and its keys."""
+    if isinstance(data, dict):
+        items: Any = data.items()
+    elif isinstance(data, list):
+        items = enumerate(data)
+    else:
+        return
+    for key, value in items:
+        where = f"{path}[{key}]" if isinstance(key, int) else f"{path}.{key}" if path else key
+        if isinstance(value, float):
+            yield where, [key]
+        for inner, keys in _float_leaves(value, where):
+            yield inner, [key, *keys]
+
+
+@pytest.mark.parametrize("path", sorted(SCENARIOS.glob("*.toml")), ids=lambda p: p.name)
+@pytest.mark.parametrize("bad", [math.inf, -math.inf, math.nan], ids=["inf", "-inf", "nan"])
+def test_every_float_field_must_be_finite(path: Path, bad: float) -> None:
+    # A non-finite number would pass the loader and fail later with numpy warnings.
+    dumped = _plain(Scenario.from_file(path).model_dump(by_alias=True))
+    leaves = list(_float_leaves(dumped))
+    assert len(leaves) >= 10, f"{path.name}: only {len(leaves)} float fields found"
+    for where, keys in leaves:
+        data = copy.deepcopy(dumped)
+        parent = data
+        for key in keys[:-1]:
+            parent = parent[key]
+        parent[keys[-1]] = bad
+        pattern = rf"^{path.name}: {re.escape(where)} = {bad!r}; .*finite"
+        with pytest.raises(ScenarioError, match=pattern):
+            load_dict(data, source=path.name)
