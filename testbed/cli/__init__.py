@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
+import signal
 import sys
 from collections.abc import Sequence
 
@@ -42,9 +44,22 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args_in = list(sys.argv[1:] if argv is None else argv)
+    try:
+        code = _run(list(sys.argv[1:] if argv is None else argv))
+        sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit
+    except BrokenPipeError:
+        _quiet_stdout()
+        return 128 + signal.SIGPIPE  # as a Unix tool killed by SIGPIPE: `| head` ends quietly
+    return code
+
+
+def _run(args_in: list[str]) -> int:
     parser = build_parser(args_in[0] if args_in else None)
-    args = parser.parse_args(args_in)
+    try:
+        args = parser.parse_args(args_in)
+    except SystemExit as exc:  # --help and usage errors: flushed here, so a closed pipe is seen
+        sys.stdout.flush()
+        return exc.code if isinstance(exc.code, int) else 2
     try:
         code: int = args.func(args)
     except TestbedError as exc:
@@ -54,6 +69,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"formation {args.command}: interrupted", file=sys.stderr)
         return 130
     return code
+
+
+def _quiet_stdout() -> None:
+    """Point stdout at /dev/null, so that nothing more is written to the closed pipe at exit."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
 
 
 __all__ = ["COMMANDS", "build_parser", "main"]
