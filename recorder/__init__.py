@@ -11,10 +11,12 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
+from recorder.membership import present, spans
 from recorder.metrics import error_statistics, formation_error, longest_run, nees, shape_error
 from recorder.reader import RecordingInfo, describe, validate
 from recorder.recover import Recovered, recover
 from recorder.rundata import RunData, read_run
+from recorder.summary import summarise, team_errors
 from recorder.writer import RecordingWriter
 
 if TYPE_CHECKING:
@@ -47,9 +49,13 @@ __all__ = [
     "load_run",
     "longest_run",
     "nees",
+    "present",
     "read_run",
     "recover",
     "shape_error",
+    "spans",
+    "summarise",
+    "team_errors",
     "validate",
     "write_report",
     "write_report_from",
