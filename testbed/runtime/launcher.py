@@ -11,8 +11,8 @@ import json
 import time
 from collections import Counter
 from dataclasses import dataclass, field
-from functools import cached_property
 from datetime import UTC, datetime
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -308,10 +308,10 @@ def launch(
         gone = supervisor.gone_for_good()
         if progress is not None:
             progress(scenario.epochs, scenario.epochs, observer.drops)
-        present = [i for n in agent_names if n not in gone for i in _ids_of(n)]
-        present = events.finishing(gone) if scenario.events else present
-        _wait(lambda: all_final(observer, present), group, 10.0, "the final states",
-              lambda: missing_final(observer, present), ignore=[*supervisor.losses, *supervisor.planned])  # fmt: skip
+        taking_part = [i for n in agent_names if n not in gone for i in _ids_of(n)]
+        taking_part = events.finishing(gone) if scenario.events else taking_part
+        _wait(lambda: all_final(observer, taking_part), group, 10.0, "the final states",
+              lambda: missing_final(observer, taking_part), ignore=[*supervisor.losses, *supervisor.planned])  # fmt: skip
         observer.netem_done()  # its last decisions are in the summary (no error: it has exited)
         if record:
             flush_recorder(session, run_id, observer)

@@ -15,8 +15,8 @@ from formation.scenario import Scenario
 from recorder import membership, plots
 from recorder.metrics import error_statistics, formation_error, shape_error
 from recorder.report import FIGURES, write_report, write_report_from
+from recorder.rundata import read_run
 from recorder.summary import summarise
-from recorder.rundata import RunData, read_run
 from recorder.writer import RecordingWriter
 from testbed.sim.simulate import simulate
 

@@ -12,7 +12,7 @@ import pytest
 from formation.scenario import Scenario
 from recorder.frames import load_run
 from recorder.report import write_report, write_report_from
-from recorder.rundata import RunData, read_run
+from recorder.rundata import read_run
 from recorder.safety import axle_speeds, safety_counts
 from testbed.sim.simulate import simulate
 
