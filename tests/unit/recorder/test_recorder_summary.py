@@ -43,7 +43,8 @@ def as_recorded(run: RunData) -> RunData:
 def test_the_team_errors_are_the_run_s_own_when_everyone_is_in_it() -> None:
     rng = np.random.default_rng(1)
     x = rng.normal(size=(4, 3, 2))
-    edges, weights, offsets = np.array([[1, 2], [2, 3], [1, 3]]), np.ones(3), rng.normal(size=(3, 2))
+    edges, offsets = np.array([[1, 2], [2, 3], [1, 3]]), rng.normal(size=(3, 2))
+    weights = np.ones(3)
     fe, se = formation_error(x, edges, weights), shape_error(x, edges, offsets)
     got = team_errors(x, np.ones((4, 3), dtype=bool), fe, se, edges, weights, offsets)
     assert got[0] is fe and got[1] is se
