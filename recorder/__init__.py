@@ -11,7 +11,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from recorder.membership import present, spans
+from recorder.membership import present, spans, team_edges, team_shape_error
 from recorder.metrics import error_statistics, formation_error, longest_run, nees, shape_error
 from recorder.reader import RecordingInfo, describe, validate
 from recorder.recover import Recovered, recover
@@ -55,7 +55,9 @@ __all__ = [
     "shape_error",
     "spans",
     "summarise",
+    "team_edges",
     "team_errors",
+    "team_shape_error",
     "validate",
     "write_report",
     "write_report_from",
