@@ -11,6 +11,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
+from recorder.deadlines import write_deadlines
 from recorder.membership import present, spans, team_edges, team_shape_error
 from recorder.metrics import error_statistics, formation_error, longest_run, nees, shape_error
 from recorder.reader import RecordingInfo, describe, validate
@@ -59,6 +60,7 @@ __all__ = [
     "team_errors",
     "team_shape_error",
     "validate",
+    "write_deadlines",
     "write_report",
     "write_report_from",
 ]

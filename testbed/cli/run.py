@@ -14,10 +14,11 @@ from rich.table import Table
 
 from formation.errors import TestbedError
 from formation.scenario import Scenario
+from recorder import write_deadlines
 from recorder.report import write_report, write_reports
 from recorder.safety import safety_counts
 from testbed.cli.common import add_common, scenario_strategies
-from testbed.cli.deadline_lines import deadline_cells, deadline_notes, write_deadlines
+from testbed.cli.deadline_lines import deadline_cells, deadline_notes
 from testbed.cli.tables import print_table
 from testbed.runtime.faults import RESTART_POLICIES
 from testbed.runtime.launcher import launch
@@ -57,7 +58,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                              pool=pool, record=not args.no_record, progress=progress,
                              restart=args.restart, recorder_args=_live_args(args))  # fmt: skip
         outcomes.append(outcome)
-        write_deadlines(outcome)
+        write_deadlines(outcome.run_dir, outcome.summary())
         if not args.no_record:
             outcome.extra["skipped"] = _report(outcome.run_dir, console)
         console.print(f"{strategy}: files in [bold]{outcome.run_dir}[/]")

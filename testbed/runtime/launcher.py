@@ -20,12 +20,11 @@ import numpy as np
 import numpy.typing as npt
 import zenoh
 
-from formation.errors import RuntimeFailure
+from formation import RuntimeFailure, deadline_counts, realtime_accounting
 from formation.scenario import Scenario, StrategyName
 from recorder import RunData, formation_error, present, shape_error, spans, summarise
 from shell.zenoh_config import session_config
 from testbed.runtime import steal
-from testbed.runtime.deadline_accounting import deadline_counts, realtime_accounting
 from testbed.runtime.events import EventDriver, bodies
 from testbed.runtime.faults import RestartPolicy, Supervisor, first_missing_epoch
 from testbed.runtime.observer import Observer, Verdict, all_final, flush_recorder, missing_final
