@@ -58,9 +58,9 @@ def team_shape_error(
 ) -> Array:
     """RMS over the edges between agents in the team of ``||(x_i − x_j) − (d0_i − d0_j)||``.
 
-    positions : (P, n, d) [m], NaN where absent; edges : (m, 2) agent ids; offsets : (n, d);
-    team : (P, n) in the team (None: a state recorded, :func:`present`).
-    Returns (P,) [m], NaN at an epoch without an edge in the team.
+    positions : (..., n, d) [m], NaN where absent; edges : (m, 2) agent ids; offsets : (n, d);
+    team : (..., n) in the team, broadcast against ``positions``' leading axes (None: a state
+    recorded, :func:`present`). Returns (...) [m], NaN where no edge is in the team.
     """
     on = team_edges(present(positions) if team is None else team, edges)
     return shape_error(np.nan_to_num(positions), edges, offsets, on)
