@@ -86,6 +86,14 @@ class Membership:
         out[1:] = self.present[1:] & ~self.present[:-1]
         return out
 
+    @property
+    def published(self) -> Mask:
+        """(E + 1, n) the agent publishes ``x[k]``: present, or at its leave's or crash's epoch
+        (its last state); what a recording holds and :meth:`incarnations` spans."""
+        out = self.present.copy()
+        out[1:] |= self.present[:-1]
+        return out
+
     def taking_part(self, epoch: int) -> list[int]:
         """Ids of the agents present at ``epoch``."""
         return [int(i) + 1 for i in np.flatnonzero(self.present[min(epoch, len(self.present) - 1)])]

@@ -27,7 +27,9 @@ class Spec(BaseModel):
     attribute ``by_distance = True``; :data:`DISTANCE_MODELS` is read from it.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True, allow_inf_nan=False)
+    model_config = ConfigDict(
+        extra="forbid", frozen=True, populate_by_name=True, allow_inf_nan=False
+    )
     by_distance: ClassVar[bool] = False
 
     model: str

@@ -11,11 +11,11 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from recorder.deadlines import FILE as DEADLINES_FILE
+from recorder.deadlines import write_deadlines
 from recorder.decoder import decode
 from recorder.live import LiveServer
-from recorder.membership import final_team_errors
-from recorder.metrics import error_statistics, formation_error, longest_run, nees, shape_error
+from recorder.membership import present, spans, team_edges, team_shape_error
+from recorder.metrics import error_statistics, formation_error, nees, shape_error
 from recorder.node import build_parser as recorder_parser
 from recorder.node import main as record
 from recorder.player import replay
@@ -24,6 +24,7 @@ from recorder.recovery import Recovered, recover
 from recorder.rundata import RunData, read_run
 from recorder.safety import safety_counts
 from recorder.schemas import schema_for_key
+from recorder.summary import summarise, team_errors
 from recorder.writer import RecordingWriter
 
 if TYPE_CHECKING:
@@ -47,7 +48,6 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = [
-    "DEADLINES_FILE",
     "LiveServer",
     "RecordingInfo",
     "RecordingWriter",
@@ -58,11 +58,10 @@ __all__ = [
     "describe",
     "error_statistics",
     "export",
-    "final_team_errors",
     "formation_error",
     "load_run",
-    "longest_run",
     "nees",
+    "present",
     "read_run",
     "record",
     "recorder_parser",
@@ -71,7 +70,13 @@ __all__ = [
     "safety_counts",
     "schema_for_key",
     "shape_error",
+    "spans",
+    "summarise",
+    "team_edges",
+    "team_errors",
+    "team_shape_error",
     "validate",
+    "write_deadlines",
     "write_report",
     "write_report_from",
     "write_reports",

@@ -1,8 +1,9 @@
 """The report's realtime section: modelled losses and deadline misses, apart.
 
-``formation run --mode realtime`` writes the run's accounting (testbed's outcome summary)
-as ``deadlines.json`` beside the recording; a report of that recording reads it back. A
-file that does not hold the expected numbers is skipped with a note, never trusted.
+``formation run --mode realtime`` writes the run's accounting (``formation.deadlines``,
+in testbed's outcome summary) as ``deadlines.json`` beside the recording
+(:func:`write_deadlines`); a report of that recording reads it back. A file that does
+not hold the expected numbers is skipped with a note, never trusted.
 """
 
 from __future__ import annotations
@@ -11,9 +12,19 @@ import json
 from pathlib import Path
 from typing import Any
 
-from formation.deadlines import CAUSES, WARN_RATE
+from formation.deadlines import CAUSES, WARN_RATE, over_warn_rate
 
 FILE = "deadlines.json"
+KEYS = ("packets_sent", "modelled_losses", "deadline_misses", "delivered_in_time",
+        "unaccounted", "deadline_miss_rate", "cpu_steal")  # fmt: skip
+
+
+def write_deadlines(run_dir: Path, summary: dict[str, Any]) -> None:
+    """A realtime run's accounting (its summary's :data:`KEYS`) as :data:`FILE` in ``run_dir``;
+    nothing for a lockstep run (no misses counted)."""
+    if "deadline_misses" in summary:
+        text = json.dumps({k: summary[k] for k in KEYS}, indent=2) + "\n"
+        (run_dir / FILE).write_text(text, encoding="utf-8")
 
 
 def read_deadlines(run_dir: Path) -> dict[str, Any] | None:
@@ -53,7 +64,7 @@ def deadline_lines(label: str, d: dict[str, Any]) -> list[str]:
         f"deadline misses of the testbed's own making {pct(d['misses'])} ({causes}); "
         f"delivered in time {pct(d['in_time'])}"
     ]
-    if d["misses"] > WARN_RATE * d["sent"]:
+    if over_warn_rate(d["misses"], d["sent"]):
         lines.append(
             f"- **warning** ({label}): deadline misses exceed {100 * WARN_RATE:g} % of the "
             "packets; this run cannot tell modelled losses of that size from the testbed's own"

@@ -40,48 +40,39 @@ class TeamChange:
 
 
 def present(positions: Array) -> Mask:
-    """``positions`` (P, n, d) [m], NaN where not recorded → (P, n) in the team."""
-    return np.asarray(np.isfinite(positions).all(axis=2), dtype=bool)
+    """``positions`` (..., n, d) [m], NaN where not recorded → (..., n) in the team.
 
-
-def team_shape_error(positions: Array, edges: npt.NDArray[np.int64], offsets: Array) -> Array:
-    """RMS over the edges between present agents of ``||(x_i − x_j) − (d0_i − d0_j)||``.
-
-    positions : (P, n, d) [m], NaN where absent; edges : (m, 2) agent ids; offsets : (n, d).
-    Returns (P,) [m], NaN at an epoch without a present edge.
+    The one test of who is in a run's team: a state of the epoch recorded (the simulator's
+    record marks the same, ``Membership.published``).
     """
-    return shape_error(np.nan_to_num(positions), edges, offsets, _present_edges(positions, edges))
+    return np.asarray(np.isfinite(positions).all(axis=-1), dtype=bool)
 
 
-def team_formation_error(positions: Array, edges: npt.NDArray[np.int64], weights: Array) -> Array:
-    """RMS over the edges between present agents of ``||x_i − x_j|| − C_ij``; as
+def team_edges(team: Mask, edges: npt.NDArray[np.int64]) -> Mask:
+    """(..., m) both ends of each edge in the team; ``team`` (..., n), ``edges`` (m, 2) agent ids."""
+    return np.asarray(team[..., edges[:, 0] - 1] & team[..., edges[:, 1] - 1], dtype=bool)
+
+
+def team_shape_error(
+    positions: Array, edges: npt.NDArray[np.int64], offsets: Array, team: Mask | None = None
+) -> Array:
+    """RMS over the edges between agents in the team of ``||(x_i − x_j) − (d0_i − d0_j)||``.
+
+    positions : (..., n, d) [m], NaN where absent; edges : (m, 2) agent ids; offsets : (n, d);
+    team : (..., n) in the team, broadcast against ``positions``' leading axes (None: a state
+    recorded, :func:`present`). Returns (...) [m], NaN where no edge is in the team.
+    """
+    on = team_edges(present(positions) if team is None else team, edges)
+    return shape_error(np.nan_to_num(positions), edges, offsets, on)
+
+
+def team_formation_error(
+    positions: Array, edges: npt.NDArray[np.int64], weights: Array, team: Mask | None = None
+) -> Array:
+    """RMS over the edges between agents in the team of ``||x_i − x_j|| − C_ij``; as
     :func:`team_shape_error` with ``weights`` (m,) ``C_ij`` [m]."""
-    on = _present_edges(positions, edges)
+    on = team_edges(present(positions) if team is None else team, edges)
     return formation_error(np.nan_to_num(positions), edges, weights, on)
-
-
-def final_team_errors(
-    last: Array, edges: npt.NDArray[np.int64], weights: Array, offsets: Array
-) -> tuple[float, float] | None:
-    """Formation and shape error [m] at the last epoch over the edges between the agents
-    taking part then; None when every agent does (the errors over every edge stand).
-
-    last : (n, d) [m], NaN rows for the agents out of the team. A body that left or crashed
-    stands where it was while the team moves on, so its edges would judge the team on it.
-    """
-    if np.isfinite(last).all():
-        return None
-    one = last[None]
-    return (
-        float(team_formation_error(one, edges, weights)[0]),
-        float(team_shape_error(one, edges, offsets)[0]),
-    )
-
-
-def _present_edges(positions: Array, edges: npt.NDArray[np.int64]) -> Mask:
-    """(P, m) both ends of the edge present at the epoch."""
-    team = present(positions)
-    return team[:, edges[:, 0] - 1] & team[:, edges[:, 1] - 1]
 
 
 def changes(
@@ -135,9 +126,9 @@ __all__ = [
     "Action",
     "TeamChange",
     "changes",
-    "final_team_errors",
     "present",
     "spans",
+    "team_edges",
     "team_formation_error",
     "team_shape_error",
 ]

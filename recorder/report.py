@@ -2,26 +2,23 @@
 
 :func:`write_report` reads a recording (what ``formation run`` calls at the end);
 :func:`write_report_from` takes :class:`~recorder.rundata.RunData` from anywhere,
-e.g. ``RunData.from_result(simulate(...))`` for the in-process simulator. The
-numbers are those of docs/model.md §7, recomputed from the arrays.
+e.g. ``simulate(...).record()`` for the in-process simulator. The numbers are
+:func:`recorder.summary.summarise`'s.
 """
 
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from formation.graph import expected_rigidity_rank
-from recorder import membership, plots
+from recorder import plots
 from recorder.deadlines import deadline_lines, read_deadlines
-from recorder.metrics import error_statistics, longest_run
 from recorder.rundata import RunData, read_run
-from recorder.safety import safety_counts, safety_lines
+from recorder.safety import safety_lines
+from recorder.summary import run_team_errors, summarise
 
 FIGURES = {
     "errors": "Formation and shape error",
@@ -31,108 +28,6 @@ FIGURES = {
     "covariance": "Substitution and estimation error covariance",
     "nees": "NEES (normalised estimation error squared)",
 }
-
-
-def _last_finite(values: np.ndarray) -> float | None:
-    finite = values[np.isfinite(values)]
-    return float(finite[-1]) if finite.size else None
-
-
-def _peak(values: np.ndarray) -> float | None:
-    finite = values[np.isfinite(values)]
-    return float(finite.max()) if finite.size else None
-
-
-def _num(v: float) -> float | None:
-    return None if v is None or not math.isfinite(v) else float(v)
-
-
-def summarize(run: RunData) -> dict[str, Any]:
-    """The headline numbers of a run (docs/model.md §7); None where the run has no data."""
-    s = run.scenario
-    links = [f"{a}->{b}" for a, b in run.links]
-    lost = run.decided & ~run.delivered
-    _, _, sub_trace = error_statistics(run.substitution_errors)
-    _, _, est_trace = error_statistics(run.estimation_errors)
-    known = run.rigidity_rank >= 0
-    tree = run.tree[known]
-    expected = expected_rigidity_rank(s.n, s.dimension)
-    out: dict[str, Any] = {
-        "label": run.label,
-        "source": run.source,
-        "scenario": s.name,
-        "strategy": run.strategy,
-        "seed": run.seed,
-        "epochs_with_states": int(np.isfinite(run.positions).all(axis=(1, 2)).sum()),
-        "epochs_with_estimates": int(known.sum()),
-        # with an agent out, over the team taking part (as drawn), not the last full epoch
-        "final_formation_error_m": _last_finite(_team_formation(run)),
-        "peak_formation_error_m": _peak(run.formation_error),
-        "final_shape_error_m": _last_finite(_team_shape(run)),
-        "peak_shape_error_m": _peak(run.shape_error),
-        "substitutions": int(run.substitution_errors.shape[0]),
-        "substitution_cov_trace_m2": _num(sub_trace),
-        "estimation_cov_trace_m2": _num(est_trace),
-        "nees_mean": _num(float(run.nees_values.mean())) if run.nees_values.size else None,
-        "nees_expected": s.dimension,
-        "covariance_every": s.estimator.covariance_every,
-        "drops": {links[c]: int(v) for c, v in enumerate(lost.sum(axis=0)) if v},
-        "longest_outage": {
-            links[c]: longest_run(lost[:, c]) for c in range(len(links)) if lost[:, c].any()
-        },
-        "tree_changes": int((tree[1:] != tree[:-1]).any(axis=1).sum()) if len(tree) > 1 else 0,
-        "epochs_not_rigid": int((run.rigidity_rank[known] < expected).sum()),
-        "expected_rigidity_rank": expected,
-        "epochs_split": int((run.components[known] > 1).sum()),
-    }
-    skipped = run.extra.get("skipped")
-    if skipped is not None:
-        out["skipped"] = skipped.as_json()
-    if (timed := run.extra.get("deadlines")) is not None:
-        out["deadlines"] = timed
-    out.update(_team(run))
-    out["safety"] = safety_counts(s, run.positions, run.headings, run.saturated)
-    recorded = run.extra.get("recorded_formation_error")
-    if recorded is not None and np.isfinite(recorded).any():
-        both = np.isfinite(recorded) & np.isfinite(run.formation_error)
-        gap = np.abs(recorded[both] - run.formation_error[both])
-        out["recorded_metrics_max_gap_m"] = float(gap.max()) if gap.size else None
-    return out
-
-
-def _team(run: RunData) -> dict[str, Any]:
-    """Who was in the team at each epoch, when it changed, and the transient after each."""
-    team = membership.present(run.positions)
-    if team.all() or not team.any():
-        return {}
-    shape = membership.team_shape_error(
-        run.positions, run.scenario.edge_array, run.scenario.offsets
-    )
-    events = [(e.epoch, e.agent, e.action) for e in run.scenario.events]
-    return {
-        "team": {str(i): s for i, s in membership.spans(team).items()},
-        "team_changes": [vars(c) for c in membership.changes(team, shape, events=events)],
-        "shape_threshold_m": membership.SHAPE_THRESHOLD_M,
-    }
-
-
-def _team_shape(run: RunData) -> np.ndarray:
-    """The shape error, over the edges between present agents where some agent is absent."""
-    team = membership.team_shape_error(run.positions, run.scenario.edge_array, run.scenario.offsets)
-    return np.where(_someone_out(run), team, run.shape_error)
-
-
-def _team_formation(run: RunData) -> np.ndarray:
-    """The formation error, likewise (:func:`_team_shape`)."""
-    s = run.scenario
-    team = membership.team_formation_error(run.positions, s.edge_array, s.weights)
-    return np.where(_someone_out(run), team, run.formation_error)
-
-
-def _someone_out(run: RunData) -> np.ndarray:
-    """(E + 1,) some agent has no recorded state at the epoch, and some has."""
-    present = membership.present(run.positions)
-    return np.asarray(~present.all(axis=1) & present.any(axis=1), dtype=bool)
 
 
 _CHANGE = {"lost": "lost", "back": "back", "leave": "leaves (scenario event)",
@@ -261,10 +156,10 @@ def write_report_from(runs: Sequence[RunData], out_dir: Path, title: str | None 
     links = [f"{a}→{b}" for a, b in first.links]
     length = max(len(r.positions) for r in runs)
     chosen = sorted({0, length // 4, length // 2, max(length - 1, 0)})
-    sums = [summarize(r) for r in runs]
+    sums = [summarise(r) for r in runs]
     files = {
         "errors": plots.plot_errors(
-            [(r.label, _team_formation(r), _team_shape(r)) for r in runs],
+            [(r.label, *run_team_errors(r)) for r in runs],
             out_dir / "errors.png",
             marks=[
                 (c["epoch"], f"{c['what']} {c['agent']}")
@@ -322,4 +217,4 @@ def write_reports(paths: Sequence[Path], out_dir: Path | None = None) -> Path:
     return write_report_from(runs, target, title="Report: " + ", ".join(str(p) for p in paths))
 
 
-__all__ = ["FIGURES", "summarize", "write_report", "write_report_from", "write_reports"]
+__all__ = ["FIGURES", "write_report", "write_report_from", "write_reports"]

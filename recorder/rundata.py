@@ -1,7 +1,8 @@
-"""One run as arrays, from a recording or from the in-process simulator, for one report.
+"""One run as arrays, from a recording or from the in-process simulator: the record of a run.
 
-:class:`RunData` uses the field names of ``testbed.sim.simulate.SimResult``, so both
-sources feed :func:`recorder.report.write_report_from`. From a recording
+:class:`RunData` is what every summary reads (:func:`recorder.summary.summarise`): the
+recorder's (:func:`read_run`), the simulator's (``SimResult.record()``) and the launcher's
+(``RunOutcome.record()``, what it saw over Zenoh). From a recording
 (:func:`read_run`): true positions from ``agent/<i>/state`` (sender side), the
 leader's output from ``leader/estimate``, link delivery from netem's decisions.
 Substitution errors from the ``substituted`` values each agent publishes with its
@@ -22,6 +23,7 @@ from mcap.records import Channel, Message
 from formation.errors import RecordingError
 from formation.messages import CoordinationState, LeaderEstimate
 from formation.scenario import Scenario
+from recorder import membership
 from recorder.epochs import edge_mask
 from recorder.metrics import formation_error, nees, shape_error
 from recorder.reader import iter_messages, metadata, open_recording, parts, scenario_of
@@ -31,11 +33,6 @@ from recorder.trust import Gate, Skipped, derived_channels
 Array = npt.NDArray[np.float64]
 Bools = npt.NDArray[np.bool_]
 Ints = npt.NDArray[np.int64]
-_ARRAYS = (
-    "positions", "formation_error", "shape_error", "estimates", "estimate_cov", "observable",
-    "delivered", "healthy", "tree", "components", "rigidity_rank", "substitution_errors",
-    "nees_values", "estimation_errors",
-)  # fmt: skip
 
 
 @dataclass
@@ -43,7 +40,9 @@ class RunData:
     """A run as arrays; row ``i − 1`` is agent ``i``; ``P`` epochs of states, ``E`` of estimates.
 
     positions : (P, n, d) true positions [m], NaN where not recorded
-    formation_error, shape_error : (P,) [m]
+    present : (P, n) in the team: its state of the epoch recorded (default: finite
+    ``positions``; the simulator's bodies stay where they were, so it marks them itself)
+    formation_error, shape_error : (P,) [m] over every edge
     estimates : (E, n, d) [m]; estimate_cov : (E, n, d, d) [m²]; observable : (E, n)
     delivered : (E, L) formation link ``links[l]`` delivered in time at epoch ``k``
     decided : (E, L) whether that delivery is known (always True from the simulator)
@@ -76,30 +75,18 @@ class RunData:
     extra: dict[str, Any] = field(default_factory=dict)
     headings: Array | None = None
     saturated: Ints | None = None
+    present: Bools = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
 
     def __post_init__(self) -> None:
         if self.decided.shape != self.delivered.shape:  # the simulator knows every delivery
             self.decided = np.ones_like(self.delivered, dtype=bool)
+        if self.present.shape != self.positions.shape[:2]:
+            self.present = membership.present(self.positions)
 
     @property
     def links(self) -> Ints:
         """Directed formation links (L, 2), the columns of :attr:`delivered`."""
         return self.scenario.directed_links
-
-    @classmethod
-    def from_result(cls, result: Any, label: str | None = None) -> RunData:
-        """From anything with ``SimResult``'s fields (the in-process simulator's result)."""
-        arrays: dict[str, Any] = {name: np.asarray(getattr(result, name)) for name in _ARRAYS}
-        strategy = str(getattr(result, "strategy", ""))
-        return cls(
-            label=label or strategy,
-            scenario=result.scenario,
-            strategy=strategy,
-            seed=int(getattr(result, "seed", 0)),
-            headings=getattr(result, "headings", None),
-            saturated=getattr(result, "saturated", None),
-            **arrays,
-        )
 
 
 def _positions(states: dict[int, dict[int, list[float]]], n: int, d: int) -> Array:

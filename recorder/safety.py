@@ -15,6 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from formation.scenario import Scenario
+from recorder.membership import present
 from recorder.metrics import collisions, min_distance, pair_distances, time_out_of_bounds
 
 Array = npt.NDArray[np.float64]
@@ -58,8 +59,9 @@ def safety_counts(
     safety, period = scenario.safety, scenario.control.period_s
     per_epoch = _min_present(positions) if len(positions) else np.zeros(0)
     finite = per_epoch[np.isfinite(per_epoch)]
-    present = np.where(np.isfinite(positions), positions, np.inf)  # a missing agent is far away
-    pairs, counts = collisions(present, safety.body_diameter_m)
+    placed = np.where(np.isfinite(positions), positions, np.inf)  # a missing agent is far away
+    with np.errstate(invalid="ignore"):  # two missing: inf − inf, NaN apart, never in contact
+        pairs, counts = collisions(placed, safety.body_diameter_m)
     out: dict[str, Any] = {
         "min_distance_m": float(finite.min()) if finite.size else None,
         "min_distance_per_epoch_m": [None if not math.isfinite(v) else float(v) for v in per_epoch],
@@ -69,7 +71,7 @@ def safety_counts(
     }
     if safety.bounds is not None:
         low, high = np.asarray(safety.bounds.min_m), np.asarray(safety.bounds.max_m)
-        seen = np.isfinite(positions).all(axis=-1, keepdims=True)
+        seen = present(positions)[..., None]
         inside = np.where(seen, positions, (low + high) / 2.0)  # not recorded: not counted
         out_s = time_out_of_bounds(inside, low, high, period)
         out["time_out_of_bounds_s"] = {str(i + 1): float(v) for i, v in enumerate(out_s)}

@@ -2,13 +2,7 @@
 
 from __future__ import annotations
 
-import json
 from typing import Any
-
-from recorder import DEADLINES_FILE
-
-KEYS = ("packets_sent", "modelled_losses", "deadline_misses", "delivered_in_time",
-        "unaccounted", "deadline_miss_rate", "cpu_steal")  # fmt: skip
 
 
 def _pct(n: int, sent: int) -> str:
@@ -42,11 +36,3 @@ def deadline_notes(strategy: str, summary: dict[str, Any]) -> list[str]:
     if summary["deadline_warning"]:
         lines.append(f"{strategy}: {summary['deadline_warning']}")
     return lines
-
-
-def write_deadlines(outcome: Any) -> None:
-    """A realtime run's accounting as ``deadlines.json`` in its run directory (for the report)."""
-    summary = outcome.summary()
-    if "deadline_misses" in summary:
-        text = json.dumps({k: summary[k] for k in KEYS}, indent=2) + "\n"
-        (outcome.run_dir / DEADLINES_FILE).write_text(text, encoding="utf-8")

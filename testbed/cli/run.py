@@ -14,9 +14,9 @@ from rich.table import Table
 
 from formation.errors import TestbedError
 from formation.scenario import Scenario
-from recorder import safety_counts, write_report, write_reports
+from recorder import safety_counts, write_deadlines, write_report, write_reports
 from testbed.cli.common import add_common, scenario_strategies
-from testbed.cli.deadline_lines import deadline_cells, deadline_notes, write_deadlines
+from testbed.cli.deadline_lines import deadline_cells, deadline_notes
 from testbed.cli.tables import print_table
 from testbed.runtime.faults import RESTART_POLICIES
 from testbed.runtime.launcher import launch
@@ -70,7 +70,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                 recorder_args=_live_args(args),
             )
         outcomes.append(outcome)
-        write_deadlines(outcome)
+        write_deadlines(outcome.run_dir, outcome.summary())
         if not args.no_record:
             outcome.extra["skipped"] = _report(outcome.run_dir, console)
         console.print(f"{strategy}: files in [bold]{outcome.run_dir}[/]")

@@ -25,7 +25,7 @@ import numpy.typing as npt
 
 from formation.graph import expected_rigidity_rank, is_connected, rigidity_rank
 from formation.scenario import STRATEGIES, Scenario, StrategyName, load_dict
-from recorder import error_statistics
+from recorder import error_statistics, team_shape_error
 from testbed.experiments.lossy import with_loss
 from testbed.sim.batch import BatchResult, plan_batch, run_batch
 
@@ -410,21 +410,12 @@ def dynamic_study(
     team = dynamic_team(paper, leave, join).with_overrides(epochs=epochs)
     plan = plan_batch(team, seeds)
     edges = team.edge_array
-    taking_part = team.membership.present
-    on = taking_part[:, edges[:, 0] - 1] & taking_part[:, edges[:, 1] - 1]  # (E + 1, m)
-    d0 = team.offsets
+    taking_part = team.membership.present[:, None, :]  # (E + 1, 1, n): every seed alike
     shape: dict[str, Array] = {}
     tree_edges = observable = np.zeros(0)
     for s in strategies:
         res = run_batch(plan, s, rigidity=False)
-        x = res.positions  # (E + 1, S, n, d)
-        diff = (
-            x[:, :, edges[:, 0] - 1]
-            - x[:, :, edges[:, 1] - 1]
-            - (d0[edges[:, 0] - 1] - d0[edges[:, 1] - 1])
-        )
-        sq = np.where(on[:, None, :], np.sum(diff**2, axis=-1), 0.0)
-        shape[s] = np.sqrt(sq.sum(axis=2) / on.sum(axis=1)[:, None])
+        shape[s] = team_shape_error(res.positions, edges, team.offsets, taking_part)  # (E + 1, S)
         assert res.tree is not None and res.observable is not None
         tree_edges = res.tree[:, 0].sum(axis=1).astype(float)
         observable = res.observable[:, 0].sum(axis=1).astype(float)

@@ -186,24 +186,10 @@ def first_missing_epoch(seen: npt.NDArray[np.bool_]) -> int:
     return int(got[-1]) + 1 if len(got) else 0
 
 
-def team_intervals(seen: npt.NDArray[np.bool_]) -> dict[int, list[tuple[int, int]]]:
-    """Who was in the team at each epoch: agent → ``[(first, last), ...]`` epochs with a state.
-
-    seen : (E + 1, n) whether agent ``i``'s state of epoch ``k`` was recorded
-    """
-    out: dict[int, list[tuple[int, int]]] = {}
-    for col in range(seen.shape[1]):
-        on = np.concatenate(([False], seen[:, col], [False])).astype(np.int8)
-        edges = np.flatnonzero(np.diff(on))
-        out[col + 1] = [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True)]
-    return out
-
-
 __all__ = [
     "RESTART_POLICIES",
     "Loss",
     "RestartPolicy",
     "Supervisor",
     "first_missing_epoch",
-    "team_intervals",
 ]

@@ -12,6 +12,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -19,19 +20,13 @@ import numpy as np
 import numpy.typing as npt
 import zenoh
 
-from formation.errors import RuntimeFailure
+from formation import RuntimeFailure, deadline_counts, realtime_accounting
 from formation.scenario import Scenario, StrategyName
-from recorder import final_team_errors, formation_error, shape_error
+from recorder import RunData, formation_error, present, shape_error, spans, summarise
 from shell import session_config
 from testbed.runtime import steal
-from testbed.runtime.deadline_accounting import deadline_counts, realtime_accounting
 from testbed.runtime.events import EventDriver, bodies
-from testbed.runtime.faults import (
-    RestartPolicy,
-    Supervisor,
-    first_missing_epoch,
-    team_intervals,
-)
+from testbed.runtime.faults import RestartPolicy, Supervisor, first_missing_epoch
 from testbed.runtime.observer import Observer, Verdict, all_final, flush_recorder, missing_final
 from testbed.runtime.priorities import favour_shared
 from testbed.runtime.processes import ProcessGroup, free_port, wait_for_port
@@ -98,20 +93,38 @@ class RunOutcome:
         """Realtime: deadline misses of the testbed's own making, over the packets sent."""
         return self.deadline_accounting().get("deadline_miss_rate")
 
+    def record(self) -> RunData:
+        """What the launcher saw as a run's record: the states (in the team: a state seen)
+        and the substitutions; the leader's outputs and the deliveries are the recording's."""
+        sc = self.scenario
+        n, d, m = sc.n, sc.dimension, len(sc.edges)
+        none = np.zeros(0, dtype=np.int64)
+        return RunData(
+            label=self.strategy, scenario=sc, strategy=self.strategy, seed=self.seed,
+            positions=self.positions, formation_error=self.formation_error,
+            shape_error=self.shape_error, estimates=np.zeros((0, n, d)),
+            estimate_cov=np.zeros((0, n, d, d)), observable=np.zeros((0, n), dtype=bool),
+            delivered=np.zeros((0, len(sc.directed_links)), dtype=bool),
+            healthy=np.zeros((0, m), dtype=bool), tree=np.zeros((0, m), dtype=bool),
+            components=none, rigidity_rank=none, substitution_errors=self.substitution_errors(),
+            nees_values=np.zeros(0), estimation_errors=np.zeros((0, d)), source=str(self.run_dir),
+        )  # fmt: skip
+
+    @cached_property
+    def headline(self) -> dict[str, Any]:
+        """:func:`recorder.summarise` of :meth:`record`, once (its safety counts are O(n²))."""
+        return summarise(self.record())
+
     def summary(self) -> dict[str, Any]:
         drops = self.drops_per_link()
-        sc = self.scenario
-        final = final_team_errors(self.positions[-1], sc.edge_array, sc.weights, sc.offsets) or (
-            float(self.formation_error[-1]),
-            float(self.shape_error[-1]),
-        )  # over the team taking part at the end, as the report and the sweep judge it
+        headline = self.headline  # the team's final errors, as every summary's
         return {
             "run_id": self.run_id,
             "strategy": self.strategy,
             "seed": self.seed,
             "epochs": int(self.positions.shape[0] - 1),
-            "final_formation_error_m": final[0],
-            "final_shape_error_m": final[1],
+            "final_formation_error_m": headline["final_formation_error_m"],
+            "final_shape_error_m": headline["final_shape_error_m"],
             "packets_sent": sum(s for s, _ in drops.values()),
             "packets_dropped": sum(d for _, d in drops.values()),
             "dropped_links": {k: v for k, v in drops.items() if v[1]},
@@ -130,10 +143,10 @@ class RunOutcome:
         (``team``: agent → its spans of epochs with a state, with losses and whenever some
         agent lacks a state at some epoch, as with the scenario's events)."""
         losses = self.extra.get("losses", [])
-        seen = np.asarray(np.isfinite(self.positions).all(axis=2), dtype=bool)
+        seen = present(self.positions)
         out: dict[str, Any] = {}
         if losses or not seen.all():
-            out["team"] = {str(i): spans for i, spans in team_intervals(seen).items()}
+            out["team"] = {str(i): s for i, s in spans(seen).items()}
         if not losses:
             return out
         drops = self.drops_per_link()
@@ -294,10 +307,10 @@ def launch(
         gone = supervisor.gone_for_good()
         if progress is not None:
             progress(scenario.epochs, scenario.epochs, observer.drops)
-        present = [i for n in agent_names if n not in gone for i in _ids_of(n)]
-        present = events.finishing(gone) if scenario.events else present
-        _wait(lambda: all_final(observer, present), group, 10.0, "the final states",
-              lambda: missing_final(observer, present), ignore=[*supervisor.losses, *supervisor.planned])  # fmt: skip
+        taking_part = [i for n in agent_names if n not in gone for i in _ids_of(n)]
+        taking_part = events.finishing(gone) if scenario.events else taking_part
+        _wait(lambda: all_final(observer, taking_part), group, 10.0, "the final states",
+              lambda: missing_final(observer, taking_part), ignore=[*supervisor.losses, *supervisor.planned])  # fmt: skip
         observer.netem_done()  # its last decisions are in the summary (no error: it has exited)
         if record:
             flush_recorder(session, run_id, observer)
@@ -316,7 +329,7 @@ def launch(
                 sent.update(st.sent)
                 delivered.update(st.delivered)
             supervisor.note_returns(
-                np.isfinite(observer.positions).all(axis=2), observer.returns, observer.team_events
+                present(observer.positions), observer.returns, observer.team_events
             )
             losses = [loss.as_json() for loss in supervisor.losses]
             return RunOutcome(

@@ -29,7 +29,7 @@ from formation.reference import reference_positions, reference_velocities
 from formation.robots import initial_headings
 from formation.scenario import StrategyName
 from leader import HealthyRigidity, Leader, LeaderEpochs
-from recorder import formation_error, nees, shape_error
+from recorder import formation_error, nees, shape_error, team_errors
 from testbed.sim.plan import VARIANT_FIELDS, BatchError, BatchPlan, newest_late, plan_batch
 from testbed.sim.presence import Presence
 from testbed.sim.ranged import RangedEpochs
@@ -84,23 +84,22 @@ class BatchResult:
         return self.plan.size
 
     def team_errors(self) -> tuple[Array, Array]:
-        """Formation and shape error (E + 1, B) [m] over the edges between agents taking part.
+        """Formation and shape error (E + 1, B) [m] of the team (:func:`recorder.team_errors`,
+        in the team: who publishes ``x[k]``, as in :meth:`member`'s record).
 
         An agent out of the team (left, crashed, not yet joined) stands where it last was
         while the team moves on, so its edges would count a team that holds its shape as
-        losing it (docs/model.md §7; the report's team shape error and the dynamic study
-        count the same edges). Without events: :attr:`formation_error`, :attr:`shape_error`.
+        losing it (docs/model.md §7). Without events: :attr:`formation_error`,
+        :attr:`shape_error`.
         """
         team = self.plan.team
         if team is None:
             return self.formation_error, self.shape_error
         base = self.plan.base
-        edges = base.edge_array
-        on = (team.present[:, edges[:, 0] - 1] & team.present[:, edges[:, 1] - 1])[:, None, :]
-        return (
-            formation_error(self.positions, edges, base.weights, on),
-            shape_error(self.positions, edges, base.offsets, on),
-        )
+        return team_errors(
+            self.positions, team.published[:, None, :], self.formation_error, self.shape_error,
+            base.edge_array, base.weights, base.offsets,
+        )  # fmt: skip
 
     def member(self, b: int) -> SimResult:
         """Member ``b`` as the one-seed simulator's :class:`SimResult` (needs ``detail``)."""

@@ -17,6 +17,7 @@ import numpy.typing as npt
 
 from agent import LinkMemory
 from formation.events import Membership
+from recorder import team_edges
 
 Array = npt.NDArray[np.float64]
 Mask = npt.NDArray[np.bool_]
@@ -46,8 +47,8 @@ class Presence:
         if team is None or team.everyone:
             return None
         p = team.present
-        return cls(p, p[:, src - 1] & p[:, dst - 1], team.in_graph[:, src - 1] & p[:, dst - 1],
-                   team.starts, dst, size)  # fmt: skip
+        link_on = team_edges(p, np.stack([src, dst], axis=1))
+        return cls(p, link_on, team.in_graph[:, src - 1] & p[:, dst - 1], team.starts, dst, size)
 
     def rows(self, k: int) -> Ints | None:
         """Flattened rows (``b·L + l``) of the links in the consensus at epoch ``k``; None: all."""

@@ -9,7 +9,7 @@ import numpy as np
 import numpy.typing as npt
 
 from formation.scenario import Scenario, StrategyName
-from recorder import error_statistics, final_team_errors, longest_run, safety_counts
+from recorder import RunData, summarise
 
 Array = npt.NDArray[np.float64]
 
@@ -54,48 +54,47 @@ class SimResult:
     headings: Array | None = None
     saturated: npt.NDArray[np.int64] | None = None
 
+    def record(self, label: str | None = None) -> RunData:
+        """The run as the recorder reads one back: every delivery decided, and in the team
+        whoever published ``x[k]`` (the bodies out of it stay where they were)."""
+        return RunData(
+            label=label or self.strategy,
+            scenario=self.scenario,
+            strategy=self.strategy,
+            seed=self.seed,
+            positions=self.positions,
+            present=self.scenario.membership.published,
+            formation_error=self.formation_error,
+            shape_error=self.shape_error,
+            estimates=self.estimates,
+            estimate_cov=self.estimate_cov,
+            observable=self.observable,
+            delivered=self.delivered,
+            healthy=self.healthy,
+            tree=self.tree,
+            components=self.components,
+            rigidity_rank=self.rigidity_rank,
+            substitution_errors=self.substitution_errors,
+            nees_values=self.nees_values,
+            estimation_errors=self.estimation_errors,
+            headings=self.headings,
+            saturated=self.saturated,
+        )
+
     def summary(self) -> dict[str, Any]:
-        """The headline numbers of the run (what ``formation simulate`` prints)."""
-        _, _sub_cov, sub_trace = error_statistics(self.substitution_errors)
-        _, _est_cov, est_trace = error_statistics(self.estimation_errors)
-        drops = (~self.delivered).sum(axis=0)
-        s = self.scenario
-        links = s.directed_links
-        last = np.where(s.membership.present[-1][:, None], self.positions[-1], np.nan)
-        final = final_team_errors(last, s.edge_array, s.weights, s.offsets) or (
-            float(self.formation_error[-1]),
-            float(self.shape_error[-1]),
-        )  # over the team taking part at the end, as formation run and the sweep judge it
-        return {
-            "scenario": s.name,
-            "strategy": self.strategy,
-            "seed": self.seed,
-            "epochs": int(self.positions.shape[0] - 1),
-            "final_formation_error_m": final[0],
-            "peak_formation_error_m": float(self.formation_error.max()),
-            "final_shape_error_m": final[1],
-            "peak_shape_error_m": float(self.shape_error.max()),
-            "substitutions": int(self.substitution_errors.shape[0]),
-            "substitution_cov_trace_m2": _none_if_nan(sub_trace),
-            "fallbacks": self.fallbacks,
-            "estimation_cov_trace_m2": _none_if_nan(est_trace),
-            "nees_mean": _none_if_nan(
-                float(self.nees_values.mean()) if self.nees_values.size else float("nan")
-            ),
-            "drops": {
-                f"{int(a)}->{int(b)}": int(c) for (a, b), c in zip(links, drops, strict=True) if c
-            },
-            "longest_outage": {
-                f"{int(a)}->{int(b)}": longest_run(~self.delivered[:, k])
-                for k, (a, b) in enumerate(links)
-                if drops[k]
-            },
-            "safety": safety_counts(self.scenario, self.positions, self.headings, self.saturated),
-        }
+        """The headline numbers of the run (what ``formation simulate`` prints), as
+        :func:`recorder.summarise` gives them for its :meth:`record`."""
+        full = summarise(self.record())
+        out = {"scenario": self.scenario.name, "strategy": self.strategy, "seed": self.seed}
+        out |= {k: full[k] for k in _HEADLINE}
+        out["fallbacks"] = self.fallbacks
+        out |= {k: full[k] for k in _ESTIMATION}
+        return out
 
 
-def _none_if_nan(v: float) -> float | None:
-    return None if np.isnan(v) else v
+_HEADLINE = ("epochs", "final_formation_error_m", "peak_formation_error_m", "final_shape_error_m",
+             "peak_shape_error_m", "substitutions", "substitution_cov_trace_m2")  # fmt: skip
+_ESTIMATION = ("estimation_cov_trace_m2", "nees_mean", "drops", "longest_outage", "safety")
 
 
 __all__ = ["SimResult"]

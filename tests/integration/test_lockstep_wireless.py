@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from formation.scenario import LEADER_ENDPOINT, Scenario
-from recorder.report import summarize
 from recorder.rundata import read_run
 from recorder.safety import axle_speeds, turn_rates
+from recorder.summary import summarise
 from testbed.runtime.launcher import launch
 from testbed.sim.simulate import simulate
 
@@ -117,4 +117,4 @@ def test_unicycles_hold_a_low_turn_limit_as_recorded_and_count_its_saturation(
     turn = np.delete(turn_rates(run.headings, scenario.control.period_s), scenario.leader - 1, 1)
     assert np.isfinite(turn).all() and turn.max() <= 0.5 * (1 + 1e-12)
     assert int(run.saturated.sum()) > 0
-    assert summarize(run)["safety"]["max_turn_rad_s"] == turn.max()
+    assert summarise(run)["safety"]["max_turn_rad_s"] == turn.max()

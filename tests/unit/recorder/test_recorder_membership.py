@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from recorder.membership import changes, final_team_errors, present, spans, team_shape_error
+from recorder.membership import changes, present, spans, team_shape_error
 from recorder.metrics import formation_error, shape_error
+from recorder.summary import team_errors
 
 
 def test_a_loss_and_a_return_are_changes_with_the_epochs_back_under_the_threshold() -> None:
@@ -56,14 +57,25 @@ def test_a_change_the_scenario_planned_is_named_by_its_event() -> None:
     assert unplanned == [(6, "lost"), (9, "back")]
 
 
-def test_the_final_errors_are_the_team_s_at_the_end_and_none_when_all_take_part() -> None:
+def test_the_final_errors_are_the_team_s_at_the_end_and_the_run_s_when_all_take_part() -> None:
     edges = np.array([[1, 2], [2, 3], [1, 3]])
     offsets = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
     weights = np.array([1.0, np.sqrt(2.0), 1.0])
     last = offsets + np.array([[0.0, 0.0], [0.0, 0.1], [5.0, 0.0]])  # agent 3 far off
-    assert final_team_errors(last, edges, weights, offsets) is None
+    whole = formation_error(last, edges, weights), shape_error(last, edges, offsets)
+
+    def final_team_errors(x: np.ndarray) -> tuple[float, float] | None:
+        """The team's errors at the last epoch, None where they are the run's own."""
+        team = present(x)
+        if team.all():
+            return None
+        got = team_errors(x, team, *whole, edges, weights, offsets)
+        return float(got[0]), float(got[1])
+
+    assert final_team_errors(last) is None
+    assert team_errors(last, present(last), *whole, edges, weights, offsets) == whole
     last[2] = np.nan  # agent 3 out of the team: only edge 1-2 counts
-    got = final_team_errors(last, edges, weights, offsets)
+    got = final_team_errors(last)
     keep = np.array([[True, False, False]])
     pair = np.nan_to_num(last)[None]
     assert got == (

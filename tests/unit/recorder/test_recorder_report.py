@@ -14,8 +14,9 @@ from formation.errors import RecordingError
 from formation.scenario import Scenario
 from recorder import membership, plots
 from recorder.metrics import error_statistics, formation_error, shape_error
-from recorder.report import FIGURES, summarize, write_report, write_report_from
-from recorder.rundata import RunData, read_run
+from recorder.report import FIGURES, write_report, write_report_from
+from recorder.rundata import read_run
+from recorder.summary import summarise
 from recorder.writer import RecordingWriter
 from testbed.sim.simulate import simulate
 
@@ -99,7 +100,7 @@ def test_report_of_a_recording(tmp_path: Path, sim_results: dict[str, Any], synt
 
 
 def test_report_compares_simulated_strategies(tmp_path: Path, sim_results: dict[str, Any]) -> None:
-    runs = [RunData.from_result(r) for r in sim_results.values()]
+    runs = [r.record() for r in sim_results.values()]
     report = write_report_from(runs, tmp_path)
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert [s["label"] for s in summary] == ["hold", "estimate"]
@@ -114,10 +115,10 @@ def test_report_compares_simulated_strategies(tmp_path: Path, sim_results: dict[
 
 
 def test_summary_of_a_run_without_data(sim_results: dict[str, Any]) -> None:
-    run = RunData.from_result(sim_results["hold"])
+    run = sim_results["hold"].record()
     run.formation_error = np.full_like(run.formation_error, np.nan)
     run.nees_values = np.zeros(0)
-    s = summarize(run)
+    s = summarise(run)
     assert s["final_formation_error_m"] is None and s["nees_mean"] is None
 
 
@@ -135,7 +136,7 @@ def test_the_report_shows_the_team_and_marks_each_change_by_its_event(
 ) -> None:
     """events.toml as a recording holds it: no state of an agent out of the team."""
     scenario = Scenario.from_file(Path(__file__).resolve().parents[3] / "scenarios" / "events.toml")
-    run = RunData.from_result(simulate(scenario, "estimate"))
+    run = simulate(scenario, "estimate").record()
     x = run.positions.copy()
     for i in range(1, scenario.n + 1):
         published = np.zeros(len(x), dtype=bool)

@@ -12,7 +12,7 @@ import pytest
 from formation.scenario import Scenario
 from recorder.frames import load_run
 from recorder.report import write_report, write_report_from
-from recorder.rundata import RunData, read_run
+from recorder.rundata import read_run
 from recorder.safety import axle_speeds, safety_counts
 from testbed.sim.simulate import simulate
 
@@ -46,7 +46,7 @@ def test_safety_counts_of_known_positions() -> None:
 
 def test_summary_json_and_report_carry_the_safety_counts(robots: Scenario, tmp_path: Path) -> None:
     result = simulate(robots)
-    write_report_from([RunData.from_result(result)], tmp_path)
+    write_report_from([result.record()], tmp_path)
     (summary,) = json.loads((tmp_path / "summary.json").read_text())
     safety: dict[str, Any] = summary["safety"]
     assert safety == json.loads(json.dumps(result.summary()["safety"]))

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import json
 
+from formation import deadline_counts, realtime_accounting
 from formation.messages import Status
-from testbed.runtime.deadline_accounting import deadline_counts, realtime_accounting
 
 
 def status(role: str, detail: str) -> Status:

@@ -1,0 +1,56 @@
+"""One record, one summary (issue 25 §2): ``formation run``'s summary, its ``summary.json`` and
+``formation simulate`` give the same final errors of the team to the last bit on events.toml.
+
+The run is real processes on loopback (the launcher ``formation run`` calls, with the recorder),
+its report written as ``formation run`` writes it; ``formation simulate --json`` runs as its own
+process. Floats are compared with ``==`` (JSON keeps a float's repr, so its every bit).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from formation.scenario import Scenario
+from recorder.report import write_report
+from testbed.runtime.launcher import launch
+from testbed.sim.batch import run_batch
+from testbed.sim.plan import plan_batch
+
+from .conftest import pid_alive, run_pids
+
+pytestmark = pytest.mark.integration
+EVENTS = Path(__file__).resolve().parents[2] / "scenarios" / "events.toml"
+FINAL = ("final_formation_error_m", "final_shape_error_m")
+
+
+def test_run_summary_json_and_simulate_give_the_same_final_errors_to_the_bit(
+    runs_dir: Path, seed: int
+) -> None:
+    scenario = Scenario.from_file(EVENTS)
+    outcome = launch(scenario, strategy="estimate", seed=seed, runs_dir=runs_dir)
+    write_report(outcome.run_dir / "run.mcap", outcome.run_dir)  # as formation run does
+    (recorded,) = json.loads((outcome.run_dir / "summary.json").read_text())
+    proc = subprocess.run(
+        [str(Path(sys.executable).with_name("formation")), "simulate", str(EVENTS),
+         "--strategy", "estimate", "--seed", str(seed), "--json"],
+        capture_output=True, text=True, timeout=300, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    (simulated,) = json.loads(proc.stdout)
+    ran = outcome.summary()
+    assert not scenario.membership.published[-1].all(), "agent 5 has left: the team's errors"
+    for name in FINAL:
+        assert isinstance(ran[name], float), name
+        assert repr(ran[name]) == repr(recorded[name]) == repr(simulated[name]), name
+    # The sweep's rows come from the batch's arrays through the same rule.
+    res = run_batch(plan_batch(scenario, [seed], scenario.epochs), "estimate", detail=False)
+    formation, shape = res.team_errors()
+    assert (float(formation[-1, 0]), float(shape[-1, 0])) == tuple(ran[n] for n in FINAL)
+    assert ran["final_shape_error_m"] != float(np.asarray(outcome.shape_error)[-1])
+    assert not any(pid_alive(p) for p in run_pids(runs_dir))
