@@ -152,9 +152,15 @@ class AgentRunner:
                 self._arrived[r] = True
                 self._received[r] = p.position
         self._z = relative_measurement(
-            self.x[self.links.receiver_row], self._received, self.scenario.noise_covariance,
-            self.seed, self.links.receiver, self.links.sender, k, self._noise,
-        )  # fmt: skip
+            self.x[self.links.receiver_row],
+            self._received,
+            self.scenario.noise_covariance,
+            self.seed,
+            self.links.receiver,
+            self.links.sender,
+            k,
+            self._noise,
+        )
         reports: dict[int, Report] = {i: [] for i in self.ids}
         z = self._z.tolist()
         for (i, j), a, z_ij in zip(self._pairs, self._arrived.tolist(), z, strict=True):
@@ -178,18 +184,42 @@ class AgentRunner:
         v_before = v_prev[self.links.receiver_row]
         if self._in_graph is None or self._in_graph[k].all():
             result = agent_epoch(
-                self.scenario, self.strategy, k, self.links, self.x, self.velocity, self._arrived,
-                self._received, self._z, self.memory, est, has, v_before, self.v_known,
+                self.scenario,
+                self.strategy,
+                k,
+                self.links,
+                self.x,
+                self.velocity,
+                self._arrived,
+                self._received,
+                self._z,
+                self.memory,
+                est,
+                has,
+                v_before,
+                self.v_known,
                 headings=self.heading,
-            )  # fmt: skip
+            )
             self.memory, sub = result.memory, result.substitution
         else:  # a neighbour out of the team: its edge leaves the consensus, its memory waits
             rows = np.flatnonzero(self._in_graph[k])
             result = agent_epoch(
-                self.scenario, self.strategy, k, self.links.take(rows), self.x, self.velocity,
-                self._arrived[rows], self._received[rows], self._z[rows], self.memory.take(rows),
-                est[rows], has[rows], v_before[rows], self.v_known, headings=self.heading,
-            )  # fmt: skip
+                self.scenario,
+                self.strategy,
+                k,
+                self.links.take(rows),
+                self.x,
+                self.velocity,
+                self._arrived[rows],
+                self._received[rows],
+                self._z[rows],
+                self.memory.take(rows),
+                est[rows],
+                has[rows],
+                v_before[rows],
+                self.v_known,
+                headings=self.heading,
+            )
             self.memory = self.memory.put(rows, result.memory)
             sub = result.substitution.spread(rows, n_links)
         self.velocity = result.velocities

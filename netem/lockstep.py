@@ -30,6 +30,7 @@ from netem.positions import Positions
 from netem.progress import Progress
 from netem.records import Ledger, packet_json
 from netem.stack import Outcome
+from netem.team_plan import TeamPlan
 
 log = logging.getLogger("netem")
 # Clean epochs' records go out together: one batch per this many epochs' records (and at
@@ -40,8 +41,9 @@ FLUSH_CHUNKS = 64  # epochs
 class Lockstep:
     """The lockstep state machine of one run: every phase, receiver and epoch."""
 
-    def __init__(self, links: Links, epochs: int, progress: Progress, ledger: Ledger,
-                 outbox: Outbox) -> None:  # fmt: skip
+    def __init__(
+        self, links: Links, epochs: int, progress: Progress, ledger: Ledger, outbox: Outbox
+    ) -> None:
         self.links, self.epochs = links, epochs
         self.progress, self.ledger, self.outbox = progress, ledger, outbox
         self.open: dict[tuple[Phase, int, int], OpenEpoch] = {}  # (phase, receiver, epoch)
@@ -56,25 +58,13 @@ class Lockstep:
         self.revive: dict[int, int] = {}
         self.last_state: dict[int, tuple[int, Any]] = {}  # agent → (epoch, payload) last handled
         self.last_report: dict[int, int] = {}  # agent → epoch of its last report handled
-        # Scenario events (issue 20), from the scenario alone so every run drops the same:
-        # epoch → agents out of the team then (left, crashed, not yet joined), each agent's
-        # scheduled (re)starts, who is away by plan now, and the epoch each was given back.
-        team = links.team
-        self.out: dict[int, frozenset[int]] = {}
-        self.starts: dict[int, list[int]] = {}
-        self.away: set[int] = set()
+        # Scenario events (issue 20), from the scenario alone so every run drops the same;
+        # and the epoch each agent was given back.
+        plan = TeamPlan.of(links.team, epochs, links.agents)
+        self.out, self.starts, self.away = plan.out, plan.starts, set(plan.away)
         self.rejoined: dict[int, int] = {}
         # (action, agent, epoch) of each event as it is applied, for the node to announce.
         self.applied: list[tuple[str, int, int]] = []
-        if team is not None:
-            for k in range(epochs + 1):
-                if not team.present[k].all():
-                    self.out[k] = frozenset(int(i) + 1 for i in (~team.present[k]).nonzero()[0])
-            for i in links.agents:
-                firsts = [first for first, _ in team.incarnations(i)]
-                self.starts[i] = [k for k in firsts if k > 0]
-                if not team.present[0, i - 1]:
-                    self.away.add(i)
 
     def setup_clean(self) -> None:
         """Take clean epochs on the clean path from now on."""
@@ -135,8 +125,14 @@ class Lockstep:
                 self._try_close("estimate", dst)
             self.progress.estimate_handled(epoch)
 
-    def _route_state(self, source: int, epoch: int, seq: int, payload: Any,
-                     verdicts: dict[Link, Outcome] | None = None) -> None:  # fmt: skip
+    def _route_state(
+        self,
+        source: int,
+        epoch: int,
+        seq: int,
+        payload: Any,
+        verdicts: dict[Link, Outcome] | None = None,
+    ) -> None:
         links, dead = self.links, self.dead
         for dst in links.out_links[source]:
             if (dst in dead or self.out) and self.is_dead(dst, epoch):
@@ -304,8 +300,17 @@ class Lockstep:
         return dict(total)
 
     # -- the full path ------------------------------------------------------------------------
-    def _route_packet(self, phase: Phase, cls: LinkClass, src: int, dst: int, payload: Any,
-                      epoch: int, seq: int, decided: Outcome | None = None) -> OpenEpoch:  # fmt: skip
+    def _route_packet(
+        self,
+        phase: Phase,
+        cls: LinkClass,
+        src: int,
+        dst: int,
+        payload: Any,
+        epoch: int,
+        seq: int,
+        decided: Outcome | None = None,
+    ) -> OpenEpoch:
         """Decide (unless ``decided``) and record one packet, and put it in its receiver's open
         epoch (returned)."""
         key = (phase, dst, epoch)

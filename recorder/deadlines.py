@@ -15,8 +15,15 @@ from typing import Any
 from formation.deadlines import CAUSES, WARN_RATE, over_warn_rate
 
 FILE = "deadlines.json"
-KEYS = ("packets_sent", "modelled_losses", "deadline_misses", "delivered_in_time",
-        "unaccounted", "deadline_miss_rate", "cpu_steal")  # fmt: skip
+KEYS = (
+    "packets_sent",
+    "modelled_losses",
+    "deadline_misses",
+    "delivered_in_time",
+    "unaccounted",
+    "deadline_miss_rate",
+    "cpu_steal",
+)
 
 
 def write_deadlines(run_dir: Path, summary: dict[str, Any]) -> None:

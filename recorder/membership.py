@@ -102,8 +102,9 @@ def _named(
     planned: dict[tuple[int, int], str], agent: int, k: int, back: bool
 ) -> tuple[Action, int]:
     """A change of ``agent`` seen at ``k`` as the scenario's event that explains it, if one does."""
-    actions: dict[str, Action] = {"join": "join", "restart": "restart"} if back else {
-        "leave": "leave", "crash": "crash"}  # fmt: skip
+    actions: dict[str, Action] = (
+        {"join": "join", "restart": "restart"} if back else {"leave": "leave", "crash": "crash"}
+    )
     for at in (k,) if back else (k - 1, k):  # a leave's or crash's last state is its own epoch's
         action = actions.get(planned.get((agent, at), ""))
         if action is not None:

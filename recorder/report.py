@@ -30,9 +30,14 @@ FIGURES = {
 }
 
 
-_CHANGE = {"lost": "lost", "back": "back", "leave": "leaves (scenario event)",
-           "crash": "crashes (scenario event)", "join": "joins (scenario event)",
-           "restart": "restarts (scenario event)"}  # fmt: skip
+_CHANGE = {
+    "lost": "lost",
+    "back": "back",
+    "leave": "leaves (scenario event)",
+    "crash": "crashes (scenario event)",
+    "join": "joins (scenario event)",
+    "restart": "restarts (scenario event)",
+}
 
 
 def _team_lines(sums: list[dict[str, Any]]) -> list[str]:

@@ -69,9 +69,14 @@ def run_team_errors(run: RunData) -> tuple[Array, Array]:
     """(P,) formation and shape error [m] of ``run``'s team at each epoch (:func:`team_errors`)."""
     s = run.scenario
     return team_errors(
-        run.positions, run.present, run.formation_error, run.shape_error,
-        s.edge_array, s.weights, s.offsets,
-    )  # fmt: skip
+        run.positions,
+        run.present,
+        run.formation_error,
+        run.shape_error,
+        s.edge_array,
+        s.weights,
+        s.offsets,
+    )
 
 
 def summarise(run: RunData) -> dict[str, Any]:

@@ -100,15 +100,26 @@ class RunOutcome:
         n, d, m = sc.n, sc.dimension, len(sc.edges)
         none = np.zeros(0, dtype=np.int64)
         return RunData(
-            label=self.strategy, scenario=sc, strategy=self.strategy, seed=self.seed,
-            positions=self.positions, formation_error=self.formation_error,
-            shape_error=self.shape_error, estimates=np.zeros((0, n, d)),
-            estimate_cov=np.zeros((0, n, d, d)), observable=np.zeros((0, n), dtype=bool),
+            label=self.strategy,
+            scenario=sc,
+            strategy=self.strategy,
+            seed=self.seed,
+            positions=self.positions,
+            formation_error=self.formation_error,
+            shape_error=self.shape_error,
+            estimates=np.zeros((0, n, d)),
+            estimate_cov=np.zeros((0, n, d, d)),
+            observable=np.zeros((0, n), dtype=bool),
             delivered=np.zeros((0, len(sc.directed_links)), dtype=bool),
-            healthy=np.zeros((0, m), dtype=bool), tree=np.zeros((0, m), dtype=bool),
-            components=none, rigidity_rank=none, substitution_errors=self.substitution_errors(),
-            nees_values=np.zeros(0), estimation_errors=np.zeros((0, d)), source=str(self.run_dir),
-        )  # fmt: skip
+            healthy=np.zeros((0, m), dtype=bool),
+            tree=np.zeros((0, m), dtype=bool),
+            components=none,
+            rigidity_rank=none,
+            substitution_errors=self.substitution_errors(),
+            nees_values=np.zeros(0),
+            estimation_errors=np.zeros((0, d)),
+            source=str(self.run_dir),
+        )
 
     @cached_property
     def headline(self) -> dict[str, Any]:
@@ -226,8 +237,10 @@ def launch(
     observer = None
     try:
         supervisor = Supervisor(group, restart, time.monotonic())
-        supervisor.track(group.start("router", "testbed.runtime.router", "--listen", endpoint),
-                         "testbed.runtime.router")  # fmt: skip
+        supervisor.track(
+            group.start("router", "testbed.runtime.router", "--listen", endpoint),
+            "testbed.runtime.router",
+        )
         group.on_start = lambda: _write_atomic(
             run_dir / "pids.json", json.dumps({"endpoint": endpoint, "pids": group.pid_map()})
         )
@@ -235,8 +248,14 @@ def launch(
         session = zenoh.open(session_config("client", endpoint, None))
         observer = Observer(session, run_id, scenario)
         if record:
-            rec_args = [*common, "--out", str(run_dir), "--scenario", str(scenario_path),
-                        *recorder_args]  # fmt: skip
+            rec_args = [
+                *common,
+                "--out",
+                str(run_dir),
+                "--scenario",
+                str(scenario_path),
+                *recorder_args,
+            ]
             supervisor.track(group.start("recorder", "recorder", *rec_args), "recorder", *rec_args)
             _wait(
                 lambda: observer.is_alive("recorder", 0),
@@ -253,8 +272,11 @@ def launch(
         realtime = scenario.runtime.mode == "realtime"
         priorities = favour_shared(group.pid_map()) if realtime else None
         EventDriver.check(scenario, pool)
-        events = EventDriver(scenario, supervisor,
-                             lambda i: ["--scenario", str(scenario_path), "--id", str(i), *common])  # fmt: skip
+        events = EventDriver(
+            scenario,
+            supervisor,
+            lambda i: ["--scenario", str(scenario_path), "--id", str(i), *common],
+        )
         for ids in _pools(scenario.n, pool):
             name = f"agent-{ids[0]}" if len(ids) == 1 else f"pool-{ids[0]}-{ids[-1]}"
             ident = str(ids[0]) if len(ids) == 1 else f"{ids[0]}-{ids[-1]}"
@@ -279,8 +301,9 @@ def launch(
                 if name == "leader":
                     return len(observer.estimated)
                 ids = _ids_of(name)
-                return min(first_missing_epoch(np.isfinite(observer.positions[:, i - 1, 0]))
-                           for i in ids)  # fmt: skip
+                return min(
+                    first_missing_epoch(np.isfinite(observer.positions[:, i - 1, 0])) for i in ids
+                )
 
         last_progress, last_count = time.monotonic(), -1
         while supervisor.running():
@@ -309,8 +332,14 @@ def launch(
             progress(scenario.epochs, scenario.epochs, observer.drops)
         taking_part = [i for n in agent_names if n not in gone for i in _ids_of(n)]
         taking_part = events.finishing(gone) if scenario.events else taking_part
-        _wait(lambda: all_final(observer, taking_part), group, 10.0, "the final states",
-              lambda: missing_final(observer, taking_part), ignore=[*supervisor.losses, *supervisor.planned])  # fmt: skip
+        _wait(
+            lambda: all_final(observer, taking_part),
+            group,
+            10.0,
+            "the final states",
+            lambda: missing_final(observer, taking_part),
+            ignore=[*supervisor.losses, *supervisor.planned],
+        )
         observer.netem_done()  # its last decisions are in the summary (no error: it has exited)
         if record:
             flush_recorder(session, run_id, observer)
@@ -333,16 +362,30 @@ def launch(
             )
             losses = [loss.as_json() for loss in supervisor.losses]
             return RunOutcome(
-                run_id=run_id, run_dir=run_dir, scenario=scenario, strategy=strategy, seed=seed,
-                positions=observer.positions.copy(), estimated_epochs=sorted(observer.estimated),
-                decisions=list(observer.decisions), substitutions=sorted(observer.substitutions),
-                malformed=dict(malformed), sent=dict(sent), delivered=dict(delivered),
-                pids=group.pids, wall_s=time.monotonic() - started,
-                extra={"deadline": deadline_counts(observer.statuses.values()), "losses": losses, "fallbacks": observer.fallbacks,
-                       "fallback_epochs": dict(sorted(observer.fallback_epochs.items())),
-                       "team_events": list(observer.team_events), "priorities": priorities,
-                       "cpu_steal": cpu_stolen},
-            )  # fmt: skip
+                run_id=run_id,
+                run_dir=run_dir,
+                scenario=scenario,
+                strategy=strategy,
+                seed=seed,
+                positions=observer.positions.copy(),
+                estimated_epochs=sorted(observer.estimated),
+                decisions=list(observer.decisions),
+                substitutions=sorted(observer.substitutions),
+                malformed=dict(malformed),
+                sent=dict(sent),
+                delivered=dict(delivered),
+                pids=group.pids,
+                wall_s=time.monotonic() - started,
+                extra={
+                    "deadline": deadline_counts(observer.statuses.values()),
+                    "losses": losses,
+                    "fallbacks": observer.fallbacks,
+                    "fallback_epochs": dict(sorted(observer.fallback_epochs.items())),
+                    "team_events": list(observer.team_events),
+                    "priorities": priorities,
+                    "cpu_steal": cpu_stolen,
+                },
+            )
     finally:
         if observer is not None:
             observer.close()
@@ -364,8 +407,14 @@ def _ids_of(name: str) -> list[int]:
     return list(range(parts[0], parts[-1] + 1))
 
 
-def _wait(cond: Any, group: ProcessGroup, timeout_s: float, what: str, detail: Any = None,
-          ignore: Any = ()) -> None:  # fmt: skip
+def _wait(
+    cond: Any,
+    group: ProcessGroup,
+    timeout_s: float,
+    what: str,
+    detail: Any = None,
+    ignore: Any = (),
+) -> None:
     """Wait for ``cond``; a child failing meanwhile is an error unless among the ``ignore``d losses."""
     deadline = time.monotonic() + timeout_s
     while not cond():

@@ -97,9 +97,14 @@ class BatchResult:
             return self.formation_error, self.shape_error
         base = self.plan.base
         return team_errors(
-            self.positions, team.published[:, None, :], self.formation_error, self.shape_error,
-            base.edge_array, base.weights, base.offsets,
-        )  # fmt: skip
+            self.positions,
+            team.published[:, None, :],
+            self.formation_error,
+            self.shape_error,
+            base.edge_array,
+            base.weights,
+            base.offsets,
+        )
 
     def member(self, b: int) -> SimResult:
         """Member ``b`` as the one-seed simulator's :class:`SimResult` (needs ``detail``)."""
@@ -229,16 +234,35 @@ def run_batch(
         # Links out of the graph leave the consensus; their memory waits for their return.
         sel = None if team_on is None else team_on.rows(k)
         links_k, memory_k, (got, received, measured, estimate, with_estimate, v_before) = _take(
-            sel, team, memory,
-            (arrived.reshape(-1), xk[:, src - 1].reshape(-1, d), z.reshape(-1, d),
-             np.nan_to_num(lead.estimate.positions[:, src - 1]).reshape(-1, d),
-             has_estimate.reshape(-1), v_prev[:, dst - 1].reshape(-1, d)),
-        )  # fmt: skip
+            sel,
+            team,
+            memory,
+            (
+                arrived.reshape(-1),
+                xk[:, src - 1].reshape(-1, d),
+                z.reshape(-1, d),
+                np.nan_to_num(lead.estimate.positions[:, src - 1]).reshape(-1, d),
+                has_estimate.reshape(-1),
+                v_prev[:, dst - 1].reshape(-1, d),
+            ),
+        )
         step = agent_epoch(
-            base, strategy, k, links_k, xk.reshape(size * n, d), vel, got, received, measured,
-            memory_k, estimate, with_estimate, v_before, v_known.reshape(-1, d),
+            base,
+            strategy,
+            k,
+            links_k,
+            xk.reshape(size * n, d),
+            vel,
+            got,
+            received,
+            measured,
+            memory_k,
+            estimate,
+            with_estimate,
+            v_before,
+            v_known.reshape(-1, d),
             headings=None if th is None else th[k].reshape(-1),
-        )  # fmt: skip
+        )
         memory, sub = _put(sel, memory, step)
         fallbacks += sub.fallback.reshape(size, n_links).sum(axis=1)
         if log is not None:

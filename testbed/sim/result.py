@@ -92,8 +92,15 @@ class SimResult:
         return out
 
 
-_HEADLINE = ("epochs", "final_formation_error_m", "peak_formation_error_m", "final_shape_error_m",
-             "peak_shape_error_m", "substitutions", "substitution_cov_trace_m2")  # fmt: skip
+_HEADLINE = (
+    "epochs",
+    "final_formation_error_m",
+    "peak_formation_error_m",
+    "final_shape_error_m",
+    "peak_shape_error_m",
+    "substitutions",
+    "substitution_cov_trace_m2",
+)
 _ESTIMATION = ("estimation_cov_trace_m2", "nees_mean", "drops", "longest_outage", "safety")
 
 
