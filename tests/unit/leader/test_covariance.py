@@ -14,6 +14,7 @@ from scipy.sparse.linalg import splu
 from leader.blue import blue
 from leader.covariance import PatternError, inverse_diagonal_blocks
 from leader.laplacian import GroundedSystem
+from tests.support.dense_oracle import dense_oracle
 
 PROPERTY = settings(max_examples=40, deadline=None, derandomize=True, database=None)
 Kind = Literal["diagonal", "full", "scaled"]
@@ -44,28 +45,6 @@ def noise(rng: np.random.Generator, m: int, d: int, kind: Kind) -> np.ndarray:
     return a @ a.transpose(0, 2, 1) + 1e-3 * np.eye(d)
 
 
-def dense_blocks(
-    n: int, edges: np.ndarray, cov: np.ndarray, ref: int, observable: np.ndarray
-) -> np.ndarray:
-    """Diagonal blocks of ``(H_bᵀ P⁻¹ H_b)⁻¹`` over the reference's component, densely: (n, d, d)."""
-    d = cov.shape[1]
-    nodes = [a for a in range(n) if observable[a] and a != ref - 1]
-    col = {a: k for k, a in enumerate(nodes)}
-    mat = np.zeros((len(nodes) * d, len(nodes) * d))
-    for (i, j), p in zip(edges.tolist(), cov, strict=True):
-        w = np.linalg.inv(p)
-        for a, sa in ((i - 1, 1.0), (j - 1, -1.0)):
-            for b, sb in ((i - 1, 1.0), (j - 1, -1.0)):
-                if a in col and b in col:
-                    ra, rb = col[a] * d, col[b] * d
-                    mat[ra : ra + d, rb : rb + d] += sa * sb * w
-    inv = np.linalg.inv(mat).reshape(len(nodes), d, len(nodes), d)
-    out = np.full((n, d, d), np.nan)
-    out[ref - 1] = 0.0
-    out[nodes] = inv[np.arange(len(nodes)), :, np.arange(len(nodes)), :]
-    return out
-
-
 @PROPERTY
 @given(
     seed=st.integers(0, 2**32 - 1),
@@ -94,7 +73,7 @@ def test_every_block_equals_the_dense_inverse(
     assert got.covariances is not None
     observable = np.arange(total) < n
     assert np.array_equal(got.observable, observable)
-    want = dense_blocks(total, edges, cov, ref, observable)
+    want = dense_oracle(total, edges, z, cov, ref, observable=observable)[1]
     assert np.isnan(got.covariances[~observable]).all()
     err = np.abs(got.covariances[observable] - want[observable]).max()
     assert err <= TOL, f"max |Δ| = {err:.3g}"
@@ -171,20 +150,6 @@ def test_kronecker_path_only_when_every_covariance_is_a_multiple_of_one(
     assert system.block == (d if odd_edge else 1)
     positions, blocks = np.zeros((n, d)), np.zeros((n, d, d))
     system.solve("direct", positions, blocks)
-    want = dense_blocks(n, edges, cov, 1, everyone)
+    want_x, want = dense_oracle(n, edges, z, cov)
     assert np.abs(blocks[1:] - want[1:]).max() <= TOL
-    assert np.abs(positions[1:] - dense_estimates(n, edges, z, cov)).max() <= TOL
-
-
-def dense_estimates(n: int, edges: np.ndarray, z: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """``x̂_b`` of agents 2..n with agent 1 at the origin, by dense normal equations: (n − 1, d)."""
-    d = cov.shape[1]
-    h = np.zeros((len(edges), n))
-    h[np.arange(len(edges)), edges[:, 0] - 1] = 1.0
-    h[np.arange(len(edges)), edges[:, 1] - 1] = -1.0
-    big_h = np.kron(h[:, 1:], np.eye(d))
-    info = np.zeros((len(edges) * d, len(edges) * d))
-    for k, w in enumerate(np.linalg.inv(cov)):
-        info[k * d : k * d + d, k * d : k * d + d] = w
-    gain = big_h.T @ info
-    return np.linalg.solve(gain @ big_h, gain @ z.ravel()).reshape(n - 1, d)
+    assert np.abs(positions[1:] - want_x[1:]).max() <= TOL
