@@ -87,11 +87,6 @@ def netem_change(run_id: str) -> str:
     return f"{ROOT}/{run_id}/netem/change"
 
 
-def control(run_id: str) -> str:
-    """Run control from the launcher: start, stop."""
-    return f"{ROOT}/{run_id}/control"
-
-
 def status(run_id: str, role: str, ident: int | str) -> str:
     """Progress and counters a process publishes (epoch done, malformed payloads)."""
     return f"{ROOT}/{run_id}/status/{role}/{ident}"
