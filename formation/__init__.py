@@ -1,6 +1,7 @@
 """The shared vocabulary of the testbed: scenario, wire messages, keys, Zenoh config."""
 
 from formation.errors import RecordingError, RuntimeFailure, ScenarioError, TestbedError
+from formation.graph import check_dimension
 from formation.scenario import STRATEGIES, Scenario, load, load_dict
 
 __all__ = [
@@ -10,6 +11,7 @@ __all__ = [
     "Scenario",
     "ScenarioError",
     "TestbedError",
+    "check_dimension",
     "load",
     "load_dict",
 ]

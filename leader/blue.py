@@ -64,6 +64,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.sparse.csgraph import connected_components
 
+from formation import check_dimension
 from formation.graph import (
     AgentIdError,
     GraphInputError,
@@ -240,7 +241,7 @@ class MeasurementGraph:
     ) -> MeasurementGraph:
         """Check the graph as :func:`blue` does; ``cov`` is (m, d, d), or (d, d) for every edge."""
         count = check_agent_count(n)
-        dim = _check_dimension(d)
+        dim = check_dimension(d)
         e = as_edge_array(count, edges)
         m = e.shape[0]
         shared = np.ndim(cov) == 2
@@ -383,16 +384,6 @@ def _estimate(
 
 
 # --------------------------------------------------------------------------- input checks
-
-
-def _check_dimension(d: int) -> int:
-    try:
-        dim = operator.index(d)
-    except TypeError:
-        raise GraphInputError(f"d = {d!r}", "an integer dimension") from None
-    if dim < 1:
-        raise GraphInputError(f"d = {dim}", "a dimension of at least 1")
-    return dim
 
 
 def _check_solver(solver: str) -> None:
