@@ -11,14 +11,12 @@ import asyncio
 import base64
 import json
 import os
-import socket
 import subprocess
 import sys
 from pathlib import Path
 from typing import Any
 
 import pytest
-import websockets
 from foxglove.messages import FrameTransforms, Log, SceneUpdate
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap.reader import make_reader
@@ -60,30 +58,12 @@ def _done(topic: str, payload: bytes) -> bool:
     return topic == STATS_TOPIC and json.loads(payload)["state"] == "done"
 
 
-async def _idle_subscriber(url: str, channels: dict[int, dict[str, Any]]) -> Any:
-    """Subscribes to everything, then never reads (a tiny receive buffer, one queued frame)."""
-    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-    host, port = url.removeprefix("ws://").split(":")
-    sock.connect((host, int(port)))
-    ws = await websockets.connect(
-        url,
-        sock=sock,
-        subprotocols=fc.SUBPROTOCOLS,
-        max_queue=1,
-        ping_interval=None,  # type: ignore[arg-type]
-    )
-    subs = [{"id": i, "channelId": cid} for i, cid in enumerate(channels)]
-    await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
-    return ws
-
-
 async def _watch(url: str, idle: bool) -> fc.Received:
     """Connect once the server accepts, check nothing, subscribe to TOPICS, read to the end."""
     ws = await fc.connect(url, 120.0)
     got = fc.Received()
     await fc.advertised(ws, got, set(TOPICS))
-    stalled = await _idle_subscriber(url, got.channels) if idle else None
+    stalled = await fc.idle_subscriber(url, got.channels) if idle else None
     subs = await fc.subscribe(ws, got, TOPICS)
     await fc.read_until(ws, got, subs, _done, 240.0)
     await ws.close()
