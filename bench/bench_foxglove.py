@@ -21,19 +21,16 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import os
-import socket
 import statistics
 import tempfile
 import threading
 import time
 from pathlib import Path
-from typing import Any
 
 import orjson
-import websockets
 from mcap.reader import make_reader
 
+from bench.procfs import cpu_s
 from formation.scenario import Scenario
 from recorder.decoder import decode
 from recorder.frames import load_run
@@ -79,7 +76,7 @@ class Viewer(threading.Thread):
         ws = await fc.connect(self.url, 120.0)
         got = fc.Received()
         await fc.advertised(ws, got, set(TOPICS))
-        stalled = await self._stalled(got.channels) if self.idle else None
+        stalled = await fc.idle_subscriber(self.url, got.channels) if self.idle else None
         subs = await fc.subscribe(ws, got, TOPICS)
 
         def done(topic: str, payload: bytes) -> bool:
@@ -93,34 +90,10 @@ class Viewer(threading.Thread):
         if stalled is not None:
             stalled.transport.abort()
 
-    async def _stalled(self, channels: dict[int, Any]) -> Any:
-        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # before connect: it sticks
-        sock.connect(("127.0.0.1", int(self.url.rsplit(":", 1)[1])))
-        ws = await websockets.connect(
-            self.url,
-            sock=sock,
-            subprotocols=fc.SUBPROTOCOLS,
-            max_queue=1,
-            ping_interval=None,  # type: ignore[arg-type]
-        )
-        subs = [{"id": i, "channelId": cid} for i, cid in enumerate(channels)]
-        await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
-        return ws
-
     def rate(self) -> float:
         """Data frames per second between the first and the last [1/s]."""
         t = self.received
         return (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 else 0.0
-
-
-def _cpu_s(pid: int) -> float:
-    """User + system CPU time of ``pid`` so far [s]."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except OSError:
-        return 0.0
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def lockstep_rate(scenario: Scenario, runs: Path, viewers: int) -> tuple[float, float, float]:
@@ -141,7 +114,7 @@ def lockstep_rate(scenario: Scenario, runs: Path, viewers: int) -> tuple[float, 
         marks.setdefault(done, time.monotonic())
         if (done >= first and not cpu) or (done >= last and len(cpu) == 1):
             pids = json.loads(next(runs.glob("*/pids.json")).read_text())["pids"]
-            cpu[done] = _cpu_s(pids["recorder"])
+            cpu[done] = cpu_s(pids["recorder"]) or 0.0
 
     launch(scenario, seed=SEED, runs_dir=runs, progress=progress, recorder_args=extra)
     seen = sorted(k for k in marks if first <= k <= last)
