@@ -11,6 +11,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
+from recorder.membership import spans
 from recorder.metrics import error_statistics, formation_error, longest_run, nees, shape_error
 from recorder.reader import RecordingInfo, describe, validate
 from recorder.recover import Recovered, recover
@@ -50,6 +51,7 @@ __all__ = [
     "read_run",
     "recover",
     "shape_error",
+    "spans",
     "validate",
     "write_report",
     "write_report_from",

@@ -21,6 +21,7 @@ import numpy.typing as npt
 import orjson
 
 from formation.errors import RuntimeFailure
+from recorder import spans
 from testbed.runtime.processes import Child, ProcessGroup
 
 RestartPolicy = Literal["no", "on-failure"]
@@ -187,16 +188,12 @@ def first_missing_epoch(seen: npt.NDArray[np.bool_]) -> int:
 
 
 def team_intervals(seen: npt.NDArray[np.bool_]) -> dict[int, list[tuple[int, int]]]:
-    """Who was in the team at each epoch: agent → ``[(first, last), ...]`` epochs with a state.
+    """Who was in the team at each epoch: agent → ``[(first, last), ...]`` epochs with a state,
+    by the report's rule (``recorder.spans``).
 
     seen : (E + 1, n) whether agent ``i``'s state of epoch ``k`` was recorded
     """
-    out: dict[int, list[tuple[int, int]]] = {}
-    for col in range(seen.shape[1]):
-        on = np.concatenate(([False], seen[:, col], [False])).astype(np.int8)
-        edges = np.flatnonzero(np.diff(on))
-        out[col + 1] = [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True)]
-    return out
+    return spans(seen)
 
 
 __all__ = [
