@@ -4,8 +4,9 @@ Run ``python bench/bench_leader.py [--seed S] [--quick]``. Prints one table for
 the BLUE on two graph families (formation-like: 4 nearest neighbours in the
 plane; expander: random graph of mean degree 4, made connected) and two edge
 sets (``healthy`` = every edge, ``tree`` = the Kruskal tree), with the dense
-baseline (tests/support/dense_oracle.py: ``np.linalg.solve`` on the ``nd × nd`` system plus ``np.linalg.inv``
-for the covariances) measured in the same run at n = 1,000; every covariance
+baseline (the tests' oracle, tests/support/dense_oracle.py: ``np.linalg.solve`` on
+the ``nd × nd`` system plus ``np.linalg.inv`` for the covariances) measured in the
+same run at n = 1,000; every covariance
 block on the cyclic ``healthy`` sets comes from the selected inversion of
 ``leader.covariance``, timed warm (the pattern analysed before, new values each
 call: the leader's epoch after epoch, on which the targets are judged) and cold
