@@ -6,8 +6,8 @@ code: every used measurement ``z_e = x_i − x_j + ε_e``, ``ε_e ~ N(0, P_e)``,
 where ``y_e`` is ``z_e`` with the reference's known position moved across. The
 unknowns are the agents of the reference's component but the reference; then
 ``x̂ = A⁻¹ b`` by ``np.linalg.solve`` and ``Cov(x̂_v) = (A⁻¹)_vv`` by ``np.linalg.inv``.
-Used by tests/unit/leader and bench/bench_leader.py (which times ``DenseSystem.solve``
-alone, the assembly being a Python loop).
+Used by tests/unit/leader and bench/bench_leader.py as ``dense_system(...).solve()``; the
+bench times ``solve`` alone, the assembly being a Python loop.
 """
 
 from __future__ import annotations
@@ -103,18 +103,3 @@ def dense_system(
                 if q in col:
                     a_mat[col[p] : col[p] + d, col[q] : col[q] + d] += sp * sq * w
     return DenseSystem(n, ref, x0, nodes, a_mat, b_vec)
-
-
-def dense_oracle(
-    n: int,
-    edges: npt.NDArray[np.int64],
-    z: FloatArray,
-    cov: FloatArray,
-    ref: int = 1,
-    x_ref: FloatArray | None = None,
-    use: npt.NDArray[np.bool_] | None = None,
-    observable: npt.NDArray[np.bool_] | None = None,
-) -> tuple[FloatArray, FloatArray]:
-    """``dense_system(...).solve()``: positions ``(n, d)`` [m] and covariance blocks
-    ``(n, d, d)`` [m²] of the BLUE, by the dense normal equations."""
-    return dense_system(n, edges, z, cov, ref, x_ref, use, observable).solve()

@@ -14,7 +14,7 @@ from formation.graph import AgentIdError, GraphInputError, ShapeError
 from leader.blue import BlueResult, CovarianceError, blue
 from leader.mst import minimum_spanning_forest
 from recorder.metrics import nees
-from tests.support.dense_oracle import dense_oracle
+from tests.support.dense_oracle import dense_system
 
 PROPERTY = settings(max_examples=40, deadline=None, derandomize=True, database=None)
 CovKind = Literal["scalar", "diagonal", "full"]
@@ -128,7 +128,7 @@ def test_equals_the_dense_normal_equations(
     assert result.observable.all()
     distinct = {(min(a, b), max(a, b)) for a, b in edges[use].tolist()}
     assert result.solver == ("tree" if len(distinct) == n - 1 else "direct")
-    assert_matches(result, *dense_oracle(n, edges, z, cov, ref, x[ref - 1], use))
+    assert_matches(result, *dense_system(n, edges, z, cov, ref, x[ref - 1], use).solve())
 
 
 @PROPERTY
@@ -169,7 +169,7 @@ def test_forced_cyclic_solvers_equal_dense(
     assert result.solver == method
     # CG stops at a relative residual of 1e-12; its error is at most κ(A) times that
     tol = 1e-9 if method == "direct" else 1e-7
-    assert_matches(result, *dense_oracle(n, edges, z, cov, 1, x[0], use), tol=tol)
+    assert_matches(result, *dense_system(n, edges, z, cov, 1, x[0], use).solve(), tol=tol)
 
 
 def test_chunked_covariance_blocks_and_structure_choice(
@@ -188,7 +188,7 @@ def test_chunked_covariance_blocks_and_structure_choice(
         use = np.ones(len(edges), dtype=bool)
         result = blue(n, d, edges, z, cov, 5, x[4], use)
         assert result.solver in ("direct", "cg")
-        assert_matches(result, *dense_oracle(n, edges, z, cov, 5, x[4], use), tol=1e-7)
+        assert_matches(result, *dense_system(n, edges, z, cov, 5, x[4], use).solve(), tol=1e-7)
 
 
 def grid(side: int) -> np.ndarray:
@@ -237,9 +237,9 @@ def test_parallel_measurements_of_one_link_are_both_used(rng: np.random.Generato
     use = np.ones(len(edges), dtype=bool)
     result = blue(n, d, edges, z, cov, 2, x[1], use)
     assert result.solver == "tree"
-    assert_matches(result, *dense_oracle(n, edges, z, cov, 2, x[1], use))
+    assert_matches(result, *dense_system(n, edges, z, cov, 2, x[1], use).solve())
     cyclic = blue(n, d, edges, z, cov, 2, x[1], use, solver="direct")
-    assert_matches(cyclic, *dense_oracle(n, edges, z, cov, 2, x[1], use))
+    assert_matches(cyclic, *dense_system(n, edges, z, cov, 2, x[1], use).solve())
 
 
 # --------------------------------------------------------------------------- observability
@@ -257,7 +257,7 @@ def test_unobservable_agents_are_nan_and_the_rest_still_right(rng: np.random.Gen
     assert result.observable.tolist() == [True] * 5 + [False] * 4
     assert result.covariances is not None
     assert np.isnan(result.positions[5:]).all() and np.isnan(result.covariances[5:]).all()
-    sub_x, sub_c = dense_oracle(5, edges[:5], z[:5], cov[:5], 2, x[1], use[:5])
+    sub_x, sub_c = dense_system(5, edges[:5], z[:5], cov[:5], 2, x[1], use[:5]).solve()
     np.testing.assert_allclose(result.positions[:5], sub_x, rtol=0, atol=1e-12)
     np.testing.assert_allclose(result.covariances[:5], sub_c, rtol=0, atol=1e-12)
 

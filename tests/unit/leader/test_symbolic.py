@@ -11,7 +11,7 @@ from scipy.sparse.linalg import splu
 from leader.blue import BlueResult, MeasurementGraph, blue
 from leader.covariance import inverse_diagonal_blocks
 from leader.symbolic import CACHE, SymbolicCache, factorise
-from tests.support.dense_oracle import dense_oracle
+from tests.support.dense_oracle import dense_system
 from tests.unit.leader.test_covariance import (
     TOL,
     Kind,
@@ -30,7 +30,7 @@ def run(edges: np.ndarray, z: np.ndarray, cov: np.ndarray, n: int) -> BlueResult
 
 def check_dense(got: BlueResult, edges: np.ndarray, z: np.ndarray, cov: np.ndarray) -> None:
     n = got.positions.shape[0]
-    x, c = dense_oracle(n, edges, z, cov)
+    x, c = dense_system(n, edges, z, cov).solve()
     assert got.covariances is not None
     assert np.abs(got.covariances[1:] - c[1:]).max() <= TOL
     assert np.abs(got.positions[1:] - x[1:]).max() <= TOL
