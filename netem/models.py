@@ -64,6 +64,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 import numpy.typing as npt
@@ -127,13 +128,19 @@ def _rows(p: Piece) -> npt.NDArray[np.int64]:
     return np.column_stack(rows).astype(np.int64)
 
 
-def _outcome(kinds: Sequence[str], row: Sequence[int]) -> Outcome:
-    """The decision of one row of :func:`_rows`; ``kinds`` are the stack's layer kinds."""
-    first, copies, delay_epochs, ms_bits, reordered, *state = row
+def _delays_ms(rows: npt.NDArray[np.int64]) -> list[float]:
+    """The delays [ms] of rows of :func:`_rows`, from their bits."""
+    delays: list[float] = rows[:, 3].view(np.float64).tolist()
+    return delays
+
+
+def _outcome(kinds: Sequence[str], row: Sequence[int], delay_ms: float) -> Outcome:
+    """The decision of one row of :func:`_rows` with its delay [ms]; ``kinds`` are the stack's
+    layer kinds."""
+    first, copies, delay_epochs, _, reordered, *state = row
     model = kinds[first] if first >= 0 else ""
-    ms = float(np.int64(ms_bits).view(np.float64))
     return make_decision(
-        model, copies, delay_epochs, ms, bool(reordered), state_string(kinds, state)
+        model, copies, delay_epochs, delay_ms, bool(reordered), state_string(kinds, state)
     )
 
 
@@ -159,32 +166,36 @@ def _coded(pieces: Sequence[Piece]) -> tuple[npt.NDArray[np.int64], list[Outcome
         rows = _rows(p)
         index, inverse = _distinct(rows)
         codes.append(inverse + len(table))
-        table.extend(_outcome(kinds, row) for row in rows[index].tolist())
+        picked = rows[index]
+        table.extend(map(partial(_outcome, kinds), picked.tolist(), _delays_ms(picked)))
     return np.concatenate(codes), table
 
 
 @dataclass
 class _Lazy:
-    """A piece's decisions coded like :func:`_coded`'s, each distinct one made when first asked."""
+    """A piece's decisions coded like :func:`_coded`'s, each distinct one made when first asked
+    (a packet's piece is asked for few of its epochs)."""
 
     kinds: list[str]
     codes: list[int]
     rows: list[list[int]]  # the distinct rows
+    delays_ms: list[float]  # theirs
     table: dict[int, Outcome] = field(default_factory=dict)
 
     @classmethod
     def of(cls, p: Piece) -> _Lazy:
         rows = _rows(p)
         index, inverse = _distinct(rows)
+        picked = rows[index]
         kinds = [layer.kind for layer in p.stack.layers]
-        return cls(kinds, inverse.tolist(), rows[index].tolist())
+        return cls(kinds, inverse.tolist(), picked.tolist(), _delays_ms(picked))
 
     def at(self, j: int) -> Outcome:
         """The decision of the piece's epoch ``j``."""
         code = self.codes[j]
         out = self.table.get(code)
         if out is None:
-            out = self.table[code] = _outcome(self.kinds, self.rows[code])
+            out = self.table[code] = _outcome(self.kinds, self.rows[code], self.delays_ms[code])
         return out
 
 
