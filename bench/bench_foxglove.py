@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import os
 import statistics
 import tempfile
 import threading
@@ -31,6 +30,7 @@ from pathlib import Path
 import orjson
 from mcap.reader import make_reader
 
+from bench.procfs import cpu_s
 from formation.scenario import Scenario
 from formation.topics import DECISIONS_TOPIC, METRICS_TOPIC, SCENE_TOPIC, STATS_TOPIC, TF_TOPIC
 from recorder import LiveServer, decode, load_run
@@ -88,15 +88,6 @@ class Viewer(threading.Thread):
         return (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 else 0.0
 
 
-def _cpu_s(pid: int) -> float:
-    """User + system CPU time of ``pid`` so far [s]."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except OSError:
-        return 0.0
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
 def lockstep_rate(scenario: Scenario, runs: Path, viewers: int) -> tuple[float, float, float]:
     """(epochs/s between epoch marks, messages/s to the reading client or 0, the recorder's
     CPU ms per epoch between the same marks)."""
@@ -115,7 +106,7 @@ def lockstep_rate(scenario: Scenario, runs: Path, viewers: int) -> tuple[float, 
         marks.setdefault(done, time.monotonic())
         if (done >= first and not cpu) or (done >= last and len(cpu) == 1):
             pids = json.loads(next(runs.glob("*/pids.json")).read_text())["pids"]
-            cpu[done] = _cpu_s(pids["recorder"])
+            cpu[done] = cpu_s(pids["recorder"]) or 0.0
 
     launch(scenario, seed=SEED, runs_dir=runs, progress=progress, recorder_args=extra)
     seen = sorted(k for k in marks if first <= k <= last)

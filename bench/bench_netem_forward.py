@@ -28,13 +28,13 @@ import os
 import subprocess
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import zenoh
 
 from bench.netem_rig import ROOT, RUN, bench_scenario, netem_rig
+from bench.procfs import cpu_s
 from formation import keys
 from formation.codec import attachment, encode, now_ns
 from formation.linkmodels import Logistic
@@ -55,11 +55,6 @@ LOGISTIC = {"model": "logistic", "d50_m": 2.2, "width_m": 0.15}  # diagonals los
 def position(k: int, i: int) -> list[float]:
     """Agent ``i``'s position at epoch ``k`` [m]: its place on the pentagon, drifting along x."""
     return [float(OFFSETS[i - 1, 0] + 1e-3 * k), float(OFFSETS[i - 1, 1])]
-
-
-def _cpu_s(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def _expected(epochs: int, network: dict[str, Any] | None) -> int:
@@ -112,14 +107,14 @@ def forward_rate(
                 for k in range(epochs)
                 for i in range(1, AGENTS + 1)
             ]  # fmt: skip
-            cpu0 = _cpu_s(pid)
+            cpu0 = cpu_s(pid) or 0.0
             start = time.time_ns()
             for n, payload in enumerate(payloads):
                 k, i = divmod(n, AGENTS)
                 pubs[i].put(payload, attachment=attachment(k, k, i + 1))
             sent_s = (time.time_ns() - start) / 1e9
             result = json.loads(counter.communicate(timeout=150)[0].strip().splitlines()[-1])
-            cpu = _cpu_s(pid) - cpu0
+            cpu = (cpu_s(pid) or 0.0) - cpu0
             for pub in pubs:
                 pub.undeclare()
         finally:

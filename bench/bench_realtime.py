@@ -24,6 +24,7 @@ import threading
 from collections import defaultdict
 from pathlib import Path
 
+from bench.procfs import cpu_s
 from testbed.runtime import steal
 from testbed.runtime.launcher import launch
 from testbed.runtime.layout import realtime_layout
@@ -31,7 +32,6 @@ from testbed.sim.teams import henneberg_team
 
 SEED = 1
 EPOCHS = 100
-TICK_S = os.sysconf("SC_CLK_TCK")
 CASES = [  # (label, agents, agent processes: None = one per agent, "picked" = the layout's)
     ("5 processes", 5, None),
     ("20 processes", 20, None),
@@ -40,14 +40,6 @@ CASES = [  # (label, agents, agent processes: None = one per agent, "picked" = t
     ("200 picked", 200, "picked"),
 ]
 QUICK = [(20.0, "20 processes", 20, None), (10.0, "100 picked", 100, "picked")]
-
-
-def _cpu_s(pid: int) -> float | None:
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except OSError:
-        return None
-    return (int(fields[11]) + int(fields[12])) / TICK_S  # utime, stime
 
 
 class CpuWatch:
@@ -66,10 +58,10 @@ class CpuWatch:
 
     def _watch(self, pids: dict[str, int]) -> None:
         for name, pid in pids.items():  # start-up (imports, sessions) is not the run's
-            self.first[name] = _cpu_s(pid) or 0.0
+            self.first[name] = cpu_s(pid) or 0.0
         while not self.done.is_set():
             for name, pid in pids.items():
-                if (t := _cpu_s(pid)) is not None:
+                if (t := cpu_s(pid)) is not None:
                     self.last[name] = t
             self.done.wait(0.1)
 

@@ -19,6 +19,7 @@ import orjson
 import zenoh
 
 from bench.netem_rig import RUN, netem_rig
+from bench.procfs import cpu_s, peak_rss_kib
 from formation import keys
 from formation.codec import attachment, encode, now_ns
 from formation.messages import CoordinationState
@@ -30,24 +31,6 @@ from testbed.sim.teams import henneberg_team
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 1
-
-
-def _rss_kib(pid: int) -> int:
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1])
-    except OSError:
-        pass
-    return 0
-
-
-def _cpu_s(pid: int) -> float:
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except OSError:
-        return 0.0
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def _role(name: str) -> str:
@@ -69,11 +52,11 @@ def lockstep_rate(
         if done >= first and len(cpu) < 2 and (not cpu or done >= last):
             pids = json.loads(next(runs.glob("*/pids.json")).read_text())["pids"]
             pids["launcher"] = os.getpid()
-            cpu[done] = {name: _cpu_s(p) for name, p in pids.items()}
+            cpu[done] = {name: cpu_s(p) or 0.0 for name, p in pids.items()}
         if done >= total - 2 and not peak[0]:
             pids = json.loads(next(runs.glob("*/pids.json")).read_text())["pids"]
             agents = [p for name, p in pids.items() if name.startswith(("agent", "pool"))]
-            peak[0] = max(_rss_kib(p) for p in agents)
+            peak[0] = max(peak_rss_kib(p) for p in agents)
 
     launch(scenario, seed=SEED, runs_dir=runs, record=False, pool=pool, progress=progress)
     seen = sorted(k for k in marks if first <= k <= last)

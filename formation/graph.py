@@ -46,23 +46,26 @@ class AgentIdError(GraphInputError):
     """An agent id outside ``1..n`` (or an edge joining an agent to itself)."""
 
 
-def check_positive(value: int, name: str, integer: str, at_least_one: str) -> int:
-    """Return ``value`` as an ``int`` after checking that it is an integer ``>= 1``.
-
-    ``integer`` and ``at_least_one`` say what was expected when it is not.
-    """
+def _check_positive(value: int, name: str, integer: str, least: str) -> int:
+    """``value`` as an ``int`` after checking that it is an integer ``>= 1``; the error expects
+    ``integer`` (not an integer) or ``least`` (below 1)."""
     try:
         count = operator.index(value)
     except TypeError:
         raise GraphInputError(f"{name} = {value!r}", integer) from None
     if count < 1:
-        raise GraphInputError(f"{name} = {count}", at_least_one)
+        raise GraphInputError(f"{name} = {count}", least)
     return count
 
 
 def check_agent_count(n: int, name: str = "n") -> int:
     """Return ``n`` as an ``int`` after checking that it is an integer ``>= 1``."""
-    return check_positive(n, name, "an integer number of agents", "at least 1 agent")
+    return _check_positive(n, name, "an integer number of agents", "at least 1 agent")
+
+
+def check_dimension(d: int, name: str = "d") -> int:
+    """Return ``d`` as an ``int`` after checking that it is an integer ``>= 1``."""
+    return _check_positive(d, name, "an integer dimension", "a dimension of at least 1")
 
 
 def as_edge_array(n: int, edges: npt.ArrayLike, name: str = "edges") -> IntArray:

@@ -1,6 +1,9 @@
 """Key expressions of a run; every key string of the testbed is built here.
 
-All keys live under ``formation/<run_id>/``. Formation links are ``i → j``
+Other modules read keys (``netem.links``, ``recorder.schemas``, ``recorder.trust`` split
+them into their parts) but build none; ``tests/unit/formation/test_key_literals.py``
+scans the product for key literals outside this module. All keys live under
+``formation/<run_id>/``. Formation links are ``i → j``
 between agents; control links join agent ``i`` and the leader (endpoint 0).
 """
 
@@ -87,11 +90,6 @@ def netem_change(run_id: str) -> str:
     return f"{ROOT}/{run_id}/netem/change"
 
 
-def control(run_id: str) -> str:
-    """Run control from the launcher: start, stop."""
-    return f"{ROOT}/{run_id}/control"
-
-
 def status(run_id: str, role: str, ident: int | str) -> str:
     """Progress and counters a process publishes (epoch done, malformed payloads)."""
     return f"{ROOT}/{run_id}/status/{role}/{ident}"
@@ -149,6 +147,14 @@ def flush(run_id: str) -> str:
 def clock(run_id: str) -> str:
     """Queryable of netem in realtime mode: the run's start time and period."""
     return f"{ROOT}/{run_id}/clock"
+
+
+def moved(key: str, old_prefix: str, new_prefix: str) -> str:
+    """``key`` under ``new_prefix`` instead of ``old_prefix`` (a replay onto another run's keys);
+    a key not under ``old_prefix`` stays as it is."""
+    if key.startswith(old_prefix + "/"):
+        return new_prefix + key[len(old_prefix) :]
+    return key
 
 
 def replay_control(prefix_key: str) -> str:

@@ -189,13 +189,6 @@ class Status(_Message):
     detail: str = ""
 
 
-class Control(_Message):
-    """Launcher to every process: ``start`` (epoch 0 may begin) or ``stop``."""
-
-    kind: Literal["control"] = "control"
-    command: Literal["start", "stop"]
-
-
 class EpochMetrics(_Message):
     """Per-epoch metrics from the true states (docs/model.md §7), written by the recorder."""
 
@@ -214,7 +207,6 @@ Message = Annotated[
     | DecisionBatch
     | LinkChange
     | Status
-    | Control
     | EpochMetrics,
     Field(discriminator="kind"),
 ]
@@ -228,6 +220,5 @@ ALL_MODELS: tuple[type[BaseModel], ...] = (
     DecisionBatch,
     LinkChange,
     Status,
-    Control,
     EpochMetrics,
 )

@@ -1,10 +1,11 @@
-"""One leader epoch (docs/model.md §4–§5): healthy edges → Kruskal tree → BLUE → rigidity.
+"""The leader's epoch (docs/model.md §4–§5): healthy edges → Kruskal forest → BLUE → rigidity rank.
 
-:class:`Leader` checks a scenario's graphs once and runs the epoch for ``B``
-independent runs of it at once (the batch simulator's seeds);
-:func:`leader_epoch`, what the leader process runs, is its batch of one. Every
-run of a batch gets the floats it gets alone, so the leader process, the
-simulator and the batch agree bit for bit.
+:class:`Leader` checks a scenario's graphs once; :meth:`Leader.epochs` then runs an
+epoch for ``B`` independent runs of it at once. The batch simulator
+(``testbed.sim.batch``) passes its seeds, the leader process (``leader.node``) a
+batch of one. Every run of a batch gets the floats it gets alone, so the leader
+process, the simulator and the batch agree bit for bit. :func:`leader_epoch` is
+one run's epoch with its rigidity, as a :class:`LeaderEpoch`.
 """
 
 from __future__ import annotations

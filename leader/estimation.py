@@ -64,6 +64,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.sparse.csgraph import connected_components
 
+from formation import check_dimension
 from formation.graph import (
     AgentIdError,
     GraphInputError,
@@ -71,7 +72,6 @@ from formation.graph import (
     as_edge_array,
     as_edge_mask,
     check_agent_count,
-    check_positive,
 )
 from leader.dense import dense_blue
 from leader.laplacian import GroundedSystem, choose_method
@@ -241,7 +241,7 @@ class MeasurementGraph:
     ) -> MeasurementGraph:
         """Check the graph as :func:`blue` does; ``cov`` is (m, d, d), or (d, d) for every edge."""
         count = check_agent_count(n)
-        dim = _check_dimension(d)
+        dim = check_dimension(d)
         e = as_edge_array(count, edges)
         m = e.shape[0]
         shared = np.ndim(cov) == 2
@@ -384,10 +384,6 @@ def _estimate(
 
 
 # --------------------------------------------------------------------------- input checks
-
-
-def _check_dimension(d: int) -> int:
-    return check_positive(d, "d", "an integer dimension", "a dimension of at least 1")
 
 
 def _check_solver(solver: str) -> None:

@@ -132,18 +132,15 @@ class Layer(Generic[S]):
         """Why the spec cannot run (checked when a stack is built); None when it can."""
         return None
 
-    def drops_at(self, time_s: Floats) -> Bools:
-        """A timed layer's drops at packet times ``time_s`` ``(n,)`` [s]."""
-        return np.zeros(time_s.shape, dtype=np.bool_)
-
-    def drops_at_time(self, time_s: float) -> bool:
-        """``drops_at`` for one packet time [s]."""
-        return False
+    def drops_at(self, time_s: Floats | float) -> Bools:
+        """A timed layer's drops at packet times ``time_s`` ``(n,)`` [s] (or one time, 0-d)."""
+        return np.zeros(np.shape(time_s), dtype=np.bool_)
 
     @staticmethod
-    def keeps(reach_m: Floats, distance_m: Floats) -> Bools:
+    def keeps(reach_m: Floats | float, distance_m: Floats | float) -> Bools:
         """A distance layer's verdicts: delivered iff the link's length ``distance_m`` is at most
-        the run's ``reach_m`` (same shape) [m]: one comparison, the same in every process."""
+        the run's ``reach_m`` (same shape, or one packet's scalars) [m]: one comparison, the same
+        in every process."""
         return np.asarray(distance_m <= reach_m, dtype=np.bool_)
 
     def delivery_at(self, distance_m: Floats) -> Floats:

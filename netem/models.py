@@ -39,7 +39,10 @@ draws stay the same keyed numbers), otherwise it starts in its initial state.
 Cost: ``LinkModel.decide`` computes blocks of epochs with the vectorised form
 (the same code as ``schedule``), checkpoints the chains at block starts and
 serves decisions from a small cache, about a million decisions per second per
-link; ``bench/bench_netem_models.py`` measures it.
+link; ``bench/bench_netem_models.py`` measures it. A packet with ``seq > 0``, under a
+realtime window or dropped by a distance layer is decided by the same pieces: the
+block's piece for that packet (``Piece.for_packet``) with that packet's verdicts
+applied to every epoch (``Piece.with_verdicts``), coded once and cached per block.
 
 Layout: the specs are in ``formation.linkmodels``; each model's layer and closed
 forms in ``netem.linkmodels.<tag>`` (the registry, ``netem.linkmodels``, says how
@@ -74,6 +77,7 @@ from netem.closed_forms import (
     expected_loss_rate,
     stationary_distribution,
 )
+from netem.decision_table import LazyTable, coded_table
 from netem.layer import Floats, Keys, LinkModelError
 from netem.matrix import delivery_matrix, link_lengths
 from netem.stack import (
@@ -86,14 +90,14 @@ from netem.stack import (
     Stack,
     build_stack,
     check_key,
-    make_decision,
     run_stack,
     schedule_of,
-    state_string,
     trim_pieces,
 )
 
 # ----------------------------------------------------------------------------- one link
+
+Verdicts = tuple[tuple[int, bool], ...]  # (timed or distance layer, drops) of one packet
 
 
 @dataclass
@@ -107,9 +111,11 @@ class _Block:
     codes: npt.NDArray[np.int64]  # code_list as an array
     ranged: bool  # a piece has a distance layer: table entries are before those layers
     table: list[Outcome]
-    by_seq: dict[tuple[int, int], tuple[list[int], list[int], list[float]]] = field(
+    reach: Floats  # least reach [m] of the distance layers at each epoch, inf where none
+    packets: dict[tuple[int, int], Piece] = field(default_factory=dict)  # (piece, seq) → its piece
+    variants: dict[tuple[int, int, Verdicts], LazyTable] = field(
         default_factory=dict
-    )  # (piece, seq) → extra copies, delay [epochs], delay [ms] of packet `seq` of each epoch
+    )  # (piece, seq, verdicts) → the piece's decisions under those verdicts
 
 
 class LinkModel:
@@ -197,10 +203,9 @@ class LinkModel:
             if epoch < 0:
                 raise LinkModelError(self.link, f"epoch = {epoch}; expected >= 0")
             blk = self._block(epoch // self._b)
-        if seq == 0 and not blk.timed:
-            out = blk.table[blk.code_list[epoch - blk.start]]
-            return out if not blk.ranged else self._at_distance(blk, epoch, out, distance_m)
-        return self._decide_slow(blk, epoch, seq, time_s, distance_m)
+        if seq == 0 and not blk.timed and not blk.ranged:
+            return blk.table[blk.code_list[epoch - blk.start]]
+        return self._decide_packet(blk, epoch, seq, time_s, distance_m)
 
     def prepare(self, epoch: int) -> None:
         """Compute the block of decisions holding ``epoch`` now, if it is not cached, so the
@@ -253,12 +258,9 @@ class LinkModel:
         k, end = start, start + n_epochs
         while k < end:
             blk = self._blocks.get(k // self._b) or self._block(k // self._b)
-            for p in blk.pieces:
-                a, b = max(k, p.start), min(end, p.start + p.n)
-                for i in p.stack.ranged if a < b else ():
-                    part = out[a - start : b - start]
-                    np.minimum(part, p.reach_m[i][0, a - p.start : b - p.start], out=part)
-            k = blk.start + self._b
+            stop = min(end, blk.start + self._b)
+            out[k - start : stop - start] = blk.reach[k - blk.start : stop - blk.start]
+            k = stop
         return out
 
     def schedule(
@@ -340,30 +342,15 @@ class LinkModel:
         a = k * self._b
         pieces, end = self._run_range(a, a + self._b, self._carry_at(k))
         self._carries[k + 1] = end
-        # Epochs with equal outcomes share one Outcome: rows are coded by np.unique, and
-        # only the few distinct rows are turned into Python objects.
-        table: list[Outcome] = []
-        codes = []
-        for p in pieces:
-            kinds = [layer.kind for layer in p.stack.layers]
-            _, copies, de, dms, reo = p.final()
-            rows = np.column_stack(
-                [p.first[0], copies[0], de[0], dms[0].view(np.int64), reo[0], p.states[0]]
-            ).astype(np.int64)
-            if (rows == rows[0]).all():  # the usual block: nothing happens on the link
-                index, inverse = np.zeros(1, np.int64), np.zeros(len(rows), np.int64)
-            else:
-                as_one = rows.view(np.dtype((np.void, rows.itemsize * rows.shape[1]))).ravel()
-                _, index, inverse = np.unique(as_one, return_index=True, return_inverse=True)
-            codes.append(inverse.reshape(-1) + len(table))
-            for first, c, e, ms_bits, r, *state in rows[index].tolist():
-                model = kinds[first] if first >= 0 else ""
-                ms = float(np.int64(ms_bits).view(np.float64))
-                table.append(make_decision(model, c, e, ms, bool(r), state_string(kinds, state)))
-        coded = np.concatenate(codes)
+        coded, table = coded_table(pieces)
         timed = any(p.stack.timed for p in pieces)
         ranged = any(p.stack.ranged for p in pieces)
-        blk = _Block(a, pieces, coded.tolist(), timed, coded, ranged, table)
+        reach = np.full(self._b, np.inf)
+        for p in pieces:
+            for i in p.stack.ranged:
+                part = reach[p.start - a : p.start - a + p.n]
+                np.minimum(part, p.reach_m[i][0], out=part)
+        blk = _Block(a, pieces, coded.tolist(), timed, coded, ranged, table, reach)
         while len(self._blocks) >= self._cache_blocks:
             del self._blocks[next(iter(self._blocks))]
         self._blocks[k] = blk
@@ -386,86 +373,50 @@ class LinkModel:
                     "the decision needs the link's length distance_m",
                 )
 
-    def _ranged_drop(self, p: Piece, j: int, distance_m: float | None) -> int:
-        """The first distance layer of piece ``p`` that drops its epoch ``j``; -1 if none does."""
-        if not p.stack.ranged:
-            return -1
-        if distance_m is None:
-            self._require_distance([p])  # raises: the stack has a distance layer
-            return -1
-        d = float(distance_m)
-        for i in p.stack.ranged:
-            if not d <= p.reach_m[i][0, j]:  # Layer.keeps, for one packet
-                return i
-        return -1
-
-    def _at_distance(
-        self, blk: _Block, epoch: int, out: Outcome, distance_m: float | None
-    ) -> Outcome:
-        """``out``, the decision without the distance layers, with them at ``distance_m`` [m]."""
-        which = next(i for i in reversed(range(len(blk.pieces))) if blk.pieces[i].start <= epoch)
-        p = blk.pieces[which]
-        j = epoch - p.start
-        drop = self._ranged_drop(p, j, distance_m)
-        first = int(p.first[0, j])
-        if drop < 0 or 0 <= first < drop:
-            return out
-        return make_decision(p.stack.layers[drop].kind, 0, 0, 0.0, False, out.state)
-
-    def _packet_draws(self, p: Piece, seq: int) -> tuple[list[int], list[int], list[float]]:
-        """Extra copies and delays of packet ``seq`` of every epoch of a piece."""
-        epochs = np.arange(p.start, p.start + p.n, dtype=np.int64)
-        dup = np.zeros(p.n, dtype=np.int64)
-        de = np.zeros(p.n, dtype=np.int64)
-        dms = np.zeros(p.n, dtype=np.float64)
-        for i, layer in enumerate(p.stack.layers):
-            out = layer.packet(self._keys, epochs, seq, p.chain_prev.get(i))
-            if out is None:
-                continue
-            if out.dup is not None:
-                dup += out.dup[0]
-            if out.delay_epochs is not None and out.delay_ms is not None:
-                de += out.delay_epochs[0]
-                dms += out.delay_ms[0]
-        return dup.tolist(), de.tolist(), dms.tolist()
-
-    def _decide_slow(
-        self, blk: _Block, epoch: int, seq: int, time_s: float | None, distance_m: float | None
-    ) -> Outcome:
-        """Packets with ``seq > 0`` or under a realtime window: one packet, from the block's chains."""
-        which = next(i for i in reversed(range(len(blk.pieces))) if blk.pieces[i].start <= epoch)
-        p = blk.pieces[which]
-        j = epoch - p.start
+    def _verdicts(
+        self, p: Piece, j: int, time_s: float | None, distance_m: float | None
+    ) -> Verdicts:
+        """Which timed and distance layers of piece ``p`` drop a packet of its epoch ``j`` sent at
+        ``time_s`` [s] over a link of length ``distance_m`` [m]."""
         layers = p.stack.layers
-        first = int(p.first[0, j])
-        codes = p.states[0, j].tolist()
-        dup, de, dms = int(p.dup[0, j]), int(p.delay_epochs[0, j]), float(p.delay_ms[0, j])
-        if seq != 0:
-            if seq < 0 or seq >= KEY_LIMIT:
-                raise LinkModelError(self.link, f"seq = {seq}; expected an integer in [0, 2**63)")
-            extra = blk.by_seq.get((which, seq))
-            if extra is None:
-                extra = blk.by_seq[(which, seq)] = self._packet_draws(p, seq)
-            dup, de, dms = extra[0][j], extra[1][j], extra[2][j]
+        out: list[tuple[int, bool]] = []
         if p.stack.timed:
             if time_s is None:
-                self._require_times([p])
-            else:
-                for i in p.stack.timed:
-                    down = layers[i].drops_at_time(time_s)
-                    codes[i] = int(down)
-                    if down and (first < 0 or i < first):
-                        first = i
-        drop = self._ranged_drop(p, j, distance_m)
-        if drop >= 0 and (first < 0 or drop < first):
-            first = drop
-        kinds = [layer.kind for layer in layers]
-        reordered = bool(p.reorder[0, j])
-        if first >= 0:
-            return make_decision(kinds[first], 0, 0, 0.0, False, state_string(kinds, codes))
-        if reordered:
-            de, dms = 0, 0.0
-        return make_decision("", 1 + dup, de, dms, reordered, state_string(kinds, codes))
+                self._require_times([p])  # raises
+            t = np.float64(time_s)
+            out += [(i, bool(layers[i].drops_at(t))) for i in p.stack.timed]
+        if p.stack.ranged:
+            if distance_m is None:
+                self._require_distance([p])  # raises
+            d = np.float64(distance_m)
+            out += [(i, not layers[i].keeps(p.reach_m[i][0, j], d)) for i in p.stack.ranged]
+        return tuple(out)
+
+    def _decide_packet(
+        self, blk: _Block, epoch: int, seq: int, time_s: float | None, distance_m: float | None
+    ) -> Outcome:
+        """Packet ``seq`` of ``epoch`` under realtime windows or distance layers, or with
+        ``seq > 0``: the stack's piece for that packet and its verdicts, coded once per block."""
+        if not 0 <= seq < KEY_LIMIT:
+            raise LinkModelError(self.link, f"seq = {seq}; expected an integer in [0, 2**63)")
+        j = epoch - blk.start
+        if seq == 0 and not blk.timed and distance_m is not None and distance_m <= blk.reach[j]:
+            return blk.table[blk.code_list[j]]  # within the reach of every distance layer
+        which = next(i for i in reversed(range(len(blk.pieces))) if blk.pieces[i].start <= epoch)
+        p = blk.pieces[which]
+        verdicts = self._verdicts(p, epoch - p.start, time_s, distance_m)
+        if seq == 0 and not any(lost for _, lost in verdicts):
+            return blk.table[blk.code_list[j]]
+        coded = blk.variants.get((which, seq, verdicts))
+        if coded is None:
+            base = p
+            if seq != 0:
+                base = blk.packets.get((which, seq)) or p.for_packet(self._keys, seq)
+                blk.packets[(which, seq)] = base
+            coded = blk.variants[(which, seq, verdicts)] = LazyTable.of(
+                base.with_verdicts(verdicts)
+            )
+        return coded.at(epoch - p.start)
 
 
 # ----------------------------------------------------------------------------- batch forms

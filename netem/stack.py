@@ -8,7 +8,7 @@ Nothing here knows a model: each layer comes from ``netem.linkmodels`` by its ta
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any, NamedTuple
 
@@ -16,7 +16,17 @@ import numpy as np
 import numpy.typing as npt
 
 from formation.linkmodels import MODEL_NAMES, LinkModelSpec
-from netem.layer import KIND_CODE, Bools, Codes, Floats, Ints, Keys, Layer, LinkModelError
+from netem.layer import (
+    KIND_CODE,
+    Bools,
+    Codes,
+    Floats,
+    Ints,
+    Keys,
+    Layer,
+    LayerOutput,
+    LinkModelError,
+)
 from netem.linkmodels import STATE_NAMES, layer_of
 
 Carry = dict[tuple[str, int], npt.NDArray[Any]]  # chain state per layer ident (kind, occurrence)
@@ -112,8 +122,9 @@ class Stack:
     def stateful(self) -> bool:
         return any(layer.stateful for layer in self.layers)
 
-    @property
+    @cached_property
     def timed(self) -> tuple[int, ...]:
+        """Indices of the layers that decide by the packet's time (asked for every packet)."""
         return tuple(i for i, layer in enumerate(self.layers) if layer.timed)
 
     @cached_property
@@ -162,20 +173,43 @@ class Piece:
     def n(self) -> int:
         return int(self.first.shape[1])
 
+    def drop(self, i: int, lost: Bools) -> None:
+        """Layer ``i`` drops where ``lost`` ``(L, n)``; a timed layer's state then says down."""
+        self.first = _first_drop(self.first, i, lost)
+        if self.stack.layers[i].timed:
+            self.states[:, :, i] = lost
+
     def apply_times(self, time_s: Floats) -> None:
         """Drop by the realtime outage windows at packet times ``time_s`` ``(n,)`` [s]."""
         for i in self.stack.timed:
-            down = np.broadcast_to(self.stack.layers[i].drops_at(time_s), self.first.shape)
-            self.first = np.where(down & ((self.first < 0) | (self.first > i)), i, self.first)
-            self.first = self.first.astype(np.int16)
-            self.states[:, :, i] = down
+            self.drop(i, np.broadcast_to(self.stack.layers[i].drops_at(time_s), self.first.shape))
 
     def apply_distances(self, distance_m: Floats) -> None:
         """Drop by the distance layers at link lengths ``distance_m`` ``(L, n)`` [m]."""
         for i in self.stack.ranged:
-            lost = ~self.stack.layers[i].keeps(self.reach_m[i], distance_m)
-            self.first = np.where(lost & ((self.first < 0) | (self.first > i)), i, self.first)
-            self.first = self.first.astype(np.int16)
+            self.drop(i, ~self.stack.layers[i].keeps(self.reach_m[i], distance_m))
+
+    def with_verdicts(self, verdicts: Sequence[tuple[int, bool]]) -> Piece:
+        """A copy in which each layer ``i`` of ``verdicts`` drops at every epoch (``True``) or at
+        none: one packet's realtime windows and distance layers, applied to the whole piece so
+        its decisions can be coded once and served per packet."""
+        p = replace(self, first=self.first.copy(), states=self.states.copy())
+        for i, lost in verdicts:
+            p.drop(i, np.full(p.first.shape, lost))
+        return p
+
+    def for_packet(self, keys: Keys, seq: int) -> Piece:
+        """The piece for packet ``seq`` of each epoch: the per-packet draws (duplicates, delays) of
+        ``Layer.packet``, the per-epoch verdicts and states shared with packet 0."""
+        epochs = np.arange(self.start, self.start + self.n, dtype=np.int64)
+        dup = np.zeros_like(self.dup)
+        delay_epochs = np.zeros_like(self.delay_epochs)
+        delay_ms = np.zeros_like(self.delay_ms)
+        for i, layer in enumerate(self.stack.layers):
+            out = layer.packet(keys, epochs, seq, self.chain_prev.get(i))
+            if out is not None:
+                _add_draws(out, dup, delay_epochs, delay_ms)
+        return replace(self, dup=dup, delay_epochs=delay_epochs, delay_ms=delay_ms)
 
     def final(self) -> tuple[Bools, npt.NDArray[np.int8], Ints, Floats, Bools]:
         """``delivered, copies, delay_epochs, delay_ms, reordered``, each ``(L, n)``."""
@@ -217,23 +251,36 @@ def run_stack(stack: Stack, keys: Keys, start: int, n: int, carry: Carry) -> tup
             drops.append((i, out.drop))
         if out.state is not None:
             states[:, :, i] = out.state
-        if out.delay_epochs is not None and out.delay_ms is not None:
-            delay_epochs += out.delay_epochs
-            delay_ms += out.delay_ms
-        if out.dup is not None:
-            dup += out.dup.astype(np.int8)
+        _add_draws(out, dup, delay_epochs, delay_ms)
         if out.reorder is not None:
             reorder |= out.reorder
         if out.chain_prev is not None:
             chain_prev[i] = out.chain_prev
         if layer.ranged and out.reach_m is not None:
             reach_m[i] = out.reach_m
-    for i, drop in reversed(drops):
-        first = np.where(drop, np.int16(i), first).astype(np.int16)
+    for i, drop in drops:
+        first = _first_drop(first, i, drop)
     piece = Piece(
         start, stack, first, dup, delay_epochs, delay_ms, reorder, states, chain_prev, reach_m
     )
     return piece, after
+
+
+def _first_drop(first: npt.NDArray[np.int16], i: int, lost: Bools) -> npt.NDArray[np.int16]:
+    """``first`` (the first dropping layer, -1 none) after layer ``i`` drops where ``lost``: a
+    packet is dropped when any layer drops it, and the first in stack order names the drop."""
+    return np.where(lost & ((first < 0) | (first > i)), np.int16(i), first).astype(np.int16)
+
+
+def _add_draws(
+    out: LayerOutput, dup: npt.NDArray[np.int8], delay_epochs: Ints, delay_ms: Floats
+) -> None:
+    """Add a layer's duplicates and delays to the stack's, in place: delays of layers add up."""
+    if out.delay_epochs is not None and out.delay_ms is not None:
+        delay_epochs += out.delay_epochs
+        delay_ms += out.delay_ms
+    if out.dup is not None:
+        dup += out.dup.astype(np.int8)
 
 
 def state_string(kinds: Sequence[str], codes: Sequence[int]) -> str:

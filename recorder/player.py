@@ -126,9 +126,7 @@ class Replayer:
         return not self._filters or any(f.intersects(key) for f in self._filters)
 
     def out_key(self, topic: str) -> str:
-        if topic.startswith(self.recorded_prefix + "/"):
-            return self.prefix + topic[len(self.recorded_prefix) :]
-        return topic
+        return keys.moved(topic, self.recorded_prefix, self.prefix)
 
     # -- control ----------------------------------------------------------------------------
     # Timing: message at log time ``t`` is due at ``base_wall + (t − base_log) / rate``.

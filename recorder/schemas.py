@@ -20,7 +20,6 @@ from pydantic import BaseModel, ConfigDict
 from formation import keys
 from formation.messages import (
     AgentEstimate,
-    Control,
     CoordinationState,
     DecisionBatch,
     Delivery,
@@ -66,7 +65,6 @@ _PATTERNS: tuple[tuple[str, str], ...] = (
     ("decision", keys.netem_decision(_W)),
     ("link_change", keys.netem_change(_W)),
     ("status", keys.status(_W, _W, _W)),
-    ("control", keys.control(_W)),
     ("metrics", keys.metrics(_W)),
     ("scene", keys.scene(_W)),
     ("tf", keys.frames(_W)),
@@ -87,7 +85,6 @@ MESSAGE_MODELS: dict[str, type[BaseModel]] = {
     "decision": DecisionBatch,
     "link_change": LinkChange,
     "status": Status,
-    "control": Control,
     "metrics": EpochMetrics,
     "alive": LivelinessEvent,
 }

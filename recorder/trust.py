@@ -57,7 +57,7 @@ REASONS = (INVALID, FORGED, OUT_OF_RANGE, CONFLICT, UNKNOWN_KEY)
 ORIGIN = "origin"  # channel metadata of what the recorder derived itself
 RECORDER = "recorder"
 DERIVED = frozenset({"metrics", *FOXGLOVE})  # kinds only the recorder writes
-_REPEATED = frozenset({"status", "decision", "alive", "control", "link_change"})  # many per epoch
+_REPEATED = frozenset({"status", "decision", "alive", "link_change"})  # many per epoch
 
 
 class Skip(Exception):

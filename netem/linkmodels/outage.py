@@ -27,11 +27,8 @@ class OutageLayer(Layer[Outage]):
         self.start_s = spec.start_s if spec.start_s is not None else 0.0
         self.end_s = spec.end_s if spec.end_s is not None else math.inf
 
-    def drops_at(self, time_s: Floats) -> Bools:
+    def drops_at(self, time_s: Floats | float) -> Bools:
         return np.asarray((time_s >= self.start_s) & (time_s < self.end_s), dtype=np.bool_)
-
-    def drops_at_time(self, time_s: float) -> bool:
-        return self.start_s <= time_s < self.end_s
 
     def timing(self) -> str:
         o = self.spec

@@ -76,14 +76,13 @@ def forgeries(run_id: str, s: Scenario, epoch: int = 7) -> list[tuple[str, bytes
         (keys.link_estimate(run_id, 1), b"null"),
         (keys.netem_decision(run_id), json.dumps(decisions).encode()),
         (keys.netem_change(run_id), b'{"kind": "link_change"}'),
-        # the recorder's own channels, the statuses, liveliness, control, a key nobody uses
+        # the recorder's own channels, the statuses, liveliness, a key nobody uses
         (keys.metrics(run_id), json.dumps(metrics).encode()),
         (keys.scene(run_id), json.dumps({"entities": [], "deletions": []}).encode()),
         (keys.scene(run_id), b"not a scene"),
         (keys.status(run_id, "agent", 1), json.dumps(status).encode()),
         (keys.status(run_id, "netem", 0), b""),
         (keys.alive(run_id, "agent", 1), json.dumps(alive).encode()),
-        (keys.control(run_id), b'{"command": "stop"}'),
         (f"{keys.prefix(run_id)}/nobody/publishes/here", b"{}"),
     ]
 

@@ -60,6 +60,25 @@ async def connect(url: str, timeout_s: float) -> ClientConnection:
             await asyncio.sleep(CONNECT_RETRY_S)
 
 
+async def idle_subscriber(url: str, channels: dict[int, Any]) -> ClientConnection:
+    """Subscribes to every one of ``channels``, then never reads (a tiny receive buffer, one
+    queued frame): the stalled viewer the server must not wait for."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # before connect: it sticks
+    host, port = url.removeprefix("ws://").split(":")
+    sock.connect((host, int(port)))
+    ws = await websockets.connect(
+        url,
+        sock=sock,
+        subprotocols=SUBPROTOCOLS,
+        max_queue=1,
+        ping_interval=None,  # type: ignore[arg-type]
+    )
+    subs = [{"id": i, "channelId": cid} for i, cid in enumerate(channels)]
+    await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+    return ws
+
+
 async def advertised(ws: ClientConnection, got: Received, topics: set[str]) -> None:
     """Read until ``serverInfo`` and channels for every one of ``topics`` are in."""
     while not (got.server_info and topics <= {c["topic"] for c in got.channels.values()}):
@@ -112,25 +131,8 @@ __all__ = [
     "Received",
     "advertised",
     "connect",
+    "idle_subscriber",
     "on_text",
     "read_until",
     "subscribe",
 ]
-
-
-async def idle_subscriber(url: str, channels: dict[int, Any]) -> ClientConnection:
-    """Subscribes to every channel, then never reads (a tiny receive buffer, one queued frame)."""
-    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # before connect: it sticks
-    host, port = url.removeprefix("ws://").rsplit(":", 1)
-    sock.connect((host, int(port)))
-    ws = await websockets.connect(
-        url,
-        sock=sock,
-        subprotocols=SUBPROTOCOLS,
-        max_queue=1,
-        ping_interval=None,  # type: ignore[arg-type]
-    )
-    subs = [{"id": i, "channelId": cid} for i, cid in enumerate(channels)]
-    await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
-    return ws

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[3]
-PACKAGES = ("formation", "agent", "leader", "netem", "recorder", "testbed")
+PACKAGES = ("formation", "shell", "agent", "leader", "netem", "recorder", "testbed")
 # A string piece that spells part of a key expression: the run root, a lockstep inbox, a
 # liveliness token, or a run prefix followed by a key's first segment.
 KEY_PIECE = re.compile(r"^formation/|/inbox/|(^|/)alive/")

@@ -14,6 +14,7 @@ from formation.graph import AgentIdError, GraphInputError, ShapeError
 from leader.estimation import BlueResult, CovarianceError, blue
 from leader.mst import minimum_spanning_forest
 from recorder.metrics import nees
+from testkit.dense_oracle import dense_system
 
 PROPERTY = settings(max_examples=40, deadline=None, derandomize=True, database=None)
 CovKind = Literal["scalar", "diagonal", "full"]
@@ -58,48 +59,6 @@ def measure(
         "eab,eb->ea", np.linalg.cholesky(cov), rng.standard_normal((len(edges), x.shape[1]))
     )
     return np.asarray(x[edges[:, 0] - 1] - x[edges[:, 1] - 1] + noise)
-
-
-def dense_blue(
-    n: int,
-    edges: np.ndarray,
-    z: np.ndarray,
-    cov: np.ndarray,
-    ref: int,
-    x_ref: np.ndarray,
-    use: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Independent solution: whitened stacked system, ``np.linalg.lstsq``, dense inverse.
-
-    Each used measurement is whitened by ``L_e⁻¹`` (``P_e = L_e L_eᵀ``); the
-    unknowns are every agent but the reference. Returns ``(n, d)`` estimates and
-    ``(n, d, d)`` covariance blocks with the reference's row ``x_ref`` / zero.
-    """
-    d = z.shape[1]
-    idx = np.flatnonzero(use)
-    col = {a: k for k, a in enumerate(a for a in range(1, n + 1) if a != ref)}
-    jac = np.zeros((len(idx) * d, (n - 1) * d))
-    rhs = np.zeros(len(idx) * d)
-    for row, e in enumerate(idx):
-        i, j = (int(v) for v in edges[e])
-        white = np.linalg.inv(np.linalg.cholesky(cov[e]))
-        rows = slice(row * d, row * d + d)
-        y = z[e].copy()
-        for agent, sign in ((i, 1.0), (j, -1.0)):
-            if agent == ref:
-                y -= sign * x_ref
-            else:
-                jac[rows, col[agent] * d : col[agent] * d + d] += sign * white
-        rhs[rows] = white @ y
-    sol = np.linalg.lstsq(jac, rhs, rcond=None)[0].reshape(n - 1, d)
-    inv = np.linalg.inv(jac.T @ jac).reshape(n - 1, d, n - 1, d)
-    blocks = inv[np.arange(n - 1), :, np.arange(n - 1), :]
-    others = [a - 1 for a in range(1, n + 1) if a != ref]
-    x = np.empty((n, d))
-    x[ref - 1], x[others] = x_ref, sol
-    c = np.zeros((n, d, d))
-    c[others] = blocks
-    return x, c
 
 
 def path_sum(
@@ -150,7 +109,7 @@ def assert_matches(result: BlueResult, x: np.ndarray, c: np.ndarray, tol: float 
     edge_set=st.sampled_from(["all", "tree"]),
     cycles=st.floats(0.0, 1.5),
 )
-def test_equals_dense_whitened_least_squares(
+def test_equals_the_dense_normal_equations(
     seed: int, n: int, d: int, kind: CovKind, edge_set: str, cycles: float
 ) -> None:
     rng = np.random.default_rng(seed)
@@ -169,7 +128,7 @@ def test_equals_dense_whitened_least_squares(
     assert result.observable.all()
     distinct = {(min(a, b), max(a, b)) for a, b in edges[use].tolist()}
     assert result.solver == ("tree" if len(distinct) == n - 1 else "direct")
-    assert_matches(result, *dense_blue(n, edges, z, cov, ref, x[ref - 1], use))
+    assert_matches(result, *dense_system(n, edges, z, cov, ref, x[ref - 1], use).solve())
 
 
 @PROPERTY
@@ -210,7 +169,7 @@ def test_forced_cyclic_solvers_equal_dense(
     assert result.solver == method
     # CG stops at a relative residual of 1e-12; its error is at most κ(A) times that
     tol = 1e-9 if method == "direct" else 1e-7
-    assert_matches(result, *dense_blue(n, edges, z, cov, 1, x[0], use), tol=tol)
+    assert_matches(result, *dense_system(n, edges, z, cov, 1, x[0], use).solve(), tol=tol)
 
 
 def test_chunked_covariance_blocks_and_structure_choice(
@@ -229,7 +188,7 @@ def test_chunked_covariance_blocks_and_structure_choice(
         use = np.ones(len(edges), dtype=bool)
         result = blue(n, d, edges, z, cov, 5, x[4], use)
         assert result.solver in ("direct", "cg")
-        assert_matches(result, *dense_blue(n, edges, z, cov, 5, x[4], use), tol=1e-7)
+        assert_matches(result, *dense_system(n, edges, z, cov, 5, x[4], use).solve(), tol=1e-7)
 
 
 def grid(side: int) -> np.ndarray:
@@ -278,9 +237,9 @@ def test_parallel_measurements_of_one_link_are_both_used(rng: np.random.Generato
     use = np.ones(len(edges), dtype=bool)
     result = blue(n, d, edges, z, cov, 2, x[1], use)
     assert result.solver == "tree"
-    assert_matches(result, *dense_blue(n, edges, z, cov, 2, x[1], use))
+    assert_matches(result, *dense_system(n, edges, z, cov, 2, x[1], use).solve())
     cyclic = blue(n, d, edges, z, cov, 2, x[1], use, solver="direct")
-    assert_matches(cyclic, *dense_blue(n, edges, z, cov, 2, x[1], use))
+    assert_matches(cyclic, *dense_system(n, edges, z, cov, 2, x[1], use).solve())
 
 
 # --------------------------------------------------------------------------- observability
@@ -298,7 +257,7 @@ def test_unobservable_agents_are_nan_and_the_rest_still_right(rng: np.random.Gen
     assert result.observable.tolist() == [True] * 5 + [False] * 4
     assert result.covariances is not None
     assert np.isnan(result.positions[5:]).all() and np.isnan(result.covariances[5:]).all()
-    sub_x, sub_c = dense_blue(5, edges[:5], z[:5], cov[:5], 2, x[1], use[:5])
+    sub_x, sub_c = dense_system(5, edges[:5], z[:5], cov[:5], 2, x[1], use[:5]).solve()
     np.testing.assert_allclose(result.positions[:5], sub_x, rtol=0, atol=1e-12)
     np.testing.assert_allclose(result.covariances[:5], sub_c, rtol=0, atol=1e-12)
 

@@ -2,68 +2,20 @@
 
 from __future__ import annotations
 
-from typing import Literal
-
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from scipy.sparse import coo_array, csc_array
+from scipy.sparse import csc_array
 from scipy.sparse.linalg import splu
 
 from leader.covariance import PatternError, inverse_diagonal_blocks
 from leader.estimation import blue
 from leader.laplacian import GroundedSystem
+from testkit.dense_oracle import dense_system
+from testkit.leader_problems import TOL, Kind, block_system, noise, random_graph
 
 PROPERTY = settings(max_examples=40, deadline=None, derandomize=True, database=None)
-Kind = Literal["diagonal", "full", "scaled"]
-TOL = 1e-9  # [m²] every block entry against the dense inverse
-
-
-def random_graph(rng: np.random.Generator, n: int, extra: int, tree: bool) -> np.ndarray:
-    """A random spanning tree of agents 1..n (plus ``extra`` random edges unless ``tree``)."""
-    edges = [(k, int(rng.integers(1, k))) for k in range(2, n + 1)]
-    while not tree and len(edges) < n - 1 + extra:
-        a, b = (int(v) for v in rng.integers(1, n + 1, 2))
-        if a != b:
-            edges.append((a, b))
-    out = np.array(edges, dtype=np.int64).reshape(-1, 2)
-    flip = rng.random(len(out)) < 0.5
-    return np.where(flip[:, None], out[:, ::-1], out)
-
-
-def noise(rng: np.random.Generator, m: int, d: int, kind: Kind) -> np.ndarray:
-    """(m, d, d) SPD covariances [m²]: diagonal, full with random correlations, or ``scaled``:
-    one full matrix times a random scale per edge (the Kronecker structure)."""
-    if kind == "diagonal":
-        return rng.uniform(1e-4, 1.0, (m, d))[:, :, None] * np.eye(d)
-    if kind == "scaled":
-        a = rng.standard_normal((d, d))
-        return rng.uniform(0.01, 1.0, (m, 1, 1)) * (a @ a.T + 1e-2 * np.eye(d))
-    a = rng.standard_normal((m, d, d)) * rng.uniform(0.01, 1.0, (m, 1, 1))
-    return a @ a.transpose(0, 2, 1) + 1e-3 * np.eye(d)
-
-
-def dense_blocks(
-    n: int, edges: np.ndarray, cov: np.ndarray, ref: int, observable: np.ndarray
-) -> np.ndarray:
-    """Diagonal blocks of ``(H_bᵀ P⁻¹ H_b)⁻¹`` over the reference's component, densely: (n, d, d)."""
-    d = cov.shape[1]
-    nodes = [a for a in range(n) if observable[a] and a != ref - 1]
-    col = {a: k for k, a in enumerate(nodes)}
-    mat = np.zeros((len(nodes) * d, len(nodes) * d))
-    for (i, j), p in zip(edges.tolist(), cov, strict=True):
-        w = np.linalg.inv(p)
-        for a, sa in ((i - 1, 1.0), (j - 1, -1.0)):
-            for b, sb in ((i - 1, 1.0), (j - 1, -1.0)):
-                if a in col and b in col:
-                    ra, rb = col[a] * d, col[b] * d
-                    mat[ra : ra + d, rb : rb + d] += sa * sb * w
-    inv = np.linalg.inv(mat).reshape(len(nodes), d, len(nodes), d)
-    out = np.full((n, d, d), np.nan)
-    out[ref - 1] = 0.0
-    out[nodes] = inv[np.arange(len(nodes)), :, np.arange(len(nodes)), :]
-    return out
 
 
 @PROPERTY
@@ -94,30 +46,10 @@ def test_every_block_equals_the_dense_inverse(
     assert got.covariances is not None
     observable = np.arange(total) < n
     assert np.array_equal(got.observable, observable)
-    want = dense_blocks(total, edges, cov, ref, observable)
+    want = dense_system(total, edges, z, cov, ref, observable=observable).solve()[1]
     assert np.isnan(got.covariances[~observable]).all()
     err = np.abs(got.covariances[observable] - want[observable]).max()
     assert err <= TOL, f"max |Δ| = {err:.3g}"
-
-
-def block_system(rng: np.random.Generator, nodes: int, block: int, extra: int) -> csc_array:
-    """A sparse SPD matrix of ``nodes`` × ``block`` unknowns coupled like a grounded Laplacian."""
-    edges = random_graph(rng, nodes + 1, extra, False) - 1  # node 0 is grounded away
-    w = noise(rng, len(edges), block, "full")
-    inv_w = np.linalg.inv(w)
-    rows, cols, vals = [], [], []
-    a = np.arange(block)
-    for (i, j), m in zip(edges.tolist(), inv_w, strict=True):
-        for p, q, s in ((i, i, 1.0), (j, j, 1.0), (i, j, -1.0), (j, i, -1.0)):
-            if p and q:
-                rows.append(np.repeat((p - 1) * block + a, block))
-                cols.append(np.tile((q - 1) * block + a, block))
-                vals.append(s * m.ravel())
-    size = nodes * block
-    coo = coo_array(
-        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), (size, size)
-    )
-    return csc_array(coo)
 
 
 def symmetric_lu(mat: csc_array):  # type: ignore[no-untyped-def]
@@ -171,20 +103,6 @@ def test_kronecker_path_only_when_every_covariance_is_a_multiple_of_one(
     assert system.block == (d if odd_edge else 1)
     positions, blocks = np.zeros((n, d)), np.zeros((n, d, d))
     system.solve("direct", positions, blocks)
-    want = dense_blocks(n, edges, cov, 1, everyone)
+    want_x, want = dense_system(n, edges, z, cov).solve()
     assert np.abs(blocks[1:] - want[1:]).max() <= TOL
-    assert np.abs(positions[1:] - dense_estimates(n, edges, z, cov)).max() <= TOL
-
-
-def dense_estimates(n: int, edges: np.ndarray, z: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """``x̂_b`` of agents 2..n with agent 1 at the origin, by dense normal equations: (n − 1, d)."""
-    d = cov.shape[1]
-    h = np.zeros((len(edges), n))
-    h[np.arange(len(edges)), edges[:, 0] - 1] = 1.0
-    h[np.arange(len(edges)), edges[:, 1] - 1] = -1.0
-    big_h = np.kron(h[:, 1:], np.eye(d))
-    info = np.zeros((len(edges) * d, len(edges) * d))
-    for k, w in enumerate(np.linalg.inv(cov)):
-        info[k * d : k * d + d, k * d : k * d + d] = w
-    gain = big_h.T @ info
-    return np.linalg.solve(gain @ big_h, gain @ z.ravel()).reshape(n - 1, d)
+    assert np.abs(positions[1:] - want_x[1:]).max() <= TOL

@@ -83,7 +83,7 @@ def test_validation_reports_a_bad_message(tmp_path: Path) -> None:
     path = tmp_path / "bad.mcap"
     rec = RecordingWriter(path)
     rec.write(keys.agent_state(RUN, 1), b'{"kind": "state", "agent": "one"}', 1)
-    rec.write(keys.control(RUN), b"not json", 2)
+    rec.write(keys.metrics(RUN), b"not json", 2)
     rec.write("free/form", b'{"anything": [1, 2]}', 3)
     rec.close()
     check = validate(path)

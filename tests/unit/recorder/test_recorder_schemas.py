@@ -27,7 +27,6 @@ CASES = [
     (keys.netem_decision(RUN), "decision", "formation.DecisionBatch"),
     (keys.netem_change(RUN), "link_change", "formation.LinkChange"),
     (keys.status(RUN, "agent", 2), "status", "formation.Status"),
-    (keys.control(RUN), "control", "formation.Control"),
     (keys.metrics(RUN), "metrics", "formation.EpochMetrics"),
     (keys.scene(RUN), "scene", "foxglove.SceneUpdate"),
     (keys.frames(RUN), "tf", "foxglove.FrameTransforms"),

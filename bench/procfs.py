@@ -1,0 +1,31 @@
+"""What Linux's ``/proc`` says of a benchmarked process: its CPU time and its peak memory."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+TICK_S = os.sysconf("SC_CLK_TCK")  # clock ticks per second of /proc/<pid>/stat
+
+
+def cpu_s(pid: int) -> float | None:
+    """User + system CPU time of ``pid`` so far [s]; None once the process is gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / TICK_S  # utime, stime
+
+
+def peak_rss_kib(pid: int) -> int:
+    """The peak resident set of ``pid`` (``VmHWM``) [KiB]; 0 once the process is gone."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1])
+    except OSError:
+        pass
+    return 0
+
+
+__all__ = ["cpu_s", "peak_rss_kib"]
