@@ -9,8 +9,7 @@ import sys
 from agent.node import AgentNode
 from formation.errors import TestbedError
 from formation.scenario import STRATEGIES
-from shell.serve import load_scenario, serve, service_parser
-from shell.service import Service
+from shell import Service, load_scenario, open_service, serve, service_parser
 
 
 def parse_ids(text: str, n: int) -> list[int]:
@@ -60,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
             node.confirm_final()
         return code
 
-    return serve("agent", lambda: Service(args.run_id, role, ident, args), body)
+    return serve("agent", lambda: open_service(args, role, ident), body)
 
 
 if __name__ == "__main__":

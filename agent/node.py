@@ -29,8 +29,7 @@ from formation.errors import RuntimeFailure
 from formation.messages import AgentEstimate, CoordinationState, Delivery, TokenReport
 from formation.realtime import ESTIMATE_DEADLINE, STATE_DEADLINE, Clock, sleep_until
 from formation.scenario import Scenario, StrategyName
-from shell.clock import fetch_clock
-from shell.service import Incoming, Service, drain_last
+from shell import Incoming, Service, drain_last, fetch_clock
 
 log = logging.getLogger("agent")
 WATCH_S = 0.25  # how often the main thread looks for netem's liveliness and a signal
@@ -376,7 +375,7 @@ class AgentNode:
     def _has_estimates(self, epoch: int) -> bool:
         return all(epoch in self.inbox[i].estimates for i in self.ids)
 
-    def _rehearse(self, times: int = 3) -> None:
+    def rehearse(self, times: int = 3) -> None:
         """This process's own work of an epoch, on a copy of its agents, before the clock starts.
 
         The first epoch's cost 3x the CPU of later ones (0.5 against 0.1 ms to take the
@@ -405,10 +404,10 @@ class AgentNode:
 
     def run_realtime(self) -> int:
         """Fixed period; what has not arrived by a phase's deadline is lost (docs/architecture.md "Time")."""
-        self._rehearse()  # while the others start: the clock is not running yet
+        self.rehearse()  # while the others start: the clock is not running yet
         if not self.service.wait_started():
             return 1
-        clock = self.clock = fetch_clock(self.service.session, self.run_id)
+        clock = self.clock = fetch_clock(self.service.bus, self.run_id)
         sleep_until(clock.at(-1, ESTIMATE_DEADLINE))  # x[0] when later states go out
         self._publish_states()
         for k in range(self.scenario.epochs):

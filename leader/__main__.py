@@ -8,8 +8,7 @@ import sys
 
 from formation.errors import TestbedError
 from leader.node import LeaderNode
-from shell.serve import load_scenario, serve, service_parser
-from shell.service import Service
+from shell import Service, load_scenario, open_service, serve, service_parser
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -35,7 +34,7 @@ def main(argv: list[str] | None = None) -> int:
             node.confirm_last()
         return code
 
-    return serve("leader", lambda: Service(args.run_id, "leader", 0, args), body)
+    return serve("leader", lambda: open_service(args, "leader", 0), body)
 
 
 if __name__ == "__main__":

@@ -23,8 +23,7 @@ from formation.reference import reference_positions, reference_velocities
 from formation.scenario import Scenario
 from leader.epoch import Leader, LeaderEpoch
 from leader.rigidity import HealthyRigidity
-from shell.clock import fetch_clock
-from shell.service import Incoming, Service, drain_last
+from shell import Incoming, Service, drain_last, fetch_clock
 
 log = logging.getLogger("leader")
 
@@ -247,10 +246,10 @@ class LeaderNode:
     def _has_reports(self, epoch: int) -> bool:
         return len({r.agent for r in self.reports.values() if r.epoch == epoch}) == self.scenario.n
 
-    def _rehearse(self, times: int = 2) -> None:
+    def rehearse(self, times: int = 2) -> None:
         """An epoch's estimates from every link, computed and built but not sent, before the
         clock starts: first runs are slower (CPython specialises code as it runs it), and
-        the first epoch is when every process pays that at once (AgentNode._rehearse)."""
+        the first epoch is when every process pays that at once (AgentNode.rehearse)."""
         links = self.scenario.directed_links
         offsets = self.scenario.offsets
         known = np.ones(len(links), dtype=bool)
@@ -267,10 +266,10 @@ class LeaderNode:
 
     def run_realtime(self) -> int:
         """Each period, the reports that arrived by the report deadline; later ones are lost."""
-        self._rehearse()  # while the others start: the clock is not running yet
+        self.rehearse()  # while the others start: the clock is not running yet
         if not self.service.wait_started():
             return 1
-        clock = self.clock = fetch_clock(self.service.session, self.run_id)
+        clock = self.clock = fetch_clock(self.service.bus, self.run_id)
         held: list[Incoming] = []
         for k in range(self.scenario.epochs + 1):  # the last: late reports of the last epoch
             end = clock.at(k, REPORT_DEADLINE) if k < self.scenario.epochs else clock.at(k)

@@ -8,8 +8,7 @@ import sys
 
 from formation.errors import TestbedError
 from netem.node import NetemNode
-from shell.serve import load_scenario, serve, service_parser
-from shell.service import Service
+from shell import Service, load_scenario, open_service, serve, service_parser
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -44,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
         service.status("done" if code == 0 else "error", node.estimates_done, detail, delivered)
         return code
 
-    return serve("netem", lambda: Service(args.run_id, "netem", 0, args), body)
+    return serve("netem", lambda: open_service(args, "netem", 0), body)
 
 
 if __name__ == "__main__":

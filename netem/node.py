@@ -1,6 +1,6 @@
 """The netem process: every message between services crosses it as a directed link.
 
-This is the transport shell: Zenoh subscriptions, publishers, the ``netem/config``,
+This is the transport shell: the bus's subscriptions, publishers, the ``netem/config``,
 ``clock`` and ``netem/final`` queryables, liveliness and the main loops. The logic is
 elsewhere: lockstep in :mod:`netem.lockstep` (pure, with the clean path of
 :mod:`netem.clean`), realtime forwarding in :mod:`netem.realtime`.
@@ -15,7 +15,6 @@ import time
 from typing import Any
 
 import orjson
-import zenoh
 from pydantic import TypeAdapter, ValidationError
 
 from formation import keys
@@ -28,7 +27,7 @@ from netem.lockstep import Lockstep
 from netem.progress import Progress
 from netem.realtime import Realtime
 from netem.records import Ledger, Record, decision_batch, decision_batch_of, delivery
-from shell.service import Incoming, Service, settle_heap
+from shell import Incoming, Publisher, Query, Sample, Service, settle_heap
 
 log = logging.getLogger("netem")
 FINAL_WAIT_S = 0.5  # how long a last-messages query waits for what may still be on its way
@@ -41,7 +40,7 @@ class ZenohOutbox:
 
     def __init__(self, service: Service) -> None:
         self.service = service
-        self._inboxes: dict[tuple[Phase, int], tuple[str, zenoh.Publisher]] = {}
+        self._inboxes: dict[tuple[Phase, int], tuple[str, Publisher]] = {}
         self._decision_key = keys.netem_decision(service.run_id)
 
     def declare(self, agents: list[int]) -> None:
@@ -53,7 +52,7 @@ class ZenohOutbox:
         self._inbox("report", LEADER_ENDPOINT)
         self.service.publisher(self._decision_key)
 
-    def _inbox(self, phase: Phase, receiver: int) -> tuple[str, zenoh.Publisher]:
+    def _inbox(self, phase: Phase, receiver: int) -> tuple[str, Publisher]:
         out = self._inboxes.get((phase, receiver))
         if out is None:
             key = keys.inbox(self.service.run_id, receiver, phase)
@@ -158,7 +157,7 @@ class NetemNode:
                 and self.service.gone_for("agent", i, grace_s)
             ):
                 with self.lock:
-                    self._on_dead(i)
+                    self.on_dead(i)
         if (
             leader
             and not self.lockstep.is_down(LEADER_ENDPOINT)
@@ -166,9 +165,10 @@ class NetemNode:
             and self.service.gone_for("leader", 0, grace_s)
         ):
             with self.lock:
-                self._on_dead(LEADER_ENDPOINT)
+                self.on_dead(LEADER_ENDPOINT)
 
-    def _on_dead(self, sender: int) -> None:
+    def on_dead(self, sender: int) -> None:
+        """``sender`` is down: no longer waited for (call under :attr:`lock`)."""
         self.lockstep.sender_died(sender)
         self.team_changed(f"lost {_sender_name(sender)}")
 
@@ -211,7 +211,7 @@ class NetemNode:
             self._last_seen.notify_all()
 
     # -- inbound ----------------------------------------------------------------------------------
-    def _on_sample(self, sample: zenoh.Sample) -> None:
+    def _on_sample(self, sample: Sample) -> None:
         """Every inbound packet: handled at once on Zenoh's thread in lockstep, else queued,
         stamped with its arrival (netem counts only its own late forwards in realtime)."""
         att = sample.attachment
@@ -221,13 +221,14 @@ class NetemNode:
             self.service.inbox.put(msg)
             return
         key = str(sample.key_expr)
-        self.service.handle_inline(key, self._handle, key, sample.payload, att)
+        self.service.handle_inline(key, self.handle_packet, key, sample.payload, att)
 
     def handle(self, msg: Incoming) -> None:
         """A queued packet (one that came before the start)."""
-        self._handle(msg.key, msg.payload, msg.attachment)
+        self.handle_packet(msg.key, msg.payload, msg.attachment)
 
-    def _handle(self, key: str, payload: Any, att: Any) -> None:
+    def handle_packet(self, key: str, payload: Any, att: Any) -> None:
+        """A packet on ``key`` with its codec attachment (bytes or a sample's ``ZBytes``)."""
         raw = att if att is None or isinstance(att, bytes) else att.to_bytes()
         meta = read_attachment(raw)
         route = self.routes.of(key)
@@ -243,11 +244,12 @@ class NetemNode:
         if self.lockstep.applied:
             self._announce_applied()
 
-    def _setup_clean(self) -> None:
+    def setup_clean(self) -> None:
+        """Take clean epochs on the clean path from now on (:meth:`Lockstep.setup_clean`)."""
         self.lockstep.setup_clean()
 
     # -- run-time changes ----------------------------------------------------------------------------
-    def _on_config(self, query: zenoh.Query) -> None:
+    def _on_config(self, query: Query) -> None:
         try:
             request = json.loads(query.payload.to_bytes()) if query.payload else {"op": "show"}
             with self.lock:
@@ -298,7 +300,7 @@ class NetemNode:
         self.service.publish(key, change)
         return {"ok": True, "link": link, "class": cls, "from_epoch": from_epoch}
 
-    def _on_final(self, query: zenoh.Query) -> None:
+    def _on_final(self, query: Query) -> None:
         """What netem still lacks of a sender's last messages: ``{"agents": [ids]}`` asks for
         those agents' final states, ``{"estimates": true}`` for the leader's last epoch.
 
@@ -327,7 +329,7 @@ class NetemNode:
         answer = {"missing": missing(), "estimates_done": self.estimates_done}
         query.reply(query.key_expr, orjson.dumps(answer))
 
-    def _on_rejoin(self, query: zenoh.Query) -> None:
+    def _on_rejoin(self, query: Query) -> None:
         """A restarted sender's question: ``{"agents": [ids]}`` or ``{"leader": true}``.
 
         The answer gives, per sender, the epoch it takes part from and, for an agent, the
@@ -386,7 +388,7 @@ class NetemNode:
             return self._last_seen.wait_for(ready, timeout=wait_s)
 
     # -- realtime --------------------------------------------------------------------------------------
-    def _on_clock(self, query: zenoh.Query) -> None:
+    def _on_clock(self, query: Query) -> None:
         clock = self.realtime.clock
         if clock is None:
             query.reply_err(b"not started")
@@ -406,7 +408,7 @@ class NetemNode:
     def run(self) -> int:
         with self.lock:  # lockstep: handled on Zenoh's thread from now on, no queue hand-off
             if not self.passthrough:
-                self._setup_clean()
+                self.setup_clean()
             self.running = True
         while not self.everyone_up():
             if self.service.stopping.wait(0.02):

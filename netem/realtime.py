@@ -32,7 +32,7 @@ from formation.scenario import LEADER_ENDPOINT
 from netem.links import PHASE_OF, LinkClass, Links, Phase, Routes
 from netem.progress import Progress
 from netem.records import Ledger, Record, message_json, packet_json_of
-from shell.service import Incoming, Service
+from shell import Incoming, Service
 
 Inbox = tuple[Phase, int]  # (phase, receiver)
 # (due ns, tie, its receiver's inbox, sent epoch, packet JSON, copies, its phase's deadline ns)

@@ -1,26 +1,51 @@
-"""The services' shell: a Zenoh session and what every service does with it (docs/architecture.md "Layers").
+"""The services' shell: the bus and what every service does on it (docs/architecture.md "Layers").
 
-Between the vocabulary (:mod:`formation`, no Zenoh) and the services.
+Between the vocabulary (:mod:`formation`, no Zenoh) and the services. A service talks to
+a :class:`Bus`: :class:`ZenohBus` in the product, :class:`MemoryBus` in unit tests.
 """
 
+from shell.bus import (
+    Bus,
+    Declared,
+    MemoryBus,
+    MemoryBytes,
+    MemorySample,
+    Payload,
+    Publisher,
+    Query,
+    Sample,
+    ZenohBus,
+)
 from shell.clock import fetch_clock
-from shell.serve import load_scenario, serve, service_parser
+from shell.serve import load_scenario, open_service, serve, service_parser, stop_on_signals
 from shell.service import Incoming, Service, drain_last, settle_heap
 from shell.stack_dump import DUMP_SIGNAL, dump_stacks_on_signal
 from shell.zenoh_config import open_session, open_with_retry, session_config
 
 __all__ = [
     "DUMP_SIGNAL",
+    "Bus",
+    "Declared",
     "Incoming",
+    "MemoryBus",
+    "MemoryBytes",
+    "MemorySample",
+    "Payload",
+    "Publisher",
+    "Query",
+    "Sample",
     "Service",
+    "ZenohBus",
     "drain_last",
     "dump_stacks_on_signal",
     "fetch_clock",
     "load_scenario",
+    "open_service",
     "open_session",
     "open_with_retry",
     "serve",
     "service_parser",
     "session_config",
     "settle_heap",
+    "stop_on_signals",
 ]
