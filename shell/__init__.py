@@ -1,7 +1,8 @@
 """The services' shell: the bus and what every service does on it (docs/architecture.md "Layers").
 
 Between the vocabulary (:mod:`formation`, no Zenoh) and the services. A service talks to
-a :class:`Bus`: :class:`ZenohBus` in the product, :class:`MemoryBus` in unit tests.
+a :class:`Bus`: :class:`ZenohBus` in the product, :class:`MemoryBus` in unit tests; its
+node runs one loop under a :class:`TimePolicy`, :class:`Lockstep` or :class:`Realtime`.
 """
 
 from shell.bus import (
@@ -20,6 +21,7 @@ from shell.clock import fetch_clock
 from shell.serve import load_scenario, open_service, serve, service_parser, stop_on_signals
 from shell.service import Incoming, Service, drain_last, settle_heap
 from shell.stack_dump import DUMP_SIGNAL, dump_stacks_on_signal
+from shell.timing import Lockstep, Loop, Realtime, TimePolicy, Wait, time_policy
 from shell.zenoh_config import open_session, open_with_retry, session_config
 
 __all__ = [
@@ -27,14 +29,19 @@ __all__ = [
     "Bus",
     "Declared",
     "Incoming",
+    "Lockstep",
+    "Loop",
     "MemoryBus",
     "MemoryBytes",
     "MemorySample",
     "Payload",
     "Publisher",
     "Query",
+    "Realtime",
     "Sample",
     "Service",
+    "TimePolicy",
+    "Wait",
     "ZenohBus",
     "drain_last",
     "dump_stacks_on_signal",
@@ -48,4 +55,5 @@ __all__ = [
     "session_config",
     "settle_heap",
     "stop_on_signals",
+    "time_policy",
 ]
