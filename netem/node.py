@@ -12,7 +12,9 @@ import json
 import logging
 import threading
 import time
-from typing import Any
+from collections.abc import Callable
+from functools import partial
+from typing import Any, Protocol
 
 import orjson
 from pydantic import TypeAdapter, ValidationError
@@ -27,9 +29,10 @@ from netem.lockstep import Lockstep
 from netem.progress import Progress
 from netem.realtime import Realtime
 from netem.records import Ledger, Record, decision_batch, decision_batch_of, delivery
-from shell import Incoming, Publisher, Query, Sample, Service, settle_heap
+from shell import Incoming, Publisher, Query, Sample, Service, TimePolicy, settle_heap
 
 log = logging.getLogger("netem")
+LOCKSTEP_WAKE_S = 0.2  # lockstep: the loop's longest sleep; clean epochs' records wait at most this
 FINAL_WAIT_S = 0.5  # how long a last-messages query waits for what may still be on its way
 _SPECS: TypeAdapter[list[LinkModelSpec]] = TypeAdapter(list[LinkModelSpec])
 
@@ -112,6 +115,7 @@ class NetemNode:
             self.ledger,
             self.outbox.records,
             self.outbox.deliver,
+            self.lock,
         )
         self.running = False  # lockstep: samples are handled on Zenoh's thread once True
         for key in (
@@ -395,45 +399,106 @@ class NetemNode:
         else:
             query.reply(query.key_expr, clock.to_json())
 
-    def run_realtime(self, period_s: float) -> int:
-        """Forward each packet as it comes (after its model's delay in ms); no epoch closes."""
+    # -- the loop ----------------------------------------------------------------------------------
+    def run(self, timing: TimePolicy) -> int:
+        """Carry every link of the run under ``timing`` until each sender's last message is in
+        (0) or until stopped (130). Lockstep: packets are handled on the bus's thread, and
+        each wake-up of this one flushes clean epochs' records; realtime: every packet is
+        forwarded after its model's delay in ms, by this thread, and no epoch closes."""
+        realtime = timing.realtime
+        wakeups: Wakeups = self.realtime if realtime else LockstepWakeups(self)
+        # realtime: no leader restart (issue 20 covers lockstep)
+        check_dead = partial(self._check_dead, leader=not realtime)
+        return run_loop(self.service, timing, wakeups, self.everyone_up, check_dead, self.finished)
 
-        def check_agents() -> None:  # realtime: no leader restart (issue 20 covers lockstep)
-            self._check_dead(leader=False)
-
-        return self.realtime.run(period_s, self.lock, self.everyone_up, check_agents,
-                                 self.finished)  # fmt: skip
-
-    # -- main loop -------------------------------------------------------------------------------------
-    def run(self) -> int:
-        with self.lock:  # lockstep: handled on Zenoh's thread from now on, no queue hand-off
-            if not self.passthrough:
-                self.setup_clean()
-            self.running = True
-        while not self.everyone_up():
-            if self.service.stopping.wait(0.02):
-                return 130
-        settle_heap()
-        self.service.declare_start()
-        try:
-            return self._lockstep_loop()
-        finally:
-            self._flush_all()
-
-    def _flush_all(self) -> None:
+    def flush_all(self) -> None:
+        """Publish the records of every clean epoch done (:meth:`Lockstep.flush_clean`)."""
         with self.lock:
             self.lockstep.flush_clean()
 
-    def _lockstep_loop(self) -> int:
-        while not self.finished() and not self.service.stopping.is_set():
-            msg = self.service.next_incoming(0.2)
-            self._check_dead()
-            self._flush_all()  # clean epochs' records wait at most this long
-            if msg is None:
-                continue
-            with self.lock:
-                self.handle(msg)
-        return 0 if self.finished() else 130
+
+class Wakeups(Protocol):
+    """What netem does at each wake-up of its loop, in lockstep or realtime."""
+
+    def open(self) -> None:
+        """Before everyone is up."""
+        ...
+
+    def begin(self, timing: TimePolicy) -> None:
+        """Start the run (``timing.begin``)."""
+        ...
+
+    def idle(self) -> bool:
+        """Whether nothing is held to forward later."""
+        ...
+
+    def tick(self) -> float:
+        """Before a wait: what is due now; returns how long to wait for a packet [s]."""
+        ...
+
+    def wake(self, msg: Incoming | None) -> None:
+        """After a wait: the packet that came (None: the wait timed out)."""
+        ...
+
+    def end(self) -> None:
+        """After the loop, also when it fails."""
+        ...
+
+
+class LockstepWakeups:
+    """Lockstep: packets are handled on the bus's thread as they come (no queue hand-off);
+    the loop's thread wakes every :data:`LOCKSTEP_WAKE_S` to flush clean epochs' records and
+    handle what came before the start."""
+
+    def __init__(self, node: NetemNode) -> None:
+        self.node = node
+
+    def open(self) -> None:
+        node = self.node
+        with node.lock:  # handled on the bus's thread from now on
+            if not node.passthrough:
+                node.setup_clean()
+            node.running = True
+
+    def begin(self, timing: TimePolicy) -> None:
+        settle_heap()
+        timing.begin(self.node.service)
+
+    def idle(self) -> bool:
+        return True
+
+    def tick(self) -> float:
+        return LOCKSTEP_WAKE_S
+
+    def wake(self, msg: Incoming | None) -> None:
+        node = self.node
+        node.flush_all()  # clean epochs' records wait at most this long
+        if msg is not None:
+            with node.lock:
+                node.handle(msg)
+
+    def end(self) -> None:
+        self.node.flush_all()
+
+
+def run_loop(service: Service, timing: TimePolicy, wakeups: Wakeups, ready: Callable[[], bool],
+             check_dead: Callable[[], None], finished: Callable[[], bool]) -> int:  # fmt: skip
+    """netem's one loop: once ``ready`` (everyone is up), start the run; then wait for a
+    packet (as long as ``wakeups.tick`` says), look for dead senders, hand the packet to
+    ``wakeups``; until ``finished`` and idle (0), or stopped (130)."""
+    wakeups.open()
+    while not ready():
+        if service.stopping.wait(0.02):
+            return 130
+    wakeups.begin(timing)
+    try:
+        while not (finished() and wakeups.idle()) and not service.stopping.is_set():
+            msg = service.next_incoming(wakeups.tick())
+            check_dead()
+            wakeups.wake(msg)
+    finally:
+        wakeups.end()
+    return 0 if finished() else 130
 
 
 def _sender_name(sender: int) -> str:
