@@ -34,6 +34,10 @@ class Sample(Protocol):
     def payload(self) -> Payload: ...
     @property
     def attachment(self) -> Payload | None: ...
+    @property
+    def timestamp(self) -> Any:
+        """The sender's timestamp (``zenoh.Timestamp``) when its session stamps, else None."""
+        ...
 
 
 class Query(Protocol):
@@ -187,6 +191,7 @@ class MemorySample:
     key_expr: str
     payload: MemoryBytes
     attachment: MemoryBytes | None = None
+    timestamp: None = None
 
 
 @dataclass
