@@ -74,7 +74,7 @@ def _estimate(est: object) -> Estimate | None:
 
 
 class AgentNode:
-    """Drives one :class:`AgentRunner` (one agent or a pool) from Zenoh traffic, phase by phase."""
+    """Drives one :class:`AgentRunner` (one agent or a pool) from the bus's traffic, phase by phase."""
 
     def __init__(
         self,

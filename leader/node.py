@@ -112,6 +112,8 @@ def agent_estimates(
 
 
 class LeaderNode:
+    """The leader's shell: netem's report deliveries in, estimates out, on the bus."""
+
     def __init__(self, service: Service, scenario: Scenario) -> None:
         self.service, self.scenario = service, scenario
         self.run_id = service.run_id

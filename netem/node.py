@@ -1,9 +1,10 @@
 """The netem process: every message between services crosses it as a directed link.
 
 This is the transport shell: the bus's subscriptions, publishers, the ``netem/config``,
-``clock`` and ``netem/final`` queryables, liveliness and the main loops. The logic is
-elsewhere: lockstep in :mod:`netem.lockstep` (pure, with the clean path of
-:mod:`netem.clean`), realtime forwarding in :mod:`netem.realtime`.
+``clock`` and ``netem/final`` queryables, liveliness and what each wake-up of its one
+loop (:mod:`netem.loop`) does in lockstep. The logic is elsewhere: lockstep in
+:mod:`netem.lockstep` (pure, with the clean path of :mod:`netem.clean`), realtime
+forwarding in :mod:`netem.realtime`.
 """
 
 from __future__ import annotations
@@ -12,9 +13,8 @@ import json
 import logging
 import threading
 import time
-from collections.abc import Callable
 from functools import partial
-from typing import Any, Protocol
+from typing import Any
 
 import orjson
 from pydantic import TypeAdapter, ValidationError
@@ -26,6 +26,7 @@ from formation.messages import LinkChange
 from formation.scenario import LEADER_ENDPOINT, Scenario
 from netem.links import LinkClass, Links, Phase, Routes, link_key
 from netem.lockstep import Lockstep
+from netem.loop import Wakeups, run_loop
 from netem.progress import Progress
 from netem.realtime import Realtime
 from netem.records import Ledger, Record, decision_batch, decision_batch_of, delivery
@@ -80,7 +81,7 @@ class ZenohOutbox:
 
 
 class NetemNode:
-    """netem's shell: Zenoh in and out, queryables and liveliness; the logic is the cores'."""
+    """netem's shell: the bus in and out, queryables and liveliness; the logic is the cores'."""
 
     def __init__(
         self,
@@ -417,34 +418,6 @@ class NetemNode:
             self.lockstep.flush_clean()
 
 
-class Wakeups(Protocol):
-    """What netem does at each wake-up of its loop, in lockstep or realtime."""
-
-    def open(self) -> None:
-        """Before everyone is up."""
-        ...
-
-    def begin(self, timing: TimePolicy) -> None:
-        """Start the run (``timing.begin``)."""
-        ...
-
-    def idle(self) -> bool:
-        """Whether nothing is held to forward later."""
-        ...
-
-    def tick(self) -> float:
-        """Before a wait: what is due now; returns how long to wait for a packet [s]."""
-        ...
-
-    def wake(self, msg: Incoming | None) -> None:
-        """After a wait: the packet that came (None: the wait timed out)."""
-        ...
-
-    def end(self) -> None:
-        """After the loop, also when it fails."""
-        ...
-
-
 class LockstepWakeups:
     """Lockstep: packets are handled on the bus's thread as they come (no queue hand-off);
     the loop's thread wakes every :data:`LOCKSTEP_WAKE_S` to flush clean epochs' records and
@@ -479,26 +452,6 @@ class LockstepWakeups:
 
     def end(self) -> None:
         self.node.flush_all()
-
-
-def run_loop(service: Service, timing: TimePolicy, wakeups: Wakeups, ready: Callable[[], bool],
-             check_dead: Callable[[], None], finished: Callable[[], bool]) -> int:  # fmt: skip
-    """netem's one loop: once ``ready`` (everyone is up), start the run; then wait for a
-    packet (as long as ``wakeups.tick`` says), look for dead senders, hand the packet to
-    ``wakeups``; until ``finished`` and idle (0), or stopped (130)."""
-    wakeups.open()
-    while not ready():
-        if service.stopping.wait(0.02):
-            return 130
-    wakeups.begin(timing)
-    try:
-        while not (finished() and wakeups.idle()) and not service.stopping.is_set():
-            msg = service.next_incoming(wakeups.tick())
-            check_dead()
-            wakeups.wake(msg)
-    finally:
-        wakeups.end()
-    return 0 if finished() else 130
 
 
 def _sender_name(sender: int) -> str:

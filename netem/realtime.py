@@ -176,7 +176,7 @@ class Realtime:
         for phase, epoch in sorted(decisions):
             self.publish_records(phase, epoch, decisions.pop((phase, epoch), []))
 
-    # -- the wake-ups of netem's loop (netem.node.run_loop) --------------------------------------
+    # -- the wake-ups of netem's loop (netem.loop.run_loop) ----------------------------------------
     def open(self) -> None:
         """Nothing before everyone is up: packets queue until the clock starts."""
 

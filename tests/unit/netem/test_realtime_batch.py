@@ -17,7 +17,7 @@ from formation.messages import CoordinationState, DeliveredPacket
 from formation.realtime import ESTIMATE_DEADLINE, REPORT_DEADLINE, Clock
 from formation.scenario import Scenario
 from netem.links import Links, Routes
-from netem.node import run_loop
+from netem.loop import run_loop
 from netem.progress import Progress
 from netem.realtime import PREPARE_AHEAD, RECORDS_AT, START_LEAD_S, Due, Realtime
 from netem.records import Ledger
