@@ -9,6 +9,7 @@ import time
 
 import pytest
 
+from formation import keys
 from formation.realtime import Clock
 from shell import (
     Incoming,
@@ -23,7 +24,7 @@ from shell import (
 )
 
 RUN = "timing"
-KEY = f"formation/{RUN}/inbox/1/state"
+KEY = keys.inbox(RUN, 1, "state")
 
 
 def _services() -> tuple[MemoryBus, Service, Service]:
@@ -87,7 +88,7 @@ def test_realtime_takes_each_phase_by_its_deadline_or_once_complete() -> None:
     _, netem, node = _services()
     timing = Realtime(period_s=0.1)
     assert repr(timing) == "Realtime(period_s=0.1)"
-    netem.queryable(f"formation/{RUN}/clock", lambda q: q.reply(q.key_expr, clock.to_json()))
+    netem.queryable(keys.clock(RUN), lambda q: q.reply(q.key_expr, clock.to_json()))
     clock = Clock(time.time_ns() + 50_000_000, 100_000_000)
     netem.declare_start()
     assert timing.join(node) and timing.clock == clock
