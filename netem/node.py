@@ -118,7 +118,8 @@ class NetemNode:
             self.outbox.deliver,
             self.lock,
         )
-        self.running = False  # lockstep: samples are handled on Zenoh's thread once True
+        self.running = False  # lockstep: samples are handled on the bus's thread once True
+        self.timing: TimePolicy | None = None  # set by run
         for key in (
             keys.agent_state(self.run_id, "*"),
             keys.agent_report(self.run_id, "*"),
@@ -394,7 +395,8 @@ class NetemNode:
 
     # -- realtime --------------------------------------------------------------------------------------
     def _on_clock(self, query: Query) -> None:
-        clock = self.realtime.clock
+        # the policy's clock: set before the start token goes out, so it is there once asked
+        clock = None if self.timing is None else self.timing.clock
         if clock is None:
             query.reply_err(b"not started")
         else:
@@ -406,6 +408,7 @@ class NetemNode:
         (0) or until stopped (130). Lockstep: packets are handled on the bus's thread, and
         each wake-up of this one flushes clean epochs' records; realtime: every packet is
         forwarded after its model's delay in ms, by this thread, and no epoch closes."""
+        self.timing = timing
         realtime = timing.realtime
         wakeups: Wakeups = self.realtime if realtime else LockstepWakeups(self)
         # realtime: no leader restart (issue 20 covers lockstep)
