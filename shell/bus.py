@@ -98,8 +98,8 @@ class Bus(Protocol):
         the tokens alive now first."""
         ...
 
-    def tokens(self, key: str, timeout_s: float) -> list[str]:
-        """The liveliness tokens alive on ``key`` now (a liveliness query)."""
+    def tokens(self, key: str, timeout_s: float) -> Iterator[str]:
+        """The liveliness tokens alive on ``key`` now, as the answers come (a liveliness query)."""
         ...
 
     def time_ns(self) -> int:
@@ -162,9 +162,10 @@ class ZenohBus:
 
         return self.session.liveliness().declare_subscriber(key, changed, history=history)
 
-    def tokens(self, key: str, timeout_s: float) -> list[str]:
-        replies = self.session.liveliness().get(key, timeout=timeout_s)
-        return [str(reply.ok.key_expr) for reply in replies if reply.ok is not None]
+    def tokens(self, key: str, timeout_s: float) -> Iterator[str]:
+        for reply in self.session.liveliness().get(key, timeout=timeout_s):
+            if reply.ok is not None:
+                yield str(reply.ok.key_expr)
 
     def time_ns(self) -> int:
         return time.time_ns()
@@ -319,11 +320,11 @@ class MemoryBus:
                 callback(token, True)
         return declared
 
-    def tokens(self, key: str, timeout_s: float) -> list[str]:
+    def tokens(self, key: str, timeout_s: float) -> Iterator[str]:
         expr = zenoh.KeyExpr(key)
         with self._lock:
             alive = list(self._tokens)
-        return [t for t in alive if zenoh.KeyExpr(t).intersects(expr)]
+        return iter([t for t in alive if zenoh.KeyExpr(t).intersects(expr)])
 
     def time_ns(self) -> int:
         return self.clock()

@@ -272,7 +272,8 @@ class Service:
         """
         deadline = now_ns() + int(timeout_s * 1e9)
         while True:
-            if self.bus.tokens(keys.start(self.run_id), timeout_s) or self._started.is_set():
+            started = next(self.bus.tokens(keys.start(self.run_id), timeout_s), None)
+            if started is not None or self._started.is_set():
                 return True
             if now_ns() > deadline or self.stopping.wait(0.05):
                 return False

@@ -30,7 +30,7 @@ def test_a_recording_on_the_memory_bus(tmp_path: Path) -> None:
     thread.start()
     try:
         deadline = time.monotonic() + 10
-        while not bus.tokens(alive, 0.0):  # ready: its subscribers are declared
+        while not list(bus.tokens(alive, 0.0)):  # ready: its subscribers are declared
             assert time.monotonic() < deadline, "the recorder never came up"
             time.sleep(0.01)
         token = bus.declare_token(keys.alive(RUN, "agent", 1))
@@ -45,7 +45,7 @@ def test_a_recording_on_the_memory_bus(tmp_path: Path) -> None:
         recorder.stop.set()
         thread.join(10)
     assert codes == [0] and statuses == ["ready", "done"]
-    assert not bus.tokens(alive, 0.0)  # gone with the recording
+    assert not list(bus.tokens(alive, 0.0))  # gone with the recording
     path = tmp_path / "run.mcap"
     with open_recording(path) as (reader, _):
         got = [(channel.topic, message.data) for _, channel, message in iter_messages(path, reader)]

@@ -53,7 +53,7 @@ def test_liveliness_tokens_come_and_go_with_history() -> None:
     seen: list[tuple[str, bool]] = []
     bus.declare_liveliness_subscriber("r/alive/**", lambda key, alive: seen.append((key, alive)))
     second = bus.declare_token("r/alive/leader/0")
-    assert bus.tokens("r/alive/*/1", 0.1) == ["r/alive/agent/1"]
+    assert list(bus.tokens("r/alive/*/1", 0.1)) == ["r/alive/agent/1"]
     first.undeclare()
     first.undeclare()  # once only
     second.undeclare()
@@ -63,7 +63,7 @@ def test_liveliness_tokens_come_and_go_with_history() -> None:
         ("r/alive/agent/1", False),
         ("r/alive/leader/0", False),
     ]
-    assert bus.tokens("r/alive/**", 0.1) == []
+    assert list(bus.tokens("r/alive/**", 0.1)) == []
 
 
 def test_a_service_on_the_memory_bus() -> None:
