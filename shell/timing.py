@@ -121,17 +121,15 @@ class Lockstep:
         waiting: list[Wait] = []  # the loop's current wait; empty before its start
 
         def advance() -> None:
-            while not waiting or _complete(waiting[0]):
-                try:
-                    wait = loop.send(False) if waiting else next(loop)
-                except StopIteration:
-                    done.set()
-                    return
-                except BaseException as exc:
-                    failed.append(exc)
-                    done.set()
-                    raise
-                waiting[:] = [wait]
+            try:
+                while not waiting or _complete(waiting[0]):
+                    waiting[:] = [loop.send(False) if waiting else next(loop)]
+            except StopIteration:
+                done.set()
+            except BaseException as exc:
+                failed.append(exc)
+                done.set()
+                raise
 
         def on_message(msg: Incoming) -> None:
             route(msg)
