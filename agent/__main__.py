@@ -6,10 +6,10 @@ import json
 import logging
 import sys
 
-from agent.node import AgentNode
+from agent.node import WATCH_S, AgentNode
 from formation.errors import TestbedError
 from formation.scenario import STRATEGIES
-from shell import Service, load_scenario, serve, service_parser
+from shell import Service, load_scenario, open_service, serve, service_parser, time_policy
 
 
 def parse_ids(text: str, n: int) -> list[int]:
@@ -51,15 +51,15 @@ def main(argv: list[str] | None = None) -> int:
         node.announce()
         if restarted:
             node.rejoin()
-        realtime = scenario.runtime.mode == "realtime"
-        code = node.run_realtime() if realtime else node.run()
-        detail = json.dumps(node.deadline) if realtime else ""
+        timing = time_policy(scenario, watch_s=WATCH_S)
+        code = node.run(timing)
+        detail = json.dumps(node.deadline) if timing.realtime else ""
         service.status("done" if code == 0 else "error", node.runner.epoch, detail)
         if code == 0:
             node.confirm_final()
         return code
 
-    return serve("agent", lambda: Service(args.run_id, role, ident, args), body)
+    return serve("agent", lambda: open_service(args, role, ident), body)
 
 
 if __name__ == "__main__":

@@ -1,13 +1,12 @@
-"""The agent process: one agent, or a pool of agents sharing one Zenoh session (``--ids``).
+"""The agent process: one agent, or a pool of agents sharing one bus session (``--ids``).
 
-Lockstep (docs/architecture.md "Time"): publish ``x_i[k]``; wait for netem's delivery
-of the state phase (every packet it passed this epoch, in one message); report
-tokens and measurements; wait for the estimate phase's delivery; step to
-``x_i[k+1]``. Realtime: what netem forwarded comes as it goes, a delivery per wake-up of
-netem's, until a deadline. A pool
-takes each phase for all its agents at once, in one vectorised step (the leader
-waits for every report anyway, so this costs no time).
-"""
+One loop, under a time policy (:mod:`shell.timing`, docs/architecture.md "Time"): publish
+``x_i[k]``; take the states (lockstep: netem's delivery of the state phase, every packet
+it passed this epoch in one message; realtime: what netem forwarded, a delivery per
+wake-up of netem's, until the state deadline); report tokens and measurements; take the
+estimate the same way; step to ``x_i[k+1]``. A pool takes each phase for all its agents
+at once, in one vectorised step (the leader waits for every report anyway, so this costs
+no time)."""
 
 from __future__ import annotations
 
@@ -27,9 +26,9 @@ from formation.codec import attachment
 from formation.deadlines import CAUSES, cause
 from formation.errors import RuntimeFailure
 from formation.messages import AgentEstimate, CoordinationState, Delivery, TokenReport
-from formation.realtime import ESTIMATE_DEADLINE, STATE_DEADLINE, Clock, sleep_until
+from formation.realtime import ESTIMATE_DEADLINE, STATE_DEADLINE, Clock
 from formation.scenario import Scenario, StrategyName
-from shell import Incoming, Service, drain_last, fetch_clock
+from shell import Incoming, Loop, Service, TimePolicy, Wait
 
 log = logging.getLogger("agent")
 WATCH_S = 0.25  # how often the main thread looks for netem's liveliness and a signal
@@ -75,7 +74,7 @@ def _estimate(est: object) -> Estimate | None:
 
 
 class AgentNode:
-    """Drives one :class:`AgentRunner` (one agent or a pool) from Zenoh traffic, phase by phase."""
+    """Drives one :class:`AgentRunner` (one agent or a pool) from the bus's traffic, phase by phase."""
 
     def __init__(
         self,
@@ -104,7 +103,7 @@ class AgentNode:
             "in_time": 0,
             **dict.fromkeys(CAUSES, 0),
         }
-        self.clock: Clock | None = None  # realtime: set by run_realtime
+        self.clock: Clock | None = None  # realtime: set by run
         self.held: list[Incoming] = []  # realtime: queued after a deadline, routed after it
         # Realtime: queued, taken at each deadline (Service.take_by); lockstep: a pool handles
         # each delivery on Zenoh's thread.
@@ -306,7 +305,7 @@ class AgentNode:
                 log.error("netem still lacks the final states of agents %s", missing)
                 return False
 
-    # -- lockstep phases ---------------------------------------------------------------------------
+    # -- taking a phase's inputs -----------------------------------------------------------------
     def _ready(self, i: int) -> bool:
         return (self.phase, self.runner.epoch) in self.inbox[i].deliveries
 
@@ -314,68 +313,116 @@ class AgentNode:
         self.phase = phase
         self.waiting = {i for i in self.ids if not self._ready(i)}
 
-    def _state_phase(self) -> None:
-        k = self.runner.epoch
-        packets = []
-        for i in self.ids:
-            packets += self._packets(i, self.inbox[i].deliveries.pop(("state", k)))
-        self._publish_reports(packets)
-        self._start_phase("estimate")
+    def _all_in(self) -> bool:
+        """Lockstep: every agent has netem's delivery of the phase."""
+        return not self.waiting
 
-    def _estimate_phase(self) -> None:
-        k = self.runner.epoch
-        got = {
-            i: self._estimate_of(i, self.inbox[i].deliveries.pop(("estimate", k))) for i in self.ids
-        }
-        self.runner.step(got)
-        self._publish_states()
-        if self.runner.epoch >= self.end:
-            self.finished.set()
-        self._start_phase("state")
-
-    def _on_message(self, msg: Incoming) -> None:
-        # Only the receiver a message is for can become ready: a pool of hundreds checks one.
+    def _on_delivery(self, msg: Incoming) -> None:
+        """Lockstep: file netem's delivery. Only the receiver a message is for can become
+        ready: a pool of hundreds checks one."""
         receiver = self._take_delivery(msg)
         if receiver in self.waiting and self._ready(receiver):
             self.waiting.discard(receiver)
-        while not self.done and not self.waiting:
-            if self.phase == "state":
-                self._state_phase()
-            else:
-                self._estimate_phase()
 
-    def run(self) -> int:
-        """Run every agent to the scenario's last epoch; returns an exit code.
+    def _delivered_packets(self, k: int) -> list[Packet]:
+        """Lockstep: the packets of each agent's state delivery of epoch ``k``."""
+        packets = []
+        for i in self.ids:
+            packets += self._packets(i, self.inbox[i].deliveries.pop(("state", k)))
+        return packets
 
-        Messages are handled as they arrive, on Zenoh's thread; this thread only watches.
-        """
-        if not self.service.wait_started():
-            return 1
-        self.end = self.last_epoch
-        with self.service.inline_lock:
-            self.service.inline = self._on_message
-            while (early := self.service.next_incoming(0)) is not None:
-                self._on_message(early)
-            self._publish_states()
-        # A slow watch: 50 agent processes waking 20 times a second cost 2 % of the machine.
-        while not self.finished.wait(WATCH_S) and not self.service.stopping.is_set():
-            if self.service.gone_for("netem", 0):
-                log.error("netem is gone; stopping")
-                return 2
-        if self.done and self.crashes:  # a crash event: no goodbye, no final status
-            log.warning("crash at epoch %d (a scenario event): taking no further part", self.end)
-            self.service.stopping.wait()
-            return 130
-        return 0 if self.done else 130
+    def _queued_packets(self, k: int) -> list[Packet]:
+        """Realtime: the packets of epochs up to ``k`` that came by the state deadline."""
+        packets = []
+        for i in self.ids:
+            box = self.inbox[i]
+            packets += [
+                p for p in box.packets.values() if isinstance(p, Packet) and p.sent_epoch <= k
+            ]
+            # a neighbour ahead of this process: its next epoch's packets wait for it
+            box.packets = {
+                q: p for q, p in box.packets.items() if isinstance(p, Packet) and p.sent_epoch > k
+            }
+        self.deadline["packets"] += (fresh := sum(p.sent_epoch == k for p in packets))
+        self.deadline["in_time"] += fresh
+        self.taken = k
+        return packets
 
-    # -- realtime ---------------------------------------------------------------------------------
-    def _drain_until(self, t_ns: int) -> None:
-        self.held = self.service.take_by(t_ns, self._route, self.held)
+    def _delivered_estimates(self, k: int) -> dict[int, Estimate | None]:
+        """Lockstep: each agent's estimate in its estimate delivery of epoch ``k``."""
+        return {
+            i: self._estimate_of(i, self.inbox[i].deliveries.pop(("estimate", k))) for i in self.ids
+        }
+
+    def _queued_estimates(self, k: int) -> dict[int, Estimate | None]:
+        """Realtime: each agent's estimate of epoch ``k``, if it came by the deadline."""
+        got: dict[int, Estimate | None] = {}
+        for i in self.ids:
+            est = self.inbox[i].estimates.pop(k, None)
+            self.inbox[i].estimates = {e: v for e, v in self.inbox[i].estimates.items() if e > k}
+            got[i] = _estimate(est)
+            self.deadline["estimates"] += got[i] is not None
+            self.deadline["in_time"] += got[i] is not None
+        return got
 
     def _has_estimates(self, epoch: int) -> bool:
         return all(epoch in self.inbox[i].estimates for i in self.ids)
 
-    def _rehearse(self, times: int = 3) -> None:
+    # -- the loop ---------------------------------------------------------------------------------
+    def _epochs(self, timing: TimePolicy) -> Loop:
+        """The one loop (docs/architecture.md "Time"): publish ``x[k]``; take the states netem
+        passed (lockstep: its delivery; realtime: what came by the state deadline) and
+        report; take the estimate (lockstep: its delivery; realtime: what came by the
+        estimate deadline) and step to ``x[k+1]``. A pool takes each phase for all its
+        agents at once."""
+        realtime = timing.realtime
+        timing.sleep_until(-1, ESTIMATE_DEADLINE)  # realtime: x[0] when later states go out
+        self._publish_states()
+        while self.runner.epoch < self.end:
+            k = self.runner.epoch
+            self._start_phase("state")
+            self.deadline["overruns"] += timing.past(k, STATE_DEADLINE)
+            yield Wait(k, STATE_DEADLINE, None if realtime else self._all_in)
+            self._publish_reports(
+                self._queued_packets(k) if realtime else self._delivered_packets(k)
+            )
+            self._start_phase("estimate")
+            # Realtime: stepping once every estimate here is in gives the step what the
+            # deadline would (only epoch k's estimate counts) and the states more time: woken
+            # at once at the deadline, 20 agents stepped one after another on 2 cores, the
+            # last ones late.
+            complete = partial(self._has_estimates, k) if realtime else self._all_in
+            self.deadline["early_steps"] += yield Wait(k, ESTIMATE_DEADLINE, complete)
+            got = self._queued_estimates(k) if realtime else self._delivered_estimates(k)
+            self.runner.step(got)
+            # x[k+1] is known now: out at once, so the states have the rest of this period
+            # as well as the next one's first 0.2 to arrive.
+            self._publish_states()
+        self.finished.set()
+
+    def run(self, timing: TimePolicy) -> int:
+        """Run every agent to its last epoch under ``timing``; returns an exit code.
+
+        Lockstep: deliveries are handled as they arrive, on the bus's thread, and this
+        thread only watches; realtime: a fixed period, and what has not arrived by a
+        phase's deadline is lost.
+        """
+        if timing.realtime:
+            self.rehearse()  # while the others start: the clock is not running yet
+        if not timing.join(self.service):
+            return 1
+        self.clock = timing.clock
+        self.end = self.scenario.epochs if timing.realtime else self.last_epoch
+        route = self._route if timing.realtime else self._on_delivery
+        code = timing.drive(self.service, self._epochs(timing), route, self.scenario.epochs)
+        if code == 0 and not timing.realtime and self.crashes:
+            # a crash event: no goodbye, no final status
+            log.warning("crash at epoch %d (a scenario event): taking no further part", self.end)
+            self.service.stopping.wait()
+            return 130
+        return code
+
+    def rehearse(self, times: int = 3) -> None:
         """This process's own work of an epoch, on a copy of its agents, before the clock starts.
 
         The first epoch's cost 3x the CPU of later ones (0.5 against 0.1 ms to take the
@@ -401,61 +448,3 @@ class AgentNode:
             for i, report in runner.receive(packets).items():
                 TokenReport.model_validate_json(report_message({**head, "epoch": k}, i, report))
             runner.step({i: None for i in self.ids})
-
-    def run_realtime(self) -> int:
-        """Fixed period; what has not arrived by a phase's deadline is lost (docs/architecture.md "Time")."""
-        self._rehearse()  # while the others start: the clock is not running yet
-        if not self.service.wait_started():
-            return 1
-        clock = self.clock = fetch_clock(self.service.session, self.run_id)
-        sleep_until(clock.at(-1, ESTIMATE_DEADLINE))  # x[0] when later states go out
-        self._publish_states()
-        for k in range(self.scenario.epochs):
-            if self.service.stopping.is_set():
-                return 130
-            if time.time_ns() > clock.at(k, STATE_DEADLINE):
-                self.deadline["overruns"] += 1
-            self._drain_until(clock.at(k, STATE_DEADLINE))
-            packets = []
-            for i in self.ids:
-                box = self.inbox[i]
-                packets += [
-                    p for p in box.packets.values() if isinstance(p, Packet) and p.sent_epoch <= k
-                ]
-                # a neighbour ahead of this process: its next epoch's packets wait for it
-                box.packets = {
-                    q: p
-                    for q, p in box.packets.items()
-                    if isinstance(p, Packet) and p.sent_epoch > k
-                }
-            self.deadline["packets"] += (fresh := sum(p.sent_epoch == k for p in packets))
-            self.deadline["in_time"] += fresh
-            self.taken = k
-            self._publish_reports(packets)
-            # Stepping once every estimate here is in gives the step what the deadline would
-            # (only epoch k's estimate counts) and the states more time: woken at once at the
-            # deadline, 20 agents stepped one after another on 2 cores, the last ones late.
-            due = clock.at(k, ESTIMATE_DEADLINE)
-            self.held = self.service.take_by(
-                due, self._route, self.held, complete=partial(self._has_estimates, k)
-            )
-            self.deadline["early_steps"] += time.time_ns() < due
-            got: dict[int, Estimate | None] = {}
-            for i in self.ids:
-                est = self.inbox[i].estimates.pop(k, None)
-                self.inbox[i].estimates = {
-                    e: v for e, v in self.inbox[i].estimates.items() if e > k
-                }
-                got[i] = _estimate(est)
-                self.deadline["estimates"] += got[i] is not None
-                self.deadline["in_time"] += got[i] is not None
-            self.runner.step(got)
-            # x[k+1] is known now: out at once, so the states have the rest of this period
-            # as well as the next one's first 0.2 to arrive.
-            self._publish_states()
-        self._drain_until(clock.at(self.scenario.epochs))
-        for queued in self.held:
-            self._route(queued)
-        drain_last(self.service, self._route)
-        self.finished.set()
-        return 0

@@ -8,7 +8,7 @@ import sys
 
 from formation.errors import TestbedError
 from leader.node import LeaderNode
-from shell import Service, load_scenario, serve, service_parser
+from shell import Service, load_scenario, open_service, serve, service_parser, time_policy
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -26,15 +26,16 @@ def main(argv: list[str] | None = None) -> int:
         service.announce()
         if restarted:
             node.rejoin()
-        code = node.run_realtime() if scenario.runtime.mode == "realtime" else node.run()
-        realtime = scenario.runtime.mode == "realtime"
+        timing = time_policy(scenario, watch_s=0.05)
+        code = node.run(timing)
+        realtime = timing.realtime
         service.status("done" if code == 0 else "error", node.epoch,
                        json.dumps(node.deadline) if realtime else "")  # fmt: skip
         if code == 0:
             node.confirm_last()
         return code
 
-    return serve("leader", lambda: Service(args.run_id, "leader", 0, args), body)
+    return serve("leader", lambda: open_service(args, "leader", 0), body)
 
 
 if __name__ == "__main__":

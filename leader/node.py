@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-import time
 from collections.abc import Iterable, Iterator
 from dataclasses import replace
 from functools import partial
@@ -23,7 +22,7 @@ from formation.reference import reference_positions, reference_velocities
 from formation.scenario import Scenario
 from leader.epoch import Leader, LeaderEpoch
 from leader.rigidity import HealthyRigidity
-from shell import Incoming, Service, drain_last, fetch_clock
+from shell import Incoming, Loop, Service, TimePolicy, Wait
 
 log = logging.getLogger("leader")
 
@@ -113,6 +112,8 @@ def agent_estimates(
 
 
 class LeaderNode:
+    """The leader's shell: netem's report deliveries in, estimates out, on the bus."""
+
     def __init__(self, service: Service, scenario: Scenario) -> None:
         self.service, self.scenario = service, scenario
         self.run_id = service.run_id
@@ -129,7 +130,7 @@ class LeaderNode:
         self.covariance_every = scenario.estimator.covariance_every
         self.link_rows = link_rows(scenario)
         self.late_reports = 0
-        self.clock: Clock | None = None  # realtime: set by run_realtime
+        self.clock: Clock | None = None  # realtime: set by run
         # realtime: reports in time and missed by cause; estimates sent before the deadline
         self.deadline = {"in_time": 0, "early_estimates": 0, **dict.fromkeys(CAUSES, 0)}
         service.subscribe(keys.inbox(self.run_id, keys.LEADER, "report"))
@@ -193,18 +194,26 @@ class LeaderNode:
         )  # fmt: skip
 
     def _take_delivery(self, msg: Incoming) -> None:
+        """Lockstep: keep netem's delivery of an epoch's reports until that epoch is estimated."""
         delivery = self._delivery(msg)
         if delivery is not None and delivery.epoch >= self.epoch:
             self.deliveries[delivery.epoch] = delivery
 
-    def _try_epoch(self) -> bool:
-        k = self.epoch
-        delivery = self.deliveries.pop(k, None)
-        if delivery is None:
-            return False
-        current = (p for p in delivery.packets if p.sent_epoch == k)  # only epoch k's are fused
-        self._estimate(k, [report for _, report in self._reports(current)])
-        return True
+    def _delivered(self, k: int) -> bool:
+        return k in self.deliveries
+
+    def _delivered_reports(self, k: int) -> list[TokenReport]:
+        """Lockstep: the reports of epoch ``k``'s delivery (a delayed one is not fused)."""
+        delivery = self.deliveries.pop(k)
+        current = (p for p in delivery.packets if p.sent_epoch == k)
+        return [report for _, report in self._reports(current)]
+
+    def _queued_reports(self, k: int) -> list[TokenReport]:
+        """Realtime: the reports of epoch ``k`` that came by its deadline (kept: later ones')."""
+        reports = [r for r in self.reports.values() if r.epoch == k]
+        self.reports = {q: r for q, r in self.reports.items() if r.epoch > k}  # agents ahead
+        self.deadline["in_time"] += len(reports)
+        return reports
 
     def _estimate(self, k: int, reports: list[TokenReport]) -> None:
         known, z = reports_to_measurements(self.scenario, reports, self.link_rows)
@@ -246,10 +255,10 @@ class LeaderNode:
     def _has_reports(self, epoch: int) -> bool:
         return len({r.agent for r in self.reports.values() if r.epoch == epoch}) == self.scenario.n
 
-    def _rehearse(self, times: int = 2) -> None:
+    def rehearse(self, times: int = 2) -> None:
         """An epoch's estimates from every link, computed and built but not sent, before the
         clock starts: first runs are slower (CPython specialises code as it runs it), and
-        the first epoch is when every process pays that at once (AgentNode._rehearse)."""
+        the first epoch is when every process pays that at once (AgentNode.rehearse)."""
         links = self.scenario.directed_links
         offsets = self.scenario.offsets
         known = np.ones(len(links), dtype=bool)
@@ -264,48 +273,30 @@ class LeaderNode:
         # epoch 0's covariances come right after its estimates, while the agents step
         self.leader.covariances(known[None], z[None], self.ref_x[0], batch)
 
-    def run_realtime(self) -> int:
-        """Each period, the reports that arrived by the report deadline; later ones are lost."""
-        self._rehearse()  # while the others start: the clock is not running yet
-        if not self.service.wait_started():
-            return 1
-        clock = self.clock = fetch_clock(self.service.session, self.run_id)
-        held: list[Incoming] = []
-        for k in range(self.scenario.epochs + 1):  # the last: late reports of the last epoch
-            end = clock.at(k, REPORT_DEADLINE) if k < self.scenario.epochs else clock.at(k)
-            # Once every agent's report is here nothing else of epoch k can come: estimating
-            # then gives what the deadline would, and the agents and their states more time.
-            complete = partial(self._has_reports, k) if k < self.scenario.epochs else None
-            held = self.service.take_by(end, self._route, held, complete)
-            self.deadline["early_estimates"] += time.time_ns() < end
-            if self.service.stopping.is_set():
-                return 130
-            if k == self.scenario.epochs:
-                for queued in held:
-                    self._route(queued)
-                drain_last(self.service, self._route)  # the last epoch's late reports
-                break
-            reports = [r for r in self.reports.values() if r.epoch == k]
-            self.reports = {q: r for q, r in self.reports.items() if r.epoch > k}  # agents ahead
-            self.deadline["in_time"] += len(reports)
-            self._estimate(k, reports)
-        return 0
+    def _epochs(self, timing: TimePolicy) -> Loop:
+        """The one loop (docs/architecture.md "Time"): each epoch, the reports netem
+        delivered (lockstep), or those that came by the report deadline (realtime), are
+        estimated."""
+        realtime = timing.realtime
+        for k in range(self.epoch, self.scenario.epochs):
+            # Realtime: once every agent's report is here nothing else of epoch k can come:
+            # estimating then gives what the deadline would, and the agents and their states
+            # more time.
+            complete = partial(self._has_reports if realtime else self._delivered, k)
+            self.deadline["early_estimates"] += yield Wait(k, REPORT_DEADLINE, complete)
+            self._estimate(k, self._queued_reports(k) if realtime else self._delivered_reports(k))
 
-    def _on_message(self, msg: Incoming) -> None:
-        self._take_delivery(msg)
-        while self.epoch < self.scenario.epochs and self._try_epoch():
-            pass
+    def run(self, timing: TimePolicy) -> int:
+        """Estimate every epoch of the run under ``timing``; returns an exit code.
 
-    def run(self) -> int:
-        """Lockstep: reports are handled as they arrive, on Zenoh's thread; this thread only watches."""
-        if not self.service.wait_started():
+        Lockstep: reports are handled as they arrive, on the bus's thread, and this thread
+        only watches; realtime: each period, the reports that arrived by the report deadline
+        (later ones are lost, counted by cause).
+        """
+        if timing.realtime:
+            self.rehearse()  # while the others start: the clock is not running yet
+        if not timing.join(self.service):
             return 1
-        with self.service.inline_lock:
-            self.service.inline = self._on_message
-            while (early := self.service.next_incoming(0)) is not None:
-                self._on_message(early)
-        while self.epoch < self.scenario.epochs and not self.service.stopping.wait(0.05):
-            if self.service.gone_for("netem", 0):
-                log.error("netem is gone; stopping")
-                return 2
-        return 0 if self.epoch >= self.scenario.epochs else 130
+        self.clock = timing.clock
+        route = self._route if timing.realtime else self._take_delivery
+        return timing.drive(self.service, self._epochs(timing), route, self.scenario.epochs)

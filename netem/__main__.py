@@ -8,7 +8,7 @@ import sys
 
 from formation.errors import TestbedError
 from netem.node import NetemNode
-from shell import Service, load_scenario, serve, service_parser
+from shell import Service, load_scenario, open_service, serve, service_parser, time_policy
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -32,18 +32,14 @@ def main(argv: list[str] | None = None) -> int:
         node = NetemNode(service, scenario, scenario.seed if args.seed is None else args.seed,
                          wait_for_recorder=not args.no_recorder, passthrough=args.passthrough)  # fmt: skip
         service.announce()
-        if scenario.runtime.mode == "realtime":
-            code = node.run_realtime(
-                scenario.runtime.realtime_period_s or scenario.control.period_s
-            )
-        else:
-            code = node.run()
+        timing = time_policy(scenario)
+        code = node.run(timing)
         delivered = node.sent_counts()
-        detail = json.dumps(node.realtime.deadline) if scenario.runtime.mode == "realtime" else ""
+        detail = json.dumps(node.realtime.deadline) if timing.realtime else ""
         service.status("done" if code == 0 else "error", node.estimates_done, detail, delivered)
         return code
 
-    return serve("netem", lambda: Service(args.run_id, "netem", 0, args), body)
+    return serve("netem", lambda: open_service(args, "netem", 0), body)
 
 
 if __name__ == "__main__":

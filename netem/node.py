@@ -1,9 +1,10 @@
 """The netem process: every message between services crosses it as a directed link.
 
-This is the transport shell: Zenoh subscriptions, publishers, the ``netem/config``,
-``clock`` and ``netem/final`` queryables, liveliness and the main loops. The logic is
-elsewhere: lockstep in :mod:`netem.lockstep` (pure, with the clean path of
-:mod:`netem.clean`), realtime forwarding in :mod:`netem.realtime`.
+This is the transport shell: the bus's subscriptions, publishers, the ``netem/config``,
+``clock`` and ``netem/final`` queryables, liveliness and what each wake-up of its one
+loop (:mod:`netem.loop`) does in lockstep. The logic is elsewhere: lockstep in
+:mod:`netem.lockstep` (pure, with the clean path of :mod:`netem.clean`), realtime
+forwarding in :mod:`netem.realtime`.
 """
 
 from __future__ import annotations
@@ -12,10 +13,10 @@ import json
 import logging
 import threading
 import time
+from functools import partial
 from typing import Any
 
 import orjson
-import zenoh
 from pydantic import TypeAdapter, ValidationError
 
 from formation import keys
@@ -25,12 +26,14 @@ from formation.messages import LinkChange
 from formation.scenario import LEADER_ENDPOINT, Scenario
 from netem.links import LinkClass, Links, Phase, Routes, link_key
 from netem.lockstep import Lockstep
+from netem.loop import Wakeups, run_loop
 from netem.progress import Progress
 from netem.realtime import Realtime
 from netem.records import Ledger, Record, decision_batch, decision_batch_of, delivery
-from shell import Incoming, Service, settle_heap
+from shell import Incoming, Publisher, Query, Sample, Service, TimePolicy, settle_heap
 
 log = logging.getLogger("netem")
+LOCKSTEP_WAKE_S = 0.2  # lockstep: the loop's longest sleep; clean epochs' records wait at most this
 FINAL_WAIT_S = 0.5  # how long a last-messages query waits for what may still be on its way
 _SPECS: TypeAdapter[list[LinkModelSpec]] = TypeAdapter(list[LinkModelSpec])
 
@@ -41,7 +44,7 @@ class ZenohOutbox:
 
     def __init__(self, service: Service) -> None:
         self.service = service
-        self._inboxes: dict[tuple[Phase, int], tuple[str, zenoh.Publisher]] = {}
+        self._inboxes: dict[tuple[Phase, int], tuple[str, Publisher]] = {}
         self._decision_key = keys.netem_decision(service.run_id)
 
     def declare(self, agents: list[int]) -> None:
@@ -53,7 +56,7 @@ class ZenohOutbox:
         self._inbox("report", LEADER_ENDPOINT)
         self.service.publisher(self._decision_key)
 
-    def _inbox(self, phase: Phase, receiver: int) -> tuple[str, zenoh.Publisher]:
+    def _inbox(self, phase: Phase, receiver: int) -> tuple[str, Publisher]:
         out = self._inboxes.get((phase, receiver))
         if out is None:
             key = keys.inbox(self.service.run_id, receiver, phase)
@@ -78,7 +81,7 @@ class ZenohOutbox:
 
 
 class NetemNode:
-    """netem's shell: Zenoh in and out, queryables and liveliness; the logic is the cores'."""
+    """netem's shell: the bus in and out, queryables and liveliness; the logic is the cores'."""
 
     def __init__(
         self,
@@ -113,8 +116,10 @@ class NetemNode:
             self.ledger,
             self.outbox.records,
             self.outbox.deliver,
+            self.lock,
         )
-        self.running = False  # lockstep: samples are handled on Zenoh's thread once True
+        self.running = False  # lockstep: samples are handled on the bus's thread once True
+        self.timing: TimePolicy | None = None  # set by run
         for key in (
             keys.agent_state(self.run_id, "*"),
             keys.agent_report(self.run_id, "*"),
@@ -158,7 +163,7 @@ class NetemNode:
                 and self.service.gone_for("agent", i, grace_s)
             ):
                 with self.lock:
-                    self._on_dead(i)
+                    self.on_dead(i)
         if (
             leader
             and not self.lockstep.is_down(LEADER_ENDPOINT)
@@ -166,9 +171,10 @@ class NetemNode:
             and self.service.gone_for("leader", 0, grace_s)
         ):
             with self.lock:
-                self._on_dead(LEADER_ENDPOINT)
+                self.on_dead(LEADER_ENDPOINT)
 
-    def _on_dead(self, sender: int) -> None:
+    def on_dead(self, sender: int) -> None:
+        """``sender`` is down: no longer waited for (call under :attr:`lock`)."""
         self.lockstep.sender_died(sender)
         self.team_changed(f"lost {_sender_name(sender)}")
 
@@ -211,7 +217,7 @@ class NetemNode:
             self._last_seen.notify_all()
 
     # -- inbound ----------------------------------------------------------------------------------
-    def _on_sample(self, sample: zenoh.Sample) -> None:
+    def _on_sample(self, sample: Sample) -> None:
         """Every inbound packet: handled at once on Zenoh's thread in lockstep, else queued,
         stamped with its arrival (netem counts only its own late forwards in realtime)."""
         att = sample.attachment
@@ -221,13 +227,14 @@ class NetemNode:
             self.service.inbox.put(msg)
             return
         key = str(sample.key_expr)
-        self.service.handle_inline(key, self._handle, key, sample.payload, att)
+        self.service.handle_inline(key, self.handle_packet, key, sample.payload, att)
 
     def handle(self, msg: Incoming) -> None:
         """A queued packet (one that came before the start)."""
-        self._handle(msg.key, msg.payload, msg.attachment)
+        self.handle_packet(msg.key, msg.payload, msg.attachment)
 
-    def _handle(self, key: str, payload: Any, att: Any) -> None:
+    def handle_packet(self, key: str, payload: Any, att: Any) -> None:
+        """A packet on ``key`` with its codec attachment (bytes or a sample's ``ZBytes``)."""
         raw = att if att is None or isinstance(att, bytes) else att.to_bytes()
         meta = read_attachment(raw)
         route = self.routes.of(key)
@@ -243,11 +250,12 @@ class NetemNode:
         if self.lockstep.applied:
             self._announce_applied()
 
-    def _setup_clean(self) -> None:
+    def setup_clean(self) -> None:
+        """Take clean epochs on the clean path from now on (:meth:`Lockstep.setup_clean`)."""
         self.lockstep.setup_clean()
 
     # -- run-time changes ----------------------------------------------------------------------------
-    def _on_config(self, query: zenoh.Query) -> None:
+    def _on_config(self, query: Query) -> None:
         try:
             request = json.loads(query.payload.to_bytes()) if query.payload else {"op": "show"}
             with self.lock:
@@ -298,7 +306,7 @@ class NetemNode:
         self.service.publish(key, change)
         return {"ok": True, "link": link, "class": cls, "from_epoch": from_epoch}
 
-    def _on_final(self, query: zenoh.Query) -> None:
+    def _on_final(self, query: Query) -> None:
         """What netem still lacks of a sender's last messages: ``{"agents": [ids]}`` asks for
         those agents' final states, ``{"estimates": true}`` for the leader's last epoch.
 
@@ -327,7 +335,7 @@ class NetemNode:
         answer = {"missing": missing(), "estimates_done": self.estimates_done}
         query.reply(query.key_expr, orjson.dumps(answer))
 
-    def _on_rejoin(self, query: zenoh.Query) -> None:
+    def _on_rejoin(self, query: Query) -> None:
         """A restarted sender's question: ``{"agents": [ids]}`` or ``{"leader": true}``.
 
         The answer gives, per sender, the epoch it takes part from and, for an agent, the
@@ -386,52 +394,67 @@ class NetemNode:
             return self._last_seen.wait_for(ready, timeout=wait_s)
 
     # -- realtime --------------------------------------------------------------------------------------
-    def _on_clock(self, query: zenoh.Query) -> None:
-        clock = self.realtime.clock
+    def _on_clock(self, query: Query) -> None:
+        # the policy's clock: set before the start token goes out, so it is there once asked
+        clock = None if self.timing is None else self.timing.clock
         if clock is None:
             query.reply_err(b"not started")
         else:
             query.reply(query.key_expr, clock.to_json())
 
-    def run_realtime(self, period_s: float) -> int:
-        """Forward each packet as it comes (after its model's delay in ms); no epoch closes."""
+    # -- the loop ----------------------------------------------------------------------------------
+    def run(self, timing: TimePolicy) -> int:
+        """Carry every link of the run under ``timing`` until each sender's last message is in
+        (0) or until stopped (130). Lockstep: packets are handled on the bus's thread, and
+        each wake-up of this one flushes clean epochs' records; realtime: every packet is
+        forwarded after its model's delay in ms, by this thread, and no epoch closes."""
+        self.timing = timing
+        realtime = timing.realtime
+        wakeups: Wakeups = self.realtime if realtime else LockstepWakeups(self)
+        # realtime: no leader restart (issue 20 covers lockstep)
+        check_dead = partial(self._check_dead, leader=not realtime)
+        return run_loop(self.service, timing, wakeups, self.everyone_up, check_dead, self.finished)
 
-        def check_agents() -> None:  # realtime: no leader restart (issue 20 covers lockstep)
-            self._check_dead(leader=False)
-
-        return self.realtime.run(period_s, self.lock, self.everyone_up, check_agents,
-                                 self.finished)  # fmt: skip
-
-    # -- main loop -------------------------------------------------------------------------------------
-    def run(self) -> int:
-        with self.lock:  # lockstep: handled on Zenoh's thread from now on, no queue hand-off
-            if not self.passthrough:
-                self._setup_clean()
-            self.running = True
-        while not self.everyone_up():
-            if self.service.stopping.wait(0.02):
-                return 130
-        settle_heap()
-        self.service.declare_start()
-        try:
-            return self._lockstep_loop()
-        finally:
-            self._flush_all()
-
-    def _flush_all(self) -> None:
+    def flush_all(self) -> None:
+        """Publish the records of every clean epoch done (:meth:`Lockstep.flush_clean`)."""
         with self.lock:
             self.lockstep.flush_clean()
 
-    def _lockstep_loop(self) -> int:
-        while not self.finished() and not self.service.stopping.is_set():
-            msg = self.service.next_incoming(0.2)
-            self._check_dead()
-            self._flush_all()  # clean epochs' records wait at most this long
-            if msg is None:
-                continue
-            with self.lock:
-                self.handle(msg)
-        return 0 if self.finished() else 130
+
+class LockstepWakeups:
+    """Lockstep: packets are handled on the bus's thread as they come (no queue hand-off);
+    the loop's thread wakes every :data:`LOCKSTEP_WAKE_S` to flush clean epochs' records and
+    handle what came before the start."""
+
+    def __init__(self, node: NetemNode) -> None:
+        self.node = node
+
+    def open(self) -> None:
+        node = self.node
+        with node.lock:  # handled on the bus's thread from now on
+            if not node.passthrough:
+                node.setup_clean()
+            node.running = True
+
+    def begin(self, timing: TimePolicy) -> None:
+        settle_heap()
+        timing.begin(self.node.service)
+
+    def idle(self) -> bool:
+        return True
+
+    def tick(self) -> float:
+        return LOCKSTEP_WAKE_S
+
+    def wake(self, msg: Incoming | None) -> None:
+        node = self.node
+        node.flush_all()  # clean epochs' records wait at most this long
+        if msg is not None:
+            with node.lock:
+                node.handle(msg)
+
+    def end(self) -> None:
+        self.node.flush_all()
 
 
 def _sender_name(sender: int) -> str:

@@ -32,7 +32,7 @@ from formation.scenario import LEADER_ENDPOINT
 from netem.links import PHASE_OF, LinkClass, Links, Phase, Routes
 from netem.progress import Progress
 from netem.records import Ledger, Record, message_json, packet_json_of
-from shell import Incoming, Service
+from shell import Incoming, Service, TimePolicy
 
 Inbox = tuple[Phase, int]  # (phase, receiver)
 # (due ns, tie, its receiver's inbox, sent epoch, packet JSON, copies, its phase's deadline ns)
@@ -76,11 +76,15 @@ class Realtime:
     """Forwards packets after their models' delays, batched per receiver (:meth:`flush`)."""
 
     def __init__(self, service: Service, links: Links, routes: Routes, progress: Progress,
-                 ledger: Ledger, publish_records: PublishRecords, deliver: Deliver) -> None:  # fmt: skip
+                 ledger: Ledger, publish_records: PublishRecords, deliver: Deliver,
+                 lock: threading.Lock | None = None) -> None:  # fmt: skip
         self.service, self.links, self.routes = service, links, routes
+        self.lock = threading.Lock() if lock is None else lock  # shared with the node's handlers
         self.progress, self.ledger, self.publish_records = progress, ledger, publish_records
         self.deliver = deliver
-        self.clock: Clock | None = None  # set by run()
+        self.clock: Clock | None = None  # set by begin()
+        self._due: list[Due] = []
+        self._next_records = 0
         # modelled_late: packets a model delayed past their deadline (modelled losses);
         # late_forwards: packets in time here (and by their model) put out after it
         self.deadline: Counter[str] = Counter()
@@ -172,44 +176,54 @@ class Realtime:
         for phase, epoch in sorted(decisions):
             self.publish_records(phase, epoch, decisions.pop((phase, epoch), []))
 
-    def run(self, period_s: float, lock: threading.Lock, ready: Callable[[], bool],
-            check_dead: Callable[[], None], finished: Callable[[], bool]) -> int:  # fmt: skip
-        """Forward until ``finished`` and nothing is due (0), or until stopped (130).
+    # -- the wake-ups of netem's loop (netem.loop.run_loop) ----------------------------------------
+    def open(self) -> None:
+        """Nothing before everyone is up: packets queue until the clock starts."""
 
-        The clock starts once ``ready``; ``check_dead`` is called on every wake-up and
-        packets are handled under ``lock``, every queued one at each wake-up.
-        """
-        service = self.service
-        while not ready():
-            if service.stopping.wait(0.02):
-                return 130
+    def begin(self, timing: TimePolicy) -> None:
+        """Every model's first block of decisions, then the clock (``START_LEAD_S`` ahead)."""
         for model in self.links.models.values():
             model.prepare(0)
-        self.clock = Clock(time.time_ns() + int(START_LEAD_S * 1e9), int(period_s * 1e9))
-        service.declare_start()
-        due: list[Due] = []  # delayed packets, by due time
-        next_records = self.clock.at(0, RECORDS_AT)
-        while not (finished() and not due) and not service.stopping.is_set():
-            now = time.time_ns()
-            with lock:
-                while due and due[0][0] <= now:
-                    due_ns, _, inbox, epoch, packet, copies, deadline_ns = heapq.heappop(due)
-                    self.queue(inbox, epoch, packet, due_ns, deadline_ns, copies)
-                self.flush()
-                if now >= next_records:
-                    self.publish_decisions()
-                    self.prepare((next_records - self.clock.t0_ns) // self.clock.period_ns)
-                    next_records += self.clock.period_ns
-            until = min(next_records, due[0][0]) if due else next_records
-            msg = service.next_incoming(max(0.0, min(0.05, (until - now) / 1e9)))
-            check_dead()
-            if msg is not None:
-                with lock:
-                    self.handle(msg, due)
-                    while (more := service.next_incoming(0)) is not None:
-                        self.handle(more, due)
-                        self.flush(unless_newer_than_ns=FLUSH_NS)
-                    self.flush()
-        with lock:
+        timing.begin(self.service, lead_s=START_LEAD_S)
+        self.clock = timing.clock
+        assert self.clock is not None  # a realtime policy's
+        self._due = []  # delayed packets, by due time
+        self._next_records = self.clock.at(0, RECORDS_AT)
+
+    def idle(self) -> bool:
+        """Whether no delayed packet is still to be forwarded."""
+        return not self._due
+
+    def tick(self) -> float:
+        """Forward what is due now and flush; publish the records once a period. Returns how
+        long to wait for a packet [s]: until the next due packet or records, at most 0.05."""
+        assert self.clock is not None
+        due = self._due
+        now = time.time_ns()
+        with self.lock:
+            while due and due[0][0] <= now:
+                due_ns, _, inbox, epoch, packet, copies, deadline_ns = heapq.heappop(due)
+                self.queue(inbox, epoch, packet, due_ns, deadline_ns, copies)
+            self.flush()
+            if now >= self._next_records:
+                self.publish_decisions()
+                self.prepare((self._next_records - self.clock.t0_ns) // self.clock.period_ns)
+                self._next_records += self.clock.period_ns
+        until = min(self._next_records, due[0][0]) if due else self._next_records
+        return max(0.0, min(0.05, (until - now) / 1e9))
+
+    def wake(self, msg: Incoming | None) -> None:
+        """The packet that woke netem and every other one queued, handled at once."""
+        if msg is None:
+            return
+        service, due = self.service, self._due
+        with self.lock:
+            self.handle(msg, due)
+            while (more := service.next_incoming(0)) is not None:
+                self.handle(more, due)
+                self.flush(unless_newer_than_ns=FLUSH_NS)
+            self.flush()
+
+    def end(self) -> None:
+        with self.lock:
             self.publish_decisions()
-        return 0 if finished() else 130

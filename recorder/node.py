@@ -50,7 +50,16 @@ from recorder.live import LiveServer
 from recorder.schemas import LivelinessEvent, classify
 from recorder.trust import Gate
 from recorder.writer import COMPRESSIONS, Raw, RecordingWriter
-from shell import add_arguments, dump_stacks_on_signal, open_session
+from shell import (
+    Bus,
+    Publisher,
+    Query,
+    Sample,
+    ZenohBus,
+    add_arguments,
+    dump_stacks_on_signal,
+    open_session,
+)
 
 log = logging.getLogger("recorder")
 StatusState = Literal["ready", "running", "done", "error"]
@@ -70,7 +79,7 @@ class Intake:
         self._lock = threading.Lock()
         self._items: list[Raw] = []
 
-    def on_sample(self, sample: zenoh.Sample) -> None:
+    def on_sample(self, sample: Sample) -> None:
         att = sample.attachment
         item = (
             str(sample.key_expr),
@@ -154,6 +163,8 @@ class Recorder:
 
     # -- signals ----------------------------------------------------------------------------
     def on_signal(self, signum: int, frame: Any) -> None:
+        """The first SIGINT/SIGTERM stops the recording; a second exits at once (installed by
+        :func:`main`)."""
         self._signals += 1
         if self._signals > 1:
             os._exit(128 + signum)  # every flushed chunk stays readable
@@ -206,58 +217,53 @@ class Recorder:
                     live.offer(classify(out_key), out_key, payload)
 
     # -- liveliness -------------------------------------------------------------------------
-    def on_alive(self, sample: zenoh.Sample) -> None:
-        key = str(sample.key_expr)
+    def on_alive(self, key: str, alive: bool) -> None:
+        """A liveliness token came or went: recorded as a :class:`LivelinessEvent`."""
         role, ident = keys.parse_alive(key)
-        alive = sample.kind == zenoh.SampleKind.PUT
         event = LivelinessEvent(key=key, role=role, ident=ident, alive=alive)
         self.intake.push((key, event.model_dump_json().encode(), None, None, time_ns()))
 
-    def on_counts(self, query: zenoh.Query) -> None:
+    def on_counts(self, query: Query) -> None:
         """The flush barrier (``keys.flush``): counts per key of everything received before the query."""
         self._fresh_counts.clear()
         self._want_counts.set()
         self._fresh_counts.wait(COUNTS_WAIT_S)
         query.reply(query.key_expr, json.dumps(self.counts).encode())
 
-    def _status(self, session: zenoh.Session, state: StatusState, detail: str = "") -> None:
-        key = keys.status(self.run_id, "recorder", 0)
+    def _status(self, status: Publisher, state: StatusState, detail: str = "") -> None:
         msg = Status(
             run_id=self.run_id, sender="recorder", seq=0 if state == "ready" else 1, epoch=-1,
             stamp_ns=now_ns(), role="recorder", state=state, detail=detail,
         )  # fmt: skip
-        session.put(key, encode(msg))
+        status.put(encode(msg))
 
     # -- the run ------------------------------------------------------------------------------
-    def run(self) -> int:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, self.on_signal)
+    def run(self, bus: Bus | None = None) -> int:
+        """Record until stopped, on ``bus`` (by default a Zenoh session of the flags: a
+        client retries until its router answers); returns an exit code."""
+        if bus is None:
+            try:
+                bus = ZenohBus(open_session(self.args))
+            except (zenoh.ZError, TestbedError):
+                self.recording.close()  # a complete, empty recording rather than a torn one
+                raise
         try:
-            session = open_session(self.args)
-        except (zenoh.ZError, TestbedError):
-            self.recording.close()  # a complete, empty recording rather than a torn one
-            raise
-        try:
-            return self._record(session)
+            return self._record(bus)
         finally:
-            session.close()
+            bus.close()
             if self.live is not None:
                 self.live.close(linger_s=0.0)  # after an error; stops a stopped server again
 
-    def _record(self, session: zenoh.Session) -> int:
-        subs: list[Any] = [
-            session.declare_subscriber(f, self.intake.on_sample) for f in self.filters
-        ]
-        liveliness = session.liveliness()
-        subs.append(
-            liveliness.declare_subscriber(keys.alive_all(self.run_id), self.on_alive, history=True)
-        )
-        subs.append(session.declare_queryable(keys.flush(self.run_id), self.on_counts))
+    def _record(self, bus: Bus) -> int:
+        subs = [bus.declare_subscriber(f, self.intake.on_sample) for f in self.filters]
+        subs.append(bus.declare_liveliness_subscriber(keys.alive_all(self.run_id), self.on_alive))
+        subs.append(bus.declare_queryable(keys.flush(self.run_id), self.on_counts))
+        status = bus.declare_publisher(keys.status(self.run_id, "recorder", 0))
         writer = threading.Thread(target=self._writer, name="recorder-writer", daemon=True)
         writer.start()
         self._wait_for_viewer()
-        token = liveliness.declare_token(keys.alive(self.run_id, "recorder", 0))
-        self._status(session, "ready")
+        token = bus.declare_token(keys.alive(self.run_id, "recorder", 0))
+        self._status(status, "ready")
         log.info("recording %s into %s", ", ".join(self.filters), self.recording.files[0])
         if self.live is not None:
             log.info("live view for Foxglove on %s", self.live.url)
@@ -273,7 +279,7 @@ class Recorder:
         if self.error is None:
             self._finish()
         detail = self.summary()
-        self._status(session, "error" if self.error else "done", detail)
+        self._status(status, "error" if self.error else "done", detail)
         token.undeclare()
         print(f"recorder {self.run_id}: {detail}", file=sys.stderr)
         if self.error is not None:
@@ -393,7 +399,10 @@ def main(argv: list[str] | None = None) -> int:
     dump_stacks_on_signal()
     args = build_parser().parse_args(argv)
     try:
-        return Recorder(args).run()
+        recorder = Recorder(args)
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, recorder.on_signal)
+        return recorder.run()
     except TestbedError as exc:
         print(f"recorder: error: {exc}", file=sys.stderr)
         return 1

@@ -1,12 +1,22 @@
-"""The services' shell: a Zenoh session and what every service does with it (docs/architecture.md "Layers").
+"""The services' shell: the bus and what every service does on it (docs/architecture.md "Layers").
 
-Between the vocabulary (:mod:`formation`, no Zenoh) and the services.
+Between the vocabulary (:mod:`formation`, no Zenoh) and the services. A service talks to
+a :class:`Bus`: :class:`ZenohBus` in the product, :class:`MemoryBus` in unit tests; its
+node runs one loop under a :class:`TimePolicy`, :class:`Lockstep` or :class:`Realtime`.
 """
 
-from shell.clock import fetch_clock
-from shell.service import Incoming, Service, drain_last, settle_heap
-from shell.serving import load_scenario, serve, service_parser
+from shell.bus import (
+    Bus,
+    MemoryBus,
+    Publisher,
+    Query,
+    Sample,
+    ZenohBus,
+)
+from shell.service import Incoming, Service, settle_heap
+from shell.serving import load_scenario, open_service, serve, service_parser
 from shell.stack_dump import DUMP_SIGNAL, dump_stacks_on_signal
+from shell.timing import Lockstep, Loop, Realtime, TimePolicy, Wait, time_policy
 from shell.zenoh_config import (
     add_arguments,
     endpoints,
@@ -17,18 +27,29 @@ from shell.zenoh_config import (
 
 __all__ = [
     "DUMP_SIGNAL",
+    "Bus",
     "Incoming",
+    "Lockstep",
+    "Loop",
+    "MemoryBus",
+    "Publisher",
+    "Query",
+    "Realtime",
+    "Sample",
     "Service",
+    "TimePolicy",
+    "Wait",
+    "ZenohBus",
     "add_arguments",
-    "drain_last",
     "dump_stacks_on_signal",
     "endpoints",
-    "fetch_clock",
     "load_scenario",
+    "open_service",
     "open_session",
     "open_with_retry",
     "serve",
     "service_parser",
     "session_config",
     "settle_heap",
+    "time_policy",
 ]

@@ -1,8 +1,10 @@
-"""A service's Zenoh session: publishers, subscribers, liveliness, the start barrier, signals.
+"""A service on the bus: publishers, subscribers, liveliness, the start barrier.
 
-Incoming samples go into one queue that the service's main thread drains, in arrival
-order; or, when a node sets :attr:`Service.inline`, they are handled on Zenoh's
-receiving thread under :attr:`Service.inline_lock`. Either way one handler runs at a time.
+A :class:`Service` talks only to a :class:`~shell.bus.Bus` (Zenoh in the product, memory
+in unit tests); the signals are :func:`shell.serving.serve`'s. Incoming samples go into one
+queue that the service's main thread drains, in arrival order; or, when a node sets
+:attr:`Service.inline`, they are handled on the bus's receiving thread under
+:attr:`Service.inline_lock`. Either way one handler runs at a time.
 """
 
 from __future__ import annotations
@@ -11,8 +13,6 @@ import contextlib
 import gc
 import logging
 import queue
-import signal
-import sys
 import threading
 import time
 from collections import Counter
@@ -28,7 +28,7 @@ from formation import keys
 from formation.codec import Malformed, encode, now_ns
 from formation.errors import RuntimeFailure
 from formation.messages import Status
-from shell.zenoh_config import open_session
+from shell.bus import Bus, Publisher, Query, Sample, ZenohBus
 
 log = logging.getLogger("service")
 
@@ -52,19 +52,30 @@ def settle_heap() -> None:
 
 
 class Service:
-    """A Zenoh-connected process of role ``role`` and id ``ident`` in run ``run_id``."""
+    """A process of role ``role`` and id ``ident`` in run ``run_id``, on ``bus``.
 
-    def __init__(self, run_id: str, role: str, ident: int | str, args: Any) -> None:
+    ``start_timeout_s``: how long :meth:`wait_started` waits for netem's start (None: for ever).
+    """
+
+    def __init__(
+        self,
+        bus: Bus,
+        run_id: str,
+        role: str,
+        ident: int | str,
+        *,
+        start_timeout_s: float | None = None,
+    ) -> None:
+        self.bus = bus
         self.run_id, self.role, self.ident = run_id, role, ident
         self.name = f"{role}/{ident}" if role in ("agent", "pool") else role
-        self.session = open_session(args)  # a client retries until its router answers
-        self.start_timeout_s: float | None = getattr(args, "start_timeout", None)
+        self.start_timeout_s = start_timeout_s
         self.inbox: queue.SimpleQueue[Incoming] = queue.SimpleQueue()
         self.stopping = threading.Event()
         self.malformed = Malformed()
         self.sent: Counter[str] = Counter()
         self._seq: Counter[str] = Counter()
-        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._publishers: dict[str, Publisher] = {}
         self._keep: list[Any] = []
         self._alive: set[str] = set()
         self._alive_lock = threading.Lock()
@@ -74,16 +85,19 @@ class Service:
         # queued for the main thread: one thread wake-up less per message on the lockstep path.
         self.inline: Callable[[Incoming], None] | None = None
         self.inline_lock = threading.Lock()
-        self._signals = 0
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, self._on_signal)
 
-    # -- signals ------------------------------------------------------------------------------
-    def _on_signal(self, signum: int, frame: Any) -> None:
-        self._signals += 1
-        self.stopping.set()
-        if self._signals > 1:
-            sys.exit(128 + signum)
+    @classmethod
+    def open(
+        cls,
+        conf: zenoh.Config,
+        run_id: str,
+        role: str,
+        ident: int | str,
+        *,
+        start_timeout_s: float | None = None,
+    ) -> Service:
+        """A service on a new Zenoh session of ``conf`` (as zenoh-python's examples take ``conf``)."""
+        return cls(ZenohBus.open(conf), run_id, role, ident, start_timeout_s=start_timeout_s)
 
     # -- publishing ---------------------------------------------------------------------------
     def next_seq(self, key: str) -> int:
@@ -91,19 +105,11 @@ class Service:
         self._seq[key] += 1
         return seq
 
-    def publisher(self, key: str) -> zenoh.Publisher:
-        """The publisher of ``key``, declared once.
-
-        BLOCK: a publisher never silently drops what netem is meant to decide on. Not
-        express: zenoh still sends at once when its queue is idle, but batches a burst
-        (netem's fan-out) into few writes; express cost netem 5x its forwarding rate.
-        """
+    def publisher(self, key: str) -> Publisher:
+        """The publisher of ``key``, declared once (one that never drops: :meth:`Bus.declare_publisher`)."""
         pub = self._publishers.get(key)
         if pub is None:
-            pub = self.session.declare_publisher(
-                key, congestion_control=zenoh.CongestionControl.BLOCK
-            )
-            self._publishers[key] = pub
+            pub = self._publishers[key] = self.bus.declare_publisher(key)
         return pub
 
     def declare_publishers(self, keys: Iterable[str]) -> None:
@@ -142,7 +148,7 @@ class Service:
 
     # -- subscribing --------------------------------------------------------------------------
     def subscribe(
-        self, key: str, callback: Callable[[zenoh.Sample], None] | None = None, direct: bool = False
+        self, key: str, callback: Callable[[Sample], None] | None = None, direct: bool = False
     ) -> None:
         """Subscribe ``key``; samples go to ``callback`` or, by default, into :attr:`inbox`.
 
@@ -151,13 +157,15 @@ class Service:
         and waking a different one for each sample cost it a fifth of its CPU.
         """
 
-        def to_inbox(sample: zenoh.Sample) -> None:
+        clock = self.bus.time_ns
+
+        def to_inbox(sample: Sample) -> None:
             att = sample.attachment
             msg = Incoming(
                 str(sample.key_expr),
                 sample.payload.to_bytes(),
                 att.to_bytes() if att else None,
-                time.time_ns(),
+                clock(),
             )
             handler = self.inline
             if handler is None:
@@ -165,10 +173,7 @@ class Service:
             else:
                 self.handle_inline(msg.key, handler, msg)
 
-        handler: Any = callback or to_inbox
-        if direct:
-            handler = zenoh.handlers.Callback(handler, indirect=False)
-        self._keep.append(self.session.declare_subscriber(key, handler))
+        self._keep.append(self.bus.declare_subscriber(key, callback or to_inbox, direct=direct))
 
     def handle_inline(self, key: str, handler: Callable[..., None], *args: Any) -> None:
         """``handler(*args)`` under :attr:`inline_lock`, for a message on ``key``.
@@ -188,11 +193,9 @@ class Service:
 
         The query leaves after what this session published before it, on the same link.
         """
-        for reply in self.session.get(key, payload=orjson.dumps(body), timeout=timeout_s):
-            if reply.ok is None:
-                continue
+        for reply in self.bus.get(key, orjson.dumps(body), timeout_s):
             try:
-                answer = orjson.loads(reply.ok.payload.to_bytes())
+                answer = orjson.loads(reply)
             except orjson.JSONDecodeError:
                 answer = None
             if isinstance(answer, dict):
@@ -200,21 +203,20 @@ class Service:
             self.malformed.counts[key] += 1
         return None
 
-    def queryable(self, key: str, callback: Callable[[zenoh.Query], None]) -> None:
-        self._keep.append(self.session.declare_queryable(key, callback))
+    def queryable(self, key: str, callback: Callable[[Query], None]) -> None:
+        """Answer queries on ``key`` with ``callback`` (on the bus's thread)."""
+        self._keep.append(self.bus.declare_queryable(key, callback))
 
     # -- liveliness ---------------------------------------------------------------------------
     def announce(self, role: str | None = None, ident: int | str | None = None) -> None:
         """Declare this process (or one agent of its pool) alive, after its subscribers exist."""
         key = keys.alive(self.run_id, role or self.role, self.ident if ident is None else ident)
-        self._keep.append(self.session.liveliness().declare_token(key))
+        self._keep.append(self.bus.declare_token(key))
 
     def watch_alive(self, on_change: Callable[[str, str, bool], None] | None = None) -> None:
         """Track liveliness tokens of the run; ``on_change(role, ident, alive)`` is called on a Zenoh thread."""
 
-        def changed(sample: zenoh.Sample) -> None:
-            key = str(sample.key_expr)
-            alive = sample.kind == zenoh.SampleKind.PUT
+        def changed(key: str, alive: bool) -> None:
             with self._alive_lock:
                 (self._alive.add if alive else self._alive.discard)(key)
             if key == keys.start(self.run_id) and alive:
@@ -224,9 +226,7 @@ class Service:
                 on_change(role, ident, alive)
 
         self._keep.append(
-            self.session.liveliness().declare_subscriber(
-                keys.alive_all(self.run_id), changed, history=True
-            )
+            self.bus.declare_liveliness_subscriber(keys.alive_all(self.run_id), changed)
         )
 
     def gone_for(self, role: str, ident: int | str, grace_s: float = 5.0) -> bool:
@@ -272,8 +272,8 @@ class Service:
         """
         deadline = now_ns() + int(timeout_s * 1e9)
         while True:
-            replies = self.session.liveliness().get(keys.start(self.run_id), timeout=timeout_s)
-            if any(reply.ok is not None for reply in replies) or self._started.is_set():
+            started = next(self.bus.tokens(keys.start(self.run_id), timeout_s), None)
+            if started is not None or self._started.is_set():
                 return True
             if now_ns() > deadline or self.stopping.wait(0.05):
                 return False
@@ -283,7 +283,8 @@ class Service:
         self._missing_since.pop((role, str(ident)), None)
 
     def declare_start(self) -> None:
-        self._keep.append(self.session.liveliness().declare_token(keys.start(self.run_id)))
+        """netem's start token: the run's clock is about to start."""
+        self._keep.append(self.bus.declare_token(keys.start(self.run_id)))
 
     def next_incoming(self, timeout_s: float = 0.1) -> Incoming | None:
         try:
@@ -309,12 +310,11 @@ class Service:
         """
         for early in held:
             route(early)
-        if complete is None and (left := (t_ns - time.time_ns()) / 1e9) > 0:
+        clock = self.bus.time_ns
+        if complete is None and (left := (t_ns - clock()) / 1e9) > 0:
             self.stopping.wait(left)
         while not (complete is not None and complete()):
-            msg = self.next_incoming(
-                0 if complete is None else max(0.0, (t_ns - time.time_ns()) / 1e9)
-            )
+            msg = self.next_incoming(0 if complete is None else max(0.0, (t_ns - clock()) / 1e9))
             if msg is None:
                 return []
             if msg.arrived_ns > t_ns:
@@ -330,7 +330,7 @@ class Service:
         for pub in self._publishers.values():
             pub.undeclare()
         self._publishers.clear()
-        self.session.close()
+        self.bus.close()
 
 
 def drain_last(service: Service, route: Callable[[Incoming], None], timeout_s: float = 5.0,

@@ -1,14 +1,18 @@
-"""A service's command line and its life: flags, the scenario, open, run, close, exit code."""
+"""A service's command line and its life: flags, the scenario, open, signals, run, close, exit code."""
 
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 from collections.abc import Callable
+from types import FrameType
 
 from formation.errors import TestbedError
 from formation.scenario import Scenario
 from shell import zenoh_config
+from shell.bus import ZenohBus
 from shell.service import Service
 from shell.stack_dump import dump_stacks_on_signal
 
@@ -29,15 +33,39 @@ def load_scenario(args: argparse.Namespace) -> Scenario:
     return scenario if args.epochs is None else scenario.with_overrides(epochs=args.epochs)
 
 
+def open_service(args: argparse.Namespace, role: str, ident: int | str) -> Service:
+    """The service of the command line's run on a Zenoh session of its flags (a client
+    retries until its router answers, up to ``--connect-timeout``)."""
+    bus = ZenohBus(zenoh_config.open_session(args))
+    return Service(bus, args.run_id, role, ident, start_timeout_s=args.start_timeout)
+
+
+def stop_on_signals(stopping: threading.Event) -> None:
+    """The first SIGINT or SIGTERM sets ``stopping`` (the service ends cleanly); a second
+    exits at once."""
+    received = 0
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        nonlocal received
+        received += 1
+        stopping.set()
+        if received > 1:
+            sys.exit(128 + signum)
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, on_signal)
+
+
 def serve(name: str, open_service: Callable[[], Service], body: Callable[[Service], int]) -> int:
-    """Open the service, run ``body`` and close it; a :class:`TestbedError` is printed as
-    ``name: error: …`` with exit code 1."""
+    """Open the service, take the signals, run ``body`` and close it; a :class:`TestbedError`
+    is printed as ``name: error: …`` with exit code 1."""
     dump_stacks_on_signal()
     try:
         service = open_service()
     except TestbedError as exc:
         print(f"{name}: error: {exc}", file=sys.stderr)
         return 1
+    stop_on_signals(service.stopping)
     try:
         return body(service)
     except TestbedError as exc:

@@ -9,9 +9,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 import pytest
-import zenoh
 
-from shell.service import Incoming, Service
+from shell import Incoming, Publisher, Service
 from testkit.zenoh_peer import peer_service
 
 pytestmark = pytest.mark.integration
@@ -26,12 +25,12 @@ def wait_for(cond, timeout_s: float = 10.0) -> None:  # type: ignore[no-untyped-
 
 
 @contextmanager
-def probe(ident: int) -> Iterator[tuple[Service, zenoh.Publisher, str]]:
+def probe(ident: int) -> Iterator[tuple[Service, Publisher, str]]:
     """A peer service subscribed to a key of its own, and a publisher on that key."""
     with peer_service(RUN, "agent", ident) as svc:
         key = f"{RUN}/probe/{ident}"
         svc.subscribe(key)
-        pub = svc.session.declare_publisher(key)
+        pub = svc.bus.declare_publisher(key)
         try:
             yield svc, pub, key
         finally:

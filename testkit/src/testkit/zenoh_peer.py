@@ -18,7 +18,6 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -26,8 +25,7 @@ import zenoh
 
 from formation.codec import encode
 from formation.messages import CoordinationState
-from shell.service import Service
-from shell.zenoh_config import session_config
+from shell import Service, session_config
 
 HOST = "127.0.0.1"
 WAIT_S = 30.0  # longest wait for any readiness [s]
@@ -116,14 +114,10 @@ def state(run_id: str, i: int, k: int, x: list[float]) -> bytes:
 
 @contextmanager
 def peer_service(run_id: str, role: str, ident: int) -> Iterator[Service]:
-    """A service of this process, a peer on loopback; it takes the signals, which go back to
-    pytest afterwards."""
-    args = SimpleNamespace(mode="peer", connect=None, listen="tcp/127.0.0.1:0", start_timeout=5)
-    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
-    svc = Service(run_id, role, ident, args)
+    """A service of this process, a peer on loopback (the signals stay pytest's)."""
+    conf = session_config("peer", None, "tcp/127.0.0.1:0")
+    svc = Service.open(conf, run_id, role, ident, start_timeout_s=5)
     try:
         yield svc
     finally:
         svc.close()
-        for sig, handler in handlers.items():
-            signal.signal(sig, handler)

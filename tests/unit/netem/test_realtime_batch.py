@@ -17,10 +17,12 @@ from formation.messages import CoordinationState, DeliveredPacket
 from formation.realtime import ESTIMATE_DEADLINE, REPORT_DEADLINE, Clock
 from formation.scenario import Scenario
 from netem.links import Links, Routes
+from netem.loop import run_loop
 from netem.progress import Progress
 from netem.realtime import PREPARE_AHEAD, RECORDS_AT, START_LEAD_S, Due, Realtime
 from netem.records import Ledger
-from shell.service import Incoming
+from shell import Incoming
+from shell import Realtime as RealtimeTime
 
 ROOT = Path(__file__).resolve().parents[3]
 RUN = "batch"
@@ -111,7 +113,8 @@ def test_the_decision_records_go_out_when_netem_idles() -> None:
     )
     rt.service = service  # type: ignore[assignment]
     began = time.time_ns()
-    assert rt.run(0.2, threading.Lock(), lambda: True, lambda: None, lambda: bool(published)) == 0
+    timing = RealtimeTime(0.2)
+    assert run_loop(service, timing, rt, lambda: True, lambda: None, lambda: bool(published)) == 0  # type: ignore[arg-type]
     assert rt.clock is not None
     assert rt.clock.t0_ns - began >= START_LEAD_S * 1e9  # time for every agent to fetch it
     (at,) = published
