@@ -43,8 +43,13 @@ def main(argv: list[str] | None = None) -> int:
     role, ident = ("agent", ids[0]) if len(ids) == 1 else ("pool", ids[0])
 
     def body(service: Service) -> int:
-        node = AgentNode(service, scenario, ids, args.strategy or scenario.strategy.name,
-                         scenario.seed if args.seed is None else args.seed)  # fmt: skip
+        node = AgentNode(
+            service,
+            scenario,
+            ids,
+            args.strategy or scenario.strategy.name,
+            scenario.seed if args.seed is None else args.seed,
+        )
         # Restarted into a running run, or joining it later (a scenario event): ask netem.
         joins = not scenario.membership.present[0, [i - 1 for i in ids]].all()
         restarted = scenario.runtime.mode == "lockstep" and (joins or service.run_started())

@@ -44,16 +44,23 @@ class _Inbox:
 
 
 def state_message(
-    head: dict[str, Any], agent: int, position: list[float],
-    substituted: list[tuple[int, list[float], bool]], pose: tuple[float, int] | None = None,
-) -> bytes:  # fmt: skip
+    head: dict[str, Any],
+    agent: int,
+    position: list[float],
+    substituted: list[tuple[int, list[float], bool]],
+    pose: tuple[float, int] | None = None,
+) -> bytes:
     """A :class:`CoordinationState` as JSON, built with orjson: a pool of hundreds sends one
     per agent and epoch, and the pydantic model cost more than the rest of its step.
     ``pose``: a unicycle's heading [rad] and saturated sub-steps (omitted for point agents)."""
     msg = {
-        **head, "kind": "state", "agent": agent, "position": position, "velocity": None,
+        **head,
+        "kind": "state",
+        "agent": agent,
+        "position": position,
+        "velocity": None,
         "substituted": [{"neighbour": j, "value": v, "fallback": f} for j, v, f in substituted],
-    }  # fmt: skip
+    }
     if pose is not None:
         msg["heading"], msg["saturated"] = pose
     return orjson.dumps(msg)
@@ -61,10 +68,16 @@ def state_message(
 
 def report_message(head: dict[str, Any], agent: int, report: Report) -> bytes:
     """A :class:`TokenReport` as JSON, built with orjson (see :func:`state_message`)."""
-    return orjson.dumps({
-        **head, "kind": "report", "agent": agent,
-        "measurements": [{"neighbour": j, "token": 1 if t else 0, "z": z} for j, t, z in report],
-    })  # fmt: skip
+    return orjson.dumps(
+        {
+            **head,
+            "kind": "report",
+            "agent": agent,
+            "measurements": [
+                {"neighbour": j, "token": 1 if t else 0, "z": z} for j, t, z in report
+            ],
+        }
+    )
 
 
 def _estimate(est: object) -> Estimate | None:
@@ -168,10 +181,11 @@ class AgentNode:
                 for i, g in given.items()
             }
             headings = {
-                i: None if g["state"] is None or g["state"].get("heading") is None
+                i: None
+                if g["state"] is None or g["state"].get("heading") is None
                 else float(g["state"]["heading"])
                 for i, g in given.items()
-            }  # fmt: skip
+            }
         except (KeyError, TypeError, ValueError):
             raise RuntimeFailure(
                 f"{self.service.name}: restarted into a running run, and netem did not say "
@@ -208,19 +222,21 @@ class AgentNode:
     def _packets(self, i: int, delivery: Delivery) -> list[Packet]:
         """The coordination packets of a state delivery; a malformed one is counted and lost."""
         decoded = self.service.malformed.decode_packets(
-            delivery.packets, CoordinationState,
+            delivery.packets,
+            CoordinationState,
             lambda p: keys.link_state(self.run_id, p.source, i),
             lambda p, state: state.agent == p.source,
-        )  # fmt: skip
+        )
         return [Packet(i, p.source, p.sent_epoch, tuple(s.position)) for p, s in decoded]
 
     def _estimate_of(self, i: int, delivery: Delivery) -> Estimate | None:
         current = (p for p in delivery.packets if p.sent_epoch == delivery.epoch)  # delayed: no use
         decoded = self.service.malformed.decode_packets(
-            current, AgentEstimate,
+            current,
+            AgentEstimate,
             lambda p: keys.link_estimate(self.run_id, i),
             lambda p, est: est.agent == i,  # another agent's part is unusable
-        )  # fmt: skip
+        )
         first = next(decoded, None)
         return None if first is None else _estimate(first[1])
 
@@ -235,10 +251,11 @@ class AgentNode:
         box = self.inbox[i]
         if delivery.phase == "state":
             for p, state in self.service.malformed.decode_packets(
-                delivery.packets, CoordinationState,
+                delivery.packets,
+                CoordinationState,
                 lambda p: keys.link_state(self.run_id, p.source, i),
                 lambda p, state: state.agent == p.source,
-            ):  # fmt: skip
+            ):
                 if p.sent_epoch <= self.taken:
                     self._missed("state", p.sent_epoch, state.stamp_ns, msg.arrived_ns)
                 else:
@@ -246,10 +263,11 @@ class AgentNode:
                     box.packets[(p.source, p.seq)] = Packet(i, p.source, p.sent_epoch, position)
             return
         for _, est in self.service.malformed.decode_packets(
-            delivery.packets, AgentEstimate,
+            delivery.packets,
+            AgentEstimate,
             lambda p: keys.link_estimate(self.run_id, i),
             lambda p, est: est.agent == i,  # another agent's part is unusable
-        ):  # fmt: skip
+        ):
             if self.taken >= 0 and est.epoch < self.runner.epoch:
                 assert self.clock is not None  # realtime
                 if msg.arrived_ns > self.clock.at(est.epoch, ESTIMATE_DEADLINE):

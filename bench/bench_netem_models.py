@@ -1,4 +1,4 @@
-"""Benchmark of netem's link models (netem/models.py): decisions per second, per packet and batched.
+"""Benchmark of netem's link models (netem/links/models.py): decisions per second, per packet and batched.
 
 Run ``python bench/bench_netem_models.py [--seed S] [--quick]``. For each model
 it measures ``LinkModel.decide`` called once per packet on consecutive epochs

@@ -2,7 +2,7 @@
 
 Misses of the testbed's own making (formation.deadlines), over the packets netem decided;
 the layout ``picked`` is what ``formation run --mode realtime`` chooses on this machine
-(testbed.runtime.layout). A miss rate is a fidelity figure, not a speed: there is no
+(testbed.runtime.process_budget). A miss rate is a fidelity figure, not a speed: there is no
 baseline to divide by, but the load average says how busy the machine was around it, and
 ``steal`` how much of the machine's CPU its hypervisor took meanwhile (testbed.runtime.steal): on a
 shared VM, 10 % steal turned 0.3 % misses into 30 % (20 processes at 20 Hz, seed 1).
@@ -27,8 +27,8 @@ from pathlib import Path
 from bench.procfs import cpu_s
 from testbed.runtime import steal
 from testbed.runtime.launcher import launch
-from testbed.runtime.layout import realtime_layout
-from testbed.sim.teams import henneberg_team
+from testbed.runtime.process_budget import realtime_layout
+from testbed.sim.team_generators import henneberg_team
 
 SEED = 1
 EPOCHS = 100

@@ -27,7 +27,7 @@ from formation.scenario import Scenario
 from shell import session_config
 from testbed.runtime.launcher import launch
 from testbed.sim.simulate import simulate
-from testbed.sim.teams import henneberg_team
+from testbed.sim.team_generators import henneberg_team
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 1

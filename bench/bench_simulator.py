@@ -17,7 +17,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from formation.scenario import Scenario
 from testbed.sim.simulate import simulate
-from testbed.sim.teams import henneberg_team
+from testbed.sim.team_generators import henneberg_team
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 1

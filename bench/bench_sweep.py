@@ -37,7 +37,7 @@ import psutil
 
 from formation.scenario import Scenario, StrategyName
 from testbed.experiments.executors import DaskCluster, Executor, LocalPool
-from testbed.experiments.lossy import with_loss
+from testbed.experiments.loss_variants import with_loss
 from testbed.experiments.sweep import COLUMNS, Chunk, SweepSpec, plan_chunks, run_sweep
 from testbed.sim.simulate import simulate
 from testkit.dask_processes import DaskProcesses

@@ -1,6 +1,6 @@
 """Key expressions of a run; every key string of the testbed is built here.
 
-Other modules read keys (``netem.links``, ``recorder.schemas``, ``recorder.trust`` split
+Other modules read keys (``netem.proxy.routes``, ``recorder.recording.schemas``, ``recorder.reading.trust`` split
 them into their parts) but build none; ``tests/unit/formation/test_key_literals.py``
 scans the product for key literals outside this module. All keys live under
 ``formation/<run_id>/``. Formation links are ``i → j``

@@ -1,4 +1,4 @@
-"""Link models as the scenario names them: the vocabulary netem implements (``netem.linkmodels``).
+"""Link models as the scenario names them: the vocabulary netem implements (``netem.links.linkmodels``).
 
 Each model is a small frozen pydantic model tagged by ``model``; a link carries a
 stack of them (e.g. an outage on top of Bernoulli loss), applied in order. Names
@@ -8,7 +8,7 @@ Epoch-valued fields are used in lockstep mode, millisecond fields in realtime.
 ``LinkModelSpec`` is the one list of models: the scenario's tags, ``MODEL_NAMES``
 and ``SPEC_OF`` are read from it. A model's position in it is its kind code in
 netem's keyed draws, so a new model is appended, never inserted (how to add one:
-``netem/linkmodels/__init__.py``).
+``netem/links/linkmodels/__init__.py``).
 """
 
 from __future__ import annotations

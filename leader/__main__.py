@@ -29,8 +29,11 @@ def main(argv: list[str] | None = None) -> int:
         timing = time_policy(scenario, watch_s=0.05)
         code = node.run(timing)
         realtime = timing.realtime
-        service.status("done" if code == 0 else "error", node.epoch,
-                       json.dumps(node.deadline) if realtime else "")  # fmt: skip
+        service.status(
+            "done" if code == 0 else "error",
+            node.epoch,
+            json.dumps(node.deadline) if realtime else "",
+        )
         if code == 0:
             node.confirm_last()
         return code

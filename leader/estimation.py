@@ -293,9 +293,18 @@ class MeasurementGraph:
         xr = _as_finite(x_ref, "x_ref", (dim,), "coordinates")
         _check_solver(solver)
         return _estimate(
-            self.n, self.edges, zz, self.cov, self.ref, xr, use, self.diagonal,
-            covariances, solver, labels,
-        )  # fmt: skip
+            self.n,
+            self.edges,
+            zz,
+            self.cov,
+            self.ref,
+            xr,
+            use,
+            self.diagonal,
+            covariances,
+            solver,
+            labels,
+        )
 
 
 def _estimate(

@@ -74,21 +74,25 @@ def estimate_message(
     res = lead.estimate
     observable = res.observable.tolist()
     blocks = [None] * len(observable) if res.covariances is None else res.covariances.tolist()
-    return orjson.dumps({
-        **head,
-        "kind": "estimate",
-        "positions": [p if ok else None for p, ok in zip(res.positions.tolist(), observable, strict=True)],
-        "covariances": [c if ok else None for c, ok in zip(blocks, observable, strict=True)],
-        "observable": observable,
-        "tree": edges[lead.tree].tolist(),
-        "healthy": edges[lead.healthy].tolist(),
-        "components": int(lead.components),
-        "rigidity_rank": int(lead.rigidity_rank),
-        "rigid": bool(lead.rigid),
-        "x_ref": x_ref,
-        "v_ref": v_ref,
-        "reports_received": reports,
-    })  # fmt: skip
+    return orjson.dumps(
+        {
+            **head,
+            "kind": "estimate",
+            "positions": [
+                p if ok else None for p, ok in zip(res.positions.tolist(), observable, strict=True)
+            ],
+            "covariances": [c if ok else None for c, ok in zip(blocks, observable, strict=True)],
+            "observable": observable,
+            "tree": edges[lead.tree].tolist(),
+            "healthy": edges[lead.healthy].tolist(),
+            "components": int(lead.components),
+            "rigidity_rank": int(lead.rigidity_rank),
+            "rigid": bool(lead.rigid),
+            "x_ref": x_ref,
+            "v_ref": v_ref,
+            "reports_received": reports,
+        }
+    )
 
 
 def agent_estimates(
@@ -105,10 +109,16 @@ def agent_estimates(
         for p, ok in zip(res.positions.tolist(), res.observable.tolist(), strict=True)
     ]
     for i, neighbours in enumerate(scenario.in_neighbours, start=1):
-        yield i, {
-            "kind": "agent_estimate", "agent": i, "neighbours": neighbours,
-            "positions": [positions[j - 1] for j in neighbours], "v_ref": v_ref,
-        }  # fmt: skip
+        yield (
+            i,
+            {
+                "kind": "agent_estimate",
+                "agent": i,
+                "neighbours": neighbours,
+                "positions": [positions[j - 1] for j in neighbours],
+                "v_ref": v_ref,
+            },
+        )
 
 
 class LeaderNode:
@@ -168,8 +178,9 @@ class LeaderNode:
                 if msg.arrived_ns <= self.clock.at(report.epoch, REPORT_DEADLINE):
                     continue  # a copy of one already used, in an estimate before the deadline
                 self.late_reports += 1
-                self.deadline[cause(self.clock, "report", report.epoch, report.stamp_ns,
-                                    msg.arrived_ns)] += 1  # fmt: skip
+                self.deadline[
+                    cause(self.clock, "report", report.epoch, report.stamp_ns, msg.arrived_ns)
+                ] += 1
             else:
                 self.reports[(report.agent, report.seq)] = report
 
@@ -188,10 +199,11 @@ class LeaderNode:
     ) -> Iterator[tuple[DeliveredPacket, TokenReport]]:
         """The valid reports among ``packets``; the others counted on their links' keys."""
         return self.service.malformed.decode_packets(
-            packets, TokenReport,
+            packets,
+            TokenReport,
             lambda p: keys.link_report(self.run_id, p.source),
             lambda p, report: report.agent == p.source,
-        )  # fmt: skip
+        )
 
     def _take_delivery(self, msg: Incoming) -> None:
         """Lockstep: keep netem's delivery of an epoch's reports until that epoch is estimated."""
@@ -237,8 +249,14 @@ class LeaderNode:
             lead = replace(lead, estimate=replace(lead.estimate, covariances=blocks))
         key = keys.leader_estimate_out(self.run_id)
         head = self.service.header(key, k)
-        msg = estimate_message(head, lead, [float(v) for v in self.ref_x[k]], v_ref,
-                               self.scenario.edge_array, len(reports))  # fmt: skip
+        msg = estimate_message(
+            head,
+            lead,
+            [float(v) for v in self.ref_x[k]],
+            v_ref,
+            self.scenario.edge_array,
+            len(reports),
+        )
         self.service.put(key, msg, attachment(k, int(head["seq"]), keys.LEADER))
         self.epoch = k + 1
 
@@ -263,8 +281,13 @@ class LeaderNode:
         offsets = self.scenario.offsets
         known = np.ones(len(links), dtype=bool)
         z = offsets[links[:, 0] - 1] - offsets[links[:, 1] - 1]  # any formation will do
-        head = {"run_id": self.run_id, "sender": self.service.name, "seq": 0, "epoch": 0,
-                "stamp_ns": 0}  # fmt: skip
+        head = {
+            "run_id": self.run_id,
+            "sender": self.service.name,
+            "seq": 0,
+            "epoch": 0,
+            "stamp_ns": 0,
+        }
         v_ref = [float(v) for v in self.ref_v[0]]
         for _ in range(times):
             batch = self.leader.epochs(known[None], z[None], self.ref_x[0], covariances=False)

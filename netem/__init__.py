@@ -7,9 +7,9 @@ same decisions for a batch of seeds from :func:`delivery_plan`, and measures lin
 time and check against closed forms.
 """
 
-from netem.closed_forms import expected_delivery_at
-from netem.matrix import DeliveryPlan, delivery_plan, link_lengths
-from netem.models import LinkModel, delivery_matrix, schedule
+from netem.links.closed_forms import expected_delivery_at
+from netem.links.matrix import DeliveryPlan, delivery_plan, link_lengths
+from netem.links.models import LinkModel, delivery_matrix, schedule
 
 __all__ = [
     "DeliveryPlan",

@@ -29,8 +29,13 @@ def main(argv: list[str] | None = None) -> int:
         return 1
 
     def body(service: Service) -> int:
-        node = NetemNode(service, scenario, scenario.seed if args.seed is None else args.seed,
-                         wait_for_recorder=not args.no_recorder, passthrough=args.passthrough)  # fmt: skip
+        node = NetemNode(
+            service,
+            scenario,
+            scenario.seed if args.seed is None else args.seed,
+            wait_for_recorder=not args.no_recorder,
+            passthrough=args.passthrough,
+        )
         service.announce()
         timing = time_policy(scenario)
         code = node.run(timing)

@@ -2,9 +2,9 @@
 
 This is the transport shell: the bus's subscriptions, publishers, the ``netem/config``,
 ``clock`` and ``netem/final`` queryables, liveliness and what each wake-up of its one
-loop (:mod:`netem.loop`) does in lockstep. The logic is elsewhere: lockstep in
-:mod:`netem.lockstep` (pure, with the clean path of :mod:`netem.clean`), realtime
-forwarding in :mod:`netem.realtime`.
+loop (:mod:`netem.proxy.loop`) does in lockstep. The logic is elsewhere: lockstep in
+:mod:`netem.proxy.lockstep` (pure, with the clean path of :mod:`netem.proxy.clean_epochs`), realtime
+forwarding in :mod:`netem.proxy.realtime`.
 """
 
 from __future__ import annotations
@@ -24,12 +24,12 @@ from formation.codec import read_attachment
 from formation.linkmodels import LinkModelSpec
 from formation.messages import LinkChange
 from formation.scenario import LEADER_ENDPOINT, Scenario
-from netem.links import LinkClass, Links, Phase, Routes, link_key
-from netem.lockstep import Lockstep
-from netem.loop import Wakeups, run_loop
-from netem.progress import Progress
-from netem.realtime import Realtime
-from netem.records import Ledger, Record, decision_batch, decision_batch_of, delivery
+from netem.proxy.lockstep import Lockstep
+from netem.proxy.loop import Wakeups, run_loop
+from netem.proxy.progress import Progress
+from netem.proxy.realtime import RealtimeForwarder
+from netem.proxy.records import Ledger, Record, decision_batch, decision_batch_of, delivery
+from netem.proxy.routes import LinkClass, Links, Phase, Routes, link_key
 from shell import Incoming, Publisher, Query, Sample, Service, TimePolicy, settle_heap
 
 log = logging.getLogger("netem")
@@ -63,8 +63,15 @@ class ZenohOutbox:
             out = self._inboxes[(phase, receiver)] = (key, self.service.publisher(key))
         return out
 
-    def deliver(self, phase: Phase, receiver: int, epoch: int, packets: list[bytes],
-                lost: list[int], dead: list[int]) -> None:  # fmt: skip
+    def deliver(
+        self,
+        phase: Phase,
+        receiver: int,
+        epoch: int,
+        packets: list[bytes],
+        lost: list[int],
+        dead: list[int],
+    ) -> None:
         service = self.service
         key, pub = self._inbox(phase, receiver)
         pub.put(delivery(service.header(key, epoch), receiver, phase, packets, lost, dead))
@@ -108,7 +115,7 @@ class NetemNode:
         self.outbox.declare(self.agents)
         self.lockstep = Lockstep(self.links, self.epochs, self.progress, self.ledger, self.outbox)
         self.routes = Routes(self.agents)
-        self.realtime = Realtime(
+        self.realtime = RealtimeForwarder(
             service,
             self.links,
             self.routes,
@@ -267,10 +274,18 @@ class NetemNode:
     def _config(self, request: dict[str, Any]) -> dict[str, Any]:
         op = request.get("op", "show")
         if op == "show":
-            return {"ok": True, "epoch": self.progress.epoch_seen, "links": [
-                {"link": f"{s}->{d}", "class": c, "models": [m.model_dump(by_alias=True) for m in lm.specs]}
-                for (c, s, d), lm in sorted(self.links.models.items())
-            ]}  # fmt: skip
+            return {
+                "ok": True,
+                "epoch": self.progress.epoch_seen,
+                "links": [
+                    {
+                        "link": f"{s}->{d}",
+                        "class": c,
+                        "models": [m.model_dump(by_alias=True) for m in lm.specs],
+                    }
+                    for (c, s, d), lm in sorted(self.links.models.items())
+                ],
+            }
         if op != "set":
             return {"ok": False, "error": f"op {op!r}: expected show or set"}
         link = str(request.get("link", ""))
@@ -301,8 +316,14 @@ class NetemNode:
         self.links.models[(cls, src, dst)].replace(specs, from_epoch)
         self.lockstep.models_changed()
         key = keys.netem_change(self.run_id)
-        change = LinkChange(**self.service.header(key, from_epoch), source=src, target=dst, link_class=cls,
-                            models=[s.model_dump(by_alias=True) for s in specs], from_epoch=from_epoch)  # fmt: skip
+        change = LinkChange(
+            **self.service.header(key, from_epoch),
+            source=src,
+            target=dst,
+            link_class=cls,
+            models=[s.model_dump(by_alias=True) for s in specs],
+            from_epoch=from_epoch,
+        )
         self.service.publish(key, change)
         return {"ok": True, "link": link, "class": cls, "from_epoch": from_epoch}
 

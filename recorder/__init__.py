@@ -11,33 +11,33 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from recorder.deadlines import write_deadlines
-from recorder.decoder import decode
-from recorder.live import LiveServer
-from recorder.membership import present, spans, team_edges, team_shape_error
-from recorder.metrics import error_statistics, formation_error, nees, shape_error
+from recorder.analysis.deadlines import write_deadlines
+from recorder.analysis.membership import present, spans, team_edges, team_shape_error
+from recorder.analysis.metrics import error_statistics, formation_error, nees, shape_error
+from recorder.analysis.rundata import RunData, read_run
+from recorder.analysis.safety import safety_counts
+from recorder.analysis.summary import summarise, team_errors
+from recorder.live.server import LiveServer
 from recorder.node import build_parser as recorder_parser
 from recorder.node import main as record
-from recorder.player import replay
-from recorder.reader import RecordingInfo, describe, validate
-from recorder.recovery import Recovered, recover
-from recorder.rundata import RunData, read_run
-from recorder.safety import safety_counts
-from recorder.schemas import schema_for_key
-from recorder.summary import summarise, team_errors
-from recorder.writer import RecordingWriter
+from recorder.playback.player import replay
+from recorder.reading.decoder import decode
+from recorder.reading.reader import RecordingInfo, describe, validate
+from recorder.reading.recovery import Recovered, recover
+from recorder.recording.schemas import schema_for_key
+from recorder.recording.writer import RecordingWriter
 
 if TYPE_CHECKING:
-    from recorder.frames import Run, export, load_run
-    from recorder.report import write_report, write_report_from, write_reports
+    from recorder.analysis.dataframes import Run, export, load_run
+    from recorder.analysis.report import write_report, write_report_from, write_reports
 
 _LAZY = {
-    "write_report": "recorder.report",  # matplotlib loads on first use
-    "write_report_from": "recorder.report",
-    "write_reports": "recorder.report",
-    "load_run": "recorder.frames",  # pandas loads on first use
-    "export": "recorder.frames",
-    "Run": "recorder.frames",
+    "write_report": "recorder.analysis.report",  # matplotlib loads on first use
+    "write_report_from": "recorder.analysis.report",
+    "write_reports": "recorder.analysis.report",
+    "load_run": "recorder.analysis.dataframes",  # pandas loads on first use
+    "export": "recorder.analysis.dataframes",
+    "Run": "recorder.analysis.dataframes",
 }
 
 

@@ -2,7 +2,7 @@
 
 Zenoh callbacks only append the raw sample ``(key, payload, attachment, timestamp,
 receive time)`` to a list under a lock; a writer thread swaps the list out every
-few milliseconds and writes the batch (:class:`recorder.writer.RecordingWriter`). Nothing
+few milliseconds and writes the batch (:class:`recorder.recording.writer.RecordingWriter`). Nothing
 is parsed on the way except the agents' states, the leader's estimates and netem's
 decisions, which feed the per-epoch metrics and the Foxglove scene when ``--scenario``
 is given.
@@ -44,12 +44,12 @@ from formation.codec import encode, now_ns
 from formation.errors import TestbedError
 from formation.messages import Status
 from formation.scenario import Scenario
-from recorder.display import Display
-from recorder.epochs import TAPS, EpochAssembler
-from recorder.live import LiveServer
-from recorder.schemas import LivelinessEvent, classify
-from recorder.trust import Gate
-from recorder.writer import COMPRESSIONS, Raw, RecordingWriter
+from recorder.analysis.epoch_assembly import TAPS, EpochAssembler
+from recorder.live.server import LiveServer
+from recorder.reading.trust import Gate
+from recorder.recording.display import Display
+from recorder.recording.schemas import LivelinessEvent, classify
+from recorder.recording.writer import COMPRESSIONS, Raw, RecordingWriter
 from shell import (
     Bus,
     Publisher,
@@ -232,9 +232,15 @@ class Recorder:
 
     def _status(self, status: Publisher, state: StatusState, detail: str = "") -> None:
         msg = Status(
-            run_id=self.run_id, sender="recorder", seq=0 if state == "ready" else 1, epoch=-1,
-            stamp_ns=now_ns(), role="recorder", state=state, detail=detail,
-        )  # fmt: skip
+            run_id=self.run_id,
+            sender="recorder",
+            seq=0 if state == "ready" else 1,
+            epoch=-1,
+            stamp_ns=now_ns(),
+            role="recorder",
+            state=state,
+            detail=detail,
+        )
         status.put(encode(msg))
 
     # -- the run ------------------------------------------------------------------------------

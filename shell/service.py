@@ -136,14 +136,24 @@ class Service:
             "stamp_ns": now_ns(),
         }
 
-    def status(self, state: str, epochs_done: int = 0, detail: str = "",
-               delivered: dict[str, int] | None = None) -> None:  # fmt: skip
+    def status(
+        self,
+        state: str,
+        epochs_done: int = 0,
+        detail: str = "",
+        delivered: dict[str, int] | None = None,
+    ) -> None:
         key = keys.status(self.run_id, self.role, self.ident)
         msg = Status(
-            **self.header(key, epochs_done - 1), role=self.role, state=state,
-            epochs_done=epochs_done, malformed=dict(self.malformed.counts), sent=dict(self.sent),
-            delivered=delivered or {}, detail=detail,
-        )  # fmt: skip
+            **self.header(key, epochs_done - 1),
+            role=self.role,
+            state=state,
+            epochs_done=epochs_done,
+            malformed=dict(self.malformed.counts),
+            sent=dict(self.sent),
+            delivered=delivered or {},
+            detail=detail,
+        )
         self.publish(key, msg)
 
     # -- subscribing --------------------------------------------------------------------------
@@ -333,8 +343,12 @@ class Service:
         self.bus.close()
 
 
-def drain_last(service: Service, route: Callable[[Incoming], None], timeout_s: float = 5.0,
-               settle_s: float = 0.1) -> None:  # fmt: skip
+def drain_last(
+    service: Service,
+    route: Callable[[Incoming], None],
+    timeout_s: float = 5.0,
+    settle_s: float = 0.1,
+) -> None:
     """After the last epoch, route what still comes until netem has gone (it forwards every
     packet due before it leaves; at most ``timeout_s``), then for ``settle_s``: a packet
     still on its way when the run ends is counted as a miss, not left out of the books."""

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from formation.scenario import Scenario
-from testbed.cli.common import DEFAULT_SCENARIO
+from testbed.cli.arguments import DEFAULT_SCENARIO
 from testbed.deploy.compose import ComposeOptions, render
 from testbed.deploy.security import generate
 

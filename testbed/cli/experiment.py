@@ -20,10 +20,10 @@ from rich.table import Table
 
 from formation.errors import TestbedError
 from formation.scenario import Scenario
-from testbed.cli.common import DEFAULT_SCENARIO, parse_strategies
+from testbed.cli.arguments import DEFAULT_SCENARIO, parse_strategies
 from testbed.cli.tables import print_table
 from testbed.experiments.executors import SCHEDULER_FORMS, executor_for
-from testbed.experiments.lossy import LOSS_MODELS
+from testbed.experiments.loss_variants import LOSS_MODELS
 from testbed.experiments.paper_run import run_paper
 from testbed.experiments.sweep import SweepSpec, critical_table, loss_grid, run_sweep
 from testbed.experiments.wireless import (

@@ -15,12 +15,12 @@ from rich.table import Table
 from formation.errors import TestbedError
 from formation.scenario import Scenario
 from recorder import safety_counts, write_deadlines, write_report, write_reports
-from testbed.cli.common import add_common, scenario_strategies
+from testbed.cli.arguments import add_common, scenario_strategies
 from testbed.cli.deadline_lines import deadline_cells, deadline_notes
 from testbed.cli.tables import print_table
 from testbed.runtime.faults import RESTART_POLICIES
 from testbed.runtime.launcher import launch
-from testbed.runtime.layout import realtime_layout
+from testbed.runtime.process_budget import realtime_layout
 
 
 def cmd_run(args: argparse.Namespace) -> int:

@@ -8,7 +8,7 @@ import sys
 from typing import Any
 
 from formation.scenario import Scenario
-from testbed.cli.common import add_common, scenario_strategies
+from testbed.cli.arguments import add_common, scenario_strategies
 from testbed.cli.tables import print_summaries
 from testbed.sim.simulate import simulate
 

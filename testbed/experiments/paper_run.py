@@ -18,7 +18,7 @@ from formation.reference import reference_positions
 from formation.scenario import STRATEGIES, Scenario, StrategyName
 from recorder import error_statistics, read_run
 from testbed.experiments import plots, studies
-from testbed.experiments.lossy import with_loss
+from testbed.experiments.loss_variants import with_loss
 from testbed.experiments.paper import (
     PLOTTED_AGENTS,
     Array,
@@ -31,7 +31,7 @@ from testbed.experiments.report import results_markdown, seeds_csv
 from testbed.runtime.launcher import launch
 from testbed.sim.batch import BatchResult
 from testbed.sim.simulate import simulate
-from testbed.sim.teams import henneberg_team
+from testbed.sim.team_generators import henneberg_team
 
 # ------------------------------------------------------------------------------ figures
 
@@ -165,7 +165,7 @@ def run_real(
 SKIPPED_NOTE = (
     "skipped: recorded messages the reader did not trust and left out (not valid against their "
     "model, a sender that is not the key's owner, an epoch or agent outside the scenario; "
-    "`recorder.trust`), by reason; each run's `report.md` has them per channel."
+    "`recorder.reading.trust`), by reason; each run's `report.md` has them per channel."
 )
 
 

@@ -26,7 +26,7 @@ import numpy.typing as npt
 from formation.graph import expected_rigidity_rank, is_connected, rigidity_rank
 from formation.scenario import STRATEGIES, Scenario, StrategyName, load_dict
 from recorder import error_statistics, team_shape_error
-from testbed.experiments.lossy import with_loss
+from testbed.experiments.loss_variants import with_loss
 from testbed.sim.batch import BatchResult, plan_batch, run_batch
 
 Array = npt.NDArray[np.float64]

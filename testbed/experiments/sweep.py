@@ -11,7 +11,7 @@ keep it; the **critical loss rate** is the largest grid rate up to which every r
 Loss models at equal mean rate ``ρ``: Bernoulli ``p_loss = ρ``; Gilbert–Elliott with loss only in
 the bad state and mean burst ``β`` epochs (``r = 1/β``, ``p = ρ r / (1 − ρ)``; when that ``p``
 exceeds 1, ``p = 1`` and ``r = (1 − ρ)/ρ``, longer bursts), so ``π_bad = ρ``
-(``netem.models.expected_loss_rate`` checks it).
+(``netem.links.models.expected_loss_rate`` checks it).
 
 Runs are batched (``testbed.sim.batch``) in chunks of one topology × model × seed group (every loss
 rate and strategy: the noise is drawn once per seed, the schedules once per rate and seed) and the
@@ -36,7 +36,7 @@ import numpy as np
 from formation.errors import TestbedError
 from formation.scenario import STRATEGIES, Scenario, StrategyName
 from testbed.experiments.executors import Executor, LocalPool, seeds_per_task
-from testbed.experiments.lossy import LOSS_MODELS, with_loss
+from testbed.experiments.loss_variants import LOSS_MODELS, with_loss
 from testbed.experiments.plots import plot_phase
 from testbed.experiments.studies import KEEP_FRACTION
 from testbed.sim.batch import plan_batch, run_batch

@@ -107,8 +107,9 @@ class Supervisor:
                 )
             if c.pid in self.planned or any(loss.pid == c.pid for loss in self.losses):
                 continue
-            loss = Loss(name, c.pid, code, int(first_missing(name)),
-                        time.monotonic() - self.started)  # fmt: skip
+            loss = Loss(
+                name, c.pid, code, int(first_missing(name)), time.monotonic() - self.started
+            )
             self.losses.append(loss)
             if self.policy == "on-failure" and inc.restarts < MAX_RESTARTS:
                 inc.restarts += 1

@@ -2,11 +2,11 @@
 
 The members of a batch (``B`` pairs of a network variant and a seed, sharing the team, graph,
 controller, reference, noise and estimator) draw their links' decisions from netem's
-:func:`netem.matrix.delivery_plan`, their measurement noise from
+:func:`netem.links.matrix.delivery_plan`, their measurement noise from
 :func:`agent.measurement.measurement_noise` (the keys an agent process uses) and their initial
 positions from the scenario, once: :func:`testbed.sim.batch.run_batch` runs the plan for every
 strategy. A member with a distance model (``range``, ``logistic``, ``log_distance``) keeps its
-:class:`netem.matrix.DeliveryPlan`: the epoch loop decides those links from the positions it
+:class:`netem.links.matrix.DeliveryPlan`: the epoch loop decides those links from the positions it
 computes (:class:`RangedMember`), with the same draws netem uses.
 """
 

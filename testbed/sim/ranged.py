@@ -3,8 +3,8 @@
 A distance model (``range``, ``logistic``, ``log_distance``) decides link ``i → j`` of epoch
 ``k`` by ``||x_i[k] − x_j[k]||`` (a control link's leader end is the scenario's access point),
 which the simulator knows only once it has computed epoch ``k``. The members' draws come from
-:func:`netem.matrix.delivery_plan` in the plan; here they meet the lengths, measured with
-:func:`netem.matrix.link_lengths` as netem measures them, so both give the same verdicts.
+:func:`netem.links.matrix.delivery_plan` in the plan; here they meet the lengths, measured with
+:func:`netem.links.matrix.link_lengths` as netem measures them, so both give the same verdicts.
 """
 
 from __future__ import annotations

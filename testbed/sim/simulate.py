@@ -1,8 +1,8 @@
 """The in-process simulator: the model of docs/model.md epoch by epoch, in one process, no Zenoh.
 
 One run is a batch of one seed (``testbed.sim.batch``), so it composes the same cores the
-services run through the one epoch loop: netem's decisions from ``netem.matrix.delivery_plan``
-(planned by ``testbed.sim.plan``) and its link lengths from ``netem.matrix.link_lengths``
+services run through the one epoch loop: netem's decisions from ``netem.links.matrix.delivery_plan``
+(planned by ``testbed.sim.plan``) and its link lengths from ``netem.links.matrix.link_lengths``
 (``testbed.sim.ranged``), ``agent.epoch`` and ``leader.epoch``; a distributed lockstep run
 with the same scenario and seed gives the same numbers.
 """

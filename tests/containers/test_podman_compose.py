@@ -32,7 +32,7 @@ from mcap.reader import make_reader
 
 from formation import keys
 from formation.scenario import Scenario
-from recorder.rundata import read_run
+from recorder.analysis.rundata import read_run
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.containers]
 

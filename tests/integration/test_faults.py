@@ -21,8 +21,8 @@ import pytest
 
 from formation.errors import RuntimeFailure
 from formation.scenario import Scenario
-from recorder.recovery import recover
-from recorder.rundata import read_run
+from recorder.analysis.rundata import read_run
+from recorder.reading.recovery import recover
 from testbed.runtime.launcher import RunOutcome, launch
 from testkit.run_watch import KillAtEpoch
 

@@ -20,8 +20,8 @@ import numpy as np
 import pytest
 
 from formation.scenario import Scenario
-from recorder.frames import load_run
-from recorder.rundata import read_run
+from recorder.analysis.dataframes import load_run
+from recorder.analysis.rundata import read_run
 from testkit.run_watch import KillAtEpoch, end_process, read_pids, wait_for_run
 
 from .conftest import pid_alive, run_pids

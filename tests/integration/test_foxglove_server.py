@@ -1,4 +1,4 @@
-"""The live view's server alone (recorder/live.py) with the independent client, on loopback.
+"""The live view's server alone (recorder/live/server.py) with the independent client, on loopback.
 
 What a run cannot show deterministically: a full queue drops the oldest and counts it; a
 forged decision never reaches the viewer; a taken port is a clear error.
@@ -19,8 +19,8 @@ from formation.errors import TestbedError
 from formation.messages import Decision, DecisionBatch, EpochMetrics
 from formation.scenario import Scenario
 from formation.topics import DECISIONS_TOPIC, METRICS_TOPIC, STATS_TOPIC, TF_TOPIC
-from recorder.live import LiveServer
-from recorder.trust import Gate
+from recorder.live.server import LiveServer
+from recorder.reading.trust import Gate
 from testkit import foxglove_client as fc
 
 pytestmark = pytest.mark.integration

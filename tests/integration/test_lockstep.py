@@ -111,7 +111,7 @@ def test_clean_and_unclean_epochs_mixed_equal_the_simulator(
     paper: Scenario, runs_dir: Path
 ) -> None:
     # netem takes an epoch in which every link passes without per-packet decisions
-    # (netem.clean); here such epochs alternate with an outage window, delays that deliver a
+    # (netem.proxy.clean_epochs); here such epochs alternate with an outage window, delays that deliver a
     # held packet into an otherwise clean epoch, and control-link loss.
     scenario = paper.with_overrides(
         epochs=40,

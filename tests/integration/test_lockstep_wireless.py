@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from formation.scenario import LEADER_ENDPOINT, Scenario
-from recorder.rundata import read_run
-from recorder.safety import axle_speeds, turn_rates
-from recorder.summary import summarise
+from recorder.analysis.rundata import read_run
+from recorder.analysis.safety import axle_speeds, turn_rates
+from recorder.analysis.summary import summarise
 from testbed.runtime.launcher import launch
 from testbed.sim.simulate import simulate
 

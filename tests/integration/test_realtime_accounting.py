@@ -19,7 +19,7 @@ import pytest
 from formation.deadlines import CAUSES
 from formation.scenario import Scenario
 from testbed.runtime.launcher import launch
-from testbed.runtime.layout import realtime_layout
+from testbed.runtime.process_budget import realtime_layout
 
 pytestmark = pytest.mark.integration
 ROOT = Path(__file__).resolve().parents[2]

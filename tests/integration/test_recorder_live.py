@@ -26,8 +26,8 @@ from formation.codec import attachment, encode
 from formation.errors import RecordingError
 from formation.messages import Decision, DecisionBatch, Status
 from formation.scenario import Scenario
-from recorder.reader import describe, validate
-from recorder.recovery import recover
+from recorder.reading.reader import describe, validate
+from recorder.reading.recovery import recover
 from testkit.zenoh_peer import WAIT_S, peer, process, state, token_seen, wait_for
 
 pytestmark = pytest.mark.integration

@@ -22,9 +22,9 @@ from formation import keys
 from formation.codec import read_attachment
 from formation.messages import CoordinationState
 from formation.scenario import Scenario
-from recorder.player import control_key
-from recorder.reader import validate
-from recorder.writer import RecordingWriter
+from recorder.playback.player import control_key
+from recorder.reading.reader import validate
+from recorder.recording.writer import RecordingWriter
 from testkit.zenoh_peer import WAIT_S, peer, process, state, token_seen, wait_for
 
 pytestmark = pytest.mark.integration
@@ -130,8 +130,8 @@ def test_default_run_report_and_replay_into_a_fresh_leader(
 ) -> None:
     """``formation run`` records; the report matches the simulator; the leader's recorded inputs,
     replayed into a fresh leader under another run id, give the same estimates (same inputs, same outputs)."""
-    from recorder.report import FIGURES, write_report
-    from recorder.rundata import read_run
+    from recorder.analysis.report import FIGURES, write_report
+    from recorder.analysis.rundata import read_run
     from testbed.runtime.launcher import launch
     from testbed.sim.simulate import simulate
 

@@ -10,7 +10,7 @@ import pytest
 from formation.scenario import Scenario
 from testbed.runtime.launcher import launch
 from testbed.sim.simulate import simulate
-from testbed.sim.teams import henneberg_team
+from testbed.sim.team_generators import henneberg_team
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"

@@ -18,7 +18,7 @@ from typing import Any
 import pytest
 from mcap.reader import make_reader
 
-from recorder.decoder import as_dict, decode
+from recorder.reading.decoder import as_dict, decode
 
 pytestmark = pytest.mark.integration
 EPOCHS = 150

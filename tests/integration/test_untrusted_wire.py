@@ -23,7 +23,7 @@ import zenoh
 from formation import keys
 from formation.scenario import Scenario
 from recorder import load_run
-from recorder.metrics import error_statistics
+from recorder.analysis.metrics import error_statistics
 from shell.zenoh_config import session_config
 from testkit.forgeries import forgeries
 

@@ -1,6 +1,6 @@
 """A lockstep outbox that keeps what netem would publish, parsed back as a receiver would.
 
-netem's lockstep core (``netem.lockstep``) sends through an outbox; this one encodes each
+netem's lockstep core (``netem.proxy.lockstep``) sends through an outbox; this one encodes each
 delivery and decision batch as the node would and parses the bytes again, so unit tests of
 the core read the same messages as the integration tests.
 """
@@ -12,8 +12,8 @@ from typing import Any
 
 from formation.messages import Decision, DecisionBatch, Delivery
 from formation.scenario import Scenario
-from netem.links import Phase
-from netem.records import Record, decision_batch, decision_batch_of, delivery
+from netem.proxy.records import Record, decision_batch, decision_batch_of, delivery
+from netem.proxy.routes import Phase
 
 
 def header(epoch: int) -> dict[str, Any]:

@@ -6,7 +6,7 @@ from typing import Any
 
 from foxglove.messages import SceneUpdate
 
-from recorder.decoder import as_dict, decode_kind
+from recorder.reading.decoder import as_dict, decode_kind
 
 
 def check(scene: SceneUpdate) -> dict[str, Any]:

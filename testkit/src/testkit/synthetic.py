@@ -14,8 +14,8 @@ from formation import keys
 from formation.codec import attachment, encode
 from formation.messages import CoordinationState, Decision, DecisionBatch, LeaderEstimate
 from formation.scenario import Scenario
-from recorder.epochs import TAPS, EpochAssembler
-from recorder.writer import RecordingWriter
+from recorder.analysis.epoch_assembly import TAPS, EpochAssembler
+from recorder.recording.writer import RecordingWriter
 
 RUN = "synthetic"
 EPOCH_NS = 1_000_000_000  # log time between epochs in the synthetic recording [ns]

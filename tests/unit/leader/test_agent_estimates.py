@@ -11,7 +11,7 @@ from formation.messages import AgentEstimate, LeaderEstimate
 from formation.scenario import Scenario
 from leader.epoch import leader_epoch
 from leader.node import agent_estimates, estimate_message
-from testbed.sim.teams import henneberg_team
+from testbed.sim.team_generators import henneberg_team
 
 ROOT = Path(__file__).resolve().parents[3]
 

@@ -15,7 +15,7 @@ from leader.epoch import Leader
 from leader.node import estimate_message
 from leader.rigidity import HealthyRigidity
 from testbed.sim.simulate import simulate
-from testbed.sim.teams import henneberg_team
+from testbed.sim.team_generators import henneberg_team
 
 ROOT = Path(__file__).resolve().parents[3]
 HEAD = {"run_id": "r", "sender": "leader", "seq": 0, "epoch": 3, "stamp_ns": 1}

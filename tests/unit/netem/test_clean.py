@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from formation.linkmodels import Bernoulli, Delay, GilbertElliott, Outage
 from formation.messages import DecisionBatch
-from netem.clean import CleanEpochs, CleanStream
-from netem.models import LinkModel
-from netem.records import decision_batch, decision_batch_of
+from netem.links.models import LinkModel
+from netem.proxy.clean_epochs import CleanEpochs, CleanStream
+from netem.proxy.records import decision_batch, decision_batch_of
 
 HEADER = {"run_id": "r", "sender": "netem", "seq": 0, "epoch": 0, "stamp_ns": 1}
 

@@ -19,8 +19,8 @@ from scipy.stats import norm
 
 from formation.errors import TestbedError
 from formation.linkmodels import Bernoulli, Delay, LinkModelSpec, LogDistance, Logistic, Range
-from netem.matrix import delivery_plan
-from netem.models import (
+from netem.links.matrix import delivery_plan
+from netem.links.models import (
     LinkModel,
     delivery_matrix,
     expected_delivery_at,

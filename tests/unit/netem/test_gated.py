@@ -1,7 +1,7 @@
 """Gated epochs (distance models on the state links) equal the full path, byte for byte.
 
 A state epoch whose links all pass before their distance layers is gathered and judged
-at once by its lengths (:mod:`netem.clean`); it must give the deliveries and decision
+at once by its lengths (:mod:`netem.proxy.clean_epochs`); it must give the deliveries and decision
 records that deciding packet by packet gives. The reference is the same core without the
 clean path (``setup_clean`` not called): every packet decided on its own as it is routed.
 Senders interleave epochs, a position is sometimes unreadable, a sender sometimes dies.
@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 
 from formation.scenario import Scenario
-from netem.links import Links, Phase
-from netem.lockstep import Lockstep
-from netem.progress import Progress
-from netem.records import Ledger, Record, record_head, record_tail
+from netem.proxy.lockstep import Lockstep
+from netem.proxy.progress import Progress
+from netem.proxy.records import Ledger, Record, record_head, record_tail
+from netem.proxy.routes import Links, Phase
 
 EPOCHS = 40
 NETWORKS: dict[str, dict[str, Any]] = {

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from netem.matrix import link_length, link_lengths
+from netem.links.matrix import link_length, link_lengths
 
 
 @pytest.mark.parametrize("d", [1, 2, 3])

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from formation.scenario import Scenario
-from netem.links import Links, Route
-from netem.lockstep import Lockstep
-from netem.progress import Progress
-from netem.records import Ledger
+from netem.proxy.lockstep import Lockstep
+from netem.proxy.progress import Progress
+from netem.proxy.records import Ledger
+from netem.proxy.routes import Links, Route
 from testkit.lockstep_wire import Wire, receivers
 
 

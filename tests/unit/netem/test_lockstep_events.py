@@ -11,7 +11,7 @@ from collections import Counter
 import pytest
 
 from formation.scenario import Scenario
-from netem.lockstep import Lockstep
+from netem.proxy.lockstep import Lockstep
 
 from .test_lockstep import lockstep
 from .test_lockstep_rejoin import closes

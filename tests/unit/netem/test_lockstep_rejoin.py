@@ -7,7 +7,7 @@ from collections import Counter
 import pytest
 
 from formation.scenario import LEADER_ENDPOINT, Scenario
-from netem.lockstep import Lockstep
+from netem.proxy.lockstep import Lockstep
 
 from .test_lockstep import Wire, lockstep
 

@@ -14,7 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import netem.models
+import netem.links.models
 from formation.linkmodels import (
     MODEL_NAMES,
     SPEC_OF,
@@ -29,8 +29,8 @@ from formation.linkmodels import (
     Reorder,
     Up,
 )
-from netem.linkmodels import LAYERS, layer_of
-from netem.models import (
+from netem.links.linkmodels import LAYERS, layer_of
+from netem.links.models import (
     LinkModel,
     LinkModelError,
     Outcome,
@@ -150,7 +150,7 @@ def _digest(seed: int) -> str:
 
 
 def test_another_process_computes_identical_bytes(seed: int) -> None:
-    src = Path(netem.models.__file__).resolve().parents[1]
+    src = Path(netem.links.models.__file__).resolve().parents[1]
     tests = Path(__file__).resolve().parent
     code = f"import sys; sys.path[:0] = [{str(src)!r}, {str(tests)!r}]; import test_models as t; print(t._digest({seed}))"
     env = {**os.environ, "PYTHONHASHSEED": "12345"}

@@ -16,11 +16,11 @@ import pytest
 import zenoh
 
 from formation.scenario import Scenario
-from netem.links import Links, Route
-from netem.lockstep import Lockstep
-from netem.models import LinkModel, link_lengths
-from netem.progress import Progress
-from netem.records import Ledger
+from netem.links.models import LinkModel, link_lengths
+from netem.proxy.lockstep import Lockstep
+from netem.proxy.progress import Progress
+from netem.proxy.records import Ledger
+from netem.proxy.routes import Links, Route
 from testkit.lockstep_wire import Wire, receivers
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -237,11 +237,11 @@ def test_lengths_one_by_one_equal_the_vectorised(name: str, unreadable: tuple[in
                                                 monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
     """An epoch's lengths, one link at a time (a few links) or vectorised (many), to the last
     bit; an unreadable position, or one of another dimension, makes its links infinitely long."""
-    import netem.positions
+    import netem.proxy.positions
 
     scenario = Scenario.from_file(ROOT / f"scenarios/{name}.toml").with_overrides(network=NETWORK)
     pos = Links(scenario, 1)
-    positions = netem.positions.Positions(pos)
+    positions = netem.proxy.positions.Positions(pos)
     rng = np.random.default_rng(len(unreadable))
     x = rng.normal(scale=rng.choice([1e-3, 1.0, 1e3], size=(scenario.n, 1)), size=(scenario.n, 2))
     positions.at[0] = {i: x[i - 1].tolist() for i in pos.agents}
@@ -251,7 +251,7 @@ def test_lengths_one_by_one_equal_the_vectorised(name: str, unreadable: tuple[in
     links = tuple(link for link in pos.models if link[0] == "formation")
     got = {}
     for threshold in (0, 10**9):
-        monkeypatch.setattr(netem.positions, "VECTOR_LINKS", threshold)
+        monkeypatch.setattr(netem.proxy.positions, "VECTOR_LINKS", threshold)
         got[threshold] = [positions.lengths(links, k) for k in (0, 1)]
     assert got[0] == got[10**9]
     for k in (0, 1):

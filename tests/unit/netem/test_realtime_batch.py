@@ -16,11 +16,11 @@ from formation.codec import Malformed, attachment, encode
 from formation.messages import CoordinationState, DeliveredPacket
 from formation.realtime import ESTIMATE_DEADLINE, REPORT_DEADLINE, Clock
 from formation.scenario import Scenario
-from netem.links import Links, Routes
-from netem.loop import run_loop
-from netem.progress import Progress
-from netem.realtime import PREPARE_AHEAD, RECORDS_AT, START_LEAD_S, Due, Realtime
-from netem.records import Ledger
+from netem.proxy.loop import run_loop
+from netem.proxy.progress import Progress
+from netem.proxy.realtime import PREPARE_AHEAD, RECORDS_AT, START_LEAD_S, Due, RealtimeForwarder
+from netem.proxy.records import Ledger
+from netem.proxy.routes import Links, Routes
 from shell import Incoming
 from shell import Realtime as RealtimeTime
 
@@ -28,11 +28,11 @@ ROOT = Path(__file__).resolve().parents[3]
 RUN = "batch"
 
 
-def _rig(clock: Clock) -> tuple[Realtime, list[tuple[str, int, int, list[bytes]]], Links]:
+def _rig(clock: Clock) -> tuple[RealtimeForwarder, list[tuple[str, int, int, list[bytes]]], Links]:
     scenario = Scenario.from_file(ROOT / "scenarios/grid20.toml")
     links = Links(scenario, seed=1)
     sent: list[tuple[str, int, int, list[bytes]]] = []
-    rt = Realtime(
+    rt = RealtimeForwarder(
         SimpleNamespace(malformed=Malformed()),  # type: ignore[arg-type]  # only its counts
         links, Routes(links.agents), Progress(links.agents, scenario.epochs, lambda: None),
         Ledger(), lambda *_: None,
@@ -42,7 +42,7 @@ def _rig(clock: Clock) -> tuple[Realtime, list[tuple[str, int, int, list[bytes]]
     return rt, sent, links
 
 
-def _burst(rt: Realtime, links: Links, epoch: int, arrived_ns: int) -> dict[int, bytes]:
+def _burst(rt: RealtimeForwarder, links: Links, epoch: int, arrived_ns: int) -> dict[int, bytes]:
     payloads = {}
     for i in links.agents:
         payloads[i] = encode(CoordinationState(run_id=RUN, sender=f"agent/{i}", seq=epoch,

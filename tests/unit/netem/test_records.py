@@ -7,8 +7,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from formation.messages import CoordinationState, DecisionBatch, Delivery
-from netem.records import Record, decision_batch, delivery, packet_json
-from netem.stack import Outcome
+from netem.links.layer_stack import Outcome
+from netem.proxy.records import Record, decision_batch, delivery, packet_json
 
 HEADER = {"run_id": "r", "sender": "netem", "seq": 3, "epoch": 7, "stamp_ns": 11}
 

@@ -31,7 +31,7 @@ from formation.linkmodels import (
     Outage,
     Reorder,
 )
-from netem.models import (
+from netem.links.models import (
     Schedule,
     delay_moments,
     expected_burst_length,

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from formation import keys
 from recorder.node import Recorder, build_parser
-from recorder.reader import iter_messages, open_recording
+from recorder.reading.reader import iter_messages, open_recording
 from shell import MemoryBus
 
 RUN = "recorder-bus"

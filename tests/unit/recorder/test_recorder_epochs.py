@@ -19,9 +19,9 @@ from formation.messages import (
     Status,
 )
 from formation.scenario import Scenario
-from recorder.decoder import as_dict, decode_kind
-from recorder.epochs import STALE_EPOCHS, WAIT_EPOCHS, EpochAssembler
-from recorder.metrics import formation_error, shape_error
+from recorder.analysis.epoch_assembly import STALE_EPOCHS, WAIT_EPOCHS, EpochAssembler
+from recorder.analysis.metrics import formation_error, shape_error
+from recorder.reading.decoder import as_dict, decode_kind
 
 RUN = "e1"
 

@@ -14,14 +14,14 @@ from foxglove.messages import FrameTransforms, SceneUpdate
 from mcap.reader import make_reader
 
 from formation import keys
-from recorder.decoder import as_dict, decode, decode_kind
-from recorder.frames import load_run
-from recorder.player import Replayer
-from recorder.reader import validate
-from recorder.recovery import recover
-from recorder.scene import AGENT_COLOR, LEADER_COLOR, TREE
-from recorder.schemas import foxglove_schema
-from recorder.trust import INVALID
+from recorder.analysis.dataframes import load_run
+from recorder.live.scene import AGENT_COLOR, LEADER_COLOR, TREE
+from recorder.playback.player import Replayer
+from recorder.reading.decoder import as_dict, decode, decode_kind
+from recorder.reading.reader import validate
+from recorder.reading.recovery import recover
+from recorder.reading.trust import INVALID
+from recorder.recording.schemas import foxglove_schema
 
 EPOCH_NS = 1_000_000_000
 

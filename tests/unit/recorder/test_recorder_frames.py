@@ -16,8 +16,8 @@ from formation import keys
 from formation.codec import encode
 from formation.messages import CoordinationState, Substitute
 from recorder import load_run
-from recorder.metrics import error_statistics
-from recorder.report import write_report
+from recorder.analysis.metrics import error_statistics
+from recorder.analysis.report import write_report
 from testkit.forgeries import forgeries
 
 ROOT = Path(__file__).resolve().parents[3]

@@ -1,4 +1,4 @@
-"""The shipped Foxglove layout is the one recorder/layout.py builds, on the live view's topics."""
+"""The shipped Foxglove layout is the one recorder/live/foxglove_layout.py builds, on the live view's topics."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from formation.topics import DECISIONS_TOPIC, LOG_TOPIC, METRICS_TOPIC, SCENE_TOPIC
-from recorder.layout import LAYOUT_FILE, layout_json
+from recorder.live.foxglove_layout import LAYOUT_FILE, layout_json
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -20,7 +20,7 @@ def _panels(node: dict[str, Any]) -> list[dict[str, Any]]:
 
 def test_the_shipped_layout_is_the_generated_one() -> None:
     assert (ROOT / LAYOUT_FILE).read_text() == layout_json(), (
-        "regenerate: python -c 'from recorder.layout import *; "
+        "regenerate: python -c 'from recorder.live.foxglove_layout import *; "
         'open(LAYOUT_FILE, "w").write(layout_json())\''
     )
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from recorder.membership import changes, present, spans, team_shape_error
-from recorder.metrics import formation_error, shape_error
-from recorder.summary import team_errors
+from recorder.analysis.membership import changes, present, spans, team_shape_error
+from recorder.analysis.metrics import formation_error, shape_error
+from recorder.analysis.summary import team_errors
 
 
 def test_a_loss_and_a_return_are_changes_with_the_epochs_back_under_the_threshold() -> None:

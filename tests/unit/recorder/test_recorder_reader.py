@@ -10,8 +10,8 @@ import pytest
 
 from formation import keys
 from formation.errors import RecordingError
-from recorder.reader import check_file, describe, validate
-from recorder.writer import RecordingWriter
+from recorder.reading.reader import check_file, describe, validate
+from recorder.recording.writer import RecordingWriter
 
 RUN = "synthetic"  # the run id of conftest's synthetic recordings
 

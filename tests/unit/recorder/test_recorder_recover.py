@@ -8,8 +8,8 @@ import pytest
 from mcap.reader import make_reader
 
 from formation.errors import RecordingError
-from recorder.recovery import recover
-from recorder.writer import McapFile, RecordingWriter
+from recorder.reading.recovery import recover
+from recorder.recording.writer import McapFile, RecordingWriter
 
 N_CHUNKS, PER_CHUNK = 6, 40
 

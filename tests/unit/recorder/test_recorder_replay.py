@@ -12,8 +12,8 @@ from formation import keys
 from formation.codec import attachment, encode, read_attachment
 from formation.errors import TestbedError
 from formation.messages import CoordinationState
-from recorder.player import Replayer, rebuild_attachment
-from recorder.writer import RecordingWriter
+from recorder.playback.player import Replayer, rebuild_attachment
+from recorder.recording.writer import RecordingWriter
 
 RUN = "rp"
 GAP_NS = 100_000_000  # 0.1 s between recorded messages

@@ -13,11 +13,11 @@ from matplotlib.image import imread
 from formation.errors import RecordingError
 from formation.scenario import Scenario
 from recorder import membership, plots
-from recorder.metrics import error_statistics, formation_error, shape_error
-from recorder.report import FIGURES, write_report, write_report_from
-from recorder.rundata import read_run
-from recorder.summary import summarise
-from recorder.writer import RecordingWriter
+from recorder.analysis.metrics import error_statistics, formation_error, shape_error
+from recorder.analysis.report import FIGURES, write_report, write_report_from
+from recorder.analysis.rundata import read_run
+from recorder.analysis.summary import summarise
+from recorder.recording.writer import RecordingWriter
 from testbed.sim.simulate import simulate
 
 

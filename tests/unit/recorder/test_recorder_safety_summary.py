@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from formation.scenario import Scenario
-from recorder.frames import load_run
-from recorder.report import write_report, write_report_from
-from recorder.rundata import read_run
-from recorder.safety import axle_speeds, safety_counts
+from recorder.analysis.dataframes import load_run
+from recorder.analysis.report import write_report, write_report_from
+from recorder.analysis.rundata import read_run
+from recorder.analysis.safety import axle_speeds, safety_counts
 from testbed.sim.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[3]

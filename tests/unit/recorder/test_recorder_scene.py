@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from formation.scenario import Scenario
-from recorder.scene import BROKEN, HEALTHY, TREE, UNKNOWN, edge_colors, scene_update
+from recorder.live.scene import BROKEN, HEALTHY, TREE, UNKNOWN, edge_colors, scene_update
 from testkit.scene_readback import check
 
 PRIMITIVES = ("arrows", "cubes", "spheres", "cylinders", "lines", "triangles", "texts", "models")

@@ -8,9 +8,9 @@ import numpy as np
 
 from formation import keys
 from formation.scenario import Scenario
-from recorder.decoder import as_dict, decode_kind
-from recorder.epochs import EpochAssembler
-from recorder.scene import scene_update
+from recorder.analysis.epoch_assembly import EpochAssembler
+from recorder.live.scene import scene_update
+from recorder.reading.decoder import as_dict, decode_kind
 from testbed.sim.simulate import simulate
 from testkit.scene_readback import check
 

@@ -11,7 +11,7 @@ from jsonschema.validators import validator_for
 from formation import keys
 from formation.messages import ALL_MODELS
 from recorder import schemas
-from recorder.decoder import message_class
+from recorder.reading.decoder import message_class
 
 RUN = "run-7"
 

@@ -10,7 +10,7 @@ import pytest
 
 from formation.scenario import Scenario
 from recorder import RunData, summarise, team_errors
-from recorder.metrics import formation_error, shape_error
+from recorder.analysis.metrics import formation_error, shape_error
 from testbed.sim.batch import run_batch
 from testbed.sim.plan import plan_batch
 from testbed.sim.simulate import simulate

@@ -20,11 +20,11 @@ import pytest
 from formation import keys
 from formation.codec import encode
 from formation.messages import CoordinationState, DeliveredPacket, Delivery
-from recorder.player import Replayer
-from recorder.reader import describe
-from recorder.report import write_report
-from recorder.rundata import read_run
-from recorder.trust import CONFLICT, FORGED, INVALID, OUT_OF_RANGE, UNKNOWN_KEY, Gate
+from recorder.analysis.report import write_report
+from recorder.analysis.rundata import read_run
+from recorder.playback.player import Replayer
+from recorder.reading.reader import describe
+from recorder.reading.trust import CONFLICT, FORGED, INVALID, OUT_OF_RANGE, UNKNOWN_KEY, Gate
 from testkit.forgeries import forgeries
 
 EPOCH_NS = 1_000_000_000

@@ -18,9 +18,9 @@ from mcap.stream_reader import StreamReader
 
 from formation import keys
 from formation.codec import attachment
-from recorder.decoder import decode_kind
-from recorder.schemas import foxglove_schema
-from recorder.writer import RecordingWriter, rotated_path
+from recorder.reading.decoder import decode_kind
+from recorder.recording.schemas import foxglove_schema
+from recorder.recording.writer import RecordingWriter, rotated_path
 
 RUN = "r1"
 KEYS = [keys.agent_state(RUN, 1), keys.agent_state(RUN, 2), keys.netem_decision(RUN), "elsewhere/x"]

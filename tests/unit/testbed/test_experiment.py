@@ -9,10 +9,10 @@ import pytest
 
 from formation.linkmodels import GilbertElliott
 from formation.scenario import Scenario
-from netem.models import expected_loss_rate
+from netem.links.models import expected_loss_rate
 from testbed.cli import main
 from testbed.experiments import studies
-from testbed.experiments.lossy import gilbert_elliott_at
+from testbed.experiments.loss_variants import gilbert_elliott_at
 from testbed.experiments.paper import PaperResults, judge, run_variants
 from testbed.experiments.paper_run import check_recording, run_paper
 from testbed.experiments.sweep import (

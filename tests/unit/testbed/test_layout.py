@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from testbed.runtime.layout import realtime_layout
+from testbed.runtime.process_budget import realtime_layout
 
 
 @pytest.mark.parametrize(

@@ -92,7 +92,7 @@ def test_simulate_command_prints_json_per_strategy(paper_path) -> None:  # type:
 
 def test_unknown_strategy_is_named_by_every_command() -> None:
     from formation.errors import TestbedError
-    from testbed.cli.common import parse_strategies
+    from testbed.cli.arguments import parse_strategies
 
     assert parse_strategies(None, ["estimate"]) == ["estimate"]
     assert parse_strategies("all", ["estimate"]) == ["zero", "hold", "estimate", "blend", "drop"]

@@ -1,0 +1,494 @@
+"""netem's lockstep as pure logic: packets and deaths in, deliveries and records out.
+
+docs/architecture.md "Time": for each packet netem asks the link's model (keyed by seed,
+link and epoch, so any process gets the same verdict). Once every live sender's
+epoch-``k`` packet into a receiver is handled, that receiver gets one delivery of the
+phase with the payloads passed, unparsed: the delivery is also the epoch's close.
+Epochs into a receiver close in order. Delays are whole epochs: a delayed packet is
+held and goes out with a later epoch's delivery. Once every live receiver of a phase's
+epoch is closed, that epoch's decision records go out in one batch.
+
+An epoch in which every link of the phase passes takes the clean path
+(:mod:`netem.proxy.clean_epochs`): no per-packet decision, records spliced from templates and
+published together (:meth:`Lockstep.flush_clean`).
+
+:class:`Lockstep` has no network, clock or thread: the node calls it under its lock
+and publishes what it hands to the :class:`Outbox`, in the order it hands it.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import defaultdict
+from typing import Any
+
+from formation.scenario import LEADER_ENDPOINT
+from netem.links.layer_stack import Outcome
+from netem.proxy.clean_epochs import CleanEpochs, Deliver, clean_epochs
+from netem.proxy.open_epochs import Delayed, OpenEpoch, Outbox
+from netem.proxy.positions import Positions
+from netem.proxy.progress import Progress
+from netem.proxy.records import Ledger, packet_json
+from netem.proxy.routes import Link, LinkClass, Links, Phase, Route
+from netem.proxy.team_plan import TeamPlan
+
+log = logging.getLogger("netem")
+# Clean epochs' records go out together: one batch per this many epochs' records (and at
+# least every loop wake-up of the node's main thread, 0.2 s), instead of one per epoch.
+FLUSH_CHUNKS = 64  # epochs
+
+
+class Lockstep:
+    """The lockstep state machine of one run: every phase, receiver and epoch."""
+
+    def __init__(
+        self, links: Links, epochs: int, progress: Progress, ledger: Ledger, outbox: Outbox
+    ) -> None:
+        self.links, self.epochs = links, epochs
+        self.progress, self.ledger, self.outbox = progress, ledger, outbox
+        self.open: dict[tuple[Phase, int, int], OpenEpoch] = {}  # (phase, receiver, epoch)
+        self.delayed: dict[tuple[Phase, int, int], list[Delayed]] = defaultdict(list)
+        self.next_close: dict[tuple[Phase, int], int] = defaultdict(int)
+        self.closed_count: dict[tuple[Phase, int], int] = defaultdict(int)
+        self.clean: dict[Phase, CleanEpochs] = {}  # none until setup_clean
+        self._clean_deliver: dict[Phase, Deliver] = {}
+        self.positions = Positions(links)  # for distance models: read from the states
+        self.dead: set[int] = set()  # senders down (agents, or the leader as 0)
+        # A dead sender that came back takes part again from this epoch on (issue 20).
+        self.revive: dict[int, int] = {}
+        self.last_state: dict[int, tuple[int, Any]] = {}  # agent → (epoch, payload) last handled
+        self.last_report: dict[int, int] = {}  # agent → epoch of its last report handled
+        # Scenario events (issue 20), from the scenario alone so every run drops the same;
+        # and the epoch each agent was given back.
+        plan = TeamPlan.of(links.team, epochs, links.agents)
+        self.out, self.starts, self.away = plan.out, plan.starts, set(plan.away)
+        self.rejoined: dict[int, int] = {}
+        # (action, agent, epoch) of each event as it is applied, for the node to announce.
+        self.applied: list[tuple[str, int, int]] = []
+
+    def setup_clean(self) -> None:
+        """Take clean epochs on the clean path from now on."""
+        self.clean = clean_epochs(self.links)
+        self._clean_deliver = {phase: self._clean_delivery(phase) for phase in self.clean}
+
+    # -- events in ----------------------------------------------------------------------------
+    def packet(self, route: Route, epoch: int, seq: int, payload: Any) -> None:
+        """A sender's packet of ``epoch`` on ``route``, its seq and payload (bytes or ZBytes)."""
+        if not self.positions.needed:
+            self._packet(route, epoch, seq, payload)
+        elif self.positions.admit(route, epoch, seq, payload, self._dead_at(epoch)):
+            self._packet(route, epoch, seq, payload)  # else held until the positions come
+        if self.positions.ready:
+            self._release_held()
+
+    def _release_held(self, gone: int | None = None) -> None:
+        for held in self.positions.release(gone):
+            self._packet(*held)
+
+    def _packet(self, route: Route, epoch: int, seq: int, payload: Any) -> None:
+        kind, source, _ = route
+        links, dead = self.links, self.dead
+        if kind == "state":
+            progress = self.progress
+            if epoch > progress.epoch_seen:
+                progress.epoch_seen = epoch
+            self.last_state[source] = (epoch, payload)
+            if epoch >= self.epochs:
+                progress.final_state(source)
+                return
+            if self.out and source in self.out.get(epoch, ()):
+                self._goodbye(source, epoch)
+                return
+            if not self._forward_clean("state", source, epoch, seq, payload):
+                self._route_state(source, epoch, seq, payload)
+        elif kind == "report":
+            if self.out and source in self.out.get(epoch, ()):
+                return  # not one of ours: that agent is out of the team at this epoch
+            self.last_report[source] = epoch
+            if self._forward_clean("report", source, epoch, seq, payload):
+                return
+            box = self._route_packet(
+                "report", "report", source, LEADER_ENDPOINT, payload, epoch, seq
+            )
+            if self._all_handled(box, links.agents, epoch):
+                self._try_close("report", LEADER_ENDPOINT)
+            if LEADER_ENDPOINT in dead:
+                self._close_estimates_without_leader(source)
+        else:
+            dst = route[2]
+            if self._forward_clean("estimate", dst, epoch, seq, payload):
+                pass
+            elif not ((dst in dead or self.out) and self.is_dead(dst, epoch)):
+                self._route_packet(
+                    "estimate", "estimate", LEADER_ENDPOINT, dst, payload, epoch, seq
+                )
+                self._try_close("estimate", dst)
+            self.progress.estimate_handled(epoch)
+
+    def _route_state(
+        self,
+        source: int,
+        epoch: int,
+        seq: int,
+        payload: Any,
+        verdicts: dict[Link, Outcome] | None = None,
+    ) -> None:
+        links, dead = self.links, self.dead
+        for dst in links.out_links[source]:
+            if (dst in dead or self.out) and self.is_dead(dst, epoch):
+                continue
+            d = verdicts[("formation", source, dst)] if verdicts is not None else None
+            box = self._route_packet("state", "formation", source, dst, payload, epoch, seq, d)
+            if self._all_handled(box, links.in_links[dst], epoch):  # else none can close yet
+                self._try_close("state", dst)
+
+    def sender_died(self, agent: int) -> None:
+        """``agent`` is gone (0: the leader): its packets count as lost, nobody waits for them."""
+        if agent in self.progress.final_states or agent in self.away:
+            return  # its part is over, or it is out by the scenario's events
+        if agent in self.dead and self.revive.pop(agent, None) is None:
+            return  # already down; else it died again after coming back
+        log.warning("%s is gone: its packets count as lost from now on", _name(agent))
+        self._ungate()  # what was gathered was routed while the agent was alive
+        self.dead.add(agent)
+        self._release_held(agent)  # nobody waits for its positions
+        for phase, ce in self.clean.items():
+            for epoch in list(ce.gathering):
+                self._go_slow(phase, epoch)
+        if agent == LEADER_ENDPOINT:
+            for j in self.links.agents:
+                self._close_estimates_without_leader(j)
+            return
+        for j in self.links.out_links[agent]:
+            self._try_close("state", j)
+        self._try_close("report", LEADER_ENDPOINT)
+
+    def rejoin(self, sender: int) -> int:
+        """``sender`` (0: the leader) is back: the epoch from which it takes part again.
+
+        No packet of that epoch has been handled yet (the newest state or report seen,
+        plus one), so every receiver of it still waits for the sender's packets.
+        """
+        planned = self.planned_start(sender)
+        if planned is not None:
+            return self._rejoin_planned(sender, planned)
+        if sender not in self.dead:
+            self.sender_died(sender)  # back before netem saw it go: down until it rejoins
+        if sender in self.revive:
+            return self.revive[sender]
+        newest = max([self.progress.epoch_seen, *self.last_report.values()])
+        epoch = min(newest + 1, self.epochs)
+        self.revive[sender] = epoch
+        if sender != LEADER_ENDPOINT:  # the leader just ignores the report deliveries before
+            for phase in ("state", "estimate"):
+                key: tuple[Phase, int] = (phase, sender)
+                self.next_close[key] = max(self.next_close[key], epoch)
+                for stale in [e for (p, r, e) in self.open if p == phase and r == sender]:
+                    if stale < epoch:
+                        del self.open[(phase, sender, stale)]
+        log.warning("%s is back: it takes part again from epoch %d", _name(sender), epoch)
+        return epoch
+
+    def planned_start(self, agent: int) -> int | None:
+        """The epoch of ``agent``'s next scheduled join or restart, None if it has none."""
+        if agent in self.rejoined:
+            return self.rejoined[agent]
+        starts = self.starts.get(agent)
+        if not starts:
+            return None
+        last = self.last_state[agent][0] if agent in self.last_state else -1
+        return next((k for k in starts if k > last), None)
+
+    def _rejoin_planned(self, agent: int, epoch: int) -> int:
+        """A scheduled (re)start: its receivers' epochs before ``epoch`` are not its own."""
+        if self.rejoined.get(agent) == epoch:
+            return epoch  # asked again
+        self.rejoined[agent] = epoch
+        self.away.discard(agent)
+        self.progress.final_states.discard(agent)  # its next last state is still to come
+        team = self.links.team
+        again = team is not None and bool(team.present[:epoch, agent - 1].any())
+        self.applied.append(("restart" if again else "join", agent, epoch))
+        self._skip_to(agent, epoch)
+        for phase in ("state", "estimate"):  # what is complete already goes out now
+            self._try_close(phase, agent)
+        log.warning("agent %d takes part from epoch %d (a scenario event)", agent, epoch)
+        return epoch
+
+    def _skip_to(self, agent: int, epoch: int) -> None:
+        for phase in ("state", "estimate"):
+            key: tuple[Phase, int] = (phase, agent)
+            self.next_close[key] = max(self.next_close[key], epoch)
+            for stale in [e for (p, r, e) in self.open if p == phase and r == agent]:
+                if stale < epoch:
+                    del self.open[(phase, agent, stale)]
+
+    def _goodbye(self, agent: int, epoch: int) -> None:
+        """``agent``'s last state before a leave or crash event: kept (its body's state, for a
+        restart), not forwarded; nobody waits for it until its next scheduled start."""
+        if agent not in self.away:
+            team = self.links.team
+            crash = team is not None and bool(team.crashed[epoch, agent - 1])
+            self.applied.append(("crash" if crash else "leave", agent, epoch))
+        self.away.add(agent)
+        self.rejoined.pop(agent, None)
+        self.progress.final_state(agent)  # what netem/final answers a leaving agent
+
+    def _back(self, agent: int, epoch: int) -> int:
+        """The first epoch from ``epoch`` at which ``agent`` takes part again (or the end)."""
+        return next((k for k in self.starts.get(agent, []) if k > epoch), self.epochs)
+
+    def is_dead(self, sender: int, epoch: int) -> bool:
+        """Whether ``sender``'s packets of ``epoch`` count as lost without waiting for them."""
+        if self.out and sender in self.out.get(epoch, ()):
+            return True
+        if sender not in self.dead:
+            return False
+        back = self.revive.get(sender)
+        return back is None or epoch < back
+
+    def is_down(self, sender: int) -> bool:
+        """Down now, and not yet back (the liveliness watch looks for a second death otherwise)."""
+        return sender in self.dead and sender not in self.revive
+
+    def state_of(self, agent: int) -> tuple[int, Any] | None:
+        """``(epoch, payload)`` of the last state netem handled from ``agent``, if any."""
+        return self.last_state.get(agent)
+
+    def _dead_at(self, epoch: int) -> set[int]:
+        out = self.out.get(epoch) if self.out else None
+        dead = self.dead if not self.revive else {s for s in self.dead if self.is_dead(s, epoch)}
+        return dead | out if out else dead
+
+    def _close_estimates_without_leader(self, agent: int) -> None:
+        """The leader is down: ``agent``'s estimate epochs close empty up to its last report."""
+        last = self.last_report.get(agent, -1)
+        key: tuple[Phase, int, int]
+        for epoch in range(self.next_close[("estimate", agent)], min(last + 1, self.epochs)):
+            if not self.is_dead(LEADER_ENDPOINT, epoch) or self.is_dead(agent, epoch):
+                break
+            key = ("estimate", agent, epoch)
+            if key not in self.open:
+                self.open[key] = OpenEpoch()
+                self.progress.estimate_skipped(epoch)
+        self._try_close("estimate", agent)
+
+    def models_changed(self) -> None:
+        """A link's model changed: which epochs are clean is computed again."""
+        self._ungate()  # decided by the models in force at their epochs, as they came
+        for ce in self.clean.values():
+            ce.invalidate()
+        self.positions.refresh()
+
+    def flush_clean(self) -> None:
+        """Hand out the records of every clean epoch finished since the last flush."""
+        for phase in self.clean:
+            self._flush_clean(phase)
+
+    # -- state out ----------------------------------------------------------------------------
+    def finished(self) -> bool:
+        gone = {s for s in self.dead if s not in self.revive}
+        return self.progress.finished(gone | self.out.get(self.epochs, frozenset()))
+
+    def forwarded(self) -> dict[Link, int]:
+        """Delivered packets per link, clean epochs' included (for the final status)."""
+        total = self.ledger.forwarded.copy()
+        for ce in self.clean.values():
+            for stream in ce.streams.values():  # each finished epoch had one packet per stream
+                for link in stream.links:
+                    total[link] += len(ce.done)
+        return dict(total)
+
+    # -- the full path ------------------------------------------------------------------------
+    def _route_packet(
+        self,
+        phase: Phase,
+        cls: LinkClass,
+        src: int,
+        dst: int,
+        payload: Any,
+        epoch: int,
+        seq: int,
+        decided: Outcome | None = None,
+    ) -> OpenEpoch:
+        """Decide (unless ``decided``) and record one packet, and put it in its receiver's open
+        epoch (returned)."""
+        key = (phase, dst, epoch)
+        box = self.open.get(key)
+        if box is None:
+            box = self.open[key] = OpenEpoch()
+        box.handled.add(src)
+        link: Link = (cls, src, dst)
+        d = decided or self.links.models[link].decide(
+            epoch, distance_m=self.positions.length(link, epoch)
+        )
+        self.ledger.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
+        if not d.delivered:
+            box.lost.append(src)
+        elif d.delay_epochs == 0:
+            box.packets.append(packet_json(src, seq, epoch, d.copies, payload))
+            self.ledger.forwarded[link] += d.copies
+        else:
+            box.lost.append(src)  # lost for this epoch; arrives with a later one
+            due = epoch + d.delay_epochs
+            if not (self.out and dst in self.out.get(due, ())):  # else its receiver is out then
+                self.delayed[(phase, dst, due)].append(
+                    Delayed(link, d.copies, packet_json(src, seq, epoch, d.copies, payload))
+                )
+        return box
+
+    def _all_handled(self, box: OpenEpoch, senders: list[int], epoch: int) -> bool:
+        if not self.dead and epoch not in self.out:  # counting is enough: only its senders send
+            return len(box.handled) >= len(senders)
+        dead = self._dead_at(epoch)
+        return all(s in box.handled for s in senders if s not in dead)
+
+    def _try_close(self, phase: Phase, receiver: int) -> None:
+        if receiver in self.away:
+            return  # out by the scenario's events, its next process not up: it would miss it
+        senders = self.links.senders(phase, receiver)
+        while True:
+            epoch = self.next_close[(phase, receiver)]
+            if self.out and epoch < self.epochs and receiver in self.out.get(epoch, ()):
+                self.next_close[(phase, receiver)] = self._back(receiver, epoch)  # out: skip
+                continue
+            dead = self._dead_at(epoch)
+            box = self.open.get((phase, receiver, epoch))
+            if box is None:
+                # Every sender dead: close the epoch empty. Not the estimates: with the leader
+                # down, each epoch closes when its report comes (the agent is there).
+                if (
+                    epoch >= self.epochs
+                    or phase == "estimate"
+                    or any(s not in dead for s in senders)
+                ):
+                    return
+                box = OpenEpoch()
+            elif not self._all_handled(box, senders, epoch):
+                return
+            self.open.pop((phase, receiver, epoch), None)
+            for h in self.delayed.pop((phase, receiver, epoch), []):
+                self.ledger.forwarded[h.link] += h.copies
+                box.packets.append(h.packet)
+            gone = [s for s in senders if s in dead] if dead else []
+            self.outbox.deliver(phase, receiver, epoch, box.packets, box.lost, gone)
+            self.next_close[(phase, receiver)] = epoch + 1
+            self.closed_count[(phase, epoch)] += 1
+            down = len(dead) - (LEADER_ENDPOINT in dead)
+            receivers = len(self.links.agents) - down if phase != "report" else 1
+            if self.closed_count[(phase, epoch)] >= receivers:
+                del self.closed_count[(phase, epoch)]
+                self._publish_decisions(phase, epoch)
+
+    def _publish_decisions(self, phase: Phase, epoch: int) -> None:
+        batch = self.ledger.decisions.pop((phase, epoch), [])
+        self._flush_clean(phase)  # records stay in epoch order
+        self.outbox.records(phase, epoch, batch)
+
+    # -- the clean path -----------------------------------------------------------------------
+    def _clean_delivery(self, phase: Phase) -> Deliver:
+        outbox, next_close = self.outbox, self.next_close
+
+        def deliver(receiver: int, epoch: int, packets: list[bytes]) -> None:
+            outbox.deliver(phase, receiver, epoch, packets, [], [])
+            # Epochs into a receiver finish in order: its senders need its previous one.
+            next_close[(phase, receiver)] = epoch + 1
+
+        return deliver
+
+    def _forward_clean(self, phase: Phase, stream: int, epoch: int, seq: int, payload: Any) -> bool:
+        """Take a packet of a clean epoch with no per-packet decision; False when the epoch
+        needs the full path. A receiver's delivery goes out once all its senders' are here."""
+        ce = self.clean.get(phase)
+        if ce is None:
+            return False
+        clean = ce.flags.get(epoch)
+        if clean is None:
+            clean = ce.clean(epoch)
+        if not clean:  # by the models, or already handled packet by packet
+            return False
+        if stream not in ce.receivers or self.dead or self.delayed or epoch in self.out:
+            self._go_slow(phase, epoch)
+            return False
+        if ce.gated:
+            self._gate(ce, stream, epoch, seq, payload)
+            return True
+        if ce.take(stream, epoch, seq, payload, self._clean_deliver[phase]) and (
+            len(ce.chunks) >= FLUSH_CHUNKS or epoch >= self.epochs - 1
+        ):
+            self._flush_clean(phase)  # the last epoch's go out while the run still goes
+        return True
+
+    def _gate(self, ce: CleanEpochs, stream: int, epoch: int, seq: int, payload: Any) -> None:
+        """Gather a state of a gated epoch; once all are in, judge their lengths at once."""
+        g = ce.gather(stream, epoch, seq, payload)
+        if g is None:
+            return
+        lengths = self.positions.lengths(ce.links, epoch)
+        if any(self.next_close[("state", r)] != epoch for r in ce.need):  # out of turn
+            self._go_slow("state", epoch, ce.verdicts(epoch, lengths))
+            return
+        if not ce.within_reach(epoch, lengths):  # decided as the full path would, from these
+            ce.judged(epoch, g, ce.verdicts(epoch, lengths), self.ledger, self._close_judged)
+            return
+        ce.open_gate(epoch, g, self._clean_deliver["state"])
+        if len(ce.chunks) >= FLUSH_CHUNKS or epoch >= self.epochs - 1:
+            self._flush_clean("state")
+
+    def _close_judged(
+        self, receiver: int, epoch: int, packets: list[bytes], lost: list[int]
+    ) -> None:
+        """A judged gated epoch's delivery into ``receiver``, closed as :meth:`_try_close` does."""
+        self.outbox.deliver("state", receiver, epoch, packets, lost, [])
+        self.next_close[("state", receiver)] = epoch + 1
+        self.closed_count[("state", epoch)] += 1
+        if self.closed_count[("state", epoch)] >= len(self.links.agents):
+            del self.closed_count[("state", epoch)]
+            self._publish_decisions("state", epoch)
+        self._try_close("state", receiver)  # its later epochs, complete already, go out now
+
+    def _ungate(self) -> None:
+        """Gated epochs being gathered take the full path, routed in the order they came."""
+        ce = self.clean.get("state")
+        if ce is not None and ce.gated:
+            for epoch in list(ce.gathering):
+                self._go_slow("state", epoch)
+
+    def _flush_clean(self, phase: Phase) -> None:
+        ce = self.clean.get(phase)
+        if ce is None or not ce.chunks:
+            return
+        self.outbox.clean_records(phase, ce.last_done, ce.chunks)
+        ce.chunks = []
+
+    def _go_slow(
+        self, phase: Phase, epoch: int, verdicts: dict[Link, Outcome] | None = None
+    ) -> None:
+        """From now on ``epoch`` of ``phase`` takes the full path; what went fast is recorded as such."""
+        ce = self.clean[phase]
+        g = ce.go_slow(epoch)
+        if g is None:
+            return
+        if ce.gated:  # nothing went out yet: route each as the full path would have
+            for src, seq in g.seqs.items():
+                self._route_state(src, epoch, seq, g.payloads[src], verdicts)
+            return
+        touched: set[int] = set()
+        for (src, dst, cls, _, seq, d), link in ce.records(epoch, g.seqs):
+            self.ledger.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
+            self.ledger.forwarded[link] += 1
+            if dst in g.delivered:
+                continue
+            box = self.open.get((phase, dst, epoch))
+            if box is None:
+                box = self.open[(phase, dst, epoch)] = OpenEpoch()
+            box.handled.add(src)
+            box.packets.append(g.packets[src])
+            touched.add(dst)
+        self.closed_count[(phase, epoch)] += len(g.delivered)
+        for dst in touched:
+            self._try_close(phase, dst)
+
+
+def _name(sender: int) -> str:
+    return "the leader" if sender == LEADER_ENDPOINT else f"agent {sender}"

@@ -1,0 +1,256 @@
+"""netem in realtime: each packet forwarded as it comes, after its delay, batched per receiver.
+
+No epoch closes: a link's model decides each packet from its epoch and the time since
+the clock's start (a realtime outage), and a delayed packet waits in a heap until due.
+What one wake-up forwards to a receiver in a phase goes out as one :class:`Delivery` on
+``inbox/<receiver>/<phase>`` (``lost`` and ``dead`` empty: nothing closes), not one
+message per link: a burst of states crosses Zenoh as a message per receiver, which cut
+the puts 2-2.5x (20 agents at 20 Hz; 100 pooled at 10 Hz).
+The decision records go out once per period (at :data:`RECORDS_AT` of it, when netem
+idles), one batch per phase and epoch.
+
+Packets are queued by Zenoh's threads and handled here, on the main thread, a whole queue
+at a time, so Zenoh's threads never wait on netem. Handled where it arrived, a packet kept
+its receiving thread in a blocking put; under overload (100 and 200 agents at 20 Hz) two
+runs then stalled for 30 s, the router, netem and the agents waiting on each other.
+"""
+
+from __future__ import annotations
+
+import heapq
+import threading
+import time
+from collections import Counter, defaultdict
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from itertools import islice
+
+from formation.codec import read_attachment
+from formation.deadlines import PHASES
+from formation.realtime import Clock
+from formation.scenario import LEADER_ENDPOINT
+from netem.proxy.progress import Progress
+from netem.proxy.records import Ledger, Record, message_json, packet_json_of
+from netem.proxy.routes import PHASE_OF, LinkClass, Links, Phase, Routes
+from shell import Incoming, Service, TimePolicy
+
+Inbox = tuple[Phase, int]  # (phase, receiver)
+# (due ns, tie, its receiver's inbox, sent epoch, packet JSON, copies, its phase's deadline ns)
+Due = tuple[int, int, Inbox, int, bytes, int, int]
+KIND_OF: dict[LinkClass, str] = {"formation": "state", "report": "report", "estimate": "estimate"}
+PublishRecords = Callable[[Phase, int, list[Record]], None]
+# (phase, receiver, epoch, packets, lost, dead): netem.node.ZenohOutbox.deliver
+Deliver = Callable[[Phase, int, int, list[bytes], list[int], list[int]], None]
+# A burst is flushed at least this often while netem works through it: batching must not
+# hold the first packets back until the last is decided [ns].
+FLUSH_NS = 1_000_000
+# The decision records go out once a period at this fraction of it, when netem idles: the
+# agents report at the state deadline (0.20), the leader estimates once every report is in
+# and each agent steps once its estimate is in, so the states mostly left by 0.5; an agent
+# whose estimate is late steps at its deadline (0.85). At 0.0 the records landed in the
+# states' burst, on netem and on every subscriber.
+RECORDS_AT = 0.70
+# Link models decide in blocks of epochs, computed at a block's first decision. netem
+# computes them ahead instead: every model's first before the clock starts (else the first
+# epochs went out late: 8 ms of decisions at 20 agents, 67 ms at 100, against 0.3 and 2.5 ms
+# an epoch after), and each next one within this many epochs before it is needed, a share of
+# the links per period, at the records' quiet time.
+PREPARE_AHEAD = 32
+# The clock starts this long after everyone is up: every agent must fetch it and publish
+# x[0] before epoch 0. At 0.3 s, agents of a 20-process team on 2 cores were late with x[0].
+START_LEAD_S = 1.0
+
+
+@dataclass
+class _Outgoing:
+    """What one receiver's inbox gets at the next flush."""
+
+    epoch: int = -1  # the newest packet's sent epoch
+    packets: list[bytes] = field(default_factory=list)
+    # (ready ns, deadline ns, copies): ready (arrived, or its delay over) by the deadline,
+    # but put out after it, a packet is netem's miss ("late_forwards")
+    timing: list[tuple[int, int, int]] = field(default_factory=list)
+
+
+class RealtimeForwarder:
+    """Forwards packets after their models' delays, batched per receiver (:meth:`flush`)."""
+
+    def __init__(
+        self,
+        service: Service,
+        links: Links,
+        routes: Routes,
+        progress: Progress,
+        ledger: Ledger,
+        publish_records: PublishRecords,
+        deliver: Deliver,
+        lock: threading.Lock | None = None,
+    ) -> None:
+        self.service, self.links, self.routes = service, links, routes
+        self.lock = threading.Lock() if lock is None else lock  # shared with the node's handlers
+        self.progress, self.ledger, self.publish_records = progress, ledger, publish_records
+        self.deliver = deliver
+        self.clock: Clock | None = None  # set by begin()
+        self._due: list[Due] = []
+        self._next_records = 0
+        # modelled_late: packets a model delayed past their deadline (modelled losses);
+        # late_forwards: packets in time here (and by their model) put out after it
+        self.deadline: Counter[str] = Counter()
+        self._out: defaultdict[Inbox, _Outgoing] = defaultdict(_Outgoing)
+        self._oldest_ns = 0  # when the oldest unflushed packet was queued (0: none)
+
+    def forward(
+        self,
+        cls: LinkClass,
+        src: int,
+        dst: int,
+        msg: Incoming,
+        epoch: int,
+        seq: int,
+        text: bytes,
+        due: list[Due],
+    ) -> None:
+        """Decide one packet on one link: out at the next flush, pushed on ``due``, or dropped.
+
+        ``text``: the payload as a JSON string (:func:`~netem.proxy.records.message_json`), once
+        for every link it takes."""
+        assert self.clock is not None
+        now = time.time_ns()
+        d = self.links.models[(cls, src, dst)].decide(epoch, time_s=(now - self.clock.t0_ns) / 1e9)
+        phase = PHASE_OF[cls]
+        self.ledger.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
+        if not d.delivered:
+            return
+        self.ledger.forwarded[(cls, src, dst)] += d.copies
+        deadline_ns = self.clock.at(epoch, PHASES[KIND_OF[cls]][1])
+        packet = packet_json_of(src, seq, epoch, d.copies, text)
+        if d.delay_ms <= 0:
+            self.queue((phase, dst), epoch, packet, msg.arrived_ns, deadline_ns, d.copies)
+            return
+        due_ns = now + int(d.delay_ms * 1e6)
+        if due_ns > deadline_ns:
+            self.deadline["modelled_late"] += d.copies
+        heapq.heappush(due, (due_ns, len(due), (phase, dst), epoch, packet, d.copies, deadline_ns))
+
+    def queue(
+        self, inbox: Inbox, epoch: int, packet: bytes, ready_ns: int, deadline_ns: int, copies: int
+    ) -> None:
+        """A packet for ``inbox`` at the next flush."""
+        out = self._out[inbox]
+        out.packets.append(packet)
+        out.epoch = max(out.epoch, epoch)
+        if ready_ns <= deadline_ns:
+            out.timing.append((ready_ns, deadline_ns, copies))
+        if not self._oldest_ns:
+            self._oldest_ns = time.time_ns()
+
+    def flush(self, unless_newer_than_ns: int = 0) -> None:
+        """One delivery per receiver's inbox of everything queued since the last flush; with
+        ``unless_newer_than_ns``, only once the oldest has waited that long."""
+        if not self._oldest_ns or time.time_ns() - self._oldest_ns < unless_newer_than_ns:
+            return
+        out, self._out, self._oldest_ns = self._out, defaultdict(_Outgoing), 0
+        for (phase, receiver), o in out.items():
+            now = time.time_ns()
+            self.deadline["late_forwards"] += sum(c for _, dl, c in o.timing if dl < now)
+            self.deliver(phase, receiver, o.epoch, o.packets, [], [])
+
+    def handle(self, msg: Incoming, due: list[Due]) -> None:
+        """One inbound packet: forwarded on each of its links (a final state only noted)."""
+        meta = read_attachment(msg.attachment)
+        route = self.routes.of(msg.key)
+        if meta is None or route is None or meta[2] != route[1]:
+            self.service.malformed.counts[msg.key] += 1
+            return
+        epoch, seq, source = meta
+        kind = route[0]
+        progress = self.progress
+        if kind == "state":
+            progress.epoch_seen = max(progress.epoch_seen, epoch)
+            if epoch >= progress.epochs:
+                progress.final_state(source)
+                return
+            text = message_json(msg.payload)
+            for dst in self.links.out_links[source]:
+                self.forward("formation", source, dst, msg, epoch, seq, text, due)
+        elif kind == "report":
+            self.forward(
+                "report", source, LEADER_ENDPOINT, msg, epoch, seq, message_json(msg.payload), due
+            )
+        else:
+            self.forward(
+                "estimate",
+                LEADER_ENDPOINT,
+                route[2],
+                msg,
+                epoch,
+                seq,
+                message_json(msg.payload),
+                due,
+            )
+            progress.estimate_handled(epoch)
+
+    def prepare(self, epoch: int) -> None:
+        """The decision blocks of epoch ``epoch + PREPARE_AHEAD``, for one link in
+        ``PREPARE_AHEAD`` (a different share each epoch)."""
+        share = islice(self.links.models.values(), epoch % PREPARE_AHEAD, None, PREPARE_AHEAD)
+        for model in share:
+            model.prepare(epoch + PREPARE_AHEAD)
+
+    def publish_decisions(self) -> None:
+        """Every record not yet published, one batch per phase and epoch, in order."""
+        decisions = self.ledger.decisions
+        for phase, epoch in sorted(decisions):
+            self.publish_records(phase, epoch, decisions.pop((phase, epoch), []))
+
+    # -- the wake-ups of netem's loop (netem.proxy.loop.run_loop) ----------------------------------------
+    def open(self) -> None:
+        """Nothing before everyone is up: packets queue until the clock starts."""
+
+    def begin(self, timing: TimePolicy) -> None:
+        """Every model's first block of decisions, then the clock (``START_LEAD_S`` ahead)."""
+        for model in self.links.models.values():
+            model.prepare(0)
+        timing.begin(self.service, lead_s=START_LEAD_S)
+        self.clock = timing.clock
+        assert self.clock is not None  # a realtime policy's
+        self._due = []  # delayed packets, by due time
+        self._next_records = self.clock.at(0, RECORDS_AT)
+
+    def idle(self) -> bool:
+        """Whether no delayed packet is still to be forwarded."""
+        return not self._due
+
+    def tick(self) -> float:
+        """Forward what is due now and flush; publish the records once a period. Returns how
+        long to wait for a packet [s]: until the next due packet or records, at most 0.05."""
+        assert self.clock is not None
+        due = self._due
+        now = time.time_ns()
+        with self.lock:
+            while due and due[0][0] <= now:
+                due_ns, _, inbox, epoch, packet, copies, deadline_ns = heapq.heappop(due)
+                self.queue(inbox, epoch, packet, due_ns, deadline_ns, copies)
+            self.flush()
+            if now >= self._next_records:
+                self.publish_decisions()
+                self.prepare((self._next_records - self.clock.t0_ns) // self.clock.period_ns)
+                self._next_records += self.clock.period_ns
+        until = min(self._next_records, due[0][0]) if due else self._next_records
+        return max(0.0, min(0.05, (until - now) / 1e9))
+
+    def wake(self, msg: Incoming | None) -> None:
+        """The packet that woke netem and every other one queued, handled at once."""
+        if msg is None:
+            return
+        service, due = self.service, self._due
+        with self.lock:
+            self.handle(msg, due)
+            while (more := service.next_incoming(0)) is not None:
+                self.handle(more, due)
+                self.flush(unless_newer_than_ns=FLUSH_NS)
+            self.flush()
+
+    def end(self) -> None:
+        with self.lock:
+            self.publish_decisions()

@@ -1,0 +1,138 @@
+"""netem's outgoing records as JSON, built from tuples instead of pydantic objects.
+
+netem takes one decision per packet; building an ``Outcome`` and ``DeliveredPacket`` model
+per packet cost more than the forwarding itself. The hot path keeps plain tuples,
+and these functions encode a whole batch or delivery at once with orjson. The JSON is
+exactly what :class:`~formation.messages.DecisionBatch` and
+:class:`~formation.messages.Delivery` validate (the tests parse it with them). The
+:class:`Ledger` keeps the records until their batch goes out, and counts what was forwarded.
+"""
+
+from __future__ import annotations
+
+from collections import Counter, defaultdict
+from collections.abc import Iterable
+from typing import Any
+
+import orjson
+
+from netem.links.layer_stack import Outcome
+from netem.proxy.routes import Link, Phase
+
+# One decision on one packet, as the hot path keeps it (a plain tuple: built per packet):
+# (source, target, link class, epoch, seq, the model's decision).
+Record = tuple[int, int, str, int, int, Outcome]
+
+
+class Ledger:
+    """What netem decided and forwarded: records not yet published, packets per link.
+
+    A node has one, which its lockstep and realtime paths both write to.
+    """
+
+    def __init__(self) -> None:
+        self.decisions: defaultdict[tuple[Phase, int], list[Record]] = defaultdict(list)
+        self.forwarded: Counter[Link] = Counter()  # packets delivered per link
+
+
+def _decision_json(d: Outcome) -> bytes:
+    """The fields of a record that come from the decision, as JSON after ``"seq":N``."""
+    return orjson.dumps(
+        {
+            "verdict": d.verdict,
+            "delay_epochs": d.delay_epochs,
+            "delay_ms": float(d.delay_ms),
+            "model": d.model,
+            "state": d.state,
+        }
+    ).replace(b"{", b",", 1)
+
+
+# A link's records differ only in epoch, seq and decision; decisions are shared objects
+# (a model memoises them per block), so both halves are encoded once and spliced.
+_LINK_JSON: dict[tuple[int, int, str], bytes] = {}
+_DECISION_JSON: dict[int, tuple[Outcome, bytes]] = {}  # by id; the entry keeps d alive
+
+
+def record_head(source: int, target: int, link_class: str) -> bytes:
+    """A record's JSON up to (not including) ``,"epoch":``."""
+    head = _LINK_JSON.get((source, target, link_class))
+    if head is None:
+        head = _LINK_JSON[(source, target, link_class)] = orjson.dumps(
+            {"source": source, "target": target, "link_class": link_class}
+        )[:-1]
+    return head
+
+
+def record_tail(d: Outcome) -> bytes:
+    """A record's JSON after ``"seq":N``: the fields that come from the decision."""
+    tail = _DECISION_JSON.get(id(d))
+    if tail is None or tail[0] is not d:
+        if len(_DECISION_JSON) > 100_000:
+            _DECISION_JSON.clear()
+        tail = _DECISION_JSON[id(d)] = (d, _decision_json(d))
+    return tail[1]
+
+
+def decision_batch(header: dict[str, Any], phase: str, records: Iterable[Record]) -> bytes:
+    """A ``DecisionBatch`` payload: ``header`` from ``Service.header``, one entry per record."""
+    return decision_batch_of(
+        header,
+        phase,
+        [
+            b'%s,"epoch":%d,"seq":%d%s' % (record_head(s, t, c), e, q, record_tail(d))
+            for s, t, c, e, q, d in records
+        ],
+    )
+
+
+def decision_batch_of(header: dict[str, Any], phase: str, records: list[bytes]) -> bytes:
+    """A ``DecisionBatch`` payload from records already encoded (comma-joined groups allowed)."""
+    head = orjson.dumps({**header, "kind": "decisions", "phase": phase})[:-1]
+    return b'%s,"decisions":[%s]}' % (head, b",".join(records))
+
+
+def packet_json(source: int, seq: int, sent_epoch: int, copies: int, payload: Any) -> bytes:
+    """One packet of a ``Delivery``, encoded once however many receivers' deliveries carry it."""
+    return packet_json_of(source, seq, sent_epoch, copies, message_json(payload))
+
+
+def message_json(payload: Any) -> bytes:
+    """A payload as the JSON string a ``DeliveredPacket``'s ``message`` holds."""
+    return orjson.dumps(_text(payload))
+
+
+def packet_json_of(source: int, seq: int, sent_epoch: int, copies: int, message: bytes) -> bytes:
+    """:func:`packet_json` with the message already encoded (:func:`message_json`)."""
+    return b'{"source":%d,"seq":%d,"sent_epoch":%d,"copies":%d,"message":%s}' % (
+        source,
+        seq,
+        sent_epoch,
+        copies,
+        message,
+    )
+
+
+def delivery(
+    header: dict[str, Any],
+    receiver: int,
+    phase: str,
+    packets: Iterable[bytes],
+    lost: Iterable[int],
+    dead: Iterable[int],
+) -> bytes:
+    """A ``Delivery`` payload for ``receiver``: the packets of ``phase`` (:func:`packet_json`)
+    it gets this epoch, spliced."""
+    head = orjson.dumps({**header, "kind": "delivery", "receiver": receiver, "phase": phase})
+    return b'%s,"packets":[%s],"lost":%s,"dead":%s}' % (
+        head[:-1],
+        b",".join(packets),
+        orjson.dumps(sorted(lost)),
+        orjson.dumps(sorted(dead)),
+    )
+
+
+def _text(payload: Any) -> str:
+    """A payload as the JSON string it should be; bytes that are not UTF-8 stay visible as such."""
+    raw = payload if isinstance(payload, bytes) else payload.to_bytes()
+    return raw.decode("utf-8", "replace")

@@ -1,0 +1,103 @@
+"""netem's links: the directed links of a scenario, their models, and the inbound keys' routes.
+
+Three classes of link, each directed (docs/architecture.md "Wire"): ``formation`` links
+``i → j`` carry coordination states, ``report`` links ``i → 0`` the token reports and
+``estimate`` links ``0 → i`` the leader's estimates (0 is the leader). Each class
+belongs to one lockstep phase.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from typing import Literal
+
+from formation import keys
+from formation.events import Membership
+from formation.scenario import LEADER_ENDPOINT, Scenario
+from netem.links.models import LinkModel
+
+LinkClass = Literal["formation", "report", "estimate"]
+Phase = Literal["state", "report", "estimate"]
+Link = tuple[LinkClass, int, int]  # (class, source, target)
+Route = tuple[Phase, int, int]  # an inbound key's (phase, source, target)
+PHASE_OF: dict[LinkClass, Phase] = {
+    "formation": "state",
+    "report": "report",
+    "estimate": "estimate",
+}
+
+
+class Links:
+    """Every link of a scenario with its model, and who sends to whom."""
+
+    def __init__(self, scenario: Scenario, seed: int) -> None:
+        self.agents = list(range(1, scenario.n + 1))
+        # Who takes part at each epoch, from the scenario's events (None: everyone, always).
+        self.team: Membership | None = None if scenario.membership.everyone else scenario.membership
+        ap = scenario.network.access_point
+        self.access_point = None if ap is None else list(ap)  # [m] control links' leader end
+        self.models: dict[Link, LinkModel] = {}
+        self.in_links: dict[int, list[int]] = defaultdict(list)
+        self.out_links: dict[int, list[int]] = defaultdict(list)
+        for a, b in scenario.directed_links:
+            a, b = int(a), int(b)
+            self.models[("formation", a, b)] = LinkModel(
+                scenario.formation_link_models(a, b), seed, a, b
+            )
+            self.out_links[a].append(b)
+            self.in_links[b].append(a)
+        for i in self.agents:
+            self.models[("report", i, LEADER_ENDPOINT)] = LinkModel(
+                scenario.control_link_models(i, "report"), seed, i, LEADER_ENDPOINT
+            )
+            self.models[("estimate", LEADER_ENDPOINT, i)] = LinkModel(
+                scenario.control_link_models(i, "estimate"), seed, LEADER_ENDPOINT, i
+            )
+
+    def senders(self, phase: Phase, receiver: int) -> list[int]:
+        """Who sends ``receiver`` a packet of ``phase`` each epoch."""
+        if phase == "state":
+            return self.in_links[receiver]
+        if phase == "report":
+            return self.agents
+        return [LEADER_ENDPOINT]
+
+
+def link_key(run_id: str, link: Link) -> str:
+    """The key a link's packets are forwarded on in realtime (and named by in lockstep)."""
+    cls, src, dst = link
+    if cls == "formation":
+        return keys.link_state(run_id, src, dst)
+    if cls == "report":
+        return keys.link_report(run_id, src)
+    return keys.link_estimate(run_id, dst)
+
+
+class Routes:
+    """The route of each inbound key, parsed once per key."""
+
+    def __init__(self, agents: list[int]) -> None:
+        self._agents = set(agents)
+        self._routes: dict[str, Route | None] = {}
+
+    def of(self, key: str) -> Route | None:
+        """``(phase, source, target)`` of an inbound key; None if not ours.
+
+        ``agent/<i>/state`` and ``agent/<i>/report`` come from ``i`` (target unused, 0);
+        ``leader/estimate/<i>`` from the leader to ``i``.
+        """
+        if key not in self._routes:
+            parts = key.split("/")
+            route: Route | None = None
+            if len(parts) == 5 and parts[3].isdigit() and int(parts[3]) in self._agents:
+                if parts[2] == "agent" and parts[4] in ("state", "report"):
+                    route = ("state" if parts[4] == "state" else "report", int(parts[3]), 0)
+            elif (
+                len(parts) == 5
+                and parts[2:4] == ["leader", "estimate"]
+                and parts[4].isdigit()
+                and int(parts[4]) in self._agents
+            ):
+                route = ("estimate", LEADER_ENDPOINT, int(parts[4]))
+            self._routes[key] = route
+        return self._routes[key]

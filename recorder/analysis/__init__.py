@@ -1,0 +1,1 @@
+"""A run's numbers: metrics, membership, safety, the run record, DataFrames, the report."""

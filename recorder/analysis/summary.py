@@ -1,0 +1,170 @@
+"""A run's headline numbers, computed once (docs/model.md §7), from its :class:`RunData`.
+
+Every summary reads the same record and calls :func:`summarise`: ``formation run``'s
+(the launcher's record of what it saw), ``formation simulate``'s (the simulator's),
+``report.md`` and ``summary.json`` (the recording's). The sweep, which keeps only a
+batch's arrays, takes its final errors from :func:`team_errors`, the rule
+:func:`summarise` applies. So the four agree to the last bit on the same states.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from formation.graph import expected_rigidity_rank
+from recorder import membership
+from recorder.analysis.metrics import error_statistics, longest_run
+from recorder.analysis.rundata import RunData
+from recorder.analysis.safety import safety_counts
+
+Array = npt.NDArray[np.float64]
+Mask = npt.NDArray[np.bool_]
+
+
+def team_errors(
+    positions: Array,
+    team: Mask,
+    formation: Array,
+    shape: Array,
+    edges: npt.NDArray[np.int64],
+    weights: Array,
+    offsets: Array,
+) -> tuple[Array, Array]:
+    """Formation and shape error [m] of the team: over every edge where every agent is in
+    it, else over the edges between the agents in it (docs/model.md §7).
+
+    A body out of the team (left, crashed, not yet joined) stands where it was while the
+    team moves on, so its edges would judge the team on it.
+
+    Parameters
+    ----------
+    positions : (..., n, d) true positions [m], NaN allowed where out of the team
+    team : (..., n) in the team, broadcast against ``positions``' leading axes
+    formation, shape : (...) the run's errors over every edge [m]
+    edges : (m, 2) agent ids; weights : (m,) ``C_ij`` [m]; offsets : (n, d) [m]
+
+    Returns
+    -------
+    formation, shape : (...) [m], NaN where no edge is in the team
+    """
+    team = np.broadcast_to(team, positions.shape[:-1])
+    everyone = team.all(axis=-1)
+    if everyone.all():  # nobody out: the run's own errors, untouched
+        return formation, shape
+    lead = positions.shape[:-2]
+    x = positions.reshape(-1, *positions.shape[-2:])
+    flat = team.reshape(-1, team.shape[-1])
+    partial = (
+        membership.team_formation_error(x, edges, weights, flat).reshape(lead),
+        membership.team_shape_error(x, edges, offsets, flat).reshape(lead),
+    )
+    return np.where(everyone, formation, partial[0]), np.where(everyone, shape, partial[1])
+
+
+def run_team_errors(run: RunData) -> tuple[Array, Array]:
+    """(P,) formation and shape error [m] of ``run``'s team at each epoch (:func:`team_errors`)."""
+    s = run.scenario
+    return team_errors(
+        run.positions,
+        run.present,
+        run.formation_error,
+        run.shape_error,
+        s.edge_array,
+        s.weights,
+        s.offsets,
+    )
+
+
+def summarise(run: RunData) -> dict[str, Any]:
+    """The headline numbers of a run (docs/model.md §7); None where the run has no data.
+
+    The final errors are the team's (:func:`team_errors`) at the last epoch with an agent
+    in it (None if NaN there; a diverged run's inf stands).
+    """
+    s = run.scenario
+    links = [f"{a}->{b}" for a, b in run.links]
+    lost = run.decided & ~run.delivered
+    _, _, sub_trace = error_statistics(run.substitution_errors)
+    _, _, est_trace = error_statistics(run.estimation_errors)
+    known = run.rigidity_rank >= 0
+    tree = run.tree[known]
+    expected = expected_rigidity_rank(s.n, s.dimension)
+    formation, shape = run_team_errors(run)
+    out: dict[str, Any] = {
+        "label": run.label,
+        "source": run.source,
+        "scenario": s.name,
+        "strategy": run.strategy,
+        "seed": run.seed,
+        "epochs": max(len(run.positions) - 1, 0),
+        "epochs_with_states": int(np.isfinite(run.positions).all(axis=(1, 2)).sum()),
+        "epochs_with_estimates": int(known.sum()),
+        "final_formation_error_m": _final(formation, run.present),
+        "peak_formation_error_m": _peak(run.formation_error),
+        "final_shape_error_m": _final(shape, run.present),
+        "peak_shape_error_m": _peak(run.shape_error),
+        "substitutions": int(run.substitution_errors.shape[0]),
+        "substitution_cov_trace_m2": _num(sub_trace),
+        "estimation_cov_trace_m2": _num(est_trace),
+        "nees_mean": _num(float(run.nees_values.mean())) if run.nees_values.size else None,
+        "nees_expected": s.dimension,
+        "covariance_every": s.estimator.covariance_every,
+        "drops": {links[c]: int(v) for c, v in enumerate(lost.sum(axis=0)) if v},
+        "longest_outage": {
+            links[c]: longest_run(lost[:, c]) for c in range(len(links)) if lost[:, c].any()
+        },
+        "tree_changes": int((tree[1:] != tree[:-1]).any(axis=1).sum()) if len(tree) > 1 else 0,
+        "epochs_not_rigid": int((run.rigidity_rank[known] < expected).sum()),
+        "expected_rigidity_rank": expected,
+        "epochs_split": int((run.components[known] > 1).sum()),
+    }
+    skipped = run.extra.get("skipped")
+    if skipped is not None:
+        out["skipped"] = skipped.as_json()
+    if (timed := run.extra.get("deadlines")) is not None:
+        out["deadlines"] = timed
+    out.update(_team(run))
+    out["safety"] = safety_counts(s, run.positions, run.headings, run.saturated)
+    recorded = run.extra.get("recorded_formation_error")
+    if recorded is not None and np.isfinite(recorded).any():
+        both = np.isfinite(recorded) & np.isfinite(run.formation_error)
+        gap = np.abs(recorded[both] - run.formation_error[both])
+        out["recorded_metrics_max_gap_m"] = float(gap.max()) if gap.size else None
+    return out
+
+
+def _team(run: RunData) -> dict[str, Any]:
+    """Who was in the team at each epoch, when it changed, and the transient after each."""
+    team = run.present
+    if team.all() or not team.any():
+        return {}
+    s = run.scenario
+    shape = membership.team_shape_error(run.positions, s.edge_array, s.offsets, team)
+    events = [(e.epoch, e.agent, e.action) for e in s.events]
+    return {
+        "team": {str(i): spans for i, spans in membership.spans(team).items()},
+        "team_changes": [vars(c) for c in membership.changes(team, shape, events=events)],
+        "shape_threshold_m": membership.SHAPE_THRESHOLD_M,
+    }
+
+
+def _final(values: Array, team: Mask) -> float | None:
+    """``values`` (P,) at the last epoch with an agent in ``team`` (P, n); None if NaN."""
+    seen = np.flatnonzero(team.any(axis=1))
+    return None if not seen.size or np.isnan(values[seen[-1]]) else float(values[seen[-1]])
+
+
+def _peak(values: Array) -> float | None:
+    finite = values[np.isfinite(values)]
+    return float(finite.max()) if finite.size else None
+
+
+def _num(v: float) -> float | None:
+    return None if v is None or not math.isfinite(v) else float(v)
+
+
+__all__ = ["run_team_errors", "summarise", "team_errors"]

@@ -1,0 +1,1 @@
+"""Foxglove, live: the WebSocket server, the scene, the log, the layout."""

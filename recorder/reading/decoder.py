@@ -1,0 +1,59 @@
+"""Decoding the recording's protobuf messages: the scene, the agents' frames, the log.
+
+Foxglove's SDK encodes its typed messages (``foxglove.messages.SceneUpdate(...).encode()``)
+but cannot read them back, so the ``protobuf`` package builds each message class from a
+schema's FileDescriptorSet (``descriptor_pool`` and ``message_factory.GetMessageClass``):
+either the schema a recording's channel carries or the SDK's own
+(:func:`recorder.recording.schemas.foxglove_schema`). A payload that does not parse raises
+:class:`DecodeError`; nothing else here raises on a payload.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+from typing import Any
+
+from google.protobuf import descriptor_pb2, descriptor_pool, json_format, message_factory
+from google.protobuf.message import DecodeError, Message
+
+from recorder.recording.schemas import foxglove_schema
+
+
+@cache
+def message_class(name: str, schema_data: bytes) -> type[Message]:
+    """The message class ``name`` (e.g. ``foxglove.SceneUpdate``) of a FileDescriptorSet.
+
+    Raises :class:`DecodeError` if the schema does not parse or lacks ``name``.
+    """
+    try:
+        files = descriptor_pb2.FileDescriptorSet.FromString(schema_data)
+        pool = descriptor_pool.DescriptorPool()  # one per schema: no clash between recordings
+        for proto in files.file:
+            pool.Add(proto)
+        cls: type[Message] = message_factory.GetMessageClass(pool.FindMessageTypeByName(name))
+        return cls
+    except (DecodeError, KeyError, TypeError) as exc:
+        raise DecodeError(f"schema {name}: {exc}") from None
+
+
+def decode(name: str, schema_data: bytes, payload: bytes) -> Message:
+    """``payload`` as the message ``name`` of the schema ``schema_data``."""
+    return message_class(name, schema_data).FromString(payload)
+
+
+def decode_kind(kind: str, payload: bytes) -> Message:
+    """``payload`` of a recorder channel ``kind`` (``scene``, ``tf``, ``log``) by the SDK's schema."""
+    spec = foxglove_schema(kind)
+    return decode(spec.name, spec.data, payload)
+
+
+def as_dict(message: Message) -> dict[str, Any]:
+    """A decoded message as plain data: proto field names, every field present (zero values
+    too), enums by name and timestamps as RFC 3339 strings."""
+    out: dict[str, Any] = json_format.MessageToDict(
+        message, preserving_proto_field_name=True, always_print_fields_with_no_presence=True
+    )
+    return out
+
+
+__all__ = ["DecodeError", "as_dict", "decode", "decode_kind", "message_class"]

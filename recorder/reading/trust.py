@@ -1,0 +1,424 @@
+"""Reading a recording without trusting the wire: every message validated and its owner checked.
+
+Any process on the machine can publish into a local run, and in a closed deployment an
+agent can still put anything on its own keys. Everything that reads a recording for
+analysis (``formation report``, ``info``, ``replay``, the run's summary, the experiments,
+:func:`recorder.load_run`) goes through one :class:`Gate`, which passes a message only when
+
+- it validates against the pydantic model of its channel's kind (:data:`recorder.recording.schemas.MESSAGE_MODELS`),
+  with finite numbers of the scenario's dimension; the recorder's Foxglove channels (scene,
+  frames, log) decode as the SDK's protobuf message (:mod:`recorder.reading.decoder`);
+- its sender owns the key: ``agent/<i>/…`` and link ``i → j`` carry ``agent/<i>`` (or a pool
+  ``pool/<a>`` with ``a ≤ i``) and ``agent = i``; the leader's keys ``leader``; netem's
+  ``netem``; ``status/<role>/<id>`` its process; the recorder's own channels (metrics, scene,
+  frames, log) only what the recorder wrote itself (channel metadata ``origin = recorder``);
+- its epoch, agent ids, links and edges exist in the scenario;
+- it does not contradict an earlier message of the same key and epoch (the first one
+  stays; an identical repeat, e.g. a republished final state, is not a fault).
+
+Every other message is skipped and counted per channel (topic) and reason
+(:data:`REASONS`). Nothing here raises on a payload.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from google.protobuf.message import Message
+from pydantic import BaseModel, ValidationError
+
+from formation import keys
+from formation.messages import (
+    AgentEstimate,
+    CoordinationState,
+    DecisionBatch,
+    Delivery,
+    EpochMetrics,
+    LeaderEstimate,
+    LinkChange,
+    Status,
+    TokenReport,
+)
+from formation.scenario import Scenario
+from recorder.reading.decoder import DecodeError, decode_kind
+from recorder.recording.schemas import (
+    FOXGLOVE,
+    MESSAGE_MODELS,
+    ORIGIN,
+    RECORDER,
+    UNKNOWN,
+    LivelinessEvent,
+    classify,
+)
+
+INVALID = "invalid"  # not JSON (protobuf), wrong fields or types, non-finite or mis-sized numbers
+FORGED = "forged"  # the sender does not own the key, or claims another agent's id
+OUT_OF_RANGE = "out of range"  # an epoch, agent id, link or edge the scenario does not have
+CONFLICT = "conflict"  # a second, different message of the same key and epoch
+UNKNOWN_KEY = "unknown key"  # a key that no process of the testbed publishes on
+REASONS = (INVALID, FORGED, OUT_OF_RANGE, CONFLICT, UNKNOWN_KEY)
+
+DERIVED = frozenset({"metrics", *FOXGLOVE})  # kinds only the recorder writes
+_REPEATED = frozenset({"status", "decision", "alive", "link_change"})  # many per epoch
+
+
+class Skip(Exception):
+    """Why a message is not trusted; caught inside :meth:`Gate.check`."""
+
+    def __init__(self, reason: str, detail: str = "") -> None:
+        super().__init__(detail or reason)
+        self.reason = reason
+
+
+@dataclass
+class Skipped:
+    """Messages a :class:`Gate` refused: per channel (topic) and reason, with a few examples."""
+
+    counts: Counter[tuple[str, str]] = field(default_factory=Counter)
+    examples: list[tuple[str, str, str]] = field(default_factory=list)  # topic, reason, detail
+    limit: int = 20
+
+    def add(self, topic: str, reason: str, detail: str) -> None:
+        self.counts[topic, reason] += 1
+        if len(self.examples) < self.limit:
+            self.examples.append((topic, reason, detail[:200]))
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+    def by_channel(self) -> dict[str, int]:
+        out: Counter[str] = Counter()
+        for (topic, _), v in self.counts.items():
+            out[topic] += v
+        return dict(sorted(out.items()))
+
+    def by_reason(self) -> dict[str, int]:
+        out: Counter[str] = Counter()
+        for (_, reason), v in self.counts.items():
+            out[reason] += v
+        return {r: out[r] for r in REASONS if out[r]}
+
+    def as_json(self) -> dict[str, Any]:
+        """``{"total", "by_reason", "by_channel": {topic: {reason: n}}}`` (summary.json)."""
+        nested: dict[str, dict[str, int]] = {}
+        for (topic, reason), v in sorted(self.counts.items()):
+            nested.setdefault(topic, {})[reason] = v
+        return {"total": self.total, "by_reason": self.by_reason(), "by_channel": nested}
+
+    def describe(self, prefix: str = "") -> str:
+        """One line: ``12 messages skipped (forged 3, invalid 9) on 4 channels``."""
+        if not self.total:
+            return "no message skipped"
+        reasons = ", ".join(f"{r} {v}" for r, v in self.by_reason().items())
+        return f"{self.total} messages skipped ({reasons}) on {len(self.by_channel())} channels"
+
+
+def _finite(values: Iterable[float], d: int | None, what: str) -> None:
+    vals = list(values)
+    if d is not None and len(vals) != d:
+        raise Skip(INVALID, f"{what} has {len(vals)} components, expected {d}")
+    if not all(math.isfinite(v) for v in vals):
+        raise Skip(INVALID, f"{what} is not finite")
+
+
+class Gate:
+    """Validates recorded messages and checks their owners against ``scenario``.
+
+    Without a scenario (a recording that stores none) only the models and the key owners
+    are checked. ``derived_channels``: ids of the channels the recorder marked as its own
+    (channel metadata ``origin = recorder``, :func:`derived_channels`); when given, metrics
+    and scenes on other channels are counted as forged.
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario | None,
+        derived_channels: set[int] | None = None,
+        conflicts: bool = True,
+    ) -> None:
+        self.scenario = scenario
+        self.derived_channels = derived_channels
+        self.conflicts = conflicts  # remember each (key, epoch) to refuse a different second one
+        self.skipped = Skipped()
+        self.passed: Counter[str] = Counter()
+        self._seen: dict[tuple[str, int], int] = {}  # (topic, epoch) -> hash of the first payload
+        # Realtime netem sends a receiver a delivery per wake-up: several of one epoch are normal.
+        realtime = scenario is not None and scenario.runtime.mode == "realtime"
+        self.repeated = _REPEATED | {"delivery"} if realtime else _REPEATED
+        if scenario is not None:
+            self.n, self.d, self.epochs = scenario.n, scenario.dimension, scenario.epochs
+            self.links = {(int(a), int(b)) for a, b in scenario.directed_links}
+            self.edges = {
+                (min(int(a), int(b)), max(int(a), int(b))) for a, b in scenario.edge_array
+            }
+
+    # -- the one entry ----------------------------------------------------------------------
+    def check(
+        self, topic: str, data: bytes, kind: str | None = None, channel_id: int | None = None
+    ) -> BaseModel | Message | None:
+        """The validated message (a model; a decoded protobuf message for the Foxglove
+        channels), or None after counting the skip."""
+        kind = kind or classify(topic)
+        try:
+            msg = self._check(kind, topic, data, channel_id)
+        except Skip as skip:
+            self.skipped.add(topic, skip.reason, str(skip))
+            return None
+        self.passed[kind] += 1
+        return msg
+
+    def _check(
+        self, kind: str, topic: str, data: bytes, channel_id: int | None
+    ) -> BaseModel | Message:
+        derived = self.derived_channels
+        if kind in DERIVED and derived is not None and channel_id not in derived:
+            raise Skip(FORGED, f"{kind} not written by the recorder")
+        if kind in FOXGLOVE:
+            return self._foxglove(kind, data)
+        model = MESSAGE_MODELS.get(kind)
+        if model is None or kind == UNKNOWN:
+            raise Skip(UNKNOWN_KEY, f"no process publishes on {topic}")
+        try:
+            msg = model.model_validate_json(data)
+        except (ValidationError, ValueError, UnicodeDecodeError) as exc:
+            raise Skip(INVALID, f"{model.__name__}: {str(exc).splitlines()[0]}") from None
+        check = getattr(self, f"_{kind}", None)
+        if check is not None:
+            check(msg, topic.split("/"))
+        epoch = getattr(msg, "epoch", None)
+        if self.conflicts and isinstance(epoch, int) and epoch >= 0 and kind not in self.repeated:
+            self._first(topic, epoch, data)
+        return msg
+
+    # -- shared checks ----------------------------------------------------------------------
+    def _first(self, topic: str, epoch: int, data: bytes) -> None:
+        digest = hash(data)
+        if self._seen.setdefault((topic, epoch), digest) != digest:
+            raise Skip(CONFLICT, f"a different message of epoch {epoch} came first")
+
+    def _epoch(self, epoch: int, last: int | None = None, first: int = 0) -> None:
+        if self.scenario is None:
+            return
+        last = self.epochs if last is None else last
+        if not first <= epoch <= last:
+            raise Skip(OUT_OF_RANGE, f"epoch {epoch} not in {first}..{last}")
+
+    def _agent(self, i: int, what: str = "agent") -> None:
+        if self.scenario is not None and not 1 <= i <= self.n:
+            raise Skip(OUT_OF_RANGE, f"{what} {i} not in 1..{self.n}")
+
+    def _endpoint(self, i: int) -> None:
+        if self.scenario is not None and not 0 <= i <= self.n:
+            raise Skip(OUT_OF_RANGE, f"endpoint {i} not in 0..{self.n}")
+
+    def _dim(self) -> int | None:
+        return None if self.scenario is None else self.d
+
+    @staticmethod
+    def _key_id(part: str) -> int:
+        try:
+            return int(part)
+        except ValueError:
+            raise Skip(UNKNOWN_KEY, f"{part!r} is not an id") from None
+
+    @staticmethod
+    def _owned_by_agent(sender: str, agent: int) -> bool:
+        """``agent/<i>``, or ``pool/<a>`` (a pool is named by its first id) with ``a ≤ i``."""
+        role, _, ident = sender.partition("/")
+        if role == "agent":
+            return ident == str(agent)
+        return role == "pool" and ident.isdigit() and int(ident) <= agent
+
+    def _sender(self, msg: Any, owner: str) -> None:
+        if msg.sender != owner:
+            raise Skip(FORGED, f"sender {msg.sender!r} on a key of {owner!r}")
+
+    def _agent_sender(self, msg: Any, i: int) -> None:
+        if not self._owned_by_agent(msg.sender, i):
+            raise Skip(FORGED, f"sender {msg.sender!r} on a key of agent {i}")
+        if msg.agent != i:
+            raise Skip(FORGED, f"agent {msg.agent} on a key of agent {i}")
+
+    def _state(self, msg: CoordinationState, i: int) -> None:
+        self._agent_sender(msg, i)
+        self._agent(i)
+        self._epoch(msg.epoch)
+        d = self._dim()
+        _finite(msg.position, d, "position")
+        if msg.velocity is not None:
+            _finite(msg.velocity, d, "velocity")
+        for s in msg.substituted:
+            self._agent(s.neighbour, "neighbour")
+            if self.scenario is not None and (s.neighbour, i) not in self.links:
+                raise Skip(OUT_OF_RANGE, f"no link {s.neighbour}->{i} to substitute")
+            _finite(s.value, d, "substituted value")
+
+    def _report(self, msg: TokenReport, i: int) -> None:
+        self._agent_sender(msg, i)
+        self._agent(i)
+        self._epoch(msg.epoch, self._last_decided())
+        for m in msg.measurements:
+            self._agent(m.neighbour, "neighbour")
+            if m.z is not None:
+                _finite(m.z, self._dim(), "measurement")
+
+    def _agent_part(self, msg: AgentEstimate, i: int) -> None:
+        self._sender(msg, "leader")
+        self._agent(i)
+        if msg.agent != i:
+            raise Skip(FORGED, f"agent {msg.agent} on a key of agent {i}")
+        self._epoch(msg.epoch, self._last_decided())
+        for j in msg.neighbours:
+            self._agent(j, "neighbour")
+        for p in msg.positions:
+            if p is not None:
+                _finite(p, self._dim(), "estimate")
+        _finite(msg.v_ref, self._dim(), "v_ref")
+
+    def _last_decided(self) -> int | None:
+        """The last epoch with decisions, reports and estimates (states go one further)."""
+        return None if self.scenario is None else self.epochs - 1
+
+    # -- per kind (named after the channel kinds of recorder.recording.schemas) --------------------------
+    def _agent_state(self, msg: CoordinationState, parts: list[str]) -> None:
+        self._state(msg, self._key_id(parts[-2]))
+
+    def _link_state(self, msg: CoordinationState, parts: list[str]) -> None:
+        i, j = self._key_id(parts[-3]), self._key_id(parts[-2])
+        if self.scenario is not None and (i, j) not in self.links:
+            raise Skip(OUT_OF_RANGE, f"no formation link {i}->{j}")
+        self._state(msg, i)
+
+    def _agent_report(self, msg: TokenReport, parts: list[str]) -> None:
+        self._report(msg, self._key_id(parts[-2]))
+
+    def _leader_report(self, msg: TokenReport, parts: list[str]) -> None:
+        self._report(msg, self._key_id(parts[-1]))
+
+    def _agent_estimate(self, msg: AgentEstimate, parts: list[str]) -> None:
+        self._agent_part(msg, self._key_id(parts[-1]))
+
+    def _link_estimate(self, msg: AgentEstimate, parts: list[str]) -> None:
+        if parts[-3] != str(keys.LEADER):
+            raise Skip(OUT_OF_RANGE, "an estimate link starts at the leader (0)")
+        self._agent_part(msg, self._key_id(parts[-2]))
+
+    def _leader_estimate(self, msg: LeaderEstimate, parts: list[str]) -> None:
+        self._sender(msg, "leader")
+        self._epoch(msg.epoch, self._last_decided())
+        d = self._dim()
+        if self.scenario is not None:
+            n = self.n
+            sizes = (len(msg.positions), len(msg.covariances), len(msg.observable))
+            if sizes != (n, n, n):
+                raise Skip(INVALID, f"positions, covariances, observable of sizes {sizes}, not {n}")
+            for pair in (*msg.tree, *msg.healthy):
+                if (min(pair), max(pair)) not in self.edges:
+                    raise Skip(OUT_OF_RANGE, f"edge {pair} not in the formation")
+        for p in msg.positions:
+            if p is not None:
+                _finite(p, d, "estimate")
+        for c in msg.covariances:
+            if c is not None:
+                if d is not None and len(c) != d:
+                    raise Skip(INVALID, f"a covariance with {len(c)} rows, expected {d}")
+                for row in c:
+                    _finite(row, d, "covariance row")
+        _finite(msg.x_ref, d, "x_ref")
+        _finite(msg.v_ref, d, "v_ref")
+
+    def _delivery(self, msg: Delivery, parts: list[str]) -> None:
+        self._sender(msg, "netem")
+        receiver = self._key_id(parts[-2])
+        if msg.receiver != receiver or msg.phase != parts[-1]:
+            raise Skip(
+                FORGED, f"a delivery for {msg.receiver}/{msg.phase} on {parts[-2]}/{parts[-1]}"
+            )
+        self._endpoint(receiver)
+        self._epoch(msg.epoch, self._last_decided())
+        for p in msg.packets:
+            self._endpoint(p.source)
+
+    def _decision(self, msg: DecisionBatch, parts: list[str]) -> None:
+        self._sender(msg, "netem")
+        for dec in msg.decisions:
+            self._epoch(dec.epoch, self._last_decided())
+            self._endpoint(dec.source)
+            self._endpoint(dec.target)
+            if self.scenario is None:
+                continue
+            link = (dec.source, dec.target)
+            ok = {
+                "formation": link in self.links,
+                "report": dec.target == keys.LEADER and dec.source != keys.LEADER,
+                "estimate": dec.source == keys.LEADER and dec.target != keys.LEADER,
+            }[dec.link_class]
+            if not ok:
+                raise Skip(OUT_OF_RANGE, f"no {dec.link_class} link {link[0]}->{link[1]}")
+
+    def _link_change(self, msg: LinkChange, parts: list[str]) -> None:
+        self._sender(msg, "netem")
+        self._endpoint(msg.source)
+        self._endpoint(msg.target)
+
+    def _status(self, msg: Status, parts: list[str]) -> None:
+        role, ident = parts[-2], parts[-1]
+        owner = f"{role}/{ident}" if role in ("agent", "pool") else role
+        self._sender(msg, owner)
+        if msg.role != role:
+            raise Skip(FORGED, f"role {msg.role!r} on a key of {role!r}")
+        self._epoch(msg.epoch, first=-1)
+
+    def _metrics(self, msg: EpochMetrics, parts: list[str]) -> None:
+        self._sender(msg, RECORDER)
+        self._epoch(msg.epoch)
+        for p in msg.positions:
+            _finite(p, self._dim(), "position")
+        if self.scenario is not None and len(msg.positions) != self.n:
+            raise Skip(INVALID, f"{len(msg.positions)} positions, expected {self.n}")
+        _finite((msg.formation_error_m, msg.shape_error_m), 2, "error")
+
+    def _alive(self, msg: LivelinessEvent, parts: list[str]) -> None:
+        if msg.key.split("/")[2:] != parts[2:] or (msg.role, msg.ident) != (parts[-2], parts[-1]):
+            raise Skip(FORGED, f"liveliness of {msg.key} on another key")
+
+    def _foxglove(self, kind: str, data: bytes) -> Message:
+        """A scene, frames or log line: the SDK's protobuf message; a scene's entities have ids."""
+        try:
+            msg = decode_kind(kind, data)
+        except DecodeError:
+            raise Skip(
+                INVALID, f"a {kind} that is not a protobuf {FOXGLOVE[kind].__name__}"
+            ) from None
+        if kind == "scene" and not all(e.id for e in msg.entities):
+            raise Skip(INVALID, "a scene entity without an id")
+        return msg
+
+
+def derived_channels(channels: Mapping[int, Any]) -> set[int] | None:
+    """Channel ids the recorder wrote itself, or None for a recording that does not mark them
+    (older recorders wrote metrics and scenes on the received key's channel)."""
+    marked = {cid for cid, ch in channels.items() if ch.metadata.get(ORIGIN) == RECORDER}
+    return marked or None
+
+
+__all__ = [
+    "CONFLICT",
+    "DERIVED",
+    "FORGED",
+    "INVALID",
+    "ORIGIN",
+    "OUT_OF_RANGE",
+    "REASONS",
+    "RECORDER",
+    "UNKNOWN_KEY",
+    "Gate",
+    "Skip",
+    "Skipped",
+    "derived_channels",
+]
