@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from formation.graph import expected_rigidity_rank
-from recorder import plots
+from recorder.analysis import plots
 from recorder.analysis.deadlines import deadline_lines, read_deadlines
 from recorder.analysis.rundata import RunData, read_run
 from recorder.analysis.safety import safety_lines

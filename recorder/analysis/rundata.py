@@ -1,7 +1,7 @@
 """One run as arrays, from a recording or from the in-process simulator: the record of a run.
 
 :class:`RunData` is what every summary reads (:func:`recorder.analysis.summary.summarise`): the
-recorder's (:func:`read_run`), the simulator's (``SimResult.record()``) and the launcher's
+recorder's (:func:`read_run`), the simulator's (``SimResult``, a subclass) and the launcher's
 (``RunOutcome.record()``, what it saw over Zenoh). From a recording
 (:func:`read_run`): true positions from ``agent/<i>/state`` (sender side), the
 leader's output from ``leader/estimate``, link delivery from netem's decisions.
@@ -23,7 +23,7 @@ from mcap.records import Channel, Message
 from formation.errors import RecordingError
 from formation.messages import CoordinationState, LeaderEstimate
 from formation.scenario import Scenario
-from recorder import membership
+from recorder.analysis import membership
 from recorder.analysis.epoch_assembly import edge_mask
 from recorder.analysis.metrics import formation_error, nees, shape_error
 from recorder.reading.reader import iter_messages, metadata, open_recording, parts, scenario_of

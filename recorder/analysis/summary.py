@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from formation.graph import expected_rigidity_rank
-from recorder import membership
+from recorder.analysis import membership
 from recorder.analysis.metrics import error_statistics, longest_run
 from recorder.analysis.rundata import RunData
 from recorder.analysis.safety import safety_counts

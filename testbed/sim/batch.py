@@ -130,6 +130,7 @@ class BatchResult:
         report_ok = plan.report_ok if self.report_ok is None else self.report_ok
         estimate_ok = plan.estimate_ok if self.estimate_ok is None else self.estimate_ok
         return SimResult(
+            label=self.strategy,
             scenario=plan.scenarios[b],
             strategy=self.strategy,
             seed=int(plan.seeds[b]),

@@ -12,7 +12,7 @@ from matplotlib.image import imread
 
 from formation.errors import RecordingError
 from formation.scenario import Scenario
-from recorder import membership, plots
+from recorder.analysis import membership, plots
 from recorder.analysis.metrics import error_statistics, formation_error, shape_error
 from recorder.analysis.report import FIGURES, write_report, write_report_from
 from recorder.analysis.rundata import read_run

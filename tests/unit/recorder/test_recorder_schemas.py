@@ -10,8 +10,8 @@ from jsonschema.validators import validator_for
 
 from formation import keys
 from formation.messages import ALL_MODELS
-from recorder import schemas
 from recorder.reading.decoder import message_class
+from recorder.recording import schemas
 
 RUN = "run-7"
 
