@@ -23,7 +23,7 @@ import orjson
 from agent.runner import AgentRunner, Estimate, Packet, Report
 from formation import keys
 from formation.codec import attachment
-from formation.deadlines import CAUSES, cause
+from formation.deadlines import CAUSES, USED_KEPT, cause
 from formation.errors import RuntimeFailure
 from formation.messages import AgentEstimate, CoordinationState, Delivery, TokenReport
 from formation.realtime import ESTIMATE_DEADLINE, STATE_DEADLINE, Clock
@@ -105,6 +105,8 @@ class AgentNode:
         self.waiting: set[int] = set(ids)  # agents not yet ready for the phase
         self.finished = threading.Event()  # the last epoch is done: the watching thread leaves
         self.taken = -1  # realtime: the last epoch whose packets were taken
+        # realtime: epoch → agents whose estimate was used (a later copy is no miss)
+        self.used_estimates: dict[int, set[int]] = {}
         self.end = scenario.epochs  # lockstep: the epoch of this process's last state
         self.deadline = {
             "packets": 0,
@@ -270,7 +272,9 @@ class AgentNode:
         ):
             if self.taken >= 0 and est.epoch < self.runner.epoch:
                 assert self.clock is not None  # realtime
-                if msg.arrived_ns > self.clock.at(est.epoch, ESTIMATE_DEADLINE):
+                in_time = msg.arrived_ns <= self.clock.at(est.epoch, ESTIMATE_DEADLINE)
+                if not in_time or i not in self.used_estimates.get(est.epoch, ()):
+                    # late, or stamped in time but queued after the deadline's take (scheduling)
                     self._missed("estimate", est.epoch, est.stamp_ns, msg.arrived_ns)
                 # else a copy of one already used, in a step before the deadline
             else:
@@ -381,6 +385,8 @@ class AgentNode:
             got[i] = _estimate(est)
             self.deadline["estimates"] += got[i] is not None
             self.deadline["in_time"] += got[i] is not None
+        self.used_estimates[k] = {i for i, est in got.items() if est is not None}
+        self.used_estimates.pop(k - USED_KEPT, None)
         return got
 
     def _has_estimates(self, epoch: int) -> bool:

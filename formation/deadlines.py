@@ -37,6 +37,9 @@ from formation.realtime import ESTIMATE_DEADLINE, REPORT_DEADLINE, STATE_DEADLIN
 
 SLACK = 0.10  # of a period: a sender publishing later than this after its phase start is late
 WARN_RATE = 0.001  # misses above this share of the packets sent: a warning (issue 18)
+# epochs a receiver remembers which packets it used: a copy of one comes within a period, and
+# a packet stamped in time that it never used is a scheduling miss (queued after the take)
+USED_KEPT = 4
 CAUSES = ("late_sender", "late_netem", "late_leader", "scheduling")
 NETEM = "netem."  # the prefix of netem's counts among the run's
 PHASES = {  # the phase a packet kind travels in: (start, deadline) as fractions of a period

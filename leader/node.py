@@ -14,7 +14,7 @@ import orjson
 
 from formation import keys
 from formation.codec import attachment
-from formation.deadlines import CAUSES, cause
+from formation.deadlines import CAUSES, USED_KEPT, cause
 from formation.errors import RuntimeFailure
 from formation.messages import DeliveredPacket, Delivery, TokenReport
 from formation.realtime import REPORT_DEADLINE, Clock
@@ -140,6 +140,8 @@ class LeaderNode:
         self.covariance_every = scenario.estimator.covariance_every
         self.link_rows = link_rows(scenario)
         self.late_reports = 0
+        # realtime: epoch → agents whose report was used (a later copy is no miss)
+        self.used_reports: dict[int, set[int]] = {}
         self.clock: Clock | None = None  # realtime: set by run
         # realtime: reports in time and missed by cause; estimates sent before the deadline
         self.deadline = {"in_time": 0, "early_estimates": 0, **dict.fromkeys(CAUSES, 0)}
@@ -175,8 +177,10 @@ class LeaderNode:
             return
         for _, report in self._reports(delivery.packets):
             if self.clock is not None and report.epoch < self.epoch:
-                if msg.arrived_ns <= self.clock.at(report.epoch, REPORT_DEADLINE):
+                in_time = msg.arrived_ns <= self.clock.at(report.epoch, REPORT_DEADLINE)
+                if in_time and report.agent in self.used_reports.get(report.epoch, ()):
                     continue  # a copy of one already used, in an estimate before the deadline
+                # else late, or stamped in time but queued after the deadline's take (scheduling)
                 self.late_reports += 1
                 self.deadline[
                     cause(self.clock, "report", report.epoch, report.stamp_ns, msg.arrived_ns)
@@ -225,6 +229,8 @@ class LeaderNode:
         reports = [r for r in self.reports.values() if r.epoch == k]
         self.reports = {q: r for q, r in self.reports.items() if r.epoch > k}  # agents ahead
         self.deadline["in_time"] += len(reports)
+        self.used_reports[k] = {r.agent for r in reports}
+        self.used_reports.pop(k - USED_KEPT, None)
         return reports
 
     def _estimate(self, k: int, reports: list[TokenReport]) -> None:

@@ -350,13 +350,15 @@ def drain_last(
     settle_s: float = 0.1,
 ) -> None:
     """After the last epoch, route what still comes until netem has gone (it forwards every
-    packet due before it leaves; at most ``timeout_s``), then for ``settle_s``: a packet
-    still on its way when the run ends is counted as a miss, not left out of the books."""
+    packet due before it leaves; at most ``timeout_s``), then until nothing has come for
+    ``settle_s``: a packet still on its way when the run ends is counted as a miss, not left
+    out of the books. The quiet period restarts with each message, so a backlog still queued
+    when netem's token goes (a busy receiver, or the token overtaking data) is all routed."""
     end = time.monotonic() + timeout_s
     while service.is_alive("netem", 0) and time.monotonic() < end:
         if (msg := service.next_incoming(0.02)) is not None:
             route(msg)
-    end = time.monotonic() + settle_s
-    while (left := end - time.monotonic()) > 0:
-        if (msg := service.next_incoming(left)) is not None:
-            route(msg)
+    while time.monotonic() < end + timeout_s:
+        if (msg := service.next_incoming(settle_s)) is None:
+            return
+        route(msg)
