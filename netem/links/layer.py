@@ -44,31 +44,17 @@ class Keys:
     src: Ints
     dst: Ints
 
+    def _key(self, stream: Stream, kind: str, occ: int, epochs: Ints) -> tuple[Any, ...]:
+        """The key of a layer's draws on these links at ``epochs``: (seed, stream, ends, kind, occurrence, epoch)."""
+        return (self.seed, int(stream), self.src, self.dst, KIND_CODE[kind], occ, epochs[None, :])
+
     def uniform(self, stream: Stream, kind: str, occ: int, epochs: Ints, *rest: int) -> Floats:
         """Uniforms ``(L, n)`` for ``epochs`` ``(n,)``."""
-        return keyed_uniform(
-            self.seed,
-            int(stream),
-            self.src,
-            self.dst,
-            KIND_CODE[kind],
-            occ,
-            epochs[None, :],
-            *rest,
-        )
+        return keyed_uniform(*self._key(stream, kind, occ, epochs), *rest)
 
     def normal(self, stream: Stream, kind: str, occ: int, epochs: Ints, *rest: int) -> Floats:
         """Standard normals ``(L, n)`` for ``epochs`` ``(n,)``."""
-        return keyed_normal(
-            self.seed,
-            int(stream),
-            self.src,
-            self.dst,
-            KIND_CODE[kind],
-            occ,
-            epochs[None, :],
-            *rest,
-        )
+        return keyed_normal(*self._key(stream, kind, occ, epochs), *rest)
 
     @property
     def n_links(self) -> int:

@@ -64,6 +64,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -284,21 +285,13 @@ class LinkModel:
         pieces, _ = self._run_range(k * self._b, start + n_epochs, carry)
         pieces = trim_pieces(pieces, start)
         if times_s is not None:
-            times = np.asarray(times_s, dtype=np.float64)
-            if times.shape != (n_epochs,):
-                raise LinkModelError(
-                    self.link, f"times_s has shape {times.shape}; expected ({n_epochs},)"
-                )
+            times = self._per_epoch(times_s, "times_s", n_epochs)
             for p in pieces:
                 p.apply_times(times[p.start - start : p.start - start + p.n])
         else:
             self._require_times(pieces)
         if distances_m is not None:
-            dist = np.asarray(distances_m, dtype=np.float64)
-            if dist.shape != (n_epochs,):
-                raise LinkModelError(
-                    self.link, f"distances_m has shape {dist.shape}; expected ({n_epochs},)"
-                )
+            dist = self._per_epoch(distances_m, "distances_m", n_epochs)
             for p in pieces:
                 p.apply_distances(dist[None, p.start - start : p.start - start + p.n])
         else:
@@ -355,6 +348,13 @@ class LinkModel:
             del self._blocks[next(iter(self._blocks))]
         self._blocks[k] = blk
         return blk
+
+    def _per_epoch(self, values: Any, name: str, n_epochs: int) -> Floats:
+        """``values`` as floats ``(n_epochs,)``; an error naming ``name`` otherwise."""
+        out = np.asarray(values, dtype=np.float64)
+        if out.shape != (n_epochs,):
+            raise LinkModelError(self.link, f"{name} has shape {out.shape}; expected ({n_epochs},)")
+        return out
 
     def _require_times(self, pieces: Sequence[Piece]) -> None:
         for p in pieces:
