@@ -18,6 +18,8 @@ from shell.serving import load_scenario, open_service, serve, service_parser
 from shell.stack_dump import DUMP_SIGNAL, dump_stacks_on_signal
 from shell.timing import Lockstep, Loop, Realtime, TimePolicy, Wait, time_policy
 from shell.zenoh_config import (
+    MEMBER_ENV,
+    MEMBERS_FILE_ENV,
     add_arguments,
     endpoints,
     open_session,
@@ -27,6 +29,8 @@ from shell.zenoh_config import (
 
 __all__ = [
     "DUMP_SIGNAL",
+    "MEMBERS_FILE_ENV",
+    "MEMBER_ENV",
     "Bus",
     "Incoming",
     "Lockstep",

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
 from typing import Any
 
 import zenoh
@@ -29,6 +31,16 @@ RETRY_MAX_S = 1.0
 # of their deadlines against 0.10-0.61 % with it on, most in epochs 0-1.
 SHARED_MEMORY = "false"
 
+# Who may slow a run down (docs/architecture.md "Back-pressure"). Our publishers BLOCK, and a
+# router forwarding a put waits for each receiver's queue: one subscriber attached from outside
+# that reads slowly or never would hold the router, and with it every process of the run (seen:
+# grid20 stuck at epoch 44, then the publishers' leases expired, not the reader's). So a run's
+# sessions know its team, from the file MEMBERS_FILE_ENV names: what goes to a member still
+# blocks, what goes to anyone else is dropped when its queue is full, after DROP_WAIT_US.
+MEMBER_ENV = "FORMATION_MEMBER"  # this process's name in the team (its Zenoh id follows from it)
+MEMBERS_FILE_ENV = "FORMATION_MEMBERS_FILE"  # a JSON list of the team's names
+DROP_WAIT_US = 10  # zenoh's default 1 ms per put held the router 1 ms per sample for a dead reader
+
 
 def endpoints(value: str | Sequence[str] | None, env: str) -> list[str]:
     """Endpoints from a flag (comma-separated) or, when absent, the environment variable ``env``."""
@@ -39,16 +51,59 @@ def endpoints(value: str | Sequence[str] | None, env: str) -> list[str]:
     return list(value)
 
 
+def member_zid(name: str) -> str:
+    """The Zenoh id of the team member ``name``: the same in every process and every restart."""
+    # 16 bytes in hex; zenoh refuses a leading 0, so the first digit is fixed
+    return "f" + hashlib.blake2b(name.encode(), digest_size=16).hexdigest()[1:]
+
+
+def team_qos(members: Iterable[str]) -> list[dict[str, Any]]:
+    """Zenoh's ``qos/network`` rules: egress puts drop, except to the members, where they block.
+
+    Each matching rule overwrites the one before, on every transport; ``zids`` is the remote's.
+    """
+    return [
+        {
+            "id": "observers",
+            "messages": ["put"],
+            "flows": ["egress"],
+            "overwrite": {"congestion_control": "drop"},
+        },
+        {
+            "id": "team",
+            "zids": sorted({member_zid(m) for m in members}),
+            "messages": ["put"],
+            "flows": ["egress"],
+            "overwrite": {"congestion_control": "block"},
+        },
+    ]
+
+
+def read_members(path: str | os.PathLike[str]) -> list[str]:
+    """The team's names from ``path`` (a JSON list of strings); a clear error otherwise."""
+    try:
+        names = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise RuntimeFailure(f"{MEMBERS_FILE_ENV} = {str(path)!r}: cannot read it: {exc}") from None
+    if not (isinstance(names, list) and names and all(isinstance(n, str) for n in names)):
+        raise RuntimeFailure(f"{MEMBERS_FILE_ENV} = {str(path)!r}: expected a JSON list of names")
+    return names
+
+
 def session_config(
     mode: str | None = None,
     connect: str | Sequence[str] | None = None,
     listen: str | Sequence[str] | None = None,
     extra: dict[str, Any] | None = None,
+    member: str | None = None,
+    members: Sequence[str] | None = None,
 ) -> zenoh.Config:
     """A config with multicast scouting and shared memory off; ``mode`` from the flag,
     ``ZENOH_MODE`` or ``peer``.
 
-    ``ZENOH_CONFIG`` may name a JSON5 file (e.g. with credentials) loaded first.
+    ``ZENOH_CONFIG`` may name a JSON5 file (e.g. with credentials) loaded first. ``member``
+    (else ``FORMATION_MEMBER``) is this session's name in its run's team and ``members``
+    (else the file ``FORMATION_MEMBERS_FILE`` names) the team: only they can slow it down.
     """
     path = os.environ.get("ZENOH_CONFIG")
     conf = zenoh.Config.from_file(path) if path else zenoh.Config()
@@ -66,6 +121,17 @@ def session_config(
         conf.insert_json5("connect/endpoints", json.dumps(conn))
     if lst:
         conf.insert_json5("listen/endpoints", json.dumps(lst))
+    member = member or os.environ.get(MEMBER_ENV)
+    if member:
+        conf.insert_json5("id", json.dumps(member_zid(member)))
+    members_file = os.environ.get(MEMBERS_FILE_ENV)
+    if members is None and members_file:
+        members = read_members(members_file)
+    if members:
+        conf.insert_json5("qos/network", json.dumps(team_qos(members)))
+        conf.insert_json5(
+            "transport/link/tx/queue/congestion_control/drop/wait_before_drop", str(DROP_WAIT_US)
+        )
     for key, value in (extra or {}).items():
         conf.insert_json5(key, json.dumps(value))
     return conf

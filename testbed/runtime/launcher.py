@@ -186,6 +186,11 @@ def _pools(n: int, pool: int | None) -> list[list[int]]:
     ]
 
 
+def _process_name(ids: list[int]) -> str:
+    """An agent process's name: one agent's, or a pool's (its first and last agent)."""
+    return f"agent-{ids[0]}" if len(ids) == 1 else f"pool-{ids[0]}-{ids[-1]}"
+
+
 def launch(
     scenario: Scenario,
     strategy: StrategyName | None = None,
@@ -226,7 +231,18 @@ def launch(
     run_dir.mkdir(parents=True, exist_ok=True)
     scenario_path = run_dir / "scenario.toml"
     scenario_path.write_text(scenario.to_toml())
-    group = ProcessGroup(run_dir / "logs")
+    # Every process the run may start, and the launcher's own session: only they slow it down.
+    members = [
+        "launcher",
+        "router",
+        "recorder",
+        "netem",
+        "leader",
+        *(_process_name(ids) for ids in _pools(scenario.n, pool)),
+    ]
+    members_file = run_dir / "members.json"
+    _write_atomic(members_file, json.dumps(members))
+    group = ProcessGroup(run_dir / "logs", members_file=members_file)
     port = free_port(HOST)
     endpoint = f"tcp/{HOST}:{port}"
     common = ["--run-id", run_id, "--mode", zenoh_mode, "--connect", endpoint]
@@ -245,7 +261,9 @@ def launch(
             run_dir / "pids.json", json.dumps({"endpoint": endpoint, "pids": group.pid_map()})
         )
         wait_for_port(HOST, port, 10.0)
-        session = zenoh.open(session_config("client", endpoint, None))
+        session = zenoh.open(
+            session_config("client", endpoint, None, member="launcher", members=members)
+        )
         observer = Observer(session, run_id, scenario)
         if record:
             rec_args = [
@@ -278,7 +296,7 @@ def launch(
             lambda i: ["--scenario", str(scenario_path), "--id", str(i), *common],
         )
         for ids in _pools(scenario.n, pool):
-            name = f"agent-{ids[0]}" if len(ids) == 1 else f"pool-{ids[0]}-{ids[-1]}"
+            name = _process_name(ids)
             ident = str(ids[0]) if len(ids) == 1 else f"{ids[0]}-{ids[-1]}"
             agent_args = ["--scenario", str(scenario_path), "--id", ident, *common]
             if len(ids) == 1 and events.starts_later(ids[0]):

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from formation.errors import RuntimeFailure
-from shell import DUMP_SIGNAL
+from shell import DUMP_SIGNAL, MEMBER_ENV, MEMBERS_FILE_ENV
 
 # One BLAS thread per service: a run is many processes on few cores, and OpenBLAS's idle
 # workers spin-wait, taking the cores the other services need (seen: a 1,000-agent pool
@@ -69,10 +69,18 @@ class ProcessGroup:
     on_start: Callable[[], object] | None = (
         None  # called after each start (e.g. to write pids.json)
     )
+    # The run's team (shell.zenoh_config): each child is a member under its name, a restart
+    # ("agent-3.1") under the name it restarts.
+    members_file: Path | None = None
 
     def start(self, name: str, module: str, *args: str, env: dict[str, str] | None = None) -> Child:
         self.log_dir.mkdir(parents=True, exist_ok=True)
         log_path = self.log_dir / f"{name.replace('/', '-')}.log"
+        team = (
+            {MEMBERS_FILE_ENV: str(self.members_file), MEMBER_ENV: name.split(".")[0]}
+            if self.members_file
+            else {}
+        )
         with log_path.open("wb") as log:
             proc = subprocess.Popen(
                 # -P: the services import what the launcher imported, not a checkout in the cwd
@@ -80,7 +88,7 @@ class ProcessGroup:
                 stdout=log,
                 stderr=subprocess.STDOUT,
                 stdin=subprocess.DEVNULL,
-                env={**SERVICE_ENV, **os.environ, **(env or {})},
+                env={**SERVICE_ENV, **os.environ, **team, **(env or {})},
                 start_new_session=True,  # Ctrl-C reaches the launcher only; it stops children in order
             )
         child = Child(name, proc, log_path)

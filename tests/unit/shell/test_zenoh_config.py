@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 from typing import Any
 
 import pytest
@@ -109,3 +110,46 @@ def test_shared_memory_is_off_even_under_a_users_config_file(
     monkeypatch.setenv("ZENOH_CONFIG", str(config))
     conf = zenoh_config.session_config("peer")
     assert conf.get_json("transport/shared_memory/enabled") == "false"
+
+
+def test_a_members_zid_is_fixed_by_its_name_and_valid_for_zenoh() -> None:
+    zid = zenoh_config.member_zid("agent-3")
+    assert zid == zenoh_config.member_zid("agent-3") != zenoh_config.member_zid("agent-4")
+    assert len(zid) == 32 and zid[0] != "0"  # zenoh refuses a leading 0
+    session = zenoh.open(zenoh_config.session_config("peer", member="agent-3"))
+    try:
+        assert str(session.info.zid()) == zid
+    finally:
+        session.close()
+
+
+def test_only_the_team_blocks_the_rest_drops() -> None:
+    conf = zenoh_config.session_config("router", members=["netem", "agent-1"])
+    observers, team = json.loads(conf.get_json("qos/network"))  # the last matching rule wins
+    assert observers["overwrite"]["congestion_control"] == "drop" and not observers.get("zids")
+    assert team["overwrite"]["congestion_control"] == "block"
+    assert sorted(team["zids"]) == sorted(zenoh_config.member_zid(n) for n in ("netem", "agent-1"))
+    wait = conf.get_json("transport/link/tx/queue/congestion_control/drop/wait_before_drop")
+    assert json.loads(wait) == zenoh_config.DROP_WAIT_US
+    # without a team, zenoh's defaults: every put as its publisher sent it
+    assert json.loads(zenoh_config.session_config("router").get_json("qos/network")) == []
+
+
+def test_the_team_from_the_file_the_environment_names(
+    tmp_path: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    members = tmp_path / "members.json"
+    members.write_text('["router", "leader"]')
+    monkeypatch.setenv(zenoh_config.MEMBERS_FILE_ENV, str(members))
+    monkeypatch.setenv(zenoh_config.MEMBER_ENV, "leader")
+    conf = zenoh_config.session_config("client")
+    assert json.loads(conf.get_json("id")) == zenoh_config.member_zid("leader")
+    assert len(json.loads(conf.get_json("qos/network"))[1]["zids"]) == 2
+    members.write_text('{"router": 1}')
+    with pytest.raises(
+        RuntimeFailure, match=r"FORMATION_MEMBERS_FILE = '.*members.json': expected"
+    ):
+        zenoh_config.session_config("client")
+    members.unlink()
+    with pytest.raises(RuntimeFailure, match=r"members.json': cannot read it"):
+        zenoh_config.session_config("client")
