@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 
 class TestbedError(Exception):
     """Base of every error the testbed raises on purpose; the CLI prints it and exits non-zero."""
@@ -45,7 +47,7 @@ class UnreadableFile(RuntimeFailure):
     """A file a service needs (credentials, a certificate, the router's passwords) that its
     user cannot read: names the file, who names it, the user, the file's owner and the fix."""
 
-    REMEDIES = {  # problem → what to do
+    REMEDIES: ClassVar[dict[str, str]] = {  # problem → what to do
         "permission denied": "run the service as the file's owner (for the compose deployment: "
         "`export FORMATION_UID=$(id -u) FORMATION_GID=$(id -g)` before `up`, as the README "
         "says) or let uid {uid} read it",
@@ -72,8 +74,7 @@ class UnreadableFile(RuntimeFailure):
         )
         remedy = self.REMEDIES.get(problem, "make it readable by uid {uid}").format(uid=uid)
         super().__init__(
-            f"{path} ({named_by}) cannot be read by uid {uid} ({user}): {problem}{owned}; "
-            f"{remedy}"
+            f"{path} ({named_by}) cannot be read by uid {uid} ({user}): {problem}{owned}; {remedy}"
         )
 
 

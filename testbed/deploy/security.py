@@ -38,8 +38,8 @@ from typing import Any
 import zenoh
 
 from formation import keys
-from shell import check_readable
 from formation.errors import TestbedError
+from shell import check_readable
 
 ANY_RUN = "*"  # the run-id chunk of every rule: one key set serves every run
 ROUTER_USER = "router"

@@ -42,9 +42,13 @@ def shared() -> Iterator[Path]:
 def run_service(module: str, *args: str, env: dict[str, str]) -> subprocess.CompletedProcess[str]:
     """The service as :data:`OTHER`; subprocess.run kills it by PID if it overstays."""
     return subprocess.run(
-        command(module, *args), env={**os.environ, **env}, capture_output=True, text=True,
-        timeout=TIMEOUT_S, stdin=subprocess.DEVNULL,
-    )  # fmt: skip
+        command(module, *args),
+        env={**os.environ, **env},
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+        stdin=subprocess.DEVNULL,
+    )
 
 
 def expected(name: str, path: Path, named_by: str) -> str:
@@ -74,7 +78,7 @@ def recording(path: Path) -> None:
 
 
 def messages(path: Path) -> int:
-    with open_recording(path) as (reader, summary):
+    with open_recording(path) as (reader, _summary):
         return sum(1 for _ in iter_messages(path, reader))
 
 
@@ -85,8 +89,12 @@ def test_a_service_that_cannot_read_its_credentials_says_which_file_who_and_what
     conf = secret(shared)
     args = ["--scenario", str(paper_path), "--run-id", RUN, "--mode", "client"]
     args += ["--connect", f"tcp/127.0.0.1:{free_port()}", "--connect-timeout", "1"]
-    done = run_service(service, *args, *(["--id", "1"] if service == "agent" else []),
-                       env={"ZENOH_CONFIG": str(conf)})  # fmt: skip
+    done = run_service(
+        service,
+        *args,
+        *(["--id", "1"] if service == "agent" else []),
+        env={"ZENOH_CONFIG": str(conf)},
+    )
     assert done.returncode == 1, done.stderr
     assert "Traceback" not in done.stderr
     assert re.search(expected(service, conf, "ZENOH_CONFIG"), done.stderr, re.M), done.stderr
@@ -95,9 +103,13 @@ def test_a_service_that_cannot_read_its_credentials_says_which_file_who_and_what
 def test_the_router_that_cannot_read_its_passwords_file_says_so(shared: Path) -> None:
     passwords = secret(shared, "passwords.txt")
     done = run_service(
-        "testbed.runtime.router", "--listen", f"tcp/127.0.0.1:{free_port()}",
-        "--passwords", str(passwords), env={},
-    )  # fmt: skip
+        "testbed.runtime.router",
+        "--listen",
+        f"tcp/127.0.0.1:{free_port()}",
+        "--passwords",
+        str(passwords),
+        env={},
+    )
     assert done.returncode == 1, done.stderr
     assert "Traceback" not in done.stderr
     named_by = "transport/auth/usrpwd/dictionary_file"
@@ -117,10 +129,19 @@ def test_a_recorder_that_cannot_read_its_credentials_leaves_the_recording_there(
         hand_over(path)  # the recorder's user could overwrite it: whether it does is the test
     before = hashlib.sha256(mcap.read_bytes()).hexdigest()
     done = run_service(
-        "recorder", "--run-id", RUN, "--out", str(out), "--mode", "client",
-        "--connect", f"tcp/127.0.0.1:{free_port()}", "--connect-timeout", "1",
+        "recorder",
+        "--run-id",
+        RUN,
+        "--out",
+        str(out),
+        "--mode",
+        "client",
+        "--connect",
+        f"tcp/127.0.0.1:{free_port()}",
+        "--connect-timeout",
+        "1",
         env={"ZENOH_CONFIG": str(conf)},
-    )  # fmt: skip
+    )
     assert done.returncode == 1, done.stderr
     assert "Traceback" not in done.stderr
     assert re.search(expected("recorder", conf, "ZENOH_CONFIG"), done.stderr, re.M), done.stderr

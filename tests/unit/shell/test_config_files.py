@@ -44,7 +44,9 @@ def test_a_certificate_the_config_names_is_checked_too(
 ) -> None:
     ca = tmp_path / "ca.pem"
     config = tmp_path / "agent-1.json5"
-    config.write_text(json.dumps({"transport": {"link": {"tls": {"root_ca_certificate": str(ca)}}}}))
+    config.write_text(
+        json.dumps({"transport": {"link": {"tls": {"root_ca_certificate": str(ca)}}}})
+    )
     monkeypatch.setenv("ZENOH_CONFIG", str(config))
     with pytest.raises(
         UnreadableFile, match=rf"^{ca} \(transport/link/tls/root_ca_certificate\) .*no such file"
@@ -80,9 +82,13 @@ def test_a_tool_s_config_file_is_checked(tmp_path: Path) -> None:
 
 def test_the_message_is_built_from_the_values() -> None:
     err = UnreadableFile(
-        "/run/secrets/zenoh.json5", "ZENOH_CONFIG", "permission denied", 1000,
-        "no name in /etc/passwd", (0, "root", 0o600),
-    )  # fmt: skip
+        "/run/secrets/zenoh.json5",
+        "ZENOH_CONFIG",
+        "permission denied",
+        1000,
+        "no name in /etc/passwd",
+        (0, "root", 0o600),
+    )
     assert str(err) == (
         "/run/secrets/zenoh.json5 (ZENOH_CONFIG) cannot be read by uid 1000 (no name in "
         "/etc/passwd): permission denied; it is owned by uid 0 (root) with mode 0600; run the "
