@@ -66,6 +66,11 @@ def noticed(outcome: RunOutcome, killed: float) -> tuple[float, Any]:
     return float("nan"), None
 
 
+def _ms(seconds: float | None) -> str:
+    """A duration in ms, or why there is none (the launcher saw no state of the new process)."""
+    return "no state back seen" if seconds is None else f"{1e3 * seconds:.0f} ms"
+
+
 def events_rate(repeat: int) -> None:
     """Epochs/s with the three events against without, best of ``repeat`` interleaved runs."""
     paper = Scenario.from_file(ROOT / "scenarios/paper.toml").with_overrides(epochs=EPOCHS)
@@ -112,7 +117,7 @@ def main() -> None:
     loss2 = back.summary()["losses"][0]
     print(f"kill -9 agent 3, --restart on-failure: rejoin asked after {1e3 * s2:.0f} ms, "
           f"lost at epoch {loss2['epoch']}, back from epoch {loss2['back_from_epoch']} "
-          f"({loss2['back_after_s'] and 1e3 * loss2['back_after_s']:.0f} ms after the launcher saw it die); "
+          f"({_ms(loss2['back_after_s'])} after the launcher saw it die); "
           f"ratio {back.wall_s / base.wall_s:.2f}x the wall time")  # fmt: skip
     events_rate(1)
 

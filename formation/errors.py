@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 
 class TestbedError(Exception):
     """Base of every error the testbed raises on purpose; the CLI prints it and exits non-zero."""
@@ -39,6 +41,41 @@ class RecordingError(TestbedError):
 
 class RuntimeFailure(TestbedError):
     """A distributed run that could not start or finish (a process died, an endpoint unreachable)."""
+
+
+class UnreadableFile(RuntimeFailure):
+    """A file a service needs (credentials, a certificate, the router's passwords) that its
+    user cannot read: names the file, who names it, the user, the file's owner and the fix."""
+
+    REMEDIES: ClassVar[dict[str, str]] = {  # problem → what to do
+        "permission denied": "run the service as the file's owner (for the compose deployment: "
+        "`export FORMATION_UID=$(id -u) FORMATION_GID=$(id -g)` before `up`, as the README "
+        "says) or let uid {uid} read it",
+        "no such file": "name an existing file (`formation keys keys/` writes a key set)",
+        "is a directory": "name a file; an engine makes a missing secret or bind-mount source "
+        "a directory, so check that the file exists on the host (`formation keys keys/`)",
+    }
+
+    def __init__(
+        self,
+        path: str,
+        named_by: str,
+        problem: str,
+        uid: int,
+        user: str,
+        owner: tuple[int, str, int] | None = None,  # (uid, user, mode) when stat could tell
+    ) -> None:
+        self.path, self.named_by, self.problem, self.uid = path, named_by, problem, uid
+        self.user, self.owner = user, owner
+        owned = (
+            ""
+            if owner is None
+            else f"; it is owned by uid {owner[0]} ({owner[1]}) with mode {owner[2]:04o}"
+        )
+        remedy = self.REMEDIES.get(problem, "make it readable by uid {uid}").format(uid=uid)
+        super().__init__(
+            f"{path} ({named_by}) cannot be read by uid {uid} ({user}): {problem}{owned}; {remedy}"
+        )
 
 
 NO_VALUE = _NO_VALUE

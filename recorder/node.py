@@ -33,6 +33,7 @@ import sys
 import threading
 import time
 from collections import Counter
+from functools import partial
 from pathlib import Path
 from time import time_ns
 from typing import Any, Literal
@@ -131,7 +132,10 @@ class Recorder:
             resolved = self.out_dir / "scenario.toml"
             if not resolved.exists():
                 resolved.write_text(toml, encoding="utf-8")
-        self.recording = RecordingWriter(
+        # Opened once the session is: a recorder that cannot connect (a router down, a
+        # credential it cannot read) leaves a recording already in out_dir as it was.
+        self._open_recording = partial(
+            RecordingWriter,
             self.out_dir / args.file,
             compression=compression,
             chunk_size=args.chunk_size,
@@ -142,6 +146,7 @@ class Recorder:
             metadata=metadata,
             taps=TAPS if self.scenario else (),
         )
+        self._recording: RecordingWriter | None = None
         self.assembler = EpochAssembler(self.scenario, self.run_id) if self.scenario else None
         self.live: LiveServer | None = None
         if args.foxglove is not None:
@@ -160,6 +165,12 @@ class Recorder:
         self._want_counts = threading.Event()
         self._fresh_counts = threading.Event()
         self._signals = 0
+
+    @property
+    def recording(self) -> RecordingWriter:
+        if self._recording is None:
+            raise RuntimeError("the recording opens in run(), once the bus is open")
+        return self._recording
 
     # -- signals ----------------------------------------------------------------------------
     def on_signal(self, signum: int, frame: Any) -> None:
@@ -251,9 +262,11 @@ class Recorder:
             try:
                 bus = ZenohBus(open_session(self.args))
             except (zenoh.ZError, TestbedError):
-                self.recording.close()  # a complete, empty recording rather than a torn one
+                if self.live is not None:
+                    self.live.close(linger_s=0.0)
                 raise
         try:
+            self._recording = self._open_recording()
             return self._record(bus)
         finally:
             bus.close()

@@ -13,6 +13,7 @@ from shell.bus import (
     Sample,
     ZenohBus,
 )
+from shell.config_files import check_readable
 from shell.service import Incoming, Service, settle_heap
 from shell.serving import load_scenario, open_service, serve, service_parser
 from shell.stack_dump import DUMP_SIGNAL, dump_stacks_on_signal
@@ -45,6 +46,7 @@ __all__ = [
     "Wait",
     "ZenohBus",
     "add_arguments",
+    "check_readable",
     "dump_stacks_on_signal",
     "endpoints",
     "load_scenario",

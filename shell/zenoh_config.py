@@ -13,6 +13,7 @@ from typing import Any
 import zenoh
 
 from formation.errors import RuntimeFailure
+from shell.config_files import check_config, check_readable
 
 LEASE_MS = 5000  # a hung process is noticed within ~5 s instead of zenoh's 10 s
 # With CongestionControl.BLOCK, zenoh closes a link whose reader stalls this long (default 5 s),
@@ -104,9 +105,11 @@ def session_config(
     ``ZENOH_CONFIG`` may name a JSON5 file (e.g. with credentials) loaded first. ``member``
     (else ``FORMATION_MEMBER``) is this session's name in its run's team and ``members``
     (else the file ``FORMATION_MEMBERS_FILE`` names) the team: only they can slow it down.
+    Raises :class:`~formation.errors.UnreadableFile` if this process cannot read the file
+    or a file the config names (a certificate, the router's passwords).
     """
     path = os.environ.get("ZENOH_CONFIG")
-    conf = zenoh.Config.from_file(path) if path else zenoh.Config()
+    conf = _from_file(path) if path else zenoh.Config()
     conf.insert_json5("mode", json.dumps(mode or os.environ.get("ZENOH_MODE", "peer")))
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("transport/shared_memory/enabled", SHARED_MEMORY)
@@ -134,7 +137,17 @@ def session_config(
         )
     for key, value in (extra or {}).items():
         conf.insert_json5(key, json.dumps(value))
+    check_config(conf)
     return conf
+
+
+def _from_file(path: str) -> zenoh.Config:
+    check_readable(path, "ZENOH_CONFIG")
+    try:
+        return zenoh.Config.from_file(path)
+    except zenoh.ZError as exc:
+        reason = str(exc).split(" at /")[0].strip()
+        raise RuntimeFailure(f"{path} (ZENOH_CONFIG): not a Zenoh config: {reason}") from None
 
 
 def add_arguments(parser: Any) -> None:

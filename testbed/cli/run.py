@@ -99,22 +99,20 @@ def _print_losses(outcomes: list[Any], console: Console) -> None:
     """Each process lost during a run: when, its drops, and whether it came back."""
     for o in outcomes:
         for loss in o.summary().get("losses", []):
-            back = loss["back_from_epoch"]
+            when = "before the start" if loss["after_start_s"] < 0 else f"at epoch {loss['epoch']}"
+            missed = (
+                "" if "missed" not in loss else f", {loss['missed']} states its receivers missed"
+            )
             again = (
                 ""
                 if loss["restarted_pid"] is None
                 else f", restarted as pid {loss['restarted_pid']}"
             )
+            back = loss["back_from_epoch"]
             console.print(
-                f"{o.strategy}: {loss['name']} (pid {loss['pid']}) lost at epoch {loss['epoch']} "
+                f"{o.strategy}: {loss['name']} (pid {loss['pid']}) lost {when} "
                 f"(exit code {loss['code']}, {loss['dropped']} packets dropped on its links"
-                + (
-                    ""
-                    if "missed" not in loss
-                    else f", {loss['missed']} states its receivers missed"
-                )
-                + ")"
-                f"{again}" + ("" if back is None else f", back from epoch {back}"),
+                f"{missed}){again}" + ("" if back is None else f", back from epoch {back}"),
                 soft_wrap=True,  # one line even in a pipe, for grep
             )
 

@@ -39,6 +39,7 @@ import zenoh
 
 from formation import keys
 from formation.errors import TestbedError
+from shell import check_readable
 
 ANY_RUN = "*"  # the run-id chunk of every rule: one key set serves every run
 ROUTER_USER = "router"
@@ -208,6 +209,8 @@ def client_session_config(endpoint: str, config_file: Path | None = None) -> zen
 
     What ``ZENOH_CONFIG`` + ``ZENOH_CONNECT`` give a service, for a tool or test in this process.
     """
+    if config_file is not None:
+        check_readable(str(config_file), "the user's config")
     conf = zenoh.Config.from_file(str(config_file)) if config_file else zenoh.Config()
     conf.insert_json5("mode", json.dumps("client"))
     conf.insert_json5("scouting/multicast/enabled", "false")

@@ -82,6 +82,37 @@ class Supervisor:
     def track(self, child: Child, module: str, *args: str) -> None:
         self.current[child.name] = Incarnation(child, module, tuple(args))
 
+    def check_starting(self) -> None:
+        """While the team comes up: with ``on-failure`` an agent or the leader that died is
+        started again, as mid-run (netem starts the run once the new one is up); without it,
+        or after ``MAX_RESTARTS``, its death is the run's end, naming it and its log."""
+        if self.policy == "on-failure":
+            self.check(lambda name: 0)
+        replaced = self.replaced()
+        for name, inc in self.current.items():
+            c, code = inc.child, inc.child.proc.poll()
+            if code in (None, 0) or c.pid in replaced or name in ESSENTIAL:
+                continue  # an essential one is the waits' (and check's) to report
+            hint = (
+                f"it died {inc.restarts + 1} times"
+                if self.policy == "on-failure"
+                else "--restart on-failure starts it again"
+            )
+            raise RuntimeFailure(
+                f"{c.name} (pid {c.pid}) exited with code {code} before the run started "
+                f"({hint}); its log is {c.log_path}:\n{c.tail()}"
+            )
+
+    def replaced(self) -> set[int]:
+        """PIDs of dead processes that were started again: no longer a reason to stop."""
+        return {loss.pid for loss in self.losses if loss.restarted_pid is not None}
+
+    def begin(self, at: float) -> None:
+        """Epoch 0 starts at ``at``: losses seen while starting up are timed before it (< 0)."""
+        for loss in self.losses:
+            loss.after_start_s -= at - self.started
+        self.started = at
+
     def running(self, names: list[str] | None = None) -> bool:
         """Whether any current process other than the router and the recorder still runs."""
         return any(
@@ -151,8 +182,10 @@ class Supervisor:
             back = None
             if loss.restarted_pid is not None:
                 back = _netem_back(team_events, i, self.started + loss.after_start_s)
-            # Its last states can reach the launcher after it saw the process gone.
-            stop = len(col) if back is None else back
+            # Its last states can reach the launcher after it saw the process gone; one lost
+            # while starting up had none.
+            late = len(col) if loss.after_start_s >= 0 else loss.epoch
+            stop = late if back is None else back
             while loss.epoch < stop and col[loss.epoch]:
                 loss.epoch += 1
             if loss.restarted_pid is None:

@@ -307,10 +307,13 @@ def launch(
             group,
             startup_timeout_s,
             "every process to come up",
+            ignore=supervisor.replaced,
+            check=supervisor.check_starting,
         )
         if on_started is not None:
             on_started(run_id, endpoint)
-        supervisor.started = events.began = time.monotonic()
+        events.began = time.monotonic()
+        supervisor.begin(events.began)
         cpu_before = steal.ticks()
         agent_names = [n for n in supervisor.current if n.startswith(("agent-", "pool-"))]
 
@@ -432,16 +435,22 @@ def _wait(
     what: str,
     detail: Any = None,
     ignore: Any = (),
+    check: Any = None,
 ) -> None:
-    """Wait for ``cond``; a child failing meanwhile is an error unless among the ``ignore``d losses."""
+    """Wait for ``cond``; a child failing meanwhile is an error unless among the ``ignore``d
+    losses (or pids, or a callable giving them); ``check()`` is called first each time."""
     deadline = time.monotonic() + timeout_s
     while not cond():
-        lost = {getattr(loss, "pid", loss) for loss in ignore}  # losses, or planned pids
+        if check is not None:
+            check()
+        gone = ignore() if callable(ignore) else ignore
+        lost = {getattr(loss, "pid", loss) for loss in gone}  # losses, or planned pids
         failed = [c for c in group.failed() if c.pid not in lost]
         if failed:
             c = failed[0]
             raise RuntimeFailure(
-                f"{c.name} (pid {c.pid}) exited with code {c.proc.returncode} while waiting for {what}:\n{c.tail()}"
+                f"{c.name} (pid {c.pid}) exited with code {c.proc.returncode} while waiting "
+                f"for {what}; its log is {c.log_path}:\n{c.tail()}"
             )
         if time.monotonic() > deadline:
             more = "" if detail is None else detail()

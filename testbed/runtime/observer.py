@@ -53,7 +53,8 @@ class Observer:
         self.drops = 0
         self.fallbacks = 0  # substituted values that fell back (no estimate to use)
         self.fallback_epochs: Counter[int] = Counter()  # epoch → those used at it
-        self.returns: dict[int, tuple[int, float]] = {}  # agent → (epoch, t) first after a gap
+        # agent → (epoch, t) of its newest process's first state (seq 0) or its first after a gap
+        self.returns: dict[int, tuple[int, float]] = {}
         self.team_events: list[tuple[float, str]] = []  # netem's running statuses (t, detail)
         self.run_id = run_id
         self._subs = [
@@ -74,7 +75,7 @@ class Observer:
     def _on_state(self, sample: zenoh.Sample) -> None:
         try:
             msg = orjson.loads(sample.payload.to_bytes())
-            k, i = int(msg["epoch"]), int(msg["agent"])
+            k, i, seq = int(msg["epoch"]), int(msg["agent"]), int(msg["seq"])
             position = [float(v) for v in msg["position"]]
             subs = [
                 (int(s["neighbour"]), [float(v) for v in s["value"]]) for s in msg["substituted"]
@@ -88,7 +89,7 @@ class Observer:
             self.malformed.counts[str(sample.key_expr)] += 1
             return
         with self.lock:
-            if k > 0 and np.isnan(self.positions[k - 1, i - 1, 0]):
+            if seq == 0 or (k > 0 and np.isnan(self.positions[k - 1, i - 1, 0])):
                 self.returns[i] = (k, time.monotonic())
             self.positions[k, i - 1] = position
             for j, value in subs:  # used at the previous epoch

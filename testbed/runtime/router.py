@@ -17,6 +17,7 @@ import threading
 
 import zenoh
 
+from formation.errors import TestbedError
 from shell import dump_stacks_on_signal, endpoints, session_config
 
 
@@ -41,6 +42,9 @@ def main(argv: list[str] | None = None) -> int:
     zenoh.try_init_log_from_env()
     try:
         session = zenoh.open(session_config("router", args.connect, args.listen, extra))
+    except TestbedError as exc:  # a file it cannot read, named with the user and the fix
+        print(f"router: error: {exc}", file=sys.stderr)
+        return 1
     except zenoh.ZError as exc:
         print(f"router: error: cannot listen on {where}: {exc}", file=sys.stderr)
         return 1

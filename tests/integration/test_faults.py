@@ -24,7 +24,7 @@ from formation.scenario import Scenario
 from recorder.analysis.rundata import read_run
 from recorder.reading.recovery import recover
 from testbed.runtime.launcher import RunOutcome, launch
-from testkit.run_watch import KillAtEpoch
+from testkit.run_watch import KillAtEpoch, KillOnSpawn, read_pids
 
 from .conftest import pid_alive, run_pids
 
@@ -137,6 +137,39 @@ def test_the_leader_killed_and_restarted_the_agents_fall_back_meanwhile(
     # Formation error is 2-Lipschitz in the positions: the fault-free run's tail, to the bound.
     assert abs(outcome.formation_error[-1] - calm.formation_error[-1]) <= 2 * bound
     assert outcome.formation_error[-1] < 0.01 and outcome.shape_error[-1] < 0.01
+
+
+def test_an_agent_killed_while_the_team_comes_up_is_restarted_on_failure(
+    paper: Scenario, runs_dir: Path
+) -> None:
+    """Killed as soon as its PID is known, so before the start; it takes part from epoch 0."""
+    with KillOnSpawn(runs_dir, "agent-3") as kill:
+        outcome = launch(paper.with_overrides(epochs=SHORT), runs_dir=runs_dir,
+                         restart="on-failure")  # fmt: skip
+    assert kill.killed is not None, "the run started before the kill"
+    (loss,) = outcome.summary()["losses"]
+    assert loss["name"] == "agent-3" and loss["pid"] == kill.killed
+    assert loss["code"] == -signal.SIGKILL and loss["after_start_s"] < 0, "lost before the start"
+    assert loss["restarted_pid"] == read_pids(outcome.run_dir)["agent-3.1"]
+    assert loss["epoch"] == 0 and loss["back_from_epoch"] == 0 and loss["back_after_s"] > 0
+    assert np.isfinite(outcome.positions).all(), "every agent at every epoch, agent 3 too"
+    recorded = read_run(outcome.run_dir / "run.mcap")
+    assert np.isfinite(recorded.positions).all()
+    assert not any(pid_alive(p) for p in run_pids(runs_dir))
+
+
+def test_an_agent_killed_while_the_team_comes_up_ends_the_run_naming_it_without_restart(
+    paper: Scenario, runs_dir: Path
+) -> None:
+    with KillOnSpawn(runs_dir, "agent-3") as kill, pytest.raises(RuntimeFailure) as err:
+        launch(paper.with_overrides(epochs=SHORT), runs_dir=runs_dir, record=False)
+    assert kill.killed is not None
+    (log,) = runs_dir.glob("*/logs/agent-3.log")
+    assert str(err.value).startswith(
+        f"agent-3 (pid {kill.killed}) exited with code -9 before the run started "
+        f"(--restart on-failure starts it again); its log is {log}"
+    )
+    assert not any(pid_alive(p) for p in run_pids(runs_dir))
 
 
 @pytest.mark.parametrize("name", ["netem", "router"])

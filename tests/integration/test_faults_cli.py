@@ -22,7 +22,7 @@ import pytest
 from formation.scenario import Scenario
 from recorder.analysis.dataframes import load_run
 from recorder.analysis.rundata import read_run
-from testkit.run_watch import KillAtEpoch, end_process, read_pids, wait_for_run
+from testkit.run_watch import KillAtEpoch, KillOnSpawn, end_process, read_pids, wait_for_run
 
 from .conftest import pid_alive, run_pids
 
@@ -110,6 +110,31 @@ def test_formation_run_restart_on_failure_brings_the_agent_back(
     )
     assert back, out
     assert int(back[1]) <= int(back[2]) < EPOCHS  # back before netem gave up on it: no gap
+    assert not any(pid_alive(p) for p in run_pids(runs_dir))
+
+
+def test_formation_run_restart_on_failure_brings_back_an_agent_killed_before_the_start(
+    paper_path: Path, runs_dir: Path
+) -> None:
+    with (
+        KillOnSpawn(runs_dir, "agent-3") as kill,
+        formation_run(
+            paper_path, runs_dir, "--epochs", str(EPOCHS), "--restart", "on-failure", "--no-record"
+        ) as proc,
+    ):
+        code = proc.wait(240)
+    out, err = (
+        (runs_dir.parent / "stdout.txt").read_text(),
+        (runs_dir.parent / "stderr.txt").read_text(),
+    )
+    assert code == 0, err
+    (run_dir,) = runs_dir.glob("*/pids.json")
+    again = read_pids(run_dir.parent)["agent-3.1"]
+    assert re.search(
+        rf"agent-3 \(pid {kill.killed}\) lost before the start \(exit code -9, .*\), restarted "
+        rf"as pid {again}, back from epoch 0\n",
+        out,
+    ), out
     assert not any(pid_alive(p) for p in run_pids(runs_dir))
 
 

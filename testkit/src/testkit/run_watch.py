@@ -5,7 +5,8 @@ process it started, rewritten at each start), so a test that runs ``formation ru
 subprocess learns the PIDs from the file, never by a process name. :class:`KillAtEpoch`
 subscribes to one agent's states over Zenoh and kills processes by PID with SIGKILL once
 that agent's state of a chosen epoch is seen: the kill lands mid-run however loaded the
-machine is, without a fixed sleep.
+machine is, without a fixed sleep. :class:`KillOnSpawn` kills a process by PID as soon as
+``pids.json`` names it: before it can come up, so before the run starts.
 """
 
 from __future__ import annotations
@@ -78,6 +79,35 @@ class KillAtEpoch:
         if self._session is not None:
             self._session.close()
             self._session = None
+
+
+class KillOnSpawn:
+    """Kills process ``name`` with SIGKILL once a ``pids.json`` under ``runs_dir`` names it."""
+
+    def __init__(self, runs_dir: Path, name: str, timeout_s: float = 120.0) -> None:
+        self.runs_dir, self.name, self.timeout_s = runs_dir, name, timeout_s
+        self.killed: int | None = None  # the PID killed
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._watch, daemon=True)
+
+    def __enter__(self) -> KillOnSpawn:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def _watch(self) -> None:
+        deadline = time.monotonic() + self.timeout_s
+        while not self._stop.is_set() and time.monotonic() < deadline:
+            for path in self.runs_dir.glob("*/pids.json"):
+                pid = read_pids(path.parent).get(self.name)  # written atomically
+                if pid is not None:
+                    os.kill(pid, signal.SIGKILL)
+                    self.killed = pid
+                    return
+            time.sleep(0.002)
 
 
 def end_process(proc: subprocess.Popen[Any]) -> None:

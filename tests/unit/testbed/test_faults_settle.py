@@ -54,8 +54,20 @@ def test_back_with_no_gap_when_netem_gave_the_next_epoch() -> None:
     loss = Loss("agent-3", pid=1, code=-9, epoch=7, after_start_s=1.0, restarted_pid=2)
     sup = supervisor_with(loss)
     events = [(101.2, orjson.dumps({"event": "back agent 3", "back": {"3": 8}}).decode())]
-    sup.note_returns(seen_of(20, list(range(21))), {}, events)
+    # The observer marks the new process's first state (seq 0), gap or not.
+    sup.note_returns(seen_of(20, list(range(21))), {3: (8, 101.5)}, events)
     assert (loss.epoch, loss.back_from_epoch) == (8, 8)
+    assert loss.back_after_s == 0.5, "bench_faults printed 'rejoin time None' without it"
+
+
+def test_a_loss_while_starting_up_is_timed_before_the_start_and_back_from_epoch_0() -> None:
+    sup = Supervisor(ProcessGroup(Path("unused")), "on-failure", started=90.0)
+    loss = Loss("agent-3", pid=1, code=-9, epoch=0, after_start_s=8.0, restarted_pid=2)
+    sup.losses.append(loss)  # seen dead at 98.0, before the run's start at 100.0
+    sup.begin(100.0)
+    assert loss.after_start_s == -2.0
+    sup.note_returns(seen_of(20, list(range(21))), {3: (0, 101.0)})  # no netem word: no rejoin
+    assert (loss.epoch, loss.back_from_epoch, loss.back_after_s) == (0, 0, 3.0)
 
 
 def test_without_netem_s_word_the_first_state_after_the_gap_is_back() -> None:

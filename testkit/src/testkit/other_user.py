@@ -1,0 +1,75 @@
+"""A service started as a user who cannot read a file, on root and non-root alike (issue 26).
+
+Root reads any file whatever its mode, so chmod alone proves nothing there. Run as root, the
+service starts as root (the interpreter may live under /root), imports the product, then
+drops to an unused uid before it runs: the compose deployment's uid 1000 against root's 0600
+secrets. Run as anyone else, the file is made mode 000 and the service runs as that user.
+``python -m testkit.other_user UID MODULE ARGS...`` is the dropping step.
+"""
+
+from __future__ import annotations
+
+import grp
+import os
+import pwd
+import runpy
+import sys
+from pathlib import Path
+
+AS_ROOT = os.geteuid() == 0
+
+
+def unused_id(start: int = 50_000) -> int:
+    """The first id from ``start`` that is neither a user's nor a group's."""
+    for i in range(start, start + 10_000):
+        try:
+            pwd.getpwuid(i)
+        except KeyError:
+            try:
+                grp.getgrgid(i)
+            except KeyError:
+                return i
+    raise LookupError(f"no unused id in {start}..{start + 10_000}")
+
+
+OTHER = unused_id() if AS_ROOT else os.geteuid()  # the uid the service runs as
+
+
+def command(module: str, *args: str) -> list[str]:
+    """``python -P -m MODULE ARGS`` as :data:`OTHER`."""
+    if AS_ROOT:
+        return [sys.executable, "-P", "-m", "testkit.other_user", str(OTHER), module, *args]
+    return [sys.executable, "-P", "-m", module, *args]
+
+
+def shut(path: Path) -> None:
+    """Make ``path`` unreadable by :data:`OTHER`: root's 0600 as root (as ``formation keys``
+    writes it), else mode 000."""
+    os.chmod(path, 0o600 if AS_ROOT else 0o000)
+
+
+def hand_over(path: Path) -> None:
+    """Let :data:`OTHER` write ``path`` (a folder: enter it), so what it leaves is its choice."""
+    if AS_ROOT:
+        os.chown(path, OTHER, OTHER)
+    os.chmod(path, 0o755 if path.is_dir() else 0o644)
+
+
+def main(argv: list[str]) -> None:
+    uid, module, *args = argv
+    # What the services import, while root can still read the interpreter's library.
+    import agent.node  # noqa: F401
+    import leader.node  # noqa: F401
+    import netem.node  # noqa: F401
+    import recorder.node  # noqa: F401
+    import testbed.runtime.router  # noqa: F401
+
+    os.setgroups([])
+    os.setgid(int(uid))
+    os.setuid(int(uid))
+    sys.argv = [module, *args]
+    runpy.run_module(module, run_name="__main__", alter_sys=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
