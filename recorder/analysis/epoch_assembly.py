@@ -103,7 +103,7 @@ class EpochAssembler:
         self._newest_state = self._newest_estimate = -1
         self._seq: Counter[str] = Counter()
         self.gate = Gate(scenario, conflicts=False)  # what it skips: gate.skipped
-        self.incomplete = 0  # epochs closed without an agent the plan expected (a loss)
+        self.incomplete = 0  # epochs closed without an agent the plan has (lost, or late)
         self.late = 0  # states that came after their epoch had closed
         self.drawn_early = 0  # scenes drawn before every part of their epoch was in
 
@@ -213,7 +213,7 @@ class EpochAssembler:
         self._next_close += 1
         got = self._states.pop(k, {})
         th = self._headings.pop(k, None)
-        self.incomplete += not self.roster.expected(k) <= got.keys()
+        self.incomplete += not self.roster.planned(k) <= got.keys()
         team = np.zeros(self.n, dtype=bool)
         for i, p in got.items():
             self._bodies[i - 1], team[i - 1] = p, True

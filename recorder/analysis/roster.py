@@ -58,10 +58,13 @@ class Roster:
     def _out(self, sender: int, epoch: int) -> bool:
         return epoch < self._out_until.get(sender, -math.inf)
 
+    def planned(self, epoch: int) -> set[int]:
+        """Agents the scenario has publish their state of ``epoch``."""
+        return {int(i) + 1 for i in np.flatnonzero(self._published[min(epoch, self.last)])}
+
     def expected(self, epoch: int) -> set[int]:
         """Agents whose state of ``epoch`` is to come: planned and not down."""
-        row = self._published[min(epoch, self.last)]
-        return {int(i) + 1 for i in np.flatnonzero(row) if not self._out(int(i) + 1, epoch)}
+        return {i for i in self.planned(epoch) if not self._out(i, epoch)}
 
     def estimated(self, epoch: int) -> bool:
         """Whether the leader's estimate of ``epoch`` is to come (none of the final states)."""
