@@ -1,6 +1,7 @@
 """The live view and the recording's derived channels follow the team (issue 26).
 
-An events run (``scenarios/events.toml``) and a run whose agent 3 is killed mid-run have,
+An events run (``scenarios/events.toml``) and a run whose agent 3 is killed mid-run (and
+restarted, or not) have,
 in their MCAP, exactly one scene, one frames and one metrics message for every epoch, the
 agents out listed in the metrics and drawn as out in the scene; ``formation replay
 --foxglove`` offers them all again and ``recorder.load_run(...).metrics`` has every epoch.
@@ -110,21 +111,23 @@ def test_an_events_run_has_every_epoch_with_who_is_out(runs_dir: Path) -> None:
     assert_replay_offers_every_epoch(outcome, got)
 
 
+@pytest.mark.parametrize("restart", ["no", "on-failure"])
 def test_a_run_with_a_killed_agent_has_every_epoch_with_it_out(
-    paper: Scenario, runs_dir: Path
+    paper: Scenario, runs_dir: Path, restart: str
 ) -> None:
     kill = KillAtEpoch(["agent-3"], KILL_AT)
     try:
         outcome = launch(paper.with_overrides(epochs=EPOCHS), runs_dir=runs_dir,
-                         on_started=kill.hook(runs_dir))  # fmt: skip
+                         on_started=kill.hook(runs_dir), restart=restart)  # type: ignore[arg-type]  # fmt: skip
     finally:
         kill.close()
     assert kill.killed, "the run ended before the kill"
     (loss,) = outcome.summary()["losses"]
-    lost = loss["epoch"]
-    assert KILL_AT - 5 <= lost <= KILL_AT + 5 and lost < EPOCHS
-    out_at = [[] if k < lost else [3] for k in range(EPOCHS + 1)]
+    lost, back = loss["epoch"], loss.get("back_from_epoch") or EPOCHS + 1
+    assert KILL_AT - 5 <= lost <= KILL_AT + 5 and lost < back
+    assert (back <= EPOCHS) == (restart == "on-failure")
+    out_at = [[3] if lost <= k < back else [] for k in range(EPOCHS + 1)]
     got = assert_every_epoch_once(outcome, out_at)
     body = got["metrics"][lost - 1]["positions"][2]
-    assert all(m["positions"][2] == body for m in got["metrics"][lost:]), "where it was last seen"
+    assert all(m["positions"][2] == body for m in got["metrics"][lost:back]), "where last seen"
     assert_replay_offers_every_epoch(outcome, got)
