@@ -190,12 +190,18 @@ class Status(_Message):
 
 
 class EpochMetrics(_Message):
-    """Per-epoch metrics from the true states (docs/model.md §7), written by the recorder."""
+    """Per-epoch metrics from the true states (docs/model.md §7), written by the recorder.
+
+    ``out``: the agents with no state of the epoch (out of the team, planned or not); their
+    ``positions`` are where their bodies were last seen (the initial ones before that), and
+    the errors are over the edges between the others (None when no edge is).
+    """
 
     kind: Literal["metrics"] = "metrics"
-    formation_error_m: float
-    shape_error_m: float
+    formation_error_m: float | None
+    shape_error_m: float | None
     positions: list[list[float]]
+    out: list[int] = []
 
 
 Message = Annotated[

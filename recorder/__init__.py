@@ -12,11 +12,11 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 from recorder.analysis.deadlines import write_deadlines
-from recorder.analysis.membership import present, spans, team_edges, team_shape_error
+from recorder.analysis.membership import present, spans, team_edges, team_errors, team_shape_error
 from recorder.analysis.metrics import error_statistics, formation_error, nees, shape_error
 from recorder.analysis.rundata import RunData, read_run
 from recorder.analysis.safety import safety_counts
-from recorder.analysis.summary import summarise, team_errors
+from recorder.analysis.summary import summarise
 from recorder.live.server import LiveServer
 from recorder.node import build_parser as recorder_parser
 from recorder.node import main as record

@@ -3,9 +3,9 @@
 Zenoh callbacks only append the raw sample ``(key, payload, attachment, timestamp,
 receive time)`` to a list under a lock; a writer thread swaps the list out every
 few milliseconds and writes the batch (:class:`recorder.recording.writer.RecordingWriter`). Nothing
-is parsed on the way except the agents' states, the leader's estimates and netem's
-decisions, which feed the per-epoch metrics and the Foxglove scene when ``--scenario``
-is given.
+is parsed on the way except the agents' states, the leader's estimates, netem's
+decisions and the statuses, which feed the per-epoch metrics and the Foxglove scene when
+``--scenario`` is given.
 If the queue reaches ``--max-queue`` messages the sample is counted per key, never
 dropped silently. The liveliness token is declared after the subscribers, so a
 launcher that waits for it knows the recorder hears everything published after.
@@ -332,7 +332,8 @@ class Recorder:
         }
         if self.assembler is not None:
             stats["derived_malformed"] = json.dumps(self.assembler.gate.skipped.by_channel())
-            stats["epochs_incomplete"] = str(self.assembler.given_up)
+            stats["epochs_incomplete"] = str(self.assembler.incomplete)
+            stats["states_late"] = str(self.assembler.late)
             stats["scenes_drawn_early"] = str(self.assembler.drawn_early)
         if self.live is not None:
             stats["live"] = json.dumps(self.live.stats("done"))

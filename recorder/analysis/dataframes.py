@@ -16,9 +16,11 @@ One pass over the recording and its rotated parts, every message through the
     (formation, report, estimate), ``source``, ``target``, ``link`` (``"1->2"``), ``seq``,
     ``verdict`` (pass, drop, duplicate, delayed), ``on_time`` (delivered in its epoch),
     ``delay_epochs``, ``delay_ms``, ``model``, ``state`` (the link model's state).
-``metrics`` — one row per epoch with every state: ``epoch``, ``formation_error_m``,
-    ``shape_error_m`` (recomputed from ``states``), ``recorded_formation_error_m`` (the
-    recorder's live value, NaN if absent), and from the leader's estimate ``components``,
+``metrics`` — one row per epoch with a state: ``epoch``, ``agents`` (how many took part:
+    their states recorded), ``formation_error_m``, ``shape_error_m`` (recomputed from
+    ``states``, over the edges between the agents that took part, as the recorder's,
+    :func:`recorder.analysis.membership.team_errors`; NaN when no edge is),
+    ``recorded_formation_error_m`` (the recorder's live value, NaN if absent), and from the leader's estimate ``components``,
     ``rigidity_rank``, ``tree_edges``, ``healthy_edges``, ``observable`` (counts; −1 / NaN
     without an estimate), ``formation_drops`` (formation packets not on time).
 ``substitutions`` — each value an agent used for a lost packet: ``epoch`` (when used),
@@ -42,6 +44,7 @@ import pandas as pd
 from formation.errors import RecordingError
 from formation.messages import CoordinationState, DecisionBatch, EpochMetrics, LeaderEstimate
 from formation.scenario import Scenario
+from recorder.analysis.membership import present, team_errors
 from recorder.analysis.metrics import formation_error, shape_error
 from recorder.analysis.rundata import iter_trusted
 from recorder.reading.reader import parts, scenario_of
@@ -89,7 +92,7 @@ class _Rows:
         self.subs: dict[tuple[int, int], list[tuple[int, bool, list[float]]]] = {}
         self.ests: dict[int, LeaderEstimate] = {}
         self.decisions: list[tuple[Any, ...]] = []
-        self.recorded: dict[int, float] = {}
+        self.recorded: dict[int, float | None] = {}
 
     def add(self, kind: str, msg: Any) -> None:
         if kind == "agent_state":
@@ -209,8 +212,18 @@ class _Rows:
 
     def _metrics(self, x: np.ndarray) -> pd.DataFrame:
         s = self.s
-        complete = np.flatnonzero(np.isfinite(x).all(axis=(1, 2)))
-        xs = x[complete]
+        team = present(x)
+        complete = np.flatnonzero(team.any(axis=1))  # every epoch with a state
+        xs, team = x[complete], team[complete]
+        fe, se = team_errors(
+            xs,
+            team,
+            formation_error(xs, s.edge_array, s.weights),
+            shape_error(xs, s.edge_array, s.offsets),
+            s.edge_array,
+            s.weights,
+            s.offsets,
+        )
         drops: dict[int, int] = {}
         for row in self.decisions:
             if row[2] == "formation" and not row[8]:
@@ -234,9 +247,12 @@ class _Rows:
         out = pd.DataFrame(
             {
                 "epoch": complete.astype(np.int64),
-                "formation_error_m": formation_error(xs, s.edge_array, s.weights),
-                "shape_error_m": shape_error(xs, s.edge_array, s.offsets),
-                "recorded_formation_error_m": [self.recorded.get(k, np.nan) for k in ks],
+                "agents": team.sum(axis=1).astype(np.int64),
+                "formation_error_m": fe,
+                "shape_error_m": se,
+                "recorded_formation_error_m": np.array(
+                    [self.recorded.get(k, np.nan) for k in ks], dtype=float
+                ),
             }
         )
         for what in ("components", "rigidity_rank", "tree_edges", "healthy_edges", "observable"):

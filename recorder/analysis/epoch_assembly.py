@@ -1,21 +1,25 @@
 """What the recorder derives while recording: metrics, the agents' frames, the scene, the log.
 
 The true positions of epoch ``k`` are the ``position`` fields of the
-``CoordinationState`` messages on ``agent/<i>/state`` (sender side, before loss).
-When all ``n`` have arrived the assembler emits ``EpochMetrics`` (docs/model.md §7)
-and the agents' ``foxglove.FrameTransforms``.
-The scene of epoch ``k`` also needs the leader's estimate of ``k`` (link health,
-tree, BLUE) and netem's decisions on the formation links of ``k``; it is emitted once
-all are in, in epoch order (:class:`EpochAssembler`). Statuses and netem's link changes
-become ``foxglove.Log`` lines (:mod:`recorder.live.logs`). No clock, no I/O:
-payloads in, ``(key, payload)`` out; the
-messages' ``stamp_ns`` comes from an injected clock.
+``CoordinationState`` messages on ``agent/<i>/state`` (sender side, before loss). An epoch
+closes, in epoch order, once every agent that takes part at it has sent its state
+(:class:`recorder.analysis.roster.Roster`: the scenario's events, netem's team statuses),
+or once it is known to be over (a state two epochs later, or the leader's estimate of it).
+Then the assembler emits ``EpochMetrics`` (docs/model.md §7, over the team) and the agents'
+``foxglove.FrameTransforms``; an agent without a state is out, drawn where its body was.
+The scene of epoch ``k`` also needs the leader's estimate of ``k`` (link health, tree,
+BLUE) and netem's decisions on the formation links of ``k``; it is emitted once all are
+in, in epoch order (:class:`EpochAssembler`). Statuses and netem's link changes become
+``foxglove.Log`` lines (:mod:`recorder.live.logs`). No clock, no I/O: payloads in,
+``(key, payload)`` out, a function of the order they came in (so a replay of the recording
+derives the same); the messages' ``stamp_ns`` comes from an injected clock.
 """
 
 from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -32,16 +36,28 @@ from formation.messages import (
     Status,
 )
 from formation.scenario import Scenario
+from recorder.analysis.membership import team_errors
 from recorder.analysis.metrics import formation_error, shape_error
+from recorder.analysis.roster import Roster, team_detail
 from recorder.live.logs import change_log, status_log
 from recorder.live.scene import frame_transforms, scene_update
 from recorder.reading.trust import Gate
 
 Derived = tuple[str, bytes]
-STALE_EPOCHS = 8  # an incomplete epoch this far behind the newest complete one is given up
+CLOSE_AFTER = 2  # a state this many epochs later closes an epoch still missing some
 WAIT_EPOCHS = 256  # a scene waits this far behind for its epoch's estimate and decisions
 # The channel kinds the assembler reads.
 TAPS = ("agent_state", "leader_estimate", "decision", "status", "link_change")
+
+
+@dataclass(frozen=True)
+class Closed:
+    """An epoch's states once closed: positions (n, d) [m], bodies for the agents out;
+    ``team`` (n,) its state came; headings (n,) [rad] (NaN: none) of a unicycle team."""
+
+    positions: npt.NDArray[np.float64]
+    team: npt.NDArray[np.bool_]
+    headings: npt.NDArray[np.float64] | None
 
 
 def edge_mask(edges: npt.NDArray[np.int64], pairs: list[tuple[int, int]]) -> npt.NDArray[np.bool_]:
@@ -53,13 +69,16 @@ def edge_mask(edges: npt.NDArray[np.int64], pairs: list[tuple[int, int]]) -> npt
 class EpochAssembler:
     """Collects true states, estimates and decisions per epoch; emits metrics and scenes.
 
-    The scene of epoch ``k`` is drawn once everything it shows is in: all ``n`` states of
-    ``k``, the leader's estimate of ``k`` and netem's decision on every formation link of
-    ``k`` (one per directed link; netem sends the decisions of clean epochs in batches,
-    so they may come many epochs late). Scenes go out in epoch order, so the same seed
-    gives the same scenes whatever the timing. An epoch still missing a part when the
-    newest complete epoch is :data:`WAIT_EPOCHS` ahead (a dead sender, a recording that
-    filters decisions out) is drawn with what it has, as is every epoch left at the end.
+    Epochs close in order (:meth:`_closable`), each with the agents whose state came
+    before it closed; a state that comes later is counted (:attr:`late`), not drawn.
+    The scene of epoch ``k`` is drawn once everything it shows is in: its closed states,
+    the leader's estimate of ``k`` (unless netem says the leader is down) and netem's
+    decision on every formation link of ``k`` between agents taking part (netem sends the
+    decisions of clean epochs in batches, so they may come many epochs late). Scenes go
+    out in epoch order, so the same seed gives the same scenes whatever the timing. A
+    scene still missing a part when the newest closed epoch is :data:`WAIT_EPOCHS` ahead
+    (a recording that filters decisions out) is drawn with what it has, as is every
+    epoch left at the end.
     """
 
     def __init__(
@@ -72,25 +91,30 @@ class EpochAssembler:
         self.scenario, self.run_id, self.sender, self._clock = scenario, run_id, sender, clock
         self.n, self.d = scenario.n, scenario.dimension
         self.edges = scenario.edge_array
-        self.links = len(scenario.directed_links)  # formation decisions per epoch
+        self.roster = Roster(scenario)
+        self._bodies = scenario.initial_positions()  # where each agent was last seen [m]
         self._states: dict[int, dict[int, list[float]]] = {}
-        self._waiting: dict[int, npt.NDArray[np.float64]] = {}  # complete, scene not yet out
         self._headings: dict[int, dict[int, float]] = {}  # unicycles' θ_i[k] [rad]
+        self._closed: dict[int, Closed] = {}  # closed, scene not yet out
         self._est: dict[int, LeaderEstimate] = {}
         self._decided: Counter[int] = Counter()
         self._lost: dict[int, list[tuple[int, int]]] = {}
-        self._next_scene = 0
-        self._newest = -1
+        self._next_close = self._next_scene = 0
+        self._newest_state = self._newest_estimate = -1
         self._seq: Counter[str] = Counter()
         self.gate = Gate(scenario, conflicts=False)  # what it skips: gate.skipped
-        self.given_up = 0  # epochs whose states never all arrived
+        self.incomplete = 0  # epochs closed without an agent the plan has (lost, or late)
+        self.late = 0  # states that came after their epoch had closed
         self.drawn_early = 0  # scenes drawn before every part of their epoch was in
 
     def on_state(self, key: str, payload: bytes, stamp_ns: int) -> list[Derived]:
         """A ``CoordinationState`` from ``agent/<i>/state``; only one its agent sent about itself
         (:class:`recorder.reading.trust.Gate`), the first of its epoch."""
         state = self.gate.check(key, payload, "agent_state")
-        if not isinstance(state, CoordinationState) or state.epoch < self._next_scene:
+        if not isinstance(state, CoordinationState) or state.epoch > self.scenario.epochs:
+            return []
+        if state.epoch < self._next_close:
+            self.late += 1
             return []
         got = self._states.setdefault(state.epoch, {})
         if state.agent in got:
@@ -98,19 +122,8 @@ class EpochAssembler:
         got[state.agent] = state.position
         if state.heading is not None:
             self._headings.setdefault(state.epoch, {})[state.agent] = state.heading
-        if len(got) < self.n:
-            return []
-        k = state.epoch
-        del self._states[k]
-        x = np.array([got[i] for i in range(1, self.n + 1)], dtype=float)
-        self._newest = max(self._newest, k)
-        self._waiting[k] = x
-        out = [
-            self._metrics(k, x),
-            (keys.frames(self.run_id), frame_transforms(x, stamp_ns).encode()),
-        ]
-        self._prune()
-        return out + self._scenes(stamp_ns)
+        self._newest_state = max(self._newest_state, state.epoch)
+        return self._advance(stamp_ns)
 
     def on_estimate(self, key: str, payload: bytes, stamp_ns: int) -> list[Derived]:
         """A ``LeaderEstimate`` from ``leader/estimate``: health, tree and BLUE of its epoch."""
@@ -118,7 +131,8 @@ class EpochAssembler:
         if not isinstance(est, LeaderEstimate) or est.epoch < self._next_scene:
             return []
         self._est.setdefault(est.epoch, est)
-        return self._scenes(stamp_ns)
+        self._newest_estimate = max(self._newest_estimate, est.epoch)
+        return self._advance(stamp_ns)
 
     def on_decision(self, key: str, payload: bytes, stamp_ns: int) -> list[Derived]:
         """A ``DecisionBatch`` from ``netem/decision``: which formation packets were lost."""
@@ -134,10 +148,18 @@ class EpochAssembler:
         return self._scenes(stamp_ns)
 
     def on_status(self, key: str, payload: bytes, stamp_ns: int) -> list[Derived]:
-        """A process's ``Status``: a log line when it says something (:func:`status_log`)."""
+        """A process's ``Status``: a log line when it says something (:func:`status_log`);
+        netem's team status also says who is down (:meth:`Roster.on_team`)."""
         status = self.gate.check(key, payload, "status")
-        line = status_log(status, stamp_ns) if isinstance(status, Status) else None
-        return [] if line is None else [(keys.log(self.run_id), line.encode())]
+        if not isinstance(status, Status):
+            return []
+        line = status_log(status, stamp_ns)
+        out = [] if line is None else [(keys.log(self.run_id), line.encode())]
+        team = team_detail(status.detail) if status.role == "netem" else None
+        if team is None:
+            return out
+        self.roster.on_team(team)
+        return out + self._advance(stamp_ns)
 
     def on_link_change(self, key: str, payload: bytes, stamp_ns: int) -> list[Derived]:
         """netem's ``LinkChange``: a log line."""
@@ -161,40 +183,67 @@ class EpochAssembler:
         }
 
     def finish(self, stamp_ns: int) -> list[Derived]:
-        """Scenes of every complete epoch still waiting, with what they have."""
-        out = []
-        for k in sorted(self._waiting):
+        """Close every epoch up to the newest state, then draw every scene still waiting."""
+        out: list[Derived] = []
+        while self._next_close <= self._newest_state:
+            out += self._close(stamp_ns)
+        for k in sorted(self._closed):
             self.drawn_early += not self._ready(k)
             out.append(self._scene(k, stamp_ns))
         return out
 
+    def _closable(self, k: int) -> bool:
+        """Whether epoch ``k``'s states are all in, or will not all come."""
+        if k > self.scenario.epochs:
+            return False
+        got = self._states.get(k, {})
+        if (got or k <= self._newest_state) and self.roster.expected(k) <= got.keys():
+            return True
+        return self._newest_state >= k + CLOSE_AFTER or self._newest_estimate >= k
+
+    def _advance(self, stamp_ns: int) -> list[Derived]:
+        out: list[Derived] = []
+        while self._closable(self._next_close):
+            out += self._close(stamp_ns)
+        return out + self._scenes(stamp_ns)
+
+    def _close(self, stamp_ns: int) -> list[Derived]:
+        """Epoch ``_next_close`` with the states it has: its metrics and frames."""
+        k = self._next_close
+        self._next_close += 1
+        got = self._states.pop(k, {})
+        th = self._headings.pop(k, None)
+        self.incomplete += not self.roster.planned(k) <= got.keys()
+        team = np.zeros(self.n, dtype=bool)
+        for i, p in got.items():
+            self._bodies[i - 1], team[i - 1] = p, True
+        x = self._bodies.copy()
+        headings = (
+            None if th is None else np.array([th.get(i, np.nan) for i in range(1, self.n + 1)])
+        )
+        self._closed[k] = Closed(x, team, headings)
+        return [
+            self._metrics(k, x, team),
+            (keys.frames(self.run_id), frame_transforms(x, stamp_ns).encode()),
+        ]
+
     def _ready(self, k: int) -> bool:
         if k >= self.scenario.epochs:  # the final states: no estimate, no decisions
             return True
-        return k in self._est and self._decided[k] >= self.links
+        estimated = k in self._est or not self.roster.estimated(k)
+        return estimated and self._decided[k] >= self.roster.decisions(k, self._closed[k].team)
 
     def _scenes(self, stamp_ns: int) -> list[Derived]:
-        """Scenes of the epochs now ready, in epoch order from the next one to draw."""
+        """Scenes of the closed epochs now ready, in epoch order from the next one to draw."""
         out = []
-        while True:
-            k = self._next_scene
-            if k in self._waiting:
-                late = self._newest - k > WAIT_EPOCHS
-                if not (self._ready(k) or late):
-                    break
-                self.drawn_early += late and not self._ready(k)
-                out.append(self._scene(k, stamp_ns))
-            elif k in self._states or k >= self._newest:
-                break  # its states are still coming (or nothing newer is complete)
-            self._next_scene = k + 1  # drawn, or its states were given up
-            self._est.pop(k, None), self._decided.pop(k, None), self._lost.pop(k, None)
+        while (k := self._next_scene) in self._closed:
+            late = self._next_close - 1 - k > WAIT_EPOCHS
+            ready = self._ready(k)
+            if not (ready or late):
+                break
+            self.drawn_early += not ready
+            out.append(self._scene(k, stamp_ns))
         return out
-
-    def _prune(self) -> None:
-        for k in [k for k in self._states if k < self._newest - STALE_EPOCHS]:
-            del self._states[k]
-            self._headings.pop(k, None)
-            self.given_up += 1
 
     def _header(self, key: str, epoch: int) -> dict[str, Any]:
         seq = self._seq[key]
@@ -207,23 +256,33 @@ class EpochAssembler:
             "stamp_ns": self._clock(),
         }
 
-    def _metrics(self, k: int, x: npt.NDArray[np.float64]) -> Derived:
+    def _metrics(self, k: int, x: npt.NDArray[np.float64], team: npt.NDArray[np.bool_]) -> Derived:
         s = self.scenario
         key = keys.metrics(self.run_id)
+        fe, se = team_errors(
+            x,
+            team,
+            formation_error(x, self.edges, s.weights),
+            shape_error(x, self.edges, s.offsets),
+            self.edges,
+            s.weights,
+            s.offsets,
+        )
         msg = EpochMetrics(
             **self._header(key, k),
-            formation_error_m=float(formation_error(x, self.edges, s.weights)),
-            shape_error_m=float(shape_error(x, self.edges, s.offsets)),
+            formation_error_m=_finite_or_none(fe),
+            shape_error_m=_finite_or_none(se),
             positions=x.tolist(),
+            out=[int(i) + 1 for i in np.flatnonzero(~team)],
         )
         return key, encode(msg)
 
     def _scene(self, k: int, stamp_ns: int) -> Derived:
-        x = self._waiting.pop(k)
+        closed = self._closed.pop(k)
+        self._next_scene = max(self._next_scene, k + 1)
         est = self._est.pop(k, None)
         self._decided.pop(k, None)
         lost = self._lost.pop(k, [])
-        th = self._headings.pop(k, None)
         s = self.scenario
         healthy = tree = None
         if est is not None:
@@ -232,7 +291,7 @@ class EpochAssembler:
         scene = scene_update(
             k,
             stamp_ns,
-            x,
+            closed.positions,
             self.edges,
             s.offsets,
             s.leader,
@@ -241,9 +300,16 @@ class EpochAssembler:
             lost,
             None if est is None else est.positions,
             None if est is None else est.covariances,
-            None if th is None else np.array([th.get(i, np.nan) for i in range(1, self.n + 1)]),
+            closed.headings,
+            ~closed.team,
         )
         return keys.scene(self.run_id), scene.encode()
 
 
-__all__ = ["STALE_EPOCHS", "TAPS", "WAIT_EPOCHS", "Derived", "EpochAssembler", "edge_mask"]
+def _finite_or_none(value: npt.NDArray[np.float64]) -> float | None:
+    """An error [m] for the wire; None where no edge was between agents taking part (NaN)."""
+    v = float(value)
+    return None if np.isnan(v) else v
+
+
+__all__ = ["CLOSE_AFTER", "TAPS", "WAIT_EPOCHS", "Closed", "Derived", "EpochAssembler", "edge_mask"]

@@ -75,6 +75,46 @@ def team_formation_error(
     return formation_error(np.nan_to_num(positions), edges, weights, on)
 
 
+def team_errors(
+    positions: Array,
+    team: Mask,
+    formation: Array,
+    shape: Array,
+    edges: npt.NDArray[np.int64],
+    weights: Array,
+    offsets: Array,
+) -> tuple[Array, Array]:
+    """Formation and shape error [m] of the team: over every edge where every agent is in
+    it, else over the edges between the agents in it (docs/model.md §7).
+
+    A body out of the team (left, crashed, not yet joined) stands where it was while the
+    team moves on, so its edges would judge the team on it.
+
+    Parameters
+    ----------
+    positions : (..., n, d) true positions [m], NaN allowed where out of the team
+    team : (..., n) in the team, broadcast against ``positions``' leading axes
+    formation, shape : (...) the run's errors over every edge [m]
+    edges : (m, 2) agent ids; weights : (m,) ``C_ij`` [m]; offsets : (n, d) [m]
+
+    Returns
+    -------
+    formation, shape : (...) [m], NaN where no edge is in the team
+    """
+    team = np.broadcast_to(team, positions.shape[:-1])
+    everyone = team.all(axis=-1)
+    if everyone.all():  # nobody out: the run's own errors, untouched
+        return formation, shape
+    lead = positions.shape[:-2]
+    x = positions.reshape(-1, *positions.shape[-2:])
+    flat = team.reshape(-1, team.shape[-1])
+    partial = (
+        team_formation_error(x, edges, weights, flat).reshape(lead),
+        team_shape_error(x, edges, offsets, flat).reshape(lead),
+    )
+    return np.where(everyone, formation, partial[0]), np.where(everyone, shape, partial[1])
+
+
 def changes(
     team: Mask,
     shape: Array,
@@ -130,6 +170,7 @@ __all__ = [
     "present",
     "spans",
     "team_edges",
+    "team_errors",
     "team_formation_error",
     "team_shape_error",
 ]

@@ -36,12 +36,22 @@ def shape_error(
 def _rms(sq: Array, on: Mask | None) -> Array:
     """Root mean over the last axis of ``sq`` (..., m), of the entries ``on`` only."""
     if on is None:
-        return np.asarray(np.sqrt(np.mean(sq, axis=-1)), dtype=float)
+        return np.asarray(np.sqrt(_sum_last(sq) / sq.shape[-1]), dtype=float)
     on = np.broadcast_to(on, sq.shape)
     count = on.sum(axis=-1)
-    total = np.where(on, sq, 0.0).sum(axis=-1)
+    total = _sum_last(np.where(on, sq, 0.0))
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.asarray(np.where(count > 0, np.sqrt(total / count), np.nan), dtype=float)
+
+
+def _sum_last(a: Array) -> Array:
+    """Sum over the last axis, left to right: the same bits for one epoch as for a batch of
+    them (numpy's reduction order depends on the leading shape, so an epoch's error summed
+    live by the recorder differed in the last bit from the same epoch read back in a batch)."""
+    total = np.zeros(a.shape[:-1])
+    for c in range(a.shape[-1]):
+        total = total + a[..., c]
+    return total
 
 
 def error_statistics(errors: Array) -> tuple[Array, Array, float]:

@@ -154,7 +154,7 @@ class _Collected:
         self.subs: dict[tuple[int, int], list[tuple[int, list[float]]]] = {}  # (epoch, agent)
         self.ests: dict[int, dict[str, Any]] = {}
         self.verdicts: list[tuple[int, int, int, bool]] = []
-        self.recorded: dict[int, float] = {}
+        self.recorded: dict[int, float | None] = {}  # None: no edge in the team
         self.poses: dict[tuple[int, int], tuple[float | None, int | None]] = {}  # unicycles
 
     def add(self, kind: str, msg: Any) -> None:
@@ -268,7 +268,7 @@ def _assemble(
     recorded_fe = np.full(len(x), np.nan)
     for k, v in recorded.items():
         if k < len(x):
-            recorded_fe[k] = v
+            recorded_fe[k] = np.nan if v is None else v
     return RunData(
         label=label or f"{scenario.name} {scenario.strategy.name}",
         scenario=scenario,

@@ -6,7 +6,10 @@ leader's minimum spanning tree are drawn thicker and gold. A directed link whose
 of the epoch netem did not deliver in time is drawn red on its sender's half of the edge.
 The leader's estimates are small violet spheres with their 2σ covariance ellipse (the
 x–y block in 3-D). The desired shape, anchored at the leader, is drawn as thin
-translucent lines. A unicycle's heading is an arrow from its position. Pure: arrays in,
+translucent lines. A unicycle's heading is an arrow from its position. An agent out of the
+team at the epoch (not yet joined, left, crashed, lost) is a translucent grey sphere labelled
+``<i> out`` where its body was last seen, its edges translucent grey, and the entity's ``out``
+metadata lists the ids. Pure: arrays in,
 the SDK's messages (``foxglove.messages``) out; ``.encode()`` gives the recorded protobuf.
 """
 
@@ -48,6 +51,7 @@ LOST: RGBA = (0.84, 0.15, 0.16, 1.0)
 ESTIMATE: RGBA = (0.58, 0.4, 0.74, 0.8)
 HEADING: RGBA = (1.0, 1.0, 1.0, 0.9)
 LABEL: RGBA = (1.0, 1.0, 1.0, 1.0)
+OUT: RGBA = (0.6, 0.6, 0.6, 0.3)  # an agent out of the team, and its edges
 ELLIPSE_POINTS = 24
 SIGMAS = 2.0  # the ellipse drawn: x̂ + 2σ
 
@@ -111,13 +115,17 @@ def entity(
     lines: list[LinePrimitive] | None = None,
     texts: list[TextPrimitive] | None = None,
     arrows: list[ArrowPrimitive] | None = None,
+    out: Sequence[int] = (),
 ) -> SceneEntity:
-    """A ``foxglove.SceneEntity`` in :data:`FRAME`, its epoch as metadata."""
+    """A ``foxglove.SceneEntity`` in :data:`FRAME`, its epoch (and the agents ``out``) as metadata."""
+    metadata = [KeyValuePair(key="epoch", value=str(epoch))]
+    if len(out):
+        metadata.append(KeyValuePair(key="out", value=",".join(str(i) for i in out)))
     return SceneEntity(
         timestamp=timestamp(stamp_ns),
         frame_id=FRAME,
         id=entity_id,
-        metadata=[KeyValuePair(key="epoch", value=str(epoch))],
+        metadata=metadata,
         spheres=spheres,
         lines=lines,
         texts=texts,
@@ -150,6 +158,7 @@ def scene_update(
     estimates: list[list[float] | None] | None = None,
     covariances: list[list[list[float]] | None] | None = None,
     headings: npt.NDArray[np.float64] | None = None,
+    out: npt.NDArray[np.bool_] | None = None,
 ) -> SceneUpdate:
     """The scene of one epoch.
 
@@ -165,15 +174,18 @@ def scene_update(
         Link health and MST membership of each edge at this epoch (docs/model.md §4).
     headings : (n,) array [rad] or None
         Unicycles' headings ``θ_i[k]`` in the x–y plane, drawn as arrows (NaN: not drawn).
+    out : (n,) bool array or None
+        Agents out of the team at this epoch; ``positions`` holds where their bodies were.
     """
     n = positions.shape[0]
+    away = np.zeros(n, dtype=bool) if out is None else out
     span = float(np.ptp(offsets, axis=0).max()) if n > 1 else 1.0
     radius = max(0.04 * span, 1e-3)  # [m], visible at the formation's scale
     size = Vector3(x=2 * radius, y=2 * radius, z=2 * radius)
     spheres = []
     texts = []
     for i in range(n):
-        color = LEADER_COLOR if i + 1 == leader else AGENT_COLOR
+        color = OUT if away[i] else LEADER_COLOR if i + 1 == leader else AGENT_COLOR
         spheres.append(SpherePrimitive(pose=_pose(positions[i]), size=size, color=_color(color)))
         label = positions[i] + np.r_[radius, radius, 0.0][: positions.shape[1]]
         texts.append(
@@ -183,14 +195,17 @@ def scene_update(
                 font_size=14.0,
                 scale_invariant=True,
                 color=_color(LABEL),
-                text=str(i + 1),
+                text=f"{i + 1} out" if away[i] else str(i + 1),
             )
         )
     colors = edge_colors(healthy, tree, edges.shape[0])
     groups: dict[RGBA, list[Point3]] = {}
     for (i, j), color in zip(edges, colors, strict=True):
+        color = OUT if away[i - 1] or away[j - 1] else color
         groups.setdefault(color, []).extend((_point(positions[i - 1]), _point(positions[j - 1])))
-    lines = [_lines(pts, c, 4.0 if c == TREE else 2.0) for c, pts in groups.items()]
+    lines = [
+        _lines(pts, c, 4.0 if c == TREE else 1.0 if c == OUT else 2.0) for c, pts in groups.items()
+    ]
     anchor = positions[leader - 1] - offsets[leader - 1]
     shape_pts: list[Point3] = []
     for i, j in edges:
@@ -213,9 +228,21 @@ def scene_update(
             ring = ellipse(centre, np.asarray(c, dtype=float))
             if ring:
                 lines.append(_lines(ring, ESTIMATE, 1.0, LinePrimitiveLineType.LineLoop))
-    arrows = [] if headings is None else heading_arrows(positions, headings, radius)
+    arrows = (
+        []
+        if headings is None
+        else heading_arrows(positions, np.where(away, np.nan, headings), radius)
+    )
+    ids = [int(i) + 1 for i in np.flatnonzero(away)]
     team = entity(
-        "formation", stamp_ns, epoch, spheres=spheres, lines=lines, texts=texts, arrows=arrows
+        "formation",
+        stamp_ns,
+        epoch,
+        spheres=spheres,
+        lines=lines,
+        texts=texts,
+        arrows=arrows,
+        out=ids,
     )
     return SceneUpdate(entities=[team])
 
@@ -282,6 +309,7 @@ def frame_transforms(
 
 __all__ = [
     "FRAME",
+    "OUT",
     "agent_frame",
     "edge_colors",
     "ellipse",

@@ -381,7 +381,10 @@ class Gate:
             _finite(p, self._dim(), "position")
         if self.scenario is not None and len(msg.positions) != self.n:
             raise Skip(INVALID, f"{len(msg.positions)} positions, expected {self.n}")
-        _finite((msg.formation_error_m, msg.shape_error_m), 2, "error")
+        errors = (msg.formation_error_m, msg.shape_error_m)
+        _finite([e for e in errors if e is not None], None, "error")  # None: no edge in the team
+        for i in msg.out:
+            self._endpoint(i)
 
     def _alive(self, msg: LivelinessEvent, parts: list[str]) -> None:
         if msg.key.split("/")[2:] != parts[2:] or (msg.role, msg.ident) != (parts[-2], parts[-1]):

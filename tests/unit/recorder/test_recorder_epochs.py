@@ -19,7 +19,7 @@ from formation.messages import (
     Status,
 )
 from formation.scenario import Scenario
-from recorder.analysis.epoch_assembly import STALE_EPOCHS, WAIT_EPOCHS, EpochAssembler
+from recorder.analysis.epoch_assembly import CLOSE_AFTER, WAIT_EPOCHS, EpochAssembler
 from recorder.analysis.metrics import formation_error, shape_error
 from recorder.reading.decoder import as_dict, decode_kind
 
@@ -159,14 +159,21 @@ def test_a_scene_missing_parts_is_drawn_late_or_at_the_end(paper: Scenario) -> N
     assert asm.drawn_early == WAIT_EPOCHS + 2
 
 
-def test_malformed_states_are_counted_and_stale_epochs_given_up(paper: Scenario) -> None:
+def test_malformed_states_are_counted_and_an_epoch_missing_one_closes_later(
+    paper: Scenario,
+) -> None:
     asm = EpochAssembler(paper, RUN)
     assert asm.on_state(keys.agent_state(RUN, 1), b"{not json", 0) == []
     assert asm.gate.skipped.by_channel()[keys.agent_state(RUN, 1)] == 1
     asm.on_state(*state(1, 0, paper.offsets[0]), stamp_ns=0)  # epoch 0 never completes
-    for k in range(1, STALE_EPOCHS + 3):
-        feed_epoch(asm, k, paper.offsets)
-    assert asm.given_up == 1
+    out = []
+    for k in range(1, CLOSE_AFTER + 1):
+        out += feed_epoch(asm, k, paper.offsets)
+    metrics = [EpochMetrics.model_validate_json(p) for key, p in out if key == keys.metrics(RUN)]
+    assert [(m.epoch, m.out) for m in metrics] == [(0, [2, 3, 4, 5]), (1, []), (2, [])]
+    assert asm.incomplete == 1 and asm.late == 0
+    asm.on_state(*state(2, 0, paper.offsets[1]), stamp_ns=0)
+    assert asm.late == 1  # too late to be drawn; the recording holds it
 
 
 def _status(state: str, detail: str = "", malformed: dict[str, int] | None = None) -> bytes:
