@@ -32,6 +32,15 @@ START_S=30  # dockerd answers in about 1 s here
 
 running() { [ -f "$DIR/docker.pid" ] && kill -0 "$(cat "$DIR/docker.pid")" 2>/dev/null; }
 
+unmount_leftovers() {
+  # What a stopped dockerd leaves mounted: its default network namespace, and its data root
+  # when it died at start.
+  local m
+  for m in "$DIR/exec/netns/default" "$DIR/data"; do
+    if mountpoint -q "$m" 2>/dev/null; then umount "$m"; fi
+  done
+}
+
 compose_binary() {
   # The real binary in the package (its bin/docker-compose is a wrapper that exits 0 whatever
   # happens); empty when the venv or the package is missing.
@@ -77,11 +86,14 @@ JSON
   local pid=$!
   while ! docker info >/dev/null 2>&1; do
     if ! kill -0 "$pid" 2>/dev/null; then
+      unmount_leftovers
       tail -5 "$DIR/dockerd.log" >&2
       fail "dockerd exited at start: $(grep -v '^$' "$DIR/dockerd.log" | tail -1) (log: $DIR/dockerd.log)"
     fi
     if [ "$(took "$t0" | cut -d. -f1)" -ge "$START_S" ]; then
       kill "$pid" 2>/dev/null || true
+      wait "$pid" 2>/dev/null || true
+      unmount_leftovers
       fail "dockerd did not answer on $DOCKER_HOST within $START_S s: $(docker info 2>&1 | tail -1) (log: $DIR/dockerd.log)"
     fi
     sleep 0.2
@@ -121,8 +133,7 @@ stop() {
   kill "$pid"
   for _ in $(seq 150); do kill -0 "$pid" 2>/dev/null || break; sleep 0.2; done
   kill -0 "$pid" 2>/dev/null && fail "dockerd (PID $pid) did not exit within 30 s of SIGTERM"
-  # dockerd leaves its default network namespace mounted.
-  if mountpoint -q "$DIR/exec/netns/default" 2>/dev/null; then umount "$DIR/exec/netns/default"; fi
+  unmount_leftovers
   say "dockerd (PID $pid) stopped"
 }
 

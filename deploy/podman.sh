@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Podman for the compose test: the engine, podman-compose, the base image and the testbed's image.
 #
-#   deploy/podman.sh engine   # podman + runc (+ debootstrap) from the distribution, podman-compose
+#   deploy/podman.sh engine   # podman, runc, catatonit (+ debootstrap) from the distribution, podman-compose
 #                             # in a venv of its own, and containers.conf (runc, lower ulimits)
 #   deploy/podman.sh base     # the Dockerfile's FROM image: pulled, or made locally with debootstrap
 #   deploy/podman.sh build    # the image compose.yaml runs (formation-testbed:latest)
@@ -26,6 +26,10 @@ export CONTAINERS_CONF=$CACHE/containers.conf
 engine() {
   local missing=()
   for tool in podman runc; do command -v "$tool" >/dev/null || missing+=("$tool"); done
+  # `init: true` runs podman's init, catatonit. Debian's podman only recommends it, or tini
+  # instead, which docker.io brings: with both engines installed, catatonit may be missing
+  # ("container-init binary not found on the host: stat /usr/libexec/podman/catatonit").
+  [ -x /usr/libexec/podman/catatonit ] || missing+=(catatonit)
   if [ "$(id -u)" = 0 ] && ! command -v debootstrap >/dev/null; then missing+=(debootstrap); fi
   if [ ${#missing[@]} -gt 0 ]; then
     command -v apt-get >/dev/null ||
@@ -33,8 +37,8 @@ engine() {
     say "installing ${missing[*]} (apt-get)"
     as_root apt-get update -qq ||
       fail "no container engine: cannot run apt-get as root to install ${missing[*]}"
-    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq podman runc debootstrap >/dev/null ||
-      fail "no container engine: apt-get could not install podman, runc and debootstrap"
+    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq podman runc catatonit debootstrap >/dev/null ||
+      fail "no container engine: apt-get could not install podman, runc, catatonit and debootstrap"
   fi
   if [ ! -x "$COMPOSE_VENV/bin/podman-compose" ]; then
     say "installing podman-compose $PODMAN_COMPOSE_VERSION into $COMPOSE_VENV"

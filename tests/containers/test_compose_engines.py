@@ -91,14 +91,22 @@ class Engine:
 
 ENGINES = [
     Engine(
-        "podman", (os.environ.get("PODMAN_COMPOSE", "podman-compose"),), "podman",
-        "io.podman.compose.project", "_", ("PODMAN_COMPOSE", "CONTAINERS_CONF"),
+        name="podman",
+        compose=(os.environ.get("PODMAN_COMPOSE", "podman-compose"),),
+        cli="podman",
+        project_label="io.podman.compose.project",
+        sep="_",
+        variables=("PODMAN_COMPOSE", "CONTAINERS_CONF"),
     ),
     Engine(
-        "docker", ("docker", "compose"), "docker",
-        "com.docker.compose.project", "-", ("DOCKER_HOST", "DOCKER_CONFIG"),
+        name="docker",
+        compose=("docker", "compose"),
+        cli="docker",
+        project_label="com.docker.compose.project",
+        sep="-",
+        variables=("DOCKER_HOST", "DOCKER_CONFIG"),
     ),
-]  # fmt: skip
+]
 
 
 @dataclass(frozen=True)
@@ -224,29 +232,39 @@ def _failed(dep: Deployment) -> None:
         raise AssertionError(f"{failed}; {name}'s log:\n{(logs.stdout + logs.stderr)[-3000:]}")
 
 
-def _exit_code(dep: Deployment, netem: str) -> int:
-    """netem's exit code, once it has exited: ``docker compose wait netem`` as the README says."""
-    if dep.engine.cli == "docker":
-        wait = _compose(dep, "wait", "netem", timeout_s=60)
-        said = wait.stdout + wait.stderr  # compose's own errors exit non-zero too
-        assert "exited with status code" in said, said[-3000:]
-        return wait.returncode
-    code = subprocess.run(
-        ["podman", "wait", netem], capture_output=True, text=True, check=True, timeout=60
-    )  # podman-compose has no `wait`
-    return int(code.stdout.strip())
-
-
 def _wait_netem(dep: Deployment, timeout_s: float) -> int:
-    """netem's exit code; fails early, with its log, when another service fails."""
+    """netem's exit code; fails early, with its log, when another service fails.
+
+    Under Docker through ``docker compose wait netem``, started while netem runs, as the README
+    has it (it finds no container once netem has exited); podman-compose has no ``wait``.
+    """
     netem = dep.engine.container(dep.project, "netem")
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        _failed(dep)
-        if _containers(dep).get(netem, "").startswith("Exited"):
-            return _exit_code(dep, netem)
-        time.sleep(0.2)
-    raise AssertionError(f"netem did not exit within {timeout_s} s: {_containers(dep)}")
+    argv = [*dep.engine.compose, "-f", str(COMPOSE), "-f", str(OVERRIDE), "wait", "netem"]
+    wait = None
+    if dep.engine.cli == "docker":
+        wait = subprocess.Popen(
+            argv, cwd=ROOT, env=dep.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+        )
+    try:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            _failed(dep)
+            if wait is not None and wait.poll() is not None:
+                said = wait.communicate()[0]
+                assert "exited with status code" in said, said[-3000:]  # not compose's own error
+                return wait.returncode
+            if wait is None and _containers(dep).get(netem, "").startswith("Exited"):
+                code = subprocess.run(
+                    ["podman", "wait", netem], capture_output=True, text=True, check=True,
+                    timeout=60,
+                )  # fmt: skip
+                return int(code.stdout.strip())
+            time.sleep(0.2)
+        raise AssertionError(f"netem did not exit within {timeout_s} s: {_containers(dep)}")
+    finally:
+        if wait is not None and wait.poll() is None:
+            wait.kill()
+            wait.wait()
 
 
 def _recording(path: Path, run_id: str) -> dict[str, Any]:
