@@ -47,14 +47,21 @@ typecheck: $(BIN)/.installed
 architecture: $(BIN)/.installed
 	$(BIN)/lint-imports
 
-# The unchanged compose.yaml under podman-compose, loopback only (deploy/compose.loopback.yaml),
-# checked against a native run: installs podman and podman-compose if missing, makes the base
-# image when no registry serves it, builds the image (both cached in podman's store). The tests
-# fail, not skip, without podman-compose (FORMATION_REQUIRE_CONTAINERS=1). The native run they
-# compare with is the installed product, as for make test (.product: the checkout as edited).
+# The unchanged compose.yaml under each engine of ENGINES (podman-compose, Docker Compose v2),
+# loopback only (deploy/compose.loopback.yaml), with the same checks, against a native run:
+# deploy/<engine>.sh installs the engine and its compose if missing (Docker: a dockerd of the
+# test's own, ended on exit), makes the base image when no registry serves it, builds the image
+# (both cached in the engine's store). The tests fail, not skip, for an engine of ENGINES that
+# cannot run (FORMATION_REQUIRE_CONTAINERS). The native run they compare with is the installed
+# product, as for make test (.product: the checkout as edited). podman first: Docker loads the
+# base image from podman's store.
+ENGINES ?= podman docker
 compose-test: $(BIN)/.product
-	deploy/podman.sh engine base build
-	env PYTHONSAFEPATH=1 FORMATION_REQUIRE_CONTAINERS=1 $$(deploy/podman.sh env) $(BIN)/pytest -q -p no:cacheprovider -m containers -s tests/containers
+	set -e; trap 'deploy/docker.sh stop' EXIT; vars=; \
+	for engine in $(ENGINES); do \
+	  deploy/$$engine.sh engine base build; vars="$$vars $$(deploy/$$engine.sh env)"; \
+	done; \
+	env PYTHONSAFEPATH=1 FORMATION_REQUIRE_CONTAINERS="$(ENGINES)" $$vars $(BIN)/pytest -q -p no:cacheprovider -m containers -s tests/containers
 
 bench: $(BIN)/.product
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench

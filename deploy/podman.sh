@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Podman for the compose test: the engine, podman-compose, the base image and the testbed's image.
 #
-#   deploy/podman.sh engine   # podman + runc (+ debootstrap) from the distribution, podman-compose
+#   deploy/podman.sh engine   # podman, runc, catatonit (+ debootstrap) from the distribution, podman-compose
 #                             # in a venv of its own, and containers.conf (runc, lower ulimits)
 #   deploy/podman.sh base     # the Dockerfile's FROM image: pulled, or made locally with debootstrap
 #   deploy/podman.sh build    # the image compose.yaml runs (formation-testbed:latest)
@@ -20,21 +20,16 @@ COMPOSE_VENV=$CACHE/podman-compose
 PODMAN_COMPOSE_VERSION=1.6.0
 export CONTAINERS_CONF=$CACHE/containers.conf
 
-say() { printf 'podman.sh: %s\n' "$*" >&2; }
-fail() { say "error: $*"; exit 1; }
-now() { date +%s.%N; }
-took() { awk -v a="$1" -v b="$(now)" 'BEGIN { printf "%.1f", b - a }'; }
-
-as_root() {
-  if [ "$(id -u)" = 0 ]; then "$@"
-  elif command -v sudo >/dev/null && sudo -n true 2>/dev/null; then sudo "$@"
-  else return 1
-  fi
-}
+# shellcheck source=deploy/base-image.sh
+. deploy/base-image.sh
 
 engine() {
   local missing=()
   for tool in podman runc; do command -v "$tool" >/dev/null || missing+=("$tool"); done
+  # `init: true` runs podman's init, catatonit. Debian's podman only recommends it, or tini
+  # instead, which docker.io brings: with both engines installed, catatonit may be missing
+  # ("container-init binary not found on the host: stat /usr/libexec/podman/catatonit").
+  [ -x /usr/libexec/podman/catatonit ] || missing+=(catatonit)
   if [ "$(id -u)" = 0 ] && ! command -v debootstrap >/dev/null; then missing+=(debootstrap); fi
   if [ ${#missing[@]} -gt 0 ]; then
     command -v apt-get >/dev/null ||
@@ -42,8 +37,8 @@ engine() {
     say "installing ${missing[*]} (apt-get)"
     as_root apt-get update -qq ||
       fail "no container engine: cannot run apt-get as root to install ${missing[*]}"
-    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq podman runc debootstrap >/dev/null ||
-      fail "no container engine: apt-get could not install podman, runc and debootstrap"
+    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq podman runc catatonit debootstrap >/dev/null ||
+      fail "no container engine: apt-get could not install podman, runc, catatonit and debootstrap"
   fi
   if [ ! -x "$COMPOSE_VENV/bin/podman-compose" ]; then
     say "installing podman-compose $PODMAN_COMPOSE_VERSION into $COMPOSE_VENV"
@@ -55,9 +50,7 @@ engine() {
   # runc: crun fails here with "cgroups in hybrid mode not supported". The ulimits stay below
   # the machine's hard limits, which are lower than podman's defaults.
   local nofile nproc
-  nofile=$(ulimit -Hn); nproc=$(ulimit -Hu)
-  [ "$nofile" = unlimited ] || [ "$nofile" -gt 1024 ] && nofile=1024
-  [ "$nproc" = unlimited ] || [ "$nproc" -gt 1024 ] && nproc=1024
+  nofile=$(ulimit_nofile); nproc=$(ulimit_nproc)
   cat >"$CONTAINERS_CONF" <<CONF
 # Written by deploy/podman.sh; every podman call (podman-compose's too) reads it via CONTAINERS_CONF.
 [containers]
@@ -70,51 +63,10 @@ CONF
   say "podman $(podman version --format '{{.Client.Version}}'), podman-compose $PODMAN_COMPOSE_VERSION, $CONTAINERS_CONF"
 }
 
-debian_mirror() {
-  # The machine's own Debian mirror, from apt's sources (deb822 first, then the one-line format).
-  local uri=""
-  if [ -f /etc/apt/sources.list.d/debian.sources ]; then
-    uri=$(awk '$1 == "URIs:" { print $2; exit }' /etc/apt/sources.list.d/debian.sources)
-  fi
-  if [ -z "$uri" ] && [ -f /etc/apt/sources.list ]; then
-    uri=$(awk '$1 == "deb" && $2 !~ /security/ { print $2; exit }' /etc/apt/sources.list)
-  fi
-  [ -n "$uri" ] || fail "no Debian mirror in /etc/apt/sources.list.d/debian.sources or /etc/apt/sources.list"
-  printf '%s\n' "$uri"
-}
-
-make_base() {
-  # The official image cannot be pulled: an equivalent made from Debian's packages (python3 in a
-  # venv at /usr/local, so `python` and `pip` on PATH install there as in the official image).
-  [ "$(id -u)" = 0 ] || fail "making the base image $BASE needs root (debootstrap, chroot); pull it instead"
-  command -v debootstrap >/dev/null || fail "debootstrap is missing (deploy/podman.sh engine installs it)"
-  local mirror suite rootfs
-  mirror=$(debian_mirror)
-  suite=$(. /etc/os-release && printf '%s' "${VERSION_CODENAME:-bookworm}")
-  rootfs=$(mktemp -d "${TMPDIR:-/tmp}/formation-rootfs.XXXXXX")
-  # shellcheck disable=SC2064
-  trap "umount '$rootfs/proc' 2>/dev/null || true; rm -rf '$rootfs'" RETURN
-  say "debootstrap $suite (minbase) from the machine's Debian mirror"
-  debootstrap --variant=minbase "$suite" "$rootfs" "$mirror" >"$rootfs.log" 2>&1 ||
-    { tail -20 "$rootfs.log" >&2; fail "debootstrap failed"; }
-  rm -f "$rootfs.log"
-  if [ -f /etc/apt/sources.list.d/debian.sources ]; then
-    cp /etc/apt/sources.list.d/debian.sources "$rootfs/etc/apt/sources.list.d/debian.sources"
-  fi
-  cp /etc/resolv.conf "$rootfs/etc/resolv.conf"
-  mount -t proc proc "$rootfs/proc"
-  chroot "$rootfs" sh -c 'apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends python3 python3-venv ca-certificates >/dev/null && apt-get clean && rm -rf /var/lib/apt/lists/*' ||
-    fail "apt-get in the base image's rootfs failed"
-  chroot "$rootfs" python3 -m venv /usr/local
-  umount "$rootfs/proc"
-  # pip's TLS here needs the machine's CA bundle.
-  [ -f /etc/ssl/certs/ca-certificates.crt ] && cp /etc/ssl/certs/ca-certificates.crt "$rootfs/etc/ssl/certs/ca-certificates.crt"
-  : >"$rootfs/etc/resolv.conf"
+make_podman_base() {
   local local_name="localhost/${BASE#*/}"
   [[ $BASE == */* ]] || local_name="localhost/$BASE"
-  tar -C "$rootfs" -c . | podman import --quiet \
-    --change 'ENV PATH=/usr/local/bin:/usr/local/sbin:/usr/sbin:/usr/bin:/sbin:/bin' \
-    --change 'ENV LANG=C.UTF-8' --change 'CMD ["python3"]' - "$local_name" >/dev/null
+  make_base "$local_name" podman import --quiet
   # Tagged with the FROM name, so the unchanged Dockerfile resolves it with --pull=never.
   local full=$BASE
   [[ $BASE == */* ]] || full="docker.io/library/$BASE"
@@ -129,7 +81,7 @@ base() {
     say "base image $BASE: pulled in $(took "$t0") s"
   else
     say "base image $BASE: no registry serves it; making it locally"
-    make_base
+    make_podman_base
     say "base image $BASE: made in $(took "$t0") s"
   fi
 }

@@ -287,7 +287,11 @@ def test_loopback_maps_names_paths_and_secrets(tmp_path: Path) -> None:
 def test_the_loopback_override_covers_every_service_on_its_own_loopback_address(
     compose_schema: jsonschema.Draft7Validator,
 ) -> None:
-    """deploy/compose.loopback.yaml: host network, each service name → its own 127.0.0.N."""
+    """deploy/compose.loopback.yaml: host network, each service name → its own 127.0.0.N.
+
+    The one service that builds builds on the host's network too: without a bridge a build
+    has no network, and pip could not install the dependencies.
+    """
     doc = yaml.safe_load(COMPOSE.read_text())
     override = yaml.safe_load((ROOT / "deploy" / "compose.loopback.yaml").read_text())
     assert list(override["services"]) == list(doc["services"])
@@ -295,5 +299,11 @@ def test_the_loopback_override_covers_every_service_on_its_own_loopback_address(
     for name, svc in override["services"].items():
         assert svc["network_mode"] == "host"
         assert svc["extra_hosts"] == expected, name
+        assert set(svc) - {"network_mode", "extra_hosts"} == (
+            {"build"} if "build" in doc["services"][name] else set()
+        ), name
         merged = {**doc["services"][name], **svc}
+        if "build" in svc:  # compose merges mappings key by key
+            merged["build"] = {**doc["services"][name]["build"], **svc["build"]}
+            assert merged["build"]["network"] == "host"
         compose_schema.validate({**doc, "services": {name: merged}})

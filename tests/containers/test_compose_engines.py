@@ -1,14 +1,18 @@
-"""The unchanged compose.yaml under podman-compose, loopback only, against a native run.
+"""The unchanged compose.yaml under podman-compose and Docker Compose, loopback only.
 
-Run by ``make compose-test`` (after ``deploy/podman.sh engine base build``), which sets
-``PODMAN_COMPOSE`` and ``CONTAINERS_CONF`` and ``FORMATION_REQUIRE_CONTAINERS=1``: without
-podman-compose these tests then fail; elsewhere (``make test``) they skip. The services run
-from the image on the host's network, each service name on its own 127.0.0.N
-(``deploy/compose.loopback.yaml``); ``up``, wait for netem to exit, ``down``. The recording
-must hold every sender's count and every epoch, the SDK's protobuf SceneUpdate schema, and
-equal a native ``formation run`` of the same scenario and seed; a second run starts the
-router 10 s after every other service. What the services write in ``./runs`` must belong to
-the user they run as, a non-root one (as root, :data:`NON_ROOT`).
+Each engine's run is checked against a native run of the same scenario and seed.
+
+Run by ``make compose-test`` (after ``deploy/podman.sh`` and ``deploy/docker.sh engine base
+build``), which sets each engine's variables (``deploy/<engine>.sh env``) and
+``FORMATION_REQUIRE_CONTAINERS`` to the engines that must run: without one of them its tests
+then fail; elsewhere (``make test``) they skip. Each test runs once per engine, with the same
+checks. The services run from the image on the host's network, each service name on its own
+127.0.0.N (``deploy/compose.loopback.yaml``); ``up``, wait for netem to exit, ``down``; under
+Docker the README's commands (``up --build -d``, ``wait netem``, ``down``). The recording must
+hold every sender's count and every epoch, the SDK's protobuf SceneUpdate schema, and equal a
+native ``formation run`` of the same scenario and seed; a second run starts the router 10 s
+after every other service. What the services write in ``./runs`` must belong to the user they
+run as, a non-root one (as root, :data:`NON_ROOT`).
 """
 
 from __future__ import annotations
@@ -39,8 +43,8 @@ pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.containers]
 ROOT = Path(__file__).resolve().parents[2]
 COMPOSE = ROOT / "compose.yaml"
 OVERRIDE = ROOT / "deploy" / "compose.loopback.yaml"
-PODMAN_COMPOSE = os.environ.get("PODMAN_COMPOSE", "")
-REQUIRED = os.environ.get("FORMATION_REQUIRE_CONTAINERS", "") == "1"  # set by make compose-test
+# The engines whose tests fail rather than skip when they cannot run (make compose-test).
+REQUIRED = os.environ.get("FORMATION_REQUIRE_CONTAINERS", "").split()
 WAIT_S = 300  # netem's exit; the default scenario takes seconds
 DOWN_S = 180  # the recorder's stop_grace_period is 2 min
 LATE_S = 10.0  # the router's delay in the start-up test
@@ -50,9 +54,66 @@ NON_ROOT = (1001, 1001)
 
 
 @dataclass(frozen=True)
-class Deployment:
-    """One compose run's inputs: the environment podman-compose gets and what it should write."""
+class Engine:
+    """A container engine and its compose: how to call them, and how they name what they run."""
 
+    name: str
+    compose: tuple[str, ...]  # the command, before ``-f``
+    cli: str  # ``podman`` or ``docker``
+    project_label: str  # the label every container of a compose project carries
+    sep: str  # between project, service and index in a container's name
+    variables: tuple[str, ...]  # what ``deploy/<name>.sh env`` sets
+
+    def container(self, project: str, service: str) -> str:
+        return f"{project}{self.sep}{service}{self.sep}1"
+
+    def missing(self) -> str | None:
+        """Why the engine cannot run the test, or None."""
+        unset = [n for n in self.variables if not os.environ.get(n)]
+        if unset:
+            return f"{' and '.join(unset)} empty (deploy/{self.name}.sh env)"
+        if shutil.which(self.cli) is None:
+            return f"{self.cli} is not on PATH (deploy/{self.name}.sh engine)"
+        if not os.access(self.compose[0], os.X_OK) and shutil.which(self.compose[0]) is None:
+            return f"{self.compose[0]!r} is not an executable (deploy/{self.name}.sh engine)"
+        probe = subprocess.run(
+            [*self.compose, "version"], capture_output=True, text=True, timeout=60, check=False
+        )
+        if probe.returncode != 0:
+            return f"`{' '.join(self.compose)} version` failed: {probe.stderr.strip()[-300:]}"
+        if self.cli == "docker":
+            info = subprocess.run(["docker", "info"], capture_output=True, text=True, timeout=60)
+            if info.returncode != 0:
+                host = os.environ["DOCKER_HOST"]
+                return f"no Docker engine answers on {host}: {info.stderr.strip()[-300:]}"
+        return None
+
+
+ENGINES = [
+    Engine(
+        name="podman",
+        compose=(os.environ.get("PODMAN_COMPOSE", "podman-compose"),),
+        cli="podman",
+        project_label="io.podman.compose.project",
+        sep="_",
+        variables=("PODMAN_COMPOSE", "CONTAINERS_CONF"),
+    ),
+    Engine(
+        name="docker",
+        compose=("docker", "compose"),
+        cli="docker",
+        project_label="com.docker.compose.project",
+        sep="-",
+        variables=("DOCKER_HOST", "DOCKER_CONFIG"),
+    ),
+]
+
+
+@dataclass(frozen=True)
+class Deployment:
+    """One compose run's inputs: the engine, the environment it gets and what it should write."""
+
+    engine: Engine
     doc: dict[str, Any]
     scenario_file: Path
     scenario: Scenario
@@ -73,20 +134,14 @@ class Deployment:
         return [n for n in self.doc["services"] if n not in ("router", "recorder")]
 
 
-def _require_podman() -> None:
-    """Skip without podman-compose, or fail when ``FORMATION_REQUIRE_CONTAINERS=1``."""
-    missing = [n for n in ("PODMAN_COMPOSE", "CONTAINERS_CONF") if not os.environ.get(n)]
-    if missing:
-        why = f"{' and '.join(missing)} empty (deploy/podman.sh env)"
-    elif not os.access(PODMAN_COMPOSE, os.X_OK):
-        why = f"PODMAN_COMPOSE = {PODMAN_COMPOSE!r} is not an executable (deploy/podman.sh engine)"
-    elif shutil.which("podman") is None:
-        why = "podman is not on PATH (deploy/podman.sh engine)"
-    else:
+def _require(engine: Engine) -> None:
+    """Skip when the engine cannot run, or fail when ``FORMATION_REQUIRE_CONTAINERS`` names it."""
+    why = engine.missing()
+    if why is None:
         return
-    if REQUIRED:
-        pytest.fail(f"FORMATION_REQUIRE_CONTAINERS=1 but {why}")
-    pytest.skip(f"needs podman-compose: {why}; run `make compose-test`")
+    if engine.name in REQUIRED:
+        pytest.fail(f"FORMATION_REQUIRE_CONTAINERS names {engine.name}, but {why}")
+    pytest.skip(f"needs {engine.name}: {why}; run `make compose-test`")
 
 
 def _run_as() -> tuple[tuple[int, int], int]:
@@ -94,23 +149,31 @@ def _run_as() -> tuple[tuple[int, int], int]:
 
     As root the containers would run as root too and an ownership check would show nothing,
     so they run as :data:`NON_ROOT`. Without root, podman is rootless: the container's root is
-    the invoking user (README, Deployment).
+    the invoking user (README, Deployment); Docker's engine runs as root (``deploy/docker.sh``).
     """
     if os.getuid() == 0:
         return NON_ROOT, NON_ROOT[0]
     return (0, 0), os.getuid()
 
 
+@pytest.fixture(params=ENGINES, ids=[e.name for e in ENGINES])
+def engine(request: pytest.FixtureRequest) -> Engine:
+    engine: Engine = request.param
+    _require(engine)
+    return engine
+
+
 @pytest.fixture
-def deployment(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Deployment]:
+def deployment(
+    engine: Engine, request: pytest.FixtureRequest, tmp_path: Path
+) -> Iterator[Deployment]:
     """Keys and ``runs/<RUN_ID>`` owned by the services' user; the run directory removed after."""
-    _require_podman()
     doc = yaml.safe_load(COMPOSE.read_text())
     mount = doc["services"]["netem"]["volumes"][0].split(":")[0]
     scenario_file = (ROOT / mount).resolve()
     (uid, gid), owner = _run_as()
     suffix = "-late" if "late" in request.node.name else ""
-    run_id = f"podman{suffix}-{os.getpid()}"
+    run_id = f"{engine.name}{suffix}-{os.getpid()}"
     subprocess.run(
         [sys.executable, "-m", "testbed.cli", "keys", str(tmp_path / "keys"), str(scenario_file)],
         check=True, capture_output=True, timeout=120,
@@ -130,8 +193,9 @@ def deployment(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Deplo
         "FORMATION_GID": str(gid),
     }
     env.pop("FORMATION_RUNS", None)  # the default, ./runs, as a user runs it
-    dep = Deployment(doc, scenario_file, Scenario.from_file(scenario_file), run_id, env, owner)
-    _compose("down", env=env, timeout_s=DOWN_S)  # leftovers of an interrupted run
+    scenario = Scenario.from_file(scenario_file)
+    dep = Deployment(engine, doc, scenario_file, scenario, run_id, env, owner)
+    _compose(dep, "down", timeout_s=DOWN_S)  # leftovers of an interrupted run
     try:
         yield dep
     finally:
@@ -140,47 +204,67 @@ def deployment(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Deplo
             runs.rmdir()
 
 
-def _compose(*args: str, env: dict[str, str], timeout_s: float) -> subprocess.CompletedProcess[str]:
-    argv = [PODMAN_COMPOSE, "-f", str(COMPOSE), "-f", str(OVERRIDE), *args]
+def _compose(dep: Deployment, *args: str, timeout_s: float) -> subprocess.CompletedProcess[str]:
+    argv = [*dep.engine.compose, "-f", str(COMPOSE), "-f", str(OVERRIDE), *args]
     return subprocess.run(
-        argv, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout_s, check=False
+        argv, cwd=ROOT, env=dep.env, capture_output=True, text=True, timeout=timeout_s, check=False
     )
 
 
-def _containers(project: str) -> dict[str, str]:
+def _containers(dep: Deployment) -> dict[str, str]:
     """Container name → status line, of the compose project."""
     out = subprocess.run(
-        ["podman", "ps", "-a", "--filter", f"label=io.podman.compose.project={project}",
+        [dep.engine.cli, "ps", "-a", "--filter", f"label={dep.engine.project_label}={dep.project}",
          "--format", "{{.Names}}\t{{.Status}}"],
         capture_output=True, text=True, check=True, timeout=60,
     ).stdout  # fmt: skip
     return dict(line.split("\t", 1) for line in out.splitlines() if "\t" in line)
 
 
-def _failed(project: str) -> None:
+def _failed(dep: Deployment) -> None:
     """Raise, with its log, when a service of the project has exited with an error."""
     failed = {
-        n: s for n, s in _containers(project).items() if s.startswith("Exited") and "(0)" not in s
+        n: s for n, s in _containers(dep).items() if s.startswith("Exited") and "(0)" not in s
     }
     if failed:
         name = next(iter(failed))
-        log = subprocess.run(["podman", "logs", name], capture_output=True, text=True).stderr
-        raise AssertionError(f"{failed}; {name}'s log:\n{log[-3000:]}")
+        logs = subprocess.run([dep.engine.cli, "logs", name], capture_output=True, text=True)
+        raise AssertionError(f"{failed}; {name}'s log:\n{(logs.stdout + logs.stderr)[-3000:]}")
 
 
-def _wait_netem(project: str, timeout_s: float) -> int:
-    """netem's exit code; fails early, with its log, when another service fails."""
-    netem = f"{project}_netem_1"
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        _failed(project)
-        if _containers(project).get(netem, "").startswith("Exited"):
-            code = subprocess.run(
-                ["podman", "wait", netem], capture_output=True, text=True, check=True, timeout=60
-            )
-            return int(code.stdout.strip())
-        time.sleep(0.2)
-    raise AssertionError(f"netem did not exit within {timeout_s} s: {_containers(project)}")
+def _wait_netem(dep: Deployment, timeout_s: float) -> int:
+    """netem's exit code; fails early, with its log, when another service fails.
+
+    Under Docker through ``docker compose wait netem``, started while netem runs, as the README
+    has it (it finds no container once netem has exited); podman-compose has no ``wait``.
+    """
+    netem = dep.engine.container(dep.project, "netem")
+    argv = [*dep.engine.compose, "-f", str(COMPOSE), "-f", str(OVERRIDE), "wait", "netem"]
+    wait = None
+    if dep.engine.cli == "docker":
+        wait = subprocess.Popen(
+            argv, cwd=ROOT, env=dep.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+        )
+    try:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            _failed(dep)
+            if wait is not None and wait.poll() is not None:
+                said = wait.communicate()[0]
+                assert "exited with status code" in said, said[-3000:]  # not compose's own error
+                return wait.returncode
+            if wait is None and _containers(dep).get(netem, "").startswith("Exited"):
+                code = subprocess.run(
+                    ["podman", "wait", netem], capture_output=True, text=True, check=True,
+                    timeout=60,
+                )  # fmt: skip
+                return int(code.stdout.strip())
+            time.sleep(0.2)
+        raise AssertionError(f"netem did not exit within {timeout_s} s: {_containers(dep)}")
+    finally:
+        if wait is not None and wait.poll() is None:
+            wait.kill()
+            wait.wait()
 
 
 def _recording(path: Path, run_id: str) -> dict[str, Any]:
@@ -233,19 +317,23 @@ def _check_run(dep: Deployment) -> dict[str, Any]:
     return got
 
 
-def test_compose_yaml_under_podman_equals_a_native_run(
-    deployment: Deployment, tmp_path: Path
-) -> None:
+def _up(dep: Deployment, *services: str) -> subprocess.CompletedProcess[str]:
+    """``up -d``: under Docker with ``--build``, as the README says (every layer is cached)."""
+    build = ["--build"] if dep.engine.cli == "docker" and not services else []
+    return _compose(dep, "up", *build, "-d", *services, timeout_s=300)
+
+
+def test_compose_yaml_equals_a_native_run(deployment: Deployment, tmp_path: Path) -> None:
     dep = deployment
     t0 = time.monotonic()
     try:
-        up = _compose("up", "-d", env=dep.env, timeout_s=300)
+        up = _up(dep)
         assert up.returncode == 0, up.stdout[-2000:] + up.stderr[-3000:]
         t_up = time.monotonic()
-        assert _wait_netem(dep.project, WAIT_S) == 0
+        assert _wait_netem(dep, WAIT_S) == 0
         t_exit = time.monotonic()
     finally:
-        down = _compose("down", env=dep.env, timeout_s=DOWN_S)
+        down = _compose(dep, "down", timeout_s=DOWN_S)
     t_down = time.monotonic()
     assert down.returncode == 0, down.stderr[-3000:]
     containers = t_down - t0
@@ -267,42 +355,41 @@ def test_compose_yaml_under_podman_equals_a_native_run(
     ours, theirs = read_run(dep.run_dir / "run.mcap"), read_run(native_dir / "run.mcap")
     assert abs(ours.formation_error[-1] - theirs.formation_error[-1]) <= 1e-9
     print(
-        f"\npodman-compose: up {t_up - t0:.1f} s, netem's exit after {t_exit - t_up:.1f} s, "
+        f"\n{dep.engine.name}: up {t_up - t0:.1f} s, netem's exit after {t_exit - t_up:.1f} s, "
         f"down {t_down - t_exit:.1f} s: {containers:.1f} s in all; native formation run "
         f"{native_s:.1f} s; final formation error {ours.formation_error[-1]:.6g} m (both); "
         f"files owned by uid {dep.owner}"
     )
 
 
-def test_router_started_late_under_podman_still_gives_a_complete_run(
-    deployment: Deployment,
-) -> None:
+def test_router_started_late_still_gives_a_complete_run(deployment: Deployment) -> None:
     """Every service but the router up first; the router 10 s later: the clients retry."""
     dep = deployment
     clients = [n for n in dep.doc["services"] if n != "router"]
     try:
-        up = _compose("up", "-d", "--no-deps", *clients, env=dep.env, timeout_s=300)
+        up = _up(dep, "--no-deps", *clients)
         assert up.returncode == 0, up.stdout[-2000:] + up.stderr[-3000:]
         t_up = time.monotonic()
         while time.monotonic() - t_up < LATE_S:  # the delay is the test; no one may give up
-            _failed(dep.project)
+            _failed(dep)
             time.sleep(0.5)
-        states = _containers(dep.project)
-        assert sorted(states) == sorted(f"{dep.project}_{n}_1" for n in clients), states
+        states = _containers(dep)
+        names = {n: dep.engine.container(dep.project, n) for n in clients}
+        assert sorted(states) == sorted(names.values()), states
         assert all(s.startswith("Up") for s in states.values()), states
-        router = _compose("up", "-d", "--no-deps", "router", env=dep.env, timeout_s=120)
+        router = _compose(dep, "up", "-d", "--no-deps", "router", timeout_s=120)
         assert router.returncode == 0, router.stdout[-2000:] + router.stderr[-3000:]
-        assert _wait_netem(dep.project, WAIT_S) == 0
+        assert _wait_netem(dep, WAIT_S) == 0
         # the clients waited for the router; `restart: on-failure` did not start them again
         restarts = subprocess.run(
-            ["podman", "inspect", "--format", "{{.Name}} {{.RestartCount}}",
-             *(f"{dep.project}_{n}_1" for n in clients)],
+            [dep.engine.cli, "inspect", "--format", "{{.Name}} {{.RestartCount}}",
+             *names.values()],
             capture_output=True, text=True, check=True, timeout=60,
         ).stdout  # fmt: skip
-        assert dict(line.split() for line in restarts.splitlines()) == {
-            f"{dep.project}_{n}_1": "0" for n in clients
-        }
+        # Docker's names start with "/"
+        got = dict(line.lstrip("/").split() for line in restarts.splitlines())
+        assert got == {name: "0" for name in names.values()}
     finally:
-        down = _compose("down", env=dep.env, timeout_s=DOWN_S)
+        down = _compose(dep, "down", timeout_s=DOWN_S)
     assert down.returncode == 0, down.stderr[-3000:]
     _check_run(dep)
