@@ -65,6 +65,9 @@ HOST = "127.0.0.1"  # the live view listens on loopback only
 QUEUE_LIMIT = 4096  # messages waiting for the server's thread before the oldest is dropped
 BACKLOG = 4096  # per viewer, in the SDK (it drops a slow viewer's oldest)
 LINGER_S = 2.0  # longest wait at the end for viewers to take the last messages [s]
+# The SDK's stop waits for each client's connection to close, and one that never reads never
+# takes the close: seen holding the recorder until the launcher killed it (bench_stress, grid20).
+STOP_S = 3.0
 STATS_PERIOD_S = 1.0  # how often /formation/live goes out [s]
 LIVE_KINDS = ("scene", "log", "metrics", "decision")  # channel kinds a live view takes
 
@@ -237,7 +240,11 @@ class LiveServer:
         with self._subs.lock:
             while self._subs.active and (left := deadline - time.monotonic()) > 0:
                 self._subs.lock.wait(left)
-        self.server.stop()
+        stopping = threading.Thread(target=self.server.stop, name="foxglove-stop", daemon=True)
+        stopping.start()
+        stopping.join(STOP_S)
+        if stopping.is_alive():
+            log.warning("a viewer that does not read held the server's stop %g s; left it", STOP_S)
 
     def stats(self, state: str = "running") -> dict[str, Any]:
         return {

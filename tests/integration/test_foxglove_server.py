@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import json
 import socket
+import time
 from collections.abc import Callable
 
 import pytest
@@ -19,7 +20,7 @@ from formation.errors import TestbedError
 from formation.messages import Decision, DecisionBatch, EpochMetrics
 from formation.scenario import Scenario
 from formation.topics import DECISIONS_TOPIC, METRICS_TOPIC, STATS_TOPIC, TF_TOPIC
-from recorder.live.server import LiveServer
+from recorder.live.server import STOP_S, LiveServer
 from recorder.reading.trust import Gate
 from testkit import foxglove_client as fc
 
@@ -120,3 +121,31 @@ def test_a_taken_port_is_a_clear_error(paper: Scenario) -> None:
         port = taken.getsockname()[1]
         with pytest.raises(TestbedError, match=rf"--foxglove {port}: cannot serve on 127.0.0.1:"):
             LiveServer(paper, port)
+
+
+def test_a_viewer_that_never_reads_does_not_hold_the_server_at_its_end(paper: Scenario) -> None:
+    # The SDK's stop waits for each client's close; a client that reads nothing never takes it.
+    live = LiveServer(paper, 0).start()
+
+    async def stall() -> float:
+        ws = await fc.connect(live.url, 10.0)
+        got = fc.Received()
+        await fc.advertised(ws, got, {METRICS_TOPIC})
+        idle = await fc.idle_subscriber(live.url, got.channels)
+        await ws.close()
+        assert await asyncio.to_thread(live.wait_for_topics, {METRICS_TOPIC}, 10.0)
+
+        def feed_and_close() -> float:
+            for epoch in range(20_000):  # far more than its socket buffers and the backlog hold
+                live.offer("metrics", keys.metrics(RUN), _metrics(paper, epoch))
+            started = time.monotonic()
+            live.close(linger_s=0.0)
+            return time.monotonic() - started
+
+        took = await asyncio.to_thread(feed_and_close)
+        idle.transport.abort()
+        return took
+
+    took = asyncio.run(stall())  # bounded by pytest's timeout: it never ended before
+    assert took < 10 * STOP_S, f"close took {took:.1f} s"
+    assert live.offered == 20_000
