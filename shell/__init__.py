@@ -20,6 +20,7 @@ from shell.stack_dump import DUMP_SIGNAL, dump_stacks_on_signal
 from shell.timing import Lockstep, Loop, Realtime, TimePolicy, Wait, time_policy
 from shell.zenoh_config import (
     MEMBER_ENV,
+    MEMBERS_ENV,
     MEMBERS_FILE_ENV,
     add_arguments,
     endpoints,
@@ -30,6 +31,7 @@ from shell.zenoh_config import (
 
 __all__ = [
     "DUMP_SIGNAL",
+    "MEMBERS_ENV",
     "MEMBERS_FILE_ENV",
     "MEMBER_ENV",
     "Bus",

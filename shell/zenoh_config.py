@@ -39,7 +39,8 @@ SHARED_MEMORY = "false"
 # sessions know its team, from the file MEMBERS_FILE_ENV names: what goes to a member still
 # blocks, what goes to anyone else is dropped when its queue is full, after DROP_WAIT_US.
 MEMBER_ENV = "FORMATION_MEMBER"  # this process's name in the team (its Zenoh id follows from it)
-MEMBERS_FILE_ENV = "FORMATION_MEMBERS_FILE"  # a JSON list of the team's names
+MEMBERS_FILE_ENV = "FORMATION_MEMBERS_FILE"  # a JSON list of the team's names (formation run)
+MEMBERS_ENV = "FORMATION_MEMBERS"  # or the names, comma-separated (compose.yaml)
 DROP_WAIT_US = 10  # zenoh's default 1 ms per put held the router 1 ms per sample for a dead reader
 
 
@@ -104,7 +105,8 @@ def session_config(
 
     ``ZENOH_CONFIG`` may name a JSON5 file (e.g. with credentials) loaded first. ``member``
     (else ``FORMATION_MEMBER``) is this session's name in its run's team and ``members``
-    (else the file ``FORMATION_MEMBERS_FILE`` names) the team: only they can slow it down.
+    (else the file ``FORMATION_MEMBERS_FILE`` names, else ``FORMATION_MEMBERS``) the team:
+    only they can slow it down.
     Raises :class:`~formation.errors.UnreadableFile` if this process cannot read the file
     or a file the config names (a certificate, the router's passwords).
     """
@@ -130,6 +132,8 @@ def session_config(
     members_file = os.environ.get(MEMBERS_FILE_ENV)
     if members is None and members_file:
         members = read_members(members_file)
+    if members is None:
+        members = [m.strip() for m in os.environ.get(MEMBERS_ENV, "").split(",") if m.strip()]
     if members:
         conf.insert_json5("qos/network", json.dumps(team_qos(members)))
         conf.insert_json5(

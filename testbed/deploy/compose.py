@@ -37,6 +37,7 @@ import yaml
 
 from formation.errors import TestbedError
 from formation.scenario import Scenario
+from shell import MEMBER_ENV, MEMBERS_ENV
 from testbed.deploy import security
 from testbed.runtime.processes import SERVICE_ENV
 
@@ -156,6 +157,8 @@ def document(
             volumes=[mount],
             extra=RESTART,
         )
+    for name, service in services.items():  # the team (shell/zenoh_config.py): only it blocks
+        service["environment"].update({MEMBER_ENV: name, MEMBERS_ENV: ",".join(services)})
     doc: dict[str, Any] = {"name": "formation", "services": services}
     if options.secure:
         users = [ROUTER, *(name for name in services if name != ROUTER)]

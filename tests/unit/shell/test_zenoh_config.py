@@ -153,3 +153,11 @@ def test_the_team_from_the_file_the_environment_names(
     members.unlink()
     with pytest.raises(RuntimeFailure, match=r"members.json': cannot read it"):
         zenoh_config.session_config("client")
+
+
+def test_the_team_by_name_in_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(zenoh_config.MEMBERS_ENV, "router, netem,agent-1")  # compose.yaml's form
+    zids = json.loads(zenoh_config.session_config("client").get_json("qos/network"))[1]["zids"]
+    assert sorted(zids) == sorted(
+        zenoh_config.member_zid(n) for n in ("router", "netem", "agent-1")
+    )

@@ -307,3 +307,11 @@ def test_the_loopback_override_covers_every_service_on_its_own_loopback_address(
             merged["build"] = {**doc["services"][name]["build"], **svc["build"]}
             assert merged["build"]["network"] == "host"
         compose_schema.validate({**doc, "services": {name: merged}})
+
+
+def test_every_service_is_of_the_team_under_its_name() -> None:
+    services = yaml.safe_load(COMPOSE.read_text())["services"]
+    for name, service in services.items():
+        env = service["environment"]
+        assert env["FORMATION_MEMBER"] == name
+        assert env["FORMATION_MEMBERS"].split(",") == list(services)
