@@ -2,7 +2,8 @@
 
 Lockstep cases cycle through scenarios, strategies and seeds, each run as real processes with
 one disturbance: none, a Zenoh subscriber attached from outside that never reads, a Foxglove
-viewer that never reads (the recorder holds the run until it has subscribed), or an agent
+viewer that never reads (the recorder holds the run until it has subscribed), the recorder
+stopped for ``PAUSE_S`` (SIGSTOP, then SIGCONT) half a second into the run, or an agent
 killed mid-run (SIGKILL at agent 1's state of a third of the run, no restart). Every run must
 finish and its bodies equal ``simulate``'s positions to the last bit. A killed agent's run equals
 the simulator's with that agent crashed at its loss epoch (its own states up to it, and they
@@ -24,7 +25,9 @@ import argparse
 import asyncio
 import itertools
 import json
+import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -49,12 +52,13 @@ from testbed.runtime.launcher import RunOutcome, launch
 from testbed.runtime.processes import free_port
 from testbed.sim.simulate import simulate
 from testkit import foxglove_client as fc
-from testkit.run_watch import KillAtEpoch
+from testkit.run_watch import KillAtEpoch, read_pids
 
 ROOT = Path(__file__).resolve().parents[1]
 # (scenario file, epochs or None for its own): events has its own team changes, grid20 traffic
 SCENARIOS = [("paper", 60), ("ring8", 80), ("events", None), ("octahedron3d", 60), ("grid20", 100)]
-DISTURBANCES = ["none", "zenoh_never_reads", "foxglove_never_reads", "kill"]
+DISTURBANCES = ["none", "zenoh_never_reads", "foxglove_never_reads", "recorder_paused", "kill"]
+PAUSE_S = 2.0  # the recorder stopped (SIGSTOP) this long, under the lease: slow, not gone
 REALTIME_EVERY = 5
 EPOCH_TIMEOUT_S = 60.0  # no epoch for this long is a stall
 
@@ -139,10 +143,16 @@ def run_case(case: Case, runs: Path) -> tuple[str, str]:
         recorder_args = ("--foxglove", str(port), "--foxglove-wait")
         viewer = NeverReadingViewer(port)
         viewer.start()
+    elif case.disturbance == "recorder_paused":
+
+        def hook(run_id: str, endpoint: str) -> None:
+            pid = read_pids(runs / run_id)["recorder"]
+            threading.Thread(target=pause, args=(pid,), daemon=True).start()
+
     elif case.disturbance == "kill":
         kill = KillAtEpoch(["agent-2"], sc.epochs // 3)
         hook = kill.hook(runs)
-    record = case.disturbance == "foxglove_never_reads" or case.seed % 2 == 0
+    record = "recorder" in case.disturbance or "foxglove" in case.disturbance or case.seed % 2 == 0
     try:
         outcome = launch(sc, strategy=case.strategy, runs_dir=runs, record=record,  # type: ignore[arg-type]
                          on_started=hook, epoch_timeout_s=EPOCH_TIMEOUT_S,
@@ -163,6 +173,13 @@ def run_case(case: Case, runs: Path) -> tuple[str, str]:
     if case.disturbance == "realtime":
         return books(outcome)
     return compare(case, sc, outcome)
+
+
+def pause(pid: int) -> None:
+    time.sleep(0.5)
+    os.kill(pid, signal.SIGSTOP)
+    time.sleep(PAUSE_S)
+    os.kill(pid, signal.SIGCONT)
 
 
 def compare(case: Case, sc: Scenario, outcome: RunOutcome) -> tuple[str, str]:
@@ -231,7 +248,8 @@ def main() -> None:
     p.add_argument("--json", type=Path, help="write every run's verdict here")
     p.add_argument("--keep", type=Path, default=Path("runs/stress"), help="where a run that is "
                    "not ok leaves its folder (logs, pids.json; default runs/stress)")  # fmt: skip
-    p.add_argument("--only", help="run only the cases whose name contains this")
+    p.add_argument("--only", help="run only the cases whose name contains one of these "
+                   "(comma-separated)")  # fmt: skip
     args = p.parse_args()
     deadline = time.monotonic() + 60 * args.minutes
     started = time.monotonic()
@@ -241,7 +259,7 @@ def main() -> None:
         for case in cases():
             if time.monotonic() >= deadline:
                 break
-            if args.only and args.only not in str(case):
+            if args.only and not any(part in str(case) for part in args.only.split(",")):
                 continue
             t0 = time.monotonic()
             with tempfile.TemporaryDirectory() as tmp:
