@@ -44,8 +44,7 @@ import pandas as pd
 from formation.errors import RecordingError
 from formation.messages import CoordinationState, DecisionBatch, EpochMetrics, LeaderEstimate
 from formation.scenario import Scenario
-from recorder.analysis.membership import present, team_errors
-from recorder.analysis.metrics import formation_error, shape_error
+from recorder.analysis.membership import errors_of_team, present
 from recorder.analysis.rundata import iter_trusted
 from recorder.reading.reader import parts, scenario_of
 from recorder.reading.trust import Gate, Skipped
@@ -215,15 +214,7 @@ class _Rows:
         team = present(x)
         complete = np.flatnonzero(team.any(axis=1))  # every epoch with a state
         xs, team = x[complete], team[complete]
-        fe, se = team_errors(
-            xs,
-            team,
-            formation_error(xs, s.edge_array, s.weights),
-            shape_error(xs, s.edge_array, s.offsets),
-            s.edge_array,
-            s.weights,
-            s.offsets,
-        )
+        fe, se = errors_of_team(xs, team, s.edge_array, s.weights, s.offsets)
         drops: dict[int, int] = {}
         for row in self.decisions:
             if row[2] == "formation" and not row[8]:

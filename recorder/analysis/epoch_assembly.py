@@ -36,8 +36,7 @@ from formation.messages import (
     Status,
 )
 from formation.scenario import Scenario
-from recorder.analysis.membership import team_errors
-from recorder.analysis.metrics import formation_error, shape_error
+from recorder.analysis.membership import errors_of_team
 from recorder.analysis.roster import Roster, team_detail
 from recorder.live.logs import change_log, status_log
 from recorder.live.scene import frame_transforms, scene_update
@@ -259,15 +258,7 @@ class EpochAssembler:
     def _metrics(self, k: int, x: npt.NDArray[np.float64], team: npt.NDArray[np.bool_]) -> Derived:
         s = self.scenario
         key = keys.metrics(self.run_id)
-        fe, se = team_errors(
-            x,
-            team,
-            formation_error(x, self.edges, s.weights),
-            shape_error(x, self.edges, s.offsets),
-            self.edges,
-            s.weights,
-            s.offsets,
-        )
+        fe, se = errors_of_team(x, team, self.edges, s.weights, s.offsets)
         msg = EpochMetrics(
             **self._header(key, k),
             formation_error_m=_finite_or_none(fe),

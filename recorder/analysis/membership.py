@@ -162,11 +162,31 @@ def spans(team: Mask) -> dict[int, list[tuple[int, int]]]:
     return out
 
 
+def errors_of_team(
+    positions: Array,
+    team: Mask,
+    edges: npt.NDArray[np.int64],
+    weights: Array,
+    offsets: Array,
+) -> tuple[Array, Array]:
+    """:func:`team_errors` of ``positions`` from nothing else: the errors over every edge first."""
+    return team_errors(
+        positions,
+        team,
+        formation_error(positions, edges, weights),
+        shape_error(positions, edges, offsets),
+        edges,
+        weights,
+        offsets,
+    )
+
+
 __all__ = [
     "SHAPE_THRESHOLD_M",
     "Action",
     "TeamChange",
     "changes",
+    "errors_of_team",
     "present",
     "spans",
     "team_edges",
