@@ -19,6 +19,18 @@ as_root() {
   fi
 }
 
+# apt_install WHAT HINT MISSING PACKAGE...: install PACKAGEs as root for the tools MISSING
+# (space-separated) names; every failure says WHAT is not there, and HINT without apt-get.
+apt_install() {
+  local what=$1 hint=$2 missing=$3; shift 3
+  command -v apt-get >/dev/null ||
+    fail "$what: $missing missing and no apt-get to install them; $hint"
+  say "installing $* for $missing (apt-get)"
+  as_root apt-get update -qq || fail "$what: cannot run apt-get as root to install $*"
+  as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$@" >/dev/null ||
+    fail "$what: apt-get could not install $*"
+}
+
 # The machine's hard limits for open files and processes, capped at 1024: the engines'
 # defaults are above the hard limits here ("setrlimit RLIMIT_NOFILE: Operation not permitted").
 ulimit_nofile() { local n; n=$(ulimit -Hn); { [ "$n" = unlimited ] || [ "$n" -gt 1024 ]; } && n=1024; printf '%s\n' "$n"; }

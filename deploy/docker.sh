@@ -107,15 +107,8 @@ engine() {
   for tool in dockerd containerd runc docker-init; do command -v "$tool" >/dev/null || missing+=("$tool"); done
   command -v docker >/dev/null || missing+=(docker)
   if [ "$(id -u)" = 0 ] && ! command -v debootstrap >/dev/null; then missing+=(debootstrap); fi
-  if [ ${#missing[@]} -gt 0 ]; then
-    command -v apt-get >/dev/null ||
-      fail "no Docker engine: ${missing[*]} missing and no apt-get to install them; install Docker Engine"
-    say "installing docker.io and debootstrap for ${missing[*]} (apt-get)"
-    as_root apt-get update -qq ||
-      fail "no Docker engine: cannot run apt-get as root to install docker.io"
-    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq docker.io debootstrap >/dev/null ||
-      fail "no Docker engine: apt-get could not install docker.io and debootstrap"
-  fi
+  [ ${#missing[@]} -eq 0 ] || apt_install "no Docker engine" "install Docker Engine" \
+    "${missing[*]}" docker.io debootstrap
   install_compose
   if running && docker info >/dev/null 2>&1; then
     say "dockerd (PID $(cat "$DIR/docker.pid")) already answers on $DOCKER_HOST"

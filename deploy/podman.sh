@@ -31,15 +31,9 @@ engine() {
   # ("container-init binary not found on the host: stat /usr/libexec/podman/catatonit").
   [ -x /usr/libexec/podman/catatonit ] || missing+=(catatonit)
   if [ "$(id -u)" = 0 ] && ! command -v debootstrap >/dev/null; then missing+=(debootstrap); fi
-  if [ ${#missing[@]} -gt 0 ]; then
-    command -v apt-get >/dev/null ||
-      fail "no container engine: ${missing[*]} missing and no apt-get to install them; install podman and runc, or run the compose test under Docker (README, Deployment)"
-    say "installing ${missing[*]} (apt-get)"
-    as_root apt-get update -qq ||
-      fail "no container engine: cannot run apt-get as root to install ${missing[*]}"
-    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq podman runc catatonit debootstrap >/dev/null ||
-      fail "no container engine: apt-get could not install podman, runc, catatonit and debootstrap"
-  fi
+  [ ${#missing[@]} -eq 0 ] || apt_install "no container engine" \
+    "install podman and runc, or run the compose test under Docker (README, Deployment)" \
+    "${missing[*]}" podman runc catatonit debootstrap
   if [ ! -x "$COMPOSE_VENV/bin/podman-compose" ]; then
     say "installing podman-compose $PODMAN_COMPOSE_VERSION into $COMPOSE_VENV"
     python3 -m venv "$COMPOSE_VENV" || fail "python3 -m venv failed (install python3-venv)"

@@ -12,7 +12,7 @@ from __future__ import annotations
 import grp
 import os
 import pwd
-import runpy
+import importlib.util
 import sys
 from pathlib import Path
 
@@ -57,18 +57,27 @@ def hand_over(path: Path) -> None:
 
 def main(argv: list[str]) -> None:
     uid, module, *args = argv
-    # What the services import, while root can still read the interpreter's library.
+    # What the services import, and the code `python -m MODULE` runs, read while root still
+    # can: the checkout may sit in a folder only root may enter (mktemp -d is 0700).
     import agent.node  # noqa: F401
     import leader.node  # noqa: F401
     import netem.node  # noqa: F401
     import recorder.node  # noqa: F401
     import testbed.runtime.router  # noqa: F401
 
+    spec = importlib.util.find_spec(module)
+    if spec is not None and spec.submodule_search_locations is not None:  # a package
+        spec = importlib.util.find_spec(f"{module}.__main__")
+    if spec is None or spec.loader is None:
+        raise SystemExit(f"other_user: no module {module}")
+    code = spec.loader.get_code(spec.name)  # type: ignore[attr-defined]
     os.setgroups([])
     os.setgid(int(uid))
     os.setuid(int(uid))
-    sys.argv = [module, *args]
-    runpy.run_module(module, run_name="__main__", alter_sys=True)
+    sys.argv = [spec.origin or module, *args]
+    run_as = {"__name__": "__main__", "__spec__": spec, "__file__": spec.origin,
+              "__package__": spec.parent, "__builtins__": __builtins__}  # fmt: skip
+    exec(code, run_as)
 
 
 if __name__ == "__main__":
