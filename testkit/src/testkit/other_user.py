@@ -10,9 +10,9 @@ secrets. Run as anyone else, the file is made mode 000 and the service runs as t
 from __future__ import annotations
 
 import grp
+import importlib.util
 import os
 import pwd
-import importlib.util
 import sys
 from pathlib import Path
 
