@@ -124,7 +124,8 @@ def test_a_run_with_a_killed_agent_has_every_epoch_with_it_out(
     assert kill.killed, "the run ended before the kill"
     (loss,) = outcome.summary()["losses"]
     lost, back = loss["epoch"], loss.get("back_from_epoch") or EPOCHS + 1
-    assert KILL_AT - 5 <= lost <= KILL_AT + 5 and lost < back
+    # restarted fast enough, it is back from the very epoch it was lost at: never out
+    assert KILL_AT - 5 <= lost <= KILL_AT + 5 and lost <= back
     assert (back <= EPOCHS) == (restart == "on-failure")
     out_at = [[3] if lost <= k < back else [] for k in range(EPOCHS + 1)]
     got = assert_every_epoch_once(outcome, out_at)
