@@ -196,7 +196,7 @@ class EpochAssembler:
         if k > self.scenario.epochs:
             return False
         got = self._states.get(k, {})
-        if (got or k <= self._newest_state) and self.roster.expected(k) <= got.keys():
+        if (got or k <= self._newest_state) and self.roster.complete(k, got.keys()):
             return True
         return self._newest_state >= k + CLOSE_AFTER or self._newest_estimate >= k
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Collection
 from typing import Any
 
 import numpy as np
@@ -43,6 +44,7 @@ class Roster:
         self._published, self._present = team.published, team.present
         self._links = scenario.directed_links
         self._out_until: dict[int, float] = {}  # sender → first epoch it is expected again
+        self._planned: dict[int, frozenset[int]] = {}  # epoch → planned(epoch), built once
 
     def on_team(self, detail: dict[str, Any]) -> None:
         """netem's team status: who is down now, and from which epoch each is back."""
@@ -58,13 +60,27 @@ class Roster:
     def _out(self, sender: int, epoch: int) -> bool:
         return epoch < self._out_until.get(sender, -math.inf)
 
-    def planned(self, epoch: int) -> set[int]:
+    def planned(self, epoch: int) -> frozenset[int]:
         """Agents the scenario has publish their state of ``epoch``."""
-        return {int(i) + 1 for i in np.flatnonzero(self._published[min(epoch, self.last)])}
+        k = min(epoch, self.last)
+        if k not in self._planned:
+            self._planned[k] = frozenset(int(i) + 1 for i in np.flatnonzero(self._published[k]))
+        return self._planned[k]
 
     def expected(self, epoch: int) -> set[int]:
         """Agents whose state of ``epoch`` is to come: planned and not down."""
-        return {i for i in self.planned(epoch) if not self._out(i, epoch)}
+        return set(self.planned(epoch) - self._down(epoch))
+
+    def complete(self, epoch: int, got: Collection[int]) -> bool:
+        """Whether ``got`` has every expected agent; asked at each state, so a short ``got``
+        is answered by its length, not by walking the team."""
+        planned, down = self.planned(epoch), self._down(epoch) & self.planned(epoch)
+        if len(got) < len(planned) - len(down):
+            return False
+        return planned - down <= set(got)
+
+    def _down(self, epoch: int) -> set[int]:
+        return {i for i in self._out_until if self._out(i, epoch)}
 
     def estimated(self, epoch: int) -> bool:
         """Whether the leader's estimate of ``epoch`` is to come (none of the final states)."""
