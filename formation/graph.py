@@ -13,8 +13,9 @@ import operator
 
 import numpy as np
 import numpy.typing as npt
-from scipy.sparse import coo_matrix
+from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.sparse.linalg import splu
 
 from formation.errors import TestbedError
 
@@ -252,8 +253,177 @@ def expected_rigidity_rank(n: int, d: int) -> int:
     return count * dim - dim * (dim + 1) // 2
 
 
-def is_rigid(positions: npt.ArrayLike, edges: npt.ArrayLike) -> bool:
-    """Whether the framework is infinitesimally rigid: rank ``R(q)`` = the expected rank (§2)."""
+SVD_MAX_COLUMNS = 600
+"""Frameworks of at most this many coordinates ``n·d`` are checked by the dense SVD, larger
+ones by the vertex-addition certificate and the pinned stiffness (docs/model.md §2)."""
+
+PIVOT_RTOL = 1e-12
+"""Pivots of the pinned stiffness at most this fraction of its largest diagonal entry count
+as zero: its eigenvalues are the squares of ``R``'s singular values, ``RANK_RTOL²`` below."""
+
+
+def is_rigid(
+    positions: npt.ArrayLike, edges: npt.ArrayLike, svd_max_columns: int = SVD_MAX_COLUMNS
+) -> bool:
+    """Whether the framework is infinitesimally rigid: rank ``R(q)`` = the expected rank (§2).
+
+    Small frameworks (``n·d ≤ svd_max_columns``) by the SVD of :func:`rigidity_rank`. Larger
+    ones without the edge count are not rigid; the others are rigid if vertex addition
+    grows one rigid cluster over every agent (:func:`grown_cluster`), and otherwise by
+    whether the pinned stiffness ``RᵀR + CᵀC`` is positive definite
+    (:func:`pinned_stiffness_definite`). Both are evaluated at ``positions``, not at
+    generic ones, so grids and collinear agents get their own answer.
+    """
     x = as_positions(positions)
     n, d = x.shape
-    return rigidity_rank(x, edges) == expected_rigidity_rank(n, d)
+    e = as_edge_array(n, edges)
+    need = expected_rigidity_rank(n, d)
+    if n * d <= svd_max_columns or n <= d + 1:
+        return rigidity_rank(x, e) == need
+    if e.shape[0] < need:
+        return False
+    if grown_cluster(x, e).all():
+        return True
+    return pinned_stiffness_definite(x, e)
+
+
+def _half_edges(n: int, e0: IntArray) -> tuple[IntArray, IntArray, IntArray]:
+    """Both directions of each 0-based edge, sorted by tail: ``(tail, head, start)``, CSR-like."""
+    tail = np.concatenate([e0[:, 0], e0[:, 1]])
+    head = np.concatenate([e0[:, 1], e0[:, 0]])
+    order = np.argsort(tail, kind="stable")
+    return tail[order], head[order], np.searchsorted(tail[order], np.arange(n + 1))
+
+
+def _direction_ranks(x: FloatArray, tail: IntArray, head: IntArray, counts: IntArray) -> IntArray:
+    """Rank of each candidate's edge directions; its half-edges are consecutive, ``counts`` each."""
+    out = np.zeros(counts.shape[0], dtype=np.int64)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    dirs = x[head] - x[tail]
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)  # lengths never matter, only angles
+    for k in np.unique(counts):
+        sel = np.flatnonzero(counts == k)
+        s = np.linalg.svd(dirs[first[sel, None] + np.arange(k)], compute_uv=False)
+        out[sel] = np.count_nonzero(s > RANK_RTOL * s[:, :1], axis=1)
+    return out
+
+
+def grown_cluster(positions: npt.ArrayLike, edges: npt.ArrayLike, seed: int = 0) -> BoolArray:
+    """The agents of the rigid cluster that vertex addition grows from edge ``seed`` (§2).
+
+    A cluster of ``c ≤ d`` agents affinely independent and all joined takes an agent joined to
+    all of them, off their affine hull; a larger one takes, all at once, every agent with
+    ``d`` edges into it along independent directions. Each step keeps the cluster
+    infinitesimally rigid at ``positions`` (the agent's velocity is fixed by ``d``
+    independent constraints against a rigid body), so a cluster of every agent is a
+    certificate of rigidity; a smaller one proves nothing. Rounds of array work, ``O(m)``
+    each.
+
+    Returns
+    -------
+    (n,) bool: the cluster's agents (none if there are no edges).
+    """
+    x = as_positions(positions)
+    n, d = x.shape
+    e0 = as_edge_array(n, edges) - 1
+    inside = np.zeros(n, dtype=bool)
+    if e0.shape[0] == 0:
+        return inside
+    tail, head, _ = _half_edges(n, e0)
+    inside[e0[seed]] = True
+    size = 2
+    while size < n:
+        into = inside[head] & ~inside[tail]
+        count = np.bincount(tail[into], minlength=n)
+        need = min(d, size)
+        cand = np.flatnonzero(count == size) if size <= d else np.flatnonzero(count >= need)
+        if cand.shape[0] == 0:
+            break
+        pick = into & np.isin(tail, cand)
+        ranks = _direction_ranks(x, tail[pick], head[pick], count[cand])
+        add = cand[ranks >= need]
+        if add.shape[0] == 0:
+            break
+        if size <= d:
+            add = add[:1]  # a simplex grows one agent at a time, each off the others' hull
+        inside[add] = True
+        size += add.shape[0]
+    return inside
+
+
+def _pinning(x: FloatArray) -> FloatArray | None:
+    """Rows ``C`` (D, n·d) that fix the ``D = d(d+1)/2`` rigid motions, or None if ``x`` is flat.
+
+    Agent ``a`` (the first) is held; ``b``, the farthest from it, may only slide along
+    ``b − a``; in 3-D, ``c``, the farthest from that line, only within the plane ``a b c``.
+    """
+    n, d = x.shape
+    a = 0
+    rel = x - x[a]
+    b = int(np.argmax(np.linalg.norm(rel, axis=1)))
+    span = [rel[b] / np.linalg.norm(rel[b])] if np.linalg.norm(rel[b]) > 0 else []
+    if not span:
+        return None
+    rows: list[tuple[int, FloatArray]] = [(a, np.eye(d)[k]) for k in range(d)]
+    basis = np.linalg.svd(np.array(span).reshape(1, d))[2]
+    rows += [(b, v) for v in basis[1:]]
+    if d == 3:
+        off = rel - np.outer(rel @ span[0], span[0])
+        c = int(np.argmax(np.linalg.norm(off, axis=1)))
+        if np.linalg.norm(off[c]) <= RANK_RTOL * np.linalg.norm(rel[b]):
+            return None
+        rows.append((c, np.cross(span[0], off[c] / np.linalg.norm(off[c]))))
+    elif d != 2:
+        return None  # the pinning is written for the plane and space only
+    if d == 2 and np.linalg.norm(rel - np.outer(rel @ span[0], span[0]), axis=1).max() <= (
+        RANK_RTOL * np.linalg.norm(rel[b])
+    ):
+        return None
+    out = np.zeros((len(rows), n * d))
+    for r, (agent, v) in enumerate(rows):
+        out[r, agent * d : (agent + 1) * d] = v
+    return out
+
+
+def sparse_rigidity_matrix(positions: npt.ArrayLike, edges: npt.ArrayLike) -> csr_matrix:
+    """:func:`rigidity_matrix` as a sparse matrix, ``2d`` entries per row."""
+    x = as_positions(positions)
+    n, d = x.shape
+    e = as_edge_array(n, edges) - 1
+    m = e.shape[0]
+    diff = x[e[:, 0]] - x[e[:, 1]]
+    cols = np.concatenate([e[:, :1] * d + np.arange(d), e[:, 1:] * d + np.arange(d)], axis=1)
+    vals = np.concatenate([diff, -diff], axis=1)
+    return csr_matrix((vals.ravel(), (np.repeat(np.arange(m), 2 * d), cols.ravel())), (m, n * d))
+
+
+def pinned_stiffness_definite(positions: npt.ArrayLike, edges: npt.ArrayLike) -> bool:
+    """Whether ``RᵀR + CᵀC`` is positive definite, ``C`` from :func:`_pinning`: rigidity (§2).
+
+    ``C`` removes exactly the rigid motions when the agents span the space, so the matrix
+    is definite iff the only motions that keep every edge's length are rigid. A sparse
+    ``LDLᵀ`` (SuperLU, symmetric mode, diagonal pivots) answers it: every pivot above
+    ``PIVOT_RTOL`` of the largest diagonal entry. Agents on a line (in 3-D, a plane) are
+    never rigid once there are more than ``d`` of them.
+    """
+    x = as_positions(positions)
+    n, d = x.shape
+    pins = _pinning(x)
+    if pins is None:
+        return False
+    r = sparse_rigidity_matrix(x, edges)
+    c = csr_matrix(pins)
+    k = (r.T @ r + c.T @ c).tocsc()
+    scale = float(np.abs(k.diagonal()).max())
+    try:
+        lu = splu(
+            k,
+            permc_spec="MMD_AT_PLUS_A",
+            diag_pivot_thresh=0.0,
+            options={"SymmetricMode": True},
+        )
+    except RuntimeError:  # an exactly zero pivot: singular
+        return False
+    if not np.array_equal(lu.perm_r, lu.perm_c):
+        return False  # it had to leave the diagonal: not definite
+    return bool((lu.U.diagonal() > PIVOT_RTOL * scale).all())

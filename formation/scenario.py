@@ -21,7 +21,14 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from formation._error_paths import loc_path, lookup
 from formation.errors import NO_VALUE, ScenarioError
 from formation.events import Event, Membership, event_problems, membership
-from formation.graph import expected_rigidity_rank, is_connected, max_degree, rigidity_rank
+from formation.graph import (
+    SVD_MAX_COLUMNS,
+    expected_rigidity_rank,
+    is_connected,
+    is_rigid,
+    max_degree,
+    rigidity_rank,
+)
 from formation.keyed_random import Stream, keyed_normal
 from formation.linkmodels import LinkModelSpec
 from formation.robots import Safety, Unicycle, robot_problems
@@ -363,13 +370,14 @@ def _problems(s: Scenario) -> list[tuple[str, object, str]]:
             ("edges", [list(map(int, p)) for p in pairs], "the formation graph is not connected")
         ]
     if n > 1 and not s.allow_flexible:
-        rank, need = rigidity_rank(d0, pairs), expected_rigidity_rank(n, d)
-        if rank < need:
+        need = expected_rigidity_rank(n, d)
+        if not is_rigid(d0, pairs):
+            have = f"rigidity rank {rigidity_rank(d0, pairs)}" if n * d <= SVD_MAX_COLUMNS else "not rigid"
             return [
                 (
                     "edges",
                     f"{len(pairs)} edges",
-                    f"the shape is not rigid (rigidity rank {rank}, need {need}); "
+                    f"the shape is not rigid ({have}, need {need}); "
                     "add edges or set allow_flexible = true",
                 )
             ]

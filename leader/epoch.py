@@ -32,7 +32,8 @@ class LeaderEpoch:
 
     healthy, tree : (m,) per formation edge; components : forest components
     estimate : the BLUE (positions (n, d), covariances (n, d, d), observable (n,))
-    rigidity_rank : rank of the healthy subgraph on the shape ``d0``; rigid : whether it is full
+    rigidity_rank : rank of the healthy subgraph on the shape ``d0`` (−1 where only rigid or
+    not was known: large redundant formations, leader.rigidity); rigid : whether it is full
     """
 
     healthy: Mask
@@ -115,16 +116,14 @@ class Leader:
         healthy = np.asarray(per_edge.any(axis=2) if self.either else per_edge.all(axis=2))
         tree, labels = self.forest.forests(healthy)
         estimate = self._estimate(known, z, x_ref, healthy, tree, labels, covariances)
-        ranks = None if self.rigidity is None else self.rigidity.ranks(healthy)
+        ranks, rigid = (None, None) if self.rigidity is None else self.rigidity.check(healthy)
         return LeaderEpochs(
             healthy=healthy,
             tree=tree,
             components=n - tree.sum(axis=1, dtype=np.int64),
             estimate=estimate,
             rigidity_rank=ranks,
-            rigid=None
-            if ranks is None or self.rigidity is None
-            else ranks == self.rigidity.expected,
+            rigid=rigid,
         )
 
     def covariances(self, known: Mask, z: Array, x_ref: Array, epochs: LeaderEpochs) -> Array:

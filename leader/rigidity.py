@@ -13,6 +13,7 @@ import numpy as np
 import numpy.typing as npt
 
 from formation.graph import (
+    SVD_MAX_COLUMNS,
     as_edge_array,
     as_edge_mask,
     as_positions,
@@ -21,7 +22,7 @@ from formation.graph import (
 )
 from formation.graph import expected_rigidity_rank as expected_rank
 
-__all__ = ["HealthyRigidity", "expected_rank", "healthy_rigidity", "is_rigid", "rigidity_rank"]
+__all__ = ["UNKNOWN_RANK", "HealthyRigidity", "expected_rank", "healthy_rigidity", "is_rigid", "rigidity_rank"]
 
 
 def healthy_rigidity(
@@ -54,38 +55,68 @@ def healthy_rigidity(
     return rank, rank == expected_rank(n, d)
 
 
+UNKNOWN_RANK = -1
+"""The rank the tracker reports where only rigid or not was cheap to know."""
+
+
 class HealthyRigidity:
     """:func:`healthy_rigidity` for one formation, epoch after epoch, without an SVD per epoch.
 
     If the rows of the full rigidity matrix are independent (``rank == m``, as in
     every minimally rigid graph), every subset of them is independent too, so the
-    healthy subgraph's rank is its number of edges. Otherwise each distinct mask is
-    ranked once by SVD and remembered.
+    healthy subgraph's rank is its number of edges. Otherwise a small formation
+    (``n·d ≤ svd_max_columns``) ranks each distinct mask once by SVD and remembers it.
+    A large one answers rigid or not (:func:`formation.graph.is_rigid`: short of the
+    edge count, then vertex addition, then the pinned stiffness) and reports the rank
+    only where that gives it: ``expected`` when rigid, :data:`UNKNOWN_RANK` otherwise.
     """
 
-    def __init__(self, positions: npt.ArrayLike, edges: npt.ArrayLike) -> None:
+    def __init__(
+        self,
+        positions: npt.ArrayLike,
+        edges: npt.ArrayLike,
+        svd_max_columns: int = SVD_MAX_COLUMNS,
+    ) -> None:
         self.positions = as_positions(positions)
         n, d = self.positions.shape
         self.edges = as_edge_array(n, edges)
         self.expected = expected_rank(n, d)
-        self.independent = rigidity_rank(self.positions, self.edges) == self.edges.shape[0]
+        self.svd_max_columns = svd_max_columns
+        self.small = n * d <= svd_max_columns or n <= d + 1
+        m = self.edges.shape[0]
+        if self.small:
+            self.independent = rigidity_rank(self.positions, self.edges) == m
+        else:  # more edges than the rank allows are dependent; exactly as many, iff rigid
+            self.independent = m == self.expected and self._rigid(np.ones(m, dtype=bool))
         self._seen: dict[bytes, int] = {}
+        self._rigid_seen: dict[bytes, bool] = {}
 
     def __call__(self, healthy_mask: npt.ArrayLike) -> tuple[int, bool]:
         """``(rank, rigid)`` of the healthy subgraph, as :func:`healthy_rigidity` gives them."""
         keep = as_edge_mask(healthy_mask, self.edges.shape[0], "healthy_mask")
-        rank = int(self.ranks(keep[None])[0])
-        return rank, rank == self.expected
+        ranks, rigid = self.check(keep[None])
+        return int(ranks[0]), bool(rigid[0])
 
-    def ranks(self, healthy: npt.NDArray[np.bool_]) -> npt.NDArray[np.int64]:
-        """Rigidity rank of each of ``B`` healthy subgraphs: ``healthy`` (B, m) → (B,)."""
+    def check(
+        self, healthy: npt.NDArray[np.bool_]
+    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
+        """Rank and rigidity of each of ``B`` healthy subgraphs: ``healthy`` (B, m) → (B,), (B,)."""
+        counts: npt.NDArray[np.int64] = healthy.sum(axis=1, dtype=np.int64)
         if self.independent:
-            counts: npt.NDArray[np.int64] = healthy.sum(axis=1, dtype=np.int64)
-            return counts
-        out = np.zeros(healthy.shape[0], dtype=np.int64)
-        for b, keep in enumerate(healthy):
-            key = keep.tobytes()
-            if key not in self._seen:
-                self._seen[key] = rigidity_rank(self.positions, self.edges[keep])
-            out[b] = self._seen[key]
-        return out
+            return counts, counts == self.expected
+        if self.small:
+            ranks = np.zeros(healthy.shape[0], dtype=np.int64)
+            for b, keep in enumerate(healthy):
+                key = keep.tobytes()
+                if key not in self._seen:
+                    self._seen[key] = rigidity_rank(self.positions, self.edges[keep])
+                ranks[b] = self._seen[key]
+            return ranks, ranks == self.expected
+        rigid = np.array([bool(c >= self.expected) and self._rigid(k) for c, k in zip(counts, healthy)])
+        return np.where(rigid, self.expected, UNKNOWN_RANK).astype(np.int64), rigid.astype(bool)
+
+    def _rigid(self, keep: npt.NDArray[np.bool_]) -> bool:
+        key = keep.tobytes()
+        if key not in self._rigid_seen:
+            self._rigid_seen[key] = is_rigid(self.positions, self.edges[keep], self.svd_max_columns)
+        return self._rigid_seen[key]

@@ -21,6 +21,7 @@ import numpy.typing as npt
 from mcap.records import Channel, Message
 
 from formation.errors import RecordingError
+from formation.graph import expected_rigidity_rank
 from formation.messages import CoordinationState, LeaderEstimate
 from formation.scenario import Scenario
 from recorder.analysis import membership
@@ -47,6 +48,7 @@ class RunData:
     delivered : (E, L) formation link ``links[l]`` delivered in time at epoch ``k``
     decided : (E, L) whether that delivery is known (always True from the simulator)
     healthy, tree : (E, m) per formation edge; components, rigidity_rank : (E,), −1 if unknown
+    rigid : (E,) 1 rigid, 0 not, −1 unknown (default: from ``rigidity_rank``)
     substitution_errors : (N, d); nees_values : (M,); estimation_errors : (M, d) [m]
     headings : (P, n) [rad], NaN where not recorded; saturated : (P − 1, n) sub-steps of the step
     from epoch ``k`` with a clipped speed, −1 where not recorded (unicycle only, else None)
@@ -76,12 +78,17 @@ class RunData:
     headings: Array | None = None
     saturated: Ints | None = None
     present: Bools = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
+    rigid: Ints = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     def __post_init__(self) -> None:
         if self.decided.shape != self.delivered.shape:  # the simulator knows every delivery
             self.decided = np.ones_like(self.delivered, dtype=bool)
         if self.present.shape != self.positions.shape[:2]:
             self.present = membership.present(self.positions)
+        if self.rigid.shape != self.rigidity_rank.shape:  # ranks say it where they are known
+            s = self.scenario
+            full = self.rigidity_rank == expected_rigidity_rank(s.n, s.dimension)
+            self.rigid = np.where(self.rigidity_rank < 0, -1, full).astype(np.int64)
 
     @property
     def links(self) -> Ints:
@@ -109,6 +116,7 @@ def _estimates(scenario: Scenario, ests: dict[int, dict[str, Any]], count: int) 
         "tree": np.zeros((count, m), dtype=bool),
         "components": np.full(count, -1, dtype=np.int64),
         "rigidity_rank": np.full(count, -1, dtype=np.int64),
+        "rigid": np.full(count, -1, dtype=np.int64),
     }
     for k, e in ests.items():
         for i, (p, c) in enumerate(zip(e["positions"], e["covariances"], strict=False)):
@@ -118,6 +126,7 @@ def _estimates(scenario: Scenario, ests: dict[int, dict[str, Any]], count: int) 
         out["healthy"][k] = edge_mask(scenario.edge_array, [tuple(p) for p in e["healthy"]])
         out["tree"][k] = edge_mask(scenario.edge_array, [tuple(p) for p in e["tree"]])
         out["components"][k], out["rigidity_rank"][k] = e["components"], e["rigidity_rank"]
+        out["rigid"][k] = e["rigid"]
     return out
 
 
@@ -177,6 +186,7 @@ class _Collected:
                 "tree": est.tree,
                 "components": est.components,
                 "rigidity_rank": est.rigidity_rank,
+                "rigid": est.rigid,
             }
         elif kind == "metrics":
             self.recorded[msg.epoch] = msg.formation_error_m

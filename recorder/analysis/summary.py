@@ -51,7 +51,7 @@ def summarise(run: RunData) -> dict[str, Any]:
     lost = run.decided & ~run.delivered
     _, _, sub_trace = error_statistics(run.substitution_errors)
     _, _, est_trace = error_statistics(run.estimation_errors)
-    known = run.rigidity_rank >= 0
+    known = run.rigid >= 0
     tree = run.tree[known]
     expected = expected_rigidity_rank(s.n, s.dimension)
     formation, shape = run_team_errors(run)
@@ -79,7 +79,7 @@ def summarise(run: RunData) -> dict[str, Any]:
             links[c]: longest_run(lost[:, c]) for c in range(len(links)) if lost[:, c].any()
         },
         "tree_changes": int((tree[1:] != tree[:-1]).any(axis=1).sum()) if len(tree) > 1 else 0,
-        "epochs_not_rigid": int((run.rigidity_rank[known] < expected).sum()),
+        "epochs_not_rigid": int((run.rigid[known] == 0).sum()),
         "expected_rigidity_rank": expected,
         "epochs_split": int((run.components[known] > 1).sum()),
     }

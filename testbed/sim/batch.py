@@ -52,7 +52,7 @@ class BatchResult:
     unicycle dynamics only
     With ``detail``: estimates (E, B, n, d) (NaN where unobservable), estimate_cov
     (E, B, n, d, d), observable (E, B, n), healthy and tree (E, B, m), components and
-    rigidity_rank (E, B), and every substitution as (member, epoch, link, error (N, d)).
+    rigidity_rank (E, B) (−1 unknown), rigid (E, B) (1, 0; −1 unknown), and every substitution as (member, epoch, link, error (N, d)).
     """
 
     plan: BatchPlan
@@ -70,6 +70,7 @@ class BatchResult:
     tree: Mask | None = None
     components: Ints | None = None
     rigidity_rank: Ints | None = None
+    rigid: Ints | None = None
     report_ok: Mask | None = None
     estimate_ok: Mask | None = None
     headings: Array | None = None
@@ -113,6 +114,7 @@ class BatchResult:
         assert self.estimates is not None and self.estimate_cov is not None
         assert self.observable is not None and self.healthy is not None and self.tree is not None
         assert self.components is not None and self.rigidity_rank is not None
+        assert self.rigid is not None
         plan = self.plan
         base = plan.base
         d, r = base.dimension, base.leader
@@ -147,6 +149,7 @@ class BatchResult:
             tree=self.tree[:, b],
             components=self.components[:, b],
             rigidity_rank=self.rigidity_rank[:, b],
+            rigid=self.rigid[:, b],
             substitution_errors=self.sub_error[sel] if sel.any() else np.zeros((0, d)),
             substitution_epochs=self.sub_epoch[sel],
             fallbacks=int(self.fallbacks[b]),
@@ -379,6 +382,7 @@ class _Log:
         self.tree = np.zeros((n_epochs, size, m), dtype=bool)
         self.components = np.zeros((n_epochs, size), dtype=np.int64)
         self.rank = np.zeros((n_epochs, size), dtype=np.int64)
+        self.rigid = np.full((n_epochs, size), -1, dtype=np.int64)
         self.subs: list[tuple[Ints, Ints, Ints, Array]] = []
 
     def epoch(
@@ -391,6 +395,8 @@ class _Log:
         self.healthy[k], self.tree[k], self.components[k] = lead.healthy, lead.tree, lead.components
         if lead.rigidity_rank is not None:
             self.rank[k] = lead.rigidity_rank
+        if lead.rigid is not None:
+            self.rigid[k] = lead.rigid
         # Every lost variable counts (docs/model.md §7), also those the reference agent substitutes
         # without steering by them: on the default scenario they are the only ones with error.
         idx = np.flatnonzero(sub.substituted)
@@ -403,6 +409,7 @@ class _Log:
         result.estimates, result.estimate_cov, result.observable = self.est, self.cov, self.obs
         result.healthy, result.tree = self.healthy, self.tree
         result.components, result.rigidity_rank = self.components, self.rank
+        result.rigid = self.rigid
         if not self.subs:
             result.sub_error = np.zeros((0, d))
             return

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from itertools import combinations
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
+from scipy.spatial import cKDTree
 
 from formation.scenario import Scenario, load_dict
 
@@ -36,3 +39,83 @@ def henneberg_team(n: int, spacing_m: float = 1.0, seed: int = 0, **overrides: A
     }
     data.update(overrides)
     return load_dict(data, source=f"henneberg_team(n={n})")
+
+
+def rigid_team(
+    n: int,
+    dimension: int = 2,
+    redundancy: float = 0.0,
+    spacing_m: float = 1.0,
+    seed: int = 0,
+    **overrides: Any,
+) -> Scenario:
+    """A rigid team of ``n`` agents in the plane or in space, with a chosen share of spare edges.
+
+    Parameters
+    ----------
+    n : number of agents, at least ``dimension + 1``
+    dimension : 2 or 3
+    redundancy : spare edges as a fraction of the minimally rigid ``d·n − d(d+1)/2``; 0.1
+        adds one edge in ten, each between agents at most ``1.5 · spacing_m`` apart
+    spacing_m : grid spacing [m]; the offsets are a square (cubic) grid moved by up to
+        ``0.25 · spacing_m`` per coordinate, so they are generic
+    seed : the offsets and the spare edges
+    overrides : scenario fields to set (``epochs``, ``links``, ...)
+
+    The first ``d`` agents are all joined; each later agent is joined to ``d`` earlier ones
+    (vertex addition), the best-spread ``d`` of its ``2d`` nearest earlier agents (largest
+    ``|det|`` of the unit directions), so the team stays well conditioned as it grows. The
+    gain is ``0.9 / max_degree``, so the scenario is always stable. Near-linear in ``n``.
+    """
+    if dimension not in (2, 3):
+        raise ValueError(f"dimension = {dimension}: 2 or 3")
+    if n < dimension + 1:
+        raise ValueError(f"n = {n}: at least dimension + 1 = {dimension + 1} agents")
+    if not 0.0 <= redundancy <= 1.0:
+        raise ValueError(f"redundancy = {redundancy}: between 0 and 1")
+    d = dimension
+    rng = np.random.default_rng(seed)
+    side = int(np.ceil(n ** (1.0 / d) - 1e-9))
+    grid = np.stack(np.meshgrid(*[np.arange(side)] * d, indexing="ij"), axis=-1).reshape(-1, d)
+    pts = (grid[:n, ::-1] + rng.uniform(-0.25, 0.25, size=(n, d))) * spacing_m
+    edges = [(i, j) for j in range(d) for i in range(j)]
+    tree = cKDTree(pts)
+    near = 2 * d
+    for k in range(d, n):
+        reach = near
+        while True:  # the nearest agents of all, cut to the earlier ones
+            _, idx = tree.query(pts[k], k=min(reach, n))
+            earlier = idx[idx < k][:near]
+            if earlier.shape[0] >= min(near, k) or reach >= n:
+                break
+            reach *= 4
+        best = _best_spread(pts[earlier] - pts[k], d)
+        edges += [(int(earlier[c]), k) for c in best]
+    base = len(edges)
+    have = {(min(a, b), max(a, b)) for a, b in edges}
+    pairs = tree.query_pairs(1.5 * spacing_m, output_type="ndarray")
+    spare = [tuple(p) for p in pairs[rng.permutation(pairs.shape[0])] if tuple(p) not in have]
+    edges += spare[: int(round(redundancy * base))]
+    arr = np.array(edges, dtype=np.int64) + 1
+    degree = np.bincount(arr.ravel(), minlength=n + 1)
+    velocity = [0.01, 0.005, 0.0][:d]
+    data: dict[str, Any] = {
+        "name": f"team{n}-{d}d" + (f"-r{redundancy:g}" if redundancy else ""),
+        "dimension": d,
+        "epochs": 100,
+        "agents": [{"id": i + 1, "offset": [round(float(v), 6) for v in p]} for i, p in enumerate(pts)],
+        "edges": arr.tolist(),
+        "control": {"gain": round(0.9 / max(int(degree.max()), 1), 6)},
+        "reference": {"kind": "line", "velocity": velocity},
+        "initial": {"spread_m": 0.2 * spacing_m},
+    }
+    data.update(overrides)
+    return load_dict(data, source=f"rigid_team(n={n}, dimension={d}, redundancy={redundancy:g})")
+
+
+def _best_spread(directions: npt.NDArray[np.float64], d: int) -> tuple[int, ...]:
+    """The ``d`` of the given directions (k, d) whose unit vectors span the most volume."""
+    unit = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    choices = list(combinations(range(unit.shape[0]), d))
+    volume = np.abs(np.linalg.det(unit[np.array(choices)]))
+    return choices[int(np.argmax(volume))]

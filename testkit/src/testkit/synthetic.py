@@ -68,7 +68,7 @@ def traffic(result: Any) -> list[tuple[str, bytes, bytes | None, int]]:
             healthy=[e for e, h in zip(edges, result.healthy[k], strict=True) if h],
             components=int(result.components[k]),
             rigidity_rank=int(result.rigidity_rank[k]),
-            rigid=bool(result.rigidity_rank[k] >= 2 * s.n - 3),
+            rigid=bool(result.rigid[k] == 1),
             x_ref=x[k, s.leader - 1].tolist(),
             v_ref=[0.0] * s.dimension,
             reports_received=s.n,
