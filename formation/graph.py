@@ -287,6 +287,67 @@ def is_rigid(
     return pinned_stiffness_definite(x, e)
 
 
+def rigid_under_mask(
+    positions: FloatArray, edges: IntArray, rounds: IntArray, mask: BoolArray, spread: bool
+) -> bool:
+    """:func:`is_rigid` of the kept edges of a large framework, the growth order known (§2).
+
+    ``spread``: :func:`spans_without_any` of ``positions``, which lets an agent whose kept
+    edges do not span the space prove the framework flexible.
+    """
+    if ordered_certificate(positions, edges, rounds, mask):
+        return True
+    if spread and loose_agent(positions, edges, mask):
+        return False
+    return pinned_stiffness_definite(positions, edges[mask])
+
+
+def spans_without_any(positions: npt.ArrayLike) -> bool:
+    """Whether the agents less any one of them still span the space affinely.
+
+    True when two disjoint sets of ``d + 1`` agents are each affinely independent: every
+    agent misses one of them. Then a motion that moves one agent alone is never rigid.
+    """
+    x = as_positions(positions)
+    n, d = x.shape
+    free = np.ones(n, dtype=bool)
+    for _ in range(2):
+        if free.sum() < d + 1:
+            return False
+        chosen = [int(np.flatnonzero(free)[0])]
+        for _k in range(d):
+            rel = x - x[chosen[0]]
+            basis = rel[chosen[1:]]
+            if basis.shape[0]:
+                q = np.linalg.qr(basis.T)[0]
+                rel = rel - rel @ q @ q.T
+            dist = np.where(free, np.linalg.norm(rel, axis=1), -1.0)
+            dist[chosen] = -1.0
+            best = int(np.argmax(dist))
+            if dist[best] <= RANK_RTOL * max(float(np.ptp(x, axis=0).max()), 1e-300):
+                return False
+            chosen.append(best)
+        free[chosen] = False
+    return True
+
+
+def loose_agent(positions: npt.ArrayLike, edges: npt.ArrayLike, mask: npt.ArrayLike) -> bool:
+    """Whether some agent's kept edges leave a direction free: fewer than ``d`` independent ones.
+
+    That agent alone can move across all its edges, a motion that is not rigid when the
+    others span the space (:func:`spans_without_any`): the framework is flexible.
+    """
+    x = as_positions(positions)
+    n, d = x.shape
+    e0 = as_edge_array(n, edges) - 1
+    keep = as_edge_mask(mask, e0.shape[0])
+    tail, head, start = _half_edges(n, e0[keep])
+    count = np.diff(start)
+    if (count < d).any():
+        return True
+    return bool((_direction_ranks(x, tail, head, count) < d).any())
+
+
 def _half_edges(n: int, e0: IntArray) -> tuple[IntArray, IntArray, IntArray]:
     """Both directions of each 0-based edge, sorted by tail: ``(tail, head, start)``, CSR-like."""
     tail = np.concatenate([e0[:, 0], e0[:, 1]])
@@ -323,16 +384,27 @@ def grown_cluster(positions: npt.ArrayLike, edges: npt.ArrayLike, seed: int = 0)
     -------
     (n,) bool: the cluster's agents (none if there are no edges).
     """
+    return growth_rounds(positions, edges, seed) >= 0
+
+
+def growth_rounds(positions: npt.ArrayLike, edges: npt.ArrayLike, seed: int = 0) -> IntArray:
+    """The round at which each agent joined :func:`grown_cluster`'s cluster, −1 if never.
+
+    The seed edge's two agents join at round 0; agents of one round joined the cluster of
+    the rounds before it, which is what :func:`ordered_certificate` checks again.
+    """
     x = as_positions(positions)
     n, d = x.shape
     e0 = as_edge_array(n, edges) - 1
-    inside = np.zeros(n, dtype=bool)
+    rounds = np.full(n, -1, dtype=np.int64)
     if e0.shape[0] == 0:
-        return inside
+        return rounds
     tail, head, _ = _half_edges(n, e0)
-    inside[e0[seed]] = True
-    size = 2
+    rounds[e0[seed]] = 0
+    size, k = 2, 0
     while size < n:
+        k += 1
+        inside = rounds >= 0
         into = inside[head] & ~inside[tail]
         count = np.bincount(tail[into], minlength=n)
         need = min(d, size)
@@ -346,9 +418,42 @@ def grown_cluster(positions: npt.ArrayLike, edges: npt.ArrayLike, seed: int = 0)
             break
         if size <= d:
             add = add[:1]  # a simplex grows one agent at a time, each off the others' hull
-        inside[add] = True
+        rounds[add] = k
         size += add.shape[0]
-    return inside
+    return rounds
+
+
+def ordered_certificate(
+    positions: npt.ArrayLike, edges: npt.ArrayLike, rounds: IntArray, mask: npt.ArrayLike
+) -> bool:
+    """Whether the edges in ``mask`` still attach every agent as :func:`growth_rounds` did (§2).
+
+    Each agent of round ``k`` needs, among its kept edges to agents of earlier rounds,
+    ``d`` along independent directions (in the first rounds, while the cluster has at
+    most ``d`` agents: an edge to each of them, independent). True proves the kept
+    graph rigid at ``positions``; False proves nothing. One pass of array work, so a
+    formation's epochs reuse the order grown once on all its edges.
+    """
+    x = as_positions(positions)
+    n, d = x.shape
+    e0 = as_edge_array(n, edges) - 1
+    keep = as_edge_mask(mask, e0.shape[0])
+    if (rounds < 0).any():
+        return False
+    first = (rounds[e0[:, 0]] == 0) & (rounds[e0[:, 1]] == 0)
+    if not (keep & first).any():
+        return False  # the seed edge, the first rigid body, is lost
+    tail, head, _ = _half_edges(n, e0[keep])
+    back = rounds[head] < rounds[tail]
+    count = np.bincount(tail[back], minlength=n)
+    before = np.searchsorted(np.sort(rounds), rounds)  # agents in earlier rounds
+    need = np.minimum(d, before)
+    small = before <= d
+    if (count[small] != before[small]).any() or (count < need).any():
+        return False
+    late = np.flatnonzero(before > 0)
+    ranks = _direction_ranks(x, tail[back], head[back], count[late]) if late.size else late
+    return bool((ranks >= need[late]).all())
 
 
 def _pinning(x: FloatArray) -> FloatArray | None:

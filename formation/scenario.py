@@ -372,7 +372,11 @@ def _problems(s: Scenario) -> list[tuple[str, object, str]]:
     if n > 1 and not s.allow_flexible:
         need = expected_rigidity_rank(n, d)
         if not is_rigid(d0, pairs):
-            have = f"rigidity rank {rigidity_rank(d0, pairs)}" if n * d <= SVD_MAX_COLUMNS else "not rigid"
+            have = (
+                f"rigidity rank {rigidity_rank(d0, pairs)}"
+                if n * d <= SVD_MAX_COLUMNS
+                else "not rigid"
+            )
             return [
                 (
                     "edges",

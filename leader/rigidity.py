@@ -17,12 +17,22 @@ from formation.graph import (
     as_edge_array,
     as_edge_mask,
     as_positions,
+    growth_rounds,
     is_rigid,
+    rigid_under_mask,
     rigidity_rank,
+    spans_without_any,
 )
 from formation.graph import expected_rigidity_rank as expected_rank
 
-__all__ = ["UNKNOWN_RANK", "HealthyRigidity", "expected_rank", "healthy_rigidity", "is_rigid", "rigidity_rank"]
+__all__ = [
+    "UNKNOWN_RANK",
+    "HealthyRigidity",
+    "expected_rank",
+    "healthy_rigidity",
+    "is_rigid",
+    "rigidity_rank",
+]
 
 
 def healthy_rigidity(
@@ -84,12 +94,14 @@ class HealthyRigidity:
         self.svd_max_columns = svd_max_columns
         self.small = n * d <= svd_max_columns or n <= d + 1
         m = self.edges.shape[0]
+        self._seen: dict[bytes, int] = {}
+        self._rigid_seen: dict[bytes, bool] = {}
         if self.small:
             self.independent = rigidity_rank(self.positions, self.edges) == m
         else:  # more edges than the rank allows are dependent; exactly as many, iff rigid
+            self.rounds = growth_rounds(self.positions, self.edges)
+            self.spread = spans_without_any(self.positions)
             self.independent = m == self.expected and self._rigid(np.ones(m, dtype=bool))
-        self._seen: dict[bytes, int] = {}
-        self._rigid_seen: dict[bytes, bool] = {}
 
     def __call__(self, healthy_mask: npt.ArrayLike) -> tuple[int, bool]:
         """``(rank, rigid)`` of the healthy subgraph, as :func:`healthy_rigidity` gives them."""
@@ -112,11 +124,15 @@ class HealthyRigidity:
                     self._seen[key] = rigidity_rank(self.positions, self.edges[keep])
                 ranks[b] = self._seen[key]
             return ranks, ranks == self.expected
-        rigid = np.array([bool(c >= self.expected) and self._rigid(k) for c, k in zip(counts, healthy)])
+        rigid = np.array(
+            [bool(c >= self.expected) and self._rigid(k) for c, k in zip(counts, healthy)]
+        )
         return np.where(rigid, self.expected, UNKNOWN_RANK).astype(np.int64), rigid.astype(bool)
 
     def _rigid(self, keep: npt.NDArray[np.bool_]) -> bool:
         key = keep.tobytes()
         if key not in self._rigid_seen:
-            self._rigid_seen[key] = is_rigid(self.positions, self.edges[keep], self.svd_max_columns)
+            self._rigid_seen[key] = rigid_under_mask(
+                self.positions, self.edges, self.rounds, keep, self.spread
+            )
         return self._rigid_seen[key]

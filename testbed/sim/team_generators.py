@@ -59,7 +59,7 @@ def rigid_team(
         adds one edge in ten, each between agents at most ``1.5 · spacing_m`` apart
     spacing_m : grid spacing [m]; the offsets are a square (cubic) grid moved by up to
         ``0.25 · spacing_m`` per coordinate, so they are generic
-    seed : the offsets and the spare edges
+    seed : the offsets and the spare edges, and the scenario's run seed
     overrides : scenario fields to set (``epochs``, ``links``, ...)
 
     The first ``d`` agents are all joined; each later agent is joined to ``d`` earlier ones
@@ -102,8 +102,11 @@ def rigid_team(
     data: dict[str, Any] = {
         "name": f"team{n}-{d}d" + (f"-r{redundancy:g}" if redundancy else ""),
         "dimension": d,
+        "seed": seed,
         "epochs": 100,
-        "agents": [{"id": i + 1, "offset": [round(float(v), 6) for v in p]} for i, p in enumerate(pts)],
+        "agents": [
+            {"id": i + 1, "offset": [round(float(v), 6) for v in p]} for i, p in enumerate(pts)
+        ],
         "edges": arr.tolist(),
         "control": {"gain": round(0.9 / max(int(degree.max()), 1), 6)},
         "reference": {"kind": "line", "velocity": velocity},

@@ -1,0 +1,131 @@
+"""The fast rigidity checks (vertex addition, pinned stiffness) give the dense SVD's answer.
+
+``svd_max_columns=0`` forces the large-formation path on formations small enough for the
+SVD, which is the reference (docs/model.md §2).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from formation.graph import (
+    expected_rigidity_rank,
+    grown_cluster,
+    is_rigid,
+    pinned_stiffness_definite,
+    rigidity_rank,
+    spans_without_any,
+)
+from leader.rigidity import UNKNOWN_RANK, HealthyRigidity
+from testbed.sim.team_generators import rigid_team
+
+
+def svd_rigid(x: np.ndarray, edges: np.ndarray) -> bool:
+    return rigidity_rank(x, edges) == expected_rigidity_rank(*x.shape)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    n=st.integers(4, 90),
+    d=st.sampled_from([2, 3]),
+    redundancy=st.sampled_from([0.0, 0.05, 0.2, 0.6]),
+    seed=st.integers(0, 10_000),
+    loss=st.sampled_from([0.0, 0.01, 0.05, 0.3]),
+)
+def test_tracker_answers_as_the_svd_on_random_teams_and_masks(
+    n: int, d: int, redundancy: float, seed: int, loss: float
+) -> None:
+    s = rigid_team(max(n, d + 1), d, redundancy, seed=seed)
+    x, edges = s.offsets, s.edge_array
+    reference = HealthyRigidity(x, edges)  # the SVD, per mask
+    fast = HealthyRigidity(x, edges, svd_max_columns=0)
+    assert fast.independent == reference.independent
+    rng = np.random.default_rng(seed)
+    for _ in range(6):
+        mask = rng.random(len(edges)) >= loss
+        rank, rigid = reference(mask)
+        fast_rank, fast_rigid = fast(mask)
+        assert fast_rigid == rigid
+        assert fast_rank in (rank, UNKNOWN_RANK)
+        assert is_rigid(x, edges[mask], svd_max_columns=0) == rigid
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    n=st.integers(5, 40),
+    d=st.sampled_from([2, 3]),
+    p_edge=st.floats(0.1, 0.9),
+    seed=st.integers(0, 10_000),
+)
+def test_random_graphs_at_random_positions(n: int, d: int, p_edge: float, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(n, d))
+    pairs = np.array([(i, j) for i in range(1, n + 1) for j in range(i + 1, n + 1)])
+    edges = pairs[rng.random(len(pairs)) < p_edge]
+    want = svd_rigid(x, edges)
+    assert is_rigid(x, edges, svd_max_columns=0) == want
+    if len(edges) and grown_cluster(x, edges).all():
+        assert want  # the certificate never claims a flexible framework rigid
+
+
+def grid(cols: int, rows: int) -> tuple[np.ndarray, list[tuple[int, int]], list[tuple[int, int]]]:
+    """An exact square grid (not generic): its sides and one diagonal per square."""
+    x = np.array([(c, r) for r in range(rows) for c in range(cols)], dtype=float)
+
+    def at(c: int, r: int) -> int:
+        return r * cols + c + 1
+
+    sides = [(at(c, r), at(c + 1, r)) for r in range(rows) for c in range(cols - 1)]
+    sides += [(at(c, r), at(c, r + 1)) for r in range(rows - 1) for c in range(cols)]
+    diagonals = [(at(c, r), at(c + 1, r + 1)) for r in range(rows - 1) for c in range(cols - 1)]
+    return x, sides, diagonals
+
+
+def test_grids_at_their_own_positions() -> None:
+    x, sides, diagonals = grid(7, 6)
+    rng = np.random.default_rng(3)
+    for edges in (sides, sides + diagonals, sides + diagonals[:-1], sides + diagonals[5:]):
+        e = np.array(edges)
+        assert is_rigid(x, e, svd_max_columns=0) == svd_rigid(x, e)
+        for _ in range(5):
+            mask = rng.random(len(e)) >= 0.05
+            assert is_rigid(x, e[mask], svd_max_columns=0) == svd_rigid(x, e[mask])
+    # a braced grid is rigid even though its offsets are not generic
+    assert is_rigid(x, np.array(sides + diagonals), svd_max_columns=0)
+
+
+def test_collinear_and_coplanar_agents_are_never_rigid() -> None:
+    line = np.c_[np.arange(8.0), np.zeros(8)]
+    complete = np.array([(i, j) for i in range(1, 9) for j in range(i + 1, 9)])
+    assert not svd_rigid(line, complete)
+    assert not is_rigid(line, complete, svd_max_columns=0)
+    assert not pinned_stiffness_definite(line, complete)
+    flat = np.c_[np.random.default_rng(1).normal(size=(8, 2)), np.zeros(8)]
+    assert not svd_rigid(flat, complete)
+    assert not is_rigid(flat, complete, svd_max_columns=0)
+    assert not spans_without_any(flat)
+
+
+def test_a_collinear_triple_inside_a_team_is_seen() -> None:
+    # agent 4 on the line through 1 and 2, joined only to them: flexible at these positions
+    x = np.array([[0.0, 0.0], [1.0, 0.0], [0.3, 1.0], [2.0, 0.0], [1.2, 1.3]])
+    edges = np.array([(1, 2), (1, 3), (2, 3), (1, 4), (2, 4), (3, 5), (2, 5)])
+    assert not svd_rigid(x, edges)
+    assert not is_rigid(x, edges, svd_max_columns=0)
+    moved = x.copy()
+    moved[3, 1] = 0.4  # off the line: rigid
+    assert svd_rigid(moved, edges) and is_rigid(moved, edges, svd_max_columns=0)
+
+
+def test_ten_thousand_agents_without_an_svd() -> None:
+    for d in (2, 3):
+        s = rigid_team(10_000, d, 0.1, seed=1)
+        tracker = HealthyRigidity(s.offsets, s.edge_array)
+        assert not tracker.small and not tracker.independent
+        rank, rigid = tracker(np.ones(len(s.edges), dtype=bool))
+        assert (rank, rigid) == (expected_rigidity_rank(10_000, d), True)
+        short = np.ones(len(s.edges), dtype=bool)
+        short[: len(s.edges) // 5] = False  # fewer edges than the rank needs
+        assert tracker(short) == (UNKNOWN_RANK, False)
