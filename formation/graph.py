@@ -512,7 +512,6 @@ def pinned_stiffness_definite(positions: npt.ArrayLike, edges: npt.ArrayLike) ->
     never rigid once there are more than ``d`` of them.
     """
     x = as_positions(positions)
-    n, d = x.shape
     pins = _pinning(x)
     if pins is None:
         return False

@@ -125,7 +125,10 @@ class HealthyRigidity:
                 ranks[b] = self._seen[key]
             return ranks, ranks == self.expected
         rigid = np.array(
-            [bool(c >= self.expected) and self._rigid(k) for c, k in zip(counts, healthy)]
+            [
+                bool(c >= self.expected) and self._rigid(k)
+                for c, k in zip(counts, healthy, strict=True)
+            ]
         )
         return np.where(rigid, self.expected, UNKNOWN_RANK).astype(np.int64), rigid.astype(bool)
 

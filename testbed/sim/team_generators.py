@@ -95,7 +95,7 @@ def rigid_team(
     have = {(min(a, b), max(a, b)) for a, b in edges}
     pairs = tree.query_pairs(1.5 * spacing_m, output_type="ndarray")
     spare = [tuple(p) for p in pairs[rng.permutation(pairs.shape[0])] if tuple(p) not in have]
-    edges += spare[: int(round(redundancy * base))]
+    edges += spare[: round(redundancy * base)]
     arr = np.array(edges, dtype=np.int64) + 1
     degree = np.bincount(arr.ravel(), minlength=n + 1)
     velocity = [0.01, 0.005, 0.0][:d]
