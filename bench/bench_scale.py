@@ -1,0 +1,169 @@
+"""Teams of ten thousand (issue 27): every stage at 1,000 and 10,000 agents, in one run.
+
+Seed 1 throughout; teams from ``testbed.sim.team_generators.rigid_team`` (perturbed grid,
+vertex addition, ``redundancy`` spare edges), 10 % Bernoulli loss on every formation link,
+the tree estimator, ``hold``. Baselines measured in the same run: the load of the 2-D
+minimally rigid team; the simulator at 100 agents; the batched sweep at 100 agents.
+
+    python -m bench.bench_scale [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np
+
+from formation.scenario import Scenario
+from leader import HealthyRigidity, Leader
+from testbed.sim.batch import run_batch
+from testbed.sim.plan import plan_batch
+from testbed.sim.simulate import simulate
+from testbed.sim.team_generators import rigid_team
+
+SEED = 1
+LOSS = {"formation_default": [{"model": "bernoulli", "p_loss": 0.1}]}
+LOAD = """
+import resource, sys, time
+from formation.scenario import Scenario
+t = time.perf_counter(); Scenario.from_file(sys.argv[1]); dt = time.perf_counter() - t
+print(dt, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+"""
+
+
+def team(n: int, d: int = 2, redundancy: float = 0.1, epochs: int = 100) -> Scenario:
+    return rigid_team(
+        n, d, redundancy, seed=SEED, epochs=epochs, network=LOSS, strategy={"name": "hold"}
+    )
+
+
+def load_times(tmp: Path) -> None:
+    print("load and validate a scenario file, 10,000 agents (a fresh process each; peak RSS of it)")
+    print(f"{'team':28} {'edges':>7} {'load s':>7} {'peak MB':>8} {'ratio':>6}")
+    base = None
+    for d in (2, 3):
+        for redundancy in (0.0, 0.1):
+            path = tmp / f"team{d}{redundancy}.toml"
+            path.write_text(team(10_000, d, redundancy).to_toml())
+            out = subprocess.run(
+                [sys.executable, "-c", LOAD, str(path)], capture_output=True, text=True, check=True
+            )
+            seconds, peak = map(float, out.stdout.split())
+            base = base or seconds
+            edges = len(Scenario.from_file(path).edges)
+            print(
+                f"{f'{d}-D, redundancy {redundancy:g}':28} {edges:7d} {seconds:7.2f} {peak:8.0f} {seconds / base:6.2f}",
+                flush=True,
+            )
+
+
+def healthy_masks(s: Scenario, epochs: int) -> np.ndarray:
+    """The leader's healthy edges under 10 % loss per link, ``either`` rule: (epochs, m)."""
+    plan = plan_batch(s, [SEED], epochs=epochs)
+    return np.asarray(plan.on_time[:, 0]).reshape(epochs, -1, 2).any(axis=2)
+
+
+def rigidity_per_epoch(epochs: int) -> None:
+    print(
+        f"rigidity check per epoch, 10,000 agents, 10 % spare edges, 10 % loss per link, {epochs} epochs"
+    )
+    print(f"{'team':10} {'mean ms':>8} {'p50 ms':>7} {'max ms':>8} {'rigid':>6} {'setup s':>8}")
+    for d in (2, 3):
+        s = team(10_000, d, epochs=epochs)
+        masks = healthy_masks(s, epochs)
+        start = time.perf_counter()
+        tracker = HealthyRigidity(s.offsets, s.edge_array)
+        setup = time.perf_counter() - start
+        times, rigid = [], 0
+        for mask in masks:
+            t = time.perf_counter()
+            rigid += tracker(mask)[1]
+            times.append(time.perf_counter() - t)
+        ms = np.array(times) * 1e3
+        print(
+            f"{f'{d}-D':10} {ms.mean():8.1f} {np.median(ms):7.1f} {ms.max():8.0f} {rigid:6d} {setup:8.2f}",
+            flush=True,
+        )
+
+
+def simulate_rates(quick: bool) -> None:
+    print("formation simulate (in process), epochs per second; baseline: 100 agents, this run")
+    print(f"{'agents':>7} {'epochs':>7} {'epochs/s':>9} {'ratio':>7}")
+    base = None
+    for n, epochs in ((100, 200), (1000, 100), (10_000, 20 if quick else 50)):
+        s = team(n, epochs=epochs)
+        simulate(s.with_overrides(epochs=2), seed=SEED)
+        start = time.perf_counter()
+        simulate(s, seed=SEED)
+        rate = epochs / (time.perf_counter() - start)
+        base = base or rate
+        print(f"{n:7d} {epochs:7d} {rate:9.1f} {rate / base:7.3f}", flush=True)
+
+
+def leader_epoch(epochs: int) -> None:
+    print("the leader's epoch (tree, BLUE estimates, rigidity), 10,000 agents, 2-D, this run")
+    s = team(10_000, epochs=epochs)
+    plan = plan_batch(s, [SEED], epochs=epochs)
+    leader = Leader(s, HealthyRigidity(s.offsets, s.edge_array))
+    known = np.asarray(plan.on_time)  # (E, 1, L)
+    z = np.repeat(
+        (s.offsets[s.directed_links[:, 1] - 1] - s.offsets[s.directed_links[:, 0] - 1])[None],
+        1,
+        axis=0,
+    )
+    times = []
+    for k in range(epochs):
+        t = time.perf_counter()
+        leader.epochs(known[k], z, s.offsets[s.leader - 1], covariances=False)
+        times.append(time.perf_counter() - t)
+    ms = np.array(times) * 1e3
+    print(
+        f"mean {ms.mean():.1f} ms, p50 {np.median(ms):.1f} ms, max {ms.max():.1f} ms over {epochs} epochs",
+        flush=True,
+    )
+
+
+def sweep_cells(quick: bool) -> None:
+    print(
+        "batched sweep (run_batch, 8 seeds, hold, no detail), cells per second; baseline: 100 agents"
+    )
+    base = None
+    for n in (100, 1000):
+        s = team(n, epochs=50 if quick else 100)
+        seeds = list(range(1, 9))
+        start = time.perf_counter()
+        run_batch(plan_batch(s, seeds), "hold", detail=False)
+        rate = len(seeds) / (time.perf_counter() - start)
+        base = base or rate
+        print(f"{n:7d} agents: {rate:8.2f} cells/s, ratio {rate / base:.3f}", flush=True)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__)
+    p.add_argument("--quick", action="store_true", help="fewer epochs")
+    args = p.parse_args()
+    print(
+        f"seed {SEED}; peak RSS of this process so far is in /proc; python {sys.version.split()[0]}"
+    )
+    with tempfile.TemporaryDirectory() as tmp:
+        load_times(Path(tmp))
+    rigidity_per_epoch(20 if args.quick else 100)
+    simulate_rates(args.quick)
+    leader_epoch(10 if args.quick else 30)
+    sweep_cells(args.quick)
+    print(
+        f"peak RSS of the bench: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB"
+    )
+
+
+if __name__ == "__main__":
+    main()
