@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
+from scipy.spatial import cKDTree
 
 Array = npt.NDArray[np.float64]
 Mask = npt.NDArray[np.bool_]
@@ -98,11 +99,35 @@ def pair_distances(positions: Array) -> Array:
 
 
 def min_distance(positions: Array) -> Array:
-    """The minimum inter-agent distance per epoch: positions (T, n, d) [m] → (T,) [m] (inf if n < 2)."""
-    dist = pair_distances(positions)
-    if dist.shape[-1] == 0:
-        return np.full(positions.shape[:-2], np.inf)
-    return np.asarray(dist.min(axis=-1), dtype=float)
+    """The minimum inter-agent distance per epoch: positions (T, n, d) [m] → (T,) [m].
+
+    Agents with a non-finite position (not recorded) are left out of their epoch; inf if
+    ``n < 2``, NaN for an epoch with fewer than two agents recorded. Nearest neighbours
+    by k-d tree, ``O(n log n)`` an epoch, the distance itself as :func:`pair_distances`.
+    """
+    out = np.full(positions.shape[:-2], np.inf if positions.shape[-2] < 2 else np.nan)
+    for t in range(out.shape[0]) if positions.shape[-2] >= 2 else ():
+        points = positions[t][np.isfinite(positions[t]).all(axis=-1)]
+        if points.shape[0] >= 2:
+            _, nearest = cKDTree(points).query(points, k=2)
+            diff = points - points[nearest[:, 1]]
+            out[t] = np.sqrt(np.sum(diff * diff, axis=-1)).min()
+    return out
+
+
+def contacts(positions: Array, distance_m: float) -> npt.NDArray[np.int64]:
+    """Pairs closer than ``distance_m`` in one epoch: positions (n, d) → (P, 2) 0-based, ``i < j``.
+
+    Non-finite positions are never in contact. In ``np.triu_indices`` order.
+    """
+    seen = np.flatnonzero(np.isfinite(positions).all(axis=-1))
+    if seen.shape[0] < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    near = cKDTree(positions[seen]).query_pairs(distance_m, output_type="ndarray")
+    pairs = np.sort(seen[near], axis=1).astype(np.int64)
+    diff = positions[pairs[:, 0]] - positions[pairs[:, 1]]
+    pairs = pairs[np.sqrt(np.sum(diff * diff, axis=-1)) < distance_m]
+    return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
 
 
 def collisions(
@@ -110,18 +135,27 @@ def collisions(
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
     """Collisions per pair: times two bodies ``body_diameter_m`` across come closer than that.
 
-    positions : (T, n, d) [m]. A collision is an epoch in contact after one out of contact
-    (or the first epoch): a pair that stays in contact counts once. Returns ``pairs``
-    (P, 2) agent ids and ``counts`` (P,), both in ``np.triu_indices`` order; 0 diameter, no counts.
+    positions : (T, n, d) [m], non-finite where not recorded (never in contact). A collision
+    is an epoch in contact after one out of contact (or the first epoch): a pair that stays
+    in contact counts once. Returns the pairs that collided, ``pairs`` (P, 2) agent ids in
+    ``np.triu_indices`` order, and their ``counts`` (P,); 0 diameter, none.
     """
     n = positions.shape[-2]
-    i, j = np.triu_indices(n, k=1)
-    pairs = np.stack([i + 1, j + 1], axis=1).astype(np.int64)
+    none = np.zeros((0, 2), dtype=np.int64), np.zeros(0, dtype=np.int64)
     if body_diameter_m <= 0.0 or positions.shape[0] == 0:
-        return pairs, np.zeros(pairs.shape[0], dtype=np.int64)
-    touch = pair_distances(positions) < body_diameter_m  # (T, P)
-    starts = touch & ~np.concatenate([np.zeros((1, touch.shape[1]), bool), touch[:-1]], axis=0)
-    return pairs, starts.sum(axis=0).astype(np.int64)
+        return none
+    before = np.zeros(0, dtype=np.int64)
+    starts = []
+    for t in range(positions.shape[0]):
+        touching = contacts(positions[t], body_diameter_m)
+        code = touching[:, 0] * n + touching[:, 1]
+        starts.append(code[~np.isin(code, before)])
+        before = code
+    codes, counts = np.unique(np.concatenate(starts), return_counts=True)
+    if codes.shape[0] == 0:
+        return none
+    pairs = np.stack([codes // n + 1, codes % n + 1], axis=1).astype(np.int64)
+    return pairs, counts.astype(np.int64)
 
 
 def time_out_of_bounds(positions: Array, low_m: Array, high_m: Array, period_s: float) -> Array:

@@ -16,19 +16,9 @@ import numpy.typing as npt
 
 from formation.scenario import Scenario
 from recorder.analysis.membership import present
-from recorder.analysis.metrics import collisions, min_distance, pair_distances, time_out_of_bounds
+from recorder.analysis.metrics import collisions, min_distance, time_out_of_bounds
 
 Array = npt.NDArray[np.float64]
-
-
-def _min_present(positions: Array) -> Array:
-    """``min_distance`` per epoch over the pairs whose both states are recorded (NaN: none)."""
-    dist = pair_distances(positions)  # (T, P), NaN where an end is missing
-    if dist.shape[-1] == 0:
-        return min_distance(positions)
-    finite = np.isfinite(dist)
-    out = np.where(finite, dist, np.inf).min(axis=-1)
-    return np.where(finite.any(axis=-1), out, np.nan)
 
 
 def safety_counts(
@@ -57,16 +47,14 @@ def safety_counts(
     reference trajectory) against ``max_turn_limit_rad_s``.
     """
     safety, period = scenario.safety, scenario.control.period_s
-    per_epoch = _min_present(positions) if len(positions) else np.zeros(0)
+    per_epoch = min_distance(positions) if len(positions) else np.zeros(0)
     finite = per_epoch[np.isfinite(per_epoch)]
-    placed = np.where(np.isfinite(positions), positions, np.inf)  # a missing agent is far away
-    with np.errstate(invalid="ignore"):  # two missing: inf − inf, NaN apart, never in contact
-        pairs, counts = collisions(placed, safety.body_diameter_m)
+    pairs, counts = collisions(positions, safety.body_diameter_m)  # a missing agent: no contact
     out: dict[str, Any] = {
         "min_distance_m": float(finite.min()) if finite.size else None,
         "min_distance_per_epoch_m": [None if not math.isfinite(v) else float(v) for v in per_epoch],
         "body_diameter_m": safety.body_diameter_m,
-        "collisions": {f"{a}-{b}": int(c) for (a, b), c in zip(pairs, counts, strict=True) if c},
+        "collisions": {f"{a}-{b}": int(c) for (a, b), c in zip(pairs, counts, strict=True)},
         "collisions_total": int(counts.sum()),
     }
     if safety.bounds is not None:

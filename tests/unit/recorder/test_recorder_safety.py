@@ -20,14 +20,29 @@ def test_collisions_count_contacts_per_pair_once_per_contact() -> None:
     x[:, 1, 0] = gap
     x[:, 2, 0] = 10.0
     pairs, counts = collisions(x, body_diameter_m=0.1)
-    assert pairs.tolist() == [[1, 2], [1, 3], [2, 3]]
-    assert counts.tolist() == [2, 0, 0]
-    assert collisions(x, body_diameter_m=0.0)[1].tolist() == [0, 0, 0]
-    assert collisions(x[1:3], body_diameter_m=0.1)[1].tolist() == [
-        1,
-        0,
-        0,
-    ]  # in contact from the start
+    assert pairs.tolist() == [[1, 2]]
+    assert counts.tolist() == [2]
+    assert collisions(x, body_diameter_m=0.0)[1].tolist() == []
+    assert collisions(x[1:3], body_diameter_m=0.1)[1].tolist() == [1]  # in contact from the start
+    x[2:4, 1] = np.nan  # agent 2 not recorded at epochs 2-3: its contact of 1-2 is one
+    assert collisions(x, body_diameter_m=0.1)[1].tolist() == [2]
+
+
+def test_safety_at_scale_equals_all_pairs() -> None:
+    # the k-d tree's minimum and contacts against every pair, on a random crowd
+    rng = np.random.default_rng(5)
+    x = rng.uniform(0.0, 3.0, size=(4, 300, 2))
+    x[1, 7] = np.nan
+    dist = pair_distances(x)
+    want = np.nanmin(np.where(np.isfinite(dist), dist, np.nan), axis=-1)
+    np.testing.assert_array_equal(min_distance(x), want)
+    pairs, counts = collisions(x, body_diameter_m=0.05)
+    i, j = np.triu_indices(300, k=1)
+    touch = np.where(np.isfinite(dist), dist, np.inf) < 0.05
+    starts = touch & ~np.vstack([np.zeros((1, touch.shape[1]), bool), touch[:-1]])
+    hit = starts.sum(axis=0)
+    assert pairs.tolist() == np.c_[i + 1, j + 1][hit > 0].tolist()
+    assert counts.tolist() == hit[hit > 0].tolist()
 
 
 def test_time_out_of_bounds_per_agent() -> None:
