@@ -15,6 +15,7 @@ import numpy as np
 import numpy.typing as npt
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Ellipse
 
@@ -93,8 +94,12 @@ def plot_trajectories(
 ) -> Path:
     """Trajectories of every agent, the formation drawn at ``epochs``; ``runs`` of ``(label, (P, n, d))``.
 
-    A 3-D run is drawn projected on the x–y plane.
+    A 3-D run is drawn projected on the x–y plane. Teams of more than :data:`MAX_DRAWN`
+    agents get the aggregate view of :func:`_team_at_epochs` instead: their trajectories
+    would be a smear.
     """
+    if runs and runs[0][1].shape[1] > MAX_DRAWN:
+        return _team_at_epochs(runs, edges, leader, epochs, path)
     cols = len(runs)
     fig = Figure(figsize=(5.5 * cols, 5.2), layout="constrained")
     axes = np.atleast_1d(fig.subplots(1, cols, squeeze=False)[0])
@@ -131,12 +136,86 @@ def plot_trajectories(
     return _save(fig, path)
 
 
+MAX_DRAWN = 60
+"""Agents (trajectories) or links (timeline rows) up to which each is drawn on its own."""
+
+
+def _team_at_epochs(
+    runs: Sequence[tuple[str, Array]],
+    edges: npt.NDArray[np.int64],
+    leader: int,
+    epochs: Sequence[int],
+    path: Path,
+) -> Path:
+    """A large team: its edges at ``epochs`` (one collection each) and the reference's path."""
+    cols = len(runs)
+    fig = Figure(figsize=(5.5 * cols, 5.2), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(1, cols, squeeze=False)[0])
+    for ax, (label, x) in zip(axes, runs, strict=True):
+        for index, k in enumerate(epochs):
+            if not 0 <= k < len(x):
+                continue
+            seen = np.isfinite(x[k]).all(axis=1)
+            e = edges[seen[edges[:, 0] - 1] & seen[edges[:, 1] - 1]] - 1
+            segments = np.stack([x[k, e[:, 0], :2], x[k, e[:, 1], :2]], axis=1)
+            ax.add_collection(
+                LineCollection(segments, colors=f"C{index}", linewidths=0.3, label=f"k={k}")
+            )
+        ax.plot(
+            x[:, leader - 1, 0], x[:, leader - 1, 1], color="k", lw=1.2, label="reference agent"
+        )
+        ax.autoscale()
+        ax.set_title(f"{label}: {x.shape[1]} agents, formation at chosen epochs")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="best", fontsize="x-small")
+    return _save(fig, path)
+
+
+def _link_shares(
+    runs: Sequence[tuple[str, npt.NDArray[np.bool_], npt.NDArray[np.bool_]]], count: int, path: Path
+) -> Path:
+    """Many links: the share delivered, dropped and unknown at each epoch, and drops per link."""
+    fig = Figure(figsize=(10, 3.2 * len(runs)), layout="constrained")
+    axes = fig.subplots(len(runs), 2, squeeze=False, width_ratios=[3, 1])
+    for (ax, hist), (label, delivered, decided) in zip(axes, runs, strict=True):
+        k = np.arange(delivered.shape[0])
+        shares = [
+            (decided & delivered).mean(axis=1),
+            (decided & ~delivered).mean(axis=1),
+            (~decided).mean(axis=1),
+        ]
+        ax.stackplot(
+            k,
+            shares,
+            colors=["#2ca02c", "#d62728", "#cccccc"],
+            labels=["delivered", "dropped", "unknown"],
+        )
+        ax.set_ylim(0.0, 1.0)
+        ax.set_ylabel(f"share of {count} links")
+        ax.set_xlabel("epoch")
+        ax.set_title(f"{label}: links delivered, dropped, unknown", fontsize="small")
+        ax.legend(loc="lower left", fontsize="x-small")
+        drops = (decided & ~delivered).sum(axis=0)
+        hist.hist(drops, bins=np.arange(drops.max() + 2) - 0.5, color="#d62728")
+        hist.set_xlabel("drops per link")
+        hist.set_ylabel("links")
+    return _save(fig, path)
+
+
 def plot_link_timeline(
     runs: Sequence[tuple[str, npt.NDArray[np.bool_], npt.NDArray[np.bool_]]],
     link_labels: Sequence[str],
     path: Path,
 ) -> Path:
-    """Per-link delivered (green) / dropped (red) / unknown (grey) by epoch; ``(label, delivered, decided)``."""
+    """Per-link delivered (green) / dropped (red) / unknown (grey) by epoch; ``(label, delivered, decided)``.
+
+    More than :data:`MAX_DRAWN` links: their shares per epoch and the drops per link.
+    """
+    if len(link_labels) > MAX_DRAWN:
+        return _link_shares(runs, len(link_labels), path)
     rows = len(runs)
     height = max(2.0, 0.22 * len(link_labels) + 1.2)
     fig = Figure(figsize=(10, height * rows), layout="constrained")
