@@ -34,7 +34,7 @@ def test_rigid_team_refuses_what_it_cannot_make() -> None:
         rigid_team(10, 4)
     with pytest.raises(ValueError, match="n = 3: at least dimension \\+ 1 = 4"):
         rigid_team(3, 3)
-    with pytest.raises(ValueError, match="redundancy = 1.5"):
+    with pytest.raises(ValueError, match=r"redundancy = 1\.5"):
         rigid_team(10, 2, 1.5)
 
 
