@@ -105,8 +105,8 @@ def min_distance(positions: Array) -> Array:
     ``n < 2``, NaN for an epoch with fewer than two agents recorded. Nearest neighbours
     by k-d tree, ``O(n log n)`` an epoch, the distance itself as :func:`pair_distances`.
     """
-    out = np.full(positions.shape[:-2], np.inf if positions.shape[-2] < 2 else np.nan)
-    for t in range(out.shape[0]) if positions.shape[-2] >= 2 else ():
+    out: Array = np.full(positions.shape[0], np.inf if positions.shape[-2] < 2 else np.nan)
+    for t in range(positions.shape[0]) if positions.shape[-2] >= 2 else ():
         points = positions[t][np.isfinite(positions[t]).all(axis=-1)]
         if points.shape[0] >= 2:
             _, nearest = cKDTree(points).query(points, k=2)
@@ -127,7 +127,8 @@ def contacts(positions: Array, distance_m: float) -> npt.NDArray[np.int64]:
     pairs = np.sort(seen[near], axis=1).astype(np.int64)
     diff = positions[pairs[:, 0]] - positions[pairs[:, 1]]
     pairs = pairs[np.sqrt(np.sum(diff * diff, axis=-1)) < distance_m]
-    return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    ordered: npt.NDArray[np.int64] = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    return ordered
 
 
 def collisions(

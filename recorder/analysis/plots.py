@@ -159,7 +159,7 @@ def _team_at_epochs(
             e = edges[seen[edges[:, 0] - 1] & seen[edges[:, 1] - 1]] - 1
             segments = np.stack([x[k, e[:, 0], :2], x[k, e[:, 1], :2]], axis=1)
             ax.add_collection(
-                LineCollection(segments, colors=f"C{index}", linewidths=0.3, label=f"k={k}")
+                LineCollection(list(segments), colors=f"C{index}", linewidths=0.3, label=f"k={k}")
             )
         ax.plot(
             x[:, leader - 1, 0], x[:, leader - 1, 1], color="k", lw=1.2, label="reference agent"
