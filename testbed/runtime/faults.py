@@ -149,16 +149,22 @@ class Supervisor:
 
     def check_team(self, agents: list[str]) -> None:
         """Raise once every agent process is gone for good: there is no team left."""
-        if agents and set(agents) <= self.gone_for_good():
-            names = ", ".join(loss.name for loss in self.losses)
+        gone = self.gone_for_good()
+        if agents and set(agents) <= gone:
+            names = ", ".join(sorted(gone & set(agents)))
             raise RuntimeFailure(f"every agent is gone ({names}); the run cannot go on")
 
     def gone_for_good(self) -> set[str]:
-        """Names whose newest process died and was not started again."""
+        """Names whose newest process died, was planned or noted by :meth:`check`, and was not
+        started again. A death since the last check is the next check's.
+        """
+        noted = {loss.pid for loss in self.losses} | set(self.planned)
         return {
             name
             for name, inc in self.current.items()
-            if inc.child.proc.poll() not in (None, 0) and name not in ESSENTIAL
+            if inc.child.pid in noted
+            and inc.child.proc.poll() not in (None, 0)
+            and name not in ESSENTIAL
         }
 
     def note_returns(
