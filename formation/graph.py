@@ -228,8 +228,12 @@ def rigidity_rank(positions: npt.ArrayLike, edges: npt.ArrayLike) -> int:
     edges : (m, 2) array_like of int
         Agent ids ``1..n``.
     """
-    r = rigidity_matrix(positions, edges)
-    if r.shape[0] == 0:
+    return _svd_rank(rigidity_matrix(positions, edges))
+
+
+def _svd_rank(r: FloatArray) -> int:
+    """Singular values of ``r`` above ``RANK_RTOL · σ_max``, counted."""
+    if r.shape[0] == 0 or r.shape[1] == 0:
         return 0
     s = np.linalg.svd(r, compute_uv=False)
     if s[0] == 0.0:
@@ -272,9 +276,10 @@ def is_rigid(
 
     Small frameworks (``n·d ≤ svd_max_columns``) by the SVD of :func:`rigidity_rank`. Larger
     ones without the edge count are not rigid; the others are rigid if vertex addition
-    grows one rigid cluster over every agent (:func:`grown_cluster`), and otherwise by
-    whether the pinned stiffness ``RᵀR + CᵀC`` is positive definite
-    (:func:`pinned_stiffness_definite`). Both are evaluated at ``positions``, not at
+    grows one rigid cluster over every agent (:func:`grown_cluster`), otherwise by the SVD
+    of the agents it left out if they are few (:func:`rank_beyond_cluster`), and otherwise
+    by whether the pinned stiffness ``RᵀR + CᵀC`` is positive definite
+    (:func:`pinned_stiffness_definite`). All are evaluated at ``positions``, not at
     generic ones, so grids and collinear agents get their own answer.
     """
     x = as_positions(positions)
@@ -285,24 +290,66 @@ def is_rigid(
         return rigidity_rank(x, e) == need
     if e.shape[0] < need:
         return False
-    if grown_cluster(x, e).all():
-        return True
-    return pinned_stiffness_definite(x, e)
+    return rank_beyond_growth(x, e, svd_max_columns)[1]
 
 
-def rigid_under_mask(
-    positions: FloatArray, edges: IntArray, rounds: IntArray, mask: BoolArray, spread: bool
-) -> bool:
-    """:func:`is_rigid` of the kept edges of a large framework, the growth order known (§2).
+SEED_TRIES = 8
+"""Seed edges :func:`rank_beyond_growth` tries when growth stalls before it has a body."""
 
-    ``spread``: :func:`spans_without_any` of ``positions``, which lets an agent whose kept
-    edges do not span the space prove the framework flexible.
+
+def rank_beyond_growth(
+    positions: FloatArray, edges: IntArray, svd_max_columns: int, seed: int = 0
+) -> tuple[int | None, bool]:
+    """Rank (None if unknown) and rigidity of a large framework, from vertex addition (§2).
+
+    The rank where :func:`grown_cluster` from edge ``seed`` (or, if it stalls before it has
+    ``d + 1`` agents, from one of ``SEED_TRIES`` edges spread over the list) and
+    :func:`rank_beyond_cluster` give it; otherwise only rigid or not, by
+    :func:`pinned_stiffness_definite`.
     """
+    need = expected_rigidity_rank(*positions.shape)
+    d = positions.shape[1]
+    cluster = grown_cluster(positions, edges, seed)
+    tries = np.linspace(0, edges.shape[0] - 1, SEED_TRIES).astype(np.int64)
+    for other in tries if cluster.sum() <= d else ():  # stalled at the simplex: elsewhere
+        cluster = grown_cluster(positions, edges, int(other))
+        if cluster.sum() > d:
+            break
+    if cluster.all():
+        return need, True
+    rank = rank_beyond_cluster(positions, edges, cluster, svd_max_columns)
+    if rank is not None:
+        return rank, rank == need
+    if edges.shape[0] < need:
+        return None, False
+    rigid = pinned_stiffness_definite(positions, edges)
+    return (need if rigid else None), rigid
+
+
+def rank_under_mask(
+    positions: FloatArray,
+    edges: IntArray,
+    rounds: IntArray,
+    mask: BoolArray,
+    spread: bool,
+    svd_max_columns: int = SVD_MAX_COLUMNS,
+) -> tuple[int | None, bool]:
+    """Rank (None if unknown) and rigidity of the kept edges, the growth order known (§2).
+
+    The order grown once on all edges, checked again (:func:`ordered_certificate`); an
+    agent whose kept edges do not span the space (:func:`loose_agent`, valid when
+    ``spread``: :func:`spans_without_any` of ``positions``); else growth again on the kept
+    edges from the same seed (:func:`rank_beyond_growth`).
+    """
+    need = expected_rigidity_rank(*positions.shape)
     if ordered_certificate(positions, edges, rounds, mask):
-        return True
+        return need, True
     if spread and loose_agent(positions, edges, mask):
-        return False
-    return pinned_stiffness_definite(positions, edges[mask])
+        return None, False
+    e0 = edges[mask] - 1
+    seeds = np.flatnonzero((rounds[e0[:, 0]] == 0) & (rounds[e0[:, 1]] == 0))
+    seed = int(seeds[0]) if seeds.size else 0
+    return rank_beyond_growth(positions, edges[mask], svd_max_columns, seed)
 
 
 def spans_without_any(positions: npt.ArrayLike) -> bool:
@@ -360,15 +407,24 @@ def _half_edges(n: int, e0: IntArray) -> tuple[IntArray, IntArray, IntArray]:
 
 
 def _direction_ranks(x: FloatArray, tail: IntArray, head: IntArray, counts: IntArray) -> IntArray:
-    """Rank of each candidate's edge directions; its half-edges are consecutive, ``counts`` each."""
+    """Rank of each candidate's edge directions; its half-edges are consecutive, ``counts`` each.
+
+    Candidates are stacked by counts rounded up to a power of two, zero rows padding the
+    rest (they change no singular value): a few batched SVDs, not one per count.
+    """
     out = np.zeros(counts.shape[0], dtype=np.int64)
     first = np.concatenate([[0], np.cumsum(counts)[:-1]])
     dirs = x[head] - x[tail]
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)  # lengths never matter, only angles
-    for k in np.unique(counts):
-        sel = np.flatnonzero(counts == k)
-        s = np.linalg.svd(dirs[first[sel, None] + np.arange(k)], compute_uv=False)
-        out[sel] = np.count_nonzero(s > RANK_RTOL * s[:, :1], axis=1)
+    dirs = np.vstack([dirs, np.zeros((1, x.shape[1]))])  # row -1: the padding
+    width = 1 << np.ceil(np.log2(np.maximum(counts, 1))).astype(np.int64)
+    for k in np.unique(width):
+        sel = np.flatnonzero(width == k)
+        rows = first[sel, None] + np.arange(k)
+        rows[np.arange(k) >= counts[sel, None]] = -1
+        s = np.linalg.svd(dirs[rows], compute_uv=False)
+        top = s[:, :1]
+        out[sel] = np.count_nonzero((s > RANK_RTOL * top) & (top > 0), axis=1)
     return out
 
 
@@ -394,7 +450,9 @@ def growth_rounds(positions: npt.ArrayLike, edges: npt.ArrayLike, seed: int = 0)
     """The round at which each agent joined :func:`grown_cluster`'s cluster, −1 if never.
 
     The seed edge's two agents join at round 0; agents of one round joined the cluster of
-    the rounds before it, which is what :func:`ordered_certificate` checks again.
+    the rounds before it, which is what :func:`ordered_certificate` checks again. Past the
+    simplex only agents next to the last round's are examined: no other's edges into the
+    cluster changed, so ``O(m)`` work in all.
     """
     x = as_positions(positions)
     n, d = x.shape
@@ -402,28 +460,47 @@ def growth_rounds(positions: npt.ArrayLike, edges: npt.ArrayLike, seed: int = 0)
     rounds = np.full(n, -1, dtype=np.int64)
     if e0.shape[0] == 0:
         return rounds
-    tail, head, _ = _half_edges(n, e0)
-    rounds[e0[seed]] = 0
-    size, k = 2, 0
-    while size < n:
+    tail, head, start = _half_edges(n, e0)
+    inside = np.zeros(n, dtype=bool)
+    count = np.zeros(n, dtype=np.int64)  # edges into the cluster
+    added = np.unique(e0[seed])
+    size, k, was_simplex = 0, 0, True
+    while added.shape[0]:
+        rounds[added] = k
+        inside[added] = True
+        size += added.shape[0]
+        if size == n:
+            break
+        out_of_new = _slices(start, added)
+        np.add.at(count, head[out_of_new], 1)
         k += 1
-        inside = rounds >= 0
-        into = inside[head] & ~inside[tail]
-        count = np.bincount(tail[into], minlength=n)
         need = min(d, size)
-        cand = np.flatnonzero(count == size) if size <= d else np.flatnonzero(count >= need)
+        if was_simplex:
+            outside = np.flatnonzero(~inside)
+        else:
+            outside = np.unique(head[out_of_new])
+            outside = outside[~inside[outside]]
+        joined_to = count[outside]
+        cand = outside[joined_to == size] if size <= d else outside[joined_to >= need]
+        was_simplex = size <= d
         if cand.shape[0] == 0:
             break
-        pick = into & np.isin(tail, cand)
-        ranks = _direction_ranks(x, tail[pick], head[pick], count[cand])
-        add = cand[ranks >= need]
-        if add.shape[0] == 0:
-            break
+        into = _slices(start, cand)
+        into = into[inside[head[into]]]
+        ranks = _direction_ranks(x, tail[into], head[into], count[cand])
+        added = cand[ranks >= need]
         if size <= d:
-            add = add[:1]  # a simplex grows one agent at a time, each off the others' hull
-        rounds[add] = k
-        size += add.shape[0]
+            added = added[:1]  # a simplex grows one agent at a time, each off the others' hull
     return rounds
+
+
+def _slices(start: IntArray, agents: IntArray) -> IntArray:
+    """Indices of the half-edges of ``agents`` (CSR ``start``), agent after agent."""
+    lo, hi = start[agents], start[agents + 1]
+    lengths = hi - lo
+    offsets = np.arange(lengths.sum()) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    out: IntArray = np.repeat(lo, lengths) + offsets
+    return out
 
 
 def ordered_certificate(
@@ -457,6 +534,73 @@ def ordered_certificate(
     late = np.flatnonzero(before > 0)
     ranks = _direction_ranks(x, tail[back], head[back], count[late]) if late.size else late
     return bool((ranks >= need[late]).all())
+
+
+def rank_beyond_cluster(
+    positions: npt.ArrayLike,
+    edges: npt.ArrayLike,
+    cluster: npt.ArrayLike,
+    max_columns: int = SVD_MAX_COLUMNS,
+) -> int | None:
+    """``rank R(q)`` from a rigid cluster and SVDs of the agents outside it, or None.
+
+    ``cluster`` must be infinitesimally rigid and span the space, as :func:`grown_cluster`'s
+    is once it has more than ``d`` agents. Every motion is then a rigid motion plus one that is zero on the cluster, so
+    ``rank R = expected(n, d) − |U|·d + rank R_U``, ``R_U`` the columns of the agents ``U``
+    outside the cluster in the rows of their edges. ``R_U`` is block diagonal over the
+    components that the edges among ``U`` make, so each is ranked alone. None when the
+    cluster has at most ``d`` agents or a component has more than ``max_columns`` columns.
+    """
+    x = as_positions(positions)
+    n, d = x.shape
+    e0 = as_edge_array(n, edges) - 1
+    inside = as_edge_mask(cluster, n, "cluster")
+    if inside.sum() <= d:
+        return None
+    rest = np.flatnonzero(~inside)
+    if rest.size == 0:
+        return expected_rigidity_rank(n, d)
+    among = ~inside[e0[:, 0]] & ~inside[e0[:, 1]]
+    _, component, size = np.unique(
+        component_labels(n, e0 + 1, among)[rest], return_inverse=True, return_counts=True
+    )
+    if size.max() * d > max_columns:
+        return None
+    of_agent = np.full(n, -1, dtype=np.int64)  # component of each agent outside
+    of_agent[rest] = component
+    place = np.zeros(n, dtype=np.int64)  # an agent's place within its component
+    order = np.argsort(component, kind="stable")
+    place[rest[order]] = np.arange(rest.size) - np.searchsorted(component[order], component[order])
+    touching = ~(inside[e0[:, 0]] & inside[e0[:, 1]])
+    r = sparse_rigidity_matrix(x, e0[touching] + 1).tocoo()
+    agent = r.col // d
+    outside = of_agent[agent] >= 0  # entries in the columns of U
+    row, agent, col, value = r.row[outside], agent[outside], r.col[outside] % d, r.data[outside]
+    comp = of_agent[agent]
+    rank = 0
+    for k in np.unique(size):  # a dense stack per component size, one batched SVD each
+        chosen = size[comp] == k
+        if not chosen.any():
+            continue  # components without a kept edge: rank 0
+        slot = np.cumsum(size == k) - 1  # component → its index in the stack
+        c = slot[comp[chosen]]
+        # rows numbered within their component
+        key = c.astype(np.int64) * (r.shape[0] + 1) + row[chosen]
+        uniq, inverse = np.unique(key, return_inverse=True)
+        owner = uniq // (r.shape[0] + 1)
+        local = np.arange(uniq.size) - np.searchsorted(owner, owner)
+        stack = np.zeros((int((size == k).sum()), int(local.max()) + 1, int(k) * d))
+        stack[c, local[inverse], place[agent[chosen]] * d + col[chosen]] = value[chosen]
+        rank += int(_batched_ranks(stack).sum())
+    return int(expected_rigidity_rank(n, d) - int(rest.size) * d + rank)
+
+
+def _batched_ranks(blocks: FloatArray) -> IntArray:
+    """:func:`_svd_rank` of each matrix of a stack ``(B, r, c)``."""
+    s = np.linalg.svd(blocks, compute_uv=False)
+    top = s[:, :1]
+    ranks: IntArray = np.count_nonzero((s > RANK_RTOL * top) & (top > 0), axis=1)
+    return ranks
 
 
 def _pinning(x: FloatArray) -> FloatArray | None:

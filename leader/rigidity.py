@@ -19,7 +19,7 @@ from formation.graph import (
     as_positions,
     growth_rounds,
     is_rigid,
-    rigid_under_mask,
+    rank_under_mask,
     rigidity_rank,
     spans_without_any,
 )
@@ -66,7 +66,7 @@ def healthy_rigidity(
 
 
 UNKNOWN_RANK = -1
-"""The rank the tracker reports where only rigid or not was cheap to know."""
+"""The rank the tracker reports where only rigid or not was known (docs/model.md §2)."""
 
 
 class HealthyRigidity:
@@ -76,9 +76,11 @@ class HealthyRigidity:
     every minimally rigid graph), every subset of them is independent too, so the
     healthy subgraph's rank is its number of edges. Otherwise a small formation
     (``n·d ≤ svd_max_columns``) ranks each distinct mask once by SVD and remembers it.
-    A large one answers rigid or not (:func:`formation.graph.is_rigid`: short of the
-    edge count, then vertex addition, then the pinned stiffness) and reports the rank
-    only where that gives it: ``expected`` when rigid, :data:`UNKNOWN_RANK` otherwise.
+    A large one (:func:`formation.graph.rank_under_mask`) checks the growth order grown
+    once on all edges (rigid: the rank is the expected one), then for an agent whose
+    healthy edges cannot span (flexible, rank :data:`UNKNOWN_RANK`), then grows again
+    and ranks the few agents growth leaves out by small SVDs (exact), and at last
+    answers rigid or not by the pinned stiffness.
     """
 
     def __init__(
@@ -95,13 +97,13 @@ class HealthyRigidity:
         self.small = n * d <= svd_max_columns or n <= d + 1
         m = self.edges.shape[0]
         self._seen: dict[bytes, int] = {}
-        self._rigid_seen: dict[bytes, bool] = {}
+        self._ranked_seen: dict[bytes, tuple[int, bool]] = {}
         if self.small:
             self.independent = rigidity_rank(self.positions, self.edges) == m
         else:  # more edges than the rank allows are dependent; exactly as many, iff rigid
             self.rounds = growth_rounds(self.positions, self.edges)
             self.spread = spans_without_any(self.positions)
-            self.independent = m == self.expected and self._rigid(np.ones(m, dtype=bool))
+            self.independent = m == self.expected and self._ranked(np.ones(m, dtype=bool))[1]
 
     def __call__(self, healthy_mask: npt.ArrayLike) -> tuple[int, bool]:
         """``(rank, rigid)`` of the healthy subgraph, as :func:`healthy_rigidity` gives them."""
@@ -124,18 +126,17 @@ class HealthyRigidity:
                     self._seen[key] = rigidity_rank(self.positions, self.edges[keep])
                 ranks[b] = self._seen[key]
             return ranks, ranks == self.expected
-        rigid = np.array(
-            [
-                bool(c >= self.expected) and self._rigid(k)
-                for c, k in zip(counts, healthy, strict=True)
-            ]
+        ranked = [self._ranked(k) for k in healthy]
+        return (
+            np.array([r for r, _ in ranked], dtype=np.int64),
+            np.array([g for _, g in ranked], dtype=bool),
         )
-        return np.where(rigid, self.expected, UNKNOWN_RANK).astype(np.int64), rigid.astype(bool)
 
-    def _rigid(self, keep: npt.NDArray[np.bool_]) -> bool:
+    def _ranked(self, keep: npt.NDArray[np.bool_]) -> tuple[int, bool]:
         key = keep.tobytes()
-        if key not in self._rigid_seen:
-            self._rigid_seen[key] = rigid_under_mask(
-                self.positions, self.edges, self.rounds, keep, self.spread
+        if key not in self._ranked_seen:
+            rank, rigid = rank_under_mask(
+                self.positions, self.edges, self.rounds, keep, self.spread, self.svd_max_columns
             )
-        return self._rigid_seen[key]
+            self._ranked_seen[key] = (UNKNOWN_RANK if rank is None else rank), rigid
+        return self._ranked_seen[key]
