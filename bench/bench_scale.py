@@ -25,16 +25,25 @@ import numpy as np
 
 from formation.scenario import Scenario
 from leader import HealthyRigidity, Leader
+from recorder.analysis.dataframes import load_run
+from recorder.analysis.report import write_report, write_report_from
+from recorder.live.scene import scene_update
 from testbed.sim.batch import run_batch
 from testbed.sim.plan import plan_batch
 from testbed.sim.simulate import simulate
 from testbed.sim.team_generators import rigid_team
+from testkit.synthetic import write_synthetic
 
+ROOT = Path(__file__).resolve().parents[1]
 SEED = 1
 LOSS = {"formation_default": [{"model": "bernoulli", "p_loss": 0.1}]}
 LOAD = """
 import resource, sys, time
 from formation.scenario import Scenario
+from recorder.analysis.dataframes import load_run
+from recorder.analysis.report import write_report, write_report_from
+from recorder.live.scene import scene_update
+from testkit.synthetic import write_synthetic
 t = time.perf_counter(); Scenario.from_file(sys.argv[1]); dt = time.perf_counter() - t
 print(dt, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
 """
@@ -147,6 +156,38 @@ def sweep_cells(quick: bool) -> None:
         print(f"{n:7d} agents: {rate:8.2f} cells/s, ratio {rate / base:.3f}", flush=True)
 
 
+def report_and_replay(epochs: int, tmp: Path) -> None:
+    print(
+        f"report, recording and scene, 10,000 agents (scenarios/large/team10k.toml), {epochs} epochs"
+    )
+    s = Scenario.from_file(ROOT / "scenarios/large/team10k.toml").with_overrides(epochs=epochs)
+    result = simulate(s, seed=SEED)
+    start = time.perf_counter()
+    write_report_from([result], tmp / "from-sim")
+    print(f"report from the simulation: {time.perf_counter() - start:.1f} s", flush=True)
+    mcap = tmp / "run.mcap"
+    write_synthetic(mcap, result)  # what the recorder writes of such a run
+    size = mcap.stat().st_size / 1e6
+    start = time.perf_counter()
+    run = load_run(mcap)
+    print(
+        f"load_run of its recording ({size:.0f} MB, {len(run.states):,} states): "
+        f"{time.perf_counter() - start:.1f} s",
+        flush=True,
+    )
+    start = time.perf_counter()
+    write_report(mcap, tmp / "from-mcap")
+    print(f"report from the recording: {time.perf_counter() - start:.1f} s", flush=True)
+    x = result.positions[-1]
+    start = time.perf_counter()
+    scene = scene_update(epochs, 0, x, s.edge_array, s.offsets, s.leader)
+    encoded = scene.encode()
+    print(
+        f"one epoch's scene: {time.perf_counter() - start:.2f} s, {len(encoded) / 1e6:.1f} MB",
+        flush=True,
+    )
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--quick", action="store_true", help="fewer epochs")
@@ -160,6 +201,8 @@ def main() -> None:
     simulate_rates(args.quick)
     leader_epoch(10 if args.quick else 30)
     sweep_cells(args.quick)
+    with tempfile.TemporaryDirectory() as tmp:
+        report_and_replay(3 if args.quick else 10, Path(tmp))
     print(
         f"peak RSS of the bench: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB"
     )

@@ -9,7 +9,8 @@ x–y block in 3-D). The desired shape, anchored at the leader, is drawn as thin
 translucent lines. A unicycle's heading is an arrow from its position. An agent out of the
 team at the epoch (not yet joined, left, crashed, lost) is a translucent grey sphere labelled
 ``<i> out`` where its body was last seen, its edges translucent grey, and the entity's ``out``
-metadata lists the ids. Pure: arrays in,
+metadata lists the ids. Past ``LABELLED_MAX`` agents only the leader and the agents out are
+labelled, and a sphere is never wider than half the median edge. Pure: arrays in,
 the SDK's messages (``foxglove.messages``) out; ``.encode()`` gives the recorded protobuf.
 """
 
@@ -53,6 +54,7 @@ HEADING: RGBA = (1.0, 1.0, 1.0, 0.9)
 LABEL: RGBA = (1.0, 1.0, 1.0, 1.0)
 OUT: RGBA = (0.6, 0.6, 0.6, 0.3)  # an agent out of the team, and its edges
 ELLIPSE_POINTS = 24
+LABELLED_MAX = 200  # larger teams label only the leader and the agents out
 SIGMAS = 2.0  # the ellipse drawn: x̂ + 2σ
 
 
@@ -181,12 +183,17 @@ def scene_update(
     away = np.zeros(n, dtype=bool) if out is None else out
     span = float(np.ptp(offsets, axis=0).max()) if n > 1 else 1.0
     radius = max(0.04 * span, 1e-3)  # [m], visible at the formation's scale
+    if edges.shape[0]:  # but no larger than a quarter of the typical neighbour distance
+        lengths = np.linalg.norm(offsets[edges[:, 0] - 1] - offsets[edges[:, 1] - 1], axis=1)
+        radius = max(min(radius, 0.25 * float(np.median(lengths))), 1e-3)
     size = Vector3(x=2 * radius, y=2 * radius, z=2 * radius)
     spheres = []
     texts = []
     for i in range(n):
         color = OUT if away[i] else LEADER_COLOR if i + 1 == leader else AGENT_COLOR
         spheres.append(SpherePrimitive(pose=_pose(positions[i]), size=size, color=_color(color)))
+        if n > LABELLED_MAX and not away[i] and i + 1 != leader:
+            continue  # ten thousand labels are a smear: the leader and agents out only
         label = positions[i] + np.r_[radius, radius, 0.0][: positions.shape[1]]
         texts.append(
             TextPrimitive(

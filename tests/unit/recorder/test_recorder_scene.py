@@ -61,3 +61,21 @@ def test_any_3d_scene_decodes(x: np.ndarray, healthy: np.ndarray) -> None:
     offsets = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 1]])
     scene = check(scene_update(0, 0, x, edges, offsets, 1, healthy, ~healthy))
     assert {s["pose"]["position"]["z"] for s in scene["entities"][0]["spheres"]} == set(x[:, 2])
+
+
+def test_a_large_team_labels_only_the_leader_and_the_agents_out() -> None:
+    from testbed.sim.team_generators import rigid_team
+
+    s = rigid_team(400, 2, 0.1, seed=2, leader=7)
+    out = np.zeros(s.n, dtype=bool)
+    out[[10, 20]] = True
+    scene = check(scene_update(3, 0, s.offsets, s.edge_array, s.offsets, s.leader, out=out))
+    (team,) = scene["entities"]
+    assert sorted(t["text"] for t in team["texts"]) == ["11 out", "21 out", "7"]
+    assert len(team["spheres"]) == s.n
+    spacing = np.median(
+        np.linalg.norm(
+            s.offsets[s.edge_array[:, 0] - 1] - s.offsets[s.edge_array[:, 1] - 1], axis=1
+        )
+    )
+    assert team["spheres"][0]["size"]["x"] <= 0.5 * spacing + 1e-12  # no smear of spheres
