@@ -17,6 +17,7 @@ from recorder.analysis.metrics import error_statistics, formation_error, nees, s
 from recorder.analysis.rundata import RunData, read_run
 from recorder.analysis.safety import safety_counts
 from recorder.analysis.summary import summarise
+from recorder.live.scene import scene_update
 from recorder.live.server import LiveServer
 from recorder.node import build_parser as recorder_parser
 from recorder.node import main as record
@@ -68,6 +69,7 @@ __all__ = [
     "recover",
     "replay",
     "safety_counts",
+    "scene_update",
     "schema_for_key",
     "shape_error",
     "spans",
