@@ -233,14 +233,24 @@ def plot_link_timeline(
 
 
 def plot_topology(
-    runs: Sequence[tuple[str, npt.NDArray[np.bool_], npt.NDArray[np.int64], npt.NDArray[np.int64]]],
+    runs: Sequence[
+        tuple[
+            str,
+            npt.NDArray[np.bool_],
+            npt.NDArray[np.int64],
+            npt.NDArray[np.int64],
+            npt.NDArray[np.int64],
+        ]
+    ],
     expected_rank: int,
     path: Path,
 ) -> Path:
-    """MST changes, rigidity rank and components over epochs; ``(label, tree (E, m), rank (E,), components (E,))``."""
+    """MST changes, rigidity rank and components over epochs; ``(label, tree (E, m), rank (E,),
+    components (E,), rigid (E,))``. Where only rigid or not is known (rank −1, a large
+    formation: docs/model.md §2), a marker on the rigid line says which."""
     fig = Figure(figsize=(9, 7), layout="constrained")
     ax_tree, ax_rank, ax_comp = fig.subplots(3, 1, sharex=True)
-    for index, (label, tree, rank, comps) in enumerate(runs):
+    for index, (label, tree, rank, comps, rigid) in enumerate(runs):
         k = np.arange(len(rank))
         changes = (
             np.r_[False, (tree[1:] != tree[:-1]).any(axis=1)] if len(tree) else np.zeros(0, bool)
@@ -249,7 +259,15 @@ def plot_topology(
         ax_tree.step(k, size, where="post", label=f"{label}: tree edges")
         ax_tree.scatter(k[changes], size[changes], marker="x", color=f"C{index}", zorder=3)
         known = rank >= 0
-        ax_rank.step(k[known], rank[known], where="post", label=label)
+        if known.any():
+            ax_rank.step(k[known], rank[known], where="post", label=label)
+        for value, marker, what in ((1, "o", "rigid"), (0, "v", "not rigid")):
+            at = ~known & (rigid[: len(k)] == value)
+            if at.any():
+                ax_rank.scatter(
+                    k[at], np.full(at.sum(), expected_rank), marker=marker, s=12,
+                    color=f"C{index}", label=f"{label}: {what}, rank not computed",
+                )  # fmt: skip
         ax_comp.step(k[comps >= 0], comps[comps >= 0], where="post", label=label)
     ax_rank.axhline(expected_rank, color="k", ls="--", lw=1, label=f"rigid ({expected_rank})")
     ax_tree.set_ylabel("MST edges (x: change)")

@@ -20,6 +20,8 @@ from recorder.analysis.rundata import RunData, read_run
 from recorder.analysis.safety import safety_lines
 from recorder.analysis.summary import run_team_errors, summarise
 
+LISTED_LINKS = 20  # links named in report.md; past that, the ones with most drops
+
 FIGURES = {
     "errors": "Formation and shape error",
     "trajectories": "Trajectories, formation drawn at chosen epochs",
@@ -101,7 +103,16 @@ def _markdown(
         lines.append(f"| {name} | " + " | ".join(_fmt(s[key]) for s in sums) + " |")
     lines += ["", "## Drops per link (longest outage in epochs)", ""]
     for s in sums:
-        drops = ", ".join(f"{k}: {v} ({s['longest_outage'][k]})" for k, v in s["drops"].items())
+        links = list(s["drops"].items())
+        worst = sorted(links, key=lambda kv: -kv[1])[:LISTED_LINKS]  # stable: ties keep order
+        shown = links if len(links) <= LISTED_LINKS else worst
+        drops = ", ".join(f"{k}: {v} ({s['longest_outage'][k]})" for k, v in shown)
+        if len(links) > LISTED_LINKS:
+            total = sum(v for _, v in links)
+            drops = (
+                f"{total} drops on {len(links)} links (every link in summary.json); "
+                f"the {LISTED_LINKS} with most: {drops}"
+            )
         lines.append(f"- {s['label']}: {drops or 'none'}")
     timed = [(run, s["deadlines"]) for run, s in zip(runs, sums, strict=True) if "deadlines" in s]
     if timed:
@@ -185,7 +196,7 @@ def write_report_from(runs: Sequence[RunData], out_dir: Path, title: str | None 
             out_dir / "links.png",
         ),
         "topology": plots.plot_topology(
-            [(r.label, r.tree, r.rigidity_rank, r.components) for r in runs],
+            [(r.label, r.tree, r.rigidity_rank, r.components, r.rigid) for r in runs],
             expected_rigidity_rank(s.n, s.dimension),
             out_dir / "topology.png",
         ),

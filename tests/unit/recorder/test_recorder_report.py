@@ -186,3 +186,27 @@ def test_the_report_shows_the_team_and_marks_each_change_by_its_event(
             (15, "tab:green", ":"), (25, "tab:red", ":"), (40, "tab:green", ":"), (60, "tab:red", ":")
         ]  # fmt: skip
     non_trivial_png(tmp_path / "errors.png")
+
+
+def test_a_large_team_s_report_names_the_worst_links_and_marks_rigidity_without_a_rank(
+    tmp_path: Path,
+) -> None:
+    from recorder.analysis.report import LISTED_LINKS
+    from testbed.sim.team_generators import rigid_team
+
+    s = rigid_team(
+        700, 2, 0.05, seed=3, epochs=6,
+        network={"formation_default": [{"model": "bernoulli", "p_loss": 0.3}]},
+    )  # fmt: skip
+    run = simulate(s, seed=3)
+    assert (run.rigidity_rank == -1).any()  # large and flexible: only "not rigid" is known
+    write_report_from([run], tmp_path)
+    md = (tmp_path / "report.md").read_text()
+    (line,) = [ln for ln in md.splitlines() if ln.startswith("- ") and "drops on" in ln]
+    every = json.loads((tmp_path / "summary.json").read_text())[0]["drops"]  # every link
+    assert len(every) > LISTED_LINKS
+    assert f"{sum(every.values())} drops on {len(every)} links" in line
+    assert line.count("->") == LISTED_LINKS
+    first = line.split("with most: ")[1].split(",")[0]  # "a->b: count (outage)"
+    assert int(first.split(": ")[1].split(" ")[0]) == max(every.values())
+    assert imread(tmp_path / "topology.png").shape[0] > 0
