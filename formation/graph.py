@@ -346,10 +346,10 @@ def rank_under_mask(
         return need, True
     if spread and loose_agent(positions, edges, mask):
         return None, False
-    e0 = edges[mask] - 1
-    seeds = np.flatnonzero((rounds[e0[:, 0]] == 0) & (rounds[e0[:, 1]] == 0))
-    seed = int(seeds[0]) if seeds.size else 0
-    return rank_beyond_growth(positions, edges[mask], svd_max_columns, seed)
+    kept = edges[mask]
+    seeds = np.flatnonzero((rounds[kept[:, 0] - 1] == 0) & (rounds[kept[:, 1] - 1] == 0))
+    seed = int(seeds[0]) if seeds.size else 0  # the growth order's own seed edge, if kept
+    return rank_beyond_growth(positions, kept, svd_max_columns, seed)
 
 
 def spans_without_any(positions: npt.ArrayLike) -> bool:
@@ -422,9 +422,7 @@ def _direction_ranks(x: FloatArray, tail: IntArray, head: IntArray, counts: IntA
         sel = np.flatnonzero(width == k)
         rows = first[sel, None] + np.arange(k)
         rows[np.arange(k) >= counts[sel, None]] = -1
-        s = np.linalg.svd(dirs[rows], compute_uv=False)
-        top = s[:, :1]
-        out[sel] = np.count_nonzero((s > RANK_RTOL * top) & (top > 0), axis=1)
+        out[sel] = _batched_ranks(dirs[rows])
     return out
 
 

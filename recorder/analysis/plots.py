@@ -265,9 +265,13 @@ def plot_topology(
             at = ~known & (rigid[: len(k)] == value)
             if at.any():
                 ax_rank.scatter(
-                    k[at], np.full(at.sum(), expected_rank), marker=marker, s=12,
-                    color=f"C{index}", label=f"{label}: {what}, rank not computed",
-                )  # fmt: skip
+                    k[at],
+                    np.full(at.sum(), expected_rank),
+                    marker=marker,
+                    s=12,
+                    color=f"C{index}",
+                    label=f"{label}: {what}, rank not computed",
+                )
         ax_comp.step(k[comps >= 0], comps[comps >= 0], where="post", label=label)
     ax_rank.axhline(expected_rank, color="k", ls="--", lw=1, label=f"rigid ({expected_rank})")
     ax_tree.set_ylabel("MST edges (x: change)")
