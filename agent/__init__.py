@@ -8,7 +8,7 @@ measurement noise and link memory.
 from agent.control import reference_heading
 from agent.epoch import AgentStep, InLinks, agent_epoch
 from agent.measurement import measurement_noise
-from agent.strategies import LinkMemory, Substitution
+from agent.strategies import LinkMemory, Substitution, state_width
 
 __all__ = [
     "AgentStep",
@@ -18,4 +18,5 @@ __all__ = [
     "agent_epoch",
     "measurement_noise",
     "reference_heading",
+    "state_width",
 ]

@@ -1,13 +1,19 @@
 """Discrete formation control (docs/model.md §3) and the agents' dynamics.
 
 All functions work on a batch of directed in-links ``j → i`` at once, so one
-agent (its own in-links) and a whole team (every link) run the same code.
+agent (its own in-links) and a whole team (every link) run the same code. The two laws
+are controller plug-ins (``formation.plugin_api.ControlLaw``), registered by entry point
+like a user's: ``DISPLACEMENT`` and ``DISTANCE``.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import numpy.typing as npt
+
+from formation.plugin_api import ControlInputs, ControlLaw
 
 Array = npt.NDArray[np.float64]
 
@@ -58,6 +64,20 @@ def distance_command(
     out = np.zeros((n, relative.shape[1]))
     np.add.at(out, receivers, terms)
     return -epsilon * out
+
+
+def _displacement(x: ControlInputs, params: Any) -> Array:
+    return displacement_command(x.n, x.receivers, x.relative, x.desired, x.used, x.epsilon)
+
+
+def _distance(x: ControlInputs, params: Any) -> Array:
+    return distance_command(x.n, x.receivers, x.relative, x.distance_sq, x.used, x.epsilon)
+
+
+DISPLACEMENT = ControlLaw(_displacement, description="consensus on x_i − d0_i (docs/model.md §3)")
+DISTANCE = ControlLaw(
+    _distance, description="gradient of Σ (||z_ij||² − C_ij²)² (docs/model.md §2)"
+)
 
 
 def step_single(x: Array, command: Array, v_ref: Array, period_s: float) -> Array:

@@ -11,14 +11,9 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from agent.control import (
-    displacement_command,
-    distance_command,
-    step_double,
-    step_single,
-    step_unicycle,
-)
+from agent.control import step_double, step_single, step_unicycle
 from agent.strategies import LinkMemory, Substitution, substitute
+from formation.plugin_api import ControlInputs, command_checked, control_law
 from formation.scenario import Scenario, StrategyName
 
 Array = npt.NDArray[np.float64]
@@ -97,6 +92,7 @@ def agent_epoch(
     v_ref_prev: Array,
     v_ref: Array,
     headings: Array | None = None,
+    agents: npt.NDArray[np.int64] | None = None,
 ) -> AgentStep:
     """Advance a set of agents from ``x[k]`` to ``x[k+1]``.
 
@@ -109,10 +105,14 @@ def agent_epoch(
     estimate : (L, d) leader's ``x̂_j[k]``; has_estimate (L,)
     v_ref_prev : (L, d) ``v_ref[k − 1]`` as each receiver knows it; v_ref (a, d) ``v_ref[k]`` as known
     headings : (a,) ``θ[k]`` [rad], unicycle dynamics only (``x`` are then the look-ahead points)
+    agents : (a,) the agents' ids, named when a plug-in fails (default: ``1..a``)
     """
+    if agents is None:
+        agents = np.arange(1, x.shape[0] + 1, dtype=np.int64)
     ctl = scenario.control
     sub, memory = substitute(
         strategy,
+        scenario.strategy.params_of(strategy),
         epoch,
         arrived,
         received,
@@ -121,18 +121,25 @@ def agent_epoch(
         has_estimate,
         v_ref_prev,
         ctl.period_s,
-        scenario.strategy.alpha,
+        links.receiver,
     )
     relative = np.where(arrived[:, None], z, x[links.receiver_row] - sub.values)
-    a = x.shape[0]
-    if ctl.controller == "displacement":
-        cmd = displacement_command(
-            a, links.receiver_row, relative, links.desired, sub.used, ctl.epsilon
-        )
-    else:
-        cmd = distance_command(
-            a, links.receiver_row, relative, links.distance_sq, sub.used, ctl.epsilon
-        )
+    inputs = ControlInputs(
+        n=x.shape[0],
+        receivers=links.receiver_row,
+        relative=relative,
+        desired=links.desired,
+        distance_sq=links.distance_sq,
+        used=sub.used,
+        epsilon=ctl.epsilon,
+        period_s=ctl.period_s,
+        positions=x,
+        velocities=velocities,
+        dynamics=ctl.dynamics,
+    )
+    cmd = command_checked(
+        ctl.controller, control_law(ctl.controller), inputs, ctl.law_params, agents, epoch
+    )
     if ctl.dynamics == "single":
         return AgentStep(step_single(x, cmd, v_ref, ctl.period_s), velocities, memory, sub)
     if ctl.dynamics == "unicycle":

@@ -14,7 +14,7 @@ import numpy.typing as npt
 from agent.control import reference_heading
 from agent.epoch import InLinks, agent_epoch
 from agent.measurement import NoiseKeys, relative_measurement
-from agent.strategies import LinkMemory
+from agent.strategies import LinkMemory, state_width
 from formation.reference import reference_positions
 from formation.robots import initial_headings
 from formation.scenario import Scenario, StrategyName
@@ -55,6 +55,7 @@ class AgentRunner:
                 )
         self.scenario, self.ids, self.strategy, self.seed = scenario, list(ids), strategy, seed
         self.row = {i: r for r, i in enumerate(self.ids)}
+        self._agents = np.array(self.ids, dtype=np.int64)
         self.links = InLinks.of(scenario, np.array(self.ids))
         self.link_of = {
             (int(b), int(a)): r
@@ -68,7 +69,7 @@ class AgentRunner:
         # θ[k] [rad] and the sub-steps of epoch k − 1 with a clipped speed (unicycle only)
         self.heading = initial_headings(seed, scenario.n)[rows].copy() if self.unicycle else None
         self.saturated = np.zeros(len(ids), dtype=np.int64) if self.unicycle else None
-        self.memory = LinkMemory.empty(n_links, d)
+        self.memory = LinkMemory.empty(n_links, d, state_width(strategy, d))
         self.v_known = np.zeros((len(ids), d))
         self.epoch = 0
         self.ref_row = self.row.get(scenario.leader)
@@ -109,7 +110,8 @@ class AgentRunner:
             if h is not None and self.heading is not None:
                 self.heading[self.row[i]] = h
         self.velocity[:] = 0.0  # a crashed body stopped where it was
-        self.memory = LinkMemory.empty(len(self.links.index), self.scenario.dimension)
+        d = self.scenario.dimension
+        self.memory = LinkMemory.empty(len(self.links.index), d, state_width(self.strategy, d))
         self.v_known[:] = 0.0
         self.substituted = {i: [] for i in self.ids}
         self._positions = None
@@ -199,6 +201,7 @@ class AgentRunner:
                 v_before,
                 self.v_known,
                 headings=self.heading,
+                agents=self._agents,
             )
             self.memory, sub = result.memory, result.substitution
         else:  # a neighbour out of the team: its edge leaves the consensus, its memory waits
@@ -219,6 +222,7 @@ class AgentRunner:
                 v_before[rows],
                 self.v_known,
                 headings=self.heading,
+                agents=self._agents,
             )
             self.memory = self.memory.put(rows, result.memory)
             sub = result.substitution.spread(rows, n_links)

@@ -11,12 +11,20 @@ from __future__ import annotations
 import tomllib
 from functools import cached_property
 from pathlib import Path
-from typing import Annotated, Any, Literal, get_args
+from typing import Annotated, Any, Literal
 
 import numpy as np
 import numpy.typing as npt
 import tomli_w
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from formation._error_paths import loc_path, lookup
 from formation.errors import NO_VALUE, ScenarioError
@@ -31,10 +39,13 @@ from formation.graph import (
 )
 from formation.keyed_random import Stream, keyed_normal
 from formation.linkmodels import LinkModelSpec
+from formation.plugin_api import control_law, loss_strategy, validate_params
+from formation.plugin_registry import PluginError
 from formation.robots import Safety, Unicycle, robot_problems
 
-StrategyName = Literal["zero", "hold", "estimate", "blend", "drop"]
-STRATEGIES: tuple[StrategyName, ...] = get_args(StrategyName)  # in the literal's order
+StrategyName = str  # a loss strategy plug-in's name (formation.plugin_registry)
+# The chapter's strategies, in the chapter's order; ``all`` is every registered one (strategies()).
+STRATEGIES: tuple[str, ...] = ("zero", "hold", "estimate", "blend", "drop")
 LEADER_ENDPOINT = 0  # the leader's end of a control link, in netem's link ids
 
 
@@ -78,18 +89,47 @@ class Initial(_Model):
 
 
 class Controller(_Model):
-    """The formation controller (docs/model.md §3); ``epsilon = gain * period_s``."""
+    """The formation controller (docs/model.md §3); ``epsilon = gain * period_s``.
 
-    controller: Literal["displacement", "distance"] = "displacement"
+    ``controller`` names a controller plug-in (``displacement``, ``distance`` or a user's);
+    ``params`` its parameters, checked by the plug-in's own model.
+    """
+
+    controller: str = "displacement"
     dynamics: Literal["single", "double", "unicycle"] = "single"
     gain: float = Field(0.25, gt=0.0)  # k [1/s]
     period_s: float = Field(1.0, gt=0.0)  # T [s]
     damping: float = Field(1.0, gt=0.0)  # c [1/s], double integrator only
     unicycle: Unicycle = Unicycle()  # limits and look-ahead, dynamics = "unicycle" only
+    params: dict[str, Any] = Field(default_factory=dict)
 
     @property
     def epsilon(self) -> float:
         return self.gain * self.period_s
+
+    @field_validator("controller")
+    @classmethod
+    def _registered(cls, name: str) -> str:
+        _plugin(lambda: control_law(name))
+        return name
+
+    @model_validator(mode="after")
+    def _plugin_fits(self) -> Controller:
+        law = control_law(self.controller)
+        if self.dynamics not in law.dynamics:
+            raise _Problem(
+                "control.dynamics",
+                self.dynamics,
+                f"controller {self.controller!r} supports only {', '.join(law.dynamics)}",
+            )
+        _plugin(lambda: self.law_params)
+        return self
+
+    @cached_property
+    def law_params(self) -> Any:
+        """The controller's parameters, validated by its own model."""
+        law = control_law(self.controller)
+        return validate_params("controller", self.controller, law.params, self.params)
 
 
 class StaticReference(_Model):
@@ -128,10 +168,44 @@ class Noise(_Model):
 
 
 class Strategy(_Model):
-    """Loss strategy of docs/model.md §6 and the blend factor α."""
+    """Loss strategy of docs/model.md §6 and the blend factor α.
+
+    ``name`` names a loss strategy plug-in; ``params`` holds each strategy's parameters by
+    its name (``[strategy.params.blend] alpha = 0.3``), so a sweep over every strategy gives
+    each its own. A field of this section that a strategy's parameters also have (``alpha``)
+    is that parameter's default.
+    """
 
     name: StrategyName = "estimate"
     alpha: float = Field(0.5, gt=0.0, le=1.0)
+    params: dict[str, dict[str, Any]] = Field(default_factory=dict)
+    _validated: dict[str, Any] = PrivateAttr(default_factory=dict)  # name → its params, once
+
+    @field_validator("name")
+    @classmethod
+    def _registered(cls, name: str) -> str:
+        _plugin(lambda: loss_strategy(name))
+        return name
+
+    @model_validator(mode="after")
+    def _params_fit(self) -> Strategy:
+        for name in self.params:
+            _plugin(lambda name=name: loss_strategy(name), f"strategy.params.{name}", name)
+            _plugin(
+                lambda name=name: self.params_of(name), f"strategy.params.{name}", self.params[name]
+            )
+        _plugin(lambda: self.params_of(self.name))
+        return self
+
+    def params_of(self, name: str) -> Any:
+        """Strategy ``name``'s parameters, validated by its own model (once: asked every epoch)."""
+        if name not in self._validated:
+            model = loss_strategy(name).params
+            fields = type(self).model_fields
+            shared = {k: getattr(self, k) for k in model.model_fields if k in fields}
+            given = {**shared, **self.params.get(name, {})}
+            self._validated[name] = validate_params("strategy", name, model, given)
+        return self._validated[name]
 
 
 class Estimator(_Model):
@@ -191,10 +265,10 @@ class Scenario(_Model):
     agents: tuple[Agent, ...] = Field(min_length=1)
     edges: tuple[Edge, ...] = ()
     initial: Initial = Initial()
-    control: Controller = Controller()
+    control: Controller = Field(default_factory=Controller)  # lazily: it loads a plug-in
     reference: Reference = StaticReference()
     noise: Noise = Noise()
-    strategy: Strategy = Strategy()
+    strategy: Strategy = Field(default_factory=Strategy)  # lazily: it loads a plug-in
     estimator: Estimator = Estimator()
     network: Network = Network()
     runtime: Runtime = Runtime()
@@ -318,6 +392,17 @@ class Scenario(_Model):
     @classmethod
     def from_file(cls, path: str | Path) -> Scenario:
         return load(path)
+
+
+def _plugin(check: Any, field: str | None = None, value: object = None) -> Any:
+    """``check()``, a plug-in's lookup or validation; its :class:`PluginError` becomes the
+    scenario's error (at ``field`` when given, else at the field being validated)."""
+    try:
+        return check()
+    except PluginError as exc:
+        if field is None:
+            raise ValueError(str(exc)) from None
+        raise _Problem(field, value, str(exc)) from None
 
 
 class _Problem(ValueError):

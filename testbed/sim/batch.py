@@ -24,7 +24,15 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from agent import AgentStep, InLinks, LinkMemory, Substitution, agent_epoch, reference_heading
+from agent import (
+    AgentStep,
+    InLinks,
+    LinkMemory,
+    Substitution,
+    agent_epoch,
+    reference_heading,
+    state_width,
+)
 from formation.reference import reference_positions, reference_velocities
 from formation.robots import initial_headings
 from formation.scenario import StrategyName
@@ -199,7 +207,8 @@ def run_batch(
     x = np.zeros((n_epochs + 1, size, n, d))
     x[0] = plan.x0[plan.seed_row]
     vel = np.zeros((size * n, d))
-    memory = LinkMemory.empty(size * n_links, d)
+    memory = LinkMemory.empty(size * n_links, d, state_width(strategy, d))
+    agent_ids = np.tile(np.arange(1, n + 1, dtype=np.int64), size)
     v_known = np.zeros((size, n, d))  # each agent's last received v_ref
     fallbacks = np.zeros(size, dtype=np.int64)
     unicycle = base.control.dynamics == "unicycle"
@@ -266,6 +275,7 @@ def run_batch(
             v_before,
             v_known.reshape(-1, d),
             headings=None if th is None else th[k].reshape(-1),
+            agents=agent_ids,
         )
         memory, sub = _put(sel, memory, step)
         fallbacks += sub.fallback.reshape(size, n_links).sum(axis=1)

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
-from agent.strategies import LinkMemory, substitute
+from agent.strategies import BlendParams, LinkMemory, state_width, substitute
+from formation.plugin_api import NoParams
+from formation.plugin_registry import PluginError
 
 D = 2
 
@@ -29,8 +33,23 @@ def step(
         np.zeros(n, dtype=bool) if has_estimate is None else np.asarray(has_estimate, dtype=bool)
     )
     v_prev = np.zeros(D) if v_prev is None else np.asarray(v_prev, dtype=float)
+    params = BlendParams(alpha=alpha) if strategy == "blend" else NoParams()
+    width = state_width(strategy, D)
+    if memory.state.shape[1] != width:  # a memory made without the strategy's state
+        memory = replace(memory, state=np.zeros((n, width)))
+    receivers = np.ones(n, dtype=np.int64)
     return substitute(
-        strategy, epoch, arrived, received, memory, estimate, has_estimate, v_prev, 1.0, alpha
+        strategy,
+        params,
+        epoch,
+        arrived,
+        received,
+        memory,
+        estimate,
+        has_estimate,
+        v_prev,
+        1.0,
+        receivers,
     )
 
 
@@ -83,7 +102,7 @@ def test_blend_filters_estimates_and_restarts_on_arrival() -> None:
     sub, mem = step("blend", mem, [False], estimate=[[1.0, 0.0]], has_estimate=[True])
     np.testing.assert_allclose(sub.values[0], [0.875, 0.0])
     _, mem = step("blend", mem, [True], received=[[9.0, 9.0]])
-    np.testing.assert_array_equal(mem.blend[0], [9.0, 9.0])
+    np.testing.assert_array_equal(mem.state[0], [9.0, 9.0])
 
 
 def test_drop_leaves_the_term_out() -> None:
@@ -92,7 +111,9 @@ def test_drop_leaves_the_term_out() -> None:
 
 
 def test_unknown_strategy_is_named() -> None:
-    with pytest.raises(ValueError, match="unknown strategy 'guess'"):
+    with pytest.raises(
+        PluginError, match="loss strategy plug-in 'guess': no loss strategy is registered"
+    ):
         step("guess", LinkMemory.empty(1, D), [False])
 
 
