@@ -8,7 +8,6 @@ import sys
 
 from agent.node import WATCH_S, AgentNode
 from formation.errors import TestbedError
-from formation.scenario import STRATEGIES
 from shell import Service, load_scenario, open_service, serve, service_parser, time_policy
 
 
@@ -30,7 +29,7 @@ def parse_ids(text: str, n: int) -> list[int]:
 def main(argv: list[str] | None = None) -> int:
     p = service_parser("python -m agent", __doc__)
     p.add_argument("--id", "--ids", dest="ids", required=True, help="agent id, or ids for a pool")
-    p.add_argument("--strategy", choices=STRATEGIES)
+    p.add_argument("--strategy", help="a loss strategy plug-in (default: the scenario's)")
     p.add_argument("--seed", type=int)
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")

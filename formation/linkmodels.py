@@ -5,17 +5,33 @@ stack of them (e.g. an outage on top of Bernoulli loss), applied in order. Names
 follow Linux ``tc netem`` where it has one (see ``man tc-netem``).
 Epoch-valued fields are used in lockstep mode, millisecond fields in realtime.
 
-``LinkModelSpec`` is the one list of models: the scenario's tags, ``MODEL_NAMES``
-and ``SPEC_OF`` are read from it. A model's position in it is its kind code in
-netem's keyed draws, so a new model is appended, never inserted (how to add one:
-``netem/links/linkmodels/__init__.py``).
+Every model is a link model plug-in (``formation.plugin_registry``): its spec is found by
+its tag in the entry-point group ``formation.link_models`` (ours are registered in this
+project's ``pyproject.toml``, a user's in theirs), or by ``"package.module:Name"``. A spec
+names its netem layer (``layer``, ``"module:attribute"``) and the code its draws are keyed
+by (``kind_code``: ours are pinned, 0..11, so that every seed keeps its numbers; a plug-in's
+is derived from its tag). How to write one: docs/plugins.md.
 """
 
 from __future__ import annotations
 
-from typing import Annotated, ClassVar, Literal, get_args
+import zlib
+from functools import cache
+from typing import Annotated, Any, ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PlainSerializer,
+    SerializationInfo,
+    ValidatorFunctionWrapHandler,
+    WithJsonSchema,
+    WrapValidator,
+    model_validator,
+)
+
+from formation.plugin_registry import PluginError, find, is_reference, names
 
 Probability = Annotated[float, Field(ge=0.0, le=1.0)]
 
@@ -24,13 +40,16 @@ class Spec(BaseModel):
     """Base of the link model specs; ``model`` is the tag a subclass fixes with a literal.
 
     A distance model (its verdict depends on the link's length at the epoch) sets the class
-    attribute ``by_distance = True``; :data:`DISTANCE_MODELS` is read from it.
+    attribute ``by_distance = True``. ``layer`` names the netem layer that runs it
+    (``"module:attribute"``); ``kind_code``, when set, is the code its draws are keyed by.
     """
 
     model_config = ConfigDict(
         extra="forbid", frozen=True, populate_by_name=True, allow_inf_nan=False
     )
     by_distance: ClassVar[bool] = False
+    layer: ClassVar[str] = ""
+    kind_code: ClassVar[int | None] = None
 
     model: str
 
@@ -38,12 +57,16 @@ class Spec(BaseModel):
 class Up(Spec):
     """Always delivers."""
 
+    layer: ClassVar[str] = "netem.links.linkmodels.up:LAYER"
+    kind_code: ClassVar[int | None] = 0
     model: Literal["up"] = "up"
 
 
 class Down(Spec):
     """Never delivers."""
 
+    layer: ClassVar[str] = "netem.links.linkmodels.down:LAYER"
+    kind_code: ClassVar[int | None] = 1
     model: Literal["down"] = "down"
 
 
@@ -54,6 +77,8 @@ class Bernoulli(Spec):
     used at packet k is ``corr * u[k-1] + (1 - corr) * fresh``.
     """
 
+    layer: ClassVar[str] = "netem.links.linkmodels.bernoulli:LAYER"
+    kind_code: ClassVar[int | None] = 2
     model: Literal["bernoulli"] = "bernoulli"
     p_loss: Probability
     correlation: Probability = 0.0
@@ -66,6 +91,8 @@ class GilbertElliott(Spec):
     the bad state, ``1-k`` = loss probability in the good state.
     """
 
+    layer: ClassVar[str] = "netem.links.linkmodels.gilbert_elliott:LAYER"
+    kind_code: ClassVar[int | None] = 3
     model: Literal["gilbert_elliott"] = "gilbert_elliott"
     p: Probability
     r: Probability = 1.0
@@ -81,6 +108,8 @@ class Markov4(Spec):
     the new state is 3 or 4.
     """
 
+    layer: ClassVar[str] = "netem.links.linkmodels.markov4:LAYER"
+    kind_code: ClassVar[int | None] = 4
     model: Literal["markov4"] = "markov4"
     p13: Probability
     p31: Probability = 1.0
@@ -104,6 +133,8 @@ class Outage(Spec):
     give the same window in seconds for realtime mode.
     """
 
+    layer: ClassVar[str] = "netem.links.linkmodels.outage:LAYER"
+    kind_code: ClassVar[int | None] = 5
     model: Literal["outage"] = "outage"
     start: int = Field(0, ge=0)
     end: int | None = Field(None, ge=0)
@@ -127,6 +158,8 @@ class Delay(Spec):
     delays are milliseconds (``ms`` ± ``jitter_ms``).
     """
 
+    layer: ClassVar[str] = "netem.links.linkmodels.delay:LAYER"
+    kind_code: ClassVar[int | None] = 6
     model: Literal["delay"] = "delay"
     epochs: int = Field(0, ge=0)
     jitter_epochs: int = Field(0, ge=0)
@@ -139,6 +172,8 @@ class Delay(Spec):
 class Duplicate(Spec):
     """Deliver an extra copy with probability ``p`` (tc: ``duplicate P``)."""
 
+    layer: ClassVar[str] = "netem.links.linkmodels.duplicate:LAYER"
+    kind_code: ClassVar[int | None] = 7
     model: Literal["duplicate"] = "duplicate"
     p: Probability
 
@@ -146,6 +181,8 @@ class Duplicate(Spec):
 class Reorder(Spec):
     """With probability ``p`` a packet skips the delay of the stack (tc: ``reorder P gap N``)."""
 
+    layer: ClassVar[str] = "netem.links.linkmodels.reorder:LAYER"
+    kind_code: ClassVar[int | None] = 8
     model: Literal["reorder"] = "reorder"
     p: Probability
     gap: int = Field(1, ge=1)
@@ -160,6 +197,8 @@ class Range(Spec):
     """
 
     by_distance: ClassVar[bool] = True
+    layer: ClassVar[str] = "netem.links.linkmodels.range:LAYER"
+    kind_code: ClassVar[int | None] = 9
     model: Literal["range"] = "range"
     max_range_m: float = Field(gt=0.0)  # [m]
 
@@ -168,6 +207,8 @@ class Logistic(Spec):
     """Distance: packet reception ratio ``1 / (1 + exp((d − d50_m) / width_m))`` at length ``d``."""
 
     by_distance: ClassVar[bool] = True
+    layer: ClassVar[str] = "netem.links.linkmodels.logistic:LAYER"
+    kind_code: ClassVar[int | None] = 10
     model: Literal["logistic"] = "logistic"
     d50_m: float = Field(gt=0.0)  # [m] where half the packets arrive
     width_m: float = Field(gt=0.0)  # [m] how gradual the fall is
@@ -183,6 +224,8 @@ class LogDistance(Spec):
     """
 
     by_distance: ClassVar[bool] = True
+    layer: ClassVar[str] = "netem.links.linkmodels.log_distance:LAYER"
+    kind_code: ClassVar[int | None] = 11
     model: Literal["log_distance"] = "log_distance"
     tx_power_dbm: float = 0.0  # P_t [dBm]
     path_loss_d0_db: float = 40.0  # PL(d0) [dB]
@@ -193,32 +236,86 @@ class LogDistance(Spec):
     sensitivity_dbm: float = -70.0  # receiver threshold [dBm]
 
 
+BUILTIN_CODES = 64  # kind codes below this are ours; a plug-in's is derived from its tag
+
+
+def kind_code_of(cls: type[Spec]) -> int:
+    """The code a model's draws are keyed by: pinned for ours, from the tag for a plug-in's
+    (so it does not depend on which other plug-ins are installed)."""
+    if cls.kind_code is not None:
+        return cls.kind_code
+    tag = cls.model_fields["model"].default
+    return BUILTIN_CODES + zlib.crc32(str(tag).encode()) % (2**31 - BUILTIN_CODES)
+
+
+@cache
+def spec_class(tag: str) -> type[Spec]:
+    """The spec class of link model ``tag`` (a registered tag, or ``"package.module:Name"``)."""
+    cls = find("link_model", tag).load()
+    if not (isinstance(cls, type) and issubclass(cls, Spec)):
+        raise PluginError("link_model", tag, f"{cls!r} is not a formation.linkmodels.Spec class")
+    field = cls.model_fields.get("model")
+    own = None if field is None else field.default
+    if not is_reference(tag) and own != tag:
+        raise PluginError("link_model", tag, f"its spec's model tag is {own!r}, not {tag!r}")
+    if not isinstance(own, str) or not own:
+        raise PluginError(
+            "link_model", tag, "its spec has no default model tag (model: Literal[...])"
+        )
+    if ":" not in cls.layer:
+        raise PluginError(
+            "link_model",
+            tag,
+            f"layer = {cls.layer!r}; expected the netem layer as 'module:attribute'",
+        )
+    return cls
+
+
+def spec_classes() -> dict[str, type[Spec]]:
+    """Every registered link model's spec, by tag."""
+    return {tag: spec_class(tag) for tag in names("link_model")}
+
+
+def _validate_spec(value: Any, handler: ValidatorFunctionWrapHandler) -> Spec:
+    if isinstance(value, Spec):
+        return value
+    if not isinstance(value, dict):
+        raise ValueError(f"expected a table with a model tag, got {value!r}")
+    tag = value.get("model")
+    if not isinstance(tag, str):
+        known = ", ".join(names("link_model"))
+        raise ValueError(
+            f"a link model needs its tag: model = one of {known}, or 'package.module:Name'"
+        )
+    try:
+        cls = spec_class(tag)
+    except PluginError as exc:
+        raise ValueError(str(exc)) from None
+    data = value if not is_reference(tag) else {**value, "model": cls.model_fields["model"].default}
+    return cls.model_validate(data)
+
+
+def _dump_spec(spec: Spec, info: SerializationInfo) -> dict[str, Any]:
+    return spec.model_dump(
+        mode=info.mode, by_alias=bool(info.by_alias), exclude_none=info.exclude_none
+    )
+
+
+# A link model as a scenario or netem's run-time change gives it: found by its tag.
 LinkModelSpec = Annotated[
-    Up
-    | Down
-    | Bernoulli
-    | GilbertElliott
-    | Markov4
-    | Outage
-    | Delay
-    | Duplicate
-    | Reorder
-    | Range
-    | Logistic
-    | LogDistance,
-    Field(discriminator="model"),
+    Spec,
+    WrapValidator(_validate_spec),
+    PlainSerializer(_dump_spec),
+    WithJsonSchema({"type": "object", "required": ["model"]}),
 ]
 
-SPEC_OF: dict[str, type[Spec]] = {
-    cls.model_fields["model"].default: cls for cls in get_args(get_args(LinkModelSpec)[0])
-}  # tag → spec class, in the union's order
-MODEL_NAMES: tuple[str, ...] = tuple(SPEC_OF)  # a tag's index is its kind code in keyed draws
-DISTANCE_MODELS: tuple[type[Spec], ...] = tuple(c for c in SPEC_OF.values() if c.by_distance)
+
+def is_distance_spec(spec: Spec) -> bool:
+    return type(spec).by_distance
+
 
 __all__ = [
-    "DISTANCE_MODELS",
-    "MODEL_NAMES",
-    "SPEC_OF",
+    "BUILTIN_CODES",
     "Bernoulli",
     "Delay",
     "Down",
@@ -233,4 +330,8 @@ __all__ = [
     "Reorder",
     "Spec",
     "Up",
+    "is_distance_spec",
+    "kind_code_of",
+    "spec_class",
+    "spec_classes",
 ]

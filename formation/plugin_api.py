@@ -24,13 +24,14 @@ import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from formation.errors import TestbedError
-from formation.plugin_registry import Kind, PluginError, check_callable, load
+from formation.plugin_registry import Kind, PluginError, check_callable, load, names
 
 Array = npt.NDArray[np.float64]
 Mask = npt.NDArray[np.bool_]
 Ints = npt.NDArray[np.int64]
 
 DYNAMICS = ("single", "double", "unicycle")
+CHAPTER_STRATEGIES = ("zero", "hold", "estimate", "blend", "drop")  # in the chapter's order
 
 
 class NoParams(BaseModel):
@@ -191,6 +192,12 @@ class ControlLaw:
 
 
 # ----------------------------------------------------------------------------- finding one
+
+
+def all_strategies() -> tuple[str, ...]:
+    """Every registered loss strategy: the chapter's in its order, then the others by name."""
+    others = [s for s in names("strategy") if s not in CHAPTER_STRATEGIES]
+    return tuple(s for s in CHAPTER_STRATEGIES if s in names("strategy")) + tuple(others)
 
 
 @cache
@@ -397,6 +404,7 @@ def probe_controller(name: str, params: Any, dimension: int, dynamics: str) -> N
 
 
 __all__ = [
+    "CHAPTER_STRATEGIES",
     "DYNAMICS",
     "ControlInputs",
     "ControlLaw",
@@ -405,6 +413,7 @@ __all__ = [
     "NoParams",
     "PluginFailure",
     "StrategyInputs",
+    "all_strategies",
     "command_checked",
     "control_law",
     "fill_checked",

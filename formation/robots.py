@@ -16,7 +16,7 @@ import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field
 
 from formation.keyed_random import Stream, keyed_uniform
-from formation.linkmodels import DISTANCE_MODELS, LinkModelSpec
+from formation.linkmodels import LinkModelSpec, is_distance_spec
 
 HEADING_SLOT = 1_000_000  # key word of the initial heading, beside the position coordinates 0..d-1
 
@@ -58,7 +58,7 @@ def initial_headings(seed: int, n: int) -> npt.NDArray[np.float64]:
 
 
 def is_distance_model(spec: LinkModelSpec) -> bool:
-    return isinstance(spec, DISTANCE_MODELS)
+    return is_distance_spec(spec)
 
 
 def robot_problems(

@@ -39,13 +39,20 @@ from formation.graph import (
 )
 from formation.keyed_random import Stream, keyed_normal
 from formation.linkmodels import LinkModelSpec
-from formation.plugin_api import control_law, loss_strategy, validate_params
+from formation.plugin_api import (
+    CHAPTER_STRATEGIES,
+    control_law,
+    loss_strategy,
+    probe_controller,
+    probe_strategy,
+    validate_params,
+)
 from formation.plugin_registry import PluginError
 from formation.robots import Safety, Unicycle, robot_problems
 
 StrategyName = str  # a loss strategy plug-in's name (formation.plugin_registry)
-# The chapter's strategies, in the chapter's order; ``all`` is every registered one (strategies()).
-STRATEGIES: tuple[str, ...] = ("zero", "hold", "estimate", "blend", "drop")
+# The chapter's strategies, in its order; ``--strategy all`` is every registered one (all_strategies).
+STRATEGIES: tuple[str, ...] = CHAPTER_STRATEGIES
 LEADER_ENDPOINT = 0  # the leader's end of a control link, in netem's link ids
 
 
@@ -378,6 +385,10 @@ class Scenario(_Model):
             senders[i - 1].append(j)
         return [sorted(s) for s in senders]
 
+    def with_strategy(self, name: str) -> Scenario:
+        """A validated copy that runs loss strategy ``name`` (its parameters kept)."""
+        return self.with_overrides(strategy={**self.strategy.model_dump(), "name": name})
+
     def with_overrides(self, **changes: Any) -> Scenario:
         """A validated copy with top-level fields replaced (e.g. ``seed``, ``epochs``, ``strategy``)."""
         data = self.model_dump(by_alias=True)
@@ -522,6 +533,9 @@ def _problems(s: Scenario) -> list[tuple[str, object, str]]:
     events = event_problems(n, s.leader, s.epochs, pairs, s.events, s.allow_split)
     if events:
         return events
+    probed = _probe_plugins(s)
+    if probed:
+        return probed
     return robot_problems(
         s.dimension,
         s.control.dynamics,
@@ -531,6 +545,34 @@ def _problems(s: Scenario) -> list[tuple[str, object, str]]:
         _edge_lengths(s, d0, pairs),
         *_stacks(s),
     )
+
+
+def _probe_plugins(s: Scenario) -> list[tuple[str, object, str]]:
+    """Call the scenario's strategy and controller once on a small input (docs/plugins.md)."""
+    strategy, control = s.strategy, s.control
+    try:
+        _probed("strategy", strategy.name, strategy.params_of(strategy.name), s.dimension, "")
+    except PluginError as exc:
+        return [("strategy.name", strategy.name, str(exc))]
+    try:
+        _probed("controller", control.controller, control.law_params, s.dimension, control.dynamics)
+    except PluginError as exc:
+        return [("control.controller", control.controller, str(exc))]
+    return []
+
+
+_PROBED: set[tuple[str, str, str, int, str]] = set()  # a with_overrides per sweep cell probes once
+
+
+def _probed(kind: str, name: str, params: BaseModel, dimension: int, dynamics: str) -> None:
+    key = (kind, name, params.model_dump_json(), dimension, dynamics)
+    if key in _PROBED:
+        return
+    if kind == "strategy":
+        probe_strategy(name, params, dimension)
+    else:
+        probe_controller(name, params, dimension, dynamics)
+    _PROBED.add(key)
 
 
 def _edge_lengths(

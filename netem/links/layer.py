@@ -17,7 +17,7 @@ import numpy.typing as npt
 
 from formation.errors import TestbedError
 from formation.keyed_random import Stream, keyed_normal, keyed_uniform
-from formation.linkmodels import MODEL_NAMES, Spec
+from formation.linkmodels import Spec, kind_code_of
 from netem.links.chains import cesaro
 
 Bools = npt.NDArray[np.bool_]
@@ -25,7 +25,16 @@ Ints = npt.NDArray[np.int64]
 Floats = npt.NDArray[np.float64]
 Codes = npt.NDArray[np.int8]
 
-KIND_CODE: dict[str, int] = {name: code for code, name in enumerate(MODEL_NAMES)}  # in draw keys
+KIND_CODE: dict[str, int] = {}  # tag → the code its draws are keyed by
+# tag of each table index: the kind codes of coded tables (int8) and decision records. Ours
+# come first, in kind-code order (index = code); a plug-in's is appended when first built.
+MODEL_NAMES: list[str] = []
+STATE_NAMES: dict[str, tuple[str, ...]] = {}  # tag → state code → its name
+
+
+def model_index(tag: str) -> int:
+    """A model's index in :data:`MODEL_NAMES` (built once a layer of it is)."""
+    return MODEL_NAMES.index(tag)
 
 
 class LinkModelError(TestbedError):
@@ -101,6 +110,7 @@ class Layer(Generic[S]):
         self.kind: str = spec.model
         self.ident = (self.kind, occurrence)
         self.occ = occurrence
+        enter_model(self.kind, kind_code_of(type(spec)), self.state_names)
 
     def run(
         self, keys: Keys, epochs: Ints, carry: npt.NDArray[Any] | None
@@ -160,8 +170,26 @@ class Layer(Generic[S]):
         return float(cesaro(t)[0] @ loss)
 
 
+def enter_model(tag: str, code: int, state_names: tuple[str, ...]) -> None:
+    """Make a model known to the draw keys and the coded tables."""
+    if tag in KIND_CODE:
+        return
+    other = next((t for t, c in KIND_CODE.items() if c == code), None)
+    if other is not None:
+        raise LinkModelError(
+            "registry", f"link models {other!r} and {tag!r} share kind code {code}"
+        )
+    KIND_CODE[tag] = code
+    STATE_NAMES[tag] = state_names
+    MODEL_NAMES.append(tag)
+    if len(MODEL_NAMES) > 127:
+        raise LinkModelError("registry", "more than 127 link models in one process")
+
+
 __all__ = [
     "KIND_CODE",
+    "MODEL_NAMES",
+    "STATE_NAMES",
     "Bools",
     "Codes",
     "Floats",
@@ -170,5 +198,7 @@ __all__ = [
     "Layer",
     "LayerOutput",
     "LinkModelError",
+    "enter_model",
     "lossless",
+    "model_index",
 ]

@@ -15,9 +15,10 @@ from typing import Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from formation.linkmodels import MODEL_NAMES, LinkModelSpec
+from formation.linkmodels import LinkModelSpec
 from netem.links.layer import (
-    KIND_CODE,
+    MODEL_NAMES,
+    STATE_NAMES,
     Bools,
     Codes,
     Floats,
@@ -26,8 +27,9 @@ from netem.links.layer import (
     Layer,
     LayerOutput,
     LinkModelError,
+    model_index,
 )
-from netem.links.linkmodels import STATE_NAMES, layer_of
+from netem.links.linkmodels import layer_of
 
 Carry = dict[tuple[str, int], npt.NDArray[Any]]  # chain state per layer ident (kind, occurrence)
 
@@ -87,7 +89,7 @@ class Schedule:
 
     def state_of(self, model: str, occurrence: int = 0) -> Codes:
         """State codes ``(n,)`` of the ``occurrence``-th layer of kind ``model``; -1 where absent."""
-        kind = KIND_CODE[model]
+        kind = model_index(model)
         is_kind = self.layer_kinds == kind
         rank = np.cumsum(is_kind, axis=1) - 1
         hit = is_kind & (rank == occurrence)
@@ -347,7 +349,7 @@ def schedule_of(pieces: Sequence[Piece], start: int, n: int) -> Schedule:
     }
     for p in pieces:
         delivered, copies, de, dms, reo = p.final()
-        kinds = np.array([KIND_CODE[layer.kind] for layer in p.stack.layers], dtype=np.int8)
+        kinds = np.array([model_index(layer.kind) for layer in p.stack.layers], dtype=np.int8)
         pad = width - kinds.shape[0]
         kind_of_layer = np.concatenate([kinds, [-1]]).astype(np.int8)  # index -1 → -1
         cols["delivered"].append(delivered[0])

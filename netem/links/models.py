@@ -69,7 +69,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from formation.linkmodels import MODEL_NAMES, LinkModelSpec
+from formation.linkmodels import LinkModelSpec
 from netem.links.closed_forms import (
     DelayMoments,
     delay_moments,
@@ -79,7 +79,7 @@ from netem.links.closed_forms import (
     stationary_distribution,
 )
 from netem.links.decision_table import LazyTable, coded_table
-from netem.links.layer import Floats, Keys, LinkModelError
+from netem.links.layer import MODEL_NAMES, Floats, Keys, LinkModelError
 from netem.links.layer_stack import (
     KEY_LIMIT,
     Carry,

@@ -6,8 +6,10 @@ import argparse
 from collections.abc import Sequence
 from typing import Any
 
-from formation.errors import TestbedError
-from formation.scenario import STRATEGIES, Scenario
+from formation.errors import ScenarioError, TestbedError
+from formation.plugin_api import all_strategies
+from formation.plugin_registry import is_reference
+from formation.scenario import Scenario
 
 DEFAULT_SCENARIO = "scenarios/paper.toml"
 
@@ -15,25 +17,36 @@ DEFAULT_SCENARIO = "scenarios/paper.toml"
 def parse_strategies(
     arg: str | None, default: Sequence[Any], named: dict[str, Sequence[Any]] | None = None
 ) -> list[Any]:
-    """``--strategy``: ``None`` → ``default``; ``all``, another name in ``named``, or ``a,b,...``."""
+    """``--strategy``: ``None`` → ``default``; ``all`` (every registered strategy), another
+    name in ``named``, or ``a,b,...`` (registered names or ``package.module:name``)."""
     if arg is None:
         return list(default)
-    choices = {"all": STRATEGIES, **(named or {})}
+    known = all_strategies()
+    choices = {"all": known, **(named or {})}
     if arg in choices:
         return list(choices[arg])
     names = [s.strip() for s in arg.split(",")]
     for name in names:
-        if name not in STRATEGIES:
+        if name not in known and not is_reference(name):
             words = ", ".join(sorted(choices))
             raise TestbedError(
-                f"--strategy {name!r}: expected one of {', '.join(STRATEGIES)} or {words}"
+                f"--strategy {name!r}: expected one of {', '.join(known)}, "
+                f"a 'package.module:name', or {words}"
             )
     return names
 
 
 def scenario_strategies(arg: str | None, scenario: Scenario) -> list[Any]:
-    """``--strategy`` for a scenario: its own strategy when none is given."""
-    return parse_strategies(arg, [scenario.strategy.name])
+    """``--strategy`` for a scenario: its own strategy when none is given. Each is checked
+    with the scenario (its parameters, a probe call) before anything runs."""
+    names = parse_strategies(arg, [scenario.strategy.name])
+    for name in names:
+        if name != scenario.strategy.name:
+            try:
+                scenario.with_strategy(name)
+            except ScenarioError as exc:
+                raise TestbedError(f"--strategy {name!r}: {exc.problem}") from None
+    return names
 
 
 def add_common(

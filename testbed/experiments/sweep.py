@@ -34,7 +34,8 @@ from typing import Any
 import numpy as np
 
 from formation.errors import TestbedError
-from formation.scenario import STRATEGIES, Scenario, StrategyName
+from formation.plugin_api import all_strategies
+from formation.scenario import Scenario, StrategyName
 from testbed.experiments.executors import Executor, LocalPool, seeds_per_task
 from testbed.experiments.loss_variants import LOSS_MODELS, with_loss
 from testbed.experiments.plots import plot_phase
@@ -294,7 +295,7 @@ def run_sweep(
 def _write_canonical(path: Path, rows: list[dict[str, Any]], spec: SweepSpec) -> None:
     """Rewrite the CSV sorted, one row per cell, so identical sweeps give identical bytes."""
     topo = {name: i for i, (name, _) in enumerate(spec.topologies)}
-    strat: dict[str, int] = {str(s): i for i, s in enumerate(STRATEGIES)}
+    strat: dict[str, int] = {str(s): i for i, s in enumerate(all_strategies())}
     model = {m: i for i, m in enumerate(LOSS_MODELS)}
     unique: dict[Key, dict[str, Any]] = {}
     for r in rows:

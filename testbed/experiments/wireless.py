@@ -154,7 +154,7 @@ def run_wireless(spec: WirelessSpec, log: Callable[[str], None] = print) -> Wire
                 else res.saturated.sum(axis=(0, 2)).reshape(n_r, n_s)
             )
             for i, rho in enumerate(spec.ranges):
-                d50 = variants[i].network.formation_default[0].d50_m  # type: ignore[union-attr]
+                d50 = variants[i].network.formation_default[0].d50_m  # type: ignore[attr-defined]
                 for j, seed in enumerate(spec.seeds):
                     rows.append(
                         {

@@ -224,7 +224,7 @@ def launch(
         )  # large pools take a while to declare their subscribers
     seed = scenario.seed if seed is None else seed
     scenario = scenario.with_overrides(
-        seed=seed, strategy={"name": strategy, "alpha": scenario.strategy.alpha}
+        seed=seed, strategy={**scenario.strategy.model_dump(), "name": strategy}
     )
     run_id = run_id or make_run_id(scenario, strategy, seed)
     run_dir = runs_dir / run_id

@@ -1,56 +1,58 @@
-"""The registry of link models: tag → the layer that implements it, one module per model.
+"""The layers of our link models, one module per model, and how a spec finds its layer.
 
-To add a model, touch two files:
-
-1. ``formation/linkmodels.py``: its spec, a subclass of ``Spec`` with
-   ``model: Literal["<tag>"] = "<tag>"``, appended at the end of the
-   ``LinkModelSpec`` union. Scenarios accept the tag at once. Append, never
-   insert: a model's position in the union is its kind code in every keyed draw. A model
-   that decides by the link's length sets ``by_distance = True`` (``DISTANCE_MODELS``).
-2. ``netem/links/linkmodels/<tag>.py``: its behaviour and closed forms, a subclass of
-   ``netem.links.layer.Layer`` overriding ``run`` (and, as the model needs, ``state_names``,
-   ``packet``, ``problem``, ``loss_chain``, ``loss_rate``), exported as ``LAYER``.
-   The module's docstring gives the model's semantics.
-
-Every module of this package is imported here; importing fails when a tag has no
-module or a module no spec, so the two stay in step.
+Every link model is a plug-in (``formation.linkmodels``, docs/plugins.md): its spec names
+its layer as ``"module:attribute"``; ours are ``netem.links.linkmodels.<tag>:LAYER``, each a
+subclass of ``netem.links.layer.Layer`` overriding ``run`` (and, as the model needs,
+``state_names``, ``packet``, ``problem``, ``loss_chain``, ``loss_rate``). The module's
+docstring gives the model's semantics. To add one of ours: its spec in
+``formation/linkmodels.py`` with the next free ``kind_code``, its entry point in
+``pyproject.toml``, and its module here.
 """
 
 from __future__ import annotations
 
-import importlib
-import pkgutil
+from functools import cache
 from typing import Any
 
-from formation.linkmodels import MODEL_NAMES, SPEC_OF, Spec
-from netem.links.layer import Layer
+from formation.linkmodels import BUILTIN_CODES, Spec, kind_code_of, spec_classes
+from formation.plugin_registry import PluginError, Registered
+from netem.links.layer import Layer, LinkModelError, enter_model
 
 
-def _discover() -> dict[str, type[Layer[Any]]]:
-    found: dict[str, type[Layer[Any]]] = {}
-    for info in pkgutil.iter_modules(__path__):
-        layer = importlib.import_module(f"{__name__}.{info.name}").LAYER
-        if not (isinstance(layer, type) and issubclass(layer, Layer)):
-            raise ImportError(f"{__name__}.{info.name}.LAYER = {layer!r}; expected a Layer class")
-        found[info.name] = layer
-    missing = [tag for tag in MODEL_NAMES if tag not in found]
-    unknown = sorted(set(found) - set(MODEL_NAMES))
-    if missing or unknown:
-        raise ImportError(
-            f"{__name__}: no module for the tags {missing}, "
-            f"no spec in formation.linkmodels for the modules {unknown}"
+@cache
+def _layer_class(cls: type[Spec]) -> type[Layer[Any]]:
+    tag = cls.model_fields["model"].default
+    layer = Registered("link_model", tag, cls.layer, "").load()
+    if not (isinstance(layer, type) and issubclass(layer, Layer)):
+        raise PluginError(
+            "link_model", tag, f"layer {cls.layer!r} is {layer!r}; expected a netem Layer class"
         )
-    return {tag: found[tag] for tag in MODEL_NAMES}
-
-
-LAYERS: dict[str, type[Layer[Any]]] = _discover()  # tag → layer, in MODEL_NAMES order
-_BY_SPEC: dict[type[Spec], type[Layer[Any]]] = {SPEC_OF[tag]: c for tag, c in LAYERS.items()}
-STATE_NAMES: dict[str, tuple[str, ...]] = {tag: c.state_names for tag, c in LAYERS.items()}
+    return layer
 
 
 def layer_of(spec: object) -> type[Layer[Any]] | None:
-    """The layer class of a spec; None when ``spec`` is not one of ``LinkModelSpec``."""
-    return _BY_SPEC.get(type(spec))  # type: ignore[arg-type]
+    """The layer class of a spec; None when ``spec`` is not a link model spec."""
+    if not isinstance(spec, Spec):
+        return None
+    return _layer_class(type(spec))
 
 
-__all__ = ["LAYERS", "STATE_NAMES", "layer_of"]
+def _enter_ours() -> dict[str, type[Layer[Any]]]:
+    """Ours, entered in kind-code order, so that a table index is the kind code (0..11)."""
+    ours = sorted(
+        (kind_code_of(cls), tag, cls)
+        for tag, cls in spec_classes().items()
+        if kind_code_of(cls) < BUILTIN_CODES
+    )
+    layers: dict[str, type[Layer[Any]]] = {}
+    for index, (code, tag, cls) in enumerate(ours):
+        if code != index:
+            raise LinkModelError("registry", f"our kind codes are not 0..n: {tag!r} has {code}")
+        layers[tag] = _layer_class(cls)
+        enter_model(tag, code, layers[tag].state_names)
+    return layers
+
+
+LAYERS: dict[str, type[Layer[Any]]] = _enter_ours()  # our tags → layer, in kind-code order
+
+__all__ = ["LAYERS", "layer_of"]
