@@ -4,15 +4,20 @@
 same decisions for a batch of seeds from :func:`delivery_plan`, and measures link lengths with
 :func:`link_lengths` as netem does. :class:`LinkModel`, :func:`delivery_matrix`,
 :func:`schedule` and :func:`expected_delivery_at` are the link-model library the benchmarks
-time and check against closed forms.
+time and check against closed forms. :class:`Layer`, :class:`Keys` and :class:`LayerOutput`
+are what a link model plug-in implements (docs/plugins.md).
 """
 
 from netem.links.closed_forms import expected_delivery_at
+from netem.links.layer import Keys, Layer, LayerOutput
 from netem.links.matrix import DeliveryPlan, delivery_plan, link_lengths
 from netem.links.models import LinkModel, delivery_matrix, schedule
 
 __all__ = [
     "DeliveryPlan",
+    "Keys",
+    "Layer",
+    "LayerOutput",
     "LinkModel",
     "delivery_matrix",
     "delivery_plan",

@@ -26,8 +26,8 @@ Floats = npt.NDArray[np.float64]
 Codes = npt.NDArray[np.int8]
 
 KIND_CODE: dict[str, int] = {}  # tag → the code its draws are keyed by
-# tag of each table index: the kind codes of coded tables (int8) and decision records. Ours
-# come first, in kind-code order (index = code); a plug-in's is appended when first built.
+# tag of each table index (the int8 kinds of coded tables; never leaves the process), in the
+# order this process first built a layer of each
 MODEL_NAMES: list[str] = []
 STATE_NAMES: dict[str, tuple[str, ...]] = {}  # tag → state code → its name
 

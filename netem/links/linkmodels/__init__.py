@@ -14,9 +14,9 @@ from __future__ import annotations
 from functools import cache
 from typing import Any
 
-from formation.linkmodels import BUILTIN_CODES, Spec, kind_code_of, spec_classes
+from formation.linkmodels import Spec, spec_classes
 from formation.plugin_registry import PluginError, Registered
-from netem.links.layer import Layer, LinkModelError, enter_model
+from netem.links.layer import Layer
 
 
 @cache
@@ -37,22 +37,9 @@ def layer_of(spec: object) -> type[Layer[Any]] | None:
     return _layer_class(type(spec))
 
 
-def _enter_ours() -> dict[str, type[Layer[Any]]]:
-    """Ours, entered in kind-code order, so that a table index is the kind code (0..11)."""
-    ours = sorted(
-        (kind_code_of(cls), tag, cls)
-        for tag, cls in spec_classes().items()
-        if kind_code_of(cls) < BUILTIN_CODES
-    )
-    layers: dict[str, type[Layer[Any]]] = {}
-    for index, (code, tag, cls) in enumerate(ours):
-        if code != index:
-            raise LinkModelError("registry", f"our kind codes are not 0..n: {tag!r} has {code}")
-        layers[tag] = _layer_class(cls)
-        enter_model(tag, code, layers[tag].state_names)
-    return layers
+def layers() -> dict[str, type[Layer[Any]]]:
+    """Every registered link model's layer, by tag (imports every link model plug-in)."""
+    return {tag: _layer_class(cls) for tag, cls in spec_classes().items()}
 
 
-LAYERS: dict[str, type[Layer[Any]]] = _enter_ours()  # our tags → layer, in kind-code order
-
-__all__ = ["LAYERS", "layer_of"]
+__all__ = ["layer_of", "layers"]
