@@ -29,17 +29,26 @@ $(BIN)/.product: $(BIN)/.installed $(PRODUCT_FILES)
 	$(BIN)/pip install --quiet --no-deps --force-reinstall --no-build-isolation .
 	touch $@
 
+# The example plug-in package (examples/formation-plugins-example), installed from its folder
+# with no registry, as a user installs their own: the tests run it through every command.
+EXAMPLE := examples/formation-plugins-example
+EXAMPLE_FILES := $(shell find $(EXAMPLE) -name __pycache__ -prune -o -name build -prune -o -print)
+$(BIN)/.example: $(BIN)/.product $(EXAMPLE_FILES)
+	rm -rf $(EXAMPLE)/build
+	$(BIN)/pip install --quiet --no-deps --force-reinstall --no-build-isolation ./$(EXAMPLE)
+	touch $@
+
 run: $(BIN)/.product
 	PYTHONSAFEPATH=1 $(BIN)/formation run $(SCENARIO) --strategy all
 
 # PYTHONSAFEPATH=1: a `python -m agent` the tests start in the checkout would otherwise put
 # the checkout first on its path and import the working tree (tests/unit/test_installed.py).
-test: $(BIN)/.product lint typecheck architecture
+test: $(BIN)/.product $(BIN)/.example lint typecheck architecture
 	PYTHONSAFEPATH=1 $(BIN)/pytest -q -p no:cacheprovider
 
 lint: $(BIN)/.installed
-	$(BIN)/ruff check $(PACKAGES) tests bench testkit
-	$(BIN)/ruff format --check $(PACKAGES) tests bench testkit
+	$(BIN)/ruff check $(PACKAGES) tests bench testkit examples
+	$(BIN)/ruff format --check $(PACKAGES) tests bench testkit examples
 
 typecheck: $(BIN)/.installed
 	$(BIN)/mypy
@@ -67,4 +76,4 @@ bench: $(BIN)/.product
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench
 
 clean:
-	rm -rf $(VENV) runs build *.egg-info
+	rm -rf $(VENV) runs build *.egg-info $(EXAMPLE)/build $(EXAMPLE)/*.egg-info

@@ -8,6 +8,7 @@ import sys
 
 from agent.node import WATCH_S, AgentNode
 from formation.errors import TestbedError
+from formation.plugin_api import PLUGIN_EXIT, PLUGIN_FAILED, PluginFailure
 from shell import Service, load_scenario, open_service, serve, service_parser, time_policy
 
 
@@ -56,7 +57,12 @@ def main(argv: list[str] | None = None) -> int:
         if restarted:
             node.rejoin()
         timing = time_policy(scenario, watch_s=WATCH_S)
-        code = node.run(timing)
+        try:
+            code = node.run(timing)
+        except PluginFailure as exc:  # recorded, then the launcher ends the run
+            service.status("error", node.runner.epoch, f"{PLUGIN_FAILED}{exc}")
+            print(f"agent: error: {exc}", file=sys.stderr, flush=True)
+            return PLUGIN_EXIT
         detail = json.dumps(node.deadline) if timing.realtime else ""
         service.status("done" if code == 0 else "error", node.runner.epoch, detail)
         if code == 0:

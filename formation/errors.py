@@ -43,6 +43,17 @@ class RuntimeFailure(TestbedError):
     """A distributed run that could not start or finish (a process died, an endpoint unreachable)."""
 
 
+class RunEnded(RuntimeFailure):
+    """A run that a failure of the user's code ended (a plug-in raised, or gave a wrong shape
+    or a value that is not finite): every process was ended and the recording closed and kept."""
+
+    def __init__(self, reason: str, epoch: int, run_dir: str) -> None:
+        self.reason, self.epoch, self.run_dir = reason, epoch, run_dir
+        super().__init__(
+            f"the run ended at epoch {epoch}: {reason}; what was recorded is kept in {run_dir}"
+        )
+
+
 class UnreadableFile(RuntimeFailure):
     """A file a service needs (credentials, a certificate, the router's passwords) that its
     user cannot read: names the file, who names it, the user, the file's owner and the fix."""

@@ -32,6 +32,8 @@ Ints = npt.NDArray[np.int64]
 
 DYNAMICS = ("single", "double", "unicycle")
 CHAPTER_STRATEGIES = ("zero", "hold", "estimate", "blend", "drop")  # in the chapter's order
+PLUGIN_EXIT = 3  # a service's exit code when a plug-in failed: the launcher ends the run
+PLUGIN_FAILED = "plug-in failed: "  # how its last status's detail starts (the report reads it)
 
 
 class NoParams(BaseModel):
@@ -406,6 +408,8 @@ def probe_controller(name: str, params: Any, dimension: int, dynamics: str) -> N
 __all__ = [
     "CHAPTER_STRATEGIES",
     "DYNAMICS",
+    "PLUGIN_EXIT",
+    "PLUGIN_FAILED",
     "ControlInputs",
     "ControlLaw",
     "Fill",

@@ -385,6 +385,11 @@ class Scenario(_Model):
             senders[i - 1].append(j)
         return [sorted(s) for s in senders]
 
+    def model_stacks(self) -> list[tuple[str, tuple[LinkModelSpec, ...]]]:
+        """Every stack of link models the scenario writes, as ``(field, models)``."""
+        formation, control = _stacks(self)
+        return [(field, tuple(models)) for field, models in (*formation, *control)]
+
     def with_strategy(self, name: str) -> Scenario:
         """A validated copy that runs loss strategy ``name`` (its parameters kept)."""
         return self.with_overrides(strategy={**self.strategy.model_dump(), "name": name})

@@ -10,6 +10,7 @@ are what a link model plug-in implements (docs/plugins.md).
 
 from netem.links.closed_forms import expected_delivery_at
 from netem.links.layer import Keys, Layer, LayerOutput
+from netem.links.layer_stack import probe_stack
 from netem.links.matrix import DeliveryPlan, delivery_plan, link_lengths
 from netem.links.models import LinkModel, delivery_matrix, schedule
 
@@ -23,5 +24,6 @@ __all__ = [
     "delivery_plan",
     "expected_delivery_at",
     "link_lengths",
+    "probe_stack",
     "schedule",
 ]

@@ -7,6 +7,7 @@ import logging
 import sys
 
 from formation.errors import TestbedError
+from formation.plugin_api import PLUGIN_EXIT, PLUGIN_FAILED, PluginFailure
 from netem.node import NetemNode
 from shell import Service, load_scenario, open_service, serve, service_parser, time_policy
 
@@ -38,7 +39,12 @@ def main(argv: list[str] | None = None) -> int:
         )
         service.announce()
         timing = time_policy(scenario)
-        code = node.run(timing)
+        try:
+            code = node.run(timing)
+        except PluginFailure as exc:  # recorded, then the launcher ends the run
+            service.status("error", node.estimates_done, f"{PLUGIN_FAILED}{exc}")
+            print(f"netem: error: {exc}", file=sys.stderr, flush=True)
+            return PLUGIN_EXIT
         delivered = node.sent_counts()
         detail = json.dumps(node.realtime.deadline) if timing.realtime else ""
         service.status("done" if code == 0 else "error", node.estimates_done, detail, delivered)

@@ -23,6 +23,7 @@ from collections.abc import Callable, Generator
 from dataclasses import dataclass
 from typing import Protocol
 
+from formation.errors import TestbedError
 from formation.realtime import Clock, sleep_until
 from formation.scenario import Scenario
 from shell.clock import fetch_clock
@@ -147,6 +148,8 @@ class Lockstep:
                 log.error("netem is gone; stopping")
                 return 2
         if failed:
+            if isinstance(failed[0], TestbedError):  # a reason for the user: the node says it
+                raise failed[0]
             log.error("the epoch loop failed: %r", failed[0])
             return 1
         return 0 if done.is_set() else 130

@@ -16,6 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from formation.linkmodels import LinkModelSpec
+from formation.plugin_api import PluginFailure
 from netem.links.layer import (
     MODEL_NAMES,
     STATE_NAMES,
@@ -153,6 +154,14 @@ def build_stack(specs: Sequence[LinkModelSpec], link: str) -> Stack:
     return Stack(tuple(specs), tuple(layers))
 
 
+def probe_stack(specs: Sequence[LinkModelSpec], link: str) -> None:
+    """Build ``specs`` and run them over a few epochs of two links (``1 → 2``, ``2 → 1``), as
+    at load time: a plug-in's mistake is found before any process starts."""
+    stack = build_stack(specs, link)
+    keys = Keys(0, np.array([[1], [2]], np.int64), np.array([[2], [1]], np.int64))
+    run_stack(stack, keys, 0, 8, {})
+
+
 # ----------------------------------------------------------------------------- one run of a stack
 
 
@@ -246,7 +255,7 @@ def run_stack(stack: Stack, keys: Keys, start: int, n: int, carry: Carry) -> tup
     reach_m: dict[int, Floats] = {}
     after: Carry = {}
     for i, layer in enumerate(stack.layers):
-        out, end = layer.run(keys, epochs, carry.get(layer.ident))
+        out, end = _run_layer(layer, keys, epochs, carry.get(layer.ident))
         if end is not None:
             after[layer.ident] = end
         if out.drop is not None:
@@ -266,6 +275,53 @@ def run_stack(stack: Stack, keys: Keys, start: int, n: int, carry: Carry) -> tup
         start, stack, first, dup, delay_epochs, delay_ms, reorder, states, chain_prev, reach_m
     )
     return piece, after
+
+
+def _run_layer(
+    layer: Layer[Any], keys: Keys, epochs: Ints, carry: npt.NDArray[Any] | None
+) -> tuple[LayerOutput, Any]:
+    """``layer.run`` with its answer checked: a plug-in's failure names it, the links and the epoch."""
+    try:
+        out, end = layer.run(keys, epochs, carry)
+    except Exception as exc:  # a user's layer: any exception ends the run with its name
+        at = _first_failing(layer, keys, epochs, carry)
+        raise _failure(layer, keys, at, f"raised {type(exc).__name__}: {exc}") from exc
+    if not isinstance(out, LayerOutput):
+        raise _failure(layer, keys, epochs, f"returned {type(out).__name__}, not a LayerOutput")
+    shape = (keys.n_links, epochs.shape[0])
+    for name in ("drop", "state", "delay_epochs", "delay_ms", "dup", "reorder"):
+        value = getattr(out, name)
+        if value is not None and np.shape(value) != shape:
+            problem = f"LayerOutput.{name} has the shape {np.shape(value)}; expected {shape}"
+            raise _failure(layer, keys, epochs, problem)
+    if out.delay_ms is not None and not np.isfinite(out.delay_ms).all():
+        raise _failure(layer, keys, epochs, "LayerOutput.delay_ms is not finite")
+    return out, end
+
+
+def _first_failing(
+    layer: Layer[Any], keys: Keys, epochs: Ints, carry: npt.NDArray[Any] | None
+) -> Ints:
+    """The epochs from the first one whose run alone raises (a block's failure names its epoch)."""
+    for i in range(epochs.shape[0]):
+        try:
+            _, carry = layer.run(keys, epochs[i : i + 1], carry)
+        except Exception:
+            return epochs[i:]
+    return epochs
+
+
+def _failure(layer: Layer[Any], keys: Keys, epochs: Ints, problem: str) -> PluginFailure:
+    ends = [
+        f"{a}->{b}" for a, b in zip(keys.src[:, 0].tolist(), keys.dst[:, 0].tolist(), strict=True)
+    ]
+    where = (
+        ("link " if len(ends) == 1 else "links ")
+        + ", ".join(ends[:6])
+        + (", …" if len(ends) > 6 else "")
+    )
+    first = int(epochs[0]) if epochs.size else 0
+    return PluginFailure("link_model", layer.kind, where, first, problem)
 
 
 def _first_drop(first: npt.NDArray[np.int16], i: int, lost: Bools) -> npt.NDArray[np.int16]:
@@ -391,6 +447,7 @@ __all__ = [
     "build_stack",
     "check_key",
     "make_decision",
+    "probe_stack",
     "run_stack",
     "schedule_of",
     "state_string",

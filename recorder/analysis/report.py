@@ -97,6 +97,10 @@ def _markdown(
         lines.append(
             f"- **{run.label}**: `{run.source}` (scenario {run.scenario.name}, seed {run.seed})"
         )
+    ended = [(s["label"], why) for s in sums for why in s.get("ended", [])]
+    if ended:
+        lines += ["", "## How the run ended", ""]
+        lines += [f"- {label}: ended early, a plug-in failed: {why}" for label, why in ended]
     lines += ["", "## Numbers", "", "| | " + " | ".join(s["label"] for s in sums) + " |"]
     lines.append("|---|" + "---|" * len(sums))
     for name, key in _ROWS:

@@ -23,6 +23,7 @@ from mcap.records import Channel, Message
 from formation.errors import RecordingError
 from formation.graph import expected_rigidity_rank
 from formation.messages import CoordinationState, LeaderEstimate
+from formation.plugin_api import PLUGIN_FAILED
 from formation.scenario import Scenario
 from recorder.analysis import membership
 from recorder.analysis.epoch_assembly import edge_mask
@@ -165,6 +166,7 @@ class _Collected:
         self.verdicts: list[tuple[int, int, int, bool]] = []
         self.recorded: dict[int, float | None] = {}  # None: no edge in the team
         self.poses: dict[tuple[int, int], tuple[float | None, int | None]] = {}  # unicycles
+        self.ended: list[str] = []  # why a process ended the run (a plug-in failed)
 
     def add(self, kind: str, msg: Any) -> None:
         if kind == "agent_state":
@@ -190,6 +192,9 @@ class _Collected:
             }
         elif kind == "metrics":
             self.recorded[msg.epoch] = msg.formation_error_m
+        elif kind == "status":
+            if msg.state == "error" and msg.detail.startswith(PLUGIN_FAILED):
+                self.ended.append(f"{msg.sender}: {msg.detail.removeprefix(PLUGIN_FAILED)}")
         elif kind == "decision":
             for dec in msg.decisions:
                 if dec.link_class == "formation":
@@ -202,7 +207,7 @@ class _Collected:
         return sorted((k, i, j, v) for (k, i), rows in self.subs.items() for j, v in rows)
 
 
-_WANTED = frozenset({"agent_state", "leader_estimate", "decision", "metrics"})
+_WANTED = frozenset({"agent_state", "leader_estimate", "decision", "metrics", "status"})
 
 
 def iter_trusted(
@@ -297,6 +302,7 @@ def _assemble(
             "recorded_formation_error": recorded_fe,
             "metadata": meta,
             "skipped": skipped,
+            **({"ended": got.ended} if got.ended else {}),
         },
         headings=headings,
         saturated=saturated,

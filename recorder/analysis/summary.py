@@ -83,6 +83,8 @@ def summarise(run: RunData) -> dict[str, Any]:
         "expected_rigidity_rank": expected,
         "epochs_split": int((run.components[known] > 1).sum()),
     }
+    if run.extra.get("ended"):
+        out["ended"] = list(run.extra["ended"])
     skipped = run.extra.get("skipped")
     if skipped is not None:
         out["skipped"] = skipped.as_json()

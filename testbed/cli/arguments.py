@@ -7,9 +7,10 @@ from collections.abc import Sequence
 from typing import Any
 
 from formation.errors import ScenarioError, TestbedError
-from formation.plugin_api import all_strategies
+from formation.plugin_api import PluginFailure, all_strategies
 from formation.plugin_registry import is_reference
 from formation.scenario import Scenario
+from netem import probe_stack
 
 DEFAULT_SCENARIO = "scenarios/paper.toml"
 
@@ -34,6 +35,19 @@ def parse_strategies(
                 f"a 'package.module:name', or {words}"
             )
     return names
+
+
+def load_checked(path: str, epochs: int | None = None) -> Scenario:
+    """The scenario file ``path`` (with ``--epochs``), its link models' layers built and run
+    on a few epochs: a plug-in's mistake is refused here, naming the file and the field."""
+    scenario = Scenario.from_file(path)
+    for field, models in scenario.model_stacks():
+        try:
+            probe_stack(models, field)
+        except (PluginFailure, TestbedError) as exc:
+            tags = [m.model for m in models]
+            raise ScenarioError(path, field, tags, f"on a probe of 8 epochs: {exc}") from None
+    return scenario if epochs is None else scenario.with_overrides(epochs=epochs)
 
 
 def scenario_strategies(arg: str | None, scenario: Scenario) -> list[Any]:

@@ -7,8 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from formation.scenario import Scenario
-from testbed.cli.arguments import DEFAULT_SCENARIO
+from testbed.cli.arguments import DEFAULT_SCENARIO, load_checked
 from testbed.deploy.compose import ComposeOptions, render
 from testbed.deploy.security import generate
 
@@ -20,7 +19,7 @@ def cmd_compose(args: argparse.Namespace) -> int:
 
 
 def cmd_keys(args: argparse.Namespace) -> int:
-    scenario = Scenario.from_file(args.scenario)
+    scenario = load_checked(args.scenario)
     hosts = args.tls_host or ["router"]
     keyset = generate(
         Path(args.out_dir), scenario.n, tls=args.tls, tls_hosts=hosts, force=args.force

@@ -20,7 +20,7 @@ from rich.table import Table
 
 from formation.errors import TestbedError
 from formation.scenario import Scenario
-from testbed.cli.arguments import DEFAULT_SCENARIO, parse_strategies
+from testbed.cli.arguments import DEFAULT_SCENARIO, load_checked, parse_strategies
 from testbed.cli.tables import print_table
 from testbed.experiments.executors import SCHEDULER_FORMS, executor_for
 from testbed.experiments.loss_variants import LOSS_MODELS
@@ -43,7 +43,7 @@ def cmd_experiment(args: argparse.Namespace) -> int:
     if args.name not in EXPERIMENTS:
         raise TestbedError(f"experiment {args.name!r}: expected one of {', '.join(EXPERIMENTS)}")
     console = Console(stderr=True)
-    scenario = Scenario.from_file(args.scenario)
+    scenario = load_checked(args.scenario)
     out = Path(args.out or f"experiments/{args.name}")
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     started = time.perf_counter()
@@ -103,14 +103,14 @@ def _topologies(args: argparse.Namespace) -> list[tuple[str, Scenario]]:
         if args.topology != "none"
         else []
     )
-    out = [(main.stem, Scenario.from_file(main))]
+    out = [(main.stem, load_checked(str(main)))]
     for name in names:
         path = Path(name)
         if not path.suffix:  # a name: beside SCENARIO, else in ./scenarios
             beside, shipped = main.parent / f"{name}.toml", Path("scenarios") / f"{name}.toml"
             path = beside if beside.exists() or not shipped.exists() else shipped
         if path.stem not in {n for n, _ in out}:
-            out.append((path.stem, Scenario.from_file(path)))
+            out.append((path.stem, load_checked(str(path))))
     return out
 
 

@@ -12,10 +12,9 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from formation.errors import TestbedError
-from formation.scenario import Scenario
+from formation.errors import RunEnded, TestbedError
 from recorder import safety_counts, write_deadlines, write_report, write_reports
-from testbed.cli.arguments import add_common, scenario_strategies
+from testbed.cli.arguments import add_common, load_checked, scenario_strategies
 from testbed.cli.deadline_lines import deadline_cells, deadline_notes
 from testbed.cli.tables import print_table
 from testbed.runtime.faults import RESTART_POLICIES
@@ -25,7 +24,7 @@ from testbed.runtime.process_budget import realtime_layout
 
 def cmd_run(args: argparse.Namespace) -> int:
     console = Console(stderr=True)
-    scenario = Scenario.from_file(args.scenario)
+    scenario = load_checked(args.scenario)
     if args.epochs is not None:
         scenario = scenario.with_overrides(epochs=args.epochs)
     pool = args.pool
@@ -58,17 +57,22 @@ def cmd_run(args: argparse.Namespace) -> int:
                 elapsed = bar.tasks[0].elapsed or 0.0
                 bar.update(_t, completed=done, rate=done / elapsed if elapsed else 0.0, drops=drops)
 
-            outcome = launch(
-                scenario,
-                strategy=strategy,
-                seed=args.seed,
-                runs_dir=Path(args.runs_dir),
-                pool=pool,
-                record=not args.no_record,
-                progress=progress,
-                restart=args.restart,
-                recorder_args=_live_args(args),
-            )
+            try:
+                outcome = launch(
+                    scenario,
+                    strategy=strategy,
+                    seed=args.seed,
+                    runs_dir=Path(args.runs_dir),
+                    pool=pool,
+                    record=not args.no_record,
+                    progress=progress,
+                    restart=args.restart,
+                    recorder_args=_live_args(args),
+                )
+            except RunEnded as exc:  # what was recorded is reported, with why the run ended
+                if not args.no_record:
+                    _report(Path(exc.run_dir), console)
+                raise
         outcomes.append(outcome)
         write_deadlines(outcome.run_dir, outcome.summary())
         if not args.no_record:

@@ -7,14 +7,13 @@ import json
 import sys
 from typing import Any
 
-from formation.scenario import Scenario
-from testbed.cli.arguments import add_common, scenario_strategies
+from testbed.cli.arguments import add_common, load_checked, scenario_strategies
 from testbed.cli.tables import print_summaries
 from testbed.sim.simulate import simulate
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    scenario = Scenario.from_file(args.scenario)
+    scenario = load_checked(args.scenario)
     if args.epochs is not None:
         scenario = scenario.with_overrides(epochs=args.epochs)
     seed = scenario.seed if args.seed is None else args.seed

@@ -20,7 +20,8 @@ import numpy as np
 import numpy.typing as npt
 import orjson
 
-from formation.errors import RuntimeFailure
+from formation.errors import RunEnded, RuntimeFailure
+from formation.plugin_api import PLUGIN_EXIT
 from testbed.runtime.processes import Child, ProcessGroup
 
 RestartPolicy = Literal["no", "on-failure"]
@@ -91,6 +92,8 @@ class Supervisor:
         replaced = self.replaced()
         for name, inc in self.current.items():
             c, code = inc.child, inc.child.proc.poll()
+            if code == PLUGIN_EXIT:
+                raise RunEnded(plugin_reason(c), 0, "")
             if code in (None, 0) or c.pid in replaced or name in ESSENTIAL:
                 continue  # an essential one is the waits' (and check's) to report
             hint = (
@@ -131,6 +134,8 @@ class Supervisor:
             if code is None or (code == 0 and name not in ESSENTIAL[:2]):
                 continue
             c = inc.child
+            if code == PLUGIN_EXIT:  # the user's code failed: no restart would mend it
+                raise RunEnded(plugin_reason(c), int(first_missing(name)), "")
             if name in ESSENTIAL:
                 what = "the Zenoh router" if name == "router" else name
                 raise RuntimeFailure(
@@ -218,6 +223,17 @@ def _netem_back(team_events: Sequence[tuple[float, str]], agent: int, since: flo
         except (orjson.JSONDecodeError, AttributeError, TypeError, ValueError):
             continue  # not a team event
     return None
+
+
+def plugin_reason(child: Child) -> str:
+    """What a process that exited with ``PLUGIN_EXIT`` said of its plug-in (its log's error line)."""
+    lines = child.tail(40).splitlines()
+    said = [line.split(": error: ", 1)[1] for line in lines if ": error: " in line]
+    return (
+        f"{child.name}: {said[-1]}"
+        if said
+        else f"{child.name}: a plug-in failed (see {child.log_path})"
+    )
 
 
 def first_missing_epoch(seen: npt.NDArray[np.bool_]) -> int:

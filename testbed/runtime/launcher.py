@@ -7,6 +7,7 @@ every process by PID on exit, error or Ctrl-C, and leaves ``runs/<run_id>/``.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from collections import Counter
@@ -21,6 +22,7 @@ import numpy.typing as npt
 import zenoh
 
 from formation import RuntimeFailure, deadline_counts, realtime_accounting
+from formation.errors import RunEnded
 from formation.scenario import Scenario, StrategyName
 from recorder import RunData, formation_error, present, shape_error, spans, summarise
 from shell import session_config
@@ -407,12 +409,26 @@ def launch(
                     "cpu_steal": cpu_stolen,
                 },
             )
+    except RunEnded as exc:  # a plug-in failed: the recording is closed, whole, before the rest
+        if record and session is not None and observer is not None:
+            _close_recorder(session, run_id, observer, group)
+        raise RunEnded(exc.reason, exc.epoch, str(run_dir)) from None
     finally:
         if observer is not None:
             observer.close()
         if session is not None:
             session.close()
         group.stop_all()
+
+
+def _close_recorder(session: Any, run_id: str, observer: Observer, group: ProcessGroup) -> None:
+    """Let the recorder take what was sent (the failing process's status among it), then end it
+    as at a run's end, so its file is closed and readable without ``formation recover``."""
+    with contextlib.suppress(RuntimeFailure):
+        flush_recorder(session, run_id, observer)
+    rec = next((c for c in group.children if c.name == "recorder"), None)
+    if rec is not None:
+        group.stop(rec, timeout_s=30.0)
 
 
 def _write_atomic(path: Path, text: str) -> None:

@@ -8,6 +8,7 @@ one epoch, so a large error (after a long loss) is closed at a bounded speed.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field
 
 from formation.plugin_api import ControlInputs, ControlLaw
@@ -18,7 +19,7 @@ class SaturatedParams(BaseModel):
     max_step_m: float = Field(0.2, gt=0.0)  # [m] per epoch
 
 
-def saturated(inputs: ControlInputs, params: SaturatedParams) -> np.ndarray:
+def saturated(inputs: ControlInputs, params: SaturatedParams) -> npt.NDArray[np.float64]:
     """Returns the ``(n, d)`` position increment [m]."""
     x = inputs
     terms = np.where(x.used[:, None], x.relative - x.desired, 0.0)  # (L, d)
@@ -27,7 +28,8 @@ def saturated(inputs: ControlInputs, params: SaturatedParams) -> np.ndarray:
     u *= -x.epsilon
     norm = np.linalg.norm(u, axis=1)  # (n,)
     scale = np.minimum(1.0, params.max_step_m / np.maximum(norm, 1e-300))
-    return u * scale[:, None]
+    out: npt.NDArray[np.float64] = u * scale[:, None]
+    return out
 
 
 SATURATED = ControlLaw(

@@ -1,0 +1,74 @@
+"""Plug-ins that go wrong, each in its own way, for the tests of how the testbed refuses them.
+
+On ``PYTHONPATH`` (the tests put ``tests/data/plugins`` there), a scenario names them as
+``"bad_plugins:NAME"``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from formation.plugin_api import ControlInputs, ControlLaw, Fill, LossStrategy, StrategyInputs
+
+
+class FailParams(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    at_epoch: int = Field(6, ge=4)  # after the load-time probe (epoch 3)
+    how: Literal["raise", "nan", "shape"] = "nan"
+    agent: int = 3  # the receiver whose link goes wrong ("nan")
+
+
+def _hold(x: StrategyInputs) -> Fill:
+    have = x.lost & x.has_last
+    return Fill(x.last, have, np.zeros_like(have), x.state, x.has_state)
+
+
+def fails_later(inputs: StrategyInputs, params: FailParams) -> Fill:
+    """``hold`` until ``at_epoch``, then the failure ``how`` (for every call from then on)."""
+    fill = _hold(inputs)
+    if inputs.epoch < params.at_epoch:
+        return fill
+    if params.how == "raise":
+        raise RuntimeError("the user's strategy broke")
+    if params.how == "shape":
+        return Fill(fill.values[:, :1], fill.have, fill.fallback, fill.state, fill.has_state)
+    values = fill.values.copy()
+    values[:] = np.nan  # every row; the check names the receivers of the links it fills
+    return Fill(values, inputs.lost, fill.fallback, fill.state, fill.has_state)
+
+
+FAILS_LATER = LossStrategy(fails_later, params=FailParams)
+
+
+def wrong_shape(inputs: StrategyInputs, params: Any) -> Fill:
+    fill = _hold(inputs)
+    return Fill(fill.values[:1], fill.have, fill.fallback, fill.state, fill.has_state)
+
+
+WRONG_SHAPE = LossStrategy(wrong_shape)  # caught by the probe, at load
+
+
+def one_argument(inputs: StrategyInputs) -> Fill:
+    return _hold(inputs)
+
+
+WRONG_SIGNATURE = LossStrategy(one_argument)  # type: ignore[arg-type]
+
+NOT_A_STRATEGY = object()
+
+
+def only_single(inputs: ControlInputs, params: Any) -> np.ndarray:
+    return np.zeros((inputs.n, inputs.relative.shape[1]))
+
+
+SINGLE_ONLY = ControlLaw(only_single, dynamics=("single",))
+
+
+def infinite(inputs: ControlInputs, params: Any) -> np.ndarray:
+    return np.full((inputs.n, inputs.relative.shape[1]), np.inf)
+
+
+INFINITE = ControlLaw(infinite)  # caught by the probe, at load
