@@ -31,7 +31,7 @@ from pydantic import (
     model_validator,
 )
 
-from formation.plugin_registry import PluginError, find, is_reference, names
+from formation.plugin_registry import PluginError, find, is_reference, names, registered
 
 Probability = Annotated[float, Field(ge=0.0, le=1.0)]
 
@@ -296,9 +296,27 @@ def _validate_spec(value: Any, handler: ValidatorFunctionWrapHandler) -> Spec:
 
 
 def _dump_spec(spec: Spec, info: SerializationInfo) -> dict[str, Any]:
-    return spec.model_dump(
+    out = spec.model_dump(
         mode=info.mode, by_alias=bool(info.by_alias), exclude_none=info.exclude_none
     )
+    out["model"] = _name_of(type(spec))
+    return out
+
+
+@cache
+def _name_of(cls: type[Spec]) -> str:
+    """How a spec is found again: its tag where that is registered to it, else its import path
+    (the resolved scenario every process reads names it so)."""
+    tag = cls.model_fields["model"].default
+    entry = registered("link_model").get(tag)
+    if entry is not None and entry.target == f"{cls.__module__}:{cls.__qualname__}":
+        return str(tag)
+    try:
+        if spec_class(tag) is cls:
+            return str(tag)
+    except PluginError:
+        pass
+    return f"{cls.__module__}:{cls.__qualname__}"
 
 
 # A link model as a scenario or netem's run-time change gives it: found by its tag.

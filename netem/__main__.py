@@ -41,6 +41,8 @@ def main(argv: list[str] | None = None) -> int:
         timing = time_policy(scenario)
         try:
             code = node.run(timing)
+            if service.failure is not None:  # failed in a message handler
+                raise service.failure
         except PluginFailure as exc:  # recorded, then the launcher ends the run
             service.status("error", node.estimates_done, f"{PLUGIN_FAILED}{exc}")
             print(f"netem: error: {exc}", file=sys.stderr, flush=True)

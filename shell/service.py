@@ -28,6 +28,7 @@ from formation import keys
 from formation.codec import Malformed, encode, now_ns
 from formation.errors import RuntimeFailure
 from formation.messages import Status
+from formation.plugin_api import PluginFailure
 from shell.bus import Bus, Publisher, Query, Sample, ZenohBus
 
 log = logging.getLogger("service")
@@ -72,6 +73,7 @@ class Service:
         self.start_timeout_s = start_timeout_s
         self.inbox: queue.SimpleQueue[Incoming] = queue.SimpleQueue()
         self.stopping = threading.Event()
+        self.failure: PluginFailure | None = None  # a plug-in failed in a handler: the run ends
         self.malformed = Malformed()
         self.sent: Counter[str] = Counter()
         self._seq: Counter[str] = Counter()
@@ -188,11 +190,16 @@ class Service:
     def handle_inline(self, key: str, handler: Callable[..., None], *args: Any) -> None:
         """``handler(*args)`` under :attr:`inline_lock`, for a message on ``key``.
 
-        A bad message must never stop the process: an exception is counted and logged.
+        A bad message must never stop the process: an exception is counted and logged. A
+        plug-in that failed does: it is kept in :attr:`failure` and the service stops.
         """
         with self.inline_lock:
             try:
                 handler(*args)
+            except PluginFailure as exc:
+                if self.failure is None:
+                    self.failure = exc
+                self.stopping.set()
             except Exception:
                 self.malformed.counts[key] += 1
                 log.exception("while handling %s", key)

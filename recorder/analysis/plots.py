@@ -223,6 +223,9 @@ def plot_link_timeline(
     palette = np.array([[0.84, 0.15, 0.16], [0.17, 0.63, 0.17], [0.8, 0.8, 0.8]])
     for ax, (label, delivered, decided) in zip(axes, runs, strict=True):
         code = np.where(decided, delivered.astype(int), 2)
+        if code.shape[0] == 0:  # a run that ended before its first epoch
+            ax.text(0.5, 0.5, "no epoch recorded", ha="center", va="center", transform=ax.transAxes)
+            continue
         ax.imshow(palette[code.T], aspect="auto", interpolation="nearest", origin="lower")
         ax.set_yticks(np.arange(len(link_labels)), list(link_labels), fontsize="x-small")
         ax.set_title(

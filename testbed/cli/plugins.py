@@ -7,12 +7,15 @@ import json
 from typing import Any
 
 from pydantic import BaseModel
+from rich.markup import escape
 from rich.table import Table
 
 from formation.linkmodels import spec_class
 from formation.plugin_api import control_law, loss_strategy
-from formation.plugin_registry import GROUPS, LABELS, Kind, PluginError, registered
+from formation.plugin_registry import GROUPS, Kind, PluginError, registered
 from testbed.cli.tables import print_table
+
+TITLES = {"strategy": "loss strategies", "controller": "controllers", "link_model": "link models"}
 
 
 def _parameters(model: type[BaseModel], skip: tuple[str, ...] = ()) -> list[str]:
@@ -21,7 +24,8 @@ def _parameters(model: type[BaseModel], skip: tuple[str, ...] = ()) -> list[str]
     for name, field in model.model_fields.items():
         if name in skip:
             continue
-        kind = getattr(field.annotation, "__name__", None) or str(field.annotation)
+        ann = field.annotation
+        kind = ann.__name__ if isinstance(ann, type) else str(ann).replace("typing.", "")
         shown = field.alias or name
         out.append(f"{shown}: {kind}" + ("" if field.is_required() else f" = {field.default!r}"))
     return out
@@ -58,7 +62,7 @@ def cmd_plugins(args: argparse.Namespace) -> int:
         print(json.dumps(rows, indent=2))
     else:
         for kind in kinds:
-            table = Table(title=f"{LABELS[kind]}s (entry-point group {GROUPS[kind]})")
+            table = Table(title=f"{TITLES[kind]} (entry-point group {GROUPS[kind]})")
             for col in ("name", "package", "parameters", "description"):
                 table.add_column(col, overflow="fold")
             for r in (r for r in rows if r["kind"] == kind):
@@ -66,8 +70,11 @@ def cmd_plugins(args: argparse.Namespace) -> int:
                 if "dynamics" in r:
                     about += f" [dynamics: {', '.join(r['dynamics'])}]"
                 if "error" in r:
-                    about = f"[red]cannot be used: {r['error']}[/]"
-                table.add_row(r["name"], r["package"], "\n".join(r.get("parameters", [])), about)
+                    about = f"[red]cannot be used: {escape(r['error'])}[/]"
+                params = "\n".join(r.get("parameters", []))
+                if "error" not in r:
+                    about = escape(about)
+                table.add_row(r["name"], r["package"], escape(params), about)
             print_table(table)
     return 1 if any("error" in r for r in rows) else 0
 

@@ -135,7 +135,10 @@ class Supervisor:
                 continue
             c = inc.child
             if code == PLUGIN_EXIT:  # the user's code failed: no restart would mend it
-                raise RunEnded(plugin_reason(c), int(first_missing(name)), "")
+                # it sent its epoch-k state, then failed stepping: k + 1 is the first missing;
+                # netem's epoch is the leader's, whose estimates it carries
+                seen = int(first_missing("leader" if name in ESSENTIAL else name))
+                raise RunEnded(plugin_reason(c), max(seen - 1, 0), "")
             if name in ESSENTIAL:
                 what = "the Zenoh router" if name == "router" else name
                 raise RuntimeFailure(

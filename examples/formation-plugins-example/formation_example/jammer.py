@@ -18,7 +18,10 @@ from netem import Keys, Layer, LayerOutput
 
 
 class Jammer(Spec):
-    """The spec: what a scenario writes (``{ model = "jammer", links = [[1, 2]], ... }``)."""
+    """Every packet on ``links`` lost for ``length`` epochs from ``start``, again each ``every``.
+
+    The spec is what a scenario writes: ``{ model = "jammer", links = [[1, 2]], start = 10 }``.
+    """
 
     layer: ClassVar[str] = "formation_example.jammer:JammerLayer"
     model: Literal["jammer"] = "jammer"

@@ -6,12 +6,14 @@ On ``PYTHONPATH`` (the tests put ``tests/data/plugins`` there), a scenario names
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from formation.linkmodels import Spec
 from formation.plugin_api import ControlInputs, ControlLaw, Fill, LossStrategy, StrategyInputs
+from netem import Keys, Layer, LayerOutput
 
 
 class FailParams(BaseModel):
@@ -72,3 +74,18 @@ def infinite(inputs: ControlInputs, params: Any) -> np.ndarray:
 
 
 INFINITE = ControlLaw(infinite)  # caught by the probe, at load
+
+
+class Explodes(Spec):
+    """A link model whose layer raises from ``at_epoch`` on (after the load-time probe's 8)."""
+
+    layer: ClassVar[str] = "bad_plugins:ExplodingLayer"
+    model: Literal["explodes"] = "explodes"
+    at_epoch: int = Field(12, ge=8)
+
+
+class ExplodingLayer(Layer[Explodes]):
+    def run(self, keys: Keys, epochs: np.ndarray, carry: Any) -> tuple[LayerOutput, Any]:
+        if (epochs >= self.spec.at_epoch).any():
+            raise ValueError("the user's layer broke")
+        return LayerOutput(drop=np.zeros((keys.n_links, epochs.shape[0]), dtype=bool)), None
