@@ -28,6 +28,12 @@ COPY recorder ./recorder
 COPY testbed ./testbed
 COPY README.md ./
 RUN pip install --no-deps . && rm -rf formation shell agent leader netem recorder testbed build *.egg-info
+# Plug-in packages (docs/plugins.md): pip requirements, or folders of the build context, e.g.
+#   docker build --build-arg PLUGINS=./examples/formation-plugins-example -t formation-testbed .
+# compose.plugins.yaml passes it. The testbed itself is installed, so pip keeps it.
+ARG PLUGINS=""
+COPY examples ./examples
+RUN if [ -n "$PLUGINS" ]; then pip install $PLUGINS && pip check; fi; rm -rf examples
 COPY scenarios ./scenarios
 
 # Each service sets its own command (and compose its user); a bare `docker run` prints the CLI's help.

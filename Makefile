@@ -65,8 +65,11 @@ architecture: $(BIN)/.installed
 # product, as for make test (.product: the checkout as edited). podman first: Docker loads the
 # base image from podman's store.
 ENGINES ?= podman docker
-compose-test: $(BIN)/.product
+# podman's image has the example plug-ins too (podman-compose does not build): compose.plugins.yaml
+# runs from it; Docker's `up --build` builds each file's own.
+compose-test: $(BIN)/.product $(BIN)/.example
 	set -e; trap 'deploy/docker.sh stop' EXIT; vars=; \
+	export FORMATION_BUILD_FLAGS="--build-arg PLUGINS=./$(EXAMPLE)"; \
 	for engine in $(ENGINES); do \
 	  deploy/$$engine.sh engine base build; vars="$$vars $$(deploy/$$engine.sh env)"; \
 	done; \

@@ -13,8 +13,13 @@ from testbed.deploy.security import generate
 
 
 def cmd_compose(args: argparse.Namespace) -> int:
-    options = ComposeOptions(secure=not args.open, tls=args.tls)
-    sys.stdout.write(render(args.scenario, options))
+    options = ComposeOptions(
+        secure=not args.open,
+        tls=args.tls,
+        plugins=tuple(args.plugin or ()),
+        file=args.file or "compose.yaml",
+    )
+    sys.stdout.write(render(args.scenario, options, load_checked(args.scenario)))
     return 0
 
 
@@ -45,6 +50,13 @@ def register(sub: Any) -> None:
         help="no authentication or access control (trusted networks only)",
     )
     p.add_argument("--tls", action="store_true", help="TLS links (needs `formation keys --tls`)")
+    p.add_argument(
+        "--plugin",
+        action="append",
+        help="a plug-in package the image installs: a pip requirement or a folder of the "
+        "build context (repeatable; the Dockerfile's PLUGINS build argument)",
+    )
+    p.add_argument("--file", help="the file's name, for its usage lines (default compose.yaml)")
     p.set_defaults(func=cmd_compose)
 
     p = sub.add_parser("keys", help="write development credentials and the router's access control")

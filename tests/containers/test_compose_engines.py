@@ -42,6 +42,7 @@ pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.containers]
 
 ROOT = Path(__file__).resolve().parents[2]
 COMPOSE = ROOT / "compose.yaml"
+PLUGINS = ROOT / "compose.plugins.yaml"  # the example plug-ins' scenario, from an image with them
 OVERRIDE = ROOT / "deploy" / "compose.loopback.yaml"
 # The engines whose tests fail rather than skip when they cannot run (make compose-test).
 REQUIRED = os.environ.get("FORMATION_REQUIRE_CONTAINERS", "").split()
@@ -114,6 +115,7 @@ class Deployment:
     """One compose run's inputs: the engine, the environment it gets and what it should write."""
 
     engine: Engine
+    compose: Path
     doc: dict[str, Any]
     scenario_file: Path
     scenario: Scenario
@@ -164,15 +166,23 @@ def engine(request: pytest.FixtureRequest) -> Engine:
 
 
 @pytest.fixture
+def compose_file(request: pytest.FixtureRequest) -> Path:
+    """compose.yaml, unless a test names another (``indirect``)."""
+    return getattr(request, "param", COMPOSE)
+
+
+@pytest.fixture
 def deployment(
-    engine: Engine, request: pytest.FixtureRequest, tmp_path: Path
+    engine: Engine, compose_file: Path, request: pytest.FixtureRequest, tmp_path: Path
 ) -> Iterator[Deployment]:
     """Keys and ``runs/<RUN_ID>`` owned by the services' user; the run directory removed after."""
-    doc = yaml.safe_load(COMPOSE.read_text())
+    doc = yaml.safe_load(compose_file.read_text())
     mount = doc["services"]["netem"]["volumes"][0].split(":")[0]
     scenario_file = (ROOT / mount).resolve()
     (uid, gid), owner = _run_as()
-    suffix = "-late" if "late" in request.node.name else ""
+    suffix = ("-late" if "late" in request.node.name else "") + (
+        "-plugins" if compose_file == PLUGINS else ""
+    )
     run_id = f"{engine.name}{suffix}-{os.getpid()}"
     subprocess.run(
         [sys.executable, "-m", "testbed.cli", "keys", str(tmp_path / "keys"), str(scenario_file)],
@@ -194,7 +204,7 @@ def deployment(
     }
     env.pop("FORMATION_RUNS", None)  # the default, ./runs, as a user runs it
     scenario = Scenario.from_file(scenario_file)
-    dep = Deployment(engine, doc, scenario_file, scenario, run_id, env, owner)
+    dep = Deployment(engine, compose_file, doc, scenario_file, scenario, run_id, env, owner)
     _compose(dep, "down", timeout_s=DOWN_S)  # leftovers of an interrupted run
     try:
         yield dep
@@ -205,7 +215,7 @@ def deployment(
 
 
 def _compose(dep: Deployment, *args: str, timeout_s: float) -> subprocess.CompletedProcess[str]:
-    argv = [*dep.engine.compose, "-f", str(COMPOSE), "-f", str(OVERRIDE), *args]
+    argv = [*dep.engine.compose, "-f", str(dep.compose), "-f", str(OVERRIDE), *args]
     return subprocess.run(
         argv, cwd=ROOT, env=dep.env, capture_output=True, text=True, timeout=timeout_s, check=False
     )
@@ -239,7 +249,7 @@ def _wait_netem(dep: Deployment, timeout_s: float) -> int:
     has it (it finds no container once netem has exited); podman-compose has no ``wait``.
     """
     netem = dep.engine.container(dep.project, "netem")
-    argv = [*dep.engine.compose, "-f", str(COMPOSE), "-f", str(OVERRIDE), "wait", "netem"]
+    argv = [*dep.engine.compose, "-f", str(dep.compose), "-f", str(OVERRIDE), "wait", "netem"]
     wait = None
     if dep.engine.cli == "docker":
         wait = subprocess.Popen(
@@ -323,7 +333,11 @@ def _up(dep: Deployment, *services: str) -> subprocess.CompletedProcess[str]:
     return _compose(dep, "up", *build, "-d", *services, timeout_s=300)
 
 
+@pytest.mark.parametrize(
+    "compose_file", [COMPOSE, PLUGINS], ids=["paper", "plugins"], indirect=True
+)
 def test_compose_yaml_equals_a_native_run(deployment: Deployment, tmp_path: Path) -> None:
+    """compose.yaml, and compose.plugins.yaml: the example plug-ins installed in the image."""
     dep = deployment
     t0 = time.monotonic()
     try:
@@ -354,6 +368,7 @@ def test_compose_yaml_equals_a_native_run(deployment: Deployment, tmp_path: Path
     assert set(mine["counts"]) == set(got["counts"])  # the same channels
     ours, theirs = read_run(dep.run_dir / "run.mcap"), read_run(native_dir / "run.mcap")
     assert abs(ours.formation_error[-1] - theirs.formation_error[-1]) <= 1e-9
+    assert ours.scenario.strategy.name == dep.scenario.strategy.name  # the plug-in's, if any
     print(
         f"\n{dep.engine.name}: up {t_up - t0:.1f} s, netem's exit after {t_exit - t_up:.1f} s, "
         f"down {t_down - t_exit:.1f} s: {containers:.1f} s in all; native formation run "

@@ -43,6 +43,23 @@ def test_committed_compose_file_is_what_the_generator_writes_now() -> None:
     assert COMPOSE.read_text() == _render(DEFAULT), "regenerate: formation compose > compose.yaml"
 
 
+def test_the_plugins_compose_file_is_generated_and_builds_the_example_into_the_image(
+    compose_schema: jsonschema.Draft7Validator,
+) -> None:
+    example = "examples/formation-plugins-example"
+    options = ComposeOptions(plugins=(f"./{example}",), file="compose.plugins.yaml")
+    text = _render(f"{example}/scenario.toml", options)
+    assert (ROOT / "compose.plugins.yaml").read_text() == text, (
+        f"regenerate: formation compose {example}/scenario.toml --plugin ./{example} "
+        "--file compose.plugins.yaml > compose.plugins.yaml"
+    )
+    doc = yaml.safe_load(text)
+    assert doc["services"]["router"]["build"]["args"] == {"PLUGINS": f"./{example}"}
+    assert (ROOT / example / "pyproject.toml").is_file()  # inside the build context
+    compose_schema.validate(doc)
+    assert "docker compose -f compose.plugins.yaml up --build -d" in text
+
+
 def test_agents_and_the_leader_restart_on_failure_and_nothing_else_does() -> None:
     """A crashed agent or leader rejoins the run (issue 20); netem, router and recorder do not
     restart: netem's exit is the run's end, and a recorder restarted would start a new file."""
