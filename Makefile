@@ -75,7 +75,7 @@ compose-test: $(BIN)/.product $(BIN)/.example
 	done; \
 	env PYTHONSAFEPATH=1 FORMATION_REQUIRE_CONTAINERS="$(ENGINES)" $$vars $(BIN)/pytest -q -p no:cacheprovider -m containers -s tests/containers
 
-bench: $(BIN)/.product
+bench: $(BIN)/.product $(BIN)/.example
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench
 
 clean:

@@ -99,7 +99,8 @@ class Controller(_Model):
     """The formation controller (docs/model.md §3); ``epsilon = gain * period_s``.
 
     ``controller`` names a controller plug-in (``displacement``, ``distance`` or a user's);
-    ``params`` its parameters, checked by the plug-in's own model.
+    ``params`` holds each controller's parameters by its name (``[control.params.saturated]``),
+    checked by the plug-in's own model, so a study over controllers gives each its own.
     """
 
     controller: str = "displacement"
@@ -108,7 +109,7 @@ class Controller(_Model):
     period_s: float = Field(1.0, gt=0.0)  # T [s]
     damping: float = Field(1.0, gt=0.0)  # c [1/s], double integrator only
     unicycle: Unicycle = Unicycle()  # limits and look-ahead, dynamics = "unicycle" only
-    params: dict[str, Any] = Field(default_factory=dict)
+    params: dict[str, dict[str, Any]] = Field(default_factory=dict)
 
     @property
     def epsilon(self) -> float:
@@ -129,14 +130,24 @@ class Controller(_Model):
                 self.dynamics,
                 f"controller {self.controller!r} supports only {', '.join(law.dynamics)}",
             )
+        for name in self.params:
+            _plugin(lambda name=name: control_law(name), f"control.params.{name}", name)
+            _plugin(
+                lambda name=name: self.params_of(name), f"control.params.{name}", self.params[name]
+            )
         _plugin(lambda: self.law_params)
         return self
 
+    def params_of(self, name: str) -> Any:
+        """Controller ``name``'s parameters, validated by its own model."""
+        return validate_params(
+            "controller", name, control_law(name).params, self.params.get(name, {})
+        )
+
     @cached_property
     def law_params(self) -> Any:
-        """The controller's parameters, validated by its own model."""
-        law = control_law(self.controller)
-        return validate_params("controller", self.controller, law.params, self.params)
+        """The parameters of the scenario's controller (asked every epoch: validated once)."""
+        return self.params_of(self.controller)
 
 
 class StaticReference(_Model):

@@ -119,8 +119,9 @@ def test_a_bad_controller_is_refused(paper: Scenario) -> None:
          "control.dynamics", r"controller 'bad_plugins:SINGLE_ONLY' supports only single"),
         ({**control, "controller": "bad_plugins:INFINITE"}, "control.controller",
          r"on a probe of 2 agents: returned a command that is not finite"),
-        ({**control, "controller": "saturated", "params": {"max_step_m": -1}}, "control",
-         r"parameter max_step_m = -1; Input should be greater than 0"),
+        ({**control, "controller": "saturated", "params": {"saturated": {"max_step_m": -1}}},
+         "control.params.saturated", r"parameter max_step_m = -1; Input should be greater than 0"),
+        ({**control, "params": {"nope": {}}}, "control.params.nope", r"no controller is registered"),
     ]  # fmt: skip
     for section, field, problem in cases:
         with pytest.raises(ScenarioError, match=problem) as err:
