@@ -9,6 +9,7 @@ value. The model follows docs/model.md: §1 team and shape, §3 control, §4 edg
 from __future__ import annotations
 
 import tomllib
+from collections.abc import Callable
 from functools import cached_property
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -130,11 +131,7 @@ class Controller(_Model):
                 self.dynamics,
                 f"controller {self.controller!r} supports only {', '.join(law.dynamics)}",
             )
-        for name in self.params:
-            _plugin(lambda name=name: control_law(name), f"control.params.{name}", name)
-            _plugin(
-                lambda name=name: self.params_of(name), f"control.params.{name}", self.params[name]
-            )
+        _params_by_name("control.params", self.params, control_law, self.params_of)
         _plugin(lambda: self.law_params)
         return self
 
@@ -207,11 +204,7 @@ class Strategy(_Model):
 
     @model_validator(mode="after")
     def _params_fit(self) -> Strategy:
-        for name in self.params:
-            _plugin(lambda name=name: loss_strategy(name), f"strategy.params.{name}", name)
-            _plugin(
-                lambda name=name: self.params_of(name), f"strategy.params.{name}", self.params[name]
-            )
+        _params_by_name("strategy.params", self.params, loss_strategy, self.params_of)
         _plugin(lambda: self.params_of(self.name))
         return self
 
@@ -430,6 +423,16 @@ def _plugin(check: Any, field: str | None = None, value: object = None) -> Any:
         if field is None:
             raise ValueError(str(exc)) from None
         raise _Problem(field, value, str(exc)) from None
+
+
+def _params_by_name(
+    field: str, params: dict[str, Any], find: Callable[[str], Any], params_of: Callable[[str], Any]
+) -> None:
+    """Each name of ``params`` (``{plug-in: its parameters}``) is a plug-in, and its own model
+    takes its parameters; a problem is the scenario's at ``field.<name>``."""
+    for name, given in params.items():
+        _plugin(lambda name=name: find(name), f"{field}.{name}", name)
+        _plugin(lambda name=name: params_of(name), f"{field}.{name}", given)
 
 
 class _Problem(ValueError):
