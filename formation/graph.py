@@ -261,12 +261,12 @@ SVD_MAX_COLUMNS = 600
 """Frameworks of at most this many coordinates ``n·d`` are checked by the dense SVD, larger
 ones by the vertex-addition certificate and the pinned stiffness (docs/model.md §2)."""
 
-PIVOT_RTOL = 1e-12
-"""A least eigenvalue of the pinned stiffness at most this fraction of its largest diagonal
-entry counts as zero: its eigenvalues are the squares of ``R``'s singular values."""
-
 INVERSE_STEPS = 4
-"""Steps of inverse iteration that estimate the pinned stiffness's least eigenvalue."""
+"""Steps of block inverse iteration that find the pinned stiffness's weakest motions."""
+
+INVERSE_BLOCK = 3
+"""Vectors of that block: the weakest motion is found in it even when the pinning mixes
+the order of a few nearly as weak ones."""
 
 
 def is_rigid(
@@ -648,12 +648,14 @@ def sparse_rigidity_matrix(positions: npt.ArrayLike, edges: npt.ArrayLike) -> cs
 
 
 def pinned_stiffness_definite(positions: npt.ArrayLike, edges: npt.ArrayLike) -> bool:
-    """Whether ``RᵀR + CᵀC`` is positive definite, ``C`` from :func:`_pinning`: rigidity (§2).
+    """Whether the framework is rigid, by the pinned stiffness ``RᵀR + CᵀC`` (§2).
 
-    ``C`` removes exactly the rigid motions when the agents span the space, so the matrix
-    is definite iff the only motions that keep every edge's length are rigid. A sparse LU
-    (SuperLU) and a few steps of inverse iteration answer it: the least eigenvalue above
-    ``PIVOT_RTOL`` of the largest diagonal entry. Agents on a line (in 3-D, a plane) are
+    ``C`` (:func:`_pinning`) removes exactly the rigid motions when the agents span the
+    space, so the stiffness is definite iff rigid. A sparse LU (SuperLU) of it and a few
+    steps of block inverse iteration give the motions it resists least; the least singular
+    value of ``R`` on them, less their rigid part, bounds ``σ_r``, the least nonzero
+    singular value of ``R`` the SVD would find, from above and reaches it. It must exceed
+    ``RANK_RTOL · σ_max``, the SVD's own test. Agents on a line (in 3-D, a plane) are
     never rigid once there are more than ``d`` of them.
     """
     x = as_positions(positions)
@@ -663,19 +665,51 @@ def pinned_stiffness_definite(positions: npt.ArrayLike, edges: npt.ArrayLike) ->
     r = sparse_rigidity_matrix(x, edges)
     c = csr_matrix(pins)
     k = (r.T @ r + c.T @ c).tocsc()
-    scale = float(np.abs(k.diagonal()).max())
     try:
         lu = splu(  # symmetric ordering, diagonal pivots: a quarter of partial pivoting's fill
             k, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
         )
     except RuntimeError:  # an exactly zero pivot: singular
         return False
-    # Inverse iteration: its Rayleigh quotient bounds the least eigenvalue from above and
-    # reaches it in a few steps when a flex sits far below the rest (pivots do not tell).
-    y = np.random.default_rng(0).standard_normal(k.shape[0])
+    y = np.random.default_rng(0).standard_normal((k.shape[0], INVERSE_BLOCK))
     for _ in range(INVERSE_STEPS):
-        y = lu.solve(y / np.linalg.norm(y))
+        y = lu.solve(np.linalg.qr(y)[0])
         if not np.isfinite(y).all():
             return False
-    y /= np.linalg.norm(y)
-    return bool(y @ (k @ y) > PIVOT_RTOL * scale)
+    # Rayleigh–Ritz on R itself over the block less the rigid motions (QR: orthonormal even
+    # where the block nearly holds one). Not on RᵀR: its eigenvalues are the squares, and the
+    # SVD's tolerance squared (1e-18 of the largest) is below their rounding.
+    motions = _rigid_motions(x)
+    weak = np.linalg.qr(np.hstack([motions, y]))[0][:, motions.shape[1] :]
+    weakest = np.linalg.svd(r @ weak, compute_uv=False)[-1]
+    return bool(weakest > RANK_RTOL * _largest_singular_value(r))
+
+
+def _rigid_motions(x: FloatArray) -> FloatArray:
+    """The ``d(d+1)/2`` rigid motions ``(n·d, D)`` of agents at ``x``, independent if they span.
+
+    The ``d`` translations and, for each plane ``(a, b)`` of coordinates, the rotation
+    ``v_a = −x_b, v_b = x_a`` about the centroid.
+    """
+    n, d = x.shape
+    centred = x - x.mean(axis=0)
+    motions = [np.tile(np.eye(d)[k], n) for k in range(d)]
+    for a in range(d):
+        for b in range(a + 1, d):
+            v = np.zeros((n, d))
+            v[:, a], v[:, b] = -centred[:, b], centred[:, a]
+            motions.append(v.ravel())
+    return np.array(motions).T
+
+
+POWER_STEPS = 30
+"""Steps of power iteration for ``σ_max``; it nears from below, within a few per cent."""
+
+
+def _largest_singular_value(r: csr_matrix) -> float:
+    """``σ_max`` of a sparse matrix by power iteration on ``rᵀr`` (a fixed start)."""
+    v = np.random.default_rng(0).standard_normal(r.shape[1])
+    for _ in range(POWER_STEPS):
+        v = r.T @ (r @ v)
+        v /= np.linalg.norm(v)
+    return float(np.linalg.norm(r @ v))

@@ -7,7 +7,7 @@ SVD, which is the reference (docs/model.md §2).
 from __future__ import annotations
 
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from formation.graph import (
@@ -18,6 +18,7 @@ from formation.graph import (
     pinned_stiffness_definite,
     rank_beyond_cluster,
     rank_under_mask,
+    rigidity_matrix,
     rigidity_rank,
 )
 from leader.rigidity import UNKNOWN_RANK, HealthyRigidity
@@ -36,6 +37,7 @@ def svd_rigid(x: np.ndarray, edges: np.ndarray) -> bool:
     seed=st.integers(0, 10_000),
     loss=st.sampled_from([0.0, 0.01, 0.05, 0.3]),
 )
+@example(n=83, d=3, redundancy=0.05, seed=3725, loss=0.05)  # mask 4: nearly flexible, rigid
 def test_tracker_answers_as_the_svd_on_random_teams_and_masks(
     n: int, d: int, redundancy: float, seed: int, loss: float
 ) -> None:
@@ -123,6 +125,34 @@ def test_a_collinear_triple_inside_a_team_is_seen() -> None:
     moved = x.copy()
     moved[3, 1] = 0.4  # off the line: rigid
     assert svd_rigid(moved, edges) and is_rigid(moved, edges, svd_max_columns=0)
+
+
+def test_a_nearly_flexible_mask_is_rigid_by_both_paths() -> None:
+    # hypothesis found it: σ_r = 3.1e-7 σ_max, above the SVD's 1e-9 (rigid); the pinned
+    # stiffness compared its least eigenvalue σ² with 1e-12, a σ of 1e-6, and said flexible
+    s = rigid_team(83, 3, 0.05, seed=3725)
+    x, edges = s.offsets, s.edge_array
+    rng = np.random.default_rng(3725)
+    mask = [rng.random(len(edges)) >= 0.05 for _ in range(6)][4]
+    kept = edges[mask]
+    singular = np.linalg.svd(rigidity_matrix(x, kept), compute_uv=False)
+    assert 1e-7 < singular[expected_rigidity_rank(83, 3) - 1] / singular[0] < 1e-6
+    assert svd_rigid(x, kept)
+    assert not grown_cluster(x, kept).all()  # vertex addition stalls: the stiffness decides
+    assert pinned_stiffness_definite(x, kept)
+    assert is_rigid(x, kept, svd_max_columns=0)
+    assert HealthyRigidity(x, edges, svd_max_columns=0)(mask) == (243, True)
+
+
+def test_the_pinned_stiffness_draws_the_line_where_the_svd_does() -> None:
+    # agent 4 lifted by dy off the line through 1 and 2, its only neighbours: σ_r ≈ 0.16 dy
+    x = np.array([[0.0, 0.0], [1.0, 0.0], [0.3, 1.0], [2.0, 0.0], [1.2, 1.3]])
+    edges = np.array([(1, 2), (1, 3), (2, 3), (1, 4), (2, 4), (3, 5), (2, 5)])
+    for dy, rigid in ((1e-6, True), (1e-8, True), (3e-9, False), (1e-12, False)):
+        lifted = x.copy()
+        lifted[3, 1] = dy
+        assert svd_rigid(lifted, edges) == rigid
+        assert pinned_stiffness_definite(lifted, edges) == rigid
 
 
 def test_ten_thousand_agents_without_an_svd() -> None:
