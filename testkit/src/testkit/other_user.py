@@ -64,6 +64,10 @@ def main(argv: list[str]) -> None:
     import netem.node  # noqa: F401
     import recorder.node  # noqa: F401
     import testbed.runtime.router  # noqa: F401
+    from formation.plugin_registry import GROUPS, registered
+
+    for kind in GROUPS:  # the plug-ins' entry points: the venv's metadata, read as root
+        registered(kind)
 
     spec = importlib.util.find_spec(module)
     if spec is not None and spec.submodule_search_locations is not None:  # a package

@@ -463,5 +463,5 @@ def test_every_tag_has_a_layer_and_keeps_its_kind_code() -> None:
     assert sorted(codes.values())[:12] == list(range(12))
     every = layers()
     assert all(layer_of(spec_class(tag).model_construct()) is every[tag] for tag in codes)
-    LinkModel([spec_class(tag).model_construct() for tag in codes if tag == "bernoulli"], 1, 1, 2)
+    LinkModel([spec_class("bernoulli").model_validate({"p_loss": 0.1})], 1, 1, 2)
     assert "bernoulli" in MODEL_NAMES
