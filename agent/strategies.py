@@ -161,13 +161,16 @@ def substitute(
         last_epoch=memory.last_epoch,
         estimate=estimate,
         has_estimate=has_estimate,
-        v_ref_prev=np.broadcast_to(v_ref_prev, received.shape),
+        v_ref_prev=v_ref_prev
+        if v_ref_prev.ndim == 2
+        else np.broadcast_to(v_ref_prev, received.shape),
         period_s=period_s,
         state=memory.state,
         has_state=memory.has_state,
     )
     fill = fill_checked(strategy, plugin, inputs, params, receivers)
-    have = fill.have & ~arrived
+    lost = ~arrived
+    have = fill.have & lost
     values = np.where(arrived[:, None], received, 0.0)
     values = np.where(have[:, None], fill.values, values)
     new_memory = LinkMemory(
@@ -177,7 +180,7 @@ def substitute(
         has_state=fill.has_state,
     )
     substitution = Substitution(
-        values=values, used=arrived | have, substituted=have, fallback=fill.fallback & ~arrived
+        values=values, used=arrived | have, substituted=have, fallback=fill.fallback & lost
     )
     return substitution, new_memory
 

@@ -14,10 +14,11 @@ make that call once on a small made-up input when a scenario loads (docs/plugins
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -66,8 +67,7 @@ class PluginFailure(TestbedError):
 # ----------------------------------------------------------------------------- loss strategies
 
 
-@dataclass(frozen=True)
-class StrategyInputs:
+class StrategyInputs(NamedTuple):
     """What a loss strategy knows of ``L`` in-links ``j → i`` at epoch ``k`` (docs/model.md §6).
 
     Attributes
@@ -105,8 +105,7 @@ class StrategyInputs:
         return self.last_epoch >= 0
 
 
-@dataclass(frozen=True)
-class Fill:
+class Fill(NamedTuple):
     """A strategy's answer for ``L`` in-links.
 
     Attributes
@@ -147,8 +146,7 @@ class LossStrategy:
 # ----------------------------------------------------------------------------- controllers
 
 
-@dataclass(frozen=True)
-class ControlInputs:
+class ControlInputs(NamedTuple):
     """What a controller knows of ``n`` agents and their ``L`` in-links (docs/model.md §3).
 
     Attributes
@@ -258,6 +256,12 @@ def _where(agents: Ints) -> str:
     return f"agents {shown}"
 
 
+def _all_finite(values: Array) -> bool:
+    """Every value finite, in one reduction: a NaN or inf makes the sum NaN or inf (so does an
+    overflow of finite values, which the exact check that follows then clears)."""
+    return math.isfinite(np.add.reduce(values, axis=None))
+
+
 def fill_checked(
     name: str,
     strategy: LossStrategy,
@@ -273,7 +277,6 @@ def fill_checked(
             "strategy", name, _where(receivers), inputs.epoch, f"raised {type(exc).__name__}: {exc}"
         ) from exc
     n_links, d = inputs.received.shape
-    width = inputs.state.shape[1]
     if not isinstance(out, Fill):
         raise PluginFailure(
             "strategy",
@@ -282,23 +285,30 @@ def fill_checked(
             inputs.epoch,
             f"returned {type(out).__name__}, not a Fill",
         )
-    want = {
-        "values": (n_links, d),
-        "have": (n_links,),
-        "fallback": (n_links,),
-        "state": (n_links, width),
-        "has_state": (n_links,),
-    }
-    for field, shape in want.items():
-        got = np.shape(getattr(out, field))
-        if got != shape:
-            raise PluginFailure(
-                "strategy",
-                name,
-                _where(receivers),
-                inputs.epoch,
-                f"Fill.{field} has the shape {got}; expected {shape}",
-            )
+    want = (
+        (n_links, d),
+        (n_links,),
+        (n_links,),
+        (n_links, inputs.state.shape[1]),
+        (n_links,),
+    )
+    try:  # arrays, the common case: their shapes at attribute speed
+        got = tuple(part.shape for part in out)  # Fill's fields, in order
+    except AttributeError:
+        got = tuple(np.shape(part) for part in out)
+    if got != want:
+        field, shape, wanted = next(
+            (f, g, w) for f, g, w in zip(Fill._fields, got, want, strict=True) if g != w
+        )
+        raise PluginFailure(
+            "strategy",
+            name,
+            _where(receivers),
+            inputs.epoch,
+            f"Fill.{field} has the shape {shape}; expected {wanted}",
+        )
+    if _all_finite(out.values):
+        return out
     used = np.asarray(out.have, dtype=bool) & ~inputs.arrived
     bad = used & ~np.isfinite(out.values).all(axis=1)
     if bad.any():
@@ -317,7 +327,9 @@ def command_checked(
 ) -> Array:
     """``law.command`` with its answer checked; ``agents`` (n,) are the rows' agent ids."""
     try:
-        out = np.asarray(law.command(inputs, params), dtype=np.float64)
+        out = law.command(inputs, params)
+        if type(out) is not np.ndarray or out.dtype != np.float64:
+            out = np.asarray(out, dtype=np.float64)
     except Exception as exc:  # a user's code: any exception ends the run with its name
         raise PluginFailure(
             "controller", name, _where(agents), epoch, f"raised {type(exc).__name__}: {exc}"
@@ -331,6 +343,8 @@ def command_checked(
             epoch,
             f"returned the shape {out.shape}; expected {shape}",
         )
+    if _all_finite(out):
+        return out
     bad = ~np.isfinite(out).all(axis=1)
     if bad.any():
         raise PluginFailure(

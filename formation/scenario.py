@@ -21,7 +21,6 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
-    PrivateAttr,
     ValidationError,
     field_validator,
     model_validator,
@@ -194,7 +193,6 @@ class Strategy(_Model):
     name: StrategyName = "estimate"
     alpha: float = Field(0.5, gt=0.0, le=1.0)
     params: dict[str, dict[str, Any]] = Field(default_factory=dict)
-    _validated: dict[str, Any] = PrivateAttr(default_factory=dict)  # name → its params, once
 
     @field_validator("name")
     @classmethod
@@ -208,9 +206,14 @@ class Strategy(_Model):
         _plugin(lambda: self.params_of(self.name))
         return self
 
+    @cached_property
+    def _validated(self) -> dict[str, Any]:
+        """Each strategy's validated parameters, by name (a plain dict: read every epoch)."""
+        return {}
+
     def params_of(self, name: str) -> Any:
-        """Strategy ``name``'s parameters, validated by its own model (once: asked every epoch)."""
-        if name not in self._validated:
+        """Strategy ``name``'s parameters, validated by its own model."""
+        if name not in self._validated:  # asked every epoch: validated once
             model = loss_strategy(name).params
             fields = type(self).model_fields
             shared = {k: getattr(self, k) for k in model.model_fields if k in fields}
