@@ -7,6 +7,7 @@ same decisions for a batch of seeds from :func:`delivery_plan`, and measures lin
 time and check against closed forms.
 """
 
+from netem.links.capacity_network import capacity_plan
 from netem.links.closed_forms import expected_delivery_at
 from netem.links.matrix import DeliveryPlan, delivery_plan, link_lengths
 from netem.links.models import LinkModel, delivery_matrix, schedule
@@ -14,6 +15,7 @@ from netem.links.models import LinkModel, delivery_matrix, schedule
 __all__ = [
     "DeliveryPlan",
     "LinkModel",
+    "capacity_plan",
     "delivery_matrix",
     "delivery_plan",
     "expected_delivery_at",

@@ -23,12 +23,13 @@ from collections import defaultdict
 from typing import Any
 
 from formation.scenario import LEADER_ENDPOINT
+from netem.links.capacity_network import packet_kind
 from netem.links.layer_stack import Outcome
 from netem.proxy.clean_epochs import CleanEpochs, Deliver, clean_epochs
 from netem.proxy.open_epochs import Delayed, OpenEpoch, Outbox
 from netem.proxy.positions import Positions
 from netem.proxy.progress import Progress
-from netem.proxy.records import Ledger, packet_json
+from netem.proxy.records import Ledger, Queued, packet_json, queued
 from netem.proxy.routes import Link, LinkClass, Links, Phase, Route
 from netem.proxy.team_plan import TeamPlan
 
@@ -65,9 +66,14 @@ class Lockstep:
         self.rejoined: dict[int, int] = {}
         # (action, agent, epoch) of each event as it is applied, for the node to announce.
         self.applied: list[tuple[str, int, int]] = []
+        # Packets the models passed onto a capacity queue, until all of their phase's are in:
+        # (phase, epoch) → (link, seq, payload, decision) in the order they came.
+        self.queued: dict[tuple[Phase, int], list[tuple[Link, int, Any, Outcome]]] = {}
 
     def setup_clean(self) -> None:
         """Take clean epochs on the clean path from now on."""
+        if self.links.capacity is not None:
+            return  # a queue judges a phase's packets together: every packet the full path
         self.clean = clean_epochs(self.links)
         self._clean_deliver = {phase: self._clean_delivery(phase) for phase in self.clean}
 
@@ -322,6 +328,25 @@ class Lockstep:
         d = decided or self.links.models[link].decide(
             epoch, distance_m=self.positions.length(link, epoch)
         )
+        queues = self.links.capacity
+        if d.delivered and queues is not None and queues.constrained((src, dst)):
+            self.queued.setdefault((phase, epoch), []).append((link, seq, payload, d))
+            return box  # judged with the rest of its phase (_judge_queued)
+        self._apply(box, phase, link, epoch, seq, payload, d)
+        return box
+
+    def _apply(
+        self,
+        box: OpenEpoch,
+        phase: Phase,
+        link: Link,
+        epoch: int,
+        seq: int,
+        payload: Any,
+        d: Outcome | Queued,
+    ) -> None:
+        """Record a packet's decision and put it in ``box`` (or hold it for a later epoch)."""
+        cls, src, dst = link
         self.ledger.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
         if not d.delivered:
             box.lost.append(src)
@@ -335,7 +360,36 @@ class Lockstep:
                 self.delayed[(phase, dst, due)].append(
                     Delayed(link, d.copies, packet_json(src, seq, epoch, d.copies, payload))
                 )
-        return box
+
+    def _judge_when_complete(self, phase: Phase, epoch: int) -> bool:
+        """Once every live receiver of ``epoch`` of ``phase`` has all its packets, let the
+        queues judge the queued ones and close what can close (True); else False."""
+        receivers = [LEADER_ENDPOINT] if phase == "report" else self.links.agents
+        for r in receivers:
+            if self.next_close[(phase, r)] > epoch or r in self.away or self.is_dead(r, epoch):
+                continue
+            box = self.open.get((phase, r, epoch))
+            if box is None or not self._all_handled(box, self.links.senders(phase, r), epoch):
+                return False
+        self._judge_queued(phase, epoch, self.queued.pop((phase, epoch)))
+        for r in receivers:  # those that waited for the queues, the caller's receiver too
+            self._try_close(phase, r)
+        return True
+
+    def _judge_queued(
+        self, phase: Phase, epoch: int, waiting: list[tuple[Link, int, Any, Outcome]]
+    ) -> None:
+        queues, sizes = self.links.capacity, self.links.sizes
+        assert queues is not None and sizes is not None  # only queued with queues
+        packets = [
+            ((src, dst), sizes.payload_bytes(*packet_kind((src, dst)), epoch))
+            for (_, src, dst), _, _, _ in waiting
+        ]
+        verdicts = queues.phase(epoch, phase, packets)
+        for (link, seq, payload, d), v in zip(waiting, verdicts, strict=True):
+            box = self.open[(phase, link[2], epoch)]
+            q = queued(d, v.reason, v.queue, v.depth, v.sojourn_ms)
+            self._apply(box, phase, link, epoch, seq, payload, q)
 
     def _all_handled(self, box: OpenEpoch, senders: list[int], epoch: int) -> bool:
         if not self.dead and epoch not in self.out:  # counting is enough: only its senders send
@@ -366,6 +420,10 @@ class Lockstep:
                 box = OpenEpoch()
             elif not self._all_handled(box, senders, epoch):
                 return
+            if self.queued and (phase, epoch) in self.queued:
+                if not self._judge_when_complete(phase, epoch):
+                    return  # the rest of the phase's queued packets are still to come
+                continue  # judged: every receiver of the phase was tried again, this one too
             self.open.pop((phase, receiver, epoch), None)
             for h in self.delayed.pop((phase, receiver, epoch), []):
                 self.ledger.forwarded[h.link] += h.copies

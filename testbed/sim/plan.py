@@ -23,7 +23,7 @@ from agent import measurement_noise
 from formation.errors import TestbedError
 from formation.events import Membership, membership
 from formation.scenario import LEADER_ENDPOINT, Scenario
-from netem import DeliveryPlan, delivery_plan
+from netem import DeliveryPlan, capacity_plan, delivery_plan
 
 Mask = npt.NDArray[np.bool_]
 Ints = npt.NDArray[np.int64]
@@ -118,6 +118,24 @@ class BatchPlan:
         )
 
 
+def _capacity_supported(b: int, s: Scenario, decided: DeliveryPlan, delayed: Mask) -> None:
+    """Refuse what the simulator's capacity queues do not model yet (netem's lockstep does)."""
+    why = (
+        "distance models"
+        if decided.ranged
+        else "delayed packets"
+        if delayed.any()
+        else "team events"
+        if s.events
+        else None
+    )
+    if why is not None:
+        raise BatchError(
+            f"member {b} ({s.name}): network.capacity with {why} is not simulated yet; "
+            "run it with `formation run` (lockstep)"
+        )
+
+
 def _structure(s: Scenario) -> dict[str, Any]:
     data = s.model_dump()
     for key in VARIANT_FIELDS:
@@ -200,6 +218,9 @@ def plan_batch(
             decided = delivery_plan(stacks[net], seed, all_links, n_epochs)
             mat = decided.base
             ok = mat.delivered & (mat.delay_epochs == 0)
+            if s.network.capacity:
+                _capacity_supported(b, s, decided, mat.delivered & (mat.delay_epochs > 0))
+                ok = ok & (capacity_plan(s, ok, all_links) == 0)  # the queues' drops
             cache[key] = (
                 mat.delivered[:, :n_links],
                 mat.delay_epochs[:, :n_links],

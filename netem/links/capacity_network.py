@@ -1,0 +1,212 @@
+"""A scenario's capacity queues over a run's phases, in virtual time (docs/model.md §9).
+
+Each epoch ``k`` has three phases (``formation.deadlines.PHASES``): states from ``k T``,
+reports from ``(k + 0.20) T``, estimates from ``(k + 0.60) T``, each due by its deadline
+(``0.20``, ``0.60``, ``0.85`` of the period ``T``), as the realtime mode's. Every packet of
+a phase that its link's loss models passed arrives at its queues at the phase's start, in
+the order of its link ``(src, dst)``; it goes through its link's queue, then its sender's
+radio, then its medium (``formation.capacity.queues_of``), each a
+:func:`netem.links.capacity.serve` carrying its state from phase to phase. A packet one of
+them refuses is ``queue_full`` (or ``oversize``); one leaving the last after the phase's
+deadline is ``queue_late``.
+
+netem's lockstep and the simulator call :meth:`CapacityNetwork.phase` with the same packets
+(sizes from ``formation.wire_size``) in the same (epoch, phase) order, so they drop the
+same ones, bit for bit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+from formation.capacity import LEADER_END, Capacity, Link, all_links, queues_of
+from formation.deadlines import PHASES
+from formation.scenario import Scenario
+from formation.wire_size import Kind, WireSizes
+from netem.links.capacity import (
+    PASSED,
+    QUEUE_LATE,
+    REASONS,
+    QueueParams,
+    QueueState,
+    serve,
+)
+from netem.links.layer import LinkModelError
+
+PHASE_ORDER = {"state": 0, "report": 1, "estimate": 2}
+
+
+class QueueVerdict(NamedTuple):
+    """One packet's fate in the queues: ``reason`` (``""``: passed in time), the queue that
+    decided, its depth then [packets] and the packet's time in the queues [ms]."""
+
+    reason: str
+    queue: str
+    depth: int
+    sojourn_ms: float
+
+    @property
+    def passed(self) -> bool:
+        return not self.reason
+
+
+def params_of(c: Capacity) -> QueueParams:
+    """The core's parameters of a scenario's capacity entry."""
+    return QueueParams(
+        rate_bps=c.rate_bps,
+        burst_bytes=c.burst_bytes,
+        limit_packets=c.limit_packets,
+        limit_bytes=c.limit_bytes,
+        overhead_bytes=c.overhead_bytes,
+        policy=c.policy,
+    )
+
+
+class CapacityNetwork:
+    """The queues of one run (one seed): their parameters, which links they serve, their state."""
+
+    def __init__(
+        self,
+        capacities: Sequence[Capacity],
+        n: int,
+        formation_links: Sequence[Sequence[int]],
+        period_s: float,
+    ) -> None:
+        self.capacities = tuple(capacities)
+        self.params = [params_of(c) for c in capacities]
+        self.names = [c.name for c in capacities]
+        self.by_link = queues_of(self.capacities, all_links(n, formation_links))
+        self.period_s = period_s
+        self.states: list[QueueState | None] = [None] * len(capacities)
+        self._last = (-1, -1)  # (epoch, phase) of the last call
+
+    def constrained(self, link: Link) -> bool:
+        """Does a queue serve ``link``?"""
+        return link in self.by_link
+
+    def replace(self, k: int, capacity: Capacity) -> None:
+        """Entry ``k``'s parameters from now on (its queue's state is kept)."""
+        self.params[k] = params_of(capacity)
+
+    def phase(
+        self, epoch: int, phase: str, packets: Sequence[tuple[Link, int]]
+    ) -> list[QueueVerdict]:
+        """The fates of one phase's packets ``(link, payload bytes)`` that the models passed.
+
+        Calls come in (epoch, phase) order; packets of a link no queue serves pass.
+        """
+        at = (epoch, PHASE_ORDER[phase])
+        if at <= self._last:
+            raise LinkModelError(
+                "capacity", f"{phase} of epoch {epoch} after {self._last}: phases go in order"
+            )
+        self._last = at
+        start, deadline = PHASES[phase]
+        t0 = (epoch + start) * self.period_s  # [s]
+        due = (epoch + deadline) * self.period_s
+        n = len(packets)
+        order = sorted(range(n), key=lambda i: packets[i][0])
+        time = np.full(n, t0)
+        out = [QueueVerdict("", "", 0, 0.0)] * n
+        alive = [i for i in order if packets[i][0] in self.by_link]
+        for stage in range(3):
+            groups: dict[int, list[int]] = {}
+            for i in alive:
+                queues = self.by_link[packets[i][0]]
+                if stage < len(queues):
+                    groups.setdefault(queues[stage], []).append(i)
+            for q in sorted(groups):
+                members = sorted(groups[q], key=lambda i: time[i])  # stable: link order on ties
+                run = serve(
+                    self.params[q],
+                    time[members],
+                    [packets[i][1] for i in members],
+                    state=self.states[q],
+                )
+                self.states[q] = run.state
+                for m, i in enumerate(members):
+                    if run.reason[m] != PASSED:
+                        out[i] = QueueVerdict(
+                            REASONS[run.reason[m]],
+                            self.names[q],
+                            int(run.depth[m]),
+                            1e3 * float(time[i] - t0 + run.sojourn_s[m]),
+                        )
+                    else:
+                        time[i] = run.departure_s[m]
+                        out[i] = QueueVerdict("", self.names[q], int(run.depth[m]), 0.0)
+            alive = [i for i in alive if not out[i].reason]
+        for i in alive:
+            sojourn_ms = 1e3 * float(time[i] - t0)
+            reason = REASONS[QUEUE_LATE] if time[i] > due else ""
+            out[i] = out[i]._replace(reason=reason, sojourn_ms=sojourn_ms)
+        return out
+
+
+def packet_kind(link: Link) -> tuple[Kind, int]:
+    """Which packet a link carries, and whose: a state (its sender's), a report, an estimate."""
+    src, dst = link
+    if dst == LEADER_END:
+        return "report", src
+    if src == LEADER_END:
+        return "estimate", dst
+    return "state", src
+
+
+def network_of(scenario: Scenario) -> CapacityNetwork:
+    """The queues of ``scenario``'s ``network.capacity``, over its lockstep period."""
+    return CapacityNetwork(
+        scenario.network.capacity,
+        scenario.n,
+        scenario.directed_links.tolist(),
+        scenario.control.period_s,
+    )
+
+
+def capacity_plan(
+    scenario: Scenario, passed: npt.NDArray[np.bool_], links: npt.NDArray[np.int64]
+) -> npt.NDArray[np.int8]:
+    """Every epoch's queue verdicts, for packets the models passed.
+
+    Parameters
+    ----------
+    scenario : with ``network.capacity``
+    passed : (E, L) the models passed link ``l``'s packet of epoch ``k``
+    links : (L, 2) ``(src, dst)`` of each column; ``0`` is the leader's end
+
+    Returns
+    -------
+    (E, L) int8: an index into ``netem.links.capacity.REASONS`` (0 where the queues passed the
+    packet in time or had none to judge).
+    """
+    net = network_of(scenario)
+    sizes = WireSizes(scenario)
+    pairs = [(int(a), int(b)) for a, b in links.tolist()]
+    phase_of = [packet_kind(lk)[0] for lk in pairs]
+    code = {name: k for k, name in enumerate(REASONS)}
+    out = np.zeros(passed.shape, dtype=np.int8)
+    for k in range(passed.shape[0]):
+        for phase in PHASE_ORDER:
+            cols = [c for c in np.flatnonzero(passed[k]).tolist() if phase_of[c] == phase]
+            cols = [c for c in cols if net.constrained(pairs[c])]
+            if not cols:
+                continue
+            packets = [(pairs[c], sizes.payload_bytes(*packet_kind(pairs[c]), k)) for c in cols]
+            for c, v in zip(cols, net.phase(k, phase, packets), strict=True):
+                out[k, c] = code[v.reason]
+    return out
+
+
+__all__ = [
+    "PHASE_ORDER",
+    "CapacityNetwork",
+    "QueueVerdict",
+    "capacity_plan",
+    "network_of",
+    "packet_kind",
+    "params_of",
+]

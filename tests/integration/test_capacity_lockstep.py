@@ -1,0 +1,50 @@
+"""Capacity in lockstep: real processes drop, by queue, exactly what the simulator drops."""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from formation.scenario import STRATEGIES, Scenario
+from testbed.runtime.launcher import launch
+from testbed.sim.simulate import simulate
+
+pytestmark = pytest.mark.integration
+
+
+def constrained(paper: Scenario) -> Scenario:
+    """The access point carries every control link at 30 kbit/s with room for 3 packets, and
+    agent 2's radio 40 kbit/s in netem rate mode; Bernoulli losses on the formation links."""
+    network = paper.network.model_dump(by_alias=True)
+    network["formation_default"] = [{"model": "bernoulli", "p_loss": 0.1}]
+    network["capacity"] = [
+        {"scope": "medium", "medium": "ap", "links": "control", "rate_bps": 30_000.0,
+         "limit_packets": 3, "overhead_bytes": 42},
+        {"scope": "radio", "agent": 2, "rate_bps": 40_000.0, "burst_bytes": 600,
+         "limit_bytes": 1200, "policy": "oldest"},
+    ]  # fmt: skip
+    return paper.with_overrides(network=network, epochs=25)
+
+
+@pytest.mark.parametrize("strategy", STRATEGIES)
+def test_a_lockstep_run_with_capacity_equals_the_simulator(
+    paper: Scenario, runs_dir: Path, strategy: str
+) -> None:
+    scenario = constrained(paper)
+    outcome = launch(scenario, strategy=strategy, runs_dir=runs_dir, record=False)  # type: ignore[arg-type]
+    sim = simulate(scenario, strategy=strategy)  # type: ignore[arg-type]
+    np.testing.assert_allclose(outcome.positions, sim.positions, rtol=0, atol=1e-9)
+    got = {(d.source, d.target, d.link_class, d.epoch): d for d in outcome.decisions}
+    n, links = scenario.n, scenario.directed_links
+    for k in range(scenario.epochs):
+        for row, (a, b) in enumerate(links):
+            assert (got[(a, b, "formation", k)].verdict != "drop") == sim.delivered[k, row]
+        for i in range(1, n + 1):
+            assert (got[(i, 0, "report", k)].verdict != "drop") == sim.report_ok[k, i - 1]
+            assert (got[(0, i, "estimate", k)].verdict != "drop") == sim.estimate_ok[k, i - 1]
+    reasons = Counter(d.model for d in outcome.decisions if d.verdict == "drop")
+    assert reasons["queue_full"] > 0 and reasons["queue_late"] > 0 and reasons["bernoulli"] > 0
+    assert set(reasons) <= {"queue_full", "queue_late", "bernoulli", "outage"}  # paper: 1-2 down
