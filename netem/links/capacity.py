@@ -24,9 +24,10 @@ Pure: arrays in, arrays out, no clock; the state between calls is a :class:`Queu
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -102,12 +103,22 @@ class QueueRun:
         return np.asarray(self.reason == PASSED, dtype=np.bool_)
 
 
-@dataclass
+@dataclass(slots=True)
 class _Waiting:
     index: int  # into this call's packets; -1 for a committed packet of an earlier call
     arrival_s: float
     size: int
-    departure_s: float = np.nan  # known once it reaches the head (or committed)
+    departure_s: float = math.nan  # known once it reaches the head (or committed)
+
+
+class Served(NamedTuple):
+    """:func:`serve_packets`'s lists, one entry per packet (see :class:`QueueRun`)."""
+
+    departure_s: list[float]
+    reason: list[int]
+    depth: list[int]
+    sojourn_s: list[float]
+    state: QueueState
 
 
 def serve(
@@ -141,67 +152,97 @@ def serve(
     if n and np.any(np.diff(arrivals) < 0.0):
         raise ValueError("arrival_s must be non-decreasing")
     deadlines = (
-        np.full(n, np.inf)
-        if deadline_s is None
-        else np.broadcast_to(deadline_s, (n,)).astype(float)
+        None if deadline_s is None else np.broadcast_to(deadline_s, (n,)).astype(float).tolist()
     )
+    out = serve_packets(params, arrivals.tolist(), sizes.tolist(), deadlines, state)
+    return QueueRun(
+        np.array(out.departure_s, dtype=np.float64),
+        np.array(out.reason, dtype=np.int8),
+        np.array(out.depth, dtype=np.int64),
+        np.array(out.sojourn_s, dtype=np.float64),
+        sizes,
+        out.state,
+    )
+
+
+def serve_packets(
+    params: QueueParams,
+    arrivals: list[float],
+    sizes: list[int],
+    deadlines: list[float] | None = None,
+    state: QueueState | None = None,
+) -> Served:
+    """:func:`serve` on plain lists, unchecked: ``sizes`` [B] with their overhead already.
+
+    A run's phases put a few packets through each queue at a time (netem, per packet of
+    every phase): lists cost a tenth of arrays there.
+    """
     state = state or QueueState()
+    if len(arrivals) == 1 and not state.backlog_s:
+        return _serve_one(params, arrivals[0], sizes[0], deadlines, state)
+    return _serve_many(params, arrivals, sizes, deadlines, state)
+
+
+def _serve_many(
+    params: QueueParams,
+    arrivals: list[float],
+    sizes: list[int],
+    deadlines: list[float] | None,
+    state: QueueState,
+) -> Served:
+    """:func:`serve_packets` in general: a FIFO of waiting packets, each leaving in turn."""
+    n = len(arrivals)
     rate = params.rate_bps / 8.0  # [B/s]
     burst = float(params.burst_bytes)
+    limit_packets, limit_bytes = params.limit_packets, params.limit_bytes
     clock, tokens = state.clock_s, min(state.tokens_bytes, burst)
-    departure = np.full(n, np.nan)
-    reason = np.zeros(n, dtype=np.int8)
-    depth = np.zeros(n, dtype=np.int64)
-    sojourn = np.zeros(n, dtype=np.float64)
+    departure = [math.nan] * n
+    reason = [PASSED] * n
+    depth = [0] * n
+    sojourn = [0.0] * n
     waiting: deque[_Waiting] = deque(
-        _Waiting(-1, -np.inf, b, d)
+        _Waiting(-1, -math.inf, b, d)
         for d, b in zip(state.backlog_s, state.backlog_bytes, strict=True)
     )
     queued_bytes = sum(w.size for w in waiting)
 
-    def head_departure(w: _Waiting) -> float:
-        """When the head leaves, from the last departure ``clock`` and the bucket then."""
-        if burst == 0.0:  # netem rate: on the wire for size / rate after the previous one
-            return max(w.arrival_s, clock) + w.size / rate
-        start = max(w.arrival_s, clock)
-        if tokens + (start - clock) * rate >= w.size or clock == -np.inf:
-            return start
-        return clock + (w.size - tokens) / rate
-
-    def leave(w: _Waiting) -> None:
-        nonlocal clock, tokens, queued_bytes
-        queued_bytes -= w.size
-        if w.index < 0:
-            return  # an earlier call's: the clock and the bucket already count it
-        if burst > 0.0:
-            refill = np.inf if clock == -np.inf else (w.departure_s - clock) * rate
-            tokens = min(burst, tokens + refill) - w.size
-        clock = w.departure_s
-        departure[w.index] = w.departure_s
-        sojourn[w.index] = w.departure_s - w.arrival_s
-        if w.departure_s > deadlines[w.index]:
-            reason[w.index] = QUEUE_LATE
-
     def advance(now: float, drained: list[_Waiting] | None = None) -> None:
         """Let every packet leave that leaves at or before ``now``."""
+        nonlocal clock, tokens, queued_bytes
         while waiting:
-            head = waiting[0]
-            if np.isnan(head.departure_s):
-                head.departure_s = head_departure(head)
-            if head.departure_s > now:
+            w = waiting[0]
+            if w.departure_s != w.departure_s:  # NaN: not yet computed
+                start = w.arrival_s if w.arrival_s > clock else clock
+                if burst == 0.0:  # netem rate: on the wire for size / rate after the previous
+                    w.departure_s = start + w.size / rate
+                elif clock == -math.inf or tokens + (start - clock) * rate >= w.size:
+                    w.departure_s = start  # the bucket holds its size
+                else:
+                    w.departure_s = clock + (w.size - tokens) / rate
+            if w.departure_s > now:
                 return
             waiting.popleft()
-            leave(head)
+            queued_bytes -= w.size
             if drained is not None:
-                drained.append(head)
+                drained.append(w)
+            if w.index < 0:
+                continue  # an earlier call's: the clock and the bucket already count it
+            if burst > 0.0:
+                refill = math.inf if clock == -math.inf else (w.departure_s - clock) * rate
+                tokens = min(burst, tokens + refill) - w.size
+            clock = w.departure_s
+            departure[w.index] = w.departure_s
+            sojourn[w.index] = w.departure_s - w.arrival_s
+            if deadlines is not None and w.departure_s > deadlines[w.index]:
+                reason[w.index] = QUEUE_LATE
 
     def full(size: int) -> bool:
-        over_packets = params.limit_packets is not None and len(waiting) + 1 > params.limit_packets
-        over_bytes = params.limit_bytes is not None and queued_bytes + size > params.limit_bytes
-        return over_packets or over_bytes
+        return (limit_packets is not None and len(waiting) + 1 > limit_packets) or (
+            limit_bytes is not None and queued_bytes + size > limit_bytes
+        )
 
     for k in range(n):
-        now, size = float(arrivals[k]), int(sizes[k])
+        now, size = arrivals[k], sizes[k]
         advance(now)
         depth[k] = len(waiting)
         if burst > 0.0 and size > burst:
@@ -221,20 +262,42 @@ def serve(
         waiting.append(_Waiting(k, now, size))
         queued_bytes += size
     drained: list[_Waiting] = []
-    advance(np.inf, drained)
-    return QueueRun(
-        departure,
-        reason,
-        depth,
-        sojourn,
-        sizes,
-        QueueState(
-            clock,
-            tokens,
-            tuple(w.departure_s for w in drained),
-            tuple(w.size for w in drained),
-        ),
+    advance(math.inf, drained)
+    backlog = QueueState(
+        clock, tokens, tuple(w.departure_s for w in drained), tuple(w.size for w in drained)
     )
+    return Served(departure, reason, depth, sojourn, backlog)
+
+
+def _serve_one(
+    params: QueueParams,
+    arrival: float,
+    size: int,
+    deadlines: list[float] | None,
+    state: QueueState,
+) -> Served:
+    """:func:`serve_packets` of one packet into an empty queue (a link's queue, a phase's
+    packet): the same arithmetic without the queue's bookkeeping."""
+    rate, burst, clock = params.rate_bps / 8.0, float(params.burst_bytes), state.clock_s
+    tokens = min(state.tokens_bytes, burst)
+    refused = OVERSIZE if burst > 0.0 and size > burst else PASSED
+    if not refused and params.limit_bytes is not None and size > params.limit_bytes:
+        refused = QUEUE_FULL  # a limit_packets of 1 or more always has room for one
+    if refused:
+        return Served([math.nan], [refused], [0], [0.0], QueueState(clock, tokens))
+    start = arrival if arrival > clock else clock
+    if burst == 0.0:
+        leaves = start + size / rate
+    elif clock == -math.inf or tokens + (start - clock) * rate >= size:
+        leaves = start
+    else:
+        leaves = clock + (size - tokens) / rate
+    if burst > 0.0:
+        refill = math.inf if clock == -math.inf else (leaves - clock) * rate
+        tokens = min(burst, tokens + refill) - size
+    late = deadlines is not None and leaves > deadlines[0]
+    after = QueueState(leaves, tokens, (leaves,), (size,))  # as the queue drains it
+    return Served([leaves], [QUEUE_LATE if late else PASSED], [0], [leaves - arrival], after)
 
 
 def _oldest_droppable(
@@ -247,7 +310,7 @@ def _oldest_droppable(
         on_wire = (
             k == 0
             and burst == 0.0
-            and not np.isnan(w.departure_s)
+            and not math.isnan(w.departure_s)
             and w.departure_s - w.size / rate <= now
         )
         if not on_wire:
@@ -265,5 +328,7 @@ __all__ = [
     "QueueParams",
     "QueueRun",
     "QueueState",
+    "Served",
     "serve",
+    "serve_packets",
 ]

@@ -33,7 +33,7 @@ from netem.links.capacity import (
     REASONS,
     QueueParams,
     QueueState,
-    serve,
+    serve_packets,
 )
 from netem.links.layer import LinkModelError
 
@@ -110,8 +110,8 @@ class CapacityNetwork:
         due = (epoch + deadline) * self.period_s
         n = len(packets)
         order = sorted(range(n), key=lambda i: packets[i][0])
-        time = np.full(n, t0)
-        out = [QueueVerdict("", "", 0, 0.0)] * n
+        time = [t0] * n
+        out = [_NONE] * n
         alive = [i for i in order if packets[i][0] in self.by_link]
         for stage in range(3):
             groups: dict[int, list[int]] = {}
@@ -120,31 +120,37 @@ class CapacityNetwork:
                 if stage < len(queues):
                     groups.setdefault(queues[stage], []).append(i)
             for q in sorted(groups):
-                members = sorted(groups[q], key=lambda i: time[i])  # stable: link order on ties
-                run = serve(
-                    self.params[q],
-                    time[members],
-                    [packets[i][1] for i in members],
+                members = groups[q]
+                if stage:  # in the order they reach it; stable: link order on ties
+                    members.sort(key=time.__getitem__)
+                params = self.params[q]
+                run = serve_packets(
+                    params,
+                    [time[i] for i in members],
+                    [packets[i][1] + params.overhead_bytes for i in members],
                     state=self.states[q],
                 )
                 self.states[q] = run.state
+                name = self.names[q]
                 for m, i in enumerate(members):
                     if run.reason[m] != PASSED:
                         out[i] = QueueVerdict(
                             REASONS[run.reason[m]],
-                            self.names[q],
-                            int(run.depth[m]),
-                            1e3 * float(time[i] - t0 + run.sojourn_s[m]),
+                            name,
+                            run.depth[m],
+                            1e3 * (time[i] - t0 + run.sojourn_s[m]),
                         )
                     else:
                         time[i] = run.departure_s[m]
-                        out[i] = QueueVerdict("", self.names[q], int(run.depth[m]), 0.0)
+                        out[i] = QueueVerdict("", name, run.depth[m], 0.0)
             alive = [i for i in alive if not out[i].reason]
         for i in alive:
-            sojourn_ms = 1e3 * float(time[i] - t0)
             reason = REASONS[QUEUE_LATE] if time[i] > due else ""
-            out[i] = out[i]._replace(reason=reason, sojourn_ms=sojourn_ms)
+            out[i] = out[i]._replace(reason=reason, sojourn_ms=1e3 * (time[i] - t0))
         return out
+
+
+_NONE = QueueVerdict("", "", 0, 0.0)  # no queue serves the packet's link
 
 
 def packet_kind(link: Link) -> tuple[Kind, int]:

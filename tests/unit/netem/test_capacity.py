@@ -21,7 +21,10 @@ from netem.links.capacity import (
     QUEUE_LATE,
     QueueParams,
     QueueState,
+    _serve_many,
+    _serve_one,
     serve,
+    serve_packets,
 )
 
 L = 1000  # [B] a packet with its overhead
@@ -202,3 +205,27 @@ def test_bad_parameters_are_refused(field: str, value: float, pattern: str) -> N
     kwargs: dict[str, float] = {"rate_bps": R, field: value}
     with pytest.raises(ValueError, match=pattern):
         QueueParams(**kwargs)  # type: ignore[arg-type]
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    arrival=st.floats(0.0, 0.01),
+    size=st.integers(1, 3000),
+    burst=st.sampled_from([0, 1500, 4000]),
+    limit=st.sampled_from([(None, None), (1, None), (None, 1000), (None, 5000)]),
+    warm=st.booleans(),
+)
+def test_one_packet_into_an_empty_queue_takes_the_general_paths_numbers(
+    arrival: float, size: int, burst: int, limit: tuple[int | None, int | None], warm: bool
+) -> None:
+    params = QueueParams(
+        rate_bps=R, burst_bytes=burst, limit_packets=limit[0], limit_bytes=limit[1]
+    )
+    state = QueueState()
+    if warm:  # a used bucket, its backlog gone
+        used = serve_packets(QueueParams(rate_bps=R, burst_bytes=burst), [0.0], [500]).state
+        state = QueueState(used.clock_s, used.tokens_bytes)
+    due = [0.004]
+    assert _serve_one(params, arrival, size, due, state) == _serve_many(
+        params, [arrival], [size], due, state
+    )
