@@ -31,8 +31,7 @@ from bench.bench_netem_forward import forward_rate
 from bench.netem_rig import ROOT
 from formation.linkmodels import Bernoulli
 from formation.scenario import Scenario
-from netem import LinkModel
-from netem.links.capacity import QueueParams, serve
+from netem import LinkModel, QueueParams, serve
 from testbed.sim.batch import plan_batch, run_batch
 
 SEED = 29
