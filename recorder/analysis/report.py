@@ -64,6 +64,26 @@ def _team_lines(sums: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
+def queue_lines(label: str, queues: dict[str, Any], losses: dict[str, int]) -> list[str]:
+    """A run's queues as a table, and its losses split by where they happened."""
+    lines = [
+        f"- {label}: losses {losses['channel']} channel, {losses['queue']} queue (full), "
+        f"{losses['deadline']} deadline (left the queue late)",
+        "",
+        "| queue | offered/epoch | through/epoch | mean depth | max depth | mean sojourn [ms] "
+        "| drops by reason |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for name, q in queues.items():
+        drops = ", ".join(f"{k} {v}" for k, v in q["drops"].items()) or "none"
+        lines.append(
+            f"| {name} | {q['offered_per_epoch']:.2f} | {q['throughput_per_epoch']:.2f} | "
+            f"{_fmt(q['mean_depth'])} | {_fmt(q['max_depth'])} | {_fmt(q['mean_sojourn_ms'])} "
+            f"| {drops} |"
+        )
+    return [*lines, ""]
+
+
 def _fmt(v: Any) -> str:
     if v is None:
         return "–"
@@ -114,6 +134,11 @@ def _markdown(
                 f"the {LISTED_LINKS} with most: {drops}"
             )
         lines.append(f"- {s['label']}: {drops or 'none'}")
+    queued = [s for s in sums if "queues" in s]
+    if queued:
+        lines += ["", "## Capacity queues", ""]
+        for s in queued:
+            lines += queue_lines(s["label"], s["queues"], s["losses"])
     timed = [(run, s["deadlines"]) for run, s in zip(runs, sums, strict=True) if "deadlines" in s]
     if timed:
         lines += ["", "## Realtime: modelled losses and deadline misses", ""]

@@ -48,3 +48,33 @@ def test_a_lockstep_run_with_capacity_equals_the_simulator(
     reasons = Counter(d.model for d in outcome.decisions if d.verdict == "drop")
     assert reasons["queue_full"] > 0 and reasons["queue_late"] > 0 and reasons["bernoulli"] > 0
     assert set(reasons) <= {"queue_full", "queue_late", "bernoulli", "outage"}  # paper: 1-2 down
+
+
+def test_a_recorded_run_reports_its_queues_and_splits_its_losses(
+    paper: Scenario, runs_dir: Path, tmp_path: Path
+) -> None:
+    import json
+
+    from recorder import write_report
+
+    scenario = constrained(paper).with_overrides(epochs=15)
+    outcome = launch(scenario, strategy="estimate", runs_dir=runs_dir, record=True)
+    report = write_report(outcome.run_dir / "run.mcap", tmp_path)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    by_model = Counter(d.model for d in outcome.decisions if d.verdict == "drop")
+    (run,) = summary  # one run: a list of one summary
+    assert run["losses"] == {
+        "channel": by_model["bernoulli"] + by_model["outage"],
+        "queue": by_model["queue_full"],
+        "deadline": by_model["queue_late"],
+    }
+    ap = run["queues"]["medium ap"]
+    control = [d for d in outcome.decisions if d.link_class != "formation"]
+    assert ap["offered"] == len(control)  # every control packet the models passed, and none lost
+    assert ap["passed"] == sum(d.verdict != "drop" for d in control)
+    assert sum(ap["drops"].values()) == ap["offered"] - ap["passed"]
+    assert ap["max_depth"] >= 3  # the limit: packets found it full
+    assert "radio 2" in run["queues"]
+    text = report.read_text()
+    assert "## Capacity queues" in text and "| medium ap |" in text
+    assert f"losses {run['losses']['channel']} channel" in text
