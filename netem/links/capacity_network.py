@@ -23,7 +23,7 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from formation.capacity import LEADER_END, Capacity, Link, all_links, queues_of
+from formation.capacity import LEADER_END, Capacity, Link, all_links, members, queues_of
 from formation.deadlines import PHASES
 from formation.scenario import Scenario
 from formation.wire_size import Kind, WireSizes
@@ -76,21 +76,58 @@ class CapacityNetwork:
         formation_links: Sequence[Sequence[int]],
         period_s: float,
     ) -> None:
-        self.capacities = tuple(capacities)
+        self.capacities = list(capacities)
         self.params = [params_of(c) for c in capacities]
         self.names = [c.name for c in capacities]
-        self.by_link = queues_of(self.capacities, all_links(n, formation_links))
+        self.links = all_links(n, formation_links)
+        self.by_link = queues_of(self.capacities, self.links)
         self.period_s = period_s
         self.states: list[QueueState | None] = [None] * len(capacities)
+        self.since = [0] * len(capacities)  # the epoch from which each queue serves
+        self._changes: list[tuple[int, int, QueueParams]] = []  # (from epoch, queue, params)
         self._last = (-1, -1)  # (epoch, phase) of the last call
 
-    def constrained(self, link: Link) -> bool:
-        """Does a queue serve ``link``?"""
-        return link in self.by_link
+    def constrained(self, link: Link, epoch: int = 0) -> bool:
+        """Does a queue serve ``link`` at ``epoch``?"""
+        return any(self.since[k] <= epoch for k in self.by_link.get(link, ()))
 
-    def replace(self, k: int, capacity: Capacity) -> None:
-        """Entry ``k``'s parameters from now on (its queue's state is kept)."""
-        self.params[k] = params_of(capacity)
+    def change(self, capacity: Capacity, from_epoch: int) -> list[Link]:
+        """``capacity``'s queue (the one of its scope and target, or a new link queue) takes its
+        parameters from ``from_epoch`` on (all of them, as ``tc qdisc change``: an unnamed one
+        takes its default), its links and state kept; returns the links it serves.
+
+        A radio or medium the scenario has no queue for is refused (``ValueError``): those
+        name sets of links the scenario defines.
+        """
+        k = next((q for q, c in enumerate(self.capacities) if c.name == capacity.name), None)
+        if k is None:
+            if capacity.scope != "link":
+                raise ValueError(
+                    f"{capacity.name}: no such queue in the scenario's network.capacity"
+                )
+            served = members(capacity, self.links)
+            if not served or served[0] not in self.links["all"]:
+                raise ValueError(f"{capacity.name}: no such link in the scenario")
+            k = len(self.capacities)
+            self.capacities.append(capacity)
+            self.params.append(params_of(capacity))
+            self.names.append(capacity.name)
+            self.states.append(None)
+            self.since.append(from_epoch)
+            self.by_link = queues_of(self.capacities, self.links)
+        else:  # the queue keeps its links; its parameters are all replaced, as tc's
+            tc = (
+                "rate_bps",
+                "burst_bytes",
+                "limit_packets",
+                "limit_bytes",
+                "overhead_bytes",
+                "policy",
+            )
+            capacity = self.capacities[k].model_copy(update={f: getattr(capacity, f) for f in tc})
+            self._changes.append((from_epoch, k, params_of(capacity)))
+            self.capacities[k] = capacity
+        return members(capacity, self.links)
 
     def phase(
         self, epoch: int, phase: str, packets: Sequence[tuple[Link, int]]
@@ -105,6 +142,10 @@ class CapacityNetwork:
                 "capacity", f"{phase} of epoch {epoch} after {self._last}: phases go in order"
             )
         self._last = at
+        if self._changes:
+            for change in [c for c in self._changes if c[0] <= epoch]:
+                self.params[change[1]] = change[2]
+                self._changes.remove(change)
         start, deadline = PHASES[phase]
         t0 = (epoch + start) * self.period_s  # [s]
         due = (epoch + deadline) * self.period_s
@@ -112,11 +153,16 @@ class CapacityNetwork:
         order = sorted(range(n), key=lambda i: packets[i][0])
         time = [t0] * n
         out = [_NONE] * n
-        alive = [i for i in order if packets[i][0] in self.by_link]
+        by_link = self.by_link
+        if any(self.since):  # a queue added while running serves from its epoch on
+            by_link = {
+                lk: tuple(k for k in ks if self.since[k] <= epoch) for lk, ks in by_link.items()
+            }
+        alive = [i for i in order if by_link.get(packets[i][0])]
         for stage in range(3):
             groups: dict[int, list[int]] = {}
             for i in alive:
-                queues = self.by_link[packets[i][0]]
+                queues = by_link[packets[i][0]]
                 if stage < len(queues):
                     groups.setdefault(queues[stage], []).append(i)
             for q in sorted(groups):

@@ -329,7 +329,7 @@ class Lockstep:
             epoch, distance_m=self.positions.length(link, epoch)
         )
         queues = self.links.capacity
-        if d.delivered and queues is not None and queues.constrained((src, dst)):
+        if d.delivered and queues is not None and queues.constrained((src, dst), epoch):
             self.queued.setdefault((phase, epoch), []).append((link, seq, payload, d))
             return box  # judged with the rest of its phase (_judge_queued)
         self._apply(box, phase, link, epoch, seq, payload, d)

@@ -129,3 +129,18 @@ def test_packet_kinds() -> None:
     assert packet_kind((3, 0)) == ("report", 3)
     assert packet_kind((0, 3)) == ("estimate", 3)
     assert packet_kind((2, 3)) == ("state", 2)
+
+
+def test_a_change_takes_effect_from_its_epoch_and_a_new_link_queue_too() -> None:
+    net = network({"scope": "radio", "agent": 0, "rate_bps": 8e6})
+    slow = Capacity.model_validate({"scope": "radio", "agent": 0, "rate_bps": 800.0})
+    assert net.change(slow, from_epoch=2) == [(0, 1), (0, 2), (0, 3), (0, 4)]
+    assert net.phase(1, "estimate", [((0, 1), 100)])[0].reason == ""  # before its epoch
+    assert net.phase(2, "estimate", [((0, 1), 100)])[0].reason == "queue_late"  # 1 s > 0.25 s
+    added = Capacity.model_validate({"scope": "link", "link": [1, 2], "rate_bps": 800.0})
+    assert net.change(added, from_epoch=4) == [(1, 2)]
+    assert not net.constrained((1, 2), 3) and net.constrained((1, 2), 4)
+    assert net.phase(3, "state", [((1, 2), 100)])[0].queue == ""  # no queue yet
+    assert net.phase(4, "state", [((1, 2), 100)])[0].reason == "queue_late"
+    with pytest.raises(ValueError, match=r"radio 3: no such queue"):
+        net.change(Capacity.model_validate({"scope": "radio", "agent": 3, "rate_bps": 1.0}), 5)
