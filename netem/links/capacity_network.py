@@ -17,6 +17,7 @@ same ones, bit for bit.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import NamedTuple
 
@@ -129,6 +130,41 @@ class CapacityNetwork:
             self.capacities[k] = capacity
         return members(capacity, self.links)
 
+    def _apply_changes(self, epoch: int) -> None:
+        """The parameter changes due by ``epoch`` (:meth:`change`)."""
+        if self._changes:
+            for change in [c for c in self._changes if c[0] <= epoch]:
+                self.params[change[1]] = change[2]
+                self._changes.remove(change)
+
+    def arrive(
+        self, link: Link, payload_bytes: int, now_s: float, epoch: int, deadline_s: float
+    ) -> tuple[QueueVerdict, float]:
+        """Realtime: one packet of ``epoch`` at ``now_s`` [s since the clock's start] through its
+        queues, decided at once; its verdict and when it leaves the last [s] (NaN: dropped).
+
+        Packets come one at a time as they arrive, so each queue is FIFO in the order netem
+        handles them, and a packet is committed once it joined (``oldest`` pushes out none).
+        """
+        self._apply_changes(epoch)
+        t, depth, name = now_s, 0, ""
+        for k in self.by_link.get(link, ()):
+            if self.since[k] > epoch:
+                continue
+            params = self.params[k]
+            run = serve_packets(
+                params, [t], [payload_bytes + params.overhead_bytes], state=self.states[k]
+            )
+            self.states[k] = run.state
+            name, depth = self.names[k], run.depth[0]
+            if run.reason[0] != PASSED:
+                return QueueVerdict(
+                    REASONS[run.reason[0]], name, depth, 1e3 * (t - now_s)
+                ), math.nan
+            t = run.departure_s[0]
+        reason = REASONS[QUEUE_LATE] if t > deadline_s else ""
+        return QueueVerdict(reason, name, depth, 1e3 * (t - now_s)), t
+
     def phase(
         self, epoch: int, phase: str, packets: Sequence[tuple[Link, int]]
     ) -> list[QueueVerdict]:
@@ -142,10 +178,7 @@ class CapacityNetwork:
                 "capacity", f"{phase} of epoch {epoch} after {self._last}: phases go in order"
             )
         self._last = at
-        if self._changes:
-            for change in [c for c in self._changes if c[0] <= epoch]:
-                self.params[change[1]] = change[2]
-                self._changes.remove(change)
+        self._apply_changes(epoch)
         start, deadline = PHASES[phase]
         t0 = (epoch + start) * self.period_s  # [s]
         due = (epoch + deadline) * self.period_s
