@@ -23,7 +23,7 @@ from collections import defaultdict
 from typing import Any
 
 from formation.scenario import LEADER_ENDPOINT
-from netem.links.capacity_network import packet_kind
+from netem.links.capacity_network import PHASE_ORDER, packet_kind
 from netem.links.layer_stack import Outcome
 from netem.proxy.clean_epochs import CleanEpochs, Deliver, clean_epochs
 from netem.proxy.open_epochs import Delayed, OpenEpoch, Outbox
@@ -37,6 +37,7 @@ log = logging.getLogger("netem")
 # Clean epochs' records go out together: one batch per this many epochs' records (and at
 # least every loop wake-up of the node's main thread, 0.2 s), instead of one per epoch.
 FLUSH_CHUNKS = 64  # epochs
+_PHASES: tuple[Phase, ...] = ("state", "report", "estimate")  # in virtual time
 
 
 class Lockstep:
@@ -362,19 +363,46 @@ class Lockstep:
                 )
 
     def _judge_when_complete(self, phase: Phase, epoch: int) -> bool:
-        """Once every live receiver of ``epoch`` of ``phase`` has all its packets, let the
-        queues judge the queued ones and close what can close (True); else False."""
-        receivers = [LEADER_ENDPOINT] if phase == "report" else self.links.agents
-        for r in receivers:
+        """Once every live receiver of ``epoch`` of ``phase`` has all its packets, and every
+        phase before it in virtual time has closed (the queues serve phases in order), let the
+        queues judge the queued packets and close what can close (True); else False."""
+        if not self._phase_complete(phase, epoch) or self._earlier_open(phase, epoch):
+            return False
+        self._judge_queued(phase, epoch, self.queued.pop((phase, epoch)))
+        for r in self._receivers(phase):  # those that waited for the queues, the caller's too
+            self._try_close(phase, r)
+        # a later phase complete before this one closed waited for it: its turn now
+        for later_phase, later in sorted(self.queued, key=lambda pe: (pe[1], PHASE_ORDER[pe[0]])):
+            if (later_phase, later) in self.queued:
+                for r in self._receivers(later_phase):
+                    self._try_close(later_phase, r)
+        return True
+
+    def _receivers(self, phase: Phase) -> list[int]:
+        return [LEADER_ENDPOINT] if phase == "report" else self.links.agents
+
+    def _phase_complete(self, phase: Phase, epoch: int) -> bool:
+        """Every live receiver of ``epoch`` of ``phase`` closed it or has all its packets."""
+        for r in self._receivers(phase):
             if self.next_close[(phase, r)] > epoch or r in self.away or self.is_dead(r, epoch):
                 continue
             box = self.open.get((phase, r, epoch))
             if box is None or not self._all_handled(box, self.links.senders(phase, r), epoch):
                 return False
-        self._judge_queued(phase, epoch, self.queued.pop((phase, epoch)))
-        for r in receivers:  # those that waited for the queues, the caller's receiver too
-            self._try_close(phase, r)
         return True
+
+    def _earlier_open(self, phase: Phase, epoch: int) -> bool:
+        """Whether a phase before ``epoch`` of ``phase`` in virtual time has a receiver still open."""
+        order = PHASE_ORDER[phase]
+        earlier: list[tuple[Phase, int]] = [(p, epoch) for p in _PHASES[:order]]
+        if epoch > 0:
+            earlier.append(("estimate", epoch - 1))
+        for p, e in earlier:
+            for r in self._receivers(p):
+                if self.next_close[(p, r)] > e or r in self.away or self.is_dead(r, e):
+                    continue
+                return True
+        return False
 
     def _judge_queued(
         self, phase: Phase, epoch: int, waiting: list[tuple[Link, int, Any, Outcome]]
