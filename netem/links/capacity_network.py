@@ -82,6 +82,7 @@ class CapacityNetwork:
         self.names = [c.name for c in capacities]
         self.links = all_links(n, formation_links)
         self.by_link = queues_of(self.capacities, self.links)
+        self.phases = _phases(self.by_link)  # the phases whose packets cross a queue
         self.period_s = period_s
         self.states: list[QueueState | None] = [None] * len(capacities)
         self.since = [0] * len(capacities)  # the epoch from which each queue serves
@@ -116,6 +117,7 @@ class CapacityNetwork:
             self.states.append(None)
             self.since.append(from_epoch)
             self.by_link = queues_of(self.capacities, self.links)
+            self.phases = _phases(self.by_link)
         else:  # the queue keeps its links; its parameters are all replaced, as tc's
             tc = (
                 "rate_bps",
@@ -230,6 +232,10 @@ class CapacityNetwork:
 
 
 _NONE = QueueVerdict("", "", 0, 0.0)  # no queue serves the packet's link
+
+
+def _phases(by_link: dict[Link, tuple[int, ...]]) -> frozenset[str]:
+    return frozenset(packet_kind(link)[0] for link in by_link)
 
 
 def packet_kind(link: Link) -> tuple[Kind, int]:

@@ -392,12 +392,17 @@ class Lockstep:
         return True
 
     def _earlier_open(self, phase: Phase, epoch: int) -> bool:
-        """Whether a phase before ``epoch`` of ``phase`` in virtual time has a receiver still open."""
+        """Whether a phase before ``epoch`` of ``phase`` in virtual time, one whose packets
+        cross a queue, has a receiver still open."""
         order = PHASE_ORDER[phase]
         earlier: list[tuple[Phase, int]] = [(p, epoch) for p in _PHASES[:order]]
         if epoch > 0:
             earlier.append(("estimate", epoch - 1))
+        queues = self.links.capacity
+        assert queues is not None  # only asked with queues
         for p, e in earlier:
+            if p not in queues.phases:
+                continue  # no packet of it crosses a queue: it cannot come out of turn
             for r in self._receivers(p):
                 if self.next_close[(p, r)] > e or r in self.away or self.is_dead(r, e):
                     continue
