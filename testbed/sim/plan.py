@@ -118,17 +118,9 @@ class BatchPlan:
         )
 
 
-def _capacity_supported(b: int, s: Scenario, decided: DeliveryPlan, delayed: Mask) -> None:
+def _capacity_supported(b: int, s: Scenario, decided: DeliveryPlan) -> None:
     """Refuse what the simulator's capacity queues do not model yet (netem's lockstep does)."""
-    why = (
-        "distance models"
-        if decided.ranged
-        else "delayed packets"
-        if delayed.any()
-        else "team events"
-        if s.events
-        else None
-    )
+    why = "distance models" if decided.ranged else "team events" if s.events else None
     if why is not None:
         raise BatchError(
             f"member {b} ({s.name}): network.capacity with {why} is not simulated yet; "
@@ -218,11 +210,13 @@ def plan_batch(
             decided = delivery_plan(stacks[net], seed, all_links, n_epochs)
             mat = decided.base
             ok = mat.delivered & (mat.delay_epochs == 0)
-            if s.network.capacity:
-                _capacity_supported(b, s, decided, mat.delivered & (mat.delay_epochs > 0))
-                ok = ok & (capacity_plan(s, ok, all_links) == 0)  # the queues' drops
+            delivered_all = mat.delivered
+            if s.network.capacity:  # the queues see what the models passed, delayed or not
+                _capacity_supported(b, s, decided)
+                delivered_all = mat.delivered & (capacity_plan(s, mat.delivered, all_links) == 0)
+                ok = ok & delivered_all
             cache[key] = (
-                mat.delivered[:, :n_links],
+                delivered_all[:, :n_links],
                 mat.delay_epochs[:, :n_links],
                 ok,
                 decided if decided.ranged else None,

@@ -34,8 +34,17 @@ def test_a_batch_with_capacity_equals_each_seed_alone(paper: Scenario) -> None:
 
 
 def test_what_the_simulator_does_not_queue_yet_is_refused(paper: Scenario) -> None:
-    delayed = with_capacity(
-        paper, formation_default=[{"model": "delay", "epochs": 1, "jitter_epochs": 1}]
+    events = with_capacity(paper).with_overrides(
+        events=[{"epoch": 5, "agent": 4, "action": "leave"}]
     )
-    with pytest.raises(BatchError, match=r"member 0 .*network\.capacity with delayed packets"):
-        plan_batch(delayed, [1])
+    with pytest.raises(BatchError, match=r"member 0 .*network\.capacity with team events"):
+        plan_batch(events, [1])
+
+
+def test_a_delayed_packet_the_queue_drops_never_lands(paper: Scenario) -> None:
+    delay = [{"model": "delay", "epochs": 1}]
+    base = with_capacity(paper, formation_default=delay)
+    plan = plan_batch(base, [1])
+    free = plan_batch(with_capacity(paper, formation_default=delay, capacity=[]), [1])
+    landed = sum(len(f) for f, _ in plan.late.values())
+    assert 0 < landed < sum(len(f) for f, _ in free.late.values())  # agent 3's radio drops some
