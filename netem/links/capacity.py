@@ -178,6 +178,9 @@ def serve_packets(
     every phase): lists cost a tenth of arrays there.
     """
     state = state or QueueState()
+    if state.backlog_s and arrivals and state.backlog_s[-1] <= arrivals[0]:
+        # gone before the first arrival: it never sees them, nor do the clock and bucket
+        state = QueueState(state.clock_s, state.tokens_bytes)
     if len(arrivals) == 1 and not state.backlog_s:
         return _serve_one(params, arrivals[0], sizes[0], deadlines, state)
     return _serve_many(params, arrivals, sizes, deadlines, state)

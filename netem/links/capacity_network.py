@@ -185,49 +185,51 @@ class CapacityNetwork:
         t0 = (epoch + start) * self.period_s  # [s]
         due = (epoch + deadline) * self.period_s
         n = len(packets)
-        order = sorted(range(n), key=lambda i: packets[i][0])
-        time = [t0] * n
-        out = [_NONE] * n
         by_link = self.by_link
         if any(self.since):  # a queue added while running serves from its epoch on
             by_link = {
                 lk: tuple(k for k in ks if self.since[k] <= epoch) for lk, ks in by_link.items()
             }
-        alive = [i for i in order if by_link.get(packets[i][0])]
-        for stage in range(3):
+        # (link, index, its queues) of the packets a queue serves, in link order
+        alive = sorted(
+            (link, i, qs) for i, (link, _) in enumerate(packets) if (qs := by_link.get(link))
+        )
+        time = [t0] * n
+        out = [_NONE] * n
+        last: dict[int, tuple[str, int]] = {}  # packet → (its last queue, its depth there)
+        for stage in range(max((len(qs) for _, _, qs in alive), default=0)):
             groups: dict[int, list[int]] = {}
-            for i in alive:
-                queues = by_link[packets[i][0]]
-                if stage < len(queues):
-                    groups.setdefault(queues[stage], []).append(i)
+            for _, i, qs in alive:
+                if stage < len(qs):
+                    groups.setdefault(qs[stage], []).append(i)
             for q in sorted(groups):
                 members = groups[q]
                 if stage:  # in the order they reach it; stable: link order on ties
                     members.sort(key=time.__getitem__)
                 params = self.params[q]
+                extra = params.overhead_bytes
                 run = serve_packets(
                     params,
                     [time[i] for i in members],
-                    [packets[i][1] + params.overhead_bytes for i in members],
+                    [packets[i][1] + extra for i in members],
                     state=self.states[q],
                 )
                 self.states[q] = run.state
                 name = self.names[q]
                 for m, i in enumerate(members):
-                    if run.reason[m] != PASSED:
-                        out[i] = QueueVerdict(
-                            REASONS[run.reason[m]],
-                            name,
-                            run.depth[m],
-                            1e3 * (time[i] - t0 + run.sojourn_s[m]),
-                        )
-                    else:
+                    if run.reason[m] == PASSED:
                         time[i] = run.departure_s[m]
-                        out[i] = QueueVerdict("", name, run.depth[m], 0.0)
-            alive = [i for i in alive if not out[i].reason]
-        for i in alive:
-            reason = REASONS[QUEUE_LATE] if time[i] > due else ""
-            out[i] = out[i]._replace(reason=reason, sojourn_ms=1e3 * (time[i] - t0))
+                        last[i] = (name, run.depth[m])
+                    else:
+                        sojourn_ms = 1e3 * (time[i] - t0 + run.sojourn_s[m])
+                        out[i] = QueueVerdict(
+                            REASONS[run.reason[m]], name, run.depth[m], sojourn_ms
+                        )
+            alive = [p for p in alive if out[p[1]] is _NONE]  # dropped here: no further
+        late = REASONS[QUEUE_LATE]
+        for _, i, _ in alive:
+            name, depth = last[i]
+            out[i] = QueueVerdict(late if time[i] > due else "", name, depth, 1e3 * (time[i] - t0))
         return out
 
 
