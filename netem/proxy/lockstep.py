@@ -23,13 +23,13 @@ from collections import defaultdict
 from typing import Any
 
 from formation.scenario import LEADER_ENDPOINT
-from netem.links.capacity_network import PHASE_ORDER, packet_kind
 from netem.links.layer_stack import Outcome
 from netem.proxy.clean_epochs import CleanEpochs, Deliver, clean_epochs
 from netem.proxy.open_epochs import Delayed, OpenEpoch, Outbox
 from netem.proxy.positions import Positions
 from netem.proxy.progress import Progress
-from netem.proxy.records import Ledger, Queued, packet_json, queued
+from netem.proxy.queued_phases import QueuedPhases
+from netem.proxy.records import Ledger, Queued, packet_json
 from netem.proxy.routes import Link, LinkClass, Links, Phase, Route
 from netem.proxy.team_plan import TeamPlan
 
@@ -37,7 +37,6 @@ log = logging.getLogger("netem")
 # Clean epochs' records go out together: one batch per this many epochs' records (and at
 # least every loop wake-up of the node's main thread, 0.2 s), instead of one per epoch.
 FLUSH_CHUNKS = 64  # epochs
-_PHASES: tuple[Phase, ...] = ("state", "report", "estimate")  # in virtual time
 
 
 class Lockstep:
@@ -67,9 +66,12 @@ class Lockstep:
         self.rejoined: dict[int, int] = {}
         # (action, agent, epoch) of each event as it is applied, for the node to announce.
         self.applied: list[tuple[str, int, int]] = []
-        # Packets the models passed onto a capacity queue, until all of their phase's are in:
-        # (phase, epoch) → (link, seq, payload, decision) in the order they came.
-        self.queued: dict[tuple[Phase, int], list[tuple[Link, int, Any, Outcome]]] = {}
+        # Packets the models passed onto a capacity queue, until all of their phase's are in.
+        self.queued = (
+            None
+            if links.capacity is None or links.sizes is None
+            else QueuedPhases(links.capacity, links.sizes, links.agents)
+        )
 
     def setup_clean(self) -> None:
         """Take clean epochs on the clean path from now on."""
@@ -329,10 +331,9 @@ class Lockstep:
         d = decided or self.links.models[link].decide(
             epoch, distance_m=self.positions.length(link, epoch)
         )
-        queues = self.links.capacity
-        if d.delivered and queues is not None and queues.constrained((src, dst), epoch):
-            self.queued.setdefault((phase, epoch), []).append((link, seq, payload, d))
-            return box  # judged with the rest of its phase (_judge_queued)
+        if d.delivered and self.queued is not None and self.queued.takes(link, epoch):
+            self.queued.hold(phase, epoch, (link, seq, payload, d))
+            return box  # judged with the rest of its phase (_judge_when_complete)
         self._apply(box, phase, link, epoch, seq, payload, d)
         return box
 
@@ -365,64 +366,32 @@ class Lockstep:
     def _judge_when_complete(self, phase: Phase, epoch: int) -> bool:
         """Once every live receiver of ``epoch`` of ``phase`` has all its packets, and every
         phase before it in virtual time has closed (the queues serve phases in order), let the
-        queues judge the queued packets and close what can close (True); else False."""
-        if not self._phase_complete(phase, epoch) or self._earlier_open(phase, epoch):
+        queues judge the held packets and close what can close (True); else False."""
+        q = self.queued
+        assert q is not None  # only held with queues
+        if not all(self._settled(phase, r, epoch, True) for r in q.receivers(phase)):
             return False
-        self._judge_queued(phase, epoch, self.queued.pop((phase, epoch)))
-        for r in self._receivers(phase):  # those that waited for the queues, the caller's too
+        if not all(
+            self._settled(p, r, e) for p, e in q.earlier(phase, epoch) for r in q.receivers(p)
+        ):
+            return False
+        for link, seq, payload, d in q.judge(phase, epoch):
+            self._apply(self.open[(phase, link[2], epoch)], phase, link, epoch, seq, payload, d)
+        for r in q.receivers(phase):  # those that waited for the queues, the caller's too
             self._try_close(phase, r)
-        # a later phase complete before this one closed waited for it: its turn now
-        for later_phase, later in sorted(self.queued, key=lambda pe: (pe[1], PHASE_ORDER[pe[0]])):
-            if (later_phase, later) in self.queued:
-                for r in self._receivers(later_phase):
+        for later_phase, later in q.waiting():  # a later phase waiting for this one: its turn
+            if (later_phase, later) in q:
+                for r in q.receivers(later_phase):
                     self._try_close(later_phase, r)
         return True
 
-    def _receivers(self, phase: Phase) -> list[int]:
-        return [LEADER_ENDPOINT] if phase == "report" else self.links.agents
-
-    def _phase_complete(self, phase: Phase, epoch: int) -> bool:
-        """Every live receiver of ``epoch`` of ``phase`` closed it or has all its packets."""
-        for r in self._receivers(phase):
-            if self.next_close[(phase, r)] > epoch or r in self.away or self.is_dead(r, epoch):
-                continue
-            box = self.open.get((phase, r, epoch))
-            if box is None or not self._all_handled(box, self.links.senders(phase, r), epoch):
-                return False
-        return True
-
-    def _earlier_open(self, phase: Phase, epoch: int) -> bool:
-        """Whether a phase before ``epoch`` of ``phase`` in virtual time, one whose packets
-        cross a queue, has a receiver still open."""
-        order = PHASE_ORDER[phase]
-        earlier: list[tuple[Phase, int]] = [(p, epoch) for p in _PHASES[:order]]
-        if epoch > 0:
-            earlier.append(("estimate", epoch - 1))
-        queues = self.links.capacity
-        assert queues is not None  # only asked with queues
-        for p, e in earlier:
-            if p not in queues.phases:
-                continue  # no packet of it crosses a queue: it cannot come out of turn
-            for r in self._receivers(p):
-                if self.next_close[(p, r)] > e or r in self.away or self.is_dead(r, e):
-                    continue
-                return True
-        return False
-
-    def _judge_queued(
-        self, phase: Phase, epoch: int, waiting: list[tuple[Link, int, Any, Outcome]]
-    ) -> None:
-        queues, sizes = self.links.capacity, self.links.sizes
-        assert queues is not None and sizes is not None  # only queued with queues
-        packets = [
-            ((src, dst), sizes.payload_bytes(*packet_kind((src, dst)), epoch))
-            for (_, src, dst), _, _, _ in waiting
-        ]
-        verdicts = queues.phase(epoch, phase, packets)
-        for (link, seq, payload, d), v in zip(waiting, verdicts, strict=True):
-            box = self.open[(phase, link[2], epoch)]
-            q = queued(d, v.reason, v.queue, v.depth, v.sojourn_ms)
-            self._apply(box, phase, link, epoch, seq, payload, q)
+    def _settled(self, phase: Phase, r: int, epoch: int, complete: bool = False) -> bool:
+        """Receiver ``r`` closed ``epoch`` of ``phase``, or needs nothing of it (out, dead), or
+        (``complete``) has all its packets."""
+        if self.next_close[(phase, r)] > epoch or r in self.away or self.is_dead(r, epoch):
+            return True
+        box = self.open.get((phase, r, epoch)) if complete else None
+        return box is not None and self._all_handled(box, self.links.senders(phase, r), epoch)
 
     def _all_handled(self, box: OpenEpoch, senders: list[int], epoch: int) -> bool:
         if not self.dead and epoch not in self.out:  # counting is enough: only its senders send
