@@ -9,7 +9,7 @@ channel's, by a link model. Pure: records in, numbers out.
 from __future__ import annotations
 
 from collections.abc import Iterable
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Protocol
 
 QUEUE_REASONS = ("queue_full", "oversize")  # refused by the queue
 DEADLINE_REASONS = ("queue_late",)  # left the queue after the phase's deadline
@@ -26,7 +26,17 @@ class Judged(NamedTuple):
     sojourn_ms: float | None
 
 
-def loss_split(records: Iterable[Judged]) -> dict[str, int]:
+class Verdicted(Protocol):
+    """A decision record as anyone keeps it: its verdict and what decided it."""
+
+    @property
+    def verdict(self) -> str: ...
+
+    @property
+    def model(self) -> str: ...
+
+
+def loss_split(records: Iterable[Verdicted]) -> dict[str, int]:
     """Drops by where they happened: ``channel`` (link models), ``queue``, ``deadline``."""
     out = {"channel": 0, "queue": 0, "deadline": 0}
     for r in records:
@@ -90,4 +100,11 @@ def _mean(values: list[Any]) -> float | None:
     return sum(values) / len(values) if values else None
 
 
-__all__ = ["DEADLINE_REASONS", "QUEUE_REASONS", "Judged", "loss_split", "queue_table"]
+__all__ = [
+    "DEADLINE_REASONS",
+    "QUEUE_REASONS",
+    "Judged",
+    "Verdicted",
+    "loss_split",
+    "queue_table",
+]

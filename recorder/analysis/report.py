@@ -138,7 +138,7 @@ def _markdown(
     if queued:
         lines += ["", "## Capacity queues", ""]
         for s in queued:
-            lines += queue_lines(s["label"], s["queues"], s["losses"])
+            lines += queue_lines(s["label"], s["queues"], s["loss_split"])
     timed = [(run, s["deadlines"]) for run, s in zip(runs, sums, strict=True) if "deadlines" in s]
     if timed:
         lines += ["", "## Realtime: modelled losses and deadline misses", ""]

@@ -269,7 +269,7 @@ def _capacity(scenario: Scenario, judged: list[Judged], epochs: int) -> dict[str
     """``queues`` and ``losses`` (channel, queue, deadline) of a run with capacity queues."""
     if not scenario.network.capacity:
         return {}
-    return {"queues": queue_table(judged, epochs), "losses": loss_split(judged)}
+    return {"queues": queue_table(judged, epochs), "loss_split": loss_split(judged)}
 
 
 def _assemble(

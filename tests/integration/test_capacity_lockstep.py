@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from collections import Counter
 from pathlib import Path
 
@@ -69,11 +70,12 @@ def test_a_recorded_run_reports_its_queues_and_splits_its_losses(
     summary = json.loads((tmp_path / "summary.json").read_text())
     by_model = Counter(d.model for d in outcome.decisions if d.verdict == "drop")
     (run,) = summary  # one run: a list of one summary
-    assert run["losses"] == {
+    assert run["loss_split"] == {
         "channel": by_model["bernoulli"] + by_model["outage"],
         "queue": by_model["queue_full"],
         "deadline": by_model["queue_late"],
     }
+    assert outcome.summary()["loss_split"] == run["loss_split"]  # the launcher's, from what it saw
     ap = run["queues"]["medium ap"]
     control = [d for d in outcome.decisions if d.link_class != "formation"]
     assert ap["offered"] == len(control)  # every control packet the models passed, and none lost
@@ -83,4 +85,19 @@ def test_a_recorded_run_reports_its_queues_and_splits_its_losses(
     assert "radio 2" in run["queues"]
     text = report.read_text()
     assert "## Capacity queues" in text and "| medium ap |" in text
-    assert f"losses {run['losses']['channel']} channel" in text
+    assert f"losses {run['loss_split']['channel']} channel" in text
+
+
+def test_formation_run_says_its_losses_by_where(runs_dir: Path) -> None:
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[2]
+    proc = subprocess.run(
+        [sys.executable, "-m", "testbed.cli", "run", str(root / "scenarios/access_point.toml"),
+         "--epochs", "8", "--no-record", "--runs-dir", str(runs_dir)],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    said = " ".join((proc.stdout + proc.stderr).split())
+    assert re.search(r"estimate: losses \d+ channel, \d+ queue \(full\), \d+ deadline", said), said
