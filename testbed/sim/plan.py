@@ -120,12 +120,22 @@ class BatchPlan:
 
 def _capacity_supported(b: int, s: Scenario, decided: DeliveryPlan) -> None:
     """Refuse what the simulator's capacity queues do not model yet (netem's lockstep does)."""
-    why = "distance models" if decided.ranged else "team events" if s.events else None
-    if why is not None:
+    if decided.ranged:
         raise BatchError(
-            f"member {b} ({s.name}): network.capacity with {why} is not simulated yet; "
-            "run it with `formation run` (lockstep)"
+            f"member {b} ({s.name}): network.capacity with distance models is not simulated "
+            "yet; run it with `formation run` (lockstep)"
         )
+
+
+def _offered(passed: Mask, present: Mask | None, links: Ints, n: int) -> Mask:
+    """(E, L + 2n) the packets the queues see: passed by the models, between agents taking
+    part (netem's lockstep neither sends nor routes the others: issue 20's events)."""
+    if present is None:
+        return passed
+    on = np.concatenate(
+        [present[:, links[:, 0] - 1] & present[:, links[:, 1] - 1], present, present], axis=1
+    )
+    return np.asarray(passed & on, dtype=np.bool_)
 
 
 def _structure(s: Scenario) -> dict[str, Any]:
@@ -188,6 +198,7 @@ def plan_batch(
     on_time = np.zeros((n_epochs, size, n_links), dtype=bool)
     report_ok = np.zeros((n_epochs, size, n), dtype=bool)
     estimate_ok = np.zeros((n_epochs, size, n), dtype=bool)
+    team_k = membership(n, n_epochs, base.events).present[:n_epochs] if base.events else None
     late_k: list[Ints] = []
     late_flat: list[Ints] = []
     late_sent: list[Ints] = []
@@ -213,7 +224,8 @@ def plan_batch(
             delivered_all = mat.delivered
             if s.network.capacity:  # the queues see what the models passed, delayed or not
                 _capacity_supported(b, s, decided)
-                delivered_all = mat.delivered & (capacity_plan(s, mat.delivered, all_links) == 0)
+                offered = _offered(mat.delivered, team_k, links, n)
+                delivered_all = mat.delivered & (capacity_plan(s, offered, all_links) == 0)
                 ok = ok & delivered_all
             cache[key] = (
                 delivered_all[:, :n_links],

@@ -101,3 +101,28 @@ def test_formation_run_says_its_losses_by_where(runs_dir: Path) -> None:
     assert proc.returncode == 0, proc.stderr
     said = " ".join((proc.stdout + proc.stderr).split())
     assert re.search(r"estimate: losses \d+ channel, \d+ queue \(full\), \d+ deadline", said), said
+
+
+def test_events_through_the_queues_equal_the_simulator(paper: Scenario, runs_dir: Path) -> None:
+    scenario = constrained(paper).with_overrides(
+        epochs=40,
+        events=[{"epoch": 10, "agent": 3, "action": "crash"},
+                {"epoch": 20, "agent": 3, "action": "restart"},
+                {"epoch": 30, "agent": 5, "action": "leave"}],
+    )  # fmt: skip
+    outcome = launch(scenario, strategy="hold", runs_dir=runs_dir, record=False)
+    sim = simulate(scenario, strategy="hold")
+    team = scenario.membership
+    seen = np.isfinite(outcome.positions).all(axis=2)
+    np.testing.assert_array_equal(outcome.positions[seen], sim.positions[seen])  # bit for bit
+    got = {(d.source, d.target, d.link_class, d.epoch): d for d in outcome.decisions}
+    for k in range(scenario.epochs):
+        for row, (a, b) in enumerate(scenario.directed_links.tolist()):
+            if team.present[k, a - 1] and team.present[k, b - 1]:
+                on_time = got[(a, b, "formation", k)].verdict in ("pass", "duplicate")
+                assert on_time == sim.delivered[k, row], (a, b, k)
+        for i in range(1, scenario.n + 1):
+            if team.present[k, i - 1]:
+                assert (got[(i, 0, "report", k)].verdict != "drop") == sim.report_ok[k, i - 1]
+                assert (got[(0, i, "estimate", k)].verdict != "drop") == sim.estimate_ok[k, i - 1]
+    assert any(d.model.startswith("queue_") for d in outcome.decisions)

@@ -34,11 +34,19 @@ def test_a_batch_with_capacity_equals_each_seed_alone(paper: Scenario) -> None:
 
 
 def test_what_the_simulator_does_not_queue_yet_is_refused(paper: Scenario) -> None:
-    events = with_capacity(paper).with_overrides(
-        events=[{"epoch": 5, "agent": 4, "action": "leave"}]
-    )
-    with pytest.raises(BatchError, match=r"member 0 .*network\.capacity with team events"):
-        plan_batch(events, [1])
+    ranged = with_capacity(paper, formation_default=[{"model": "range", "max_range_m": 5.0}])
+    with pytest.raises(BatchError, match=r"member 0 .*network\.capacity with distance models"):
+        plan_batch(ranged, [1])
+
+
+def test_an_agent_out_of_the_team_sends_nothing_through_the_queues(paper: Scenario) -> None:
+    # agent 3 out from epoch 5: its radio (2 places, 20 kbit/s) then has nothing to drop
+    out = with_capacity(paper).with_overrides(events=[{"epoch": 5, "agent": 3, "action": "leave"}])
+    plan = plan_batch(out, [1])
+    rows = [r for r, (a, _) in enumerate(paper.directed_links.tolist()) if a == 3]
+    free = plan_batch(with_capacity(paper, capacity=[]).with_overrides(events=out.events), [1])
+    assert (plan.on_time[:5, 0, rows] != free.on_time[:5, 0, rows]).any()  # the radio drops
+    np.testing.assert_array_equal(plan.on_time[5:, 0, rows], free.on_time[5:, 0, rows])
 
 
 def test_a_delayed_packet_the_queue_drops_never_lands(paper: Scenario) -> None:
