@@ -29,6 +29,7 @@ FIGURES = {
     "topology": "MST changes, rigidity rank and components",
     "covariance": "Substitution and estimation error covariance",
     "nees": "NEES (normalised estimation error squared)",
+    "queues": "Capacity queues: depth over time",
 }
 
 
@@ -233,6 +234,9 @@ def write_report_from(runs: Sequence[RunData], out_dir: Path, title: str | None 
             [(r.label, r.nees_values) for r in runs], s.dimension, out_dir / "nees.png"
         ),
     }
+    queued = [(x["label"], x["queues"]) for x in sums if x.get("queues")]
+    if queued:  # capacity (docs/model.md §9)
+        files["queues"] = plots.plot_queue_depths(queued, out_dir / "queues.png")
     (out_dir / "summary.json").write_text(json.dumps(sums, indent=2) + "\n", encoding="utf-8")
     title = title or f"Report: {s.name}"
     text = _markdown(title, runs, sums, {k: p.name for k, p in files.items()})

@@ -86,6 +86,8 @@ def test_a_recorded_run_reports_its_queues_and_splits_its_losses(
     text = report.read_text()
     assert "## Capacity queues" in text and "| medium ap |" in text
     assert f"losses {run['loss_split']['channel']} channel" in text
+    assert "![Capacity queues: depth over time](queues.png)" in text
+    assert (tmp_path / "queues.png").stat().st_size > 0
 
 
 def test_formation_run_says_its_losses_by_where(runs_dir: Path) -> None:
