@@ -29,8 +29,8 @@ FIGURES = {
     "topology": "MST changes, rigidity rank and components",
     "covariance": "Substitution and estimation error covariance",
     "nees": "NEES (normalised estimation error squared)",
-    "queues": "Capacity queues: depth over time",
 }
+OPTIONAL_FIGURES = {"queues": "Capacity queues: depth over time"}  # runs with capacity only
 
 
 _CHANGE = {
@@ -184,7 +184,8 @@ def _markdown(
         lines += ["", "## Notes", ""] + [f"- {n}" for n in notes]
     lines += ["", "## Figures", ""]
     for name, file in figures.items():
-        lines += [f"### {FIGURES[name]}", "", f"![{FIGURES[name]}]({file})", ""]
+        title = {**FIGURES, **OPTIONAL_FIGURES}[name]
+        lines += [f"### {title}", "", f"![{title}]({file})", ""]
     return "\n".join(lines)
 
 
@@ -262,4 +263,4 @@ def write_reports(paths: Sequence[Path], out_dir: Path | None = None) -> Path:
     return write_report_from(runs, target, title="Report: " + ", ".join(str(p) for p in paths))
 
 
-__all__ = ["FIGURES", "write_report", "write_report_from", "write_reports"]
+__all__ = ["FIGURES", "OPTIONAL_FIGURES", "write_report", "write_report_from", "write_reports"]
