@@ -4,11 +4,10 @@
 same decisions for a batch of seeds from :func:`delivery_plan`, and measures link lengths with
 :func:`link_lengths` as netem does. :class:`LinkModel`, :func:`delivery_matrix`,
 :func:`schedule` and :func:`expected_delivery_at` are the link-model library the benchmarks
-time and check against closed forms; :func:`serve` (a :class:`QueueParams` queue in virtual
-time) and :func:`capacity_plan` (a scenario's queues over its epochs) are its capacity.
+time and check against closed forms.
 """
 
-from netem.links.capacity import QueueParams, serve
+from netem.links.capacity import QueueParams, serve  # capacity (docs/model.md §9)
 from netem.links.capacity_network import capacity_plan
 from netem.links.closed_forms import expected_delivery_at
 from netem.links.matrix import DeliveryPlan, delivery_plan, link_lengths

@@ -314,10 +314,10 @@ def _assemble(
         decided=decided,
         source=str(path),
         extra={
+            **_capacity(scenario, got.judged, count),
             "recorded_formation_error": recorded_fe,
             "metadata": meta,
             "skipped": skipped,
-            **_capacity(scenario, got.judged, count),
         },
         headings=headings,
         saturated=saturated,
