@@ -279,18 +279,34 @@ def capacity_plan(
     net = network_of(scenario)
     sizes = WireSizes(scenario)
     pairs = [(int(a), int(b)) for a, b in links.tolist()]
-    phase_of = [packet_kind(lk)[0] for lk in pairs]
+    kinds = [packet_kind(lk) for lk in pairs]
     code = {name: k for k, name in enumerate(REASONS)}
+    # per phase, the columns a queue serves (no queue changes in a plan: netem's are live)
+    served = {
+        phase: np.array(
+            [c for c, lk in enumerate(pairs) if kinds[c][0] == phase and net.constrained(lk)],
+            dtype=np.int64,
+        )
+        for phase in PHASE_ORDER
+    }
     out = np.zeros(passed.shape, dtype=np.int8)
+    known: dict[tuple[int, int], int] = {}  # (column, digits of the epoch) → payload [B]
     for k in range(passed.shape[0]):
-        for phase in PHASE_ORDER:
-            cols = [c for c in np.flatnonzero(passed[k]).tolist() if phase_of[c] == phase]
-            cols = [c for c in cols if net.constrained(pairs[c])]
+        digits = len(str(k))
+        for phase, cols_all in served.items():
+            cols = cols_all[passed[k, cols_all]].tolist() if cols_all.size else []
             if not cols:
                 continue
-            packets = [(pairs[c], sizes.payload_bytes(*packet_kind(pairs[c]), k)) for c in cols]
+            packets = []
+            for c in cols:
+                size = known.get((c, digits))
+                if size is None:
+                    kind, agent = kinds[c]
+                    size = known[(c, digits)] = sizes.payload_bytes(kind, agent, k)
+                packets.append((pairs[c], size))
             for c, v in zip(cols, net.phase(k, phase, packets), strict=True):
-                out[k, c] = code[v.reason]
+                if v.reason:
+                    out[k, c] = code[v.reason]
     return out
 
 
