@@ -114,6 +114,17 @@ def deadline_counts(statuses: Iterable[Status]) -> dict[str, int]:
     return dict(counts)
 
 
+def _queued(netem: Mapping[str, int], modelled_late: int) -> dict[str, int]:
+    """Of the modelled losses, the capacity queues' (docs/model.md §9): refused, and held past
+    the deadline; none when no queue dropped or held a packet late."""
+    if "queue_drops" not in netem and "queue_late" not in netem:
+        return {}
+    return {
+        "queue_dropped": int(netem.get("queue_drops", 0)),
+        "queued_past_deadline": min(int(netem.get("queue_late", 0)), modelled_late),
+    }
+
+
 def realtime_accounting(
     counts: Mapping[str, int],
     drops: Mapping[str, tuple[int, int]],
@@ -155,6 +166,7 @@ def realtime_accounting(
             "total": modelled,
             "dropped": dropped,
             "delayed_past_deadline": got.modelled_late,
+            **_queued(netem, got.modelled_late),
         },
         "delivered_in_time": got.in_time,
         "unaccounted": sent - modelled - got.misses - got.in_time,

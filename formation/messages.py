@@ -155,6 +155,12 @@ class Decision(BaseModel):
     delay_ms: float = 0.0
     model: str = ""
     state: str = ""
+    # through a capacity queue (formation.capacity): its name, its depth when the packet
+    # came [packets] and the packet's time in the queues [ms]; a queue's drop has its reason
+    # (queue_full, queue_late, oversize) as ``model``
+    queue: str | None = None
+    queue_depth: int | None = None
+    sojourn_ms: float | None = None
 
 
 class DecisionBatch(_Message):

@@ -27,6 +27,7 @@ from pydantic import (
 )
 
 from formation._error_paths import loc_path, lookup
+from formation.capacity import Capacity, capacity_problems
 from formation.errors import NO_VALUE, ScenarioError
 from formation.events import Event, Membership, event_problems, membership
 from formation.graph import (
@@ -254,6 +255,7 @@ class Network(_Model):
     links: tuple[FormationLink, ...] = ()
     control: tuple[ControlLink, ...] = ()
     access_point: tuple[float, ...] | None = None  # [m] control links' radio end (distance models)
+    capacity: tuple[Capacity, ...] = ()  # rate-limited queues (formation.capacity)
 
 
 class Runtime(_Model):
@@ -552,6 +554,11 @@ def _problems(s: Scenario) -> list[tuple[str, object, str]]:
                     f"agent does not exist (agents are 1..{n})",
                 )
             ]
+    # both ways of each edge, from ``pairs``: a cached property set here would break ``==``
+    directed = [(int(i), int(j)) for a, b in pairs for i, j in ((a, b), (b, a))]
+    capacity = capacity_problems(s.network.capacity, n, directed)
+    if capacity:
+        return capacity
     events = event_problems(n, s.leader, s.epochs, pairs, s.events, s.allow_split)
     if events:
         return events

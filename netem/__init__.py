@@ -8,6 +8,8 @@ time and check against closed forms. :class:`Layer`, :class:`Keys` and :class:`L
 are what a link model plug-in implements (docs/plugins.md).
 """
 
+from netem.links.capacity import QueueParams, serve  # capacity (docs/model.md §9)
+from netem.links.capacity_network import capacity_plan
 from netem.links.closed_forms import expected_delivery_at
 from netem.links.layer import Keys, Layer, LayerOutput
 from netem.links.layer_stack import probe_stack
@@ -20,10 +22,13 @@ __all__ = [
     "Layer",
     "LayerOutput",
     "LinkModel",
+    "QueueParams",
+    "capacity_plan",
     "delivery_matrix",
     "delivery_plan",
     "expected_delivery_at",
     "link_lengths",
     "probe_stack",
     "schedule",
+    "serve",
 ]

@@ -20,6 +20,7 @@ import orjson
 from pydantic import TypeAdapter, ValidationError
 
 from formation import keys
+from formation.capacity import Capacity
 from formation.codec import read_attachment
 from formation.linkmodels import LinkModelSpec
 from formation.messages import LinkChange
@@ -286,8 +287,10 @@ class NetemNode:
                     for (c, s, d), lm in sorted(self.links.models.items())
                 ],
             }
+        if op == "capacity":
+            return self._capacity(request)
         if op != "set":
-            return {"ok": False, "error": f"op {op!r}: expected show or set"}
+            return {"ok": False, "error": f"op {op!r}: expected show, set or capacity"}
         link = str(request.get("link", ""))
         try:
             src_text, dst_text = link.split("->")
@@ -326,6 +329,50 @@ class NetemNode:
         )
         self.service.publish(key, change)
         return {"ok": True, "link": link, "class": cls, "from_epoch": from_epoch}
+
+    def _capacity(self, request: dict[str, Any]) -> dict[str, Any]:
+        """A queue's new parameters (``formation netem set 3->0 rate rate_bps=64000``), from
+        the next epoch; recorded as a :class:`LinkChange` of each link it serves."""
+        queues = self.links.capacity
+        if queues is None:
+            return {
+                "ok": False,
+                "error": "the scenario has no capacity queues; add [[network.capacity]] to "
+                "change them while running",
+            }
+        try:
+            capacity = Capacity.model_validate(request.get("queue", {}))
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            where = ".".join(str(p) for p in err["loc"])
+            return {"ok": False, "error": f"rate.{where} = {err.get('input')!r}; {err['msg']}"}
+        from_epoch = self.progress.epoch_seen + 1
+        try:
+            served = queues.change(capacity, from_epoch)
+        except ValueError as exc:
+            return {"ok": False, "error": str(exc)}
+        key = keys.netem_change(self.run_id)
+        params = capacity.model_dump(
+            exclude_none=True, exclude={"scope", "link", "agent", "medium", "links"}
+        )
+        for src, dst in served:
+            cls: LinkClass = (
+                "report"
+                if dst == LEADER_ENDPOINT
+                else "estimate"
+                if src == LEADER_ENDPOINT
+                else "formation"
+            )
+            change = LinkChange(
+                **self.service.header(key, from_epoch),
+                source=src,
+                target=dst,
+                link_class=cls,
+                models=[{"model": "rate", "queue": capacity.name, **params}],
+                from_epoch=from_epoch,
+            )
+            self.service.publish(key, change)
+        return {"ok": True, "queue": capacity.name, "links": len(served), "from_epoch": from_epoch}
 
     def _on_final(self, query: Query) -> None:
         """What netem still lacks of a sender's last messages: ``{"agents": [ids]}`` asks for

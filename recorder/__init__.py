@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 from recorder.analysis.deadlines import write_deadlines
 from recorder.analysis.membership import present, spans, team_edges, team_errors, team_shape_error
 from recorder.analysis.metrics import error_statistics, formation_error, nees, shape_error
+from recorder.analysis.queues import loss_split
 from recorder.analysis.rundata import RunData, read_run
 from recorder.analysis.safety import safety_counts
 from recorder.analysis.summary import summarise
@@ -61,6 +62,7 @@ __all__ = [
     "export",
     "formation_error",
     "load_run",
+    "loss_split",
     "nees",
     "present",
     "read_run",

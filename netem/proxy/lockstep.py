@@ -28,7 +28,8 @@ from netem.proxy.clean_epochs import CleanEpochs, Deliver, clean_epochs
 from netem.proxy.open_epochs import Delayed, OpenEpoch, Outbox
 from netem.proxy.positions import Positions
 from netem.proxy.progress import Progress
-from netem.proxy.records import Ledger, packet_json
+from netem.proxy.queued_phases import QueuedPhases
+from netem.proxy.records import Ledger, Queued, packet_json
 from netem.proxy.routes import Link, LinkClass, Links, Phase, Route
 from netem.proxy.team_plan import TeamPlan
 
@@ -65,9 +66,17 @@ class Lockstep:
         self.rejoined: dict[int, int] = {}
         # (action, agent, epoch) of each event as it is applied, for the node to announce.
         self.applied: list[tuple[str, int, int]] = []
+        # Packets the models passed onto a capacity queue, until all of their phase's are in.
+        self.queued = (
+            None
+            if links.capacity is None or links.sizes is None
+            else QueuedPhases(links.capacity, links.sizes, links.agents)
+        )
 
     def setup_clean(self) -> None:
         """Take clean epochs on the clean path from now on."""
+        if self.links.capacity is not None:
+            return  # a queue judges a phase's packets together: every packet the full path
         self.clean = clean_epochs(self.links)
         self._clean_deliver = {phase: self._clean_delivery(phase) for phase in self.clean}
 
@@ -322,6 +331,24 @@ class Lockstep:
         d = decided or self.links.models[link].decide(
             epoch, distance_m=self.positions.length(link, epoch)
         )
+        if d.delivered and self.queued is not None and self.queued.takes(link, epoch):
+            self.queued.hold(phase, epoch, (link, seq, payload, d))
+            return box  # judged with the rest of its phase (_judge_when_complete)
+        self._apply(box, phase, link, epoch, seq, payload, d)
+        return box
+
+    def _apply(
+        self,
+        box: OpenEpoch,
+        phase: Phase,
+        link: Link,
+        epoch: int,
+        seq: int,
+        payload: Any,
+        d: Outcome | Queued,
+    ) -> None:
+        """Record a packet's decision and put it in ``box`` (or hold it for a later epoch)."""
+        cls, src, dst = link
         self.ledger.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
         if not d.delivered:
             box.lost.append(src)
@@ -335,7 +362,36 @@ class Lockstep:
                 self.delayed[(phase, dst, due)].append(
                     Delayed(link, d.copies, packet_json(src, seq, epoch, d.copies, payload))
                 )
-        return box
+
+    def _judge_when_complete(self, phase: Phase, epoch: int) -> bool:
+        """Once every live receiver of ``epoch`` of ``phase`` has all its packets, and every
+        phase before it in virtual time has closed (the queues serve phases in order), let the
+        queues judge the held packets and close what can close (True); else False."""
+        q = self.queued
+        assert q is not None  # only held with queues
+        if not all(self._settled(phase, r, epoch, True) for r in q.receivers(phase)):
+            return False
+        if not all(
+            self._settled(p, r, e) for p, e in q.earlier(phase, epoch) for r in q.receivers(p)
+        ):
+            return False
+        for link, seq, payload, d in q.judge(phase, epoch):
+            self._apply(self.open[(phase, link[2], epoch)], phase, link, epoch, seq, payload, d)
+        for r in q.receivers(phase):  # those that waited for the queues, the caller's too
+            self._try_close(phase, r)
+        for later_phase, later in q.waiting():  # a later phase waiting for this one: its turn
+            if (later_phase, later) in q:
+                for r in q.receivers(later_phase):
+                    self._try_close(later_phase, r)
+        return True
+
+    def _settled(self, phase: Phase, r: int, epoch: int, complete: bool = False) -> bool:
+        """Receiver ``r`` closed ``epoch`` of ``phase``, or needs nothing of it (out, dead), or
+        (``complete``) has all its packets."""
+        if self.next_close[(phase, r)] > epoch or r in self.away or self.is_dead(r, epoch):
+            return True
+        box = self.open.get((phase, r, epoch)) if complete else None
+        return box is not None and self._all_handled(box, self.links.senders(phase, r), epoch)
 
     def _all_handled(self, box: OpenEpoch, senders: list[int], epoch: int) -> bool:
         if not self.dead and epoch not in self.out:  # counting is enough: only its senders send
@@ -366,6 +422,10 @@ class Lockstep:
                 box = OpenEpoch()
             elif not self._all_handled(box, senders, epoch):
                 return
+            if self.queued and (phase, epoch) in self.queued:
+                if not self._judge_when_complete(phase, epoch):
+                    return  # the rest of the phase's queued packets are still to come
+                continue  # judged: every receiver of the phase was tried again, this one too
             self.open.pop((phase, receiver, epoch), None)
             for h in self.delayed.pop((phase, receiver, epoch), []):
                 self.ledger.forwarded[h.link] += h.copies

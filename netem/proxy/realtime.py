@@ -24,13 +24,15 @@ from collections import Counter, defaultdict
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from itertools import islice
+from typing import Any
 
 from formation.codec import read_attachment
 from formation.deadlines import PHASES
 from formation.realtime import Clock
 from formation.scenario import LEADER_ENDPOINT
+from netem.links.layer_stack import Outcome
 from netem.proxy.progress import Progress
-from netem.proxy.records import Ledger, Record, message_json, packet_json_of
+from netem.proxy.records import Ledger, Queued, Record, message_json, packet_json_of, queued
 from netem.proxy.routes import PHASE_OF, LinkClass, Links, Phase, Routes
 from shell import Incoming, Service, TimePolicy
 
@@ -109,27 +111,57 @@ class RealtimeForwarder:
         seq: int,
         text: bytes,
         due: list[Due],
+        size: int = 0,
     ) -> None:
         """Decide one packet on one link: out at the next flush, pushed on ``due``, or dropped.
 
         ``text``: the payload as a JSON string (:func:`~netem.proxy.records.message_json`), once
-        for every link it takes."""
+        for every link it takes; ``size``: the payload's bytes, what its capacity queues count."""
         assert self.clock is not None
         now = time.time_ns()
-        d = self.links.models[(cls, src, dst)].decide(epoch, time_s=(now - self.clock.t0_ns) / 1e9)
+        t0 = self.clock.t0_ns
+        o = self.links.models[(cls, src, dst)].decide(epoch, time_s=(now - t0) / 1e9)
+        d: Outcome | Queued = o
         phase = PHASE_OF[cls]
+        deadline_ns = self.clock.at(epoch, PHASES[KIND_OF[cls]][1])
+        held_ns = 0  # [ns] in the capacity queues (docs/model.md §9)
+        queues = self.links.capacity
+        if o.delivered and queues is not None and queues.constrained((src, dst), epoch):
+            v, leaves_s = queues.arrive(
+                (src, dst), size, (now - t0) / 1e9, epoch, (deadline_ns - t0) / 1e9
+            )
+            if v.reason and v.reason != "queue_late":  # refused: a queue's drop
+                d = queued(o, v.reason, v.queue, v.depth, v.sojourn_ms)
+                self.deadline["queue_drops"] += 1
+            else:  # held until it leaves, however late: the receiver sees it when it would
+                late = v.reason or o.model
+                d = Queued(
+                    o.delivered,
+                    o.delay_epochs,
+                    o.delay_ms,
+                    o.copies,
+                    o.verdict,
+                    late,
+                    o.state,
+                    o.reordered,
+                    v.queue,
+                    v.depth,
+                    v.sojourn_ms,
+                )
+                held_ns = max(0, int(leaves_s * 1e9) + t0 - now)
         self.ledger.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
         if not d.delivered:
             return
         self.ledger.forwarded[(cls, src, dst)] += d.copies
-        deadline_ns = self.clock.at(epoch, PHASES[KIND_OF[cls]][1])
         packet = packet_json_of(src, seq, epoch, d.copies, text)
-        if d.delay_ms <= 0:
+        if d.delay_ms <= 0 and not held_ns:
             self.queue((phase, dst), epoch, packet, msg.arrived_ns, deadline_ns, d.copies)
             return
-        due_ns = now + int(d.delay_ms * 1e6)
+        due_ns = now + held_ns + int(d.delay_ms * 1e6)
         if due_ns > deadline_ns:
             self.deadline["modelled_late"] += d.copies
+            if held_ns and now + held_ns > deadline_ns:
+                self.deadline["queue_late"] += d.copies  # of them, late by its queues
         heapq.heappush(due, (due_ns, len(due), (phase, dst), epoch, packet, d.copies, deadline_ns))
 
     def queue(
@@ -171,23 +203,17 @@ class RealtimeForwarder:
                 progress.final_state(source)
                 return
             text = message_json(msg.payload)
+            size = _size(msg.payload)
             for dst in self.links.out_links[source]:
-                self.forward("formation", source, dst, msg, epoch, seq, text, due)
+                self.forward("formation", source, dst, msg, epoch, seq, text, due, size)
         elif kind == "report":
-            self.forward(
-                "report", source, LEADER_ENDPOINT, msg, epoch, seq, message_json(msg.payload), due
-            )
+            text = message_json(msg.payload)
+            size = _size(msg.payload)
+            self.forward("report", source, LEADER_ENDPOINT, msg, epoch, seq, text, due, size)
         else:
-            self.forward(
-                "estimate",
-                LEADER_ENDPOINT,
-                route[2],
-                msg,
-                epoch,
-                seq,
-                message_json(msg.payload),
-                due,
-            )
+            text = message_json(msg.payload)
+            size = _size(msg.payload)
+            self.forward("estimate", LEADER_ENDPOINT, route[2], msg, epoch, seq, text, due, size)
             progress.estimate_handled(epoch)
 
     def prepare(self, epoch: int) -> None:
@@ -254,3 +280,8 @@ class RealtimeForwarder:
     def end(self) -> None:
         with self.lock:
             self.publish_decisions()
+
+
+def _size(payload: Any) -> int:
+    """A payload's bytes on the wire (bytes, or Zenoh's ZBytes)."""
+    return len(payload) if isinstance(payload, bytes) else len(payload.to_bytes())

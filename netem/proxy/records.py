@@ -12,16 +12,41 @@ from __future__ import annotations
 
 from collections import Counter, defaultdict
 from collections.abc import Iterable
-from typing import Any
+from typing import Any, NamedTuple
 
 import orjson
 
 from netem.links.layer_stack import Outcome
 from netem.proxy.routes import Link, Phase
 
+
+class Queued(NamedTuple):
+    """A packet's decision after its capacity queues: the model's, or the queue's drop
+    (``model`` its reason), with the queue, its depth [packets] and the sojourn [ms]."""
+
+    delivered: bool
+    delay_epochs: int
+    delay_ms: float
+    copies: int
+    verdict: str
+    model: str
+    state: str
+    reordered: bool
+    queue: str
+    queue_depth: int
+    sojourn_ms: float
+
+
+def queued(d: Outcome, reason: str, queue: str, depth: int, sojourn_ms: float) -> Queued:
+    """The decision on a packet the model ``d`` passed, once its queues judged it."""
+    if not reason:
+        return Queued(*d, queue, depth, sojourn_ms)
+    return Queued(False, 0, 0.0, 0, "drop", reason, d.state, False, queue, depth, sojourn_ms)
+
+
 # One decision on one packet, as the hot path keeps it (a plain tuple: built per packet):
-# (source, target, link class, epoch, seq, the model's decision).
-Record = tuple[int, int, str, int, int, Outcome]
+# (source, target, link class, epoch, seq, the model's decision, or the queues').
+Record = tuple[int, int, str, int, int, Outcome | Queued]
 
 
 class Ledger:
@@ -64,8 +89,21 @@ def record_head(source: int, target: int, link_class: str) -> bytes:
     return head
 
 
-def record_tail(d: Outcome) -> bytes:
+def record_tail(d: Outcome | Queued) -> bytes:
     """A record's JSON after ``"seq":N``: the fields that come from the decision."""
+    if isinstance(d, Queued):  # one per packet: not memoised
+        return orjson.dumps(
+            {
+                "verdict": d.verdict,
+                "delay_epochs": d.delay_epochs,
+                "delay_ms": float(d.delay_ms),
+                "model": d.model,
+                "state": d.state,
+                "queue": d.queue,
+                "queue_depth": d.queue_depth,
+                "sojourn_ms": d.sojourn_ms,
+            }
+        ).replace(b"{", b",", 1)
     tail = _DECISION_JSON.get(id(d))
     if tail is None or tail[0] is not d:
         if len(_DECISION_JSON) > 100_000:

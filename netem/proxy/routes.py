@@ -14,6 +14,8 @@ from typing import Literal
 from formation import keys
 from formation.events import Membership
 from formation.scenario import LEADER_ENDPOINT, Scenario
+from formation.wire_size import WireSizes
+from netem.links.capacity_network import CapacityNetwork, network_of
 from netem.links.models import LinkModel
 
 LinkClass = Literal["formation", "report", "estimate"]
@@ -34,6 +36,11 @@ class Links:
         self.agents = list(range(1, scenario.n + 1))
         # Who takes part at each epoch, from the scenario's events (None: everyone, always).
         self.team: Membership | None = None if scenario.membership.everyone else scenario.membership
+        # The capacity queues (None: every link has infinite capacity), over virtual time.
+        self.capacity: CapacityNetwork | None = (
+            network_of(scenario) if scenario.network.capacity else None
+        )
+        self.sizes = WireSizes(scenario) if scenario.network.capacity else None  # [B] nominal
         ap = scenario.network.access_point
         self.access_point = None if ap is None else list(ap)  # [m] control links' leader end
         self.models: dict[Link, LinkModel] = {}

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -371,11 +372,32 @@ def plot_nees(runs: Sequence[tuple[str, Array]], d: int, path: Path) -> Path:
     return _save(fig, path)
 
 
+def plot_queue_depths(runs: Sequence[tuple[str, dict[str, Any]]], path: Path) -> Path:
+    """Each capacity queue's depth over the run: the largest a packet found per epoch.
+
+    ``runs``: (label, the summary's ``queues``: name → ``max_depth_by_epoch``, epoch → depth).
+    """
+    fig = Figure(figsize=(11, 3.8), layout="constrained")
+    ax = fig.subplots()
+    for label, queues in runs:
+        for name, q in queues.items():
+            series = q["max_depth_by_epoch"]
+            epochs = np.array([int(k) for k in series], dtype=float)
+            ax.step(epochs, list(series.values()), where="post", label=f"{label}: {name}", lw=1)
+    ax.set_xlabel("epoch")
+    ax.set_ylabel("depth [packets]")
+    ax.grid(True, alpha=0.3)
+    if ax.has_data():
+        ax.legend(loc="best", fontsize="x-small")
+    return _save(fig, path)
+
+
 __all__ = [
     "plot_covariance",
     "plot_errors",
     "plot_link_timeline",
     "plot_nees",
+    "plot_queue_depths",
     "plot_topology",
     "plot_trajectories",
 ]

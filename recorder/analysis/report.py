@@ -30,6 +30,7 @@ FIGURES = {
     "covariance": "Substitution and estimation error covariance",
     "nees": "NEES (normalised estimation error squared)",
 }
+OPTIONAL_FIGURES = {"queues": "Capacity queues: depth over time"}  # runs with capacity only
 
 
 _CHANGE = {
@@ -62,6 +63,26 @@ def _team_lines(sums: list[dict[str, Any]]) -> list[str]:
                 f"under {s['shape_threshold_m']:g} m {back}"
             )
     return lines
+
+
+def queue_lines(label: str, queues: dict[str, Any], losses: dict[str, int]) -> list[str]:
+    """A run's queues as a table, and its losses split by where they happened."""
+    lines = [
+        f"- {label}: losses {losses['channel']} channel, {losses['queue']} queue (full), "
+        f"{losses['deadline']} deadline (left the queue late)",
+        "",
+        "| queue | offered/epoch | through/epoch | mean depth | max depth | mean sojourn [ms] "
+        "| drops by reason |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for name, q in queues.items():
+        drops = ", ".join(f"{k} {v}" for k, v in q["drops"].items()) or "none"
+        lines.append(
+            f"| {name} | {q['offered_per_epoch']:.2f} | {q['throughput_per_epoch']:.2f} | "
+            f"{_fmt(q['mean_depth'])} | {_fmt(q['max_depth'])} | {_fmt(q['mean_sojourn_ms'])} "
+            f"| {drops} |"
+        )
+    return [*lines, ""]
 
 
 def _fmt(v: Any) -> str:
@@ -118,6 +139,11 @@ def _markdown(
                 f"the {LISTED_LINKS} with most: {drops}"
             )
         lines.append(f"- {s['label']}: {drops or 'none'}")
+    queued = [s for s in sums if "queues" in s]
+    if queued:
+        lines += ["", "## Capacity queues", ""]
+        for s in queued:
+            lines += queue_lines(s["label"], s["queues"], s["loss_split"])
     timed = [(run, s["deadlines"]) for run, s in zip(runs, sums, strict=True) if "deadlines" in s]
     if timed:
         lines += ["", "## Realtime: modelled losses and deadline misses", ""]
@@ -162,7 +188,8 @@ def _markdown(
         lines += ["", "## Notes", ""] + [f"- {n}" for n in notes]
     lines += ["", "## Figures", ""]
     for name, file in figures.items():
-        lines += [f"### {FIGURES[name]}", "", f"![{FIGURES[name]}]({file})", ""]
+        title = {**FIGURES, **OPTIONAL_FIGURES}[name]
+        lines += [f"### {title}", "", f"![{title}]({file})", ""]
     return "\n".join(lines)
 
 
@@ -212,6 +239,9 @@ def write_report_from(runs: Sequence[RunData], out_dir: Path, title: str | None 
             [(r.label, r.nees_values) for r in runs], s.dimension, out_dir / "nees.png"
         ),
     }
+    queued = [(x["label"], x["queues"]) for x in sums if x.get("queues")]
+    if queued:  # capacity (docs/model.md §9)
+        files["queues"] = plots.plot_queue_depths(queued, out_dir / "queues.png")
     (out_dir / "summary.json").write_text(json.dumps(sums, indent=2) + "\n", encoding="utf-8")
     title = title or f"Report: {s.name}"
     text = _markdown(title, runs, sums, {k: p.name for k, p in files.items()})
@@ -237,4 +267,4 @@ def write_reports(paths: Sequence[Path], out_dir: Path | None = None) -> Path:
     return write_report_from(runs, target, title="Report: " + ", ".join(str(p) for p in paths))
 
 
-__all__ = ["FIGURES", "write_report", "write_report_from", "write_reports"]
+__all__ = ["FIGURES", "OPTIONAL_FIGURES", "write_report", "write_report_from", "write_reports"]

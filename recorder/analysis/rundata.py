@@ -28,6 +28,7 @@ from formation.scenario import Scenario
 from recorder.analysis import membership
 from recorder.analysis.epoch_assembly import edge_mask
 from recorder.analysis.metrics import formation_error, nees, shape_error
+from recorder.analysis.queues import Judged, loss_split, queue_table
 from recorder.reading.reader import iter_messages, metadata, open_recording, parts, scenario_of
 from recorder.reading.trust import Gate, Skipped, derived_channels
 from recorder.recording.schemas import classify
@@ -164,6 +165,7 @@ class _Collected:
         self.subs: dict[tuple[int, int], list[tuple[int, list[float]]]] = {}  # (epoch, agent)
         self.ests: dict[int, dict[str, Any]] = {}
         self.verdicts: list[tuple[int, int, int, bool]] = []
+        self.judged: list[Judged] = []  # drops and queued packets of every link class
         self.recorded: dict[int, float | None] = {}  # None: no edge in the team
         self.poses: dict[tuple[int, int], tuple[float | None, int | None]] = {}  # unicycles
         self.ended: list[str] = []  # why a process ended the run (a plug-in failed)
@@ -197,6 +199,17 @@ class _Collected:
                 self.ended.append(f"{msg.sender}: {msg.detail.removeprefix(PLUGIN_FAILED)}")
         elif kind == "decision":
             for dec in msg.decisions:
+                if dec.verdict == "drop" or dec.queue is not None:
+                    self.judged.append(
+                        Judged(
+                            dec.epoch,
+                            dec.verdict,
+                            dec.model,
+                            dec.queue,
+                            dec.queue_depth,
+                            dec.sojourn_ms,
+                        )
+                    )
                 if dec.link_class == "formation":
                     on_time = dec.verdict in ("pass", "duplicate") and dec.delay_epochs == 0
                     self.verdicts.append((dec.epoch, dec.source, dec.target, on_time))
@@ -257,6 +270,13 @@ def read_run(path: Path, label: str | None = None) -> RunData:
     return _assemble(holder["scenario"], path, label, got, holder["meta"], gate.skipped)
 
 
+def _capacity(scenario: Scenario, judged: list[Judged], epochs: int) -> dict[str, Any]:
+    """``queues`` and ``losses`` (channel, queue, deadline) of a run with capacity queues."""
+    if not scenario.network.capacity:
+        return {}
+    return {"queues": queue_table(judged, epochs), "loss_split": loss_split(judged)}
+
+
 def _assemble(
     scenario: Scenario,
     path: Path,
@@ -299,6 +319,7 @@ def _assemble(
         decided=decided,
         source=str(path),
         extra={
+            **_capacity(scenario, got.judged, count),
             "recorded_formation_error": recorded_fe,
             "metadata": meta,
             "skipped": skipped,

@@ -90,6 +90,8 @@ def summarise(run: RunData) -> dict[str, Any]:
         out["skipped"] = skipped.as_json()
     if (timed := run.extra.get("deadlines")) is not None:
         out["deadlines"] = timed
+    if (queues := run.extra.get("queues")) is not None:  # capacity (docs/model.md §9)
+        out["queues"], out["loss_split"] = queues, run.extra["loss_split"]
     out.update(_team(run))
     out["safety"] = safety_counts(s, run.positions, run.headings, run.saturated)
     recorded = run.extra.get("recorded_formation_error")

@@ -22,6 +22,9 @@ from formation.errors import TestbedError
 from formation.scenario import Scenario
 from testbed.cli.arguments import DEFAULT_SCENARIO, load_checked, parse_strategies
 from testbed.cli.tables import print_table
+from testbed.experiments.capacity import CapacitySpec, run_capacity, run_capacity_real
+from testbed.experiments.capacity import critical_markdown as capacity_critical
+from testbed.experiments.capacity import write_outputs as write_capacity
 from testbed.experiments.executors import SCHEDULER_FORMS, executor_for
 from testbed.experiments.loss_variants import LOSS_MODELS
 from testbed.experiments.paper_run import run_paper
@@ -34,7 +37,7 @@ from testbed.experiments.wireless import (
     write_outputs,
 )
 
-EXPERIMENTS = ("paper", "wireless")
+EXPERIMENTS = ("paper", "wireless", "capacity")
 DEFAULT_TOPOLOGIES = ("ring8", "grid20", "octahedron3d")
 CHAPTER_STRATEGIES = ("zero", "hold", "estimate", "blend")
 
@@ -49,6 +52,8 @@ def cmd_experiment(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     if args.name == "wireless":
         return _wireless(args, scenario, out, tuple(seeds), console)
+    if args.name == "capacity":
+        return _capacity(args, scenario, out, tuple(seeds), console)
     result = run_paper(
         scenario,
         out,
@@ -88,6 +93,35 @@ def _wireless(
         console.print(
             f"real processes {row['case']}, {row['strategy']} seed {row['seed']}: "
             f"max |Δx| {row['max_diff']}, recorded {row['recorded_diff']}, match {row['match']}"
+        )
+    console.print(
+        f"wrote {out}/results.md, critical.md, runs.csv, phase.png "
+        f"({time.perf_counter() - started:.1f} s)"
+    )
+    return 0
+
+
+def _capacity(
+    args: argparse.Namespace, scenario: Scenario, out: Path, seeds: tuple[int, ...], console: Any
+) -> int:
+    """``formation experiment capacity``: success against the access point's and the radios'
+    capacity, the scenario and grid20, then one real run per strategy."""
+    started = time.perf_counter()
+    topologies = [(Path(args.scenario).stem, scenario)]
+    grid = Path(args.scenario).parent / "grid20.toml"
+    grid = grid if grid.exists() else Path("scenarios/grid20.toml")
+    if args.topology != "none" and grid.exists() and grid.stem != topologies[0][0]:
+        topologies.append((grid.stem, Scenario.from_file(grid)))
+    spec = CapacitySpec(tuple(topologies), seeds=seeds, epochs=args.epochs or 50)
+    result = run_capacity(spec, log=lambda m: console.print(m))
+    if not args.no_real:
+        run_capacity_real(result, out, record=not args.no_record, log=lambda m: console.print(m))
+    write_capacity(result, out)
+    Console().print(capacity_critical(result))
+    for row in result.real:
+        console.print(
+            f"real processes {row['strategy']} seed {row['seed']}: max |Δx| {row['max_diff']}, "
+            f"recorded {row['recorded_diff']}, match {row['match']}"
         )
     console.print(
         f"wrote {out}/results.md, critical.md, runs.csv, phase.png "
@@ -176,7 +210,8 @@ def register(sub: Any) -> None:
     p.add_argument(
         "name",
         choices=EXPERIMENTS,
-        help="which experiment (paper: docs/model.md §8; wireless: success against radio range)",
+        help="which experiment (paper: docs/model.md §8; wireless: success against radio range; "
+        "capacity: success against the access point's and the radios' capacity, §9)",
     )
     p.add_argument(
         "--scenario", default=DEFAULT_SCENARIO, help="scenario TOML (default: the paper's)"
@@ -186,7 +221,14 @@ def register(sub: Any) -> None:
     p.add_argument("--out", help="output folder (default experiments/NAME)")
     p.add_argument("--no-real", action="store_true", help="skip the runs through real processes")
     p.add_argument("--no-record", action="store_true", help="real processes without the recorder")
-    p.add_argument("--epochs", type=int, help="wireless: epochs per run (default 100)")
+    p.add_argument(
+        "--epochs", type=int, help="epochs per run (wireless: default 100; capacity: 50)"
+    )
+    p.add_argument(
+        "--topology",
+        default="grid20",
+        help="capacity: also grid20 beside SCENARIO (default), or none",
+    )
     p.set_defaults(func=cmd_experiment)
 
     p = sub.add_parser("sweep", help="critical loss rate per strategy and topology")

@@ -37,6 +37,30 @@ def parse_models(words: list[str]) -> list[dict[str, Any]]:
     return models
 
 
+def queue_request(target: str, models: list[dict[str, Any]]) -> dict[str, Any]:
+    """``3->0`` / ``radio:3`` / ``medium:ap`` and ``rate NAME=VALUE ...`` as a capacity entry."""
+    if len(models) != 1:
+        raise TestbedError(
+            "rate takes no other model: formation netem set 3->0 rate rate_bps=64000"
+        )
+    params = {k: v for k, v in models[0].items() if k != "model"}
+    scope, _, name = target.partition(":")
+    if scope == "radio" and name:
+        try:
+            return {"scope": "radio", "agent": int(name), **params}
+        except ValueError:
+            raise TestbedError(f"{target!r}: expected radio:AGENT, e.g. radio:3") from None
+    if scope == "medium" and name:
+        return {"scope": "medium", "medium": name, "links": "all", **params}
+    try:
+        src, dst = (int(e) for e in target.split("->"))
+    except ValueError:
+        raise TestbedError(
+            f"{target!r}: expected SRC->DST (0 is the leader), radio:AGENT or medium:NAME"
+        ) from None
+    return {"scope": "link", "link": [src, dst], **params}
+
+
 def find_run(args: argparse.Namespace) -> tuple[str, str]:
     """The run id and endpoint: from flags, or the newest run under ``--runs-dir`` that has a pids.json."""
     if args.run_id and args.connect:
@@ -89,9 +113,16 @@ def cmd_netem(args: argparse.Namespace) -> int:
         return 0
     if not args.link or not args.model:
         raise TestbedError("usage: formation netem set LINK MODEL [NAME=VALUE ...] [+ MODEL ...]")
-    answer = ask(
-        run_id, endpoint, {"op": "set", "link": args.link, "models": parse_models(args.model)}
-    )
+    specs = parse_models(args.model)
+    if specs[0]["model"] == "rate":  # a capacity queue (docs/model.md §9)
+        answer = ask(run_id, endpoint, {"op": "capacity", "queue": queue_request(args.link, specs)})
+        if not answer.get("ok"):
+            raise TestbedError(f"netem refused the change: {answer.get('error')}")
+        console.print(
+            f"{answer['queue']} ({answer['links']} links): new rate from epoch {answer['from_epoch']}"
+        )
+        return 0
+    answer = ask(run_id, endpoint, {"op": "set", "link": args.link, "models": specs})
     if not answer.get("ok"):
         raise TestbedError(f"netem refused the change: {answer.get('error')}")
     console.print(
@@ -103,11 +134,16 @@ def cmd_netem(args: argparse.Namespace) -> int:
 def register(sub: Any) -> None:
     p = sub.add_parser("netem", help="show or change a running run's link models")
     p.add_argument("action", choices=["show", "set"])
-    p.add_argument("link", nargs="?", help="SRC->DST, e.g. 1->2 (0 is the leader)")
+    p.add_argument(
+        "link",
+        nargs="?",
+        help="SRC->DST, e.g. 1->2 (0 is the leader); with rate also radio:AGENT or medium:NAME",
+    )
     p.add_argument(
         "model",
         nargs="*",
-        help="e.g. bernoulli p_loss=0.3, or outage start=0 + bernoulli p_loss=0.1",
+        help="e.g. bernoulli p_loss=0.3, or outage start=0 + bernoulli p_loss=0.1, or a queue's "
+        "rate rate_bps=64000 limit_packets=4",
     )
     p.add_argument("--runs-dir", default="runs")
     p.add_argument("--run-id")

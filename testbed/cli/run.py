@@ -185,7 +185,14 @@ def _print_summary(outcomes: list[Any], console: Console) -> None:
         table.add_row(*row)
     print_table(table, console)
     for o in outcomes:
-        for line in deadline_notes(o.strategy, o.summary()):
+        s = o.summary()
+        if "loss_split" in s:  # capacity queues (docs/model.md §9)
+            lost = s["loss_split"]
+            console.print(
+                f"{o.strategy}: losses {lost['channel']} channel, {lost['queue']} queue (full), "
+                f"{lost['deadline']} deadline (left a queue late)"
+            )
+        for line in deadline_notes(o.strategy, s):
             console.print(line)
 
 

@@ -273,8 +273,9 @@ def plot_range_phase(
     strategies: Sequence[str],
     threshold_m: float,
     path: Path,
+    xlabel: str = "radio range d50 / longest edge",
 ) -> Path:
-    """Success fraction over radio range × strategy, one panel per controller case.
+    """Success fraction over radio range (or ``xlabel``'s axis) × strategy, one panel per case.
 
     ``success[(case, strategy)]`` : (R,) fraction of seeds kept at each of ``ranges`` (multiples
     of the longest edge); ``critical`` the least range from which every larger one keeps
@@ -305,7 +306,7 @@ def plot_range_phase(
         ax.axvline(1.0, color="0.8", lw=0.8, ls="--")  # below: the longest links out of range
         ax.set_yticks(range(len(strategies)), list(strategies))
         ax.set_title(case, fontsize=9)
-        ax.set_xlabel("radio range d50 / longest edge")
+        ax.set_xlabel(xlabel, fontsize=8)
     if image is not None:
         fig.colorbar(
             image,

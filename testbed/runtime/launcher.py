@@ -24,7 +24,15 @@ import zenoh
 from formation import RuntimeFailure, deadline_counts, realtime_accounting
 from formation.errors import RunEnded
 from formation.scenario import Scenario, StrategyName
-from recorder import RunData, formation_error, present, shape_error, spans, summarise
+from recorder import (
+    RunData,
+    formation_error,
+    loss_split,
+    present,
+    shape_error,
+    spans,
+    summarise,
+)
 from shell import session_config
 from testbed.runtime import steal
 from testbed.runtime.events import EventDriver, bodies
@@ -141,6 +149,7 @@ class RunOutcome:
             "packets_sent": sum(s for s, _ in drops.values()),
             "packets_dropped": sum(d for _, d in drops.values()),
             "dropped_links": {k: v for k, v in drops.items() if v[1]},
+            **self.capacity_losses(),
             "malformed": self.malformed,
             "mode": self.scenario.runtime.mode,
             "deadline": self.extra.get("deadline", {}),
@@ -150,6 +159,12 @@ class RunOutcome:
             "wall_s": self.wall_s,
             **self.faults_summary(),
         }
+
+    def capacity_losses(self) -> dict[str, Any]:
+        """With capacity queues: the drops split into channel, queue and deadline losses."""
+        if not self.scenario.network.capacity:
+            return {}
+        return {"loss_split": loss_split(self.decisions)}
 
     def faults_summary(self) -> dict[str, Any]:
         """Who died, when and whether it came back, and who was in the team at each epoch

@@ -27,6 +27,7 @@ class Verdict(NamedTuple):
     epoch: int
     seq: int
     verdict: str
+    model: str = ""  # what dropped it: a link model, or a queue's reason (queue_full, ...)
 
 
 class Observer:
@@ -112,7 +113,13 @@ class Observer:
         try:
             rows = [
                 Verdict(
-                    d["source"], d["target"], d["link_class"], d["epoch"], d["seq"], d["verdict"]
+                    d["source"],
+                    d["target"],
+                    d["link_class"],
+                    d["epoch"],
+                    d["seq"],
+                    d["verdict"],
+                    d.get("model", ""),
                 )
                 for d in orjson.loads(sample.payload.to_bytes())["decisions"]
             ]

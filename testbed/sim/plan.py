@@ -23,7 +23,7 @@ from agent import measurement_noise
 from formation.errors import TestbedError
 from formation.events import Membership, membership
 from formation.scenario import LEADER_ENDPOINT, Scenario
-from netem import DeliveryPlan, delivery_plan
+from netem import DeliveryPlan, capacity_plan, delivery_plan
 
 Mask = npt.NDArray[np.bool_]
 Ints = npt.NDArray[np.int64]
@@ -118,6 +118,26 @@ class BatchPlan:
         )
 
 
+def _capacity_supported(b: int, s: Scenario, decided: DeliveryPlan) -> None:
+    """Refuse what the simulator's capacity queues do not model yet (netem's lockstep does)."""
+    if decided.ranged:
+        raise BatchError(
+            f"member {b} ({s.name}): network.capacity with distance models is not simulated "
+            "yet; run it with `formation run` (lockstep)"
+        )
+
+
+def _offered(passed: Mask, present: Mask | None, links: Ints, n: int) -> Mask:
+    """(E, L + 2n) the packets the queues see: passed by the models, between agents taking
+    part (netem's lockstep neither sends nor routes the others: issue 20's events)."""
+    if present is None:
+        return passed
+    on = np.concatenate(
+        [present[:, links[:, 0] - 1] & present[:, links[:, 1] - 1], present, present], axis=1
+    )
+    return np.asarray(passed & on, dtype=np.bool_)
+
+
 def _structure(s: Scenario) -> dict[str, Any]:
     data = s.model_dump()
     for key in VARIANT_FIELDS:
@@ -178,6 +198,7 @@ def plan_batch(
     on_time = np.zeros((n_epochs, size, n_links), dtype=bool)
     report_ok = np.zeros((n_epochs, size, n), dtype=bool)
     estimate_ok = np.zeros((n_epochs, size, n), dtype=bool)
+    team_k = membership(n, n_epochs, base.events).present[:n_epochs] if base.events else None
     late_k: list[Ints] = []
     late_flat: list[Ints] = []
     late_sent: list[Ints] = []
@@ -200,8 +221,14 @@ def plan_batch(
             decided = delivery_plan(stacks[net], seed, all_links, n_epochs)
             mat = decided.base
             ok = mat.delivered & (mat.delay_epochs == 0)
+            delivered_all = mat.delivered
+            if s.network.capacity:  # the queues see what the models passed, delayed or not
+                _capacity_supported(b, s, decided)
+                offered = _offered(mat.delivered, team_k, links, n)
+                delivered_all = mat.delivered & (capacity_plan(s, offered, all_links) == 0)
+                ok = ok & delivered_all
             cache[key] = (
-                mat.delivered[:, :n_links],
+                delivered_all[:, :n_links],
                 mat.delay_epochs[:, :n_links],
                 ok,
                 decided if decided.ranged else None,

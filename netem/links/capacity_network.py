@@ -1,0 +1,321 @@
+"""A scenario's capacity queues over a run's phases, in virtual time (docs/model.md §9).
+
+Each epoch ``k`` has three phases (``formation.deadlines.PHASES``): states from ``k T``,
+reports from ``(k + 0.20) T``, estimates from ``(k + 0.60) T``, each due by its deadline
+(``0.20``, ``0.60``, ``0.85`` of the period ``T``), as the realtime mode's. Every packet of
+a phase that its link's loss models passed arrives at its queues at the phase's start, in
+the order of its link ``(src, dst)``; it goes through its link's queue, then its sender's
+radio, then its medium (``formation.capacity.queues_of``), each a
+:func:`netem.links.capacity.serve` carrying its state from phase to phase. A packet one of
+them refuses is ``queue_full`` (or ``oversize``); one leaving the last after the phase's
+deadline is ``queue_late``.
+
+netem's lockstep and the simulator call :meth:`CapacityNetwork.phase` with the same packets
+(sizes from ``formation.wire_size``) in the same (epoch, phase) order, so they drop the
+same ones, bit for bit.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+from formation.capacity import LEADER_END, Capacity, Link, all_links, members, queues_of
+from formation.deadlines import PHASES
+from formation.scenario import Scenario
+from formation.wire_size import Kind, WireSizes
+from netem.links.capacity import (
+    PASSED,
+    QUEUE_LATE,
+    REASONS,
+    QueueParams,
+    QueueState,
+    serve_packets,
+)
+from netem.links.layer import LinkModelError
+
+PHASE_ORDER = {"state": 0, "report": 1, "estimate": 2}
+
+
+class QueueVerdict(NamedTuple):
+    """One packet's fate in the queues: ``reason`` (``""``: passed in time), the queue that
+    decided, its depth then [packets] and the packet's time in the queues [ms]."""
+
+    reason: str
+    queue: str
+    depth: int
+    sojourn_ms: float
+
+    @property
+    def passed(self) -> bool:
+        return not self.reason
+
+
+def params_of(c: Capacity) -> QueueParams:
+    """The core's parameters of a scenario's capacity entry."""
+    return QueueParams(
+        rate_bps=c.rate_bps,
+        burst_bytes=c.burst_bytes,
+        limit_packets=c.limit_packets,
+        limit_bytes=c.limit_bytes,
+        overhead_bytes=c.overhead_bytes,
+        policy=c.policy,
+    )
+
+
+class CapacityNetwork:
+    """The queues of one run (one seed): their parameters, which links they serve, their state."""
+
+    def __init__(
+        self,
+        capacities: Sequence[Capacity],
+        n: int,
+        formation_links: Sequence[Sequence[int]],
+        period_s: float,
+    ) -> None:
+        self.capacities = list(capacities)
+        self.params = [params_of(c) for c in capacities]
+        self.names = [c.name for c in capacities]
+        self.links = all_links(n, formation_links)
+        self.by_link = queues_of(self.capacities, self.links)
+        self.phases = _phases(self.by_link)  # the phases whose packets cross a queue
+        self.period_s = period_s
+        self.states: list[QueueState | None] = [None] * len(capacities)
+        self.since = [0] * len(capacities)  # the epoch from which each queue serves
+        self._changes: list[tuple[int, int, QueueParams]] = []  # (from epoch, queue, params)
+        self._last = (-1, -1)  # (epoch, phase) of the last call
+
+    def constrained(self, link: Link, epoch: int = 0) -> bool:
+        """Does a queue serve ``link`` at ``epoch``?"""
+        return any(self.since[k] <= epoch for k in self.by_link.get(link, ()))
+
+    def change(self, capacity: Capacity, from_epoch: int) -> list[Link]:
+        """``capacity``'s queue (the one of its scope and target, or a new link queue) takes its
+        parameters from ``from_epoch`` on (all of them, as ``tc qdisc change``: an unnamed one
+        takes its default), its links and state kept; returns the links it serves.
+
+        A radio or medium the scenario has no queue for is refused (``ValueError``): those
+        name sets of links the scenario defines.
+        """
+        k = next((q for q, c in enumerate(self.capacities) if c.name == capacity.name), None)
+        if k is None:
+            if capacity.scope != "link":
+                raise ValueError(
+                    f"{capacity.name}: no such queue in the scenario's network.capacity"
+                )
+            served = members(capacity, self.links)
+            if not served or served[0] not in self.links["all"]:
+                raise ValueError(f"{capacity.name}: no such link in the scenario")
+            k = len(self.capacities)
+            self.capacities.append(capacity)
+            self.params.append(params_of(capacity))
+            self.names.append(capacity.name)
+            self.states.append(None)
+            self.since.append(from_epoch)
+            self.by_link = queues_of(self.capacities, self.links)
+            self.phases = _phases(self.by_link)
+        else:  # the queue keeps its links; its parameters are all replaced, as tc's
+            tc = (
+                "rate_bps",
+                "burst_bytes",
+                "limit_packets",
+                "limit_bytes",
+                "overhead_bytes",
+                "policy",
+            )
+            capacity = self.capacities[k].model_copy(update={f: getattr(capacity, f) for f in tc})
+            self._changes.append((from_epoch, k, params_of(capacity)))
+            self.capacities[k] = capacity
+        return members(capacity, self.links)
+
+    def _apply_changes(self, epoch: int) -> None:
+        """The parameter changes due by ``epoch`` (:meth:`change`)."""
+        if self._changes:
+            for change in [c for c in self._changes if c[0] <= epoch]:
+                self.params[change[1]] = change[2]
+                self._changes.remove(change)
+
+    def arrive(
+        self, link: Link, payload_bytes: int, now_s: float, epoch: int, deadline_s: float
+    ) -> tuple[QueueVerdict, float]:
+        """Realtime: one packet of ``epoch`` at ``now_s`` [s since the clock's start] through its
+        queues, decided at once; its verdict and when it leaves the last [s] (NaN: dropped).
+
+        Packets come one at a time as they arrive, so each queue is FIFO in the order netem
+        handles them, and a packet is committed once it joined (``oldest`` pushes out none).
+        """
+        self._apply_changes(epoch)
+        t, depth, name = now_s, 0, ""
+        for k in self.by_link.get(link, ()):
+            if self.since[k] > epoch:
+                continue
+            params = self.params[k]
+            run = serve_packets(
+                params, [t], [payload_bytes + params.overhead_bytes], state=self.states[k]
+            )
+            self.states[k] = run.state
+            name, depth = self.names[k], run.depth[0]
+            if run.reason[0] != PASSED:
+                return QueueVerdict(
+                    REASONS[run.reason[0]], name, depth, 1e3 * (t - now_s)
+                ), math.nan
+            t = run.departure_s[0]
+        reason = REASONS[QUEUE_LATE] if t > deadline_s else ""
+        return QueueVerdict(reason, name, depth, 1e3 * (t - now_s)), t
+
+    def phase(
+        self, epoch: int, phase: str, packets: Sequence[tuple[Link, int]]
+    ) -> list[QueueVerdict]:
+        """The fates of one phase's packets ``(link, payload bytes)`` that the models passed.
+
+        Calls come in (epoch, phase) order; packets of a link no queue serves pass.
+        """
+        at = (epoch, PHASE_ORDER[phase])
+        if at <= self._last:
+            raise LinkModelError(
+                "capacity", f"{phase} of epoch {epoch} after {self._last}: phases go in order"
+            )
+        self._last = at
+        self._apply_changes(epoch)
+        start, deadline = PHASES[phase]
+        t0 = (epoch + start) * self.period_s  # [s]
+        due = (epoch + deadline) * self.period_s
+        n = len(packets)
+        by_link = self.by_link
+        if any(self.since):  # a queue added while running serves from its epoch on
+            by_link = {
+                lk: tuple(k for k in ks if self.since[k] <= epoch) for lk, ks in by_link.items()
+            }
+        # (link, index, its queues) of the packets a queue serves, in link order
+        alive = sorted(
+            (link, i, qs) for i, (link, _) in enumerate(packets) if (qs := by_link.get(link))
+        )
+        time = [t0] * n
+        out = [_NONE] * n
+        last: dict[int, tuple[str, int]] = {}  # packet → (its last queue, its depth there)
+        for stage in range(max((len(qs) for _, _, qs in alive), default=0)):
+            groups: dict[int, list[int]] = {}
+            for _, i, qs in alive:
+                if stage < len(qs):
+                    groups.setdefault(qs[stage], []).append(i)
+            for q in sorted(groups):
+                members = groups[q]
+                if stage:  # in the order they reach it; stable: link order on ties
+                    members.sort(key=time.__getitem__)
+                params = self.params[q]
+                extra = params.overhead_bytes
+                run = serve_packets(
+                    params,
+                    [time[i] for i in members],
+                    [packets[i][1] + extra for i in members],
+                    state=self.states[q],
+                )
+                self.states[q] = run.state
+                name = self.names[q]
+                for m, i in enumerate(members):
+                    if run.reason[m] == PASSED:
+                        time[i] = run.departure_s[m]
+                        last[i] = (name, run.depth[m])
+                    else:
+                        sojourn_ms = 1e3 * (time[i] - t0 + run.sojourn_s[m])
+                        out[i] = QueueVerdict(
+                            REASONS[run.reason[m]], name, run.depth[m], sojourn_ms
+                        )
+            alive = [p for p in alive if out[p[1]] is _NONE]  # dropped here: no further
+        late = REASONS[QUEUE_LATE]
+        for _, i, _ in alive:
+            name, depth = last[i]
+            out[i] = QueueVerdict(late if time[i] > due else "", name, depth, 1e3 * (time[i] - t0))
+        return out
+
+
+_NONE = QueueVerdict("", "", 0, 0.0)  # no queue serves the packet's link
+
+
+def _phases(by_link: dict[Link, tuple[int, ...]]) -> frozenset[str]:
+    return frozenset(packet_kind(link)[0] for link in by_link)
+
+
+def packet_kind(link: Link) -> tuple[Kind, int]:
+    """Which packet a link carries, and whose: a state (its sender's), a report, an estimate."""
+    src, dst = link
+    if dst == LEADER_END:
+        return "report", src
+    if src == LEADER_END:
+        return "estimate", dst
+    return "state", src
+
+
+def network_of(scenario: Scenario) -> CapacityNetwork:
+    """The queues of ``scenario``'s ``network.capacity``, over its lockstep period."""
+    return CapacityNetwork(
+        scenario.network.capacity,
+        scenario.n,
+        scenario.directed_links.tolist(),
+        scenario.control.period_s,
+    )
+
+
+def capacity_plan(
+    scenario: Scenario, passed: npt.NDArray[np.bool_], links: npt.NDArray[np.int64]
+) -> npt.NDArray[np.int8]:
+    """Every epoch's queue verdicts, for packets the models passed.
+
+    Parameters
+    ----------
+    scenario : with ``network.capacity``
+    passed : (E, L) the models passed link ``l``'s packet of epoch ``k``
+    links : (L, 2) ``(src, dst)`` of each column; ``0`` is the leader's end
+
+    Returns
+    -------
+    (E, L) int8: an index into ``netem.links.capacity.REASONS`` (0 where the queues passed the
+    packet in time or had none to judge).
+    """
+    net = network_of(scenario)
+    sizes = WireSizes(scenario)
+    pairs = [(int(a), int(b)) for a, b in links.tolist()]
+    kinds = [packet_kind(lk) for lk in pairs]
+    code = {name: k for k, name in enumerate(REASONS)}
+    # per phase, the columns a queue serves (no queue changes in a plan: netem's are live)
+    served = {
+        phase: np.array(
+            [c for c, lk in enumerate(pairs) if kinds[c][0] == phase and net.constrained(lk)],
+            dtype=np.int64,
+        )
+        for phase in PHASE_ORDER
+    }
+    out = np.zeros(passed.shape, dtype=np.int8)
+    known: dict[tuple[int, int], int] = {}  # (column, digits of the epoch) → payload [B]
+    for k in range(passed.shape[0]):
+        digits = len(str(k))
+        for phase, cols_all in served.items():
+            cols = cols_all[passed[k, cols_all]].tolist() if cols_all.size else []
+            if not cols:
+                continue
+            packets = []
+            for c in cols:
+                size = known.get((c, digits))
+                if size is None:
+                    kind, agent = kinds[c]
+                    size = known[(c, digits)] = sizes.payload_bytes(kind, agent, k)
+                packets.append((pairs[c], size))
+            for c, v in zip(cols, net.phase(k, phase, packets), strict=True):
+                if v.reason:
+                    out[k, c] = code[v.reason]
+    return out
+
+
+__all__ = [
+    "PHASE_ORDER",
+    "CapacityNetwork",
+    "QueueVerdict",
+    "capacity_plan",
+    "network_of",
+    "packet_kind",
+    "params_of",
+]

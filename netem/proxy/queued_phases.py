@@ -1,0 +1,75 @@
+"""Lockstep packets on capacity queues: held until their phase's are all in, then judged together.
+
+A queue serves a phase's packets in the order of their links, at the phase's start in
+virtual time (docs/model.md §9), so none can be judged before every packet of its phase is
+in, and phases must be judged in virtual-time order: states, reports, estimates, the next
+epoch's states. :class:`QueuedPhases` holds what the models passed onto a queue and turns
+each complete phase into decisions; :class:`netem.proxy.lockstep.Lockstep` decides when a
+phase is complete (its receivers' open epochs) and applies them.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from formation.scenario import LEADER_ENDPOINT
+from formation.wire_size import WireSizes
+from netem.links.capacity_network import PHASE_ORDER, CapacityNetwork, packet_kind
+from netem.links.layer_stack import Outcome
+from netem.proxy.records import Queued, queued
+from netem.proxy.routes import Link, Phase
+
+PHASES: tuple[Phase, ...] = ("state", "report", "estimate")  # in virtual time
+Held = tuple[Link, int, Any, Outcome]  # (link, seq, payload, the model's decision)
+
+
+class QueuedPhases:
+    """The packets held for a run's queues, by (phase, epoch)."""
+
+    def __init__(self, queues: CapacityNetwork, sizes: WireSizes, agents: list[int]) -> None:
+        self.queues, self.sizes, self.agents = queues, sizes, agents
+        self.held: dict[tuple[Phase, int], list[Held]] = {}
+
+    def __bool__(self) -> bool:
+        return bool(self.held)
+
+    def __contains__(self, key: tuple[Phase, int]) -> bool:
+        return key in self.held
+
+    def takes(self, link: Link, epoch: int) -> bool:
+        """Does a queue serve ``link`` at ``epoch``?"""
+        return self.queues.constrained((link[1], link[2]), epoch)
+
+    def hold(self, phase: Phase, epoch: int, held: Held) -> None:
+        self.held.setdefault((phase, epoch), []).append(held)
+
+    def receivers(self, phase: Phase) -> list[int]:
+        return [LEADER_ENDPOINT] if phase == "report" else self.agents
+
+    def earlier(self, phase: Phase, epoch: int) -> list[tuple[Phase, int]]:
+        """The phases just before ``epoch`` of ``phase`` in virtual time whose packets cross a
+        queue (the others cannot come out of turn)."""
+        before: list[tuple[Phase, int]] = [(p, epoch) for p in PHASES[: PHASE_ORDER[phase]]]
+        if epoch > 0:
+            before.append(("estimate", epoch - 1))
+        return [(p, e) for p, e in before if p in self.queues.phases]
+
+    def judge(self, phase: Phase, epoch: int) -> list[tuple[Link, int, Any, Queued]]:
+        """The held packets of ``epoch`` of ``phase`` through their queues, their decisions."""
+        held = self.held.pop((phase, epoch))
+        packets = [
+            ((src, dst), self.sizes.payload_bytes(*packet_kind((src, dst)), epoch))
+            for (_, src, dst), _, _, _ in held
+        ]
+        verdicts = self.queues.phase(epoch, phase, packets)
+        return [
+            (link, seq, payload, queued(d, v.reason, v.queue, v.depth, v.sojourn_ms))
+            for (link, seq, payload, d), v in zip(held, verdicts, strict=True)
+        ]
+
+    def waiting(self) -> list[tuple[Phase, int]]:
+        """The phases still held, in virtual-time order."""
+        return sorted(self.held, key=lambda pe: (pe[1], PHASE_ORDER[pe[0]]))
+
+
+__all__ = ["PHASES", "Held", "QueuedPhases"]

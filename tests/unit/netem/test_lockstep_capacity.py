@@ -1,0 +1,102 @@
+"""netem's lockstep with capacity queues, without a network: a phase's packets are judged
+together once all are in, whatever order they came in, and deaths do not hold a phase."""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import Any
+
+import numpy as np
+
+from formation.scenario import Scenario
+from netem.links.capacity import REASONS
+from netem.links.capacity_network import capacity_plan
+from netem.proxy.lockstep import Lockstep
+from netem.proxy.progress import Progress
+from netem.proxy.records import Ledger
+from netem.proxy.routes import Links, Route
+from testkit.lockstep_wire import Wire, receivers
+
+CAPACITY: list[dict[str, Any]] = [
+    {"scope": "medium", "medium": "ap", "links": "control", "rate_bps": 25_000.0,
+     "limit_packets": 4},
+    {"scope": "radio", "agent": 3, "rate_bps": 30_000.0, "limit_packets": 2, "policy": "oldest"},
+    {"scope": "link", "link": [2, 4], "rate_bps": 9_000.0, "burst_bytes": 400},
+]  # fmt: skip
+
+
+def constrained(paper: Scenario, epochs: int) -> Scenario:
+    lossy = {"model": "bernoulli", "p_loss": 0.1}
+    network = {"formation_default": [lossy], "control_default": [lossy], "capacity": CAPACITY}
+    return paper.with_overrides(epochs=epochs, network=network)
+
+
+def lockstep(scenario: Scenario, seed: int) -> tuple[Lockstep, Wire]:
+    links, wire = Links(scenario, seed), Wire(receivers(scenario))
+    core = Lockstep(links, scenario.epochs, Progress(links.agents, scenario.epochs, lambda: None),
+                    Ledger(), wire)  # fmt: skip
+    core.setup_clean()
+    return core, wire
+
+
+def test_any_arrival_order_gives_the_simulators_queue_verdicts(paper: Scenario, seed: int) -> None:
+    scenario = constrained(paper, 40)
+    core, wire = lockstep(scenario, seed)
+    assert not core.clean  # every packet takes the full path
+    rng = np.random.default_rng(seed)
+    agents = list(range(1, scenario.n + 1))
+    for k in range(scenario.epochs):
+        first: list[Route] = [("state", i, 0) for i in agents] + [("report", i, 0) for i in agents]
+        for n in rng.permutation(len(first)):
+            core.packet(first[n], k, k, b"{}")
+        for i in rng.permutation(agents):
+            core.packet(("estimate", 0, int(i)), k, k, b"{}")
+    closes = Counter((d.phase, d.receiver, d.epoch) for d in wire.deliveries)
+    assert set(closes.values()) == {1}
+    assert len(closes) == sum(len(r) for r in wire.receivers.values()) * scenario.epochs
+    assert not wire.early
+    # the queues' verdicts are those of the plan the simulator draws, packet for packet
+    links = np.concatenate(
+        [scenario.directed_links, [[i, 0] for i in agents], [[0, i] for i in agents]]
+    )
+    models = core.links.models
+    cls = ["formation"] * len(scenario.directed_links) + ["report"] * 5 + ["estimate"] * 5
+    passed = np.array(
+        [[models[(c, int(a), int(b))].decide(k).delivered for c, (a, b) in zip(cls, links, strict=True)]
+         for k in range(scenario.epochs)]
+    )  # fmt: skip
+    codes = capacity_plan(scenario, passed, links)
+    got = {(d.source, d.target, d.epoch): d for d in wire.decisions}
+    queues = core.links.capacity
+    assert queues is not None
+    assert len(got) == passed.size
+    for k in range(scenario.epochs):
+        for c, (a, b) in enumerate(links.tolist()):
+            d = got[(a, b, k)]
+            want = REASONS[codes[k, c]] if passed[k, c] else None
+            if want is None:
+                assert d.verdict == "drop" and d.model == "bernoulli"
+            elif want:
+                assert (d.verdict, d.model) == ("drop", want), (a, b, k)
+            else:
+                assert d.verdict == "pass"
+                assert (d.queue is not None) == queues.constrained((a, b))
+    reasons = Counter(d.model for d in wire.decisions if d.verdict == "drop")
+    assert reasons["queue_full"] and reasons["queue_late"] and reasons["bernoulli"]
+
+
+def test_a_sender_dying_mid_phase_does_not_hold_its_queues(paper: Scenario, seed: int) -> None:
+    scenario = constrained(paper, 6)
+    core, wire = lockstep(scenario, seed)
+    for i in (1, 2, 4):  # agent 3's state of epoch 0 never comes, nor 5's
+        core.packet(("state", i, 0), 0, 0, b"{}")
+    core.packet(("state", 5, 0), 0, 0, b"{}")
+    held = {d.receiver for d in wire.deliveries}
+    assert held <= {r for r in range(1, 6) if 3 not in core.links.in_links[r]}
+    core.sender_died(3)
+    closes = Counter((d.phase, d.receiver) for d in wire.deliveries if d.epoch == 0)
+    assert closes == {("state", r): 1 for r in range(1, 6)}  # its own too, as without queues
+    for d in wire.deliveries:
+        if 3 in core.links.in_links[d.receiver]:
+            assert d.dead == [3]
+    assert not core.queued  # judged, nothing left waiting
