@@ -19,6 +19,7 @@ import tomli_w
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from formation._error_paths import loc_path, lookup
+from formation.body import Body, body_problems
 from formation.errors import NO_VALUE, ScenarioError
 from formation.events import Event, Membership, event_problems, membership
 from formation.graph import (
@@ -199,6 +200,7 @@ class Scenario(_Model):
     network: Network = Network()
     runtime: Runtime = Runtime()
     recording: RecordingSettings = RecordingSettings()
+    body: Body = Body()  # where the agents' bodies are (formation.body)
     safety: Safety = Safety()
     events: tuple[Event, ...] = ()  # leave, join, crash, restart (formation.events)
 
@@ -437,6 +439,9 @@ def _problems(s: Scenario) -> list[tuple[str, object, str]]:
     events = event_problems(n, s.leader, s.epochs, pairs, s.events, s.allow_split)
     if events:
         return events
+    body = body_problems(s.body, n, s.control.dynamics)
+    if body:
+        return body
     return robot_problems(
         s.dimension,
         s.control.dynamics,
