@@ -140,3 +140,29 @@ def reference_heading(heading: Array, step_m: Array) -> Array:
     return np.asarray(
         np.where(moving, np.arctan2(step_m[..., 1], step_m[..., 0]), heading), dtype=np.float64
     )
+
+
+def held_velocity_step(x: Array, velocity: Array, period_s: float) -> Array:
+    """A holonomic body that holds ``velocity`` for ``period_s``: :func:`step_single` with
+    no consensus increment and the velocity as its feed-forward, ``x + T u``.
+
+    x : (a, d) [m]; velocity : (a, d) [m/s]. What a velocity-driven robot does with one
+    ``Twist``, and what the ROS 2 plant integrates (docs/robots.md).
+    """
+    return step_single(x, np.zeros_like(x), velocity, period_s)
+
+
+def body_velocity(x: Array, x_next: Array, period_s: float) -> Array:
+    """The velocity a robot is sent to take it from ``x`` to ``x_next`` in one period,
+    ``(x_next − x) / T``: (a, d) [m/s]."""
+    return (x_next - x) / period_s
+
+
+def body_step(x: Array, x_next: Array, period_s: float) -> Array:
+    """Where a velocity-driven robot sent toward ``x_next`` is after one period: (a, d) [m].
+
+    ``x + T ((x_next − x) / T)``, which differs from ``x_next`` in the last bits; the
+    simulator moves an agent whose body is a robot by this (docs/robots.md), so that a run
+    through the stepped ROS 2 plant equals it to the bit.
+    """
+    return held_velocity_step(x, body_velocity(x, x_next, period_s), period_s)
