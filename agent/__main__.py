@@ -6,10 +6,21 @@ import json
 import logging
 import sys
 
+from agent.body import RobotBodies
 from agent.node import WATCH_S, AgentNode
 from formation.errors import TestbedError
 from formation.scenario import STRATEGIES
-from shell import Service, load_scenario, open_service, serve, service_parser, time_policy
+from shell import (
+    Service,
+    load_scenario,
+    open_service,
+    require_ros2,
+    serve,
+    service_parser,
+    time_policy,
+)
+
+log = logging.getLogger("agent")
 
 
 def parse_ids(text: str, n: int) -> list[int]:
@@ -27,6 +38,15 @@ def parse_ids(text: str, n: int) -> list[int]:
     return ids
 
 
+def check_body(kind: str, pose_type: str) -> None:
+    """A body this build can drive, with its packages installed; else a clear error."""
+    if kind == "rmw_zenoh":
+        raise TestbedError(
+            "body.kind = 'rmw_zenoh': rmw_zenoh's wire format is not built yet; use kind = 'ros2'"
+        )
+    require_ros2("body.kind = 'ros2'", pose_type)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = service_parser("python -m agent", __doc__)
     p.add_argument("--id", "--ids", dest="ids", required=True, help="agent id, or ids for a pool")
@@ -37,18 +57,23 @@ def main(argv: list[str] | None = None) -> int:
     try:
         scenario = load_scenario(args)
         ids = parse_ids(args.ids, scenario.n)
+        robots = [i for i in ids if scenario.body.has_robot(i)]
+        if robots:
+            check_body(scenario.body.kind, scenario.body.pose_type)
     except TestbedError as exc:
         print(f"agent: error: {exc}", file=sys.stderr)
         return 1
     role, ident = ("agent", ids[0]) if len(ids) == 1 else ("pool", ids[0])
 
     def body(service: Service) -> int:
+        bodies = RobotBodies(scenario, ids, f"formation_{role}_{ident}") if robots else None
         node = AgentNode(
             service,
             scenario,
             ids,
             args.strategy or scenario.strategy.name,
             scenario.seed if args.seed is None else args.seed,
+            bodies,
         )
         # Restarted into a running run, or joining it later (a scenario event): ask netem.
         joins = not scenario.membership.present[0, [i - 1 for i in ids]].all()
@@ -62,6 +87,9 @@ def main(argv: list[str] | None = None) -> int:
         service.status("done" if code == 0 else "error", node.runner.epoch, detail)
         if code == 0:
             node.confirm_final()
+        if bodies is not None:
+            log.info("body: %s", bodies.counts)
+            bodies.close()
         return code
 
     return serve("agent", lambda: open_service(args, role, ident), body)

@@ -20,6 +20,8 @@ from typing import Any
 
 import orjson
 
+from agent.body import FIRST_POSE_S, RobotBodies
+from agent.control import body_velocity
 from agent.runner import AgentRunner, Estimate, Packet, Report
 from formation import keys
 from formation.codec import attachment
@@ -96,8 +98,10 @@ class AgentNode:
         ids: list[int],
         strategy: StrategyName,
         seed: int,
+        bodies: RobotBodies | None = None,
     ) -> None:
         self.service, self.scenario = service, scenario
+        self.bodies = bodies  # the agents whose body is a ROS 2 robot (agent.body)
         self.run_id = service.run_id
         self.runner = AgentRunner(scenario, ids, strategy, seed)
         self.inbox = {i: _Inbox() for i in ids}
@@ -418,11 +422,24 @@ class AgentNode:
             complete = partial(self._has_estimates, k) if realtime else self._all_in
             self.deadline["early_steps"] += yield Wait(k, ESTIMATE_DEADLINE, complete)
             got = self._queued_estimates(k) if realtime else self._delivered_estimates(k)
+            before = None if self.bodies is None else self.runner.x.copy()
             self.runner.step(got)
+            if before is not None:
+                self._move_bodies(k, before, realtime)
             # x[k+1] is known now: out at once, so the states have the rest of this period
             # as well as the next one's first 0.2 to arrive.
             self._publish_states()
         self.finished.set()
+
+    def _move_bodies(self, k: int, before: Any, realtime: bool) -> None:
+        """Send each robot the velocity to its ``x[k+1]``, and take ``x[k+1]`` from its pose:
+        lockstep, the one stamped ``k + 1``; realtime, the newest (agent.body)."""
+        assert self.bodies is not None
+        rows = [self.runner.row[i] for i in self.bodies.ids]
+        u = body_velocity(before[rows], self.runner.x[rows], self.scenario.control.period_s)
+        self.bodies.command(dict(zip(self.bodies.ids, u.tolist(), strict=True)))
+        timeout_s = self.scenario.body.pose_timeout_s
+        self.runner.place(self.bodies.wait_poses(None if realtime else k + 1, timeout_s))
 
     def run(self, timing: TimePolicy) -> int:
         """Run every agent to its last epoch under ``timing``; returns an exit code.
@@ -431,6 +448,9 @@ class AgentNode:
         thread only watches; realtime: a fixed period, and what has not arrived by a
         phase's deadline is lost.
         """
+        if self.bodies is not None:  # x[0] is where the robots are
+            self.runner.place(self.bodies.wait_poses(None if timing.realtime else 0, FIRST_POSE_S))
+            self.bodies.wait_subscribed(FIRST_POSE_S)
         if timing.realtime:
             self.rehearse()  # while the others start: the clock is not running yet
         if not timing.join(self.service):

@@ -14,6 +14,17 @@ from shell.bus import (
     ZenohBus,
 )
 from shell.config_files import check_readable
+from shell.ros2 import (
+    NS_PER_S,
+    RosNode,
+    open_ros_node,
+    pose_message,
+    pose_position,
+    require_ros2,
+    stamp_ns,
+    twist_message,
+    twist_velocity,
+)
 from shell.service import Incoming, Service, settle_heap
 from shell.serving import load_scenario, open_service, serve, service_parser
 from shell.stack_dump import DUMP_SIGNAL, dump_stacks_on_signal
@@ -34,6 +45,7 @@ __all__ = [
     "MEMBERS_ENV",
     "MEMBERS_FILE_ENV",
     "MEMBER_ENV",
+    "NS_PER_S",
     "Bus",
     "Incoming",
     "Lockstep",
@@ -42,6 +54,7 @@ __all__ = [
     "Publisher",
     "Query",
     "Realtime",
+    "RosNode",
     "Sample",
     "Service",
     "TimePolicy",
@@ -52,12 +65,19 @@ __all__ = [
     "dump_stacks_on_signal",
     "endpoints",
     "load_scenario",
+    "open_ros_node",
     "open_service",
     "open_session",
     "open_with_retry",
+    "pose_message",
+    "pose_position",
+    "require_ros2",
     "serve",
     "service_parser",
     "session_config",
     "settle_heap",
+    "stamp_ns",
     "time_policy",
+    "twist_message",
+    "twist_velocity",
 ]

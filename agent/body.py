@@ -1,0 +1,152 @@
+"""An agent's body on ROS 2: its state from the robot's pose, its command as a ``Twist``.
+
+With ``[body] kind = "ros2"`` (formation/body.py) the agent process is also a ROS 2 node
+(:mod:`shell.ros2`). After each step it sends the velocity that takes its body from
+``x[k]`` to the ``x[k+1]`` it computed, ``u = (x[k+1] − x[k]) / T`` [m/s], and then takes
+``x[k+1]`` from the robot's pose (docs/robots.md):
+
+- lockstep: the pose stamped with epoch ``k + 1`` (the stepped plant publishes it once every
+  command of epoch ``k`` is in);
+- realtime: the newest pose, as a robot publishes it.
+
+A pose that is not finite, or further from the last one than the body can move in an epoch,
+is counted and not used; no usable pose for ``pose_timeout_s`` and the body is lost.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass
+from functools import partial
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from formation.errors import RuntimeFailure
+from formation.scenario import Scenario
+from shell import NS_PER_S, open_ros_node, pose_position, stamp_ns, twist_message
+
+log = logging.getLogger("agent.body")
+FIRST_POSE_S = 60.0  # [s] for the first pose: the plant or the robot may still be starting
+Array = npt.NDArray[np.float64]
+
+
+class BodyLost(RuntimeFailure):
+    """No usable pose from a robot for longer than the scenario's ``pose_timeout_s``."""
+
+    def __init__(self, agent: int, topic: str, waited_s: float, epoch: int) -> None:
+        self.agent, self.topic, self.waited_s, self.epoch = agent, topic, waited_s, epoch
+        super().__init__(
+            f"agent {agent}: body lost: no usable pose on {topic} for {waited_s:g} s "
+            f"(waiting for epoch {epoch})"
+        )
+
+
+@dataclass
+class _Pose:
+    stamp_ns: int
+    position: list[float]  # [scenario m]
+
+
+class RobotBodies:
+    """The ROS 2 bodies of a process's agents ``ids``: pose subscriptions, command publishers."""
+
+    def __init__(self, scenario: Scenario, ids: list[int], name: str) -> None:
+        self.scenario, self.body = scenario, scenario.body
+        self.ids = [i for i in ids if self.body.has_robot(i)]
+        self.period_ns = round(scenario.control.period_s * NS_PER_S)
+        self.node = open_ros_node(name.replace("-", "_"), self.body)
+        self._cond = threading.Condition()
+        self._poses: dict[int, _Pose] = {}
+        self.counts = {"poses": 0, "commands": 0, "bad_poses": 0, "jumps": 0}
+        self.last_command: dict[int, list[float]] = {}
+        # How far a body may move in one epoch before a pose counts as a jump [m]: the
+        # shape's size, twice over (a consensus step is a fraction of the errors).
+        span = float(np.ptp(scenario.offsets, axis=0).max()) if scenario.n > 1 else 1.0
+        self.max_jump_m = 2.0 * (span + 2.0 * scenario.initial.spread_m) + 1.0
+        self._subscriptions = [
+            self.node.subscribe(
+                self.body.pose_topic_of(i),
+                self.node.pose_class,
+                self.body.pose_qos,
+                partial(self._on_pose, i),
+            )
+            for i in self.ids
+        ]
+        self._publishers = {
+            i: self.node.publisher(
+                self.body.command_topic_of(i), self.node.command_class, self.body.command_qos
+            )
+            for i in self.ids
+        }
+
+    def _on_pose(self, agent: int, msg: Any) -> None:
+        """On rclpy's thread: keep the newest usable pose of ``agent``."""
+        d, scale = self.scenario.dimension, self.body.scale
+        position = [c / scale for c in pose_position(msg)[:d]]
+        with self._cond:
+            self.counts["poses"] += 1
+            if not all(math.isfinite(c) for c in position):
+                self.counts["bad_poses"] += 1
+                return
+            last = self._poses.get(agent)
+            if last is not None and math.dist(last.position, position) > self.max_jump_m:
+                self.counts["jumps"] += 1
+                return
+            self._poses[agent] = _Pose(stamp_ns(msg), position)
+            self._cond.notify_all()
+
+    def wait_poses(self, epoch: int | None, timeout_s: float) -> dict[int, list[float]]:
+        """Each robot's pose stamped with ``epoch`` (None: any, the newest) [m].
+
+        Raises :class:`BodyLost` for the first robot none came from within ``timeout_s``.
+        """
+        want = None if epoch is None else epoch * self.period_ns
+        deadline = time.monotonic() + timeout_s
+
+        def have(i: int) -> bool:
+            pose = self._poses.get(i)
+            return pose is not None and (want is None or pose.stamp_ns >= want)
+
+        with self._cond:
+            while not all(have(i) for i in self.ids):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    lost = next(i for i in self.ids if not have(i))
+                    raise BodyLost(
+                        lost,
+                        self.body.pose_topic_of(lost),
+                        timeout_s,
+                        -1 if epoch is None else epoch,
+                    )
+                self._cond.wait(left)
+            return {i: list(self._poses[i].position) for i in self.ids}
+
+    def wait_subscribed(self, timeout_s: float) -> None:
+        """Until every command publisher has a subscriber (the first command is not lost)."""
+        deadline = time.monotonic() + timeout_s
+        for i, pub in self._publishers.items():
+            while pub.get_subscription_count() < 1:
+                if time.monotonic() > deadline:
+                    raise BodyLost(i, self.body.command_topic_of(i), timeout_s, 0)
+                time.sleep(0.01)  # rclpy has no wait on matching; discovery takes milliseconds
+
+    def command(self, velocities: dict[int, list[float]]) -> None:
+        """Send each robot its velocity [scenario m/s] as a ``Twist``."""
+        scale = self.body.scale
+        for i, u in velocities.items():
+            self._publishers[i].publish(
+                twist_message(self.node.command_class, [c * scale for c in u])
+            )
+            self.last_command[i] = u
+        self.counts["commands"] += len(velocities)
+
+    def close(self) -> None:
+        self.node.close()
+
+
+__all__ = ["FIRST_POSE_S", "BodyLost", "RobotBodies"]

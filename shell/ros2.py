@@ -1,0 +1,166 @@
+"""A ROS 2 node beside the bus: rclpy on its own context and thread, and the body's messages.
+
+rclpy is the optional extra ``ros2`` (formation/body.py); nothing here imports it before
+:func:`open_ros_node`, so the shell works without it, and a scenario that needs it is
+refused by :func:`require_ros2` with the extra to install. The node spins on a thread of
+its own (its callbacks run there), on a context of its own: rclpy's default context would
+install its own SIGINT and SIGTERM handlers over the service's (shell/serving.py).
+
+An epoch travels in a pose's ``header.stamp`` as the sim time ``k T`` (docs/robots.md):
+the stepped plant stamps the pose it publishes after epoch ``k``'s commands with
+``k + 1``, so an agent in lockstep knows which pose ends which epoch.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from formation.body import EXTRA, Body, Qos
+from formation.errors import TestbedError
+
+log = logging.getLogger("ros2")
+NS_PER_S = 1_000_000_000
+
+
+class Ros2Missing(TestbedError):
+    """A ROS 2 body without rclpy: names the extra to install."""
+
+    def __init__(self, who: str, missing: str) -> None:
+        self.who, self.missing = who, missing
+        super().__init__(
+            f"{who} needs the ROS 2 Python packages ({missing} is not installed); "
+            f"install the extra: pip install 'formation-testbed[{EXTRA}]'"
+        )
+
+
+def require_ros2(who: str, pose_type: str = "geometry_msgs/msg/PoseStamped") -> None:
+    """Import rclpy and the message packages a body uses, or raise :class:`Ros2Missing`."""
+    package = pose_type.split("/", 1)[0]
+    for module in ("rclpy", "geometry_msgs.msg", f"{package}.msg"):
+        try:
+            __import__(module)
+        except ImportError:
+            raise Ros2Missing(who, module.split(".", 1)[0]) from None
+
+
+def message_class(type_name: str) -> Any:
+    """``"geometry_msgs/msg/Twist"`` → the rclpy message class."""
+    package, _, name = type_name.split("/")
+    module = __import__(f"{package}.msg", fromlist=[name])
+    return getattr(module, name)
+
+
+def qos_profile(qos: Qos) -> Any:
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=qos.depth,
+        reliability=ReliabilityPolicy.RELIABLE
+        if qos.reliability == "reliable"
+        else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL
+        if qos.durability == "transient_local"
+        else DurabilityPolicy.VOLATILE,
+    )
+
+
+def stamp_ns(msg: Any) -> int:
+    """A stamped message's ``header.stamp`` in integer nanoseconds."""
+    stamp = msg.header.stamp
+    return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
+
+
+def pose_position(msg: Any) -> tuple[float, float, float]:
+    """The position of a ``PoseStamped`` or an ``Odometry`` [robot m]."""
+    pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
+    p = pose.position
+    return float(p.x), float(p.y), float(p.z)
+
+
+def pose_message(cls: Any, position: Sequence[float], when_ns: int, frame_id: str) -> Any:
+    """A ``PoseStamped`` or ``Odometry`` at ``position`` (2 or 3 coordinates) [robot m]."""
+    msg = cls()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(when_ns, NS_PER_S)
+    msg.header.frame_id = frame_id
+    pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
+    xyz = [*position, 0.0, 0.0, 0.0][:3]
+    pose.position.x, pose.position.y, pose.position.z = (float(c) for c in xyz)
+    pose.orientation.w = 1.0
+    return msg
+
+
+def twist_message(cls: Any, velocity: Sequence[float]) -> Any:
+    """A ``Twist`` whose ``linear`` is ``velocity`` (2 or 3 coordinates) [robot m/s]."""
+    msg = cls()
+    xyz = [*velocity, 0.0, 0.0, 0.0][:3]
+    msg.linear.x, msg.linear.y, msg.linear.z = (float(c) for c in xyz)
+    return msg
+
+
+def twist_velocity(msg: Any, dimension: int) -> list[float]:
+    return [float(msg.linear.x), float(msg.linear.y), float(msg.linear.z)][:dimension]
+
+
+class RosNode:
+    """An rclpy node on its own context, spinning on its own thread until :meth:`close`."""
+
+    def __init__(self, name: str, body: Body) -> None:
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+
+        self.body = body
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=body.domain_id)
+        self.node = rclpy.create_node(name, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.pose_class = message_class(body.pose_type)
+        self.command_class = message_class(body.command_type)
+        self._thread = threading.Thread(target=self._spin, name=f"ros2-{name}", daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        from rclpy.executors import ExternalShutdownException
+
+        with contextlib.suppress(ExternalShutdownException):
+            self.executor.spin()
+
+    def subscribe(self, topic: str, cls: Any, qos: Qos, callback: Callable[[Any], None]) -> Any:
+        return self.node.create_subscription(cls, topic, callback, qos_profile(qos))
+
+    def publisher(self, topic: str, cls: Any, qos: Qos) -> Any:
+        return self.node.create_publisher(cls, topic, qos_profile(qos))
+
+    def close(self) -> None:
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+        self.context.try_shutdown()
+        self._thread.join(timeout=2.0)
+
+
+def open_ros_node(name: str, body: Body) -> RosNode:
+    """A :class:`RosNode` named ``name`` (a ROS 2 node name: letters, digits, underscores)."""
+    require_ros2(name, body.pose_type)
+    return RosNode(name, body)
+
+
+__all__ = [
+    "NS_PER_S",
+    "Ros2Missing",
+    "RosNode",
+    "message_class",
+    "open_ros_node",
+    "pose_message",
+    "pose_position",
+    "qos_profile",
+    "require_ros2",
+    "stamp_ns",
+    "twist_message",
+    "twist_velocity",
+]
