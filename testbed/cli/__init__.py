@@ -27,6 +27,7 @@ COMMANDS: dict[str, str] = {
     "keys": "testbed.cli.deploy",
     "experiment": "testbed.cli.experiment",
     "sweep": "testbed.cli.experiment",
+    "ros2-plant": "testbed.cli.plant",
 }
 
 

@@ -1,0 +1,114 @@
+"""Agents whose bodies are ROS 2 robots, through the headless plant: real rclpy nodes over
+Fast DDS, discovery kept to this host (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST), a ROS
+domain of each test's own."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import select
+import signal
+import subprocess
+import sys
+import time
+import zlib
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from formation.scenario import STRATEGIES, Scenario
+from testbed.runtime.launcher import launch
+from testbed.sim.simulate import simulate
+
+pytestmark = pytest.mark.integration
+pytest.importorskip("rclpy", reason="the ros2 extra: pip install '.[ros2]'")
+READY_S = 60.0  # [s] the plant's start: rclpy and Fast DDS load in a few seconds
+
+
+@pytest.fixture
+def ros_domain(monkeypatch: pytest.MonkeyPatch, request: pytest.FixtureRequest) -> int:
+    """A ROS domain of this test's own, and discovery on this host only, for every process."""
+    domain = 1 + zlib.crc32(f"{request.node.nodeid}/{os.getpid()}".encode()) % 200
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    monkeypatch.delenv("ROS_LOCALHOST_ONLY", raising=False)
+    return domain
+
+
+def with_robots(scenario: Scenario, tmp_path: Path, **body: object) -> tuple[Scenario, Path]:
+    robots = scenario.with_overrides(body={"kind": "ros2", **body})
+    path = tmp_path / f"{scenario.name}-ros2.toml"
+    path.write_text(robots.to_toml())
+    return robots, path
+
+
+@contextlib.contextmanager
+def plant(path: Path, *args: str) -> Iterator[subprocess.Popen[str]]:
+    """``formation ros2-plant`` until its ready line; ended by PID afterwards."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "testbed.cli", "ros2-plant", str(path), *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        ready, _, _ = select.select([proc.stdout], [], [], READY_S)
+        line = proc.stdout.readline() if ready else ""
+        assert line and json.loads(line)["ready"], f"the plant did not start: {line!r}"
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+def plant_counts(proc: subprocess.Popen[str]) -> dict[str, int]:
+    """The counts the plant prints as it stops (SIGTERM)."""
+    proc.send_signal(signal.SIGTERM)
+    out, _ = proc.communicate(timeout=20)
+    return dict(json.loads(out.strip().splitlines()[-1])["counts"])
+
+
+@pytest.mark.slow
+def test_a_lockstep_run_through_the_stepped_plant_equals_the_simulator_to_the_bit(
+    paper: Scenario, runs_dir: Path, tmp_path: Path, ros_domain: int
+) -> None:
+    scenario, path = with_robots(paper, tmp_path)
+    for strategy in STRATEGIES:
+        with plant(path) as proc:
+            outcome = launch(scenario, strategy=strategy, runs_dir=runs_dir, record=False)  # type: ignore[arg-type]
+            counts = plant_counts(proc)
+        sim = simulate(scenario, strategy=strategy)  # type: ignore[arg-type]
+        np.testing.assert_array_equal(outcome.positions, sim.positions, err_msg=strategy)
+        assert counts == {
+            "commands": scenario.n * scenario.epochs,
+            "bad_commands": 0,
+            "steps": scenario.epochs,
+            "epoch": scenario.epochs,
+        }
+
+
+def test_a_double_integrator_with_some_robots_equals_the_simulator(
+    paper: Scenario, runs_dir: Path, tmp_path: Path, ros_domain: int
+) -> None:
+    # agents 2 and 4 are robots, each in a pool of two with a simulated body
+    control = {**paper.control.model_dump(), "dynamics": "double", "period_s": 0.3, "gain": 0.5}
+    scenario, path = with_robots(
+        paper.with_overrides(control=control, epochs=30), tmp_path, agents=[2, 4]
+    )
+    sim = simulate(scenario)
+    started = time.monotonic()
+    with plant(path) as proc:
+        outcome = launch(scenario, runs_dir=runs_dir, record=False, pool=2)
+        counts = plant_counts(proc)
+    np.testing.assert_array_equal(outcome.positions, sim.positions)
+    assert counts["commands"] == 2 * scenario.epochs and counts["epoch"] == scenario.epochs
+    assert time.monotonic() - started < 120
