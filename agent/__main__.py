@@ -82,14 +82,18 @@ def main(argv: list[str] | None = None) -> int:
         if restarted:
             node.rejoin()
         timing = time_policy(scenario, watch_s=WATCH_S)
-        code = node.run(timing)
-        detail = json.dumps(node.deadline) if timing.realtime else ""
-        service.status("done" if code == 0 else "error", node.runner.epoch, detail)
-        if code == 0:
-            node.confirm_final()
-        if bodies is not None:
-            log.info("body: %s", bodies.counts)
-            bodies.close()
+        try:
+            code = node.run(timing)
+            detail = json.dumps(node.deadline) if timing.realtime else ""
+            if node.body_lost is not None:
+                detail = str(node.body_lost)
+            service.status("done" if code == 0 else "error", node.runner.epoch, detail)
+            if code == 0:
+                node.confirm_final()
+        finally:
+            if bodies is not None:
+                log.info("body: %s", bodies.counts)
+                bodies.close()
         return code
 
     return serve("agent", lambda: open_service(args, role, ident), body)

@@ -50,6 +50,7 @@ class BodyLost(RuntimeFailure):
 class _Pose:
     stamp_ns: int
     position: list[float]  # [scenario m]
+    arrived_s: float  # time.monotonic() when it came
 
 
 class RobotBodies:
@@ -97,11 +98,12 @@ class RobotBodies:
             if last is not None and math.dist(last.position, position) > self.max_jump_m:
                 self.counts["jumps"] += 1
                 return
-            self._poses[agent] = _Pose(stamp_ns(msg), position)
+            self._poses[agent] = _Pose(stamp_ns(msg), position, time.monotonic())
             self._cond.notify_all()
 
     def wait_poses(self, epoch: int | None, timeout_s: float) -> dict[int, list[float]]:
-        """Each robot's pose stamped with ``epoch`` (None: any, the newest) [m].
+        """Each robot's pose stamped with ``epoch`` (None: the newest, if it came within
+        ``timeout_s``) [m].
 
         Raises :class:`BodyLost` for the first robot none came from within ``timeout_s``.
         """
@@ -110,7 +112,11 @@ class RobotBodies:
 
         def have(i: int) -> bool:
             pose = self._poses.get(i)
-            return pose is not None and (want is None or pose.stamp_ns >= want)
+            if pose is None:
+                return False
+            if want is None:
+                return time.monotonic() - pose.arrived_s <= timeout_s
+            return pose.stamp_ns >= want
 
         with self._cond:
             while not all(have(i) for i in self.ids):

@@ -20,10 +20,11 @@ from typing import Any
 
 import orjson
 
-from agent.body import FIRST_POSE_S, RobotBodies
+from agent.body import FIRST_POSE_S, BodyLost, RobotBodies
 from agent.control import body_velocity
 from agent.runner import AgentRunner, Estimate, Packet, Report
 from formation import keys
+from formation.body import BODY_LOST_EXIT
 from formation.codec import attachment
 from formation.deadlines import CAUSES, USED_KEPT, cause
 from formation.errors import RuntimeFailure
@@ -102,6 +103,7 @@ class AgentNode:
     ) -> None:
         self.service, self.scenario = service, scenario
         self.bodies = bodies  # the agents whose body is a ROS 2 robot (agent.body)
+        self.body_lost: BodyLost | None = None
         self.run_id = service.run_id
         self.runner = AgentRunner(scenario, ids, strategy, seed)
         self.inbox = {i: _Inbox() for i in ids}
@@ -425,7 +427,12 @@ class AgentNode:
             before = None if self.bodies is None else self.runner.x.copy()
             self.runner.step(got)
             if before is not None:
-                self._move_bodies(k, before, realtime)
+                try:
+                    self._move_bodies(k, before, realtime)
+                except BodyLost as exc:  # as a crash: this agent takes no further part
+                    log.error("%s", exc)
+                    self.body_lost = exc
+                    break
             # x[k+1] is known now: out at once, so the states have the rest of this period
             # as well as the next one's first 0.2 to arrive.
             self._publish_states()
@@ -459,6 +466,8 @@ class AgentNode:
         self.end = self.scenario.epochs if timing.realtime else self.last_epoch
         route = self._route if timing.realtime else self._on_delivery
         code = timing.drive(self.service, self._epochs(timing), route, self.scenario.epochs)
+        if self.body_lost is not None:
+            return BODY_LOST_EXIT
         if code == 0 and not timing.realtime and self.crashes:
             # a crash event: no goodbye, no final status
             log.warning("crash at epoch %d (a scenario event): taking no further part", self.end)

@@ -24,6 +24,7 @@ ROS_BODIES: tuple[str, ...] = ("ros2", "rmw_zenoh")  # kinds whose body is a ROS
 POSE_TYPES: tuple[str, ...] = ("geometry_msgs/msg/PoseStamped", "nav_msgs/msg/Odometry")
 COMMAND_TYPES: tuple[str, ...] = ("geometry_msgs/msg/Twist",)
 EXTRA = "ros2"  # the optional extra that installs rclpy and the message packages
+BODY_LOST_EXIT = 3  # an agent process's exit code when its robot's pose stopped coming
 # A ROS 2 topic name once ``{id}`` is filled in: absolute or relative, tokens of
 # letters, digits and underscores, not starting with a digit, joined by single slashes.
 _TOPIC = re.compile(r"^/?[A-Za-z_~][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
@@ -136,6 +137,7 @@ def body_problems(body: Body, n: int, dynamics: str) -> list[tuple[str, object, 
 
 
 __all__ = [
+    "BODY_LOST_EXIT",
     "COMMAND_TYPES",
     "EXTRA",
     "POSE_TYPES",

@@ -3,8 +3,10 @@
 It subscribes to each robot's command topic (``geometry_msgs/msg/Twist``) and publishes its
 pose (the scenario's pose type), on the topics and QoS of the scenario's ``[body]``. Two clocks:
 
-- **stepped**: the pose of epoch 0 goes to each robot once its pose topic has a subscriber;
-  once every robot's command of epoch ``k`` is in, every robot moves one period and the poses
+- **stepped**: the pose of epoch 0 goes to each robot once both its topics are matched, and
+  again every ``FIRST_POSE_S`` until its first command comes (a DDS reader that matches
+  after the writer misses what the writer sent in between); once every robot's command of
+  epoch ``k`` is in, every robot moves one period and the poses
   go out stamped ``k + 1`` (sim time ``(k + 1) T``). A lockstep run through it equals
   ``formation simulate`` to the bit.
 - **free**: every ``1 / rate_hz`` each robot moves by the last command it got (stopping when
@@ -26,7 +28,7 @@ from testbed.plant.robots import Robots
 
 log = logging.getLogger("ros2-plant")
 Clock = Literal["stepped", "free"]
-MATCH_POLL_S = 0.02  # [s] how often the stepped clock looks for its first subscribers
+FIRST_POSE_S = 0.1  # [s] how often the stepped clock sends epoch 0's poses until commanded
 
 
 class Plant:
@@ -47,7 +49,7 @@ class Plant:
         self.period_ns = round(scenario.control.period_s * NS_PER_S)
         self.node: RosNode = open_ros_node(name, self.body)
         self.done = threading.Event()  # stepped: the scenario's last epoch is reached
-        self._sent_first: set[int] = set()
+        self._commanded: set[int] = set()  # stepped: robots whose first command came
         self._last_command_ns: dict[int, int] = {}
         self._publishers = {
             i: self.node.publisher(
@@ -55,17 +57,17 @@ class Plant:
             )
             for i in self.robots.ids
         }
-        self._subscriptions = [
-            self.node.subscribe(
+        self._subscriptions = {
+            i: self.node.subscribe(
                 self.body.command_topic_of(i),
                 self.node.command_class,
                 self.body.command_qos,
                 partial(self._on_command, i),
             )
             for i in self.robots.ids
-        ]
+        }
         if clock == "stepped":
-            self._timer = self.node.node.create_timer(MATCH_POLL_S, self._first_poses)
+            self._timer = self.node.node.create_timer(FIRST_POSE_S, self._first_poses)
         else:
             rate = rate_hz or 1.0 / (
                 scenario.runtime.realtime_period_s or scenario.control.period_s
@@ -82,19 +84,23 @@ class Plant:
             self._publishers[i].publish(msg)
 
     def _first_poses(self) -> None:
-        """Stepped: epoch 0's pose to each robot whose pose topic has a subscriber now."""
+        """Stepped: epoch 0's pose to each robot not commanded yet whose topics are matched."""
         for r, i in enumerate(self.robots.ids):
-            if i not in self._sent_first and self._publishers[i].get_subscription_count() > 0:
-                self._sent_first.add(i)
+            if (
+                i not in self._commanded
+                and self._publishers[i].get_subscription_count() > 0
+                and self._subscriptions[i].get_publisher_count() > 0
+            ):
                 self._publish([r], 0)
-        if len(self._sent_first) == len(self.robots.ids):
+        if len(self._commanded) == len(self.robots.ids):
             self._timer.cancel()
-            log.info("stepped: every robot has its pose of epoch 0")
+            log.info("stepped: every robot has sent its first command")
 
     def _on_command(self, robot: int, msg: Any) -> None:
         u = [c / self.body.scale for c in twist_velocity(msg, self.scenario.dimension)]
         self.robots.command(robot, u)
         self._last_command_ns[robot] = time.monotonic_ns()
+        self._commanded.add(robot)
         if self.clock != "stepped":
             return
         while self.robots.ready():

@@ -7,10 +7,12 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import select
 import signal
 import subprocess
 import sys
+import threading
 import time
 import zlib
 from collections.abc import Iterator
@@ -19,7 +21,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from formation.errors import RuntimeFailure
 from formation.scenario import STRATEGIES, Scenario
+from recorder import read_run, recover
 from testbed.runtime.launcher import launch
 from testbed.sim.simulate import simulate
 
@@ -47,15 +51,17 @@ def with_robots(scenario: Scenario, tmp_path: Path, **body: object) -> tuple[Sce
 
 @contextlib.contextmanager
 def plant(path: Path, *args: str) -> Iterator[subprocess.Popen[str]]:
-    """``formation ros2-plant`` until its ready line; ended by PID afterwards."""
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "testbed.cli", "ros2-plant", str(path), *args],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    """``formation ros2-plant`` until its ready line; ended by PID afterwards. Its log is
+    beside the scenario."""
+    with path.with_suffix(".plant.log").open("a") as log:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "testbed.cli", "ros2-plant", str(path), *args],
+            stdout=subprocess.PIPE,
+            stderr=log,
+            text=True,
+        )
+    assert proc.stdout is not None
     try:
-        assert proc.stdout is not None
         ready, _, _ = select.select([proc.stdout], [], [], READY_S)
         line = proc.stdout.readline() if ready else ""
         assert line and json.loads(line)["ready"], f"the plant did not start: {line!r}"
@@ -68,6 +74,7 @@ def plant(path: Path, *args: str) -> Iterator[subprocess.Popen[str]]:
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
+        proc.stdout.close()
 
 
 def plant_counts(proc: subprocess.Popen[str]) -> dict[str, int]:
@@ -112,3 +119,36 @@ def test_a_double_integrator_with_some_robots_equals_the_simulator(
     np.testing.assert_array_equal(outcome.positions, sim.positions)
     assert counts["commands"] == 2 * scenario.epochs and counts["epoch"] == scenario.epochs
     assert time.monotonic() - started < 120
+
+
+def test_the_plant_killed_mid_run_every_agent_reports_its_body_lost_and_the_recording_is_kept(
+    paper: Scenario, runs_dir: Path, tmp_path: Path, ros_domain: int
+) -> None:
+    scenario, path = with_robots(paper.with_overrides(epochs=100_000), tmp_path, pose_timeout_s=1.0)
+    killed: list[int] = []
+    with plant(path) as proc:
+
+        def kill_the_plant(run_id: str, endpoint: str) -> None:
+            def kill() -> None:
+                time.sleep(1.0)  # into the run: the team is up, the run is stepping
+                os.kill(proc.pid, signal.SIGKILL)
+                killed.append(proc.pid)
+
+            threading.Thread(target=kill, daemon=True).start()
+
+        with pytest.raises(RuntimeFailure) as err:
+            launch(scenario, runs_dir=runs_dir, on_started=kill_the_plant)
+    assert killed, "the run ended before the kill"
+    names = ", ".join(f"agent-{i}: its robot's pose stopped coming" for i in range(1, 6))
+    assert str(err.value) == f"every agent is gone ({names}); the run cannot go on"
+    for i in range(1, 6):
+        (log,) = runs_dir.glob(f"*/logs/agent-{i}.log")
+        assert re.search(
+            rf"agent {i}: body lost: no usable pose on /robot{i}/pose for 1 s \(waiting for "
+            r"epoch \d+\)",
+            log.read_text(),
+        )
+    (mcap,) = runs_dir.glob("*/run.mcap")
+    recovered = recover(mcap)  # the recording is kept, and reads back
+    run = read_run(recovered.target)
+    assert run.positions.shape[0] > 2 and np.isfinite(run.positions[:2]).all()
