@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from functools import partial
 from typing import Any
 
+import numpy as np
 import orjson
 
 from agent.body import FIRST_POSE_S, BodyLost, RobotBodies
@@ -439,14 +440,27 @@ class AgentNode:
         self.finished.set()
 
     def _move_bodies(self, k: int, before: Any, realtime: bool) -> None:
-        """Send each robot the velocity to its ``x[k+1]``, and take ``x[k+1]`` from its pose:
-        lockstep, the one stamped ``k + 1``; realtime, the newest (agent.body)."""
+        """Send each robot the velocity to its ``x[k+1]`` over one period (agent.body).
+
+        Lockstep: ``x[k+1]`` is then the robot's pose stamped ``k + 1``. Realtime: the
+        velocity goes from the robot's newest pose, and ``x[k+1]`` is where it leads: a robot
+        reaches it as the next step comes, while a pose taken now would be a period old by
+        then (a one-epoch delay in the consensus: 5 robots at 10 Hz went unstable).
+        """
         assert self.bodies is not None
-        rows = [self.runner.row[i] for i in self.bodies.ids]
-        u = body_velocity(before[rows], self.runner.x[rows], self.scenario.control.period_s)
-        self.bodies.command(dict(zip(self.bodies.ids, u.tolist(), strict=True)))
+        ids = self.bodies.ids
+        rows = [self.runner.row[i] for i in ids]
         timeout_s = self.scenario.body.pose_timeout_s
-        self.runner.place(self.bodies.wait_poses(None if realtime else k + 1, timeout_s))
+        if realtime:
+            period_s = self.scenario.runtime.realtime_period_s or self.scenario.control.period_s
+            now = self.bodies.wait_poses(None, timeout_s)
+            start = np.array([now[i] for i in ids], dtype=float)
+            u = body_velocity(start, self.runner.x[rows], period_s)
+            self.bodies.command(dict(zip(ids, u.tolist(), strict=True)))
+            return
+        u = body_velocity(before[rows], self.runner.x[rows], self.scenario.control.period_s)
+        self.bodies.command(dict(zip(ids, u.tolist(), strict=True)))
+        self.runner.place(self.bodies.wait_poses(k + 1, timeout_s))
 
     def run(self, timing: TimePolicy) -> int:
         """Run every agent to its last epoch under ``timing``; returns an exit code.

@@ -152,3 +152,26 @@ def test_the_plant_killed_mid_run_every_agent_reports_its_body_lost_and_the_reco
     recovered = recover(mcap)  # the recording is kept, and reads back
     run = read_run(recovered.target)
     assert run.positions.shape[0] > 2 and np.isfinite(run.positions[:2]).all()
+
+
+@pytest.mark.slow
+def test_a_realtime_run_through_the_free_running_plant_keeps_the_formation(
+    paper: Scenario, runs_dir: Path, tmp_path: Path, ros_domain: int
+) -> None:
+    realtime = {"mode": "realtime", "realtime_period_s": 0.1}
+    scenario, path = with_robots(paper.with_overrides(epochs=80, runtime=realtime), tmp_path)
+    with plant(path, "--clock", "free", "--rate-hz", "50") as proc:
+        outcome = launch(scenario, runs_dir=runs_dir, record=False)
+        counts = plant_counts(proc)
+    s = outcome.summary()
+    assert np.isfinite(outcome.positions).all()
+    # the formation is kept: the final error at the noise floor, far below where it started
+    assert outcome.formation_error[-1] < 0.05 < outcome.formation_error[0]
+    misses, modelled = s["deadline_misses"], s["modelled_losses"]
+    books = (modelled["total"], misses["total"], s["delivered_in_time"], s["packets_sent"])
+    assert books[0] + books[1] + books[2] == books[3], (books, s["deadline"])
+    assert s["unaccounted"] == 0
+    assert counts["commands"] >= scenario.n * (scenario.epochs - 2)
+    assert counts["steps"] > 50 * 8 * 0.5  # 50 Hz over the run's 8 s, at least half of it
+    print(f"realtime through the free plant: final error {outcome.formation_error[-1]:.4f} m, "
+          f"misses {misses}, plant {counts}")  # fmt: skip
