@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import logging
 import sys
+import time
 
 from agent.body import RobotBodies
 from agent.node import WATCH_S, AgentNode
@@ -91,8 +92,10 @@ def main(argv: list[str] | None = None) -> int:
             if code == 0:
                 node.confirm_final()
         finally:
+            cpu_s = time.process_time() - node.cpu_at_start_s
+            log.info("cpu: %.3f s over %d epochs", cpu_s, node.runner.epoch)
             if bodies is not None:
-                log.info("body: %s", bodies.counts)
+                log.info("body: %s", json.dumps(bodies.summary()))
                 bodies.close()
         return code
 

@@ -65,6 +65,8 @@ class RobotBodies:
         self._poses: dict[int, _Pose] = {}
         self.counts = {"poses": 0, "commands": 0, "bad_poses": 0, "jumps": 0}
         self.last_command: dict[int, list[float]] = {}
+        self._used: dict[int, float] = {}  # the arrival of the pose each robot was last placed by
+        self.latency_s: list[float] = []  # pose in → command out, per command [s]
         # How far a body may move in one epoch before a pose counts as a jump [m]: the
         # shape's size, twice over (a consensus step is a fraction of the errors).
         span = float(np.ptp(scenario.offsets, axis=0).max()) if scenario.n > 1 else 1.0
@@ -130,6 +132,7 @@ class RobotBodies:
                         -1 if epoch is None else epoch,
                     )
                 self._cond.wait(left)
+            self._used = {i: self._poses[i].arrived_s for i in self.ids}
             return {i: list(self._poses[i].position) for i in self.ids}
 
     def wait_subscribed(self, timeout_s: float) -> None:
@@ -149,7 +152,17 @@ class RobotBodies:
                 twist_message(self.node.command_class, [c * scale for c in u])
             )
             self.last_command[i] = u
+            if i in self._used:  # from the pose's arrival to its command's publish
+                self.latency_s.append(time.monotonic() - self._used[i])
         self.counts["commands"] += len(velocities)
+
+    def summary(self) -> dict[str, Any]:
+        """The counts, and pose in → command out over the run: p50 and p99 [ms]."""
+        out: dict[str, Any] = dict(self.counts)
+        if self.latency_s:
+            p50, p99 = np.percentile(np.array(self.latency_s) * 1e3, [50, 99])
+            out["pose_to_command_ms"] = {"p50": round(float(p50), 3), "p99": round(float(p99), 3)}
+        return out
 
     def close(self) -> None:
         self.node.close()

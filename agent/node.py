@@ -105,6 +105,7 @@ class AgentNode:
         self.service, self.scenario = service, scenario
         self.bodies = bodies  # the agents whose body is a ROS 2 robot (agent.body)
         self.body_lost: BodyLost | None = None
+        self.cpu_at_start_s = 0.0
         self.run_id = service.run_id
         self.runner = AgentRunner(scenario, ids, strategy, seed)
         self.inbox = {i: _Inbox() for i in ids}
@@ -476,6 +477,7 @@ class AgentNode:
             self.rehearse()  # while the others start: the clock is not running yet
         if not timing.join(self.service):
             return 1
+        self.cpu_at_start_s = time.process_time()  # the run's CPU, from its start (agent.__main__)
         self.clock = timing.clock
         self.end = self.scenario.epochs if timing.realtime else self.last_epoch
         route = self._route if timing.realtime else self._on_delivery
