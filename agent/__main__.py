@@ -43,7 +43,8 @@ def check_body(kind: str, pose_type: str) -> None:
     """A body this build can drive, with its packages installed; else a clear error."""
     if kind == "rmw_zenoh":
         raise TestbedError(
-            "body.kind = 'rmw_zenoh': rmw_zenoh's wire format is not built yet; use kind = 'ros2'"
+            "body.kind = 'rmw_zenoh': rmw_zenoh's wire format is not built into the agent yet; "
+            "use kind = 'ros2'"
         )
     require_ros2("body.kind = 'ros2'", pose_type)
 
