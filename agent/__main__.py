@@ -41,12 +41,7 @@ def parse_ids(text: str, n: int) -> list[int]:
 
 def check_body(kind: str, pose_type: str) -> None:
     """A body this build can drive, with its packages installed; else a clear error."""
-    if kind == "rmw_zenoh":
-        raise TestbedError(
-            "body.kind = 'rmw_zenoh': rmw_zenoh's wire format is not built into the agent yet; "
-            "use kind = 'ros2'"
-        )
-    require_ros2("body.kind = 'ros2'", pose_type)
+    require_ros2(f"body.kind = {kind!r}", pose_type, kind)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -68,7 +63,10 @@ def main(argv: list[str] | None = None) -> int:
     role, ident = ("agent", ids[0]) if len(ids) == 1 else ("pool", ids[0])
 
     def body(service: Service) -> int:
-        bodies = RobotBodies(scenario, ids, f"formation_{role}_{ident}") if robots else None
+        bodies = None
+        if robots:  # rmw_zenoh's body rides on this service's own Zenoh session
+            session = getattr(service.bus, "session", None)
+            bodies = RobotBodies(scenario, ids, f"formation_{role}_{ident}", session)
         node = AgentNode(
             service,
             scenario,

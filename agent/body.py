@@ -28,7 +28,7 @@ import numpy.typing as npt
 
 from formation.errors import RuntimeFailure
 from formation.scenario import Scenario
-from shell import NS_PER_S, open_ros_node, pose_position, stamp_ns, twist_message
+from shell import NS_PER_S, open_body_link
 
 log = logging.getLogger("agent.body")
 FIRST_POSE_S = 60.0  # [s] for the first pose: the plant or the robot may still be starting
@@ -56,11 +56,12 @@ class _Pose:
 class RobotBodies:
     """The ROS 2 bodies of a process's agents ``ids``: pose subscriptions, command publishers."""
 
-    def __init__(self, scenario: Scenario, ids: list[int], name: str) -> None:
+    def __init__(self, scenario: Scenario, ids: list[int], name: str, session: Any = None) -> None:
         self.scenario, self.body = scenario, scenario.body
         self.ids = [i for i in ids if self.body.has_robot(i)]
         self.period_ns = round(scenario.control.period_s * NS_PER_S)
-        self.node = open_ros_node(name.replace("-", "_"), self.body)
+        # rclpy's node (ros2), or rmw_zenoh's format on the service's own session (rmw_zenoh)
+        self.link = open_body_link(name.replace("-", "_"), self.body, session)
         self._cond = threading.Condition()
         self._poses: dict[int, _Pose] = {}
         self.counts = {"poses": 0, "commands": 0, "bad_poses": 0, "jumps": 0}
@@ -72,25 +73,16 @@ class RobotBodies:
         span = float(np.ptp(scenario.offsets, axis=0).max()) if scenario.n > 1 else 1.0
         self.max_jump_m = 2.0 * (span + 2.0 * scenario.initial.spread_m) + 1.0
         self._subscriptions = [
-            self.node.subscribe(
-                self.body.pose_topic_of(i),
-                self.node.pose_class,
-                self.body.pose_qos,
-                partial(self._on_pose, i),
-            )
-            for i in self.ids
+            self.link.poses(self.body.pose_topic_of(i), partial(self._on_pose, i)) for i in self.ids
         ]
         self._publishers = {
-            i: self.node.publisher(
-                self.body.command_topic_of(i), self.node.command_class, self.body.command_qos
-            )
-            for i in self.ids
+            i: self.link.command_publisher(self.body.command_topic_of(i)) for i in self.ids
         }
 
-    def _on_pose(self, agent: int, msg: Any) -> None:
-        """On rclpy's thread: keep the newest usable pose of ``agent``."""
+    def _on_pose(self, agent: int, xyz: list[float], stamp: int) -> None:
+        """On the link's thread: keep the newest usable pose of ``agent``."""
         d, scale = self.scenario.dimension, self.body.scale
-        position = [c / scale for c in pose_position(msg)[:d]]
+        position = [c / scale for c in xyz[:d]]
         with self._cond:
             self.counts["poses"] += 1
             if not all(math.isfinite(c) for c in position):
@@ -100,7 +92,7 @@ class RobotBodies:
             if last is not None and math.dist(last.position, position) > self.max_jump_m:
                 self.counts["jumps"] += 1
                 return
-            self._poses[agent] = _Pose(stamp_ns(msg), position, time.monotonic())
+            self._poses[agent] = _Pose(stamp, position, time.monotonic())
             self._cond.notify_all()
 
     def wait_poses(self, epoch: int | None, timeout_s: float) -> dict[int, list[float]]:
@@ -139,7 +131,7 @@ class RobotBodies:
         """Until every command publisher has a subscriber (the first command is not lost)."""
         deadline = time.monotonic() + timeout_s
         for i, pub in self._publishers.items():
-            while pub.get_subscription_count() < 1:
+            while not pub.matched():
                 if time.monotonic() > deadline:
                     raise BodyLost(i, self.body.command_topic_of(i), timeout_s, 0)
                 time.sleep(0.01)  # rclpy has no wait on matching; discovery takes milliseconds
@@ -148,9 +140,7 @@ class RobotBodies:
         """Send each robot its velocity [scenario m/s] as a ``Twist``."""
         scale = self.body.scale
         for i, u in velocities.items():
-            self._publishers[i].publish(
-                twist_message(self.node.command_class, [c * scale for c in u])
-            )
+            self._publishers[i].publish([c * scale for c in u])
             self.last_command[i] = u
             if i in self._used:  # from the pose's arrival to its command's publish
                 self.latency_s.append(time.monotonic() - self._used[i])
@@ -165,7 +155,7 @@ class RobotBodies:
         return out
 
     def close(self) -> None:
-        self.node.close()
+        self.link.close()
 
 
 __all__ = ["FIRST_POSE_S", "BodyLost", "RobotBodies"]

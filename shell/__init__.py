@@ -5,6 +5,7 @@ a :class:`Bus`: :class:`ZenohBus` in the product, :class:`MemoryBus` in unit tes
 node runs one loop under a :class:`TimePolicy`, :class:`Lockstep` or :class:`Realtime`.
 """
 
+from shell.body_link import BodyLink, open_body_link
 from shell.bus import (
     Bus,
     MemoryBus,
@@ -14,17 +15,7 @@ from shell.bus import (
     ZenohBus,
 )
 from shell.config_files import check_readable
-from shell.ros2 import (
-    NS_PER_S,
-    RosNode,
-    open_ros_node,
-    pose_message,
-    pose_position,
-    require_ros2,
-    stamp_ns,
-    twist_message,
-    twist_velocity,
-)
+from shell.ros2 import NS_PER_S, require_ros2
 from shell.service import Incoming, Service, settle_heap
 from shell.serving import load_scenario, open_service, serve, service_parser
 from shell.stack_dump import DUMP_SIGNAL, dump_stacks_on_signal
@@ -46,6 +37,7 @@ __all__ = [
     "MEMBERS_FILE_ENV",
     "MEMBER_ENV",
     "NS_PER_S",
+    "BodyLink",
     "Bus",
     "Incoming",
     "Lockstep",
@@ -54,7 +46,6 @@ __all__ = [
     "Publisher",
     "Query",
     "Realtime",
-    "RosNode",
     "Sample",
     "Service",
     "TimePolicy",
@@ -65,19 +56,14 @@ __all__ = [
     "dump_stacks_on_signal",
     "endpoints",
     "load_scenario",
-    "open_ros_node",
+    "open_body_link",
     "open_service",
     "open_session",
     "open_with_retry",
-    "pose_message",
-    "pose_position",
     "require_ros2",
     "serve",
     "service_parser",
     "session_config",
     "settle_heap",
-    "stamp_ns",
     "time_policy",
-    "twist_message",
-    "twist_velocity",
 ]

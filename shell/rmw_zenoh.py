@@ -232,8 +232,18 @@ class RmwZenohNode:
 
     def publisher(self, topic: str, type_name: str, qos: Qos) -> Callable[[bytes], None]:
         """A publish function for CDR payloads on ``topic``."""
+        import zenoh
+
         gid = gid_of(self._token("MP", topic, type_name, qos))
-        pub = self.session.declare_publisher(topic_key(self.domain, topic, type_name))
+        # reliable: a put waits rather than drop (a stepped plant waits for every command)
+        congestion = (
+            zenoh.CongestionControl.BLOCK
+            if qos.reliability == "reliable"
+            else zenoh.CongestionControl.DROP
+        )
+        pub = self.session.declare_publisher(
+            topic_key(self.domain, topic, type_name), congestion_control=congestion
+        )
         self._entities.append(pub)
         seq = itertools.count(1)
 

@@ -37,10 +37,18 @@ class Ros2Missing(TestbedError):
         )
 
 
-def require_ros2(who: str, pose_type: str = "geometry_msgs/msg/PoseStamped") -> None:
-    """Import rclpy and the message packages a body uses, or raise :class:`Ros2Missing`."""
+def require_ros2(
+    who: str, pose_type: str = "geometry_msgs/msg/PoseStamped", kind: str = "ros2"
+) -> None:
+    """Import what a body of ``kind`` uses, or raise :class:`Ros2Missing`: rclpy and the
+    message packages (``ros2``), rosbags (``rmw_zenoh``)."""
     package = pose_type.split("/", 1)[0]
-    for module in ("rclpy", "geometry_msgs.msg", f"{package}.msg"):
+    modules = (
+        ("rosbags.typesys",)
+        if kind == "rmw_zenoh"
+        else ("rclpy", "geometry_msgs.msg", f"{package}.msg")
+    )
+    for module in modules:
         try:
             __import__(module)
         except ImportError:

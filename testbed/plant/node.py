@@ -23,7 +23,7 @@ from functools import partial
 from typing import Any, Literal
 
 from formation.scenario import Scenario
-from shell import NS_PER_S, RosNode, open_ros_node, pose_message, twist_velocity
+from shell import NS_PER_S, BodyLink, open_body_link
 from testbed.plant.robots import Robots
 
 log = logging.getLogger("ros2-plant")
@@ -32,7 +32,8 @@ FIRST_POSE_S = 0.1  # [s] how often the stepped clock sends epoch 0's poses unti
 
 
 class Plant:
-    """The plant's node over :class:`Robots`; callbacks run on the node's one thread."""
+    """The plant's node over :class:`Robots`. Commands come on the link's thread, the clock
+    runs on a thread of its own; one lock keeps the robots."""
 
     def __init__(
         self,
@@ -41,92 +42,93 @@ class Plant:
         rate_hz: float | None = None,
         seed: int | None = None,
         name: str = "formation_plant",
+        session: Any = None,
     ) -> None:
         self.scenario, self.body, self.clock = scenario, scenario.body, clock
         self.robots = Robots.of(scenario, seed)
         if not self.robots.ids:
             raise ValueError(f"{scenario.name}: no agent has a ROS 2 body (body.kind)")
         self.period_ns = round(scenario.control.period_s * NS_PER_S)
-        self.node: RosNode = open_ros_node(name, self.body)
+        self.link: BodyLink = open_body_link(name, self.body, session)
         self.done = threading.Event()  # stepped: the scenario's last epoch is reached
+        self.closing = threading.Event()
+        self._lock = threading.Lock()
         self._commanded: set[int] = set()  # stepped: robots whose first command came
         self._last_command_ns: dict[int, int] = {}
         self._publishers = {
-            i: self.node.publisher(
-                self.body.pose_topic_of(i), self.node.pose_class, self.body.pose_qos
-            )
-            for i in self.robots.ids
+            i: self.link.pose_publisher(self.body.pose_topic_of(i)) for i in self.robots.ids
         }
         self._subscriptions = {
-            i: self.node.subscribe(
-                self.body.command_topic_of(i),
-                self.node.command_class,
-                self.body.command_qos,
-                partial(self._on_command, i),
-            )
+            i: self.link.commands(self.body.command_topic_of(i), partial(self._on_command, i))
             for i in self.robots.ids
         }
-        if clock == "stepped":
-            self._timer = self.node.node.create_timer(FIRST_POSE_S, self._first_poses)
-        else:
-            rate = rate_hz or 1.0 / (
-                scenario.runtime.realtime_period_s or scenario.control.period_s
-            )
-            self.dt_s = 1.0 / rate
-            self._timer = self.node.node.create_timer(self.dt_s, self._tick)
+        rate = rate_hz or 1.0 / (scenario.runtime.realtime_period_s or scenario.control.period_s)
+        self.dt_s = 1.0 / rate
+        loop = self._first_poses if clock == "stepped" else self._free_running
+        self._thread = threading.Thread(target=loop, name=f"plant-{clock}", daemon=True)
+        self._thread.start()
 
     def _publish(self, rows: list[int], stamp_ns: int) -> None:
         scale = self.body.scale
         for r in rows:
-            i = self.robots.ids[r]
             position = [float(c) * scale for c in self.robots.x[r]]
-            msg = pose_message(self.node.pose_class, position, stamp_ns, self.body.frame_id)
-            self._publishers[i].publish(msg)
+            self._publishers[self.robots.ids[r]].publish(position, stamp_ns)
 
     def _first_poses(self) -> None:
-        """Stepped: epoch 0's pose to each robot not commanded yet whose topics are matched."""
-        for r, i in enumerate(self.robots.ids):
-            if (
-                i not in self._commanded
-                and self._publishers[i].get_subscription_count() > 0
-                and self._subscriptions[i].get_publisher_count() > 0
-            ):
-                self._publish([r], 0)
-        if len(self._commanded) == len(self.robots.ids):
-            self._timer.cancel()
-            log.info("stepped: every robot has sent its first command")
+        """Stepped: epoch 0's pose to each robot not commanded yet whose topics are matched,
+        every ``FIRST_POSE_S`` until every robot has sent its first command."""
+        while not self.closing.wait(FIRST_POSE_S):
+            with self._lock:
+                for r, i in enumerate(self.robots.ids):
+                    if (
+                        i not in self._commanded
+                        and self._publishers[i].matched()
+                        and self._subscriptions[i].matched()
+                    ):
+                        self._publish([r], 0)
+                if len(self._commanded) == len(self.robots.ids):
+                    log.info("stepped: every robot has sent its first command")
+                    return
 
-    def _on_command(self, robot: int, msg: Any) -> None:
-        u = [c / self.body.scale for c in twist_velocity(msg, self.scenario.dimension)]
-        self.robots.command(robot, u)
-        self._last_command_ns[robot] = time.monotonic_ns()
-        self._commanded.add(robot)
-        if self.clock != "stepped":
-            return
-        while self.robots.ready():
-            self.robots.step_epoch()
-            k = self.robots.epoch
-            self._publish(list(range(len(self.robots.ids))), k * self.period_ns)
-            if k == self.scenario.epochs:
-                log.info("stepped: epoch %d, the scenario's last, reached", k)
-                self.done.set()
+    def _on_command(self, robot: int, velocity: list[float]) -> None:
+        u = [c / self.body.scale for c in velocity[: self.scenario.dimension]]
+        with self._lock:
+            self.robots.command(robot, u)
+            self._last_command_ns[robot] = time.monotonic_ns()
+            self._commanded.add(robot)
+            if self.clock != "stepped":
+                return
+            while self.robots.ready():
+                self.robots.step_epoch()
+                k = self.robots.epoch
+                self._publish(list(range(len(self.robots.ids))), k * self.period_ns)
+                if k == self.scenario.epochs:
+                    log.info("stepped: epoch %d, the scenario's last, reached", k)
+                    self.done.set()
 
-    def _tick(self) -> None:
-        """Free-running: move by the held commands for one tick, publish the poses."""
-        now = time.monotonic_ns()
+    def _free_running(self) -> None:
+        """Free-running: every ``dt_s`` move by the held commands, publish the poses."""
+        next_s = time.monotonic()
         stale_ns = self.body.pose_timeout_s * NS_PER_S
-        for i, at in list(self._last_command_ns.items()):
-            if now - at > stale_ns:
-                self.robots.stop(i)
-        self.robots.step_for(self.dt_s)
-        self._publish(list(range(len(self.robots.ids))), time.time_ns())
+        while not self.closing.wait(max(0.0, next_s - time.monotonic())):
+            next_s += self.dt_s
+            with self._lock:
+                now = time.monotonic_ns()
+                for i, at in list(self._last_command_ns.items()):
+                    if now - at > stale_ns:
+                        self.robots.stop(i)
+                self.robots.step_for(self.dt_s)
+                self._publish(list(range(len(self.robots.ids))), time.time_ns())
 
     @property
     def counts(self) -> dict[str, int]:
-        return {**self.robots.counts, "epoch": self.robots.epoch}
+        with self._lock:
+            return {**self.robots.counts, "epoch": self.robots.epoch}
 
     def close(self) -> None:
-        self.node.close()
+        self.closing.set()
+        self._thread.join(timeout=2.0)
+        self.link.close()
 
 
 __all__ = ["Clock", "Plant"]

@@ -26,6 +26,7 @@ from formation.scenario import STRATEGIES, Scenario
 from recorder import read_run, recover
 from testbed.runtime.launcher import launch
 from testbed.sim.simulate import simulate
+from testkit.zenoh_peer import free_port
 
 pytestmark = pytest.mark.integration
 pytest.importorskip("rclpy", reason="the ros2 extra: pip install '.[ros2]'")
@@ -175,3 +176,19 @@ def test_a_realtime_run_through_the_free_running_plant_keeps_the_formation(
     assert counts["steps"] > 50 * 8 * 0.5  # 50 Hz over the run's 8 s, at least half of it
     print(f"realtime through the free plant: final error {outcome.formation_error[-1]:.4f} m, "
           f"misses {misses}, plant {counts}")  # fmt: skip
+
+
+def test_an_rmw_zenoh_body_through_the_stepped_plant_equals_the_simulator_to_the_bit(
+    paper: Scenario, runs_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # No DDS: the plant is a Zenoh router of its own that the run's router connects to (as a
+    # robot's rmw_zenoh router would be), and every message is in rmw_zenoh's format.
+    scenario, path = with_robots(paper.with_overrides(epochs=30), tmp_path, kind="rmw_zenoh")
+    listen = f"tcp/127.0.0.1:{free_port()}"
+    with plant(path, "--mode", "router", "--listen", listen) as proc:
+        monkeypatch.setenv("ZENOH_CONNECT", listen)  # the run's router, to the plant
+        outcome = launch(scenario, strategy="hold", runs_dir=runs_dir, record=False)
+        counts = plant_counts(proc)
+    np.testing.assert_array_equal(outcome.positions, simulate(scenario, strategy="hold").positions)
+    assert counts["commands"] == scenario.n * scenario.epochs
+    assert counts["epoch"] == scenario.epochs

@@ -40,8 +40,7 @@ def test_a_pose_in_cdr_is_the_bytes_rclpy_serializes(type_name: str) -> None:
     pytest.importorskip("rclpy")
     from rclpy.serialization import serialize_message
 
-    from shell import pose_message
-    from shell.ros2 import message_class
+    from shell.ros2 import message_class, pose_message
 
     # Frame names of 3 and 11 letters: CDR then needs no alignment padding, which rclpy's
     # serializer leaves as whatever was in its buffer (rosbags writes zeros).
@@ -60,7 +59,7 @@ def test_a_twist_in_cdr_is_the_bytes_rclpy_serializes() -> None:
     from geometry_msgs.msg import Twist
     from rclpy.serialization import serialize_message
 
-    from shell import twist_message
+    from shell.ros2 import twist_message
 
     assert twist_cdr(ODD[:2]) == serialize_message(twist_message(Twist, ODD[:2]))
     assert read_twist(twist_cdr(ODD)) == ODD
