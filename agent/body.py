@@ -40,9 +40,9 @@ class BodyLost(RuntimeFailure):
 
     def __init__(self, agent: int, topic: str, waited_s: float, epoch: int) -> None:
         self.agent, self.topic, self.waited_s, self.epoch = agent, topic, waited_s, epoch
+        waiting = "its newest pose" if epoch < 0 else f"waiting for epoch {epoch}"
         super().__init__(
-            f"agent {agent}: body lost: no usable pose on {topic} for {waited_s:g} s "
-            f"(waiting for epoch {epoch})"
+            f"agent {agent}: body lost: no usable pose on {topic} for {waited_s:g} s ({waiting})"
         )
 
 
