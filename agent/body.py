@@ -28,7 +28,7 @@ import numpy.typing as npt
 
 from formation.errors import RuntimeFailure
 from formation.scenario import Scenario
-from shell import NS_PER_S, open_body_link
+from shell import NS_PER_S, open_body_link, pose_cdr, twist_cdr
 
 log = logging.getLogger("agent.body")
 FIRST_POSE_S = 60.0  # [s] for the first pose: the plant or the robot may still be starting
@@ -145,6 +145,20 @@ class RobotBodies:
             if i in self._used:  # from the pose's arrival to its command's publish
                 self.latency_s.append(time.monotonic() - self._used[i])
         self.counts["commands"] += len(velocities)
+
+    def traffic(self, i: int) -> list[tuple[str, str, bytes]]:
+        """Robot ``i``'s last pose placed and last command as ``(what, type, CDR)``, in the
+        robot's frame, to record (formation.keys.body)."""
+        out: list[tuple[str, str, bytes]] = []
+        scale, pose = self.body.scale, self._poses.get(i)
+        if pose is not None:
+            where = [c * scale for c in pose.position]
+            cdr = pose_cdr(self.body.pose_type, where, pose.stamp_ns, self.body.frame_id)
+            out.append(("pose", self.body.pose_type, cdr))
+        if i in self.last_command:
+            velocity = [c * scale for c in self.last_command[i]]
+            out.append(("command", self.body.command_type, twist_cdr(velocity)))
+        return out
 
     def summary(self) -> dict[str, Any]:
         """The counts, and pose in → command out over the run: p50 and p99 [ms]."""

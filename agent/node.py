@@ -458,10 +458,14 @@ class AgentNode:
             start = np.array([now[i] for i in ids], dtype=float)
             u = body_velocity(start, self.runner.x[rows], period_s)
             self.bodies.command(dict(zip(ids, u.tolist(), strict=True)))
-            return
-        u = body_velocity(before[rows], self.runner.x[rows], self.scenario.control.period_s)
-        self.bodies.command(dict(zip(ids, u.tolist(), strict=True)))
-        self.runner.place(self.bodies.wait_poses(k + 1, timeout_s))
+        else:
+            u = body_velocity(before[rows], self.runner.x[rows], self.scenario.control.period_s)
+            self.bodies.command(dict(zip(ids, u.tolist(), strict=True)))
+            self.runner.place(self.bodies.wait_poses(k + 1, timeout_s))
+        for i in ids:  # into the recording: the pose taken and the command sent
+            for what, type_name, cdr in self.bodies.traffic(i):
+                key = keys.body(self.run_id, i, what, type_name)
+                self.service.put(key, cdr, attachment(k, self.service.next_seq(key), i))
 
     def run(self, timing: TimePolicy) -> int:
         """Run every agent to its last epoch under ``timing``; returns an exit code.

@@ -15,6 +15,7 @@ from shell.bus import (
     ZenohBus,
 )
 from shell.config_files import check_readable
+from shell.rmw_zenoh import pose_cdr, twist_cdr
 from shell.ros2 import NS_PER_S, require_ros2
 from shell.service import Incoming, Service, settle_heap
 from shell.serving import load_scenario, open_service, serve, service_parser
@@ -60,10 +61,12 @@ __all__ = [
     "open_service",
     "open_session",
     "open_with_retry",
+    "pose_cdr",
     "require_ros2",
     "serve",
     "service_parser",
     "session_config",
     "settle_heap",
     "time_policy",
+    "twist_cdr",
 ]

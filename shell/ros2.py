@@ -41,13 +41,12 @@ def require_ros2(
     who: str, pose_type: str = "geometry_msgs/msg/PoseStamped", kind: str = "ros2"
 ) -> None:
     """Import what a body of ``kind`` uses, or raise :class:`Ros2Missing`: rclpy and the
-    message packages (``ros2``), rosbags (``rmw_zenoh``)."""
+    message packages (``ros2``), and rosbags (both: the recorded traffic's CDR, rmw_zenoh's
+    format)."""
     package = pose_type.split("/", 1)[0]
-    modules = (
-        ("rosbags.typesys",)
-        if kind == "rmw_zenoh"
-        else ("rclpy", "geometry_msgs.msg", f"{package}.msg")
-    )
+    modules: tuple[str, ...] = ("rosbags.typesys",)
+    if kind != "rmw_zenoh":
+        modules = ("rclpy", "geometry_msgs.msg", f"{package}.msg", *modules)
     for module in modules:
         try:
             __import__(module)
