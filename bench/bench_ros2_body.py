@@ -100,6 +100,7 @@ def main() -> None:
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     print(f"seed {SEED}, {EPOCHS} epochs at {1 / PERIOD_S:g} Hz; odd ids are ROS 2 robots")
     with tempfile.TemporaryDirectory() as tmp:
+        os.environ["ROS_LOG_DIR"] = f"{tmp}/ros-log"  # rclpy's logs go with the run
         for label, name in CASES:
             r = run_case(name, Path(tmp))
             ratio = r["cpu_ms_per_epoch_robot"] / r["cpu_ms_per_epoch_simulated"]  # type: ignore[operator]

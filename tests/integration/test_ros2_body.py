@@ -34,10 +34,14 @@ READY_S = 60.0  # [s] the plant's start: rclpy and Fast DDS load in a few second
 
 
 @pytest.fixture
-def ros_domain(monkeypatch: pytest.MonkeyPatch, request: pytest.FixtureRequest) -> int:
-    """A ROS domain of this test's own, and discovery on this host only, for every process."""
+def ros_domain(
+    monkeypatch: pytest.MonkeyPatch, request: pytest.FixtureRequest, tmp_path: Path
+) -> int:
+    """A ROS domain of this test's own, and discovery on this host only, for every process;
+    rclpy's logs in the test's folder."""
     domain = 1 + zlib.crc32(f"{request.node.nodeid}/{os.getpid()}".encode()) % 200
     monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
+    monkeypatch.setenv("ROS_LOG_DIR", str(tmp_path / "ros-log"))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     monkeypatch.delenv("ROS_LOCALHOST_ONLY", raising=False)
     return domain

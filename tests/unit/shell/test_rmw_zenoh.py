@@ -66,13 +66,14 @@ def test_a_twist_in_cdr_is_the_bytes_rclpy_serializes() -> None:
 
 
 @pytest.fixture
-def rclpy_node() -> Iterator[object]:
+def rclpy_node(monkeypatch: pytest.MonkeyPatch, tmp_path: object) -> Iterator[object]:
     """An rclpy node on a context of its own, DDS discovery on this host only."""
     rclpy = pytest.importorskip("rclpy")
     from rclpy.context import Context
 
     domain = 1 + zlib.crc32(f"rmw_zenoh/{os.getpid()}".encode()) % 200
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    monkeypatch.setenv("ROS_LOG_DIR", str(tmp_path))
     context = Context()
     rclpy.init(context=context, domain_id=domain)
     node = rclpy.create_node("type_hashes", context=context)
