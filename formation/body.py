@@ -24,7 +24,7 @@ ROS_BODIES: tuple[str, ...] = ("ros2", "rmw_zenoh")  # kinds whose body is a ROS
 POSE_TYPES: tuple[str, ...] = ("geometry_msgs/msg/PoseStamped", "nav_msgs/msg/Odometry")
 COMMAND_TYPES: tuple[str, ...] = ("geometry_msgs/msg/Twist",)
 EXTRA = "ros2"  # the optional extra that installs rclpy and the message packages
-BODY_LOST_EXIT = 3  # an agent process's exit code when its robot's pose stopped coming
+BODY_LOST_EXIT = 4  # exit code of an agent whose robot's pose stopped coming
 # A ROS 2 topic name once ``{id}`` is filled in: absolute or relative, tokens of
 # letters, digits and underscores, not starting with a digit, joined by single slashes.
 _TOPIC = re.compile(r"^/?[A-Za-z_~][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
@@ -117,13 +117,25 @@ def _known(v: str, types: tuple[str, ...]) -> str:
     return v
 
 
-def body_problems(body: Body, n: int, dynamics: str) -> list[tuple[str, object, str]]:
-    """``(field, value, problem)`` of ``[body]`` against the team; empty when it can run."""
+def body_problems(
+    body: Body, n: int, dynamics: str, events: int = 0
+) -> list[tuple[str, object, str]]:
+    """``(field, value, problem)`` of ``[body]`` against the team (``events``: how many the
+    scenario has); empty when it can run."""
     for k, i in enumerate(body.agents):
         if not 1 <= i <= n:
             return [(f"body.agents[{k}]", i, f"agent does not exist (agents are 1..{n})")]
     if len(set(body.agents)) != len(body.agents):
         return [("body.agents", list(body.agents), "an agent is listed twice")]
+    if body.kind in ROS_BODIES and events:
+        return [
+            (
+                "body.kind",
+                body.kind,
+                f"the scenario has {events} events (leave, crash, join, restart), which robots "
+                "do not follow yet: the stepped plant would wait for an agent that is out",
+            )
+        ]
     if body.kind in ROS_BODIES and dynamics == "unicycle":
         return [
             (

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import tomllib
 from pathlib import Path
 
 import pytest
 
 from formation.errors import ScenarioError
-from formation.scenario import load
+from formation.scenario import load, load_dict
 
 TRIANGLE = """
 name = "tri"
@@ -119,3 +120,14 @@ def test_a_ros2_unicycle_is_refused_for_now(tmp_path: Path) -> None:
         match=r"control\.dynamics = 'unicycle'; a ros2 body drives a holonomic robot",
     ):
         load(write(tmp_path, '[control]\ndynamics = "unicycle"\n[body]\nkind = "ros2"\n'))
+
+
+def test_robots_with_scenario_events_are_refused_for_now() -> None:
+    events = Path(__file__).resolve().parents[3] / "scenarios" / "events.toml"
+    text = events.read_text() + '\n[body]\nkind = "ros2"\n'
+    with pytest.raises(
+        ScenarioError,
+        match=r"body\.kind = 'ros2'; the scenario has \d+ events \(leave, crash, join, restart\), "
+        r"which robots do not follow yet",
+    ):
+        load_dict(tomllib.loads(text), source="events.toml")
