@@ -5,7 +5,15 @@ simulator runs the same epoch, :func:`agent_epoch`, over a batch of seeds, with 
 measurement noise and link memory.
 """
 
-from agent.control import body_step, body_velocity, held_velocity_step, reference_heading
+from agent.control import (
+    body_step,
+    body_velocity,
+    heading_vector,
+    held_velocity_step,
+    reference_heading,
+    unicycle_arc,
+    wrap_angle,
+)
 from agent.epoch import AgentStep, InLinks, agent_epoch
 from agent.measurement import measurement_noise
 from agent.strategies import LinkMemory, Substitution
@@ -18,7 +26,10 @@ __all__ = [
     "agent_epoch",
     "body_step",
     "body_velocity",
+    "heading_vector",
     "held_velocity_step",
     "measurement_noise",
     "reference_heading",
+    "unicycle_arc",
+    "wrap_angle",
 ]

@@ -9,6 +9,11 @@ With ``[body] kind = "ros2"`` (formation/body.py) the agent process is also a RO
   command of epoch ``k`` is in);
 - realtime: the newest pose, as a robot publishes it.
 
+A unicycle (realtime only) publishes its axle's centre and heading; its state is the
+look-ahead point, and the agent runs the robot's inner loop: at each pose it sends the
+``linear.x``, ``angular.z`` (:func:`agent.control.unicycle_twist`) that move the look-ahead
+point at the epoch's velocity.
+
 A pose that is not finite, or further from the last one than the body can move in an epoch,
 is counted and not used; no usable pose for ``pose_timeout_s`` and the body is lost.
 """
@@ -26,6 +31,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from agent.control import heading_vector, unicycle_twist
 from formation.errors import RuntimeFailure
 from formation.scenario import Scenario
 from shell import NS_PER_S, open_body_link, pose_cdr, twist_cdr
@@ -49,8 +55,10 @@ class BodyLost(RuntimeFailure):
 @dataclass
 class _Pose:
     stamp_ns: int
-    position: list[float]  # [scenario m]
+    position: list[float]  # the state: the robot's position, a unicycle's look-ahead point [m]
     arrived_s: float  # time.monotonic() when it came
+    heading: float = 0.0  # [rad]
+    robot_xyz: tuple[float, ...] = ()  # as published [robot m]
 
 
 class RobotBodies:
@@ -72,6 +80,11 @@ class RobotBodies:
         # shape's size, twice over (a consensus step is a fraction of the errors).
         span = float(np.ptp(scenario.offsets, axis=0).max()) if scenario.n > 1 else 1.0
         self.max_jump_m = 2.0 * (span + 2.0 * scenario.initial.spread_m) + 1.0
+        self.unicycle = scenario.control.dynamics == "unicycle"
+        uni = scenario.control.unicycle
+        self.limits = (uni.max_speed_m_s, uni.max_turn_rad_s, uni.lookahead_m, uni.inner_steps)
+        self._u: dict[int, Array] = {}  # a unicycle's look-ahead velocity this epoch [m/s]
+        self._twists: dict[int, tuple[list[float], float]] = {}  # last sent [robot m/s, rad/s]
         self._subscriptions = [
             self.link.poses(self.body.pose_topic_of(i), partial(self._on_pose, i)) for i in self.ids
         ]
@@ -79,21 +92,40 @@ class RobotBodies:
             i: self.link.command_publisher(self.body.command_topic_of(i)) for i in self.ids
         }
 
-    def _on_pose(self, agent: int, xyz: list[float], stamp: int) -> None:
-        """On the link's thread: keep the newest usable pose of ``agent``."""
+    def _on_pose(self, agent: int, xyz: list[float], stamp: int, yaw: float) -> None:
+        """On the link's thread: keep the newest usable pose of ``agent`` (a unicycle's: and
+        send its next inner-loop command)."""
         d, scale = self.scenario.dimension, self.body.scale
         position = [c / scale for c in xyz[:d]]
+        if self.unicycle:  # the look-ahead point of the axle's centre
+            look = self.limits[2]
+            position = (np.array([position]) + look * heading_vector(np.array([yaw])))[0].tolist()
         with self._cond:
             self.counts["poses"] += 1
-            if not all(math.isfinite(c) for c in position):
+            if not all(math.isfinite(c) for c in [*position, yaw]):
                 self.counts["bad_poses"] += 1
                 return
             last = self._poses.get(agent)
             if last is not None and math.dist(last.position, position) > self.max_jump_m:
                 self.counts["jumps"] += 1
                 return
-            self._poses[agent] = _Pose(stamp, position, time.monotonic())
+            self._poses[agent] = _Pose(stamp, position, time.monotonic(), yaw, tuple(xyz))
             self._cond.notify_all()
+            if self.unicycle and agent in self._u:
+                self._steer(agent, yaw)
+
+    def _steer(self, agent: int, yaw: float) -> None:
+        """A unicycle's inner loop: the speeds that move its look-ahead point at this epoch's
+        velocity from heading ``yaw`` (clipped to its limits)."""
+        v, w, _ = unicycle_twist(np.array([yaw]), self._u[agent][None, :], self.limits)
+        twist = ([float(v[0]) * self.body.scale, 0.0], float(w[0]))
+        self._publishers[agent].publish(*twist)
+        self._twists[agent] = twist
+
+    def headings(self) -> dict[int, float]:
+        """Each robot's newest heading [rad] (a unicycle's)."""
+        with self._cond:
+            return {i: self._poses[i].heading for i in self.ids if i in self._poses}
 
     def wait_poses(self, epoch: int | None, timeout_s: float) -> dict[int, list[float]]:
         """Each robot's pose stamped with ``epoch`` (None: the newest, if it came within
@@ -140,7 +172,12 @@ class RobotBodies:
         """Send each robot its velocity [scenario m/s] as a ``Twist``."""
         scale = self.body.scale
         for i, u in velocities.items():
-            self._publishers[i].publish([c * scale for c in u])
+            if self.unicycle:  # held for the epoch, steered at every pose
+                with self._cond:
+                    self._u[i] = np.array(u, dtype=float)
+                    self._steer(i, self._poses[i].heading)
+            else:
+                self._publishers[i].publish([c * scale for c in u], 0.0)
             self.last_command[i] = u
             if i in self._used:  # from the pose's arrival to its command's publish
                 self.latency_s.append(time.monotonic() - self._used[i])
@@ -152,10 +189,13 @@ class RobotBodies:
         out: list[tuple[str, str, bytes]] = []
         scale, pose = self.body.scale, self._poses.get(i)
         if pose is not None:
-            where = [c * scale for c in pose.position]
-            cdr = pose_cdr(self.body.pose_type, where, pose.stamp_ns, self.body.frame_id)
-            out.append(("pose", self.body.pose_type, cdr))
-        if i in self.last_command:
+            where = list(pose.robot_xyz) or [c * scale for c in pose.position]
+            frame, kind = self.body.frame_id, self.body.pose_type
+            cdr = pose_cdr(kind, where, pose.stamp_ns, frame, yaw=pose.heading)
+            out.append(("pose", kind, cdr))
+        if i in self._twists:
+            out.append(("command", self.body.command_type, twist_cdr(*self._twists[i])))
+        elif i in self.last_command:
             velocity = [c * scale for c in self.last_command[i]]
             out.append(("command", self.body.command_type, twist_cdr(velocity)))
         return out

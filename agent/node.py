@@ -427,6 +427,8 @@ class AgentNode:
             self.deadline["early_steps"] += yield Wait(k, ESTIMATE_DEADLINE, complete)
             got = self._queued_estimates(k) if realtime else self._delivered_estimates(k)
             before = None if self.bodies is None else self.runner.x.copy()
+            if realtime and self.bodies is not None:
+                self._take_headings()  # a unicycle steps from where it faces now
             self.runner.step(got)
             if before is not None:
                 try:
@@ -439,6 +441,13 @@ class AgentNode:
             # as well as the next one's first 0.2 to arrive.
             self._publish_states()
         self.finished.set()
+
+    def _take_headings(self) -> None:
+        """A unicycle robot's newest heading as ``θ[k]`` (realtime)."""
+        assert self.bodies is not None
+        if self.runner.heading is not None:
+            for i, heading in self.bodies.headings().items():
+                self.runner.heading[self.runner.row[i]] = heading
 
     def _move_bodies(self, k: int, before: Any, realtime: bool) -> None:
         """Send each robot the velocity to its ``x[k+1]`` over one period (agent.body).
@@ -476,6 +485,7 @@ class AgentNode:
         """
         if self.bodies is not None:  # x[0] is where the robots are
             self.runner.place(self.bodies.wait_poses(None if timing.realtime else 0, FIRST_POSE_S))
+            self._take_headings()
             self.bodies.wait_subscribed(FIRST_POSE_S)
         if timing.realtime:
             self.rehearse()  # while the others start: the clock is not running yet

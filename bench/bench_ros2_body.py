@@ -96,7 +96,7 @@ def run_case(name: str, tmp: Path) -> dict[str, object]:
 
 
 def main() -> None:
-    os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
+    os.environ.setdefault("ROS_DOMAIN_ID", str(60 + os.getpid() % 40))  # DDS ports < 32768
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     print(f"seed {SEED}, {EPOCHS} epochs at {1 / PERIOD_S:g} Hz; odd ids are ROS 2 robots")
     with tempfile.TemporaryDirectory() as tmp:

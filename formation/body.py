@@ -118,7 +118,7 @@ def _known(v: str, types: tuple[str, ...]) -> str:
 
 
 def body_problems(
-    body: Body, n: int, dynamics: str, events: int = 0
+    body: Body, n: int, dynamics: str, events: int = 0, mode: str = "lockstep"
 ) -> list[tuple[str, object, str]]:
     """``(field, value, problem)`` of ``[body]`` against the team (``events``: how many the
     scenario has); empty when it can run."""
@@ -136,13 +136,13 @@ def body_problems(
                 "do not follow yet: the stepped plant would wait for an agent that is out",
             )
         ]
-    if body.kind in ROS_BODIES and dynamics == "unicycle":
+    if body.kind in ROS_BODIES and dynamics == "unicycle" and mode != "realtime":
         return [
             (
                 "control.dynamics",
                 dynamics,
-                f"a {body.kind} body drives a holonomic robot (linear.x, linear.y) so far; "
-                "use dynamics = 'single' or 'double'",
+                f"a unicycle with a {body.kind} body runs in realtime only (its inner loop "
+                "steers at each pose); set runtime.mode = 'realtime'",
             )
         ]
     return []

@@ -16,13 +16,14 @@ from shell.ros2 import (
     open_ros_node,
     pose_message,
     pose_position,
+    pose_yaw,
     stamp_ns,
     twist_message,
     twist_velocity,
 )
 
-OnPose = Callable[[list[float], int], None]  # (position [robot m], stamp [ns])
-OnCommand = Callable[[list[float]], None]  # velocity [robot m/s]
+OnPose = Callable[[list[float], int, float], None]  # position [robot m], stamp [ns], yaw [rad]
+OnCommand = Callable[[list[float], float], None]  # linear [robot m/s], angular.z [rad/s]
 
 
 class Endpoint(Protocol):
@@ -32,11 +33,11 @@ class Endpoint(Protocol):
 
 
 class PosePublisher(Endpoint, Protocol):
-    def publish(self, position: list[float], stamp_ns: int) -> None: ...
+    def publish(self, position: list[float], stamp_ns: int, yaw: float) -> None: ...
 
 
 class CommandPublisher(Endpoint, Protocol):
-    def publish(self, velocity: list[float]) -> None: ...
+    def publish(self, velocity: list[float], angular_z: float) -> None: ...
 
 
 class BodyLink(Protocol):
@@ -76,7 +77,7 @@ class RclpyLink:
             topic,
             self.node.pose_class,
             self.body.pose_qos,
-            lambda msg: on_pose(list(pose_position(msg)), stamp_ns(msg)),
+            lambda msg: on_pose(list(pose_position(msg)), stamp_ns(msg), pose_yaw(msg)),
         )
         return _RosEndpoint(sub)
 
@@ -85,19 +86,21 @@ class RclpyLink:
             topic,
             self.node.command_class,
             self.body.command_qos,
-            lambda msg: on_command(twist_velocity(msg, 3)),
+            lambda msg: on_command(twist_velocity(msg, 3), float(msg.angular.z)),
         )
         return _RosEndpoint(sub)
 
     def pose_publisher(self, topic: str) -> PosePublisher:
         pub = self.node.publisher(topic, self.node.pose_class, self.body.pose_qos)
         cls, frame = self.node.pose_class, self.body.frame_id
-        return _RosEndpoint(pub, lambda p, when: pub.publish(pose_message(cls, p, when, frame)))
+        return _RosEndpoint(
+            pub, lambda p, when, yaw: pub.publish(pose_message(cls, p, when, frame, yaw))
+        )
 
     def command_publisher(self, topic: str) -> CommandPublisher:
         pub = self.node.publisher(topic, self.node.command_class, self.body.command_qos)
         cls = self.node.command_class
-        return _RosEndpoint(pub, lambda u: pub.publish(twist_message(cls, u)))
+        return _RosEndpoint(pub, lambda u, w: pub.publish(twist_message(cls, u, w)))
 
     def close(self) -> None:
         self.node.close()
@@ -134,18 +137,18 @@ class ZenohLink:
     def commands(self, topic: str, on_command: OnCommand) -> Endpoint:
         twist = self.body.command_type
         self.node.subscribe(
-            topic, twist, self.body.command_qos, lambda b: on_command(read_twist(b))
+            topic, twist, self.body.command_qos, lambda b: on_command(*read_twist(b))
         )
         return _ZenohEndpoint()
 
     def pose_publisher(self, topic: str) -> PosePublisher:
         kind, frame = self.body.pose_type, self.body.frame_id
         put = self.node.publisher(topic, kind, self.body.pose_qos)
-        return _ZenohEndpoint(lambda p, when: put(pose_cdr(kind, p, when, frame)))
+        return _ZenohEndpoint(lambda p, when, yaw: put(pose_cdr(kind, p, when, frame, yaw=yaw)))
 
     def command_publisher(self, topic: str) -> CommandPublisher:
         put = self.node.publisher(topic, self.body.command_type, self.body.command_qos)
-        return _ZenohEndpoint(lambda u: put(twist_cdr(u)))
+        return _ZenohEndpoint(lambda u, w: put(twist_cdr(u, w)))
 
     def close(self) -> None:
         self.node.close()

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import hashlib
 import itertools
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -139,33 +140,39 @@ def _time(when_ns: int) -> Any:
     return typestore().types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
 
 
-def _pose(position: list[float]) -> Any:
+def _pose(position: list[float], yaw: float) -> Any:
     t = typestore().types
     x, y, z = [*position, 0.0, 0.0, 0.0][:3]
+    qz, qw = math.sin(yaw / 2.0), math.cos(yaw / 2.0)
     return t["geometry_msgs/msg/Pose"](
         position=t["geometry_msgs/msg/Point"](x=x, y=y, z=z),
-        orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+        orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=qz, w=qw),
     )
 
 
 def pose_cdr(
-    type_name: str, position: list[float], when_ns: int, frame_id: str, child_frame_id: str = ""
+    type_name: str,
+    position: list[float],
+    when_ns: int,
+    frame_id: str,
+    child_frame_id: str = "",
+    yaw: float = 0.0,
 ) -> bytes:
     """A ``PoseStamped`` or ``Odometry`` (of ``child_frame_id``) at ``position`` [robot m],
-    stamped ``when_ns``, in CDR; its alignment padding is zeros."""
+    turned ``yaw`` [rad], stamped ``when_ns``, in CDR; its alignment padding is zeros."""
     import numpy as np
 
     t = typestore().types
     header = t["std_msgs/msg/Header"](stamp=_time(when_ns), frame_id=frame_id)
     if type_name == "geometry_msgs/msg/PoseStamped":
-        msg = t[type_name](header=header, pose=_pose(position))
+        msg = t[type_name](header=header, pose=_pose(position, yaw))
     else:
         vector = t["geometry_msgs/msg/Vector3"]
         msg = t[type_name](
             header=header,
             child_frame_id=child_frame_id,
             pose=t["geometry_msgs/msg/PoseWithCovariance"](
-                pose=_pose(position), covariance=np.zeros(36)
+                pose=_pose(position, yaw), covariance=np.zeros(36)
             ),
             twist=t["geometry_msgs/msg/TwistWithCovariance"](
                 twist=t["geometry_msgs/msg/Twist"](
@@ -177,28 +184,33 @@ def pose_cdr(
     return bytes(typestore().serialize_cdr(msg, type_name))
 
 
-def twist_cdr(velocity: list[float]) -> bytes:
-    """A ``Twist`` whose ``linear`` is ``velocity`` [robot m/s], in CDR."""
+def twist_cdr(velocity: list[float], angular_z: float = 0.0) -> bytes:
+    """A ``Twist`` whose ``linear`` is ``velocity`` [robot m/s] and ``angular.z`` the turn
+    rate [rad/s], in CDR."""
     vector = typestore().types["geometry_msgs/msg/Vector3"]
     x, y, z = [*velocity, 0.0, 0.0, 0.0][:3]
     msg = typestore().types["geometry_msgs/msg/Twist"](
-        linear=vector(x=x, y=y, z=z), angular=vector(x=0.0, y=0.0, z=0.0)
+        linear=vector(x=x, y=y, z=z), angular=vector(x=0.0, y=0.0, z=float(angular_z))
     )
     return bytes(typestore().serialize_cdr(msg, "geometry_msgs/msg/Twist"))
 
 
-def read_pose(type_name: str, data: bytes) -> tuple[list[float], int]:
-    """A CDR ``PoseStamped`` or ``Odometry`` → (position [robot m], stamp [ns])."""
+def read_pose(type_name: str, data: bytes) -> tuple[list[float], int, float]:
+    """A CDR ``PoseStamped`` or ``Odometry`` → (position [robot m], stamp [ns], yaw [rad])."""
+    from shell.ros2 import yaw_of
+
     msg = typestore().deserialize_cdr(data, type_name)
     pose = msg.pose.pose if type_name == "nav_msgs/msg/Odometry" else msg.pose
-    p, stamp = pose.position, msg.header.stamp
-    return [float(p.x), float(p.y), float(p.z)], int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    p, q, stamp = pose.position, pose.orientation, msg.header.stamp
+    when_ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    yaw = yaw_of(float(q.x), float(q.y), float(q.z), float(q.w))
+    return [float(p.x), float(p.y), float(p.z)], when_ns, yaw
 
 
-def read_twist(data: bytes) -> list[float]:
-    """A CDR ``Twist`` → its ``linear`` [robot m/s]."""
+def read_twist(data: bytes) -> tuple[list[float], float]:
+    """A CDR ``Twist`` → its ``linear`` [robot m/s] and ``angular.z`` [rad/s]."""
     msg = typestore().deserialize_cdr(data, "geometry_msgs/msg/Twist")
-    return [float(msg.linear.x), float(msg.linear.y), float(msg.linear.z)]
+    return [float(msg.linear.x), float(msg.linear.y), float(msg.linear.z)], float(msg.angular.z)
 
 
 @dataclass

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import threading
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -89,23 +90,40 @@ def pose_position(msg: Any) -> tuple[float, float, float]:
     return float(p.x), float(p.y), float(p.z)
 
 
-def pose_message(cls: Any, position: Sequence[float], when_ns: int, frame_id: str) -> Any:
-    """A ``PoseStamped`` or ``Odometry`` at ``position`` (2 or 3 coordinates) [robot m]."""
+def pose_message(
+    cls: Any, position: Sequence[float], when_ns: int, frame_id: str, yaw: float = 0.0
+) -> Any:
+    """A ``PoseStamped`` or ``Odometry`` at ``position`` (2 or 3 coordinates) [robot m],
+    turned ``yaw`` [rad] about z."""
     msg = cls()
     msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(when_ns, NS_PER_S)
     msg.header.frame_id = frame_id
     pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
     xyz = [*position, 0.0, 0.0, 0.0][:3]
     pose.position.x, pose.position.y, pose.position.z = (float(c) for c in xyz)
-    pose.orientation.w = 1.0
+    pose.orientation.z, pose.orientation.w = math.sin(yaw / 2.0), math.cos(yaw / 2.0)
     return msg
 
 
-def twist_message(cls: Any, velocity: Sequence[float]) -> Any:
-    """A ``Twist`` whose ``linear`` is ``velocity`` (2 or 3 coordinates) [robot m/s]."""
+def pose_yaw(msg: Any) -> float:
+    """The heading about z of a ``PoseStamped``'s or an ``Odometry``'s orientation [rad]."""
+    pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
+    q = pose.orientation
+    return yaw_of(float(q.x), float(q.y), float(q.z), float(q.w))
+
+
+def yaw_of(x: float, y: float, z: float, w: float) -> float:
+    """The yaw of a unit quaternion [rad]."""
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def twist_message(cls: Any, velocity: Sequence[float], angular_z: float = 0.0) -> Any:
+    """A ``Twist``: ``linear`` is ``velocity`` (2 or 3 coordinates) [robot m/s], ``angular.z``
+    the turn rate [rad/s] (a unicycle: ``linear.x`` and ``angular.z``)."""
     msg = cls()
     xyz = [*velocity, 0.0, 0.0, 0.0][:3]
     msg.linear.x, msg.linear.y, msg.linear.z = (float(c) for c in xyz)
+    msg.angular.z = float(angular_z)
     return msg
 
 
@@ -165,9 +183,11 @@ __all__ = [
     "open_ros_node",
     "pose_message",
     "pose_position",
+    "pose_yaw",
     "qos_profile",
     "require_ros2",
     "stamp_ns",
     "twist_message",
     "twist_velocity",
+    "yaw_of",
 ]

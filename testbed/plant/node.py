@@ -22,6 +22,7 @@ import time
 from functools import partial
 from typing import Any, Literal
 
+from formation.errors import TestbedError
 from formation.scenario import Scenario
 from shell import NS_PER_S, BodyLink, open_body_link
 from testbed.plant.robots import Robots
@@ -45,6 +46,11 @@ class Plant:
         session: Any = None,
     ) -> None:
         self.scenario, self.body, self.clock = scenario, scenario.body, clock
+        if clock == "stepped" and scenario.control.dynamics == "unicycle":
+            raise TestbedError(
+                f"{scenario.name}: control.dynamics = 'unicycle' takes the free-running plant "
+                "(--clock free, a realtime run): the stepped clock moves holonomic robots"
+            )
         self.robots = Robots.of(scenario, seed)
         if not self.robots.ids:
             raise ValueError(f"{scenario.name}: no agent has a ROS 2 body (body.kind)")
@@ -72,7 +78,7 @@ class Plant:
         scale = self.body.scale
         for r in rows:
             position = [float(c) * scale for c in self.robots.x[r]]
-            self._publishers[self.robots.ids[r]].publish(position, stamp_ns)
+            self._publishers[self.robots.ids[r]].publish(position, stamp_ns, self.robots.yaw(r))
 
     def _first_poses(self) -> None:
         """Stepped: epoch 0's pose to each robot not commanded yet whose topics are matched,
@@ -90,10 +96,10 @@ class Plant:
                     log.info("stepped: every robot has sent its first command")
                     return
 
-    def _on_command(self, robot: int, velocity: list[float]) -> None:
+    def _on_command(self, robot: int, velocity: list[float], turn_rad_s: float) -> None:
         u = [c / self.body.scale for c in velocity[: self.scenario.dimension]]
         with self._lock:
-            self.robots.command(robot, u)
+            self.robots.command(robot, u, turn_rad_s)
             self._last_command_ns[robot] = time.monotonic_ns()
             self._commanded.add(robot)
             if self.clock != "stepped":

@@ -47,7 +47,7 @@ def test_bad_poses_are_counted_and_not_used_and_a_silent_robot_is_lost(
             before, deadline = bodies.counts[count], time.monotonic() + 10.0
             while bodies.counts[count] == before:  # until the sessions see each other
                 assert time.monotonic() < deadline, f"no {count} counted"
-                pose.publish(position, stamp_ns)
+                pose.publish(position, stamp_ns, 0.0)
                 time.sleep(0.01)
 
         send_until_counted([0.5, 0.25], 0, "poses")

@@ -66,7 +66,7 @@ def test_an_independent_client_reads_our_command_and_sends_our_pose() -> None:
                 (str(s.key_expr), s.payload.to_bytes(), s.attachment and s.attachment.to_bytes())
             ),
         )
-        poses: list[tuple[list[float], int]] = []
+        poses: list[tuple[list[float], int, float]] = []
         node.subscribe(
             "/robot2/pose",
             "geometry_msgs/msg/PoseStamped",
@@ -116,7 +116,7 @@ def test_an_independent_client_reads_our_command_and_sends_our_pose() -> None:
         )  # fmt: skip
         theirs.put(f"3/robot2/pose/{POSE}", pose, attachment=att_out)
         wait_for(lambda: bool(poses))
-        assert poses == [([1.5, -2.25, 0.0], 7_000_000_001)]
+        assert poses == [([1.5, -2.25, 0.0], 7_000_000_001, 0.0)]
     finally:
         node.close()
         theirs.close()

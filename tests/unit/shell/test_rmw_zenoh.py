@@ -45,12 +45,14 @@ def test_a_pose_in_cdr_is_the_bytes_rclpy_serializes(type_name: str) -> None:
     # Frame names of 3 and 11 letters: CDR then needs no alignment padding, which rclpy's
     # serializer leaves as whatever was in its buffer (rosbags writes zeros).
     when_ns = 1_733_000_000_123_456_789
-    ours = pose_cdr(type_name, ODD, when_ns, "map", child_frame_id="base_link_1")
-    msg = pose_message(message_class(type_name), ODD, when_ns, "map")
+    ours = pose_cdr(type_name, ODD, when_ns, "map", child_frame_id="base_link_1", yaw=-2.0)
+    msg = pose_message(message_class(type_name), ODD, when_ns, "map", yaw=-2.0)
     if hasattr(msg, "child_frame_id"):
         msg.child_frame_id = "base_link_1"
     assert ours == serialize_message(msg)
-    assert read_pose(type_name, ours) == (ODD, when_ns)
+    position, stamp, yaw = read_pose(type_name, ours)
+    assert (position, stamp) == (ODD, when_ns)
+    assert abs(yaw + 2.0) < 1e-15
 
 
 @rclpy_warnings
@@ -62,7 +64,8 @@ def test_a_twist_in_cdr_is_the_bytes_rclpy_serializes() -> None:
     from shell.ros2 import twist_message
 
     assert twist_cdr(ODD[:2]) == serialize_message(twist_message(Twist, ODD[:2]))
-    assert read_twist(twist_cdr(ODD)) == ODD
+    assert twist_cdr([0.1], -1.5) == serialize_message(twist_message(Twist, [0.1], -1.5))
+    assert read_twist(twist_cdr(ODD, 2.5)) == (ODD, 2.5)
 
 
 @pytest.fixture
@@ -71,7 +74,7 @@ def rclpy_node(monkeypatch: pytest.MonkeyPatch, tmp_path: object) -> Iterator[ob
     rclpy = pytest.importorskip("rclpy")
     from rclpy.context import Context
 
-    domain = 1 + zlib.crc32(f"rmw_zenoh/{os.getpid()}".encode()) % 200
+    domain = 1 + zlib.crc32(f"rmw_zenoh/{os.getpid()}".encode()) % 100  # DDS ports < 32768
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     monkeypatch.setenv("ROS_LOG_DIR", str(tmp_path))
     context = Context()
