@@ -168,10 +168,18 @@ def test_the_plant_killed_mid_run_every_agent_reports_its_body_lost_and_the_reco
     scenario, path = with_robots(paper.with_overrides(epochs=100_000), tmp_path, pose_timeout_s=1.0)
     killed: list[int] = []
     with plant(path) as proc:
+        log = path.with_suffix(".plant.log")
 
         def kill_the_plant(run_id: str, endpoint: str) -> None:
             def kill() -> None:
-                time.sleep(1.0)  # into the run: the team is up, the run is stepping
+                # once every robot has been commanded (DDS discovery took seconds under load),
+                # and a little into the run
+                deadline = time.monotonic() + 60.0
+                while "every robot has sent its first command" not in log.read_text():
+                    if time.monotonic() > deadline:
+                        return
+                    time.sleep(0.05)
+                time.sleep(0.5)
                 os.kill(proc.pid, signal.SIGKILL)
                 killed.append(proc.pid)
 
