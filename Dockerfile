@@ -14,9 +14,11 @@ WORKDIR /app
 # The dependencies first, in a layer of their own: a change to the code does not reinstall them.
 # (The packages' folders and the README are empty here, so an edit to them does not reinstall
 # the dependencies; the project itself is uninstalled again.)
+# EXTRAS="[ros2]": the ROS 2 bodies' packages (formation compose sets it for such a scenario).
+ARG EXTRAS=""
 COPY pyproject.toml ./
 RUN mkdir formation shell agent leader netem recorder testbed && touch README.md \
-    && pip install . && pip uninstall -y formation-testbed \
+    && pip install ".${EXTRAS}" && pip uninstall -y formation-testbed \
     && rm -rf formation shell agent leader netem recorder testbed build *.egg-info README.md
 # Only what the package needs: credentials, runs and the checkout's history stay out (.dockerignore).
 COPY formation ./formation

@@ -16,7 +16,7 @@ PRODUCT_FILES := $(shell find $(PACKAGES) -name __pycache__ -prune -o -print)
 $(BIN)/.installed: pyproject.toml testkit/pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip 'setuptools>=77' wheel
-	$(BIN)/pip install --quiet '.[test]'
+	$(BIN)/pip install --quiet '.[test,ros2]'
 	$(BIN)/pip install --quiet --no-deps --no-build-isolation -e testkit
 	touch $@
 

@@ -5,7 +5,15 @@ simulator runs the same epoch, :func:`agent_epoch`, over a batch of seeds, with 
 measurement noise and link memory.
 """
 
-from agent.control import reference_heading
+from agent.control import (
+    body_step,
+    body_velocity,
+    heading_vector,
+    held_velocity_step,
+    reference_heading,
+    unicycle_arc,
+    wrap_angle,
+)
 from agent.epoch import AgentStep, InLinks, agent_epoch
 from agent.measurement import measurement_noise
 from agent.strategies import LinkMemory, Substitution, state_width
@@ -16,7 +24,13 @@ __all__ = [
     "LinkMemory",
     "Substitution",
     "agent_epoch",
+    "body_step",
+    "body_velocity",
+    "heading_vector",
+    "held_velocity_step",
     "measurement_noise",
     "reference_heading",
     "state_width",
+    "unicycle_arc",
+    "wrap_angle",
 ]

@@ -5,11 +5,23 @@ from __future__ import annotations
 import json
 import logging
 import sys
+import time
 
+from agent.body import RobotBodies
 from agent.node import WATCH_S, AgentNode
 from formation.errors import TestbedError
 from formation.plugin_api import PLUGIN_EXIT, PLUGIN_FAILED, PluginFailure
-from shell import Service, load_scenario, open_service, serve, service_parser, time_policy
+from shell import (
+    Service,
+    load_scenario,
+    open_service,
+    require_ros2,
+    serve,
+    service_parser,
+    time_policy,
+)
+
+log = logging.getLogger("agent")
 
 
 def parse_ids(text: str, n: int) -> list[int]:
@@ -27,6 +39,11 @@ def parse_ids(text: str, n: int) -> list[int]:
     return ids
 
 
+def check_body(kind: str, pose_type: str) -> None:
+    """A body this build can drive, with its packages installed; else a clear error."""
+    require_ros2(f"body.kind = {kind!r}", pose_type, kind)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = service_parser("python -m agent", __doc__)
     p.add_argument("--id", "--ids", dest="ids", required=True, help="agent id, or ids for a pool")
@@ -37,18 +54,26 @@ def main(argv: list[str] | None = None) -> int:
     try:
         scenario = load_scenario(args)
         ids = parse_ids(args.ids, scenario.n)
+        robots = [i for i in ids if scenario.body.has_robot(i)]
+        if robots:
+            check_body(scenario.body.kind, scenario.body.pose_type)
     except TestbedError as exc:
         print(f"agent: error: {exc}", file=sys.stderr)
         return 1
     role, ident = ("agent", ids[0]) if len(ids) == 1 else ("pool", ids[0])
 
     def body(service: Service) -> int:
+        bodies = None
+        if robots:  # rmw_zenoh's body rides on this service's own Zenoh session
+            session = getattr(service.bus, "session", None)
+            bodies = RobotBodies(scenario, ids, f"formation_{role}_{ident}", session)
         node = AgentNode(
             service,
             scenario,
             ids,
             args.strategy or scenario.strategy.name,
             scenario.seed if args.seed is None else args.seed,
+            bodies,
         )
         # Restarted into a running run, or joining it later (a scenario event): ask netem.
         joins = not scenario.membership.present[0, [i - 1 for i in ids]].all()
@@ -61,14 +86,22 @@ def main(argv: list[str] | None = None) -> int:
             code = node.run(timing)
             if service.failure is not None:  # failed in a message handler
                 raise service.failure
+            detail = json.dumps(node.deadline) if timing.realtime else ""
+            if node.body_lost is not None:
+                detail = str(node.body_lost)
+            service.status("done" if code == 0 else "error", node.runner.epoch, detail)
+            if code == 0:
+                node.confirm_final()
         except PluginFailure as exc:  # recorded, then the launcher ends the run
             service.status("error", node.runner.epoch, f"{PLUGIN_FAILED}{exc}")
             print(f"agent: error: {exc}", file=sys.stderr, flush=True)
             return PLUGIN_EXIT
-        detail = json.dumps(node.deadline) if timing.realtime else ""
-        service.status("done" if code == 0 else "error", node.runner.epoch, detail)
-        if code == 0:
-            node.confirm_final()
+        finally:
+            cpu_s = time.process_time() - node.cpu_at_start_s
+            log.info("cpu: %.3f s over %d epochs", cpu_s, node.runner.epoch)
+            if bodies is not None:
+                log.info("body: %s", json.dumps(bodies.summary()))
+                bodies.close()
         return code
 
     return serve("agent", lambda: open_service(args, role, ident), body)

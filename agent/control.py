@@ -129,25 +129,58 @@ def step_unicycle(
     -------
     (a, 2) ``p[k+1]`` [m], (a,) ``θ[k+1]`` in ``[−π, π)`` [rad], (a,) sub-steps with a clipped speed
     """
-    v_max, w_max, look, steps = limits
+    look, steps = limits[2], limits[3]
     u = command / period_s + v_ref
     dt = period_s / steps
     p, th = x.copy(), heading.copy()
     saturated = np.zeros(x.shape[0], dtype=np.int64)
     for _ in range(steps):
-        cos, sin = np.cos(th), np.sin(th)
-        v_want = cos * u[:, 0] + sin * u[:, 1]
-        w_want = (cos * u[:, 1] - sin * u[:, 0]) / look
-        v, w = np.clip(v_want, -v_max, v_max), np.clip(w_want, -w_max, w_max)
-        saturated += (v != v_want) | (w != w_want)
-        turn = w * dt
-        mid = th + 0.5 * turn
-        arc = v * dt * np.sinc(turn / (2.0 * np.pi))  # chord of the arc: v dt sin(Δ/2) / (Δ/2)
-        centre = p - look * np.stack([cos, sin], axis=1)
-        th = th + turn
-        centre = centre + arc[:, None] * np.stack([np.cos(mid), np.sin(mid)], axis=1)
-        p = centre + look * np.stack([np.cos(th), np.sin(th)], axis=1)
-    return p, np.mod(th + np.pi, 2.0 * np.pi) - np.pi, saturated
+        v, w, clipped = unicycle_twist(th, u, limits)
+        saturated += clipped
+        centre = p - look * heading_vector(th)
+        centre, th = unicycle_arc(centre, th, v, w, dt)
+        p = centre + look * heading_vector(th)
+    return p, wrap_angle(th), saturated
+
+
+def heading_vector(heading: Array) -> Array:
+    """``h(θ) = (cos θ, sin θ)``: (a, 2) for (a,) headings [rad]."""
+    return np.stack([np.cos(heading), np.sin(heading)], axis=1)
+
+
+def wrap_angle(angle: Array) -> Array:
+    """An angle in ``[−π, π)`` [rad]."""
+    return np.asarray(np.mod(angle + np.pi, 2.0 * np.pi) - np.pi, dtype=np.float64)
+
+
+def unicycle_twist(
+    heading: Array, u: Array, limits: tuple[float, float, float, int]
+) -> tuple[Array, Array, npt.NDArray[np.bool_]]:
+    """The speeds that move the look-ahead point at ``u``: ``v = h · u``, ``ω = h⊥ · u / l``,
+    clipped to the limits (:func:`step_unicycle`'s inner loop; a robot's ``Twist``).
+
+    heading : (a,) [rad]; u : (a, 2) [m/s]. Returns (a,) ``v`` [m/s], (a,) ``ω`` [rad/s] and
+    (a,) whether either was clipped.
+    """
+    v_max, w_max, look, _ = limits
+    cos, sin = np.cos(heading), np.sin(heading)
+    v_want = cos * u[:, 0] + sin * u[:, 1]
+    w_want = (cos * u[:, 1] - sin * u[:, 0]) / look
+    v, w = np.clip(v_want, -v_max, v_max), np.clip(w_want, -w_max, w_max)
+    return v, w, (v != v_want) | (w != w_want)
+
+
+def unicycle_arc(
+    centre: Array, heading: Array, v: Array, w: Array, dt_s: float
+) -> tuple[Array, Array]:
+    """The axle's centre and heading after holding ``v``, ``ω`` for ``dt_s``: an exact arc.
+
+    centre : (a, 2) [m]; heading, v, w : (a,) [rad], [m/s], [rad/s]. The heading is not wrapped.
+    """
+    turn = w * dt_s
+    mid = heading + 0.5 * turn
+    arc = v * dt_s * np.sinc(turn / (2.0 * np.pi))  # chord of the arc: v dt sin(Δ/2) / (Δ/2)
+    return centre + arc[:, None] * heading_vector(mid), heading + turn
 
 
 def reference_heading(heading: Array, step_m: Array) -> Array:
@@ -160,3 +193,29 @@ def reference_heading(heading: Array, step_m: Array) -> Array:
     return np.asarray(
         np.where(moving, np.arctan2(step_m[..., 1], step_m[..., 0]), heading), dtype=np.float64
     )
+
+
+def held_velocity_step(x: Array, velocity: Array, period_s: float) -> Array:
+    """A holonomic body that holds ``velocity`` for ``period_s``: :func:`step_single` with
+    no consensus increment and the velocity as its feed-forward, ``x + T u``.
+
+    x : (a, d) [m]; velocity : (a, d) [m/s]. What a velocity-driven robot does with one
+    ``Twist``, and what the ROS 2 plant integrates (docs/robots.md).
+    """
+    return step_single(x, np.zeros_like(x), velocity, period_s)
+
+
+def body_velocity(x: Array, x_next: Array, period_s: float) -> Array:
+    """The velocity a robot is sent to take it from ``x`` to ``x_next`` in one period,
+    ``(x_next − x) / T``: (a, d) [m/s]."""
+    return (x_next - x) / period_s
+
+
+def body_step(x: Array, x_next: Array, period_s: float) -> Array:
+    """Where a velocity-driven robot sent toward ``x_next`` is after one period: (a, d) [m].
+
+    ``x + T ((x_next − x) / T)``, which differs from ``x_next`` in the last bits; the
+    simulator moves an agent whose body is a robot by this (docs/robots.md), so that a run
+    through the stepped ROS 2 plant equals it to the bit.
+    """
+    return held_velocity_step(x, body_velocity(x, x_next, period_s), period_s)

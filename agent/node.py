@@ -18,10 +18,14 @@ from dataclasses import dataclass, field
 from functools import partial
 from typing import Any
 
+import numpy as np
 import orjson
 
+from agent.body import FIRST_POSE_S, BodyLost, RobotBodies
+from agent.control import body_velocity
 from agent.runner import AgentRunner, Estimate, Packet, Report
 from formation import keys
+from formation.body import BODY_LOST_EXIT
 from formation.codec import attachment
 from formation.deadlines import CAUSES, USED_KEPT, cause
 from formation.errors import RuntimeFailure
@@ -96,8 +100,12 @@ class AgentNode:
         ids: list[int],
         strategy: StrategyName,
         seed: int,
+        bodies: RobotBodies | None = None,
     ) -> None:
         self.service, self.scenario = service, scenario
+        self.bodies = bodies  # the agents whose body is a ROS 2 robot (agent.body)
+        self.body_lost: BodyLost | None = None
+        self.cpu_at_start_s = 0.0
         self.run_id = service.run_id
         self.runner = AgentRunner(scenario, ids, strategy, seed)
         self.inbox = {i: _Inbox() for i in ids}
@@ -418,11 +426,55 @@ class AgentNode:
             complete = partial(self._has_estimates, k) if realtime else self._all_in
             self.deadline["early_steps"] += yield Wait(k, ESTIMATE_DEADLINE, complete)
             got = self._queued_estimates(k) if realtime else self._delivered_estimates(k)
+            before = None if self.bodies is None else self.runner.x.copy()
+            if realtime and self.bodies is not None:
+                self._take_headings()  # a unicycle steps from where it faces now
             self.runner.step(got)
+            if before is not None:
+                try:
+                    self._move_bodies(k, before, realtime)
+                except BodyLost as exc:  # as a crash: this agent takes no further part
+                    log.error("%s", exc)
+                    self.body_lost = exc
+                    break
             # x[k+1] is known now: out at once, so the states have the rest of this period
             # as well as the next one's first 0.2 to arrive.
             self._publish_states()
         self.finished.set()
+
+    def _take_headings(self) -> None:
+        """A unicycle robot's newest heading as ``θ[k]`` (realtime)."""
+        assert self.bodies is not None
+        if self.runner.heading is not None:
+            for i, heading in self.bodies.headings().items():
+                self.runner.heading[self.runner.row[i]] = heading
+
+    def _move_bodies(self, k: int, before: Any, realtime: bool) -> None:
+        """Send each robot the velocity to its ``x[k+1]`` over one period (agent.body).
+
+        Lockstep: ``x[k+1]`` is then the robot's pose stamped ``k + 1``. Realtime: the
+        velocity goes from the robot's newest pose, and ``x[k+1]`` is where it leads: a robot
+        reaches it as the next step comes, while a pose taken now would be a period old by
+        then (a one-epoch delay in the consensus: 5 robots at 10 Hz went unstable).
+        """
+        assert self.bodies is not None
+        ids = self.bodies.ids
+        rows = [self.runner.row[i] for i in ids]
+        timeout_s = self.scenario.body.pose_timeout_s
+        if realtime:
+            period_s = self.scenario.runtime.realtime_period_s or self.scenario.control.period_s
+            now = self.bodies.wait_poses(None, timeout_s)
+            start = np.array([now[i] for i in ids], dtype=float)
+            u = body_velocity(start, self.runner.x[rows], period_s)
+            self.bodies.command(dict(zip(ids, u.tolist(), strict=True)))
+        else:
+            u = body_velocity(before[rows], self.runner.x[rows], self.scenario.control.period_s)
+            self.bodies.command(dict(zip(ids, u.tolist(), strict=True)))
+            self.runner.place(self.bodies.wait_poses(k + 1, timeout_s))
+        for i in ids:  # into the recording: the pose taken and the command sent
+            for what, type_name, cdr in self.bodies.traffic(i):
+                key = keys.body(self.run_id, i, what, type_name)
+                self.service.put(key, cdr, attachment(k, self.service.next_seq(key), i))
 
     def run(self, timing: TimePolicy) -> int:
         """Run every agent to its last epoch under ``timing``; returns an exit code.
@@ -431,14 +483,21 @@ class AgentNode:
         thread only watches; realtime: a fixed period, and what has not arrived by a
         phase's deadline is lost.
         """
+        if self.bodies is not None:  # x[0] is where the robots are
+            self.runner.place(self.bodies.wait_poses(None if timing.realtime else 0, FIRST_POSE_S))
+            self._take_headings()
+            self.bodies.wait_subscribed(FIRST_POSE_S)
         if timing.realtime:
             self.rehearse()  # while the others start: the clock is not running yet
         if not timing.join(self.service):
             return 1
+        self.cpu_at_start_s = time.process_time()  # the run's CPU, from its start (agent.__main__)
         self.clock = timing.clock
         self.end = self.scenario.epochs if timing.realtime else self.last_epoch
         route = self._route if timing.realtime else self._on_delivery
         code = timing.drive(self.service, self._epochs(timing), route, self.scenario.epochs)
+        if self.body_lost is not None:
+            return BODY_LOST_EXIT
         if code == 0 and not timing.realtime and self.crashes:
             # a crash event: no goodbye, no final status
             log.warning("crash at epoch %d (a scenario event): taking no further part", self.end)

@@ -117,6 +117,12 @@ class AgentRunner:
         self._positions = None
         self.epoch = epoch
 
+    def place(self, positions: dict[int, list[float]]) -> None:
+        """Set ``x_i[k]`` of some agents from their bodies' poses [m] (agent.body)."""
+        for i, p in positions.items():
+            self.x[self.row[i]] = p
+        self._positions = None
+
     def pose(self, agent: int) -> tuple[float, int] | None:
         """A unicycle's heading ``θ_i[k]`` [rad] and its saturated sub-steps of epoch ``k − 1``."""
         if self.heading is None or self.saturated is None:

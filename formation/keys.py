@@ -119,6 +119,12 @@ def parse_alive(key: str) -> tuple[str, str]:
     return parts[-2], parts[-1]
 
 
+def body(run_id: str, i: int | str, what: str, type_name: str) -> str:
+    """Agent ``i``'s body traffic as the agent saw it (``what``: ``pose`` in, ``command``
+    out), a ROS 2 message of ``type_name`` (``geometry_msgs/msg/Twist``) in CDR; recorded."""
+    return f"{ROOT}/{run_id}/body/{i}/{what}/{type_name}"
+
+
 def scene(run_id: str) -> str:
     """Foxglove 3D scene written by the recorder."""
     return f"{ROOT}/{run_id}/viz/scene"

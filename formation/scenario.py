@@ -27,6 +27,7 @@ from pydantic import (
 )
 
 from formation._error_paths import loc_path, lookup
+from formation.body import Body, body_problems
 from formation.capacity import Capacity, capacity_problems
 from formation.errors import NO_VALUE, ScenarioError
 from formation.events import Event, Membership, event_problems, membership
@@ -289,6 +290,7 @@ class Scenario(_Model):
     network: Network = Network()
     runtime: Runtime = Runtime()
     recording: RecordingSettings = RecordingSettings()
+    body: Body = Body()  # where the agents' bodies are (formation.body)
     safety: Safety = Safety()
     events: tuple[Event, ...] = ()  # leave, join, crash, restart (formation.events)
 
@@ -562,6 +564,9 @@ def _problems(s: Scenario) -> list[tuple[str, object, str]]:
     events = event_problems(n, s.leader, s.epochs, pairs, s.events, s.allow_split)
     if events:
         return events
+    body = body_problems(s.body, n, s.control.dynamics, len(s.events), s.runtime.mode)
+    if body:
+        return body
     probed = _probe_plugins(s)
     if probed:
         return probed

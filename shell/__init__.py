@@ -5,6 +5,7 @@ a :class:`Bus`: :class:`ZenohBus` in the product, :class:`MemoryBus` in unit tes
 node runs one loop under a :class:`TimePolicy`, :class:`Lockstep` or :class:`Realtime`.
 """
 
+from shell.body_link import BodyLink, open_body_link
 from shell.bus import (
     Bus,
     MemoryBus,
@@ -14,6 +15,8 @@ from shell.bus import (
     ZenohBus,
 )
 from shell.config_files import check_readable
+from shell.rmw_zenoh import pose_cdr, twist_cdr
+from shell.ros2 import NS_PER_S, require_ros2
 from shell.service import Incoming, Service, settle_heap
 from shell.serving import load_scenario, open_service, serve, service_parser
 from shell.stack_dump import DUMP_SIGNAL, dump_stacks_on_signal
@@ -34,6 +37,8 @@ __all__ = [
     "MEMBERS_ENV",
     "MEMBERS_FILE_ENV",
     "MEMBER_ENV",
+    "NS_PER_S",
+    "BodyLink",
     "Bus",
     "Incoming",
     "Lockstep",
@@ -52,12 +57,16 @@ __all__ = [
     "dump_stacks_on_signal",
     "endpoints",
     "load_scenario",
+    "open_body_link",
     "open_service",
     "open_session",
     "open_with_retry",
+    "pose_cdr",
+    "require_ros2",
     "serve",
     "service_parser",
     "session_config",
     "settle_heap",
     "time_policy",
+    "twist_cdr",
 ]

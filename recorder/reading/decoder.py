@@ -47,6 +47,20 @@ def decode_kind(kind: str, payload: bytes) -> Message:
     return decode(spec.name, spec.data, payload)
 
 
+def decode_cdr(type_name: str, payload: bytes) -> object:
+    """An agent's body traffic: ``payload`` as the ROS 2 message ``type_name`` in CDR, read by
+    rosbags (the extra ``ros2``); raises :class:`DecodeError` if it does not parse or rosbags
+    is missing."""
+    try:
+        from rosbags.typesys import Stores, get_typestore
+    except ImportError:
+        raise DecodeError("rosbags (the extra ros2) reads CDR; it is not installed") from None
+    try:
+        return get_typestore(Stores.ROS2_KILTED).deserialize_cdr(payload, type_name)
+    except Exception as exc:  # rosbags raises several kinds on bad bytes or an unknown type
+        raise DecodeError(f"{type_name} in CDR: {exc}") from None
+
+
 def as_dict(message: Message) -> dict[str, Any]:
     """A decoded message as plain data: proto field names, every field present (zero values
     too), enums by name and timestamps as RFC 3339 strings."""
@@ -56,4 +70,4 @@ def as_dict(message: Message) -> dict[str, Any]:
     return out
 
 
-__all__ = ["DecodeError", "as_dict", "decode", "decode_kind", "message_class"]
+__all__ = ["DecodeError", "as_dict", "decode", "decode_cdr", "decode_kind", "message_class"]

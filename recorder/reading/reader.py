@@ -24,9 +24,9 @@ from mcap.summary import Summary
 from formation.errors import RecordingError, TestbedError
 from formation.messages import DecisionBatch
 from formation.scenario import Scenario, load_dict
-from recorder.reading.decoder import DecodeError, decode
+from recorder.reading.decoder import DecodeError, decode, decode_cdr
 from recorder.reading.trust import Gate, Skipped, derived_channels
-from recorder.recording.schemas import PROTOBUF, classify
+from recorder.recording.schemas import PROTOBUF, ROS2MSG, classify
 from recorder.recording.writer import MAGIC, rotated_path
 
 READ_ERRORS = (Exception,)  # the mcap reader raises McapError, struct.error, zstd/lz4 errors, ...
@@ -211,7 +211,7 @@ class Validation:
 
 def validate(path: Path, limit: int = 20) -> Validation:
     """Check every message against the schema stored in its channel's schema record: JSON
-    Schema for JSON, the FileDescriptorSet for protobuf (it must decode)."""
+    Schema for JSON, the FileDescriptorSet for protobuf, the ROS 2 type for CDR (it must decode)."""
     out = Validation()
     validators: dict[int, Any] = {}
     with open_recording(path) as (reader, _):
@@ -219,7 +219,13 @@ def validate(path: Path, limit: int = 20) -> Validation:
             out.checked += 1
             name = schema.name if schema else "(none)"
             out.by_schema[name] += 1
-            if schema is not None and schema.encoding == PROTOBUF:
+            if schema is not None and schema.encoding == ROS2MSG:  # an agent's body traffic
+                try:
+                    decode_cdr(schema.name, msg.data)
+                    continue
+                except DecodeError as exc:
+                    problem = f"{name}: not CDR ({exc})"
+            elif schema is not None and schema.encoding == PROTOBUF:
                 try:
                     decode(schema.name, schema.data, msg.data)
                     continue

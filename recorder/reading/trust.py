@@ -46,13 +46,15 @@ from formation.messages import (
     TokenReport,
 )
 from formation.scenario import Scenario
-from recorder.reading.decoder import DecodeError, decode_kind
+from recorder.reading.decoder import DecodeError, decode_cdr, decode_kind
 from recorder.recording.schemas import (
     FOXGLOVE,
     MESSAGE_MODELS,
     ORIGIN,
     RECORDER,
+    ROS2,
     UNKNOWN,
+    CdrMessage,
     LivelinessEvent,
     classify,
 )
@@ -200,6 +202,8 @@ class Gate:
             raise Skip(FORGED, f"{kind} not written by the recorder")
         if kind in FOXGLOVE:
             return self._foxglove(kind, data)
+        if kind.startswith(ROS2):
+            return self._cdr(kind.removeprefix(ROS2), topic, data)
         model = MESSAGE_MODELS.get(kind)
         if model is None or kind == UNKNOWN:
             raise Skip(UNKNOWN_KEY, f"no process publishes on {topic}")
@@ -214,6 +218,15 @@ class Gate:
         if self.conflicts and isinstance(epoch, int) and epoch >= 0 and kind not in self.repeated:
             self._first(topic, epoch, data)
         return msg
+
+    def _cdr(self, type_name: str, topic: str, data: bytes) -> CdrMessage:
+        """An agent's body traffic: a ROS 2 message of its type in CDR, on its agent's key."""
+        self._agent(self._key_id(topic.split("/")[3]))
+        try:
+            decode_cdr(type_name, data)
+        except DecodeError as exc:
+            raise Skip(INVALID, str(exc)) from None
+        return CdrMessage(type_name=type_name, size=len(data))
 
     # -- shared checks ----------------------------------------------------------------------
     def _first(self, topic: str, epoch: int, data: bytes) -> None:

@@ -34,6 +34,9 @@ JSON = "json"  # message encoding
 JSONSCHEMA = "jsonschema"  # schema encoding
 PROTOBUF = "protobuf"  # message and schema encoding of the Foxglove channels
 UNKNOWN = "unknown"  # schema name of keys this module does not know
+ROS2MSG = "ros2msg"  # schema encoding of an agent's body traffic: ROS 2's message definition
+CDR = "cdr"  # its message encoding
+ROS2 = "ros2:"  # kind of a body channel: "ros2:" and the message type
 ORIGIN = "origin"  # channel metadata of what the recorder derived itself
 RECORDER = "recorder"  # ORIGIN's value on those channels
 FoxgloveMessage = type[SceneUpdate] | type[FrameTransforms] | type[Log]
@@ -74,6 +77,8 @@ _PATTERNS: tuple[tuple[str, str], ...] = (
     ("alive", keys.alive(_W, _W, _W)),
 )
 _SPLIT = tuple((kind, tuple(p.split("/"))) for kind, p in _PATTERNS)
+# an agent's body traffic: the kind names the ROS 2 type, the key's last three chunks
+_BODY = tuple(keys.body(_W, _W, _W, f"{_W}/msg/{_W}").split("/"))
 
 MESSAGE_MODELS: dict[str, type[BaseModel]] = {
     "agent_state": CoordinationState,
@@ -95,6 +100,8 @@ MESSAGE_MODELS: dict[str, type[BaseModel]] = {
 def classify(key: str) -> str:
     """The channel kind of ``key`` (``"agent_state"``, ``"scene"``, ... or ``"unknown"``)."""
     parts = key.split("/")
+    if len(parts) == len(_BODY) and all(p in (_W, x) for p, x in zip(_BODY, parts, strict=True)):
+        return ROS2 + "/".join(parts[-3:])
     for kind, pattern in _SPLIT:
         if len(parts) == len(pattern) and all(
             p in (_W, x) for p, x in zip(pattern, parts, strict=True)
@@ -135,8 +142,31 @@ def foxglove_schema(kind: str) -> SchemaSpec:
 UNKNOWN_SCHEMA = SchemaSpec(UNKNOWN, JSONSCHEMA, b"{}")  # the empty schema accepts any JSON
 
 
+@cache
+def ros2_schema(type_name: str) -> SchemaSpec:
+    """ROS 2's definition of ``type_name`` with its dependencies (``ros2msg``), as Foxglove
+    reads it; from rosbags (the extra ``ros2``), empty where it is not installed."""
+    try:
+        from rosbags.typesys import Stores, get_typestore
+    except ImportError:
+        return SchemaSpec(type_name, ROS2MSG, b"")
+    text, _ = get_typestore(Stores.ROS2_KILTED).generate_msgdef(type_name, ros_version=2)
+    return SchemaSpec(type_name, ROS2MSG, text.encode())
+
+
+class CdrMessage(BaseModel):
+    """A body channel's message that decoded as its ROS 2 type (recorder.reading.trust)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    type_name: str
+    size: int
+
+
 def schema_for_kind(kind: str) -> SchemaSpec:
     """The schema written for channels of ``kind``."""
+    if kind.startswith(ROS2):
+        return ros2_schema(kind.removeprefix(ROS2))
     if kind in FOXGLOVE:
         return foxglove_schema(kind)
     model = MESSAGE_MODELS.get(kind)
@@ -148,24 +178,32 @@ def schema_for_key(key: str) -> SchemaSpec:
 
 
 def message_encoding(kind: str) -> str:
-    """How messages of channels of ``kind`` are encoded: protobuf for Foxglove's, else JSON."""
+    """How messages of channels of ``kind`` are encoded: protobuf for Foxglove's, CDR for an
+    agent's body traffic, else JSON."""
+    if kind.startswith(ROS2):
+        return CDR
     return PROTOBUF if kind in FOXGLOVE else JSON
 
 
 __all__ = [
+    "CDR",
     "FOXGLOVE",
     "JSON",
     "JSONSCHEMA",
     "MESSAGE_MODELS",
     "PROTOBUF",
+    "ROS2",
+    "ROS2MSG",
     "UNKNOWN",
     "UNKNOWN_SCHEMA",
+    "CdrMessage",
     "LivelinessEvent",
     "SchemaSpec",
     "classify",
     "foxglove_schema",
     "message_encoding",
     "model_schema",
+    "ros2_schema",
     "run_id_of",
     "schema_for_key",
     "schema_for_kind",

@@ -28,6 +28,7 @@ COMMANDS: dict[str, str] = {
     "experiment": "testbed.cli.experiment",
     "sweep": "testbed.cli.experiment",
     "plugins": "testbed.cli.plugins",
+    "ros2-plant": "testbed.cli.plant",
 }
 
 

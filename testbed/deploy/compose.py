@@ -24,6 +24,13 @@ trusted network only); ``--tls`` puts the links on TLS (``formation keys --tls``
 
 The recorder's container runs :mod:`testbed.runtime.recording_service`: on
 ``docker compose down`` it finishes ``run.mcap`` and writes ``report.md``.
+
+A scenario whose agents have ROS 2 bodies (``[body] kind = "ros2"``, docs/robots.md) gets an
+image with the extra ``ros2`` (build argument ``EXTRAS``), DDS discovery on the Compose network
+(``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET``) in its domain for those agents, and the headless
+plant as the service ``plant`` of the optional profile ``ros2``: ``docker compose --profile
+ros2 up`` runs it in place of the robots (its clock by the scenario's mode). It is no Zenoh
+member: it speaks DDS only.
 """
 
 from __future__ import annotations
@@ -35,6 +42,7 @@ from typing import Any
 
 import yaml
 
+from formation.body import EXTRA
 from formation.errors import TestbedError
 from formation.scenario import Scenario
 from shell import MEMBER_ENV, MEMBERS_ENV
@@ -42,6 +50,7 @@ from testbed.deploy import security
 from testbed.runtime.processes import SERVICE_ENV
 
 ROUTER = "router"
+PLANT = "plant"  # the headless ROS 2 plant (profile ros2)
 PORT = 7447
 APP = PurePosixPath("/app")
 RUNS = APP / "runs"
@@ -163,15 +172,40 @@ def document(
         )
     for name, service in services.items():  # the team (shell/zenoh_config.py): only it blocks
         service["environment"].update({MEMBER_ENV: name, MEMBERS_ENV: ",".join(services)})
+    robots = scenario.body.robots(scenario.n) if scenario.body.kind == "ros2" else []
+    if robots:
+        dds = _dds(scenario)
+        for i in robots:
+            services[security.agent_user(i)]["environment"].update(dds)
+        services[ROUTER]["build"]["args"] = {"EXTRAS": f"[{EXTRA}]"}
+        clock = "free" if scenario.runtime.mode == "realtime" else "stepped"
+        services[PLANT] = {
+            **_common(options),
+            "profiles": [EXTRA],  # --profile ros2: the headless plant instead of the robots
+            "command": ["formation", "ros2-plant", str(SCENARIO), "--clock", clock],
+            "environment": dds,
+            "volumes": [mount],
+            "init": True,
+        }
     doc: dict[str, Any] = {"name": "formation", "services": services}
     if options.secure:
-        users = [ROUTER, *(name for name in services if name != ROUTER)]
+        users = [ROUTER, *(name for name in services if name not in (ROUTER, PLANT))]
         doc["secrets"] = {
             u: {"file": f"{KEYS_DIR}/{security.ROUTER_CONFIG if u == ROUTER else u + '.json5'}"}
             for u in users
         }
         doc["secrets"][PASSWORDS.removesuffix(".txt")] = {"file": f"{KEYS_DIR}/{PASSWORDS}"}
     return doc
+
+
+def _dds(scenario: Scenario) -> dict[str, str]:
+    """Fast DDS between the containers of the ROS 2 bodies and the plant: the Compose network."""
+    domain = scenario.body.domain_id
+    return {
+        "ROS_DOMAIN_ID": str(0 if domain is None else domain),
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET",
+        "ROS_LOG_DIR": "/tmp/ros-log",  # rclpy writes its logs there; HOME may not be writable
+    }
 
 
 def _common(options: ComposeOptions, build: bool = False) -> dict[str, Any]:

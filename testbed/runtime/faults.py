@@ -20,6 +20,7 @@ import numpy as np
 import numpy.typing as npt
 import orjson
 
+from formation.body import BODY_LOST_EXIT
 from formation.errors import RunEnded, RuntimeFailure
 from formation.plugin_api import PLUGIN_EXIT
 from testbed.runtime.processes import Child, ProcessGroup
@@ -159,7 +160,11 @@ class Supervisor:
         """Raise once every agent process is gone for good: there is no team left."""
         gone = self.gone_for_good()
         if agents and set(agents) <= gone:
-            names = ", ".join(sorted(gone & set(agents)))
+            lost = {x.name for x in self.losses if x.code == BODY_LOST_EXIT}
+            names = ", ".join(
+                f"{n}: its robot's pose stopped coming" if n in lost else n
+                for n in sorted(gone & set(agents))
+            )
             raise RuntimeFailure(f"every agent is gone ({names}); the run cannot go on")
 
     def gone_for_good(self) -> set[str]:

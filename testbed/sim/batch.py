@@ -30,6 +30,7 @@ from agent import (
     LinkMemory,
     Substitution,
     agent_epoch,
+    body_step,
     reference_heading,
     state_width,
 )
@@ -216,8 +217,13 @@ def run_batch(
     saturated = np.zeros((n_epochs, size, n), dtype=np.int64) if unicycle else None
     if th is not None:
         th[0] = np.stack([initial_headings(int(s), n) for s in plan.seeds.tolist()])
+    robots = np.array(base.body.robots(n), dtype=np.int64) - 1  # rows of ROS 2 bodies
+    leader_robot = base.body.has_robot(r)
     for k in range(n_epochs + 1):
-        x[k, :, r - 1] = ref_x[k]  # the reference agent follows the trajectory (docs/model.md §3)
+        if k == 0 or not leader_robot:  # a robot is where its velocity took it (below)
+            x[k, :, r - 1] = ref_x[
+                k
+            ]  # the reference agent follows the trajectory (docs/model.md §3)
         if k == n_epochs:
             break
         xk = x[k]
@@ -296,6 +302,12 @@ def run_batch(
                 th[k + 1, :, frozen] = th[k, :, frozen]
                 saturated[k, :, frozen] = 0
         x[k + 1] = nxt
+        if robots.size:  # a ROS 2 body is sent a velocity and goes where it takes it
+            if leader_robot:  # sent toward its trajectory
+                x[k + 1, :, r - 1] = ref_x[k + 1]
+            x[k + 1][:, robots] = body_step(
+                xk[:, robots], x[k + 1][:, robots], base.control.period_s
+            )
 
     result = BatchResult(
         plan=plan,

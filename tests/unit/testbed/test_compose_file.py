@@ -332,3 +332,36 @@ def test_every_service_is_of_the_team_under_its_name() -> None:
         env = service["environment"]
         assert env["FORMATION_MEMBER"] == name
         assert env["FORMATION_MEMBERS"].split(",") == list(services)
+
+
+@pytest.mark.parametrize("options", OPTIONS, ids=["closed", "open", "tls"])
+@pytest.mark.parametrize("mode", ["lockstep", "realtime"])
+def test_robots_on_ros2_get_the_extra_dds_on_the_network_and_the_plant_as_a_profile(
+    options: ComposeOptions, mode: str, compose_schema: jsonschema.Draft7Validator
+) -> None:
+    paper = Scenario.from_file(ROOT / DEFAULT)
+    robots = paper.with_overrides(
+        body={"kind": "ros2", "agents": [2, 3], "domain_id": 9}, runtime={"mode": mode}
+    )
+    doc = yaml.safe_load(render("robots.toml", options, robots))
+    compose_schema.validate(doc)
+    services = doc["services"]
+    assert services["router"]["build"]["args"] == {"EXTRAS": "[ros2]"}
+    plant = services["plant"]
+    assert plant["profiles"] == ["ros2"]  # optional: real robots, or --profile ros2
+    clock = "free" if mode == "realtime" else "stepped"
+    assert plant["command"] == ["formation", "ros2-plant", "/app/scenario.toml", "--clock", clock]
+    dds = {
+        "ROS_DOMAIN_ID": "9",
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET",
+        "ROS_LOG_DIR": "/tmp/ros-log",
+    }
+    assert plant["environment"] == dds  # DDS only: no Zenoh, no credentials
+    assert "secrets" not in plant and "plant" not in doc.get("secrets", {})
+    assert "plant" not in services["agent-1"]["environment"]["FORMATION_MEMBERS"]
+    for i in (1, 2, 3, 4, 5):
+        env = services[f"agent-{i}"]["environment"]
+        assert (env.get("ROS_DOMAIN_ID") == "9") == (i in (2, 3))
+    # a scenario without robots: no plant, no extra
+    plain = yaml.safe_load(render(DEFAULT, options, paper))["services"]
+    assert "plant" not in plain and "args" not in plain["router"]["build"]

@@ -1,0 +1,161 @@
+"""Where an agent's body is: simulated in its process (the default), or a robot on ROS 2.
+
+A scenario's ``[body]``: ``kind = "simulated"`` keeps today's body, integrated inside the
+agent process. ``kind = "ros2"`` makes the agent process also a ROS 2 node (rclpy, the
+optional extra ``ros2``): it takes its state from its robot's pose topic and sends its
+command as a ``geometry_msgs/msg/Twist`` on the command topic (docs/robots.md).
+``kind = "rmw_zenoh"`` is the same exchange over the run's Zenoh session in rmw_zenoh's
+wire format, with no DDS (shell/rmw_zenoh.py).
+
+Topics are templates on the agent id (``/robot{id}/pose``); message types are checked here,
+at load, against the types the bodies can read and write.
+"""
+
+from __future__ import annotations
+
+import re
+import string
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+BodyKind = Literal["simulated", "ros2", "rmw_zenoh"]
+ROS_BODIES: tuple[str, ...] = ("ros2", "rmw_zenoh")  # kinds whose body is a ROS 2 robot
+POSE_TYPES: tuple[str, ...] = ("geometry_msgs/msg/PoseStamped", "nav_msgs/msg/Odometry")
+COMMAND_TYPES: tuple[str, ...] = ("geometry_msgs/msg/Twist",)
+EXTRA = "ros2"  # the optional extra that installs rclpy and the message packages
+BODY_LOST_EXIT = 4  # exit code of an agent whose robot's pose stopped coming
+# A ROS 2 topic name once ``{id}`` is filled in: absolute or relative, tokens of
+# letters, digits and underscores, not starting with a digit, joined by single slashes.
+_TOPIC = re.compile(r"^/?[A-Za-z_~][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
+
+
+class _Settings(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+class Qos(_Settings):
+    """A ROS 2 QoS profile: reliability, durability and the history's depth (keep last)."""
+
+    reliability: Literal["reliable", "best_effort"] = "reliable"
+    durability: Literal["volatile", "transient_local"] = "volatile"
+    depth: int = Field(10, ge=1, le=10_000)
+
+
+class Body(_Settings):
+    """The scenario's ``[body]``: where the agents' bodies are, and how to reach them.
+
+    ``scale``: the robot's frame in metres per metre of the scenario (a lab arena that is a
+    half-size model of the scenario has ``scale = 0.5``); poses are divided by it, commands
+    multiplied. ``pose_timeout_s``: a robot whose pose has not come for this long is lost.
+    """
+
+    kind: BodyKind = "simulated"
+    agents: tuple[int, ...] = ()  # the agents with this body; empty: every agent
+    pose_topic: str = "/robot{id}/pose"
+    pose_type: str = "geometry_msgs/msg/PoseStamped"
+    command_topic: str = "/robot{id}/cmd_vel"
+    command_type: str = "geometry_msgs/msg/Twist"
+    frame_id: str = "world"  # the frame the poses are given in, and the plant's poses carry
+    scale: float = Field(1.0, gt=0.0)  # robot metres per scenario metre
+    pose_timeout_s: float = Field(5.0, gt=0.0)  # [s]
+    domain_id: int | None = Field(None, ge=0, le=232)  # ROS_DOMAIN_ID; None: the environment's
+    pose_qos: Qos = Qos()
+    command_qos: Qos = Qos()
+
+    @field_validator("pose_topic", "command_topic")
+    @classmethod
+    def _template(cls, v: str) -> str:
+        fields = [name for _, name, _, _ in string.Formatter().parse(v) if name is not None]
+        if "id" not in fields:
+            raise ValueError("a topic template names the agent as {id}, e.g. '/robot{id}/pose'")
+        if set(fields) != {"id"}:
+            raise ValueError(f"a topic template may only name {{id}}, got {sorted(set(fields))}")
+        topic = v.format(id=1)
+        if not _TOPIC.match(topic):
+            raise ValueError(
+                f"not a ROS 2 topic name once filled in ({topic!r}): tokens of letters, digits "
+                "and underscores joined by single slashes"
+            )
+        return v
+
+    @field_validator("pose_type")
+    @classmethod
+    def _pose_type(cls, v: str) -> str:
+        return _known(v, POSE_TYPES)
+
+    @field_validator("command_type")
+    @classmethod
+    def _command_type(cls, v: str) -> str:
+        return _known(v, COMMAND_TYPES)
+
+    @field_validator("frame_id")
+    @classmethod
+    def _frame(cls, v: str) -> str:
+        if not v or v.strip() != v:
+            raise ValueError("a frame id is a non-empty name without surrounding spaces")
+        return v
+
+    def has_robot(self, agent: int) -> bool:
+        """Whether agent ``agent``'s body is a ROS 2 robot."""
+        return self.kind in ROS_BODIES and (not self.agents or agent in self.agents)
+
+    def robots(self, n: int) -> list[int]:
+        """The ids among ``1..n`` whose body is a ROS 2 robot, ascending."""
+        return [i for i in range(1, n + 1) if self.has_robot(i)]
+
+    def pose_topic_of(self, agent: int) -> str:
+        return self.pose_topic.format(id=agent)
+
+    def command_topic_of(self, agent: int) -> str:
+        return self.command_topic.format(id=agent)
+
+
+def _known(v: str, types: tuple[str, ...]) -> str:
+    if v not in types:
+        raise ValueError(f"unknown message type; expected one of {', '.join(types)}")
+    return v
+
+
+def body_problems(
+    body: Body, n: int, dynamics: str, events: int = 0, mode: str = "lockstep"
+) -> list[tuple[str, object, str]]:
+    """``(field, value, problem)`` of ``[body]`` against the team (``events``: how many the
+    scenario has); empty when it can run."""
+    for k, i in enumerate(body.agents):
+        if not 1 <= i <= n:
+            return [(f"body.agents[{k}]", i, f"agent does not exist (agents are 1..{n})")]
+    if len(set(body.agents)) != len(body.agents):
+        return [("body.agents", list(body.agents), "an agent is listed twice")]
+    if body.kind in ROS_BODIES and events:
+        return [
+            (
+                "body.kind",
+                body.kind,
+                f"the scenario has {events} events (leave, crash, join, restart), which robots "
+                "do not follow yet: the stepped plant would wait for an agent that is out",
+            )
+        ]
+    if body.kind in ROS_BODIES and dynamics == "unicycle" and mode != "realtime":
+        return [
+            (
+                "control.dynamics",
+                dynamics,
+                f"a unicycle with a {body.kind} body runs in realtime only (its inner loop "
+                "steers at each pose); set runtime.mode = 'realtime'",
+            )
+        ]
+    return []
+
+
+__all__ = [
+    "BODY_LOST_EXIT",
+    "COMMAND_TYPES",
+    "EXTRA",
+    "POSE_TYPES",
+    "ROS_BODIES",
+    "Body",
+    "BodyKind",
+    "Qos",
+    "body_problems",
+]

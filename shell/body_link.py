@@ -1,0 +1,167 @@
+"""The link to ROS 2 robots, whichever way it goes: rclpy over DDS, or rmw_zenoh's format on
+a Zenoh session (``[body] kind``, formation/body.py). The agents and the plant talk to a
+:class:`BodyLink`; positions and velocities are plain lists [robot m, robot m/s], and a
+pose's stamp is in integer nanoseconds.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, Protocol
+
+from formation.body import Body
+from shell.rmw_zenoh import RmwZenohNode, pose_cdr, read_pose, read_twist, twist_cdr
+from shell.ros2 import (
+    RosNode,
+    open_ros_node,
+    pose_message,
+    pose_position,
+    pose_yaw,
+    stamp_ns,
+    twist_message,
+    twist_velocity,
+)
+
+OnPose = Callable[[list[float], int, float], None]  # position [robot m], stamp [ns], yaw [rad]
+OnCommand = Callable[[list[float], float], None]  # linear [robot m/s], angular.z [rad/s]
+
+
+class Endpoint(Protocol):
+    def matched(self) -> bool:
+        """Whether the other end is there (a publisher: a subscriber; a subscription: a publisher)."""
+        ...
+
+
+class PosePublisher(Endpoint, Protocol):
+    def publish(self, position: list[float], stamp_ns: int, yaw: float) -> None: ...
+
+
+class CommandPublisher(Endpoint, Protocol):
+    def publish(self, velocity: list[float], angular_z: float) -> None: ...
+
+
+class BodyLink(Protocol):
+    """Robots' poses and commands on their topics (a ROS 2 node's, on one transport)."""
+
+    def poses(self, topic: str, on_pose: OnPose) -> Endpoint: ...
+    def commands(self, topic: str, on_command: OnCommand) -> Endpoint: ...
+    def pose_publisher(self, topic: str) -> PosePublisher: ...
+    def command_publisher(self, topic: str) -> CommandPublisher: ...
+    def close(self) -> None: ...
+
+
+class _RosEndpoint:
+    def __init__(self, entity: Any, publish: Callable[..., None] | None = None) -> None:
+        self.entity, self._publish = entity, publish
+
+    def matched(self) -> bool:
+        count = (
+            getattr(self.entity, "get_subscription_count", None) or self.entity.get_publisher_count
+        )
+        return bool(count() > 0)
+
+    def publish(self, *args: Any) -> None:
+        assert self._publish is not None
+        self._publish(*args)
+
+
+class RclpyLink:
+    """Over DDS, through an rclpy node (:class:`shell.ros2.RosNode`)."""
+
+    def __init__(self, name: str, body: Body) -> None:
+        self.body = body
+        self.node: RosNode = open_ros_node(name, body)
+
+    def poses(self, topic: str, on_pose: OnPose) -> Endpoint:
+        sub = self.node.subscribe(
+            topic,
+            self.node.pose_class,
+            self.body.pose_qos,
+            lambda msg: on_pose(list(pose_position(msg)), stamp_ns(msg), pose_yaw(msg)),
+        )
+        return _RosEndpoint(sub)
+
+    def commands(self, topic: str, on_command: OnCommand) -> Endpoint:
+        sub = self.node.subscribe(
+            topic,
+            self.node.command_class,
+            self.body.command_qos,
+            lambda msg: on_command(twist_velocity(msg, 3), float(msg.angular.z)),
+        )
+        return _RosEndpoint(sub)
+
+    def pose_publisher(self, topic: str) -> PosePublisher:
+        pub = self.node.publisher(topic, self.node.pose_class, self.body.pose_qos)
+        cls, frame = self.node.pose_class, self.body.frame_id
+        return _RosEndpoint(
+            pub, lambda p, when, yaw: pub.publish(pose_message(cls, p, when, frame, yaw))
+        )
+
+    def command_publisher(self, topic: str) -> CommandPublisher:
+        pub = self.node.publisher(topic, self.node.command_class, self.body.command_qos)
+        cls = self.node.command_class
+        return _RosEndpoint(pub, lambda u, w: pub.publish(twist_message(cls, u, w)))
+
+    def close(self) -> None:
+        self.node.close()
+
+
+class _ZenohEndpoint:
+    def __init__(self, publish: Callable[..., None] | None = None) -> None:
+        self._publish = publish
+
+    def matched(self) -> bool:
+        # Zenoh routes a put to the subscribers its router knows; the router learns a
+        # subscriber before that peer's later puts (its pose), so the first command after the
+        # first pose reaches the plant
+        return True
+
+    def publish(self, *args: Any) -> None:
+        assert self._publish is not None
+        self._publish(*args)
+
+
+class ZenohLink:
+    """rmw_zenoh's wire format on a Zenoh session (:mod:`shell.rmw_zenoh`), in domain
+    ``body.domain_id`` (default 0)."""
+
+    def __init__(self, session: Any, name: str, body: Body) -> None:
+        self.body = body
+        self.node = RmwZenohNode(session, body.domain_id or 0, name)
+
+    def poses(self, topic: str, on_pose: OnPose) -> Endpoint:
+        kind = self.body.pose_type
+        self.node.subscribe(topic, kind, self.body.pose_qos, lambda b: on_pose(*read_pose(kind, b)))
+        return _ZenohEndpoint()
+
+    def commands(self, topic: str, on_command: OnCommand) -> Endpoint:
+        twist = self.body.command_type
+        self.node.subscribe(
+            topic, twist, self.body.command_qos, lambda b: on_command(*read_twist(b))
+        )
+        return _ZenohEndpoint()
+
+    def pose_publisher(self, topic: str) -> PosePublisher:
+        kind, frame = self.body.pose_type, self.body.frame_id
+        put = self.node.publisher(topic, kind, self.body.pose_qos)
+        return _ZenohEndpoint(lambda p, when, yaw: put(pose_cdr(kind, p, when, frame, yaw=yaw)))
+
+    def command_publisher(self, topic: str) -> CommandPublisher:
+        put = self.node.publisher(topic, self.body.command_type, self.body.command_qos)
+        return _ZenohEndpoint(lambda u, w: put(twist_cdr(u, w)))
+
+    def close(self) -> None:
+        self.node.close()
+
+
+def open_body_link(name: str, body: Body, session: Any = None) -> BodyLink:
+    """The link of ``body.kind``: ``ros2`` opens an rclpy node named ``name``; ``rmw_zenoh``
+    uses ``session`` (a ``zenoh.Session``)."""
+    if body.kind == "rmw_zenoh":
+        if session is None:
+            raise ValueError("an rmw_zenoh body needs a Zenoh session")
+        return ZenohLink(session, name, body)
+    return RclpyLink(name, body)
+
+
+__all__ = ["BodyLink", "CommandPublisher", "Endpoint", "PosePublisher", "open_body_link"]

@@ -1,0 +1,140 @@
+"""The headless ROS 2 plant: one node that owns every robot of a scenario (docs/robots.md).
+
+It subscribes to each robot's command topic (``geometry_msgs/msg/Twist``) and publishes its
+pose (the scenario's pose type), on the topics and QoS of the scenario's ``[body]``. Two clocks:
+
+- **stepped**: the pose of epoch 0 goes to each robot once both its topics are matched, and
+  again every ``FIRST_POSE_S`` until its first command comes (a DDS reader that matches
+  after the writer misses what the writer sent in between); once every robot's command of
+  epoch ``k`` is in, every robot moves one period and the poses
+  go out stamped ``k + 1`` (sim time ``(k + 1) T``). A lockstep run through it equals
+  ``formation simulate`` to the bit.
+- **free**: every ``1 / rate_hz`` each robot moves by the last command it got (stopping when
+  none came for ``pose_timeout_s``), and the poses go out stamped with the wall clock, as a
+  robot does.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from functools import partial
+from typing import Any, Literal
+
+from formation.errors import TestbedError
+from formation.scenario import Scenario
+from shell import NS_PER_S, BodyLink, open_body_link
+from testbed.plant.robots import Robots
+
+log = logging.getLogger("ros2-plant")
+Clock = Literal["stepped", "free"]
+FIRST_POSE_S = 0.1  # [s] how often the stepped clock sends epoch 0's poses until commanded
+
+
+class Plant:
+    """The plant's node over :class:`Robots`. Commands come on the link's thread, the clock
+    runs on a thread of its own; one lock keeps the robots."""
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        clock: Clock = "stepped",
+        rate_hz: float | None = None,
+        seed: int | None = None,
+        name: str = "formation_plant",
+        session: Any = None,
+    ) -> None:
+        self.scenario, self.body, self.clock = scenario, scenario.body, clock
+        if clock == "stepped" and scenario.control.dynamics == "unicycle":
+            raise TestbedError(
+                f"{scenario.name}: control.dynamics = 'unicycle' takes the free-running plant "
+                "(--clock free, a realtime run): the stepped clock moves holonomic robots"
+            )
+        self.robots = Robots.of(scenario, seed)
+        if not self.robots.ids:
+            raise ValueError(f"{scenario.name}: no agent has a ROS 2 body (body.kind)")
+        self.period_ns = round(scenario.control.period_s * NS_PER_S)
+        self.link: BodyLink = open_body_link(name, self.body, session)
+        self.done = threading.Event()  # stepped: the scenario's last epoch is reached
+        self.closing = threading.Event()
+        self._lock = threading.Lock()
+        self._commanded: set[int] = set()  # stepped: robots whose first command came
+        self._last_command_ns: dict[int, int] = {}
+        self._publishers = {
+            i: self.link.pose_publisher(self.body.pose_topic_of(i)) for i in self.robots.ids
+        }
+        self._subscriptions = {
+            i: self.link.commands(self.body.command_topic_of(i), partial(self._on_command, i))
+            for i in self.robots.ids
+        }
+        rate = rate_hz or 1.0 / (scenario.runtime.realtime_period_s or scenario.control.period_s)
+        self.dt_s = 1.0 / rate
+        loop = self._first_poses if clock == "stepped" else self._free_running
+        self._thread = threading.Thread(target=loop, name=f"plant-{clock}", daemon=True)
+        self._thread.start()
+
+    def _publish(self, rows: list[int], stamp_ns: int) -> None:
+        scale = self.body.scale
+        for r in rows:
+            position = [float(c) * scale for c in self.robots.x[r]]
+            self._publishers[self.robots.ids[r]].publish(position, stamp_ns, self.robots.yaw(r))
+
+    def _first_poses(self) -> None:
+        """Stepped: epoch 0's pose to each robot not commanded yet whose topics are matched,
+        every ``FIRST_POSE_S`` until every robot has sent its first command."""
+        while not self.closing.wait(FIRST_POSE_S):
+            with self._lock:
+                for r, i in enumerate(self.robots.ids):
+                    if (
+                        i not in self._commanded
+                        and self._publishers[i].matched()
+                        and self._subscriptions[i].matched()
+                    ):
+                        self._publish([r], 0)
+                if len(self._commanded) == len(self.robots.ids):
+                    log.info("stepped: every robot has sent its first command")
+                    return
+
+    def _on_command(self, robot: int, velocity: list[float], turn_rad_s: float) -> None:
+        u = [c / self.body.scale for c in velocity[: self.scenario.dimension]]
+        with self._lock:
+            self.robots.command(robot, u, turn_rad_s)
+            self._last_command_ns[robot] = time.monotonic_ns()
+            self._commanded.add(robot)
+            if self.clock != "stepped":
+                return
+            while self.robots.ready():
+                self.robots.step_epoch()
+                k = self.robots.epoch
+                self._publish(list(range(len(self.robots.ids))), k * self.period_ns)
+                if k == self.scenario.epochs:
+                    log.info("stepped: epoch %d, the scenario's last, reached", k)
+                    self.done.set()
+
+    def _free_running(self) -> None:
+        """Free-running: every ``dt_s`` move by the held commands, publish the poses."""
+        next_s = time.monotonic()
+        stale_ns = self.body.pose_timeout_s * NS_PER_S
+        while not self.closing.wait(max(0.0, next_s - time.monotonic())):
+            next_s += self.dt_s
+            with self._lock:
+                now = time.monotonic_ns()
+                for i, at in list(self._last_command_ns.items()):
+                    if now - at > stale_ns:
+                        self.robots.stop(i)
+                self.robots.step_for(self.dt_s)
+                self._publish(list(range(len(self.robots.ids))), time.time_ns())
+
+    @property
+    def counts(self) -> dict[str, int]:
+        with self._lock:
+            return {**self.robots.counts, "epoch": self.robots.epoch}
+
+    def close(self) -> None:
+        self.closing.set()
+        self._thread.join(timeout=2.0)
+        self.link.close()
+
+
+__all__ = ["Clock", "Plant"]

@@ -1,0 +1,105 @@
+"""The plant's robots, with no ROS 2: where each is, what it was sent, one step of the dynamics.
+
+Each robot is a holonomic body that holds the velocity of its last command
+(:func:`agent.held_velocity_step`, the function the simulator moves a robot with), so a
+stepped run equals ``formation simulate`` to the bit (docs/robots.md). A unicycle
+(free-running only) holds its last ``linear.x``, ``angular.z``, clipped to its limits, and
+moves its axle's centre along the exact arc (:func:`agent.unicycle_arc`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from agent import heading_vector, held_velocity_step, unicycle_arc, wrap_angle
+from formation.robots import initial_headings
+from formation.scenario import Scenario
+
+Array = npt.NDArray[np.float64]
+
+
+@dataclass
+class Robots:
+    """Robots ``ids`` at ``x`` (r, d) [m], at epoch ``epoch`` (stepped clock)."""
+
+    ids: list[int]
+    x: Array  # positions; a unicycle's axle centres [m]
+    period_s: float
+    heading: Array | None = None  # a unicycle's (r,) [rad]
+    limits: tuple[float, float] = (0.0, 0.0)  # a unicycle's (max speed [m/s], max turn [rad/s])
+    turn: dict[int, float] = field(default_factory=dict)  # a unicycle's held angular.z [rad/s]
+    epoch: int = 0
+    queued: dict[int, deque[list[float]]] = field(default_factory=dict)  # stepped: per robot
+    held: dict[int, list[float]] = field(default_factory=dict)  # free-running: the last command
+    counts: dict[str, int] = field(
+        default_factory=lambda: {"commands": 0, "bad_commands": 0, "steps": 0}
+    )
+
+    @classmethod
+    def of(cls, scenario: Scenario, seed: int | None = None) -> Robots:
+        """Every robot of ``scenario`` where the scenario starts it (its initial positions)."""
+        ids = scenario.body.robots(scenario.n)
+        rows = np.array(ids, dtype=np.int64) - 1
+        x0 = scenario.initial_positions(seed)[rows]
+        period_s = scenario.control.period_s
+        queued: dict[int, deque[list[float]]] = {i: deque() for i in ids}
+        if scenario.control.dynamics != "unicycle":
+            return cls(ids, x0.copy(), period_s, queued=queued)
+        uni = scenario.control.unicycle
+        th0 = initial_headings(scenario.seed if seed is None else seed, scenario.n)[rows]
+        centre = x0 - uni.lookahead_m * heading_vector(th0)  # the look-ahead point at x0
+        limits = (uni.max_speed_m_s, uni.max_turn_rad_s)
+        return cls(ids, centre, period_s, th0.copy(), limits, queued=queued)
+
+    def command(self, robot: int, velocity: list[float], turn_rad_s: float = 0.0) -> None:
+        """A command [m/s] (a unicycle's: ``linear.x`` and ``angular.z`` [rad/s]); one that is
+        not finite is counted and taken as a stop."""
+        self.counts["commands"] += 1
+        if not all(math.isfinite(c) for c in [*velocity, turn_rad_s]):
+            self.counts["bad_commands"] += 1
+            velocity, turn_rad_s = [0.0] * len(velocity), 0.0
+        self.queued[robot].append(velocity)
+        self.held[robot] = velocity
+        self.turn[robot] = turn_rad_s
+
+    def ready(self) -> bool:
+        """Stepped: every robot's command of this epoch is in."""
+        return all(self.queued[i] for i in self.ids)
+
+    def step_epoch(self) -> None:
+        """Stepped: each robot holds its command of this epoch for one period."""
+        u = np.array([self.queued[i].popleft() for i in self.ids], dtype=float)
+        self.x = held_velocity_step(self.x, u, self.period_s)
+        self.epoch += 1
+        self.counts["steps"] += 1
+
+    def step_for(self, dt_s: float) -> None:
+        """Free-running: each robot holds its last command for ``dt_s`` [s] (none yet: at rest)."""
+        d = self.x.shape[1]
+        u = np.array([self.held.get(i, [0.0] * d) for i in self.ids], dtype=float)
+        if self.heading is None:
+            self.x = held_velocity_step(self.x, u, dt_s)
+        else:  # linear.x and angular.z, clipped as the robot's motors would
+            v = np.clip(u[:, 0], -self.limits[0], self.limits[0])
+            w = np.array([self.turn.get(i, 0.0) for i in self.ids], dtype=float)
+            w = np.clip(w, -self.limits[1], self.limits[1])
+            self.x, heading = unicycle_arc(self.x, self.heading, v, w, dt_s)
+            self.heading = wrap_angle(heading)
+        self.counts["steps"] += 1
+
+    def stop(self, robot: int) -> None:
+        """Free-running: no command for too long: the robot stops (as a robot's watchdog does)."""
+        self.held.pop(robot, None)
+        self.turn.pop(robot, None)
+
+    def yaw(self, row: int) -> float:
+        """Robot ``row``'s heading [rad] (0 for a holonomic robot)."""
+        return 0.0 if self.heading is None else float(self.heading[row])
+
+
+__all__ = ["Robots"]

@@ -1,0 +1,137 @@
+"""A scenario's [body]: defaults, a ROS 2 body, and bad input naming file, field and value."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from formation.errors import ScenarioError
+from formation.scenario import load, load_dict
+
+TRIANGLE = """
+name = "tri"
+edges = [[1, 2], [2, 3], [1, 3]]
+[[agents]]
+id = 1
+offset = [0.0, 0.0]
+[[agents]]
+id = 2
+offset = [1.0, 0.0]
+[[agents]]
+id = 3
+offset = [0.0, 0.5]
+"""
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "bad.toml"
+    path.write_text(TRIANGLE + text)
+    return path
+
+
+def test_the_default_body_is_simulated(tmp_path: Path) -> None:
+    s = load(write(tmp_path, ""))
+    assert s.body.kind == "simulated"
+    assert s.body.robots(s.n) == []
+
+
+def test_a_ros2_body_for_every_agent_with_its_topics(tmp_path: Path) -> None:
+    s = load(
+        write(
+            tmp_path,
+            """
+[body]
+kind = "ros2"
+pose_topic = "/tb{id}/odom"
+pose_type = "nav_msgs/msg/Odometry"
+scale = 0.5
+pose_qos = { durability = "transient_local", depth = 1 }
+""",
+        )
+    )
+    assert s.body.robots(s.n) == [1, 2, 3]
+    assert s.body.pose_topic_of(2) == "/tb2/odom"
+    assert s.body.command_topic_of(3) == "/robot3/cmd_vel"
+    assert s.body.pose_qos.durability == "transient_local" and s.body.pose_qos.depth == 1
+    assert s.body.command_qos.reliability == "reliable"
+    # stored with the run and read back the same
+    again = write(tmp_path, "")
+    again.write_text(s.to_toml())
+    assert load(again).body == s.body
+
+
+def test_a_ros2_body_for_some_agents(tmp_path: Path) -> None:
+    s = load(write(tmp_path, '[body]\nkind = "ros2"\nagents = [3, 1]\n'))
+    assert s.body.robots(s.n) == [1, 3]
+    assert not s.body.has_robot(2)
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        (
+            'pose_topic = "/robot/pose"',
+            r"bad\.toml: body\.pose_topic = '/robot/pose'; a topic template names the agent as \{id\}",
+        ),
+        (
+            'command_topic = "/robot{id}/{name}"',
+            r"body\.command_topic = '/robot\{id\}/\{name\}'; a topic template may only name \{id\}, got \['id', 'name'\]",
+        ),
+        (
+            'pose_topic = "/robot{id}//pose"',
+            r"body\.pose_topic = '/robot\{id\}//pose'; not a ROS 2 topic name once filled in \('/robot1//pose'\)",
+        ),
+        (
+            'pose_type = "geometry_msgs/msg/Pose"',
+            r"body\.pose_type = 'geometry_msgs/msg/Pose'; unknown message type; expected one of "
+            r"geometry_msgs/msg/PoseStamped, nav_msgs/msg/Odometry",
+        ),
+        (
+            'command_type = "geometry_msgs/msg/TwistStamped"',
+            r"body\.command_type = 'geometry_msgs/msg/TwistStamped'; unknown message type; "
+            r"expected one of geometry_msgs/msg/Twist$",
+        ),
+        ('kind = "dds"', r"body\.kind = 'dds'; Input should be 'simulated', 'ros2' or 'rmw_zenoh'"),
+        ("agents = [4]", r"body\.agents\[0\] = 4; agent does not exist \(agents are 1\.\.3\)"),
+        ("agents = [2, 2]", r"body\.agents = \[2, 2\]; an agent is listed twice"),
+        ("scale = 0.0", r"body\.scale = 0\.0; Input should be greater than 0"),
+        ("pose_timeout_s = -1.0", r"body\.pose_timeout_s = -1\.0; Input should be greater than 0"),
+        ("domain_id = 300", r"body\.domain_id = 300; Input should be less than or equal to 232"),
+        ('frame_id = ""', r"body\.frame_id = ''; a frame id is a non-empty name"),
+        (
+            'pose_qos = { reliability = "sometimes" }',
+            r"body\.pose_qos\.reliability = 'sometimes'; Input should be 'reliable' or 'best_effort'",
+        ),
+        ("pose_qos = { depth = 0 }", r"body\.pose_qos\.depth = 0; Input should be greater than"),
+        ("topic = '/x{id}'", r"body\.topic = '/x\{id\}'; unknown field"),
+    ],
+)
+def test_bad_body_settings_name_file_field_and_value(tmp_path: Path, text: str, match: str) -> None:
+    kind = "" if text.startswith("kind") else 'kind = "ros2"\n'
+    with pytest.raises(ScenarioError, match=match):
+        load(write(tmp_path, f"[body]\n{kind}{text}\n"))
+
+
+def test_a_ros2_unicycle_runs_in_realtime_only(tmp_path: Path) -> None:
+    unicycle = '[control]\ndynamics = "unicycle"\n[body]\nkind = "ros2"\n'
+    with pytest.raises(
+        ScenarioError,
+        match=r"control\.dynamics = 'unicycle'; a unicycle with a ros2 body runs in realtime "
+        r"only \(its inner loop steers at each pose\); set runtime\.mode = 'realtime'",
+    ):
+        load(write(tmp_path, unicycle))
+    realtime = load(write(tmp_path, unicycle + '[runtime]\nmode = "realtime"\n'))
+    assert realtime.body.robots(realtime.n) == [1, 2, 3]
+
+
+def test_robots_with_scenario_events_are_refused_for_now() -> None:
+    events = Path(__file__).resolve().parents[3] / "scenarios" / "events.toml"
+    text = events.read_text() + '\n[body]\nkind = "ros2"\n'
+    with pytest.raises(
+        ScenarioError,
+        match=r"body\.kind = 'ros2'; the scenario has \d+ events \(leave, crash, join, restart\), "
+        r"which robots do not follow yet",
+    ):
+        load_dict(tomllib.loads(text), source="events.toml")
