@@ -153,6 +153,7 @@ def substitute(
     the substitution and the memory for epoch ``k + 1``
     """
     plugin = loss_strategy(strategy)
+    lost = ~arrived
     inputs = StrategyInputs(
         epoch=epoch,
         arrived=arrived,
@@ -167,9 +168,10 @@ def substitute(
         period_s=period_s,
         state=memory.state,
         has_state=memory.has_state,
+        lost=lost,
+        has_last=memory.last_epoch >= 0,
     )
     fill = fill_checked(strategy, plugin, inputs, params, receivers)
-    lost = ~arrived
     have = fill.have & lost
     values = np.where(arrived[:, None], received, 0.0)
     values = np.where(have[:, None], fill.values, values)

@@ -82,6 +82,7 @@ class StrategyInputs(NamedTuple):
     period_s : the epoch's period ``T`` [s]
     state : (L, w) the strategy's own per-link state from epoch ``k − 1`` (``w`` its width)
     has_state : (L,) bool, where ``state`` was ever set (False after a restart)
+    lost : (L,) bool, ``~arrived``; has_last : (L,) bool, ``last_epoch >= 0`` (each computed once)
     """
 
     epoch: int
@@ -95,14 +96,8 @@ class StrategyInputs(NamedTuple):
     period_s: float
     state: Array
     has_state: Mask
-
-    @property
-    def lost(self) -> Mask:
-        return ~self.arrived
-
-    @property
-    def has_last(self) -> Mask:
-        return self.last_epoch >= 0
+    lost: Mask
+    has_last: Mask
 
 
 class Fill(NamedTuple):
@@ -376,6 +371,8 @@ def _probe_links(dimension: int, width: int) -> tuple[StrategyInputs, Ints]:
         period_s=1.0,
         state=rng.normal(size=(3, width)),
         has_state=np.array([True, True, False]),
+        lost=np.array([False, True, True]),
+        has_last=np.array([True, True, False]),
     )
     return inputs, np.array([1, 1, 2], dtype=np.int64)
 
