@@ -35,11 +35,10 @@ import numpy as np
 from formation.deadlines import PHASES
 from formation.scenario import STRATEGIES, Scenario, StrategyName
 from formation.wire_size import WireSizes
-from recorder import read_run
 from testbed.experiments.plots import plot_range_phase
+from testbed.experiments.real_check import real_run_row
 from testbed.experiments.studies import KEEP_FRACTION
 from testbed.experiments.wireless import critical_range
-from testbed.runtime.launcher import launch
 from testbed.sim.batch import plan_batch, run_batch
 
 MULTIPLES = tuple(round(0.25 * i, 2) for i in range(1, 9))  # ρ: 0.25 … 2
@@ -307,29 +306,12 @@ def run_capacity_real(
     for s in spec.strategies:
         seed = spec.seeds[0]
         log(f"capacity, real processes: {name}, {s}, seed {seed} …")
-        sim = run_batch(plan_batch(scenario, [seed]), s, detail=False).positions[:, 0]
         row: dict[str, Any] = {
             "strategy": s,
             "rate_multiple": multiple,
             "seed": seed,
-            "recorded_diff": "-",
-            "recording": "-",
         }
-        try:
-            o = launch(scenario, strategy=s, seed=seed, runs_dir=out / "runs", record=record)
-        except Exception as exc:  # a failed launch is reported, not fatal to the experiment
-            row.update(max_diff=f"launch failed: {type(exc).__name__}", match="no")
-            r.real.append(row)
-            continue
-        diff = float(np.max(np.abs(o.positions - sim)))
-        ok = diff == 0.0
-        if record:
-            rec = read_run(o.run_dir / "run.mcap")
-            rdiff = float(np.max(np.abs(rec.positions - sim)))
-            ok = ok and rdiff == 0.0
-            row.update(recorded_diff=f"{rdiff:.1e}", recording=f"`{o.run_dir / 'run.mcap'}`")
-        row.update(max_diff=f"{diff:.1e}", match="yes" if ok else "no")
-        r.real.append(row)
+        r.real.append(real_run_row(scenario, s, seed, out / "runs", record, row))
 
 
 def write_outputs(r: CapacityResult, out: Path) -> None:

@@ -29,10 +29,9 @@ from typing import Any
 import numpy as np
 
 from formation.scenario import STRATEGIES, Scenario, StrategyName
-from recorder import read_run
 from testbed.experiments.plots import plot_range_phase
+from testbed.experiments.real_check import real_run_row
 from testbed.experiments.studies import KEEP_FRACTION
-from testbed.runtime.launcher import launch
 from testbed.sim.batch import BatchResult, plan_batch, run_batch
 
 RANGES = tuple(round(0.5 + 0.25 * i, 2) for i in range(11))  # ρ: 0.5 … 3 × the longest edge
@@ -296,30 +295,13 @@ def run_wireless_real(
             median = float(np.median(list(errs.values())))
             seed = min(errs, key=lambda k: (abs(errs[k] - median), k))
             log(f"wireless, real processes: {case.label}, {s}, seed {seed} …")
-            sim = run_batch(plan_batch(scenario, [seed]), s, detail=False).positions[:, 0]
             row: dict[str, Any] = {
                 "case": case.label,
                 "strategy": s,
                 "range_multiple": multiple,
                 "seed": seed,
-                "recorded_diff": "-",
-                "recording": "-",
             }
-            try:
-                o = launch(scenario, strategy=s, seed=seed, runs_dir=out / "runs", record=record)
-            except Exception as exc:  # a failed launch is reported, not fatal to the experiment
-                row.update(max_diff=f"launch failed: {type(exc).__name__}", match="no")
-                r.real.append(row)
-                continue
-            diff = float(np.max(np.abs(o.positions - sim)))
-            ok = diff == 0.0
-            if record:
-                rec = read_run(o.run_dir / "run.mcap")
-                rdiff = float(np.max(np.abs(rec.positions - sim)))
-                ok = ok and rdiff == 0.0
-                row.update(recorded_diff=f"{rdiff:.1e}", recording=f"`{o.run_dir / 'run.mcap'}`")
-            row.update(max_diff=f"{diff:.1e}", match="yes" if ok else "no")
-            r.real.append(row)
+            r.real.append(real_run_row(scenario, s, seed, out / "runs", record, row))
 
 
 def write_outputs(r: WirelessResult, out: Path) -> None:
