@@ -116,23 +116,34 @@ def test_compose_services_run_as_separate_hosts_and_record_everything(tmp_path: 
             while not started.wait(0.05):
                 dep.check()
                 assert time.monotonic() < deadline, "netem never declared the start"
-            # at the start: only the router listens, every connection has the router at one end
-            inside = [
-                s for s in sockets
-                if ip_address(s[0].split(":")[0]) in subnet or ip_address(s[1].split(":")[0]) in subnet
-            ]  # fmt: skip
-            assert {s[0].split(":")[0] for s in inside if s[2] == "listen"} == {router}
-            peers = {
-                s[0].split(":")[0]
-                for s in inside
-                if s[2] == "established" and s[1].startswith(router + ":")
-            }
-            assert {dep.addresses[n] for n in doc["services"] if n != "router"} <= peers
-            assert all(
-                router in (s[0].split(":")[0], s[1].split(":")[0])
-                for s in inside
-                if s[2] == "established"
-            )
+            # from the start: only the router listens, every connection has the router at one
+            # end, and every service is connected to it. /proc/net/tcp is not read atomically
+            # (a socket table changing under the read can skip lines), so the connections are
+            # the union of snapshots, taken until every service is seen or 10 s pass.
+            expected = {dep.addresses[n] for n in doc["services"] if n != "router"}
+            peers: set[str] = set()
+            snapshot_deadline = time.monotonic() + 10
+            while True:
+                inside = [
+                    s for s in sockets
+                    if ip_address(s[0].split(":")[0]) in subnet or ip_address(s[1].split(":")[0]) in subnet
+                ]  # fmt: skip
+                assert {s[0].split(":")[0] for s in inside if s[2] == "listen"} == {router}
+                assert all(
+                    router in (s[0].split(":")[0], s[1].split(":")[0])
+                    for s in inside
+                    if s[2] == "established"
+                )
+                peers |= {
+                    s[0].split(":")[0]
+                    for s in inside
+                    if s[2] == "established" and s[1].startswith(router + ":")
+                }
+                if expected <= peers or time.monotonic() > snapshot_deadline:
+                    break
+                time.sleep(0.05)
+                sockets = _tcp_sockets()
+            assert expected <= peers
             dep.wait_exit(workers, timeout_s=90)
             _flush(session, {keys.status(RUN_ID, *_role(n)) for n in workers})
             token.undeclare()
