@@ -4,6 +4,9 @@ Two studies (docs/model.md §9), each on the chapter's team and on ``grid20``:
 
 - **access point**: every link of the team crosses one access point (a ``medium`` of all
   links, as Wi-Fi in infrastructure mode), its rate ``ρ × c_ap``;
+- **access point, states only**: the same access point and rates, crossed by the formation
+  links alone (reports and estimates reach the leader another way): what the estimation
+  traffic costs the states when it shares their medium;
 - **radios**: each sender's radio (every agent's, and the leader's for the estimates) at
   ``ρ × c_radio``.
 
@@ -42,7 +45,8 @@ from testbed.experiments.wireless import critical_range
 from testbed.sim.batch import plan_batch, run_batch
 
 MULTIPLES = tuple(round(0.25 * i, 2) for i in range(1, 9))  # ρ: 0.25 … 2
-STUDIES = ("access point", "radios")
+AP, AP_STATES, RADIOS = "access point", "access point (states only)", "radios"
+STUDIES = (AP, AP_STATES, RADIOS)
 OVERHEAD_BYTES = 42  # [B] IPv4 + UDP + Ethernet framing per packet
 LIMIT_PACKETS = 1000  # Linux's default txqueuelen: the rate, not the buffer, decides
 THRESHOLD_M = 0.05
@@ -121,12 +125,14 @@ def epoch_load(s: Scenario) -> dict[str, float]:
 
 
 def capacity_variant(s: Scenario, study: str, multiple: float, epochs: int) -> Scenario:
-    """``s`` with its access point, or every radio, at ``multiple × c``."""
+    """``s`` with its access point (all links, or the formation's), or every radio, at
+    ``multiple × c``; both access points at the same rates."""
     load = epoch_load(s)
     queue = {"limit_packets": LIMIT_PACKETS, "overhead_bytes": OVERHEAD_BYTES}
-    if study == "access point":
+    if study in (AP, AP_STATES):
         rate = multiple * load["c_ap"]
-        caps = [{"scope": "medium", "medium": "ap", "links": "all", "rate_bps": rate, **queue}]
+        links = "all" if study == AP else "formation"
+        caps = [{"scope": "medium", "medium": "ap", "links": links, "rate_bps": rate, **queue}]
     else:
         rate = multiple * load["c_radio"]
         caps = [
@@ -282,13 +288,41 @@ def what_it_shows(r: CapacityResult) -> list[str]:
             + (f"; {never} not even at ρ = {r.spec.multiples[-1]:g}" if never else "")
             + "."
         )
-    out.append(
-        "- Every strategy here sends the same traffic: agents report and the leader estimates "
-        "whatever the strategy (the control share above), so the cost of estimation traffic is "
-        "paid by all of them alike; what differs is how each copes with the states, reports and "
-        "estimates the queues drop or delay past their deadline. A team that skipped the reports "
-        "and estimates under `hold` or `zero` would free that share of the access point."
-    )
+    out += estimation_cost(r)
+    return out
+
+
+def estimation_cost(r: CapacityResult) -> list[str]:
+    """What the reports and estimates cost at the access point: each strategy with them on
+    the medium against without (the same rates), and whether ``estimate`` pays for them."""
+    if not {AP, AP_STATES} <= set(r.spec.studies):
+        return []
+    out = [
+        "- Every strategy sends the same traffic (agents report, the leader estimates, whatever "
+        "the strategy: the control share above). Taking the reports and estimates off the "
+        "access point (same rates) shows what that traffic costs:"
+    ]
+
+    def crit(study: str, name: str, strategy: str) -> str:
+        c = r.critical[(f"{study}, {name}", strategy)]
+        return "never" if c is None else f"ρ = {c:g}"
+
+    for name, _ in r.spec.topologies:
+        moved = [f"{s} {crit(AP, name, s)} → {crit(AP_STATES, name, s)}" for s in r.spec.strategies]
+        out.append(f"  - {name}, critical capacity with → without: " + "; ".join(moved) + ".")
+        if {"estimate", "hold"} <= set(r.spec.strategies):
+            paid = r.critical[(f"{AP}, {name}", "estimate")]
+            free = r.critical[(f"{AP_STATES}, {name}", "hold")]
+            if paid is not None and (free is None or paid < free):
+                verdict = "pays for its traffic: it keeps the formation at less capacity"
+            elif paid is not None and paid == free:
+                verdict = "breaks even: both keep the formation from the same capacity"
+            else:
+                verdict = "does not pay for its traffic here"
+            out.append(
+                f"  - {name}: `estimate` carrying its reports and estimates ({crit(AP, name, 'estimate')}) "
+                f"against `hold` spared them ({crit(AP_STATES, name, 'hold')}): estimation {verdict}."
+            )
     return out
 
 
@@ -302,7 +336,7 @@ def run_capacity_real(
     """One real-process run per strategy: the first topology, the access point at ``multiple``."""
     spec = r.spec
     name, base = spec.topologies[0]
-    scenario = capacity_variant(base, "access point", multiple, spec.epochs)
+    scenario = capacity_variant(base, AP, multiple, spec.epochs)
     for s in spec.strategies:
         seed = spec.seeds[0]
         log(f"capacity, real processes: {name}, {s}, seed {seed} …")
@@ -341,6 +375,7 @@ def write_outputs(r: CapacityResult, out: Path) -> None:
         r.spec.threshold_m,
         out / "phase.png",
         xlabel="capacity ρ (× the rate one epoch's states need)",
+        columns=len(r.spec.topologies),
     )
 
 

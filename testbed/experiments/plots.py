@@ -274,17 +274,24 @@ def plot_range_phase(
     threshold_m: float,
     path: Path,
     xlabel: str = "radio range d50 / longest edge",
+    columns: int | None = None,
 ) -> Path:
-    """Success fraction over radio range (or ``xlabel``'s axis) × strategy, one panel per case.
+    """Success fraction over radio range (or ``xlabel``'s axis) × strategy, one panel per case,
+    ``columns`` panels a row (default: all in one).
 
     ``success[(case, strategy)]`` : (R,) fraction of seeds kept at each of ``ranges`` (multiples
     of the longest edge); ``critical`` the least range from which every larger one keeps
     (None: not even the largest), marked white on its left edge.
     """
+    cols = columns or len(cases)
+    rows = -(-len(cases) // cols)
     fig = Figure(
-        figsize=(4.2 * len(cases) + 0.8, 0.45 * len(strategies) + 1.6), layout="constrained"
+        figsize=(4.2 * cols + 0.8, rows * (0.45 * len(strategies) + 1.6)), layout="constrained"
     )
-    axes = fig.subplots(1, len(cases), squeeze=False, sharey=True)[0]
+    grid = fig.subplots(rows, cols, squeeze=False, sharey=True).ravel()
+    for spare in grid[len(cases) :]:
+        spare.set_visible(False)
+    axes = grid[: len(cases)]
     xs = np.asarray(ranges, dtype=float)
     step = float(np.min(np.diff(xs))) if xs.size > 1 else 0.25
     image: Any = None
