@@ -297,7 +297,12 @@ def render(
     scenario = scenario or Scenario.from_file(scenario_path)
     flags = ("" if options.secure else " --open") + (" --tls" if options.tls else "")
     flags += "".join(f" --plugin {p}" for p in options.plugins)
+    if options.file != "compose.yaml":
+        flags += f" --file {options.file}"
     file = "" if options.file == "compose.yaml" else f" -f {options.file}"
+    plant = scenario.body.kind == "ros2" and bool(scenario.body.robots(scenario.n))
+    if plant:  # the headless plant in place of robots; left out, real robots answer
+        file += f" --profile {EXTRA}"
     keys_cmd = f"formation keys keys/ {Path(scenario_path).as_posix()}" + (
         " --tls" if options.tls else ""
     )
@@ -317,6 +322,11 @@ def render(
         f"#   docker compose{file} down             # the recorder finishes run.mcap and report.md",
         "# Files: ./runs/$RUN_ID/ (RUN_ID defaults to the scenario's name). podman-compose runs it",
         "# too (README, Deployment; no `wait`: `podman wait formation_netem_1`).",
+        *(
+            [f"# --profile {EXTRA} runs the headless plant `{PLANT}`; leave it out with real robots."]
+            if plant
+            else []
+        ),
         "#",
     ]
     body: str = yaml.dump(

@@ -60,6 +60,21 @@ def test_the_plugins_compose_file_is_generated_and_builds_the_example_into_the_i
     assert "docker compose -f compose.plugins.yaml up --build -d" in text
 
 
+def test_the_robots_compose_file_is_generated_with_the_plant_in_its_profile(
+    compose_schema: jsonschema.Draft7Validator,
+) -> None:
+    options = ComposeOptions(file="compose.ros2.yaml")
+    text = _render("scenarios/robots.toml", options)
+    assert (ROOT / "compose.ros2.yaml").read_text() == text, (
+        "regenerate: formation compose scenarios/robots.toml --file compose.ros2.yaml "
+        "> compose.ros2.yaml"
+    )
+    doc = yaml.safe_load(text)
+    compose_schema.validate(doc)
+    assert doc["services"]["plant"]["profiles"] == ["ros2"]
+    assert "docker compose -f compose.ros2.yaml --profile ros2 up --build -d" in text
+
+
 def test_agents_and_the_leader_restart_on_failure_and_nothing_else_does() -> None:
     """A crashed agent or leader rejoins the run (issue 20); netem, router and recorder do not
     restart: netem's exit is the run's end, and a recorder restarted would start a new file."""
@@ -103,6 +118,9 @@ def test_every_scenario_gives_a_valid_compose_file(
         env = svc["environment"]
         if name == "router":
             assert env["ZENOH_LISTEN"] == f"{proto}/router:7447"
+            continue
+        if name == "plant":  # the robots' stand-in speaks DDS only (scenarios/robots.toml)
+            assert not any(k.startswith("ZENOH") for k in env) and svc["volumes"][0] == mount
             continue
         assert env["ZENOH_MODE"] == "client" and env["ZENOH_CONNECT"] == f"{proto}/router:7447"
         assert svc["depends_on"][0] == "router"  # start order only; clients retry
@@ -301,28 +319,38 @@ def test_loopback_maps_names_paths_and_secrets(tmp_path: Path) -> None:
     assert not dep.started
 
 
+@pytest.mark.parametrize(
+    ("compose", "loopback"),
+    [("compose.yaml", "compose.loopback.yaml"), ("compose.ros2.yaml", "compose.ros2.loopback.yaml")],
+)
 def test_the_loopback_override_covers_every_service_on_its_own_loopback_address(
-    compose_schema: jsonschema.Draft7Validator,
+    compose: str, loopback: str, compose_schema: jsonschema.Draft7Validator
 ) -> None:
-    """deploy/compose.loopback.yaml: host network, each service name → its own 127.0.0.N.
+    """deploy/compose*.loopback.yaml: host network, each service name → its own 127.0.0.N.
 
     The one service that builds builds on the host's network too: without a bridge a build
-    has no network, and pip could not install the dependencies.
+    has no network, and pip could not install the dependencies. A robot's DDS stays on this
+    host, over UDP (containers do not share Fast DDS's shared memory).
     """
-    doc = yaml.safe_load(COMPOSE.read_text())
-    override = yaml.safe_load((ROOT / "deploy" / "compose.loopback.yaml").read_text())
+    doc = yaml.safe_load((ROOT / compose).read_text())
+    override = yaml.safe_load((ROOT / "deploy" / loopback).read_text())
     assert list(override["services"]) == list(doc["services"])
     expected = [f"{name}:127.0.0.{k + 2}" for k, name in enumerate(doc["services"])]
     for name, svc in override["services"].items():
         assert svc["network_mode"] == "host"
         assert svc["extra_hosts"] == expected, name
+        ros = "ROS_DOMAIN_ID" in doc["services"][name].get("environment", {})
         assert set(svc) - {"network_mode", "extra_hosts"} == (
             {"build"} if "build" in doc["services"][name] else set()
-        ), name
+        ) | ({"environment"} if ros else set()), name
         merged = {**doc["services"][name], **svc}
         if "build" in svc:  # compose merges mappings key by key
             merged["build"] = {**doc["services"][name]["build"], **svc["build"]}
             assert merged["build"]["network"] == "host"
+        if ros:
+            merged["environment"] = {**doc["services"][name]["environment"], **svc["environment"]}
+            assert merged["environment"]["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+            assert merged["environment"]["FASTDDS_BUILTIN_TRANSPORTS"] == "UDPv4"
         compose_schema.validate({**doc, "services": {name: merged}})
 
 
