@@ -69,7 +69,7 @@ ENGINES ?= podman docker
 # runs from it; Docker's `up --build` builds each file's own.
 compose-test: $(BIN)/.product $(BIN)/.example
 	set -e; trap 'deploy/docker.sh stop' EXIT; vars=; \
-	export FORMATION_BUILD_FLAGS="--build-arg PLUGINS=./$(EXAMPLE)"; \
+	export FORMATION_BUILD_FLAGS="--build-arg PLUGINS=./$(EXAMPLE) --build-arg EXTRAS=[ros2]"; \
 	for engine in $(ENGINES); do \
 	  deploy/$$engine.sh engine base build; vars="$$vars $$(deploy/$$engine.sh env)"; \
 	done; \

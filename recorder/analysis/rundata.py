@@ -246,12 +246,13 @@ def iter_trusted(
                     yield kind, channel, msg, checked, gate
 
 
-def read_run(path: Path, label: str | None = None) -> RunData:
+def read_run(path: Path | str, label: str | None = None) -> RunData:
     """A recording as :class:`RunData`, with its rotated parts (``run-001.mcap``, ...) if any.
 
     Needs the scenario stored as metadata. Every message is validated and its owner
     checked first (:mod:`recorder.reading.trust`); ``extra["skipped"]`` counts what was not trusted.
     """
+    path = Path(path)  # a str from a notebook too
     got = _Collected()
     holder: dict[str, Any] = {}
 

@@ -5,7 +5,8 @@ Every service authenticates to the router with its own user and password
 denies by default and allows each user to publish only its own keys:
 
 - ``agent-<i>``: its coordination packet and report (``agent/<i>/state``,
-  ``agent/<i>/report``), its status and its liveliness token;
+  ``agent/<i>/report``), its robot's traffic for the recording (``body/<i>/…``), its status
+  and its liveliness token;
 - ``netem``: the delivered links (``link/…``, ``leader/report/…``) and lockstep
   deliveries (``inbox/…``), its decisions and changes, the start token and its queryables;
 - ``leader``: the estimate (``leader/estimate`` and each agent's ``leader/estimate/<i>``), its status and token;
@@ -126,6 +127,7 @@ def principals(n_agents: int) -> list[Principal]:
                 publish=(
                     keys.agent_state(r, i),
                     keys.agent_report(r, i),
+                    keys.body(r, i, "*", "*/msg/*"),  # its robot's pose and command, recorded
                     keys.status(r, "agent", i),
                 ),
                 tokens=(keys.alive(r, "agent", i),),

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import yaml
 from foxglove.messages import SceneUpdate
@@ -37,6 +38,7 @@ from mcap.reader import make_reader
 from formation import keys
 from formation.scenario import Scenario
 from recorder.analysis.rundata import read_run
+from testbed.sim.simulate import simulate
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.containers]
 
@@ -44,6 +46,9 @@ ROOT = Path(__file__).resolve().parents[2]
 COMPOSE = ROOT / "compose.yaml"
 PLUGINS = ROOT / "compose.plugins.yaml"  # the example plug-ins' scenario, from an image with them
 OVERRIDE = ROOT / "deploy" / "compose.loopback.yaml"
+# scenarios/robots.toml: every body a ROS 2 robot, the headless plant in the profile ros2
+ROBOTS = ROOT / "compose.ros2.yaml"
+ROBOTS_OVERRIDE = ROOT / "deploy" / "compose.ros2.loopback.yaml"
 # The engines whose tests fail rather than skip when they cannot run (make compose-test).
 REQUIRED = os.environ.get("FORMATION_REQUIRE_CONTAINERS", "").split()
 WAIT_S = 300  # netem's exit; the default scenario takes seconds
@@ -133,7 +138,20 @@ class Deployment:
 
     @property
     def workers(self) -> list[str]:
-        return [n for n in self.doc["services"] if n not in ("router", "recorder")]
+        return [n for n in self.doc["services"] if n not in ("router", "recorder", "plant")]
+
+    @property
+    def files(self) -> list[str]:
+        """``-f`` the compose file and its loopback override, and the plant's profile if any."""
+        robots = self.compose == ROBOTS
+        override = ROBOTS_OVERRIDE if robots else OVERRIDE
+        return [
+            "-f",
+            str(self.compose),
+            "-f",
+            str(override),
+            *(["--profile", "ros2"] if robots else []),
+        ]
 
 
 def _require(engine: Engine) -> None:
@@ -181,7 +199,7 @@ def deployment(
     scenario_file = (ROOT / mount).resolve()
     (uid, gid), owner = _run_as()
     suffix = ("-late" if "late" in request.node.name else "") + (
-        "-plugins" if compose_file == PLUGINS else ""
+        {PLUGINS: "-plugins", ROBOTS: "-robots"}.get(compose_file, "")
     )
     run_id = f"{engine.name}{suffix}-{os.getpid()}"
     subprocess.run(
@@ -215,7 +233,7 @@ def deployment(
 
 
 def _compose(dep: Deployment, *args: str, timeout_s: float) -> subprocess.CompletedProcess[str]:
-    argv = [*dep.engine.compose, "-f", str(dep.compose), "-f", str(OVERRIDE), *args]
+    argv = [*dep.engine.compose, *dep.files, *args]
     return subprocess.run(
         argv, cwd=ROOT, env=dep.env, capture_output=True, text=True, timeout=timeout_s, check=False
     )
@@ -249,7 +267,7 @@ def _wait_netem(dep: Deployment, timeout_s: float) -> int:
     has it (it finds no container once netem has exited); podman-compose has no ``wait``.
     """
     netem = dep.engine.container(dep.project, "netem")
-    argv = [*dep.engine.compose, "-f", str(dep.compose), "-f", str(OVERRIDE), "wait", "netem"]
+    argv = [*dep.engine.compose, *dep.files, "wait", "netem"]
     wait = None
     if dep.engine.cli == "docker":
         wait = subprocess.Popen(
@@ -375,6 +393,28 @@ def test_compose_yaml_equals_a_native_run(deployment: Deployment, tmp_path: Path
         f"{native_s:.1f} s; final formation error {ours.formation_error[-1]:.6g} m (both); "
         f"files owned by uid {dep.owner}"
     )
+
+
+@pytest.mark.parametrize("compose_file", [ROBOTS], ids=["robots"], indirect=True)
+def test_the_ros2_profile_runs_the_plant_and_equals_the_simulator(deployment: Deployment) -> None:
+    """compose.ros2.yaml with ``--profile ros2``: five agents whose bodies are ROS 2 robots of
+    the headless plant, over DDS between containers; lockstep, so the run equals
+    ``formation simulate`` to the bit, and each robot's traffic is recorded in ROS 2's encoding."""
+    dep = deployment
+    try:
+        up = _up(dep)
+        assert up.returncode == 0, up.stdout[-2000:] + up.stderr[-3000:]
+        assert _containers(dep).get(dep.engine.container(dep.project, "plant"), "").startswith("Up")
+        assert _wait_netem(dep, WAIT_S) == 0
+    finally:
+        down = _compose(dep, "down", timeout_s=DOWN_S)
+    assert down.returncode == 0, down.stderr[-3000:]
+    got = _check_run(dep)
+    body = {t: s for t, s in got["schemas"].items() if "/body/" in t}
+    assert {t.split("/")[3] for t in body} == {str(i) for i in range(1, dep.scenario.n + 1)}
+    assert {s[1] for s in body.values()} == {"ros2msg"}
+    run = read_run(dep.run_dir / "run.mcap")
+    np.testing.assert_array_equal(run.positions, simulate(dep.scenario).positions)
 
 
 def test_router_started_late_still_gives_a_complete_run(deployment: Deployment) -> None:

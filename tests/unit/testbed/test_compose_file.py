@@ -221,6 +221,9 @@ def _allows(acl: dict, user: str, message: str, flow: str, key: str) -> bool:
         ("agent-1", keys.link_state("r", 1, 2), False),
         ("agent-1", keys.leader_estimate_out("r"), False),
         ("agent-2", keys.agent_state("r", 2), True),
+        ("agent-2", keys.body("r", 2, "pose", "geometry_msgs/msg/PoseStamped"), True),
+        ("agent-2", keys.body("r", 2, "command", "geometry_msgs/msg/Twist"), True),
+        ("agent-2", keys.body("r", 3, "command", "geometry_msgs/msg/Twist"), False),
         ("netem", keys.link_state("r", 1, 2), True),
         ("netem", keys.link_report("r", 3), False),  # realtime delivers on inbox keys too
         ("netem", keys.link_estimate("r", 3), False),
@@ -330,7 +333,7 @@ def test_the_loopback_override_covers_every_service_on_its_own_loopback_address(
 
     The one service that builds builds on the host's network too: without a bridge a build
     has no network, and pip could not install the dependencies. A robot's DDS stays on this
-    host, over UDP (containers do not share Fast DDS's shared memory).
+    host, and shares its /dev/shm: Fast DDS on one host talks through it.
     """
     doc = yaml.safe_load((ROOT / compose).read_text())
     override = yaml.safe_load((ROOT / "deploy" / loopback).read_text())
@@ -342,7 +345,7 @@ def test_the_loopback_override_covers_every_service_on_its_own_loopback_address(
         ros = "ROS_DOMAIN_ID" in doc["services"][name].get("environment", {})
         assert set(svc) - {"network_mode", "extra_hosts"} == (
             {"build"} if "build" in doc["services"][name] else set()
-        ) | ({"environment"} if ros else set()), name
+        ) | ({"environment", "volumes"} if ros else set()), name
         merged = {**doc["services"][name], **svc}
         if "build" in svc:  # compose merges mappings key by key
             merged["build"] = {**doc["services"][name]["build"], **svc["build"]}
@@ -350,7 +353,8 @@ def test_the_loopback_override_covers_every_service_on_its_own_loopback_address(
         if ros:
             merged["environment"] = {**doc["services"][name]["environment"], **svc["environment"]}
             assert merged["environment"]["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
-            assert merged["environment"]["FASTDDS_BUILTIN_TRANSPORTS"] == "UDPv4"
+            assert svc["volumes"] == ["/dev/shm:/dev/shm"]
+            merged["volumes"] = doc["services"][name]["volumes"] + svc["volumes"]
         compose_schema.validate({**doc, "services": {name: merged}})
 
 
