@@ -31,14 +31,7 @@ from formation.body import Body, body_problems
 from formation.capacity import Capacity, capacity_problems
 from formation.errors import NO_VALUE, ScenarioError
 from formation.events import Event, Membership, event_problems, membership
-from formation.graph import (
-    SVD_MAX_COLUMNS,
-    expected_rigidity_rank,
-    is_connected,
-    is_rigid,
-    max_degree,
-    rigidity_rank,
-)
+from formation.graph import is_connected, max_degree
 from formation.keyed_random import Stream, keyed_normal
 from formation.linkmodels import LinkModelSpec
 from formation.plugin_api import (
@@ -50,6 +43,7 @@ from formation.plugin_api import (
     validate_params,
 )
 from formation.plugin_registry import PluginError
+from formation.rigidity import SVD_MAX_COLUMNS, expected_rigidity_rank, is_rigid, rigidity_rank
 from formation.robots import Safety, Unicycle, robot_problems
 
 StrategyName = str  # a loss strategy plug-in's name (formation.plugin_registry)

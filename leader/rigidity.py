@@ -1,6 +1,6 @@
 """Infinitesimal rigidity of the formation and of each epoch's healthy links (docs/model.md §2).
 
-The math lives in ``formation.graph`` (the scenario loader checks the shape with
+The math lives in ``formation.rigidity`` (the scenario loader checks the shape with
 it); this module re-exports it under the leader's names and adds the per-epoch
 check on the subgraph of healthy edges. A drop can cost the formation its
 rigidity, which matters for the distance-based controller, and the leader
@@ -12,18 +12,16 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from formation.graph import (
+from formation.graph import as_edge_array, as_edge_mask, as_positions
+from formation.rigidity import (
     SVD_MAX_COLUMNS,
-    as_edge_array,
-    as_edge_mask,
-    as_positions,
     growth_rounds,
     is_rigid,
     rank_under_mask,
     rigidity_rank,
     spans_without_any,
 )
-from formation.graph import expected_rigidity_rank as expected_rank
+from formation.rigidity import expected_rigidity_rank as expected_rank
 
 __all__ = [
     "UNKNOWN_RANK",
@@ -76,7 +74,7 @@ class HealthyRigidity:
     every minimally rigid graph), every subset of them is independent too, so the
     healthy subgraph's rank is its number of edges. Otherwise a small formation
     (``n·d ≤ svd_max_columns``) ranks each distinct mask once by SVD and remembers it.
-    A large one (:func:`formation.graph.rank_under_mask`) checks the growth order grown
+    A large one (:func:`formation.rigidity.rank_under_mask`) checks the growth order grown
     once on all edges (rigid: the rank is the expected one), then for an agent whose
     healthy edges cannot span (flexible, rank :data:`UNKNOWN_RANK`), then grows again
     and ranks the few agents growth leaves out by small SVDs (exact), and at last

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from formation.graph import expected_rigidity_rank
+from formation.rigidity import expected_rigidity_rank
 from recorder.analysis import plots
 from recorder.analysis.deadlines import deadline_lines, read_deadlines
 from recorder.analysis.rundata import RunData, read_run

@@ -21,9 +21,9 @@ import numpy.typing as npt
 from mcap.records import Channel, Message
 
 from formation.errors import RecordingError
-from formation.graph import expected_rigidity_rank
 from formation.messages import CoordinationState, LeaderEstimate
 from formation.plugin_api import PLUGIN_FAILED
+from formation.rigidity import expected_rigidity_rank
 from formation.scenario import Scenario
 from recorder.analysis import membership
 from recorder.analysis.epoch_assembly import edge_mask

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from formation.graph import expected_rigidity_rank
+from formation.rigidity import expected_rigidity_rank
 from recorder.analysis import membership
 from recorder.analysis.membership import team_errors
 from recorder.analysis.metrics import error_statistics, longest_run

@@ -323,7 +323,9 @@ def render(
         "# Files: ./runs/$RUN_ID/ (RUN_ID defaults to the scenario's name). podman-compose runs it",
         "# too (README, Deployment; no `wait`: `podman wait formation_netem_1`).",
         *(
-            [f"# --profile {EXTRA} runs the headless plant `{PLANT}`; leave it out with real robots."]
+            [
+                f"# --profile {EXTRA} runs the headless plant `{PLANT}`; leave it out with real robots."
+            ]
             if plant
             else []
         ),

@@ -23,7 +23,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from formation.graph import expected_rigidity_rank, is_connected, rigidity_rank
+from formation.graph import is_connected
+from formation.rigidity import expected_rigidity_rank, rigidity_rank
 from formation.scenario import STRATEGIES, Scenario, StrategyName, load_dict
 from recorder import error_statistics, team_shape_error
 from testbed.experiments.loss_variants import with_loss

@@ -14,13 +14,10 @@ from formation.graph import (
     ShapeError,
     as_edge_array,
     component_labels,
-    expected_rigidity_rank,
     is_connected,
-    is_rigid,
     max_degree,
-    rigidity_matrix,
-    rigidity_rank,
 )
+from formation.rigidity import expected_rigidity_rank, is_rigid, rigidity_matrix, rigidity_rank
 
 PROPERTY = settings(max_examples=60, deadline=None, derandomize=True, database=None)
 

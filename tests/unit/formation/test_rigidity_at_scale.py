@@ -10,7 +10,7 @@ import numpy as np
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from formation.graph import (
+from formation.rigidity import (
     expected_rigidity_rank,
     grown_cluster,
     growth_rounds,

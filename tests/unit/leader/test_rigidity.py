@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import formation.graph
+import formation.rigidity
 from leader.rigidity import expected_rank, healthy_rigidity, is_rigid, rigidity_rank
 
 PROPERTY = settings(max_examples=40, deadline=None, derandomize=True, database=None)
@@ -37,9 +37,9 @@ def henneberg(n: int, d: int, rng: np.random.Generator) -> tuple[np.ndarray, lis
 
 
 def test_reexports_are_the_formation_functions() -> None:
-    assert rigidity_rank is formation.graph.rigidity_rank
-    assert is_rigid is formation.graph.is_rigid
-    assert expected_rank is formation.graph.expected_rigidity_rank
+    assert rigidity_rank is formation.rigidity.rigidity_rank
+    assert is_rigid is formation.rigidity.is_rigid
+    assert expected_rank is formation.rigidity.expected_rigidity_rank
 
 
 def test_triangle_is_rigid() -> None:

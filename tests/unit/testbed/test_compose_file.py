@@ -324,7 +324,10 @@ def test_loopback_maps_names_paths_and_secrets(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize(
     ("compose", "loopback"),
-    [("compose.yaml", "compose.loopback.yaml"), ("compose.ros2.yaml", "compose.ros2.loopback.yaml")],
+    [
+        ("compose.yaml", "compose.loopback.yaml"),
+        ("compose.ros2.yaml", "compose.ros2.loopback.yaml"),
+    ],
 )
 def test_the_loopback_override_covers_every_service_on_its_own_loopback_address(
     compose: str, loopback: str, compose_schema: jsonschema.Draft7Validator
