@@ -9,26 +9,11 @@ import pytest
 
 from formation.errors import ScenarioError
 from formation.scenario import load, load_dict
-
-TRIANGLE = """
-name = "tri"
-edges = [[1, 2], [2, 3], [1, 3]]
-[[agents]]
-id = 1
-offset = [0.0, 0.0]
-[[agents]]
-id = 2
-offset = [1.0, 0.0]
-[[agents]]
-id = 3
-offset = [0.0, 0.5]
-"""
+from testkit.scenario_files import TRIANGLE, scenario_file
 
 
 def write(tmp_path: Path, text: str) -> Path:
-    path = tmp_path / "bad.toml"
-    path.write_text(TRIANGLE + text)
-    return path
+    return scenario_file(tmp_path, TRIANGLE + text)
 
 
 def test_the_default_body_is_simulated(tmp_path: Path) -> None:

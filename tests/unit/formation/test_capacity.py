@@ -9,20 +9,8 @@ import pytest
 from formation.capacity import Capacity, all_links, members, queues_of, unknown_medium
 from formation.errors import ScenarioError
 from formation.scenario import load
+from testkit.scenario_files import TRIANGLE, scenario_file
 
-TRIANGLE = """
-name = "tri"
-edges = [[1, 2], [2, 3], [1, 3]]
-[[agents]]
-id = 1
-offset = [0.0, 0.0]
-[[agents]]
-id = 2
-offset = [1.0, 0.0]
-[[agents]]
-id = 3
-offset = [0.0, 1.0]
-"""
 GOOD = """
 [[network.capacity]]
 scope = "link"
@@ -44,9 +32,7 @@ policy = "oldest"
 
 
 def write(tmp_path: Path, text: str) -> Path:
-    path = tmp_path / "cap.toml"
-    path.write_text(text)
-    return path
+    return scenario_file(tmp_path, text, "cap.toml")
 
 
 def test_scopes_resolve_to_their_links_in_queue_order(tmp_path: Path) -> None:

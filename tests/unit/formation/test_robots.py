@@ -10,26 +10,11 @@ import pytest
 from formation.errors import ScenarioError
 from formation.robots import initial_headings
 from formation.scenario import load
-
-TRIANGLE = """
-name = "tri"
-edges = [[1, 2], [2, 3], [1, 3]]
-[[agents]]
-id = 1
-offset = [0.0, 0.0]
-[[agents]]
-id = 2
-offset = [1.0, 0.0]
-[[agents]]
-id = 3
-offset = [0.0, 0.5]
-"""
+from testkit.scenario_files import TRIANGLE, scenario_file
 
 
 def write(tmp_path: Path, text: str) -> Path:
-    path = tmp_path / "bad.toml"
-    path.write_text(TRIANGLE + text)
-    return path
+    return scenario_file(tmp_path, TRIANGLE + text)
 
 
 def test_defaults_are_a_small_ground_robot(tmp_path: Path) -> None:

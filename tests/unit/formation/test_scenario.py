@@ -16,27 +16,13 @@ import pytest
 
 from formation.errors import ScenarioError
 from formation.scenario import Scenario, load, load_dict
+from testkit.scenario_files import TRIANGLE, scenario_file
 
 SCENARIOS = Path(__file__).resolve().parents[3] / "scenarios"
-TRIANGLE = """
-name = "tri"
-edges = [[1, 2], [2, 3], [1, 3]]
-[[agents]]
-id = 1
-offset = [0.0, 0.0]
-[[agents]]
-id = 2
-offset = [1.0, 0.0]
-[[agents]]
-id = 3
-offset = [0.0, 1.0]
-"""
 
 
 def write(tmp_path: Path, text: str, name: str = "bad.toml") -> Path:
-    path = tmp_path / name
-    path.write_text(text)
-    return path
+    return scenario_file(tmp_path, text, name)
 
 
 @pytest.mark.parametrize("path", sorted(SCENARIOS.glob("*.toml")), ids=lambda p: p.name)
@@ -57,7 +43,7 @@ def test_paper_geometry_is_the_model_md_pentagon(paper: Scenario) -> None:
 
 def test_weights_default_to_shape_distances(tmp_path: Path) -> None:
     s = load(write(tmp_path, TRIANGLE))
-    np.testing.assert_allclose(s.weights, [1.0, np.sqrt(2), 1.0])
+    np.testing.assert_allclose(s.weights, [1.0, np.hypot(1.0, 0.5), 0.5])  # |1-2|, |2-3|, |1-3|
 
 
 def test_resolved_toml_round_trips(paper: Scenario, tmp_path: Path) -> None:
