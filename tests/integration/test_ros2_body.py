@@ -12,8 +12,6 @@ import select
 import signal
 import subprocess
 import sys
-import threading
-import time
 import zlib
 from collections.abc import Iterator
 from pathlib import Path
@@ -26,6 +24,7 @@ from formation.scenario import STRATEGIES, Scenario
 from recorder import read_run, recover
 from testbed.runtime.launcher import launch
 from testbed.sim.simulate import simulate
+from testkit.run_watch import KillAtEpoch
 from testkit.zenoh_peer import free_port
 
 pytestmark = pytest.mark.integration
@@ -166,27 +165,15 @@ def test_the_plant_killed_mid_run_every_agent_reports_its_body_lost_and_the_reco
     paper: Scenario, runs_dir: Path, tmp_path: Path, ros_domain: int
 ) -> None:
     scenario, path = with_robots(paper.with_overrides(epochs=100_000), tmp_path, pose_timeout_s=1.0)
-    killed: list[int] = []
     with plant(path) as proc:
-        log = path.with_suffix(".plant.log")
-
-        def kill_the_plant(run_id: str, endpoint: str) -> None:
-            def kill() -> None:
-                # once every robot has been commanded (DDS discovery took seconds under load),
-                # and a little into the run
-                deadline = time.monotonic() + 60.0
-                while "every robot has sent its first command" not in log.read_text():
-                    if time.monotonic() > deadline:
-                        return
-                    time.sleep(0.05)
-                time.sleep(0.5)
-                os.kill(proc.pid, signal.SIGKILL)
-                killed.append(proc.pid)
-
-            threading.Thread(target=kill, daemon=True).start()
-
-        with pytest.raises(RuntimeFailure) as err:
-            launch(scenario, runs_dir=runs_dir, on_started=kill_the_plant)
+        # a few epochs into the run, however loaded the machine (DDS discovery took seconds)
+        kill = KillAtEpoch(["plant"], epoch=3, pids={"plant": proc.pid})
+        try:
+            with pytest.raises(RuntimeFailure) as err:
+                launch(scenario, runs_dir=runs_dir, on_started=kill.hook(runs_dir))
+        finally:
+            kill.close()
+    killed = kill.killed
     assert killed, "the run ended before the kill"
     names = ", ".join(f"agent-{i}: its robot's pose stopped coming" for i in range(1, 6))
     assert str(err.value) == f"every agent is gone ({names}); the run cannot go on"

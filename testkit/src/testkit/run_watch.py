@@ -46,10 +46,13 @@ def wait_for_run(runs_dir: Path, proc: subprocess.Popen[Any], timeout_s: float =
 
 
 class KillAtEpoch:
-    """Kills ``names``' processes by PID once agent ``watch``'s state of ``epoch`` is seen."""
+    """Kills ``names``' processes by PID once agent ``watch``'s state of ``epoch`` is seen:
+    the launcher's (``pids.json``), or those of ``pids`` (a process the test started)."""
 
-    def __init__(self, names: list[str], epoch: int, watch: int = 1) -> None:
-        self.names, self.epoch, self.watch = names, epoch, watch
+    def __init__(
+        self, names: list[str], epoch: int, watch: int = 1, pids: dict[str, int] | None = None
+    ) -> None:
+        self.names, self.epoch, self.watch, self.pids = names, epoch, watch, pids
         self.killed: dict[str, int] = {}  # name → the PID killed
         self.done = threading.Event()
         self._session: zenoh.Session | None = None
@@ -63,7 +66,7 @@ class KillAtEpoch:
         def on_state(sample: zenoh.Sample) -> None:
             if self.done.is_set() or orjson.loads(sample.payload.to_bytes())["epoch"] < self.epoch:
                 return
-            pids = read_pids(run_dir)
+            pids = self.pids or read_pids(run_dir)
             for name in self.names:
                 os.kill(pids[name], signal.SIGKILL)
                 self.killed[name] = pids[name]
