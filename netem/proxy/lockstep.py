@@ -331,9 +331,14 @@ class Lockstep:
         d = decided or self.links.models[link].decide(
             epoch, distance_m=self.positions.length(link, epoch)
         )
-        if d.delivered and self.queued is not None and self.queued.takes(link, epoch):
-            self.queued.hold(phase, epoch, (link, seq, payload, d))
-            return box  # judged with the rest of its phase (_judge_when_complete)
+        q = self.queued
+        if d.delivered and q is not None and q.takes(link, epoch):
+            judged = q.judge_alone(phase, epoch, link, d)
+            if judged is None:
+                q.hold(phase, epoch, (link, seq, payload, d))
+                return box  # judged with the rest of its phase (_judge_when_complete)
+            self._apply(box, phase, link, epoch, seq, payload, judged)
+            return box
         self._apply(box, phase, link, epoch, seq, payload, d)
         return box
 

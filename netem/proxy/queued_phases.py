@@ -6,6 +6,9 @@ in, and phases must be judged in virtual-time order: states, reports, estimates,
 epoch's states. :class:`QueuedPhases` holds what the models passed onto a queue and turns
 each complete phase into decisions; :class:`netem.proxy.lockstep.Lockstep` decides when a
 phase is complete (its receivers' open epochs) and applies them.
+
+A packet of a link alone in each of its queues (a ``link`` queue, or a radio or medium of
+one link) meets no other packet there: it is judged at once (:meth:`QueuedPhases.judge_alone`).
 """
 
 from __future__ import annotations
@@ -39,6 +42,16 @@ class QueuedPhases:
     def takes(self, link: Link, epoch: int) -> bool:
         """Does a queue serve ``link`` at ``epoch``?"""
         return self.queues.constrained((link[1], link[2]), epoch)
+
+    def judge_alone(self, phase: Phase, epoch: int, link: Link, d: Outcome) -> Queued | None:
+        """The decision on a packet ``d`` passed onto a queue, if its link is alone in each of
+        its queues (judged at once); None when it waits for the rest of its phase (:meth:`hold`)."""
+        pair = (link[1], link[2])
+        if pair not in self.queues.solo:
+            return None
+        size = self.sizes.payload_bytes(*packet_kind(pair), epoch)
+        v = self.queues.alone(epoch, phase, pair, size)
+        return queued(d, v.reason, v.queue, v.depth, v.sojourn_ms)
 
     def hold(self, phase: Phase, epoch: int, held: Held) -> None:
         self.held.setdefault((phase, epoch), []).append(held)

@@ -30,6 +30,9 @@ def constrained(paper: Scenario) -> Scenario:
          "limit_packets": 3, "overhead_bytes": 42},
         {"scope": "radio", "agent": 2, "rate_bps": 40_000.0, "burst_bytes": 600,
          "limit_bytes": 1200, "policy": "oldest"},
+        # alone in their queues, judged as they come: a backlog (1.02 s a state), in time
+        {"scope": "link", "link": [1, 3], "rate_bps": 2_000.0, "limit_packets": 2},
+        {"scope": "link", "link": [4, 1], "rate_bps": 11_000.0},
     ]  # fmt: skip
     return paper.with_overrides(network=network, epochs=25)
 

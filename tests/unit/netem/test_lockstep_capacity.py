@@ -22,6 +22,11 @@ CAPACITY: list[dict[str, Any]] = [
      "limit_packets": 4},
     {"scope": "radio", "agent": 3, "rate_bps": 30_000.0, "limit_packets": 2, "policy": "oldest"},
     {"scope": "link", "link": [2, 4], "rate_bps": 9_000.0, "burst_bytes": 400},
+    # links alone in their queues, judged as they come: a state of 256 B takes 1.02 s (a
+    # backlog, late and full), 0.19 s (in time, by the closed form), 0.205 s (late, by it)
+    {"scope": "link", "link": [1, 3], "rate_bps": 2_000.0, "limit_packets": 2},
+    {"scope": "link", "link": [4, 1], "rate_bps": 11_000.0},
+    {"scope": "link", "link": [5, 4], "rate_bps": 10_000.0},
 ]  # fmt: skip
 
 
