@@ -98,8 +98,8 @@ class CapacityNetwork:
                     (k, p.rate_bps / 8.0, p.overhead_bytes, p.limit_bytes)
                     for k, p in zip(ks, ps, strict=True)
                 )
-        self._free_at: dict[Link, float] = {}  # its last packet left its last queue [s]
-        self._last_in: dict[Link, tuple[float, int]] = {}  # its last packet: (t0 [s], payload)
+        # its last packet: (its phase's start [s], payload [B], when it left the last queue [s])
+        self._last_in: dict[Link, tuple[float, int, float]] = {}
 
     def _route(self) -> None:
         """Which queues serve each link; which links are alone in all of theirs (:meth:`alone`);
@@ -113,11 +113,12 @@ class CapacityNetwork:
             lk for lk, ks in self.by_link.items() if all(served[k] == 1 for k in ks)
         )
         self.phases = _phases([lk for lk in self.by_link if lk not in self.solo])
-        self._from = {lk: min(self.since[k] for k in ks) for lk, ks in self.by_link.items()}
+        # the epoch from which a queue serves each link
+        self.first_epoch = {lk: min(self.since[k] for k in ks) for lk, ks in self.by_link.items()}
 
     def constrained(self, link: Link, epoch: int = 0) -> bool:
         """Does a queue serve ``link`` at ``epoch``?"""
-        return epoch >= self._from.get(link, math.inf)
+        return epoch >= self.first_epoch.get(link, math.inf)
 
     def change(self, capacity: Capacity, from_epoch: int) -> list[Link]:
         """``capacity``'s queue (the one of its scope and target, or a new link queue) takes its
@@ -197,14 +198,15 @@ class CapacityNetwork:
         due = (epoch + deadline) * self.period_s
         stages = self._idle.get(link)
         if stages is not None:
-            t = t0 if self._free_at.get(link, -math.inf) <= t0 else math.nan
+            last = self._last_in.get(link)
+            t = t0 if last is None or last[2] <= t0 else math.nan
             for _, rate, extra, limit in stages:
                 size = payload_bytes + extra
                 t = math.nan if limit is not None and size > limit else t + size / rate
             if t == t:  # not NaN: every queue was idle and held it
-                self._free_at[link], self._last_in[link] = t, (t0, payload_bytes)
+                self._last_in[link] = (t0, payload_bytes, t)
                 name = self.names[stages[-1][0]]
-                return QueueVerdict(REASONS[QUEUE_LATE] if t > due else "", name, 0, 1e3 * (t - t0))
+                return QueueVerdict(_LATE if t > due else "", name, 0, 1e3 * (t - t0))
             self._not_idle(link)
         return self._through(link, payload_bytes, t0, epoch, due)[0]
 
@@ -212,10 +214,9 @@ class CapacityNetwork:
         """``link`` is judged in full from now on: its queues take the states that the packets
         judged in closed form left (:meth:`alone`), as :func:`serve_packets` leaves them."""
         stages, last = self._idle.pop(link, None), self._last_in.pop(link, None)
-        self._free_at.pop(link, None)
         if stages is None or last is None:
             return
-        t, payload = last
+        t, payload, _ = last
         for k, rate, extra, _ in stages:
             size = payload + extra
             t = t + size / rate
@@ -240,8 +241,7 @@ class CapacityNetwork:
                 sojourn_ms = 1e3 * (t - t0 + run.sojourn_s[0])
                 return QueueVerdict(REASONS[run.reason[0]], name, depth, sojourn_ms), math.nan
             t = run.departure_s[0]
-        reason = REASONS[QUEUE_LATE] if t > due else ""
-        return QueueVerdict(reason, name, depth, 1e3 * (t - t0)), t
+        return QueueVerdict(_LATE if t > due else "", name, depth, 1e3 * (t - t0)), t
 
     def phase(
         self, epoch: int, phase: str, packets: Sequence[tuple[Link, int]]
@@ -301,14 +301,14 @@ class CapacityNetwork:
                             REASONS[run.reason[m]], name, run.depth[m], sojourn_ms
                         )
             alive = [p for p in alive if out[p[1]] is _NONE]  # dropped here: no further
-        late = REASONS[QUEUE_LATE]
         for _, i, _ in alive:
             name, depth = last[i]
-            out[i] = QueueVerdict(late if time[i] > due else "", name, depth, 1e3 * (time[i] - t0))
+            out[i] = QueueVerdict(_LATE if time[i] > due else "", name, depth, 1e3 * (time[i] - t0))
         return out
 
 
 _NONE = QueueVerdict("", "", 0, 0.0)  # no queue serves the packet's link
+_LATE = REASONS[QUEUE_LATE]
 
 
 def _phases(links: Sequence[Link]) -> frozenset[str]:

@@ -332,8 +332,8 @@ class Lockstep:
             epoch, distance_m=self.positions.length(link, epoch)
         )
         q = self.queued
-        if d.delivered and q is not None and q.takes(link, epoch):
-            judged = q.judge_alone(phase, epoch, link, d)
+        if d.delivered and q is not None:
+            judged = q.at_once(phase, epoch, link, d)
             if judged is None:
                 q.hold(phase, epoch, (link, seq, payload, d))
                 return box  # judged with the rest of its phase (_judge_when_complete)

@@ -8,15 +8,16 @@ each complete phase into decisions; :class:`netem.proxy.lockstep.Lockstep` decid
 phase is complete (its receivers' open epochs) and applies them.
 
 A packet of a link alone in each of its queues (a ``link`` queue, or a radio or medium of
-one link) meets no other packet there: it is judged at once (:meth:`QueuedPhases.judge_alone`).
+one link) meets no other packet there: it is judged at once (:meth:`QueuedPhases.at_once`).
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from formation.scenario import LEADER_ENDPOINT
-from formation.wire_size import WireSizes
+from formation.wire_size import Kind, WireSizes
 from netem.links.capacity_network import PHASE_ORDER, CapacityNetwork, packet_kind
 from netem.links.layer_stack import Outcome
 from netem.proxy.records import Queued, queued
@@ -32,6 +33,7 @@ class QueuedPhases:
     def __init__(self, queues: CapacityNetwork, sizes: WireSizes, agents: list[int]) -> None:
         self.queues, self.sizes, self.agents = queues, sizes, agents
         self.held: dict[tuple[Phase, int], list[Held]] = {}
+        self._links: dict[Link, tuple[tuple[int, int], Kind, int]] = {}  # (src, dst), kind, whose
 
     def __bool__(self) -> bool:
         return bool(self.held)
@@ -39,19 +41,23 @@ class QueuedPhases:
     def __contains__(self, key: tuple[Phase, int]) -> bool:
         return key in self.held
 
-    def takes(self, link: Link, epoch: int) -> bool:
-        """Does a queue serve ``link`` at ``epoch``?"""
-        return self.queues.constrained((link[1], link[2]), epoch)
-
-    def judge_alone(self, phase: Phase, epoch: int, link: Link, d: Outcome) -> Queued | None:
-        """The decision on a packet ``d`` passed onto a queue, if its link is alone in each of
-        its queues (judged at once); None when it waits for the rest of its phase (:meth:`hold`)."""
-        pair = (link[1], link[2])
-        if pair not in self.queues.solo:
+    def at_once(self, phase: Phase, epoch: int, link: Link, d: Outcome) -> Outcome | Queued | None:
+        """The decision on a packet the model passed (``d``) as far as it can be taken now:
+        ``d`` when no queue serves its link at ``epoch``; the queues' when its link is alone in
+        each of its own (:meth:`CapacityNetwork.alone`); None when it waits for the rest of
+        its phase (:meth:`hold`)."""
+        got = self._links.get(link)
+        if got is None:
+            pair = (link[1], link[2])
+            got = self._links[link] = (pair, *packet_kind(pair))
+        pair, kind, whose = got
+        net = self.queues
+        if epoch < net.first_epoch.get(pair, math.inf):
+            return d
+        if pair not in net.solo:
             return None
-        size = self.sizes.payload_bytes(*packet_kind(pair), epoch)
-        v = self.queues.alone(epoch, phase, pair, size)
-        return queued(d, v.reason, v.queue, v.depth, v.sojourn_ms)
+        v = net.alone(epoch, phase, pair, self.sizes.payload_bytes(kind, whose, epoch))
+        return queued(d, *v)
 
     def hold(self, phase: Phase, epoch: int, held: Held) -> None:
         self.held.setdefault((phase, epoch), []).append(held)
