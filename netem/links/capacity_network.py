@@ -35,7 +35,9 @@ from netem.links.capacity import (
     REASONS,
     QueueParams,
     QueueState,
+    make_room,
     serve_packets,
+    without,
 )
 from netem.links.layer import LinkModelError
 
@@ -87,6 +89,7 @@ class CapacityNetwork:
         self.since = [0] * len(capacities)  # the epoch from which each queue serves
         self._changes: list[tuple[int, int, QueueParams]] = []  # (from epoch, queue, params)
         self._last = (-1, -1)  # (epoch, phase) of the last call
+        self._tokens: dict[int, tuple[int, ...]] = {}  # realtime: each queue's backlog, by token
         self._route()
         # Links :meth:`alone` judges in closed form: the stages (queue, rate [B/s], overhead
         # [B], limit [B]) of links alone in queues of ``burst_bytes = 0``, none changed yet.
@@ -172,15 +175,23 @@ class CapacityNetwork:
         return self.params[k]
 
     def arrive(
-        self, link: Link, payload_bytes: int, now_s: float, epoch: int, deadline_s: float
-    ) -> tuple[QueueVerdict, float]:
+        self,
+        link: Link,
+        payload_bytes: int,
+        now_s: float,
+        epoch: int,
+        deadline_s: float,
+        token: int = 0,
+    ) -> tuple[QueueVerdict, float, list[int]]:
         """Realtime: one packet of ``epoch`` at ``now_s`` [s since the clock's start] through its
-        queues, decided at once; its verdict and when it leaves the last [s] (NaN: dropped).
+        queues, decided at once; its verdict, when it leaves the last [s] (NaN: dropped), and
+        the tokens of the packets it pushed out of ``oldest`` queues (:func:`make_room`).
 
         Packets come one at a time as they arrive, so each queue is FIFO in the order netem
-        handles them, and a packet is committed once it joined (``oldest`` pushes out none).
+        handles them. ``token`` names the packet in its queues until it leaves them; a packet
+        pushed out leaves every queue it was in.
         """
-        return self._through(link, payload_bytes, now_s, epoch, deadline_s)
+        return self._through(link, payload_bytes, now_s, epoch, deadline_s, token)
 
     def alone(self, epoch: int, phase: str, link: Link, payload_bytes: int) -> QueueVerdict:
         """Lockstep: the fate of a packet of a link in :attr:`solo`, judged at once.
@@ -223,25 +234,56 @@ class CapacityNetwork:
             self.states[k] = QueueState(t, 0.0, (t,), (size,))  # a netem rate's bucket: 0
 
     def _through(
-        self, link: Link, payload_bytes: int, t0: float, epoch: int, due: float
-    ) -> tuple[QueueVerdict, float]:
+        self,
+        link: Link,
+        payload_bytes: int,
+        t0: float,
+        epoch: int,
+        due: float,
+        token: int | None = None,
+    ) -> tuple[QueueVerdict, float, list[int]]:
         """One packet arriving at ``t0`` [s] through its link's queues in turn, each judging it
-        alone; its verdict and when it leaves the last [s] (NaN: dropped)."""
+        alone; its verdict, when it leaves the last [s] (NaN: dropped), and the tokens of those
+        it pushed out (realtime, with a ``token``: :meth:`arrive`)."""
         t, depth, name = t0, 0, ""
+        pushed: list[int] = []
+        victims: list[int]
         for k in self.by_link.get(link, ()):
             if self.since[k] > epoch:
                 continue
             params = self._params(k, epoch)
-            run = serve_packets(
-                params, [t], [payload_bytes + params.overhead_bytes], state=self.states[k]
-            )
+            size = payload_bytes + params.overhead_bytes
+            state, victims = self.states[k], []
+            if token is not None:
+                state, victims = make_room(params, state or QueueState(), t, size)
+                if victims:
+                    gone = [self._tokens[k][j] for j in victims]
+                    self._forget(gone)
+                    pushed += gone
+                    state = self.states[k]
+            run = serve_packets(params, [t], [size], state=state)
+            if token is not None:  # the tokens of the backlog, in its order
+                backlog = state.backlog_s if state is not None else ()
+                left = zip(self._tokens.get(k, ()), backlog, strict=True)
+                kept = tuple(tok for tok, d in left if d > t)
+                self._tokens[k] = (*kept, token) if run.reason[0] == PASSED else kept
             self.states[k] = run.state
-            name, depth = self.names[k], run.depth[0]
+            name, depth = self.names[k], run.depth[0] + len(victims)
             if run.reason[0] != PASSED:
                 sojourn_ms = 1e3 * (t - t0 + run.sojourn_s[0])
-                return QueueVerdict(REASONS[run.reason[0]], name, depth, sojourn_ms), math.nan
+                verdict = QueueVerdict(REASONS[run.reason[0]], name, depth, sojourn_ms)
+                return verdict, math.nan, pushed
             t = run.departure_s[0]
-        return QueueVerdict(_LATE if t > due else "", name, depth, 1e3 * (t - t0)), t
+        return QueueVerdict(_LATE if t > due else "", name, depth, 1e3 * (t - t0)), t, pushed
+
+    def _forget(self, tokens: list[int]) -> None:
+        """Realtime: the packets ``tokens`` leave every queue they wait in (pushed out)."""
+        for k, held in self._tokens.items():
+            positions = [j for j, tok in enumerate(held) if tok in tokens]
+            state = self.states[k]
+            if positions and state is not None:
+                self.states[k] = without(state, positions)
+                self._tokens[k] = tuple(tok for tok in held if tok not in tokens)
 
     def phase(
         self, epoch: int, phase: str, packets: Sequence[tuple[Link, int]]
