@@ -70,6 +70,21 @@ def params_of(c: Capacity) -> QueueParams:
     )
 
 
+class Fixed(NamedTuple):
+    """:meth:`CapacityNetwork.fixed`: a link's packets of epochs ``start`` to ``end`` (excluded),
+    by epoch: their reasons, their last queue, sojourns [ms], phase starts [s], payloads [B]
+    and departures [s]."""
+
+    start: int
+    end: int
+    reason: list[str]
+    queue: str
+    sojourn_ms: list[float]
+    t0_s: list[float]
+    payload_bytes: list[int]
+    departure_s: list[float]
+
+
 class CapacityNetwork:
     """The queues of one run (one seed): their parameters, which links they serve, their state."""
 
@@ -93,16 +108,16 @@ class CapacityNetwork:
         self._route()
         # Links :meth:`alone` judges in closed form: the stages (queue, rate [B/s], overhead
         # [B], limit [B]) of links alone in queues of ``burst_bytes = 0``, none changed yet.
-        self._idle: dict[Link, tuple[tuple[int, float, int, int | None], ...]] = {}
+        self.idle: dict[Link, tuple[tuple[int, float, int, int | None], ...]] = {}
         for lk, ks in self.by_link.items():
             ps = [self.params[k] for k in ks]
             if lk in self.solo and not any(p.burst_bytes for p in ps):
-                self._idle[lk] = tuple(
+                self.idle[lk] = tuple(
                     (k, p.rate_bps / 8.0, p.overhead_bytes, p.limit_bytes)
                     for k, p in zip(ks, ps, strict=True)
                 )
         # its last packet: (its phase's start [s], payload [B], when it left the last queue [s])
-        self._last_in: dict[Link, tuple[float, int, float]] = {}
+        self.last_in: dict[Link, tuple[float, int, float]] = {}
 
     def _route(self) -> None:
         """Which queues serve each link; which links are alone in all of theirs (:meth:`alone`);
@@ -207,24 +222,59 @@ class CapacityNetwork:
         start, deadline = PHASES[phase]
         t0 = (epoch + start) * self.period_s  # [s]
         due = (epoch + deadline) * self.period_s
-        stages = self._idle.get(link)
+        stages = self.idle.get(link)
         if stages is not None:
-            last = self._last_in.get(link)
+            last = self.last_in.get(link)
             t = t0 if last is None or last[2] <= t0 else math.nan
             for _, rate, extra, limit in stages:
                 size = payload_bytes + extra
                 t = math.nan if limit is not None and size > limit else t + size / rate
             if t == t:  # not NaN: every queue was idle and held it
-                self._last_in[link] = (t0, payload_bytes, t)
+                self.last_in[link] = (t0, payload_bytes, t)
                 name = self.names[stages[-1][0]]
                 return QueueVerdict(_LATE if t > due else "", name, 0, 1e3 * (t - t0))
             self._not_idle(link)
         return self._through(link, payload_bytes, t0, epoch, due)[0]
 
+    def fixed(
+        self, link: Link, phase: str, epochs: npt.NDArray[np.int64], payloads: npt.NDArray[np.int64]
+    ) -> Fixed | None:
+        """:meth:`alone`'s closed form for a block of a link's packets at once (``epochs``
+        increasing, one payload [B] each); None unless its queues serve each of them within
+        half a period, so that each finds them idle whatever passed before.
+
+        The same arithmetic as :meth:`alone`, on arrays; the caller notes each packet it
+        judges by it in :attr:`last_in`, as :meth:`alone` does.
+        """
+        stages = self.idle.get(link)
+        if stages is None:
+            return None
+        start, deadline = PHASES[phase]
+        t0 = (epochs + start) * self.period_s  # [s]
+        t = t0
+        for _, rate, extra, limit in stages:
+            size = payloads + extra
+            if limit is not None and (size > limit).any():
+                return None
+            t = t + size / rate
+        if ((t - t0) > 0.5 * self.period_s).any():
+            return None
+        late = t > (epochs + deadline) * self.period_s
+        return Fixed(
+            int(epochs[0]),
+            int(epochs[-1]) + 1,
+            np.where(late, _LATE, "").tolist(),
+            self.names[stages[-1][0]],
+            (1e3 * (t - t0)).tolist(),
+            t0.tolist(),
+            payloads.tolist(),
+            t.tolist(),
+        )
+
     def _not_idle(self, link: Link) -> None:
         """``link`` is judged in full from now on: its queues take the states that the packets
         judged in closed form left (:meth:`alone`), as :func:`serve_packets` leaves them."""
-        stages, last = self._idle.pop(link, None), self._last_in.pop(link, None)
+        stages, last = self.idle.pop(link, None), self.last_in.pop(link, None)
         if stages is None or last is None:
             return
         t, payload, _ = last
@@ -430,6 +480,7 @@ def capacity_plan(
 __all__ = [
     "PHASE_ORDER",
     "CapacityNetwork",
+    "Fixed",
     "QueueVerdict",
     "capacity_plan",
     "network_of",

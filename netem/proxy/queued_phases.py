@@ -16,15 +16,21 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numpy as np
+
 from formation.scenario import LEADER_ENDPOINT
 from formation.wire_size import Kind, WireSizes
-from netem.links.capacity_network import PHASE_ORDER, CapacityNetwork, packet_kind
+from netem.links.capacity_network import PHASE_ORDER, CapacityNetwork, Fixed, packet_kind
 from netem.links.layer_stack import Outcome
 from netem.proxy.records import Queued, queued
 from netem.proxy.routes import Link, Phase
 
 PHASES: tuple[Phase, ...] = ("state", "report", "estimate")  # in virtual time
+BLOCK = 256  # epochs judged at once in closed form (:meth:`QueuedPhases.at_once`)
 Held = tuple[Link, int, Any, Outcome]  # (link, seq, payload, the model's decision)
+
+
+_NONE: tuple[int, int, None] = (0, 0, None)
 
 
 class QueuedPhases:
@@ -34,6 +40,8 @@ class QueuedPhases:
         self.queues, self.sizes, self.agents = queues, sizes, agents
         self.held: dict[tuple[Phase, int], list[Held]] = {}
         self._links: dict[Link, tuple[tuple[int, int], Kind, int]] = {}  # (src, dst), kind, whose
+        # each link's block of closed-form verdicts: (from epoch, to epoch, them or None)
+        self._fixed: dict[Link, tuple[int, int, Fixed | None]] = {}
 
     def __bool__(self) -> bool:
         return bool(self.held)
@@ -56,8 +64,31 @@ class QueuedPhases:
             return d
         if pair not in net.solo:
             return None
+        start, end, block = self._fixed.get(link, _NONE)
+        if not start <= epoch < end:
+            start, end, block = self._fix(phase, epoch, link, pair, kind, whose)
+        if block is not None and pair in net.idle:
+            j = epoch - block.start
+            last = net.last_in.get(pair)
+            if last is None or last[2] <= block.t0_s[j]:  # its queues are idle: closed form
+                net.last_in[pair] = (block.t0_s[j], block.payload_bytes[j], block.departure_s[j])
+                return queued(d, block.reason[j], block.queue, 0, block.sojourn_ms[j])
         v = net.alone(epoch, phase, pair, self.sizes.payload_bytes(kind, whose, epoch))
         return queued(d, *v)
+
+    def _fix(
+        self, phase: Phase, epoch: int, link: Link, pair: tuple[int, int], kind: Kind, whose: int
+    ) -> tuple[int, int, Fixed | None]:
+        """The closed form of ``link``'s :data:`BLOCK` epochs from ``epoch`` (None: it has none,
+        :meth:`CapacityNetwork.fixed`), as ``(from epoch, to epoch, it)``."""
+        epochs = np.arange(epoch, epoch + BLOCK, dtype=np.int64)
+        payloads = np.array([self.sizes.payload_bytes(kind, whose, int(e)) for e in epochs])
+        got = self._fixed[link] = (
+            epoch,
+            epoch + BLOCK,
+            self.queues.fixed(pair, phase, epochs, payloads),
+        )
+        return got
 
     def hold(self, phase: Phase, epoch: int, held: Held) -> None:
         self.held.setdefault((phase, epoch), []).append(held)

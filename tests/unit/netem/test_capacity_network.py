@@ -183,3 +183,36 @@ def test_a_link_alone_in_its_queues_is_judged_at_once_as_its_phase_would(
         if passed:  # else the models dropped it: no queue sees it
             got = at_once.alone(epoch, "state", (1, 2), payload)
             assert got == by_phase.phase(epoch, "state", [((1, 2), payload)])[0], epoch
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    rate=st.sampled_from([3_000.0, 6_000.0, 10_000.0, 11_000.0, 8e6]),
+    overhead=st.sampled_from([0, 30]),
+    first=st.integers(0, 2_000),
+    phase=st.sampled_from(["state", "report"]),
+    period_s=st.sampled_from([0.1, 1.0]),
+)
+def test_a_block_in_closed_form_is_what_alone_gives_packet_by_packet(
+    rate: float, overhead: int, first: int, phase: str, period_s: float
+) -> None:
+    link = (1, 2) if phase == "state" else (1, 0)
+    entry = {"scope": "link", "link": list(link), "rate_bps": rate, "overhead_bytes": overhead}
+    epochs = np.arange(first, first + 40, dtype=np.int64)
+    payloads = 200 + (epochs // 7) % 3  # sizes change now and then
+    block = network(entry, period_s=period_s).fixed(link, phase, epochs, payloads)
+    one_by_one = network(entry, period_s=period_s)
+    verdicts = [
+        one_by_one.alone(int(e), phase, link, int(p)) for e, p in zip(epochs, payloads, strict=True)
+    ]
+    if block is None:  # a packet needs more than half a period
+        assert 8 * (int(payloads.max()) + overhead) / rate > 0.5 * period_s * (1 - 1e-9)
+        return
+    assert [(v.reason, v.queue, v.depth, v.sojourn_ms) for v in verdicts] == [
+        (r, block.queue, 0, s) for r, s in zip(block.reason, block.sojourn_ms, strict=True)
+    ]
+    assert one_by_one.last_in[link] == (
+        block.t0_s[-1],
+        block.payload_bytes[-1],
+        block.departure_s[-1],
+    )
