@@ -26,11 +26,11 @@ from shell import Incoming
 
 ROOT = Path(__file__).resolve().parents[3]
 RUN = "rtcap"
-PAYLOAD = b'{"report": "' + b"x" * 88 + b'"}'  # 102 B: 10.2 ms at 80 kbit/s
+PAYLOAD = b'{"report": "' + b"x" * 88 + b'"}'  # 102 B: 0.3 s at 2,720 bit/s
 
 
 def ap(policy: str, limit_packets: int = 2) -> dict[str, Any]:
-    return {"scope": "medium", "medium": "ap", "links": "control", "rate_bps": 80_000.0,
+    return {"scope": "medium", "medium": "ap", "links": "control", "rate_bps": 2_720.0,
             "limit_packets": limit_packets, "policy": policy}  # fmt: skip
 
 
@@ -40,7 +40,7 @@ def test_oldest_pushes_out_the_oldest_held_packet_of_any_earlier_arrival() -> No
             Capacity.model_validate({"scope": "radio", "agent": 0, "rate_bps": 1e6})]  # fmt: skip
     net = CapacityNetwork(caps, 4, links, 1.0)
     # four estimates at once: the first on the wire, each later one pushes out the one before
-    got = [net.arrive((0, i), 100, 0.0, 0, 1.0, token=i) for i in range(1, 5)]
+    got = [net.arrive((0, i), 100, 0.0, 0, 10.0, token=i) for i in range(1, 5)]
     assert [pushed for _, _, pushed in got] == [[], [], [2], [3]]
     assert [v.reason for v, _, _ in got] == ["", "", "", ""]
     # a pushed-out packet leaves every queue: the radio's backlog holds 1 and 4 only
@@ -48,7 +48,7 @@ def test_oldest_pushes_out_the_oldest_held_packet_of_any_earlier_arrival() -> No
     assert radio is not None and medium is not None
     assert len(radio.backlog_s) == 2 and len(medium.backlog_s) == 2
     # in lockstep (no token) a decided packet is never taken back: the newest is refused
-    net = CapacityNetwork(caps, 4, links, 1.0)
+    net = CapacityNetwork(caps, 4, links, 10.0)
     verdicts = [net.alone(0, "estimate", (0, i), 100) for i in range(1, 4)]
     assert [v.reason for v in verdicts] == ["", "", "queue_full"]
 
@@ -79,7 +79,7 @@ def test_a_full_queue_keeps_the_newest_under_oldest_and_records_the_pushed_out(
     rt, delivered, records = _forwarder(policy)
     due: list[Due] = rt._due
     now = time.time_ns()
-    for i in range(1, 6):  # five reports at once into room for two, each 10 ms on the wire
+    for i in range(1, 6):  # five reports at once into room for two, each 0.3 s on the wire
         msg = Incoming(keys.agent_report(RUN, i), PAYLOAD, attachment(0, 0, i), now)
         rt.handle(msg, due)
     deadline = time.monotonic() + 5.0
