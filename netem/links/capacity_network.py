@@ -71,10 +71,11 @@ def params_of(c: Capacity) -> QueueParams:
 
 
 class Fixed(NamedTuple):
-    """:meth:`CapacityNetwork.fixed`: a link's packets of epochs ``start`` to ``end`` (excluded),
+    """:meth:`CapacityNetwork.fixed`: ``link``'s packets of epochs ``start`` to ``end`` (excluded),
     by epoch: their reasons, their last queue, sojourns [ms], phase starts [s], payloads [B]
     and departures [s]."""
 
+    link: Link
     start: int
     end: int
     reason: list[str]
@@ -261,6 +262,7 @@ class CapacityNetwork:
             return None
         late = t > (epochs + deadline) * self.period_s
         return Fixed(
+            link,
             int(epochs[0]),
             int(epochs[-1]) + 1,
             np.where(late, _LATE, "").tolist(),

@@ -26,7 +26,7 @@ from netem.proxy.records import Queued, queued
 from netem.proxy.routes import Link, Phase
 
 PHASES: tuple[Phase, ...] = ("state", "report", "estimate")  # in virtual time
-BLOCK = 256  # epochs judged at once in closed form (:meth:`QueuedPhases.at_once`)
+BLOCK = 1024  # epochs judged at once in closed form (:meth:`QueuedPhases.at_once`)
 Held = tuple[Link, int, Any, Outcome]  # (link, seq, payload, the model's decision)
 
 
@@ -52,37 +52,43 @@ class QueuedPhases:
     def at_once(self, phase: Phase, epoch: int, link: Link, d: Outcome) -> Outcome | Queued | None:
         """The decision on a packet the model passed (``d``) as far as it can be taken now:
         ``d`` when no queue serves its link at ``epoch``; the queues' when its link is alone in
-        each of its own (:meth:`CapacityNetwork.alone`); None when it waits for the rest of
-        its phase (:meth:`hold`)."""
+        each of its own (:meth:`CapacityNetwork.alone`, or its closed form for a block of
+        epochs, :meth:`CapacityNetwork.fixed`); None when it waits for the rest of its phase
+        (:meth:`hold`)."""
+        net = self.queues
+        start, end, block = self._fixed.get(link, _NONE)
+        if not start <= epoch < end:  # a new block (or none yet): is the link alone in its queues?
+            pair, _, _ = self._route(link)
+            if epoch < net.first_epoch.get(pair, math.inf):
+                return d
+            if pair not in net.solo:
+                return None
+            start, end, block = self._fix(phase, epoch, link)
+        if block is not None and block.link in net.idle:
+            j = epoch - start
+            last = net.last_in.get(block.link)
+            if last is None or last[2] <= block.t0_s[j]:  # its queues are idle: closed form
+                t0, payload, t = block.t0_s[j], block.payload_bytes[j], block.departure_s[j]
+                net.last_in[block.link] = (t0, payload, t)
+                return queued(d, block.reason[j], block.queue, 0, block.sojourn_ms[j])
+        pair, kind, whose = self._route(link)
+        v = net.alone(epoch, phase, pair, self.sizes.payload_bytes(kind, whose, epoch))
+        return queued(d, *v)
+
+    def _route(self, link: Link) -> tuple[tuple[int, int], Kind, int]:
+        """``link``'s ends, and the kind and whose its packets are."""
         got = self._links.get(link)
         if got is None:
             pair = (link[1], link[2])
             got = self._links[link] = (pair, *packet_kind(pair))
-        pair, kind, whose = got
-        net = self.queues
-        if epoch < net.first_epoch.get(pair, math.inf):
-            return d
-        if pair not in net.solo:
-            return None
-        start, end, block = self._fixed.get(link, _NONE)
-        if not start <= epoch < end:
-            start, end, block = self._fix(phase, epoch, link, pair, kind, whose)
-        if block is not None and pair in net.idle:
-            j = epoch - block.start
-            last = net.last_in.get(pair)
-            if last is None or last[2] <= block.t0_s[j]:  # its queues are idle: closed form
-                net.last_in[pair] = (block.t0_s[j], block.payload_bytes[j], block.departure_s[j])
-                return queued(d, block.reason[j], block.queue, 0, block.sojourn_ms[j])
-        v = net.alone(epoch, phase, pair, self.sizes.payload_bytes(kind, whose, epoch))
-        return queued(d, *v)
+        return got
 
-    def _fix(
-        self, phase: Phase, epoch: int, link: Link, pair: tuple[int, int], kind: Kind, whose: int
-    ) -> tuple[int, int, Fixed | None]:
+    def _fix(self, phase: Phase, epoch: int, link: Link) -> tuple[int, int, Fixed | None]:
         """The closed form of ``link``'s :data:`BLOCK` epochs from ``epoch`` (None: it has none,
         :meth:`CapacityNetwork.fixed`), as ``(from epoch, to epoch, it)``."""
+        pair, kind, whose = self._route(link)
         epochs = np.arange(epoch, epoch + BLOCK, dtype=np.int64)
-        payloads = np.array([self.sizes.payload_bytes(kind, whose, int(e)) for e in epochs])
+        payloads = self.sizes.payload_bytes_of(kind, whose, epochs)
         got = self._fixed[link] = (
             epoch,
             epoch + BLOCK,
