@@ -427,7 +427,7 @@ class Lockstep:
                 box = OpenEpoch()
             elif not self._all_handled(box, senders, epoch):
                 return
-            if self.queued and (phase, epoch) in self.queued:
+            if self.queued is not None and (phase, epoch) in self.queued.held:
                 if not self._judge_when_complete(phase, epoch):
                     return  # the rest of the phase's queued packets are still to come
                 continue  # judged: every receiver of the phase was tried again, this one too

@@ -30,7 +30,10 @@ BLOCK = 1024  # epochs judged at once in closed form (:meth:`QueuedPhases.at_onc
 Held = tuple[Link, int, Any, Outcome]  # (link, seq, payload, the model's decision)
 
 
-_NONE: tuple[int, int, None] = (0, 0, None)
+# a link's block of epochs judged in closed form: (from epoch, to epoch, the closed form or
+# None, a decision of the model, each epoch's decision on a packet it passed)
+_Block = tuple[int, int, Fixed | None, Outcome | None, list[Queued]]
+_NONE: _Block = (0, 0, None, None, [])
 
 
 class QueuedPhases:
@@ -40,8 +43,7 @@ class QueuedPhases:
         self.queues, self.sizes, self.agents = queues, sizes, agents
         self.held: dict[tuple[Phase, int], list[Held]] = {}
         self._links: dict[Link, tuple[tuple[int, int], Kind, int]] = {}  # (src, dst), kind, whose
-        # each link's block of closed-form verdicts: (from epoch, to epoch, them or None)
-        self._fixed: dict[Link, tuple[int, int, Fixed | None]] = {}
+        self._fixed: dict[Link, _Block] = {}  # each link's block of closed-form verdicts
 
     def __bool__(self) -> bool:
         return bool(self.held)
@@ -56,20 +58,22 @@ class QueuedPhases:
         epochs, :meth:`CapacityNetwork.fixed`); None when it waits for the rest of its phase
         (:meth:`hold`)."""
         net = self.queues
-        start, end, block = self._fixed.get(link, _NONE)
+        start, end, block, usual, decided = self._fixed.get(link, _NONE)
         if not start <= epoch < end:  # a new block (or none yet): is the link alone in its queues?
             pair, _, _ = self._route(link)
             if epoch < net.first_epoch.get(pair, math.inf):
                 return d
             if pair not in net.solo:
                 return None
-            start, end, block = self._fix(phase, epoch, link)
+            start, end, block, usual, decided = self._fix(phase, epoch, link, d)
         if block is not None and block.link in net.idle:
             j = epoch - start
             last = net.last_in.get(block.link)
             if last is None or last[2] <= block.t0_s[j]:  # its queues are idle: closed form
                 t0, payload, t = block.t0_s[j], block.payload_bytes[j], block.departure_s[j]
                 net.last_in[block.link] = (t0, payload, t)
+                if d is usual:
+                    return decided[j]
                 return queued(d, block.reason[j], block.queue, 0, block.sojourn_ms[j])
         pair, kind, whose = self._route(link)
         v = net.alone(epoch, phase, pair, self.sizes.payload_bytes(kind, whose, epoch))
@@ -83,17 +87,20 @@ class QueuedPhases:
             got = self._links[link] = (pair, *packet_kind(pair))
         return got
 
-    def _fix(self, phase: Phase, epoch: int, link: Link) -> tuple[int, int, Fixed | None]:
+    def _fix(self, phase: Phase, epoch: int, link: Link, d: Outcome) -> _Block:
         """The closed form of ``link``'s :data:`BLOCK` epochs from ``epoch`` (None: it has none,
-        :meth:`CapacityNetwork.fixed`), as ``(from epoch, to epoch, it)``."""
+        :meth:`CapacityNetwork.fixed`), with each epoch's decision on a packet the model's ``d``
+        passed (the model's decisions are shared: most of its packets have that one)."""
         pair, kind, whose = self._route(link)
         epochs = np.arange(epoch, epoch + BLOCK, dtype=np.int64)
         payloads = self.sizes.payload_bytes_of(kind, whose, epochs)
-        got = self._fixed[link] = (
-            epoch,
-            epoch + BLOCK,
-            self.queues.fixed(pair, phase, epochs, payloads),
-        )
+        block = self.queues.fixed(pair, phase, epochs, payloads)
+        decided: list[Queued] = []
+        if block is not None:  # few distinct (reason, sojourn): one decision each
+            pairs = list(zip(block.reason, block.sojourn_ms, strict=True))
+            each = {p: queued(d, p[0], block.queue, 0, p[1]) for p in set(pairs)}
+            decided = [each[p] for p in pairs]
+        got = self._fixed[link] = (epoch, epoch + BLOCK, block, d, decided)
         return got
 
     def hold(self, phase: Phase, epoch: int, held: Held) -> None:
