@@ -74,10 +74,11 @@ class Lockstep:
         )
 
     def setup_clean(self) -> None:
-        """Take clean epochs on the clean path from now on."""
-        if self.links.capacity is not None:
-            return  # a queue judges a phase's packets together: every packet the full path
-        self.clean = clean_epochs(self.links)
+        """Take clean epochs on the clean path from now on: with capacity queues, those in which
+        every queue a packet meets has a closed form and passes it in time (a queue judging a
+        phase's packets together has none: they take the full path)."""
+        judge = self.queued.closed_form if self.queued is not None else None
+        self.clean = clean_epochs(self.links, judge)
         self._clean_deliver = {phase: self._clean_delivery(phase) for phase in self.clean}
 
     # -- events in ----------------------------------------------------------------------------
@@ -281,6 +282,18 @@ class Lockstep:
                 self.open[key] = OpenEpoch()
                 self.progress.estimate_skipped(epoch)
         self._try_close("estimate", agent)
+
+    def queues_changing(self) -> None:
+        """A capacity queue is about to change: its state counts the packets the clean path put
+        through it, up to the last one (:meth:`QueuedPhases.crossed`)."""
+        if self.queued is None:
+            return
+        for ce in self.clean.values():
+            for stream, s in ce.streams.items():
+                taken = [e for e, g in ce.gathering.items() if stream in g.seqs]
+                last = max([ce.last_done, *taken])
+                for link in s.links if last >= 0 else ():
+                    self.queued.crossed(link, last)
 
     def models_changed(self) -> None:
         """A link's model changed: which epochs are clean is computed again."""
