@@ -10,7 +10,8 @@ epoch is closed, that epoch's decision records go out in one batch.
 
 An epoch in which every link of the phase passes takes the clean path
 (:mod:`netem.proxy.clean_epochs`): no per-packet decision, records spliced from templates and
-published together (:meth:`Lockstep.flush_clean`).
+published together (:meth:`Lockstep.flush_clean`). With capacity queues, only where each
+queue has a closed form and passes its packet in time.
 
 :class:`Lockstep` has no network, clock or thread: the node calls it under its lock
 and publishes what it hands to the :class:`Outbox`, in the order it hands it.

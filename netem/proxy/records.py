@@ -51,7 +51,7 @@ def queued(d: Outcome, reason: str, queue: str, depth: int, sojourn_ms: float) -
         q = Queued(*d, queue, depth, sojourn_ms)
     else:
         q = Queued(False, 0, 0.0, 0, "drop", reason, d.state, False, queue, depth, sojourn_ms)
-    if len(_QUEUED) > 100_000:
+    if len(_QUEUED) > 20_000:  # a backlog's sojourns are all different: kept few
         _QUEUED.clear()
     _QUEUED[key] = (d, q)  # the entry keeps d alive: its id is not reused
     return q
