@@ -183,7 +183,42 @@ def serve_packets(
         state = QueueState(state.clock_s, state.tokens_bytes)
     if len(arrivals) == 1 and not state.backlog_s:
         return _serve_one(params, arrivals[0], sizes[0], deadlines, state)
+    if not state.backlog_s and params.burst_bytes == 0 and arrivals[0] == arrivals[-1]:
+        burst = _serve_burst(params, arrivals[0], sizes, deadlines, state)
+        if burst is not None:
+            return burst
     return _serve_many(params, arrivals, sizes, deadlines, state)
+
+
+def _serve_burst(
+    params: QueueParams,
+    arrival: float,
+    sizes: list[int],
+    deadlines: list[float] | None,
+    state: QueueState,
+) -> Served | None:
+    """:func:`serve_packets` of packets arriving together into an empty ``netem rate`` queue
+    with room for them all (None: without it): each leaves ``8 s / r`` after the one before,
+    the first after ``arrival``, as :func:`_serve_many` finds, without its queue."""
+    n = len(sizes)
+    if (params.limit_packets is not None and n > params.limit_packets) or (
+        params.limit_bytes is not None and sum(sizes) > params.limit_bytes
+    ):
+        return None
+    rate, t = params.rate_bps / 8.0, arrival
+    departure = []
+    for size in sizes:
+        t = t + size / rate
+        departure.append(t)
+    if not departure[0] > arrival:  # the first left at once: the others see it gone
+        return None
+    reason = [PASSED] * n
+    if deadlines is not None:
+        reason = [
+            QUEUE_LATE if d > due else PASSED for d, due in zip(departure, deadlines, strict=True)
+        ]
+    after = QueueState(t, min(state.tokens_bytes, 0.0), tuple(departure), tuple(sizes))
+    return Served(departure, reason, list(range(n)), [d - arrival for d in departure], after)
 
 
 def _serve_many(
