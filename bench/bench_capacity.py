@@ -63,16 +63,34 @@ def every_link_queued() -> dict[str, Any]:
 
 
 def netem_forwarding(epochs: int, repeats: int) -> None:
+    """Pairs run in turn, neither always first (the machine is shared); the ratio is of each
+    one's best CPU per packet over the pairs, with the median of the pairs' own ratios."""
     print(f"1. netem, {epochs} lockstep epochs of the paper's state phase (seed of the scenario)")
+    runs: dict[str, list[tuple[float, float]]] = {"Bernoulli": [], "queued": []}
     for r in range(repeats):
-        base, base_cpu, _ = forward_rate(False, epochs, {"formation_default": LOSSY})
-        rate, cpu, _ = forward_rate(False, epochs, every_link_queued())
+        pair = [("Bernoulli", {"formation_default": LOSSY}), ("queued", every_link_queued())]
+        for name, network in pair if r % 2 == 0 else pair[::-1]:
+            rate, cpu, _ = forward_rate(False, epochs, network)
+            runs[name].append((rate, cpu))
+        (base, base_cpu), (rate, cpu) = runs["Bernoulli"][-1], runs["queued"][-1]
         print(
             f"   pair {r + 1}: Bernoulli 0.1 alone {base:8.0f} forwarded/s, {base_cpu:5.2f} µs CPU/packet; "
             f"with a queue on every link {rate:8.0f}/s, {cpu:5.2f} µs/packet; "
             f"ratio rate {rate / base:.2f}, CPU per packet {cpu / base_cpu:.2f}",
             flush=True,
         )
+    (base, base_cpu), (rate, cpu) = (
+        (max(r for r, _ in runs[n]), min(c for _, c in runs[n])) for n in ("Bernoulli", "queued")
+    )
+    ratios = [q[1] / b[1] for b, q in zip(runs["Bernoulli"], runs["queued"], strict=True)]
+    print(
+        f"   best of {repeats}: Bernoulli 0.1 alone {base:8.0f}/s, {base_cpu:5.2f} µs CPU/packet; "
+        f"with a queue on every link {rate:8.0f}/s, {cpu:5.2f} µs/packet; ratio rate "
+        f"{rate / base:.2f}, CPU per packet {cpu / base_cpu:.2f} (target <= 1.25); "
+        f"the pairs' CPU ratios: median {float(np.median(ratios)):.2f}, "
+        f"{min(ratios):.2f} to {max(ratios):.2f}",
+        flush=True,
+    )
 
 
 def simulator(seed: int, members: int, epochs: int) -> None:
@@ -125,12 +143,12 @@ def core(seed: int, n: int) -> None:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seed", type=int, default=SEED)
-    p.add_argument("--quick", action="store_true", help="fewer epochs and one netem pair")
+    p.add_argument("--quick", action="store_true", help="fewer epochs and two netem pairs")
     args = p.parse_args()
     quick = args.quick
     core(args.seed, 20_000 if quick else 100_000)
     simulator(args.seed, 20 if quick else 50, 50 if quick else 200)
-    netem_forwarding(1_000 if quick else 4_000, 1 if quick else 2)
+    netem_forwarding(1_000 if quick else 4_000, 2 if quick else 5)
 
 
 if __name__ == "__main__":

@@ -16,6 +16,9 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
+import numpy as np
+import numpy.typing as npt
+
 from formation.codec import encode
 from formation.messages import (
     AgentEstimate,
@@ -29,6 +32,7 @@ Kind = Literal["state", "report", "estimate"]
 NOMINAL_FLOAT = -12.345678901234567  # [m] repr is 19 characters
 NOMINAL_RUN_ID = "r" * 32
 NOMINAL_STAMP_NS = 10**18  # 19 digits: a monotonic clock of 32 years
+_POWERS_OF_TEN = 10 ** np.arange(1, 19, dtype=np.int64)  # the epochs that gain a digit
 
 
 class WireSizes:
@@ -50,6 +54,15 @@ class WireSizes:
         if size is None:
             size = self._known[key] = len(encode(self._message(kind, agent, 10 ** (digits - 1))))
         return size
+
+    def payload_bytes_of(
+        self, kind: Kind, agent: int, epochs: npt.NDArray[np.int64]
+    ) -> npt.NDArray[np.int64]:
+        """:meth:`payload_bytes` of each of ``epochs`` (non-negative), at once [B]."""
+        digits = 1 + np.searchsorted(_POWERS_OF_TEN, epochs, side="right")
+        known, where = np.unique(digits, return_inverse=True)
+        sizes = [self.payload_bytes(kind, agent, 10 ** (int(k) - 1)) for k in known]
+        return np.asarray(sizes, dtype=np.int64)[where]
 
     def _message(
         self, kind: Kind, agent: int, epoch: int

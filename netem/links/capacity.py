@@ -183,7 +183,42 @@ def serve_packets(
         state = QueueState(state.clock_s, state.tokens_bytes)
     if len(arrivals) == 1 and not state.backlog_s:
         return _serve_one(params, arrivals[0], sizes[0], deadlines, state)
+    if not state.backlog_s and params.burst_bytes == 0 and arrivals[0] == arrivals[-1]:
+        burst = _serve_burst(params, arrivals[0], sizes, deadlines, state)
+        if burst is not None:
+            return burst
     return _serve_many(params, arrivals, sizes, deadlines, state)
+
+
+def _serve_burst(
+    params: QueueParams,
+    arrival: float,
+    sizes: list[int],
+    deadlines: list[float] | None,
+    state: QueueState,
+) -> Served | None:
+    """:func:`serve_packets` of packets arriving together into an empty ``netem rate`` queue
+    with room for them all (None: without it): each leaves ``8 s / r`` after the one before,
+    the first after ``arrival``, as :func:`_serve_many` finds, without its queue."""
+    n = len(sizes)
+    if (params.limit_packets is not None and n > params.limit_packets) or (
+        params.limit_bytes is not None and sum(sizes) > params.limit_bytes
+    ):
+        return None
+    rate, t = params.rate_bps / 8.0, arrival
+    departure = []
+    for size in sizes:
+        t = t + size / rate
+        departure.append(t)
+    if not departure[0] > arrival:  # the first left at once: the others see it gone
+        return None
+    reason = [PASSED] * n
+    if deadlines is not None:
+        reason = [
+            QUEUE_LATE if d > due else PASSED for d, due in zip(departure, deadlines, strict=True)
+        ]
+    after = QueueState(t, min(state.tokens_bytes, 0.0), tuple(departure), tuple(sizes))
+    return Served(departure, reason, list(range(n)), [d - arrival for d in departure], after)
 
 
 def _serve_many(
@@ -303,6 +338,57 @@ def _serve_one(
     return Served([leaves], [QUEUE_LATE if late else PASSED], [0], [leaves - arrival], after)
 
 
+def make_room(
+    params: QueueParams, state: QueueState, now_s: float, size: int
+) -> tuple[QueueState, list[int]]:
+    """Realtime ``oldest``: the waiting packets of ``state`` that a packet of ``size`` [B] (its
+    overhead included) arriving at ``now_s`` pushes out, oldest first, as :func:`serve_packets`
+    pushes out the packets of its own call; the state without them, and their positions in
+    ``state.backlog_s``.
+
+    :func:`serve_packets` never takes back a packet of an earlier call (lockstep's phases are
+    decided); realtime netem holds each packet until it leaves, so it can. The time a
+    pushed-out packet was given on the link is not given back: the packets behind it keep the
+    departures they were given as they came.
+    """
+    if params.policy != "oldest" or not state.backlog_s:
+        return state, []
+    rate, limit_packets, limit_bytes = (
+        params.rate_bps / 8.0,
+        params.limit_packets,
+        params.limit_bytes,
+    )
+    backlog = list(zip(state.backlog_s, state.backlog_bytes, strict=True))
+    waiting = [j for j, (d, _) in enumerate(backlog) if d > now_s]  # not yet left
+    count, queued = len(waiting), sum(backlog[j][1] for j in waiting)
+    victims: list[int] = []
+    for n, j in enumerate(waiting):
+        full = (limit_packets is not None and count + 1 > limit_packets) or (
+            limit_bytes is not None and queued + size > limit_bytes
+        )
+        if not full:
+            break
+        departure, bytes_ = backlog[j]
+        if n == 0 and params.burst_bytes == 0 and departure - bytes_ / rate <= now_s:
+            continue  # on the wire
+        victims.append(j)
+        count, queued = count - 1, queued - bytes_
+    if not victims:
+        return state, []
+    return without(state, victims), victims
+
+
+def without(state: QueueState, positions: list[int]) -> QueueState:
+    """``state`` without the backlog's packets at ``positions``, its clock and bucket kept."""
+    keep = [j for j in range(len(state.backlog_s)) if j not in positions]
+    return QueueState(
+        state.clock_s,
+        state.tokens_bytes,
+        tuple(state.backlog_s[j] for j in keep),
+        tuple(state.backlog_bytes[j] for j in keep),
+    )
+
+
 def _oldest_droppable(
     waiting: deque[_Waiting], now: float, burst: float, rate: float
 ) -> _Waiting | None:
@@ -332,6 +418,8 @@ __all__ = [
     "QueueRun",
     "QueueState",
     "Served",
+    "make_room",
     "serve",
     "serve_packets",
+    "without",
 ]

@@ -22,18 +22,30 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
 from formation.scenario import LEADER_ENDPOINT
+from netem.links.capacity_network import Fixed
 from netem.links.layer_stack import Outcome
 from netem.links.models import LinkModel
-from netem.proxy.records import Ledger, Record, packet_json, record_head, record_tail
+from netem.proxy.records import (
+    Ledger,
+    Queued,
+    Record,
+    packet_json,
+    queued,
+    record_head,
+    record_tail,
+)
 from netem.proxy.routes import Link, Links, Phase
 
 Deliver = Callable[[int, int, list[bytes]], None]  # (receiver, epoch, its packets)
+# A link's capacity queues in closed form for ``size`` epochs from ``start``: False when it
+# has none, None when they have no closed form there (its epochs are never clean).
+Judge = Callable[[Link, int, int], Fixed | Literal[False] | None]
 
 
 class CleanStream(NamedTuple):
@@ -64,8 +76,10 @@ class CleanEpochs:
         need: dict[int, int],
         block: int = 1024,
         gate: bool = False,
+        queues: Judge | None = None,
     ) -> None:
         self.streams = streams
+        self.queues = queues  # the closed form of each link's capacity queues, if it has some
         self.gate = gate  # may judge distance models by the epoch's lengths (the state phase)
         self.links = tuple(link for s in streams.values() for link in s.links)  # reach's rows
         self._models = tuple(m for s in streams.values() for m in s.models)  # as links
@@ -262,11 +276,48 @@ class CleanEpochs:
             s = self.streams[stream]
             for link, model in zip(s.links, s.models, strict=True):
                 cls, src, dst = link
-                yield (src, dst, cls, epoch, seq, model.decide(epoch)), link
+                d = model.decide(epoch)
+                fixed = self.queues(link, epoch, 1) if self.queues is not None else False
+                if isinstance(fixed, Fixed):  # clean: its queues passed it in time
+                    q = queued(d, fixed.reason[0], fixed.queue, 0, fixed.sojourn_ms[0])
+                    yield (src, dst, cls, epoch, seq, q), link
+                else:
+                    yield (src, dst, cls, epoch, seq, d), link
 
     # internals ----------------------------------------------------------------------------------
 
-    def _tail_id(self, d: Outcome | None) -> int:
+    def _queued_ids(
+        self,
+        link: Link,
+        start: int,
+        size: int,
+        codes: npt.NDArray[np.int64],
+        table: list[Outcome | None],
+        ids: npt.NDArray[np.int64],
+    ) -> npt.NDArray[np.int64]:
+        """``link``'s tail ids (:meth:`_tail_id`) once its capacity queues judged what its model
+        passed: its queues' decision where they pass it in time, -1 elsewhere."""
+        assert self.queues is not None
+        fixed = self.queues(link, start, size)
+        if fixed is False:
+            return ids  # no queue on it
+        if fixed is None or self.gated:  # no closed form (or lengths to judge): the full path
+            return np.full_like(ids, -1)
+        in_time = (ids >= 0) & (np.asarray(fixed.reason) == "")
+        out = np.full_like(ids, -1)
+        if in_time.any():  # few distinct (decision, sojourn): one tail each
+            sojourns, which = np.unique(np.asarray(fixed.sojourn_ms)[in_time], return_inverse=True)
+            n = len(sojourns)
+            keys, where = np.unique(codes[in_time] * n + which.reshape(-1), return_inverse=True)
+            tails = []
+            for key in keys.tolist():
+                d = table[key // n]
+                assert d is not None  # a passing decision (its tail id >= 0)
+                tails.append(self._tail_id(queued(d, "", fixed.queue, 0, float(sojourns[key % n]))))
+            out[in_time] = np.asarray(tails, dtype=np.int64)[where.reshape(-1)]
+        return out
+
+    def _tail_id(self, d: Outcome | Queued | None) -> int:
         """An id of a passing decision's encoded fields; -1 when it does not pass."""
         if d is None or d.verdict != "pass":
             return -1
@@ -297,11 +348,13 @@ class CleanEpochs:
             self._base[k] = []
         for sid, s in self.streams.items():
             ids = np.empty((len(s.models), size), dtype=np.int64)
-            for row, model in enumerate(s.models):
+            for row, (link, model) in enumerate(zip(s.links, s.models, strict=True)):
                 codes, table = model.coded(start, size, before_distance=self.gated)
                 if self.gated:
                     self._base[k].append((codes.tolist(), table))
                 ids[row] = np.array([self._tail_id(d) for d in table], dtype=np.int64)[codes]
+                if self.queues is not None:
+                    ids[row] = self._queued_ids(link, start, size, codes, table, ids[row])
             clean &= (ids >= 0).all(axis=0)
             ids_of[sid] = ids
         templates: dict[int, bytes | list[bytes]] = {}
@@ -329,9 +382,10 @@ class CleanEpochs:
         return templates
 
 
-def clean_epochs(links: Links) -> dict[Phase, CleanEpochs]:
+def clean_epochs(links: Links, queues: Judge | None = None) -> dict[Phase, CleanEpochs]:
     """Each phase's streams: an agent's states fan out on its out-links, a report goes to
-    the leader, the leader's estimate for ``i`` to ``i``."""
+    the leader, the leader's estimate for ``i`` to ``i``; ``queues``: the closed form of the
+    links' capacity queues, if any."""
 
     def stream(chosen: list[Link]) -> CleanStream:
         models = tuple(links.models[link] for link in chosen)
@@ -347,13 +401,16 @@ def clean_epochs(links: Links) -> dict[Phase, CleanEpochs]:
             },
             {j: len(in_links[j]) for j in agents},
             gate=True,
+            queues=queues,
         ),
         "report": CleanEpochs(
             {s: stream([("report", s, LEADER_ENDPOINT)]) for s in agents},
             {LEADER_ENDPOINT: len(agents)},
+            queues=queues,
         ),
         "estimate": CleanEpochs(
             {d: stream([("estimate", LEADER_ENDPOINT, d)]) for d in agents},
             dict.fromkeys(agents, 1),
+            queues=queues,
         ),
     }

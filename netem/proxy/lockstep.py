@@ -10,7 +10,8 @@ epoch is closed, that epoch's decision records go out in one batch.
 
 An epoch in which every link of the phase passes takes the clean path
 (:mod:`netem.proxy.clean_epochs`): no per-packet decision, records spliced from templates and
-published together (:meth:`Lockstep.flush_clean`).
+published together (:meth:`Lockstep.flush_clean`). With capacity queues, only where each
+queue has a closed form and passes its packet in time.
 
 :class:`Lockstep` has no network, clock or thread: the node calls it under its lock
 and publishes what it hands to the :class:`Outbox`, in the order it hands it.
@@ -74,10 +75,11 @@ class Lockstep:
         )
 
     def setup_clean(self) -> None:
-        """Take clean epochs on the clean path from now on."""
-        if self.links.capacity is not None:
-            return  # a queue judges a phase's packets together: every packet the full path
-        self.clean = clean_epochs(self.links)
+        """Take clean epochs on the clean path from now on: with capacity queues, those in which
+        every queue a packet meets has a closed form and passes it in time (a queue judging a
+        phase's packets together has none: they take the full path)."""
+        judge = self.queued.closed_form if self.queued is not None else None
+        self.clean = clean_epochs(self.links, judge)
         self._clean_deliver = {phase: self._clean_delivery(phase) for phase in self.clean}
 
     # -- events in ----------------------------------------------------------------------------
@@ -282,6 +284,18 @@ class Lockstep:
                 self.progress.estimate_skipped(epoch)
         self._try_close("estimate", agent)
 
+    def queues_changing(self) -> None:
+        """A capacity queue is about to change: its state counts the packets the clean path put
+        through it, up to the last one (:meth:`QueuedPhases.crossed`)."""
+        if self.queued is None:
+            return
+        for ce in self.clean.values():
+            for stream, s in ce.streams.items():
+                taken = [e for e, g in ce.gathering.items() if stream in g.seqs]
+                last = max([ce.last_done, *taken])
+                for link in s.links if last >= 0 else ():
+                    self.queued.crossed(link, last)
+
     def models_changed(self) -> None:
         """A link's model changed: which epochs are clean is computed again."""
         self._ungate()  # decided by the models in force at their epochs, as they came
@@ -331,9 +345,14 @@ class Lockstep:
         d = decided or self.links.models[link].decide(
             epoch, distance_m=self.positions.length(link, epoch)
         )
-        if d.delivered and self.queued is not None and self.queued.takes(link, epoch):
-            self.queued.hold(phase, epoch, (link, seq, payload, d))
-            return box  # judged with the rest of its phase (_judge_when_complete)
+        q = self.queued
+        if d.delivered and q is not None:
+            judged = q.at_once(phase, epoch, link, d)
+            if judged is None:
+                q.hold(phase, epoch, (link, seq, payload, d))
+                return box  # judged with the rest of its phase (_judge_when_complete)
+            self._apply(box, phase, link, epoch, seq, payload, judged)
+            return box
         self._apply(box, phase, link, epoch, seq, payload, d)
         return box
 
@@ -422,7 +441,7 @@ class Lockstep:
                 box = OpenEpoch()
             elif not self._all_handled(box, senders, epoch):
                 return
-            if self.queued and (phase, epoch) in self.queued:
+            if self.queued is not None and (phase, epoch) in self.queued.held:
                 if not self._judge_when_complete(phase, epoch):
                     return  # the rest of the phase's queued packets are still to come
                 continue  # judged: every receiver of the phase was tried again, this one too

@@ -6,21 +6,34 @@ in, and phases must be judged in virtual-time order: states, reports, estimates,
 epoch's states. :class:`QueuedPhases` holds what the models passed onto a queue and turns
 each complete phase into decisions; :class:`netem.proxy.lockstep.Lockstep` decides when a
 phase is complete (its receivers' open epochs) and applies them.
+
+A packet of a link alone in each of its queues (a ``link`` queue, or a radio or medium of
+one link) meets no other packet there: it is judged at once (:meth:`QueuedPhases.at_once`).
 """
 
 from __future__ import annotations
 
-from typing import Any
+import math
+from typing import Any, Literal
+
+import numpy as np
 
 from formation.scenario import LEADER_ENDPOINT
-from formation.wire_size import WireSizes
-from netem.links.capacity_network import PHASE_ORDER, CapacityNetwork, packet_kind
+from formation.wire_size import Kind, WireSizes
+from netem.links.capacity_network import PHASE_ORDER, CapacityNetwork, Fixed, packet_kind
 from netem.links.layer_stack import Outcome
 from netem.proxy.records import Queued, queued
 from netem.proxy.routes import Link, Phase
 
 PHASES: tuple[Phase, ...] = ("state", "report", "estimate")  # in virtual time
+BLOCK = 1024  # epochs judged at once in closed form (:meth:`QueuedPhases.at_once`)
 Held = tuple[Link, int, Any, Outcome]  # (link, seq, payload, the model's decision)
+
+
+# a link's block of epochs judged in closed form: (from epoch, to epoch, the closed form or
+# None, a decision of the model, each epoch's decision on a packet it passed)
+_Block = tuple[int, int, Fixed | None, Outcome | None, list[Queued]]
+_NONE: _Block = (0, 0, None, None, [])
 
 
 class QueuedPhases:
@@ -29,6 +42,8 @@ class QueuedPhases:
     def __init__(self, queues: CapacityNetwork, sizes: WireSizes, agents: list[int]) -> None:
         self.queues, self.sizes, self.agents = queues, sizes, agents
         self.held: dict[tuple[Phase, int], list[Held]] = {}
+        self._links: dict[Link, tuple[tuple[int, int], Kind, int]] = {}  # (src, dst), kind, whose
+        self._fixed: dict[Link, _Block] = {}  # each link's block of closed-form verdicts
 
     def __bool__(self) -> bool:
         return bool(self.held)
@@ -36,9 +51,82 @@ class QueuedPhases:
     def __contains__(self, key: tuple[Phase, int]) -> bool:
         return key in self.held
 
-    def takes(self, link: Link, epoch: int) -> bool:
-        """Does a queue serve ``link`` at ``epoch``?"""
-        return self.queues.constrained((link[1], link[2]), epoch)
+    def at_once(self, phase: Phase, epoch: int, link: Link, d: Outcome) -> Outcome | Queued | None:
+        """The decision on a packet the model passed (``d``) as far as it can be taken now:
+        ``d`` when no queue serves its link at ``epoch``; the queues' when its link is alone in
+        each of its own (:meth:`CapacityNetwork.alone`, or its closed form for a block of
+        epochs, :meth:`CapacityNetwork.fixed`); None when it waits for the rest of its phase
+        (:meth:`hold`)."""
+        net = self.queues
+        start, end, block, usual, decided = self._fixed.get(link, _NONE)
+        if not start <= epoch < end:  # a new block (or none yet): is the link alone in its queues?
+            pair, _, _ = self._route(link)
+            if epoch < net.first_epoch.get(pair, math.inf):
+                return d
+            if pair not in net.solo:
+                return None
+            start, end, block, usual, decided = self._fix(phase, epoch, link, d)
+        if block is not None and block.link in net.idle:
+            j = epoch - start
+            last = net.last_in.get(block.link)
+            if last is None or last[2] <= block.t0_s[j]:  # its queues are idle: closed form
+                t0, payload, t = block.t0_s[j], block.payload_bytes[j], block.departure_s[j]
+                net.last_in[block.link] = (t0, payload, t)
+                if d is usual:
+                    return decided[j]
+                return queued(d, block.reason[j], block.queue, 0, block.sojourn_ms[j])
+        pair, kind, whose = self._route(link)
+        v = net.alone(epoch, phase, pair, self.sizes.payload_bytes(kind, whose, epoch))
+        return queued(d, *v)
+
+    def _route(self, link: Link) -> tuple[tuple[int, int], Kind, int]:
+        """``link``'s ends, and the kind and whose its packets are."""
+        got = self._links.get(link)
+        if got is None:
+            pair = (link[1], link[2])
+            got = self._links[link] = (pair, *packet_kind(pair))
+        return got
+
+    def _fix(self, phase: Phase, epoch: int, link: Link, d: Outcome) -> _Block:
+        """The closed form of ``link``'s :data:`BLOCK` epochs from ``epoch`` (None: it has none,
+        :meth:`CapacityNetwork.fixed`), with each epoch's decision on a packet the model's ``d``
+        passed (the model's decisions are shared: most of its packets have that one)."""
+        pair, kind, whose = self._route(link)
+        epochs = np.arange(epoch, epoch + BLOCK, dtype=np.int64)
+        payloads = self.sizes.payload_bytes_of(kind, whose, epochs)
+        block = self.queues.fixed(pair, phase, epochs, payloads)
+        decided: list[Queued] = []
+        if block is not None:  # few distinct (reason, sojourn): one decision each
+            pairs = list(zip(block.reason, block.sojourn_ms, strict=True))
+            each = {p: queued(d, p[0], block.queue, 0, p[1]) for p in set(pairs)}
+            decided = [each[p] for p in pairs]
+        got = self._fixed[link] = (epoch, epoch + BLOCK, block, d, decided)
+        return got
+
+    def closed_form(self, link: Link, start: int, size: int) -> Fixed | Literal[False] | None:
+        """``link``'s queues in closed form for ``size`` epochs from ``start``, for the clean
+        path (:meth:`CapacityNetwork.fixed`): False when no queue serves it then, None when
+        they have no closed form."""
+        pair, kind, whose = self._route(link)
+        net = self.queues
+        first = net.first_epoch.get(pair, math.inf)
+        if first >= start + size:
+            return False
+        if first > start or pair not in net.solo:
+            return None
+        epochs = np.arange(start, start + size, dtype=np.int64)
+        return net.fixed(pair, kind, epochs, self.sizes.payload_bytes_of(kind, whose, epochs))
+
+    def crossed(self, link: Link, epoch: int) -> None:
+        """``link``'s packet of ``epoch`` went through its queues by the clean path: their state
+        (:attr:`CapacityNetwork.last_in`) is that packet's departure, unless a later one's."""
+        fixed = self.closed_form(link, epoch, 1)
+        if not fixed:
+            return
+        pair, net = fixed.link, self.queues
+        last = net.last_in.get(pair)
+        if last is None or last[0] < fixed.t0_s[0]:
+            net.last_in[pair] = (fixed.t0_s[0], fixed.payload_bytes[0], fixed.departure_s[0])
 
     def hold(self, phase: Phase, epoch: int, held: Held) -> None:
         self.held.setdefault((phase, epoch), []).append(held)

@@ -18,13 +18,14 @@ runs then stalled for 30 s, the router, netem and the agents waiting on each oth
 from __future__ import annotations
 
 import heapq
+import itertools
 import threading
 import time
 from collections import Counter, defaultdict
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from itertools import islice
-from typing import Any
+from typing import Any, NamedTuple
 
 from formation.codec import read_attachment
 from formation.deadlines import PHASES
@@ -33,11 +34,11 @@ from formation.scenario import LEADER_ENDPOINT
 from netem.links.layer_stack import Outcome
 from netem.proxy.progress import Progress
 from netem.proxy.records import Ledger, Queued, Record, message_json, packet_json_of, queued
-from netem.proxy.routes import PHASE_OF, LinkClass, Links, Phase, Routes
+from netem.proxy.routes import PHASE_OF, Link, LinkClass, Links, Phase, Routes
 from shell import Incoming, Service, TimePolicy
 
 Inbox = tuple[Phase, int]  # (phase, receiver)
-# (due ns, tie, its receiver's inbox, sent epoch, packet JSON, copies, its phase's deadline ns)
+# (due ns, token, its receiver's inbox, sent epoch, packet JSON, copies, its phase's deadline ns)
 Due = tuple[int, int, Inbox, int, bytes, int, int]
 KIND_OF: dict[LinkClass, str] = {"formation": "state", "report": "report", "estimate": "estimate"}
 PublishRecords = Callable[[Phase, int, list[Record]], None]
@@ -74,6 +75,20 @@ class _Outgoing:
     timing: list[tuple[int, int, int]] = field(default_factory=list)
 
 
+class _Held(NamedTuple):
+    """A packet its queues hold: its phase and link, its record (once it leaves), the model's
+    decision, when it came [ns], and whether it was counted past its deadline (for any reason,
+    by its queues)."""
+
+    phase: Phase
+    link: Link
+    record: Record
+    model: Outcome
+    arrived_ns: int
+    past: bool
+    queue_past: bool
+
+
 class RealtimeForwarder:
     """Forwards packets after their models' delays, batched per receiver (:meth:`flush`)."""
 
@@ -100,6 +115,9 @@ class RealtimeForwarder:
         self.deadline: Counter[str] = Counter()
         self._out: defaultdict[Inbox, _Outgoing] = defaultdict(_Outgoing)
         self._oldest_ns = 0  # when the oldest unflushed packet was queued (0: none)
+        self._tokens = itertools.count()  # names each packet in the queues and the heap
+        self._held: dict[int, _Held] = {}  # packets a queue holds, by token
+        self._pushed: set[int] = set()  # held packets pushed out, still in the heap
 
     def forward(
         self,
@@ -126,10 +144,13 @@ class RealtimeForwarder:
         deadline_ns = self.clock.at(epoch, PHASES[KIND_OF[cls]][1])
         held_ns = 0  # [ns] in the capacity queues (docs/model.md §9)
         queues = self.links.capacity
+        token = next(self._tokens)
         if o.delivered and queues is not None and queues.constrained((src, dst), epoch):
-            v, leaves_s = queues.arrive(
-                (src, dst), size, (now - t0) / 1e9, epoch, (deadline_ns - t0) / 1e9
+            v, leaves_s, pushed = queues.arrive(
+                (src, dst), size, (now - t0) / 1e9, epoch, (deadline_ns - t0) / 1e9, token
             )
+            for victim in pushed:
+                self._push_out(victim, v.queue, now)
             if v.reason and v.reason != "queue_late":  # refused: a queue's drop
                 d = queued(o, v.reason, v.queue, v.depth, v.sojourn_ms)
                 self.deadline["queue_drops"] += 1
@@ -149,20 +170,45 @@ class RealtimeForwarder:
                     v.sojourn_ms,
                 )
                 held_ns = max(0, int(leaves_s * 1e9) + t0 - now)
-        self.ledger.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
+        record: Record = (src, dst, cls, epoch, seq, d)
         if not d.delivered:
+            self.ledger.decisions[(phase, epoch)].append(record)
             return
         self.ledger.forwarded[(cls, src, dst)] += d.copies
         packet = packet_json_of(src, seq, epoch, d.copies, text)
         if d.delay_ms <= 0 and not held_ns:
+            self.ledger.decisions[(phase, epoch)].append(record)
             self.queue((phase, dst), epoch, packet, msg.arrived_ns, deadline_ns, d.copies)
             return
         due_ns = now + held_ns + int(d.delay_ms * 1e6)
-        if due_ns > deadline_ns:
+        past = due_ns > deadline_ns
+        queue_past = past and bool(held_ns) and now + held_ns > deadline_ns
+        if past:
             self.deadline["modelled_late"] += d.copies
-            if held_ns and now + held_ns > deadline_ns:
+            if queue_past:
                 self.deadline["queue_late"] += d.copies  # of them, late by its queues
-        heapq.heappush(due, (due_ns, len(due), (phase, dst), epoch, packet, d.copies, deadline_ns))
+        if held_ns:  # a queue may still push it out: its record once it leaves (tick)
+            self._held[token] = _Held(phase, (cls, src, dst), record, o, now, past, queue_past)
+        else:
+            self.ledger.decisions[(phase, epoch)].append(record)
+        heapq.heappush(due, (due_ns, token, (phase, dst), epoch, packet, d.copies, deadline_ns))
+
+    def _push_out(self, token: int, queue: str, now: int) -> None:
+        """A held packet pushed out of ``queue`` (``oldest``) by a newer one: dropped, as if
+        refused (``queue_full``), never forwarded."""
+        h = self._held.pop(token, None)
+        if h is None:
+            return  # it left already
+        self._pushed.add(token)
+        src, dst, cls, epoch, seq, d = h.record
+        self.ledger.forwarded[h.link] -= d.copies
+        if h.past:
+            self.deadline["modelled_late"] -= d.copies
+        if h.queue_past:
+            self.deadline["queue_late"] -= d.copies
+        self.deadline["queue_drops"] += 1
+        dropped = queued(h.model, "queue_full", queue, 0, (now - h.arrived_ns) / 1e6)
+        self.ledger.decisions[(h.phase, epoch)].append((src, dst, cls, epoch, seq, dropped))
 
     def queue(
         self, inbox: Inbox, epoch: int, packet: bytes, ready_ns: int, deadline_ns: int, copies: int
@@ -255,7 +301,13 @@ class RealtimeForwarder:
         now = time.time_ns()
         with self.lock:
             while due and due[0][0] <= now:
-                due_ns, _, inbox, epoch, packet, copies, deadline_ns = heapq.heappop(due)
+                due_ns, token, inbox, epoch, packet, copies, deadline_ns = heapq.heappop(due)
+                if token in self._pushed:  # pushed out of its queue while held
+                    self._pushed.discard(token)
+                    continue
+                held = self._held.pop(token, None)
+                if held is not None:  # it left its queues: its fate is known
+                    self.ledger.decisions[(held.phase, epoch)].append(held.record)
                 self.queue(inbox, epoch, packet, due_ns, deadline_ns, copies)
             self.flush()
             if now >= self._next_records:

@@ -38,10 +38,26 @@ class Queued(NamedTuple):
 
 
 def queued(d: Outcome, reason: str, queue: str, depth: int, sojourn_ms: float) -> Queued:
-    """The decision on a packet the model ``d`` passed, once its queues judged it."""
+    """The decision on a packet the model ``d`` passed, once its queues judged it.
+
+    Shared, as the models' decisions are (so :func:`record_tail` encodes each once): a link's
+    sojourns take few values, those of its packet sizes rounded at each binade of the clock.
+    """
+    key = (id(d), reason, queue, depth, sojourn_ms)
+    got = _QUEUED.get(key)
+    if got is not None and got[0] is d:
+        return got[1]
     if not reason:
-        return Queued(*d, queue, depth, sojourn_ms)
-    return Queued(False, 0, 0.0, 0, "drop", reason, d.state, False, queue, depth, sojourn_ms)
+        q = Queued(*d, queue, depth, sojourn_ms)
+    else:
+        q = Queued(False, 0, 0.0, 0, "drop", reason, d.state, False, queue, depth, sojourn_ms)
+    if len(_QUEUED) > 20_000:  # a backlog's sojourns are all different: kept few
+        _QUEUED.clear()
+    _QUEUED[key] = (d, q)  # the entry keeps d alive: its id is not reused
+    return q
+
+
+_QUEUED: dict[tuple[int, str, str, int, float], tuple[Outcome, Queued]] = {}
 
 
 # One decision on one packet, as the hot path keeps it (a plain tuple: built per packet):
@@ -60,23 +76,24 @@ class Ledger:
         self.forwarded: Counter[Link] = Counter()  # packets delivered per link
 
 
-def _decision_json(d: Outcome) -> bytes:
+def _decision_json(d: Outcome | Queued) -> bytes:
     """The fields of a record that come from the decision, as JSON after ``"seq":N``."""
-    return orjson.dumps(
-        {
-            "verdict": d.verdict,
-            "delay_epochs": d.delay_epochs,
-            "delay_ms": float(d.delay_ms),
-            "model": d.model,
-            "state": d.state,
-        }
-    ).replace(b"{", b",", 1)
+    fields = {
+        "verdict": d.verdict,
+        "delay_epochs": d.delay_epochs,
+        "delay_ms": float(d.delay_ms),
+        "model": d.model,
+        "state": d.state,
+    }
+    if isinstance(d, Queued):
+        fields.update(queue=d.queue, queue_depth=d.queue_depth, sojourn_ms=d.sojourn_ms)
+    return orjson.dumps(fields).replace(b"{", b",", 1)
 
 
 # A link's records differ only in epoch, seq and decision; decisions are shared objects
 # (a model memoises them per block), so both halves are encoded once and spliced.
 _LINK_JSON: dict[tuple[int, int, str], bytes] = {}
-_DECISION_JSON: dict[int, tuple[Outcome, bytes]] = {}  # by id; the entry keeps d alive
+_DECISION_JSON: dict[int, tuple[Outcome | Queued, bytes]] = {}  # by id; the entry keeps d alive
 
 
 def record_head(source: int, target: int, link_class: str) -> bytes:
@@ -91,19 +108,6 @@ def record_head(source: int, target: int, link_class: str) -> bytes:
 
 def record_tail(d: Outcome | Queued) -> bytes:
     """A record's JSON after ``"seq":N``: the fields that come from the decision."""
-    if isinstance(d, Queued):  # one per packet: not memoised
-        return orjson.dumps(
-            {
-                "verdict": d.verdict,
-                "delay_epochs": d.delay_epochs,
-                "delay_ms": float(d.delay_ms),
-                "model": d.model,
-                "state": d.state,
-                "queue": d.queue,
-                "queue_depth": d.queue_depth,
-                "sojourn_ms": d.sojourn_ms,
-            }
-        ).replace(b"{", b",", 1)
     tail = _DECISION_JSON.get(id(d))
     if tail is None or tail[0] is not d:
         if len(_DECISION_JSON) > 100_000:

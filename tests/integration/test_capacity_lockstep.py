@@ -5,6 +5,7 @@ from __future__ import annotations
 import re
 from collections import Counter
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -30,17 +31,15 @@ def constrained(paper: Scenario) -> Scenario:
          "limit_packets": 3, "overhead_bytes": 42},
         {"scope": "radio", "agent": 2, "rate_bps": 40_000.0, "burst_bytes": 600,
          "limit_bytes": 1200, "policy": "oldest"},
+        # alone in their queues, judged as they come: a backlog (1.02 s a state), in time
+        {"scope": "link", "link": [1, 3], "rate_bps": 2_000.0, "limit_packets": 2},
+        {"scope": "link", "link": [4, 1], "rate_bps": 11_000.0},
     ]  # fmt: skip
     return paper.with_overrides(network=network, epochs=25)
 
 
-@pytest.mark.parametrize("strategy", STRATEGIES)
-def test_a_lockstep_run_with_capacity_equals_the_simulator(
-    paper: Scenario, runs_dir: Path, strategy: str
-) -> None:
-    scenario = constrained(paper)
-    outcome = launch(scenario, strategy=strategy, runs_dir=runs_dir, record=False)  # type: ignore[arg-type]
-    sim = simulate(scenario, strategy=strategy)  # type: ignore[arg-type]
+def assert_same_drops(scenario: Scenario, outcome: Any, sim: Any) -> None:
+    """The run's positions and every packet's fate are the simulator's."""
     np.testing.assert_allclose(outcome.positions, sim.positions, rtol=0, atol=1e-9)
     got = {(d.source, d.target, d.link_class, d.epoch): d for d in outcome.decisions}
     n, links = scenario.n, scenario.directed_links
@@ -51,6 +50,16 @@ def test_a_lockstep_run_with_capacity_equals_the_simulator(
         for i in range(1, n + 1):
             assert (got[(i, 0, "report", k)].verdict != "drop") == sim.report_ok[k, i - 1]
             assert (got[(0, i, "estimate", k)].verdict != "drop") == sim.estimate_ok[k, i - 1]
+
+
+@pytest.mark.parametrize("strategy", STRATEGIES)
+def test_a_lockstep_run_with_capacity_equals_the_simulator(
+    paper: Scenario, runs_dir: Path, strategy: str
+) -> None:
+    scenario = constrained(paper)
+    outcome = launch(scenario, strategy=strategy, runs_dir=runs_dir, record=False)  # type: ignore[arg-type]
+    sim = simulate(scenario, strategy=strategy)  # type: ignore[arg-type]
+    assert_same_drops(scenario, outcome, sim)
     reasons = Counter(d.model for d in outcome.decisions if d.verdict == "drop")
     assert reasons["queue_full"] > 0 and reasons["queue_late"] > 0 and reasons["bernoulli"] > 0
     assert set(reasons) <= {"queue_full", "queue_late", "bernoulli", "outage"}  # paper: 1-2 down
@@ -128,3 +137,22 @@ def test_events_through_the_queues_equal_the_simulator(paper: Scenario, runs_dir
                 assert (got[(i, 0, "report", k)].verdict != "drop") == sim.report_ok[k, i - 1]
                 assert (got[(0, i, "estimate", k)].verdict != "drop") == sim.estimate_ok[k, i - 1]
     assert any(d.model.startswith("queue_") for d in outcome.decisions)
+
+
+def test_queues_in_closed_form_take_the_clean_path_and_equal_the_simulator(
+    paper: Scenario, runs_dir: Path
+) -> None:
+    """A netem-rate queue on every link: the states' fast or in time (their epochs the models
+    pass go netem's clean path), agent 2's estimates late: drops are the simulator's."""
+    network = paper.network.model_dump(by_alias=True)
+    network["formation_default"] = [{"model": "bernoulli", "p_loss": 0.05}]
+    rates = {(4, 1): 11_000.0, (0, 2): 9_000.0}  # 0.19 s a state; 0.36 s an estimate, late
+    control = [[i, 0] for i in range(1, 6)] + [[0, i] for i in range(1, 6)]
+    network["capacity"] = [
+        {"scope": "link", "link": [a, b], "rate_bps": rates.get((a, b), 1e9)}
+        for a, b in paper.directed_links.tolist() + control
+    ]
+    scenario = paper.with_overrides(network=network, epochs=30)
+    outcome = launch(scenario, strategy="estimate", runs_dir=runs_dir, record=False)
+    assert_same_drops(scenario, outcome, simulate(scenario, strategy="estimate"))
+    assert any(d.model == "queue_late" for d in outcome.decisions)

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from formation.codec import encode
 from formation.messages import AgentEstimate, CoordinationState, Measurement, TokenReport
 from formation.scenario import Scenario
-from formation.wire_size import NOMINAL_FLOAT, NOMINAL_RUN_ID, NOMINAL_STAMP_NS, WireSizes
+from formation.wire_size import NOMINAL_FLOAT, NOMINAL_RUN_ID, NOMINAL_STAMP_NS, Kind, WireSizes
 
 
 def test_sizes_are_the_encoded_messages(paper: Scenario) -> None:
@@ -42,3 +44,12 @@ def test_a_double_integrators_state_carries_its_velocity(paper: Scenario) -> Non
     assert WireSizes(double).payload_bytes("state", 2, 3) > WireSizes(paper).payload_bytes(
         "state", 2, 3
     )
+
+
+def test_sizes_of_many_epochs_at_once_are_each_ones(paper: Scenario) -> None:
+    sizes = WireSizes(paper)
+    epochs = np.array([0, 1, 9, 10, 11, 99, 100, 999, 1000, 12345, 10**6], dtype=np.int64)
+    cases: list[tuple[Kind, int]] = [("state", 1), ("report", 3), ("estimate", 5)]
+    for kind, agent in cases:
+        got = sizes.payload_bytes_of(kind, agent, epochs).tolist()
+        assert got == [sizes.payload_bytes(kind, agent, int(e)) for e in epochs]

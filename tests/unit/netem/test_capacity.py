@@ -19,6 +19,7 @@ from netem.links.capacity import (
     PASSED,
     QUEUE_FULL,
     QUEUE_LATE,
+    Policy,
     QueueParams,
     QueueState,
     _serve_many,
@@ -229,3 +230,34 @@ def test_one_packet_into_an_empty_queue_takes_the_general_paths_numbers(
     assert _serve_one(params, arrival, size, due, state) == _serve_many(
         params, [arrival], [size], due, state
     )
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    sizes=st.lists(st.integers(0, 400), min_size=2, max_size=10),
+    limit_packets=st.one_of(st.none(), st.integers(1, 12)),
+    limit_bytes=st.one_of(st.none(), st.integers(1, 3000)),
+    policy=st.sampled_from(["tail", "oldest"]),
+    at=st.sampled_from([0.0, 0.2, 1e7]),
+    before=st.lists(st.integers(50, 400), max_size=3),
+    due_s=st.floats(0.0, 0.5),
+)
+def test_a_burst_into_an_empty_queue_is_the_general_case(
+    sizes: list[int],
+    limit_packets: int | None,
+    limit_bytes: int | None,
+    policy: Policy,
+    at: float,
+    before: list[int],
+    due_s: float,
+) -> None:
+    params = QueueParams(rate_bps=R, limit_packets=limit_packets, limit_bytes=limit_bytes,
+                         policy=policy)  # fmt: skip
+    # an earlier call's packets, gone by the burst or not
+    state = serve_packets(params, [at - 0.5] * len(before), before).state if before else None
+    deadlines = [at + due_s] * len(sizes)
+    got = serve_packets(params, [at] * len(sizes), sizes, deadlines, state)
+    start = state or QueueState()
+    if start.backlog_s and start.backlog_s[-1] <= at:
+        start = QueueState(start.clock_s, start.tokens_bytes)
+    assert got == _serve_many(params, [at] * len(sizes), sizes, deadlines, start)

@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from formation.capacity import Capacity
 from formation.codec import decode
@@ -144,3 +146,73 @@ def test_a_change_takes_effect_from_its_epoch_and_a_new_link_queue_too() -> None
     assert net.phase(4, "state", [((1, 2), 100)])[0].reason == "queue_late"
     with pytest.raises(ValueError, match=r"radio 3: no such queue"):
         net.change(Capacity.model_validate({"scope": "radio", "agent": 3, "rate_bps": 1.0}), 5)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    rates=st.lists(st.sampled_from([800.0, 8_000.0, 80_000.0, 8e6]), min_size=2, max_size=2),
+    bursts=st.lists(st.sampled_from([0, 0, 150, 400]), min_size=2, max_size=2),
+    limit_bytes=st.sampled_from([None, 120, 1_000]),
+    overhead=st.sampled_from([0, 30]),
+    sent=st.lists(st.tuples(st.booleans(), st.integers(60, 140)), min_size=1, max_size=30),
+    change_at=st.integers(0, 30),
+    changed_rate=st.sampled_from([800.0, 8e6]),
+)
+def test_a_link_alone_in_its_queues_is_judged_at_once_as_its_phase_would(
+    rates: list[float],
+    bursts: list[int],
+    limit_bytes: int | None,
+    overhead: int,
+    sent: list[tuple[bool, int]],
+    change_at: int,
+    changed_rate: float,
+) -> None:
+    entries = (
+        {"scope": "link", "link": [1, 2], "rate_bps": rates[0], "burst_bytes": bursts[0],
+         "limit_bytes": limit_bytes, "overhead_bytes": overhead},
+        {"scope": "medium", "medium": "m", "links": [[1, 2]], "rate_bps": rates[1],
+         "burst_bytes": bursts[1]},
+    )  # fmt: skip
+    at_once, by_phase = network(*entries, period_s=0.1), network(*entries, period_s=0.1)
+    assert (1, 2) in at_once.solo and not at_once.phases
+    slower = Capacity.model_validate({**entries[0], "rate_bps": changed_rate})
+    for epoch, (passed, payload) in enumerate(sent):
+        if epoch == change_at:  # the closed form's states, taken over by the full judgement
+            for net in (at_once, by_phase):
+                net.change(slower, from_epoch=epoch + 1)
+        if passed:  # else the models dropped it: no queue sees it
+            got = at_once.alone(epoch, "state", (1, 2), payload)
+            assert got == by_phase.phase(epoch, "state", [((1, 2), payload)])[0], epoch
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    rate=st.sampled_from([3_000.0, 6_000.0, 10_000.0, 11_000.0, 8e6]),
+    overhead=st.sampled_from([0, 30]),
+    first=st.integers(0, 2_000),
+    phase=st.sampled_from(["state", "report"]),
+    period_s=st.sampled_from([0.1, 1.0]),
+)
+def test_a_block_in_closed_form_is_what_alone_gives_packet_by_packet(
+    rate: float, overhead: int, first: int, phase: str, period_s: float
+) -> None:
+    link = (1, 2) if phase == "state" else (1, 0)
+    entry = {"scope": "link", "link": list(link), "rate_bps": rate, "overhead_bytes": overhead}
+    epochs = np.arange(first, first + 40, dtype=np.int64)
+    payloads = 200 + (epochs // 7) % 3  # sizes change now and then
+    block = network(entry, period_s=period_s).fixed(link, phase, epochs, payloads)
+    one_by_one = network(entry, period_s=period_s)
+    verdicts = [
+        one_by_one.alone(int(e), phase, link, int(p)) for e, p in zip(epochs, payloads, strict=True)
+    ]
+    if block is None:  # a packet needs more than half a period
+        assert 8 * (int(payloads.max()) + overhead) / rate > 0.5 * period_s * (1 - 1e-9)
+        return
+    assert [(v.reason, v.queue, v.depth, v.sojourn_ms) for v in verdicts] == [
+        (r, block.queue, 0, s) for r, s in zip(block.reason, block.sojourn_ms, strict=True)
+    ]
+    assert one_by_one.last_in[link] == (
+        block.t0_s[-1],
+        block.payload_bytes[-1],
+        block.departure_s[-1],
+    )

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from formation.capacity import Capacity
 from formation.scenario import Scenario
 from netem.links.capacity import REASONS
 from netem.links.capacity_network import capacity_plan
@@ -22,6 +23,11 @@ CAPACITY: list[dict[str, Any]] = [
      "limit_packets": 4},
     {"scope": "radio", "agent": 3, "rate_bps": 30_000.0, "limit_packets": 2, "policy": "oldest"},
     {"scope": "link", "link": [2, 4], "rate_bps": 9_000.0, "burst_bytes": 400},
+    # links alone in their queues, judged as they come: a state of 256 B takes 1.02 s (a
+    # backlog, late and full), 0.19 s (in time, by the closed form), 0.205 s (late, by it)
+    {"scope": "link", "link": [1, 3], "rate_bps": 2_000.0, "limit_packets": 2},
+    {"scope": "link", "link": [4, 1], "rate_bps": 11_000.0},
+    {"scope": "link", "link": [5, 4], "rate_bps": 10_000.0},
 ]  # fmt: skip
 
 
@@ -42,7 +48,8 @@ def lockstep(scenario: Scenario, seed: int) -> tuple[Lockstep, Wire]:
 def test_any_arrival_order_gives_the_simulators_queue_verdicts(paper: Scenario, seed: int) -> None:
     scenario = constrained(paper, 40)
     core, wire = lockstep(scenario, seed)
-    assert not core.clean  # every packet takes the full path
+    for ce in core.clean.values():  # every phase meets a queue without a closed form
+        assert not any(ce.clean(k) for k in range(scenario.epochs))
     rng = np.random.default_rng(seed)
     agents = list(range(1, scenario.n + 1))
     for k in range(scenario.epochs):
@@ -100,3 +107,53 @@ def test_a_sender_dying_mid_phase_does_not_hold_its_queues(paper: Scenario, seed
         if 3 in core.links.in_links[d.receiver]:
             assert d.dead == [3]
     assert not core.queued  # judged, nothing left waiting
+
+
+def test_the_clean_path_through_queues_in_closed_form_records_what_the_full_path_does(
+    paper: Scenario, seed: int
+) -> None:
+    # a queue on every link: the states' in time by their closed form (clean epochs where the
+    # models pass them all); 2's estimates late by it, 3's reports without one (more than half
+    # a period): those phases take the full path
+    lossy = [{"model": "bernoulli", "p_loss": 0.05}]
+    rates = {(4, 1): 11_000.0, (0, 2): 9_000.0, (3, 0): 5_000.0}
+    control = [[i, 0] for i in range(1, 6)] + [[0, i] for i in range(1, 6)]
+    queues = [
+        {"scope": "link", "link": [a, b], "rate_bps": rates.get((a, b), 1e9)}
+        for a, b in paper.directed_links.tolist() + control
+    ]
+    network = {"formation_default": lossy, "control_default": lossy, "capacity": queues}
+    scenario = paper.with_overrides(epochs=60, network=network)
+    tbf = Capacity.model_validate(
+        {"scope": "link", "link": [4, 1], "rate_bps": 1_000.0, "burst_bytes": 300}
+    )
+    got, change_at = {}, 0
+    for clean in (True, False):
+        links, wire = Links(scenario, seed), Wire(receivers(scenario))
+        core = Lockstep(links, scenario.epochs, Progress(links.agents, scenario.epochs,
+                        lambda: None), Ledger(), wire)  # fmt: skip
+        if clean:
+            core.setup_clean()
+            states = core.clean["state"]
+            # the change right after a clean epoch: the clean path put that packet through
+            change_at = next(k for k in range(20, 50) if states.clean(k - 1))
+        for k in range(scenario.epochs):
+            if k == change_at:  # 4 -> 1 becomes a bucket: its clock is the last packet's
+                assert core.links.capacity is not None
+                core.queues_changing()
+                core.links.capacity.change(tbf, from_epoch=k)
+                core.models_changed()
+            for i in range(1, scenario.n + 1):
+                core.packet(("state", i, 0), k, k, b"{}")
+            for i in range(1, scenario.n + 1):
+                core.packet(("report", i, 0), k, k, b"{}")
+            for i in range(1, scenario.n + 1):
+                core.packet(("estimate", 0, i), k, k, b"{}")
+            core.flush_clean()
+        got[clean] = (
+            sorted(d.model_dump_json() for d in wire.decisions),
+            sorted(d.model_dump_json() for d in wire.deliveries),
+        )
+        reasons = Counter(d.model for d in wire.decisions if d.verdict == "drop")
+        assert reasons["queue_late"] and reasons["bernoulli"]
+    assert got[True] == got[False]
