@@ -118,15 +118,6 @@ class BatchPlan:
         )
 
 
-def _capacity_supported(b: int, s: Scenario, decided: DeliveryPlan) -> None:
-    """Refuse what the simulator's capacity queues do not model yet (netem's lockstep does)."""
-    if decided.ranged:
-        raise BatchError(
-            f"member {b} ({s.name}): network.capacity with distance models is not simulated "
-            "yet; run it with `formation run` (lockstep)"
-        )
-
-
 def _offered(passed: Mask, present: Mask | None, links: Ints, n: int) -> Mask:
     """(E, L + 2n) the packets the queues see: passed by the models, between agents taking
     part (netem's lockstep neither sends nor routes the others: issue 20's events)."""
@@ -222,8 +213,8 @@ def plan_batch(
             mat = decided.base
             ok = mat.delivered & (mat.delay_epochs == 0)
             delivered_all = mat.delivered
-            if s.network.capacity:  # the queues see what the models passed, delayed or not
-                _capacity_supported(b, s, decided)
+            if s.network.capacity and not decided.ranged:  # the queues see what the models
+                # passed, delayed or not; a ranged member's, epoch by epoch (testbed.sim.ranged)
                 offered = _offered(mat.delivered, team_k, links, n)
                 delivered_all = mat.delivered & (capacity_plan(s, offered, all_links) == 0)
                 ok = ok & delivered_all

@@ -5,6 +5,8 @@ A distance model (``range``, ``logistic``, ``log_distance``) decides link ``i â†
 which the simulator knows only once it has computed epoch ``k``. The members' draws come from
 :func:`netem.links.matrix.delivery_plan` in the plan; here they meet the lengths, measured with
 :func:`netem.links.matrix.link_lengths` as netem measures them, so both give the same verdicts.
+A member with capacity queues then passes what the models passed through them, an epoch at a
+time (:class:`netem.CapacityPlanner`), as netem's lockstep does.
 """
 
 from __future__ import annotations
@@ -12,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from netem import link_lengths
+from formation.scenario import LEADER_ENDPOINT
+from netem import CapacityPlanner, link_lengths
 from testbed.sim.plan import BatchPlan
 
 Array = npt.NDArray[np.float64]
@@ -37,6 +40,17 @@ class RangedEpochs:
         # (M, d) each member's access point; NaN where no control link decides by length
         self.access_point = np.stack([np.full(d, np.nan) if a is None else a for a in ap])
         self.late: dict[int, list[tuple[Ints, Ints]]] = {}  # arrival epoch â†’ (flat link, sent)
+        control = [(i, LEADER_ENDPOINT) for i in range(1, self.n + 1)]
+        control += [(LEADER_ENDPOINT, i) for i in range(1, self.n + 1)]
+        every = np.concatenate([links, np.array(control, dtype=np.int64)])
+        self.queues = [  # fresh per run: a planner's queues carry their backlog
+            CapacityPlanner(plan.scenarios[b], every)
+            if plan.scenarios[b].network.capacity
+            else None
+            for b in self.members
+        ]
+        self.present = None if plan.team is None else plan.team.present
+        self.links = links
 
     def decide(self, k: int, xk: Array, on_time: Mask, report_ok: Mask, estimate_ok: Mask) -> None:
         """Decide epoch ``k`` from ``xk`` (B, n, d) [m]; fills row ``k`` of ``on_time`` (E, B, L),
@@ -48,6 +62,9 @@ class RangedEpochs:
         lengths = np.concatenate([formation, control, control], axis=1)
         for row, (b, decisions) in enumerate(zip(self.members, self.decisions, strict=True)):
             delivered, _, delay = decisions.at(k, lengths[row])
+            queues = self.queues[row]
+            if queues is not None:  # the queues see what the models passed, delayed or not
+                delivered = delivered & (queues.epoch(k, self._offered(k, delivered)) == 0)
             ok = delivered & (delay == 0)
             on_time[k, b] = ok[:n_links]
             report_ok[k, b] = ok[n_links : n_links + n]
@@ -58,6 +75,14 @@ class RangedEpochs:
                 self.late.setdefault(int(arrival), []).append(
                     (b * n_links + sel, np.full(sel.size, k, dtype=np.int64))
                 )
+
+    def _offered(self, k: int, passed: Mask) -> Mask:
+        """Epoch ``k``'s packets between agents taking part (as ``testbed.sim.plan``'s)."""
+        if self.present is None:
+            return passed
+        on = self.present[k]
+        both = on[self.links[:, 0] - 1] & on[self.links[:, 1] - 1]
+        return np.asarray(passed & np.concatenate([both, on, on]), dtype=np.bool_)
 
     def landing(self, k: int) -> list[tuple[Ints, Ints]]:
         """The delayed packets of the ranged members landing at epoch ``k`` (flat link, sent)."""

@@ -118,3 +118,27 @@ def test_unicycles_hold_a_low_turn_limit_as_recorded_and_count_its_saturation(
     assert np.isfinite(turn).all() and turn.max() <= 0.5 * (1 + 1e-12)
     assert int(run.saturated.sum()) > 0
     assert summarise(run)["safety"]["max_turn_rad_s"] == turn.max()
+
+
+def test_distance_models_through_capacity_queues_equal_the_simulator(
+    paper: Scenario, runs_dir: Path
+) -> None:
+    """The queues see what the distance models passed, which the simulator knows an epoch at a
+    time: the access point's queue on every control link, and agent 2's radio."""
+    network = {
+        **WIRELESS,
+        "capacity": [
+            {"scope": "medium", "medium": "ap", "links": "control", "rate_bps": 30_000.0,
+             "limit_packets": 3, "overhead_bytes": 42},
+            {"scope": "radio", "agent": 2, "rate_bps": 40_000.0, "limit_packets": 2},
+        ],
+    }  # fmt: skip
+    scenario = paper.with_overrides(epochs=30, network=network)
+    outcome = launch(scenario, strategy="estimate", seed=5, runs_dir=runs_dir, record=False)
+    sim = simulate(scenario, strategy="estimate", seed=5)
+    np.testing.assert_array_equal(outcome.positions, sim.positions)
+    want = expected(scenario, sim)
+    for link_class in ("formation", "report", "estimate"):
+        assert verdicts(outcome, link_class) == want[link_class], link_class
+    reasons = {d.model for d in outcome.decisions if d.verdict == "drop"}
+    assert {"queue_full", "logistic"} <= reasons, reasons

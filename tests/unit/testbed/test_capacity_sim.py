@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from formation.scenario import Scenario
-from testbed.sim.batch import BatchError, plan_batch, run_batch
+from testbed.sim.batch import plan_batch, run_batch
 from testbed.sim.simulate import simulate
 
 
@@ -33,10 +32,26 @@ def test_a_batch_with_capacity_equals_each_seed_alone(paper: Scenario) -> None:
     assert batch.delivered[:, 0].sum() < free.delivered[:, 0].sum()
 
 
-def test_what_the_simulator_does_not_queue_yet_is_refused(paper: Scenario) -> None:
-    ranged = with_capacity(paper, formation_default=[{"model": "range", "max_range_m": 5.0}])
-    with pytest.raises(BatchError, match=r"member 0 .*network\.capacity with distance models"):
-        plan_batch(ranged, [1])
+def test_links_that_decide_by_length_pass_their_packets_through_the_queues(
+    paper: Scenario,
+) -> None:
+    """A range every link is within decides epoch by epoch what no model would: the queues,
+    fed an epoch at a time, then drop exactly what the plan's queues drop."""
+    everywhere = [{"model": "range", "max_range_m": 50.0}]
+    ranged = with_capacity(
+        paper, formation_default=everywhere, control_default=everywhere, access_point=[0.0, 0.0]
+    )
+    plain = with_capacity(paper, formation_default=[])
+    assert plan_batch(ranged, [1, 2]).ranged and not plan_batch(plain, [1, 2]).ranged
+    got = run_batch(plan_batch(ranged, [1, 2]), "estimate")
+    want = run_batch(plan_batch(plain, [1, 2]), "estimate")
+    np.testing.assert_array_equal(got.positions, want.positions)
+    np.testing.assert_array_equal(got.delivered, want.delivered)
+    np.testing.assert_array_equal(got.report_ok, want.report_ok)  # type: ignore[arg-type]
+    free = run_batch(
+        plan_batch(with_capacity(paper, formation_default=[], capacity=[]), [1, 2]), "estimate"
+    )
+    assert got.report_ok.sum() < free.report_ok.sum()  # type: ignore[union-attr]
 
 
 def test_an_agent_out_of_the_team_sends_nothing_through_the_queues(paper: Scenario) -> None:
