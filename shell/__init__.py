@@ -15,7 +15,7 @@ from shell.bus import (
     ZenohBus,
 )
 from shell.config_files import check_readable
-from shell.rmw_zenoh import pose_cdr, twist_cdr
+from shell.rmw_zenoh import ADMIN_SPACE, pose_cdr, topic_key, twist_cdr
 from shell.ros2 import NS_PER_S, require_ros2
 from shell.service import Incoming, Service, settle_heap
 from shell.serving import load_scenario, open_service, serve, service_parser
@@ -33,6 +33,7 @@ from shell.zenoh_config import (
 )
 
 __all__ = [
+    "ADMIN_SPACE",
     "DUMP_SIGNAL",
     "MEMBERS_ENV",
     "MEMBERS_FILE_ENV",
@@ -68,5 +69,6 @@ __all__ = [
     "session_config",
     "settle_heap",
     "time_policy",
+    "topic_key",
     "twist_cdr",
 ]

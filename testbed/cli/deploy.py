@@ -27,7 +27,12 @@ def cmd_keys(args: argparse.Namespace) -> int:
     scenario = load_checked(args.scenario)
     hosts = args.tls_host or ["router"]
     keyset = generate(
-        Path(args.out_dir), scenario.n, tls=args.tls, tls_hosts=hosts, force=args.force
+        Path(args.out_dir),
+        scenario.n,
+        tls=args.tls,
+        tls_hosts=hosts,
+        force=args.force,
+        body=scenario.body,
     )
     users = ", ".join(sorted(keyset.configs))
     print(

@@ -285,3 +285,54 @@ def _mcap_counts(path: Path) -> Counter[tuple[str, str]]:
         for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
             counts[channel.topic, json.loads(message.data).get("by", "")] += 1
     return counts
+
+
+def test_rmw_zenoh_robots_and_their_agents_pass_the_closed_router(tmp_path: Path) -> None:
+    """``formation keys`` for a scenario with rmw_zenoh bodies (domain 3): the user ``robots``
+    sends poses and reads commands; agent 1 commands its robot and reads its pose, and may not
+    command robot 2. Every node's liveliness token reaches the other side."""
+    pytest.importorskip("rosbags", reason="the ros2 extra")
+    from formation.body import Body, Qos
+    from shell.rmw_zenoh import RmwZenohNode, pose_cdr, read_pose, read_twist, twist_cdr
+
+    body = Body(kind="rmw_zenoh", domain_id=3)
+    keyset = security.generate(tmp_path / "keys", n_agents=2, body=body)
+    assert security.ROBOTS in keyset.configs
+    group, endpoint = _start_router(tmp_path, keyset)
+    network = Network(endpoint, keyset, group, tmp_path)
+    agent, robots = network.session("agent-1"), network.session(security.ROBOTS)
+    try:
+        plant = RmwZenohNode(robots, 3, "plant")
+        node = RmwZenohNode(agent, 3, "formation_agent_1")
+        commands: dict[int, list[float]] = {1: [], 2: []}
+        for i in (1, 2):
+            plant.subscribe(f"/robot{i}/cmd_vel", "geometry_msgs/msg/Twist", Qos(),
+                            lambda cdr, i=i: commands[i].append(read_twist(cdr)[0][0]))  # fmt: skip
+        poses: list[float] = []
+        node.subscribe("/robot1/pose", "geometry_msgs/msg/PoseStamped", Qos(),
+                       lambda cdr: poses.append(read_pose("geometry_msgs/msg/PoseStamped", cdr)[0][0]))  # fmt: skip
+        command = node.publisher("/robot1/cmd_vel", "geometry_msgs/msg/Twist", Qos())
+        forged = node.publisher("/robot2/cmd_vel", "geometry_msgs/msg/Twist", Qos())
+        pose = plant.publisher("/robot1/pose", "geometry_msgs/msg/PoseStamped", Qos())
+
+        def exchange() -> bool:  # until the router has both sides' subscriptions
+            command(twist_cdr([0.5, 0.0]))
+            forged(twist_cdr([9.0, 0.0]))
+            pose(pose_cdr("geometry_msgs/msg/PoseStamped", [1.5, 0.0], 1, "world"))
+            return bool(commands[1]) and bool(poses)
+
+        _wait(exchange, "a command and a pose through the router", network)
+        for _ in range(N):
+            forged(twist_cdr([9.0, 0.0]))
+        command(twist_cdr([0.5, 0.0]))
+        _wait(lambda: len(commands[1]) >= 2, "the last command", network)
+        assert set(commands[1]) == {0.5} and set(poses) == {1.5}
+        assert commands[2] == []  # agent 1 may not command robot 2
+        seen = [str(r.ok.key_expr) for r in robots.liveliness().get("@ros2_lv/3/**") if r.ok]
+        assert any("formation_agent_1" in k for k in seen), seen
+        plant.close()
+        node.close()
+    finally:
+        agent.close()
+        robots.close()
+        group.stop_all()
