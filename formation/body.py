@@ -117,9 +117,7 @@ def _known(v: str, types: tuple[str, ...]) -> str:
     return v
 
 
-def body_problems(
-    body: Body, n: int, dynamics: str, events: int = 0, mode: str = "lockstep"
-) -> list[tuple[str, object, str]]:
+def body_problems(body: Body, n: int, events: int = 0) -> list[tuple[str, object, str]]:
     """``(field, value, problem)`` of ``[body]`` against the team (``events``: how many the
     scenario has); empty when it can run."""
     for k, i in enumerate(body.agents):
@@ -134,15 +132,6 @@ def body_problems(
                 body.kind,
                 f"the scenario has {events} events (leave, crash, join, restart), which robots "
                 "do not follow yet: the stepped plant would wait for an agent that is out",
-            )
-        ]
-    if body.kind in ROS_BODIES and dynamics == "unicycle" and mode != "realtime":
-        return [
-            (
-                "control.dynamics",
-                dynamics,
-                f"a unicycle with a {body.kind} body runs in realtime only (its inner loop "
-                "steers at each pose); set runtime.mode = 'realtime'",
             )
         ]
     return []

@@ -7,8 +7,10 @@ pose (the scenario's pose type), on the topics and QoS of the scenario's ``[body
   again every ``FIRST_POSE_S`` until its first command comes (a DDS reader that matches
   after the writer misses what the writer sent in between); once every robot's command of
   epoch ``k`` is in, every robot moves one period and the poses
-  go out stamped ``k + 1`` (sim time ``(k + 1) T``). A lockstep run through it equals
-  ``formation simulate`` to the bit.
+  go out stamped ``k + 1`` (sim time ``(k + 1) T``). A unicycle moves one sub-step of the
+  simulator's inner loop per command, and its poses go out stamped with the sub-step's sim
+  time, ``inner_steps`` an epoch, the last one ``(k + 1) T``. A lockstep run through it
+  equals ``formation simulate`` to the bit.
 - **free**: every ``1 / rate_hz`` each robot moves by the last command it got (stopping when
   none came for ``pose_timeout_s``), and the poses go out stamped with the wall clock, as a
   robot does.
@@ -22,7 +24,6 @@ import time
 from functools import partial
 from typing import Any, Literal
 
-from formation.errors import TestbedError
 from formation.scenario import Scenario
 from shell import NS_PER_S, BodyLink, open_body_link
 from testbed.plant.robots import Robots
@@ -46,11 +47,6 @@ class Plant:
         session: Any = None,
     ) -> None:
         self.scenario, self.body, self.clock = scenario, scenario.body, clock
-        if clock == "stepped" and scenario.control.dynamics == "unicycle":
-            raise TestbedError(
-                f"{scenario.name}: control.dynamics = 'unicycle' takes the free-running plant "
-                "(--clock free, a realtime run): the stepped clock moves holonomic robots"
-            )
         self.robots = Robots.of(scenario, seed)
         if not self.robots.ids:
             raise ValueError(f"{scenario.name}: no agent has a ROS 2 body (body.kind)")
@@ -105,10 +101,12 @@ class Plant:
             if self.clock != "stepped":
                 return
             while self.robots.ready():
-                self.robots.step_epoch()
-                k = self.robots.epoch
-                self._publish(list(range(len(self.robots.ids))), k * self.period_ns)
-                if k == self.scenario.epochs:
+                self.robots.step()
+                k, substep = self.robots.epoch, self.robots.substep
+                # a sub-step's sim time: (k + s / inner_steps) T
+                stamp_ns = k * self.period_ns + substep * self.period_ns // self.robots.limits[3]
+                self._publish(list(range(len(self.robots.ids))), stamp_ns)
+                if k == self.scenario.epochs and substep == 0:
                     log.info("stepped: epoch %d, the scenario's last, reached", k)
                     self.done.set()
 

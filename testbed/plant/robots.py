@@ -2,9 +2,11 @@
 
 Each robot is a holonomic body that holds the velocity of its last command
 (:func:`agent.held_velocity_step`, the function the simulator moves a robot with), so a
-stepped run equals ``formation simulate`` to the bit (docs/robots.md). A unicycle
-(free-running only) holds its last ``linear.x``, ``angular.z``, clipped to its limits, and
-moves its axle's centre along the exact arc (:func:`agent.unicycle_arc`).
+stepped run equals ``formation simulate`` to the bit (docs/robots.md). A unicycle holds its
+last ``linear.x``, ``angular.z``, clipped to its limits, and moves its axle's centre along the
+exact arc (:func:`agent.unicycle_arc`); stepped, each command is one sub-step of the
+simulator's inner loop (:func:`agent.unicycle_substep`, from the look-ahead point as the
+simulator keeps it), ``inner_steps`` an epoch.
 """
 
 from __future__ import annotations
@@ -16,7 +18,15 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from agent import heading_vector, held_velocity_step, unicycle_arc, wrap_angle
+from agent import (
+    axle_centre,
+    held_velocity_step,
+    lookahead_point,
+    substep_s,
+    unicycle_arc,
+    unicycle_substep,
+    wrap_angle,
+)
 from formation.robots import initial_headings
 from formation.scenario import Scenario
 
@@ -25,16 +35,20 @@ Array = npt.NDArray[np.float64]
 
 @dataclass
 class Robots:
-    """Robots ``ids`` at ``x`` (r, d) [m], at epoch ``epoch`` (stepped clock)."""
+    """Robots ``ids`` at ``x`` (r, d) [m], at epoch ``epoch`` and its sub-step ``substep``
+    (stepped clock; a unicycle's inner loop)."""
 
     ids: list[int]
     x: Array  # positions; a unicycle's axle centres [m]
     period_s: float
-    heading: Array | None = None  # a unicycle's (r,) [rad]
-    limits: tuple[float, float] = (0.0, 0.0)  # a unicycle's (max speed [m/s], max turn [rad/s])
+    heading: Array | None = None  # a unicycle's (r,) [rad]; stepped: wrapped at an epoch's end
+    lookahead: Array | None = None  # a unicycle's (r, 2) look-ahead points [m] (stepped)
+    limits: tuple[float, float, float, int] = (0.0, 0.0, 0.0, 1)  # a unicycle's (Unicycle.limits)
     turn: dict[int, float] = field(default_factory=dict)  # a unicycle's held angular.z [rad/s]
     epoch: int = 0
-    queued: dict[int, deque[list[float]]] = field(default_factory=dict)  # stepped: per robot
+    substep: int = 0
+    # stepped: each robot's commands not yet used, (linear [m/s], angular.z [rad/s])
+    queued: dict[int, deque[tuple[list[float], float]]] = field(default_factory=dict)
     held: dict[int, list[float]] = field(default_factory=dict)  # free-running: the last command
     counts: dict[str, int] = field(
         default_factory=lambda: {"commands": 0, "bad_commands": 0, "steps": 0}
@@ -47,14 +61,14 @@ class Robots:
         rows = np.array(ids, dtype=np.int64) - 1
         x0 = scenario.initial_positions(seed)[rows]
         period_s = scenario.control.period_s
-        queued: dict[int, deque[list[float]]] = {i: deque() for i in ids}
+        queued: dict[int, deque[tuple[list[float], float]]] = {i: deque() for i in ids}
         if scenario.control.dynamics != "unicycle":
             return cls(ids, x0.copy(), period_s, queued=queued)
-        uni = scenario.control.unicycle
+        limits = scenario.control.unicycle.limits
         th0 = initial_headings(scenario.seed if seed is None else seed, scenario.n)[rows]
-        centre = x0 - uni.lookahead_m * heading_vector(th0)  # the look-ahead point at x0
-        limits = (uni.max_speed_m_s, uni.max_turn_rad_s)
-        return cls(ids, centre, period_s, th0.copy(), limits, queued=queued)
+        centre = axle_centre(x0, th0, limits[2])  # the look-ahead point at x0
+        p0 = lookahead_point(centre, th0, limits[2])  # as the simulator starts it
+        return cls(ids, centre, period_s, th0.copy(), p0, limits, queued=queued)
 
     def command(self, robot: int, velocity: list[float], turn_rad_s: float = 0.0) -> None:
         """A command [m/s] (a unicycle's: ``linear.x`` and ``angular.z`` [rad/s]); one that is
@@ -63,20 +77,39 @@ class Robots:
         if not all(math.isfinite(c) for c in [*velocity, turn_rad_s]):
             self.counts["bad_commands"] += 1
             velocity, turn_rad_s = [0.0] * len(velocity), 0.0
-        self.queued[robot].append(velocity)
+        self.queued[robot].append((velocity, turn_rad_s))
         self.held[robot] = velocity
         self.turn[robot] = turn_rad_s
 
     def ready(self) -> bool:
-        """Stepped: every robot's command of this epoch is in."""
+        """Stepped: every robot's command of this epoch (a unicycle's: sub-step) is in."""
         return all(self.queued[i] for i in self.ids)
 
-    def step_epoch(self) -> None:
-        """Stepped: each robot holds its command of this epoch for one period."""
-        u = np.array([self.queued[i].popleft() for i in self.ids], dtype=float)
-        self.x = held_velocity_step(self.x, u, self.period_s)
-        self.epoch += 1
+    def step(self) -> None:
+        """Stepped: each robot holds its next command for one period (a unicycle: one
+        sub-step of it, ``T / inner_steps``)."""
+        sent = [self.queued[i].popleft() for i in self.ids]
+        u = np.array([velocity for velocity, _ in sent], dtype=float)
         self.counts["steps"] += 1
+        if self.heading is None or self.lookahead is None:
+            self.x = held_velocity_step(self.x, u, self.period_s)
+            self.epoch += 1
+            return
+        v, w = self._clipped(u[:, 0], np.array([turn for _, turn in sent], dtype=float))
+        dt, look = substep_s(self.period_s, self.limits), self.limits[2]
+        self.x, self.heading, self.lookahead = unicycle_substep(
+            self.lookahead, self.heading, v, w, dt, look
+        )
+        self.substep += 1
+        if self.substep == self.limits[3]:  # the epoch's end, where the simulator wraps
+            self.heading = wrap_angle(self.heading)
+            self.epoch, self.substep = self.epoch + 1, 0
+
+    def _clipped(self, v: Array, w: Array) -> tuple[Array, Array]:
+        """``linear.x``, ``angular.z`` clipped to the limits, as the robot's motors would."""
+        return np.clip(v, -self.limits[0], self.limits[0]), np.clip(
+            w, -self.limits[1], self.limits[1]
+        )
 
     def step_for(self, dt_s: float) -> None:
         """Free-running: each robot holds its last command for ``dt_s`` [s] (none yet: at rest)."""
@@ -84,10 +117,9 @@ class Robots:
         u = np.array([self.held.get(i, [0.0] * d) for i in self.ids], dtype=float)
         if self.heading is None:
             self.x = held_velocity_step(self.x, u, dt_s)
-        else:  # linear.x and angular.z, clipped as the robot's motors would
-            v = np.clip(u[:, 0], -self.limits[0], self.limits[0])
+        else:
             w = np.array([self.turn.get(i, 0.0) for i in self.ids], dtype=float)
-            w = np.clip(w, -self.limits[1], self.limits[1])
+            v, w = self._clipped(u[:, 0], w)
             self.x, heading = unicycle_arc(self.x, self.heading, v, w, dt_s)
             self.heading = wrap_angle(heading)
         self.counts["steps"] += 1

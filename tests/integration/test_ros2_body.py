@@ -112,6 +112,38 @@ def test_a_lockstep_run_through_the_stepped_plant_equals_the_simulator_to_the_bi
         }
 
 
+@pytest.mark.slow
+def test_lockstep_unicycles_through_the_stepped_plant_equal_the_simulator_to_the_bit(
+    paper: Scenario, runs_dir: Path, tmp_path: Path, ros_domain: int
+) -> None:
+    # Each robot's inner loop pose by pose: 20 twists an epoch per robot, the reference
+    # agent's robot steered toward its trajectory; positions, headings and the clipped
+    # sub-steps as recorded equal the simulator's.
+    control = {"dynamics": "unicycle", "gain": 0.1, "unicycle": {"max_turn_rad_s": 0.5}}
+    scenario, path = with_robots(paper.with_overrides(control=control, epochs=30), tmp_path)
+    steps = scenario.control.unicycle.inner_steps
+    clipped = 0
+    for strategy in STRATEGIES:
+        with plant(path) as proc:
+            outcome = launch(scenario, strategy=strategy, runs_dir=runs_dir)  # type: ignore[arg-type]
+            counts = plant_counts(proc)
+        sim = simulate(scenario, strategy=strategy)  # type: ignore[arg-type]
+        run = read_run(outcome.run_dir / "run.mcap")
+        assert sim.headings is not None and sim.saturated is not None
+        np.testing.assert_array_equal(outcome.positions, sim.positions, err_msg=strategy)
+        np.testing.assert_array_equal(run.positions, sim.positions, err_msg=strategy)
+        np.testing.assert_array_equal(run.headings, sim.headings, err_msg=strategy)
+        np.testing.assert_array_equal(run.saturated, sim.saturated, err_msg=strategy)
+        assert counts == {
+            "commands": scenario.n * scenario.epochs * steps,
+            "bad_commands": 0,
+            "steps": scenario.epochs * steps,
+            "epoch": scenario.epochs,
+        }
+        clipped += int(sim.saturated.sum())
+    assert clipped > 0  # the turn limit was reached, and counted alike
+
+
 @pytest.mark.filterwarnings(
     "ignore:module 'sre_(parse|constants)' is deprecated:DeprecationWarning"
 )

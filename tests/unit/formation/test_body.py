@@ -114,16 +114,12 @@ def test_bad_body_settings_name_file_field_and_value(tmp_path: Path, text: str, 
         load(write(tmp_path, f"[body]\n{kind}{text}\n"))
 
 
-def test_a_ros2_unicycle_runs_in_realtime_only(tmp_path: Path) -> None:
+def test_a_ros2_unicycle_runs_in_lockstep_and_in_realtime(tmp_path: Path) -> None:
+    # lockstep steps its inner loop through the stepped plant (docs/robots.md)
     unicycle = '[control]\ndynamics = "unicycle"\n[body]\nkind = "ros2"\n'
-    with pytest.raises(
-        ScenarioError,
-        match=r"control\.dynamics = 'unicycle'; a unicycle with a ros2 body runs in realtime "
-        r"only \(its inner loop steers at each pose\); set runtime\.mode = 'realtime'",
-    ):
-        load(write(tmp_path, unicycle))
-    realtime = load(write(tmp_path, unicycle + '[runtime]\nmode = "realtime"\n'))
-    assert realtime.body.robots(realtime.n) == [1, 2, 3]
+    for mode in ("lockstep", "realtime"):
+        scenario = load(write(tmp_path, unicycle + f'[runtime]\nmode = "{mode}"\n'))
+        assert scenario.body.robots(scenario.n) == [1, 2, 3]
 
 
 def test_robots_with_scenario_events_are_refused_for_now() -> None:
