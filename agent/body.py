@@ -33,7 +33,7 @@ import numpy as np
 import numpy.typing as npt
 
 from agent.control import unicycle_twist
-from agent.steering import InnerLoop, confirmed_heading, pose_point
+from agent.steering import InnerLoop, confirmed_pose, pose_point
 from formation.errors import RuntimeFailure
 from formation.scenario import Scenario
 from shell import NS_PER_S, open_body_link, pose_cdr, twist_cdr
@@ -142,15 +142,19 @@ class RobotBodies:
         self._publishers[agent].publish(*twist)
         self._twists[agent] = twist
 
-    def settle(self, headings: dict[int, float]) -> tuple[dict[int, list[float]], dict[int, float]]:
-        """Lockstep unicycles, at the start: each robot's ``x[0]`` and ``θ[0]`` from its pose
-        of epoch 0, ``headings`` [rad] the ones the scenario starts them with (agent.steering)."""
+    def settle(
+        self, expected: dict[int, tuple[list[float], float]]
+    ) -> tuple[dict[int, list[float]], dict[int, float]]:
+        """Lockstep unicycles, as they start: each robot's ``x[k]`` [m] and ``θ[k]`` [rad] from
+        its newest pose, ``expected`` where it confirms them (agent.steering.confirmed_pose)."""
         with self._cond:
             for i in self.ids:
                 pose = self._poses[i]
-                heading, agrees = confirmed_heading(headings[i], pose.heading)
+                p, heading, agrees = confirmed_pose(
+                    expected[i], pose.centre, pose.heading, self.limits[2]
+                )
                 self.counts["yaw_taken"] += not agrees
-                self._start[i] = (pose_point(pose.centre, heading, self.limits[2]), heading)
+                self._start[i] = (p, heading)
             return self._placed()
 
     def _placed(self) -> tuple[dict[int, list[float]], dict[int, float]]:

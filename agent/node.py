@@ -487,14 +487,18 @@ class AgentNode:
         thread only watches; realtime: a fixed period, and what has not arrived by a
         phase's deadline is lost.
         """
-        if self.bodies is not None:  # x[0] is where the robots are
-            self.runner.place(self.bodies.wait_poses(None if timing.realtime else 0, FIRST_POSE_S))
-            if self.bodies.stepped:  # a unicycle's x[0], θ[0] as its inner loop takes them
+        if self.bodies is not None:  # x[0] (or a restart's x[k]) is where the robots are
+            poses = self.bodies.wait_poses(None if timing.realtime else 0, FIRST_POSE_S)
+            if self.bodies.stepped:  # a unicycle's x[k], θ[k] as its inner loop takes them
                 assert self.runner.heading is not None
-                ids = self.bodies.ids
-                given = {i: float(self.runner.heading[self.runner.row[i]]) for i in ids}
-                self.runner.place(*self.bodies.settle(given))
+                rows = {i: self.runner.row[i] for i in self.bodies.ids}
+                expected = {
+                    i: (self.runner.x[r].tolist(), float(self.runner.heading[r]))
+                    for i, r in rows.items()
+                }
+                self.runner.place(*self.bodies.settle(expected))
             else:
+                self.runner.place(poses)
                 self._take_headings()
             self.bodies.wait_subscribed(FIRST_POSE_S)
         if timing.realtime:

@@ -11,11 +11,16 @@ while the simulator's heading is wrapped only at an epoch's end and its cosine s
 bit. So the agent keeps the heading its last twist gives (the sub-step the plant integrates,
 :func:`agent.control.unicycle_substep`) where the pose's yaw agrees with it to
 ``YAW_AGREES_RAD``, and takes the pose's yaw otherwise: a robot that turns otherwise than it
-was sent is followed. The position is always the pose's: ``c + l h(θ)`` of its axle's centre.
+was sent is followed. The position is the pose's, ``c + l h(θ)`` of its axle's centre; at
+an epoch where the robot starts (the run's first, a join or a restart) the agent keeps the
+state it expects (the scenario's ``x[0]``, or netem's last state of it) where the pose agrees
+with it to ``POINT_AGREES_M``: ``c + l h(θ)`` of the centre the plant computed from it is
+that point only to within its rounding (:func:`confirmed_pose`).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +36,7 @@ from agent.control import (
 
 Array = npt.NDArray[np.float64]
 YAW_AGREES_RAD = 1e-9  # [rad] far above a quaternion's rounding (~1e-16), far below a turn
+POINT_AGREES_M = 1e-9  # [m] far above c + l h(θ)'s rounding, far below a move
 
 
 def confirmed_heading(expected: float, yaw: float) -> tuple[float, bool]:
@@ -40,6 +46,19 @@ def confirmed_heading(expected: float, yaw: float) -> tuple[float, bool]:
     if abs(off) <= YAW_AGREES_RAD:
         return expected, True
     return expected + off, False
+
+
+def confirmed_pose(
+    expected: tuple[list[float], float], centre: list[float], yaw: float, lookahead_m: float
+) -> tuple[list[float], float, bool]:
+    """The look-ahead point [m] and heading [rad] a pose (axle centre [m], yaw [rad]) gives a
+    robot that starts where the agent ``expected`` it, ``(x, θ)``: the expected ones where
+    both agree; and whether they did."""
+    heading, turned = confirmed_heading(expected[1], yaw)
+    point = pose_point(centre, heading, lookahead_m)
+    if turned and math.dist(point, expected[0]) <= POINT_AGREES_M:
+        return list(expected[0]), heading, True
+    return point, heading, False
 
 
 def pose_point(centre: list[float], heading: float, lookahead_m: float) -> list[float]:
@@ -95,4 +114,11 @@ class InnerLoop:
         return [float(c) for c in self.p[0]], float(wrap_angle(self.heading)[0]), self.saturated
 
 
-__all__ = ["YAW_AGREES_RAD", "InnerLoop", "confirmed_heading", "pose_point"]
+__all__ = [
+    "POINT_AGREES_M",
+    "YAW_AGREES_RAD",
+    "InnerLoop",
+    "confirmed_heading",
+    "confirmed_pose",
+    "pose_point",
+]

@@ -21,7 +21,6 @@ import numpy.typing as npt
 from agent import (
     axle_centre,
     held_velocity_step,
-    lookahead_point,
     substep_s,
     unicycle_arc,
     unicycle_substep,
@@ -67,8 +66,7 @@ class Robots:
         limits = scenario.control.unicycle.limits
         th0 = initial_headings(scenario.seed if seed is None else seed, scenario.n)[rows]
         centre = axle_centre(x0, th0, limits[2])  # the look-ahead point at x0
-        p0 = lookahead_point(centre, th0, limits[2])  # as the simulator starts it
-        return cls(ids, centre, period_s, th0.copy(), p0, limits, queued=queued)
+        return cls(ids, centre, period_s, th0.copy(), x0.copy(), limits, queued=queued)
 
     def command(self, robot: int, velocity: list[float], turn_rad_s: float = 0.0) -> None:
         """A command [m/s] (a unicycle's: ``linear.x`` and ``angular.z`` [rad/s]); one that is

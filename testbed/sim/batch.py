@@ -222,8 +222,6 @@ def run_batch(
         if k == 0 or robots.leader is None:  # a robot is where it went (robots.step)
             # the reference agent follows the trajectory (docs/model.md §3)
             x[k, :, r - 1] = ref_x[k]
-        if k == 0:
-            robots.start(x[0], None if th is None else th[0])
         if k == n_epochs:
             break
         xk = x[k]

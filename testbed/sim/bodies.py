@@ -3,9 +3,8 @@ moves, so that a lockstep run through the stepped plant equals ``formation simul
 
 - A holonomic robot is sent the velocity to ``x[k+1]`` and goes where it takes it
   (:func:`agent.body_step`).
-- A unicycle's look-ahead point is computed from its axle's centre, from the start
-  (:func:`robot_start`); a robot steers by the same inner loop as a simulated unicycle,
-  so only the reference agent differs: its robot is steered toward its trajectory
+- A unicycle robot steers by the same inner loop as a simulated unicycle, so only the
+  reference agent differs: its robot is steered toward its trajectory
   (:func:`agent.drive_unicycle` at :func:`agent.body_velocity`) instead of following it.
 """
 
@@ -16,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from agent import axle_centre, body_step, body_velocity, drive_unicycle, lookahead_point
+from agent import body_step, body_velocity, drive_unicycle
 from formation.scenario import Scenario
 
 Array = npt.NDArray[np.float64]
@@ -40,17 +39,6 @@ class RobotRows:
         ctl = scenario.control
         limits = ctl.unicycle.limits if ctl.dynamics == "unicycle" else None
         return cls(rows, leader, ctl.period_s, limits)
-
-    def start(self, x0: Array, th0: Array | None) -> None:
-        """Unicycles: each robot's ``x[0]`` where its pose puts it, ``c + l h(θ)`` of the
-        axle's centre ``c`` the plant starts it at. x0 : (B, n, 2) [m], th0 : (B, n) [rad]."""
-        if self.limits is None or th0 is None or not self.rows.size:
-            return
-        d, look = x0.shape[-1], self.limits[2]
-        p, th = x0[:, self.rows].reshape(-1, d), th0[:, self.rows].reshape(-1)
-        x0[:, self.rows] = lookahead_point(axle_centre(p, th, look), th, look).reshape(
-            -1, len(self.rows), d
-        )
 
     def step(
         self,

@@ -10,12 +10,11 @@ import numpy as np
 import pytest
 
 from agent import drive_unicycle
-from agent.steering import InnerLoop
+from agent.steering import InnerLoop, confirmed_pose
 from formation.robots import initial_headings
 from formation.scenario import Scenario
 from shell.ros2 import pose_message, pose_yaw
 from testbed.plant.robots import Robots
-from testbed.sim.bodies import RobotRows
 
 NS_PER_S = 1_000_000_000
 
@@ -44,11 +43,10 @@ def test_stepped_unicycles_steered_pose_by_pose_equal_the_simulators_step(
     limits, period_s = scenario.control.unicycle.limits, scenario.control.period_s
     period_ns = round(period_s * NS_PER_S)
     plant = Robots.of(scenario)
-    # the simulator's robots: x[0] where their poses put them
-    x = scenario.initial_positions()[None].copy()
-    th = initial_headings(scenario.seed, scenario.n)[None].copy()
-    RobotRows.of(scenario).start(x, th)
-    p, heading = x[0], th[0]
+    p, heading = scenario.initial_positions(), initial_headings(scenario.seed, scenario.n)
+    for r in range(scenario.n):  # the first pose confirms where the scenario starts it
+        start = (p[r].tolist(), float(heading[r]))
+        assert confirmed_pose(start, *through_a_pose(plant, r), limits[2]) == (*start, True)
     rng = np.random.default_rng(7)
     clipped = 0
     for k in range(6):
