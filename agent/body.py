@@ -153,7 +153,18 @@ class RobotBodies:
                 p, heading, agrees = confirmed_pose(
                     expected[i], pose.centre, pose.heading, self.limits[2]
                 )
-                self.counts["yaw_taken"] += not agrees
+                if not agrees:  # its pose then, not the state expected
+                    self.counts["yaw_taken"] += 1
+                    start, turned = expected[i]
+                    log.warning(
+                        "agent %d: its robot starts at %s heading %r (its pose), not at %s "
+                        "heading %r",
+                        i,
+                        p,
+                        heading,
+                        start,
+                        turned,
+                    )
                 self._start[i] = (p, heading)
             return self._placed()
 

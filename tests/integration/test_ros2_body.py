@@ -144,6 +144,42 @@ def test_lockstep_unicycles_through_the_stepped_plant_equal_the_simulator_to_the
     assert clipped > 0  # the turn limit was reached, and counted alike
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("dynamics", ["single", "unicycle"])
+def test_robots_through_a_join_a_crash_a_restart_and_a_leave_equal_the_simulator(
+    runs_dir: Path, tmp_path: Path, ros_domain: int, dynamics: str
+) -> None:
+    # The stepped plant waits only for the robots whose agent takes part; a robot out of the
+    # team stays where it is, and a joining or restarted agent's new node gets its pose.
+    events = Scenario.from_file(Path(__file__).parents[2] / "scenarios" / "events.toml")
+    control = {"dynamics": dynamics, "gain": 0.1}
+    scenario, path = with_robots(events.with_overrides(control=control), tmp_path)
+    team = scenario.membership
+    with plant(path) as proc:
+        outcome = launch(scenario, strategy="estimate", runs_dir=runs_dir)
+        counts = plant_counts(proc)
+    sim = simulate(scenario, strategy="estimate")
+    seen = np.isfinite(outcome.positions).all(axis=2)  # (E + 1, n): each agent's states
+    np.testing.assert_array_equal(seen, team.published)
+    np.testing.assert_array_equal(outcome.positions[seen], sim.positions[seen])
+    np.testing.assert_array_equal(outcome.bodies, sim.positions)  # out of the team: where it was
+    if dynamics == "unicycle":
+        run = read_run(outcome.run_dir / "run.mcap")
+        assert run.headings is not None and run.saturated is not None
+        assert sim.headings is not None and sim.saturated is not None
+        np.testing.assert_array_equal(run.headings[seen], sim.headings[seen])
+        recorded = run.saturated >= 0
+        np.testing.assert_array_equal(run.saturated[recorded], sim.saturated[recorded])
+    steps = scenario.control.unicycle.inner_steps if dynamics == "unicycle" else 1
+    moves = int(team.present[:-1].sum())  # a command per robot taking part, epoch (sub-step)
+    assert counts == {
+        "commands": moves * steps,
+        "bad_commands": 0,
+        "steps": scenario.epochs * steps,
+        "epoch": scenario.epochs,
+    }
+
+
 @pytest.mark.filterwarnings(
     "ignore:module 'sre_(parse|constants)' is deprecated:DeprecationWarning"
 )

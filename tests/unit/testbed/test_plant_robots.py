@@ -76,3 +76,27 @@ def test_stepped_unicycles_steered_pose_by_pose_equal_the_simulators_step(
         clipped += int(saturated.sum())
     assert plant.epoch == 6 and plant.counts["steps"] == 6 * limits[3]
     assert clipped > 0  # the limits were reached, and counted alike
+
+
+def test_the_stepped_plant_waits_for_the_robots_whose_agent_takes_part_and_holds_the_others(
+    paper: Scenario,
+) -> None:
+    events = [{"epoch": 3, "agent": 5, "action": "crash"},
+              {"epoch": 5, "agent": 5, "action": "restart"},
+              {"epoch": 6, "agent": 4, "action": "leave"}]  # fmt: skip
+    scenario = paper.with_overrides(events=events, epochs=8, body={"kind": "ros2"})
+    plant = Robots.of(scenario)
+    assert plant.starting(0) == {1, 2, 3, 4, 5}
+    assert [plant.starting(k) for k in (3, 5, 6)] == [set(), {5}, set()]
+    for k in range(8):
+        team = scenario.membership.taking_part(k)
+        out = {i: plant.x[i - 1].tolist() for i in range(1, 6) if i not in team}
+        for i in team:
+            plant.command(i, [0.01 * i, -0.02])
+            assert plant.ready() == (i == team[-1])  # the last one taking part completes it
+        plant.step()
+        assert {i: plant.x[i - 1].tolist() for i in out} == out, "out of the team: where it was"
+    assert plant.epoch == 8 and not plant.ready()
+    assert plant.counts["commands"] == sum(
+        len(scenario.membership.taking_part(k)) for k in range(8)
+    )
