@@ -68,6 +68,7 @@ def plant(path: Path, *args: str) -> Iterator[subprocess.Popen[str]]:
             stdout=subprocess.PIPE,
             stderr=log,
             text=True,
+            env={**os.environ, "PYTHONFAULTHANDLER": "1"},  # SIGABRT: every thread's stack
         )
     assert proc.stdout is not None
     try:
@@ -87,9 +88,15 @@ def plant(path: Path, *args: str) -> Iterator[subprocess.Popen[str]]:
 
 
 def plant_counts(proc: subprocess.Popen[str]) -> dict[str, int]:
-    """The counts the plant prints as it stops (SIGTERM)."""
+    """The counts the plant prints as it stops (SIGTERM). A plant that does not stop is
+    aborted, its threads' stacks in its log, and the test fails with what it printed."""
     proc.send_signal(signal.SIGTERM)
-    out, _ = proc.communicate(timeout=20)
+    try:
+        out, _ = proc.communicate(timeout=20)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGABRT)
+        out, _ = proc.communicate(timeout=20)
+        raise AssertionError(f"the plant did not stop in 20 s; it printed {out!r}") from None
     return dict(json.loads(out.strip().splitlines()[-1])["counts"])
 
 
