@@ -6,12 +6,15 @@ measurement noise and link memory.
 """
 
 from agent.control import (
+    axle_centre,
     body_step,
     body_velocity,
-    heading_vector,
+    drive_unicycle,
     held_velocity_step,
     reference_heading,
+    substep_s,
     unicycle_arc,
+    unicycle_substep,
     wrap_angle,
 )
 from agent.epoch import AgentStep, InLinks, agent_epoch
@@ -24,13 +27,16 @@ __all__ = [
     "LinkMemory",
     "Substitution",
     "agent_epoch",
+    "axle_centre",
     "body_step",
     "body_velocity",
-    "heading_vector",
+    "drive_unicycle",
     "held_velocity_step",
     "measurement_noise",
     "reference_heading",
     "state_width",
+    "substep_s",
     "unicycle_arc",
+    "unicycle_substep",
     "wrap_angle",
 ]

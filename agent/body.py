@@ -9,10 +9,11 @@ With ``[body] kind = "ros2"`` (formation/body.py) the agent process is also a RO
   command of epoch ``k`` is in);
 - realtime: the newest pose, as a robot publishes it.
 
-A unicycle (realtime only) publishes its axle's centre and heading; its state is the
-look-ahead point, and the agent runs the robot's inner loop: at each pose it sends the
-``linear.x``, ``angular.z`` (:func:`agent.control.unicycle_twist`) that move the look-ahead
-point at the epoch's velocity.
+A unicycle publishes its axle's centre and heading; its state is the look-ahead point, and
+the agent runs the robot's inner loop: at each pose it sends the ``linear.x``, ``angular.z``
+(:func:`agent.control.unicycle_twist`) that move the look-ahead point at the epoch's
+velocity. In lockstep that is one sub-step of the simulator's loop per pose, to the bit
+(:mod:`agent.steering`).
 
 A pose that is not finite, or further from the last one than the body can move in an epoch,
 is counted and not used; no usable pose for ``pose_timeout_s`` and the body is lost.
@@ -24,14 +25,15 @@ import logging
 import math
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import partial
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from agent.control import heading_vector, unicycle_twist
+from agent.control import unicycle_twist
+from agent.steering import InnerLoop, confirmed_pose, pose_point
 from formation.errors import RuntimeFailure
 from formation.scenario import Scenario
 from shell import NS_PER_S, open_body_link, pose_cdr, twist_cdr
@@ -59,6 +61,7 @@ class _Pose:
     arrived_s: float  # time.monotonic() when it came
     heading: float = 0.0  # [rad]
     robot_xyz: tuple[float, ...] = ()  # as published [robot m]
+    centre: list[float] = field(default_factory=list)  # a unicycle's axle centre [m]
 
 
 class RobotBodies:
@@ -81,9 +84,13 @@ class RobotBodies:
         span = float(np.ptp(scenario.offsets, axis=0).max()) if scenario.n > 1 else 1.0
         self.max_jump_m = 2.0 * (span + 2.0 * scenario.initial.spread_m) + 1.0
         self.unicycle = scenario.control.dynamics == "unicycle"
-        uni = scenario.control.unicycle
-        self.limits = (uni.max_speed_m_s, uni.max_turn_rad_s, uni.lookahead_m, uni.inner_steps)
+        self.limits = scenario.control.unicycle.limits
         self._u: dict[int, Array] = {}  # a unicycle's look-ahead velocity this epoch [m/s]
+        # lockstep unicycles: each robot's inner loop of this epoch, and its x[k], θ[k]
+        self.stepped = self.unicycle and scenario.runtime.mode != "realtime"
+        self._loops: dict[int, InnerLoop] = {}
+        self._start: dict[int, tuple[list[float], float]] = {}
+        self.counts["yaw_taken"] = 0
         self._twists: dict[int, tuple[list[float], float]] = {}  # last sent [robot m/s, rad/s]
         self._subscriptions = [
             self.link.poses(self.body.pose_topic_of(i), partial(self._on_pose, i)) for i in self.ids
@@ -96,10 +103,9 @@ class RobotBodies:
         """On the link's thread: keep the newest usable pose of ``agent`` (a unicycle's: and
         send its next inner-loop command)."""
         d, scale = self.scenario.dimension, self.body.scale
-        position = [c / scale for c in xyz[:d]]
+        centre = position = [c / scale for c in xyz[:d]]
         if self.unicycle:  # the look-ahead point of the axle's centre
-            look = self.limits[2]
-            position = (np.array([position]) + look * heading_vector(np.array([yaw])))[0].tolist()
+            position = pose_point(centre, yaw, self.limits[2])
         with self._cond:
             self.counts["poses"] += 1
             if not all(math.isfinite(c) for c in [*position, yaw]):
@@ -109,18 +115,110 @@ class RobotBodies:
             if last is not None and math.dist(last.position, position) > self.max_jump_m:
                 self.counts["jumps"] += 1
                 return
-            self._poses[agent] = _Pose(stamp, position, time.monotonic(), yaw, tuple(xyz))
+            self._poses[agent] = _Pose(stamp, position, time.monotonic(), yaw, tuple(xyz), centre)
             self._cond.notify_all()
             if self.unicycle and agent in self._u:
                 self._steer(agent, yaw)
+            if agent in self._loops:
+                self._answer(agent, self._loops[agent], centre, yaw, stamp)
+
+    def _answer(
+        self, agent: int, loop: InnerLoop, centre: list[float], yaw: float, at: int
+    ) -> None:
+        """Lockstep: a unicycle's pose of a sub-step → its next twist (none at the epoch's end)."""
+        twist = loop.on_pose(centre, yaw, at)
+        if twist is not None:
+            self._send(agent, *twist)
 
     def _steer(self, agent: int, yaw: float) -> None:
         """A unicycle's inner loop: the speeds that move its look-ahead point at this epoch's
         velocity from heading ``yaw`` (clipped to its limits)."""
         v, w, _ = unicycle_twist(np.array([yaw]), self._u[agent][None, :], self.limits)
-        twist = ([float(v[0]) * self.body.scale, 0.0], float(w[0]))
+        self._send(agent, float(v[0]), float(w[0]))
+
+    def _send(self, agent: int, v: float, w: float) -> None:
+        """A unicycle's twist: ``linear.x`` [m/s] (times ``scale``), ``angular.z`` [rad/s]."""
+        twist = ([v * self.body.scale, 0.0], w)
         self._publishers[agent].publish(*twist)
         self._twists[agent] = twist
+
+    def settle(
+        self, expected: dict[int, tuple[list[float], float]]
+    ) -> tuple[dict[int, list[float]], dict[int, float]]:
+        """Lockstep unicycles, as they start: each robot's ``x[k]`` [m] and ``θ[k]`` [rad] from
+        its newest pose, ``expected`` where it confirms them (agent.steering.confirmed_pose)."""
+        with self._cond:
+            for i in self.ids:
+                pose = self._poses[i]
+                p, heading, agrees = confirmed_pose(
+                    expected[i], pose.centre, pose.heading, self.limits[2]
+                )
+                if not agrees:  # its pose then, not the state expected
+                    self.counts["yaw_taken"] += 1
+                    start, turned = expected[i]
+                    log.warning(
+                        "agent %d: its robot starts at %s heading %r (its pose), not at %s "
+                        "heading %r",
+                        i,
+                        p,
+                        heading,
+                        start,
+                        turned,
+                    )
+                self._start[i] = (p, heading)
+            return self._placed()
+
+    def _placed(self) -> tuple[dict[int, list[float]], dict[int, float]]:
+        """Each robot's ``x[k]`` [m] and ``θ[k]`` [rad] its inner loop starts from."""
+        positions = {i: p for i, (p, _) in self._start.items()}
+        return positions, {i: heading for i, (_, heading) in self._start.items()}
+
+    def steer(self, epoch: int, velocities: dict[int, list[float]]) -> None:
+        """Lockstep unicycles: drive each robot's look-ahead point at its velocity [m/s] over
+        epoch ``epoch``, a twist per pose (:class:`agent.steering.InnerLoop`)."""
+        period_s = self.scenario.control.period_s
+        with self._cond:
+            for i, u in velocities.items():
+                p, heading = self._start[i]
+                loop = InnerLoop(
+                    np.array([u], dtype=float),
+                    np.array([p], dtype=float),
+                    np.array([heading]),
+                    epoch * self.period_ns,
+                    (epoch + 1) * self.period_ns,
+                    period_s,
+                    self.limits,
+                )
+                self._loops[i] = loop
+                self._send(i, *loop.twist())
+                self.last_command[i] = u
+        self.counts["commands"] += len(velocities)
+
+    def wait_steered(
+        self, timeout_s: float
+    ) -> tuple[dict[int, list[float]], dict[int, float], dict[int, int]]:
+        """Lockstep unicycles: once every robot's inner loop has ended, each one's ``x[k+1]``
+        [m], ``θ[k+1]`` [rad] and clipped sub-steps. Raises :class:`BodyLost` for the first
+        robot still steering when no pose came on for ``timeout_s`` [s]."""
+        with self._cond:
+            progress, deadline = -1, 0.0
+            while not all(loop.done for loop in self._loops.values()):
+                now = sum(loop.last_ns for loop in self._loops.values())
+                if now != progress:  # a pose was answered: the robots are there
+                    progress, deadline = now, time.monotonic() + timeout_s
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    lost = next(i for i, loop in self._loops.items() if not loop.done)
+                    end = self._loops[lost].end_ns // self.period_ns
+                    raise BodyLost(lost, self.body.pose_topic_of(lost), timeout_s, end)
+                self._cond.wait(left)
+            saturated = {}
+            for i, loop in self._loops.items():
+                p, heading, saturated[i] = loop.result()
+                self._start[i] = (p, heading)
+                self.counts["yaw_taken"] += loop.yaw_taken
+            self._loops = {}
+            return (*self._placed(), saturated)
 
     def headings(self) -> dict[int, float]:
         """Each robot's newest heading [rad] (a unicycle's)."""

@@ -111,11 +111,8 @@ def step_unicycle(
 
     The agent's position is its look-ahead point ``p = c + l h(θ)``, ``h(θ) = (cos θ,
     sin θ)``, ``c`` the axle's centre. The consensus step asks ``p`` to move at
-    ``u = command / T + v_ref``; the transform (Robotarium's ``si_to_uni``, Olfati-Saber's
-    near-identity diffeomorphism) gives ``v = h · u`` and ``ω = h⊥ · u / l``, ``h⊥ = (−sin θ,
-    cos θ)``, under which ``ṗ = u`` exactly. ``v``, ``ω`` are clipped to the limits and
-    held for each of ``inner_steps`` sub-steps of ``T / inner_steps``, over which the
-    unicycle ``ċ = v h(θ)``, ``θ̇ = ω`` is integrated exactly (an arc).
+    ``u = command / T + v_ref`` (:func:`lookahead_velocity`); the rest is
+    :func:`drive_unicycle`.
 
     Parameters
     ----------
@@ -129,18 +126,71 @@ def step_unicycle(
     -------
     (a, 2) ``p[k+1]`` [m], (a,) ``θ[k+1]`` in ``[−π, π)`` [rad], (a,) sub-steps with a clipped speed
     """
-    look, steps = limits[2], limits[3]
-    u = command / period_s + v_ref
-    dt = period_s / steps
+    u = lookahead_velocity(command, v_ref, period_s)
+    return drive_unicycle(x, heading, u, period_s, limits)
+
+
+def lookahead_velocity(command: Array, v_ref: Array, period_s: float) -> Array:
+    """The velocity the consensus step asks of a unicycle's look-ahead point,
+    ``u = command / T + v_ref``: (a, 2) [m/s] (command [m], v_ref [m/s])."""
+    return command / period_s + v_ref
+
+
+def drive_unicycle(
+    x: Array, heading: Array, u: Array, period_s: float, limits: tuple[float, float, float, int]
+) -> tuple[Array, Array, npt.NDArray[np.int64]]:
+    """Unicycles whose look-ahead points are driven at ``u`` for one period.
+
+    The transform (Robotarium's ``si_to_uni``, Olfati-Saber's near-identity diffeomorphism)
+    gives ``v = h · u`` and ``ω = h⊥ · u / l``, ``h⊥ = (−sin θ, cos θ)``, under which
+    ``ṗ = u`` exactly. ``v``, ``ω`` are clipped to the limits, recomputed from the heading
+    at each of ``inner_steps`` sub-steps of ``T / inner_steps`` and held over it, while the
+    unicycle ``ċ = v h(θ)``, ``θ̇ = ω`` moves along an exact arc (:func:`unicycle_substep`).
+    The heading is wrapped once, at the period's end. A robot's inner loop does the same
+    pose by pose (docs/robots.md).
+
+    x : (a, 2) ``p[k]`` [m]; heading : (a,) ``θ[k]`` [rad]; u : (a, 2) [m/s]. Returns as
+    :func:`step_unicycle`.
+    """
+    look = limits[2]
+    dt = substep_s(period_s, limits)
     p, th = x.copy(), heading.copy()
     saturated = np.zeros(x.shape[0], dtype=np.int64)
-    for _ in range(steps):
+    for _ in range(limits[3]):
         v, w, clipped = unicycle_twist(th, u, limits)
         saturated += clipped
-        centre = p - look * heading_vector(th)
-        centre, th = unicycle_arc(centre, th, v, w, dt)
-        p = centre + look * heading_vector(th)
+        _, th, p = unicycle_substep(p, th, v, w, dt, look)
     return p, wrap_angle(th), saturated
+
+
+def substep_s(period_s: float, limits: tuple[float, float, float, int]) -> float:
+    """One sub-step of a unicycle's inner loop, ``T / inner_steps`` [s]."""
+    return period_s / limits[3]
+
+
+def unicycle_substep(
+    p: Array, heading: Array, v: Array, w: Array, dt_s: float, lookahead_m: float
+) -> tuple[Array, Array, Array]:
+    """One sub-step of :func:`drive_unicycle` from look-ahead points ``p`` and ``heading``,
+    holding ``v``, ``ω`` for ``dt_s``: the axle's centre, the heading (not wrapped) and the
+    look-ahead point after it.
+
+    p : (a, 2) [m]; heading, v, w : (a,) [rad], [m/s], [rad/s]. The centre is recomputed from
+    ``p`` at each sub-step (a float round trip the stepped plant repeats to stay bit-equal).
+    """
+    centre = axle_centre(p, heading, lookahead_m)
+    centre, heading = unicycle_arc(centre, heading, v, w, dt_s)
+    return centre, heading, lookahead_point(centre, heading, lookahead_m)
+
+
+def axle_centre(p: Array, heading: Array, lookahead_m: float) -> Array:
+    """``c = p − l h(θ)``: (a, 2) axle centres of look-ahead points ``p`` (a, 2) [m]."""
+    return p - lookahead_m * heading_vector(heading)
+
+
+def lookahead_point(centre: Array, heading: Array, lookahead_m: float) -> Array:
+    """``p = c + l h(θ)``: (a, 2) look-ahead points of axle centres ``c`` (a, 2) [m]."""
+    return centre + lookahead_m * heading_vector(heading)
 
 
 def heading_vector(heading: Array) -> Array:
@@ -157,7 +207,7 @@ def unicycle_twist(
     heading: Array, u: Array, limits: tuple[float, float, float, int]
 ) -> tuple[Array, Array, npt.NDArray[np.bool_]]:
     """The speeds that move the look-ahead point at ``u``: ``v = h · u``, ``ω = h⊥ · u / l``,
-    clipped to the limits (:func:`step_unicycle`'s inner loop; a robot's ``Twist``).
+    clipped to the limits (:func:`drive_unicycle`'s inner loop; a robot's ``Twist``).
 
     heading : (a,) [rad]; u : (a, 2) [m/s]. Returns (a,) ``v`` [m/s], (a,) ``ω`` [rad/s] and
     (a,) whether either was clipped.

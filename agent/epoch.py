@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from agent.control import step_double, step_single, step_unicycle
+from agent.control import drive_unicycle, lookahead_velocity, step_double, step_single
 from agent.strategies import LinkMemory, Substitution, substitute
 from formation.plugin_api import ControlInputs, command_checked, control_law
 from formation.scenario import Scenario, StrategyName
@@ -74,6 +74,9 @@ class AgentStep:
     substitution: Substitution
     headings: Array | None = None  # (a,) θ[k+1] [rad] (unicycle; None otherwise)
     saturated: npt.NDArray[np.int64] | None = None  # (a,) sub-steps of epoch k with a clipped speed
+    drive: Array | None = (
+        None  # (a, 2) the look-ahead points' velocity over epoch k [m/s] (unicycle)
+    )
 
 
 def agent_epoch(
@@ -145,9 +148,8 @@ def agent_epoch(
     if ctl.dynamics == "unicycle":
         if headings is None:
             raise ValueError("dynamics = 'unicycle' needs the agents' headings")
-        uni = ctl.unicycle
-        limits = (uni.max_speed_m_s, uni.max_turn_rad_s, uni.lookahead_m, uni.inner_steps)
-        nxt, th, sat = step_unicycle(x, headings, cmd, v_ref, ctl.period_s, limits)
-        return AgentStep(nxt, velocities, memory, sub, th, sat)
+        u = lookahead_velocity(cmd, v_ref, ctl.period_s)
+        nxt, th, sat = drive_unicycle(x, headings, u, ctl.period_s, ctl.unicycle.limits)
+        return AgentStep(nxt, velocities, memory, sub, th, sat, u)
     nxt, vel = step_double(x, velocities, cmd, v_ref, ctl.period_s, ctl.damping)
     return AgentStep(nxt, vel, memory, sub)

@@ -467,6 +467,10 @@ class AgentNode:
             start = np.array([now[i] for i in ids], dtype=float)
             u = body_velocity(start, self.runner.x[rows], period_s)
             self.bodies.command(dict(zip(ids, u.tolist(), strict=True)))
+        elif self.bodies.stepped:  # a unicycle: its inner loop, pose by pose (agent.steering)
+            assert self.runner.drive is not None
+            self.bodies.steer(k, dict(zip(ids, self.runner.drive[rows].tolist(), strict=True)))
+            self.runner.place(*self.bodies.wait_steered(timeout_s))
         else:
             u = body_velocity(before[rows], self.runner.x[rows], self.scenario.control.period_s)
             self.bodies.command(dict(zip(ids, u.tolist(), strict=True)))
@@ -483,9 +487,19 @@ class AgentNode:
         thread only watches; realtime: a fixed period, and what has not arrived by a
         phase's deadline is lost.
         """
-        if self.bodies is not None:  # x[0] is where the robots are
-            self.runner.place(self.bodies.wait_poses(None if timing.realtime else 0, FIRST_POSE_S))
-            self._take_headings()
+        if self.bodies is not None:  # x[0] (or a restart's x[k]) is where the robots are
+            poses = self.bodies.wait_poses(None if timing.realtime else 0, FIRST_POSE_S)
+            if self.bodies.stepped:  # a unicycle's x[k], θ[k] as its inner loop takes them
+                assert self.runner.heading is not None
+                rows = {i: self.runner.row[i] for i in self.bodies.ids}
+                expected = {
+                    i: (self.runner.x[r].tolist(), float(self.runner.heading[r]))
+                    for i, r in rows.items()
+                }
+                self.runner.place(*self.bodies.settle(expected))
+            else:
+                self.runner.place(poses)
+                self._take_headings()
             self.bodies.wait_subscribed(FIRST_POSE_S)
         if timing.realtime:
             self.rehearse()  # while the others start: the clock is not running yet

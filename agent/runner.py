@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from agent.control import reference_heading
+from agent.control import body_velocity, reference_heading
 from agent.epoch import InLinks, agent_epoch
 from agent.measurement import NoiseKeys, relative_measurement
 from agent.strategies import LinkMemory, state_width
@@ -69,6 +69,7 @@ class AgentRunner:
         # θ[k] [rad] and the sub-steps of epoch k − 1 with a clipped speed (unicycle only)
         self.heading = initial_headings(seed, scenario.n)[rows].copy() if self.unicycle else None
         self.saturated = np.zeros(len(ids), dtype=np.int64) if self.unicycle else None
+        self.drive: Array | None = None  # (a, 2) the look-ahead velocity of epoch k − 1 [m/s]
         self.memory = LinkMemory.empty(n_links, d, state_width(strategy, d))
         self.v_known = np.zeros((len(ids), d))
         self.epoch = 0
@@ -117,10 +118,21 @@ class AgentRunner:
         self._positions = None
         self.epoch = epoch
 
-    def place(self, positions: dict[int, list[float]]) -> None:
-        """Set ``x_i[k]`` of some agents from their bodies' poses [m] (agent.body)."""
+    def place(
+        self,
+        positions: dict[int, list[float]],
+        headings: dict[int, float] | None = None,
+        saturated: dict[int, int] | None = None,
+    ) -> None:
+        """Set ``x_i[k]`` of some agents from their bodies' poses [m] (agent.body); a unicycle's
+        ``θ_i[k]`` [rad] and the sub-steps of epoch ``k − 1`` whose twist was clipped."""
         for i, p in positions.items():
             self.x[self.row[i]] = p
+        if self.heading is not None and self.saturated is not None:
+            for i, h in (headings or {}).items():
+                self.heading[self.row[i]] = h
+            for i, count in (saturated or {}).items():
+                self.saturated[self.row[i]] = count
         self._positions = None
 
     def pose(self, agent: int) -> tuple[float, int] | None:
@@ -233,7 +245,7 @@ class AgentRunner:
             self.memory = self.memory.put(rows, result.memory)
             sub = result.substitution.spread(rows, n_links)
         self.velocity = result.velocities
-        self.x = result.positions
+        x_before, self.x, self.drive = self.x, result.positions, result.drive
         self._positions = None
         before = self.heading
         if result.headings is not None and result.saturated is not None:
@@ -244,6 +256,11 @@ class AgentRunner:
                 step = self._ref[k + 1] - self._ref[k]
                 self.heading[self.ref_row] = reference_heading(before[self.ref_row], step)
                 self.saturated[self.ref_row] = 0  # it does not steer by its command
+            if self.drive is not None:  # its robot's, toward the trajectory (testbed/sim/bodies.py)
+                period_s = self.scenario.control.period_s
+                self.drive[self.ref_row] = body_velocity(
+                    x_before[self.ref_row], self._ref[k + 1], period_s
+                )
         self.substituted = {i: [] for i in self.ids}
         for row in np.flatnonzero(sub.substituted).tolist():
             receiver, sender = self._pairs[row]

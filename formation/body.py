@@ -118,31 +118,22 @@ def _known(v: str, types: tuple[str, ...]) -> str:
 
 
 def body_problems(
-    body: Body, n: int, dynamics: str, events: int = 0, mode: str = "lockstep"
+    body: Body, n: int, events: int = 0, mode: str = "lockstep"
 ) -> list[tuple[str, object, str]]:
     """``(field, value, problem)`` of ``[body]`` against the team (``events``: how many the
-    scenario has); empty when it can run."""
+    scenario has; ``mode``: its runtime's); empty when it can run."""
     for k, i in enumerate(body.agents):
         if not 1 <= i <= n:
             return [(f"body.agents[{k}]", i, f"agent does not exist (agents are 1..{n})")]
     if len(set(body.agents)) != len(body.agents):
         return [("body.agents", list(body.agents), "an agent is listed twice")]
-    if body.kind in ROS_BODIES and events:
+    if body.kind in ROS_BODIES and events and mode == "realtime":
         return [
             (
                 "body.kind",
                 body.kind,
                 f"the scenario has {events} events (leave, crash, join, restart), which robots "
-                "do not follow yet: the stepped plant would wait for an agent that is out",
-            )
-        ]
-    if body.kind in ROS_BODIES and dynamics == "unicycle" and mode != "realtime":
-        return [
-            (
-                "control.dynamics",
-                dynamics,
-                f"a unicycle with a {body.kind} body runs in realtime only (its inner loop "
-                "steers at each pose); set runtime.mode = 'realtime'",
+                "follow in lockstep only (the stepped plant); set runtime.mode = 'lockstep'",
             )
         ]
     return []

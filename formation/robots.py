@@ -33,6 +33,12 @@ class Unicycle(_Settings):
     lookahead_m: float = Field(0.05, gt=0.0)  # l [m]
     inner_steps: int = Field(20, ge=1)  # speed commands per epoch (the robot's inner loop)
 
+    @property
+    def limits(self) -> tuple[float, float, float, int]:
+        """``(max_speed_m_s, max_turn_rad_s, lookahead_m, inner_steps)``, as
+        ``agent.control.drive_unicycle`` takes them."""
+        return (self.max_speed_m_s, self.max_turn_rad_s, self.lookahead_m, self.inner_steps)
+
 
 class Bounds(_Settings):
     """An axis-aligned box ``[min_m, max_m]`` per coordinate [m]."""

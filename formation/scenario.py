@@ -558,7 +558,7 @@ def _problems(s: Scenario) -> list[tuple[str, object, str]]:
     events = event_problems(n, s.leader, s.epochs, pairs, s.events, s.allow_split)
     if events:
         return events
-    body = body_problems(s.body, n, s.control.dynamics, len(s.events), s.runtime.mode)
+    body = body_problems(s.body, n, len(s.events), s.runtime.mode)
     if body:
         return body
     probed = _probe_plugins(s)

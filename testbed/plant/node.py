@@ -7,8 +7,12 @@ pose (the scenario's pose type), on the topics and QoS of the scenario's ``[body
   again every ``FIRST_POSE_S`` until its first command comes (a DDS reader that matches
   after the writer misses what the writer sent in between); once every robot's command of
   epoch ``k`` is in, every robot moves one period and the poses
-  go out stamped ``k + 1`` (sim time ``(k + 1) T``). A lockstep run through it equals
-  ``formation simulate`` to the bit.
+  go out stamped ``k + 1`` (sim time ``(k + 1) T``). It follows the scenario's membership:
+  only the robots whose agent takes part at ``k`` are waited for and move, and a robot whose
+  agent joins or restarts at ``k`` gets its pose as at epoch 0, until its first command. A unicycle moves one sub-step of the
+  simulator's inner loop per command, and its poses go out stamped with the sub-step's sim
+  time, ``inner_steps`` an epoch, the last one ``(k + 1) T``. A lockstep run through it
+  equals ``formation simulate`` to the bit.
 - **free**: every ``1 / rate_hz`` each robot moves by the last command it got (stopping when
   none came for ``pose_timeout_s``), and the poses go out stamped with the wall clock, as a
   robot does.
@@ -22,14 +26,13 @@ import time
 from functools import partial
 from typing import Any, Literal
 
-from formation.errors import TestbedError
 from formation.scenario import Scenario
 from shell import NS_PER_S, BodyLink, open_body_link
 from testbed.plant.robots import Robots
 
 log = logging.getLogger("ros2-plant")
 Clock = Literal["stepped", "free"]
-FIRST_POSE_S = 0.1  # [s] how often the stepped clock sends epoch 0's poses until commanded
+FIRST_POSE_S = 0.1  # [s] how often the stepped clock sends a starting robot's pose
 
 
 class Plant:
@@ -46,11 +49,6 @@ class Plant:
         session: Any = None,
     ) -> None:
         self.scenario, self.body, self.clock = scenario, scenario.body, clock
-        if clock == "stepped" and scenario.control.dynamics == "unicycle":
-            raise TestbedError(
-                f"{scenario.name}: control.dynamics = 'unicycle' takes the free-running plant "
-                "(--clock free, a realtime run): the stepped clock moves holonomic robots"
-            )
         self.robots = Robots.of(scenario, seed)
         if not self.robots.ids:
             raise ValueError(f"{scenario.name}: no agent has a ROS 2 body (body.kind)")
@@ -59,7 +57,10 @@ class Plant:
         self.done = threading.Event()  # stepped: the scenario's last epoch is reached
         self.closing = threading.Event()
         self._lock = threading.Lock()
-        self._commanded: set[int] = set()  # stepped: robots whose first command came
+        # stepped: robots whose agent starts (at epoch 0, a join, a restart) and has not sent
+        # its first command yet
+        self._awaited = self.robots.starting(0)
+        self._started = False  # every robot taking part at epoch 0 has sent a command
         self._last_command_ns: dict[int, int] = {}
         self._publishers = {
             i: self.link.pose_publisher(self.body.pose_topic_of(i)) for i in self.robots.ids
@@ -70,7 +71,7 @@ class Plant:
         }
         rate = rate_hz or 1.0 / (scenario.runtime.realtime_period_s or scenario.control.period_s)
         self.dt_s = 1.0 / rate
-        loop = self._first_poses if clock == "stepped" else self._free_running
+        loop = self._starting_poses if clock == "stepped" else self._free_running
         self._thread = threading.Thread(target=loop, name=f"plant-{clock}", daemon=True)
         self._thread.start()
 
@@ -80,34 +81,42 @@ class Plant:
             position = [float(c) * scale for c in self.robots.x[r]]
             self._publishers[self.robots.ids[r]].publish(position, stamp_ns, self.robots.yaw(r))
 
-    def _first_poses(self) -> None:
-        """Stepped: epoch 0's pose to each robot not commanded yet whose topics are matched,
-        every ``FIRST_POSE_S`` until every robot has sent its first command."""
+    def _starting_poses(self) -> None:
+        """Stepped: the pose of each robot whose agent starts, once its topics are matched,
+        every ``FIRST_POSE_S`` until its first command comes."""
         while not self.closing.wait(FIRST_POSE_S):
             with self._lock:
                 for r, i in enumerate(self.robots.ids):
                     if (
-                        i not in self._commanded
+                        i in self._awaited
                         and self._publishers[i].matched()
                         and self._subscriptions[i].matched()
                     ):
-                        self._publish([r], 0)
-                if len(self._commanded) == len(self.robots.ids):
-                    log.info("stepped: every robot has sent its first command")
-                    return
+                        self._publish([r], self._stamp_ns())
+
+    def _stamp_ns(self) -> int:
+        """The sim time of the robots' state: ``(k + s / inner_steps) T`` [ns]."""
+        steps = self.robots.limits[3]
+        return self.robots.epoch * self.period_ns + self.robots.substep * self.period_ns // steps
 
     def _on_command(self, robot: int, velocity: list[float], turn_rad_s: float) -> None:
         u = [c / self.body.scale for c in velocity[: self.scenario.dimension]]
         with self._lock:
             self.robots.command(robot, u, turn_rad_s)
             self._last_command_ns[robot] = time.monotonic_ns()
-            self._commanded.add(robot)
             if self.clock != "stepped":
                 return
+            self._awaited.discard(robot)
+            if not self._awaited and not self._started:
+                self._started = True
+                log.info("stepped: every robot has sent its first command")
             while self.robots.ready():
-                self.robots.step_epoch()
+                self.robots.step()
+                self._publish(list(range(len(self.robots.ids))), self._stamp_ns())
                 k = self.robots.epoch
-                self._publish(list(range(len(self.robots.ids))), k * self.period_ns)
+                if self.robots.substep:
+                    continue
+                self._awaited |= self.robots.starting(k)  # a join or a restart at k
                 if k == self.scenario.epochs:
                     log.info("stepped: epoch %d, the scenario's last, reached", k)
                     self.done.set()

@@ -30,7 +30,6 @@ from agent import (
     LinkMemory,
     Substitution,
     agent_epoch,
-    body_step,
     reference_heading,
     state_width,
 )
@@ -39,6 +38,7 @@ from formation.robots import initial_headings
 from formation.scenario import StrategyName
 from leader import HealthyRigidity, Leader, LeaderEpochs
 from recorder import formation_error, nees, shape_error, team_errors
+from testbed.sim.bodies import RobotRows
 from testbed.sim.plan import VARIANT_FIELDS, BatchError, BatchPlan, newest_late, plan_batch
 from testbed.sim.presence import Presence
 from testbed.sim.ranged import RangedEpochs
@@ -217,13 +217,11 @@ def run_batch(
     saturated = np.zeros((n_epochs, size, n), dtype=np.int64) if unicycle else None
     if th is not None:
         th[0] = np.stack([initial_headings(int(s), n) for s in plan.seeds.tolist()])
-    robots = np.array(base.body.robots(n), dtype=np.int64) - 1  # rows of ROS 2 bodies
-    leader_robot = base.body.has_robot(r)
+    robots = RobotRows.of(base)  # the agents whose body is a ROS 2 robot (docs/robots.md)
     for k in range(n_epochs + 1):
-        if k == 0 or not leader_robot:  # a robot is where its velocity took it (below)
-            x[k, :, r - 1] = ref_x[
-                k
-            ]  # the reference agent follows the trajectory (docs/model.md §3)
+        if k == 0 or robots.leader is None:  # a robot is where it went (robots.step)
+            # the reference agent follows the trajectory (docs/model.md §3)
+            x[k, :, r - 1] = ref_x[k]
         if k == n_epochs:
             break
         xk = x[k]
@@ -302,12 +300,9 @@ def run_batch(
                 th[k + 1, :, frozen] = th[k, :, frozen]
                 saturated[k, :, frozen] = 0
         x[k + 1] = nxt
-        if robots.size:  # a ROS 2 body is sent a velocity and goes where it takes it
-            if leader_robot:  # sent toward its trajectory
-                x[k + 1, :, r - 1] = ref_x[k + 1]
-            x[k + 1][:, robots] = body_step(
-                xk[:, robots], x[k + 1][:, robots], base.control.period_s
-            )
+        turned = None if th is None else (th[k], th[k + 1])
+        clipped = None if saturated is None else saturated[k]
+        robots.step(xk, x[k + 1], ref_x[k + 1], turned, clipped)
 
     result = BatchResult(
         plan=plan,

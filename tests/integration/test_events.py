@@ -20,6 +20,7 @@ from mcap.reader import make_reader
 
 from formation.messages import Status
 from formation.scenario import Scenario
+from recorder import read_run
 from testbed.runtime.launcher import RunOutcome, launch
 from testbed.sim.simulate import simulate
 
@@ -139,3 +140,21 @@ def test_a_recorded_event_run_reports_who_was_in_the_team(runs_dir: Path) -> Non
         ("join agent 6", [1, 2, 3, 4, 5, 6]), ("crash agent 3", [1, 2, 4, 5, 6]),
         ("restart agent 3", [1, 2, 3, 4, 5, 6]), ("leave agent 5", [1, 2, 3, 4, 6]),
     ]  # fmt: skip
+
+
+def test_a_restarted_unicycle_faces_where_its_body_stopped(paper: Scenario, runs_dir: Path) -> None:
+    # netem's answer to a restarted agent carries its last heading as well as its position
+    scenario = paper.with_overrides(
+        epochs=30,
+        control={"dynamics": "unicycle", "gain": 0.1},
+        events=[{"epoch": 10, "agent": 3, "action": "crash"},
+                {"epoch": 20, "agent": 3, "action": "restart"}],
+    )  # fmt: skip
+    outcome = launch(scenario, strategy="hold", runs_dir=runs_dir)
+    run = read_run(outcome.run_dir / "run.mcap")
+    sim = simulate(scenario, strategy="hold")
+    seen = np.isfinite(outcome.positions).all(axis=2)
+    assert run.headings is not None and sim.headings is not None
+    np.testing.assert_array_equal(outcome.positions[seen], sim.positions[seen])
+    np.testing.assert_array_equal(run.headings[seen], sim.headings[seen])
+    assert run.headings[20, 2] == run.headings[10, 2], "restarted facing where it stopped"

@@ -67,6 +67,7 @@ def plant(path: Path, *args: str) -> Iterator[subprocess.Popen[str]]:
             stdout=subprocess.PIPE,
             stderr=log,
             text=True,
+            env={**os.environ, "PYTHONFAULTHANDLER": "1"},  # SIGABRT: every thread's stack
         )
     assert proc.stdout is not None
     try:
@@ -86,9 +87,15 @@ def plant(path: Path, *args: str) -> Iterator[subprocess.Popen[str]]:
 
 
 def plant_counts(proc: subprocess.Popen[str]) -> dict[str, int]:
-    """The counts the plant prints as it stops (SIGTERM)."""
+    """The counts the plant prints as it stops (SIGTERM). A plant that does not stop is
+    aborted, its threads' stacks in its log, and the test fails with what it printed."""
     proc.send_signal(signal.SIGTERM)
-    out, _ = proc.communicate(timeout=20)
+    try:
+        out, _ = proc.communicate(timeout=20)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGABRT)
+        out, _ = proc.communicate(timeout=20)
+        raise AssertionError(f"the plant did not stop in 20 s; it printed {out!r}") from None
     return dict(json.loads(out.strip().splitlines()[-1])["counts"])
 
 
@@ -109,6 +116,74 @@ def test_a_lockstep_run_through_the_stepped_plant_equals_the_simulator_to_the_bi
             "steps": scenario.epochs,
             "epoch": scenario.epochs,
         }
+
+
+@pytest.mark.slow
+def test_lockstep_unicycles_through_the_stepped_plant_equal_the_simulator_to_the_bit(
+    paper: Scenario, runs_dir: Path, tmp_path: Path, ros_domain: int
+) -> None:
+    # Each robot's inner loop pose by pose: 20 twists an epoch per robot, the reference
+    # agent's robot steered toward its trajectory; positions, headings and the clipped
+    # sub-steps as recorded equal the simulator's.
+    control = {"dynamics": "unicycle", "gain": 0.1, "unicycle": {"max_turn_rad_s": 0.5}}
+    scenario, path = with_robots(paper.with_overrides(control=control, epochs=30), tmp_path)
+    steps = scenario.control.unicycle.inner_steps
+    clipped = 0
+    for strategy in STRATEGIES:
+        with plant(path) as proc:
+            outcome = launch(scenario, strategy=strategy, runs_dir=runs_dir)  # type: ignore[arg-type]
+            counts = plant_counts(proc)
+        sim = simulate(scenario, strategy=strategy)  # type: ignore[arg-type]
+        run = read_run(outcome.run_dir / "run.mcap")
+        assert sim.headings is not None and sim.saturated is not None
+        np.testing.assert_array_equal(outcome.positions, sim.positions, err_msg=strategy)
+        np.testing.assert_array_equal(run.positions, sim.positions, err_msg=strategy)
+        np.testing.assert_array_equal(run.headings, sim.headings, err_msg=strategy)
+        np.testing.assert_array_equal(run.saturated, sim.saturated, err_msg=strategy)
+        assert counts == {
+            "commands": scenario.n * scenario.epochs * steps,
+            "bad_commands": 0,
+            "steps": scenario.epochs * steps,
+            "epoch": scenario.epochs,
+        }
+        clipped += int(sim.saturated.sum())
+    assert clipped > 0  # the turn limit was reached, and counted alike
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("dynamics", ["single", "unicycle"])
+def test_robots_through_a_join_a_crash_a_restart_and_a_leave_equal_the_simulator(
+    runs_dir: Path, tmp_path: Path, ros_domain: int, dynamics: str
+) -> None:
+    # The stepped plant waits only for the robots whose agent takes part; a robot out of the
+    # team stays where it is, and a joining or restarted agent's new node gets its pose.
+    events = Scenario.from_file(Path(__file__).parents[2] / "scenarios" / "events.toml")
+    control = {"dynamics": dynamics, "gain": 0.1}
+    scenario, path = with_robots(events.with_overrides(control=control), tmp_path)
+    team = scenario.membership
+    with plant(path) as proc:
+        outcome = launch(scenario, strategy="estimate", runs_dir=runs_dir)
+        counts = plant_counts(proc)
+    sim = simulate(scenario, strategy="estimate")
+    seen = np.isfinite(outcome.positions).all(axis=2)  # (E + 1, n): each agent's states
+    np.testing.assert_array_equal(seen, team.published)
+    np.testing.assert_array_equal(outcome.positions[seen], sim.positions[seen])
+    np.testing.assert_array_equal(outcome.bodies, sim.positions)  # out of the team: where it was
+    if dynamics == "unicycle":
+        run = read_run(outcome.run_dir / "run.mcap")
+        assert run.headings is not None and run.saturated is not None
+        assert sim.headings is not None and sim.saturated is not None
+        np.testing.assert_array_equal(run.headings[seen], sim.headings[seen])
+        recorded = run.saturated >= 0
+        np.testing.assert_array_equal(run.saturated[recorded], sim.saturated[recorded])
+    steps = scenario.control.unicycle.inner_steps if dynamics == "unicycle" else 1
+    moves = int(team.present[:-1].sum())  # a command per robot taking part, epoch (sub-step)
+    assert counts == {
+        "commands": moves * steps,
+        "bad_commands": 0,
+        "steps": scenario.epochs * steps,
+        "epoch": scenario.epochs,
+    }
 
 
 @pytest.mark.filterwarnings(

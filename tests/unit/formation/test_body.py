@@ -99,24 +99,23 @@ def test_bad_body_settings_name_file_field_and_value(tmp_path: Path, text: str, 
         load(write(tmp_path, f"[body]\n{kind}{text}\n"))
 
 
-def test_a_ros2_unicycle_runs_in_realtime_only(tmp_path: Path) -> None:
+def test_a_ros2_unicycle_runs_in_lockstep_and_in_realtime(tmp_path: Path) -> None:
+    # lockstep steps its inner loop through the stepped plant (docs/robots.md)
     unicycle = '[control]\ndynamics = "unicycle"\n[body]\nkind = "ros2"\n'
-    with pytest.raises(
-        ScenarioError,
-        match=r"control\.dynamics = 'unicycle'; a unicycle with a ros2 body runs in realtime "
-        r"only \(its inner loop steers at each pose\); set runtime\.mode = 'realtime'",
-    ):
-        load(write(tmp_path, unicycle))
-    realtime = load(write(tmp_path, unicycle + '[runtime]\nmode = "realtime"\n'))
-    assert realtime.body.robots(realtime.n) == [1, 2, 3]
+    for mode in ("lockstep", "realtime"):
+        scenario = load(write(tmp_path, unicycle + f'[runtime]\nmode = "{mode}"\n'))
+        assert scenario.body.robots(scenario.n) == [1, 2, 3]
 
 
-def test_robots_with_scenario_events_are_refused_for_now() -> None:
+def test_robots_follow_scenario_events_in_lockstep_only() -> None:
     events = Path(__file__).resolve().parents[3] / "scenarios" / "events.toml"
     text = events.read_text() + '\n[body]\nkind = "ros2"\n'
+    assert load_dict(tomllib.loads(text), source="events.toml").body.robots(6) == [*range(1, 7)]
+    realtime = text + '\n[runtime]\nmode = "realtime"\n'
     with pytest.raises(
         ScenarioError,
-        match=r"body\.kind = 'ros2'; the scenario has \d+ events \(leave, crash, join, restart\), "
-        r"which robots do not follow yet",
+        match=r"body\.kind = 'ros2'; the scenario has 4 events \(leave, crash, join, restart\), "
+        r"which robots follow in lockstep only \(the stepped plant\); set runtime\.mode = "
+        r"'lockstep'$",
     ):
-        load_dict(tomllib.loads(text), source="events.toml")
+        load_dict(tomllib.loads(realtime), source="events.toml")
