@@ -7,12 +7,14 @@ import json
 import logging
 import signal
 import sys
-import threading
+import time
 from typing import Any
 
 from formation.scenario import Scenario
 from shell import add_arguments, open_session, require_ros2
 from testbed.plant import Plant
+
+STOP_POLL_S = 0.1  # [s] how soon a SIGTERM is acted on
 
 
 def cmd_plant(args: argparse.Namespace) -> int:
@@ -28,15 +30,18 @@ def cmd_plant(args: argparse.Namespace) -> int:
         )
         return 1
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
-    stop = threading.Event()
+    # a flag, not an Event: a handler that sets an Event deadlocks if the signal lands while
+    # this thread holds the Event's lock
+    stopping: list[int] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+        signal.signal(sig, lambda signum, _: stopping.append(signum))
     # rmw_zenoh: the robots speak rmw_zenoh's format on a Zenoh session of the flags
     session = open_session(args) if scenario.body.kind == "rmw_zenoh" else None
     plant = Plant(scenario, args.clock, args.rate_hz, args.seed, session=session)
     print(json.dumps({"ready": True, "robots": plant.robots.ids, "clock": args.clock}), flush=True)
     try:
-        stop.wait()
+        while not stopping:
+            time.sleep(STOP_POLL_S)
     finally:
         counts = plant.counts
         plant.close()

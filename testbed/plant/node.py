@@ -33,6 +33,7 @@ from testbed.plant.robots import Robots
 log = logging.getLogger("ros2-plant")
 Clock = Literal["stepped", "free"]
 FIRST_POSE_S = 0.1  # [s] how often the stepped clock sends a starting robot's pose
+COUNTS_WAIT_S = 5.0  # [s] the longest the counts wait for the robots' lock
 
 
 class Plant:
@@ -137,8 +138,18 @@ class Plant:
 
     @property
     def counts(self) -> dict[str, int]:
-        with self._lock:
+        """The robots' counts and epoch; read unlocked after ``COUNTS_WAIT_S`` (logged), so a
+        callback stuck inside ROS 2 while holding the lock cannot hang the plant's exit."""
+        locked = self._lock.acquire(timeout=COUNTS_WAIT_S)
+        try:
+            if not locked:
+                log.warning(
+                    "the robots' lock was held for %g s; counts read without it", COUNTS_WAIT_S
+                )
             return {**self.robots.counts, "epoch": self.robots.epoch}
+        finally:
+            if locked:
+                self._lock.release()
 
     def close(self) -> None:
         self.closing.set()
