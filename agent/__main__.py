@@ -13,6 +13,7 @@ from formation.errors import TestbedError
 from formation.plugin_api import PLUGIN_EXIT, PLUGIN_FAILED, PluginFailure
 from shell import (
     Service,
+    exit_process,
     load_scenario,
     open_service,
     require_ros2,
@@ -108,4 +109,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    exit_process(main())  # past rclpy's teardown, if a body used it

@@ -16,7 +16,7 @@ from shell.bus import (
 )
 from shell.config_files import check_readable
 from shell.rmw_zenoh import ADMIN_SPACE, pose_cdr, topic_key, twist_cdr
-from shell.ros2 import NS_PER_S, require_ros2
+from shell.ros2 import NS_PER_S, exit_process, require_ros2
 from shell.service import Incoming, Service, settle_heap
 from shell.serving import load_scenario, open_service, serve, service_parser
 from shell.stack_dump import DUMP_SIGNAL, dump_stacks_on_signal
@@ -57,6 +57,7 @@ __all__ = [
     "check_readable",
     "dump_stacks_on_signal",
     "endpoints",
+    "exit_process",
     "load_scenario",
     "open_body_link",
     "open_service",

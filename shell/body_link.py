@@ -103,7 +103,7 @@ class RclpyLink:
         return _RosEndpoint(pub, lambda u, w: pub.publish(twist_message(cls, u, w)))
 
     def close(self) -> None:
-        self.node.close()
+        self.node.close(destroy=False)  # the process ends next, by shell.exit_process
 
 
 class _ZenohEndpoint:
