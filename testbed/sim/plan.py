@@ -118,9 +118,9 @@ class BatchPlan:
         )
 
 
-def _offered(passed: Mask, present: Mask | None, links: Ints, n: int) -> Mask:
-    """(E, L + 2n) the packets the queues see: passed by the models, between agents taking
-    part (netem's lockstep neither sends nor routes the others: issue 20's events)."""
+def offered(passed: Mask, present: Mask | None, links: Ints, n: int) -> Mask:
+    """(E, L + 2n) the packets the queues see (``passed``, ``present`` (E, n)): passed by the
+    models, between agents taking part (netem's lockstep neither sends nor routes the others: issue 20's events)."""
     if present is None:
         return passed
     on = np.concatenate(
@@ -215,8 +215,8 @@ def plan_batch(
             delivered_all = mat.delivered
             if s.network.capacity and not decided.ranged:  # the queues see what the models
                 # passed, delayed or not; a ranged member's, epoch by epoch (testbed.sim.ranged)
-                offered = _offered(mat.delivered, team_k, links, n)
-                delivered_all = mat.delivered & (capacity_plan(s, offered, all_links) == 0)
+                seen = offered(mat.delivered, team_k, links, n)
+                delivered_all = mat.delivered & (capacity_plan(s, seen, all_links) == 0)
                 ok = ok & delivered_all
             cache[key] = (
                 delivered_all[:, :n_links],

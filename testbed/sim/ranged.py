@@ -16,7 +16,7 @@ import numpy.typing as npt
 
 from formation.scenario import LEADER_ENDPOINT
 from netem import CapacityPlanner, link_lengths
-from testbed.sim.plan import BatchPlan
+from testbed.sim.plan import BatchPlan, offered
 
 Array = npt.NDArray[np.float64]
 Mask = npt.NDArray[np.bool_]
@@ -64,7 +64,9 @@ class RangedEpochs:
             delivered, _, delay = decisions.at(k, lengths[row])
             queues = self.queues[row]
             if queues is not None:  # the queues see what the models passed, delayed or not
-                delivered = delivered & (queues.epoch(k, self._offered(k, delivered)) == 0)
+                present = None if self.present is None else self.present[k : k + 1]
+                seen = offered(delivered[None], present, self.links, n)[0]
+                delivered = delivered & (queues.epoch(k, seen) == 0)
             ok = delivered & (delay == 0)
             on_time[k, b] = ok[:n_links]
             report_ok[k, b] = ok[n_links : n_links + n]
@@ -75,14 +77,6 @@ class RangedEpochs:
                 self.late.setdefault(int(arrival), []).append(
                     (b * n_links + sel, np.full(sel.size, k, dtype=np.int64))
                 )
-
-    def _offered(self, k: int, passed: Mask) -> Mask:
-        """Epoch ``k``'s packets between agents taking part (as ``testbed.sim.plan``'s)."""
-        if self.present is None:
-            return passed
-        on = self.present[k]
-        both = on[self.links[:, 0] - 1] & on[self.links[:, 1] - 1]
-        return np.asarray(passed & np.concatenate([both, on, on]), dtype=np.bool_)
 
     def landing(self, k: int) -> list[tuple[Ints, Ints]]:
         """The delayed packets of the ranged members landing at epoch ``k`` (flat link, sent)."""

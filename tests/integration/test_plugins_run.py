@@ -23,7 +23,7 @@ from recorder import load_run, read_run
 from testbed.cli import main
 from testbed.runtime.launcher import launch
 from testbed.sim.simulate import simulate
-from testkit.dask_processes import DaskProcesses
+from testkit.dask_processes import DaskProcesses, dask_cluster
 
 pytestmark = pytest.mark.integration
 
@@ -79,15 +79,8 @@ def test_sweep_with_every_strategy_lists_the_plugin_in_critical_md(tmp_path: Pat
 
 @pytest.fixture
 def cluster(tmp_path: Path) -> Iterator[DaskProcesses]:
-    logs = tmp_path / "dask-logs"
-    logs.mkdir()
-    c = DaskProcesses(logs)
-    try:
-        c.start_scheduler()
-        c.start_workers(1)
+    with dask_cluster(tmp_path / "dask-logs", workers=1) as c:
         yield c
-    finally:
-        c.end()
 
 
 @pytest.mark.slow

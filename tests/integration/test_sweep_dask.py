@@ -18,7 +18,7 @@ import pytest
 
 from testbed.cli import main
 from testbed.experiments.sweep import SweepError, read_rows
-from testkit.dask_processes import DaskProcesses, child_env, end
+from testkit.dask_processes import DaskProcesses, child_env, dask_cluster, end
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
@@ -45,15 +45,8 @@ CELLS = 5 * 2 * 160
 
 @pytest.fixture
 def cluster(tmp_path: Path) -> Iterator[DaskProcesses]:
-    logs = tmp_path / "dask-logs"
-    logs.mkdir()
-    c = DaskProcesses(logs)
-    try:
-        c.start_scheduler()
-        c.start_workers(2)
+    with dask_cluster(tmp_path / "dask-logs", workers=2) as c:
         yield c
-    finally:
-        c.end()
 
 
 def sweep(paper_path: Path, out: Path, *extra: str, log: Path) -> subprocess.Popen[bytes]:

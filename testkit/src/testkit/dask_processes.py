@@ -17,6 +17,7 @@ import os
 import signal
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import distributed
@@ -143,4 +144,17 @@ class DaskProcesses:
             end(proc)
 
 
-__all__ = ["HOST", "DaskProcesses", "child_env", "end"]
+@contextlib.contextmanager
+def dask_cluster(logs: Path, workers: int) -> Iterator[DaskProcesses]:
+    """A scheduler and ``workers`` workers, their logs in ``logs`` (made); ended by PID on exit."""
+    logs.mkdir(parents=True, exist_ok=True)
+    cluster = DaskProcesses(logs)
+    try:
+        cluster.start_scheduler()
+        cluster.start_workers(workers)
+        yield cluster
+    finally:
+        cluster.end()
+
+
+__all__ = ["HOST", "DaskProcesses", "child_env", "dask_cluster", "end"]
