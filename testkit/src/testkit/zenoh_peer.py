@@ -29,6 +29,7 @@ from shell import Service, session_config
 
 HOST = "127.0.0.1"
 WAIT_S = 30.0  # longest wait for any readiness [s]
+EXIT_GRACE_S = 2.0  # [s] for the last messages of a process that has exited
 
 
 def free_port() -> int:
@@ -72,8 +73,12 @@ def wait_for(
     condition: Callable[[], bool], proc: subprocess.Popen[bytes] | None, what: str, log: Path
 ) -> None:
     deadline = time.monotonic() + WAIT_S
+    exited_at: float | None = None
     while not condition():
-        if proc is not None and proc.poll() is not None:
+        if exited_at is None and proc is not None and proc.poll() is not None:
+            exited_at = time.monotonic()  # what it sent last may still be on its way
+        if exited_at is not None and time.monotonic() - exited_at > EXIT_GRACE_S:
+            assert proc is not None
             pytest.fail(
                 f"process exited ({proc.returncode}) while waiting for {what}:\n{log.read_text()[-3000:]}"
             )
