@@ -9,18 +9,10 @@ import time
 
 from agent.body import RobotBodies
 from agent.node import WATCH_S, AgentNode
+from body import exit_process, require_ros2
 from formation.errors import TestbedError
 from formation.plugin_api import PLUGIN_EXIT, PLUGIN_FAILED, PluginFailure
-from shell import (
-    Service,
-    exit_process,
-    load_scenario,
-    open_service,
-    require_ros2,
-    serve,
-    service_parser,
-    time_policy,
-)
+from shell import Service, load_scenario, open_service, serve, service_parser, time_policy
 
 log = logging.getLogger("agent")
 

@@ -1,7 +1,7 @@
 """An agent's body on ROS 2: its state from the robot's pose, its command as a ``Twist``.
 
 With ``[body] kind = "ros2"`` (formation/body.py) the agent process is also a ROS 2 node
-(:mod:`shell.ros2`). After each step it sends the velocity that takes its body from
+(:mod:`body.ros2`). After each step it sends the velocity that takes its body from
 ``x[k]`` to the ``x[k+1]`` it computed, ``u = (x[k+1] − x[k]) / T`` [m/s], and then takes
 ``x[k+1]`` from the robot's pose (docs/robots.md):
 
@@ -34,9 +34,9 @@ import numpy.typing as npt
 
 from agent.control import unicycle_twist
 from agent.steering import InnerLoop, confirmed_pose, pose_point
+from body import NS_PER_S, open_body_link, pose_cdr, twist_cdr
 from formation.errors import RuntimeFailure
 from formation.scenario import Scenario
-from shell import NS_PER_S, open_body_link, pose_cdr, twist_cdr
 
 log = logging.getLogger("agent.body")
 FIRST_POSE_S = 60.0  # [s] for the first pose: the plant or the robot may still be starting

@@ -5,7 +5,7 @@ agent process. ``kind = "ros2"`` makes the agent process also a ROS 2 node (rclp
 optional extra ``ros2``): it takes its state from its robot's pose topic and sends its
 command as a ``geometry_msgs/msg/Twist`` on the command topic (docs/robots.md).
 ``kind = "rmw_zenoh"`` is the same exchange over the run's Zenoh session in rmw_zenoh's
-wire format, with no DDS (shell/rmw_zenoh.py).
+wire format, with no DDS (body/rmw_zenoh.py).
 
 Topics are templates on the agent id (``/robot{id}/pose``); message types are checked here,
 at load, against the types the bodies can read and write.

@@ -5,7 +5,6 @@ a :class:`Bus`: :class:`ZenohBus` in the product, :class:`MemoryBus` in unit tes
 node runs one loop under a :class:`TimePolicy`, :class:`Lockstep` or :class:`Realtime`.
 """
 
-from shell.body_link import BodyLink, open_body_link
 from shell.bus import (
     Bus,
     MemoryBus,
@@ -15,8 +14,6 @@ from shell.bus import (
     ZenohBus,
 )
 from shell.config_files import check_readable
-from shell.rmw_zenoh import ADMIN_SPACE, pose_cdr, topic_key, twist_cdr
-from shell.ros2 import NS_PER_S, exit_process, require_ros2
 from shell.service import Incoming, Service, settle_heap
 from shell.serving import load_scenario, open_service, serve, service_parser
 from shell.stack_dump import DUMP_SIGNAL, dump_stacks_on_signal
@@ -33,13 +30,10 @@ from shell.zenoh_config import (
 )
 
 __all__ = [
-    "ADMIN_SPACE",
     "DUMP_SIGNAL",
     "MEMBERS_ENV",
     "MEMBERS_FILE_ENV",
     "MEMBER_ENV",
-    "NS_PER_S",
-    "BodyLink",
     "Bus",
     "Incoming",
     "Lockstep",
@@ -57,19 +51,13 @@ __all__ = [
     "check_readable",
     "dump_stacks_on_signal",
     "endpoints",
-    "exit_process",
     "load_scenario",
-    "open_body_link",
     "open_service",
     "open_session",
     "open_with_retry",
-    "pose_cdr",
-    "require_ros2",
     "serve",
     "service_parser",
     "session_config",
     "settle_heap",
     "time_policy",
-    "topic_key",
-    "twist_cdr",
 ]

@@ -10,8 +10,9 @@ import sys
 import time
 from typing import Any
 
+from body import exit_process, require_ros2
 from formation.scenario import Scenario
-from shell import add_arguments, exit_process, open_session, require_ros2
+from shell import add_arguments, open_session
 from testbed.plant import Plant
 
 STOP_POLL_S = 0.1  # [s] how soon a SIGTERM is acted on
@@ -48,7 +49,7 @@ def cmd_plant(args: argparse.Namespace) -> int:
         if session is not None:
             session.close()
     print(json.dumps({"counts": counts}), flush=True)
-    exit_process(0)  # past rclpy's teardown (shell.ros2.RosNode.close)
+    exit_process(0)  # past rclpy's teardown (body.ros2.RosNode.close)
     return 0
 
 

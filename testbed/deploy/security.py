@@ -41,10 +41,11 @@ from typing import Any
 
 import zenoh
 
+from body import ADMIN_SPACE, topic_key
 from formation import keys
 from formation.body import Body
 from formation.errors import TestbedError
-from shell import ADMIN_SPACE, check_readable, topic_key
+from shell import check_readable
 
 ANY_RUN = "*"  # the run-id chunk of every rule: one key set serves every run
 ROUTER_USER = "router"

@@ -26,8 +26,8 @@ import time
 from functools import partial
 from typing import Any, Literal
 
+from body import NS_PER_S, BodyLink, open_body_link
 from formation.scenario import Scenario
-from shell import NS_PER_S, BodyLink, open_body_link
 from testbed.plant.robots import Robots
 
 log = logging.getLogger("ros2-plant")

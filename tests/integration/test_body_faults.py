@@ -12,8 +12,9 @@ import pytest
 import zenoh
 
 from agent.body import BodyLost, RobotBodies
+from body import open_body_link
 from formation.scenario import Scenario
-from shell import open_body_link, session_config
+from shell import session_config
 from testkit.zenoh_peer import free_port
 
 pytestmark = pytest.mark.integration

@@ -12,9 +12,9 @@ from typing import Any
 import pytest
 import zenoh
 
+from body.rmw_zenoh import RmwZenohNode, pose_cdr, read_pose, twist_cdr
 from formation.body import Qos
 from shell import session_config
-from shell.rmw_zenoh import RmwZenohNode, pose_cdr, read_pose, twist_cdr
 from testkit.zenoh_peer import free_port
 
 pytestmark = pytest.mark.integration

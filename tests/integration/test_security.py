@@ -292,8 +292,8 @@ def test_rmw_zenoh_robots_and_their_agents_pass_the_closed_router(tmp_path: Path
     sends poses and reads commands; agent 1 commands its robot and reads its pose, and may not
     command robot 2. Every node's liveliness token reaches the other side."""
     pytest.importorskip("rosbags", reason="the ros2 extra")
+    from body.rmw_zenoh import RmwZenohNode, pose_cdr, read_pose, read_twist, twist_cdr
     from formation.body import Body, Qos
-    from shell.rmw_zenoh import RmwZenohNode, pose_cdr, read_pose, read_twist, twist_cdr
 
     body = Body(kind="rmw_zenoh", domain_id=3)
     keyset = security.generate(tmp_path / "keys", n_agents=2, body=body)

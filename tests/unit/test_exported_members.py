@@ -1,7 +1,7 @@
 """Each service's root is its interface, in both directions (as httpx's test_exported_members).
 
 What another package, a benchmark, an example or the harness takes from a service (or the
-shell) is in that package's ``__all__``, and each name of ``__all__`` is taken by someone
+shell, the body) is in that package's ``__all__``, and each name of ``__all__`` is taken by someone
 outside the package. That no module inside a service is imported from outside is the import
 contract's (``lint-imports``, pyproject.toml); this test reads the checkout's sources.
 """
@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-SERVICES = ("agent", "leader", "netem", "recorder", "shell")
+SERVICES = ("agent", "leader", "netem", "recorder", "shell", "body")
 # Where code outside the services lives: the other product packages, benchmarks, examples, harness.
 SOURCES = ("formation", *SERVICES, "testbed", "bench", "examples", "testkit/src/testkit", "tests")
 

@@ -11,9 +11,9 @@ import pytest
 
 from agent import drive_unicycle
 from agent.steering import InnerLoop, confirmed_pose
+from body.ros2 import pose_message, pose_yaw
 from formation.robots import initial_headings
 from formation.scenario import Scenario
-from shell.ros2 import pose_message, pose_yaw
 from testbed.plant.robots import Robots
 
 NS_PER_S = 1_000_000_000

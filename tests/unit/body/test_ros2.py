@@ -1,4 +1,4 @@
-"""The ROS 2 side of the shell: the extra's check, and the body's messages through rclpy's CDR."""
+"""The ROS 2 body: the extra's check, and the body's messages through rclpy's CDR."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from shell import require_ros2
-from shell.ros2 import Ros2Missing, pose_message, pose_position, stamp_ns, twist_message
+from body import require_ros2
+from body.ros2 import Ros2Missing, pose_message, pose_position, stamp_ns, twist_message
 
 REPO = Path(__file__).resolve().parents[3]
 

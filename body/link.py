@@ -9,9 +9,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, Protocol
 
-from formation.body import Body
-from shell.rmw_zenoh import RmwZenohNode, pose_cdr, read_pose, read_twist, twist_cdr
-from shell.ros2 import (
+from body.rmw_zenoh import RmwZenohNode, pose_cdr, read_pose, read_twist, twist_cdr
+from body.ros2 import (
     RosNode,
     open_ros_node,
     pose_message,
@@ -21,6 +20,7 @@ from shell.ros2 import (
     twist_message,
     twist_velocity,
 )
+from formation.body import Body
 
 OnPose = Callable[[list[float], int, float], None]  # position [robot m], stamp [ns], yaw [rad]
 OnCommand = Callable[[list[float], float], None]  # linear [robot m/s], angular.z [rad/s]
@@ -66,7 +66,7 @@ class _RosEndpoint:
 
 
 class RclpyLink:
-    """Over DDS, through an rclpy node (:class:`shell.ros2.RosNode`)."""
+    """Over DDS, through an rclpy node (:class:`body.ros2.RosNode`)."""
 
     def __init__(self, name: str, body: Body) -> None:
         self.body = body
@@ -103,7 +103,7 @@ class RclpyLink:
         return _RosEndpoint(pub, lambda u, w: pub.publish(twist_message(cls, u, w)))
 
     def close(self) -> None:
-        self.node.close(destroy=False)  # the process ends next, by shell.exit_process
+        self.node.close(destroy=False)  # the process ends next, by body.exit_process
 
 
 class _ZenohEndpoint:
@@ -122,7 +122,7 @@ class _ZenohEndpoint:
 
 
 class ZenohLink:
-    """rmw_zenoh's wire format on a Zenoh session (:mod:`shell.rmw_zenoh`), in domain
+    """rmw_zenoh's wire format on a Zenoh session (:mod:`body.rmw_zenoh`), in domain
     ``body.domain_id`` (default 0)."""
 
     def __init__(self, session: Any, name: str, body: Body) -> None:

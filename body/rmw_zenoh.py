@@ -197,7 +197,7 @@ def twist_cdr(velocity: list[float], angular_z: float = 0.0) -> bytes:
 
 def read_pose(type_name: str, data: bytes) -> tuple[list[float], int, float]:
     """A CDR ``PoseStamped`` or ``Odometry`` → (position [robot m], stamp [ns], yaw [rad])."""
-    from shell.ros2 import yaw_of
+    from body.ros2 import yaw_of
 
     msg = typestore().deserialize_cdr(data, type_name)
     pose = msg.pose.pose if type_name == "nav_msgs/msg/Odometry" else msg.pose

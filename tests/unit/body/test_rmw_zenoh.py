@@ -9,8 +9,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from formation.body import Qos
-from shell.rmw_zenoh import (
+from body.rmw_zenoh import (
     attachment,
     dds_type_name,
     endpoint_token,
@@ -24,6 +23,7 @@ from shell.rmw_zenoh import (
     twist_cdr,
     type_hash,
 )
+from formation.body import Qos
 
 pytest.importorskip("rosbags", reason="the ros2 extra")
 TYPES = ("geometry_msgs/msg/Twist", "geometry_msgs/msg/PoseStamped", "nav_msgs/msg/Odometry")
@@ -40,7 +40,7 @@ def test_a_pose_in_cdr_is_the_bytes_rclpy_serializes(type_name: str) -> None:
     pytest.importorskip("rclpy")
     from rclpy.serialization import serialize_message
 
-    from shell.ros2 import message_class, pose_message
+    from body.ros2 import message_class, pose_message
 
     # Frame names of 3 and 11 letters: CDR then needs no alignment padding, which rclpy's
     # serializer leaves as whatever was in its buffer (rosbags writes zeros).
@@ -61,7 +61,7 @@ def test_a_twist_in_cdr_is_the_bytes_rclpy_serializes() -> None:
     from geometry_msgs.msg import Twist
     from rclpy.serialization import serialize_message
 
-    from shell.ros2 import twist_message
+    from body.ros2 import twist_message
 
     assert twist_cdr(ODD[:2]) == serialize_message(twist_message(Twist, ODD[:2]))
     assert twist_cdr([0.1], -1.5) == serialize_message(twist_message(Twist, [0.1], -1.5))
@@ -89,7 +89,7 @@ def rclpy_node(monkeypatch: pytest.MonkeyPatch, tmp_path: object) -> Iterator[ob
 
 @rclpy_warnings
 def test_the_type_hashes_are_those_rclpy_announces(rclpy_node: object) -> None:
-    from shell.ros2 import message_class
+    from body.ros2 import message_class
 
     node: object = rclpy_node
     for k, type_name in enumerate(TYPES):

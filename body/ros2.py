@@ -1,7 +1,7 @@
 """A ROS 2 node beside the bus: rclpy on its own context and thread, and the body's messages.
 
 rclpy is the optional extra ``ros2`` (formation/body.py); nothing here imports it before
-:func:`open_ros_node`, so the shell works without it, and a scenario that needs it is
+:func:`open_ros_node`, so the services work without it, and a scenario that needs it is
 refused by :func:`require_ros2` with the extra to install. The node spins on a thread of
 its own (its callbacks run there), on a context of its own: rclpy's default context would
 install its own SIGINT and SIGTERM handlers over the service's (shell/serving.py).
