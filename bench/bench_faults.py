@@ -23,7 +23,8 @@ from pathlib import Path
 from typing import Any
 
 from formation.scenario import Scenario
-from testbed.runtime.launcher import RunOutcome, launch
+from testbed.runtime.launcher import launch
+from testbed.runtime.outcome import RunOutcome
 
 SEED = 1
 EPOCHS = 1500

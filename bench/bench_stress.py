@@ -48,7 +48,8 @@ from formation.errors import RuntimeFailure
 from formation.scenario import STRATEGIES, Scenario
 from formation.topics import METRICS_TOPIC, SCENE_TOPIC, TF_TOPIC
 from shell import session_config
-from testbed.runtime.launcher import RunOutcome, launch
+from testbed.runtime.launcher import launch
+from testbed.runtime.outcome import RunOutcome
 from testbed.runtime.processes import free_port
 from testbed.sim.simulate import simulate
 from testkit import foxglove_client as fc

@@ -9,7 +9,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -129,6 +129,39 @@ class ProcessGroup:
             elif time.monotonic() - stable_since >= settle_s:
                 return
             time.sleep(0.02)
+
+    def wait_for(
+        self,
+        cond: Callable[[], bool],
+        timeout_s: float,
+        what: str,
+        detail: Callable[[], str] | None = None,
+        ignore: Iterable[object] | Callable[[], Iterable[object]] = (),
+        check: Callable[[], None] | None = None,
+    ) -> None:
+        """Wait for ``cond``; a child failing meanwhile is an error unless among the ``ignore``d
+        losses (or pids, or a callable giving them); ``check()`` is called first each time."""
+        deadline = time.monotonic() + timeout_s
+        while not cond():
+            if check is not None:
+                check()
+            gone = ignore() if callable(ignore) else ignore
+            lost = {getattr(loss, "pid", loss) for loss in gone}  # losses, or planned pids
+            failed = [c for c in self.failed() if c.pid not in lost]
+            if failed:
+                c = failed[0]
+                raise RuntimeFailure(
+                    f"{c.name} (pid {c.pid}) exited with code {c.proc.returncode} while waiting "
+                    f"for {what}; its log is {c.log_path}:\n{c.tail()}"
+                )
+            if time.monotonic() > deadline:
+                more = "" if detail is None else detail()
+                self.dump_stacks()
+                raise RuntimeFailure(
+                    f"timed out after {timeout_s:g} s waiting for {what}{more}; "
+                    f"each process's threads are at the end of its log in {self.log_dir}"
+                )
+            time.sleep(0.01)
 
     def stop_all(self) -> None:
         """End children newest first, so the router and the recorder (started first) go last."""

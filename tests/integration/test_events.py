@@ -21,7 +21,8 @@ from mcap.reader import make_reader
 from formation.messages import Status
 from formation.scenario import Scenario
 from recorder import read_run
-from testbed.runtime.launcher import RunOutcome, launch
+from testbed.runtime.launcher import launch
+from testbed.runtime.outcome import RunOutcome
 from testbed.sim.simulate import simulate
 
 from .conftest import pid_alive, run_pids

@@ -23,7 +23,8 @@ from formation.errors import RuntimeFailure
 from formation.scenario import Scenario
 from recorder.analysis.rundata import read_run
 from recorder.reading.recovery import recover
-from testbed.runtime.launcher import RunOutcome, launch
+from testbed.runtime.launcher import launch
+from testbed.runtime.outcome import RunOutcome
 from testkit.run_watch import KillAtEpoch, KillOnSpawn, read_pids
 
 from .conftest import pid_alive, run_pids

@@ -25,7 +25,8 @@ from recorder import load_run
 from recorder.playback.player import LIVE_KEYS, Replayer
 from recorder.reading.decoder import as_dict, decode_kind
 from recorder.recording.schemas import classify
-from testbed.runtime.launcher import RunOutcome, launch
+from testbed.runtime.launcher import launch
+from testbed.runtime.outcome import RunOutcome
 from testkit.run_watch import KillAtEpoch
 
 pytestmark = pytest.mark.integration

@@ -25,6 +25,7 @@ import zenoh
 
 from formation import keys
 from shell.zenoh_config import session_config
+from testbed.runtime.launcher import OnStarted
 
 
 def read_pids(run_dir: Path) -> dict[str, int]:
@@ -74,7 +75,7 @@ class KillAtEpoch:
 
         self._session.declare_subscriber(keys.agent_state(run_id, self.watch), on_state)
 
-    def hook(self, runs_dir: Path) -> Any:
+    def hook(self, runs_dir: Path) -> OnStarted:
         """An ``on_started`` hook for :func:`testbed.runtime.launcher.launch`."""
         return lambda run_id, endpoint: self.start(runs_dir / run_id, run_id)
 

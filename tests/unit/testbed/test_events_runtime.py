@@ -10,7 +10,7 @@ import pytest
 from formation.errors import RuntimeFailure
 from formation.scenario import Scenario
 from testbed.runtime.events import EventDriver, bodies
-from testbed.runtime.launcher import RunOutcome
+from testbed.runtime.outcome import RunOutcome
 
 
 def test_events_need_one_process_per_agent(paper: Scenario) -> None:
