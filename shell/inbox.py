@@ -54,7 +54,7 @@ class Kind:
     link: Callable[[str, int, DeliveredPacket], str]  # (run, receiver, packet) → its link's key
     belongs: Callable[[int, DeliveredPacket, Any], bool]  # whether that link can carry it
     epoch: Callable[[DeliveredPacket, Any], int]  # the epoch it is an input of
-    key: Callable[[DeliveredPacket, Any], Hashable]  # realtime: a copy of it files on its own
+    key: Callable[[DeliveredPacket, Any], Hashable]  # realtime: one filed per key (a copy replaces)
     delayed: bool  # lockstep: packets delayed from earlier epochs are inputs too
     copies: bool  # realtime: a copy of a used packet that came in time is no miss
     taken: str | None  # the count of packets taken in time, if the node keeps one
@@ -123,6 +123,7 @@ class _Receivers:
     ) -> None:
         self.service, self.run_id = service, service.run_id
         self.receivers = list(receivers)
+        self._ours = set(self.receivers)  # a pool of hundreds looks each delivery up
         self.counts = counts  # the node's status counts: realtime writes into them
 
     def _delivery(self, msg: Incoming) -> Delivery | None:
@@ -131,7 +132,7 @@ class _Receivers:
         if delivery is None:
             return None
         receiver = delivery.receiver
-        if receiver not in self.receivers or not msg.key.endswith(f"/{receiver}/{delivery.phase}"):
+        if receiver not in self._ours or not msg.key.endswith(f"/{receiver}/{delivery.phase}"):
             self.service.malformed.counts[msg.key] += 1  # another receiver's: unusable
             return None
         return delivery
@@ -202,6 +203,8 @@ class RealtimeInbox(_Receivers):
         # receiver → packet key → (epoch, packet, payload), by phase
         self.filed: dict[str, dict[int, dict[Hashable, tuple[int, DeliveredPacket, Any]]]] = {}
         self.taken: dict[str, int] = {}  # phase → the last epoch taken
+        # phase → (receiver, epoch) → the senders of what is filed: whether a phase is complete
+        self.senders: dict[str, dict[tuple[int, int], set[int]]] = {}
         # phase → epoch → (receiver, sender) whose packet was used: a later copy is no miss
         self.used: dict[str, dict[int, set[tuple[int, int]]]] = {}
 
@@ -219,11 +222,13 @@ class RealtimeInbox(_Receivers):
         phase, r = delivery.phase, delivery.receiver
         kind = KINDS[phase]
         box = self.filed.setdefault(phase, {}).setdefault(r, {})
+        senders = self.senders.setdefault(phase, {})
         taken = self.taken.get(phase, -1)
         for p, payload in self._decode(kind, r, delivery.packets):
             epoch = kind.epoch(p, payload)
             if epoch > taken:
                 box[kind.key(p, payload)] = (epoch, p, payload)
+                senders.setdefault((r, epoch), set()).add(p.source)
             elif not (kind.copies and self._copy(phase, r, p, epoch, msg.arrived_ns)):
                 # late, or stamped in time but queued after the deadline's take (scheduling)
                 self._count(kind.late)
@@ -239,11 +244,8 @@ class RealtimeInbox(_Receivers):
             self.counts[name] += n
 
     def _complete(self, phase: str, epoch: int, expect: int) -> bool:
-        boxes = self.filed.get(phase, {})
-        return all(
-            len({p.source for e, p, _ in boxes.get(r, {}).values() if e == epoch}) >= expect
-            for r in self.receivers
-        )
+        senders = self.senders.get(phase, {})
+        return all(len(senders.get((r, epoch), ())) >= expect for r in self.receivers)
 
     def take(self, phase: str, epoch: int, expect: int | None = None, early: str = "") -> Take:
         complete = None if expect is None else partial(self._complete, phase, epoch, expect)
@@ -263,6 +265,8 @@ class RealtimeInbox(_Receivers):
             self._count(kind.taken, n := sum(kind.epoch(p, m) == epoch for p, m in got[r]))
             self.counts["in_time"] += n
         self.taken[phase] = epoch
+        senders = self.senders.get(phase, {})
+        self.senders[phase] = {q: v for q, v in senders.items() if q[1] > epoch}
         if kind.copies:
             used = self.used.setdefault(phase, {})
             used[epoch] = fresh
