@@ -1,10 +1,8 @@
 """The agent process: one agent, or a pool of agents sharing one bus session (``--ids``).
 
 One loop, under a time policy (:mod:`shell.timing`, docs/architecture.md "Time"): publish
-``x_i[k]``; take the states (lockstep: netem's delivery of the state phase, every packet
-it passed this epoch in one message; realtime: what netem forwarded, a delivery per
-wake-up of netem's, until the state deadline); report tokens and measurements; take the
-estimate the same way; step to ``x_i[k+1]``. A pool takes each phase for all its agents
+``x_i[k]``; take the states from the phase inbox (:mod:`shell.inbox`); report tokens and
+measurements; take the estimate the same way; step to ``x_i[k+1]``. A pool takes each phase for all its agents
 at once, in one vectorised step (the leader waits for every report anyway, so this costs
 no time)."""
 
@@ -14,8 +12,7 @@ import copy
 import logging
 import threading
 import time
-from dataclasses import dataclass, field
-from functools import partial
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -27,24 +24,15 @@ from agent.runner import AgentRunner, Estimate, Packet, Report
 from formation import keys
 from formation.body import BODY_LOST_EXIT
 from formation.codec import attachment
-from formation.deadlines import CAUSES, USED_KEPT, cause
+from formation.deadlines import CAUSES
 from formation.errors import RuntimeFailure
-from formation.messages import AgentEstimate, CoordinationState, Delivery, TokenReport
-from formation.realtime import ESTIMATE_DEADLINE, STATE_DEADLINE, Clock
+from formation.messages import AgentEstimate, CoordinationState, DeliveredPacket, TokenReport
+from formation.realtime import ESTIMATE_DEADLINE, STATE_DEADLINE
 from formation.scenario import Scenario, StrategyName
-from shell import Incoming, Loop, Service, TimePolicy, Wait
+from shell import Loop, PhaseInbox, Service, TimePolicy
 
 log = logging.getLogger("agent")
 WATCH_S = 0.25  # how often the main thread looks for netem's liveliness and a signal
-
-
-@dataclass
-class _Inbox:
-    """What has arrived for one agent and not yet been used."""
-
-    packets: dict[tuple[int, int], object] = field(default_factory=dict)  # (source, seq) → Packet
-    estimates: dict[int, object] = field(default_factory=dict)  # epoch → AgentEstimate
-    deliveries: dict[tuple[str, int], Delivery] = field(default_factory=dict)  # lockstep
 
 
 def state_message(
@@ -84,10 +72,11 @@ def report_message(head: dict[str, Any], agent: int, report: Report) -> bytes:
     )
 
 
-def _estimate(est: object) -> Estimate | None:
-    if not isinstance(est, AgentEstimate):
-        return None  # lost, or malformed
-    return Estimate(dict(zip(est.neighbours, est.positions, strict=False)), est.v_ref)
+def _estimate(delivered: Iterable[tuple[DeliveredPacket, AgentEstimate]]) -> Estimate | None:
+    """The first estimate delivered, if any (none: lost, or malformed)."""
+    for _, est in delivered:
+        return Estimate(dict(zip(est.neighbours, est.positions, strict=False)), est.v_ref)
+    return None
 
 
 class AgentNode:
@@ -108,13 +97,8 @@ class AgentNode:
         self.cpu_at_start_s = 0.0
         self.run_id = service.run_id
         self.runner = AgentRunner(scenario, ids, strategy, seed)
-        self.inbox = {i: _Inbox() for i in ids}
-        self.phase = "state"  # waiting for the delivery of this phase, for every agent
-        self.waiting: set[int] = set(ids)  # agents not yet ready for the phase
+        self.inbox: PhaseInbox | None = None  # the time policy's, from the run's start
         self.finished = threading.Event()  # the last epoch is done: the watching thread leaves
-        self.taken = -1  # realtime: the last epoch whose packets were taken
-        # realtime: epoch → agents whose estimate was used (a later copy is no miss)
-        self.used_estimates: dict[int, set[int]] = {}
         self.end = scenario.epochs  # lockstep: the epoch of this process's last state
         self.deadline = {
             "packets": 0,
@@ -126,8 +110,6 @@ class AgentNode:
             "in_time": 0,
             **dict.fromkeys(CAUSES, 0),
         }
-        self.clock: Clock | None = None  # realtime: set by run
-        self.held: list[Incoming] = []  # realtime: queued after a deadline, routed after it
         # Realtime: queued, taken at each deadline (Service.take_by); lockstep: a pool handles
         # each delivery on Zenoh's thread.
         direct = len(ids) > 1 and scenario.runtime.mode != "realtime"
@@ -208,92 +190,6 @@ class AgentNode:
         log.warning("restarted: taking part again from epoch %d at %s", epoch, positions)
         return epoch
 
-    # -- inbound ----------------------------------------------------------------------------------
-    def _delivery(self, msg: Incoming) -> Delivery | None:
-        """netem's delivery, if it is for one of this process's agents on its own key."""
-        delivery = self.service.malformed.decode(msg.key, msg.payload, Delivery)
-        if delivery is None:
-            return None
-        receiver = delivery.receiver
-        if receiver not in self.inbox or not msg.key.endswith(f"/{receiver}/{delivery.phase}"):
-            self.service.malformed.counts[msg.key] += 1  # another receiver's: unusable
-            return None
-        return delivery
-
-    def _take_delivery(self, msg: Incoming) -> int | None:
-        """Lockstep: keep netem's delivery for its receiver; returns that receiver if ours."""
-        delivery = self._delivery(msg)
-        if delivery is None or delivery.epoch < self.runner.epoch:
-            return None  # not ours, or a copy of one already used
-        receiver = delivery.receiver
-        self.inbox[receiver].deliveries[(delivery.phase, delivery.epoch)] = delivery
-        return receiver
-
-    def _packets(self, i: int, delivery: Delivery) -> list[Packet]:
-        """The coordination packets of a state delivery; a malformed one is counted and lost."""
-        decoded = self.service.malformed.decode_packets(
-            delivery.packets,
-            CoordinationState,
-            lambda p: keys.link_state(self.run_id, p.source, i),
-            lambda p, state: state.agent == p.source,
-        )
-        return [Packet(i, p.source, p.sent_epoch, tuple(s.position)) for p, s in decoded]
-
-    def _estimate_of(self, i: int, delivery: Delivery) -> Estimate | None:
-        current = (p for p in delivery.packets if p.sent_epoch == delivery.epoch)  # delayed: no use
-        decoded = self.service.malformed.decode_packets(
-            current,
-            AgentEstimate,
-            lambda p: keys.link_estimate(self.run_id, i),
-            lambda p, est: est.agent == i,  # another agent's part is unusable
-        )
-        first = next(decoded, None)
-        return None if first is None else _estimate(first[1])
-
-    def _route(self, msg: Incoming) -> None:
-        """Realtime: file what netem forwarded at one wake-up in its receiver's inbox.
-
-        A packet of an epoch already taken missed its deadline (counted by cause)."""
-        delivery = self._delivery(msg)
-        if delivery is None:
-            return
-        i = delivery.receiver
-        box = self.inbox[i]
-        if delivery.phase == "state":
-            for p, state in self.service.malformed.decode_packets(
-                delivery.packets,
-                CoordinationState,
-                lambda p: keys.link_state(self.run_id, p.source, i),
-                lambda p, state: state.agent == p.source,
-            ):
-                if p.sent_epoch <= self.taken:
-                    self._missed("state", p.sent_epoch, state.stamp_ns, msg.arrived_ns)
-                else:
-                    position = tuple(state.position)
-                    box.packets[(p.source, p.seq)] = Packet(i, p.source, p.sent_epoch, position)
-            return
-        for _, est in self.service.malformed.decode_packets(
-            delivery.packets,
-            AgentEstimate,
-            lambda p: keys.link_estimate(self.run_id, i),
-            lambda p, est: est.agent == i,  # another agent's part is unusable
-        ):
-            if self.taken >= 0 and est.epoch < self.runner.epoch:
-                assert self.clock is not None  # realtime
-                in_time = msg.arrived_ns <= self.clock.at(est.epoch, ESTIMATE_DEADLINE)
-                if not in_time or i not in self.used_estimates.get(est.epoch, ()):
-                    # late, or stamped in time but queued after the deadline's take (scheduling)
-                    self._missed("estimate", est.epoch, est.stamp_ns, msg.arrived_ns)
-                # else a copy of one already used, in a step before the deadline
-            else:
-                box.estimates[est.epoch] = est
-
-    def _missed(self, kind: str, epoch: int, stamp_ns: int, arrived_ns: int) -> None:
-        """Count a packet that missed its deadline, and its cause (formation.deadlines)."""
-        assert self.clock is not None
-        self.deadline["late_packets" if kind == "state" else "late_estimates"] += 1
-        self.deadline[cause(self.clock, kind, epoch, stamp_ns, arrived_ns)] += 1
-
     # -- publishing -------------------------------------------------------------------------------
     def _publish_states(self, ids: list[int] | None = None) -> None:
         k = self.runner.epoch
@@ -326,7 +222,7 @@ class AgentNode:
             lacks = None if answer is None else answer.get("missing")
             if not isinstance(lacks, list):
                 return False  # no answer, or not one we can read (counted by ask)
-            missing = [i for i in lacks if i in self.inbox]
+            missing = [i for i in lacks if i in self.runner.row]
             if not missing:
                 return True
             log.warning("netem lacks the final states of agents %s: publishing them again", missing)
@@ -335,97 +231,31 @@ class AgentNode:
                 log.error("netem still lacks the final states of agents %s", missing)
                 return False
 
-    # -- taking a phase's inputs -----------------------------------------------------------------
-    def _ready(self, i: int) -> bool:
-        return (self.phase, self.runner.epoch) in self.inbox[i].deliveries
-
-    def _start_phase(self, phase: str) -> None:
-        self.phase = phase
-        self.waiting = {i for i in self.ids if not self._ready(i)}
-
-    def _all_in(self) -> bool:
-        """Lockstep: every agent has netem's delivery of the phase."""
-        return not self.waiting
-
-    def _on_delivery(self, msg: Incoming) -> None:
-        """Lockstep: file netem's delivery. Only the receiver a message is for can become
-        ready: a pool of hundreds checks one."""
-        receiver = self._take_delivery(msg)
-        if receiver in self.waiting and self._ready(receiver):
-            self.waiting.discard(receiver)
-
-    def _delivered_packets(self, k: int) -> list[Packet]:
-        """Lockstep: the packets of each agent's state delivery of epoch ``k``."""
-        packets = []
-        for i in self.ids:
-            packets += self._packets(i, self.inbox[i].deliveries.pop(("state", k)))
-        return packets
-
-    def _queued_packets(self, k: int) -> list[Packet]:
-        """Realtime: the packets of epochs up to ``k`` that came by the state deadline."""
-        packets = []
-        for i in self.ids:
-            box = self.inbox[i]
-            packets += [
-                p for p in box.packets.values() if isinstance(p, Packet) and p.sent_epoch <= k
-            ]
-            # a neighbour ahead of this process: its next epoch's packets wait for it
-            box.packets = {
-                q: p for q, p in box.packets.items() if isinstance(p, Packet) and p.sent_epoch > k
-            }
-        self.deadline["packets"] += (fresh := sum(p.sent_epoch == k for p in packets))
-        self.deadline["in_time"] += fresh
-        self.taken = k
-        return packets
-
-    def _delivered_estimates(self, k: int) -> dict[int, Estimate | None]:
-        """Lockstep: each agent's estimate in its estimate delivery of epoch ``k``."""
-        return {
-            i: self._estimate_of(i, self.inbox[i].deliveries.pop(("estimate", k))) for i in self.ids
-        }
-
-    def _queued_estimates(self, k: int) -> dict[int, Estimate | None]:
-        """Realtime: each agent's estimate of epoch ``k``, if it came by the deadline."""
-        got: dict[int, Estimate | None] = {}
-        for i in self.ids:
-            est = self.inbox[i].estimates.pop(k, None)
-            self.inbox[i].estimates = {e: v for e, v in self.inbox[i].estimates.items() if e > k}
-            got[i] = _estimate(est)
-            self.deadline["estimates"] += got[i] is not None
-            self.deadline["in_time"] += got[i] is not None
-        self.used_estimates[k] = {i for i, est in got.items() if est is not None}
-        self.used_estimates.pop(k - USED_KEPT, None)
-        return got
-
-    def _has_estimates(self, epoch: int) -> bool:
-        return all(epoch in self.inbox[i].estimates for i in self.ids)
-
     # -- the loop ---------------------------------------------------------------------------------
-    def _epochs(self, timing: TimePolicy) -> Loop:
+    def _epochs(self, timing: TimePolicy, inbox: PhaseInbox) -> Loop:
         """The one loop (docs/architecture.md "Time"): publish ``x[k]``; take the states netem
-        passed (lockstep: its delivery; realtime: what came by the state deadline) and
-        report; take the estimate (lockstep: its delivery; realtime: what came by the
-        estimate deadline) and step to ``x[k+1]``. A pool takes each phase for all its
-        agents at once."""
-        realtime = timing.realtime
+        passed and report; take the estimate and step to ``x[k+1]``. A pool takes each
+        phase for all its agents at once."""
+        realtime = timing.realtime  # a robot's body moves by the mode (_move_bodies)
         timing.sleep_until(-1, ESTIMATE_DEADLINE)  # realtime: x[0] when later states go out
         self._publish_states()
         while self.runner.epoch < self.end:
             k = self.runner.epoch
-            self._start_phase("state")
             self.deadline["overruns"] += timing.past(k, STATE_DEADLINE)
-            yield Wait(k, STATE_DEADLINE, None if realtime else self._all_in)
+            states = yield from inbox.take("state", k)
             self._publish_reports(
-                self._queued_packets(k) if realtime else self._delivered_packets(k)
+                [
+                    Packet(i, p.source, p.sent_epoch, tuple(s.position))
+                    for i in states
+                    for p, s in states[i]
+                ]
             )
-            self._start_phase("estimate")
             # Realtime: stepping once every estimate here is in gives the step what the
             # deadline would (only epoch k's estimate counts) and the states more time: woken
             # at once at the deadline, 20 agents stepped one after another on 2 cores, the
             # last ones late.
-            complete = partial(self._has_estimates, k) if realtime else self._all_in
-            self.deadline["early_steps"] += yield Wait(k, ESTIMATE_DEADLINE, complete)
-            got = self._queued_estimates(k) if realtime else self._delivered_estimates(k)
+            estimates = yield from inbox.take("estimate", k, expect=1, early="early_steps")
+            got = {i: _estimate(estimates[i]) for i in self.ids}
             before = None if self.bodies is None else self.runner.x.copy()
             if realtime and self.bodies is not None:
                 self._take_headings()  # a unicycle steps from where it faces now
@@ -501,15 +331,13 @@ class AgentNode:
                 self.runner.place(poses)
                 self._take_headings()
             self.bodies.wait_subscribed(FIRST_POSE_S)
-        if timing.realtime:
-            self.rehearse()  # while the others start: the clock is not running yet
-        if not timing.join(self.service):
+        self.inbox = timing.inbox(self.service, self.ids, self.deadline)
+        if not timing.join(self.service, self.rehearse):
             return 1
         self.cpu_at_start_s = time.process_time()  # the run's CPU, from its start (agent.__main__)
-        self.clock = timing.clock
         self.end = self.scenario.epochs if timing.realtime else self.last_epoch
-        route = self._route if timing.realtime else self._on_delivery
-        code = timing.drive(self.service, self._epochs(timing), route, self.scenario.epochs)
+        loop = self._epochs(timing, self.inbox)
+        code = timing.drive(self.service, loop, self.inbox.route, self.scenario.epochs)
         if self.body_lost is not None:
             return BODY_LOST_EXIT
         if code == 0 and not timing.realtime and self.crashes:
@@ -520,13 +348,8 @@ class AgentNode:
         return code
 
     def rehearse(self, times: int = 3) -> None:
-        """This process's own work of an epoch, on a copy of its agents, before the clock starts.
-
-        The first epoch's cost 3x the CPU of later ones (0.5 against 0.1 ms to take the
-        states, 0.7 against 0.2 to report, 20 agents at 20 Hz: CPython specialises code as
-        it runs it), and 20 agents doing it at once at the first deadline made the first
-        epochs' reports and estimates late. Nothing is published; the copy is dropped.
-        """
+        """This process's own work of an epoch, on a copy of its agents, before the clock
+        starts (:meth:`shell.TimePolicy.join`). Nothing is published; the copy is dropped."""
         runner = copy.deepcopy(self.runner)
         in_links = list(
             zip(runner.links.receiver.tolist(), runner.links.sender.tolist(), strict=True)

@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from dataclasses import replace
-from functools import partial
 from typing import Any
 
 import numpy as np
@@ -14,15 +13,14 @@ import orjson
 
 from formation import keys
 from formation.codec import attachment
-from formation.deadlines import CAUSES, USED_KEPT, cause
+from formation.deadlines import CAUSES
 from formation.errors import RuntimeFailure
-from formation.messages import DeliveredPacket, Delivery, TokenReport
-from formation.realtime import REPORT_DEADLINE, Clock
+from formation.messages import TokenReport
 from formation.reference import reference_positions, reference_velocities
 from formation.scenario import Scenario
 from leader.epoch import Leader, LeaderEpoch
 from leader.rigidity import HealthyRigidity
-from shell import Incoming, Loop, Service, TimePolicy, Wait
+from shell import Loop, PhaseInbox, Service, TimePolicy
 
 log = logging.getLogger("leader")
 
@@ -132,17 +130,12 @@ class LeaderNode:
             scenario.reference, scenario.offsets[scenario.leader - 1], period, scenario.epochs
         )
         self.ref_v = reference_velocities(self.ref_x, period)
-        self.reports: dict[tuple[int, int], TokenReport] = {}  # realtime: (agent, seq) → report
-        self.deliveries: dict[int, Delivery] = {}  # lockstep: epoch → netem's reports of it
+        self.inbox: PhaseInbox | None = None  # the time policy's, from the run's start
         self.epoch = 0
         self.rigidity = HealthyRigidity(scenario.offsets, scenario.edge_array)
         self.leader = Leader(scenario, self.rigidity)
         self.covariance_every = scenario.estimator.covariance_every
         self.link_rows = link_rows(scenario)
-        self.late_reports = 0
-        # realtime: epoch → agents whose report was used (a later copy is no miss)
-        self.used_reports: dict[int, set[int]] = {}
-        self.clock: Clock | None = None  # realtime: set by run
         # realtime: reports in time and missed by cause; estimates sent before the deadline
         self.deadline = {"in_time": 0, "early_estimates": 0, **dict.fromkeys(CAUSES, 0)}
         service.subscribe(keys.inbox(self.run_id, keys.LEADER, "report"))
@@ -168,70 +161,6 @@ class LeaderNode:
         log.warning("restarted: estimating again from epoch %d", epoch)
         self.epoch = epoch
         return epoch
-
-    def _route(self, msg: Incoming) -> None:
-        """Realtime: the reports netem forwarded at one wake-up; one of an epoch already
-        estimated missed its deadline (counted by cause)."""
-        delivery = self._delivery(msg)
-        if delivery is None:
-            return
-        for _, report in self._reports(delivery.packets):
-            if self.clock is not None and report.epoch < self.epoch:
-                in_time = msg.arrived_ns <= self.clock.at(report.epoch, REPORT_DEADLINE)
-                if in_time and report.agent in self.used_reports.get(report.epoch, ()):
-                    continue  # a copy of one already used, in an estimate before the deadline
-                # else late, or stamped in time but queued after the deadline's take (scheduling)
-                self.late_reports += 1
-                self.deadline[
-                    cause(self.clock, "report", report.epoch, report.stamp_ns, msg.arrived_ns)
-                ] += 1
-            else:
-                self.reports[(report.agent, report.seq)] = report
-
-    def _delivery(self, msg: Incoming) -> Delivery | None:
-        """netem's delivery of reports to the leader, or None (counted if it is not one)."""
-        delivery = self.service.malformed.decode(msg.key, msg.payload, Delivery)
-        if delivery is not None and (
-            delivery.receiver != keys.LEADER or delivery.phase != "report"
-        ):
-            self.service.malformed.counts[msg.key] += 1  # not the leader's: unusable
-            return None
-        return delivery
-
-    def _reports(
-        self, packets: Iterable[DeliveredPacket]
-    ) -> Iterator[tuple[DeliveredPacket, TokenReport]]:
-        """The valid reports among ``packets``; the others counted on their links' keys."""
-        return self.service.malformed.decode_packets(
-            packets,
-            TokenReport,
-            lambda p: keys.link_report(self.run_id, p.source),
-            lambda p, report: report.agent == p.source,
-        )
-
-    def _take_delivery(self, msg: Incoming) -> None:
-        """Lockstep: keep netem's delivery of an epoch's reports until that epoch is estimated."""
-        delivery = self._delivery(msg)
-        if delivery is not None and delivery.epoch >= self.epoch:
-            self.deliveries[delivery.epoch] = delivery
-
-    def _delivered(self, k: int) -> bool:
-        return k in self.deliveries
-
-    def _delivered_reports(self, k: int) -> list[TokenReport]:
-        """Lockstep: the reports of epoch ``k``'s delivery (a delayed one is not fused)."""
-        delivery = self.deliveries.pop(k)
-        current = (p for p in delivery.packets if p.sent_epoch == k)
-        return [report for _, report in self._reports(current)]
-
-    def _queued_reports(self, k: int) -> list[TokenReport]:
-        """Realtime: the reports of epoch ``k`` that came by its deadline (kept: later ones')."""
-        reports = [r for r in self.reports.values() if r.epoch == k]
-        self.reports = {q: r for q, r in self.reports.items() if r.epoch > k}  # agents ahead
-        self.deadline["in_time"] += len(reports)
-        self.used_reports[k] = {r.agent for r in reports}
-        self.used_reports.pop(k - USED_KEPT, None)
-        return reports
 
     def _estimate(self, k: int, reports: list[TokenReport]) -> None:
         known, z = reports_to_measurements(self.scenario, reports, self.link_rows)
@@ -276,13 +205,9 @@ class LeaderNode:
                 "netem has handled estimates of %d epochs of %d", done, self.scenario.epochs
             )
 
-    def _has_reports(self, epoch: int) -> bool:
-        return len({r.agent for r in self.reports.values() if r.epoch == epoch}) == self.scenario.n
-
     def rehearse(self, times: int = 2) -> None:
         """An epoch's estimates from every link, computed and built but not sent, before the
-        clock starts: first runs are slower (CPython specialises code as it runs it), and
-        the first epoch is when every process pays that at once (AgentNode.rehearse)."""
+        clock starts (:meth:`shell.TimePolicy.join`)."""
         links = self.scenario.directed_links
         offsets = self.scenario.offsets
         known = np.ones(len(links), dtype=bool)
@@ -302,18 +227,15 @@ class LeaderNode:
         # epoch 0's covariances come right after its estimates, while the agents step
         self.leader.covariances(known[None], z[None], self.ref_x[0], batch)
 
-    def _epochs(self, timing: TimePolicy) -> Loop:
+    def _epochs(self, inbox: PhaseInbox) -> Loop:
         """The one loop (docs/architecture.md "Time"): each epoch, the reports netem
-        delivered (lockstep), or those that came by the report deadline (realtime), are
-        estimated."""
-        realtime = timing.realtime
+        delivered are estimated."""
         for k in range(self.epoch, self.scenario.epochs):
             # Realtime: once every agent's report is here nothing else of epoch k can come:
             # estimating then gives what the deadline would, and the agents and their states
             # more time.
-            complete = partial(self._has_reports if realtime else self._delivered, k)
-            self.deadline["early_estimates"] += yield Wait(k, REPORT_DEADLINE, complete)
-            self._estimate(k, self._queued_reports(k) if realtime else self._delivered_reports(k))
+            reports = yield from inbox.take("report", k, self.scenario.n, "early_estimates")
+            self._estimate(k, [report for _, report in reports[keys.LEADER]])
 
     def run(self, timing: TimePolicy) -> int:
         """Estimate every epoch of the run under ``timing``; returns an exit code.
@@ -322,10 +244,8 @@ class LeaderNode:
         only watches; realtime: each period, the reports that arrived by the report deadline
         (later ones are lost, counted by cause).
         """
-        if timing.realtime:
-            self.rehearse()  # while the others start: the clock is not running yet
-        if not timing.join(self.service):
+        self.inbox = timing.inbox(self.service, [keys.LEADER], self.deadline)
+        if not timing.join(self.service, self.rehearse):
             return 1
-        self.clock = timing.clock
-        route = self._route if timing.realtime else self._take_delivery
-        return timing.drive(self.service, self._epochs(timing), route, self.scenario.epochs)
+        loop = self._epochs(self.inbox)
+        return timing.drive(self.service, loop, self.inbox.route, self.scenario.epochs)

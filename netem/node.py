@@ -1,7 +1,8 @@
 """The netem process: every message between services crosses it as a directed link.
 
-This is the transport shell: the bus's subscriptions, publishers, the ``netem/config``,
-``clock`` and ``netem/final`` queryables, liveliness and what each wake-up of its one
+This is the transport shell: the bus's subscriptions, the ``clock``, ``netem/final`` and
+``netem/rejoin`` queryables (``netem/config`` is :mod:`netem.link_config`'s, the
+publishers :mod:`netem.outbox`'s), liveliness and what each wake-up of its one
 loop (:mod:`netem.proxy.loop`) does in lockstep. The logic is elsewhere: lockstep in
 :mod:`netem.proxy.lockstep` (pure, with the clean path of :mod:`netem.proxy.clean_epochs`), realtime
 forwarding in :mod:`netem.proxy.realtime`.
@@ -9,7 +10,6 @@ forwarding in :mod:`netem.proxy.realtime`.
 
 from __future__ import annotations
 
-import json
 import logging
 import threading
 import time
@@ -17,75 +17,23 @@ from functools import partial
 from typing import Any
 
 import orjson
-from pydantic import TypeAdapter, ValidationError
 
 from formation import keys
-from formation.capacity import Capacity
 from formation.codec import read_attachment
-from formation.linkmodels import LinkModelSpec
-from formation.messages import LinkChange
 from formation.scenario import LEADER_ENDPOINT, Scenario
+from netem.link_config import LinkConfig
+from netem.outbox import ZenohOutbox
 from netem.proxy.lockstep import Lockstep
 from netem.proxy.loop import Wakeups, run_loop
 from netem.proxy.progress import Progress
 from netem.proxy.realtime import RealtimeForwarder
-from netem.proxy.records import Ledger, Record, decision_batch, decision_batch_of, delivery
-from netem.proxy.routes import LinkClass, Links, Phase, Routes, link_key
-from shell import Incoming, Publisher, Query, Sample, Service, TimePolicy, settle_heap
+from netem.proxy.records import Ledger
+from netem.proxy.routes import Links, Routes, link_key
+from shell import Incoming, Query, Sample, Service, TimePolicy, settle_heap
 
 log = logging.getLogger("netem")
 LOCKSTEP_WAKE_S = 0.2  # lockstep: the loop's longest sleep; clean epochs' records wait at most this
 FINAL_WAIT_S = 0.5  # how long a last-messages query waits for what may still be on its way
-_SPECS: TypeAdapter[list[LinkModelSpec]] = TypeAdapter(list[LinkModelSpec])
-
-
-class ZenohOutbox:
-    """Publishes the lockstep core's outputs: deliveries on ``inbox/<receiver>/<phase>``,
-    decision records on ``netem/decision``."""
-
-    def __init__(self, service: Service) -> None:
-        self.service = service
-        self._inboxes: dict[tuple[Phase, int], tuple[str, Publisher]] = {}
-        self._decision_key = keys.netem_decision(service.run_id)
-
-    def declare(self, agents: list[int]) -> None:
-        """Declare every inbox's publisher now, before the clock starts (as
-        :meth:`~shell.service.Service.declare_publishers`)."""
-        for i in agents:
-            for phase in ("state", "estimate"):
-                self._inbox(phase, i)
-        self._inbox("report", LEADER_ENDPOINT)
-        self.service.publisher(self._decision_key)
-
-    def _inbox(self, phase: Phase, receiver: int) -> tuple[str, Publisher]:
-        out = self._inboxes.get((phase, receiver))
-        if out is None:
-            key = keys.inbox(self.service.run_id, receiver, phase)
-            out = self._inboxes[(phase, receiver)] = (key, self.service.publisher(key))
-        return out
-
-    def deliver(
-        self,
-        phase: Phase,
-        receiver: int,
-        epoch: int,
-        packets: list[bytes],
-        lost: list[int],
-        dead: list[int],
-    ) -> None:
-        service = self.service
-        key, pub = self._inbox(phase, receiver)
-        pub.put(delivery(service.header(key, epoch), receiver, phase, packets, lost, dead))
-        service.sent[key] += 1
-
-    def records(self, phase: Phase, epoch: int, records: list[Record]) -> None:
-        key = self._decision_key
-        self.service.put(key, decision_batch(self.service.header(key, epoch), phase, records))
-
-    def clean_records(self, phase: Phase, last_epoch: int, chunks: list[bytes]) -> None:
-        key = self._decision_key
-        header = self.service.header(key, last_epoch)
-        self.service.put(key, decision_batch_of(header, phase, chunks))
 
 
 class NetemNode:
@@ -134,7 +82,8 @@ class NetemNode:
             keys.leader_estimate_for(self.run_id, "*"),
         ):
             service.subscribe(key, self._on_sample)
-        service.queryable(keys.netem_config(self.run_id), self._on_config)
+        config = LinkConfig(service, self.links, self.progress, self.lockstep, self.lock)
+        service.queryable(keys.netem_config(self.run_id), config.on_query)
         service.queryable(keys.clock(self.run_id), self._on_clock)
         service.queryable(keys.netem_final(self.run_id), self._on_final)
         service.queryable(keys.netem_rejoin(self.run_id), self._on_rejoin)
@@ -261,120 +210,6 @@ class NetemNode:
     def setup_clean(self) -> None:
         """Take clean epochs on the clean path from now on (:meth:`Lockstep.setup_clean`)."""
         self.lockstep.setup_clean()
-
-    # -- run-time changes ----------------------------------------------------------------------------
-    def _on_config(self, query: Query) -> None:
-        try:
-            request = json.loads(query.payload.to_bytes()) if query.payload else {"op": "show"}
-            with self.lock:
-                answer = self._config(request)
-            query.reply(query.key_expr, json.dumps(answer).encode())
-        except Exception as exc:
-            query.reply(query.key_expr, json.dumps({"ok": False, "error": str(exc)}).encode())
-
-    def _config(self, request: dict[str, Any]) -> dict[str, Any]:
-        op = request.get("op", "show")
-        if op == "show":
-            return {
-                "ok": True,
-                "epoch": self.progress.epoch_seen,
-                "links": [
-                    {
-                        "link": f"{s}->{d}",
-                        "class": c,
-                        "models": [m.model_dump(by_alias=True) for m in lm.specs],
-                    }
-                    for (c, s, d), lm in sorted(self.links.models.items())
-                ],
-            }
-        if op == "capacity":
-            return self._capacity(request)
-        if op != "set":
-            return {"ok": False, "error": f"op {op!r}: expected show, set or capacity"}
-        link = str(request.get("link", ""))
-        try:
-            src_text, dst_text = link.split("->")
-            src, dst = int(src_text), int(dst_text)
-        except ValueError:
-            return {
-                "ok": False,
-                "error": f"link {link!r}: expected SRC->DST, e.g. 1->2 (0 is the leader)",
-            }
-        cls: LinkClass = (
-            "report"
-            if dst == LEADER_ENDPOINT
-            else "estimate"
-            if src == LEADER_ENDPOINT
-            else "formation"
-        )
-        if (cls, src, dst) not in self.links.models:
-            return {"ok": False, "error": f"link {link!r}: no such link in the scenario"}
-        try:
-            specs = _SPECS.validate_python(request.get("models", []))
-        except ValidationError as exc:
-            err = exc.errors()[0]
-            where = ".".join(str(p) for p in err["loc"])
-            return {"ok": False, "error": f"models.{where} = {err.get('input')!r}; {err['msg']}"}
-        from_epoch = self.progress.epoch_seen + 1
-        self.links.models[(cls, src, dst)].replace(specs, from_epoch)
-        self.lockstep.models_changed()
-        key = keys.netem_change(self.run_id)
-        change = LinkChange(
-            **self.service.header(key, from_epoch),
-            source=src,
-            target=dst,
-            link_class=cls,
-            models=[s.model_dump(by_alias=True) for s in specs],
-            from_epoch=from_epoch,
-        )
-        self.service.publish(key, change)
-        return {"ok": True, "link": link, "class": cls, "from_epoch": from_epoch}
-
-    def _capacity(self, request: dict[str, Any]) -> dict[str, Any]:
-        """A queue's new parameters (``formation netem set 3->0 rate rate_bps=64000``), from
-        the next epoch; recorded as a :class:`LinkChange` of each link it serves."""
-        queues = self.links.capacity
-        if queues is None:
-            return {
-                "ok": False,
-                "error": "the scenario has no capacity queues; add [[network.capacity]] to "
-                "change them while running",
-            }
-        try:
-            capacity = Capacity.model_validate(request.get("queue", {}))
-        except ValidationError as exc:
-            err = exc.errors()[0]
-            where = ".".join(str(p) for p in err["loc"])
-            return {"ok": False, "error": f"rate.{where} = {err.get('input')!r}; {err['msg']}"}
-        from_epoch = self.progress.epoch_seen + 1
-        self.lockstep.queues_changing()
-        try:
-            served = queues.change(capacity, from_epoch)
-        except ValueError as exc:
-            return {"ok": False, "error": str(exc)}
-        self.lockstep.models_changed()  # its links' clean epochs are judged again
-        key = keys.netem_change(self.run_id)
-        params = capacity.model_dump(
-            exclude_none=True, exclude={"scope", "link", "agent", "medium", "links"}
-        )
-        for src, dst in served:
-            cls: LinkClass = (
-                "report"
-                if dst == LEADER_ENDPOINT
-                else "estimate"
-                if src == LEADER_ENDPOINT
-                else "formation"
-            )
-            change = LinkChange(
-                **self.service.header(key, from_epoch),
-                source=src,
-                target=dst,
-                link_class=cls,
-                models=[{"model": "rate", "queue": capacity.name, **params}],
-                from_epoch=from_epoch,
-            )
-            self.service.publish(key, change)
-        return {"ok": True, "queue": capacity.name, "links": len(served), "from_epoch": from_epoch}
 
     def _on_final(self, query: Query) -> None:
         """What netem still lacks of a sender's last messages: ``{"agents": [ids]}`` asks for

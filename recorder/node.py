@@ -27,8 +27,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import os
-import signal
 import sys
 import threading
 import time
@@ -36,14 +34,11 @@ from collections import Counter
 from functools import partial
 from pathlib import Path
 from time import time_ns
-from typing import Any, Literal
 
 import zenoh
 
 from formation import keys
-from formation.codec import encode, now_ns
 from formation.errors import TestbedError
-from formation.messages import Status
 from formation.scenario import Scenario
 from recorder.analysis.epoch_assembly import TAPS, EpochAssembler
 from recorder.live.server import LiveServer
@@ -51,19 +46,9 @@ from recorder.reading.trust import Gate
 from recorder.recording.display import Display
 from recorder.recording.schemas import LivelinessEvent, classify
 from recorder.recording.writer import COMPRESSIONS, Raw, RecordingWriter
-from shell import (
-    Bus,
-    Publisher,
-    Query,
-    Sample,
-    ZenohBus,
-    add_arguments,
-    dump_stacks_on_signal,
-    open_session,
-)
+from shell import Bus, Query, Sample, Service, add_arguments, open_service, serve
 
 log = logging.getLogger("recorder")
-StatusState = Literal["ready", "running", "done", "error"]
 POLL_S = 0.005  # the writer thread's wait between batches [s]
 SNAPSHOT_NS = 500_000_000  # how often the writer thread refreshes the per-key counts [ns]
 COUNTS_WAIT_S = 2.0  # longest a flush query waits for fresh counts [s]
@@ -155,7 +140,7 @@ class Recorder:
             gate = Gate(self.scenario, conflicts=False)
             self.live = LiveServer(self.scenario, args.foxglove, gate).start()
         self.intake = Intake(args.max_queue)
-        self.stop = threading.Event()
+        self.service: Service | None = None  # from run: its stopping is the recording's stop
         self._writer_done = threading.Event()
         self.error: BaseException | None = None
         self.written = 0
@@ -164,7 +149,6 @@ class Recorder:
         self.counts: dict[str, int] = {}  # per key, refreshed by the writer thread
         self._want_counts = threading.Event()
         self._fresh_counts = threading.Event()
-        self._signals = 0
 
     @property
     def recording(self) -> RecordingWriter:
@@ -172,14 +156,12 @@ class Recorder:
             raise RuntimeError("the recording opens in run(), once the bus is open")
         return self._recording
 
-    # -- signals ----------------------------------------------------------------------------
-    def on_signal(self, signum: int, frame: Any) -> None:
-        """The first SIGINT/SIGTERM stops the recording; a second exits at once (installed by
-        :func:`main`)."""
-        self._signals += 1
-        if self._signals > 1:
-            os._exit(128 + signum)  # every flushed chunk stays readable
-        self.stop.set()
+    @property
+    def stop(self) -> threading.Event:
+        """Set to stop the recording (a signal, through :func:`shell.serve`; a writer's error)."""
+        if self.service is None:
+            raise RuntimeError("the recording stops once it runs (run or record first)")
+        return self.service.stopping
 
     # -- writer thread ------------------------------------------------------------------------
     def _writer(self) -> None:
@@ -241,48 +223,40 @@ class Recorder:
         self._fresh_counts.wait(COUNTS_WAIT_S)
         query.reply(query.key_expr, json.dumps(self.counts).encode())
 
-    def _status(self, status: Publisher, state: StatusState, detail: str = "") -> None:
-        msg = Status(
-            run_id=self.run_id,
-            sender="recorder",
-            seq=0 if state == "ready" else 1,
-            epoch=-1,
-            stamp_ns=now_ns(),
-            role="recorder",
-            state=state,
-            detail=detail,
-        )
-        status.put(encode(msg))
-
     # -- the run ------------------------------------------------------------------------------
-    def run(self, bus: Bus | None = None) -> int:
-        """Record until stopped, on ``bus`` (by default a Zenoh session of the flags: a
-        client retries until its router answers); returns an exit code."""
-        if bus is None:
-            try:
-                bus = ZenohBus(open_session(self.args))
-            except (zenoh.ZError, TestbedError):
-                if self.live is not None:
-                    self.live.close(linger_s=0.0)
-                raise
+    def run(self, bus: Bus) -> int:
+        """Record on ``bus`` until :attr:`stop` is set; returns an exit code."""
+        service = Service(bus, self.run_id, "recorder", 0)
+        try:
+            return self.record(service)
+        finally:
+            service.close()
+
+    def record(self, service: Service) -> int:
+        """Record on ``service`` until it is stopping (``shell.serve``'s body)."""
+        self.service = service
         try:
             self._recording = self._open_recording()
-            return self._record(bus)
+            return self._record(service)
         finally:
-            bus.close()
-            if self.live is not None:
-                self.live.close(linger_s=0.0)  # after an error; stops a stopped server again
+            self.close_live()
 
-    def _record(self, bus: Bus) -> int:
+    def close_live(self) -> None:
+        """Stop the live view at once (after an error; a stopped server again is harmless)."""
+        if self.live is not None:
+            self.live.close(linger_s=0.0)
+
+    def _record(self, service: Service) -> int:
+        bus = service.bus
         subs = [bus.declare_subscriber(f, self.intake.on_sample) for f in self.filters]
         subs.append(bus.declare_liveliness_subscriber(keys.alive_all(self.run_id), self.on_alive))
         subs.append(bus.declare_queryable(keys.flush(self.run_id), self.on_counts))
-        status = bus.declare_publisher(keys.status(self.run_id, "recorder", 0))
+        service.declare_publishers([keys.status(self.run_id, "recorder", 0)])
         writer = threading.Thread(target=self._writer, name="recorder-writer", daemon=True)
         writer.start()
         self._wait_for_viewer()
         token = bus.declare_token(keys.alive(self.run_id, "recorder", 0))
-        self._status(status, "ready")
+        service.status("ready")
         log.info("recording %s into %s", ", ".join(self.filters), self.recording.files[0])
         if self.live is not None:
             log.info("live view for Foxglove on %s", self.live.url)
@@ -298,7 +272,7 @@ class Recorder:
         if self.error is None:
             self._finish()
         detail = self.summary()
-        self._status(status, "error" if self.error else "done", detail)
+        service.status("error" if self.error else "done", 0, detail)
         token.undeclare()
         print(f"recorder {self.run_id}: {detail}", file=sys.stderr)
         if self.error is not None:
@@ -416,19 +390,22 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
-    dump_stacks_on_signal()
     args = build_parser().parse_args(argv)
     try:
         recorder = Recorder(args)
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, recorder.on_signal)
-        return recorder.run()
     except TestbedError as exc:
         print(f"recorder: error: {exc}", file=sys.stderr)
         return 1
+    try:  # a second signal ends at once: every chunk flushed stays readable (formation recover)
+        code: int = serve(
+            "recorder", partial(open_service, args, "recorder", 0), recorder.record, True
+        )
+        return code
     except zenoh.ZError as exc:
         print(f"recorder: error: cannot open the Zenoh session: {exc}", file=sys.stderr)
         return 1
+    finally:
+        recorder.close_live()  # also when the session did not open
 
 
 __all__ = ["Intake", "Recorder", "build_parser", "main"]

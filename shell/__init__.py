@@ -2,7 +2,8 @@
 
 Between the vocabulary (:mod:`formation`, no Zenoh) and the services. A service talks to
 a :class:`Bus`: :class:`ZenohBus` in the product, :class:`MemoryBus` in unit tests; its
-node runs one loop under a :class:`TimePolicy`, :class:`Lockstep` or :class:`Realtime`.
+node runs one loop under a :class:`TimePolicy`, :class:`Lockstep` or :class:`Realtime`, and
+takes its inputs from the policy's :class:`PhaseInbox`.
 """
 
 from shell.bus import (
@@ -14,10 +15,12 @@ from shell.bus import (
     ZenohBus,
 )
 from shell.config_files import check_readable
+from shell.inbox import PhaseInbox
+from shell.loop import Loop
 from shell.service import Incoming, Service, settle_heap
 from shell.serving import load_scenario, open_service, serve, service_parser
 from shell.stack_dump import DUMP_SIGNAL, dump_stacks_on_signal
-from shell.timing import Lockstep, Loop, Realtime, TimePolicy, Wait, time_policy
+from shell.timing import Lockstep, Realtime, TimePolicy, time_policy
 from shell.zenoh_config import (
     MEMBER_ENV,
     MEMBERS_ENV,
@@ -39,13 +42,13 @@ __all__ = [
     "Lockstep",
     "Loop",
     "MemoryBus",
+    "PhaseInbox",
     "Publisher",
     "Query",
     "Realtime",
     "Sample",
     "Service",
     "TimePolicy",
-    "Wait",
     "ZenohBus",
     "add_arguments",
     "check_readable",

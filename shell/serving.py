@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import threading
@@ -40,9 +41,10 @@ def open_service(args: argparse.Namespace, role: str, ident: int | str) -> Servi
     return Service(bus, args.run_id, role, ident, start_timeout_s=args.start_timeout)
 
 
-def stop_on_signals(stopping: threading.Event) -> None:
+def stop_on_signals(stopping: threading.Event, hard_exit: bool = False) -> None:
     """The first SIGINT or SIGTERM sets ``stopping`` (the service ends cleanly); a second
-    exits at once."""
+    exits at once (``hard_exit``: without unwinding, as a file writer wants: every chunk it
+    flushed stays readable)."""
     received = 0
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
@@ -50,22 +52,30 @@ def stop_on_signals(stopping: threading.Event) -> None:
         received += 1
         stopping.set()
         if received > 1:
+            if hard_exit:
+                os._exit(128 + signum)
             sys.exit(128 + signum)
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
 
 
-def serve(name: str, open_service: Callable[[], Service], body: Callable[[Service], int]) -> int:
+def serve(
+    name: str,
+    open_service: Callable[[], Service],
+    body: Callable[[Service], int],
+    hard_exit: bool = False,
+) -> int:
     """Open the service, take the signals, run ``body`` and close it; a :class:`TestbedError`
-    is printed as ``name: error: …`` with exit code 1."""
+    is printed as ``name: error: …`` with exit code 1. ``hard_exit``: see
+    :func:`stop_on_signals`."""
     dump_stacks_on_signal()
     try:
         service = open_service()
     except TestbedError as exc:
         print(f"{name}: error: {exc}", file=sys.stderr)
         return 1
-    stop_on_signals(service.stopping)
+    stop_on_signals(service.stopping, hard_exit)
     try:
         return body(service)
     except TestbedError as exc:

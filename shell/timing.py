@@ -10,8 +10,9 @@ before each phase takes its inputs; a :class:`TimePolicy` drives it:
   nothing more can come), and the loop runs on the main thread
   (:meth:`~shell.service.Service.take_by`).
 
-netem owns the clock: it starts the run with :meth:`TimePolicy.begin`; the others join it
-with :meth:`TimePolicy.join`.
+A node's inputs wait in the policy's :meth:`TimePolicy.inbox` (:mod:`shell.inbox`), so no
+node tests the mode. netem owns the clock: it starts the run with :meth:`TimePolicy.begin`;
+the others join it with :meth:`TimePolicy.join`.
 """
 
 from __future__ import annotations
@@ -19,36 +20,18 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable, Generator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, MutableMapping
 from typing import Protocol
 
 from formation.errors import TestbedError
 from formation.realtime import Clock, sleep_until
 from formation.scenario import Scenario
 from shell.clock import fetch_clock
+from shell.inbox import LockstepInbox, PhaseInbox, RealtimeInbox
+from shell.loop import Loop, Route, Wait
 from shell.service import Incoming, Service, drain_last
 
 log = logging.getLogger("service")
-
-
-@dataclass(frozen=True)
-class Wait:
-    """The loop waits for epoch ``epoch``'s inputs of a phase whose realtime deadline is at
-    ``at`` of the period (``formation.realtime``).
-
-    ``complete``: whether nothing more the phase would take can come. Lockstep waits until
-    it holds (required); realtime until the deadline, or sooner once it holds if given.
-    """
-
-    epoch: int
-    at: float
-    complete: Callable[[], bool] | None = None
-
-
-# A node's epochs: yields a Wait per phase; sent back whether it ended before its deadline.
-Loop = Generator[Wait, bool, None]
-Route = Callable[[Incoming], None]
 
 
 class TimePolicy(Protocol):
@@ -68,8 +51,20 @@ class TimePolicy(Protocol):
         """netem: start the run (realtime: its clock starts ``lead_s`` from now)."""
         ...
 
-    def join(self, service: Service) -> bool:
-        """Wait for netem's start (realtime: and fetch the clock); False if stopped first."""
+    def join(self, service: Service, rehearse: Callable[[], None] | None = None) -> bool:
+        """Wait for netem's start (realtime: and fetch the clock); False if stopped first.
+
+        ``rehearse``: realtime, a node's own work of an epoch on copies, done before the
+        clock starts. A first run costs several times the later ones (CPython specialises
+        code as it runs it), and every process would pay it at the same first deadline.
+        """
+        ...
+
+    def inbox(
+        self, service: Service, receivers: Iterable[int], counts: MutableMapping[str, int]
+    ) -> PhaseInbox:
+        """The phase inbox of a node's ``receivers`` in this mode (:mod:`shell.inbox`);
+        realtime counts its deadlines' outcomes in ``counts``."""
         ...
 
     def past(self, epoch: int, at: float) -> bool:
@@ -105,8 +100,13 @@ class Lockstep:
     def begin(self, service: Service, lead_s: float = 0.0) -> None:
         service.declare_start()
 
-    def join(self, service: Service) -> bool:
+    def join(self, service: Service, rehearse: Callable[[], None] | None = None) -> bool:
         return service.wait_started()
+
+    def inbox(
+        self, service: Service, receivers: Iterable[int], counts: MutableMapping[str, int]
+    ) -> PhaseInbox:
+        return LockstepInbox(service, receivers, counts)
 
     def past(self, epoch: int, at: float) -> bool:
         return False
@@ -185,11 +185,18 @@ class Realtime:
         self.clock = Clock(time.time_ns() + int(lead_s * 1e9), int(self.period_s * 1e9))
         service.declare_start()
 
-    def join(self, service: Service) -> bool:
+    def join(self, service: Service, rehearse: Callable[[], None] | None = None) -> bool:
+        if rehearse is not None:
+            rehearse()  # while the others start: the clock is not running yet
         if not service.wait_started():
             return False
         self.clock = fetch_clock(service.bus, service.run_id)
         return True
+
+    def inbox(
+        self, service: Service, receivers: Iterable[int], counts: MutableMapping[str, int]
+    ) -> PhaseInbox:
+        return RealtimeInbox(service, receivers, counts, lambda: self.clock)
 
     def past(self, epoch: int, at: float) -> bool:
         return time.time_ns() > self._started().at(epoch, at)

@@ -18,5 +18,5 @@ def test_the_leaders_rehearsal_sends_nothing() -> None:
     svc = Service(MemoryBus(), RUN, "leader", 0)
     node = LeaderNode(svc, scenario)
     node.rehearse()
-    assert node.epoch == 0 and node.reports == {}
+    assert node.epoch == 0 and node.inbox is None
     assert svc.sent == {}

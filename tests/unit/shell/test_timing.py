@@ -19,9 +19,9 @@ from shell import (
     MemoryBus,
     Realtime,
     Service,
-    Wait,
     time_policy,
 )
+from shell.loop import Wait
 from shell.serving import stop_on_signals
 
 RUN = "timing"

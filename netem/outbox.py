@@ -1,0 +1,59 @@
+"""What netem's lockstep core puts out, on the bus: deliveries on ``inbox/<receiver>/<phase>``,
+decision records on ``netem/decision``."""
+
+from __future__ import annotations
+
+from formation import keys
+from formation.scenario import LEADER_ENDPOINT
+from netem.proxy.records import Record, decision_batch, decision_batch_of, delivery
+from netem.proxy.routes import Phase
+from shell import Publisher, Service
+
+
+class ZenohOutbox:
+    """Publishes the lockstep core's outputs: deliveries on ``inbox/<receiver>/<phase>``,
+    decision records on ``netem/decision``."""
+
+    def __init__(self, service: Service) -> None:
+        self.service = service
+        self._inboxes: dict[tuple[Phase, int], tuple[str, Publisher]] = {}
+        self._decision_key = keys.netem_decision(service.run_id)
+
+    def declare(self, agents: list[int]) -> None:
+        """Declare every inbox's publisher now, before the clock starts (as
+        :meth:`~shell.service.Service.declare_publishers`)."""
+        for i in agents:
+            for phase in ("state", "estimate"):
+                self._inbox(phase, i)
+        self._inbox("report", LEADER_ENDPOINT)
+        self.service.publisher(self._decision_key)
+
+    def _inbox(self, phase: Phase, receiver: int) -> tuple[str, Publisher]:
+        out = self._inboxes.get((phase, receiver))
+        if out is None:
+            key = keys.inbox(self.service.run_id, receiver, phase)
+            out = self._inboxes[(phase, receiver)] = (key, self.service.publisher(key))
+        return out
+
+    def deliver(
+        self,
+        phase: Phase,
+        receiver: int,
+        epoch: int,
+        packets: list[bytes],
+        lost: list[int],
+        dead: list[int],
+    ) -> None:
+        service = self.service
+        key, pub = self._inbox(phase, receiver)
+        pub.put(delivery(service.header(key, epoch), receiver, phase, packets, lost, dead))
+        service.sent[key] += 1
+
+    def records(self, phase: Phase, epoch: int, records: list[Record]) -> None:
+        key = self._decision_key
+        self.service.put(key, decision_batch(self.service.header(key, epoch), phase, records))
+
+    def clean_records(self, phase: Phase, last_epoch: int, chunks: list[bytes]) -> None:
+        key = self._decision_key
+        header = self.service.header(key, last_epoch)
+        self.service.put(key, decision_batch_of(header, phase, chunks))

@@ -1,0 +1,274 @@
+"""A node's phase inbox: what netem delivered to its receivers, taken one phase at a time.
+
+The fork between the modes lives here, not in the nodes (docs/architecture.md "Time"). A
+node files every message with :meth:`PhaseInbox.route` and takes a phase's inputs in one
+line, ``got = yield from inbox.take(phase, epoch)``; its time policy chose the form:
+
+- :class:`LockstepInbox`: netem's delivery of ``(receiver, phase, epoch)`` closes the phase;
+  the phase's inputs are its packets.
+- :class:`RealtimeInbox`: what netem forwarded, filed by epoch; the phase ends at its
+  deadline, or once every receiver has a packet from ``expect`` senders. A packet of an
+  epoch already taken missed its deadline: counted by cause (:mod:`formation.deadlines`),
+  unless it is a copy of one used, in time. It owns that memory of used packets.
+"""
+
+from __future__ import annotations
+
+from collections.abc import (
+    Callable,
+    Generator,
+    Hashable,
+    Iterable,
+    Iterator,
+    Mapping,
+    MutableMapping,
+)
+from dataclasses import dataclass
+from functools import partial
+from typing import Any, Protocol
+
+from pydantic import BaseModel
+
+from formation import keys
+from formation.deadlines import PHASES, USED_KEPT, cause
+from formation.messages import (
+    AgentEstimate,
+    CoordinationState,
+    DeliveredPacket,
+    Delivery,
+    TokenReport,
+)
+from formation.realtime import Clock
+from shell.loop import Wait
+from shell.service import Incoming, Service
+
+Inputs = dict[int, Iterable[tuple[DeliveredPacket, Any]]]  # receiver → (packet, payload)s
+Take = Generator[Wait, bool, Inputs]  # ``yield from`` it in a node's loop
+
+
+@dataclass(frozen=True)
+class Kind:
+    """What a phase carries and how a receiver reads and counts it."""
+
+    model: type[BaseModel]
+    link: Callable[[str, int, DeliveredPacket], str]  # (run, receiver, packet) → its link's key
+    belongs: Callable[[int, DeliveredPacket, Any], bool]  # whether that link can carry it
+    epoch: Callable[[DeliveredPacket, Any], int]  # the epoch it is an input of
+    key: Callable[[DeliveredPacket, Any], Hashable]  # realtime: one filed per key (a copy replaces)
+    delayed: bool  # lockstep: packets delayed from earlier epochs are inputs too
+    copies: bool  # realtime: a copy of a used packet that came in time is no miss
+    taken: str | None  # the count of packets taken in time, if the node keeps one
+    late: str | None  # the count of packets that missed the deadline, if kept
+
+
+KINDS: Mapping[str, Kind] = {
+    "state": Kind(
+        CoordinationState,
+        lambda run, i, p: keys.link_state(run, p.source, i),
+        lambda i, p, m: m.agent == p.source,
+        lambda p, m: p.sent_epoch,
+        lambda p, m: (p.source, p.seq),
+        delayed=True,
+        copies=False,
+        taken="packets",
+        late="late_packets",
+    ),
+    "estimate": Kind(
+        AgentEstimate,
+        lambda run, i, p: keys.link_estimate(run, i),
+        lambda i, p, m: m.agent == i,  # another agent's part is unusable
+        lambda p, m: m.epoch,
+        lambda p, m: m.epoch,
+        delayed=False,
+        copies=True,
+        taken="estimates",
+        late="late_estimates",
+    ),
+    "report": Kind(
+        TokenReport,
+        lambda run, i, p: keys.link_report(run, p.source),
+        lambda i, p, m: m.agent == p.source,
+        lambda p, m: m.epoch,
+        lambda p, m: (m.agent, m.seq),
+        delayed=False,
+        copies=True,
+        taken=None,
+        late=None,
+    ),
+}
+
+
+class PhaseInbox(Protocol):
+    """A node's receivers' inputs, phase by phase, in its time policy's form."""
+
+    def route(self, msg: Incoming) -> None:
+        """File one message from netem (a :class:`Delivery`); count it if it is not one."""
+        ...
+
+    def take(self, phase: str, epoch: int, expect: int | None = None, early: str = "") -> Take:
+        """Wait for epoch ``epoch``'s inputs of ``phase`` and return them, per receiver.
+
+        ``expect``: realtime, the phase is complete once every receiver has a packet from
+        this many senders (None: it waits for the deadline). ``early``: the count of phases
+        that ended before their deadline (realtime), if the node keeps one.
+        """
+        ...
+
+
+class _Receivers:
+    """What both forms share: the receivers, their phases' kinds, the delivery check."""
+
+    def __init__(
+        self, service: Service, receivers: Iterable[int], counts: MutableMapping[str, int]
+    ) -> None:
+        self.service, self.run_id = service, service.run_id
+        self.receivers = list(receivers)
+        self._ours = set(self.receivers)  # a pool of hundreds looks each delivery up
+        self.counts = counts  # the node's status counts: realtime writes into them
+
+    def _delivery(self, msg: Incoming) -> Delivery | None:
+        """netem's delivery, if it is for one of these receivers on its own key."""
+        delivery = self.service.malformed.decode(msg.key, msg.payload, Delivery)
+        if delivery is None:
+            return None
+        receiver = delivery.receiver
+        if receiver not in self._ours or not msg.key.endswith(f"/{receiver}/{delivery.phase}"):
+            self.service.malformed.counts[msg.key] += 1  # another receiver's: unusable
+            return None
+        return delivery
+
+    def _decode(
+        self, kind: Kind, receiver: int, packets: Iterable[DeliveredPacket]
+    ) -> Iterator[tuple[DeliveredPacket, Any]]:
+        """The valid payloads; a malformed one is counted on its link's key and lost."""
+        return self.service.malformed.decode_packets(
+            packets,
+            kind.model,
+            partial(kind.link, self.run_id, receiver),
+            partial(kind.belongs, receiver),
+        )
+
+
+class LockstepInbox(_Receivers):
+    """Lockstep: a phase ends once netem's delivery of it is in for every receiver."""
+
+    def __init__(
+        self, service: Service, receivers: Iterable[int], counts: MutableMapping[str, int]
+    ) -> None:
+        super().__init__(service, receivers, counts)
+        self.deliveries: dict[tuple[int, str, int], Delivery] = {}
+        self.floor: dict[str, int] = {}  # phase → the first epoch not yet taken
+        self.current: tuple[str, int] | None = None  # the phase and epoch waited for
+        self.waiting: set[int] = set()  # its receivers without their delivery yet
+
+    def route(self, msg: Incoming) -> None:
+        delivery = self._delivery(msg)
+        if delivery is None or delivery.epoch < self.floor.get(delivery.phase, 0):
+            return  # not ours, or a copy of one already used
+        receiver, phase = delivery.receiver, delivery.phase
+        self.deliveries[(receiver, phase, delivery.epoch)] = delivery
+        # only the receiver a delivery is for can become ready: a pool of hundreds checks one
+        if self.current == (phase, delivery.epoch):
+            self.waiting.discard(receiver)
+
+    def _all_in(self) -> bool:
+        return not self.waiting
+
+    def take(self, phase: str, epoch: int, expect: int | None = None, early: str = "") -> Take:
+        self.current = (phase, epoch)
+        self.waiting = {r for r in self.receivers if (r, phase, epoch) not in self.deliveries}
+        yield Wait(epoch, PHASES[phase][1], self._all_in)
+        self.current, self.floor[phase] = None, epoch + 1
+        kind = KINDS[phase]
+        got: Inputs = {}
+        for r in self.receivers:
+            packets = self.deliveries.pop((r, phase, epoch)).packets
+            current = packets if kind.delayed else [p for p in packets if p.sent_epoch == epoch]
+            got[r] = self._decode(kind, r, current)
+        return got
+
+
+class RealtimeInbox(_Receivers):
+    """Realtime: what netem forwarded, by epoch, taken at the phase's deadline."""
+
+    def __init__(
+        self,
+        service: Service,
+        receivers: Iterable[int],
+        counts: MutableMapping[str, int],
+        clock: Callable[[], Clock | None],
+    ) -> None:
+        super().__init__(service, receivers, counts)
+        self._clock = clock  # the run's, once the node has joined it
+        # receiver → packet key → (epoch, packet, payload), by phase
+        self.filed: dict[str, dict[int, dict[Hashable, tuple[int, DeliveredPacket, Any]]]] = {}
+        self.taken: dict[str, int] = {}  # phase → the last epoch taken
+        # phase → (receiver, epoch) → the senders of what is filed: whether a phase is complete
+        self.senders: dict[str, dict[tuple[int, int], set[int]]] = {}
+        # phase → epoch → (receiver, sender) whose packet was used: a later copy is no miss
+        self.used: dict[str, dict[int, set[tuple[int, int]]]] = {}
+
+    @property
+    def clock(self) -> Clock:
+        clock = self._clock()
+        if clock is None:
+            raise RuntimeError("a realtime inbox before the run's clock (join first)")
+        return clock
+
+    def route(self, msg: Incoming) -> None:
+        delivery = self._delivery(msg)
+        if delivery is None:
+            return
+        phase, r = delivery.phase, delivery.receiver
+        kind = KINDS[phase]
+        box = self.filed.setdefault(phase, {}).setdefault(r, {})
+        senders = self.senders.setdefault(phase, {})
+        taken = self.taken.get(phase, -1)
+        for p, payload in self._decode(kind, r, delivery.packets):
+            epoch = kind.epoch(p, payload)
+            if epoch > taken:
+                box[kind.key(p, payload)] = (epoch, p, payload)
+                senders.setdefault((r, epoch), set()).add(p.source)
+            elif not (kind.copies and self._copy(phase, r, p, epoch, msg.arrived_ns)):
+                # late, or stamped in time but queued after the deadline's take (scheduling)
+                self._count(kind.late)
+                self._count(cause(self.clock, phase, epoch, payload.stamp_ns, msg.arrived_ns))
+
+    def _copy(self, phase: str, r: int, p: DeliveredPacket, epoch: int, arrived_ns: int) -> bool:
+        """Whether a packet of an epoch taken is a copy of one used, in time."""
+        in_time = arrived_ns <= self.clock.at(epoch, PHASES[phase][1])
+        return in_time and (r, p.source) in self.used.get(phase, {}).get(epoch, ())
+
+    def _count(self, name: str | None, n: int = 1) -> None:
+        if name is not None:
+            self.counts[name] += n
+
+    def _complete(self, phase: str, epoch: int, expect: int) -> bool:
+        senders = self.senders.get(phase, {})
+        return all(len(senders.get((r, epoch), ())) >= expect for r in self.receivers)
+
+    def take(self, phase: str, epoch: int, expect: int | None = None, early: str = "") -> Take:
+        complete = None if expect is None else partial(self._complete, phase, epoch, expect)
+        ended_early = yield Wait(epoch, PHASES[phase][1], complete)
+        if early:
+            self.counts[early] += ended_early
+        kind = KINDS[phase]
+        boxes = self.filed.setdefault(phase, {})
+        got: Inputs = {}
+        fresh: set[tuple[int, int]] = set()
+        for r in self.receivers:
+            box = boxes.get(r, {})
+            got[r] = [(p, m) for e, p, m in box.values() if e <= epoch]
+            # a sender ahead of this process: its next epoch's packets wait for it
+            boxes[r] = {q: v for q, v in box.items() if v[0] > epoch}
+            fresh |= {(r, p.source) for p, m in got[r] if kind.epoch(p, m) == epoch}
+            self._count(kind.taken, n := sum(kind.epoch(p, m) == epoch for p, m in got[r]))
+            self.counts["in_time"] += n
+        self.taken[phase] = epoch
+        senders = self.senders.get(phase, {})
+        self.senders[phase] = {q: v for q, v in senders.items() if q[1] > epoch}
+        if kind.copies:
+            used = self.used.setdefault(phase, {})
+            used[epoch] = fresh
+            used.pop(epoch - USED_KEPT, None)
+        return got

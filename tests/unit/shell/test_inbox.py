@@ -1,0 +1,77 @@
+"""The phase inbox's two forms (shell.inbox): lockstep takes netem's delivery of a phase;
+realtime takes what came by the deadline, remembers what it used (a copy in time is no
+miss) and counts a late packet by its cause."""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+
+from formation import keys
+from formation.deadlines import CAUSES
+from formation.messages import AgentEstimate, DeliveredPacket, Delivery
+from formation.realtime import ESTIMATE_DEADLINE, Clock
+from shell import Incoming, Lockstep, MemoryBus, Realtime, Service
+from shell.inbox import Inputs, Take
+
+RUN = "inbox"
+KEY = keys.inbox(RUN, 1, "estimate")
+
+
+def _services() -> tuple[Service, Service]:
+    bus = MemoryBus()
+    return Service(bus, RUN, "netem", 0), Service(bus, RUN, "agent", 1)
+
+
+def _delivery(netem: Service, epoch: int, arrived_ns: int = 0) -> Incoming:
+    est = AgentEstimate(**netem.header(keys.leader_estimate_for(RUN, 1), epoch), agent=1,
+                        neighbours=[2], positions=[[1.0, 2.0]], v_ref=[0.0, 0.0])  # fmt: skip
+    packet = DeliveredPacket(source=0, seq=epoch, sent_epoch=epoch, message=est.model_dump_json())
+    msg = Delivery(
+        **netem.header(KEY, epoch), receiver=1, phase="estimate", packets=[packet], lost=[]
+    )
+    return Incoming(KEY, msg.model_dump_json().encode(), None, arrived_ns)
+
+
+def _finish(take: Take, early: bool = False) -> Inputs:
+    """The inputs a take returns once its wait has ended (``early``: before the deadline)."""
+    try:
+        take.send(early)
+    except StopIteration as stop:
+        return stop.value  # type: ignore[no-any-return]
+    raise AssertionError("a take waits once")
+
+
+def test_lockstep_a_phase_is_complete_once_its_delivery_is_in() -> None:
+    netem, svc = _services()
+    counts: Counter[str] = Counter()
+    inbox = Lockstep().inbox(svc, [1], counts)
+    take = inbox.take("estimate", 0)
+    wait = next(take)
+    assert wait.epoch == 0 and wait.at == ESTIMATE_DEADLINE and not wait.complete()
+    inbox.route(_delivery(netem, 0))
+    assert wait.complete()
+    got = _finish(take)
+    assert [est.epoch for _, est in got[1]] == [0]
+    assert counts == Counter()  # lockstep keeps no deadline counts
+
+
+def test_realtime_counts_a_late_packet_by_cause_and_not_a_copy_of_one_used() -> None:
+    netem, svc = _services()
+    timing = Realtime(period_s=1.0)
+    timing.clock = Clock(time.time_ns() - 10 * 10**9, 10**9)  # epoch 0 is ten periods ago
+    counts: Counter[str] = Counter()
+    inbox = timing.inbox(svc, [1], counts)
+    in_time = timing.clock.at(0, ESTIMATE_DEADLINE) - 1
+    inbox.route(_delivery(netem, 0, in_time))
+    take = inbox.take("estimate", 0, expect=1, early="early_steps")
+    wait = next(take)
+    assert wait.complete is not None and wait.complete()  # the one sender's estimate is in
+    got = _finish(take, early=True)
+    assert [est.epoch for _, est in got[1]] == [0]
+    assert counts["in_time"] == counts["estimates"] == counts["early_steps"] == 1
+    inbox.route(_delivery(netem, 0, in_time))  # a copy of the one used, in time: no miss
+    assert counts["late_estimates"] == 0
+    inbox.route(_delivery(netem, 0, time.time_ns()))  # after the deadline: a miss
+    assert counts["late_estimates"] == 1
+    assert sum(counts[c] for c in CAUSES) == 1
