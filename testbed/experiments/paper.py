@@ -26,7 +26,8 @@ import numpy.typing as npt
 from formation.scenario import STRATEGIES, Scenario
 from recorder import error_statistics
 from testbed.experiments import studies
-from testbed.experiments.studies import KEEP_FRACTION, KEEP_M, mean_std
+from testbed.experiments.grid import KEEP_FRACTION
+from testbed.experiments.studies import KEEP_M, mean_std
 from testbed.sim.batch import BatchResult, plan_batch, run_batch
 
 Array = npt.NDArray[np.float64]

@@ -12,13 +12,13 @@ from formation.scenario import Scenario
 from netem.links.models import expected_loss_rate
 from testbed.cli import main
 from testbed.experiments import studies
+from testbed.experiments.grid import critical
 from testbed.experiments.loss_variants import gilbert_elliott_at
 from testbed.experiments.paper import PaperResults, judge, run_variants
 from testbed.experiments.paper_run import check_recording, run_paper
 from testbed.experiments.sweep import (
     SweepError,
     SweepSpec,
-    critical_rate,
     loss_grid,
     read_rows,
     run_sweep,
@@ -120,8 +120,9 @@ def test_loss_grid_and_its_errors() -> None:
         loss_grid("0:1:0")
     with pytest.raises(SweepError, match="expected START:STOP:STEP"):
         loss_grid("a:b")
-    assert critical_rate([0.0, 0.1, 0.2, 0.3], np.array([1.0, 0.95, 0.9, 1.0])) == 0.1
-    assert critical_rate([0.0, 0.1], np.array([0.5, 1.0])) is None
+    rate = [0.0, 0.1, 0.2, 0.3]
+    assert critical(rate, np.array([1.0, 0.95, 0.9, 1.0]), easiest="low") == 0.1
+    assert critical([0.0, 0.1], np.array([0.5, 1.0]), easiest="low") is None
 
 
 def test_a_foreign_csv_is_refused(paper: Scenario, tmp_path: Path) -> None:
