@@ -44,6 +44,7 @@ from testbed.experiments.grid import (
     critical,
     kept_fraction,
     over_grid,
+    progress,
     run_grid,
 )
 from testbed.experiments.grid import write_outputs as write_grid_outputs
@@ -192,7 +193,7 @@ def run_capacity(spec: CapacitySpec, log: Callable[[str], None] = print) -> Capa
                     spec.strategies,
                     judge(spec.threshold_m),
                     planned=control_delivered,
-                    log=lambda strategy, c=label: log(f"capacity: {c}, {strategy} …"),
+                    log=progress(log, f"capacity: {label}"),
                 )
             )
     frame = pd.concat(frames, ignore_index=True)

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import csv
 import math
-from collections.abc import Callable, Hashable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -95,6 +95,11 @@ def run_grid(
         cells.update({k: np.asarray(v)[todo] for k, v in of_plan.items()})
         frames.append(pd.DataFrame(cells))
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
+def progress(log: Callable[[str], None], prefix: str) -> Callable[[str], None]:
+    """A ``log`` for :func:`run_grid`: ``"<prefix>, <strategy> …"`` before each strategy."""
+    return lambda strategy: log(f"{prefix}, {strategy} …")
 
 
 def over_grid(
@@ -195,14 +200,6 @@ def _cell(v: Any) -> Any:
     return repr(v) if isinstance(v, float) and math.isfinite(v) else v
 
 
-def one_key(frame: pd.DataFrame, **equal: Hashable) -> pd.DataFrame:
-    """The rows of ``frame`` whose columns equal the values given."""
-    sel = np.ones(len(frame), dtype=bool)
-    for column, value in equal.items():
-        sel &= (frame[column] == value).to_numpy()
-    return frame[sel]
-
-
 __all__ = [
     "KEEP_FRACTION",
     "GridResult",
@@ -212,6 +209,7 @@ __all__ = [
     "critical",
     "kept_fraction",
     "over_grid",
+    "progress",
     "run_grid",
     "write_cells",
     "write_outputs",

@@ -35,6 +35,7 @@ from testbed.experiments.grid import (
     critical,
     kept_fraction,
     over_grid,
+    progress,
     run_grid,
 )
 from testbed.experiments.grid import write_outputs as write_grid_outputs
@@ -160,7 +161,7 @@ def run_wireless(spec: WirelessSpec, log: Callable[[str], None] = print) -> Wire
                 spec.seeds,
                 spec.strategies,
                 judge(case, spec.threshold_m),
-                log=lambda strategy, c=case: log(f"wireless: {c.label}, {strategy} …"),
+                log=progress(log, f"wireless: {case.label}"),
             )
         )
     frame = pd.concat(frames, ignore_index=True)
