@@ -206,6 +206,7 @@ def run_capacity(spec: CapacitySpec, log: Callable[[str], None] = print) -> Capa
         spec=spec,
         frame=frame,
         strategies=spec.strategies,
+        points=spec.multiples,
         columns=tuple(labels(spec)),
         success=success,
         critical={k: critical(points, v, easiest="high") for k, v in success.items()},
@@ -242,8 +243,12 @@ def results_markdown(r: CapacityResult) -> str:
     text += ["", "## Critical capacity per strategy", "", r.critical_markdown()]
     text += ["## What the numbers show", "", *what_it_shows(r), ""]
     text += ["## Fraction of seeds keeping the formation, and median final shape error [m]", ""]
+
+    def cell(c: str, s: str, i: int) -> str:
+        return f"{r.success[(c, s)][i]:.2f} ({r.median_error[(c, s)][i]:.3g})"
+
     for c in labels(spec):
-        text += [f"### {c}", "", success_markdown(r, c)]
+        text += [f"### {c}", "", r.success_markdown(c, cell)]
     if r.real:
         header = ["strategy", "ρ", "seed", "max abs(Δx)", "recorded", "match", "recording"]
         rows = (
@@ -282,19 +287,6 @@ def load_markdown(r: CapacityResult) -> str:
             ]
         )
     return table([*header, "c_ap [kbit/s]", "c_radio [kbit/s]"], rows)
-
-
-def success_markdown(r: CapacityResult, label: str) -> str:
-    """Per ρ (rows) and strategy: the fraction of seeds kept (the median final shape error)."""
-    rows = (
-        [f"{m:g}"]
-        + [
-            f"{r.success[(label, s)][i]:.2f} ({r.median_error[(label, s)][i]:.3g})"
-            for s in r.spec.strategies
-        ]
-        for i, m in enumerate(r.spec.multiples)
-    )
-    return table(["ρ", *r.spec.strategies], rows)
 
 
 def what_it_shows(r: CapacityResult) -> list[str]:

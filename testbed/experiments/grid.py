@@ -147,7 +147,7 @@ class GridResult:
     """A grid experiment's cells and verdicts.
 
     frame : a row per cell (:func:`run_grid`); strategies : its strategies, in order
-    columns : the labels of the critical table's columns (a study, a case)
+    points : the grid (ρ); columns : the labels of the critical table's columns (a study, a case)
     success, critical : (column label, strategy) → (R,) fraction of seeds kept / the
     critical grid point (None: not even at the easiest)
     real : a row per real-process check
@@ -155,6 +155,7 @@ class GridResult:
 
     frame: pd.DataFrame
     strategies: tuple[StrategyName, ...]
+    points: tuple[float, ...]
     columns: tuple[str, ...]
     success: dict[tuple[str, str], Array]
     critical: dict[tuple[str, str], float | None]
@@ -171,6 +172,18 @@ class GridResult:
             ["strategy", *self.columns],
             ([s, *(_times(self.critical[(c, s)]) for c in self.columns)] for s in self.strategies),
         )
+
+    def success_markdown(
+        self, label: str, cell: Callable[[str, str, int], str] | None = None
+    ) -> str:
+        """Per grid point ρ (rows) and strategy: ``cell(label, strategy, i)``, by default the
+        fraction of seeds that kept the formation in column ``label``."""
+        cell = cell or (lambda c, s, i: f"{self.success[(c, s)][i]:.2f}")
+        rows = (
+            [f"{p:g}", *(cell(label, s, i) for s in self.strategies)]
+            for i, p in enumerate(self.points)
+        )
+        return table(["ρ", *self.strategies], rows)
 
 
 def _times(value: float | None) -> str:

@@ -170,6 +170,7 @@ def run_wireless(spec: WirelessSpec, log: Callable[[str], None] = print) -> Wire
         spec=spec,
         frame=frame,
         strategies=spec.strategies,
+        points=spec.ranges,
         columns=tuple(c.label for c in spec.cases),
         success=success,
         critical={k: critical(spec.ranges, v, easiest="high") for k, v in success.items()},
@@ -190,19 +191,6 @@ def keep_out_of_range(r: WirelessResult, case: Case) -> dict[str, list[float]]:
         if below:
             out[s] = below
     return out
-
-
-def success_markdown(r: WirelessResult) -> str:
-    spec = r.spec
-    out = []
-    for c in spec.cases:
-        out += [f"\n### {c.label}\n"]
-        rows = (
-            [f"{rho:g}", *(f"{r.success[(c.label, s)][i]:.2f}" for s in spec.strategies)]
-            for i, rho in enumerate(spec.ranges)
-        )
-        out.append(table(["ρ", *spec.strategies], rows).rstrip("\n"))
-    return "\n".join(out) + "\n"
 
 
 def wireless_results_markdown(r: WirelessResult) -> str:
@@ -245,7 +233,10 @@ def wireless_results_markdown(r: WirelessResult) -> str:
             f"- {c.label}: {said or f'no strategy keeps it in ≥ {KEEP_FRACTION:.0%} of the seeds'}"
             + (f"; most kept: {most}" if best else "")
         )
-    text += ["", "## Fraction of seeds keeping the formation", success_markdown(r)]
+    text += ["", "## Fraction of seeds keeping the formation"]
+    for label in r.columns:
+        text += ["", f"### {label}", "", r.success_markdown(label).rstrip("\n")]
+    text.append("")
     if r.real:
         header = ["case", "strategy", "ρ", "seed", "max abs(Δx)", "recorded", "match", "recording"]
         rows = (
