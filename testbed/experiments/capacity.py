@@ -251,18 +251,8 @@ def results_markdown(r: CapacityResult) -> str:
         text += [f"### {c}", "", r.success_markdown(c, cell)]
     if r.real:
         header = ["strategy", "ρ", "seed", "max abs(Δx)", "recorded", "match", "recording"]
-        rows = (
-            [
-                x["strategy"],
-                f"{x['rate_multiple']:g}",
-                x["seed"],
-                x["max_diff"],
-                x["recorded_diff"],
-                x["match"],
-                x["recording"],
-            ]
-            for x in r.real
-        )
+        rest = ("seed", "max_diff", "recorded_diff", "match", "recording")
+        rows = ([x["strategy"], f"{x['rate_multiple']:g}", *(x[k] for k in rest)] for x in r.real)
         text += ["## Real-process runs (recorded)", "", table(header, rows).rstrip("\n")]
     text += ["", "![success against capacity](phase.png)", ""]
     return "\n".join(text)
@@ -282,8 +272,8 @@ def load_markdown(r: CapacityResult) -> str:
                 f"{ld['reports']:.0f}",
                 f"{ld['estimates']:.0f}",
                 f"{share:.0%}",
-                f"{ld['c_ap'] / 1000.0:.1f}",
-                f"{ld['c_radio'] / 1000.0:.1f}",
+                f"{ld['c_ap'] / 1e3:.1f}",
+                f"{ld['c_radio'] / 1e3:.1f}",
             ]
         )
     return table([*header, "c_ap [kbit/s]", "c_radio [kbit/s]"], rows)

@@ -239,17 +239,9 @@ def wireless_results_markdown(r: WirelessResult) -> str:
     text.append("")
     if r.real:
         header = ["case", "strategy", "ρ", "seed", "max abs(Δx)", "recorded", "match", "recording"]
+        rest = ("seed", "max_diff", "recorded_diff", "match", "recording")
         rows = (
-            [
-                x["case"],
-                x["strategy"],
-                f"{x['range_multiple']:g}",
-                x["seed"],
-                x["max_diff"],
-                x["recorded_diff"],
-                x["match"],
-                x["recording"],
-            ]
+            [x["case"], x["strategy"], f"{x['range_multiple']:g}", *(x[k] for k in rest)]
             for x in r.real
         )
         text += ["## Real-process runs (recorded)", "", table(header, rows).rstrip("\n")]
