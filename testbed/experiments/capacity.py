@@ -49,7 +49,6 @@ from testbed.experiments.grid import (
 )
 from testbed.experiments.grid import write_outputs as write_grid_outputs
 from testbed.experiments.markdown import table
-from testbed.experiments.plots import plot_range_phase
 from testbed.experiments.real_check import real_run_row
 from testbed.sim.batch import BatchResult
 from testbed.sim.plan import BatchPlan
@@ -360,17 +359,10 @@ def run_capacity_real(
 def write_outputs(r: CapacityResult, out: Path) -> None:
     """``runs.csv``, ``critical.md``, ``results.md`` and ``phase.png`` in ``out``."""
     title = "Critical capacity per strategy (ρ: multiples of the rate the states need)"
-    write_grid_outputs(r, out, COLUMNS, title, results_markdown(r))
-    plot_range_phase(
-        r.success,
-        r.critical,
-        r.spec.multiples,
-        labels(r.spec),
-        r.spec.strategies,
-        r.spec.threshold_m,
-        out / "phase.png",
-        xlabel="capacity ρ (× the rate one epoch's states need)",
-        columns=len(r.spec.topologies),
+    xlabel = "capacity ρ (× the rate one epoch's states need)"
+    results, columns = results_markdown(r), len(r.spec.topologies)
+    write_grid_outputs(
+        r, out, COLUMNS, title, results, r.spec.threshold_m, xlabel=xlabel, columns=columns
     )
 
 

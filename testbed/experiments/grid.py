@@ -7,7 +7,7 @@ judge (what it measures of a batch); :func:`run_grid` plans the variants × seed
 noise and the schedules do not depend on the strategy), runs every strategy on the plan and
 returns a tidy frame. :func:`over_grid` reduces it per grid point (the fraction of seeds
 kept), :func:`critical` finds the critical value, and :func:`write_outputs` writes
-``runs.csv``, ``critical.md`` and ``results.md``.
+``runs.csv``, ``critical.md``, ``results.md`` and ``phase.png``.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ import pandas as pd
 
 from formation.scenario import Scenario, StrategyName
 from testbed.experiments.markdown import table
+from testbed.experiments.plots import plot_range_phase
 from testbed.sim.batch import BatchResult, plan_batch, run_batch
 from testbed.sim.plan import BatchPlan
 
@@ -191,22 +192,39 @@ def _times(value: float | None) -> str:
 
 
 def write_outputs(
-    r: GridResult, out: Path, columns: Sequence[str], critical_title: str, results: str
+    r: GridResult,
+    out: Path,
+    fields: Sequence[str],
+    critical_title: str,
+    results: str,
+    threshold_m: float,
+    **plot: Any,
 ) -> None:
-    """``runs.csv`` (``columns`` of every cell), ``critical.md`` and ``results.md`` in ``out``."""
+    """``runs.csv`` (``fields`` of every cell), ``critical.md``, ``results.md`` and
+    ``phase.png`` (:func:`plot_range_phase` with ``plot``'s options) in ``out``."""
     out.mkdir(parents=True, exist_ok=True)
-    write_cells(out / "runs.csv", r.rows, columns)
+    write_cells(out / "runs.csv", r.rows, fields)
     (out / "critical.md").write_text(f"# {critical_title}\n\n" + r.critical_markdown())
     (out / "results.md").write_text(results)
+    plot_range_phase(
+        r.success,
+        r.critical,
+        r.points,
+        r.columns,
+        r.strategies,
+        threshold_m,
+        out / "phase.png",
+        **plot,
+    )
 
 
-def write_cells(path: Path, rows: Iterable[dict[str, Any]], columns: Sequence[str]) -> None:
-    """The rows as CSV, finite floats in full (``repr``)."""
+def write_cells(path: Path, rows: Iterable[dict[str, Any]], fields: Sequence[str]) -> None:
+    """The rows' ``fields`` as CSV, finite floats in full (``repr``)."""
     with path.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=columns)
+        writer = csv.DictWriter(f, fieldnames=fields)
         writer.writeheader()
         for row in rows:
-            writer.writerow({k: _cell(row[k]) for k in columns})
+            writer.writerow({k: _cell(row[k]) for k in fields})
 
 
 def _cell(v: Any) -> Any:

@@ -40,7 +40,6 @@ from testbed.experiments.grid import (
 )
 from testbed.experiments.grid import write_outputs as write_grid_outputs
 from testbed.experiments.markdown import table
-from testbed.experiments.plots import plot_range_phase
 from testbed.experiments.real_check import real_run_row
 from testbed.sim.batch import BatchResult
 
@@ -283,16 +282,8 @@ def run_wireless_real(
 def write_outputs(r: WirelessResult, out: Path) -> None:
     """``runs.csv``, ``critical.md``, ``results.md`` and ``phase.png`` in ``out``."""
     title = "Critical radio range per strategy"
-    write_grid_outputs(r, out, COLUMNS, title, wireless_results_markdown(r))
-    plot_range_phase(
-        r.success,
-        r.critical,
-        r.spec.ranges,
-        list(r.columns),
-        r.spec.strategies,
-        r.spec.threshold_m,
-        out / "phase.png",
-    )
+    results = wireless_results_markdown(r)
+    write_grid_outputs(r, out, COLUMNS, title, results, r.spec.threshold_m)
 
 
 __all__ = [
