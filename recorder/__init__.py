@@ -17,7 +17,7 @@ from recorder.analysis.metrics import error_statistics, formation_error, nees, s
 from recorder.analysis.queues import loss_split
 from recorder.analysis.rundata import RunData, read_run
 from recorder.analysis.safety import safety_counts
-from recorder.analysis.summary import summarise
+from recorder.analysis.summary import final_value, summarise
 from recorder.live.scene import scene_update
 from recorder.live.server import LiveServer
 from recorder.node import build_parser as recorder_parser
@@ -60,6 +60,7 @@ __all__ = [
     "describe",
     "error_statistics",
     "export",
+    "final_value",
     "formation_error",
     "load_run",
     "loss_split",

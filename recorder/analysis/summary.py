@@ -3,8 +3,8 @@
 Every summary reads the same record and calls :func:`summarise`: ``formation run``'s
 (the launcher's record of what it saw), ``formation simulate``'s (the simulator's),
 ``report.md`` and ``summary.json`` (the recording's). The sweep, which keeps only a
-batch's arrays, takes its final errors from :func:`team_errors`, the rule
-:func:`summarise` applies. So the four agree to the last bit on the same states.
+batch's arrays, takes its final errors by the same rule, :func:`team_errors` read by
+:func:`final_value`. So the four agree to the last bit on the same states.
 """
 
 from __future__ import annotations
@@ -64,9 +64,9 @@ def summarise(run: RunData) -> dict[str, Any]:
         "epochs": max(len(run.positions) - 1, 0),
         "epochs_with_states": int(np.isfinite(run.positions).all(axis=(1, 2)).sum()),
         "epochs_with_estimates": int(known.sum()),
-        "final_formation_error_m": _final(formation, run.present),
+        "final_formation_error_m": final_value(formation, run.present),
         "peak_formation_error_m": _peak(run.formation_error),
-        "final_shape_error_m": _final(shape, run.present),
+        "final_shape_error_m": final_value(shape, run.present),
         "peak_shape_error_m": _peak(run.shape_error),
         "substitutions": int(run.substitution_errors.shape[0]),
         "substitution_cov_trace_m2": _num(sub_trace),
@@ -117,7 +117,7 @@ def _team(run: RunData) -> dict[str, Any]:
     }
 
 
-def _final(values: Array, team: Mask) -> float | None:
+def final_value(values: Array, team: Mask) -> float | None:
     """``values`` (P,) at the last epoch with an agent in ``team`` (P, n); None if NaN."""
     seen = np.flatnonzero(team.any(axis=1))
     return None if not seen.size or np.isnan(values[seen[-1]]) else float(values[seen[-1]])
@@ -132,4 +132,4 @@ def _num(v: float) -> float | None:
     return None if v is None or not math.isfinite(v) else float(v)
 
 
-__all__ = ["run_team_errors", "summarise"]
+__all__ = ["final_value", "run_team_errors", "summarise"]

@@ -23,7 +23,6 @@ from formation.scenario import Scenario
 from testbed.cli.arguments import DEFAULT_SCENARIO, load_checked, parse_strategies
 from testbed.cli.tables import print_table
 from testbed.experiments.capacity import CapacitySpec, run_capacity, run_capacity_real
-from testbed.experiments.capacity import critical_markdown as capacity_critical
 from testbed.experiments.capacity import write_outputs as write_capacity
 from testbed.experiments.executors import SCHEDULER_FORMS, executor_for
 from testbed.experiments.loss_variants import LOSS_MODELS
@@ -31,7 +30,6 @@ from testbed.experiments.paper_run import run_paper
 from testbed.experiments.sweep import SweepSpec, critical_table, loss_grid, run_sweep
 from testbed.experiments.wireless import (
     WirelessSpec,
-    critical_markdown,
     run_wireless,
     run_wireless_real,
     write_outputs,
@@ -88,7 +86,7 @@ def _wireless(
     if not args.no_real:
         run_wireless_real(result, out, record=not args.no_record, log=lambda m: console.print(m))
     write_outputs(result, out)
-    Console().print(critical_markdown(result))
+    Console().print(result.critical_markdown())
     for row in result.real:
         console.print(
             f"real processes {row['case']}, {row['strategy']} seed {row['seed']}: "
@@ -117,7 +115,7 @@ def _capacity(
     if not args.no_real:
         run_capacity_real(result, out, record=not args.no_record, log=lambda m: console.print(m))
     write_capacity(result, out)
-    Console().print(capacity_critical(result))
+    Console().print(result.critical_markdown())
     for row in result.real:
         console.print(
             f"real processes {row['strategy']} seed {row['seed']}: max |Δx| {row['max_diff']}, "

@@ -26,23 +26,32 @@ access point at ``ρ = 1``) checks it, recorded.
 
 from __future__ import annotations
 
-import csv
-import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from formation.deadlines import PHASES
 from formation.scenario import STRATEGIES, Scenario, StrategyName
 from formation.wire_size import WireSizes
-from testbed.experiments.plots import plot_range_phase
+from testbed.experiments.grid import (
+    KEEP_FRACTION,
+    GridResult,
+    Variant,
+    critical,
+    kept_fraction,
+    over_grid,
+    progress,
+    run_grid,
+)
+from testbed.experiments.grid import write_outputs as write_grid_outputs
+from testbed.experiments.markdown import table
 from testbed.experiments.real_check import real_run_row
-from testbed.experiments.studies import KEEP_FRACTION
-from testbed.experiments.wireless import critical_range
-from testbed.sim.batch import plan_batch, run_batch
+from testbed.sim.batch import BatchResult
+from testbed.sim.plan import BatchPlan
 
 MULTIPLES = tuple(round(0.25 * i, 2) for i in range(1, 9))  # ρ: 0.25 … 2
 AP, AP_STATES, RADIOS = "access point", "access point (states only)", "radios"
@@ -76,17 +85,14 @@ class CapacitySpec:
     threshold_m: float = THRESHOLD_M
 
 
-@dataclass
-class CapacityResult:
-    """success, critical : (study, topology) label and strategy → (R,) kept / critical ``ρ``."""
+@dataclass(kw_only=True)
+class CapacityResult(GridResult):
+    """The grid's columns are ``"study, topology"`` labels; success, critical and median_error
+    by (label, strategy)."""
 
     spec: CapacitySpec
-    rows: list[dict[str, Any]]
-    success: dict[tuple[str, str], np.ndarray]
-    critical: dict[tuple[str, str], float | None]
     median_error: dict[tuple[str, str], np.ndarray]
     load: dict[str, dict[str, float]]  # topology → bytes per epoch by phase, and c_ap, c_radio
-    real: list[dict[str, Any]] = field(default_factory=list)
 
 
 def epoch_load(s: Scenario) -> dict[str, float]:
@@ -143,73 +149,73 @@ def capacity_variant(s: Scenario, study: str, multiple: float, epochs: int) -> S
     return s.with_overrides(network=net, epochs=epochs)
 
 
+def judge(threshold_m: float) -> Callable[[BatchResult], dict[str, np.ndarray]]:
+    """What a cell measures: its final shape error, kept or not, and the share of formation
+    packets delivered."""
+
+    def measure(res: BatchResult) -> dict[str, np.ndarray]:
+        errors = np.asarray(res.shape_error[-1], dtype=float)
+        return {
+            "final_error_m": errors,
+            "kept": errors < threshold_m,
+            "formation_delivered": res.delivered.mean(axis=(0, 2)),
+        }
+
+    return measure
+
+
+def control_delivered(plan: BatchPlan) -> dict[str, np.ndarray]:
+    """The share of reports and of estimates delivered in time, per member of ``plan``."""
+    n = plan.base.n
+    return {
+        "report_delivered": plan.report_ok.reshape(plan.epochs, -1, n).mean(axis=(0, 2)),
+        "estimate_delivered": plan.estimate_ok.reshape(plan.epochs, -1, n).mean(axis=(0, 2)),
+    }
+
+
 def run_capacity(spec: CapacitySpec, log: Callable[[str], None] = print) -> CapacityResult:
     """Every study, topology, strategy, capacity and seed on the batch simulator."""
-    rows: list[dict[str, Any]] = []
-    success: dict[tuple[str, str], np.ndarray] = {}
-    critical: dict[tuple[str, str], float | None] = {}
-    median: dict[tuple[str, str], np.ndarray] = {}
-    n_r, n_s = len(spec.multiples), len(spec.seeds)
+    frames = []
     for study in spec.studies:
         for name, scenario in spec.topologies:
             label = f"{study}, {name}"
-            variants = [capacity_variant(scenario, study, m, spec.epochs) for m in spec.multiples]
-            members = [v for v in variants for _ in spec.seeds]
-            log(f"capacity: {label}: planning {len(members)} runs …")
-            plan = plan_batch(members, [seed for _ in variants for seed in spec.seeds])
-            n = scenario.n
-            for strategy in spec.strategies:
-                log(f"capacity: {label}, {strategy} …")
-                res = run_batch(plan, strategy, detail=False)
-                errors = np.asarray(res.shape_error[-1], dtype=float).reshape(n_r, n_s)
-                kept = errors < spec.threshold_m
-                shares = [
-                    res.delivered.mean(axis=(0, 2)),
-                    plan.report_ok.reshape(plan.epochs, -1, n).mean(axis=(0, 2)),
-                    plan.estimate_ok.reshape(plan.epochs, -1, n).mean(axis=(0, 2)),
-                ]
-                shares = [a.reshape(n_r, n_s) for a in shares]
-                for i, m in enumerate(spec.multiples):
-                    rate = variants[i].network.capacity[0].rate_bps
-                    for j, seed in enumerate(spec.seeds):
-                        rows.append(
-                            {
-                                "study": study,
-                                "topology": name,
-                                "strategy": strategy,
-                                "rate_multiple": m,
-                                "rate_bps": rate,
-                                "seed": seed,
-                                "final_error_m": float(errors[i, j]),
-                                "kept": bool(kept[i, j]),
-                                "formation_delivered": float(shares[0][i, j]),
-                                "report_delivered": float(shares[1][i, j]),
-                                "estimate_delivered": float(shares[2][i, j]),
-                            }
-                        )
-                frac = kept.mean(axis=1)
-                success[(label, strategy)] = frac
-                critical[(label, strategy)] = critical_range(spec.multiples, frac)
-                median[(label, strategy)] = np.median(errors, axis=1)
-    load = {name: epoch_load(s) for name, s in spec.topologies}
-    return CapacityResult(spec, rows, success, critical, median, load)
+            variants = []
+            for m in spec.multiples:
+                s = capacity_variant(scenario, study, m, spec.epochs)
+                keys = {"label": label, "study": study, "topology": name, "rate_multiple": m}
+                variants.append(Variant({**keys, "rate_bps": s.network.capacity[0].rate_bps}, s))
+            log(f"capacity: {label}: planning {len(variants) * len(spec.seeds)} runs …")
+            frames.append(
+                run_grid(
+                    variants,
+                    spec.seeds,
+                    spec.strategies,
+                    judge(spec.threshold_m),
+                    planned=control_delivered,
+                    log=progress(log, f"capacity: {label}"),
+                )
+            )
+    frame = pd.concat(frames, ignore_index=True)
+    by, points = ("label", "strategy"), spec.multiples
+    success = over_grid(frame, by, "rate_multiple", points, kept_fraction)
+    median = over_grid(
+        frame, by, "rate_multiple", points, lambda c: float(np.median(c["final_error_m"]))
+    )
+    return CapacityResult(
+        spec=spec,
+        frame=frame,
+        strategies=spec.strategies,
+        points=spec.multiples,
+        columns=tuple(labels(spec)),
+        success=success,
+        critical={k: critical(points, v, easiest="high") for k, v in success.items()},
+        median_error=median,
+        load={name: epoch_load(s) for name, s in spec.topologies},
+    )
 
 
 def labels(spec: CapacitySpec) -> list[str]:
     return [f"{study}, {name}" for study in spec.studies for name, _ in spec.topologies]
-
-
-def critical_markdown(r: CapacityResult) -> str:
-    """Critical ``ρ`` per strategy (rows) and study × topology (columns)."""
-    cols = labels(r.spec)
-    lines = ["| strategy | " + " | ".join(cols) + " |", "|" + " --- |" * (1 + len(cols))]
-    for s in r.spec.strategies:
-        cells = []
-        for c in cols:
-            crit = r.critical[(c, s)]
-            cells.append("none" if crit is None else f"{crit:g} ×")
-        lines.append(f"| {s} | " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
 
 
 def results_markdown(r: CapacityResult) -> str:
@@ -231,43 +237,45 @@ def results_markdown(r: CapacityResult) -> str:
         "",
         "## One epoch's traffic",
         "",
-        "| topology | states [B] | reports [B] | estimates [B] | control share | c_ap [kbit/s] | c_radio [kbit/s] |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
+        load_markdown(r).rstrip("\n"),
     ]
+    text += ["", "## Critical capacity per strategy", "", r.critical_markdown()]
+    text += ["## What the numbers show", "", *what_it_shows(r), ""]
+    text += ["## Fraction of seeds keeping the formation, and median final shape error [m]", ""]
+
+    def cell(c: str, s: str, i: int) -> str:
+        return f"{r.success[(c, s)][i]:.2f} ({r.median_error[(c, s)][i]:.3g})"
+
+    for c in labels(spec):
+        text += [f"### {c}", "", r.success_markdown(c, cell)]
+    if r.real:
+        header = ["strategy", "ρ", "seed", "max abs(Δx)", "recorded", "match", "recording"]
+        rest = ("seed", "max_diff", "recorded_diff", "match", "recording")
+        rows = ([x["strategy"], f"{x['rate_multiple']:g}", *(x[k] for k in rest)] for x in r.real)
+        text += ["## Real-process runs (recorded)", "", table(header, rows).rstrip("\n")]
+    text += ["", "![success against capacity](phase.png)", ""]
+    return "\n".join(text)
+
+
+def load_markdown(r: CapacityResult) -> str:
+    """One epoch's bytes by phase per topology, the control traffic's share and the rates ``c``."""
+    header = ["topology", "states [B]", "reports [B]", "estimates [B]", "control share"]
+    rows = []
     for name, ld in r.load.items():
         total = ld["states"] + ld["reports"] + ld["estimates"]
         share = (ld["reports"] + ld["estimates"]) / total
-        text.append(
-            f"| {name} | {ld['states']:.0f} | {ld['reports']:.0f} | {ld['estimates']:.0f} | "
-            f"{share:.0%} | {ld['c_ap'] / 1e3:.1f} | {ld['c_radio'] / 1e3:.1f} |"
-        )
-    text += ["", "## Critical capacity per strategy", "", critical_markdown(r)]
-    text += ["## What the numbers show", "", *what_it_shows(r), ""]
-    text += ["## Fraction of seeds keeping the formation, and median final shape error [m]", ""]
-    for c in labels(spec):
-        text += [f"### {c}", "", "| ρ | " + " | ".join(spec.strategies) + " |"]
-        text.append("|" + " --- |" * (1 + len(spec.strategies)))
-        for i, m in enumerate(spec.multiples):
-            cells = [
-                f"{r.success[(c, s)][i]:.2f} ({r.median_error[(c, s)][i]:.3g})"
-                for s in spec.strategies
+        rows.append(
+            [
+                name,
+                f"{ld['states']:.0f}",
+                f"{ld['reports']:.0f}",
+                f"{ld['estimates']:.0f}",
+                f"{share:.0%}",
+                f"{ld['c_ap'] / 1e3:.1f}",
+                f"{ld['c_radio'] / 1e3:.1f}",
             ]
-            text.append(f"| {m:g} | " + " | ".join(cells) + " |")
-        text.append("")
-    if r.real:
-        text += [
-            "## Real-process runs (recorded)",
-            "",
-            "| strategy | ρ | seed | max abs(Δx) | recorded | match | recording |",
-            "| --- | --- | --- | --- | --- | --- | --- |",
-        ]
-        for row in r.real:
-            text.append(
-                f"| {row['strategy']} | {row['rate_multiple']:g} | {row['seed']} | "
-                f"{row['max_diff']} | {row['recorded_diff']} | {row['match']} | {row['recording']} |"
-            )
-    text += ["", "![success against capacity](phase.png)", ""]
-    return "\n".join(text)
+        )
+    return table([*header, "c_ap [kbit/s]", "c_radio [kbit/s]"], rows)
 
 
 def what_it_shows(r: CapacityResult) -> list[str]:
@@ -350,32 +358,11 @@ def run_capacity_real(
 
 def write_outputs(r: CapacityResult, out: Path) -> None:
     """``runs.csv``, ``critical.md``, ``results.md`` and ``phase.png`` in ``out``."""
-    out.mkdir(parents=True, exist_ok=True)
-    with (out / "runs.csv").open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=COLUMNS)
-        writer.writeheader()
-        for row in r.rows:
-            writer.writerow(
-                {
-                    k: repr(v) if isinstance(v, float) and math.isfinite(v) else v
-                    for k, v in row.items()
-                }
-            )
-    (out / "critical.md").write_text(
-        "# Critical capacity per strategy (ρ: multiples of the rate the states need)\n\n"
-        + critical_markdown(r)
-    )
-    (out / "results.md").write_text(results_markdown(r))
-    plot_range_phase(
-        r.success,
-        r.critical,
-        r.spec.multiples,
-        labels(r.spec),
-        r.spec.strategies,
-        r.spec.threshold_m,
-        out / "phase.png",
-        xlabel="capacity ρ (× the rate one epoch's states need)",
-        columns=len(r.spec.topologies),
+    title = "Critical capacity per strategy (ρ: multiples of the rate the states need)"
+    xlabel = "capacity ρ (× the rate one epoch's states need)"
+    results, columns = results_markdown(r), len(r.spec.topologies)
+    write_grid_outputs(
+        r, out, COLUMNS, title, results, r.spec.threshold_m, xlabel=xlabel, columns=columns
     )
 
 
@@ -386,7 +373,9 @@ __all__ = [
     "CapacityResult",
     "CapacitySpec",
     "capacity_variant",
+    "control_delivered",
     "epoch_load",
+    "judge",
     "run_capacity",
     "run_capacity_real",
     "write_outputs",

@@ -19,6 +19,7 @@ from formation.scenario import STRATEGIES, Scenario, StrategyName
 from recorder import error_statistics, read_run
 from testbed.experiments import plots, studies
 from testbed.experiments.loss_variants import with_loss
+from testbed.experiments.markdown import table
 from testbed.experiments.paper import (
     PLOTTED_AGENTS,
     Array,
@@ -118,12 +119,7 @@ def run_real(
 ) -> None:
     """Each strategy's representative seed through real processes; compares positions."""
     runs_dir = out / "runs"
-    lines = [
-        "# Real-process runs of `formation experiment paper`",
-        "",
-        "| strategy | seed | run id | wall [s] | recording | skipped |",
-        "| --- | --- | --- | --- | --- | --- |",
-    ]
+    rows: list[list[object]] = []
     for s in strategies:
         res = r.runs["failure"][s]
         seed = representative_seed(res)
@@ -141,7 +137,7 @@ def run_real(
             )
         except Exception as exc:  # a failed launch is reported, not fatal to the experiment
             row["max_diff_text"] = f"launch failed: {type(exc).__name__}"
-            lines.append(f"| {s} | {seed} | - | - | launch failed: {exc} | - |")
+            rows.append([s, seed, "-", "-", f"launch failed: {exc}", "-"])
             r.real.append(row)
             continue
         diff = float(np.max(np.abs(outcome.positions - sim_x)))
@@ -153,13 +149,12 @@ def run_real(
             rec_note, skipped = check_recording(row, outcome.run_dir / "run.mcap", sim_x)
             ok = ok and row.get("recorded_diff", np.inf) <= 1e-9
         row["match"] = "yes" if ok else "no"
-        lines.append(
-            f"| {s} | {seed} | `{outcome.run_id}` | {outcome.wall_s:.1f} | {rec_note} | {skipped} |"
-        )
+        rows.append([s, seed, f"`{outcome.run_id}`", f"{outcome.wall_s:.1f}", rec_note, skipped])
         r.real.append(row)
-    lines.append(run_events_real(r, runs_dir, record, log))
-    lines += ["", SKIPPED_NOTE]
-    (out / "real_runs.md").write_text("\n".join(lines) + "\n")
+    rows.append(run_events_real(r, runs_dir, record, log))
+    header = ["strategy", "seed", "run id", "wall [s]", "recording", "skipped"]
+    text = "# Real-process runs of `formation experiment paper`\n\n" + table(header, rows)
+    (out / "real_runs.md").write_text(text + "\n" + SKIPPED_NOTE + "\n")
 
 
 SKIPPED_NOTE = (
@@ -194,7 +189,7 @@ def check_recording(
 
 def run_events_real(
     r: PaperResults, runs_dir: Path, record: bool, log: Callable[[str], None]
-) -> str:
+) -> list[object]:
     """The dynamic-formation study's team with its leave and join as scenario events, through
     real processes, against ``simulate`` where states were published; returns its table row."""
     scenario = studies.dynamic_team(r.scenario, leave=(5, 20), join=(6, 35))
@@ -211,7 +206,7 @@ def run_events_real(
     except Exception as exc:  # a failed launch is reported, not fatal to the experiment
         row["max_diff_text"] = f"launch failed: {type(exc).__name__}"
         r.real.append(row)
-        return f"| {label} | {scenario.seed} | - | - | launch failed: {exc} | - |"
+        return [label, scenario.seed, "-", "-", f"launch failed: {exc}", "-"]
     seen = np.isfinite(outcome.positions)
     diff = float(np.max(np.abs(outcome.positions[seen] - sim.positions[seen])))
     row["real_final"] = float(outcome.formation_error[-1])  # bodies out of the team held
@@ -223,10 +218,7 @@ def run_events_real(
         ok = ok and row.get("recorded_diff", np.inf) <= 1e-9
     row["match"] = "yes" if ok else "no"
     r.real.append(row)
-    return (
-        f"| {label} | {scenario.seed} | `{outcome.run_id}` | {outcome.wall_s:.1f} | {where} "
-        f"| {skipped} |"
-    )
+    return [label, scenario.seed, f"`{outcome.run_id}`", f"{outcome.wall_s:.1f}", where, skipped]
 
 
 # ------------------------------------------------------------------------------ the whole experiment

@@ -9,9 +9,12 @@ from __future__ import annotations
 import csv
 import io
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
+from testbed.experiments.grid import KEEP_FRACTION
+from testbed.experiments.markdown import table
 from testbed.experiments.paper import (
     LOSSY_P,
     SECOND_LINK,
@@ -20,36 +23,46 @@ from testbed.experiments.paper import (
     per_seed_trace,
     window_trace,
 )
-from testbed.experiments.studies import KEEP_FRACTION, KEEP_M, fmt, mean_std
+from testbed.experiments.studies import (
+    KEEP_M,
+    AlphaStudy,
+    ControllerStudy,
+    DynamicStudy,
+    EstimatorStudy,
+    fmt,
+    mean_std,
+)
 from testbed.sim.batch import BatchResult
 
 
 def _strategy_table(runs: dict[str, BatchResult], epochs_label: str) -> str:
-    lines = [
-        f"| strategy | final formation error at {epochs_label} [m] | final shape error [m] | "
-        "peak formation error [m] | tr Cov(x̃ − x), pooled [m²] | substitutions per seed | fallbacks per seed |",
-        "|" + " --- |" * 7,
-    ]
+    header = ["strategy", f"final formation error at {epochs_label} [m]", "final shape error [m]"]
+    header += ["peak formation error [m]", "tr Cov(x̃ − x), pooled [m²]"]
+    header += ["substitutions per seed", "fallbacks per seed"]
+    rows = []
     for s, res in runs.items():
         subs = np.bincount(res.sub_member, minlength=res.size)
-        lines.append(
-            f"| {s} | {mean_std(final_errors(res))} | {mean_std(res.shape_error[-1])} | "
-            f"{mean_std(res.formation_error.max(axis=0))} | {fmt(window_trace(res, 0))} | "
-            f"{fmt(float(subs.mean()), '.1f')} | {fmt(float(res.fallbacks.mean()), '.1f')} |"
+        rows.append(
+            [
+                s,
+                mean_std(final_errors(res)),
+                mean_std(res.shape_error[-1]),
+                mean_std(res.formation_error.max(axis=0)),
+                fmt(window_trace(res, 0)),
+                fmt(float(subs.mean()), ".1f"),
+                fmt(float(res.fallbacks.mean()), ".1f"),
+            ]
         )
-    return "\n".join(lines) + "\n"
+    return table(header, rows)
 
 
 def _seed_table(runs: dict[str, BatchResult], seeds: Sequence[int]) -> str:
     names = list(runs)
-    lines = ["| seed | " + " | ".join(names) + " |", "|" + " --- |" * (1 + len(names))]
-    for b, seed in enumerate(seeds):
-        lines.append(
-            f"| {seed} | "
-            + " | ".join(fmt(float(runs[s].formation_error[-1, b]), ".4g") for s in names)
-            + " |"
-        )
-    return "\n".join(lines) + "\n"
+    rows = (
+        [seed, *(fmt(float(runs[s].formation_error[-1, b]), ".4g") for s in names)]
+        for b, seed in enumerate(seeds)
+    )
+    return table(["seed", *names], rows)
 
 
 def seeds_csv(r: PaperResults) -> str:
@@ -93,127 +106,20 @@ def seeds_csv(r: PaperResults) -> str:
 
 
 def results_markdown(r: PaperResults) -> str:
-    s, seeds = r.scenario, r.seeds
-    n = len(seeds)
-    out = [
-        "# The chapter's experiment, reproduced",
-        "",
-        f"`formation experiment paper` on `{s.name}` (docs/model.md §8): {s.n} agents, link 1–2 down from epoch 1, "
-        f"reference moving along a line, noise σ = {s.noise.sigma_m:g} m, ε = {s.control.epsilon:g}; "
-        f"{n} seeds ({seeds[0]}–{seeds[-1]}), {s.epochs} epochs as in the chapter and 500 for steady state. "
-        f"In-process batch simulation (`testbed/batch.py`, equal to `formation simulate` per seed). "
-        f"Mean ± standard deviation over the seeds. A run keeps the formation when its final formation "
-        f"error is under {KEEP_M:g} m.",
-        "",
-        "## The chapter's claims",
-        "",
-        "| source | claim | verdict | numbers |",
-        "| --- | --- | --- | --- |",
-    ]
-    out += [f"| {c.source} | {c.text} | **{c.verdict}** | {c.evidence} |" for c in r.claims]
-    titles = {
-        "failure": f"Link 1–2 fails (figs 7.7–7.11), {s.epochs} epochs",
-        "failure, 500 epochs": "Link 1–2 fails, 500 epochs (steady state)",
-        "one lossy link": f"One lossy link: 1–2 with Bernoulli loss {LOSSY_P:g} for all {s.epochs} epochs",
-        "two lossy links": f"Two lossy links: 1–2 and {SECOND_LINK[0]}–{SECOND_LINK[1]}, Bernoulli loss {LOSSY_P:g}",
-    }
-    for variant, per in r.runs.items():
-        epochs = per["estimate"].plan.epochs
-        out += [
-            "",
-            f"## {titles.get(variant, variant)}",
-            "",
-            _strategy_table(per, f"epoch {epochs}"),
-            f"Final formation error at epoch {epochs} per seed [m]:",
-            "",
-            _seed_table(per, seeds),
-        ]
-    out += [
-        "Substitution errors (docs/model.md §7) count every lost variable, also those the reference agent "
-        "substitutes without steering by them: on this scenario agent 1's stand-in for x_2 (link 2→1) is "
-        "the only one with estimation error, since the leader knows x_1 exactly.",
-    ]
+    """The whole ``results.md``: the claims, each variant's tables, the studies, the real runs."""
+    out = _claims(r) + _variants(r)
     extra = r.studies
-    if "controller" in extra:
-        c = extra["controller"]
-        out += [
-            "",
-            "## §7.2: rigidity or connectivity (controller table)",
-            "",
-            f"Links dropped in both directions for all {c.epochs} epochs, strategy `drop` (the lost terms left "
-            f"out, so the controller runs on the healthy graph), no other loss, {len(c.seeds)} seeds; kept = "
-            f"final formation error < {KEEP_M:g} m in ≥ {KEEP_FRACTION:.0%} of seeds. The distance gain is "
-            "lower because the distance law is unstable at the displacement law's gain (it diverged at 0.25).",
-            "",
-            c.markdown(),
-            f"§7.2 argument {'**held**' if c.holds() else '**not held**'}: every case is kept exactly when "
-            "the controller's graph condition (rigid for distance, connected for displacement) holds."
-            if c.holds()
-            else "§7.2 argument **not held** in at least one case above.",
-        ]
-    if "estimator" in extra:
-        e = extra["estimator"]
-        out += [
-            "",
-            "## BLUE on the Kruskal tree vs on every healthy edge",
-            "",
-            f"Strategy `estimate`, {e.epochs} epochs, {len(e.seeds)} seeds. Predicted: mean over epochs and "
-            "observable followers of tr Cov(x̂_i); empirical: trace of the covariance of the pooled errors "
-            "x̂_i − x_i. NEES averages d = 2 for an honest estimator.",
-            "",
-            e.markdown(),
-        ]
-    if "alpha" in extra:
-        a = extra["alpha"]
-        out += [
-            "",
-            "## α of blend",
-            "",
-            f"{len(a.seeds)} seeds; α = 1 is `estimate`; in brackets the value relative to α = 1. The best α "
-            "depends on the window: a small α averages more noise but lags the consensus transient longer.",
-            "",
-            a.markdown(),
-            "![alpha](alpha.png)",
-        ]
-    if "dynamic" in extra:
-        d = extra["dynamic"]
-        (la, ka), (lj, kj) = d.leave, d.join
-        out += [
-            "",
-            "## Dynamic formation: an agent leaves, another joins",
-            "",
-            f"`{d.scenario.name}`: the pentagon plus agent {lj} (edges 3–{lj}, 4–{lj}), link 1–2 down as in the "
-            f"paper. Agent {la} leaves at epoch {ka} (its links stop, it leaves the consensus, the tree and the "
-            f"estimate, and stays where it is); agent {lj} joins at epoch {kj} from where it was parked. Shape "
-            f"error over the edges active at each epoch, median of {len(d.seeds)} seeds. The leader's tree has "
-            f"{int(d.tree_edges[ka - 1])} edges before epoch {ka}, {int(d.tree_edges[ka])} after agent {la} "
-            f"leaves and {int(d.tree_edges[kj])} after agent {lj} joins; observable agents "
-            f"{int(d.observable[ka - 1])} → {int(d.observable[ka])} → {int(d.observable[kj])}. In-process only: "
-            "the scenario file and the distributed runtime have no join/leave events yet.",
-            "",
-            d.markdown(),
-            "![dynamic](dynamic.png)",
-        ]
+    sections = (
+        ("controller", _controller),
+        ("estimator", _estimator),
+        ("alpha", _alpha),
+        ("dynamic", _dynamic),
+    )
+    for name, section in sections:
+        if name in extra:
+            out += section(extra[name])
     if r.real:
-        out += [
-            "",
-            "## Real processes",
-            "",
-            "One representative seed per strategy (the seed whose final formation error is closest to the "
-            "median over the seeds) run through the real processes (`formation run`: router, recorder, netem, "
-            "leader, agents over Zenoh, lockstep); positions compared with the simulation epoch by epoch. "
-            "Run ids and wall times: `real_runs.md`.",
-            "",
-            "| strategy | seed | simulated final formation error [m] | real [m] | max abs position difference [m] | "
-            "recorded positions max abs difference [m] | match |",
-            "|" + " --- |" * 7,
-        ]
-        for row in r.real:
-            out.append(
-                f"| {row['strategy']} | {row['seed']} | {fmt(row['sim_final'], '.6g')} | "
-                f"{fmt(row.get('real_final', float('nan')), '.6g')} | {row.get('max_diff_text', '-')} | "
-                f"{row.get('recorded_diff_text', '-')} | {row.get('match', 'no')} |"
-            )
+        out += _real(r.real)
     out += [
         "",
         "## Figures",
@@ -228,6 +134,149 @@ def results_markdown(r: PaperResults) -> str:
         "Every number per seed: `seeds.csv`.",
     ]
     return "\n".join(out) + "\n"
+
+
+def _claims(r: PaperResults) -> list[str]:
+    s, seeds = r.scenario, r.seeds
+    n = len(seeds)
+    claims = table(
+        ["source", "claim", "verdict", "numbers"],
+        ([c.source, c.text, f"**{c.verdict}**", c.evidence] for c in r.claims),
+    )
+    return [
+        "# The chapter's experiment, reproduced",
+        "",
+        f"`formation experiment paper` on `{s.name}` (docs/model.md §8): {s.n} agents, link 1–2 down from epoch 1, "
+        f"reference moving along a line, noise σ = {s.noise.sigma_m:g} m, ε = {s.control.epsilon:g}; "
+        f"{n} seeds ({seeds[0]}–{seeds[-1]}), {s.epochs} epochs as in the chapter and 500 for steady state. "
+        f"In-process batch simulation (`testbed/batch.py`, equal to `formation simulate` per seed). "
+        f"Mean ± standard deviation over the seeds. A run keeps the formation when its final formation "
+        f"error is under {KEEP_M:g} m.",
+        "",
+        "## The chapter's claims",
+        "",
+        claims.rstrip("\n"),
+    ]
+
+
+def _variants(r: PaperResults) -> list[str]:
+    s = r.scenario
+    titles = {
+        "failure": f"Link 1–2 fails (figs 7.7–7.11), {s.epochs} epochs",
+        "failure, 500 epochs": "Link 1–2 fails, 500 epochs (steady state)",
+        "one lossy link": f"One lossy link: 1–2 with Bernoulli loss {LOSSY_P:g} for all {s.epochs} epochs",
+        "two lossy links": f"Two lossy links: 1–2 and {SECOND_LINK[0]}–{SECOND_LINK[1]}, Bernoulli loss {LOSSY_P:g}",
+    }
+    out: list[str] = []
+    for variant, per in r.runs.items():
+        epochs = per["estimate"].plan.epochs
+        out += [
+            "",
+            f"## {titles.get(variant, variant)}",
+            "",
+            _strategy_table(per, f"epoch {epochs}"),
+            f"Final formation error at epoch {epochs} per seed [m]:",
+            "",
+            _seed_table(per, r.seeds),
+        ]
+    return [
+        *out,
+        "Substitution errors (docs/model.md §7) count every lost variable, also those the reference agent "
+        "substitutes without steering by them: on this scenario agent 1's stand-in for x_2 (link 2→1) is "
+        "the only one with estimation error, since the leader knows x_1 exactly.",
+    ]
+
+
+def _controller(c: ControllerStudy) -> list[str]:
+    return [
+        "",
+        "## §7.2: rigidity or connectivity (controller table)",
+        "",
+        f"Links dropped in both directions for all {c.epochs} epochs, strategy `drop` (the lost terms left "
+        f"out, so the controller runs on the healthy graph), no other loss, {len(c.seeds)} seeds; kept = "
+        f"final formation error < {KEEP_M:g} m in ≥ {KEEP_FRACTION:.0%} of seeds. The distance gain is "
+        "lower because the distance law is unstable at the displacement law's gain (it diverged at 0.25).",
+        "",
+        c.markdown(),
+        f"§7.2 argument {'**held**' if c.holds() else '**not held**'}: every case is kept exactly when "
+        "the controller's graph condition (rigid for distance, connected for displacement) holds."
+        if c.holds()
+        else "§7.2 argument **not held** in at least one case above.",
+    ]
+
+
+def _estimator(e: EstimatorStudy) -> list[str]:
+    return [
+        "",
+        "## BLUE on the Kruskal tree vs on every healthy edge",
+        "",
+        f"Strategy `estimate`, {e.epochs} epochs, {len(e.seeds)} seeds. Predicted: mean over epochs and "
+        "observable followers of tr Cov(x̂_i); empirical: trace of the covariance of the pooled errors "
+        "x̂_i − x_i. NEES averages d = 2 for an honest estimator.",
+        "",
+        e.markdown(),
+    ]
+
+
+def _alpha(a: AlphaStudy) -> list[str]:
+    return [
+        "",
+        "## α of blend",
+        "",
+        f"{len(a.seeds)} seeds; α = 1 is `estimate`; in brackets the value relative to α = 1. The best α "
+        "depends on the window: a small α averages more noise but lags the consensus transient longer.",
+        "",
+        a.markdown(),
+        "![alpha](alpha.png)",
+    ]
+
+
+def _dynamic(d: DynamicStudy) -> list[str]:
+    (la, ka), (lj, kj) = d.leave, d.join
+    return [
+        "",
+        "## Dynamic formation: an agent leaves, another joins",
+        "",
+        f"`{d.scenario.name}`: the pentagon plus agent {lj} (edges 3–{lj}, 4–{lj}), link 1–2 down as in the "
+        f"paper. Agent {la} leaves at epoch {ka} (its links stop, it leaves the consensus, the tree and the "
+        f"estimate, and stays where it is); agent {lj} joins at epoch {kj} from where it was parked. Shape "
+        f"error over the edges active at each epoch, median of {len(d.seeds)} seeds. The leader's tree has "
+        f"{int(d.tree_edges[ka - 1])} edges before epoch {ka}, {int(d.tree_edges[ka])} after agent {la} "
+        f"leaves and {int(d.tree_edges[kj])} after agent {lj} joins; observable agents "
+        f"{int(d.observable[ka - 1])} → {int(d.observable[ka])} → {int(d.observable[kj])}. In-process only: "
+        "the scenario file and the distributed runtime have no join/leave events yet.",
+        "",
+        d.markdown(),
+        "![dynamic](dynamic.png)",
+    ]
+
+
+def _real(real: list[dict[str, Any]]) -> list[str]:
+    header = ["strategy", "seed", "simulated final formation error [m]", "real [m]"]
+    header += ["max abs position difference [m]", "recorded positions max abs difference [m]"]
+    rows = (
+        [
+            row["strategy"],
+            row["seed"],
+            fmt(row["sim_final"], ".6g"),
+            fmt(row.get("real_final", float("nan")), ".6g"),
+            row.get("max_diff_text", "-"),
+            row.get("recorded_diff_text", "-"),
+            row.get("match", "no"),
+        ]
+        for row in real
+    )
+    return [
+        "",
+        "## Real processes",
+        "",
+        "One representative seed per strategy (the seed whose final formation error is closest to the "
+        "median over the seeds) run through the real processes (`formation run`: router, recorder, netem, "
+        "leader, agents over Zenoh, lockstep); positions compared with the simulation epoch by epoch. "
+        "Run ids and wall times: `real_runs.md`.",
+        "",
+        table([*header, "match"], rows).rstrip("\n"),
+    ]
 
 
 __all__ = ["results_markdown", "seeds_csv"]

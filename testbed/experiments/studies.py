@@ -27,12 +27,13 @@ from formation.graph import is_connected
 from formation.rigidity import expected_rigidity_rank, rigidity_rank
 from formation.scenario import STRATEGIES, Scenario, StrategyName, load_dict
 from recorder import error_statistics, team_shape_error
+from testbed.experiments.grid import KEEP_FRACTION
 from testbed.experiments.loss_variants import with_loss
+from testbed.experiments.markdown import table
 from testbed.sim.batch import BatchResult, plan_batch, run_batch
 
 Array = npt.NDArray[np.float64]
 KEEP_M = 0.05  # [m] a run keeps the formation when its final error is under this
-KEEP_FRACTION = 0.95
 
 
 def fmt(v: float, spec: str = ".3g") -> str:
@@ -107,20 +108,30 @@ class ControllerStudy:
         )
 
     def markdown(self) -> str:
-        lines = [
-            "| dropped for the whole run | healthy graph rigid | connected | controller | gain | "
-            "final formation error [m] | seeds kept | kept | §7.2 predicts |",
-            "|" + " --- |" * 9,
-        ]
+        header = ["dropped for the whole run", "healthy graph rigid", "connected", "controller"]
+        header += ["gain", "final formation error [m]", "seeds kept", "kept", "§7.2 predicts"]
+        rows = []
         for c in self.cases:
             for k, gain in self.gains.items():
                 kept = c.kept(k)
-                lines.append(
-                    f"| {c.label} | {'yes' if c.rigid else 'no'} | {'yes' if c.connected else 'no'} | {k} | "
-                    f"{gain:g} | {mean_std(c.final_error[k])} | {kept:.0%} | "
-                    f"{'yes' if kept >= KEEP_FRACTION else 'no'} | {'kept' if self.predicted(c, k) else 'lost'} |"
+                rows.append(
+                    [
+                        c.label,
+                        _yes(c.rigid),
+                        _yes(c.connected),
+                        k,
+                        f"{gain:g}",
+                        mean_std(c.final_error[k]),
+                        f"{kept:.0%}",
+                        _yes(kept >= KEEP_FRACTION),
+                        "kept" if self.predicted(c, k) else "lost",
+                    ]
                 )
-        return "\n".join(lines) + "\n"
+        return table(header, rows)
+
+
+def _yes(value: bool) -> str:
+    return "yes" if value else "no"
 
 
 def redundant_pentagon(paper: Scenario) -> Scenario:
@@ -190,21 +201,28 @@ class EstimatorStudy:
     seeds: tuple[int, ...]
 
     def markdown(self) -> str:
-        lines = [
-            "| scenario | tr Cov predicted, tree [m²] | healthy [m²] | ratio healthy/tree | "
-            "tr Cov empirical, tree [m²] | healthy [m²] | ratio | NEES tree | NEES healthy | "
-            "final formation error tree [m] | healthy [m] |",
-            "|" + " --- |" * 11,
-        ]
+        header = ["scenario", "tr Cov predicted, tree [m²]", "healthy [m²]", "ratio healthy/tree"]
+        header += ["tr Cov empirical, tree [m²]", "healthy [m²]", "ratio", "NEES tree"]
+        header += ["NEES healthy", "final formation error tree [m]", "healthy [m]"]
+        rows = []
         for r in self.rows:
             p, e = r.predicted, r.empirical
-            lines.append(
-                f"| {r.label} | {fmt(p['tree'])} | {fmt(p['healthy'])} | {fmt(p['healthy'] / p['tree'])} | "
-                f"{fmt(e['tree'])} | {fmt(e['healthy'])} | {fmt(e['healthy'] / e['tree'])} | "
-                f"{fmt(r.nees['tree'])} | {fmt(r.nees['healthy'])} | {mean_std(r.final_error['tree'])} | "
-                f"{mean_std(r.final_error['healthy'])} |"
+            rows.append(
+                [
+                    r.label,
+                    fmt(p["tree"]),
+                    fmt(p["healthy"]),
+                    fmt(p["healthy"] / p["tree"]),
+                    fmt(e["tree"]),
+                    fmt(e["healthy"]),
+                    fmt(e["healthy"] / e["tree"]),
+                    fmt(r.nees["tree"]),
+                    fmt(r.nees["healthy"]),
+                    mean_std(r.final_error["tree"]),
+                    mean_std(r.final_error["healthy"]),
+                ]
             )
-        return "\n".join(lines) + "\n"
+        return table(header, rows)
 
 
 def estimator_study(
@@ -257,19 +275,12 @@ class AlphaStudy:
     seeds: tuple[int, ...]
 
     def markdown(self) -> str:
-        alphas = self.curves[0].alphas
-        lines = [
-            "| α | " + " | ".join(f"{c.label} [{c.unit}]" for c in self.curves) + " |",
-            "|" + " --- |" * (1 + len(self.curves)),
+        rows = [
+            [f"{a:g}", *(f"{fmt(c.values[i])} ({c.relative[i]:.2f})" for c in self.curves)]
+            for i, a in enumerate(self.curves[0].alphas)
         ]
-        for i, a in enumerate(alphas):
-            lines.append(
-                f"| {a:g} | "
-                + " | ".join(f"{fmt(c.values[i])} ({c.relative[i]:.2f})" for c in self.curves)
-                + " |"
-            )
-        lines.append("| **best α** | " + " | ".join(f"**{c.best:g}**" for c in self.curves) + " |")
-        return "\n".join(lines) + "\n"
+        rows.append(["**best α**", *(f"**{c.best:g}**" for c in self.curves)])
+        return table(["α", *(f"{c.label} [{c.unit}]" for c in self.curves)], rows)
 
 
 DEFAULT_ALPHAS = (0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
@@ -385,18 +396,24 @@ class DynamicStudy:
 
     def markdown(self) -> str:
         (la, ka), (lj, kj) = self.leave, self.join
-        lines = [
-            f"| strategy | median shape error before epoch {ka} [m] | peak after agent {la} leaves [m] | "
-            f"just before agent {lj} joins [m] | peak after the join [m] | epochs to settle < 0.02 m | final [m] |",
-            "|" + " --- |" * 7,
-        ]
+        header = ["strategy", f"median shape error before epoch {ka} [m]"]
+        header += [f"peak after agent {la} leaves [m]", f"just before agent {lj} joins [m]"]
+        header += ["peak after the join [m]", "epochs to settle < 0.02 m", "final [m]"]
+        rows = []
         for s, v in self.shape_error.items():
             med = np.median(v, axis=1)
-            lines.append(
-                f"| {s} | {fmt(med[ka - 1])} | {fmt(med[ka:kj].max())} | {fmt(med[kj - 1])} | "
-                f"{fmt(med[kj:].max())} | {fmt(self.settle(s, kj), '.0f')} | {fmt(med[-1])} |"
+            rows.append(
+                [
+                    s,
+                    fmt(med[ka - 1]),
+                    fmt(med[ka:kj].max()),
+                    fmt(med[kj - 1]),
+                    fmt(med[kj:].max()),
+                    fmt(self.settle(s, kj), ".0f"),
+                    fmt(med[-1]),
+                ]
             )
-        return "\n".join(lines) + "\n"
+        return table(header, rows)
 
 
 def dynamic_study(

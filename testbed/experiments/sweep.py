@@ -4,17 +4,19 @@ The question the chapter leaves open (docs/model.md §8): the largest loss rate 
 keeps the formation. A **cell** is one topology × loss model × loss rate × strategy × seed run of
 ``epochs`` epochs with every formation link under the same loss (the scenario's own formation
 network is replaced; its control links are kept). A cell **keeps the formation** when its final
-shape error (docs/model.md §7; with scenario events, over the edges between the agents taking part
-at the end, ``BatchResult.team_errors``) is under ``threshold_m``; a loss rate is kept when ≥ 95 % of the seeds
-keep it; the **critical loss rate** is the largest grid rate up to which every rate is kept.
+shape error (docs/model.md §7; the team's at the last epoch with an agent in it, as a run's
+summary takes it: :func:`recorder.final_value`) is under ``threshold_m``; a loss rate is kept when
+≥ 95 % of the seeds keep it; the **critical loss rate** is the largest grid rate up to which every
+rate is kept (:func:`testbed.experiments.grid.critical`).
 
 Loss models at equal mean rate ``ρ``: Bernoulli ``p_loss = ρ``; Gilbert–Elliott with loss only in
 the bad state and mean burst ``β`` epochs (``r = 1/β``, ``p = ρ r / (1 − ρ)``; when that ``p``
 exceeds 1, ``p = 1`` and ``r = (1 − ρ)/ρ``, longer bursts), so ``π_bad = ρ``
 (``netem.links.models.expected_loss_rate`` checks it).
 
-Runs are batched (``testbed.sim.batch``) in chunks of one topology × model × seed group (every loss
-rate and strategy: the noise is drawn once per seed, the schedules once per rate and seed) and the
+The cells are a grid (:func:`testbed.experiments.grid.run_grid`), run in chunks of one
+topology × model × seed group (every loss rate and strategy: the noise is drawn once per seed,
+the schedules once per rate and seed) and the
 chunks go to an executor (``testbed.experiments.executors``: the local process pool, or a Dask
 cluster), with enough seeds per chunk that a task's overhead stays under 5 % of it. Every finished
 chunk is appended to ``runs.csv`` as it comes; a re-run, on any executor, skips the cells already
@@ -26,21 +28,25 @@ from __future__ import annotations
 
 import csv
 import math
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from formation.errors import TestbedError
 from formation.plugin_api import all_strategies
 from formation.scenario import Scenario, StrategyName
+from recorder import final_value
 from testbed.experiments.executors import Executor, LocalPool, seeds_per_task
+from testbed.experiments.grid import KEEP_FRACTION, Variant, critical, over_grid, run_grid
 from testbed.experiments.loss_variants import LOSS_MODELS, with_loss
+from testbed.experiments.markdown import table
 from testbed.experiments.plots import plot_phase
-from testbed.experiments.studies import KEEP_FRACTION
-from testbed.sim.batch import plan_batch, run_batch
+from testbed.sim.batch import BatchResult
+from testbed.sim.plan import BatchPlan
 
 COLUMNS = (
     "topology",
@@ -133,41 +139,55 @@ class Chunk:
 
 def run_chunk(chunk: Chunk) -> list[dict[str, Any]]:
     """Simulate the cells of ``chunk`` not in ``chunk.done``; one CSV row per cell."""
-    variants = {
-        p: with_loss(chunk.scenario, chunk.model, p, chunk.burst_epochs) for p in chunk.losses
-    }
-    members = [(p, seed) for p in chunk.losses for seed in chunk.seeds]
-    plan = plan_batch([variants[p] for p, _ in members], [s for _, s in members], chunk.epochs)
-    measured = 1.0 - plan.on_time.mean(axis=(0, 2))
-    rows: list[dict[str, Any]] = []
-    for strategy in chunk.strategies:
-        keys = [
-            (chunk.topology, chunk.model, loss_label(p), strategy, seed, chunk.epochs)
-            for p, seed in members
-        ]
-        todo = [b for b, key in enumerate(keys) if key not in chunk.done]
-        if not todo:
-            continue
-        sub = plan if len(todo) == len(members) else plan.subset(todo)
-        with np.errstate(all="ignore"):  # a diverging run is a lost formation, not an error
-            res = run_batch(sub, strategy, detail=False)
-            formation, shape = res.team_errors()  # with events: the team taking part at the end
-        for i, b in enumerate(todo):
-            t, m, p, s, seed, e = keys[b]
-            rows.append(
-                {
-                    "topology": t,
-                    "model": m,
-                    "loss": p,
-                    "strategy": s,
-                    "seed": seed,
-                    "epochs": e,
-                    "final_shape_error_m": _num(shape[-1, i]),
-                    "final_formation_error_m": _num(formation[-1, i]),
-                    "measured_loss": _num(measured[b]),
-                }
-            )
-    return rows
+    variants = [
+        Variant(
+            {"topology": chunk.topology, "model": chunk.model, "loss": loss_label(p)},
+            with_loss(chunk.scenario, chunk.model, p, chunk.burst_epochs),
+        )
+        for p in chunk.losses
+    ]
+
+    def done(v: Variant, strategy: StrategyName, seed: int) -> bool:
+        k = v.keys
+        return (k["topology"], k["model"], k["loss"], strategy, seed, chunk.epochs) in chunk.done
+
+    frame = run_grid(
+        variants,
+        chunk.seeds,
+        chunk.strategies,
+        final_errors,
+        planned=measured_loss,
+        epochs=chunk.epochs,
+        skip=done,
+    )
+    frame["epochs"] = chunk.epochs
+    return [
+        {c: _num(cell[c]) if c in MEASURED else cell[c] for c in COLUMNS}
+        for cell in frame.to_dict("records")
+    ]
+
+
+MEASURED = ("final_shape_error_m", "final_formation_error_m", "measured_loss")
+
+
+def final_errors(res: BatchResult) -> dict[str, np.ndarray]:
+    """(B,) the final shape and formation error of each member [m]: the team's at the last
+    epoch with an agent in it, as a run's summary takes them (:func:`recorder.final_value`)."""
+    formation, shape = res.team_errors()
+    team = res.plan.team
+    everyone = np.ones((len(shape), res.plan.base.n), dtype=bool)
+    present = everyone if team is None else team.published
+
+    def final(values: np.ndarray) -> np.ndarray:
+        out = [final_value(values[:, b], present) for b in range(values.shape[1])]
+        return np.array([math.nan if v is None else v for v in out])
+
+    return {"final_shape_error_m": final(shape), "final_formation_error_m": final(formation)}
+
+
+def measured_loss(plan: BatchPlan) -> dict[str, np.ndarray]:
+    """(B,) the share of formation packets the plan does not deliver in time."""
+    return {"measured_loss": 1.0 - plan.on_time.mean(axis=(0, 2))}
 
 
 def _num(v: float) -> str:
@@ -287,7 +307,7 @@ def run_sweep(
                 if progress is not None:
                     progress(finished, total)
     _write_canonical(path, rows, spec)
-    summary = summarise(rows, spec)
+    summary = sweep_summary(rows, spec)
     write_tables(summary, out_dir)
     return summary
 
@@ -336,68 +356,62 @@ class SweepSummary:
     critical: dict[tuple[str, str, str], float | None]
 
 
-def critical_rate(
-    losses: Sequence[float], success: np.ndarray, keep: float = KEEP_FRACTION
-) -> float | None:
-    """Largest grid rate such that every rate up to it is kept (success ≥ ``keep``)."""
-    best = None
-    for p, frac in zip(losses, success, strict=True):
-        if not frac >= keep:
-            break
-        best = p
-    return best
-
-
-def summarise(rows: Iterable[dict[str, Any]], spec: SweepSpec) -> SweepSummary:
+def sweep_summary(rows: Iterable[dict[str, Any]], spec: SweepSpec) -> SweepSummary:
     """Per topology, model and strategy: success fraction per loss rate, and the critical rate."""
+    cells = _spec_cells(rows, spec)
+    cells["kept"] = cells["final_shape_error_m"] < spec.threshold_m
+    by, grid = ("topology", "model", "strategy"), [loss_label(p) for p in spec.losses]
+    success = over_grid(cells, by, "loss", grid, lambda c: float(np.mean(c["kept"].to_numpy())))
+    median = over_grid(
+        cells, by, "loss", grid, lambda c: float(np.median(c["final_shape_error_m"].to_numpy()))
+    )
+    first = cells[cells["strategy"] == spec.strategies[0]]
+    measured = over_grid(
+        first,
+        ("topology", "model"),
+        "loss",
+        grid,
+        lambda c: float(np.mean(c["measured_loss"].to_numpy())),
+    )
+    keys = [(t, m, s) for t, _ in spec.topologies for m in spec.models for s in spec.strategies]
+    nan = np.full(len(grid), math.nan)
+    success = {k: success.get(k, nan) for k in keys}
+    return SweepSummary(
+        spec,
+        success,
+        {k: median.get(k, nan) for k in keys},
+        {(t, m): measured.get((t, m), nan) for t, m, _ in keys},
+        {k: critical(spec.losses, v, easiest="low") for k, v in success.items()},
+    )
+
+
+def _spec_cells(rows: Iterable[dict[str, Any]], spec: SweepSpec) -> pd.DataFrame:
+    """The rows of ``spec``'s cells (the last of each) in the CSV's order, numbers parsed."""
     index = {_key(r): r for r in rows}
-    success: dict[tuple[str, str, str], np.ndarray] = {}
-    median: dict[tuple[str, str, str], np.ndarray] = {}
-    measured: dict[tuple[str, str], np.ndarray] = {}
-    critical: dict[tuple[str, str, str], float | None] = {}
-    for name, _ in spec.topologies:
-        for m in spec.models:
-            meas = []
-            for p in spec.losses:
-                vals = [
-                    float(index[k]["measured_loss"])
-                    for seed in spec.seeds
-                    if (k := (name, m, loss_label(p), spec.strategies[0], seed, spec.epochs))
-                    in index
-                ]
-                meas.append(float(np.mean(vals)) if vals else math.nan)
-            measured[(name, m)] = np.array(meas)
-            for s in spec.strategies:
-                frac, med = [], []
-                for p in spec.losses:
-                    errs = np.array(
-                        [
-                            float(index[k]["final_shape_error_m"])
-                            for seed in spec.seeds
-                            if (k := (name, m, loss_label(p), s, seed, spec.epochs)) in index
-                        ]
-                    )
-                    frac.append(float(np.mean(errs < spec.threshold_m)) if errs.size else math.nan)
-                    med.append(float(np.median(errs)) if errs.size else math.nan)
-                success[(name, m, s)] = np.array(frac)
-                median[(name, m, s)] = np.array(med)
-                critical[(name, m, s)] = critical_rate(spec.losses, success[(name, m, s)])
-    return SweepSummary(spec, success, median, measured, critical)
+    names = ("topology", "model", "loss", "strategy", "seed")
+    wanted = [k for k in spec.keys() if k in index]  # noqa: SIM118 (a spec's, not a dict's)
+    return pd.DataFrame(
+        [
+            {**dict(zip(names, k[:5], strict=True)), **{c: float(index[k][c]) for c in MEASURED}}
+            for k in wanted
+        ],
+        columns=[*names, *MEASURED],
+    )
 
 
 def critical_table(summary: SweepSummary) -> str:
     """Markdown: the critical loss rate per topology and model (rows) and strategy (columns)."""
     spec = summary.spec
-    head = "| topology | loss model | " + " | ".join(spec.strategies) + " |"
-    lines = [head, "|" + " --- |" * (2 + len(spec.strategies))]
-    for name, _ in spec.topologies:
-        for m in spec.models:
-            cells = []
-            for s in spec.strategies:
-                c = summary.critical[(name, m, s)]
-                cells.append("none" if c is None else loss_label(c))
-            lines.append(f"| {name} | {m} | " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
+    rows = (
+        [name, m]
+        + [
+            "none" if (c := summary.critical[(name, m, s)]) is None else loss_label(c)
+            for s in spec.strategies
+        ]
+        for name, _ in spec.topologies
+        for m in spec.models
+    )
+    return table(["topology", "loss model", *spec.strategies], rows)
 
 
 def success_table(summary: SweepSummary) -> str:
@@ -406,13 +420,14 @@ def success_table(summary: SweepSummary) -> str:
     out: list[str] = []
     for name, _ in spec.topologies:
         for m in spec.models:
-            out.append(f"\n### {name}, {m}\n")
-            out.append("| loss | measured | " + " | ".join(spec.strategies) + " |")
-            out.append("|" + " --- |" * (2 + len(spec.strategies)))
             meas = summary.measured_loss[(name, m)]
-            for i, p in enumerate(spec.losses):
-                fr = [f"{summary.success[(name, m, s)][i]:.2f}" for s in spec.strategies]
-                out.append(f"| {loss_label(p)} | {meas[i]:.3f} | " + " | ".join(fr) + " |")
+            rows = (
+                [loss_label(p), f"{meas[i]:.3f}"]
+                + [f"{summary.success[(name, m, s)][i]:.2f}" for s in spec.strategies]
+                for i, p in enumerate(spec.losses)
+            )
+            out.append(f"\n### {name}, {m}\n")
+            out.append(table(["loss", "measured", *spec.strategies], rows).rstrip("\n"))
     return "\n".join(out) + "\n"
 
 
@@ -450,13 +465,13 @@ __all__ = [
     "SweepError",
     "SweepSpec",
     "SweepSummary",
-    "critical_rate",
     "critical_table",
     "loss_grid",
     "loss_label",
     "read_rows",
     "run_chunk",
     "run_sweep",
-    "summarise",
+    "success_table",
+    "sweep_summary",
     "write_tables",
 ]

@@ -19,20 +19,29 @@ controller in one batch); one real-process run per strategy checks it, recorded.
 
 from __future__ import annotations
 
-import csv
-import math
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from formation.scenario import STRATEGIES, Scenario, StrategyName
-from testbed.experiments.plots import plot_range_phase
+from testbed.experiments.grid import (
+    KEEP_FRACTION,
+    GridResult,
+    Variant,
+    critical,
+    kept_fraction,
+    over_grid,
+    progress,
+    run_grid,
+)
+from testbed.experiments.grid import write_outputs as write_grid_outputs
+from testbed.experiments.markdown import table
 from testbed.experiments.real_check import real_run_row
-from testbed.experiments.studies import KEEP_FRACTION
-from testbed.sim.batch import BatchResult, plan_batch, run_batch
+from testbed.sim.batch import BatchResult
 
 RANGES = tuple(round(0.5 + 0.25 * i, 2) for i in range(11))  # ρ: 0.5 … 3 × the longest edge
 WIDTH_FRACTION = 0.1  # logistic width_m / longest edge
@@ -80,15 +89,11 @@ class WirelessSpec:
     width_fraction: float = WIDTH_FRACTION
 
 
-@dataclass
-class WirelessResult:
-    """success, critical : (case label, strategy) → (R,) fraction kept / the critical ``ρ``."""
+@dataclass(kw_only=True)
+class WirelessResult(GridResult):
+    """The grid's columns are the cases' labels; success, critical by (case label, strategy)."""
 
     spec: WirelessSpec
-    rows: list[dict[str, Any]]
-    success: dict[tuple[str, str], np.ndarray]
-    critical: dict[tuple[str, str], float | None]
-    real: list[dict[str, Any]] = field(default_factory=list)
 
 
 def longest_edge(scenario: Scenario) -> float:
@@ -119,59 +124,56 @@ def final_judged_errors(case: Case, res: BatchResult) -> np.ndarray:
     return np.asarray(err[-1], dtype=float)
 
 
-def critical_range(
-    ranges: Sequence[float], success: np.ndarray, keep: float = KEEP_FRACTION
-) -> float | None:
-    """Least ``ρ`` such that every grid range from it up keeps (success ≥ ``keep``); None: not 3."""
-    best = None
-    for rho, frac in zip(reversed(ranges), reversed(success.tolist()), strict=True):
-        if not frac >= keep:
-            break
-        best = rho
-    return best
+def judge(case: Case, threshold_m: float) -> Callable[[BatchResult], dict[str, np.ndarray]]:
+    """What a cell of ``case`` measures: its judged final error, kept or not, the share of
+    formation packets delivered and the unicycles' saturated steps."""
+
+    def measure(res: BatchResult) -> dict[str, np.ndarray]:
+        errors = final_judged_errors(case, res)
+        saturated = (
+            np.zeros(res.size, dtype=np.int64)
+            if res.saturated is None
+            else res.saturated.sum(axis=(0, 2))
+        )
+        return {
+            "final_error_m": errors,
+            "kept": errors < threshold_m,
+            "formation_delivered": res.delivered.mean(axis=(0, 2)),
+            "saturated_steps": saturated,
+        }
+
+    return measure
 
 
 def run_wireless(spec: WirelessSpec, log: Callable[[str], None] = print) -> WirelessResult:
     """Every case, strategy, range and seed on the batch simulator."""
-    rows: list[dict[str, Any]] = []
-    success: dict[tuple[str, str], np.ndarray] = {}
-    critical: dict[tuple[str, str], float | None] = {}
-    n_r, n_s = len(spec.ranges), len(spec.seeds)
+    frames = []
     for case in spec.cases:
-        variants = [wireless_variant(spec, case, rho) for rho in spec.ranges]
-        members = [v for v in variants for _ in spec.seeds]
-        plan = plan_batch(members, [seed for _ in variants for seed in spec.seeds])
-        for strategy in spec.strategies:
-            log(f"wireless: {case.label}, {strategy} …")
-            res = run_batch(plan, strategy, detail=False)
-            errors = final_judged_errors(case, res).reshape(n_r, n_s)
-            kept = errors < spec.threshold_m
-            delivered = res.delivered.mean(axis=(0, 2)).reshape(n_r, n_s)
-            sat = (
-                np.zeros((n_r, n_s), dtype=np.int64)
-                if res.saturated is None
-                else res.saturated.sum(axis=(0, 2)).reshape(n_r, n_s)
+        variants = []
+        for rho in spec.ranges:
+            s = wireless_variant(spec, case, rho)
+            d50 = s.network.formation_default[0].d50_m  # type: ignore[attr-defined]
+            variants.append(Variant({"case": case.label, "range_multiple": rho, "d50_m": d50}, s))
+        frames.append(
+            run_grid(
+                variants,
+                spec.seeds,
+                spec.strategies,
+                judge(case, spec.threshold_m),
+                log=progress(log, f"wireless: {case.label}"),
             )
-            for i, rho in enumerate(spec.ranges):
-                d50 = variants[i].network.formation_default[0].d50_m  # type: ignore[attr-defined]
-                for j, seed in enumerate(spec.seeds):
-                    rows.append(
-                        {
-                            "case": case.label,
-                            "strategy": strategy,
-                            "range_multiple": rho,
-                            "d50_m": d50,
-                            "seed": seed,
-                            "final_error_m": float(errors[i, j]),
-                            "kept": bool(kept[i, j]),
-                            "formation_delivered": float(delivered[i, j]),
-                            "saturated_steps": int(sat[i, j]),
-                        }
-                    )
-            frac = kept.mean(axis=1)
-            success[(case.label, strategy)] = frac
-            critical[(case.label, strategy)] = critical_range(spec.ranges, frac)
-    return WirelessResult(spec, rows, success, critical)
+        )
+    frame = pd.concat(frames, ignore_index=True)
+    success = over_grid(frame, ("case", "strategy"), "range_multiple", spec.ranges, kept_fraction)
+    return WirelessResult(
+        spec=spec,
+        frame=frame,
+        strategies=spec.strategies,
+        points=spec.ranges,
+        columns=tuple(c.label for c in spec.cases),
+        success=success,
+        critical={k: critical(spec.ranges, v, easiest="high") for k, v in success.items()},
+    )
 
 
 def keep_out_of_range(r: WirelessResult, case: Case) -> dict[str, list[float]]:
@@ -188,32 +190,6 @@ def keep_out_of_range(r: WirelessResult, case: Case) -> dict[str, list[float]]:
         if below:
             out[s] = below
     return out
-
-
-def critical_markdown(r: WirelessResult) -> str:
-    """The table of critical ranges: strategies (rows) × cases (columns)."""
-    spec = r.spec
-    lines = ["| strategy | " + " | ".join(c.label for c in spec.cases) + " |"]
-    lines.append("|" + " --- |" * (1 + len(spec.cases)))
-    for s in spec.strategies:
-        cells = []
-        for c in spec.cases:
-            crit = r.critical[(c.label, s)]
-            cells.append("none" if crit is None else f"{crit:g} ×")
-        lines.append(f"| {s} | " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
-
-
-def success_markdown(r: WirelessResult) -> str:
-    spec = r.spec
-    out = []
-    for c in spec.cases:
-        out += [f"\n### {c.label}\n", "| ρ | " + " | ".join(spec.strategies) + " |"]
-        out.append("|" + " --- |" * (1 + len(spec.strategies)))
-        for i, rho in enumerate(spec.ranges):
-            cells = [f"{r.success[(c.label, s)][i]:.2f}" for s in spec.strategies]
-            out.append(f"| {rho:g} | " + " | ".join(cells) + " |")
-    return "\n".join(out) + "\n"
 
 
 def wireless_results_markdown(r: WirelessResult) -> str:
@@ -233,7 +209,7 @@ def wireless_results_markdown(r: WirelessResult) -> str:
         "",
         "## Critical range per strategy",
         "",
-        critical_markdown(r),
+        r.critical_markdown(),
         "## Formation links out of range, the leader reached (ρ < 1)",
         "",
     ]
@@ -256,19 +232,18 @@ def wireless_results_markdown(r: WirelessResult) -> str:
             f"- {c.label}: {said or f'no strategy keeps it in ≥ {KEEP_FRACTION:.0%} of the seeds'}"
             + (f"; most kept: {most}" if best else "")
         )
-    text += ["", "## Fraction of seeds keeping the formation", success_markdown(r)]
+    text += ["", "## Fraction of seeds keeping the formation"]
+    for label in r.columns:
+        text += ["", f"### {label}", "", r.success_markdown(label).rstrip("\n")]
+    text.append("")
     if r.real:
-        text += [
-            "## Real-process runs (recorded)",
-            "",
-            "| case | strategy | ρ | seed | max abs(Δx) | recorded | match | recording |",
-            "| --- | --- | --- | --- | --- | --- | --- | --- |",
-        ]
-        for row in r.real:
-            text.append(
-                f"| {row['case']} | {row['strategy']} | {row['range_multiple']:g} | {row['seed']} "
-                f"| {row['max_diff']} | {row['recorded_diff']} | {row['match']} | {row['recording']} |"
-            )
+        header = ["case", "strategy", "ρ", "seed", "max abs(Δx)", "recorded", "match", "recording"]
+        rest = ("seed", "max_diff", "recorded_diff", "match", "recording")
+        rows = (
+            [x["case"], x["strategy"], f"{x['range_multiple']:g}", *(x[k] for k in rest)]
+            for x in r.real
+        )
+        text += ["## Real-process runs (recorded)", "", table(header, rows).rstrip("\n")]
     text += ["", "![success against range](phase.png)", ""]
     return "\n".join(text)
 
@@ -306,30 +281,9 @@ def run_wireless_real(
 
 def write_outputs(r: WirelessResult, out: Path) -> None:
     """``runs.csv``, ``critical.md``, ``results.md`` and ``phase.png`` in ``out``."""
-    out.mkdir(parents=True, exist_ok=True)
-    with (out / "runs.csv").open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=COLUMNS)
-        writer.writeheader()
-        for row in r.rows:
-            writer.writerow({k: _cell(v) for k, v in row.items()})
-    (out / "critical.md").write_text(
-        "# Critical radio range per strategy\n\n" + critical_markdown(r)
-    )
-    (out / "results.md").write_text(wireless_results_markdown(r))
-    labels = [c.label for c in r.spec.cases]
-    plot_range_phase(
-        r.success,
-        r.critical,
-        r.spec.ranges,
-        labels,
-        r.spec.strategies,
-        r.spec.threshold_m,
-        out / "phase.png",
-    )
-
-
-def _cell(v: Any) -> Any:
-    return repr(v) if isinstance(v, float) and math.isfinite(v) else v
+    title = "Critical radio range per strategy"
+    results = wireless_results_markdown(r)
+    write_grid_outputs(r, out, COLUMNS, title, results, r.spec.threshold_m)
 
 
 __all__ = [
@@ -339,7 +293,7 @@ __all__ = [
     "Case",
     "WirelessResult",
     "WirelessSpec",
-    "critical_range",
+    "judge",
     "keep_out_of_range",
     "longest_edge",
     "run_wireless",

@@ -12,15 +12,17 @@ from formation.scenario import Scenario
 from netem.links.models import expected_loss_rate
 from testbed.cli import main
 from testbed.experiments import studies
-from testbed.experiments.loss_variants import gilbert_elliott_at
+from testbed.experiments.grid import critical
+from testbed.experiments.loss_variants import gilbert_elliott_at, with_loss
 from testbed.experiments.paper import PaperResults, judge, run_variants
 from testbed.experiments.paper_run import check_recording, run_paper
 from testbed.experiments.sweep import (
     SweepError,
     SweepSpec,
-    critical_rate,
     loss_grid,
+    plan_chunks,
     read_rows,
+    run_chunk,
     run_sweep,
 )
 from testbed.sim.simulate import simulate
@@ -120,8 +122,9 @@ def test_loss_grid_and_its_errors() -> None:
         loss_grid("0:1:0")
     with pytest.raises(SweepError, match="expected START:STOP:STEP"):
         loss_grid("a:b")
-    assert critical_rate([0.0, 0.1, 0.2, 0.3], np.array([1.0, 0.95, 0.9, 1.0])) == 0.1
-    assert critical_rate([0.0, 0.1], np.array([0.5, 1.0])) is None
+    rate = [0.0, 0.1, 0.2, 0.3]
+    assert critical(rate, np.array([1.0, 0.95, 0.9, 1.0]), easiest="low") == 0.1
+    assert critical([0.0, 0.1], np.array([0.5, 1.0]), easiest="low") is None
 
 
 def test_a_foreign_csv_is_refused(paper: Scenario, tmp_path: Path) -> None:
@@ -219,3 +222,14 @@ def test_a_real_runs_recording_is_read_back_with_what_was_skipped(
     clean = tmp_path / "clean.mcap"
     write_synthetic(clean, result)
     assert check_recording({}, clean, result.positions)[1] == "0"
+
+
+def test_the_sweep_takes_its_final_errors_as_the_run_summary_does() -> None:
+    """A cell of a scenario with events has the final errors ``formation simulate`` prints."""
+    events = Scenario.from_file(Path(__file__).resolve().parents[3] / "scenarios" / "events.toml")
+    spec = SweepSpec(topologies=(("events", events),), losses=(0.25,), strategies=("hold",),
+                     seeds=(3,), epochs=events.epochs, seeds_per_chunk=1)  # fmt: skip
+    (row,) = run_chunk(plan_chunks(spec, set())[0])
+    summary = simulate(with_loss(events, "bernoulli", 0.25), "hold", seed=3).summary()
+    for column in ("final_shape_error_m", "final_formation_error_m"):
+        assert row[column] == format(summary[column], ".9g"), column

@@ -10,11 +10,11 @@ import pytest
 
 from formation.scenario import STRATEGIES, Scenario
 from testbed.cli import main
+from testbed.experiments.grid import critical
 from testbed.experiments.wireless import (
     CASES,
     WirelessResult,
     WirelessSpec,
-    critical_range,
     longest_edge,
     run_wireless,
     wireless_variant,
@@ -50,9 +50,9 @@ def test_the_variant_puts_every_formation_link_on_the_logistic_model() -> None:
 
 def test_critical_range_is_the_least_range_from_which_every_larger_keeps() -> None:
     grid = (0.5, 1.0, 1.5, 2.0)
-    assert critical_range(grid, np.array([1.0, 0.5, 1.0, 1.0])) == 1.5
-    assert critical_range(grid, np.array([1.0, 1.0, 1.0, 1.0])) == 0.5
-    assert critical_range(grid, np.array([1.0, 1.0, 1.0, 0.9])) is None
+    assert critical(grid, np.array([1.0, 0.5, 1.0, 1.0]), easiest="high") == 1.5
+    assert critical(grid, np.array([1.0, 1.0, 1.0, 1.0]), easiest="high") == 0.5
+    assert critical(grid, np.array([1.0, 1.0, 1.0, 0.9]), easiest="high") is None
 
 
 def test_a_long_range_keeps_every_strategy_and_a_short_one_loses_the_chapters_strategies(
