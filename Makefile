@@ -1,6 +1,6 @@
 # One command per job; each creates .venv and installs what it needs.
 PYTHON ?= python3
-PACKAGES := formation shell agent leader netem recorder testbed
+PACKAGES := formation shell analysis agent leader netem recorder testbed
 VENV := .venv
 BIN := $(VENV)/bin
 SCENARIO ?= scenarios/paper.toml

@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from analysis import error_statistics
 from formation.scenario import STRATEGIES, Scenario
-from recorder import error_statistics
 from testbed.experiments import studies
 from testbed.experiments.studies import KEEP_FRACTION, KEEP_M, mean_std
 from testbed.sim.batch import BatchResult, plan_batch, run_batch

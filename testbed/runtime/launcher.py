@@ -21,18 +21,10 @@ import numpy as np
 import numpy.typing as npt
 import zenoh
 
+from analysis import RunData, formation_error, loss_split, present, shape_error, spans, summarise
 from formation import RuntimeFailure, deadline_counts, realtime_accounting
 from formation.errors import RunEnded
 from formation.scenario import Scenario, StrategyName
-from recorder import (
-    RunData,
-    formation_error,
-    loss_split,
-    present,
-    shape_error,
-    spans,
-    summarise,
-)
 from shell import session_config
 from testbed.runtime import steal
 from testbed.runtime.events import EventDriver, bodies

@@ -19,7 +19,7 @@ from testbed.runtime.processes import ProcessGroup
 
 ROOT = Path(__file__).resolve().parents[2]
 SITE = Path(sysconfig.get_paths()["purelib"]).resolve()
-PACKAGES = ("formation", "shell", "agent", "leader", "netem", "recorder", "testbed")
+PACKAGES = ("formation", "shell", "analysis", "agent", "leader", "netem", "recorder", "testbed")
 HINT = "run the tests with `make test`: it installs the product (not editable) for them"
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-PACKAGES = ("formation", "shell", "agent", "leader", "netem", "recorder")
+PACKAGES = ("formation", "shell", "analysis", "agent", "leader", "netem", "recorder")
 
 
 @pytest.mark.parametrize("name", PACKAGES)
