@@ -25,7 +25,8 @@ The same tables from a recording and from a simulation, column for column. Axes 
     packets not on time).
 ``substitutions`` — each value an agent used for a lost packet: ``epoch`` (when used),
     ``agent``, ``neighbour``, ``fallback``, ``x``, ``y`` [, ``z``] (the value ``x̃_j``),
-    ``error_x``, ... (``x̃_j[k] − x_j[k]`` against the true state, NaN if unknown).
+    ``error_x``, ... (``x̃_j[k] − x_j[k]`` against the true state, NaN if unknown or ``j`` is
+    out of the team at ``k``).
 
 Plus :attr:`Frames.scenario`, :attr:`Frames.metadata` (a recording's MCAP metadata records by
 name) and :attr:`Frames.skipped` (what a recording's trust gate refused; None if simulated).
@@ -241,7 +242,8 @@ def _metrics(run: RunData, decisions: Decisions) -> pd.DataFrame:
 def _substitutions(run: RunData, subs: Substitutions, axes: list[str]) -> pd.DataFrame:
     order = np.lexsort((subs.neighbour, subs.agent, subs.epoch))
     values = subs.values[order]
-    errors = subs.errors(run.positions)[order]
+    states = np.where(run.present[..., None], run.positions, np.nan)  # no state out of the team
+    errors = subs.errors(states)[order]
     cols: dict[str, Any] = {
         "epoch": subs.epoch[order],
         "agent": subs.agent[order],

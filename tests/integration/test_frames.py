@@ -43,22 +43,33 @@ def same(recorded: pd.DataFrame, simulated: pd.DataFrame, table: str) -> None:
             assert a.tolist() == b.tolist(), f"{table}.{column}"
 
 
+EVENTS = Path(__file__).resolve().parents[2] / "scenarios" / "events.toml"
+
+
+@pytest.mark.parametrize("case", ["lossy", "events"])
 def test_a_simulation_s_frames_are_its_recording_s(
-    paper: Scenario, runs_dir: Path, seed: int
+    paper: Scenario, runs_dir: Path, seed: int, case: str
 ) -> None:
-    scenario = paper.with_overrides(
-        epochs=20,
-        network={
-            "formation_default": [{"model": "bernoulli", "p_loss": 0.2}],
-            "control_default": [{"model": "bernoulli", "p_loss": 0.1}],
-        },
+    scenario = (
+        paper.with_overrides(
+            epochs=20,
+            network={
+                "formation_default": [{"model": "bernoulli", "p_loss": 0.2}],
+                "control_default": [{"model": "bernoulli", "p_loss": 0.1}],
+            },
+        )
+        if case == "lossy"
+        else Scenario.from_file(EVENTS)  # agent 5 leaves: the team's rows and errors
     )
     outcome = launch(scenario, strategy="estimate", seed=seed, runs_dir=runs_dir)
     recorded = load_run(outcome.run_dir / "run.mcap")
     simulated = simulate(scenario, strategy="estimate", seed=seed).frames()
     assert recorded.skipped is not None and recorded.skipped.total == 0
     assert simulated.skipped is None
-    assert len(recorded.substitutions) and (recorded.decisions["verdict"] == "drop").any()
+    if case == "lossy":
+        assert len(recorded.substitutions) and (recorded.decisions["verdict"] == "drop").any()
+    else:
+        assert (recorded.metrics["agents"] < scenario.n).any()
     for table in ("states", "estimates", "decisions", "metrics", "substitutions"):
         same(getattr(recorded, table), getattr(simulated, table), table)
     assert not any(pid_alive(p) for p in run_pids(runs_dir))
