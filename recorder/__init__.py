@@ -12,7 +12,6 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from recorder.analysis.deadlines import write_deadlines
 from recorder.live.scene import scene_update
 from recorder.live.server import LiveServer
 from recorder.node import build_parser as recorder_parser
@@ -24,17 +23,18 @@ from recorder.reading.recovery import Recovered, recover
 from recorder.reading.run import read_run
 from recorder.recording.schemas import schema_for_key
 from recorder.recording.writer import RecordingWriter
+from recorder.reporting.deadlines import write_deadlines
 
 if TYPE_CHECKING:
-    from recorder.analysis.dataframes import export, load_run
-    from recorder.analysis.report import write_report, write_report_from, write_reports
+    from recorder.reading.dataframes import export, load_run
+    from recorder.reporting.report import write_report, write_report_from, write_reports
 
 _LAZY = {
-    "write_report": "recorder.analysis.report",  # matplotlib loads on first use
-    "write_report_from": "recorder.analysis.report",
-    "write_reports": "recorder.analysis.report",
-    "load_run": "recorder.analysis.dataframes",  # pandas loads on first use
-    "export": "recorder.analysis.dataframes",
+    "write_report": "recorder.reporting.report",  # matplotlib loads on first use
+    "write_report_from": "recorder.reporting.report",
+    "write_reports": "recorder.reporting.report",
+    "load_run": "recorder.reading.dataframes",  # pandas loads on first use
+    "export": "recorder.reading.dataframes",
 }
 
 

@@ -45,7 +45,7 @@ from formation.codec import encode, now_ns
 from formation.errors import TestbedError
 from formation.messages import Status
 from formation.scenario import Scenario
-from recorder.analysis.epoch_assembly import TAPS, EpochAssembler
+from recorder.live.epoch_assembly import TAPS, EpochAssembler
 from recorder.live.server import LiveServer
 from recorder.reading.trust import Gate
 from recorder.recording.display import Display

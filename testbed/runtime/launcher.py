@@ -125,7 +125,7 @@ class RunOutcome:
 
     @cached_property
     def headline(self) -> dict[str, Any]:
-        """:func:`recorder.summarise` of :meth:`record`, once (its safety counts are O(n²))."""
+        """:func:`analysis.summarise` of :meth:`record`, once (its safety counts are O(n²))."""
         return summarise(self.record())
 
     def summary(self) -> dict[str, Any]:

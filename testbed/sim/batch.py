@@ -96,7 +96,7 @@ class BatchResult:
         return self.plan.size
 
     def team_errors(self) -> tuple[Array, Array]:
-        """Formation and shape error (E + 1, B) [m] of the team (:func:`recorder.team_errors`,
+        """Formation and shape error (E + 1, B) [m] of the team (:func:`analysis.team_errors`,
         in the team: who publishes ``x[k]``, as in :meth:`member`'s record).
 
         An agent out of the team (left, crashed, not yet joined) stands where it last was

@@ -131,7 +131,7 @@ def test_default_run_report_and_replay_into_a_fresh_leader(
     """``formation run`` records; the report matches the simulator; the leader's recorded inputs,
     replayed into a fresh leader under another run id, give the same estimates (same inputs, same outputs)."""
     from recorder import read_run
-    from recorder.analysis.report import FIGURES, write_report
+    from recorder.reporting.report import FIGURES, write_report
     from testbed.runtime.launcher import launch
     from testbed.sim.simulate import simulate
 

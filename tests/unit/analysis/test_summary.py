@@ -1,4 +1,4 @@
-"""A run's headline numbers, summarised once (issue 25 §2): :func:`recorder.summarise`."""
+"""A run's headline numbers, summarised once (issue 25 §2): :func:`analysis.summarise`."""
 
 from __future__ import annotations
 

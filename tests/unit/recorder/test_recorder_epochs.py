@@ -20,7 +20,7 @@ from formation.messages import (
     Status,
 )
 from formation.scenario import Scenario
-from recorder.analysis.epoch_assembly import CLOSE_AFTER, WAIT_EPOCHS, EpochAssembler
+from recorder.live.epoch_assembly import CLOSE_AFTER, WAIT_EPOCHS, EpochAssembler
 from recorder.reading.decoder import as_dict, decode_kind
 
 RUN = "e1"

@@ -22,8 +22,8 @@ from formation.messages import (
     Status,
 )
 from formation.scenario import Scenario
-from recorder.analysis.epoch_assembly import CLOSE_AFTER, EpochAssembler
-from recorder.analysis.roster import Roster, team_detail
+from recorder.live.epoch_assembly import CLOSE_AFTER, EpochAssembler
+from recorder.live.roster import Roster, team_detail
 from recorder.reading.decoder import as_dict, decode_kind
 
 EVENTS = Path(__file__).resolve().parents[3] / "scenarios" / "events.toml"

@@ -14,9 +14,9 @@ from analysis import error_statistics, formation_error, shape_error, summarise, 
 from formation.errors import RecordingError
 from formation.scenario import Scenario
 from recorder import read_run
-from recorder.analysis import plots
-from recorder.analysis.report import FIGURES, write_report, write_report_from
 from recorder.recording.writer import RecordingWriter
+from recorder.reporting import plots
+from recorder.reporting.report import FIGURES, write_report, write_report_from
 from testbed.sim.simulate import simulate
 
 
@@ -190,7 +190,7 @@ def test_the_report_shows_the_team_and_marks_each_change_by_its_event(
 def test_a_large_team_s_report_names_the_worst_links_and_marks_rigidity_without_a_rank(
     tmp_path: Path,
 ) -> None:
-    from recorder.analysis.report import LISTED_LINKS
+    from recorder.reporting.report import LISTED_LINKS
     from testbed.sim.team_generators import rigid_team
 
     s = rigid_team(

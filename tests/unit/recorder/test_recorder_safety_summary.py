@@ -12,7 +12,7 @@ import pytest
 from analysis import axle_speeds, safety_counts
 from formation.scenario import Scenario
 from recorder import load_run, read_run
-from recorder.analysis.report import write_report, write_report_from
+from recorder.reporting.report import write_report, write_report_from
 from testbed.sim.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[3]

@@ -21,10 +21,10 @@ from formation import keys
 from formation.codec import encode
 from formation.messages import CoordinationState, DeliveredPacket, Delivery
 from recorder import read_run
-from recorder.analysis.report import write_report
 from recorder.playback.player import Replayer
 from recorder.reading.reader import describe
 from recorder.reading.trust import CONFLICT, FORGED, INVALID, OUT_OF_RANGE, UNKNOWN_KEY, Gate
+from recorder.reporting.report import write_report
 from testkit.forgeries import forgeries
 
 EPOCH_NS = 1_000_000_000

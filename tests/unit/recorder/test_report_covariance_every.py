@@ -10,7 +10,7 @@ import numpy as np
 
 from formation.scenario import Scenario, load_dict
 from recorder import read_run
-from recorder.analysis.report import write_report_from
+from recorder.reporting.report import write_report_from
 from testbed.sim.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[3]

@@ -15,9 +15,9 @@ from typing import Any
 
 from analysis import RunData, run_team_errors, safety_lines, summarise
 from formation.rigidity import expected_rigidity_rank
-from recorder.analysis import plots
-from recorder.analysis.deadlines import deadline_lines, read_deadlines
 from recorder.reading.run import read_run
+from recorder.reporting import plots
+from recorder.reporting.deadlines import deadline_lines, read_deadlines
 
 LISTED_LINKS = 20  # links named in report.md; past that, the ones with most drops
 

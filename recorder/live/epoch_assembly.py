@@ -3,7 +3,7 @@
 The true positions of epoch ``k`` are the ``position`` fields of the
 ``CoordinationState`` messages on ``agent/<i>/state`` (sender side, before loss). An epoch
 closes, in epoch order, once every agent that takes part at it has sent its state
-(:class:`recorder.analysis.roster.Roster`: the scenario's events, netem's team statuses),
+(:class:`recorder.live.roster.Roster`: the scenario's events, netem's team statuses),
 or once it is known to be over (a state two epochs later, or the leader's estimate of it).
 Then the assembler emits ``EpochMetrics`` (docs/model.md §7, over the team) and the agents'
 ``foxglove.FrameTransforms``; an agent without a state is out, drawn where its body was.
@@ -37,8 +37,8 @@ from formation.messages import (
     Status,
 )
 from formation.scenario import Scenario
-from recorder.analysis.roster import Roster, team_detail
 from recorder.live.logs import change_log, status_log
+from recorder.live.roster import Roster, team_detail
 from recorder.live.scene import frame_transforms, scene_update
 from recorder.reading.trust import Gate
 
