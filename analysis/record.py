@@ -133,7 +133,8 @@ class Decisions:
 
     def judged(self) -> list[Judged]:
         """The drops and the queued packets, of every link class (:mod:`analysis.queues`)."""
-        rows = np.flatnonzero((self.verdict == "drop") | (self.queue != None))  # noqa: E711
+        queued = np.array([q is not None for q in self.queue], dtype=bool)
+        rows = np.flatnonzero((self.verdict == "drop") | queued)
         return [
             Judged(
                 int(self.epoch[r]),

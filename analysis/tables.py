@@ -132,8 +132,9 @@ def _states(run: RunData, subs: Substitutions, axes: list[str]) -> pd.DataFrame:
         headings = run.headings if run.headings is not None else np.full(run.present.shape, np.nan)
         out["heading"] = headings[ks, rows]
         saturated = np.full(run.present.shape, -1, dtype=np.int64)
-        saturated[0] = np.where(np.isfinite(headings[0]), 0, -1)  # no step into epoch 0
-        if run.saturated is not None:
+        if len(saturated):  # no step into epoch 0: nothing saturated
+            saturated[0] = np.where(np.isfinite(headings[0]), 0, -1)
+        if run.saturated is not None and len(run.saturated):
             saturated[1:] = run.saturated
         out["saturated"] = saturated[ks, rows]
     return out
