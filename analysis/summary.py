@@ -1,8 +1,9 @@
 """A run's headline numbers, computed once (docs/model.md §7), from its :class:`RunData`.
 
-Every summary reads the same record and calls :func:`summarise`: ``formation run``'s
-(the launcher's record of what it saw), ``formation simulate``'s (the simulator's),
-``report.md`` and ``summary.json`` (the recording's). The sweep, which keeps only a
+Every summary reads the same record and calls :func:`summarise`: ``report.md`` and
+``summary.json`` (the recording as its trust gate passed it), ``formation run``'s (the
+same ``summary.json``; the launcher's record of what it saw only without a recording) and
+``formation simulate``'s (the simulator's). The sweep, which keeps only a
 batch's arrays, takes its final errors from :func:`team_errors`, the rule
 :func:`summarise` applies. So the four agree to the last bit on the same states.
 """
