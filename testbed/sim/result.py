@@ -70,46 +70,42 @@ class SimResult(RunData):
 
     def _decisions(self) -> Decisions:
         s = self.scenario
-        e = len(self.delivered)
-        on = s.membership.present[:e]
-        links = s.directed_links
-        ids = np.arange(1, s.n + 1)
-        zero = np.zeros(s.n, dtype=np.int64)
-        classes = (  # (class, sources, targets, on time (E, L), taking part (E, L))
-            (
-                "formation",
-                links[:, 0],
-                links[:, 1],
-                self.delivered,
-                on[:, links[:, 0] - 1] & on[:, links[:, 1] - 1],
-            ),
-            ("report", ids, zero, self.report_ok, on),
-            ("estimate", zero, ids, self.estimate_ok, on),
+        on = s.membership.present[: len(self.delivered)]
+        src, dst = s.directed_links[:, 0], s.directed_links[:, 1]
+        ids, zero = np.arange(1, s.n + 1), np.zeros(s.n, dtype=np.int64)
+        classes = (  # (phase, class, sources, targets, on time (E, L), taking part (E, L))
+            ("state", "formation", src, dst, self.delivered, on[:, src - 1] & on[:, dst - 1]),
+            ("report", "report", ids, zero, self.report_ok, on),
+            ("estimate", "estimate", zero, ids, self.estimate_ok, on),
         )
-        rows: list[tuple[Any, ...]] = []
-        phase = {"formation": "state", "report": "report", "estimate": "estimate"}
-        for name, src, dst, ok, part in classes:
-            for k, c in zip(*np.nonzero(part), strict=True):
-                verdict = "pass" if ok[k, c] else "drop"
-                rows.append(
-                    (
-                        int(k),
-                        phase[name],
-                        name,
-                        int(src[c]),
-                        int(dst[c]),
-                        -1,
-                        verdict,
-                        0,
-                        np.nan,
-                        "",
-                        "",
-                        None,
-                        None,
-                        None,
-                    )
-                )
-        return Decisions.of_rows(rows)
+        parts: dict[str, list[Any]] = {"epoch": [], "phase": [], "class": [], "src": [], "dst": []}
+        ok: list[Mask] = []
+        for phase, name, sources, targets, in_time, part in classes:
+            ks, cs = np.nonzero(part)
+            parts["epoch"].append(ks)
+            parts["phase"].append(np.full(len(ks), phase, dtype=object))
+            parts["class"].append(np.full(len(ks), name, dtype=object))
+            parts["src"].append(sources[cs])
+            parts["dst"].append(targets[cs])
+            ok.append(in_time[ks, cs])
+        col = {k: np.concatenate(v) for k, v in parts.items()}
+        count = len(col["epoch"])
+        return Decisions(
+            epoch=col["epoch"].astype(np.int64),
+            phase=col["phase"],
+            link_class=col["class"],
+            source=col["src"].astype(np.int64),
+            target=col["dst"].astype(np.int64),
+            seq=np.full(count, -1, dtype=np.int64),
+            verdict=np.where(np.concatenate(ok), "pass", "drop").astype(object),
+            delay_epochs=np.zeros(count, dtype=np.int64),
+            delay_ms=np.full(count, np.nan),
+            model=np.full(count, "", dtype=object),
+            state=np.full(count, "", dtype=object),
+            queue=np.full(count, None, dtype=object),
+            queue_depth=np.full(count, -1, dtype=np.int64),
+            sojourn_ms=np.full(count, np.nan),
+        )
 
 
 _HEADLINE = (
