@@ -17,20 +17,21 @@ WORKDIR /app
 # EXTRAS="[ros2]": the ROS 2 bodies' packages (formation compose sets it for such a scenario).
 ARG EXTRAS=""
 COPY pyproject.toml ./
-RUN mkdir formation shell body agent leader netem recorder testbed && touch README.md \
+RUN mkdir formation shell body analysis agent leader netem recorder testbed && touch README.md \
     && pip install ".${EXTRAS}" && pip uninstall -y formation-testbed \
-    && rm -rf formation shell body agent leader netem recorder testbed build *.egg-info README.md
+    && rm -rf formation shell body analysis agent leader netem recorder testbed build *.egg-info README.md
 # Only what the package needs: credentials, runs and the checkout's history stay out (.dockerignore).
 COPY formation ./formation
 COPY shell ./shell
 COPY body ./body
+COPY analysis ./analysis
 COPY agent ./agent
 COPY leader ./leader
 COPY netem ./netem
 COPY recorder ./recorder
 COPY testbed ./testbed
 COPY README.md ./
-RUN pip install --no-deps . && rm -rf formation shell body agent leader netem recorder testbed build *.egg-info
+RUN pip install --no-deps . && rm -rf formation shell body analysis agent leader netem recorder testbed build *.egg-info
 # Plug-in packages (docs/plugins.md): pip requirements, or folders of the build context, e.g.
 #   docker build --build-arg PLUGINS=./examples/formation-plugins-example -t formation-testbed .
 # compose.plugins.yaml passes it. The testbed itself is installed, so pip keeps it.

@@ -1,6 +1,6 @@
 # One command per job; each creates .venv and installs what it needs.
 PYTHON ?= python3
-PACKAGES := formation shell body agent leader netem recorder testbed
+PACKAGES := formation shell body analysis agent leader netem recorder testbed
 VENV := .venv
 BIN := $(VENV)/bin
 SCENARIO ?= scenarios/paper.toml

@@ -11,7 +11,7 @@ the first of, in order:
   the way past netem (the router, the receiver's Zenoh thread).
 
 A receiver first counts a packet neither late sent nor queued in time as ``late_netem``;
-:func:`summarise` then takes netem's ``modelled_late`` (its model delayed the packet past
+:func:`account` then takes netem's ``modelled_late`` (its model delayed the packet past
 the deadline: a modelled loss, not a miss) and moves what exceeds ``late_forwards`` to
 ``scheduling``.
 
@@ -79,7 +79,7 @@ class Accounting(NamedTuple):
         return sum(self.by_cause.values())
 
 
-def summarise(received: Mapping[str, int], netem: Mapping[str, int]) -> Accounting:
+def account(received: Mapping[str, int], netem: Mapping[str, int]) -> Accounting:
     """The run's deadline accounting from the receivers' and netem's counts.
 
     ``received``: the agents' and the leader's counters (``in_time`` and one per cause);
@@ -143,7 +143,7 @@ def realtime_accounting(
         return {"deadline_miss_rate": None}
     sent, dropped = sum(s for s, _ in drops.values()), sum(d for _, d in drops.values())
     netem = {k.removeprefix(NETEM): v for k, v in counts.items() if k.startswith(NETEM)}
-    got = summarise({k: v for k, v in counts.items() if not k.startswith(NETEM)}, netem)
+    got = account({k: v for k, v in counts.items() if not k.startswith(NETEM)}, netem)
     misses = {"total": got.misses, "by_cause": got.by_cause}
     modelled = dropped + got.modelled_late
     rate = got.misses / sent if sent else None

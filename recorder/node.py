@@ -40,7 +40,7 @@ import zenoh
 from formation import keys
 from formation.errors import TestbedError
 from formation.scenario import Scenario
-from recorder.analysis.epoch_assembly import TAPS, EpochAssembler
+from recorder.live.epoch_assembly import TAPS, EpochAssembler
 from recorder.live.server import LiveServer
 from recorder.reading.trust import Gate
 from recorder.recording.display import Display

@@ -104,7 +104,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     files = export(run, args.out_dir, args.format)
     sizes = ", ".join(f"{name} {len(frame)}" for name, frame in run.tables().items())
     print(f"exported {args.recording} to {args.out_dir} ({args.format}): rows {sizes}")
-    print(f"checked every message: {run.skipped.describe()}")
+    print(f"checked every message: {run.skipped.describe() if run.skipped else '-'}")
     for f in files:
         print(f"  {f}")
     return 0

@@ -12,8 +12,9 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from analysis import safety_counts
 from formation.errors import RunEnded, TestbedError
-from recorder import safety_counts, write_deadlines, write_report, write_reports
+from recorder import write_deadlines, write_report, write_reports
 from testbed.cli.arguments import add_common, load_checked, scenario_strategies
 from testbed.cli.deadline_lines import deadline_cells, deadline_notes
 from testbed.cli.tables import print_table
@@ -39,6 +40,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             pool = layout.pools
             console.print(f"realtime layout: {layout.why}; --pool K to choose")
     outcomes = []
+    recorded: dict[str, dict[str, Any]] = {}  # run_id → its recording's summary (trusted)
     for strategy in scenario_strategies(args.strategy, scenario):
         with Progress(
             TextColumn(f"[bold]{strategy}[/]"),
@@ -76,14 +78,14 @@ def cmd_run(args: argparse.Namespace) -> int:
         outcomes.append(outcome)
         write_deadlines(outcome.run_dir, outcome.summary())
         if not args.no_record:
-            outcome.extra["skipped"] = _report(outcome.run_dir, console)
+            recorded[outcome.run_id] = _report(outcome.run_dir, console)
         console.print(f"{strategy}: files in [bold]{outcome.run_dir}[/]")
     if len(outcomes) > 1 and not args.no_record:
         stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
         compare = Path(args.runs_dir) / f"{scenario.name}-compare-{stamp}"
         report = write_reports([o.run_dir / "run.mcap" for o in outcomes], compare)
         console.print(f"comparison of the {len(outcomes)} runs: [bold]{report}[/]")
-    _print_summary(outcomes, Console())
+    _print_summary(outcomes, Console(), recorded)
     _print_losses(outcomes, Console())
     return 0
 
@@ -122,7 +124,8 @@ def _print_losses(outcomes: list[Any], console: Console) -> None:
 
 
 def _report(run_dir: Path, console: Console) -> dict[str, Any]:
-    """Writes the report; what it skipped as not trusted (``summary.json``'s ``skipped``)."""
+    """Writes the report; returns its ``summary.json`` entry: :func:`analysis.summarise` of the
+    recording as the trust gate passed it (``skipped``: what it did not trust)."""
     path = write_report(run_dir / "run.mcap", run_dir)
     console.print(f"report: {path}")
     (summary,) = json.loads((run_dir / "summary.json").read_text())
@@ -133,10 +136,34 @@ def _report(run_dir: Path, console: Console) -> dict[str, Any]:
             f"the report skipped {skipped['total']} recorded messages it does not trust "
             f"({reasons}) on {len(skipped['by_channel'])} channels: see {path}"
         )
-    return skipped
+    return summary  # type: ignore[no-any-return]
 
 
-def _print_summary(outcomes: list[Any], console: Console) -> None:
+def headline(outcome: Any, recorded: dict[str, Any] | None) -> dict[str, Any]:
+    """The numbers of a run's summary row: its final errors, safety and skips from its
+    recording as the trust gate passed it (``recorded``: its ``summary.json`` entry); without
+    a recording (``--no-record``), from what the launcher saw."""
+    if recorded is not None:
+        safe = recorded["safety"]
+        return {n: recorded[n] for n in _FINAL} | {
+            "min_distance_m": safe["min_distance_m"],
+            "collisions_total": safe["collisions_total"],
+            "skipped": recorded["skipped"]["total"],
+        }
+    seen, safe = outcome.summary(), safety_counts(outcome.scenario, outcome.positions)
+    return {n: seen[n] for n in _FINAL} | {
+        "min_distance_m": safe["min_distance_m"],
+        "collisions_total": safe["collisions_total"],
+        "skipped": None,
+    }
+
+
+_FINAL = ("final_formation_error_m", "final_shape_error_m")
+
+
+def _print_summary(
+    outcomes: list[Any], console: Console, recorded: dict[str, dict[str, Any]]
+) -> None:
     realtime = any(o.scenario.runtime.mode == "realtime" for o in outcomes)
     table = Table(title="formation run: summary")
     cols = [
@@ -160,7 +187,7 @@ def _print_summary(outcomes: list[Any], console: Console) -> None:
         table.add_column(col, justify="left" if col in ("strategy", cols[7]) else "right")
     for o in outcomes:
         s = o.summary()
-        safe = safety_counts(o.scenario, o.positions)
+        top = headline(o, recorded.get(o.run_id))
         worst = sorted(s["dropped_links"].items(), key=lambda kv: -kv[1][1])
         links = ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in worst[:4]) or "-"
         if len(worst) > 4:
@@ -169,15 +196,15 @@ def _print_summary(outcomes: list[Any], console: Console) -> None:
             s["strategy"],
             str(s["seed"]),
             str(s["epochs"]),
-            f"{s['final_formation_error_m']:.4g}",
-            f"{s['final_shape_error_m']:.4g}",
+            _number(top["final_formation_error_m"]),
+            _number(top["final_shape_error_m"]),
             str(s["packets_sent"]),
             str(s["packets_dropped"]),
             links,
             str(sum(s["malformed"].values())),
-            str(o.extra.get("skipped", {}).get("total", "-")),
-            "-" if safe["min_distance_m"] is None else f"{safe['min_distance_m']:.3g}",
-            str(safe["collisions_total"]),
+            "-" if top["skipped"] is None else str(top["skipped"]),
+            "-" if top["min_distance_m"] is None else f"{top['min_distance_m']:.3g}",
+            str(top["collisions_total"]),
             f"{s['wall_s']:.1f}",
         ]
         if realtime:
@@ -194,6 +221,10 @@ def _print_summary(outcomes: list[Any], console: Console) -> None:
             )
         for line in deadline_notes(o.strategy, s):
             console.print(line)
+
+
+def _number(v: float | None) -> str:
+    return "-" if v is None else f"{v:.4g}"
 
 
 def register(sub: Any) -> None:

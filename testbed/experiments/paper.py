@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from analysis import error_statistics
 from formation.scenario import STRATEGIES, Scenario
-from recorder import error_statistics
 from testbed.experiments import studies
 from testbed.experiments.grid import KEEP_FRACTION
 from testbed.experiments.studies import KEEP_M, mean_std

@@ -14,9 +14,10 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from analysis import error_statistics
 from formation.reference import reference_positions
 from formation.scenario import STRATEGIES, Scenario, StrategyName
-from recorder import error_statistics, read_run
+from recorder import read_run
 from testbed.experiments import plots, studies
 from testbed.experiments.loss_variants import with_loss
 from testbed.experiments.markdown import table
@@ -181,7 +182,8 @@ def check_recording(
     row["recorded_diff_text"] = f"{rdiff:.1e}" + (
         "" if published is None else " (published states)"
     )
-    skipped = rec.extra["skipped"]
+    assert rec.recorded is not None  # a record read from a recording has its section
+    skipped = rec.recorded.skipped
     row["skipped"] = skipped.total
     reasons = ", ".join(f"{k} {v}" for k, v in skipped.by_reason().items())
     return str(mcap), f"{skipped.total}" + (f" ({reasons})" if reasons else "")

@@ -1,6 +1,6 @@
 """Figures of ``formation experiment`` and ``formation sweep`` (matplotlib, Agg, no pyplot state).
 
-Each function takes arrays and writes one PNG. Kept out of ``recorder/analysis/plots.py`` (the per-run
+Each function takes arrays and writes one PNG. Kept out of ``recorder/reporting/plots.py`` (the per-run
 report's plots) because these compare many runs; the same conventions: SI units on the axes,
 one colour per strategy, files written once.
 """

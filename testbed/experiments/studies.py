@@ -23,10 +23,10 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from analysis import error_statistics, team_shape_error
 from formation.graph import is_connected
 from formation.rigidity import expected_rigidity_rank, rigidity_rank
 from formation.scenario import STRATEGIES, Scenario, StrategyName, load_dict
-from recorder import error_statistics, team_shape_error
 from testbed.experiments.grid import KEEP_FRACTION
 from testbed.experiments.loss_variants import with_loss
 from testbed.experiments.markdown import table

@@ -5,7 +5,7 @@ keeps the formation. A **cell** is one topology × loss model × loss rate × st
 ``epochs`` epochs with every formation link under the same loss (the scenario's own formation
 network is replaced; its control links are kept). A cell **keeps the formation** when its final
 shape error (docs/model.md §7; the team's at the last epoch with an agent in it, as a run's
-summary takes it: :func:`recorder.final_value`) is under ``threshold_m``; a loss rate is kept when
+summary takes it: :func:`analysis.final_value`) is under ``threshold_m``; a loss rate is kept when
 ≥ 95 % of the seeds keep it; the **critical loss rate** is the largest grid rate up to which every
 rate is kept (:func:`testbed.experiments.grid.critical`).
 
@@ -36,10 +36,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from analysis import final_value
 from formation.errors import TestbedError
 from formation.plugin_api import all_strategies
 from formation.scenario import Scenario, StrategyName
-from recorder import final_value
 from testbed.experiments.executors import Executor, LocalPool, seeds_per_task
 from testbed.experiments.grid import KEEP_FRACTION, Variant, critical, over_grid, run_grid
 from testbed.experiments.loss_variants import LOSS_MODELS, with_loss
@@ -172,7 +172,7 @@ MEASURED = ("final_shape_error_m", "final_formation_error_m", "measured_loss")
 
 def final_errors(res: BatchResult) -> dict[str, np.ndarray]:
     """(B,) the final shape and formation error of each member [m]: the team's at the last
-    epoch with an agent in it, as a run's summary takes them (:func:`recorder.final_value`)."""
+    epoch with an agent in it, as a run's summary takes them (:func:`analysis.final_value`)."""
     formation, shape = res.team_errors()
     team = res.plan.team
     everyone = np.ones((len(shape), res.plan.base.n), dtype=bool)

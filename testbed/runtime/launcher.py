@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from analysis import present
 from formation import RuntimeFailure, deadline_counts
 from formation.errors import RunEnded
 from formation.scenario import Scenario, StrategyName
-from recorder import present
 from shell import session_config
 from testbed.runtime import steal
 from testbed.runtime.events import EventDriver

@@ -12,17 +12,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from analysis import RunData, formation_error, loss_split, present, shape_error, spans, summarise
 from formation import realtime_accounting
 from formation.scenario import Scenario
-from recorder import (
-    RunData,
-    formation_error,
-    loss_split,
-    present,
-    shape_error,
-    spans,
-    summarise,
-)
 from testbed.runtime.events import bodies
 from testbed.runtime.observer import Verdict
 
@@ -116,7 +108,7 @@ class RunOutcome:
 
     @cached_property
     def headline(self) -> dict[str, Any]:
-        """:func:`recorder.summarise` of :meth:`record`, once (its safety counts are O(n²))."""
+        """:func:`analysis.summarise` of :meth:`record`, once (its safety counts are O(n²))."""
         return summarise(self.record())
 
     def summary(self) -> dict[str, Any]:

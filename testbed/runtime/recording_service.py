@@ -16,7 +16,8 @@ import sys
 from dataclasses import replace
 from pathlib import Path, PurePosixPath
 
-from recorder import read_run, record, recorder_parser
+from recorder import main as recorder_main  # this module has its own main
+from recorder import read_run, recorder_parser
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -31,7 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     ours, rest = p.parse_known_args(sys.argv[1:] if argv is None else argv)
     args = recorder_parser().parse_args(rest)  # exits with the recorder's usage on bad args
-    code = record(rest)
+    code = recorder_main(rest)
     if code != 0 or not ours.report:
         return code
     # Imported only now: the recording process starts without matplotlib (the report's plots).

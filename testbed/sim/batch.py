@@ -33,11 +33,11 @@ from agent import (
     reference_heading,
     state_width,
 )
+from analysis import Substitutions, formation_error, nees, shape_error, team_errors
 from formation.reference import reference_positions, reference_velocities
 from formation.robots import initial_headings
 from formation.scenario import StrategyName
 from leader import HealthyRigidity, Leader, LeaderEpochs
-from recorder import formation_error, nees, shape_error, team_errors
 from testbed.sim.bodies import RobotRows
 from testbed.sim.plan import VARIANT_FIELDS, BatchError, BatchPlan, newest_late, plan_batch
 from testbed.sim.presence import Presence
@@ -61,7 +61,7 @@ class BatchResult:
     unicycle dynamics only
     With ``detail``: estimates (E, B, n, d) (NaN where unobservable), estimate_cov
     (E, B, n, d, d), observable (E, B, n), healthy and tree (E, B, m), components and
-    rigidity_rank (E, B) (−1 unknown), rigid (E, B) (1, 0; −1 unknown), and every substitution as (member, epoch, link, error (N, d)).
+    rigidity_rank (E, B) (−1 unknown), rigid (E, B) (1, 0; −1 unknown), and every substitution as (member, epoch, link, error (N, d), value (N, d), fallback).
     """
 
     plan: BatchPlan
@@ -88,13 +88,15 @@ class BatchResult:
     sub_epoch: Ints = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     sub_link: Ints = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     sub_error: Array = field(default_factory=lambda: np.zeros((0, 0)))
+    sub_value: Array = field(default_factory=lambda: np.zeros((0, 0)))
+    sub_fallback: Mask = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
     @property
     def size(self) -> int:
         return self.plan.size
 
     def team_errors(self) -> tuple[Array, Array]:
-        """Formation and shape error (E + 1, B) [m] of the team (:func:`recorder.team_errors`,
+        """Formation and shape error (E + 1, B) [m] of the team (:func:`analysis.team_errors`,
         in the team: who publishes ``x[k]``, as in :meth:`member`'s record).
 
         An agent out of the team (left, crashed, not yet joined) stands where it last was
@@ -160,11 +162,16 @@ class BatchResult:
             rigidity_rank=self.rigidity_rank[:, b],
             rigid=self.rigid[:, b],
             substitution_errors=self.sub_error[sel] if sel.any() else np.zeros((0, d)),
-            substitution_epochs=self.sub_epoch[sel],
+            substitutions=Substitutions(
+                epoch=self.sub_epoch[sel],
+                agent=pairs[:, 1].astype(np.int64),
+                neighbour=pairs[:, 0].astype(np.int64),
+                fallback=self.sub_fallback[sel],
+                values=self.sub_value[sel] if sel.any() else np.zeros((0, d)),
+            ),
             fallbacks=int(self.fallbacks[b]),
             nees_values=np.concatenate(nees_vals) if nees_vals else np.zeros(0),
             estimation_errors=np.concatenate(est_err) if est_err else np.zeros((0, d)),
-            extra={"substitution_senders": pairs[:, 0], "substitution_receivers": pairs[:, 1]},
             headings=None if self.headings is None else self.headings[:, b],
             saturated=None if self.saturated is None else self.saturated[:, b],
         )
@@ -400,7 +407,7 @@ class _Log:
         self.components = np.zeros((n_epochs, size), dtype=np.int64)
         self.rank = np.zeros((n_epochs, size), dtype=np.int64)
         self.rigid = np.full((n_epochs, size), -1, dtype=np.int64)
-        self.subs: list[tuple[Ints, Ints, Ints, Array]] = []
+        self.subs: list[tuple[Ints, Ints, Ints, Array, Array, Mask]] = []
 
     def epoch(
         self, k: int, lead: LeaderEpochs, sub: Substitution, xk: Array, src: Ints, n_links: int
@@ -420,7 +427,9 @@ class _Log:
         if idx.size:
             b_of, l_of = idx // n_links, idx % n_links
             error = sub.values[idx] - xk[b_of, src[l_of] - 1]
-            self.subs.append((b_of, np.full(idx.size, k), l_of, error))
+            self.subs.append(
+                (b_of, np.full(idx.size, k), l_of, error, sub.values[idx], sub.fallback[idx])
+            )
 
     def fill(self, result: BatchResult, d: int) -> None:
         result.estimates, result.estimate_cov, result.observable = self.est, self.cov, self.obs
@@ -428,7 +437,7 @@ class _Log:
         result.components, result.rigidity_rank = self.components, self.rank
         result.rigid = self.rigid
         if not self.subs:
-            result.sub_error = np.zeros((0, d))
+            result.sub_error = result.sub_value = np.zeros((0, d))
             return
         member = np.concatenate([s[0] for s in self.subs])
         order = np.argsort(member, kind="stable")  # per member: epoch-major, link order
@@ -436,6 +445,8 @@ class _Log:
         result.sub_epoch = np.concatenate([s[1] for s in self.subs])[order]
         result.sub_link = np.concatenate([s[2] for s in self.subs])[order]
         result.sub_error = np.concatenate([s[3] for s in self.subs])[order]
+        result.sub_value = np.concatenate([s[4] for s in self.subs])[order]
+        result.sub_fallback = np.concatenate([s[5] for s in self.subs])[order]
 
 
 __all__ = [

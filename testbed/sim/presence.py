@@ -16,8 +16,8 @@ import numpy as np
 import numpy.typing as npt
 
 from agent import LinkMemory
+from analysis import team_edges
 from formation.events import Membership
-from recorder import team_edges
 
 Array = npt.NDArray[np.float64]
 Mask = npt.NDArray[np.bool_]

@@ -3,37 +3,46 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 
-from recorder import RunData, summarise
+from analysis import Decisions, RunData, summarise
+
+if TYPE_CHECKING:
+    from analysis import Frames
 
 Array = npt.NDArray[np.float64]
+Mask = npt.NDArray[np.bool_]
 
 
 @dataclass(kw_only=True)
 class SimResult(RunData):
-    """A run's record (:class:`recorder.RunData`) as the simulator makes it, with what only the
+    """A run's record (:class:`analysis.RunData`) as the simulator makes it, with what only the
     simulator knows; row ``i − 1`` is agent ``i``, ``E`` epochs.
 
     Every delivery is decided; in the team is whoever published ``x[k]``
     (``Membership.published``: the bodies out of it stay where they were).
     report_ok, estimate_ok : (E, n) control links delivered in time
-    substitution_epochs : (N,) the epoch of each of ``substitution_errors``' rows
     fallbacks : substitutions that fell back to ``hold`` (no estimate to use)
     """
 
-    report_ok: npt.NDArray[np.bool_]
-    estimate_ok: npt.NDArray[np.bool_]
-    substitution_epochs: npt.NDArray[np.int64]
+    report_ok: Mask
+    estimate_ok: Mask
     fallbacks: int
 
     def __post_init__(self) -> None:
         if self.present.shape != self.positions.shape[:2]:
             self.present = self.scenario.membership.published
         super().__post_init__()
+
+    @property
+    def substitution_epochs(self) -> npt.NDArray[np.int64]:
+        """(N,) the epoch of each of ``substitution_errors``' rows."""
+        return (
+            np.zeros(0, dtype=np.int64) if self.substitutions is None else self.substitutions.epoch
+        )
 
     def record(self, label: str | None = None) -> RunData:
         """The run's record under ``label`` (default: its strategy): a copy sharing the arrays,
@@ -42,13 +51,61 @@ class SimResult(RunData):
 
     def summary(self) -> dict[str, Any]:
         """The headline numbers of the run (what ``formation simulate`` prints), as
-        :func:`recorder.summarise` gives them for its :meth:`record`."""
+        :func:`analysis.summarise` gives them for its :meth:`record`."""
         full = summarise(self.record())
         out = {"scenario": self.scenario.name, "strategy": self.strategy, "seed": self.seed}
         out |= {k: full[k] for k in _HEADLINE}
         out["fallbacks"] = self.fallbacks
         out |= {k: full[k] for k in _ESTIMATION}
         return out
+
+    def frames(self) -> Frames:
+        """The run as the DataFrames a recording of it gives (:func:`analysis.frames`), with
+        netem's record as the model decides it: a row per packet of every link class between
+        agents taking part, on time or dropped (the simulator does not model what happens to
+        a late packet, nor its sequence number, delay or link state: −1, NaN, empty)."""
+        from analysis import frames  # pandas loads here
+
+        return frames(replace(self, decisions=self._decisions()))
+
+    def _decisions(self) -> Decisions:
+        s = self.scenario
+        on = s.membership.present[: len(self.delivered)]
+        src, dst = s.directed_links[:, 0], s.directed_links[:, 1]
+        ids, zero = np.arange(1, s.n + 1), np.zeros(s.n, dtype=np.int64)
+        classes = (  # (phase, class, sources, targets, on time (E, L), taking part (E, L))
+            ("state", "formation", src, dst, self.delivered, on[:, src - 1] & on[:, dst - 1]),
+            ("report", "report", ids, zero, self.report_ok, on),
+            ("estimate", "estimate", zero, ids, self.estimate_ok, on),
+        )
+        parts: dict[str, list[Any]] = {"epoch": [], "phase": [], "class": [], "src": [], "dst": []}
+        ok: list[Mask] = []
+        for phase, name, sources, targets, in_time, part in classes:
+            ks, cs = np.nonzero(part)
+            parts["epoch"].append(ks)
+            parts["phase"].append(np.full(len(ks), phase, dtype=object))
+            parts["class"].append(np.full(len(ks), name, dtype=object))
+            parts["src"].append(sources[cs])
+            parts["dst"].append(targets[cs])
+            ok.append(in_time[ks, cs])
+        col = {k: np.concatenate(v) for k, v in parts.items()}
+        count = len(col["epoch"])
+        return Decisions(
+            epoch=col["epoch"].astype(np.int64),
+            phase=col["phase"],
+            link_class=col["class"],
+            source=col["src"].astype(np.int64),
+            target=col["dst"].astype(np.int64),
+            seq=np.full(count, -1, dtype=np.int64),
+            verdict=np.where(np.concatenate(ok), "pass", "drop").astype(object),
+            delay_epochs=np.zeros(count, dtype=np.int64),
+            delay_ms=np.full(count, np.nan),
+            model=np.full(count, "", dtype=object),
+            state=np.full(count, "", dtype=object),
+            queue=np.full(count, None, dtype=object),
+            queue_depth=np.full(count, -1, dtype=np.int64),
+            sojourn_ms=np.full(count, np.nan),
+        )
 
 
 _HEADLINE = (

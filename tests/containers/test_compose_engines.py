@@ -37,7 +37,7 @@ from mcap.reader import make_reader
 
 from formation import keys
 from formation.scenario import Scenario
-from recorder.analysis.rundata import read_run
+from recorder import read_run
 from testbed.sim.simulate import simulate
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.containers]

@@ -21,7 +21,7 @@ import pytest
 
 from formation.errors import RuntimeFailure
 from formation.scenario import Scenario
-from recorder.analysis.rundata import read_run
+from recorder import read_run
 from recorder.reading.recovery import recover
 from testbed.runtime.launcher import launch
 from testbed.runtime.outcome import RunOutcome

@@ -20,8 +20,7 @@ import numpy as np
 import pytest
 
 from formation.scenario import Scenario
-from recorder.analysis.dataframes import load_run
-from recorder.analysis.rundata import read_run
+from recorder import load_run, read_run
 from testkit.run_watch import KillAtEpoch, KillOnSpawn, end_process, read_pids, wait_for_run
 
 from .conftest import pid_alive, run_pids

@@ -55,8 +55,8 @@ def test_lockstep_run_equals_the_simulator(paper: Scenario, runs_dir: Path, stra
     # The substitutions the agents report equal the simulator's, in (epoch, receiver, sender) order.
     order = np.lexsort(
         (
-            sim.extra["substitution_senders"],
-            sim.extra["substitution_receivers"],
+            sim.substitutions.neighbour,
+            sim.substitutions.agent,
             sim.substitution_epochs,
         )
     )

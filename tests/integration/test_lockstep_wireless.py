@@ -9,10 +9,9 @@ from typing import Any
 import numpy as np
 import pytest
 
+from analysis import axle_speeds, summarise, turn_rates
 from formation.scenario import LEADER_ENDPOINT, Scenario
-from recorder.analysis.rundata import read_run
-from recorder.analysis.safety import axle_speeds, turn_rates
-from recorder.analysis.summary import summarise
+from recorder import read_run
 from testbed.runtime.launcher import launch
 from testbed.sim.simulate import simulate
 

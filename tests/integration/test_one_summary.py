@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from formation.scenario import Scenario
-from recorder.analysis.report import write_report
+from recorder.reporting.report import write_report
 from testbed.runtime.launcher import launch
 from testbed.sim.batch import run_batch
 from testbed.sim.plan import plan_batch

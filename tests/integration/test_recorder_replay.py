@@ -130,8 +130,8 @@ def test_default_run_report_and_replay_into_a_fresh_leader(
 ) -> None:
     """``formation run`` records; the report matches the simulator; the leader's recorded inputs,
     replayed into a fresh leader under another run id, give the same estimates (same inputs, same outputs)."""
-    from recorder.analysis.report import FIGURES, write_report
-    from recorder.analysis.rundata import read_run
+    from recorder import read_run
+    from recorder.reporting.report import FIGURES, write_report
     from testbed.runtime.launcher import launch
     from testbed.sim.simulate import simulate
 
@@ -167,8 +167,8 @@ def test_default_run_report_and_replay_into_a_fresh_leader(
     # Substitution errors from the substitutes the agents published, against the recorded truth.
     order = np.lexsort(
         (
-            sim.extra["substitution_senders"],
-            sim.extra["substitution_receivers"],
+            sim.substitutions.neighbour,
+            sim.substitutions.agent,
             sim.substitution_epochs,
         )
     )

@@ -20,10 +20,10 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from analysis import error_statistics
 from formation import keys
 from formation.scenario import Scenario
 from recorder import load_run
-from recorder.analysis.metrics import error_statistics
 from shell.zenoh_config import session_config
 from testkit.forgeries import forgeries
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-SERVICES = ("agent", "leader", "netem", "recorder", "shell", "body")
+SERVICES = ("agent", "leader", "netem", "recorder", "shell", "body", "analysis")
 # Where code outside the services lives: the other product packages, benchmarks, examples, harness.
 SOURCES = ("formation", *SERVICES, "testbed", "bench", "examples", "testkit/src/testkit", "tests")
 

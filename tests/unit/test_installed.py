@@ -19,7 +19,17 @@ from testbed.runtime.processes import ProcessGroup
 
 ROOT = Path(__file__).resolve().parents[2]
 SITE = Path(sysconfig.get_paths()["purelib"]).resolve()
-PACKAGES = ("formation", "shell", "body", "agent", "leader", "netem", "recorder", "testbed")
+PACKAGES = (
+    "formation",
+    "shell",
+    "body",
+    "analysis",
+    "agent",
+    "leader",
+    "netem",
+    "recorder",
+    "testbed",
+)
 HINT = "run the tests with `make test`: it installs the product (not editable) for them"
 
 

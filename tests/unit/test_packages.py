@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-PACKAGES = ("formation", "shell", "body", "agent", "leader", "netem", "recorder")
+PACKAGES = ("formation", "shell", "body", "analysis", "agent", "leader", "netem", "recorder")
 
 
 @pytest.mark.parametrize("name", PACKAGES)

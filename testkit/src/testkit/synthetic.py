@@ -14,7 +14,7 @@ from formation import keys
 from formation.codec import attachment, encode
 from formation.messages import CoordinationState, Decision, DecisionBatch, LeaderEstimate
 from formation.scenario import Scenario
-from recorder.analysis.epoch_assembly import TAPS, EpochAssembler
+from recorder.live.epoch_assembly import TAPS, EpochAssembler
 from recorder.recording.writer import RecordingWriter
 
 RUN = "synthetic"

@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from formation.deadlines import SLACK, cause, summarise
+from formation.deadlines import SLACK, account, cause
 from formation.realtime import REPORT_DEADLINE, STATE_DEADLINE, Clock
 
 CLOCK = Clock(t0_ns=time.time_ns(), period_ns=50_000_000)
@@ -42,15 +42,15 @@ def test_sent_in_time_and_queued_after_the_deadline_was_late_on_the_way() -> Non
 
 
 def test_netems_modelled_delays_are_taken_from_late_netem_never_below_zero() -> None:
-    got = summarise({"in_time": 90, "late_sender": 2, "late_netem": 5, "late_leader": 1,
+    got = account({"in_time": 90, "late_sender": 2, "late_netem": 5, "late_leader": 1,
                      "scheduling": 0, "packets": 80}, {"modelled_late": 3, "late_forwards": 9})  # fmt: skip
     assert got.in_time == 90 and got.modelled_late == 3
     assert got.by_cause == {"late_sender": 2, "late_netem": 2, "late_leader": 1, "scheduling": 0}
     assert got.misses == 5
-    assert summarise({"late_netem": 1}, {"modelled_late": 4}).modelled_late == 1
+    assert account({"late_netem": 1}, {"modelled_late": 4}).modelled_late == 1
 
 
 def test_late_on_the_way_beyond_netems_own_late_forwards_is_scheduling() -> None:
-    got = summarise({"late_netem": 10, "scheduling": 1}, {"modelled_late": 2, "late_forwards": 3})
+    got = account({"late_netem": 10, "scheduling": 1}, {"modelled_late": 2, "late_forwards": 3})
     assert got.by_cause == {"late_sender": 0, "late_netem": 3, "late_leader": 0, "scheduling": 6}
     assert got.misses == 9 and got.modelled_late == 2

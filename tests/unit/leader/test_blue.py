@@ -10,10 +10,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import leader.laplacian as laplacian_module
+from analysis import nees
 from formation.graph import AgentIdError, GraphInputError, ShapeError
 from leader.estimation import BlueResult, CovarianceError, blue
 from leader.mst import minimum_spanning_forest
-from recorder.analysis.metrics import nees
 from testkit.dense_oracle import dense_system
 
 PROPERTY = settings(max_examples=40, deadline=None, derandomize=True, database=None)
@@ -286,7 +286,7 @@ def test_reference_alone() -> None:
 
 
 def nees_per_agent(result: BlueResult, x_true: np.ndarray) -> np.ndarray:
-    """The recorder's NEES (``recorder.analysis.metrics.nees``) of each agent of ``result``, NaN for the
+    """The recorder's NEES (``analysis.nees``) of each agent of ``result``, NaN for the
     unobservable and the reference (its covariance is zero: nothing to normalise)."""
     assert result.covariances is not None
     scored = result.observable & (np.abs(result.covariances).sum(axis=(1, 2)) > 0)

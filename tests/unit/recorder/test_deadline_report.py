@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from recorder.analysis.deadlines import FILE, deadline_lines, read_deadlines
+from recorder.reporting.deadlines import FILE, deadline_lines, read_deadlines
 from testbed.cli.deadline_lines import deadline_cells, deadline_notes
 
 SUMMARY = {

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from analysis import formation_error, shape_error
 from formation import keys
 from formation.codec import encode
 from formation.messages import (
@@ -19,8 +20,7 @@ from formation.messages import (
     Status,
 )
 from formation.scenario import Scenario
-from recorder.analysis.epoch_assembly import CLOSE_AFTER, WAIT_EPOCHS, EpochAssembler
-from recorder.analysis.metrics import formation_error, shape_error
+from recorder.live.epoch_assembly import CLOSE_AFTER, WAIT_EPOCHS, EpochAssembler
 from recorder.reading.decoder import as_dict, decode_kind
 
 RUN = "e1"

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from analysis import formation_error, shape_error, team_errors
 from formation import keys
 from formation.codec import encode
 from formation.messages import (
@@ -21,10 +22,8 @@ from formation.messages import (
     Status,
 )
 from formation.scenario import Scenario
-from recorder.analysis.epoch_assembly import CLOSE_AFTER, EpochAssembler
-from recorder.analysis.membership import team_errors
-from recorder.analysis.metrics import formation_error, shape_error
-from recorder.analysis.roster import Roster, team_detail
+from recorder.live.epoch_assembly import CLOSE_AFTER, EpochAssembler
+from recorder.live.roster import Roster, team_detail
 from recorder.reading.decoder import as_dict, decode_kind
 
 EVENTS = Path(__file__).resolve().parents[3] / "scenarios" / "events.toml"

@@ -14,7 +14,7 @@ from foxglove.messages import FrameTransforms, SceneUpdate
 from mcap.reader import make_reader
 
 from formation import keys
-from recorder.analysis.dataframes import load_run
+from recorder import load_run
 from recorder.live.scene import AGENT_COLOR, LEADER_COLOR, TREE
 from recorder.playback.player import Replayer
 from recorder.reading.decoder import as_dict, decode, decode_kind

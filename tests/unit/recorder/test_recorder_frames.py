@@ -12,12 +12,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from analysis import error_statistics
 from formation import keys
 from formation.codec import encode
 from formation.messages import CoordinationState, Substitute
 from recorder import load_run
-from recorder.analysis.metrics import error_statistics
-from recorder.analysis.report import write_report
+from recorder.reporting.report import write_report
 from testkit.forgeries import forgeries
 
 ROOT = Path(__file__).resolve().parents[3]

@@ -10,14 +10,13 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
+from analysis import error_statistics, formation_error, shape_error, summarise, team_shape_error
 from formation.errors import RecordingError
 from formation.scenario import Scenario
-from recorder.analysis import membership, plots
-from recorder.analysis.metrics import error_statistics, formation_error, shape_error
-from recorder.analysis.report import FIGURES, write_report, write_report_from
-from recorder.analysis.rundata import read_run
-from recorder.analysis.summary import summarise
+from recorder import read_run
 from recorder.recording.writer import RecordingWriter
+from recorder.reporting import plots
+from recorder.reporting.report import FIGURES, write_report, write_report_from
 from testbed.sim.simulate import simulate
 
 
@@ -43,7 +42,7 @@ def test_read_run_gives_back_the_simulated_arrays(
     np.testing.assert_allclose(run.nees_values, result.nees_values, rtol=1e-12)
     np.testing.assert_allclose(run.estimation_errors, result.estimation_errors, rtol=1e-12)
     np.testing.assert_array_equal(run.formation_error, result.formation_error)
-    np.testing.assert_array_equal(run.extra["recorded_formation_error"], result.formation_error)
+    np.testing.assert_array_equal(run.recorded.formation_error, result.formation_error)
     assert run.substitution_errors.shape == (0, 2)  # this synthetic recording has no substitutes
     assert run.strategy == "estimate" and run.seed == result.scenario.seed
 
@@ -158,7 +157,7 @@ def test_the_report_shows_the_team_and_marks_each_change_by_its_event(
     (summary,) = json.loads((tmp_path / "summary.json").read_text())
     changes = [(c["epoch"], c["agent"], c["what"]) for c in summary["team_changes"]]
     assert changes == [(15, 6, "join"), (25, 3, "crash"), (40, 3, "restart"), (60, 5, "leave")]
-    team = membership.team_shape_error(x, scenario.edge_array, scenario.offsets)
+    team = team_shape_error(x, scenario.edge_array, scenario.offsets)
     for c in summary["team_changes"]:  # epochs from the event until the team's shape is held
         k = c["epoch"]
         assert c["transient_epochs"] == int(np.flatnonzero(team[k:] < 0.05)[0])
@@ -191,7 +190,7 @@ def test_the_report_shows_the_team_and_marks_each_change_by_its_event(
 def test_a_large_team_s_report_names_the_worst_links_and_marks_rigidity_without_a_rank(
     tmp_path: Path,
 ) -> None:
-    from recorder.analysis.report import LISTED_LINKS
+    from recorder.reporting.report import LISTED_LINKS
     from testbed.sim.team_generators import rigid_team
 
     s = rigid_team(

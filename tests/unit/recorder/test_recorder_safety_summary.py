@@ -9,11 +9,10 @@ from typing import Any
 import numpy as np
 import pytest
 
+from analysis import axle_speeds, safety_counts
 from formation.scenario import Scenario
-from recorder.analysis.dataframes import load_run
-from recorder.analysis.report import write_report, write_report_from
-from recorder.analysis.rundata import read_run
-from recorder.analysis.safety import axle_speeds, safety_counts
+from recorder import load_run, read_run
+from recorder.reporting.report import write_report, write_report_from
 from testbed.sim.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[3]

@@ -8,7 +8,7 @@ import numpy as np
 
 from formation import keys
 from formation.scenario import Scenario
-from recorder.analysis.epoch_assembly import EpochAssembler
+from recorder.live.epoch_assembly import EpochAssembler
 from recorder.live.scene import scene_update
 from recorder.reading.decoder import as_dict, decode_kind
 from testbed.sim.simulate import simulate

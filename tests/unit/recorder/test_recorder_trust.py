@@ -20,11 +20,11 @@ import pytest
 from formation import keys
 from formation.codec import encode
 from formation.messages import CoordinationState, DeliveredPacket, Delivery
-from recorder.analysis.report import write_report
-from recorder.analysis.rundata import read_run
+from recorder import read_run
 from recorder.playback.player import Replayer
 from recorder.reading.reader import describe
 from recorder.reading.trust import CONFLICT, FORGED, INVALID, OUT_OF_RANGE, UNKNOWN_KEY, Gate
+from recorder.reporting.report import write_report
 from testkit.forgeries import forgeries
 
 EPOCH_NS = 1_000_000_000
@@ -49,8 +49,8 @@ def test_forgeries_do_not_change_the_numbers_and_are_counted(forged: tuple) -> N
         assert np.array_equal(getattr(run, name), getattr(result, name)), name
     np.testing.assert_array_equal(run.formation_error, result.formation_error)
     # the recorder's own metrics were derived from trusted states only: no gap
-    np.testing.assert_array_equal(run.extra["recorded_formation_error"], result.formation_error)
-    skipped = run.extra["skipped"]
+    np.testing.assert_array_equal(run.recorded.formation_error, result.formation_error)
+    skipped = run.recorded.skipped
     assert skipped.total == len(bad)
     expected: dict[str, int] = {}
     for key, _ in bad:

@@ -9,8 +9,8 @@ from typing import Any
 import numpy as np
 
 from formation.scenario import Scenario, load_dict
-from recorder.analysis.report import write_report_from
-from recorder.analysis.rundata import read_run
+from recorder import read_run
+from recorder.reporting.report import write_report_from
 from testbed.sim.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[3]

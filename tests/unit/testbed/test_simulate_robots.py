@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from analysis import axle_speeds, safety_counts, turn_rates
 from formation.scenario import LEADER_ENDPOINT, Scenario
 from netem.links.matrix import link_lengths
 from netem.links.models import LinkModel
-from recorder.analysis.safety import axle_speeds, safety_counts, turn_rates
 from testbed.sim.batch import plan_batch, run_batch
 from testbed.sim.simulate import simulate
 

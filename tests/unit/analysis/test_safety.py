@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from recorder.analysis.metrics import collisions, min_distance, pair_distances, time_out_of_bounds
+from analysis.metrics import collisions, min_distance, pair_distances, time_out_of_bounds
 
 
 def test_pair_distances_and_minimum() -> None:

@@ -1,6 +1,6 @@
 """Safety counts of a run, as ``summary.json``, ``report.md`` and the run summary give them.
 
-From the true positions (``recorder.analysis.metrics``: :func:`min_distance`, :func:`collisions`,
+From the true positions (``analysis.metrics``: :func:`min_distance`, :func:`collisions`,
 :func:`time_out_of_bounds`) and, for unicycles, the recorded headings and saturation counts.
 Epochs with a missing state (an agent out of the team) leave that agent out of the epoch's
 distances.
@@ -14,9 +14,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from analysis.membership import present
+from analysis.metrics import collisions, min_distance, time_out_of_bounds
 from formation.scenario import Scenario
-from recorder.analysis.membership import present
-from recorder.analysis.metrics import collisions, min_distance, time_out_of_bounds
 
 Array = npt.NDArray[np.float64]
 

@@ -1,4 +1,4 @@
-"""Who was in the team at each epoch, its changes and the transient after each (issue 20).
+"""Who was in the team at each epoch, its changes and the transient after each.
 
 Read from the true states a recording holds: agent ``i`` is in the team at epoch ``k``
 when its state of ``k`` was recorded. A change is an agent lost (its states stop) or
@@ -18,7 +18,7 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
-from recorder.analysis.metrics import formation_error, shape_error
+from analysis.metrics import formation_error, shape_error
 
 Array = npt.NDArray[np.float64]
 Mask = npt.NDArray[np.bool_]
@@ -46,6 +46,13 @@ def present(positions: Array) -> Mask:
     record marks the same, ``Membership.published``).
     """
     return np.asarray(np.isfinite(positions).all(axis=-1), dtype=bool)
+
+
+def edge_mask(edges: npt.NDArray[np.int64], pairs: list[tuple[int, int]]) -> Mask:
+    """Which of ``edges`` (m, 2) appear, in either order, in ``pairs`` (a leader's healthy
+    edges or tree)."""
+    wanted = {(min(a, b), max(a, b)) for a, b in pairs}
+    return np.array([(int(i), int(j)) in wanted for i, j in edges], dtype=bool)
 
 
 def team_edges(team: Mask, edges: npt.NDArray[np.int64]) -> Mask:
@@ -186,6 +193,7 @@ __all__ = [
     "Action",
     "TeamChange",
     "changes",
+    "edge_mask",
     "errors_of_team",
     "present",
     "spans",

@@ -1,8 +1,9 @@
 """A run's headline numbers, computed once (docs/model.md §7), from its :class:`RunData`.
 
-Every summary reads the same record and calls :func:`summarise`: ``formation run``'s
-(the launcher's record of what it saw), ``formation simulate``'s (the simulator's),
-``report.md`` and ``summary.json`` (the recording's). The sweep, which keeps only a
+Every summary reads the same record and calls :func:`summarise`: ``report.md`` and
+``summary.json`` (the recording as its trust gate passed it), ``formation run``'s (the
+same ``summary.json``; the launcher's record of what it saw only without a recording) and
+``formation simulate``'s (the simulator's). The sweep, which keeps only a
 batch's arrays, takes its final errors by the same rule, :func:`team_errors` read by
 :func:`final_value`. So the four agree to the last bit on the same states.
 """
@@ -15,12 +16,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+import analysis.membership as membership
+from analysis.membership import team_errors
+from analysis.metrics import error_statistics, longest_run
+from analysis.queues import loss_split, queue_table
+from analysis.record import RunData
+from analysis.safety import safety_counts
 from formation.rigidity import expected_rigidity_rank
-from recorder.analysis import membership
-from recorder.analysis.membership import team_errors
-from recorder.analysis.metrics import error_statistics, longest_run
-from recorder.analysis.rundata import RunData
-from recorder.analysis.safety import safety_counts
 
 Array = npt.NDArray[np.float64]
 Mask = npt.NDArray[np.bool_]
@@ -83,18 +85,20 @@ def summarise(run: RunData) -> dict[str, Any]:
         "expected_rigidity_rank": expected,
         "epochs_split": int((run.components[known] > 1).sum()),
     }
-    if run.extra.get("ended"):
-        out["ended"] = list(run.extra["ended"])
-    skipped = run.extra.get("skipped")
-    if skipped is not None:
-        out["skipped"] = skipped.as_json()
-    if (timed := run.extra.get("deadlines")) is not None:
-        out["deadlines"] = timed
-    if (queues := run.extra.get("queues")) is not None:  # capacity (docs/model.md §9)
-        out["queues"], out["loss_split"] = queues, run.extra["loss_split"]
+    rec = run.recorded
+    if rec is not None and rec.ended:
+        out["ended"] = list(rec.ended)
+    if rec is not None:
+        out["skipped"] = rec.skipped.as_json()
+    if run.deadlines is not None:
+        out["deadlines"] = run.deadlines
+    if s.network.capacity and run.decisions is not None:  # capacity (docs/model.md §9)
+        judged = run.decisions.judged()
+        out["queues"] = queue_table(judged, len(run.delivered))
+        out["loss_split"] = loss_split(judged)
     out.update(_team(run))
     out["safety"] = safety_counts(s, run.positions, run.headings, run.saturated)
-    recorded = run.extra.get("recorded_formation_error")
+    recorded = None if rec is None else rec.formation_error
     if recorded is not None and np.isfinite(recorded).any():
         both = np.isfinite(recorded) & np.isfinite(run.formation_error)
         gap = np.abs(recorded[both] - run.formation_error[both])

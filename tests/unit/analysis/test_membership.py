@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from recorder.analysis.membership import changes, present, spans, team_errors, team_shape_error
-from recorder.analysis.metrics import formation_error, shape_error
+from analysis.membership import changes, present, spans, team_errors, team_shape_error
+from analysis.metrics import formation_error, shape_error
 
 
 def test_a_loss_and_a_return_are_changes_with_the_epochs_back_under_the_threshold() -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from recorder.analysis.queues import Judged, loss_split, queue_table
+from analysis.queues import Judged, loss_split, queue_table
 
 
 def records() -> list[Judged]:

@@ -1,9 +1,9 @@
 """``report.md``, ``summary.json`` and PNG figures for one run or several runs compared.
 
 :func:`write_report` reads a recording (what ``formation run`` calls at the end);
-:func:`write_report_from` takes :class:`~recorder.analysis.rundata.RunData` from anywhere,
+:func:`write_report_from` takes :class:`analysis.RunData` from anywhere,
 e.g. ``simulate(...).record()`` for the in-process simulator. The numbers are
-:func:`recorder.analysis.summary.summarise`'s.
+:func:`analysis.summarise`'s.
 """
 
 from __future__ import annotations
@@ -13,12 +13,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from analysis import RunData, run_team_errors, safety_lines, summarise
 from formation.rigidity import expected_rigidity_rank
-from recorder.analysis import plots
-from recorder.analysis.deadlines import deadline_lines, read_deadlines
-from recorder.analysis.rundata import RunData, read_run
-from recorder.analysis.safety import safety_lines
-from recorder.analysis.summary import run_team_errors, summarise
+from recorder.reading.run import read_run
+from recorder.reporting import plots
+from recorder.reporting.deadlines import deadline_lines, read_deadlines
 
 LISTED_LINKS = 20  # links named in report.md; past that, the ones with most drops
 
@@ -254,7 +253,7 @@ def write_report(mcap_path: Path, out_dir: Path | None = None) -> Path:
     """The report of one recording, next to it unless ``out_dir`` is given; returns ``report.md``."""
     mcap_path = Path(mcap_path)
     run = read_run(mcap_path)
-    run.extra["deadlines"] = read_deadlines(mcap_path.parent)
+    run.deadlines = read_deadlines(mcap_path.parent)
     return write_report_from([run], out_dir or mcap_path.parent, title=f"Report: {mcap_path}")
 
 
@@ -262,7 +261,7 @@ def write_reports(paths: Sequence[Path], out_dir: Path | None = None) -> Path:
     """Several recordings (e.g. one per strategy) compared in one report."""
     runs = [read_run(Path(p)) for p in paths]
     for run, p in zip(runs, paths, strict=True):
-        run.extra["deadlines"] = read_deadlines(Path(p).parent)
+        run.deadlines = read_deadlines(Path(p).parent)
     target = out_dir or Path(paths[0]).parent
     return write_report_from(runs, target, title="Report: " + ", ".join(str(p) for p in paths))
 

@@ -3,7 +3,7 @@
 The true positions of epoch ``k`` are the ``position`` fields of the
 ``CoordinationState`` messages on ``agent/<i>/state`` (sender side, before loss). An epoch
 closes, in epoch order, once every agent that takes part at it has sent its state
-(:class:`recorder.analysis.roster.Roster`: the scenario's events, netem's team statuses),
+(:class:`recorder.live.roster.Roster`: the scenario's events, netem's team statuses),
 or once it is known to be over (a state two epochs later, or the leader's estimate of it).
 Then the assembler emits ``EpochMetrics`` (docs/model.md §7, over the team) and the agents'
 ``foxglove.FrameTransforms``; an agent without a state is out, drawn where its body was.
@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from analysis import edge_mask, errors_of_team
 from formation import keys
 from formation.codec import encode, now_ns
 from formation.messages import (
@@ -36,9 +37,8 @@ from formation.messages import (
     Status,
 )
 from formation.scenario import Scenario
-from recorder.analysis.membership import errors_of_team
-from recorder.analysis.roster import Roster, team_detail
 from recorder.live.logs import change_log, status_log
+from recorder.live.roster import Roster, team_detail
 from recorder.live.scene import frame_transforms, scene_update
 from recorder.reading.trust import Gate
 
@@ -57,12 +57,6 @@ class Closed:
     positions: npt.NDArray[np.float64]
     team: npt.NDArray[np.bool_]
     headings: npt.NDArray[np.float64] | None
-
-
-def edge_mask(edges: npt.NDArray[np.int64], pairs: list[tuple[int, int]]) -> npt.NDArray[np.bool_]:
-    """Which of ``edges`` (m, 2) appear, in either order, in ``pairs``."""
-    wanted = {(min(a, b), max(a, b)) for a, b in pairs}
-    return np.array([(int(i), int(j)) in wanted for i, j in edges], dtype=bool)
 
 
 class EpochAssembler:
@@ -303,4 +297,4 @@ def _finite_or_none(value: npt.NDArray[np.float64]) -> float | None:
     return None if np.isnan(v) else v
 
 
-__all__ = ["CLOSE_AFTER", "TAPS", "WAIT_EPOCHS", "Closed", "Derived", "EpochAssembler", "edge_mask"]
+__all__ = ["CLOSE_AFTER", "TAPS", "WAIT_EPOCHS", "Closed", "Derived", "EpochAssembler"]

@@ -163,3 +163,27 @@ def time_out_of_bounds(positions: Array, low_m: Array, high_m: Array, period_s: 
     """Time each agent spends outside the box ``[low_m, high_m]`` (d,) [m]: positions (T, n, d) → (n,) [s]."""
     outside = ((positions < low_m) | (positions > high_m)).any(axis=-1)
     return np.asarray(outside.sum(axis=0) * period_s, dtype=float)
+
+
+def consistency(
+    positions: Array, estimates: Array, covariances: Array, scored: Mask
+) -> tuple[Array, Array]:
+    """NEES values and estimation errors ``x̂ − x`` of the scored agents, epoch by epoch.
+
+    positions : (P, n, d) true [m]; estimates : (E, n, d) [m]; covariances : (E, n, d, d)
+    [m²]; scored : (E, n) the agents to score (observable followers). An agent whose truth,
+    estimate or covariance is unknown, or whose covariance is singular (ideal sensors), is
+    left out. Returns (M,) and (M, d).
+    """
+    d = estimates.shape[-1]
+    values, errors = [], []
+    for k in range(min(len(positions), len(estimates))):
+        truth = positions[k]
+        mask = scored[k] & np.isfinite(truth).all(axis=1)
+        mask &= np.isfinite(estimates[k]).all(axis=1)
+        mask &= np.abs(np.linalg.det(np.nan_to_num(covariances[k]))) > 0
+        if mask.any():
+            values.append(nees(estimates[k], covariances[k], truth, mask))
+            errors.append(estimates[k][mask] - truth[mask])
+    nees_values = np.concatenate(values) if values else np.zeros(0)
+    return nees_values, np.concatenate(errors) if errors else np.zeros((0, d))

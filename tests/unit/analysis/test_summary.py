@@ -1,4 +1,4 @@
-"""A run's headline numbers, summarised once (issue 25 §2): :func:`recorder.summarise`."""
+"""A run's headline numbers, summarised once (issue 25 §2): :func:`analysis.summarise`."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from analysis import RunData, summarise, team_errors
+from analysis.metrics import formation_error, shape_error
 from formation.scenario import Scenario
-from recorder import RunData, summarise, team_errors
-from recorder.analysis.metrics import formation_error, shape_error
 from testbed.sim.batch import run_batch
 from testbed.sim.plan import plan_batch
 from testbed.sim.simulate import simulate

@@ -1,0 +1,74 @@
+"""The analysis of a run: its record, metrics, team, safety, queues, summary and DataFrames.
+
+Pure: numpy (and pandas for :func:`frames`, loaded on first use) over arrays and the
+scenario; no network, no files. The recorder decodes a recording into a :class:`RunData`
+(``recorder.read_run``), the simulator makes one (``SimResult``); both are summarised by
+:func:`summarise` and tabled by :func:`frames`.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+from analysis.membership import (
+    edge_mask,
+    errors_of_team,
+    present,
+    spans,
+    team_edges,
+    team_errors,
+    team_shape_error,
+)
+from analysis.metrics import (
+    consistency,
+    error_statistics,
+    formation_error,
+    nees,
+    shape_error,
+)
+from analysis.queues import loss_split
+from analysis.record import Decisions, Recorded, RunData, Substitutions
+from analysis.safety import axle_speeds, safety_counts, safety_lines, turn_rates
+from analysis.summary import final_value, run_team_errors, summarise
+
+if TYPE_CHECKING:
+    from analysis.tables import Frames, frames
+
+_LAZY = {"Frames": "analysis.tables", "frames": "analysis.tables"}  # pandas loads on first use
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'analysis' has no attribute {name!r}")
+
+
+__all__ = [
+    "Decisions",
+    "Frames",
+    "Recorded",
+    "RunData",
+    "Substitutions",
+    "axle_speeds",
+    "consistency",
+    "edge_mask",
+    "error_statistics",
+    "errors_of_team",
+    "final_value",
+    "formation_error",
+    "frames",
+    "loss_split",
+    "nees",
+    "present",
+    "run_team_errors",
+    "safety_counts",
+    "safety_lines",
+    "shape_error",
+    "spans",
+    "summarise",
+    "team_edges",
+    "team_errors",
+    "team_shape_error",
+    "turn_rates",
+]

@@ -1,1 +1,0 @@
-"""A run's numbers: metrics, membership, safety, the run record, DataFrames, the report."""

@@ -1,0 +1,264 @@
+"""A recording as the record of a run (:class:`analysis.RunData`): the one decoder of a recording.
+
+Every message of the recording and its rotated parts is validated and its owner checked
+first (:class:`~recorder.reading.trust.Gate`; what it refuses is counted in
+``RunData.recorded.skipped``). True positions from ``agent/<i>/state`` (sender side), the
+leader's output from ``leader/estimate``, every packet's verdict from netem's decisions, the
+substitutions each agent publishes with its next state. ``recorder.load_run`` is
+``analysis.frames(read_run(path))``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from mcap.records import Channel, Message
+
+from analysis import (
+    Decisions,
+    Recorded,
+    RunData,
+    Substitutions,
+    consistency,
+    edge_mask,
+    formation_error,
+    shape_error,
+)
+from formation.errors import RecordingError
+from formation.messages import CoordinationState, DecisionBatch, LeaderEstimate
+from formation.plugin_api import PLUGIN_FAILED
+from formation.scenario import Scenario
+from recorder.reading.reader import iter_messages, metadata, open_recording, parts, scenario_of
+from recorder.reading.trust import Gate, derived_channels
+from recorder.recording.schemas import classify
+
+Array = npt.NDArray[np.float64]
+Ints = npt.NDArray[np.int64]
+Pose = tuple[float | None, int | None]
+
+
+class _Collected:
+    """What :func:`read_run` takes from the trusted messages of one or more files."""
+
+    def __init__(self) -> None:
+        self.states: dict[tuple[int, int], list[float]] = {}  # (epoch, agent)
+        self.poses: dict[tuple[int, int], Pose] = {}  # unicycles
+        self.subs: dict[tuple[int, int], list[tuple[int, bool, list[float]]]] = {}
+        self.ests: dict[int, LeaderEstimate] = {}
+        self.decisions: list[tuple[Any, ...]] = []
+        self.recorded: dict[int, float | None] = {}  # None: no edge in the team
+        self.ended: list[str] = []  # why a process ended the run (a plug-in failed)
+
+    def add(self, kind: str, msg: Any) -> None:
+        if kind == "agent_state":
+            state: CoordinationState = msg
+            self.states[state.epoch, state.agent] = state.position
+            if state.heading is not None or state.saturated is not None:
+                self.poses[state.epoch, state.agent] = (state.heading, state.saturated)
+            if state.substituted:  # used at the previous epoch; a repeat replaces, never adds
+                self.subs[state.epoch - 1, state.agent] = [
+                    (s.neighbour, s.fallback, s.value) for s in state.substituted
+                ]
+        elif kind == "leader_estimate":
+            self.ests[msg.epoch] = msg
+        elif kind == "metrics":
+            self.recorded[msg.epoch] = msg.formation_error_m
+        elif kind == "status":
+            if msg.state == "error" and msg.detail.startswith(PLUGIN_FAILED):
+                self.ended.append(f"{msg.sender}: {msg.detail.removeprefix(PLUGIN_FAILED)}")
+        elif kind == "decision":
+            batch: DecisionBatch = msg
+            self.decisions.extend(
+                (
+                    c.epoch,
+                    batch.phase,
+                    c.link_class,
+                    c.source,
+                    c.target,
+                    c.seq,
+                    c.verdict,
+                    c.delay_epochs,
+                    c.delay_ms,
+                    c.model,
+                    c.state,
+                    c.queue,
+                    c.queue_depth,
+                    c.sojourn_ms,
+                )
+                for c in batch.decisions
+            )
+
+    def substitutions(self, d: int) -> Substitutions:
+        rows = sorted((k, i, j, fb, v) for (k, i), got in self.subs.items() for j, fb, v in got)
+        if not rows:
+            return Substitutions.none(d)
+        return Substitutions(
+            epoch=np.array([r[0] for r in rows], dtype=np.int64),
+            agent=np.array([r[1] for r in rows], dtype=np.int64),
+            neighbour=np.array([r[2] for r in rows], dtype=np.int64),
+            fallback=np.array([r[3] for r in rows], dtype=bool),
+            values=np.array([r[4] for r in rows], dtype=float).reshape(-1, d),
+        )
+
+
+_WANTED = frozenset({"agent_state", "leader_estimate", "decision", "metrics", "status"})
+
+
+def iter_trusted(
+    path: Path, gate_of: Callable[[dict[str, dict[str, str]]], Gate] | None = None
+) -> Iterator[tuple[str, Channel, Message, Any, Gate]]:
+    """Every message of a recording (and its rotated parts) that its :class:`Gate` passes:
+    ``(kind, channel, record, validated message, gate)``; the skips are in ``gate.skipped``.
+
+    ``gate_of(meta)`` builds the gate once the first file's metadata is read (default: one
+    for the stored scenario).
+    """
+    gate: Gate | None = None
+    for part in parts(path):
+        with open_recording(part) as (reader, summary):
+            if gate is None:
+                meta = metadata(reader)
+                gate = gate_of(meta) if gate_of else Gate(scenario_of(meta, path))
+            gate.derived_channels = derived_channels(summary.channels)
+            for _, channel, msg in iter_messages(part, reader, log_time_order=False):
+                kind = channel.metadata.get("kind") or classify(channel.topic)
+                checked = gate.check(channel.topic, msg.data, kind, channel.id)
+                if checked is not None:
+                    yield kind, channel, msg, checked, gate
+
+
+def read_run(path: Path | str, label: str | None = None) -> RunData:
+    """A recording as :class:`~analysis.RunData`, with its rotated parts (``run-001.mcap``, ...).
+
+    Needs the scenario stored as metadata. Every message is validated and its owner
+    checked first (:mod:`recorder.reading.trust`); ``recorded.skipped`` counts what was not trusted.
+    """
+    path = Path(path)  # a str from a notebook too
+    got = _Collected()
+    held: dict[str, Any] = {}
+
+    def gate_of(meta: dict[str, dict[str, str]]) -> Gate:
+        scenario = scenario_of(meta, path)
+        if scenario is None:
+            raise RecordingError(str(path), "no scenario in the metadata (record with --scenario)")
+        held.update(meta=meta, scenario=scenario, gate=Gate(scenario))
+        return held["gate"]  # type: ignore[no-any-return]
+
+    for kind, _, _, msg, _ in iter_trusted(path, gate_of):
+        if kind in _WANTED:
+            got.add(kind, msg)
+    scenario: Scenario = held["scenario"]
+    recorded = (held["meta"], held["gate"].skipped, tuple(got.ended), parts(path))
+    return _assemble(scenario, path, label, got, recorded)
+
+
+def _assemble(
+    scenario: Scenario,
+    path: Path,
+    label: str | None,
+    got: _Collected,
+    recorded: tuple[Any, Any, tuple[str, ...], list[Path]],
+) -> RunData:
+    n, d = scenario.n, scenario.dimension
+    x = _positions(got.states, n, d)
+    decisions = Decisions.of_rows(got.decisions)
+    epochs = [*got.ests, *decisions.epoch.tolist()]
+    count = max(epochs) + 1 if epochs else max(len(x) - 1, 0)
+    est = _estimates(scenario, got.ests, count)
+    delivered, decided = decisions.delivery(scenario.directed_links, count)
+    followers = np.arange(n) != scenario.leader - 1
+    nees_values, est_errors = consistency(
+        x, est["estimates"], est["estimate_cov"], est["observable"] & followers
+    )
+    subs = got.substitutions(d)
+    errors = subs.errors(x)
+    headings, saturated = _poses(scenario, got.poses, len(x))
+    recorded_fe = np.full(len(x), np.nan)
+    for k, v in got.recorded.items():
+        if k < len(x):
+            recorded_fe[k] = np.nan if v is None else v
+    meta, skipped, ended, files = recorded
+    return RunData(
+        label=label or f"{scenario.name} {scenario.strategy.name}",
+        scenario=scenario,
+        strategy=scenario.strategy.name,
+        seed=scenario.seed,
+        positions=x,
+        formation_error=formation_error(x, scenario.edge_array, scenario.weights),
+        shape_error=shape_error(x, scenario.edge_array, scenario.offsets),
+        substitution_errors=errors[np.isfinite(errors).all(axis=1)],
+        nees_values=nees_values,
+        estimation_errors=est_errors,
+        delivered=delivered,
+        decided=decided,
+        source=str(path),
+        headings=headings,
+        saturated=saturated,
+        substitutions=subs,
+        decisions=decisions,
+        recorded=Recorded(meta, skipped, recorded_fe, ended, tuple(str(f) for f in files)),
+        **est,
+    )
+
+
+def _positions(states: dict[tuple[int, int], list[float]], n: int, d: int) -> Array:
+    count = max(k for k, _ in states) + 1 if states else 0
+    x = np.full((count, n, d), np.nan)
+    for (k, i), pos in states.items():
+        if 1 <= i <= n and len(pos) == d:
+            x[k, i - 1] = pos
+    return x
+
+
+def _estimates(scenario: Scenario, ests: dict[int, LeaderEstimate], count: int) -> dict[str, Any]:
+    n, d, m = scenario.n, scenario.dimension, len(scenario.edges)
+    out: dict[str, Any] = {
+        "estimates": np.full((count, n, d), np.nan),
+        "estimate_cov": np.full((count, n, d, d), np.nan),
+        "observable": np.zeros((count, n), dtype=bool),
+        "estimated": np.zeros(count, dtype=bool),
+        "healthy": np.zeros((count, m), dtype=bool),
+        "tree": np.zeros((count, m), dtype=bool),
+        "components": np.full(count, -1, dtype=np.int64),
+        "rigidity_rank": np.full(count, -1, dtype=np.int64),
+        "rigid": np.full(count, -1, dtype=np.int64),
+    }
+    for k, e in ests.items():
+        if not 0 <= k < count:
+            continue
+        out["estimated"][k] = True
+        for i, (p, c) in enumerate(zip(e.positions, e.covariances, strict=False)):
+            if p is not None and i < n:
+                out["estimates"][k, i] = p
+            if c is not None and i < n:
+                out["estimate_cov"][k, i] = c
+        out["observable"][k, : len(e.observable[:n])] = e.observable[:n]
+        out["healthy"][k] = edge_mask(scenario.edge_array, list(e.healthy))
+        out["tree"][k] = edge_mask(scenario.edge_array, list(e.tree))
+        out["components"][k], out["rigidity_rank"][k] = e.components, e.rigidity_rank
+        out["rigid"][k] = e.rigid
+    return out
+
+
+def _poses(
+    scenario: Scenario, poses: dict[tuple[int, int], Pose], count: int
+) -> tuple[Array | None, Ints | None]:
+    """Recorded headings (P, n) and saturation counts (P − 1, n) of a unicycle team, else None."""
+    if scenario.control.dynamics != "unicycle":
+        return None, None
+    headings = np.full((count, scenario.n), np.nan)
+    saturated = np.full((max(count - 1, 0), scenario.n), -1, dtype=np.int64)
+    for (k, i), (h, sat) in poses.items():
+        if 0 <= k < count and 1 <= i <= scenario.n:
+            if h is not None:
+                headings[k, i - 1] = h
+            if sat is not None and k >= 1:
+                saturated[k - 1, i - 1] = sat  # a state of k counts the step from k − 1
+    return headings, saturated
+
+
+__all__ = ["iter_trusted", "read_run"]

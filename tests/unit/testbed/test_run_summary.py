@@ -1,0 +1,55 @@
+"""``formation run``'s summary row takes its numbers from the recording as the trust gate passed
+it, not from what the launcher's observer parsed off the wire (README "Analysis never trusts
+the wire")."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+
+from analysis import summarise
+from formation.scenario import Scenario
+from recorder import read_run
+from testbed.cli.run import _print_summary, _report, headline
+from testbed.runtime.launcher import RunOutcome
+from testbed.sim.simulate import simulate
+from testkit.forgeries import forgeries
+from testkit.synthetic import EPOCH_NS, RUN, write_synthetic
+
+FINAL = ("final_formation_error_m", "final_shape_error_m")
+
+
+def test_the_printed_summary_is_the_recording_s_through_the_trust_gate(
+    paper: Scenario, tmp_path: Path
+) -> None:
+    scenario = paper.with_overrides(epochs=10)
+    result = simulate(scenario, "hold")
+    last = scenario.epochs
+    bad = forgeries(RUN, scenario, epoch=last)  # among them agent 2 claimed at [42, 42]
+    inject = [(key, data, None, last * EPOCH_NS + 50 + m) for m, (key, data) in enumerate(bad)]
+    run_dir = tmp_path / "run"
+    write_synthetic(run_dir / "run.mcap", result, inject=inject)
+    seen = result.positions.copy()
+    seen[last, 1] = 42.0  # what a reader that parses states by hand takes
+    outcome = RunOutcome(
+        run_id="r", run_dir=run_dir, scenario=scenario, strategy="hold", seed=scenario.seed,
+        positions=seen, estimated_epochs=[], decisions=[], malformed={}, sent={}, pids=[],
+        wall_s=0.0, substitutions=[],
+    )  # fmt: skip
+    recorded = _report(run_dir, Console(file=io.StringIO()))
+    trusted = summarise(read_run(run_dir / "run.mcap"))
+    got = headline(outcome, recorded)
+    for name in FINAL:
+        assert got[name] == trusted[name] == result.summary()[name], name
+        assert got[name] != outcome.summary()[name], name  # the forged state moved it
+    assert got["skipped"] == len(bad) > 0
+    assert got["min_distance_m"] == trusted["safety"]["min_distance_m"]
+    out = io.StringIO()
+    _print_summary([outcome], Console(file=out, width=300), {"r": recorded})
+    assert f"{trusted[FINAL[0]]:.4g}" in out.getvalue()
+    # Without a recording (--no-record) the row is what the launcher saw.
+    assert headline(outcome, None)[FINAL[0]] == outcome.summary()[FINAL[0]]
+    assert np.isfinite(outcome.summary()[FINAL[0]])
