@@ -17,7 +17,8 @@ from formation.graph import (
     is_connected,
     max_degree,
 )
-from formation.rigidity import expected_rigidity_rank, is_rigid, rigidity_matrix, rigidity_rank
+from formation.rigidity import expected_rigidity_rank, rigidity_matrix, rigidity_rank
+from formation.rigidity_check import is_rigid
 
 PROPERTY = settings(max_examples=60, deadline=None, derandomize=True, database=None)
 
