@@ -9,8 +9,8 @@ import time
 
 from agent.body import RobotBodies
 from agent.node import WATCH_S, AgentNode
-from formation.errors import TestbedError
-from formation.plugin_api import PLUGIN_EXIT, PLUGIN_FAILED, PluginFailure
+from formation.errors import PluginFailure, TestbedError
+from formation.plugin_api import PLUGIN_EXIT, PLUGIN_FAILED
 from shell import (
     Service,
     exit_process,

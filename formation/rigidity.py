@@ -14,14 +14,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy.sparse import csr_matrix
 
-from formation.graph import (
-    FloatArray,
-    GraphInputError,
-    IntArray,
-    as_edge_array,
-    as_positions,
-    check_agent_count,
-)
+from formation.errors import GraphInputError
+from formation.graph import FloatArray, IntArray, as_edge_array, as_positions, check_agent_count
 
 RANK_RTOL = 1e-9
 """Singular values at most this fraction of the largest one count as zero (docs/model.md §2)."""

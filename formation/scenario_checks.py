@@ -16,10 +16,10 @@ from pydantic import BaseModel
 
 from formation.body import body_problems
 from formation.capacity import capacity_problems
+from formation.errors import PluginError
 from formation.events import event_problems
 from formation.graph import is_connected, max_degree
 from formation.plugin_api import probe_controller, probe_strategy
-from formation.plugin_registry import PluginError
 from formation.rigidity import SVD_MAX_COLUMNS, expected_rigidity_rank, rigidity_rank
 from formation.rigidity_check import is_rigid
 from formation.robots import robot_problems

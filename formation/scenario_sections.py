@@ -15,10 +15,10 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from formation.body import Body
 from formation.capacity import Capacity
+from formation.errors import PluginError
 from formation.events import Event
 from formation.linkmodels import LinkModelSpec
 from formation.plugin_api import control_law, loss_strategy, validate_params
-from formation.plugin_registry import PluginError
 from formation.robots import Safety, Unicycle
 
 StrategyName = str  # a loss strategy plug-in's name (formation.plugin_registry)

@@ -27,6 +27,7 @@ import numpy.typing as npt
 
 from formation.capacity import LEADER_END, Capacity, Link, all_links, members, queues_of
 from formation.deadlines import PHASES
+from formation.errors import LinkModelError
 from formation.scenario import Scenario
 from formation.wire_size import Kind, WireSizes
 from netem.links.capacity import (
@@ -39,7 +40,6 @@ from netem.links.capacity import (
     serve_packets,
     without,
 )
-from netem.links.layer import LinkModelError
 
 PHASE_ORDER = {"state": 0, "report": 1, "estimate": 2}
 

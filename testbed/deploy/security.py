@@ -43,7 +43,7 @@ import zenoh
 
 from formation import keys
 from formation.body import Body
-from formation.errors import TestbedError
+from formation.errors import KeysError
 from shell import ADMIN_SPACE, check_readable, topic_key
 
 ANY_RUN = "*"  # the run-id chunk of every rule: one key set serves every run
@@ -67,14 +67,6 @@ DELIVERED = (
     "liveliness_query",
 )
 READ = ("declare_subscriber", "declare_liveliness_subscriber", "liveliness_query")
-
-
-class KeysError(TestbedError):
-    """Credentials that cannot be generated where asked."""
-
-    def __init__(self, path: Path | str, problem: str) -> None:
-        self.path, self.problem = path, problem
-        super().__init__(f"{path}: {problem}")
 
 
 @dataclass(frozen=True)
@@ -396,7 +388,6 @@ def _write(path: Path, text: str) -> None:
 
 __all__ = [
     "KeySet",
-    "KeysError",
     "Principal",
     "TlsMaterial",
     "access_control",

@@ -33,13 +33,14 @@ from agent import (
     reference_heading,
     state_width,
 )
+from formation.errors import BatchError
 from formation.reference import reference_positions, reference_velocities
 from formation.robots import initial_headings
 from formation.scenario import StrategyName
 from leader import HealthyRigidity, Leader, LeaderEpochs
 from recorder import formation_error, nees, shape_error, team_errors
 from testbed.sim.bodies import RobotRows
-from testbed.sim.plan import VARIANT_FIELDS, BatchError, BatchPlan, newest_late, plan_batch
+from testbed.sim.plan import VARIANT_FIELDS, BatchPlan, newest_late, plan_batch
 from testbed.sim.presence import Presence
 from testbed.sim.ranged import RangedEpochs
 from testbed.sim.result import SimResult
@@ -440,7 +441,6 @@ class _Log:
 
 __all__ = [
     "VARIANT_FIELDS",
-    "BatchError",
     "BatchPlan",
     "BatchResult",
     "plan_batch",

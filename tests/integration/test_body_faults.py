@@ -11,7 +11,8 @@ from collections.abc import Iterator
 import pytest
 import zenoh
 
-from agent.body import BodyLost, RobotBodies
+from agent.body import RobotBodies
+from formation.errors import BodyLost
 from formation.scenario import Scenario
 from shell import open_body_link, session_config
 from testkit.zenoh_peer import free_port

@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import leader.laplacian as laplacian_module
-from formation.graph import AgentIdError, GraphInputError, ShapeError
-from leader.estimation import BlueResult, CovarianceError, blue
+from formation.errors import AgentIdError, CovarianceError, GraphInputError, ShapeError
+from leader.estimation import BlueResult, blue
 from leader.mst import minimum_spanning_forest
 from recorder.analysis.metrics import nees
 from testkit.dense_oracle import dense_system

@@ -8,8 +8,9 @@ from pathlib import Path
 
 import pytest
 
+from formation.errors import Ros2Missing
 from shell import require_ros2
-from shell.ros2 import Ros2Missing, pose_message, pose_position, stamp_ns, twist_message
+from shell.ros2 import pose_message, pose_position, stamp_ns, twist_message
 
 REPO = Path(__file__).resolve().parents[3]
 

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from formation.errors import SweepError
 from formation.linkmodels import GilbertElliott
 from formation.scenario import Scenario
 from netem.links.models import expected_loss_rate
@@ -15,14 +16,7 @@ from testbed.experiments import studies
 from testbed.experiments.loss_variants import gilbert_elliott_at
 from testbed.experiments.paper import PaperResults, judge, run_variants
 from testbed.experiments.paper_run import check_recording, run_paper
-from testbed.experiments.sweep import (
-    SweepError,
-    SweepSpec,
-    critical_rate,
-    loss_grid,
-    read_rows,
-    run_sweep,
-)
+from testbed.experiments.sweep import SweepSpec, critical_rate, loss_grid, read_rows, run_sweep
 from testbed.sim.simulate import simulate
 from testkit.forgeries import forgeries
 from testkit.synthetic import EPOCH_NS, RUN, write_synthetic
