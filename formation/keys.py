@@ -10,7 +10,7 @@ between agents; control links join agent ``i`` and the leader (endpoint 0).
 from __future__ import annotations
 
 ROOT = "formation"
-LEADER = 0  # the leader's endpoint id on control links
+LEADER_ENDPOINT = 0  # the leader's end of a control link: its receiver id, netem's link end
 
 
 def prefix(run_id: str) -> str:
@@ -56,7 +56,7 @@ def link_report(run_id: str, i: int | str) -> str:
 
 def link_estimate(run_id: str, i: int | str) -> str:
     """Control link ``0 → i`` (agent ``i``'s part of the estimate), by name."""
-    return f"{ROOT}/{run_id}/link/{LEADER}/{i}/estimate"
+    return f"{ROOT}/{run_id}/link/{LEADER_ENDPOINT}/{i}/estimate"
 
 
 def inbox(run_id: str, receiver: int | str, phase: str) -> str:

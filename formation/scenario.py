@@ -35,7 +35,6 @@ from formation.scenario_sections import (
 
 # The chapter's strategies, in its order; ``--strategy all`` is every registered one (all_strategies).
 STRATEGIES: tuple[str, ...] = CHAPTER_STRATEGIES
-LEADER_ENDPOINT = 0  # the leader's end of a control link, in netem's link ids
 
 
 class Scenario(ScenarioFields):
@@ -207,4 +206,4 @@ def load(path: str | Path) -> Scenario:
     return load_dict(data, source=str(path))
 
 
-__all__ = ["LEADER_ENDPOINT", "STRATEGIES", "Scenario", "StrategyName", "load", "load_dict"]
+__all__ = ["STRATEGIES", "Scenario", "StrategyName", "load", "load_dict"]

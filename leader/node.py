@@ -145,7 +145,7 @@ class LeaderNode:
         self.clock: Clock | None = None  # realtime: set by run
         # realtime: reports in time and missed by cause; estimates sent before the deadline
         self.deadline = {"in_time": 0, "early_estimates": 0, **dict.fromkeys(CAUSES, 0)}
-        service.subscribe(keys.inbox(self.run_id, keys.LEADER, "report"))
+        service.subscribe(keys.inbox(self.run_id, keys.LEADER_ENDPOINT, "report"))
         service.declare_publishers(
             [keys.leader_estimate_out(self.run_id)]
             + [keys.leader_estimate_for(self.run_id, i) for i in range(1, scenario.n + 1)]
@@ -192,7 +192,7 @@ class LeaderNode:
         """netem's delivery of reports to the leader, or None (counted if it is not one)."""
         delivery = self.service.malformed.decode(msg.key, msg.payload, Delivery)
         if delivery is not None and (
-            delivery.receiver != keys.LEADER or delivery.phase != "report"
+            delivery.receiver != keys.LEADER_ENDPOINT or delivery.phase != "report"
         ):
             self.service.malformed.counts[msg.key] += 1  # not the leader's: unusable
             return None
@@ -248,7 +248,7 @@ class LeaderNode:
         for i, fields in agent_estimates(self.scenario, lead, v_ref):
             key = keys.leader_estimate_for(self.run_id, i)
             head = self.service.header(key, k)
-            att = attachment(k, int(head["seq"]), keys.LEADER)
+            att = attachment(k, int(head["seq"]), keys.LEADER_ENDPOINT)
             self.service.put(key, orjson.dumps({**head, **fields}), att)
         if k % self.covariance_every == 0:
             blocks = self.leader.covariances(known[None], z[None], self.ref_x[k], batch)[0]
@@ -263,7 +263,7 @@ class LeaderNode:
             self.scenario.edge_array,
             len(reports),
         )
-        self.service.put(key, msg, attachment(k, int(head["seq"]), keys.LEADER))
+        self.service.put(key, msg, attachment(k, int(head["seq"]), keys.LEADER_ENDPOINT))
         self.epoch = k + 1
 
     def confirm_last(self) -> None:

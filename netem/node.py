@@ -22,9 +22,10 @@ from pydantic import TypeAdapter, ValidationError
 from formation import keys
 from formation.capacity import Capacity
 from formation.codec import read_attachment
+from formation.keys import LEADER_ENDPOINT
 from formation.linkmodels import LinkModelSpec
 from formation.messages import LinkChange
-from formation.scenario import LEADER_ENDPOINT, Scenario
+from formation.scenario import Scenario
 from netem.proxy.lockstep import Lockstep
 from netem.proxy.loop import Wakeups, run_loop
 from netem.proxy.progress import Progress

@@ -13,7 +13,8 @@ from typing import Literal
 
 from formation import keys
 from formation.events import Membership
-from formation.scenario import LEADER_ENDPOINT, Scenario
+from formation.keys import LEADER_ENDPOINT
+from formation.scenario import Scenario
 from formation.wire_size import WireSizes
 from netem.links.capacity_network import CapacityNetwork, network_of
 from netem.links.models import LinkModel

@@ -22,7 +22,8 @@ import numpy.typing as npt
 from agent import measurement_noise
 from formation.errors import BatchError
 from formation.events import Membership, membership
-from formation.scenario import LEADER_ENDPOINT, Scenario
+from formation.keys import LEADER_ENDPOINT
+from formation.scenario import Scenario
 from netem import DeliveryPlan, capacity_plan, delivery_plan
 
 Mask = npt.NDArray[np.bool_]

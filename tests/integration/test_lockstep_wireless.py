@@ -9,7 +9,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from formation.scenario import LEADER_ENDPOINT, Scenario
+from formation.keys import LEADER_ENDPOINT
+from formation.scenario import Scenario
 from recorder.analysis.rundata import read_run
 from recorder.analysis.safety import axle_speeds, turn_rates
 from recorder.analysis.summary import summarise

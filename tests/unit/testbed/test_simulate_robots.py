@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from formation.scenario import LEADER_ENDPOINT, Scenario
+from formation.keys import LEADER_ENDPOINT
+from formation.scenario import Scenario
 from netem.links.matrix import link_lengths
 from netem.links.models import LinkModel
 from recorder.analysis.safety import axle_speeds, safety_counts, turn_rates
