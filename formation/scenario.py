@@ -86,7 +86,7 @@ class Scenario(ScenarioFields):
         return self.noise.sigma_m**2 * np.eye(self.dimension)
 
     def initial_positions(self, seed: int | None = None) -> npt.NDArray[np.float64]:
-        """``x[0]``: shape + N(0, spread²) keyed by ``(seed, INITIAL, i, coord)``; the leader on its reference."""
+        """``x[0]``: shape + N(0, spread²) keyed by ``(seed, INITIAL, i, coord)``; the reference agent on its reference."""
         seed = self.seed if seed is None else seed
         ids = np.arange(1, self.n + 1)[:, None]
         coords = np.arange(self.dimension)[None, :]
@@ -94,7 +94,7 @@ class Scenario(ScenarioFields):
         for a in self.agents:
             if a.initial is not None:
                 x0[a.id - 1] = a.initial
-        x0[self.leader - 1] = self.offsets[self.leader - 1]
+        x0[self.reference_agent - 1] = self.offsets[self.reference_agent - 1]
         return x0
 
     def formation_link_models(self, src: int, dst: int) -> tuple[LinkModelSpec, ...]:
@@ -167,8 +167,16 @@ class Scenario(ScenarioFields):
         return load(path)
 
 
+# Fields an older scenario file has under another name: old name → new name.
+_RENAMED = {"leader": "reference_agent"}
+
+
 def load_dict(data: dict[str, Any], source: str = "<scenario>") -> Scenario:
     """Validate a scenario given as a dict; errors name ``source``, the field path and the value."""
+    for old, new in _RENAMED.items():
+        if old in data:
+            problem = f"this field is now called {new}"
+            raise ScenarioError(source, old, data[old], problem)
     try:
         return Scenario.model_validate(data)
     except ValidationError as exc:

@@ -59,8 +59,8 @@ def _agent_coordinates(s: ScenarioFields) -> list[Problem]:
 
 def _reference_agent(s: ScenarioFields) -> list[Problem]:
     n = len(s.agents)
-    if not 1 <= s.leader <= n:
-        return [("leader", s.leader, f"no agent has this id (agents are 1..{n})")]
+    if not 1 <= s.reference_agent <= n:
+        return [("reference_agent", s.reference_agent, f"no agent has this id (agents are 1..{n})")]
     return []
 
 
@@ -172,7 +172,7 @@ def _capacity(s: ScenarioFields) -> list[Problem]:
 
 def _events(s: ScenarioFields) -> list[Problem]:
     n = len(s.agents)
-    return event_problems(n, s.leader, s.epochs, _pairs(s), s.events, s.allow_split)
+    return event_problems(n, s.reference_agent, s.epochs, _pairs(s), s.events, s.allow_split)
 
 
 def _body(s: ScenarioFields) -> list[Problem]:

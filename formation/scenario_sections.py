@@ -245,7 +245,7 @@ class ScenarioFields(StrictModel):
     seed: int = Field(0, ge=0)
     epochs: int = Field(50, ge=1)
     dimension: Literal[2, 3] = 2
-    leader: int = 1
+    reference_agent: int = 1  # the agent that knows its position: the estimates' reference
     allow_flexible: bool = False
     allow_split: bool = False  # events may split the team taking part
     agents: tuple[Agent, ...] = Field(min_length=1)

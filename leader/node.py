@@ -129,7 +129,10 @@ class LeaderNode:
         self.run_id = service.run_id
         period = scenario.control.period_s
         self.ref_x = reference_positions(
-            scenario.reference, scenario.offsets[scenario.leader - 1], period, scenario.epochs
+            scenario.reference,
+            scenario.offsets[scenario.reference_agent - 1],
+            period,
+            scenario.epochs,
         )
         self.ref_v = reference_velocities(self.ref_x, period)
         self.reports: dict[tuple[int, int], TokenReport] = {}  # realtime: (agent, seq) → report

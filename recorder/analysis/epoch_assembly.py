@@ -285,7 +285,7 @@ class EpochAssembler:
             closed.positions,
             self.edges,
             s.offsets,
-            s.leader,
+            s.reference_agent,
             healthy,
             tree,
             lost,

@@ -135,7 +135,7 @@ def _estimates(scenario: Scenario, ests: dict[int, dict[str, Any]], count: int) 
 def _consistency(scenario: Scenario, x: Array, est: dict[str, Any]) -> tuple[Array, Array]:
     """NEES values and estimation errors ``x̂ − x`` of observable followers, epoch by epoch."""
     d = scenario.dimension
-    followers = np.arange(scenario.n) != scenario.leader - 1
+    followers = np.arange(scenario.n) != scenario.reference_agent - 1
     values, errors = [], []
     for k in range(min(len(x), len(est["estimates"]))):
         truth = x[k]
