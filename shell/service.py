@@ -238,7 +238,7 @@ class Service:
             if key == keys.start(self.run_id) and alive:
                 self._started.set()
             if on_change is not None:
-                role, ident = keys.parse_alive(key)
+                role, ident = keys.parse(key).args
                 on_change(role, ident, alive)
 
         self._keep.append(

@@ -221,7 +221,7 @@ class Gate:
 
     def _cdr(self, type_name: str, topic: str, data: bytes) -> CdrMessage:
         """An agent's body traffic: a ROS 2 message of its type in CDR, on its agent's key."""
-        self._agent(self._key_id(topic.split("/")[3]))
+        self._agent(self._key_id(keys.parse(topic).args[0]))
         try:
             decode_cdr(type_name, data)
         except DecodeError as exc:
