@@ -27,11 +27,7 @@ from formation.keyed_random import Stream, keyed_normal
 from formation.linkmodels import LinkModelSpec
 from formation.plugin_api import CHAPTER_STRATEGIES
 from formation.scenario_checks import link_stacks, problems
-from formation.scenario_sections import (
-    FieldProblem,
-    ScenarioFields,
-    StrategyName,
-)
+from formation.scenario_sections import FieldProblem, ScenarioFields, StrategyName
 
 # The chapter's strategies, in its order; ``--strategy all`` is every registered one (all_strategies).
 STRATEGIES: tuple[str, ...] = CHAPTER_STRATEGIES

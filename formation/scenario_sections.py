@@ -286,7 +286,8 @@ def _params_by_name(
 
 
 class FieldProblem(ValueError):
-    """A whole-scenario problem, carried through pydantic to :func:`load_dict`."""
+    """A problem at a field of the scenario, carried through pydantic to
+    :func:`formation.scenario.load_dict`, which raises it as the file's ``ScenarioError``."""
 
     def __init__(self, field: str, value: object, problem: str) -> None:
         self.field, self.value, self.problem = field, value, problem
