@@ -10,8 +10,8 @@ import time
 from agent.body import RobotBodies
 from agent.node import WATCH_S, AgentNode
 from body import exit_process, require_ros2
-from formation.errors import TestbedError
-from formation.plugin_api import PLUGIN_EXIT, PLUGIN_FAILED, PluginFailure
+from formation.errors import PluginFailure, TestbedError
+from formation.plugin_api import PLUGIN_EXIT, PLUGIN_FAILED
 from shell import Service, load_scenario, open_service, serve, service_parser, time_policy
 
 log = logging.getLogger("agent")

@@ -35,23 +35,12 @@ import numpy.typing as npt
 from agent.control import unicycle_twist
 from agent.steering import InnerLoop, confirmed_pose, pose_point
 from body import NS_PER_S, open_body_link, pose_cdr, twist_cdr
-from formation.errors import RuntimeFailure
+from formation.errors import BodyLost
 from formation.scenario import Scenario
 
 log = logging.getLogger("agent.body")
 FIRST_POSE_S = 60.0  # [s] for the first pose: the plant or the robot may still be starting
 Array = npt.NDArray[np.float64]
-
-
-class BodyLost(RuntimeFailure):
-    """No usable pose from a robot for longer than the scenario's ``pose_timeout_s``."""
-
-    def __init__(self, agent: int, topic: str, waited_s: float, epoch: int) -> None:
-        self.agent, self.topic, self.waited_s, self.epoch = agent, topic, waited_s, epoch
-        waiting = "its newest pose" if epoch < 0 else f"waiting for epoch {epoch}"
-        super().__init__(
-            f"agent {agent}: body lost: no usable pose on {topic} for {waited_s:g} s ({waiting})"
-        )
 
 
 @dataclass
@@ -310,4 +299,4 @@ class RobotBodies:
         self.link.close()
 
 
-__all__ = ["FIRST_POSE_S", "BodyLost", "RobotBodies"]
+__all__ = ["FIRST_POSE_S", "RobotBodies"]

@@ -18,14 +18,14 @@ from typing import Any
 import numpy as np
 import orjson
 
-from agent.body import FIRST_POSE_S, BodyLost, RobotBodies
+from agent.body import FIRST_POSE_S, RobotBodies
 from agent.control import body_velocity
 from agent.runner import AgentRunner, Estimate, Packet, Report
 from formation import keys
 from formation.body import BODY_LOST_EXIT
 from formation.codec import attachment
 from formation.deadlines import CAUSES
-from formation.errors import RuntimeFailure
+from formation.errors import BodyLost, RuntimeFailure
 from formation.messages import AgentEstimate, CoordinationState, DeliveredPacket, TokenReport
 from formation.realtime import ESTIMATE_DEADLINE, STATE_DEADLINE
 from formation.scenario import Scenario, StrategyName

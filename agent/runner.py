@@ -73,11 +73,11 @@ class AgentRunner:
         self.memory = LinkMemory.empty(n_links, d, state_width(strategy, d))
         self.v_known = np.zeros((len(ids), d))
         self.epoch = 0
-        self.ref_row = self.row.get(scenario.leader)
+        self.ref_row = self.row.get(scenario.reference_agent)
         if self.ref_row is not None:
             self._ref = reference_positions(
                 scenario.reference,
-                scenario.offsets[scenario.leader - 1],
+                scenario.offsets[scenario.reference_agent - 1],
                 scenario.control.period_s,
                 scenario.epochs,
             )

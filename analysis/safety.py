@@ -73,7 +73,9 @@ def safety_counts(
         out["max_speed_m_s"] = float(np.nanmax(speed)) if np.isfinite(speed).any() else None
         out["max_speed_limit_m_s"] = uni.max_speed_m_s
         turn = turn_rates(headings, period)
-        turn[:, scenario.leader - 1] = np.nan  # the reference agent turns with the reference
+        turn[:, scenario.reference_agent - 1] = (
+            np.nan
+        )  # the reference agent turns with the reference
         out["max_turn_rad_s"] = float(np.nanmax(turn)) if np.isfinite(turn).any() else None
         out["max_turn_limit_rad_s"] = uni.max_turn_rad_s
     return out

@@ -128,7 +128,7 @@ def leader_epoch(epochs: int) -> None:
     times = []
     for k in range(epochs):
         t = time.perf_counter()
-        leader.epochs(known[k], z, s.offsets[s.leader - 1], covariances=False)
+        leader.epochs(known[k], z, s.offsets[s.reference_agent - 1], covariances=False)
         times.append(time.perf_counter() - t)
     ms = np.array(times) * 1e3
     print(
@@ -176,7 +176,7 @@ def report_and_replay(epochs: int, tmp: Path) -> None:
     print(f"report from the recording: {time.perf_counter() - start:.1f} s", flush=True)
     x = result.positions[-1]
     start = time.perf_counter()
-    scene = scene_update(epochs, 0, x, s.edge_array, s.offsets, s.leader)
+    scene = scene_update(epochs, 0, x, s.edge_array, s.offsets, s.reference_agent)
     encoded = scene.encode()
     print(
         f"one epoch's scene: {time.perf_counter() - start:.2f} s, {len(encoded) / 1e6:.1f} MB",

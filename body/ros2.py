@@ -21,23 +21,12 @@ import threading
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from formation.body import EXTRA, Body, Qos
-from formation.errors import TestbedError
+from formation.body import Body, Qos
+from formation.errors import Ros2Missing
 
 log = logging.getLogger("ros2")
 NS_PER_S = 1_000_000_000
 SPIN_WAKE_S = 0.1  # [s] how often the node's thread looks whether it is to stop
-
-
-class Ros2Missing(TestbedError):
-    """A ROS 2 body without rclpy: names the extra to install."""
-
-    def __init__(self, who: str, missing: str) -> None:
-        self.who, self.missing = who, missing
-        super().__init__(
-            f"{who} needs the ROS 2 Python packages ({missing} is not installed); "
-            f"install the extra: pip install 'formation-testbed[{EXTRA}]'"
-        )
 
 
 def require_ros2(
@@ -213,7 +202,6 @@ def open_ros_node(name: str, body: Body) -> RosNode:
 
 __all__ = [
     "NS_PER_S",
-    "Ros2Missing",
     "RosNode",
     "exit_process",
     "message_class",

@@ -23,8 +23,9 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from formation.keys import LEADER_ENDPOINT
+
 Link = tuple[int, int]
-LEADER_END = 0  # the leader's end of a control link (formation.scenario.LEADER_ENDPOINT)
 SELECTORS = ("control", "formation", "all")
 
 
@@ -65,8 +66,8 @@ class Capacity(BaseModel):
 def all_links(n: int, formation_links: Iterable[Sequence[int]]) -> dict[str, list[Link]]:
     """The run's directed links by kind: ``formation`` (both ways of each edge) and ``control``."""
     formation = [(int(i), int(j)) for i, j in formation_links]
-    control = [(i, LEADER_END) for i in range(1, n + 1)]
-    control += [(LEADER_END, i) for i in range(1, n + 1)]
+    control = [(i, LEADER_ENDPOINT) for i in range(1, n + 1)]
+    control += [(LEADER_ENDPOINT, i) for i in range(1, n + 1)]
     return {"formation": formation, "control": control, "all": formation + control}
 
 
@@ -184,7 +185,6 @@ def _not_a_link(link: Link, n: int) -> str:
 
 
 __all__ = [
-    "LEADER_END",
     "SELECTORS",
     "Capacity",
     "Link",

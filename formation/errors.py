@@ -1,8 +1,25 @@
-"""One error base for the testbed; subclasses build their message from the values that caused it."""
+"""Every error the testbed raises on purpose: one base, :class:`TestbedError`, and subclasses
+that build their message from the values that caused it.
+
+The vocabulary's module: every layer imports its errors from here. Exceptions that only
+carry control inside one module (the scenario's ``FieldProblem`` through pydantic, the
+leader's ``PatternError`` and ``_OffPattern``, the trust gate's ``Skip``) stay there.
+"""
 
 from __future__ import annotations
 
-from typing import ClassVar
+from collections.abc import Sequence
+from pathlib import Path
+from typing import ClassVar, Literal
+
+from formation.body import EXTRA
+
+PluginKind = Literal["strategy", "controller", "link_model"]
+PLUGIN_LABELS: dict[PluginKind, str] = {
+    "strategy": "loss strategy",
+    "controller": "controller",
+    "link_model": "link model",
+}
 
 
 class TestbedError(Exception):
@@ -90,3 +107,107 @@ class UnreadableFile(RuntimeFailure):
 
 
 NO_VALUE = _NO_VALUE
+
+
+# -- the vocabulary: plug-ins and the arrays of the formation graph ---------------------------
+class PluginError(TestbedError):
+    """A plug-in that cannot be found, loaded or used: names its kind, its name and the problem."""
+
+    def __init__(self, kind: PluginKind, name: str, problem: str) -> None:
+        self.kind, self.name, self.problem = kind, name, problem
+        super().__init__(f"{PLUGIN_LABELS[kind]} plug-in {name!r}: {problem}")
+
+
+class PluginFailure(TestbedError):
+    """A plug-in that failed while a run used it: names it, the agents (or link) and the epoch."""
+
+    def __init__(self, kind: PluginKind, name: str, where: str, epoch: int, problem: str) -> None:
+        self.kind, self.name, self.where, self.epoch = kind, name, where, epoch
+        self.problem = problem
+        super().__init__(
+            f"{PLUGIN_LABELS[kind]} plug-in {name!r} failed at epoch {epoch} ({where}): {problem}"
+        )
+
+
+class GraphInputError(TestbedError, ValueError):
+    """Arrays handed to a graph or estimation routine that do not fit; says expected vs actual."""
+
+    def __init__(self, what: str, expected: str) -> None:
+        self.what, self.expected = what, expected
+        super().__init__(f"{what}; expected {expected}")
+
+
+class ShapeError(GraphInputError):
+    """An array of the wrong shape: ``z has shape (5, 3); expected (7, 2)``."""
+
+    def __init__(self, name: str, shape: tuple[int, ...], expected: str) -> None:
+        self.name, self.shape = name, shape
+        super().__init__(f"{name} has shape {shape}", expected)
+
+
+class AgentIdError(GraphInputError):
+    """An agent id outside ``1..n`` (or an edge joining an agent to itself)."""
+
+
+class CovarianceError(GraphInputError):
+    """A measurement covariance that is not symmetric positive definite."""
+
+
+# -- the services ----------------------------------------------------------------------------
+class Ros2Missing(TestbedError):
+    """A ROS 2 body without rclpy: names the extra to install."""
+
+    def __init__(self, who: str, missing: str) -> None:
+        self.who, self.missing = who, missing
+        super().__init__(
+            f"{who} needs the ROS 2 Python packages ({missing} is not installed); "
+            f"install the extra: pip install 'formation-testbed[{EXTRA}]'"
+        )
+
+
+class BodyLost(RuntimeFailure):
+    """No usable pose from a robot for longer than the scenario's ``pose_timeout_s``."""
+
+    def __init__(self, agent: int, topic: str, waited_s: float, epoch: int) -> None:
+        self.agent, self.topic, self.waited_s, self.epoch = agent, topic, waited_s, epoch
+        waiting = "its newest pose" if epoch < 0 else f"waiting for epoch {epoch}"
+        super().__init__(
+            f"agent {agent}: body lost: no usable pose on {topic} for {waited_s:g} s ({waiting})"
+        )
+
+
+class LinkModelError(TestbedError):
+    """A link model that cannot be built or asked: names the link and the broken rule."""
+
+    def __init__(self, link: str, problem: str) -> None:
+        self.link, self.problem = link, problem
+        super().__init__(f"link {link}: {problem}")
+
+
+# -- the testbed: deployment, batches, experiments ---------------------------------------------
+class KeysError(TestbedError):
+    """Credentials that cannot be generated where asked."""
+
+    def __init__(self, path: Path | str, problem: str) -> None:
+        self.path, self.problem = path, problem
+        super().__init__(f"{path}: {problem}")
+
+
+class BatchError(TestbedError):
+    """Members that cannot share a batch; names the member and the differing field."""
+
+
+class ExecutorError(TestbedError):
+    """A ``--scheduler`` that cannot be used: names the value and what is wrong with it."""
+
+
+class SweepError(TestbedError):
+    """A sweep that cannot run or resume: names the argument or file and the broken rule."""
+
+
+class UnknownLossModel(TestbedError):
+    """A loss model name that is not one of the ``known`` ones."""
+
+    def __init__(self, model: str, known: Sequence[str]) -> None:
+        self.model, self.known = model, tuple(known)
+        super().__init__(f"loss model {model!r}: expected one of {', '.join(known)}")

@@ -137,7 +137,7 @@ def _absent_at_start(events: Sequence[Event]) -> set[int]:
 
 def event_problems(
     n: int,
-    leader: int,
+    reference_agent: int,
     epochs: int,
     edges: npt.NDArray[np.int64],
     events: Sequence[Event],
@@ -147,7 +147,7 @@ def event_problems(
     for k, e in enumerate(events):
         if not 1 <= e.agent <= n:
             return [(f"events[{k}].agent", e.agent, f"agent does not exist (agents are 1..{n})")]
-        if e.agent == leader:
+        if e.agent == reference_agent:
             return [
                 (
                     f"events[{k}].agent",

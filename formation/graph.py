@@ -16,31 +16,11 @@ import numpy.typing as npt
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from formation.errors import TestbedError
+from formation.errors import AgentIdError, GraphInputError, ShapeError
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
-
-
-class GraphInputError(TestbedError, ValueError):
-    """Arrays handed to a graph or estimation routine that do not fit; says expected vs actual."""
-
-    def __init__(self, what: str, expected: str) -> None:
-        self.what, self.expected = what, expected
-        super().__init__(f"{what}; expected {expected}")
-
-
-class ShapeError(GraphInputError):
-    """An array of the wrong shape: ``z has shape (5, 3); expected (7, 2)``."""
-
-    def __init__(self, name: str, shape: tuple[int, ...], expected: str) -> None:
-        self.name, self.shape = name, shape
-        super().__init__(f"{name} has shape {shape}", expected)
-
-
-class AgentIdError(GraphInputError):
-    """An agent id outside ``1..n`` (or an edge joining an agent to itself)."""
 
 
 def _check_positive(value: int, name: str, integer: str, least: str) -> int:

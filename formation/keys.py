@@ -1,7 +1,6 @@
 """Key expressions of a run; every key string of the testbed is built here.
 
-Other modules read keys (``netem.proxy.routes``, ``recorder.recording.schemas``, ``recorder.reading.trust`` split
-them into their parts) but build none; ``tests/unit/formation/test_key_literals.py``
+Other modules read keys with :func:`parse` but build none; ``tests/unit/formation/test_key_literals.py``
 scans the product for key literals outside this module. All keys live under
 ``formation/<run_id>/``. Formation links are ``i → j``
 between agents; control links join agent ``i`` and the leader (endpoint 0).
@@ -9,8 +8,12 @@ between agents; control links join agent ``i`` and the leader (endpoint 0).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from functools import lru_cache
+from typing import NamedTuple
+
 ROOT = "formation"
-LEADER = 0  # the leader's endpoint id on control links
+LEADER_ENDPOINT = 0  # the leader's end of a control link: its receiver id, netem's link end
 
 
 def prefix(run_id: str) -> str:
@@ -56,7 +59,7 @@ def link_report(run_id: str, i: int | str) -> str:
 
 def link_estimate(run_id: str, i: int | str) -> str:
     """Control link ``0 → i`` (agent ``i``'s part of the estimate), by name."""
-    return f"{ROOT}/{run_id}/link/{LEADER}/{i}/estimate"
+    return f"{ROOT}/{run_id}/link/{LEADER_ENDPOINT}/{i}/estimate"
 
 
 def inbox(run_id: str, receiver: int | str, phase: str) -> str:
@@ -113,12 +116,6 @@ def alive_all(run_id: str) -> str:
     return f"{ROOT}/{run_id}/alive/**"
 
 
-def parse_alive(key: str) -> tuple[str, str]:
-    """``(role, ident)`` of a liveliness key."""
-    parts = key.split("/")
-    return parts[-2], parts[-1]
-
-
 def body(run_id: str, i: int | str, what: str, type_name: str) -> str:
     """Agent ``i``'s body traffic as the agent saw it (``what``: ``pose`` in, ``command``
     out), a ROS 2 message of ``type_name`` (``geometry_msgs/msg/Twist``) in CDR; recorded."""
@@ -166,3 +163,64 @@ def moved(key: str, old_prefix: str, new_prefix: str) -> str:
 def replay_control(prefix_key: str) -> str:
     """Queryable of a running replay under ``prefix_key`` (a run prefix): pause, resume, seek, rate."""
     return f"{prefix_key}/replay/control"
+
+
+class ParsedKey(NamedTuple):
+    """A key split by the function of this module that builds it."""
+
+    kind: str  # that function's name (``agent_state``, ``inbox``, ``alive``, ...); "" if none
+    run_id: str  # "" for a key outside ``formation/<run_id>/``
+    args: tuple[str, ...]  # the function's other arguments, as the key writes them
+
+
+_ANY = "\x00"  # a chunk a template leaves open
+# The key functions, each with its number of arguments; the start token is an ``alive`` key.
+_BUILDERS: tuple[tuple[Callable[..., str], int], ...] = (
+    (agent_state, 2),
+    (agent_report, 2),
+    (leader_estimate_out, 1),
+    (leader_estimate_for, 2),
+    (link_state, 3),
+    (link_report, 2),
+    (link_estimate, 2),
+    (inbox, 3),
+    (netem_decision, 1),
+    (netem_config, 1),
+    (netem_final, 1),
+    (netem_rejoin, 1),
+    (netem_change, 1),
+    (status, 3),
+    (metrics, 1),
+    (alive, 3),
+    (scene, 1),
+    (frames, 1),
+    (log, 1),
+    (flush, 1),
+    (clock, 1),
+    (body, 4),  # its last argument, a ROS 2 type, is three chunks: package/msg/Type
+)
+_TEMPLATES = sorted(  # the fewest open chunks first: a literal chunk wins over an open one
+    (
+        (fn.__name__, tuple(fn(*[_ANY] * (arity - 1), f"{_ANY}/msg/{_ANY}").split("/")))
+        if fn is body
+        else (fn.__name__, tuple(fn(*[_ANY] * arity).split("/")))
+        for fn, arity in _BUILDERS
+    ),
+    key=lambda t: t[1].count(_ANY),
+)
+
+
+@lru_cache(maxsize=1 << 16)
+def parse(key: str) -> ParsedKey:
+    """The kind, run id and arguments of ``key`` (``kind`` "" when no function builds it)."""
+    parts = tuple(key.split("/"))
+    run_id = parts[1] if len(parts) > 2 and parts[0] == ROOT else ""
+    for kind, template in _TEMPLATES:
+        if len(parts) == len(template) and all(
+            t in (_ANY, p) for t, p in zip(template, parts, strict=True)
+        ):
+            args = tuple(p for t, p in zip(template[2:], parts[2:], strict=True) if t == _ANY)
+            if kind == body.__name__:
+                args = (*args[:2], "/".join(parts[-3:]))
+            return ParsedKey(kind, run_id, args)
+    return ParsedKey("", run_id, ())

@@ -31,7 +31,8 @@ from pydantic import (
     model_validator,
 )
 
-from formation.plugin_registry import PluginError, find, is_reference, names, registered
+from formation.errors import PluginError
+from formation.plugin_registry import find, is_reference, names, registered
 
 Probability = Annotated[float, Field(ge=0.0, le=1.0)]
 

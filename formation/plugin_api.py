@@ -24,8 +24,8 @@ import numpy as np
 import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, ValidationError
 
-from formation.errors import TestbedError
-from formation.plugin_registry import Kind, PluginError, check_callable, load, names
+from formation.errors import PluginError, PluginFailure, PluginKind
+from formation.plugin_registry import check_callable, load, names
 
 Array = npt.NDArray[np.float64]
 Mask = npt.NDArray[np.bool_]
@@ -41,27 +41,6 @@ class NoParams(BaseModel):
     """The parameters of a plug-in that takes none."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class PluginFailure(TestbedError):
-    """A plug-in that failed while a run used it: names it, the agents (or link) and the epoch."""
-
-    def __init__(self, kind: Kind, name: str, where: str, epoch: int, problem: str) -> None:
-        self.kind, self.name, self.where, self.epoch, self.problem = (
-            kind,
-            name,
-            where,
-            epoch,
-            problem,
-        )
-        label = {
-            "strategy": "loss strategy",
-            "controller": "controller",
-            "link_model": "link model",
-        }
-        super().__init__(
-            f"{label[kind]} plug-in {name!r} failed at epoch {epoch} ({where}): {problem}"
-        )
 
 
 # ----------------------------------------------------------------------------- loss strategies
@@ -223,12 +202,14 @@ def control_law(name: str) -> ControlLaw:
     return obj
 
 
-def _check_params(kind: Kind, name: str, params: object) -> None:
+def _check_params(kind: PluginKind, name: str, params: object) -> None:
     if not (isinstance(params, type) and issubclass(params, BaseModel)):
         raise PluginError(kind, name, f"params = {params!r} is not a pydantic model class")
 
 
-def validate_params(kind: Kind, name: str, model: type[BaseModel], given: dict[str, Any]) -> Any:
+def validate_params(
+    kind: PluginKind, name: str, model: type[BaseModel], given: dict[str, Any]
+) -> Any:
     """``given`` as ``model``; a failure names the parameter, its value and the rule."""
     try:
         return model.model_validate(given)
@@ -426,7 +407,6 @@ __all__ = [
     "Fill",
     "LossStrategy",
     "NoParams",
-    "PluginFailure",
     "StrategyInputs",
     "all_strategies",
     "command_checked",

@@ -18,36 +18,22 @@ import inspect
 from dataclasses import dataclass
 from functools import cache
 from importlib.metadata import EntryPoint, entry_points
-from typing import Any, Literal
+from typing import Any
 
-from formation.errors import TestbedError
+from formation.errors import PLUGIN_LABELS, PluginError, PluginKind
 
-Kind = Literal["strategy", "controller", "link_model"]
-GROUPS: dict[Kind, str] = {
+GROUPS: dict[PluginKind, str] = {
     "strategy": "formation.strategies",
     "controller": "formation.controllers",
     "link_model": "formation.link_models",
 }
-LABELS: dict[Kind, str] = {
-    "strategy": "loss strategy",
-    "controller": "controller",
-    "link_model": "link model",
-}
-
-
-class PluginError(TestbedError):
-    """A plug-in that cannot be found, loaded or used: names its kind, its name and the problem."""
-
-    def __init__(self, kind: Kind, name: str, problem: str) -> None:
-        self.kind, self.name, self.problem = kind, name, problem
-        super().__init__(f"{LABELS[kind]} plug-in {name!r}: {problem}")
 
 
 @dataclass(frozen=True)
 class Registered:
     """One registered plug-in: its name, where it is (``module:attribute``) and its package."""
 
-    kind: Kind
+    kind: PluginKind
     name: str
     target: str
     package: str  # the distribution that registers it, with its version
@@ -62,7 +48,7 @@ def _package(ep: EntryPoint) -> str:
 
 
 @cache
-def registered(kind: Kind) -> dict[str, Registered]:
+def registered(kind: PluginKind) -> dict[str, Registered]:
     """Every plug-in of ``kind`` the installed packages register, by name, sorted.
 
     Two packages registering one name is an error: which one a scenario meant is unknown.
@@ -82,7 +68,7 @@ def registered(kind: Kind) -> dict[str, Registered]:
     return dict(sorted(found.items()))
 
 
-def names(kind: Kind) -> tuple[str, ...]:
+def names(kind: PluginKind) -> tuple[str, ...]:
     """The registered names of ``kind``, sorted."""
     return tuple(registered(kind))
 
@@ -92,7 +78,7 @@ def is_reference(name: str) -> bool:
     return ":" in name
 
 
-def find(kind: Kind, name: str) -> Registered:
+def find(kind: PluginKind, name: str) -> Registered:
     """The plug-in ``name`` of ``kind``: a registered name or a ``"package.module:name"``."""
     if is_reference(name):
         return Registered(kind, name, name, "(not packaged)")
@@ -102,20 +88,20 @@ def find(kind: Kind, name: str) -> Registered:
         raise PluginError(
             kind,
             name,
-            f"no {LABELS[kind]} is registered under this name (registered: {known}; "
+            f"no {PLUGIN_LABELS[kind]} is registered under this name (registered: {known}; "
             f"or give 'package.module:name', or register it in the entry-point group "
             f"{GROUPS[kind]!r})",
         )
     return entry
 
 
-def load(kind: Kind, name: str) -> Any:
+def load(kind: PluginKind, name: str) -> Any:
     """The object plug-in ``name`` of ``kind`` names (imported once)."""
     return find(kind, name).load()
 
 
 @cache
-def _import(kind: Kind, name: str, target: str) -> Any:
+def _import(kind: PluginKind, name: str, target: str) -> Any:
     module_name, _, attr = target.partition(":")
     if not module_name or not attr:
         raise PluginError(kind, name, f"{target!r} is not 'package.module:name'")
@@ -132,7 +118,9 @@ def _import(kind: Kind, name: str, target: str) -> Any:
     return obj
 
 
-def check_callable(kind: Kind, name: str, what: str, fn: object, params: tuple[str, ...]) -> None:
+def check_callable(
+    kind: PluginKind, name: str, what: str, fn: object, params: tuple[str, ...]
+) -> None:
     """``fn`` is callable with exactly the positional parameters ``params``."""
     if not callable(fn):
         raise PluginError(kind, name, f"{what} = {fn!r} is not callable")
@@ -151,9 +139,6 @@ def check_callable(kind: Kind, name: str, what: str, fn: object, params: tuple[s
 
 __all__ = [
     "GROUPS",
-    "LABELS",
-    "Kind",
-    "PluginError",
     "Registered",
     "check_callable",
     "find",

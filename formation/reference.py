@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from formation.scenario import (
+from formation.scenario_sections import (
     CircleReference,
     LineReference,
     Reference,

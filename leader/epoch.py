@@ -94,7 +94,7 @@ class Leader:
         # (receiver i, sender j) of each link: z = x_i − x_j
         oriented = scenario.directed_links[:, ::-1]
         cov = np.eye(d) if self.exact else noise
-        self.measurements = MeasurementGraph.of(n, d, oriented, cov, scenario.leader)
+        self.measurements = MeasurementGraph.of(n, d, oriented, cov, scenario.reference_agent)
         self.solver: Solver = "dense" if n <= DENSE_MAX_AGENTS else "auto"  # never by batch size
         self.either = scenario.estimator.edge_rule == "either"
         self.on_tree = scenario.estimator.edges == "tree"

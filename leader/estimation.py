@@ -65,14 +65,8 @@ import numpy.typing as npt
 from scipy.sparse.csgraph import connected_components
 
 from formation import check_dimension
-from formation.graph import (
-    AgentIdError,
-    GraphInputError,
-    ShapeError,
-    as_edge_array,
-    as_edge_mask,
-    check_agent_count,
-)
+from formation.errors import AgentIdError, CovarianceError, GraphInputError, ShapeError
+from formation.graph import as_edge_array, as_edge_mask, check_agent_count
 from leader.dense import dense_blue
 from leader.laplacian import GroundedSystem, choose_method
 from leader.tree import adjacency, fuse_parallel, tree_solve
@@ -80,7 +74,6 @@ from leader.tree import adjacency, fuse_parallel, tree_solve
 __all__ = [
     "BlueBatch",
     "BlueResult",
-    "CovarianceError",
     "MeasurementGraph",
     "Solver",
     "blue",
@@ -93,10 +86,6 @@ Solver = Literal["auto", "tree", "direct", "cg", "dense"]
 
 SYMMETRY_RTOL = 1e-10
 """A covariance counts as symmetric when ``|P − Pᵀ| ≤ 1e-10 · max|P|``."""
-
-
-class CovarianceError(GraphInputError):
-    """A measurement covariance that is not symmetric positive definite."""
 
 
 @dataclass(frozen=True, eq=False)

@@ -16,13 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from formation.graph import (
-    GraphInputError,
-    ShapeError,
-    as_edge_array,
-    as_edge_mask,
-    check_agent_count,
-)
+from formation.errors import GraphInputError, ShapeError
+from formation.graph import as_edge_array, as_edge_mask, check_agent_count
 from formation.graph import component_labels as components
 
 __all__ = ["KruskalGraph", "components", "minimum_spanning_forest"]

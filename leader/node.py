@@ -127,7 +127,10 @@ class LeaderNode:
         self.run_id = service.run_id
         period = scenario.control.period_s
         self.ref_x = reference_positions(
-            scenario.reference, scenario.offsets[scenario.leader - 1], period, scenario.epochs
+            scenario.reference,
+            scenario.offsets[scenario.reference_agent - 1],
+            period,
+            scenario.epochs,
         )
         self.ref_v = reference_velocities(self.ref_x, period)
         self.inbox: PhaseInbox | None = None  # the time policy's, from the run's start
@@ -138,7 +141,7 @@ class LeaderNode:
         self.link_rows = link_rows(scenario)
         # realtime: reports in time and missed by cause; estimates sent before the deadline
         self.deadline = {"in_time": 0, "early_estimates": 0, **dict.fromkeys(CAUSES, 0)}
-        service.subscribe(keys.inbox(self.run_id, keys.LEADER, "report"))
+        service.subscribe(keys.inbox(self.run_id, keys.LEADER_ENDPOINT, "report"))
         service.declare_publishers(
             [keys.leader_estimate_out(self.run_id)]
             + [keys.leader_estimate_for(self.run_id, i) for i in range(1, scenario.n + 1)]
@@ -177,7 +180,7 @@ class LeaderNode:
         for i, fields in agent_estimates(self.scenario, lead, v_ref):
             key = keys.leader_estimate_for(self.run_id, i)
             head = self.service.header(key, k)
-            att = attachment(k, int(head["seq"]), keys.LEADER)
+            att = attachment(k, int(head["seq"]), keys.LEADER_ENDPOINT)
             self.service.put(key, orjson.dumps({**head, **fields}), att)
         if k % self.covariance_every == 0:
             blocks = self.leader.covariances(known[None], z[None], self.ref_x[k], batch)[0]
@@ -192,7 +195,7 @@ class LeaderNode:
             self.scenario.edge_array,
             len(reports),
         )
-        self.service.put(key, msg, attachment(k, int(head["seq"]), keys.LEADER))
+        self.service.put(key, msg, attachment(k, int(head["seq"]), keys.LEADER_ENDPOINT))
         self.epoch = k + 1
 
     def confirm_last(self) -> None:
@@ -235,7 +238,7 @@ class LeaderNode:
             # estimating then gives what the deadline would, and the agents and their states
             # more time.
             reports = yield from inbox.take("report", k, self.scenario.n, "early_estimates")
-            self._estimate(k, [report for _, report in reports[keys.LEADER]])
+            self._estimate(k, [report for _, report in reports[keys.LEADER_ENDPOINT]])
 
     def run(self, timing: TimePolicy) -> int:
         """Estimate every epoch of the run under ``timing``; returns an exit code.
@@ -244,7 +247,7 @@ class LeaderNode:
         only watches; realtime: each period, the reports that arrived by the report deadline
         (later ones are lost, counted by cause).
         """
-        self.inbox = timing.inbox(self.service, [keys.LEADER], self.deadline)
+        self.inbox = timing.inbox(self.service, [keys.LEADER_ENDPOINT], self.deadline)
         if not timing.join(self.service, self.rehearse):
             return 1
         loop = self._epochs(self.inbox)

@@ -13,15 +13,10 @@ import numpy as np
 import numpy.typing as npt
 
 from formation.graph import as_edge_array, as_edge_mask, as_positions
-from formation.rigidity import (
-    SVD_MAX_COLUMNS,
-    growth_rounds,
-    is_rigid,
-    rank_under_mask,
-    rigidity_rank,
-    spans_without_any,
-)
+from formation.rigidity import SVD_MAX_COLUMNS, rigidity_rank
 from formation.rigidity import expected_rigidity_rank as expected_rank
+from formation.rigidity_check import is_rigid, rank_under_mask
+from formation.rigidity_growth import growth_rounds, spans_without_any
 
 __all__ = [
     "UNKNOWN_RANK",
@@ -74,7 +69,7 @@ class HealthyRigidity:
     every minimally rigid graph), every subset of them is independent too, so the
     healthy subgraph's rank is its number of edges. Otherwise a small formation
     (``n·d ≤ svd_max_columns``) ranks each distinct mask once by SVD and remembers it.
-    A large one (:func:`formation.rigidity.rank_under_mask`) checks the growth order grown
+    A large one (:func:`formation.rigidity_check.rank_under_mask`) checks the growth order grown
     once on all edges (rigid: the rank is the expected one), then for an agent whose
     healthy edges cannot span (flexible, rank :data:`UNKNOWN_RANK`), then grows again
     and ranks the few agents growth leaves out by small SVDs (exact), and at last

@@ -6,8 +6,8 @@ import json
 import logging
 import sys
 
-from formation.errors import TestbedError
-from formation.plugin_api import PLUGIN_EXIT, PLUGIN_FAILED, PluginFailure
+from formation.errors import PluginFailure, TestbedError
+from formation.plugin_api import PLUGIN_EXIT, PLUGIN_FAILED
 from netem.node import NetemNode
 from shell import Service, load_scenario, open_service, serve, service_parser, time_policy
 

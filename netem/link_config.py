@@ -12,9 +12,9 @@ from pydantic import TypeAdapter, ValidationError
 
 from formation import keys
 from formation.capacity import Capacity
+from formation.keys import LEADER_ENDPOINT
 from formation.linkmodels import LinkModelSpec
 from formation.messages import LinkChange
-from formation.scenario import LEADER_ENDPOINT
 from netem.proxy.lockstep import Lockstep
 from netem.proxy.progress import Progress
 from netem.proxy.routes import LinkClass, Links

@@ -20,7 +20,8 @@ import orjson
 
 from formation import keys
 from formation.codec import read_attachment
-from formation.scenario import LEADER_ENDPOINT, Scenario
+from formation.keys import LEADER_ENDPOINT
+from formation.scenario import Scenario
 from netem.link_config import LinkConfig
 from netem.outbox import ZenohOutbox
 from netem.proxy.lockstep import Lockstep

@@ -4,7 +4,7 @@ decision records on ``netem/decision``."""
 from __future__ import annotations
 
 from formation import keys
-from formation.scenario import LEADER_ENDPOINT
+from formation.keys import LEADER_ENDPOINT
 from netem.proxy.records import Record, decision_batch, decision_batch_of, delivery
 from netem.proxy.routes import Phase
 from shell import Publisher, Service

@@ -212,7 +212,7 @@ class Recorder:
     # -- liveliness -------------------------------------------------------------------------
     def on_alive(self, key: str, alive: bool) -> None:
         """A liveliness token came or went: recorded as a :class:`LivelinessEvent`."""
-        role, ident = keys.parse_alive(key)
+        role, ident = keys.parse(key).args
         event = LivelinessEvent(key=key, role=role, ident=ident, alive=alive)
         self.intake.push((key, event.model_dump_json().encode(), None, None, time_ns()))
 

@@ -26,9 +26,8 @@ from pydantic import BaseModel
 
 from formation import keys
 from formation.codec import Malformed, encode, now_ns
-from formation.errors import RuntimeFailure
+from formation.errors import PluginFailure, RuntimeFailure
 from formation.messages import Status
-from formation.plugin_api import PluginFailure
 from shell.bus import Bus, Publisher, Query, Sample, ZenohBus
 
 log = logging.getLogger("service")
@@ -239,7 +238,7 @@ class Service:
             if key == keys.start(self.run_id) and alive:
                 self._started.set()
             if on_change is not None:
-                role, ident = keys.parse_alive(key)
+                role, ident = keys.parse(key).args
                 on_change(role, ident, alive)
 
         self._keep.append(

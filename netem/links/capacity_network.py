@@ -25,8 +25,10 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from formation.capacity import LEADER_END, Capacity, Link, all_links, members, queues_of
+from formation.capacity import Capacity, Link, all_links, members, queues_of
 from formation.deadlines import PHASES
+from formation.errors import LinkModelError
+from formation.keys import LEADER_ENDPOINT
 from formation.scenario import Scenario
 from formation.wire_size import Kind, WireSizes
 from netem.links.capacity import (
@@ -39,7 +41,6 @@ from netem.links.capacity import (
     serve_packets,
     without,
 )
-from netem.links.layer import LinkModelError
 
 PHASE_ORDER = {"state": 0, "report": 1, "estimate": 2}
 
@@ -412,9 +413,9 @@ def _phases(links: Sequence[Link]) -> frozenset[str]:
 def packet_kind(link: Link) -> tuple[Kind, int]:
     """Which packet a link carries, and whose: a state (its sender's), a report, an estimate."""
     src, dst = link
-    if dst == LEADER_END:
+    if dst == LEADER_ENDPOINT:
         return "report", src
-    if src == LEADER_END:
+    if src == LEADER_ENDPOINT:
         return "estimate", dst
     return "state", src
 

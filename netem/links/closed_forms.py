@@ -15,9 +15,10 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from formation.errors import LinkModelError
 from formation.linkmodels import GilbertElliott, LinkModelSpec, Markov4
 from netem.links.chains import cesaro
-from netem.links.layer import Floats, Layer, LinkModelError
+from netem.links.layer import Floats, Layer
 from netem.links.linkmodels import layer_of
 from netem.links.linkmodels.delay import DelayMoments, delay_moments
 

@@ -15,7 +15,7 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 import numpy.typing as npt
 
-from formation.errors import TestbedError
+from formation.errors import LinkModelError
 from formation.keyed_random import Stream, keyed_normal, keyed_uniform
 from formation.linkmodels import Spec, kind_code_of
 from netem.links.chains import cesaro
@@ -35,14 +35,6 @@ STATE_NAMES: dict[str, tuple[str, ...]] = {}  # tag → state code → its name
 def model_index(tag: str) -> int:
     """A model's index in :data:`MODEL_NAMES` (built once a layer of it is)."""
     return MODEL_NAMES.index(tag)
-
-
-class LinkModelError(TestbedError):
-    """A link model that cannot be built or asked: names the link and the broken rule."""
-
-    def __init__(self, link: str, problem: str) -> None:
-        self.link, self.problem = link, problem
-        super().__init__(f"link {link}: {problem}")
 
 
 @dataclass(frozen=True)
@@ -197,7 +189,6 @@ __all__ = [
     "Keys",
     "Layer",
     "LayerOutput",
-    "LinkModelError",
     "enter_model",
     "lossless",
     "model_index",

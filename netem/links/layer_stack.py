@@ -15,8 +15,8 @@ from typing import Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from formation.errors import LinkModelError, PluginFailure
 from formation.linkmodels import LinkModelSpec
-from formation.plugin_api import PluginFailure
 from netem.links.layer import (
     MODEL_NAMES,
     STATE_NAMES,
@@ -27,7 +27,6 @@ from netem.links.layer import (
     Keys,
     Layer,
     LayerOutput,
-    LinkModelError,
     model_index,
 )
 from netem.links.linkmodels import layer_of
@@ -439,7 +438,6 @@ __all__ = [
     "KEY_LIMIT",
     "Carry",
     "LinkMatrix",
-    "LinkModelError",
     "Outcome",
     "Piece",
     "Schedule",

@@ -17,8 +17,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from formation.errors import LinkModelError
 from formation.linkmodels import LinkModelSpec
-from netem.links.layer import Bools, Floats, Ints, Keys, Layer, LinkModelError
+from netem.links.layer import Bools, Floats, Ints, Keys, Layer
 from netem.links.layer_stack import LinkMatrix, build_stack, check_key, run_stack
 
 

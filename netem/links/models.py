@@ -69,6 +69,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from formation.errors import LinkModelError
 from formation.linkmodels import LinkModelSpec
 from netem.links.closed_forms import (
     DelayMoments,
@@ -79,7 +80,7 @@ from netem.links.closed_forms import (
     stationary_distribution,
 )
 from netem.links.decision_table import LazyTable, coded_table
-from netem.links.layer import MODEL_NAMES, Floats, Keys, LinkModelError
+from netem.links.layer import MODEL_NAMES, Floats, Keys
 from netem.links.layer_stack import (
     KEY_LIMIT,
     Carry,
@@ -442,7 +443,6 @@ __all__ = [
     "DelayMoments",
     "LinkMatrix",
     "LinkModel",
-    "LinkModelError",
     "Outcome",
     "Schedule",
     "delay_moments",

@@ -27,7 +27,7 @@ from typing import Any, Literal, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from formation.scenario import LEADER_ENDPOINT
+from formation.keys import LEADER_ENDPOINT
 from netem.links.capacity_network import Fixed
 from netem.links.layer_stack import Outcome
 from netem.links.models import LinkModel

@@ -23,7 +23,7 @@ import logging
 from collections import defaultdict
 from typing import Any
 
-from formation.scenario import LEADER_ENDPOINT
+from formation.keys import LEADER_ENDPOINT
 from netem.links.layer_stack import Outcome
 from netem.proxy.clean_epochs import CleanEpochs, Deliver, clean_epochs
 from netem.proxy.open_epochs import Delayed, OpenEpoch, Outbox

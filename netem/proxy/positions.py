@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import orjson
 
-from formation.scenario import LEADER_ENDPOINT
+from formation.keys import LEADER_ENDPOINT
 from netem.links.layer import Ints
 from netem.links.matrix import link_length, link_lengths
 from netem.proxy.routes import Link, Links, Route

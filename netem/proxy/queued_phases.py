@@ -18,7 +18,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from formation.scenario import LEADER_ENDPOINT
+from formation.keys import LEADER_ENDPOINT
 from formation.wire_size import Kind, WireSizes
 from netem.links.capacity_network import PHASE_ORDER, CapacityNetwork, Fixed, packet_kind
 from netem.links.layer_stack import Outcome

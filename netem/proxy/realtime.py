@@ -29,8 +29,8 @@ from typing import Any, NamedTuple
 
 from formation.codec import read_attachment
 from formation.deadlines import PHASES
+from formation.keys import LEADER_ENDPOINT
 from formation.realtime import Clock
-from formation.scenario import LEADER_ENDPOINT
 from netem.links.layer_stack import Outcome
 from netem.proxy.progress import Progress
 from netem.proxy.records import Ledger, Queued, Record, message_json, packet_json_of, queued

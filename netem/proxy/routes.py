@@ -13,7 +13,8 @@ from typing import Literal
 
 from formation import keys
 from formation.events import Membership
-from formation.scenario import LEADER_ENDPOINT, Scenario
+from formation.keys import LEADER_ENDPOINT
+from formation.scenario import Scenario
 from formation.wire_size import WireSizes
 from netem.links.capacity_network import CapacityNetwork, network_of
 from netem.links.models import LinkModel
@@ -26,6 +27,12 @@ PHASE_OF: dict[LinkClass, Phase] = {
     "formation": "state",
     "report": "report",
     "estimate": "estimate",
+}
+# The keys netem takes in (by their formation.keys function) and the phase of each.
+INBOUND: dict[str, Phase] = {
+    "agent_state": "state",
+    "agent_report": "report",
+    "leader_estimate_for": "estimate",
 }
 
 
@@ -94,17 +101,15 @@ class Routes:
         ``leader/estimate/<i>`` from the leader to ``i``.
         """
         if key not in self._routes:
-            parts = key.split("/")
+            kind, _, args = keys.parse(key)
+            phase = INBOUND.get(kind)
             route: Route | None = None
-            if len(parts) == 5 and parts[3].isdigit() and int(parts[3]) in self._agents:
-                if parts[2] == "agent" and parts[4] in ("state", "report"):
-                    route = ("state" if parts[4] == "state" else "report", int(parts[3]), 0)
-            elif (
-                len(parts) == 5
-                and parts[2:4] == ["leader", "estimate"]
-                and parts[4].isdigit()
-                and int(parts[4]) in self._agents
-            ):
-                route = ("estimate", LEADER_ENDPOINT, int(parts[4]))
+            if phase is not None and args[0].isdigit() and int(args[0]) in self._agents:
+                agent = int(args[0])
+                route = (
+                    ("estimate", LEADER_ENDPOINT, agent)
+                    if phase == "estimate"
+                    else (phase, agent, 0)
+                )
             self._routes[key] = route
         return self._routes[key]

@@ -279,7 +279,7 @@ class EpochAssembler:
             closed.positions,
             self.edges,
             s.offsets,
-            s.leader,
+            s.reference_agent,
             healthy,
             tree,
             lost,

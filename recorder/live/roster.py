@@ -18,10 +18,10 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from formation.keys import LEADER_ENDPOINT
 from formation.scenario import Scenario
 
 Mask = npt.NDArray[np.bool_]
-LEADER = 0  # netem's endpoint of the leader in ``down`` and ``back``
 
 
 def team_detail(detail: str) -> dict[str, Any] | None:
@@ -84,7 +84,7 @@ class Roster:
 
     def estimated(self, epoch: int) -> bool:
         """Whether the leader's estimate of ``epoch`` is to come (none of the final states)."""
-        return epoch < self.last and not self._out(LEADER, epoch)
+        return epoch < self.last and not self._out(LEADER_ENDPOINT, epoch)
 
     def decisions(self, epoch: int, team: Mask) -> int:
         """netem's formation decisions of ``epoch``: one per directed link between agents
@@ -95,4 +95,4 @@ class Roster:
         return int((on[self._links[:, 0] - 1] & on[self._links[:, 1] - 1]).sum())
 
 
-__all__ = ["LEADER", "Roster", "team_detail"]
+__all__ = ["Roster", "team_detail"]

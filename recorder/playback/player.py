@@ -74,7 +74,7 @@ def rebuild_attachment(kind: str, payload: bytes) -> bytes | None:
     except (ValueError, KeyError, TypeError):
         return None
     if kind in LEADER_KINDS:  # before "agent": an agent's estimate comes from the leader
-        return codec.attachment(epoch, seq, keys.LEADER)
+        return codec.attachment(epoch, seq, keys.LEADER_ENDPOINT)
     if isinstance(body.get("agent"), int):
         return codec.attachment(epoch, seq, body["agent"])
     return None

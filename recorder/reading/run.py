@@ -170,7 +170,7 @@ def _assemble(
     count = max(epochs) + 1 if epochs else max(len(x) - 1, 0)
     est = _estimates(scenario, got.ests, count)
     delivered, decided = decisions.delivery(scenario.directed_links, count)
-    followers = np.arange(n) != scenario.leader - 1
+    followers = np.arange(n) != scenario.reference_agent - 1
     nees_values, est_errors = consistency(
         x, est["estimates"], est["estimate_cov"], est["observable"] & followers
     )

@@ -221,7 +221,7 @@ class Gate:
 
     def _cdr(self, type_name: str, topic: str, data: bytes) -> CdrMessage:
         """An agent's body traffic: a ROS 2 message of its type in CDR, on its agent's key."""
-        self._agent(self._key_id(topic.split("/")[3]))
+        self._agent(self._key_id(keys.parse(topic).args[0]))
         try:
             decode_cdr(type_name, data)
         except DecodeError as exc:
@@ -337,7 +337,7 @@ class Gate:
         self._agent_part(msg, self._key_id(parts[-1]))
 
     def _link_estimate(self, msg: AgentEstimate, parts: list[str]) -> None:
-        if parts[-3] != str(keys.LEADER):
+        if parts[-3] != str(keys.LEADER_ENDPOINT):
             raise Skip(OUT_OF_RANGE, "an estimate link starts at the leader (0)")
         self._agent_part(msg, self._key_id(parts[-2]))
 
@@ -393,8 +393,9 @@ class Gate:
             link = (dec.source, dec.target)
             ok = {
                 "formation": link in self.links,
-                "report": dec.target == keys.LEADER and dec.source != keys.LEADER,
-                "estimate": dec.source == keys.LEADER and dec.target != keys.LEADER,
+                "report": dec.target == keys.LEADER_ENDPOINT and dec.source != keys.LEADER_ENDPOINT,
+                "estimate": dec.source == keys.LEADER_ENDPOINT
+                and dec.target != keys.LEADER_ENDPOINT,
             }[dec.link_class]
             if not ok:
                 raise Skip(OUT_OF_RANGE, f"no {dec.link_class} link {link[0]}->{link[1]}")
@@ -412,7 +413,7 @@ class Gate:
             return False
         if not ((ends >= 0) & (ends <= self.n)).all():
             return False
-        leader = keys.LEADER
+        leader = keys.LEADER_ENDPOINT
         formation = kind == 0
         codes = source[formation] * (self.n + 1) + target[formation]
         return bool(

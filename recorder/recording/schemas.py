@@ -56,29 +56,25 @@ class LivelinessEvent(BaseModel):
     alive: bool
 
 
-_W = "*"  # one chunk of a key expression
-# Channel kinds in match order; the pattern is built by formation.keys with wildcards.
-_PATTERNS: tuple[tuple[str, str], ...] = (
-    ("agent_state", keys.agent_state(_W, _W)),
-    ("agent_report", keys.agent_report(_W, _W)),
-    ("leader_estimate", keys.leader_estimate_out(_W)),
-    ("agent_estimate", keys.leader_estimate_for(_W, _W)),
-    ("link_state", keys.link_state(_W, _W, _W)),
-    ("leader_report", keys.link_report(_W, _W)),
-    ("link_estimate", keys.link_estimate(_W, _W)),
-    ("delivery", keys.inbox(_W, _W, _W)),
-    ("decision", keys.netem_decision(_W)),
-    ("link_change", keys.netem_change(_W)),
-    ("status", keys.status(_W, _W, _W)),
-    ("metrics", keys.metrics(_W)),
-    ("scene", keys.scene(_W)),
-    ("tf", keys.frames(_W)),
-    ("log", keys.log(_W)),
-    ("alive", keys.alive(_W, _W, _W)),
-)
-_SPLIT = tuple((kind, tuple(p.split("/"))) for kind, p in _PATTERNS)
-# an agent's body traffic: the kind names the ROS 2 type, the key's last three chunks
-_BODY = tuple(keys.body(_W, _W, _W, f"{_W}/msg/{_W}").split("/"))
+# Channel kinds (recorded in each channel's metadata) by the formation.keys function of the key.
+_KINDS: dict[str, str] = {
+    "agent_state": "agent_state",
+    "agent_report": "agent_report",
+    "leader_estimate_out": "leader_estimate",
+    "leader_estimate_for": "agent_estimate",
+    "link_state": "link_state",
+    "link_report": "leader_report",
+    "link_estimate": "link_estimate",
+    "inbox": "delivery",
+    "netem_decision": "decision",
+    "netem_change": "link_change",
+    "status": "status",
+    "metrics": "metrics",
+    "scene": "scene",
+    "frames": "tf",
+    "log": "log",
+    "alive": "alive",
+}
 
 MESSAGE_MODELS: dict[str, type[BaseModel]] = {
     "agent_state": CoordinationState,
@@ -99,21 +95,13 @@ MESSAGE_MODELS: dict[str, type[BaseModel]] = {
 
 def classify(key: str) -> str:
     """The channel kind of ``key`` (``"agent_state"``, ``"scene"``, ... or ``"unknown"``)."""
-    parts = key.split("/")
-    if len(parts) == len(_BODY) and all(p in (_W, x) for p, x in zip(_BODY, parts, strict=True)):
-        return ROS2 + "/".join(parts[-3:])
-    for kind, pattern in _SPLIT:
-        if len(parts) == len(pattern) and all(
-            p in (_W, x) for p, x in zip(pattern, parts, strict=True)
-        ):
-            return kind
-    return UNKNOWN
+    parsed = keys.parse(key)
+    return ROS2 + parsed.args[-1] if parsed.kind == "body" else _KINDS.get(parsed.kind, UNKNOWN)
 
 
 def run_id_of(key: str) -> str | None:
     """The run id in ``formation/<run_id>/...``, or None for a key outside the testbed's root."""
-    parts = key.split("/")
-    return parts[1] if len(parts) > 2 and parts[0] == keys.ROOT else None
+    return keys.parse(key).run_id or None
 
 
 @dataclass(frozen=True)

@@ -216,7 +216,7 @@ def write_report_from(runs: Sequence[RunData], out_dir: Path, title: str | None 
         "trajectories": plots.plot_trajectories(
             [(r.label, r.positions) for r in runs],
             s.edge_array,
-            s.leader,
+            s.reference_agent,
             chosen,
             out_dir / "trajectories.png",
         ),

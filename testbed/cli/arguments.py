@@ -6,8 +6,8 @@ import argparse
 from collections.abc import Sequence
 from typing import Any
 
-from formation.errors import ScenarioError, TestbedError
-from formation.plugin_api import PluginFailure, all_strategies
+from formation.errors import PluginFailure, ScenarioError, TestbedError
+from formation.plugin_api import all_strategies
 from formation.plugin_registry import is_reference
 from formation.scenario import Scenario
 from netem import probe_stack

@@ -10,9 +10,10 @@ from pydantic import BaseModel
 from rich.markup import escape
 from rich.table import Table
 
+from formation.errors import PluginError, PluginKind
 from formation.linkmodels import spec_class
 from formation.plugin_api import control_law, loss_strategy
-from formation.plugin_registry import GROUPS, Kind, PluginError, registered
+from formation.plugin_registry import GROUPS, registered
 from testbed.cli.tables import print_table
 
 TITLES = {"strategy": "loss strategies", "controller": "controllers", "link_model": "link models"}
@@ -31,7 +32,7 @@ def _parameters(model: type[BaseModel], skip: tuple[str, ...] = ()) -> list[str]
     return out
 
 
-def describe(kind: Kind, name: str) -> dict[str, Any]:
+def describe(kind: PluginKind, name: str) -> dict[str, Any]:
     """What ``formation plugins`` says of one plug-in; ``error`` when it cannot be loaded."""
     entry = registered(kind)[name]
     row: dict[str, Any] = {"kind": kind, "name": name, "package": entry.package}
@@ -56,7 +57,7 @@ def describe(kind: Kind, name: str) -> dict[str, Any]:
 
 
 def cmd_plugins(args: argparse.Namespace) -> int:
-    kinds: tuple[Kind, ...] = ("strategy", "controller", "link_model")
+    kinds: tuple[PluginKind, ...] = ("strategy", "controller", "link_model")
     rows = [describe(kind, name) for kind in kinds for name in registered(kind)]
     if args.json:
         print(json.dumps(rows, indent=2))

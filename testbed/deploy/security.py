@@ -44,7 +44,7 @@ import zenoh
 from body import ADMIN_SPACE, topic_key
 from formation import keys
 from formation.body import Body
-from formation.errors import TestbedError
+from formation.errors import KeysError
 from shell import check_readable
 
 ANY_RUN = "*"  # the run-id chunk of every rule: one key set serves every run
@@ -68,14 +68,6 @@ DELIVERED = (
     "liveliness_query",
 )
 READ = ("declare_subscriber", "declare_liveliness_subscriber", "liveliness_query")
-
-
-class KeysError(TestbedError):
-    """Credentials that cannot be generated where asked."""
-
-    def __init__(self, path: Path | str, problem: str) -> None:
-        self.path, self.problem = path, problem
-        super().__init__(f"{path}: {problem}")
 
 
 @dataclass(frozen=True)
@@ -397,7 +389,6 @@ def _write(path: Path, text: str) -> None:
 
 __all__ = [
     "KeySet",
-    "KeysError",
     "Principal",
     "TlsMaterial",
     "access_control",

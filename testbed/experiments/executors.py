@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from types import ModuleType
 from typing import Any, Protocol, TypeVar
 
-from formation.errors import TestbedError
+from formation.errors import ExecutorError
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -47,10 +47,6 @@ OVERHEAD_SHARE = 0.05  # a task's overhead stays under 5 % of the task
 CHEAPEST_CELL_EPOCH_S = 1e-5
 SCHEDULER_TIMEOUT_S = 30.0  # how long a scheduler address may take to answer
 SCHEDULER_FORMS = "tcp://HOST:PORT, tls://HOST:PORT or local:N"
-
-
-class ExecutorError(TestbedError):
-    """A ``--scheduler`` that cannot be used: names the value and what is wrong with it."""
 
 
 class Executor(Protocol):
@@ -238,7 +234,6 @@ __all__ = [
     "SCHEDULER_FORMS",
     "DaskCluster",
     "Executor",
-    "ExecutorError",
     "LocalPool",
     "executor_for",
     "parse_scheduler",

@@ -8,17 +8,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from formation.errors import TestbedError
+from formation.errors import UnknownLossModel
 from formation.scenario import Scenario
 
 LOSS_MODELS = ("bernoulli", "gilbert_elliott")
-
-
-class UnknownLossModel(TestbedError):
-    """A loss model name that is not one of :data:`LOSS_MODELS`."""
-
-    def __init__(self, model: str) -> None:
-        super().__init__(f"loss model {model!r}: expected one of {', '.join(LOSS_MODELS)}")
 
 
 def gilbert_elliott_at(rate: float, burst_epochs: float) -> dict[str, float]:
@@ -46,10 +39,10 @@ def with_loss(scenario: Scenario, model: str, rate: float, burst_epochs: float =
             "1-k": 0.0,
         }
     else:
-        raise UnknownLossModel(model)
+        raise UnknownLossModel(model, LOSS_MODELS)
     net = scenario.network.model_dump(by_alias=True)
     net.update(formation_default=[spec], links=[])
     return scenario.with_overrides(network=net)
 
 
-__all__ = ["LOSS_MODELS", "UnknownLossModel", "gilbert_elliott_at", "with_loss"]
+__all__ = ["LOSS_MODELS", "gilbert_elliott_at", "with_loss"]

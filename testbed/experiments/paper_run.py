@@ -40,7 +40,7 @@ from testbed.sim.team_generators import henneberg_team
 
 def _desired(res: BatchResult) -> Array:
     base = res.plan.base
-    d0, r = base.offsets, base.leader
+    d0, r = base.offsets, base.reference_agent
     ref = reference_positions(base.reference, d0[r - 1], base.control.period_s, res.plan.epochs)
     return np.asarray(ref[:, None, :] + (d0 - d0[r - 1])[None, :, :])
 

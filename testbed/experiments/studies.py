@@ -236,7 +236,7 @@ def estimator_study(
             s = scen.with_overrides(estimator={**scen.estimator.model_dump(), "edges": rule})
             res = run_batch(plan_batch(s, seeds, epochs), "estimate", rigidity=False)
             assert res.estimate_cov is not None and res.observable is not None
-            follower = np.arange(s.n) != s.leader - 1
+            follower = np.arange(s.n) != s.reference_agent - 1
             mask = res.observable & follower
             traces = np.trace(res.estimate_cov, axis1=-2, axis2=-1)
             pred[rule] = float(traces[mask].mean())

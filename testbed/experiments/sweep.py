@@ -37,7 +37,7 @@ import numpy as np
 import pandas as pd
 
 from analysis import final_value
-from formation.errors import TestbedError
+from formation.errors import SweepError
 from formation.plugin_api import all_strategies
 from formation.scenario import Scenario, StrategyName
 from testbed.experiments.executors import Executor, LocalPool, seeds_per_task
@@ -60,10 +60,6 @@ COLUMNS = (
     "measured_loss",
 )
 Key = tuple[str, str, str, str, int, int]  # topology, model, loss, strategy, seed, epochs
-
-
-class SweepError(TestbedError):
-    """A sweep that cannot run or resume: names the argument or file and the broken rule."""
 
 
 def loss_grid(text: str) -> tuple[float, ...]:
@@ -462,7 +458,6 @@ def write_tables(summary: SweepSummary, out_dir: Path) -> None:
 __all__ = [
     "COLUMNS",
     "Chunk",
-    "SweepError",
     "SweepSpec",
     "SweepSummary",
     "critical_table",

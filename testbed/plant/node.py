@@ -31,7 +31,7 @@ from formation.scenario import Scenario
 from testbed.plant.robots import Robots
 
 log = logging.getLogger("ros2-plant")
-Clock = Literal["stepped", "free"]
+PlantTiming = Literal["stepped", "free"]  # how the plant moves its robots (above)
 FIRST_POSE_S = 0.1  # [s] how often the stepped clock sends a starting robot's pose
 COUNTS_WAIT_S = 5.0  # [s] the longest the counts wait for the robots' lock
 
@@ -43,7 +43,7 @@ class Plant:
     def __init__(
         self,
         scenario: Scenario,
-        clock: Clock = "stepped",
+        clock: PlantTiming = "stepped",
         rate_hz: float | None = None,
         seed: int | None = None,
         name: str = "formation_plant",
@@ -157,4 +157,4 @@ class Plant:
         self.link.close()
 
 
-__all__ = ["Clock", "Plant"]
+__all__ = ["Plant", "PlantTiming"]

@@ -83,7 +83,7 @@ class Observer:
             ]
             ok = 0 <= k <= self.scenario.epochs and 1 <= i <= self.scenario.n
             ok = ok and len(position) == self.scenario.dimension
-            ok = ok and str(sample.key_expr).split("/")[-2] == str(i)  # its own key only
+            ok = ok and keys.parse(str(sample.key_expr)).args == (str(i),)  # its own key only
         except (orjson.JSONDecodeError, KeyError, TypeError, ValueError):
             ok = False
         if not ok:
@@ -132,7 +132,7 @@ class Observer:
 
     def _on_status(self, sample: zenoh.Sample) -> None:
         msg = self._decode(sample, Status)
-        role, ident = str(sample.key_expr).split("/")[-2:]
+        role, ident = keys.parse(str(sample.key_expr)).args
         if msg is not None and msg.sender != (
             f"{role}/{ident}" if role in ("agent", "pool") else role
         ):

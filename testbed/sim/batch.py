@@ -34,12 +34,13 @@ from agent import (
     state_width,
 )
 from analysis import Substitutions, formation_error, nees, shape_error, team_errors
+from formation.errors import BatchError
 from formation.reference import reference_positions, reference_velocities
 from formation.robots import initial_headings
 from formation.scenario import StrategyName
 from leader import HealthyRigidity, Leader, LeaderEpochs
 from testbed.sim.bodies import RobotRows
-from testbed.sim.plan import VARIANT_FIELDS, BatchError, BatchPlan, newest_late, plan_batch
+from testbed.sim.plan import VARIANT_FIELDS, BatchPlan, newest_late, plan_batch
 from testbed.sim.presence import Presence
 from testbed.sim.ranged import RangedEpochs
 from testbed.sim.result import SimResult
@@ -128,7 +129,7 @@ class BatchResult:
         assert self.rigid is not None
         plan = self.plan
         base = plan.base
-        d, r = base.dimension, base.leader
+        d, r = base.dimension, base.reference_agent
         est, cov, obs = self.estimates[:, b], self.estimate_cov[:, b], self.observable[:, b]
         x = self.positions[:, b]
         scored = obs & (np.arange(base.n) != r - 1)[None, :]
@@ -195,7 +196,7 @@ def run_batch(
     """
     base = plan.base
     size, n_epochs = plan.size, plan.epochs
-    n, d, r = base.n, base.dimension, base.leader
+    n, d, r = base.n, base.dimension, base.reference_agent
     edges, d0 = base.edge_array, base.offsets
     links = base.directed_links
     n_links = len(links)
@@ -226,7 +227,7 @@ def run_batch(
         th[0] = np.stack([initial_headings(int(s), n) for s in plan.seeds.tolist()])
     robots = RobotRows.of(base)  # the agents whose body is a ROS 2 robot (docs/robots.md)
     for k in range(n_epochs + 1):
-        if k == 0 or robots.leader is None:  # a robot is where it went (robots.step)
+        if k == 0 or robots.reference_row is None:  # a robot is where it went (robots.step)
             # the reference agent follows the trajectory (docs/model.md §3)
             x[k, :, r - 1] = ref_x[k]
         if k == n_epochs:
@@ -451,7 +452,6 @@ class _Log:
 
 __all__ = [
     "VARIANT_FIELDS",
-    "BatchError",
     "BatchPlan",
     "BatchResult",
     "plan_batch",

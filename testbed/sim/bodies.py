@@ -27,18 +27,18 @@ class RobotRows:
     """The rows of a batch's agents whose body is a robot, and what moves them."""
 
     rows: Ints  # (r,) rows ``i − 1`` of the robots
-    leader: int | None  # the reference agent's row, if its body is a robot
+    reference_row: int | None  # the reference agent's row, if its body is a robot
     period_s: float
     limits: tuple[float, float, float, int] | None  # a unicycle's (agent.drive_unicycle)
 
     @classmethod
     def of(cls, scenario: Scenario) -> RobotRows:
         rows = np.array(scenario.body.robots(scenario.n), dtype=np.int64) - 1
-        r = scenario.leader - 1
-        leader = r if r in rows.tolist() else None
+        r = scenario.reference_agent - 1
+        reference_row = r if r in rows.tolist() else None
         ctl = scenario.control
         limits = ctl.unicycle.limits if ctl.dynamics == "unicycle" else None
-        return cls(rows, leader, ctl.period_s, limits)
+        return cls(rows, reference_row, ctl.period_s, limits)
 
     def step(
         self,
@@ -53,7 +53,7 @@ class RobotRows:
         (B, n) each, ``saturated`` (B, n), both overwritten for the reference robot."""
         if not self.rows.size:
             return
-        r = self.leader
+        r = self.reference_row
         if self.limits is None:  # sent a velocity, and go where it takes them
             if r is not None:  # sent toward its trajectory
                 x_next[:, r] = ref_next

@@ -20,9 +20,10 @@ import numpy as np
 import numpy.typing as npt
 
 from agent import measurement_noise
-from formation.errors import TestbedError
+from formation.errors import BatchError
 from formation.events import Membership, membership
-from formation.scenario import LEADER_ENDPOINT, Scenario
+from formation.keys import LEADER_ENDPOINT
+from formation.scenario import Scenario
 from netem import DeliveryPlan, capacity_plan, delivery_plan
 
 Mask = npt.NDArray[np.bool_]
@@ -31,10 +32,6 @@ Array = npt.NDArray[np.float64]
 
 # Fields members of one batch may differ in: the rest is the shared structure.
 VARIANT_FIELDS = ("name", "description", "seed", "epochs", "network", "runtime", "recording")
-
-
-class BatchError(TestbedError):
-    """Members that cannot share a batch; names the member and the differing field."""
 
 
 @dataclass(frozen=True)
@@ -281,4 +278,4 @@ def plan_batch(
     )
 
 
-__all__ = ["VARIANT_FIELDS", "BatchError", "BatchPlan", "RangedMember", "newest_late", "plan_batch"]
+__all__ = ["VARIANT_FIELDS", "BatchPlan", "RangedMember", "newest_late", "plan_batch"]

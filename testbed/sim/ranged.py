@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from formation.scenario import LEADER_ENDPOINT
+from formation.keys import LEADER_ENDPOINT
 from netem import CapacityPlanner, link_lengths
 from testbed.sim.plan import BatchPlan, offered
 

@@ -11,8 +11,9 @@ from collections.abc import Iterator
 import pytest
 import zenoh
 
-from agent.body import BodyLost, RobotBodies
+from agent.body import RobotBodies
 from body import open_body_link
+from formation.errors import BodyLost
 from formation.scenario import Scenario
 from shell import session_config
 from testkit.zenoh_peer import free_port

@@ -122,7 +122,7 @@ def test_the_leader_killed_and_restarted_the_agents_fall_back_meanwhile(
     assert sorted(fell) == down and outcome.extra["fallbacks"] == sum(fell.values())
     assert calm.extra["fallbacks"] == 0 and calm.extra["fallback_epochs"] == {}
     # After it: the gap to the fault-free run shrinks by rho per epoch, to rounding.
-    agents = [i for i in range(scenario.n) if i != scenario.leader - 1]
+    agents = [i for i in range(scenario.n) if i != scenario.reference_agent - 1]
     grounded = np.zeros((scenario.n, scenario.n))
     for a, b in scenario.edge_array - 1:
         grounded[[a, b], [a, b]] += 1.0

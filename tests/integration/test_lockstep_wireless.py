@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from analysis import axle_speeds, summarise, turn_rates
-from formation.scenario import LEADER_ENDPOINT, Scenario
+from formation.keys import LEADER_ENDPOINT
+from formation.scenario import Scenario
 from recorder import read_run
 from testbed.runtime.launcher import launch
 from testbed.sim.simulate import simulate
@@ -113,7 +114,9 @@ def test_unicycles_hold_a_low_turn_limit_as_recorded_and_count_its_saturation(
     sim = simulate(scenario, strategy="estimate", seed=2)
     assert run.headings is not None and run.saturated is not None
     np.testing.assert_array_equal(run.headings, sim.headings)
-    turn = np.delete(turn_rates(run.headings, scenario.control.period_s), scenario.leader - 1, 1)
+    turn = np.delete(
+        turn_rates(run.headings, scenario.control.period_s), scenario.reference_agent - 1, 1
+    )
     assert np.isfinite(turn).all() and turn.max() <= 0.5 * (1 + 1e-12)
     assert int(run.saturated.sum()) > 0
     assert summarise(run)["safety"]["max_turn_rad_s"] == turn.max()

@@ -210,7 +210,7 @@ def test_default_run_report_and_replay_into_a_fresh_leader(
             process(*leader, log=log) as proc,
         ):
             wait_for(ready, proc, "the fresh leader's token", log)
-            topics = keys.inbox(outcome.run_id, keys.LEADER, "report")
+            topics = keys.inbox(outcome.run_id, keys.LEADER_ENDPOINT, "report")
             replay = [
                 "-c",
                 REPLAY_CLI,

@@ -80,7 +80,7 @@ def test_malformed_payloads_are_counted_and_skipped(paper: Scenario, runs_dir: P
             # its receivers count it and take it as lost.
             s.put(keys.agent_state(run_id, 2), b"{oops", attachment=attachment(590, 10**6, 2))
             s.put(keys.inbox(run_id, 4, "state"), b"{broken")
-            s.put(keys.inbox(run_id, keys.LEADER, "report"), b"[]")
+            s.put(keys.inbox(run_id, keys.LEADER_ENDPOINT, "report"), b"[]")
         sent.set()
 
     # Long enough (a few seconds) that the injector's session is up well before the end.
@@ -95,7 +95,9 @@ def test_malformed_payloads_are_counted_and_skipped(paper: Scenario, runs_dir: P
     receivers = [j for j, senders in enumerate(paper.in_neighbours, start=1) if 2 in senders]
     inside = [keys.link_state(outcome.run_id, 2, j) for j in receivers]
     assert sum(bad.get(k, 0) for k in inside) >= 1, bad  # counted by agent 2's receivers
-    assert bad.get(keys.inbox(outcome.run_id, keys.LEADER, "report"), 0) >= 1  # by the leader
+    assert (
+        bad.get(keys.inbox(outcome.run_id, keys.LEADER_ENDPOINT, "report"), 0) >= 1
+    )  # by the leader
 
 
 @pytest.mark.parametrize("service", ["agent", "leader", "netem"])

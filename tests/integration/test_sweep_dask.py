@@ -16,8 +16,9 @@ from pathlib import Path
 
 import pytest
 
+from formation.errors import SweepError
 from testbed.cli import main
-from testbed.experiments.sweep import SweepError, read_rows
+from testbed.experiments.sweep import read_rows
 from testkit.dask_processes import DaskProcesses, child_env, dask_cluster, end
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]

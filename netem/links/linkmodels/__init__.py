@@ -14,8 +14,9 @@ from __future__ import annotations
 from functools import cache
 from typing import Any
 
+from formation.errors import PluginError
 from formation.linkmodels import Spec, spec_classes
-from formation.plugin_registry import PluginError, Registered
+from formation.plugin_registry import Registered
 from netem.links.layer import Layer
 
 

@@ -18,10 +18,11 @@ import numpy as np
 import numpy.typing as npt
 from scipy.special import ndtri
 
+from formation.errors import LinkModelError
 from formation.keyed_random import Stream
 from formation.linkmodels import Delay
 from netem.links.chains import run_ar1
-from netem.links.layer import Floats, Ints, Keys, Layer, LayerOutput, LinkModelError, lossless
+from netem.links.layer import Floats, Ints, Keys, Layer, LayerOutput, lossless
 
 _TABLE_MAX = 32767 / 8192  # tc's distribution tables are int16 scaled by NETEM_DIST_SCALE
 _TABLE_MIN = -32768 / 8192

@@ -69,7 +69,7 @@ def traffic(result: Any) -> list[tuple[str, bytes, bytes | None, int]]:
             components=int(result.components[k]),
             rigidity_rank=int(result.rigidity_rank[k]),
             rigid=bool(result.rigid[k] == 1),
-            x_ref=x[k, s.leader - 1].tolist(),
+            x_ref=x[k, s.reference_agent - 1].tolist(),
             v_ref=[0.0] * s.dimension,
             reports_received=s.n,
         )

@@ -48,7 +48,7 @@ def test_the_lockstep_loop_takes_each_phase_once_its_delivery_is_in() -> None:
         while (job := todo.get()) is not None:
             phase, epoch = job
             key = keys.inbox(RUN, 1, phase)
-            lost = scenario.in_neighbours[0] if phase == "state" else [keys.LEADER]
+            lost = scenario.in_neighbours[0] if phase == "state" else [keys.LEADER_ENDPOINT]
             fields = {**netem.header(key, epoch), "receiver": 1, "phase": phase, "lost": lost}
             netem.publish(key, Delivery(**fields, packets=[]))
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from agent.strategies import BlendParams, LinkMemory, state_width, substitute
+from formation.errors import PluginError
 from formation.plugin_api import NoParams
-from formation.plugin_registry import PluginError
 
 D = 2
 

@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 
 from body import require_ros2
-from body.ros2 import Ros2Missing, pose_message, pose_position, stamp_ns, twist_message
+from body.ros2 import pose_message, pose_position, stamp_ns, twist_message
+from formation.errors import Ros2Missing
 
 REPO = Path(__file__).resolve().parents[3]
 

@@ -7,17 +7,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from formation.errors import TestbedError
-from formation.graph import (
-    AgentIdError,
-    GraphInputError,
-    ShapeError,
-    as_edge_array,
-    component_labels,
-    is_connected,
-    max_degree,
-)
-from formation.rigidity import expected_rigidity_rank, is_rigid, rigidity_matrix, rigidity_rank
+from formation.errors import AgentIdError, GraphInputError, ShapeError, TestbedError
+from formation.graph import as_edge_array, component_labels, is_connected, max_degree
+from formation.rigidity import expected_rigidity_rank, rigidity_matrix, rigidity_rank
+from formation.rigidity_check import is_rigid
 
 PROPERTY = settings(max_examples=60, deadline=None, derandomize=True, database=None)
 

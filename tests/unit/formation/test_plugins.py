@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from formation.errors import ScenarioError
+from formation.errors import PluginFailure, ScenarioError
 from formation.linkmodels import kind_code_of, spec_class
-from formation.plugin_api import PluginFailure, all_strategies, control_law, loss_strategy
+from formation.plugin_api import all_strategies, control_law, loss_strategy
 from formation.plugin_registry import find, names, registered
 from formation.scenario import Scenario, load_dict
 

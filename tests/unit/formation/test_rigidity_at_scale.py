@@ -10,17 +10,10 @@ import numpy as np
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from formation.rigidity import (
-    expected_rigidity_rank,
-    grown_cluster,
-    growth_rounds,
-    is_rigid,
-    pinned_stiffness_definite,
-    rank_beyond_cluster,
-    rank_under_mask,
-    rigidity_matrix,
-    rigidity_rank,
-)
+from formation.rigidity import expected_rigidity_rank, rigidity_matrix, rigidity_rank
+from formation.rigidity_check import is_rigid, rank_under_mask
+from formation.rigidity_growth import grown_cluster, growth_rounds, rank_beyond_cluster
+from formation.rigidity_stiffness import pinned_stiffness_definite
 from leader.rigidity import UNKNOWN_RANK, HealthyRigidity
 from testbed.sim.team_generators import rigid_team
 

@@ -124,6 +124,17 @@ def test_bad_scenarios_name_file_field_and_value(
         load(write(tmp_path, text))
 
 
+def test_an_older_file_with_leader_is_told_the_new_name(tmp_path: Path) -> None:
+    old = write(tmp_path, "leader = 1\n" + TRIANGLE, "old.toml")
+    with pytest.raises(
+        ScenarioError, match=r"^.*old\.toml: leader = 1; this field is now called reference_agent$"
+    ):
+        load(old)
+    assert (
+        load(write(tmp_path, "reference_agent = 2\n" + TRIANGLE, "new.toml")).reference_agent == 2
+    )
+
+
 def test_non_rigid_is_accepted_when_allowed(tmp_path: Path) -> None:
     text = TRIANGLE.replace(
         "edges = [[1, 2], [2, 3], [1, 3]]", "allow_flexible = true\nedges = [[1, 2], [2, 3]]"

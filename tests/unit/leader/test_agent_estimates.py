@@ -30,7 +30,7 @@ def _exact_measurements(scenario: Scenario) -> tuple[np.ndarray, np.ndarray]:
 def test_every_agent_gets_its_in_neighbours_estimates() -> None:
     for scenario in (Scenario.from_file(ROOT / "scenarios/paper.toml"), henneberg_team(30)):
         known, z = _exact_measurements(scenario)
-        x_ref = scenario.offsets[scenario.leader - 1]
+        x_ref = scenario.offsets[scenario.reference_agent - 1]
         lead = leader_epoch(scenario, known, z, x_ref)
         got = {
             i: AgentEstimate.model_validate_json(orjson.dumps({**HEAD, **fields}))
@@ -50,7 +50,7 @@ def test_whole_estimate_is_a_valid_message_with_every_field() -> None:
     known, z = _exact_measurements(scenario)
     cut = scenario.directed_links[:, 1] == scenario.n  # the last agent hears nobody: unobservable
     cut |= scenario.directed_links[:, 0] == scenario.n
-    lead = leader_epoch(scenario, known & ~cut, z, scenario.offsets[scenario.leader - 1])
+    lead = leader_epoch(scenario, known & ~cut, z, scenario.offsets[scenario.reference_agent - 1])
     assert not lead.estimate.observable.all()
     raw = estimate_message(HEAD, lead, [1.0, 2.0], [0.1, 0.2], scenario.edge_array, 29)
     msg = LeaderEstimate.model_validate_json(raw)

@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 
 import leader.laplacian as laplacian_module
 from analysis import nees
-from formation.graph import AgentIdError, GraphInputError, ShapeError
-from leader.estimation import BlueResult, CovarianceError, blue
+from formation.errors import AgentIdError, CovarianceError, GraphInputError, ShapeError
+from leader.estimation import BlueResult, blue
 from leader.mst import minimum_spanning_forest
 from testkit.dense_oracle import dense_system
 

@@ -39,7 +39,7 @@ def test_covariances_after_the_estimates_equal_them_computed_together(
     scenario = henneberg_team(n, estimator={"edges": edges})
     leader = Leader(scenario, HealthyRigidity(scenario.offsets, scenario.edge_array))
     known, z = _reports(scenario, 3, seed)
-    x_ref = scenario.offsets[scenario.leader - 1]
+    x_ref = scenario.offsets[scenario.reference_agent - 1]
     together = leader.epochs(known, z, x_ref)
     first = leader.epochs(known, z, x_ref, covariances=False)
     assert first.estimate.covariances is None

@@ -12,7 +12,7 @@ from scipy.sparse import coo_array
 from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 
 import leader.mst
-from formation.graph import AgentIdError, ShapeError
+from formation.errors import AgentIdError, ShapeError
 from formation.scenario import Scenario
 from leader.mst import KruskalGraph, components, minimum_spanning_forest
 

@@ -29,11 +29,11 @@ def test_the_lockstep_loop_estimates_each_delivered_epoch_once() -> None:
         estimates.append(LeaderEstimate.model_validate_json(sample.payload.to_bytes()))
 
     bus.declare_subscriber(keys.leader_estimate_out(RUN), on_estimate)
-    key = keys.inbox(RUN, keys.LEADER, "report")
+    key = keys.inbox(RUN, keys.LEADER_ENDPOINT, "report")
 
     def deliver(epoch: int) -> None:
         lost = range(1, scenario.n + 1)  # every report lost: the estimate still goes out
-        msg = Delivery(**netem.header(key, epoch), receiver=keys.LEADER, phase="report",
+        msg = Delivery(**netem.header(key, epoch), receiver=keys.LEADER_ENDPOINT, phase="report",
                        packets=[], lost=list(lost))  # fmt: skip
         netem.publish(key, msg)
 

@@ -6,7 +6,8 @@ from collections import Counter
 
 import pytest
 
-from formation.scenario import LEADER_ENDPOINT, Scenario
+from formation.keys import LEADER_ENDPOINT
+from formation.scenario import Scenario
 from netem.proxy.lockstep import Lockstep
 
 from .test_lockstep import Wire, lockstep

@@ -15,6 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import netem.links.models
+from formation.errors import LinkModelError
 from formation.linkmodels import (
     Bernoulli,
     Delay,
@@ -34,7 +35,6 @@ from netem.links.layer import MODEL_NAMES
 from netem.links.linkmodels import layer_of, layers
 from netem.links.models import (
     LinkModel,
-    LinkModelError,
     Outcome,
     delivery_matrix,
     expected_burst_length,

@@ -124,7 +124,7 @@ def test_loop_starts_again_until_stopped(recording: Path) -> None:
 def test_rebuilt_attachments() -> None:
     assert rebuild_attachment("control", b'{"epoch": 1, "seq": 2}') is None
     assert rebuild_attachment("leader_estimate", b'{"epoch": 1, "seq": 2}') == attachment(
-        1, 2, keys.LEADER
+        1, 2, keys.LEADER_ENDPOINT
     )
     assert rebuild_attachment("link_state", b'{"epoch": 3, "seq": 4, "agent": 5}') == attachment(
         3, 4, 5

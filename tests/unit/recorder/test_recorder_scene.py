@@ -23,7 +23,14 @@ def test_scene_of_the_paper_formation(paper: Scenario) -> None:
     tree[[1, 2, 4, 5]] = True
     scene = check(
         scene_update(
-            7, 1_500_000_000, x, paper.edge_array, paper.offsets, paper.leader, healthy, tree
+            7,
+            1_500_000_000,
+            x,
+            paper.edge_array,
+            paper.offsets,
+            paper.reference_agent,
+            healthy,
+            tree,
         )
     )
     (team,) = scene["entities"]
@@ -66,10 +73,12 @@ def test_any_3d_scene_decodes(x: np.ndarray, healthy: np.ndarray) -> None:
 def test_a_large_team_labels_only_the_leader_and_the_agents_out() -> None:
     from testbed.sim.team_generators import rigid_team
 
-    s = rigid_team(400, 2, 0.1, seed=2, leader=7)
+    s = rigid_team(400, 2, 0.1, seed=2, reference_agent=7)
     out = np.zeros(s.n, dtype=bool)
     out[[10, 20]] = True
-    scene = check(scene_update(3, 0, s.offsets, s.edge_array, s.offsets, s.leader, out=out))
+    scene = check(
+        scene_update(3, 0, s.offsets, s.edge_array, s.offsets, s.reference_agent, out=out)
+    )
     (team,) = scene["entities"]
     assert sorted(t["text"] for t in team["texts"]) == ["11 out", "21 out", "7"]
     assert len(team["spheres"]) == s.n

@@ -24,7 +24,9 @@ def yaw(arrow: dict[str, Any]) -> float:
 def test_headings_are_arrows_from_each_agent(paper: Scenario) -> None:
     x = paper.offsets + 0.1
     th = np.array([0.0, np.pi / 2, -2.0, np.nan, 3.0])  # agent 4's heading unknown
-    scene = check(scene_update(3, 0, x, paper.edge_array, paper.offsets, paper.leader, headings=th))
+    scene = check(
+        scene_update(3, 0, x, paper.edge_array, paper.offsets, paper.reference_agent, headings=th)
+    )
     (team,) = scene["entities"]
     arrows = team["arrows"]
     assert len(arrows) == 4
@@ -32,7 +34,7 @@ def test_headings_are_arrows_from_each_agent(paper: Scenario) -> None:
         assert np.isclose(yaw(arrow), th[i])
         p = arrow["pose"]["position"]
         assert (p["x"], p["y"]) == (x[i, 0], x[i, 1])
-    bare = check(scene_update(3, 0, x, paper.edge_array, paper.offsets, paper.leader))
+    bare = check(scene_update(3, 0, x, paper.edge_array, paper.offsets, paper.reference_agent))
     assert bare["entities"][0]["arrows"] == []
 
 

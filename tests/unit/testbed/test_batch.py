@@ -7,9 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from formation.errors import BatchError
 from formation.scenario import STRATEGIES, Scenario
 from testbed.experiments.studies import dynamic_team
-from testbed.sim.batch import BatchError, plan_batch, run_batch
+from testbed.sim.batch import plan_batch, run_batch
 from testbed.sim.simulate import SimResult, simulate
 
 SCENARIOS = Path(__file__).resolve().parents[3] / "scenarios"

@@ -12,7 +12,7 @@ import yaml
 import zenoh
 
 from formation import keys
-from formation.errors import TestbedError
+from formation.errors import KeysError, TestbedError
 from formation.scenario import Scenario
 from testbed.cli import main as formation
 from testbed.deploy import security
@@ -276,9 +276,7 @@ def test_generated_keys_are_private_and_load_as_zenoh_configs(tmp_path: Path) ->
             "auth": {"usrpwd": {"user": "agent-1", "password": keyset.passwords["agent-1"]}}
         }
     }
-    with pytest.raises(
-        security.KeysError, match=r"k: exists and is not empty \(use --force to overwrite\)"
-    ):
+    with pytest.raises(KeysError, match=r"k: exists and is not empty \(use --force to overwrite\)"):
         security.generate(tmp_path / "k", n_agents=2)
 
 

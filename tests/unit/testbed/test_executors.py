@@ -9,12 +9,12 @@ from pathlib import Path
 
 import pytest
 
+from formation.errors import ExecutorError
 from formation.scenario import Scenario
 from testbed.cli import main
 from testbed.experiments.executors import (
     DASK_TASK_OVERHEAD_S,
     DaskCluster,
-    ExecutorError,
     LocalPool,
     executor_for,
     parse_scheduler,

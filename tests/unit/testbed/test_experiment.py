@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from formation.errors import SweepError
 from formation.linkmodels import GilbertElliott
 from formation.scenario import Scenario
 from netem.links.models import expected_loss_rate
@@ -17,7 +18,6 @@ from testbed.experiments.loss_variants import gilbert_elliott_at, with_loss
 from testbed.experiments.paper import PaperResults, judge, run_variants
 from testbed.experiments.paper_run import check_recording, run_paper
 from testbed.experiments.sweep import (
-    SweepError,
     SweepSpec,
     loss_grid,
     plan_chunks,

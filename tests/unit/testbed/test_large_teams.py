@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from formation.rigidity import expected_rigidity_rank, is_rigid
+from formation.rigidity import expected_rigidity_rank
+from formation.rigidity_check import is_rigid
 from formation.scenario import Scenario
 from testbed.sim.team_generators import rigid_team
 

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from analysis import axle_speeds, safety_counts, turn_rates
-from formation.scenario import LEADER_ENDPOINT, Scenario
+from formation.keys import LEADER_ENDPOINT
+from formation.scenario import Scenario
 from netem.links.matrix import link_lengths
 from netem.links.models import LinkModel
 from testbed.sim.batch import plan_batch, run_batch
@@ -111,7 +112,7 @@ def test_saturation_is_counted_when_the_gain_is_too_high(paper: Scenario) -> Non
         uni = s.control.unicycle
         speed = axle_speeds(sim.positions, sim.headings, uni.lookahead_m, s.control.period_s)
         assert speed.max() <= uni.max_speed_m_s * (1 + 1e-12)  # clipped, never exceeded
-        assert sim.saturated[:, s.leader - 1].sum() == 0
+        assert sim.saturated[:, s.reference_agent - 1].sum() == 0
         return int(sim.saturated.sum())
 
     assert saturated(0.1) == 0 < saturated(0.2) < saturated(0.3)
@@ -124,7 +125,7 @@ def test_a_low_turn_limit_is_held_and_its_saturation_counted(paper: Scenario) ->
     )
     sim = simulate(s)
     turn = turn_rates(sim.headings, s.control.period_s)  # 0.5 rad per epoch: visible (< π)
-    followers = np.delete(turn, s.leader - 1, axis=1)
+    followers = np.delete(turn, s.reference_agent - 1, axis=1)
     assert followers.max() <= 0.5 * (1 + 1e-12)
     assert followers.max() > 0.5 * (1 - 1e-9), "turning as fast as allowed at first"
     assert sim.saturated.sum() > 0

@@ -1,0 +1,104 @@
+"""Whether a framework is rigid, and its rank, at any size (docs/model.md §2).
+
+Small frameworks by the SVD of :func:`formation.rigidity.rigidity_rank`; large ones by
+vertex addition (:mod:`formation.rigidity_growth`) and, where that proves nothing, the
+pinned stiffness (:mod:`formation.rigidity_stiffness`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from formation.graph import BoolArray, FloatArray, IntArray, as_edge_array, as_positions
+from formation.rigidity import SVD_MAX_COLUMNS, expected_rigidity_rank, rigidity_rank
+from formation.rigidity_growth import (
+    grown_cluster,
+    loose_agent,
+    ordered_certificate,
+    rank_beyond_cluster,
+)
+from formation.rigidity_stiffness import pinned_stiffness_definite
+
+
+def is_rigid(
+    positions: npt.ArrayLike, edges: npt.ArrayLike, svd_max_columns: int = SVD_MAX_COLUMNS
+) -> bool:
+    """Whether the framework is infinitesimally rigid: rank ``R(q)`` = the expected rank (§2).
+
+    Small frameworks (``n·d ≤ svd_max_columns``) by the SVD of :func:`rigidity_rank`. Larger
+    ones without the edge count are not rigid; the others are rigid if vertex addition
+    grows one rigid cluster over every agent (:func:`grown_cluster`), otherwise by the SVD
+    of the agents it left out if they are few (:func:`rank_beyond_cluster`), and otherwise
+    by whether the pinned stiffness ``RᵀR + CᵀC`` is positive definite
+    (:func:`pinned_stiffness_definite`). All are evaluated at ``positions``, not at
+    generic ones, so grids and collinear agents get their own answer.
+    """
+    x = as_positions(positions)
+    n, d = x.shape
+    e = as_edge_array(n, edges)
+    need = expected_rigidity_rank(n, d)
+    if n * d <= svd_max_columns or n <= d + 1:
+        return rigidity_rank(x, e) == need
+    if e.shape[0] < need:
+        return False
+    return rank_beyond_growth(x, e, svd_max_columns)[1]
+
+
+SEED_TRIES = 8
+"""Seed edges :func:`rank_beyond_growth` tries when growth stalls before it has a body."""
+
+
+def rank_beyond_growth(
+    positions: FloatArray, edges: IntArray, svd_max_columns: int, seed: int = 0
+) -> tuple[int | None, bool]:
+    """Rank (None if unknown) and rigidity of a large framework, from vertex addition (§2).
+
+    The rank where :func:`grown_cluster` from edge ``seed`` (or, if it stalls before it has
+    ``d + 1`` agents, from one of ``SEED_TRIES`` edges spread over the list) and
+    :func:`rank_beyond_cluster` give it; otherwise only rigid or not, by
+    :func:`pinned_stiffness_definite`.
+    """
+    need = expected_rigidity_rank(*positions.shape)
+    d = positions.shape[1]
+    cluster = grown_cluster(positions, edges, seed)
+    tries = np.linspace(0, edges.shape[0] - 1, SEED_TRIES).astype(np.int64)
+    for other in tries if cluster.sum() <= d else ():  # stalled at the simplex: elsewhere
+        cluster = grown_cluster(positions, edges, int(other))
+        if cluster.sum() > d:
+            break
+    if cluster.all():
+        return need, True
+    rank = rank_beyond_cluster(positions, edges, cluster, svd_max_columns)
+    if rank is not None:
+        return rank, rank == need
+    if edges.shape[0] < need:
+        return None, False
+    rigid = pinned_stiffness_definite(positions, edges)
+    return (need if rigid else None), rigid
+
+
+def rank_under_mask(
+    positions: FloatArray,
+    edges: IntArray,
+    rounds: IntArray,
+    mask: BoolArray,
+    spread: bool,
+    svd_max_columns: int = SVD_MAX_COLUMNS,
+) -> tuple[int | None, bool]:
+    """Rank (None if unknown) and rigidity of the kept edges, the growth order known (§2).
+
+    The order grown once on all edges, checked again (:func:`ordered_certificate`); an
+    agent whose kept edges do not span the space (:func:`loose_agent`, valid when
+    ``spread``: :func:`spans_without_any` of ``positions``); else growth again on the kept
+    edges from the same seed (:func:`rank_beyond_growth`).
+    """
+    need = expected_rigidity_rank(*positions.shape)
+    if ordered_certificate(positions, edges, rounds, mask):
+        return need, True
+    if spread and loose_agent(positions, edges, mask):
+        return None, False
+    kept = edges[mask]
+    seeds = np.flatnonzero((rounds[kept[:, 0] - 1] == 0) & (rounds[kept[:, 1] - 1] == 0))
+    seed = int(seeds[0]) if seeds.size else 0  # the growth order's own seed edge, if kept
+    return rank_beyond_growth(positions, kept, svd_max_columns, seed)

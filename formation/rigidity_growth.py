@@ -1,0 +1,270 @@
+"""Rigidity of large frameworks by vertex addition: a rigid cluster grown edge by edge (§2).
+
+A cluster of every agent certifies rigidity; the agents it leaves out are ranked alone
+(:func:`rank_beyond_cluster`); the growth order, found once, checks a formation's
+kept edges of each epoch again (:func:`ordered_certificate`). All at ``positions``, in
+rounds of array work.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from formation.graph import (
+    BoolArray,
+    FloatArray,
+    IntArray,
+    as_edge_array,
+    as_edge_mask,
+    as_positions,
+    component_labels,
+)
+from formation.rigidity import (
+    RANK_RTOL,
+    SVD_MAX_COLUMNS,
+    batched_ranks,
+    expected_rigidity_rank,
+    sparse_rigidity_matrix,
+)
+
+
+def spans_without_any(positions: npt.ArrayLike) -> bool:
+    """Whether the agents less any one of them still span the space affinely.
+
+    True when two disjoint sets of ``d + 1`` agents are each affinely independent: every
+    agent misses one of them. Then a motion that moves one agent alone is never rigid.
+    """
+    x = as_positions(positions)
+    n, d = x.shape
+    free = np.ones(n, dtype=bool)
+    for _ in range(2):
+        if free.sum() < d + 1:
+            return False
+        chosen = [int(np.flatnonzero(free)[0])]
+        for _k in range(d):
+            rel = x - x[chosen[0]]
+            basis = rel[chosen[1:]]
+            if basis.shape[0]:
+                q = np.linalg.qr(basis.T)[0]
+                rel = rel - rel @ q @ q.T
+            dist = np.where(free, np.linalg.norm(rel, axis=1), -1.0)
+            dist[chosen] = -1.0
+            best = int(np.argmax(dist))
+            if dist[best] <= RANK_RTOL * max(float(np.ptp(x, axis=0).max()), 1e-300):
+                return False
+            chosen.append(best)
+        free[chosen] = False
+    return True
+
+
+def loose_agent(positions: npt.ArrayLike, edges: npt.ArrayLike, mask: npt.ArrayLike) -> bool:
+    """Whether some agent's kept edges leave a direction free: fewer than ``d`` independent ones.
+
+    That agent alone can move across all its edges, a motion that is not rigid when the
+    others span the space (:func:`spans_without_any`): the framework is flexible.
+    """
+    x = as_positions(positions)
+    n, d = x.shape
+    e0 = as_edge_array(n, edges) - 1
+    keep = as_edge_mask(mask, e0.shape[0])
+    tail, head, start = _half_edges(n, e0[keep])
+    count = np.diff(start)
+    if (count < d).any():
+        return True
+    return bool((_direction_ranks(x, tail, head, count) < d).any())
+
+
+def _half_edges(n: int, e0: IntArray) -> tuple[IntArray, IntArray, IntArray]:
+    """Both directions of each 0-based edge, sorted by tail: ``(tail, head, start)``, CSR-like."""
+    tail = np.concatenate([e0[:, 0], e0[:, 1]])
+    head = np.concatenate([e0[:, 1], e0[:, 0]])
+    order = np.argsort(tail, kind="stable")
+    return tail[order], head[order], np.searchsorted(tail[order], np.arange(n + 1))
+
+
+def _direction_ranks(x: FloatArray, tail: IntArray, head: IntArray, counts: IntArray) -> IntArray:
+    """Rank of each candidate's edge directions; its half-edges are consecutive, ``counts`` each.
+
+    Candidates are stacked by counts rounded up to a power of two, zero rows padding the
+    rest (they change no singular value): a few batched SVDs, not one per count.
+    """
+    out = np.zeros(counts.shape[0], dtype=np.int64)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    dirs = x[head] - x[tail]
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)  # lengths never matter, only angles
+    dirs = np.vstack([dirs, np.zeros((1, x.shape[1]))])  # row -1: the padding
+    width = 1 << np.ceil(np.log2(np.maximum(counts, 1))).astype(np.int64)
+    for k in np.unique(width):
+        sel = np.flatnonzero(width == k)
+        rows = first[sel, None] + np.arange(k)
+        rows[np.arange(k) >= counts[sel, None]] = -1
+        out[sel] = batched_ranks(dirs[rows])
+    return out
+
+
+def grown_cluster(positions: npt.ArrayLike, edges: npt.ArrayLike, seed: int = 0) -> BoolArray:
+    """The agents of the rigid cluster that vertex addition grows from edge ``seed`` (§2).
+
+    A cluster of ``c ≤ d`` agents affinely independent and all joined takes an agent joined to
+    all of them, off their affine hull; a larger one takes, all at once, every agent with
+    ``d`` edges into it along independent directions. Each step keeps the cluster
+    infinitesimally rigid at ``positions`` (the agent's velocity is fixed by ``d``
+    independent constraints against a rigid body), so a cluster of every agent is a
+    certificate of rigidity; a smaller one proves nothing. Rounds of array work, ``O(m)``
+    each.
+
+    Returns
+    -------
+    (n,) bool: the cluster's agents (none if there are no edges).
+    """
+    return growth_rounds(positions, edges, seed) >= 0
+
+
+def growth_rounds(positions: npt.ArrayLike, edges: npt.ArrayLike, seed: int = 0) -> IntArray:
+    """The round at which each agent joined :func:`grown_cluster`'s cluster, −1 if never.
+
+    The seed edge's two agents join at round 0; agents of one round joined the cluster of
+    the rounds before it, which is what :func:`ordered_certificate` checks again. Past the
+    simplex only agents next to the last round's are examined: no other's edges into the
+    cluster changed, so ``O(m)`` work in all.
+    """
+    x = as_positions(positions)
+    n, d = x.shape
+    e0 = as_edge_array(n, edges) - 1
+    rounds = np.full(n, -1, dtype=np.int64)
+    if e0.shape[0] == 0:
+        return rounds
+    tail, head, start = _half_edges(n, e0)
+    inside = np.zeros(n, dtype=bool)
+    count = np.zeros(n, dtype=np.int64)  # edges into the cluster
+    added = np.unique(e0[seed])
+    size, k, was_simplex = 0, 0, True
+    while added.shape[0]:
+        rounds[added] = k
+        inside[added] = True
+        size += added.shape[0]
+        if size == n:
+            break
+        out_of_new = _slices(start, added)
+        np.add.at(count, head[out_of_new], 1)
+        k += 1
+        need = min(d, size)
+        if was_simplex:
+            outside = np.flatnonzero(~inside)
+        else:
+            outside = np.unique(head[out_of_new])
+            outside = outside[~inside[outside]]
+        joined_to = count[outside]
+        cand = outside[joined_to == size] if size <= d else outside[joined_to >= need]
+        was_simplex = size <= d
+        if cand.shape[0] == 0:
+            break
+        into = _slices(start, cand)
+        into = into[inside[head[into]]]
+        ranks = _direction_ranks(x, tail[into], head[into], count[cand])
+        added = cand[ranks >= need]
+        if size <= d:
+            added = added[:1]  # a simplex grows one agent at a time, each off the others' hull
+    return rounds
+
+
+def _slices(start: IntArray, agents: IntArray) -> IntArray:
+    """Indices of the half-edges of ``agents`` (CSR ``start``), agent after agent."""
+    lo, hi = start[agents], start[agents + 1]
+    lengths = hi - lo
+    offsets = np.arange(lengths.sum()) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    out: IntArray = np.repeat(lo, lengths) + offsets
+    return out
+
+
+def ordered_certificate(
+    positions: npt.ArrayLike, edges: npt.ArrayLike, rounds: IntArray, mask: npt.ArrayLike
+) -> bool:
+    """Whether the edges in ``mask`` still attach every agent as :func:`growth_rounds` did (§2).
+
+    Each agent of round ``k`` needs, among its kept edges to agents of earlier rounds,
+    ``d`` along independent directions (in the first rounds, while the cluster has at
+    most ``d`` agents: an edge to each of them, independent). True proves the kept
+    graph rigid at ``positions``; False proves nothing. One pass of array work, so a
+    formation's epochs reuse the order grown once on all its edges.
+    """
+    x = as_positions(positions)
+    n, d = x.shape
+    e0 = as_edge_array(n, edges) - 1
+    keep = as_edge_mask(mask, e0.shape[0])
+    if (rounds < 0).any():
+        return False
+    first = (rounds[e0[:, 0]] == 0) & (rounds[e0[:, 1]] == 0)
+    if not (keep & first).any():
+        return False  # the seed edge, the first rigid body, is lost
+    tail, head, _ = _half_edges(n, e0[keep])
+    back = rounds[head] < rounds[tail]
+    count = np.bincount(tail[back], minlength=n)
+    before = np.searchsorted(np.sort(rounds), rounds)  # agents in earlier rounds
+    need = np.minimum(d, before)
+    small = before <= d
+    if (count[small] != before[small]).any() or (count < need).any():
+        return False
+    late = np.flatnonzero(before > 0)
+    ranks = _direction_ranks(x, tail[back], head[back], count[late]) if late.size else late
+    return bool((ranks >= need[late]).all())
+
+
+def rank_beyond_cluster(
+    positions: npt.ArrayLike,
+    edges: npt.ArrayLike,
+    cluster: npt.ArrayLike,
+    max_columns: int = SVD_MAX_COLUMNS,
+) -> int | None:
+    """``rank R(q)`` from a rigid cluster and SVDs of the agents outside it, or None.
+
+    ``cluster`` must be infinitesimally rigid and span the space, as :func:`grown_cluster`'s
+    is once it has more than ``d`` agents. Every motion is then a rigid motion plus one that is zero on the cluster, so
+    ``rank R = expected(n, d) − |U|·d + rank R_U``, ``R_U`` the columns of the agents ``U``
+    outside the cluster in the rows of their edges. ``R_U`` is block diagonal over the
+    components that the edges among ``U`` make, so each is ranked alone. None when the
+    cluster has at most ``d`` agents or a component has more than ``max_columns`` columns.
+    """
+    x = as_positions(positions)
+    n, d = x.shape
+    e0 = as_edge_array(n, edges) - 1
+    inside = as_edge_mask(cluster, n, "cluster")
+    if inside.sum() <= d:
+        return None
+    rest = np.flatnonzero(~inside)
+    if rest.size == 0:
+        return expected_rigidity_rank(n, d)
+    among = ~inside[e0[:, 0]] & ~inside[e0[:, 1]]
+    _, component, size = np.unique(
+        component_labels(n, e0 + 1, among)[rest], return_inverse=True, return_counts=True
+    )
+    if size.max() * d > max_columns:
+        return None
+    of_agent = np.full(n, -1, dtype=np.int64)  # component of each agent outside
+    of_agent[rest] = component
+    place = np.zeros(n, dtype=np.int64)  # an agent's place within its component
+    order = np.argsort(component, kind="stable")
+    place[rest[order]] = np.arange(rest.size) - np.searchsorted(component[order], component[order])
+    touching = ~(inside[e0[:, 0]] & inside[e0[:, 1]])
+    r = sparse_rigidity_matrix(x, e0[touching] + 1).tocoo()
+    agent = r.col // d
+    outside = of_agent[agent] >= 0  # entries in the columns of U
+    row, agent, col, value = r.row[outside], agent[outside], r.col[outside] % d, r.data[outside]
+    comp = of_agent[agent]
+    rank = 0
+    for k in np.unique(size):  # a dense stack per component size, one batched SVD each
+        chosen = size[comp] == k
+        if not chosen.any():
+            continue  # components without a kept edge: rank 0
+        slot = np.cumsum(size == k) - 1  # component → its index in the stack
+        c = slot[comp[chosen]]
+        # rows numbered within their component
+        key = c.astype(np.int64) * (r.shape[0] + 1) + row[chosen]
+        uniq, inverse = np.unique(key, return_inverse=True)
+        owner = uniq // (r.shape[0] + 1)
+        local = np.arange(uniq.size) - np.searchsorted(owner, owner)
+        stack = np.zeros((int((size == k).sum()), int(local.max()) + 1, int(k) * d))
+        stack[c, local[inverse], place[agent[chosen]] * d + col[chosen]] = value[chosen]
+        rank += int(batched_ranks(stack).sum())
+    return int(expected_rigidity_rank(n, d) - int(rest.size) * d + rank)
