@@ -18,13 +18,14 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from analysis import RunData, frames, summarise
+    from analysis import Frames, RunData, frames, summarise
     from formation.errors import TestbedError
     from formation.scenario import Scenario
     from formation.scenario import load as load_scenario
     from recorder import load_run, read_run
     from testbed.experiments.sweep import SweepSpec, run_sweep
-    from testbed.runtime.launcher import RunOutcome, launch
+    from testbed.runtime.launcher import LocalRun, RunHooks, launch
+    from testbed.runtime.outcome import RunOutcome
     from testbed.sim.batch import BatchResult, run_batch
     from testbed.sim.plan import BatchPlan, plan_batch
     from testbed.sim.result import SimResult
@@ -35,8 +36,11 @@ if TYPE_CHECKING:
 _API: dict[str, tuple[str, str]] = {
     "BatchPlan": ("testbed.sim.plan", "BatchPlan"),
     "BatchResult": ("testbed.sim.batch", "BatchResult"),
+    "Frames": ("analysis", "Frames"),
+    "LocalRun": ("testbed.runtime.launcher", "LocalRun"),
     "RunData": ("analysis", "RunData"),
-    "RunOutcome": ("testbed.runtime.launcher", "RunOutcome"),
+    "RunHooks": ("testbed.runtime.launcher", "RunHooks"),
+    "RunOutcome": ("testbed.runtime.outcome", "RunOutcome"),
     "Scenario": ("formation.scenario", "Scenario"),
     "SimResult": ("testbed.sim.result", "SimResult"),
     "SweepSpec": ("testbed.experiments.sweep", "SweepSpec"),
@@ -72,7 +76,10 @@ def __dir__() -> list[str]:
 __all__ = [
     "BatchPlan",
     "BatchResult",
+    "Frames",
+    "LocalRun",
     "RunData",
+    "RunHooks",
     "RunOutcome",
     "Scenario",
     "SimResult",
