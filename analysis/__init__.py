@@ -29,7 +29,7 @@ from analysis.metrics import (
 )
 from analysis.queues import loss_split
 from analysis.record import Decisions, Recorded, RunData, Substitutions
-from analysis.safety import axle_speeds, safety_counts, safety_lines, turn_rates
+from analysis.safety import safety_counts, safety_lines
 from analysis.summary import final_value, run_team_errors, summarise
 
 if TYPE_CHECKING:
@@ -50,7 +50,6 @@ __all__ = [
     "Recorded",
     "RunData",
     "Substitutions",
-    "axle_speeds",
     "consistency",
     "edge_mask",
     "error_statistics",
@@ -70,5 +69,4 @@ __all__ = [
     "team_edges",
     "team_errors",
     "team_shape_error",
-    "turn_rates",
 ]

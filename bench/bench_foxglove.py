@@ -33,7 +33,9 @@ from mcap.reader import make_reader
 from bench.procfs import cpu_s
 from formation.scenario import Scenario
 from formation.topics import DECISIONS_TOPIC, METRICS_TOPIC, SCENE_TOPIC, STATS_TOPIC, TF_TOPIC
-from recorder import LiveServer, decode, load_run
+from recorder import load_run
+from recorder.live.server import LiveServer
+from recorder.reading.decoder import decode
 from testbed.runtime.launcher import launch
 from testbed.runtime.processes import free_port
 from testbed.sim.simulate import simulate

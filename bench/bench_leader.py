@@ -37,7 +37,9 @@ from scipy.sparse import coo_array
 from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
-from leader import BlueResult, blue, clear_cache, minimum_spanning_forest
+from leader.estimation import BlueResult, blue
+from leader.mst import minimum_spanning_forest
+from leader.symbolic import clear_cache
 from testkit.dense_oracle import dense_system
 
 SEED = 7  # the seed of issue 18's figures

@@ -70,7 +70,7 @@ def mcap_library(
     """The baseline: mcap's Writer, channels registered up front; returns (msg/s, bytes)."""
     from mcap.writer import CompressionType, Writer
 
-    from recorder import schema_for_key
+    from recorder.recording.schemas import schema_for_key
 
     buf = io.BytesIO()
     writer: Any = Writer(buf, chunk_size=1 << 20, compression=CompressionType[compression.upper()])
@@ -93,7 +93,7 @@ def recorder_writer(
     msgs: list[tuple[str, bytes, bytes]], compression: str = "zstd"
 ) -> tuple[float, int]:
     """The recorder's writer fed batches of 1,000 samples; returns (msg/s, bytes)."""
-    from recorder import RecordingWriter
+    from recorder.recording.writer import RecordingWriter
 
     buf = io.BytesIO()
     rec = RecordingWriter(buf, compression=compression, fsync_interval_s=None)

@@ -25,7 +25,8 @@ import numpy as np
 
 from formation.scenario import Scenario
 from leader import HealthyRigidity, Leader
-from recorder import load_run, scene_update, write_report, write_report_from
+from recorder import load_run, write_report, write_report_from
+from recorder.live.scene import scene_update
 from testbed.sim.batch import run_batch
 from testbed.sim.plan import plan_batch
 from testbed.sim.simulate import simulate
@@ -38,7 +39,8 @@ LOSS = {"formation_default": [{"model": "bernoulli", "p_loss": 0.1}]}
 LOAD = """
 import resource, sys, time
 from formation.scenario import Scenario
-from recorder import load_run, scene_update, write_report, write_report_from
+from recorder import load_run, write_report, write_report_from
+from recorder.live.scene import scene_update
 from testkit.synthetic import write_synthetic
 t = time.perf_counter(); Scenario.from_file(sys.argv[1]); dt = time.perf_counter() - t
 print(dt, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)

@@ -12,17 +12,12 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from recorder.live.scene import scene_update
-from recorder.live.server import LiveServer
 from recorder.node import build_parser as recorder_parser
 from recorder.node import main
 from recorder.playback.player import replay
-from recorder.reading.decoder import decode
 from recorder.reading.reader import RecordingInfo, describe, validate
 from recorder.reading.recovery import Recovered, recover
 from recorder.reading.run import read_run
-from recorder.recording.schemas import schema_for_key
-from recorder.recording.writer import RecordingWriter
 from recorder.reporting.deadlines import write_deadlines
 
 if TYPE_CHECKING:
@@ -45,11 +40,8 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = [
-    "LiveServer",
     "RecordingInfo",
-    "RecordingWriter",
     "Recovered",
-    "decode",
     "describe",
     "export",
     "load_run",
@@ -58,8 +50,6 @@ __all__ = [
     "recorder_parser",
     "recover",
     "replay",
-    "scene_update",
-    "schema_for_key",
     "validate",
     "write_deadlines",
     "write_report",

@@ -12,7 +12,6 @@ from shell.bus import (
     Publisher,
     Query,
     Sample,
-    ZenohBus,
 )
 from shell.config_files import check_readable
 from shell.inbox import PhaseInbox
@@ -28,7 +27,6 @@ from shell.zenoh_config import (
     add_arguments,
     endpoints,
     open_session,
-    open_with_retry,
     session_config,
 )
 
@@ -49,7 +47,6 @@ __all__ = [
     "Sample",
     "Service",
     "TimePolicy",
-    "ZenohBus",
     "add_arguments",
     "check_readable",
     "dump_stacks_on_signal",
@@ -57,7 +54,6 @@ __all__ = [
     "load_scenario",
     "open_service",
     "open_session",
-    "open_with_retry",
     "serve",
     "service_parser",
     "session_config",

@@ -8,7 +8,8 @@ from collections.abc import Callable
 
 import pytest
 
-from shell import Sample, Service, ZenohBus, session_config
+from shell import Sample, Service, session_config
+from shell.bus import ZenohBus
 from testkit.zenoh_peer import free_port
 
 pytestmark = pytest.mark.integration

@@ -22,7 +22,7 @@ from mcap.reader import make_reader
 
 from formation import keys
 from formation.scenario import Scenario
-from shell import open_with_retry
+from shell.zenoh_config import open_with_retry
 from testbed.cli import main as formation
 from testbed.deploy import security
 from testkit.loopback import LoopbackDeployment

@@ -9,7 +9,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from analysis import axle_speeds, summarise, turn_rates
+from analysis import summarise
+from analysis.safety import axle_speeds, turn_rates
 from formation.keys import LEADER_ENDPOINT
 from formation.scenario import Scenario
 from recorder import read_run

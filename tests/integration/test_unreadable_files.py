@@ -20,8 +20,8 @@ from pathlib import Path
 import pytest
 
 from formation import keys
-from recorder import RecordingWriter
 from recorder.reading.reader import iter_messages, open_recording
+from recorder.recording.writer import RecordingWriter
 from testbed.runtime.processes import free_port
 from testkit.other_user import AS_ROOT, OTHER, command, hand_over, shut
 

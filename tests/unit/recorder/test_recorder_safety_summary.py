@@ -9,7 +9,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from analysis import axle_speeds, safety_counts
+from analysis import safety_counts
+from analysis.safety import axle_speeds
 from formation.scenario import Scenario
 from recorder import load_run, read_run
 from recorder.reporting.report import write_report, write_report_from

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis import axle_speeds, safety_counts, turn_rates
+from analysis import safety_counts
+from analysis.safety import axle_speeds, turn_rates
 from formation.keys import LEADER_ENDPOINT
 from formation.scenario import Scenario
 from netem.links.matrix import link_lengths
