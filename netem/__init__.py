@@ -8,7 +8,7 @@ time and check against closed forms. :class:`Layer`, :class:`Keys` and :class:`L
 are what a link model plug-in implements (docs/plugins.md).
 """
 
-from netem.links.capacity import QueueParams, serve  # capacity (docs/model.md §9)
+from netem.links.capacity import QueueParams, serve_queue  # capacity (docs/model.md §9)
 from netem.links.capacity_network import CapacityPlanner, capacity_plan
 from netem.links.closed_forms import expected_delivery_at
 from netem.links.layer import Keys, Layer, LayerOutput
@@ -31,5 +31,5 @@ __all__ = [
     "link_lengths",
     "probe_stack",
     "schedule",
-    "serve",
+    "serve_queue",
 ]

@@ -6,7 +6,7 @@ reports from ``(k + 0.20) T``, estimates from ``(k + 0.60) T``, each due by its 
 a phase that its link's loss models passed arrives at its queues at the phase's start, in
 the order of its link ``(src, dst)``; it goes through its link's queue, then its sender's
 radio, then its medium (``formation.capacity.queues_of``), each a
-:func:`netem.links.capacity.serve` carrying its state from phase to phase. A packet one of
+:func:`netem.links.capacity.serve_queue` carrying its state from phase to phase. A packet one of
 them refuses is ``queue_full`` (or ``oversize``); one leaving the last after the phase's
 deadline is ``queue_late``.
 

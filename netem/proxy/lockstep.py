@@ -10,10 +10,10 @@ epoch is closed, that epoch's decision records go out in one batch.
 
 An epoch in which every link of the phase passes takes the clean path
 (:mod:`netem.proxy.clean_epochs`): no per-packet decision, records spliced from templates and
-published together (:meth:`Lockstep.flush_clean`). With capacity queues, only where each
+published together (:meth:`LockstepCore.flush_clean`). With capacity queues, only where each
 queue has a closed form and passes its packet in time.
 
-:class:`Lockstep` has no network, clock or thread: the node calls it under its lock
+:class:`LockstepCore` has no network, clock or thread: the node calls it under its lock
 and publishes what it hands to the :class:`Outbox`, in the order it hands it.
 """
 
@@ -40,7 +40,7 @@ log = logging.getLogger("netem")
 FLUSH_CHUNKS = 64  # epochs
 
 
-class Lockstep:
+class LockstepCore:
     """The lockstep state machine of one run: every phase, receiver and epoch."""
 
     def __init__(
@@ -191,12 +191,7 @@ class Lockstep:
         epoch = min(newest + 1, self.epochs)
         self.revive[sender] = epoch
         if sender != LEADER_ENDPOINT:  # the leader just ignores the report deliveries before
-            for phase in ("state", "estimate"):
-                key: tuple[Phase, int] = (phase, sender)
-                self.next_close[key] = max(self.next_close[key], epoch)
-                for stale in [e for (p, r, e) in self.open if p == phase and r == sender]:
-                    if stale < epoch:
-                        del self.open[(phase, sender, stale)]
+            self._skip_to(sender, epoch)
         log.warning("%s is back: it takes part again from epoch %d", _name(sender), epoch)
         return epoch
 
@@ -504,27 +499,13 @@ class Lockstep:
         if g is None:
             return
         lengths = self.positions.lengths(ce.links, epoch)
-        if any(self.next_close[("state", r)] != epoch for r in ce.need):  # out of turn
+        out_of_turn = any(self.next_close[("state", r)] != epoch for r in ce.need)
+        if out_of_turn or not ce.within_reach(epoch, lengths):
             self._go_slow("state", epoch, ce.verdicts(epoch, lengths))
-            return
-        if not ce.within_reach(epoch, lengths):  # decided as the full path would, from these
-            ce.judged(epoch, g, ce.verdicts(epoch, lengths), self.ledger, self._close_judged)
             return
         ce.open_gate(epoch, g, self._clean_deliver["state"])
         if len(ce.chunks) >= FLUSH_CHUNKS or epoch >= self.epochs - 1:
             self._flush_clean("state")
-
-    def _close_judged(
-        self, receiver: int, epoch: int, packets: list[bytes], lost: list[int]
-    ) -> None:
-        """A judged gated epoch's delivery into ``receiver``, closed as :meth:`_try_close` does."""
-        self.outbox.deliver("state", receiver, epoch, packets, lost, [])
-        self.next_close[("state", receiver)] = epoch + 1
-        self.closed_count[("state", epoch)] += 1
-        if self.closed_count[("state", epoch)] >= len(self.links.agents):
-            del self.closed_count[("state", epoch)]
-            self._publish_decisions("state", epoch)
-        self._try_close("state", receiver)  # its later epochs, complete already, go out now
 
     def _ungate(self) -> None:
         """Gated epochs being gathered take the full path, routed in the order they came."""
