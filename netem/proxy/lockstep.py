@@ -32,7 +32,7 @@ from netem.proxy.progress import Progress
 from netem.proxy.queued_phases import QueuedPhases
 from netem.proxy.records import Ledger, Queued, packet_json
 from netem.proxy.routes import Link, LinkClass, Links, Phase, Route
-from netem.proxy.team_plan import TeamPlan
+from netem.proxy.team_plan import Attendance
 
 log = logging.getLogger("netem")
 # Clean epochs' records go out together: one batch per this many epochs' records (and at
@@ -40,13 +40,14 @@ log = logging.getLogger("netem")
 FLUSH_CHUNKS = 64  # epochs
 
 
-class LockstepCore:
+class LockstepCore(Attendance):
     """The lockstep state machine of one run: every phase, receiver and epoch."""
 
     def __init__(
         self, links: Links, epochs: int, progress: Progress, ledger: Ledger, outbox: Outbox
     ) -> None:
-        self.links, self.epochs = links, epochs
+        super().__init__(links.team, epochs, links.agents)
+        self.links = links
         self.progress, self.ledger, self.outbox = progress, ledger, outbox
         self.open: dict[tuple[Phase, int, int], OpenEpoch] = {}  # (phase, receiver, epoch)
         self.delayed: dict[tuple[Phase, int, int], list[Delayed]] = defaultdict(list)
@@ -55,18 +56,7 @@ class LockstepCore:
         self.clean: dict[Phase, CleanEpochs] = {}  # none until setup_clean
         self._clean_deliver: dict[Phase, Deliver] = {}
         self.positions = Positions(links)  # for distance models: read from the states
-        self.dead: set[int] = set()  # senders down (agents, or the leader as 0)
-        # A dead sender that came back takes part again from this epoch on (issue 20).
-        self.revive: dict[int, int] = {}
-        self.last_state: dict[int, tuple[int, Any]] = {}  # agent → (epoch, payload) last handled
         self.last_report: dict[int, int] = {}  # agent → epoch of its last report handled
-        # Scenario events (issue 20), from the scenario alone so every run drops the same;
-        # and the epoch each agent was given back.
-        plan = TeamPlan.of(links.team, epochs, links.agents)
-        self.out, self.starts, self.away = plan.out, plan.starts, set(plan.away)
-        self.rejoined: dict[int, int] = {}
-        # (action, agent, epoch) of each event as it is applied, for the node to announce.
-        self.applied: list[tuple[str, int, int]] = []
         # Packets the models passed onto a capacity queue, until all of their phase's are in.
         self.queued = (
             None
@@ -87,7 +77,7 @@ class LockstepCore:
         """A sender's packet of ``epoch`` on ``route``, its seq and payload (bytes or ZBytes)."""
         if not self.positions.needed:
             self._packet(route, epoch, seq, payload)
-        elif self.positions.admit(route, epoch, seq, payload, self._dead_at(epoch)):
+        elif self.positions.admit(route, epoch, seq, payload, self.dead_at(epoch)):
             self._packet(route, epoch, seq, payload)  # else held until the positions come
         if self.positions.ready:
             self._release_held()
@@ -195,26 +185,12 @@ class LockstepCore:
         log.warning("%s is back: it takes part again from epoch %d", _name(sender), epoch)
         return epoch
 
-    def planned_start(self, agent: int) -> int | None:
-        """The epoch of ``agent``'s next scheduled join or restart, None if it has none."""
-        if agent in self.rejoined:
-            return self.rejoined[agent]
-        starts = self.starts.get(agent)
-        if not starts:
-            return None
-        last = self.last_state[agent][0] if agent in self.last_state else -1
-        return next((k for k in starts if k > last), None)
-
     def _rejoin_planned(self, agent: int, epoch: int) -> int:
         """A scheduled (re)start: its receivers' epochs before ``epoch`` are not its own."""
         if self.rejoined.get(agent) == epoch:
             return epoch  # asked again
-        self.rejoined[agent] = epoch
-        self.away.discard(agent)
+        self.start(agent, epoch)
         self.progress.final_states.discard(agent)  # its next last state is still to come
-        team = self.links.team
-        again = team is not None and bool(team.present[:epoch, agent - 1].any())
-        self.applied.append(("restart" if again else "join", agent, epoch))
         self._skip_to(agent, epoch)
         for phase in ("state", "estimate"):  # what is complete already goes out now
             self._try_close(phase, agent)
@@ -232,39 +208,8 @@ class LockstepCore:
     def _goodbye(self, agent: int, epoch: int) -> None:
         """``agent``'s last state before a leave or crash event: kept (its body's state, for a
         restart), not forwarded; nobody waits for it until its next scheduled start."""
-        if agent not in self.away:
-            team = self.links.team
-            crash = team is not None and bool(team.crashed[epoch, agent - 1])
-            self.applied.append(("crash" if crash else "leave", agent, epoch))
-        self.away.add(agent)
-        self.rejoined.pop(agent, None)
+        self.leave(agent, epoch)
         self.progress.final_state(agent)  # what netem/final answers a leaving agent
-
-    def _back(self, agent: int, epoch: int) -> int:
-        """The first epoch from ``epoch`` at which ``agent`` takes part again (or the end)."""
-        return next((k for k in self.starts.get(agent, []) if k > epoch), self.epochs)
-
-    def is_dead(self, sender: int, epoch: int) -> bool:
-        """Whether ``sender``'s packets of ``epoch`` count as lost without waiting for them."""
-        if self.out and sender in self.out.get(epoch, ()):
-            return True
-        if sender not in self.dead:
-            return False
-        back = self.revive.get(sender)
-        return back is None or epoch < back
-
-    def is_down(self, sender: int) -> bool:
-        """Down now, and not yet back (the liveliness watch looks for a second death otherwise)."""
-        return sender in self.dead and sender not in self.revive
-
-    def state_of(self, agent: int) -> tuple[int, Any] | None:
-        """``(epoch, payload)`` of the last state netem handled from ``agent``, if any."""
-        return self.last_state.get(agent)
-
-    def _dead_at(self, epoch: int) -> set[int]:
-        out = self.out.get(epoch) if self.out else None
-        dead = self.dead if not self.revive else {s for s in self.dead if self.is_dead(s, epoch)}
-        return dead | out if out else dead
 
     def _close_estimates_without_leader(self, agent: int) -> None:
         """The leader is down: ``agent``'s estimate epochs close empty up to its last report."""
@@ -305,8 +250,7 @@ class LockstepCore:
 
     # -- state out ----------------------------------------------------------------------------
     def finished(self) -> bool:
-        gone = {s for s in self.dead if s not in self.revive}
-        return self.progress.finished(gone | self.out.get(self.epochs, frozenset()))
+        return self.progress.finished(self.gone())
 
     def forwarded(self) -> dict[Link, int]:
         """Delivered packets per link, clean epochs' included (for the final status)."""
@@ -410,7 +354,7 @@ class LockstepCore:
     def _all_handled(self, box: OpenEpoch, senders: list[int], epoch: int) -> bool:
         if not self.dead and epoch not in self.out:  # counting is enough: only its senders send
             return len(box.handled) >= len(senders)
-        dead = self._dead_at(epoch)
+        dead = self.dead_at(epoch)
         return all(s in box.handled for s in senders if s not in dead)
 
     def _try_close(self, phase: Phase, receiver: int) -> None:
@@ -420,9 +364,9 @@ class LockstepCore:
         while True:
             epoch = self.next_close[(phase, receiver)]
             if self.out and epoch < self.epochs and receiver in self.out.get(epoch, ()):
-                self.next_close[(phase, receiver)] = self._back(receiver, epoch)  # out: skip
+                self.next_close[(phase, receiver)] = self.back(receiver, epoch)  # out: skip
                 continue
-            dead = self._dead_at(epoch)
+            dead = self.dead_at(epoch)
             box = self.open.get((phase, receiver, epoch))
             if box is None:
                 # Every sender dead: close the epoch empty. Not the estimates: with the leader
