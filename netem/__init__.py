@@ -9,7 +9,7 @@ are what a link model plug-in implements (docs/plugins.md).
 """
 
 from netem.links.capacity import QueueParams, serve_queue  # capacity (docs/model.md §9)
-from netem.links.capacity_network import CapacityPlanner, capacity_plan
+from netem.links.capacity_plan import CapacityPlanner, capacity_plan
 from netem.links.closed_forms import expected_delivery_at
 from netem.links.layer import Keys, Layer, LayerOutput
 from netem.links.layer_stack import probe_stack

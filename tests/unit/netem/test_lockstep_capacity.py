@@ -11,7 +11,7 @@ import numpy as np
 from formation.capacity import Capacity
 from formation.scenario import Scenario
 from netem.links.capacity import REASONS
-from netem.links.capacity_network import capacity_plan
+from netem.links.capacity_plan import capacity_plan
 from netem.proxy.lockstep import LockstepCore
 from netem.proxy.progress import Progress
 from netem.proxy.records import Ledger
