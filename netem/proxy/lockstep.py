@@ -150,12 +150,10 @@ class LockstepCore(Attendance):
         if agent in self.dead and self.revive.pop(agent, None) is None:
             return  # already down; else it died again after coming back
         log.warning("%s is gone: its packets count as lost from now on", _name(agent))
-        self._ungate()  # what was gathered was routed while the agent was alive
+        self._leave_clean_path(gated=True)  # what was gathered was routed while it was alive
         self.dead.add(agent)
         self._release_held(agent)  # nobody waits for its positions
-        for phase, ce in self.clean.items():
-            for epoch in list(ce.gathering):
-                self._go_slow(phase, epoch)
+        self._leave_clean_path()
         if agent == LEADER_ENDPOINT:
             for j in self.links.agents:
                 self._close_estimates_without_leader(j)
@@ -238,7 +236,7 @@ class LockstepCore(Attendance):
 
     def models_changed(self) -> None:
         """A link's model changed: which epochs are clean is computed again."""
-        self._ungate()  # decided by the models in force at their epochs, as they came
+        self._leave_clean_path(gated=True)  # decided by the models in force as they came
         for ce in self.clean.values():
             ce.invalidate()
         self.positions.refresh()
@@ -451,12 +449,12 @@ class LockstepCore(Attendance):
         if len(ce.chunks) >= FLUSH_CHUNKS or epoch >= self.epochs - 1:
             self._flush_clean("state")
 
-    def _ungate(self) -> None:
-        """Gated epochs being gathered take the full path, routed in the order they came."""
-        ce = self.clean.get("state")
-        if ce is not None and ce.gated:
-            for epoch in list(ce.gathering):
-                self._go_slow("state", epoch)
+    def _leave_clean_path(self, gated: bool = False) -> None:
+        """Epochs being gathered (only gated ones: ``gated``) take the full path from now on."""
+        for phase, ce in self.clean.items():
+            if ce.gated or not gated:
+                for epoch in list(ce.gathering):
+                    self._go_slow(phase, epoch)
 
     def _flush_clean(self, phase: Phase) -> None:
         ce = self.clean.get(phase)
