@@ -116,6 +116,45 @@ def record_tail(d: Outcome | Queued) -> bytes:
     return tail[1]
 
 
+class RecordTemplates:
+    """The records of each stream's packet (one per link) as a ``%`` template of ``(epoch, seq)``
+    per link: records that differ only in those are spliced, not encoded one by one.
+
+    A passing decision's encoded fields (:func:`record_tail`) get an id (:meth:`tail_id`); a
+    template is one per stream and tuple of its links' ids.
+    """
+
+    def __init__(self, streams: dict[int, tuple[Link, ...]]) -> None:
+        self._heads = {
+            sid: [record_head(src, dst, cls).replace(b"%", b"%%") for cls, src, dst in links]
+            for sid, links in streams.items()
+        }
+        self._tail_ids: dict[bytes, int] = {}
+        self._tails: list[bytes] = []
+        self._templates: dict[tuple[int, tuple[int, ...]], bytes] = {}
+
+    def tail_id(self, d: Outcome | Queued | None) -> int:
+        """An id of a passing decision's encoded fields; -1 when it does not pass."""
+        if d is None or d.verdict != "pass":
+            return -1
+        tail = record_tail(d)
+        got = self._tail_ids.get(tail)
+        if got is None:
+            got = self._tail_ids[tail] = len(self._tails)
+            self._tails.append(tail)
+        return got
+
+    def template(self, stream: int, tails: tuple[int, ...]) -> bytes:
+        """The records of ``stream``'s packet, its links' decisions ``tails`` (ids)."""
+        got = self._templates.get((stream, tails))
+        if got is None:
+            got = self._templates[(stream, tails)] = b",".join(
+                head + b',"epoch":%d,"seq":%d' + self._tails[t].replace(b"%", b"%%")
+                for head, t in zip(self._heads[stream], tails, strict=True)
+            )
+        return got
+
+
 def decision_batch(header: dict[str, Any], phase: str, records: Iterable[Record]) -> bytes:
     """A ``DecisionBatch`` payload: ``header`` from ``Service.header``, one entry per record."""
     return decision_batch_of(
