@@ -230,6 +230,18 @@ class CleanEpochs:
         self.flags.clear()
         self.gated = self.gate and any(m.ranged for s in self.streams.values() for m in s.models)
 
+    def forwarded(self) -> dict[Link, int]:
+        """Packets forwarded per link in finished epochs (one per stream each)."""
+        return {link: len(self.done) for s in self.streams.values() for link in s.links}
+
+    def last_taken(self) -> Iterator[tuple[Link, int]]:
+        """Each link and the last epoch a packet of its stream took the clean path, if any."""
+        for stream, s in self.streams.items():
+            taken = [e for e, g in self.gathering.items() if stream in g.seqs]
+            last = max([self.last_done, *taken])
+            for link in s.links if last >= 0 else ():
+                yield link, last
+
     def records(self, epoch: int, got: dict[int, int]) -> Iterator[tuple[Record, Link]]:
         """The decision record of every packet forwarded in ``epoch``, with its link."""
         for stream, seq in got.items():

@@ -87,44 +87,46 @@ class LockstepCore(Attendance):
             self._packet(*held)
 
     def _packet(self, route: Route, epoch: int, seq: int, payload: Any) -> None:
-        kind, source, _ = route
-        links, dead = self.links, self.dead
+        kind, source, dst = route
         if kind == "state":
-            progress = self.progress
-            if epoch > progress.epoch_seen:
-                progress.epoch_seen = epoch
-            self.last_state[source] = (epoch, payload)
-            if epoch >= self.epochs:
-                progress.final_state(source)
-                return
-            if self.out and source in self.out.get(epoch, ()):
-                self._goodbye(source, epoch)
-                return
-            if not self._forward_clean("state", source, epoch, seq, payload):
-                self._route_state(source, epoch, seq, payload)
+            self._state(source, epoch, seq, payload)
         elif kind == "report":
-            if self.out and source in self.out.get(epoch, ()):
-                return  # not one of ours: that agent is out of the team at this epoch
-            self.last_report[source] = epoch
-            if self._forward_clean("report", source, epoch, seq, payload):
-                return
-            box = self._route_packet(
-                "report", "report", source, LEADER_ENDPOINT, payload, epoch, seq
-            )
-            if self._all_handled(box, links.agents, epoch):
-                self._try_close("report", LEADER_ENDPOINT)
-            if LEADER_ENDPOINT in dead:
-                self._close_estimates_without_leader(source)
+            self._report(source, epoch, seq, payload)
         else:
-            dst = route[2]
-            if self._forward_clean("estimate", dst, epoch, seq, payload):
-                pass
-            elif not ((dst in dead or self.out) and self.is_dead(dst, epoch)):
-                self._route_packet(
-                    "estimate", "estimate", LEADER_ENDPOINT, dst, payload, epoch, seq
-                )
-                self._try_close("estimate", dst)
-            self.progress.estimate_handled(epoch)
+            self._estimate(dst, epoch, seq, payload)
+
+    def _state(self, source: int, epoch: int, seq: int, payload: Any) -> None:
+        progress = self.progress
+        if epoch > progress.epoch_seen:
+            progress.epoch_seen = epoch
+        self.last_state[source] = (epoch, payload)
+        if epoch >= self.epochs:
+            progress.final_state(source)
+        elif self.out and source in self.out.get(epoch, ()):
+            self.leave(source, epoch)  # its last state: kept (for a restart), not forwarded
+            progress.final_state(source)  # what netem/final answers a leaving agent
+        elif not self._forward_clean("state", source, epoch, seq, payload):
+            self._route_state(source, epoch, seq, payload)
+
+    def _report(self, source: int, epoch: int, seq: int, payload: Any) -> None:
+        if self.out and source in self.out.get(epoch, ()):
+            return  # not one of ours: that agent is out of the team at this epoch
+        self.last_report[source] = epoch
+        if self._forward_clean("report", source, epoch, seq, payload):
+            return
+        box = self._route_packet("report", "report", source, LEADER_ENDPOINT, payload, epoch, seq)
+        if self._all_handled(box, self.links.agents, epoch):
+            self._try_close("report", LEADER_ENDPOINT)
+        if LEADER_ENDPOINT in self.dead:
+            self._close_estimates_without_leader(source)
+
+    def _estimate(self, dst: int, epoch: int, seq: int, payload: Any) -> None:
+        if not self._forward_clean("estimate", dst, epoch, seq, payload) and not (
+            (dst in self.dead or self.out) and self.is_dead(dst, epoch)
+        ):
+            self._route_packet("estimate", "estimate", LEADER_ENDPOINT, dst, payload, epoch, seq)
+            self._try_close("estimate", dst)
+        self.progress.estimate_handled(epoch)
 
     def _route_state(
         self,
@@ -203,12 +205,6 @@ class LockstepCore(Attendance):
                 if stale < epoch:
                     del self.open[(phase, agent, stale)]
 
-    def _goodbye(self, agent: int, epoch: int) -> None:
-        """``agent``'s last state before a leave or crash event: kept (its body's state, for a
-        restart), not forwarded; nobody waits for it until its next scheduled start."""
-        self.leave(agent, epoch)
-        self.progress.final_state(agent)  # what netem/final answers a leaving agent
-
     def _close_estimates_without_leader(self, agent: int) -> None:
         """The leader is down: ``agent``'s estimate epochs close empty up to its last report."""
         last = self.last_report.get(agent, -1)
@@ -225,14 +221,9 @@ class LockstepCore(Attendance):
     def queues_changing(self) -> None:
         """A capacity queue is about to change: its state counts the packets the clean path put
         through it, up to the last one (:meth:`QueuedPhases.crossed`)."""
-        if self.queued is None:
-            return
-        for ce in self.clean.values():
-            for stream, s in ce.streams.items():
-                taken = [e for e, g in ce.gathering.items() if stream in g.seqs]
-                last = max([ce.last_done, *taken])
-                for link in s.links if last >= 0 else ():
-                    self.queued.crossed(link, last)
+        if (q := self.queued) is not None:
+            for link, last in (x for ce in self.clean.values() for x in ce.last_taken()):
+                q.crossed(link, last)
 
     def models_changed(self) -> None:
         """A link's model changed: which epochs are clean is computed again."""
@@ -254,9 +245,7 @@ class LockstepCore(Attendance):
         """Delivered packets per link, clean epochs' included (for the final status)."""
         total = self.ledger.forwarded.copy()
         for ce in self.clean.values():
-            for stream in ce.streams.values():  # each finished epoch had one packet per stream
-                for link in stream.links:
-                    total[link] += len(ce.done)
+            total.update(ce.forwarded())
         return dict(total)
 
     # -- the full path ------------------------------------------------------------------------
@@ -356,6 +345,7 @@ class LockstepCore(Attendance):
         return all(s in box.handled for s in senders if s not in dead)
 
     def _try_close(self, phase: Phase, receiver: int) -> None:
+        """Close ``receiver``'s epochs of ``phase`` in order, as far as they are complete."""
         if receiver in self.away:
             return  # out by the scenario's events, its next process not up: it would miss it
         senders = self.links.senders(phase, receiver)
@@ -365,36 +355,46 @@ class LockstepCore(Attendance):
                 self.next_close[(phase, receiver)] = self.back(receiver, epoch)  # out: skip
                 continue
             dead = self.dead_at(epoch)
-            box = self.open.get((phase, receiver, epoch))
+            box = self._complete(phase, receiver, epoch, senders, dead)
             if box is None:
-                # Every sender dead: close the epoch empty. Not the estimates: with the leader
-                # down, each epoch closes when its report comes (the agent is there).
-                if (
-                    epoch >= self.epochs
-                    or phase == "estimate"
-                    or any(s not in dead for s in senders)
-                ):
-                    return
-                box = OpenEpoch()
-            elif not self._all_handled(box, senders, epoch):
                 return
             if self.queued is not None and (phase, epoch) in self.queued.held:
                 if not self._judge_when_complete(phase, epoch):
                     return  # the rest of the phase's queued packets are still to come
                 continue  # judged: every receiver of the phase was tried again, this one too
-            self.open.pop((phase, receiver, epoch), None)
-            for h in self.delayed.pop((phase, receiver, epoch), []):
-                self.ledger.forwarded[h.link] += h.copies
-                box.packets.append(h.packet)
-            gone = [s for s in senders if s in dead] if dead else []
-            self.outbox.deliver(phase, receiver, epoch, box.packets, box.lost, gone)
-            self.next_close[(phase, receiver)] = epoch + 1
-            self.closed_count[(phase, epoch)] += 1
-            down = len(dead) - (LEADER_ENDPOINT in dead)
-            receivers = len(self.links.agents) - down if phase != "report" else 1
-            if self.closed_count[(phase, epoch)] >= receivers:
-                del self.closed_count[(phase, epoch)]
-                self._publish_decisions(phase, epoch)
+            self._close(phase, receiver, epoch, box, dead)
+
+    def _complete(
+        self, phase: Phase, receiver: int, epoch: int, senders: list[int], dead: set[int]
+    ) -> OpenEpoch | None:
+        """``receiver``'s open ``epoch`` of ``phase`` if every live sender's packet is handled,
+        an empty one if every sender is dead, else None."""
+        box = self.open.get((phase, receiver, epoch))
+        if box is not None:
+            return box if self._all_handled(box, senders, epoch) else None
+        # Not the estimates: with the leader down, each closes when its report comes.
+        if epoch >= self.epochs or phase == "estimate" or any(s not in dead for s in senders):
+            return None
+        return OpenEpoch()
+
+    def _close(
+        self, phase: Phase, receiver: int, epoch: int, box: OpenEpoch, dead: set[int]
+    ) -> None:
+        """Deliver ``box`` with what was delayed to ``epoch``; once every live receiver of the
+        epoch is closed, its records go out."""
+        self.open.pop((phase, receiver, epoch), None)
+        for h in self.delayed.pop((phase, receiver, epoch), []):
+            self.ledger.forwarded[h.link] += h.copies
+            box.packets.append(h.packet)
+        gone = [s for s in self.links.senders(phase, receiver) if s in dead] if dead else []
+        self.outbox.deliver(phase, receiver, epoch, box.packets, box.lost, gone)
+        self.next_close[(phase, receiver)] = epoch + 1
+        self.closed_count[(phase, epoch)] += 1
+        down = len(dead) - (LEADER_ENDPOINT in dead)
+        receivers = len(self.links.agents) - down if phase != "report" else 1
+        if self.closed_count[(phase, epoch)] >= receivers:
+            del self.closed_count[(phase, epoch)]
+            self._publish_decisions(phase, epoch)
 
     def _publish_decisions(self, phase: Phase, epoch: int) -> None:
         batch = self.ledger.decisions.pop((phase, epoch), [])

@@ -69,7 +69,8 @@ class Attendance:
         self.applied.append(("restart" if again else "join", agent, epoch))
 
     def leave(self, agent: int, epoch: int) -> None:
-        """``agent`` is out by a leave or crash event from ``epoch``, until its next start."""
+        """``agent`` is out by a leave or crash event from ``epoch``: nobody waits for its packets
+        until its next scheduled start."""
         if agent not in self.away:
             crash = self.team is not None and bool(self.team.crashed[epoch, agent - 1])
             self.applied.append(("crash" if crash else "leave", agent, epoch))
