@@ -179,8 +179,18 @@ def packet_json(source: int, seq: int, sent_epoch: int, copies: int, payload: An
 
 
 def message_json(payload: Any) -> bytes:
-    """A payload as the JSON string a ``DeliveredPacket``'s ``message`` holds."""
-    return orjson.dumps(_text(payload))
+    """A payload as the JSON string a ``DeliveredPacket``'s ``message`` holds; the last one is
+    kept, as a state is delivered on each of its out-links in turn."""
+    global _LAST_MESSAGE
+    last = _LAST_MESSAGE  # one read: another thread may replace it
+    if last[0] is payload:  # it holds that payload: its id is not reused
+        return last[1]
+    message = orjson.dumps(_text(payload))
+    _LAST_MESSAGE = (payload, message)
+    return message
+
+
+_LAST_MESSAGE: tuple[Any, bytes] = (None, b"")
 
 
 def packet_json_of(source: int, seq: int, sent_epoch: int, copies: int, message: bytes) -> bytes:
