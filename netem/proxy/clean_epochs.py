@@ -14,8 +14,8 @@ passes before its distance layers (known ahead) and every length is within its r
 its packets are kept as they come (:meth:`CleanEpochs.gather`, in the order the core
 routes them) and, once all are in, judged at once (:meth:`CleanEpochs.within_reach`:
 ``length <= reach`` per link, the reach computed ahead for the block) and handed out as a
-clean epoch's (:meth:`CleanEpochs.open_gate`), or routed by the full path with each
-link's decision at its length (:meth:`CleanEpochs.verdicts`).
+clean epoch's (:meth:`CleanEpochs.open_gate`), or decided as the full path would, each
+link's decision at its length (:meth:`CleanEpochs.judged`).
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ from netem.links.capacity_network import Fixed
 from netem.links.layer_stack import Outcome
 from netem.links.models import LinkModel
 from netem.proxy.records import (
+    Ledger,
     Record,
     RecordTemplates,
     packet_json,
@@ -174,6 +175,37 @@ class CleanEpochs:
             self._compute(k)
             rows = self._reach[k]
         return rows[epoch - k * self._block]
+
+    def judged(
+        self,
+        epoch: int,
+        g: Gathering,
+        verdicts: dict[Link, Outcome],
+        ledger: Ledger,
+        deliver: Callable[[int, int, list[bytes], list[int]], None],
+    ) -> None:
+        """Hand out gated ``epoch``, a link out of reach, as the full path would: each link's
+        record and count in gathered order, a receiver's delivery once its senders are in."""
+        self.go_slow(epoch)
+        records, forwarded = ledger.decisions[("state", epoch)], ledger.forwarded
+        boxes: dict[int, tuple[list[bytes], list[int]]] = {}
+        for stream, seq in g.seqs.items():
+            packet = None
+            for link in self.streams[stream].links:
+                cls, src, dst = link
+                d = verdicts[link]
+                records.append((src, dst, cls, epoch, seq, d))
+                box = boxes.get(dst)
+                if box is None:
+                    box = boxes[dst] = ([], [])
+                if d.delivered:  # passes (copies 1, no delay) or is dropped by distance
+                    packet = packet or packet_json(src, seq, epoch, 1, g.payloads[stream])
+                    box[0].append(packet)
+                    forwarded[link] += 1
+                else:
+                    box[1].append(src)
+                if len(box[0]) + len(box[1]) >= self.need[dst]:
+                    deliver(dst, epoch, *box)
 
     def open_gate(self, epoch: int, g: Gathering, deliver: Deliver) -> None:
         """Hand out gated ``epoch``, all its links within reach, as a clean epoch (gathered order)."""

@@ -10,11 +10,8 @@ epoch is closed, that epoch's decision records go out in one batch.
 
 An epoch in which every link of the phase passes takes the clean path
 (:mod:`netem.proxy.clean_epochs`): no per-packet decision, records spliced from templates and
-published together (:meth:`LockstepCore.flush_clean`). With capacity queues, only where each
-queue has a closed form and passes its packet in time.
-
-:class:`LockstepCore` has no network, clock or thread: the node calls it under its lock
-and publishes what it hands to the :class:`Outbox`, in the order it hands it.
+published together (:meth:`LockstepCore.flush_clean`). No network, clock or thread: the node
+calls the core under its lock and publishes what it hands to the :class:`Outbox`, in order.
 """
 
 from __future__ import annotations
@@ -35,9 +32,7 @@ from netem.proxy.routes import Link, LinkClass, Links, Phase, Route
 from netem.proxy.team_plan import Attendance
 
 log = logging.getLogger("netem")
-# Clean epochs' records go out together: one batch per this many epochs' records (and at
-# least every loop wake-up of the node's main thread, 0.2 s), instead of one per epoch.
-FLUSH_CHUNKS = 64  # epochs
+FLUSH_CHUNKS = 64  # clean epochs' records per batch (at least one batch per 0.2 s wake-up)
 
 
 class LockstepCore(Attendance):
@@ -441,13 +436,20 @@ class LockstepCore(Attendance):
         if g is None:
             return
         lengths = self.positions.lengths(ce.links, epoch)
-        out_of_turn = any(self.next_close[("state", r)] != epoch for r in ce.need)
-        if out_of_turn or not ce.within_reach(epoch, lengths):
+        if any(self.next_close[("state", r)] != epoch for r in ce.need):  # out of turn
             self._go_slow("state", epoch, ce.verdicts(epoch, lengths))
+            return
+        if not ce.within_reach(epoch, lengths):  # decided as the full path would, from these
+            ce.judged(epoch, g, ce.verdicts(epoch, lengths), self.ledger, self._close_judged)
             return
         ce.open_gate(epoch, g, self._clean_deliver["state"])
         if len(ce.chunks) >= FLUSH_CHUNKS or epoch >= self.epochs - 1:
             self._flush_clean("state")
+
+    def _close_judged(self, dst: int, epoch: int, packets: list[bytes], lost: list[int]) -> None:
+        """A judged gated epoch's delivery into ``dst``; its later epochs complete go too."""
+        self._close("state", dst, epoch, OpenEpoch(packets=packets, lost=lost), set())
+        self._try_close("state", dst)
 
     def _leave_clean_path(self, gated: bool = False) -> None:
         """Epochs being gathered (only gated ones: ``gated``) take the full path from now on."""
