@@ -10,7 +10,7 @@ baseline measured in the same run:
 2. **the batched simulator**: cells (member-epochs) per second of a batch of seeds of the
    paper scenario with the access point as a medium of every control link and every agent's
    radio limited, against the same batch without capacity.
-3. **the core** (``netem.links.capacity.serve``): packets/s of one queue in virtual time,
+3. **the core** (``netem.links.capacity.serve_queue``): packets/s of one queue in virtual time,
    against netem's per-packet Bernoulli decision (``LinkModel.decide``).
 """
 
@@ -31,7 +31,8 @@ from bench.bench_netem_forward import forward_rate
 from bench.netem_rig import ROOT
 from formation.linkmodels import Bernoulli
 from formation.scenario import Scenario
-from netem import LinkModel, QueueParams, serve
+from netem.links.capacity import QueueParams, serve_queue
+from netem.links.models import LinkModel
 from testbed.sim.batch import plan_batch, run_batch
 
 SEED = 29
@@ -124,7 +125,7 @@ def core(seed: int, n: int) -> None:
     arrivals = np.cumsum(rng.exponential(8 * 300 / 1e6, n))  # load 1 of 300 B at 1 Mbit/s
     sizes = np.full(n, 300)
     params = QueueParams(rate_bps=1e6, limit_packets=8)
-    queued = n / best(lambda: serve(params, arrivals, sizes))
+    queued = n / best(lambda: serve_queue(params, arrivals, sizes))
     model = LinkModel([Bernoulli(p_loss=0.1)], seed, 1, 2)
 
     def decide() -> None:
@@ -134,7 +135,7 @@ def core(seed: int, n: int) -> None:
     bern = n / best(decide)
     print(f"3. core, {n} Poisson packets at load 1, seed {seed}")
     print(
-        f"   Bernoulli LinkModel.decide {bern:10.0f} packets/s; serve() one queue "
+        f"   Bernoulli LinkModel.decide {bern:10.0f} packets/s; serve_queue() one queue "
         f"{queued:10.0f} packets/s; ratio {queued / bern:.2f}",
         flush=True,
     )

@@ -23,7 +23,8 @@ from collections.abc import Callable
 import numpy as np
 
 from formation.linkmodels import Bernoulli, LinkModelSpec, LogDistance, Logistic, Range
-from netem import LinkModel, delivery_matrix, delivery_plan
+from netem import delivery_plan
+from netem.links.models import LinkModel, delivery_matrix
 
 SEED = 20240601
 N_LINKS = 100

@@ -40,7 +40,9 @@ from formation.codec import attachment, encode, now_ns
 from formation.linkmodels import Logistic
 from formation.messages import CoordinationState
 from formation.scenario import Scenario
-from netem import delivery_matrix, expected_delivery_at, link_lengths
+from netem import link_lengths
+from netem.links.closed_forms import expected_delivery_at
+from netem.links.models import delivery_matrix
 
 EPOCHS = 8_000
 AGENTS = 5

@@ -35,7 +35,7 @@ from formation.linkmodels import (
     Outage,
     Reorder,
 )
-from netem import LinkModel, delivery_matrix, schedule
+from netem.links.models import LinkModel, delivery_matrix, schedule
 
 SEED = 20240601
 N_LINKS = 100  # links of the delivery_matrix case

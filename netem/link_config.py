@@ -15,7 +15,7 @@ from formation.capacity import Capacity
 from formation.keys import LEADER_ENDPOINT
 from formation.linkmodels import LinkModelSpec
 from formation.messages import LinkChange
-from netem.proxy.lockstep import Lockstep
+from netem.proxy.lockstep import LockstepCore
 from netem.proxy.progress import Progress
 from netem.proxy.routes import LinkClass, Links
 from shell import Query, Service
@@ -38,7 +38,7 @@ class LinkConfig:
         service: Service,
         links: Links,
         progress: Progress,
-        lockstep: Lockstep,
+        lockstep: LockstepCore,
         lock: threading.Lock,
     ) -> None:
         self.service, self.run_id = service, service.run_id

@@ -24,7 +24,7 @@ from formation.keys import LEADER_ENDPOINT
 from formation.scenario import Scenario
 from netem.link_config import LinkConfig
 from netem.outbox import ZenohOutbox
-from netem.proxy.lockstep import Lockstep
+from netem.proxy.lockstep import LockstepCore
 from netem.proxy.loop import Wakeups, run_loop
 from netem.proxy.progress import Progress
 from netem.proxy.realtime import RealtimeForwarder
@@ -63,7 +63,9 @@ class NetemNode:
         self.ledger = Ledger()
         self.outbox = ZenohOutbox(service)
         self.outbox.declare(self.agents)
-        self.lockstep = Lockstep(self.links, self.epochs, self.progress, self.ledger, self.outbox)
+        self.lockstep = LockstepCore(
+            self.links, self.epochs, self.progress, self.ledger, self.outbox
+        )
         self.routes = Routes(self.agents)
         self.realtime = RealtimeForwarder(
             service,
@@ -209,7 +211,7 @@ class NetemNode:
             self._announce_applied()
 
     def setup_clean(self) -> None:
-        """Take clean epochs on the clean path from now on (:meth:`Lockstep.setup_clean`)."""
+        """Take clean epochs on the clean path from now on (:meth:`LockstepCore.setup_clean`)."""
         self.lockstep.setup_clean()
 
     def _on_final(self, query: Query) -> None:
@@ -322,7 +324,7 @@ class NetemNode:
         return run_loop(self.service, timing, wakeups, self.everyone_up, check_dead, self.finished)
 
     def flush_all(self) -> None:
-        """Publish the records of every clean epoch done (:meth:`Lockstep.flush_clean`)."""
+        """Publish the records of every clean epoch done (:meth:`LockstepCore.flush_clean`)."""
         with self.lock:
             self.lockstep.flush_clean()
 

@@ -121,7 +121,7 @@ class Served(NamedTuple):
     state: QueueState
 
 
-def serve(
+def serve_queue(
     params: QueueParams,
     arrival_s: npt.ArrayLike,
     payload_bytes: npt.ArrayLike,
@@ -172,7 +172,7 @@ def serve_packets(
     deadlines: list[float] | None = None,
     state: QueueState | None = None,
 ) -> Served:
-    """:func:`serve` on plain lists, unchecked: ``sizes`` [B] with their overhead already.
+    """:func:`serve_queue` on plain lists, unchecked: ``sizes`` [B] with their overhead already.
 
     A run's phases put a few packets through each queue at a time (netem, per packet of
     every phase): lists cost a tenth of arrays there.
@@ -419,7 +419,7 @@ __all__ = [
     "QueueState",
     "Served",
     "make_room",
-    "serve",
     "serve_packets",
+    "serve_queue",
     "without",
 ]

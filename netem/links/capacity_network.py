@@ -6,7 +6,7 @@ reports from ``(k + 0.20) T``, estimates from ``(k + 0.60) T``, each due by its 
 a phase that its link's loss models passed arrives at its queues at the phase's start, in
 the order of its link ``(src, dst)``; it goes through its link's queue, then its sender's
 radio, then its medium (``formation.capacity.queues_of``), each a
-:func:`netem.links.capacity.serve` carrying its state from phase to phase. A packet one of
+:func:`netem.links.capacity.serve_queue` carrying its state from phase to phase. A packet one of
 them refuses is ``queue_full`` (or ``oversize``); one leaving the last after the phase's
 deadline is ``queue_late``.
 
@@ -30,7 +30,7 @@ from formation.deadlines import PHASES
 from formation.errors import LinkModelError
 from formation.keys import LEADER_ENDPOINT
 from formation.scenario import Scenario
-from formation.wire_size import Kind, WireSizes
+from formation.wire_size import Kind
 from netem.links.capacity import (
     PASSED,
     QUEUE_LATE,
@@ -430,81 +430,11 @@ def network_of(scenario: Scenario) -> CapacityNetwork:
     )
 
 
-class CapacityPlanner:
-    """The queues of a plan, epoch by epoch: :func:`capacity_plan` at once, or the simulator's
-    links that decide by their length, whose packets are known an epoch at a time."""
-
-    def __init__(self, scenario: Scenario, links: npt.NDArray[np.int64]) -> None:
-        self.net = network_of(scenario)
-        self.sizes = WireSizes(scenario)
-        self.pairs = [(int(a), int(b)) for a, b in links.tolist()]
-        self.kinds = [packet_kind(lk) for lk in self.pairs]
-        self.code = {name: k for k, name in enumerate(REASONS)}
-        # per phase, the columns a queue serves (no queue changes in a plan: netem's are live)
-        self.served = {
-            phase: np.array(
-                [
-                    c
-                    for c, lk in enumerate(self.pairs)
-                    if self.kinds[c][0] == phase and self.net.constrained(lk)
-                ],
-                dtype=np.int64,
-            )
-            for phase in PHASE_ORDER
-        }
-        self.known: dict[tuple[int, int], int] = {}  # (column, digits of the epoch) → payload [B]
-
-    def epoch(self, k: int, passed: npt.NDArray[np.bool_]) -> npt.NDArray[np.int8]:
-        """Epoch ``k``'s verdicts (L,) for the packets ``passed`` (L,); epochs in order."""
-        out = np.zeros(passed.shape, dtype=np.int8)
-        digits = len(str(k))
-        for phase, cols_all in self.served.items():
-            cols = cols_all[passed[cols_all]].tolist() if cols_all.size else []
-            if not cols:
-                continue
-            packets = []
-            for c in cols:
-                size = self.known.get((c, digits))
-                if size is None:
-                    kind, agent = self.kinds[c]
-                    size = self.known[(c, digits)] = self.sizes.payload_bytes(kind, agent, k)
-                packets.append((self.pairs[c], size))
-            for c, v in zip(cols, self.net.phase(k, phase, packets), strict=True):
-                if v.reason:
-                    out[c] = self.code[v.reason]
-        return out
-
-
-def capacity_plan(
-    scenario: Scenario, passed: npt.NDArray[np.bool_], links: npt.NDArray[np.int64]
-) -> npt.NDArray[np.int8]:
-    """Every epoch's queue verdicts, for packets the models passed.
-
-    Parameters
-    ----------
-    scenario : with ``network.capacity``
-    passed : (E, L) the models passed link ``l``'s packet of epoch ``k``
-    links : (L, 2) ``(src, dst)`` of each column; ``0`` is the leader's end
-
-    Returns
-    -------
-    (E, L) int8: an index into ``netem.links.capacity.REASONS`` (0 where the queues passed the
-    packet in time or had none to judge).
-    """
-    planner = CapacityPlanner(scenario, links)
-    out = np.zeros(passed.shape, dtype=np.int8)
-    for k in range(passed.shape[0]):
-        out[k] = planner.epoch(k, passed[k])
-    return out
-
-
 __all__ = [
     "PHASE_ORDER",
     "CapacityNetwork",
-    "CapacityPlanner",
     "Fixed",
     "QueueVerdict",
-    "capacity_plan",
     "network_of",
     "packet_kind",
     "params_of",

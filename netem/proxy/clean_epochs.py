@@ -14,8 +14,8 @@ passes before its distance layers (known ahead) and every length is within its r
 its packets are kept as they come (:meth:`CleanEpochs.gather`, in the order the core
 routes them) and, once all are in, judged at once (:meth:`CleanEpochs.within_reach`:
 ``length <= reach`` per link, the reach computed ahead for the block) and handed out as a
-clean epoch's (:meth:`CleanEpochs.open_gate`), or decided as the full path would
-(:meth:`CleanEpochs.judged`).
+clean epoch's (:meth:`CleanEpochs.open_gate`), or decided as the full path would, each
+link's decision at its length (:meth:`CleanEpochs.judged`).
 """
 
 from __future__ import annotations
@@ -33,12 +33,10 @@ from netem.links.layer_stack import Outcome
 from netem.links.models import LinkModel
 from netem.proxy.records import (
     Ledger,
-    Queued,
     Record,
+    RecordTemplates,
     packet_json,
     queued,
-    record_head,
-    record_tail,
 )
 from netem.proxy.routes import Link, Links, Phase
 
@@ -98,13 +96,7 @@ class CleanEpochs:
         self._block = block
         # block → stream → its records' template: one for the block, or one per epoch
         self._blocks: dict[int, dict[int, bytes | list[bytes]]] = {}
-        self._heads = {
-            sid: [record_head(src, dst, cls).replace(b"%", b"%%") for cls, src, dst in s.links]
-            for sid, s in streams.items()
-        }
-        self._tail_ids: dict[bytes, int] = {}
-        self._tails: list[bytes] = []
-        self._templates: dict[tuple[int, tuple[int, ...]], bytes] = {}
+        self._records = RecordTemplates({sid: s.links for sid, s in streams.items()})
         self.gated = False
         self.invalidate()
 
@@ -270,6 +262,18 @@ class CleanEpochs:
         self.flags.clear()
         self.gated = self.gate and any(m.ranged for s in self.streams.values() for m in s.models)
 
+    def forwarded(self) -> dict[Link, int]:
+        """Packets forwarded per link in finished epochs (one per stream each)."""
+        return {link: len(self.done) for s in self.streams.values() for link in s.links}
+
+    def last_taken(self) -> Iterator[tuple[Link, int]]:
+        """Each link and the last epoch a packet of its stream took the clean path, if any."""
+        for stream, s in self.streams.items():
+            taken = [e for e, g in self.gathering.items() if stream in g.seqs]
+            last = max([self.last_done, *taken])
+            for link in s.links if last >= 0 else ():
+                yield link, last
+
     def records(self, epoch: int, got: dict[int, int]) -> Iterator[tuple[Record, Link]]:
         """The decision record of every packet forwarded in ``epoch``, with its link."""
         for stream, seq in got.items():
@@ -295,7 +299,7 @@ class CleanEpochs:
         table: list[Outcome | None],
         ids: npt.NDArray[np.int64],
     ) -> npt.NDArray[np.int64]:
-        """``link``'s tail ids (:meth:`_tail_id`) once its capacity queues judged what its model
+        """``link``'s tail ids (:meth:`RecordTemplates.tail_id`) once its capacity queues judged what its model
         passed: its queues' decision where they pass it in time, -1 elsewhere."""
         assert self.queues is not None
         fixed = self.queues(link, start, size)
@@ -313,30 +317,11 @@ class CleanEpochs:
             for key in keys.tolist():
                 d = table[key // n]
                 assert d is not None  # a passing decision (its tail id >= 0)
-                tails.append(self._tail_id(queued(d, "", fixed.queue, 0, float(sojourns[key % n]))))
+                tails.append(
+                    self._records.tail_id(queued(d, "", fixed.queue, 0, float(sojourns[key % n])))
+                )
             out[in_time] = np.asarray(tails, dtype=np.int64)[where.reshape(-1)]
         return out
-
-    def _tail_id(self, d: Outcome | Queued | None) -> int:
-        """An id of a passing decision's encoded fields; -1 when it does not pass."""
-        if d is None or d.verdict != "pass":
-            return -1
-        tail = record_tail(d)
-        got = self._tail_ids.get(tail)
-        if got is None:
-            got = self._tail_ids[tail] = len(self._tails)
-            self._tails.append(tail)
-        return got
-
-    def _template(self, stream: int, tails: tuple[int, ...]) -> bytes:
-        """The records of ``stream``'s packet as a ``%`` template of ``(epoch, seq)`` per link."""
-        got = self._templates.get((stream, tails))
-        if got is None:
-            got = self._templates[(stream, tails)] = b",".join(
-                head + b',"epoch":%d,"seq":%d' + self._tails[t].replace(b"%", b"%%")
-                for head, t in zip(self._heads[stream], tails, strict=True)
-            )
-        return got
 
     def _compute(self, k: int) -> dict[int, bytes | list[bytes]]:
         start, size = k * self._block, self._block
@@ -352,7 +337,9 @@ class CleanEpochs:
                 codes, table = model.coded(start, size, before_distance=self.gated)
                 if self.gated:
                     self._base[k].append((codes.tolist(), table))
-                ids[row] = np.array([self._tail_id(d) for d in table], dtype=np.int64)[codes]
+                ids[row] = np.array([self._records.tail_id(d) for d in table], dtype=np.int64)[
+                    codes
+                ]
                 if self.queues is not None:
                     ids[row] = self._queued_ids(link, start, size, codes, table, ids[row])
             clean &= (ids >= 0).all(axis=0)
@@ -364,9 +351,11 @@ class CleanEpochs:
                 break  # no clean epoch in the block: no templates needed
             ids = np.where(clean, ids, ids[:, some[:1]])  # unclean epochs: never used
             if (ids == ids[:, :1]).all():  # the usual case: one template for the block
-                templates[sid] = self._template(sid, tuple(ids[:, 0].tolist()))
+                templates[sid] = self._records.template(sid, tuple(ids[:, 0].tolist()))
             else:
-                templates[sid] = [self._template(sid, t) for t in zip(*ids.tolist(), strict=True)]
+                templates[sid] = [
+                    self._records.template(sid, t) for t in zip(*ids.tolist(), strict=True)
+                ]
         if len(self._blocks) >= 2:
             old = next(iter(self._blocks))
             del self._blocks[old]

@@ -10,11 +10,8 @@ epoch is closed, that epoch's decision records go out in one batch.
 
 An epoch in which every link of the phase passes takes the clean path
 (:mod:`netem.proxy.clean_epochs`): no per-packet decision, records spliced from templates and
-published together (:meth:`Lockstep.flush_clean`). With capacity queues, only where each
-queue has a closed form and passes its packet in time.
-
-:class:`Lockstep` has no network, clock or thread: the node calls it under its lock
-and publishes what it hands to the :class:`Outbox`, in the order it hands it.
+published together (:meth:`LockstepCore.flush_clean`). No network, clock or thread: the node
+calls the core under its lock and publishes what it hands to the :class:`Outbox`, in order.
 """
 
 from __future__ import annotations
@@ -32,21 +29,20 @@ from netem.proxy.progress import Progress
 from netem.proxy.queued_phases import QueuedPhases
 from netem.proxy.records import Ledger, Queued, packet_json
 from netem.proxy.routes import Link, LinkClass, Links, Phase, Route
-from netem.proxy.team_plan import TeamPlan
+from netem.proxy.team_plan import Attendance
 
 log = logging.getLogger("netem")
-# Clean epochs' records go out together: one batch per this many epochs' records (and at
-# least every loop wake-up of the node's main thread, 0.2 s), instead of one per epoch.
-FLUSH_CHUNKS = 64  # epochs
+FLUSH_CHUNKS = 64  # clean epochs' records per batch (at least one batch per 0.2 s wake-up)
 
 
-class Lockstep:
+class LockstepCore(Attendance):
     """The lockstep state machine of one run: every phase, receiver and epoch."""
 
     def __init__(
         self, links: Links, epochs: int, progress: Progress, ledger: Ledger, outbox: Outbox
     ) -> None:
-        self.links, self.epochs = links, epochs
+        super().__init__(links.team, epochs, links.agents)
+        self.links = links
         self.progress, self.ledger, self.outbox = progress, ledger, outbox
         self.open: dict[tuple[Phase, int, int], OpenEpoch] = {}  # (phase, receiver, epoch)
         self.delayed: dict[tuple[Phase, int, int], list[Delayed]] = defaultdict(list)
@@ -55,18 +51,7 @@ class Lockstep:
         self.clean: dict[Phase, CleanEpochs] = {}  # none until setup_clean
         self._clean_deliver: dict[Phase, Deliver] = {}
         self.positions = Positions(links)  # for distance models: read from the states
-        self.dead: set[int] = set()  # senders down (agents, or the leader as 0)
-        # A dead sender that came back takes part again from this epoch on (issue 20).
-        self.revive: dict[int, int] = {}
-        self.last_state: dict[int, tuple[int, Any]] = {}  # agent → (epoch, payload) last handled
         self.last_report: dict[int, int] = {}  # agent → epoch of its last report handled
-        # Scenario events (issue 20), from the scenario alone so every run drops the same;
-        # and the epoch each agent was given back.
-        plan = TeamPlan.of(links.team, epochs, links.agents)
-        self.out, self.starts, self.away = plan.out, plan.starts, set(plan.away)
-        self.rejoined: dict[int, int] = {}
-        # (action, agent, epoch) of each event as it is applied, for the node to announce.
-        self.applied: list[tuple[str, int, int]] = []
         # Packets the models passed onto a capacity queue, until all of their phase's are in.
         self.queued = (
             None
@@ -87,7 +72,7 @@ class Lockstep:
         """A sender's packet of ``epoch`` on ``route``, its seq and payload (bytes or ZBytes)."""
         if not self.positions.needed:
             self._packet(route, epoch, seq, payload)
-        elif self.positions.admit(route, epoch, seq, payload, self._dead_at(epoch)):
+        elif self.positions.admit(route, epoch, seq, payload, self.dead_at(epoch)):
             self._packet(route, epoch, seq, payload)  # else held until the positions come
         if self.positions.ready:
             self._release_held()
@@ -97,44 +82,46 @@ class Lockstep:
             self._packet(*held)
 
     def _packet(self, route: Route, epoch: int, seq: int, payload: Any) -> None:
-        kind, source, _ = route
-        links, dead = self.links, self.dead
+        kind, source, dst = route
         if kind == "state":
-            progress = self.progress
-            if epoch > progress.epoch_seen:
-                progress.epoch_seen = epoch
-            self.last_state[source] = (epoch, payload)
-            if epoch >= self.epochs:
-                progress.final_state(source)
-                return
-            if self.out and source in self.out.get(epoch, ()):
-                self._goodbye(source, epoch)
-                return
-            if not self._forward_clean("state", source, epoch, seq, payload):
-                self._route_state(source, epoch, seq, payload)
+            self._state(source, epoch, seq, payload)
         elif kind == "report":
-            if self.out and source in self.out.get(epoch, ()):
-                return  # not one of ours: that agent is out of the team at this epoch
-            self.last_report[source] = epoch
-            if self._forward_clean("report", source, epoch, seq, payload):
-                return
-            box = self._route_packet(
-                "report", "report", source, LEADER_ENDPOINT, payload, epoch, seq
-            )
-            if self._all_handled(box, links.agents, epoch):
-                self._try_close("report", LEADER_ENDPOINT)
-            if LEADER_ENDPOINT in dead:
-                self._close_estimates_without_leader(source)
+            self._report(source, epoch, seq, payload)
         else:
-            dst = route[2]
-            if self._forward_clean("estimate", dst, epoch, seq, payload):
-                pass
-            elif not ((dst in dead or self.out) and self.is_dead(dst, epoch)):
-                self._route_packet(
-                    "estimate", "estimate", LEADER_ENDPOINT, dst, payload, epoch, seq
-                )
-                self._try_close("estimate", dst)
-            self.progress.estimate_handled(epoch)
+            self._estimate(dst, epoch, seq, payload)
+
+    def _state(self, source: int, epoch: int, seq: int, payload: Any) -> None:
+        progress = self.progress
+        if epoch > progress.epoch_seen:
+            progress.epoch_seen = epoch
+        self.last_state[source] = (epoch, payload)
+        if epoch >= self.epochs:
+            progress.final_state(source)
+        elif self.out and source in self.out.get(epoch, ()):
+            self.leave(source, epoch)  # its last state: kept (for a restart), not forwarded
+            progress.final_state(source)  # what netem/final answers a leaving agent
+        elif not self._forward_clean("state", source, epoch, seq, payload):
+            self._route_state(source, epoch, seq, payload)
+
+    def _report(self, source: int, epoch: int, seq: int, payload: Any) -> None:
+        if self.out and source in self.out.get(epoch, ()):
+            return  # not one of ours: that agent is out of the team at this epoch
+        self.last_report[source] = epoch
+        if self._forward_clean("report", source, epoch, seq, payload):
+            return
+        box = self._route_packet("report", "report", source, LEADER_ENDPOINT, payload, epoch, seq)
+        if self._all_handled(box, self.links.agents, epoch):
+            self._try_close("report", LEADER_ENDPOINT)
+        if LEADER_ENDPOINT in self.dead:
+            self._close_estimates_without_leader(source)
+
+    def _estimate(self, dst: int, epoch: int, seq: int, payload: Any) -> None:
+        if not self._forward_clean("estimate", dst, epoch, seq, payload) and not (
+            (dst in self.dead or self.out) and self.is_dead(dst, epoch)
+        ):
+            self._route_packet("estimate", "estimate", LEADER_ENDPOINT, dst, payload, epoch, seq)
+            self._try_close("estimate", dst)
+        self.progress.estimate_handled(epoch)
 
     def _route_state(
         self,
@@ -160,12 +147,10 @@ class Lockstep:
         if agent in self.dead and self.revive.pop(agent, None) is None:
             return  # already down; else it died again after coming back
         log.warning("%s is gone: its packets count as lost from now on", _name(agent))
-        self._ungate()  # what was gathered was routed while the agent was alive
+        self._leave_clean_path(gated=True)  # what was gathered was routed while it was alive
         self.dead.add(agent)
         self._release_held(agent)  # nobody waits for its positions
-        for phase, ce in self.clean.items():
-            for epoch in list(ce.gathering):
-                self._go_slow(phase, epoch)
+        self._leave_clean_path()
         if agent == LEADER_ENDPOINT:
             for j in self.links.agents:
                 self._close_estimates_without_leader(j)
@@ -191,35 +176,16 @@ class Lockstep:
         epoch = min(newest + 1, self.epochs)
         self.revive[sender] = epoch
         if sender != LEADER_ENDPOINT:  # the leader just ignores the report deliveries before
-            for phase in ("state", "estimate"):
-                key: tuple[Phase, int] = (phase, sender)
-                self.next_close[key] = max(self.next_close[key], epoch)
-                for stale in [e for (p, r, e) in self.open if p == phase and r == sender]:
-                    if stale < epoch:
-                        del self.open[(phase, sender, stale)]
+            self._skip_to(sender, epoch)
         log.warning("%s is back: it takes part again from epoch %d", _name(sender), epoch)
         return epoch
-
-    def planned_start(self, agent: int) -> int | None:
-        """The epoch of ``agent``'s next scheduled join or restart, None if it has none."""
-        if agent in self.rejoined:
-            return self.rejoined[agent]
-        starts = self.starts.get(agent)
-        if not starts:
-            return None
-        last = self.last_state[agent][0] if agent in self.last_state else -1
-        return next((k for k in starts if k > last), None)
 
     def _rejoin_planned(self, agent: int, epoch: int) -> int:
         """A scheduled (re)start: its receivers' epochs before ``epoch`` are not its own."""
         if self.rejoined.get(agent) == epoch:
             return epoch  # asked again
-        self.rejoined[agent] = epoch
-        self.away.discard(agent)
+        self.start(agent, epoch)
         self.progress.final_states.discard(agent)  # its next last state is still to come
-        team = self.links.team
-        again = team is not None and bool(team.present[:epoch, agent - 1].any())
-        self.applied.append(("restart" if again else "join", agent, epoch))
         self._skip_to(agent, epoch)
         for phase in ("state", "estimate"):  # what is complete already goes out now
             self._try_close(phase, agent)
@@ -233,43 +199,6 @@ class Lockstep:
             for stale in [e for (p, r, e) in self.open if p == phase and r == agent]:
                 if stale < epoch:
                     del self.open[(phase, agent, stale)]
-
-    def _goodbye(self, agent: int, epoch: int) -> None:
-        """``agent``'s last state before a leave or crash event: kept (its body's state, for a
-        restart), not forwarded; nobody waits for it until its next scheduled start."""
-        if agent not in self.away:
-            team = self.links.team
-            crash = team is not None and bool(team.crashed[epoch, agent - 1])
-            self.applied.append(("crash" if crash else "leave", agent, epoch))
-        self.away.add(agent)
-        self.rejoined.pop(agent, None)
-        self.progress.final_state(agent)  # what netem/final answers a leaving agent
-
-    def _back(self, agent: int, epoch: int) -> int:
-        """The first epoch from ``epoch`` at which ``agent`` takes part again (or the end)."""
-        return next((k for k in self.starts.get(agent, []) if k > epoch), self.epochs)
-
-    def is_dead(self, sender: int, epoch: int) -> bool:
-        """Whether ``sender``'s packets of ``epoch`` count as lost without waiting for them."""
-        if self.out and sender in self.out.get(epoch, ()):
-            return True
-        if sender not in self.dead:
-            return False
-        back = self.revive.get(sender)
-        return back is None or epoch < back
-
-    def is_down(self, sender: int) -> bool:
-        """Down now, and not yet back (the liveliness watch looks for a second death otherwise)."""
-        return sender in self.dead and sender not in self.revive
-
-    def state_of(self, agent: int) -> tuple[int, Any] | None:
-        """``(epoch, payload)`` of the last state netem handled from ``agent``, if any."""
-        return self.last_state.get(agent)
-
-    def _dead_at(self, epoch: int) -> set[int]:
-        out = self.out.get(epoch) if self.out else None
-        dead = self.dead if not self.revive else {s for s in self.dead if self.is_dead(s, epoch)}
-        return dead | out if out else dead
 
     def _close_estimates_without_leader(self, agent: int) -> None:
         """The leader is down: ``agent``'s estimate epochs close empty up to its last report."""
@@ -287,18 +216,13 @@ class Lockstep:
     def queues_changing(self) -> None:
         """A capacity queue is about to change: its state counts the packets the clean path put
         through it, up to the last one (:meth:`QueuedPhases.crossed`)."""
-        if self.queued is None:
-            return
-        for ce in self.clean.values():
-            for stream, s in ce.streams.items():
-                taken = [e for e, g in ce.gathering.items() if stream in g.seqs]
-                last = max([ce.last_done, *taken])
-                for link in s.links if last >= 0 else ():
-                    self.queued.crossed(link, last)
+        if (q := self.queued) is not None:
+            for link, last in (x for ce in self.clean.values() for x in ce.last_taken()):
+                q.crossed(link, last)
 
     def models_changed(self) -> None:
         """A link's model changed: which epochs are clean is computed again."""
-        self._ungate()  # decided by the models in force at their epochs, as they came
+        self._leave_clean_path(gated=True)  # decided by the models in force as they came
         for ce in self.clean.values():
             ce.invalidate()
         self.positions.refresh()
@@ -310,16 +234,13 @@ class Lockstep:
 
     # -- state out ----------------------------------------------------------------------------
     def finished(self) -> bool:
-        gone = {s for s in self.dead if s not in self.revive}
-        return self.progress.finished(gone | self.out.get(self.epochs, frozenset()))
+        return self.progress.finished(self.gone())
 
     def forwarded(self) -> dict[Link, int]:
         """Delivered packets per link, clean epochs' included (for the final status)."""
         total = self.ledger.forwarded.copy()
         for ce in self.clean.values():
-            for stream in ce.streams.values():  # each finished epoch had one packet per stream
-                for link in stream.links:
-                    total[link] += len(ce.done)
+            total.update(ce.forwarded())
         return dict(total)
 
     # -- the full path ------------------------------------------------------------------------
@@ -415,49 +336,60 @@ class Lockstep:
     def _all_handled(self, box: OpenEpoch, senders: list[int], epoch: int) -> bool:
         if not self.dead and epoch not in self.out:  # counting is enough: only its senders send
             return len(box.handled) >= len(senders)
-        dead = self._dead_at(epoch)
+        dead = self.dead_at(epoch)
         return all(s in box.handled for s in senders if s not in dead)
 
     def _try_close(self, phase: Phase, receiver: int) -> None:
+        """Close ``receiver``'s epochs of ``phase`` in order, as far as they are complete."""
         if receiver in self.away:
             return  # out by the scenario's events, its next process not up: it would miss it
         senders = self.links.senders(phase, receiver)
         while True:
             epoch = self.next_close[(phase, receiver)]
             if self.out and epoch < self.epochs and receiver in self.out.get(epoch, ()):
-                self.next_close[(phase, receiver)] = self._back(receiver, epoch)  # out: skip
+                self.next_close[(phase, receiver)] = self.back(receiver, epoch)  # out: skip
                 continue
-            dead = self._dead_at(epoch)
-            box = self.open.get((phase, receiver, epoch))
+            dead = self.dead_at(epoch)
+            box = self._complete(phase, receiver, epoch, senders, dead)
             if box is None:
-                # Every sender dead: close the epoch empty. Not the estimates: with the leader
-                # down, each epoch closes when its report comes (the agent is there).
-                if (
-                    epoch >= self.epochs
-                    or phase == "estimate"
-                    or any(s not in dead for s in senders)
-                ):
-                    return
-                box = OpenEpoch()
-            elif not self._all_handled(box, senders, epoch):
                 return
             if self.queued is not None and (phase, epoch) in self.queued.held:
                 if not self._judge_when_complete(phase, epoch):
                     return  # the rest of the phase's queued packets are still to come
                 continue  # judged: every receiver of the phase was tried again, this one too
-            self.open.pop((phase, receiver, epoch), None)
-            for h in self.delayed.pop((phase, receiver, epoch), []):
-                self.ledger.forwarded[h.link] += h.copies
-                box.packets.append(h.packet)
-            gone = [s for s in senders if s in dead] if dead else []
-            self.outbox.deliver(phase, receiver, epoch, box.packets, box.lost, gone)
-            self.next_close[(phase, receiver)] = epoch + 1
-            self.closed_count[(phase, epoch)] += 1
-            down = len(dead) - (LEADER_ENDPOINT in dead)
-            receivers = len(self.links.agents) - down if phase != "report" else 1
-            if self.closed_count[(phase, epoch)] >= receivers:
-                del self.closed_count[(phase, epoch)]
-                self._publish_decisions(phase, epoch)
+            self._close(phase, receiver, epoch, box, dead)
+
+    def _complete(
+        self, phase: Phase, receiver: int, epoch: int, senders: list[int], dead: set[int]
+    ) -> OpenEpoch | None:
+        """``receiver``'s open ``epoch`` of ``phase`` if every live sender's packet is handled,
+        an empty one if every sender is dead, else None."""
+        box = self.open.get((phase, receiver, epoch))
+        if box is not None:
+            return box if self._all_handled(box, senders, epoch) else None
+        # Not the estimates: with the leader down, each closes when its report comes.
+        if epoch >= self.epochs or phase == "estimate" or any(s not in dead for s in senders):
+            return None
+        return OpenEpoch()
+
+    def _close(
+        self, phase: Phase, receiver: int, epoch: int, box: OpenEpoch, dead: set[int]
+    ) -> None:
+        """Deliver ``box`` with what was delayed to ``epoch``; once every live receiver of the
+        epoch is closed, its records go out."""
+        self.open.pop((phase, receiver, epoch), None)
+        for h in self.delayed.pop((phase, receiver, epoch), []):
+            self.ledger.forwarded[h.link] += h.copies
+            box.packets.append(h.packet)
+        gone = [s for s in self.links.senders(phase, receiver) if s in dead] if dead else []
+        self.outbox.deliver(phase, receiver, epoch, box.packets, box.lost, gone)
+        self.next_close[(phase, receiver)] = epoch + 1
+        self.closed_count[(phase, epoch)] += 1
+        down = len(dead) - (LEADER_ENDPOINT in dead)
+        receivers = len(self.links.agents) - down if phase != "report" else 1
+        if self.closed_count[(phase, epoch)] >= receivers:
+            del self.closed_count[(phase, epoch)]
+            self._publish_decisions(phase, epoch)
 
     def _publish_decisions(self, phase: Phase, epoch: int) -> None:
         batch = self.ledger.decisions.pop((phase, epoch), [])
@@ -514,24 +446,17 @@ class Lockstep:
         if len(ce.chunks) >= FLUSH_CHUNKS or epoch >= self.epochs - 1:
             self._flush_clean("state")
 
-    def _close_judged(
-        self, receiver: int, epoch: int, packets: list[bytes], lost: list[int]
-    ) -> None:
-        """A judged gated epoch's delivery into ``receiver``, closed as :meth:`_try_close` does."""
-        self.outbox.deliver("state", receiver, epoch, packets, lost, [])
-        self.next_close[("state", receiver)] = epoch + 1
-        self.closed_count[("state", epoch)] += 1
-        if self.closed_count[("state", epoch)] >= len(self.links.agents):
-            del self.closed_count[("state", epoch)]
-            self._publish_decisions("state", epoch)
-        self._try_close("state", receiver)  # its later epochs, complete already, go out now
+    def _close_judged(self, dst: int, epoch: int, packets: list[bytes], lost: list[int]) -> None:
+        """A judged gated epoch's delivery into ``dst``; its later epochs complete go too."""
+        self._close("state", dst, epoch, OpenEpoch(packets=packets, lost=lost), set())
+        self._try_close("state", dst)
 
-    def _ungate(self) -> None:
-        """Gated epochs being gathered take the full path, routed in the order they came."""
-        ce = self.clean.get("state")
-        if ce is not None and ce.gated:
-            for epoch in list(ce.gathering):
-                self._go_slow("state", epoch)
+    def _leave_clean_path(self, gated: bool = False) -> None:
+        """Epochs being gathered (only gated ones: ``gated``) take the full path from now on."""
+        for phase, ce in self.clean.items():
+            if ce.gated or not gated:
+                for epoch in list(ce.gathering):
+                    self._go_slow(phase, epoch)
 
     def _flush_clean(self, phase: Phase) -> None:
         ce = self.clean.get(phase)

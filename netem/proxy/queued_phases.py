@@ -4,7 +4,7 @@ A queue serves a phase's packets in the order of their links, at the phase's sta
 virtual time (docs/model.md §9), so none can be judged before every packet of its phase is
 in, and phases must be judged in virtual-time order: states, reports, estimates, the next
 epoch's states. :class:`QueuedPhases` holds what the models passed onto a queue and turns
-each complete phase into decisions; :class:`netem.proxy.lockstep.Lockstep` decides when a
+each complete phase into decisions; :class:`netem.proxy.lockstep.LockstepCore` decides when a
 phase is complete (its receivers' open epochs) and applies them.
 
 A packet of a link alone in each of its queues (a ``link`` queue, or a radio or medium of

@@ -116,6 +116,45 @@ def record_tail(d: Outcome | Queued) -> bytes:
     return tail[1]
 
 
+class RecordTemplates:
+    """The records of each stream's packet (one per link) as a ``%`` template of ``(epoch, seq)``
+    per link: records that differ only in those are spliced, not encoded one by one.
+
+    A passing decision's encoded fields (:func:`record_tail`) get an id (:meth:`tail_id`); a
+    template is one per stream and tuple of its links' ids.
+    """
+
+    def __init__(self, streams: dict[int, tuple[Link, ...]]) -> None:
+        self._heads = {
+            sid: [record_head(src, dst, cls).replace(b"%", b"%%") for cls, src, dst in links]
+            for sid, links in streams.items()
+        }
+        self._tail_ids: dict[bytes, int] = {}
+        self._tails: list[bytes] = []
+        self._templates: dict[tuple[int, tuple[int, ...]], bytes] = {}
+
+    def tail_id(self, d: Outcome | Queued | None) -> int:
+        """An id of a passing decision's encoded fields; -1 when it does not pass."""
+        if d is None or d.verdict != "pass":
+            return -1
+        tail = record_tail(d)
+        got = self._tail_ids.get(tail)
+        if got is None:
+            got = self._tail_ids[tail] = len(self._tails)
+            self._tails.append(tail)
+        return got
+
+    def template(self, stream: int, tails: tuple[int, ...]) -> bytes:
+        """The records of ``stream``'s packet, its links' decisions ``tails`` (ids)."""
+        got = self._templates.get((stream, tails))
+        if got is None:
+            got = self._templates[(stream, tails)] = b",".join(
+                head + b',"epoch":%d,"seq":%d' + self._tails[t].replace(b"%", b"%%")
+                for head, t in zip(self._heads[stream], tails, strict=True)
+            )
+        return got
+
+
 def decision_batch(header: dict[str, Any], phase: str, records: Iterable[Record]) -> bytes:
     """A ``DecisionBatch`` payload: ``header`` from ``Service.header``, one entry per record."""
     return decision_batch_of(
@@ -140,8 +179,18 @@ def packet_json(source: int, seq: int, sent_epoch: int, copies: int, payload: An
 
 
 def message_json(payload: Any) -> bytes:
-    """A payload as the JSON string a ``DeliveredPacket``'s ``message`` holds."""
-    return orjson.dumps(_text(payload))
+    """A payload as the JSON string a ``DeliveredPacket``'s ``message`` holds; the last one is
+    kept, as a state is delivered on each of its out-links in turn."""
+    global _LAST_MESSAGE
+    last = _LAST_MESSAGE  # one read: another thread may replace it
+    if last[0] is payload:  # it holds that payload: its id is not reused
+        return last[1]
+    message = orjson.dumps(_text(payload))
+    _LAST_MESSAGE = (payload, message)
+    return message
+
+
+_LAST_MESSAGE: tuple[Any, bytes] = (None, b"")
 
 
 def packet_json_of(source: int, seq: int, sent_epoch: int, copies: int, message: bytes) -> bytes:

@@ -21,7 +21,7 @@ import sys
 import numpy as np
 import pytest
 
-from netem.links.capacity import OVERSIZE, QUEUE_FULL, QueueParams, serve
+from netem.links.capacity import OVERSIZE, QUEUE_FULL, QueueParams, serve_queue
 
 RATE_BPS = 80_000  # [bit/s] 10,000 B/s: a 1,000-byte packet every 0.1 s
 BURST = 3000  # [B]
@@ -127,11 +127,11 @@ def test_the_plan_is_robust_to_scheduling_jitter() -> None:
     params = QueueParams(
         rate_bps=RATE_BPS, burst_bytes=BURST, limit_bytes=LIMIT, overhead_bytes=OVERHEAD
     )
-    exact = serve(params, times, sizes).reason
+    exact = serve_queue(params, times, sizes).reason
     rng = np.random.default_rng(29)
     for _ in range(200):
         jittered = np.maximum.accumulate(times + rng.uniform(-0.004, 0.004, times.size))
-        assert np.array_equal(serve(params, jittered, sizes).reason, exact)
+        assert np.array_equal(serve_queue(params, jittered, sizes).reason, exact)
     # the pattern exercises every way tbf treats a packet
     assert (exact == QUEUE_FULL).sum() == 12 + 2 + 10 and (exact == OVERSIZE).sum() == 1
 
@@ -158,7 +158,7 @@ def test_tbf_on_loopback_delivers_and_drops_what_the_model_says(namespace: str) 
     params = QueueParams(
         rate_bps=RATE_BPS, burst_bytes=BURST, limit_bytes=LIMIT, overhead_bytes=OVERHEAD
     )
-    model = serve(params, np.array(result["sent"]), sizes)
+    model = serve_queue(params, np.array(result["sent"]), sizes)
     assert sent_pkts == int(model.passed.sum()) == len(result["got"]), stats
     assert dropped == int((~model.passed).sum()), stats
     assert sorted(result["got"]) == model.passed.nonzero()[0].tolist()  # the same packets

@@ -24,8 +24,8 @@ from netem.links.capacity import (
     QueueState,
     _serve_many,
     _serve_one,
-    serve,
     serve_packets,
+    serve_queue,
 )
 
 L = 1000  # [B] a packet with its overhead
@@ -34,7 +34,7 @@ R = 1e6  # [bit/s]
 
 @pytest.mark.parametrize("overhead", [0, 42])
 def test_the_kth_packet_of_a_burst_leaves_at_k_l_over_r(overhead: int) -> None:
-    run = serve(
+    run = serve_queue(
         QueueParams(rate_bps=R, overhead_bytes=overhead), np.zeros(10), np.full(10, L - overhead)
     )
     k = np.arange(1, 11)
@@ -46,7 +46,7 @@ def test_the_kth_packet_of_a_burst_leaves_at_k_l_over_r(overhead: int) -> None:
 
 @pytest.mark.parametrize("burst", [1000, 2500, 4000])
 def test_a_tbf_bucket_lets_its_credit_through_then_paces_at_the_rate(burst: int) -> None:
-    run = serve(QueueParams(rate_bps=R, burst_bytes=burst), np.zeros(10), np.full(10, L))
+    run = serve_queue(QueueParams(rate_bps=R, burst_bytes=burst), np.zeros(10), np.full(10, L))
     q, rem = divmod(burst, L)
     expected = np.concatenate([np.zeros(q), (np.arange(1, 11 - q) * L - rem) * 8 / R])
     np.testing.assert_allclose(run.departure_s, expected, rtol=1e-12, atol=1e-15)
@@ -56,7 +56,7 @@ def test_long_run_throughput_tends_to_the_rate() -> None:
     rng = np.random.default_rng(7)
     service = 8 * L / R
     arrivals = np.cumsum(rng.exponential(service / 2.0, 40_000))  # offered load 2
-    run = serve(QueueParams(rate_bps=R, limit_packets=8), arrivals, np.full(arrivals.size, L))
+    run = serve_queue(QueueParams(rate_bps=R, limit_packets=8), arrivals, np.full(arrivals.size, L))
     sent = run.passed
     span = run.departure_s[sent].max() - arrivals[0]
     throughput = 8 * L * sent.sum() / span
@@ -81,7 +81,7 @@ def test_a_bursts_drops_follow_from_burst_limit_and_size(
     params = QueueParams(
         rate_bps=R, burst_bytes=burst, limit_packets=limit_packets, limit_bytes=limit_bytes
     )
-    run = serve(params, np.zeros(n), np.full(n, size))
+    run = serve_queue(params, np.zeros(n), np.full(n, size))
     through = burst // size  # leave at once on the bucket's credit, never wait
     room = min(limit_packets or n, (limit_bytes or n * size) // size)
     kept = min(n, through + room)
@@ -92,11 +92,11 @@ def test_a_bursts_drops_follow_from_burst_limit_and_size(
 
 def test_oldest_keeps_the_freshest_and_the_packet_on_the_wire() -> None:
     params = QueueParams(rate_bps=R, limit_packets=3, policy="oldest")
-    run = serve(params, np.zeros(10), np.full(10, L))
+    run = serve_queue(params, np.zeros(10), np.full(10, L))
     # packet 0 is on the wire from 0; each newer one pushes out the oldest behind it
     assert run.passed.nonzero()[0].tolist() == [0, 8, 9]
     np.testing.assert_allclose(run.departure_s[[0, 8, 9]], np.array([1, 2, 3]) * 8 * L / R)
-    tbf = serve(
+    tbf = serve_queue(
         QueueParams(rate_bps=R, burst_bytes=L, limit_packets=2, policy="oldest"),
         np.zeros(10),
         np.full(10, L),
@@ -106,13 +106,13 @@ def test_oldest_keeps_the_freshest_and_the_packet_on_the_wire() -> None:
 
 def test_a_packet_leaving_after_its_deadline_is_late_and_still_took_the_link() -> None:
     deadline = 3.5 * 8 * L / R
-    run = serve(QueueParams(rate_bps=R), np.zeros(6), np.full(6, L), deadline_s=deadline)
+    run = serve_queue(QueueParams(rate_bps=R), np.zeros(6), np.full(6, L), deadline_s=deadline)
     assert run.reason.tolist() == [PASSED] * 3 + [QUEUE_LATE] * 3
     np.testing.assert_allclose(run.departure_s, np.arange(1, 7) * 8 * L / R)
 
 
 def test_a_packet_larger_than_the_bucket_is_dropped_as_tbf_does() -> None:
-    run = serve(QueueParams(rate_bps=R, burst_bytes=1500), np.zeros(3), [1000, 1600, 1000])
+    run = serve_queue(QueueParams(rate_bps=R, burst_bytes=1500), np.zeros(3), [1000, 1600, 1000])
     assert run.reason.tolist() == [PASSED, OVERSIZE, PASSED]
 
 
@@ -132,9 +132,9 @@ def test_a_tail_queue_split_across_calls_serves_as_one_call(
     cut = min(cut, n - 1)
     size = np.array(sizes[:n])
     params = QueueParams(rate_bps=R, burst_bytes=burst, limit_packets=limit)
-    whole = serve(params, arrivals, size)
-    first = serve(params, arrivals[:cut], size[:cut])
-    second = serve(params, arrivals[cut:], size[cut:], state=first.state)
+    whole = serve_queue(params, arrivals, size)
+    first = serve_queue(params, arrivals[:cut], size[:cut])
+    second = serve_queue(params, arrivals[cut:], size[cut:], state=first.state)
     np.testing.assert_array_equal(np.concatenate([first.reason, second.reason]), whole.reason)
     np.testing.assert_array_equal(
         np.concatenate([first.departure_s, second.departure_s]), whole.departure_s
@@ -172,7 +172,7 @@ def test_poisson_arrivals_match_md1k_blocking(rho: float, k: int) -> None:
     service = 8 * L / R
     batches, per_batch = 30, 4000
     arrivals = np.cumsum(rng.exponential(service / rho, batches * per_batch))
-    run = serve(QueueParams(rate_bps=R, limit_packets=k), arrivals, np.full(arrivals.size, L))
+    run = serve_queue(QueueParams(rate_bps=R, limit_packets=k), arrivals, np.full(arrivals.size, L))
     blocked = (run.reason == QUEUE_FULL).reshape(batches, per_batch).mean(axis=1)
     half = 4.0 * blocked.std(ddof=1) / math.sqrt(batches)  # batch means: ±4 standard errors
     expected = md1k_blocking(rho, k)
@@ -187,10 +187,10 @@ def test_md1k_blocking_of_one_place_is_erlang_b_like() -> None:
 
 def test_the_state_carries_the_bucket_and_the_backlog() -> None:
     params = QueueParams(rate_bps=R, burst_bytes=2 * L, limit_packets=2)
-    first = serve(params, np.zeros(4), np.full(4, L))
+    first = serve_queue(params, np.zeros(4), np.full(4, L))
     assert first.passed.tolist() == [True, True, True, True]
     assert first.state.backlog_bytes == (L, L) and first.state.tokens_bytes == pytest.approx(0.0)
-    second = serve(params, [1e-3], [L], state=first.state)
+    second = serve_queue(params, [1e-3], [L], state=first.state)
     assert second.depth.tolist() == [2] and second.reason.tolist() == [QUEUE_FULL]
     assert QueueState().backlog_s == ()
 

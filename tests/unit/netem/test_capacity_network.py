@@ -13,7 +13,8 @@ from formation.capacity import Capacity
 from formation.codec import decode
 from formation.errors import LinkModelError
 from formation.messages import DecisionBatch
-from netem.links.capacity_network import CapacityNetwork, capacity_plan, packet_kind
+from netem.links.capacity_network import CapacityNetwork, packet_kind
+from netem.links.capacity_plan import capacity_plan
 from netem.links.layer_stack import Outcome
 from netem.proxy.records import decision_batch, queued
 

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from formation.scenario import Scenario
-from netem.proxy.lockstep import Lockstep
+from netem.proxy.lockstep import LockstepCore
 from netem.proxy.progress import Progress
 from netem.proxy.records import Ledger, Record, record_head, record_tail
 from netem.proxy.routes import Links, Phase
@@ -83,11 +83,11 @@ class Bytes:
         self.records_of[r["epoch"]].append(r)
 
 
-def drive(scenario: Scenario, seed: int, clean: bool) -> tuple[Bytes, Lockstep]:
+def drive(scenario: Scenario, seed: int, clean: bool) -> tuple[Bytes, LockstepCore]:
     """Every state of ``scenario``'s agents, senders up to ``lag`` epochs apart, one maybe dying."""
     rng = random.Random(seed)
     links, wire = Links(scenario, seed), Bytes()
-    lock = Lockstep(links, EPOCHS, Progress(links.agents, EPOCHS, lambda: None), Ledger(), wire)
+    lock = LockstepCore(links, EPOCHS, Progress(links.agents, EPOCHS, lambda: None), Ledger(), wire)
     if clean:
         lock.setup_clean()
     n, noise = scenario.n, np.random.default_rng(seed)
@@ -120,7 +120,7 @@ def drive(scenario: Scenario, seed: int, clean: bool) -> tuple[Bytes, Lockstep]:
     return wire, lock
 
 
-def counts(lock: Lockstep) -> dict[Any, int]:
+def counts(lock: LockstepCore) -> dict[Any, int]:
     """Packets forwarded per link, links with none left out."""
     return {link: n for link, n in lock.forwarded().items() if n}
 

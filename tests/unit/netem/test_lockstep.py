@@ -13,16 +13,16 @@ import numpy as np
 import pytest
 
 from formation.scenario import Scenario
-from netem.proxy.lockstep import Lockstep
+from netem.proxy.lockstep import LockstepCore
 from netem.proxy.progress import Progress
 from netem.proxy.records import Ledger
 from netem.proxy.routes import Links, Route
 from testkit.lockstep_wire import Wire, receivers
 
 
-def lockstep(scenario: Scenario, seed: int) -> tuple[Lockstep, Wire]:
+def lockstep(scenario: Scenario, seed: int) -> tuple[LockstepCore, Wire]:
     links, wire = Links(scenario, seed), Wire(receivers(scenario))
-    core = Lockstep(links, scenario.epochs, Progress(links.agents, scenario.epochs, lambda: None),
+    core = LockstepCore(links, scenario.epochs, Progress(links.agents, scenario.epochs, lambda: None),
                     Ledger(), wire)  # fmt: skip
     core.setup_clean()
     return core, wire

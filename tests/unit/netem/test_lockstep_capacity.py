@@ -11,8 +11,8 @@ import numpy as np
 from formation.capacity import Capacity
 from formation.scenario import Scenario
 from netem.links.capacity import REASONS
-from netem.links.capacity_network import capacity_plan
-from netem.proxy.lockstep import Lockstep
+from netem.links.capacity_plan import capacity_plan
+from netem.proxy.lockstep import LockstepCore
 from netem.proxy.progress import Progress
 from netem.proxy.records import Ledger
 from netem.proxy.routes import Links, Route
@@ -37,9 +37,9 @@ def constrained(paper: Scenario, epochs: int) -> Scenario:
     return paper.with_overrides(epochs=epochs, network=network)
 
 
-def lockstep(scenario: Scenario, seed: int) -> tuple[Lockstep, Wire]:
+def lockstep(scenario: Scenario, seed: int) -> tuple[LockstepCore, Wire]:
     links, wire = Links(scenario, seed), Wire(receivers(scenario))
-    core = Lockstep(links, scenario.epochs, Progress(links.agents, scenario.epochs, lambda: None),
+    core = LockstepCore(links, scenario.epochs, Progress(links.agents, scenario.epochs, lambda: None),
                     Ledger(), wire)  # fmt: skip
     core.setup_clean()
     return core, wire
@@ -130,7 +130,7 @@ def test_the_clean_path_through_queues_in_closed_form_records_what_the_full_path
     got, change_at = {}, 0
     for clean in (True, False):
         links, wire = Links(scenario, seed), Wire(receivers(scenario))
-        core = Lockstep(links, scenario.epochs, Progress(links.agents, scenario.epochs,
+        core = LockstepCore(links, scenario.epochs, Progress(links.agents, scenario.epochs,
                         lambda: None), Ledger(), wire)  # fmt: skip
         if clean:
             core.setup_clean()

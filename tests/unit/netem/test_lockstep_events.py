@@ -11,7 +11,7 @@ from collections import Counter
 import pytest
 
 from formation.scenario import Scenario
-from netem.proxy.lockstep import Lockstep
+from netem.proxy.lockstep import LockstepCore
 
 from .test_lockstep import lockstep
 from .test_lockstep_rejoin import closes
@@ -21,7 +21,7 @@ def state(i: int, k: int) -> bytes:
     return b'{"agent":%d,"position":[%d.5,1.0]}' % (i, k)
 
 
-def epoch_of(core: Lockstep, k: int, agents: list[int]) -> None:
+def epoch_of(core: LockstepCore, k: int, agents: list[int]) -> None:
     """The states and reports of epoch ``k`` of ``agents``, then the leader's estimates (all)."""
     for i in agents:
         core.packet(("state", i, 0), k, k, state(i, k))

@@ -8,12 +8,12 @@ import pytest
 
 from formation.keys import LEADER_ENDPOINT
 from formation.scenario import Scenario
-from netem.proxy.lockstep import Lockstep
+from netem.proxy.lockstep import LockstepCore
 
 from .test_lockstep import Wire, lockstep
 
 
-def epoch_of(core: Lockstep, k: int, agents: list[int], leader: bool = True) -> None:
+def epoch_of(core: LockstepCore, k: int, agents: list[int], leader: bool = True) -> None:
     """Every live agent's state and report of epoch ``k``, then the leader's estimates."""
     for i in agents:
         core.packet(("state", i, 0), k, k, b'{"agent":%d,"position":[%d.5,1.0]}' % (i, k))

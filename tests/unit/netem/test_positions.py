@@ -17,7 +17,7 @@ import zenoh
 
 from formation.scenario import Scenario
 from netem.links.models import LinkModel, link_lengths
-from netem.proxy.lockstep import Lockstep
+from netem.proxy.lockstep import LockstepCore
 from netem.proxy.progress import Progress
 from netem.proxy.records import Ledger
 from netem.proxy.routes import Links, Route
@@ -35,9 +35,9 @@ def wireless(paper: Scenario) -> Scenario:
     return paper.with_overrides(network=NETWORK, epochs=6)
 
 
-def core(scenario: Scenario, seed: int) -> tuple[Lockstep, Wire]:
+def core(scenario: Scenario, seed: int) -> tuple[LockstepCore, Wire]:
     links, wire = Links(scenario, seed), Wire(receivers(scenario))
-    lock = Lockstep(links, scenario.epochs, Progress(links.agents, scenario.epochs, lambda: None),
+    lock = LockstepCore(links, scenario.epochs, Progress(links.agents, scenario.epochs, lambda: None),
                     Ledger(), wire)  # fmt: skip
     lock.setup_clean()
     return lock, wire
