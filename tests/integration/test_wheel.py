@@ -38,7 +38,17 @@ def installed(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (wheel,) = (tmp / "dist").glob("formation_testbed-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
     tops = {n.split("/")[0] for n in names if not n.split("/")[0].endswith(".dist-info")}
-    assert tops == {"formation", "shell", "agent", "leader", "netem", "recorder", "testbed"}
+    assert tops == {
+        "formation",
+        "shell",
+        "body",
+        "analysis",
+        "agent",
+        "leader",
+        "netem",
+        "recorder",
+        "testbed",
+    }
     assert not [n for n in names if "foxglove_schemas" in n]  # the SDK's schemas, no copies
     assert not [n for n in names if "loopback" in n or n.startswith("tests/")]
     venv = tmp / "venv"
