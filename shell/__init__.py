@@ -12,12 +12,13 @@ from shell.bus import (
     Publisher,
     Query,
     Sample,
+    ZenohBus,
 )
 from shell.config_files import check_readable
 from shell.inbox import PhaseInbox
 from shell.loop import Loop
 from shell.service import Incoming, Service, settle_heap
-from shell.serving import load_scenario, open_service, serve, service_parser
+from shell.serving import load_scenario, open_service, serve, service_parser, stop_on_signals
 from shell.stack_dump import DUMP_SIGNAL, dump_stacks_on_signal
 from shell.timing import Lockstep, Realtime, TimePolicy, time_policy
 from shell.zenoh_config import (
@@ -47,6 +48,7 @@ __all__ = [
     "Sample",
     "Service",
     "TimePolicy",
+    "ZenohBus",
     "add_arguments",
     "check_readable",
     "dump_stacks_on_signal",
@@ -58,5 +60,6 @@ __all__ = [
     "service_parser",
     "session_config",
     "settle_heap",
+    "stop_on_signals",
     "time_policy",
 ]

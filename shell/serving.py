@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import queue
 import signal
 import sys
 import threading
@@ -41,21 +43,43 @@ def open_service(args: argparse.Namespace, role: str, ident: int | str) -> Servi
     return Service(bus, args.run_id, role, ident, start_timeout_s=args.start_timeout)
 
 
+SET_WAIT_S = 0.5  # [s] the longest a signal handler waits for ``stopping`` to be set
+
+
 def stop_on_signals(stopping: threading.Event, hard_exit: bool = False) -> None:
     """The first SIGINT or SIGTERM sets ``stopping`` (the service ends cleanly); a second
     exits at once (``hard_exit``: without unwinding, as a file writer wants: every chunk it
-    flushed stays readable)."""
+    flushed stays readable).
+
+    A Python handler runs on the main thread between two bytecodes, maybe while that thread
+    holds ``stopping``'s lock (inside ``Event.wait``): calling ``stopping.set()`` there would
+    wait for ever. So the handler takes no lock the interrupted code may hold: it puts the
+    signal on a queue (``SimpleQueue.put`` is reentrant) and a thread started here sets
+    ``stopping``. The handler waits up to ``SET_WAIT_S`` for it, so that the interrupted code
+    finds ``stopping`` set, unless it held that lock: then it is set once the lock is free.
+    """
     received = 0
+    signals: queue.SimpleQueue[int] = queue.SimpleQueue()
+    done: queue.SimpleQueue[bool] = queue.SimpleQueue()
+
+    def set_stopping() -> None:
+        signals.get()
+        stopping.set()
+        done.put(True)
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
         nonlocal received
         received += 1
-        stopping.set()
         if received > 1:
             if hard_exit:
                 os._exit(128 + signum)
             sys.exit(128 + signum)
+        signals.put(signum)
+        # Empty: the interrupted code holds stopping's lock; it is set once it lets go
+        with contextlib.suppress(queue.Empty):
+            done.get(timeout=SET_WAIT_S)
 
+    threading.Thread(target=set_stopping, name="stop-on-signals", daemon=True).start()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
 

@@ -5,17 +5,14 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import signal
 import sys
-import time
+import threading
 from typing import Any
 
 from body import exit_process, require_ros2
 from formation.scenario import Scenario
-from shell import add_arguments, open_session
+from shell import Service, ZenohBus, add_arguments, open_session, serve, stop_on_signals
 from testbed.plant import Plant
-
-STOP_POLL_S = 0.1  # [s] how soon a SIGTERM is acted on
 
 
 def cmd_plant(args: argparse.Namespace) -> int:
@@ -31,25 +28,38 @@ def cmd_plant(args: argparse.Namespace) -> int:
         )
         return 1
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
-    # a flag, not an Event: a handler that sets an Event deadlocks if the signal lands while
-    # this thread holds the Event's lock
-    stopping: list[int] = []
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda signum, _: stopping.append(signum))
-    # rmw_zenoh: the robots speak rmw_zenoh's format on a Zenoh session of the flags
-    session = open_session(args) if scenario.body.kind == "rmw_zenoh" else None
+    if scenario.body.kind == "rmw_zenoh":
+        # the robots speak rmw_zenoh's format on the service's Zenoh session; the plant joins
+        # no run: its service holds the session and takes the signals, as every service's does
+        def body(service: Service) -> int:
+            assert isinstance(service.bus, ZenohBus)
+            return run_plant(scenario, args, service.stopping, service.bus.session)
+
+        code = serve(
+            "formation ros2-plant",
+            lambda: Service(ZenohBus(open_session(args)), "default", "plant", 0),
+            body,
+        )
+    else:  # ros2: no Zenoh session to serve on; the signals as a service takes them
+        stopping = threading.Event()
+        stop_on_signals(stopping)
+        code = run_plant(scenario, args, stopping, None)
+    exit_process(code)  # past rclpy's teardown (body.ros2.RosNode.close)
+    return code
+
+
+def run_plant(
+    scenario: Scenario, args: argparse.Namespace, stopping: threading.Event, session: Any
+) -> int:
+    """The plant until ``stopping``; its counts printed as it stops."""
     plant = Plant(scenario, args.clock, args.rate_hz, args.seed, session=session)
     print(json.dumps({"ready": True, "robots": plant.robots.ids, "clock": args.clock}), flush=True)
     try:
-        while not stopping:
-            time.sleep(STOP_POLL_S)
+        stopping.wait()
     finally:
         counts = plant.counts
         plant.close()
-        if session is not None:
-            session.close()
     print(json.dumps({"counts": counts}), flush=True)
-    exit_process(0)  # past rclpy's teardown (body.ros2.RosNode.close)
     return 0
 
 
