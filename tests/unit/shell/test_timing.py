@@ -90,7 +90,7 @@ def test_realtime_takes_each_phase_by_its_deadline_or_once_complete() -> None:
     timing = Realtime(period_s=0.1)
     assert repr(timing) == "Realtime(period_s=0.1)"
     netem.queryable(keys.clock(RUN), lambda q: q.reply(q.key_expr, clock.to_json()))
-    clock = Clock(time.time_ns() + 50_000_000, 100_000_000)
+    clock = Clock(time.time_ns() + 300_000_000, 100_000_000)  # room for a loaded machine to join
     netem.declare_start()
     assert timing.join(node) and timing.clock == clock
     routed: list[Incoming] = []
