@@ -10,7 +10,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
-from recorder import load_run
+from testbed import load_run
 
 run = load_run(sys.argv[1])
 ax = run.metrics.plot(x="epoch", y=["formation_error_m", "shape_error_m"], logy=True, grid=True)
