@@ -194,15 +194,28 @@ class KeysError(TestbedError):
 
 
 class BatchError(TestbedError):
-    """Members that cannot share a batch; names the member and the differing field."""
+    """A batch that cannot be built or asked: names what (a member, the seeds) and the rule."""
+
+    def __init__(self, subject: str, problem: str) -> None:
+        self.subject, self.problem = subject, problem
+        super().__init__(f"{subject}: {problem}")
 
 
 class ExecutorError(TestbedError):
-    """A ``--scheduler`` that cannot be used: names the value and what is wrong with it."""
+    """A ``--scheduler`` (or ``--jobs``) that cannot be used: names the option, its value and
+    what is wrong with it."""
+
+    def __init__(self, option: str, value: object, problem: str) -> None:
+        self.option, self.value, self.problem = option, value, problem
+        super().__init__(f"{option} {value}: {problem}")
 
 
 class SweepError(TestbedError):
     """A sweep that cannot run or resume: names the argument or file and the broken rule."""
+
+    def __init__(self, subject: str, problem: str) -> None:
+        self.subject, self.problem = subject, problem
+        super().__init__(f"{subject}: {problem}")
 
 
 class UnknownLossModel(TestbedError):

@@ -6,18 +6,22 @@ import json
 import logging
 import sys
 
-from formation.errors import TestbedError
 from leader.node import LeaderNode
-from shell import Service, load_scenario, open_service, serve, service_parser, time_policy
+from shell import (
+    Service,
+    open_service,
+    scenario_or_report,
+    serve,
+    service_parser,
+    time_policy,
+)
 
 
 def main(argv: list[str] | None = None) -> int:
     args = service_parser("python -m leader", __doc__).parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
-    try:
-        scenario = load_scenario(args)
-    except TestbedError as exc:
-        print(f"leader: error: {exc}", file=sys.stderr)
+    scenario = scenario_or_report("leader", args)
+    if scenario is None:
         return 1
 
     def body(service: Service) -> int:

@@ -6,10 +6,17 @@ import json
 import logging
 import sys
 
-from formation.errors import PluginFailure, TestbedError
+from formation.errors import PluginFailure
 from formation.plugin_api import PLUGIN_EXIT, PLUGIN_FAILED
 from netem.node import NetemNode
-from shell import Service, load_scenario, open_service, serve, service_parser, time_policy
+from shell import (
+    Service,
+    open_service,
+    scenario_or_report,
+    serve,
+    service_parser,
+    time_policy,
+)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -23,10 +30,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
-    try:
-        scenario = load_scenario(args)
-    except TestbedError as exc:
-        print(f"netem: error: {exc}", file=sys.stderr)
+    scenario = scenario_or_report("netem", args)
+    if scenario is None:
         return 1
 
     def body(service: Service) -> int:

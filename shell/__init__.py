@@ -18,7 +18,14 @@ from shell.config_files import check_readable
 from shell.inbox import PhaseInbox
 from shell.loop import Loop
 from shell.service import Incoming, Service, settle_heap
-from shell.serving import load_scenario, open_service, serve, service_parser, stop_on_signals
+from shell.serving import (
+    load_scenario,
+    open_service,
+    scenario_or_report,
+    serve,
+    service_parser,
+    stop_on_signals,
+)
 from shell.stack_dump import DUMP_SIGNAL, dump_stacks_on_signal
 from shell.timing import Lockstep, Realtime, TimePolicy, time_policy
 from shell.zenoh_config import (
@@ -56,6 +63,7 @@ __all__ = [
     "load_scenario",
     "open_service",
     "open_session",
+    "scenario_or_report",
     "serve",
     "service_parser",
     "session_config",

@@ -36,6 +36,16 @@ def load_scenario(args: argparse.Namespace) -> Scenario:
     return scenario if args.epochs is None else scenario.with_overrides(epochs=args.epochs)
 
 
+def scenario_or_report(role: str, args: argparse.Namespace) -> Scenario | None:
+    """:func:`load_scenario`, or None after one line on stderr (``role: error: …``): a service
+    that cannot read its scenario exits 1 before it opens a session."""
+    try:
+        return load_scenario(args)
+    except TestbedError as exc:
+        print(f"{role}: error: {exc}", file=sys.stderr)
+        return None
+
+
 def open_service(args: argparse.Namespace, role: str, ident: int | str) -> Service:
     """The service of the command line's run on a Zenoh session of its flags (a client
     retries until its router answers, up to ``--connect-timeout``)."""

@@ -69,6 +69,8 @@ REASONS = (INVALID, FORGED, OUT_OF_RANGE, CONFLICT, UNKNOWN_KEY)
 DERIVED = frozenset({"metrics", *FOXGLOVE})  # kinds only the recorder writes
 _REPEATED = frozenset({"status", "decision", "alive", "link_change"})  # many per epoch
 
+Args = tuple[str, ...]  # the open chunks of a key, in order: keys.parse(topic).args
+
 
 class Skip(Exception):
     """Why a message is not trusted; caught inside :meth:`Gate.check`."""
@@ -213,7 +215,7 @@ class Gate:
             raise Skip(INVALID, f"{model.__name__}: {str(exc).splitlines()[0]}") from None
         check = getattr(self, f"_{kind}", None)
         if check is not None:
-            check(msg, topic.split("/"))
+            check(msg, keys.parse(topic).args)
         epoch = getattr(msg, "epoch", None)
         if self.conflicts and isinstance(epoch, int) and epoch >= 0 and kind not in self.repeated:
             self._first(topic, epoch, data)
@@ -318,30 +320,28 @@ class Gate:
         return None if self.scenario is None else self.epochs - 1
 
     # -- per kind (named after the channel kinds of recorder.recording.schemas) --------------------------
-    def _agent_state(self, msg: CoordinationState, parts: list[str]) -> None:
-        self._state(msg, self._key_id(parts[-2]))
+    def _agent_state(self, msg: CoordinationState, args: Args) -> None:
+        self._state(msg, self._key_id(args[0]))
 
-    def _link_state(self, msg: CoordinationState, parts: list[str]) -> None:
-        i, j = self._key_id(parts[-3]), self._key_id(parts[-2])
+    def _link_state(self, msg: CoordinationState, args: Args) -> None:
+        i, j = self._key_id(args[0]), self._key_id(args[1])
         if self.scenario is not None and (i, j) not in self.links:
             raise Skip(OUT_OF_RANGE, f"no formation link {i}->{j}")
         self._state(msg, i)
 
-    def _agent_report(self, msg: TokenReport, parts: list[str]) -> None:
-        self._report(msg, self._key_id(parts[-2]))
+    def _agent_report(self, msg: TokenReport, args: Args) -> None:
+        self._report(msg, self._key_id(args[0]))
 
-    def _leader_report(self, msg: TokenReport, parts: list[str]) -> None:
-        self._report(msg, self._key_id(parts[-1]))
+    def _leader_report(self, msg: TokenReport, args: Args) -> None:
+        self._report(msg, self._key_id(args[0]))
 
-    def _agent_estimate(self, msg: AgentEstimate, parts: list[str]) -> None:
-        self._agent_part(msg, self._key_id(parts[-1]))
+    def _agent_estimate(self, msg: AgentEstimate, args: Args) -> None:
+        self._agent_part(msg, self._key_id(args[0]))
 
-    def _link_estimate(self, msg: AgentEstimate, parts: list[str]) -> None:
-        if parts[-3] != str(keys.LEADER_ENDPOINT):
-            raise Skip(OUT_OF_RANGE, "an estimate link starts at the leader (0)")
-        self._agent_part(msg, self._key_id(parts[-2]))
+    def _link_estimate(self, msg: AgentEstimate, args: Args) -> None:
+        self._agent_part(msg, self._key_id(args[0]))  # its key starts at the leader: keys.parse
 
-    def _leader_estimate(self, msg: LeaderEstimate, parts: list[str]) -> None:
+    def _leader_estimate(self, msg: LeaderEstimate, args: Args) -> None:
         self._sender(msg, "leader")
         self._epoch(msg.epoch, self._last_decided())
         d = self._dim()
@@ -368,19 +368,17 @@ class Gate:
         _finite(msg.x_ref, d, "x_ref")
         _finite(msg.v_ref, d, "v_ref")
 
-    def _delivery(self, msg: Delivery, parts: list[str]) -> None:
+    def _delivery(self, msg: Delivery, args: Args) -> None:
         self._sender(msg, "netem")
-        receiver = self._key_id(parts[-2])
-        if msg.receiver != receiver or msg.phase != parts[-1]:
-            raise Skip(
-                FORGED, f"a delivery for {msg.receiver}/{msg.phase} on {parts[-2]}/{parts[-1]}"
-            )
+        receiver = self._key_id(args[0])
+        if msg.receiver != receiver or msg.phase != args[1]:
+            raise Skip(FORGED, f"a delivery for {msg.receiver}/{msg.phase} on {args[0]}/{args[1]}")
         self._endpoint(receiver)
         self._epoch(msg.epoch, self._last_decided())
         for p in msg.packets:
             self._endpoint(p.source)
 
-    def _decision(self, msg: DecisionBatch, parts: list[str]) -> None:
+    def _decision(self, msg: DecisionBatch, args: Args) -> None:
         self._sender(msg, "netem")
         if self.scenario is not None and self._decisions_fit(msg):
             return  # 44,000 decisions an epoch at 10,000 agents: checked as arrays
@@ -427,20 +425,20 @@ class Gate:
             self._codes = np.array(sorted(a * (self.n + 1) + b for a, b in self.links), np.int64)
         return self._codes
 
-    def _link_change(self, msg: LinkChange, parts: list[str]) -> None:
+    def _link_change(self, msg: LinkChange, args: Args) -> None:
         self._sender(msg, "netem")
         self._endpoint(msg.source)
         self._endpoint(msg.target)
 
-    def _status(self, msg: Status, parts: list[str]) -> None:
-        role, ident = parts[-2], parts[-1]
+    def _status(self, msg: Status, args: Args) -> None:
+        role, ident = args
         owner = f"{role}/{ident}" if role in ("agent", "pool") else role
         self._sender(msg, owner)
         if msg.role != role:
             raise Skip(FORGED, f"role {msg.role!r} on a key of {role!r}")
         self._epoch(msg.epoch, first=-1)
 
-    def _metrics(self, msg: EpochMetrics, parts: list[str]) -> None:
+    def _metrics(self, msg: EpochMetrics, args: Args) -> None:
         self._sender(msg, RECORDER)
         self._epoch(msg.epoch)
         for p in msg.positions:
@@ -452,8 +450,9 @@ class Gate:
         for i in msg.out:
             self._endpoint(i)
 
-    def _alive(self, msg: LivelinessEvent, parts: list[str]) -> None:
-        if msg.key.split("/")[2:] != parts[2:] or (msg.role, msg.ident) != (parts[-2], parts[-1]):
+    def _alive(self, msg: LivelinessEvent, args: Args) -> None:
+        claimed = keys.parse(msg.key)
+        if (claimed.kind, claimed.args) != ("alive", args) or (msg.role, msg.ident) != args:
             raise Skip(FORGED, f"liveliness of {msg.key} on another key")
 
     def _foxglove(self, kind: str, data: bytes) -> Message:

@@ -158,8 +158,9 @@ class DaskCluster:
                 )
             except OSError as exc:
                 raise ExecutorError(
-                    f"--scheduler {self.address}: no Dask scheduler answered within "
-                    f"{SCHEDULER_TIMEOUT_S:g} s ({exc})"
+                    "--scheduler",
+                    self.address,
+                    f"no Dask scheduler answered within {SCHEDULER_TIMEOUT_S:g} s ({exc})",
                 ) from None
             # Pickled both ways: Dask walks a task's arguments and results looking for futures,
             # which for a chunk and its rows costs about as much again as the bytes (measured).
@@ -176,8 +177,10 @@ class DaskCluster:
                         payload = future.result()
                     except distributed.KilledWorker as exc:
                         raise ExecutorError(
-                            f"--scheduler {self.address}: the workers running a task died "
-                            f"too often ({exc}); finished tasks are kept, a re-run resumes"
+                            "--scheduler",
+                            self.address,
+                            f"the workers running a task died too often ({exc}); "
+                            "finished tasks are kept, a re-run resumes",
                         ) from None
                     yield pickle.loads(payload)
             finally:
@@ -196,11 +199,13 @@ def parse_scheduler(text: str) -> int | None:
         count = text.removeprefix("local:")
         if not count.isdigit() or int(count) < 1:
             raise ExecutorError(
-                f"--scheduler {text!r}: local:N needs N ≥ 1 workers; expected {SCHEDULER_FORMS}"
+                "--scheduler",
+                repr(text),
+                f"local:N needs N ≥ 1 workers; expected {SCHEDULER_FORMS}",
             )
         return int(count)
     if not re.fullmatch(r"(tcp|tls)://[^\s/:]+:\d{1,5}", text):
-        raise ExecutorError(f"--scheduler {text!r}: expected {SCHEDULER_FORMS}")
+        raise ExecutorError("--scheduler", repr(text), f"expected {SCHEDULER_FORMS}")
     return None
 
 
@@ -212,7 +217,7 @@ def _import_dask(address: str) -> tuple[ModuleType, ModuleType]:
         import distributed
     except ImportError as exc:
         raise ExecutorError(
-            f"--scheduler {address}: needs Dask (pip install 'formation-testbed[dask]'): {exc}"
+            "--scheduler", address, f"needs Dask (pip install 'formation-testbed[dask]'): {exc}"
         ) from None
     return dask, distributed
 
@@ -223,8 +228,9 @@ def executor_for(scheduler: str | None, jobs: int | None = None) -> Executor:
         return LocalPool(jobs)
     if jobs is not None:
         raise ExecutorError(
-            f"--jobs {jobs} with --scheduler {scheduler}: --jobs sizes the local pool; "
-            "a Dask cluster runs as many tasks as it has worker threads"
+            "--jobs",
+            f"{jobs} with --scheduler {scheduler}",
+            "--jobs sizes the local pool; a Dask cluster runs as many tasks as it has worker threads",
         )
     return DaskCluster(scheduler)
 

@@ -68,18 +68,18 @@ def loss_grid(text: str) -> tuple[float, ...]:
         if ":" in text:
             start, stop, step = (float(v) for v in text.split(":"))
             if step <= 0:
-                raise SweepError(f"--loss {text!r}: step = {step:g}; expected > 0")
+                raise SweepError(f"--loss {text!r}", f"step = {step:g}; expected > 0")
             count = math.floor((stop - start) / step + 1e-9) + 1
             values = [round(start + i * step, 10) for i in range(count)]
         else:
             values = [float(v) for v in text.split(",") if v.strip()]
     except ValueError:
         raise SweepError(
-            f"--loss {text!r}: expected START:STOP:STEP or a comma list of rates"
+            f"--loss {text!r}", "expected START:STOP:STEP or a comma list of rates"
         ) from None
     bad = [v for v in values if not 0.0 <= v <= 1.0]
     if not values or bad:
-        raise SweepError(f"--loss {text!r}: rates must be in [0, 1], got {bad or 'none'}")
+        raise SweepError(f"--loss {text!r}", f"rates must be in [0, 1], got {bad or 'none'}")
     return tuple(sorted(set(values)))
 
 
@@ -210,7 +210,9 @@ def read_rows(path: Path) -> list[dict[str, str]]:
         reader = csv.DictReader(f)
         if tuple(reader.fieldnames or ()) != COLUMNS:
             raise SweepError(
-                f"{path}: columns {reader.fieldnames}; expected {list(COLUMNS)} (move the file away to start afresh)"
+                str(path),
+                f"columns {reader.fieldnames}; expected {list(COLUMNS)} "
+                "(move the file away to start afresh)",
             )
         return [row for row in reader if _complete(row)]
 

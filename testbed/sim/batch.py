@@ -122,7 +122,9 @@ class BatchResult:
     def member(self, b: int) -> SimResult:
         """Member ``b`` as the one-seed simulator's :class:`SimResult` (needs ``detail``)."""
         if not self.detail:
-            raise BatchError("member(): the batch ran without detail; run it with detail=True")
+            raise BatchError(
+                f"member({b})", "the batch ran without detail; run it with detail=True"
+            )
         assert self.estimates is not None and self.estimate_cov is not None
         assert self.observable is not None and self.healthy is not None and self.tree is not None
         assert self.components is not None and self.rigidity_rank is not None

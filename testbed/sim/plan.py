@@ -157,7 +157,7 @@ def plan_batch(
         members = tuple(scenarios)
     if len(members) != seed_arr.size or not members:
         raise BatchError(
-            f"{len(members)} scenarios for {seed_arr.size} seeds; expected one each (≥ 1)"
+            f"{len(members)} scenarios for {seed_arr.size} seeds", "expected one each (≥ 1)"
         )
     base = members[0]
     n_epochs = base.epochs if epochs is None else int(epochs)
@@ -170,8 +170,9 @@ def plan_batch(
         if _structure(s) != shared:
             diff = sorted(k for k, v in _structure(s).items() if shared.get(k) != v)
             raise BatchError(
-                f"member {b} ({s.name}) differs from member 0 in {', '.join(diff)}; "
-                f"members may differ only in {', '.join(VARIANT_FIELDS)}"
+                f"member {b} ({s.name})",
+                f"differs from member 0 in {', '.join(diff)}; "
+                f"members may differ only in {', '.join(VARIANT_FIELDS)}",
             )
     n, d = base.n, base.dimension
     links = base.directed_links

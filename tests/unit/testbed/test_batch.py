@@ -149,7 +149,7 @@ def test_a_member_does_not_depend_on_its_batch(paper: Scenario) -> None:
 
 def test_members_must_share_the_structure(paper: Scenario) -> None:
     other = paper.with_overrides(control={"gain": 0.2})
-    with pytest.raises(BatchError, match=r"member 1 \(paper\) differs from member 0 in control"):
+    with pytest.raises(BatchError, match=r"member 1 \(paper\): differs from member 0 in control"):
         plan_batch([paper, other], [1, 1])
     with pytest.raises(BatchError, match="2 scenarios for 3 seeds"):
         plan_batch([paper, paper], [1, 2, 3])
