@@ -76,7 +76,8 @@ compose-test: $(BIN)/.product $(BIN)/.example
 	env PYTHONSAFEPATH=1 FORMATION_REQUIRE_CONTAINERS="$(ENGINES)" $$vars $(BIN)/pytest -q -p no:cacheprovider -m containers -s tests/containers
 
 # The documentation site (mkdocs.yml) from docs/ into site/ (git-ignored): --strict makes a
-# broken link or anchor, a stale API reference or a page left out of the nav fail the build.
+# broken link or anchor, a stale API reference or a page left out of the nav fail the build
+# (not --quiet: it drops the warnings before --strict counts them).
 # The home page is README.md; the notebook shows the outputs it was saved with (make test runs it).
 $(BIN)/.docs: $(BIN)/.product
 	rm -rf build
@@ -84,7 +85,7 @@ $(BIN)/.docs: $(BIN)/.product
 	touch $@
 
 docs: $(BIN)/.docs
-	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
 
 # The built home page in a real browser (Debian's chromium, installed if missing): a screenshot
 # in site-check/ and the headline figure's <img> loaded (naturalWidth > 0).
