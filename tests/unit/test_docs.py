@@ -1,5 +1,6 @@
 """The README and the docs site hold together: every relative link of README.md resolves
-(the site's home page is README.md: mkdocs.yml), and the API reference covers ``testbed``."""
+(the site's home page is README.md: mkdocs.yml), the numbers it shows are the model's, and
+the API reference covers ``testbed``."""
 
 from __future__ import annotations
 
@@ -66,3 +67,15 @@ def test_the_api_reference_documents_every_name_of_testbed() -> None:
     reference = (ROOT / "docs" / "reference.md").read_text()
     headings = re.findall(r"^## `testbed\.(\w+)`\n\n::: [\w.]+$", reference, re.M)
     assert sorted(headings) == sorted(testbed.__all__)
+
+
+def test_the_readme_shows_the_numbers_the_model_gives() -> None:
+    """The expected output of `formation simulate paper --strategy all` in README.md: each
+    strategy's final formation error, as the table prints it (3 significant digits)."""
+    readme = (ROOT / "README.md").read_text()
+    rows = dict(re.findall(r"^│ (\w+) +│ +1 │ +50 │ +([\d.e-]+) │", readme, re.M))
+    assert sorted(rows) == sorted(["zero", "hold", "estimate", "blend", "drop"])
+    scenario = testbed.load_scenario(ROOT / "scenarios" / "paper.toml")
+    for strategy, shown in rows.items():
+        final = testbed.simulate(scenario, strategy=strategy, seed=1).summary()
+        assert f"{final['final_formation_error_m']:.3g}" == shown, strategy
