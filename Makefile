@@ -7,7 +7,7 @@ SCENARIO ?= scenarios/paper.toml
 # Every file of the product's packages: a change to any of them reinstalls it (below).
 PRODUCT_FILES := $(shell find $(PACKAGES) -name __pycache__ -prune -o -print)
 
-.PHONY: run test bench lint typecheck architecture clean compose-test
+.PHONY: run test bench lint typecheck architecture clean compose-test docs docs-check figures
 
 # The tools and the dependencies. setuptools and wheel (= [build-system] requires) let the
 # product reinstall without build isolation: offline, in seconds.
@@ -75,8 +75,29 @@ compose-test: $(BIN)/.product $(BIN)/.example
 	done; \
 	env PYTHONSAFEPATH=1 FORMATION_REQUIRE_CONTAINERS="$(ENGINES)" $$vars $(BIN)/pytest -q -p no:cacheprovider -m containers -s tests/containers
 
+# The documentation site (mkdocs.yml) from docs/ into site/ (git-ignored): --strict makes a
+# broken link or anchor, a stale API reference or a page left out of the nav fail the build
+# (not --quiet: it drops the warnings before --strict counts them).
+# The home page is README.md; the notebook shows the outputs it was saved with (make test runs it).
+$(BIN)/.docs: $(BIN)/.product
+	rm -rf build
+	$(BIN)/pip install --quiet --no-build-isolation '.[docs]'
+	touch $@
+
+docs: $(BIN)/.docs
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
+
+# The built home page in a real browser (Debian's chromium, installed if missing): a screenshot
+# in site-check/ and the headline figure's <img> loaded (naturalWidth > 0).
+docs-check: docs
+	.ci/docs-check site site-check
+
+# The README's headline figure, drawn from a simulation of the chapter's experiment.
+figures: $(BIN)/.product
+	MPLBACKEND=Agg $(BIN)/python examples/headline_figure.py docs/images/headline.png
+
 bench: $(BIN)/.product $(BIN)/.example
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench
 
 clean:
-	rm -rf $(VENV) runs build *.egg-info $(EXAMPLE)/build $(EXAMPLE)/*.egg-info
+	rm -rf $(VENV) runs build site site-check *.egg-info $(EXAMPLE)/build $(EXAMPLE)/*.egg-info

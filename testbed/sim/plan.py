@@ -147,6 +147,8 @@ def plan_batch(
     seeds : (B,) the members' seeds
     epochs : number of epochs (default: the first scenario's)
 
+    Notes
+    -----
     The members share the scenario's events (``formation.events``): who takes part at each
     epoch is the plan's ``team`` (events past ``epochs`` are left out).
     """

@@ -62,6 +62,8 @@ def rigid_team(
     seed : the offsets and the spare edges, and the scenario's run seed
     overrides : scenario fields to set (``epochs``, ``links``, ...)
 
+    Notes
+    -----
     The first ``d`` agents are all joined; each later agent is joined to ``d`` earlier ones
     (vertex addition), the best-spread ``d`` of its ``2d`` nearest earlier agents (largest
     ``|det|`` of the unit directions), so the team stays well conditioned as it grows. The
