@@ -243,6 +243,8 @@ def _serve_many(
         for d, b in zip(state.backlog_s, state.backlog_bytes, strict=True)
     )
     queued_bytes = sum(w.size for w in waiting)
+    # when the head was last pushed out: the packet behind it is the head only from then
+    head_from = -math.inf
 
     def advance(now: float, drained: list[_Waiting] | None = None) -> None:
         """Let every packet leave that leaves at or before ``now``."""
@@ -251,6 +253,8 @@ def _serve_many(
             w = waiting[0]
             if w.departure_s != w.departure_s:  # NaN: not yet computed
                 start = w.arrival_s if w.arrival_s > clock else clock
+                if head_from > start:
+                    start = head_from
                 if burst == 0.0:  # netem rate: on the wire for size / rate after the previous
                     w.departure_s = start + w.size / rate
                 elif clock == -math.inf or tokens + (start - clock) * rate >= w.size:
@@ -290,6 +294,8 @@ def _serve_many(
             victim = _oldest_droppable(waiting, now, burst, rate)
             if victim is None:
                 break
+            if victim is waiting[0]:  # tbf sends the next one no earlier than now
+                head_from = now
             waiting.remove(victim)  # the head's departure is computed anew when it leaves
             queued_bytes -= victim.size
             reason[victim.index] = QUEUE_FULL
