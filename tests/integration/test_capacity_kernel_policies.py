@@ -39,56 +39,56 @@ LIMIT_BYTES = 6000  # [B]
 LIMIT_PACKETS = 5
 OVERHEAD = 42  # [B] Ethernet 14 + IPv4 20 + UDP 8 on loopback
 WIRE = 1000  # [B] a full-size packet with its overhead
-# kernel timer and scheduling noise on a loaded machine is tens of microseconds; the bugs
-# these bounds catch put departures milliseconds off
-JACCARD_MIN = 0.95
+# the kernel's timers send tens of microseconds late: an arrival that close to a departure
+# may find one packet more waiting than the model does (a drop or two apart, in rare runs);
+# the bugs these bounds catch put departures milliseconds off
+JACCARD_MIN = 0.9
 P95_MAX_S = 0.0003
 
 
 class Queue(NamedTuple):
-    """A queue of the model and the ``tc`` commands that make the kernel's equal."""
+    """A queue of the model, named by its policy and limit."""
 
     name: str
     params: QueueParams
-    tc: list[list[str]]
+
+    @property
+    def tc(self) -> list[list[str]]:
+        """The ``tc`` commands that make the kernel's queue on ``lo`` equal (docs/model.md §9)."""
+        p = self.params
+        root = ["qdisc", "add", "dev", "lo", "root", "handle", "1:", "tbf",
+                "rate", f"{p.rate_bps:.0f}bit", "burst", str(p.burst_bytes),
+                "limit", str(p.limit_bytes or 1_000_000)]  # fmt: skip
+        if p.limit_packets is None:
+            return [root]
+        child = "pfifo_head_drop" if p.policy == "oldest" else "pfifo"
+        return [root, ["qdisc", "add", "dev", "lo", "parent", "1:1", child,
+                       "limit", str(p.limit_packets)]]  # fmt: skip
 
 
-TBF = ["qdisc", "add", "dev", "lo", "root", "handle", "1:", "tbf", "rate", f"{RATE_BPS}bit"]
 QUEUES = [
     Queue(
         "tail/bytes",
         QueueParams(RATE_BPS, BURST, limit_bytes=LIMIT_BYTES, overhead_bytes=OVERHEAD),
-        [[*TBF, "burst", str(BURST), "limit", str(LIMIT_BYTES)]],
     ),
     Queue(
         "tail/packets",
         QueueParams(RATE_BPS, BURST, limit_packets=LIMIT_PACKETS, overhead_bytes=OVERHEAD),
-        [
-            [*TBF, "burst", str(BURST), "limit", "100000"],
-            ["qdisc", "add", "dev", "lo", "parent", "1:1", "pfifo", "limit", str(LIMIT_PACKETS)],
-        ],
     ),
     Queue(
         "oldest/packets",
         QueueParams(
             RATE_BPS, BURST, limit_packets=LIMIT_PACKETS, overhead_bytes=OVERHEAD, policy="oldest"
         ),
-        [
-            [*TBF, "burst", str(BURST), "limit", "100000"],
-            [
-                "qdisc",
-                "add",
-                "dev",
-                "lo",
-                "parent",
-                "1:1",
-                "pfifo_head_drop",
-                "limit",
-                str(LIMIT_PACKETS),
-            ],
-        ],
     ),
 ]
+# four packets: 0 empties the bucket, 1 waits 0.6 s for its tokens with 2 behind it, 3 comes
+# at 0.5 s and pushes 1 out; tbf sends 2 at once (the model once sent it at 0.2 s)
+HEAD_PUSHED_OUT = Queue(
+    "oldest/packets",
+    QueueParams(80_000, 6000, limit_packets=2, overhead_bytes=OVERHEAD, policy="oldest"),
+)
+HEAD_PLAN = ([0.0, 0.0, 0.0, 0.5], [s - OVERHEAD for s in (6000, 6000, 2000, 1000)])
 
 
 def patterns(seed: int) -> dict[str, tuple[list[float], list[int]]]:
@@ -106,11 +106,13 @@ def patterns(seed: int) -> dict[str, tuple[list[float], list[int]]]:
     out["on/off"] = (bursts.tolist(), sizes[: bursts.size].tolist())
     gaps = rng.exponential((sizes + OVERHEAD) * 8 / RATE_BPS / 0.9)
     out["poisson 0.9"] = (np.cumsum(gaps).tolist(), sizes.tolist())
-    trains, times = n // 8, []
+    trains, times = n // 12, []
     t = 0.0
-    for _ in range(trains):  # 8 at 1 ms, then 10-40 ms to refill some or all of the bucket
-        times += [t + 0.001 * j for j in range(8)]
-        t += 0.008 + rng.uniform(0.010, 0.040)
+    # 12 at 0.7 ms (off the 4 ms grid a full bucket's departures take), then 20-60 ms to
+    # drain and refill some or all of the bucket
+    for _ in range(trains):
+        times += [t + 0.0007 * j for j in range(12)]
+        t += 0.008 + rng.uniform(0.020, 0.060)
     out["trains"] = (times, [WIRE - OVERHEAD] * len(times))
     return out
 
@@ -310,3 +312,14 @@ def test_every_policy_and_limit_drops_and_sends_what_tbf_does(namespace: str, se
     for queue, pattern, path, c in kernel_table(namespace, seed):
         p95 = float(np.percentile(c.offsets_s, 95))
         assert c.jaccard >= JACCARD_MIN and p95 <= P95_MAX_S, (queue, pattern, path, c, p95)
+
+
+@pytest.mark.slow
+def test_the_packet_behind_a_pushed_out_head_leaves_when_tbf_sends_it(namespace: str) -> None:
+    times, sizes = HEAD_PLAN
+    cases = [{"tc": HEAD_PUSHED_OUT.tc, "times": times, "sizes": sizes}]
+    result = run_in(namespace, cases)[0]
+    assert [k for k, _ in result["got"]] == [0, 2, 3]
+    for path in (lockstep, realtime):
+        c = compare(path, HEAD_PUSHED_OUT.params, sizes, result)
+        assert c.jaccard == 1.0 and c.offsets_s.max() <= P95_MAX_S, (path.__name__, c)
