@@ -128,7 +128,7 @@ def realtime(
     return left
 
 
-@settings(max_examples=80, deadline=None)
+@settings(max_examples=40, deadline=None)
 @given(
     gaps=st.lists(st.sampled_from([0.0, 0.0, 0.0005, 0.001, 0.004, 0.02]), min_size=2, max_size=60),
     sizes=st.lists(st.integers(40, 1400), min_size=60, max_size=60),
@@ -147,7 +147,7 @@ def test_realtime_oldest_gives_a_pushed_out_packets_time_back_as_the_model_does(
     np.testing.assert_array_equal(realtime([cap], (1, 2), arrivals, payloads), model.departure_s)
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=40, deadline=None)
 @given(
     gaps=st.lists(st.sampled_from([0.0, 0.0, 0.0005, 0.001, 0.004, 0.02]), min_size=2, max_size=60),
     sizes=st.lists(st.integers(40, 1400), min_size=60, max_size=60),
