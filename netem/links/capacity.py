@@ -171,13 +171,19 @@ def serve_packets(
     sizes: list[int],
     deadlines: list[float] | None = None,
     state: QueueState | None = None,
+    ready_s: float = -math.inf,
 ) -> Served:
     """:func:`serve_queue` on plain lists, unchecked: ``sizes`` [B] with their overhead already.
+
+    ``ready_s`` [s]: the first packet leaves no earlier, as the one behind a head pushed out
+    then (realtime's give-back, :func:`make_room`).
 
     A run's phases put a few packets through each queue at a time (netem, per packet of
     every phase): lists cost a tenth of arrays there.
     """
     state = state or QueueState()
+    if ready_s > -math.inf:
+        return _serve_many(params, arrivals, sizes, deadlines, state, ready_s)
     if state.backlog_s and arrivals and state.backlog_s[-1] <= arrivals[0]:
         # gone before the first arrival: it never sees them, nor do the clock and bucket
         state = QueueState(state.clock_s, state.tokens_bytes)
@@ -227,6 +233,7 @@ def _serve_many(
     sizes: list[int],
     deadlines: list[float] | None,
     state: QueueState,
+    ready_s: float = -math.inf,
 ) -> Served:
     """:func:`serve_packets` in general: a FIFO of waiting packets, each leaving in turn."""
     n = len(arrivals)
@@ -243,6 +250,8 @@ def _serve_many(
         for d, b in zip(state.backlog_s, state.backlog_bytes, strict=True)
     )
     queued_bytes = sum(w.size for w in waiting)
+    # when the head was last pushed out: the packet behind it is the head only from then
+    head_from = ready_s
 
     def advance(now: float, drained: list[_Waiting] | None = None) -> None:
         """Let every packet leave that leaves at or before ``now``."""
@@ -251,6 +260,8 @@ def _serve_many(
             w = waiting[0]
             if w.departure_s != w.departure_s:  # NaN: not yet computed
                 start = w.arrival_s if w.arrival_s > clock else clock
+                if head_from > start:
+                    start = head_from
                 if burst == 0.0:  # netem rate: on the wire for size / rate after the previous
                     w.departure_s = start + w.size / rate
                 elif clock == -math.inf or tokens + (start - clock) * rate >= w.size:
@@ -290,6 +301,8 @@ def _serve_many(
             victim = _oldest_droppable(waiting, now, burst, rate)
             if victim is None:
                 break
+            if victim is waiting[0]:  # tbf sends the next one no earlier than now
+                head_from = now
             waiting.remove(victim)  # the head's departure is computed anew when it leaves
             queued_bytes -= victim.size
             reason[victim.index] = QUEUE_FULL
@@ -347,9 +360,8 @@ def make_room(
     ``state.backlog_s``.
 
     :func:`serve_packets` never takes back a packet of an earlier call (lockstep's phases are
-    decided); realtime netem holds each packet until it leaves, so it can. The time a
-    pushed-out packet was given on the link is not given back: the packets behind it keep the
-    departures they were given as they came.
+    decided); realtime netem holds each packet until it leaves, so it can, and serves the
+    packets behind it anew (``CapacityNetwork``), as :func:`serve_packets` would have.
     """
     if params.policy != "oldest" or not state.backlog_s:
         return state, []

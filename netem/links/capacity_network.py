@@ -39,8 +39,8 @@ from netem.links.capacity import (
     QueueState,
     make_room,
     serve_packets,
-    without,
 )
+from netem.links.capacity_held import HeldQueues
 
 PHASE_ORDER = {"state": 0, "report": 1, "estimate": 2}
 
@@ -106,7 +106,7 @@ class CapacityNetwork:
         self.since = [0] * len(capacities)  # the epoch from which each queue serves
         self._changes: list[tuple[int, int, QueueParams]] = []  # (from epoch, queue, params)
         self._last = (-1, -1)  # (epoch, phase) of the last call
-        self._tokens: dict[int, tuple[int, ...]] = {}  # realtime: each queue's backlog, by token
+        self.held = HeldQueues(self.params)  # realtime: the packets each queue holds
         self._route()
         # Links :meth:`alone` judges in closed form: the stages (queue, rate [B/s], overhead
         # [B], limit [B]) of links alone in queues of ``burst_bytes = 0``, none changed yet.
@@ -300,6 +300,7 @@ class CapacityNetwork:
         it pushed out (realtime, with a ``token``: :meth:`arrive`)."""
         t, depth, name = t0, 0, ""
         pushed: list[int] = []
+        passed: list[int] = []
         victims: list[int]
         for k in self.by_link.get(link, ()):
             if self.since[k] > epoch:
@@ -308,35 +309,38 @@ class CapacityNetwork:
             size = payload_bytes + params.overhead_bytes
             state, victims = self.states[k], []
             if token is not None:
-                state, victims = make_room(params, state or QueueState(), t, size)
+                self.held.settle(k, t0)  # now: a later queue's t is ahead of it
+                state, victims = make_room(params, self.held.state(k), t, size)
                 if victims:
-                    gone = [self._tokens[k][j] for j in victims]
-                    self._forget(gone)
+                    gone = self.held.tokens(k, victims)
+                    self.held.remove(gone, t)
                     pushed += gone
-                    state = self.states[k]
+                    state = self.held.state(k)
             run = serve_packets(params, [t], [size], state=state)
-            if token is not None:  # the tokens of the backlog, in its order
-                backlog = state.backlog_s if state is not None else ()
-                left = zip(self._tokens.get(k, ()), backlog, strict=True)
-                kept = tuple(tok for tok, d in left if d > t)
-                self._tokens[k] = (*kept, token) if run.reason[0] == PASSED else kept
             self.states[k] = run.state
             name, depth = self.names[k], run.depth[0] + len(victims)
             if run.reason[0] != PASSED:
                 sojourn_ms = 1e3 * (t - t0 + run.sojourn_s[0])
                 verdict = QueueVerdict(REASONS[run.reason[0]], name, depth, sojourn_ms)
-                return verdict, math.nan, pushed
+                t = math.nan
+                break
+            if token is not None:
+                self.held.add(k, token, t, size, run)
+                passed.append(k)
             t = run.departure_s[0]
-        return QueueVerdict(_LATE if t > due else "", name, depth, 1e3 * (t - t0)), t, pushed
+        else:
+            verdict = QueueVerdict(_LATE if t > due else "", name, depth, 1e3 * (t - t0))
+            if token is not None and passed:
+                self.held.route[token] = tuple(passed)
+        for q in self.held.held if pushed else ():  # as the packets pushed out left them
+            self.states[q] = self.held.state(q)
+        return verdict, t, pushed
 
-    def _forget(self, tokens: list[int]) -> None:
-        """Realtime: the packets ``tokens`` leave every queue they wait in (pushed out)."""
-        for k, held in self._tokens.items():
-            positions = [j for j, tok in enumerate(held) if tok in tokens]
-            state = self.states[k]
-            if positions and state is not None:
-                self.states[k] = without(state, positions)
-                self._tokens[k] = tuple(tok for tok in held if tok not in tokens)
+    def retimed(self) -> dict[int, float]:
+        """Realtime: the held packets whose departure from their last queue [s] changed since
+        the last call, as packets pushed out ahead of them gave their link time back."""
+        out, self.held.retimed = self.held.retimed, {}
+        return out
 
     def phase(
         self, epoch: int, phase: str, packets: Sequence[tuple[Link, int]]

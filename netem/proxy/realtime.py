@@ -151,6 +151,8 @@ class RealtimeForwarder:
             )
             for victim in pushed:
                 self._push_out(victim, v.queue, now)
+            for held, leaves in queues.retimed().items():  # their time given back
+                self._retime(held, leaves, due)
             if v.reason and v.reason != "queue_late":  # refused: a queue's drop
                 d = queued(o, v.reason, v.queue, v.depth, v.sojourn_ms)
                 self.deadline["queue_drops"] += 1
@@ -209,6 +211,32 @@ class RealtimeForwarder:
         self.deadline["queue_drops"] += 1
         dropped = queued(h.model, "queue_full", queue, 0, (now - h.arrived_ns) / 1e6)
         self.ledger.decisions[(h.phase, epoch)].append((src, dst, cls, epoch, seq, dropped))
+
+    def _retime(self, token: int, leaves_s: float, due: list[Due]) -> None:
+        """A held packet leaves its queues at ``leaves_s`` [s since the clock's start] instead,
+        as packets pushed out ahead of it gave their time back: due then, its record and
+        deadline counts as if it had been given that departure as it came."""
+        h = self._held.get(token)
+        at = next((i for i, entry in enumerate(due) if entry[1] == token), None)
+        if h is None or at is None or self.clock is None:
+            return  # it left already
+        _, _, inbox, epoch, packet, copies, deadline_ns = due[at]
+        t0 = self.clock.t0_ns
+        leaves_ns = int(leaves_s * 1e9) + t0
+        due_ns = max(h.arrived_ns, leaves_ns) + int(h.model.delay_ms * 1e6)
+        due[at] = (due_ns, token, inbox, epoch, packet, copies, deadline_ns)
+        heapq.heapify(due)
+        past = due_ns > deadline_ns
+        queue_past = past and h.arrived_ns < leaves_ns and leaves_ns > deadline_ns
+        self.deadline["modelled_late"] += (past - h.past) * copies
+        self.deadline["queue_late"] += (queue_past - h.queue_past) * copies
+        src, dst, cls, _, seq, d = h.record
+        if isinstance(d, Queued):
+            late = "queue_late" if leaves_ns > deadline_ns else h.model.model
+            sojourn_ms = (leaves_ns - h.arrived_ns) / 1e6
+            d = d._replace(model=late, sojourn_ms=sojourn_ms)
+        record: Record = (src, dst, cls, epoch, seq, d)
+        self._held[token] = h._replace(record=record, past=past, queue_past=queue_past)
 
     def queue(
         self, inbox: Inbox, epoch: int, packet: bytes, ready_ns: int, deadline_ns: int, copies: int

@@ -131,8 +131,27 @@ def cmd_netem(args: argparse.Namespace) -> int:
     return 0
 
 
+# what makes a queue equal Linux's (docs/model.md §9)
+RATE_HELP = """\
+a queue's parameters are tc's (docs/model.md §9):
+  rate_bps        [bit/s] the rate, a multiple of 8 (tc keeps bytes a second)
+  burst_bytes     [B] tbf's burst; 0 is netem rate (serialisation), not a small bucket
+  limit_bytes     [B] tbf's limit
+  limit_packets   a pfifo child of tbf (tc qdisc add ... parent 1:1 pfifo limit N)
+  policy          tail, or oldest: a pfifo_head_drop child (Linux has none in bytes)
+  overhead_bytes  [B] added to each payload: 42 for UDP over IPv4 on Ethernet or loopback
+e.g. formation netem set 3->0 rate rate_bps=64000 burst_bytes=3000 limit_packets=5 \\
+       policy=oldest overhead_bytes=42"""
+
+
 def register(sub: Any) -> None:
-    p = sub.add_parser("netem", help="show or change a running run's link models")
+    p = sub.add_parser(
+        "netem",
+        help="show or change a running run's link models",
+        description="Show or change a running run's link models and capacity queues.",
+        epilog=RATE_HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("action", choices=["show", "set"])
     p.add_argument(
         "link",

@@ -261,3 +261,13 @@ def test_a_burst_into_an_empty_queue_is_the_general_case(
     if start.backlog_s and start.backlog_s[-1] <= at:
         start = QueueState(start.clock_s, start.tokens_bytes)
     assert got == _serve_many(params, [at] * len(sizes), sizes, deadlines, start)
+
+
+def test_oldest_pushing_out_the_head_sends_the_next_no_earlier_than_the_push_out() -> None:
+    # 10,000 B/s, a 6,000 B bucket: 0 empties it, 1 waits for its tokens until 0.6 s, 2 waits
+    # behind it; 3 comes at 0.5 s and pushes 1 out: tbf sends 2 then, not at 0.2 s when the
+    # bucket held its size (while 1 was still the head)
+    params = QueueParams(rate_bps=80_000, burst_bytes=6000, limit_packets=2, policy="oldest")
+    run = serve_queue(params, [0.0, 0.0, 0.0, 0.5], [6000, 6000, 2000, 1000])
+    assert run.reason.tolist() == [PASSED, QUEUE_FULL, PASSED, PASSED]
+    np.testing.assert_allclose(run.departure_s[[0, 2, 3]], [0.0, 0.5, 0.5])
