@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import re
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -36,9 +37,15 @@ from testbed.runtime.processes import ProcessGroup, free_port, wait_for_port
 HOST = "127.0.0.1"
 
 
+def _name_part(text: str) -> str:
+    """``text`` as part of a folder's name and a Zenoh key: ``pkg.mod:name`` → ``pkg.mod.name``,
+    any other character outside letters, digits, ``._+-`` → ``_``."""
+    return re.sub(r"[^A-Za-z0-9._+-]", "_", text.replace(":", "."))
+
+
 def make_run_id(scenario: Scenario, strategy: str, seed: int) -> str:
     stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S%f")
-    return f"{scenario.name}-{strategy}-s{seed}-{stamp}"
+    return f"{_name_part(scenario.name)}-{_name_part(strategy)}-s{seed}-{stamp}"
 
 
 def _pools(n: int, pool: int | None) -> list[list[int]]:

@@ -159,10 +159,12 @@ def test_formation_plugins_lists_ours_and_the_examples() -> None:
     assert proc.returncode == 0, proc.stderr
     rows = {(r["kind"], r["name"]): r for r in __import__("json").loads(proc.stdout)}
     assert rows["strategy", "extrapolate"]["package"].startswith("formation-plugins-example")
-    assert rows["strategy", "extrapolate"]["parameters"] == ["horizon_epochs: int = 20"]
-    assert rows["strategy", "blend"]["parameters"] == ["alpha: float = 0.5"]
+    assert rows["strategy", "extrapolate"]["parameters"] == ["horizon_epochs: int = 20 (>= 1)"]
+    assert rows["strategy", "blend"]["parameters"] == ["alpha: float = 0.5 (> 0.0, <= 1.0)"]
     assert rows["controller", "saturated"]["dynamics"] == ["single", "double", "unicycle"]
-    assert rows["link_model", "jammer"]["parameters"][0] == "links: tuple[tuple[int, int], ...]"
+    assert rows["link_model", "jammer"]["parameters"][0] == (
+        "links: tuple[tuple[int, int], ...] (length >= 1)"
+    )
     assert rows["link_model", "bernoulli"]["package"].startswith("formation-testbed")
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -105,3 +106,15 @@ def test_unknown_strategy_is_named_by_every_command() -> None:
         r"a 'package.module:name', or all$",
     ):
         parse_strategies("zero,guess", ["estimate"])
+
+
+def test_a_controller_that_varies_in_time_gets_the_epoch(
+    paper_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.syspath_prepend(str(paper_path.parents[1] / "tests" / "data" / "plugins"))
+    paper = Scenario.from_file(paper_path)
+    late = {**paper.control.model_dump(), "controller": "bad_plugins:LATE"}  # still until epoch 5
+    steps = np.diff(simulate(paper.with_overrides(control=late, epochs=8)).positions, axis=0)
+    spread = np.ptp(steps, axis=1).max(axis=1)  # (epochs,) how the agents' steps differ [m]
+    assert (spread[:5] < 1e-12).all()  # the reference's motion only: a rigid translation
+    assert (spread[5:] > 1e-3).all()
