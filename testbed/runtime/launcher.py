@@ -269,11 +269,14 @@ class LocalRun:
             self._start(_process_name(ids), "agent", *self._args(*scenario, "--id", ident))
 
     def _first_missing(self, name: str) -> int:
-        """The first epoch process ``name`` has not done: an estimate, or an agent's state."""
+        """The first epoch process ``name`` has not done: an estimate, an agent's state, or
+        for netem the first no agent got to (its packets carry every epoch's states)."""
         observer = self.observer
         with observer.lock:
             if name == "leader":
                 return len(observer.estimated)
+            if name == "netem":
+                return first_missing_epoch(np.isfinite(observer.positions[:, :, 0]).any(axis=1))
             return min(
                 first_missing_epoch(np.isfinite(observer.positions[:, i - 1, 0]))
                 for i in _ids_of(name)
