@@ -62,3 +62,13 @@ def test_with_a_scenario_each_value_says_where_it_came_from(
     assert own["parameters"] == ["alpha: float = 0.9 [default] (> 0.0, <= 1.0)"]
     assert rows["strategy", "blend"]["values"] == {"alpha": {"value": 0.3, "from": "scenario"}}
     assert rows["strategy", "extrapolate"]["values"]["horizon_epochs"]["from"] == "default"
+
+
+@pytest.mark.parametrize("command", ["simulate", "run", "sweep"])
+def test_strategy_help_lists_the_installed_plugins(
+    command: str, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("COLUMNS", "200")
+    assert main([command, "--help"]) == 0
+    said = " ".join(capsys.readouterr().out.split())
+    assert "zero, hold, estimate, blend, drop, extrapolate" in said  # the example's is installed
