@@ -118,3 +118,19 @@ def late(inputs: ControlInputs, params: Any) -> np.ndarray:
 
 
 LATE = ControlLaw(late)
+
+
+class NanDelay(Spec):
+    """A link model whose delay is NaN from ``at_epoch`` on."""
+
+    layer: ClassVar[str] = "bad_plugins:NanDelayLayer"
+    model: Literal["nan_delay"] = "nan_delay"
+    at_epoch: int = Field(12, ge=8)
+
+
+class NanDelayLayer(Layer[NanDelay]):
+    def run(self, keys: Keys, epochs: np.ndarray, carry: Any) -> tuple[LayerOutput, Any]:
+        shape = (keys.n_links, epochs.shape[0])
+        delay_ms = np.where(epochs >= self.spec.at_epoch, np.nan, 0.0)[None, :].repeat(shape[0], 0)
+        zeros = np.zeros(shape, dtype=np.int64)
+        return LayerOutput(delay_epochs=zeros, delay_ms=delay_ms), None

@@ -39,3 +39,15 @@ def test_the_epochs_before_the_failure_are_decided_and_it_is_raised_at_its_epoch
         failing.decide(12)
     with pytest.raises(PluginFailure, match=r"failed at epoch 12 "):
         failing.decide(30)
+
+
+def test_a_delay_that_turns_nan_fails_at_its_epoch() -> None:
+    sys.path.insert(0, str(BAD))
+    try:
+        spec = spec_class("bad_plugins:NanDelay")(at_epoch=12)
+    finally:
+        sys.path.remove(str(BAD))
+    model = LinkModel([spec], seed=7, src=1, dst=2)
+    assert [model.decide(k).verdict for k in range(12)] == ["pass"] * 12
+    with pytest.raises(PluginFailure, match=r"failed at epoch 12 .*delay_ms is not finite"):
+        model.decide(12)
