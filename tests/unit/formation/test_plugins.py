@@ -15,7 +15,7 @@ import pytest
 
 from formation.errors import PluginFailure, ScenarioError
 from formation.linkmodels import kind_code_of, spec_class
-from formation.plugin_api import all_strategies, control_law, loss_strategy
+from formation.plugin_api import DYNAMICS, all_strategies, control_law, loss_strategy
 from formation.plugin_registry import find, names, registered
 from formation.scenario import Scenario, load_dict
 
@@ -212,3 +212,11 @@ def test_the_checked_call_keeps_the_builtins_numbers() -> None:
                         np.array([1, 2]))  # fmt: skip
     np.testing.assert_array_equal(sub.values, [[0.1, 0.2], [0.0, 0.0]])
     assert sub.substituted.tolist() == [True, False]
+
+
+def test_model_md_describes_every_dynamics_as_implemented() -> None:
+    text = (ROOT / "docs" / "model.md").read_text()
+    section = text[text.index("\n## 3.") : text.index("\n## 4.")]  # §3, the controller
+    assert "not implemented" not in section
+    for dynamics in DYNAMICS:  # what a controller may list, each in the text with its code
+        assert f"step_{dynamics}" in section, dynamics
