@@ -85,9 +85,13 @@ def test_no_module_of_the_product_makes_a_zenoh_config_of_its_own() -> None:
 @pytest.mark.parametrize("options", [ComposeOptions(), ComposeOptions(secure=False)])
 @pytest.mark.parametrize("name", ["paper.toml", "robots.toml"])
 def test_every_compose_service_opens_its_session_with_both_off(
-    name: str, options: ComposeOptions, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    name: str,
+    options: ComposeOptions,
+    paper_path: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    path = ROOT / "scenarios" / name
+    path = paper_path.parent / name  # beside the default scenario
     scenario = Scenario.from_file(path)
     keys = security.generate(tmp_path / "keys", scenario.n, body=scenario.body)
     services = document(scenario, path, options)["services"]

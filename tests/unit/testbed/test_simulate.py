@@ -111,7 +111,7 @@ def test_unknown_strategy_is_named_by_every_command() -> None:
 def test_a_controller_that_varies_in_time_gets_the_epoch(
     paper_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.syspath_prepend(str(paper_path.parents[1] / "tests" / "data" / "plugins"))
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2] / "data" / "plugins"))
     paper = Scenario.from_file(paper_path)
     late = {**paper.control.model_dump(), "controller": "bad_plugins:LATE"}  # still until epoch 5
     steps = np.diff(simulate(paper.with_overrides(control=late, epochs=8)).positions, axis=0)
