@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import itertools
 import time
 from pathlib import Path
 from typing import Any
@@ -30,7 +31,7 @@ from testbed.cli.tables import print_table
 from testbed.experiments.capacity import CapacitySpec, run_capacity, run_capacity_real
 from testbed.experiments.capacity import write_outputs as write_capacity
 from testbed.experiments.executors import SCHEDULER_FORMS, executor_for
-from testbed.experiments.loss_variants import LOSS_MODELS
+from testbed.experiments.loss_variants import LOSS_MODELS, is_parameter, with_parameter
 from testbed.experiments.paper_run import run_paper
 from testbed.experiments.sweep import (
     SweepSpec,
@@ -184,6 +185,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     topologies = _topologies(args)
     first = topologies[0][1].seed if args.seed is None else args.seed
     models, losses = _variants(args)
+    for (_, scenario), model, value in itertools.product(topologies, models, losses):
+        if is_parameter(model):  # every topology has the model, and takes every value
+            with_parameter(scenario, model, value)
     spec = SweepSpec(
         topologies=tuple(topologies),
         losses=losses,

@@ -44,3 +44,6 @@ def test_sweep_varies_the_plugins_parameter_and_the_loss_grows_with_it(tmp_path:
     loss = {r["loss"]: float(r["measured_loss"]) for r in rows if r["seed"] == "1"}
     assert loss["30"] > loss["1"] + 0.05  # links 3→5, 5→3 jammed all the time, not 1 epoch in 30
     assert main([*args[:-2], "--loss", "0.1"]) == 1  # the loss grid replaces the models: not both
+    args[3] = "ring8"  # a topology without a jammer: refused before any cell runs
+    assert main([*args[:-2], "--out", str(tmp_path / "refused")]) == 1
+    assert not (tmp_path / "refused").exists()
