@@ -139,6 +139,8 @@ def agent_epoch(
         positions=x,
         velocities=velocities,
         dynamics=ctl.dynamics,
+        epoch=epoch,
+        time_s=epoch * ctl.period_s,
     )
     cmd = command_checked(
         ctl.controller, control_law(ctl.controller), inputs, ctl.law_params, agents, epoch

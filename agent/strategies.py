@@ -215,7 +215,7 @@ def _estimate(x: StrategyInputs, params: Any) -> Fill:
 
 
 class BlendParams(BaseModel):
-    """``blend``'s filter factor α ∈ (0, 1] (the scenario's ``strategy.alpha`` by default)."""
+    """``blend``'s filter factor α ∈ (0, 1]."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     alpha: float = Field(0.5, gt=0.0, le=1.0)

@@ -118,6 +118,17 @@ class PluginError(TestbedError):
         super().__init__(f"{PLUGIN_LABELS[kind]} plug-in {name!r}: {problem}")
 
 
+class PluginParameterError(PluginError):
+    """A plug-in's parameter that its own model refuses: ``param`` (None: the parameters as a
+    whole), the ``value`` given and the ``rule`` it breaks."""
+
+    def __init__(
+        self, kind: PluginKind, name: str, param: str | None, value: object, rule: str
+    ) -> None:
+        self.param, self.value, self.rule = param, value, rule
+        super().__init__(kind, name, f"parameter {param or '(parameters)'} = {value!r}; {rule}")
+
+
 class PluginFailure(TestbedError):
     """A plug-in that failed while a run used it: names it, the agents (or link) and the epoch."""
 

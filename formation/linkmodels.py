@@ -25,13 +25,15 @@ from pydantic import (
     Field,
     PlainSerializer,
     SerializationInfo,
+    ValidationError,
     ValidatorFunctionWrapHandler,
     WithJsonSchema,
     WrapValidator,
     model_validator,
 )
+from pydantic_core import InitErrorDetails, PydanticCustomError
 
-from formation.errors import PluginError
+from formation.errors import NO_VALUE, PLUGIN_LABELS, PluginError
 from formation.plugin_registry import find, is_reference, names, registered
 
 Probability = Annotated[float, Field(ge=0.0, le=1.0)]
@@ -293,7 +295,31 @@ def _validate_spec(value: Any, handler: ValidatorFunctionWrapHandler) -> Spec:
     except PluginError as exc:
         raise ValueError(str(exc)) from None
     data = value if not is_reference(tag) else {**value, "model": cls.model_fields["model"].default}
-    return cls.model_validate(data)
+    try:
+        return cls.model_validate(data)
+    except ValidationError as exc:
+        raise _named(exc, tag) from None
+
+
+def _named(exc: ValidationError, tag: str) -> ValidationError:
+    """``exc`` with each problem naming link model plug-in ``tag``; paths and values kept."""
+    label = f"{PLUGIN_LABELS['link_model']} plug-in {tag!r}: "
+    errors: list[InitErrorDetails] = []
+    for err in exc.errors():
+        if err["type"] == "extra_forbidden":
+            problem = "unknown parameter"
+        elif err["type"] == "missing":
+            problem = "required parameter is missing"
+        else:
+            problem = err["msg"].removeprefix("Value error, ")
+        kind = PydanticCustomError(
+            "link_model_parameter", "{problem}", {"problem": label + problem}
+        )
+        detail: InitErrorDetails = {"type": kind, "loc": err["loc"], "input": err["input"]}
+        if err["type"] == "missing":
+            detail["input"] = NO_VALUE
+        errors.append(detail)
+    return ValidationError.from_exception_data(exc.title, errors)
 
 
 def _dump_spec(spec: Spec, info: SerializationInfo) -> dict[str, Any]:

@@ -18,13 +18,13 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
-from typing import Any, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, ValidationError
 
-from formation.errors import PluginError, PluginFailure, PluginKind
+from formation.errors import PluginError, PluginFailure, PluginKind, PluginParameterError
 from formation.plugin_registry import check_callable, load, names
 
 Array = npt.NDArray[np.float64]
@@ -135,6 +135,7 @@ class ControlInputs(NamedTuple):
     period_s : ``T`` [s]
     positions : (n, d) ``x_i[k]`` [m]; velocities (n, d) [m/s] (double integrator; zeros else)
     dynamics : ``single``, ``double`` or ``unicycle``
+    epoch : the epoch ``k``; time_s : its time ``k T`` [s] (for a law that varies in time)
     """
 
     n: int
@@ -148,6 +149,8 @@ class ControlInputs(NamedTuple):
     positions: Array
     velocities: Array
     dynamics: str
+    epoch: int
+    time_s: float
 
 
 @dataclass(frozen=True)
@@ -215,10 +218,24 @@ def validate_params(
         return model.model_validate(given)
     except ValidationError as exc:
         err = exc.errors()[0]
-        field = ".".join(str(p) for p in err["loc"]) or "(parameters)"
+        param = ".".join(str(p) for p in err["loc"]) or None
         value = given.get(str(err["loc"][0])) if err["loc"] else given
         rule = "unknown parameter" if err["type"] == "extra_forbidden" else err["msg"]
-        raise PluginError(kind, name, f"parameter {field} = {value!r}; {rule}") from None
+        rule = rule.removeprefix("Value error, ")
+        raise PluginParameterError(kind, name, param, value, rule) from None
+
+
+ParamSource = Literal["default", "scenario"]
+
+
+def param_sources(model: type[BaseModel], given: dict[str, Any]) -> dict[str, ParamSource]:
+    """Each parameter of ``model``: ``scenario`` when its table ``given`` sets it, else
+    ``default`` (the plug-in's own)."""
+    out: dict[str, ParamSource] = {}
+    for name, field in model.model_fields.items():
+        shown = field.alias or name
+        out[shown] = "scenario" if shown in given or name in given else "default"
+    return out
 
 
 # ----------------------------------------------------------------------------- checked calls
@@ -390,9 +407,11 @@ def probe_controller(name: str, params: Any, dimension: int, dynamics: str) -> N
         positions=rng.normal(size=(2, d)),
         velocities=np.zeros((2, d)),
         dynamics=dynamics,
+        epoch=3,
+        time_s=3.0,
     )
     try:
-        command_checked(name, law, inputs, params, np.array([1, 2], dtype=np.int64), 0)
+        command_checked(name, law, inputs, params, np.array([1, 2], dtype=np.int64), 3)
     except PluginFailure as exc:
         raise PluginError("controller", name, f"on a probe of 2 agents: {exc.problem}") from None
 
@@ -407,12 +426,14 @@ __all__ = [
     "Fill",
     "LossStrategy",
     "NoParams",
+    "ParamSource",
     "StrategyInputs",
     "all_strategies",
     "command_checked",
     "control_law",
     "fill_checked",
     "loss_strategy",
+    "param_sources",
     "probe_controller",
     "probe_strategy",
     "validate_params",

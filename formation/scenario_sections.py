@@ -15,10 +15,16 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from formation.body import Body
 from formation.capacity import Capacity
-from formation.errors import PluginError
+from formation.errors import PLUGIN_LABELS, PluginError, PluginParameterError
 from formation.events import Event
 from formation.linkmodels import LinkModelSpec
-from formation.plugin_api import control_law, loss_strategy, validate_params
+from formation.plugin_api import (
+    ParamSource,
+    control_law,
+    loss_strategy,
+    param_sources,
+    validate_params,
+)
 from formation.robots import Safety, Unicycle
 
 StrategyName = str  # a loss strategy plug-in's name (formation.plugin_registry)
@@ -104,6 +110,10 @@ class Controller(StrictModel):
         _plugin(lambda: self.law_params)
         return self
 
+    def sources_of(self, name: str) -> dict[str, ParamSource]:
+        """Where each of controller ``name``'s parameters comes from."""
+        return param_sources(control_law(name).params, self.params.get(name, {}))
+
     def params_of(self, name: str) -> Any:
         """Controller ``name``'s parameters, validated by its own model."""
         return validate_params(
@@ -152,17 +162,30 @@ class Noise(StrictModel):
 
 
 class Strategy(StrictModel):
-    """Loss strategy of docs/model.md §6 and the blend factor α.
+    """Loss strategy of docs/model.md §6.
 
     ``name`` names a loss strategy plug-in; ``params`` holds each strategy's parameters by
     its name (``[strategy.params.blend] alpha = 0.3``), so a sweep over every strategy gives
-    each its own. A field of this section that a strategy's parameters also have (``alpha``)
-    is that parameter's default.
+    each its own. A plug-in's parameters come from its own table or its own defaults, never
+    from another field of this section. ``alpha`` directly under ``[strategy]`` is the older
+    spelling of ``[strategy.params.blend] alpha``, read as that (the table's wins).
     """
 
     name: StrategyName = "estimate"
-    alpha: float = Field(0.5, gt=0.0, le=1.0)
     params: dict[str, dict[str, Any]] = Field(default_factory=dict)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _blend_alpha_in_its_table(cls, data: Any) -> Any:
+        """``[strategy] alpha``: blend's, unless ``[strategy.params.blend]`` sets it."""
+        if not isinstance(data, dict) or "alpha" not in data:
+            return data
+        params = data.get("params") or {}
+        blend = params.get("blend") or {} if isinstance(params, dict) else None
+        if not isinstance(blend, dict):
+            return data  # the wrong type: pydantic says so at its field
+        rest = {k: v for k, v in data.items() if k != "alpha"}
+        return {**rest, "params": {**params, "blend": {"alpha": data["alpha"], **blend}}}
 
     @field_validator("name")
     @classmethod
@@ -185,11 +208,13 @@ class Strategy(StrictModel):
         """Strategy ``name``'s parameters, validated by its own model."""
         if name not in self._validated:  # asked every epoch: validated once
             model = loss_strategy(name).params
-            fields = type(self).model_fields
-            shared = {k: getattr(self, k) for k in model.model_fields if k in fields}
-            given = {**shared, **self.params.get(name, {})}
+            given = self.params.get(name, {})
             self._validated[name] = validate_params("strategy", name, model, given)
         return self._validated[name]
+
+    def sources_of(self, name: str) -> dict[str, ParamSource]:
+        """Where each of strategy ``name``'s parameters comes from."""
+        return param_sources(loss_strategy(name).params, self.params.get(name, {}))
 
 
 class Estimator(StrictModel):
@@ -282,7 +307,14 @@ def _params_by_name(
     takes its parameters; a problem is the scenario's at ``field.<name>``."""
     for name, given in params.items():
         _plugin(lambda name=name: find(name), f"{field}.{name}", name)
-        _plugin(lambda name=name: params_of(name), f"{field}.{name}", given)
+        try:
+            params_of(name)
+        except PluginParameterError as exc:
+            at = f"{field}.{name}" + (f".{exc.param}" if exc.param else "")
+            label = f"{PLUGIN_LABELS[exc.kind]} plug-in {name!r}"
+            raise FieldProblem(at, exc.value, f"{label}: {exc.rule}") from None
+        except PluginError as exc:
+            raise FieldProblem(f"{field}.{name}", given, str(exc)) from None
 
 
 class FieldProblem(ValueError):

@@ -294,7 +294,8 @@ def _run_layer(
             problem = f"LayerOutput.{name} has the shape {np.shape(value)}; expected {shape}"
             raise _failure(layer, keys, epochs, problem)
     if out.delay_ms is not None and not np.isfinite(out.delay_ms).all():
-        raise _failure(layer, keys, epochs, "LayerOutput.delay_ms is not finite")
+        first = int(np.argmin(np.isfinite(out.delay_ms).all(axis=0)))  # the epoch it belongs to
+        raise _failure(layer, keys, epochs[first:], "LayerOutput.delay_ms is not finite")
     return out, end
 
 

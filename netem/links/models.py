@@ -69,7 +69,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from formation.errors import LinkModelError
+from formation.errors import LinkModelError, PluginFailure
 from formation.linkmodels import LinkModelSpec
 from netem.links.closed_forms import (
     DelayMoments,
@@ -118,6 +118,14 @@ class _Block:
     variants: dict[tuple[int, int, Verdicts], LazyTable] = field(
         default_factory=dict
     )  # (piece, seq, verdicts) → the piece's decisions under those verdicts
+    # a layer that failed inside the block: epochs from failure.epoch on are not decided, and
+    # asking one raises it then, so the run ends at the epoch the failure belongs to
+    failure: PluginFailure | None = None
+
+    def check(self, epoch: int) -> None:
+        """Raise the block's failure if ``epoch`` is at or past it."""
+        if self.failure is not None and epoch >= self.failure.epoch:
+            raise self.failure
 
 
 class LinkModel:
@@ -205,6 +213,7 @@ class LinkModel:
             if epoch < 0:
                 raise LinkModelError(self.link, f"epoch = {epoch}; expected >= 0")
             blk = self._block(epoch // self._b)
+        blk.check(epoch)
         if seq == 0 and not blk.timed and not blk.ranged:
             return blk.table[blk.code_list[epoch - blk.start]]
         return self._decide_packet(blk, epoch, seq, time_s, distance_m)
@@ -246,9 +255,13 @@ class LinkModel:
                     raise LinkModelError(self.link, f"epoch = {k}; expected >= 0")
                 blk = self._block(k // self._b)
             stop = min(end, blk.start + self._b)
-            codes.append(blk.codes[k - blk.start : stop - blk.start] + len(table))
+            part = blk.codes[k - blk.start : stop - blk.start] + len(table)
             unknown = blk.timed or (blk.ranged and not before_distance)
             table.extend([None] * len(blk.table) if unknown else blk.table)
+            if len(part) < stop - k:  # past a failure: undecided, so never a clean epoch
+                part = np.concatenate([part, np.full(stop - k - len(part), len(table))])
+                table.append(None)
+            codes.append(part)
             k = stop
         return np.concatenate(codes), table
 
@@ -334,8 +347,16 @@ class LinkModel:
 
     def _block(self, k: int) -> _Block:
         a = k * self._b
-        pieces, end = self._run_range(a, a + self._b, self._carry_at(k))
-        self._carries[k + 1] = end
+        carry = self._carry_at(k)
+        failure = None
+        try:
+            pieces, end = self._run_range(a, a + self._b, carry)
+            self._carries[k + 1] = end
+        except PluginFailure as exc:
+            if exc.epoch <= a:
+                raise
+            failure = exc  # the epochs before it are decided as they would be without it
+            pieces, _ = self._run_range(a, exc.epoch, carry)
         coded, table = coded_table(pieces)
         timed = any(p.stack.timed for p in pieces)
         ranged = any(p.stack.ranged for p in pieces)
@@ -345,6 +366,7 @@ class LinkModel:
                 part = reach[p.start - a : p.start - a + p.n]
                 np.minimum(part, p.reach_m[i][0], out=part)
         blk = _Block(a, pieces, coded.tolist(), timed, coded, ranged, table, reach)
+        blk.failure = failure
         while len(self._blocks) >= self._cache_blocks:
             del self._blocks[next(iter(self._blocks))]
         self._blocks[k] = blk

@@ -63,11 +63,26 @@ def scenario_strategies(arg: str | None, scenario: Scenario) -> list[Any]:
     return names
 
 
-def add_common(
-    p: argparse.ArgumentParser, strategy_help: str = "zero|hold|estimate|blend|drop|all"
-) -> None:
+class StrategiesHelp(str):
+    """A help text whose ``{strategies}`` is every installed loss strategy, looked up when the
+    help is shown (argparse formats it with ``%``), not each time the parser is built."""
+
+    __slots__ = ()
+
+    def __mod__(self, params: Any) -> str:
+        names = ", ".join(all_strategies()).replace("%", "%%")
+        return str(str(self).replace("{strategies}", names) % params)
+
+
+def add_common(p: argparse.ArgumentParser) -> None:
     """The scenario file, ``--strategy``, ``--seed`` and ``--epochs``."""
     p.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO, help="scenario TOML file")
-    p.add_argument("--strategy", help=strategy_help)
+    p.add_argument(
+        "--strategy",
+        help=StrategiesHelp(
+            "the scenario's (default), one of {strategies}, a 'package.module:name', "
+            "a comma list of them, or all"
+        ),
+    )
     p.add_argument("--seed", type=int, help="overrides the scenario's seed")
     p.add_argument("--epochs", type=int, help="overrides the scenario's epochs")

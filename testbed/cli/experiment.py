@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import itertools
 import time
 from pathlib import Path
 from typing import Any
@@ -18,16 +19,27 @@ from rich.progress import (
 )
 from rich.table import Table
 
-from formation.errors import TestbedError
+from formation.errors import SweepError, TestbedError
 from formation.scenario import Scenario
-from testbed.cli.arguments import DEFAULT_SCENARIO, load_checked, parse_strategies
+from testbed.cli.arguments import (
+    DEFAULT_SCENARIO,
+    StrategiesHelp,
+    load_checked,
+    parse_strategies,
+)
 from testbed.cli.tables import print_table
 from testbed.experiments.capacity import CapacitySpec, run_capacity, run_capacity_real
 from testbed.experiments.capacity import write_outputs as write_capacity
 from testbed.experiments.executors import SCHEDULER_FORMS, executor_for
-from testbed.experiments.loss_variants import LOSS_MODELS
+from testbed.experiments.loss_variants import LOSS_MODELS, is_parameter, with_parameter
 from testbed.experiments.paper_run import run_paper
-from testbed.experiments.sweep import SweepSpec, critical_table, loss_grid, run_sweep
+from testbed.experiments.sweep import (
+    SweepSpec,
+    critical_table,
+    loss_grid,
+    run_sweep,
+    value_grid,
+)
 from testbed.experiments.wireless import (
     WirelessSpec,
     run_wireless,
@@ -37,6 +49,7 @@ from testbed.experiments.wireless import (
 
 EXPERIMENTS = ("paper", "wireless", "capacity")
 DEFAULT_TOPOLOGIES = ("ring8", "grid20", "octahedron3d")
+LOSS = "0:1:0.05"  # sweep's default grid of loss rates
 CHAPTER_STRATEGIES = ("zero", "hold", "estimate", "blend")
 
 
@@ -150,17 +163,40 @@ def _strategy_list(arg: str | None) -> tuple[Any, ...]:
     return tuple(parse_strategies(arg, CHAPTER_STRATEGIES, {"chapter": CHAPTER_STRATEGIES}))
 
 
+def _variants(args: argparse.Namespace) -> tuple[tuple[str, ...], tuple[float, ...]]:
+    """The loss models and the grid: ``--vary TAG.PARAM=VALUES``, else ``--loss`` (and
+    ``--burst``) over the built-in Bernoulli (and Gilbert-Elliott) loss."""
+    if args.vary is None:
+        return (LOSS_MODELS if args.burst else ("bernoulli",)), loss_grid(args.loss or LOSS)
+    name, _, values = args.vary.partition("=")
+    tag, _, param = name.rpartition(".")
+    if not tag or not param or not values:
+        raise SweepError(
+            f"--vary {args.vary!r}", "expected TAG.PARAM=VALUES, e.g. jammer.length=0:30:5"
+        )
+    if args.loss is not None or args.burst:
+        raise SweepError(
+            f"--vary {args.vary!r}",
+            "it sets the link models itself: give it without --loss and --burst",
+        )
+    return (name,), value_grid(values, "--vary")
+
+
 def cmd_sweep(args: argparse.Namespace) -> int:
     console = Console(stderr=True)
     executor = executor_for(args.scheduler, args.jobs)
     topologies = _topologies(args)
     first = topologies[0][1].seed if args.seed is None else args.seed
+    models, losses = _variants(args)
+    for (_, scenario), model, value in itertools.product(topologies, models, losses):
+        if is_parameter(model):  # every topology has the model, and takes every value
+            with_parameter(scenario, model, value)
     spec = SweepSpec(
         topologies=tuple(topologies),
-        losses=loss_grid(args.loss),
+        losses=losses,
         strategies=_strategy_list(args.strategy),
         seeds=tuple(range(first, first + args.seeds)),
-        models=LOSS_MODELS if args.burst else ("bernoulli",),
+        models=models,
         epochs=args.epochs,
         threshold_m=args.threshold,
         burst_epochs=args.burst_epochs,
@@ -229,16 +265,35 @@ def register(sub: Any) -> None:
     )
     p.set_defaults(func=cmd_experiment)
 
-    p = sub.add_parser("sweep", help="critical loss rate per strategy and topology")
+    p = sub.add_parser(
+        "sweep",
+        help="critical loss rate (or link model parameter) per strategy and topology",
+        description="By default every formation link of each topology is put under the "
+        "built-in Bernoulli loss (--burst: also Gilbert-Elliott) at each rate of --loss, "
+        "replacing the scenario's own formation link models. --vary TAG.PARAM=VALUES keeps "
+        "the scenario's link models and sets PARAM of every model TAG in it (yours or ours) "
+        "to each value instead.",
+    )
     p.add_argument(
         "scenario", nargs="?", default=DEFAULT_SCENARIO, help="scenario TOML (the first topology)"
     )
     p.add_argument(
-        "--loss", default="0:1:0.05", help="START:STOP:STEP or a comma list (default 0:1:0.05)"
+        "--loss",
+        help=f"START:STOP:STEP or a comma list of loss rates, replacing the formation links' "
+        f"models (default {LOSS})",
+    )
+    p.add_argument(
+        "--vary",
+        metavar="TAG.PARAM=VALUES",
+        help="keep the scenario's link models and set PARAM of each model TAG to every value "
+        "(START:STOP:STEP or a comma list), e.g. jammer.length=0:30:5 or bernoulli.p_loss=0,0.2",
     )
     p.add_argument(
         "--strategy",
-        help="chapter (zero,hold,estimate,blend; default), all (the five) or a comma list",
+        help=StrategiesHelp(
+            "chapter (zero,hold,estimate,blend; default), all (every installed one: "
+            "{strategies}) or a comma list"
+        ),
     )
     p.add_argument("--seeds", type=int, default=50, help="seeds per cell (default 50)")
     p.add_argument("--seed", type=int, help="first seed (default: the scenario's)")

@@ -231,6 +231,7 @@ def client_session_config(endpoint: str, config_file: Path | None = None) -> zen
     conf = zenoh.Config.from_file(str(config_file)) if config_file else zenoh.Config()
     conf.insert_json5("mode", json.dumps("client"))
     conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("transport/shared_memory/enabled", "false")  # as every service's
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
     return conf
 

@@ -166,7 +166,7 @@ def _blend_claim(r: PaperResults) -> Claim:
         if steady < 1
         else "not held"
     )
-    alpha = r.scenario.strategy.alpha
+    alpha = r.scenario.strategy.params_of("blend").alpha
     return Claim(
         "chapter, §7 text",
         f"`blend` (α = {alpha:g}) lowers the estimation (substitution) error covariance",

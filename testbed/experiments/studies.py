@@ -303,7 +303,7 @@ def alpha_study(
     plan_long = plan_batch(paper, seeds, long_epochs)
     plan_lossy = plan_batch(lossy, seeds, lossy_epochs)
     for alpha in a.tolist():
-        strat = {"name": "blend", "alpha": alpha}
+        strat = {"name": "blend", "params": {"blend": {"alpha": alpha}}}
         res = run_batch(
             _rebase(plan_long, paper.with_overrides(strategy=strat)), "blend", rigidity=False
         )

@@ -3,7 +3,9 @@
 The question the chapter leaves open (docs/model.md §8): the largest loss rate at which a strategy still
 keeps the formation. A **cell** is one topology × loss model × loss rate × strategy × seed run of
 ``epochs`` epochs with every formation link under the same loss (the scenario's own formation
-network is replaced; its control links are kept). A cell **keeps the formation** when its final
+network is replaced; its control links are kept). A loss model named ``tag.param`` instead keeps
+the scenario's network and sets ``param`` of its link models ``tag`` to each value of the grid
+(``formation sweep --vary jammer.length=0:30:5``; ``loss_variants.with_parameter``). A cell **keeps the formation** when its final
 shape error (docs/model.md §7; the team's at the last epoch with an agent in it, as a run's
 summary takes it: :func:`analysis.final_value`) is under ``threshold_m``; a loss rate is kept when
 ≥ 95 % of the seeds keep it; the **critical loss rate** is the largest grid rate up to which every
@@ -42,7 +44,7 @@ from formation.plugin_api import all_strategies
 from formation.scenario import Scenario, StrategyName
 from testbed.experiments.executors import Executor, LocalPool, seeds_per_task
 from testbed.experiments.grid import KEEP_FRACTION, Variant, critical, over_grid, run_grid
-from testbed.experiments.loss_variants import LOSS_MODELS, with_loss
+from testbed.experiments.loss_variants import LOSS_MODELS, is_parameter, with_loss
 from testbed.experiments.markdown import table
 from testbed.experiments.plots import plot_phase
 from testbed.sim.batch import BatchResult
@@ -62,25 +64,33 @@ COLUMNS = (
 Key = tuple[str, str, str, str, int, int]  # topology, model, loss, strategy, seed, epochs
 
 
-def loss_grid(text: str) -> tuple[float, ...]:
-    """``"0:1:0.05"`` → 0, 0.05, …, 1 (both ends); ``"0.1,0.3"`` → those rates."""
+def value_grid(text: str, flag: str = "--loss") -> tuple[float, ...]:
+    """``"0:1:0.05"`` → 0, 0.05, …, 1 (both ends); ``"0.1,0.3"`` → those values, sorted."""
     try:
         if ":" in text:
             start, stop, step = (float(v) for v in text.split(":"))
             if step <= 0:
-                raise SweepError(f"--loss {text!r}", f"step = {step:g}; expected > 0")
+                raise SweepError(f"{flag} {text!r}", f"step = {step:g}; expected > 0")
             count = math.floor((stop - start) / step + 1e-9) + 1
             values = [round(start + i * step, 10) for i in range(count)]
         else:
             values = [float(v) for v in text.split(",") if v.strip()]
     except ValueError:
         raise SweepError(
-            f"--loss {text!r}", "expected START:STOP:STEP or a comma list of rates"
+            f"{flag} {text!r}", "expected START:STOP:STEP or a comma list of values"
         ) from None
-    bad = [v for v in values if not 0.0 <= v <= 1.0]
-    if not values or bad:
-        raise SweepError(f"--loss {text!r}", f"rates must be in [0, 1], got {bad or 'none'}")
+    if not values or not all(math.isfinite(v) for v in values):
+        raise SweepError(f"{flag} {text!r}", f"expected finite values, got {values or 'none'}")
     return tuple(sorted(set(values)))
+
+
+def loss_grid(text: str) -> tuple[float, ...]:
+    """:func:`value_grid` of loss rates, each in [0, 1]."""
+    values = value_grid(text)
+    bad = [v for v in values if not 0.0 <= v <= 1.0]
+    if bad:
+        raise SweepError(f"--loss {text!r}", f"rates must be in [0, 1], got {bad}")
+    return values
 
 
 def loss_label(rate: float) -> str:
@@ -429,6 +439,19 @@ def success_table(summary: SweepSummary) -> str:
     return "\n".join(out) + "\n"
 
 
+def _variants_said(spec: SweepSpec) -> str:
+    """What the rows' loss models are, for the tables' heading."""
+    if all(is_parameter(m) for m in spec.models):
+        return (
+            "the scenario's own link models, the parameter named in the loss-model column "
+            "set to each value of the 'loss' column"
+        )
+    return (
+        "every formation link under the same loss; Gilbert–Elliott at equal mean rate with "
+        f"mean burst {spec.burst_epochs:g} epochs"
+    )
+
+
 def write_tables(summary: SweepSummary, out_dir: Path) -> None:
     """``critical.md`` (the answer), ``success.md`` (the fractions) and ``phase.png``."""
     spec = summary.spec
@@ -437,8 +460,7 @@ def write_tables(summary: SweepSummary, out_dir: Path) -> None:
         "# Critical loss rate per strategy\n\n"
         f"Largest loss rate up to which the final shape error after {spec.epochs} epochs is under "
         f"{spec.threshold_m:g} m in ≥ {KEEP_FRACTION:.0%} of {len(spec.seeds)} seeds "
-        f"(seeds {spec.seeds[0]}–{spec.seeds[-1]}); every formation link under the same loss; "
-        f"Gilbert–Elliott at equal mean rate with mean burst {spec.burst_epochs:g} epochs.\n"
+        f"(seeds {spec.seeds[0]}–{spec.seeds[-1]}); {_variants_said(spec)}.\n"
         f"Topologies: {topo}.\n\n" + critical_table(summary)
     )
     (out_dir / "critical.md").write_text(text)
@@ -470,5 +492,6 @@ __all__ = [
     "run_sweep",
     "success_table",
     "sweep_summary",
+    "value_grid",
     "write_tables",
 ]

@@ -137,8 +137,8 @@ class Supervisor:
             c = inc.child
             if code == PLUGIN_EXIT:  # the user's code failed: no restart would mend it
                 # it sent its epoch-k state, then failed stepping: k + 1 is the first missing;
-                # netem's epoch is the leader's, whose estimates it carries
-                seen = int(first_missing("leader" if name in ESSENTIAL else name))
+                # netem failed on a packet of the newest epoch any agent sent a state of
+                seen = int(first_missing(name if name not in ESSENTIAL[:2] else "leader"))
                 raise RunEnded(plugin_reason(c), max(seen - 1, 0), "")
             if name in ESSENTIAL:
                 what = "the Zenoh router" if name == "router" else name

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import re
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -36,9 +37,15 @@ from testbed.runtime.processes import ProcessGroup, free_port, wait_for_port
 HOST = "127.0.0.1"
 
 
+def _name_part(text: str) -> str:
+    """``text`` as part of a folder's name and a Zenoh key: ``pkg.mod:name`` → ``pkg.mod.name``,
+    any other character outside letters, digits, ``._+-`` → ``_``."""
+    return re.sub(r"[^A-Za-z0-9._+-]", "_", text.replace(":", "."))
+
+
 def make_run_id(scenario: Scenario, strategy: str, seed: int) -> str:
     stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S%f")
-    return f"{scenario.name}-{strategy}-s{seed}-{stamp}"
+    return f"{_name_part(scenario.name)}-{_name_part(strategy)}-s{seed}-{stamp}"
 
 
 def _pools(n: int, pool: int | None) -> list[list[int]]:
@@ -262,11 +269,14 @@ class LocalRun:
             self._start(_process_name(ids), "agent", *self._args(*scenario, "--id", ident))
 
     def _first_missing(self, name: str) -> int:
-        """The first epoch process ``name`` has not done: an estimate, or an agent's state."""
+        """The first epoch process ``name`` has not done: an estimate, an agent's state, or
+        for netem the first no agent got to (its packets carry every epoch's states)."""
         observer = self.observer
         with observer.lock:
             if name == "leader":
                 return len(observer.estimated)
+            if name == "netem":
+                return first_missing_epoch(np.isfinite(observer.positions[:, :, 0]).any(axis=1))
             return min(
                 first_missing_epoch(np.isfinite(observer.positions[:, i - 1, 0]))
                 for i in _ids_of(name)

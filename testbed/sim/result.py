@@ -66,9 +66,11 @@ class SimResult(RunData):
         a late packet, nor its sequence number, delay or link state: −1, NaN, empty)."""
         from analysis import frames  # pandas loads here
 
-        return frames(replace(self, decisions=self._decisions()))
+        return frames(replace(self, decisions=self.decisions_made()))
 
-    def _decisions(self) -> Decisions:
+    def decisions_made(self) -> Decisions:
+        """netem's record as the model decides it: a row per packet of every link class
+        between agents taking part (no sequence number, delay, model or link state)."""
         s = self.scenario
         on = s.membership.present[: len(self.delivered)]
         src, dst = s.directed_links[:, 0], s.directed_links[:, 1]

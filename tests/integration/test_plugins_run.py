@@ -128,8 +128,8 @@ def test_a_strategy_failing_mid_run_ends_it_keeping_the_recording_and_saying_why
     assert "a plug-in failed: agent/" in report and "failed at epoch 6" in report
 
 
-def test_a_link_model_failing_in_netem_ends_the_run_naming_it_and_its_link(
-    paper_path: Path, tmp_path: Path, runs_dir: Path
+def test_a_link_model_failing_in_netem_ends_the_run_at_its_epoch_keeping_the_recording(
+    paper_path: Path, tmp_path: Path, runs_dir: Path, bad_plugins_importable: None
 ) -> None:
     scenario = tmp_path / "exploding.toml"
     text = paper_path.read_text().replace(
@@ -144,11 +144,19 @@ def test_a_link_model_failing_in_netem_ends_the_run_naming_it_and_its_link(
     assert proc.returncode == 1, proc.stderr
     said = " ".join(proc.stderr.split())
     assert "Traceback" not in proc.stderr, proc.stderr
-    assert "formation run: error: the run ended at epoch " in said, said
+    assert "formation run: error: the run ended at epoch 12: " in said, said
     assert (
         "netem: link model plug-in 'explodes' failed at epoch 12 (link 1->2): "
         "raised ValueError: the user's layer broke" in said
     ), said
+    # as for a strategy: the epochs before the failure are recorded, and equal the simulator's
+    (run_dir,) = runs_dir.iterdir()
+    assert f"what was recorded is kept in {run_dir}" in said, said
+    run = read_run(run_dir / "run.mcap")
+    passing = tmp_path / "passing.toml"  # the layer passes every packet before it fails
+    passing.write_text(text.replace('{ model = "bad_plugins:Explodes", at_epoch = 12 }', ""))
+    sim = simulate(Scenario.from_file(passing).with_overrides(epochs=12))
+    np.testing.assert_array_equal(run.positions[:13], sim.positions)  # x[0..12]
 
 
 def test_formation_plugins_lists_ours_and_the_examples() -> None:
@@ -159,10 +167,12 @@ def test_formation_plugins_lists_ours_and_the_examples() -> None:
     assert proc.returncode == 0, proc.stderr
     rows = {(r["kind"], r["name"]): r for r in __import__("json").loads(proc.stdout)}
     assert rows["strategy", "extrapolate"]["package"].startswith("formation-plugins-example")
-    assert rows["strategy", "extrapolate"]["parameters"] == ["horizon_epochs: int = 20"]
-    assert rows["strategy", "blend"]["parameters"] == ["alpha: float = 0.5"]
+    assert rows["strategy", "extrapolate"]["parameters"] == ["horizon_epochs: int = 20 (>= 1)"]
+    assert rows["strategy", "blend"]["parameters"] == ["alpha: float = 0.5 (> 0.0, <= 1.0)"]
     assert rows["controller", "saturated"]["dynamics"] == ["single", "double", "unicycle"]
-    assert rows["link_model", "jammer"]["parameters"][0] == "links: tuple[tuple[int, int], ...]"
+    assert rows["link_model", "jammer"]["parameters"][0] == (
+        "links: tuple[tuple[int, int], ...] (length >= 1)"
+    )
     assert rows["link_model", "bernoulli"]["package"].startswith("formation-testbed")
 
 

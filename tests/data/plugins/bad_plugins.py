@@ -1,4 +1,5 @@
-"""Plug-ins that go wrong, each in its own way, for the tests of how the testbed refuses them.
+"""Plug-ins that go wrong, each in its own way, for the tests of how the testbed refuses them,
+and a few that test what a plug-in may rely on (its own defaults, the epoch).
 
 On ``PYTHONPATH`` (the tests put ``tests/data/plugins`` there), a scenario names them as
 ``"bad_plugins:NAME"``.
@@ -89,3 +90,47 @@ class ExplodingLayer(Layer[Explodes]):
         if (epochs >= self.spec.at_epoch).any():
             raise ValueError("the user's layer broke")
         return LayerOutput(drop=np.zeros((keys.n_links, epochs.shape[0]), dtype=bool)), None
+
+
+class OwnAlpha(BaseModel):
+    """A parameter named as blend's α, with a default of its own."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    alpha: float = Field(0.9, gt=0.0, le=1.0)
+
+
+def scaled_hold(inputs: StrategyInputs, params: OwnAlpha) -> Fill:
+    fill = _hold(inputs)
+    return fill._replace(values=params.alpha * fill.values)
+
+
+OWN_ALPHA = LossStrategy(scaled_hold, params=OwnAlpha)  # not shadowed by blend's alpha
+
+
+def late(inputs: ControlInputs, params: Any) -> np.ndarray:
+    """Still until epoch 5, then the displacement law: a controller that varies in time."""
+    x = inputs
+    u = np.zeros((x.n, x.relative.shape[1]))
+    if x.epoch < 5:
+        return u
+    np.add.at(u, x.receivers, np.where(x.used[:, None], x.relative - x.desired, 0.0))
+    return -x.epsilon * u
+
+
+LATE = ControlLaw(late)
+
+
+class NanDelay(Spec):
+    """A link model whose delay is NaN from ``at_epoch`` on."""
+
+    layer: ClassVar[str] = "bad_plugins:NanDelayLayer"
+    model: Literal["nan_delay"] = "nan_delay"
+    at_epoch: int = Field(12, ge=8)
+
+
+class NanDelayLayer(Layer[NanDelay]):
+    def run(self, keys: Keys, epochs: np.ndarray, carry: Any) -> tuple[LayerOutput, Any]:
+        shape = (keys.n_links, epochs.shape[0])
+        delay_ms = np.where(epochs >= self.spec.at_epoch, np.nan, 0.0)[None, :].repeat(shape[0], 0)
+        zeros = np.zeros(shape, dtype=np.int64)
+        return LayerOutput(delay_epochs=zeros, delay_ms=delay_ms), None

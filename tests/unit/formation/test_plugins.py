@@ -15,7 +15,7 @@ import pytest
 
 from formation.errors import PluginFailure, ScenarioError
 from formation.linkmodels import kind_code_of, spec_class
-from formation.plugin_api import all_strategies, control_law, loss_strategy
+from formation.plugin_api import DYNAMICS, all_strategies, control_law, loss_strategy
 from formation.plugin_registry import find, names, registered
 from formation.scenario import Scenario, load_dict
 
@@ -86,12 +86,15 @@ def test_a_strategys_parameters_are_checked_by_its_own_model(paper: Scenario) ->
         paper, strategy={"name": "hold", "params": {"extrapolate": {"horizon_epochs": 0}}}
     )
     with pytest.raises(ScenarioError, match=(
-        r"^paper.toml: strategy.params.extrapolate = \{'horizon_epochs': 0\}; loss strategy plug-in "
-        r"'extrapolate': parameter horizon_epochs = 0; Input should be greater than or equal to 1$"
+        r"^paper.toml: strategy.params.extrapolate.horizon_epochs = 0; loss strategy plug-in "
+        r"'extrapolate': Input should be greater than or equal to 1$"
     )):  # fmt: skip
         load_dict(data, source="paper.toml")
     data = paper_dict(paper, strategy={"name": "hold", "params": {"extrapolate": {"horizon": 3}}})
-    with pytest.raises(ScenarioError, match=r"parameter horizon = 3; unknown parameter$"):
+    with pytest.raises(ScenarioError, match=(
+        r"^paper.toml: strategy.params.extrapolate.horizon = 3; loss strategy plug-in "
+        r"'extrapolate': unknown parameter$"
+    )):  # fmt: skip
         load_dict(data, source="paper.toml")
     data = paper_dict(paper, strategy={"name": "hold", "params": {"nope": {}}})
     with pytest.raises(
@@ -100,15 +103,42 @@ def test_a_strategys_parameters_are_checked_by_its_own_model(paper: Scenario) ->
         load_dict(data, source="paper.toml")
 
 
-def test_blend_takes_alpha_from_the_section_unless_its_parameters_say(paper: Scenario) -> None:
+def test_blend_takes_alpha_from_its_table_or_the_sections_older_spelling(paper: Scenario) -> None:
     s = load_dict(paper_dict(paper, strategy={"name": "blend", "alpha": 0.3}))
     assert s.strategy.params_of("blend").alpha == 0.3
-    s = load_dict(
-        paper_dict(
-            paper, strategy={"name": "blend", "alpha": 0.3, "params": {"blend": {"alpha": 0.9}}}
-        )
-    )
-    assert s.strategy.params_of("blend").alpha == 0.9
+    assert s.strategy.sources_of("blend") == {"alpha": "scenario"}
+    both = {"name": "blend", "alpha": 0.3, "params": {"blend": {"alpha": 0.9}}}
+    assert load_dict(paper_dict(paper, strategy=both)).strategy.params_of("blend").alpha == 0.9
+    s = load_dict(paper_dict(paper, strategy={"name": "blend"}))
+    assert s.strategy.params_of("blend").alpha == 0.5
+    assert s.strategy.sources_of("blend") == {"alpha": "default"}
+
+
+def test_a_plugin_parameter_named_like_blends_alpha_keeps_its_own_default(
+    paper: Scenario,
+) -> None:
+    name = "bad_plugins:OWN_ALPHA"
+    s = load_dict(paper_dict(paper, strategy={"name": name, "alpha": 0.5}))
+    assert s.strategy.params_of(name).alpha == 0.9  # not [strategy].alpha, which is blend's
+    assert s.strategy.sources_of(name) == {"alpha": "default"}
+    s = load_dict(paper_dict(paper, strategy={"name": name, "params": {name: {"alpha": 0.2}}}))
+    assert s.strategy.params_of(name).alpha == 0.2
+    assert s.strategy.sources_of(name) == {"alpha": "scenario"}
+
+
+def test_a_link_models_parameter_error_names_the_plugin(paper: Scenario) -> None:
+    network = {"formation_default": [{"model": "bernoulli", "p_loss": 1.5}]}
+    with pytest.raises(ScenarioError, match=(
+        r"^paper.toml: network.formation_default\[0\].p_loss = 1.5; link model plug-in "
+        r"'bernoulli': Input should be less than or equal to 1$"
+    )):  # fmt: skip
+        load_dict(paper_dict(paper, network=network), source="paper.toml")
+    network = {"formation_default": [{"model": "bad_plugins:Explodes", "at_epoch": 2}]}
+    with pytest.raises(ScenarioError, match=(
+        r"^paper.toml: network.formation_default\[0\].at_epoch = 2; link model plug-in "
+        r"'bad_plugins:Explodes': Input should be greater than or equal to 8$"
+    )):  # fmt: skip
+        load_dict(paper_dict(paper, network=network), source="paper.toml")
 
 
 def test_a_bad_controller_is_refused(paper: Scenario) -> None:
@@ -120,7 +150,8 @@ def test_a_bad_controller_is_refused(paper: Scenario) -> None:
         ({**control, "controller": "bad_plugins:INFINITE"}, "control.controller",
          r"on a probe of 2 agents: returned a command that is not finite"),
         ({**control, "controller": "saturated", "params": {"saturated": {"max_step_m": -1}}},
-         "control.params.saturated", r"parameter max_step_m = -1; Input should be greater than 0"),
+         "control.params.saturated.max_step_m",
+         r"max_step_m = -1; controller plug-in 'saturated': Input should be greater than 0"),
         ({**control, "params": {"nope": {}}}, "control.params.nope", r"no controller is registered"),
     ]  # fmt: skip
     for section, field, problem in cases:
@@ -133,7 +164,8 @@ def test_a_bad_link_model_is_refused_naming_its_field(paper: Scenario) -> None:
     jam = {"model": "jammer", "links": [[1, 2]], "length": 5, "every": 2}
     data = paper_dict(paper, network={"formation_default": [jam]})
     with pytest.raises(ScenarioError, match=(
-        r"^paper.toml: network.formation_default\[0\] = .*; length = 5 is longer than every = 2$"
+        r"^paper.toml: network.formation_default\[0\] = .*; link model plug-in 'jammer': "
+        r"length = 5 is longer than every = 2$"
     )):  # fmt: skip
         load_dict(data, source="paper.toml")
     data = paper_dict(paper, network={"formation_default": [{"model": "jamer"}]})
@@ -180,3 +212,11 @@ def test_the_checked_call_keeps_the_builtins_numbers() -> None:
                         np.array([1, 2]))  # fmt: skip
     np.testing.assert_array_equal(sub.values, [[0.1, 0.2], [0.0, 0.0]])
     assert sub.substituted.tolist() == [True, False]
+
+
+def test_model_md_describes_every_dynamics_as_implemented() -> None:
+    text = (ROOT / "docs" / "model.md").read_text()
+    section = text[text.index("\n## 3.") : text.index("\n## 4.")]  # §3, the controller
+    assert "not implemented" not in section
+    for dynamics in DYNAMICS:  # what a controller may list, each in the text with its code
+        assert f"step_{dynamics}" in section, dynamics

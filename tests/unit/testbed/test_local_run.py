@@ -6,13 +6,14 @@ A stand-in child (``python -m timeit`` sleeping) takes the services' place; no n
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
 
 from formation.errors import RunEnded
 from formation.scenario import Scenario
-from testbed.runtime.launcher import LocalRun, RunHooks
+from testbed.runtime.launcher import LocalRun, RunHooks, make_run_id
 
 SLEEP = "import time; time.sleep(60)"
 
@@ -75,3 +76,9 @@ def test_a_plug_in_ending_the_run_while_it_is_followed_names_the_run_dir(
         run.wait()
     assert ended.value.run_dir == str(run.run_dir)
     assert run.group.children[0].proc.poll() is not None
+
+
+def test_a_strategy_named_by_import_path_makes_a_plain_folder_name(paper: Scenario) -> None:
+    run_id = make_run_id(paper.with_overrides(name="my run/1"), "my_pkg.strategies:FANCY", 3)
+    assert run_id.startswith("my_run_1-my_pkg.strategies.FANCY-s3-")
+    assert re.fullmatch(r"[A-Za-z0-9._+-]+", run_id), run_id

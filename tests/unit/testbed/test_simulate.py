@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -105,3 +106,41 @@ def test_unknown_strategy_is_named_by_every_command() -> None:
         r"a 'package.module:name', or all$",
     ):
         parse_strategies("zero,guess", ["estimate"])
+
+
+def test_a_controller_that_varies_in_time_gets_the_epoch(
+    paper_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2] / "data" / "plugins"))
+    paper = Scenario.from_file(paper_path)
+    late = {**paper.control.model_dump(), "controller": "bad_plugins:LATE"}  # still until epoch 5
+    steps = np.diff(simulate(paper.with_overrides(control=late, epochs=8)).positions, axis=0)
+    spread = np.ptp(steps, axis=1).max(axis=1)  # (epochs,) how the agents' steps differ [m]
+    assert (spread[:5] < 1e-12).all()  # the reference's motion only: a rigid translation
+    assert (spread[5:] > 1e-3).all()
+
+
+def test_simulate_json_with_decisions_gives_each_epochs_drops_control_links_too(
+    paper_path: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from testbed.cli import main
+
+    lossy = tmp_path / "lossy_control.toml"  # every control link lossy, both ways
+    control = '[network]\ncontrol_default = [{ model = "bernoulli", p_loss = 0.4 }]\n\n'
+    text = paper_path.read_text().replace("[[network.links]]", control + "[[network.links]]", 1)
+    lossy.write_text(text)
+    assert main(["simulate", str(lossy), "--json", "--epochs", "10"]) == 0
+    assert "decisions" not in json.loads(capsys.readouterr().out)[0]  # compact by default
+    assert main(["simulate", str(lossy), "--json", "--decisions", "--epochs", "10"]) == 0
+    (summary,) = json.loads(capsys.readouterr().out)
+    sim = simulate(Scenario.from_file(lossy).with_overrides(epochs=10))
+    epochs = summary["decisions"]
+    assert [e["epoch"] for e in epochs] == list(range(10))
+    for k, e in enumerate(epochs):
+        assert e["dropped"]["report"] == (np.flatnonzero(~sim.report_ok[k]) + 1).tolist()
+        assert e["dropped"]["estimate"] == (np.flatnonzero(~sim.estimate_ok[k]) + 1).tolist()
+        assert e["passed"]["report"] == int(sim.report_ok[k].sum())
+        lost = sim.scenario.directed_links[~sim.delivered[k]].tolist()
+        assert sorted(e["dropped"]["formation"]) == sorted(lost)
+    assert sum(len(e["dropped"]["report"]) for e in epochs) > 5  # the control links did drop
+    assert main(["simulate", str(lossy), "--decisions"]) == 1  # only with --json
