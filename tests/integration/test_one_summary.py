@@ -1,5 +1,5 @@
-"""One record, one summary (issue 25 §2): ``formation run``'s summary, its ``summary.json`` and
-``formation simulate`` give the same final errors of the team to the last bit on events.toml.
+"""One record, one summary: ``formation run``'s summary, its ``summary.json`` and ``formation
+simulate`` agree to the last bit on events.toml, ``summary.json`` with the simulator's in every field.
 
 The run is real processes on loopback (the launcher ``formation run`` calls, with the recorder),
 its report written as ``formation run`` writes it; ``formation simulate --json`` runs as its own
@@ -16,11 +16,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from analysis import summarise
 from formation.scenario import Scenario
 from recorder.reporting.report import write_report
 from testbed.runtime.launcher import launch
 from testbed.sim.batch import run_batch
 from testbed.sim.plan import plan_batch
+from testbed.sim.simulate import simulate
+from testkit.summaries import summary_differences
 
 from .conftest import pid_alive, run_pids
 
@@ -29,7 +32,7 @@ EVENTS = Path(__file__).resolve().parents[2] / "scenarios" / "events.toml"
 FINAL = ("final_formation_error_m", "final_shape_error_m")
 
 
-def test_run_summary_json_and_simulate_give_the_same_final_errors_to_the_bit(
+def test_run_summary_json_and_simulate_give_the_same_summary_to_the_bit(
     runs_dir: Path, seed: int
 ) -> None:
     scenario = Scenario.from_file(EVENTS)
@@ -43,6 +46,12 @@ def test_run_summary_json_and_simulate_give_the_same_final_errors_to_the_bit(
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     (simulated,) = json.loads(proc.stdout)
+    assert (
+        summary_differences(recorded, summarise(simulate(scenario, "estimate", seed).record()))
+        == []
+    )
+    assert set(simulated) - set(recorded) == {"scenario_file", "fallbacks"}  # the command's own
+    assert all(repr(simulated[k]) == repr(recorded[k]) for k in set(simulated) & set(recorded))
     ran = outcome.summary()
     assert not scenario.membership.published[-1].all(), "agent 5 has left: the team's errors"
     for name in FINAL:
