@@ -253,21 +253,20 @@ def run_value(spec: ValueSpec, log: Callable[[str], None] = print) -> pd.DataFra
 def _cells(
     variants: Sequence[Variant], seeds: Sequence[int], strategy: StrategyName, controller: str
 ) -> pd.DataFrame:
-    """One strategy's cells; where the law diverges in a batch, each member runs alone so that
-    only the diverged ones count as such."""
+    """One strategy's cells. Where the law diverges in a batch (the command stops being
+    finite), each variant runs alone, then each of its seeds, so that only the members that
+    diverged count as such."""
     measure = judge(controller)
     try:
         return run_grid(variants, seeds, [strategy], measure, planned=healthy_shares)
     except PluginFailure:
-        pass
-    rows = []
-    for v in variants:
-        for seed in seeds:
-            try:
-                rows.append(run_grid([v], [seed], [strategy], measure, planned=healthy_shares))
-            except PluginFailure:
-                rows.append(_diverged(v, seed, strategy))
-    return pd.concat(rows, ignore_index=True)
+        if len(variants) == 1 and len(seeds) == 1:
+            return _diverged(variants[0], seeds[0], strategy)
+    if len(variants) > 1:
+        parts = [_cells([v], seeds, strategy, controller) for v in variants]
+    else:
+        parts = [_cells(variants, [seed], strategy, controller) for seed in seeds]
+    return pd.concat(parts, ignore_index=True)
 
 
 def _diverged(v: Variant, seed: int, strategy: StrategyName) -> pd.DataFrame:

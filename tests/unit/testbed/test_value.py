@@ -108,3 +108,17 @@ def test_results_md_opens_with_the_regions_and_their_reasons(
     cells = len(spec.controllers) * len(spec.cases) * len(spec.strategies) * len(spec.seeds)
     assert len((tmp_path / "runs.csv").read_text().splitlines()) == 1 + cells
     np.testing.assert_array_equal(frame["seed"].unique(), spec.seeds)
+
+
+def test_a_run_whose_law_diverges_counts_as_lost_and_only_it() -> None:
+    spec = ValueSpec(
+        Scenario.from_file(PAPER),
+        seeds=(1, 2),
+        strategies=("hold",),
+        cases=(CASES["12 agents, 2–3 down"],),
+        controllers=("distance",),
+    )
+    frame = run_value(spec, log=lambda _: None)  # seed 1 diverges, seed 2 does not
+    assert frame["diverged"].tolist() == [True, False]
+    assert frame["final_error_m"].iloc[0] == np.inf and np.isfinite(frame["final_error_m"].iloc[1])
+    assert frame["kept"].tolist() == [False, False]
