@@ -129,6 +129,7 @@ def reason(row: Row) -> str:
 
 
 def _line(row: Row) -> str:
+    """A row in full: the three strategies' errors, the ratios, the seeds won and why."""
     e = row.errors
     wins = int(np.sum(e["estimate"] < e["drop"]))
     return (
@@ -139,21 +140,57 @@ def _line(row: Row) -> str:
     )
 
 
+def _short(row: Row) -> str:
+    """A row in one line: the ratios and what drop left."""
+    said = f"rigid {row.rigid_share:.0%}, connected {row.connected_share:.0%}"
+    if row.fallbacks >= 1:
+        said += f", {row.fallbacks:.0f} fallbacks to hold"
+    return (
+        f"- {row.controller}, {row.case}: drop/estimate {_times(row.ratio('drop'))}; "
+        f"hold/estimate {_times(row.ratio('hold'))} ({said})"
+    )
+
+
+def in_short(by: dict[str, list[Row]], total: int) -> str:
+    """The regions counted, and what the rows of each share, from the numbers."""
+    lines = []
+    pays, worse = by.get("pays", []), by.get("worse", [])
+    if pays:
+        laws = ", ".join(sorted({r.controller for r in pays}))
+        lines.append(
+            f"Estimate beats drop and hold by ≥ {PAYS:g}× in {len(pays)} of {total} rows, all "
+            f"under {laws}; in each the graph drop leaves was rigid in at most "
+            f"{max(r.rigid_share for r in pays):.0%} of epochs and connected in at least "
+            f"{min(r.connected_share for r in pays):.0%}."
+        )
+    as_good = by.get("same", []) + worse
+    if as_good:
+        laws = ", ".join(f"{k} {sum(r.controller == k for r in as_good)}" for k in LAWS)
+        lines.append(f"Drop is as good or better in {len(as_good)} rows ({laws}).")
+    if worse:
+        lines.append(
+            f"Drop is better in {len(worse)}, each where estimate fell back to hold at least "
+            f"{min(r.fallbacks for r in worse):.0f} times per run."
+        )
+    return " ".join(lines)
+
+
 def regions_markdown(all_rows: list[Row]) -> str:
-    """The opening of ``results.md``: the regions, each row with its numbers and its reason."""
+    """The opening of ``results.md``: the regions counted, then each row with its numbers;
+    in full where estimate pays and where drop is better, in one line elsewhere."""
     by: dict[str, list[Row]] = {}
     for r in all_rows:
         by.setdefault(verdict(r), []).append(r)
-    text = []
+    text = [in_short(by, len(all_rows)), ""]
     heads = (
-        ("pays", f"## Where estimate beats drop and hold (both ≥ {PAYS:g}× its error)"),
-        ("modest", "## Where estimate is best, by less"),
-        ("same", f"## Where drop is as good (within {SAME:g}×)"),
-        ("worse", "## Where drop is better"),
+        ("pays", f"## Where estimate beats drop and hold (both ≥ {PAYS:g}× its error)", _line),
+        ("worse", "## Where drop is better", _line),
+        ("modest", "## Where estimate is best, by less", _short),
+        ("same", f"## Where drop is as good (within {SAME:g}×)", _short),
     )
-    for key, head in heads:
+    for key, head, line in heads:
         text += [head, ""]
-        text += [_line(r) for r in by.get(key, [])] or ["- none"]
+        text += [line(r) for r in by.get(key, [])] or ["- none"]
         text.append("")
     return "\n".join(text)
 
@@ -218,8 +255,10 @@ def results_markdown(
             "",
         ]
     if real:
-        header = ["controller", "case", "strategy", "seed", "max abs(Δx)", "recorded", "match"]
-        keys = ("controller", "case", "strategy", "seed", "max_diff", "recorded_diff", "match")
+        header = ["region", "controller", "case", "strategy", "seed", "max abs(Δx)", "recorded"]
+        header.append("match")
+        keys = ["region", "controller", "case", "strategy", "seed", "max_diff", "recorded_diff"]
+        keys.append("match")
         lines += [
             "## Real-process runs (lockstep, recorded) against the simulator",
             "",
