@@ -3,7 +3,8 @@
 Grouped bars, one panel per controller, one colour per strategy (:func:`strategy_colour`,
 Okabe–Ito: safe for the common colour-vision deficiencies), the bar the mean over the seeds and
 its whisker the standard deviation, on a log axis. A bar equal to an earlier one of its case in
-every seed, bit for bit, is hatched and says so; a strategy that diverged is marked at the top.
+every seed, bit for bit, is hatched and says so; a strategy that diverged is marked at the top;
+the cases where estimate pays, and where drop is better, are named over their bars.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from testbed.experiments.value_report import Row
+from testbed.experiments.value_report import Row, verdict
 
 # Okabe & Ito (2008), "Color Universal Design": distinguishable with any common deficiency.
 OKABE_ITO = {
@@ -25,6 +26,7 @@ OKABE_ITO = {
     "drop": "#CC79A7",  # reddish purple
 }
 PLUGIN_COLOURS = ("#009E73", "#F0E442", "#000000")  # bluish green, yellow, black
+VERDICTS = {"pays": "estimate\npays", "worse": "drop\nbetter"}  # the regions named over a case
 _META = {"Software": None}  # no version string in the file: same inputs, same bytes
 
 
@@ -73,6 +75,10 @@ def plot_value_map(
                     error_kw={"lw": 0.6, "ecolor": "0.3"},
                     label=s if i == 0 else None,
                 )
+        for i, case in enumerate(cases):
+            said = VERDICTS.get(verdict(mine[case]))
+            if said:
+                ax.text(i, top * 0.25, said, ha="center", fontsize=7, weight="bold")
         ax.axhline(keep_m, color="0.4", lw=0.8, ls="--")
         ax.set_yscale("log")
         ax.set_ylim(1e-3, top)
