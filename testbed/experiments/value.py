@@ -117,9 +117,12 @@ def cases() -> tuple[Case, ...]:
         for b in BURSTS
     ]
     out += [
-        Case("control links", f"2–3 down, agent 3's {d}s lost {CONTROL_LOSS:g}", net)
-        for d in ("estimate", "report")
-        for net in ({**base, "control": _control(d)},)
+        Case(
+            "control links",
+            f"2–3 down, agent 3's {phase}s lost {CONTROL_LOSS:g}",
+            {**base, "control": _control(phase)},
+        )
+        for phase in ("estimate", "report")
     ]
     out += [Case("team", f"{n} agents, 2–3 down", base, shape=f"strip{n}") for n in TEAM_SIZES]
     out += [
