@@ -114,7 +114,10 @@ def test_the_final_errors_are_at_the_last_epoch_with_a_state(simulated: RunData)
 
 def test_the_substitution_covariance_does_not_depend_on_the_rows_order(simulated: RunData) -> None:
     rows = simulated.substitution_errors
-    plain = lambda e: float(np.trace(np.cov(e, rowvar=False)))  # noqa: E731
+
+    def plain(e: np.ndarray) -> float:
+        return float(np.trace(np.cov(e, rowvar=False)))
+
     rng = np.random.default_rng(1)
     shuffled = next(
         p for p in (rows[rng.permutation(len(rows))] for _ in range(50)) if plain(p) != plain(rows)

@@ -56,7 +56,10 @@ def gradient_steps(d0: np.ndarray, edges: np.ndarray, eps: float, steps: int) ->
 def test_the_bound_is_where_the_shape_turns_unstable(paper: Scenario) -> None:
     d0, edges = paper.offsets, paper.edge_array
     bound = distance_epsilon_bound(d0, edges, pinned=1)
-    lengths = lambda x: np.linalg.norm(x[edges[:, 0] - 1] - x[edges[:, 1] - 1], axis=1)  # noqa: E731
+
+    def lengths(x: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(x[edges[:, 0] - 1] - x[edges[:, 1] - 1], axis=1)
+
     below = gradient_steps(d0, edges, 0.98 * bound, 2000)
     above = gradient_steps(d0, edges, 1.02 * bound, 2000)
     np.testing.assert_allclose(lengths(below), lengths(d0), atol=1e-9)
