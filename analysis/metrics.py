@@ -56,10 +56,15 @@ def _sum_last(a: Array) -> Array:
 
 
 def error_statistics(errors: Array) -> tuple[Array, Array, float]:
-    """Mean (d,), covariance (d, d) and covariance trace of error vectors (N, d); NaN when N < 2."""
+    """Mean (d,), covariance (d, d) and covariance trace of error vectors (N, d); NaN when N < 2.
+
+    The rows are summed in one canonical order (sorted by their coordinates), so a recording
+    and the simulator, which list the same rows in different orders, agree to the last bit.
+    """
     d = errors.shape[1] if errors.ndim == 2 else 0
     if errors.shape[0] < 2:
         return np.full(d, np.nan), np.full((d, d), np.nan), float("nan")
+    errors = errors[np.lexsort(errors.T[::-1])]
     mean = errors.mean(axis=0)
     cov = np.atleast_2d(np.cov(errors, rowvar=False))
     return mean, cov, float(np.trace(cov))

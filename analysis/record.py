@@ -54,6 +54,11 @@ class Substitutions:
         out[known] = self.values[known] - positions[self.epoch[known], self.neighbour[known] - 1]
         return out
 
+    def known_errors(self, positions: Array) -> Array:
+        """(N', d) the rows of :meth:`errors` where the neighbour's state is known [m]."""
+        errors = self.errors(positions)
+        return errors[np.isfinite(errors).all(axis=1)]
+
 
 DECISION_COLUMNS = (
     "epoch",

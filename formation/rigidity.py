@@ -13,6 +13,7 @@ import operator
 import numpy as np
 import numpy.typing as npt
 from scipy.sparse import csr_matrix
+from scipy.sparse.linalg import eigsh
 
 from formation.errors import GraphInputError
 from formation.graph import FloatArray, IntArray, as_edge_array, as_positions, check_agent_count
@@ -108,6 +109,42 @@ def sparse_rigidity_matrix(positions: npt.ArrayLike, edges: npt.ArrayLike) -> cs
     cols = np.concatenate([e[:, :1] * d + np.arange(d), e[:, 1:] * d + np.arange(d)], axis=1)
     vals = np.concatenate([diff, -diff], axis=1)
     return csr_matrix((vals.ravel(), (np.repeat(np.arange(m), 2 * d), cols.ravel())), (m, n * d))
+
+
+def distance_epsilon_bound(positions: npt.ArrayLike, edges: npt.ArrayLike, pinned: int) -> float:
+    """The step ``ε`` below which the distance law holds the shape: ``1 / λ_max(RᵀR)_F``.
+
+    The followers' law is gradient descent on ``V = ¼ Σ (||x_i − x_j||² − C_ij²)²`` with step
+    ``ε``, the reference agent ``pinned`` to its trajectory. At the shape the Hessian is
+    ``2 RᵀR`` (``R`` at the offsets); ``(RᵀR)_F`` keeps the followers' rows and columns. The
+    step's linearisation ``I − 2ε (RᵀR)_F`` is stable iff ``ε < 1 / λ_max((RᵀR)_F)``
+    (docs/model.md §3). A lost edge only removes a term from ``RᵀR``, so the bound holds for
+    every healthy subgraph.
+
+    Parameters
+    ----------
+    positions : (n, d) array_like [m], the shape
+    edges : (m, 2) array_like of int, agent ids ``1..n``
+    pinned : the reference agent's id
+
+    Returns
+    -------
+    The bound [1/m²] (inf when no edge moves a follower).
+    """
+    x = as_positions(positions)
+    d = x.shape[1]
+    r = sparse_rigidity_matrix(x, edges)
+    keep = np.ones(r.shape[1], dtype=bool)
+    keep[(pinned - 1) * d : pinned * d] = False
+    followers = (r[:, keep].T @ r[:, keep]).tocsr()
+    if followers.nnz == 0:
+        return float("inf")
+    if followers.shape[0] <= SVD_MAX_COLUMNS:
+        top = float(np.linalg.eigvalsh(followers.toarray())[-1])
+    else:  # Lanczos from a fixed start vector: the same answer every load
+        start = np.ones(followers.shape[0])
+        top = float(eigsh(followers, k=1, which="LA", v0=start, return_eigenvectors=False)[0])
+    return 1.0 / top
 
 
 def batched_ranks(blocks: FloatArray) -> IntArray:

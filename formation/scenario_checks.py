@@ -20,7 +20,12 @@ from formation.errors import PluginError
 from formation.events import event_problems
 from formation.graph import is_connected, max_degree
 from formation.plugin_api import probe_controller, probe_strategy
-from formation.rigidity import SVD_MAX_COLUMNS, expected_rigidity_rank, rigidity_rank
+from formation.rigidity import (
+    SVD_MAX_COLUMNS,
+    distance_epsilon_bound,
+    expected_rigidity_rank,
+    rigidity_rank,
+)
 from formation.rigidity_check import is_rigid
 from formation.robots import robot_problems
 from formation.scenario_sections import LineReference, ScenarioFields, WaypointReference
@@ -113,12 +118,28 @@ def _rigid(s: ScenarioFields) -> list[Problem]:
 
 def _stable_gain(s: ScenarioFields) -> list[Problem]:
     n = len(s.agents)
+    if s.control.controller == "distance":
+        return _stable_distance_gain(s)
     delta = max_degree(n, _pairs(s)) if n > 1 else 0
     eps = s.control.epsilon
     if delta > 0 and eps >= 1.0 / delta:
         problem = (
             f"epsilon = gain * period_s = {eps:g} must be < 1/max_degree = 1/{delta} = "
             f"{1.0 / delta:g}"
+        )
+        return [("control.gain", s.control.gain, problem)]
+    return []
+
+
+def _stable_distance_gain(s: ScenarioFields) -> list[Problem]:
+    """The distance law's step bound on the shape (docs/model.md §3): ``ε < 1/λ_max((RᵀR)_F)``."""
+    bound = distance_epsilon_bound(_offsets(s), _pairs(s), s.reference_agent)
+    eps = s.control.epsilon
+    if eps >= bound:
+        problem = (
+            f"epsilon = gain * period_s = {eps:g} must be < {bound:.4g} = 1/lambda_max of the "
+            "shape's R^T R over the followers, the distance controller's stable step "
+            f"(gain < {bound / s.control.period_s:.4g})"
         )
         return [("control.gain", s.control.gain, problem)]
     return []

@@ -175,7 +175,6 @@ def _assemble(
         x, est["estimates"], est["estimate_cov"], est["observable"] & followers
     )
     subs = got.substitutions(d)
-    errors = subs.errors(x)
     headings, saturated = _poses(scenario, got.poses, len(x))
     recorded_fe = np.full(len(x), np.nan)
     for k, v in got.recorded.items():
@@ -190,7 +189,7 @@ def _assemble(
         positions=x,
         formation_error=formation_error(x, scenario.edge_array, scenario.weights),
         shape_error=shape_error(x, scenario.edge_array, scenario.offsets),
-        substitution_errors=errors[np.isfinite(errors).all(axis=1)],
+        substitution_errors=subs.known_errors(x),
         nees_values=nees_values,
         estimation_errors=est_errors,
         delivered=delivered,

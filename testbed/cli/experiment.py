@@ -40,6 +40,9 @@ from testbed.experiments.sweep import (
     run_sweep,
     value_grid,
 )
+from testbed.experiments.value import EPOCHS, ValueSpec, run_value
+from testbed.experiments.value_outputs import run_value_real
+from testbed.experiments.value_outputs import write_outputs as write_value
 from testbed.experiments.wireless import (
     WirelessSpec,
     run_wireless,
@@ -47,7 +50,7 @@ from testbed.experiments.wireless import (
     write_outputs,
 )
 
-EXPERIMENTS = ("paper", "wireless", "capacity")
+EXPERIMENTS = ("paper", "wireless", "capacity", "value")
 DEFAULT_TOPOLOGIES = ("ring8", "grid20", "octahedron3d")
 LOSS = "0:1:0.05"  # sweep's default grid of loss rates
 CHAPTER_STRATEGIES = ("zero", "hold", "estimate", "blend")
@@ -65,6 +68,8 @@ def cmd_experiment(args: argparse.Namespace) -> int:
         return _wireless(args, scenario, out, tuple(seeds), console)
     if args.name == "capacity":
         return _capacity(args, scenario, out, tuple(seeds), console)
+    if args.name == "value":
+        return _value(args, scenario, out, tuple(seeds), console)
     result = run_paper(
         scenario,
         out,
@@ -137,6 +142,30 @@ def _capacity(
     console.print(
         f"wrote {out}/results.md, critical.md, runs.csv, phase.png "
         f"({time.perf_counter() - started:.1f} s)"
+    )
+    return 0
+
+
+def _value(
+    args: argparse.Namespace, scenario: Scenario, out: Path, seeds: tuple[int, ...], console: Any
+) -> int:
+    """``formation experiment value``: where estimate beats drop and hold, then one real run
+    of estimate and drop per region."""
+    started = time.perf_counter()
+    spec = ValueSpec(scenario, seeds=seeds, epochs=args.epochs or EPOCHS)
+    frame = run_value(spec, log=lambda m: console.print(m))
+    real = []
+    if not args.no_real:
+        real = run_value_real(frame, spec, out, not args.no_record, lambda m: console.print(m))
+    write_value(frame, spec, out, real)
+    for row in real:
+        console.print(
+            f"real processes {row['controller']}, {row['case']}, {row['strategy']} seed "
+            f"{row['seed']}: max |Δx| {row['max_diff']}, recorded {row['recorded_diff']}, "
+            f"match {row['match']}"
+        )
+    console.print(
+        f"wrote {out}/results.md, runs.csv, value.png ({time.perf_counter() - started:.1f} s)"
     )
     return 0
 
@@ -245,7 +274,8 @@ def register(sub: Any) -> None:
         "name",
         choices=EXPERIMENTS,
         help="which experiment (paper: docs/model.md §8; wireless: success against radio range; "
-        "capacity: success against the access point's and the radios' capacity, §9)",
+        "capacity: success against the access point's and the radios' capacity, §9; "
+        "value: where estimate beats drop and hold)",
     )
     p.add_argument(
         "--scenario", default=DEFAULT_SCENARIO, help="scenario TOML (default: the paper's)"
@@ -256,7 +286,9 @@ def register(sub: Any) -> None:
     p.add_argument("--no-real", action="store_true", help="skip the runs through real processes")
     p.add_argument("--no-record", action="store_true", help="real processes without the recorder")
     p.add_argument(
-        "--epochs", type=int, help="epochs per run (wireless: default 100; capacity: 50)"
+        "--epochs",
+        type=int,
+        help=f"epochs per run (wireless: default 100; capacity: 50; value: {EPOCHS})",
     )
     p.add_argument(
         "--topology",

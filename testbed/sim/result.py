@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from analysis import Decisions, RunData, summarise
+from analysis import Decisions, RunData, formation_error, shape_error, summarise
 
 if TYPE_CHECKING:
     from analysis import Frames
@@ -45,9 +45,24 @@ class SimResult(RunData):
         )
 
     def record(self, label: str | None = None) -> RunData:
-        """The run's record under ``label`` (default: its strategy): a copy sharing the arrays,
-        so that setting a field of it leaves this result as it was."""
-        return replace(self, label=label or self.label)
+        """The run's record under ``label`` (default: its strategy), as its recording holds it:
+        no state of an agent out of the team (its body stays where it was), no delivery
+        decided on a link with an end not taking part, substitution errors where the neighbour's
+        state is known. A copy, so that setting a field of it leaves this result as it was."""
+        label, s = label or self.label, self.scenario
+        if self.substitutions is None or s.membership.present.all():
+            return replace(self, label=label)
+        x = np.where(self.present[..., None], self.positions, np.nan)
+        on, links = s.membership.present[: len(self.delivered)], s.directed_links
+        return replace(
+            self,
+            label=label,
+            positions=x,
+            formation_error=formation_error(x, s.edge_array, s.weights),
+            shape_error=shape_error(x, s.edge_array, s.offsets),
+            decided=on[:, links[:, 0] - 1] & on[:, links[:, 1] - 1],
+            substitution_errors=self.substitutions.known_errors(x),
+        )
 
     def summary(self) -> dict[str, Any]:
         """The headline numbers of the run (what ``formation simulate`` prints), as

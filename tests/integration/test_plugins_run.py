@@ -18,12 +18,14 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from analysis import summarise
 from formation.scenario import Scenario, load_dict
 from recorder import load_run, read_run
 from testbed.cli import main
 from testbed.runtime.launcher import launch
 from testbed.sim.simulate import simulate
 from testkit.dask_processes import DaskProcesses, dask_cluster
+from testkit.summaries import summary_differences
 
 pytestmark = pytest.mark.integration
 
@@ -52,7 +54,7 @@ def example() -> Scenario:
 
 
 @pytest.mark.parametrize("strategy", ["extrapolate", "hold"])
-def test_a_lockstep_run_with_the_example_plugins_equals_simulate_bit_for_bit(
+def test_a_lockstep_run_with_the_example_plugins_equals_simulate_bit_for_bit_summary_too(
     example: Scenario, runs_dir: Path, strategy: str
 ) -> None:
     outcome = launch(example, strategy=strategy, runs_dir=runs_dir)
@@ -64,7 +66,9 @@ def test_a_lockstep_run_with_the_example_plugins_equals_simulate_bit_for_bit(
     assert set(jammed.epoch) <= set(range(10, 20)) | set(range(40, 50))
     assert (run.scenario.strategy.name, run.scenario.control.controller) == (strategy, "saturated")
     assert run.scenario.strategy.params_of("extrapolate").horizon_epochs == 10
-    np.testing.assert_array_equal(read_run(outcome.run_dir / "run.mcap").positions, sim.positions)
+    recorded = read_run(outcome.run_dir / "run.mcap")
+    np.testing.assert_array_equal(recorded.positions, sim.positions)
+    assert summary_differences(summarise(recorded), summarise(sim.record())) == []
 
 
 def test_sweep_with_every_strategy_lists_the_plugin_in_critical_md(tmp_path: Path) -> None:
