@@ -20,7 +20,9 @@ from rich.table import Table
 
 from formation.errors import TestbedError
 from formation.scenario import Scenario
-from testbed.cli.arguments import DEFAULT_SCENARIO, load_checked, parse_strategies
+from formation.shipped_scenarios import resolve, shipped
+from testbed.cli.arguments import DEFAULT_SCENARIO, SCENARIO_HELP, load_checked, parse_strategies
+from testbed.cli.progress import every
 from testbed.cli.tables import print_table
 from testbed.experiments.capacity import CapacitySpec, run_capacity, run_capacity_real
 from testbed.experiments.capacity import write_outputs as write_capacity
@@ -106,9 +108,9 @@ def _capacity(
     capacity, the scenario and grid20, then one real run per strategy."""
     started = time.perf_counter()
     topologies = [(Path(args.scenario).stem, scenario)]
-    grid = Path(args.scenario).parent / "grid20.toml"
-    grid = grid if grid.exists() else Path("scenarios/grid20.toml")
-    if args.topology != "none" and grid.exists() and grid.stem != topologies[0][0]:
+    beside = resolve(args.scenario).parent / "grid20.toml"
+    grid = beside if beside.exists() else shipped()["grid20"]
+    if args.topology != "none" and grid.stem != topologies[0][0]:
         topologies.append((grid.stem, Scenario.from_file(grid)))
     spec = CapacitySpec(tuple(topologies), seeds=seeds, epochs=args.epochs or 50)
     result = run_capacity(spec, log=lambda m: console.print(m))
@@ -129,7 +131,7 @@ def _capacity(
 
 
 def _topologies(args: argparse.Namespace) -> list[tuple[str, Scenario]]:
-    main = Path(args.scenario)
+    main = resolve(args.scenario)
     names = (
         [t.strip() for t in args.topology.split(",") if t.strip()]
         if args.topology != "none"
@@ -138,9 +140,9 @@ def _topologies(args: argparse.Namespace) -> list[tuple[str, Scenario]]:
     out = [(main.stem, load_checked(str(main)))]
     for name in names:
         path = Path(name)
-        if not path.suffix:  # a name: beside SCENARIO, else in ./scenarios
-            beside, shipped = main.parent / f"{name}.toml", Path("scenarios") / f"{name}.toml"
-            path = beside if beside.exists() or not shipped.exists() else shipped
+        if not path.suffix:  # a name: beside SCENARIO, else a shipped scenario
+            beside = main.parent / f"{name}.toml"
+            path = beside if beside.exists() else resolve(name)
         if path.stem not in {n for n, _ in out}:
             out.append((path.stem, load_checked(str(path))))
     return out
@@ -180,6 +182,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     ) as bar:
         task = bar.add_task("cells", total=None, rate="-")
         first_done: list[int] = []
+        said = [0]  # off a terminal: the cells done at the last line
 
         def progress(done: int, total: int) -> None:
             if not first_done:
@@ -188,6 +191,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             elapsed = time.perf_counter() - started
             rate = f"{ran / elapsed:.0f}" if elapsed > 0 and ran else "-"
             bar.update(task, completed=done, total=total, rate=rate)
+            step = done - said[0]
+            if not console.is_terminal and step and (step >= every(total) or done == total):
+                said[0] = done
+                console.print(f"sweep: {done}/{total} cells, {rate} cells/s, {elapsed:.0f} s")
 
         summary = run_sweep(spec, out, progress=progress, executor=executor)
     wall = time.perf_counter() - started
@@ -211,9 +218,7 @@ def register(sub: Any) -> None:
         help="which experiment (paper: docs/model.md §8; wireless: success against radio range; "
         "capacity: success against the access point's and the radios' capacity, §9)",
     )
-    p.add_argument(
-        "--scenario", default=DEFAULT_SCENARIO, help="scenario TOML (default: the paper's)"
-    )
+    p.add_argument("--scenario", default=DEFAULT_SCENARIO, help=SCENARIO_HELP)
     p.add_argument("--seeds", type=int, default=20, help="number of seeds (default 20)")
     p.add_argument("--first-seed", type=int, default=1, help="first seed (default 1)")
     p.add_argument("--out", help="output folder (default experiments/NAME)")
@@ -231,7 +236,7 @@ def register(sub: Any) -> None:
 
     p = sub.add_parser("sweep", help="critical loss rate per strategy and topology")
     p.add_argument(
-        "scenario", nargs="?", default=DEFAULT_SCENARIO, help="scenario TOML (the first topology)"
+        "scenario", nargs="?", default=DEFAULT_SCENARIO, help=f"the first topology: {SCENARIO_HELP}"
     )
     p.add_argument(
         "--loss", default="0:1:0.05", help="START:STOP:STEP or a comma list (default 0:1:0.05)"

@@ -8,21 +8,25 @@ import sys
 from typing import Any
 
 from testbed.cli.arguments import add_common, load_checked, scenario_strategies
-from testbed.cli.tables import print_summaries
-from testbed.sim.simulate import simulate
+from testbed.cli.progress import Stages
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
+    from testbed.cli.tables import print_summaries
+    from testbed.sim.simulate import simulate
+
     scenario = load_checked(args.scenario)
     if args.epochs is not None:
         scenario = scenario.with_overrides(epochs=args.epochs)
     seed = scenario.seed if args.seed is None else args.seed
-    summaries = [
-        simulate(scenario, strategy=s, seed=seed).summary()
-        for s in scenario_strategies(args.strategy, scenario)
-    ]
-    for s in summaries:
-        s["scenario_file"] = str(args.scenario)
+    strategies = scenario_strategies(args.strategy, scenario)
+    stages = Stages("simulate", len(strategies))
+    summaries = []
+    for s in strategies:
+        with stages.stage(f"{s}: {scenario.epochs} epochs of {scenario.name}, seed {seed}"):
+            summaries.append(simulate(scenario, strategy=s, seed=seed).summary())
+    for summary in summaries:
+        summary["scenario_file"] = str(args.scenario)
     if args.json:
         json.dump(summaries, sys.stdout, indent=2)
         sys.stdout.write("\n")

@@ -23,25 +23,31 @@ def _fmt(v: Any, spec: str = ".3g") -> str:
     return "-" if v is None else format(v, spec)
 
 
+# Columns that name what a row is; every other column's header ends in its unit, "[m]".
+LABELS = ("strategy", "seed", "epochs", "link", "topic", "schema")
+
+SUMMARY_COLUMNS = (
+    "strategy",
+    "seed",
+    "epochs",
+    "formation\nfinal [m]",
+    "formation\npeak [m]",
+    "shape\nfinal [m]",
+    "subst.\ncov tr [m²]",
+    "hold fall-\nbacks [pkts]",
+    "estim.\ncov tr [m²]",
+    "mean\nNEES [-]",
+    "min dist\n[m]",
+    "colli-\nsions [#]",
+)
+
+
 def print_summaries(
     summaries: list[dict[str, Any]], title: str, console: Console | None = None
 ) -> None:
     """One row per run: formation/shape error, substitution and estimation figures."""
     table = Table(title=title)
-    for col in (
-        "strategy",
-        "seed",
-        "epochs",
-        "formation\nfinal [m]",
-        "formation\npeak [m]",
-        "shape\nfinal [m]",
-        "subst.\ncov tr [m²]",
-        "fall-\nbacks",
-        "estim.\ncov tr [m²]",
-        "NEES",
-        "min dist\n[m]",
-        "colli-\nsions",
-    ):
+    for col in SUMMARY_COLUMNS:
         table.add_column(col, justify="right" if col != "strategy" else "left", no_wrap=True)
     for s in summaries:
         table.add_row(
