@@ -20,7 +20,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         scenario = scenario.with_overrides(epochs=args.epochs)
     seed = scenario.seed if args.seed is None else args.seed
     strategies = scenario_strategies(args.strategy, scenario)
-    stages = Stages("simulate", len(strategies))
+    stages = Stages("formation simulate", len(strategies))
     summaries = []
     for s in strategies:
         with stages.stage(f"{s}: {scenario.epochs} epochs of {scenario.name}, seed {seed}"):
