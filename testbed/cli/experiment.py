@@ -60,7 +60,7 @@ def cmd_experiment(args: argparse.Namespace) -> int:
         seeds=seeds,
         real=not args.no_real,
         record=not args.no_record,
-        log=lambda m: console.print(m),
+        log=lambda m: console.print(m, soft_wrap=True),
     )
     table = Table(title=f"formation experiment {args.name}: the chapter's claims")
     for col in ("claim", "verdict"):
@@ -74,7 +74,10 @@ def cmd_experiment(args: argparse.Namespace) -> int:
             f", recorded {row.get('recorded_diff_text', '-')}, match {row.get('match', 'no')}"
         )
     times = ", ".join(f"{k} {v:.1f} s" for k, v in result.timings_s.items())
-    console.print(f"wrote {out}/results.md ({times}; total {time.perf_counter() - started:.1f} s)")
+    console.print(
+        f"wrote {out}/results.md ({times}; total {time.perf_counter() - started:.1f} s)",
+        soft_wrap=True,
+    )
     return 0
 
 
@@ -84,9 +87,11 @@ def _wireless(
     """``formation experiment wireless``: success against radio range, then the real runs."""
     started = time.perf_counter()
     spec = WirelessSpec(scenario, seeds=seeds, epochs=args.epochs or 100)
-    result = run_wireless(spec, log=lambda m: console.print(m))
+    result = run_wireless(spec, log=lambda m: console.print(m, soft_wrap=True))
     if not args.no_real:
-        run_wireless_real(result, out, record=not args.no_record, log=lambda m: console.print(m))
+        run_wireless_real(
+            result, out, record=not args.no_record, log=lambda m: console.print(m, soft_wrap=True)
+        )
     write_outputs(result, out)
     Console().print(result.critical_markdown())
     for row in result.real:
@@ -113,9 +118,11 @@ def _capacity(
     if args.topology != "none" and grid.stem != topologies[0][0]:
         topologies.append((grid.stem, Scenario.from_file(grid)))
     spec = CapacitySpec(tuple(topologies), seeds=seeds, epochs=args.epochs or 50)
-    result = run_capacity(spec, log=lambda m: console.print(m))
+    result = run_capacity(spec, log=lambda m: console.print(m, soft_wrap=True))
     if not args.no_real:
-        run_capacity_real(result, out, record=not args.no_record, log=lambda m: console.print(m))
+        run_capacity_real(
+            result, out, record=not args.no_record, log=lambda m: console.print(m, soft_wrap=True)
+        )
     write_capacity(result, out)
     Console().print(result.critical_markdown())
     for row in result.real:
