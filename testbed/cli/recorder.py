@@ -18,6 +18,7 @@ from rich.table import Table
 from formation import keys
 from recorder import describe, recover, replay, validate, write_reports
 from shell import add_arguments
+from testbed.cli.progress import Stages
 from testbed.cli.tables import LABELS, print_table
 
 INFO_COLUMNS = ("topic", "schema", "messages [msgs]")
@@ -25,7 +26,8 @@ LINK_COLUMNS = ("link", "packets [pkts]", "dropped [pkts]")
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    path = write_reports(args.recordings, args.out)
+    with Stages("formation report", 1).stage(f"{len(args.recordings)} recording(s)"):
+        path = write_reports(args.recordings, args.out)
     print(f"report: {path}")
     return 0
 
@@ -103,8 +105,9 @@ def cmd_recover(args: argparse.Namespace) -> int:
 def cmd_export(args: argparse.Namespace) -> int:
     from recorder import export, load_run  # here: pandas loads only for this command
 
-    run = load_run(args.recording)
-    files = export(run, args.out_dir, args.format)
+    with Stages("formation export", 1).stage(f"{args.recording} as {args.format}"):
+        run = load_run(args.recording)
+        files = export(run, args.out_dir, args.format)
     sizes = ", ".join(f"{name} {len(frame)}" for name, frame in run.tables().items())
     print(f"exported {args.recording} to {args.out_dir} ({args.format}): rows {sizes}")
     print(f"checked every message: {run.skipped.describe() if run.skipped else '-'}")
