@@ -48,6 +48,7 @@ $(BIN)/.example: $(BIN)/.installed $(BIN)/.product $(EXAMPLE_FILES)
 
 run: $(BIN)/.product
 	PYTHONSAFEPATH=1 $(BIN)/formation run $(SCENARIO) --strategy all
+	@echo "The formation command is $(BIN)/formation; 'source $(BIN)/activate' puts it on your PATH."
 
 # PYTHONSAFEPATH=1: a `python -m agent` the tests start in the checkout would otherwise put
 # the checkout first on its path and import the working tree (tests/unit/test_installed.py).
