@@ -19,7 +19,7 @@ from formation import keys
 from recorder import describe, recover, replay, validate, write_reports
 from shell import add_arguments
 from testbed.cli.progress import Stages
-from testbed.cli.tables import LABELS, print_table
+from testbed.cli.tables import LABELS, header, print_table
 
 INFO_COLUMNS = ("topic", "schema", "messages [msgs]")
 LINK_COLUMNS = ("link", "packets [pkts]", "dropped [pkts]")
@@ -58,7 +58,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     prefix = f"{keys.prefix(run_id)}/" if run_id else ""
     table = Table(title=f"channels under {prefix}" if prefix else "channels")
     for col in INFO_COLUMNS:
-        table.add_column(col, justify="left" if col in LABELS else "right", overflow="fold")
+        table.add_column(header(col), justify="left" if col in LABELS else "right", overflow="fold")
     for ch in info.channels:
         topic = ch.topic.removeprefix(prefix) if prefix else ch.topic
         table.add_row(topic, ch.schema, str(ch.messages))
@@ -66,7 +66,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     if info.sent:
         links = Table(title="netem decisions per link")
         for col in LINK_COLUMNS:
-            links.add_column(col, justify="left" if col in LABELS else "right")
+            links.add_column(header(col), justify="left" if col in LABELS else "right")
         for link in sorted(info.sent):
             links.add_row(link, str(info.sent[link]), str(info.drops.get(link, 0)))
         console.print(links)

@@ -18,7 +18,7 @@ from rich.table import Table
 from testbed.cli.arguments import add_common, load_checked, scenario_strategies
 from testbed.cli.deadline_lines import deadline_cells, deadline_notes
 from testbed.cli.progress import every
-from testbed.cli.tables import print_table
+from testbed.cli.tables import header, print_table
 from testbed.runtime.faults import RESTART_POLICIES
 
 
@@ -237,7 +237,7 @@ def _print_summary(
     if realtime:
         cols += REALTIME_COLUMNS
     for col in cols:
-        table.add_column(col, justify="left" if col in ("strategy", cols[7]) else "right")
+        table.add_column(header(col), justify="left" if col in ("strategy", cols[7]) else "right")
     for o in outcomes:
         s = o.summary()
         top = headline(o, recorded.get(o.run_id))

@@ -6,6 +6,7 @@ from typing import Any
 
 from rich.console import Console
 from rich.table import Table
+from rich.text import Text
 
 
 def print_table(table: Table, console: Console | None = None) -> None:
@@ -17,6 +18,11 @@ def print_table(table: Table, console: Console | None = None) -> None:
         if natural > console.width:
             console = Console(file=console.file, width=natural)
     console.print(table)
+
+
+def header(col: str) -> Text:
+    """A column header as plain text: rich would take its unit, "[m]", for a markup tag."""
+    return Text(col)
 
 
 def _fmt(v: Any, spec: str = ".3g") -> str:
@@ -48,7 +54,9 @@ def print_summaries(
     """One row per run: formation/shape error, substitution and estimation figures."""
     table = Table(title=title)
     for col in SUMMARY_COLUMNS:
-        table.add_column(col, justify="right" if col != "strategy" else "left", no_wrap=True)
+        table.add_column(
+            header(col), justify="right" if col != "strategy" else "left", no_wrap=True
+        )
     for s in summaries:
         table.add_row(
             s["strategy"],

@@ -133,6 +133,7 @@ def test_live_run_and_replay_reach_an_independent_client(
     got = _serve(cmd, tmp_path / "run.log", free_port(), idle=True)
     said = (tmp_path / "run.log").read_text()  # off a terminal: a line per run and its progress
     assert "formation run: [1/1] estimate" in said and f"epoch {EPOCHS}/{EPOCHS}" in said
+    assert "[pkts]" in said and "[m]" in said  # the summary's units
 
     assert got.server_info["op"] == "serverInfo" and "time" in got.server_info["capabilities"]
     by_topic = {c["topic"]: c for c in got.channels.values()}

@@ -3,18 +3,22 @@
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from rich.console import Console
 
+from formation.scenario import Scenario
 from testbed.cli import build_parser
 from testbed.cli.commands import COMMANDS
 from testbed.cli.recorder import INFO_COLUMNS, LINK_COLUMNS
 from testbed.cli.run import REALTIME_COLUMNS, RUN_COLUMNS
-from testbed.cli.tables import LABELS, SUMMARY_COLUMNS
+from testbed.cli.tables import LABELS, SUMMARY_COLUMNS, print_summaries
+from testbed.sim.simulate import simulate
 
 HEAVY = ("numpy", "scipy", "zenoh", "pandas", "matplotlib", "pydantic")
 
@@ -80,3 +84,13 @@ def test_one_command_imports_its_own_module_only() -> None:
 def test_every_number_column_names_its_unit(columns: tuple[str, ...]) -> None:
     no_unit = [c for c in columns if c not in LABELS and not c.rstrip().endswith("]")]
     assert no_unit == []
+
+
+def test_the_printed_summary_shows_every_unit() -> None:
+    scenario = Scenario.from_file("paper").with_overrides(epochs=3)
+    out = io.StringIO()
+    summary = simulate(scenario, strategy="estimate", seed=1).summary()
+    print_summaries([summary], "units", Console(file=out, width=300))
+    units = {c[c.rindex("[") :] for c in SUMMARY_COLUMNS if c not in LABELS}
+    assert units == {"[m]", "[m²]", "[pkts]", "[-]", "[#]"}
+    assert [u for u in units if u not in out.getvalue()] == []
