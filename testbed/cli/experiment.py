@@ -93,7 +93,7 @@ def _wireless(
             result, out, record=not args.no_record, log=lambda m: console.print(m, soft_wrap=True)
         )
     write_outputs(result, out)
-    Console().print(result.critical_markdown())
+    Console().print(result.critical_markdown(), markup=False)  # brackets are text
     for row in result.real:
         console.print(
             f"real processes {row['case']}, {row['strategy']} seed {row['seed']}: "
@@ -124,7 +124,7 @@ def _capacity(
             result, out, record=not args.no_record, log=lambda m: console.print(m, soft_wrap=True)
         )
     write_capacity(result, out)
-    Console().print(result.critical_markdown())
+    Console().print(result.critical_markdown(), markup=False)  # brackets are text
     for row in result.real:
         console.print(
             f"real processes {row['strategy']} seed {row['seed']}: max |Δx| {row['max_diff']}, "
@@ -206,7 +206,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         summary = run_sweep(spec, out, progress=progress, executor=executor)
     wall = time.perf_counter() - started
     ran = len(spec.keys()) - (first_done[0] if first_done else 0)
-    Console().print(critical_table(summary))
+    Console().print(critical_table(summary), markup=False)
     console.print(
         f"{ran} cells run in {wall:.1f} s ({ran / wall if wall else 0:.0f} cells/s), "
         f"{len(spec.keys()) - ran} already in {out / 'runs.csv'}; tables: {out}/critical.md, "
