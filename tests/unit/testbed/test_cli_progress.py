@@ -10,7 +10,7 @@ from testbed.cli.run import epoch_lines
 
 
 class _Watched(io.StringIO):
-    """A stream that says when something was written to it."""
+    """A stream that says when a whole line was written to it."""
 
     def __init__(self) -> None:
         super().__init__()
@@ -18,7 +18,8 @@ class _Watched(io.StringIO):
 
     def write(self, s: str) -> int:
         n = super().write(s)
-        self.written.set()
+        if s.endswith("\n"):  # print writes the text and its end apart
+            self.written.set()
         return n
 
 
