@@ -38,7 +38,9 @@ RUN pip install --no-deps . && rm -rf formation shell body analysis agent leader
 ARG PLUGINS=""
 COPY examples ./examples
 RUN if [ -n "$PLUGINS" ]; then pip install $PLUGINS && pip check; fi; rm -rf examples
-COPY scenarios ./scenarios
+# The shipped scenarios are in the package too (formation simulate paper); this copy keeps
+# `formation simulate scenarios/paper.toml` working in /app.
+COPY formation/scenarios ./scenarios
 
 # Each service sets its own command (and compose its user); a bare `docker run` prints the CLI's help.
 CMD ["formation", "--help"]

@@ -3,28 +3,36 @@ PYTHON ?= python3
 PACKAGES := formation shell body analysis agent leader netem recorder testbed
 VENV := .venv
 BIN := $(VENV)/bin
-SCENARIO ?= scenarios/paper.toml
+SCENARIO ?= paper
 # Every file of the product's packages: a change to any of them reinstalls it (below).
 PRODUCT_FILES := $(shell find $(PACKAGES) -name __pycache__ -prune -o -print)
 
 .PHONY: run test bench lint typecheck architecture clean compose-test docs docs-check figures
 
-# The tools and the dependencies. setuptools and wheel (= [build-system] requires) let the
-# product reinstall without build isolation: offline, in seconds.
-# testkit/ (what the tests and benchmarks share) is a development package beside the product:
-# editable, as it is not the product under test.
-$(BIN)/.installed: pyproject.toml testkit/pyproject.toml
+# What a run needs: a venv with the product's dependencies, no extra (make run stops here).
+# setuptools and wheel (= [build-system] requires) let the product reinstall without build
+# isolation: offline, in seconds. The old build/ goes first: setuptools would ship a deleted
+# module again from it.
+$(BIN)/.runtime: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip 'setuptools>=77' wheel
+	rm -rf build
+	$(BIN)/pip install --quiet .
+	touch $@
+
+# What the tests, the checks and the benchmarks need besides: the test tools, the ROS 2 bodies'
+# packages (their tests run) and testkit/ (what the tests and benchmarks share), a development
+# package beside the product: editable, as it is not the product under test.
+$(BIN)/.installed: $(BIN)/.runtime testkit/pyproject.toml
+	rm -rf build
 	$(BIN)/pip install --quiet '.[test,ros2]'
 	$(BIN)/pip install --quiet --no-deps --no-build-isolation -e testkit
 	touch $@
 
 # The product as a user installs it, not editable: the tests import it from site-packages,
 # never from the checkout. Reinstalled whenever a file of the packages changes (added and
-# removed files change their folder), so `make run` runs the code as edited. The old build/
-# goes first: setuptools would ship a deleted module again from it.
-$(BIN)/.product: $(BIN)/.installed $(PRODUCT_FILES)
+# removed files change their folder), so `make run` runs the code as edited.
+$(BIN)/.product: $(BIN)/.runtime $(PRODUCT_FILES)
 	rm -rf build
 	$(BIN)/pip install --quiet --no-deps --force-reinstall --no-build-isolation .
 	touch $@
@@ -33,17 +41,18 @@ $(BIN)/.product: $(BIN)/.installed $(PRODUCT_FILES)
 # with no registry, as a user installs their own: the tests run it through every command.
 EXAMPLE := examples/formation-plugins-example
 EXAMPLE_FILES := $(shell find $(EXAMPLE) -name __pycache__ -prune -o -name build -prune -o -print)
-$(BIN)/.example: $(BIN)/.product $(EXAMPLE_FILES)
+$(BIN)/.example: $(BIN)/.installed $(BIN)/.product $(EXAMPLE_FILES)
 	rm -rf $(EXAMPLE)/build
 	$(BIN)/pip install --quiet --no-deps --force-reinstall --no-build-isolation ./$(EXAMPLE)
 	touch $@
 
 run: $(BIN)/.product
 	PYTHONSAFEPATH=1 $(BIN)/formation run $(SCENARIO) --strategy all
+	@echo "The formation command is $(BIN)/formation; 'source $(BIN)/activate' puts it on your PATH."
 
 # PYTHONSAFEPATH=1: a `python -m agent` the tests start in the checkout would otherwise put
 # the checkout first on its path and import the working tree (tests/unit/test_installed.py).
-test: $(BIN)/.product $(BIN)/.example lint typecheck architecture
+test: $(BIN)/.installed $(BIN)/.product $(BIN)/.example lint typecheck architecture
 	PYTHONSAFEPATH=1 $(BIN)/pytest -q -p no:cacheprovider
 
 lint: $(BIN)/.installed
@@ -67,7 +76,7 @@ architecture: $(BIN)/.installed
 ENGINES ?= podman docker
 # podman's image has the example plug-ins too (podman-compose does not build): compose.plugins.yaml
 # runs from it; Docker's `up --build` builds each file's own.
-compose-test: $(BIN)/.product $(BIN)/.example
+compose-test: $(BIN)/.installed $(BIN)/.product $(BIN)/.example
 	set -e; trap 'deploy/docker.sh stop' EXIT; vars=; \
 	export FORMATION_BUILD_FLAGS="--build-arg PLUGINS=./$(EXAMPLE) --build-arg EXTRAS=[ros2]"; \
 	for engine in $(ENGINES); do \
@@ -96,7 +105,7 @@ docs-check: docs
 figures: $(BIN)/.product
 	MPLBACKEND=Agg $(BIN)/python examples/headline_figure.py docs/images/headline.png
 
-bench: $(BIN)/.product $(BIN)/.example
+bench: $(BIN)/.installed $(BIN)/.product $(BIN)/.example
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench
 
 clean:

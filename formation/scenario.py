@@ -28,6 +28,7 @@ from formation.linkmodels import LinkModelSpec
 from formation.plugin_api import CHAPTER_STRATEGIES
 from formation.scenario_checks import link_stacks, problems
 from formation.scenario_sections import FieldProblem, ScenarioFields, StrategyName
+from formation.shipped_scenarios import resolve
 
 # The chapter's strategies, in its order; ``--strategy all`` is every registered one (all_strategies).
 STRATEGIES: tuple[str, ...] = CHAPTER_STRATEGIES
@@ -195,8 +196,8 @@ def load_dict(data: dict[str, Any], source: str = "<scenario>") -> Scenario:
 
 
 def load(path: str | Path) -> Scenario:
-    """Read a scenario TOML file."""
-    path = Path(path)
+    """Read a scenario TOML file, or the shipped scenario of that name (``paper``)."""
+    path = resolve(path)
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:

@@ -9,40 +9,43 @@ import signal
 import sys
 from collections.abc import Sequence
 
-from formation.errors import TestbedError
+from testbed.cli.commands import COMMANDS, epilog
 
-# The module that registers each subcommand. Only the one asked for is imported: the
-# experiments and reports pull in matplotlib, pandas and the simulators (seconds on a loaded
-# machine), which `formation netem set` on a live run should not wait for.
-COMMANDS: dict[str, str] = {
-    "simulate": "testbed.cli.simulate",
-    "run": "testbed.cli.run",
-    "netem": "testbed.cli.netem",
-    "report": "testbed.cli.recorder",
-    "info": "testbed.cli.recorder",
-    "recover": "testbed.cli.recorder",
-    "export": "testbed.cli.recorder",
-    "replay": "testbed.cli.recorder",
-    "compose": "testbed.cli.deploy",
-    "keys": "testbed.cli.deploy",
-    "experiment": "testbed.cli.experiment",
-    "sweep": "testbed.cli.experiment",
-    "plugins": "testbed.cli.plugins",
-    "ros2-plant": "testbed.cli.plant",
-}
+# Only argparse and the commands' table load before the arguments are parsed: `formation --help`
+# lists the subcommands from the table, and a subcommand imports its own module alone (the
+# simulators, Zenoh and the reports take seconds to load on a loaded machine).
 
 
-def build_parser(command: str | None = None) -> argparse.ArgumentParser:
-    """The parser with ``command``'s subcommands, or with every one when ``command`` is None."""
+def build_parser(command: str | None = None, every: bool = False) -> argparse.ArgumentParser:
+    """The parser with ``command``'s subcommands in full (every one's when ``every``); the
+    others are listed by name and summary only, without importing their modules."""
     parser = argparse.ArgumentParser(
         prog="formation",
         description="Formation control over packet-dropping links: simulate, run, record, analyse.",
+        epilog=epilog(("formation scenarios", "formation simulate paper", "formation run paper"))
+        + "\n\n`formation COMMAND --help` shows a command's arguments and examples.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    sub = parser.add_subparsers(dest="command", required=True)
-    chosen = [COMMANDS[command]] if command in COMMANDS else COMMANDS.values()
-    for module in dict.fromkeys(chosen):
-        importlib.import_module(module).register(sub)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    wanted = {c.module for name, c in COMMANDS.items() if every or name == command}
+    for name, cmd in COMMANDS.items():
+        if name in sub.choices:  # registered with another command of its module
+            continue
+        if cmd.module in wanted:
+            importlib.import_module(cmd.module).register(sub)
+        else:
+            sub.add_parser(name, help=cmd.summary)
+    for name, cmd in COMMANDS.items():
+        if cmd.module in wanted:
+            _describe(sub.choices[name], cmd.summary, cmd.examples)
     return parser
+
+
+def _describe(p: argparse.ArgumentParser, summary: str, examples: tuple[str, ...]) -> None:
+    """A subcommand's help: its summary on top, its examples below, laid out as written."""
+    p.description = p.description or summary[:1].upper() + summary[1:] + "."
+    p.epilog = epilog(examples) + (f"\n\n{p.epilog}" if p.epilog else "")  # then its own notes
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -62,6 +65,8 @@ def _run(args_in: list[str]) -> int:
     except SystemExit as exc:  # --help and usage errors: flushed here, so a closed pipe is seen
         sys.stdout.flush()
         return exc.code if isinstance(exc.code, int) else 2
+    from formation.errors import TestbedError  # here: formation loads numpy and pydantic
+
     try:
         code: int = args.func(args)
     except TestbedError as exc:

@@ -4,15 +4,17 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from formation.errors import PluginFailure, ScenarioError, TestbedError
-from formation.plugin_api import all_strategies
-from formation.plugin_registry import is_reference
-from formation.scenario import Scenario
-from netem import probe_stack
+if TYPE_CHECKING:
+    from formation.scenario import Scenario
 
-DEFAULT_SCENARIO = "scenarios/paper.toml"
+# A shipped scenario's name (formation/shipped_scenarios.py): it resolves from any folder.
+DEFAULT_SCENARIO = "paper"
+SCENARIO_HELP = (
+    "a shipped scenario's name (`formation scenarios` lists them) or a scenario TOML file "
+    f"(default: {DEFAULT_SCENARIO})"
+)
 
 
 def parse_strategies(
@@ -20,6 +22,10 @@ def parse_strategies(
 ) -> list[Any]:
     """``--strategy``: ``None`` → ``default``; ``all`` (every registered strategy), another
     name in ``named``, or ``a,b,...`` (registered names or ``package.module:name``)."""
+    from formation.errors import TestbedError
+    from formation.plugin_api import all_strategies
+    from formation.plugin_registry import is_reference
+
     if arg is None:
         return list(default)
     known = all_strategies()
@@ -38,8 +44,13 @@ def parse_strategies(
 
 
 def load_checked(path: str, epochs: int | None = None) -> Scenario:
-    """The scenario file ``path`` (with ``--epochs``), its link models' layers built and run
-    on a few epochs: a plug-in's mistake is refused here, naming the file and the field."""
+    """The scenario ``path`` (a file, or a shipped scenario's name) with ``--epochs``, its link
+    models' layers built and run on a few epochs: a plug-in's mistake is refused here, naming
+    the file and the field."""
+    from formation.errors import PluginFailure, ScenarioError, TestbedError
+    from formation.scenario import Scenario
+    from netem import probe_stack
+
     scenario = Scenario.from_file(path)
     for field, models in scenario.model_stacks():
         try:
@@ -53,6 +64,8 @@ def load_checked(path: str, epochs: int | None = None) -> Scenario:
 def scenario_strategies(arg: str | None, scenario: Scenario) -> list[Any]:
     """``--strategy`` for a scenario: its own strategy when none is given. Each is checked
     with the scenario (its parameters, a probe call) before anything runs."""
+    from formation.errors import ScenarioError, TestbedError
+
     names = parse_strategies(arg, [scenario.strategy.name])
     for name in names:
         if name != scenario.strategy.name:
@@ -70,13 +83,15 @@ class StrategiesHelp(str):
     __slots__ = ()
 
     def __mod__(self, params: Any) -> str:
+        from formation.plugin_api import all_strategies  # the plug-ins' entry points: on demand
+
         names = ", ".join(all_strategies()).replace("%", "%%")
         return str(str(self).replace("{strategies}", names) % params)
 
 
 def add_common(p: argparse.ArgumentParser) -> None:
-    """The scenario file, ``--strategy``, ``--seed`` and ``--epochs``."""
-    p.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO, help="scenario TOML file")
+    """The scenario, ``--strategy``, ``--seed`` and ``--epochs``."""
+    p.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO, help=SCENARIO_HELP)
     p.add_argument(
         "--strategy",
         help=StrategiesHelp(

@@ -7,23 +7,34 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from testbed.cli.arguments import DEFAULT_SCENARIO, load_checked
-from testbed.deploy.compose import ComposeOptions, render
-from testbed.deploy.security import generate
+from testbed.cli.arguments import DEFAULT_SCENARIO, SCENARIO_HELP, load_checked
 
 
 def cmd_compose(args: argparse.Namespace) -> int:
+    from testbed.deploy.compose import ComposeOptions, render
+
     options = ComposeOptions(
         secure=not args.open,
         tls=args.tls,
         plugins=tuple(args.plugin or ()),
         file=args.file or "compose.yaml",
     )
-    sys.stdout.write(render(args.scenario, options, load_checked(args.scenario)))
+    path = _checkout_path(args.scenario)
+    sys.stdout.write(render(path, options, load_checked(args.scenario)))
     return 0
 
 
+def _checkout_path(scenario: str) -> str:
+    """How the compose file mounts the scenario: a shipped one by its path in the checkout
+    (``scenarios/NAME.toml``, beside the Dockerfile that compose builds), a file as given."""
+    from formation.shipped_scenarios import resolve
+
+    return scenario if resolve(scenario) == Path(scenario) else f"scenarios/{scenario}.toml"
+
+
 def cmd_keys(args: argparse.Namespace) -> int:
+    from testbed.deploy.security import generate
+
     scenario = load_checked(args.scenario)
     hosts = args.tls_host or ["router"]
     keyset = generate(
@@ -48,7 +59,7 @@ def register(sub: Any) -> None:
     p = sub.add_parser(
         "compose", help="print compose.yaml for a scenario (one service per process)"
     )
-    p.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO, help="scenario TOML file")
+    p.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO, help=SCENARIO_HELP)
     p.add_argument(
         "--open",
         action="store_true",
@@ -66,7 +77,7 @@ def register(sub: Any) -> None:
 
     p = sub.add_parser("keys", help="write development credentials and the router's access control")
     p.add_argument("out_dir", help="folder for the files (e.g. keys/, never committed)")
-    p.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO, help="scenario TOML file")
+    p.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO, help=SCENARIO_HELP)
     p.add_argument("--tls", action="store_true", help="also a CA and the router's TLS certificate")
     p.add_argument(
         "--tls-host",

@@ -21,12 +21,15 @@ from rich.table import Table
 
 from formation.errors import SweepError, TestbedError
 from formation.scenario import Scenario
+from formation.shipped_scenarios import resolve, shipped
 from testbed.cli.arguments import (
     DEFAULT_SCENARIO,
+    SCENARIO_HELP,
     StrategiesHelp,
     load_checked,
     parse_strategies,
 )
+from testbed.cli.progress import every
 from testbed.cli.tables import print_table
 from testbed.experiments.capacity import CapacitySpec, run_capacity, run_capacity_real
 from testbed.experiments.capacity import write_outputs as write_capacity
@@ -76,7 +79,7 @@ def cmd_experiment(args: argparse.Namespace) -> int:
         seeds=seeds,
         real=not args.no_real,
         record=not args.no_record,
-        log=lambda m: console.print(m),
+        log=lambda m: console.print(m, soft_wrap=True),
     )
     table = Table(title=f"formation experiment {args.name}: the chapter's claims")
     for col in ("claim", "verdict"):
@@ -90,7 +93,10 @@ def cmd_experiment(args: argparse.Namespace) -> int:
             f", recorded {row.get('recorded_diff_text', '-')}, match {row.get('match', 'no')}"
         )
     times = ", ".join(f"{k} {v:.1f} s" for k, v in result.timings_s.items())
-    console.print(f"wrote {out}/results.md ({times}; total {time.perf_counter() - started:.1f} s)")
+    console.print(
+        f"wrote {out}/results.md ({times}; total {time.perf_counter() - started:.1f} s)",
+        soft_wrap=True,
+    )
     return 0
 
 
@@ -100,11 +106,13 @@ def _wireless(
     """``formation experiment wireless``: success against radio range, then the real runs."""
     started = time.perf_counter()
     spec = WirelessSpec(scenario, seeds=seeds, epochs=args.epochs or 100)
-    result = run_wireless(spec, log=lambda m: console.print(m))
+    result = run_wireless(spec, log=lambda m: console.print(m, soft_wrap=True))
     if not args.no_real:
-        run_wireless_real(result, out, record=not args.no_record, log=lambda m: console.print(m))
+        run_wireless_real(
+            result, out, record=not args.no_record, log=lambda m: console.print(m, soft_wrap=True)
+        )
     write_outputs(result, out)
-    Console().print(result.critical_markdown())
+    Console().print(result.critical_markdown(), markup=False)  # brackets are text
     for row in result.real:
         console.print(
             f"real processes {row['case']}, {row['strategy']} seed {row['seed']}: "
@@ -124,16 +132,18 @@ def _capacity(
     capacity, the scenario and grid20, then one real run per strategy."""
     started = time.perf_counter()
     topologies = [(Path(args.scenario).stem, scenario)]
-    grid = Path(args.scenario).parent / "grid20.toml"
-    grid = grid if grid.exists() else Path("scenarios/grid20.toml")
-    if args.topology != "none" and grid.exists() and grid.stem != topologies[0][0]:
+    beside = resolve(args.scenario).parent / "grid20.toml"
+    grid = beside if beside.exists() else shipped()["grid20"]
+    if args.topology != "none" and grid.stem != topologies[0][0]:
         topologies.append((grid.stem, Scenario.from_file(grid)))
     spec = CapacitySpec(tuple(topologies), seeds=seeds, epochs=args.epochs or 50)
-    result = run_capacity(spec, log=lambda m: console.print(m))
+    result = run_capacity(spec, log=lambda m: console.print(m, soft_wrap=True))
     if not args.no_real:
-        run_capacity_real(result, out, record=not args.no_record, log=lambda m: console.print(m))
+        run_capacity_real(
+            result, out, record=not args.no_record, log=lambda m: console.print(m, soft_wrap=True)
+        )
     write_capacity(result, out)
-    Console().print(result.critical_markdown())
+    Console().print(result.critical_markdown(), markup=False)  # brackets are text
     for row in result.real:
         console.print(
             f"real processes {row['strategy']} seed {row['seed']}: max |Δx| {row['max_diff']}, "
@@ -171,7 +181,7 @@ def _value(
 
 
 def _topologies(args: argparse.Namespace) -> list[tuple[str, Scenario]]:
-    main = Path(args.scenario)
+    main = resolve(args.scenario)
     names = (
         [t.strip() for t in args.topology.split(",") if t.strip()]
         if args.topology != "none"
@@ -180,9 +190,9 @@ def _topologies(args: argparse.Namespace) -> list[tuple[str, Scenario]]:
     out = [(main.stem, load_checked(str(main)))]
     for name in names:
         path = Path(name)
-        if not path.suffix:  # a name: beside SCENARIO, else in ./scenarios
-            beside, shipped = main.parent / f"{name}.toml", Path("scenarios") / f"{name}.toml"
-            path = beside if beside.exists() or not shipped.exists() else shipped
+        if not path.suffix:  # a name: beside SCENARIO, else a shipped scenario
+            beside = main.parent / f"{name}.toml"
+            path = beside if beside.exists() else resolve(name)
         if path.stem not in {n for n, _ in out}:
             out.append((path.stem, load_checked(str(path))))
     return out
@@ -245,6 +255,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     ) as bar:
         task = bar.add_task("cells", total=None, rate="-")
         first_done: list[int] = []
+        said = [0]  # off a terminal: the cells done at the last line
 
         def progress(done: int, total: int) -> None:
             if not first_done:
@@ -253,11 +264,15 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             elapsed = time.perf_counter() - started
             rate = f"{ran / elapsed:.0f}" if elapsed > 0 and ran else "-"
             bar.update(task, completed=done, total=total, rate=rate)
+            step = done - said[0]
+            if not console.is_terminal and step and (step >= every(total) or done == total):
+                said[0] = done
+                console.print(f"sweep: {done}/{total} cells, {rate} cells/s, {elapsed:.0f} s")
 
         summary = run_sweep(spec, out, progress=progress, executor=executor)
     wall = time.perf_counter() - started
     ran = len(spec.keys()) - (first_done[0] if first_done else 0)
-    Console().print(critical_table(summary))
+    Console().print(critical_table(summary), markup=False)
     console.print(
         f"{ran} cells run in {wall:.1f} s ({ran / wall if wall else 0:.0f} cells/s), "
         f"{len(spec.keys()) - ran} already in {out / 'runs.csv'}; tables: {out}/critical.md, "
@@ -277,9 +292,7 @@ def register(sub: Any) -> None:
         "capacity: success against the access point's and the radios' capacity, §9; "
         "value: where estimate beats drop and hold)",
     )
-    p.add_argument(
-        "--scenario", default=DEFAULT_SCENARIO, help="scenario TOML (default: the paper's)"
-    )
+    p.add_argument("--scenario", default=DEFAULT_SCENARIO, help=SCENARIO_HELP)
     p.add_argument("--seeds", type=int, default=20, help="number of seeds (default 20)")
     p.add_argument("--first-seed", type=int, default=1, help="first seed (default 1)")
     p.add_argument("--out", help="output folder (default experiments/NAME)")
@@ -307,7 +320,7 @@ def register(sub: Any) -> None:
         "to each value instead.",
     )
     p.add_argument(
-        "scenario", nargs="?", default=DEFAULT_SCENARIO, help="scenario TOML (the first topology)"
+        "scenario", nargs="?", default=DEFAULT_SCENARIO, help=f"the first topology: {SCENARIO_HELP}"
     )
     p.add_argument(
         "--loss",

@@ -152,7 +152,9 @@ def register(sub: Any) -> None:
         epilog=RATE_HELP,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("action", choices=["show", "set"])
+    p.add_argument(
+        "action", choices=["show", "set"], help="show every link's models, or set one link's"
+    )
     p.add_argument(
         "link",
         nargs="?",
@@ -164,7 +166,11 @@ def register(sub: Any) -> None:
         help="e.g. bernoulli p_loss=0.3, or outage start=0 + bernoulli p_loss=0.1, or a queue's "
         "rate rate_bps=64000 limit_packets=4",
     )
-    p.add_argument("--runs-dir", default="runs")
-    p.add_argument("--run-id")
+    p.add_argument(
+        "--runs-dir",
+        default="runs",
+        help="where to find the newest running run (default: runs)",
+    )
+    p.add_argument("--run-id", help="the run to talk to (default: the newest under --runs-dir)")
     p.add_argument("--connect", help="the run's Zenoh endpoint (default: from its pids.json)")
     p.set_defaults(func=cmd_netem)

@@ -67,7 +67,10 @@ def register(sub: Any) -> None:
     p = sub.add_parser(
         "ros2-plant", help="the headless ROS 2 plant: a scenario's robots, without a robot"
     )
-    p.add_argument("scenario", help="scenario TOML with [body] kind = 'ros2'")
+    p.add_argument(
+        "scenario",
+        help="a scenario (shipped name or TOML file) with [body] kind = 'ros2', e.g. robots",
+    )
     p.add_argument(
         "--clock",
         choices=("stepped", "free"),

@@ -18,11 +18,16 @@ from rich.table import Table
 from formation import keys
 from recorder import describe, recover, replay, validate, write_reports
 from shell import add_arguments
-from testbed.cli.tables import print_table
+from testbed.cli.progress import Stages
+from testbed.cli.tables import LABELS, header, print_table
+
+INFO_COLUMNS = ("topic", "schema", "messages [msgs]")
+LINK_COLUMNS = ("link", "packets [pkts]", "dropped [pkts]")
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    path = write_reports(args.recordings, args.out)
+    with Stages("formation report", 1).stage(f"{len(args.recordings)} recording(s)"):
+        path = write_reports(args.recordings, args.out)
     print(f"report: {path}")
     return 0
 
@@ -52,16 +57,16 @@ def cmd_info(args: argparse.Namespace) -> int:
     run_id = info.metadata.get("recorder", {}).get("run_id")
     prefix = f"{keys.prefix(run_id)}/" if run_id else ""
     table = Table(title=f"channels under {prefix}" if prefix else "channels")
-    for col in ("topic", "schema", "messages"):
-        table.add_column(col, justify="right" if col == "messages" else "left", overflow="fold")
+    for col in INFO_COLUMNS:
+        table.add_column(header(col), justify="left" if col in LABELS else "right", overflow="fold")
     for ch in info.channels:
         topic = ch.topic.removeprefix(prefix) if prefix else ch.topic
         table.add_row(topic, ch.schema, str(ch.messages))
     print_table(table, console)
     if info.sent:
         links = Table(title="netem decisions per link")
-        for col in ("link", "packets", "dropped"):
-            links.add_column(col, justify="left" if col == "link" else "right")
+        for col in LINK_COLUMNS:
+            links.add_column(header(col), justify="left" if col in LABELS else "right")
         for link in sorted(info.sent):
             links.add_row(link, str(info.sent[link]), str(info.drops.get(link, 0)))
         console.print(links)
@@ -100,8 +105,9 @@ def cmd_recover(args: argparse.Namespace) -> int:
 def cmd_export(args: argparse.Namespace) -> int:
     from recorder import export, load_run  # here: pandas loads only for this command
 
-    run = load_run(args.recording)
-    files = export(run, args.out_dir, args.format)
+    with Stages("formation export", 1).stage(f"{args.recording} as {args.format}"):
+        run = load_run(args.recording)
+        files = export(run, args.out_dir, args.format)
     sizes = ", ".join(f"{name} {len(frame)}" for name, frame in run.tables().items())
     print(f"exported {args.recording} to {args.out_dir} ({args.format}): rows {sizes}")
     print(f"checked every message: {run.skipped.describe() if run.skipped else '-'}")
@@ -126,7 +132,7 @@ def register(sub: Any) -> None:
     p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("info", help="scenario, duration, channels, message counts, drops per link")
-    p.add_argument("recording", type=Path)
+    p.add_argument("recording", type=Path, help="a run.mcap file")
     p.add_argument(
         "--validate", action="store_true", help="check every message against its JSON Schema"
     )
@@ -134,19 +140,31 @@ def register(sub: Any) -> None:
     p.set_defaults(func=cmd_info)
 
     p = sub.add_parser("recover", help="a clean MCAP file from a recording cut short")
-    p.add_argument("recording", type=Path)
-    p.add_argument("-o", "--output", type=Path, help="default: <name>-recovered.mcap")
-    p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
+    p.add_argument("recording", type=Path, help="a run.mcap file cut short (a killed recorder)")
+    p.add_argument(
+        "-o", "--output", type=Path, help="the clean file (default: <name>-recovered.mcap)"
+    )
+    p.add_argument(
+        "--compression",
+        choices=("zstd", "lz4", "none"),
+        default="zstd",
+        help="the clean file's chunk compression (default zstd)",
+    )
     p.set_defaults(func=cmd_recover)
 
     p = sub.add_parser("export", help="a recording's tables (states, estimates, ...) as files")
-    p.add_argument("recording", type=Path)
+    p.add_argument("recording", type=Path, help="a run.mcap file")
     p.add_argument("out_dir", type=Path, help="directory for <table>.parquet or <table>.csv")
-    p.add_argument("--format", choices=("parquet", "csv"), default="parquet")
+    p.add_argument(
+        "--format",
+        choices=("parquet", "csv"),
+        default="parquet",
+        help="file format (default parquet: needs the parquet extra, pyarrow)",
+    )
     p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("replay", help="publish a recording back onto Zenoh with its timing")
-    p.add_argument("recording", type=Path)
+    p.add_argument("recording", type=Path, help="a run.mcap file")
     p.add_argument("--rate", type=float, default=1.0, help="speed factor (2 = twice as fast)")
     p.add_argument("--loop", action="store_true", help="start again at the end")
     p.add_argument(

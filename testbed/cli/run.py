@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
+import time
+from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -12,18 +15,19 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from analysis import safety_counts
-from formation.errors import RunEnded, TestbedError
-from recorder import write_deadlines, write_report, write_reports
 from testbed.cli.arguments import add_common, load_checked, scenario_strategies
 from testbed.cli.deadline_lines import deadline_cells, deadline_notes
-from testbed.cli.tables import print_table
+from testbed.cli.progress import every
+from testbed.cli.tables import header, print_table
 from testbed.runtime.faults import RESTART_POLICIES
-from testbed.runtime.launcher import launch
-from testbed.runtime.process_budget import realtime_layout
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from formation.errors import RunEnded
+    from recorder import write_deadlines, write_reports
+    from testbed.runtime.launcher import launch
+    from testbed.runtime.process_budget import realtime_layout
+
     console = Console(stderr=True)
     scenario = load_checked(args.scenario)
     if args.epochs is not None:
@@ -39,9 +43,15 @@ def cmd_run(args: argparse.Namespace) -> int:
             layout = realtime_layout(scenario.n, period or scenario.control.period_s, None, packets)
             pool = layout.pools
             console.print(f"realtime layout: {layout.why}; --pool K to choose")
+    live = _live_args(args)
+    if live:
+        console.print(live_view_line(args.foxglove), soft_wrap=True)
     outcomes = []
     recorded: dict[str, dict[str, Any]] = {}  # run_id → its recording's summary (trusted)
-    for strategy in scenario_strategies(args.strategy, scenario):
+    strategies = scenario_strategies(args.strategy, scenario)
+    for number, strategy in enumerate(strategies, 1):
+        if not console.is_terminal:  # no bar: a line per run, then one every tenth of it
+            _line(f"[{number}/{len(strategies)}] {strategy}: {scenario.epochs} epochs ...")
         with Progress(
             TextColumn(f"[bold]{strategy}[/]"),
             BarColumn(),
@@ -55,9 +65,15 @@ def cmd_run(args: argparse.Namespace) -> int:
         ) as bar:
             task = bar.add_task("run", total=scenario.epochs, rate=0.0, drops=0)
 
-            def progress(done: int, total: int, drops: int, _t: Any = task) -> None:
+            lines = None if console.is_terminal else epoch_lines(strategy, scenario.epochs)
+
+            def progress(
+                done: int, total: int, drops: int, _t: Any = task, _lines: Any = lines
+            ) -> None:
                 elapsed = bar.tasks[0].elapsed or 0.0
                 bar.update(_t, completed=done, rate=done / elapsed if elapsed else 0.0, drops=drops)
+                if _lines is not None:
+                    _lines(done, total, drops)
 
             try:
                 outcome = launch(
@@ -69,7 +85,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                     record=not args.no_record,
                     progress=progress,
                     restart=args.restart,
-                    recorder_args=_live_args(args),
+                    recorder_args=live,
                 )
             except RunEnded as exc:  # what was recorded is reported, with why the run ended
                 if not args.no_record:
@@ -90,11 +106,41 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _line(text: str) -> None:
+    print(f"formation run: {text}", file=sys.stderr, flush=True)
+
+
+def epoch_lines(
+    strategy: str, epochs: int, out: Callable[[str], None] = _line
+) -> Callable[[int, int, int], None]:
+    """The progress callback off a terminal: a line every tenth of the run's epochs and at its
+    end (the bar's figures: epochs done, drops, epochs/s)."""
+    step, started, said = every(epochs), time.perf_counter(), [0]
+
+    def progress(done: int, total: int, drops: int) -> None:
+        if done == said[0] or (done - said[0] < step and done < total):
+            return
+        said[0] = done
+        rate = done / max(time.perf_counter() - started, 1e-9)
+        out(f"{strategy}: epoch {done}/{total}, {drops} packets dropped, {rate:.1f} epochs/s")
+
+    return progress
+
+
+def live_view_line(port: int) -> str:
+    """Where to point Foxglove (Open connection → Foxglove WebSocket) for ``--foxglove PORT``."""
+    if port == 0:
+        return "live view for Foxglove: on a free port that the recorder's log names"
+    return f"live view for Foxglove: ws://127.0.0.1:{port} (Open connection, Foxglove WebSocket)"
+
+
 def _live_args(args: argparse.Namespace) -> tuple[str, ...]:
     """The recorder's live-view arguments (``--foxglove PORT [--foxglove-wait]``)."""
     if args.foxglove is None:
         return ()
     if args.no_record:
+        from formation.errors import TestbedError
+
         raise TestbedError(
             "--foxglove needs the recorder (it serves the live view); drop --no-record"
         )
@@ -126,6 +172,8 @@ def _print_losses(outcomes: list[Any], console: Console) -> None:
 def _report(run_dir: Path, console: Console) -> dict[str, Any]:
     """Writes the report; returns its ``summary.json`` entry: :func:`analysis.summarise` of the
     recording as the trust gate passed it (``skipped``: what it did not trust)."""
+    from recorder import write_report
+
     path = write_report(run_dir / "run.mcap", run_dir)
     console.print(f"report: {path}")
     (summary,) = json.loads((run_dir / "summary.json").read_text())
@@ -150,6 +198,8 @@ def headline(outcome: Any, recorded: dict[str, Any] | None) -> dict[str, Any]:
             "collisions_total": safe["collisions_total"],
             "skipped": recorded["skipped"]["total"],
         }
+    from analysis import safety_counts
+
     seen, safe = outcome.summary(), safety_counts(outcome.scenario, outcome.positions)
     return {n: seen[n] for n in _FINAL} | {
         "min_distance_m": safe["min_distance_m"],
@@ -160,31 +210,34 @@ def headline(outcome: Any, recorded: dict[str, Any] | None) -> dict[str, Any]:
 
 _FINAL = ("final_formation_error_m", "final_shape_error_m")
 
+RUN_COLUMNS = (
+    "strategy",
+    "seed",
+    "epochs",
+    "formation\nfinal [m]",
+    "shape\nfinal [m]",
+    "sent\n[pkts]",
+    "dropped\n[pkts]",
+    "links with drops\n(sent/dropped) [pkts]",
+    "mal-\nformed [msgs]",
+    "skipped\n[msgs]",
+    "min dist\n[m]",
+    "colli-\nsions [#]",
+    "wall [s]",
+)
+REALTIME_COLUMNS = ("modelled\nlosses [pkts]", "deadline\nmisses [pkts]")
+
 
 def _print_summary(
     outcomes: list[Any], console: Console, recorded: dict[str, dict[str, Any]]
 ) -> None:
     realtime = any(o.scenario.runtime.mode == "realtime" for o in outcomes)
     table = Table(title="formation run: summary")
-    cols = [
-        "strategy",
-        "seed",
-        "epochs",
-        "formation\nfinal [m]",
-        "shape\nfinal [m]",
-        "sent",
-        "dropped",
-        "links with drops\n(sent/dropped)",
-        "mal-\nformed",
-        "skipped",
-        "min dist\n[m]",
-        "colli-\nsions",
-        "wall [s]",
-    ]
+    cols = list(RUN_COLUMNS)
     if realtime:
-        cols += ["modelled\nlosses", "deadline\nmisses"]
+        cols += REALTIME_COLUMNS
     for col in cols:
-        table.add_column(col, justify="left" if col in ("strategy", cols[7]) else "right")
+        table.add_column(header(col), justify="left" if col in ("strategy", cols[7]) else "right")
     for o in outcomes:
         s = o.summary()
         top = headline(o, recorded.get(o.run_id))
@@ -230,13 +283,24 @@ def _number(v: float | None) -> str:
 def register(sub: Any) -> None:
     p = sub.add_parser("run", help="run a scenario as real processes over Zenoh")
     add_common(p)
-    p.add_argument("--mode", choices=["lockstep", "realtime"], default="lockstep")
+    p.add_argument(
+        "--mode",
+        choices=["lockstep", "realtime"],
+        default="lockstep",
+        help="lockstep: every epoch waits for its packets (equals simulate to the bit); "
+        "realtime: epochs on the wall clock (default lockstep)",
+    )
     p.add_argument(
         "--period-s",
         type=float,
         help="realtime: wall-clock epoch period [s] (default: the scenario's)",
     )
-    p.add_argument("--pool", type=int, help="run the agents in K processes")
+    p.add_argument(
+        "--pool",
+        type=int,
+        metavar="K",
+        help="run the agents in K processes (default: one per agent; realtime: sized for the machine)",
+    )
     p.add_argument("--runs-dir", default="runs", help="where run folders go (default: runs)")
     p.add_argument("--no-record", action="store_true", help="run without the recorder")
     p.add_argument(

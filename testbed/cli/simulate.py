@@ -7,12 +7,9 @@ import json
 import sys
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 from formation.errors import TestbedError
 from testbed.cli.arguments import add_common, load_checked, scenario_strategies
-from testbed.cli.tables import print_summaries
-from testbed.sim.simulate import simulate
+from testbed.cli.progress import Stages
 
 if TYPE_CHECKING:
     from testbed.sim.result import SimResult
@@ -24,6 +21,8 @@ def decisions_by_epoch(result: SimResult) -> list[dict[str, Any]]:
     """Each epoch's packets the model passed (counts) and dropped (links), by link class: a
     formation link as ``[src, dst]``, a control link by its agent (``report``: agent → leader,
     ``estimate``: leader → agent)."""
+    import numpy as np  # here: `formation simulate --help` loads no numerics
+
     d = result.decisions_made()
     dropped = d.verdict == "drop"
     out = []
@@ -44,16 +43,22 @@ def decisions_by_epoch(result: SimResult) -> list[dict[str, Any]]:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
+    from testbed.cli.tables import print_summaries
+    from testbed.sim.simulate import simulate
+
     if args.decisions and not args.json:
         raise TestbedError("--decisions: give it with --json (the tables stay compact)")
     scenario = load_checked(args.scenario)
     if args.epochs is not None:
         scenario = scenario.with_overrides(epochs=args.epochs)
     seed = scenario.seed if args.seed is None else args.seed
+    strategies = scenario_strategies(args.strategy, scenario)
+    stages = Stages("formation simulate", len(strategies))
     summaries = []
-    for s in scenario_strategies(args.strategy, scenario):
-        result = simulate(scenario, strategy=s, seed=seed)
-        summary = result.summary()
+    for s in strategies:
+        with stages.stage(f"{s}: {scenario.epochs} epochs of {scenario.name}, seed {seed}"):
+            result = simulate(scenario, strategy=s, seed=seed)
+            summary = result.summary()
         summary["scenario_file"] = str(args.scenario)
         if args.decisions:
             summary["decisions"] = decisions_by_epoch(result)

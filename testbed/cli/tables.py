@@ -6,6 +6,7 @@ from typing import Any
 
 from rich.console import Console
 from rich.table import Table
+from rich.text import Text
 
 
 def print_table(table: Table, console: Console | None = None) -> None:
@@ -19,8 +20,32 @@ def print_table(table: Table, console: Console | None = None) -> None:
     console.print(table)
 
 
+def header(col: str) -> Text:
+    """A column header as plain text: rich would take its unit, "[m]", for a markup tag."""
+    return Text(col)
+
+
 def _fmt(v: Any, spec: str = ".3g") -> str:
     return "-" if v is None else format(v, spec)
+
+
+# Columns that name what a row is; every other column's header ends in its unit, "[m]".
+LABELS = ("strategy", "seed", "epochs", "link", "topic", "schema")
+
+SUMMARY_COLUMNS = (
+    "strategy",
+    "seed",
+    "epochs",
+    "formation\nfinal [m]",
+    "formation\npeak [m]",
+    "shape\nfinal [m]",
+    "subst.\ncov tr [m²]",
+    "hold fall-\nbacks [pkts]",
+    "estim.\ncov tr [m²]",
+    "mean\nNEES [-]",
+    "min dist\n[m]",
+    "colli-\nsions [#]",
+)
 
 
 def print_summaries(
@@ -28,21 +53,10 @@ def print_summaries(
 ) -> None:
     """One row per run: formation/shape error, substitution and estimation figures."""
     table = Table(title=title)
-    for col in (
-        "strategy",
-        "seed",
-        "epochs",
-        "formation\nfinal [m]",
-        "formation\npeak [m]",
-        "shape\nfinal [m]",
-        "subst.\ncov tr [m²]",
-        "fall-\nbacks",
-        "estim.\ncov tr [m²]",
-        "NEES",
-        "min dist\n[m]",
-        "colli-\nsions",
-    ):
-        table.add_column(col, justify="right" if col != "strategy" else "left", no_wrap=True)
+    for col in SUMMARY_COLUMNS:
+        table.add_column(
+            header(col), justify="right" if col != "strategy" else "left", no_wrap=True
+        )
     for s in summaries:
         table.add_row(
             s["strategy"],

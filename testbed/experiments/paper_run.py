@@ -245,12 +245,15 @@ def run_paper(
     seeds = tuple(int(s) for s in seeds)
     r = PaperResults(scenario, seeds, {})
     t0 = time.perf_counter()
+    log(f"the chapter's variants, {len(seeds)} seeds ...")
     r.runs = run_variants(scenario, seeds)
     r.timings_s["variants"] = time.perf_counter() - t0
     r.claims = judge(r)
     if extras:
         t = time.perf_counter()
+        log("study: the displacement and distance controllers ...")
         r.studies["controller"] = studies.controller_study(scenario, seeds)
+        log("study: the estimator ...")
         r.studies["estimator"] = studies.estimator_study(
             [
                 ("paper, link 1–2 failed", scenario),
@@ -259,11 +262,14 @@ def run_paper(
             ],
             seeds,
         )
+        log("study: the blend's alpha ...")
         r.studies["alpha"] = studies.alpha_study(scenario, seeds)
+        log("study: a changing team (agents leave and join) ...")
         r.studies["dynamic"] = studies.dynamic_study(scenario, seeds)
         r.timings_s["studies"] = time.perf_counter() - t
     if figures:
         t = time.perf_counter()
+        log("figures ...")
         write_figures(r, out)
         r.timings_s["figures"] = time.perf_counter() - t
     if real:

@@ -109,6 +109,7 @@ def _serve(cmd: list[str], log: Path, port: int, idle: bool) -> fc.Received:
         try:
             got = asyncio.run(_watch(f"ws://127.0.0.1:{port}", idle))
             assert proc.wait(timeout=120) == 0, log.read_text() + _process_logs(cmd)
+            assert f"ws://127.0.0.1:{port}" in log.read_text()  # where to point Foxglove
         finally:
             if proc.poll() is None:
                 proc.kill()
@@ -130,6 +131,9 @@ def test_live_run_and_replay_reach_an_independent_client(
     cmd = ["run", str(paper_path), "--strategy", "estimate", "--seed", "3", "--epochs", str(EPOCHS),
            "--runs-dir", str(runs_dir), "--foxglove-wait"]  # fmt: skip
     got = _serve(cmd, tmp_path / "run.log", free_port(), idle=True)
+    said = (tmp_path / "run.log").read_text()  # off a terminal: a line per run and its progress
+    assert "formation run: [1/1] estimate" in said and f"epoch {EPOCHS}/{EPOCHS}" in said
+    assert "[pkts]" in said and "[m]" in said  # the summary's units
 
     assert got.server_info["op"] == "serverInfo" and "time" in got.server_info["capabilities"]
     by_topic = {c["topic"]: c for c in got.channels.values()}

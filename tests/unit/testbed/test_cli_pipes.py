@@ -32,6 +32,8 @@ def test_output_into_a_closed_pipe_ends_quietly(argv: list[str], tmp_path: Path)
         )
     finally:
         os.close(write)
-    assert done.stderr == b"", done.stderr  # no traceback, no "Exception ignored"
+    # no traceback, no "Exception ignored"; a loaded machine may print a progress line
+    others = [s for s in done.stderr.splitlines() if not s.startswith(b"formation simulate: [")]
+    assert others == [], done.stderr
     if argv[0] == "simulate":  # its numbers did not all get out: not a success
         assert done.returncode in (1, 128 + signal.SIGPIPE)  # rich's exit, or ours

@@ -313,7 +313,7 @@ def test_loopback_maps_names_paths_and_secrets(tmp_path: Path) -> None:
     agent = dep.service("agent-2")
     assert agent.env["ZENOH_CONNECT"] == f"tcp/127.10.20.2:7447#bind={agent.address}:0"
     assert agent.env["ZENOH_CONFIG"] == str(tmp_path / "keys" / "agent-2.json5")
-    assert str(ROOT / DEFAULT) in agent.argv and "r1" in agent.argv
+    assert str((ROOT / DEFAULT).resolve()) in agent.argv and "r1" in agent.argv
     recorder = dep.service("recorder")
     assert str(tmp_path / "runs" / "r1") in recorder.argv and recorder.grace_s == 60.0
     assert dep.bound("tcp/router:7447") == "tcp/127.10.20.2:7447#bind=127.10.20.1:0"
