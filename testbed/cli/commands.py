@@ -98,7 +98,7 @@ COMMANDS: dict[str, Command] = {
     ),
     "sweep": Command(
         "testbed.cli.experiment",
-        "critical loss rate per strategy and topology",
+        "critical loss rate (or link model parameter) per strategy and topology",
         (
             "formation sweep paper --seeds 10 --loss 0:0.5:0.1",
             "formation sweep paper --topology none --strategy all --burst",
