@@ -17,6 +17,7 @@ from recorder import read_run
 from recorder.recording.writer import RecordingWriter
 from recorder.reporting import plots
 from recorder.reporting.report import FIGURES, write_report, write_report_from
+from recorder.reporting.style import GAIN_COLOUR, LOSS_COLOUR
 from testbed.sim.simulate import simulate
 
 
@@ -182,7 +183,7 @@ def test_the_report_shows_the_team_and_marks_each_change_by_its_event(
     for ax in (top, bottom):
         marks = [ln for ln in ax.get_lines() if len(set(ln.get_xdata())) == 1]
         assert [(ln.get_xdata()[0], ln.get_color(), ln.get_linestyle()) for ln in marks] == [
-            (15, "tab:green", ":"), (25, "tab:red", ":"), (40, "tab:green", ":"), (60, "tab:red", ":")
+            (15, GAIN_COLOUR, ":"), (25, LOSS_COLOUR, ":"), (40, GAIN_COLOUR, ":"), (60, LOSS_COLOUR, ":")
         ]  # fmt: skip
     non_trivial_png(tmp_path / "errors.png")
 
