@@ -32,7 +32,7 @@ from recorder.reporting.style import (
     LOSS_COLOUR,
     THRESHOLD_COLOUR,
     Look,
-    agent_colours,
+    palette,
 )
 
 Array = npt.NDArray[np.float64]
@@ -213,7 +213,7 @@ def plot_trajectories(
     shown = [k for k in epochs if positions and 0 <= k < len(positions[0])]
     for ax, run, x in zip(axes, runs, positions, strict=True):
         n = x.shape[1]
-        colours = agent_colours(n)
+        colours = palette(n)
         for i in range(n):
             ax.plot(x[:, i, 0], x[:, i, 1], color=colours[i], lw=0.8, alpha=0.6)
         last = _last_finite(x)
@@ -277,7 +277,7 @@ def _team_at_epochs(
 ) -> Path:
     """A large team: its edges at ``epochs`` (one collection each) and the reference's path."""
     fig, axes = _panels(len(runs), width=5.0)
-    shades = agent_colours(max(len(epochs), 1))
+    shades = palette(max(len(epochs), 1))
     for ax, run, x in zip(axes, runs, positions, strict=True):
         for index, k in enumerate(epochs):
             if not 0 <= k < len(x):

@@ -65,19 +65,23 @@ def look(strategy: str) -> Look:
     )
 
 
-def agent_colours(n: int) -> list[str]:
-    """``n`` colours for agents, the palette's seven (no yellow: unreadable on white) repeated."""
-    palette = (BLUE, ORANGE, BLUISH_GREEN, VERMILLION, REDDISH_PURPLE, SKY_BLUE, BLACK)
-    return [palette[i % len(palette)] for i in range(n)]
+def palette(n: int) -> list[str]:
+    """``n`` colours (agents, curves that are not strategies): the palette's seven, repeated;
+    no yellow, unreadable on white."""
+    seven = (BLUE, ORANGE, BLUISH_GREEN, VERMILLION, REDDISH_PURPLE, SKY_BLUE, BLACK)
+    return [seven[i % len(seven)] for i in range(n)]
 
 
 __all__ = [
+    "BLACK",
     "CHAPTER_LOOKS",
     "GAIN_COLOUR",
+    "GREY",
     "LOSS_COLOUR",
+    "SKY_BLUE",
     "THRESHOLD_COLOUR",
     "UNKNOWN_COLOUR",
     "Look",
-    "agent_colours",
     "look",
+    "palette",
 ]
