@@ -143,7 +143,7 @@ def results_markdown(r: PaperResults) -> str:
         ("controller", _controller),
         ("estimator", _estimator),
         ("alpha", _alpha),
-        ("dynamic", _dynamic),
+        ("dynamic", lambda d: _dynamic(d, real=bool(r.real))),
     )
     for name, section in sections:
         if name in extra:
@@ -249,7 +249,7 @@ def _alpha(a: AlphaStudy) -> list[str]:
     ]
 
 
-def _dynamic(d: DynamicStudy) -> list[str]:
+def _dynamic(d: DynamicStudy, real: bool) -> list[str]:
     (la, ka), (lj, kj) = d.leave, d.join
     return [
         "",
@@ -261,9 +261,13 @@ def _dynamic(d: DynamicStudy) -> list[str]:
         f"error over the edges active at each epoch, median of {len(d.seeds)} seeds. The leader's tree has "
         f"{int(d.tree_edges[ka - 1])} edges before epoch {ka}, {int(d.tree_edges[ka])} after agent {la} "
         f"leaves and {int(d.tree_edges[kj])} after agent {lj} joins; observable agents "
-        f"{int(d.observable[ka - 1])} → {int(d.observable[ka])} → {int(d.observable[kj])}. The same "
-        "leave and join as scenario events also run through real processes (the last row of "
-        '"Real processes" below, with `real_runs.md`).',
+        f"{int(d.observable[ka - 1])} → {int(d.observable[ka])} → {int(d.observable[kj])}."
+        + (
+            " The same leave and join as scenario events also run through real processes (the "
+            'last row of "Real processes" below, with `real_runs.md`).'
+            if real
+            else ""
+        ),
         "",
         d.markdown(),
         "![dynamic](dynamic.png)",
