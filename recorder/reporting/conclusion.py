@@ -167,7 +167,15 @@ def keep_sentence(finals: Sequence[tuple[str, float | None]]) -> str:
         if kept:
             best = kept[0][1]
             times = _join([f"{v / best:.0f}×" for _, v in lost])
-            parts.append(f"{_names(lost)} lose it ({_values(lost)}: {times} {_code(kept[0][0])}'s)")
+            verb = "loses" if len(lost) == 1 else "lose"
+            parts.append(
+                f"{_names(lost)} {verb} it ({_values(lost)}: {times} {_code(kept[0][0])}'s)"
+            )
+        elif len(lost) == 1:
+            parts.append(
+                f"{_names(lost)} loses the formation (final formation error {_values(lost)}, "
+                f"over the {KEEP_M:g} m threshold)"
+            )
         else:
             parts.append(
                 f"no strategy keeps the formation (final formation error {_values(lost)}, "
@@ -179,41 +187,47 @@ def keep_sentence(finals: Sequence[tuple[str, float | None]]) -> str:
     return _sentence("; ".join(parts))
 
 
+def names(runs: Sequence[RunData]) -> list[str]:
+    """What to call each run: its strategy when that tells the runs apart (one scenario and
+    seed, a strategy each), else its label."""
+    strategies = [r.strategy for r in runs]
+    alike = len({(r.scenario.name, r.seed) for r in runs}) == 1
+    return strategies if alike and len(set(strategies)) == len(runs) else [r.label for r in runs]
+
+
 def conclusion(runs: Sequence[RunData]) -> list[str]:
     """Two or three sentences on ``runs`` (one scenario): keep, coincide, why ``drop``."""
     facts = [evidence(r) for r in runs]
-    out = [keep_sentence([(r.label, f.final_m) for r, f in zip(runs, facts, strict=True)])]
+    called = names(runs)
+    out = [keep_sentence([(c, f.final_m) for c, f in zip(called, facts, strict=True)])]
     ref = runs[0].scenario.reference_agent
     for group in identical_groups(runs):
-        names = _join([_code(runs[i].label) for i in group])
+        together = _join([_code(called[i]) for i in group])
         why = why_identical([facts[i] for i in group], ref)
-        out.append(_sentence(f"{names} move identically, to the bit: {why}"))
+        out.append(_sentence(f"{together} move identically, to the bit: {why}"))
     fell: dict[tuple[int, tuple[tuple[int, int], ...]], list[int]] = {}
     for i, f in enumerate(facts):
         if f.fallbacks:
             fell.setdefault((f.fallbacks, tuple(f.unobservable.items())), []).append(i)
     for rows in fell.values():
-        clause = fallback_clause([runs[i].label for i in rows], facts[rows[0]])
+        clause = fallback_clause([called[i] for i in rows], facts[rows[0]])
         out.append(_sentence(clause or ""))
-    for r, f in zip(runs, facts, strict=True):
+    for r, c, f in zip(runs, called, facts, strict=True):
         if r.strategy == "drop" and f.final_m is not None:
             verb = "converges" if f.final_m < KEEP_M else "does not converge"
             graph = graph_clause(r.scenario.control.controller, f)
             out.append(
-                _sentence(
-                    f"{_code(r.label)} {verb}: it steers by the healthy links alone, and {graph}"
-                )
+                _sentence(f"{_code(c)} {verb}: it steers by the healthy links alone, and {graph}")
             )
     return out
 
 
-def coincidence_notes(runs: Sequence[RunData]) -> dict[str, str]:
-    """Label → a figure's note for each run drawn identically to an earlier one."""
-    notes = {}
+def coincidence_notes(runs: Sequence[RunData]) -> dict[int, str]:
+    """Index → a figure's note for each run drawn identically to an earlier one."""
+    called, notes = names(runs), {}
     for group in identical_groups(runs):
-        first = runs[group[0]].label
         for i in group[1:]:
-            notes[runs[i].label] = f"identical to {first}"
+            notes[i] = f"identical to {called[group[0]]}"
     return notes
 
 
@@ -254,5 +268,6 @@ __all__ = [
     "identical",
     "identical_groups",
     "keep_sentence",
+    "names",
     "why_identical",
 ]

@@ -138,7 +138,8 @@ def plot_topology(
     ax_rank.set_ylabel("rigidity rank")
     ax_comp.set_ylabel("connected components")
     ax_comp.set_xlabel("epoch")
-    for ax in (ax_tree, ax_rank, ax_comp):
+    for ax in (ax_tree, ax_rank, ax_comp):  # counts: from zero, whole numbers
+        ax.set_ylim(0, max(ax.get_ylim()[1], 1.0) + 0.5)
         ax.grid(True, alpha=0.3)
         ax.yaxis.set_major_locator(MaxNLocator(integer=True))
         if ax.has_data():

@@ -19,7 +19,7 @@ from analysis import RunData, run_team_errors, safety_lines, summarise
 from formation.rigidity import expected_rigidity_rank
 from recorder.reading.run import read_run
 from recorder.reporting import network_plots, plots
-from recorder.reporting.conclusion import KEEP_M, coincidence_notes, conclusion
+from recorder.reporting.conclusion import KEEP_M, coincidence_notes, conclusion, names
 from recorder.reporting.deadlines import deadline_lines, read_deadlines
 from recorder.reporting.plots import Drawn
 from recorder.reporting.style import look
@@ -124,11 +124,11 @@ FOOTNOTES = {
 }
 
 
-def _numbers(sums: list[dict[str, Any]]) -> list[str]:
+def _numbers(columns: Sequence[str], sums: list[dict[str, Any]]) -> list[str]:
     """The table of :data:`_ROWS`, a column per run, and its footnotes."""
     notes = [name for name, _ in _ROWS if name in FOOTNOTES]
     mark = {name: f" [{i}]" for i, name in enumerate(notes, 1)}
-    lines = ["| | " + " | ".join(s["label"] for s in sums) + " |", "|---|" + "---|" * len(sums)]
+    lines = ["| | " + " | ".join(columns) + " |", "|---|" + "---|" * len(sums)]
     for name, key in _ROWS:
         cells = " | ".join(_fmt(s[key]) for s in sums)
         lines.append(f"| {name}{mark.get(name, '')} | {cells} |")
@@ -164,7 +164,7 @@ def _markdown(
         lines += ["## How the run ended", ""]
         lines += [f"- {label}: ended early, a plug-in failed: {why}" for label, why in ended]
         lines.append("")
-    lines += ["## Numbers", "", *_numbers(sums), "", "## Runs", "", *_runs(runs)]
+    lines += ["## Numbers", "", *_numbers(names(runs), sums), "", "## Runs", "", *_runs(runs)]
     lines += ["", "## Drops per link (longest outage in epochs)", ""]
     for s in sums:
         links = list(s["drops"].items())
@@ -235,16 +235,16 @@ def _markdown(
 
 
 def _drawn(runs: Sequence[RunData]) -> list[Drawn]:
-    """Each run's look: its strategy's, or its label's when two runs share a strategy."""
+    """Each run's name and look: its strategy's, or its label's when two share a strategy."""
     strategies = [r.strategy for r in runs]
     notes = coincidence_notes(runs)
     return [
         Drawn(
-            r.label,
+            name,
             look(r.strategy if strategies.count(r.strategy) == 1 else r.label),
-            notes.get(r.label, ""),
+            notes.get(i, ""),
         )
-        for r in runs
+        for i, (r, name) in enumerate(zip(runs, names(runs), strict=True))
     ]
 
 

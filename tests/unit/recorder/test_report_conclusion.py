@@ -8,7 +8,7 @@ from typing import Any
 import pytest
 
 from formation.scenario import Scenario
-from recorder.reporting.conclusion import conclusion, evidence
+from recorder.reporting.conclusion import conclusion, evidence, keep_sentence
 from recorder.reporting.report import write_report_from
 from testbed.sim.simulate import simulate
 from testkit.report_files import missing
@@ -97,3 +97,13 @@ def test_the_distance_controller_needs_rigidity(paper: Scenario) -> None:
     text = " ".join(conclusion([run]))
     assert "the healthy graph was not rigid in 49 of 50 epochs (connected in every epoch), and " \
         "the distance controller needs it rigid" in text  # fmt: skip
+
+
+def test_one_run_or_one_loser_is_named_in_the_singular() -> None:
+    assert keep_sentence([("hold", 0.1)]) == (
+        "`hold` loses the formation (final formation error 0.1 m, over the 0.05 m threshold)."
+    )
+    assert keep_sentence([("estimate", 0.005), ("zero", 0.3)]) == (
+        "`estimate` keeps the formation (final formation error 0.005 m, under the 0.05 m "
+        "threshold); `zero` loses it (0.3 m: 60× `estimate`'s)."
+    )
