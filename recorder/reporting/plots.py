@@ -183,7 +183,7 @@ def _panels(count: int, width: float = 4.6) -> tuple[Figure, list[Axes]]:
     """A grid of ``count`` panels, at most three a row; spare cells hidden."""
     cols = min(3, max(count, 1))
     rows = -(-count // cols)
-    fig = Figure(figsize=(width * cols, width * rows + 0.6), layout="constrained")
+    fig = Figure(figsize=(max(width * cols, 6.4), width * rows + 0.6), layout="constrained")
     grid = list(np.atleast_1d(fig.subplots(rows, cols, squeeze=False).ravel()))
     for spare in grid[count:]:
         spare.set_visible(False)
@@ -248,7 +248,7 @@ def plot_trajectories(
         ax.grid(True, alpha=0.3)
     if axes:
         axes[0].legend(loc="best", fontsize="x-small")
-    fig.suptitle("formation at chosen epochs (agents' paths thin), target shape dashed")
+    fig.suptitle("formation at chosen epochs, target shape dashed", fontsize="medium")
     return _save(fig, path)
 
 

@@ -60,9 +60,11 @@ def _styles(fig: Figure) -> dict[str, tuple[str, str, str]]:
     return out
 
 
-def test_every_figure_draws_a_strategy_in_its_look(
+def test_every_figure_draws_a_strategy_in_its_look_and_none_hidden(
     sim_results: dict[str, Any], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    from testbed.sim.simulate import simulate
+
     figures: dict[str, Figure] = {}
 
     def keep(module: Any) -> Any:
@@ -76,8 +78,9 @@ def test_every_figure_draws_a_strategy_in_its_look(
 
     monkeypatch.setattr(plots, "_save", keep(plots))
     monkeypatch.setattr(experiment_plots, "_save", keep(experiment_plots))
-    runs = [r.record() for r in sim_results.values()]  # hold, estimate
-    write_report_from(runs, tmp_path)
+    s = sim_results["estimate"].scenario
+    runs = [r.record() for r in sim_results.values()] + [simulate(s, "blend").record()]
+    write_report_from(runs, tmp_path)  # hold, estimate and blend: blend moves as estimate does
     series = {s: np.abs(np.random.default_rng(1).normal(size=(20, 3))) for s in CHAPTER_LOOKS}
     experiment_plots.plot_error_bands(series, tmp_path / "bands.png", "t", "error [m]")
     experiment_plots.plot_covariance_over_epochs(
@@ -92,27 +95,10 @@ def test_every_figure_draws_a_strategy_in_its_look(
             x = look(strategy)
             assert style == (x.colour, x.line, x.marker), (name, strategy)
 
-
-def test_a_strategy_identical_to_another_stays_visible_and_says_so(
-    sim_results: dict[str, Any], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    from testbed.sim.simulate import simulate
-
-    s = sim_results["estimate"].scenario
-    runs = [sim_results["estimate"].record(), simulate(s, "blend").record()]
-    figures: dict[str, Figure] = {}
-    saved = plots._save
-
-    def keep(fig: Figure, path: Path) -> Path:
-        figures[path.name] = fig
-        return saved(fig, path)
-
-    monkeypatch.setattr(plots, "_save", keep)
-    write_report_from(runs, tmp_path)
-    top = figures["errors.png"].axes[0]
+    top = figures["recorder.reporting.plots:errors.png"].axes[0]
     lines = {str(ln.get_label()): ln for ln in top.get_lines()}
     estimate, blend = lines["estimate"], lines["blend (identical to estimate)"]
     assert np.array_equal(estimate.get_ydata(), blend.get_ydata())
-    assert blend.get_zorder() > estimate.get_zorder()  # on top, dashed, markers elsewhere
+    assert blend.get_zorder() > estimate.get_zorder()  # on top, dashed, its markers elsewhere
     assert blend.get_linestyle() == "--"
     assert estimate.get_markevery()[0] != blend.get_markevery()[0]
