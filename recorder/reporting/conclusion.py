@@ -142,11 +142,17 @@ def graph_clause(controller: str, f: Evidence) -> str:
     if need == "connected":
         rigidity = f"it was {rigid}: only the distance controller needs rigidity"
         if f.split:
-            return f"the healthy graph was {connected}, and displacement consensus needs it connected ({rigidity})"
+            return (
+                f"the healthy graph was {connected} and connected in the others; displacement "
+                f"consensus needs it connected ({rigidity})"
+            )
         return f"the healthy graph was {connected}, which is all displacement consensus needs ({rigidity})"
     if need == "rigid":
         if f.not_rigid:
-            return f"the healthy graph was {rigid} epochs ({connected}), and the distance controller needs it rigid"
+            return (
+                f"the healthy graph was {rigid} epochs and rigid in the others ({connected}); "
+                "the distance controller needs it rigid"
+            )
         return f"the healthy graph was {rigid} ({connected}), which the distance controller needs"
     return f"the healthy graph was {connected} and {rigid}"
 
