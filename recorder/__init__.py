@@ -18,7 +18,16 @@ from recorder.playback.player import replay
 from recorder.reading.reader import RecordingInfo, describe, validate
 from recorder.reading.recovery import Recovered, recover
 from recorder.reading.run import read_run
+from recorder.reporting.conclusion import (
+    KEEP_M,
+    Evidence,
+    evidence,
+    fallback_clause,
+    graph_clause,
+    why_identical,
+)
 from recorder.reporting.deadlines import write_deadlines
+from recorder.reporting.style import THRESHOLD_COLOUR, Look, look, palette
 
 if TYPE_CHECKING:
     from recorder.reading.dataframes import export, load_run
@@ -40,17 +49,27 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = [
+    "KEEP_M",
+    "THRESHOLD_COLOUR",
+    "Evidence",
+    "Look",
     "RecordingInfo",
     "Recovered",
     "describe",
+    "evidence",
     "export",
+    "fallback_clause",
+    "graph_clause",
     "load_run",
+    "look",
     "main",
+    "palette",
     "read_run",
     "recorder_parser",
     "recover",
     "replay",
     "validate",
+    "why_identical",
     "write_deadlines",
     "write_report",
     "write_report_from",

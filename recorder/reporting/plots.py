@@ -1,14 +1,18 @@
 """The report's figures (docs/model.md §7): arrays in, a PNG out. The experiments draw theirs in ``testbed.experiments.plots``.
 
-Each function takes plain numpy arrays and labels, so a recording and the
-in-process simulator plot the same way; functions taking a list of series draw
-several runs (strategies) on the same axes. Figures are built with
+Each function takes plain numpy arrays and, per run, a :class:`Drawn` (its label, its
+strategy's look from :mod:`recorder.reporting.style` and a note when it moves identically to
+another run), so a recording and the in-process simulator plot the same way. A run never
+hides under another: every line carries its strategy's markers at its own epochs, and
+a note says when two are identical. What is identical in every run (the links' losses,
+the leader's graph and estimate) is drawn once. Figures are built with
 :class:`matplotlib.figure.Figure` and the Agg canvas: no pyplot state, no display.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -19,9 +23,36 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Ellipse
+from scipy.stats import chi2
+
+from recorder.reporting.style import (
+    BLACK,
+    GAIN_COLOUR,
+    GREY,
+    LOSS_COLOUR,
+    THRESHOLD_COLOUR,
+    Look,
+    palette,
+)
 
 Array = npt.NDArray[np.float64]
 DPI = 100
+MARKS = 10  # markers along a line: enough to tell two coinciding lines apart
+# x̂ − x depends on the noise, not on where the agents are; its rounding does
+SAME_ESTIMATE = 1e-6
+
+
+@dataclass(frozen=True)
+class Drawn:
+    """How one run is drawn: its label, its strategy's look and a note ("identical to …")."""
+
+    label: str
+    look: Look
+    note: str = ""
+
+    @property
+    def legend(self) -> str:
+        return f"{self.label} ({self.note})" if self.note else self.label
 
 
 def _save(fig: Figure, path: Path) -> Path:
@@ -40,31 +71,89 @@ def _log_axis(ax: Axes, values: Sequence[Array]) -> None:
         ax.set_yscale("log")
 
 
+def _line(ax: Axes, index: int, count: int, run: Drawn, x: npt.ArrayLike, y: Array) -> None:
+    """``y`` over ``x`` in ``run``'s look, its markers offset from the other runs'."""
+    step = max(len(y) // MARKS, count, 1)
+    style: dict[str, Any] = run.look.kwargs()
+    ax.plot(
+        x,
+        y,
+        **style,
+        markevery=(index % step, step),
+        markersize=5,
+        markerfacecolor="none" if index % 2 else run.look.colour,
+        lw=1.4,
+        zorder=2 + index,
+        label=run.legend,
+    )
+
+
+def groups(arrays: Sequence[tuple[npt.NDArray[Any], ...]], rtol: float = 0.0) -> list[list[int]]:
+    """Indices of ``arrays`` (one tuple per run) grouped by equality, in order: to the bit, or
+    within ``rtol`` of each other (values computed the same way from different positions)."""
+    out: list[list[int]] = []
+    for i, a in enumerate(arrays):
+        for g in out:
+            if all(_equal(x, y, rtol) for x, y in zip(a, arrays[g[0]], strict=True)):
+                g.append(i)
+                break
+        else:
+            out.append([i])
+    return out
+
+
+def _equal(x: npt.NDArray[Any], y: npt.NDArray[Any], rtol: float) -> bool:
+    if x.shape != y.shape:
+        return False
+    if rtol and x.dtype.kind == "f":
+        return bool(np.allclose(x, y, rtol=rtol, atol=0.0, equal_nan=True))
+    return bool(np.array_equal(x, y, equal_nan=x.dtype.kind == "f"))
+
+
+def group_label(runs: Sequence[Drawn], group: Sequence[int], rtol: float = 0.0) -> str:
+    """``every run`` when a group holds them all, else their labels; how equal they are."""
+    how = "identical" if not rtol else f"equal within {rtol:g}"
+    if len(group) == len(runs) > 1:
+        return f"every run ({len(runs)}, {how})"
+    names = ", ".join(runs[i].label for i in group)
+    return f"{names} ({how})" if len(group) > 1 else names
+
+
 def plot_errors(
-    series: Sequence[tuple[str, Array, Array]],
+    runs: Sequence[Drawn],
+    errors: Sequence[tuple[Array, Array]],
     path: Path,
     marks: Sequence[tuple[int, str]] = (),
+    keep_m: float | None = None,
+    floor_m: float | None = None,
 ) -> Path:
-    """Formation and shape error over epochs: ``series`` of ``(label, formation (P,), shape (P,))`` [m].
+    """Formation and shape error over epochs: ``errors`` of ``(formation (P,), shape (P,))`` [m].
 
+    ``keep_m``: the keep threshold, ``floor_m``: the noise floor, drawn on the formation error.
     ``marks``: ``(epoch, text)`` drawn as vertical lines, the text starting with the change:
-    red where an agent goes out (``lost``, ``leave``, ``crash``), green where it comes in;
-    dashed when unplanned (``lost``, ``back``), dotted for the scenario's events.
+    vermillion where an agent goes out (``lost``, ``leave``, ``crash``), bluish green where it
+    comes in; dashed when unplanned (``lost``, ``back``), dotted for the scenario's events.
     """
     fig = Figure(figsize=(9, 6.5), layout="constrained")
     top, bottom = fig.subplots(2, 1, sharex=True)
-    for label, form, shape in series:
-        top.plot(np.arange(len(form)), form, label=label)
-        bottom.plot(np.arange(len(shape)), shape, label=label)
-    _log_axis(top, [s[1] for s in series])
-    _log_axis(bottom, [s[2] for s in series])
+    for index, (run, (form, shape)) in enumerate(zip(runs, errors, strict=True)):
+        _line(top, index, len(runs), run, np.arange(len(form)), form)
+        _line(bottom, index, len(runs), run, np.arange(len(shape)), shape)
+    _log_axis(top, [e[0] for e in errors])
+    _log_axis(bottom, [e[1] for e in errors])
+    if keep_m is not None:
+        top.axhline(keep_m, color=THRESHOLD_COLOUR, ls="--", lw=1, label=f"keep: {keep_m:g} m")
+    if floor_m is not None:
+        top.axhline(
+            floor_m, color=THRESHOLD_COLOUR, ls=":", lw=1, label=f"noise floor {floor_m:.2g} m"
+        )
     top.set_ylabel("formation error [m]")
     top.set_title("RMS over edges of ||x_i − x_j|| − C_ij")
     bottom.set_ylabel("shape error [m]")
     bottom.set_xlabel("epoch")
     for epoch, text in marks:
         what = text.split()[0]
-        color = "tab:red" if what in ("lost", "leave", "crash") else "tab:green"
+        color = LOSS_COLOUR if what in ("lost", "leave", "crash") else GAIN_COLOUR
         style = "--" if what in ("lost", "back") else ":"
         for ax in (top, bottom):
             ax.axvline(epoch, color=color, linestyle=style, linewidth=0.9, alpha=0.8)
@@ -82,58 +171,7 @@ def plot_errors(
         )
     for ax in (top, bottom):
         ax.grid(True, alpha=0.3)
-        ax.legend(loc="best", fontsize="small")
-    return _save(fig, path)
-
-
-def plot_trajectories(
-    runs: Sequence[tuple[str, Array]],
-    edges: npt.NDArray[np.int64],
-    leader: int,
-    epochs: Sequence[int],
-    path: Path,
-) -> Path:
-    """Trajectories of every agent, the formation drawn at ``epochs``; ``runs`` of ``(label, (P, n, d))``.
-
-    A 3-D run is drawn projected on the x–y plane. Teams of more than :data:`MAX_DRAWN`
-    agents get the aggregate view of :func:`_team_at_epochs` instead: their trajectories
-    would be a smear.
-    """
-    if runs and runs[0][1].shape[1] > MAX_DRAWN:
-        return _team_at_epochs(runs, edges, leader, epochs, path)
-    cols = len(runs)
-    fig = Figure(figsize=(5.5 * cols, 5.2), layout="constrained")
-    axes = np.atleast_1d(fig.subplots(1, cols, squeeze=False)[0])
-    for ax, (label, x) in zip(axes, runs, strict=True):
-        n = x.shape[1]
-        colors = [f"C{i % 10}" for i in range(n)]
-        for i in range(n):
-            ax.plot(
-                x[:, i, 0], x[:, i, 1], color=colors[i], lw=1.0, alpha=0.8, label=f"agent {i + 1}"
-            )
-        shades = np.linspace(0.35, 1.0, max(len(epochs), 1))
-        for shade, k in zip(shades, epochs, strict=False):
-            if not 0 <= k < len(x) or not np.isfinite(x[k]).all():
-                continue
-            for i, j in edges:
-                a, b = x[k, i - 1], x[k, j - 1]
-                ax.plot([a[0], b[0]], [a[1], b[1]], color="k", alpha=float(shade), lw=1.2)
-            ax.scatter(
-                x[k, :, 0], x[k, :, 1], c=colors, s=25, zorder=3, edgecolors="k", linewidths=0.5
-            )
-            ax.annotate(
-                f"k={k}",
-                x[k, leader - 1, :2],
-                fontsize="x-small",
-                xytext=(4, 4),
-                textcoords="offset points",
-            )
-        ax.set_title(label)
-        ax.set_xlabel("x [m]")
-        ax.set_ylabel("y [m]")
-        ax.set_aspect("equal", adjustable="datalim")
-        ax.grid(True, alpha=0.3)
-    axes[0].legend(loc="best", fontsize="x-small")
+    top.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
     return _save(fig, path)
 
 
@@ -141,18 +179,106 @@ MAX_DRAWN = 60
 """Agents (trajectories) or links (timeline rows) up to which each is drawn on its own."""
 
 
+def _panels(count: int, width: float = 4.6) -> tuple[Figure, list[Axes]]:
+    """A grid of ``count`` panels, at most three a row; spare cells hidden."""
+    cols = min(3, max(count, 1))
+    rows = -(-count // cols)
+    fig = Figure(figsize=(max(width * cols, 6.4), width * rows + 0.6), layout="constrained")
+    grid = list(np.atleast_1d(fig.subplots(rows, cols, squeeze=False).ravel()))
+    for spare in grid[count:]:
+        spare.set_visible(False)
+    return fig, grid[:count]
+
+
+def plot_trajectories(
+    runs: Sequence[Drawn],
+    positions: Sequence[Array],
+    edges: npt.NDArray[np.int64],
+    offsets: Array,
+    leader: int,
+    failed: npt.NDArray[np.bool_],
+    epochs: Sequence[int],
+    path: Path,
+) -> Path:
+    """One panel per run: the agents' paths, the formation at ``epochs``, the target shape at
+    the last epoch (placed on the reference agent ``leader``) and the ``failed`` (m,) edges.
+
+    positions : (P, n, d) per run [m]; offsets : (n, d) the shape ``d0`` [m]. A 3-D run is
+    drawn projected on the x–y plane. Teams of more than :data:`MAX_DRAWN` agents get the
+    aggregate view of :func:`_team_at_epochs`: their trajectories would be a smear.
+    """
+    if positions and positions[0].shape[1] > MAX_DRAWN:
+        return _team_at_epochs(runs, positions, edges, leader, epochs, path)
+    fig, axes = _panels(len(runs))
+    shown = [k for k in epochs if positions and 0 <= k < len(positions[0])]
+    for ax, run, x in zip(axes, runs, positions, strict=True):
+        n = x.shape[1]
+        colours = palette(n)
+        for i in range(n):
+            ax.plot(x[:, i, 0], x[:, i, 1], color=colours[i], lw=0.8, alpha=0.6)
+        last = _last_finite(x)
+        for order, k in enumerate(shown):
+            if not np.isfinite(x[k]).all():
+                continue
+            final = k == shown[-1]
+            shade = GREY if not final else run.look.colour
+            _shape(ax, x[k], edges, shade, "-" if final else ":", f"k = {k}", 1.6 if final else 0.9)
+            ax.scatter(
+                x[k, :, 0], x[k, :, 1], c=colours, s=30 if final else 12, zorder=4 + order,
+                edgecolors=BLACK, linewidths=0.4,
+            )  # fmt: skip
+        if last is not None:
+            target = x[last, leader - 1] + (offsets - offsets[leader - 1])
+            _shape(ax, target, edges, BLACK, "--", f"target at k = {last}", 0.8)
+            down = edges[failed] - 1
+            for a, b in down:
+                seg = x[last, [a, b], :2]
+                ax.plot(seg[:, 0], seg[:, 1], color=GREY, lw=3, ls=(0, (1, 1.5)))
+                ax.plot(*seg.mean(axis=0), marker="X", color=BLACK, mec="white", ms=11, zorder=9)
+            if len(down):
+                ax.plot(
+                    [], [], color=GREY, lw=3, ls=(0, (1, 1.5)), marker="X", mfc=BLACK, mec="white",
+                    ms=10, label="link down",
+                )  # fmt: skip
+        title = run.label + (f"\n({run.note})" if run.note else "")
+        ax.set_title(title, fontsize="medium", color=run.look.colour)
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.grid(True, alpha=0.3)
+    if axes:
+        axes[0].legend(loc="best", fontsize="x-small")
+    fig.suptitle("formation at chosen epochs, target shape dashed", fontsize="medium")
+    return _save(fig, path)
+
+
+def _last_finite(x: Array) -> int | None:
+    whole = np.flatnonzero(np.isfinite(x).all(axis=(1, 2)))
+    return int(whole[-1]) if whole.size else None
+
+
+def _shape(
+    ax: Axes, x: Array, edges: npt.NDArray[np.int64], colour: str, style: Any, label: str, lw: float
+) -> None:
+    """The formation's edges at positions ``x`` (n, d), one legend entry."""
+    segments = np.stack([x[edges[:, 0] - 1, :2], x[edges[:, 1] - 1, :2]], axis=1)
+    ax.add_collection(
+        LineCollection(list(segments), colors=colour, linestyles=style, linewidths=lw, label=label)
+    )
+
+
 def _team_at_epochs(
-    runs: Sequence[tuple[str, Array]],
+    runs: Sequence[Drawn],
+    positions: Sequence[Array],
     edges: npt.NDArray[np.int64],
     leader: int,
     epochs: Sequence[int],
     path: Path,
 ) -> Path:
     """A large team: its edges at ``epochs`` (one collection each) and the reference's path."""
-    cols = len(runs)
-    fig = Figure(figsize=(5.5 * cols, 5.2), layout="constrained")
-    axes = np.atleast_1d(fig.subplots(1, cols, squeeze=False)[0])
-    for ax, (label, x) in zip(axes, runs, strict=True):
+    fig, axes = _panels(len(runs), width=5.0)
+    shades = palette(max(len(epochs), 1))
+    for ax, run, x in zip(axes, runs, positions, strict=True):
         for index, k in enumerate(epochs):
             if not 0 <= k < len(x):
                 continue
@@ -160,129 +286,18 @@ def _team_at_epochs(
             e = edges[seen[edges[:, 0] - 1] & seen[edges[:, 1] - 1]] - 1
             segments = np.stack([x[k, e[:, 0], :2], x[k, e[:, 1], :2]], axis=1)
             ax.add_collection(
-                LineCollection(list(segments), colors=f"C{index}", linewidths=0.3, label=f"k={k}")
+                LineCollection(
+                    list(segments), colors=shades[index], linewidths=0.3, label=f"k = {k}"
+                )
             )
         ax.plot(
-            x[:, leader - 1, 0], x[:, leader - 1, 1], color="k", lw=1.2, label="reference agent"
+            x[:, leader - 1, 0], x[:, leader - 1, 1], color=BLACK, lw=1.2, label="reference agent"
         )
         ax.autoscale()
-        ax.set_title(f"{label}: {x.shape[1]} agents, formation at chosen epochs")
+        ax.set_title(f"{run.label}: {x.shape[1]} agents", color=run.look.colour)
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
         ax.set_aspect("equal", adjustable="datalim")
-        ax.grid(True, alpha=0.3)
-        ax.legend(loc="best", fontsize="x-small")
-    return _save(fig, path)
-
-
-def _link_shares(
-    runs: Sequence[tuple[str, npt.NDArray[np.bool_], npt.NDArray[np.bool_]]], count: int, path: Path
-) -> Path:
-    """Many links: the share delivered, dropped and unknown at each epoch, and drops per link."""
-    fig = Figure(figsize=(10, 3.2 * len(runs)), layout="constrained")
-    axes = fig.subplots(len(runs), 2, squeeze=False, width_ratios=[3, 1])
-    for (ax, hist), (label, delivered, decided) in zip(axes, runs, strict=True):
-        k = np.arange(delivered.shape[0])
-        shares = [
-            (decided & delivered).mean(axis=1),
-            (decided & ~delivered).mean(axis=1),
-            (~decided).mean(axis=1),
-        ]
-        ax.stackplot(
-            k,
-            shares,
-            colors=["#2ca02c", "#d62728", "#cccccc"],
-            labels=["delivered", "dropped", "unknown"],
-        )
-        ax.set_ylim(0.0, 1.0)
-        ax.set_ylabel(f"share of {count} links")
-        ax.set_xlabel("epoch")
-        ax.set_title(f"{label}: links delivered, dropped, unknown", fontsize="small")
-        ax.legend(loc="lower left", fontsize="x-small")
-        drops = (decided & ~delivered).sum(axis=0)
-        hist.hist(drops, bins=np.arange(drops.max() + 2) - 0.5, color="#d62728")
-        hist.set_xlabel("drops per link")
-        hist.set_ylabel("links")
-    return _save(fig, path)
-
-
-def plot_link_timeline(
-    runs: Sequence[tuple[str, npt.NDArray[np.bool_], npt.NDArray[np.bool_]]],
-    link_labels: Sequence[str],
-    path: Path,
-) -> Path:
-    """Per-link delivered (green) / dropped (red) / unknown (grey) by epoch; ``(label, delivered, decided)``.
-
-    More than :data:`MAX_DRAWN` links: their shares per epoch and the drops per link.
-    """
-    if len(link_labels) > MAX_DRAWN:
-        return _link_shares(runs, len(link_labels), path)
-    rows = len(runs)
-    height = max(2.0, 0.22 * len(link_labels) + 1.2)
-    fig = Figure(figsize=(10, height * rows), layout="constrained")
-    axes = np.atleast_1d(fig.subplots(rows, 1, squeeze=False)[:, 0])
-    palette = np.array([[0.84, 0.15, 0.16], [0.17, 0.63, 0.17], [0.8, 0.8, 0.8]])
-    for ax, (label, delivered, decided) in zip(axes, runs, strict=True):
-        code = np.where(decided, delivered.astype(int), 2)
-        if code.shape[0] == 0:  # a run that ended before its first epoch
-            ax.text(0.5, 0.5, "no epoch recorded", ha="center", va="center", transform=ax.transAxes)
-            continue
-        ax.imshow(palette[code.T], aspect="auto", interpolation="nearest", origin="lower")
-        ax.set_yticks(np.arange(len(link_labels)), list(link_labels), fontsize="x-small")
-        ax.set_title(
-            f"{label}: links delivered (green), dropped (red), unknown (grey)", fontsize="small"
-        )
-        ax.set_xlabel("epoch")
-    return _save(fig, path)
-
-
-def plot_topology(
-    runs: Sequence[
-        tuple[
-            str,
-            npt.NDArray[np.bool_],
-            npt.NDArray[np.int64],
-            npt.NDArray[np.int64],
-            npt.NDArray[np.int64],
-        ]
-    ],
-    expected_rank: int,
-    path: Path,
-) -> Path:
-    """MST changes, rigidity rank and components over epochs; ``(label, tree (E, m), rank (E,),
-    components (E,), rigid (E,))``. Where only rigid or not is known (rank −1, a large
-    formation: docs/model.md §2), a marker on the rigid line says which."""
-    fig = Figure(figsize=(9, 7), layout="constrained")
-    ax_tree, ax_rank, ax_comp = fig.subplots(3, 1, sharex=True)
-    for index, (label, tree, rank, comps, rigid) in enumerate(runs):
-        k = np.arange(len(rank))
-        changes = (
-            np.r_[False, (tree[1:] != tree[:-1]).any(axis=1)] if len(tree) else np.zeros(0, bool)
-        )
-        size = tree.sum(axis=1) if len(tree) else np.zeros(0)
-        ax_tree.step(k, size, where="post", label=f"{label}: tree edges")
-        ax_tree.scatter(k[changes], size[changes], marker="x", color=f"C{index}", zorder=3)
-        known = rank >= 0
-        if known.any():
-            ax_rank.step(k[known], rank[known], where="post", label=label)
-        for value, marker, what in ((1, "o", "rigid"), (0, "v", "not rigid")):
-            at = ~known & (rigid[: len(k)] == value)
-            if at.any():
-                ax_rank.scatter(
-                    k[at],
-                    np.full(at.sum(), expected_rank),
-                    marker=marker,
-                    s=12,
-                    color=f"C{index}",
-                    label=f"{label}: {what}, rank not computed",
-                )
-        ax_comp.step(k[comps >= 0], comps[comps >= 0], where="post", label=label)
-    ax_rank.axhline(expected_rank, color="k", ls="--", lw=1, label=f"rigid ({expected_rank})")
-    ax_tree.set_ylabel("MST edges (x: change)")
-    ax_rank.set_ylabel("rigidity rank\n(healthy subgraph)")
-    ax_comp.set_ylabel("components")
-    ax_comp.set_xlabel("epoch")
-    for ax in (ax_tree, ax_rank, ax_comp):
         ax.grid(True, alpha=0.3)
         ax.legend(loc="best", fontsize="x-small")
     return _save(fig, path)
@@ -310,80 +325,112 @@ def _ellipse(ax: Axes, errors: Array, color: str) -> None:
     )
 
 
-def plot_covariance(runs: Sequence[tuple[str, Array, Array]], path: Path) -> Path:
-    """Substitution errors ``x̃ − x`` and estimation errors ``x̂ − x`` with 2-σ ellipses; ``(label, sub (N, d), est (M, d))``."""
+def _trace(err: Array) -> float:
+    return float(np.trace(np.atleast_2d(np.cov(err, rowvar=False)))) if err.shape[0] > 1 else np.nan
+
+
+def plot_covariance(
+    runs: Sequence[Drawn], substitution: Sequence[Array], estimation: Sequence[Array], path: Path
+) -> Path:
+    """Substitution errors ``x̃ − x`` per run and estimation errors ``x̂ − x`` (once where the
+    runs' are identical) with 2-σ ellipses; ``(N, d)`` and ``(M, d)`` per run [m]."""
     fig = Figure(figsize=(11, 5), layout="constrained")
     ax_sub, ax_est = fig.subplots(1, 2)
-    for index, (label, sub, est) in enumerate(runs):
-        color = f"C{index}"
-        for ax, err in ((ax_sub, sub), (ax_est, est)):
-            if err.shape[0] == 0:
-                continue
-            trace = (
-                np.trace(np.atleast_2d(np.cov(err, rowvar=False))) if err.shape[0] > 1 else np.nan
-            )
-            ax.scatter(
-                err[:, 0],
-                err[:, 1],
-                s=6,
-                alpha=0.4,
-                color=color,
-                label=f"{label} (tr Σ = {trace:.3g} m²)",
-            )
-            _ellipse(ax, err, color)
-    ax_sub.set_title("substitution error x̃_j − x_j (lost packets)")
+    none = []
+    for run, err in zip(runs, substitution, strict=True):
+        if err.shape[0] == 0:
+            none.append(run.label)
+            continue
+        ax_sub.scatter(
+            err[:, 0], err[:, 1], s=10, alpha=0.5, color=run.look.colour, marker=run.look.marker,
+            label=f"{run.legend} (tr Σ = {_trace(err):.3g} m²)",
+        )  # fmt: skip
+        _ellipse(ax_sub, err, run.look.colour)
+    if none:
+        ax_sub.text(
+            0.02, 0.02, "no substitution: " + ", ".join(none), transform=ax_sub.transAxes,
+            fontsize="x-small", va="bottom",
+        )  # fmt: skip
+    for group in groups([(e,) for e in estimation], SAME_ESTIMATE):
+        err, first = estimation[group[0]], runs[group[0]]
+        if err.shape[0] == 0:
+            continue
+        colour = BLACK if len(group) > 1 else first.look.colour
+        ax_est.scatter(
+            err[:, 0], err[:, 1], s=8, alpha=0.5, color=colour,
+            label=f"{group_label(runs, group, SAME_ESTIMATE)}: tr Σ = {_trace(err):.3g} m²",
+        )  # fmt: skip
+        _ellipse(ax_est, err, colour)
+    ax_sub.set_title("substitution error x̃_j − x_j (lost packets), 2σ ellipses")
     ax_est.set_title("estimation error x̂ − x (leader's BLUE)")
     for ax in (ax_sub, ax_est):
-        ax.set_xlabel("x [m]")
-        ax.set_ylabel("y [m]")
+        ax.set_xlabel("error in x [m]")
+        ax.set_ylabel("error in y [m]")
         ax.grid(True, alpha=0.3)
-        if ax.has_data():
+        if ax.collections:
             ax.legend(loc="best", fontsize="x-small")
         else:
             ax.text(0.5, 0.5, "none recorded", transform=ax.transAxes, ha="center", va="center")
     return _save(fig, path)
 
 
-def plot_nees(runs: Sequence[tuple[str, Array]], d: int, path: Path) -> Path:
-    """NEES per scored agent and epoch: histogram and running mean against ``d`` (honest estimator)."""
+def plot_nees(runs: Sequence[Drawn], values: Sequence[Array], d: int, path: Path) -> Path:
+    """NEES per scored agent and epoch, once per distinct set of values, against χ²_d.
+
+    Left: the histogram and the χ²_d density with its 95 % interval; right: the running mean
+    and the 95 % band of the mean of ``N`` independent χ²_d values (χ²_{Nd} / N).
+    """
     fig = Figure(figsize=(11, 4.5), layout="constrained")
     ax_hist, ax_mean = fig.subplots(1, 2)
-    for label, values in runs:
-        if values.size == 0:
+    longest = 0
+    for group in groups([(v,) for v in values], SAME_ESTIMATE):
+        v, first = values[group[0]], runs[group[0]]
+        if v.size == 0:
             continue
-        ax_hist.hist(
-            values,
-            bins=40,
-            histtype="step",
-            density=True,
-            label=f"{label} (mean {values.mean():.3g})",
+        colour = BLACK if len(group) > 1 else first.look.colour
+        label = f"{group_label(runs, group, SAME_ESTIMATE)}: mean {v.mean():.3g}"
+        ax_hist.hist(v, bins=40, histtype="step", density=True, color=colour, label=label)
+        ax_mean.plot(np.cumsum(v) / np.arange(1, v.size + 1), color=colour, label=label)
+        longest = max(longest, v.size)
+    lo, hi = chi2.ppf([0.025, 0.975], d)
+    grid = np.linspace(1e-3, max(hi * 1.5, 1.0), 200)
+    ax_hist.plot(grid, chi2.pdf(grid, d), color=GREY, lw=1.5, label=f"χ²_{d} density")
+    ax_hist.axvspan(lo, hi, color=GREY, alpha=0.12, label=f"χ²_{d} 95 %: {lo:.2g}–{hi:.2g}")
+    if longest:
+        count = np.arange(1, longest + 1)
+        band = chi2.ppf([[0.025], [0.975]], count * d) / count
+        ax_mean.fill_between(
+            count - 1, band[0], band[1], color=GREY, alpha=0.2, label="95 % band of the mean"
         )
-        ax_mean.plot(np.cumsum(values) / np.arange(1, values.size + 1), label=label)
+    ax_mean.axhline(d, color=GREY, ls="--", lw=1, label=f"expected: d = {d}")
+    ax_hist.set_xlabel("NEES (dimensionless)")
+    ax_hist.set_ylabel("density")
+    ax_hist.set_title(f"NEES of each agent's position estimate (d = {d} coordinates)")
+    ax_mean.set_xlabel("sample (agent and epoch)")
+    ax_mean.set_ylabel("running mean of NEES")
+    ax_mean.set_title("running mean against the 95 % band of an honest estimator")
     for ax in (ax_hist, ax_mean):
         ax.grid(True, alpha=0.3)
-    ax_mean.axhline(d, color="k", ls="--", lw=1, label=f"d = {d}")
-    ax_hist.set_xlabel("NEES")
-    ax_hist.set_title("distribution (χ²_d for an honest estimator)")
-    ax_mean.set_xlabel("sample")
-    ax_mean.set_ylabel("running mean")
-    for ax in (ax_hist, ax_mean):
-        if ax.has_data():
-            ax.legend(loc="best", fontsize="x-small")
+        ax.legend(loc="best", fontsize="x-small")
     return _save(fig, path)
 
 
-def plot_queue_depths(runs: Sequence[tuple[str, dict[str, Any]]], path: Path) -> Path:
+def plot_queue_depths(runs: Sequence[tuple[Drawn, dict[str, Any]]], path: Path) -> Path:
     """Each capacity queue's depth over the run: the largest a packet found per epoch.
 
-    ``runs``: (label, the summary's ``queues``: name → ``max_depth_by_epoch``, epoch → depth).
+    ``runs``: (run, the summary's ``queues``: name → ``max_depth_by_epoch``, epoch → depth).
     """
     fig = Figure(figsize=(11, 3.8), layout="constrained")
     ax = fig.subplots()
-    for label, queues in runs:
-        for name, q in queues.items():
+    styles = ("-", "--", ":", "-.")
+    for run, queues in runs:
+        for q_index, (name, q) in enumerate(queues.items()):
             series = q["max_depth_by_epoch"]
             epochs = np.array([int(k) for k in series], dtype=float)
-            ax.step(epochs, list(series.values()), where="post", label=f"{label}: {name}", lw=1)
+            ax.step(
+                epochs, list(series.values()), where="post", label=f"{run.label}: {name}", lw=1,
+                color=run.look.colour, ls=styles[q_index % len(styles)],
+            )  # fmt: skip
     ax.set_xlabel("epoch")
     ax.set_ylabel("depth [packets]")
     ax.grid(True, alpha=0.3)
@@ -393,11 +440,13 @@ def plot_queue_depths(runs: Sequence[tuple[str, dict[str, Any]]], path: Path) ->
 
 
 __all__ = [
+    "MAX_DRAWN",
+    "Drawn",
+    "group_label",
+    "groups",
     "plot_covariance",
     "plot_errors",
-    "plot_link_timeline",
     "plot_nees",
     "plot_queue_depths",
-    "plot_topology",
     "plot_trajectories",
 ]

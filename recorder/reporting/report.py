@@ -13,18 +13,23 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from analysis import RunData, run_team_errors, safety_lines, summarise
 from formation.rigidity import expected_rigidity_rank
 from recorder.reading.run import read_run
-from recorder.reporting import plots
+from recorder.reporting import network_plots, plots
+from recorder.reporting.conclusion import KEEP_M, coincidence_notes, conclusion, names
 from recorder.reporting.deadlines import deadline_lines, read_deadlines
+from recorder.reporting.plots import Drawn
+from recorder.reporting.style import look
 
 LISTED_LINKS = 20  # links named in report.md; past that, the ones with most drops
 
 FIGURES = {
     "errors": "Formation and shape error",
     "trajectories": "Trajectories, formation drawn at chosen epochs",
-    "links": "Per-link delivered / dropped timeline",
+    "links": "Each link's packets: delivered, dropped, unknown",
     "topology": "MST changes, rigidity rank and components",
     "covariance": "Substitution and estimation error covariance",
     "nees": "NEES (normalised estimation error squared)",
@@ -109,22 +114,57 @@ _ROWS = (
 )
 
 
-def _markdown(
-    title: str, runs: Sequence[RunData], sums: list[dict[str, Any]], figures: dict[str, str]
-) -> str:
-    lines = [f"# {title}", ""]
+FOOTNOTES = {
+    "epochs not rigid": "epochs whose healthy graph (the links that delivered) is not rigid: "
+    "only the distance controller needs rigidity; displacement consensus needs the graph "
+    "connected (the row below).",
+    "NEES mean (expected d)": "normalised estimation error squared of each agent's position "
+    "estimate; an honest estimator averages d, the dimension (nees.png has its χ² band).",
+    "substitutions": "lost packets an agent filled in (`drop` leaves them out, so it has none).",
+}
+
+
+def _numbers(columns: Sequence[str], sums: list[dict[str, Any]]) -> list[str]:
+    """The table of :data:`_ROWS`, a column per run, and its footnotes."""
+    notes = [name for name, _ in _ROWS if name in FOOTNOTES]
+    mark = {name: f" [{i}]" for i, name in enumerate(notes, 1)}
+    lines = ["| | " + " | ".join(columns) + " |", "|---|" + "---|" * len(sums)]
+    for name, key in _ROWS:
+        cells = " | ".join(_fmt(s[key]) for s in sums)
+        lines.append(f"| {name}{mark.get(name, '')} | {cells} |")
+    lines.append("")
+    lines += [f"[{i}] {FOOTNOTES[name]}  " for i, name in enumerate(notes, 1)]
+    return lines
+
+
+def _runs(runs: Sequence[RunData]) -> list[str]:
+    """Where each run comes from: its recording, or the simulator."""
+    lines = []
     for run in runs:
+        where = f"`{run.source}`" if run.recorded is not None else "simulated in-process"
         lines.append(
-            f"- **{run.label}**: `{run.source}` (scenario {run.scenario.name}, seed {run.seed})"
+            f"- **{run.label}**: {where} (scenario {run.scenario.name}, strategy "
+            f"{run.strategy}, seed {run.seed})"
         )
+    return lines
+
+
+def _markdown(
+    title: str,
+    runs: Sequence[RunData],
+    sums: list[dict[str, Any]],
+    figures: dict[str, str],
+    captions: dict[str, str],
+) -> str:
+    lines = [f"# {title}", "", " ".join(conclusion(runs)), ""]
+    key = "errors"
+    lines += [f"![{FIGURES[key]}]({figures[key]})", "", f"*{captions[key]}*", ""]
     ended = [(s["label"], why) for s in sums for why in s.get("ended", [])]
     if ended:
-        lines += ["", "## How the run ended", ""]
+        lines += ["## How the run ended", ""]
         lines += [f"- {label}: ended early, a plug-in failed: {why}" for label, why in ended]
-    lines += ["", "## Numbers", "", "| | " + " | ".join(s["label"] for s in sums) + " |"]
-    lines.append("|---|" + "---|" * len(sums))
-    for name, key in _ROWS:
-        lines.append(f"| {name} | " + " | ".join(_fmt(s[key]) for s in sums) + " |")
+        lines.append("")
+    lines += ["## Numbers", "", *_numbers(names(runs), sums), "", "## Runs", "", *_runs(runs)]
     lines += ["", "## Drops per link (longest outage in epochs)", ""]
     for s in sums:
         links = list(s["drops"].items())
@@ -187,9 +227,71 @@ def _markdown(
         lines += ["", "## Notes", ""] + [f"- {n}" for n in notes]
     lines += ["", "## Figures", ""]
     for name, file in figures.items():
+        if name == key:
+            continue
         title = {**FIGURES, **OPTIONAL_FIGURES}[name]
-        lines += [f"### {title}", "", f"![{title}]({file})", ""]
+        lines += [f"### {title}", "", f"![{title}]({file})", "", f"*{captions[name]}*", ""]
     return "\n".join(lines)
+
+
+def _drawn(runs: Sequence[RunData]) -> list[Drawn]:
+    """Each run's name and look: its strategy's, or its label's when two share a strategy."""
+    strategies = [r.strategy for r in runs]
+    notes = coincidence_notes(runs)
+    return [
+        Drawn(
+            name,
+            look(r.strategy if strategies.count(r.strategy) == 1 else r.label),
+            notes.get(i, ""),
+        )
+        for i, (r, name) in enumerate(zip(runs, names(runs), strict=True))
+    ]
+
+
+def _floor(runs: Sequence[RunData], sums: list[dict[str, Any]]) -> float | None:
+    """The noise floor: ``drop``'s final formation error when it kept the formation (it
+    leaves lost terms out, so only the measurement noise is left)."""
+    finals = [
+        s["final_formation_error_m"]
+        for r, s in zip(runs, sums, strict=True)
+        if r.strategy == "drop"
+    ]
+    return finals[0] if finals and finals[0] is not None and finals[0] < KEEP_M else None
+
+
+def _captions(
+    runs: Sequence[RunData], drawn: Sequence[Drawn], floor: float | None, chosen: Sequence[int]
+) -> dict[str, str]:
+    same = "; ".join(
+        f"`{d.label}` is drawn over `{d.note.removeprefix('identical to ')}`: identical to the bit"
+        for d in drawn
+        if d.note
+    )
+    floor_text = (
+        f", the dotted one the noise floor ({floor:.2g} m: `drop`'s final error, measurement noise only)"
+        if floor is not None
+        else ""
+    )
+    s = runs[0].scenario
+    return {
+        "errors": f"Formation error (top) and shape error (bottom) per epoch, each strategy in its "
+        f"own colour, line and marker. The dashed grey line is the {KEEP_M:g} m keep threshold"
+        f"{floor_text}." + (f" {same}." if same else ""),
+        "trajectories": f"Each run's agents (thin paths) and its formation at epochs "
+        f"{', '.join(str(k) for k in chosen)} (dotted grey, then solid in the strategy's colour at "
+        f"the last); the target shape dashed, placed on the reference agent {s.reference_agent}; "
+        "links down at the last epoch marked ✕.",
+        "links": "Every formation link's packets per epoch, drawn once for runs whose links "
+        "delivered the same: sky blue delivered, vermillion dropped, grey unknown.",
+        "topology": "The leader's view of the links that delivered: its spanning tree's size "
+        f"(× where it changed), the rigidity rank against {expected_rigidity_rank(s.n, s.dimension)} "
+        "(rigid) and the connected components; one line for runs with the same graph.",
+        "covariance": "Left: the value each strategy used for a lost packet minus the truth, with "
+        "2σ ellipses. Right: the leader's estimation error, once for runs with the same estimate.",
+        "nees": f"NEES of the leader's position estimates against χ²_{s.dimension}: an honest "
+        "estimator's running mean stays in the grey 95 % band.",
+        "queues": "Each capacity queue's largest depth per epoch [packets].",
+    }
 
 
 def write_report_from(runs: Sequence[RunData], out_dir: Path, title: str | None = None) -> Path:
@@ -201,52 +303,74 @@ def write_report_from(runs: Sequence[RunData], out_dir: Path, title: str | None 
     s = first.scenario
     links = [f"{a}→{b}" for a, b in first.links]
     length = max(len(r.positions) for r in runs)
-    chosen = sorted({0, length // 4, length // 2, max(length - 1, 0)})
+    chosen = sorted({0, length // 2, max(length - 1, 0)})
     sums = [summarise(r) for r in runs]
+    drawn = _drawn(runs)
+    floor = _floor(runs, sums)
+    failed = ~first.healthy[-1] if len(first.healthy) else np.zeros(len(s.edge_array), bool)
     files = {
         "errors": plots.plot_errors(
-            [(r.label, *run_team_errors(r)) for r in runs],
+            drawn,
+            [run_team_errors(r) for r in runs],
             out_dir / "errors.png",
             marks=[
                 (c["epoch"], f"{c['what']} {c['agent']}")
                 for x in sums
                 for c in x.get("team_changes", [])
             ],
+            keep_m=KEEP_M,
+            floor_m=floor,
         ),
         "trajectories": plots.plot_trajectories(
-            [(r.label, r.positions) for r in runs],
+            drawn,
+            [r.positions for r in runs],
             s.edge_array,
+            s.offsets,
             s.reference_agent,
+            failed,
             chosen,
             out_dir / "trajectories.png",
         ),
-        "links": plots.plot_link_timeline(
-            [(r.label, r.delivered, r.decided) for r in runs],
-            links,
-            out_dir / "links.png",
+        "links": network_plots.plot_link_timeline(
+            drawn, [(r.delivered, r.decided) for r in runs], links, out_dir / "links.png"
         ),
-        "topology": plots.plot_topology(
-            [(r.label, r.tree, r.rigidity_rank, r.components, r.rigid) for r in runs],
+        "topology": network_plots.plot_topology(
+            drawn,
+            [(r.tree, r.rigidity_rank, r.components, r.rigid) for r in runs],
             expected_rigidity_rank(s.n, s.dimension),
             out_dir / "topology.png",
         ),
         "covariance": plots.plot_covariance(
-            [(r.label, r.substitution_errors, r.estimation_errors) for r in runs],
+            drawn,
+            [r.substitution_errors for r in runs],
+            [r.estimation_errors for r in runs],
             out_dir / "covariance.png",
         ),
         "nees": plots.plot_nees(
-            [(r.label, r.nees_values) for r in runs], s.dimension, out_dir / "nees.png"
+            drawn, [r.nees_values for r in runs], s.dimension, out_dir / "nees.png"
         ),
     }
-    queued = [(x["label"], x["queues"]) for x in sums if x.get("queues")]
+    queued = [(d, x["queues"]) for d, x in zip(drawn, sums, strict=True) if x.get("queues")]
     if queued:  # capacity (docs/model.md §9)
         files["queues"] = plots.plot_queue_depths(queued, out_dir / "queues.png")
     (out_dir / "summary.json").write_text(json.dumps(sums, indent=2) + "\n", encoding="utf-8")
-    title = title or f"Report: {s.name}"
-    text = _markdown(title, runs, sums, {k: p.name for k, p in files.items()})
+    title = title or _title(runs)
+    captions = _captions(runs, drawn, floor, chosen)
+    text = _markdown(title, runs, sums, {k: p.name for k, p in files.items()}, captions)
     path = out_dir / "report.md"
     path.write_text(text + "\n", encoding="utf-8")
     return path
+
+
+def _title(runs: Sequence[RunData]) -> str:
+    """``paper: estimate, seed 1`` or ``paper: zero, hold and estimate compared, seed 1``."""
+    seeds = sorted({r.seed for r in runs})
+    seed = f"seed {seeds[0]}" if len(seeds) == 1 else "seeds " + ", ".join(map(str, seeds))
+    if len(runs) == 1:
+        return f"{runs[0].scenario.name}: {runs[0].strategy}, {seed}"
+    names = [r.strategy for r in runs]
+    named = ", ".join(names[:-1]) + " and " + names[-1]
+    return f"{runs[0].scenario.name}: {named} compared, {seed}"
 
 
 def write_report(mcap_path: Path, out_dir: Path | None = None) -> Path:
@@ -254,7 +378,7 @@ def write_report(mcap_path: Path, out_dir: Path | None = None) -> Path:
     mcap_path = Path(mcap_path)
     run = read_run(mcap_path)
     run.deadlines = read_deadlines(mcap_path.parent)
-    return write_report_from([run], out_dir or mcap_path.parent, title=f"Report: {mcap_path}")
+    return write_report_from([run], out_dir or mcap_path.parent)
 
 
 def write_reports(paths: Sequence[Path], out_dir: Path | None = None) -> Path:
@@ -263,7 +387,14 @@ def write_reports(paths: Sequence[Path], out_dir: Path | None = None) -> Path:
     for run, p in zip(runs, paths, strict=True):
         run.deadlines = read_deadlines(Path(p).parent)
     target = out_dir or Path(paths[0]).parent
-    return write_report_from(runs, target, title="Report: " + ", ".join(str(p) for p in paths))
+    return write_report_from(runs, target)
 
 
-__all__ = ["FIGURES", "OPTIONAL_FIGURES", "write_report", "write_report_from", "write_reports"]
+__all__ = [
+    "FIGURES",
+    "FOOTNOTES",
+    "OPTIONAL_FIGURES",
+    "write_report",
+    "write_report_from",
+    "write_reports",
+]

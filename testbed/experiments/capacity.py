@@ -223,6 +223,16 @@ def results_markdown(r: CapacityResult) -> str:
     text = [
         "# Capacity: the formation against the network's capacity",
         "",
+        " ".join(r.conclusion("capacity ρ", "high")),
+        "",
+        "![success against capacity](phase.png)",
+        "",
+        "*The fraction of seeds keeping the formation (colour) per strategy (rows) and capacity "
+        "ρ (columns, a multiple of the least rate that fits each phase), one panel per case; "
+        "the white bar is each strategy's critical capacity.*",
+        "",
+        "## How it was run",
+        "",
         f"{spec.epochs} epochs, seeds {spec.seeds[0]}–{spec.seeds[-1]} ({len(spec.seeds)}), the "
         "batch simulator (netem's lockstep drops the same packets: "
         "`tests/integration/test_capacity_lockstep.py`). Capacity ρ is a multiple of `c`, the "
@@ -253,8 +263,7 @@ def results_markdown(r: CapacityResult) -> str:
         rest = ("seed", "max_diff", "recorded_diff", "match", "recording")
         rows = ([x["strategy"], f"{x['rate_multiple']:g}", *(x[k] for k in rest)] for x in r.real)
         text += ["## Real-process runs (recorded)", "", table(header, rows).rstrip("\n")]
-    text += ["", "![success against capacity](phase.png)", ""]
-    return "\n".join(text)
+    return "\n".join([*text, ""])
 
 
 def load_markdown(r: CapacityResult) -> str:

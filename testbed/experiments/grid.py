@@ -186,6 +186,51 @@ class GridResult:
         )
         return table(["ρ", *self.strategies], rows)
 
+    def conclusion(self, quantity: str, easiest: Literal["low", "high"]) -> list[str]:
+        """A sentence per column: where each strategy keeps the formation, the widest region
+        first (``quantity`` names the grid, "radio range ρ"), and the strategies whose
+        success is the same at every point."""
+        out = []
+        side = "from" if easiest == "high" else "up to"
+        for c in self.columns:
+            by_point: dict[float, list[str]] = {}
+            never = []
+            for s in self.strategies:
+                point = self.critical[(c, s)]
+                if point is None:
+                    never.append(f"`{s}`")
+                else:
+                    by_point.setdefault(point, []).append(f"`{s}`")
+            order = sorted(by_point, reverse=easiest == "low")
+            parts = [f"{side} {_times(p)} ({', '.join(by_point[p])})" for p in order]
+            if never:
+                parts.append(f"nowhere on the grid ({', '.join(never)})")
+            listed = ", ".join(parts[:-1]) + " and " + parts[-1] if len(parts) > 1 else parts[0]
+            text = (
+                f"In **{c}**, the formation is kept in ≥ {KEEP_FRACTION:.0%} of the seeds at "
+                f"every {quantity} {listed}"
+            )
+            same = _alike([(s, self.success[(c, s)]) for s in self.strategies])
+            if same:
+                text += "; " + "; ".join(
+                    f"{' and '.join(g)} keep the same share at every point" for g in same
+                )
+            out.append(text + ".")
+        return out
+
+
+def _alike(rows: Sequence[tuple[str, Array]]) -> list[list[str]]:
+    """Names whose arrays are equal, in groups of two or more."""
+    groups: list[list[tuple[str, Array]]] = []
+    for name, v in rows:
+        for g in groups:
+            if np.array_equal(g[0][1], v):
+                g.append((name, v))
+                break
+        else:
+            groups.append([(name, v)])
+    return [[f"`{n}`" for n, _ in g] for g in groups if len(g) > 1]
+
 
 def _times(value: float | None) -> str:
     return "none" if value is None else f"{value:g} ×"

@@ -17,8 +17,9 @@ import numpy.typing as npt
 from analysis import error_statistics
 from formation.reference import reference_positions
 from formation.scenario import STRATEGIES, Scenario, StrategyName
-from recorder import read_run
+from recorder import KEEP_M, read_run
 from testbed.experiments import plots, studies
+from testbed.experiments.findings import identical_notes, noise_floor
 from testbed.experiments.loss_variants import with_loss
 from testbed.experiments.markdown import table
 from testbed.experiments.paper import (
@@ -45,14 +46,24 @@ def _desired(res: BatchResult) -> Array:
     return np.asarray(ref[:, None, :] + (d0 - d0[r - 1])[None, :, :])
 
 
+FIGURES = {
+    "failure": "formation_error_failure.png",
+    "one lossy link": "formation_error_one_lossy.png",
+    "two lossy links": "formation_error_two_lossy.png",
+    "failure, 500 epochs": "formation_error_500.png",
+}
+"""The formation error figure of each variant."""
+
+
 def write_figures(r: PaperResults, out: Path) -> None:
     fail = r.runs["failure"]
+    notes = identical_notes(fail)
     desired = _desired(fail["estimate"])
     b = 0  # the scenario's seed (first of the list) for the position figures
     pos = {s: res.positions[:, b] for s, res in fail.items()}
     title = f"{r.scenario.name}: link 1–2 down from epoch 1, seed {r.seeds[b]}"
-    plots.plot_agent_positions(pos, desired, PLOTTED_AGENTS, out / "positions.png", title)
-    plots.plot_strategy_paths(pos, desired, PLOTTED_AGENTS, out / "trajectories.png", title)
+    plots.plot_agent_positions(pos, desired, PLOTTED_AGENTS, out / "positions.png", title, notes)
+    plots.plot_strategy_paths(pos, desired, PLOTTED_AGENTS, out / "trajectories.png", title, notes)
     traces = {}
     for s, res in fail.items():
         if s == "drop":
@@ -65,20 +76,19 @@ def write_figures(r: PaperResults, out: Path) -> None:
         traces,
         out / "substitution_covariance.png",
         f"substitution error covariance over {len(r.seeds)} seeds, link 1–2 down",
+        identical_notes({s: fail[s] for s in traces}, "sub_error"),
     )
-    names = {
-        "failure": "formation_error_failure.png",
-        "one lossy link": "formation_error_one_lossy.png",
-        "two lossy links": "formation_error_two_lossy.png",
-        "failure, 500 epochs": "formation_error_500.png",
-    }
-    for variant, fname in names.items():
-        series = {s: res.formation_error for s, res in r.runs[variant].items()}
+    for variant, fname in FIGURES.items():
+        runs = r.runs[variant]
+        series = {s: res.formation_error for s, res in runs.items()}
         plots.plot_error_bands(
             series,
             out / fname,
             f"{variant}: formation error, median and 10–90 % of {len(r.seeds)} seeds",
             "formation error [m]",
+            notes=identical_notes(runs),
+            keep_m=KEEP_M,
+            floor_m=noise_floor(runs),
         )
     if "alpha" in r.studies:
         a = r.studies["alpha"]
@@ -98,6 +108,12 @@ def write_figures(r: PaperResults, out: Path) -> None:
             d.join[1],
             out / "dynamic.png",
             f"agent {d.leave[0]} leaves at {d.leave[1]}, agent {d.join[0]} joins at {d.join[1]}",
+            notes={
+                s: "same shape error as estimate in every seed"
+                for s in d.shape_error
+                if s != "estimate"
+                and np.array_equal(d.shape_error[s], d.shape_error.get("estimate"), equal_nan=True)
+            },
         )
 
 
@@ -288,6 +304,7 @@ def _grid_team(paper: Scenario) -> Scenario:
 
 
 __all__ = [
+    "FIGURES",
     "SKIPPED_NOTE",
     "check_recording",
     "representative_seed",

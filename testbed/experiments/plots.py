@@ -2,7 +2,9 @@
 
 Each function takes arrays and writes one PNG. Kept out of ``recorder/reporting/plots.py`` (the per-run
 report's plots) because these compare many runs; the same conventions: SI units on the axes,
-one colour per strategy, files written once.
+each strategy in its one look (``recorder.look``: colour, line style, marker) with its markers
+at its own epochs, so a strategy identical to another stays visible, and ``notes`` (strategy →
+"identical to …") in the legend. Files written once.
 """
 
 from __future__ import annotations
@@ -13,16 +15,13 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
+from recorder import THRESHOLD_COLOUR, look, palette
+
 Array = npt.NDArray[np.float64]
-COLOURS = {
-    "zero": "tab:red",
-    "hold": "tab:orange",
-    "estimate": "tab:blue",
-    "blend": "tab:green",
-    "drop": "tab:purple",
-}
+MARKS = 10  # markers along a curve: enough to tell two coinciding curves apart
 _META = {"Software": None}  # no version string in the file: same inputs, same bytes
 
 
@@ -31,71 +30,97 @@ def _save(fig: Figure, path: Path) -> Path:
     return path
 
 
+def _label(name: str, notes: Mapping[str, str]) -> str:
+    return f"{name} ({notes[name]})" if name in notes else name
+
+
+def _curve(ax: Axes, index: int, count: int, name: str, y: Array, label: str | None) -> None:
+    """``y`` over its epochs in ``name``'s look, its markers offset from the other curves'."""
+    step = max(len(y) // MARKS, count, 1)
+    style: dict[str, Any] = look(name).kwargs()
+    ax.plot(
+        np.arange(len(y)), y, **style, markevery=(index % step, step), markersize=5, lw=1.4,
+        markerfacecolor="none" if index % 2 else style["color"], zorder=2 + index, label=label,
+    )  # fmt: skip
+
+
 def plot_agent_positions(
-    positions: Mapping[str, Array], desired: Array, agents: Sequence[int], path: Path, title: str
+    positions: Mapping[str, Array],
+    desired: Array,
+    agents: Sequence[int],
+    path: Path,
+    title: str,
+    notes: Mapping[str, str] | None = None,
 ) -> Path:
     """x and y of ``agents`` over the epochs, one column per strategy (figs 7.7–7.11).
 
     positions : strategy → (E + 1, n, d) true positions [m]; desired : (E + 1, n, d) the slots
-    ``x_ref + d0_i − d0_r`` [m].
+    ``x_ref + d0_i − d0_r`` [m]; notes : strategy → a note in its column's title.
     """
+    notes = notes or {}
     names = list(positions)
-    fig = Figure(figsize=(3.2 * len(names), 5.2), layout="constrained")
+    fig = Figure(figsize=(3.2 * len(names), 5.4), layout="constrained")
     axes = fig.subplots(2, len(names), sharex=True, sharey="row", squeeze=False)
     styles = ["-", "--", ":", "-."]
     for c, name in enumerate(names):
         x = positions[name]
         epochs = np.arange(x.shape[0])
+        colour = look(name).colour
         for row, coord in enumerate("xy"):
             ax = axes[row, c]
             for a_i, agent in enumerate(agents):
                 ls = styles[a_i % len(styles)]
-                ax.plot(
-                    epochs,
-                    x[:, agent - 1, row],
-                    ls,
-                    color=COLOURS.get(name, "k"),
-                    label=f"agent {agent}",
-                )
+                ax.plot(epochs, x[:, agent - 1, row], ls, color=colour, label=f"agent {agent}")
                 ax.plot(
                     epochs,
                     desired[:, agent - 1, row],
                     ls,
                     color="0.6",
                     lw=0.8,
-                    label=f"slot of {agent}" if a_i == 0 else None,
+                    label=f"slot of {agent}",
                 )
             ax.set_ylabel(f"{coord} [m]" if c == 0 else "")
             if row == 0:
-                ax.set_title(name)
+                ax.set_title(_label(name, notes).replace(" (", "\n("), color=colour, fontsize=9)
             else:
                 ax.set_xlabel("epoch")
             ax.grid(alpha=0.3)
     axes[0, 0].legend(fontsize=7)
-    fig.suptitle(title, fontsize=10)
+    fig.suptitle(title + "; grey: each agent's slot in the formation", fontsize=10)
     return _save(fig, path)
 
 
 def plot_strategy_paths(
-    positions: Mapping[str, Array], desired: Array, agents: Sequence[int], path: Path, title: str
+    positions: Mapping[str, Array],
+    desired: Array,
+    agents: Sequence[int],
+    path: Path,
+    title: str,
+    notes: Mapping[str, str] | None = None,
 ) -> Path:
-    """The plane paths of ``agents`` per strategy, with their slots (grey)."""
+    """The plane paths of ``agents`` per strategy, with their slots (grey); at most three
+    panels a row."""
+    notes = notes or {}
     names = list(positions)
-    fig = Figure(figsize=(3.0 * len(names), 3.3), layout="constrained")
-    axes = fig.subplots(1, len(names), squeeze=False)[0]
-    for ax, name in zip(axes, names, strict=True):
-        x = positions[name]
+    cols = min(3, len(names))
+    rows = -(-len(names) // cols)
+    fig = Figure(figsize=(3.6 * cols, 3.4 * rows + 0.4), layout="constrained")
+    grid = fig.subplots(rows, cols, squeeze=False).ravel()
+    for spare in grid[len(names) :]:
+        spare.set_visible(False)
+    for ax, name in zip(grid, names, strict=False):
+        x, style = positions[name], look(name)
         for agent in agents:
             ax.plot(desired[:, agent - 1, 0], desired[:, agent - 1, 1], color="0.6", lw=0.8)
-            ax.plot(x[:, agent - 1, 0], x[:, agent - 1, 1], color=COLOURS.get(name, "k"))
-            ax.plot(*x[-1, agent - 1, :2], "o", color=COLOURS.get(name, "k"), ms=3)
-            ax.annotate(str(agent), x[-1, agent - 1, :2], fontsize=7)
-        ax.set_title(name)
+            ax.plot(x[:, agent - 1, 0], x[:, agent - 1, 1], color=style.colour, ls=style.line)
+            ax.plot(*x[-1, agent - 1, :2], style.marker, color=style.colour, ms=5)
+            ax.annotate(f"agent {agent}", x[-1, agent - 1, :2], fontsize=7)
+        ax.set_title(_label(name, notes), color=style.colour, fontsize=9)
         ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
         ax.set_aspect("equal", adjustable="datalim")
         ax.grid(alpha=0.3)
-    axes[0].set_ylabel("y [m]")
-    fig.suptitle(title, fontsize=10)
+    fig.suptitle(title + "; grey: the agents' slots", fontsize=10)
     return _save(fig, path)
 
 
@@ -106,19 +131,32 @@ def plot_error_bands(
     ylabel: str,
     log: bool = True,
     marks: Sequence[tuple[int, str]] = (),
+    notes: Mapping[str, str] | None = None,
+    keep_m: float | None = None,
+    floor_m: float | None = None,
 ) -> Path:
     """Median and 10–90 % band over seeds of a per-epoch quantity per strategy.
 
-    series : strategy → (E + 1, S) values [m] (seeds in columns); marks : (epoch, label) lines.
+    series : strategy → (E + 1, S) values [m] (seeds in columns); marks : (epoch, label) lines;
+    notes : strategy → a legend note; keep_m, floor_m : the keep threshold and the noise floor
+    [m], drawn where given.
     """
-    fig = Figure(figsize=(7.0, 4.0), layout="constrained")
+    notes = notes or {}
+    fig = Figure(figsize=(8.0, 4.4), layout="constrained")
     ax = fig.subplots()
-    for name, v in series.items():
+    for index, (name, v) in enumerate(series.items()):
         epochs = np.arange(v.shape[0])
         with np.errstate(all="ignore"):
             lo, med, hi = np.nanpercentile(v, [10, 50, 90], axis=1)
-        ax.plot(epochs, med, color=COLOURS.get(name, "k"), label=name)
-        ax.fill_between(epochs, lo, hi, color=COLOURS.get(name, "k"), alpha=0.15, lw=0)
+        _curve(ax, index, len(series), name, med, _label(name, notes))
+        if name not in notes:  # an identical band would only darken the first
+            ax.fill_between(epochs, lo, hi, color=look(name).colour, alpha=0.12, lw=0)
+    if keep_m is not None:
+        ax.axhline(keep_m, color=THRESHOLD_COLOUR, ls="--", lw=1, label=f"keep: {keep_m:g} m")
+    if floor_m is not None:
+        ax.axhline(
+            floor_m, color=THRESHOLD_COLOUR, ls=":", lw=1, label=f"noise floor {floor_m:.2g} m"
+        )
     for epoch, label in marks:
         ax.axvline(epoch, color="0.3", ls="--", lw=0.8)
         ax.annotate(
@@ -136,25 +174,28 @@ def plot_error_bands(
     ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     return _save(fig, path)
 
 
-def plot_covariance_over_epochs(traces: Mapping[str, Array], path: Path, title: str) -> Path:
+def plot_covariance_over_epochs(
+    traces: Mapping[str, Array], path: Path, title: str, notes: Mapping[str, str] | None = None
+) -> Path:
     """Trace of the substitution error covariance at each epoch (over seeds), per strategy.
 
     traces : strategy → (E,) [m²], NaN where fewer than two errors.
     """
-    fig = Figure(figsize=(7.0, 4.0), layout="constrained")
+    notes = notes or {}
+    fig = Figure(figsize=(8.0, 4.2), layout="constrained")
     ax = fig.subplots()
-    for name, v in traces.items():
-        ax.plot(np.arange(v.shape[0]), v, color=COLOURS.get(name, "k"), label=name)
+    for index, (name, v) in enumerate(traces.items()):
+        _curve(ax, index, len(traces), name, v, _label(name, notes))
     ax.set_yscale("log")
     ax.set_xlabel("epoch")
     ax.set_ylabel("tr Cov(x̃ − x) [m²]")
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     return _save(fig, path)
 
 
@@ -164,15 +205,16 @@ def plot_alpha_curve(
     """A quantity against blend's ``α``, one line per measurement, the best ``α`` marked."""
     fig = Figure(figsize=(6.5, 4.0), layout="constrained")
     ax = fig.subplots()
+    colours = palette(len(curves))
     for i, (label, v) in enumerate(curves.items()):
-        colour = f"C{i}"
+        colour = colours[i]
         ax.plot(alphas, v, "o-", color=colour, ms=3, label=label)
         if label in best:
             j = int(np.argmin(np.abs(alphas - best[label])))
             ax.plot(alphas[j], v[j], "*", color=colour, ms=12)
     ax.set_yscale("log")
     ax.set_xlabel("α (blend)")
-    ax.set_ylabel("relative to α = 1 (estimate)")
+    ax.set_ylabel("ratio to α = 1 (estimate)")
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7)
@@ -228,7 +270,7 @@ def plot_phase(
             ax.set_yticks(range(len(strategies)), list(strategies))
             ax.set_title(f"{name}, {model}", fontsize=9)
             if r == rows - 1:
-                ax.set_xlabel("loss rate")
+                ax.set_xlabel("loss probability")
     if image is not None:
         fig.colorbar(
             image,
@@ -240,15 +282,21 @@ def plot_phase(
 
 
 def plot_dynamic(
-    shape_err: Mapping[str, Array], tree_edges: Array, leave: int, join: int, path: Path, title: str
+    shape_err: Mapping[str, Array],
+    tree_edges: Array,
+    leave: int,
+    join: int,
+    path: Path,
+    title: str,
+    notes: Mapping[str, str] | None = None,
 ) -> Path:
     """Shape error over the active edges (median over seeds) and the leader's tree size."""
     fig = Figure(figsize=(7.0, 5.5), layout="constrained")
     ax, ax2 = fig.subplots(2, 1, sharex=True, height_ratios=(3, 1))
-    for name, v in shape_err.items():
+    for index, (name, v) in enumerate(shape_err.items()):
         with np.errstate(all="ignore"):
             med = np.nanmedian(v, axis=1)
-        ax.plot(np.arange(v.shape[0]), med, color=COLOURS.get(name, "k"), label=name)
+        _curve(ax, index, len(shape_err), name, med, _label(name, notes or {}))
     for a in (ax, ax2):
         a.axvline(leave, color="0.3", ls="--", lw=0.8)
         a.axvline(join, color="0.3", ls=":", lw=0.8)
@@ -260,7 +308,7 @@ def plot_dynamic(
     ax.legend(fontsize=8)
     ax.set_title(title, fontsize=10)
     ax2.step(np.arange(tree_edges.shape[0]), tree_edges, where="post", color="k")
-    ax2.set_ylabel("tree edges")
+    ax2.set_ylabel("edges in the\nleader's tree")
     ax2.set_xlabel("epoch")
     return _save(fig, path)
 
@@ -325,7 +373,6 @@ def plot_range_phase(
 
 
 __all__ = [
-    "COLOURS",
     "plot_agent_positions",
     "plot_alpha_curve",
     "plot_covariance_over_epochs",

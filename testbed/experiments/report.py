@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import csv
 import io
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
+from testbed.experiments.findings import conclusion
 from testbed.experiments.grid import KEEP_FRACTION
 from testbed.experiments.markdown import table
 from testbed.experiments.paper import (
@@ -56,15 +56,6 @@ def _strategy_table(runs: dict[str, BatchResult], epochs_label: str) -> str:
     return table(header, rows)
 
 
-def _seed_table(runs: dict[str, BatchResult], seeds: Sequence[int]) -> str:
-    names = list(runs)
-    rows = (
-        [seed, *(fmt(float(runs[s].formation_error[-1, b]), ".4g") for s in names)]
-        for b, seed in enumerate(seeds)
-    )
-    return table(["seed", *names], rows)
-
-
 def seeds_csv(r: PaperResults) -> str:
     """One row per variant × strategy × seed."""
     buf = io.StringIO()
@@ -105,58 +96,91 @@ def seeds_csv(r: PaperResults) -> str:
     return buf.getvalue()
 
 
+FIGURE_CAPTIONS = {
+    "formation_error_failure.png": "Formation error when link 1–2 fails, median (line) and 10–90 % "
+    "of the seeds (band), log scale",
+    "formation_error_500.png": "The same for 500 epochs: `zero` and `hold` drift away as the team "
+    "moves, the others stay at the noise floor",
+    "formation_error_one_lossy.png": f"Formation error with link 1–2 lossy (Bernoulli {LOSSY_P:g})",
+    "formation_error_two_lossy.png": f"Formation error with links 1–2 and {SECOND_LINK[0]}–"
+    f"{SECOND_LINK[1]} lossy (Bernoulli {LOSSY_P:g})",
+    "positions.png": "x and y of agents 3 and 5 over the epochs, one column per strategy, the "
+    "slots they should hold in grey (the chapter's figs 7.7–7.11), first seed",
+    "trajectories.png": "The same agents' paths in the plane, their slots in grey, first seed",
+    "substitution_covariance.png": "Trace of the covariance of the values used for lost packets "
+    "minus the truth, at each epoch over the seeds",
+}
+LEGEND_NOTE = (
+    "Each strategy has one colour, line style and marker in every figure; the dashed grey line "
+    "is the keep threshold, the dotted one the noise floor (`drop`'s mean final error, when it "
+    "keeps the formation); a strategy identical to another is drawn over it with its markers "
+    "at other epochs, and its legend says so."
+)
+
+
+def _figure(name: str, caption: str) -> list[str]:
+    alt = caption.split(",")[0].split(". ")[0]
+    return [f"![{alt}]({name})", "", f"*{caption}.*", ""]
+
+
 def results_markdown(r: PaperResults) -> str:
-    """The whole ``results.md``: the claims, each variant's tables, the studies, the real runs."""
-    out = _claims(r) + _variants(r)
+    """The whole ``results.md``: the conclusion and its figure, the claims, each variant's
+    table, the studies, the real runs, the other figures."""
+    fail = r.runs["failure"]
+    key = "formation_error_failure.png"
+    out = [
+        f"# {r.scenario.name}: the chapter's experiment over {len(r.seeds)} seeds",
+        "",
+        " ".join(conclusion(fail)),
+        "",
+        *_figure(key, FIGURE_CAPTIONS[key] + ". " + LEGEND_NOTE.removesuffix(".")),
+        *_setup(r),
+        *_claims(r),
+        *_variants(r),
+    ]
     extra = r.studies
     sections = (
         ("controller", _controller),
         ("estimator", _estimator),
         ("alpha", _alpha),
-        ("dynamic", _dynamic),
+        ("dynamic", lambda d: _dynamic(d, real=bool(r.real))),
     )
     for name, section in sections:
         if name in extra:
             out += section(extra[name])
     if r.real:
         out += _real(r.real)
-    out += [
-        "",
-        "## Figures",
-        "",
-        "![positions](positions.png)",
-        "![trajectories](trajectories.png)",
-        "![substitution covariance](substitution_covariance.png)",
-        "![failure](formation_error_failure.png)",
-        "![one lossy link](formation_error_one_lossy.png)",
-        "![two lossy links](formation_error_two_lossy.png)",
-        "",
-        "Every number per seed: `seeds.csv`.",
-    ]
+    out += ["", "## Other figures", ""]
+    for name, caption in FIGURE_CAPTIONS.items():
+        if name != key:
+            out += _figure(name, caption)
+    out.append("Every number per seed: `seeds.csv` (a row per variant, strategy and seed).")
     return "\n".join(out) + "\n"
 
 
-def _claims(r: PaperResults) -> list[str]:
+def _setup(r: PaperResults) -> list[str]:
     s, seeds = r.scenario, r.seeds
-    n = len(seeds)
+    return [
+        "## How it was run",
+        "",
+        f"`formation experiment paper` on the scenario `{s.name}` (docs/model.md §8): {s.n} "
+        f"agents, link 1–2 down from epoch 1, reference moving along a line, noise σ = "
+        f"{s.noise.sigma_m:g} m, ε = {s.control.epsilon:g}; {len(seeds)} seeds ({seeds[0]}–"
+        f"{seeds[-1]}), {s.epochs} epochs as in the chapter and 500 for steady state. Every "
+        "variant is simulated in-process, a batch over the seeds, which equals `formation "
+        "simulate` seed by seed (the last section runs real processes). Mean ± standard "
+        f"deviation over the seeds. A run keeps the formation when its final formation error "
+        f"is under {KEEP_M:g} m.",
+        "",
+    ]
+
+
+def _claims(r: PaperResults) -> list[str]:
     claims = table(
         ["source", "claim", "verdict", "numbers"],
         ([c.source, c.text, f"**{c.verdict}**", c.evidence] for c in r.claims),
     )
-    return [
-        "# The chapter's experiment, reproduced",
-        "",
-        f"`formation experiment paper` on `{s.name}` (docs/model.md §8): {s.n} agents, link 1–2 down from epoch 1, "
-        f"reference moving along a line, noise σ = {s.noise.sigma_m:g} m, ε = {s.control.epsilon:g}; "
-        f"{n} seeds ({seeds[0]}–{seeds[-1]}), {s.epochs} epochs as in the chapter and 500 for steady state. "
-        f"In-process batch simulation (`testbed/batch.py`, equal to `formation simulate` per seed). "
-        f"Mean ± standard deviation over the seeds. A run keeps the formation when its final formation "
-        f"error is under {KEEP_M:g} m.",
-        "",
-        "## The chapter's claims",
-        "",
-        claims.rstrip("\n"),
-    ]
+    return ["## The chapter's claims", "", claims.rstrip("\n")]
 
 
 def _variants(r: PaperResults) -> list[str]:
@@ -170,20 +194,14 @@ def _variants(r: PaperResults) -> list[str]:
     out: list[str] = []
     for variant, per in r.runs.items():
         epochs = per["estimate"].plan.epochs
-        out += [
-            "",
-            f"## {titles.get(variant, variant)}",
-            "",
-            _strategy_table(per, f"epoch {epochs}"),
-            f"Final formation error at epoch {epochs} per seed [m]:",
-            "",
-            _seed_table(per, r.seeds),
-        ]
+        out += ["", f"## {titles.get(variant, variant)}", ""]
+        if variant != "failure":  # the failure's conclusion opens the file
+            out += [" ".join(conclusion(per)), ""]
+        out.append(_strategy_table(per, f"epoch {epochs}"))
     return [
         *out,
-        "Substitution errors (docs/model.md §7) count every lost variable, also those the reference agent "
-        "substitutes without steering by them: on this scenario agent 1's stand-in for x_2 (link 2→1) is "
-        "the only one with estimation error, since the leader knows x_1 exactly.",
+        "Substitution errors (docs/model.md §7) count every lost variable, also those the "
+        "reference agent fills in without steering by them (it follows the reference).",
     ]
 
 
@@ -231,7 +249,7 @@ def _alpha(a: AlphaStudy) -> list[str]:
     ]
 
 
-def _dynamic(d: DynamicStudy) -> list[str]:
+def _dynamic(d: DynamicStudy, real: bool) -> list[str]:
     (la, ka), (lj, kj) = d.leave, d.join
     return [
         "",
@@ -243,8 +261,13 @@ def _dynamic(d: DynamicStudy) -> list[str]:
         f"error over the edges active at each epoch, median of {len(d.seeds)} seeds. The leader's tree has "
         f"{int(d.tree_edges[ka - 1])} edges before epoch {ka}, {int(d.tree_edges[ka])} after agent {la} "
         f"leaves and {int(d.tree_edges[kj])} after agent {lj} joins; observable agents "
-        f"{int(d.observable[ka - 1])} → {int(d.observable[ka])} → {int(d.observable[kj])}. In-process only: "
-        "the scenario file and the distributed runtime have no join/leave events yet.",
+        f"{int(d.observable[ka - 1])} → {int(d.observable[ka])} → {int(d.observable[kj])}."
+        + (
+            " The same leave and join as scenario events also run through real processes (the "
+            'last row of "Real processes" below, with `real_runs.md`).'
+            if real
+            else ""
+        ),
         "",
         d.markdown(),
         "![dynamic](dynamic.png)",
@@ -279,4 +302,4 @@ def _real(real: list[dict[str, Any]]) -> list[str]:
     ]
 
 
-__all__ = ["results_markdown", "seeds_csv"]
+__all__ = ["FIGURE_CAPTIONS", "LEGEND_NOTE", "results_markdown", "seeds_csv"]

@@ -27,13 +27,13 @@ from analysis import error_statistics, team_shape_error
 from formation.graph import is_connected
 from formation.rigidity import expected_rigidity_rank, rigidity_rank
 from formation.scenario import STRATEGIES, Scenario, StrategyName, load_dict
+from recorder import KEEP_M  # one threshold for the run reports and the experiments
 from testbed.experiments.grid import KEEP_FRACTION
 from testbed.experiments.loss_variants import with_loss
 from testbed.experiments.markdown import table
 from testbed.sim.batch import BatchResult, plan_batch, run_batch
 
 Array = npt.NDArray[np.float64]
-KEEP_M = 0.05  # [m] a run keeps the formation when its final error is under this
 
 
 def fmt(v: float, spec: str = ".3g") -> str:
@@ -441,6 +441,7 @@ def dynamic_study(
 
 
 __all__ = [
+    "KEEP_M",
     "AlphaStudy",
     "ControllerStudy",
     "DynamicStudy",

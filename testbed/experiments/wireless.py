@@ -198,6 +198,16 @@ def wireless_results_markdown(r: WirelessResult) -> str:
     text = [
         "# Wireless: the formation against radio range",
         "",
+        " ".join(r.conclusion("radio range ρ", "high")),
+        "",
+        "![success against range](phase.png)",
+        "",
+        "*The fraction of seeds keeping the formation (colour) per strategy (rows) and radio "
+        "range ρ (columns, a multiple of the longest edge), one panel per case; the white bar "
+        "is each strategy's critical range.*",
+        "",
+        "## How it was run",
+        "",
         f"Scenario `{spec.scenario.name}` (n = {spec.scenario.n}, initial spread "
         f"{spec.scenario.initial.spread_m:g} m), {spec.epochs} epochs, seeds "
         f"{spec.seeds[0]}–{spec.seeds[-1]} ({len(spec.seeds)}). Every formation link `logistic`, "
@@ -244,8 +254,7 @@ def wireless_results_markdown(r: WirelessResult) -> str:
             for x in r.real
         )
         text += ["## Real-process runs (recorded)", "", table(header, rows).rstrip("\n")]
-    text += ["", "![success against range](phase.png)", ""]
-    return "\n".join(text)
+    return "\n".join([*text, ""])
 
 
 def run_wireless_real(

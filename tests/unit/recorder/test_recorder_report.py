@@ -17,7 +17,11 @@ from recorder import read_run
 from recorder.recording.writer import RecordingWriter
 from recorder.reporting import plots
 from recorder.reporting.report import FIGURES, write_report, write_report_from
+from recorder.reporting.style import GAIN_COLOUR, LOSS_COLOUR
 from testbed.sim.simulate import simulate
+from testkit.report_files import missing
+
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def finite_equal(a: np.ndarray, b: np.ndarray) -> bool:
@@ -96,6 +100,9 @@ def test_report_of_a_recording(tmp_path: Path, sim_results: dict[str, Any], synt
     assert f"| final formation error [m] | {float(fe[-1]):.4g} |" in text
     for name in FIGURES:
         assert f"]({name}.png)" in text
+    lost = f"loses the formation (final formation error {float(fe[-1]):.3g} m, over the 0.05 m"
+    assert text.startswith("# paper: ") and lost in text.splitlines()[2]  # the conclusion
+    assert f"`{path}`" in text and missing(report, ROOT) == []  # the recording, named
 
 
 def test_report_compares_simulated_strategies(tmp_path: Path, sim_results: dict[str, Any]) -> None:
@@ -182,7 +189,7 @@ def test_the_report_shows_the_team_and_marks_each_change_by_its_event(
     for ax in (top, bottom):
         marks = [ln for ln in ax.get_lines() if len(set(ln.get_xdata())) == 1]
         assert [(ln.get_xdata()[0], ln.get_color(), ln.get_linestyle()) for ln in marks] == [
-            (15, "tab:green", ":"), (25, "tab:red", ":"), (40, "tab:green", ":"), (60, "tab:red", ":")
+            (15, GAIN_COLOUR, ":"), (25, LOSS_COLOUR, ":"), (40, GAIN_COLOUR, ":"), (60, LOSS_COLOUR, ":")
         ]  # fmt: skip
     non_trivial_png(tmp_path / "errors.png")
 

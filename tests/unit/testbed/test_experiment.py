@@ -27,7 +27,10 @@ from testbed.experiments.sweep import (
 )
 from testbed.sim.simulate import simulate
 from testkit.forgeries import forgeries
+from testkit.report_files import missing
 from testkit.synthetic import EPOCH_NS, RUN, write_synthetic
+
+ROOT = Path(__file__).resolve().parents[3]
 
 SEEDS = (1, 2, 3, 4, 5, 6)
 TABLES = ("runs.csv", "critical.md", "success.md")
@@ -140,6 +143,16 @@ def test_paper_experiment_is_reproducible(paper: Scenario, tmp_path: Path) -> No
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes(), name
     text = (tmp_path / "a" / "results.md").read_text()
     assert "## §7.2: rigidity or connectivity" in text and "| **best α** |" in text
+    lines = text.splitlines()  # the conclusion first, computed from the seeds, then its figure
+    assert lines[0] == "# paper: the chapter's experiment over 3 seeds"
+    kept = lines[2].split(" keep the formation in all 3 seeds")[0]
+    assert sorted(kept.replace(" and", ",").split(", ")) == ["`blend`", "`drop`", "`estimate`"]
+    assert "`estimate` and `blend` move identically, to the bit, in every seed" in lines[2]
+    assert lines[4] == "![Formation error when link 1–2 fails](formation_error_failure.png)"
+    two = text.split("## Two lossy links")[1].split("\n\n")[1]  # there agent 5 fills in agent 3
+    assert two.startswith("`") and "move identically" not in two
+    assert "per seed [m]:" not in text and "testbed/batch.py" not in text
+    assert missing(tmp_path / "a" / "results.md", ROOT) == []
     for png in (
         "positions.png",
         "substitution_covariance.png",

@@ -20,6 +20,7 @@ from testbed.experiments.wireless import (
     wireless_variant,
     write_outputs,
 )
+from testkit.report_files import missing
 
 ROOT = Path(__file__).resolve().parents[3]
 RANGES = (0.75, 1.0, 1.5, 3.0)
@@ -102,6 +103,18 @@ def test_outputs(small: WirelessResult, tmp_path: Path) -> None:
     results = (tmp_path / "results.md").read_text()
     assert "out of range, the leader reached" in results
     assert (tmp_path / "phase.png").stat().st_size > 0
+    opening = results.splitlines()[2]  # the conclusion, from the critical ranges measured
+    for c in small.columns:
+        said = opening.split(f"In **{c}**, the formation is kept in ≥ 95% of the seeds at every ")[
+            1
+        ]
+        said = said.split(" In **")[0]
+        for s in STRATEGIES:
+            crit = small.critical[(c, s)]
+            where = "nowhere on the grid" if crit is None else f"from {crit:g} ×"
+            group = said.split(where)[1].split(")")[0]
+            assert f"`{s}`" in group, (c, s, said)
+    assert missing(tmp_path / "results.md", ROOT) == []
 
 
 def test_the_command_writes_the_tables(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
