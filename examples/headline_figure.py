@@ -8,7 +8,6 @@ legend, so no strategy hides under another.
 """
 
 import sys
-from pathlib import Path
 
 import matplotlib
 
@@ -17,19 +16,11 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import testbed
+from recorder import look
 
-SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "paper.toml"
 STRATEGIES = ("zero", "hold", "estimate", "blend", "drop")
-# Okabe-Ito colours (colour-blind safe), one line style per strategy.
-STYLE = {
-    "zero": ("#D55E00", "-"),
-    "hold": ("#E69F00", "--"),
-    "estimate": ("#0072B2", "-"),
-    "blend": ("#56B4E9", ":"),
-    "drop": ("#009E73", "-."),
-}
 
-scenario = testbed.load_scenario(SCENARIO)
+scenario = testbed.load_scenario("paper")
 errors = {
     name: testbed.simulate(scenario, strategy=name, seed=1).frames().metrics for name in STRATEGIES
 }
@@ -46,10 +37,14 @@ for name in STRATEGIES:
         line = next(ln for ln in ax.lines if ln.get_label().startswith(same[0]))
         line.set_label(f"{line.get_label()} = {name} (identical)")
         continue
-    colour, style = STYLE[name]
     metrics = errors[name]
-    ax.plot(
-        metrics.epoch, metrics.formation_error_m, color=colour, linestyle=style, lw=2, label=name
+    ax.plot(  # each strategy's one look, as in every report (colour-blind safe)
+        metrics.epoch,
+        metrics.formation_error_m,
+        **look(name).kwargs(),
+        markevery=5,
+        lw=2,
+        label=name,
     )
 ax.set_yscale("log")
 ax.set(

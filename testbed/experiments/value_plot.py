@@ -1,7 +1,7 @@
 """The headline figure of ``formation experiment value``: every strategy's error per case.
 
-Grouped bars, one panel per controller, one colour per strategy (:func:`strategy_colour`,
-Okabe–Ito: safe for the common colour-vision deficiencies), the bar the mean over the seeds and
+Grouped bars, one panel per controller, one colour per strategy (``recorder.look``,
+as in every figure: Okabe–Ito, safe for the common colour-vision deficiencies), the bar the mean over the seeds and
 its whisker the standard deviation, on a log axis. A bar equal to an earlier one of its case in
 every seed, bit for bit, is hatched and says so; a strategy that diverged is marked at the top;
 the cases where estimate pays, and where drop is better, are named over their bars.
@@ -15,27 +15,11 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
+from recorder import look
 from testbed.experiments.value_report import Row, verdict
 
-# Okabe & Ito (2008), "Color Universal Design": distinguishable with any common deficiency.
-OKABE_ITO = {
-    "zero": "#D55E00",  # vermillion
-    "hold": "#E69F00",  # orange
-    "estimate": "#0072B2",  # blue
-    "blend": "#56B4E9",  # sky blue
-    "drop": "#CC79A7",  # reddish purple
-}
-PLUGIN_COLOURS = ("#009E73", "#F0E442", "#000000")  # bluish green, yellow, black
 VERDICTS = {"pays": "estimate\npays", "worse": "drop\nbetter"}  # the regions named over a case
 _META = {"Software": None}  # no version string in the file: same inputs, same bytes
-
-
-def strategy_colour(strategy: str, strategies: Sequence[str]) -> str:
-    """One colour per strategy: the chapter's fixed, plug-ins in their order after them."""
-    if strategy in OKABE_ITO:
-        return OKABE_ITO[strategy]
-    plugins = [s for s in strategies if s not in OKABE_ITO]
-    return PLUGIN_COLOURS[plugins.index(strategy) % len(PLUGIN_COLOURS)]
 
 
 def plot_value_map(
@@ -55,7 +39,7 @@ def plot_value_map(
         mine = {r.case: r for r in rows if r.controller == controller}
         for k, s in enumerate(strategies):
             x = np.arange(len(cases)) + (k - (len(strategies) - 1) / 2) * width
-            colour = strategy_colour(s, strategies)
+            colour = look(s).colour
             for i, case in enumerate(cases):
                 e = mine[case].errors[s]
                 finite = e[np.isfinite(e)]
@@ -100,4 +84,4 @@ def _equal_to_earlier(row: Row, strategy: str, strategies: Sequence[str]) -> boo
     return any(row.errors[s].tobytes() == mine for s in earlier)
 
 
-__all__ = ["OKABE_ITO", "plot_value_map", "strategy_colour"]
+__all__ = ["plot_value_map"]
