@@ -43,7 +43,10 @@ def test_a_path_that_exists_wins_over_a_shipped_name(
 def test_an_unknown_name_is_refused_listing_the_shipped_ones() -> None:
     with pytest.raises(ScenarioError, match=r"^papr: no such file, nor a shipped scenario") as exc:
         Scenario.from_file("papr")
-    assert "shipped: access_point, distance_rigidity, distance_rigidity_fast, events, grid20, large/team10k" in str(exc.value)
+    assert (
+        "shipped: access_point, distance_rigidity, distance_rigidity_fast, events, grid20, large/team10k"
+        in str(exc.value)
+    )
 
 
 def test_a_missing_toml_file_is_a_path_not_a_name(tmp_path: Path) -> None:

@@ -37,7 +37,10 @@ def test_an_unknown_name_is_a_clear_error_naming_the_shipped_ones(
     assert main(["simulate", "papr"]) == 1
     out, err = capsys.readouterr()
     assert out == "" and err.startswith("formation simulate: error: papr: no such file, nor a")
-    assert "shipped: access_point, distance_rigidity, distance_rigidity_fast, events, grid20, large/team10k, octahedron3d, paper" in err
+    assert (
+        "shipped: access_point, distance_rigidity, distance_rigidity_fast, events, grid20, large/team10k, octahedron3d, paper"
+        in err
+    )
 
 
 def test_formation_scenarios_lists_each_with_its_description(
