@@ -84,6 +84,8 @@ class _Phase:
         phy = config.physical
         self.phy = phy
         self.rate = config.rate_kbps
+        self.slot_ns, self.sifs_ns, self.difs_ns = phy.slot_ns, phy.sifs_ns, phy.difs_ns
+        self.eifs_ns, self.ack_ns = phy.eifs_ns(), phy.ack_ns(self.rate)
         self.cw_min, self.cw_max = config.window
         dbm = received_dbm(config, positions, key.seed, key.epoch)
         power = to_mw(dbm)
@@ -106,16 +108,19 @@ class _Phase:
         self.queue: list[deque[int]] = [deque() for _ in range(n)]
         for f in order:
             self.queue[int(frames.sender[f])].append(int(f))
+        self.head_ready = np.full(n, NEVER, dtype=np.int64)  # [ns] the head frame's
+        for q in range(n):
+            self.set_head(q)
         self.busy = np.zeros(n, dtype=bool)
         self.sending = np.full(n, -1, dtype=np.int64)  # log index of its transmission
         self.nav_ns = np.zeros(n, dtype=np.int64)
         self.planned = np.full(n, NEVER, dtype=np.int64)
-        self.idle_from = [LONG_AGO] * n
-        self.eifs = [False] * n
-        self.counter = [0] * n
+        self.idle_from = np.full(n, LONG_AGO, dtype=np.int64)
+        self.eifs = np.zeros(n, dtype=bool)
+        self.counter = np.zeros(n, dtype=np.int64)
         self.cw = [self.cw_min] * n
         self.draws = [0] * n
-        self.awaiting = [False] * n  # sent a unicast frame, waiting for its ACK
+        self.awaiting = np.zeros(n, dtype=bool)  # sent a unicast frame, waiting for its ACK
         self.ack_on_air = [False] * n
         self.tries = [0] * n  # attempts of the head frame
         self.events: list[tuple[int, int, int, int]] = []  # (time, kind, order, value)
@@ -168,13 +173,16 @@ class _Phase:
             receiver, sender = divmod(value, self.n)
             if self.sending[receiver] < 0:
                 self.ack_on_air[sender] = True
-                ack_ns = self.phy.ack_ns(self.rate)
-                self.transmit([(receiver, ACK, sender, ack_ns, self.ack_sinr)])
+                self.transmit([(receiver, ACK, sender, self.ack_ns, self.ack_sinr)])
         elif kind == SENSED:
-            self.medium.log[value].sensed = True
+            self.medium.sense(value)
             self.sense()
 
     # -- a station's DCF -------------------------------------------------------------------
+    def set_head(self, s: int) -> None:
+        queue = self.queue[s]
+        self.head_ready[s] = self.frames.ready_ns[queue[0]] if queue else NEVER
+
     def contending(self, s: int) -> bool:
         return bool(self.queue[s]) and self.sending[s] < 0 and not self.awaiting[s]
 
@@ -184,40 +192,41 @@ class _Phase:
         self.draws[s] += 1
         return int(u[0] * (self.cw[s] + 1))
 
-    def count_start(self, s: int) -> int:
-        ifs = self.phy.eifs_ns() if self.eifs[s] else self.phy.difs_ns
-        return self.idle_from[s] + ifs
+    def count_start(self) -> npt.NDArray[np.int64]:
+        """[ns] when each agent's backoff counts from: DIFS (EIFS) after the medium went idle."""
+        ifs = np.where(self.eifs, self.eifs_ns, self.difs_ns)
+        return np.asarray(self.idle_from + ifs)
 
     def plan(self, s: int) -> None:
-        if self.busy[s] or not self.contending(s):
-            self.planned[s] = NEVER
-            return
-        ready = int(self.frames.ready_ns[self.queue[s][0]])
-        backoff_end = self.count_start(s) + self.counter[s] * self.phy.slot_ns
-        self.planned[s] = max(ready, backoff_end)
+        self.plan_all(np.arange(self.n) == s)
 
-    def freeze(self, s: int) -> None:
-        """The medium turned busy at ``s``: keep the slots it has not counted yet."""
-        start = self.count_start(s)
-        if self.now > start:
-            done = (self.now - start) // self.phy.slot_ns
-            self.counter[s] = max(0, self.counter[s] - done)
-        head_ready = self.contending(s) and self.frames.ready_ns[self.queue[s][0]] <= self.now
-        if head_ready and self.counter[s] == 0:
-            self.counter[s] = self.draw(s)  # a frame that did not find DIFS of idle medium
+    def plan_all(self, which: npt.NDArray[np.bool_]) -> None:
+        """When the agents in ``which`` send next if the medium stays idle."""
+        backoff_end = self.count_start() + self.counter * self.slot_ns
+        free = ~self.busy & (self.sending < 0) & ~self.awaiting
+        planned = np.where(free, np.maximum(self.head_ready, backoff_end), NEVER)
+        self.planned[which] = planned[which]
+
+    def freeze(self, turned: npt.NDArray[np.bool_]) -> None:
+        """The medium turned busy at these agents: keep the slots they have not counted yet."""
+        start = self.count_start()
+        done = np.where(self.now > start, (self.now - start) // self.slot_ns, 0)
+        self.counter[turned] = np.maximum(self.counter - done, 0)[turned]
+        # a ready frame that did not find DIFS of idle medium waits a backoff
+        waiting = (self.sending < 0) & ~self.awaiting & (self.head_ready <= self.now)
+        for s in np.flatnonzero(turned & waiting & (self.counter == 0)):
+            self.counter[s] = self.draw(int(s))
 
     def sense(self) -> None:
         """Carrier sense at every agent; freeze or resume the backoffs that changed."""
         busy = (self.sending >= 0) | self.medium.carrier_busy() | (self.nav_ns > self.now)
-        changed = np.flatnonzero(busy != self.busy)
-        for s in changed:
-            if busy[s]:
-                self.freeze(int(s))
-            else:
-                self.idle_from[s] = self.now
+        if (busy == self.busy).all():
+            return
+        turned_busy, turned_idle = busy & ~self.busy, ~busy & self.busy
+        self.freeze(turned_busy)
+        self.idle_from[turned_idle] = self.now
         self.busy = busy
-        for s in changed:
-            self.plan(int(s))
+        self.plan_all(turned_busy | turned_idle)
 
     def send(self, senders: list[int]) -> None:
         txs = []
@@ -275,8 +284,8 @@ class _Phase:
             if self.arrival[f, d] < 0:
                 self.arrival[f, d] = self.now
             self.cause[f, d] = Cause.DELIVERED
-            self.push(self.now + self.phy.sifs_ns, ACK_START, d * self.n + s)
-            ack_end = self.now + self.phy.sifs_ns + self.phy.ack_ns(self.rate)
+            self.push(self.now + self.sifs_ns, ACK_START, d * self.n + s)
+            ack_end = self.now + self.sifs_ns + self.ack_ns
             overhearing = received.copy()
             overhearing[d] = False
             if overhearing.any():
@@ -303,6 +312,7 @@ class _Phase:
     def next_frame(self, s: int) -> None:
         """The head frame is done: the next one waits a post-backoff at CWmin."""
         self.queue[s].popleft()
+        self.set_head(s)
         self.tries[s] = 0
         self.cw[s] = self.cw_min
         self.counter[s] = self.draw(s)

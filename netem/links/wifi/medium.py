@@ -46,8 +46,16 @@ class Medium:
     lock: npt.NDArray[np.int64] = field(init=False)  # agent -> index in on_air's log, -1
     log: list[Transmission] = field(default_factory=list)
 
+    sensed: npt.NDArray[np.bool_] = field(init=False)  # per log index
+
     def __post_init__(self) -> None:
         self.lock = np.full(self.power_mw.shape[0], -1, dtype=np.int64)
+        self.sensed = np.zeros(64, dtype=bool)
+
+    def sense(self, index: int) -> None:
+        """Carrier sense sees transmission ``index`` from now on."""
+        self.log[index].sensed = True
+        self.sensed[index] = True
 
     def total_mw(self) -> Floats:
         if not self.on_air:
@@ -59,6 +67,8 @@ class Medium:
         new senders included. Returns the log indices of the new transmissions."""
         first = len(self.log)
         self.log.extend(txs)
+        if len(self.log) > self.sensed.shape[0]:
+            self.sensed = np.concatenate([self.sensed, np.zeros_like(self.sensed)])
         self.on_air.extend(txs)
         for tx in txs:
             self.lock[tx.sender] = -1  # half duplex: a sender hears nothing
@@ -97,9 +107,7 @@ class Medium:
         if not sensed:
             return np.zeros(n, dtype=bool)
         energy = self.power_mw[[tx.sender for tx in sensed]].sum(axis=0)
-        locked = np.zeros(n, dtype=bool)
-        for k in np.flatnonzero(self.lock >= 0):
-            locked[k] = self.log[int(self.lock[k])].sensed
+        locked = (self.lock >= 0) & self.sensed[np.maximum(self.lock, 0)]
         return np.asarray((energy >= self.energy_mw) | locked)
 
 

@@ -75,7 +75,7 @@ class Phy:
             bits_per_symbol = rate_kbps * 4 // 1000  # N_DBPS
             symbols = -(-(16 + 8 * frame_bytes + 6) // bits_per_symbol)
             return self.preamble_ns + 4 * US * symbols + self.signal_extension_ns
-        return self.preamble_ns + -(-(8 * frame_bytes * 1000 * US) // rate_kbps)
+        return self.preamble_ns + -(-(8 * frame_bytes * 1000) // rate_kbps) * US
 
     def control_rate_kbps(self, data_kbps: int) -> int:
         """The rate of the ACK to a frame sent at ``data_kbps``."""
