@@ -120,6 +120,7 @@ class _Phase:
         self.counter = np.zeros(n, dtype=np.int64)
         self.cw = [self.cw_min] * n
         self.draws = [0] * n
+        self.uniforms = np.zeros((n, 0))
         self.awaiting = np.zeros(n, dtype=bool)  # sent a unicast frame, waiting for its ACK
         self.ack_on_air = [False] * n
         self.tries = [0] * n  # attempts of the head frame
@@ -187,10 +188,15 @@ class _Phase:
         return bool(self.queue[s]) and self.sending[s] < 0 and not self.awaiting[s]
 
     def draw(self, s: int) -> int:
-        k = self.key
-        u = keyed_uniform(k.seed, AIR_STREAM, BACKOFF, k.epoch, k.phase, s, self.draws[s])
+        """Agent ``s``'s next backoff [slots]: its ``draws[s]``-th keyed uniform, over CW."""
+        k, d = self.key, self.draws[s]
+        if d >= self.uniforms.shape[1]:  # a block of draws for every agent at once
+            cols = np.arange(self.uniforms.shape[1], 2 * self.uniforms.shape[1] + 8)
+            agents = np.arange(self.n)[:, None]
+            more = keyed_uniform(k.seed, AIR_STREAM, BACKOFF, k.epoch, k.phase, agents, cols)
+            self.uniforms = np.concatenate([self.uniforms, more], axis=1)
         self.draws[s] += 1
-        return int(u[0] * (self.cw[s] + 1))
+        return int(self.uniforms[s, d] * (self.cw[s] + 1))
 
     def count_start(self) -> npt.NDArray[np.int64]:
         """[ns] when each agent's backoff counts from: DIFS (EIFS) after the medium went idle."""
