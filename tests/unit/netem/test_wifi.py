@@ -132,6 +132,30 @@ def test_a_frame_received_after_the_phase_is_late() -> None:
     assert out.arrival_ns[0, 1] == 328 * US
 
 
+def test_a_frame_received_in_error_makes_the_receiver_wait_eifs() -> None:
+    # 3 (beside 1) locks onto 0's frame; 2's, hidden from 0, ruins it at 3: after 0's frame ends
+    # (328 µs; 2's stays below 3's thresholds) 3 counts its backoff from EIFS, not DIFS
+    positions = np.array([[0.0, 0.0], [40.0, 0.0], [80.0, 0.0], [40.0, 5.0]])
+    frames = Frames.of([0, 2, 3], BROADCAST, 200, [0, 100 * US, 50 * US])
+    out = decide_phase(DEFAULT, positions, frames, Key(1, 0, 0))
+    assert out.at(0, 3) is Cause.COLLISION
+    waited = out.first_start_ns[2] - 328 * US
+    slot, eifs = 9 * US, (16 + 34 + 44) * US
+    assert waited >= eifs and (waited - eifs) % slot == 0
+
+
+def test_an_overheard_unicast_holds_its_neighbours_off_until_the_ack_ends() -> None:
+    # 2 decodes 0's frame to 1 but cannot hear 1's ACK (75 m): only the NAV keeps it off
+    positions = on_a_line(0, 45, -30)
+    frames = Frames.of([0, 2], [1, BROADCAST], 200, [0, 50 * US])
+    out = decide_phase(DEFAULT, positions, frames, Key(1, 0, 0))
+    assert out.at(0, 1) is Cause.DELIVERED and out.attempts[0] == 1
+    ack_end = (328 + 16 + 44) * US
+    waited = out.first_start_ns[1] - ack_end
+    slot, difs = 9 * US, 34 * US
+    assert waited >= difs and (waited - difs) % slot == 0
+
+
 # -- keyed draws -------------------------------------------------------------------------------
 def contention(key: Key, config: AirConfig = DEFAULT) -> PhaseOutcome:
     # agent 0 takes the air first; the others find it busy and draw backoffs
