@@ -1,8 +1,9 @@
 """One phase on a shared 802.11 channel: the DCF of every agent, event by event.
 
 Each agent sends its frames in order of readiness through the DCF of IEEE Std 802.11-2016
-(10.3): a frame that finds the medium idle goes once the medium has been idle for DIFS
-(EIFS after a frame received in error); one that finds it busy, and every frame after a
+(10.3.4.2, 10.3.4.3): a frame that finds the medium idle goes once the medium has stayed idle
+for DIFS after the frame was queued (and after the medium's last busy time, EIFS after a
+frame received in error); one that finds it busy, and every frame after a
 transmission (the post-backoff), waits a backoff of ``U{0 .. CW}`` slots, counted down only
 while the medium is idle for DIFS and then slot by slot, frozen while it is busy (10.3.4.3).
 A unicast frame is acknowledged after SIFS at the control rate; without the ACK by
@@ -209,8 +210,10 @@ class _Phase:
     def plan_all(self, which: npt.NDArray[np.bool_]) -> None:
         """When the agents in ``which`` send next if the medium stays idle."""
         backoff_end = self.count_start() + self.counter * self.slot_ns
-        free = ~self.busy & (self.sending < 0) & ~self.awaiting
-        planned = np.where(free, np.maximum(self.head_ready, backoff_end), NEVER)
+        # a frame goes once the medium has stayed idle for DIFS after it was queued
+        queued = np.where(self.head_ready < NEVER, self.head_ready + self.difs_ns, NEVER)
+        free = ~self.busy & (self.sending < 0) & ~self.awaiting & (queued < NEVER)
+        planned = np.where(free, np.maximum(queued, backoff_end), NEVER)
         self.planned[which] = planned[which]
 
     def freeze(self, turned: npt.NDArray[np.bool_]) -> None:

@@ -66,7 +66,8 @@ def test_a_lone_broadcast_arrives_after_its_airtime() -> None:
         DEFAULT, on_a_line(0, 30), Frames.of(0, BROADCAST, 200, 50 * US), Key(1, 0, 0)
     )
     assert out.at(0, 1) is Cause.DELIVERED
-    assert out.arrival_ns[0, 1] == 50 * US + 328 * US  # ready, medium idle: sent at once
+    assert out.first_start_ns[0] == 50 * US + 34 * US  # ready on an idle medium: after DIFS
+    assert out.arrival_ns[0, 1] == out.first_start_ns[0] + 328 * US
     assert out.at(0, 0) is Cause.NOT_ADDRESSED
 
 
@@ -75,7 +76,7 @@ def test_hidden_senders_collide_at_the_agent_between_them() -> None:
     # 0 and 2 are 80 m apart, below the preamble threshold of each other; 1 hears both at 40 m
     frames = Frames.of([0, 2], BROADCAST, 200, [0, 100 * US])
     out = decide_phase(DEFAULT, on_a_line(0, 40, 80), frames, Key(1, 0, 0))
-    assert out.first_start_ns.tolist() == [0, 100 * US]  # 2 did not sense 0: no deferral
+    assert out.first_start_ns.tolist() == [34 * US, 134 * US]  # 2 did not sense 0: no deferral
     assert out.at(0, 1) is Cause.COLLISION
     assert out.at(1, 1) is Cause.COLLISION
     assert out.at(0, 2) is Cause.BELOW_SENSITIVITY
@@ -87,7 +88,7 @@ def test_senders_within_carrier_sense_take_turns() -> None:
     frames = Frames.of([0, 2], BROADCAST, 200, [0, 100 * US])
     out = decide_phase(DEFAULT, on_a_line(0, 25, 50), frames, Key(1, 0, 0))
     assert out.at(0, 1) is Cause.DELIVERED and out.at(1, 1) is Cause.DELIVERED
-    assert out.first_start_ns[1] >= 328 * US + 34 * US
+    assert out.first_start_ns[1] >= 34 * US + 328 * US + 34 * US
 
 
 def test_a_much_stronger_frame_is_captured() -> None:
@@ -129,17 +130,17 @@ def test_a_frame_received_after_the_phase_is_late() -> None:
     frames = Frames.of(0, BROADCAST, 200, 0)
     out = decide_phase(DEFAULT, on_a_line(0, 30), frames, Key(1, 0, 0), phase_end_ns=300 * US)
     assert out.at(0, 1) is Cause.LATE and not out.delivered[0, 1]
-    assert out.arrival_ns[0, 1] == 328 * US
+    assert out.arrival_ns[0, 1] == (34 + 328) * US
 
 
 def test_a_frame_received_in_error_makes_the_receiver_wait_eifs() -> None:
     # 3 (beside 1) locks onto 0's frame; 2's, hidden from 0, ruins it at 3: after 0's frame ends
-    # (328 µs; 2's stays below 3's thresholds) 3 counts its backoff from EIFS, not DIFS
+    # (34 + 328 µs; 2's stays below 3's thresholds) 3 counts its backoff from EIFS, not DIFS
     positions = np.array([[0.0, 0.0], [40.0, 0.0], [80.0, 0.0], [40.0, 5.0]])
     frames = Frames.of([0, 2, 3], BROADCAST, 200, [0, 100 * US, 50 * US])
     out = decide_phase(DEFAULT, positions, frames, Key(1, 0, 0))
     assert out.at(0, 3) is Cause.COLLISION
-    waited = out.first_start_ns[2] - 328 * US
+    waited = out.first_start_ns[2] - (34 + 328) * US
     slot, eifs = 9 * US, (16 + 34 + 44) * US
     assert waited >= eifs and (waited - eifs) % slot == 0
 
@@ -150,7 +151,7 @@ def test_an_overheard_unicast_holds_its_neighbours_off_until_the_ack_ends() -> N
     frames = Frames.of([0, 2], [1, BROADCAST], 200, [0, 50 * US])
     out = decide_phase(DEFAULT, positions, frames, Key(1, 0, 0))
     assert out.at(0, 1) is Cause.DELIVERED and out.attempts[0] == 1
-    ack_end = (328 + 16 + 44) * US
+    ack_end = (34 + 328 + 16 + 44) * US
     waited = out.first_start_ns[1] - ack_end
     slot, difs = 9 * US, 34 * US
     assert waited >= difs and (waited - difs) % slot == 0
