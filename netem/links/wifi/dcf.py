@@ -205,7 +205,13 @@ class _Phase:
         return np.asarray(self.idle_from + ifs)
 
     def plan(self, s: int) -> None:
-        self.plan_all(np.arange(self.n) == s)
+        """When agent ``s`` sends next if the medium stays idle (``plan_all`` for one)."""
+        if self.busy[s] or self.sending[s] >= 0 or self.awaiting[s] or self.head_ready[s] >= NEVER:
+            self.planned[s] = NEVER
+            return
+        ifs = self.eifs_ns if self.eifs[s] else self.difs_ns
+        backoff_end = int(self.idle_from[s]) + ifs + int(self.counter[s]) * self.slot_ns
+        self.planned[s] = max(int(self.head_ready[s]) + self.difs_ns, backoff_end)
 
     def plan_all(self, which: npt.NDArray[np.bool_]) -> None:
         """When the agents in ``which`` send next if the medium stays idle."""
@@ -233,9 +239,11 @@ class _Phase:
             return
         turned_busy, turned_idle = busy & ~self.busy, ~busy & self.busy
         self.freeze(turned_busy)
+        self.planned[turned_busy] = NEVER
         self.idle_from[turned_idle] = self.now
         self.busy = busy
-        self.plan_all(turned_busy | turned_idle)
+        if turned_idle.any():
+            self.plan_all(turned_idle)
 
     def send(self, senders: list[int]) -> None:
         txs = []
