@@ -107,6 +107,12 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=SEED)
     parser.add_argument("--phases", type=int, default=20, help="phases per case")
     parser.add_argument("--quick", action="store_true", help="5 phases per case")
+    parser.add_argument(
+        "--sinr-db",
+        type=float,
+        default=None,
+        help="the model's SINR threshold (default: the PHY's)",
+    )
     args = parser.parse_args()
     if importlib.util.find_spec("ns") is None:
         print("ns-3 is not installed (pip install '.[ns3]'): nothing to compare")
@@ -132,9 +138,10 @@ def main() -> None:
                 }
             )
     ns3, ns3_s = run_ns3(batch)
+    threshold = "the PHY's" if args.sinr_db is None else f"{args.sinr_db:g} dB"
     print(
         f"seed {args.seed}, {phases} phases per case; ns-3 3.44 (pip ns3) in one process: "
-        f"{ns3_s:.1f} s with its import"
+        f"{ns3_s:.1f} s with its import; the model's SINR threshold: {threshold}"
     )
     print(
         f"{'case':52} {'delivery model':>14} {'ns-3':>6} {'diff':>6} "
@@ -142,7 +149,7 @@ def main() -> None:
     )
     index = 0
     for c, case in enumerate(CASES):
-        config = AirConfig(phy=case.phy, rate_mbps=case.rate_mbps)  # type: ignore[arg-type]
+        config = AirConfig(phy=case.phy, rate_mbps=case.rate_mbps, sinr_threshold_db=args.sinr_db)  # type: ignore[arg-type]
         model_t = 0.0
         mine, theirs = np.zeros(3), np.zeros(3)
         for k, (positions, frames) in enumerate(plans[c]):
