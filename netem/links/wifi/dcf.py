@@ -222,14 +222,16 @@ class _Phase:
         planned = np.where(free, np.maximum(queued, backoff_end), NEVER)
         self.planned[which] = planned[which]
 
-    def freeze(self, turned: npt.NDArray[np.bool_]) -> None:
+    def freeze(self, turned: npt.NDArray[np.int64]) -> None:
         """The medium turned busy at these agents: keep the slots they have not counted yet."""
-        start = self.count_start()
+        ifs = np.where(self.eifs[turned], self.eifs_ns, self.difs_ns)
+        start = self.idle_from[turned] + ifs
         done = np.where(self.now > start, (self.now - start) // self.slot_ns, 0)
-        self.counter[turned] = np.maximum(self.counter - done, 0)[turned]
+        left = np.maximum(self.counter[turned] - done, 0)
+        self.counter[turned] = left
         # a ready frame that did not find DIFS of idle medium waits a backoff
-        waiting = (self.sending < 0) & ~self.awaiting & (self.head_ready <= self.now)
-        for s in np.flatnonzero(turned & waiting & (self.counter == 0)):
+        waiting = (self.sending[turned] < 0) & ~self.awaiting[turned] & (left == 0)
+        for s in turned[waiting & (self.head_ready[turned] <= self.now)]:
             self.counter[s] = self.draw(int(s))
 
     def sense(self) -> None:
@@ -238,7 +240,7 @@ class _Phase:
         if (busy == self.busy).all():
             return
         turned_busy, turned_idle = busy & ~self.busy, ~busy & self.busy
-        self.freeze(turned_busy)
+        self.freeze(np.flatnonzero(turned_busy))
         self.planned[turned_busy] = NEVER
         self.idle_from[turned_idle] = self.now
         self.busy = busy
