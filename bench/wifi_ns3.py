@@ -1,21 +1,23 @@
 """ns-3's side of ``bench_wifi_ns3``: phases run in ns-3.44, one process for a batch of phases.
 
-Run as ``python -m bench.wifi_ns3`` with a JSON list of phases on stdin; prints one JSON line of
-receptions per phase. Each phase is its own ns-3 simulation: the agents at their positions,
-802.11 ad hoc (no QoS) on ``YansWifiChannelHelper.Default()`` (log-distance, exponent 3,
-46.6777 dB at 1 m) with ns-3's default PHY (16.0206 dBm, RxSensitivity −101 dBm, the
-preamble-detection model at −82 dBm and 4 dB, CCA energy detection −62 dBm: the air model's
-defaults), ``ConstantRateWifiManager`` at the phase's rate for data, broadcast and ACKs. Frames
-go straight to the ``WifiNetDevice`` (no IP, no ARP) one second into the run, after every
-initial backoff has ended on the idle medium; the device adds LLC/SNAP (8 B), so a packet of
-``payload_bytes − 8`` makes the MSDU the air model is given. A C++ receive callback logs the time
-of each delivery, by frame (its first four bytes) and receiver.
+Run as ``python -m bench.wifi_ns3`` with a JSON list of phases on stdin; prints one JSON line
+of receptions (and the seconds ns-3 took) per phase. Each phase is its own ns-3 simulation:
+the agents at their positions, 802.11 ad hoc (no QoS) on ``YansWifiChannelHelper.Default()``
+(log-distance, exponent 3, 46.6777 dB at 1 m) with ns-3's default PHY (16.0206 dBm,
+RxSensitivity −101 dBm, the preamble-detection model at −82 dBm and 4 dB, CCA energy detection
+−62 dBm: the air model's defaults), ``ConstantRateWifiManager`` at the phase's rate for data,
+broadcast and ACKs. Frames go straight to the ``WifiNetDevice`` (no IP, no ARP) one second
+into the run, after every initial backoff has ended on the idle medium; the device adds
+LLC/SNAP (8 B), so a packet of ``payload_bytes − 8`` makes the MSDU the air model is given. A
+C++ receive callback logs the time of each delivery, by frame (its first four bytes) and
+receiver.
 """
 
 from __future__ import annotations
 
 import json
 import sys
+import time
 
 START_NS = 1_000_000_000  # the phase's start in the ns-3 run
 RUN_NS = 2_000_000_000  # how long a phase may last
@@ -108,6 +110,7 @@ def main() -> None:
     del ns  # reached through cppyy.gbl from here on
     for p in phases:
         data, control = MODES[(p["phy"], p["rate_mbps"])]
+        started = time.perf_counter()
         flat = air.RunPhase(
             [float(v) for v in p["x"]],
             [float(v) for v in p["y"]],
@@ -123,8 +126,10 @@ def main() -> None:
             START_NS,
             RUN_NS,
         )
+        seconds = time.perf_counter() - started
         values = [int(v) for v in flat]
-        print(json.dumps({"rx": [values[k : k + 3] for k in range(0, len(values), 3)]}), flush=True)
+        rx = [values[k : k + 3] for k in range(0, len(values), 3)]
+        print(json.dumps({"rx": rx, "seconds": seconds}), flush=True)
 
 
 if __name__ == "__main__":
