@@ -31,6 +31,7 @@ class Stream(IntEnum):
     DUPLICATE = 5
     REORDER = 6
     SWEEP = 7  # experiments: per-cell seeds
+    AIR = 8  # netem's 802.11 medium: backoffs and shadowing
 
 
 def _mix(z: npt.NDArray[np.uint64]) -> npt.NDArray[np.uint64]:

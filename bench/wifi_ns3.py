@@ -1,0 +1,136 @@
+"""ns-3's side of ``bench_wifi_ns3``: phases run in ns-3.44, one process for a batch of phases.
+
+Run as ``python -m bench.wifi_ns3`` with a JSON list of phases on stdin; prints one JSON line
+of receptions (and the seconds ns-3 took) per phase. Each phase is its own ns-3 simulation:
+the agents at their positions, 802.11 ad hoc (no QoS) on ``YansWifiChannelHelper.Default()``
+(log-distance, exponent 3, 46.6777 dB at 1 m) with ns-3's default PHY (16.0206 dBm,
+RxSensitivity −101 dBm, the preamble-detection model at −82 dBm and 4 dB, CCA energy detection
+−62 dBm: the air model's defaults), ``ConstantRateWifiManager`` at the phase's rate for data,
+broadcast and ACKs. Frames go straight to the ``WifiNetDevice`` (no IP, no ARP) one second
+into the run, after every initial backoff has ended on the idle medium; the device adds
+LLC/SNAP (8 B), so a packet of ``payload_bytes − 8`` makes the MSDU the air model is given. A
+C++ receive callback logs the time of each delivery, by frame (its first four bytes) and
+receiver.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+
+START_NS = 1_000_000_000  # the phase's start in the ns-3 run
+RUN_NS = 2_000_000_000  # how long a phase may last
+
+CPP = r"""
+#include "ns3/core-module.h"
+#include "ns3/network-module.h"
+#include "ns3/mobility-module.h"
+#include "ns3/wifi-module.h"
+using namespace ns3;
+namespace air {
+struct Rx { int64_t t; uint32_t node; uint32_t frame; };
+static std::vector<Rx> rx_log;
+static uint32_t first_node = 0;
+
+bool OnRx(Ptr<NetDevice> dev, Ptr<const Packet> p, uint16_t, const Address&) {
+  uint8_t b[4] = {0, 0, 0, 0};
+  p->CopyData(b, 4);
+  uint32_t id = b[0] | (b[1] << 8) | (b[2] << 16) | (uint32_t(b[3]) << 24);
+  rx_log.push_back({Simulator::Now().GetNanoSeconds(), dev->GetNode()->GetId() - first_node, id});
+  return true;
+}
+
+void Send(Ptr<NetDevice> dev, uint32_t id, uint32_t size, Address dest) {
+  std::vector<uint8_t> b(size < 4 ? 4 : size, 0);
+  b[0] = id & 0xff; b[1] = (id >> 8) & 0xff; b[2] = (id >> 16) & 0xff; b[3] = (id >> 24) & 0xff;
+  dev->Send(Create<Packet>(b.data(), b.size()), dest, 0x88B5);
+}
+
+std::vector<int64_t> RunPhase(const std::vector<double>& x, const std::vector<double>& y,
+    const std::vector<int>& sender, const std::vector<int>& receiver,
+    const std::vector<int>& size, const std::vector<int64_t>& ready,
+    uint32_t seed, uint32_t run, bool dsss, std::string data, std::string control,
+    int64_t start, int64_t span) {
+  rx_log.clear();
+  RngSeedManager::SetSeed(seed);
+  RngSeedManager::SetRun(run);
+  Config::SetDefault("ns3::WifiRemoteStationManager::NonUnicastMode", StringValue(data));
+  NodeContainer nodes;
+  nodes.Create(x.size());
+  first_node = nodes.Get(0)->GetId();
+  Ptr<ListPositionAllocator> at = CreateObject<ListPositionAllocator>();
+  for (size_t i = 0; i < x.size(); ++i) at->Add(Vector(x[i], y[i], 0.0));
+  MobilityHelper mobility;
+  mobility.SetPositionAllocator(at);
+  mobility.SetMobilityModel("ns3::ConstantPositionMobilityModel");
+  mobility.Install(nodes);
+  WifiHelper wifi;
+  wifi.SetStandard(dsss ? WIFI_STANDARD_80211b : WIFI_STANDARD_80211a);
+  wifi.SetRemoteStationManager("ns3::ConstantRateWifiManager", "DataMode", StringValue(data),
+                               "ControlMode", StringValue(control));
+  YansWifiChannelHelper channel = YansWifiChannelHelper::Default();
+  YansWifiPhyHelper phy;
+  phy.SetChannel(channel.Create());
+  WifiMacHelper mac;
+  mac.SetType("ns3::AdhocWifiMac");
+  NetDeviceContainer devices = wifi.Install(phy, mac, nodes);
+  for (uint32_t i = 0; i < devices.GetN(); ++i) devices.Get(i)->SetReceiveCallback(MakeCallback(&OnRx));
+  for (size_t k = 0; k < sender.size(); ++k) {
+    Ptr<NetDevice> dev = devices.Get(sender[k]);
+    Address dest = receiver[k] < 0 ? dev->GetBroadcast() : devices.Get(receiver[k])->GetAddress();
+    Simulator::Schedule(NanoSeconds(start + ready[k]), &Send, dev, uint32_t(k), uint32_t(size[k]), dest);
+  }
+  Simulator::Stop(NanoSeconds(start + span));
+  Simulator::Run();
+  Simulator::Destroy();
+  std::vector<int64_t> flat;
+  for (const Rx& r : rx_log) { flat.push_back(r.t - start); flat.push_back(r.node); flat.push_back(r.frame); }
+  return flat;
+}
+}
+"""
+
+MODES = {  # (PHY, data rate in Mb/s) -> ns-3's data and control modes
+    ("ofdm", 6.0): ("OfdmRate6Mbps", "OfdmRate6Mbps"),
+    ("ofdm", 24.0): ("OfdmRate24Mbps", "OfdmRate24Mbps"),
+    ("ofdm", 54.0): ("OfdmRate54Mbps", "OfdmRate24Mbps"),
+    ("dsss", 1.0): ("DsssRate1Mbps", "DsssRate1Mbps"),
+    ("dsss", 11.0): ("DsssRate11Mbps", "DsssRate2Mbps"),
+}
+
+
+def main() -> None:
+    phases = json.load(sys.stdin)
+    import cppyy
+    from ns import ns  # loads ns-3's libraries into cppyy: 15-70 s, the headers compile
+
+    cppyy.cppdef(CPP)
+    air = cppyy.gbl.air
+    del ns  # reached through cppyy.gbl from here on
+    for p in phases:
+        data, control = MODES[(p["phy"], p["rate_mbps"])]
+        started = time.perf_counter()
+        flat = air.RunPhase(
+            [float(v) for v in p["x"]],
+            [float(v) for v in p["y"]],
+            p["sender"],
+            p["receiver"],
+            [max(4, s - 8) for s in p["payload_bytes"]],  # the device adds LLC/SNAP
+            p["ready_ns"],
+            p["seed"],
+            p["run"],
+            p["phy"] == "dsss",
+            data,
+            control,
+            START_NS,
+            RUN_NS,
+        )
+        seconds = time.perf_counter() - started
+        values = [int(v) for v in flat]
+        rx = [values[k : k + 3] for k in range(0, len(values), 3)]
+        print(json.dumps({"rx": rx, "seconds": seconds}), flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,114 @@
+"""The shared medium: frames on the air, the interference each receiver sees, who is locked.
+
+A frame on the air adds its power at every agent. An agent that is not sending and not
+already receiving locks onto a frame whose preamble it detects (power and SINR at the
+frame's start above the detection thresholds); it receives the frame when the frame's power
+over noise plus the *largest* interference during the frame stays above the rate's SINR
+threshold, so every overlapping frame counts, and a stronger first frame survives a weaker
+later one (capture), as in ns-3 without a frame-capture model (docs/model.md §11). An agent
+that starts sending drops what it was receiving (half duplex).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+Floats = npt.NDArray[np.float64]
+Bools = npt.NDArray[np.bool_]
+ACK = -1  # a transmission's frame index when it is an ACK
+
+
+@dataclass
+class Transmission:
+    sender: int
+    frame: int  # the data frame's index, or ACK
+    dest: int  # BROADCAST, the data's receiver, or (ACK) the data's sender
+    start_ns: int
+    end_ns: int
+    sinr_needed: float  # linear
+    worst_mw: Floats  # (n,) the largest interference at each agent so far [mW]
+    sensed: bool = False  # by carrier sense, from start_ns + aCCATime
+
+
+@dataclass
+class Medium:
+    """What is on the air now, and which agent is locked onto which transmission."""
+
+    power_mw: Floats  # (n, n) [i, j]: what j receives from i; 0 on the diagonal
+    noise_mw: float
+    detect_mw: float  # the power a preamble needs to be detected and decoded
+    detect_snr: float  # linear
+    energy_mw: float  # energy-detection threshold
+    on_air: list[Transmission] = field(default_factory=list)
+    lock: npt.NDArray[np.int64] = field(init=False)  # agent -> index in on_air's log, -1
+    log: list[Transmission] = field(default_factory=list)
+
+    sensed: npt.NDArray[np.bool_] = field(init=False)  # per log index
+
+    def __post_init__(self) -> None:
+        self.lock = np.full(self.power_mw.shape[0], -1, dtype=np.int64)
+        self.sensed = np.zeros(64, dtype=bool)
+
+    def sense(self, index: int) -> None:
+        """Carrier sense sees transmission ``index`` from now on."""
+        self.log[index].sensed = True
+        self.sensed[index] = True
+
+    def total_mw(self) -> Floats:
+        if not self.on_air:
+            return np.zeros(self.power_mw.shape[0])
+        return np.asarray(self.power_mw[[tx.sender for tx in self.on_air]].sum(axis=0))
+
+    def start(self, txs: list[Transmission], sending: Bools) -> list[int]:
+        """Put ``txs`` (starting together) on the air; ``sending``: agents transmitting now,
+        new senders included. Returns the log indices of the new transmissions."""
+        first = len(self.log)
+        self.log.extend(txs)
+        if len(self.log) > self.sensed.shape[0]:
+            self.sensed = np.concatenate([self.sensed, np.zeros_like(self.sensed)])
+        self.on_air.extend(txs)
+        for tx in txs:
+            self.lock[tx.sender] = -1  # half duplex: a sender hears nothing
+        total = self.total_mw()
+        for tx in self.on_air:
+            own = self.power_mw[tx.sender]
+            np.maximum(tx.worst_mw, total - own, out=tx.worst_mw)
+        free = (self.lock < 0) & ~sending
+        if not free.any():
+            return list(range(first, len(self.log)))
+        powers = self.power_mw[[tx.sender for tx in txs]]  # (k, n)
+        ok = (powers >= self.detect_mw) & (
+            powers >= self.detect_snr * (self.noise_mw + total - powers)
+        )
+        ok &= free[None, :]
+        best = np.where(ok, powers, -1.0).argmax(axis=0)
+        hit = ok.any(axis=0)
+        self.lock[hit] = first + best[hit]
+        return list(range(first, len(self.log)))
+
+    def end(self, index: int) -> tuple[Bools, Bools]:
+        """Take transmission ``index`` off the air: (locked, received), each (n,)."""
+        tx = self.log[index]
+        self.on_air.remove(tx)
+        locked = self.lock == index
+        need = tx.sinr_needed * (self.noise_mw + tx.worst_mw)
+        received = locked & (self.power_mw[tx.sender] >= need)
+        self.lock[locked] = -1
+        return locked, received
+
+    def carrier_busy(self) -> Bools:
+        """Agents whose carrier sense finds the medium busy: locked onto a sensed frame, or
+        the sensed frames' energy above the energy-detection threshold."""
+        sensed = [tx for tx in self.on_air if tx.sensed]
+        n = self.power_mw.shape[0]
+        if not sensed:
+            return np.zeros(n, dtype=bool)
+        energy = self.power_mw[[tx.sender for tx in sensed]].sum(axis=0)
+        locked = (self.lock >= 0) & self.sensed[np.maximum(self.lock, 0)]
+        return np.asarray((energy >= self.energy_mw) | locked)
+
+
+__all__ = ["ACK", "Medium", "Transmission"]

@@ -1,0 +1,213 @@
+"""The air model of one phase: airtime by the standard's formulas, carrier sense, collisions,
+capture, retries and keyed draws (docs/model.md §10)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from netem.links.wifi import (
+    BROADCAST,
+    PHYS,
+    AirConfig,
+    AirError,
+    Cause,
+    Frames,
+    Key,
+    PhaseOutcome,
+    decide_phase,
+)
+
+US = 1000
+DEFAULT = AirConfig()  # 802.11a at 6 Mb/s, ns-3's radio: preamble detected to about 51 m
+
+
+def on_a_line(*x_m: float) -> np.ndarray:
+    return np.array([[x, 0.0] for x in x_m])
+
+
+# -- airtime: hand-computed from the TXTIME formulas ------------------------------------------
+@pytest.mark.parametrize(
+    ("phy", "frame_bytes", "rate_kbps", "expected_us"),
+    [
+        # OFDM: 20 + 4 ceil((16 + 8 L + 6) / N_DBPS)
+        ("ofdm", 228, 6000, 20 + 4 * 77),  # 1846 bits / 24 = 76.9
+        ("ofdm", 1528, 54000, 20 + 4 * 57),  # 12246 / 216 = 56.7
+        ("ofdm", 14, 6000, 20 + 4 * 6),  # an ACK: 134 / 24 = 5.6
+        ("ofdm", 14, 24000, 20 + 4 * 2),  # 134 / 96 = 1.4
+        ("erp_ofdm", 228, 6000, 20 + 4 * 77 + 6),  # the signal extension
+        # DSSS, long preamble: 192 + ceil(8 L / rate)
+        ("dsss", 1528, 11000, 192 + 1112),  # 12224 / 11 = 1111.3
+        ("dsss", 228, 5500, 192 + 332),  # 1824 / 5.5 = 331.6
+        ("dsss", 14, 1000, 192 + 112),
+    ],
+)
+def test_airtime_follows_txtime(
+    phy: str, frame_bytes: int, rate_kbps: int, expected_us: int
+) -> None:
+    assert PHYS[phy].airtime_ns(frame_bytes, rate_kbps) == expected_us * US
+
+
+def test_interframe_spaces_and_control_rates() -> None:
+    ofdm, dsss = PHYS["ofdm"], PHYS["dsss"]
+    assert (ofdm.difs_ns, ofdm.eifs_ns()) == (34 * US, (16 + 34 + 44) * US)
+    assert (dsss.difs_ns, dsss.eifs_ns()) == (50 * US, (10 + 50 + 304) * US)
+    assert ofdm.ack_timeout_ns() == (16 + 9 + 25) * US
+    assert [ofdm.control_rate_kbps(r) for r in (6000, 9000, 18000, 54000)] == [6000] * 2 + [
+        12000,
+        24000,
+    ]
+    assert dsss.control_rate_kbps(11000) == 2000
+
+
+def test_a_lone_broadcast_arrives_after_its_airtime() -> None:
+    out = decide_phase(
+        DEFAULT, on_a_line(0, 30), Frames.of(0, BROADCAST, 200, 50 * US), Key(1, 0, 0)
+    )
+    assert out.at(0, 1) is Cause.DELIVERED
+    assert out.first_start_ns[0] == 50 * US + 34 * US  # ready on an idle medium: after DIFS
+    assert out.arrival_ns[0, 1] == out.first_start_ns[0] + 328 * US
+    assert out.at(0, 0) is Cause.NOT_ADDRESSED
+
+
+# -- geometry: hidden terminals, carrier sense, capture ----------------------------------------
+def test_hidden_senders_collide_at_the_agent_between_them() -> None:
+    # 0 and 2 are 80 m apart, below the preamble threshold of each other; 1 hears both at 40 m
+    frames = Frames.of([0, 2], BROADCAST, 200, [0, 100 * US])
+    out = decide_phase(DEFAULT, on_a_line(0, 40, 80), frames, Key(1, 0, 0))
+    assert out.first_start_ns.tolist() == [34 * US, 134 * US]  # 2 did not sense 0: no deferral
+    assert out.at(0, 1) is Cause.COLLISION
+    assert out.at(1, 1) is Cause.COLLISION
+    assert out.at(0, 2) is Cause.BELOW_SENSITIVITY
+    assert out.attempts.tolist() == [1, 1]  # a broadcast is never retried
+
+
+def test_senders_within_carrier_sense_take_turns() -> None:
+    # the same frames with 0 and 2 50 m apart: 2 senses 0's frame and backs off
+    frames = Frames.of([0, 2], BROADCAST, 200, [0, 100 * US])
+    out = decide_phase(DEFAULT, on_a_line(0, 25, 50), frames, Key(1, 0, 0))
+    assert out.at(0, 1) is Cause.DELIVERED and out.at(1, 1) is Cause.DELIVERED
+    assert out.first_start_ns[1] >= 34 * US + 328 * US + 34 * US
+
+
+def test_a_much_stronger_frame_is_captured() -> None:
+    # 0 and 2 send at the same instant; 1 is 10 m from 0 and 45 m from 2 (SINR about 20 dB)
+    frames = Frames.of([0, 2], BROADCAST, 200, 0)
+    out = decide_phase(DEFAULT, on_a_line(0, 10, 55), frames, Key(1, 0, 0))
+    assert out.at(0, 1) is Cause.DELIVERED
+    assert out.at(1, 1) is Cause.COLLISION
+    equal = decide_phase(DEFAULT, on_a_line(0, 27.5, 55), frames, Key(1, 0, 0))
+    assert equal.at(0, 1) is Cause.COLLISION and equal.at(1, 1) is Cause.COLLISION
+
+
+# -- unicast: ACK and retries ------------------------------------------------------------------
+def test_an_acknowledged_unicast_is_sent_once() -> None:
+    out = decide_phase(DEFAULT, on_a_line(0, 30), Frames.of(0, 1, 200, 0), Key(1, 0, 0))
+    assert out.at(0, 1) is Cause.DELIVERED and out.attempts.tolist() == [1]
+
+
+def test_a_unicast_out_of_reach_is_tried_up_to_the_retry_limit() -> None:
+    out = decide_phase(DEFAULT, on_a_line(0, 300), Frames.of(0, 1, 200, 0), Key(1, 0, 0))
+    assert out.attempts.tolist() == [DEFAULT.retry_limit]
+    assert out.at(0, 1) is Cause.BELOW_SENSITIVITY
+    three = decide_phase(
+        AirConfig(retry_limit=3), on_a_line(0, 300), Frames.of(0, 1, 200, 0), Key(1, 0, 0)
+    )
+    assert three.attempts.tolist() == [3]
+
+
+def test_hidden_unicasts_retry_and_record_the_retry_limit() -> None:
+    frames = Frames.of([0, 2], 1, 200, 0)
+    once = decide_phase(AirConfig(retry_limit=1), on_a_line(0, 40, 80), frames, Key(1, 0, 0))
+    assert once.attempts.tolist() == [1, 1]
+    assert once.at(0, 1) is Cause.RETRY_LIMIT and once.at(1, 1) is Cause.RETRY_LIMIT
+    retried = decide_phase(DEFAULT, on_a_line(0, 40, 80), frames, Key(1, 0, 0))
+    assert (retried.attempts > 1).all()  # the backoffs drawn after the collision differ
+
+
+def test_a_frame_received_after_the_phase_is_late() -> None:
+    frames = Frames.of(0, BROADCAST, 200, 0)
+    out = decide_phase(DEFAULT, on_a_line(0, 30), frames, Key(1, 0, 0), phase_end_ns=300 * US)
+    assert out.at(0, 1) is Cause.LATE and not out.delivered[0, 1]
+    assert out.arrival_ns[0, 1] == (34 + 328) * US
+
+
+def test_a_frame_received_in_error_makes_the_receiver_wait_eifs() -> None:
+    # 3 (beside 1) locks onto 0's frame; 2's, hidden from 0, ruins it at 3: after 0's frame ends
+    # (34 + 328 µs; 2's stays below 3's thresholds) 3 counts its backoff from EIFS, not DIFS
+    positions = np.array([[0.0, 0.0], [40.0, 0.0], [80.0, 0.0], [40.0, 5.0]])
+    frames = Frames.of([0, 2, 3], BROADCAST, 200, [0, 100 * US, 50 * US])
+    out = decide_phase(DEFAULT, positions, frames, Key(1, 0, 0))
+    assert out.at(0, 3) is Cause.COLLISION
+    waited = out.first_start_ns[2] - (34 + 328) * US
+    slot, eifs = 9 * US, (16 + 34 + 44) * US
+    assert waited >= eifs and (waited - eifs) % slot == 0
+
+
+def test_an_overheard_unicast_holds_its_neighbours_off_until_the_ack_ends() -> None:
+    # 2 decodes 0's frame to 1 but cannot hear 1's ACK (75 m): only the NAV keeps it off
+    positions = on_a_line(0, 45, -30)
+    frames = Frames.of([0, 2], [1, BROADCAST], 200, [0, 50 * US])
+    out = decide_phase(DEFAULT, positions, frames, Key(1, 0, 0))
+    assert out.at(0, 1) is Cause.DELIVERED and out.attempts[0] == 1
+    ack_end = (34 + 328 + 16 + 44) * US
+    waited = out.first_start_ns[1] - ack_end
+    slot, difs = 9 * US, 34 * US
+    assert waited >= difs and (waited - difs) % slot == 0
+
+
+# -- keyed draws -------------------------------------------------------------------------------
+def contention(key: Key, config: AirConfig = DEFAULT) -> PhaseOutcome:
+    # agent 0 takes the air first; the others find it busy and draw backoffs
+    rng = np.random.default_rng(7)
+    positions = rng.uniform(0.0, 10.0, (12, 2))
+    ready = np.r_[0, np.full(11, 10 * US)]
+    return decide_phase(config, positions, Frames.of(np.arange(12), BROADCAST, 200, ready), key)
+
+
+def fields(out: PhaseOutcome) -> list[np.ndarray]:
+    return [out.delivered, out.arrival_ns, out.cause, out.attempts, out.first_start_ns]
+
+
+def test_the_same_key_gives_the_same_phase_to_the_bit() -> None:
+    a, b = contention(Key(3, 5, 1)), contention(Key(3, 5, 1))
+    assert all(np.array_equal(x, y) for x, y in zip(fields(a), fields(b), strict=True))
+
+
+@pytest.mark.parametrize("other", [Key(4, 5, 1), Key(3, 6, 1), Key(3, 5, 2)])
+def test_another_seed_epoch_or_phase_draws_other_backoffs(other: Key) -> None:
+    assert not np.array_equal(
+        contention(Key(3, 5, 1)).first_start_ns, contention(other).first_start_ns
+    )
+
+
+def test_shadowing_is_keyed_by_the_seed() -> None:
+    shadowed = AirConfig(shadowing_sigma_db=8.0)
+    positions = on_a_line(0, 48)  # near the preamble threshold: shadowing decides
+    outs = [
+        decide_phase(shadowed, positions, Frames.of(0, BROADCAST, 200, 0), Key(s, 0, 0))
+        for s in range(12)
+    ]
+    causes = {out.at(0, 1) for out in outs}
+    assert causes == {Cause.DELIVERED, Cause.BELOW_SENSITIVITY}
+    again = decide_phase(shadowed, positions, Frames.of(0, BROADCAST, 200, 0), Key(5, 0, 0))
+    assert again.at(0, 1) is outs[5].at(0, 1)
+
+
+# -- bad input ---------------------------------------------------------------------------------
+def test_a_frame_from_outside_the_team_is_named() -> None:
+    with pytest.raises(AirError, match=r"frames.sender\[1\] = 5; expected an agent 0..2"):
+        decide_phase(DEFAULT, on_a_line(0, 1, 2), Frames.of([0, 5], BROADCAST, 10, 0), Key(1, 0, 0))
+    with pytest.raises(AirError, match=r"frames.receiver\[0\] = 0; expected another agent"):
+        decide_phase(DEFAULT, on_a_line(0, 1, 2), Frames.of(0, 0, 10, 0), Key(1, 0, 0))
+    with pytest.raises(AirError, match=r"frames.ready_ns\[0\] = -1; expected ≥ 0"):
+        decide_phase(DEFAULT, on_a_line(0, 1, 2), Frames.of(0, 1, 10, -1), Key(1, 0, 0))
+
+
+def test_a_rate_the_phy_lacks_is_named() -> None:
+    with pytest.raises(ValidationError, match="ofdm has no rate 11 Mb/s; expected one of 6, 9"):
+        AirConfig(rate_mbps=11.0)
+    with pytest.raises(ValidationError, match="cw_min 63 is above cw_max 31"):
+        AirConfig(cw_min=63, cw_max=31)
+    assert AirConfig(phy="dsss", rate_mbps=11.0).window == (31, 1023)
