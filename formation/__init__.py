@@ -1,9 +1,43 @@
-"""The shared vocabulary of the testbed: scenario, wire messages, keys, errors; pure (no Zenoh)."""
+"""The shared vocabulary of the testbed: scenario, wire messages, keys, errors; pure (no Zenoh).
 
-from formation.deadlines import deadline_counts, realtime_accounting
-from formation.errors import RecordingError, RuntimeFailure, ScenarioError, TestbedError
-from formation.graph import check_dimension
-from formation.scenario import STRATEGIES, Scenario, load, load_dict
+The names below load on first use (PEP 562), so a module that needs only ``formation.errors``
+or ``formation.keys`` (a command's ``--help``) does not import numpy and the scenario's models.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from formation.deadlines import deadline_counts, realtime_accounting
+    from formation.errors import RecordingError, RuntimeFailure, ScenarioError, TestbedError
+    from formation.graph import check_dimension
+    from formation.scenario import STRATEGIES, Scenario, load, load_dict
+
+_HOMES = {
+    "STRATEGIES": "formation.scenario",
+    "RecordingError": "formation.errors",
+    "RuntimeFailure": "formation.errors",
+    "Scenario": "formation.scenario",
+    "ScenarioError": "formation.errors",
+    "TestbedError": "formation.errors",
+    "check_dimension": "formation.graph",
+    "deadline_counts": "formation.deadlines",
+    "load": "formation.scenario",
+    "load_dict": "formation.scenario",
+    "realtime_accounting": "formation.deadlines",
+}
+
+
+def __getattr__(name: str) -> Any:
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module 'formation' has no attribute {name!r}")
+    value = getattr(importlib.import_module(home), name)
+    globals()[name] = value  # once: later lookups skip this function
+    return value
+
 
 __all__ = [
     "STRATEGIES",

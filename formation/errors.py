@@ -12,8 +12,6 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import ClassVar, Literal
 
-from formation.body import EXTRA
-
 PluginKind = Literal["strategy", "controller", "link_model"]
 PLUGIN_LABELS: dict[PluginKind, str] = {
     "strategy": "loss strategy",
@@ -169,6 +167,8 @@ class Ros2Missing(TestbedError):
     """A ROS 2 body without rclpy: names the extra to install."""
 
     def __init__(self, who: str, missing: str) -> None:
+        from formation.body import EXTRA  # here: the errors load without pydantic (a --help)
+
         self.who, self.missing = who, missing
         super().__init__(
             f"{who} needs the ROS 2 Python packages ({missing} is not installed); "
