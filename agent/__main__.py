@@ -79,7 +79,8 @@ def main(argv: list[str] | None = None) -> int:
             code = node.run(timing)
             if service.failure is not None:  # failed in a message handler
                 raise service.failure
-            detail = json.dumps(node.deadline) if timing.realtime else ""
+            counts = node.deadline | ({} if bodies is None else bodies.status_counts())
+            detail = json.dumps(counts) if timing.realtime else ""
             if node.body_lost is not None:
                 detail = str(node.body_lost)
             service.status("done" if code == 0 else "error", node.runner.epoch, detail)
@@ -92,7 +93,8 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             cpu_s = time.process_time() - node.cpu_at_start_s
             log.info("cpu: %.3f s over %d epochs", cpu_s, node.runner.epoch)
-            if bodies is not None:
+            if bodies is not None:  # the robots stop: the run's end, a signal or a loss
+                bodies.stop()
                 log.info("body: %s", json.dumps(bodies.summary()))
                 bodies.close()
         return code

@@ -319,6 +319,8 @@ class AgentNode:
         """
         if self.bodies is not None:  # x[0] (or a restart's x[k]) is where the robots are
             poses = self.bodies.wait_poses(None if timing.realtime else 0, FIRST_POSE_S)
+            if self.runner.epoch == 0:  # where the scenario starts them, not a restart's
+                self.bodies.check_start({i: self.runner.position(i) for i in self.bodies.ids})
             if self.bodies.stepped:  # a unicycle's x[k], θ[k] as its inner loop takes them
                 assert self.runner.heading is not None
                 rows = {i: self.runner.row[i] for i in self.bodies.ids}

@@ -16,6 +16,8 @@ from body.ros2 import (
     pose_message,
     pose_position,
     pose_yaw,
+    profile_words,
+    qos_words,
     stamp_ns,
     twist_message,
     twist_velocity,
@@ -24,6 +26,8 @@ from formation.body import Body
 
 OnPose = Callable[[list[float], int, float], None]  # position [robot m], stamp [ns], yaw [rad]
 OnCommand = Callable[[list[float], float], None]  # linear [robot m/s], angular.z [rad/s]
+# A publisher whose QoS cannot match the subscription: (offered, requested, policy) in words
+OnMismatch = Callable[[str, str, str], None]
 
 
 class Endpoint(Protocol):
@@ -43,7 +47,9 @@ class CommandPublisher(Endpoint, Protocol):
 class BodyLink(Protocol):
     """Robots' poses and commands on their topics (a ROS 2 node's, on one transport)."""
 
-    def poses(self, topic: str, on_pose: OnPose) -> Endpoint: ...
+    def poses(
+        self, topic: str, on_pose: OnPose, on_mismatch: OnMismatch | None = None
+    ) -> Endpoint: ...
     def commands(self, topic: str, on_command: OnCommand) -> Endpoint: ...
     def pose_publisher(self, topic: str) -> PosePublisher: ...
     def command_publisher(self, topic: str) -> CommandPublisher: ...
@@ -72,14 +78,27 @@ class RclpyLink:
         self.body = body
         self.node: RosNode = open_ros_node(name, body)
 
-    def poses(self, topic: str, on_pose: OnPose) -> Endpoint:
+    def poses(self, topic: str, on_pose: OnPose, on_mismatch: OnMismatch | None = None) -> Endpoint:
+        requested = qos_words(self.body.pose_qos)
+
+        def incompatible(info: Any) -> None:  # rclpy's QoS event, on the node's thread
+            if on_mismatch is not None:
+                policy = getattr(info.last_policy_kind, "name", str(info.last_policy_kind))
+                on_mismatch(self._offered(topic), requested, policy.lower())
+
         sub = self.node.subscribe(
             topic,
             self.node.pose_class,
             self.body.pose_qos,
             lambda msg: on_pose(list(pose_position(msg)), stamp_ns(msg), pose_yaw(msg)),
+            on_incompatible=incompatible,
         )
         return _RosEndpoint(sub)
+
+    def _offered(self, topic: str) -> str:
+        """The QoS of the publishers on ``topic``, in words (rclpy's graph)."""
+        infos = self.node.node.get_publishers_info_by_topic(topic)
+        return "; ".join(profile_words(info.qos_profile) for info in infos) or "(no publisher)"
 
     def commands(self, topic: str, on_command: OnCommand) -> Endpoint:
         sub = self.node.subscribe(
@@ -129,7 +148,8 @@ class ZenohLink:
         self.body = body
         self.node = RmwZenohNode(session, body.domain_id or 0, name)
 
-    def poses(self, topic: str, on_pose: OnPose) -> Endpoint:
+    def poses(self, topic: str, on_pose: OnPose, on_mismatch: OnMismatch | None = None) -> Endpoint:
+        # no QoS events here: rmw_zenoh matches every publisher with every subscription
         kind = self.body.pose_type
         self.node.subscribe(topic, kind, self.body.pose_qos, lambda b: on_pose(*read_pose(kind, b)))
         return _ZenohEndpoint()
@@ -164,4 +184,11 @@ def open_body_link(name: str, body: Body, session: Any = None) -> BodyLink:
     return RclpyLink(name, body)
 
 
-__all__ = ["BodyLink", "CommandPublisher", "Endpoint", "PosePublisher", "open_body_link"]
+__all__ = [
+    "BodyLink",
+    "CommandPublisher",
+    "Endpoint",
+    "OnMismatch",
+    "PosePublisher",
+    "open_body_link",
+]

@@ -48,6 +48,9 @@ class Body(_Settings):
     ``scale``: the robot's frame in metres per metre of the scenario (a lab arena that is a
     half-size model of the scenario has ``scale = 0.5``); poses are divided by it, commands
     multiplied. ``pose_timeout_s``: a robot whose pose has not come for this long is lost.
+    ``max_speed_m_s``: a holonomic robot's commanded speed is clipped to it (a unicycle's
+    limits are ``control.unicycle``'s). ``start_tolerance_m``: how far a robot's first pose
+    may be from where the scenario starts its agent.
     """
 
     kind: BodyKind = "simulated"
@@ -59,6 +62,8 @@ class Body(_Settings):
     frame_id: str = "world"  # the frame the poses are given in, and the plant's poses carry
     scale: float = Field(1.0, gt=0.0)  # robot metres per scenario metre
     pose_timeout_s: float = Field(5.0, gt=0.0)  # [s]
+    max_speed_m_s: float | None = Field(None, gt=0.0)  # [scenario m/s]; None: no limit
+    start_tolerance_m: float = Field(1.0, gt=0.0)  # [scenario m]
     domain_id: int | None = Field(None, ge=0, le=232)  # ROS_DOMAIN_ID; None: the environment's
     pose_qos: Qos = Qos()
     command_qos: Qos = Qos()
