@@ -298,6 +298,16 @@ class RobotBodies:
             self._used = {i: self._poses[i].arrived_s for i in self.ids}
             return {i: list(self._poses[i].position) for i in self.ids}
 
+    def pose_arrived(self, i: int) -> float:
+        """When robot ``i``'s newest usable pose came (``time.monotonic()``) [s]."""
+        with self._cond:
+            return self._poses[i].arrived_s
+
+    def last_twist(self, i: int) -> tuple[list[float], float] | None:
+        """The last ``Twist`` sent to robot ``i``: linear [robot m/s], angular.z [rad/s]."""
+        with self._cond:
+            return self._twists.get(i)
+
     def _age(self, i: int) -> float:
         return time.monotonic() - self._poses[i].arrived_s
 

@@ -270,7 +270,20 @@ class AgentNode:
             # x[k+1] is known now: out at once, so the states have the rest of this period
             # as well as the next one's first 0.2 to arrive.
             self._publish_states()
+        if realtime and self.bodies is not None and self.body_lost is None:
+            self._record_last_poses()
         self.finished.set()
+
+    def _record_last_poses(self) -> None:
+        """Realtime: the robots' poses at the run's end, into the recording as their measured
+        ``x[E]`` (each step records the pose it stepped from: the measured ``x[k]``)."""
+        assert self.bodies is not None
+        try:
+            self.bodies.wait_poses(None, self.scenario.body.pose_timeout_s)
+        except BodyLost as exc:
+            log.error("%s", exc)
+            return
+        self._record_traffic(self.runner.epoch, ("pose",))
 
     def _take_headings(self) -> None:
         """A unicycle robot's newest heading as ``θ[k]`` (realtime)."""
@@ -305,10 +318,16 @@ class AgentNode:
             u = body_velocity(before[rows], self.runner.x[rows], self.scenario.control.period_s)
             self.bodies.command(dict(zip(ids, u.tolist(), strict=True)))
             self.runner.place(self.bodies.wait_poses(k + 1, timeout_s))
-        for i in ids:  # into the recording: the pose taken and the command sent
+        self._record_traffic(k)
+
+    def _record_traffic(self, k: int, kinds: tuple[str, ...] = ("pose", "command")) -> None:
+        """Into the recording: each robot's pose taken and command sent (agent.body)."""
+        assert self.bodies is not None
+        for i in self.bodies.ids:
             for what, type_name, cdr in self.bodies.traffic(i):
-                key = keys.body(self.run_id, i, what, type_name)
-                self.service.put(key, cdr, attachment(k, self.service.next_seq(key), i))
+                if what in kinds:
+                    key = keys.body(self.run_id, i, what, type_name)
+                    self.service.put(key, cdr, attachment(k, self.service.next_seq(key), i))
 
     def run(self, timing: TimePolicy) -> int:
         """Run every agent to its last epoch under ``timing``; returns an exit code.

@@ -195,6 +195,8 @@ class RunData:
     decisions : netem's record of every packet (None: not known, only ``delivered``)
     recorded : what a recording adds (None for a simulated run)
     deadlines : a realtime run's deadline accounting, as ``report.md`` reads it
+    computed : (P, n, d) the agents' states [m] where robots' measured poses replace them in
+    ``positions`` (a realtime run with robot bodies), else None
     """
 
     label: str
@@ -226,6 +228,7 @@ class RunData:
     decisions: Decisions | None = None
     recorded: Recorded | None = None
     deadlines: dict[str, Any] | None = None
+    computed: Array | None = None
 
     def __post_init__(self) -> None:
         if self.decided.shape != self.delivered.shape:  # the simulator knows every delivery

@@ -15,6 +15,7 @@ from body.ros2 import (
     open_ros_node,
     pose_message,
     pose_position,
+    policy_name,
     pose_yaw,
     profile_words,
     qos_words,
@@ -83,8 +84,8 @@ class RclpyLink:
 
         def incompatible(info: Any) -> None:  # rclpy's QoS event, on the node's thread
             if on_mismatch is not None:
-                policy = getattr(info.last_policy_kind, "name", str(info.last_policy_kind))
-                on_mismatch(self._offered(topic), requested, policy.lower())
+                policy = policy_name(info.last_policy_kind)
+                on_mismatch(self._offered(topic), requested, policy)
 
         sub = self.node.subscribe(
             topic,

@@ -69,20 +69,22 @@ def qos_profile(qos: Qos) -> Any:
 
 
 def qos_words(qos: Qos) -> str:
-    """A scenario's QoS in words, as :func:`profile_words` writes rclpy's."""
-    return f"reliability {qos.reliability}, durability {qos.durability}, depth {qos.depth}"
+    """A scenario's QoS in words, as :func:`profile_words` writes rclpy's: the policies a
+    publisher and a subscription are matched on (discovery does not carry the depth)."""
+    return f"reliability {qos.reliability}, durability {qos.durability}"
 
 
 def profile_words(profile: Any) -> str:
-    """An rclpy ``QoSProfile`` in words: reliability, durability, depth."""
-
-    def name(policy: Any) -> str:
-        return str(getattr(policy, "name", policy)).lower()
-
+    """An rclpy ``QoSProfile`` in words: reliability, durability."""
     return (
-        f"reliability {name(profile.reliability)}, durability {name(profile.durability)}, "
-        f"depth {profile.depth}"
+        f"reliability {policy_name(profile.reliability)}, "
+        f"durability {policy_name(profile.durability)}"
     )
+
+
+def policy_name(policy: Any) -> str:
+    """An rclpy QoS policy or policy kind by its short name (``best_effort``, ``reliability``)."""
+    return str(getattr(policy, "name", policy)).lower().removeprefix("rmw_qos_policy_")
 
 
 def stamp_ns(msg: Any) -> int:
@@ -238,6 +240,7 @@ __all__ = [
     "open_ros_node",
     "pose_message",
     "pose_position",
+    "policy_name",
     "pose_yaw",
     "profile_words",
     "qos_profile",

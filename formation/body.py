@@ -50,7 +50,8 @@ class Body(_Settings):
     multiplied. ``pose_timeout_s``: a robot whose pose has not come for this long is lost.
     ``max_speed_m_s``: a holonomic robot's commanded speed is clipped to it (a unicycle's
     limits are ``control.unicycle``'s). ``start_tolerance_m``: how far a robot's first pose
-    may be from where the scenario starts its agent.
+    may be from where the scenario starts its agent. ``tracking_warning_m``: a robot whose
+    measured pose strays this far from its agent's state is warned of in the summary.
     """
 
     kind: BodyKind = "simulated"
@@ -64,6 +65,7 @@ class Body(_Settings):
     pose_timeout_s: float = Field(5.0, gt=0.0)  # [s]
     max_speed_m_s: float | None = Field(None, gt=0.0)  # [scenario m/s]; None: no limit
     start_tolerance_m: float = Field(1.0, gt=0.0)  # [scenario m]
+    tracking_warning_m: float = Field(0.1, gt=0.0)  # [scenario m] pose against state
     domain_id: int | None = Field(None, ge=0, le=232)  # ROS_DOMAIN_ID; None: the environment's
     pose_qos: Qos = Qos()
     command_qos: Qos = Qos()

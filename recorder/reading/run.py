@@ -32,9 +32,10 @@ from formation.errors import RecordingError
 from formation.messages import CoordinationState, DecisionBatch, LeaderEstimate
 from formation.plugin_api import PLUGIN_FAILED
 from formation.scenario import Scenario
+from recorder.reading.bodies import RecordedPoses
 from recorder.reading.reader import iter_messages, metadata, open_recording, parts, scenario_of
 from recorder.reading.trust import Gate, derived_channels
-from recorder.recording.schemas import classify
+from recorder.recording.schemas import ROS2, classify
 
 Array = npt.NDArray[np.float64]
 Ints = npt.NDArray[np.int64]
@@ -52,6 +53,7 @@ class _Collected:
         self.decisions: list[tuple[Any, ...]] = []
         self.recorded: dict[int, float | None] = {}  # None: no edge in the team
         self.ended: list[str] = []  # why a process ended the run (a plug-in failed)
+        self.bodies = RecordedPoses()  # the robots' poses (agent.body)
 
     def add(self, kind: str, msg: Any) -> None:
         if kind == "agent_state":
@@ -148,9 +150,11 @@ def read_run(path: Path | str, label: str | None = None) -> RunData:
         held.update(meta=meta, scenario=scenario, gate=Gate(scenario))
         return held["gate"]  # type: ignore[no-any-return]
 
-    for kind, _, _, msg, _ in iter_trusted(path, gate_of):
+    for kind, channel, record, msg, _ in iter_trusted(path, gate_of):
         if kind in _WANTED:
             got.add(kind, msg)
+        elif kind.startswith(ROS2):
+            got.bodies.add(channel.topic, record, kind.removeprefix(ROS2))
     scenario: Scenario = held["scenario"]
     recorded = (held["meta"], held["gate"].skipped, tuple(got.ended), parts(path))
     return _assemble(scenario, path, label, got, recorded)
@@ -164,7 +168,8 @@ def _assemble(
     recorded: tuple[Any, Any, tuple[str, ...], list[Path]],
 ) -> RunData:
     n, d = scenario.n, scenario.dimension
-    x = _positions(got.states, n, d)
+    computed = _positions(got.states, n, d)
+    x = _measured(computed, got.bodies.measured(scenario, len(computed)))
     decisions = Decisions.of_rows(got.decisions)
     epochs = [*got.ests, *decisions.epoch.tolist()]
     count = max(epochs) + 1 if epochs else max(len(x) - 1, 0)
@@ -201,8 +206,18 @@ def _assemble(
         substitutions=subs,
         decisions=decisions,
         recorded=Recorded(meta, skipped, recorded_fe, ended, tuple(str(f) for f in files)),
+        computed=None if x is computed else computed,
         **est,
     )
+
+
+def _measured(computed: Array, measured: Array | None) -> Array:
+    """The positions of a run: a robot's measured pose where one was recorded while its agent
+    took part, else the agent's state (``computed``)."""
+    if measured is None:
+        return computed
+    use = np.isfinite(measured).all(axis=2) & np.isfinite(computed).all(axis=2)
+    return np.where(np.asarray(use)[:, :, None], measured, computed)
 
 
 def _positions(states: dict[tuple[int, int], list[float]], n: int, d: int) -> Array:

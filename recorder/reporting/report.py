@@ -179,6 +179,7 @@ def _markdown(
             for topic, by_reason in sk["by_channel"].items():
                 what = ", ".join(f"{r} {v}" for r, v in by_reason.items())
                 lines.append(f"  - `{topic}`: {what}")
+    lines += _robot_lines(sums)
     lines += ["", "## Safety", ""]
     for s in sums:
         lines += safety_lines(s["label"], s["safety"])
@@ -190,6 +191,31 @@ def _markdown(
         title = {**FIGURES, **OPTIONAL_FIGURES}[name]
         lines += [f"### {title}", "", f"![{title}]({file})", ""]
     return "\n".join(lines)
+
+
+def _robot_lines(sums: list[dict[str, Any]]) -> list[str]:
+    """Robot bodies: the errors above are of their measured poses; each one's tracking."""
+    tracked = [s for s in sums if "tracking" in s]
+    if not tracked:
+        return []
+    lines = [
+        "",
+        "## Robots",
+        "",
+        "The errors, the trajectories and the safety counts are of the robots' measured poses "
+        "(as recorded); the tracking error is a robot's pose against its agent's state.",
+        "",
+    ]
+    for s in tracked:
+        t = s["tracking"]
+        for i, e in t["robots"].items():
+            lines.append(
+                f"- {s['label']}: robot {i}: tracking error final {e['final_m']:.4g} m, "
+                f"peak {e['peak_m']:.4g} m, RMS {e['rms_m']:.4g} m"
+            )
+        if t["warning"]:
+            lines.append(f"- {s['label']}: **{t['warning']}**")
+    return lines
 
 
 def write_report_from(runs: Sequence[RunData], out_dir: Path, title: str | None = None) -> Path:

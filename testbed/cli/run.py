@@ -17,6 +17,7 @@ from formation.errors import RunEnded, TestbedError
 from recorder import write_deadlines, write_report, write_reports
 from testbed.cli.arguments import add_common, load_checked, scenario_strategies
 from testbed.cli.deadline_lines import deadline_cells, deadline_notes
+from testbed.cli.robot_lines import loss_cause, robot_notes
 from testbed.cli.tables import print_table
 from testbed.runtime.faults import RESTART_POLICIES
 from testbed.runtime.launcher import launch
@@ -115,8 +116,9 @@ def _print_losses(outcomes: list[Any], console: Console) -> None:
                 else f", restarted as pid {loss['restarted_pid']}"
             )
             back = loss["back_from_epoch"]
+            cause = loss_cause(o.run_dir, loss["name"], loss["code"])
             console.print(
-                f"{o.strategy}: {loss['name']} (pid {loss['pid']}) lost {when} "
+                f"{o.strategy}: {loss['name']} (pid {loss['pid']}) lost {when}: {cause} "
                 f"(exit code {loss['code']}, {loss['dropped']} packets dropped on its links"
                 f"{missed}){again}" + ("" if back is None else f", back from epoch {back}"),
                 soft_wrap=True,  # one line even in a pipe, for grep
@@ -221,6 +223,8 @@ def _print_summary(
             )
         for line in deadline_notes(o.strategy, s):
             console.print(line)
+        for line in robot_notes(o.strategy, s, recorded.get(o.run_id)):
+            console.print(line, soft_wrap=True)
 
 
 def _number(v: float | None) -> str:

@@ -1,0 +1,164 @@
+"""Robots a user wrote themselves (``testkit.ros_robot``: plain rclpy, not the project's plant),
+over real Fast DDS on this host, in a ROS domain of each test's own: the first pose checked,
+a QoS mismatch told with both profiles, a lost pose noticed within ``pose_timeout_s`` and the
+robot stopped meanwhile; and a whole ``formation run`` in realtime against them, with a stuck
+robot, a robot that publishes bad poses and a robot killed mid-run."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import select
+import signal
+import subprocess
+import sys
+import threading
+import time
+import zlib
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from agent.body import RobotBodies
+from formation.errors import BodyLost, QosMismatch, RobotNotAtStart
+from formation.scenario import Scenario
+from recorder import read_run
+from testkit.run_watch import KillAtEpoch, wait_for_run
+
+pytestmark = [
+    pytest.mark.integration,
+    # rclpy's parameter events load lark, which imports the deprecated sre_parse
+    pytest.mark.filterwarnings(
+        "ignore:module 'sre_(parse|constants)' is deprecated:DeprecationWarning"
+    ),
+]
+pytest.importorskip("rclpy", reason="the ros2 extra: pip install '.[ros2]'")
+READY_S = 60.0  # [s] rclpy and Fast DDS load in a few seconds
+TIMEOUT_S = 1.0  # [s] body.pose_timeout_s of these tests
+
+
+@pytest.fixture
+def ros_domain(
+    monkeypatch: pytest.MonkeyPatch, request: pytest.FixtureRequest, tmp_path: Path
+) -> int:
+    """A ROS domain of this test's own (below 101: see test_ros2_body.py), discovery on this
+    host only, rclpy's logs in the test's folder."""
+    domain = 1 + zlib.crc32(f"{request.node.nodeid}/{os.getpid()}".encode()) % 100
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
+    monkeypatch.setenv("ROS_LOG_DIR", str(tmp_path / "ros-log"))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    monkeypatch.delenv("ROS_LOCALHOST_ONLY", raising=False)
+    return domain
+
+
+def realtime_robots(paper: Scenario, **body: Any) -> Scenario:
+    return paper.with_overrides(
+        epochs=40,
+        runtime={"mode": "realtime", "realtime_period_s": 0.2},
+        body={"kind": "ros2", "pose_timeout_s": TIMEOUT_S, "max_speed_m_s": 0.5, **body},
+    )
+
+
+def starts(scenario: Scenario, ids: list[int], moved: dict[int, float] | None = None) -> list[str]:
+    """``--robot`` arguments: each robot where the scenario starts its agent (``moved``: that
+    many metres to the right)."""
+    x0 = scenario.initial_positions()
+    return [
+        f"--robot={i}={float(x0[i - 1, 0]) + (moved or {}).get(i, 0.0)!r},{float(x0[i - 1, 1])!r}"
+        for i in ids
+    ]
+
+
+@contextlib.contextmanager
+def robots(log: Path, *args: str) -> Iterator[subprocess.Popen[str]]:
+    """``python -m testkit.ros_robot`` until its ready line; ended by PID afterwards."""
+    with log.open("a") as err:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "testkit.ros_robot", *args],
+            stdout=subprocess.PIPE,
+            stderr=err,
+            text=True,
+        )
+    assert proc.stdout is not None
+    try:
+        ready, _, _ = select.select([proc.stdout], [], [], READY_S)
+        line = proc.stdout.readline() if ready else ""
+        assert line and json.loads(line)["ready"], f"the robots did not start: {line!r}"
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
+
+
+def robot_report(proc: subprocess.Popen[str]) -> dict[str, dict[str, Any]]:
+    """What the robots print as SIGTERM ends them: each one's commands."""
+    proc.send_signal(signal.SIGTERM)
+    out, _ = proc.communicate(timeout=20)
+    return dict(json.loads(out.strip().splitlines()[-1]))
+
+
+def test_the_first_pose_the_qos_and_a_lost_pose_are_told_as_they_are(
+    paper: Scenario, tmp_path: Path, ros_domain: int
+) -> None:
+    scenario = realtime_robots(paper)
+    log = tmp_path / "robots.log"
+    far = starts(scenario, [2], moved={2: 5.0})
+    with (
+        robots(log, *starts(scenario, [1]), "--best-effort") as offers_less,
+        robots(log, *far, *starts(scenario, [3])) as reliable,
+    ):
+        bodies = RobotBodies(scenario, [1, 2, 3], "formation_pool_1")
+        try:
+            # robot 1 publishes best effort, the agent asks reliable: no pose can come
+            with pytest.raises(
+                QosMismatch,
+                match=r"^agent 1: the robot's publisher on /robot1/pose offers reliability "
+                r"best_effort, durability volatile, the agent's subscription requests "
+                r"reliability reliable, durability volatile \(reliability incompatible\): no "
+                r"pose can arrive; set body\.pose_qos to what the robot publishes$",
+            ):
+                bodies.wait_poses(None, READY_S)
+            offers_less.kill()
+            bodies.ids = [2, 3]  # the robots a pose can come from
+            bodies.wait_poses(None, READY_S)
+            with pytest.raises(
+                RobotNotAtStart,
+                match=r"^agent 2: its robot's first pose on /robot2/pose is at \(4\.38\d+, "
+                r"0\.58\d+\) m, 5 m from its start \(-0\.61\d+, 0\.58\d+\) m in the "
+                r"scenario; body\.start_tolerance_m = 1",
+            ):
+                bodies.check_start(
+                    {i: scenario.initial_positions()[i - 1].tolist() for i in (2, 3)}
+                )
+            # robot 3 moves, then its process dies: the agent's next steps wait, the robot
+            # gets a zero Twist, and the loss comes pose_timeout_s after its last pose
+            bodies.ids = [3]
+            bodies.command({3: [0.1, 0.0]})
+            reliable.kill()
+            reliable.wait()
+            lost_after_s = _steps_until_lost(bodies, 3)
+            assert bodies.counts["stops"] == 1 and bodies.last_twist(3) == ([0.0, 0.0], 0.0)
+            assert TIMEOUT_S <= lost_after_s <= TIMEOUT_S + bodies.step_s, lost_after_s
+            print(f"a lost pose was noticed {lost_after_s:.3f} s after the last one came")
+        finally:
+            bodies.close()
+
+
+def _steps_until_lost(bodies: RobotBodies, robot: int) -> float:
+    """Step as a realtime agent does, once a period, until the body is lost; the time from
+    the robot's last pose to the loss [s]."""
+    while True:
+        try:
+            bodies.wait_poses(None, TIMEOUT_S)
+        except BodyLost:
+            return time.monotonic() - bodies.pose_arrived(robot)
+        time.sleep(bodies.step_s)
+
+
+_ = threading, np, KillAtEpoch, wait_for_run, read_run
