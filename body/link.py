@@ -13,9 +13,9 @@ from body.rmw_zenoh import RmwZenohNode, pose_cdr, read_pose, read_twist, twist_
 from body.ros2 import (
     RosNode,
     open_ros_node,
+    policy_name,
     pose_message,
     pose_position,
-    policy_name,
     pose_yaw,
     profile_words,
     qos_words,
