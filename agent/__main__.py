@@ -71,10 +71,12 @@ def main(argv: list[str] | None = None) -> int:
         # Restarted into a running run, or joining it later (a scenario event): ask netem.
         joins = not scenario.membership.present[0, [i - 1 for i in ids]].all()
         restarted = scenario.runtime.mode == "lockstep" and (joins or service.run_started())
+        timing = time_policy(scenario, watch_s=WATCH_S)
+        if not restarted:  # a restart's bodies are placed where netem last saw them
+            node.place_bodies(timing.realtime)
         node.announce()
         if restarted:
             node.rejoin()
-        timing = time_policy(scenario, watch_s=WATCH_S)
         try:
             code = node.run(timing)
             if service.failure is not None:  # failed in a message handler

@@ -74,6 +74,7 @@ class RobotBodies:
         self.step_s = scenario.runtime.realtime_period_s or scenario.control.period_s
         self._held: dict[int, list[float]] = {}  # realtime: each robot's command [robot m/s]
         self._mismatch: dict[int, tuple[str, str, str]] = {}  # QoS: offered, requested, policy
+        self._lost: set[int] = set()
         self.last_command: dict[int, list[float]] = {}
         self._used: dict[int, float] = {}  # the arrival of the pose each robot was last placed by
         self.latency_s: list[float] = []  # pose in → command out, per command [s]
@@ -283,6 +284,7 @@ class RobotBodies:
                 lost = [i for i in missing if lost_at(i) <= now]
                 if lost:
                     self._stop(lost)
+                    self._lost.update(lost)
                     raise BodyLost(
                         lost[0],
                         self.body.pose_topic_of(lost[0]),
@@ -321,10 +323,17 @@ class RobotBodies:
                 if not math.dist(pose, starts[i]) <= tolerance:
                     raise RobotNotAtStart(i, self.body.pose_topic_of(i), pose, starts[i], tolerance)
 
-    def stop(self) -> None:
-        """Realtime: a zero ``Twist`` to every robot, sent no more (the end, a signal, a loss)."""
+    def stop(self, timeout_s: float = 2.0) -> None:
+        """Realtime: a zero ``Twist`` to every robot, sent no more (the end, a signal, a loss),
+        and waited for up to ``timeout_s``: the process may end next, and its zero with it."""
         with self._cond:
             self._stop(self.ids)
+        deadline = time.monotonic() + timeout_s
+        for i, pub in self._publishers.items():
+            if i in self._lost:
+                continue  # no robot there to acknowledge it
+            if not pub.delivered(max(deadline - time.monotonic(), 0.0)):
+                log.warning("agent %d: its robot's zero Twist was not acknowledged", i)
 
     def _stop(self, ids: list[int]) -> None:
         """A zero ``Twist`` to robots ``ids`` that are moving (realtime; the lock held): the

@@ -94,6 +94,7 @@ class AgentNode:
         self.service, self.scenario = service, scenario
         self.bodies = bodies  # the agents whose body is a ROS 2 robot (agent.body)
         self.body_lost: BodyLost | None = None
+        self._placed = False  # the bodies' poses taken as the agents' states
         self.cpu_at_start_s = 0.0
         self.run_id = service.run_id
         self.runner = AgentRunner(scenario, ids, strategy, seed)
@@ -336,22 +337,7 @@ class AgentNode:
         thread only watches; realtime: a fixed period, and what has not arrived by a
         phase's deadline is lost.
         """
-        if self.bodies is not None:  # x[0] (or a restart's x[k]) is where the robots are
-            poses = self.bodies.wait_poses(None if timing.realtime else 0, FIRST_POSE_S)
-            if self.runner.epoch == 0:  # where the scenario starts them, not a restart's
-                self.bodies.check_start({i: self.runner.position(i) for i in self.bodies.ids})
-            if self.bodies.stepped:  # a unicycle's x[k], θ[k] as its inner loop takes them
-                assert self.runner.heading is not None
-                rows = {i: self.runner.row[i] for i in self.bodies.ids}
-                expected = {
-                    i: (self.runner.x[r].tolist(), float(self.runner.heading[r]))
-                    for i, r in rows.items()
-                }
-                self.runner.place(*self.bodies.settle(expected))
-            else:
-                self.runner.place(poses)
-                self._take_headings()
-            self.bodies.wait_subscribed(FIRST_POSE_S)
+        self.place_bodies(timing.realtime)
         self.inbox = timing.inbox(self.service, self.ids, self.deadline)
         if not timing.join(self.service, self.rehearse):
             return 1
@@ -367,6 +353,29 @@ class AgentNode:
             self.service.stopping.wait()
             return 130
         return code
+
+    def place_bodies(self, realtime: bool) -> None:
+        """``x[0]`` (or a restart's ``x[k]``) where the robots are, once each has sent a pose,
+        checked, and its command topic is matched: before the agents are announced, so that a
+        run never starts with an agent that has no pose. Once; raises what stops the agent."""
+        if self.bodies is None or self._placed:
+            return
+        self._placed = True
+        poses = self.bodies.wait_poses(None if realtime else 0, FIRST_POSE_S)
+        if self.runner.epoch == 0:  # where the scenario starts them, not a restart's
+            self.bodies.check_start({i: self.runner.position(i) for i in self.bodies.ids})
+        if self.bodies.stepped:  # a unicycle's x[k], θ[k] as its inner loop takes them
+            assert self.runner.heading is not None
+            rows = {i: self.runner.row[i] for i in self.bodies.ids}
+            expected = {
+                i: (self.runner.x[r].tolist(), float(self.runner.heading[r]))
+                for i, r in rows.items()
+            }
+            self.runner.place(*self.bodies.settle(expected))
+        else:
+            self.runner.place(poses)
+            self._take_headings()
+        self.bodies.wait_subscribed(FIRST_POSE_S)
 
     def rehearse(self, times: int = 3) -> None:
         """This process's own work of an epoch, on a copy of its agents, before the clock

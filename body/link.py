@@ -43,6 +43,9 @@ class PosePublisher(Endpoint, Protocol):
 
 class CommandPublisher(Endpoint, Protocol):
     def publish(self, velocity: list[float], angular_z: float) -> None: ...
+    def delivered(self, timeout_s: float) -> bool:
+        """Whether every command published reached its subscribers (reliable) in ``timeout_s``."""
+        ...
 
 
 class BodyLink(Protocol):
@@ -70,6 +73,11 @@ class _RosEndpoint:
     def publish(self, *args: Any) -> None:
         assert self._publish is not None
         self._publish(*args)
+
+    def delivered(self, timeout_s: float) -> bool:
+        from rclpy.duration import Duration
+
+        return bool(self.entity.wait_for_all_acked(Duration(nanoseconds=int(timeout_s * 1e9))))
 
 
 class RclpyLink:
@@ -139,6 +147,9 @@ class _ZenohEndpoint:
     def publish(self, *args: Any) -> None:
         assert self._publish is not None
         self._publish(*args)
+
+    def delivered(self, timeout_s: float) -> bool:
+        return True  # a reliable put has left when it returns
 
 
 class ZenohLink:

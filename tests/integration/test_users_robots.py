@@ -9,11 +9,11 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import select
 import signal
 import subprocess
 import sys
-import threading
 import time
 import zlib
 from collections.abc import Iterator
@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 
 from agent.body import RobotBodies
+from analysis import formation_error, shape_error, team_errors
 from formation.errors import BodyLost, QosMismatch, RobotNotAtStart
 from formation.scenario import Scenario
 from recorder import read_run
@@ -57,7 +58,7 @@ def ros_domain(
 
 def realtime_robots(paper: Scenario, **body: Any) -> Scenario:
     return paper.with_overrides(
-        epochs=40,
+        epochs=30,
         runtime={"mode": "realtime", "realtime_period_s": 0.2},
         body={"kind": "ros2", "pose_timeout_s": TIMEOUT_S, "max_speed_m_s": 0.5, **body},
     )
@@ -161,4 +162,82 @@ def _steps_until_lost(bodies: RobotBodies, robot: int) -> float:
         time.sleep(bodies.step_s)
 
 
-_ = threading, np, KillAtEpoch, wait_for_run, read_run
+def test_formation_run_in_realtime_measures_stops_and_tells_the_faults_of_a_users_robots(
+    paper: Scenario, runs_dir: Path, tmp_path: Path, ros_domain: int
+) -> None:
+    # Robot 2 ignores its commands, robot 4 publishes a NaN and a 50 m jump in every 10
+    # poses, robot 3's process is killed at epoch 8; the robots stop after 0.3 s without a
+    # command, as a watchdog does, so the run needs the command re-sent between steps.
+    scenario = realtime_robots(paper)
+    path = tmp_path / "robots.toml"
+    path.write_text(scenario.to_toml())
+    log = tmp_path / "robots.log"
+    watchdog = ("--watchdog-s", "0.3")
+    with (
+        robots(
+            log, *starts(scenario, [1, 2, 4, 5]), *watchdog, "--stuck", "2", "--bad", "4"
+        ) as team,
+        robots(log, *starts(scenario, [3]), *watchdog) as third,
+    ):
+        cli = [sys.executable, "-m", "testbed.cli", "run", str(path), "--mode", "realtime"]
+        run = subprocess.Popen(
+            [*cli, "--runs-dir", str(runs_dir)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env={**os.environ, "COLUMNS": "300"},
+            start_new_session=True,
+        )
+        kill = KillAtEpoch(["robot3"], epoch=8, pids={"robot3": third.pid})
+        try:
+            kill.start(wait_for_run(runs_dir, run))
+            out, err = run.communicate(timeout=240)
+        finally:
+            kill.close()
+            if run.poll() is None:
+                run.kill()
+                run.communicate()
+        report = robot_report(team)
+    assert kill.killed, "the run ended before robot 3 was killed"
+    assert run.returncode == 0, err
+    assert "Traceback" not in out + err
+    # the cause of the loss, in words
+    assert re.search(
+        r"agent-3 \(pid \d+\) lost at epoch \d+: its robot's pose stopped coming \(agent 3: "
+        r"body lost: no usable pose on /robot3/pose for 1 s \(its newest pose\)\)",
+        out,
+    ), out
+    # safe commands: the limit held, the command re-sent between steps, a zero at the end
+    epochs = scenario.epochs
+    for i, robot in report.items():
+        assert robot["fastest_m_s"] <= 0.5 * (1 + 1e-12), (i, robot)
+        assert robot["last"] == [0.0, 0.0] and robot["zeros"] >= 1, (i, robot)
+    assert report["1"]["commands"] > 3 * epochs and report["1"]["watchdog_stops"] == 0
+    # the bad poses were counted, in the summary
+    counted = re.search(r"robots: \d+ poses, (\d+) rejected \((\d+) not finite, (\d+) jumps\)", out)
+    assert counted and int(counted[2]) > 0 and int(counted[3]) > 0, out
+    # measured: the stuck robot's poses, not its agent's states, are the run's positions
+    (run_dir,) = runs_dir.glob("*/run.mcap")
+    recorded = read_run(run_dir)
+    assert recorded.computed is not None
+    x0 = scenario.initial_positions()
+    stuck = recorded.positions[:, 1]
+    assert np.abs(stuck[np.isfinite(stuck).all(axis=1)] - x0[1]).max() < 1e-12
+    (summary,) = json.loads((run_dir.parent / "summary.json").read_text())
+    tracking = summary["tracking"]
+    assert tracking["robots"]["2"]["final_m"] > 0.1 and "2" in tracking["warning"]
+    assert re.search(r"robot 2: tracking error final \d", out)
+    assert "robot 2 did not follow" in tracking["warning"] or "robots 2" in tracking["warning"]
+    # the headline error is the robots' poses', not what their agents' states claim
+    s = scenario
+
+    def final_error(x: np.ndarray) -> float:
+        fe, se = (
+            formation_error(x, s.edge_array, s.weights),
+            shape_error(x, s.edge_array, s.offsets),
+        )
+        team, _ = team_errors(x, recorded.present, fe, se, s.edge_array, s.weights, s.offsets)
+        return float(team[-1])
+
+    measured, claimed = final_error(recorded.positions), final_error(recorded.computed)
+    assert summary["final_formation_error_m"] == measured != claimed

@@ -106,9 +106,9 @@ def main(argv: list[str] | None = None) -> int:
                 ]
                 robot.published += 1
                 where = list(robot.position)
-            if i in args.bad and robot.published % BAD_EVERY == 0:
+            if i in args.bad and robot.published % BAD_EVERY == BAD_EVERY - 2:
                 where = [math.nan, where[1]]
-            elif i in args.bad and robot.published % BAD_EVERY == 1:
+            elif i in args.bad and robot.published % BAD_EVERY == BAD_EVERY - 1:
                 where = [where[0] + 50.0, where[1]]
             msg = PoseStamped()
             msg.header.frame_id = "world"
