@@ -241,3 +241,29 @@ def test_formation_run_in_realtime_measures_stops_and_tells_the_faults_of_a_user
 
     measured, claimed = final_error(recorded.positions), final_error(recorded.computed)
     assert summary["final_formation_error_m"] == measured != claimed
+
+
+def test_a_robot_far_from_its_start_keeps_the_run_from_starting_with_a_clear_error(
+    paper: Scenario, runs_dir: Path, tmp_path: Path, ros_domain: int
+) -> None:
+    scenario = realtime_robots(paper)
+    path = tmp_path / "robots.toml"
+    path.write_text(scenario.to_toml())
+    far = starts(scenario, [1, 2, 3, 4, 5], moved={3: 1e6})
+    with robots(tmp_path / "robots.log", *far):
+        cli = [sys.executable, "-m", "testbed.cli", "run", str(path), "--mode", "realtime"]
+        done = subprocess.run(
+            [*cli, "--runs-dir", str(runs_dir)],
+            capture_output=True,
+            text=True,
+            timeout=240,
+            start_new_session=True,
+        )
+    assert done.returncode == 1 and "Traceback" not in done.stdout + done.stderr
+    assert re.search(
+        r"agent-3 \(pid \d+\) exited with code 1 before the run started .*\n.*agent 3: its "
+        r"robot's first pose on /robot3/pose is at \(999999, -0\.762\d+\) m, 1e\+06 m from its "
+        r"start \(-0\.892\d+, -0\.762\d+\) m in the scenario; body\.start_tolerance_m = 1",
+        done.stderr,
+    ), done.stderr
+    assert not list(runs_dir.glob("*/report.md"))  # no epoch ran
