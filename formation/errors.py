@@ -194,8 +194,8 @@ class RobotNotAtStart(RuntimeFailure):
         super().__init__(
             f"agent {agent}: its robot's first pose on {topic} is at ({where}) m, "
             f"{_distance(pose, start):.6g} m from its start ({want}) m in the scenario; "
-            f"body.start_tolerance_m = {tolerance_m:g}: place the robot there or raise the "
-            "tolerance"
+            f"body.start_tolerance_m = {tolerance_m:g}: place the robot there (formation robots "
+            "SCENARIO prints each start) or raise the tolerance"
         )
 
 

@@ -29,6 +29,7 @@ COMMANDS: dict[str, str] = {
     "sweep": "testbed.cli.experiment",
     "plugins": "testbed.cli.plugins",
     "ros2-plant": "testbed.cli.plant",
+    "robots": "testbed.cli.robots",
 }
 
 
