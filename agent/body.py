@@ -38,7 +38,7 @@ import numpy.typing as npt
 from agent.control import unicycle_twist
 from agent.steering import InnerLoop, confirmed_pose, pose_point
 from body import NS_PER_S, open_body_link, pose_cdr, twist_cdr
-from formation.errors import BodyLost, QosMismatch, RobotNotAtStart
+from formation.errors import BodyLost, PoseFrameMismatch, QosMismatch, RobotNotAtStart
 from formation.scenario import Scenario
 
 log = logging.getLogger("agent.body")
@@ -69,12 +69,13 @@ class RobotBodies:
         self._cond = threading.Condition()
         self._poses: dict[int, _Pose] = {}
         self.counts = {"poses": 0, "commands": 0, "bad_poses": 0, "jumps": 0}
-        self.counts |= {"clipped": 0, "resent": 0, "stale_waits": 0, "stops": 0}
+        self.counts |= {"clipped": 0, "resent": 0, "stale_waits": 0, "stops": 0, "wrong_frame": 0}
         self.realtime = scenario.runtime.mode == "realtime"
         self.step_s = scenario.runtime.realtime_period_s or scenario.control.period_s
         self._held: dict[int, list[float]] = {}  # realtime: each robot's command [robot m/s]
         self._mismatch: dict[int, tuple[str, str, str]] = {}  # QoS: offered, requested, policy
         self._lost: set[int] = set()
+        self._frames: dict[int, str] = {}  # a frame_id other than the body's, as last seen
         self.last_command: dict[int, list[float]] = {}
         self._used: dict[int, float] = {}  # the arrival of the pose each robot was last placed by
         self.latency_s: list[float] = []  # pose in → command out, per command [s]
@@ -102,9 +103,16 @@ class RobotBodies:
             i: self.link.command_publisher(self.body.command_topic_of(i)) for i in self.ids
         }
 
-    def _on_pose(self, agent: int, xyz: list[float], stamp: int, yaw: float) -> None:
+    def _on_pose(self, agent: int, xyz: list[float], stamp: int, yaw: float, frame: str) -> None:
         """On the link's thread: keep the newest usable pose of ``agent`` (a unicycle's: and
         send its next inner-loop command)."""
+        if frame != self.body.frame_id:  # another frame's coordinates: not the scenario's
+            with self._cond:
+                self.counts["poses"] += 1
+                self.counts["wrong_frame"] += 1
+                self._frames[agent] = frame
+                self._cond.notify_all()
+            return
         d, scale = self.scenario.dimension, self.body.scale
         centre = position = [c / scale for c in xyz[:d]]
         if self.unicycle:  # the look-ahead point of the axle's centre
@@ -280,6 +288,9 @@ class RobotBodies:
                 for i in missing:
                     if i not in self._poses and i in self._mismatch:
                         raise QosMismatch(i, self.body.pose_topic_of(i), *self._mismatch[i])
+                    if i not in self._poses and i in self._frames:
+                        topic = self.body.pose_topic_of(i)
+                        raise PoseFrameMismatch(i, topic, self._frames[i], self.body.frame_id)
                 now = time.monotonic()
                 lost = [i for i in missing if lost_at(i) <= now]
                 if lost:

@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, Protocol
 
-from body.rmw_zenoh import RmwZenohNode, pose_cdr, read_pose, read_twist, twist_cdr
+from body.rmw_zenoh import RmwZenohNode, pose_cdr, read_framed_pose, read_twist, twist_cdr
 from body.ros2 import (
     RosNode,
     open_ros_node,
@@ -25,7 +25,8 @@ from body.ros2 import (
 )
 from formation.body import Body
 
-OnPose = Callable[[list[float], int, float], None]  # position [robot m], stamp [ns], yaw [rad]
+# position [robot m], stamp [ns], yaw [rad], header.frame_id
+OnPose = Callable[[list[float], int, float, str], None]
 OnCommand = Callable[[list[float], float], None]  # linear [robot m/s], angular.z [rad/s]
 # A publisher whose QoS cannot match the subscription: (offered, requested, policy) in words
 OnMismatch = Callable[[str, str, str], None]
@@ -99,7 +100,9 @@ class RclpyLink:
             topic,
             self.node.pose_class,
             self.body.pose_qos,
-            lambda msg: on_pose(list(pose_position(msg)), stamp_ns(msg), pose_yaw(msg)),
+            lambda msg: on_pose(
+                list(pose_position(msg)), stamp_ns(msg), pose_yaw(msg), msg.header.frame_id
+            ),
             on_incompatible=incompatible,
         )
         return _RosEndpoint(sub)
@@ -163,7 +166,9 @@ class ZenohLink:
     def poses(self, topic: str, on_pose: OnPose, on_mismatch: OnMismatch | None = None) -> Endpoint:
         # no QoS events here: rmw_zenoh matches every publisher with every subscription
         kind = self.body.pose_type
-        self.node.subscribe(topic, kind, self.body.pose_qos, lambda b: on_pose(*read_pose(kind, b)))
+        self.node.subscribe(
+            topic, kind, self.body.pose_qos, lambda b: on_pose(*read_framed_pose(kind, b))
+        )
         return _ZenohEndpoint()
 
     def commands(self, topic: str, on_command: OnCommand) -> Endpoint:

@@ -211,6 +211,18 @@ class QosMismatch(RuntimeFailure):
         )
 
 
+class PoseFrameMismatch(RuntimeFailure):
+    """A robot's poses in a frame other than the scenario's ``body.frame_id``."""
+
+    def __init__(self, agent: int, topic: str, frame: str, expected: str) -> None:
+        self.agent, self.topic, self.frame, self.expected = agent, topic, frame, expected
+        super().__init__(
+            f"agent {agent}: the poses on {topic} are in frame {frame!r}, not "
+            f"body.frame_id = {expected!r}: none is used; publish them in {expected!r} or "
+            "set body.frame_id to the frame they are in"
+        )
+
+
 def _distance(a: Sequence[float], b: Sequence[float]) -> float:
     return float(sum((x - y) ** 2 for x, y in zip(a, b, strict=False)) ** 0.5)
 

@@ -31,10 +31,11 @@ def robot_notes(
         if k.startswith("body_")
     }
     if counts:
-        rejected = counts.get("bad_poses", 0) + counts.get("jumps", 0)
+        kinds = ("bad_poses", "jumps", "wrong_frame")
+        bad, jumps, frame = (counts.get(k, 0) for k in kinds)
         lines.append(
-            f"{strategy}: robots: {counts.get('poses', 0)} poses, {rejected} rejected "
-            f"({counts.get('bad_poses', 0)} not finite, {counts.get('jumps', 0)} jumps), "
+            f"{strategy}: robots: {counts.get('poses', 0)} poses, {bad + jumps + frame} rejected "
+            f"({bad} not finite, {jumps} jumps, {frame} in another frame), "
             f"{counts.get('clipped', 0)} commands clipped to the speed limit, "
             f"{counts.get('resent', 0)} re-sent between steps"
         )

@@ -25,7 +25,7 @@ import pytest
 
 from agent.body import RobotBodies
 from analysis import formation_error, shape_error, team_errors
-from formation.errors import BodyLost, QosMismatch, RobotNotAtStart
+from formation.errors import BodyLost, PoseFrameMismatch, QosMismatch, RobotNotAtStart
 from formation.scenario import Scenario
 from recorder import read_run
 from testkit.run_watch import KillAtEpoch, wait_for_run
@@ -112,9 +112,9 @@ def test_the_first_pose_the_qos_and_a_lost_pose_are_told_as_they_are(
     far = starts(scenario, [2], moved={2: 5.0})
     with (
         robots(log, *starts(scenario, [1]), "--best-effort") as offers_less,
-        robots(log, *far, *starts(scenario, [3])) as reliable,
+        robots(log, *far, *starts(scenario, [3, 4]), "--frame=4=odom") as reliable,
     ):
-        bodies = RobotBodies(scenario, [1, 2, 3], "formation_pool_1")
+        bodies = RobotBodies(scenario, [1, 2, 3, 4], "formation_pool_1")
         try:
             # robot 1 publishes best effort, the agent asks reliable: no pose can come
             with pytest.raises(
@@ -126,6 +126,15 @@ def test_the_first_pose_the_qos_and_a_lost_pose_are_told_as_they_are(
             ):
                 bodies.wait_poses(None, READY_S)
             offers_less.kill()
+            bodies.ids = [4]  # robot 4's poses are in its odometry frame: none is used
+            with pytest.raises(
+                PoseFrameMismatch,
+                match=r"^agent 4: the poses on /robot4/pose are in frame 'odom', not "
+                r"body\.frame_id = 'world': none is used; publish them in 'world' or set "
+                r"body\.frame_id to the frame they are in$",
+            ):
+                bodies.wait_poses(None, READY_S)
+            assert bodies.counts["wrong_frame"] > 0 and bodies.counts["jumps"] == 0
             bodies.ids = [2, 3]  # the robots a pose can come from
             bodies.wait_poses(None, READY_S)
             with pytest.raises(
@@ -214,7 +223,9 @@ def test_formation_run_in_realtime_measures_stops_and_tells_the_faults_of_a_user
         assert robot["last"] == [0.0, 0.0] and robot["zeros"] >= 1, (i, robot)
     assert report["1"]["commands"] > 3 * epochs and report["1"]["watchdog_stops"] == 0
     # the bad poses were counted, in the summary
-    counted = re.search(r"robots: \d+ poses, (\d+) rejected \((\d+) not finite, (\d+) jumps\)", out)
+    counted = re.search(
+        r"robots: \d+ poses, (\d+) rejected \((\d+) not finite, (\d+) jumps, 0 in another", out
+    )
     assert counted and int(counted[2]) > 0 and int(counted[3]) > 0, out
     # measured: the stuck robot's poses, not its agent's states, are the run's positions
     (run_dir,) = runs_dir.glob("*/run.mcap")

@@ -4,7 +4,8 @@ that publish ``PoseStamped`` on ``/robot{id}/pose`` at ``--rate-hz`` (wall-clock
 ``world``) and move by the world-frame velocity of their last ``Twist`` on ``/robot{id}/cmd_vel``,
 held until ``--watchdog-s`` passes without one. Faults on demand: ``--stuck I`` ignores its
 commands, ``--bad I`` publishes a NaN pose and a 50 m jump every ``BAD_EVERY`` poses,
-``--best-effort`` offers the poses best effort.
+``--best-effort`` offers the poses best effort, ``--frame I=odom`` stamps robot ``I``'s poses
+in another frame.
 
 It prints ``{"ready": true}`` once its publishers exist, and on SIGTERM one JSON line per run:
 each robot's commands, zero twists, fastest command [m/s], last command and the watchdog's stops.
@@ -56,6 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--stuck", type=int, action="append", default=[])
     p.add_argument("--bad", type=int, action="append", default=[])
     p.add_argument("--best-effort", action="store_true")
+    p.add_argument("--frame", action="append", default=[], help="ID=FRAME: its poses' frame_id")
     args = p.parse_args(argv)
 
     import rclpy
@@ -92,6 +94,7 @@ def main(argv: list[str] | None = None) -> int:
             Twist, f"/robot{i}/cmd_vel", lambda msg, r=robot: on_twist(r, msg), 10
         )
     period_s = 1.0 / args.rate_hz
+    frames = dict(spec.split("=", 1) for spec in args.frame)
 
     def tick() -> None:
         now = time.monotonic()
@@ -111,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
             elif i in args.bad and robot.published % BAD_EVERY == BAD_EVERY - 1:
                 where = [where[0] + 50.0, where[1]]
             msg = PoseStamped()
-            msg.header.frame_id = "world"
+            msg.header.frame_id = frames.get(str(i), "world")
             msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(time.time_ns(), 1_000_000_000)
             msg.pose.position.x, msg.pose.position.y = where
             msg.pose.orientation.w = 1.0

@@ -92,6 +92,6 @@ def test_the_summary_counts_the_robots_poses_and_commands() -> None:
     for line in robot_notes("hold", {"deadline": deadline | {"body_clipped": 4}}, None):
         Console(file=out, width=300).print(line)
     assert out.getvalue() == (
-        "hold: robots: 500 poses, 5 rejected (3 not finite, 2 jumps), 4 commands clipped to "
-        "the speed limit, 0 re-sent between steps\n"
+        "hold: robots: 500 poses, 5 rejected (3 not finite, 2 jumps, 0 in another frame), 4 "
+        "commands clipped to the speed limit, 0 re-sent between steps\n"
     )
