@@ -117,6 +117,7 @@ def test_the_first_pose_the_qos_and_a_lost_pose_are_told_as_they_are(
         bodies = RobotBodies(scenario, [1, 2, 3, 4], "formation_pool_1")
         try:
             # robot 1 publishes best effort, the agent asks reliable: no pose can come
+            bodies.ids = [1]  # one robot at a time: each stops the agent its own way
             with pytest.raises(
                 QosMismatch,
                 match=r"^agent 1: the robot's publisher on /robot1/pose offers reliability "
@@ -210,6 +211,10 @@ def test_formation_run_in_realtime_measures_stops_and_tells_the_faults_of_a_user
     assert kill.killed, "the run ended before robot 3 was killed"
     assert run.returncode == 0, err
     assert "Traceback" not in out + err
+    # the agent stopped stepping once its robot's pose was stale, and left: its states end
+    # within a few epochs of the kill, not pose_timeout_s (5 epochs) or more later
+    loss = re.search(r"agent-3 \(pid \d+\) lost at epoch (\d+)", out)
+    assert loss and int(loss[1]) <= kill.epoch + 4, out
     # the cause of the loss, in words
     assert re.search(
         r"agent-3 \(pid \d+\) lost at epoch \d+: its robot's pose stopped coming \(agent 3: "
@@ -235,6 +240,7 @@ def test_formation_run_in_realtime_measures_stops_and_tells_the_faults_of_a_user
     stuck = recorded.positions[:, 1]
     assert np.abs(stuck[np.isfinite(stuck).all(axis=1)] - x0[1]).max() < 1e-12
     (summary,) = json.loads((run_dir.parent / "summary.json").read_text())
+    assert summary["team"]["3"] == [[0, int(loss[1]) - 1]]
     tracking = summary["tracking"]
     assert tracking["robots"]["2"]["final_m"] > 0.1 and "2" in tracking["warning"]
     assert re.search(r"robot 2: tracking error final \d", out)
