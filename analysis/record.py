@@ -165,13 +165,15 @@ class Skips(Protocol):
 class Recorded:
     """What a recording adds to a run: its metadata, what its trust gate skipped, the
     recorder's live formation error (P,) [m] (NaN where absent) and why a process ended
-    the run (a plug-in failed)."""
+    the run (a plug-in failed); with robot bodies in realtime, the agents' counts of their
+    poses and commands (agent.body), summed over their final statuses."""
 
     metadata: Mapping[str, Mapping[str, str]]
     skipped: Skips
     formation_error: Array
     ended: tuple[str, ...] = ()
     files: tuple[str, ...] = ()
+    robots: Mapping[str, int] = field(default_factory=dict)
 
 
 @dataclass

@@ -11,6 +11,7 @@ batch's arrays, takes its final errors by the same rule, :func:`team_errors` rea
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -110,7 +111,19 @@ def summarise(run: RunData) -> dict[str, Any]:
         gap = np.abs(recorded[both] - states_error[both])
         out["recorded_metrics_max_gap_m"] = float(gap.max()) if gap.size else None
     out.update(robot_tracking(run))
+    if rec is not None and rec.robots:
+        out["robot_counts"] = dict(rec.robots)
     return out
+
+
+def robot_counts_line(counts: Mapping[str, int]) -> str:
+    """The agents' counts of their robots' poses and commands, in words."""
+    bad, jumps, frame = (counts.get(k, 0) for k in ("bad_poses", "jumps", "wrong_frame"))
+    return (
+        f"robots: {counts.get('poses', 0)} poses, {bad + jumps + frame} rejected ({bad} not "
+        f"finite, {jumps} jumps, {frame} in another frame), {counts.get('clipped', 0)} commands "
+        f"clipped to the speed limit, {counts.get('resent', 0)} re-sent between steps"
+    )
 
 
 def robot_tracking(run: RunData) -> dict[str, Any]:

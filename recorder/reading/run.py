@@ -10,6 +10,8 @@ substitutions each agent publishes with its next state. ``recorder.load_run`` is
 
 from __future__ import annotations
 
+import json
+from collections import Counter
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -40,6 +42,7 @@ from recorder.recording.schemas import ROS2, classify
 Array = npt.NDArray[np.float64]
 Ints = npt.NDArray[np.int64]
 Pose = tuple[float | None, int | None]
+ROBOT_COUNTS = "body_"  # the prefix of an agent's body counts in its status (agent.body)
 
 
 class _Collected:
@@ -54,6 +57,7 @@ class _Collected:
         self.recorded: dict[int, float | None] = {}  # None: no edge in the team
         self.ended: list[str] = []  # why a process ended the run (a plug-in failed)
         self.bodies = RecordedPoses()  # the robots' poses (agent.body)
+        self.robots: dict[str, dict[str, int]] = {}  # sender → its newest body counts
 
     def add(self, kind: str, msg: Any) -> None:
         if kind == "agent_state":
@@ -72,6 +76,8 @@ class _Collected:
         elif kind == "status":
             if msg.state == "error" and msg.detail.startswith(PLUGIN_FAILED):
                 self.ended.append(f"{msg.sender}: {msg.detail.removeprefix(PLUGIN_FAILED)}")
+            elif msg.detail.startswith("{") and ROBOT_COUNTS in msg.detail:
+                self._robot_counts(msg.sender, msg.detail)
         elif kind == "decision":
             batch: DecisionBatch = msg
             self.decisions.extend(
@@ -93,6 +99,24 @@ class _Collected:
                 )
                 for c in batch.decisions
             )
+
+    def _robot_counts(self, sender: str, detail: str) -> None:
+        """An agent's realtime status: its ``body_`` counts, the newest kept."""
+        try:
+            counts = json.loads(detail)
+            self.robots[sender] = {
+                k.removeprefix(ROBOT_COUNTS): int(v)
+                for k, v in counts.items()
+                if k.startswith(ROBOT_COUNTS)
+            }
+        except (ValueError, TypeError, AttributeError):
+            return  # not counts: nothing to add
+
+    def robot_counts(self) -> dict[str, int]:
+        total: Counter[str] = Counter()
+        for counts in self.robots.values():
+            total.update(counts)
+        return dict(total)
 
     def substitutions(self, d: int) -> Substitutions:
         rows = sorted((k, i, j, fb, v) for (k, i), got in self.subs.items() for j, fb, v in got)
@@ -205,7 +229,14 @@ def _assemble(
         saturated=saturated,
         substitutions=subs,
         decisions=decisions,
-        recorded=Recorded(meta, skipped, recorded_fe, ended, tuple(str(f) for f in files)),
+        recorded=Recorded(
+            meta,
+            skipped,
+            recorded_fe,
+            ended,
+            tuple(str(f) for f in files),
+            got.robot_counts(),
+        ),
         computed=None if x is computed else computed,
         **est,
     )

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from analysis import RunData, run_team_errors, safety_lines, summarise
+from analysis import RunData, robot_counts_line, run_team_errors, safety_lines, summarise
 from formation.rigidity import expected_rigidity_rank
 from recorder.reading.run import read_run
 from recorder.reporting import plots
@@ -195,7 +195,7 @@ def _markdown(
 
 def _robot_lines(sums: list[dict[str, Any]]) -> list[str]:
     """Robot bodies: the errors above are of their measured poses; each one's tracking."""
-    tracked = [s for s in sums if "tracking" in s]
+    tracked = [s for s in sums if "tracking" in s or "robot_counts" in s]
     if not tracked:
         return []
     lines = [
@@ -207,7 +207,9 @@ def _robot_lines(sums: list[dict[str, Any]]) -> list[str]:
         "",
     ]
     for s in tracked:
-        t = s["tracking"]
+        if "robot_counts" in s:
+            lines.append(f"- {s['label']}: {robot_counts_line(s['robot_counts'])}")
+        t = s.get("tracking", {"robots": {}, "warning": None})
         for i, e in t["robots"].items():
             lines.append(
                 f"- {s['label']}: robot {i}: tracking error final {e['final_m']:.4g} m, "

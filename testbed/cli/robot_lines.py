@@ -7,6 +7,7 @@ import signal
 from pathlib import Path
 from typing import Any
 
+from analysis import robot_counts_line
 from formation.body import BODY_LOST_EXIT
 from formation.plugin_api import PLUGIN_EXIT
 
@@ -25,20 +26,13 @@ def robot_notes(
             )
         if tracking["warning"]:
             lines.append(f"{strategy}: {tracking['warning']}")
-    counts = {
+    counts = (recorded or {}).get("robot_counts") or {
         k.removeprefix("body_"): v
         for k, v in summary.get("deadline", {}).items()
         if k.startswith("body_")
-    }
+    }  # as recorded, else as the launcher saw the statuses (--no-record)
     if counts:
-        kinds = ("bad_poses", "jumps", "wrong_frame")
-        bad, jumps, frame = (counts.get(k, 0) for k in kinds)
-        lines.append(
-            f"{strategy}: robots: {counts.get('poses', 0)} poses, {bad + jumps + frame} rejected "
-            f"({bad} not finite, {jumps} jumps, {frame} in another frame), "
-            f"{counts.get('clipped', 0)} commands clipped to the speed limit, "
-            f"{counts.get('resent', 0)} re-sent between steps"
-        )
+        lines.append(f"{strategy}: {robot_counts_line(counts)}")
     return lines
 
 

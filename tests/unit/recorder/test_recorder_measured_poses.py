@@ -5,16 +5,18 @@ stands, its tracking error is in the summary and the report, with a warning."""
 from __future__ import annotations
 
 import io
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 from rich.console import Console
 
-from analysis import summarise
+from analysis import robot_counts_line, summarise
 from body import pose_cdr
 from formation import keys
 from formation.codec import attachment
+from formation.messages import Status
 from formation.scenario import Scenario
 from recorder import read_run
 from recorder.reporting.report import _robot_lines
@@ -43,6 +45,15 @@ def recorded_with_poses(scenario: Scenario, path: Path) -> np.ndarray:
         for k in range(scenario.epochs + 1)
         for i in range(1, scenario.n + 1)
     ]
+    end = scenario.epochs
+    for i in range(1, scenario.n + 1):  # each agent's final status, with its body counts
+        counts = {"packets": 8, "body_poses": 100, "body_bad_poses": i, "body_jumps": 1}
+        status = Status(
+            run_id=RUN, sender=f"agent/{i}", seq=9, epoch=end - 1, stamp_ns=0, role="agent",
+            state="done", epochs_done=end, detail=json.dumps(counts),
+        )  # fmt: skip
+        key = keys.status(RUN, "agent", i)
+        inject.append((key, status.model_dump_json().encode(), None, end * EPOCH_NS + 50 + i))
     write_synthetic(path, result, inject=inject)
     return poses
 
@@ -68,11 +79,17 @@ def test_a_realtime_run_s_positions_are_its_robots_measured_poses(
         "(body.tracking_warning_m)"
     )
     lines = robot_notes("hold", {}, summary)
+    assert lines[-1] == f"hold: {robot_counts_line(summary['robot_counts'])}"
     assert lines[1].startswith(f"hold: robot 2: tracking error final {stuck[-1]:.4g} m, peak ")
-    assert lines[-1] == f"hold: {tracking['warning']}"
+    assert lines[-2] == f"hold: {tracking['warning']}"
+    assert summary["robot_counts"] == {"poses": 500, "bad_poses": 15, "jumps": 5}
     report = _robot_lines([summary])
     assert report[1] == "## Robots"
-    assert report[6].startswith(f"- {run.label}: robot 2: tracking error final {stuck[-1]:.4g} m")
+    assert report[5] == (
+        f"- {run.label}: robots: 500 poses, 20 rejected (15 not finite, 5 jumps, 0 in another "
+        "frame), 0 commands clipped to the speed limit, 0 re-sent between steps"
+    )
+    assert report[7].startswith(f"- {run.label}: robot 2: tracking error final {stuck[-1]:.4g} m")
     assert report[-1] == f"- {run.label}: **{tracking['warning']}**"
 
 
