@@ -131,12 +131,24 @@ class RobotBodies:
             self._poses[agent] = _Pose(stamp, position, now, yaw, tuple(xyz), centre)
             self._cond.notify_all()
             if agent in self._held:  # realtime: the command again, at the robot's pose rate
-                self._publishers[agent].publish(self._held[agent], 0.0)
+                sent = self._in_frame(agent, self._held[agent])
+                self._publishers[agent].publish(sent, 0.0)
+                self._twists[agent] = (sent, 0.0)
                 self.counts["resent"] += 1
             if self.unicycle and agent in self._u:
                 self._steer(agent, yaw)
             if agent in self._loops:
                 self._answer(agent, self._loops[agent], centre, yaw, stamp)
+
+    def _in_frame(self, agent: int, velocity: list[float]) -> list[float]:
+        """A holonomic robot's velocity [robot m/s] in its command frame: as is (``world``), or
+        turned by minus its newest heading into its own frame (``body``, REP 103)."""
+        if self.body.command_frame == "world":
+            return velocity
+        heading = self._poses[agent].heading
+        c, s = math.cos(heading), math.sin(heading)
+        x, y, *z = velocity
+        return [c * x + s * y, -s * x + c * y, *z]
 
     def jump_m(self, since_s: float) -> float:
         """How far a body may have moved since a pose ``since_s`` ago [m]: at its speed limit
@@ -382,9 +394,10 @@ class RobotBodies:
                     self.counts["clipped"] += 1
                 twist = [c * scale for c in u]
                 with self._cond:
-                    self._publishers[i].publish(twist, 0.0)
-                    self._twists[i] = (twist, 0.0)
-                    if self.realtime:
+                    sent = self._in_frame(i, twist)
+                    self._publishers[i].publish(sent, 0.0)
+                    self._twists[i] = (sent, 0.0)
+                    if self.realtime:  # in the pose's frame: turned again at each send
                         self._held[i] = twist
             self.last_command[i] = u
             if i in self._used:  # from the pose's arrival to its command's publish

@@ -69,6 +69,8 @@ class Body(_Settings):
     max_speed_m_s: float | None = Field(None, gt=0.0)  # [scenario m/s]; None: no limit
     start_tolerance_m: float = Field(1.0, gt=0.0)  # [scenario m]
     tracking_warning_m: float = Field(0.1, gt=0.0)  # [scenario m] pose against state
+    # a holonomic robot's cmd_vel: in the pose's frame ("world"), or REP 103's body frame
+    command_frame: Literal["world", "body"] = "world"
     names: tuple[str, ...] = ()  # each agent's robot's name, for ``{name}``: agents 1..n
     domain_id: int | None = Field(None, ge=0, le=232)  # ROS_DOMAIN_ID; None: the environment's
     pose_qos: Qos = Qos()

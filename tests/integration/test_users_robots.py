@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import re
 import select
@@ -107,12 +108,12 @@ def robot_report(proc: subprocess.Popen[str]) -> dict[str, dict[str, Any]]:
 def test_the_first_pose_the_qos_and_a_lost_pose_are_told_as_they_are(
     paper: Scenario, tmp_path: Path, ros_domain: int
 ) -> None:
-    scenario = realtime_robots(paper)
+    scenario = realtime_robots(paper, command_frame="body")
     log = tmp_path / "robots.log"
     far = starts(scenario, [2], moved={2: 5.0})
     with (
         robots(log, *starts(scenario, [1]), "--best-effort") as offers_less,
-        robots(log, *far, *starts(scenario, [3, 4]), "--frame=4=odom") as reliable,
+        robots(log, *far, *starts(scenario, [3, 4]), "--frame=4=odom", "--yaw=3=0.5") as reliable,
     ):
         bodies = RobotBodies(scenario, [1, 2, 3, 4], "formation_pool_1")
         try:
@@ -150,7 +151,10 @@ def test_the_first_pose_the_qos_and_a_lost_pose_are_told_as_they_are(
             # robot 3 moves, then its process dies: the agent's next steps wait, the robot
             # gets a zero Twist, and the loss comes pose_timeout_s after its last pose
             bodies.ids = [3]
-            bodies.command({3: [0.1, 0.0]})
+            bodies.command({3: [0.1, 0.0]})  # east, to a robot facing 0.5 rad north of east
+            (vx, vy, *_), _ = bodies.last_twist(3) or ([], 0.0)
+            turned = (0.1 * math.cos(0.5), -0.1 * math.sin(0.5))  # in REP 103's body frame
+            assert (vx, vy) == pytest.approx(turned, abs=1e-12)
             reliable.kill()
             reliable.wait()
             lost_after_s = _steps_until_lost(bodies, 3)

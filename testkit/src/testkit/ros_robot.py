@@ -5,7 +5,7 @@ that publish ``PoseStamped`` on ``/robot{id}/pose`` at ``--rate-hz`` (wall-clock
 held until ``--watchdog-s`` passes without one. Faults on demand: ``--stuck I`` ignores its
 commands, ``--bad I`` publishes a NaN pose and a 50 m jump every ``BAD_EVERY`` poses,
 ``--best-effort`` offers the poses best effort, ``--frame I=odom`` stamps robot ``I``'s poses
-in another frame.
+in another frame, ``--yaw I=RAD`` turns robot ``I`` (its commands stay world-frame).
 
 It prints ``{"ready": true}`` once its publishers exist, and on SIGTERM one JSON line per run:
 each robot's commands, zero twists, fastest command [m/s], last command and the watchdog's stops.
@@ -58,6 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--bad", type=int, action="append", default=[])
     p.add_argument("--best-effort", action="store_true")
     p.add_argument("--frame", action="append", default=[], help="ID=FRAME: its poses' frame_id")
+    p.add_argument("--yaw", action="append", default=[], help="ID=RAD: its heading (it keeps it)")
     args = p.parse_args(argv)
 
     import rclpy
@@ -95,6 +96,7 @@ def main(argv: list[str] | None = None) -> int:
         )
     period_s = 1.0 / args.rate_hz
     frames = dict(spec.split("=", 1) for spec in args.frame)
+    yaws = {int(i): float(rad) for i, _, rad in (spec.partition("=") for spec in args.yaw)}
 
     def tick() -> None:
         now = time.monotonic()
@@ -117,7 +119,8 @@ def main(argv: list[str] | None = None) -> int:
             msg.header.frame_id = frames.get(str(i), "world")
             msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(time.time_ns(), 1_000_000_000)
             msg.pose.position.x, msg.pose.position.y = where
-            msg.pose.orientation.w = 1.0
+            yaw = yaws.get(i, 0.0)
+            msg.pose.orientation.z, msg.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
             publishers[i].publish(msg)
 
     node.create_timer(period_s, tick)
