@@ -261,6 +261,11 @@ class AgentNode:
             if realtime and self.bodies is not None:
                 self._take_headings()  # a unicycle steps from where it faces now
             self.runner.step(got)
+            # x[k+1] is known now: out at once, so the states have the rest of this period
+            # as well as the next one's first 0.2 to arrive. In realtime it does not depend on
+            # the robots' poses, so a wait for a robot's pose never makes it late.
+            if realtime:
+                self._publish_states()
             if before is not None:
                 try:
                     self._move_bodies(k, before, realtime)
@@ -268,9 +273,8 @@ class AgentNode:
                     log.error("%s", exc)
                     self.body_lost = exc
                     break
-            # x[k+1] is known now: out at once, so the states have the rest of this period
-            # as well as the next one's first 0.2 to arrive.
-            self._publish_states()
+            if not realtime:  # lockstep: x[k+1] is the robot's pose of k + 1
+                self._publish_states()
         if realtime and self.bodies is not None and self.body_lost is None:
             self._record_last_poses()
         self.finished.set()

@@ -159,7 +159,9 @@ def test_the_first_pose_the_qos_and_a_lost_pose_are_told_as_they_are(
             reliable.wait()
             lost_after_s = _steps_until_lost(bodies, 3)
             assert bodies.counts["stops"] == 1 and bodies.last_twist(3) == ([0.0, 0.0], 0.0)
-            assert TIMEOUT_S <= lost_after_s <= TIMEOUT_S + bodies.step_s, lost_after_s
+            # the bound is pose_timeout_s after the last pose (and the wake-up of a loaded
+            # machine: 0.62 s late at a load of 10 on 2 cores)
+            assert TIMEOUT_S <= lost_after_s <= TIMEOUT_S + 1.0, lost_after_s
             print(f"a lost pose was noticed {lost_after_s:.3f} s after the last one came")
         finally:
             bodies.close()
@@ -212,7 +214,7 @@ def test_formation_run_in_realtime_measures_stops_and_tells_the_faults_of_a_user
                 run.kill()
                 run.communicate()
         report = robot_report(team)
-    assert kill.killed, "the run ended before robot 3 was killed"
+    assert kill.killed, f"the run ended before robot 3 was killed: {err}"
     assert run.returncode == 0, err
     assert "Traceback" not in out + err
     # the agent stopped stepping once its robot's pose was stale, and left: its states end

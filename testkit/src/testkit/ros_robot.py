@@ -3,9 +3,10 @@ plant. ``python -m testkit.ros_robot --robot 1=0.5,0.2 --robot 2=...`` runs holo
 that publish ``PoseStamped`` on ``/robot{id}/pose`` at ``--rate-hz`` (wall-clock stamps, frame
 ``world``) and move by the world-frame velocity of their last ``Twist`` on ``/robot{id}/cmd_vel``,
 held until ``--watchdog-s`` passes without one. Faults on demand: ``--stuck I`` ignores its
-commands, ``--bad I`` publishes a NaN pose and a 50 m jump every ``BAD_EVERY`` poses,
-``--best-effort`` offers the poses best effort, ``--frame I=odom`` stamps robot ``I``'s poses
-in another frame, ``--yaw I=RAD`` turns robot ``I`` (its commands stay world-frame).
+commands, ``--bad I`` publishes a NaN pose and a 50 m jump every ``BAD_EVERY`` poses once it
+is driven, ``--best-effort`` offers the poses best effort, ``--frame I=odom`` stamps robot
+``I``'s poses in another frame, ``--yaw I=RAD`` turns robot ``I`` (its commands stay
+world-frame).
 
 It prints ``{"ready": true}`` once its publishers exist, and on SIGTERM one JSON line per run:
 each robot's commands, zero twists, fastest command [m/s], last command and the watchdog's stops.
@@ -111,9 +112,10 @@ def main(argv: list[str] | None = None) -> int:
                 ]
                 robot.published += 1
                 where = list(robot.position)
-            if i in args.bad and robot.published % BAD_EVERY == BAD_EVERY - 2:
+            bad = i in args.bad and robot.commands > 0  # once driven: its start is good
+            if bad and robot.published % BAD_EVERY == BAD_EVERY - 2:
                 where = [math.nan, where[1]]
-            elif i in args.bad and robot.published % BAD_EVERY == BAD_EVERY - 1:
+            elif bad and robot.published % BAD_EVERY == BAD_EVERY - 1:
                 where = [where[0] + 50.0, where[1]]
             msg = PoseStamped()
             msg.header.frame_id = frames.get(str(i), "world")
