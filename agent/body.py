@@ -351,6 +351,8 @@ class RobotBodies:
         and waited for up to ``timeout_s``: the process may end next, and its zero with it."""
         with self._cond:
             self._stop(self.ids)
+        if not self.realtime:
+            return  # no zero was sent
         deadline = time.monotonic() + timeout_s
         for i, pub in self._publishers.items():
             if i in self._lost:
