@@ -183,7 +183,8 @@ def test_formation_run_in_realtime_measures_stops_and_tells_the_faults_of_a_user
 ) -> None:
     # Robot 2 ignores its commands, robot 4 publishes a NaN and a 50 m jump in every 10
     # poses, robot 3's process is killed at epoch 8; the robots stop after 0.3 s without a
-    # command, as a watchdog does, so the run needs the command re-sent between steps.
+    # command, as a watchdog does. The command is re-sent at every pose (50 Hz): many more
+    # commands than epochs, and the watchdog never fires.
     scenario = realtime_robots(paper)
     path = tmp_path / "robots.toml"
     path.write_text(scenario.to_toml())
