@@ -198,7 +198,8 @@ class RunData:
     recorded : what a recording adds (None for a simulated run)
     deadlines : a realtime run's deadline accounting, as ``report.md`` reads it
     computed : (P, n, d) the agents' states [m] where robots' measured poses replace them in
-    ``positions`` (a realtime run with robot bodies), else None
+    ``positions``, NaN elsewhere (there ``positions`` are the states); None without
+    measured poses (a realtime run with robot bodies has them)
     """
 
     label: str

@@ -192,8 +192,8 @@ def _assemble(
     recorded: tuple[Any, Any, tuple[str, ...], list[Path]],
 ) -> RunData:
     n, d = scenario.n, scenario.dimension
-    computed = _positions(got.states, n, d)
-    x = _measured(computed, got.bodies.measured(scenario, len(computed)))
+    states = _positions(got.states, n, d)
+    x, computed = _measured(states, got.bodies.measured(scenario, len(states)))
     decisions = Decisions.of_rows(got.decisions)
     epochs = [*got.ests, *decisions.epoch.tolist()]
     count = max(epochs) + 1 if epochs else max(len(x) - 1, 0)
@@ -237,18 +237,18 @@ def _assemble(
             tuple(str(f) for f in files),
             got.robot_counts(),
         ),
-        computed=None if x is computed else computed,
+        computed=computed,
         **est,
     )
 
 
-def _measured(computed: Array, measured: Array | None) -> Array:
+def _measured(states: Array, measured: Array | None) -> tuple[Array, Array | None]:
     """The positions of a run: a robot's measured pose where one was recorded while its agent
-    took part, else the agent's state (``computed``)."""
+    took part, else the agent's state; and the states those poses replace (NaN elsewhere)."""
     if measured is None:
-        return computed
-    use = np.isfinite(measured).all(axis=2) & np.isfinite(computed).all(axis=2)
-    return np.where(np.asarray(use)[:, :, None], measured, computed)
+        return states, None
+    use = np.asarray(np.isfinite(measured).all(axis=2) & np.isfinite(states).all(axis=2))
+    return np.where(use[:, :, None], measured, states), np.where(use[:, :, None], states, np.nan)
 
 
 def _positions(states: dict[tuple[int, int], list[float]], n: int, d: int) -> Array:
