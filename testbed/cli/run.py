@@ -13,8 +13,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from analysis import safety_counts
-from formation.errors import RunEnded, TestbedError
-from recorder import write_deadlines, write_report, write_reports
+from formation.errors import RecordingError, RunEnded, RuntimeFailure, TestbedError
+from recorder import recover, write_deadlines, write_report, write_reports
 from testbed.cli.arguments import add_common, load_checked, scenario_strategies
 from testbed.cli.deadline_lines import deadline_cells, deadline_notes
 from testbed.cli.robot_lines import loss_cause, robot_notes
@@ -60,6 +60,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                 elapsed = bar.tasks[0].elapsed or 0.0
                 bar.update(_t, completed=done, rate=done / elapsed if elapsed else 0.0, drops=drops)
 
+            started: list[str] = []  # the run's id, once every process is up
             try:
                 outcome = launch(
                     scenario,
@@ -71,10 +72,15 @@ def cmd_run(args: argparse.Namespace) -> int:
                     progress=progress,
                     restart=args.restart,
                     recorder_args=_live_args(args),
+                    on_started=lambda run_id, _endpoint, _s=started: _s.append(run_id),
                 )
             except RunEnded as exc:  # what was recorded is reported, with why the run ended
                 if not args.no_record:
                     _report(Path(exc.run_dir), console)
+                raise
+            except RuntimeFailure:  # a run that started (every agent gone): its summary too
+                if started and not args.no_record:
+                    ended_summary(strategy, Path(args.runs_dir) / started[0], console)
                 raise
         outcomes.append(outcome)
         write_deadlines(outcome.run_dir, outcome.summary())
@@ -139,6 +145,31 @@ def _report(run_dir: Path, console: Console) -> dict[str, Any]:
             f"({reasons}) on {len(skipped['by_channel'])} channels: see {path}"
         )
     return summary  # type: ignore[no-any-return]
+
+
+def ended_summary(strategy: str, run_dir: Path, console: Console) -> None:
+    """A run that ended early: its report and summary from what was recorded (a recording
+    its recorder could not close is recovered first); nothing if none is readable."""
+    mcap = run_dir / "run.mcap"
+    try:
+        try:
+            recorded = _report(run_dir, console)
+        except RecordingError:  # not closed: its records up to where it stopped
+            recovered = recover(mcap, run_dir / "run-recovered.mcap").target
+            path = write_report(recovered, run_dir)
+            console.print(f"report: {path}")
+            (recorded,) = json.loads((run_dir / "summary.json").read_text())
+    except (RecordingError, OSError) as exc:
+        console.print(f"{strategy}: no summary: the recording cannot be read ({exc})")
+        return
+    console.print(
+        f"{strategy}: the run ended early, after {recorded['epochs']} epochs: final formation "
+        f"error {_number(recorded['final_formation_error_m'])} m, shape "
+        f"{_number(recorded['final_shape_error_m'])} m (from the recording)",
+        soft_wrap=True,
+    )
+    for line in robot_notes(strategy, {}, recorded):
+        console.print(line, soft_wrap=True)
 
 
 def headline(outcome: Any, recorded: dict[str, Any] | None) -> dict[str, Any]:
