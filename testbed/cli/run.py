@@ -61,6 +61,10 @@ def cmd_run(args: argparse.Namespace) -> int:
                 bar.update(_t, completed=done, rate=done / elapsed if elapsed else 0.0, drops=drops)
 
             started: list[str] = []  # the run's id, once every process is up
+
+            def on_started(run_id: str, _endpoint: str, _into: list[str] = started) -> None:
+                _into.append(run_id)
+
             try:
                 outcome = launch(
                     scenario,
@@ -72,7 +76,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                     progress=progress,
                     restart=args.restart,
                     recorder_args=_live_args(args),
-                    on_started=lambda run_id, _endpoint, _s=started: _s.append(run_id),
+                    on_started=on_started,
                 )
             except RunEnded as exc:  # what was recorded is reported, with why the run ended
                 if not args.no_record:
