@@ -71,15 +71,18 @@ def main(argv: list[str] | None = None) -> int:
         # Restarted into a running run, or joining it later (a scenario event): ask netem.
         joins = not scenario.membership.present[0, [i - 1 for i in ids]].all()
         restarted = scenario.runtime.mode == "lockstep" and (joins or service.run_started())
+        timing = time_policy(scenario, watch_s=WATCH_S)
+        if not restarted:  # a restart's bodies are placed where netem last saw them
+            node.place_bodies(timing.realtime)
         node.announce()
         if restarted:
             node.rejoin()
-        timing = time_policy(scenario, watch_s=WATCH_S)
         try:
             code = node.run(timing)
             if service.failure is not None:  # failed in a message handler
                 raise service.failure
-            detail = json.dumps(node.deadline) if timing.realtime else ""
+            counts = node.deadline | ({} if bodies is None else bodies.status_counts())
+            detail = json.dumps(counts) if timing.realtime else ""
             if node.body_lost is not None:
                 detail = str(node.body_lost)
             service.status("done" if code == 0 else "error", node.runner.epoch, detail)
@@ -92,7 +95,8 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             cpu_s = time.process_time() - node.cpu_at_start_s
             log.info("cpu: %.3f s over %d epochs", cpu_s, node.runner.epoch)
-            if bodies is not None:
+            if bodies is not None:  # the robots stop: the run's end, a signal or a loss
+                bodies.stop()
                 log.info("body: %s", json.dumps(bodies.summary()))
                 bodies.close()
         return code

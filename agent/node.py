@@ -94,6 +94,7 @@ class AgentNode:
         self.service, self.scenario = service, scenario
         self.bodies = bodies  # the agents whose body is a ROS 2 robot (agent.body)
         self.body_lost: BodyLost | None = None
+        self._placed = False  # the bodies' poses taken as the agents' states
         self.cpu_at_start_s = 0.0
         self.run_id = service.run_id
         self.runner = AgentRunner(scenario, ids, strategy, seed)
@@ -260,6 +261,11 @@ class AgentNode:
             if realtime and self.bodies is not None:
                 self._take_headings()  # a unicycle steps from where it faces now
             self.runner.step(got)
+            # x[k+1] is known now: out at once, so the states have the rest of this period
+            # as well as the next one's first 0.2 to arrive. In realtime it does not depend on
+            # the robots' poses, so a wait for a robot's pose never makes it late.
+            if realtime:
+                self._publish_states()
             if before is not None:
                 try:
                     self._move_bodies(k, before, realtime)
@@ -267,10 +273,22 @@ class AgentNode:
                     log.error("%s", exc)
                     self.body_lost = exc
                     break
-            # x[k+1] is known now: out at once, so the states have the rest of this period
-            # as well as the next one's first 0.2 to arrive.
-            self._publish_states()
+            if not realtime:  # lockstep: x[k+1] is the robot's pose of k + 1
+                self._publish_states()
+        if realtime and self.bodies is not None and self.body_lost is None:
+            self._record_last_poses()
         self.finished.set()
+
+    def _record_last_poses(self) -> None:
+        """Realtime: the robots' poses at the run's end, into the recording as their measured
+        ``x[E]`` (each step records the pose it stepped from: the measured ``x[k]``)."""
+        assert self.bodies is not None
+        try:
+            self.bodies.wait_poses(None, self.scenario.body.pose_timeout_s)
+        except BodyLost as exc:
+            log.error("%s", exc)
+            return
+        self._record_traffic(self.runner.epoch, ("pose",))
 
     def _take_headings(self) -> None:
         """A unicycle robot's newest heading as ``θ[k]`` (realtime)."""
@@ -305,10 +323,16 @@ class AgentNode:
             u = body_velocity(before[rows], self.runner.x[rows], self.scenario.control.period_s)
             self.bodies.command(dict(zip(ids, u.tolist(), strict=True)))
             self.runner.place(self.bodies.wait_poses(k + 1, timeout_s))
-        for i in ids:  # into the recording: the pose taken and the command sent
+        self._record_traffic(k)
+
+    def _record_traffic(self, k: int, kinds: tuple[str, ...] = ("pose", "command")) -> None:
+        """Into the recording: each robot's pose taken and command sent (agent.body)."""
+        assert self.bodies is not None
+        for i in self.bodies.ids:
             for what, type_name, cdr in self.bodies.traffic(i):
-                key = keys.body(self.run_id, i, what, type_name)
-                self.service.put(key, cdr, attachment(k, self.service.next_seq(key), i))
+                if what in kinds:
+                    key = keys.body(self.run_id, i, what, type_name)
+                    self.service.put(key, cdr, attachment(k, self.service.next_seq(key), i))
 
     def run(self, timing: TimePolicy) -> int:
         """Run every agent to its last epoch under ``timing``; returns an exit code.
@@ -317,20 +341,7 @@ class AgentNode:
         thread only watches; realtime: a fixed period, and what has not arrived by a
         phase's deadline is lost.
         """
-        if self.bodies is not None:  # x[0] (or a restart's x[k]) is where the robots are
-            poses = self.bodies.wait_poses(None if timing.realtime else 0, FIRST_POSE_S)
-            if self.bodies.stepped:  # a unicycle's x[k], θ[k] as its inner loop takes them
-                assert self.runner.heading is not None
-                rows = {i: self.runner.row[i] for i in self.bodies.ids}
-                expected = {
-                    i: (self.runner.x[r].tolist(), float(self.runner.heading[r]))
-                    for i, r in rows.items()
-                }
-                self.runner.place(*self.bodies.settle(expected))
-            else:
-                self.runner.place(poses)
-                self._take_headings()
-            self.bodies.wait_subscribed(FIRST_POSE_S)
+        self.place_bodies(timing.realtime)
         self.inbox = timing.inbox(self.service, self.ids, self.deadline)
         if not timing.join(self.service, self.rehearse):
             return 1
@@ -346,6 +357,29 @@ class AgentNode:
             self.service.stopping.wait()
             return 130
         return code
+
+    def place_bodies(self, realtime: bool) -> None:
+        """``x[0]`` (or a restart's ``x[k]``) where the robots are, once each has sent a pose,
+        checked, and its command topic is matched: before the agents are announced, so that a
+        run never starts with an agent that has no pose. Once; raises what stops the agent."""
+        if self.bodies is None or self._placed:
+            return
+        self._placed = True
+        poses = self.bodies.wait_poses(None if realtime else 0, FIRST_POSE_S)
+        if self.runner.epoch == 0:  # where the scenario starts them, not a restart's
+            self.bodies.check_start({i: self.runner.position(i) for i in self.bodies.ids})
+        if self.bodies.stepped:  # a unicycle's x[k], θ[k] as its inner loop takes them
+            assert self.runner.heading is not None
+            rows = {i: self.runner.row[i] for i in self.bodies.ids}
+            expected = {
+                i: (self.runner.x[r].tolist(), float(self.runner.heading[r]))
+                for i, r in rows.items()
+            }
+            self.runner.place(*self.bodies.settle(expected))
+        else:
+            self.runner.place(poses)
+            self._take_headings()
+        self.bodies.wait_subscribed(FIRST_POSE_S)
 
     def rehearse(self, times: int = 3) -> None:
         """This process's own work of an epoch, on a copy of its agents, before the clock

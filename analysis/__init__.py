@@ -30,7 +30,7 @@ from analysis.metrics import (
 from analysis.queues import loss_split
 from analysis.record import Decisions, Recorded, RunData, Substitutions
 from analysis.safety import safety_counts, safety_lines
-from analysis.summary import final_value, run_team_errors, summarise
+from analysis.summary import final_value, robot_counts_line, run_team_errors, summarise
 
 if TYPE_CHECKING:
     from analysis.tables import Frames, frames
@@ -60,6 +60,7 @@ __all__ = [
     "loss_split",
     "nees",
     "present",
+    "robot_counts_line",
     "run_team_errors",
     "safety_counts",
     "safety_lines",

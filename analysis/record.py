@@ -170,13 +170,15 @@ class Skips(Protocol):
 class Recorded:
     """What a recording adds to a run: its metadata, what its trust gate skipped, the
     recorder's live formation error (P,) [m] (NaN where absent) and why a process ended
-    the run (a plug-in failed)."""
+    the run (a plug-in failed); with robot bodies in realtime, the agents' counts of their
+    poses and commands (agent.body), summed over their final statuses."""
 
     metadata: Mapping[str, Mapping[str, str]]
     skipped: Skips
     formation_error: Array
     ended: tuple[str, ...] = ()
     files: tuple[str, ...] = ()
+    robots: Mapping[str, int] = field(default_factory=dict)
 
 
 @dataclass
@@ -200,6 +202,9 @@ class RunData:
     decisions : netem's record of every packet (None: not known, only ``delivered``)
     recorded : what a recording adds (None for a simulated run)
     deadlines : a realtime run's deadline accounting, as ``report.md`` reads it
+    computed : (P, n, d) the agents' states [m] where robots' measured poses replace them in
+    ``positions``, NaN elsewhere (there ``positions`` are the states); None without
+    measured poses (a realtime run with robot bodies has them)
     """
 
     label: str
@@ -231,6 +236,7 @@ class RunData:
     decisions: Decisions | None = None
     recorded: Recorded | None = None
     deadlines: dict[str, Any] | None = None
+    computed: Array | None = None
 
     def __post_init__(self) -> None:
         if self.decided.shape != self.delivered.shape:  # the simulator knows every delivery

@@ -11,6 +11,7 @@ batch's arrays, takes its final errors by the same rule, :func:`team_errors` rea
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -18,7 +19,7 @@ import numpy.typing as npt
 
 import analysis.membership as membership
 from analysis.membership import team_errors
-from analysis.metrics import error_statistics, longest_run
+from analysis.metrics import error_statistics, formation_error, longest_run
 from analysis.queues import loss_split, queue_table
 from analysis.record import RunData
 from analysis.safety import safety_counts
@@ -100,10 +101,57 @@ def summarise(run: RunData) -> dict[str, Any]:
     out["safety"] = safety_counts(s, run.positions, run.headings, run.saturated)
     recorded = None if rec is None else rec.formation_error
     if recorded is not None and np.isfinite(recorded).any():
-        both = np.isfinite(recorded) & np.isfinite(run.formation_error)
-        gap = np.abs(recorded[both] - run.formation_error[both])
+        # the recorder's live metrics are the agents' states', never the robots' poses
+        states_error = (
+            run.formation_error
+            if run.computed is None
+            else formation_error(run.computed, s.edge_array, s.weights)
+        )
+        both = np.isfinite(recorded) & np.isfinite(states_error)
+        gap = np.abs(recorded[both] - states_error[both])
         out["recorded_metrics_max_gap_m"] = float(gap.max()) if gap.size else None
+    out.update(robot_tracking(run))
+    if rec is not None and rec.robots:
+        out["robot_counts"] = dict(rec.robots)
     return out
+
+
+def robot_counts_line(counts: Mapping[str, int]) -> str:
+    """The agents' counts of their robots' poses and commands, in words."""
+    bad, jumps, frame = (counts.get(k, 0) for k in ("bad_poses", "jumps", "wrong_frame"))
+    return (
+        f"robots: {counts.get('poses', 0)} poses, {bad + jumps + frame} rejected ({bad} not "
+        f"finite, {jumps} jumps, {frame} in another frame), {counts.get('clipped', 0)} commands "
+        f"clipped to the speed limit, {counts.get('resent', 0)} re-sent between steps"
+    )
+
+
+def robot_tracking(run: RunData) -> dict[str, Any]:
+    """Each robot's tracking error, its measured pose against its agent's state [m]: final,
+    peak and RMS over the epochs it took part in; ``warning`` names those whose peak passes
+    ``body.tracking_warning_m``. Empty without measured poses (``run.computed`` None)."""
+    if run.computed is None:
+        return {}
+    gap = np.linalg.norm(run.positions - run.computed, axis=2)  # (P, n)
+    threshold = run.scenario.body.tracking_warning_m
+    per: dict[str, dict[str, float]] = {}
+    for i in run.scenario.body.robots(run.scenario.n):
+        seen = gap[np.isfinite(gap[:, i - 1]), i - 1]
+        if seen.size:
+            per[str(i)] = {
+                "final_m": float(seen[-1]),
+                "peak_m": float(seen.max()),
+                "rms_m": float(np.sqrt(np.mean(seen**2))),
+            }
+    over = [i for i, t in per.items() if t["peak_m"] > threshold]
+    warning = (
+        f"warning: robot{'s' if len(over) > 1 else ''} {', '.join(over)} did not follow "
+        f"{'their agents' if len(over) > 1 else 'its agent'}: tracking error above "
+        f"{threshold:g} m (body.tracking_warning_m)"
+        if over
+        else None
+    )
+    return {"tracking": {"robots": per, "threshold_m": threshold, "warning": warning}}
 
 
 def _team(run: RunData) -> dict[str, Any]:

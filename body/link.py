@@ -9,21 +9,27 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, Protocol
 
-from body.rmw_zenoh import RmwZenohNode, pose_cdr, read_pose, read_twist, twist_cdr
+from body.rmw_zenoh import RmwZenohNode, pose_cdr, read_framed_pose, read_twist, twist_cdr
 from body.ros2 import (
     RosNode,
     open_ros_node,
+    policy_name,
     pose_message,
     pose_position,
     pose_yaw,
+    profile_words,
+    qos_words,
     stamp_ns,
     twist_message,
     twist_velocity,
 )
 from formation.body import Body
 
-OnPose = Callable[[list[float], int, float], None]  # position [robot m], stamp [ns], yaw [rad]
+# position [robot m], stamp [ns], yaw [rad], header.frame_id
+OnPose = Callable[[list[float], int, float, str], None]
 OnCommand = Callable[[list[float], float], None]  # linear [robot m/s], angular.z [rad/s]
+# A publisher whose QoS cannot match the subscription: (offered, requested, policy) in words
+OnMismatch = Callable[[str, str, str], None]
 
 
 class Endpoint(Protocol):
@@ -38,12 +44,17 @@ class PosePublisher(Endpoint, Protocol):
 
 class CommandPublisher(Endpoint, Protocol):
     def publish(self, velocity: list[float], angular_z: float) -> None: ...
+    def delivered(self, timeout_s: float) -> bool:
+        """Whether every command published reached its subscribers (reliable) in ``timeout_s``."""
+        ...
 
 
 class BodyLink(Protocol):
     """Robots' poses and commands on their topics (a ROS 2 node's, on one transport)."""
 
-    def poses(self, topic: str, on_pose: OnPose) -> Endpoint: ...
+    def poses(
+        self, topic: str, on_pose: OnPose, on_mismatch: OnMismatch | None = None
+    ) -> Endpoint: ...
     def commands(self, topic: str, on_command: OnCommand) -> Endpoint: ...
     def pose_publisher(self, topic: str) -> PosePublisher: ...
     def command_publisher(self, topic: str) -> CommandPublisher: ...
@@ -64,6 +75,11 @@ class _RosEndpoint:
         assert self._publish is not None
         self._publish(*args)
 
+    def delivered(self, timeout_s: float) -> bool:
+        from rclpy.duration import Duration
+
+        return bool(self.entity.wait_for_all_acked(Duration(nanoseconds=int(timeout_s * 1e9))))
+
 
 class RclpyLink:
     """Over DDS, through an rclpy node (:class:`body.ros2.RosNode`)."""
@@ -72,14 +88,29 @@ class RclpyLink:
         self.body = body
         self.node: RosNode = open_ros_node(name, body)
 
-    def poses(self, topic: str, on_pose: OnPose) -> Endpoint:
+    def poses(self, topic: str, on_pose: OnPose, on_mismatch: OnMismatch | None = None) -> Endpoint:
+        requested = qos_words(self.body.pose_qos)
+
+        def incompatible(info: Any) -> None:  # rclpy's QoS event, on the node's thread
+            if on_mismatch is not None:
+                policy = policy_name(info.last_policy_kind)
+                on_mismatch(self._offered(topic), requested, policy)
+
         sub = self.node.subscribe(
             topic,
             self.node.pose_class,
             self.body.pose_qos,
-            lambda msg: on_pose(list(pose_position(msg)), stamp_ns(msg), pose_yaw(msg)),
+            lambda msg: on_pose(
+                list(pose_position(msg)), stamp_ns(msg), pose_yaw(msg), msg.header.frame_id
+            ),
+            on_incompatible=incompatible,
         )
         return _RosEndpoint(sub)
+
+    def _offered(self, topic: str) -> str:
+        """The QoS of the publishers on ``topic``, in words (rclpy's graph)."""
+        infos = self.node.node.get_publishers_info_by_topic(topic)
+        return "; ".join(profile_words(info.qos_profile) for info in infos) or "(no publisher)"
 
     def commands(self, topic: str, on_command: OnCommand) -> Endpoint:
         sub = self.node.subscribe(
@@ -120,6 +151,9 @@ class _ZenohEndpoint:
         assert self._publish is not None
         self._publish(*args)
 
+    def delivered(self, timeout_s: float) -> bool:
+        return True  # a reliable put has left when it returns
+
 
 class ZenohLink:
     """rmw_zenoh's wire format on a Zenoh session (:mod:`body.rmw_zenoh`), in domain
@@ -129,9 +163,12 @@ class ZenohLink:
         self.body = body
         self.node = RmwZenohNode(session, body.domain_id or 0, name)
 
-    def poses(self, topic: str, on_pose: OnPose) -> Endpoint:
+    def poses(self, topic: str, on_pose: OnPose, on_mismatch: OnMismatch | None = None) -> Endpoint:
+        # no QoS events here: rmw_zenoh matches every publisher with every subscription
         kind = self.body.pose_type
-        self.node.subscribe(topic, kind, self.body.pose_qos, lambda b: on_pose(*read_pose(kind, b)))
+        self.node.subscribe(
+            topic, kind, self.body.pose_qos, lambda b: on_pose(*read_framed_pose(kind, b))
+        )
         return _ZenohEndpoint()
 
     def commands(self, topic: str, on_command: OnCommand) -> Endpoint:
@@ -164,4 +201,11 @@ def open_body_link(name: str, body: Body, session: Any = None) -> BodyLink:
     return RclpyLink(name, body)
 
 
-__all__ = ["BodyLink", "CommandPublisher", "Endpoint", "PosePublisher", "open_body_link"]
+__all__ = [
+    "BodyLink",
+    "CommandPublisher",
+    "Endpoint",
+    "OnMismatch",
+    "PosePublisher",
+    "open_body_link",
+]

@@ -197,6 +197,12 @@ def twist_cdr(velocity: list[float], angular_z: float = 0.0) -> bytes:
 
 def read_pose(type_name: str, data: bytes) -> tuple[list[float], int, float]:
     """A CDR ``PoseStamped`` or ``Odometry`` → (position [robot m], stamp [ns], yaw [rad])."""
+    position, when_ns, yaw, _ = read_framed_pose(type_name, data)
+    return position, when_ns, yaw
+
+
+def read_framed_pose(type_name: str, data: bytes) -> tuple[list[float], int, float, str]:
+    """:func:`read_pose` and the pose's ``header.frame_id``."""
     from body.ros2 import yaw_of
 
     msg = typestore().deserialize_cdr(data, type_name)
@@ -204,7 +210,7 @@ def read_pose(type_name: str, data: bytes) -> tuple[list[float], int, float]:
     p, q, stamp = pose.position, pose.orientation, msg.header.stamp
     when_ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
     yaw = yaw_of(float(q.x), float(q.y), float(q.z), float(q.w))
-    return [float(p.x), float(p.y), float(p.z)], when_ns, yaw
+    return [float(p.x), float(p.y), float(p.z)], when_ns, yaw, str(msg.header.frame_id)
 
 
 def read_twist(data: bytes) -> tuple[list[float], float]:
@@ -291,6 +297,7 @@ __all__ = [
     "parse_attachment",
     "pose_cdr",
     "qos_token",
+    "read_framed_pose",
     "read_pose",
     "read_twist",
     "topic_key",

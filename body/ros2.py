@@ -68,6 +68,25 @@ def qos_profile(qos: Qos) -> Any:
     )
 
 
+def qos_words(qos: Qos) -> str:
+    """A scenario's QoS in words, as :func:`profile_words` writes rclpy's: the policies a
+    publisher and a subscription are matched on (discovery does not carry the depth)."""
+    return f"reliability {qos.reliability}, durability {qos.durability}"
+
+
+def profile_words(profile: Any) -> str:
+    """An rclpy ``QoSProfile`` in words: reliability, durability."""
+    return (
+        f"reliability {policy_name(profile.reliability)}, "
+        f"durability {policy_name(profile.durability)}"
+    )
+
+
+def policy_name(policy: Any) -> str:
+    """An rclpy QoS policy or policy kind by its short name (``best_effort``, ``reliability``)."""
+    return str(getattr(policy, "name", policy)).lower().removeprefix("rmw_qos_policy_")
+
+
 def stamp_ns(msg: Any) -> int:
     """A stamped message's ``header.stamp`` in integer nanoseconds."""
     stamp = msg.header.stamp
@@ -148,8 +167,21 @@ class RosNode:
         while not self._stop.is_set() and self.context.ok():
             self.executor.spin_once(timeout_sec=SPIN_WAKE_S)
 
-    def subscribe(self, topic: str, cls: Any, qos: Qos, callback: Callable[[Any], None]) -> Any:
-        return self.node.create_subscription(cls, topic, callback, qos_profile(qos))
+    def subscribe(
+        self,
+        topic: str,
+        cls: Any,
+        qos: Qos,
+        callback: Callable[[Any], None],
+        on_incompatible: Callable[[Any], None] | None = None,
+    ) -> Any:
+        """A subscription; ``on_incompatible`` gets rclpy's requested-incompatible-QoS event."""
+        from rclpy.event_handler import SubscriptionEventCallbacks
+
+        events = SubscriptionEventCallbacks(incompatible_qos=on_incompatible)
+        return self.node.create_subscription(
+            cls, topic, callback, qos_profile(qos), event_callbacks=events
+        )
 
     def publisher(self, topic: str, cls: Any, qos: Qos) -> Any:
         return self.node.create_publisher(cls, topic, qos_profile(qos))
@@ -206,10 +238,13 @@ __all__ = [
     "exit_process",
     "message_class",
     "open_ros_node",
+    "policy_name",
     "pose_message",
     "pose_position",
     "pose_yaw",
+    "profile_words",
     "qos_profile",
+    "qos_words",
     "require_ros2",
     "stamp_ns",
     "twist_message",

@@ -7,8 +7,9 @@ command as a ``geometry_msgs/msg/Twist`` on the command topic (docs/robots.md).
 ``kind = "rmw_zenoh"`` is the same exchange over the run's Zenoh session in rmw_zenoh's
 wire format, with no DDS (body/rmw_zenoh.py).
 
-Topics are templates on the agent id (``/robot{id}/pose``); message types are checked here,
-at load, against the types the bodies can read and write.
+Topics are templates on the agent: its id (``/robot{id}/pose``), its index from 0
+(``/tb3_{index}/odom``) or its name in ``names`` (``/{name}/cmd_vel``); message types are
+checked here, at load, against the types the bodies can read and write.
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ BODY_LOST_EXIT = 4  # exit code of an agent whose robot's pose stopped coming
 # A ROS 2 topic name once ``{id}`` is filled in: absolute or relative, tokens of
 # letters, digits and underscores, not starting with a digit, joined by single slashes.
 _TOPIC = re.compile(r"^/?[A-Za-z_~][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")  # a robot's name: one token of a topic
+TEMPLATE_FIELDS = ("id", "index", "name")  # agent i: i, i − 1, names[i − 1]
 
 
 class _Settings(BaseModel):
@@ -48,6 +51,10 @@ class Body(_Settings):
     ``scale``: the robot's frame in metres per metre of the scenario (a lab arena that is a
     half-size model of the scenario has ``scale = 0.5``); poses are divided by it, commands
     multiplied. ``pose_timeout_s``: a robot whose pose has not come for this long is lost.
+    ``max_speed_m_s``: a holonomic robot's commanded speed is clipped to it (a unicycle's
+    limits are ``control.unicycle``'s). ``start_tolerance_m``: how far a robot's first pose
+    may be from where the scenario starts its agent. ``tracking_warning_m``: a robot whose
+    measured pose strays this far from its agent's state is warned of in the summary.
     """
 
     kind: BodyKind = "simulated"
@@ -59,6 +66,12 @@ class Body(_Settings):
     frame_id: str = "world"  # the frame the poses are given in, and the plant's poses carry
     scale: float = Field(1.0, gt=0.0)  # robot metres per scenario metre
     pose_timeout_s: float = Field(5.0, gt=0.0)  # [s]
+    max_speed_m_s: float | None = Field(None, gt=0.0)  # [scenario m/s]; None: no limit
+    start_tolerance_m: float = Field(1.0, gt=0.0)  # [scenario m]
+    tracking_warning_m: float = Field(0.1, gt=0.0)  # [scenario m] pose against state
+    # a holonomic robot's cmd_vel: in the pose's frame ("world"), or REP 103's body frame
+    command_frame: Literal["world", "body"] = "world"
+    names: tuple[str, ...] = ()  # each agent's robot's name, for ``{name}``: agents 1..n
     domain_id: int | None = Field(None, ge=0, le=232)  # ROS_DOMAIN_ID; None: the environment's
     pose_qos: Qos = Qos()
     command_qos: Qos = Qos()
@@ -67,11 +80,17 @@ class Body(_Settings):
     @classmethod
     def _template(cls, v: str) -> str:
         fields = [name for _, name, _, _ in string.Formatter().parse(v) if name is not None]
-        if "id" not in fields:
-            raise ValueError("a topic template names the agent as {id}, e.g. '/robot{id}/pose'")
-        if set(fields) != {"id"}:
-            raise ValueError(f"a topic template may only name {{id}}, got {sorted(set(fields))}")
-        topic = v.format(id=1)
+        if not set(fields) & set(TEMPLATE_FIELDS):
+            raise ValueError(
+                "a topic template names the agent as {id}, {index} or {name}, e.g. "
+                "'/robot{id}/pose'"
+            )
+        if not set(fields) <= set(TEMPLATE_FIELDS):
+            raise ValueError(
+                "a topic template may only name {id}, {index} and {name}, got "
+                f"{sorted(set(fields))}"
+            )
+        topic = v.format(id=1, index=0, name="robot")
         if not _TOPIC.match(topic):
             raise ValueError(
                 f"not a ROS 2 topic name once filled in ({topic!r}): tokens of letters, digits "
@@ -105,10 +124,14 @@ class Body(_Settings):
         return [i for i in range(1, n + 1) if self.has_robot(i)]
 
     def pose_topic_of(self, agent: int) -> str:
-        return self.pose_topic.format(id=agent)
+        return self.pose_topic.format(**self._fields(agent))
 
     def command_topic_of(self, agent: int) -> str:
-        return self.command_topic.format(id=agent)
+        return self.command_topic.format(**self._fields(agent))
+
+    def _fields(self, agent: int) -> dict[str, object]:
+        name = self.names[agent - 1] if agent <= len(self.names) else f"robot{agent}"
+        return {"id": agent, "index": agent - 1, "name": name}
 
 
 def _known(v: str, types: tuple[str, ...]) -> str:
@@ -127,6 +150,28 @@ def body_problems(
             return [(f"body.agents[{k}]", i, f"agent does not exist (agents are 1..{n})")]
     if len(set(body.agents)) != len(body.agents):
         return [("body.agents", list(body.agents), "an agent is listed twice")]
+    named = any("{name}" in t for t in (body.pose_topic, body.command_topic))
+    if body.names and len(body.names) != n:
+        return [
+            (
+                "body.names",
+                list(body.names),
+                f"{len(body.names)} names; expected {n}, one per agent",
+            )
+        ]
+    if named and not body.names:
+        return [("body.names", [], "a topic names {name}: give each agent's robot a name")]
+    for k, name in enumerate(body.names):
+        if not _NAME.match(name):
+            return [
+                (
+                    f"body.names[{k}]",
+                    name,
+                    "not one token of a ROS 2 topic name (letters, digits, underscores)",
+                )
+            ]
+    if len(set(body.names)) != len(body.names):
+        return [("body.names", list(body.names), "a name is given twice")]
     if body.kind in ROS_BODIES and events and mode == "realtime":
         return [
             (

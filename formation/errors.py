@@ -187,6 +187,57 @@ class BodyLost(RuntimeFailure):
         )
 
 
+class RobotNotAtStart(RuntimeFailure):
+    """A robot's first pose too far from where the scenario starts its agent."""
+
+    def __init__(
+        self,
+        agent: int,
+        topic: str,
+        pose: Sequence[float],
+        start: Sequence[float],
+        tolerance_m: float,
+    ) -> None:
+        self.agent, self.topic, self.pose, self.start = agent, topic, list(pose), list(start)
+        self.tolerance_m = tolerance_m
+        where = ", ".join(f"{c:.6g}" for c in pose)
+        want = ", ".join(f"{c:.6g}" for c in start)
+        super().__init__(
+            f"agent {agent}: its robot's first pose on {topic} is at ({where}) m, "
+            f"{_distance(pose, start):.6g} m from its start ({want}) m in the scenario; "
+            f"body.start_tolerance_m = {tolerance_m:g}: place the robot there (formation robots "
+            "SCENARIO prints each start) or raise the tolerance"
+        )
+
+
+class QosMismatch(RuntimeFailure):
+    """A robot's publisher whose QoS cannot match the agent's subscription."""
+
+    def __init__(self, agent: int, topic: str, offered: str, requested: str, policy: str) -> None:
+        self.agent, self.topic, self.offered, self.requested = agent, topic, offered, requested
+        super().__init__(
+            f"agent {agent}: the robot's publisher on {topic} offers {offered}, the agent's "
+            f"subscription requests {requested} ({policy} incompatible): no pose can arrive; "
+            "set body.pose_qos to what the robot publishes"
+        )
+
+
+class PoseFrameMismatch(RuntimeFailure):
+    """A robot's poses in a frame other than the scenario's ``body.frame_id``."""
+
+    def __init__(self, agent: int, topic: str, frame: str, expected: str) -> None:
+        self.agent, self.topic, self.frame, self.expected = agent, topic, frame, expected
+        super().__init__(
+            f"agent {agent}: the poses on {topic} are in frame {frame!r}, not "
+            f"body.frame_id = {expected!r}: none is used; publish them in {expected!r} or "
+            "set body.frame_id to the frame they are in"
+        )
+
+
+def _distance(a: Sequence[float], b: Sequence[float]) -> float:
+    return float(sum((x - y) ** 2 for x, y in zip(a, b, strict=False)) ** 0.5)
+
+
 class LinkModelError(TestbedError):
     """A link model that cannot be built or asked: names the link and the broken rule."""
 

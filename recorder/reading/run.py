@@ -10,6 +10,8 @@ substitutions each agent publishes with its next state. ``recorder.load_run`` is
 
 from __future__ import annotations
 
+import json
+from collections import Counter
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -32,13 +34,15 @@ from formation.errors import RecordingError
 from formation.messages import CoordinationState, DecisionBatch, LeaderEstimate
 from formation.plugin_api import PLUGIN_FAILED
 from formation.scenario import Scenario
+from recorder.reading.bodies import RecordedPoses
 from recorder.reading.reader import iter_messages, metadata, open_recording, parts, scenario_of
 from recorder.reading.trust import Gate, derived_channels
-from recorder.recording.schemas import classify
+from recorder.recording.schemas import ROS2, classify
 
 Array = npt.NDArray[np.float64]
 Ints = npt.NDArray[np.int64]
 Pose = tuple[float | None, int | None]
+ROBOT_COUNTS = "body_"  # the prefix of an agent's body counts in its status (agent.body)
 
 
 class _Collected:
@@ -52,6 +56,8 @@ class _Collected:
         self.decisions: list[tuple[Any, ...]] = []
         self.recorded: dict[int, float | None] = {}  # None: no edge in the team
         self.ended: list[str] = []  # why a process ended the run (a plug-in failed)
+        self.bodies = RecordedPoses()  # the robots' poses (agent.body)
+        self.robots: dict[str, dict[str, int]] = {}  # sender → its newest body counts
 
     def add(self, kind: str, msg: Any) -> None:
         if kind == "agent_state":
@@ -70,6 +76,8 @@ class _Collected:
         elif kind == "status":
             if msg.state == "error" and msg.detail.startswith(PLUGIN_FAILED):
                 self.ended.append(f"{msg.sender}: {msg.detail.removeprefix(PLUGIN_FAILED)}")
+            elif msg.detail.startswith("{") and ROBOT_COUNTS in msg.detail:
+                self._robot_counts(msg.sender, msg.detail)
         elif kind == "decision":
             batch: DecisionBatch = msg
             self.decisions.extend(
@@ -91,6 +99,24 @@ class _Collected:
                 )
                 for c in batch.decisions
             )
+
+    def _robot_counts(self, sender: str, detail: str) -> None:
+        """An agent's realtime status: its ``body_`` counts, the newest kept."""
+        try:
+            counts = json.loads(detail)
+            self.robots[sender] = {
+                k.removeprefix(ROBOT_COUNTS): int(v)
+                for k, v in counts.items()
+                if k.startswith(ROBOT_COUNTS)
+            }
+        except (ValueError, TypeError, AttributeError):
+            return  # not counts: nothing to add
+
+    def robot_counts(self) -> dict[str, int]:
+        total: Counter[str] = Counter()
+        for counts in self.robots.values():
+            total.update(counts)
+        return dict(total)
 
     def substitutions(self, d: int) -> Substitutions:
         rows = sorted((k, i, j, fb, v) for (k, i), got in self.subs.items() for j, fb, v in got)
@@ -148,9 +174,11 @@ def read_run(path: Path | str, label: str | None = None) -> RunData:
         held.update(meta=meta, scenario=scenario, gate=Gate(scenario))
         return held["gate"]  # type: ignore[no-any-return]
 
-    for kind, _, _, msg, _ in iter_trusted(path, gate_of):
+    for kind, channel, record, msg, _ in iter_trusted(path, gate_of):
         if kind in _WANTED:
             got.add(kind, msg)
+        elif kind.startswith(ROS2):
+            got.bodies.add(channel.topic, record, kind.removeprefix(ROS2))
     scenario: Scenario = held["scenario"]
     recorded = (held["meta"], held["gate"].skipped, tuple(got.ended), parts(path))
     return _assemble(scenario, path, label, got, recorded)
@@ -164,7 +192,8 @@ def _assemble(
     recorded: tuple[Any, Any, tuple[str, ...], list[Path]],
 ) -> RunData:
     n, d = scenario.n, scenario.dimension
-    x = _positions(got.states, n, d)
+    states = _positions(got.states, n, d)
+    x, computed = _measured(states, got.bodies.measured(scenario, len(states)))
     decisions = Decisions.of_rows(got.decisions)
     epochs = [*got.ests, *decisions.epoch.tolist()]
     count = max(epochs) + 1 if epochs else max(len(x) - 1, 0)
@@ -199,9 +228,26 @@ def _assemble(
         saturated=saturated,
         substitutions=subs,
         decisions=decisions,
-        recorded=Recorded(meta, skipped, recorded_fe, ended, tuple(str(f) for f in files)),
+        recorded=Recorded(
+            meta,
+            skipped,
+            recorded_fe,
+            ended,
+            tuple(str(f) for f in files),
+            got.robot_counts(),
+        ),
+        computed=computed,
         **est,
     )
+
+
+def _measured(states: Array, measured: Array | None) -> tuple[Array, Array | None]:
+    """The positions of a run: a robot's measured pose where one was recorded while its agent
+    took part, else the agent's state; and the states those poses replace (NaN elsewhere)."""
+    if measured is None:
+        return states, None
+    use = np.asarray(np.isfinite(measured).all(axis=2) & np.isfinite(states).all(axis=2))
+    return np.where(use[:, :, None], measured, states), np.where(use[:, :, None], states, np.nan)
 
 
 def _positions(states: dict[tuple[int, int], list[float]], n: int, d: int) -> Array:

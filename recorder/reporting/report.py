@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from analysis import RunData, run_team_errors, safety_lines, summarise
+from analysis import RunData, robot_counts_line, run_team_errors, safety_lines, summarise
 from formation.rigidity import expected_rigidity_rank
 from recorder.reading.run import read_run
 from recorder.reporting import network_plots, plots
@@ -219,6 +219,7 @@ def _markdown(
             for topic, by_reason in sk["by_channel"].items():
                 what = ", ".join(f"{r} {v}" for r, v in by_reason.items())
                 lines.append(f"  - `{topic}`: {what}")
+    lines += _robot_lines(sums)
     lines += ["", "## Safety", ""]
     for s in sums:
         lines += safety_lines(s["label"], s["safety"])
@@ -292,6 +293,33 @@ def _captions(
         "estimator's running mean stays in the grey 95 % band.",
         "queues": "Each capacity queue's largest depth per epoch [packets].",
     }
+
+
+def _robot_lines(sums: list[dict[str, Any]]) -> list[str]:
+    """Robot bodies: the errors above are of their measured poses; each one's tracking."""
+    tracked = [s for s in sums if "tracking" in s or "robot_counts" in s]
+    if not tracked:
+        return []
+    lines = [
+        "",
+        "## Robots",
+        "",
+        "The errors, the trajectories and the safety counts are of the robots' measured poses "
+        "(as recorded); the tracking error is a robot's pose against its agent's state.",
+        "",
+    ]
+    for s in tracked:
+        if "robot_counts" in s:
+            lines.append(f"- {s['label']}: {robot_counts_line(s['robot_counts'])}")
+        t = s.get("tracking", {"robots": {}, "warning": None})
+        for i, e in t["robots"].items():
+            lines.append(
+                f"- {s['label']}: robot {i}: tracking error final {e['final_m']:.4g} m, "
+                f"peak {e['peak_m']:.4g} m, RMS {e['rms_m']:.4g} m"
+            )
+        if t["warning"]:
+            lines.append(f"- {s['label']}: **{t['warning']}**")
+    return lines
 
 
 def write_report_from(runs: Sequence[RunData], out_dir: Path, title: str | None = None) -> Path:

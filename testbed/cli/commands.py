@@ -114,6 +114,11 @@ COMMANDS: dict[str, Command] = {
         "the headless ROS 2 plant: a scenario's robots, without a robot",
         ("formation ros2-plant robots", "formation ros2-plant robots --clock free --rate-hz 10"),
     ),
+    "robots": Command(
+        "testbed.cli.robots",
+        "where to place a scenario's robots before a run",
+        ("formation robots robots", "formation robots my_fleet.toml --seed 2"),
+    ),
 }
 
 

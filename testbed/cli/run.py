@@ -18,12 +18,13 @@ from rich.table import Table
 from testbed.cli.arguments import add_common, load_checked, scenario_strategies
 from testbed.cli.deadline_lines import deadline_cells, deadline_notes
 from testbed.cli.progress import every
+from testbed.cli.robot_lines import loss_cause, robot_notes
 from testbed.cli.tables import header, print_table
 from testbed.runtime.faults import RESTART_POLICIES
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from formation.errors import RunEnded
+    from formation.errors import RunEnded, RuntimeFailure
     from recorder import write_deadlines, write_reports
     from testbed.runtime.launcher import launch
     from testbed.runtime.process_budget import realtime_layout
@@ -75,6 +76,11 @@ def cmd_run(args: argparse.Namespace) -> int:
                 if _lines is not None:
                     _lines(done, total, drops)
 
+            started: list[str] = []  # the run's id, once every process is up
+
+            def on_started(run_id: str, _endpoint: str, _into: list[str] = started) -> None:
+                _into.append(run_id)
+
             try:
                 outcome = launch(
                     scenario,
@@ -86,10 +92,15 @@ def cmd_run(args: argparse.Namespace) -> int:
                     progress=progress,
                     restart=args.restart,
                     recorder_args=live,
+                    on_started=on_started,
                 )
             except RunEnded as exc:  # what was recorded is reported, with why the run ended
                 if not args.no_record:
                     _report(Path(exc.run_dir), console)
+                raise
+            except RuntimeFailure:  # a run that started (every agent gone): its summary too
+                if started and not args.no_record:
+                    ended_summary(strategy, Path(args.runs_dir) / started[0], console)
                 raise
         outcomes.append(outcome)
         write_deadlines(outcome.run_dir, outcome.summary())
@@ -161,8 +172,9 @@ def _print_losses(outcomes: list[Any], console: Console) -> None:
                 else f", restarted as pid {loss['restarted_pid']}"
             )
             back = loss["back_from_epoch"]
+            cause = loss_cause(o.run_dir, loss["name"], loss["code"])
             console.print(
-                f"{o.strategy}: {loss['name']} (pid {loss['pid']}) lost {when} "
+                f"{o.strategy}: {loss['name']} (pid {loss['pid']}) lost {when}: {cause} "
                 f"(exit code {loss['code']}, {loss['dropped']} packets dropped on its links"
                 f"{missed}){again}" + ("" if back is None else f", back from epoch {back}"),
                 soft_wrap=True,  # one line even in a pipe, for grep
@@ -185,6 +197,34 @@ def _report(run_dir: Path, console: Console) -> dict[str, Any]:
             f"({reasons}) on {len(skipped['by_channel'])} channels: see {path}"
         )
     return summary  # type: ignore[no-any-return]
+
+
+def ended_summary(strategy: str, run_dir: Path, console: Console) -> None:
+    """A run that ended early: its report and summary from what was recorded (a recording
+    its recorder could not close is recovered first); nothing if none is readable."""
+    from formation.errors import RecordingError
+    from recorder import recover, write_report
+
+    mcap = run_dir / "run.mcap"
+    try:
+        try:
+            recorded = _report(run_dir, console)
+        except RecordingError:  # not closed: its records up to where it stopped
+            recovered = recover(mcap, run_dir / "run-recovered.mcap").target
+            path = write_report(recovered, run_dir)
+            console.print(f"report: {path}")
+            (recorded,) = json.loads((run_dir / "summary.json").read_text())
+    except (RecordingError, OSError) as exc:
+        console.print(f"{strategy}: no summary: the recording cannot be read ({exc})")
+        return
+    console.print(
+        f"{strategy}: the run ended early, after {recorded['epochs']} epochs: final formation "
+        f"error {_number(recorded['final_formation_error_m'])} m, shape "
+        f"{_number(recorded['final_shape_error_m'])} m (from the recording)",
+        soft_wrap=True,
+    )
+    for line in robot_notes(strategy, {}, recorded):
+        console.print(line, soft_wrap=True)
 
 
 def headline(outcome: Any, recorded: dict[str, Any] | None) -> dict[str, Any]:
@@ -274,6 +314,8 @@ def _print_summary(
             )
         for line in deadline_notes(o.strategy, s):
             console.print(line)
+        for line in robot_notes(o.strategy, s, recorded.get(o.run_id)):
+            console.print(line, soft_wrap=True)
 
 
 def _number(v: float | None) -> str:

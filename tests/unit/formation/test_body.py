@@ -58,11 +58,11 @@ def test_a_ros2_body_for_some_agents(tmp_path: Path) -> None:
     [
         (
             'pose_topic = "/robot/pose"',
-            r"bad\.toml: body\.pose_topic = '/robot/pose'; a topic template names the agent as \{id\}",
+            r"bad\.toml: body\.pose_topic = '/robot/pose'; a topic template names the agent as \{id\}, \{index\} or \{name\}",
         ),
         (
-            'command_topic = "/robot{id}/{name}"',
-            r"body\.command_topic = '/robot\{id\}/\{name\}'; a topic template may only name \{id\}, got \['id', 'name'\]",
+            'command_topic = "/robot{id}/{kind}"',
+            r"body\.command_topic = '/robot\{id\}/\{kind\}'; a topic template may only name \{id\}, \{index\} and \{name\}, got \['id', 'kind'\]",
         ),
         (
             'pose_topic = "/robot{id}//pose"',
@@ -119,3 +119,42 @@ def test_robots_follow_scenario_events_in_lockstep_only() -> None:
         r"'lockstep'$",
     ):
         load_dict(tomllib.loads(realtime), source="events.toml")
+
+
+def test_topic_templates_map_a_fleet_s_own_names(tmp_path: Path) -> None:
+    # a fleet numbered from 0 (tb3_0, tb3_1, ...) and one named by hand
+    s = load(write(tmp_path, '[body]\nkind = "ros2"\npose_topic = "/tb3_{index}/odom"\n'))
+    assert [s.body.pose_topic_of(i) for i in (1, 2, 3)] == [
+        "/tb3_0/odom",
+        "/tb3_1/odom",
+        "/tb3_2/odom",
+    ]
+    named = (
+        '[body]\nkind = "ros2"\ncommand_topic = "/{name}/cmd_vel"\nnames = ["ada", "bo", "cy"]\n'
+    )
+    s = load(write(tmp_path, named))
+    assert s.body.command_topic_of(2) == "/bo/cmd_vel"
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        (
+            'command_topic = "/{name}/cmd_vel"',
+            r"bad\.toml: body\.names = \[\]; a topic names \{name\}: give each agent's robot a name",
+        ),
+        (
+            'names = ["ada", "bo"]',
+            r"body\.names = \['ada', 'bo'\]; 2 names; expected 3, one per agent",
+        ),
+        (
+            'names = ["ada", "bo", "c-y"]',
+            r"body\.names\[2\] = 'c-y'; not one token of a ROS 2 topic name",
+        ),
+    ],
+)
+def test_robot_names_are_checked(tmp_path: Path, text: str, match: str) -> None:
+    path = write(tmp_path, f'[body]\nkind = "ros2"\n{text}\n')
+    path = path.rename(tmp_path / "bad.toml")
+    with pytest.raises(ScenarioError, match=match):
+        load(path)
