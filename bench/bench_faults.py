@@ -60,7 +60,7 @@ def run(runs: Path, restart: str | None) -> tuple[RunOutcome, float | None]:
 
 def noticed(outcome: RunOutcome, killed: float) -> tuple[float, Any]:
     """Seconds from the kill to netem's first status about agent 3, and that status."""
-    for t, detail in outcome.extra["team_events"]:
+    for t, detail in outcome.supervision.team_events:
         d = json.loads(detail)
         if "agent 3" in d["event"]:
             return t - killed, d

@@ -30,7 +30,7 @@ from testbed.runtime import steal
 from testbed.runtime.events import EventDriver
 from testbed.runtime.faults import RestartPolicy, Supervisor, first_missing_epoch
 from testbed.runtime.observer import Observer, all_final, flush_recorder, missing_final
-from testbed.runtime.outcome import RunOutcome
+from testbed.runtime.outcome import RunOutcome, Supervision
 from testbed.runtime.priorities import favour_shared
 from testbed.runtime.processes import ProcessGroup, free_port, wait_for_port
 
@@ -367,15 +367,15 @@ class LocalRun:
                 delivered=dict(delivered),
                 pids=self.group.pids,
                 wall_s=time.monotonic() - self._started_at,
-                extra={
-                    "deadline": deadline_counts(observer.statuses.values()),
-                    "losses": [loss.as_json() for loss in self.supervisor.losses],
-                    "fallbacks": observer.fallbacks,
-                    "fallback_epochs": dict(sorted(observer.fallback_epochs.items())),
-                    "team_events": list(observer.team_events),
-                    "priorities": self._priorities,
-                    "cpu_steal": cpu_stolen,
-                },
+                supervision=Supervision(
+                    deadline=deadline_counts(observer.statuses.values()),
+                    losses=[loss.as_json() for loss in self.supervisor.losses],
+                    fallbacks=observer.fallbacks,
+                    fallback_epochs=dict(sorted(observer.fallback_epochs.items())),
+                    team_events=list(observer.team_events),
+                    priorities=self._priorities,
+                    cpu_steal=cpu_stolen,
+                ),
             )
 
     def _close_recorder(self, session: zenoh.Session, observer: Observer) -> None:

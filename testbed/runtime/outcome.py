@@ -20,6 +20,21 @@ from testbed.runtime.observer import Verdict
 
 
 @dataclass
+class Supervision:
+    """What the launcher saw of a run beside its states: the nodes' deadline counts, the
+    processes lost, the estimates that fell back, netem's team events, the priorities it set
+    and the CPU the hypervisor took."""
+
+    deadline: dict[str, int] = field(default_factory=dict)  # formation.deadline_counts
+    losses: list[dict[str, Any]] = field(default_factory=list)  # testbed.runtime.faults.Loss
+    fallbacks: int = 0  # substituted values that fell back to hold (no estimate to use)
+    fallback_epochs: dict[int, int] = field(default_factory=dict)  # epoch → those used at it
+    team_events: list[tuple[float, str]] = field(default_factory=list)  # (monotonic t [s], detail)
+    priorities: str | None = None  # realtime: what the launcher set, as a line
+    cpu_steal: float | None = None  # the hypervisor's share of the CPU during the run
+
+
+@dataclass
 class RunOutcome:
     """What a distributed run produced, as the launcher observed it over Zenoh."""
 
@@ -36,7 +51,7 @@ class RunOutcome:
     pids: list[int]
     wall_s: float
     substitutions: list[tuple[int, int, int, list[float]]]
-    extra: dict[str, Any] = field(default_factory=dict)
+    supervision: Supervision = field(default_factory=Supervision)
     delivered: dict[str, int] = field(default_factory=dict)  # packets netem delivered per link
 
     @property
@@ -70,9 +85,8 @@ class RunOutcome:
 
     def deadline_accounting(self) -> dict[str, Any]:
         """Realtime: modelled losses, deadline misses by cause, in time (lockstep: no rate)."""
-        return realtime_accounting(
-            self.extra.get("deadline") or {}, self.drops_per_link(), self.extra.get("cpu_steal")
-        )
+        seen = self.supervision
+        return realtime_accounting(seen.deadline, self.drops_per_link(), seen.cpu_steal)
 
     def deadline_miss_rate(self) -> float | None:
         """Realtime: deadline misses of the testbed's own making, over the packets sent."""
@@ -127,10 +141,10 @@ class RunOutcome:
             **self.capacity_losses(),
             "malformed": self.malformed,
             "mode": self.scenario.runtime.mode,
-            "deadline": self.extra.get("deadline", {}),
+            "deadline": self.supervision.deadline,
             **self.deadline_accounting(),
-            "priorities": self.extra.get("priorities"),  # realtime: what the launcher set
-            "cpu_steal": self.extra.get("cpu_steal"),  # the hypervisor's share of the CPU
+            "priorities": self.supervision.priorities,
+            "cpu_steal": self.supervision.cpu_steal,
             "wall_s": self.wall_s,
             **self.faults_summary(),
         }
@@ -145,7 +159,7 @@ class RunOutcome:
         """Who died, when and whether it came back, and who was in the team at each epoch
         (``team``: agent → its spans of epochs with a state, with losses and whenever some
         agent lacks a state at some epoch, as with the scenario's events)."""
-        losses = self.extra.get("losses", [])
+        losses = self.supervision.losses
         seen = present(self.positions)
         out: dict[str, Any] = {}
         if losses or not seen.all():
@@ -162,4 +176,4 @@ class RunOutcome:
                 i = int(ident)
                 absent = int((~seen[loss["epoch"] :, i - 1]).sum())
                 loss["missed"] = absent * int((links[:, 0] == i).sum())
-        return {"losses": losses, **out, "fallbacks": self.extra.get("fallbacks", 0)}
+        return {"losses": losses, **out, "fallbacks": self.supervision.fallbacks}

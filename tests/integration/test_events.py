@@ -82,7 +82,7 @@ def test_crash_restart_and_leave_equal_the_simulator(paper: Scenario, runs_dir: 
     assert_equals_the_simulator(outcome, scenario, "hold")
     x3 = outcome.positions[:, 2]
     assert np.array_equal(x3[30], x3[15]), "restarted where its body stopped"
-    assert outcome.extra["fallbacks"] >= 0 and outcome.substitutions
+    assert outcome.supervision.fallbacks >= 0 and outcome.substitutions
     assert not any(pid_alive(p) for p in run_pids(runs_dir))
 
 
@@ -93,7 +93,7 @@ def test_a_join_and_every_other_event_equal_the_simulator(runs_dir: Path) -> Non
     x6 = outcome.positions[:, 5]
     assert np.array_equal(x6[15], scenario.initial_positions()[5]), "starts where it is declared"
     # netem's live status names each event as it applies it, and who takes part from then.
-    team = [json.loads(d) for _, d in outcome.extra["team_events"]]
+    team = [json.loads(d) for _, d in outcome.supervision.team_events]
     assert [(t["event"], t["epoch"], t["team"], t["away"]) for t in team] == [
         ("join agent 6", 15, [1, 2, 3, 4, 5, 6], []),
         ("crash agent 3", 25, [1, 2, 4, 5, 6], [3]),

@@ -84,7 +84,7 @@ def test_a_killed_agent_restarted_on_failure_rejoins_where_its_body_was(
     before = int(np.flatnonzero(seen[:back])[-1])
     assert np.array_equal(x3[back], x3[before]), "its first position back is the last before"
     assert np.isfinite(outcome.positions[:, [0, 1, 3, 4]]).all()
-    events = [json.loads(d)["event"] for _, d in outcome.extra["team_events"]]
+    events = [json.loads(d)["event"] for _, d in outcome.supervision.team_events]
     assert "back agent 3" in events
 
 
@@ -113,14 +113,14 @@ def test_the_leader_killed_and_restarted_the_agents_fall_back_meanwhile(
     (loss,) = outcome.summary()["losses"]
     assert loss["name"] == "leader" and loss["restarted_pid"] is not None
     assert np.isfinite(outcome.positions).all()
-    events = [json.loads(d) for _, d in outcome.extra["team_events"]]
+    events = [json.loads(d) for _, d in outcome.supervision.team_events]
     back = next(e for e in events if e["event"] == "back the leader")["back"]["0"]
     down = sorted(set(range(SHORT)) - set(outcome.estimated_epochs))  # no estimate published
     assert down and down == list(range(down[0], back)), "down from the kill until netem's epoch"
     assert loss["epoch"] == down[0] and KILL_AT - 5 <= down[0] <= KILL_AT + 5
-    fell = outcome.extra["fallback_epochs"]  # epoch → values that fell back at it
-    assert sorted(fell) == down and outcome.extra["fallbacks"] == sum(fell.values())
-    assert calm.extra["fallbacks"] == 0 and calm.extra["fallback_epochs"] == {}
+    fell = outcome.supervision.fallback_epochs  # epoch → values that fell back at it
+    assert sorted(fell) == down and outcome.supervision.fallbacks == sum(fell.values())
+    assert calm.supervision.fallbacks == 0 and calm.supervision.fallback_epochs == {}
     # After it: the gap to the fault-free run shrinks by rho per epoch, to rounding.
     agents = [i for i in range(scenario.n) if i != scenario.reference_agent - 1]
     grounded = np.zeros((scenario.n, scenario.n))

@@ -35,7 +35,7 @@ def outcome_with(scenario: Scenario, positions: np.ndarray) -> RunOutcome:
     return RunOutcome(
         run_id="r", run_dir=Path("unused"), scenario=scenario, strategy="hold", seed=1,
         positions=positions, estimated_epochs=[], decisions=[], malformed={}, sent={}, pids=[],
-        wall_s=0.0, substitutions=[], extra={"losses": []},
+        wall_s=0.0, substitutions=[],
     )  # fmt: skip
 
 

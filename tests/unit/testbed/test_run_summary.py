@@ -15,6 +15,7 @@ from formation.scenario import Scenario
 from recorder import read_run
 from testbed.cli.run import _print_summary, _report, headline
 from testbed.runtime.launcher import RunOutcome
+from testbed.runtime.outcome import Supervision
 from testbed.sim.simulate import simulate
 from testkit.forgeries import forgeries
 from testkit.synthetic import EPOCH_NS, RUN, write_synthetic
@@ -53,3 +54,31 @@ def test_the_printed_summary_is_the_recording_s_through_the_trust_gate(
     # Without a recording (--no-record) the row is what the launcher saw.
     assert headline(outcome, None)[FINAL[0]] == outcome.summary()[FINAL[0]]
     assert np.isfinite(outcome.summary()[FINAL[0]])
+
+
+def test_what_the_launcher_supervised_goes_into_the_summary_in_its_order(paper: Scenario) -> None:
+    scenario = paper.with_overrides(epochs=4)
+    x = simulate(scenario, "hold").positions.copy()
+    x[3:, 2] = np.nan  # agent 3 lost at epoch 3
+    loss = {"name": "agent-3", "pid": 7, "code": -9, "epoch": 3, "after_start_s": 0.5}
+    seen = Supervision(
+        deadline={"late": 2}, losses=[loss], fallbacks=3, fallback_epochs={3: 3},
+        team_events=[(1.0, "{}")], priorities="netem favoured", cpu_steal=0.25,
+    )  # fmt: skip
+    outcome = RunOutcome(
+        run_id="r", run_dir=Path("unused"), scenario=scenario, strategy="hold", seed=1,
+        positions=x, estimated_epochs=[], decisions=[], malformed={}, sent={}, pids=[],
+        wall_s=1.5, substitutions=[], supervision=seen,
+    )  # fmt: skip
+    s = outcome.summary()
+    assert list(s) == [
+        "run_id", "strategy", "seed", "epochs", "final_formation_error_m", "final_shape_error_m",
+        "packets_sent", "packets_dropped", "dropped_links", "malformed", "mode", "deadline",
+        "deadline_misses", "modelled_losses", "delivered_in_time", "unaccounted",
+        "deadline_miss_rate", "deadline_warning", "priorities", "cpu_steal", "wall_s", "losses",
+        "team", "fallbacks",
+    ]  # fmt: skip
+    assert s["deadline"] == {"late": 2} and s["priorities"] == "netem favoured"
+    assert s["cpu_steal"] == 0.25 and s["fallbacks"] == 3
+    assert s["losses"] == [{**loss, "dropped": 0, "missed": 6}]  # 2 epochs × its 3 links
+    assert s["team"]["3"] == [(0, 2)]
