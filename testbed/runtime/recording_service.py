@@ -42,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
     shown = PurePosixPath(ours.host_out or out_dir)  # what the host calls out_dir
     try:
         run = replace(read_run(out_dir / args.file), source=str(shown / args.file))
-        write_report_from([run], out_dir, title=f"Report: {run.source}")
+        write_report_from([run], out_dir)  # titled as a local run's; the host's path under Runs
     except Exception as exc:  # the recording is safe; say why the report is not
         print(
             f"recording_service: error: no report for {shown / args.file}: {exc}", file=sys.stderr

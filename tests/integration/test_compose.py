@@ -177,7 +177,8 @@ def test_router_started_late_still_gives_a_complete_run(tmp_path: Path) -> None:
     logs = (tmp_path / "logs" / "recorder.log").read_text()
     assert f"report {runs / RUN_ID / 'report.md'}" in logs  # the host's path, not /app/...
     report = (runs / RUN_ID / "report.md").read_text()
-    assert f"Report: {runs / RUN_ID / 'run.mcap'}" in report and "/app/" not in report
+    assert report.startswith(f"# {scenario.name}: ")  # the short title of a local run's report
+    assert f"`{runs / RUN_ID / 'run.mcap'}`" in report and "/app/" not in report
     _check_complete(runs / RUN_ID, scenario, workers)
 
 
