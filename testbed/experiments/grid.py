@@ -186,10 +186,15 @@ class GridResult:
         )
         return table(["ρ", *self.strategies], rows)
 
-    def conclusion(self, quantity: str, easiest: Literal["low", "high"]) -> list[str]:
+    def conclusion(
+        self,
+        quantity: str,
+        easiest: Literal["low", "high"],
+        written: Callable[[float], str] = lambda p: f"{p:g} ×",
+    ) -> list[str]:
         """A sentence per column: where each strategy keeps the formation, the widest region
-        first (``quantity`` names the grid, "radio range ρ"), and the strategies whose
-        success is the same at every point."""
+        first (``quantity`` names the grid, "radio range ρ"; ``written`` writes a grid point),
+        and the strategies whose success is the same at every point."""
         out = []
         side = "from" if easiest == "high" else "up to"
         for c in self.columns:
@@ -202,7 +207,7 @@ class GridResult:
                 else:
                     by_point.setdefault(point, []).append(f"`{s}`")
             order = sorted(by_point, reverse=easiest == "low")
-            parts = [f"{side} {_times(p)} ({', '.join(by_point[p])})" for p in order]
+            parts = [f"{side} {written(p)} ({', '.join(by_point[p])})" for p in order]
             if never:
                 parts.append(f"nowhere on the grid ({', '.join(never)})")
             listed = ", ".join(parts[:-1]) + " and " + parts[-1] if len(parts) > 1 else parts[0]

@@ -43,10 +43,18 @@ from formation.errors import SweepError
 from formation.plugin_api import all_strategies
 from formation.scenario import Scenario, StrategyName
 from testbed.experiments.executors import Executor, LocalPool, seeds_per_task
-from testbed.experiments.grid import KEEP_FRACTION, Variant, critical, over_grid, run_grid
+from testbed.experiments.grid import (
+    KEEP_FRACTION,
+    GridResult,
+    Variant,
+    critical,
+    over_grid,
+    run_grid,
+)
 from testbed.experiments.loss_variants import LOSS_MODELS, is_parameter, with_loss
 from testbed.experiments.markdown import table
 from testbed.experiments.plots import plot_phase
+from testbed.experiments.sweep_spec import Key, SweepSpec, loss_grid, loss_label, value_grid
 from testbed.sim.batch import BatchResult
 from testbed.sim.plan import BatchPlan
 
@@ -61,67 +69,6 @@ COLUMNS = (
     "final_formation_error_m",
     "measured_loss",
 )
-Key = tuple[str, str, str, str, int, int]  # topology, model, loss, strategy, seed, epochs
-
-
-def value_grid(text: str, flag: str = "--loss") -> tuple[float, ...]:
-    """``"0:1:0.05"`` → 0, 0.05, …, 1 (both ends); ``"0.1,0.3"`` → those values, sorted."""
-    try:
-        if ":" in text:
-            start, stop, step = (float(v) for v in text.split(":"))
-            if step <= 0:
-                raise SweepError(f"{flag} {text!r}", f"step = {step:g}; expected > 0")
-            count = math.floor((stop - start) / step + 1e-9) + 1
-            values = [round(start + i * step, 10) for i in range(count)]
-        else:
-            values = [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise SweepError(
-            f"{flag} {text!r}", "expected START:STOP:STEP or a comma list of values"
-        ) from None
-    if not values or not all(math.isfinite(v) for v in values):
-        raise SweepError(f"{flag} {text!r}", f"expected finite values, got {values or 'none'}")
-    return tuple(sorted(set(values)))
-
-
-def loss_grid(text: str) -> tuple[float, ...]:
-    """:func:`value_grid` of loss rates, each in [0, 1]."""
-    values = value_grid(text)
-    bad = [v for v in values if not 0.0 <= v <= 1.0]
-    if bad:
-        raise SweepError(f"--loss {text!r}", f"rates must be in [0, 1], got {bad}")
-    return values
-
-
-def loss_label(rate: float) -> str:
-    """The loss rate as written in the CSV and the tables (e.g. ``0.05``)."""
-    return f"{rate:.6g}"
-
-
-@dataclass(frozen=True)
-class SweepSpec:
-    """What a sweep covers; every cell is ``(topology, model, loss, strategy, seed)``."""
-
-    topologies: tuple[tuple[str, Scenario], ...]
-    losses: tuple[float, ...]
-    strategies: tuple[StrategyName, ...]
-    seeds: tuple[int, ...]
-    models: tuple[str, ...] = ("bernoulli",)
-    epochs: int = 200
-    threshold_m: float = 0.05
-    burst_epochs: float = 4.0
-    seeds_per_chunk: int = 10
-
-    def keys(self) -> list[Key]:
-        """Every cell, in the canonical order of the CSV."""
-        return [
-            (t, m, loss_label(p), s, seed, self.epochs)
-            for t, _ in self.topologies
-            for m in self.models
-            for p in self.losses
-            for s in self.strategies
-            for seed in self.seeds
-        ]
 
 
 @dataclass(frozen=True)
@@ -452,12 +399,36 @@ def _variants_said(spec: SweepSpec) -> str:
     )
 
 
+def conclusion(summary: SweepSummary) -> str:
+    """A sentence per topology and loss model: up to which rate each strategy keeps the
+    formation, the most tolerant first, and which strategies keep the same share at every
+    rate (:meth:`testbed.experiments.grid.GridResult.conclusion`)."""
+    spec = summary.spec
+
+    def by_column(values: dict[tuple[str, str, str], Any]) -> dict[tuple[str, str], Any]:
+        return {(f"{t}, {m}", s): v for (t, m, s), v in values.items()}
+
+    grid = GridResult(
+        frame=pd.DataFrame(),
+        strategies=spec.strategies,
+        points=spec.losses,
+        columns=tuple(f"{t}, {m}" for t, _ in spec.topologies for m in spec.models),
+        success=by_column(summary.success),
+        critical=by_column(summary.critical),
+    )
+    varied = all(is_parameter(m) for m in spec.models)
+    quantity = "value of the varied parameter" if varied else "loss rate"
+    return " ".join(grid.conclusion(quantity, "low", written=loss_label))
+
+
 def write_tables(summary: SweepSummary, out_dir: Path) -> None:
-    """``critical.md`` (the answer), ``success.md`` (the fractions) and ``phase.png``."""
+    """``critical.md`` (the answer), ``success.md`` (the fractions) and ``phase.png``, each
+    table opening with :func:`conclusion`."""
     spec = summary.spec
     topo = ", ".join(f"{n} (n = {s.n}, d = {s.dimension})" for n, s in spec.topologies)
+    said = conclusion(summary)
     text = (
-        "# Critical loss rate per strategy\n\n"
+        f"# Critical loss rate per strategy\n\n{said}\n\n"
         f"Largest loss rate up to which the final shape error after {spec.epochs} epochs is under "
         f"{spec.threshold_m:g} m in ≥ {KEEP_FRACTION:.0%} of {len(spec.seeds)} seeds "
         f"(seeds {spec.seeds[0]}–{spec.seeds[-1]}); {_variants_said(spec)}.\n"
@@ -465,7 +436,7 @@ def write_tables(summary: SweepSummary, out_dir: Path) -> None:
     )
     (out_dir / "critical.md").write_text(text)
     (out_dir / "success.md").write_text(
-        "# Fraction of seeds keeping the formation\n" + success_table(summary)
+        f"# Fraction of seeds keeping the formation\n\n{said}\n" + success_table(summary)
     )
     names = [n for n, _ in spec.topologies]
     grid = (names, spec.models, spec.strategies)
@@ -484,6 +455,7 @@ __all__ = [
     "Chunk",
     "SweepSpec",
     "SweepSummary",
+    "conclusion",
     "critical_table",
     "loss_grid",
     "loss_label",
