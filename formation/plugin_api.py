@@ -25,14 +25,18 @@ import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from formation.errors import PluginError, PluginFailure, PluginKind, PluginParameterError
-from formation.plugin_registry import check_callable, load, names
+from formation.plugin_registry import (
+    CHAPTER_STRATEGIES,
+    all_strategies,
+    check_callable,
+    load,
+)
 
 Array = npt.NDArray[np.float64]
 Mask = npt.NDArray[np.bool_]
 Ints = npt.NDArray[np.int64]
 
 DYNAMICS = ("single", "double", "unicycle")
-CHAPTER_STRATEGIES = ("zero", "hold", "estimate", "blend", "drop")  # in the chapter's order
 PLUGIN_EXIT = 3  # a service's exit code when a plug-in failed: the launcher ends the run
 PLUGIN_FAILED = "plug-in failed: "  # how its last status's detail starts (the report reads it)
 
@@ -169,12 +173,6 @@ class ControlLaw:
 
 
 # ----------------------------------------------------------------------------- finding one
-
-
-def all_strategies() -> tuple[str, ...]:
-    """Every registered loss strategy: the chapter's in its order, then the others by name."""
-    others = [s for s in names("strategy") if s not in CHAPTER_STRATEGIES]
-    return tuple(s for s in CHAPTER_STRATEGIES if s in names("strategy")) + tuple(others)
 
 
 @cache

@@ -22,6 +22,7 @@ from typing import Any
 
 from formation.errors import PLUGIN_LABELS, PluginError, PluginKind
 
+CHAPTER_STRATEGIES = ("zero", "hold", "estimate", "blend", "drop")  # in the chapter's order
 GROUPS: dict[PluginKind, str] = {
     "strategy": "formation.strategies",
     "controller": "formation.controllers",
@@ -71,6 +72,13 @@ def registered(kind: PluginKind) -> dict[str, Registered]:
 def names(kind: PluginKind) -> tuple[str, ...]:
     """The registered names of ``kind``, sorted."""
     return tuple(registered(kind))
+
+
+def all_strategies() -> tuple[str, ...]:
+    """Every registered loss strategy (by its entry point, not imported): the chapter's in its
+    order, then the others by name."""
+    others = [s for s in names("strategy") if s not in CHAPTER_STRATEGIES]
+    return tuple(s for s in CHAPTER_STRATEGIES if s in names("strategy")) + tuple(others)
 
 
 def is_reference(name: str) -> bool:
@@ -138,8 +146,10 @@ def check_callable(
 
 
 __all__ = [
+    "CHAPTER_STRATEGIES",
     "GROUPS",
     "Registered",
+    "all_strategies",
     "check_callable",
     "find",
     "is_reference",

@@ -83,7 +83,7 @@ class StrategiesHelp(str):
     __slots__ = ()
 
     def __mod__(self, params: Any) -> str:
-        from formation.plugin_api import all_strategies  # the plug-ins' entry points: on demand
+        from formation.plugin_registry import all_strategies  # entry points, not imported
 
         names = ", ".join(all_strategies()).replace("%", "%%")
         return str(str(self).replace("{strategies}", names) % params)

@@ -70,7 +70,7 @@ COMMANDS: dict[str, Command] = {
         ("formation export runs/RUN/run.mcap tables/ --format csv",),
     ),
     "replay": Command(
-        "testbed.cli.recorder",
+        "testbed.cli.replay",
         "publish a recording back onto Zenoh with its timing",
         (
             "formation replay runs/RUN/run.mcap --rate 2",

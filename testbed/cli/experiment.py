@@ -6,7 +6,7 @@ import argparse
 import itertools
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
 from rich.progress import (
@@ -20,7 +20,6 @@ from rich.progress import (
 from rich.table import Table
 
 from formation.errors import SweepError, TestbedError
-from formation.scenario import Scenario
 from formation.shipped_scenarios import resolve, shipped
 from testbed.cli.arguments import (
     DEFAULT_SCENARIO,
@@ -31,32 +30,20 @@ from testbed.cli.arguments import (
 )
 from testbed.cli.progress import every
 from testbed.cli.tables import print_table
-from testbed.experiments.capacity import CapacitySpec, run_capacity, run_capacity_real
-from testbed.experiments.capacity import write_outputs as write_capacity
 from testbed.experiments.executors import SCHEDULER_FORMS, executor_for
-from testbed.experiments.loss_variants import LOSS_MODELS, is_parameter, with_parameter
-from testbed.experiments.paper_run import run_paper
-from testbed.experiments.sweep import (
-    SweepSpec,
-    critical_table,
-    loss_grid,
-    run_sweep,
-    value_grid,
-)
-from testbed.experiments.value import EPOCHS, ValueSpec, run_value
-from testbed.experiments.value_outputs import run_value_real
-from testbed.experiments.value_outputs import write_outputs as write_value
-from testbed.experiments.wireless import (
-    WirelessSpec,
-    run_wireless,
-    run_wireless_real,
-    write_outputs,
-)
+from testbed.experiments.sweep_spec import SweepSpec, loss_grid, value_grid
+
+if TYPE_CHECKING:
+    from formation.scenario import Scenario
+
+# The experiments themselves load in their commands: `formation sweep --help` and `formation
+# experiment --help` load no numerics, Zenoh or plots.
 
 EXPERIMENTS = ("paper", "wireless", "capacity", "value")
 DEFAULT_TOPOLOGIES = ("ring8", "grid20", "octahedron3d")
 LOSS = "0:1:0.05"  # sweep's default grid of loss rates
 CHAPTER_STRATEGIES = ("zero", "hold", "estimate", "blend")
+VALUE_EPOCHS = 300  # testbed.experiments.value.EPOCHS, which loads numpy (a test holds them equal)
 
 
 def cmd_experiment(args: argparse.Namespace) -> int:
@@ -73,6 +60,8 @@ def cmd_experiment(args: argparse.Namespace) -> int:
         return _capacity(args, scenario, out, tuple(seeds), console)
     if args.name == "value":
         return _value(args, scenario, out, tuple(seeds), console)
+    from testbed.experiments.paper_run import run_paper
+
     result = run_paper(
         scenario,
         out,
@@ -104,6 +93,13 @@ def _wireless(
     args: argparse.Namespace, scenario: Scenario, out: Path, seeds: tuple[int, ...], console: Any
 ) -> int:
     """``formation experiment wireless``: success against radio range, then the real runs."""
+    from testbed.experiments.wireless import (
+        WirelessSpec,
+        run_wireless,
+        run_wireless_real,
+        write_outputs,
+    )
+
     started = time.perf_counter()
     spec = WirelessSpec(scenario, seeds=seeds, epochs=args.epochs or 100)
     result = run_wireless(spec, log=lambda m: console.print(m, soft_wrap=True))
@@ -130,6 +126,10 @@ def _capacity(
 ) -> int:
     """``formation experiment capacity``: success against the access point's and the radios'
     capacity, the scenario and grid20, then one real run per strategy."""
+    from formation.scenario import Scenario
+    from testbed.experiments.capacity import CapacitySpec, run_capacity, run_capacity_real
+    from testbed.experiments.capacity import write_outputs as write_capacity
+
     started = time.perf_counter()
     topologies = [(Path(args.scenario).stem, scenario)]
     beside = resolve(args.scenario).parent / "grid20.toml"
@@ -161,6 +161,10 @@ def _value(
 ) -> int:
     """``formation experiment value``: where estimate beats drop and hold, then one real run
     of estimate and drop per region."""
+    from testbed.experiments.value import EPOCHS, ValueSpec, run_value
+    from testbed.experiments.value_outputs import run_value_real
+    from testbed.experiments.value_outputs import write_outputs as write_value
+
     started = time.perf_counter()
     spec = ValueSpec(scenario, seeds=seeds, epochs=args.epochs or EPOCHS)
     frame = run_value(spec, log=lambda m: console.print(m))
@@ -205,6 +209,8 @@ def _strategy_list(arg: str | None) -> tuple[Any, ...]:
 def _variants(args: argparse.Namespace) -> tuple[tuple[str, ...], tuple[float, ...]]:
     """The loss models and the grid: ``--vary TAG.PARAM=VALUES``, else ``--loss`` (and
     ``--burst``) over the built-in Bernoulli (and Gilbert-Elliott) loss."""
+    from testbed.experiments.loss_variants import LOSS_MODELS
+
     if args.vary is None:
         return (LOSS_MODELS if args.burst else ("bernoulli",)), loss_grid(args.loss or LOSS)
     name, _, values = args.vary.partition("=")
@@ -222,6 +228,9 @@ def _variants(args: argparse.Namespace) -> tuple[tuple[str, ...], tuple[float, .
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
+    from testbed.experiments.loss_variants import is_parameter, with_parameter
+    from testbed.experiments.sweep import critical_table, run_sweep
+
     console = Console(stderr=True)
     executor = executor_for(args.scheduler, args.jobs)
     topologies = _topologies(args)
@@ -301,7 +310,7 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--epochs",
         type=int,
-        help=f"epochs per run (wireless: default 100; capacity: 50; value: {EPOCHS})",
+        help=f"epochs per run (wireless: default 100; capacity: 50; value: {VALUE_EPOCHS})",
     )
     p.add_argument(
         "--topology",

@@ -7,13 +7,11 @@ import json
 from pathlib import Path
 from typing import Any
 
-import zenoh
 from rich.console import Console
 from rich.table import Table
 
 from formation import keys
 from formation.errors import TestbedError
-from shell import session_config
 from testbed.cli.tables import print_table
 
 
@@ -79,6 +77,10 @@ def find_run(args: argparse.Namespace) -> tuple[str, str]:
 def ask(
     run_id: str, endpoint: str, request: dict[str, Any], timeout_s: float = 5.0
 ) -> dict[str, Any]:
+    import zenoh  # here: `formation netem --help` loads no Zenoh
+
+    from shell import session_config
+
     try:
         session = zenoh.open(session_config("client", endpoint, None))
     except zenoh.ZError as exc:

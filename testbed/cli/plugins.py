@@ -7,18 +7,17 @@ import json
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
-from pydantic import BaseModel
-from pydantic.fields import FieldInfo
 from rich.markup import escape
 from rich.table import Table
 
 from formation.errors import PluginError, PluginKind
-from formation.linkmodels import spec_class
-from formation.plugin_api import control_law, loss_strategy
 from formation.plugin_registry import GROUPS, find, registered
 from testbed.cli.tables import print_table
 
 if TYPE_CHECKING:
+    from pydantic import BaseModel
+    from pydantic.fields import FieldInfo
+
     from formation.scenario import Scenario
 
 TITLES = {"strategy": "loss strategies", "controller": "controllers", "link_model": "link models"}
@@ -80,6 +79,9 @@ def describe(kind: PluginKind, name: str, scenario: Scenario | None = None) -> d
     """What ``formation plugins`` says of one plug-in; ``error`` when it cannot be loaded.
     With ``scenario``, a strategy's or a controller's parameters are the values it runs with,
     each marked ``default`` (the plug-in's own) or ``scenario`` (its table in the file)."""
+    from formation.linkmodels import spec_class  # here: `formation plugins --help` is light
+    from formation.plugin_api import control_law, loss_strategy
+
     entry = find(kind, name)
     row: dict[str, Any] = {"kind": kind, "name": name, "package": entry.package}
     row["target"] = entry.target

@@ -1,4 +1,4 @@
-"""``formation report | info | recover | export | replay``: the recorder's subcommands.
+"""``formation report | info | recover | export``: the recorder's subcommands on files.
 
 :func:`register` adds them to the ``formation`` parser (:mod:`testbed.cli`).
 Every bad file (missing, empty, not MCAP, truncated) is a ``RecordingError`` naming
@@ -16,8 +16,6 @@ from rich.console import Console
 from rich.table import Table
 
 from formation import keys
-from recorder import describe, recover, replay, validate, write_reports
-from shell import add_arguments
 from testbed.cli.progress import Stages
 from testbed.cli.tables import LABELS, header, print_table
 
@@ -26,6 +24,8 @@ LINK_COLUMNS = ("link", "packets [pkts]", "dropped [pkts]")
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    from recorder import write_reports  # each command loads the recorder: its --help does not
+
     with Stages("formation report", 1).stage(f"{len(args.recordings)} recording(s)"):
         path = write_reports(args.recordings, args.out)
     print(f"report: {path}")
@@ -33,6 +33,8 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
+    from recorder import describe, validate
+
     info = describe(args.recording)
     console = Console()
     s = info.scenario
@@ -97,6 +99,8 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def cmd_recover(args: argparse.Namespace) -> int:
+    from recorder import recover
+
     result = recover(args.recording, args.output, args.compression)
     print(result.describe())
     return 0
@@ -116,12 +120,8 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_replay(args: argparse.Namespace) -> int:
-    return replay(args)
-
-
 def register(sub: Any) -> None:
-    """Add ``report``, ``info``, ``recover``, ``export`` and ``replay`` to the ``formation`` subparsers."""
+    """Add ``report``, ``info``, ``recover`` and ``export`` to the ``formation`` subparsers."""
     p = sub.add_parser("report", help="report.md and PNG plots from one or more recordings")
     p.add_argument(
         "recordings", nargs="+", type=Path, help="run.mcap file(s); several are compared"
@@ -162,27 +162,6 @@ def register(sub: Any) -> None:
         help="file format (default parquet: needs the parquet extra, pyarrow)",
     )
     p.set_defaults(func=cmd_export)
-
-    p = sub.add_parser("replay", help="publish a recording back onto Zenoh with its timing")
-    p.add_argument("recording", type=Path, help="a run.mcap file")
-    p.add_argument("--rate", type=float, default=1.0, help="speed factor (2 = twice as fast)")
-    p.add_argument("--loop", action="store_true", help="start again at the end")
-    p.add_argument(
-        "--start", type=float, default=0.0, help="seconds into the recording to start at"
-    )
-    p.add_argument("--topics", help="key expressions to replay, comma-separated (default: all)")
-    p.add_argument("--prefix", help="publish under this prefix instead of formation/<run_id>")
-    p.add_argument(
-        "--paused", action="store_true", help="wait for a resume command before publishing"
-    )
-    p.add_argument(
-        "--foxglove",
-        type=int,
-        metavar="PORT",
-        help="serve it to Foxglove on ws://127.0.0.1:PORT instead of Zenoh",
-    )
-    add_arguments(p)
-    p.set_defaults(func=cmd_replay)
 
 
 __all__ = ["register"]

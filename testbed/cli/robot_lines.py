@@ -7,10 +7,6 @@ import signal
 from pathlib import Path
 from typing import Any
 
-from analysis import robot_counts_line
-from formation.body import BODY_LOST_EXIT
-from formation.plugin_api import PLUGIN_EXIT
-
 
 def robot_notes(
     strategy: str, summary: dict[str, Any], recorded: dict[str, Any] | None
@@ -32,12 +28,17 @@ def robot_notes(
         if k.startswith("body_")
     }  # as recorded, else as the launcher saw the statuses (--no-record)
     if counts:
+        from analysis import robot_counts_line  # here: `formation run --help` loads no numerics
+
         lines.append(f"{strategy}: {robot_counts_line(counts)}")
     return lines
 
 
 def loss_cause(run_dir: Path, name: str, code: int | None) -> str:
     """Why process ``name`` ended, in words: its log's error line where it wrote one."""
+    from formation.body import BODY_LOST_EXIT
+    from formation.plugin_api import PLUGIN_EXIT
+
     said = _error_line(run_dir / "logs" / f"{name}.log")
     if code == BODY_LOST_EXIT:
         return "its robot's pose stopped coming" + (f" ({said})" if said else "")

@@ -11,10 +11,11 @@ from rich.table import Table
 from formation.errors import TestbedError
 from testbed.cli.arguments import load_checked
 from testbed.cli.tables import print_table
-from testbed.plant.robots import Robots
 
 
 def cmd_robots(args: argparse.Namespace) -> int:
+    from testbed.plant.robots import Robots  # here: `formation robots --help` loads no numerics
+
     scenario = load_checked(args.scenario)
     body = scenario.body
     if not body.robots(scenario.n):

@@ -20,7 +20,7 @@ from testbed.cli.deadline_lines import deadline_cells, deadline_notes
 from testbed.cli.progress import every
 from testbed.cli.robot_lines import loss_cause, robot_notes
 from testbed.cli.tables import header, print_table
-from testbed.runtime.faults import RESTART_POLICIES
+from testbed.runtime.restart_policy import RESTART_POLICIES
 
 
 def cmd_run(args: argparse.Namespace) -> int:

@@ -14,7 +14,7 @@ import signal
 import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -24,9 +24,8 @@ from formation.body import BODY_LOST_EXIT
 from formation.errors import RunEnded, RuntimeFailure
 from formation.plugin_api import PLUGIN_EXIT
 from testbed.runtime.processes import Child, ProcessGroup
+from testbed.runtime.restart_policy import RESTART_POLICIES, RestartPolicy
 
-RestartPolicy = Literal["no", "on-failure"]
-RESTART_POLICIES: tuple[RestartPolicy, ...] = ("no", "on-failure")
 ESSENTIAL = ("router", "recorder", "netem")  # the run cannot go on without them
 MAX_RESTARTS = 3  # per process: one that dies again at once is not restarted forever
 

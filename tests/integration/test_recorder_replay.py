@@ -30,7 +30,7 @@ from testkit.zenoh_peer import WAIT_S, peer, process, state, token_seen, wait_fo
 pytestmark = pytest.mark.integration
 REPLAY_CLI = (
     "import argparse, sys\n"
-    "from testbed.cli.recorder import register\n"
+    "from testbed.cli.replay import register\n"
     "p = argparse.ArgumentParser(); register(p.add_subparsers(dest='command'))\n"
     "a = p.parse_args(sys.argv[1:]); sys.exit(a.func(a))\n"
 )

@@ -43,6 +43,39 @@ def test_help_imports_no_numerics_nor_network(tmp_path: Path) -> None:
     assert "simulate" in proc.stdout and "scenarios" in proc.stdout
 
 
+# Their flags are the shell's Zenoh flags (shell.add_arguments, in the module that opens Zenoh
+# sessions): their --help loads Zenoh.
+ZENOH_FLAGS = ("replay", "ros2-plant")
+
+
+def test_each_command_s_help_imports_no_numerics_nor_network(tmp_path: Path) -> None:
+    light = [name for name in COMMANDS if name not in ZENOH_FLAGS]
+    code = (
+        "import contextlib, io, json, sys\n"
+        "from testbed.cli import main\n"
+        "out = []\n"
+        f"for name in {light!r}:\n"
+        "    with contextlib.redirect_stdout(io.StringIO()) as text:\n"
+        "        code = main([name, '--help'])\n"
+        "    said = text.getvalue()\n"
+        f"    out.append([name, code, 'examples:' in said, [m for m in {HEAVY!r} if m in sys.modules]])\n"
+        "print(json.dumps(out))"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=60
+    )
+    assert proc.returncode == 0, proc.stderr
+    # one interpreter for all: the first command that loads a heavy module is named
+    assert json.loads(proc.stdout.splitlines()[-1]) == [[name, 0, True, []] for name in light]
+
+
+def test_the_value_experiment_s_epochs_in_its_help_are_its_own() -> None:
+    from testbed.cli.experiment import VALUE_EPOCHS
+    from testbed.experiments.value import EPOCHS
+
+    assert VALUE_EPOCHS == EPOCHS
+
+
 @pytest.mark.parametrize("name", list(COMMANDS))
 def test_every_argument_has_help_and_every_command_examples(name: str) -> None:
     sub = _subparsers(build_parser(name))[name]
