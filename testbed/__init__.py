@@ -23,7 +23,8 @@ if TYPE_CHECKING:
     from formation.scenario import Scenario
     from formation.scenario import load as load_scenario
     from recorder import load_run, read_run
-    from testbed.experiments.sweep import SweepSpec, run_sweep
+    from testbed.experiments.sweep import run_sweep
+    from testbed.experiments.sweep_spec import SweepSpec
     from testbed.runtime.launcher import LocalRun, RunHooks, launch
     from testbed.runtime.outcome import RunOutcome
     from testbed.sim.batch import BatchResult, run_batch
@@ -43,7 +44,7 @@ _API: dict[str, tuple[str, str]] = {
     "RunOutcome": ("testbed.runtime.outcome", "RunOutcome"),
     "Scenario": ("formation.scenario", "Scenario"),
     "SimResult": ("testbed.sim.result", "SimResult"),
-    "SweepSpec": ("testbed.experiments.sweep", "SweepSpec"),
+    "SweepSpec": ("testbed.experiments.sweep_spec", "SweepSpec"),
     "TestbedError": ("formation.errors", "TestbedError"),
     "frames": ("analysis", "frames"),
     "henneberg_team": ("testbed.sim.team_generators", "henneberg_team"),
