@@ -6,15 +6,20 @@ from __future__ import annotations
 import contextlib
 import time
 from collections import Counter
+from pathlib import Path
 
-from agent.node import report_message, state_message
+import orjson
+
+from agent.node import AgentNode, report_message, state_message
 from formation import keys
 from formation.deadlines import ROBOT_SILENT
 from formation.messages import CoordinationState, DeliveredPacket, Delivery, TokenReport
 from formation.realtime import Clock
+from formation.scenario import Scenario
 from shell import Incoming, MemoryBus, Realtime, Service
 
 RUN = "silent"
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def _late_state(sender: Service, netem: Service, robot_silent: bool) -> Incoming:
@@ -55,3 +60,29 @@ def test_the_mark_is_on_the_wire_only_when_set_and_both_messages_carry_it() -> N
         report_message(head, 2, [], robot_silent=True)
     ).robot_silent
     assert not TokenReport.model_validate_json(report_message(head, 2, [])).robot_silent
+
+
+def test_an_agent_marks_what_it_sends_late_after_a_robot_wait_until_it_is_in_time_again() -> None:
+    scenario = Scenario.from_file(ROOT / "scenarios/paper.toml").with_overrides(
+        runtime={"mode": "realtime", "realtime_period_s": 1.0}
+    )
+    bus = MemoryBus()
+    heard: list[bool] = []
+    bus.declare_subscriber(
+        keys.agent_state(RUN, 1),
+        lambda sample: heard.append(
+            bool(orjson.loads(sample.payload.to_bytes()).get("robot_silent"))
+        ),
+    )
+    node = AgentNode(Service(bus, RUN, "agent", 1), scenario, [1], "hold", seed=1)
+    timing = Realtime(period_s=1.0)
+    node._timing = timing
+    timing.clock = Clock(time.time_ns() - 10 * 10**9, 10**9)  # epoch 0 is ten periods ago
+    node._publish_states()  # late, but no wait for the robot: the testbed's
+    node.robot_waited = True  # as _move_bodies sets it after a stale wait
+    node._publish_states()  # late after the wait: the robot's
+    timing.clock = Clock(time.time_ns() + 10**9, 10**9)  # epoch 0 is still to come
+    node._publish_states()  # in time: the mark ends
+    timing.clock = Clock(time.time_ns() - 10 * 10**9, 10**9)
+    node._publish_states()  # late again, with no new wait: the testbed's
+    assert heard == [False, True, False, False]
