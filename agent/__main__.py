@@ -83,8 +83,8 @@ def main(argv: list[str] | None = None) -> int:
                 raise service.failure
             counts = node.deadline | ({} if bodies is None else bodies.status_counts())
             detail = json.dumps(counts) if timing.realtime else ""
-            if node.body_lost is not None:
-                detail = str(node.body_lost)
+            if node.body_lost is not None and not timing.realtime:
+                detail = str(node.body_lost)  # realtime: the counts, the loss in its log
             service.status("done" if code == 0 else "error", node.runner.epoch, detail)
             if code == 0:
                 node.confirm_final()

@@ -24,7 +24,7 @@ from agent.runner import AgentRunner, Estimate, Packet, Report
 from formation import keys
 from formation.body import BODY_LOST_EXIT
 from formation.codec import attachment
-from formation.deadlines import CAUSES
+from formation.deadlines import CAUSES, PHASES, ROBOT_SILENT, SLACK
 from formation.errors import BodyLost, RuntimeFailure
 from formation.messages import AgentEstimate, CoordinationState, DeliveredPacket, TokenReport
 from formation.realtime import ESTIMATE_DEADLINE, STATE_DEADLINE
@@ -41,10 +41,12 @@ def state_message(
     position: list[float],
     substituted: list[tuple[int, list[float], bool]],
     pose: tuple[float, int] | None = None,
+    robot_silent: bool = False,
 ) -> bytes:
     """A :class:`CoordinationState` as JSON, built with orjson: a pool of hundreds sends one
     per agent and epoch, and the pydantic model cost more than the rest of its step.
-    ``pose``: a unicycle's heading [rad] and saturated sub-steps (omitted for point agents)."""
+    ``pose``: a unicycle's heading [rad] and saturated sub-steps (omitted for point agents);
+    ``robot_silent``: sent late as the agent waited for its robot's pose (else omitted)."""
     msg = {
         **head,
         "kind": "state",
@@ -55,21 +57,24 @@ def state_message(
     }
     if pose is not None:
         msg["heading"], msg["saturated"] = pose
+    if robot_silent:
+        msg["robot_silent"] = True
     return orjson.dumps(msg)
 
 
-def report_message(head: dict[str, Any], agent: int, report: Report) -> bytes:
+def report_message(
+    head: dict[str, Any], agent: int, report: Report, robot_silent: bool = False
+) -> bytes:
     """A :class:`TokenReport` as JSON, built with orjson (see :func:`state_message`)."""
-    return orjson.dumps(
-        {
-            **head,
-            "kind": "report",
-            "agent": agent,
-            "measurements": [
-                {"neighbour": j, "token": 1 if t else 0, "z": z} for j, t, z in report
-            ],
-        }
-    )
+    msg = {
+        **head,
+        "kind": "report",
+        "agent": agent,
+        "measurements": [{"neighbour": j, "token": 1 if t else 0, "z": z} for j, t, z in report],
+    }
+    if robot_silent:
+        msg["robot_silent"] = True
+    return orjson.dumps(msg)
 
 
 def _estimate(delivered: Iterable[tuple[DeliveredPacket, AgentEstimate]]) -> Estimate | None:
@@ -94,6 +99,9 @@ class AgentNode:
         self.service, self.scenario = service, scenario
         self.bodies = bodies  # the agents whose body is a ROS 2 robot (agent.body)
         self.body_lost: BodyLost | None = None
+        # realtime: this agent waited for its robot's pose and has not been in time since
+        self.robot_waited = False
+        self._timing: TimePolicy | None = None
         self._placed = False  # the bodies' poses taken as the agents' states
         self.cpu_at_start_s = 0.0
         self.run_id = service.run_id
@@ -110,6 +118,7 @@ class AgentNode:
             "early_steps": 0,  # steps before the estimate deadline: every estimate was in
             "in_time": 0,
             **dict.fromkeys(CAUSES, 0),
+            ROBOT_SILENT: 0,
         }
         # Realtime: queued, taken at each deadline (Service.take_by); lockstep: a pool handles
         # each delivery on Zenoh's thread.
@@ -192,22 +201,37 @@ class AgentNode:
         return epoch
 
     # -- publishing -------------------------------------------------------------------------------
+    def _robot_silent(self, kind: str) -> bool:
+        """Whether a ``kind`` packet of this epoch sent now is late only because this agent
+        waited for its robot's pose (realtime): marked so, its receivers count it as the
+        robot's, not as the testbed's miss. The first packet in time ends the mark."""
+        if not self.robot_waited or self._timing is None:
+            return False
+        self.robot_waited = self._timing.past(self.runner.epoch, PHASES[kind][0] + SLACK)
+        return self.robot_waited
+
     def _publish_states(self, ids: list[int] | None = None) -> None:
-        k = self.runner.epoch
+        k, silent = self.runner.epoch, self._robot_silent("state")
         for i in self.ids if ids is None else ids:
             key = keys.agent_state(self.run_id, i)
             head = self.service.header(key, k)
             msg = state_message(
-                head, i, self.runner.position(i), self.runner.substituted[i], self.runner.pose(i)
+                head,
+                i,
+                self.runner.position(i),
+                self.runner.substituted[i],
+                self.runner.pose(i),
+                silent,
             )
             self.service.put(key, msg, attachment(k, head["seq"], i))
 
     def _publish_reports(self, packets: list[Packet]) -> None:
-        k = self.runner.epoch
+        k, silent = self.runner.epoch, self._robot_silent("report")
         for i, report in self.runner.receive(packets).items():
             key = keys.agent_report(self.run_id, i)
             head = self.service.header(key, k)
-            self.service.put(key, report_message(head, i, report), attachment(k, head["seq"], i))
+            msg = report_message(head, i, report, silent)
+            self.service.put(key, msg, attachment(k, head["seq"], i))
 
     def confirm_final(self, timeout_s: float = 10.0) -> bool:
         """Republish what netem says it lacks of our final states, until it has them all.
@@ -238,6 +262,7 @@ class AgentNode:
         passed and report; take the estimate and step to ``x[k+1]``. A pool takes each
         phase for all its agents at once."""
         realtime = timing.realtime  # a robot's body moves by the mode (_move_bodies)
+        self._timing = timing
         timing.sleep_until(-1, ESTIMATE_DEADLINE)  # realtime: x[0] when later states go out
         self._publish_states()
         while self.runner.epoch < self.end:
@@ -311,7 +336,9 @@ class AgentNode:
         timeout_s = self.scenario.body.pose_timeout_s
         if realtime:
             period_s = self.scenario.runtime.realtime_period_s or self.scenario.control.period_s
+            waits = self.bodies.counts["stale_waits"]
             now = self.bodies.wait_poses(None, timeout_s)
+            self.robot_waited |= self.bodies.counts["stale_waits"] > waits
             start = np.array([now[i] for i in ids], dtype=float)
             u = body_velocity(start, self.runner.x[rows], period_s)
             self.bodies.command(dict(zip(ids, u.tolist(), strict=True)))

@@ -10,6 +10,11 @@ the first of, in order:
 - ``scheduling``: the rest: queued at the receiver in time but taken late, or late on
   the way past netem (the router, the receiver's Zenoh thread).
 
+A late packet its sender marked ``robot_silent`` (its agent waited for its robot's pose, so
+sent it late) is the robot's, not the testbed's: counted as :data:`ROBOT_SILENT`, apart from
+the misses, their rate and their warning. So are the packets an agent whose robot was lost
+had queued and never took.
+
 A receiver first counts a packet neither late sent nor queued in time as ``late_netem``;
 :func:`account` then takes netem's ``modelled_late`` (its model delayed the packet past
 the deadline: a modelled loss, not a miss) and moves what exceeds ``late_forwards`` to
@@ -40,7 +45,8 @@ WARN_RATE = 0.001  # misses above this share of the packets sent: a warning (iss
 # epochs a receiver remembers which packets it used: a copy of one comes within a period, and
 # a packet stamped in time that it never used is a scheduling miss (queued after the take)
 USED_KEPT = 4
-CAUSES = ("late_sender", "late_netem", "late_leader", "scheduling")
+CAUSES = ("late_sender", "late_netem", "late_leader", "scheduling")  # the testbed's own
+ROBOT_SILENT = "robot_silent"  # late, or never taken, as an agent waited for its robot
 NETEM = "netem."  # the prefix of netem's counts among the run's
 PHASES = {  # the phase a packet kind travels in: (start, deadline) as fractions of a period
     "state": (0.0, STATE_DEADLINE),
@@ -54,13 +60,23 @@ def wall_of(stamp_ns: int) -> int:
     return stamp_ns + time.time_ns() - time.monotonic_ns()
 
 
-def cause(clock: Clock, kind: str, epoch: int, stamp_ns: int, arrived_ns: int) -> str:
+def cause(
+    clock: Clock,
+    kind: str,
+    epoch: int,
+    stamp_ns: int,
+    arrived_ns: int,
+    robot_silent: bool = False,
+) -> str:
     """The cause of a deadline miss of a ``kind`` packet of ``epoch`` (see the module doc).
 
-    ``stamp_ns``: the sender's monotonic stamp; ``arrived_ns``: wall time it was queued here.
+    ``stamp_ns``: the sender's monotonic stamp; ``arrived_ns``: wall time it was queued here;
+    ``robot_silent``: the sender marked it sent late for its robot's pose.
     """
     start, deadline = PHASES[kind]
     if wall_of(stamp_ns) > clock.at(epoch, start + SLACK):
+        if robot_silent:
+            return ROBOT_SILENT
         return "late_leader" if kind == "estimate" else "late_sender"
     if arrived_ns <= clock.at(epoch, deadline):
         return "scheduling"
@@ -73,6 +89,7 @@ class Accounting(NamedTuple):
     in_time: int
     by_cause: dict[str, int]
     modelled_late: int  # delayed past their deadline by netem's models: modelled losses
+    robot_silent: int = 0  # late or never taken as an agent waited for its robot: not misses
 
     @property
     def misses(self) -> int:
@@ -90,7 +107,8 @@ def account(received: Mapping[str, int], netem: Mapping[str, int]) -> Accounting
     on_the_way = by_cause["late_netem"] - modelled
     by_cause["late_netem"] = min(on_the_way, int(netem.get("late_forwards", 0)))
     by_cause["scheduling"] += on_the_way - by_cause["late_netem"]
-    return Accounting(int(received.get("in_time", 0)), by_cause, modelled)
+    silent = int(received.get(ROBOT_SILENT, 0))
+    return Accounting(int(received.get("in_time", 0)), by_cause, modelled, silent)
 
 
 def over_warn_rate(misses: int, sent: int) -> bool:
@@ -129,21 +147,25 @@ def realtime_accounting(
     counts: Mapping[str, int],
     drops: Mapping[str, tuple[int, int]],
     cpu_steal: float | None = None,
+    untaken: int = 0,
 ) -> dict[str, Any]:
     """Every packet netem decided, as modelled losses, deadline misses or delivered in time.
 
     ``counts``: :func:`deadline_counts` (none in lockstep: only ``deadline_miss_rate``, None);
     ``drops``: netem's ``link → (sent, dropped)`` by its models. ``unaccounted``: the
     packets none of the three took (e.g. still on their way when the run ended); 0 when
-    the books balance. ``warning``: a line to print when misses exceed :data:`WARN_RATE`;
+    the books balance. ``robot_silent``: the packets late or never taken as an agent waited
+    for its robot's pose, neither misses nor in the rate. ``warning``: a line to print when misses exceed :data:`WARN_RATE`;
     it names ``cpu_steal`` (the hypervisor's share of the CPU during the run) when some was
-    taken: on a shared VM that, more than the testbed, made the misses.
+    taken: on a shared VM that, more than the testbed, made the misses. ``untaken``: packets
+    delivered to agents whose robots were lost, of the epochs they never took (robot silent).
     """
     if not counts:
         return {"deadline_miss_rate": None}
     sent, dropped = sum(s for s, _ in drops.values()), sum(d for _, d in drops.values())
     netem = {k.removeprefix(NETEM): v for k, v in counts.items() if k.startswith(NETEM)}
     got = account({k: v for k, v in counts.items() if not k.startswith(NETEM)}, netem)
+    got = got._replace(robot_silent=got.robot_silent + untaken)
     misses = {"total": got.misses, "by_cause": got.by_cause}
     modelled = dropped + got.modelled_late
     rate = got.misses / sent if sent else None
@@ -169,7 +191,8 @@ def realtime_accounting(
             **_queued(netem, got.modelled_late),
         },
         "delivered_in_time": got.in_time,
-        "unaccounted": sent - modelled - got.misses - got.in_time,
+        ROBOT_SILENT: got.robot_silent,
+        "unaccounted": sent - modelled - got.misses - got.in_time - got.robot_silent,
         "deadline_miss_rate": rate,
         "deadline_warning": warning,
     }

@@ -50,6 +50,7 @@ class CoordinationState(_Message):
     substituted: list[Substitute] = []
     heading: float | None = None
     saturated: int | None = Field(None, ge=0)
+    robot_silent: bool = False  # sent late as its agent waited for its robot's pose
 
 
 class Measurement(BaseModel):
@@ -68,6 +69,7 @@ class TokenReport(_Message):
     kind: Literal["report"] = "report"
     agent: int
     measurements: list[Measurement]
+    robot_silent: bool = False  # sent late as its agent waited for its robot's pose
 
 
 class LeaderEstimate(_Message):

@@ -13,7 +13,7 @@ import orjson
 
 from formation import keys
 from formation.codec import attachment
-from formation.deadlines import CAUSES
+from formation.deadlines import CAUSES, ROBOT_SILENT
 from formation.errors import RuntimeFailure
 from formation.messages import TokenReport
 from formation.reference import reference_positions, reference_velocities
@@ -140,7 +140,12 @@ class LeaderNode:
         self.covariance_every = scenario.estimator.covariance_every
         self.link_rows = link_rows(scenario)
         # realtime: reports in time and missed by cause; estimates sent before the deadline
-        self.deadline = {"in_time": 0, "early_estimates": 0, **dict.fromkeys(CAUSES, 0)}
+        self.deadline = {
+            "in_time": 0,
+            "early_estimates": 0,
+            **dict.fromkeys(CAUSES, 0),
+            ROBOT_SILENT: 0,
+        }
         service.subscribe(keys.inbox(self.run_id, keys.LEADER_ENDPOINT, "report"))
         service.declare_publishers(
             [keys.leader_estimate_out(self.run_id)]

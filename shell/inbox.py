@@ -232,7 +232,10 @@ class RealtimeInbox(_Receivers):
             elif not (kind.copies and self._copy(phase, r, p, epoch, msg.arrived_ns)):
                 # late, or stamped in time but queued after the deadline's take (scheduling)
                 self._count(kind.late)
-                self._count(cause(self.clock, phase, epoch, payload.stamp_ns, msg.arrived_ns))
+                silent = bool(getattr(payload, "robot_silent", False))  # states, reports
+                self._count(
+                    cause(self.clock, phase, epoch, payload.stamp_ns, msg.arrived_ns, silent)
+                )
 
     def _copy(self, phase: str, r: int, p: DeliveredPacket, epoch: int, arrived_ns: int) -> bool:
         """Whether a packet of an epoch taken is a copy of one used, in time."""

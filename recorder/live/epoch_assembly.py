@@ -38,6 +38,7 @@ from formation.messages import (
 )
 from formation.scenario import Scenario
 from recorder.live.logs import change_log, status_log
+from recorder.live.robots import POSE_KINDS, LiveRobots
 from recorder.live.roster import Roster, team_detail
 from recorder.live.scene import frame_transforms, scene_update
 from recorder.reading.trust import Gate
@@ -46,7 +47,7 @@ Derived = tuple[str, bytes]
 CLOSE_AFTER = 2  # a state this many epochs later closes an epoch still missing some
 WAIT_EPOCHS = 256  # a scene waits this far behind for its epoch's estimate and decisions
 # The channel kinds the assembler reads.
-TAPS = ("agent_state", "leader_estimate", "decision", "status", "link_change")
+TAPS = ("agent_state", "leader_estimate", "decision", "status", "link_change", *POSE_KINDS)
 
 
 @dataclass(frozen=True)
@@ -85,6 +86,7 @@ class EpochAssembler:
         self.n, self.d = scenario.n, scenario.dimension
         self.edges = scenario.edge_array
         self.roster = Roster(scenario)
+        self.robots = LiveRobots(scenario, run_id)  # realtime robot bodies' measured poses
         self._bodies = scenario.initial_positions()  # where each agent was last seen [m]
         self._states: dict[int, dict[int, list[float]]] = {}
         self._headings: dict[int, dict[int, float]] = {}  # unicycles' θ_i[k] [rad]
@@ -113,6 +115,7 @@ class EpochAssembler:
         if state.agent in got:
             return []
         got[state.agent] = state.position
+        self.robots.on_state(state.agent, state.epoch, state.position)
         if state.heading is not None:
             self._headings.setdefault(state.epoch, {})[state.agent] = state.heading
         self._newest_state = max(self._newest_state, state.epoch)
@@ -161,6 +164,12 @@ class EpochAssembler:
             return []
         return [(keys.log(self.run_id), change_log(change, stamp_ns).encode())]
 
+    def on_pose(self, key: str, payload: bytes, stamp_ns: int) -> list[Derived]:
+        """A robot's pose on ``body/<i>/pose/<type>``, once the trust gate has passed it."""
+        if self.gate.check(key, payload) is None:
+            return []
+        return self.robots.on_pose(key, payload, stamp_ns)
+
     def on(self, kind: str, key: str, payload: bytes, stamp_ns: int) -> list[Derived]:
         """Any tapped message by its channel kind (:data:`TAPS`)."""
         return self._on[kind](key, payload, stamp_ns)
@@ -173,6 +182,7 @@ class EpochAssembler:
             "decision": self.on_decision,
             "status": self.on_status,
             "link_change": self.on_link_change,
+            **dict.fromkeys(POSE_KINDS, self.on_pose),
         }
 
     def finish(self, stamp_ns: int) -> list[Derived]:

@@ -53,6 +53,8 @@ ESTIMATE: RGBA = (0.58, 0.4, 0.74, 0.8)
 HEADING: RGBA = (1.0, 1.0, 1.0, 0.9)
 LABEL: RGBA = (1.0, 1.0, 1.0, 1.0)
 OUT: RGBA = (0.6, 0.6, 0.6, 0.3)  # an agent out of the team, and its edges
+ROBOT: RGBA = (0.1, 0.85, 0.85, 0.9)  # a robot's measured pose, beside its agent's state
+ROBOT_SIZE_M = 0.12
 ELLIPSE_POINTS = 24
 LABELLED_MAX = 200  # larger teams label only the leader and the agents out
 SIGMAS = 2.0  # the ellipse drawn: x̂ + 2σ
@@ -254,6 +256,23 @@ def scene_update(
     return SceneUpdate(entities=[team])
 
 
+def robot_entity(i: int, epoch: int, point: Sequence[float], stamp_ns: int) -> SceneUpdate:
+    """Robot ``i``'s measured pose ``point`` [m] of ``epoch``: entity ``robot <i>``, a cyan
+    sphere labelled ``robot <i>``, drawn beside its agent's state."""
+    size = Vector3(x=ROBOT_SIZE_M, y=ROBOT_SIZE_M, z=ROBOT_SIZE_M)
+    where = _pose(np.asarray(point, dtype=float))
+    label = TextPrimitive(pose=where, billboard=True, font_size=12.0, scale_invariant=True,
+                          color=_color(ROBOT), text=f"robot {i}")  # fmt: skip
+    robot = entity(
+        f"robot {i}",
+        stamp_ns,
+        epoch,
+        spheres=[SpherePrimitive(pose=where, size=size, color=_color(ROBOT))],
+        texts=[label],
+    )
+    return SceneUpdate(entities=[robot])
+
+
 def heading_arrows(
     positions: npt.NDArray[np.float64], headings: npt.NDArray[np.float64], radius: float
 ) -> list[ArrowPrimitive]:
@@ -323,6 +342,7 @@ __all__ = [
     "entity",
     "frame_transforms",
     "heading_arrows",
+    "robot_entity",
     "scene_update",
     "timestamp",
 ]

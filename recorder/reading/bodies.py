@@ -38,7 +38,7 @@ class RecordedPoses:
             msg = decode_cdr(type_name, record.data)
         except DecodeError:
             return  # counted by the gate already
-        self.poses[int(parsed.args[0]), record.sequence] = _pose_of(msg)
+        self.poses[int(parsed.args[0]), record.sequence] = pose_of(msg)
 
     def measured(self, scenario: Scenario, count: int) -> Array | None:
         """(count, n, d) the robots' positions as their agents' states measure them [scenario
@@ -47,23 +47,29 @@ class RecordedPoses:
         if scenario.runtime.mode != "realtime" or not self.poses:
             return None
         n, d = scenario.n, scenario.dimension
-        scale, unicycle = scenario.body.scale, scenario.control.dynamics == "unicycle"
-        lookahead = scenario.control.unicycle.lookahead_m
         out = np.full((count, n, d), np.nan)
         for (i, k), (xyz, yaw) in self.poses.items():
             if 1 <= i <= n and 0 <= k < count:
-                p = [c / scale for c in xyz[:d]]
-                if unicycle:
-                    p = [p[0] + lookahead * math.cos(yaw), p[1] + lookahead * math.sin(yaw)]
-                out[k, i - 1] = p
+                out[k, i - 1] = measured_point(scenario, xyz, yaw)
         return out
 
 
-def _pose_of(msg: Any) -> tuple[tuple[float, float, float], float]:
+def measured_point(scenario: Scenario, xyz: tuple[float, float, float], yaw: float) -> list[float]:
+    """A pose [robot m] as its agent's state measures it [scenario m]: over ``scale``, a
+    unicycle's look-ahead point."""
+    p = [c / scenario.body.scale for c in xyz[: scenario.dimension]]
+    if scenario.control.dynamics == "unicycle":
+        lookahead = scenario.control.unicycle.lookahead_m
+        p = [p[0] + lookahead * math.cos(yaw), p[1] + lookahead * math.sin(yaw)]
+    return p
+
+
+def pose_of(msg: Any) -> tuple[tuple[float, float, float], float]:
+    """A decoded ``PoseStamped`` or ``Odometry``: its position [robot m] and yaw [rad]."""
     pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose  # Odometry, PoseStamped
     p, q = pose.position, pose.orientation
     yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
     return (float(p.x), float(p.y), float(p.z)), yaw
 
 
-__all__ = ["RecordedPoses"]
+__all__ = ["RecordedPoses", "measured_point", "pose_of"]

@@ -21,6 +21,7 @@ KEYS = (
     "deadline_misses",
     "delivered_in_time",
     "unaccounted",
+    "robot_silent",
     "deadline_miss_rate",
     "cpu_steal",
 )
@@ -49,6 +50,7 @@ def read_deadlines(run_dir: Path) -> dict[str, Any] | None:
             "misses": int(misses["total"]),
             "by_cause": {c: int(misses["by_cause"][c]) for c in CAUSES},
             "in_time": int(got["delivered_in_time"]),
+            "robot_silent": int(got.get("robot_silent") or 0),
             "cpu_steal": None if got.get("cpu_steal") is None else float(got["cpu_steal"]),
         }
     except (OSError, ValueError, TypeError, KeyError) as exc:
@@ -71,6 +73,11 @@ def deadline_lines(label: str, d: dict[str, Any]) -> list[str]:
         f"deadline misses of the testbed's own making {pct(d['misses'])} ({causes}); "
         f"delivered in time {pct(d['in_time'])}"
     ]
+    if d.get("robot_silent"):
+        lines.append(
+            f"- {label}: late or never taken as agents waited for their robots' poses (robot "
+            f"silent, not counted as misses): {pct(d['robot_silent'])}"
+        )
     if over_warn_rate(d["misses"], d["sent"]):
         lines.append(
             f"- **warning** ({label}): deadline misses exceed {100 * WARN_RATE:g} % of the "

@@ -28,6 +28,11 @@ def deadline_notes(strategy: str, summary: dict[str, Any]) -> list[str]:
     lines = [f"{strategy}: deadline misses by cause: {by_cause}"]
     if summary.get("priorities"):
         lines.append(f"{strategy}: {summary['priorities']}")
+    if summary.get("robot_silent"):
+        lines.append(
+            f"{strategy}: {summary['robot_silent']} packets late or never taken as agents "
+            "waited for their robots' poses (robot silent): the robots', not the testbed's misses"
+        )
     if summary["unaccounted"]:
         lines.append(
             f"{strategy}: {summary['unaccounted']} packets unaccounted for "

@@ -14,6 +14,7 @@ import numpy.typing as npt
 
 from analysis import RunData, formation_error, loss_split, present, shape_error, spans, summarise
 from formation import realtime_accounting
+from formation.body import BODY_LOST_EXIT
 from formation.scenario import Scenario
 from testbed.runtime.events import bodies
 from testbed.runtime.observer import Verdict
@@ -86,7 +87,22 @@ class RunOutcome:
     def deadline_accounting(self) -> dict[str, Any]:
         """Realtime: modelled losses, deadline misses by cause, in time (lockstep: no rate)."""
         seen = self.supervision
-        return realtime_accounting(seen.deadline, self.drops_per_link(), seen.cpu_steal)
+        return realtime_accounting(
+            seen.deadline, self.drops_per_link(), seen.cpu_steal, self.untaken_for_lost_robots()
+        )
+
+    def untaken_for_lost_robots(self) -> int:
+        """Packets netem delivered to an agent whose robot was lost, of the epochs it never
+        took: from its loss's epoch − 1 (it publishes ``x[k+1]`` before it waits for the pose)."""
+        untaken_from = {
+            int(loss["name"].removeprefix("agent-")): int(loss["epoch"]) - 1
+            for loss in self.supervision.losses
+            if loss.get("code") == BODY_LOST_EXIT and loss["name"].startswith("agent-")
+        }
+        return sum(
+            d.verdict != "drop" and d.epoch >= untaken_from.get(d.target, d.epoch + 1)
+            for d in self.decisions
+        )
 
     def deadline_miss_rate(self) -> float | None:
         """Realtime: deadline misses of the testbed's own making, over the packets sent."""

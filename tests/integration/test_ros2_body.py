@@ -304,6 +304,33 @@ def test_an_rmw_zenoh_body_through_the_stepped_plant_equals_the_simulator_to_the
     assert counts["epoch"] == scenario.epochs
 
 
+def test_lockstep_unicycles_with_an_rmw_zenoh_body_equal_the_simulator_to_the_bit(
+    paper: Scenario, runs_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Each robot's inner loop pose by pose in rmw_zenoh's format through the plant's own
+    # router: positions, headings and clipped sub-steps as recorded equal the simulator's.
+    control = {"dynamics": "unicycle", "gain": 0.1, "unicycle": {"max_turn_rad_s": 0.5}}
+    scenario, path = with_robots(
+        paper.with_overrides(control=control, epochs=12), tmp_path, kind="rmw_zenoh"
+    )
+    steps = scenario.control.unicycle.inner_steps
+    listen = f"tcp/127.0.0.1:{free_port()}"
+    with plant(path, "--mode", "router", "--listen", listen) as proc:
+        monkeypatch.setenv("ZENOH_CONNECT", listen)  # the run's router, to the plant
+        outcome = launch(scenario, strategy="hold", runs_dir=runs_dir)
+        counts = plant_counts(proc)
+    sim = simulate(scenario, strategy="hold")
+    run = read_run(outcome.run_dir / "run.mcap")
+    assert sim.headings is not None and sim.saturated is not None
+    np.testing.assert_array_equal(outcome.positions, sim.positions)
+    np.testing.assert_array_equal(run.positions, sim.positions)
+    np.testing.assert_array_equal(run.headings, sim.headings)
+    np.testing.assert_array_equal(run.saturated, sim.saturated)
+    assert int(sim.saturated.sum()) > 0  # the turn limit was reached, and counted alike
+    assert counts["commands"] == scenario.n * scenario.epochs * steps
+    assert counts["epoch"] == scenario.epochs
+
+
 @pytest.mark.slow
 def test_unicycle_robots_steered_at_each_pose_keep_the_formation_in_realtime(
     paper: Scenario, runs_dir: Path, tmp_path: Path, ros_domain: int

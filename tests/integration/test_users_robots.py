@@ -247,6 +247,17 @@ def test_formation_run_in_realtime_measures_stops_and_tells_the_faults_of_a_user
     stuck = recorded.positions[:, 1]
     assert np.abs(stuck[np.isfinite(stuck).all(axis=1)] - x0[1]).max() < 1e-12
     (summary,) = json.loads((run_dir.parent / "summary.json").read_text())
+    # the lost robot's silence is a cause of its own, not the testbed's misses: what its agent
+    # never took is counted there, and the books balance
+    books = json.loads((run_dir.parent / "deadlines.json").read_text())
+    assert books["robot_silent"] > 0 and books["unaccounted"] == 0, books
+    assert set(books["deadline_misses"]["by_cause"]) == {
+        "late_sender",
+        "late_netem",
+        "late_leader",
+        "scheduling",
+    }
+    assert f"{books['robot_silent']} packets late or never taken as agents waited" in out
     assert summary["team"]["3"] == [[0, int(loss[1]) - 1]]
     tracking = summary["tracking"]
     assert tracking["robots"]["2"]["final_m"] > 0.1 and "2" in tracking["warning"]

@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from formation.deadlines import SLACK, account, cause
+from formation.deadlines import ROBOT_SILENT, SLACK, account, cause, realtime_accounting
 from formation.realtime import REPORT_DEADLINE, STATE_DEADLINE, Clock
 
 CLOCK = Clock(t0_ns=time.time_ns(), period_ns=50_000_000)
@@ -54,3 +54,23 @@ def test_late_on_the_way_beyond_netems_own_late_forwards_is_scheduling() -> None
     got = account({"late_netem": 10, "scheduling": 1}, {"modelled_late": 2, "late_forwards": 3})
     assert got.by_cause == {"late_sender": 0, "late_netem": 3, "late_leader": 0, "scheduling": 6}
     assert got.misses == 9 and got.modelled_late == 2
+
+
+def test_a_late_packet_sent_for_a_silent_robot_is_the_robots_and_an_in_time_one_is_not() -> None:
+    late = stamp(CLOCK.at(3, STATE_DEADLINE + SLACK + 0.05))
+    arrived = CLOCK.at(3, 0.99)
+    assert cause(CLOCK, "report", 3, late, arrived, robot_silent=True) == ROBOT_SILENT
+    sent = stamp(CLOCK.at(3, 0.01))  # the mark does not excuse a packet late on the way
+    late_on_the_way = CLOCK.at(3, STATE_DEADLINE + 0.01)
+    assert cause(CLOCK, "state", 3, sent, late_on_the_way, robot_silent=True) == "late_netem"
+
+
+def test_a_silent_robots_packets_are_neither_misses_nor_in_the_rate_nor_warned_of() -> None:
+    counts = {"in_time": 900, "late_sender": 1, ROBOT_SILENT: 60}
+    got = realtime_accounting(counts, {"1->2": (1000, 20)}, untaken=19)
+    assert got["deadline_misses"] == {
+        "total": 1,
+        "by_cause": {"late_sender": 1, "late_netem": 0, "late_leader": 0, "scheduling": 0},
+    }
+    assert got["robot_silent"] == 79 and got["unaccounted"] == 0
+    assert got["deadline_miss_rate"] == 0.001 and got["deadline_warning"] is None

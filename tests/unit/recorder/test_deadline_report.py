@@ -62,3 +62,22 @@ def test_the_run_summary_gives_both_columns_the_causes_and_the_warning() -> None
     assert notes[1].startswith("estimate: warning")
     assert deadline_notes("estimate", {**SUMMARY, "deadline_warning": None}) == notes[:1]
     assert deadline_cells({"deadline_miss_rate": None}) == ["-", "-"]
+
+
+def test_a_silent_robots_packets_are_a_line_of_their_own_in_the_report_and_the_summary(
+    tmp_path: Path,
+) -> None:
+    (tmp_path / FILE).write_text(json.dumps({**SUMMARY, "robot_silent": 80}))
+    d = read_deadlines(tmp_path)
+    assert d is not None and d["robot_silent"] == 80 and d["misses"] == 20
+    (line,) = [x for x in deadline_lines("run", d) if "robot" in x]
+    assert line == (
+        "- run: late or never taken as agents waited for their robots' poses (robot silent, "
+        "not counted as misses): 80 (0.80 %)"
+    )
+    notes = deadline_notes("hold", {**SUMMARY, "robot_silent": 80})
+    assert (
+        "hold: 80 packets late or never taken as agents waited for their robots' poses "
+        "(robot silent): the robots', not the testbed's misses"
+    ) in notes
+    assert not [x for x in deadline_notes("hold", SUMMARY) if "robot" in x]

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 from rich.console import Console
 
 from analysis import robot_counts_line, summarise
@@ -19,6 +20,7 @@ from formation.codec import attachment
 from formation.messages import Status
 from formation.scenario import Scenario
 from recorder import read_run
+from recorder.reading.decoder import as_dict, decode_kind
 from recorder.reporting.report import _robot_lines
 from testbed.cli.robot_lines import robot_notes
 from testbed.sim.simulate import simulate
@@ -112,3 +114,36 @@ def test_the_summary_counts_the_robots_poses_and_commands() -> None:
         "hold: robots: 500 poses, 5 rejected (3 not finite, 2 jumps, 0 in another frame), 4 "
         "commands clipped to the speed limit, 0 re-sent between steps\n"
     )
+
+
+def test_the_live_view_draws_each_robots_measured_pose_and_logs_its_tracking_error(
+    paper: Scenario, tmp_path: Path
+) -> None:
+    realtime = {"mode": "realtime", "realtime_period_s": 0.2}
+    scenario = paper.with_overrides(epochs=12, runtime=realtime, body={"kind": "ros2"})
+    poses = recorded_with_poses(scenario, tmp_path / "run.mcap")
+    computed = simulate(scenario, "hold").positions
+    robots: dict[tuple[int, int], list[float]] = {}  # (robot, epoch) → the drawn sphere
+    logs: dict[tuple[int, int], tuple[int, str]] = {}  # (robot, epoch) → level, line
+    with (tmp_path / "run.mcap").open("rb") as f:
+        for _, channel, message in make_reader(f).iter_messages():
+            if channel.topic == keys.scene(RUN):
+                for e in as_dict(decode_kind("scene", message.data))["entities"]:
+                    if e["id"].startswith("robot "):
+                        epoch = next(int(m["value"]) for m in e["metadata"] if m["key"] == "epoch")
+                        p = e["spheres"][0]["pose"]["position"]
+                        robots[int(e["id"].split()[1]), epoch] = [p["x"], p["y"]]
+            elif channel.topic == keys.log(RUN):
+                line = as_dict(decode_kind("log", message.data))
+                if line["name"].startswith("robot/"):
+                    epoch = int(line["message"].split(":")[0].removeprefix("epoch "))
+                    logs[int(line["name"].split("/")[1]), epoch] = (line["level"], line["message"])
+    n, epochs = scenario.n, scenario.epochs
+    assert set(robots) == set(logs) == {(i, k) for i in range(1, n + 1) for k in range(epochs + 1)}
+    for (i, k), drawn in robots.items():
+        np.testing.assert_allclose(drawn, poses[k, i - 1], rtol=0, atol=1e-12)
+    level, line = logs[STUCK, epochs]
+    error = float(np.linalg.norm(poses[epochs, STUCK - 1] - computed[epochs, STUCK - 1]))
+    assert f"robot {STUCK} measured at" in line and f"tracking error {error:.4g} m" in line
+    assert level == "WARNING" and error > 0.1
+    assert logs[1, epochs][0] == "INFO" and "tracking error 0 m" in logs[1, epochs][1]
