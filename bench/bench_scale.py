@@ -2,10 +2,12 @@
 
 Seed 1 throughout; teams from ``testbed.sim.team_generators.rigid_team`` (perturbed grid,
 vertex addition, ``redundancy`` spare edges), 10 % Bernoulli loss on every formation link,
-the tree estimator, ``hold``. Baselines measured in the same run: the load of the 2-D
+the tree estimator, ``hold``. The rigidity rows also on ``henneberg_team`` and
+``geometric_team``, each against its old path (``outside_stiffness=False``), the two
+alternating mask by mask. Baselines measured in the same run: the load of the 2-D
 minimally rigid team; the simulator at 100 agents; the batched sweep at 100 agents.
 
-    python -m bench.bench_scale [--quick]
+    python -m bench.bench_scale [--quick] [--rigidity-only]
 """
 
 from __future__ import annotations
@@ -21,8 +23,15 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 
+from formation import rigidity_check
+from formation.rigidity_check import rank_under_mask
+from formation.rigidity_growth import growth_rounds, spans_without_any
+from formation.rigidity_stiffness import pinned_stiffness_definite
 from formation.scenario import Scenario
 from leader import HealthyRigidity, Leader
 from recorder import load_run, write_report, write_report_from
@@ -30,7 +39,7 @@ from recorder.live.scene import scene_update
 from testbed.sim.batch import run_batch
 from testbed.sim.plan import plan_batch
 from testbed.sim.simulate import simulate
-from testbed.sim.team_generators import rigid_team
+from testbed.sim.team_generators import geometric_team, henneberg_team, rigid_team
 from testkit.synthetic import write_synthetic
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -79,27 +88,80 @@ def healthy_masks(s: Scenario, epochs: int) -> np.ndarray:
     return np.asarray(plan.on_time[:, 0]).reshape(epochs, -1, 2).any(axis=2)
 
 
+FAMILIES = {"henneberg": henneberg_team, "rigid_team": rigid_team, "geometric": geometric_team}
+
+
+def family_team(family: str, d: int, redundancy: float, epochs: int) -> Scenario:
+    """A 10,000-agent team of a family (Henneberg only in the plane), 10 % loss, seed 1."""
+    fields = {"epochs": epochs, "network": LOSS, "strategy": {"name": "hold"}}
+    if family == "henneberg":
+        return henneberg_team(10_000, seed=SEED, redundancy=redundancy, **fields)
+    return FAMILIES[family](10_000, d, redundancy, seed=SEED, **fields)
+
+
 def rigidity_per_epoch(epochs: int) -> None:
-    print(f"rigidity check per epoch, 10,000 agents, 10 % loss per link, {epochs} epochs")
-    print(f"{'team':18} {'mean ms':>8} {'p50 ms':>7} {'max ms':>8} {'rigid':>6} {'setup s':>8}")
-    for d in (2, 3):
-        for redundancy in (0.1, 0.5):
-            s = team(10_000, d, redundancy, epochs=epochs)
-            masks = healthy_masks(s, epochs)
-            start = time.perf_counter()
-            tracker = HealthyRigidity(s.offsets, s.edge_array)
-            setup = time.perf_counter() - start
-            times, rigid = [], 0
-            for mask in masks:
-                t = time.perf_counter()
-                rigid += tracker(mask)[1]
-                times.append(time.perf_counter() - t)
-            ms = np.array(times) * 1e3
-            print(
-                f"{f'{d}-D, {redundancy:.0%} spare':18} {ms.mean():8.1f} {np.median(ms):7.1f} "
-                f"{ms.max():8.0f} {rigid:6d} {setup:8.2f}",
-                flush=True,
-            )
+    print(
+        f"rigidity check per epoch, 10,000 agents, 10 % loss per link, {epochs} epochs, "
+        "each mask ranked afresh; before: where growth leaves a large component, the whole "
+        "framework's pinned stiffness; after: the stiffness of the agents outside the cluster"
+    )
+    print(
+        f"{'team':28} {'rigid':>5} {'before ms':>9} {'max':>6} {'LU':>8} "
+        f"{'after ms':>8} {'max':>6} {'LU':>8} {'ratio':>6}"
+    )
+    print("(LU: epochs that reached the whole framework's pinned stiffness + R_U's check)")
+    for family in FAMILIES:
+        for d in (2,) if family == "henneberg" else (2, 3):
+            for redundancy in (0.1, 0.5):
+                s = family_team(family, d, redundancy, epochs)
+                masks = healthy_masks(s, epochs)
+                x, edges = s.offsets, s.edge_array
+                rounds, spread = growth_rounds(x, edges), spans_without_any(x)
+                times = np.zeros((2, epochs))
+                answers: list[list[tuple[int | None, bool]]] = [[], []]
+                counted = [0, 0, 0, 0]  # whole framework's stiffness, R_U's; before, after
+                for k, mask in enumerate(masks):  # the two paths alternate: the same load
+                    for path, outside in enumerate((False, True)):
+                        calls.clear()
+                        t = time.perf_counter()
+                        answer = rank_under_mask(
+                            x, edges, rounds, mask, spread, outside_stiffness=outside
+                        )
+                        times[path, k] = (time.perf_counter() - t) * 1e3
+                        answers[path].append(answer)
+                        whole = calls.count(pinned_stiffness_definite.__name__)
+                        counted[2 * path] += whole
+                        counted[2 * path + 1] += len(calls) - whole
+                before, after = times
+                old, new = answers
+                fell_before = f"{counted[0]}+{counted[1]}"
+                fell_after = f"{counted[2]}+{counted[3]}"
+                if [r for _, r in old] != [r for _, r in new]:
+                    raise SystemExit(f"{family} {d}-D: the two paths disagree on rigidity")
+                print(
+                    f"{f'{family} {d}-D, {redundancy:.0%} spare':28} "
+                    f"{sum(r for _, r in new):5d} {before.mean():9.1f} {before.max():6.0f} "
+                    f"{fell_before:>8} {after.mean():8.1f} {after.max():6.0f} {fell_after:>8} "
+                    f"{before.mean() / after.mean():6.2f}",
+                    flush=True,
+                )
+
+
+calls: list[str] = []
+
+
+def _counted(stiffness: Callable[..., bool]) -> Callable[..., bool]:
+    """``stiffness``, each call's name kept in :data:`calls` (the stiffness's epochs)."""
+
+    def counted(*args: Any) -> bool:
+        calls.append(stiffness.__name__)
+        return stiffness(*args)
+
+    return counted
+
+
+rigidity_check.pinned_stiffness_definite = _counted(rigidity_check.pinned_stiffness_definite)
+rigidity_check.outside_held = _counted(rigidity_check.outside_held)
 
 
 def simulate_rates(quick: bool) -> None:
@@ -189,10 +251,14 @@ def report_and_replay(epochs: int, tmp: Path) -> None:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--quick", action="store_true", help="fewer epochs")
+    p.add_argument("--rigidity-only", action="store_true", help="only the rigidity rows")
     args = p.parse_args()
     print(
         f"seed {SEED}; peak RSS of this process so far is in /proc; python {sys.version.split()[0]}"
     )
+    if args.rigidity_only:
+        rigidity_per_epoch(20 if args.quick else 100)
+        return
     with tempfile.TemporaryDirectory() as tmp:
         load_times(Path(tmp))
     rigidity_per_epoch(20 if args.quick else 100)

@@ -1,8 +1,9 @@
 """Whether a framework is rigid, and its rank, at any size (docs/model.md §2).
 
 Small frameworks by the SVD of :func:`formation.rigidity.rigidity_rank`; large ones by
-vertex addition (:mod:`formation.rigidity_growth`) and, where that proves nothing, the
-pinned stiffness (:mod:`formation.rigidity_stiffness`).
+vertex addition (:mod:`formation.rigidity_growth`), the agents it leaves out by their own
+stiffness (:mod:`formation.rigidity_outside`) and, where growth finds no body, the pinned
+stiffness (:mod:`formation.rigidity_stiffness`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from formation.rigidity_growth import (
     ordered_certificate,
     rank_beyond_cluster,
 )
+from formation.rigidity_outside import outside_held
 from formation.rigidity_stiffness import pinned_stiffness_definite
 
 
@@ -50,14 +52,21 @@ SEED_TRIES = 8
 
 
 def rank_beyond_growth(
-    positions: FloatArray, edges: IntArray, svd_max_columns: int, seed: int = 0
+    positions: FloatArray,
+    edges: IntArray,
+    svd_max_columns: int,
+    seed: int = 0,
+    outside_stiffness: bool = True,
 ) -> tuple[int | None, bool]:
     """Rank (None if unknown) and rigidity of a large framework, from vertex addition (§2).
 
     The rank where :func:`grown_cluster` from edge ``seed`` (or, if it stalls before it has
     ``d + 1`` agents, from one of ``SEED_TRIES`` edges spread over the list) and
-    :func:`rank_beyond_cluster` give it; otherwise only rigid or not, by
-    :func:`pinned_stiffness_definite`.
+    :func:`rank_beyond_cluster` give it; otherwise only rigid or not. With
+    ``outside_stiffness`` the cluster decides that: the agents outside it are held iff
+    their matrix ``R_U`` has full column rank (:func:`outside_held`). Without (the
+    benchmark's baseline), or where growth found no body, the whole framework's
+    :func:`pinned_stiffness_definite` does.
     """
     need = expected_rigidity_rank(*positions.shape)
     d = positions.shape[1]
@@ -74,6 +83,9 @@ def rank_beyond_growth(
         return rank, rank == need
     if edges.shape[0] < need:
         return None, False
+    if outside_stiffness and cluster.sum() > d:  # a body: only the agents outside it
+        rigid = outside_held(positions, edges, cluster)
+        return (need if rigid else None), rigid
     rigid = pinned_stiffness_definite(positions, edges)
     return (need if rigid else None), rigid
 
@@ -85,13 +97,14 @@ def rank_under_mask(
     mask: BoolArray,
     spread: bool,
     svd_max_columns: int = SVD_MAX_COLUMNS,
+    outside_stiffness: bool = True,
 ) -> tuple[int | None, bool]:
     """Rank (None if unknown) and rigidity of the kept edges, the growth order known (§2).
 
     The order grown once on all edges, checked again (:func:`ordered_certificate`); an
     agent whose kept edges do not span the space (:func:`loose_agent`, valid when
     ``spread``: :func:`spans_without_any` of ``positions``); else growth again on the kept
-    edges from the same seed (:func:`rank_beyond_growth`).
+    edges from the same seed (:func:`rank_beyond_growth`, ``outside_stiffness`` passed on).
     """
     need = expected_rigidity_rank(*positions.shape)
     if ordered_certificate(positions, edges, rounds, mask):
@@ -101,4 +114,4 @@ def rank_under_mask(
     kept = edges[mask]
     seeds = np.flatnonzero((rounds[kept[:, 0] - 1] == 0) & (rounds[kept[:, 1] - 1] == 0))
     seed = int(seeds[0]) if seeds.size else 0  # the growth order's own seed edge, if kept
-    return rank_beyond_growth(positions, kept, svd_max_columns, seed)
+    return rank_beyond_growth(positions, kept, svd_max_columns, seed, outside_stiffness)

@@ -72,8 +72,27 @@ def pinned_stiffness_definite(positions: npt.ArrayLike, edges: npt.ArrayLike) ->
     if pins is None:
         return False
     r = sparse_rigidity_matrix(x, edges)
-    c = csr_matrix(pins)
-    k = (r.T @ r + c.T @ c).tocsc()
+    return _least_motion_resisted(r, csr_matrix(pins), _rigid_motions(x))
+
+
+def full_column_rank(r: csr_matrix) -> bool:
+    """Whether a sparse ``r`` has full column rank at the SVD's tolerance (§2).
+
+    As :func:`pinned_stiffness_definite` with nothing pinned: ``rᵀr`` must be definite,
+    and the least singular value of ``r`` on the motions it resists least must exceed
+    ``RANK_RTOL`` of its largest one. For the agents outside a rigid spanning cluster,
+    whose edges into the cluster already pin them.
+    """
+    if r.shape[0] < r.shape[1]:
+        return False
+    if r.shape[1] == 0:
+        return True
+    return _least_motion_resisted(r, None, np.zeros((r.shape[1], 0)))
+
+
+def _least_motion_resisted(r: csr_matrix, c: csr_matrix | None, motions: FloatArray) -> bool:
+    """Whether ``σ_min(r)`` less ``motions`` exceeds ``RANK_RTOL · σ_max(r)``, by ``rᵀr + cᵀc``."""
+    k = (r.T @ r if c is None else r.T @ r + c.T @ c).tocsc()
     try:
         lu = splu(  # symmetric ordering, diagonal pivots: a quarter of partial pivoting's fill
             k, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
@@ -88,7 +107,6 @@ def pinned_stiffness_definite(positions: npt.ArrayLike, edges: npt.ArrayLike) ->
     # Rayleigh–Ritz on R itself over the block less the rigid motions (QR: orthonormal even
     # where the block nearly holds one). Not on RᵀR: its eigenvalues are the squares, and the
     # SVD's tolerance squared (1e-18 of the largest) is below their rounding.
-    motions = _rigid_motions(x)
     weak = np.linalg.qr(np.hstack([motions, y]))[0][:, motions.shape[1] :]
     weakest = np.linalg.svd(r @ weak, compute_uv=False)[-1]
     return bool(weakest > RANK_RTOL * _largest_singular_value(r))
