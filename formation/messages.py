@@ -8,6 +8,7 @@ the in-process simulator compute on the same numbers.
 
 from __future__ import annotations
 
+import operator
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -50,7 +51,9 @@ class CoordinationState(_Message):
     substituted: list[Substitute] = []
     heading: float | None = None
     saturated: int | None = Field(None, ge=0)
-    robot_silent: bool = False  # sent late as its agent waited for its robot's pose
+    # sent late as its agent waited for its robot's pose; on the wire only when set, so every
+    # other message keeps its size (capacity queues count bytes)
+    robot_silent: bool = Field(False, exclude_if=operator.not_)
 
 
 class Measurement(BaseModel):
@@ -69,7 +72,9 @@ class TokenReport(_Message):
     kind: Literal["report"] = "report"
     agent: int
     measurements: list[Measurement]
-    robot_silent: bool = False  # sent late as its agent waited for its robot's pose
+    # sent late as its agent waited for its robot's pose; on the wire only when set, so every
+    # other message keeps its size (capacity queues count bytes)
+    robot_silent: bool = Field(False, exclude_if=operator.not_)
 
 
 class LeaderEstimate(_Message):

@@ -74,7 +74,7 @@ def test_what_the_launcher_supervised_goes_into_the_summary_in_its_order(paper: 
     assert list(s) == [
         "run_id", "strategy", "seed", "epochs", "final_formation_error_m", "final_shape_error_m",
         "packets_sent", "packets_dropped", "dropped_links", "malformed", "mode", "deadline",
-        "deadline_misses", "modelled_losses", "delivered_in_time", "unaccounted",
+        "deadline_misses", "modelled_losses", "delivered_in_time", "robot_silent", "unaccounted",
         "deadline_miss_rate", "deadline_warning", "priorities", "cpu_steal", "wall_s", "losses",
         "team", "fallbacks",
     ]  # fmt: skip
