@@ -79,7 +79,7 @@ def test_formation_run_names_the_agent_killed_and_the_epoch_it_was_lost(
     )
     assert code == 0, err
     lost = re.search(
-        rf"estimate: agent-3 \(pid {killed['agent-3']}\) lost at epoch (\d+) \(exit code -9, "
+        rf"estimate: agent-3 \(pid {killed['agent-3']}\) lost at epoch (\d+): killed by SIGKILL \(exit code -9, "
         r"(\d+) packets dropped on its links, (\d+) states its receivers missed\)\n",
         out,
     )
@@ -103,7 +103,7 @@ def test_formation_run_restart_on_failure_brings_the_agent_back(
     assert code == 0, err
     again = read_pids(run_dir)["agent-3.1"]  # the new process, as the launcher named it
     back = re.search(
-        rf"agent-3 \(pid {killed['agent-3']}\) lost at epoch (\d+) .*, restarted as pid "
+        rf"agent-3 \(pid {killed['agent-3']}\) lost at epoch (\d+): .*, restarted as pid "
         rf"{again}, back from epoch (\d+)\n",
         out,
     )
@@ -130,7 +130,7 @@ def test_formation_run_restart_on_failure_brings_back_an_agent_killed_before_the
     (run_dir,) = runs_dir.glob("*/pids.json")
     again = read_pids(run_dir.parent)["agent-3.1"]
     assert re.search(
-        rf"agent-3 \(pid {kill.killed}\) lost before the start \(exit code -9, .*\), restarted "
+        rf"agent-3 \(pid {kill.killed}\) lost before the start: killed by SIGKILL \(exit code -9, .*\), restarted "
         rf"as pid {again}, back from epoch 0\n",
         out,
     ), out
