@@ -14,6 +14,7 @@ import json
 from collections import Counter
 from collections.abc import Callable, Iterator
 from dataclasses import fields
+from operator import attrgetter
 from pathlib import Path
 from typing import Any
 
@@ -89,16 +90,11 @@ class _Collected:
 
     def _decisions(self, batch: DecisionBatch) -> None:
         if self.columns is not None:
-            got = getattr(batch, "columns", None)
-            if got is None:  # a batch the model validated
-                got = {
-                    name: [getattr(c, name) for c in batch.decisions]
-                    for name in DECISION_COLUMNS
-                    if name != "phase"
-                }
-            for name, values in got.items():
-                self.columns[name].extend(values)
-            self.columns["phase"].extend([batch.phase] * len(got["epoch"]))
+            for name, values in self.columns.items():
+                if name == "phase":
+                    values.extend([batch.phase] * len(batch.decisions))
+                else:
+                    values.extend(map(attrgetter(name), batch.decisions))
         else:
             self.decisions.extend(
                 (

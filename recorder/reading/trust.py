@@ -25,12 +25,12 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Mapping, Sequence
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 from google.protobuf.message import Message
+from msgspec import Struct
 from pydantic import BaseModel, ValidationError
 
 from formation import keys
@@ -46,7 +46,7 @@ from formation.messages import (
     TokenReport,
 )
 from formation.scenario import Scenario
-from recorder.reading.bulk import plain_decisions, plain_state
+from recorder.reading.bulk import DECODERS, plain
 from recorder.reading.decoder import DecodeError, decode_cdr, decode_kind
 from recorder.reading.skips import (
     CONFLICT,
@@ -77,7 +77,6 @@ Args = tuple[str, ...]  # the open chunks of a key, in order: keys.parse(topic).
 
 
 _CLASSES = {"formation": 0, "report": 1, "estimate": 2}
-_PLAIN = {"agent_state": plain_state, "decision": plain_decisions}
 
 
 def _all_finite(rows: list[Any], shape: tuple[int | None, ...]) -> bool:
@@ -122,7 +121,7 @@ class Gate:
         self.derived_channels = derived_channels
         self.conflicts = conflicts  # remember each (key, epoch) to refuse a different second one
         self.plain_bulk = (
-            plain_bulk  # states and decisions as plain objects (recorder.reading.bulk)
+            plain_bulk  # states and decisions as msgspec structs (recorder.reading.bulk)
         )
         self.skipped = Skipped()
         self.passed: Counter[str] = Counter()
@@ -141,10 +140,10 @@ class Gate:
     # -- the one entry ----------------------------------------------------------------------
     def check(
         self, topic: str, data: bytes, kind: str | None = None, channel_id: int | None = None
-    ) -> BaseModel | Message | SimpleNamespace | None:
+    ) -> BaseModel | Message | Struct | None:
         """The validated message (a model; a decoded protobuf message for the Foxglove
-        channels; with ``plain_bulk`` an agent state or a decision batch as
-        :mod:`recorder.reading.bulk` decodes it), or None after counting the skip."""
+        channels; with ``plain_bulk`` an agent state or a decision batch as a struct of
+        :mod:`recorder.reading.bulk`), or None after counting the skip."""
         kind = kind or classify(topic)
         try:
             msg = self._check(kind, topic, data, channel_id)
@@ -156,7 +155,7 @@ class Gate:
 
     def _check(
         self, kind: str, topic: str, data: bytes, channel_id: int | None
-    ) -> BaseModel | Message | SimpleNamespace:
+    ) -> BaseModel | Message | Struct:
         derived = self.derived_channels
         if kind in DERIVED and derived is not None and channel_id not in derived:
             raise Skip(FORGED, f"{kind} not written by the recorder")
@@ -167,31 +166,18 @@ class Gate:
         model = MESSAGE_MODELS.get(kind)
         if model is None or kind == UNKNOWN:
             raise Skip(UNKNOWN_KEY, f"no process publishes on {topic}")
-        msg: BaseModel | SimpleNamespace | None = self._vouched(kind, topic, data)
+        msg = plain(kind, data) if self.plain_bulk and kind in DECODERS else None
         if msg is None:
             try:
                 msg = model.model_validate_json(data)
             except (ValidationError, ValueError, UnicodeDecodeError) as exc:
                 raise Skip(INVALID, f"{model.__name__}: {str(exc).splitlines()[0]}") from None
-            check = getattr(self, f"_{kind}", None)
-            if check is not None:
-                check(msg, keys.parse(topic).args)
+        check = getattr(self, f"_{kind}", None)
+        if check is not None:
+            check(msg, keys.parse(topic).args)
         epoch = getattr(msg, "epoch", None)
         if self.conflicts and isinstance(epoch, int) and epoch >= 0 and kind not in self.repeated:
             self._first(topic, epoch, data)
-        return msg
-
-    def _vouched(self, kind: str, topic: str, data: bytes) -> SimpleNamespace | None:
-        """A bulk message decoded plain that passes every check of its kind, else None: the
-        model's path then decides, and names any fault."""
-        plain = _PLAIN.get(kind) if self.plain_bulk and self.scenario is not None else None
-        msg = None if plain is None else plain(data)
-        if msg is None:
-            return None
-        try:
-            getattr(self, f"_{kind}")(msg, keys.parse(topic).args)
-        except Skip:
-            return None
         return msg
 
     def _cdr(self, type_name: str, topic: str, data: bytes) -> CdrMessage:
@@ -355,8 +341,6 @@ class Gate:
         self._sender(msg, "netem")
         if self.scenario is not None and self._decisions_fit(msg):
             return  # 44,000 decisions an epoch at 10,000 agents: checked as arrays
-        if msg.decisions is None:  # plain columns: the model's path names the fault
-            raise Skip(INVALID, "decisions not all in the scenario")
         for dec in msg.decisions:
             self._epoch(dec.epoch, self._last_decided())
             self._endpoint(dec.source)
@@ -375,23 +359,11 @@ class Gate:
 
     def _decisions_fit(self, msg: DecisionBatch) -> bool:
         """Whether every decision passes the checks of :meth:`_decision`, as arrays."""
-        columns = getattr(msg, "columns", None)
-        try:
-            if columns is None:
-                count = len(msg.decisions)
-                epoch = np.fromiter((c.epoch for c in msg.decisions), np.int64, count)
-                source = np.fromiter((c.source for c in msg.decisions), np.int64, count)
-                target = np.fromiter((c.target for c in msg.decisions), np.int64, count)
-                classes = (c.link_class for c in msg.decisions)
-            else:
-                count = len(columns["epoch"])
-                epoch = np.array(columns["epoch"], np.int64).reshape(count)
-                source = np.array(columns["source"], np.int64).reshape(count)
-                target = np.array(columns["target"], np.int64).reshape(count)
-                classes = iter(columns["link_class"])
-        except OverflowError:
-            return False  # past int64: no such epoch or agent
-        kind = np.fromiter(map(_CLASSES.__getitem__, classes), np.int8, count)
+        count = len(msg.decisions)
+        epoch = np.fromiter((c.epoch for c in msg.decisions), np.int64, count)
+        source = np.fromiter((c.source for c in msg.decisions), np.int64, count)
+        target = np.fromiter((c.target for c in msg.decisions), np.int64, count)
+        kind = np.fromiter((_CLASSES[c.link_class] for c in msg.decisions), np.int8, count)
         last = self._last_decided()
         ends = np.concatenate([source, target])
         if not ((epoch >= 0) & (epoch <= (self.epochs if last is None else last))).all():
