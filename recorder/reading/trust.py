@@ -166,7 +166,9 @@ class Gate:
         model = MESSAGE_MODELS.get(kind)
         if model is None or kind == UNKNOWN:
             raise Skip(UNKNOWN_KEY, f"no process publishes on {topic}")
-        msg = plain(kind, data) if self.plain_bulk and kind in DECODERS else None
+        msg: BaseModel | Struct | None = (
+            plain(kind, data) if self.plain_bulk and kind in DECODERS else None
+        )
         if msg is None:
             try:
                 msg = model.model_validate_json(data)
