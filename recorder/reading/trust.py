@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Mapping, Sequence
+from operator import attrgetter
 from typing import Any
 
 import numpy as np
@@ -361,11 +362,12 @@ class Gate:
 
     def _decisions_fit(self, msg: DecisionBatch) -> bool:
         """Whether every decision passes the checks of :meth:`_decision`, as arrays."""
-        count = len(msg.decisions)
-        epoch = np.fromiter((c.epoch for c in msg.decisions), np.int64, count)
-        source = np.fromiter((c.source for c in msg.decisions), np.int64, count)
-        target = np.fromiter((c.target for c in msg.decisions), np.int64, count)
-        kind = np.fromiter((_CLASSES[c.link_class] for c in msg.decisions), np.int8, count)
+        count, decisions = len(msg.decisions), msg.decisions
+        epoch = np.fromiter(map(attrgetter("epoch"), decisions), np.int64, count)
+        source = np.fromiter(map(attrgetter("source"), decisions), np.int64, count)
+        target = np.fromiter(map(attrgetter("target"), decisions), np.int64, count)
+        classes = map(_CLASSES.__getitem__, map(attrgetter("link_class"), decisions))
+        kind = np.fromiter(classes, np.int8, count)
         last = self._last_decided()
         ends = np.concatenate([source, target])
         if not ((epoch >= 0) & (epoch <= (self.epochs if last is None else last))).all():
