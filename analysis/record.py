@@ -116,6 +116,23 @@ class Decisions:
         out["sojourn_ms"] = np.array([np.nan if v is None else v for v in columns[13]], dtype=float)
         return cls(**out)
 
+    @classmethod
+    def of_columns(cls, columns: Mapping[str, Sequence[Any]]) -> Decisions:
+        """From a list per name of :data:`DECISION_COLUMNS`, rows in the same order."""
+        out: dict[str, Any] = {}
+        for name in DECISION_COLUMNS:
+            values = columns[name]
+            if name in ("epoch", "source", "target", "seq", "delay_epochs"):
+                out[name] = np.array(values, dtype=np.int64).reshape(len(values))
+            elif name == "queue_depth":
+                out[name] = np.array([-1 if v is None else v for v in values], dtype=np.int64)
+            elif name in ("delay_ms", "sojourn_ms"):
+                out[name] = np.array(values, dtype=float).reshape(len(values))  # None → NaN
+            else:
+                out[name] = np.empty(len(values), dtype=object)
+                out[name][:] = values
+        return cls(**out)
+
     @property
     def on_time(self) -> Bools:
         """Delivered in its own epoch (passed or duplicated, not delayed)."""
@@ -125,15 +142,27 @@ class Decisions:
     def delivery(self, links: Ints, count: int) -> tuple[Bools, Bools]:
         """(count, L) formation link ``links[l]`` delivered in time at epoch ``k``, and
         whether that delivery is known (a record of it)."""
-        column = {(int(a), int(b)): c for c, (a, b) in enumerate(links)}
         delivered = np.zeros((count, len(links)), dtype=bool)
         decided = np.zeros_like(delivered)
-        formation = np.flatnonzero(self.link_class == "formation")
-        on_time = self.on_time
-        for r in formation.tolist():
-            c, k = column.get((int(self.source[r]), int(self.target[r]))), int(self.epoch[r])
-            if c is not None and 0 <= k < count:
-                delivered[k, c], decided[k, c] = on_time[r], True
+        rows = np.flatnonzero(self.link_class == "formation")
+        links = np.asarray(links, dtype=np.int64).reshape(-1, 2)
+        if not len(rows) or not len(links):
+            return delivered, decided
+        base = int(max(links.max(), self.source[rows].max(), self.target[rows].max())) + 1
+        codes = links[:, 0] * base + links[:, 1]
+        order = np.argsort(codes, kind="stable")  # of a link listed twice, its last column
+        source, target, k = self.source[rows], self.target[rows], self.epoch[rows]
+        wanted = source * base + target
+        at = np.maximum(np.searchsorted(codes[order], wanted, side="right") - 1, 0)
+        column = order[at]
+        ids = (source >= 0) & (target >= 0)
+        keep = ids & (codes[column] == wanted) & (k >= 0) & (k < count)
+        cell = k[keep] * len(links) + column[keep]
+        # a later record of the same link and epoch wins, as it would written row by row
+        _, last = np.unique(cell[::-1], return_index=True)
+        chosen = len(cell) - 1 - last
+        delivered.flat[cell[chosen]] = self.on_time[rows[keep][chosen]]
+        decided.flat[cell[chosen]] = True
         return delivered, decided
 
     def judged(self) -> list[Judged]:

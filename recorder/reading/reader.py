@@ -24,6 +24,7 @@ from mcap.summary import Summary
 from formation.errors import RecordingError, TestbedError
 from formation.messages import DecisionBatch
 from formation.scenario import Scenario, load_dict
+from recorder.reading.chunks import file_order
 from recorder.reading.decoder import DecodeError, decode, decode_cdr
 from recorder.reading.trust import Gate, Skipped, derived_channels
 from recorder.recording.schemas import PROTOBUF, ROS2MSG, classify
@@ -86,11 +87,18 @@ def open_recording(path: Path) -> Iterator[tuple[McapReader, Summary]]:
 
 
 def iter_messages(
-    path: Path, reader: McapReader, **kwargs: Any
+    path: Path, reader: McapReader, by_chunk: bool = True, **kwargs: Any
 ) -> Iterator[tuple[Schema | None, Channel, Message]]:
-    """``reader.iter_messages(**kwargs)`` with read failures turned into :class:`RecordingError`."""
+    """``reader.iter_messages(**kwargs)`` with read failures turned into :class:`RecordingError`;
+    in file order (``log_time_order=False`` alone) a chunk at a time
+    (:func:`~recorder.reading.chunks.file_order`) unless not ``by_chunk``."""
     try:
-        yield from reader.iter_messages(**kwargs)
+        summary = reader.get_summary()
+        in_file_order = kwargs == {"log_time_order": False} and by_chunk
+        if in_file_order and summary is not None and summary.chunk_indexes:
+            yield from file_order(path, summary)
+        else:
+            yield from reader.iter_messages(**kwargs)
     except READ_ERRORS as exc:
         if isinstance(exc, TestbedError):
             raise

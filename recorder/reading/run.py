@@ -13,6 +13,8 @@ from __future__ import annotations
 import json
 from collections import Counter
 from collections.abc import Callable, Iterator
+from dataclasses import fields
+from operator import attrgetter
 from pathlib import Path
 from typing import Any
 
@@ -42,13 +44,18 @@ from recorder.recording.schemas import ROS2, classify
 Array = npt.NDArray[np.float64]
 Ints = npt.NDArray[np.int64]
 Pose = tuple[float | None, int | None]
+DECISION_COLUMNS = tuple(f.name for f in fields(Decisions))
 ROBOT_COUNTS = "body_"  # the prefix of an agent's body counts in its status (agent.body)
 
 
 class _Collected:
     """What :func:`read_run` takes from the trusted messages of one or more files."""
 
-    def __init__(self) -> None:
+    def __init__(self, bulk: bool) -> None:
+        # decisions as a list per column (bulk) or as rows
+        self.columns: dict[str, list[Any]] | None = (
+            {name: [] for name in DECISION_COLUMNS} if bulk else None
+        )
         self.states: dict[tuple[int, int], list[float]] = {}  # (epoch, agent)
         self.poses: dict[tuple[int, int], Pose] = {}  # unicycles
         self.subs: dict[tuple[int, int], list[tuple[int, bool, list[float]]]] = {}
@@ -79,7 +86,16 @@ class _Collected:
             elif msg.detail.startswith("{") and ROBOT_COUNTS in msg.detail:
                 self._robot_counts(msg.sender, msg.detail)
         elif kind == "decision":
-            batch: DecisionBatch = msg
+            self._decisions(msg)
+
+    def _decisions(self, batch: DecisionBatch) -> None:
+        if self.columns is not None:
+            for name, values in self.columns.items():
+                if name == "phase":
+                    values.extend([batch.phase] * len(batch.decisions))
+                else:
+                    values.extend(map(attrgetter(name), batch.decisions))
+        else:
             self.decisions.extend(
                 (
                     c.epoch,
@@ -135,13 +151,15 @@ _WANTED = frozenset({"agent_state", "leader_estimate", "decision", "metrics", "s
 
 
 def iter_trusted(
-    path: Path, gate_of: Callable[[dict[str, dict[str, str]]], Gate] | None = None
+    path: Path,
+    gate_of: Callable[[dict[str, dict[str, str]]], Gate] | None = None,
+    by_chunk: bool = True,
 ) -> Iterator[tuple[str, Channel, Message, Any, Gate]]:
     """Every message of a recording (and its rotated parts) that its :class:`Gate` passes:
     ``(kind, channel, record, validated message, gate)``; the skips are in ``gate.skipped``.
 
     ``gate_of(meta)`` builds the gate once the first file's metadata is read (default: one
-    for the stored scenario).
+    for the stored scenario); ``by_chunk``: see :func:`~recorder.reading.reader.iter_messages`.
     """
     gate: Gate | None = None
     for part in parts(path):
@@ -150,7 +168,7 @@ def iter_trusted(
                 meta = metadata(reader)
                 gate = gate_of(meta) if gate_of else Gate(scenario_of(meta, path))
             gate.derived_channels = derived_channels(summary.channels)
-            for _, channel, msg in iter_messages(part, reader, log_time_order=False):
+            for _, channel, msg in iter_messages(part, reader, by_chunk, log_time_order=False):
                 kind = channel.metadata.get("kind") or classify(channel.topic)
                 checked = gate.check(channel.topic, msg.data, kind, channel.id)
                 if checked is not None:
@@ -163,18 +181,24 @@ def read_run(path: Path | str, label: str | None = None) -> RunData:
     Needs the scenario stored as metadata. Every message is validated and its owner
     checked first (:mod:`recorder.reading.trust`); ``recorded.skipped`` counts what was not trusted.
     """
+    return decode_run(path, label, bulk=True)
+
+
+def decode_run(path: Path | str, label: str | None = None, *, bulk: bool) -> RunData:
+    """:func:`read_run`; without ``bulk`` every state goes through its pydantic model and every
+    record through the mcap reader's own loop (the same RunData: the baseline of the benchmark)."""
     path = Path(path)  # a str from a notebook too
-    got = _Collected()
+    got = _Collected(bulk)
     held: dict[str, Any] = {}
 
     def gate_of(meta: dict[str, dict[str, str]]) -> Gate:
         scenario = scenario_of(meta, path)
         if scenario is None:
             raise RecordingError(str(path), "no scenario in the metadata (record with --scenario)")
-        held.update(meta=meta, scenario=scenario, gate=Gate(scenario))
+        held.update(meta=meta, scenario=scenario, gate=Gate(scenario, plain_bulk=bulk))
         return held["gate"]  # type: ignore[no-any-return]
 
-    for kind, channel, record, msg, _ in iter_trusted(path, gate_of):
+    for kind, channel, record, msg, _ in iter_trusted(path, gate_of, by_chunk=bulk):
         if kind in _WANTED:
             got.add(kind, msg)
         elif kind.startswith(ROS2):
@@ -194,7 +218,11 @@ def _assemble(
     n, d = scenario.n, scenario.dimension
     states = _positions(got.states, n, d)
     x, computed = _measured(states, got.bodies.measured(scenario, len(states)))
-    decisions = Decisions.of_rows(got.decisions)
+    decisions = (
+        Decisions.of_rows(got.decisions)
+        if got.columns is None
+        else Decisions.of_columns(got.columns)
+    )
     epochs = [*got.ests, *decisions.epoch.tolist()]
     count = max(epochs) + 1 if epochs else max(len(x) - 1, 0)
     est = _estimates(scenario, got.ests, count)
@@ -306,4 +334,4 @@ def _poses(
     return headings, saturated
 
 
-__all__ = ["iter_trusted", "read_run"]
+__all__ = ["decode_run", "iter_trusted", "read_run"]

@@ -25,12 +25,13 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from operator import attrgetter
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 from google.protobuf.message import Message
+from msgspec import Struct
 from pydantic import BaseModel, ValidationError
 
 from formation import keys
@@ -46,7 +47,18 @@ from formation.messages import (
     TokenReport,
 )
 from formation.scenario import Scenario
+from recorder.reading.bulk import DECODERS, plain
 from recorder.reading.decoder import DecodeError, decode_cdr, decode_kind
+from recorder.reading.skips import (
+    CONFLICT,
+    FORGED,
+    INVALID,
+    OUT_OF_RANGE,
+    REASONS,
+    UNKNOWN_KEY,
+    Skip,
+    Skipped,
+)
 from recorder.recording.schemas import (
     FOXGLOVE,
     MESSAGE_MODELS,
@@ -59,69 +71,10 @@ from recorder.recording.schemas import (
     classify,
 )
 
-INVALID = "invalid"  # not JSON (protobuf), wrong fields or types, non-finite or mis-sized numbers
-FORGED = "forged"  # the sender does not own the key, or claims another agent's id
-OUT_OF_RANGE = "out of range"  # an epoch, agent id, link or edge the scenario does not have
-CONFLICT = "conflict"  # a second, different message of the same key and epoch
-UNKNOWN_KEY = "unknown key"  # a key that no process of the testbed publishes on
-REASONS = (INVALID, FORGED, OUT_OF_RANGE, CONFLICT, UNKNOWN_KEY)
-
 DERIVED = frozenset({"metrics", *FOXGLOVE})  # kinds only the recorder writes
 _REPEATED = frozenset({"status", "decision", "alive", "link_change"})  # many per epoch
 
 Args = tuple[str, ...]  # the open chunks of a key, in order: keys.parse(topic).args
-
-
-class Skip(Exception):
-    """Why a message is not trusted; caught inside :meth:`Gate.check`."""
-
-    def __init__(self, reason: str, detail: str = "") -> None:
-        super().__init__(detail or reason)
-        self.reason = reason
-
-
-@dataclass
-class Skipped:
-    """Messages a :class:`Gate` refused: per channel (topic) and reason, with a few examples."""
-
-    counts: Counter[tuple[str, str]] = field(default_factory=Counter)
-    examples: list[tuple[str, str, str]] = field(default_factory=list)  # topic, reason, detail
-    limit: int = 20
-
-    def add(self, topic: str, reason: str, detail: str) -> None:
-        self.counts[topic, reason] += 1
-        if len(self.examples) < self.limit:
-            self.examples.append((topic, reason, detail[:200]))
-
-    @property
-    def total(self) -> int:
-        return sum(self.counts.values())
-
-    def by_channel(self) -> dict[str, int]:
-        out: Counter[str] = Counter()
-        for (topic, _), v in self.counts.items():
-            out[topic] += v
-        return dict(sorted(out.items()))
-
-    def by_reason(self) -> dict[str, int]:
-        out: Counter[str] = Counter()
-        for (_, reason), v in self.counts.items():
-            out[reason] += v
-        return {r: out[r] for r in REASONS if out[r]}
-
-    def as_json(self) -> dict[str, Any]:
-        """``{"total", "by_reason", "by_channel": {topic: {reason: n}}}`` (summary.json)."""
-        nested: dict[str, dict[str, int]] = {}
-        for (topic, reason), v in sorted(self.counts.items()):
-            nested.setdefault(topic, {})[reason] = v
-        return {"total": self.total, "by_reason": self.by_reason(), "by_channel": nested}
-
-    def describe(self, prefix: str = "") -> str:
-        """One line: ``12 messages skipped (forged 3, invalid 9) on 4 channels``."""
-        if not self.total:
-            return "no message skipped"
-        reasons = ", ".join(f"{r} {v}" for r, v in self.by_reason().items())
-        return f"{self.total} messages skipped ({reasons}) on {len(self.by_channel())} channels"
 
 
 _CLASSES = {"formation": 0, "report": 1, "estimate": 2}
@@ -163,10 +116,14 @@ class Gate:
         scenario: Scenario | None,
         derived_channels: set[int] | None = None,
         conflicts: bool = True,
+        plain_bulk: bool = False,
     ) -> None:
         self.scenario = scenario
         self.derived_channels = derived_channels
         self.conflicts = conflicts  # remember each (key, epoch) to refuse a different second one
+        self.plain_bulk = (
+            plain_bulk  # states and decisions as msgspec structs (recorder.reading.bulk)
+        )
         self.skipped = Skipped()
         self.passed: Counter[str] = Counter()
         self._codes: npt.NDArray[np.int64] | None = None  # formation links, as codes
@@ -184,9 +141,10 @@ class Gate:
     # -- the one entry ----------------------------------------------------------------------
     def check(
         self, topic: str, data: bytes, kind: str | None = None, channel_id: int | None = None
-    ) -> BaseModel | Message | None:
+    ) -> BaseModel | Message | Struct | None:
         """The validated message (a model; a decoded protobuf message for the Foxglove
-        channels), or None after counting the skip."""
+        channels; with ``plain_bulk`` an agent state or a decision batch as a struct of
+        :mod:`recorder.reading.bulk`), or None after counting the skip."""
         kind = kind or classify(topic)
         try:
             msg = self._check(kind, topic, data, channel_id)
@@ -198,7 +156,7 @@ class Gate:
 
     def _check(
         self, kind: str, topic: str, data: bytes, channel_id: int | None
-    ) -> BaseModel | Message:
+    ) -> BaseModel | Message | Struct:
         derived = self.derived_channels
         if kind in DERIVED and derived is not None and channel_id not in derived:
             raise Skip(FORGED, f"{kind} not written by the recorder")
@@ -209,10 +167,14 @@ class Gate:
         model = MESSAGE_MODELS.get(kind)
         if model is None or kind == UNKNOWN:
             raise Skip(UNKNOWN_KEY, f"no process publishes on {topic}")
-        try:
-            msg = model.model_validate_json(data)
-        except (ValidationError, ValueError, UnicodeDecodeError) as exc:
-            raise Skip(INVALID, f"{model.__name__}: {str(exc).splitlines()[0]}") from None
+        msg: BaseModel | Struct | None = (
+            plain(kind, data) if self.plain_bulk and kind in DECODERS else None
+        )
+        if msg is None:
+            try:
+                msg = model.model_validate_json(data)
+            except (ValidationError, ValueError, UnicodeDecodeError) as exc:
+                raise Skip(INVALID, f"{model.__name__}: {str(exc).splitlines()[0]}") from None
         check = getattr(self, f"_{kind}", None)
         if check is not None:
             check(msg, keys.parse(topic).args)
@@ -400,11 +362,12 @@ class Gate:
 
     def _decisions_fit(self, msg: DecisionBatch) -> bool:
         """Whether every decision passes the checks of :meth:`_decision`, as arrays."""
-        count = len(msg.decisions)
-        epoch = np.fromiter((c.epoch for c in msg.decisions), np.int64, count)
-        source = np.fromiter((c.source for c in msg.decisions), np.int64, count)
-        target = np.fromiter((c.target for c in msg.decisions), np.int64, count)
-        kind = np.fromiter((_CLASSES[c.link_class] for c in msg.decisions), np.int8, count)
+        count, decisions = len(msg.decisions), msg.decisions
+        epoch = np.fromiter(map(attrgetter("epoch"), decisions), np.int64, count)
+        source = np.fromiter(map(attrgetter("source"), decisions), np.int64, count)
+        target = np.fromiter(map(attrgetter("target"), decisions), np.int64, count)
+        classes = map(_CLASSES.__getitem__, map(attrgetter("link_class"), decisions))
+        kind = np.fromiter(classes, np.int8, count)
         last = self._last_decided()
         ends = np.concatenate([source, target])
         if not ((epoch >= 0) & (epoch <= (self.epochs if last is None else last))).all():

@@ -1,0 +1,284 @@
+"""The bulk path of a recording's reader gives what the model's path gives, message by message and run by run.
+
+:class:`~recorder.reading.trust.Gate` with ``plain_bulk`` decodes agents' states and
+netem's decisions with orjson and falls back to the pydantic model for what it cannot vouch
+for; both gates must pass and refuse the same payloads with the same reasons, and return the
+same values. ``decode_run(bulk=False)`` is the model's path over the whole recording.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import msgspec
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from mcap.reader import make_reader
+from pydantic import BaseModel, Field, field_validator
+
+from analysis import Decisions
+from formation import keys
+from formation.scenario import Scenario
+from recorder.reading.bulk import struct_of
+from recorder.reading.chunks import ChunkError, chunk_messages, file_order
+from recorder.reading.reader import open_recording
+from recorder.reading.run import decode_run
+from recorder.reading.trust import Gate
+from testkit.forgeries import forgeries
+
+RUN = "synthetic"
+EPOCH_NS = 1_000_000_000
+
+
+def _values(msg: Any) -> Any:
+    """A message's fields, nested, as plain values (a model or a struct alike)."""
+    if isinstance(msg, list):
+        return [_values(v) for v in msg]
+    names = getattr(msg, "__struct_fields__", None) or getattr(type(msg), "model_fields", None)
+    if names is None:
+        return repr(msg)  # repr: -0.0 and 0.0, an int and a float, told apart
+    return {name: _values(getattr(msg, name)) for name in names}
+
+
+def _both(scenario: Scenario, topic: str, data: bytes, kind: str) -> None:
+    """The plain and the model's gate agree on ``data``: verdict, reason, detail, values."""
+    plain, model = Gate(scenario, plain_bulk=True), Gate(scenario)
+    got, want = plain.check(topic, data, kind), model.check(topic, data, kind)
+    assert plain.skipped == model.skipped, data[:300]
+    assert (got is None) == (want is None), data[:300]
+    assert _values(got) == _values(want), data[:300]
+
+
+def test_a_model_with_a_rule_msgspec_cannot_carry_is_refused() -> None:
+    class Bounded(BaseModel):
+        x: int = Field(le=3)
+
+    class Checked(BaseModel):
+        x: int
+
+        @field_validator("x")
+        @classmethod
+        def small(cls, v: int) -> int:
+            return v
+
+    with pytest.raises(TypeError, match=r"Bounded.x: Le\(le=3\) has no msgspec form here"):
+        struct_of(Bounded)
+    with pytest.raises(TypeError, match="Checked has a validator msgspec cannot apply"):
+        struct_of(Checked)
+
+
+def test_every_forgery_is_refused_alike(paper: Scenario) -> None:
+    for key, data in forgeries(RUN, paper, epoch=7):
+        kind = "decision" if key == keys.netem_decision(RUN) else "agent_state"
+        _both(paper, key, data, kind)
+
+
+# Values near each field's type: what orjson and the model could read differently.
+_NUMBERS = st.one_of(
+    st.floats(allow_nan=False, allow_infinity=False),
+    st.integers(-(2**70), 2**70),
+    st.booleans(),
+    st.none(),
+    st.sampled_from(["1.5", "x", "", "state", "pass", "formation"]),
+)
+_FLOATS = st.lists(
+    st.one_of(st.floats(allow_nan=False, allow_infinity=False), st.integers(-(2**70), 2**70)),
+    max_size=3,
+)
+_ANY = st.one_of(_NUMBERS, _FLOATS, st.lists(_NUMBERS, max_size=3))
+
+
+def _mutated(draw: Any, good: dict[str, Any]) -> dict[str, Any]:
+    out = dict(good)
+    for name in draw(st.lists(st.sampled_from([*good, "extra"]), max_size=2)):
+        if draw(st.booleans()):
+            out[name] = draw(_ANY)
+        else:
+            out.pop(name, None)
+    return out
+
+
+@st.composite
+def states(draw: Any) -> bytes:
+    agent = draw(st.sampled_from([1, 2, 3, 99]))
+    good = {
+        "run_id": RUN,
+        "sender": draw(st.sampled_from(["agent/1", "pool/1", "agent/2", "leader"])),
+        "seq": draw(st.integers(-1, 3)),
+        "epoch": draw(st.integers(-2, 60)),
+        "stamp_ns": 5,
+        "kind": "state",
+        "agent": agent,
+        "position": draw(st.lists(st.one_of(st.floats(), st.integers()), min_size=1, max_size=3)),
+        "substituted": [
+            {"neighbour": draw(st.integers(0, 4)), "value": draw(_FLOATS)}
+            for _ in range(draw(st.integers(0, 2)))
+        ],
+    }
+    if draw(st.booleans()):
+        good["heading"] = draw(st.one_of(st.floats(allow_nan=False), st.integers(-3, 3)))
+    body = _mutated(draw, good)
+    subs = body.get("substituted")
+    if isinstance(subs, list) and subs and isinstance(subs[0], dict) and draw(st.booleans()):
+        body["substituted"][0] = _mutated(draw, body["substituted"][0])
+    text = json.dumps(body, allow_nan=True)
+    if draw(st.booleans()):  # a duplicate key, which both read as the last
+        text = text[:-1] + ', "agent": ' + str(draw(st.integers(0, 3))) + "}"
+    return text.encode()
+
+
+@st.composite
+def batches(draw: Any) -> bytes:
+    def decision() -> dict[str, Any]:
+        good = {
+            "source": draw(st.integers(0, 4)),
+            "target": draw(st.integers(0, 4)),
+            "link_class": draw(st.sampled_from(["formation", "report", "estimate"])),
+            "epoch": draw(st.integers(-1, 60)),
+            "seq": 1,
+            "verdict": draw(st.sampled_from(["pass", "drop", "delayed"])),
+            "delay_ms": draw(st.floats(allow_nan=False, allow_infinity=False)),
+            "queue": draw(st.one_of(st.none(), st.just("radio"))),
+        }
+        return _mutated(draw, good) if draw(st.integers(0, 4)) == 0 else good
+
+    good = {
+        "run_id": RUN,
+        "sender": draw(st.sampled_from(["netem", "agent/1"])),
+        "seq": 0,
+        "epoch": 3,
+        "stamp_ns": 5,
+        "kind": "decisions",
+        "phase": draw(st.sampled_from(["state", "report"])),
+        "decisions": [decision() for _ in range(draw(st.integers(0, 4)))],
+    }
+    body = _mutated(draw, good) if draw(st.integers(0, 3)) == 0 else good
+    return json.dumps(body, allow_nan=True).encode()
+
+
+@settings(
+    max_examples=300,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+)
+@given(data=states())
+def test_a_state_is_judged_alike_by_both_paths(paper: Scenario, data: bytes) -> None:
+    _both(paper, keys.agent_state(RUN, 1), data, "agent_state")
+
+
+@settings(
+    max_examples=200,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+)
+@given(data=batches())
+def test_a_decision_batch_is_judged_alike_by_both_paths(paper: Scenario, data: bytes) -> None:
+    _both(paper, keys.netem_decision(RUN), data, "decision")
+
+
+@pytest.mark.parametrize(
+    "data",
+    [
+        b'{"run_id":"synthetic","sender":"agent/1","seq":0,"epoch":1,"stamp_ns":0,"agent":1,'
+        b'"position":[1e400,0.0]}',  # past a double: orjson refuses, the model reads inf
+        b'{"run_id":"synthetic","sender":"agent/1","seq":0,"epoch":1,"stamp_ns":0,"agent":1,'
+        b'"position":[1,2]}',  # ints where floats are due: the model converts them
+        b'{"run_id":"\\ud800","sender":"agent/1","seq":0,"epoch":1,"stamp_ns":0,"agent":1,'
+        b'"position":[1.0,2.0]}',  # a lone surrogate
+        b'{"run_id":"synthetic","sender":"agent/1","seq":18446744073709551616,"epoch":1,'
+        b'"stamp_ns":0,"agent":1,"position":[1.0,2.0]}',  # past 64 bits
+    ],
+)
+def test_what_orjson_cannot_vouch_for_goes_to_the_model(paper: Scenario, data: bytes) -> None:
+    _both(paper, keys.agent_state(RUN, 1), data, "agent_state")
+
+
+def _same(a: Any, b: Any, name: str) -> None:
+    if isinstance(a, np.ndarray):
+        assert a.dtype == b.dtype and a.shape == b.shape, name
+        assert np.array_equal(a, b, equal_nan=a.dtype.kind == "f"), name
+    elif dataclasses.is_dataclass(a) and not isinstance(a, type):
+        for f in dataclasses.fields(a):
+            _same(getattr(a, f.name), getattr(b, f.name), f"{name}.{f.name}")
+    elif hasattr(a, "model_dump_json"):
+        assert a.model_dump_json() == b.model_dump_json(), name
+    else:
+        assert a == b, name
+
+
+@pytest.fixture(scope="module")
+def forged_run(tmp_path_factory: Any, sim_results: dict[str, Any], synth: Any) -> Path:
+    """The ``hold`` run with every forgery at epoch 7, in chunks of 4 kB (many chunks)."""
+    result = sim_results["hold"]
+    bad = forgeries(synth.RUN, result.scenario, epoch=7)
+    inject = [(key, data, None, 7 * EPOCH_NS + 50 + m) for m, (key, data) in enumerate(bad)]
+    path = tmp_path_factory.mktemp("bulk") / "run.mcap"
+    synth.write(path, result, inject=inject, chunk_size=4096)
+    return path
+
+
+def test_the_bulk_path_reads_the_run_the_model_path_reads(forged_run: Path) -> None:
+    bulk, model = decode_run(forged_run, bulk=True), decode_run(forged_run, bulk=False)
+    assert bulk.recorded.skipped.total == len(forgeries(RUN, bulk.scenario))
+    _same(bulk, model, "run")
+
+
+def test_chunks_are_read_in_the_reader_s_file_order(forged_run: Path) -> None:
+    with open(forged_run, "rb") as f:
+        want = [(c.id, m) for _, c, m in make_reader(f).iter_messages(log_time_order=False)]
+    with open_recording(forged_run) as (_, summary):
+        got = [(c.id, m) for _, c, m in file_order(forged_run, summary)]
+    assert len(summary.chunk_indexes) > 10
+    assert got == want
+
+
+def test_a_record_past_its_chunk_is_refused() -> None:
+    with pytest.raises(ChunkError, match="a record of 99 bytes at byte 0 of 12"):
+        list(chunk_messages(bytes([5]) + (99).to_bytes(8, "little") + b"abc"))
+
+
+def test_delivery_keeps_the_last_record_of_a_link_and_epoch() -> None:
+    links = np.array([[1, 2], [2, 1], [0, 1]])
+    rows = [  # epoch, source, target, verdict: (1, 2) at 0 passes, then a later drop
+        (0, 1, 2, "pass"),
+        (0, 2, 1, "drop"),
+        (0, 1, 2, "drop"),
+        (1, 1, 2, "pass"),
+        (1, 3, 1, "pass"),  # no such link
+        (5, 2, 1, "pass"),  # past the count
+        (1, 2, 1, "pass"),
+    ]
+    columns: dict[str, list[Any]] = {
+        "epoch": [r[0] for r in rows],
+        "phase": ["state"] * len(rows),
+        "link_class": ["formation"] * len(rows),
+        "source": [r[1] for r in rows],
+        "target": [r[2] for r in rows],
+        "seq": [0] * len(rows),
+        "verdict": [r[3] for r in rows],
+        "delay_epochs": [0] * len(rows),
+        "delay_ms": [0.0] * len(rows),
+        "model": [""] * len(rows),
+        "state": [""] * len(rows),
+        "queue": [None] * len(rows),
+        "queue_depth": [None] * len(rows),
+        "sojourn_ms": [None] * len(rows),
+    }
+    delivered, decided = Decisions.of_columns(columns).delivery(links, 2)
+    assert delivered.tolist() == [[False, False, False], [True, True, False]]
+    assert decided.tolist() == [[True, True, False], [True, True, False]]
+
+
+def test_the_recorder_s_own_bulk_messages_take_the_plain_path(
+    sim_results: dict[str, Any], synth: Any
+) -> None:
+    gate = Gate(sim_results["hold"].scenario, plain_bulk=True)
+    for key, data, _, _ in synth.traffic(sim_results["hold"])[:200]:
+        kind = {keys.netem_decision(RUN): "decision"}.get(key, "agent_state")
+        if "estimate" not in key:
+            assert isinstance(gate.check(key, data, kind), msgspec.Struct), key
