@@ -408,7 +408,7 @@ def plot_nees(runs: Sequence[Drawn], values: Sequence[Array], d: int, path: Path
     ax_hist.set_title(f"NEES of each agent's position estimate (d = {d} coordinates)")
     ax_mean.set_xlabel("sample (agent and epoch)")
     ax_mean.set_ylabel("running mean of NEES")
-    ax_mean.set_title("running mean against the 95 % band of an honest estimator")
+    ax_mean.set_title("running mean, and an honest estimator's 95 % band")
     for ax in (ax_hist, ax_mean):
         ax.grid(True, alpha=0.3)
         ax.legend(loc="best", fontsize="x-small")
