@@ -242,9 +242,17 @@ class RmwZenohNode:
 
     def _token(self, kind: str, topic: str, type_name: str, qos: Qos) -> str:
         key = endpoint_token(
-            self.domain, self.zid, self.node_id, next(self._ids), kind, self.namespace,
-            self.name, topic, type_name, qos,
-        )  # fmt: skip
+            self.domain,
+            self.zid,
+            self.node_id,
+            next(self._ids),
+            kind,
+            self.namespace,
+            self.name,
+            topic,
+            type_name,
+            qos,
+        )
         self._tokens.append(self.session.liveliness().declare_token(key))
         return key
 

@@ -261,8 +261,14 @@ def robot_entity(i: int, epoch: int, point: Sequence[float], stamp_ns: int) -> S
     sphere labelled ``robot <i>``, drawn beside its agent's state."""
     size = Vector3(x=ROBOT_SIZE_M, y=ROBOT_SIZE_M, z=ROBOT_SIZE_M)
     where = _pose(np.asarray(point, dtype=float))
-    label = TextPrimitive(pose=where, billboard=True, font_size=12.0, scale_invariant=True,
-                          color=_color(ROBOT), text=f"robot {i}")  # fmt: skip
+    label = TextPrimitive(
+        pose=where,
+        billboard=True,
+        font_size=12.0,
+        scale_invariant=True,
+        color=_color(ROBOT),
+        text=f"robot {i}",
+    )
     robot = entity(
         f"robot {i}",
         stamp_ns,

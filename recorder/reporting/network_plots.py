@@ -126,9 +126,13 @@ def plot_topology(
             at = ~known & (rigid[: len(k)] == value)
             if at.any():
                 ax_rank.scatter(
-                    k[at], np.full(at.sum(), expected_rank), marker=marker, s=12, color=colour,
+                    k[at],
+                    np.full(at.sum(), expected_rank),
+                    marker=marker,
+                    s=12,
+                    color=colour,
                     label=f"{label}: {what}, rank not computed",
-                )  # fmt: skip
+                )
         ax_comp.step(k[comps >= 0], comps[comps >= 0], where="post", color=colour, label=label)
     ax_rank.axhline(
         expected_rank, color=LOSS_COLOUR, ls="--", lw=1, label=f"rigid: rank {expected_rank}"

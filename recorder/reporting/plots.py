@@ -224,9 +224,14 @@ def plot_trajectories(
             shade = GREY if not final else run.look.colour
             _shape(ax, x[k], edges, shade, "-" if final else ":", f"k = {k}", 1.6 if final else 0.9)
             ax.scatter(
-                x[k, :, 0], x[k, :, 1], c=colours, s=30 if final else 12, zorder=4 + order,
-                edgecolors=BLACK, linewidths=0.4,
-            )  # fmt: skip
+                x[k, :, 0],
+                x[k, :, 1],
+                c=colours,
+                s=30 if final else 12,
+                zorder=4 + order,
+                edgecolors=BLACK,
+                linewidths=0.4,
+            )
         if last is not None:
             target = x[last, leader - 1] + (offsets - offsets[leader - 1])
             _shape(ax, target, edges, BLACK, "--", f"target at k = {last}", 0.8)
@@ -237,9 +242,17 @@ def plot_trajectories(
                 ax.plot(*seg.mean(axis=0), marker="X", color=BLACK, mec="white", ms=11, zorder=9)
             if len(down):
                 ax.plot(
-                    [], [], color=GREY, lw=3, ls=(0, (1, 1.5)), marker="X", mfc=BLACK, mec="white",
-                    ms=10, label="link down",
-                )  # fmt: skip
+                    [],
+                    [],
+                    color=GREY,
+                    lw=3,
+                    ls=(0, (1, 1.5)),
+                    marker="X",
+                    mfc=BLACK,
+                    mec="white",
+                    ms=10,
+                    label="link down",
+                )
         title = run.label + (f"\n({run.note})" if run.note else "")
         ax.set_title(title, fontsize="medium", color=run.look.colour)
         ax.set_xlabel("x [m]")
@@ -342,24 +355,37 @@ def plot_covariance(
             none.append(run.label)
             continue
         ax_sub.scatter(
-            err[:, 0], err[:, 1], s=10, alpha=0.5, color=run.look.colour, marker=run.look.marker,
+            err[:, 0],
+            err[:, 1],
+            s=10,
+            alpha=0.5,
+            color=run.look.colour,
+            marker=run.look.marker,
             label=f"{run.legend} (tr Σ = {_trace(err):.3g} m²)",
-        )  # fmt: skip
+        )
         _ellipse(ax_sub, err, run.look.colour)
     if none:
         ax_sub.text(
-            0.02, 0.02, "no substitution: " + ", ".join(none), transform=ax_sub.transAxes,
-            fontsize="x-small", va="bottom",
-        )  # fmt: skip
+            0.02,
+            0.02,
+            "no substitution: " + ", ".join(none),
+            transform=ax_sub.transAxes,
+            fontsize="x-small",
+            va="bottom",
+        )
     for group in groups([(e,) for e in estimation], SAME_ESTIMATE):
         err, first = estimation[group[0]], runs[group[0]]
         if err.shape[0] == 0:
             continue
         colour = BLACK if len(group) > 1 else first.look.colour
         ax_est.scatter(
-            err[:, 0], err[:, 1], s=8, alpha=0.5, color=colour,
+            err[:, 0],
+            err[:, 1],
+            s=8,
+            alpha=0.5,
+            color=colour,
             label=f"{group_label(runs, group, SAME_ESTIMATE)}: tr Σ = {_trace(err):.3g} m²",
-        )  # fmt: skip
+        )
         _ellipse(ax_est, err, colour)
     ax_sub.set_title("substitution error x̃_j − x_j (lost packets), 2σ ellipses")
     ax_est.set_title("estimation error x̂ − x (leader's BLUE)")
@@ -428,9 +454,14 @@ def plot_queue_depths(runs: Sequence[tuple[Drawn, dict[str, Any]]], path: Path) 
             series = q["max_depth_by_epoch"]
             epochs = np.array([int(k) for k in series], dtype=float)
             ax.step(
-                epochs, list(series.values()), where="post", label=f"{run.label}: {name}", lw=1,
-                color=run.look.colour, ls=styles[q_index % len(styles)],
-            )  # fmt: skip
+                epochs,
+                list(series.values()),
+                where="post",
+                label=f"{run.label}: {name}",
+                lw=1,
+                color=run.look.colour,
+                ls=styles[q_index % len(styles)],
+            )
     ax.set_xlabel("epoch")
     ax.set_ylabel("depth [packets]")
     ax.grid(True, alpha=0.3)

@@ -39,9 +39,16 @@ def _curve(ax: Axes, index: int, count: int, name: str, y: Array, label: str | N
     step = max(len(y) // MARKS, count, 1)
     style: dict[str, Any] = look(name).kwargs()
     ax.plot(
-        np.arange(len(y)), y, **style, markevery=(index % step, step), markersize=5, lw=1.4,
-        markerfacecolor="none" if index % 2 else style["color"], zorder=2 + index, label=label,
-    )  # fmt: skip
+        np.arange(len(y)),
+        y,
+        **style,
+        markevery=(index % step, step),
+        markersize=5,
+        lw=1.4,
+        markerfacecolor="none" if index % 2 else style["color"],
+        zorder=2 + index,
+        label=label,
+    )
 
 
 def plot_agent_positions(
