@@ -4,39 +4,92 @@ Between the vocabulary (:mod:`formation`, no Zenoh) and the services. A service 
 a :class:`Bus`: :class:`ZenohBus` in the product, :class:`MemoryBus` in unit tests; its
 node runs one loop under a :class:`TimePolicy`, :class:`Lockstep` or :class:`Realtime`, and
 takes its inputs from the policy's :class:`PhaseInbox`.
+
+The names below load on first use (PEP 562): a command whose ``--help`` needs only the Zenoh
+flags (``add_arguments``) does not load Zenoh.
 """
 
-from shell.bus import (
-    Bus,
-    MemoryBus,
-    Publisher,
-    Query,
-    Sample,
-    ZenohBus,
-)
-from shell.config_files import check_readable
-from shell.inbox import PhaseInbox
-from shell.loop import Loop
-from shell.service import Incoming, Service, settle_heap
-from shell.serving import (
-    load_scenario,
-    open_service,
-    scenario_or_report,
-    serve,
-    service_parser,
-    stop_on_signals,
-)
-from shell.stack_dump import DUMP_SIGNAL, dump_stacks_on_signal
-from shell.timing import Lockstep, Realtime, TimePolicy, time_policy
-from shell.zenoh_config import (
-    MEMBER_ENV,
-    MEMBERS_ENV,
-    MEMBERS_FILE_ENV,
-    add_arguments,
-    endpoints,
-    open_session,
-    session_config,
-)
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from shell.bus import (
+        Bus,
+        MemoryBus,
+        Publisher,
+        Query,
+        Sample,
+        ZenohBus,
+    )
+    from shell.config_files import check_readable
+    from shell.inbox import PhaseInbox
+    from shell.loop import Loop
+    from shell.service import Incoming, Service, settle_heap
+    from shell.serving import (
+        load_scenario,
+        open_service,
+        scenario_or_report,
+        serve,
+        service_parser,
+        stop_on_signals,
+    )
+    from shell.stack_dump import DUMP_SIGNAL, dump_stacks_on_signal
+    from shell.timing import Lockstep, Realtime, TimePolicy, time_policy
+    from shell.zenoh_config import (
+        MEMBER_ENV,
+        MEMBERS_ENV,
+        MEMBERS_FILE_ENV,
+        add_arguments,
+        endpoints,
+        open_session,
+        session_config,
+    )
+
+_HOMES = {
+    "MEMBER_ENV": "shell.zenoh_config",
+    "MEMBERS_ENV": "shell.zenoh_config",
+    "MEMBERS_FILE_ENV": "shell.zenoh_config",
+    "add_arguments": "shell.zenoh_config",
+    "endpoints": "shell.zenoh_config",
+    "open_session": "shell.zenoh_config",
+    "session_config": "shell.zenoh_config",
+    "Bus": "shell.bus",
+    "DUMP_SIGNAL": "shell.stack_dump",
+    "Incoming": "shell.service",
+    "Lockstep": "shell.timing",
+    "Loop": "shell.loop",
+    "MemoryBus": "shell.bus",
+    "PhaseInbox": "shell.inbox",
+    "Publisher": "shell.bus",
+    "Query": "shell.bus",
+    "Realtime": "shell.timing",
+    "Sample": "shell.bus",
+    "Service": "shell.service",
+    "TimePolicy": "shell.timing",
+    "ZenohBus": "shell.bus",
+    "check_readable": "shell.config_files",
+    "dump_stacks_on_signal": "shell.stack_dump",
+    "load_scenario": "shell.serving",
+    "open_service": "shell.serving",
+    "scenario_or_report": "shell.serving",
+    "serve": "shell.serving",
+    "service_parser": "shell.serving",
+    "settle_heap": "shell.service",
+    "stop_on_signals": "shell.serving",
+    "time_policy": "shell.timing",
+}
+
+
+def __getattr__(name: str) -> Any:
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module 'shell' has no attribute {name!r}")
+    value = getattr(importlib.import_module(home), name)
+    globals()[name] = value  # once: later lookups skip this function
+    return value
+
 
 __all__ = [
     "DUMP_SIGNAL",

@@ -11,10 +11,12 @@ import json
 import os
 import pwd
 import stat
-
-import zenoh
+from typing import TYPE_CHECKING
 
 from formation.errors import UnreadableFile
+
+if TYPE_CHECKING:
+    import zenoh
 
 FILE_KEYS = (  # config keys whose value is a path Zenoh opens (zenoh 1.x)
     "transport/auth/usrpwd/dictionary_file",

@@ -8,12 +8,13 @@ import os
 import time
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
-from typing import Any
-
-import zenoh
+from typing import TYPE_CHECKING, Any
 
 from formation.errors import RuntimeFailure
 from shell.config_files import check_config, check_readable
+
+if TYPE_CHECKING:  # loaded on first use, so a command's --help with these flags stays light
+    import zenoh
 
 LEASE_MS = 5000  # a hung process is noticed within ~5 s instead of zenoh's 10 s
 # With CongestionControl.BLOCK, zenoh closes a link whose reader stalls this long (default 5 s),
@@ -110,6 +111,8 @@ def session_config(
     Raises :class:`~formation.errors.UnreadableFile` if this process cannot read the file
     or a file the config names (a certificate, the router's passwords).
     """
+    import zenoh
+
     path = os.environ.get("ZENOH_CONFIG")
     conf = _from_file(path) if path else zenoh.Config()
     conf.insert_json5("mode", json.dumps(mode or os.environ.get("ZENOH_MODE", "peer")))
@@ -146,6 +149,8 @@ def session_config(
 
 
 def _from_file(path: str) -> zenoh.Config:
+    import zenoh
+
     check_readable(path, "ZENOH_CONFIG")
     try:
         return zenoh.Config.from_file(path)
@@ -207,6 +212,8 @@ def open_with_retry(
     again, so services need not start in order. Raises :class:`RuntimeFailure` naming
     ``where`` and the time waited; ``retry=False`` (peers, routers) tries once.
     """
+    import zenoh
+
     deadline = clock() + timeout_s
     pause = RETRY_FIRST_S
     attempts = 0

@@ -7,15 +7,20 @@ import json
 import logging
 import sys
 import threading
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from body import exit_process, require_ros2
-from formation.scenario import Scenario
-from shell import Service, ZenohBus, add_arguments, open_session, serve, stop_on_signals
-from testbed.plant import Plant
+from shell import add_arguments
+
+if TYPE_CHECKING:
+    from formation.scenario import Scenario
 
 
 def cmd_plant(args: argparse.Namespace) -> int:
+    # loaded here, not at import: `formation ros2-plant --help` loads no numerics nor Zenoh
+    from body import exit_process, require_ros2
+    from formation.scenario import Scenario
+    from shell import Service, ZenohBus, open_session, serve, stop_on_signals
+
     scenario = Scenario.from_file(args.scenario)
     if args.epochs is not None:
         scenario = scenario.with_overrides(epochs=args.epochs)
@@ -52,6 +57,8 @@ def run_plant(
     scenario: Scenario, args: argparse.Namespace, stopping: threading.Event, session: Any
 ) -> int:
     """The plant until ``stopping``; its counts printed as it stops."""
+    from testbed.plant import Plant
+
     plant = Plant(scenario, args.clock, args.rate_hz, args.seed, session=session)
     print(json.dumps({"ready": True, "robots": plant.robots.ids, "clock": args.clock}), flush=True)
     try:

@@ -1,7 +1,7 @@
 """``formation replay``: a recording published back onto Zenoh with its timing (or to Foxglove).
 
-Its own module: its Zenoh flags come from the shell, which loads Zenoh, so the recorder's
-commands on files (:mod:`testbed.cli.recorder`) keep a light ``--help``.
+Its flags include the shell's Zenoh flags (:func:`shell.add_arguments`), which
+load no Zenoh until a session opens, so its ``--help`` stays light.
 """
 
 from __future__ import annotations
