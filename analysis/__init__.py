@@ -8,8 +8,7 @@ scenario; no network, no files. The recorder decodes a recording into a :class:`
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from analysis.membership import (
     edge_mask,
@@ -31,17 +30,14 @@ from analysis.queues import loss_split
 from analysis.record import Decisions, Recorded, RunData, Substitutions
 from analysis.safety import safety_counts, safety_lines
 from analysis.summary import final_value, robot_counts_line, run_team_errors, summarise
+from formation.first_use import load_on_first_use
 
 if TYPE_CHECKING:
     from analysis.tables import Frames, frames
 
 _LAZY = {"Frames": "analysis.tables", "frames": "analysis.tables"}  # pandas loads on first use
 
-
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'analysis' has no attribute {name!r}")
+__getattr__ = load_on_first_use(__name__, _LAZY)
 
 
 __all__ = [

@@ -6,8 +6,9 @@ or ``formation.keys`` (a command's ``--help``) does not import numpy and the sce
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from formation.first_use import load_on_first_use
 
 if TYPE_CHECKING:
     from formation.deadlines import deadline_counts, realtime_accounting
@@ -29,14 +30,7 @@ _HOMES = {
     "realtime_accounting": "formation.deadlines",
 }
 
-
-def __getattr__(name: str) -> Any:
-    home = _HOMES.get(name)
-    if home is None:
-        raise AttributeError(f"module 'formation' has no attribute {name!r}")
-    value = getattr(importlib.import_module(home), name)
-    globals()[name] = value  # once: later lookups skip this function
-    return value
+__getattr__ = load_on_first_use(__name__, _HOMES)
 
 
 __all__ = [

@@ -9,9 +9,9 @@ recording as pandas DataFrames) import pandas, so they load on first use.
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
+from formation.first_use import load_on_first_use
 from recorder.node import build_parser as recorder_parser
 from recorder.node import main
 from recorder.playback.player import replay
@@ -41,11 +41,7 @@ _LAZY = {
     "export": "recorder.reading.dataframes",
 }
 
-
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module 'recorder' has no attribute {name!r}")
+__getattr__ = load_on_first_use(__name__, _LAZY)
 
 
 __all__ = [

@@ -11,8 +11,9 @@ flags (``add_arguments``) does not load Zenoh.
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from formation.first_use import load_on_first_use
 
 if TYPE_CHECKING:
     from shell.bus import (
@@ -81,14 +82,7 @@ _HOMES = {
     "time_policy": "shell.timing",
 }
 
-
-def __getattr__(name: str) -> Any:
-    home = _HOMES.get(name)
-    if home is None:
-        raise AttributeError(f"module 'shell' has no attribute {name!r}")
-    value = getattr(importlib.import_module(home), name)
-    globals()[name] = value  # once: later lookups skip this function
-    return value
+__getattr__ = load_on_first_use(__name__, _HOMES)
 
 
 __all__ = [

@@ -14,8 +14,9 @@ Zenoh, the Foxglove SDK nor mcap; :func:`launch` (real processes) and the record
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from formation.first_use import load_on_first_use
 
 if TYPE_CHECKING:
     from analysis import Frames, RunData, frames, summarise
@@ -33,41 +34,35 @@ if TYPE_CHECKING:
     from testbed.sim.simulate import simulate
     from testbed.sim.team_generators import henneberg_team, rigid_team
 
-# name → (module, attribute): each loads on first use.
-_API: dict[str, tuple[str, str]] = {
-    "BatchPlan": ("testbed.sim.plan", "BatchPlan"),
-    "BatchResult": ("testbed.sim.batch", "BatchResult"),
-    "Frames": ("analysis", "Frames"),
-    "LocalRun": ("testbed.runtime.launcher", "LocalRun"),
-    "RunData": ("analysis", "RunData"),
-    "RunHooks": ("testbed.runtime.launcher", "RunHooks"),
-    "RunOutcome": ("testbed.runtime.outcome", "RunOutcome"),
-    "Scenario": ("formation.scenario", "Scenario"),
-    "SimResult": ("testbed.sim.result", "SimResult"),
-    "SweepSpec": ("testbed.experiments.sweep_spec", "SweepSpec"),
-    "TestbedError": ("formation.errors", "TestbedError"),
-    "frames": ("analysis", "frames"),
-    "henneberg_team": ("testbed.sim.team_generators", "henneberg_team"),
-    "launch": ("testbed.runtime.launcher", "launch"),
-    "load_run": ("recorder", "load_run"),
-    "load_scenario": ("formation.scenario", "load"),
-    "plan_batch": ("testbed.sim.plan", "plan_batch"),
-    "read_run": ("recorder", "read_run"),
-    "rigid_team": ("testbed.sim.team_generators", "rigid_team"),
-    "run_batch": ("testbed.sim.batch", "run_batch"),
-    "run_sweep": ("testbed.experiments.sweep", "run_sweep"),
-    "simulate": ("testbed.sim.simulate", "simulate"),
-    "summarise": ("analysis", "summarise"),
+# name → its module ("module:attribute" where it is spelt otherwise): each loads on first use.
+_API: dict[str, str] = {
+    "BatchPlan": "testbed.sim.plan",
+    "BatchResult": "testbed.sim.batch",
+    "Frames": "analysis",
+    "LocalRun": "testbed.runtime.launcher",
+    "RunData": "analysis",
+    "RunHooks": "testbed.runtime.launcher",
+    "RunOutcome": "testbed.runtime.outcome",
+    "Scenario": "formation.scenario",
+    "SimResult": "testbed.sim.result",
+    "SweepSpec": "testbed.experiments.sweep_spec",
+    "TestbedError": "formation.errors",
+    "frames": "analysis",
+    "henneberg_team": "testbed.sim.team_generators",
+    "launch": "testbed.runtime.launcher",
+    "load_run": "recorder",
+    "load_scenario": "formation.scenario:load",
+    "plan_batch": "testbed.sim.plan",
+    "read_run": "recorder",
+    "rigid_team": "testbed.sim.team_generators",
+    "run_batch": "testbed.sim.batch",
+    "run_sweep": "testbed.experiments.sweep",
+    "simulate": "testbed.sim.simulate",
+    "summarise": "analysis",
 }
 
 
-def __getattr__(name: str) -> Any:
-    if name in _API:
-        module, attribute = _API[name]
-        value = getattr(importlib.import_module(module), attribute)
-        globals()[name] = value  # the next look-up is a plain attribute
-        return value
-    raise AttributeError(f"module 'testbed' has no attribute {name!r}")
+__getattr__ = load_on_first_use(__name__, _API)
 
 
 def __dir__() -> list[str]:
