@@ -68,14 +68,16 @@ def main(argv: list[str] | None = None) -> int:
             scenario.seed if args.seed is None else args.seed,
             bodies,
         )
-        # Restarted into a running run, or joining it later (a scenario event): ask netem.
+        # Restarted into a running run, or joining it later (a scenario event): ask netem
+        # (in lockstep from the epochs it closed, in realtime from the run's clock).
         joins = not scenario.membership.present[0, [i - 1 for i in ids]].all()
-        restarted = scenario.runtime.mode == "lockstep" and (joins or service.run_started())
+        restarted = joins or service.run_started()
         timing = time_policy(scenario, watch_s=WATCH_S)
         if not restarted:  # a restart's bodies are placed where netem last saw them
             node.place_bodies(timing.realtime)
         node.announce()
-        if restarted:
+        # realtime: a joiner starts with the others and asks once the run has begun
+        if restarted and (not timing.realtime or service.wait_started()):
             node.rejoin()
         try:
             code = node.run(timing)

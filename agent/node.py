@@ -9,6 +9,7 @@ no time)."""
 from __future__ import annotations
 
 import copy
+import json
 import logging
 import threading
 import time
@@ -263,7 +264,8 @@ class AgentNode:
         phase for all its agents at once."""
         realtime = timing.realtime  # a robot's body moves by the mode (_move_bodies)
         self._timing = timing
-        timing.sleep_until(-1, ESTIMATE_DEADLINE)  # realtime: x[0] when later states go out
+        # realtime: x[k] (x[0], or a join's or restart's first) when later states go out
+        timing.sleep_until(self.runner.epoch - 1, ESTIMATE_DEADLINE)
         self._publish_states()
         while self.runner.epoch < self.end:
             k = self.runner.epoch
@@ -290,6 +292,8 @@ class AgentNode:
             # as well as the next one's first 0.2 to arrive. In realtime it does not depend on
             # the robots' poses, so a wait for a robot's pose never makes it late.
             if realtime:
+                if self.runner.epoch == self.end and self.crashes:
+                    self._part_counts()  # before x[c]: once it is seen, this process is killed
                 self._publish_states()
             if before is not None:
                 try:
@@ -303,6 +307,13 @@ class AgentNode:
         if realtime and self.bodies is not None and self.body_lost is None:
             self._record_last_poses()
         self.finished.set()
+
+    def _part_counts(self) -> None:
+        """Realtime, a crash event at the next epoch: this part's deadline counts as a final
+        status, complete (nothing is sent to an agent at its crash's epoch), for the run's
+        books; a restart is another part, with its own (testbed.runtime.observer)."""
+        counts = self.deadline | ({} if self.bodies is None else self.bodies.status_counts())
+        self.service.status("done", self.end, json.dumps(counts))
 
     def _record_last_poses(self) -> None:
         """Realtime: the robots' poses at the run's end, into the recording as their measured
@@ -373,12 +384,12 @@ class AgentNode:
         if not timing.join(self.service, self.rehearse):
             return 1
         self.cpu_at_start_s = time.process_time()  # the run's CPU, from its start (agent.__main__)
-        self.end = self.scenario.epochs if timing.realtime else self.last_epoch
+        self.end = self.last_epoch  # the run's end, or its part's by the scenario's events
         loop = self._epochs(timing, self.inbox)
-        code = timing.drive(self.service, loop, self.inbox.route, self.scenario.epochs)
+        code = timing.drive(self.service, loop, self.inbox.route, self.end)
         if self.body_lost is not None:
             return BODY_LOST_EXIT
-        if code == 0 and not timing.realtime and self.crashes:
+        if code == 0 and self.crashes:
             # a crash event: no goodbye, no final status
             log.warning("crash at epoch %d (a scenario event): taking no further part", self.end)
             self.service.stopping.wait()

@@ -34,6 +34,7 @@ from shell import Incoming, Query, Sample, Service, TimePolicy, settle_heap
 
 log = logging.getLogger("netem")
 LOCKSTEP_WAKE_S = 0.2  # lockstep: the loop's longest sleep; clean epochs' records wait at most this
+REJOIN_AHEAD = 2  # realtime: epochs between the one under way and an unscheduled restart's first
 FINAL_WAIT_S = 0.5  # how long a last-messages query waits for what may still be on its way
 
 
@@ -119,7 +120,7 @@ class NetemNode:
             if (
                 not self.lockstep.is_down(i)
                 and i not in self.final_states
-                and i not in self.lockstep.away  # out by the scenario's events: expected
+                and not self._away(i)  # out by the scenario's events: expected
                 and self.service.gone_for("agent", i, grace_s)
             ):
                 with self.lock:
@@ -132,6 +133,16 @@ class NetemNode:
         ):
             with self.lock:
                 self.on_dead(LEADER_ENDPOINT)
+
+    def _away(self, agent: int) -> bool:
+        """Whether ``agent`` is out of the team by the scenario's events now: in lockstep by
+        the epochs netem closed, in realtime by the clock."""
+        clock = self.realtime.clock
+        if self.scenario.runtime.mode != "realtime" or clock is None:
+            return agent in self.lockstep.away
+        return not self.realtime.takes_part(
+            agent, (time.time_ns() - clock.t0_ns) // clock.period_ns
+        )
 
     def on_dead(self, sender: int) -> None:
         """``sender`` is down: no longer waited for (call under :attr:`lock`)."""
@@ -261,6 +272,14 @@ class NetemNode:
             self.service.malformed.counts[str(query.key_expr)] += 1
             query.reply_err(b'expected {"agents": [ids]} or {"leader": true}')
             return
+        if self.scenario.runtime.mode == "realtime":
+            if leader:  # the leader is not restarted in realtime
+                query.reply_err(b"realtime: the leader cannot rejoin a running run")
+            elif not self._clock_set():
+                query.reply(query.key_expr, orjson.dumps({"wait": True}))  # it asks again
+            else:
+                query.reply(query.key_expr, orjson.dumps(self._realtime_rejoin(ids)))
+            return
         if not self._planned_ready(ids):
             query.reply(query.key_expr, orjson.dumps({"wait": True}))  # it asks again
             return
@@ -282,6 +301,37 @@ class NetemNode:
             if names:
                 self.team_changed(f"back {', '.join(names)}")
         query.reply(query.key_expr, orjson.dumps(answer))
+
+    def _clock_set(self, wait_s: float = 2.0) -> bool:
+        """Realtime: whether the run's clock is set (the run began), waiting up to ``wait_s``."""
+        end = time.monotonic() + wait_s
+        while self.realtime.clock is None and time.monotonic() < end:
+            time.sleep(0.05)
+        return self.realtime.clock is not None
+
+    def _realtime_rejoin(self, ids: list[int]) -> dict[str, Any]:
+        """Realtime: the epoch each agent takes part from, by the run's clock, and the last
+        state netem forwarded from it. A scheduled join or restart starts at its epoch; any
+        other restart :data:`REJOIN_AHEAD` epochs after the one under way (its state for that
+        one would be late); an agent whose part is over, at the end."""
+        clock = self.realtime.clock
+        assert clock is not None  # set when the run began, before any process could restart
+        now = (time.time_ns() - clock.t0_ns) // clock.period_ns
+        team = self.scenario.membership
+        answer: dict[str, Any] = {"agents": {}}
+        for i in ids:
+            k = max(now, 0)  # before the clock's first epoch: as at it
+            if k <= self.epochs and team.present[k, i - 1]:
+                epoch = k if now < 0 else now + REJOIN_AHEAD
+            else:
+                ahead = [first for first, _ in team.incarnations(i) if first > k]
+                epoch = ahead[0] if ahead else self.epochs
+            last = self.realtime.last_state.get(i)
+            answer["agents"][str(i)] = {
+                "from_epoch": min(epoch, self.epochs),
+                "state": _state_of(last),
+            }
+        return answer
 
     def _planned_ready(self, ids: list[int], wait_s: float = 2.0) -> bool:
         """Whether agents with a scheduled join or restart at ``r`` may start now: their last

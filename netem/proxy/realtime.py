@@ -118,6 +118,7 @@ class RealtimeForwarder:
         self._tokens = itertools.count()  # names each packet in the queues and the heap
         self._held: dict[int, _Held] = {}  # packets a queue holds, by token
         self._pushed: set[int] = set()  # held packets pushed out, still in the heap
+        self.last_state: dict[int, tuple[int, Any]] = {}  # agent → (epoch, payload) last handled
 
     def forward(
         self,
@@ -273,13 +274,15 @@ class RealtimeForwarder:
         progress = self.progress
         if kind == "state":
             progress.epoch_seen = max(progress.epoch_seen, epoch)
+            self.last_state[source] = (epoch, msg.payload)  # where a restart takes its body from
             if epoch >= progress.epochs:
                 progress.final_state(source)
                 return
             text = message_json(msg.payload)
             size = _size(msg.payload)
             for dst in self.links.out_links[source]:
-                self.forward("formation", source, dst, msg, epoch, seq, text, due, size)
+                if self.takes_part(dst, epoch):
+                    self.forward("formation", source, dst, msg, epoch, seq, text, due, size)
         elif kind == "report":
             text = message_json(msg.payload)
             size = _size(msg.payload)
@@ -287,8 +290,21 @@ class RealtimeForwarder:
         else:
             text = message_json(msg.payload)
             size = _size(msg.payload)
-            self.forward("estimate", LEADER_ENDPOINT, route[2], msg, epoch, seq, text, due, size)
+            if self.takes_part(route[2], epoch):
+                self.forward(
+                    "estimate", LEADER_ENDPOINT, route[2], msg, epoch, seq, text, due, size
+                )
             progress.estimate_handled(epoch)
+
+    def takes_part(self, agent: int, epoch: int) -> bool:
+        """Whether ``agent`` is in the team at ``epoch`` by the scenario's events: nothing is
+        sent to an agent before it joins, after it leaves or while it is down by a crash."""
+        team = self.links.team
+        return (
+            team is None
+            or not 0 <= epoch < len(team.present)
+            or bool(team.present[epoch, agent - 1])
+        )
 
     def prepare(self, epoch: int) -> None:
         """The decision blocks of epoch ``epoch + PREPARE_AHEAD``, for one link in

@@ -8,9 +8,13 @@ waits). The launcher's part is the processes themselves:
 * a crash: once the agent's ``x[c]`` is seen (netem keeps it as the body's state), its process
   is killed by PID with SIGKILL, no goodbye; the supervisor does not count it as a loss;
 * a join or a restart at ``r``: a new process is started a little before the run reaches ``r``
-  (``lead_s`` at the current rate); it asks netem's ``netem/rejoin``, which answers once the
-  run is at ``r − 1`` with ``r`` and, for a restart, the body's state; netem waits for its
-  ``x[r]`` as for anyone's, so a late start costs time, never a different run.
+  (``lead_s`` at the current rate: in realtime the clock's, and a first join's with the
+  others, at the start); it asks netem's ``netem/rejoin``.
+  In lockstep netem answers once the run is at ``r − 1`` with ``r`` and, for a restart, the
+  body's state; netem waits for its ``x[r]`` as for anyone's, so a late start costs time,
+  never a different run. In realtime netem answers at once, from the clock: ``r`` if it is
+  still ahead, else two epochs after the one under way (a start that took longer than the
+  lead is late, as a real process would be), with the last state it forwarded.
 """
 
 from __future__ import annotations
@@ -50,11 +54,17 @@ class EventDriver:
         lead_s: float = LEAD_S,
     ) -> None:
         self.team, self.epochs = scenario.membership, scenario.epochs
+        runtime = scenario.runtime  # realtime: the rate is the clock's, not a measurement
+        self.period_s = (
+            (runtime.realtime_period_s or scenario.control.period_s)
+            if runtime.mode == "realtime"
+            else None
+        )
         self.supervisor, self.agent_args, self.lead_s = supervisor, agent_args, lead_s
         self.steps: list[Step] = []
         for i in range(1, scenario.n + 1):
-            for first, last in self.team.incarnations(i):
-                if first > 0:
+            for part, (first, last) in enumerate(self.team.incarnations(i)):
+                if first > 0 and (part > 0 or self.period_s is None):
                     self.steps.append(Step(first, "start", i))
                 if last < self.epochs and self.team.crashed[last, i - 1]:
                     self.steps.append(Step(last, "kill", i))
@@ -71,13 +81,16 @@ class EventDriver:
             )
 
     def starts_later(self, agent: int) -> bool:
-        """Whether ``agent`` is absent at epoch 0 (it joins later: started by :meth:`step`)."""
-        return not bool(self.team.present[0, agent - 1])
+        """Whether ``agent``'s process starts later, by :meth:`step`: in lockstep one absent
+        at epoch 0 (it joins later); in realtime none, as a start takes seconds that the
+        clock does not wait for: it waits for its epoch in the run."""
+        return self.period_s is None and not bool(self.team.present[0, agent - 1])
 
     def step(self, count: int, seen: Callable[[int, int], bool]) -> None:
         """Do what is due: ``count`` epochs are estimated so far; ``seen(i, k)``: ``x_i[k]`` came."""
         elapsed = max(time.monotonic() - self.began, 1e-3)
-        ahead = count + self.lead_s * count / elapsed  # the epoch the run reaches in lead_s
+        rate = count / elapsed if self.period_s is None else 1.0 / self.period_s
+        ahead = count + self.lead_s * rate  # the epoch the run reaches in lead_s
         for s in self.steps:
             if s.done:
                 continue

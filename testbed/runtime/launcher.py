@@ -345,7 +345,8 @@ class LocalRun:
             malformed: Counter[str] = Counter(observer.malformed.counts)
             sent: Counter[str] = Counter()
             delivered: Counter[str] = Counter()
-            for st in observer.statuses.values():
+            finals = [*observer.parts, *observer.statuses.values()]
+            for st in finals:
                 malformed.update(st.malformed)
                 sent.update(st.sent)
                 delivered.update(st.delivered)
@@ -368,7 +369,7 @@ class LocalRun:
                 pids=self.group.pids,
                 wall_s=time.monotonic() - self._started_at,
                 supervision=Supervision(
-                    deadline=deadline_counts(observer.statuses.values()),
+                    deadline=deadline_counts(finals),
                     losses=[loss.as_json() for loss in self.supervisor.losses],
                     fallbacks=observer.fallbacks,
                     fallback_epochs=dict(sorted(observer.fallback_epochs.items())),

@@ -48,7 +48,8 @@ class Observer:
         self.substitutions: list[
             tuple[int, int, int, list[float]]
         ] = []  # (epoch, agent, neighbour, x̃)
-        self.statuses: dict[str, Status] = {}
+        self.statuses: dict[str, Status] = {}  # each process's last
+        self.parts: list[Status] = []  # the last statuses of the parts before a restart
         self.alive: set[str] = set()
         self.malformed = Malformed()
         self.drops = 0
@@ -139,6 +140,13 @@ class Observer:
             self.malformed.counts[str(sample.key_expr)] += 1  # another process's status
         elif msg is not None:
             with self.lock:
+                last = self.statuses.get(msg.sender)
+                if (
+                    last is not None
+                    and last.state == "done"
+                    and (msg.state != "done" or msg.epochs_done > last.epochs_done)
+                ):
+                    self.parts.append(last)  # a part a crash event ended; this is the next
                 self.statuses[msg.sender] = msg
                 if msg.role == "netem" and msg.state == "running":
                     self.team_events.append((time.monotonic(), msg.detail))
