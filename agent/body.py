@@ -70,6 +70,7 @@ class RobotBodies:
         self._poses: dict[int, _Pose] = {}
         self.counts = {"poses": 0, "commands": 0, "bad_poses": 0, "jumps": 0}
         self.counts |= {"clipped": 0, "resent": 0, "stale_waits": 0, "stops": 0, "wrong_frame": 0}
+        self.counts["empty_frame"] = 0
         self.realtime = scenario.runtime.mode == "realtime"
         self.step_s = scenario.runtime.realtime_period_s or scenario.control.period_s
         self._held: dict[int, list[float]] = {}  # realtime: each robot's command [robot m/s]
@@ -106,19 +107,24 @@ class RobotBodies:
     def _on_pose(self, agent: int, xyz: list[float], stamp: int, yaw: float, frame: str) -> None:
         """On the link's thread: keep the newest usable pose of ``agent`` (a unicycle's: and
         send its next inner-loop command)."""
-        if frame != self.body.frame_id:  # another frame's coordinates: not the scenario's
+        if frame and frame != self.body.frame_of(agent):  # coordinates the scenario has no map of
             with self._cond:
                 self.counts["poses"] += 1
                 self.counts["wrong_frame"] += 1
                 self._frames[agent] = frame
                 self._cond.notify_all()
             return
+        transform = self.body.transform_of(agent)
+        if transform is not None:  # its own frame (odom) → the world's
+            xyz, yaw = transform.to_world(xyz, yaw)
         d, scale = self.scenario.dimension, self.body.scale
         centre = position = [c / scale for c in xyz[:d]]
         if self.unicycle:  # the look-ahead point of the axle's centre
             position = pose_point(centre, yaw, self.limits[2])
         with self._cond:
             self.counts["poses"] += 1
+            # no frame_id claims no other frame: taken as the declared one, and counted
+            self.counts["empty_frame"] += not frame
             if not all(math.isfinite(c) for c in [*position, yaw]):
                 self.counts["bad_poses"] += 1
                 return
@@ -144,8 +150,9 @@ class RobotBodies:
         """A holonomic robot's velocity [robot m/s] in its command frame: as is (``world``), or
         turned by minus its newest heading into its own frame (``body``, REP 103)."""
         if self.body.command_frame == "world":
-            return velocity
-        heading = self._poses[agent].heading
+            transform = self.body.transform_of(agent)  # the world's velocity, in its own frame
+            return velocity if transform is None else transform.velocity_in_frame(velocity)
+        heading = self._poses[agent].heading  # in the world, as the velocity
         c, s = math.cos(heading), math.sin(heading)
         x, y, *z = velocity
         return [c * x + s * y, -s * x + c * y, *z]
@@ -302,7 +309,7 @@ class RobotBodies:
                         raise QosMismatch(i, self.body.pose_topic_of(i), *self._mismatch[i])
                     if i not in self._poses and i in self._frames:
                         topic = self.body.pose_topic_of(i)
-                        raise PoseFrameMismatch(i, topic, self._frames[i], self.body.frame_id)
+                        raise PoseFrameMismatch(i, topic, self._frames[i], *self._declared(i))
                 now = time.monotonic()
                 lost = [i for i in missing if lost_at(i) <= now]
                 if lost:
@@ -322,6 +329,13 @@ class RobotBodies:
                 self._cond.wait(min(min(lost_at(i) for i in missing) - now, self.step_s))
             self._used = {i: self._poses[i].arrived_s for i in self.ids}
             return {i: list(self._poses[i].position) for i in self.ids}
+
+    def _declared(self, i: int) -> tuple[str, str]:
+        """The frame robot ``i``'s poses are declared in, and the field declaring it."""
+        ts = self.body.transforms
+        k = next((k for k, t in enumerate(ts) if t.agent == i), None)
+        field = "body.frame_id" if k is None else f"body.transforms[{k}].frame_id"
+        return self.body.frame_of(i), field
 
     def pose_arrived(self, i: int) -> float:
         """When robot ``i``'s newest usable pose came (``time.monotonic()``) [s]."""
