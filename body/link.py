@@ -9,9 +9,18 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, Protocol
 
-from body.rmw_zenoh import RmwZenohNode, pose_cdr, read_framed_pose, read_twist, twist_cdr
+from body.rmw_zenoh import (
+    RmwZenohNode,
+    clock_cdr,
+    pose_cdr,
+    read_framed_pose,
+    read_twist,
+    twist_cdr,
+)
 from body.ros2 import (
+    NS_PER_S,
     RosNode,
+    message_class,
     open_ros_node,
     policy_name,
     pose_message,
@@ -23,7 +32,7 @@ from body.ros2 import (
     twist_message,
     twist_velocity,
 )
-from formation.body import Body
+from formation.body import CLOCK_QOS, CLOCK_TOPIC, CLOCK_TYPE, Body
 
 # position [robot m], stamp [ns], yaw [rad], header.frame_id
 OnPose = Callable[[list[float], int, float, str], None]
@@ -49,6 +58,12 @@ class CommandPublisher(Endpoint, Protocol):
         ...
 
 
+class ClockPublisher(Protocol):
+    def publish(self, when_ns: int) -> None:
+        """The time ``when_ns`` [ns] on ``/clock``, for nodes with ``use_sim_time``."""
+        ...
+
+
 class BodyLink(Protocol):
     """Robots' poses and commands on their topics (a ROS 2 node's, on one transport)."""
 
@@ -58,6 +73,7 @@ class BodyLink(Protocol):
     def commands(self, topic: str, on_command: OnCommand) -> Endpoint: ...
     def pose_publisher(self, topic: str) -> PosePublisher: ...
     def command_publisher(self, topic: str) -> CommandPublisher: ...
+    def clock_publisher(self) -> ClockPublisher: ...
     def close(self) -> None: ...
 
 
@@ -133,6 +149,17 @@ class RclpyLink:
         cls = self.node.command_class
         return _RosEndpoint(pub, lambda u, w: pub.publish(twist_message(cls, u, w)))
 
+    def clock_publisher(self) -> ClockPublisher:
+        cls = message_class(CLOCK_TYPE)
+        pub = self.node.publisher(CLOCK_TOPIC, cls, CLOCK_QOS)
+
+        def publish(when_ns: int) -> None:
+            msg = cls()
+            msg.clock.sec, msg.clock.nanosec = divmod(when_ns, NS_PER_S)
+            pub.publish(msg)
+
+        return _RosEndpoint(pub, publish)
+
     def close(self) -> None:
         self.node.close(destroy=False)  # the process ends next, by body.exit_process
 
@@ -187,6 +214,10 @@ class ZenohLink:
         put = self.node.publisher(topic, self.body.command_type, self.body.command_qos)
         return _ZenohEndpoint(lambda u, w: put(twist_cdr(u, w)))
 
+    def clock_publisher(self) -> ClockPublisher:
+        put = self.node.publisher(CLOCK_TOPIC, CLOCK_TYPE, CLOCK_QOS)
+        return _ZenohEndpoint(lambda when: put(clock_cdr(when)))
+
     def close(self) -> None:
         self.node.close()
 
@@ -203,6 +234,7 @@ def open_body_link(name: str, body: Body, session: Any = None) -> BodyLink:
 
 __all__ = [
     "BodyLink",
+    "ClockPublisher",
     "CommandPublisher",
     "Endpoint",
     "OnMismatch",

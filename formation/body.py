@@ -26,6 +26,8 @@ BodyKind = Literal["simulated", "ros2", "rmw_zenoh"]
 ROS_BODIES: tuple[str, ...] = ("ros2", "rmw_zenoh")  # kinds whose body is a ROS 2 robot
 POSE_TYPES: tuple[str, ...] = ("geometry_msgs/msg/PoseStamped", "nav_msgs/msg/Odometry")
 COMMAND_TYPES: tuple[str, ...] = ("geometry_msgs/msg/Twist",)
+CLOCK_TOPIC = "/clock"  # the stepped plant's sim time, for nodes with use_sim_time
+CLOCK_TYPE = "rosgraph_msgs/msg/Clock"
 EXTRA = "ros2"  # the optional extra that installs rclpy and the message packages
 BODY_LOST_EXIT = 4  # exit code of an agent whose robot's pose stopped coming
 # A ROS 2 topic name once ``{id}`` is filled in: absolute or relative, tokens of
@@ -45,6 +47,11 @@ class Qos(_Settings):
     reliability: Literal["reliable", "best_effort"] = "reliable"
     durability: Literal["volatile", "transient_local"] = "volatile"
     depth: int = Field(10, ge=1, le=10_000)
+
+
+# rclpy's time source asks best effort, volatile, depth 1; reliable and transient local match
+# it and serve a subscriber that asks for the last time on joining
+CLOCK_QOS = Qos(reliability="reliable", durability="transient_local", depth=1)
 
 
 class Transform(_Settings):
@@ -254,6 +261,9 @@ def body_problems(
 
 __all__ = [
     "BODY_LOST_EXIT",
+    "CLOCK_QOS",
+    "CLOCK_TOPIC",
+    "CLOCK_TYPE",
     "COMMAND_TYPES",
     "EXTRA",
     "POSE_TYPES",

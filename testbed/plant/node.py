@@ -12,7 +12,8 @@ pose (the scenario's pose type), on the topics and QoS of the scenario's ``[body
   agent joins or restarts at ``k`` gets its pose as at epoch 0, until its first command. A unicycle moves one sub-step of the
   simulator's inner loop per command, and its poses go out stamped with the sub-step's sim
   time, ``inner_steps`` an epoch, the last one ``(k + 1) T``. A lockstep run through it
-  equals ``formation simulate`` to the bit.
+  equals ``formation simulate`` to the bit. The sim time goes out on ``/clock`` at each step
+  and every ``FIRST_POSE_S`` (for nodes with ``use_sim_time``).
 - **free**: every ``1 / rate_hz`` each robot moves by the last command it got (stopping when
   none came for ``pose_timeout_s``), and the poses go out stamped with the wall clock, as a
   robot does.
@@ -70,6 +71,8 @@ class Plant:
             i: self.link.commands(self.body.command_topic_of(i), partial(self._on_command, i))
             for i in self.robots.ids
         }
+        # stepped: the sim time on /clock, for a node of the user's with use_sim_time
+        self._clock = self.link.clock_publisher() if clock == "stepped" else None
         rate = rate_hz or 1.0 / (scenario.runtime.realtime_period_s or scenario.control.period_s)
         self.dt_s = 1.0 / rate
         loop = self._starting_poses if clock == "stepped" else self._free_running
@@ -87,6 +90,7 @@ class Plant:
         every ``FIRST_POSE_S`` until its first command comes."""
         while not self.closing.wait(FIRST_POSE_S):
             with self._lock:
+                self._tick()  # again, for a node that has just joined (its QoS is volatile)
                 for r, i in enumerate(self.robots.ids):
                     if (
                         i in self._awaited
@@ -99,6 +103,11 @@ class Plant:
         """The sim time of the robots' state: ``(k + s / inner_steps) T`` [ns]."""
         steps = self.robots.limits[3]
         return self.robots.epoch * self.period_ns + self.robots.substep * self.period_ns // steps
+
+    def _tick(self) -> None:
+        """Stepped: the robots' sim time on ``/clock``."""
+        assert self._clock is not None
+        self._clock.publish(self._stamp_ns())
 
     def _on_command(self, robot: int, velocity: list[float], turn_rad_s: float) -> None:
         u = [c / self.body.scale for c in velocity[: self.scenario.dimension]]
@@ -113,6 +122,7 @@ class Plant:
                 log.info("stepped: every robot has sent its first command")
             while self.robots.ready():
                 self.robots.step()
+                self._tick()  # before the poses it stamps: a node sees the time, then them
                 self._publish(list(range(len(self.robots.ids))), self._stamp_ns())
                 k = self.robots.epoch
                 if self.robots.substep:
