@@ -44,6 +44,9 @@ from formation.scenario import Scenario
 log = logging.getLogger("agent.body")
 FIRST_POSE_S = 60.0  # [s] for the first pose: the plant or the robot may still be starting
 JUMP_MARGIN = 2.0  # a pose may be this many times further than the speed limit allows
+# [s] with no first pose, how long before the ROS graph is asked for a publisher whose QoS
+# cannot match (an RMW's incompatible-QoS event, where it has one, comes within milliseconds)
+GRAPH_CHECK_S = 2.0
 Array = npt.NDArray[np.float64]
 
 
@@ -296,6 +299,9 @@ class RobotBodies:
                 return time.monotonic() - pose.arrived_s <= min(self.step_s, timeout_s)
             return pose.stamp_ns >= want
 
+        def waited_s() -> float:
+            return time.monotonic() - began
+
         def lost_at(i: int) -> float:  # from its newest pose, else from now
             pose = self._poses.get(i)
             return timeout_s + (began if pose is None or want is not None else pose.arrived_s)
@@ -305,6 +311,14 @@ class RobotBodies:
             while not all(have(i) for i in self.ids):
                 missing = [i for i in self.ids if not have(i)]
                 for i in missing:
+                    if (
+                        i not in self._poses
+                        and i not in self._mismatch
+                        and waited_s() > GRAPH_CHECK_S
+                    ):
+                        refused = self.link.refused_by(self.body.pose_topic_of(i))
+                        if refused is not None:
+                            self._mismatch[i] = refused
                     if i not in self._poses and i in self._mismatch:
                         raise QosMismatch(i, self.body.pose_topic_of(i), *self._mismatch[i])
                     if i not in self._poses and i in self._frames:
@@ -454,4 +468,4 @@ class RobotBodies:
         self.link.close()
 
 
-__all__ = ["FIRST_POSE_S", "RobotBodies"]
+__all__ = ["FIRST_POSE_S", "GRAPH_CHECK_S", "RobotBodies"]

@@ -71,6 +71,11 @@ class BodyLink(Protocol):
         self, topic: str, on_pose: OnPose, on_mismatch: OnMismatch | None = None
     ) -> Endpoint: ...
     def commands(self, topic: str, on_command: OnCommand) -> Endpoint: ...
+    def refused_by(self, topic: str) -> tuple[str, str, str] | None:
+        """A publisher on ``topic`` whose QoS, as the ROS graph shows it, cannot match the
+        pose subscription: (offered, requested, policy) in words; None if none is seen."""
+        ...
+
     def pose_publisher(self, topic: str) -> PosePublisher: ...
     def command_publisher(self, topic: str) -> CommandPublisher: ...
     def clock_publisher(self) -> ClockPublisher: ...
@@ -122,6 +127,23 @@ class RclpyLink:
             on_incompatible=incompatible,
         )
         return _RosEndpoint(sub)
+
+    def refused_by(self, topic: str) -> tuple[str, str, str] | None:
+        # the graph, should the RMW raise no incompatible-QoS event; on rmw_zenoh_cpp every
+        # pair of QoS profiles is carried, so none is refused
+        from rclpy.utilities import get_rmw_implementation_identifier
+
+        if get_rmw_implementation_identifier() == "rmw_zenoh_cpp":
+            return None
+        requested = self.body.pose_qos
+        for info in self.node.node.get_publishers_info_by_topic(topic):
+            offered = info.qos_profile
+            policy = requested.refuses(
+                policy_name(offered.reliability), policy_name(offered.durability)
+            )
+            if policy is not None:
+                return self._offered(topic), qos_words(requested), policy
+        return None
 
     def _offered(self, topic: str) -> str:
         """The QoS of the publishers on ``topic``, in words (rclpy's graph)."""
@@ -197,6 +219,9 @@ class ZenohLink:
             topic, kind, self.body.pose_qos, lambda b: on_pose(*read_framed_pose(kind, b))
         )
         return _ZenohEndpoint()
+
+    def refused_by(self, topic: str) -> tuple[str, str, str] | None:
+        return None  # Zenoh carries a pose whatever QoS either end asks for
 
     def commands(self, topic: str, on_command: OnCommand) -> Endpoint:
         twist = self.body.command_type

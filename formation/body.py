@@ -48,6 +48,16 @@ class Qos(_Settings):
     durability: Literal["volatile", "transient_local"] = "volatile"
     depth: int = Field(10, ge=1, le=10_000)
 
+    def refuses(self, reliability: str, durability: str) -> str | None:
+        """The policy by which a publisher offering ``reliability`` and ``durability`` cannot
+        match a subscription asking for this (DDS's rule: it may offer more, never less);
+        None if they match. An offer named otherwise (``system_default``) is not judged."""
+        if self.reliability == "reliable" and reliability == "best_effort":
+            return "reliability"
+        if self.durability == "transient_local" and durability == "volatile":
+            return "durability"
+        return None
+
 
 # rclpy's time source asks best effort, volatile, depth 1; reliable and transient local match
 # it and serve a subscriber that asks for the last time on joining

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from agent.body import RobotBodies
+from agent.body import GRAPH_CHECK_S, RobotBodies
 from analysis import formation_error, shape_error, team_errors
 from formation.errors import BodyLost, PoseFrameMismatch, QosMismatch, RobotNotAtStart
 from formation.scenario import Scenario
@@ -106,7 +106,7 @@ def robot_report(proc: subprocess.Popen[str]) -> dict[str, dict[str, Any]]:
 
 
 def test_the_first_pose_the_qos_and_a_lost_pose_are_told_as_they_are(
-    paper: Scenario, tmp_path: Path, ros_domain: int
+    paper: Scenario, tmp_path: Path, ros_domain: int, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # robot 5 publishes in its own odometry frame, declared with its place in the world
     odom = {"agent": 5, "frame_id": "odom5", "offset_m": [1.0, -2.0], "rotation_rad": 0.7}
@@ -135,6 +135,23 @@ def test_the_first_pose_the_qos_and_a_lost_pose_are_told_as_they_are(
                 r"pose can arrive; set body\.pose_qos to what the robot publishes$",
             ):
                 bodies.wait_poses(None, READY_S)
+            # the same from the ROS graph, for an RMW that raises no such event
+            assert bodies.link.refused_by("/robot1/pose") == (
+                "reliability best_effort, durability volatile",
+                "reliability reliable, durability volatile",
+                "reliability",
+            )
+            assert bodies.link.refused_by("/robot3/pose") is None  # reliable: it matches
+            with monkeypatch.context() as rmw:  # an RMW with no QoS event (rmw_zenoh_cpp's)
+                rmw.setattr(RobotBodies, "_on_mismatch", lambda *_: None)
+                no_event = RobotBodies(scenario, [1], "formation_agent_1")
+            try:
+                began = time.monotonic()
+                with pytest.raises(QosMismatch, match=r"\(reliability incompatible\)"):
+                    no_event.wait_poses(None, READY_S)
+                assert time.monotonic() - began >= GRAPH_CHECK_S  # told by the graph
+            finally:
+                no_event.close()
             offers_less.kill()
             bodies.ids = [4]  # robot 4's poses are in its odometry frame: none is used
             with pytest.raises(

@@ -213,3 +213,16 @@ rotation_rad = 1.5707963267948966
     assert t.velocity_in_frame([0.0, 0.5]) == pytest.approx([0.5, 0.0], abs=1e-15)
     (x, y, z), _ = t.to_world([0.0, 0.0, 0.7], 0.0)  # z passes; a 2-D offset has none
     assert (x, y, z) == (1.0, -2.0, 0.7)
+
+
+def test_a_publisher_s_qos_is_refused_where_dds_would_not_match_it() -> None:
+    from formation.body import Qos
+
+    reliable = Qos(reliability="reliable", durability="transient_local")
+    assert reliable.refuses("best_effort", "transient_local") == "reliability"
+    assert reliable.refuses("reliable", "volatile") == "durability"
+    assert reliable.refuses("reliable", "transient_local") is None
+    assert reliable.refuses("system_default", "unknown") is None  # not judged
+    anything = Qos(reliability="best_effort", durability="volatile")
+    assert anything.refuses("best_effort", "volatile") is None
+    assert anything.refuses("reliable", "transient_local") is None  # it may offer more
