@@ -262,8 +262,11 @@ def body_problems(
             (
                 "body.kind",
                 body.kind,
-                f"the scenario has {events} events (leave, crash, join, restart), which robots "
-                "follow in lockstep only (the stepped plant); set runtime.mode = 'lockstep'",
+                f"the scenario has {events} events (leave, crash, join, restart), which the "
+                "agents' processes follow in lockstep only (in realtime a leaving agent runs on "
+                "and a joining or restarted one starts again from epoch 0, so a robot would be "
+                "driven by an agent out of the team); set runtime.mode = 'lockstep' (the "
+                "stepped plant)",
             )
         ]
     return []

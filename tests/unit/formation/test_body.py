@@ -139,8 +139,10 @@ def test_robots_follow_scenario_events_in_lockstep_only() -> None:
     with pytest.raises(
         ScenarioError,
         match=r"body\.kind = 'ros2'; the scenario has 4 events \(leave, crash, join, restart\), "
-        r"which robots follow in lockstep only \(the stepped plant\); set runtime\.mode = "
-        r"'lockstep'$",
+        r"which the agents' processes follow in lockstep only \(in realtime a leaving agent "
+        r"runs on and a joining or restarted one starts again from epoch 0, so a robot would be "
+        r"driven by an agent out of the team\); set runtime\.mode = 'lockstep' \(the stepped "
+        r"plant\)$",
     ):
         load_dict(tomllib.loads(realtime), source="events.toml")
 
