@@ -72,8 +72,8 @@ class BodyLink(Protocol):
     ) -> Endpoint: ...
     def commands(self, topic: str, on_command: OnCommand) -> Endpoint: ...
     def refused_by(self, topic: str) -> tuple[str, str, str] | None:
-        """A publisher on ``topic`` whose QoS, as the ROS graph shows it, cannot match the
-        pose subscription: (offered, requested, policy) in words; None if none is seen."""
+        """Whether the publishers on ``topic``, as the ROS graph shows them, all have a QoS that
+        cannot match the pose subscription: (offered, requested, policy) in words, else None."""
         ...
 
     def pose_publisher(self, topic: str) -> PosePublisher: ...
@@ -136,14 +136,15 @@ class RclpyLink:
         if get_rmw_implementation_identifier() == "rmw_zenoh_cpp":
             return None
         requested = self.body.pose_qos
-        for info in self.node.node.get_publishers_info_by_topic(topic):
-            offered = info.qos_profile
-            policy = requested.refuses(
-                policy_name(offered.reliability), policy_name(offered.durability)
+        policies = [
+            requested.refuses(policy_name(p.reliability), policy_name(p.durability))
+            for p in (
+                info.qos_profile for info in self.node.node.get_publishers_info_by_topic(topic)
             )
-            if policy is not None:
-                return self._offered(topic), qos_words(requested), policy
-        return None
+        ]
+        if not policies or None in policies:  # none, or one a pose can come from
+            return None
+        return self._offered(topic), qos_words(requested), str(policies[0])
 
     def _offered(self, topic: str) -> str:
         """The QoS of the publishers on ``topic``, in words (rclpy's graph)."""
