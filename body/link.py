@@ -76,7 +76,10 @@ class BodyLink(Protocol):
         cannot match the pose subscription: (offered, requested, policy) in words, else None."""
         ...
 
-    def pose_publisher(self, topic: str) -> PosePublisher: ...
+    def pose_publisher(self, topic: str, frame_id: str | None = None) -> PosePublisher:
+        """Poses on ``topic`` stamped ``frame_id`` (None: ``body.frame_id``)."""
+        ...
+
     def command_publisher(self, topic: str) -> CommandPublisher: ...
     def clock_publisher(self) -> ClockPublisher: ...
     def close(self) -> None: ...
@@ -160,9 +163,9 @@ class RclpyLink:
         )
         return _RosEndpoint(sub)
 
-    def pose_publisher(self, topic: str) -> PosePublisher:
+    def pose_publisher(self, topic: str, frame_id: str | None = None) -> PosePublisher:
         pub = self.node.publisher(topic, self.node.pose_class, self.body.pose_qos)
-        cls, frame = self.node.pose_class, self.body.frame_id
+        cls, frame = self.node.pose_class, frame_id or self.body.frame_id
         return _RosEndpoint(
             pub, lambda p, when, yaw: pub.publish(pose_message(cls, p, when, frame, yaw))
         )
@@ -231,8 +234,8 @@ class ZenohLink:
         )
         return _ZenohEndpoint()
 
-    def pose_publisher(self, topic: str) -> PosePublisher:
-        kind, frame = self.body.pose_type, self.body.frame_id
+    def pose_publisher(self, topic: str, frame_id: str | None = None) -> PosePublisher:
+        kind, frame = self.body.pose_type, frame_id or self.body.frame_id
         put = self.node.publisher(topic, kind, self.body.pose_qos)
         return _ZenohEndpoint(lambda p, when, yaw: put(pose_cdr(kind, p, when, frame, yaw=yaw)))
 

@@ -93,6 +93,12 @@ class Transform(_Settings):
         x, y, *z = (v - w for v, w in zip(xyz, o, strict=False))
         return self.velocity_in_frame([x, y, *z])
 
+    def velocity_to_world(self, velocity: Sequence[float]) -> list[float]:
+        """A velocity in this frame [robot m/s] → in ``body.frame_id``."""
+        c, s = math.cos(self.rotation_rad), math.sin(self.rotation_rad)
+        x, y, *z = velocity
+        return [c * x - s * y, s * x + c * y, *z]
+
     def velocity_in_frame(self, velocity: Sequence[float]) -> list[float]:
         """A velocity in ``body.frame_id`` [robot m/s] → in this frame (turned back)."""
         c, s = math.cos(self.rotation_rad), math.sin(self.rotation_rad)

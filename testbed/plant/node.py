@@ -64,8 +64,9 @@ class Plant:
         self._awaited = self.robots.starting(0)
         self._started = False  # every robot taking part at epoch 0 has sent a command
         self._last_command_ns: dict[int, int] = {}
-        self._publishers = {
-            i: self.link.pose_publisher(self.body.pose_topic_of(i)) for i in self.robots.ids
+        self._publishers = {  # each robot in its declared frame (body.transforms)
+            i: self.link.pose_publisher(self.body.pose_topic_of(i), self.body.frame_of(i))
+            for i in self.robots.ids
         }
         self._subscriptions = {
             i: self.link.commands(self.body.command_topic_of(i), partial(self._on_command, i))
@@ -82,8 +83,12 @@ class Plant:
     def _publish(self, rows: list[int], stamp_ns: int) -> None:
         scale = self.body.scale
         for r in rows:
+            i = self.robots.ids[r]
             position = [float(c) * scale for c in self.robots.x[r]]
-            self._publishers[self.robots.ids[r]].publish(position, stamp_ns, self.robots.yaw(r))
+            yaw, transform = self.robots.yaw(r), self.body.transform_of(i)
+            if transform is not None:  # as the robot publishes it, in its own frame
+                position, yaw = transform.from_world(position), yaw - transform.rotation_rad
+            self._publishers[i].publish(position, stamp_ns, yaw)
 
     def _starting_poses(self) -> None:
         """Stepped: the pose of each robot whose agent starts, once its topics are matched,
@@ -110,6 +115,10 @@ class Plant:
         self._clock.publish(self._stamp_ns())
 
     def _on_command(self, robot: int, velocity: list[float], turn_rad_s: float) -> None:
+        transform = self.body.transform_of(robot)
+        world = self.body.command_frame == "world" and self.robots.heading is None
+        if transform is not None and world:  # a holonomic cmd_vel in its own frame
+            velocity = transform.velocity_to_world(velocity)
         u = [c / self.body.scale for c in velocity[: self.scenario.dimension]]
         with self._lock:
             self.robots.command(robot, u, turn_rad_s)

@@ -239,10 +239,12 @@ def test_robots_through_a_join_a_crash_a_restart_and_a_leave_equal_the_simulator
 def test_a_double_integrator_with_some_robots_equals_the_simulator_and_records_their_traffic(
     paper: Scenario, runs_dir: Path, tmp_path: Path, ros_domain: int
 ) -> None:
-    # agents 2 and 4 are robots, each in a pool of two with a simulated body
+    # agents 2 and 4 are robots, each in a pool of two with a simulated body; robot 4 in a
+    # frame of its own (the plant publishes it there, the agent maps it back)
     control = {**paper.control.model_dump(), "dynamics": "double", "period_s": 0.3, "gain": 0.5}
+    odom = {"agent": 4, "frame_id": "odom4"}  # at the world's origin: the run stays bit for bit
     scenario, path = with_robots(
-        paper.with_overrides(control=control, epochs=30), tmp_path, agents=[2, 4]
+        paper.with_overrides(control=control, epochs=30), tmp_path, agents=[2, 4], transforms=[odom]
     )
     sim = simulate(scenario)
     with sim_time_node() as users, plant(path) as proc:

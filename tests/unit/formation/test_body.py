@@ -213,6 +213,8 @@ rotation_rad = 1.5707963267948966
         0.25 + t.rotation_rad
     )
     assert t.velocity_in_frame([0.0, 0.5]) == pytest.approx([0.5, 0.0], abs=1e-15)
+    assert t.velocity_to_world([0.5, 0.0]) == pytest.approx([0.0, 0.5], abs=1e-15)
+    assert t.from_world([1.0, 1.0]) == pytest.approx([3.0, 0.0], abs=1e-15)  # as the plant
     (x, y, z), _ = t.to_world([0.0, 0.0, 0.7], 0.0)  # z passes; a 2-D offset has none
     assert (x, y, z) == (1.0, -2.0, 0.7)
 
