@@ -44,6 +44,9 @@ from formation.scenario import Scenario
 log = logging.getLogger("agent.body")
 FIRST_POSE_S = 60.0  # [s] for the first pose: the plant or the robot may still be starting
 JUMP_MARGIN = 2.0  # a pose may be this many times further than the speed limit allows
+# [s] with no first pose, how long before the ROS graph is asked for a publisher whose QoS
+# cannot match (an RMW's incompatible-QoS event, where it has one, comes within milliseconds)
+GRAPH_CHECK_S = 2.0
 Array = npt.NDArray[np.float64]
 
 
@@ -70,6 +73,7 @@ class RobotBodies:
         self._poses: dict[int, _Pose] = {}
         self.counts = {"poses": 0, "commands": 0, "bad_poses": 0, "jumps": 0}
         self.counts |= {"clipped": 0, "resent": 0, "stale_waits": 0, "stops": 0, "wrong_frame": 0}
+        self.counts["empty_frame"] = 0
         self.realtime = scenario.runtime.mode == "realtime"
         self.step_s = scenario.runtime.realtime_period_s or scenario.control.period_s
         self._held: dict[int, list[float]] = {}  # realtime: each robot's command [robot m/s]
@@ -106,19 +110,24 @@ class RobotBodies:
     def _on_pose(self, agent: int, xyz: list[float], stamp: int, yaw: float, frame: str) -> None:
         """On the link's thread: keep the newest usable pose of ``agent`` (a unicycle's: and
         send its next inner-loop command)."""
-        if frame != self.body.frame_id:  # another frame's coordinates: not the scenario's
+        if frame and frame != self.body.frame_of(agent):  # coordinates the scenario has no map of
             with self._cond:
                 self.counts["poses"] += 1
                 self.counts["wrong_frame"] += 1
                 self._frames[agent] = frame
                 self._cond.notify_all()
             return
+        transform = self.body.transform_of(agent)
+        if transform is not None:  # its own frame (odom) → the world's
+            xyz, yaw = transform.to_world(xyz, yaw)
         d, scale = self.scenario.dimension, self.body.scale
         centre = position = [c / scale for c in xyz[:d]]
         if self.unicycle:  # the look-ahead point of the axle's centre
             position = pose_point(centre, yaw, self.limits[2])
         with self._cond:
             self.counts["poses"] += 1
+            # no frame_id claims no other frame: taken as the declared one, and counted
+            self.counts["empty_frame"] += not frame
             if not all(math.isfinite(c) for c in [*position, yaw]):
                 self.counts["bad_poses"] += 1
                 return
@@ -144,8 +153,9 @@ class RobotBodies:
         """A holonomic robot's velocity [robot m/s] in its command frame: as is (``world``), or
         turned by minus its newest heading into its own frame (``body``, REP 103)."""
         if self.body.command_frame == "world":
-            return velocity
-        heading = self._poses[agent].heading
+            transform = self.body.transform_of(agent)  # the world's velocity, in its own frame
+            return velocity if transform is None else transform.velocity_in_frame(velocity)
+        heading = self._poses[agent].heading  # in the world, as the velocity
         c, s = math.cos(heading), math.sin(heading)
         x, y, *z = velocity
         return [c * x + s * y, -s * x + c * y, *z]
@@ -289,6 +299,9 @@ class RobotBodies:
                 return time.monotonic() - pose.arrived_s <= min(self.step_s, timeout_s)
             return pose.stamp_ns >= want
 
+        def waited_s() -> float:
+            return time.monotonic() - began
+
         def lost_at(i: int) -> float:  # from its newest pose, else from now
             pose = self._poses.get(i)
             return timeout_s + (began if pose is None or want is not None else pose.arrived_s)
@@ -298,11 +311,19 @@ class RobotBodies:
             while not all(have(i) for i in self.ids):
                 missing = [i for i in self.ids if not have(i)]
                 for i in missing:
+                    if (
+                        i not in self._poses
+                        and i not in self._mismatch
+                        and waited_s() > GRAPH_CHECK_S
+                    ):
+                        refused = self.link.refused_by(self.body.pose_topic_of(i))
+                        if refused is not None:
+                            self._mismatch[i] = refused
                     if i not in self._poses and i in self._mismatch:
                         raise QosMismatch(i, self.body.pose_topic_of(i), *self._mismatch[i])
                     if i not in self._poses and i in self._frames:
                         topic = self.body.pose_topic_of(i)
-                        raise PoseFrameMismatch(i, topic, self._frames[i], self.body.frame_id)
+                        raise PoseFrameMismatch(i, topic, self._frames[i], *self._declared(i))
                 now = time.monotonic()
                 lost = [i for i in missing if lost_at(i) <= now]
                 if lost:
@@ -322,6 +343,13 @@ class RobotBodies:
                 self._cond.wait(min(min(lost_at(i) for i in missing) - now, self.step_s))
             self._used = {i: self._poses[i].arrived_s for i in self.ids}
             return {i: list(self._poses[i].position) for i in self.ids}
+
+    def _declared(self, i: int) -> tuple[str, str]:
+        """The frame robot ``i``'s poses are declared in, and the field declaring it."""
+        ts = self.body.transforms
+        k = next((k for k, t in enumerate(ts) if t.agent == i), None)
+        field = "body.frame_id" if k is None else f"body.transforms[{k}].frame_id"
+        return self.body.frame_of(i), field
 
     def pose_arrived(self, i: int) -> float:
         """When robot ``i``'s newest usable pose came (``time.monotonic()``) [s]."""
@@ -440,4 +468,4 @@ class RobotBodies:
         self.link.close()
 
 
-__all__ = ["FIRST_POSE_S", "RobotBodies"]
+__all__ = ["FIRST_POSE_S", "GRAPH_CHECK_S", "RobotBodies"]

@@ -119,10 +119,12 @@ def summarise(run: RunData) -> dict[str, Any]:
 def robot_counts_line(counts: Mapping[str, int]) -> str:
     """The agents' counts of their robots' poses and commands, in words."""
     bad, jumps, frame = (counts.get(k, 0) for k in ("bad_poses", "jumps", "wrong_frame"))
+    unstamped = counts.get("empty_frame", 0)
     return (
         f"robots: {counts.get('poses', 0)} poses, {bad + jumps + frame} rejected ({bad} not "
         f"finite, {jumps} jumps, {frame} in another frame), {counts.get('clipped', 0)} commands "
         f"clipped to the speed limit, {counts.get('resent', 0)} re-sent between steps"
+        + (f", {unstamped} with no frame_id (taken as declared)" if unstamped else "")
     )
 
 

@@ -9,9 +9,18 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, Protocol
 
-from body.rmw_zenoh import RmwZenohNode, pose_cdr, read_framed_pose, read_twist, twist_cdr
+from body.rmw_zenoh import (
+    RmwZenohNode,
+    clock_cdr,
+    pose_cdr,
+    read_framed_pose,
+    read_twist,
+    twist_cdr,
+)
 from body.ros2 import (
+    NS_PER_S,
     RosNode,
+    message_class,
     open_ros_node,
     policy_name,
     pose_message,
@@ -23,7 +32,7 @@ from body.ros2 import (
     twist_message,
     twist_velocity,
 )
-from formation.body import Body
+from formation.body import CLOCK_QOS, CLOCK_TOPIC, CLOCK_TYPE, Body
 
 # position [robot m], stamp [ns], yaw [rad], header.frame_id
 OnPose = Callable[[list[float], int, float, str], None]
@@ -49,6 +58,12 @@ class CommandPublisher(Endpoint, Protocol):
         ...
 
 
+class ClockPublisher(Protocol):
+    def publish(self, when_ns: int) -> None:
+        """The time ``when_ns`` [ns] on ``/clock``, for nodes with ``use_sim_time``."""
+        ...
+
+
 class BodyLink(Protocol):
     """Robots' poses and commands on their topics (a ROS 2 node's, on one transport)."""
 
@@ -56,8 +71,17 @@ class BodyLink(Protocol):
         self, topic: str, on_pose: OnPose, on_mismatch: OnMismatch | None = None
     ) -> Endpoint: ...
     def commands(self, topic: str, on_command: OnCommand) -> Endpoint: ...
-    def pose_publisher(self, topic: str) -> PosePublisher: ...
+    def refused_by(self, topic: str) -> tuple[str, str, str] | None:
+        """Whether the publishers on ``topic``, as the ROS graph shows them, all have a QoS that
+        cannot match the pose subscription: (offered, requested, policy) in words, else None."""
+        ...
+
+    def pose_publisher(self, topic: str, frame_id: str | None = None) -> PosePublisher:
+        """Poses on ``topic`` stamped ``frame_id`` (None: ``body.frame_id``)."""
+        ...
+
     def command_publisher(self, topic: str) -> CommandPublisher: ...
+    def clock_publisher(self) -> ClockPublisher: ...
     def close(self) -> None: ...
 
 
@@ -107,6 +131,24 @@ class RclpyLink:
         )
         return _RosEndpoint(sub)
 
+    def refused_by(self, topic: str) -> tuple[str, str, str] | None:
+        # the graph, should the RMW raise no incompatible-QoS event; on rmw_zenoh_cpp every
+        # pair of QoS profiles is carried, so none is refused
+        from rclpy.utilities import get_rmw_implementation_identifier
+
+        if get_rmw_implementation_identifier() == "rmw_zenoh_cpp":
+            return None
+        requested = self.body.pose_qos
+        policies = [
+            requested.refuses(policy_name(p.reliability), policy_name(p.durability))
+            for p in (
+                info.qos_profile for info in self.node.node.get_publishers_info_by_topic(topic)
+            )
+        ]
+        if not policies or None in policies:  # none, or one a pose can come from
+            return None
+        return self._offered(topic), qos_words(requested), str(policies[0])
+
     def _offered(self, topic: str) -> str:
         """The QoS of the publishers on ``topic``, in words (rclpy's graph)."""
         infos = self.node.node.get_publishers_info_by_topic(topic)
@@ -121,9 +163,9 @@ class RclpyLink:
         )
         return _RosEndpoint(sub)
 
-    def pose_publisher(self, topic: str) -> PosePublisher:
+    def pose_publisher(self, topic: str, frame_id: str | None = None) -> PosePublisher:
         pub = self.node.publisher(topic, self.node.pose_class, self.body.pose_qos)
-        cls, frame = self.node.pose_class, self.body.frame_id
+        cls, frame = self.node.pose_class, frame_id or self.body.frame_id
         return _RosEndpoint(
             pub, lambda p, when, yaw: pub.publish(pose_message(cls, p, when, frame, yaw))
         )
@@ -132,6 +174,17 @@ class RclpyLink:
         pub = self.node.publisher(topic, self.node.command_class, self.body.command_qos)
         cls = self.node.command_class
         return _RosEndpoint(pub, lambda u, w: pub.publish(twist_message(cls, u, w)))
+
+    def clock_publisher(self) -> ClockPublisher:
+        cls = message_class(CLOCK_TYPE)
+        pub = self.node.publisher(CLOCK_TOPIC, cls, CLOCK_QOS)
+
+        def publish(when_ns: int) -> None:
+            msg = cls()
+            msg.clock.sec, msg.clock.nanosec = divmod(when_ns, NS_PER_S)
+            pub.publish(msg)
+
+        return _RosEndpoint(pub, publish)
 
     def close(self) -> None:
         self.node.close(destroy=False)  # the process ends next, by body.exit_process
@@ -171,6 +224,9 @@ class ZenohLink:
         )
         return _ZenohEndpoint()
 
+    def refused_by(self, topic: str) -> tuple[str, str, str] | None:
+        return None  # Zenoh carries a pose whatever QoS either end asks for
+
     def commands(self, topic: str, on_command: OnCommand) -> Endpoint:
         twist = self.body.command_type
         self.node.subscribe(
@@ -178,14 +234,18 @@ class ZenohLink:
         )
         return _ZenohEndpoint()
 
-    def pose_publisher(self, topic: str) -> PosePublisher:
-        kind, frame = self.body.pose_type, self.body.frame_id
+    def pose_publisher(self, topic: str, frame_id: str | None = None) -> PosePublisher:
+        kind, frame = self.body.pose_type, frame_id or self.body.frame_id
         put = self.node.publisher(topic, kind, self.body.pose_qos)
         return _ZenohEndpoint(lambda p, when, yaw: put(pose_cdr(kind, p, when, frame, yaw=yaw)))
 
     def command_publisher(self, topic: str) -> CommandPublisher:
         put = self.node.publisher(topic, self.body.command_type, self.body.command_qos)
         return _ZenohEndpoint(lambda u, w: put(twist_cdr(u, w)))
+
+    def clock_publisher(self) -> ClockPublisher:
+        put = self.node.publisher(CLOCK_TOPIC, CLOCK_TYPE, CLOCK_QOS)
+        return _ZenohEndpoint(lambda when: put(clock_cdr(when)))
 
     def close(self) -> None:
         self.node.close()
@@ -203,6 +263,7 @@ def open_body_link(name: str, body: Body, session: Any = None) -> BodyLink:
 
 __all__ = [
     "BodyLink",
+    "ClockPublisher",
     "CommandPublisher",
     "Endpoint",
     "OnMismatch",

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from functools import cache
 from typing import Any
 
-from formation.body import Qos
+from formation.body import CLOCK_TYPE, Qos
 
 ADMIN_SPACE = "@ros2_lv"
 EMPTY = "%"  # an empty namespace or enclave in a liveliness token
@@ -184,6 +184,12 @@ def pose_cdr(
     return bytes(typestore().serialize_cdr(msg, type_name))
 
 
+def clock_cdr(when_ns: int) -> bytes:
+    """A ``rosgraph_msgs/msg/Clock`` at ``when_ns`` [ns], as CDR."""
+    msg = typestore().types[CLOCK_TYPE](clock=_time(when_ns))
+    return bytes(typestore().serialize_cdr(msg, CLOCK_TYPE))
+
+
 def twist_cdr(velocity: list[float], angular_z: float = 0.0) -> bytes:
     """A ``Twist`` whose ``linear`` is ``velocity`` [robot m/s] and ``angular.z`` the turn
     rate [rad/s], in CDR."""
@@ -299,6 +305,7 @@ __all__ = [
     "ADMIN_SPACE",
     "RmwZenohNode",
     "attachment",
+    "clock_cdr",
     "dds_type_name",
     "endpoint_token",
     "node_token",

@@ -14,8 +14,10 @@ checked here, at load, against the types the bodies can read and write.
 
 from __future__ import annotations
 
+import math
 import re
 import string
+from collections.abc import Sequence
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
@@ -24,6 +26,8 @@ BodyKind = Literal["simulated", "ros2", "rmw_zenoh"]
 ROS_BODIES: tuple[str, ...] = ("ros2", "rmw_zenoh")  # kinds whose body is a ROS 2 robot
 POSE_TYPES: tuple[str, ...] = ("geometry_msgs/msg/PoseStamped", "nav_msgs/msg/Odometry")
 COMMAND_TYPES: tuple[str, ...] = ("geometry_msgs/msg/Twist",)
+CLOCK_TOPIC = "/clock"  # the stepped plant's sim time, for nodes with use_sim_time
+CLOCK_TYPE = "rosgraph_msgs/msg/Clock"
 EXTRA = "ros2"  # the optional extra that installs rclpy and the message packages
 BODY_LOST_EXIT = 4  # exit code of an agent whose robot's pose stopped coming
 # A ROS 2 topic name once ``{id}`` is filled in: absolute or relative, tokens of
@@ -43,6 +47,63 @@ class Qos(_Settings):
     reliability: Literal["reliable", "best_effort"] = "reliable"
     durability: Literal["volatile", "transient_local"] = "volatile"
     depth: int = Field(10, ge=1, le=10_000)
+
+    def refuses(self, reliability: str, durability: str) -> str | None:
+        """The policy by which a publisher offering ``reliability`` and ``durability`` cannot
+        match a subscription asking for this (DDS's rule: it may offer more, never less);
+        None if they match. An offer named otherwise (``system_default``) is not judged."""
+        if self.reliability == "reliable" and reliability == "best_effort":
+            return "reliability"
+        if self.durability == "transient_local" and durability == "volatile":
+            return "durability"
+        return None
+
+
+# rclpy's time source asks best effort, volatile, depth 1; reliable and transient local match
+# it and serve a subscriber that asks for the last time on joining
+CLOCK_QOS = Qos(reliability="reliable", durability="transient_local", depth=1)
+
+
+class Transform(_Settings):
+    """A robot whose poses come in a frame of its own (its ``odom``): where that frame lies in
+    ``body.frame_id``, its origin at ``offset_m`` [robot m] and its x axis turned
+    ``rotation_rad`` about z. A pose ``p`` in it is ``R(rotation) p + offset`` in the world."""
+
+    agent: int
+    frame_id: str  # the frame the robot stamps its poses with
+    offset_m: tuple[float, ...] = Field((0.0, 0.0), min_length=2, max_length=3)
+    rotation_rad: float = 0.0
+
+    @field_validator("frame_id")
+    @classmethod
+    def _frame(cls, v: str) -> str:
+        return _frame_name(v)
+
+    def to_world(self, xyz: Sequence[float], yaw: float) -> tuple[list[float], float]:
+        """A pose in this frame → in ``body.frame_id``: position [robot m], heading [rad]."""
+        c, s = math.cos(self.rotation_rad), math.sin(self.rotation_rad)
+        x, y, *z = xyz
+        o = [*self.offset_m, 0.0][:3]
+        world = [c * x - s * y + o[0], s * x + c * y + o[1], *(v + o[2] for v in z)]
+        return world, yaw + self.rotation_rad
+
+    def from_world(self, xyz: Sequence[float]) -> list[float]:
+        """A position in ``body.frame_id`` → in this frame [robot m]."""
+        o = [*self.offset_m, 0.0][:3]
+        x, y, *z = (v - w for v, w in zip(xyz, o, strict=False))
+        return self.velocity_in_frame([x, y, *z])
+
+    def velocity_to_world(self, velocity: Sequence[float]) -> list[float]:
+        """A velocity in this frame [robot m/s] → in ``body.frame_id``."""
+        c, s = math.cos(self.rotation_rad), math.sin(self.rotation_rad)
+        x, y, *z = velocity
+        return [c * x - s * y, s * x + c * y, *z]
+
+    def velocity_in_frame(self, velocity: Sequence[float]) -> list[float]:
+        """A velocity in ``body.frame_id`` [robot m/s] → in this frame (turned back)."""
+        c, s = math.cos(self.rotation_rad), math.sin(self.rotation_rad)
+        x, y, *z = velocity
+        return [c * x + s * y, -s * x + c * y, *z]
 
 
 class Body(_Settings):
@@ -75,6 +136,7 @@ class Body(_Settings):
     domain_id: int | None = Field(None, ge=0, le=232)  # ROS_DOMAIN_ID; None: the environment's
     pose_qos: Qos = Qos()
     command_qos: Qos = Qos()
+    transforms: tuple[Transform, ...] = ()  # robots whose poses come in frames of their own
 
     @field_validator("pose_topic", "command_topic")
     @classmethod
@@ -111,9 +173,16 @@ class Body(_Settings):
     @field_validator("frame_id")
     @classmethod
     def _frame(cls, v: str) -> str:
-        if not v or v.strip() != v:
-            raise ValueError("a frame id is a non-empty name without surrounding spaces")
-        return v
+        return _frame_name(v)
+
+    def transform_of(self, agent: int) -> Transform | None:
+        """The frame agent ``agent``'s robot publishes in, if not ``frame_id``."""
+        return next((t for t in self.transforms if t.agent == agent), None)
+
+    def frame_of(self, agent: int) -> str:
+        """The frame agent ``agent``'s robot's poses are stamped with."""
+        transform = self.transform_of(agent)
+        return self.frame_id if transform is None else transform.frame_id
 
     def has_robot(self, agent: int) -> bool:
         """Whether agent ``agent``'s body is a ROS 2 robot."""
@@ -132,6 +201,12 @@ class Body(_Settings):
     def _fields(self, agent: int) -> dict[str, object]:
         name = self.names[agent - 1] if agent <= len(self.names) else f"robot{agent}"
         return {"id": agent, "index": agent - 1, "name": name}
+
+
+def _frame_name(v: str) -> str:
+    if not v or v.strip() != v:
+        raise ValueError("a frame id is a non-empty name without surrounding spaces")
+    return v
 
 
 def _known(v: str, types: tuple[str, ...]) -> str:
@@ -172,13 +247,32 @@ def body_problems(
             ]
     if len(set(body.names)) != len(body.names):
         return [("body.names", list(body.names), "a name is given twice")]
+    for k, t in enumerate(body.transforms):
+        field = f"body.transforms[{k}]"
+        if not 1 <= t.agent <= n:
+            return [(f"{field}.agent", t.agent, f"agent does not exist (agents are 1..{n})")]
+        if not body.has_robot(t.agent):
+            return [(f"{field}.agent", t.agent, "no ROS 2 robot has this agent (body.agents)")]
+        if [u.agent for u in body.transforms].count(t.agent) > 1:
+            return [(f"{field}.agent", t.agent, "a robot has one transform; it is given twice")]
+        if t.frame_id == body.frame_id:
+            return [
+                (
+                    f"{field}.frame_id",
+                    t.frame_id,
+                    "the world frame itself (body.frame_id): a transform maps a robot's own frame",
+                )
+            ]
     if body.kind in ROS_BODIES and events and mode == "realtime":
         return [
             (
                 "body.kind",
                 body.kind,
-                f"the scenario has {events} events (leave, crash, join, restart), which robots "
-                "follow in lockstep only (the stepped plant); set runtime.mode = 'lockstep'",
+                f"the scenario has {events} events (leave, crash, join, restart), which the "
+                "agents' processes follow in lockstep only (in realtime a leaving agent runs on "
+                "and a joining or restarted one starts again from epoch 0, so a robot would be "
+                "driven by an agent out of the team); set runtime.mode = 'lockstep' (the "
+                "stepped plant)",
             )
         ]
     return []
@@ -186,6 +280,9 @@ def body_problems(
 
 __all__ = [
     "BODY_LOST_EXIT",
+    "CLOCK_QOS",
+    "CLOCK_TOPIC",
+    "CLOCK_TYPE",
     "COMMAND_TYPES",
     "EXTRA",
     "POSE_TYPES",
@@ -193,5 +290,6 @@ __all__ = [
     "Body",
     "BodyKind",
     "Qos",
+    "Transform",
     "body_problems",
 ]

@@ -223,14 +223,17 @@ class QosMismatch(RuntimeFailure):
 
 
 class PoseFrameMismatch(RuntimeFailure):
-    """A robot's poses in a frame other than the scenario's ``body.frame_id``."""
+    """A robot's poses in a frame other than the one the scenario declares for it
+    (``body.frame_id``, or its transform's ``frame_id``)."""
 
-    def __init__(self, agent: int, topic: str, frame: str, expected: str) -> None:
+    def __init__(
+        self, agent: int, topic: str, frame: str, expected: str, field: str = "body.frame_id"
+    ) -> None:
         self.agent, self.topic, self.frame, self.expected = agent, topic, frame, expected
         super().__init__(
             f"agent {agent}: the poses on {topic} are in frame {frame!r}, not "
-            f"body.frame_id = {expected!r}: none is used; publish them in {expected!r} or "
-            "set body.frame_id to the frame they are in"
+            f"{field} = {expected!r}: none is used; publish them in {expected!r}, or declare "
+            "the frame they are in (body.frame_id, or the robot's own in body.transforms)"
         )
 
 

@@ -23,18 +23,26 @@ def cmd_robots(args: argparse.Namespace) -> int:
     robots = Robots.of(scenario, args.seed)  # as the plant starts them
     unicycle = robots.heading is not None
     table = Table(
-        title=f"{scenario.name}: each robot's start in its frame {body.frame_id!r} "
+        title=f"{scenario.name}: each robot's start in {body.frame_id!r} or its own frame "
         f"(scale {body.scale:g}; within {body.start_tolerance_m * body.scale:g} m)"
     )
     cols = ["robot", *("xyz"[: scenario.dimension]), "pose topic", "command topic"]
     if unicycle:
         cols[1 + scenario.dimension : 1 + scenario.dimension] = ["heading [rad]"]
+    if body.transforms:  # a robot in a frame of its own starts there, in its coordinates
+        cols.insert(1, "frame")
     for col in cols:
         table.add_column(col, justify="right" if len(col) == 1 or col == "robot" else "left")
     for r, i in enumerate(robots.ids):
-        row = [str(i), *(repr(float(c) * body.scale) for c in robots.x[r])]
-        if robots.heading is not None:
-            row.append(repr(float(robots.heading[r])))
+        where = [float(c) * body.scale for c in robots.x[r]]
+        heading = None if robots.heading is None else float(robots.heading[r])
+        transform = body.transform_of(i)
+        if transform is not None:
+            where = transform.from_world(where)
+            heading = None if heading is None else heading - transform.rotation_rad
+        row = [str(i), *([body.frame_of(i)] if body.transforms else []), *map(repr, where)]
+        if heading is not None:
+            row.append(repr(heading))
         table.add_row(*row, body.pose_topic_of(i), body.command_topic_of(i))
     print_table(table, Console())
     return 0

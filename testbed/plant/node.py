@@ -12,7 +12,8 @@ pose (the scenario's pose type), on the topics and QoS of the scenario's ``[body
   agent joins or restarts at ``k`` gets its pose as at epoch 0, until its first command. A unicycle moves one sub-step of the
   simulator's inner loop per command, and its poses go out stamped with the sub-step's sim
   time, ``inner_steps`` an epoch, the last one ``(k + 1) T``. A lockstep run through it
-  equals ``formation simulate`` to the bit.
+  equals ``formation simulate`` to the bit. The sim time goes out on ``/clock`` at each step
+  and every ``FIRST_POSE_S`` (for nodes with ``use_sim_time``).
 - **free**: every ``1 / rate_hz`` each robot moves by the last command it got (stopping when
   none came for ``pose_timeout_s``), and the poses go out stamped with the wall clock, as a
   robot does.
@@ -63,13 +64,16 @@ class Plant:
         self._awaited = self.robots.starting(0)
         self._started = False  # every robot taking part at epoch 0 has sent a command
         self._last_command_ns: dict[int, int] = {}
-        self._publishers = {
-            i: self.link.pose_publisher(self.body.pose_topic_of(i)) for i in self.robots.ids
+        self._publishers = {  # each robot in its declared frame (body.transforms)
+            i: self.link.pose_publisher(self.body.pose_topic_of(i), self.body.frame_of(i))
+            for i in self.robots.ids
         }
         self._subscriptions = {
             i: self.link.commands(self.body.command_topic_of(i), partial(self._on_command, i))
             for i in self.robots.ids
         }
+        # stepped: the sim time on /clock, for a node of the user's with use_sim_time
+        self._clock = self.link.clock_publisher() if clock == "stepped" else None
         rate = rate_hz or 1.0 / (scenario.runtime.realtime_period_s or scenario.control.period_s)
         self.dt_s = 1.0 / rate
         loop = self._starting_poses if clock == "stepped" else self._free_running
@@ -79,14 +83,19 @@ class Plant:
     def _publish(self, rows: list[int], stamp_ns: int) -> None:
         scale = self.body.scale
         for r in rows:
+            i = self.robots.ids[r]
             position = [float(c) * scale for c in self.robots.x[r]]
-            self._publishers[self.robots.ids[r]].publish(position, stamp_ns, self.robots.yaw(r))
+            yaw, transform = self.robots.yaw(r), self.body.transform_of(i)
+            if transform is not None:  # as the robot publishes it, in its own frame
+                position, yaw = transform.from_world(position), yaw - transform.rotation_rad
+            self._publishers[i].publish(position, stamp_ns, yaw)
 
     def _starting_poses(self) -> None:
         """Stepped: the pose of each robot whose agent starts, once its topics are matched,
         every ``FIRST_POSE_S`` until its first command comes."""
         while not self.closing.wait(FIRST_POSE_S):
             with self._lock:
+                self._tick()  # again, for a node that has just joined (its QoS is volatile)
                 for r, i in enumerate(self.robots.ids):
                     if (
                         i in self._awaited
@@ -100,7 +109,16 @@ class Plant:
         steps = self.robots.limits[3]
         return self.robots.epoch * self.period_ns + self.robots.substep * self.period_ns // steps
 
+    def _tick(self) -> None:
+        """Stepped: the robots' sim time on ``/clock``."""
+        assert self._clock is not None
+        self._clock.publish(self._stamp_ns())
+
     def _on_command(self, robot: int, velocity: list[float], turn_rad_s: float) -> None:
+        transform = self.body.transform_of(robot)
+        world = self.body.command_frame == "world" and self.robots.heading is None
+        if transform is not None and world:  # a holonomic cmd_vel in its own frame
+            velocity = transform.velocity_to_world(velocity)
         u = [c / self.body.scale for c in velocity[: self.scenario.dimension]]
         with self._lock:
             self.robots.command(robot, u, turn_rad_s)
@@ -113,6 +131,7 @@ class Plant:
                 log.info("stepped: every robot has sent its first command")
             while self.robots.ready():
                 self.robots.step()
+                self._tick()  # before the poses it stamps: a node sees the time, then them
                 self._publish(list(range(len(self.robots.ids))), self._stamp_ns())
                 k = self.robots.epoch
                 if self.robots.substep:

@@ -30,6 +30,27 @@ ESSENTIAL = ("router", "recorder", "netem")  # the run cannot go on without them
 MAX_RESTARTS = 3  # per process: one that dies again at once is not restarted forever
 
 
+def agent_ids(name: str) -> list[int]:
+    """The agent ids of a process's name: ``agent-3`` → [3], ``pool-1-25`` → 1..25 (a
+    restarted incarnation ``agent-3.1`` too)."""
+    parts = [int(p) for p in name.split(".")[0].split("-")[1:]]
+    return list(range(parts[0], parts[-1] + 1))
+
+
+def check_restart(policy: RestartPolicy, robots: Sequence[int], mode: str) -> None:
+    """Refuse ``on-failure`` for agents whose bodies are ROS 2 robots in realtime: a restarted
+    agent would take its robot's pose as a new start (checked against the scenario's) and
+    its recorded poses would not line up with the run's epochs."""
+    if policy == "on-failure" and robots and mode == "realtime":
+        raise RuntimeFailure(
+            f"--restart on-failure with ROS 2 robot bodies in realtime (agents "
+            f"{', '.join(map(str, robots))}): a restarted agent would take its robot's pose as "
+            "a new start, away from the scenario's, and its recorded poses would not line up "
+            "with the run's epochs; run without --restart (a lost robot's agent stays lost) "
+            "or in lockstep"
+        )
+
+
 @dataclass
 class Loss:
     """One process that died before the run's end, as the launcher saw it."""
@@ -254,5 +275,7 @@ __all__ = [
     "Loss",
     "RestartPolicy",
     "Supervisor",
+    "agent_ids",
+    "check_restart",
     "first_missing_epoch",
 ]

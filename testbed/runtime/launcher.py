@@ -28,7 +28,13 @@ from formation.scenario import Scenario, StrategyName
 from shell import session_config
 from testbed.runtime import steal
 from testbed.runtime.events import EventDriver
-from testbed.runtime.faults import RestartPolicy, Supervisor, first_missing_epoch
+from testbed.runtime.faults import (
+    RestartPolicy,
+    Supervisor,
+    agent_ids,
+    check_restart,
+    first_missing_epoch,
+)
 from testbed.runtime.observer import Observer, all_final, flush_recorder, missing_final
 from testbed.runtime.outcome import RunOutcome, Supervision
 from testbed.runtime.priorities import favour_shared
@@ -119,6 +125,8 @@ class LocalRun:
         self.startup_timeout_s = startup_timeout_s
         self.epoch_timeout_s, self.zenoh_mode = epoch_timeout_s, zenoh_mode
         self.restart, self.recorder_args = restart, recorder_args
+        sc = self.scenario
+        check_restart(restart, sc.body.robots(sc.n), sc.runtime.mode)
         self.scenario_path = self.run_dir / "scenario.toml"
         # Every process the run may start, and the launcher's own session: only they slow it down.
         self.members = [
@@ -279,7 +287,7 @@ class LocalRun:
                 return first_missing_epoch(np.isfinite(observer.positions[:, :, 0]).any(axis=1))
             return min(
                 first_missing_epoch(np.isfinite(observer.positions[:, i - 1, 0]))
-                for i in _ids_of(name)
+                for i in agent_ids(name)
             )
 
     def _has_state(self, agent: int, epoch: int) -> bool:
@@ -320,7 +328,7 @@ class LocalRun:
         observer, supervisor = self.observer, self.supervisor
         gone = supervisor.gone_for_good()
         self._progress(self.scenario.epochs, observer.drops)
-        taking_part = [i for n in self._agents if n not in gone for i in _ids_of(n)]
+        taking_part = [i for n in self._agents if n not in gone for i in agent_ids(n)]
         taking_part = self.events.finishing(gone) if self.scenario.events else taking_part
         self.group.wait_for(
             lambda: all_final(observer, taking_part),
@@ -433,9 +441,3 @@ def _write_atomic(path: Path, text: str) -> None:
     tmp = path.with_suffix(path.suffix + ".tmp")
     tmp.write_text(text)
     tmp.replace(path)
-
-
-def _ids_of(name: str) -> list[int]:
-    """The agent ids of a process's name: ``agent-3`` → [3], ``pool-1-25`` → 1..25."""
-    parts = [int(p) for p in name.split(".")[0].split("-")[1:]]
-    return list(range(parts[0], parts[-1] + 1))

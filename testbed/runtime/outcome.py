@@ -17,6 +17,7 @@ from formation import realtime_accounting
 from formation.body import BODY_LOST_EXIT
 from formation.scenario import Scenario
 from testbed.runtime.events import bodies
+from testbed.runtime.faults import agent_ids
 from testbed.runtime.observer import Verdict
 
 
@@ -95,9 +96,10 @@ class RunOutcome:
         """Packets netem delivered to an agent whose robot was lost, of the epochs it never
         took: from its loss's epoch − 1 (it publishes ``x[k+1]`` before it waits for the pose)."""
         untaken_from = {
-            int(loss["name"].removeprefix("agent-")): int(loss["epoch"]) - 1
+            i: int(loss["epoch"]) - 1
             for loss in self.supervision.losses
-            if loss.get("code") == BODY_LOST_EXIT and loss["name"].startswith("agent-")
+            if loss.get("code") == BODY_LOST_EXIT and loss["name"] != "leader"
+            for i in agent_ids(loss["name"])  # a pool's agents stop with its robot
         }
         return sum(
             d.verdict != "drop" and d.epoch >= untaken_from.get(d.target, d.epoch + 1)
@@ -186,10 +188,13 @@ class RunOutcome:
         links = self.scenario.directed_links
         for loss in losses:  # its drops: decisions on its links, and the epochs it missed
             name = loss["name"]
-            ident = "0" if name == "leader" else name.removeprefix("agent-")
-            loss["dropped"] = sum(d for link, (_, d) in drops.items() if ident in link.split("->"))
+            ids = [0] if name == "leader" else agent_ids(name)  # a pool: each of its agents
+            loss["dropped"] = sum(
+                d for link, (_, d) in drops.items() if {str(i) for i in ids} & set(link.split("->"))
+            )
             if name != "leader":  # the states its receivers went without while it was out
-                i = int(ident)
-                absent = int((~seen[loss["epoch"] :, i - 1]).sum())
-                loss["missed"] = absent * int((links[:, 0] == i).sum())
+                loss["missed"] = sum(
+                    int((~seen[loss["epoch"] :, i - 1]).sum()) * int((links[:, 0] == i).sum())
+                    for i in ids
+                )
         return {"losses": losses, **out, "fallbacks": self.supervision.fallbacks}

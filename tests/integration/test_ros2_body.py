@@ -12,9 +12,11 @@ import select
 import signal
 import subprocess
 import sys
+import time
 import zlib
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -84,6 +86,51 @@ def plant(path: Path, *args: str) -> Iterator[subprocess.Popen[str]]:
                 proc.kill()
                 proc.wait()
         proc.stdout.close()
+
+
+@contextlib.contextmanager
+def sim_time_node() -> Iterator[Any]:
+    """A user's rclpy node started with ``use_sim_time:=true``, spinning on a thread."""
+    import threading
+
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    context = Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node(
+        "users_node", context=context, parameter_overrides=[Parameter("use_sim_time", value=True)]
+    )
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    stop = threading.Event()
+
+    def spin() -> None:
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.1)
+
+    thread = threading.Thread(target=spin, daemon=True)
+    thread.start()
+    try:
+        yield node
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+        executor.shutdown(timeout_sec=1)
+        node.destroy_node()
+        context.try_shutdown()
+
+
+def wait_for_sim_time(node: Any, ns: int, timeout_s: float = 10.0) -> int:
+    """The node's clock once it reads ``ns`` (or at the timeout) [ns]."""
+    deadline = time.monotonic() + timeout_s
+    now = node.get_clock().now().nanoseconds
+    while now != ns and time.monotonic() < deadline:
+        time.sleep(0.05)  # rclpy's clock has no wait on a value
+        now = node.get_clock().now().nanoseconds
+    return int(now)
 
 
 def plant_counts(proc: subprocess.Popen[str]) -> dict[str, int]:
@@ -192,14 +239,19 @@ def test_robots_through_a_join_a_crash_a_restart_and_a_leave_equal_the_simulator
 def test_a_double_integrator_with_some_robots_equals_the_simulator_and_records_their_traffic(
     paper: Scenario, runs_dir: Path, tmp_path: Path, ros_domain: int
 ) -> None:
-    # agents 2 and 4 are robots, each in a pool of two with a simulated body
+    # agents 2 and 4 are robots, each in a pool of two with a simulated body; robot 4 in a
+    # frame of its own (the plant publishes it there, the agent maps it back)
     control = {**paper.control.model_dump(), "dynamics": "double", "period_s": 0.3, "gain": 0.5}
+    odom = {"agent": 4, "frame_id": "odom4"}  # at the world's origin: the run stays bit for bit
     scenario, path = with_robots(
-        paper.with_overrides(control=control, epochs=30), tmp_path, agents=[2, 4]
+        paper.with_overrides(control=control, epochs=30), tmp_path, agents=[2, 4], transforms=[odom]
     )
     sim = simulate(scenario)
-    with plant(path) as proc:
+    with sim_time_node() as users, plant(path) as proc:
         outcome = launch(scenario, runs_dir=runs_dir, pool=2)
+        # a node with use_sim_time follows the stepped plant's /clock: the last epoch's time
+        end_ns = scenario.epochs * round(scenario.control.period_s * 1e9)
+        assert wait_for_sim_time(users, end_ns) == end_ns
         counts = plant_counts(proc)
     np.testing.assert_array_equal(outcome.positions, sim.positions)
     assert counts["commands"] == 2 * scenario.epochs and counts["epoch"] == scenario.epochs

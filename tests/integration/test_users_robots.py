@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from agent.body import RobotBodies
+from agent.body import GRAPH_CHECK_S, RobotBodies
 from analysis import formation_error, shape_error, team_errors
 from formation.errors import BodyLost, PoseFrameMismatch, QosMismatch, RobotNotAtStart
 from formation.scenario import Scenario
@@ -106,16 +106,24 @@ def robot_report(proc: subprocess.Popen[str]) -> dict[str, dict[str, Any]]:
 
 
 def test_the_first_pose_the_qos_and_a_lost_pose_are_told_as_they_are(
-    paper: Scenario, tmp_path: Path, ros_domain: int
+    paper: Scenario, tmp_path: Path, ros_domain: int, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    scenario = realtime_robots(paper, command_frame="body")
+    # robot 5 publishes in its own odometry frame, declared with its place in the world
+    odom = {"agent": 5, "frame_id": "odom5", "offset_m": [1.0, -2.0], "rotation_rad": 0.7}
+    scenario = realtime_robots(paper, command_frame="body", transforms=[odom])
     log = tmp_path / "robots.log"
     far = starts(scenario, [2], moved={2: 5.0})
+    c, s = math.cos(0.7), math.sin(0.7)
+    x5, y5 = (scenario.initial_positions()[4] - [1.0, -2.0]).tolist()  # its start, in odom5
+    in_odom = f"--robot=5={c * x5 + s * y5!r},{-s * x5 + c * y5!r}"
     with (
         robots(log, *starts(scenario, [1]), "--best-effort") as offers_less,
-        robots(log, *far, *starts(scenario, [3, 4]), "--frame=4=odom", "--yaw=3=0.5") as reliable,
-    ):
-        bodies = RobotBodies(scenario, [1, 2, 3, 4], "formation_pool_1")
+        robots(
+            log, *far, *starts(scenario, [3, 4]), in_odom, "--frame=4=odom", "--frame=5=odom5",
+            "--frame=2=", "--yaw=3=0.5",
+        ) as reliable,
+    ):  # fmt: skip
+        bodies = RobotBodies(scenario, [1, 2, 3, 4, 5], "formation_pool_1")
         try:
             # robot 1 publishes best effort, the agent asks reliable: no pose can come
             bodies.ids = [1]  # one robot at a time: each stops the agent its own way
@@ -127,18 +135,55 @@ def test_the_first_pose_the_qos_and_a_lost_pose_are_told_as_they_are(
                 r"pose can arrive; set body\.pose_qos to what the robot publishes$",
             ):
                 bodies.wait_poses(None, READY_S)
+            # the same from the ROS graph, for an RMW that raises no such event
+            assert bodies.link.refused_by("/robot1/pose") == (
+                "reliability best_effort, durability volatile",
+                "reliability reliable, durability volatile",
+                "reliability",
+            )
+            assert bodies.link.refused_by("/robot3/pose") is None  # reliable: it matches
+            with monkeypatch.context() as rmw:  # an RMW with no QoS event (rmw_zenoh_cpp's)
+                rmw.setattr(RobotBodies, "_on_mismatch", lambda *_: None)
+                no_event = RobotBodies(scenario, [1], "formation_agent_1")
+            try:
+                began = time.monotonic()
+                with pytest.raises(QosMismatch, match=r"\(reliability incompatible\)"):
+                    no_event.wait_poses(None, READY_S)
+                assert time.monotonic() - began >= GRAPH_CHECK_S  # told by the graph
+            finally:
+                no_event.close()
             offers_less.kill()
             bodies.ids = [4]  # robot 4's poses are in its odometry frame: none is used
             with pytest.raises(
                 PoseFrameMismatch,
                 match=r"^agent 4: the poses on /robot4/pose are in frame 'odom', not "
-                r"body\.frame_id = 'world': none is used; publish them in 'world' or set "
-                r"body\.frame_id to the frame they are in$",
+                r"body\.frame_id = 'world': none is used; publish them in 'world', or declare "
+                r"the frame they are in \(body\.frame_id, or the robot's own in "
+                r"body\.transforms\)$",
             ):
                 bodies.wait_poses(None, READY_S)
             assert bodies.counts["wrong_frame"] > 0 and bodies.counts["jumps"] == 0
-            bodies.ids = [2, 3]  # the robots a pose can come from
-            bodies.wait_poses(None, READY_S)
+            bodies.ids = [2, 3, 5]  # the robots a pose can come from
+            placed = bodies.wait_poses(None, READY_S)
+            # robot 2 stamps no frame_id: taken as body.frame_id, counted; robot 5's odom5
+            # pose is where the scenario starts it in the world
+            assert bodies.counts["empty_frame"] > 0 and bodies.counts["wrong_frame"] > 0
+            assert placed[5] == pytest.approx(scenario.initial_positions()[4], abs=1e-12)
+            assert bodies.headings()[5] == pytest.approx(0.7, abs=1e-12)
+            bodies.command({5: [0.1, 0.0]})  # east in the world: its body frame turned 0.7
+            (vx, vy, *_), _ = bodies.last_twist(5) or ([], 0.0)
+            assert (vx, vy) == pytest.approx((0.1 * c, -0.1 * s), abs=1e-12)
+            # a world-frame cmd_vel is turned back into odom5, where the robot moves by it
+            world = scenario.body.model_copy(update={"command_frame": "world"})
+            in_world = RobotBodies(scenario.with_overrides(body=world), [5], "formation_agent_5")
+            try:
+                in_world.wait_poses(None, READY_S)
+                in_world.command({5: [0.0, 0.1]})  # north in the world
+                (vx, vy, *_), _ = in_world.last_twist(5) or ([], 0.0)
+                assert (vx, vy) == pytest.approx((0.1 * s, 0.1 * c), abs=1e-12)
+            finally:
+                in_world.close()
+            bodies.ids = [2, 3]
             with pytest.raises(
                 RobotNotAtStart,
                 match=r"^agent 2: its robot's first pose on /robot2/pose is at \(4\.38\d+, "

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis import RunData, summarise, team_errors
+from analysis import RunData, robot_counts_line, summarise, team_errors
 from analysis.metrics import formation_error, shape_error
 from formation.scenario import Scenario
 from testbed.sim.batch import run_batch
@@ -125,4 +125,16 @@ def test_the_substitution_covariance_does_not_depend_on_the_rows_order(simulated
     again = summarise(dataclasses.replace(simulated, substitution_errors=shuffled))
     assert repr(again["substitution_cov_trace_m2"]) == repr(
         summarise(simulated)["substitution_cov_trace_m2"]
+    )
+
+
+def test_the_robots_line_counts_poses_with_no_frame_id_only_when_there_are_some() -> None:
+    counts = {"poses": 10, "bad_poses": 1, "jumps": 2, "wrong_frame": 3, "resent": 4}
+    line = robot_counts_line(counts)
+    assert line == (
+        "robots: 10 poses, 6 rejected (1 not finite, 2 jumps, 3 in another frame), 0 commands "
+        "clipped to the speed limit, 4 re-sent between steps"
+    )
+    assert robot_counts_line({**counts, "empty_frame": 5}) == (
+        f"{line}, 5 with no frame_id (taken as declared)"
     )

@@ -11,6 +11,7 @@ import pytest
 
 from body.rmw_zenoh import (
     attachment,
+    clock_cdr,
     dds_type_name,
     endpoint_token,
     node_token,
@@ -66,6 +67,17 @@ def test_a_twist_in_cdr_is_the_bytes_rclpy_serializes() -> None:
     assert twist_cdr(ODD[:2]) == serialize_message(twist_message(Twist, ODD[:2]))
     assert twist_cdr([0.1], -1.5) == serialize_message(twist_message(Twist, [0.1], -1.5))
     assert read_twist(twist_cdr(ODD, 2.5)) == (ODD, 2.5)
+
+
+@rclpy_warnings
+def test_a_clock_in_cdr_is_the_bytes_rclpy_serializes() -> None:
+    pytest.importorskip("rclpy")
+    from rclpy.serialization import serialize_message
+    from rosgraph_msgs.msg import Clock
+
+    msg = Clock()
+    msg.clock.sec, msg.clock.nanosec = 1_733_000_000, 123_456_789
+    assert clock_cdr(1_733_000_000_123_456_789) == serialize_message(msg)
 
 
 @pytest.fixture

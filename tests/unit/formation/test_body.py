@@ -91,6 +91,30 @@ def test_a_ros2_body_for_some_agents(tmp_path: Path) -> None:
         ),
         ("pose_qos = { depth = 0 }", r"body\.pose_qos\.depth = 0; Input should be greater than"),
         ("topic = '/x{id}'", r"body\.topic = '/x\{id\}'; unknown field"),
+        (
+            'transforms = [{ agent = 4, frame_id = "odom4" }]',
+            r"body\.transforms\[0\]\.agent = 4; agent does not exist \(agents are 1\.\.3\)",
+        ),
+        (
+            'agents = [1]\ntransforms = [{ agent = 2, frame_id = "odom2" }]',
+            r"body\.transforms\[0\]\.agent = 2; no ROS 2 robot has this agent \(body\.agents\)",
+        ),
+        (
+            'transforms = [{ agent = 2, frame_id = "a" }, { agent = 2, frame_id = "b" }]',
+            r"body\.transforms\[0\]\.agent = 2; a robot has one transform; it is given twice",
+        ),
+        (
+            'transforms = [{ agent = 2, frame_id = "world" }]',
+            r"body\.transforms\[0\]\.frame_id = 'world'; the world frame itself",
+        ),
+        (
+            'transforms = [{ agent = 2, frame_id = "" }]',
+            r"body\.transforms\[0\]\.frame_id = ''; a frame id is a non-empty name",
+        ),
+        (
+            'transforms = [{ agent = 2, frame_id = "odom2", offset_m = [1.0] }]',
+            r"body\.transforms\[0\]\.offset_m = \[1\.0\]; Tuple should have at least 2 items",
+        ),
     ],
 )
 def test_bad_body_settings_name_file_field_and_value(tmp_path: Path, text: str, match: str) -> None:
@@ -115,8 +139,10 @@ def test_robots_follow_scenario_events_in_lockstep_only() -> None:
     with pytest.raises(
         ScenarioError,
         match=r"body\.kind = 'ros2'; the scenario has 4 events \(leave, crash, join, restart\), "
-        r"which robots follow in lockstep only \(the stepped plant\); set runtime\.mode = "
-        r"'lockstep'$",
+        r"which the agents' processes follow in lockstep only \(in realtime a leaving agent "
+        r"runs on and a joining or restarted one starts again from epoch 0, so a robot would be "
+        r"driven by an agent out of the team\); set runtime\.mode = 'lockstep' \(the stepped "
+        r"plant\)$",
     ):
         load_dict(tomllib.loads(realtime), source="events.toml")
 
@@ -158,3 +184,49 @@ def test_robot_names_are_checked(tmp_path: Path, text: str, match: str) -> None:
     path = path.rename(tmp_path / "bad.toml")
     with pytest.raises(ScenarioError, match=match):
         load(path)
+
+
+def test_a_robot_in_its_own_odometry_frame_is_mapped_to_the_world_and_back(
+    tmp_path: Path,
+) -> None:
+    s = load(
+        write(
+            tmp_path,
+            """
+[body]
+kind = "ros2"
+
+[[body.transforms]]
+agent = 2
+frame_id = "tb3_1/odom"
+offset_m = [1.0, -2.0]
+rotation_rad = 1.5707963267948966
+""",
+        )
+    )
+    t = s.body.transform_of(2)
+    assert t is not None and s.body.transform_of(1) is None
+    assert (s.body.frame_of(1), s.body.frame_of(2)) == ("world", "tb3_1/odom")
+    # a quarter turn: the odom frame's x axis is the world's y
+    (x, y), yaw = t.to_world([3.0, 0.0], 0.25)
+    assert (x, y) == pytest.approx((1.0, 1.0), abs=1e-15) and yaw == pytest.approx(
+        0.25 + t.rotation_rad
+    )
+    assert t.velocity_in_frame([0.0, 0.5]) == pytest.approx([0.5, 0.0], abs=1e-15)
+    assert t.velocity_to_world([0.5, 0.0]) == pytest.approx([0.0, 0.5], abs=1e-15)
+    assert t.from_world([1.0, 1.0]) == pytest.approx([3.0, 0.0], abs=1e-15)  # as the plant
+    (x, y, z), _ = t.to_world([0.0, 0.0, 0.7], 0.0)  # z passes; a 2-D offset has none
+    assert (x, y, z) == (1.0, -2.0, 0.7)
+
+
+def test_a_publisher_s_qos_is_refused_where_dds_would_not_match_it() -> None:
+    from formation.body import Qos
+
+    reliable = Qos(reliability="reliable", durability="transient_local")
+    assert reliable.refuses("best_effort", "transient_local") == "reliability"
+    assert reliable.refuses("reliable", "volatile") == "durability"
+    assert reliable.refuses("reliable", "transient_local") is None
+    assert reliable.refuses("system_default", "unknown") is None  # not judged
+    anything = Qos(reliability="best_effort", durability="volatile")
+    assert anything.refuses("best_effort", "volatile") is None
+    assert anything.refuses("reliable", "transient_local") is None  # it may offer more

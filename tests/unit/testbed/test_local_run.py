@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from formation.errors import RunEnded
+from formation.errors import RunEnded, RuntimeFailure
 from formation.scenario import Scenario
 from testbed.runtime.launcher import LocalRun, RunHooks, make_run_id
 
@@ -33,6 +33,27 @@ def test_a_run_resolves_its_settings_and_touches_nothing_before_it_starts(
     assert run.members[:5] == ["launcher", "router", "recorder", "netem", "leader"]
     assert [m.split("-")[0] for m in run.members[5:]] == ["pool", "pool"]
     assert run.hooks == RunHooks() and not run.run_dir.exists() and not run.group.children
+
+
+def test_a_restart_policy_is_refused_with_robot_bodies_in_realtime_before_anything_starts(
+    paper: Scenario, tmp_path: Path
+) -> None:
+    robots = paper.with_overrides(
+        runtime={"mode": "realtime", "realtime_period_s": 0.2},
+        body={"kind": "ros2", "agents": [2, 4]},
+    )
+    with pytest.raises(
+        RuntimeFailure,
+        match=r"^--restart on-failure with ROS 2 robot bodies in realtime \(agents 2, 4\): a "
+        r"restarted agent would take its robot's pose as a new start, away from the "
+        r"scenario's, and its recorded poses would not line up with the run's epochs; run "
+        r"without --restart \(a lost robot's agent stays lost\) or in lockstep$",
+    ):
+        LocalRun(robots, runs_dir=tmp_path, restart="on-failure")
+    assert not list(tmp_path.iterdir())
+    LocalRun(robots, runs_dir=tmp_path)  # without the policy
+    lockstep = robots.with_overrides(runtime={"mode": "lockstep"})
+    LocalRun(lockstep, runs_dir=tmp_path, restart="on-failure")  # netem says where to rejoin
 
 
 def test_waiting_for_a_run_not_started_is_an_error_that_names_it(

@@ -11,10 +11,12 @@ import numpy as np
 from rich.console import Console
 
 from analysis import summarise
+from formation.body import BODY_LOST_EXIT
 from formation.scenario import Scenario
 from recorder import read_run
 from testbed.cli.run import _print_summary, _report, headline
 from testbed.runtime.launcher import RunOutcome
+from testbed.runtime.observer import Verdict
 from testbed.runtime.outcome import Supervision
 from testbed.sim.simulate import simulate
 from testkit.forgeries import forgeries
@@ -82,3 +84,31 @@ def test_what_the_launcher_supervised_goes_into_the_summary_in_its_order(paper: 
     assert s["cpu_steal"] == 0.25 and s["fallbacks"] == 3
     assert s["losses"] == [{**loss, "dropped": 0, "missed": 6}]  # 2 epochs × its 3 links
     assert s["team"]["3"] == [(0, 2)]
+
+
+def test_a_pool_whose_robot_was_lost_is_summed_over_its_agents(paper: Scenario) -> None:
+    # pool-2-3 stopped at epoch 3 as one of its robots' poses stopped coming: netem's
+    # deliveries to both its agents from epoch 2 on were never taken (robot silent)
+    scenario = paper.with_overrides(epochs=4, runtime={"mode": "realtime"})
+    x = simulate(scenario.with_overrides(runtime={"mode": "lockstep"}), "hold").positions.copy()
+    x[3:, 1:3] = np.nan
+    loss = {"name": "pool-2-3", "pid": 7, "code": BODY_LOST_EXIT, "epoch": 3, "after_start_s": 0.5}
+    decisions = [
+        Verdict(source, target, "formation", k, k, verdict)
+        for k in range(5)
+        for source, target in ((1, 2), (4, 3), (1, 5))
+        for verdict in ("pass", "drop")
+    ]
+    outcome = RunOutcome(
+        run_id="r", run_dir=Path("unused"), scenario=scenario, strategy="hold", seed=1,
+        positions=x, estimated_epochs=[], decisions=decisions, malformed={}, sent={}, pids=[],
+        wall_s=1.5, substitutions=[], supervision=Supervision(deadline={"x": 0}, losses=[loss]),
+    )  # fmt: skip
+    # epochs 2, 3, 4 into agents 2 and 3: six packets passed, none into agent 5
+    assert outcome.untaken_for_lost_robots() == 6
+    assert outcome.summary()["robot_silent"] == 6
+    (summed,) = outcome.summary()["losses"]
+    links = scenario.directed_links
+    out_of = {i: int((links[:, 0] == i).sum()) for i in (2, 3)}
+    assert summed["dropped"] == 10  # its links' drops: 1->2 and 4->3, at every epoch
+    assert summed["missed"] == 2 * out_of[2] + 2 * out_of[3]  # epochs 3 and 4 of each
