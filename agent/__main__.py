@@ -42,6 +42,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--id", "--ids", dest="ids", required=True, help="agent id, or ids for a pool")
     p.add_argument("--strategy", help="a loss strategy plug-in (default: the scenario's)")
     p.add_argument("--seed", type=int)
+    p.add_argument(
+        "--rejoin",
+        action="store_true",
+        help="started into a running run (a join, a restart): ask netem from which epoch",
+    )
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
     try:
@@ -71,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
         # Restarted into a running run, or joining it later (a scenario event): ask netem
         # (in lockstep from the epochs it closed, in realtime from the run's clock).
         joins = not scenario.membership.present[0, [i - 1 for i in ids]].all()
-        restarted = joins or service.run_started()
+        restarted = args.rejoin or joins or service.run_started()
         timing = time_policy(scenario, watch_s=WATCH_S)
         if not restarted:  # a restart's bodies are placed where netem last saw them
             node.place_bodies(timing.realtime)

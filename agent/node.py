@@ -366,11 +366,16 @@ class AgentNode:
     def _record_traffic(self, k: int, kinds: tuple[str, ...] = ("pose", "command")) -> None:
         """Into the recording: each robot's pose taken and command sent (agent.body)."""
         assert self.bodies is not None
+        # realtime: a pose's sequence is its epoch, so the recording matches poses to epochs
+        # across a restart's parts too (recorder.reading.bodies)
+        by_epoch = self._timing is not None and self._timing.realtime
         for i in self.bodies.ids:
             for what, type_name, cdr in self.bodies.traffic(i):
                 if what in kinds:
                     key = keys.body(self.run_id, i, what, type_name)
-                    self.service.put(key, cdr, attachment(k, self.service.next_seq(key), i))
+                    seq = self.service.next_seq(key)
+                    seq = k if by_epoch and what == "pose" else seq
+                    self.service.put(key, cdr, attachment(k, seq, i))
 
     def run(self, timing: TimePolicy) -> int:
         """Run every agent to its last epoch under ``timing``; returns an exit code.

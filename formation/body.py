@@ -215,11 +215,8 @@ def _known(v: str, types: tuple[str, ...]) -> str:
     return v
 
 
-def body_problems(
-    body: Body, n: int, events: int = 0, mode: str = "lockstep"
-) -> list[tuple[str, object, str]]:
-    """``(field, value, problem)`` of ``[body]`` against the team (``events``: how many the
-    scenario has; ``mode``: its runtime's); empty when it can run."""
+def body_problems(body: Body, n: int) -> list[tuple[str, object, str]]:
+    """``(field, value, problem)`` of ``[body]`` against a team of ``n``; empty when it can run."""
     for k, i in enumerate(body.agents):
         if not 1 <= i <= n:
             return [(f"body.agents[{k}]", i, f"agent does not exist (agents are 1..{n})")]
@@ -263,18 +260,6 @@ def body_problems(
                     "the world frame itself (body.frame_id): a transform maps a robot's own frame",
                 )
             ]
-    if body.kind in ROS_BODIES and events and mode == "realtime":
-        return [
-            (
-                "body.kind",
-                body.kind,
-                f"the scenario has {events} events (leave, crash, join, restart), which the "
-                "agents' processes follow in lockstep only (in realtime a leaving agent runs on "
-                "and a joining or restarted one starts again from epoch 0, so a robot would be "
-                "driven by an agent out of the team); set runtime.mode = 'lockstep' (the "
-                "stepped plant)",
-            )
-        ]
     return []
 
 

@@ -197,7 +197,7 @@ def _events(s: ScenarioFields) -> list[Problem]:
 
 
 def _body(s: ScenarioFields) -> list[Problem]:
-    return body_problems(s.body, len(s.agents), len(s.events), s.runtime.mode)
+    return body_problems(s.body, len(s.agents))
 
 
 def _plugins(s: ScenarioFields) -> list[Problem]:

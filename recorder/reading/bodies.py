@@ -2,8 +2,8 @@
 where the robots were, beside where their agents meant them to be.
 
 In realtime an agent records, at its step of epoch ``k``, the newest pose it stepped from: the
-robot's measured ``x[k]``, the ``k``-th message on its channel (the agent's publisher counts
-them, so the record's ``sequence`` is ``k``). In lockstep the agent's state is the pose itself
+robot's measured ``x[k]``, with the record's ``sequence`` ``k`` (a restarted or joining agent's
+too, from its first epoch). In lockstep the agent's state is the pose itself
 (it places ``x[k+1]`` from the pose stamped ``k + 1``), so the states already are the poses.
 """
 

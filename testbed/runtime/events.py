@@ -103,7 +103,7 @@ class EventDriver:
                 earlier = [t for t in self.steps if t.agent == s.agent and t.epoch < s.epoch]
                 if any(not t.done for t in earlier) or ahead < s.epoch - 1:
                     continue
-                self.supervisor.start_planned(name, "agent", *self.agent_args(s.agent))
+                self.supervisor.start_planned(name, "agent", *self.agent_args(s.agent), "--rejoin")
             s.done = True
 
     def finishing(self, gone: set[str]) -> list[int]:

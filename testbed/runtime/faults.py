@@ -173,7 +173,8 @@ class Supervisor:
             self.losses.append(loss)
             if self.policy == "on-failure" and inc.restarts < MAX_RESTARTS:
                 inc.restarts += 1
-                new = self.group.start(f"{name}.{inc.restarts}", inc.module, *inc.args)
+                rejoin = ("--rejoin",) if inc.module == "agent" else ()  # into the running run
+                new = self.group.start(f"{name}.{inc.restarts}", inc.module, *inc.args, *rejoin)
                 inc.child, loss.restarted_pid = new, new.pid
 
     def check_team(self, agents: list[str]) -> None:

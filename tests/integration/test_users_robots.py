@@ -29,6 +29,7 @@ from analysis import formation_error, shape_error, team_errors
 from formation.errors import BodyLost, PoseFrameMismatch, QosMismatch, RobotNotAtStart
 from formation.scenario import Scenario
 from recorder import read_run
+from testbed.runtime.launcher import launch
 from testkit.run_watch import KillAtEpoch, wait_for_run
 
 pytestmark = [
@@ -347,3 +348,36 @@ def test_a_robot_far_from_its_start_keeps_the_run_from_starting_with_a_clear_err
         done.stderr,
     ), done.stderr
     assert not list(runs_dir.glob("*/report.md"))  # no epoch ran
+
+
+def test_scenario_events_with_a_users_robots_in_realtime(runs_dir: Path, ros_domain: int) -> None:
+    # events.toml with robots: 6 joins at 15, 3 crashes at 10 (its process killed: its robot's
+    # watchdog stops it) and restarts at 40, from where its robot stands (6 s to start rclpy)
+    scenario = Scenario.from_file(Path(__file__).resolve().parents[2] / "scenarios/events.toml")
+    scenario = scenario.with_overrides(
+        epochs=45,
+        events=[
+            {"epoch": 15, "agent": 6, "action": "join"},
+            {"epoch": 10, "agent": 3, "action": "crash"},
+            {"epoch": 40, "agent": 3, "action": "restart"},
+        ],
+        runtime={"mode": "realtime", "realtime_period_s": 0.2},
+        body={"kind": "ros2", "pose_timeout_s": 2.0, "max_speed_m_s": 0.5},
+    )
+    with robots(
+        runs_dir.parent / "robots.log", *starts(scenario, [*range(1, 7)]), "--watchdog-s", "0.3"
+    ) as team:
+        outcome = launch(scenario, strategy="hold", runs_dir=runs_dir)
+        report = robot_report(team)
+    s = outcome.summary()
+    run = read_run(outcome.run_dir / "run.mcap")
+    published = scenario.membership.published
+    # each agent's states and its robot's measured poses in its parts only, epoch for epoch
+    assert (run.present == published).all(), np.argwhere(run.present != published)
+    assert run.computed is not None and (np.isfinite(run.computed).all(axis=2) == published).all()
+    assert run.recorded.skipped.total == 0, run.recorded.skipped.describe()
+    # the restart steps from its robot's pose: where the watchdog stopped it after the kill
+    assert np.linalg.norm(run.positions[40, 2] - run.positions[10, 2]) < 0.5 * 0.3 + 0.05
+    assert s["unaccounted"] == 0, s["deadline"]
+    for i, robot in report.items():  # every robot's last command a zero, the limit held
+        assert robot["last"] == [0.0, 0.0] and robot["fastest_m_s"] <= 0.5 * (1 + 1e-12), (i, robot)

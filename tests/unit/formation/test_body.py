@@ -131,20 +131,13 @@ def test_a_ros2_unicycle_runs_in_lockstep_and_in_realtime(tmp_path: Path) -> Non
         assert scenario.body.robots(scenario.n) == [1, 2, 3]
 
 
-def test_robots_follow_scenario_events_in_lockstep_only() -> None:
+def test_robots_follow_scenario_events_in_either_mode() -> None:
     events = Path(__file__).resolve().parents[3] / "scenarios" / "events.toml"
     text = events.read_text() + '\n[body]\nkind = "ros2"\n'
     assert load_dict(tomllib.loads(text), source="events.toml").body.robots(6) == [*range(1, 7)]
     realtime = text + '\n[runtime]\nmode = "realtime"\n'
-    with pytest.raises(
-        ScenarioError,
-        match=r"body\.kind = 'ros2'; the scenario has 4 events \(leave, crash, join, restart\), "
-        r"which the agents' processes follow in lockstep only \(in realtime a leaving agent "
-        r"runs on and a joining or restarted one starts again from epoch 0, so a robot would be "
-        r"driven by an agent out of the team\); set runtime\.mode = 'lockstep' \(the stepped "
-        r"plant\)$",
-    ):
-        load_dict(tomllib.loads(realtime), source="events.toml")
+    s = load_dict(tomllib.loads(realtime), source="events.toml")
+    assert s.runtime.mode == "realtime" and len(s.events) == 4
 
 
 def test_topic_templates_map_a_fleet_s_own_names(tmp_path: Path) -> None:
