@@ -38,16 +38,15 @@ def agent_ids(name: str) -> list[int]:
 
 
 def check_restart(policy: RestartPolicy, robots: Sequence[int], mode: str) -> None:
-    """Refuse ``on-failure`` for agents whose bodies are ROS 2 robots in realtime: a restarted
-    agent would take its robot's pose as a new start (checked against the scenario's) and
-    its recorded poses would not line up with the run's epochs."""
+    """Refuse ``on-failure`` for agents whose bodies are ROS 2 robots in realtime: such an
+    agent is lost when its robot's pose stops, and a new process would wait on the same
+    silent robot (a scenario's planned restarts do run: the robot is there)."""
     if policy == "on-failure" and robots and mode == "realtime":
         raise RuntimeFailure(
             f"--restart on-failure with ROS 2 robot bodies in realtime (agents "
-            f"{', '.join(map(str, robots))}): a restarted agent would take its robot's pose as "
-            "a new start, away from the scenario's, and its recorded poses would not line up "
-            "with the run's epochs; run without --restart (a lost robot's agent stays lost) "
-            "or in lockstep"
+            f"{', '.join(map(str, robots))}): an agent is lost when its robot's pose stops "
+            "coming, and a new process would wait on the same silent robot; run without "
+            "--restart (a lost robot's agent stays lost) or in lockstep"
         )
 
 

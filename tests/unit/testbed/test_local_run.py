@@ -44,10 +44,10 @@ def test_a_restart_policy_is_refused_with_robot_bodies_in_realtime_before_anythi
     )
     with pytest.raises(
         RuntimeFailure,
-        match=r"^--restart on-failure with ROS 2 robot bodies in realtime \(agents 2, 4\): a "
-        r"restarted agent would take its robot's pose as a new start, away from the "
-        r"scenario's, and its recorded poses would not line up with the run's epochs; run "
-        r"without --restart \(a lost robot's agent stays lost\) or in lockstep$",
+        match=r"^--restart on-failure with ROS 2 robot bodies in realtime \(agents 2, 4\): an "
+        r"agent is lost when its robot's pose stops coming, and a new process would wait on "
+        r"the same silent robot; run without --restart \(a lost robot's agent stays lost\) or "
+        r"in lockstep$",
     ):
         LocalRun(robots, runs_dir=tmp_path, restart="on-failure")
     assert not list(tmp_path.iterdir())
