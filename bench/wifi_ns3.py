@@ -1,7 +1,10 @@
 """ns-3's side of ``bench_wifi_ns3``: phases run in ns-3.44, one process for a batch of phases.
 
 Run as ``python -m bench.wifi_ns3`` with a JSON list of phases on stdin; prints one JSON line
-of receptions (and the seconds ns-3 took) per phase. Each phase is its own ns-3 simulation:
+of receptions (and the seconds ns-3 took) per phase. With ``--error-rates`` it samples instead
+ns-3's default error-rate model (``TableBasedErrorRateModel``) for each OFDM rate at the
+32 B and 1,458 B references every 0.05 dB and prints the cubic fits of
+``ln(−ln(1 − PER))`` that ``netem/links/wifi/error_rate.py`` holds. Each phase is its own ns-3 simulation:
 the agents at their positions, 802.11 ad hoc (no QoS) on ``YansWifiChannelHelper.Default()``
 (log-distance, exponent 3, 46.6777 dB at 1 m) with ns-3's default PHY (16.0206 dBm,
 RxSensitivity −101 dBm, the preamble-detection model at −82 dBm and 4 dB, CCA energy detection
@@ -91,6 +94,48 @@ std::vector<int64_t> RunPhase(const std::vector<double>& x, const std::vector<do
 }
 """
 
+CSR = r"""
+#include "ns3/core-module.h"
+#include "ns3/wifi-module.h"
+using namespace ns3;
+namespace csr {
+std::vector<double> Sample(uint64_t kbps, const std::vector<double>& snr_db, uint64_t nbits) {
+  static Ptr<TableBasedErrorRateModel> m = CreateObject<TableBasedErrorRateModel>();
+  WifiMode mode = OfdmPhy::GetOfdmRate(kbps * 1000, 20);
+  WifiTxVector tx;
+  tx.SetMode(mode);
+  tx.SetChannelWidth(20);
+  tx.SetPreambleType(WIFI_PREAMBLE_LONG);
+  std::vector<double> out;
+  for (double s : snr_db)
+    out.push_back(m->GetChunkSuccessRate(mode, tx, std::pow(10.0, s / 10.0), nbits, 1,
+                                         WIFI_PPDU_FIELD_DATA));
+  return out;
+}
+}
+"""
+OFDM_KBPS = (6000, 9000, 12000, 18000, 24000, 36000, 48000, 54000)
+
+
+def error_rates() -> None:
+    import cppyy
+    import numpy as np
+    from ns import ns
+
+    cppyy.cppdef(CSR)
+    del ns
+    grid = np.round(np.arange(-10.0, 35.0, 0.05), 2)
+    for kbps in OFDM_KBPS:
+        fits = []
+        for nbits in (32 * 8, 1458 * 8):
+            success = np.array(list(cppyy.gbl.csr.Sample(kbps, grid.tolist(), nbits)))
+            fitted = (success < 1.0 - 1e-5) & (success > 1e-9)
+            x = grid[fitted]
+            cubic = np.polyfit(x, np.log(-np.log(success[fitted])), 3)
+            fits.append((float(x.min()), float(x.max()), [float(f"{c:.6g}") for c in cubic]))
+        print(kbps, fits, flush=True)
+
+
 MODES = {  # (PHY, data rate in Mb/s) -> ns-3's data and control modes
     ("ofdm", 6.0): ("OfdmRate6Mbps", "OfdmRate6Mbps"),
     ("ofdm", 24.0): ("OfdmRate24Mbps", "OfdmRate24Mbps"),
@@ -101,6 +146,9 @@ MODES = {  # (PHY, data rate in Mb/s) -> ns-3's data and control modes
 
 
 def main() -> None:
+    if "--error-rates" in sys.argv:
+        error_rates()
+        return
     phases = json.load(sys.stdin)
     import cppyy
     from ns import ns  # loads ns-3's libraries into cppyy: 15-70 s, the headers compile
