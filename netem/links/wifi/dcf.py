@@ -229,6 +229,8 @@ class _Phase:
 
     def freeze(self, turned: npt.NDArray[np.int64]) -> None:
         """The medium turned busy at these agents: keep the slots they have not counted yet."""
+        if turned.shape[0] == 0:
+            return
         ifs = np.where(self.eifs[turned], self.eifs_ns, self.difs_ns)
         start = self.idle_from[turned] + ifs
         done = np.where(self.now > start, (self.now - start) // self.slot_ns, 0)

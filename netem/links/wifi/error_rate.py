@@ -76,10 +76,12 @@ CCK_SYMBOL_RATE_HZ = 1.375e6
 
 
 def _reference_success(curve: Curve, snr_db: Floats) -> Floats:
-    low, high, coefficients = curve
+    low, high, (c3, c2, c1, c0) = curve
+    x = np.clip(snr_db, low, high)
     with np.errstate(over="ignore"):
-        success = np.exp(-np.exp(np.polyval(coefficients, snr_db)))
-    success = np.where(snr_db < low, 0.0, np.where(snr_db > high, 1.0, success))
+        success = np.exp(-np.exp(((c3 * x + c2) * x + c1) * x + c0))
+    success[snr_db < low] = 0.0
+    success[snr_db > high] = 1.0
     return np.asarray(success, dtype=np.float64)
 
 
@@ -89,10 +91,15 @@ def ofdm_success(rate_kbps: int, snr: Floats, nbits: Ints) -> Floats:
     size = np.maximum(nbits // 8, 1).astype(np.float64)
     small, large = OFDM_CURVES[rate_kbps]
     is_large = size >= LARGE_FROM_BYTES
-    reference = np.where(
-        is_large, _reference_success(large, snr_db), _reference_success(small, snr_db)
-    )
-    ref_bytes = np.where(is_large, float(LARGE_CHUNK_BYTES), float(SMALL_CHUNK_BYTES))
+    if not is_large.any():
+        reference, ref_bytes = _reference_success(small, snr_db), float(SMALL_CHUNK_BYTES)
+    elif is_large.all():
+        reference, ref_bytes = _reference_success(large, snr_db), float(LARGE_CHUNK_BYTES)
+    else:
+        reference = np.where(
+            is_large, _reference_success(large, snr_db), _reference_success(small, snr_db)
+        )
+        ref_bytes = np.where(is_large, float(LARGE_CHUNK_BYTES), float(SMALL_CHUNK_BYTES))
     with np.errstate(divide="ignore"):
         success = np.power(reference, size / ref_bytes)
     return np.asarray(np.where(1.0 - success < NEGLIGIBLE_PER, 1.0, success), dtype=np.float64)

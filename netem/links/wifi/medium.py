@@ -38,6 +38,8 @@ class Medium:
     log: list[Transmission] = field(default_factory=list)
 
     sensed: npt.NDArray[np.bool_] = field(init=False)  # per log index
+    # carrier sense changes only when a frame is sensed or ends: kept until then
+    _carrier: Bools | None = field(init=False, default=None)
 
     def __post_init__(self) -> None:
         self.lock = np.full(self.power_mw.shape[0], -1, dtype=np.int64)
@@ -47,6 +49,7 @@ class Medium:
         """Carrier sense sees transmission ``index`` from now on."""
         self.log[index].sensed = True
         self.sensed[index] = True
+        self._carrier = None
 
     def total_mw(self) -> Floats:
         if not self.on_air:
@@ -70,6 +73,7 @@ class Medium:
         self.on_air.extend(new)
         for tx in txs:
             self.lock[tx.sender] = -1  # half duplex: a sender hears nothing
+        self._carrier = None
         total = self.total_mw()
         free = (self.lock < 0) & ~sending
         if not free.any():
@@ -95,11 +99,17 @@ class Medium:
             others = [self.log[o] for o in tx.overlaps]
             received[receivers] = self.reception.decoded(index, tx, others, receivers)
         self.lock[locked] = -1
+        self._carrier = None
         return locked, received
 
     def carrier_busy(self) -> Bools:
         """Agents whose carrier sense finds the medium busy: locked onto a sensed frame, or
         the sensed frames' energy above the energy-detection threshold."""
+        if self._carrier is None:
+            self._carrier = self._carrier_busy()
+        return self._carrier
+
+    def _carrier_busy(self) -> Bools:
         sensed = [self.log[i].sender for i in self.on_air if self.log[i].sensed]
         n = self.power_mw.shape[0]
         if not sensed:

@@ -1,6 +1,7 @@
-"""ns-3's side of ``bench_wifi_ns3``: phases run in ns-3.44, one process for a batch of phases.
+"""802.11 phases run in ns-3.44, one process for a batch: the reference the air model is held to.
 
-Run as ``python -m bench.wifi_ns3`` with a JSON list of phases on stdin; prints one JSON line
+:func:`run_ns3` runs a batch (``python -m testkit.ns3_air`` with a JSON list of phases on
+stdin, each from :func:`phase_request`); prints one JSON line
 of receptions (and the seconds ns-3 took) per phase. With ``--error-rates`` it samples instead
 ns-3's default error-rate model (``TableBasedErrorRateModel``) for each OFDM rate at the
 32 B and 1,458 B references every 0.05 dB and prints the cubic fits of
@@ -19,8 +20,13 @@ receiver.
 from __future__ import annotations
 
 import json
+import subprocess
 import sys
 import time
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
 
 START_NS = 1_000_000_000  # the phase's start in the ns-3 run
 RUN_NS = 2_000_000_000  # how long a phase may last
@@ -119,7 +125,6 @@ OFDM_KBPS = (6000, 9000, 12000, 18000, 24000, 36000, 48000, 54000)
 
 def error_rates() -> None:
     import cppyy
-    import numpy as np
     from ns import ns
 
     cppyy.cppdef(CSR)
@@ -143,6 +148,57 @@ MODES = {  # (PHY, data rate in Mb/s) -> ns-3's data and control modes
     ("dsss", 1.0): ("DsssRate1Mbps", "DsssRate1Mbps"),
     ("dsss", 11.0): ("DsssRate11Mbps", "DsssRate2Mbps"),
 }
+
+
+def phase_request(
+    phy: str,
+    rate_mbps: float,
+    positions_m: npt.NDArray[np.float64],
+    sender: npt.NDArray[np.int64],
+    receiver: npt.NDArray[np.int64],
+    payload_bytes: npt.NDArray[np.int64],
+    ready_ns: npt.NDArray[np.int64],
+    seed: int,
+    run: int,
+) -> dict[str, Any]:
+    """One phase for ns-3: the agents' positions (n, 2) [m] and the frames, as the air model's."""
+    return {
+        "phy": phy,
+        "rate_mbps": rate_mbps,
+        "x": positions_m[:, 0].tolist(),
+        "y": positions_m[:, 1].tolist(),
+        "sender": sender.tolist(),
+        "receiver": receiver.tolist(),
+        "payload_bytes": payload_bytes.tolist(),
+        "ready_ns": ready_ns.tolist(),
+        "seed": seed,
+        "run": run,
+    }
+
+
+def run_ns3(batch: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], float]:
+    """ns-3's receptions of each phase, and the wall time of its process with the import [s]."""
+    started = time.perf_counter()
+    done = subprocess.run(
+        [sys.executable, "-m", "testkit.ns3_air"],
+        input=json.dumps(batch),
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    if done.returncode != 0:
+        raise RuntimeError(f"ns-3 failed (exit {done.returncode}): {done.stderr[-2000:]}")
+    lines = [json.loads(line) for line in done.stdout.splitlines() if line.startswith("{")]
+    return lines, time.perf_counter() - started
+
+
+def arrivals(reply: dict[str, Any], frames: int, n: int) -> npt.NDArray[np.int64]:
+    """(frames, n): when each agent first received each frame [ns from the phase's start], −1."""
+    arrival = np.full((frames, n), -1, dtype=np.int64)
+    for t, node, f in reply["rx"]:
+        if arrival[f, node] < 0:
+            arrival[f, node] = t
+    return arrival
 
 
 def main() -> None:
