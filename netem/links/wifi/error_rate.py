@@ -91,6 +91,7 @@ def ofdm_success(rate_kbps: int, snr: Floats, nbits: Ints) -> Floats:
     size = np.maximum(nbits // 8, 1).astype(np.float64)
     small, large = OFDM_CURVES[rate_kbps]
     is_large = size >= LARGE_FROM_BYTES
+    ref_bytes: float | Floats
     if not is_large.any():
         reference, ref_bytes = _reference_success(small, snr_db), float(SMALL_CHUNK_BYTES)
     elif is_large.all():
