@@ -123,6 +123,27 @@ std::vector<double> Sample(uint64_t kbps, const std::vector<double>& snr_db, uin
 OFDM_KBPS = (6000, 9000, 12000, 18000, 24000, 36000, 48000, 54000)
 
 
+def fit_success(
+    grid: npt.NDArray[np.float64], success: npt.NDArray[np.float64]
+) -> tuple[float, float, list[float]]:
+    """(lowest, highest SINR [dB], cubic of ln(−ln success)) fitting ns-3's success rates."""
+    from scipy.optimize import least_squares
+
+    fitted = (success < 1.0 - 1e-5) & (success > 1e-9)
+    low, high = float(grid[fitted].min()), float(grid[fitted].max())
+    # a start in ln(-ln(success)), then least squares on the success rate itself
+    start = np.polyfit(grid[fitted], np.log(-np.log(success[fitted])), 3)
+    near = (grid >= low - 0.5) & (grid <= high + 0.5)
+    x, target = grid[near], success[near]
+
+    def gap(c: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        s = np.exp(-np.exp(np.polyval(c, np.clip(x, low, high))))
+        return np.asarray(np.where(x < low, 0.0, np.where(x > high, 1.0, s)) - target)
+
+    cubic = least_squares(gap, start).x
+    return low, high, [float(f"{c:.6g}") for c in cubic]
+
+
 def error_rates() -> None:
     import cppyy
     from ns import ns
@@ -131,13 +152,10 @@ def error_rates() -> None:
     del ns
     grid = np.round(np.arange(-10.0, 35.0, 0.05), 2)
     for kbps in OFDM_KBPS:
-        fits = []
-        for nbits in (32 * 8, 1458 * 8):
-            success = np.array(list(cppyy.gbl.csr.Sample(kbps, grid.tolist(), nbits)))
-            fitted = (success < 1.0 - 1e-5) & (success > 1e-9)
-            x = grid[fitted]
-            cubic = np.polyfit(x, np.log(-np.log(success[fitted])), 3)
-            fits.append((float(x.min()), float(x.max()), [float(f"{c:.6g}") for c in cubic]))
+        fits = [
+            fit_success(grid, np.array(list(cppyy.gbl.csr.Sample(kbps, grid.tolist(), nbits))))
+            for nbits in (32 * 8, 1458 * 8)
+        ]
         print(kbps, fits, flush=True)
 
 
