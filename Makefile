@@ -7,7 +7,7 @@ SCENARIO ?= paper
 # Every file of the product's packages: a change to any of them reinstalls it (below).
 PRODUCT_FILES := $(shell find $(PACKAGES) -name __pycache__ -prune -o -print)
 
-.PHONY: run test bench lint typecheck architecture clean compose-test docs docs-check figures
+.PHONY: run test bench lint typecheck architecture clean compose-test docs docs-check figures wifi-ns3-check
 
 # What a run needs: a venv with the product's dependencies, no extra (make run stops here).
 # setuptools and wheel (= [build-system] requires) let the product reinstall without build
@@ -107,6 +107,12 @@ figures: $(BIN)/.product
 
 bench: $(BIN)/.installed $(BIN)/.product $(BIN)/.example
 	OPENBLAS_NUM_THREADS=1 $(BIN)/python -m bench
+
+# The air model against ns-3 live (tests/integration/test_wifi_ns3.py): installs the optional
+# extra [ns3] (about 520 MB) into the venv, then runs the one test that needs it.
+wifi-ns3-check: $(BIN)/.installed $(BIN)/.product
+	$(BIN)/pip install --quiet 'ns3>=3.44,<3.45'
+	PYTHONSAFEPATH=1 $(BIN)/pytest -q -p no:cacheprovider tests/integration/test_wifi_ns3.py
 
 clean:
 	rm -rf $(VENV) runs build site site-check *.egg-info $(EXAMPLE)/build $(EXAMPLE)/*.egg-info

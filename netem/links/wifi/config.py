@@ -9,6 +9,7 @@ is checked against.
 from __future__ import annotations
 
 import math
+from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -38,6 +39,9 @@ class AirConfig(BaseModel):
     energy_detection_dbm: float = (
         -62.0
     )  # 17.3.10.6: any signal 20 dB above -82 dBm; ns-3 CcaEdThreshold
+    # a locked frame is decoded by ns-3's chunk-wise error rates ("chunks") or when its SINR
+    # over the largest interference reaches sinr_threshold_db ("threshold")
+    error_model: Literal["chunks", "threshold"] = "chunks"
     sinr_threshold_db: float | None = None  # None: the PHY's table for the rate
     # MAC
     retry_limit: int = Field(7, ge=1)  # dot11ShortRetryLimit: attempts of a unicast frame

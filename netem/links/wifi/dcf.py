@@ -32,8 +32,9 @@ import numpy.typing as npt
 from formation.keyed_random import keyed_uniform
 from netem.links.wifi.config import AirConfig
 from netem.links.wifi.frames import BROADCAST, Cause, Frames, PhaseOutcome
-from netem.links.wifi.medium import ACK, Medium, Transmission
+from netem.links.wifi.medium import ACK, Medium
 from netem.links.wifi.radio import AIR_STREAM, received_dbm, to_mw
+from netem.links.wifi.reception import Reception, Transmission
 
 Floats = npt.NDArray[np.float64]
 NEVER = 1 << 62  # [ns] a time that does not come
@@ -97,9 +98,13 @@ class _Phase:
             float(to_mw(config.preamble_detection_dbm)), float(to_mw(config.rx_sensitivity_dbm))
         )
         self.sinr = float(to_mw(config.sinr_db))
-        self.ack_sinr = float(to_mw(phy.sinr_threshold_db(phy.control_rate_kbps(self.rate))))
+        self.ack_rate = phy.control_rate_kbps(self.rate)
+        self.ack_sinr = float(to_mw(phy.sinr_threshold_db(self.ack_rate)))
+        reception = Reception(
+            power, noise, phy, config.error_model == "chunks", (key.seed, key.epoch, key.phase)
+        )
         self.medium = Medium(
-            power, noise, detect, detect_snr, float(to_mw(config.energy_detection_dbm))
+            power, noise, detect, detect_snr, float(to_mw(config.energy_detection_dbm)), reception
         )
         # a frame the receiver cannot take even on a silent channel
         alone = (power >= detect) & (power >= max(detect_snr, self.sinr) * noise)
@@ -175,7 +180,7 @@ class _Phase:
             receiver, sender = divmod(value, self.n)
             if self.sending[receiver] < 0:
                 self.ack_on_air[sender] = True
-                self.transmit([(receiver, ACK, sender, self.ack_ns, self.ack_sinr)])
+                self.transmit([(receiver, ACK, sender, self.ack_ns, self.ack_rate, self.ack_sinr)])
         elif kind == SENSED:
             self.medium.sense(value)
             self.sense()
@@ -224,6 +229,8 @@ class _Phase:
 
     def freeze(self, turned: npt.NDArray[np.int64]) -> None:
         """The medium turned busy at these agents: keep the slots they have not counted yet."""
+        if turned.shape[0] == 0:
+            return
         ifs = np.where(self.eifs[turned], self.eifs_ns, self.difs_ns)
         start = self.idle_from[turned] + ifs
         done = np.where(self.now > start, (self.now - start) // self.slot_ns, 0)
@@ -257,13 +264,13 @@ class _Phase:
                 self.first_start[f] = self.now
             size = int(self.frames.payload_bytes[f]) + self.config.mac_overhead_bytes
             airtime = self.phy.airtime_ns(size, self.rate)
-            txs.append((s, f, int(self.frames.receiver[f]), airtime, self.sinr))
+            txs.append((s, f, int(self.frames.receiver[f]), airtime, self.rate, self.sinr))
         self.transmit(txs)
 
-    def transmit(self, txs: list[tuple[int, int, int, int, float]]) -> None:
+    def transmit(self, txs: list[tuple[int, int, int, int, int, float]]) -> None:
         new = [
-            Transmission(s, f, dest, self.now, self.now + airtime, sinr, np.zeros(self.n))
-            for s, f, dest, airtime, sinr in txs
+            Transmission(s, f, dest, self.now, self.now + airtime, rate, sinr)
+            for s, f, dest, airtime, rate, sinr in txs
         ]
         for k, tx in enumerate(new):
             self.sending[tx.sender] = len(self.medium.log) + k

@@ -1,12 +1,12 @@
-"""The shared medium: frames on the air, the interference each receiver sees, who is locked.
+"""The shared medium: frames on the air, which overlap which, who is locked onto what.
 
 A frame on the air adds its power at every agent. An agent that is not sending and not
 already receiving locks onto a frame whose preamble it detects (power and SINR at the
-frame's start above the detection thresholds); it receives the frame when the frame's power
-over noise plus the *largest* interference during the frame stays above the rate's SINR
-threshold, so every overlapping frame counts, and a stronger first frame survives a weaker
-later one (capture), as in ns-3 without a frame-capture model (docs/model.md §11). An agent
-that starts sending drops what it was receiving (half duplex).
+frame's start above the detection thresholds); when the frame ends, ``Reception`` decides
+from every frame that overlapped it whether the agent decoded it. A later frame never takes
+over a lock, as in ns-3 without a frame-capture model, so capture is a stronger first frame
+surviving a weaker later one (docs/model.md §11). An agent that starts sending drops what it
+was receiving (half duplex).
 """
 
 from __future__ import annotations
@@ -16,21 +16,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from netem.links.wifi.reception import Reception, Transmission
+
 Floats = npt.NDArray[np.float64]
 Bools = npt.NDArray[np.bool_]
 ACK = -1  # a transmission's frame index when it is an ACK
-
-
-@dataclass
-class Transmission:
-    sender: int
-    frame: int  # the data frame's index, or ACK
-    dest: int  # BROADCAST, the data's receiver, or (ACK) the data's sender
-    start_ns: int
-    end_ns: int
-    sinr_needed: float  # linear
-    worst_mw: Floats  # (n,) the largest interference at each agent so far [mW]
-    sensed: bool = False  # by carrier sense, from start_ns + aCCATime
 
 
 @dataclass
@@ -42,11 +32,14 @@ class Medium:
     detect_mw: float  # the power a preamble needs to be detected and decoded
     detect_snr: float  # linear
     energy_mw: float  # energy-detection threshold
-    on_air: list[Transmission] = field(default_factory=list)
+    reception: Reception
+    on_air: list[int] = field(default_factory=list)  # log indices
     lock: npt.NDArray[np.int64] = field(init=False)  # agent -> index in on_air's log, -1
     log: list[Transmission] = field(default_factory=list)
 
     sensed: npt.NDArray[np.bool_] = field(init=False)  # per log index
+    # carrier sense changes only when a frame is sensed or ends: kept until then
+    _carrier: Bools | None = field(init=False, default=None)
 
     def __post_init__(self) -> None:
         self.lock = np.full(self.power_mw.shape[0], -1, dtype=np.int64)
@@ -56,11 +49,13 @@ class Medium:
         """Carrier sense sees transmission ``index`` from now on."""
         self.log[index].sensed = True
         self.sensed[index] = True
+        self._carrier = None
 
     def total_mw(self) -> Floats:
         if not self.on_air:
             return np.zeros(self.power_mw.shape[0])
-        return np.asarray(self.power_mw[[tx.sender for tx in self.on_air]].sum(axis=0))
+        senders = [self.log[i].sender for i in self.on_air]
+        return np.asarray(self.power_mw[senders].sum(axis=0))
 
     def start(self, txs: list[Transmission], sending: Bools) -> list[int]:
         """Put ``txs`` (starting together) on the air; ``sending``: agents transmitting now,
@@ -69,13 +64,17 @@ class Medium:
         self.log.extend(txs)
         if len(self.log) > self.sensed.shape[0]:
             self.sensed = np.concatenate([self.sensed, np.zeros_like(self.sensed)])
-        self.on_air.extend(txs)
+        new = list(range(first, len(self.log)))
+        for i in self.on_air:
+            self.log[i].overlaps.extend(new)
+        for k, tx in enumerate(txs):
+            tx.overlaps.extend(self.on_air)
+            tx.overlaps.extend(new[:k] + new[k + 1 :])
+        self.on_air.extend(new)
         for tx in txs:
             self.lock[tx.sender] = -1  # half duplex: a sender hears nothing
+        self._carrier = None
         total = self.total_mw()
-        for tx in self.on_air:
-            own = self.power_mw[tx.sender]
-            np.maximum(tx.worst_mw, total - own, out=tx.worst_mw)
         free = (self.lock < 0) & ~sending
         if not free.any():
             return list(range(first, len(self.log)))
@@ -92,23 +91,32 @@ class Medium:
     def end(self, index: int) -> tuple[Bools, Bools]:
         """Take transmission ``index`` off the air: (locked, received), each (n,)."""
         tx = self.log[index]
-        self.on_air.remove(tx)
+        self.on_air.remove(index)
         locked = self.lock == index
-        need = tx.sinr_needed * (self.noise_mw + tx.worst_mw)
-        received = locked & (self.power_mw[tx.sender] >= need)
+        received = np.zeros_like(locked)
+        receivers = np.flatnonzero(locked)
+        if receivers.shape[0]:
+            others = [self.log[o] for o in tx.overlaps]
+            received[receivers] = self.reception.decoded(index, tx, others, receivers)
         self.lock[locked] = -1
+        self._carrier = None
         return locked, received
 
     def carrier_busy(self) -> Bools:
         """Agents whose carrier sense finds the medium busy: locked onto a sensed frame, or
         the sensed frames' energy above the energy-detection threshold."""
-        sensed = [tx for tx in self.on_air if tx.sensed]
+        if self._carrier is None:
+            self._carrier = self._carrier_busy()
+        return self._carrier
+
+    def _carrier_busy(self) -> Bools:
+        sensed = [self.log[i].sender for i in self.on_air if self.log[i].sensed]
         n = self.power_mw.shape[0]
         if not sensed:
             return np.zeros(n, dtype=bool)
-        energy = self.power_mw[[tx.sender for tx in sensed]].sum(axis=0)
+        energy = self.power_mw[sensed].sum(axis=0)
         locked = (self.lock >= 0) & self.sensed[np.maximum(self.lock, 0)]
         return np.asarray((energy >= self.energy_mw) | locked)
 
 
-__all__ = ["ACK", "Medium", "Transmission"]
+__all__ = ["ACK", "Medium"]

@@ -61,6 +61,17 @@ class Phy:
     def ofdm(self) -> bool:
         return self.name != "dsss"
 
+    @property
+    def header_window_ns(self) -> tuple[int, int]:
+        """The PHY header's bits on the air, from the frame's start [ns]: OFDM's SIGNAL field
+        (17.3.2); DSSS's whole long PLCP preamble and header (16.2.2), as ns-3 counts them."""
+        return (16 * US, 20 * US) if self.ofdm else (0, self.preamble_ns)
+
+    @property
+    def header_kbps(self) -> int:
+        """The rate of the PHY header: 6 Mb/s (OFDM) or 1 Mb/s (DSSS, long preamble)."""
+        return 6000 if self.ofdm else 1000
+
     def rate_kbps(self, rate_mbps: float) -> int:
         """The rate in kb/s; a ``ValueError`` naming the PHY's rates when it has no such rate."""
         kbps = round(rate_mbps * 1000)

@@ -62,8 +62,8 @@ def simulated_throughput_bps(
     """The air model's throughput of ``n`` saturated stations [bit/s].
 
     The stations stand within a metre of each other (every pair hears the others at one
-    power, so no collision is captured), each with ``frames_per_station`` frames to its
-    neighbour, all ready at once. Counted from the tenth of the frames delivered first to
+    power: no frame outweighs another, though the chunk error model may still decode one at
+    0 dB), each with ``frames_per_station`` frames to its neighbour, all ready at once. Counted from the tenth of the frames delivered first to
     the moment the first station has sent all its frames (beyond it, fewer contend).
     """
     angle = 2 * np.pi * np.arange(n) / n

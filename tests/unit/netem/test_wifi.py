@@ -18,6 +18,7 @@ from netem.links.wifi import (
     PhaseOutcome,
     decide_phase,
 )
+from netem.links.wifi.error_rate import chunk_success
 
 US = 1000
 DEFAULT = AirConfig()  # 802.11a at 6 Mb/s, ns-3's radio: preamble detected to about 51 m
@@ -73,14 +74,31 @@ def test_a_lone_broadcast_arrives_after_its_airtime() -> None:
 
 # -- geometry: hidden terminals, carrier sense, capture ----------------------------------------
 def test_hidden_senders_collide_at_the_agent_between_them() -> None:
-    # 0 and 2 are 80 m apart, below the preamble threshold of each other; 1 hears both at 40 m
-    frames = Frames.of([0, 2], BROADCAST, 200, [0, 100 * US])
-    out = decide_phase(DEFAULT, on_a_line(0, 40, 80), frames, Key(1, 0, 0))
+    # 0 and 2 are 80 m apart, below the preamble threshold of each other; 1 hears both, 2's
+    # frame 1.3 dB stronger: 0's long frame cannot survive it, and 1, locked onto 0's, misses 2's
+    frames = Frames.of([0, 2], BROADCAST, 1000, [0, 100 * US])
+    out = decide_phase(DEFAULT, on_a_line(0, 42, 80), frames, Key(1, 0, 0))
     assert out.first_start_ns.tolist() == [34 * US, 134 * US]  # 2 did not sense 0: no deferral
     assert out.at(0, 1) is Cause.COLLISION
     assert out.at(1, 1) is Cause.COLLISION
     assert out.at(0, 2) is Cause.BELOW_SENSITIVITY
     assert out.attempts.tolist() == [1, 1]  # a broadcast is never retried
+
+
+def first_of_hidden_pair_delivered(offset_us: int, config: AirConfig) -> int:
+    """Of 20 keys, how often 1 (at 40 m from each) decodes 0's frame when 2's starts later."""
+    frames = Frames.of([0, 2], BROADCAST, 200, [0, offset_us * US])
+    outs = [decide_phase(config, on_a_line(0, 40, 80), frames, Key(s, 0, 0)) for s in range(20)]
+    return sum(out.at(0, 1) is Cause.DELIVERED for out in outs)
+
+
+def test_a_frame_survives_an_equal_interferer_by_how_long_they_overlap() -> None:
+    # 328 µs frames at 0 dB SINR over the overlap: ns-3's chunk error rates keep the first
+    # frame more often the later the second starts; a SINR threshold loses it every time
+    late, early = (first_of_hidden_pair_delivered(t, DEFAULT) for t in (300, 20))
+    assert late >= 17 and early < late - 4
+    threshold = AirConfig(error_model="threshold")
+    assert first_of_hidden_pair_delivered(300, threshold) == 0
 
 
 def test_senders_within_carrier_sense_take_turns() -> None:
@@ -99,6 +117,31 @@ def test_a_much_stronger_frame_is_captured() -> None:
     assert out.at(1, 1) is Cause.COLLISION
     equal = decide_phase(DEFAULT, on_a_line(0, 27.5, 55), frames, Key(1, 0, 0))
     assert equal.at(0, 1) is Cause.COLLISION and equal.at(1, 1) is Cause.COLLISION
+
+
+# -- the chunk error model -------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("ofdm", "rate_kbps", "snr_db", "nbits", "ns3"),
+    [  # ns-3.44's default error-rate models, sampled (python -m testkit.ns3_air --error-rates)
+        (True, 6000, 0.0, 256, 0.9656),
+        (True, 54000, 17.0, 11664, 0.1204),
+        (False, 1000, -6.0, 256, 0.60043),
+        (False, 11000, 5.0, 256, 0.86320),
+    ],
+)
+def test_a_chunk_succeeds_as_in_ns3(
+    ofdm: bool, rate_kbps: int, snr_db: float, nbits: int, ns3: float
+) -> None:
+    got = chunk_success(ofdm, rate_kbps, np.array([10 ** (snr_db / 10)]), np.array([nbits]))
+    assert got[0] == pytest.approx(ns3, abs=0.033 if ofdm else 1e-4)
+
+
+@pytest.mark.parametrize("rate_kbps", [6000, 9000, 12000, 18000, 24000, 36000, 48000, 54000])
+def test_a_chunk_succeeds_more_at_higher_sinr_and_when_shorter(rate_kbps: int) -> None:
+    snr = 10 ** (np.arange(-10.0, 35.0, 0.05) / 10)
+    short, long = (chunk_success(True, rate_kbps, snr, np.full(snr.shape, b)) for b in (256, 11664))
+    assert (np.diff(short) > -1e-4).all() and (np.diff(long) > -1e-4).all()
+    assert (long <= short).all() and short[0] == 0.0 and long[-1] == 1.0
 
 
 # -- unicast: ACK and retries ------------------------------------------------------------------
@@ -134,13 +177,13 @@ def test_a_frame_received_after_the_phase_is_late() -> None:
 
 
 def test_a_frame_received_in_error_makes_the_receiver_wait_eifs() -> None:
-    # 3 (beside 1) locks onto 0's frame; 2's, hidden from 0, ruins it at 3: after 0's frame ends
-    # (34 + 328 µs; 2's stays below 3's thresholds) 3 counts its backoff from EIFS, not DIFS
-    positions = np.array([[0.0, 0.0], [40.0, 0.0], [80.0, 0.0], [40.0, 5.0]])
-    frames = Frames.of([0, 2, 3], BROADCAST, 200, [0, 100 * US, 50 * US])
+    # 3 locks onto 0's 1000 B frame; 2's, hidden from 0 and 1.3 dB stronger at 3, ruins it: after
+    # 0's frame ends (34 + 1396 µs; 2's never locks 3) 3 counts its backoff from EIFS, not DIFS
+    positions = np.array([[0.0, 0.0], [40.0, 0.0], [80.0, 0.0], [42.0, 5.0]])
+    frames = Frames.of([0, 2, 3], BROADCAST, 1000, [0, 100 * US, 50 * US])
     out = decide_phase(DEFAULT, positions, frames, Key(1, 0, 0))
     assert out.at(0, 3) is Cause.COLLISION
-    waited = out.first_start_ns[2] - (34 + 328) * US
+    waited = out.first_start_ns[2] - (34 + 1396) * US
     slot, eifs = 9 * US, (16 + 34 + 44) * US
     assert waited >= eifs and (waited - eifs) % slot == 0
 

@@ -1,7 +1,11 @@
-"""ns-3's side of ``bench_wifi_ns3``: phases run in ns-3.44, one process for a batch of phases.
+"""802.11 phases run in ns-3.44, one process for a batch: the reference the air model is held to.
 
-Run as ``python -m bench.wifi_ns3`` with a JSON list of phases on stdin; prints one JSON line
-of receptions (and the seconds ns-3 took) per phase. Each phase is its own ns-3 simulation:
+:func:`run_ns3` runs a batch (``python -m testkit.ns3_air`` with a JSON list of phases on
+stdin, each from :func:`phase_request`); prints one JSON line
+of receptions (and the seconds ns-3 took) per phase. With ``--error-rates`` it samples instead
+ns-3's default error-rate model (``TableBasedErrorRateModel``) for each OFDM rate at the
+32 B and 1,458 B references every 0.05 dB and prints the cubic fits of
+``ln(−ln(1 − PER))`` that ``netem/links/wifi/error_rate.py`` holds. Each phase is its own ns-3 simulation:
 the agents at their positions, 802.11 ad hoc (no QoS) on ``YansWifiChannelHelper.Default()``
 (log-distance, exponent 3, 46.6777 dB at 1 m) with ns-3's default PHY (16.0206 dBm,
 RxSensitivity −101 dBm, the preamble-detection model at −82 dBm and 4 dB, CCA energy detection
@@ -16,8 +20,13 @@ receiver.
 from __future__ import annotations
 
 import json
+import subprocess
 import sys
 import time
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
 
 START_NS = 1_000_000_000  # the phase's start in the ns-3 run
 RUN_NS = 2_000_000_000  # how long a phase may last
@@ -91,6 +100,65 @@ std::vector<int64_t> RunPhase(const std::vector<double>& x, const std::vector<do
 }
 """
 
+CSR = r"""
+#include "ns3/core-module.h"
+#include "ns3/wifi-module.h"
+using namespace ns3;
+namespace csr {
+std::vector<double> Sample(uint64_t kbps, const std::vector<double>& snr_db, uint64_t nbits) {
+  static Ptr<TableBasedErrorRateModel> m = CreateObject<TableBasedErrorRateModel>();
+  WifiMode mode = OfdmPhy::GetOfdmRate(kbps * 1000, 20);
+  WifiTxVector tx;
+  tx.SetMode(mode);
+  tx.SetChannelWidth(20);
+  tx.SetPreambleType(WIFI_PREAMBLE_LONG);
+  std::vector<double> out;
+  for (double s : snr_db)
+    out.push_back(m->GetChunkSuccessRate(mode, tx, std::pow(10.0, s / 10.0), nbits, 1,
+                                         WIFI_PPDU_FIELD_DATA));
+  return out;
+}
+}
+"""
+OFDM_KBPS = (6000, 9000, 12000, 18000, 24000, 36000, 48000, 54000)
+
+
+def fit_success(
+    grid: npt.NDArray[np.float64], success: npt.NDArray[np.float64]
+) -> tuple[float, float, list[float]]:
+    """(lowest, highest SINR [dB], cubic of ln(−ln success)) fitting ns-3's success rates."""
+    from scipy.optimize import least_squares
+
+    fitted = (success < 1.0 - 1e-5) & (success > 1e-9)
+    low, high = float(grid[fitted].min()), float(grid[fitted].max())
+    # a start in ln(-ln(success)), then least squares on the success rate itself
+    start = np.polyfit(grid[fitted], np.log(-np.log(success[fitted])), 3)
+    near = (grid >= low - 0.5) & (grid <= high + 0.5)
+    x, target = grid[near], success[near]
+
+    def gap(c: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        s = np.exp(-np.exp(np.polyval(c, np.clip(x, low, high))))
+        return np.asarray(np.where(x < low, 0.0, np.where(x > high, 1.0, s)) - target)
+
+    cubic = least_squares(gap, start).x
+    return low, high, [float(f"{c:.6g}") for c in cubic]
+
+
+def error_rates() -> None:
+    import cppyy
+    from ns import ns
+
+    cppyy.cppdef(CSR)
+    del ns
+    grid = np.round(np.arange(-10.0, 35.0, 0.05), 2)
+    for kbps in OFDM_KBPS:
+        fits = [
+            fit_success(grid, np.array(list(cppyy.gbl.csr.Sample(kbps, grid.tolist(), nbits))))
+            for nbits in (32 * 8, 1458 * 8)
+        ]
+        print(kbps, fits, flush=True)
+
+
 MODES = {  # (PHY, data rate in Mb/s) -> ns-3's data and control modes
     ("ofdm", 6.0): ("OfdmRate6Mbps", "OfdmRate6Mbps"),
     ("ofdm", 24.0): ("OfdmRate24Mbps", "OfdmRate24Mbps"),
@@ -100,7 +168,61 @@ MODES = {  # (PHY, data rate in Mb/s) -> ns-3's data and control modes
 }
 
 
+def phase_request(
+    phy: str,
+    rate_mbps: float,
+    positions_m: npt.NDArray[np.float64],
+    sender: npt.NDArray[np.int64],
+    receiver: npt.NDArray[np.int64],
+    payload_bytes: npt.NDArray[np.int64],
+    ready_ns: npt.NDArray[np.int64],
+    seed: int,
+    run: int,
+) -> dict[str, Any]:
+    """One phase for ns-3: the agents' positions (n, 2) [m] and the frames, as the air model's."""
+    return {
+        "phy": phy,
+        "rate_mbps": rate_mbps,
+        "x": positions_m[:, 0].tolist(),
+        "y": positions_m[:, 1].tolist(),
+        "sender": sender.tolist(),
+        "receiver": receiver.tolist(),
+        "payload_bytes": payload_bytes.tolist(),
+        "ready_ns": ready_ns.tolist(),
+        "seed": seed,
+        "run": run,
+    }
+
+
+def run_ns3(batch: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], float]:
+    """ns-3's receptions of each phase, and the wall time of its process with the import [s]."""
+    started = time.perf_counter()
+    done = subprocess.run(
+        [sys.executable, "-m", "testkit.ns3_air"],
+        input=json.dumps(batch),
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    if done.returncode != 0:
+        raise RuntimeError(f"ns-3 failed (exit {done.returncode}): {done.stderr[-2000:]}")
+    lines = [json.loads(line) for line in done.stdout.splitlines() if line.startswith("{")]
+    return lines, time.perf_counter() - started
+
+
+def arrivals(reply: dict[str, Any], frames: int, n: int) -> npt.NDArray[np.int64]:
+    """(frames, n): when each agent first received each frame [ns from the phase's start], −1."""
+    arrival = np.full((frames, n), -1, dtype=np.int64)
+    for t, node, f in reply["rx"]:
+        if arrival[f, node] < 0:
+            arrival[f, node] = t
+    return arrival
+
+
 def main() -> None:
+    if "--error-rates" in sys.argv:
+        error_rates()
+        return
     phases = json.load(sys.stdin)
     import cppyy
     from ns import ns  # loads ns-3's libraries into cppyy: 15-70 s, the headers compile
