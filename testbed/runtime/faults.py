@@ -82,6 +82,7 @@ class Supervisor:
 
     def __init__(self, group: ProcessGroup, policy: RestartPolicy, started: float) -> None:
         self.group, self.policy, self.started = group, policy, started
+        self.begun = False  # epoch 0 has started (begin)
         self.current: dict[str, Incarnation] = {}
         self.losses: list[Loss] = []
         self.planned: set[int] = set()  # pids a crash event ended: not losses
@@ -134,7 +135,7 @@ class Supervisor:
         """Epoch 0 starts at ``at``: losses seen while starting up are timed before it (< 0)."""
         for loss in self.losses:
             loss.after_start_s -= at - self.started
-        self.started = at
+        self.started, self.begun = at, True
 
     def running(self, names: list[str] | None = None) -> bool:
         """Whether any current process other than the router and the recorder still runs."""
@@ -172,7 +173,8 @@ class Supervisor:
             self.losses.append(loss)
             if self.policy == "on-failure" and inc.restarts < MAX_RESTARTS:
                 inc.restarts += 1
-                rejoin = ("--rejoin",) if inc.module == "agent" else ()  # into the running run
+                # into the running run; before its start a new process starts as any other
+                rejoin = ("--rejoin",) if inc.module == "agent" and self.begun else ()
                 new = self.group.start(f"{name}.{inc.restarts}", inc.module, *inc.args, *rejoin)
                 inc.child, loss.restarted_pid = new, new.pid
 
