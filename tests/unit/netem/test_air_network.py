@@ -1,0 +1,126 @@
+"""The shared air in a run: the scenario's [network.air], netem's lockstep and the simulator
+deciding the same packets the same way, each drop with its cause."""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import orjson
+import pytest
+
+import testbed
+from formation.air import RATES_MBPS
+from formation.errors import TestbedError
+from formation.scenario import Scenario
+from netem.links.air_network import AIR, AirNetwork
+from netem.links.wifi import PHYS
+from netem.proxy.lockstep import LockstepCore
+from netem.proxy.progress import Progress
+from netem.proxy.records import Ledger
+from netem.proxy.routes import Links, Route
+from testkit.lockstep_wire import Wire, receivers
+
+
+def on_air(paper: Scenario, epochs: int, **air: object) -> Scenario:
+    """The paper's team on one channel, its senders starting within 50 µs: frames collide."""
+    network = paper.network.model_dump(by_alias=True)
+    network["access_point"] = [0.0, 0.0]
+    network["formation_default"] = [{"model": "bernoulli", "p_loss": 0.1}]
+    network["air"] = {"links": "all", "start_spread_us": 50.0, **air}
+    return paper.with_overrides(epochs=epochs, network=network)
+
+
+def test_the_scenario_knows_the_models_rates() -> None:
+    for name, phy in PHYS.items():
+        assert [round(r * 1000) for r in RATES_MBPS[name]] == list(phy.rates_kbps)
+
+
+@pytest.mark.parametrize(
+    ("air", "match"),
+    [
+        ("rate_mbps = 7", r"x\.toml: network\.air\.rate_mbps = 7\.0; ofdm has the rates 6, 9"),
+        ('links = "control"', r"network\.air\.links = 'control'; control links on the air need"),
+        ('phy = "ac"', r"network\.air\.phy = 'ac'; Input should be 'ofdm'"),
+        ("cw_min = 64\ncw_max = 32", r"network\.air\.cw_min = 64; above cw_max 32"),
+    ],
+)
+def test_a_wrong_air_names_the_file_field_and_value(
+    paper_path: Path, tmp_path: Path, air: str, match: str
+) -> None:
+    path = tmp_path / "x.toml"
+    path.write_text(paper_path.read_text() + f"\n[network.air]\n{air}\n")
+    with pytest.raises(TestbedError, match=match):
+        Scenario.from_file(path)
+
+
+def test_a_phase_is_the_same_for_the_same_key_and_its_packets_in_any_order(
+    paper: Scenario,
+) -> None:
+    net = AirNetwork(on_air(paper, 5), 3)
+    x = paper.initial_positions(3)
+    links = [(int(a), int(b)) for a, b in paper.directed_links]
+    phases = [net.phase(k, "state", links, x) for k in range(20)]
+    k = next(k for k, got in enumerate(phases) if any(v.cause == "collision" for v in got))
+    first = phases[k]
+    assert first == net.phase(k, "state", links[::-1], x)[::-1]
+    assert any(got != first for got in phases)  # other epochs, other draws
+    unicast = AirNetwork(on_air(paper, 5, states="unicast"), 3).phase(k, "state", links, x)
+    assert {v.frames for v in unicast} == {len(links)} and {v.frames for v in first} == {paper.n}
+
+
+def test_a_late_frame_is_late(paper: Scenario) -> None:
+    s = on_air(paper, 5, start_spread_us=0.0).with_overrides(
+        control={**paper.control.model_dump(), "period_s": 0.001}
+    )
+    # a state phase of 0.2 ms: a frame takes longer
+    (got,) = AirNetwork(s, 1).phase(0, "state", [(1, 3)], paper.initial_positions(1))
+    assert got.cause == "late" and math.isnan(got.arrival_ms)
+    (alone,) = AirNetwork(on_air(paper, 5), 1).phase(
+        0, "state", [(1, 3)], paper.initial_positions(1)
+    )
+    assert alone.passed and 0.0 < alone.arrival_ms < 1.0
+
+
+def lockstep_records(scenario: Scenario, seed: int, x: np.ndarray) -> dict[tuple[int, ...], object]:
+    """netem's lockstep core fed the states (positions ``x`` (E, n, d)), reports and estimates
+    of every epoch in a shuffled order; its decision records by (source, target, epoch)."""
+    links, wire = Links(scenario, seed), Wire(receivers(scenario))
+    core = LockstepCore(links, scenario.epochs, Progress(links.agents, scenario.epochs, lambda: None),
+                        Ledger(), wire)  # fmt: skip
+    core.setup_clean()
+    rng = np.random.default_rng(seed)
+    agents = list(range(1, scenario.n + 1))
+    for k in range(scenario.epochs):
+        states = [orjson.dumps({"position": x[k, i - 1].tolist()}) for i in agents]
+        first: list[tuple[Route, bytes]] = [(("state", i, 0), states[i - 1]) for i in agents]
+        first += [(("report", i, 0), b"{}") for i in agents]
+        for p in rng.permutation(len(first)):
+            core.packet(first[p][0], k, k, first[p][1])
+        for i in rng.permutation(agents):
+            core.packet(("estimate", 0, int(i)), k, k, b"{}")
+    assert not wire.early
+    return {(d.source, d.target, d.epoch): d for d in wire.decisions}
+
+
+def test_netem_lockstep_drops_what_the_simulator_drops_for_the_same_cause(
+    paper: Scenario, seed: int
+) -> None:
+    scenario = on_air(paper, 12)
+    sim = testbed.simulate(scenario, seed=seed)
+    made = sim.decisions_made()
+    got = lockstep_records(scenario, seed, sim.positions)
+    assert len(got) == len(made.epoch)
+    for r in range(len(made.epoch)):
+        d = got[(int(made.source[r]), int(made.target[r]), int(made.epoch[r]))]
+        assert (d.verdict != "drop") == (made.verdict[r] == "pass")
+        if made.queue[r] == AIR:
+            assert (d.queue, d.model) == (AIR, made.model[r])
+        elif d.verdict != "drop":
+            assert d.queue == AIR and d.sojourn_ms is not None and d.sojourn_ms > 0.0
+    causes = Counter(d.model for d in got.values() if d.verdict == "drop")
+    # a packet a link model drops never takes the air: its record names the model
+    assert causes["collision"] > 0 and causes["bernoulli"] > 0 and causes["outage"] > 0
+    assert all(d.queue is None for d in got.values() if d.model in ("bernoulli", "outage"))
