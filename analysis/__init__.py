@@ -11,6 +11,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
+from analysis.air import air_losses, air_table
 from analysis.membership import (
     edge_mask,
     errors_of_team,
@@ -50,6 +51,8 @@ __all__ = [
     "Recorded",
     "RunData",
     "Substitutions",
+    "air_losses",
+    "air_table",
     "consistency",
     "edge_mask",
     "error_statistics",

@@ -29,6 +29,9 @@ RATES_MBPS: dict[str, tuple[float, ...]] = {
     "erp_ofdm": (6, 9, 12, 18, 24, 36, 48, 54),
     "dsss": (1, 2, 5.5, 11),
 }
+AIR_QUEUE = "air"  # the air's name in netem's decision records (their ``queue``)
+# why a packet on the air was lost (netem.links.wifi.Cause, lower case), a drop's ``model``
+AIR_CAUSES = ("collision", "below_sensitivity", "retry_limit", "late")
 RADIO_FIELDS = (
     "phy",
     "rate_mbps",
@@ -112,4 +115,4 @@ def air_problems(
     return []
 
 
-__all__ = ["RADIO_FIELDS", "RATES_MBPS", "Air", "air_problems"]
+__all__ = ["AIR_CAUSES", "AIR_QUEUE", "RADIO_FIELDS", "RATES_MBPS", "Air", "air_problems"]

@@ -21,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from formation.air import Air
+from formation.air import AIR_QUEUE, Air, air_problems
 from formation.deadlines import PHASES
 from formation.keyed_random import Stream, keyed_uniform
 from formation.keys import LEADER_ENDPOINT
@@ -33,7 +33,7 @@ from netem.links.wifi import BROADCAST, AirConfig, Cause, Frames, Key, decide_ph
 Link = tuple[int, int]  # (src, dst); 0 is the leader's end
 START = 2  # sub-stream of Stream.AIR: the senders' start offsets (0, 1: the model's)
 FAR_M = 1e9  # [m] where an agent whose position is unknown is put: out of everyone's range
-AIR = "air"  # the medium's name in decision records (their ``queue``)
+AIR = AIR_QUEUE  # the medium's name in decision records (their ``queue``)
 CAUSES = tuple(c.name.lower() for c in Cause)  # "delivered", "collision", ...
 _CLASS = {"state": "formation", "report": "report", "estimate": "estimate"}
 
@@ -69,15 +69,40 @@ class AirNetwork:
         self.access_point = None if ap is None else np.asarray(ap, dtype=np.float64)
         self.sizes = WireSizes(scenario)
         self.phases = frozenset(p for p, c in _CLASS.items() if air.carries(c))
-        self.spread_ns = round(air.start_spread_us * 1e3)
+        # (from epoch, the air, its model's config): the scenario's, then each change's
+        self.eras: list[tuple[int, Air, AirConfig]] = [(0, air, self.config)]
+
+    def change(self, update: dict[str, object], from_epoch: int) -> Air:
+        """The air's parameters ``update`` from ``from_epoch`` on (``formation netem set
+        medium:air``); the links on it stay. A ``ValueError`` names a field it refuses."""
+        fixed = sorted({"kind", "links"} & set(update))
+        if fixed:
+            raise ValueError(f"{fixed[0]}: which links take the air is the scenario's")
+        now = self.eras[-1][1]
+        air = Air.model_validate({**now.model_dump(exclude_none=True), **update})
+        problems = air_problems(air, None if self.access_point is None else (0.0,))
+        if problems:
+            field, value, problem = problems[0]
+            raise ValueError(f"{field.removeprefix('network.air.')} = {value!r}; {problem}")
+        self.eras = [e for e in self.eras if e[0] < from_epoch]
+        self.eras.append((from_epoch, air, AirConfig(**air.radio())))
+        return air
+
+    def at(self, epoch: int) -> tuple[Air, AirConfig]:
+        """The air and its model's config in force at ``epoch``."""
+        for start, air, config in reversed(self.eras):
+            if start <= epoch:
+                return air, config
+        return self.air, self.config
 
     def carries(self, link: Link) -> bool:
         """Whether ``link``'s packets take the air."""
         return packet_kind(link)[0] in self.phases
 
     def payload_bytes(self, link: Link, epoch: int) -> int:
-        if self.air.payload_bytes is not None:
-            return self.air.payload_bytes
+        fixed = self.at(epoch)[0].payload_bytes
+        if fixed is not None:
+            return fixed
         return self.sizes.payload_bytes(*packet_kind(link), epoch)
 
     def phase(
@@ -98,8 +123,9 @@ class AirNetwork:
         x = np.where(np.isnan(x), FAR_M * np.arange(1, x.shape[0] + 1)[:, None], x)
         if self.access_point is not None:
             x = np.vstack([x, self.access_point[None, :]])  # node n: the leader's radio
+        air, config = self.at(epoch)
         node = [self._node(src) for src, _ in links]
-        broadcast = phase == "state" and self.air.states == "broadcast"
+        broadcast = phase == "state" and air.states == "broadcast"
         if broadcast:
             senders = sorted(set(node))
             frame_of = {s: f for f, s in enumerate(senders)}
@@ -123,11 +149,11 @@ class AirNetwork:
             frames.sender,
             frames.receiver,
             frames.payload_bytes,
-            np.floor(ready * self.spread_ns).astype(np.int64),
+            np.floor(ready * round(air.start_spread_us * 1e3)).astype(np.int64),
         )
         start, deadline = PHASES[phase]
         end_ns = round((deadline - start) * self.period_s * 1e9)
-        out = decide_phase(self.config, x, frames, Key(self.seed, epoch, ph), end_ns)
+        out = decide_phase(config, x, frames, Key(self.seed, epoch, ph), end_ns)
         verdicts = []
         for p, (_, dst) in enumerate(links):
             f, r = which[p], self._node(dst)

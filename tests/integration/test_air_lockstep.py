@@ -3,13 +3,17 @@ same causes, and the recording shows a hidden pair colliding at the agent betwee
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from analysis import summarise
+from formation.air import AIR_CAUSES
 from formation.scenario import Scenario
 from recorder import read_run
+from recorder.reporting.report import air_lines
 from testbed.runtime.launcher import launch
 from testbed.sim.simulate import simulate
 
@@ -74,3 +78,11 @@ def test_a_hidden_pair_collides_at_the_agent_between_them_as_the_simulator_says(
     assert both
     delivered = (rec.queue == "air") & (rec.verdict != "drop")
     assert (rec.sojourn_ms[delivered] > 0).all()  # when each arrived in its phase [ms]
+    # the summary splits the air's losses by cause, as recorded, and as the launcher saw them
+    summary = summarise(run)
+    dropped = Counter(m for v, m in recorded.values() if not v and m)
+    assert summary["air_losses"] == {**dict.fromkeys(AIR_CAUSES, 0), **dropped}
+    assert outcome.summary()["air_losses"] == summary["air_losses"]
+    formation = summary["air"]["formation"]
+    assert formation["took_air"] == 6 * 10 and formation["losses"]["collision"] > 0
+    assert "| formation | 60 |" in "\n".join(air_lines("estimate", summary["air"]))

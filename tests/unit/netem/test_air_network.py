@@ -4,6 +4,7 @@ deciding the same packets the same way, each drop with its cause."""
 from __future__ import annotations
 
 import math
+import threading
 from collections import Counter
 from pathlib import Path
 
@@ -12,10 +13,10 @@ import orjson
 import pytest
 
 import testbed
-from formation.air import RATES_MBPS
+from formation.air import AIR_CAUSES, RATES_MBPS
 from formation.errors import TestbedError
 from formation.scenario import Scenario
-from netem.links.air_network import AIR, AirNetwork
+from netem.links.air_network import AIR, CAUSES, AirNetwork
 from netem.links.wifi import PHYS
 from netem.proxy.lockstep import LockstepCore
 from netem.proxy.progress import Progress
@@ -36,6 +37,7 @@ def on_air(paper: Scenario, epochs: int, **air: object) -> Scenario:
 def test_the_scenario_knows_the_models_rates() -> None:
     for name, phy in PHYS.items():
         assert [round(r * 1000) for r in RATES_MBPS[name]] == list(phy.rates_kbps)
+    assert set(AIR_CAUSES) == set(CAUSES) - {"delivered", "not_addressed"}
 
 
 @pytest.mark.parametrize(
@@ -124,3 +126,41 @@ def test_netem_lockstep_drops_what_the_simulator_drops_for_the_same_cause(
     # a packet a link model drops never takes the air: its record names the model
     assert causes["collision"] > 0 and causes["bernoulli"] > 0 and causes["outage"] > 0
     assert all(d.queue is None for d in got.values() if d.model in ("bernoulli", "outage"))
+
+
+def test_the_air_is_shown_and_set_while_running_from_the_next_epoch(paper: Scenario) -> None:
+    from formation import keys
+    from formation.messages import LinkChange
+    from netem.link_config import LinkConfig
+    from shell import MemoryBus, Service
+
+    scenario = on_air(paper, 30)
+    links, wire = Links(scenario, 1), Wire(receivers(scenario))
+    progress = Progress(links.agents, scenario.epochs, lambda: None)
+    core = LockstepCore(links, scenario.epochs, progress, Ledger(), wire)
+    bus = MemoryBus()
+    changes: list[LinkChange] = []
+    bus.declare_subscriber(
+        keys.netem_change("r"),
+        lambda s: changes.append(LinkChange.model_validate_json(s.payload.to_bytes())),
+    )
+    config = LinkConfig(Service(bus, "r", "netem", 0), links, progress, core, threading.Lock())
+    progress.epoch_seen = 7
+    shown = config.answer({"op": "show"})["air"]
+    assert (shown["links"], shown["rate_mbps"], shown["start_spread_us"]) == ("all", 6.0, 50.0)
+    answer = config.answer({"op": "air", "air": {"rate_mbps": 12, "shadowing_sigma_db": 4}})
+    assert answer["ok"] and answer["from_epoch"] == 8
+    air = links.air
+    assert air is not None
+    assert air.at(7)[1].rate_mbps == 6.0 and air.at(8)[1].rate_mbps == 12.0
+    assert air.at(8)[1].shadowing_sigma_db == 4.0
+    assert config.answer({"op": "show"})["air"]["rate_mbps"] == 12.0
+    # recorded as a change of every link on the air, from that epoch
+    assert len(changes) == len(links.models) and {c.from_epoch for c in changes} == {8}
+    assert changes[0].models[0]["model"] == "air"
+    assert config.answer({"op": "air", "air": {"rate_mbps": 7}}) == {
+        "ok": False,
+        "error": "rate_mbps = 7.0; ofdm has the rates 6, 9, 12, 18, 24, 36, 48, 54 Mb/s",
+    }
+    refused = config.answer({"op": "air", "air": {"links": "formation"}})
+    assert refused == {"ok": False, "error": "links: which links take the air is the scenario's"}
