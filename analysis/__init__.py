@@ -11,7 +11,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from analysis.air import air_losses, air_table
+from analysis.air import air_losses
 from analysis.membership import (
     edge_mask,
     errors_of_team,
@@ -52,7 +52,6 @@ __all__ = [
     "RunData",
     "Substitutions",
     "air_losses",
-    "air_table",
     "consistency",
     "edge_mask",
     "error_statistics",

@@ -61,7 +61,7 @@ class Air(BaseModel):
     links: Literal["formation", "control", "all"] = "formation"
     states: Literal["broadcast", "unicast"] = "broadcast"
     payload_bytes: int | None = Field(None, ge=1)  # [B] None: each message's nominal size
-    start_spread_us: float = Field(1000.0, ge=0.0)  # [µs] the senders' start offsets' range
+    start_spread_us: float = Field(10_000.0, ge=0.0)  # [µs] the senders' start offsets' range
     # the radio: None takes the model's default
     phy: Literal["ofdm", "erp_ofdm", "dsss"] = "ofdm"
     rate_mbps: float = 6.0
@@ -92,11 +92,13 @@ class Air(BaseModel):
 
 
 def air_problems(
-    air: Air | None, access_point: tuple[float, ...] | None
+    air: Air | None, access_point: tuple[float, ...] | None, mode: str = "lockstep"
 ) -> list[tuple[str, object, str]]:
     """The first problem of ``network.air`` as ``(field, value, problem)``; ``[]`` when none."""
     if air is None:
         return []
+    if mode != "lockstep":
+        return [("runtime.mode", mode, "the shared air ([network.air]) runs in lockstep only")]
     rates = RATES_MBPS[air.phy]
     if not any(math.isclose(air.rate_mbps, r) for r in rates):
         shown = ", ".join(f"{r:g}" for r in rates)

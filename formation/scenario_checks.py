@@ -193,7 +193,7 @@ def _capacity(s: ScenarioFields) -> list[Problem]:
 
 
 def _air(s: ScenarioFields) -> list[Problem]:
-    return air_problems(s.network.air, s.network.access_point)
+    return air_problems(s.network.air, s.network.access_point, s.runtime.mode)
 
 
 def _events(s: ScenarioFields) -> list[Problem]:

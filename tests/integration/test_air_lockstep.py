@@ -39,7 +39,7 @@ sigma_m = 0.01
 
 [network]
 access_point = [40.0, -5.0]
-air = { links = "all" }
+air = { links = "all", start_spread_us = 1000.0 }
 """
 
 

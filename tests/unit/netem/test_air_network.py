@@ -47,6 +47,10 @@ def test_the_scenario_knows_the_models_rates() -> None:
         ('links = "control"', r"network\.air\.links = 'control'; control links on the air need"),
         ('phy = "ac"', r"network\.air\.phy = 'ac'; Input should be 'ofdm'"),
         ("cw_min = 64\ncw_max = 32", r"network\.air\.cw_min = 64; above cw_max 32"),
+        (
+            '[runtime]\nmode = "realtime"',
+            r"runtime\.mode = 'realtime'; the shared air \(\[network\.air\]\) runs in lockstep only",
+        ),
     ],
 )
 def test_a_wrong_air_names_the_file_field_and_value(
