@@ -115,6 +115,10 @@ def test_netem_lockstep_drops_what_the_simulator_drops_for_the_same_cause(
     paper: Scenario, seed: int
 ) -> None:
     scenario = on_air(paper, 12)
+    # agent 2's radio too slow for its states: what its queue drops never takes the air
+    network = scenario.network.model_dump(by_alias=True)
+    network["capacity"] = [{"scope": "radio", "agent": 2, "rate_bps": 12_000.0, "limit_packets": 2}]
+    scenario = scenario.with_overrides(network=network)
     sim = testbed.simulate(scenario, seed=seed)
     made = sim.decisions_made()
     got = lockstep_records(scenario, seed, sim.positions)
@@ -129,6 +133,8 @@ def test_netem_lockstep_drops_what_the_simulator_drops_for_the_same_cause(
     causes = Counter(d.model for d in got.values() if d.verdict == "drop")
     # a packet a link model drops never takes the air: its record names the model
     assert causes["collision"] > 0 and causes["bernoulli"] > 0 and causes["outage"] > 0
+    assert causes["queue_late"] > 0
+    assert all(d.queue == "radio 2" for d in got.values() if d.model.startswith("queue_"))
     assert all(d.queue is None for d in got.values() if d.model in ("bernoulli", "outage"))
 
 
