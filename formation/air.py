@@ -92,13 +92,18 @@ class Air(BaseModel):
 
 
 def air_problems(
-    air: Air | None, access_point: tuple[float, ...] | None, mode: str = "lockstep"
+    air: Air | None,
+    access_point: tuple[float, ...] | None,
+    mode: str = "lockstep",
+    queues: bool = False,
 ) -> list[tuple[str, object, str]]:
-    """The first problem of ``network.air`` as ``(field, value, problem)``; ``[]`` when none."""
+    """The first problem of ``network.air`` as ``(field, value, problem)``; ``[]`` when none;
+    ``queues``: the scenario has capacity queues."""
     if air is None:
         return []
-    if mode != "lockstep":
-        return [("runtime.mode", mode, "the shared air ([network.air]) runs in lockstep only")]
+    if mode != "lockstep" and queues:
+        problem = "the shared air with capacity queues runs in lockstep only"
+        return [("runtime.mode", mode, problem)]
     rates = RATES_MBPS[air.phy]
     if not any(math.isclose(air.rate_mbps, r) for r in rates):
         shown = ", ".join(f"{r:g}" for r in rates)

@@ -193,7 +193,8 @@ def _capacity(s: ScenarioFields) -> list[Problem]:
 
 
 def _air(s: ScenarioFields) -> list[Problem]:
-    return air_problems(s.network.air, s.network.access_point, s.runtime.mode)
+    air, network = s.network.air, s.network
+    return air_problems(air, network.access_point, s.runtime.mode, bool(network.capacity))
 
 
 def _events(s: ScenarioFields) -> list[Problem]:

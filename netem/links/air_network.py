@@ -106,7 +106,13 @@ class AirNetwork:
         return self.sizes.payload_bytes(*packet_kind(link), epoch)
 
     def phase(
-        self, epoch: int, phase: str, links: Sequence[Link], positions_m: npt.ArrayLike
+        self,
+        epoch: int,
+        phase: str,
+        links: Sequence[Link],
+        positions_m: npt.ArrayLike,
+        ready_ns: Sequence[int] | None = None,
+        end_ns: int | None = None,
     ) -> list[AirVerdict]:
         """The fates of one phase's packets on the air, one per link of ``links``.
 
@@ -116,6 +122,8 @@ class AirNetwork:
         positions_m : (n, d) array [m]
             The agents' true positions at ``epoch`` (row ``i − 1``: agent ``i``); a row of NaN
             for an agent whose position is not known (one not taking part).
+        ready_ns, end_ns : realtime's: when each packet came and its deadline [ns from the
+            phase's origin]; None: the keyed start offsets and the phase's deadline
         """
         if not links:
             return []
@@ -132,6 +140,9 @@ class AirNetwork:
             sizes = {node[p]: self.payload_bytes(lk, epoch) for p, lk in enumerate(links)}
             frames = Frames.of(senders, BROADCAST, [sizes[s] for s in senders], 0)
             which = [frame_of[s] for s in node]
+            came = [0] * len(senders)
+            for p, sender in enumerate(node):
+                came[frame_of[sender]] = ready_ns[p] if ready_ns is not None else 0
         else:
             order = sorted(range(len(links)), key=lambda p: links[p])
             frames = Frames.of(
@@ -143,16 +154,17 @@ class AirNetwork:
             which = [0] * len(links)
             for f, p in enumerate(order):
                 which[p] = f
+            came = [ready_ns[p] if ready_ns is not None else 0 for p in order]
         ph = PHASE_ORDER[phase]
-        ready = keyed_uniform(self.seed, int(Stream.AIR), START, epoch, ph, frames.sender)
-        frames = Frames.of(
-            frames.sender,
-            frames.receiver,
-            frames.payload_bytes,
-            np.floor(ready * round(air.start_spread_us * 1e3)).astype(np.int64),
-        )
-        start, deadline = PHASES[phase]
-        end_ns = round((deadline - start) * self.period_s * 1e9)
+        if ready_ns is None:
+            ready = keyed_uniform(self.seed, int(Stream.AIR), START, epoch, ph, frames.sender)
+            offsets = np.floor(ready * round(air.start_spread_us * 1e3)).astype(np.int64)
+        else:
+            offsets = np.asarray(came, dtype=np.int64)
+        frames = Frames.of(frames.sender, frames.receiver, frames.payload_bytes, offsets)
+        if end_ns is None:
+            start, deadline = PHASES[phase]
+            end_ns = round((deadline - start) * self.period_s * 1e9)
         out = decide_phase(config, x, frames, Key(self.seed, epoch, ph), end_ns)
         verdicts = []
         for p, (_, dst) in enumerate(links):

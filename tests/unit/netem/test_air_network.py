@@ -48,8 +48,9 @@ def test_the_scenario_knows_the_models_rates() -> None:
         ('phy = "ac"', r"network\.air\.phy = 'ac'; Input should be 'ofdm'"),
         ("cw_min = 64\ncw_max = 32", r"network\.air\.cw_min = 64; above cw_max 32"),
         (
+            '[[network.capacity]]\nscope = "radio"\nagent = 2\nrate_bps = 1e4\n'
             '[runtime]\nmode = "realtime"',
-            r"runtime\.mode = 'realtime'; the shared air \(\[network\.air\]\) runs in lockstep only",
+            r"runtime\.mode = 'realtime'; the shared air with capacity queues runs in lockstep",
         ),
     ],
 )
@@ -174,3 +175,25 @@ def test_the_air_is_shown_and_set_while_running_from_the_next_epoch(paper: Scena
     }
     refused = config.answer({"op": "air", "air": {"links": "formation"}})
     assert refused == {"ok": False, "error": "links: which links take the air is the scenario's"}
+
+
+def test_realtime_holds_each_packet_until_the_models_arrival_and_never_changes_a_settled_one(
+    paper: Scenario,
+) -> None:
+    from netem.proxy.realtime_air import RealtimeAir
+
+    air = RealtimeAir(AirNetwork(on_air(paper, 5), 1))
+    for i, x in enumerate(paper.initial_positions(1), start=1):
+        air.read_position(0, i, orjson.dumps({"position": x.tolist()}))
+    t0, ms = 10**12, 10**6  # [ns]
+    air.add(0, "state", (1, 3), t0, t0 + 20 * ms, "a")
+    air.add(0, "state", (2, 3), t0 + 2 * ms, t0 + 20 * ms, "b")
+    assert air.settle(t0 + 100) == []  # nothing has arrived yet
+    assert air.next_ns() is not None and air.next_ns() > t0 + 100  # type: ignore[operator]
+    (first,) = air.settle(t0 + ms)  # a alone on the air: arrived before b was ready
+    assert first[0] == "a" and first[1].passed and t0 < first[2] <= t0 + ms
+    assert first[2] == t0 + round(first[1].arrival_ms * 1e6)
+    air.add(0, "state", (4, 3), t0, t0 + 20 * ms, "c")  # came late to netem: ready from now
+    rest = air.settle(t0 + 20 * ms)  # the deadline: the phase is over
+    assert sorted(item for item, _, _ in rest) == ["b", "c"] and not air.open
+    assert all(v.passed for _, v, _ in rest)
