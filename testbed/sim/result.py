@@ -9,6 +9,7 @@ import numpy as np
 import numpy.typing as npt
 
 from analysis import Decisions, RunData, formation_error, shape_error, summarise
+from formation.air import AIR_CAUSES
 from netem import AIR, CAUSES
 
 if TYPE_CHECKING:
@@ -76,6 +77,10 @@ class SimResult(RunData):
         out |= {k: full[k] for k in _HEADLINE}
         out["fallbacks"] = self.fallbacks
         out |= {k: full[k] for k in _ESTIMATION}
+        if self.scenario.network.air is not None:  # the shared air's drops by cause
+            d = self.decisions_made()
+            lost = d.verdict == "drop"
+            out["air_losses"] = {c: int((lost & (d.model == c)).sum()) for c in AIR_CAUSES}
         return out
 
     def frames(self) -> Frames:

@@ -135,6 +135,8 @@ def test_netem_lockstep_drops_what_the_simulator_drops_for_the_same_cause(
     # a packet a link model drops never takes the air: its record names the model
     assert causes["collision"] > 0 and causes["bernoulli"] > 0 and causes["outage"] > 0
     assert causes["queue_late"] > 0
+    air_losses = sim.summary()["air_losses"]  # what formation simulate says
+    assert air_losses == {c: causes[c] for c in AIR_CAUSES}
     assert all(d.queue == "radio 2" for d in got.values() if d.model.startswith("queue_"))
     assert all(d.queue is None for d in got.values() if d.model in ("bernoulli", "outage"))
 
