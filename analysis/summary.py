@@ -24,6 +24,7 @@ from analysis.metrics import error_statistics, formation_error, longest_run
 from analysis.queues import loss_split, queue_table
 from analysis.record import RunData
 from analysis.safety import safety_counts
+from formation.air import AIR_QUEUE
 from formation.rigidity import expected_rigidity_rank
 
 Array = npt.NDArray[np.float64]
@@ -96,7 +97,8 @@ def summarise(run: RunData) -> dict[str, Any]:
         out["deadlines"] = run.deadlines
     if s.network.capacity and run.decisions is not None:  # capacity (docs/model.md §9)
         judged = run.decisions.judged()
-        out["queues"] = queue_table(judged, len(run.delivered))
+        queued = [j for j in judged if j.queue != AIR_QUEUE]  # the air is no queue
+        out["queues"] = queue_table(queued, len(run.delivered))
         out["loss_split"] = loss_split(judged)
     if s.network.air is not None and run.decisions is not None:  # docs/model.md §11
         out["air"] = air_table(run.decisions)

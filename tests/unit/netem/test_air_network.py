@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import threading
 from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,7 @@ import orjson
 import pytest
 
 import testbed
+from analysis import summarise
 from formation.air import AIR_CAUSES, RATES_MBPS
 from formation.errors import TestbedError
 from formation.scenario import Scenario
@@ -137,6 +139,9 @@ def test_netem_lockstep_drops_what_the_simulator_drops_for_the_same_cause(
     assert causes["queue_late"] > 0
     air_losses = sim.summary()["air_losses"]  # what formation simulate says
     assert air_losses == {c: causes[c] for c in AIR_CAUSES}
+    full = summarise(replace(sim.record(), decisions=made))  # as a recording's summary
+    assert full["air_losses"] == air_losses and AIR not in full["queues"]  # the air is no queue
+    assert full["air"]["formation"]["losses"]["collision"] == causes["collision"]
     assert all(d.queue == "radio 2" for d in got.values() if d.model.startswith("queue_"))
     assert all(d.queue is None for d in got.values() if d.model in ("bernoulli", "outage"))
 
