@@ -129,7 +129,7 @@ def _contention(args: argparse.Namespace, out: Path, seeds: tuple[int, ...], con
     from testbed.experiments.contention import ContentionSpec, run_contention, write_outputs
 
     started = time.perf_counter()
-    spec = ContentionSpec(seeds=seeds, epochs=args.epochs or 60)
+    spec = ContentionSpec(seeds=seeds, epochs=args.epochs or 150)
     result = run_contention(spec, log=lambda m: console.print(m, soft_wrap=True))
     write_outputs(result, out)
     Console().print(result.critical_markdown(), markup=False)
@@ -329,7 +329,8 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--epochs",
         type=int,
-        help=f"epochs per run (wireless: default 100; capacity: 50; value: {VALUE_EPOCHS})",
+        help=f"epochs per run (wireless: default 100, with --contention 150; capacity: 50; "
+        f"value: {VALUE_EPOCHS})",
     )
     p.add_argument(
         "--contention",
