@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from analysis.air import air_losses
 from analysis.membership import (
     edge_mask,
     errors_of_team,
@@ -46,6 +47,7 @@ __all__ = [
     "Recorded",
     "RunData",
     "Substitutions",
+    "air_losses",
     "consistency",
     "edge_mask",
     "error_statistics",

@@ -18,11 +18,13 @@ import numpy as np
 import numpy.typing as npt
 
 import analysis.membership as membership
+from analysis.air import air_losses, air_table
 from analysis.membership import team_errors
 from analysis.metrics import error_statistics, formation_error, longest_run
 from analysis.queues import loss_split, queue_table
 from analysis.record import RunData
 from analysis.safety import safety_counts
+from formation.air import AIR_QUEUE
 from formation.rigidity import expected_rigidity_rank
 
 Array = npt.NDArray[np.float64]
@@ -95,8 +97,12 @@ def summarise(run: RunData) -> dict[str, Any]:
         out["deadlines"] = run.deadlines
     if s.network.capacity and run.decisions is not None:  # capacity (docs/model.md §9)
         judged = run.decisions.judged()
-        out["queues"] = queue_table(judged, len(run.delivered))
+        queued = [j for j in judged if j.queue != AIR_QUEUE]  # the air is no queue
+        out["queues"] = queue_table(queued, len(run.delivered))
         out["loss_split"] = loss_split(judged)
+    if s.network.air is not None and run.decisions is not None:  # docs/model.md §11
+        out["air"] = air_table(run.decisions)
+        out["air_losses"] = air_losses(run.decisions.judged())
     out.update(_team(run))
     out["safety"] = safety_counts(s, run.positions, run.headings, run.saturated)
     recorded = None if rec is None else rec.formation_error

@@ -14,6 +14,7 @@ import numpy as np
 import numpy.typing as npt
 from pydantic import BaseModel
 
+from formation.air import air_problems
 from formation.body import body_problems
 from formation.capacity import capacity_problems
 from formation.errors import PluginError
@@ -191,6 +192,11 @@ def _capacity(s: ScenarioFields) -> list[Problem]:
     return capacity_problems(s.network.capacity, len(s.agents), directed)
 
 
+def _air(s: ScenarioFields) -> list[Problem]:
+    air, network = s.network.air, s.network
+    return air_problems(air, network.access_point, s.runtime.mode, bool(network.capacity))
+
+
 def _events(s: ScenarioFields) -> list[Problem]:
     n = len(s.agents)
     return event_problems(n, s.reference_agent, s.epochs, _pairs(s), s.events, s.allow_split)
@@ -268,6 +274,7 @@ CHECKS: tuple[Callable[[ScenarioFields], list[Problem]], ...] = (
     _links_on_edges,
     _control_agents,
     _capacity,
+    _air,
     _events,
     _body,
     _plugins,

@@ -13,6 +13,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from formation.air import Air
 from formation.body import Body
 from formation.capacity import Capacity
 from formation.errors import PLUGIN_LABELS, PluginError, PluginParameterError
@@ -250,6 +251,7 @@ class Network(StrictModel):
     control: tuple[ControlLink, ...] = ()
     access_point: tuple[float, ...] | None = None  # [m] control links' radio end (distance models)
     capacity: tuple[Capacity, ...] = ()  # rate-limited queues (formation.capacity)
+    air: Air | None = None  # a shared 802.11 channel (formation.air)
 
 
 class Runtime(StrictModel):

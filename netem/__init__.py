@@ -6,17 +6,22 @@ same decisions for a batch of seeds from :func:`delivery_plan`, and measures lin
 are what a link model plug-in implements (docs/plugins.md).
 """
 
+from netem.links.air_network import AIR, CAUSES, AirPlanner, air_of
 from netem.links.capacity_plan import CapacityPlanner, capacity_plan
 from netem.links.layer import Keys, Layer, LayerOutput
 from netem.links.layer_stack import probe_stack
 from netem.links.matrix import DeliveryPlan, delivery_plan, link_lengths
 
 __all__ = [
+    "AIR",
+    "CAUSES",
+    "AirPlanner",
     "CapacityPlanner",
     "DeliveryPlan",
     "Keys",
     "Layer",
     "LayerOutput",
+    "air_of",
     "capacity_plan",
     "delivery_plan",
     "link_lengths",

@@ -23,6 +23,15 @@ from shell import Query, Service
 _SPECS: TypeAdapter[list[LinkModelSpec]] = TypeAdapter(list[LinkModelSpec])
 
 
+def _first_error(exc: Exception) -> str:
+    """A refused change in one line: pydantic's first error as ``field = value; why``."""
+    if isinstance(exc, ValidationError):
+        err = exc.errors()[0]
+        where = ".".join(str(p) for p in err["loc"])
+        return f"{where} = {err.get('input')!r}; {err['msg']}"
+    return str(exc)
+
+
 def link_class(src: int, dst: int) -> LinkClass:
     """The class of the directed link ``src → dst`` (0 is the leader's endpoint)."""
     if dst == LEADER_ENDPOINT:
@@ -57,6 +66,7 @@ class LinkConfig:
         """``op`` show (every link's models), set (a link's models) or capacity (a queue's)."""
         op = request.get("op", "show")
         if op == "show":
+            air, epoch = self.links.air, self.progress.epoch_seen
             return {
                 "ok": True,
                 "epoch": self.progress.epoch_seen,
@@ -68,11 +78,14 @@ class LinkConfig:
                     }
                     for (c, s, d), lm in sorted(self.links.models.items())
                 ],
+                "air": None if air is None else air.at(epoch + 1)[0].model_dump(exclude_none=True),
             }
         if op == "capacity":
             return self._capacity(request)
+        if op == "air":
+            return self._air(request)
         if op != "set":
-            return {"ok": False, "error": f"op {op!r}: expected show, set or capacity"}
+            return {"ok": False, "error": f"op {op!r}: expected show, set, capacity or air"}
         link = str(request.get("link", ""))
         try:
             src_text, dst_text = link.split("->")
@@ -105,6 +118,37 @@ class LinkConfig:
         )
         self.service.publish(key, change)
         return {"ok": True, "link": link, "class": cls, "from_epoch": from_epoch}
+
+    def _air(self, request: dict[str, Any]) -> dict[str, Any]:
+        """The shared air's new parameters (``formation netem set medium:air rate_mbps=12``),
+        from the next epoch; recorded as a change of every link on it."""
+        air = self.links.air
+        if air is None:
+            return {"ok": False, "error": "the scenario has no shared air; add [network.air]"}
+        update = request.get("air", {})
+        if not isinstance(update, dict) or not update:
+            return {"ok": False, "error": "expected NAME=VALUE ..., e.g. rate_mbps=12"}
+        from_epoch = self.progress.epoch_seen + 1
+        try:
+            now = air.change(update, from_epoch)
+        except (ValueError, ValidationError) as exc:
+            return {"ok": False, "error": _first_error(exc)}
+        key = keys.netem_change(self.run_id)
+        params = {"model": "air", **now.model_dump(exclude_none=True)}
+        params.pop("kind", None)
+        for cls, src, dst in sorted(self.links.models):
+            if not air.carries((src, dst)):
+                continue
+            change = LinkChange(
+                **self.service.header(key, from_epoch),
+                source=src,
+                target=dst,
+                link_class=cls,
+                models=[params],
+                from_epoch=from_epoch,
+            )
+            self.service.publish(key, change)
+        return {"ok": True, "air": params, "from_epoch": from_epoch}
 
     def _capacity(self, request: dict[str, Any]) -> dict[str, Any]:
         """A queue's new parameters (``formation netem set 3->0 rate rate_bps=64000``), from

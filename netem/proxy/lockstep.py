@@ -26,7 +26,7 @@ from netem.proxy.clean_epochs import CleanEpochs, Deliver, clean_epochs
 from netem.proxy.open_epochs import Delayed, OpenEpoch, Outbox
 from netem.proxy.positions import Positions
 from netem.proxy.progress import Progress
-from netem.proxy.queued_phases import QueuedPhases
+from netem.proxy.queued_phases import queued_phases
 from netem.proxy.records import Ledger, Queued, packet_json
 from netem.proxy.routes import Link, LinkClass, Links, Phase, Route
 from netem.proxy.team_plan import Attendance
@@ -52,12 +52,8 @@ class LockstepCore(Attendance):
         self._clean_deliver: dict[Phase, Deliver] = {}
         self.positions = Positions(links)  # for distance models: read from the states
         self.last_report: dict[int, int] = {}  # agent → epoch of its last report handled
-        # Packets the models passed onto a capacity queue, until all of their phase's are in.
-        self.queued = (
-            None
-            if links.capacity is None or links.sizes is None
-            else QueuedPhases(links.capacity, links.sizes, links.agents)
-        )
+        # Packets the models passed onto a capacity queue or the air, until their phase's are in.
+        self.queued = queued_phases(links, self.positions)
 
     def setup_clean(self) -> None:
         """Take clean epochs on the clean path from now on: with capacity queues, those in which

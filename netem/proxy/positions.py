@@ -20,6 +20,7 @@ from collections.abc import Collection, Iterator
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import orjson
 
 from formation.keys import LEADER_ENDPOINT
@@ -84,7 +85,7 @@ class Positions:
     def refresh(self) -> None:
         """Which links have a distance model (again, after a change of models)."""
         self.ranged: set[Link] = {link for link, m in self.links.models.items() if m.ranged}
-        self.needed = bool(self.ranged)
+        self.needed = bool(self.ranged) or self.links.air is not None  # the air's too
         out = self.links.out_links
         # The agents whose epoch position each kind of packet's decisions need.
         self._state_needs = {
@@ -210,6 +211,17 @@ class Positions:
                 x = x.astype(np.float64)
                 return link_lengths(x[ends[0]], x[ends[1]]).tolist()  # type: ignore[no-any-return]
         return [self._measure(link, known) for link in links]
+
+    def of_epoch(self, epoch: int) -> npt.NDArray[np.float64]:
+        """(n, d) the agents' positions at ``epoch`` [m], row ``i − 1`` agent ``i``; NaN where
+        not read (or unreadable)."""
+        known = self.at.get(epoch, {})
+        rows = [known.get(i) for i in self.links.agents]
+        d = next((len(r) for r in rows if r is not None), len(self.access_point or ()) or 2)
+        return np.array(
+            [r if r is not None and len(r) == d else [math.nan] * d for r in rows],
+            dtype=np.float64,
+        )
 
     def _measure(self, link: Link, known: dict[int, list[float] | None]) -> float:
         _, src, dst = link

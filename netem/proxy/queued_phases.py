@@ -9,6 +9,8 @@ phase is complete (its receivers' open epochs) and applies them.
 
 A packet of a link alone in each of its queues (a ``link`` queue, or a radio or medium of
 one link) meets no other packet there: it is judged at once (:meth:`QueuedPhases.at_once`).
+A packet on the shared air (``netem.links.air_network``) always waits for its phase: what its
+queues passed takes the air with the phase's others, at the positions of its epoch.
 """
 
 from __future__ import annotations
@@ -20,10 +22,12 @@ import numpy as np
 
 from formation.keys import LEADER_ENDPOINT
 from formation.wire_size import Kind, WireSizes
+from netem.links.air_network import AIR, AirNetwork
 from netem.links.capacity_network import PHASE_ORDER, CapacityNetwork, Fixed, packet_kind
 from netem.links.layer_stack import Outcome
+from netem.proxy.positions import Positions
 from netem.proxy.records import Queued, queued
-from netem.proxy.routes import Link, Phase
+from netem.proxy.routes import Link, Links, Phase
 
 PHASES: tuple[Phase, ...] = ("state", "report", "estimate")  # in virtual time
 BLOCK = 1024  # epochs judged at once in closed form (:meth:`QueuedPhases.at_once`)
@@ -39,8 +43,16 @@ _NONE: _Block = (0, 0, None, None, [])
 class QueuedPhases:
     """The packets held for a run's queues, by (phase, epoch)."""
 
-    def __init__(self, queues: CapacityNetwork, sizes: WireSizes, agents: list[int]) -> None:
+    def __init__(
+        self,
+        queues: CapacityNetwork,
+        sizes: WireSizes,
+        agents: list[int],
+        air: tuple[AirNetwork, Positions] | None = None,
+    ) -> None:
         self.queues, self.sizes, self.agents = queues, sizes, agents
+        self.air = air  # the shared air and where its positions are read
+        self.air_phases: frozenset[str] = frozenset() if air is None else air[0].phases
         self.held: dict[tuple[Phase, int], list[Held]] = {}
         self._links: dict[Link, tuple[tuple[int, int], Kind, int]] = {}  # (src, dst), kind, whose
         self._fixed: dict[Link, _Block] = {}  # each link's block of closed-form verdicts
@@ -57,6 +69,8 @@ class QueuedPhases:
         each of its own (:meth:`CapacityNetwork.alone`, or its closed form for a block of
         epochs, :meth:`CapacityNetwork.fixed`); None when it waits for the rest of its phase
         (:meth:`hold`)."""
+        if phase in self.air_phases:
+            return None  # it takes the air with its phase's others
         net = self.queues
         start, end, block, usual, decided = self._fixed.get(link, _NONE)
         if not start <= epoch < end:  # a new block (or none yet): is the link alone in its queues?
@@ -108,6 +122,8 @@ class QueuedPhases:
         path (:meth:`CapacityNetwork.fixed`): False when no queue serves it then, None when
         they have no closed form."""
         pair, kind, whose = self._route(link)
+        if kind in self.air_phases:
+            return None  # the air decides a phase's packets together
         net = self.queues
         first = net.first_epoch.get(pair, math.inf)
         if first >= start + size:
@@ -140,7 +156,7 @@ class QueuedPhases:
         before: list[tuple[Phase, int]] = [(p, epoch) for p in PHASES[: PHASE_ORDER[phase]]]
         if epoch > 0:
             before.append(("estimate", epoch - 1))
-        return [(p, e) for p, e in before if p in self.queues.phases]
+        return [(p, e) for p, e in before if p in self.queues.phases or p in self.air_phases]
 
     def judge(self, phase: Phase, epoch: int) -> list[tuple[Link, int, Any, Queued]]:
         """The held packets of ``epoch`` of ``phase`` through their queues, their decisions."""
@@ -150,14 +166,38 @@ class QueuedPhases:
             for (_, src, dst), _, _, _ in held
         ]
         verdicts = self.queues.phase(epoch, phase, packets)
-        return [
+        out = [
             (link, seq, payload, queued(d, v.reason, v.queue, v.depth, v.sojourn_ms))
             for (link, seq, payload, d), v in zip(held, verdicts, strict=True)
         ]
+        if self.air is None or phase not in self.air_phases:
+            return out
+        net, positions = self.air
+        on_air = [p for p, v in enumerate(verdicts) if v.passed]
+        pairs = [packets[p][0] for p in on_air]
+        fates = net.phase(epoch, phase, pairs, positions.of_epoch(epoch))
+        for p, fate in zip(on_air, fates, strict=True):
+            link, seq, payload, d = held[p]
+            arrival = fate.arrival_ms if fate.passed else math.nan
+            out[p] = (link, seq, payload, queued(d, fate.cause, AIR, fate.frames, arrival))
+        return out
 
     def waiting(self) -> list[tuple[Phase, int]]:
         """The phases still held, in virtual-time order."""
         return sorted(self.held, key=lambda pe: (pe[1], PHASE_ORDER[pe[0]]))
 
 
-__all__ = ["PHASES", "Held", "QueuedPhases"]
+def queued_phases(links: Links, positions: Positions) -> QueuedPhases | None:
+    """The phases ``links``' packets wait in: for capacity queues, the shared air, or both
+    (None: neither)."""
+    if links.air is None:
+        if links.capacity is None or links.sizes is None:
+            return None
+        return QueuedPhases(links.capacity, links.sizes, links.agents)
+    # no queue: an empty network keeps the phases in order
+    queues = links.capacity or CapacityNetwork([], len(links.agents), [], links.air.period_s)
+    sizes = links.sizes or links.air.sizes
+    return QueuedPhases(queues, sizes, links.agents, (links.air, positions))
+
+
+__all__ = ["PHASES", "Held", "QueuedPhases", "queued_phases"]

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import heapq
 import itertools
+import logging
+import math
 import threading
 import time
 from collections import Counter, defaultdict
@@ -27,12 +29,16 @@ from dataclasses import dataclass, field
 from itertools import islice
 from typing import Any, NamedTuple
 
+import numpy as np
+
 from formation.codec import read_attachment
 from formation.deadlines import PHASES
 from formation.keys import LEADER_ENDPOINT
 from formation.realtime import Clock
+from netem.links.air_network import AIR, AirVerdict
 from netem.links.layer_stack import Outcome
 from netem.proxy.progress import Progress
+from netem.proxy.realtime_air import RealtimeAir
 from netem.proxy.records import Ledger, Queued, Record, message_json, packet_json_of, queued
 from netem.proxy.routes import PHASE_OF, Link, LinkClass, Links, Phase, Routes
 from shell import Incoming, Service, TimePolicy
@@ -62,6 +68,7 @@ PREPARE_AHEAD = 32
 # The clock starts this long after everyone is up: every agent must fetch it and publish
 # x[0] before epoch 0. At 0.3 s, agents of a 20-process team on 2 cores were late with x[0].
 START_LEAD_S = 1.0
+log = logging.getLogger("netem")
 
 
 @dataclass
@@ -119,6 +126,9 @@ class RealtimeForwarder:
         self._held: dict[int, _Held] = {}  # packets a queue holds, by token
         self._pushed: set[int] = set()  # held packets pushed out, still in the heap
         self.last_state: dict[int, tuple[int, Any]] = {}  # agent → (epoch, payload) last handled
+        # the shared air: its phases' packets, held until the model's arrival
+        self.air = None if links.air is None else RealtimeAir(links.air)
+        self._aired: set[int] = set()  # tokens of packets the air delivered, in the heap
 
     def forward(
         self,
@@ -174,6 +184,11 @@ class RealtimeForwarder:
                 )
                 held_ns = max(0, int(leaves_s * 1e9) + t0 - now)
         record: Record = (src, dst, cls, epoch, seq, d)
+        if o.delivered and self.air is not None and self.air.carries((src, dst)):
+            came = msg.arrived_ns or now  # held until the air's phase settles it (tick)
+            item = (record, o, packet_json_of(src, seq, epoch, o.copies, text), deadline_ns)
+            self.air.add(epoch, phase, (src, dst), came, deadline_ns, item)
+            return
         if not d.delivered:
             self.ledger.decisions[(phase, epoch)].append(record)
             return
@@ -280,6 +295,10 @@ class RealtimeForwarder:
                 return
             text = message_json(msg.payload)
             size = _size(msg.payload)
+            if self.air is not None:
+                payload = msg.payload
+                raw = payload if isinstance(payload, bytes) else payload.to_bytes()
+                self.air.read_position(epoch, source, raw)
             for dst in self.links.out_links[source]:
                 if self.takes_part(dst, epoch):
                     self.forward("formation", source, dst, msg, epoch, seq, text, due, size)
@@ -344,8 +363,14 @@ class RealtimeForwarder:
         due = self._due
         now = time.time_ns()
         with self.lock:
+            if self.air is not None:
+                for item, verdict, at_ns in self.air.settle(now):
+                    self._on_air(item, verdict, at_ns, due)
             while due and due[0][0] <= now:
                 due_ns, token, inbox, epoch, packet, copies, deadline_ns = heapq.heappop(due)
+                if token in self._aired and self.air is not None:
+                    self._aired.discard(token)
+                    self.air.lag_ns.append(now - due_ns)
                 if token in self._pushed:  # pushed out of its queue while held
                     self._pushed.discard(token)
                     continue
@@ -359,7 +384,30 @@ class RealtimeForwarder:
                 self.prepare((self._next_records - self.clock.t0_ns) // self.clock.period_ns)
                 self._next_records += self.clock.period_ns
         until = min(self._next_records, due[0][0]) if due else self._next_records
+        settles = None if self.air is None else self.air.next_ns()
+        if settles is not None:
+            until = min(until, settles)
         return max(0.0, min(0.05, (until - now) / 1e9))
+
+    def _on_air(self, item: Any, verdict: AirVerdict, at_ns: int, due: list[Due]) -> None:
+        """A packet whose fate on the air is settled: recorded; if delivered, due at its
+        arrival (and its model's delay)."""
+        (src, dst, cls, epoch, seq, _), o, packet, deadline_ns = item
+        phase = PHASE_OF[cls]
+        if not verdict.passed:
+            d = queued(o, verdict.cause, AIR, verdict.frames, math.nan)
+            self.ledger.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
+            return
+        d = queued(o, "", AIR, verdict.frames, verdict.arrival_ms)
+        self.ledger.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
+        self.ledger.forwarded[(cls, src, dst)] += o.copies
+        token = next(self._tokens)
+        due_ns = at_ns + int(o.delay_ms * 1e6)
+        if o.delay_ms <= 0:
+            self._aired.add(token)
+        if due_ns > deadline_ns:
+            self.deadline["modelled_late"] += o.copies
+        heapq.heappush(due, (due_ns, token, (phase, dst), epoch, packet, o.copies, deadline_ns))
 
     def wake(self, msg: Incoming | None) -> None:
         """The packet that woke netem and every other one queued, handled at once."""
@@ -375,7 +423,20 @@ class RealtimeForwarder:
 
     def end(self) -> None:
         with self.lock:
+            if self.air is not None:
+                for item, verdict, at_ns in self.air.settle(1 << 62):  # what was still open
+                    self._on_air(item, verdict, at_ns, [])
             self.publish_decisions()
+        if self.air is not None and self.air.lag_ns:
+            lag = np.array(self.air.lag_ns) / 1e3  # [µs]
+            log.info(
+                "air: %d packets put out after the model's arrival by median %.0f µs, "
+                "99th percentile %.0f µs, max %.0f µs",
+                lag.size,
+                np.median(lag),
+                np.percentile(lag, 99),
+                lag.max(),
+            )
 
 
 def _size(payload: Any) -> int:

@@ -16,6 +16,7 @@ from formation.events import Membership
 from formation.keys import LEADER_ENDPOINT
 from formation.scenario import Scenario
 from formation.wire_size import WireSizes
+from netem.links.air_network import AirNetwork, air_of
 from netem.links.capacity_network import CapacityNetwork, network_of
 from netem.links.models import LinkModel
 
@@ -48,6 +49,7 @@ class Links:
             network_of(scenario) if scenario.network.capacity else None
         )
         self.sizes = WireSizes(scenario) if scenario.network.capacity else None  # [B] nominal
+        self.air: AirNetwork | None = air_of(scenario, seed)  # the shared 802.11 channel
         ap = scenario.network.access_point
         self.access_point = None if ap is None else list(ap)  # [m] control links' leader end
         self.models: dict[Link, LinkModel] = {}

@@ -89,6 +89,25 @@ def queue_lines(label: str, queues: dict[str, Any], losses: dict[str, int]) -> l
     return [*lines, ""]
 
 
+def air_lines(label: str, air: dict[str, Any]) -> list[str]:
+    """A run's packets on the air per link class: delivered, and losses by cause."""
+    lines = [
+        f"- {label}: of the packets the link models passed, what the air delivered and why "
+        "it lost the others",
+        "",
+        "| link class | took the air | delivered | losses by cause | mean arrival [ms] "
+        "| max arrival [ms] |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    for cls, a in air.items():
+        losses = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in a["losses"].items()) or "none"
+        lines.append(
+            f"| {cls} | {a['took_air']} | {a['delivered']} | {losses} | "
+            f"{_fmt(a['mean_arrival_ms'])} | {_fmt(a['max_arrival_ms'])} |"
+        )
+    return [*lines, ""]
+
+
 def _fmt(v: Any) -> str:
     if v is None:
         return "–"
@@ -183,6 +202,11 @@ def _markdown(
         lines += ["", "## Capacity queues", ""]
         for s in queued:
             lines += queue_lines(s["label"], s["queues"], s["loss_split"])
+    aired = [s for s in sums if "air" in s]
+    if aired:
+        lines += ["", "## The shared air", ""]
+        for s in aired:
+            lines += air_lines(s["label"], s["air"])
     timed = [(run, s["deadlines"]) for run, s in zip(runs, sums, strict=True) if "deadlines" in s]
     if timed:
         lines += ["", "## Realtime: modelled losses and deadline misses", ""]

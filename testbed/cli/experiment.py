@@ -54,6 +54,8 @@ def cmd_experiment(args: argparse.Namespace) -> int:
     out = Path(args.out or f"experiments/{args.name}")
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     started = time.perf_counter()
+    if args.name == "wireless" and args.contention:
+        return _contention(args, out, tuple(seeds), console)
     if args.name == "wireless":
         return _wireless(args, scenario, out, tuple(seeds), console)
     if args.name == "capacity":
@@ -114,6 +116,23 @@ def _wireless(
             f"real processes {row['case']}, {row['strategy']} seed {row['seed']}: "
             f"max |Δx| {row['max_diff']}, recorded {row['recorded_diff']}, match {row['match']}"
         )
+    console.print(
+        f"wrote {out}/results.md, critical.md, runs.csv, phase.png "
+        f"({time.perf_counter() - started:.1f} s)"
+    )
+    return 0
+
+
+def _contention(args: argparse.Namespace, out: Path, seeds: tuple[int, ...], console: Any) -> int:
+    """``formation experiment wireless --contention``: success against team size and PHY rate
+    on a shared channel (docs/model.md §11); the simulator only."""
+    from testbed.experiments.contention import ContentionSpec, run_contention, write_outputs
+
+    started = time.perf_counter()
+    spec = ContentionSpec(seeds=seeds, epochs=args.epochs or 150)
+    result = run_contention(spec, log=lambda m: console.print(m, soft_wrap=True))
+    write_outputs(result, out)
+    Console().print(result.critical_markdown(), markup=False)
     console.print(
         f"wrote {out}/results.md, critical.md, runs.csv, phase.png "
         f"({time.perf_counter() - started:.1f} s)"
@@ -310,7 +329,14 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--epochs",
         type=int,
-        help=f"epochs per run (wireless: default 100; capacity: 50; value: {VALUE_EPOCHS})",
+        help=f"epochs per run (wireless: default 100, with --contention 150; capacity: 50; "
+        f"value: {VALUE_EPOCHS})",
+    )
+    p.add_argument(
+        "--contention",
+        action="store_true",
+        help="wireless: success against team size and PHY rate on one shared 802.11 channel "
+        "(reports and estimates on it or off it) instead of against radio range",
     )
     p.add_argument(
         "--topology",
@@ -351,6 +377,12 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--seeds", type=int, default=50, help="seeds per cell (default 50)")
     p.add_argument("--seed", type=int, help="first seed (default: the scenario's)")
+    p.add_argument(
+        "--contention",
+        action="store_true",
+        help="wireless: success against team size and PHY rate on one shared 802.11 channel "
+        "(reports and estimates on it or off it) instead of against radio range",
+    )
     p.add_argument(
         "--topology",
         default=",".join(DEFAULT_TOPOLOGIES),

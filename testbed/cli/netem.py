@@ -112,9 +112,21 @@ def cmd_netem(args: argparse.Namespace) -> int:
             )
             table.add_row(link["link"], link["class"], models or "up")
         print_table(table, console)
+        if answer.get("air"):  # the shared air (docs/model.md §11)
+            air = answer["air"]
+            params = " ".join(f"{k}={v}" for k, v in air.items() if k not in ("kind", "links"))
+            console.print(f"medium:air carries {air['links']} links: {params}")
         return 0
     if not args.link or not args.model:
         raise TestbedError("usage: formation netem set LINK MODEL [NAME=VALUE ...] [+ MODEL ...]")
+    if args.link == "medium:air":  # the shared air's parameters, not a queue's
+        (air_params,) = parse_models(["air", *[w for w in args.model if w != "air"]])
+        air_params.pop("model")
+        answer = ask(run_id, endpoint, {"op": "air", "air": air_params})
+        if not answer.get("ok"):
+            raise TestbedError(f"netem refused the change: {answer.get('error')}")
+        console.print(f"medium:air: {_words(answer['air'])} from epoch {answer['from_epoch']}")
+        return 0
     specs = parse_models(args.model)
     if specs[0]["model"] == "rate":  # a capacity queue (docs/model.md §9)
         answer = ask(run_id, endpoint, {"op": "capacity", "queue": queue_request(args.link, specs)})
@@ -133,6 +145,10 @@ def cmd_netem(args: argparse.Namespace) -> int:
     return 0
 
 
+def _words(params: dict[str, Any]) -> str:
+    return " ".join(f"{k}={v}" for k, v in params.items() if k != "model")
+
+
 # what makes a queue equal Linux's (docs/model.md §9)
 RATE_HELP = """\
 a queue's parameters are tc's (docs/model.md §9):
@@ -143,7 +159,9 @@ a queue's parameters are tc's (docs/model.md §9):
   policy          tail, or oldest: a pfifo_head_drop child (Linux has none in bytes)
   overhead_bytes  [B] added to each payload: 42 for UDP over IPv4 on Ethernet or loopback
 e.g. formation netem set 3->0 rate rate_bps=64000 burst_bytes=3000 limit_packets=5 \\
-       policy=oldest overhead_bytes=42"""
+       policy=oldest overhead_bytes=42
+the shared air's ([network.air], docs/model.md §11), from the next epoch:
+  formation netem set medium:air rate_mbps=12 shadowing_sigma_db=4"""
 
 
 def register(sub: Any) -> None:
@@ -160,7 +178,8 @@ def register(sub: Any) -> None:
     p.add_argument(
         "link",
         nargs="?",
-        help="SRC->DST, e.g. 1->2 (0 is the leader); with rate also radio:AGENT or medium:NAME",
+        help="SRC->DST, e.g. 1->2 (0 is the leader); with rate also radio:AGENT or medium:NAME; "
+        "medium:air for the shared air",
     )
     p.add_argument(
         "model",

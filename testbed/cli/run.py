@@ -312,6 +312,9 @@ def _print_summary(
                 f"{o.strategy}: losses {lost['channel']} channel, {lost['queue']} queue (full), "
                 f"{lost['deadline']} deadline (left a queue late)"
             )
+        if "air_losses" in s:  # the shared air (docs/model.md §11)
+            lost = ", ".join(f"{v} {k.replace('_', ' ')}" for k, v in s["air_losses"].items())
+            console.print(f"{o.strategy}: lost on the air: {lost}")
         for line in deadline_notes(o.strategy, s):
             console.print(line)
         for line in robot_notes(o.strategy, s, recorded.get(o.run_id)):

@@ -68,6 +68,12 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         sys.stdout.write("\n")
     else:
         print_summaries(summaries, title=f"formation simulate {args.scenario} (seed {seed})")
+        for summary in summaries:
+            if "air_losses" in summary:  # the shared air (docs/model.md §11)
+                lost = ", ".join(
+                    f"{v} {k.replace('_', ' ')}" for k, v in summary["air_losses"].items()
+                )
+                print(f"{summary['strategy']}: lost on the air: {lost}")
     return 0
 
 

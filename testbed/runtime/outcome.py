@@ -12,7 +12,16 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from analysis import RunData, formation_error, loss_split, present, shape_error, spans, summarise
+from analysis import (
+    RunData,
+    air_losses,
+    formation_error,
+    loss_split,
+    present,
+    shape_error,
+    spans,
+    summarise,
+)
 from formation import realtime_accounting
 from formation.body import BODY_LOST_EXIT
 from formation.scenario import Scenario
@@ -168,10 +177,14 @@ class RunOutcome:
         }
 
     def capacity_losses(self) -> dict[str, Any]:
-        """With capacity queues: the drops split into channel, queue and deadline losses."""
-        if not self.scenario.network.capacity:
-            return {}
-        return {"loss_split": loss_split(self.decisions)}
+        """With capacity queues: the drops split into channel, queue and deadline losses; with
+        the shared air: its drops by cause."""
+        out: dict[str, Any] = {}
+        if self.scenario.network.capacity:
+            out["loss_split"] = loss_split(self.decisions)
+        if self.scenario.network.air is not None:
+            out["air_losses"] = air_losses(self.decisions)
+        return out
 
     def faults_summary(self) -> dict[str, Any]:
         """Who died, when and whether it came back, and who was in the team at each epoch

@@ -91,6 +91,8 @@ class BatchResult:
     sub_error: Array = field(default_factory=lambda: np.zeros((0, 0)))
     sub_value: Array = field(default_factory=lambda: np.zeros((0, 0)))
     sub_fallback: Mask = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    # member → (epoch, column, cause code) of each packet the shared air dropped
+    air_drops: dict[int, list[tuple[int, int, int]]] = field(default_factory=dict)
 
     @property
     def size(self) -> int:
@@ -173,6 +175,7 @@ class BatchResult:
                 values=self.sub_value[sel] if sel.any() else np.zeros((0, d)),
             ),
             fallbacks=int(self.fallbacks[b]),
+            air_drops=tuple(self.air_drops.get(b, ())),
             nees_values=np.concatenate(nees_vals) if nees_vals else np.zeros(0),
             estimation_errors=np.concatenate(est_err) if est_err else np.zeros((0, d)),
             headings=None if self.headings is None else self.headings[:, b],
@@ -327,6 +330,7 @@ def run_batch(
         estimate_ok=estimate_ok,
         headings=th,
         saturated=saturated,
+        air_drops={} if ranged is None else ranged.air_drops,
     )
     if log is not None:
         log.fill(result, d)

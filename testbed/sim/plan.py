@@ -213,8 +213,11 @@ def plan_batch(
             mat = decided.base
             ok = mat.delivered & (mat.delay_epochs == 0)
             delivered_all = mat.delivered
-            if s.network.capacity and not decided.ranged:  # the queues see what the models
-                # passed, delayed or not; a ranged member's, epoch by epoch (testbed.sim.ranged)
+            # decided from the positions, epoch by epoch (testbed.sim.ranged): distance models
+            # and the shared air
+            by_position = decided.ranged or s.network.air is not None
+            if s.network.capacity and not by_position:  # the queues see what the models
+                # passed, delayed or not; a ranged member's, epoch by epoch
                 seen = offered(mat.delivered, team_k, links, n)
                 delivered_all = mat.delivered & (capacity_plan(s, seen, all_links) == 0)
                 ok = ok & delivered_all
@@ -222,7 +225,7 @@ def plan_batch(
                 delivered_all[:, :n_links],
                 mat.delay_epochs[:, :n_links],
                 ok,
-                decided if decided.ranged else None,
+                decided if by_position else None,
             )
         delivered, delay, ok, by_length = cache[key]
         on_time[:, b] = ok[:, :n_links]

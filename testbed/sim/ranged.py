@@ -6,7 +6,8 @@ which the simulator knows only once it has computed epoch ``k``. The members' dr
 :func:`netem.links.matrix.delivery_plan` in the plan; here they meet the lengths, measured with
 :func:`netem.links.matrix.link_lengths` as netem measures them, so both give the same verdicts.
 A member with capacity queues then passes what the models passed through them, an epoch at a
-time (:class:`netem.CapacityPlanner`), as netem's lockstep does.
+time (:class:`netem.CapacityPlanner`), and a member with a shared air puts what they passed on
+it (:class:`netem.AirPlanner`: the epoch's positions decide), as netem's lockstep does.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from formation.keys import LEADER_ENDPOINT
-from netem import CapacityPlanner, link_lengths
+from netem import AirPlanner, CapacityPlanner, air_of, link_lengths
 from testbed.sim.plan import BatchPlan, offered
 
 Array = npt.NDArray[np.float64]
@@ -49,6 +50,14 @@ class RangedEpochs:
             else None
             for b in self.members
         ]
+        self.air = [
+            None
+            if (net := air_of(plan.scenarios[b], int(plan.seeds[b]))) is None
+            else AirPlanner(net, every)
+            for b in self.members
+        ]
+        # member → (epoch, column, cause code) of each packet the air dropped
+        self.air_drops: dict[int, list[tuple[int, int, int]]] = {b: [] for b in self.members}
         self.present = None if plan.team is None else plan.team.present
         self.links = links
 
@@ -62,11 +71,15 @@ class RangedEpochs:
         lengths = np.concatenate([formation, control, control], axis=1)
         for row, (b, decisions) in enumerate(zip(self.members, self.decisions, strict=True)):
             delivered, _, delay = decisions.at(k, lengths[row])
-            queues = self.queues[row]
+            queues, air = self.queues[row], self.air[row]
+            present = None if self.present is None else self.present[k : k + 1]
             if queues is not None:  # the queues see what the models passed, delayed or not
-                present = None if self.present is None else self.present[k : k + 1]
                 seen = offered(delivered[None], present, self.links, n)[0]
                 delivered = delivered & (queues.epoch(k, seen) == 0)
+            if air is not None:  # what they passed takes the air
+                causes = air.epoch(k, x[row], offered(delivered[None], present, self.links, n)[0])
+                self.air_drops[b] += [(k, int(c), int(causes[c])) for c in np.flatnonzero(causes)]
+                delivered = delivered & (causes == 0)
             ok = delivered & (delay == 0)
             on_time[k, b] = ok[:n_links]
             report_ok[k, b] = ok[n_links : n_links + n]

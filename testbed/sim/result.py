@@ -9,6 +9,8 @@ import numpy as np
 import numpy.typing as npt
 
 from analysis import Decisions, RunData, formation_error, shape_error, summarise
+from formation.air import AIR_CAUSES
+from netem import AIR, CAUSES
 
 if TYPE_CHECKING:
     from analysis import Frames
@@ -26,11 +28,14 @@ class SimResult(RunData):
     (``Membership.published``: the bodies out of it stay where they were).
     report_ok, estimate_ok : (E, n) control links delivered in time
     fallbacks : substitutions that fell back to ``hold`` (no estimate to use)
+    air_drops : (epoch, column, cause code) of each packet the shared air dropped; columns
+        are the formation links, then the reports and the estimates by agent
     """
 
     report_ok: Mask
     estimate_ok: Mask
     fallbacks: int
+    air_drops: tuple[tuple[int, int, int], ...] = ()
 
     def __post_init__(self) -> None:
         if self.present.shape != self.positions.shape[:2]:
@@ -72,6 +77,10 @@ class SimResult(RunData):
         out |= {k: full[k] for k in _HEADLINE}
         out["fallbacks"] = self.fallbacks
         out |= {k: full[k] for k in _ESTIMATION}
+        if self.scenario.network.air is not None:  # the shared air's drops by cause
+            d = self.decisions_made()
+            lost = d.verdict == "drop"
+            out["air_losses"] = {c: int((lost & (d.model == c)).sum()) for c in AIR_CAUSES}
         return out
 
     def frames(self) -> Frames:
@@ -107,6 +116,9 @@ class SimResult(RunData):
             ok.append(in_time[ks, cs])
         col = {k: np.concatenate(v) for k, v in parts.items()}
         count = len(col["epoch"])
+        model, queue = np.full(count, "", dtype=object), np.full(count, None, dtype=object)
+        if self.air_drops:  # what the air dropped: its cause, as netem records it
+            model, queue = self._air_causes(col, model, queue)
         return Decisions(
             epoch=col["epoch"].astype(np.int64),
             phase=col["phase"],
@@ -117,12 +129,30 @@ class SimResult(RunData):
             verdict=np.where(np.concatenate(ok), "pass", "drop").astype(object),
             delay_epochs=np.zeros(count, dtype=np.int64),
             delay_ms=np.full(count, np.nan),
-            model=np.full(count, "", dtype=object),
+            model=model,
             state=np.full(count, "", dtype=object),
-            queue=np.full(count, None, dtype=object),
+            queue=queue,
             queue_depth=np.full(count, -1, dtype=np.int64),
             sojourn_ms=np.full(count, np.nan),
         )
+
+    def _air_causes(
+        self, col: dict[str, Any], model: npt.NDArray[Any], queue: npt.NDArray[Any]
+    ) -> tuple[npt.NDArray[Any], npt.NDArray[Any]]:
+        """``model`` and ``queue`` with the air's cause and name on the rows it dropped."""
+        s = self.scenario
+        n, links = s.n, s.directed_links
+        ends = [(int(a), int(b)) for a, b in links]
+        ends += [(i, 0) for i in range(1, n + 1)] + [(0, i) for i in range(1, n + 1)]
+        row = {
+            (int(k), int(a), int(b)): r
+            for r, (k, a, b) in enumerate(zip(col["epoch"], col["src"], col["dst"], strict=True))
+        }
+        for k, c, code in self.air_drops:
+            r = row.get((k, *ends[c]))
+            if r is not None:
+                model[r], queue[r] = CAUSES[code], AIR
+        return model, queue
 
 
 _HEADLINE = (
