@@ -26,8 +26,8 @@ class Outbox(Protocol):
     def records(self, phase: Phase, epoch: int, records: list[Record]) -> None:
         """The decision records of ``epoch`` of ``phase``, every receiver of it closed."""
 
-    def clean_records(self, phase: Phase, last_epoch: int, chunks: list[bytes]) -> None:
-        """Records of clean epochs, encoded (:meth:`netem.proxy.clean_epochs.CleanEpochs.finish`)."""
+    def record_chunks(self, phase: Phase, last_epoch: int, chunks: list[bytes]) -> None:
+        """Records of closed epochs up to ``last_epoch``, encoded: one chunk an epoch."""
 
 
 @dataclass
