@@ -35,10 +35,16 @@ class Stream(NamedTuple):
 
 
 class Row(NamedTuple):
-    """A stream's decisions of packet 0 of an epoch, one per link; None where only the model
-    knows (past a failing layer, under a realtime window)."""
+    """A stream's decisions of packet 0 of an epoch, one per link (None where only the model
+    knows: past a failing layer, under a realtime window); ``plain`` when every link passes it
+    as it is (one copy, no delay)."""
 
     decisions: tuple[Outcome | None, ...]
+    plain: bool
+
+
+def row_of(decisions: tuple[Outcome | None, ...]) -> Row:
+    return Row(decisions, all(d is not None and d.verdict == "pass" for d in decisions))
 
 
 _Block = dict[int, tuple[list[Row], list[list[float]] | None]]  # stream → rows, reach [m]
@@ -97,9 +103,9 @@ class DecisionRows:
 def _rows(ids: npt.NDArray[np.int64], table: list[Outcome | None]) -> list[Row]:
     """Each epoch's row from the decisions' indices into ``table``, ``(links, epochs)``."""
     if (ids == ids[:, :1]).all():  # the usual block: every epoch decides alike
-        return [Row(tuple(table[i] for i in ids[:, 0].tolist()))] * ids.shape[1]
+        return [row_of(tuple(table[i] for i in ids[:, 0].tolist()))] * ids.shape[1]
     columns, inverse = np.unique(ids, axis=1, return_inverse=True)
-    distinct = [Row(tuple(table[i] for i in c)) for c in columns.T.tolist()]
+    distinct = [row_of(tuple(table[i] for i in c)) for c in columns.T.tolist()]
     return [distinct[j] for j in inverse.reshape(-1).tolist()]
 
 
@@ -127,4 +133,4 @@ def decision_rows(links: Links) -> dict[Phase, DecisionRows]:
     }
 
 
-__all__ = ["BLOCK", "DecisionRows", "Row", "Stream", "decision_rows"]
+__all__ = ["BLOCK", "DecisionRows", "Row", "Stream", "decision_rows", "row_of"]

@@ -18,12 +18,12 @@ lock and publishes what it hands to the :class:`Outbox`, in order.
 from __future__ import annotations
 
 import logging
-from collections import defaultdict
+from collections import Counter, defaultdict
 from typing import Any
 
 from formation.keys import LEADER_ENDPOINT
 from netem.links.layer_stack import Outcome
-from netem.proxy.decision_rows import decision_rows
+from netem.proxy.decision_rows import Row, decision_rows
 from netem.proxy.open_epochs import Delayed, OpenEpoch, Outbox
 from netem.proxy.positions import Positions
 from netem.proxy.progress import Progress
@@ -34,6 +34,7 @@ from netem.proxy.team_plan import Attendance
 
 log = logging.getLogger("netem")
 FLUSH_CHUNKS = 64  # epochs' records per batch (at least one batch per 0.2 s wake-up)
+_NOBODY: set[int] = set()  # no sender dead
 
 
 class LockstepCore(Attendance):
@@ -50,6 +51,10 @@ class LockstepCore(Attendance):
         self.next_close: dict[tuple[Phase, int], int] = defaultdict(int)
         self.closed_count: dict[tuple[Phase, int], int] = defaultdict(int)
         self.rows = decision_rows(links)
+        self._senders_count = {
+            phase: {r: len(links.senders(phase, r)) for r in [LEADER_ENDPOINT, *links.agents]}
+            for phase in PHASES
+        }
         self.templates = {
             phase: RecordTemplates({sid: s.links for sid, s in rows.streams.items()})
             for phase, rows in self.rows.items()
@@ -58,6 +63,7 @@ class LockstepCore(Attendance):
         # closed epochs until the batch goes out (with the newest epoch in it).
         self.records: defaultdict[tuple[Phase, int], list[bytes]] = defaultdict(list)
         self.batches: dict[Phase, tuple[int, list[bytes]]] = {p: (-1, []) for p in PHASES}
+        self.passed: Counter[tuple[Phase, int]] = Counter()  # packets every link passed as is
         self.positions = Positions(links)  # for distance models: read from the states
         self.last_report: dict[int, int] = {}  # agent → epoch of its last report handled
         # Packets the models passed onto a capacity queue, until all of their phase's are in.
@@ -200,7 +206,10 @@ class LockstepCore(Attendance):
 
     def forwarded(self) -> dict[Link, int]:
         """Delivered packets per link (for the final status)."""
-        return dict(self.ledger.forwarded)
+        total = self.ledger.forwarded.copy()
+        for (phase, stream), n in self.passed.items():
+            total.update(dict.fromkeys(self.rows[phase].streams[stream].links, n))
+        return dict(total)
 
     # -- deciding -----------------------------------------------------------------------------
     def _route(self, phase: Phase, stream: int, epoch: int, seq: int, payload: Any) -> None:
@@ -215,17 +224,18 @@ class LockstepCore(Attendance):
         # With someone down or out a receiver may need nothing of it: out, or closed without it
         # (a dead sender's packet held for positions comes after its receivers went on).
         skip = bool(self.dead or self.out)
-        next_close = self.next_close
-        q, ledger, open_ = self.queued, self.ledger, self.open
-        tails = self.templates[phase]
-        ids: list[int] = []
+        next_close, q, ledger, open_ = self.next_close, self.queued, self.ledger, self.open
+        if row.plain and decisions is row.decisions and not skip and q is None:
+            self._pass(phase, stream, epoch, seq, payload, row)  # every link passes it as it is
+            return
+        final: list[Outcome | Queued | None] = []  # each link's decision, None: not recorded
         boxes: list[tuple[int, OpenEpoch]] = []
         packet = b""
         for link, dst, d in zip(s.links, s.receivers, decisions, strict=True):
             if skip and (
                 next_close[(phase, dst)] > epoch or (phase != "report" and self.is_dead(dst, epoch))
             ):
-                ids.append(-1)
+                final.append(None)
                 continue
             if d is None:
                 d = self._decide(link, epoch)
@@ -240,10 +250,10 @@ class LockstepCore(Attendance):
                 judged = q.at_once(phase, epoch, link, d)
                 if judged is None:  # judged with the rest of its phase (_judge_when_complete)
                     q.hold(phase, epoch, (link, seq, payload, d))
-                    ids.append(-1)
+                    final.append(None)
                     continue
                 v = judged
-            ids.append(tails.tail_id(v))
+            final.append(v)
             if v.delivered and v.delay_epochs == 0 and v.copies == 1:
                 if not packet:
                     packet = packet_json(src, seq, epoch, 1, payload)
@@ -251,12 +261,61 @@ class LockstepCore(Attendance):
                 ledger.forwarded[link] += 1
             else:
                 self._apply(box, phase, link, epoch, seq, payload, v)
-        template, width = tails.template(stream, tuple(ids))
+        self._record(phase, stream, epoch, seq, final)
+        self._close_complete(phase, epoch, boxes)
+
+    def _pass(
+        self, phase: Phase, stream: int, epoch: int, seq: int, payload: Any, row: Row
+    ) -> None:
+        """:meth:`_route` for a packet every link passes as it is, nobody out: its records are the
+        row's template, its count the stream's (:meth:`forwarded`)."""
+        s = self.rows[phase].streams[stream]
+        src = s.links[0][1]
+        packet = packet_json(src, seq, epoch, 1, payload)
+        open_ = self.open
+        boxes = []
+        for dst in s.receivers:
+            box = open_.get((phase, dst, epoch))
+            if box is None:
+                box = open_[(phase, dst, epoch)] = OpenEpoch()
+            box.handled.add(src)
+            box.packets.append(packet)
+            boxes.append((dst, box))
+        self.passed[(phase, stream)] += 1
+        template, width = self.templates[phase].row_template(stream, row.decisions)
+        self.records[(phase, epoch)].append(template % ((epoch, seq) * width))
+        self._close_complete(phase, epoch, boxes)
+
+    def _record(
+        self,
+        phase: Phase,
+        stream: int,
+        epoch: int,
+        seq: int,
+        final: list[Outcome | Queued | None],
+    ) -> None:
+        """The records of ``stream``'s packet as ``final`` decided it, spliced from a template."""
+        tails = self.templates[phase]
+        ids = tuple(-1 if v is None else tails.tail_id(v) for v in final)
+        template, width = tails.template(stream, ids)
         if width:
             self.records[(phase, epoch)].append(template % ((epoch, seq) * width))
-        senders = self.links.senders
+
+    def _close_complete(self, phase: Phase, epoch: int, boxes: list[tuple[int, OpenEpoch]]) -> None:
+        """Close the receivers whose open ``epoch`` got its last packet: at once in the usual
+        case (everyone up, in turn, nothing waiting for the queues), else in order."""
+        usual = not (self.dead or self.out or self.away or self.queued)
+        counts, next_close, open_ = self._senders_count[phase], self.next_close, self.open
         for dst, box in boxes:
-            if self._all_handled(box, senders(phase, dst), epoch):  # else none can close yet
+            if usual:
+                if len(box.handled) < counts[dst]:
+                    continue
+                if next_close[(phase, dst)] == epoch:
+                    self._close(phase, dst, epoch, box, _NOBODY)
+                    if (phase, dst, epoch + 1) not in open_:
+                        continue  # nothing later can be complete
+                self._try_close(phase, dst)
+            elif self._all_handled(box, self.links.senders(phase, dst), epoch):
                 self._try_close(phase, dst)
 
     def _at_lengths(
@@ -269,13 +328,15 @@ class LockstepCore(Attendance):
     ) -> tuple[Outcome | None, ...]:
         """The row's decisions at the epoch's lengths: within reach the row's (before the
         distance layers), else the model's at that length."""
-        out = list(decisions)
+        out: list[Outcome | None] | None = None
         length = self.positions.length
         for i, (link, model, r) in enumerate(zip(links, models, reach, strict=True)):
             d = length(link, epoch)
             if d is not None and not d <= r:
+                if out is None:
+                    out = list(decisions)
                 out[i] = model.decide(epoch, distance_m=d)
-        return tuple(out)
+        return decisions if out is None else tuple(out)
 
     def _decide(self, link: Link, epoch: int) -> Outcome:
         """The model's own decision of ``link``'s packet of ``epoch`` (its row could not say)."""
@@ -385,17 +446,20 @@ class LockstepCore(Attendance):
         """Deliver ``box`` with what was delayed to ``epoch``; once every live receiver of the
         epoch is closed, its records join the phase's batch."""
         self.open.pop((phase, receiver, epoch), None)
-        for h in self.delayed.pop((phase, receiver, epoch), []):
-            self.ledger.forwarded[h.link] += h.copies
-            box.packets.append(h.packet)
+        if self.delayed:
+            for h in self.delayed.pop((phase, receiver, epoch), ()):
+                self.ledger.forwarded[h.link] += h.copies
+                box.packets.append(h.packet)
         gone = [s for s in self.links.senders(phase, receiver) if s in dead] if dead else []
         self.outbox.deliver(phase, receiver, epoch, box.packets, box.lost, gone)
         self.next_close[(phase, receiver)] = epoch + 1
-        self.closed_count[(phase, epoch)] += 1
-        down = len(dead) - (LEADER_ENDPOINT in dead)
-        receivers = len(self.links.agents) - down if phase != "report" else 1
-        if self.closed_count[(phase, epoch)] >= receivers:
-            del self.closed_count[(phase, epoch)]
+        key = (phase, epoch)
+        closed = self.closed_count[key] = self.closed_count.get(key, 0) + 1
+        receivers = 1 if phase == "report" else len(self.links.agents)
+        if dead and phase != "report":
+            receivers -= len(dead) - (LEADER_ENDPOINT in dead)
+        if closed >= receivers:
+            del self.closed_count[key]
             self._batch(phase, epoch)
 
     def _batch(self, phase: Phase, epoch: int) -> None:

@@ -39,7 +39,7 @@ class Delayed:
     packet: bytes  # encoded by packet_json, with its sent epoch
 
 
-@dataclass
+@dataclass(slots=True)
 class OpenEpoch:
     """An epoch of one phase into one receiver, not yet closed."""
 

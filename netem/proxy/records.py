@@ -133,6 +133,7 @@ class RecordTemplates:
         self._tails: list[bytes] = []
         self._of: dict[int, tuple[Outcome | Queued, int]] = {}  # by id; the entry keeps d alive
         self._templates: dict[tuple[int, tuple[int, ...]], tuple[bytes, int]] = {}
+        self._rows: dict[int, tuple[tuple[Outcome | Queued | None, ...], tuple[bytes, int]]] = {}
 
     def tail_id(self, d: Outcome | Queued) -> int:
         """An id of a decision's encoded fields."""
@@ -147,6 +148,20 @@ class RecordTemplates:
         if len(self._of) > 100_000:  # a backlog's sojourns are all different: kept few
             self._of.clear()
         self._of[id(d)] = (d, got)
+        return got
+
+    def row_template(
+        self, stream: int, row: tuple[Outcome | Queued | None, ...]
+    ) -> tuple[bytes, int]:
+        """The template of ``stream``'s packet with every link recorded as ``row`` decides
+        (:meth:`template`), kept by the row (rows are shared objects)."""
+        known = self._rows.get(id(row))
+        if known is not None and known[0] is row:
+            return known[1]
+        got = self.template(stream, tuple(-1 if d is None else self.tail_id(d) for d in row))
+        if len(self._rows) > 100_000:
+            self._rows.clear()
+        self._rows[id(row)] = (row, got)  # the entry keeps the row alive: its id is not reused
         return got
 
     def template(self, stream: int, tails: tuple[int, ...]) -> tuple[bytes, int]:
