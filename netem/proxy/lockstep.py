@@ -23,6 +23,7 @@ from typing import Any
 
 from formation.keys import LEADER_ENDPOINT
 from netem.links.layer_stack import Outcome
+from netem.links.models import LinkModel
 from netem.proxy.decision_rows import Row, decision_rows
 from netem.proxy.open_epochs import Delayed, OpenEpoch, Outbox
 from netem.proxy.positions import Positions
@@ -72,6 +73,8 @@ class LockstepCore(Attendance):
             if links.capacity is None or links.sizes is None
             else QueuedPhases(links.capacity, links.sizes, links.agents)
         )
+        self.queues: dict[Phase, set[int]] = {}  # the streams a queue may serve, by phase
+        self._find_queues()
 
     # -- events in ----------------------------------------------------------------------------
     def packet(self, route: Route, epoch: int, seq: int, payload: Any) -> None:
@@ -194,6 +197,18 @@ class LockstepCore(Attendance):
         for rows in self.rows.values():
             rows.invalidate()
         self.positions.refresh()
+        self._find_queues()
+
+    def _find_queues(self) -> None:
+        served = set() if self.links.capacity is None else self.links.capacity.first_epoch
+        self.queues = {
+            phase: {
+                sid
+                for sid, s in rows.streams.items()
+                if any((a, b) in served for _, a, b in s.links)
+            }
+            for phase, rows in self.rows.items()
+        }
 
     def flush(self) -> None:
         """Hand out the records of every epoch closed since the last flush."""
@@ -225,7 +240,12 @@ class LockstepCore(Attendance):
         # (a dead sender's packet held for positions comes after its receivers went on).
         skip = bool(self.dead or self.out)
         next_close, q, ledger, open_ = self.next_close, self.queued, self.ledger, self.open
-        if row.plain and decisions is row.decisions and not skip and q is None:
+        if (
+            row.plain
+            and decisions is row.decisions
+            and not skip
+            and stream not in self.queues[phase]
+        ):
             self._pass(phase, stream, epoch, seq, payload, row)  # every link passes it as it is
             return
         final: list[Outcome | Queued | None] = []  # each link's decision, None: not recorded
@@ -321,7 +341,7 @@ class LockstepCore(Attendance):
     def _at_lengths(
         self,
         links: tuple[Link, ...],
-        models: tuple[Any, ...],
+        models: tuple[LinkModel, ...],
         epoch: int,
         decisions: tuple[Outcome | None, ...],
         reach: list[float],
