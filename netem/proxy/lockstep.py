@@ -25,7 +25,7 @@ from formation.keys import LEADER_ENDPOINT
 from netem.links.layer_stack import Outcome
 from netem.links.models import LinkModel
 from netem.proxy.decision_rows import Row, decision_rows
-from netem.proxy.open_epochs import Delayed, OpenEpoch, Outbox
+from netem.proxy.open_epochs import Delayed, OpenEpoch, Outbox, RecordBatches
 from netem.proxy.positions import Positions
 from netem.proxy.progress import Progress
 from netem.proxy.queued_phases import PHASES, QueuedPhases
@@ -34,7 +34,6 @@ from netem.proxy.routes import Link, Links, Phase, Route
 from netem.proxy.team_plan import Attendance
 
 log = logging.getLogger("netem")
-FLUSH_CHUNKS = 64  # epochs' records per batch (at least one batch per 0.2 s wake-up)
 _NOBODY: set[int] = set()  # no sender dead
 
 
@@ -60,10 +59,7 @@ class LockstepCore(Attendance):
             phase: RecordTemplates({sid: s.links for sid, s in rows.streams.items()})
             for phase, rows in self.rows.items()
         }
-        # Encoded records of each epoch until its receivers are closed, then of the phase's
-        # closed epochs until the batch goes out (with the newest epoch in it).
-        self.records: defaultdict[tuple[Phase, int], list[bytes]] = defaultdict(list)
-        self.batches: dict[Phase, tuple[int, list[bytes]]] = {p: (-1, []) for p in PHASES}
+        self.records = RecordBatches(outbox, epochs)
         self.passed: Counter[tuple[Phase, int]] = Counter()  # packets every link passed as is
         self.positions = Positions(links)  # for distance models: read from the states
         self.last_report: dict[int, int] = {}  # agent → epoch of its last report handled
@@ -212,8 +208,7 @@ class LockstepCore(Attendance):
 
     def flush(self) -> None:
         """Hand out the records of every epoch closed since the last flush."""
-        for phase in PHASES:
-            self._flush(phase)
+        self.records.flush()
 
     # -- state out ----------------------------------------------------------------------------
     def finished(self) -> bool:
@@ -303,7 +298,7 @@ class LockstepCore(Attendance):
             boxes.append((dst, box))
         self.passed[(phase, stream)] += 1
         template, width = self.templates[phase].row_template(stream, row.decisions)
-        self.records[(phase, epoch)].append(template % ((epoch, seq) * width))
+        self.records.add(phase, epoch, template % ((epoch, seq) * width))
         self._close_complete(phase, epoch, boxes)
 
     def _record(
@@ -319,7 +314,7 @@ class LockstepCore(Attendance):
         ids = tuple(-1 if v is None else tails.tail_id(v) for v in final)
         template, width = tails.template(stream, ids)
         if width:
-            self.records[(phase, epoch)].append(template % ((epoch, seq) * width))
+            self.records.add(phase, epoch, template % ((epoch, seq) * width))
 
     def _close_complete(self, phase: Phase, epoch: int, boxes: list[tuple[int, OpenEpoch]]) -> None:
         """Close the receivers whose open ``epoch`` got its last packet: at once in the usual
@@ -399,10 +394,9 @@ class LockstepCore(Attendance):
             self._settled(p, r, e) for p, e in q.earlier(phase, epoch) for r in q.receivers(p)
         ):
             return False
-        records = self.records[(phase, epoch)]
         for link, seq, payload, d in q.judge(phase, epoch):
             cls, src, dst = link
-            records.append(record_json((src, dst, cls, epoch, seq, d)))
+            self.records.add(phase, epoch, record_json((src, dst, cls, epoch, seq, d)))
             self._apply(self.open[(phase, dst, epoch)], phase, link, epoch, seq, payload, d)
         for r in q.receivers(phase):  # those that waited for the queues, the caller's too
             self._try_close(phase, r)
@@ -480,27 +474,7 @@ class LockstepCore(Attendance):
             receivers -= len(dead) - (LEADER_ENDPOINT in dead)
         if closed >= receivers:
             del self.closed_count[key]
-            self._batch(phase, epoch)
-
-    def _batch(self, phase: Phase, epoch: int) -> None:
-        """``epoch``'s records join the phase's batch, which goes out when full, at the last
-        epoch, or as an epoch that recorded nothing (records stay in epoch order)."""
-        records = self.records.pop((phase, epoch), None)
-        if not records:
-            self._flush(phase)
-            self.outbox.records(phase, epoch, [])
-            return
-        _, chunks = self.batches[phase]
-        chunks.append(b",".join(records))
-        self.batches[phase] = (epoch, chunks)
-        if len(chunks) >= FLUSH_CHUNKS or epoch >= self.epochs - 1:
-            self._flush(phase)
-
-    def _flush(self, phase: Phase) -> None:
-        last, chunks = self.batches[phase]
-        if chunks:
-            self.outbox.record_chunks(phase, last, chunks)
-            self.batches[phase] = (last, [])
+            self.records.close(phase, epoch)
 
 
 def _name(sender: int) -> str:
