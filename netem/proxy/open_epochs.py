@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections import defaultdict
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Protocol
 
 from netem.proxy.records import Record
@@ -42,13 +42,15 @@ class Delayed:
     packet: bytes  # encoded by packet_json, with its sent epoch
 
 
-@dataclass(slots=True)
 class OpenEpoch:
     """An epoch of one phase into one receiver, not yet closed."""
 
-    handled: set[int] = field(default_factory=set)
-    packets: list[bytes] = field(default_factory=list)  # each encoded by packet_json
-    lost: list[int] = field(default_factory=list)
+    __slots__ = ("handled", "lost", "packets")
+
+    def __init__(self) -> None:  # one per receiver and epoch: plain slots are built fastest
+        self.handled: set[int] = set()
+        self.packets: list[bytes] = []  # each encoded by packet_json
+        self.lost: list[int] = []
 
 
 class RecordBatches:
