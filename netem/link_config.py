@@ -167,12 +167,11 @@ class LinkConfig:
             where = ".".join(str(p) for p in err["loc"])
             return {"ok": False, "error": f"rate.{where} = {err.get('input')!r}; {err['msg']}"}
         from_epoch = self.progress.epoch_seen + 1
-        self.lockstep.queues_changing()
         try:
             served = queues.change(capacity, from_epoch)
         except ValueError as exc:
             return {"ok": False, "error": str(exc)}
-        self.lockstep.models_changed()  # its links' clean epochs are judged again
+        self.lockstep.models_changed()  # its links' decisions are taken again
         key = keys.netem_change(self.run_id)
         params = capacity.model_dump(
             exclude_none=True, exclude={"scope", "link", "agent", "medium", "links"}

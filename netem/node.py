@@ -4,7 +4,7 @@ This is the transport shell: the bus's subscriptions, the ``clock``, ``netem/fin
 ``netem/rejoin`` queryables (``netem/config`` is :mod:`netem.link_config`'s, the
 publishers :mod:`netem.outbox`'s), liveliness and what each wake-up of its one
 loop (:mod:`netem.proxy.loop`) does in lockstep. The logic is elsewhere: lockstep in
-:mod:`netem.proxy.lockstep` (pure, with the clean path of :mod:`netem.proxy.clean_epochs`), realtime
+:mod:`netem.proxy.lockstep` (pure), realtime
 forwarding in :mod:`netem.proxy.realtime`.
 """
 
@@ -33,7 +33,9 @@ from netem.proxy.routes import Links, Routes, link_key
 from shell import Incoming, Query, Sample, Service, TimePolicy, settle_heap
 
 log = logging.getLogger("netem")
-LOCKSTEP_WAKE_S = 0.2  # lockstep: the loop's longest sleep; clean epochs' records wait at most this
+LOCKSTEP_WAKE_S = (
+    0.2  # lockstep: the loop's longest sleep; closed epochs' records wait at most this
+)
 REJOIN_AHEAD = 2  # realtime: epochs between the one under way and an unscheduled restart's first
 FINAL_WAIT_S = 0.5  # how long a last-messages query waits for what may still be on its way
 
@@ -221,10 +223,6 @@ class NetemNode:
         if self.lockstep.applied:
             self._announce_applied()
 
-    def setup_clean(self) -> None:
-        """Take clean epochs on the clean path from now on (:meth:`LockstepCore.setup_clean`)."""
-        self.lockstep.setup_clean()
-
     def _on_final(self, query: Query) -> None:
         """What netem still lacks of a sender's last messages: ``{"agents": [ids]}`` asks for
         those agents' final states, ``{"estimates": true}`` for the leader's last epoch.
@@ -364,7 +362,7 @@ class NetemNode:
     def run(self, timing: TimePolicy) -> int:
         """Carry every link of the run under ``timing`` until each sender's last message is in
         (0) or until stopped (130). Lockstep: packets are handled on the bus's thread, and
-        each wake-up of this one flushes clean epochs' records; realtime: every packet is
+        each wake-up of this one flushes closed epochs' records; realtime: every packet is
         forwarded after its model's delay in ms, by this thread, and no epoch closes."""
         self.timing = timing
         realtime = timing.realtime
@@ -374,14 +372,14 @@ class NetemNode:
         return run_loop(self.service, timing, wakeups, self.everyone_up, check_dead, self.finished)
 
     def flush_all(self) -> None:
-        """Publish the records of every clean epoch done (:meth:`LockstepCore.flush_clean`)."""
+        """Publish the records of every epoch closed (:meth:`LockstepCore.flush`)."""
         with self.lock:
-            self.lockstep.flush_clean()
+            self.lockstep.flush()
 
 
 class LockstepWakeups:
     """Lockstep: packets are handled on the bus's thread as they come (no queue hand-off);
-    the loop's thread wakes every :data:`LOCKSTEP_WAKE_S` to flush clean epochs' records and
+    the loop's thread wakes every :data:`LOCKSTEP_WAKE_S` to flush closed epochs' records and
     handle what came before the start."""
 
     def __init__(self, node: NetemNode) -> None:
@@ -390,8 +388,6 @@ class LockstepWakeups:
     def open(self) -> None:
         node = self.node
         with node.lock:  # handled on the bus's thread from now on
-            if not node.passthrough:
-                node.setup_clean()
             node.running = True
 
     def begin(self, timing: TimePolicy) -> None:
@@ -406,7 +402,7 @@ class LockstepWakeups:
 
     def wake(self, msg: Incoming | None) -> None:
         node = self.node
-        node.flush_all()  # clean epochs' records wait at most this long
+        node.flush_all()  # closed epochs' records wait at most this long
         if msg is not None:
             with node.lock:
                 node.handle(msg)

@@ -258,7 +258,7 @@ class LinkModel:
             part = blk.codes[k - blk.start : stop - blk.start] + len(table)
             unknown = blk.timed or (blk.ranged and not before_distance)
             table.extend([None] * len(blk.table) if unknown else blk.table)
-            if len(part) < stop - k:  # past a failure: undecided, so never a clean epoch
+            if len(part) < stop - k:  # past a failure: undecided, the model raises when asked
                 part = np.concatenate([part, np.full(stop - k - len(part), len(table))])
                 table.append(None)
             codes.append(part)

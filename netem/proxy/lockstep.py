@@ -1,38 +1,40 @@
 """netem's lockstep as pure logic: packets and deaths in, deliveries and records out.
 
-docs/architecture.md "Time": for each packet netem asks the link's model (keyed by seed,
-link and epoch, so any process gets the same verdict). Once every live sender's
-epoch-``k`` packet into a receiver is handled, that receiver gets one delivery of the
-phase with the payloads passed, unparsed: the delivery is also the epoch's close.
-Epochs into a receiver close in order. Delays are whole epochs: a delayed packet is
-held and goes out with a later epoch's delivery. Once every live receiver of a phase's
-epoch is closed, that epoch's decision records go out in one batch.
-
-An epoch in which every link of the phase passes takes the clean path
-(:mod:`netem.proxy.clean_epochs`): no per-packet decision, records spliced from templates and
-published together (:meth:`LockstepCore.flush_clean`). No network, clock or thread: the node
-calls the core under its lock and publishes what it hands to the :class:`Outbox`, in order.
+docs/architecture.md "Time". A sender's packet of an epoch is decided on every link it takes
+at once: its stream's row of the link models' decisions, taken ahead for a block of epochs
+(:mod:`netem.proxy.decision_rows`), then the distance layers at the epoch's lengths, then the
+capacity queues. A packet on a queue it shares with other links waits for the rest of its
+phase, which the queues judge together (:mod:`netem.proxy.queued_phases`): the one place where
+a phase's packets are decided together. Once every live sender's epoch-``k`` packet into a
+receiver is decided, that receiver gets one delivery of the phase with the payloads passed,
+unparsed: the delivery is also the epoch's close (:meth:`LockstepCore._close`, the one place).
+Epochs into a receiver close in order. Delays are whole epochs: a delayed packet is held and
+goes out with a later epoch's delivery. Once every live receiver of a phase's epoch is closed,
+its records (spliced from templates, :class:`RecordTemplates`) join the next batch
+(:meth:`LockstepCore.flush`). No network, clock or thread: the node calls the core under its
+lock and publishes what it hands to the :class:`Outbox`, in order.
 """
 
 from __future__ import annotations
 
 import logging
-from collections import defaultdict
+from collections import Counter, defaultdict
 from typing import Any
 
 from formation.keys import LEADER_ENDPOINT
 from netem.links.layer_stack import Outcome
-from netem.proxy.clean_epochs import CleanEpochs, Deliver, clean_epochs
-from netem.proxy.open_epochs import Delayed, OpenEpoch, Outbox
+from netem.links.models import LinkModel
+from netem.proxy.decision_rows import Row, decision_rows
+from netem.proxy.open_epochs import Delayed, OpenEpoch, Outbox, RecordBatches
 from netem.proxy.positions import Positions
 from netem.proxy.progress import Progress
-from netem.proxy.queued_phases import queued_phases
-from netem.proxy.records import Ledger, Queued, packet_json
-from netem.proxy.routes import Link, LinkClass, Links, Phase, Route
+from netem.proxy.queued_phases import PHASES, queued_phases
+from netem.proxy.records import Ledger, Queued, RecordTemplates, packet_json, record_json
+from netem.proxy.routes import Link, Links, Phase, Route
 from netem.proxy.team_plan import Attendance
 
 log = logging.getLogger("netem")
-FLUSH_CHUNKS = 64  # clean epochs' records per batch (at least one batch per 0.2 s wake-up)
+_NOBODY: set[int] = set()  # no sender dead
 
 
 class LockstepCore(Attendance):
@@ -48,20 +50,23 @@ class LockstepCore(Attendance):
         self.delayed: dict[tuple[Phase, int, int], list[Delayed]] = defaultdict(list)
         self.next_close: dict[tuple[Phase, int], int] = defaultdict(int)
         self.closed_count: dict[tuple[Phase, int], int] = defaultdict(int)
-        self.clean: dict[Phase, CleanEpochs] = {}  # none until setup_clean
-        self._clean_deliver: dict[Phase, Deliver] = {}
+        self.rows = decision_rows(links)
+        self._senders_count = {
+            phase: {r: len(links.senders(phase, r)) for r in [LEADER_ENDPOINT, *links.agents]}
+            for phase in PHASES
+        }
+        self.templates = {
+            phase: RecordTemplates({sid: s.links for sid, s in rows.streams.items()})
+            for phase, rows in self.rows.items()
+        }
+        self.records = RecordBatches(outbox, epochs)
+        self.passed: Counter[tuple[Phase, int]] = Counter()  # packets every link passed as is
         self.positions = Positions(links)  # for distance models: read from the states
         self.last_report: dict[int, int] = {}  # agent → epoch of its last report handled
         # Packets the models passed onto a capacity queue or the air, until their phase's are in.
         self.queued = queued_phases(links, self.positions)
-
-    def setup_clean(self) -> None:
-        """Take clean epochs on the clean path from now on: with capacity queues, those in which
-        every queue a packet meets has a closed form and passes it in time (a queue judging a
-        phase's packets together has none: they take the full path)."""
-        judge = self.queued.closed_form if self.queued is not None else None
-        self.clean = clean_epochs(self.links, judge)
-        self._clean_deliver = {phase: self._clean_delivery(phase) for phase in self.clean}
+        self.queues: dict[Phase, set[int]] = {}  # the streams a queue may serve, by phase
+        self._find_queues()
 
     # -- events in ----------------------------------------------------------------------------
     def packet(self, route: Route, epoch: int, seq: int, payload: Any) -> None:
@@ -84,7 +89,8 @@ class LockstepCore(Attendance):
         elif kind == "report":
             self._report(source, epoch, seq, payload)
         else:
-            self._estimate(dst, epoch, seq, payload)
+            self._route("estimate", dst, epoch, seq, payload)
+            self.progress.estimate_handled(epoch)
 
     def _state(self, source: int, epoch: int, seq: int, payload: Any) -> None:
         progress = self.progress
@@ -96,45 +102,16 @@ class LockstepCore(Attendance):
         elif self.out and source in self.out.get(epoch, ()):
             self.leave(source, epoch)  # its last state: kept (for a restart), not forwarded
             progress.final_state(source)  # what netem/final answers a leaving agent
-        elif not self._forward_clean("state", source, epoch, seq, payload):
-            self._route_state(source, epoch, seq, payload)
+        elif source in self.rows["state"].streams:
+            self._route("state", source, epoch, seq, payload)
 
     def _report(self, source: int, epoch: int, seq: int, payload: Any) -> None:
         if self.out and source in self.out.get(epoch, ()):
             return  # not one of ours: that agent is out of the team at this epoch
         self.last_report[source] = epoch
-        if self._forward_clean("report", source, epoch, seq, payload):
-            return
-        box = self._route_packet("report", "report", source, LEADER_ENDPOINT, payload, epoch, seq)
-        if self._all_handled(box, self.links.agents, epoch):
-            self._try_close("report", LEADER_ENDPOINT)
+        self._route("report", source, epoch, seq, payload)
         if LEADER_ENDPOINT in self.dead:
             self._close_estimates_without_leader(source)
-
-    def _estimate(self, dst: int, epoch: int, seq: int, payload: Any) -> None:
-        if not self._forward_clean("estimate", dst, epoch, seq, payload) and not (
-            (dst in self.dead or self.out) and self.is_dead(dst, epoch)
-        ):
-            self._route_packet("estimate", "estimate", LEADER_ENDPOINT, dst, payload, epoch, seq)
-            self._try_close("estimate", dst)
-        self.progress.estimate_handled(epoch)
-
-    def _route_state(
-        self,
-        source: int,
-        epoch: int,
-        seq: int,
-        payload: Any,
-        verdicts: dict[Link, Outcome] | None = None,
-    ) -> None:
-        links, dead = self.links, self.dead
-        for dst in links.out_links[source]:
-            if (dst in dead or self.out) and self.is_dead(dst, epoch):
-                continue
-            d = verdicts[("formation", source, dst)] if verdicts is not None else None
-            box = self._route_packet("state", "formation", source, dst, payload, epoch, seq, d)
-            if self._all_handled(box, links.in_links[dst], epoch):  # else none can close yet
-                self._try_close("state", dst)
 
     def sender_died(self, agent: int) -> None:
         """``agent`` is gone (0: the leader): its packets count as lost, nobody waits for them."""
@@ -143,10 +120,8 @@ class LockstepCore(Attendance):
         if agent in self.dead and self.revive.pop(agent, None) is None:
             return  # already down; else it died again after coming back
         log.warning("%s is gone: its packets count as lost from now on", _name(agent))
-        self._leave_clean_path(gated=True)  # what was gathered was routed while it was alive
         self.dead.add(agent)
         self._release_held(agent)  # nobody waits for its positions
-        self._leave_clean_path()
         if agent == LEADER_ENDPOINT:
             for j in self.links.agents:
                 self._close_estimates_without_leader(j)
@@ -209,69 +184,175 @@ class LockstepCore(Attendance):
                 self.progress.estimate_skipped(epoch)
         self._try_close("estimate", agent)
 
-    def queues_changing(self) -> None:
-        """A capacity queue is about to change: its state counts the packets the clean path put
-        through it, up to the last one (:meth:`QueuedPhases.crossed`)."""
-        if (q := self.queued) is not None:
-            for link, last in (x for ce in self.clean.values() for x in ce.last_taken()):
-                q.crossed(link, last)
-
     def models_changed(self) -> None:
-        """A link's model changed: which epochs are clean is computed again."""
-        self._leave_clean_path(gated=True)  # decided by the models in force as they came
-        for ce in self.clean.values():
-            ce.invalidate()
+        """A link's model or queue changed: its decisions are taken again."""
+        for rows in self.rows.values():
+            rows.invalidate()
         self.positions.refresh()
+        self._find_queues()
 
-    def flush_clean(self) -> None:
-        """Hand out the records of every clean epoch finished since the last flush."""
-        for phase in self.clean:
-            self._flush_clean(phase)
+    def _find_queues(self) -> None:
+        served = set() if self.links.capacity is None else self.links.capacity.first_epoch
+        aired = frozenset() if self.links.air is None else self.links.air.phases
+        self.queues = {
+            phase: {
+                sid
+                for sid, s in rows.streams.items()
+                if phase in aired or any((a, b) in served for _, a, b in s.links)
+            }
+            for phase, rows in self.rows.items()
+        }
+
+    def flush(self) -> None:
+        """Hand out the records of every epoch closed since the last flush."""
+        self.records.flush()
 
     # -- state out ----------------------------------------------------------------------------
     def finished(self) -> bool:
         return self.progress.finished(self.gone())
 
     def forwarded(self) -> dict[Link, int]:
-        """Delivered packets per link, clean epochs' included (for the final status)."""
+        """Delivered packets per link (for the final status)."""
         total = self.ledger.forwarded.copy()
-        for ce in self.clean.values():
-            total.update(ce.forwarded())
+        for (phase, stream), n in self.passed.items():
+            total.update(dict.fromkeys(self.rows[phase].streams[stream].links, n))
         return dict(total)
 
-    # -- the full path ------------------------------------------------------------------------
-    def _route_packet(
+    # -- deciding -----------------------------------------------------------------------------
+    def _route(self, phase: Phase, stream: int, epoch: int, seq: int, payload: Any) -> None:
+        """Decide ``stream``'s packet of ``epoch`` on each of its links, put it in its receivers'
+        open epochs, record it, and close the receivers it completes."""
+        rows = self.rows[phase]
+        s = rows.streams[stream]
+        row, reach = rows.row(stream, epoch)
+        decisions = row.decisions
+        if reach is not None:  # a distance model: a link out of reach is the model's to judge
+            decisions = self._at_lengths(s.links, s.models, epoch, decisions, reach)
+        # With someone down or out a receiver may need nothing of it: out, or closed without it
+        # (a dead sender's packet held for positions comes after its receivers went on).
+        skip = bool(self.dead or self.out)
+        next_close, q, ledger, open_ = self.next_close, self.queued, self.ledger, self.open
+        if (
+            row.plain
+            and decisions is row.decisions
+            and not skip
+            and stream not in self.queues[phase]
+        ):
+            self._pass(phase, stream, epoch, seq, payload, row)  # every link passes it as it is
+            return
+        final: list[Outcome | Queued | None] = []  # each link's decision, None: not recorded
+        boxes: list[tuple[int, OpenEpoch]] = []
+        packet = b""
+        for link, dst, d in zip(s.links, s.receivers, decisions, strict=True):
+            if skip and (
+                next_close[(phase, dst)] > epoch or (phase != "report" and self.is_dead(dst, epoch))
+            ):
+                final.append(None)
+                continue
+            if d is None:
+                d = self._decide(link, epoch)
+            v: Outcome | Queued = d
+            box = open_.get((phase, dst, epoch))
+            if box is None:
+                box = open_[(phase, dst, epoch)] = OpenEpoch()
+            src = link[1]
+            box.handled.add(src)
+            boxes.append((dst, box))
+            if d.delivered and q is not None:
+                judged = q.at_once(phase, epoch, link, d)
+                if judged is None:  # judged with the rest of its phase (_judge_when_complete)
+                    q.hold(phase, epoch, (link, seq, payload, d))
+                    final.append(None)
+                    continue
+                v = judged
+            final.append(v)
+            if v.delivered and v.delay_epochs == 0 and v.copies == 1:
+                if not packet:
+                    packet = packet_json(src, seq, epoch, 1, payload)
+                box.packets.append(packet)
+                ledger.forwarded[link] += 1
+            else:
+                self._apply(box, phase, link, epoch, seq, payload, v)
+        self._record(phase, stream, epoch, seq, final)
+        self._close_complete(phase, epoch, boxes)
+
+    def _pass(
+        self, phase: Phase, stream: int, epoch: int, seq: int, payload: Any, row: Row
+    ) -> None:
+        """:meth:`_route` for a packet every link passes as it is, nobody out: its records are the
+        row's template, its count the stream's (:meth:`forwarded`)."""
+        s = self.rows[phase].streams[stream]
+        src = s.links[0][1]
+        packet = packet_json(src, seq, epoch, 1, payload)
+        open_ = self.open
+        boxes = []
+        for dst in s.receivers:
+            box = open_.get((phase, dst, epoch))
+            if box is None:
+                box = open_[(phase, dst, epoch)] = OpenEpoch()
+            box.handled.add(src)
+            box.packets.append(packet)
+            boxes.append((dst, box))
+        self.passed[(phase, stream)] += 1
+        template, width = self.templates[phase].row_template(stream, row.decisions)
+        self.records.add(phase, epoch, template % ((epoch, seq) * width))
+        self._close_complete(phase, epoch, boxes)
+
+    def _record(
         self,
         phase: Phase,
-        cls: LinkClass,
-        src: int,
-        dst: int,
-        payload: Any,
+        stream: int,
         epoch: int,
         seq: int,
-        decided: Outcome | None = None,
-    ) -> OpenEpoch:
-        """Decide (unless ``decided``) and record one packet, and put it in its receiver's open
-        epoch (returned)."""
-        key = (phase, dst, epoch)
-        box = self.open.get(key)
-        if box is None:
-            box = self.open[key] = OpenEpoch()
-        box.handled.add(src)
-        link: Link = (cls, src, dst)
-        d = decided or self.links.models[link].decide(
-            epoch, distance_m=self.positions.length(link, epoch)
-        )
-        q = self.queued
-        if d.delivered and q is not None:
-            judged = q.at_once(phase, epoch, link, d)
-            if judged is None:
-                q.hold(phase, epoch, (link, seq, payload, d))
-                return box  # judged with the rest of its phase (_judge_when_complete)
-            self._apply(box, phase, link, epoch, seq, payload, judged)
-            return box
-        self._apply(box, phase, link, epoch, seq, payload, d)
-        return box
+        final: list[Outcome | Queued | None],
+    ) -> None:
+        """The records of ``stream``'s packet as ``final`` decided it, spliced from a template."""
+        tails = self.templates[phase]
+        ids = tuple(-1 if v is None else tails.tail_id(v) for v in final)
+        template, width = tails.template(stream, ids)
+        if width:
+            self.records.add(phase, epoch, template % ((epoch, seq) * width))
+
+    def _close_complete(self, phase: Phase, epoch: int, boxes: list[tuple[int, OpenEpoch]]) -> None:
+        """Close the receivers whose open ``epoch`` got its last packet: at once in the usual
+        case (everyone up, in turn, nothing waiting for the queues), else in order."""
+        usual = not (self.dead or self.out or self.away or self.queued)
+        counts, next_close, open_ = self._senders_count[phase], self.next_close, self.open
+        for dst, box in boxes:
+            if usual:
+                if len(box.handled) < counts[dst]:
+                    continue
+                if next_close[(phase, dst)] == epoch:
+                    self._close(phase, dst, epoch, box, _NOBODY)
+                    if (phase, dst, epoch + 1) not in open_:
+                        continue  # nothing later can be complete
+                self._try_close(phase, dst)
+            elif self._all_handled(box, self.links.senders(phase, dst), epoch):
+                self._try_close(phase, dst)
+
+    def _at_lengths(
+        self,
+        links: tuple[Link, ...],
+        models: tuple[LinkModel, ...],
+        epoch: int,
+        decisions: tuple[Outcome | None, ...],
+        reach: list[float],
+    ) -> tuple[Outcome | None, ...]:
+        """The row's decisions at the epoch's lengths: within reach the row's (before the
+        distance layers), else the model's at that length."""
+        out: list[Outcome | None] | None = None
+        length = self.positions.length
+        for i, (link, model, r) in enumerate(zip(links, models, reach, strict=True)):
+            d = length(link, epoch)
+            if d is not None and not d <= r:
+                if out is None:
+                    out = list(decisions)
+                out[i] = model.decide(epoch, distance_m=d)
+        return decisions if out is None else tuple(out)
+
+    def _decide(self, link: Link, epoch: int) -> Outcome:
+        """The model's own decision of ``link``'s packet of ``epoch`` (its row could not say)."""
+        return self.links.models[link].decide(epoch, distance_m=self.positions.length(link, epoch))
 
     def _apply(
         self,
@@ -283,9 +364,8 @@ class LockstepCore(Attendance):
         payload: Any,
         d: Outcome | Queued,
     ) -> None:
-        """Record a packet's decision and put it in ``box`` (or hold it for a later epoch)."""
-        cls, src, dst = link
-        self.ledger.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
+        """Put a packet in ``box`` as ``d`` says (or hold it for a later epoch)."""
+        _, src, dst = link
         if not d.delivered:
             box.lost.append(src)
         elif d.delay_epochs == 0:
@@ -312,7 +392,9 @@ class LockstepCore(Attendance):
         ):
             return False
         for link, seq, payload, d in q.judge(phase, epoch):
-            self._apply(self.open[(phase, link[2], epoch)], phase, link, epoch, seq, payload, d)
+            cls, src, dst = link
+            self.records.add(phase, epoch, record_json((src, dst, cls, epoch, seq, d)))
+            self._apply(self.open[(phase, dst, epoch)], phase, link, epoch, seq, payload, d)
         for r in q.receivers(phase):  # those that waited for the queues, the caller's too
             self._try_close(phase, r)
         for later_phase, later in q.waiting():  # a later phase waiting for this one: its turn
@@ -335,6 +417,7 @@ class LockstepCore(Attendance):
         dead = self.dead_at(epoch)
         return all(s in box.handled for s in senders if s not in dead)
 
+    # -- closing ------------------------------------------------------------------------------
     def _try_close(self, phase: Phase, receiver: int) -> None:
         """Close ``receiver``'s epochs of ``phase`` in order, as far as they are complete."""
         if receiver in self.away:
@@ -372,122 +455,23 @@ class LockstepCore(Attendance):
         self, phase: Phase, receiver: int, epoch: int, box: OpenEpoch, dead: set[int]
     ) -> None:
         """Deliver ``box`` with what was delayed to ``epoch``; once every live receiver of the
-        epoch is closed, its records go out."""
+        epoch is closed, its records join the phase's batch."""
         self.open.pop((phase, receiver, epoch), None)
-        for h in self.delayed.pop((phase, receiver, epoch), []):
-            self.ledger.forwarded[h.link] += h.copies
-            box.packets.append(h.packet)
+        if self.delayed:
+            for h in self.delayed.pop((phase, receiver, epoch), ()):
+                self.ledger.forwarded[h.link] += h.copies
+                box.packets.append(h.packet)
         gone = [s for s in self.links.senders(phase, receiver) if s in dead] if dead else []
         self.outbox.deliver(phase, receiver, epoch, box.packets, box.lost, gone)
         self.next_close[(phase, receiver)] = epoch + 1
-        self.closed_count[(phase, epoch)] += 1
-        down = len(dead) - (LEADER_ENDPOINT in dead)
-        receivers = len(self.links.agents) - down if phase != "report" else 1
-        if self.closed_count[(phase, epoch)] >= receivers:
-            del self.closed_count[(phase, epoch)]
-            self._publish_decisions(phase, epoch)
-
-    def _publish_decisions(self, phase: Phase, epoch: int) -> None:
-        batch = self.ledger.decisions.pop((phase, epoch), [])
-        self._flush_clean(phase)  # records stay in epoch order
-        self.outbox.records(phase, epoch, batch)
-
-    # -- the clean path -----------------------------------------------------------------------
-    def _clean_delivery(self, phase: Phase) -> Deliver:
-        outbox, next_close = self.outbox, self.next_close
-
-        def deliver(receiver: int, epoch: int, packets: list[bytes]) -> None:
-            outbox.deliver(phase, receiver, epoch, packets, [], [])
-            # Epochs into a receiver finish in order: its senders need its previous one.
-            next_close[(phase, receiver)] = epoch + 1
-
-        return deliver
-
-    def _forward_clean(self, phase: Phase, stream: int, epoch: int, seq: int, payload: Any) -> bool:
-        """Take a packet of a clean epoch with no per-packet decision; False when the epoch
-        needs the full path. A receiver's delivery goes out once all its senders' are here."""
-        ce = self.clean.get(phase)
-        if ce is None:
-            return False
-        clean = ce.flags.get(epoch)
-        if clean is None:
-            clean = ce.clean(epoch)
-        if not clean:  # by the models, or already handled packet by packet
-            return False
-        if stream not in ce.receivers or self.dead or self.delayed or epoch in self.out:
-            self._go_slow(phase, epoch)
-            return False
-        if ce.gated:
-            self._gate(ce, stream, epoch, seq, payload)
-            return True
-        if ce.take(stream, epoch, seq, payload, self._clean_deliver[phase]) and (
-            len(ce.chunks) >= FLUSH_CHUNKS or epoch >= self.epochs - 1
-        ):
-            self._flush_clean(phase)  # the last epoch's go out while the run still goes
-        return True
-
-    def _gate(self, ce: CleanEpochs, stream: int, epoch: int, seq: int, payload: Any) -> None:
-        """Gather a state of a gated epoch; once all are in, judge their lengths at once."""
-        g = ce.gather(stream, epoch, seq, payload)
-        if g is None:
-            return
-        lengths = self.positions.lengths(ce.links, epoch)
-        if any(self.next_close[("state", r)] != epoch for r in ce.need):  # out of turn
-            self._go_slow("state", epoch, ce.verdicts(epoch, lengths))
-            return
-        if not ce.within_reach(epoch, lengths):  # decided as the full path would, from these
-            ce.judged(epoch, g, ce.verdicts(epoch, lengths), self.ledger, self._close_judged)
-            return
-        ce.open_gate(epoch, g, self._clean_deliver["state"])
-        if len(ce.chunks) >= FLUSH_CHUNKS or epoch >= self.epochs - 1:
-            self._flush_clean("state")
-
-    def _close_judged(self, dst: int, epoch: int, packets: list[bytes], lost: list[int]) -> None:
-        """A judged gated epoch's delivery into ``dst``; its later epochs complete go too."""
-        self._close("state", dst, epoch, OpenEpoch(packets=packets, lost=lost), set())
-        self._try_close("state", dst)
-
-    def _leave_clean_path(self, gated: bool = False) -> None:
-        """Epochs being gathered (only gated ones: ``gated``) take the full path from now on."""
-        for phase, ce in self.clean.items():
-            if ce.gated or not gated:
-                for epoch in list(ce.gathering):
-                    self._go_slow(phase, epoch)
-
-    def _flush_clean(self, phase: Phase) -> None:
-        ce = self.clean.get(phase)
-        if ce is None or not ce.chunks:
-            return
-        self.outbox.clean_records(phase, ce.last_done, ce.chunks)
-        ce.chunks = []
-
-    def _go_slow(
-        self, phase: Phase, epoch: int, verdicts: dict[Link, Outcome] | None = None
-    ) -> None:
-        """From now on ``epoch`` of ``phase`` takes the full path; what went fast is recorded as such."""
-        ce = self.clean[phase]
-        g = ce.go_slow(epoch)
-        if g is None:
-            return
-        if ce.gated:  # nothing went out yet: route each as the full path would have
-            for src, seq in g.seqs.items():
-                self._route_state(src, epoch, seq, g.payloads[src], verdicts)
-            return
-        touched: set[int] = set()
-        for (src, dst, cls, _, seq, d), link in ce.records(epoch, g.seqs):
-            self.ledger.decisions[(phase, epoch)].append((src, dst, cls, epoch, seq, d))
-            self.ledger.forwarded[link] += 1
-            if dst in g.delivered:
-                continue
-            box = self.open.get((phase, dst, epoch))
-            if box is None:
-                box = self.open[(phase, dst, epoch)] = OpenEpoch()
-            box.handled.add(src)
-            box.packets.append(g.packets[src])
-            touched.add(dst)
-        self.closed_count[(phase, epoch)] += len(g.delivered)
-        for dst in touched:
-            self._try_close(phase, dst)
+        key = (phase, epoch)
+        closed = self.closed_count[key] = self.closed_count.get(key, 0) + 1
+        receivers = 1 if phase == "report" else len(self.links.agents)
+        if dead and phase != "report":
+            receivers -= len(dead) - (LEADER_ENDPOINT in dead)
+        if closed >= receivers:
+            del self.closed_count[key]
+            self.records.close(phase, epoch)
 
 
 def _name(sender: int) -> str:

@@ -2,7 +2,7 @@
 
 The loop is the same in both: wait for a packet as long as the mode's :class:`Wakeups`
 says, look for dead senders, hand the packet over. What a wake-up does is the mode's:
-lockstep flushes clean epochs' records (packets are handled on the bus's thread,
+lockstep flushes closed epochs' records (packets are handled on the bus's thread,
 :class:`netem.node.LockstepWakeups`); realtime forwards what is due, flushes the
 receivers' deliveries and publishes the records once a period
 (:class:`netem.proxy.realtime.RealtimeForwarder`).

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections import defaultdict
+from dataclasses import dataclass
 from typing import Protocol
 
 from netem.proxy.records import Record
 from netem.proxy.routes import Link, Phase
+
+FLUSH_CHUNKS = 64  # epochs' records per batch (at least one batch per 0.2 s wake-up)
 
 
 class Outbox(Protocol):
@@ -26,8 +29,8 @@ class Outbox(Protocol):
     def records(self, phase: Phase, epoch: int, records: list[Record]) -> None:
         """The decision records of ``epoch`` of ``phase``, every receiver of it closed."""
 
-    def clean_records(self, phase: Phase, last_epoch: int, chunks: list[bytes]) -> None:
-        """Records of clean epochs, encoded (:meth:`netem.proxy.clean_epochs.CleanEpochs.finish`)."""
+    def record_chunks(self, phase: Phase, last_epoch: int, chunks: list[bytes]) -> None:
+        """Records of closed epochs up to ``last_epoch``, encoded: one chunk an epoch."""
 
 
 @dataclass
@@ -39,13 +42,51 @@ class Delayed:
     packet: bytes  # encoded by packet_json, with its sent epoch
 
 
-@dataclass
 class OpenEpoch:
     """An epoch of one phase into one receiver, not yet closed."""
 
-    handled: set[int] = field(default_factory=set)
-    packets: list[bytes] = field(default_factory=list)  # each encoded by packet_json
-    lost: list[int] = field(default_factory=list)
+    __slots__ = ("handled", "lost", "packets")
+
+    def __init__(self) -> None:  # one per receiver and epoch: plain slots are built fastest
+        self.handled: set[int] = set()
+        self.packets: list[bytes] = []  # each encoded by packet_json
+        self.lost: list[int] = []
 
 
-__all__ = ["Delayed", "OpenEpoch", "Outbox"]
+class RecordBatches:
+    """Each epoch's encoded records until every receiver of it closed, then its phase's batch
+    until it goes out: every :data:`FLUSH_CHUNKS` epochs, at the last epoch or when flushed.
+    An epoch that recorded nothing goes out at once, empty (records stay in epoch order)."""
+
+    def __init__(self, outbox: Outbox, epochs: int) -> None:
+        self.outbox, self.epochs = outbox, epochs
+        self.pending: defaultdict[tuple[Phase, int], list[bytes]] = defaultdict(list)
+        self.batches: dict[Phase, tuple[int, list[bytes]]] = {}  # phase → (newest epoch, chunks)
+
+    def add(self, phase: Phase, epoch: int, records: bytes) -> None:
+        """Records of ``epoch`` (one or more, comma-joined)."""
+        self.pending[(phase, epoch)].append(records)
+
+    def close(self, phase: Phase, epoch: int) -> None:
+        """Every receiver of ``epoch`` closed: its records join the phase's batch."""
+        records = self.pending.pop((phase, epoch), None)
+        if not records:
+            self.flush(phase)
+            self.outbox.records(phase, epoch, [])
+            return
+        _, chunks = self.batches.get(phase, (-1, []))
+        chunks.append(b",".join(records))
+        self.batches[phase] = (epoch, chunks)
+        if len(chunks) >= FLUSH_CHUNKS or epoch >= self.epochs - 1:
+            self.flush(phase)
+
+    def flush(self, phase: Phase | None = None) -> None:
+        """Hand out the batch of ``phase`` (None: of every phase)."""
+        for p in [phase] if phase is not None else list(self.batches):
+            last, chunks = self.batches.get(p, (-1, []))
+            if chunks:
+                self.outbox.record_chunks(p, last, chunks)
+                self.batches[p] = (last, [])
+
+
+__all__ = ["FLUSH_CHUNKS", "Delayed", "OpenEpoch", "Outbox", "RecordBatches"]

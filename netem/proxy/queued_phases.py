@@ -16,7 +16,7 @@ queues passed takes the air with the phase's others, at the positions of its epo
 from __future__ import annotations
 
 import math
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
@@ -116,33 +116,6 @@ class QueuedPhases:
             decided = [each[p] for p in pairs]
         got = self._fixed[link] = (epoch, epoch + BLOCK, block, d, decided)
         return got
-
-    def closed_form(self, link: Link, start: int, size: int) -> Fixed | Literal[False] | None:
-        """``link``'s queues in closed form for ``size`` epochs from ``start``, for the clean
-        path (:meth:`CapacityNetwork.fixed`): False when no queue serves it then, None when
-        they have no closed form."""
-        pair, kind, whose = self._route(link)
-        if kind in self.air_phases:
-            return None  # the air decides a phase's packets together
-        net = self.queues
-        first = net.first_epoch.get(pair, math.inf)
-        if first >= start + size:
-            return False
-        if first > start or pair not in net.solo:
-            return None
-        epochs = np.arange(start, start + size, dtype=np.int64)
-        return net.fixed(pair, kind, epochs, self.sizes.payload_bytes_of(kind, whose, epochs))
-
-    def crossed(self, link: Link, epoch: int) -> None:
-        """``link``'s packet of ``epoch`` went through its queues by the clean path: their state
-        (:attr:`CapacityNetwork.last_in`) is that packet's departure, unless a later one's."""
-        fixed = self.closed_form(link, epoch, 1)
-        if not fixed:
-            return
-        pair, net = fixed.link, self.queues
-        last = net.last_in.get(pair)
-        if last is None or last[0] < fixed.t0_s[0]:
-            net.last_in[pair] = (fixed.t0_s[0], fixed.payload_bytes[0], fixed.departure_s[0])
 
     def hold(self, phase: Phase, epoch: int, held: Held) -> None:
         self.held.setdefault((phase, epoch), []).append(held)

@@ -118,10 +118,10 @@ def record_tail(d: Outcome | Queued) -> bytes:
 
 class RecordTemplates:
     """The records of each stream's packet (one per link) as a ``%`` template of ``(epoch, seq)``
-    per link: records that differ only in those are spliced, not encoded one by one.
+    per link recorded: records that differ only in those are spliced, not encoded one by one.
 
-    A passing decision's encoded fields (:func:`record_tail`) get an id (:meth:`tail_id`); a
-    template is one per stream and tuple of its links' ids.
+    A decision's encoded fields (:func:`record_tail`) get an id (:meth:`tail_id`); a template is
+    one per stream and tuple of its links' ids.
     """
 
     def __init__(self, streams: dict[int, tuple[Link, ...]]) -> None:
@@ -131,40 +131,64 @@ class RecordTemplates:
         }
         self._tail_ids: dict[bytes, int] = {}
         self._tails: list[bytes] = []
-        self._templates: dict[tuple[int, tuple[int, ...]], bytes] = {}
+        self._of: dict[int, tuple[Outcome | Queued, int]] = {}  # by id; the entry keeps d alive
+        self._templates: dict[tuple[int, tuple[int, ...]], tuple[bytes, int]] = {}
+        self._rows: dict[int, tuple[tuple[Outcome | Queued | None, ...], tuple[bytes, int]]] = {}
 
-    def tail_id(self, d: Outcome | Queued | None) -> int:
-        """An id of a passing decision's encoded fields; -1 when it does not pass."""
-        if d is None or d.verdict != "pass":
-            return -1
+    def tail_id(self, d: Outcome | Queued) -> int:
+        """An id of a decision's encoded fields."""
+        known = self._of.get(id(d))
+        if known is not None and known[0] is d:
+            return known[1]
         tail = record_tail(d)
         got = self._tail_ids.get(tail)
         if got is None:
             got = self._tail_ids[tail] = len(self._tails)
             self._tails.append(tail)
+        if len(self._of) > 100_000:  # a backlog's sojourns are all different: kept few
+            self._of.clear()
+        self._of[id(d)] = (d, got)
         return got
 
-    def template(self, stream: int, tails: tuple[int, ...]) -> bytes:
-        """The records of ``stream``'s packet, its links' decisions ``tails`` (ids)."""
+    def row_template(
+        self, stream: int, row: tuple[Outcome | Queued | None, ...]
+    ) -> tuple[bytes, int]:
+        """The template of ``stream``'s packet with every link recorded as ``row`` decides
+        (:meth:`template`), kept by the row (rows are shared objects)."""
+        known = self._rows.get(id(row))
+        if known is not None and known[0] is row:
+            return known[1]
+        got = self.template(stream, tuple(-1 if d is None else self.tail_id(d) for d in row))
+        if len(self._rows) > 100_000:
+            self._rows.clear()
+        self._rows[id(row)] = (row, got)  # the entry keeps the row alive: its id is not reused
+        return got
+
+    def template(self, stream: int, tails: tuple[int, ...]) -> tuple[bytes, int]:
+        """The records of ``stream``'s packet, its links' decisions ``tails`` (ids; -1: a link
+        not recorded with it), and how many links it records."""
         got = self._templates.get((stream, tails))
         if got is None:
-            got = self._templates[(stream, tails)] = b",".join(
+            if len(self._templates) > 100_000:  # queues' sojourns make many: kept few
+                self._templates.clear()
+            parts = [
                 head + b',"epoch":%d,"seq":%d' + self._tails[t].replace(b"%", b"%%")
                 for head, t in zip(self._heads[stream], tails, strict=True)
-            )
+                if t >= 0
+            ]
+            got = self._templates[(stream, tails)] = (b",".join(parts), len(parts))
         return got
+
+
+def record_json(record: Record) -> bytes:
+    """One record, encoded."""
+    s, t, c, e, q, d = record
+    return b'%s,"epoch":%d,"seq":%d%s' % (record_head(s, t, c), e, q, record_tail(d))
 
 
 def decision_batch(header: dict[str, Any], phase: str, records: Iterable[Record]) -> bytes:
     """A ``DecisionBatch`` payload: ``header`` from ``Service.header``, one entry per record."""
-    return decision_batch_of(
-        header,
-        phase,
-        [
-            b'%s,"epoch":%d,"seq":%d%s' % (record_head(s, t, c), e, q, record_tail(d))
-            for s, t, c, e, q, d in records
-        ],
-    )
+    return decision_batch_of(header, phase, [record_json(r) for r in records])
 
 
 def decision_batch_of(header: dict[str, Any], phase: str, records: list[bytes]) -> bytes:

@@ -68,7 +68,7 @@ class EpochAssembler:
     The scene of epoch ``k`` is drawn once everything it shows is in: its closed states,
     the leader's estimate of ``k`` (unless netem says the leader is down) and netem's
     decision on every formation link of ``k`` between agents taking part (netem sends the
-    decisions of clean epochs in batches, so they may come many epochs late). Scenes go
+    decisions of closed epochs in batches, so they may come many epochs late). Scenes go
     out in epoch order, so the same seed gives the same scenes whatever the timing. A
     scene still missing a part when the newest closed epoch is :data:`WAIT_EPOCHS` ahead
     (a recording that filters decisions out) is drawn with what it has, as is every

@@ -139,11 +139,9 @@ def test_events_through_the_queues_equal_the_simulator(paper: Scenario, runs_dir
     assert any(d.model.startswith("queue_") for d in outcome.decisions)
 
 
-def test_queues_in_closed_form_take_the_clean_path_and_equal_the_simulator(
-    paper: Scenario, runs_dir: Path
-) -> None:
-    """A netem-rate queue on every link: the states' fast or in time (their epochs the models
-    pass go netem's clean path), agent 2's estimates late: drops are the simulator's."""
+def test_queues_in_closed_form_equal_the_simulator(paper: Scenario, runs_dir: Path) -> None:
+    """A netem-rate queue on every link: the states' fast or in time (judged in closed form),
+    agent 2's estimates late: drops are the simulator's."""
     network = paper.network.model_dump(by_alias=True)
     network["formation_default"] = [{"model": "bernoulli", "p_loss": 0.05}]
     rates = {(4, 1): 11_000.0, (0, 2): 9_000.0}  # 0.19 s a state; 0.36 s an estimate, late

@@ -110,9 +110,9 @@ def test_delays_duplicates_and_control_loss_equal_the_simulator(
 def test_clean_and_unclean_epochs_mixed_equal_the_simulator(
     paper: Scenario, runs_dir: Path
 ) -> None:
-    # netem takes an epoch in which every link passes without per-packet decisions
-    # (netem.proxy.clean_epochs); here such epochs alternate with an outage window, delays that deliver a
-    # held packet into an otherwise clean epoch, and control-link loss.
+    # netem decides a packet on all its links from its stream's row (netem.proxy.decision_rows);
+    # here epochs in which every link passes alternate with an outage window, delays that deliver
+    # a held packet into an otherwise clean epoch, and control-link loss.
     scenario = paper.with_overrides(
         epochs=40,
         network={

@@ -1,7 +1,7 @@
 """Faithful scenes (issue 17): two lockstep runs with the same seed record the same scenes.
 
 The scene of epoch k is drawn once that epoch's states, estimate and formation decisions
-are in; netem sends the decisions of clean epochs in batches on a timer, so a scene drawn
+are in; netem sends the decisions of closed epochs in batches on a timer, so a scene drawn
 earlier depended on timing (edge colours and the tree differed between two such runs).
 The scenes are protobuf (the SDK's SceneUpdate), decoded here with the schema the file
 carries and compared with their time stamps removed.

@@ -39,7 +39,7 @@ class Wire:
     def records(self, phase: Phase, epoch: int, records: list[Record]) -> None:
         self._batch(phase, decision_batch(header(epoch), phase, records))
 
-    def clean_records(self, phase: Phase, last_epoch: int, chunks: list[bytes]) -> None:
+    def record_chunks(self, phase: Phase, last_epoch: int, chunks: list[bytes]) -> None:
         self._batch(phase, decision_batch_of(header(last_epoch), phase, chunks))
 
     def _batch(self, phase: Phase, wire: bytes) -> None:

@@ -1,15 +1,16 @@
-"""Gated epochs (distance models on the state links) equal the full path, byte for byte.
+"""Distance models on the state links: the core's decisions are the model's, packet by packet.
 
-A state epoch whose links all pass before their distance layers is gathered and judged
-at once by its lengths (:mod:`netem.proxy.clean_epochs`); it must give the deliveries and decision
-records that deciding packet by packet gives. The reference is the same core without the
-clean path (``setup_clean`` not called): every packet decided on its own as it is routed.
+The core decides a state's links from its stream's row (taken ahead, before the distance
+layers) and asks the model only for a link out of reach (:mod:`netem.proxy.decision_rows`);
+every record must be ``LinkModel.decide(epoch, distance_m=length)`` at the length the
+positions sent give, and every delivery must carry the packets those records pass.
 Senders interleave epochs, a position is sometimes unreadable, a sender sometimes dies.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import random
 from collections import defaultdict
 from typing import Any
@@ -18,6 +19,7 @@ import numpy as np
 import pytest
 
 from formation.scenario import Scenario
+from netem.links.matrix import link_length
 from netem.proxy.lockstep import LockstepCore
 from netem.proxy.progress import Progress
 from netem.proxy.records import Ledger, Record, record_head, record_tail
@@ -73,7 +75,7 @@ class Bytes:
         for s, t, c, e, q, d in records:
             self._add(b'%s,"epoch":%d,"seq":%d%s' % (record_head(s, t, c), e, q, record_tail(d)))
 
-    def clean_records(self, phase: Phase, last_epoch: int, chunks: list[bytes]) -> None:
+    def record_chunks(self, phase: Phase, last_epoch: int, chunks: list[bytes]) -> None:
         for chunk in chunks:
             for r in json.loads(b"[" + chunk + b"]"):
                 self.records_of[r["epoch"]].append(r)
@@ -83,13 +85,14 @@ class Bytes:
         self.records_of[r["epoch"]].append(r)
 
 
-def drive(scenario: Scenario, seed: int, clean: bool) -> tuple[Bytes, LockstepCore]:
+Sent = dict[tuple[int, int], list[float] | None]  # (agent, epoch) → position sent, None: unreadable
+
+
+def drive(scenario: Scenario, seed: int) -> tuple[Bytes, LockstepCore, Sent]:
     """Every state of ``scenario``'s agents, senders up to ``lag`` epochs apart, one maybe dying."""
     rng = random.Random(seed)
     links, wire = Links(scenario, seed), Bytes()
     lock = LockstepCore(links, EPOCHS, Progress(links.agents, EPOCHS, lambda: None), Ledger(), wire)
-    if clean:
-        lock.setup_clean()
     n, noise = scenario.n, np.random.default_rng(seed)
     x = [
         (scenario.offsets[:, :2] * (0.6 + 0.1 * np.sin(k / 5.0)) + noise.normal(0, 0.05, (n, 2)))
@@ -97,7 +100,7 @@ def drive(scenario: Scenario, seed: int, clean: bool) -> tuple[Bytes, LockstepCo
     ]
     lag, victim = rng.choice([0, 1, 2]), rng.randrange(1, n + 1)
     die_at = rng.choice([None, rng.randrange(3, EPOCHS * n - 3)])
-    next_epoch, sent = dict.fromkeys(range(1, n + 1), 0), 0
+    next_epoch, sent, positions = dict.fromkeys(range(1, n + 1), 0), 0, {}
     while True:
         low = min(next_epoch.values())
         senders = [i for i, k in next_epoch.items() if k <= min(EPOCHS, low + lag)]
@@ -108,16 +111,26 @@ def drive(scenario: Scenario, seed: int, clean: bool) -> tuple[Bytes, LockstepCo
         k = next_epoch[i]
         next_epoch[i] += 1
         state = {"agent": i, "epoch": k, "position": x[k][i - 1].tolist()}
-        lock.packet(
-            ("state", i, 0), k, k, b"{" if rng.random() < 0.01 else json.dumps(state).encode()
-        )
+        unreadable = rng.random() < 0.01
+        positions[(i, k)] = None if unreadable else state["position"]
+        lock.packet(("state", i, 0), k, k, b"{" if unreadable else json.dumps(state).encode())
         sent += 1
         if sent == die_at:
             lock.sender_died(victim)
         if rng.random() < 0.3:
-            lock.flush_clean()
-    lock.flush_clean()
-    return wire, lock
+            lock.flush()
+    lock.flush()
+    return wire, lock, positions
+
+
+def model_json(links: Links, link: tuple[str, int, int], epoch: int,
+               sent: Sent) -> dict[str, Any]:  # fmt: skip
+    """The record fields of the model's decision of ``link``'s packet at its true length."""
+    _, src, dst = link
+    a, b = sent.get((src, epoch)), sent.get((dst, epoch))
+    length = math.inf if a is None or b is None else link_length(a, b)
+    d = links.models[link].decide(epoch, distance_m=length)
+    return json.loads(b"{" + record_tail(d)[1:])  # type: ignore[no-any-return]
 
 
 def counts(lock: LockstepCore) -> dict[Any, int]:
@@ -126,15 +139,30 @@ def counts(lock: LockstepCore) -> dict[Any, int]:
 
 
 @pytest.mark.parametrize("network", NETWORKS)
-def test_gated_epochs_equal_the_full_path(paper: Scenario, network: str) -> None:
+def test_distance_decisions_are_the_models_packet_by_packet(paper: Scenario, network: str) -> None:
     scenario = paper.with_overrides(network=NETWORKS[network], epochs=EPOCHS)
-    gated = slow = 0
+    fields = ("verdict", "delay_epochs", "delay_ms", "model", "state")
+    dropped = 0
     for seed in range(12):
-        full, reference = drive(scenario, seed, clean=False)
-        fast, lock = drive(scenario, seed, clean=True)
-        assert fast.deliveries == full.deliveries, seed
-        assert fast.records_of == full.records_of, seed
-        assert counts(lock) == counts(reference), seed
-        gated += len(lock.clean["state"].done)
-        slow += len(lock.clean["state"].slow)
-    assert gated > 0 and slow > 0  # both paths taken
+        wire, lock, sent = drive(scenario, seed)
+        reference = Links(scenario, seed)
+        passed: dict[tuple[int, int, int], int] = {}  # (src, dst, epoch) → copies delivered
+        forwarded: dict[Any, int] = defaultdict(int)
+        for epoch, records in wire.records_of.items():
+            for r in records:
+                link = ("formation", r["source"], r["target"])
+                want = model_json(reference, link, epoch, sent)
+                assert {f: r[f] for f in fields} == want, (seed, r)
+                copies = 0 if r["verdict"] == "drop" else 1 + (r["verdict"] == "duplicate")
+                passed[(r["source"], r["target"], epoch)] = copies
+                forwarded[link] += copies
+                dropped += not copies
+        for (_, receiver), got in wire.deliveries.items():
+            for epoch, packets, lost, _ in got:
+                sources = [p["source"] for p in json.loads(b"[" + packets + b"]")]
+                for src in sources:
+                    assert passed[(src, receiver, epoch)] >= 1, (seed, src, receiver, epoch)
+                for src in lost:
+                    assert passed[(src, receiver, epoch)] == 0, (seed, src, receiver, epoch)
+        assert {k: v for k, v in forwarded.items() if v} == counts(lock), seed
+    assert dropped > 0  # some out of reach

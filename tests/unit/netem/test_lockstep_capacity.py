@@ -41,15 +41,12 @@ def lockstep(scenario: Scenario, seed: int) -> tuple[LockstepCore, Wire]:
     links, wire = Links(scenario, seed), Wire(receivers(scenario))
     core = LockstepCore(links, scenario.epochs, Progress(links.agents, scenario.epochs, lambda: None),
                     Ledger(), wire)  # fmt: skip
-    core.setup_clean()
     return core, wire
 
 
 def test_any_arrival_order_gives_the_simulators_queue_verdicts(paper: Scenario, seed: int) -> None:
     scenario = constrained(paper, 40)
     core, wire = lockstep(scenario, seed)
-    for ce in core.clean.values():  # every phase meets a queue without a closed form
-        assert not any(ce.clean(k) for k in range(scenario.epochs))
     rng = np.random.default_rng(seed)
     agents = list(range(1, scenario.n + 1))
     for k in range(scenario.epochs):
@@ -109,12 +106,11 @@ def test_a_sender_dying_mid_phase_does_not_hold_its_queues(paper: Scenario, seed
     assert not core.queued  # judged, nothing left waiting
 
 
-def test_the_clean_path_through_queues_in_closed_form_records_what_the_full_path_does(
+def test_queues_in_closed_form_and_a_change_decide_alike_in_any_arrival_order(
     paper: Scenario, seed: int
 ) -> None:
-    # a queue on every link: the states' in time by their closed form (clean epochs where the
-    # models pass them all); 2's estimates late by it, 3's reports without one (more than half
-    # a period): those phases take the full path
+    # a queue on every link: the states' in time by their closed form; 2's estimates late by
+    # it, 3's reports without one (more than half a period); 4 -> 1 becomes a bucket mid-run
     lossy = [{"model": "bernoulli", "p_loss": 0.05}]
     rates = {(4, 1): 11_000.0, (0, 2): 9_000.0, (3, 0): 5_000.0}
     control = [[i, 0] for i in range(1, 6)] + [[0, i] for i in range(1, 6)]
@@ -127,32 +123,31 @@ def test_the_clean_path_through_queues_in_closed_form_records_what_the_full_path
     tbf = Capacity.model_validate(
         {"scope": "link", "link": [4, 1], "rate_bps": 1_000.0, "burst_bytes": 300}
     )
-    got, change_at = {}, 0
-    for clean in (True, False):
+    got, change_at = {}, 31
+    for shuffled in (True, False):
+        rng = np.random.default_rng(seed)
         links, wire = Links(scenario, seed), Wire(receivers(scenario))
         core = LockstepCore(links, scenario.epochs, Progress(links.agents, scenario.epochs,
                         lambda: None), Ledger(), wire)  # fmt: skip
-        if clean:
-            core.setup_clean()
-            states = core.clean["state"]
-            # the change right after a clean epoch: the clean path put that packet through
-            change_at = next(k for k in range(20, 50) if states.clean(k - 1))
         for k in range(scenario.epochs):
             if k == change_at:  # 4 -> 1 becomes a bucket: its clock is the last packet's
                 assert core.links.capacity is not None
-                core.queues_changing()
                 core.links.capacity.change(tbf, from_epoch=k)
                 core.models_changed()
-            for i in range(1, scenario.n + 1):
-                core.packet(("state", i, 0), k, k, b"{}")
-            for i in range(1, scenario.n + 1):
-                core.packet(("report", i, 0), k, k, b"{}")
-            for i in range(1, scenario.n + 1):
-                core.packet(("estimate", 0, i), k, k, b"{}")
-            core.flush_clean()
-        got[clean] = (
+            for phase in ("state", "report", "estimate"):
+                agents = rng.permutation(scenario.n) + 1 if shuffled else range(1, scenario.n + 1)
+                for i in agents:
+                    route = ("estimate", 0, int(i)) if phase == "estimate" else (phase, int(i), 0)
+                    core.packet(route, k, k, b"{}")  # type: ignore[arg-type]
+            core.flush()
+        got[shuffled] = (
             sorted(d.model_dump_json() for d in wire.decisions),
-            sorted(d.model_dump_json() for d in wire.deliveries),
+            sorted(  # a delivery's packets in the order they came
+                d.model_copy(
+                    update={"packets": sorted(d.packets, key=lambda p: p.source)}
+                ).model_dump_json()
+                for d in wire.deliveries
+            ),
         )
         reasons = Counter(d.model for d in wire.decisions if d.verdict == "drop")
         assert reasons["queue_late"] and reasons["bernoulli"]

@@ -73,6 +73,7 @@ def test_crash_restart_and_leave_are_keyed_to_their_epochs(
         out = {i for i in senders if i and not team.present[d.epoch, i - 1]}
         assert set(d.dead) == out, d
     # One record per packet sent between two agents taking part, and none for the others.
+    core.flush()
     rec = Counter((r.link_class, r.source, r.target, r.epoch) for r in wire.decisions)
     assert set(rec.values()) == {1}
     formation = {(s, t, k) for c, s, t, k in rec if c == "formation"}

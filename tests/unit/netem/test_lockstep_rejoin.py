@@ -57,6 +57,7 @@ def test_an_agent_back_takes_part_from_the_epoch_netem_gives_it(
     for d in wire.deliveries:  # dead while down, waited for again from the epoch it was given
         hears_3 = 3 in core.links.senders(d.phase, d.receiver)
         assert (3 in d.dead) == (hears_3 and 3 <= d.epoch < back), d
+    core.flush()
     rec = Counter((r.link_class, r.source, r.target, r.epoch) for r in wire.decisions)
     assert set(rec.values()) == {1}
     assert {e for _, e in wire.early} <= set(range(3, back))  # four receivers closed those

@@ -39,7 +39,6 @@ def core(scenario: Scenario, seed: int) -> tuple[LockstepCore, Wire]:
     links, wire = Links(scenario, seed), Wire(receivers(scenario))
     lock = LockstepCore(links, scenario.epochs, Progress(links.agents, scenario.epochs, lambda: None),
                     Ledger(), wire)  # fmt: skip
-    lock.setup_clean()
     return lock, wire
 
 
@@ -70,6 +69,7 @@ def test_decisions_are_the_models_at_the_true_distances(
         for i in agents:
             lock.packet(("estimate", 0, i), k, k, b"{}")
     assert lock.positions.held == {} or all(not v for v in lock.positions.held.values())
+    lock.flush()
     decided = {(d.link_class, d.source, d.target, d.epoch): d for d in wire.decisions}
     assert len(decided) == scenario.epochs * (len(scenario.directed_links) + 2 * n)
     for (cls, src, dst, k), d in decided.items():
@@ -129,6 +129,7 @@ def test_an_unreadable_position_is_counted_and_out_of_range(paper: Scenario, see
     for i in (3, 4, 5):
         lock.packet(*state(i, 0, x))
     assert lock.positions.malformed == 2
+    lock.flush()
     from_bad = [d for d in wire.decisions if d.source in (1, 2) and d.link_class == "formation"]
     assert from_bad and all(d.verdict == "drop" and d.model == "logistic" for d in from_bad)
 
@@ -175,6 +176,7 @@ def test_an_agent_back_is_waited_for_with_its_position(paper: Scenario, seed: in
         for i in (1, 2, 5, 4, 3):  # 4 goes at once (no link to 3), the rest wait for 3
             lock.packet(*state(i, k, xs[k]))
     assert not lock.positions.held
+    lock.flush()
     true_decisions(scenario, seed, wire, xs, range(back, scenario.epochs))
     into_3 = [d for d in wire.decisions if d.target == 3 and d.epoch >= back]
     assert into_3 and all(d.verdict == "pass" for d in into_3)  # a small pentagon: all in range
@@ -192,6 +194,7 @@ def test_a_packet_is_not_held_for_an_agent_out_by_the_scenario(paper: Scenario, 
     assert not lock.positions.held
     got = {(d.receiver, d.epoch) for d in wire.deliveries if d.phase == "state"}
     assert got >= {(j, k) for j in (1, 2, 3, 5) for k in range(scenario.epochs)}
+    lock.flush()
     true_decisions(scenario, seed, wire, xs, range(scenario.epochs))
 
 
@@ -225,6 +228,7 @@ def test_a_forged_position_in_a_gated_epoch(paper: Scenario, seed: int, payload:
         lock.packet(*state(i, 0, x))
     assert lock.positions.at[0][1] == read
     assert lock.positions.malformed == (read is None)
+    lock.flush()
     from_1 = [d for d in wire.decisions if d.source == 1 and d.link_class == "formation"]
     if read is None:
         assert from_1 and all(d.verdict == "drop" and d.model == "logistic" for d in from_1)

@@ -136,7 +136,7 @@ def scenes_of(paper: Scenario, order: list[str]) -> list[dict]:
 
 
 def test_the_same_epochs_give_the_same_scenes_whatever_the_arrival(paper: Scenario) -> None:
-    """The decisions of clean epochs come in a batch, late: the scenes wait and keep their order."""
+    """The decisions of closed epochs come in a batch, late: the scenes wait and keep their order."""
     steps = ["s0", "e0", "s1", "e1", "s2", "e2", "s3", "e3"]
     in_time = scenes_of(paper, ["s0", "e0", "d", "s1", "e1", "s2", "e2", "s3", "e3"])
     late = scenes_of(paper, [*steps, "d"])
