@@ -99,7 +99,6 @@ def lockstep_records(scenario: Scenario, seed: int, x: np.ndarray) -> dict[tuple
     links, wire = Links(scenario, seed), Wire(receivers(scenario))
     core = LockstepCore(links, scenario.epochs, Progress(links.agents, scenario.epochs, lambda: None),
                         Ledger(), wire)  # fmt: skip
-    core.setup_clean()
     rng = np.random.default_rng(seed)
     agents = list(range(1, scenario.n + 1))
     for k in range(scenario.epochs):
@@ -110,6 +109,7 @@ def lockstep_records(scenario: Scenario, seed: int, x: np.ndarray) -> dict[tuple
             core.packet(first[p][0], k, k, first[p][1])
         for i in rng.permutation(agents):
             core.packet(("estimate", 0, int(i)), k, k, b"{}")
+    core.flush()  # the records waiting for their batch
     assert not wire.early
     return {(d.source, d.target, d.epoch): d for d in wire.decisions}
 
