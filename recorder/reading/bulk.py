@@ -1,7 +1,8 @@
-"""The bulk kinds of a recording, agents' states and netem's decisions, decoded by msgspec into structs made from their models.
+"""The bulk kinds of a recording (agents' states, netem's decisions, the leader's estimates, the recorder's metrics) decoded by msgspec into structs made from their models.
 
-A recording of 10,000 agents holds a million states and 44,000 decisions an epoch; a
-pydantic model for each is most of the cost of reading it. :func:`struct_of` builds a
+A recording of 10,000 agents holds a million states, 44,000 decisions an epoch and an
+estimate and metrics of 10,000 positions each; a pydantic model for each is most of the
+cost of reading it. :func:`struct_of` builds a
 msgspec struct from a pydantic model, field by field (its type, its ``ge`` bound, its
 default; no unknown field), and msgspec decodes strictly: it takes a value only where
 the model would read it as it is (an int for an int, an int or a float for a float, a
@@ -21,7 +22,7 @@ import annotated_types
 import msgspec
 from pydantic import BaseModel
 
-from formation.messages import CoordinationState, DecisionBatch
+from formation.messages import CoordinationState, DecisionBatch, EpochMetrics, LeaderEstimate
 
 
 def _field_type(annotation: Any) -> Any:
@@ -64,11 +65,13 @@ def struct_of(model: type[BaseModel]) -> type[msgspec.Struct]:
 DECODERS: dict[str, msgspec.json.Decoder[Any]] = {
     "agent_state": msgspec.json.Decoder(struct_of(CoordinationState)),
     "decision": msgspec.json.Decoder(struct_of(DecisionBatch)),
+    "leader_estimate": msgspec.json.Decoder(struct_of(LeaderEstimate)),
+    "metrics": msgspec.json.Decoder(struct_of(EpochMetrics)),
 }
 
 
 def plain(kind: str, data: bytes) -> msgspec.Struct | None:
-    """A ``kind`` payload (``agent_state``, ``decision``) as a struct with its model's
+    """A ``kind`` payload (a key of :data:`DECODERS`) as a struct with its model's
     attributes and values, or None when only the model can say (then validate it with it)."""
     try:
         return DECODERS[kind].decode(data)  # type: ignore[no-any-return]
