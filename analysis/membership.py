@@ -62,8 +62,16 @@ def edge_mask(edges: npt.NDArray[np.int64], pairs: list[tuple[int, int]]) -> Mas
     if ends is None or (ends < 0).any() or (edges < 0).any() or base > 2**31:
         wanted = {(min(a, b), max(a, b)) for a, b in pairs}
         return np.array([(int(i), int(j)) in wanted for i, j in edges], dtype=bool)
-    codes = ends.min(axis=1) * base + ends.max(axis=1)
-    return np.asarray(np.isin(edges[:, 0] * base + edges[:, 1], codes), dtype=bool)
+    return _among(edges[:, 0] * base + edges[:, 1], ends.min(axis=1) * base + ends.max(axis=1))
+
+
+def _among(values: npt.NDArray[np.int64], pool: npt.NDArray[np.int64]) -> Mask:
+    """``np.isin(values, pool)`` by one sort and a binary search (no hashing of both)."""
+    if not len(pool):
+        return np.zeros(len(values), dtype=bool)
+    pool = np.sort(pool)
+    at = np.minimum(np.searchsorted(pool, values), len(pool) - 1)
+    return np.asarray(pool[at] == values, dtype=bool)
 
 
 def team_edges(team: Mask, edges: npt.NDArray[np.int64]) -> Mask:

@@ -16,13 +16,22 @@ constraint) is refused when this module loads.
 from __future__ import annotations
 
 import types
+from operator import attrgetter
 from typing import Annotated, Any, Union, get_args, get_origin
 
 import annotated_types
 import msgspec
+import numpy as np
+import numpy.typing as npt
 from pydantic import BaseModel
 
-from formation.messages import CoordinationState, DecisionBatch, EpochMetrics, LeaderEstimate
+from formation.messages import (
+    CoordinationState,
+    Decision,
+    DecisionBatch,
+    EpochMetrics,
+    LeaderEstimate,
+)
 
 
 def _field_type(annotation: Any) -> Any:
@@ -70,6 +79,43 @@ DECODERS: dict[str, msgspec.json.Decoder[Any]] = {
 }
 
 
+_INTS = ("epoch", "source", "target", "seq", "delay_epochs")
+_DECISION_FIELDS = tuple(Decision.model_fields)
+_last: list[Any] = [None, None]  # the last batch whose columns were made, and them
+
+
+def decision_columns(batch: Any) -> dict[str, npt.NDArray[Any]]:
+    """A decision batch's columns as :class:`analysis.Decisions` holds them (``phase``
+    repeated; None as −1 and NaN); made once for the batch the trust gate checks and the
+    reader then keeps (the last batch's are remembered)."""
+    if _last[0] is batch:
+        return _last[1]  # type: ignore[no-any-return]
+    decisions, count = batch.decisions, len(batch.decisions)
+    out: dict[str, npt.NDArray[Any]] = {"phase": np.full(count, batch.phase, dtype=object)}
+    for name in _DECISION_FIELDS:
+        values = map(attrgetter(name), decisions)
+        if name in _INTS:
+            out[name] = np.fromiter(values, np.int64, count)
+        elif name == "delay_ms":
+            out[name] = np.fromiter(values, float, count)
+        else:
+            out[name] = _column(name, list(values))
+    _last[:] = batch, out
+    return out
+
+
+def _column(name: str, values: list[Any]) -> npt.NDArray[Any]:
+    if name == "queue_depth":
+        if values.count(None) == len(values):
+            return np.full(len(values), -1, dtype=np.int64)
+        return np.array([-1 if v is None else v for v in values], dtype=np.int64)
+    if name == "sojourn_ms":
+        return np.array(values, dtype=float).reshape(len(values))  # None → NaN
+    column = np.empty(len(values), dtype=object)
+    column[:] = values
+    return column
+
+
 def plain(kind: str, data: bytes) -> msgspec.Struct | None:
     """A ``kind`` payload (a key of :data:`DECODERS`) as a struct with its model's
     attributes and values, or None when only the model can say (then validate it with it)."""
@@ -79,4 +125,4 @@ def plain(kind: str, data: bytes) -> msgspec.Struct | None:
         return None
 
 
-__all__ = ["DECODERS", "plain", "struct_of"]
+__all__ = ["DECODERS", "decision_columns", "plain", "struct_of"]

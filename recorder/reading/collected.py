@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 from collections import Counter
 from dataclasses import fields
-from operator import attrgetter
 from typing import Any
 
 import numpy as np
@@ -20,13 +19,13 @@ from analysis import Decisions, Substitutions
 from formation.messages import DecisionBatch
 from formation.plugin_api import PLUGIN_FAILED
 from recorder.reading.bodies import RecordedPoses
+from recorder.reading.bulk import decision_columns
 from recorder.reading.state_batch import StateBlock
 
 Array = npt.NDArray[np.float64]
 Ints = npt.NDArray[np.int64]
 ROBOT_COUNTS = "body_"  # the prefix of an agent's body counts in its status (agent.body)
 DECISION_COLUMNS = tuple(f.name for f in fields(Decisions))
-_INTS = ("epoch", "source", "target", "seq", "delay_epochs")
 
 
 class Collected:
@@ -85,15 +84,10 @@ class Collected:
                 for c in decisions
             )
             return
-        for name, values in self.columns.items():
-            if name == "phase":
-                values.append(np.full(count, batch.phase, dtype=object))
-            elif name in _INTS:
-                values.append(np.fromiter(map(attrgetter(name), decisions), np.int64, count))
-            elif name == "delay_ms":
-                values.append(np.fromiter(map(attrgetter(name), decisions), float, count))
-            else:
-                values.append(_column(name, list(map(attrgetter(name), decisions))))
+        if not count:
+            return
+        for name, column in decision_columns(batch).items():
+            self.columns[name].append(column)
 
     def decisions_of_run(self) -> Decisions:
         if self.columns is None:
@@ -132,19 +126,6 @@ class Collected:
             [b.sub_state + at for b, at in zip(blocks, offsets, strict=True)]
         )
         return StateBlock(**joined)
-
-
-def _column(name: str, values: list[Any]) -> npt.NDArray[Any]:
-    """A text or optional column of decisions as :class:`analysis.Decisions` holds it."""
-    if name == "queue_depth":
-        if values.count(None) == len(values):
-            return np.full(len(values), -1, dtype=np.int64)
-        return np.array([-1 if v is None else v for v in values], dtype=np.int64)
-    if name == "sojourn_ms":
-        return np.array(values, dtype=float).reshape(len(values))  # None → NaN
-    column = np.empty(len(values), dtype=object)
-    column[:] = values
-    return column
 
 
 def positions(states: StateBlock, n: int, d: int) -> Array:

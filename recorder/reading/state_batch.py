@@ -189,11 +189,7 @@ def _substitutions(
     if neighbour is None or values is None:
         return None
     state = np.repeat(np.arange(len(msgs), dtype=np.int64), sizes)
-    if not ((neighbour >= 1) & (neighbour <= n)).all():
-        return None
-    codes, linked = neighbour * (n + 1) + owner[state], gate.link_codes()
-    at = np.minimum(np.searchsorted(linked, codes), len(linked) - 1)
-    if not len(linked) or not (linked[at] == codes).all():
+    if not gate.within_links(neighbour * (n + 1) + owner[state]):  # and so 1 ≤ neighbour ≤ n
         return None
     fallback = np.fromiter(map(attrgetter("fallback"), flat), bool, total)
     return state, neighbour, fallback, values

@@ -47,7 +47,7 @@ from formation.messages import (
     TokenReport,
 )
 from formation.scenario import Scenario
-from recorder.reading.bulk import DECODERS, plain
+from recorder.reading.bulk import DECODERS, decision_columns, plain
 from recorder.reading.decoder import DecodeError, decode_cdr, decode_kind
 from recorder.reading.skips import (
     CONFLICT,
@@ -93,6 +93,14 @@ def _all_finite(rows: list[Any], shape: tuple[int | None, ...]) -> bool:
         w is None or w == a for w, a in zip(want, arr.shape, strict=True)
     )
     return bool(fits and np.isfinite(arr).all())
+
+
+def _within(values: npt.NDArray[np.int64], pool: npt.NDArray[np.int64]) -> bool:
+    """Whether every value is in ``pool`` (sorted), by a binary search."""
+    if not len(values):
+        return True
+    at = np.minimum(np.searchsorted(pool, values), max(len(pool) - 1, 0))
+    return bool(len(pool) and (pool[at] == values).all())
 
 
 def _finite(values: Sequence[float], d: int | None, what: str) -> None:
@@ -363,11 +371,21 @@ class Gate:
     def _decisions_fit(self, msg: DecisionBatch) -> bool:
         """Whether every decision passes the checks of :meth:`_decision`, as arrays."""
         count, decisions = len(msg.decisions), msg.decisions
-        epoch = np.fromiter(map(attrgetter("epoch"), decisions), np.int64, count)
-        source = np.fromiter(map(attrgetter("source"), decisions), np.int64, count)
-        target = np.fromiter(map(attrgetter("target"), decisions), np.int64, count)
-        classes = map(_CLASSES.__getitem__, map(attrgetter("link_class"), decisions))
-        kind = np.fromiter(classes, np.int8, count)
+        try:
+            if self.plain_bulk:  # the reader keeps these columns
+                columns = decision_columns(msg)
+                epoch, source, target = columns["epoch"], columns["source"], columns["target"]
+                kind = np.select(
+                    [columns["link_class"] == c for c in _CLASSES], list(_CLASSES.values()), -1
+                )
+            else:
+                epoch = np.fromiter(map(attrgetter("epoch"), decisions), np.int64, count)
+                source = np.fromiter(map(attrgetter("source"), decisions), np.int64, count)
+                target = np.fromiter(map(attrgetter("target"), decisions), np.int64, count)
+                classes = map(_CLASSES.__getitem__, map(attrgetter("link_class"), decisions))
+                kind = np.fromiter(classes, np.int8, count)
+        except OverflowError:  # past 63 bits: checked one by one
+            return False
         last = self._last_decided()
         ends = np.concatenate([source, target])
         if not ((epoch >= 0) & (epoch <= (self.epochs if last is None else last))).all():
@@ -378,7 +396,7 @@ class Gate:
         formation = kind == 0
         codes = source[formation] * (self.n + 1) + target[formation]
         return bool(
-            np.isin(codes, self.link_codes()).all()
+            self.within_links(codes)
             and ((target == leader) & (source != leader))[kind == 1].all()
             and ((source == leader) & (target != leader))[kind == 2].all()
         )
@@ -395,12 +413,13 @@ class Gate:
         if self._edge_codes is None:
             edges = sorted(a * (self.n + 1) + b for a, b in self.edges)
             self._edge_codes = np.array(edges, dtype=np.int64)
-        return bool(np.isin(low * (self.n + 1) + high, self._edge_codes).all())
+        return _within(low * (self.n + 1) + high, self._edge_codes)
 
-    def link_codes(self) -> npt.NDArray[np.int64]:
+    def within_links(self, codes: npt.NDArray[np.int64]) -> bool:
+        """Whether each ``source * (n + 1) + target`` is a formation link of the scenario."""
         if self._codes is None:
             self._codes = np.array(sorted(a * (self.n + 1) + b for a, b in self.links), np.int64)
-        return self._codes
+        return _within(codes, self._codes)
 
     def _link_change(self, msg: LinkChange, args: Args) -> None:
         self._sender(msg, "netem")
