@@ -6,6 +6,7 @@ are stacked as arrays, not set one agent at a time.
 
 from __future__ import annotations
 
+from itertools import chain
 from typing import Any
 
 import numpy as np
@@ -18,8 +19,12 @@ from formation.scenario import Scenario
 def _stacked(values: list[Any], shape: tuple[int, ...]) -> tuple[list[int], npt.NDArray[Any]]:
     """The indices of the given (not None) ``values`` and those values as one array."""
     given = [i for i, v in enumerate(values) if v is not None]
-    stacked = np.array([values[i] for i in given], dtype=float).reshape(len(given), *shape)
-    return given, stacked
+    rows = [values[i] for i in given]
+    for _ in shape[1:]:
+        rows = list(chain.from_iterable(rows))
+    size = len(given) * int(np.prod(shape))
+    flat = np.fromiter(chain.from_iterable(rows), float, size)  # the gate checked the shapes
+    return given, flat.reshape(len(given), *shape)
 
 
 def estimates(scenario: Scenario, ests: dict[int, Any], count: int) -> dict[str, Any]:

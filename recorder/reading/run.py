@@ -156,7 +156,8 @@ def _read_chunk(
     gate: Gate, got: Collected, summary: Summary, kinds: dict[int, str], records: list[Record]
 ) -> None:
     channels = summary.channels
-    states = [r for r in records if kinds[r[0]] == _STATE]
+    of_kind = [kinds[r[0]] for r in records]
+    states = [r for r, kind in zip(records, of_kind, strict=True) if kind == _STATE]
     block = (
         judge_states(gate, [channels[r[0]].topic for r in states], [r[4] for r in states])
         if states
@@ -164,10 +165,9 @@ def _read_chunk(
     )
     if block is not None:
         got.blocks.append(block)
+        records = [r for r, kind in zip(records, of_kind, strict=True) if kind != _STATE]
     for channel_id, sequence, log_time, publish_time, data in records:
         kind = kinds[channel_id]
-        if block is not None and kind == _STATE:
-            continue
         channel = channels[channel_id]
         msg = gate.check(channel.topic, data, kind, channel_id)
         if msg is not None:
