@@ -193,8 +193,8 @@ def _assemble(
     x = positions(states, n, d)
     x, computed = _measured(x, got.bodies.measured(scenario, len(x)))
     decisions = got.decisions_of_run()
-    epochs = [*got.ests, *decisions.epoch.tolist()]
-    count = max(epochs) + 1 if epochs else max(len(x) - 1, 0)
+    epochs = [*got.ests, int(decisions.epoch.max(initial=-1))]
+    count = max(epochs) + 1 if max(epochs) >= 0 else max(len(x) - 1, 0)
     est = estimates(scenario, got.ests, count)
     delivered, decided = decisions.delivery(scenario.directed_links, count)
     followers = np.arange(n) != scenario.reference_agent - 1
