@@ -57,7 +57,7 @@ def _decisions_of(rows: list[tuple[Any, ...]]) -> Decisions:
     return Decisions.of_rows(full)
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=50, deadline=None)
 @given(rows=_ROWS)
 def test_the_decisions_table_is_the_row_by_row_table(rows: list[tuple[Any, ...]]) -> None:
     d = _decisions_of(rows)

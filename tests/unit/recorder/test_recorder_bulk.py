@@ -356,7 +356,7 @@ def chunks_of_states(draw: Any, scenario: Scenario) -> list[tuple[str, bytes]]:
 
 
 @settings(
-    max_examples=200,
+    max_examples=60,
     deadline=None,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
 )
