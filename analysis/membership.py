@@ -51,8 +51,27 @@ def present(positions: Array) -> Mask:
 def edge_mask(edges: npt.NDArray[np.int64], pairs: list[tuple[int, int]]) -> Mask:
     """Which of ``edges`` (m, 2) appear, in either order, in ``pairs`` (a leader's healthy
     edges or tree)."""
-    wanted = {(min(a, b), max(a, b)) for a, b in pairs}
-    return np.array([(int(i), int(j)) in wanted for i, j in edges], dtype=bool)
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    try:  # as codes: a leader's estimate of 10,000 agents lists 20,000 pairs an epoch
+        ends: npt.NDArray[np.int64] | None = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+    except (OverflowError, ValueError, TypeError):
+        ends = None
+    if ends is not None and len(ends) != len(pairs):
+        ends = None  # not pairs
+    base = 0 if ends is None else int(max(edges.max(initial=0), ends.max(initial=0))) + 1
+    if ends is None or (ends < 0).any() or (edges < 0).any() or base > 2**31:
+        wanted = {(min(a, b), max(a, b)) for a, b in pairs}
+        return np.array([(int(i), int(j)) in wanted for i, j in edges], dtype=bool)
+    return _among(edges[:, 0] * base + edges[:, 1], ends.min(axis=1) * base + ends.max(axis=1))
+
+
+def _among(values: npt.NDArray[np.int64], pool: npt.NDArray[np.int64]) -> Mask:
+    """``np.isin(values, pool)`` by one sort and a binary search (no hashing of both)."""
+    if not len(pool):
+        return np.zeros(len(values), dtype=bool)
+    pool = np.sort(pool)
+    at = np.minimum(np.searchsorted(pool, values), len(pool) - 1)
+    return np.asarray(pool[at] == values, dtype=bool)
 
 
 def team_edges(team: Mask, edges: npt.NDArray[np.int64]) -> Mask:

@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import pandas as pd
 
 from analysis.membership import errors_of_team
@@ -158,13 +159,17 @@ def _estimates(run: RunData, axes: list[str]) -> pd.DataFrame:
 
 
 def _decisions(d: Decisions) -> pd.DataFrame:
+    # sorted by epoch, link class, source, target as a stable sort of the columns would
+    codes, classes = pd.factorize(d.link_class)
+    rank = np.argsort(np.argsort(np.asarray(classes, dtype=str), kind="stable"))
+    order = np.lexsort((d.target, d.source, rank[codes], d.epoch))
     cols = {
         "epoch": d.epoch,
         "phase": d.phase,
         "link_class": d.link_class,
         "source": d.source,
         "target": d.target,
-        "link": np.array([f"{a}->{b}" for a, b in zip(d.source, d.target, strict=True)], object),
+        "link": _link_names(d.source, d.target),
         "seq": d.seq,
         "verdict": d.verdict,
         "on_time": d.on_time,
@@ -173,9 +178,25 @@ def _decisions(d: Decisions) -> pd.DataFrame:
         "model": d.model,
         "state": d.state,
     }
-    return pd.DataFrame(cols, columns=list(_DECISIONS)).sort_values(
-        ["epoch", "link_class", "source", "target"], kind="stable", ignore_index=True
-    )
+    return pd.DataFrame({name: cols[name][order] for name in _DECISIONS})
+
+
+def _link_names(source: npt.NDArray[np.int64], target: npt.NDArray[np.int64]) -> Any:
+    """``"1->2"`` for each row, written once per link: a run holds millions of decisions."""
+    out = np.empty(len(source), dtype=object)
+    if not len(source):
+        return out
+    low = int(min(source.min(), target.min()))
+    base = int(max(source.max(), target.max())) - low + 1
+    if base > 2**31:  # ids too far apart for one code: each row written
+        out[:] = [f"{a}->{b}" for a, b in zip(source.tolist(), target.tolist(), strict=True)]
+        return out
+    row, links = pd.factorize((source - low) * base + (target - low))
+    pairs = zip((links // base + low).tolist(), (links % base + low).tolist(), strict=True)
+    names = np.empty(len(links), dtype=object)
+    names[:] = [f"{a}->{b}" for a, b in pairs]
+    out[:] = names[row]
+    return out
 
 
 def _known_deliveries(run: RunData) -> Decisions:

@@ -1,7 +1,8 @@
-"""The bulk kinds of a recording, agents' states and netem's decisions, decoded by msgspec into structs made from their models.
+"""The bulk kinds of a recording (agents' states, netem's decisions, the leader's estimates, the recorder's metrics) decoded by msgspec into structs made from their models.
 
-A recording of 10,000 agents holds a million states and 44,000 decisions an epoch; a
-pydantic model for each is most of the cost of reading it. :func:`struct_of` builds a
+A recording of 10,000 agents holds a million states, 44,000 decisions an epoch and an
+estimate and metrics of 10,000 positions each; a pydantic model for each is most of the
+cost of reading it. :func:`struct_of` builds a
 msgspec struct from a pydantic model, field by field (its type, its ``ge`` bound, its
 default; no unknown field), and msgspec decodes strictly: it takes a value only where
 the model would read it as it is (an int for an int, an int or a float for a float, a
@@ -15,13 +16,22 @@ constraint) is refused when this module loads.
 from __future__ import annotations
 
 import types
+from operator import attrgetter
 from typing import Annotated, Any, Union, get_args, get_origin
 
 import annotated_types
 import msgspec
+import numpy as np
+import numpy.typing as npt
 from pydantic import BaseModel
 
-from formation.messages import CoordinationState, DecisionBatch
+from formation.messages import (
+    CoordinationState,
+    Decision,
+    DecisionBatch,
+    EpochMetrics,
+    LeaderEstimate,
+)
 
 
 def _field_type(annotation: Any) -> Any:
@@ -64,11 +74,50 @@ def struct_of(model: type[BaseModel]) -> type[msgspec.Struct]:
 DECODERS: dict[str, msgspec.json.Decoder[Any]] = {
     "agent_state": msgspec.json.Decoder(struct_of(CoordinationState)),
     "decision": msgspec.json.Decoder(struct_of(DecisionBatch)),
+    "leader_estimate": msgspec.json.Decoder(struct_of(LeaderEstimate)),
+    "metrics": msgspec.json.Decoder(struct_of(EpochMetrics)),
 }
 
 
+_INTS = ("epoch", "source", "target", "seq", "delay_epochs")
+_DECISION_FIELDS = tuple(Decision.model_fields)
+_last: list[Any] = [None, None]  # the last batch whose columns were made, and them
+
+
+def decision_columns(batch: Any) -> dict[str, npt.NDArray[Any]]:
+    """A decision batch's columns as :class:`analysis.Decisions` holds them (``phase``
+    repeated; None as −1 and NaN); made once for the batch the trust gate checks and the
+    reader then keeps (the last batch's are remembered)."""
+    if _last[0] is batch:
+        return _last[1]  # type: ignore[no-any-return]
+    decisions, count = batch.decisions, len(batch.decisions)
+    out: dict[str, npt.NDArray[Any]] = {"phase": np.full(count, batch.phase, dtype=object)}
+    for name in _DECISION_FIELDS:
+        values = map(attrgetter(name), decisions)
+        if name in _INTS:
+            out[name] = np.fromiter(values, np.int64, count)
+        elif name == "delay_ms":
+            out[name] = np.fromiter(values, float, count)
+        else:
+            out[name] = _column(name, list(values))
+    _last[:] = batch, out
+    return out
+
+
+def _column(name: str, values: list[Any]) -> npt.NDArray[Any]:
+    if name == "queue_depth":
+        if values.count(None) == len(values):
+            return np.full(len(values), -1, dtype=np.int64)
+        return np.array([-1 if v is None else v for v in values], dtype=np.int64)
+    if name == "sojourn_ms":
+        return np.array(values, dtype=float).reshape(len(values))  # None → NaN
+    column = np.empty(len(values), dtype=object)
+    column[:] = values
+    return column
+
+
 def plain(kind: str, data: bytes) -> msgspec.Struct | None:
-    """A ``kind`` payload (``agent_state``, ``decision``) as a struct with its model's
+    """A ``kind`` payload (a key of :data:`DECODERS`) as a struct with its model's
     attributes and values, or None when only the model can say (then validate it with it)."""
     try:
         return DECODERS[kind].decode(data)  # type: ignore[no-any-return]
@@ -76,4 +125,4 @@ def plain(kind: str, data: bytes) -> msgspec.Struct | None:
         return None
 
 
-__all__ = ["DECODERS", "plain", "struct_of"]
+__all__ = ["DECODERS", "decision_columns", "plain", "struct_of"]

@@ -32,7 +32,10 @@ class ChunkError(Exception):
     """A chunk whose records do not fit its bytes, or a message on a channel the summary lacks."""
 
 
-def chunk_messages(data: bytes) -> Iterator[tuple[int, int, int, int, bytes]]:
+Record = tuple[int, int, int, int, bytes]  # channel id, sequence, log time, publish time, data
+
+
+def chunk_messages(data: bytes) -> list[Record]:
     """``(channel id, sequence, log time, publish time, data)`` of each message record in a
     chunk's uncompressed ``data``; other records are skipped."""
     view = memoryview(data)
@@ -40,6 +43,8 @@ def chunk_messages(data: bytes) -> Iterator[tuple[int, int, int, int, bytes]]:
     unpack_record, unpack_message = _RECORD.unpack_from, _MESSAGE.unpack_from
     head = _RECORD.size
     message = Opcode.MESSAGE
+    out: list[Record] = []
+    add = out.append
     while pos < end:
         if pos + head > end:
             raise ChunkError(f"a record header cut at byte {pos} of {end}")
@@ -50,36 +55,43 @@ def chunk_messages(data: bytes) -> Iterator[tuple[int, int, int, int, bytes]]:
         if opcode == message:
             if length < _MESSAGE_HEAD:
                 raise ChunkError(f"a message record of {length} bytes")
-            channel, sequence, log_time, publish_time = unpack_message(data, body)
-            yield channel, sequence, log_time, publish_time, bytes(view[body + _MESSAGE_HEAD : pos])
+            add((*unpack_message(data, body), bytes(view[body + _MESSAGE_HEAD : pos])))
+    return out
+
+
+def file_chunks(path: Path, summary: Summary) -> Iterator[list[Record]]:
+    """The message records of each chunk of the complete recording at ``path``, a list a chunk,
+    in the order ``McapReader.iter_messages(log_time_order=False)`` yields them."""
+    channels = summary.channels
+    with open(path, "rb") as f:
+        for index in summary.chunk_indexes:
+            f.seek(index.chunk_start_offset + _CHUNK_SKIP, io.SEEK_SET)
+            stream, size = get_chunk_data_stream(Chunk.read(ReadDataStream(f)))
+            records = chunk_messages(stream.read(size))
+            for channel_id in {r[0] for r in records} - channels.keys():
+                raise ChunkError(f"a message on channel {channel_id}, not in the summary")
+            yield records
 
 
 def file_order(path: Path, summary: Summary) -> Iterator[tuple[Schema | None, Channel, Message]]:
     """Every message in the chunks of the complete recording at ``path``, as
     ``McapReader.iter_messages(log_time_order=False)`` yields them."""
     channels, schemas = summary.channels, summary.schemas
-    with open(path, "rb") as f:
-        for index in summary.chunk_indexes:
-            f.seek(index.chunk_start_offset + _CHUNK_SKIP, io.SEEK_SET)
-            stream, size = get_chunk_data_stream(Chunk.read(ReadDataStream(f)))
-            for channel_id, sequence, log_time, publish_time, data in chunk_messages(
-                stream.read(size)
-            ):
-                channel = channels.get(channel_id)
-                if channel is None:
-                    raise ChunkError(f"a message on channel {channel_id}, not in the summary")
-                schema = schemas[channel.schema_id] if channel.schema_id else None
-                yield (
-                    schema,
-                    channel,
-                    Message(
-                        channel_id=channel_id,
-                        log_time=log_time,
-                        data=data,
-                        publish_time=publish_time,
-                        sequence=sequence,
-                    ),
-                )
+    for records in file_chunks(path, summary):
+        for channel_id, sequence, log_time, publish_time, data in records:
+            channel = channels[channel_id]
+            schema = schemas[channel.schema_id] if channel.schema_id else None
+            yield (
+                schema,
+                channel,
+                Message(
+                    channel_id=channel_id,
+                    log_time=log_time,
+                    data=data,
+                    publish_time=publish_time,
+                    sequence=sequence,
+                ),
+            )
 
 
-__all__ = ["ChunkError", "chunk_messages", "file_order"]
+__all__ = ["ChunkError", "Record", "chunk_messages", "file_chunks", "file_order"]

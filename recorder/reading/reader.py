@@ -24,7 +24,7 @@ from mcap.summary import Summary
 from formation.errors import RecordingError, TestbedError
 from formation.messages import DecisionBatch
 from formation.scenario import Scenario, load_dict
-from recorder.reading.chunks import file_order
+from recorder.reading.chunks import Record, file_chunks, file_order
 from recorder.reading.decoder import DecodeError, decode, decode_cdr
 from recorder.reading.trust import Gate, Skipped, derived_channels
 from recorder.recording.schemas import PROTOBUF, ROS2MSG, classify
@@ -99,6 +99,22 @@ def iter_messages(
             yield from file_order(path, summary)
         else:
             yield from reader.iter_messages(**kwargs)
+    except READ_ERRORS as exc:
+        if isinstance(exc, TestbedError):
+            raise
+        raise RecordingError(str(path), f"unreadable data ({type(exc).__name__}: {exc})") from None
+
+
+def iter_chunks(path: Path, reader: McapReader) -> Iterator[list[Record]]:
+    """The message records of each chunk (:func:`~recorder.reading.chunks.file_chunks`), in
+    file order, with read failures turned into :class:`RecordingError`."""
+    try:
+        summary = reader.get_summary()
+        if summary is not None and summary.chunk_indexes:
+            yield from file_chunks(path, summary)
+        else:  # no chunk index: the mcap reader's own loop, as records
+            for _, _, m in reader.iter_messages(log_time_order=False):
+                yield [(m.channel_id, m.sequence, m.log_time, m.publish_time, m.data)]
     except READ_ERRORS as exc:
         if isinstance(exc, TestbedError):
             raise
@@ -265,6 +281,7 @@ __all__ = [
     "Validation",
     "check_file",
     "describe",
+    "iter_chunks",
     "iter_messages",
     "link_name",
     "metadata",

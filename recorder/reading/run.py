@@ -10,143 +10,40 @@ substitutions each agent publishes with its next state. ``recorder.load_run`` is
 
 from __future__ import annotations
 
-import json
-from collections import Counter
+import gc
 from collections.abc import Callable, Iterator
-from dataclasses import fields
-from operator import attrgetter
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 from mcap.records import Channel, Message
+from mcap.summary import Summary
 
-from analysis import (
-    Decisions,
-    Recorded,
-    RunData,
-    Substitutions,
-    consistency,
-    edge_mask,
-    formation_error,
-    shape_error,
-)
+from analysis import Recorded, RunData, consistency, formation_error, shape_error
 from formation.errors import RecordingError
-from formation.messages import CoordinationState, DecisionBatch, LeaderEstimate
-from formation.plugin_api import PLUGIN_FAILED
 from formation.scenario import Scenario
-from recorder.reading.bodies import RecordedPoses
-from recorder.reading.reader import iter_messages, metadata, open_recording, parts, scenario_of
+from recorder.reading.chunks import Record
+from recorder.reading.collected import Collected, poses, positions, substitutions
+from recorder.reading.estimates import estimates
+from recorder.reading.reader import (
+    iter_chunks,
+    iter_messages,
+    metadata,
+    open_recording,
+    parts,
+    scenario_of,
+)
+from recorder.reading.state_batch import judge_states
 from recorder.reading.trust import Gate, derived_channels
 from recorder.recording.schemas import ROS2, classify
 
 Array = npt.NDArray[np.float64]
 Ints = npt.NDArray[np.int64]
-Pose = tuple[float | None, int | None]
-DECISION_COLUMNS = tuple(f.name for f in fields(Decisions))
-ROBOT_COUNTS = "body_"  # the prefix of an agent's body counts in its status (agent.body)
 
 
-class _Collected:
-    """What :func:`read_run` takes from the trusted messages of one or more files."""
-
-    def __init__(self, bulk: bool) -> None:
-        # decisions as a list per column (bulk) or as rows
-        self.columns: dict[str, list[Any]] | None = (
-            {name: [] for name in DECISION_COLUMNS} if bulk else None
-        )
-        self.states: dict[tuple[int, int], list[float]] = {}  # (epoch, agent)
-        self.poses: dict[tuple[int, int], Pose] = {}  # unicycles
-        self.subs: dict[tuple[int, int], list[tuple[int, bool, list[float]]]] = {}
-        self.ests: dict[int, LeaderEstimate] = {}
-        self.decisions: list[tuple[Any, ...]] = []
-        self.recorded: dict[int, float | None] = {}  # None: no edge in the team
-        self.ended: list[str] = []  # why a process ended the run (a plug-in failed)
-        self.bodies = RecordedPoses()  # the robots' poses (agent.body)
-        self.robots: dict[str, dict[str, int]] = {}  # sender → its newest body counts
-
-    def add(self, kind: str, msg: Any) -> None:
-        if kind == "agent_state":
-            state: CoordinationState = msg
-            self.states[state.epoch, state.agent] = state.position
-            if state.heading is not None or state.saturated is not None:
-                self.poses[state.epoch, state.agent] = (state.heading, state.saturated)
-            if state.substituted:  # used at the previous epoch; a repeat replaces, never adds
-                self.subs[state.epoch - 1, state.agent] = [
-                    (s.neighbour, s.fallback, s.value) for s in state.substituted
-                ]
-        elif kind == "leader_estimate":
-            self.ests[msg.epoch] = msg
-        elif kind == "metrics":
-            self.recorded[msg.epoch] = msg.formation_error_m
-        elif kind == "status":
-            if msg.state == "error" and msg.detail.startswith(PLUGIN_FAILED):
-                self.ended.append(f"{msg.sender}: {msg.detail.removeprefix(PLUGIN_FAILED)}")
-            elif msg.detail.startswith("{") and ROBOT_COUNTS in msg.detail:
-                self._robot_counts(msg.sender, msg.detail)
-        elif kind == "decision":
-            self._decisions(msg)
-
-    def _decisions(self, batch: DecisionBatch) -> None:
-        if self.columns is not None:
-            for name, values in self.columns.items():
-                if name == "phase":
-                    values.extend([batch.phase] * len(batch.decisions))
-                else:
-                    values.extend(map(attrgetter(name), batch.decisions))
-        else:
-            self.decisions.extend(
-                (
-                    c.epoch,
-                    batch.phase,
-                    c.link_class,
-                    c.source,
-                    c.target,
-                    c.seq,
-                    c.verdict,
-                    c.delay_epochs,
-                    c.delay_ms,
-                    c.model,
-                    c.state,
-                    c.queue,
-                    c.queue_depth,
-                    c.sojourn_ms,
-                )
-                for c in batch.decisions
-            )
-
-    def _robot_counts(self, sender: str, detail: str) -> None:
-        """An agent's realtime status: its ``body_`` counts, the newest kept."""
-        try:
-            counts = json.loads(detail)
-            self.robots[sender] = {
-                k.removeprefix(ROBOT_COUNTS): int(v)
-                for k, v in counts.items()
-                if k.startswith(ROBOT_COUNTS)
-            }
-        except (ValueError, TypeError, AttributeError):
-            return  # not counts: nothing to add
-
-    def robot_counts(self) -> dict[str, int]:
-        total: Counter[str] = Counter()
-        for counts in self.robots.values():
-            total.update(counts)
-        return dict(total)
-
-    def substitutions(self, d: int) -> Substitutions:
-        rows = sorted((k, i, j, fb, v) for (k, i), got in self.subs.items() for j, fb, v in got)
-        if not rows:
-            return Substitutions.none(d)
-        return Substitutions(
-            epoch=np.array([r[0] for r in rows], dtype=np.int64),
-            agent=np.array([r[1] for r in rows], dtype=np.int64),
-            neighbour=np.array([r[2] for r in rows], dtype=np.int64),
-            fallback=np.array([r[3] for r in rows], dtype=bool),
-            values=np.array([r[4] for r in rows], dtype=float).reshape(-1, d),
-        )
-
-
+_STATE = "agent_state"
 _WANTED = frozenset({"agent_state", "leader_estimate", "decision", "metrics", "status"})
 
 
@@ -185,10 +82,10 @@ def read_run(path: Path | str, label: str | None = None) -> RunData:
 
 
 def decode_run(path: Path | str, label: str | None = None, *, bulk: bool) -> RunData:
-    """:func:`read_run`; without ``bulk`` every state goes through its pydantic model and every
-    record through the mcap reader's own loop (the same RunData: the baseline of the benchmark)."""
+    """:func:`read_run`; without ``bulk`` every message goes through its pydantic model and the
+    gate one at a time, and every record through the mcap reader's own loop (the same RunData:
+    the baseline of the benchmark)."""
     path = Path(path)  # a str from a notebook too
-    got = _Collected(bulk)
     held: dict[str, Any] = {}
 
     def gate_of(meta: dict[str, dict[str, str]]) -> Gate:
@@ -196,43 +93,118 @@ def decode_run(path: Path | str, label: str | None = None, *, bulk: bool) -> Run
         if scenario is None:
             raise RecordingError(str(path), "no scenario in the metadata (record with --scenario)")
         held.update(meta=meta, scenario=scenario, gate=Gate(scenario, plain_bulk=bulk))
+        held["got"] = Collected(bulk, scenario.dimension)
         return held["gate"]  # type: ignore[no-any-return]
 
-    for kind, channel, record, msg, _ in iter_trusted(path, gate_of, by_chunk=bulk):
-        if kind in _WANTED:
-            got.add(kind, msg)
-        elif kind.startswith(ROS2):
-            got.bodies.add(channel.topic, record, kind.removeprefix(ROS2))
+    if bulk:
+        with _collector_paused():
+            _read_by_chunk(path, gate_of, held)
+    else:
+        for kind, channel, record, msg, _ in iter_trusted(path, gate_of, by_chunk=False):
+            _take(held["got"], kind, channel, record, msg)
     scenario: Scenario = held["scenario"]
+    got: Collected = held["got"]
     recorded = (held["meta"], held["gate"].skipped, tuple(got.ended), parts(path))
     return _assemble(scenario, path, label, got, recorded)
+
+
+@contextmanager
+def _collector_paused() -> Iterator[None]:
+    """Python's cycle collector off while a million acyclic objects are made: each of its
+    passes walks every object alive, the recording's read so far included."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
+
+
+def _take(got: Collected, kind: str, channel: Channel, record: Message, msg: Any) -> None:
+    if kind in _WANTED:
+        got.add(kind, msg)
+    elif kind.startswith(ROS2):
+        got.bodies.add(channel.topic, record, kind.removeprefix(ROS2))
+
+
+def _read_by_chunk(
+    path: Path, gate_of: Callable[[dict[str, dict[str, str]]], Gate], held: dict[str, Any]
+) -> None:
+    """Every trusted message of the recording into ``held["got"]``, a chunk at a time: its
+    agent states judged together (:func:`~recorder.reading.state_batch.judge_states`), the
+    rest, or every message of a chunk whose states are not plainly good, one by one."""
+    gate: Gate | None = None
+    for part in parts(path):
+        with open_recording(part) as (reader, summary):
+            if gate is None:
+                gate = gate_of(metadata(reader))
+            gate.derived_channels = derived_channels(summary.channels)
+            kinds = _kinds(summary)
+            for records in iter_chunks(part, reader):
+                _read_chunk(gate, held["got"], summary, kinds, records)
+
+
+def _kinds(summary: Summary) -> dict[int, str]:
+    return {
+        cid: channel.metadata.get("kind") or classify(channel.topic)
+        for cid, channel in summary.channels.items()
+    }
+
+
+def _read_chunk(
+    gate: Gate, got: Collected, summary: Summary, kinds: dict[int, str], records: list[Record]
+) -> None:
+    channels = summary.channels
+    of_kind = [kinds[r[0]] for r in records]
+    states = [r for r, kind in zip(records, of_kind, strict=True) if kind == _STATE]
+    block = (
+        judge_states(gate, [channels[r[0]].topic for r in states], [r[4] for r in states])
+        if states
+        else None
+    )
+    if block is not None:
+        got.blocks.append(block)
+        records = [r for r, kind in zip(records, of_kind, strict=True) if kind != _STATE]
+    for channel_id, sequence, log_time, publish_time, data in records:
+        kind = kinds[channel_id]
+        channel = channels[channel_id]
+        msg = gate.check(channel.topic, data, kind, channel_id)
+        if msg is not None:
+            record = Message(
+                channel_id=channel_id,
+                log_time=log_time,
+                data=data,
+                publish_time=publish_time,
+                sequence=sequence,
+            )
+            _take(got, kind, channel, record, msg)
 
 
 def _assemble(
     scenario: Scenario,
     path: Path,
     label: str | None,
-    got: _Collected,
+    got: Collected,
     recorded: tuple[Any, Any, tuple[str, ...], list[Path]],
 ) -> RunData:
     n, d = scenario.n, scenario.dimension
-    states = _positions(got.states, n, d)
-    x, computed = _measured(states, got.bodies.measured(scenario, len(states)))
-    decisions = (
-        Decisions.of_rows(got.decisions)
-        if got.columns is None
-        else Decisions.of_columns(got.columns)
-    )
-    epochs = [*got.ests, *decisions.epoch.tolist()]
-    count = max(epochs) + 1 if epochs else max(len(x) - 1, 0)
-    est = _estimates(scenario, got.ests, count)
+    states = got.states()
+    x = positions(states, n, d)
+    x, computed = _measured(x, got.bodies.measured(scenario, len(x)))
+    decisions = got.decisions_of_run()
+    epochs = [*got.ests, int(decisions.epoch.max(initial=-1))]
+    count = max(epochs) + 1 if max(epochs) >= 0 else max(len(x) - 1, 0)
+    est = estimates(scenario, got.ests, count)
     delivered, decided = decisions.delivery(scenario.directed_links, count)
     followers = np.arange(n) != scenario.reference_agent - 1
     nees_values, est_errors = consistency(
         x, est["estimates"], est["estimate_cov"], est["observable"] & followers
     )
-    subs = got.substitutions(d)
-    headings, saturated = _poses(scenario, got.poses, len(x))
+    subs = substitutions(states, d)
+    headings, saturated = (
+        poses(states, n, len(x)) if scenario.control.dynamics == "unicycle" else (None, None)
+    )
     recorded_fe = np.full(len(x), np.nan)
     for k, v in got.recorded.items():
         if k < len(x):
@@ -276,62 +248,6 @@ def _measured(states: Array, measured: Array | None) -> tuple[Array, Array | Non
         return states, None
     use = np.asarray(np.isfinite(measured).all(axis=2) & np.isfinite(states).all(axis=2))
     return np.where(use[:, :, None], measured, states), np.where(use[:, :, None], states, np.nan)
-
-
-def _positions(states: dict[tuple[int, int], list[float]], n: int, d: int) -> Array:
-    count = max(k for k, _ in states) + 1 if states else 0
-    x = np.full((count, n, d), np.nan)
-    for (k, i), pos in states.items():
-        if 1 <= i <= n and len(pos) == d:
-            x[k, i - 1] = pos
-    return x
-
-
-def _estimates(scenario: Scenario, ests: dict[int, LeaderEstimate], count: int) -> dict[str, Any]:
-    n, d, m = scenario.n, scenario.dimension, len(scenario.edges)
-    out: dict[str, Any] = {
-        "estimates": np.full((count, n, d), np.nan),
-        "estimate_cov": np.full((count, n, d, d), np.nan),
-        "observable": np.zeros((count, n), dtype=bool),
-        "estimated": np.zeros(count, dtype=bool),
-        "healthy": np.zeros((count, m), dtype=bool),
-        "tree": np.zeros((count, m), dtype=bool),
-        "components": np.full(count, -1, dtype=np.int64),
-        "rigidity_rank": np.full(count, -1, dtype=np.int64),
-        "rigid": np.full(count, -1, dtype=np.int64),
-    }
-    for k, e in ests.items():
-        if not 0 <= k < count:
-            continue
-        out["estimated"][k] = True
-        for i, (p, c) in enumerate(zip(e.positions, e.covariances, strict=False)):
-            if p is not None and i < n:
-                out["estimates"][k, i] = p
-            if c is not None and i < n:
-                out["estimate_cov"][k, i] = c
-        out["observable"][k, : len(e.observable[:n])] = e.observable[:n]
-        out["healthy"][k] = edge_mask(scenario.edge_array, list(e.healthy))
-        out["tree"][k] = edge_mask(scenario.edge_array, list(e.tree))
-        out["components"][k], out["rigidity_rank"][k] = e.components, e.rigidity_rank
-        out["rigid"][k] = e.rigid
-    return out
-
-
-def _poses(
-    scenario: Scenario, poses: dict[tuple[int, int], Pose], count: int
-) -> tuple[Array | None, Ints | None]:
-    """Recorded headings (P, n) and saturation counts (P − 1, n) of a unicycle team, else None."""
-    if scenario.control.dynamics != "unicycle":
-        return None, None
-    headings = np.full((count, scenario.n), np.nan)
-    saturated = np.full((max(count - 1, 0), scenario.n), -1, dtype=np.int64)
-    for (k, i), (h, sat) in poses.items():
-        if 0 <= k < count and 1 <= i <= scenario.n:
-            if h is not None:
-                headings[k, i - 1] = h
-            if sat is not None and k >= 1:
-                saturated[k - 1, i - 1] = sat  # a state of k counts the step from k − 1
-    return headings, saturated
 
 
 __all__ = ["decode_run", "iter_trusted", "read_run"]

@@ -47,7 +47,7 @@ from formation.messages import (
     TokenReport,
 )
 from formation.scenario import Scenario
-from recorder.reading.bulk import DECODERS, plain
+from recorder.reading.bulk import DECODERS, decision_columns, plain
 from recorder.reading.decoder import DecodeError, decode_cdr, decode_kind
 from recorder.reading.skips import (
     CONFLICT,
@@ -95,6 +95,14 @@ def _all_finite(rows: list[Any], shape: tuple[int | None, ...]) -> bool:
     return bool(fits and np.isfinite(arr).all())
 
 
+def _within(values: npt.NDArray[np.int64], pool: npt.NDArray[np.int64]) -> bool:
+    """Whether every value is in ``pool`` (sorted), by a binary search."""
+    if not len(values):
+        return True
+    at = np.minimum(np.searchsorted(pool, values), max(len(pool) - 1, 0))
+    return bool(len(pool) and (pool[at] == values).all())
+
+
 def _finite(values: Sequence[float], d: int | None, what: str) -> None:
     if d is not None and len(values) != d:
         raise Skip(INVALID, f"{what} has {len(values)} components, expected {d}")
@@ -121,13 +129,12 @@ class Gate:
         self.scenario = scenario
         self.derived_channels = derived_channels
         self.conflicts = conflicts  # remember each (key, epoch) to refuse a different second one
-        self.plain_bulk = (
-            plain_bulk  # states and decisions as msgspec structs (recorder.reading.bulk)
-        )
+        self.plain_bulk = plain_bulk  # the bulk kinds as msgspec structs (recorder.reading.bulk)
         self.skipped = Skipped()
         self.passed: Counter[str] = Counter()
         self._codes: npt.NDArray[np.int64] | None = None  # formation links, as codes
-        self._seen: dict[tuple[str, int], int] = {}  # (topic, epoch) -> hash of the first payload
+        self._edge_codes: npt.NDArray[np.int64] | None = None  # formation edges, as codes
+        self.seen: dict[tuple[str, int], int] = {}  # (topic, epoch) -> hash of the first payload
         # Realtime netem sends a receiver a delivery per wake-up: several of one epoch are normal.
         realtime = scenario is not None and scenario.runtime.mode == "realtime"
         self.repeated = _REPEATED | {"delivery"} if realtime else _REPEATED
@@ -143,7 +150,7 @@ class Gate:
         self, topic: str, data: bytes, kind: str | None = None, channel_id: int | None = None
     ) -> BaseModel | Message | Struct | None:
         """The validated message (a model; a decoded protobuf message for the Foxglove
-        channels; with ``plain_bulk`` an agent state or a decision batch as a struct of
+        channels; with ``plain_bulk`` a state, decisions, an estimate or metrics as a struct of
         :mod:`recorder.reading.bulk`), or None after counting the skip."""
         kind = kind or classify(topic)
         try:
@@ -195,7 +202,7 @@ class Gate:
     # -- shared checks ----------------------------------------------------------------------
     def _first(self, topic: str, epoch: int, data: bytes) -> None:
         digest = hash(data)
-        if self._seen.setdefault((topic, epoch), digest) != digest:
+        if self.seen.setdefault((topic, epoch), digest) != digest:
             raise Skip(CONFLICT, f"a different message of epoch {epoch} came first")
 
     def _epoch(self, epoch: int, last: int | None = None, first: int = 0) -> None:
@@ -224,7 +231,7 @@ class Gate:
             raise Skip(UNKNOWN_KEY, f"{part!r} is not an id") from None
 
     @staticmethod
-    def _owned_by_agent(sender: str, agent: int) -> bool:
+    def owned_by_agent(sender: str, agent: int) -> bool:
         """``agent/<i>``, or ``pool/<a>`` (a pool is named by its first id) with ``a ≤ i``."""
         role, _, ident = sender.partition("/")
         if role == "agent":
@@ -236,7 +243,7 @@ class Gate:
             raise Skip(FORGED, f"sender {msg.sender!r} on a key of {owner!r}")
 
     def _agent_sender(self, msg: Any, i: int) -> None:
-        if not self._owned_by_agent(msg.sender, i):
+        if not self.owned_by_agent(msg.sender, i):
             raise Skip(FORGED, f"sender {msg.sender!r} on a key of agent {i}")
         if msg.agent != i:
             raise Skip(FORGED, f"agent {msg.agent} on a key of agent {i}")
@@ -312,7 +319,8 @@ class Gate:
             sizes = (len(msg.positions), len(msg.covariances), len(msg.observable))
             if sizes != (n, n, n):
                 raise Skip(INVALID, f"positions, covariances, observable of sizes {sizes}, not {n}")
-            for pair in (*msg.tree, *msg.healthy):
+            pairs = [*msg.tree, *msg.healthy]
+            for pair in [] if self._edges_known(pairs) else pairs:  # the one at fault, named
                 if (min(pair), max(pair)) not in self.edges:
                     raise Skip(OUT_OF_RANGE, f"edge {pair} not in the formation")
         if not _all_finite([p for p in msg.positions if p is not None], (d,)) or not (
@@ -363,11 +371,21 @@ class Gate:
     def _decisions_fit(self, msg: DecisionBatch) -> bool:
         """Whether every decision passes the checks of :meth:`_decision`, as arrays."""
         count, decisions = len(msg.decisions), msg.decisions
-        epoch = np.fromiter(map(attrgetter("epoch"), decisions), np.int64, count)
-        source = np.fromiter(map(attrgetter("source"), decisions), np.int64, count)
-        target = np.fromiter(map(attrgetter("target"), decisions), np.int64, count)
-        classes = map(_CLASSES.__getitem__, map(attrgetter("link_class"), decisions))
-        kind = np.fromiter(classes, np.int8, count)
+        try:
+            if self.plain_bulk:  # the reader keeps these columns
+                columns = decision_columns(msg)
+                epoch, source, target = columns["epoch"], columns["source"], columns["target"]
+                kind = np.select(
+                    [columns["link_class"] == c for c in _CLASSES], list(_CLASSES.values()), -1
+                )
+            else:
+                epoch = np.fromiter(map(attrgetter("epoch"), decisions), np.int64, count)
+                source = np.fromiter(map(attrgetter("source"), decisions), np.int64, count)
+                target = np.fromiter(map(attrgetter("target"), decisions), np.int64, count)
+                classes = map(_CLASSES.__getitem__, map(attrgetter("link_class"), decisions))
+                kind = np.fromiter(classes, np.int8, count)
+        except OverflowError:  # past 63 bits: checked one by one
+            return False
         last = self._last_decided()
         ends = np.concatenate([source, target])
         if not ((epoch >= 0) & (epoch <= (self.epochs if last is None else last))).all():
@@ -378,15 +396,30 @@ class Gate:
         formation = kind == 0
         codes = source[formation] * (self.n + 1) + target[formation]
         return bool(
-            np.isin(codes, self._link_codes()).all()
+            self.within_links(codes)
             and ((target == leader) & (source != leader))[kind == 1].all()
             and ((source == leader) & (target != leader))[kind == 2].all()
         )
 
-    def _link_codes(self) -> npt.NDArray[np.int64]:
+    def _edges_known(self, pairs: list[tuple[int, int]]) -> bool:
+        """Whether every pair is an edge of the formation, in either order, as arrays."""
+        try:
+            ends = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+        except (OverflowError, ValueError, TypeError):
+            return False
+        low, high = ends.min(axis=1), ends.max(axis=1)
+        if len(ends) and (low.min() < 1 or high.max() > self.n):
+            return False
+        if self._edge_codes is None:
+            edges = sorted(a * (self.n + 1) + b for a, b in self.edges)
+            self._edge_codes = np.array(edges, dtype=np.int64)
+        return _within(low * (self.n + 1) + high, self._edge_codes)
+
+    def within_links(self, codes: npt.NDArray[np.int64]) -> bool:
+        """Whether each ``source * (n + 1) + target`` is a formation link of the scenario."""
         if self._codes is None:
             self._codes = np.array(sorted(a * (self.n + 1) + b for a, b in self.links), np.int64)
-        return self._codes
+        return _within(codes, self._codes)
 
     def _link_change(self, msg: LinkChange, args: Args) -> None:
         self._sender(msg, "netem")
@@ -404,8 +437,9 @@ class Gate:
     def _metrics(self, msg: EpochMetrics, args: Args) -> None:
         self._sender(msg, RECORDER)
         self._epoch(msg.epoch)
-        for p in msg.positions:
-            _finite(p, self._dim(), "position")
+        d = self._dim()
+        for p in [] if _all_finite(msg.positions, (d,)) else msg.positions:  # the one at fault
+            _finite(p, d, "position")
         if self.scenario is not None and len(msg.positions) != self.n:
             raise Skip(INVALID, f"{len(msg.positions)} positions, expected {self.n}")
         errors = (msg.formation_error_m, msg.shape_error_m)

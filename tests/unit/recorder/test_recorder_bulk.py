@@ -28,6 +28,7 @@ from recorder.reading.bulk import struct_of
 from recorder.reading.chunks import ChunkError, chunk_messages, file_order
 from recorder.reading.reader import open_recording
 from recorder.reading.run import decode_run
+from recorder.reading.state_batch import StateBlock, judge_states
 from recorder.reading.trust import Gate
 from testkit.forgeries import forgeries
 
@@ -73,9 +74,13 @@ def test_a_model_with_a_rule_msgspec_cannot_carry_is_refused() -> None:
 
 
 def test_every_forgery_is_refused_alike(paper: Scenario) -> None:
+    kinds = {
+        keys.netem_decision(RUN): "decision",
+        keys.leader_estimate_out(RUN): "leader_estimate",
+        keys.metrics(RUN): "metrics",
+    }
     for key, data in forgeries(RUN, paper, epoch=7):
-        kind = "decision" if key == keys.netem_decision(RUN) else "agent_state"
-        _both(paper, key, data, kind)
+        _both(paper, key, data, kinds.get(key, "agent_state"))
 
 
 # Values near each field's type: what orjson and the model could read differently.
@@ -282,3 +287,199 @@ def test_the_recorder_s_own_bulk_messages_take_the_plain_path(
         kind = {keys.netem_decision(RUN): "decision"}.get(key, "agent_state")
         if "estimate" not in key:
             assert isinstance(gate.check(key, data, kind), msgspec.Struct), key
+
+
+@st.composite
+def good_states(draw: Any, scenario: Scenario) -> tuple[str, bytes]:
+    """A state the gate passes (on its own): its agent's key, substitutions on real links."""
+    links = [(int(a), int(b)) for a, b in scenario.directed_links]
+    agent = draw(st.sampled_from(sorted({b for _, b in links})))
+    into = [a for a, b in links if b == agent]
+    body = {
+        "run_id": RUN,
+        "sender": draw(st.sampled_from([f"agent/{agent}", "pool/1"])),
+        "seq": 0,
+        "epoch": draw(st.integers(0, 3)),
+        "stamp_ns": 5,
+        "agent": agent,
+        "position": draw(st.lists(st.floats(-9, 9), min_size=2, max_size=2)),
+        "substituted": [
+            {"neighbour": draw(st.sampled_from(into)), "value": [1.5, -2.0], "fallback": fb}
+            for fb in draw(st.lists(st.booleans(), max_size=2))
+        ],
+    }
+    if draw(st.booleans()):
+        body["heading"] = draw(st.floats(-3, 3))
+    return keys.agent_state(RUN, agent), json.dumps(body).encode()
+
+
+_DEFECTS: dict[str, Any] = {  # one thing wrong in a good state
+    "epoch": [-1, 60],
+    "agent": [1, 7],
+    "sender": ["agent/9", "leader", "pool/6"],
+    "position": [[1.0], [1.0, 2.0, 3.0]],
+    "velocity": [[1.0], [0.5, 0.5]],
+    "substituted": [
+        [{"neighbour": 0, "value": [1.0, 2.0]}],
+        [{"neighbour": 7, "value": [1.0, 2.0]}],
+        [{"neighbour": 1, "value": [1.0]}],
+        [{"neighbour": 3, "value": [1.0, 2.0]}, {"neighbour": 6, "value": [1.0, 2.0]}],
+    ],
+    "saturated": [2],
+}
+
+
+@st.composite
+def near_good_states(draw: Any, scenario: Scenario) -> tuple[str, bytes]:
+    topic, data = draw(good_states(scenario))
+    body = json.loads(data)
+    field = draw(st.sampled_from(sorted(_DEFECTS)))
+    body[field] = draw(st.sampled_from(_DEFECTS[field]))
+    return topic, json.dumps(body).encode()
+
+
+@st.composite
+def chunks_of_states(draw: Any, scenario: Scenario) -> list[tuple[str, bytes]]:
+    """Mostly good states, now and then a doubtful one, a repeat or a conflicting repeat."""
+    out = []
+    for _ in range(draw(st.integers(1, 6))):
+        pick = draw(st.integers(0, 9))
+        if pick == 0:
+            out.append((keys.agent_state(RUN, 1), draw(states())))
+        elif pick in (2, 3):
+            out.append(draw(near_good_states(scenario)))
+        elif pick == 1 and out:
+            out.append(draw(st.sampled_from(out)))  # the same message again
+        else:
+            out.append(draw(good_states(scenario)))
+    return out
+
+
+@settings(
+    max_examples=60,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+)
+@given(data=st.data())
+def test_a_chunk_of_states_is_judged_as_the_gate_judges_each(paper: Scenario, data: Any) -> None:
+    earlier = data.draw(chunks_of_states(paper))  # what the gates remember already
+    chunk = data.draw(chunks_of_states(paper))
+    batch, model = Gate(paper, plain_bulk=True), Gate(paper)
+    for topic, payload in earlier:
+        batch.check(topic, payload, "agent_state")
+        model.check(topic, payload, "agent_state")
+    block = judge_states(batch, [t for t, _ in chunk], [p for _, p in chunk])
+    if block is None:  # the reader's way: the chunk through the gate, one by one
+        for topic, payload in chunk:
+            batch.check(topic, payload, "agent_state")
+    passed = [m for m in (model.check(t, p, "agent_state") for t, p in chunk) if m is not None]
+    assert (batch.skipped, batch.passed, batch.seen) == (model.skipped, model.passed, model.seen)
+    if block is not None:
+        assert len(passed) == len(chunk)
+        _same(block, StateBlock.of_rows(passed, paper.dimension), "block")
+
+
+_GOOD_STATE = {  # agent 2 of the paper scenario: links into it from 1, 3 and 4
+    "run_id": RUN, "sender": "agent/2", "seq": 0, "epoch": 1, "stamp_ns": 0, "agent": 2,
+    "position": [1.0, 2.0], "substituted": [{"neighbour": 3, "value": [0.5, 0.5]}],
+}  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "defect",
+    [
+        {"epoch": -1},  # the model takes −1 (a status before the run), the gate does not
+        {"epoch": 51},
+        {"agent": 3},
+        {"agent": 2**63},  # past 63 bits
+        {"sender": "agent/3"},
+        {"sender": "pool/3"},  # a pool is named by its first agent: 3 cannot hold 2
+        {"position": [1.0]},
+        {"velocity": [1.0]},
+        {"substituted": [{"neighbour": 5, "value": [1.0, 2.0]}]},  # no link 5 -> 2
+        {"substituted": [{"neighbour": 2, "value": [1.0, 2.0]}]},  # itself
+        {"substituted": [{"neighbour": 6, "value": [1.0, 2.0]}]},  # no agent 6
+        {"substituted": [{"neighbour": 1, "value": [1.0]}]},
+        {"position": [1.0, 2.0], "kind": "report"},
+    ],
+)
+def test_a_chunk_with_one_doubtful_state_is_judged_one_by_one(
+    paper: Scenario, defect: dict[str, Any]
+) -> None:
+    topic = keys.agent_state(RUN, 2)
+    good = json.dumps(_GOOD_STATE).encode()
+    bad = json.dumps({**_GOOD_STATE, "epoch": 2, **defect}).encode()  # another key and epoch
+    assert Gate(paper).check(topic, good) is not None
+    assert Gate(paper).check(topic, bad) is None
+    gate = Gate(paper, plain_bulk=True)
+    assert judge_states(gate, [topic, topic], [good, bad]) is None
+    assert (gate.passed, gate.seen) == ({}, {})
+    assert judge_states(gate, [topic], [good]) is not None
+    assert (gate.passed["agent_state"], len(gate.seen)) == (1, 1)
+
+
+def test_a_state_unlike_the_one_before_it_is_judged_one_by_one(paper: Scenario) -> None:
+    topic = keys.agent_state(RUN, 2)
+    good = json.dumps(_GOOD_STATE).encode()
+    gate = Gate(paper, plain_bulk=True)
+    assert judge_states(gate, [topic], [good]) is not None
+    other = json.dumps({**_GOOD_STATE, "position": [1.5, 2.0]}).encode()
+    assert judge_states(gate, [topic], [other]) is None  # a conflict, for the gate to count
+    assert judge_states(gate, [topic, topic], [other, other]) is None
+    assert gate.passed["agent_state"] == 1
+    fresh = Gate(paper, plain_bulk=True)  # the two in one chunk
+    assert judge_states(fresh, [topic, topic], [good, other]) is None
+    assert (fresh.passed, fresh.seen) == ({}, {})
+
+
+def _estimate(scenario: Scenario, **changes: Any) -> bytes:
+    n = scenario.n
+    edges = [[int(a), int(b)] for a, b in scenario.edge_array]
+    body = {
+        "run_id": RUN, "sender": "leader", "seq": 0, "epoch": 2, "stamp_ns": 0,
+        "kind": "estimate", "positions": [[0.5, 1.0]] * (n - 1) + [None],
+        "covariances": [[[1.0, 0.0], [0.0, 1.0]]] * (n - 1) + [None],
+        "observable": [True] * (n - 1) + [False], "tree": edges[:2],
+        "healthy": [edges[0][::-1], *edges[1:]], "components": 1, "rigidity_rank": 3,
+        "rigid": True, "x_ref": [0.0, 0.0], "v_ref": [0.0, 0.0], "reports_received": n,
+    }  # fmt: skip
+    return json.dumps({**body, **changes}).encode()
+
+
+@pytest.mark.parametrize(
+    "changes",
+    [
+        {},
+        {"components": 1.0},  # a float for an int: the model converts it
+        {"rigid": 1},  # an int for a bool
+        {"positions": [[1, 2]] * 5},  # ints for floats, and too few
+        {"tree": [[1, 99]]},  # no such edge
+        {"healthy": [[2, 1, 3]]},  # not a pair
+        {"covariances": [[[1.0, 0.0]]] * 6},  # one row where two are due
+        {"x_ref": [1e400, 0.0]},  # past a double
+        {"reports_received": 2**64},  # past 64 bits
+        {"extra": 1},
+    ],
+)
+def test_an_estimate_is_judged_alike_by_both_paths(paper: Scenario, changes: Any) -> None:
+    _both(paper, keys.leader_estimate_out(RUN), _estimate(paper, **changes), "leader_estimate")
+
+
+@pytest.mark.parametrize(
+    "changes",
+    [
+        {},
+        {"positions": [[1.0, 2.0]] * 5},  # too few
+        {"positions": [[1.0, "x"]] * 6},
+        {"formation_error_m": None, "shape_error_m": 2},
+        {"out": [0, 99]},
+    ],
+)
+def test_metrics_are_judged_alike_by_both_paths(paper: Scenario, changes: Any) -> None:
+    body = {
+        "run_id": RUN, "sender": "recorder", "seq": 0, "epoch": 2, "stamp_ns": 0,
+        "kind": "metrics", "formation_error_m": 0.5, "shape_error_m": 0.25,
+        "positions": [[1.0, 2.0]] * paper.n,
+    }  # fmt: skip
+    data = json.dumps({**body, **changes}).encode()
+    _both(paper, keys.metrics(RUN), data, "metrics")
