@@ -90,17 +90,51 @@ def _direction_ranks(x: FloatArray, tail: IntArray, head: IntArray, counts: IntA
     rest (they change no singular value): a few batched SVDs, not one per count.
     """
     out = np.zeros(counts.shape[0], dtype=np.int64)
-    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    first = (np.cumsum(counts) - counts).astype(np.int64)
     dirs = x[head] - x[tail]
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)  # lengths never matter, only angles
     dirs = np.vstack([dirs, np.zeros((1, x.shape[1]))])  # row -1: the padding
+    sure = _surely_spanning(dirs, first, counts)
+    out[sure] = x.shape[1]
     width = 1 << np.ceil(np.log2(np.maximum(counts, 1))).astype(np.int64)
-    for k in np.unique(width):
+    width[sure] = 0
+    for k in np.unique(width[width > 0]):
         sel = np.flatnonzero(width == k)
         rows = first[sel, None] + np.arange(k)
         rows[np.arange(k) >= counts[sel, None]] = -1
         out[sel] = batched_ranks(dirs[rows])
     return out
+
+
+def _surely_spanning(dirs: FloatArray, first: IntArray, counts: IntArray) -> BoolArray:
+    """Candidates whose unit directions surely have rank ``d`` at the SVD's tolerance, no SVD.
+
+    Of a candidate's first ``d + 1`` directions, ``d`` whose determinant ``δ`` is largest
+    form ``S``: ``σ_d(S) ≥ |δ| / σ_1(S)^(d−1) ≥ |δ| / d^((d−1)/2)`` (unit rows). All ``c`` rows
+    ``A`` hold ``S``, so ``σ_d(A) ≥ σ_d(S)``, and ``σ_1(A) ≤ ‖A‖_F = √c``: when
+    ``|δ| > RANK_RTOL · √c · d^((d−1)/2)``, ``σ_d(A) > RANK_RTOL · σ_1(A)``, the SVD's
+    rank ``d``. The rest (a determinant near zero) go to the SVD.
+    """
+    d = dirs.shape[1]
+    rows = first[:, None] + np.arange(d + 1)
+    rows[np.arange(d + 1) >= counts[:, None]] = -1  # the zero row: a determinant of 0
+    if d not in (2, 3):
+        return np.zeros(counts.shape[0], dtype=bool)
+    c = [dirs[rows[:, r]].T for r in range(d + 1)]  # row r of each candidate, by coordinate
+    if d == 2:
+        dets = [c[i][0] * c[j][1] - c[i][1] * c[j][0] for i, j in ((0, 1), (0, 2), (1, 2))]
+    else:
+        dets = []
+        for i, j, k in ((0, 1, 2), (0, 1, 3), (0, 2, 3), (1, 2, 3)):
+            a, b, e = c[i], c[j], c[k]
+            dets.append(
+                a[0] * (b[1] * e[2] - b[2] * e[1])
+                - a[1] * (b[0] * e[2] - b[2] * e[0])
+                + a[2] * (b[0] * e[1] - b[1] * e[0])
+            )
+    best = np.abs(np.array(dets)).max(axis=0)
+    sure: BoolArray = best > RANK_RTOL * np.sqrt(counts) * d ** ((d - 1) / 2)
+    return sure
 
 
 def grown_cluster(positions: npt.ArrayLike, edges: npt.ArrayLike, seed: int = 0) -> BoolArray:
