@@ -232,4 +232,6 @@ def test_direction_ranks_without_an_svd_are_the_svds(d: int, seed: int, tilt: fl
     want = [batched_ranks(unit[a : a + c][None])[0] for a, c in zip(first, counts, strict=True)]
     np.testing.assert_array_equal(ranks, want)
     if tilt == 1.0:
-        assert _surely_spanning(np.vstack([unit, np.zeros((1, d))]), first, counts).any()
+        padded = np.append(np.arange(unit.shape[0]), -1)
+        dirs = np.vstack([unit, np.zeros((1, d))])
+        assert _surely_spanning(dirs, padded, first, counts).any()
