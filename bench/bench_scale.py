@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 import leader.mst
+import leader.tree
 from formation import rigidity_check, rigidity_growth
 from formation.rigidity_check import rank_under_mask
 from formation.rigidity_growth import growth_rounds, spans_without_any
@@ -112,24 +113,27 @@ def teams() -> list[tuple[str, int]]:
 
 class Before:
     """The paths as they were: every growth candidate's directions by SVD, half-edges
-    sorted by 64-bit keys, the forests by a Python union-find. Entered, it puts them
-    back; left, it restores today's."""
+    sorted by 64-bit keys, the forests by a Python union-find, every covariance inverted.
+    Entered, it puts them back; left, it restores today's."""
 
     def __enter__(self) -> None:
         self.saved = (
             rigidity_growth._surely_spanning,
             rigidity_growth._half_edges,
             leader.mst._compiled_scan,
+            leader.tree._inverses,
         )
         rigidity_growth._surely_spanning = _never_sure
         rigidity_growth._half_edges = _half_edges_by_int64
         leader.mst._compiled_scan = _union_find_forests
+        leader.tree._inverses = np.linalg.inv
 
     def __exit__(self, *exc: object) -> None:
         (
             rigidity_growth._surely_spanning,
             rigidity_growth._half_edges,
             leader.mst._compiled_scan,
+            leader.tree._inverses,
         ) = self.saved
 
 
