@@ -8,7 +8,7 @@ as they were (``Before``: growth candidates all by SVD, forests by a Python unio
 the two alternating. Baselines measured in the same run: the load of the 2-D minimally
 rigid team; the simulator at 100 agents; the batched sweep at 100 agents.
 
-    python -m bench.bench_scale [--quick] [--rigidity-only | --simulate-only]
+    python -m bench.bench_scale [--quick] [--rigidity-only | --simulate-only | --exact-only]
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ import numpy as np
 import leader.mst
 import leader.tree
 from formation import rigidity_check, rigidity_growth
+from formation.rigidity import expected_rigidity_rank, rigidity_rank
 from formation.rigidity_check import rank_under_mask
 from formation.rigidity_growth import growth_rounds, spans_without_any
 from formation.rigidity_stiffness import pinned_stiffness_definite
@@ -227,6 +228,40 @@ rigidity_check.pinned_stiffness_definite = _counted(rigidity_check.pinned_stiffn
 rigidity_check.outside_held = _counted(rigidity_check.outside_held)
 
 
+def exact_against_svd(sizes: tuple[int, ...], masks: int) -> None:
+    print(
+        "the large-formation path (rank_under_mask) against the dense SVD of the whole "
+        f"rigidity matrix, {masks} masks per team (edges lost at 1 %, 5 %, 30 %), seed 1"
+    )
+    print(f"{'team':30} {'agents':>6} {'masks':>5} {'rigid':>5} {'ranked':>6} {'agree':>5}")
+    rng = np.random.default_rng(SEED)
+    for family, d in teams():
+        for n in sizes:
+            for redundancy in (0.1, 0.5):
+                if family == "henneberg":
+                    s = henneberg_team(n, seed=SEED, redundancy=redundancy)
+                else:
+                    s = FAMILIES[family](n, d, redundancy, seed=SEED)
+                x, edges = s.offsets, s.edge_array
+                rounds, spread = growth_rounds(x, edges), spans_without_any(x)
+                need = expected_rigidity_rank(n, d)
+                rigid = ranked = agree = 0
+                for k in range(masks):
+                    mask = rng.random(len(edges)) >= (0.01, 0.05, 0.3)[k % 3]
+                    want = rigidity_rank(x, edges[mask])
+                    rank, is_rigid = rank_under_mask(x, edges, rounds, mask, spread)
+                    rigid += want == need
+                    ranked += rank is not None
+                    agree += is_rigid == (want == need) and rank in (want, None)
+                print(
+                    f"{f'{family} {d}-D, {redundancy:.0%} spare':30} {n:6d} {masks:5d} "
+                    f"{rigid:5d} {ranked:6d} {agree:5d}",
+                    flush=True,
+                )
+                if agree != masks:
+                    raise SystemExit(f"{family} {d}-D, {n} agents: not the SVD's answer")
+
+
 def simulate_families(epochs: int) -> None:
     print(
         f"formation simulate, 10,000 agents, 10 % Bernoulli loss, 10 % spare edges, {epochs} "
@@ -337,6 +372,7 @@ def main() -> None:
     p.add_argument("--quick", action="store_true", help="fewer epochs")
     p.add_argument("--rigidity-only", action="store_true", help="only the rigidity rows")
     p.add_argument("--simulate-only", action="store_true", help="only simulate on each team family")
+    p.add_argument("--exact-only", action="store_true", help="only the SVD check, to 1,000 agents")
     args = p.parse_args()
     print(
         f"seed {SEED}; peak RSS of this process so far is in /proc; python {sys.version.split()[0]}"
@@ -346,6 +382,9 @@ def main() -> None:
         return
     if args.simulate_only:
         simulate_families(20 if args.quick else 100)
+        return
+    if args.exact_only:
+        exact_against_svd((200,) if args.quick else (200, 1000), 3 if args.quick else 6)
         return
     with tempfile.TemporaryDirectory() as tmp:
         load_times(Path(tmp))
