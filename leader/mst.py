@@ -28,9 +28,8 @@ IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
 
 LABEL_SWEEP_RATIO = 12
-"""A batch scans by labels when ``m × 12 < B n``: ``m`` numpy steps cost less than ``B n``
-Python union-find steps (measured on the sweep's teams, ``bench/bench_sweep.py``; see
-:meth:`KruskalGraph.forests` for a timing)."""
+"""A batch scans by labels when ``m × 12 < B n``: many members of a small graph, the
+sweep's batches (``bench/bench_sweep.py``); others by the compiled scan."""
 
 
 def minimum_spanning_forest(
