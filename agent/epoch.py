@@ -39,17 +39,17 @@ class InLinks:
     @classmethod
     def of(cls, scenario: Scenario, agents: npt.NDArray[np.int64]) -> InLinks:
         links = scenario.directed_links
-        row_of = {int(a): r for r, a in enumerate(agents)}
-        index = np.array(
-            [row for row, (_, b) in enumerate(links) if int(b) in row_of], dtype=np.int64
-        )
+        ids = np.asarray(agents, dtype=np.int64)
+        row_of = np.full(scenario.n + 1, -1, dtype=np.int64)  # agent id -> row, -1 if not ours
+        row_of[ids] = np.arange(ids.size)
+        index = np.flatnonzero(row_of[links[:, 1]] >= 0).astype(np.int64)
         sender, receiver = links[index, 0], links[index, 1]
         d0 = scenario.offsets
         return cls(
             index=index,
             sender=sender,
             receiver=receiver,
-            receiver_row=np.array([row_of[int(b)] for b in receiver], dtype=np.int64),
+            receiver_row=row_of[receiver],
             desired=d0[receiver - 1] - d0[sender - 1],
             distance_sq=np.repeat(scenario.weights**2, 2)[index],
         )

@@ -2,17 +2,19 @@
 
 Seed 1 throughout; teams from ``testbed.sim.team_generators.rigid_team`` (perturbed grid,
 vertex addition, ``redundancy`` spare edges), 10 % Bernoulli loss on every formation link,
-the tree estimator, ``hold``. The rigidity rows also on ``henneberg_team`` and
-``geometric_team``, each against its old path (``outside_stiffness=False``), the two
-alternating mask by mask. Baselines measured in the same run: the load of the 2-D
-minimally rigid team; the simulator at 100 agents; the batched sweep at 100 agents.
+the tree estimator, ``hold``. The rigidity rows and ``formation simulate`` also on
+``henneberg_team`` and ``geometric_team``, in bursts of loss too, each against the paths
+as they were (``Before``: growth candidates all by SVD, forests by a Python union-find),
+the two alternating. Baselines measured in the same run: the load of the 2-D minimally
+rigid team; the simulator at 100 agents; the batched sweep at 100 agents.
 
-    python -m bench.bench_scale [--quick] [--rigidity-only]
+    python -m bench.bench_scale [--quick] [--rigidity-only | --simulate-only | --exact-only]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import resource
 import subprocess
@@ -28,7 +30,10 @@ from typing import Any
 
 import numpy as np
 
-from formation import rigidity_check
+import leader.mst
+import leader.tree
+from formation import rigidity_check, rigidity_growth
+from formation.rigidity import expected_rigidity_rank, rigidity_rank
 from formation.rigidity_check import rank_under_mask
 from formation.rigidity_growth import growth_rounds, spans_without_any
 from formation.rigidity_stiffness import pinned_stiffness_definite
@@ -83,65 +88,124 @@ def load_times(tmp: Path) -> None:
 
 
 def healthy_masks(s: Scenario, epochs: int) -> np.ndarray:
-    """The leader's healthy edges under 10 % loss per link, ``either`` rule: (epochs, m)."""
+    """The leader's healthy edges under the scenario's loss, ``either`` rule: (epochs, m)."""
     plan = plan_batch(s, [SEED], epochs=epochs)
     return np.asarray(plan.on_time[:, 0]).reshape(epochs, -1, 2).any(axis=2)
 
 
 FAMILIES = {"henneberg": henneberg_team, "rigid_team": rigid_team, "geometric": geometric_team}
+BURSTY = {"formation_default": [{"model": "gilbert_elliott", "p": 1 / 30, "r": 0.3}]}
+"""Bursts of 3.3 epochs on average, 10 % of epochs lost: the Bernoulli rows' mean loss."""
 
 
-def family_team(family: str, d: int, redundancy: float, epochs: int) -> Scenario:
-    """A 10,000-agent team of a family (Henneberg only in the plane), 10 % loss, seed 1."""
-    fields = {"epochs": epochs, "network": LOSS, "strategy": {"name": "hold"}}
+def family_team(
+    family: str, d: int, redundancy: float, epochs: int, network: dict[str, Any] = LOSS
+) -> Scenario:
+    """A 10,000-agent team of a family (Henneberg only in the plane), seed 1."""
+    fields = {"epochs": epochs, "network": network, "strategy": {"name": "hold"}}
     if family == "henneberg":
         return henneberg_team(10_000, seed=SEED, redundancy=redundancy, **fields)
     return FAMILIES[family](10_000, d, redundancy, seed=SEED, **fields)
 
 
+def teams() -> list[tuple[str, int]]:
+    return [(f, d) for f in FAMILIES for d in ((2,) if f == "henneberg" else (2, 3))]
+
+
+class Before:
+    """The paths as they were: every growth candidate's directions by SVD, half-edges
+    sorted by 64-bit keys, the forests by a Python union-find, every covariance inverted.
+    Entered, it puts them back; left, it restores today's."""
+
+    def __enter__(self) -> None:
+        self.saved = (
+            rigidity_growth._surely_spanning,
+            rigidity_growth._half_edges,
+            leader.mst._compiled_scan,
+            leader.tree._inverses,
+        )
+        rigidity_growth._surely_spanning = _never_sure
+        rigidity_growth._half_edges = _half_edges_by_int64
+        leader.mst._compiled_scan = _union_find_forests
+        leader.tree._inverses = np.linalg.inv
+
+    def __exit__(self, *exc: object) -> None:
+        (
+            rigidity_growth._surely_spanning,
+            rigidity_growth._half_edges,
+            leader.mst._compiled_scan,
+            leader.tree._inverses,
+        ) = self.saved
+
+
+def _half_edges_by_int64(n: int, e0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    tail = np.concatenate([e0[:, 0], e0[:, 1]])
+    head = np.concatenate([e0[:, 1], e0[:, 0]])
+    order = np.argsort(tail, kind="stable")
+    return tail[order], head[order], np.searchsorted(tail[order], np.arange(n + 1))
+
+
+def _never_sure(
+    dirs: np.ndarray, padded: np.ndarray, first: np.ndarray, counts: np.ndarray
+) -> np.ndarray:
+    return np.zeros(counts.shape[0], dtype=bool)
+
+
+def _union_find_forests(
+    n: int, lo: np.ndarray, hi: np.ndarray, order: np.ndarray, healthy: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The batch's forests by the Python union-find, as the leader took them before."""
+    size = healthy.shape[0]
+    rank, member = np.nonzero(healthy[:, order].T)  # edge-major: members keep the order
+    edge = order[rank]
+    base = member * n
+    chosen, parent = leader.mst._union_find_scan(size * n, base + lo[edge], base + hi[edge])
+    tree = np.zeros(healthy.shape, dtype=bool)
+    tree[member[chosen], edge[chosen]] = True
+    return tree, leader.mst._roots(np.asarray(parent, dtype=np.int64)).reshape(size, n)
+
+
 def rigidity_per_epoch(epochs: int) -> None:
     print(
-        f"rigidity check per epoch, 10,000 agents, 10 % loss per link, {epochs} epochs, "
-        "each mask ranked afresh; before: where growth leaves a large component, the whole "
-        "framework's pinned stiffness; after: the stiffness of the agents outside the cluster"
+        f"rigidity check per epoch, 10,000 agents, {epochs} epochs, each mask ranked afresh, "
+        "CPU ms; loss 10 % per link, Bernoulli or in bursts (Gilbert-Elliott p 1/30, r 0.3); "
+        "before: every growth candidate by SVD, half-edges by a 64-bit sort; after: by a "
+        "determinant bound first, a 16-bit radix sort"
     )
     print(
-        f"{'team':28} {'rigid':>5} {'before ms':>9} {'max':>6} {'LU':>8} "
-        f"{'after ms':>8} {'max':>6} {'LU':>8} {'ratio':>6}"
+        f"{'team':34} {'rigid':>5} {'before ms':>9} {'max':>6} "
+        f"{'after ms':>8} {'max':>6} {'LU':>6} {'ratio':>6}"
     )
     print("(LU: epochs that reached the whole framework's pinned stiffness + R_U's check)")
-    for family in FAMILIES:
-        for d in (2,) if family == "henneberg" else (2, 3):
-            for redundancy in (0.1, 0.5):
-                s = family_team(family, d, redundancy, epochs)
+    for family, d in teams():
+        for redundancy in (0.1, 0.5):
+            for loss, network in (("Bernoulli", LOSS), ("bursty", BURSTY)):
+                s = family_team(family, d, redundancy, epochs, network)
                 masks = healthy_masks(s, epochs)
                 x, edges = s.offsets, s.edge_array
                 rounds, spread = growth_rounds(x, edges), spans_without_any(x)
                 times = np.zeros((2, epochs))
                 answers: list[list[tuple[int | None, bool]]] = [[], []]
-                counted = [0, 0, 0, 0]  # whole framework's stiffness, R_U's; before, after
+                counted = [0, 0]  # the whole framework's stiffness, R_U's; after
                 for k, mask in enumerate(masks):  # the two paths alternate: the same load
-                    for path, outside in enumerate((False, True)):
+                    for path in (0, 1):
                         calls.clear()
-                        t = time.perf_counter()
-                        answer = rank_under_mask(
-                            x, edges, rounds, mask, spread, outside_stiffness=outside
-                        )
-                        times[path, k] = (time.perf_counter() - t) * 1e3
+                        with Before() if path == 0 else contextlib.nullcontext():
+                            t = time.process_time()
+                            answer = rank_under_mask(x, edges, rounds, mask, spread)
+                            times[path, k] = (time.process_time() - t) * 1e3
                         answers[path].append(answer)
-                        whole = calls.count(pinned_stiffness_definite.__name__)
-                        counted[2 * path] += whole
-                        counted[2 * path + 1] += len(calls) - whole
+                        if path == 1:
+                            whole = calls.count(pinned_stiffness_definite.__name__)
+                            counted[0] += whole
+                            counted[1] += len(calls) - whole
                 before, after = times
-                old, new = answers
-                fell_before = f"{counted[0]}+{counted[1]}"
-                fell_after = f"{counted[2]}+{counted[3]}"
-                if [r for _, r in old] != [r for _, r in new]:
-                    raise SystemExit(f"{family} {d}-D: the two paths disagree on rigidity")
+                if answers[0] != answers[1]:
+                    raise SystemExit(f"{family} {d}-D: the two paths disagree")
                 print(
-                    f"{f'{family} {d}-D, {redundancy:.0%} spare':28} "
-                    f"{sum(r for _, r in new):5d} {before.mean():9.1f} {before.max():6.0f} "
-                    f"{fell_before:>8} {after.mean():8.1f} {after.max():6.0f} {fell_after:>8} "
+                    f"{f'{family} {d}-D, {redundancy:.0%} spare, {loss}':34} "
+                    f"{sum(r for _, r in answers[1]):5d} {before.mean():9.1f} {before.max():6.0f} "
+                    f"{after.mean():8.1f} {after.max():6.0f} {f'{counted[0]}+{counted[1]}':>6} "
                     f"{before.mean() / after.mean():6.2f}",
                     flush=True,
                 )
@@ -162,6 +226,61 @@ def _counted(stiffness: Callable[..., bool]) -> Callable[..., bool]:
 
 rigidity_check.pinned_stiffness_definite = _counted(rigidity_check.pinned_stiffness_definite)
 rigidity_check.outside_held = _counted(rigidity_check.outside_held)
+
+
+def exact_against_svd(sizes: tuple[int, ...], masks: int) -> None:
+    print(
+        "the large-formation path (rank_under_mask) against the dense SVD of the whole "
+        f"rigidity matrix, {masks} masks per team (edges lost at 1 %, 5 %, 30 %), seed 1"
+    )
+    print(f"{'team':30} {'agents':>6} {'masks':>5} {'rigid':>5} {'ranked':>6} {'agree':>5}")
+    rng = np.random.default_rng(SEED)
+    for family, d in teams():
+        for n in sizes:
+            for redundancy in (0.1, 0.5):
+                if family == "henneberg":
+                    s = henneberg_team(n, seed=SEED, redundancy=redundancy)
+                else:
+                    s = FAMILIES[family](n, d, redundancy, seed=SEED)
+                x, edges = s.offsets, s.edge_array
+                rounds, spread = growth_rounds(x, edges), spans_without_any(x)
+                need = expected_rigidity_rank(n, d)
+                rigid = ranked = agree = 0
+                for k in range(masks):
+                    mask = rng.random(len(edges)) >= (0.01, 0.05, 0.3)[k % 3]
+                    want = rigidity_rank(x, edges[mask])
+                    rank, is_rigid = rank_under_mask(x, edges, rounds, mask, spread)
+                    rigid += want == need
+                    ranked += rank is not None
+                    agree += is_rigid == (want == need) and rank in (want, None)
+                print(
+                    f"{f'{family} {d}-D, {redundancy:.0%} spare':30} {n:6d} {masks:5d} "
+                    f"{rigid:5d} {ranked:6d} {agree:5d}",
+                    flush=True,
+                )
+                if agree != masks:
+                    raise SystemExit(f"{family} {d}-D, {n} agents: not the SVD's answer")
+
+
+def simulate_families(epochs: int) -> None:
+    print(
+        f"formation simulate, 10,000 agents, 10 % Bernoulli loss, 10 % spare edges, {epochs} "
+        "epochs (and a 2-epoch run first), epochs per second of CPU; before and after alternate"
+    )
+    print(f"{'team':20} {'before /s':>9} {'after /s':>9} {'ratio':>6}")
+    for family, d in teams():
+        s = family_team(family, d, 0.1, epochs)
+        simulate(s.with_overrides(epochs=2), seed=SEED)
+        rates = []
+        for path in (0, 1):
+            with Before() if path == 0 else contextlib.nullcontext():
+                start = time.process_time()
+                simulate(s, seed=SEED)
+                rates.append(epochs / (time.process_time() - start))
+        print(
+            f"{f'{family} {d}-D':20} {rates[0]:9.2f} {rates[1]:9.2f} {rates[1] / rates[0]:6.2f}",
+            flush=True,
+        )
 
 
 def simulate_rates(quick: bool) -> None:
@@ -252,6 +371,8 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--quick", action="store_true", help="fewer epochs")
     p.add_argument("--rigidity-only", action="store_true", help="only the rigidity rows")
+    p.add_argument("--simulate-only", action="store_true", help="only simulate on each team family")
+    p.add_argument("--exact-only", action="store_true", help="only the SVD check, to 1,000 agents")
     args = p.parse_args()
     print(
         f"seed {SEED}; peak RSS of this process so far is in /proc; python {sys.version.split()[0]}"
@@ -259,9 +380,16 @@ def main() -> None:
     if args.rigidity_only:
         rigidity_per_epoch(20 if args.quick else 100)
         return
+    if args.simulate_only:
+        simulate_families(20 if args.quick else 100)
+        return
+    if args.exact_only:
+        exact_against_svd((200,) if args.quick else (200, 1000), 3 if args.quick else 6)
+        return
     with tempfile.TemporaryDirectory() as tmp:
         load_times(Path(tmp))
     rigidity_per_epoch(20 if args.quick else 100)
+    simulate_families(20 if args.quick else 100)
     simulate_rates(args.quick)
     leader_epoch(10 if args.quick else 30)
     sweep_cells(args.quick)

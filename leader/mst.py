@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 
 from formation.errors import GraphInputError, ShapeError
 from formation.graph import as_edge_array, as_edge_mask, check_agent_count
@@ -26,9 +28,8 @@ IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
 
 LABEL_SWEEP_RATIO = 12
-"""A batch scans by labels when ``m × 12 < B n``: ``m`` numpy steps cost less than ``B n``
-Python union-find steps (measured on the sweep's teams, ``bench/bench_sweep.py``; see
-:meth:`KruskalGraph.forests` for a timing)."""
+"""A batch scans by labels when ``m × 12 < B n``: many members of a small graph, the
+sweep's batches (``bench/bench_sweep.py``); others by the compiled scan."""
 
 
 def minimum_spanning_forest(
@@ -110,14 +111,13 @@ class KruskalGraph:
         of a disjoint union is the union of the members' forests, so one union-find scan
         gives each member exactly its own forest.
 
-        Many members of a small graph (``m × LABEL_SWEEP_RATIO < B n``) are scanned edge by
-        edge across the members instead, with labels for the components
-        (:func:`_label_sweep`): the union-find's ``B n`` Python steps become ``m`` numpy
-        steps. The same edges are kept (``tests/unit/leader/test_mst.py`` holds both paths
-        to :func:`minimum_spanning_forest`); where the sweep is taken it is faster (seed 5,
-        60 % of edges healthy, best of 7: paper, n = 5, B = 100 / 1,000 / 4,000: 0.13 / 1.2 /
-        11.7 ms by union-find, 0.06 / 0.19 / 0.64 ms by labels; grid20, n = 20, B = 100 /
-        1,000: 0.98 / 12.8 ms against 0.38 / 1.8 ms).
+        The scan is SciPy's compiled Kruskal (:func:`scipy.sparse.csgraph.minimum_spanning_tree`)
+        with each edge weighted by its place in the order: distinct weights have one minimum
+        forest, the one the scan in that order keeps. Many members of a small graph
+        (``m × LABEL_SWEEP_RATIO < B n``) are scanned edge by edge across the members
+        instead, with labels for the components (:func:`_label_sweep`). The same edges are
+        kept (``tests/unit/leader/test_mst.py`` holds both paths to
+        :func:`minimum_spanning_forest`).
 
         Parameters
         ----------
@@ -137,13 +137,37 @@ class KruskalGraph:
             raise ShapeError("healthy", healthy.shape, f"(B, {m}) bool")
         if m * LABEL_SWEEP_RATIO < size * count:
             return _label_sweep(count, self.lo, self.hi, self.order, healthy)
-        rank, member = np.nonzero(healthy[:, self.order].T)  # edge-major: members keep the order
-        edge = self.order[rank]
-        base = member * count
-        chosen, parent = _union_find_scan(size * count, base + self.lo[edge], base + self.hi[edge])
-        tree = np.zeros(healthy.shape, dtype=bool)
-        tree[member[chosen], edge[chosen]] = True
-        return tree, _roots(np.asarray(parent, dtype=np.int64)).reshape(size, count)
+        return _compiled_scan(count, self.lo, self.hi, self.order, healthy)
+
+
+def _compiled_scan(
+    n: int, lo: IntArray, hi: IntArray, order: IntArray, healthy: BoolArray
+) -> tuple[BoolArray, IntArray]:
+    """Kruskal's forest of each member by SciPy, each edge weighted ``1 + its place in order``.
+
+    Members are disjoint blocks of one graph of ``B n`` nodes. An edge listed twice
+    would be summed into one entry, so the later of two copies (never kept: its ends are
+    joined by then) is dropped first.
+    """
+    size, m = healthy.shape
+    place = np.empty(m, dtype=np.int64)
+    place[order] = np.arange(m)
+    member, edge = np.nonzero(healthy)
+    pair = (member * n + lo[edge]) * n + hi[edge]
+    by = np.lexsort((place[edge], pair))
+    first = by[np.r_[True, pair[by][1:] != pair[by][:-1]]] if by.size else by
+    member, edge = member[first], edge[first]
+    base = member * n
+    graph = csr_matrix(
+        ((place[edge] + 1).astype(np.float64), (base + lo[edge], base + hi[edge])),
+        shape=(size * n, size * n),
+    )
+    forest = minimum_spanning_tree(graph).tocoo()
+    kept = order[forest.data.astype(np.int64) - 1]
+    tree = np.zeros(healthy.shape, dtype=bool)
+    tree[forest.row // n, kept] = True
+    labels = connected_components(forest, directed=False)[1].astype(np.int64)
+    return tree, labels.reshape(size, n)
 
 
 def _label_sweep(

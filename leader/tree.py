@@ -67,13 +67,13 @@ def fuse_parallel(
     d = z.shape[1]
     rows = np.flatnonzero(counts[group] > 1)
     oriented = np.where((e[rows, 0] == lo[rows])[:, None], z[rows], -z[rows])  # x_lo − x_hi
-    info = np.linalg.inv(p[rows])
+    info = _inverses(p[rows])
     info_sum = np.zeros((keys.size, d, d))
     np.add.at(info_sum, group[rows], info)
     weighted = np.zeros((keys.size, d))
     np.add.at(weighted, group[rows], np.einsum("eab,eb->ea", info, oriented))
     multi = np.flatnonzero(counts > 1)
-    fused_p = np.linalg.inv(info_sum[multi])
+    fused_p = _inverses(info_sum[multi])
     fused_p = 0.5 * (fused_p + fused_p.transpose(0, 2, 1))
     out_e, out_z, out_p = e[first], z[first], p[first]
     out_e[multi] = np.stack([keys[multi] // n, keys[multi] % n], axis=1)
@@ -81,6 +81,19 @@ def fuse_parallel(
     out_p[multi] = fused_p
     order = np.argsort(first)
     return out_e[order], out_z[order], out_p[order]
+
+
+def _inverses(m: FloatArray) -> FloatArray:
+    """``np.linalg.inv`` of each matrix of a stack ``(k, d, d)``; one inversion if all are equal.
+
+    A team's covariances are mostly one matrix, as are their fused sums: the same floats
+    as inverting every copy, without thousands of small LAPACK calls.
+    """
+    if m.shape[0] > 1 and (m == m[0]).all():
+        out: FloatArray = np.broadcast_to(np.linalg.inv(m[:1]), m.shape).copy()
+    else:
+        out = np.linalg.inv(m).astype(np.float64, copy=False)
+    return out
 
 
 def tree_solve(

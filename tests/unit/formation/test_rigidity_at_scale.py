@@ -10,9 +10,20 @@ import numpy as np
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from formation.rigidity import expected_rigidity_rank, rigidity_matrix, rigidity_rank
+from formation.rigidity import (
+    batched_ranks,
+    expected_rigidity_rank,
+    rigidity_matrix,
+    rigidity_rank,
+)
 from formation.rigidity_check import is_rigid, rank_under_mask
-from formation.rigidity_growth import grown_cluster, growth_rounds, rank_beyond_cluster
+from formation.rigidity_growth import (
+    _direction_ranks,
+    _surely_spanning,
+    grown_cluster,
+    growth_rounds,
+    rank_beyond_cluster,
+)
 from formation.rigidity_stiffness import pinned_stiffness_definite
 from leader.rigidity import UNKNOWN_RANK, HealthyRigidity
 from testbed.sim.team_generators import rigid_team
@@ -197,3 +208,30 @@ def test_the_rank_per_epoch_is_exact_where_the_growth_order_mostly_holds() -> No
             assert rank == want
             known += 1
     assert known >= 27  # unknown only where vertex addition stalls at the seed
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    d=st.sampled_from([2, 3]),
+    seed=st.integers(0, 10_000),
+    tilt=st.sampled_from([0.0, 1e-12, 1e-9, 1e-6, 1.0]),
+)
+def test_direction_ranks_without_an_svd_are_the_svds(d: int, seed: int, tilt: float) -> None:
+    # stacks of 1..12 directions, some all but one on a line (plane) tilted off it by `tilt`
+    rng = np.random.default_rng(seed)
+    counts = rng.integers(1, 13, size=40)
+    heads = rng.normal(size=(int(counts.sum()), d))
+    flat = rng.random(counts.size) < 0.5
+    rows = np.repeat(flat, counts)
+    heads[rows, -1] = tilt * rng.normal(size=int(rows.sum()))
+    tail = np.zeros(heads.shape[0], dtype=np.int64)
+    x = np.vstack([np.zeros((1, d)), heads])
+    ranks = _direction_ranks(x, tail, np.arange(1, x.shape[0]), counts)
+    unit = heads / np.linalg.norm(heads, axis=1, keepdims=True)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    want = [batched_ranks(unit[a : a + c][None])[0] for a, c in zip(first, counts, strict=True)]
+    np.testing.assert_array_equal(ranks, want)
+    if tilt == 1.0:
+        padded = np.append(np.arange(unit.shape[0]), -1)
+        dirs = np.vstack([unit, np.zeros((1, d))])
+        assert _surely_spanning(dirs, padded, first, counts).any()

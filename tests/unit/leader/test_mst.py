@@ -176,7 +176,7 @@ def test_bad_inputs_say_expected_vs_actual() -> None:
         minimum_spanning_forest(3, edges, [1.0, 2.0], [0.5, 1.0])
 
 
-@pytest.mark.parametrize("sweep_ratio", [0, 10**9], ids=["label sweep", "union-find"])
+@pytest.mark.parametrize("sweep_ratio", [0, 10**9], ids=["label sweep", "compiled"])
 def test_batch_forest_is_kruskals(
     paper: Scenario, sweep_ratio: int, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -193,3 +193,16 @@ def test_batch_forest_is_kruskals(
             want[minimum_spanning_forest(scen.n, scen.edge_array, scen.weights, healthy[b])] = True
             np.testing.assert_array_equal(tree[b], want)
             assert len(np.unique(labels[b])) == scen.n - want.sum()
+
+
+def test_batch_forest_of_an_edge_listed_twice_keeps_the_first_copy() -> None:
+    edges = np.array([(1, 2), (2, 3), (1, 2), (1, 3)])
+    weights = np.array([2.0, 1.0, 0.5, 3.0])
+    healthy = np.array([[True, True, True, True], [True, True, False, True]])
+    tree, labels = KruskalGraph.of(3, edges, weights).forests(healthy)
+    for b in range(2):
+        want = np.zeros(4, dtype=bool)
+        want[minimum_spanning_forest(3, edges, weights, healthy[b])] = True
+        np.testing.assert_array_equal(tree[b], want)
+    assert tree.tolist() == [[False, True, True, False], [True, True, False, False]]
+    assert len(np.unique(labels)) == 2
