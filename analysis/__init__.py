@@ -30,7 +30,13 @@ from analysis.metrics import (
 from analysis.queues import loss_split
 from analysis.record import Decisions, Recorded, RunData, Substitutions
 from analysis.safety import safety_counts, safety_lines
-from analysis.summary import final_value, robot_counts_line, run_team_errors, summarise
+from analysis.summary import (
+    final_value,
+    robot_counts_line,
+    run_team_errors,
+    summarise,
+    tracking_lines,
+)
 from formation.first_use import load_on_first_use
 
 if TYPE_CHECKING:
@@ -68,4 +74,5 @@ __all__ = [
     "team_edges",
     "team_errors",
     "team_shape_error",
+    "tracking_lines",
 ]

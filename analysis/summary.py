@@ -134,6 +134,16 @@ def robot_counts_line(counts: Mapping[str, int]) -> str:
     )
 
 
+def tracking_lines(tracking: Mapping[str, Any]) -> list[str]:
+    """Each robot's tracking error (:func:`robot_tracking`), and its warning, in words."""
+    lines = [
+        f"robot {i}: tracking error final {e['final_m']:.4g} m, peak {e['peak_m']:.4g} m, "
+        f"RMS {e['rms_m']:.4g} m (its measured pose against its agent's state)"
+        for i, e in tracking["robots"].items()
+    ]
+    return lines + ([tracking["warning"]] if tracking["warning"] else [])
+
+
 def robot_tracking(run: RunData) -> dict[str, Any]:
     """Each robot's tracking error, its measured pose against its agent's state [m]: final,
     peak and RMS over the epochs it took part in; ``warning`` names those whose peak passes

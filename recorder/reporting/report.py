@@ -15,7 +15,14 @@ from typing import Any
 
 import numpy as np
 
-from analysis import RunData, robot_counts_line, run_team_errors, safety_lines, summarise
+from analysis import (
+    RunData,
+    robot_counts_line,
+    run_team_errors,
+    safety_lines,
+    summarise,
+    tracking_lines,
+)
 from formation.rigidity import expected_rigidity_rank
 from recorder.reading.run import read_run
 from recorder.reporting import network_plots, plots
@@ -336,13 +343,9 @@ def _robot_lines(sums: list[dict[str, Any]]) -> list[str]:
         if "robot_counts" in s:
             lines.append(f"- {s['label']}: {robot_counts_line(s['robot_counts'])}")
         t = s.get("tracking", {"robots": {}, "warning": None})
-        for i, e in t["robots"].items():
-            lines.append(
-                f"- {s['label']}: robot {i}: tracking error final {e['final_m']:.4g} m, "
-                f"peak {e['peak_m']:.4g} m, RMS {e['rms_m']:.4g} m"
-            )
-        if t["warning"]:
-            lines.append(f"- {s['label']}: **{t['warning']}**")
+        told = tracking_lines(t)
+        lines += [f"- {s['label']}: {line}" for line in told[: len(t["robots"])]]
+        lines += [f"- {s['label']}: **{line}**" for line in told[len(t["robots"]) :]]
     return lines
 
 

@@ -12,24 +12,16 @@ def robot_notes(
     strategy: str, summary: dict[str, Any], recorded: dict[str, Any] | None
 ) -> list[str]:
     """Each robot's tracking error (from the recording) and the agents' pose counts."""
-    lines = []
+    from analysis import robot_counts_line, tracking_lines  # here: --help loads no numerics
+
     tracking = (recorded or {}).get("tracking")
-    if tracking:
-        for i, e in tracking["robots"].items():
-            lines.append(
-                f"{strategy}: robot {i}: tracking error final {e['final_m']:.4g} m, "
-                f"peak {e['peak_m']:.4g} m (its measured pose against its agent's state)"
-            )
-        if tracking["warning"]:
-            lines.append(f"{strategy}: {tracking['warning']}")
+    lines = [f"{strategy}: {line}" for line in tracking_lines(tracking)] if tracking else []
     counts = (recorded or {}).get("robot_counts") or {
         k.removeprefix("body_"): v
         for k, v in summary.get("deadline", {}).items()
         if k.startswith("body_")
     }  # as recorded, else as the launcher saw the statuses (--no-record)
     if counts:
-        from analysis import robot_counts_line  # here: `formation run --help` loads no numerics
-
         lines.append(f"{strategy}: {robot_counts_line(counts)}")
     return lines
 
