@@ -58,7 +58,7 @@ def lockstep_rate(
             agents = [p for name, p in pids.items() if name.startswith(("agent", "pool"))]
             peak[0] = max(peak_rss_kib(p) for p in agents)
 
-    launch(scenario, seed=SEED, runs_dir=runs, record=False, pool=pool, progress=progress)
+    out = launch(scenario, seed=SEED, runs_dir=runs, record=False, pool=pool, progress=progress)
     seen = sorted(k for k in marks if first <= k <= last)
     rate = (seen[-1] - seen[0]) / (marks[seen[-1]] - marks[seen[0]])
     by_role: dict[str, float] = {}
@@ -68,6 +68,7 @@ def lockstep_rate(
             continue  # exited before the second mark
         role = _role(name)
         by_role[role] = by_role.get(role, 0.0) + 1e3 * (t - c0.get(name, 0.0)) / max(k1 - k0, 1)
+    by_role["messages"] = sum(out.sent.values()) / scenario.epochs  # published, every process
     sim_rate = simulator_rate(scenario)
     for p in runs.glob("*"):
         subprocess.run(["rm", "-rf", str(p)], check=False)
@@ -180,11 +181,17 @@ def main() -> None:
                 f"{name:28} {rate:9.1f} {sim_rate:9.1f} {rate / sim_rate:7.3f} {rss / 1024:14.1f}  {spread}",
                 flush=True,
             )
-            cpu = runs[-1][3]  # where an epoch's CPU goes, last run
+            cpu = dict(runs[-1][3])  # where an epoch's CPU goes, last run
+            messages = cpu.pop("messages")
             agents = min(pool or scenario.n, scenario.n)
-            print(f"{'':28}   CPU ms/epoch: agents {cpu.pop('agents', 0):.1f} "
-                  f"({agents} processes), "
-                  + ", ".join(f"{role} {ms:.1f}" for role, ms in sorted(cpu.items())), flush=True)  # fmt: skip
+            total = sum(cpu.values())
+            print(
+                f"{'':28}   CPU ms/epoch: agents {cpu.pop('agents', 0):.1f} ({agents} processes), "
+                + ", ".join(f"{role} {ms:.1f}" for role, ms in sorted(cpu.items()))
+                + f"; router {100 * cpu.get('router', 0.0) / total:.0f} % of {total:.0f}; "
+                f"{messages:.0f} messages published an epoch",
+                flush=True,
+            )
     direct, hop = netem_hop_latency()
     p50d, p99d, p50h, p99h = (
         float(np.percentile(a, q)) for a, q in ((direct, 50), (direct, 99), (hop, 50), (hop, 99))
