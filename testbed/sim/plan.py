@@ -23,6 +23,7 @@ from agent import measurement_noise
 from formation.errors import BatchError
 from formation.events import Membership, membership
 from formation.keys import LEADER_ENDPOINT
+from formation.linkmodels import LinkModelSpec
 from formation.scenario import Scenario
 from netem import DeliveryPlan, capacity_plan, delivery_plan
 
@@ -133,6 +134,28 @@ def _structure(s: Scenario) -> dict[str, Any]:
     return data
 
 
+def _link_stacks(s: Scenario, links: Ints) -> list[tuple[LinkModelSpec, ...]]:
+    """Every link's model stack in the plan's order: formation links, reports, estimates.
+
+    Only the links an entry of ``network`` names are looked up; the others share the
+    default stack (the same object the lookup returns), so a team of thousands costs
+    one pass over the entries, not one per link.
+    """
+    named = {tuple(link.between) for link in s.network.links}
+    named |= {(b, a) for a, b in named}
+    formation = [
+        s.formation_link_models(a, c) if (a, c) in named else s.network.formation_default
+        for a, c in links.tolist()
+    ]
+    agents = {link.agent for link in s.network.control}
+    control = [
+        s.control_link_models(i, kind) if i in agents else s.network.control_default
+        for kind in ("report", "estimate")
+        for i in range(1, s.n + 1)
+    ]
+    return formation + control
+
+
 def plan_batch(
     scenarios: Scenario | Sequence[Scenario],
     seeds: Sequence[int],
@@ -163,12 +186,13 @@ def plan_batch(
         )
     base = members[0]
     n_epochs = base.epochs if epochs is None else int(epochs)
-    shared = _structure(base)
+    shared: dict[str, Any] | None = None  # dumped only when a member is another object
     checked = {id(base)}
     for b, s in enumerate(members):
         if id(s) in checked:
             continue
         checked.add(id(s))
+        shared = _structure(base) if shared is None else shared
         if _structure(s) != shared:
             diff = sorted(k for k, v in _structure(s).items() if shared.get(k) != v)
             raise BatchError(
@@ -202,11 +226,7 @@ def plan_batch(
             net_of[id(s)] = s.network.model_dump_json()
         net = net_of[id(s)]
         if net not in stacks:
-            stacks[net] = (
-                [s.formation_link_models(int(a), int(c)) for a, c in links]
-                + [s.control_link_models(i, "report") for i in range(1, n + 1)]
-                + [s.control_link_models(i, "estimate") for i in range(1, n + 1)]
-            )
+            stacks[net] = _link_stacks(s, links)
         key = (net, seed)
         if key not in cache:
             decided = delivery_plan(stacks[net], seed, all_links, n_epochs)
