@@ -143,10 +143,14 @@ def _link_stacks(s: Scenario, links: Ints) -> list[tuple[LinkModelSpec, ...]]:
     """
     named = {tuple(link.between) for link in s.network.links}
     named |= {(b, a) for a, b in named}
-    formation = [
-        s.formation_link_models(a, c) if (a, c) in named else s.network.formation_default
-        for a, c in links.tolist()
-    ]
+    formation = (
+        [
+            s.formation_link_models(a, c) if (a, c) in named else s.network.formation_default
+            for a, c in links.tolist()
+        ]
+        if named
+        else [s.network.formation_default] * len(links)
+    )
     agents = {link.agent for link in s.network.control}
     control = [
         s.control_link_models(i, kind) if i in agents else s.network.control_default
