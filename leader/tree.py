@@ -157,7 +157,7 @@ def tree_solve(
     keys = lo * n + hi
     sort = np.argsort(keys)
     want = np.minimum(nodes, parents) * n + np.maximum(nodes, parents)
-    edge = sort[np.searchsorted(keys, want, sorter=sort)]
+    edge = sort[np.searchsorted(keys[sort], want)]  # the sorted copy: no indirect search
     # z_e = x_i − x_j, so x_node − x_parent = +z_e when the node is i, −z_e when it is j
     sign = np.where(e[edge, 0] == nodes, 1.0, -1.0)
     anc = np.arange(n)
@@ -173,9 +173,9 @@ def tree_solve(
         up = anc[anc]
         if np.array_equal(up, anc):
             break
-        rel = rel + rel[anc]
+        rel += rel[anc]  # the gather is a copy: every node adds its ancestor's old sum
         if acc is not None:
-            acc = acc + acc[anc]
+            acc += acc[anc]
         anc = up
     positions[nodes] = x_r + rel[nodes]
     if blocks is not None and acc is not None:
