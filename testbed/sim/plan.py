@@ -31,6 +31,8 @@ Mask = npt.NDArray[np.bool_]
 Ints = npt.NDArray[np.int64]
 Array = npt.NDArray[np.float64]
 
+NOISE_DRAWS = 1 << 20  # noise draws per block of epochs (plan_batch)
+
 # Fields members of one batch may differ in: the rest is the shared structure.
 VARIANT_FIELDS = ("name", "description", "seed", "epochs", "network", "runtime", "recording")
 
@@ -127,6 +129,27 @@ def offered(passed: Mask, present: Mask | None, links: Ints, n: int) -> Mask:
     return np.asarray(passed & on, dtype=np.bool_)
 
 
+def _noise(
+    cov: Array, seeds: Ints, src: Ints, dst: Ints, n_epochs: int, draws: int = NOISE_DRAWS
+) -> Array:
+    """(S, E, L, d) every link's measurement noise for each seed [m], a block of epochs at a time.
+
+    The draws are keyed, so a block gets the numbers the whole run gets; the hash's
+    temporaries stay a few megabytes (``draws`` numbers) instead of the size of the run.
+    """
+    out = np.zeros((seeds.size, n_epochs, src.size, cov.shape[0]))
+    if not src.size:
+        return out
+    step = max(1, draws // (src.size * cov.shape[0]))
+    for row, seed in enumerate(seeds.tolist()):
+        for k in range(0, n_epochs, step):
+            epochs = np.arange(k, min(k + step, n_epochs))[:, None]
+            out[row, k : k + step] = measurement_noise(
+                cov, seed, dst[None, :], src[None, :], epochs
+            )
+    return out
+
+
 def _structure(s: Scenario) -> dict[str, Any]:
     data = s.model_dump()
     for key in VARIANT_FIELDS:
@@ -204,7 +227,7 @@ def plan_batch(
                 f"differs from member 0 in {', '.join(diff)}; "
                 f"members may differ only in {', '.join(VARIANT_FIELDS)}",
             )
-    n, d = base.n, base.dimension
+    n = base.n
     links = base.directed_links
     n_links = len(links)
     ctl_links = np.array(
@@ -277,18 +300,7 @@ def plan_batch(
 
     distinct, seed_row = np.unique(seed_arr, return_inverse=True)
     src, dst = links[:, 0], links[:, 1]
-    epochs_col = np.arange(n_epochs)[:, None]
-    cov = base.noise_covariance
-    noise = (
-        np.stack(
-            [
-                measurement_noise(cov, int(s), dst[None, :], src[None, :], epochs_col)
-                for s in distinct.tolist()
-            ]
-        )
-        if n_links
-        else np.zeros((distinct.size, n_epochs, 0, d))
-    )
+    noise = _noise(base.noise_covariance, distinct, src, dst, n_epochs)
     x0 = np.stack([base.initial_positions(int(s)) for s in distinct.tolist()])
     team = membership(n, n_epochs, base.events) if base.events else None
     return BatchPlan(
