@@ -42,9 +42,7 @@ def displacement_command(
     (n, d) position increment [m]
     """
     terms = np.where(used[:, None], relative - desired, 0.0)
-    out = np.zeros((n, relative.shape[1]))
-    np.add.at(out, receivers, terms)
-    return -epsilon * out
+    return -epsilon * _per_agent(n, receivers, terms)
 
 
 def distance_command(
@@ -61,9 +59,18 @@ def distance_command(
     """
     gap = np.einsum("ld,ld->l", relative, relative) - distance_sq
     terms = np.where(used[:, None], gap[:, None] * relative, 0.0)
-    out = np.zeros((n, relative.shape[1]))
-    np.add.at(out, receivers, terms)
-    return -epsilon * out
+    return -epsilon * _per_agent(n, receivers, terms)
+
+
+def _per_agent(n: int, receivers: npt.NDArray[np.int64], terms: Array) -> Array:
+    """(n, d) each agent's sum of its links' ``terms`` (L, d), added in link order from 0.0.
+
+    The order and the floats of ``np.add.at``; ``np.bincount`` adds a column at a time.
+    """
+    out = np.empty((n, terms.shape[1]))
+    for c in range(terms.shape[1]):
+        out[:, c] = np.bincount(receivers, weights=terms[:, c], minlength=n)
+    return out
 
 
 def _displacement(x: ControlInputs, params: Any) -> Array:

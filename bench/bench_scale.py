@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+import agent.control
 import leader.mst
 import leader.tree
 from formation import rigidity_check, rigidity_growth
@@ -114,8 +115,9 @@ def teams() -> list[tuple[str, int]]:
 
 class Before:
     """The paths as they were: every growth candidate's directions by SVD, half-edges
-    sorted by 64-bit keys, the forests by a Python union-find, every covariance inverted.
-    Entered, it puts them back; left, it restores today's."""
+    sorted by 64-bit keys, the forests by a Python union-find, every covariance inverted,
+    sums per group and per agent by ``np.add.at``. Entered, it puts them back; left, it
+    restores today's."""
 
     def __enter__(self) -> None:
         self.saved = (
@@ -123,11 +125,15 @@ class Before:
             rigidity_growth._half_edges,
             leader.mst._compiled_scan,
             leader.tree._inverses,
+            leader.tree._group_sums,
+            agent.control._per_agent,
         )
         rigidity_growth._surely_spanning = _never_sure
         rigidity_growth._half_edges = _half_edges_by_int64
         leader.mst._compiled_scan = _union_find_forests
         leader.tree._inverses = np.linalg.inv
+        leader.tree._group_sums = _group_sums_by_add_at
+        agent.control._per_agent = _per_agent_by_add_at
 
     def __exit__(self, *exc: object) -> None:
         (
@@ -135,7 +141,19 @@ class Before:
             rigidity_growth._half_edges,
             leader.mst._compiled_scan,
             leader.tree._inverses,
+            leader.tree._group_sums,
+            agent.control._per_agent,
         ) = self.saved
+
+
+def _group_sums_by_add_at(group: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
+    out = np.zeros((size, *values.shape[1:]))
+    np.add.at(out, group, values)
+    return out
+
+
+def _per_agent_by_add_at(n: int, receivers: np.ndarray, terms: np.ndarray) -> np.ndarray:
+    return _group_sums_by_add_at(receivers, terms, n)
 
 
 def _half_edges_by_int64(n: int, e0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

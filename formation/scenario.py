@@ -10,6 +10,7 @@ scenario in :mod:`formation.scenario_checks`.
 
 from __future__ import annotations
 
+import math
 import tomllib
 from functools import cached_property
 from pathlib import Path
@@ -62,18 +63,23 @@ class Scenario(ScenarioFields):
     @cached_property
     def edge_array(self) -> npt.NDArray[np.int64]:
         """Formation edges as an (m, 2) array of agent ids, smaller id first."""
-        return np.array([sorted(e.between) for e in self.edges], dtype=np.int64).reshape(-1, 2)
+        pairs = np.array([e.between for e in self.edges], dtype=np.int64).reshape(-1, 2)
+        return np.sort(pairs, axis=1)
 
     @cached_property
     def weights(self) -> npt.NDArray[np.float64]:
         """Edge weights ``w_ij`` (the desired distances ``C_ij`` unless given): (m,) [m]."""
-        d0 = self.offsets
-        out = []
-        for e, (i, j) in zip(self.edges, self.edge_array, strict=True):
-            out.append(
-                e.weight if e.weight is not None else float(np.linalg.norm(d0[i - 1] - d0[j - 1]))
-            )
-        return np.array(out, dtype=float)
+        ends = self.edge_array - 1
+        diffs = self.offsets[ends[:, 0]] - self.offsets[ends[:, 1]]
+        # The norm as np.linalg.norm takes it of one vector, sqrt(v·v): the same last bit
+        # (a norm over an axis sums the squares in another order).
+        return np.array(
+            [
+                e.weight if e.weight is not None else math.sqrt(v.dot(v))
+                for e, v in zip(self.edges, diffs, strict=True)
+            ],
+            dtype=float,
+        )
 
     @cached_property
     def noise_covariance(self) -> npt.NDArray[np.float64]:

@@ -152,11 +152,17 @@ def _compiled_scan(
     size, m = healthy.shape
     place = np.empty(m, dtype=np.int64)
     place[order] = np.arange(m)
-    member, edge = np.nonzero(healthy)
-    pair = (member * n + lo[edge]) * n + hi[edge]
-    by = np.lexsort((place[edge], pair))
-    first = by[np.r_[True, pair[by][1:] != pair[by][:-1]]] if by.size else by
-    member, edge = member[first], edge[first]
+    by_pair = np.argsort(lo * n + hi, kind="stable")
+    pairs = (lo * n + hi)[by_pair]
+    if np.all(pairs[1:] != pairs[:-1]):  # no edge listed twice: sorted by pair, member-major
+        member, at = np.nonzero(healthy[:, by_pair])
+        edge = by_pair[at]
+    else:
+        member, edge = np.nonzero(healthy)
+        pair = (member * n + lo[edge]) * n + hi[edge]
+        by = np.lexsort((place[edge], pair))
+        first = by[np.r_[True, pair[by][1:] != pair[by][:-1]]] if by.size else by
+        member, edge = member[first], edge[first]
     base = member * n
     graph = csr_matrix(
         ((place[edge] + 1).astype(np.float64), (base + lo[edge], base + hi[edge])),

@@ -64,14 +64,11 @@ def fuse_parallel(
     keys, first, group, counts = np.unique(
         pair, return_index=True, return_inverse=True, return_counts=True
     )
-    d = z.shape[1]
     rows = np.flatnonzero(counts[group] > 1)
     oriented = np.where((e[rows, 0] == lo[rows])[:, None], z[rows], -z[rows])  # x_lo − x_hi
     info = _inverses(p[rows])
-    info_sum = np.zeros((keys.size, d, d))
-    np.add.at(info_sum, group[rows], info)
-    weighted = np.zeros((keys.size, d))
-    np.add.at(weighted, group[rows], np.einsum("eab,eb->ea", info, oriented))
+    info_sum = _group_sums(group[rows], info, keys.size)
+    weighted = _group_sums(group[rows], np.einsum("eab,eb->ea", info, oriented), keys.size)
     multi = np.flatnonzero(counts > 1)
     fused_p = _inverses(info_sum[multi])
     fused_p = 0.5 * (fused_p + fused_p.transpose(0, 2, 1))
@@ -81,6 +78,19 @@ def fuse_parallel(
     out_p[multi] = fused_p
     order = np.argsort(first)
     return out_e[order], out_z[order], out_p[order]
+
+
+def _group_sums(group: IntArray, values: FloatArray, size: int) -> FloatArray:
+    """Per group ``g < size`` the sum of the rows ``values[group == g]``, added in row order.
+
+    ``np.bincount`` adds each row into its group in order from 0.0, as ``np.add.at``
+    does (the same floats), one column at a time instead of one row at a time.
+    """
+    flat = values.reshape(values.shape[0], -1)
+    out = np.empty((size, flat.shape[1]))
+    for c in range(flat.shape[1]):
+        out[:, c] = np.bincount(group, weights=flat[:, c], minlength=size)
+    return out.reshape(size, *values.shape[1:])
 
 
 def _inverses(m: FloatArray) -> FloatArray:
@@ -147,7 +157,7 @@ def tree_solve(
     keys = lo * n + hi
     sort = np.argsort(keys)
     want = np.minimum(nodes, parents) * n + np.maximum(nodes, parents)
-    edge = sort[np.searchsorted(keys, want, sorter=sort)]
+    edge = sort[np.searchsorted(keys[sort], want)]  # the sorted copy: no indirect search
     # z_e = x_i − x_j, so x_node − x_parent = +z_e when the node is i, −z_e when it is j
     sign = np.where(e[edge, 0] == nodes, 1.0, -1.0)
     anc = np.arange(n)
@@ -163,9 +173,9 @@ def tree_solve(
         up = anc[anc]
         if np.array_equal(up, anc):
             break
-        rel = rel + rel[anc]
+        rel += rel[anc]  # the gather is a copy: every node adds its ancestor's old sum
         if acc is not None:
-            acc = acc + acc[anc]
+            acc += acc[anc]
         anc = up
     positions[nodes] = x_r + rel[nodes]
     if blocks is not None and acc is not None:

@@ -140,15 +140,21 @@ def delivery_plan(
     delay_epochs = np.zeros((n_links, n_epochs), np.int64)
     delay_ms = np.zeros((n_links, n_epochs), np.float64)
     reordered = np.zeros((n_links, n_epochs), np.bool_)
-    groups: dict[tuple[LinkModelSpec, ...], list[int]] = {}
+    # Links sharing one stack object are grouped by identity first: hashing the models
+    # of every link of a large team costs more than deciding them.
+    by_object: dict[int, tuple[Sequence[LinkModelSpec], list[int]]] = {}
     for i, specs in enumerate(specs_per_link):
-        groups.setdefault(tuple(specs), []).append(i)
+        by_object.setdefault(id(specs), (specs, []))[1].append(i)
+    groups: dict[tuple[LinkModelSpec, ...], list[int]] = {}
+    for specs, members in by_object.values():
+        groups.setdefault(tuple(specs), []).extend(members)
     ranged: list[DistanceGroup] = []
     for stack_specs, members in groups.items():
-        idx = np.asarray(members, dtype=np.int64)
+        idx = np.sort(np.asarray(members, dtype=np.int64))
         name = f"{pairs[idx[0], 0]}→{pairs[idx[0], 1]}"
         for j in (0, 1):
-            for v in pairs[idx, j].tolist():
+            ends = pairs[idx, j]
+            for v in ends[ends < 0][:1].tolist():  # int64: none reaches 2**63
                 check_key(name, "src" if j == 0 else "dst", v)
         check_key(name, "seed", seed)
         stack = build_stack(stack_specs, name)

@@ -23,12 +23,15 @@ from agent import measurement_noise
 from formation.errors import BatchError
 from formation.events import Membership, membership
 from formation.keys import LEADER_ENDPOINT
+from formation.linkmodels import LinkModelSpec
 from formation.scenario import Scenario
 from netem import DeliveryPlan, capacity_plan, delivery_plan
 
 Mask = npt.NDArray[np.bool_]
 Ints = npt.NDArray[np.int64]
 Array = npt.NDArray[np.float64]
+
+NOISE_DRAWS = 1 << 20  # noise draws per block of epochs (plan_batch)
 
 # Fields members of one batch may differ in: the rest is the shared structure.
 VARIANT_FIELDS = ("name", "description", "seed", "epochs", "network", "runtime", "recording")
@@ -126,11 +129,58 @@ def offered(passed: Mask, present: Mask | None, links: Ints, n: int) -> Mask:
     return np.asarray(passed & on, dtype=np.bool_)
 
 
+def _noise(
+    cov: Array, seeds: Ints, src: Ints, dst: Ints, n_epochs: int, draws: int = NOISE_DRAWS
+) -> Array:
+    """(S, E, L, d) every link's measurement noise for each seed [m], a block of epochs at a time.
+
+    The draws are keyed, so a block gets the numbers the whole run gets; the hash's
+    temporaries stay a few megabytes (``draws`` numbers) instead of the size of the run.
+    """
+    out = np.zeros((seeds.size, n_epochs, src.size, cov.shape[0]))
+    if not src.size:
+        return out
+    step = max(1, draws // (src.size * cov.shape[0]))
+    for row, seed in enumerate(seeds.tolist()):
+        for k in range(0, n_epochs, step):
+            epochs = np.arange(k, min(k + step, n_epochs))[:, None]
+            out[row, k : k + step] = measurement_noise(
+                cov, seed, dst[None, :], src[None, :], epochs
+            )
+    return out
+
+
 def _structure(s: Scenario) -> dict[str, Any]:
     data = s.model_dump()
     for key in VARIANT_FIELDS:
         data.pop(key, None)
     return data
+
+
+def _link_stacks(s: Scenario, links: Ints) -> list[tuple[LinkModelSpec, ...]]:
+    """Every link's model stack in the plan's order: formation links, reports, estimates.
+
+    Only the links an entry of ``network`` names are looked up; the others share the
+    default stack (the same object the lookup returns), so a team of thousands costs
+    one pass over the entries, not one per link.
+    """
+    named = {tuple(link.between) for link in s.network.links}
+    named |= {(b, a) for a, b in named}
+    formation = (
+        [
+            s.formation_link_models(a, c) if (a, c) in named else s.network.formation_default
+            for a, c in links.tolist()
+        ]
+        if named
+        else [s.network.formation_default] * len(links)
+    )
+    agents = {link.agent for link in s.network.control}
+    control = [
+        s.control_link_models(i, kind) if i in agents else s.network.control_default
+        for kind in ("report", "estimate")
+        for i in range(1, s.n + 1)
+    ]
+    return formation + control
 
 
 def plan_batch(
@@ -163,12 +213,13 @@ def plan_batch(
         )
     base = members[0]
     n_epochs = base.epochs if epochs is None else int(epochs)
-    shared = _structure(base)
+    shared: dict[str, Any] | None = None  # dumped only when a member is another object
     checked = {id(base)}
     for b, s in enumerate(members):
         if id(s) in checked:
             continue
         checked.add(id(s))
+        shared = _structure(base) if shared is None else shared
         if _structure(s) != shared:
             diff = sorted(k for k, v in _structure(s).items() if shared.get(k) != v)
             raise BatchError(
@@ -176,7 +227,7 @@ def plan_batch(
                 f"differs from member 0 in {', '.join(diff)}; "
                 f"members may differ only in {', '.join(VARIANT_FIELDS)}",
             )
-    n, d = base.n, base.dimension
+    n = base.n
     links = base.directed_links
     n_links = len(links)
     ctl_links = np.array(
@@ -202,11 +253,7 @@ def plan_batch(
             net_of[id(s)] = s.network.model_dump_json()
         net = net_of[id(s)]
         if net not in stacks:
-            stacks[net] = (
-                [s.formation_link_models(int(a), int(c)) for a, c in links]
-                + [s.control_link_models(i, "report") for i in range(1, n + 1)]
-                + [s.control_link_models(i, "estimate") for i in range(1, n + 1)]
-            )
+            stacks[net] = _link_stacks(s, links)
         key = (net, seed)
         if key not in cache:
             decided = delivery_plan(stacks[net], seed, all_links, n_epochs)
@@ -253,18 +300,7 @@ def plan_batch(
 
     distinct, seed_row = np.unique(seed_arr, return_inverse=True)
     src, dst = links[:, 0], links[:, 1]
-    epochs_col = np.arange(n_epochs)[:, None]
-    cov = base.noise_covariance
-    noise = (
-        np.stack(
-            [
-                measurement_noise(cov, int(s), dst[None, :], src[None, :], epochs_col)
-                for s in distinct.tolist()
-            ]
-        )
-        if n_links
-        else np.zeros((distinct.size, n_epochs, 0, d))
-    )
+    noise = _noise(base.noise_covariance, distinct, src, dst, n_epochs)
     x0 = np.stack([base.initial_positions(int(s)) for s in distinct.tolist()])
     team = membership(n, n_epochs, base.events) if base.events else None
     return BatchPlan(

@@ -66,3 +66,22 @@ def test_double_integrator_settles_at_the_shape() -> None:
         x_new[0], v[0] = d0[0], 0.0
         x = x_new
     np.testing.assert_allclose(x, d0, atol=1e-6)
+
+
+def test_each_agents_terms_add_in_link_order_as_np_add_at() -> None:
+    rng = np.random.default_rng(5)
+    n, links = 50, 400
+    receivers = rng.integers(0, n, size=links)
+    rel, desired = rng.normal(size=(links, 3)) * 1e2, rng.normal(size=(links, 3))
+    used = rng.random(links) < 0.8
+    csq = rng.random(links)
+    for got, terms in (
+        (displacement_command(n, receivers, rel, desired, used, 0.3), rel - desired),
+        (
+            distance_command(n, receivers, rel, csq, used, 0.3),
+            (np.einsum("ld,ld->l", rel, rel) - csq)[:, None] * rel,
+        ),
+    ):
+        want = np.zeros((n, 3))
+        np.add.at(want, receivers, np.where(used[:, None], terms, 0.0))
+        assert got.tobytes() == (-0.3 * want).tobytes()

@@ -16,6 +16,7 @@ import pytest
 
 from formation.errors import ScenarioError
 from formation.scenario import Scenario, load, load_dict
+from testbed.sim.team_generators import geometric_team
 from testkit.scenario_files import TRIANGLE, scenario_file
 
 SCENARIOS = Path(__file__).resolve().parents[3] / "scenarios"
@@ -39,6 +40,14 @@ def test_paper_geometry_is_the_model_md_pentagon(paper: Scenario) -> None:
     assert paper.formation_link_models(1, 2)[0].model == "outage"
     assert paper.formation_link_models(2, 1)[0].model == "outage"
     assert paper.formation_link_models(2, 3) == ()
+
+
+def test_weights_are_numpys_norm_of_each_edge_to_the_bit() -> None:
+    s = geometric_team(300, 3, 0.5, seed=4)
+    d0 = s.offsets
+    want = [float(np.linalg.norm(d0[i - 1] - d0[j - 1])) for i, j in s.edge_array]
+    assert s.weights.tobytes() == np.array(want).tobytes()
+    assert s.edge_array.tolist() == [sorted(e.between) for e in s.edges]
 
 
 def test_weights_default_to_shape_distances(tmp_path: Path) -> None:

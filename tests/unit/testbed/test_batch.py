@@ -7,10 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from agent import measurement_noise
 from formation.errors import BatchError
 from formation.scenario import STRATEGIES, Scenario
 from testbed.experiments.studies import dynamic_team
 from testbed.sim.batch import plan_batch, run_batch
+from testbed.sim.plan import _noise
 from testbed.sim.simulate import SimResult, simulate
 
 SCENARIOS = Path(__file__).resolve().parents[3] / "scenarios"
@@ -190,3 +192,13 @@ def test_the_team_errors_count_the_edges_between_agents_taking_part() -> None:
     plain = run_batch(plan_batch(scenario.with_overrides(events=[]), [1], 20), "hold", detail=False)
     assert plain.team_errors()[0] is plain.formation_error
     assert plain.team_errors()[1] is plain.shape_error
+
+
+def test_noise_drawn_a_block_of_epochs_at_a_time_is_the_whole_runs(paper: Scenario) -> None:
+    src, dst = paper.directed_links[:, 0], paper.directed_links[:, 1]
+    cov = paper.noise_covariance
+    whole = measurement_noise(cov, 5, dst[None, :], src[None, :], np.arange(7)[:, None])
+    two_epochs = 2 * src.size * cov.shape[0] + 1  # blocks of 2, 2, 2 and 1 epochs
+    blocks = _noise(cov, np.array([5, 6]), src, dst, 7, draws=two_epochs)
+    assert blocks[0].tobytes() == whole.tobytes()
+    assert not np.array_equal(blocks[1], whole)  # the other seed's own draws
