@@ -112,19 +112,52 @@ _OFDM_SINR = (4.0, 5.0, 7.0, 9.0, 12.0, 16.0, 20.0, 21.0)
 
 PHYS: dict[str, Phy] = {
     "ofdm": Phy(
-        "ofdm", 9 * US, 16 * US, 15, 1023, 4 * US, 20 * US, 25 * US, 0,
-        _OFDM_RATES, (6000, 12000, 24000), _OFDM_SINR, 20e6,
+        name="ofdm",
+        slot_ns=9 * US,
+        sifs_ns=16 * US,
+        cw_min=15,
+        cw_max=1023,
+        cca_ns=4 * US,
+        preamble_ns=20 * US,
+        rx_start_delay_ns=25 * US,
+        signal_extension_ns=0,
+        rates_kbps=_OFDM_RATES,
+        basic_kbps=(6000, 12000, 24000),
+        sinr_db=_OFDM_SINR,
+        bandwidth_hz=20e6,
     ),
     "erp_ofdm": Phy(
-        "erp_ofdm", 9 * US, 10 * US, 15, 1023, 4 * US, 20 * US, 25 * US, 6 * US,
-        _OFDM_RATES, (6000, 12000, 24000), _OFDM_SINR, 20e6,
+        name="erp_ofdm",
+        slot_ns=9 * US,
+        sifs_ns=10 * US,
+        cw_min=15,
+        cw_max=1023,
+        cca_ns=4 * US,
+        preamble_ns=20 * US,
+        rx_start_delay_ns=25 * US,
+        signal_extension_ns=6 * US,
+        rates_kbps=_OFDM_RATES,
+        basic_kbps=(6000, 12000, 24000),
+        sinr_db=_OFDM_SINR,
+        bandwidth_hz=20e6,
     ),
     # 2 and 11 Mb/s from the minimum sensitivities of 15.4.8.2 (-80 dBm) and 16.3.8.2
     # (-76 dBm) as for OFDM at 22 MHz; 1 and 5.5 Mb/s 3 dB below them [choice]
     "dsss": Phy(
-        "dsss", 20 * US, 10 * US, 31, 1023, 15 * US, 192 * US, 192 * US, 0,
-        (1000, 2000, 5500, 11000), (1000, 2000), (2.6, 5.6, 6.6, 9.6), 22e6,
+        name="dsss",
+        slot_ns=20 * US,
+        sifs_ns=10 * US,
+        cw_min=31,
+        cw_max=1023,
+        cca_ns=15 * US,
+        preamble_ns=192 * US,
+        rx_start_delay_ns=192 * US,
+        signal_extension_ns=0,
+        rates_kbps=(1000, 2000, 5500, 11000),
+        basic_kbps=(1000, 2000),
+        sinr_db=(2.6, 5.6, 6.6, 9.6),
+        bandwidth_hz=22e6,
     ),
-}  # fmt: skip
+}
 
 __all__ = ["ACK_BYTES", "MAC_OVERHEAD_BYTES", "PHYS", "US", "Phy", "PhyName"]
