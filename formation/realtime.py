@@ -32,6 +32,10 @@ class Clock:
     def at(self, epoch: int, fraction: float = 0.0) -> int:
         return self.t0_ns + int((epoch + fraction) * self.period_ns)
 
+    def epoch_of(self, t_ns: int) -> int:
+        """The epoch under way at ``t_ns`` (negative before the clock's first)."""
+        return (t_ns - self.t0_ns) // self.period_ns
+
     def to_json(self) -> bytes:
         return json.dumps({"t0_ns": self.t0_ns, "period_ns": self.period_ns}).encode()
 

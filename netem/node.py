@@ -142,9 +142,7 @@ class NetemNode:
         clock = self.realtime.clock
         if self.scenario.runtime.mode != "realtime" or clock is None:
             return agent in self.lockstep.away
-        return not self.realtime.takes_part(
-            agent, (time.time_ns() - clock.t0_ns) // clock.period_ns
-        )
+        return not self.realtime.takes_part(agent, clock.epoch_of(time.time_ns()))
 
     def on_dead(self, sender: int) -> None:
         """``sender`` is down: no longer waited for (call under :attr:`lock`)."""
@@ -314,7 +312,7 @@ class NetemNode:
         one would be late); an agent whose part is over, at the end."""
         clock = self.realtime.clock
         assert clock is not None  # set when the run began, before any process could restart
-        now = (time.time_ns() - clock.t0_ns) // clock.period_ns
+        now = clock.epoch_of(time.time_ns())
         team = self.scenario.membership
         answer: dict[str, Any] = {"agents": {}}
         for i in ids:

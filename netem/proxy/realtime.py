@@ -381,7 +381,7 @@ class RealtimeForwarder:
             self.flush()
             if now >= self._next_records:
                 self.publish_decisions()
-                self.prepare((self._next_records - self.clock.t0_ns) // self.clock.period_ns)
+                self.prepare(self.clock.epoch_of(self._next_records))
                 self._next_records += self.clock.period_ns
         until = min(self._next_records, due[0][0]) if due else self._next_records
         settles = None if self.air is None else self.air.next_ns()
