@@ -23,6 +23,7 @@ from analysis import (
     summarise,
     tracking_lines,
 )
+from formation.markdown import table
 from formation.rigidity import expected_rigidity_rank
 from recorder.reading.run import read_run
 from recorder.reporting import network_plots, plots
@@ -78,41 +79,64 @@ def _team_lines(sums: list[dict[str, Any]]) -> list[str]:
 
 def queue_lines(label: str, queues: dict[str, Any], losses: dict[str, int]) -> list[str]:
     """A run's queues as a table, and its losses split by where they happened."""
-    lines = [
+    header = (
+        "queue",
+        "offered/epoch",
+        "through/epoch",
+        "mean depth",
+        "max depth",
+        "mean sojourn [ms]",
+        "drops by reason",
+    )
+    rows = [
+        (
+            name,
+            f"{q['offered_per_epoch']:.2f}",
+            f"{q['throughput_per_epoch']:.2f}",
+            _fmt(q["mean_depth"]),
+            _fmt(q["max_depth"]),
+            _fmt(q["mean_sojourn_ms"]),
+            ", ".join(f"{k} {v}" for k, v in q["drops"].items()) or "none",
+        )
+        for name, q in queues.items()
+    ]
+    return [
         f"- {label}: losses {losses['channel']} channel, {losses['queue']} queue (full), "
         f"{losses['deadline']} deadline (left the queue late)",
         "",
-        "| queue | offered/epoch | through/epoch | mean depth | max depth | mean sojourn [ms] "
-        "| drops by reason |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
+        *table(header, rows).splitlines(),
+        "",
     ]
-    for name, q in queues.items():
-        drops = ", ".join(f"{k} {v}" for k, v in q["drops"].items()) or "none"
-        lines.append(
-            f"| {name} | {q['offered_per_epoch']:.2f} | {q['throughput_per_epoch']:.2f} | "
-            f"{_fmt(q['mean_depth'])} | {_fmt(q['max_depth'])} | {_fmt(q['mean_sojourn_ms'])} "
-            f"| {drops} |"
-        )
-    return [*lines, ""]
 
 
 def air_lines(label: str, air: dict[str, Any]) -> list[str]:
     """A run's packets on the air per link class: delivered, and losses by cause."""
-    lines = [
+    header = (
+        "link class",
+        "took the air",
+        "delivered",
+        "losses by cause",
+        "mean arrival [ms]",
+        "max arrival [ms]",
+    )
+    rows = [
+        (
+            cls,
+            a["took_air"],
+            a["delivered"],
+            ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in a["losses"].items()) or "none",
+            _fmt(a["mean_arrival_ms"]),
+            _fmt(a["max_arrival_ms"]),
+        )
+        for cls, a in air.items()
+    ]
+    return [
         f"- {label}: of the packets the link models passed, what the air delivered and why "
         "it lost the others",
         "",
-        "| link class | took the air | delivered | losses by cause | mean arrival [ms] "
-        "| max arrival [ms] |",
-        "| --- | --- | --- | --- | --- | --- |",
+        *table(header, rows).splitlines(),
+        "",
     ]
-    for cls, a in air.items():
-        losses = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in a["losses"].items()) or "none"
-        lines.append(
-            f"| {cls} | {a['took_air']} | {a['delivered']} | {losses} | "
-            f"{_fmt(a['mean_arrival_ms'])} | {_fmt(a['max_arrival_ms'])} |"
-        )
-    return [*lines, ""]
 
 
 def _fmt(v: Any) -> str:
@@ -154,11 +178,8 @@ def _numbers(columns: Sequence[str], sums: list[dict[str, Any]]) -> list[str]:
     """The table of :data:`_ROWS`, a column per run, and its footnotes."""
     notes = [name for name, _ in _ROWS if name in FOOTNOTES]
     mark = {name: f" [{i}]" for i, name in enumerate(notes, 1)}
-    lines = ["| | " + " | ".join(columns) + " |", "|---|" + "---|" * len(sums)]
-    for name, key in _ROWS:
-        cells = " | ".join(_fmt(s[key]) for s in sums)
-        lines.append(f"| {name}{mark.get(name, '')} | {cells} |")
-    lines.append("")
+    rows = [(f"{name}{mark.get(name, '')}", *(_fmt(s[key]) for s in sums)) for name, key in _ROWS]
+    lines = [*table(("", *columns), rows).splitlines(), ""]
     lines += [f"[{i}] {FOOTNOTES[name]}  " for i, name in enumerate(notes, 1)]
     return lines
 

@@ -35,6 +35,7 @@ import numpy as np
 import pandas as pd
 
 from formation.deadlines import PHASES
+from formation.markdown import table
 from formation.scenario import STRATEGIES, Scenario, StrategyName
 from formation.wire_size import WireSizes
 from testbed.experiments.grid import (
@@ -48,7 +49,6 @@ from testbed.experiments.grid import (
     run_grid,
 )
 from testbed.experiments.grid import write_outputs as write_grid_outputs
-from testbed.experiments.markdown import table
 from testbed.experiments.real_check import real_run_row
 from testbed.sim.batch import BatchResult
 from testbed.sim.plan import BatchPlan

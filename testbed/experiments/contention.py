@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from formation.markdown import table
 from formation.scenario import STRATEGIES, Scenario, StrategyName
 from testbed.experiments.grid import (
     GridResult,
@@ -33,7 +34,6 @@ from testbed.experiments.grid import (
     run_grid,
 )
 from testbed.experiments.grid import write_outputs as write_grid_outputs
-from testbed.experiments.markdown import table
 from testbed.sim.batch import BatchResult
 from testbed.sim.team_generators import rigid_team
 

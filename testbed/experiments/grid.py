@@ -23,8 +23,8 @@ import numpy as np
 import numpy.typing as npt
 import pandas as pd
 
+from formation.markdown import table
 from formation.scenario import Scenario, StrategyName
-from testbed.experiments.markdown import table
 from testbed.experiments.plots import plot_range_phase
 from testbed.sim.batch import BatchResult, plan_batch, run_batch
 from testbed.sim.plan import BatchPlan

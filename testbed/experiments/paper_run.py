@@ -15,13 +15,13 @@ import numpy as np
 import numpy.typing as npt
 
 from analysis import error_statistics
+from formation.markdown import table
 from formation.reference import reference_positions
 from formation.scenario import STRATEGIES, Scenario, StrategyName
 from recorder import KEEP_M, read_run
 from testbed.experiments import plots, studies
 from testbed.experiments.findings import identical_notes, noise_floor
 from testbed.experiments.loss_variants import with_loss
-from testbed.experiments.markdown import table
 from testbed.experiments.paper import (
     PLOTTED_AGENTS,
     Array,

@@ -12,9 +12,9 @@ from typing import Any
 
 import numpy as np
 
+from formation.markdown import table
 from testbed.experiments.findings import conclusion
 from testbed.experiments.grid import KEEP_FRACTION
-from testbed.experiments.markdown import table
 from testbed.experiments.paper import (
     LOSSY_P,
     SECOND_LINK,

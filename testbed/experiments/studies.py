@@ -25,12 +25,12 @@ import numpy.typing as npt
 
 from analysis import error_statistics, team_shape_error
 from formation.graph import is_connected
+from formation.markdown import table
 from formation.rigidity import expected_rigidity_rank, rigidity_rank
 from formation.scenario import STRATEGIES, Scenario, StrategyName, load_dict
 from recorder import KEEP_M  # one threshold for the run reports and the experiments
 from testbed.experiments.grid import KEEP_FRACTION
 from testbed.experiments.loss_variants import with_loss
-from testbed.experiments.markdown import table
 from testbed.sim.batch import BatchResult, plan_batch, run_batch
 
 Array = npt.NDArray[np.float64]

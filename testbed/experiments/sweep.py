@@ -40,6 +40,7 @@ import pandas as pd
 
 from analysis import final_value
 from formation.errors import SweepError
+from formation.markdown import table
 from formation.plugin_api import all_strategies
 from formation.scenario import Scenario, StrategyName
 from testbed.experiments.executors import Executor, LocalPool, seeds_per_task
@@ -52,7 +53,6 @@ from testbed.experiments.grid import (
     run_grid,
 )
 from testbed.experiments.loss_variants import LOSS_MODELS, is_parameter, with_loss
-from testbed.experiments.markdown import table
 from testbed.experiments.plots import plot_phase
 from testbed.experiments.sweep_spec import Key, SweepSpec, loss_grid, loss_label, value_grid
 from testbed.sim.batch import BatchResult

@@ -15,7 +15,7 @@ import numpy as np
 import numpy.typing as npt
 import pandas as pd
 
-from testbed.experiments.markdown import table
+from formation.markdown import table
 from testbed.experiments.value import GAINS, KEEP_M, LOST, ValueSpec
 
 Array = npt.NDArray[np.float64]

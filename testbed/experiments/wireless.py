@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from formation.markdown import table
 from formation.scenario import STRATEGIES, Scenario, StrategyName
 from testbed.experiments.grid import (
     KEEP_FRACTION,
@@ -39,7 +40,6 @@ from testbed.experiments.grid import (
     run_grid,
 )
 from testbed.experiments.grid import write_outputs as write_grid_outputs
-from testbed.experiments.markdown import table
 from testbed.experiments.real_check import real_run_row
 from testbed.sim.batch import BatchResult
 

@@ -116,7 +116,7 @@ def test_report_compares_simulated_strategies(tmp_path: Path, sim_results: dict[
         _, _, trace = error_statistics(r.substitution_errors)
         assert s["substitution_cov_trace_m2"] == pytest.approx(trace, rel=1e-12)
     assert summary[0]["final_formation_error_m"] > 10 * summary[1]["final_formation_error_m"]
-    assert "| | hold | estimate |" in report.read_text()
+    assert "|  | hold | estimate |" in report.read_text()
     non_trivial_png(tmp_path / "errors.png")
 
 

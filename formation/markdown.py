@@ -1,4 +1,4 @@
-"""The experiments' markdown tables: one writer, so every table has the same form."""
+"""Markdown tables: one writer, so every table of a report or a study has the same form."""
 
 from __future__ import annotations
 
