@@ -11,7 +11,6 @@ log order. Compiled once per install (``cache=True``; docs/model.md §11).
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -68,7 +67,7 @@ from netem.links.wifi.compiled_medium import (
     put_on_air,
     timing,
 )
-from netem.links.wifi.compiled_reception import keyed_uniform_after
+from netem.links.wifi.compiled_reception import jit, keyed_uniform_after
 from netem.links.wifi.config import AirConfig
 from netem.links.wifi.frames import Frames
 from netem.links.wifi.radio import AIR_STREAM
@@ -81,8 +80,6 @@ LONG_AGO = -(1 << 40)  # [ns] the medium was idle since before the phase
 BROADCAST = -1
 END, TIMEOUT, NAV_END, READY, ACK_START, SEND, SENSED = range(7)
 DELIVERED, COLLISION, BELOW_SENSITIVITY, RETRY_LIMIT, LATE, NOT_ADDRESSED = range(6)
-
-jit = numba.njit(cache=True, nogil=True)
 
 
 # -- the event heap: rows (time, kind, order, value), ordered as tuples --------------------

@@ -12,11 +12,10 @@ from __future__ import annotations
 
 import functools
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
-from netem.links.wifi.compiled_reception import frame_success, keyed_uniform_after
+from netem.links.wifi.compiled_reception import frame_success, jit, keyed_uniform_after
 from netem.links.wifi.config import AirConfig
 from netem.links.wifi.radio import to_mw
 
@@ -39,8 +38,6 @@ HEADER_FROM, HEADER_TO, HEADER_RATE, OVERHEAD, PREAMBLE_NS, SYMBOL_EXT, OFDM, CH
 TIMING_FIELDS = 20
 # the radio's levels [mW]
 NOISE, DETECT, DETECT_SNR, ENERGY, SINR, ACK_SINR = range(6)
-
-jit = numba.njit(cache=True, nogil=True)
 
 
 @jit

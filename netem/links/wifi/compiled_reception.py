@@ -10,6 +10,8 @@ reception draw falls within those bits of its success rate (docs/model.md §11).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any, TypeVar, cast
 
 import numba
 import numpy as np
@@ -40,7 +42,17 @@ _G = np.uint64(0x9E3779B97F4A7C15)
 _C1 = np.uint64(0xBF58476D1CE4E5B9)
 _C2 = np.uint64(0x94D049BB133111EB)
 
-jit = numba.njit(cache=True, nogil=True)
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def jit(fn: F) -> F:
+    """``numba.njit``, its machine code kept on disk beside the module (or in the user's
+    cache, or ``NUMBA_CACHE_DIR``) so a process loads it; where none of them is writable
+    (a read-only install and home) numba refuses to cache, and it compiles in each process."""
+    try:
+        return cast(F, numba.njit(cache=True, nogil=True)(fn))
+    except RuntimeError:
+        return cast(F, numba.njit(nogil=True)(fn))
 
 
 @jit
