@@ -85,6 +85,13 @@ def decide_phase(
     return _outcome(arrival, cause, attempts, first_start, end_ns, phase_end_ns)
 
 
+def load_compiled_loop() -> None:
+    """Load the compiled loop now (compile it, on a fresh install) rather than at the first
+    phase: realtime would hold that phase's packets meanwhile."""
+    two = np.array([[0.0, 0.0], [1.0, 0.0]])
+    decide_phase(AirConfig(), two, Frames.of(0, 1, 0, 0), Key(0, 0, 0))
+
+
 def reference_phase(
     config: AirConfig,
     positions_m: Floats,
@@ -397,4 +404,4 @@ class _Phase:
         return _outcome(self.arrival, self.cause, self.attempts, first, self.now, phase_end_ns)
 
 
-__all__ = ["Key", "decide_phase", "reference_phase"]
+__all__ = ["Key", "decide_phase", "load_compiled_loop", "reference_phase"]
