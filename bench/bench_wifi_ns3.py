@@ -7,7 +7,7 @@ air model decides them here and ns-3 runs them in its own process, the whole bat
 (``testkit.ns3_air``, ns-3's defaults, which are the model's). Printed per case: the delivery
 ratio (receptions over addressed receivers) of each and their difference with twice the
 standard error of the mean per-phase difference, the mean latency (arrival less readiness)
-of each and their ratio, and the wall time per phase of each and their ratio (ns-3's inside
+of each and their ratio, and the CPU time per phase of each and their ratio (ns-3's inside
 its process: building the phase and running it, without the import; the model's through
 ``decide_phase``, its compiled loop loaded before).
 
@@ -155,9 +155,9 @@ def main() -> None:
         mine, theirs = np.zeros(3), np.zeros(3)
         gaps = []
         for k, (positions, frames) in enumerate(plans[c]):
-            t0 = time.perf_counter()
+            t0 = time.process_time()
             out = decide_phase(config, positions, frames, Key(args.seed, c, k))
-            model_t += time.perf_counter() - t0
+            model_t += time.process_time() - t0
             to = addressed(frames, positions.shape[0])
             ours = summary(out.arrival_ns, to, frames.ready_ns)
             ns3_arrival = arrivals(ns3[index], len(frames), positions.shape[0])

@@ -78,12 +78,11 @@ def _ofdm_chunk(rate_kbps: int, snr: float, nbits: int) -> float:
     curve = CURVES[np.searchsorted(OFDM_RATES_KBPS, rate_kbps), 1 if large else 0]
     low, high = curve[0], curve[1]
     if snr_db < low:
-        reference = 0.0
-    elif snr_db > high:
-        reference = 1.0
-    else:
-        x = snr_db
-        reference = math.exp(-math.exp(((curve[2] * x + curve[3]) * x + curve[4]) * x + curve[5]))
+        return 0.0  # 0 to a positive power
+    if snr_db > high:
+        return 1.0  # 1 to any power
+    x = snr_db
+    reference = math.exp(-math.exp(((curve[2] * x + curve[3]) * x + curve[4]) * x + curve[5]))
     success = reference ** (size / (_LARGE if large else _SMALL))
     return 1.0 if 1.0 - success < NEGLIGIBLE_PER else success
 
