@@ -14,7 +14,6 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from formation.keyed_random import keyed_state
 from netem.links.wifi.compiled_medium import (
     ACK,
     ACK_NS,
@@ -23,6 +22,7 @@ from netem.links.wifi.compiled_medium import (
     ACK_TIMEOUT,
     AWAITING,
     BUSY,
+    CARRIER,
     CCA,
     COUNTER,
     CW,
@@ -47,6 +47,7 @@ from netem.links.wifi.compiled_medium import (
     RATE,
     RETRY,
     SENDING,
+    SENSED_BUSY,
     SIFS,
     SINR,
     SLOT,
@@ -67,7 +68,7 @@ from netem.links.wifi.compiled_medium import (
     put_on_air,
     timing,
 )
-from netem.links.wifi.compiled_reception import jit, keyed_uniform_after
+from netem.links.wifi.compiled_reception import jit, keyed_state_of, keyed_uniform_after
 from netem.links.wifi.config import AirConfig
 from netem.links.wifi.frames import Frames
 from netem.links.wifi.radio import AIR_STREAM
@@ -168,34 +169,35 @@ def _sense(
     levels: Floats,
     t: Ints,
     backoff_state: np.uint64,
+    energy: Floats,
 ) -> None:
     """Carrier sense at every agent; freeze or resume the backoffs that changed."""
     n = st.shape[0]
-    carrier = carrier_busy(st, log, on_air, power, levels)
-    busy = np.zeros(n, dtype=np.int64)
+    carrier_busy(st, log, on_air, power, levels, energy)
     same = True
     for s in range(n):
-        busy[s] = st[s, SENDING] >= 0 or carrier[s] != 0 or st[s, NAV] > now
-        same = same and busy[s] == st[s, BUSY]
+        busy = st[s, SENDING] >= 0 or st[s, CARRIER] != 0 or st[s, NAV] > now
+        st[s, SENSED_BUSY] = busy
+        same = same and busy == (st[s, BUSY] != 0)
     if same:
         return
     for s in range(n):  # freeze: keep the slots not counted yet
-        if busy[s] and not st[s, BUSY]:
+        if st[s, SENSED_BUSY] and not st[s, BUSY]:
             start = st[s, IDLE_FROM] + (t[EIFS_NS] if st[s, EIFS] else t[DIFS])
             done = (now - start) // t[SLOT] if now > start else 0
             st[s, COUNTER] = max(st[s, COUNTER] - done, 0)
     for s in range(n):  # a ready frame that did not find DIFS of idle medium waits a backoff
-        if busy[s] and not st[s, BUSY]:
+        if st[s, SENSED_BUSY] and not st[s, BUSY]:
             waiting = st[s, SENDING] < 0 and not st[s, AWAITING] and st[s, COUNTER] == 0
             if waiting and st[s, HEAD_READY] <= now:
                 st[s, COUNTER] = _draw(st, s, backoff_state)
             st[s, PLANNED] = NEVER
     for s in range(n):
-        if not busy[s] and st[s, BUSY]:
+        if not st[s, SENSED_BUSY] and st[s, BUSY]:
             st[s, IDLE_FROM] = now
             st[s, BUSY] = 0
             _plan(st, s, t)
-        st[s, BUSY] = busy[s]
+        st[s, BUSY] = st[s, SENSED_BUSY]
 
 
 # -- the stations' events ------------------------------------------------------------------
@@ -238,19 +240,38 @@ def _resolve(
 
 @jit
 def _run(
-    frames: Ints,
+    sender: Ints,
+    receiver: Ints,
+    payload_bytes: Ints,
+    ready_ns: Ints,
     power: Floats,
-    alone: npt.NDArray[np.bool_],
     levels: Floats,
     t: Ints,
-    backoff: np.uint64,
-    reception: np.uint64,
+    seed: int,
+    epoch: int,
+    phase: int,
 ) -> tuple[Ints, Ints, int]:
-    """The phase: ``frames`` (m, 4) rows (sender, receiver, payload [B], ready [ns]).
+    """The phase of the frames ``sender``, ``receiver``, ``payload_bytes`` [B] and
+    ``ready_ns`` [ns]; ``power`` (n, n) [mW], what ``j`` receives from ``i``.
+
     Returns ``out`` (2m, n): each frame's arrival at each agent [ns] in rows ``0 .. m``,
     its cause in rows ``m .. 2m``; ``extra`` (m, 2): each frame's attempts and first start
     [ns]; and when the medium fell silent [ns]."""
-    n, m = power.shape[0], frames.shape[0]
+    m = sender.shape[0]
+    frames = np.empty((m, 4), dtype=np.int64)
+    frames[:, 0], frames[:, 1], frames[:, 2], frames[:, 3] = (
+        sender,
+        receiver,
+        payload_bytes,
+        ready_ns,
+    )
+    # a frame the receiver cannot take even on a silent channel
+    floor = max(levels[DETECT_SNR], levels[SINR]) * levels[NOISE]
+    alone = (power >= levels[DETECT]) & (power >= floor)
+    backoff = keyed_state_of(seed, AIR_STREAM, BACKOFF, epoch, phase)
+    reception = keyed_state_of(seed, AIR_STREAM, RECEPTION, epoch, phase)
+    n = power.shape[0]
+    energy = np.zeros(n)  # room for carrier sense's sum
     ready = frames[:, 3].copy()
     out = np.full((2 * m, n), -1, dtype=np.int64)
     out[m:] = NOT_ADDRESSED
@@ -296,14 +317,14 @@ def _run(
             first, count = logged, 0
             if kind == END:
                 ev = _end(st, value, now, ev, size, log, logged, on_air, queue, frames, power,
-                          alone, levels, t, out, backoff, reception)  # fmt: skip
+                          alone, levels, t, out, backoff, reception, energy)  # fmt: skip
             elif kind == TIMEOUT:
                 if st[value, AWAITING] and not st[value, ACK_ON_AIR]:
                     st[value, IDLE_FROM] = max(st[value, IDLE_FROM], now)
                     st[value, EIFS] = 0
                     _resolve(st, value, False, queue, frames, alone, out, t, backoff)
             elif kind == NAV_END:
-                _sense(st, now, log, on_air, power, levels, t, backoff)
+                _sense(st, now, log, on_air, power, levels, t, backoff, energy)
             elif kind == READY:
                 s = frames[value, 0]
                 head = queue[st[s, QPOS]] if st[s, QPOS] < st[s, QEND] else -1
@@ -312,17 +333,15 @@ def _run(
                     st[s, COUNTER] = _draw(st, s, backoff)
                 _plan(st, s, t)
             elif kind == ACK_START:
-                receiver, sender = value // n, value % n
-                if st[receiver, SENDING] < 0:
-                    st[sender, ACK_ON_AIR] = 1
+                acking, acked = value // n, value % n  # the data's receiver and sender
+                if st[acking, SENDING] < 0:
+                    st[acked, ACK_ON_AIR] = 1
                     log = log_room(log, logged + 1)
-                    log_transmission(
-                        log, logged, receiver, ACK, sender, now, t[ACK_NS], t[ACK_RATE]
-                    )
+                    log_transmission(log, logged, acking, ACK, acked, now, t[ACK_NS], t[ACK_RATE])
                     count = 1
             else:  # SENSED
                 log[value, TX_SENSED] = 1
-                _sense(st, now, log, on_air, power, levels, t, backoff)
+                _sense(st, now, log, on_air, power, levels, t, backoff, energy)
         elif send_at < NEVER:
             now = send_at
             first, count = logged, 0
@@ -348,7 +367,7 @@ def _run(
             for i in range(first, logged):
                 ev = _push(ev, size, log[i, TX_START] + t[CCA], SENSED, i)
                 ev = _push(ev, size, log[i, TX_END], END, i)
-            _sense(st, now, log, on_air, power, levels, t, backoff)
+            _sense(st, now, log, on_air, power, levels, t, backoff, energy)
     return out, extra, now
 
 
@@ -371,6 +390,7 @@ def _end(
     out: Ints,
     backoff: np.uint64,
     reception: np.uint64,
+    energy: Floats,
 ) -> Ints:
     """Log entry ``index`` leaves the air: its receptions, then its sender's next step."""
     n, m = st.shape[0], frames.shape[0]
@@ -417,7 +437,7 @@ def _end(
                 ev = _push(ev, size, ack_end, NAV_END, 0)
         st[s, AWAITING] = 1
         ev = _push(ev, size, now + t[ACK_TIMEOUT], TIMEOUT, s)
-    _sense(st, now, log, on_air, power, levels, t, backoff)
+    _sense(st, now, log, on_air, power, levels, t, backoff, energy)
     return ev
 
 
@@ -433,23 +453,19 @@ def decide(
     """The phase through the compiled loop: arrival [ns], cause, attempts, first start [ns]
     and when the medium fell silent, as ``dcf._Phase`` gives them.
     ``power_mw`` (n, n): what ``j`` receives from ``i``, 0 on the diagonal."""
-    levels = levels_of(config)
-    alone = (power_mw >= levels[DETECT]) & (
-        power_mw >= max(levels[DETECT_SNR], levels[SINR]) * levels[NOISE]
-    )
-    rows = np.stack([frames.sender, frames.receiver, frames.payload_bytes, frames.ready_ns], 1)
-    backoff = keyed_state(seed, AIR_STREAM, BACKOFF, epoch, phase)
-    reception = keyed_state(seed, AIR_STREAM, RECEPTION, epoch, phase)
     out, extra, end_ns = _run(
-        rows,
+        frames.sender,
+        frames.receiver,
+        frames.payload_bytes,
+        frames.ready_ns,
         power_mw,
-        alone,
-        levels,
+        levels_of(config),
         timing(config),
-        np.uint64(backoff),
-        np.uint64(reception),
+        seed,
+        epoch,
+        phase,
     )
-    m = rows.shape[0]
+    m = len(frames)
     return out[:m], out[m:].astype(np.int8), extra[:, 0], extra[:, 1], int(end_ns)
 
 

@@ -26,8 +26,8 @@ NEVER = 1 << 62  # [ns] a time that does not come
 
 # a station's columns
 HEAD_READY, SENDING, NAV, PLANNED, IDLE_FROM, COUNTER, CW, DRAWS, TRIES, QPOS, QEND = range(11)
-BUSY, EIFS, AWAITING, ACK_ON_AIR, LOCK = range(11, 16)
-STATION_COLUMNS = 16
+BUSY, EIFS, AWAITING, ACK_ON_AIR, LOCK, CARRIER, SENSED_BUSY = range(11, 18)
+STATION_COLUMNS = 18
 # a transmission's columns
 TX_SENDER, TX_FRAME, TX_DEST, TX_START, TX_END, TX_RATE, TX_SENSED = range(7)
 # the scalars: phase timing and sizes
@@ -50,21 +50,25 @@ def airtime_ns(t: Ints, frame_bytes: int, rate_kbps: int) -> int:
 
 
 @jit
-def carrier_busy(st: Ints, log: Ints, on_air: Ints, power: Floats, levels: Floats) -> Ints:
+def carrier_busy(
+    st: Ints, log: Ints, on_air: Ints, power: Floats, levels: Floats, energy: Floats
+) -> None:
+    """Each station's ``CARRIER``: whether its carrier sense finds the medium busy, locked
+    onto a sensed frame or the sensed frames' energy above the energy-detection threshold.
+    ``energy`` (n,) is room for the sum."""
     n = st.shape[0]
-    energy = np.zeros(n)
-    any_sensed = False
+    energy[:] = 0.0
+    sensed = False
     for k in range(on_air[0]):
         i = on_air[k + 1]
         if log[i, TX_SENSED]:
-            any_sensed = True
-            energy += power[log[i, TX_SENDER]]
-    busy = np.zeros(n, dtype=np.int64)
-    if any_sensed:
-        for j in range(n):
-            lock = st[j, LOCK]
-            busy[j] = energy[j] >= levels[ENERGY] or (lock >= 0 and log[lock, TX_SENSED] != 0)
-    return busy
+            sensed = True
+            for j in range(n):
+                energy[j] += power[log[i, TX_SENDER], j]
+    for j in range(n):
+        lock = st[j, LOCK]
+        locked = lock >= 0 and log[lock, TX_SENSED] != 0
+        st[j, CARRIER] = sensed and (energy[j] >= levels[ENERGY] or locked)
 
 
 @jit

@@ -62,12 +62,24 @@ def _mix(z: np.uint64) -> np.uint64:
     return z ^ (z >> np.uint64(31))
 
 
+_START = np.uint64(0x243F6A8885A308D3)
+
+
+@jit
+def _chain(h: np.uint64, key: int) -> np.uint64:
+    return _mix(h + _G + _mix(np.uint64(key) + _G))
+
+
+@jit
+def keyed_state_of(a: int, b: int, c: int, d: int, e: int) -> np.uint64:
+    """``keyed_state(a, b, c, d, e)``, bit for bit."""
+    return _chain(_chain(_chain(_chain(_chain(_START, a), b), c), d), e)
+
+
 @jit
 def keyed_uniform_after(state: np.uint64, a: int, b: int) -> float:
     """``keyed_uniform(*prefix, a, b)`` from ``state = keyed_state(*prefix)``, bit for bit."""
-    h = _mix(state + _G + _mix(np.uint64(a) + _G))
-    h = _mix(h + _G + _mix(np.uint64(b) + _G))
-    return float(h >> np.uint64(11)) * 2.0**-53
+    return float(_chain(_chain(state, a), b) >> np.uint64(11)) * 2.0**-53
 
 
 @jit
@@ -167,4 +179,4 @@ def frame_success(
     return p
 
 
-__all__ = ["chunk_success", "frame_success", "keyed_uniform_after"]
+__all__ = ["chunk_success", "frame_success", "keyed_state_of", "keyed_uniform_after"]
