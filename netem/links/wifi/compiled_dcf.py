@@ -316,8 +316,26 @@ def _run(
             _pop(ev, size)
             first, count = logged, 0
             if kind == END:
-                ev = _end(st, value, now, ev, size, log, logged, on_air, queue, frames, power,
-                          alone, levels, t, out, backoff, reception, energy)  # fmt: skip
+                ev = _end(
+                    st,
+                    value,
+                    now,
+                    ev,
+                    size,
+                    log,
+                    logged,
+                    on_air,
+                    queue,
+                    frames,
+                    power,
+                    alone,
+                    levels,
+                    t,
+                    out,
+                    backoff,
+                    reception,
+                    energy,
+                )
             elif kind == TIMEOUT:
                 if st[value, AWAITING] and not st[value, ACK_ON_AIR]:
                     st[value, IDLE_FROM] = max(st[value, IDLE_FROM], now)
@@ -452,6 +470,7 @@ def decide(
 ) -> tuple[Ints, npt.NDArray[np.int8], Ints, Ints, int]:
     """The phase through the compiled loop: arrival [ns], cause, attempts, first start [ns]
     and when the medium fell silent, as ``dcf._Phase`` gives them.
+
     ``power_mw`` (n, n): what ``j`` receives from ``i``, 0 on the diagonal."""
     out, extra, end_ns = _run(
         frames.sender,
