@@ -1,17 +1,17 @@
 """The 802.11 air model (netem/links/wifi): saturation against Bianchi, and what a phase costs.
 
-Run ``python -m bench wifi [--quick] [--seed S]``. Two measurements, each against a baseline
-computed or measured in the same run:
+Run ``python -m bench wifi [--quick] [--speed-only] [--seed S]``. Two measurements, each
+against a baseline computed or measured in the same run:
 
 1. **Bianchi**: the model's saturation throughput (802.11a, 1,500 B, basic access, stations
    within a metre) against Bianchi's analytical model at 6 and 54 Mb/s for n = 5 .. 50
    (``netem.links.wifi.saturation``): the mean ratio over three seeds and its spread.
-2. **Speed**: the time to decide one phase of the 20 agents of ``scenarios/grid20.toml`` (each
-   agent broadcasts its 200 B state at 6 Mb/s, ready at a uniform offset in the first 2 ms),
-   and an epoch of three phases (the states; 19 unicast reports to agent 0; agent 0's 19
-   unicast estimates), against netem's Bernoulli decision of the same packets (one
-   ``LinkModel.decide`` per directed link, 380 a phase) and against the simulator's epoch of
-   that scenario with Bernoulli links.
+2. **Speed**: the CPU time of an epoch's three phases on the air for 5, 20 and 50 agents on a
+   grid spaced 5 m (the states, each agent broadcasting 200 B at 6 Mb/s ready at a uniform
+   offset in the first 2 ms; the n − 1 unicast reports to agent 0; agent 0's n − 1 unicast
+   estimates), through the compiled loop and through the loop in Python (``reference_phase``,
+   alternating), against the simulator's epoch of ``scenarios/grid20.toml`` with Bernoulli
+   links and netem's Bernoulli decision of grid20's 380 directed links.
 """
 
 from __future__ import annotations
@@ -30,21 +30,14 @@ from bench.netem_rig import ROOT
 from formation.linkmodels import Bernoulli
 from formation.scenario import Scenario
 from netem.links.models import LinkModel
-from netem.links.wifi import BROADCAST, AirConfig, Frames, Key, decide_phase
+from netem.links.wifi import BROADCAST, AirConfig, Frames, Key, PhaseOutcome, decide_phase
+from netem.links.wifi.dcf import reference_phase
 from netem.links.wifi.saturation import bianchi_throughput_bps, simulated_throughput_bps
 from testbed.sim.simulate import simulate
 
+Phase = Callable[[AirConfig, np.ndarray, Frames, Key], PhaseOutcome]
 SEED = 42
 STATE_BYTES = 200 + 36  # a state's payload, UDP/IP and LLC/SNAP headers
-
-
-def best(fn: Callable[[], object], repeat: int = 3) -> float:
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
 
 
 def bianchi(seed: int, quick: bool) -> None:
@@ -80,13 +73,34 @@ def epoch_frames(n: int, rng: np.random.Generator) -> list[Frames]:
     ]
 
 
+def cpu_best(fn: Callable[[], object], repeat: int = 3) -> float:
+    """The least CPU time of ``repeat`` calls [s]."""
+    times = []
+    for _ in range(repeat):
+        t0 = time.process_time()
+        fn()
+        times.append(time.process_time() - t0)
+    return min(times)
+
+
+def team(n: int) -> np.ndarray:
+    """``n`` agents on a grid spaced 5 m, five to a row (grid20's layout at 20)."""
+    return np.array([[i % 5, i // 5] for i in range(n)], dtype=np.float64) * 5.0
+
+
+def air_epochs(decide: Phase, positions: np.ndarray, plans: list[list[Frames]], seed: int) -> float:
+    """The CPU time of deciding every phase of ``plans`` [s]."""
+    config = AirConfig()
+    t0 = time.process_time()
+    for k, plan in enumerate(plans):
+        for phase, frames in enumerate(plan):
+            decide(config, positions, frames, Key(seed, k, phase))
+    return time.process_time() - t0
+
+
 def speed(seed: int, epochs: int) -> None:
     scenario = Scenario.from_file(ROOT / "scenarios/grid20.toml")
     n = scenario.n
-    positions = np.array([a.offset for a in scenario.agents]) * 5.0  # a 20 m grid
-    rng = np.random.default_rng(seed)
-    plans = [epoch_frames(n, rng) for _ in range(epochs)]
-    config = AirConfig()
     links = [
         LinkModel([Bernoulli(p_loss=0.1)], seed, i, j) for i in range(n) for j in range(n) if i != j
     ]
@@ -96,40 +110,42 @@ def speed(seed: int, epochs: int) -> None:
             for model in links:
                 model.decide(k)
 
-    def state_phase() -> None:
-        for k in range(epochs):
-            decide_phase(config, positions, plans[k][0], Key(seed, k, 0))
-
-    def air_epoch() -> None:
-        for k in range(epochs):
-            for phase, frames in enumerate(plans[k]):
-                decide_phase(config, positions, frames, Key(seed, k, phase))
-
     sim_scenario = scenario.with_overrides(epochs=epochs)
-    base = best(bernoulli) / epochs
-    sim = best(lambda: simulate(sim_scenario, seed=seed)) / epochs
-    state = best(state_phase) / epochs
-    whole = best(air_epoch) / epochs
-    print(f"2. 20 agents (grid20, spaced 5 m), {epochs} epochs, seed {seed}, best of 3")
-    print(f"   Bernoulli decide, {len(links)} links          {base * 1e3:8.3f} ms/epoch (baseline)")
-    print(f"   simulator epoch, Bernoulli links      {sim * 1e3:8.3f} ms/epoch ({sim / base:.2f}×)")
+    base = cpu_best(bernoulli) / epochs
+    sim = cpu_best(lambda: simulate(sim_scenario, seed=seed)) / epochs
+    print(f"2. an epoch's three phases on the air, {epochs} epochs, seed {seed}, CPU, best of 3")
+    print(f"   Bernoulli decide, {len(links)} links (grid20)   {base * 1e3:8.3f} ms/epoch")
+    print(f"   simulator epoch, grid20, Bernoulli links  {sim * 1e3:8.3f} ms/epoch")
     print(
-        f"   air model, the state phase            {state * 1e3:8.3f} ms/phase ({state / base:.2f}× "
-        f"Bernoulli, {state / sim:.2f}× the simulator's epoch)"
+        f"   {'agents':>6} {'Python loop ms':>14} {'compiled ms':>11} {'speed-up':>8} "
+        f"{'÷ simulator epoch':>17} {'÷ Bernoulli':>11}"
     )
-    print(
-        f"   air model, three phases               {whole * 1e3:8.3f} ms/epoch ({whole / base:.2f}× "
-        f"Bernoulli, {whole / sim:.2f}× the simulator's epoch)",
-        flush=True,
-    )
+    reference_epochs = max(2, epochs // 5)  # the loop in Python is the slow one
+    for agents in (5, 20, 50):
+        positions = team(agents)
+        rng = np.random.default_rng(seed)
+        plans = [epoch_frames(agents, rng) for _ in range(epochs)]
+        air_epochs(decide_phase, positions, plans[:1], seed)  # loaded (or compiled) once
+        compiled, python = [], []
+        for _ in range(3):  # alternating, so both see the same load
+            compiled.append(air_epochs(decide_phase, positions, plans, seed))
+            python.append(air_epochs(reference_phase, positions, plans[:reference_epochs], seed))
+        fast, slow = min(compiled) / epochs, min(python) / reference_epochs
+        print(
+            f"   {agents:6d} {slow * 1e3:14.3f} {fast * 1e3:11.3f} {slow / fast:7.1f}× "
+            f"{fast / sim:16.2f}× {fast / base:10.2f}×",
+            flush=True,
+        )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=SEED)
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--speed-only", action="store_true", help="skip the Bianchi table")
     args = parser.parse_args()
-    bianchi(args.seed, args.quick)
+    if not args.speed_only:
+        bianchi(args.seed, args.quick)
     speed(args.seed, 20 if args.quick else 100)
 
 

@@ -7,8 +7,9 @@ air model decides them here and ns-3 runs them in its own process, the whole bat
 (``testkit.ns3_air``, ns-3's defaults, which are the model's). Printed per case: the delivery
 ratio (receptions over addressed receivers) of each and their difference with twice the
 standard error of the mean per-phase difference, the mean latency (arrival less readiness)
-of each and their ratio, and the time per phase of each (ns-3's inside its process: building
-the phase and running it, without the import).
+of each and their ratio, and the CPU time per phase of each and their ratio (ns-3's inside
+its process: building the phase and running it, without the import; the model's through
+``decide_phase``, its compiled loop loaded before).
 
 Cases (docs/model.md §11): broadcasts of 200 B over UDP/IP (236 B MSDU) at 6 Mb/s by 2 to 50
 agents within 20 m, each once in a 20 ms phase (a 50 Hz state); 20 agents spread over 60 m
@@ -28,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from netem.links.wifi import BROADCAST, AirConfig, Frames, Key, decide_phase
+from netem.links.wifi import BROADCAST, AirConfig, Frames, Key, decide_phase, load_compiled_loop
 from testkit.ns3_air import arrivals, phase_request, run_ns3
 
 SEED = 7
@@ -135,6 +136,7 @@ def main() -> None:
         for k, (positions, frames) in enumerate(plans[c])
     ]
     ns3, ns3_s = run_ns3(batch)
+    load_compiled_loop()
     print(
         f"seed {args.seed} (ns-3 runs c·100000 + k + 1), {base} phases per case times its own; "
         f"ns-3 3.44 (pip ns3) in one process: {ns3_s:.1f} s with its import; the model's error "
@@ -143,7 +145,8 @@ def main() -> None:
     )
     print(
         f"{'case':40} {'phases':>6} {'delivery model':>14} {'ns-3':>6} {'diff':>13} "
-        f"{'latency model µs':>16} {'ns-3':>7} {'ratio':>6} {'ms/phase model':>14} {'ns-3':>7}"
+        f"{'latency model µs':>16} {'ns-3':>7} {'ratio':>6} {'ms/phase model':>14} {'ns-3':>7} "
+        f"{'ns-3 ÷ model':>12}"
     )
     index = 0
     for c, case in enumerate(CASES):
@@ -152,9 +155,9 @@ def main() -> None:
         mine, theirs = np.zeros(3), np.zeros(3)
         gaps = []
         for k, (positions, frames) in enumerate(plans[c]):
-            t0 = time.perf_counter()
+            t0 = time.process_time()
             out = decide_phase(config, positions, frames, Key(args.seed, c, k))
-            model_t += time.perf_counter() - t0
+            model_t += time.process_time() - t0
             to = addressed(frames, positions.shape[0])
             ours = summary(out.arrival_ns, to, frames.ready_ns)
             ns3_arrival = arrivals(ns3[index], len(frames), positions.shape[0])
@@ -173,7 +176,7 @@ def main() -> None:
             f"{case.name:40} {k:6d} {d_mine:14.3f} {d_theirs:6.3f} "
             f"{d_mine - d_theirs:+6.3f}±{spread:5.3f} "
             f"{l_mine:16.1f} {l_theirs:7.1f} {l_mine / max(l_theirs, 1e-9):6.3f} "
-            f"{model_t / k * 1e3:14.2f} {ns3_t / k * 1e3:7.1f}",
+            f"{model_t / k * 1e3:14.2f} {ns3_t / k * 1e3:7.1f} {ns3_t / max(model_t, 1e-9):11.0f}×",
             flush=True,
         )
 

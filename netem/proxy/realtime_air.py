@@ -2,12 +2,15 @@
 
 In realtime the agents' own timing is the air's: a packet is ready when it reaches netem. A
 phase's packets (its epoch and kind, ``netem.links.air_network``) are decided together by
-the model from the first one's arrival, again whenever another comes, and a packet is
-settled once no later one can change its fate: delivered when the model's arrival has
-passed (a later frame is ready now, so it starts after DIFS, after that arrival), dropped
-when the phase's deadline has. Packets are ready no earlier than the last settle, so what
-is settled stays so. A delivered packet goes out at its model's arrival (netem's lag
-behind it is counted, :attr:`RealtimeAir.lag_ns`), one past the deadline is ``late``.
+the model from the first one's arrival, and again at the next settle after others came (once
+for all that came since, not once a packet), and a packet is settled once no later one can
+change its fate: delivered when the model's arrival has passed (a later frame is ready now,
+so it starts after DIFS, after that arrival), dropped when the phase's deadline has. Packets
+are ready no earlier than the last settle, so what is settled stays so. Each decision sorts
+the phase's delivered packets by arrival, so a settle takes only those due and the next
+settle time is the first of them: the work is the packets' count, not its square. A
+delivered packet goes out at its model's arrival (netem's lag behind it is counted,
+:attr:`RealtimeAir.lag_ns`), one past the deadline is ``late``.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import numpy as np
 import orjson
 
 from netem.links.air_network import AirNetwork, AirVerdict
+from netem.links.wifi import load_compiled_loop
 from netem.proxy.routes import Phase
 
 Link = tuple[int, int]
@@ -28,7 +32,8 @@ Link = tuple[int, int]
 @dataclass
 class _Phase:
     """One (epoch, phase)'s packets on the air: when its first came, each one's link, when
-    it came [ns from the first], what the caller keeps with it, and which are settled."""
+    it came [ns from the first], what the caller keeps with it, which are settled, and the
+    delivered ones not settled yet, latest arrival first [wall ns]."""
 
     origin_ns: int
     deadline_ns: int
@@ -36,7 +41,12 @@ class _Phase:
     ready_ns: list[int] = field(default_factory=list)
     items: list[Any] = field(default_factory=list)
     verdicts: list[AirVerdict] = field(default_factory=list)
-    settled: set[int] = field(default_factory=set)
+    settled: list[bool] = field(default_factory=list)
+    due: list[tuple[int, int]] = field(default_factory=list)  # (arrival, index)
+    decided: bool = False  # no packet came since the last decision
+
+    def arrival_ns(self, v: AirVerdict) -> int:
+        return self.origin_ns + (0 if math.isnan(v.arrival_ms) else round(v.arrival_ms * 1e6))
 
 
 class RealtimeAir:
@@ -44,6 +54,7 @@ class RealtimeAir:
 
     def __init__(self, net: AirNetwork) -> None:
         self.net = net
+        load_compiled_loop()  # before the run, not while its first packets wait
         self.open: dict[tuple[int, Phase], _Phase] = {}
         self.positions: dict[int, dict[int, list[float]]] = {}  # epoch → agent → [m]
         self.dimension = 0 if net.access_point is None else int(net.access_point.shape[0])
@@ -75,7 +86,8 @@ class RealtimeAir:
         got.links.append(link)
         got.ready_ns.append(max(0, came_ns - got.origin_ns))
         got.items.append(item)
-        got.verdicts = []  # to decide again
+        got.settled.append(False)
+        got.decided = False
 
     def settle(self, now_ns: int) -> list[tuple[Any, AirVerdict, int]]:
         """The packets whose fate is known by ``now_ns``: (item, verdict, when it arrives
@@ -84,38 +96,49 @@ class RealtimeAir:
         out: list[tuple[Any, AirVerdict, int]] = []
         for key in list(self.open):
             ph = self.open[key]
-            if not ph.verdicts:
-                ph.verdicts = self.net.phase(
-                    key[0],
-                    key[1],
-                    ph.links,
-                    self._positions(key[0]),
-                    ph.ready_ns,
-                    ph.deadline_ns - ph.origin_ns,
-                )
-            over = now_ns >= ph.deadline_ns
-            for i, v in enumerate(ph.verdicts):
-                if i in ph.settled:
-                    continue
-                at = ph.origin_ns + (0 if math.isnan(v.arrival_ms) else round(v.arrival_ms * 1e6))
-                if (v.passed and at <= now_ns) or over:
-                    ph.settled.add(i)
-                    out.append((ph.items[i], v, at if v.passed else now_ns))
-            if over:
+            if not ph.decided:
+                self._decide(key, ph)
+            if now_ns >= ph.deadline_ns:
+                for i, v in enumerate(ph.verdicts):
+                    if not ph.settled[i]:
+                        out.append((ph.items[i], v, ph.arrival_ns(v) if v.passed else now_ns))
                 del self.open[key]
+                continue
+            while ph.due and ph.due[-1][0] <= now_ns:
+                at, i = ph.due.pop()
+                ph.settled[i] = True
+                out.append((ph.items[i], ph.verdicts[i], at))
         return out
 
     def next_ns(self) -> int | None:
         """When the next packet may settle [wall ns] (None: nothing open)."""
         times = []
         for ph in self.open.values():
-            times.append(ph.deadline_ns)
-            for i, v in enumerate(ph.verdicts):
-                if i not in ph.settled and v.passed:
-                    times.append(ph.origin_ns + round(v.arrival_ms * 1e6))
-            if not ph.verdicts:
+            if not ph.decided:
                 return 0  # to decide now
+            times.append(ph.deadline_ns)
+            if ph.due:
+                times.append(ph.due[-1][0])
         return min(times) if times else None
+
+    def _decide(self, key: tuple[int, Phase], ph: _Phase) -> None:
+        """The phase's packets decided together; its delivered ones not yet settled, sorted."""
+        epoch, phase = key
+        ph.verdicts = self.net.phase(
+            epoch,
+            phase,
+            ph.links,
+            self._positions(epoch),
+            ph.ready_ns,
+            ph.deadline_ns - ph.origin_ns,
+        )
+        due = [
+            (ph.arrival_ns(v), i)
+            for i, v in enumerate(ph.verdicts)
+            if v.passed and not ph.settled[i]
+        ]
+        ph.due = sorted(due, reverse=True)
+        ph.decided = True
 
     def _positions(self, epoch: int) -> np.ndarray:
         known = self.positions.get(epoch) or self.positions.get(epoch - 1, {})

@@ -6,7 +6,7 @@ and a phase's :class:`Frames` and gives each frame's fate at each agent
 """
 
 from netem.links.wifi.config import AirConfig
-from netem.links.wifi.dcf import Key, decide_phase
+from netem.links.wifi.dcf import Key, decide_phase, load_compiled_loop
 from netem.links.wifi.frames import BROADCAST, AirError, Cause, Frames, PhaseOutcome
 from netem.links.wifi.phy import PHYS, Phy
 
@@ -21,4 +21,5 @@ __all__ = [
     "PhaseOutcome",
     "Phy",
     "decide_phase",
+    "load_compiled_loop",
 ]

@@ -61,7 +61,7 @@ def decide_phase(
     key: Key,
     phase_end_ns: int | None = None,
 ) -> PhaseOutcome:
-    """Every frame's fate on the channel.
+    """Every frame's fate on the channel, through the compiled event loop.
 
     Parameters
     ----------
@@ -76,7 +76,64 @@ def decide_phase(
     """
     positions = np.asarray(positions_m, dtype=np.float64)
     frames.check(positions.shape[0])
+    # numba takes about a second to load: only once a phase is decided
+    from netem.links.wifi.compiled_dcf import decide
+
+    arrival, cause, attempts, first_start, end_ns = decide(
+        config, _power_mw(config, positions, key), frames, key.seed, key.epoch, key.phase
+    )
+    return _outcome(arrival, cause, attempts, first_start, end_ns, phase_end_ns)
+
+
+def load_compiled_loop() -> None:
+    """Load the compiled loop now (compile it, on a fresh install) rather than at the first
+    phase: realtime would hold that phase's packets meanwhile."""
+    two = np.array([[0.0, 0.0], [1.0, 0.0]])
+    decide_phase(AirConfig(), two, Frames.of(0, 1, 0, 0), Key(0, 0, 0))
+
+
+def reference_phase(
+    config: AirConfig,
+    positions_m: Floats,
+    frames: Frames,
+    key: Key,
+    phase_end_ns: int | None = None,
+) -> PhaseOutcome:
+    """``decide_phase`` through this module's loop in Python: the reference the compiled
+    loop is held to."""
+    positions = np.asarray(positions_m, dtype=np.float64)
+    frames.check(positions.shape[0])
     return _Phase(config, positions, frames, key).run(phase_end_ns)
+
+
+def _power_mw(config: AirConfig, positions: Floats, key: Key) -> Floats:
+    """(n, n) [i, j]: what j receives from i [mW]; 0 on the diagonal."""
+    power = to_mw(received_dbm(config, positions, key.seed, key.epoch))
+    np.fill_diagonal(power, 0.0)
+    return power
+
+
+def _outcome(
+    arrival: npt.NDArray[np.int64],
+    cause: npt.NDArray[np.int8],
+    attempts: npt.NDArray[np.int64],
+    first_start: npt.NDArray[np.int64],
+    end_ns: int,
+    phase_end_ns: int | None,
+) -> PhaseOutcome:
+    delivered = cause == Cause.DELIVERED
+    if phase_end_ns is not None:
+        late = delivered & (arrival > phase_end_ns)
+        cause[late] = Cause.LATE
+        delivered &= ~late
+    return PhaseOutcome(
+        delivered=delivered,
+        arrival_ns=arrival,
+        cause=cause,
+        attempts=attempts,
+        first_start_ns=first_start,
+        end_ns=end_ns,
+    )
 
 
 class _Phase:
@@ -89,9 +146,7 @@ class _Phase:
         self.slot_ns, self.sifs_ns, self.difs_ns = phy.slot_ns, phy.sifs_ns, phy.difs_ns
         self.eifs_ns, self.ack_ns = phy.eifs_ns(), phy.ack_ns(self.rate)
         self.cw_min, self.cw_max = config.window
-        dbm = received_dbm(config, positions, key.seed, key.epoch)
-        power = to_mw(dbm)
-        np.fill_diagonal(power, 0.0)
+        power = _power_mw(config, positions, key)
         noise = float(to_mw(config.noise_dbm))
         detect_snr = float(to_mw(config.preamble_detection_snr_db))
         detect = max(
@@ -345,19 +400,8 @@ class _Phase:
 
     # -- the result ------------------------------------------------------------------------
     def outcome(self, phase_end_ns: int | None) -> PhaseOutcome:
-        delivered = self.cause == Cause.DELIVERED
-        if phase_end_ns is not None:
-            late = delivered & (self.arrival > phase_end_ns)
-            self.cause[late] = Cause.LATE
-            delivered &= ~late
-        return PhaseOutcome(
-            delivered=delivered,
-            arrival_ns=self.arrival,
-            cause=self.cause,
-            attempts=self.attempts,
-            first_start_ns=self.first_start,
-            end_ns=self.now,
-        )
+        first = self.first_start
+        return _outcome(self.arrival, self.cause, self.attempts, first, self.now, phase_end_ns)
 
 
-__all__ = ["Key", "decide_phase"]
+__all__ = ["Key", "decide_phase", "load_compiled_loop", "reference_phase"]

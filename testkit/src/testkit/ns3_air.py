@@ -232,7 +232,7 @@ def main() -> None:
     del ns  # reached through cppyy.gbl from here on
     for p in phases:
         data, control = MODES[(p["phy"], p["rate_mbps"])]
-        started = time.perf_counter()
+        started = time.process_time()  # CPU: the model beside it is timed so
         flat = air.RunPhase(
             [float(v) for v in p["x"]],
             [float(v) for v in p["y"]],
@@ -248,7 +248,7 @@ def main() -> None:
             START_NS,
             RUN_NS,
         )
-        seconds = time.perf_counter() - started
+        seconds = time.process_time() - started
         values = [int(v) for v in flat]
         rx = [values[k : k + 3] for k in range(0, len(values), 3)]
         print(json.dumps({"rx": rx, "seconds": seconds}), flush=True)
