@@ -126,9 +126,10 @@ class _Receivers:
         self._ours = set(self.receivers)  # a pool of hundreds looks each delivery up
         self.counts = counts  # the node's status counts: realtime writes into them
 
-    def _delivery(self, msg: Incoming) -> Delivery | None:
-        """netem's delivery, if it is for one of these receivers on its own key."""
-        delivery = self.service.malformed.decode(msg.key, msg.payload, Delivery)
+    def _delivery(self, msg: Incoming) -> Any:
+        """netem's delivery (its fields, :meth:`~formation.codec.Malformed.read`), if it is for
+        one of these receivers on its own key."""
+        delivery = self.service.malformed.read(msg.key, msg.payload, Delivery)
         if delivery is None:
             return None
         receiver = delivery.receiver
@@ -156,7 +157,7 @@ class LockstepInbox(_Receivers):
         self, service: Service, receivers: Iterable[int], counts: MutableMapping[str, int]
     ) -> None:
         super().__init__(service, receivers, counts)
-        self.deliveries: dict[tuple[int, str, int], Delivery] = {}
+        self.deliveries: dict[tuple[int, str, int], Any] = {}  # Delivery's fields
         self.floor: dict[str, int] = {}  # phase → the first epoch not yet taken
         self.current: tuple[str, int] | None = None  # the phase and epoch waited for
         self.waiting: set[int] = set()  # its receivers without their delivery yet
