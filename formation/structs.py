@@ -62,16 +62,22 @@ def struct_of(model: type[BaseModel]) -> type[msgspec.Struct]:
 _DECODERS: dict[type[BaseModel], msgspec.json.Decoder[Any]] = {}
 
 
-def plain_of(model: type[BaseModel], data: bytes | str) -> Any:
-    """``data`` as a struct with ``model``'s attributes and values, or None when only the
-    model can say (then validate it with it)."""
+def decoder_of(model: type[BaseModel]) -> msgspec.json.Decoder[Any]:
+    """The decoder of ``model``'s struct, made once (a node makes its own before the run's
+    clock starts, so its first epoch does not)."""
     decoder = _DECODERS.get(model)
     if decoder is None:
         decoder = _DECODERS[model] = msgspec.json.Decoder(struct_of(model))
+    return decoder
+
+
+def plain_of(model: type[BaseModel], data: bytes | str) -> Any:
+    """``data`` as a struct with ``model``'s attributes and values, or None when only the
+    model can say (then validate it with it)."""
     try:
-        return decoder.decode(data)
+        return decoder_of(model).decode(data)
     except msgspec.DecodeError:  # ValidationError too
         return None
 
 
-__all__ = ["plain_of", "struct_of"]
+__all__ = ["decoder_of", "plain_of", "struct_of"]

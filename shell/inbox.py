@@ -39,6 +39,7 @@ from formation.messages import (
     TokenReport,
 )
 from formation.realtime import Clock
+from formation.structs import decoder_of
 from shell.loop import Wait
 from shell.service import Incoming, Service
 
@@ -125,6 +126,9 @@ class _Receivers:
         self.receivers = list(receivers)
         self._ours = set(self.receivers)  # a pool of hundreds looks each delivery up
         self.counts = counts  # the node's status counts: realtime writes into them
+        decoder_of(Delivery)  # the decoders made now, before the run's clock starts
+        for kind in KINDS.values():
+            decoder_of(kind.model)
 
     def _delivery(self, msg: Incoming) -> Any:
         """netem's delivery (its fields, :meth:`~formation.codec.Malformed.read`), if it is for

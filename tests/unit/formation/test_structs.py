@@ -18,6 +18,7 @@ from formation.messages import (
     Delivery,
     TokenReport,
 )
+from formation.structs import decoder_of
 
 HEAD = {"run_id": "r", "sender": "agent/1", "seq": 3, "epoch": 2, "stamp_ns": 5}
 VALID: list[tuple[type[BaseModel], dict[str, Any]]] = [
@@ -107,3 +108,8 @@ def test_a_delivery_s_packets_are_read_one_by_one() -> None:
     )
     assert [(p.source, list(m.position)) for p, m in got] == [(2, [1.0, 2.0])]
     assert malformed.counts == {"link/3": 1, "link/4": 1}
+
+
+def test_a_model_s_decoder_is_made_once() -> None:
+    assert decoder_of(Delivery) is decoder_of(Delivery)
+    assert decoder_of(Delivery) is not decoder_of(CoordinationState)
