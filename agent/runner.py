@@ -7,6 +7,7 @@ the simulator runs, on these agents and their in-links at once.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -23,9 +24,10 @@ Array = npt.NDArray[np.float64]
 Report = list[tuple[int, int, list[float] | None]]  # (neighbour, token, z_ij) per in-link
 
 
-@dataclass(frozen=True)
-class Packet:
-    """A coordination packet as delivered to ``receiver``: its source, sent epoch and ``x_j`` [m]."""
+class Packet(NamedTuple):
+    """A coordination packet as delivered to ``receiver``: its source, sent epoch and ``x_j`` [m].
+
+    A tuple: a pool builds hundreds an epoch."""
 
     receiver: int
     source: int

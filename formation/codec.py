@@ -6,11 +6,12 @@ import struct
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from pydantic import BaseModel, ValidationError
 
 from formation.messages import DeliveredPacket
+from formation.structs import plain_of
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -55,21 +56,30 @@ class Malformed:
             self.counts[key] += 1
             return None
 
+    def read(self, key: str, payload: bytes | str, model: type[BaseModel]) -> Any:
+        """``payload`` with ``model``'s fields: a struct of them where msgspec can vouch for it
+        (:func:`formation.structs.plain_of`), else the model; None when it fails validation
+        (counted on ``key``). For messages read by the hundred an epoch."""
+        plain = plain_of(model, payload)
+        return plain if plain is not None else self.decode(key, payload, model)
+
     def decode_packets(
         self,
         packets: Iterable[DeliveredPacket],
-        model: type[M],
+        model: type[BaseModel],
         key_of: Callable[[DeliveredPacket], str],
-        belongs: Callable[[DeliveredPacket, M], bool],
-    ) -> Iterator[tuple[DeliveredPacket, M]]:
-        """The payloads of a delivery's packets as ``model``, lazily. One that fails validation,
-        or that ``belongs`` says its link cannot carry, is counted on its link's key
-        (``key_of``, built only then) and skipped."""
+        belongs: Callable[[DeliveredPacket, Any], bool],
+    ) -> Iterator[tuple[DeliveredPacket, Any]]:
+        """The payloads of a delivery's packets with ``model``'s fields (as :meth:`read`),
+        lazily. One that fails validation, or that ``belongs`` says its link cannot carry, is
+        counted on its link's key (``key_of``, built only then) and skipped."""
         for p in packets:
-            try:
-                msg: M | None = model.model_validate_json(p.message)
-            except (ValidationError, ValueError, UnicodeDecodeError):
-                msg = None
+            msg = plain_of(model, p.message)
+            if msg is None:
+                try:
+                    msg = model.model_validate_json(p.message)
+                except (ValidationError, ValueError, UnicodeDecodeError):
+                    msg = None
             if msg is not None and belongs(p, msg):
                 yield p, msg
             else:

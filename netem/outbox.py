@@ -4,8 +4,15 @@ decision records on ``netem/decision``."""
 from __future__ import annotations
 
 from formation import keys
+from formation.codec import now_ns
 from formation.keys import LEADER_ENDPOINT
-from netem.proxy.records import Record, decision_batch, decision_batch_of, delivery
+from netem.proxy.records import (
+    Record,
+    decision_batch,
+    decision_batch_of,
+    delivery_head,
+    delivery_of,
+)
 from netem.proxy.routes import Phase
 from shell import Publisher, Service
 
@@ -16,8 +23,10 @@ class ZenohOutbox:
 
     def __init__(self, service: Service) -> None:
         self.service = service
-        self._inboxes: dict[tuple[Phase, int], tuple[str, Publisher]] = {}
+        # (phase, receiver) → key, publisher, the delivery's fields before its packets
+        self._inboxes: dict[tuple[Phase, int], tuple[str, Publisher, bytes]] = {}
         self._decision_key = keys.netem_decision(service.run_id)
+        self._header = service.header_format()
 
     def declare(self, agents: list[int]) -> None:
         """Declare every inbox's publisher now, before the clock starts (as
@@ -28,11 +37,12 @@ class ZenohOutbox:
         self._inbox("report", LEADER_ENDPOINT)
         self.service.publisher(self._decision_key)
 
-    def _inbox(self, phase: Phase, receiver: int) -> tuple[str, Publisher]:
+    def _inbox(self, phase: Phase, receiver: int) -> tuple[str, Publisher, bytes]:
         out = self._inboxes.get((phase, receiver))
         if out is None:
             key = keys.inbox(self.service.run_id, receiver, phase)
-            out = self._inboxes[(phase, receiver)] = (key, self.service.publisher(key))
+            head = delivery_head(self._header, receiver, phase)
+            out = self._inboxes[(phase, receiver)] = (key, self.service.publisher(key), head)
         return out
 
     def deliver(
@@ -45,8 +55,9 @@ class ZenohOutbox:
         dead: list[int],
     ) -> None:
         service = self.service
-        key, pub = self._inbox(phase, receiver)
-        pub.put(delivery(service.header(key, epoch), receiver, phase, packets, lost, dead))
+        key, pub, head = self._inbox(phase, receiver)  # two thousand an epoch: spliced
+        fields = head % (service.next_seq(key), epoch, now_ns())
+        pub.put(delivery_of(fields, packets, lost, dead))
         service.sent[key] += 1
 
     def records(self, phase: Phase, epoch: int, records: list[Record]) -> None:

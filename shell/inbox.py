@@ -39,6 +39,7 @@ from formation.messages import (
     TokenReport,
 )
 from formation.realtime import Clock
+from formation.structs import decoder_of
 from shell.loop import Wait
 from shell.service import Incoming, Service
 
@@ -125,10 +126,14 @@ class _Receivers:
         self.receivers = list(receivers)
         self._ours = set(self.receivers)  # a pool of hundreds looks each delivery up
         self.counts = counts  # the node's status counts: realtime writes into them
+        decoder_of(Delivery)  # the decoders made now, before the run's clock starts
+        for kind in KINDS.values():
+            decoder_of(kind.model)
 
-    def _delivery(self, msg: Incoming) -> Delivery | None:
-        """netem's delivery, if it is for one of these receivers on its own key."""
-        delivery = self.service.malformed.decode(msg.key, msg.payload, Delivery)
+    def _delivery(self, msg: Incoming) -> Any:
+        """netem's delivery (its fields, :meth:`~formation.codec.Malformed.read`), if it is for
+        one of these receivers on its own key."""
+        delivery = self.service.malformed.read(msg.key, msg.payload, Delivery)
         if delivery is None:
             return None
         receiver = delivery.receiver
@@ -156,7 +161,7 @@ class LockstepInbox(_Receivers):
         self, service: Service, receivers: Iterable[int], counts: MutableMapping[str, int]
     ) -> None:
         super().__init__(service, receivers, counts)
-        self.deliveries: dict[tuple[int, str, int], Delivery] = {}
+        self.deliveries: dict[tuple[int, str, int], Any] = {}  # Delivery's fields
         self.floor: dict[str, int] = {}  # phase → the first epoch not yet taken
         self.current: tuple[str, int] | None = None  # the phase and epoch waited for
         self.waiting: set[int] = set()  # its receivers without their delivery yet

@@ -137,6 +137,12 @@ class Service:
             "stamp_ns": now_ns(),
         }
 
+    def header_format(self) -> bytes:
+        """:meth:`header`'s fields as the opening of a JSON object, ``%d`` for ``seq``,
+        ``epoch`` and ``stamp_ns`` in that order: for a publisher of thousands an epoch."""
+        fixed = orjson.dumps({"run_id": self.run_id, "sender": self.name})[:-1]
+        return fixed.replace(b"%", b"%%") + b',"seq":%d,"epoch":%d,"stamp_ns":%d'
+
     def status(
         self,
         state: str,

@@ -284,19 +284,26 @@ class LockstepCore(Attendance):
         s = self.rows[phase].streams[stream]
         src = s.links[0][1]
         packet = packet_json(src, seq, epoch, 1, payload)
-        open_ = self.open
+        open_, counts = self.open, self._senders_count[phase]
+        # In the usual case only a receiver this packet completes can close: the others are
+        # not looked at again.
+        usual = not (self.away or self.queued)
         boxes = []
         for dst in s.receivers:
-            box = open_.get((phase, dst, epoch))
+            key = (phase, dst, epoch)
+            box = open_.get(key)
             if box is None:
-                box = open_[(phase, dst, epoch)] = OpenEpoch()
-            box.handled.add(src)
+                box = open_[key] = OpenEpoch()
+            handled = box.handled
+            handled.add(src)
             box.packets.append(packet)
-            boxes.append((dst, box))
+            if not usual or len(handled) >= counts[dst]:
+                boxes.append((dst, box))
         self.passed[(phase, stream)] += 1
         template, width = self.templates[phase].row_template(stream, row.decisions)
         self.records.add(phase, epoch, template % ((epoch, seq) * width))
-        self._close_complete(phase, epoch, boxes)
+        if boxes:
+            self._close_complete(phase, epoch, boxes)
 
     def _record(
         self,

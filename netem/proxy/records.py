@@ -239,12 +239,32 @@ def delivery(
     """A ``Delivery`` payload for ``receiver``: the packets of ``phase`` (:func:`packet_json`)
     it gets this epoch, spliced."""
     head = orjson.dumps({**header, "kind": "delivery", "receiver": receiver, "phase": phase})
-    return b'%s,"packets":[%s],"lost":%s,"dead":%s}' % (
-        head[:-1],
-        b",".join(packets),
-        orjson.dumps(sorted(lost)),
-        orjson.dumps(sorted(dead)),
+    return delivery_of(head[:-1], packets, lost, dead)
+
+
+def delivery_head(header_format: bytes, receiver: int, phase: str) -> bytes:
+    """A ``Delivery``'s fields before its packets, ``%d`` for the header's seq, epoch and
+    stamp_ns (:meth:`shell.Service.header_format`): made once per receiver and phase."""
+    return header_format + b',"kind":"delivery","receiver":%d,"phase":"%s"' % (
+        receiver,
+        phase.encode(),
     )
+
+
+def delivery_of(
+    head: bytes, packets: Iterable[bytes], lost: Iterable[int], dead: Iterable[int]
+) -> bytes:
+    """:func:`delivery` from its fields before the packets, encoded (``head``)."""
+    return b'%s,"packets":[%s],"lost":%s,"dead":%s}' % (
+        head,
+        b",".join(packets),
+        _ids(lost),
+        _ids(dead),
+    )
+
+
+def _ids(ids: Iterable[int]) -> bytes:
+    return orjson.dumps(sorted(ids)) if ids else b"[]"
 
 
 def _text(payload: Any) -> str:

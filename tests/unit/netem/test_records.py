@@ -8,7 +8,15 @@ from hypothesis import strategies as st
 
 from formation.messages import CoordinationState, DecisionBatch, Delivery
 from netem.links.layer_stack import Outcome
-from netem.proxy.records import Record, decision_batch, delivery, packet_json
+from netem.proxy.records import (
+    Record,
+    decision_batch,
+    delivery,
+    delivery_head,
+    delivery_of,
+    packet_json,
+)
+from shell import MemoryBus, Service
 
 HEADER = {"run_id": "r", "sender": "netem", "seq": 3, "epoch": 7, "stamp_ns": 11}
 
@@ -101,3 +109,21 @@ def _reference_batch(header: dict[str, object], phase: str, recs: list[Record]) 
 @given(st.lists(records, max_size=20), st.sampled_from(["state", "report", "estimate"]))
 def test_decision_batch_is_byte_for_byte_one_json_dump(recs: list[Record], phase: str) -> None:
     assert decision_batch(HEADER, phase, recs) == _reference_batch(HEADER, phase, recs)
+
+
+@given(
+    run_id=st.text(min_size=1, max_size=12),
+    seq=st.integers(0, 10**9),
+    epoch=st.integers(-1, 10**6),
+    lost=st.lists(st.integers(1, 50), max_size=4),
+)
+def test_the_outbox_s_spliced_delivery_is_the_one_built_from_the_header(
+    run_id: str, seq: int, epoch: int, lost: list[int]
+) -> None:
+    service = Service(MemoryBus(), run_id, "netem", 0)
+    header = {"run_id": run_id, "sender": service.name, "seq": seq, "epoch": epoch, "stamp_ns": 5}
+    packets = [packet_json(2, 4, epoch, 1, b'{"agent":2}')]
+    head = delivery_head(service.header_format(), 9, "state") % (seq, epoch, 5)
+    want = delivery(header, 9, "state", packets, lost, [3])
+    assert delivery_of(head, packets, lost, [3]) == want
+    Delivery.model_validate_json(want)

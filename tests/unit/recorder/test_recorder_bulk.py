@@ -24,7 +24,7 @@ from pydantic import BaseModel, Field, field_validator
 from analysis import Decisions
 from formation import keys
 from formation.scenario import Scenario
-from recorder.reading.bulk import struct_of
+from formation.structs import struct_of
 from recorder.reading.chunks import ChunkError, chunk_messages, file_order
 from recorder.reading.reader import open_recording
 from recorder.reading.run import decode_run
