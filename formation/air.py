@@ -18,6 +18,12 @@ estimates follow in their own phase). With ``links = "all"`` the reports and est
 the states' channel (``control_channel = "shared"``) or have a second channel of their own
 with the same radio (``"own"``): their own contention, which no state frame enters.
 
+Every strategy's agents report and take estimates each epoch (the estimate carries
+``v_ref``). ``estimation_traffic = "when_used"`` keeps that traffic off the air for a run
+whose strategy never reads the leader's estimates (``zero``, ``hold``, ``drop``): its reports
+and estimates go as on a link of their own, lossless, as with ``links = "formation"``, so
+the strategies that use the estimates pay for their traffic and the others do not.
+
 The radio's parameters left unset take the model's defaults (``netem.links.wifi.AirConfig``:
 IEEE 802.11-2016 and ns-3.44), so the defaults live in one place.
 """
@@ -36,6 +42,8 @@ RATES_MBPS: dict[str, tuple[float, ...]] = {
     "erp_ofdm": (6, 9, 12, 18, 24, 36, 48, 54),
     "dsss": (1, 2, 5.5, 11),
 }
+# the strategies that never read the leader's estimates (docs/model.md §6)
+WITHOUT_ESTIMATES = ("zero", "hold", "drop")
 AIR_QUEUE = "air"  # the air's name in netem's decision records (their ``queue``)
 # why a packet on the air was lost (netem.links.wifi.Cause, lower case), a drop's ``model``
 AIR_CAUSES = ("collision", "below_sensitivity", "retry_limit", "late")
@@ -71,6 +79,7 @@ class Air(BaseModel):
     start_spread_us: float = Field(10_000.0, ge=0.0)  # [µs] the senders' start offsets' range
     reports: Literal["after_states", "with_states"] = "after_states"
     control_channel: Literal["shared", "own"] = "shared"
+    estimation_traffic: Literal["always", "when_used"] = "always"
     # the radio: None takes the model's default
     phy: Literal["ofdm", "erp_ofdm", "dsss"] = "ofdm"
     rate_mbps: float = 6.0
@@ -98,8 +107,12 @@ class Air(BaseModel):
         """Whether the reports take the air in the states' contention period."""
         return self.reports == "with_states"
 
-    def carries(self, link_class: str) -> bool:
-        """Whether packets of ``link_class`` (formation, report, estimate) take the air."""
+    def carries(self, link_class: str, strategy: str | None = None) -> bool:
+        """Whether packets of ``link_class`` (formation, report, estimate) take the air in a
+        run of ``strategy`` (None: any)."""
+        unused = self.estimation_traffic == "when_used" and strategy in WITHOUT_ESTIMATES
+        if link_class != "formation" and unused:
+            return False
         if self.links == "all":
             return True
         return (link_class == "formation") == (self.links == "formation")
@@ -151,4 +164,12 @@ def air_problems(
     return []
 
 
-__all__ = ["AIR_CAUSES", "AIR_QUEUE", "RADIO_FIELDS", "RATES_MBPS", "Air", "air_problems"]
+__all__ = [
+    "AIR_CAUSES",
+    "AIR_QUEUE",
+    "RADIO_FIELDS",
+    "RATES_MBPS",
+    "WITHOUT_ESTIMATES",
+    "Air",
+    "air_problems",
+]

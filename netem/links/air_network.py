@@ -64,7 +64,9 @@ class AirVerdict(NamedTuple):
 class AirNetwork:
     """The channel of one run (one seed): its radio, the links on it, the phases' timing."""
 
-    def __init__(self, scenario: Scenario, seed: int) -> None:
+    def __init__(self, scenario: Scenario, seed: int, strategy: str | None = None) -> None:
+        """``strategy``: the run's (None: the scenario's), which decides whether the
+        estimation traffic takes the air (``Air.estimation_traffic``)."""
         air = scenario.network.air
         if air is None:
             raise ValueError(f"{scenario.name}: no [network.air]")
@@ -76,9 +78,15 @@ class AirNetwork:
         ap = scenario.network.access_point
         self.access_point = None if ap is None else np.asarray(ap, dtype=np.float64)
         self.sizes = WireSizes(scenario)
-        self.phases = frozenset(p for p, c in _CLASS.items() if air.carries(c))
+        run = scenario.strategy.name if strategy is None else strategy
+        self.phases = frozenset(p for p, c in _CLASS.items() if air.carries(c, run))
         # (from epoch, the air, its model's config): the scenario's, then each change's
         self.eras: list[tuple[int, Air, AirConfig]] = [(0, air, self.config)]
+
+    @property
+    def reports_with_states(self) -> bool:
+        """Whether the reports take the air, in the states' contention period."""
+        return self.air.reports_with_states and "report" in self.phases
 
     def change(self, update: dict[str, object], from_epoch: int) -> Air:
         """The air's parameters ``update`` from ``from_epoch`` on (``formation netem set
@@ -280,9 +288,9 @@ class AirNetwork:
         return self.n if end == LEADER_ENDPOINT else end - 1
 
 
-def air_of(scenario: Scenario, seed: int) -> AirNetwork | None:
-    """``scenario``'s air, or None when it has none."""
-    return AirNetwork(scenario, seed) if scenario.network.air is not None else None
+def air_of(scenario: Scenario, seed: int, strategy: str | None = None) -> AirNetwork | None:
+    """``scenario``'s air in a run of ``strategy`` (None: the scenario's), or None."""
+    return AirNetwork(scenario, seed, strategy) if scenario.network.air is not None else None
 
 
 class AirPlanner:
@@ -315,7 +323,7 @@ class AirPlanner:
             for phase, cols_all in self.by_phase.items()
         }
         decided: list[tuple[list[int], list[AirVerdict]]] = []
-        if self.net.air.reports_with_states:
+        if self.net.reports_with_states:
             states, reports = (cols.pop(p) for p in ("state", "report"))
             pairs = ([self.pairs[c] for c in states], [self.pairs[c] for c in reports])
             fates = self.net.with_states(k, *pairs, positions_m)

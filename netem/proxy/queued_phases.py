@@ -62,7 +62,7 @@ class QueuedPhases:
         self.air_phases: frozenset[str] = frozenset() if air is None else air[0].phases
         # with the reports in the states' period: whether agent i's report of epoch k takes
         # the air (its link's model passes it), and the reports' fates until their phase
-        self.reports = reports if air is not None and air[0].air.reports_with_states else None
+        self.reports = reports if air is not None and air[0].reports_with_states else None
         self.report_fates: dict[int, dict[int, AirVerdict]] = {}
         self.held: dict[tuple[Phase, int], list[Held]] = {}
         self._links: dict[Link, tuple[tuple[int, int], Kind, int]] = {}  # (src, dst), kind, whose

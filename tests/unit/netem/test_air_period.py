@@ -4,6 +4,8 @@ as the simulator does."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import pytest
 
 import testbed
@@ -36,11 +38,8 @@ def test_the_reports_in_the_states_period_change_a_states_fate_and_not_on_their_
     assert changed > 0
 
 
-@pytest.mark.parametrize("channel", ["shared", "own"])
-def test_netem_lockstep_decides_the_reports_with_the_states_as_the_simulator(
-    paper: Scenario, seed: int, channel: str
-) -> None:
-    scenario = on_air(paper, 12, reports="with_states", control_channel=channel)
+def decided_alike(scenario: Scenario, seed: int) -> list[Any]:
+    """netem's lockstep records of ``scenario``, each checked against the simulator's."""
     sim = testbed.simulate(scenario, seed=seed)
     made = sim.decisions_made()
     got = lockstep_records(scenario, seed, sim.positions)
@@ -50,6 +49,25 @@ def test_netem_lockstep_decides_the_reports_with_the_states_as_the_simulator(
         assert (d.verdict != "drop") == (made.verdict[r] == "pass")
         if made.queue[r] == AIR:
             assert (d.queue, d.model) == (AIR, made.model[r])
-    reports = [d for d in got.values() if d.target == LEADER_ENDPOINT]
-    assert {d.queue for d in reports} == {AIR}
-    assert sum(d.verdict == "drop" for d in got.values()) > 0
+    return list(got.values())
+
+
+@pytest.mark.parametrize("channel", ["shared", "own"])
+def test_netem_lockstep_decides_the_reports_with_the_states_as_the_simulator(
+    paper: Scenario, seed: int, channel: str
+) -> None:
+    got = decided_alike(on_air(paper, 12, reports="with_states", control_channel=channel), seed)
+    assert {d.queue for d in got if d.target == LEADER_ENDPOINT} == {AIR}
+    assert sum(d.verdict == "drop" for d in got) > 0
+
+
+@pytest.mark.parametrize(("strategy", "aired"), [("hold", False), ("estimate", True)])
+def test_the_estimation_traffic_takes_the_air_only_for_a_strategy_that_uses_it_when_asked(
+    paper: Scenario, seed: int, strategy: str, aired: bool
+) -> None:
+    s = on_air(paper, 6, reports="with_states", estimation_traffic="when_used")
+    s = s.with_overrides(strategy={**s.strategy.model_dump(), "name": strategy})
+    got = decided_alike(s, seed)
+    control = {d.queue for d in got if LEADER_ENDPOINT in (d.source, d.target)}
+    assert control == ({AIR} if aired else {None})
+    assert {d.queue for d in got if LEADER_ENDPOINT not in (d.source, d.target)} >= {AIR}
