@@ -1,5 +1,6 @@
 """The shared air in lockstep: real processes over Zenoh drop what the simulator drops, for the
-same causes, and the recording shows a hidden pair colliding at the agent between them."""
+same causes (the reports in their own phase or in the states'), and the recording shows a
+hidden pair colliding at the agent between them."""
 
 from __future__ import annotations
 
@@ -43,11 +44,16 @@ air = { links = "all", start_spread_us = 1000.0 }
 """
 
 
+@pytest.mark.parametrize("reports", ["after_states", "with_states"])
 def test_a_hidden_pair_collides_at_the_agent_between_them_as_the_simulator_says(
-    tmp_path: Path, runs_dir: Path
+    tmp_path: Path, runs_dir: Path, reports: str
 ) -> None:
     path = tmp_path / "hidden_pair.toml"
-    path.write_text(HIDDEN_PAIR)
+    path.write_text(
+        HIDDEN_PAIR.replace(
+            'air = { links = "all"', f'air = {{ reports = "{reports}", links = "all"'
+        )
+    )
     scenario = Scenario.from_file(path)
     outcome = launch(scenario, strategy="estimate", runs_dir=runs_dir, record=True)
     sim = simulate(scenario, strategy="estimate")
