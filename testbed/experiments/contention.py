@@ -193,55 +193,50 @@ def run_contention(spec: ContentionSpec, log: Callable[[str], None] = print) -> 
     )
 
 
+def median_errors(r: ContentionResult, case: str, strategy: str) -> np.ndarray:
+    """(R,) the median final shape error [m] over the seeds at each team size."""
+    cells = r.frame[(r.frame["case"] == case) & (r.frame["strategy"] == strategy)]
+    at = cells.groupby("agents")["final_error_m"].median()
+    return np.array([at.get(p, np.nan) for p in r.points])
+
+
 def answer(r: ContentionResult, strategy: StrategyName = "estimate") -> str:
-    """Whether the estimation traffic costs ``strategy`` its advantage over the best strategy
-    without estimates (which sends none), and from how many agents, per PHY rate."""
+    """Whether the estimation traffic costs ``strategy`` its advantage, and from how many
+    agents: per case, the least team size from which its median final error is above that of
+    the best strategy without estimates (which send none on the air), and where each keeps
+    the formation."""
     spec = r.spec
     base = [s for s in r.strategies if s in WITHOUT_ESTIMATES]
     if strategy not in r.strategies or not base:
         return f"(`{strategy}` and a strategy without estimates are needed for the answer)"
-    out = []
-    for rate in spec.rates_mbps:
 
-        def kept(channel: str, s: str, rate: float = rate) -> np.ndarray:
-            return np.asarray(r.success[(case_label(rate, channel), s)])
+    def size(p: float | None) -> str:
+        return "no size" if p is None else f"{p:g}"
 
-        def size(channel: str, s: str, rate: float = rate) -> str:
-            got = r.critical[(case_label(rate, channel), s)]
-            return "no size" if got is None else f"{got:g}"
-
-        best = max(base, key=lambda s: r.critical[(case_label(rate, OFF), s)] or 0.0)
-        floor = np.max([kept(OFF, s) for s in base], axis=0)  # the best without estimates
-        parts = [f"{CHANNEL_WORDS[c]} up to {size(c, strategy)}" for c in spec.channels]
-        text = (
-            f"at {rate:g} Mb/s `{strategy}` keeps the formation with its traffic "
-            + ", ".join(parts)
-            + f" agents; `{best}`, without estimates and their traffic, up to "
-            + f"{size(OFF, best)}"
+    parts = []
+    for channel in spec.channels:
+        behind, kept, theirs = [], [], []
+        for rate in spec.rates_mbps:
+            case, off = case_label(rate, channel), case_label(rate, OFF)
+            floor = np.min([median_errors(r, off, s) for s in base], axis=0)
+            late = np.flatnonzero(median_errors(r, case, strategy) > floor)
+            first = "at no size" if late.size == 0 else f"from {r.points[late[0]]:g} agents"
+            behind.append((late.size > 0, f"{first} at {rate:g} Mb/s"))
+            kept.append(size(r.critical[(case, strategy)]))
+            theirs.append(size(max(r.critical[(off, s)] or 0.0 for s in base) or None))
+        if any(lost for lost, _ in behind):
+            where = "yes: its median final error is above theirs " + ", ".join(w for _, w in behind)
+        else:
+            where = f"no: its median final error is never above theirs up to {r.points[-1]:g}"
+        parts.append(
+            f"with its traffic {CHANNEL_WORDS[channel]}, {where}; it keeps the formation up "
+            f"to {' and '.join(kept)} agents (they: {' and '.join(theirs)})"
         )
-        for c in (c for c in spec.channels if c != OFF):
-            behind = np.flatnonzero(kept(c, strategy) < floor)
-            if behind.size:
-                first = f"{r.points[int(behind[0])]:g}"
-                text += f"; {CHANNEL_WORDS[c]} it keeps less than the best of them from {first}"
-            else:
-                text += f"; {CHANNEL_WORDS[c]} it never keeps less than the best of them"
-        out.append(text)
-    ahead = [
-        c
-        for c in spec.channels
-        for rate in spec.rates_mbps
-        if c != OFF
-        and np.any(
-            r.success[(case_label(rate, c), strategy)]
-            < np.max([r.success[(case_label(rate, OFF), s)] for s in base], axis=0)
-        )
-    ]
-    verdict = "Yes, in part" if ahead else "No"
     return (
-        f"**Does the estimation traffic cost `{strategy}` its advantage?** {verdict}: "
-        + "; ".join(out)
-        + f" ({len(spec.seeds)} seeds, {spec.epochs} epochs, kept: final shape error under "
+        f"**Does the estimation traffic cost `{strategy}` its advantage?** Against the best "
+        f"of {', '.join(f'`{s}`' for s in base)} (no estimates, none of their traffic): "
+        + "; ".join(parts)
+        + f" ({len(spec.seeds)} seeds, {spec.epochs} epochs; kept: final shape error under "
         + f"{spec.threshold_m:g} m in ≥ 95 % of the seeds)."
     )
 
@@ -285,6 +280,15 @@ def contention_results_markdown(r: ContentionResult) -> str:
     ]
     for label in r.columns:
         text += ["", f"## Kept fraction, {label}", "", r.kept_markdown(label).rstrip("\n")]
+    for label in r.columns:
+        errors = table(
+            ["agents", *r.strategies],
+            (
+                [f"{p:g}", *(f"{median_errors(r, label, s)[i]:.4g}" for s in r.strategies)]
+                for i, p in enumerate(r.points)
+            ),
+        )
+        text += ["", f"## Median final shape error [m], {label}", "", errors.rstrip("\n")]
     return "\n".join([*text, ""])
 
 
@@ -315,6 +319,7 @@ __all__ = [
     "ContentionSpec",
     "answer",
     "contention_variant",
+    "median_errors",
     "run_contention",
     "write_outputs",
 ]

@@ -372,6 +372,8 @@ def plot_range_phase(
                 ax.plot([edge] * 2, [i - 0.5, i + 0.5], color="w", lw=2)
         if reference is not None:  # below: the longest links out of range
             ax.axvline(reference, color="0.8", lw=0.8, ls="--")
+        if easiest == "low":  # a count (team sizes): a tick at each point
+            ax.set_xticks(xs, [f"{x:g}" for x in xs])
         ax.set_yticks(range(len(strategies)), list(strategies))
         ax.set_title(case, fontsize=9)
         ax.set_xlabel(xlabel, fontsize=8)
