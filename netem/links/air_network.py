@@ -7,7 +7,10 @@ air that the loss models and capacity queues passed become frames, decided toget
 leader's end of a control link at ``network.access_point``): a state is one broadcast from
 its sender (or a unicast per link), a report or estimate a unicast. Each sender's frames are
 ready at a keyed offset ``U[0, start_spread_us)`` from the phase's start; a frame received
-after the phase's deadline is ``late``. netem's lockstep and the simulator give
+after the phase's deadline is ``late``. With ``reports = "with_states"`` the reports take the
+air in the states' period (:meth:`AirNetwork.with_states`), on the states' channel or on one of
+their own; ``estimation_traffic = "when_used"`` keeps reports and estimates off the air in a
+run whose strategy never reads the estimates. netem's lockstep and the simulator give
 :meth:`AirNetwork.phase` the same packets, so both drop the same, bit for bit
 (docs/model.md §11).
 """
@@ -145,8 +148,7 @@ class AirNetwork:
             return []
         x = self._positions(positions_m)
         air, config = self.at(epoch)
-        group = self._frames(air, epoch, phase, links)
-        senders, receivers, sizes, which = group
+        senders, receivers, sizes, which = self._frames(air, epoch, phase, links)
         if ready_ns is None:
             offsets = self._offsets(air, epoch, phase, senders)
         else:  # each frame when its packet came
@@ -324,7 +326,7 @@ class AirPlanner:
         }
         decided: list[tuple[list[int], list[AirVerdict]]] = []
         if self.net.reports_with_states:
-            states, reports = (cols.pop(p) for p in ("state", "report"))
+            states, reports = cols.pop("state"), cols.pop("report")
             pairs = ([self.pairs[c] for c in states], [self.pairs[c] for c in reports])
             fates = self.net.with_states(k, *pairs, positions_m)
             decided += [(states, fates[0]), (reports, fates[1])]
