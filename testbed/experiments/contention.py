@@ -56,6 +56,7 @@ CHANNEL_WORDS = {
     "off": "off the air",
 }
 SPACING_M = 15.0
+MARGIN = 0.05  # a ratio of median errors this far above 1 counts as worse (the seeds' spread)
 THRESHOLD_M = 0.05
 COLUMNS = (
     "case",
@@ -202,40 +203,43 @@ def median_errors(r: ContentionResult, case: str, strategy: str) -> np.ndarray:
 
 def answer(r: ContentionResult, strategy: StrategyName = "estimate") -> str:
     """Whether the estimation traffic costs ``strategy`` its advantage, and from how many
-    agents: per case, the least team size from which its median final error is above that of
-    the best strategy without estimates (which send none on the air), and where each keeps
-    the formation."""
+    agents: its median final error over the best strategy without estimates' (which send none
+    on the air) at each team size in each case; the traffic costs it where that ratio is over
+    ``1 + MARGIN`` and over ``1 + MARGIN`` times the ratio with the traffic off the air (a
+    margin for the seeds' spread); and where each keeps the formation."""
     spec = r.spec
     base = [s for s in r.strategies if s in WITHOUT_ESTIMATES]
-    if strategy not in r.strategies or not base:
-        return f"(`{strategy}` and a strategy without estimates are needed for the answer)"
-
-    def size(p: float | None) -> str:
-        return "no size" if p is None else f"{p:g}"
-
-    parts = []
-    for channel in spec.channels:
-        behind, kept, theirs = [], [], []
-        for rate in spec.rates_mbps:
-            case, off = case_label(rate, channel), case_label(rate, OFF)
-            floor = np.min([median_errors(r, off, s) for s in base], axis=0)
-            late = np.flatnonzero(median_errors(r, case, strategy) > floor)
-            first = "at no size" if late.size == 0 else f"from {r.points[late[0]]:g} agents"
-            behind.append((late.size > 0, f"{first} at {rate:g} Mb/s"))
-            kept.append(size(r.critical[(case, strategy)]))
-            theirs.append(size(max(r.critical[(off, s)] or 0.0 for s in base) or None))
-        if any(lost for lost, _ in behind):
-            where = "yes: its median final error is above theirs " + ", ".join(w for _, w in behind)
-        else:
-            where = f"no: its median final error is never above theirs up to {r.points[-1]:g}"
-        parts.append(
-            f"with its traffic {CHANNEL_WORDS[channel]}, {where}; it keeps the formation up "
-            f"to {' and '.join(kept)} agents (they: {' and '.join(theirs)})"
+    if strategy not in r.strategies or not base or OFF not in spec.channels:
+        return f"(`{strategy}`, a strategy without estimates and the case off are needed)"
+    sizes = "/".join(f"{p:g}" for p in r.points)
+    verdicts, ratios = [], []
+    for rate in spec.rates_mbps:
+        off = case_label(rate, OFF)
+        floor = np.min([median_errors(r, off, s) for s in base], axis=0)
+        ratio = {c: median_errors(r, case_label(rate, c), strategy) / floor for c in spec.channels}
+        shown = ", ".join(
+            f"{'/'.join(f'{v:.2f}' for v in ratio[c])} {CHANNEL_WORDS[c]}" for c in spec.channels
         )
+        ratios.append(f"at {rate:g} Mb/s {shown}")
+        for c in (c for c in spec.channels if c != OFF):
+            cost = (ratio[c] > 1 + MARGIN) & (ratio[c] > (1 + MARGIN) * ratio[OFF])
+            kept = r.critical[(case_label(rate, c), strategy)]
+            theirs = max(r.critical[(off, s)] or 0.0 for s in base) or None
+            where = "at no size" if not cost.any() else f"from {r.points[np.argmax(cost)]:g} agents"
+            verdicts.append(
+                f"{CHANNEL_WORDS[c]} at {rate:g} Mb/s {where} (kept up to "
+                f"{'no size' if kept is None else f'{kept:g}'} agents; they: "
+                f"{'no size' if theirs is None else f'{theirs:g}'})"
+            )
+    costs = [v for v in verdicts if " at no size " not in v]
     return (
-        f"**Does the estimation traffic cost `{strategy}` its advantage?** Against the best "
-        f"of {', '.join(f'`{s}`' for s in base)} (no estimates, none of their traffic): "
-        + "; ".join(parts)
+        f"**Does the estimation traffic cost `{strategy}` its advantage?** "
+        + ("Yes, " if costs else "No; ")
+        + "with the traffic "
+        + "; ".join(verdicts)
+        + f". Its median final error ÷ the best of {', '.join(f'`{s}`' for s in base)} "
+        + f"(no estimates, none of their traffic) at {sizes} agents: "
+        + "; ".join(ratios)
         + f" ({len(spec.seeds)} seeds, {spec.epochs} epochs; kept: final shape error under "
         + f"{spec.threshold_m:g} m in ≥ 95 % of the seeds)."
     )
