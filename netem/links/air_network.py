@@ -94,7 +94,9 @@ class AirNetwork:
     def change(self, update: dict[str, object], from_epoch: int) -> Air:
         """The air's parameters ``update`` from ``from_epoch`` on (``formation netem set
         medium:air``); the links on it stay. A ``ValueError`` names a field it refuses."""
-        fixed = sorted({"kind", "links", "reports", "control_channel"} & set(update))
+        fixed = sorted(
+            {"kind", "links", "reports", "control_channel", "estimation_traffic"} & set(update)
+        )
         if fixed:
             raise ValueError(f"{fixed[0]}: which links take the air, and when, is the scenario's")
         now = self.eras[-1][1]

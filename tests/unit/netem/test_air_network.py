@@ -189,6 +189,7 @@ def test_the_air_is_shown_and_set_while_running_from_the_next_epoch(paper: Scena
         "ok": False,
         "error": "rate_mbps = 7.0; ofdm has the rates 6, 9, 12, 18, 24, 36, 48, 54 Mb/s",
     }
+    assert not config.answer({"op": "air", "air": {"estimation_traffic": "when_used"}})["ok"]
     refused = config.answer({"op": "air", "air": {"links": "formation"}})
     assert refused == {
         "ok": False,
