@@ -11,6 +11,19 @@ ready at a keyed offset ``U[0, start_spread_us)`` after the phase's start (the a
 are not in step). Payloads are the messages' nominal encoded sizes
 (``formation.wire_size``), or ``payload_bytes`` for all.
 
+When the reports take the air: in a phase of their own after the states'
+(``reports = "after_states"``), or in the states' contention period (``"with_states"``: each
+agent's report is ready beside its state, at its start offset, so the two contend; the
+estimates follow in their own phase). With ``links = "all"`` the reports and estimates share
+the states' channel (``control_channel = "shared"``) or have a second channel of their own
+with the same radio (``"own"``): their own contention, which no state frame enters.
+
+Every strategy's agents report and take estimates each epoch (the estimate carries
+``v_ref``). ``estimation_traffic = "when_used"`` keeps that traffic off the air for a run
+whose strategy never reads the leader's estimates (``zero``, ``hold``, ``drop``): its reports
+and estimates go as on a link of their own, lossless, as with ``links = "formation"``, so
+the strategies that use the estimates pay for their traffic and the others do not.
+
 The radio's parameters left unset take the model's defaults (``netem.links.wifi.AirConfig``:
 IEEE 802.11-2016 and ns-3.44), so the defaults live in one place.
 """
@@ -29,6 +42,8 @@ RATES_MBPS: dict[str, tuple[float, ...]] = {
     "erp_ofdm": (6, 9, 12, 18, 24, 36, 48, 54),
     "dsss": (1, 2, 5.5, 11),
 }
+# the strategies that never read the leader's estimates (docs/model.md §6)
+WITHOUT_ESTIMATES = ("zero", "hold", "drop")
 AIR_QUEUE = "air"  # the air's name in netem's decision records (their ``queue``)
 # why a packet on the air was lost (netem.links.wifi.Cause, lower case), a drop's ``model``
 AIR_CAUSES = ("collision", "below_sensitivity", "retry_limit", "late")
@@ -62,6 +77,9 @@ class Air(BaseModel):
     states: Literal["broadcast", "unicast"] = "broadcast"
     payload_bytes: int | None = Field(None, ge=1)  # [B] None: each message's nominal size
     start_spread_us: float = Field(10_000.0, ge=0.0)  # [µs] the senders' start offsets' range
+    reports: Literal["after_states", "with_states"] = "after_states"
+    control_channel: Literal["shared", "own"] = "shared"
+    estimation_traffic: Literal["always", "when_used"] = "always"
     # the radio: None takes the model's default
     phy: Literal["ofdm", "erp_ofdm", "dsss"] = "ofdm"
     rate_mbps: float = 6.0
@@ -84,8 +102,17 @@ class Air(BaseModel):
         """The radio's parameters set here, for the model's ``AirConfig``."""
         return {f: getattr(self, f) for f in RADIO_FIELDS if getattr(self, f) is not None}
 
-    def carries(self, link_class: str) -> bool:
-        """Whether packets of ``link_class`` (formation, report, estimate) take the air."""
+    @property
+    def reports_with_states(self) -> bool:
+        """Whether the reports take the air in the states' contention period."""
+        return self.reports == "with_states"
+
+    def carries(self, link_class: str, strategy: str | None = None) -> bool:
+        """Whether packets of ``link_class`` (formation, report, estimate) take the air in a
+        run of ``strategy`` (None: any)."""
+        unused = self.estimation_traffic == "when_used" and strategy in WITHOUT_ESTIMATES
+        if link_class != "formation" and unused:
+            return False
         if self.links == "all":
             return True
         return (link_class == "formation") == (self.links == "formation")
@@ -96,11 +123,26 @@ def air_problems(
     access_point: tuple[float, ...] | None,
     mode: str = "lockstep",
     queues: bool = False,
+    events: bool = False,
 ) -> list[tuple[str, object, str]]:
     """The first problem of ``network.air`` as ``(field, value, problem)``; ``[]`` when none;
-    ``queues``: the scenario has capacity queues."""
+    ``queues``: the scenario has capacity queues; ``events``: team events."""
     if air is None:
         return []
+    if air.reports_with_states:
+        # netem decides the states' period before the reports exist: from the team and the
+        # report links' models, which queues, events and realtime arrivals would change
+        if air.links != "all":
+            return [("network.air.reports", air.reports, 'with the states needs links = "all"')]
+        why = [
+            (mode != "lockstep", "runtime.mode", mode),
+            (queues, "network.capacity", "set"),
+            (events, "events", "set"),
+        ]
+        for bad, field, value in why:
+            if bad:
+                problem = 'the reports with the states (network.air.reports = "with_states") '
+                return [(field, value, problem + "run in lockstep, without queues or events")]
     if mode != "lockstep" and queues:
         problem = "the shared air with capacity queues runs in lockstep only"
         return [("runtime.mode", mode, problem)]
@@ -122,4 +164,12 @@ def air_problems(
     return []
 
 
-__all__ = ["AIR_CAUSES", "AIR_QUEUE", "RADIO_FIELDS", "RATES_MBPS", "Air", "air_problems"]
+__all__ = [
+    "AIR_CAUSES",
+    "AIR_QUEUE",
+    "RADIO_FIELDS",
+    "RATES_MBPS",
+    "WITHOUT_ESTIMATES",
+    "Air",
+    "air_problems",
+]

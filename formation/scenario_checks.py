@@ -194,7 +194,9 @@ def _capacity(s: ScenarioFields) -> list[Problem]:
 
 def _air(s: ScenarioFields) -> list[Problem]:
     air, network = s.network.air, s.network
-    return air_problems(air, network.access_point, s.runtime.mode, bool(network.capacity))
+    return air_problems(
+        air, network.access_point, s.runtime.mode, bool(network.capacity), bool(s.events)
+    )
 
 
 def _events(s: ScenarioFields) -> list[Problem]:

@@ -10,19 +10,25 @@ phase is complete (its receivers' open epochs) and applies them.
 A packet of a link alone in each of its queues (a ``link`` queue, or a radio or medium of
 one link) meets no other packet there: it is judged at once (:meth:`QueuedPhases.at_once`).
 A packet on the shared air (``netem.links.air_network``) always waits for its phase: what its
-queues passed takes the air with the phase's others, at the positions of its epoch.
+queues passed takes the air with the phase's others, at the positions of its epoch. With the
+reports in the states' contention period (``network.air.reports = "with_states"``) the
+states' phase is judged with the reports that will take the air then, since the reports are
+sent only once the states are in: every agent's whose report link's model passes it (an
+agent reports each epoch it takes part; queues and events are refused with this option).
+The reports still wait for their phase, then take the fates decided with the states.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from formation.keys import LEADER_ENDPOINT
 from formation.wire_size import Kind, WireSizes
-from netem.links.air_network import AIR, AirNetwork
+from netem.links.air_network import AIR, AirNetwork, AirVerdict
 from netem.links.capacity_network import PHASE_ORDER, CapacityNetwork, Fixed, packet_kind
 from netem.links.layer_stack import Outcome
 from netem.proxy.positions import Positions
@@ -49,10 +55,15 @@ class QueuedPhases:
         sizes: WireSizes,
         agents: list[int],
         air: tuple[AirNetwork, Positions] | None = None,
+        reports: Callable[[int, int], bool] | None = None,
     ) -> None:
         self.queues, self.sizes, self.agents = queues, sizes, agents
         self.air = air  # the shared air and where its positions are read
         self.air_phases: frozenset[str] = frozenset() if air is None else air[0].phases
+        # with the reports in the states' period: whether agent i's report of epoch k takes
+        # the air (its link's model passes it), and the reports' fates until their phase
+        self.reports = reports if air is not None and air[0].reports_with_states else None
+        self.report_fates: dict[int, dict[int, AirVerdict]] = {}
         self.held: dict[tuple[Phase, int], list[Held]] = {}
         self._links: dict[Link, tuple[tuple[int, int], Kind, int]] = {}  # (src, dst), kind, whose
         self._fixed: dict[Link, _Block] = {}  # each link's block of closed-form verdicts
@@ -148,12 +159,32 @@ class QueuedPhases:
         net, positions = self.air
         on_air = [p for p, v in enumerate(verdicts) if v.passed]
         pairs = [packets[p][0] for p in on_air]
-        fates = net.phase(epoch, phase, pairs, positions.of_epoch(epoch))
+        if self.reports is not None and phase == "state":
+            fates = self._with_states(epoch, pairs)
+        elif self.reports is not None and phase == "report":  # decided with their states
+            if epoch not in self.report_fates:  # none of which took the air
+                self._with_states(epoch, [])
+            decided = self.report_fates.pop(epoch)
+            fates = [decided[src] for src, _ in pairs]
+        else:
+            fates = net.phase(epoch, phase, pairs, positions.of_epoch(epoch))
         for p, fate in zip(on_air, fates, strict=True):
             link, seq, payload, d = held[p]
             arrival = fate.arrival_ms if fate.passed else math.nan
             out[p] = (link, seq, payload, queued(d, fate.cause, AIR, fate.frames, arrival))
         return out
+
+    def _with_states(self, epoch: int, states: list[tuple[int, int]]) -> list[AirVerdict]:
+        """The fates of the states' period of ``epoch``: the states' (returned) and the reports'
+        that will take the air then (kept for their phase)."""
+        assert self.air is not None and self.reports is not None  # only with the reports so
+        net, positions = self.air
+        reporters = [a for a in self.agents if self.reports(a, epoch)]
+        reports = [(a, LEADER_ENDPOINT) for a in reporters]
+        fates, later = net.with_states(epoch, states, reports, positions.of_epoch(epoch))
+        self.report_fates[epoch] = dict(zip(reporters, later, strict=True))
+        self.report_fates.pop(epoch - 2, None)  # none of them passed its link (kept nothing)
+        return fates
 
     def waiting(self) -> list[tuple[Phase, int]]:
         """The phases still held, in virtual-time order."""
@@ -170,7 +201,14 @@ def queued_phases(links: Links, positions: Positions) -> QueuedPhases | None:
     # no queue: an empty network keeps the phases in order
     queues = links.capacity or CapacityNetwork([], len(links.agents), [], links.air.period_s)
     sizes = links.sizes or links.air.sizes
-    return QueuedPhases(queues, sizes, links.agents, (links.air, positions))
+
+    def reports(agent: int, epoch: int) -> bool:
+        """Whether the model of ``agent``'s report link passes its report of ``epoch``."""
+        link: Link = ("report", agent, LEADER_ENDPOINT)
+        model = links.models[link]
+        return model.decide(epoch, distance_m=positions.length(link, epoch)).delivered
+
+    return QueuedPhases(queues, sizes, links.agents, (links.air, positions), reports)
 
 
 __all__ = ["PHASES", "Held", "QueuedPhases", "queued_phases"]

@@ -129,7 +129,14 @@ def _contention(args: argparse.Namespace, out: Path, seeds: tuple[int, ...], con
     from testbed.experiments.contention import ContentionSpec, run_contention, write_outputs
 
     started = time.perf_counter()
-    spec = ContentionSpec(seeds=seeds, epochs=args.epochs or 150)
+    spec = ContentionSpec(
+        sizes=_numbers("--agents", args.agents, int) if args.agents else ContentionSpec.sizes,
+        rates_mbps=_numbers("--rates", args.rates, float)
+        if args.rates
+        else ContentionSpec.rates_mbps,
+        seeds=seeds,
+        epochs=args.epochs or 150,
+    )
     result = run_contention(spec, log=lambda m: console.print(m, soft_wrap=True))
     write_outputs(result, out)
     Console().print(result.critical_markdown(), markup=False)
@@ -309,6 +316,17 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def _numbers(flag: str, text: str, kind: type[int] | type[float]) -> tuple[Any, ...]:
+    """A comma list of positive numbers, or a ``TestbedError`` naming ``flag`` and the value."""
+    try:
+        got = tuple(kind(v) for v in text.split(","))
+    except ValueError:
+        got = ()
+    if not got or min(got) <= 0:
+        raise TestbedError(f"{flag} = {text!r}: expected a comma list of positive numbers")
+    return got
+
+
 def register(sub: Any) -> None:
     p = sub.add_parser(
         "experiment", help="reproduce the chapter's experiment and the studies beyond it"
@@ -336,7 +354,18 @@ def register(sub: Any) -> None:
         "--contention",
         action="store_true",
         help="wireless: success against team size and PHY rate on one shared 802.11 channel "
-        "(reports and estimates on it or off it) instead of against radio range",
+        "(the estimation traffic on the states' channel, on its own or off the air) instead of "
+        "against radio range",
+    )
+    p.add_argument(
+        "--agents",
+        metavar="N,N,...",
+        help="wireless --contention: the team sizes, evenly spaced (default 5,10,15,20)",
+    )
+    p.add_argument(
+        "--rates",
+        metavar="MBPS,...",
+        help="wireless --contention: the PHY rates [Mb/s] (default 6,24)",
     )
     p.add_argument(
         "--topology",

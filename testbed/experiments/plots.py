@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -330,13 +330,17 @@ def plot_range_phase(
     path: Path,
     xlabel: str = "radio range d50 / longest edge",
     columns: int | None = None,
+    easiest: Literal["low", "high"] = "high",
+    reference: float | None = 1.0,
 ) -> Path:
     """Success fraction over radio range (or ``xlabel``'s axis) × strategy, one panel per case,
     ``columns`` panels a row (default: all in one).
 
     ``success[(case, strategy)]`` : (R,) fraction of seeds kept at each of ``ranges`` (multiples
-    of the longest edge); ``critical`` the least range from which every larger one keeps
-    (None: not even the largest), marked white on its left edge.
+    of the longest edge, evenly spaced); ``critical`` the least range from which every larger
+    one keeps (None: not even the largest), marked white on its left edge; with ``easiest =
+    "low"`` the largest point up to which every smaller one keeps, marked on its right edge.
+    ``reference``: where a dashed line marks the axis (the longest edge's length; None: none).
     """
     cols = columns or len(cases)
     rows = -(-len(cases) // cols)
@@ -364,8 +368,12 @@ def plot_range_phase(
         for i, s in enumerate(strategies):
             crit = critical[(case, s)]
             if crit is not None:
-                ax.plot([crit - step / 2] * 2, [i - 0.5, i + 0.5], color="w", lw=2)
-        ax.axvline(1.0, color="0.8", lw=0.8, ls="--")  # below: the longest links out of range
+                edge = crit - step / 2 if easiest == "high" else crit + step / 2
+                ax.plot([edge] * 2, [i - 0.5, i + 0.5], color="w", lw=2)
+        if reference is not None:  # below: the longest links out of range
+            ax.axvline(reference, color="0.8", lw=0.8, ls="--")
+        if easiest == "low":  # a count (team sizes): a tick at each point
+            ax.set_xticks(xs, [f"{x:g}" for x in xs])
         ax.set_yticks(range(len(strategies)), list(strategies))
         ax.set_title(case, fontsize=9)
         ax.set_xlabel(xlabel, fontsize=8)

@@ -212,7 +212,7 @@ def run_batch(
     team_on = Presence.of(plan.team, src, dst, size)  # the scenario's events (issue 20)
     on_time = plan.on_time if team_on is None else plan.on_time & team_on.link_on[:-1, None, :]
     report_ok, estimate_ok = plan.report_ok, plan.estimate_ok
-    ranged = RangedEpochs(plan) if plan.ranged else None
+    ranged = RangedEpochs(plan, strategy) if plan.ranged else None
     if ranged is not None:  # these members' rows are decided epoch by epoch, from the positions
         on_time, report_ok, estimate_ok = on_time.copy(), report_ok.copy(), estimate_ok.copy()
     leader = Leader(base, HealthyRigidity(d0, edges) if detail and rigidity else None)

@@ -7,7 +7,8 @@ which the simulator knows only once it has computed epoch ``k``. The members' dr
 :func:`netem.links.matrix.link_lengths` as netem measures them, so both give the same verdicts.
 A member with capacity queues then passes what the models passed through them, an epoch at a
 time (:class:`netem.CapacityPlanner`), and a member with a shared air puts what they passed on
-it (:class:`netem.AirPlanner`: the epoch's positions decide), as netem's lockstep does.
+it (:class:`netem.AirPlanner`: the epoch's positions decide), as netem's lockstep does; the
+run's strategy says whether the estimation traffic takes it (``network.air.estimation_traffic``).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ Ints = npt.NDArray[np.int64]
 class RangedEpochs:
     """Epoch ``k``'s decisions of the plan's ranged members, written into the batch's arrays."""
 
-    def __init__(self, plan: BatchPlan) -> None:
+    def __init__(self, plan: BatchPlan, strategy: str) -> None:
         base = plan.base
         self.members = sorted(plan.ranged)
         self.decisions = [plan.ranged[b].decisions for b in self.members]
@@ -52,7 +53,7 @@ class RangedEpochs:
         ]
         self.air = [
             None
-            if (net := air_of(plan.scenarios[b], int(plan.seeds[b]))) is None
+            if (net := air_of(plan.scenarios[b], int(plan.seeds[b]), strategy)) is None
             else AirPlanner(net, every)
             for b in self.members
         ]

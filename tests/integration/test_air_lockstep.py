@@ -1,5 +1,6 @@
 """The shared air in lockstep: real processes over Zenoh drop what the simulator drops, for the
-same causes, and the recording shows a hidden pair colliding at the agent between them."""
+same causes (the reports in their own phase or in the states'), and the recording shows a
+hidden pair colliding at the agent between them."""
 
 from __future__ import annotations
 
@@ -43,14 +44,23 @@ air = { links = "all", start_spread_us = 1000.0 }
 """
 
 
+@pytest.mark.parametrize(
+    ("strategy", "air"),
+    [
+        ("estimate", ""),
+        ("estimate", 'reports = "with_states", '),
+        # hold never reads the estimates: their traffic stays off the air
+        ("hold", 'reports = "with_states", estimation_traffic = "when_used", '),
+    ],
+)
 def test_a_hidden_pair_collides_at_the_agent_between_them_as_the_simulator_says(
-    tmp_path: Path, runs_dir: Path
+    tmp_path: Path, runs_dir: Path, strategy: str, air: str
 ) -> None:
     path = tmp_path / "hidden_pair.toml"
-    path.write_text(HIDDEN_PAIR)
+    path.write_text(HIDDEN_PAIR.replace("air = { ", "air = { " + air))
     scenario = Scenario.from_file(path)
-    outcome = launch(scenario, strategy="estimate", runs_dir=runs_dir, record=True)
-    sim = simulate(scenario, strategy="estimate")
+    outcome = launch(scenario, strategy=strategy, runs_dir=runs_dir, record=True)
+    sim = simulate(scenario, strategy=strategy)
     np.testing.assert_array_equal(outcome.positions, sim.positions)  # to the bit
     run = read_run(outcome.run_dir / "run.mcap")
     rec = run.decisions
@@ -85,4 +95,5 @@ def test_a_hidden_pair_collides_at_the_agent_between_them_as_the_simulator_says(
     assert outcome.summary()["air_losses"] == summary["air_losses"]
     formation = summary["air"]["formation"]
     assert formation["took_air"] == 6 * 10 and formation["losses"]["collision"] > 0
-    assert "| formation | 60 |" in "\n".join(air_lines("estimate", summary["air"]))
+    assert "| formation | 60 |" in "\n".join(air_lines(strategy, summary["air"]))
+    assert ("report" in summary["air"]) == (strategy == "estimate")

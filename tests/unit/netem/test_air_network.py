@@ -54,6 +54,15 @@ def test_the_scenario_knows_the_models_rates() -> None:
             '[runtime]\nmode = "realtime"',
             r"runtime\.mode = 'realtime'; the shared air with capacity queues runs in lockstep",
         ),
+        (
+            'reports = "with_states"\nlinks = "formation"',
+            r"network\.air\.reports = 'with_states'; with the states needs links = \"all\"",
+        ),
+        (
+            'reports = "with_states"\nlinks = "all"\n[runtime]\nmode = "realtime"',
+            r"runtime\.mode = 'realtime'; the reports with the states .* run in lockstep",
+        ),
+        ('control_channel = "air2"', r"network\.air\.control_channel = 'air2'; Input should be"),
     ],
 )
 def test_a_wrong_air_names_the_file_field_and_value(
@@ -180,8 +189,12 @@ def test_the_air_is_shown_and_set_while_running_from_the_next_epoch(paper: Scena
         "ok": False,
         "error": "rate_mbps = 7.0; ofdm has the rates 6, 9, 12, 18, 24, 36, 48, 54 Mb/s",
     }
+    assert not config.answer({"op": "air", "air": {"estimation_traffic": "when_used"}})["ok"]
     refused = config.answer({"op": "air", "air": {"links": "formation"}})
-    assert refused == {"ok": False, "error": "links: which links take the air is the scenario's"}
+    assert refused == {
+        "ok": False,
+        "error": "links: which links take the air, and when, is the scenario's",
+    }
 
 
 def test_realtime_holds_each_packet_until_the_models_arrival_and_never_changes_a_settled_one(
