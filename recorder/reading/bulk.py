@@ -105,13 +105,17 @@ def decision_columns(batch: Any) -> dict[str, npt.NDArray[Any]]:
 
 
 def _column(name: str, values: list[Any]) -> npt.NDArray[Any]:
+    count = len(values)
+    none = values.count(None) == count  # no capacity queue: the usual batch, made at once
     if name == "queue_depth":
-        if values.count(None) == len(values):
-            return np.full(len(values), -1, dtype=np.int64)
+        if none:
+            return np.full(count, -1, dtype=np.int64)
         return np.array([-1 if v is None else v for v in values], dtype=np.int64)
     if name == "sojourn_ms":
-        return np.array(values, dtype=float).reshape(len(values))  # None → NaN
-    column = np.empty(len(values), dtype=object)
+        return np.full(count, np.nan) if none else np.array(values, dtype=float).reshape(count)
+    if none:
+        return np.full(count, None, dtype=object)
+    column = np.empty(count, dtype=object)
     column[:] = values
     return column
 
