@@ -173,18 +173,25 @@ def _decisions(d: Decisions) -> pd.DataFrame:
         "delay_ms": d.delay_ms,
     }
     texts = {"phase": d.phase, "verdict": d.verdict, "model": d.model, "state": d.state}
-    out = {name: _text(*pd.factorize(v, use_na_sentinel=False), order) for name, v in texts.items()}
-    out["link_class"] = _text(codes, classes, order)
-    out["link"] = _text(*_link_names(d.source, d.target), order)
+    out = {name: _text(_factorized(v), order) for name, v in texts.items()}
+    out["link_class"] = _text((codes, classes), order)
+    out["link"] = _text(_link_names(d.source, d.target), order)
     return pd.DataFrame(
         {name: out[name] if name in out else cols[name][order] for name in _DECISIONS}
     )
 
 
-def _text(codes: npt.NDArray[np.intp], values: Any, order: npt.NDArray[np.intp]) -> Any:
-    """The text column ``values[codes]`` in ``order``, made from its few values: pandas turns
-    each value of a column of millions into its string type, one at a time, otherwise."""
+def _text(factorized: tuple[npt.NDArray[np.intp], Any], order: npt.NDArray[np.intp]) -> Any:
+    """The text column ``values[codes]`` (``factorized``) in ``order``, made from its few
+    values: pandas turns each value of a column of millions into its string type, one at a
+    time, otherwise."""
+    codes, values = factorized
     return pd.Series(np.asarray(values, dtype=object)).array.take(codes[order])
+
+
+def _factorized(values: npt.NDArray[Any]) -> tuple[npt.NDArray[np.intp], Any]:
+    codes, uniques = pd.factorize(values, use_na_sentinel=False)
+    return codes, uniques
 
 
 def _link_names(
@@ -198,7 +205,7 @@ def _link_names(
     base = int(max(source.max(), target.max())) - low + 1
     if base > 2**31:  # ids too far apart for one code: each row written
         names = [f"{a}->{b}" for a, b in zip(source.tolist(), target.tolist(), strict=True)]
-        return pd.factorize(np.asarray(names, dtype=object))
+        return _factorized(np.asarray(names, dtype=object))
     row, links = pd.factorize((source - low) * base + (target - low))
     pairs = zip((links // base + low).tolist(), (links % base + low).tolist(), strict=True)
     return row, [f"{a}->{b}" for a, b in pairs]
