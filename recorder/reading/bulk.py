@@ -81,15 +81,17 @@ DECODERS: dict[str, msgspec.json.Decoder[Any]] = {
 
 _INTS = ("epoch", "source", "target", "seq", "delay_epochs")
 _DECISION_FIELDS = tuple(Decision.model_fields)
-_last: list[Any] = [None, None]  # the last batch whose columns were made, and them
+# the last batch whose columns were made, and them: one tuple, read once (threads share it)
+_last: list[tuple[Any, dict[str, npt.NDArray[Any]]]] = [(None, {})]
 
 
 def decision_columns(batch: Any) -> dict[str, npt.NDArray[Any]]:
     """A decision batch's columns as :class:`analysis.Decisions` holds them (``phase``
     repeated; None as −1 and NaN); made once for the batch the trust gate checks and the
     reader then keeps (the last batch's are remembered)."""
-    if _last[0] is batch:
-        return _last[1]  # type: ignore[no-any-return]
+    last = _last[0]
+    if last[0] is batch:
+        return last[1]
     decisions, count = batch.decisions, len(batch.decisions)
     out: dict[str, npt.NDArray[Any]] = {"phase": np.full(count, batch.phase, dtype=object)}
     for name in _DECISION_FIELDS:
@@ -100,7 +102,7 @@ def decision_columns(batch: Any) -> dict[str, npt.NDArray[Any]]:
             out[name] = np.fromiter(values, float, count)
         else:
             out[name] = _column(name, list(values))
-    _last[:] = batch, out
+    _last[0] = (batch, out)
     return out
 
 

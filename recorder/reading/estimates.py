@@ -35,22 +35,24 @@ class EstimateArrays:
     healthy: Ints
 
 
-_last: list[Any] = [None, None]  # the last estimate whose arrays were made, and them
+# the last estimate whose arrays were made, and them: one tuple, read once (threads share it)
+_last: list[tuple[Any, EstimateArrays | None]] = [(None, None)]
 
 
 def estimate_arrays(msg: Any, d: int) -> EstimateArrays | None:
     """``msg``'s lists as arrays, or None unless every given position has ``d`` components
     and every covariance is d×d (then the gate names the one at fault). Made once for the
     estimate the trust gate checks and the reader then keeps (the last one's are remembered)."""
-    if _last[0] is msg:
-        return _last[1]  # type: ignore[no-any-return]
+    last = _last[0]
+    if last[0] is msg:
+        return last[1]
     positions = _given(msg.positions, (d,))
     covariances = _given(msg.covariances, (d, d))
     tree, healthy = _pairs(msg.tree), _pairs(msg.healthy)
     out = None
     if positions and covariances and tree is not None and healthy is not None:
         out = EstimateArrays(*positions, *covariances, tree, healthy)
-    _last[:] = msg, out
+    _last[0] = (msg, out)
     return out
 
 
