@@ -48,9 +48,11 @@ def present(positions: Array) -> Mask:
     return np.asarray(np.isfinite(positions).all(axis=-1), dtype=bool)
 
 
-def edge_mask(edges: npt.NDArray[np.int64], pairs: list[tuple[int, int]]) -> Mask:
+def edge_mask(
+    edges: npt.NDArray[np.int64], pairs: Sequence[tuple[int, int]] | npt.NDArray[np.int64]
+) -> Mask:
     """Which of ``edges`` (m, 2) appear, in either order, in ``pairs`` (a leader's healthy
-    edges or tree)."""
+    edges or tree: a list of pairs or a (k, 2) array)."""
     edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     try:  # as codes: a leader's estimate of 10,000 agents lists 20,000 pairs an epoch
         ends: npt.NDArray[np.int64] | None = np.array(pairs, dtype=np.int64).reshape(-1, 2)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any, Protocol
 
 import numpy as np
@@ -133,7 +134,7 @@ class Decisions:
                 out[name][:] = values
         return cls(**out)
 
-    @property
+    @cached_property  # the tables and the delivery matrix each ask, of millions of rows
     def on_time(self) -> Bools:
         """Delivered in its own epoch (passed or duplicated, not delayed)."""
         passed = (self.verdict == "pass") | (self.verdict == "duplicate")

@@ -165,38 +165,50 @@ def _decisions(d: Decisions) -> pd.DataFrame:
     order = np.lexsort((d.target, d.source, rank[codes], d.epoch))
     cols = {
         "epoch": d.epoch,
-        "phase": d.phase,
-        "link_class": d.link_class,
         "source": d.source,
         "target": d.target,
-        "link": _link_names(d.source, d.target),
         "seq": d.seq,
-        "verdict": d.verdict,
         "on_time": d.on_time,
         "delay_epochs": d.delay_epochs,
         "delay_ms": d.delay_ms,
-        "model": d.model,
-        "state": d.state,
     }
-    return pd.DataFrame({name: cols[name][order] for name in _DECISIONS})
+    texts = {"phase": d.phase, "verdict": d.verdict, "model": d.model, "state": d.state}
+    out = {name: _text(_factorized(v), order) for name, v in texts.items()}
+    out["link_class"] = _text((codes, classes), order)
+    out["link"] = _text(_link_names(d.source, d.target), order)
+    return pd.DataFrame(
+        {name: out[name] if name in out else cols[name][order] for name in _DECISIONS}
+    )
 
 
-def _link_names(source: npt.NDArray[np.int64], target: npt.NDArray[np.int64]) -> Any:
-    """``"1->2"`` for each row, written once per link: a run holds millions of decisions."""
-    out = np.empty(len(source), dtype=object)
+def _text(factorized: tuple[npt.NDArray[np.intp], Any], order: npt.NDArray[np.intp]) -> Any:
+    """The text column ``values[codes]`` (``factorized``) in ``order``, made from its few
+    values: pandas turns each value of a column of millions into its string type, one at a
+    time, otherwise."""
+    codes, values = factorized
+    return pd.Series(np.asarray(values, dtype=object)).array.take(codes[order])
+
+
+def _factorized(values: npt.NDArray[Any]) -> tuple[npt.NDArray[np.intp], Any]:
+    codes, uniques = pd.factorize(values, use_na_sentinel=False)
+    return codes, uniques
+
+
+def _link_names(
+    source: npt.NDArray[np.int64], target: npt.NDArray[np.int64]
+) -> tuple[npt.NDArray[np.intp], Any]:
+    """``"1->2"`` for each row, as codes into the names of the links, each written once: a
+    run holds millions of decisions."""
     if not len(source):
-        return out
+        return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=object)
     low = int(min(source.min(), target.min()))
     base = int(max(source.max(), target.max())) - low + 1
     if base > 2**31:  # ids too far apart for one code: each row written
-        out[:] = [f"{a}->{b}" for a, b in zip(source.tolist(), target.tolist(), strict=True)]
-        return out
+        names = [f"{a}->{b}" for a, b in zip(source.tolist(), target.tolist(), strict=True)]
+        return _factorized(np.asarray(names, dtype=object))
     row, links = pd.factorize((source - low) * base + (target - low))
     pairs = zip((links // base + low).tolist(), (links % base + low).tolist(), strict=True)
-    names = np.empty(len(links), dtype=object)
-    names[:] = [f"{a}->{b}" for a, b in pairs]
-    out[:] = names[row]
-    return out
+    return row, [f"{a}->{b}" for a, b in pairs]
 
 
 def _known_deliveries(run: RunData) -> Decisions:

@@ -54,8 +54,9 @@ def struct_of(model: type[BaseModel]) -> type[msgspec.Struct]:
                 raise TypeError(f"{model.__name__}.{name}: {rule!r} has no msgspec form here")
             kind = _bounded(kind, rule.ge)
         fields.append((name, kind) if info.is_required() else (name, kind, info.default))
+    # gc=False: decoded JSON holds no cycles, and a recording is millions of these structs
     return msgspec.defstruct(
-        model.__name__, fields, kw_only=True, frozen=True, forbid_unknown_fields=True
+        model.__name__, fields, kw_only=True, frozen=True, forbid_unknown_fields=True, gc=False
     )
 
 

@@ -45,6 +45,7 @@ from recorder.live.server import LiveServer
 from recorder.reading.trust import Gate
 from recorder.recording.display import Display
 from recorder.recording.schemas import LivelinessEvent, classify
+from recorder.recording.stored_scenario import SCENARIO, scenario_metadata
 from recorder.recording.writer import COMPRESSIONS, Raw, RecordingWriter
 from shell import Bus, Query, Sample, Service, add_arguments, open_service, serve
 
@@ -107,12 +108,8 @@ class Recorder:
         self.filters = _filters(args.keys, self.run_id)
         metadata = {"recorder": {"run_id": self.run_id, "keys": json.dumps(self.filters)}}
         if self.scenario is not None:
-            toml = self.scenario.to_toml()
-            metadata["scenario"] = {
-                "name": self.scenario.name,
-                "toml": toml,
-                "source": str(args.scenario),
-            }
+            metadata[SCENARIO] = scenario_metadata(self.scenario, str(args.scenario))
+            toml = metadata[SCENARIO]["toml"]
             self.out_dir.mkdir(parents=True, exist_ok=True)
             resolved = self.out_dir / "scenario.toml"
             if not resolved.exists():

@@ -35,15 +35,17 @@ DECODERS: dict[str, msgspec.json.Decoder[Any]] = {
 
 _INTS = ("epoch", "source", "target", "seq", "delay_epochs")
 _DECISION_FIELDS = tuple(Decision.model_fields)
-_last: list[Any] = [None, None]  # the last batch whose columns were made, and them
+# the last batch whose columns were made, and them: one tuple, read once (threads share it)
+_last: list[tuple[Any, dict[str, npt.NDArray[Any]]]] = [(None, {})]
 
 
 def decision_columns(batch: Any) -> dict[str, npt.NDArray[Any]]:
     """A decision batch's columns as :class:`analysis.Decisions` holds them (``phase``
     repeated; None as −1 and NaN); made once for the batch the trust gate checks and the
     reader then keeps (the last batch's are remembered)."""
-    if _last[0] is batch:
-        return _last[1]  # type: ignore[no-any-return]
+    last = _last[0]
+    if last[0] is batch:
+        return last[1]
     decisions, count = batch.decisions, len(batch.decisions)
     out: dict[str, npt.NDArray[Any]] = {"phase": np.full(count, batch.phase, dtype=object)}
     for name in _DECISION_FIELDS:
@@ -54,18 +56,22 @@ def decision_columns(batch: Any) -> dict[str, npt.NDArray[Any]]:
             out[name] = np.fromiter(values, float, count)
         else:
             out[name] = _column(name, list(values))
-    _last[:] = batch, out
+    _last[0] = (batch, out)
     return out
 
 
 def _column(name: str, values: list[Any]) -> npt.NDArray[Any]:
+    count = len(values)
+    none = values.count(None) == count  # no capacity queue: the usual batch, made at once
     if name == "queue_depth":
-        if values.count(None) == len(values):
-            return np.full(len(values), -1, dtype=np.int64)
+        if none:
+            return np.full(count, -1, dtype=np.int64)
         return np.array([-1 if v is None else v for v in values], dtype=np.int64)
     if name == "sojourn_ms":
-        return np.array(values, dtype=float).reshape(len(values))  # None → NaN
-    column = np.empty(len(values), dtype=object)
+        return np.full(count, np.nan) if none else np.array(values, dtype=float).reshape(count)
+    if none:
+        return np.full(count, None, dtype=object)
+    column = np.empty(count, dtype=object)
     column[:] = values
     return column
 

@@ -16,6 +16,7 @@ import struct
 from collections.abc import Iterator
 from pathlib import Path
 
+import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Message, Schema
@@ -25,6 +26,7 @@ from mcap.summary import Summary
 _RECORD = struct.Struct("<BQ")  # opcode, length
 _MESSAGE = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
 _MESSAGE_HEAD = _MESSAGE.size  # bytes before a message's data
+_MESSAGE_RECORD = struct.Struct("<BQHIQQ")  # a message record up to its data
 _CHUNK_SKIP = 1 + 8  # a chunk record's opcode and length
 
 
@@ -38,10 +40,9 @@ Record = tuple[int, int, int, int, bytes]  # channel id, sequence, log time, pub
 def chunk_messages(data: bytes) -> list[Record]:
     """``(channel id, sequence, log time, publish time, data)`` of each message record in a
     chunk's uncompressed ``data``; other records are skipped."""
-    view = memoryview(data)
     end, pos = len(data), 0
-    unpack_record, unpack_message = _RECORD.unpack_from, _MESSAGE.unpack_from
-    head = _RECORD.size
+    unpack_record, unpack_message = _RECORD.unpack_from, _MESSAGE_RECORD.unpack_from
+    head, message_head = _RECORD.size, _MESSAGE_RECORD.size
     message = Opcode.MESSAGE
     out: list[Record] = []
     add = out.append
@@ -49,13 +50,15 @@ def chunk_messages(data: bytes) -> list[Record]:
         if pos + head > end:
             raise ChunkError(f"a record header cut at byte {pos} of {end}")
         opcode, length = unpack_record(data, pos)
-        body, pos = pos + head, pos + head + length
+        start, pos = pos, pos + head + length
         if pos > end:
-            raise ChunkError(f"a record of {length} bytes at byte {body - head} of {end}")
+            raise ChunkError(f"a record of {length} bytes at byte {start} of {end}")
         if opcode == message:
             if length < _MESSAGE_HEAD:
                 raise ChunkError(f"a message record of {length} bytes")
-            add((*unpack_message(data, body), bytes(view[body + _MESSAGE_HEAD : pos])))
+            # the header read again with the message's fields: one call, not two
+            _, _, channel_id, sequence, log_time, publish_time = unpack_message(data, start)
+            add((channel_id, sequence, log_time, publish_time, data[start + message_head : pos]))
     return out
 
 
@@ -63,11 +66,17 @@ def file_chunks(path: Path, summary: Summary) -> Iterator[list[Record]]:
     """The message records of each chunk of the complete recording at ``path``, a list a chunk,
     in the order ``McapReader.iter_messages(log_time_order=False)`` yields them."""
     channels = summary.channels
+    zstd = zstandard.ZstdDecompressor()  # one per file: a decompressor is not thread-safe
     with open(path, "rb") as f:
         for index in summary.chunk_indexes:
             f.seek(index.chunk_start_offset + _CHUNK_SKIP, io.SEEK_SET)
-            stream, size = get_chunk_data_stream(Chunk.read(ReadDataStream(f)))
-            records = chunk_messages(stream.read(size))
+            chunk = Chunk.read(ReadDataStream(f))
+            if chunk.compression == "zstd":  # as the library does, without two copies
+                data = zstd.decompress(chunk.data, max_output_size=chunk.uncompressed_size)
+            else:
+                stream, size = get_chunk_data_stream(chunk)
+                data = stream.read(size)
+            records = chunk_messages(data)
             for channel_id in {r[0] for r in records} - channels.keys():
                 raise ChunkError(f"a message on channel {channel_id}, not in the summary")
             yield records

@@ -20,6 +20,7 @@ from formation.messages import DecisionBatch
 from formation.plugin_api import PLUGIN_FAILED
 from recorder.reading.bodies import RecordedPoses
 from recorder.reading.bulk import decision_columns
+from recorder.reading.estimates import EstimateArrays, estimate_arrays
 from recorder.reading.state_batch import StateBlock
 
 Array = npt.NDArray[np.float64]
@@ -40,6 +41,7 @@ class Collected:
         self.blocks: list[StateBlock] = []
         self.rows: list[Any] = []  # states one by one, a block at the end
         self.ests: dict[int, Any] = {}  # the leader's estimates by epoch
+        self.est_arrays: dict[int, EstimateArrays | None] = {}  # and as arrays
         self.decisions: list[tuple[Any, ...]] = []
         self.recorded: dict[int, float | None] = {}  # None: no edge in the team
         self.ended: list[str] = []  # why a process ended the run (a plug-in failed)
@@ -51,6 +53,7 @@ class Collected:
             self.rows.append(msg)
         elif kind == "leader_estimate":
             self.ests[msg.epoch] = msg
+            self.est_arrays[msg.epoch] = estimate_arrays(msg, self.d)  # the gate's, kept
         elif kind == "metrics":
             self.recorded[msg.epoch] = msg.formation_error_m
         elif kind == "status":

@@ -8,7 +8,6 @@ missing, empty, not MCAP, truncated (no footer: the recorder did not finish,
 from __future__ import annotations
 
 import json
-import tomllib
 from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -23,11 +22,12 @@ from mcap.summary import Summary
 
 from formation.errors import RecordingError, TestbedError
 from formation.messages import DecisionBatch
-from formation.scenario import Scenario, load_dict
+from formation.scenario import Scenario
 from recorder.reading.chunks import Record, file_chunks, file_order
 from recorder.reading.decoder import DecodeError, decode, decode_cdr
 from recorder.reading.trust import Gate, Skipped, derived_channels
 from recorder.recording.schemas import PROTOBUF, ROS2MSG, classify
+from recorder.recording.stored_scenario import scenario_of
 from recorder.recording.writer import MAGIC, rotated_path
 
 READ_ERRORS = (Exception,)  # the mcap reader raises McapError, struct.error, zstd/lz4 errors, ...
@@ -124,17 +124,6 @@ def iter_chunks(path: Path, reader: McapReader) -> Iterator[list[Record]]:
 def metadata(reader: McapReader) -> dict[str, dict[str, str]]:
     """Metadata records by name (a later record of the same name wins)."""
     return {m.name: dict(m.metadata) for m in reader.iter_metadata()}
-
-
-def scenario_of(meta: dict[str, dict[str, str]], path: Path) -> Scenario | None:
-    """The resolved scenario stored with the run, or None if the recording has none."""
-    toml = meta.get("scenario", {}).get("toml")
-    if toml is None:
-        return None
-    try:
-        return load_dict(tomllib.loads(toml), source=f"{path} (scenario metadata)")
-    except tomllib.TOMLDecodeError as exc:
-        raise RecordingError(str(path), f"scenario metadata is not valid TOML ({exc})") from None
 
 
 @dataclass

@@ -195,7 +195,7 @@ def _assemble(
     decisions = got.decisions_of_run()
     epochs = [*got.ests, int(decisions.epoch.max(initial=-1))]
     count = max(epochs) + 1 if max(epochs) >= 0 else max(len(x) - 1, 0)
-    est = estimates(scenario, got.ests, count)
+    est = estimates(scenario, got.ests, count, got.est_arrays)
     delivered, decided = decisions.delivery(scenario.directed_links, count)
     followers = np.arange(n) != scenario.reference_agent - 1
     nees_values, est_errors = consistency(

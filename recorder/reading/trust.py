@@ -49,6 +49,7 @@ from formation.messages import (
 from formation.scenario import Scenario
 from recorder.reading.bulk import DECODERS, decision_columns, plain
 from recorder.reading.decoder import DecodeError, decode_cdr, decode_kind
+from recorder.reading.estimates import estimate_arrays
 from recorder.reading.skips import (
     CONFLICT,
     FORGED,
@@ -314,17 +315,18 @@ class Gate:
         self._sender(msg, "leader")
         self._epoch(msg.epoch, self._last_decided())
         d = self._dim()
+        arrays = None if d is None else estimate_arrays(msg, d)
         if self.scenario is not None:
             n = self.n
             sizes = (len(msg.positions), len(msg.covariances), len(msg.observable))
             if sizes != (n, n, n):
                 raise Skip(INVALID, f"positions, covariances, observable of sizes {sizes}, not {n}")
-            pairs = [*msg.tree, *msg.healthy]
-            for pair in [] if self._edges_known(pairs) else pairs:  # the one at fault, named
+            known = arrays is not None and self._edges_known([arrays.tree, arrays.healthy])
+            for pair in [] if known else [*msg.tree, *msg.healthy]:  # the one at fault, named
                 if (min(pair), max(pair)) not in self.edges:
                     raise Skip(OUT_OF_RANGE, f"edge {pair} not in the formation")
-        if not _all_finite([p for p in msg.positions if p is not None], (d,)) or not (
-            _all_finite([c for c in msg.covariances if c is not None], (d, d))
+        if arrays is None or not (
+            np.isfinite(arrays.positions).all() and np.isfinite(arrays.covariances).all()
         ):  # the one at fault, named
             for p in msg.positions:
                 if p is not None:
@@ -401,12 +403,10 @@ class Gate:
             and ((source == leader) & (target != leader))[kind == 2].all()
         )
 
-    def _edges_known(self, pairs: list[tuple[int, int]]) -> bool:
-        """Whether every pair is an edge of the formation, in either order, as arrays."""
-        try:
-            ends = np.array(pairs, dtype=np.int64).reshape(-1, 2)
-        except (OverflowError, ValueError, TypeError):
-            return False
+    def _edges_known(self, pairs: list[npt.NDArray[np.int64]]) -> bool:
+        """Whether every pair of the (k, 2) arrays is an edge of the formation, in either
+        order."""
+        ends = np.concatenate(pairs)
         low, high = ends.min(axis=1), ends.max(axis=1)
         if len(ends) and (low.min() < 1 or high.max() > self.n):
             return False

@@ -15,6 +15,7 @@ from formation.codec import attachment, encode
 from formation.messages import CoordinationState, Decision, DecisionBatch, LeaderEstimate
 from formation.scenario import Scenario
 from recorder.live.epoch_assembly import TAPS, EpochAssembler
+from recorder.recording.stored_scenario import SCENARIO, scenario_metadata
 from recorder.recording.writer import RecordingWriter
 
 RUN = "synthetic"
@@ -94,7 +95,7 @@ def write_synthetic(
     ``options`` go to :class:`RecordingWriter` (e.g. ``split_size``).
     """
     s = result.scenario
-    meta = {"scenario": {"name": s.name, "toml": s.to_toml()}}
+    meta = {SCENARIO: scenario_metadata(s)}
     options = {"chunk_size": 64 * 1024, **options}
     rec = RecordingWriter(path, metadata=meta, taps=TAPS, **options)
     asm = EpochAssembler(s, RUN, clock=lambda: 0)

@@ -242,6 +242,23 @@ def test_chunks_are_read_in_the_reader_s_file_order(forged_run: Path) -> None:
     assert got == want
 
 
+@pytest.mark.parametrize("compression", ["lz4", "none"])
+def test_chunks_of_each_compression_are_read_in_the_reader_s_file_order(
+    tmp_path: Path, sim_results: dict[str, Any], synth: Any, compression: str
+) -> None:
+    """zstd chunks are decompressed here (the test above); the others by the library."""
+    path = tmp_path / "run.mcap"
+    synth.write(path, sim_results["hold"], chunk_size=4096, compression=compression)
+    with open(path, "rb") as f:
+        want = [(c.id, m) for _, c, m in make_reader(f).iter_messages(log_time_order=False)]
+    with open_recording(path) as (_, summary):
+        got = [(c.id, m) for _, c, m in file_order(path, summary)]
+        assert {c.compression for c in summary.chunk_indexes} == {
+            "" if compression == "none" else compression
+        }
+    assert got == want
+
+
 def test_a_record_past_its_chunk_is_refused() -> None:
     with pytest.raises(ChunkError, match="a record of 99 bytes at byte 0 of 12"):
         list(chunk_messages(bytes([5]) + (99).to_bytes(8, "little") + b"abc"))
