@@ -108,9 +108,11 @@ def _unit_ranks(dirs: FloatArray, index: IntArray, counts: IntArray) -> IntArray
     """
     d = dirs.shape[1]
     out = np.zeros(counts.shape[0], dtype=np.int64)
-    first = np.cumsum(counts) - counts
-    padded = np.append(index, -1)  # past the end: the zero row
+    first = counts.cumsum() - counts
+    padded = np.concatenate([index, [-1]])  # past the end: the zero row
     sure = _surely_spanning(dirs, padded, first, counts)
+    if sure.all():  # the common case: no SVD
+        return np.full(counts.shape[0], d, dtype=np.int64)
     out[sure] = d
     width = 1 << np.ceil(np.log2(np.maximum(counts, 1))).astype(np.int64)
     width[sure] = 0
@@ -140,8 +142,8 @@ def _surely_spanning(
     rows[np.arange(d + 1) >= counts[:, None]] = padded.shape[0] - 1  # the zero row: δ = 0
     s = dirs[padded[rows]]  # (B, d + 1, d)
     if d == 2:
-        cross = s[:, [0, 0, 1], 0] * s[:, [1, 2, 2], 1] - s[:, [0, 0, 1], 1] * s[:, [1, 2, 2], 0]
-        best = np.abs(cross).max(axis=1)
+        a, b = s[:, [0, 0, 1]], s[:, [1, 2, 2]]
+        best = np.abs(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]).max(axis=1)
     else:
         a, b, c = s[:, [0, 0, 0, 1]], s[:, [1, 1, 2, 2]], s[:, [2, 3, 3, 3]]
         det = (
@@ -190,34 +192,36 @@ def growth_rounds(positions: npt.ArrayLike, edges: npt.ArrayLike, seed: int = 0)
     dirs = _unit_directions(x, tail, head)
     inside = np.zeros(n, dtype=bool)
     count = np.zeros(n, dtype=np.int64)  # edges into the cluster
+    stamp = np.zeros(n, dtype=np.int64)
+    places = np.arange(tail.shape[0])
     added = np.unique(e0[seed])
-    size, k, was_simplex = 0, 0, True
-    while added.shape[0]:
+    size, k = 0, 0
+    while True:
         rounds[added] = k
         inside[added] = True
         size += added.shape[0]
         if size == n:
             break
-        out_of_new = _slices(start, added)
-        np.add.at(count, head[out_of_new], 1)
+        near = head[_slices(start, added)]
+        np.add.at(count, near, 1)
         k += 1
-        need = min(d, size)
-        if was_simplex:
-            outside = np.flatnonzero(~inside)
-        else:
-            outside = np.unique(head[out_of_new])
-            outside = outside[~inside[outside]]
-        joined_to = count[outside]
-        cand = outside[joined_to == size] if size <= d else outside[joined_to >= need]
-        was_simplex = size <= d
+        if size <= d:  # the simplex: one agent joined to all of it
+            cand = np.flatnonzero(~inside & (count == size))
+        elif size - added.shape[0] <= d:  # the simplex just done: every agent may join
+            cand = np.flatnonzero(~inside & (count >= d))
+        else:  # only the last round's neighbours gained edges into the cluster
+            near = near[(count[near] >= d) & ~inside[near]]
+            stamp[near] = places[: near.shape[0]]
+            cand = near[stamp[near] == places[: near.shape[0]]]  # each agent once
         if cand.shape[0] == 0:
             break
         into = _slices(start, cand)
         into = into[inside[head[into]]]
-        ranks = _unit_ranks(dirs, into, count[cand])
-        added = cand[ranks >= need]
+        added = cand[_unit_ranks(dirs, into, count[cand]) >= min(d, size)]
         if size <= d:
             added = added[:1]  # a simplex grows one agent at a time, each off the others' hull
+        if added.shape[0] == 0:
+            break
     return rounds
 
 
@@ -225,7 +229,7 @@ def _slices(start: IntArray, agents: IntArray) -> IntArray:
     """Indices of the half-edges of ``agents`` (CSR ``start``), agent after agent."""
     lo = start[agents]
     lengths = start[agents + 1] - lo
-    ends = np.cumsum(lengths)
+    ends = lengths.cumsum()
     out: IntArray = np.repeat(lo - ends + lengths, lengths) + np.arange(
         ends[-1] if ends.size else 0
     )
