@@ -14,7 +14,9 @@ import numpy.typing as npt
 from formation.graph import BoolArray, FloatArray, IntArray, as_edge_array, as_positions
 from formation.rigidity import SVD_MAX_COLUMNS, expected_rigidity_rank, rigidity_rank
 from formation.rigidity_growth import (
+    HalfEdges,
     grown_cluster,
+    half_edges,
     loose_agent,
     ordered_certificate,
     rank_beyond_cluster,
@@ -57,6 +59,7 @@ def rank_beyond_growth(
     svd_max_columns: int,
     seed: int = 0,
     outside_stiffness: bool = True,
+    half: HalfEdges | None = None,
 ) -> tuple[int | None, bool]:
     """Rank (None if unknown) and rigidity of a large framework, from vertex addition (§2).
 
@@ -66,14 +69,16 @@ def rank_beyond_growth(
     ``outside_stiffness`` the cluster decides that: the agents outside it are held iff
     their matrix ``R_U`` has full column rank (:func:`outside_held`). Without (the
     benchmark's baseline), or where growth found no body, the whole framework's
-    :func:`pinned_stiffness_definite` does.
+    :func:`pinned_stiffness_definite` does. ``half``: the :class:`HalfEdges` of ``edges``,
+    if known.
     """
     need = expected_rigidity_rank(*positions.shape)
     d = positions.shape[1]
-    cluster = grown_cluster(positions, edges, seed)
+    half = half_edges(positions, edges - 1) if half is None else half
+    cluster = grown_cluster(positions, edges, seed, half)
     tries = np.linspace(0, edges.shape[0] - 1, SEED_TRIES).astype(np.int64)
     for other in tries if cluster.sum() <= d else ():  # stalled at the simplex: elsewhere
-        cluster = grown_cluster(positions, edges, int(other))
+        cluster = grown_cluster(positions, edges, int(other), half)
         if cluster.sum() > d:
             break
     if cluster.all():
@@ -98,6 +103,7 @@ def rank_under_mask(
     spread: bool,
     svd_max_columns: int = SVD_MAX_COLUMNS,
     outside_stiffness: bool = True,
+    half: HalfEdges | None = None,
 ) -> tuple[int | None, bool]:
     """Rank (None if unknown) and rigidity of the kept edges, the growth order known (§2).
 
@@ -105,13 +111,16 @@ def rank_under_mask(
     agent whose kept edges do not span the space (:func:`loose_agent`, valid when
     ``spread``: :func:`spans_without_any` of ``positions``); else growth again on the kept
     edges from the same seed (:func:`rank_beyond_growth`, ``outside_stiffness`` passed on).
+    ``half``: the :class:`HalfEdges` of all ``edges``, if known (a formation's, kept).
     """
     need = expected_rigidity_rank(*positions.shape)
-    if ordered_certificate(positions, edges, rounds, mask):
+    half = half_edges(positions, edges - 1) if half is None else half
+    halves = half.kept(mask)  # the kept edges' half-edges, once for the three steps
+    if ordered_certificate(positions, edges, rounds, mask, halves):
         return need, True
-    if spread and loose_agent(positions, edges, mask):
+    if spread and loose_agent(positions, edges, mask, halves):
         return None, False
     kept = edges[mask]
     seeds = np.flatnonzero((rounds[kept[:, 0] - 1] == 0) & (rounds[kept[:, 1] - 1] == 0))
     seed = int(seeds[0]) if seeds.size else 0  # the growth order's own seed edge, if kept
-    return rank_beyond_growth(positions, kept, svd_max_columns, seed, outside_stiffness)
+    return rank_beyond_growth(positions, kept, svd_max_columns, seed, outside_stiffness, halves)

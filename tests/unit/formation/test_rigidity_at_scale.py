@@ -22,6 +22,7 @@ from formation.rigidity_growth import (
     _surely_spanning,
     grown_cluster,
     growth_rounds,
+    half_edges,
     rank_beyond_cluster,
 )
 from formation.rigidity_stiffness import pinned_stiffness_definite
@@ -235,3 +236,17 @@ def test_direction_ranks_without_an_svd_are_the_svds(d: int, seed: int, tilt: fl
         padded = np.append(np.arange(unit.shape[0]), -1)
         dirs = np.vstack([unit, np.zeros((1, d))])
         assert _surely_spanning(dirs, padded, first, counts).any()
+
+
+@settings(max_examples=20, deadline=None)
+@given(n=st.integers(2, 60), d=st.sampled_from([2, 3]), seed=st.integers(0, 10_000))
+def test_the_kept_half_edges_are_those_of_the_kept_edges(n: int, d: int, seed: int) -> None:
+    """Filtered from a formation's half-edges: the same arrays, bit for bit, as built anew."""
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(n, d))
+    pairs = np.array([(i, j) for i in range(n) for j in range(i + 1, n)])
+    e0 = pairs[rng.random(len(pairs)) < 0.3]
+    keep = rng.random(len(e0)) < 0.7
+    kept, fresh = half_edges(x, e0).kept(keep), half_edges(x, e0[keep])
+    for name, a, b in zip(kept._fields, kept, fresh, strict=True):
+        assert a.dtype == b.dtype and np.array_equal(a, b), name
