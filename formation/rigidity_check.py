@@ -16,6 +16,7 @@ from formation.rigidity import SVD_MAX_COLUMNS, expected_rigidity_rank, rigidity
 from formation.rigidity_growth import (
     HalfEdges,
     grown_cluster,
+    growth_rounds,
     half_edges,
     loose_agent,
     ordered_certificate,
@@ -60,11 +61,14 @@ def rank_beyond_growth(
     seed: int = 0,
     outside_stiffness: bool = True,
     half: HalfEdges | None = None,
+    order: IntArray | None = None,
 ) -> tuple[int | None, bool]:
     """Rank (None if unknown) and rigidity of a large framework, from vertex addition (§2).
 
     The rank where :func:`grown_cluster` from edge ``seed`` (or, if it stalls before it has
-    ``d + 1`` agents, from one of ``SEED_TRIES`` edges spread over the list) and
+    ``d + 1`` agents, from the first rounds of ``order``, a growth order on more edges, if
+    they are rigid (:func:`rigid_prefix`), or from one of ``SEED_TRIES`` edges spread over
+    the list) and
     :func:`rank_beyond_cluster` give it; otherwise only rigid or not. With
     ``outside_stiffness`` the cluster decides that: the agents outside it are held iff
     their matrix ``R_U`` has full column rank (:func:`outside_held`). Without (the
@@ -76,6 +80,11 @@ def rank_beyond_growth(
     d = positions.shape[1]
     half = half_edges(positions, edges - 1) if half is None else half
     cluster = grown_cluster(positions, edges, seed, half)
+    body = (
+        rigid_prefix(positions, edges, order) if cluster.sum() <= d and order is not None else None
+    )
+    if body is not None:
+        cluster = growth_rounds(positions, edges, half=half, body=body) >= 0
     tries = np.linspace(0, edges.shape[0] - 1, SEED_TRIES).astype(np.int64)
     for other in tries if cluster.sum() <= d else ():  # stalled at the simplex: elsewhere
         cluster = grown_cluster(positions, edges, int(other), half)
@@ -123,4 +132,31 @@ def rank_under_mask(
     kept = edges[mask]
     seeds = np.flatnonzero((rounds[kept[:, 0] - 1] == 0) & (rounds[kept[:, 1] - 1] == 0))
     seed = int(seeds[0]) if seeds.size else 0  # the growth order's own seed edge, if kept
-    return rank_beyond_growth(positions, kept, svd_max_columns, seed, outside_stiffness, halves)
+    return rank_beyond_growth(
+        positions, kept, svd_max_columns, seed, outside_stiffness, halves, order=rounds
+    )
+
+
+def rigid_prefix(positions: FloatArray, edges: IntArray, order: IntArray) -> BoolArray | None:
+    """The agents of the first rounds of a growth ``order`` if their ``edges`` make them rigid.
+
+    The smallest prefix of whole rounds with ``2(d + 1)``, ``4(d + 1)`` or ``8(d + 1)``
+    agents whose edges among them have the expected rank by the dense SVD (at most
+    ``SVD_MAX_COLUMNS`` columns): a rigid body that spans the space, which growth may
+    start from where the seed's simplex lost an edge. None if no such prefix is rigid.
+    """
+    d = positions.shape[1]
+    joined = np.sort(order[order >= 0])
+    e0 = edges - 1
+    for size in (2 * (d + 1), 4 * (d + 1), 8 * (d + 1)):
+        if size > joined.shape[0]:
+            break
+        body: BoolArray = (order >= 0) & (order <= joined[size - 1])
+        count = int(body.sum())
+        if count * d > SVD_MAX_COLUMNS:
+            break
+        among = body[e0[:, 0]] & body[e0[:, 1]]
+        within = np.cumsum(body)  # an agent's id within the body, from 1
+        if rigidity_rank(positions[body], within[e0[among]]) == expected_rigidity_rank(count, d):
+            return body
+    return None

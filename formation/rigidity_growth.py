@@ -218,7 +218,11 @@ def grown_cluster(
 
 
 def growth_rounds(
-    positions: npt.ArrayLike, edges: npt.ArrayLike, seed: int = 0, half: HalfEdges | None = None
+    positions: npt.ArrayLike,
+    edges: npt.ArrayLike,
+    seed: int = 0,
+    half: HalfEdges | None = None,
+    body: BoolArray | None = None,
 ) -> IntArray:
     """The round at which each agent joined :func:`grown_cluster`'s cluster, −1 if never.
 
@@ -226,7 +230,8 @@ def growth_rounds(
     the rounds before it, which is what :func:`ordered_certificate` checks again. Past the
     simplex only agents next to the last round's are examined: no other's edges into the
     cluster changed, so ``O(m)`` work in all. ``half``: the :class:`HalfEdges` of ``edges``,
-    if known.
+    if known. ``body``: instead of the seed edge, agents known to be a rigid cluster that
+    spans the space (round 0).
     """
     x = as_positions(positions)
     n, d = x.shape
@@ -239,7 +244,7 @@ def growth_rounds(
     count = np.zeros(n, dtype=np.int64)  # edges into the cluster
     stamp = np.zeros(n, dtype=np.int64)
     places = np.arange(tail.shape[0])
-    added = np.unique(e0[seed])
+    added = np.unique(e0[seed]) if body is None else np.flatnonzero(body)
     size, k = 0, 0
     while True:
         rounds[added] = k

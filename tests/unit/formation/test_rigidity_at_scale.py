@@ -16,7 +16,7 @@ from formation.rigidity import (
     rigidity_matrix,
     rigidity_rank,
 )
-from formation.rigidity_check import is_rigid, rank_under_mask
+from formation.rigidity_check import is_rigid, rank_under_mask, rigid_prefix
 from formation.rigidity_growth import (
     _direction_ranks,
     _surely_spanning,
@@ -250,3 +250,24 @@ def test_the_kept_half_edges_are_those_of_the_kept_edges(n: int, d: int, seed: i
     kept, fresh = half_edges(x, e0).kept(keep), half_edges(x, e0[keep])
     for name, a, b in zip(kept._fields, kept, fresh, strict=True):
         assert a.dtype == b.dtype and np.array_equal(a, b), name
+
+
+def test_growth_starts_from_a_rigid_prefix_where_the_seed_simplex_lost_an_edge() -> None:
+    s = rigid_team(120, 3, 0.5, seed=1)
+    x, edges = s.offsets, s.edge_array
+    rounds = growth_rounds(x, edges)
+    triangle = np.isin(edges, [1, 2, 3])
+    other = np.where(triangle[:, 0], edges[:, 1], edges[:, 0])[triangle.sum(axis=1) == 1]
+    joined = np.unique(other)[np.bincount(other)[np.unique(other)] == 3]  # to 1, 2 and 3
+    mask = ~((edges[:, 0] == 3) & np.isin(edges[:, 1], joined))  # none is joined to all three
+    far = np.flatnonzero((edges == 120).any(axis=1))
+    mask[far[2:]] = False  # agent 120 held by two edges: flexible
+    kept = edges[mask]
+    assert grown_cluster(x, kept).sum() == 3  # the simplex stalls
+    body = rigid_prefix(x, kept, rounds)
+    assert body is not None and 8 <= body.sum() <= 40
+    assert (growth_rounds(x, kept, body=body) >= 0).sum() == 119
+    svd = rigidity_rank(x, kept)
+    assert svd < expected_rigidity_rank(120, 3)
+    # growth from the prefix leaves one agent outside: its SVD gives the exact rank
+    assert rank_under_mask(x, edges, rounds, mask, spread=False, svd_max_columns=30) == (svd, False)
