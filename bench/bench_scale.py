@@ -156,11 +156,14 @@ def _per_agent_by_add_at(n: int, receivers: np.ndarray, terms: np.ndarray) -> np
     return _group_sums_by_add_at(receivers, terms, n)
 
 
-def _half_edges_by_int64(n: int, e0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _half_edges_by_int64(
+    n: int, e0: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     tail = np.concatenate([e0[:, 0], e0[:, 1]])
     head = np.concatenate([e0[:, 1], e0[:, 0]])
     order = np.argsort(tail, kind="stable")
-    return tail[order], head[order], np.searchsorted(tail[order], np.arange(n + 1))
+    edge = order % max(e0.shape[0], 1)
+    return tail[order], head[order], np.searchsorted(tail[order], np.arange(n + 1)), edge
 
 
 def _never_sure(

@@ -14,7 +14,10 @@ import numpy.typing as npt
 from formation.graph import BoolArray, FloatArray, IntArray, as_edge_array, as_positions
 from formation.rigidity import SVD_MAX_COLUMNS, expected_rigidity_rank, rigidity_rank
 from formation.rigidity_growth import (
+    HalfEdges,
     grown_cluster,
+    growth_rounds,
+    half_edges,
     loose_agent,
     ordered_certificate,
     rank_beyond_cluster,
@@ -57,23 +60,34 @@ def rank_beyond_growth(
     svd_max_columns: int,
     seed: int = 0,
     outside_stiffness: bool = True,
+    half: HalfEdges | None = None,
+    order: IntArray | None = None,
 ) -> tuple[int | None, bool]:
     """Rank (None if unknown) and rigidity of a large framework, from vertex addition (§2).
 
     The rank where :func:`grown_cluster` from edge ``seed`` (or, if it stalls before it has
-    ``d + 1`` agents, from one of ``SEED_TRIES`` edges spread over the list) and
+    ``d + 1`` agents, from the first rounds of ``order``, a growth order on more edges, if
+    they are rigid (:func:`rigid_prefix`), or from one of ``SEED_TRIES`` edges spread over
+    the list) and
     :func:`rank_beyond_cluster` give it; otherwise only rigid or not. With
     ``outside_stiffness`` the cluster decides that: the agents outside it are held iff
     their matrix ``R_U`` has full column rank (:func:`outside_held`). Without (the
     benchmark's baseline), or where growth found no body, the whole framework's
-    :func:`pinned_stiffness_definite` does.
+    :func:`pinned_stiffness_definite` does. ``half``: the :class:`HalfEdges` of ``edges``,
+    if known.
     """
     need = expected_rigidity_rank(*positions.shape)
     d = positions.shape[1]
-    cluster = grown_cluster(positions, edges, seed)
+    half = half_edges(positions, edges - 1) if half is None else half
+    cluster = grown_cluster(positions, edges, seed, half)
+    body = (
+        rigid_prefix(positions, edges, order) if cluster.sum() <= d and order is not None else None
+    )
+    if body is not None:
+        cluster = growth_rounds(positions, edges, half=half, body=body) >= 0
     tries = np.linspace(0, edges.shape[0] - 1, SEED_TRIES).astype(np.int64)
     for other in tries if cluster.sum() <= d else ():  # stalled at the simplex: elsewhere
-        cluster = grown_cluster(positions, edges, int(other))
+        cluster = grown_cluster(positions, edges, int(other), half)
         if cluster.sum() > d:
             break
     if cluster.all():
@@ -98,6 +112,7 @@ def rank_under_mask(
     spread: bool,
     svd_max_columns: int = SVD_MAX_COLUMNS,
     outside_stiffness: bool = True,
+    half: HalfEdges | None = None,
 ) -> tuple[int | None, bool]:
     """Rank (None if unknown) and rigidity of the kept edges, the growth order known (§2).
 
@@ -105,13 +120,43 @@ def rank_under_mask(
     agent whose kept edges do not span the space (:func:`loose_agent`, valid when
     ``spread``: :func:`spans_without_any` of ``positions``); else growth again on the kept
     edges from the same seed (:func:`rank_beyond_growth`, ``outside_stiffness`` passed on).
+    ``half``: the :class:`HalfEdges` of all ``edges``, if known (a formation's, kept).
     """
     need = expected_rigidity_rank(*positions.shape)
-    if ordered_certificate(positions, edges, rounds, mask):
+    half = half_edges(positions, edges - 1) if half is None else half
+    halves = half.kept(mask)  # the kept edges' half-edges, once for the three steps
+    if ordered_certificate(positions, edges, rounds, mask, halves):
         return need, True
-    if spread and loose_agent(positions, edges, mask):
+    if spread and loose_agent(positions, edges, mask, halves):
         return None, False
     kept = edges[mask]
     seeds = np.flatnonzero((rounds[kept[:, 0] - 1] == 0) & (rounds[kept[:, 1] - 1] == 0))
     seed = int(seeds[0]) if seeds.size else 0  # the growth order's own seed edge, if kept
-    return rank_beyond_growth(positions, kept, svd_max_columns, seed, outside_stiffness)
+    return rank_beyond_growth(
+        positions, kept, svd_max_columns, seed, outside_stiffness, halves, order=rounds
+    )
+
+
+def rigid_prefix(positions: FloatArray, edges: IntArray, order: IntArray) -> BoolArray | None:
+    """The agents of the first rounds of a growth ``order`` if their ``edges`` make them rigid.
+
+    The smallest prefix of whole rounds with ``2(d + 1)``, ``4(d + 1)`` or ``8(d + 1)``
+    agents whose edges among them have the expected rank by the dense SVD (at most
+    ``SVD_MAX_COLUMNS`` columns): a rigid body that spans the space, which growth may
+    start from where the seed's simplex lost an edge. None if no such prefix is rigid.
+    """
+    d = positions.shape[1]
+    joined = np.sort(order[order >= 0])
+    e0 = edges - 1
+    for size in (2 * (d + 1), 4 * (d + 1), 8 * (d + 1)):
+        if size > joined.shape[0]:
+            break
+        body: BoolArray = (order >= 0) & (order <= joined[size - 1])
+        count = int(body.sum())
+        if count * d > SVD_MAX_COLUMNS:
+            break
+        among = body[e0[:, 0]] & body[e0[:, 1]]
+        within = np.cumsum(body)  # an agent's id within the body, from 1
+        if rigidity_rank(positions[body], within[e0[among]]) == expected_rigidity_rank(count, d):
+            return body
+    return None

@@ -8,6 +8,8 @@ rounds of array work.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import numpy.typing as npt
 
@@ -58,31 +60,70 @@ def spans_without_any(positions: npt.ArrayLike) -> bool:
     return True
 
 
-def loose_agent(positions: npt.ArrayLike, edges: npt.ArrayLike, mask: npt.ArrayLike) -> bool:
+def loose_agent(
+    positions: npt.ArrayLike,
+    edges: npt.ArrayLike,
+    mask: npt.ArrayLike,
+    kept: HalfEdges | None = None,
+) -> bool:
     """Whether some agent's kept edges leave a direction free: fewer than ``d`` independent ones.
 
     That agent alone can move across all its edges, a motion that is not rigid when the
-    others span the space (:func:`spans_without_any`): the framework is flexible.
+    others span the space (:func:`spans_without_any`): the framework is flexible. ``kept``:
+    the :class:`HalfEdges` of the kept edges, if known.
     """
     x = as_positions(positions)
     n, d = x.shape
     e0 = as_edge_array(n, edges) - 1
     keep = as_edge_mask(mask, e0.shape[0])
-    tail, head, start = _half_edges(n, e0[keep])
-    count = np.diff(start)
+    kept = half_edges(x, e0[keep]) if kept is None else kept
+    count = np.diff(kept.start)
     if (count < d).any():
         return True
-    return bool((_direction_ranks(x, tail, head, count) < d).any())
+    return bool((_unit_ranks(kept.dirs, np.arange(kept.tail.shape[0]), count) < d).any())
 
 
-def _half_edges(n: int, e0: IntArray) -> tuple[IntArray, IntArray, IntArray]:
-    """Both directions of each 0-based edge, sorted by tail: ``(tail, head, start)``, CSR-like."""
+class HalfEdges(NamedTuple):
+    """Both directions of each edge, sorted by tail (CSR-like), with their unit directions."""
+
+    tail: IntArray
+    head: IntArray
+    start: IntArray
+    """(n + 1,): agent ``a``'s half-edges are ``start[a]:start[a + 1]``."""
+    edge: IntArray
+    """The edge each half-edge is a direction of."""
+    dirs: FloatArray
+    """Unit directions ``tail → head``, a zero row last (:func:`_unit_directions`)."""
+
+    def kept(self, keep: BoolArray) -> HalfEdges:
+        """The half-edges of the edges ``keep`` selects, as :func:`half_edges` of them gives.
+
+        The same order (a stable sort, filtered) and the same directions, row by row.
+        """
+        sel = np.flatnonzero(keep[self.edge])
+        tail = self.tail[sel]
+        start = np.searchsorted(tail, np.arange(self.start.shape[0]))
+        edge = np.cumsum(keep) - 1  # an edge's index among the kept
+        return HalfEdges(
+            tail, self.head[sel], start, edge[self.edge[sel]], self.dirs[np.append(sel, -1)]
+        )
+
+
+def half_edges(x: FloatArray, e0: IntArray) -> HalfEdges:
+    """The :class:`HalfEdges` of 0-based edges ``e0`` (m, 2) between agents at ``x`` (n, d)."""
+    tail, head, start, edge = _half_edges(x.shape[0], e0)
+    return HalfEdges(tail, head, start, edge, _unit_directions(x, tail, head))
+
+
+def _half_edges(n: int, e0: IntArray) -> tuple[IntArray, IntArray, IntArray, IntArray]:
+    """Both directions of each 0-based edge, sorted by tail: ``(tail, head, start, edge)``."""
     tail = np.concatenate([e0[:, 0], e0[:, 1]])
     head = np.concatenate([e0[:, 1], e0[:, 0]])
     # 16-bit keys take numpy's radix sort: the same stable order, ten times sooner
     order = np.argsort(tail.astype(np.uint16) if n <= 1 << 16 else tail, kind="stable")
     tail = tail[order]
-    return tail, head[order], np.searchsorted(tail, np.arange(n + 1))
+    edge = order % max(e0.shape[0], 1)
+    return tail, head[order], np.searchsorted(tail, np.arange(n + 1)), edge
 
 
 def _direction_ranks(x: FloatArray, tail: IntArray, head: IntArray, counts: IntArray) -> IntArray:
@@ -108,9 +149,11 @@ def _unit_ranks(dirs: FloatArray, index: IntArray, counts: IntArray) -> IntArray
     """
     d = dirs.shape[1]
     out = np.zeros(counts.shape[0], dtype=np.int64)
-    first = np.cumsum(counts) - counts
-    padded = np.append(index, -1)  # past the end: the zero row
+    first = counts.cumsum() - counts
+    padded = np.concatenate([index, [-1]])  # past the end: the zero row
     sure = _surely_spanning(dirs, padded, first, counts)
+    if sure.all():  # the common case: no SVD
+        return np.full(counts.shape[0], d, dtype=np.int64)
     out[sure] = d
     width = 1 << np.ceil(np.log2(np.maximum(counts, 1))).astype(np.int64)
     width[sure] = 0
@@ -140,8 +183,8 @@ def _surely_spanning(
     rows[np.arange(d + 1) >= counts[:, None]] = padded.shape[0] - 1  # the zero row: δ = 0
     s = dirs[padded[rows]]  # (B, d + 1, d)
     if d == 2:
-        cross = s[:, [0, 0, 1], 0] * s[:, [1, 2, 2], 1] - s[:, [0, 0, 1], 1] * s[:, [1, 2, 2], 0]
-        best = np.abs(cross).max(axis=1)
+        a, b = s[:, [0, 0, 1]], s[:, [1, 2, 2]]
+        best = np.abs(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]).max(axis=1)
     else:
         a, b, c = s[:, [0, 0, 0, 1]], s[:, [1, 1, 2, 2]], s[:, [2, 3, 3, 3]]
         det = (
@@ -154,7 +197,9 @@ def _surely_spanning(
     return sure
 
 
-def grown_cluster(positions: npt.ArrayLike, edges: npt.ArrayLike, seed: int = 0) -> BoolArray:
+def grown_cluster(
+    positions: npt.ArrayLike, edges: npt.ArrayLike, seed: int = 0, half: HalfEdges | None = None
+) -> BoolArray:
     """The agents of the rigid cluster that vertex addition grows from edge ``seed`` (§2).
 
     A cluster of ``c ≤ d`` agents affinely independent and all joined takes an agent joined to
@@ -169,16 +214,24 @@ def grown_cluster(positions: npt.ArrayLike, edges: npt.ArrayLike, seed: int = 0)
     -------
     (n,) bool: the cluster's agents (none if there are no edges).
     """
-    return growth_rounds(positions, edges, seed) >= 0
+    return growth_rounds(positions, edges, seed, half) >= 0
 
 
-def growth_rounds(positions: npt.ArrayLike, edges: npt.ArrayLike, seed: int = 0) -> IntArray:
+def growth_rounds(
+    positions: npt.ArrayLike,
+    edges: npt.ArrayLike,
+    seed: int = 0,
+    half: HalfEdges | None = None,
+    body: BoolArray | None = None,
+) -> IntArray:
     """The round at which each agent joined :func:`grown_cluster`'s cluster, −1 if never.
 
     The seed edge's two agents join at round 0; agents of one round joined the cluster of
     the rounds before it, which is what :func:`ordered_certificate` checks again. Past the
     simplex only agents next to the last round's are examined: no other's edges into the
-    cluster changed, so ``O(m)`` work in all.
+    cluster changed, so ``O(m)`` work in all. ``half``: the :class:`HalfEdges` of ``edges``,
+    if known. ``body``: instead of the seed edge, agents known to be a rigid cluster that
+    spans the space (round 0).
     """
     x = as_positions(positions)
     n, d = x.shape
@@ -186,38 +239,39 @@ def growth_rounds(positions: npt.ArrayLike, edges: npt.ArrayLike, seed: int = 0)
     rounds = np.full(n, -1, dtype=np.int64)
     if e0.shape[0] == 0:
         return rounds
-    tail, head, start = _half_edges(n, e0)
-    dirs = _unit_directions(x, tail, head)
+    tail, head, start, _, dirs = half_edges(x, e0) if half is None else half
     inside = np.zeros(n, dtype=bool)
     count = np.zeros(n, dtype=np.int64)  # edges into the cluster
-    added = np.unique(e0[seed])
-    size, k, was_simplex = 0, 0, True
-    while added.shape[0]:
+    stamp = np.zeros(n, dtype=np.int64)
+    places = np.arange(tail.shape[0])
+    added = np.unique(e0[seed]) if body is None else np.flatnonzero(body)
+    size, k = 0, 0
+    while True:
         rounds[added] = k
         inside[added] = True
         size += added.shape[0]
         if size == n:
             break
-        out_of_new = _slices(start, added)
-        np.add.at(count, head[out_of_new], 1)
+        near = head[_slices(start, added)]
+        np.add.at(count, near, 1)
         k += 1
-        need = min(d, size)
-        if was_simplex:
-            outside = np.flatnonzero(~inside)
-        else:
-            outside = np.unique(head[out_of_new])
-            outside = outside[~inside[outside]]
-        joined_to = count[outside]
-        cand = outside[joined_to == size] if size <= d else outside[joined_to >= need]
-        was_simplex = size <= d
+        if size <= d:  # the simplex: one agent joined to all of it
+            cand = np.flatnonzero(~inside & (count == size))
+        elif size - added.shape[0] <= d:  # the simplex just done: every agent may join
+            cand = np.flatnonzero(~inside & (count >= d))
+        else:  # only the last round's neighbours gained edges into the cluster
+            near = near[(count[near] >= d) & ~inside[near]]
+            stamp[near] = places[: near.shape[0]]
+            cand = near[stamp[near] == places[: near.shape[0]]]  # each agent once
         if cand.shape[0] == 0:
             break
         into = _slices(start, cand)
         into = into[inside[head[into]]]
-        ranks = _unit_ranks(dirs, into, count[cand])
-        added = cand[ranks >= need]
+        added = cand[_unit_ranks(dirs, into, count[cand]) >= min(d, size)]
         if size <= d:
             added = added[:1]  # a simplex grows one agent at a time, each off the others' hull
+        if added.shape[0] == 0:
+            break
     return rounds
 
 
@@ -225,7 +279,7 @@ def _slices(start: IntArray, agents: IntArray) -> IntArray:
     """Indices of the half-edges of ``agents`` (CSR ``start``), agent after agent."""
     lo = start[agents]
     lengths = start[agents + 1] - lo
-    ends = np.cumsum(lengths)
+    ends = lengths.cumsum()
     out: IntArray = np.repeat(lo - ends + lengths, lengths) + np.arange(
         ends[-1] if ends.size else 0
     )
@@ -233,7 +287,11 @@ def _slices(start: IntArray, agents: IntArray) -> IntArray:
 
 
 def ordered_certificate(
-    positions: npt.ArrayLike, edges: npt.ArrayLike, rounds: IntArray, mask: npt.ArrayLike
+    positions: npt.ArrayLike,
+    edges: npt.ArrayLike,
+    rounds: IntArray,
+    mask: npt.ArrayLike,
+    kept: HalfEdges | None = None,
 ) -> bool:
     """Whether the edges in ``mask`` still attach every agent as :func:`growth_rounds` did (§2).
 
@@ -241,7 +299,8 @@ def ordered_certificate(
     ``d`` along independent directions (in the first rounds, while the cluster has at
     most ``d`` agents: an edge to each of them, independent). True proves the kept
     graph rigid at ``positions``; False proves nothing. One pass of array work, so a
-    formation's epochs reuse the order grown once on all its edges.
+    formation's epochs reuse the order grown once on all its edges. ``kept``: the
+    :class:`HalfEdges` of the kept edges, if known.
     """
     x = as_positions(positions)
     n, d = x.shape
@@ -252,7 +311,8 @@ def ordered_certificate(
     first = (rounds[e0[:, 0]] == 0) & (rounds[e0[:, 1]] == 0)
     if not (keep & first).any():
         return False  # the seed edge, the first rigid body, is lost
-    tail, head, _ = _half_edges(n, e0[keep])
+    kept = half_edges(x, e0[keep]) if kept is None else kept
+    tail, head = kept.tail, kept.head
     back = rounds[head] < rounds[tail]
     count = np.bincount(tail[back], minlength=n)
     before = np.searchsorted(np.sort(rounds), rounds)  # agents in earlier rounds
@@ -261,7 +321,7 @@ def ordered_certificate(
     if (count[small] != before[small]).any() or (count < need).any():
         return False
     late = np.flatnonzero(before > 0)
-    ranks = _direction_ranks(x, tail[back], head[back], count[late]) if late.size else late
+    ranks = _unit_ranks(kept.dirs, np.flatnonzero(back), count[late]) if late.size else late
     return bool((ranks >= need[late]).all())
 
 

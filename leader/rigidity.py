@@ -16,7 +16,7 @@ from formation.graph import as_edge_array, as_edge_mask, as_positions
 from formation.rigidity import SVD_MAX_COLUMNS, rigidity_rank
 from formation.rigidity import expected_rigidity_rank as expected_rank
 from formation.rigidity_check import is_rigid, rank_under_mask
-from formation.rigidity_growth import growth_rounds, spans_without_any
+from formation.rigidity_growth import growth_rounds, half_edges, spans_without_any
 
 __all__ = [
     "UNKNOWN_RANK",
@@ -94,7 +94,8 @@ class HealthyRigidity:
         if self.small:
             self.independent = rigidity_rank(self.positions, self.edges) == m
         else:  # more edges than the rank allows are dependent; exactly as many, iff rigid
-            self.rounds = growth_rounds(self.positions, self.edges)
+            self.half = half_edges(self.positions, self.edges - 1)
+            self.rounds = growth_rounds(self.positions, self.edges, half=self.half)
             self.spread = spans_without_any(self.positions)
             self.independent = m == self.expected and self._ranked(np.ones(m, dtype=bool))[1]
 
@@ -129,7 +130,13 @@ class HealthyRigidity:
         key = keep.tobytes()
         if key not in self._ranked_seen:
             rank, rigid = rank_under_mask(
-                self.positions, self.edges, self.rounds, keep, self.spread, self.svd_max_columns
+                self.positions,
+                self.edges,
+                self.rounds,
+                keep,
+                self.spread,
+                self.svd_max_columns,
+                half=self.half,
             )
             self._ranked_seen[key] = (UNKNOWN_RANK if rank is None else rank), rigid
         return self._ranked_seen[key]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from itertools import combinations
 from typing import Any
 
@@ -10,6 +11,8 @@ import numpy.typing as npt
 from scipy.spatial import cKDTree
 
 from formation.scenario import Scenario, load_dict
+
+IntArray = npt.NDArray[np.intp]
 
 
 def henneberg_team(
@@ -27,10 +30,11 @@ def henneberg_team(
     rng = np.random.default_rng(seed)
     grid = np.array([(c, r) for r in range(side) for c in range(side)][:n], dtype=float) * spacing_m
     pts = grid + rng.uniform(-0.15, 0.15, size=grid.shape) * spacing_m
-    edges: list[list[int]] = [[1, 2]] if n >= 2 else []
-    for k in range(3, n + 1):
-        dist = np.linalg.norm(pts[: k - 1] - pts[k - 1], axis=1)
-        edges += [[int(a) + 1, k] for a in sorted(np.argsort(dist)[:2])]
+    edges = (
+        [[a + 1, b + 1] for a, b in _vertex_addition(pts, 2, lambda k, near: np.sort(near))]
+        if n >= 2
+        else []
+    )
     if redundancy > 0.0:
         edges += _spare_edges(pts, edges, redundancy, 1.5 * spacing_m, rng)
     degree = np.bincount(np.array(edges).ravel(), minlength=n + 1) if edges else np.zeros(1, int)
@@ -86,19 +90,7 @@ def rigid_team(
     side = int(np.ceil(n ** (1.0 / d) - 1e-9))
     grid = np.stack(np.meshgrid(*[np.arange(side)] * d, indexing="ij"), axis=-1).reshape(-1, d)
     pts = (grid[:n, ::-1] + rng.uniform(-0.25, 0.25, size=(n, d))) * spacing_m
-    edges = [(i, j) for j in range(d) for i in range(j)]
-    tree = cKDTree(pts)
-    near = 2 * d
-    for k in range(d, n):
-        reach = near
-        while True:  # the nearest agents of all, cut to the earlier ones
-            _, idx = tree.query(pts[k], k=min(reach, n))
-            earlier = idx[idx < k][:near]
-            if earlier.shape[0] >= min(near, k) or reach >= n:
-                break
-            reach *= 4
-        best = _best_spread(pts[earlier] - pts[k], d)
-        edges += [(int(earlier[c]), k) for c in best]
+    edges = _vertex_addition(pts, 2 * d, lambda k, near: near[_best_spread(pts[near] - pts[k])])
     edges += _spare_edges(pts, edges, redundancy, 1.5 * spacing_m, rng)
     return _team_scenario(pts, edges, "rigid_team", redundancy, spacing_m, seed, overrides)
 
@@ -168,17 +160,7 @@ def geometric_team(
             keep[max(i, j)] = False
     raw = raw[keep][:n]
     pts = raw[np.argsort(np.linalg.norm(raw, axis=1), kind="stable")]
-    edges = [(i, j) for j in range(d) for i in range(j)]
-    tree = cKDTree(pts)
-    for k in range(d, n):
-        reach = 2 * d
-        while True:  # the nearest agents of all, cut to the earlier ones
-            _, idx = tree.query(pts[k], k=min(reach, n))
-            earlier = idx[idx < k][:d]
-            if earlier.shape[0] >= d or reach >= n:
-                break
-            reach *= 4
-        edges += [(int(a), k) for a in earlier]
+    edges = _vertex_addition(pts, d, lambda k, near: near)
     edges += _spare_edges(pts, edges, redundancy, 1.5 * spacing_m, rng)
     return _team_scenario(pts, edges, "geometric_team", redundancy, spacing_m, seed, overrides)
 
@@ -202,9 +184,34 @@ def _spare_edges(
     return [[a + shift, b + shift] for a, b in spare[: round(redundancy * len(edges))]]
 
 
-def _best_spread(directions: npt.NDArray[np.float64], d: int) -> tuple[int, ...]:
+def _vertex_addition(
+    pts: npt.NDArray[np.float64], near: int, choose: Callable[[int, IntArray], IntArray]
+) -> list[tuple[int, int]]:
+    """0-based edges of vertex addition over the agents at ``pts`` (n, d) [m], in their order.
+
+    The first ``d`` agents are all joined; each later agent ``k`` to the ``d`` agents that
+    ``choose(k, nearest)`` takes from its ``near`` nearest earlier ones (closest first):
+    rigid at generic positions.
+    """
+    n, d = pts.shape
+    edges = [(i, j) for j in range(d) for i in range(j)]
+    tree = cKDTree(pts)
+    for k in range(d, n):
+        reach = 2 * d
+        while True:  # the nearest agents of all, cut to the earlier ones
+            _, idx = tree.query(pts[k], k=min(reach, n))
+            earlier = idx[idx < k][:near]
+            if earlier.shape[0] >= min(near, k) or reach >= n:
+                break
+            reach *= 4
+        edges += [(int(a), k) for a in choose(k, earlier)]
+    return edges
+
+
+def _best_spread(directions: npt.NDArray[np.float64]) -> list[int]:
     """The ``d`` of the given directions (k, d) whose unit vectors span the most volume."""
+    d = directions.shape[1]
     unit = directions / np.linalg.norm(directions, axis=1, keepdims=True)
     choices = list(combinations(range(unit.shape[0]), d))
     volume = np.abs(np.linalg.det(unit[np.array(choices)]))
-    return choices[int(np.argmax(volume))]
+    return list(choices[int(np.argmax(volume))])

@@ -16,12 +16,13 @@ from formation.rigidity import (
     rigidity_matrix,
     rigidity_rank,
 )
-from formation.rigidity_check import is_rigid, rank_under_mask
+from formation.rigidity_check import is_rigid, rank_under_mask, rigid_prefix
 from formation.rigidity_growth import (
     _direction_ranks,
     _surely_spanning,
     grown_cluster,
     growth_rounds,
+    half_edges,
     rank_beyond_cluster,
 )
 from formation.rigidity_stiffness import pinned_stiffness_definite
@@ -235,3 +236,38 @@ def test_direction_ranks_without_an_svd_are_the_svds(d: int, seed: int, tilt: fl
         padded = np.append(np.arange(unit.shape[0]), -1)
         dirs = np.vstack([unit, np.zeros((1, d))])
         assert _surely_spanning(dirs, padded, first, counts).any()
+
+
+@settings(max_examples=20, deadline=None)
+@given(n=st.integers(2, 60), d=st.sampled_from([2, 3]), seed=st.integers(0, 10_000))
+def test_the_kept_half_edges_are_those_of_the_kept_edges(n: int, d: int, seed: int) -> None:
+    """Filtered from a formation's half-edges: the same arrays, bit for bit, as built anew."""
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(n, d))
+    pairs = np.array([(i, j) for i in range(n) for j in range(i + 1, n)])
+    e0 = pairs[rng.random(len(pairs)) < 0.3]
+    keep = rng.random(len(e0)) < 0.7
+    kept, fresh = half_edges(x, e0).kept(keep), half_edges(x, e0[keep])
+    for name, a, b in zip(kept._fields, kept, fresh, strict=True):
+        assert a.dtype == b.dtype and np.array_equal(a, b), name
+
+
+def test_growth_starts_from_a_rigid_prefix_where_the_seed_simplex_lost_an_edge() -> None:
+    s = rigid_team(120, 3, 0.5, seed=1)
+    x, edges = s.offsets, s.edge_array
+    rounds = growth_rounds(x, edges)
+    triangle = np.isin(edges, [1, 2, 3])
+    other = np.where(triangle[:, 0], edges[:, 1], edges[:, 0])[triangle.sum(axis=1) == 1]
+    joined = np.unique(other)[np.bincount(other)[np.unique(other)] == 3]  # to 1, 2 and 3
+    mask = ~((edges[:, 0] == 3) & np.isin(edges[:, 1], joined))  # none is joined to all three
+    far = np.flatnonzero((edges == 120).any(axis=1))
+    mask[far[2:]] = False  # agent 120 held by two edges: flexible
+    kept = edges[mask]
+    assert grown_cluster(x, kept).sum() == 3  # the simplex stalls
+    body = rigid_prefix(x, kept, rounds)
+    assert body is not None and 8 <= body.sum() <= 40
+    assert (growth_rounds(x, kept, body=body) >= 0).sum() == 119
+    svd = rigidity_rank(x, kept)
+    assert svd < expected_rigidity_rank(120, 3)
+    # growth from the prefix leaves one agent outside: its SVD gives the exact rank
+    assert rank_under_mask(x, edges, rounds, mask, spread=False, svd_max_columns=30) == (svd, False)

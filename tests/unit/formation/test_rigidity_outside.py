@@ -8,12 +8,17 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from formation.rigidity import expected_rigidity_rank, rigidity_rank, sparse_rigidity_matrix
 from formation.rigidity_check import rank_under_mask
-from formation.rigidity_growth import grown_cluster, growth_rounds, rank_beyond_cluster
+from formation.rigidity_growth import (
+    grown_cluster,
+    growth_rounds,
+    rank_beyond_cluster,
+    spans_without_any,
+)
 from formation.rigidity_outside import outside_held, unbraced_outside
 from formation.rigidity_stiffness import full_column_rank
 from formation.scenario import Scenario
@@ -56,6 +61,42 @@ def test_every_family_and_mask_answers_as_the_svd(
             assert outside_held(x, edges[mask], cluster) == (svd == need)
             if unbraced_outside(n, d, edges[mask], cluster):
                 assert svd < need
+
+
+def lost_region(x: np.ndarray, edges: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The edges touching the agents near a random one: a burst that cuts growth off."""
+    centre = x[rng.integers(len(x))]
+    near = np.linalg.norm(x - centre, axis=1) < rng.uniform(1.0, 3.0)
+    return near[edges[:, 0] - 1] | near[edges[:, 1] - 1]
+
+
+@settings(max_examples=2, deadline=None)
+@given(
+    name=st.sampled_from(["henneberg", "rigid_team", "geometric"]),
+    d=st.sampled_from([2, 3]),
+    size=st.floats(0.4, 1.0),
+    redundancy=st.sampled_from([0.1, 0.5]),
+    seed=st.integers(0, 10_000),
+    p_loss=st.sampled_from([0.01, 0.05, 0.3]),
+    burst=st.booleans(),
+)
+@example(name="henneberg", d=2, size=1.0, redundancy=0.1, seed=1, p_loss=0.01, burst=True)
+def test_up_to_a_thousand_agents_the_answer_is_the_dense_svds(
+    name: str, d: int, size: float, redundancy: float, seed: int, p_loss: float, burst: bool
+) -> None:
+    """Teams of 400-1,000 agents in the plane, 200-500 in space (the SVD's cost: its columns)."""
+    d = 2 if name == "henneberg" else d
+    n = round(size * (1000 if d == 2 else 500))
+    s = family(name, n, d, redundancy, seed)
+    x, edges = s.offsets, s.edge_array
+    rng = np.random.default_rng(seed)
+    mask = rng.random(len(edges)) >= p_loss
+    if burst:
+        mask &= ~lost_region(x, edges, rng)
+    svd = rigidity_rank(x, edges[mask])
+    rank, rigid = rank_under_mask(x, edges, growth_rounds(x, edges), mask, spans_without_any(x))
+    assert rigid == (svd == expected_rigidity_rank(n, d))
+    assert rank in (svd, None)
 
 
 def test_the_agents_outside_decide_where_the_whole_stiffness_did() -> None:
