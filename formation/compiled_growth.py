@@ -22,7 +22,7 @@ F = TypeVar("F", bound=Callable[..., Any])
 DONE = 0
 """Growth stopped: every agent joined, or a round found no candidate."""
 UNSURE = 1
-"""A round has candidates the bound leaves to the SVD, in ``cand[:count]``, ``sure`` beside."""
+"""A round has candidates the bound leaves to the SVD: :func:`grow`'s ``cand``, ``sure`` beside."""
 
 
 def jit(fn: F) -> F:
