@@ -4,11 +4,12 @@ Seed 1 throughout; teams from ``testbed.sim.team_generators.rigid_team`` (pertur
 vertex addition, ``redundancy`` spare edges), 10 % Bernoulli loss on every formation link,
 the tree estimator, ``hold``. The rigidity rows and ``formation simulate`` also on
 ``henneberg_team`` and ``geometric_team``, in bursts of loss too, each against the paths
-as they were (``Before``: growth candidates all by SVD, forests by a Python union-find),
-the two alternating. Baselines measured in the same run: the load of the 2-D minimally
+as they were (``Before``: growth in rounds of numpy, its candidates all by SVD, forests
+by a Python union-find), the two alternating. Baselines measured in the same run: the load of the 2-D minimally
 rigid team; the simulator at 100 agents; the batched sweep at 100 agents.
 
     python -m bench.bench_scale [--quick] [--rigidity-only | --simulate-only | --exact-only]
+                                [--team henneberg-2]
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ import numpy as np
 
 import agent.control
 import leader.mst
+import leader.rigidity
 import leader.tree
 from formation import rigidity_check, rigidity_growth
 from formation.rigidity import expected_rigidity_rank, rigidity_rank
@@ -109,18 +111,26 @@ def family_team(
     return FAMILIES[family](10_000, d, redundancy, seed=SEED, **fields)
 
 
+ONLY: list[str] = []
+"""``--team``: the rows of these teams (``family-d``) only; empty: every team."""
+
+
 def teams() -> list[tuple[str, int]]:
-    return [(f, d) for f in FAMILIES for d in ((2,) if f == "henneberg" else (2, 3))]
+    every = [(f, d) for f in FAMILIES for d in ((2,) if f == "henneberg" else (2, 3))]
+    return [(f, d) for f, d in every if not ONLY or f"{f}-{d}" in ONLY]
 
 
 class Before:
-    """The paths as they were: every growth candidate's directions by SVD, half-edges
-    sorted by 64-bit keys, the forests by a Python union-find, every covariance inverted,
+    """The paths as they were: growth in rounds of numpy, every candidate's directions by
+    SVD, half-edges sorted by 64-bit keys, the forests by a Python union-find, every covariance inverted,
     sums per group and per agent by ``np.add.at``. Entered, it puts them back; left, it
     restores today's."""
 
     def __enter__(self) -> None:
         self.saved = (
+            rigidity_growth.growth_rounds,
+            rigidity_check.growth_rounds,
+            leader.rigidity.growth_rounds,
             rigidity_growth._surely_spanning,
             rigidity_growth._half_edges,
             leader.mst._compiled_scan,
@@ -128,6 +138,9 @@ class Before:
             leader.tree._group_sums,
             agent.control._per_agent,
         )
+        rigidity_growth.growth_rounds = rigidity_growth.reference_growth_rounds
+        rigidity_check.growth_rounds = rigidity_growth.reference_growth_rounds
+        leader.rigidity.growth_rounds = rigidity_growth.reference_growth_rounds
         rigidity_growth._surely_spanning = _never_sure
         rigidity_growth._half_edges = _half_edges_by_int64
         leader.mst._compiled_scan = _union_find_forests
@@ -137,6 +150,9 @@ class Before:
 
     def __exit__(self, *exc: object) -> None:
         (
+            rigidity_growth.growth_rounds,
+            rigidity_check.growth_rounds,
+            leader.rigidity.growth_rounds,
             rigidity_growth._surely_spanning,
             rigidity_growth._half_edges,
             leader.mst._compiled_scan,
@@ -190,8 +206,8 @@ def rigidity_per_epoch(epochs: int) -> None:
     print(
         f"rigidity check per epoch, 10,000 agents, {epochs} epochs, each mask ranked afresh, "
         "CPU ms; loss 10 % per link, Bernoulli or in bursts (Gilbert-Elliott p 1/30, r 0.3); "
-        "before: every growth candidate by SVD, half-edges by a 64-bit sort; after: by a "
-        "determinant bound first, a 16-bit radix sort"
+        "before: growth in rounds of numpy, every candidate by SVD, half-edges by a 64-bit "
+        "sort; after: compiled rounds, a determinant bound first, a 16-bit radix sort"
     )
     print(
         f"{'team':34} {'rigid':>5} {'before ms':>9} {'max':>6} "
@@ -394,7 +410,15 @@ def main() -> None:
     p.add_argument("--rigidity-only", action="store_true", help="only the rigidity rows")
     p.add_argument("--simulate-only", action="store_true", help="only simulate on each team family")
     p.add_argument("--exact-only", action="store_true", help="only the SVD check, to 1,000 agents")
+    p.add_argument(
+        "--team",
+        action="append",
+        default=[],
+        choices=[f"{f}-{d}" for f, d in teams()],
+        help="only this team's rows (repeatable), e.g. henneberg-2",
+    )
     args = p.parse_args()
+    ONLY.extend(args.team)
     print(
         f"seed {SEED}; peak RSS of this process so far is in /proc; python {sys.version.split()[0]}"
     )

@@ -181,20 +181,25 @@ def _surely_spanning(
         return np.zeros(counts.shape[0], dtype=bool)
     rows = first[:, None] + np.arange(d + 1)
     rows[np.arange(d + 1) >= counts[:, None]] = padded.shape[0] - 1  # the zero row: δ = 0
-    s = dirs[padded[rows]]  # (B, d + 1, d)
-    if d == 2:
-        a, b = s[:, [0, 0, 1]], s[:, [1, 2, 2]]
-        best = np.abs(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]).max(axis=1)
-    else:
-        a, b, c = s[:, [0, 0, 0, 1]], s[:, [1, 1, 2, 2]], s[:, [2, 3, 3, 3]]
-        det = (
-            a[..., 0] * (b[..., 1] * c[..., 2] - b[..., 2] * c[..., 1])
-            - a[..., 1] * (b[..., 0] * c[..., 2] - b[..., 2] * c[..., 0])
-            + a[..., 2] * (b[..., 0] * c[..., 1] - b[..., 1] * c[..., 0])
-        )
-        best = np.abs(det).max(axis=1)
+    best = _largest_determinants(dirs[padded[rows]])
     sure: BoolArray = best > RANK_RTOL * np.sqrt(counts) * d ** ((d - 1) / 2)
     return sure
+
+
+def _largest_determinants(s: FloatArray) -> FloatArray:
+    """The largest ``|δ|`` of ``d`` of each stack's ``d + 1`` rows: ``(B, d + 1, d)`` → ``(B,)``."""
+    if s.shape[2] == 2:
+        a, b = s[:, [0, 0, 1]], s[:, [1, 2, 2]]
+        best: FloatArray = np.abs(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]).max(axis=1)
+        return best
+    a, b, c = s[:, [0, 0, 0, 1]], s[:, [1, 1, 2, 2]], s[:, [2, 3, 3, 3]]
+    det = (
+        a[..., 0] * (b[..., 1] * c[..., 2] - b[..., 2] * c[..., 1])
+        - a[..., 1] * (b[..., 0] * c[..., 2] - b[..., 2] * c[..., 0])
+        + a[..., 2] * (b[..., 0] * c[..., 1] - b[..., 1] * c[..., 0])
+    )
+    best = np.abs(det).max(axis=1)
+    return best
 
 
 def grown_cluster(
@@ -231,8 +236,75 @@ def growth_rounds(
     simplex only agents next to the last round's are examined: no other's edges into the
     cluster changed, so ``O(m)`` work in all. ``half``: the :class:`HalfEdges` of ``edges``,
     if known. ``body``: instead of the seed edge, agents known to be a rigid cluster that
-    spans the space (round 0).
+    spans the space (round 0). The rounds run compiled
+    (:mod:`formation.compiled_growth`); candidates the determinant bound leaves take
+    the batched SVD here, as in :func:`reference_growth_rounds`, whose answer this is.
     """
+    x = as_positions(positions)
+    n, d = x.shape
+    e0 = as_edge_array(n, edges) - 1
+    rounds = np.full(n, -1, dtype=np.int64)
+    if e0.shape[0] == 0:
+        return rounds
+    _, head, start, _, dirs = half_edges(x, e0) if half is None else half
+    # numba takes about a second to load: only once a framework grows (large ones)
+    from formation.compiled_growth import DONE, grow
+
+    head, start = head.astype(np.int64, copy=False), start.astype(np.int64, copy=False)
+    dirs = np.ascontiguousarray(dirs, dtype=np.float64)
+    inside = np.zeros(n, dtype=bool)
+    count = np.zeros(n, dtype=np.int64)  # edges into the cluster
+    stamp = np.zeros(n, dtype=np.int64)
+    near = np.empty(head.shape[0], dtype=np.int64)
+    cand = np.empty(n, dtype=np.int64)
+    sure = np.empty(n, dtype=bool)
+    added = np.empty(n, dtype=np.int64)
+    joined = np.unique(e0[seed]) if body is None else np.flatnonzero(body)
+    k, size = 0, 0
+    scale = float(d ** ((d - 1) / 2)) if d in (2, 3) else -1.0
+    while True:
+        added[: joined.shape[0]] = joined
+        status, k, size, found = grow(
+            added,
+            joined.shape[0],
+            k,
+            size,
+            head,
+            start,
+            dirs,
+            scale,
+            rounds,
+            inside,
+            count,
+            stamp,
+            near,
+            cand,
+            sure,
+        )
+        if status == DONE:
+            break
+        # the candidates the bound left, by the SVD: the reference's ranks
+        passed = sure[:found].copy()
+        unsure = cand[:found][~passed]
+        into = _slices(start, unsure)
+        into = into[inside[head[into]]]
+        passed[~passed] = _unit_ranks(dirs, into, count[unsure]) >= min(d, size)
+        joined = cand[:found][passed]
+        if size <= d:
+            joined = joined[:1]  # a simplex grows one agent at a time
+        if joined.shape[0] == 0:
+            break
+    return rounds
+
+
+def reference_growth_rounds(
+    positions: npt.ArrayLike,
+    edges: npt.ArrayLike,
+    seed: int = 0,
+    half: HalfEdges | None = None,
+    body: BoolArray | None = None,
+) -> IntArray:
+    """:func:`growth_rounds` in rounds of numpy: the reference the compiled rounds are held to."""
     x = as_positions(positions)
     n, d = x.shape
     e0 = as_edge_array(n, edges) - 1
