@@ -192,7 +192,8 @@ class RosNode:
 
         A process that ends next passes ``destroy=False`` and ends by :func:`exit_process`:
         rclpy's ``destroy_node`` can block inside Fast DDS holding the GIL, which freezes every
-        thread of the process, a timeout's too (an agent hung at its exit, 1 run in 25).
+        thread of the process, a timeout's too (an agent hung at its exit, 1 run in 25). The
+        context's shutdown destroys its nodes as well, so it is left to the process's end too.
         """
         self._stop.set()
         self._thread.join(timeout=timeout_s)
@@ -201,7 +202,7 @@ class RosNode:
             self.executor.shutdown(timeout_sec=1.0)
             if destroy:
                 self.node.destroy_node()
-            self.context.try_shutdown()
+                self.context.try_shutdown()
 
         done = threading.Thread(target=teardown, name="ros2-close", daemon=True)
         done.start()

@@ -8,30 +8,16 @@ that join.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any, TypeVar, cast
-
-import numba
 import numpy as np
 
+from formation.compiled import jit
 from formation.graph import BoolArray, FloatArray, IntArray
 from formation.rigidity import RANK_RTOL
-
-F = TypeVar("F", bound=Callable[..., Any])
 
 DONE = 0
 """Growth stopped: every agent joined, or a round found no candidate."""
 UNSURE = 1
 """A round has candidates the bound leaves to the SVD: :func:`grow`'s ``cand``, ``sure`` beside."""
-
-
-def jit(fn: F) -> F:
-    """``numba.njit``, its machine code cached on disk so a process loads it; where nothing
-    is writable (a read-only install and home) numba refuses to cache: compiled per process."""
-    try:
-        return cast(F, numba.njit(cache=True, nogil=True)(fn))
-    except RuntimeError:
-        return cast(F, numba.njit(nogil=True)(fn))
 
 
 @jit

@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from formation.compiled import jit
 from netem.links.wifi.compiled_medium import (
     ACK,
     ACK_NS,
@@ -68,7 +69,7 @@ from netem.links.wifi.compiled_medium import (
     put_on_air,
     timing,
 )
-from netem.links.wifi.compiled_reception import jit, keyed_state_of, keyed_uniform_after
+from netem.links.wifi.compiled_reception import keyed_state_of, keyed_uniform_after
 from netem.links.wifi.config import AirConfig
 from netem.links.wifi.frames import Frames
 from netem.links.wifi.radio import AIR_STREAM

@@ -15,7 +15,8 @@ import functools
 import numpy as np
 import numpy.typing as npt
 
-from netem.links.wifi.compiled_reception import frame_success, jit, keyed_uniform_after
+from formation.compiled import jit
+from netem.links.wifi.compiled_reception import frame_success, keyed_uniform_after
 from netem.links.wifi.config import AirConfig
 from netem.links.wifi.radio import to_mw
 

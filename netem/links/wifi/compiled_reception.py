@@ -10,13 +10,11 @@ reception draw falls within those bits of its success rate (docs/model.md §11).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from typing import Any, TypeVar, cast
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
+from formation.compiled import jit
 from netem.links.wifi.error_rate import (
     CCK_SYMBOL_RATE_HZ,
     DSSS_BANDWIDTH_HZ,
@@ -41,18 +39,6 @@ _SMALL = float(SMALL_CHUNK_BYTES)
 _G = np.uint64(0x9E3779B97F4A7C15)
 _C1 = np.uint64(0xBF58476D1CE4E5B9)
 _C2 = np.uint64(0x94D049BB133111EB)
-
-F = TypeVar("F", bound=Callable[..., Any])
-
-
-def jit(fn: F) -> F:
-    """``numba.njit``, its machine code kept on disk beside the module (or in the user's
-    cache, or ``NUMBA_CACHE_DIR``) so a process loads it; where none of them is writable
-    (a read-only install and home) numba refuses to cache, and it compiles in each process."""
-    try:
-        return cast(F, numba.njit(cache=True, nogil=True)(fn))
-    except RuntimeError:
-        return cast(F, numba.njit(nogil=True)(fn))
 
 
 @jit
