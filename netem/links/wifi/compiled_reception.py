@@ -17,6 +17,7 @@ import numpy.typing as npt
 from formation.compiled import jit
 from netem.links.wifi.error_rate import (
     CCK_SYMBOL_RATE_HZ,
+    DQPSK_SCALE,
     DSSS_BANDWIDTH_HZ,
     LARGE_CHUNK_BYTES,
     LARGE_FROM_BYTES,
@@ -32,7 +33,6 @@ CURVES = np.array(
     dtype=np.float64,
 )
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
-_DQPSK_SCALE = (math.sqrt(2.0) + 1.0) / math.sqrt(8.0 * math.pi * math.sqrt(2.0))
 _LARGE = float(LARGE_CHUNK_BYTES)
 _SMALL = float(SMALL_CHUNK_BYTES)
 
@@ -118,7 +118,7 @@ def _dsss_chunk(rate_kbps: int, snr: float, nbits: int) -> float:
         return float((1.0 - ber) ** bits)
     if rate_kbps == 2000:
         x = max(snr * DSSS_BANDWIDTH_HZ / 1e6 / 2.0, 1e-30)
-        ber = min(_DQPSK_SCALE / math.sqrt(x) * math.exp(-(2.0 - math.sqrt(2.0)) * x), 1.0)
+        ber = min(DQPSK_SCALE / math.sqrt(x) * math.exp(-(2.0 - math.sqrt(2.0)) * x), 1.0)
         return float((1.0 - ber) ** bits)
     bits_per_symbol = 4 if rate_kbps == 5500 else 8
     eb_n0 = snr * DSSS_BANDWIDTH_HZ / CCK_SYMBOL_RATE_HZ / bits_per_symbol

@@ -34,6 +34,7 @@ SMALL_CHUNK_BYTES = 32  # ns-3's reference frames, and the size from which the l
 LARGE_CHUNK_BYTES = 1458
 LARGE_FROM_BYTES = 400
 NEGLIGIBLE_PER = 1e-5
+DQPSK_SCALE = (math.sqrt(2.0) + 1.0) / math.sqrt(8.0 * math.pi * math.sqrt(2.0))  # ns-3's DQPSK BER
 
 # per OFDM rate [kb/s]: for the 32 B and 1,458 B references, (lowest, highest SINR [dB] of the
 # fit, cubic coefficients of ln(−ln(1 − PER)) in the SINR [dB], highest power first)
@@ -127,8 +128,7 @@ def dsss_success(rate_kbps: int, snr: Floats, nbits: Ints) -> Floats:
         return np.asarray((1.0 - ber) ** bits, dtype=np.float64)
     if rate_kbps == 2000:
         x = np.maximum(snr * DSSS_BANDWIDTH_HZ / 1e6 / 2.0, 1e-30)
-        scale = (math.sqrt(2.0) + 1.0) / math.sqrt(8.0 * math.pi * math.sqrt(2.0))
-        ber = np.minimum(scale / np.sqrt(x) * np.exp(-(2.0 - math.sqrt(2.0)) * x), 1.0)
+        ber = np.minimum(DQPSK_SCALE / np.sqrt(x) * np.exp(-(2.0 - math.sqrt(2.0)) * x), 1.0)
         return np.asarray((1.0 - ber) ** bits, dtype=np.float64)
     bits_per_symbol = 4 if rate_kbps == 5500 else 8
     eb_n0 = snr * DSSS_BANDWIDTH_HZ / CCK_SYMBOL_RATE_HZ / bits_per_symbol

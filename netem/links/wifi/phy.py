@@ -23,7 +23,7 @@ rate (10.6.6.5): 6, 12, 24 Mb/s for OFDM, 1 and 2 for DSSS.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 PhyName = Literal["ofdm", "erp_ofdm", "dsss"]
@@ -110,37 +110,26 @@ _OFDM_RATES = (6000, 9000, 12000, 18000, 24000, 36000, 48000, 54000)
 # Table 17-18's minimum sensitivities, -82 ... -65 dBm, less -174 dBm/Hz + 73 dB(20 MHz) + 15 dB
 _OFDM_SINR = (4.0, 5.0, 7.0, 9.0, 12.0, 16.0, 20.0, 21.0)
 
+_OFDM = Phy(
+    name="ofdm",
+    slot_ns=9 * US,
+    sifs_ns=16 * US,
+    cw_min=15,
+    cw_max=1023,
+    cca_ns=4 * US,
+    preamble_ns=20 * US,
+    rx_start_delay_ns=25 * US,
+    signal_extension_ns=0,
+    rates_kbps=_OFDM_RATES,
+    basic_kbps=(6000, 12000, 24000),
+    sinr_db=_OFDM_SINR,
+    bandwidth_hz=20e6,
+)
+
 PHYS: dict[str, Phy] = {
-    "ofdm": Phy(
-        name="ofdm",
-        slot_ns=9 * US,
-        sifs_ns=16 * US,
-        cw_min=15,
-        cw_max=1023,
-        cca_ns=4 * US,
-        preamble_ns=20 * US,
-        rx_start_delay_ns=25 * US,
-        signal_extension_ns=0,
-        rates_kbps=_OFDM_RATES,
-        basic_kbps=(6000, 12000, 24000),
-        sinr_db=_OFDM_SINR,
-        bandwidth_hz=20e6,
-    ),
-    "erp_ofdm": Phy(
-        name="erp_ofdm",
-        slot_ns=9 * US,
-        sifs_ns=10 * US,
-        cw_min=15,
-        cw_max=1023,
-        cca_ns=4 * US,
-        preamble_ns=20 * US,
-        rx_start_delay_ns=25 * US,
-        signal_extension_ns=6 * US,
-        rates_kbps=_OFDM_RATES,
-        basic_kbps=(6000, 12000, 24000),
-        sinr_db=_OFDM_SINR,
-        bandwidth_hz=20e6,
-    ),
+    "ofdm": _OFDM,
+    # ERP-OFDM (Clause 18, 802.11g): OFDM with a shorter SIFS and a signal extension
+    "erp_ofdm": replace(_OFDM, name="erp_ofdm", sifs_ns=10 * US, signal_extension_ns=6 * US),
     # 2 and 11 Mb/s from the minimum sensitivities of 15.4.8.2 (-80 dBm) and 16.3.8.2
     # (-76 dBm) as for OFDM at 22 MHz; 1 and 5.5 Mb/s 3 dB below them [choice]
     "dsss": Phy(
