@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 
@@ -17,6 +18,15 @@ def cpu_s(pid: int) -> float | None:
     return (int(fields[11]) + int(fields[12])) / TICK_S  # utime, stime
 
 
+def thread_cpu_s(pid: int) -> float:
+    """CPU time of ``pid``'s live threads so far [s], to the nanosecond (``schedstat``)."""
+    total = 0
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        with contextlib.suppress(OSError, IndexError, ValueError):  # a thread that ended
+            total += int((task / "schedstat").read_text().split()[0])
+    return total / 1e9
+
+
 def peak_rss_kib(pid: int) -> int:
     """The peak resident set of ``pid`` (``VmHWM``) [KiB]; 0 once the process is gone."""
     try:
@@ -28,4 +38,4 @@ def peak_rss_kib(pid: int) -> int:
     return 0
 
 
-__all__ = ["cpu_s", "peak_rss_kib"]
+__all__ = ["cpu_s", "peak_rss_kib", "thread_cpu_s"]

@@ -9,6 +9,7 @@ for unit tests (every feature is also tested between real processes).
 
 from __future__ import annotations
 
+import ctypes
 import threading
 import time
 from collections import Counter
@@ -133,7 +134,9 @@ class ZenohBus:
     ) -> Declared:
         """``direct``: the handler runs on Zenoh's receiving thread instead of a Python
         thread of the subscription's own."""
-        handler: Any = zenoh.handlers.Callback(callback, indirect=False) if direct else callback
+        if not direct:
+            return self.session.declare_subscriber(key, callback)
+        handler = zenoh.handlers.Callback(_OnZenohThread(callback), indirect=False)
         return self.session.declare_subscriber(key, handler)
 
     def declare_queryable(self, key: str, callback: Callable[[Query], None]) -> Declared:
@@ -172,6 +175,31 @@ class ZenohBus:
 
     def close(self) -> None:
         self.session.close()
+
+
+class _OnZenohThread:
+    """A callback run on Zenoh's own receiving threads, which Python does not know: around
+    each call zenoh-python takes the GIL by ``PyGILState_Ensure`` and lets it go by
+    ``PyGILState_Release``, which create and destroy the thread's Python state every time
+    unless the thread holds one already. So the first call on each thread keeps one, for
+    the life of the process (one per Zenoh thread; the session is closed before exit)."""
+
+    def __init__(self, callback: Callable[[Sample], None]) -> None:
+        self.callback = callback
+
+    def __call__(self, sample: Sample) -> None:
+        if threading.get_ident() not in _KEPT:
+            _keep_thread_state()
+        self.callback(sample)
+
+
+_KEPT: set[int] = set()  # the threads whose Python state is kept
+
+
+def _keep_thread_state() -> None:
+    """Hold this thread's Python state once more, never released (call with the GIL held)."""
+    ctypes.pythonapi.PyGILState_Ensure()
+    _KEPT.add(threading.get_ident())
 
 
 class MemoryBytes(bytes):

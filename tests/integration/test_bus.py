@@ -3,6 +3,7 @@ on 127.0.0.1: samples by key expression, queries, liveliness tokens with history
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable
 
@@ -61,3 +62,37 @@ def test_two_services_on_zenoh_buses() -> None:
         netem.close()
         wait_for(lambda: not agent.is_alive("netem", 0))  # its token went with its session
         agent.close()
+
+
+def test_a_direct_subscriber_keeps_its_zenoh_threads_python_state() -> None:
+    """A handler on Zenoh's own thread runs in one Python thread state from call to call (a
+    ``threading.local`` keeps its value) instead of one made and unmade around each sample;
+    every sample arrives, in order."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    sender = ZenohBus.open(session_config("peer", None, endpoint))
+    receiver = ZenohBus.open(session_config("peer", endpoint, None))
+    local = threading.local()
+    got: list[tuple[bytes, int, int]] = []  # payload, thread, calls seen by this thread state
+
+    def on(sample: Sample) -> None:
+        local.calls = getattr(local, "calls", 0) + 1
+        got.append((sample.payload.to_bytes(), threading.get_ident(), local.calls))
+
+    try:
+        sub = receiver.declare_subscriber(f"formation/{RUN}/direct", on, direct=True)
+        pub = sender.declare_publisher(f"formation/{RUN}/direct")
+        while not got:  # until the subscription reached the sender
+            pub.put(b"-1")
+            time.sleep(0.01)
+        for k in range(50):
+            pub.put(str(k).encode())
+        wait_for(lambda: got[-1][0] == b"49")
+        assert [p for p, _, _ in got if p != b"-1"] == [str(k).encode() for k in range(50)]
+        calls: dict[int, int] = {}
+        for _, thread, seen in got:
+            calls[thread] = calls.get(thread, 0) + 1
+            assert seen == calls[thread]
+        sub.undeclare()
+    finally:
+        sender.close()
+        receiver.close()
