@@ -18,6 +18,7 @@ import os
 import subprocess
 import sys
 import tempfile
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -30,34 +31,49 @@ from testbed.runtime.processes import ProcessGroup, free_port, wait_for_port
 
 KEY = "bench/message"
 TEAM = ["router", "sender", "receiver"]
+BUSY_MESSAGES = 1_000  # each may wait for the busy thread's GIL switch interval (5 ms)
 
-# name: (config loaded by every process or None for no team rules, put way, receive way)
-WAYS: dict[str, tuple[dict[str, Any] | None, str, str]] = {
-    "today (publisher, callback)": ({}, "publisher", "callback"),
-    "session.put": ({}, "session", "callback"),
-    "ZBytes payload": ({}, "zbytes", "callback"),
-    "express": ({}, "express", "callback"),
-    "congestion DROP": ({}, "drop", "callback"),
-    "priority DATA_HIGH": ({}, "priority", "callback"),
-    "encoding set": ({}, "encoding", "callback"),
-    "callback on Zenoh's thread": ({}, "publisher", "direct"),
-    "FifoChannel, recv/try_recv": ({}, "publisher", "fifo"),
-    "RingChannel, recv/try_recv": ({}, "publisher", "ring"),
-    "ZenohBus, callback": ({}, "publisher", "bus"),
-    "ZenohBus, on Zenoh's thread": ({}, "publisher", "bus_direct"),
-    "no team QoS rules": (None, "publisher", "callback"),
-    "tx batching off": (
-        {"transport/link/tx/queue/batching/enabled": False},
-        "publisher",
-        "callback",
+
+@dataclass(frozen=True)
+class Way:
+    """One way against today's: ``config`` loaded by every process (None: no team QoS rules)."""
+
+    put: str = "publisher"  # bench.zenoh_message_peer.SENDS
+    receive: str = "callback"  # bench.zenoh_message_peer.RECEIVES
+    config: dict[str, Any] | None = field(default_factory=dict)
+    burst: int = 250  # a pool's phase
+    busy: bool = False  # a Python thread computing beside the receiver's handler
+
+
+WAYS: dict[str, Way] = {
+    "today (publisher, callback)": Way(),
+    "session.put": Way(put="session"),
+    "ZBytes payload": Way(put="zbytes"),
+    "express": Way(put="express"),
+    "congestion DROP": Way(put="drop"),
+    "priority DATA_HIGH": Way(put="priority"),
+    "encoding set": Way(put="encoding"),
+    "callback on Zenoh's thread": Way(receive="direct"),
+    "FifoChannel, recv/try_recv": Way(receive="fifo"),
+    "RingChannel, recv/try_recv": Way(receive="ring"),
+    "ZenohBus, callback": Way(receive="bus"),
+    "ZenohBus, on Zenoh's thread": Way(receive="bus_direct"),
+    "no team QoS rules": Way(config=None),
+    "tx batching off": Way(config={"transport/link/tx/queue/batching/enabled": False}),
+    "tx threads 2": Way(config={"transport/link/tx/threads": 2}),
+    "QoS priorities off": Way(config={"transport/unicast/qos/enabled": False}),
+    "lowlatency": Way(
+        config={"transport/unicast/lowlatency": True, "transport/unicast/qos/enabled": False}
     ),
-    "tx threads 2": ({"transport/link/tx/threads": 2}, "publisher", "callback"),
-    "QoS priorities off": ({"transport/unicast/qos/enabled": False}, "publisher", "callback"),
-    "lowlatency": (
-        {"transport/unicast/lowlatency": True, "transport/unicast/qos/enabled": False},
-        "publisher",
-        "callback",
+    "bursts of 1,000 (the leader's)": Way(burst=1000),
+    "bursts of 1,000, data queue 16": Way(
+        burst=1000, config={"transport/link/tx/queue/size/data": 16}
     ),
+}
+BUSY: dict[str, Way] = {  # the same handlers while the receiver's main thread computes
+    "busy: callback": Way(busy=True),
+    "busy: ZenohBus, on Zenoh's thread": Way(receive="bus_direct", busy=True),
+    "busy: FifoChannel, recv/try_recv": Way(receive="fifo", busy=True),
 }
 
 
@@ -75,9 +91,11 @@ def _config_file(tmp: Path, config: dict[str, Any]) -> Path:
     return path
 
 
-def _peer(role: str, endpoint: str, n: int, way: str, env: dict[str, str]) -> subprocess.Popen[str]:
+def _peer(
+    role: str, endpoint: str, n: int, way: str, env: dict[str, str], *more: str
+) -> subprocess.Popen[str]:
     proc = subprocess.Popen(
-        [sys.executable, "-m", "bench.zenoh_message_peer", role, endpoint, KEY, str(n), way],
+        [sys.executable, "-m", "bench.zenoh_message_peer", role, endpoint, KEY, str(n), way, *more],
         stdout=subprocess.PIPE,
         text=True,
         env={**os.environ, **env, MEMBER_ENV: {"send": "sender", "receive": "receiver"}[role]},
@@ -89,9 +107,11 @@ def _peer(role: str, endpoint: str, n: int, way: str, env: dict[str, str]) -> su
     return proc
 
 
-def trial(way: str, n: int) -> tuple[float, float, float]:
-    """CPU µs per message of (the sender, the receiver, the router) for ``way``."""
-    config, send_way, receive_way = WAYS[way]
+def trial(way: Way, n: int) -> tuple[float, float, float]:
+    """CPU µs per message of (the sender, the receiver, the router) for ``way``; the
+    receiver's without its busy thread's."""
+    config = way.config
+    receive = way.receive + ("+busy" if way.busy else "")
     with tempfile.TemporaryDirectory() as tmp:
         env = {"ZENOH_CONFIG": str(_config_file(Path(tmp), config or {}))}
         members = None
@@ -106,8 +126,8 @@ def trial(way: str, n: int) -> tuple[float, float, float]:
         try:
             router = group.start("router", "testbed.runtime.router", "--listen", endpoint, env=env)
             wait_for_port("127.0.0.1", port, 10)
-            peers.append(_peer("receive", endpoint, n, receive_way, env))
-            peers.append(_peer("send", endpoint, n, send_way, env))
+            peers.append(_peer("receive", endpoint, n, receive, env))
+            peers.append(_peer("send", endpoint, n, way.put, env, str(way.burst)))
             router0 = thread_cpu_s(router.pid)
             sent = json.loads(peers[1].communicate(timeout=120)[0].strip().splitlines()[-1])
             got = json.loads(peers[0].communicate(timeout=120)[0].strip().splitlines()[-1])
@@ -121,28 +141,37 @@ def trial(way: str, n: int) -> tuple[float, float, float]:
     return (1e6 * sent["cpu_s"] / n, 1e6 * got["cpu_s"] / got["count"], 1e6 * router_cpu / n)
 
 
+def table(ways: dict[str, Way], n: int, rounds: int) -> None:
+    """Each way ``rounds`` times, alternating the order; the first is the baseline."""
+    names = list(ways)
+    runs: dict[str, list[tuple[float, float, float]]] = {w: [] for w in names}
+    for r in range(rounds):
+        for name in names if r % 2 == 0 else names[::-1]:
+            runs[name].append(trial(ways[name], n))
+    med = {w: np.median(np.array(runs[w]), axis=0) for w in names}
+    print(f"{f'CPU µs a message, {n} a trial':36} {'put':>6} {'ratio':>6} {'receive':>8} "
+          f"{'ratio':>6} {'router':>7} {'ratio':>6}")  # fmt: skip
+    for name in names:
+        (s, r, q), (s0, r0, q0) = med[name], med[names[0]]
+        print(f"{name:36} {s:6.2f} {s / s0:6.2f} {r:8.2f} {r / r0:6.2f} {q:7.2f} {q / q0:6.2f}")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--messages", type=int, default=20_000, help="messages a trial")
     p.add_argument("--rounds", type=int, default=3, help="rounds, each every way once")
-    p.add_argument("--ways", nargs="*", default=list(WAYS), help="ways to measure")
+    p.add_argument("--ways", nargs="*", default=[*WAYS, *BUSY], help="ways to measure")
     args = p.parse_args()
-    ways = [w for w in WAYS if w in args.ways]
+    print(f"{len(PAYLOAD)} B messages with a 24 B attachment, in bursts of 250 but where "
+          f"named; {args.rounds} rounds alternating; medians, and ratios to each table's "
+          "first row, measured in the same run")  # fmt: skip
     base = next(iter(WAYS))
-    if base not in ways:
-        ways.insert(0, base)
-    print(f"{args.messages} messages of {len(PAYLOAD)} B a trial, bursts of 250; "
-          f"{args.rounds} rounds alternating; baseline: {base}, in the same run")  # fmt: skip
-    runs: dict[str, list[tuple[float, float, float]]] = {w: [] for w in ways}
-    for r in range(args.rounds):
-        for way in ways if r % 2 == 0 else ways[::-1]:
-            runs[way].append(trial(way, args.messages))
-    med = {w: np.median(np.array(runs[w]), axis=0) for w in ways}
-    print(f"{'CPU µs a message (median)':32} {'put':>6} {'ratio':>6} {'receive':>8} {'ratio':>6} "
-          f"{'router':>7} {'ratio':>6}")  # fmt: skip
-    for way in ways:
-        (s, r, q), (s0, r0, q0) = med[way], med[base]
-        print(f"{way:32} {s:6.2f} {s / s0:6.2f} {r:8.2f} {r / r0:6.2f} {q:7.2f} {q / q0:6.2f}")
+    ways = {w: WAYS[w] for w in WAYS if w in args.ways or w == base}
+    table(ways, args.messages, args.rounds)
+    busy = {w: BUSY[w] for w in BUSY if w in args.ways}
+    if busy:
+        print("with a Python thread computing in the receiver (its own CPU left out):")
+        table(busy, BUSY_MESSAGES, args.rounds)
     print(f"load average {os.getloadavg()[0]:.1f} at the end")
 
 

@@ -1,7 +1,7 @@
 """One side of :mod:`bench.bench_zenoh_message`: a Zenoh client that puts or receives N messages.
 
-``python -m bench.zenoh_message_peer send ENDPOINT KEY N WAY`` puts ``N`` messages on
-``KEY`` in bursts of :data:`BURST`, once a subscriber matches; ``receive`` takes them by
+``python -m bench.zenoh_message_peer send ENDPOINT KEY N WAY [BURST]`` puts ``N`` messages
+on ``KEY`` in bursts of ``BURST`` (default :data:`BURST`), once a subscriber matches; ``receive`` takes them by
 ``WAY`` and returns once ``N`` arrived. Each prints ``ready`` when declared, then one JSON
 line: ``{"cpu_s": .., "count": ..}``, the CPU of the whole process (every thread, Zenoh's
 too) while it put or received.
@@ -48,7 +48,7 @@ def _publisher(session: zenoh.Session, key: str, way: str) -> zenoh.Publisher:
     return session.declare_publisher(key, **options)
 
 
-def send(session: zenoh.Session, key: str, n: int, way: str) -> dict[str, float]:
+def send(session: zenoh.Session, key: str, n: int, way: str, burst: int) -> dict[str, float]:
     pub = _publisher(session, key, way)
     deadline = time.monotonic() + TIMEOUT_S
     while not pub.matching_status.matching:  # the receiver's subscription reached us
@@ -74,7 +74,7 @@ def send(session: zenoh.Session, key: str, n: int, way: str) -> dict[str, float]
     cpu0 = time.process_time()
     for k in range(n):
         put(PAYLOAD + b" " * (k % 2))  # a fresh bytes object each time, as the services build
-        if k % BURST == BURST - 1:
+        if k % burst == burst - 1:
             time.sleep(PAUSE_S)
     cpu = time.process_time() - cpu0
     pub.undeclare()
@@ -82,8 +82,22 @@ def send(session: zenoh.Session, key: str, n: int, way: str) -> dict[str, float]
 
 
 def receive(session: zenoh.Session, key: str, n: int, way: str) -> dict[str, float]:
-    got = {"count": 0, "cpu0": 0.0, "cpu1": 0.0}
+    """``way`` ending in ``+busy``: a thread computes in Python meanwhile, its CPU left out."""
+    way, _, busy = way.partition("+")
+    got = {"count": 0, "cpu0": 0.0, "cpu1": 0.0, "busy0": 0.0, "busy1": 0.0}
     done = threading.Event()
+
+    def compute() -> None:  # holds the GIL but for the interpreter's switches
+        while not got["count"]:
+            sum(range(200))
+        got["busy0"] = time.thread_time()
+        while not done.is_set():
+            sum(range(200))
+        got["busy1"] = time.thread_time()
+
+    computing = threading.Thread(target=compute, daemon=True)
+    if busy:
+        computing.start()
 
     def handle(sample: zenoh.Sample) -> None:
         # what shell.service's inbox takes of every sample
@@ -122,14 +136,22 @@ def receive(session: zenoh.Session, key: str, n: int, way: str) -> dict[str, flo
             handle(sub.recv())
             while got["count"] < n and (sample := sub.try_recv()) is not None:
                 handle(sample)
+    done.set()
+    if busy:
+        computing.join()
     sub.undeclare()
-    return {"cpu_s": got["cpu1"] - got["cpu0"], "count": got["count"] - 1}
+    cpu = got["cpu1"] - got["cpu0"] - (got["busy1"] - got["busy0"])
+    return {"cpu_s": cpu, "count": got["count"] - 1}
 
 
 def main(argv: list[str]) -> int:
     role, endpoint, key, n, way = argv[0], argv[1], argv[2], int(argv[3]), argv[4]
+    burst = int(argv[5]) if argv[5:] else BURST
     with zenoh.open(session_config("client", endpoint)) as session:
-        result = (send if role == "send" else receive)(session, key, n, way)
+        if role == "send":
+            result = send(session, key, n, way, burst)
+        else:
+            result = receive(session, key, n, way)
     print(json.dumps(result), flush=True)
     return 0
 
