@@ -65,6 +65,7 @@ WAYS: dict[str, Way] = {
     "lowlatency": Way(
         config={"transport/unicast/lowlatency": True, "transport/unicast/qos/enabled": False}
     ),
+    "router timestamping off": Way(config={"timestamping/enabled": False}),
     "bursts of 1,000 (the leader's)": Way(burst=1000),
     "bursts of 1,000, data queue 16": Way(
         burst=1000, config={"transport/link/tx/queue/size/data": 16}
