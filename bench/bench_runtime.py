@@ -19,7 +19,7 @@ import orjson
 import zenoh
 
 from bench.netem_rig import RUN, netem_rig
-from bench.procfs import cpu_s, peak_rss_kib
+from bench.procfs import cpu_s, peak_rss_kib, thread_cpu_by_name
 from formation import keys
 from formation.codec import attachment, encode, now_ns
 from formation.messages import CoordinationState
@@ -37,13 +37,26 @@ def _role(name: str) -> str:
     return "agents" if name.startswith(("agent", "pool")) else name
 
 
+def _by_thread(ms: dict[tuple[str, str], float]) -> str:
+    """CPU ms by role and thread name, the largest first: Zenoh's runtimes (rx, tx, ...) beside
+    the interpreter's threads (python); a handler on Zenoh's thread (a pool's) counts in rx."""
+    roles = sorted({role for role, _ in ms})
+    ranked = sorted(ms.items(), key=lambda item: -item[1])
+    return "; ".join(
+        role + " " + ", ".join(f"{t} {v:.1f}" for (r, t), v in ranked if r == role and v >= 0.5)
+        for role in roles
+    )
+
+
 def lockstep_rate(
     scenario: Scenario, pool: int | None, runs: Path
-) -> tuple[float, float, int, dict[str, float]]:
+) -> tuple[float, float, int, dict[str, float], dict[tuple[str, str], float]]:
     """(distributed epochs/s, simulator epochs/s, peak RSS of an agent process in KiB,
-    CPU ms per epoch by role), the CPU between the same epoch marks as the rate."""
+    CPU ms per epoch by role, the same by role and thread name), the CPU between the same
+    epoch marks as the rate."""
     marks: dict[int, float] = {}
     cpu: dict[int, dict[str, float]] = {}
+    threads: dict[int, dict[tuple[str, str], float]] = {}
     peak = [0]
     first, last = 2, scenario.epochs - 2
 
@@ -53,6 +66,11 @@ def lockstep_rate(
             pids = json.loads(next(runs.glob("*/pids.json")).read_text())["pids"]
             pids["launcher"] = os.getpid()
             cpu[done] = {name: cpu_s(p) or 0.0 for name, p in pids.items()}
+            threads[done] = {
+                (name, thread): t
+                for name, p in pids.items()
+                for thread, t in thread_cpu_by_name(p).items()
+            }
         if done >= total - 2 and not peak[0]:
             pids = json.loads(next(runs.glob("*/pids.json")).read_text())["pids"]
             agents = [p for name, p in pids.items() if name.startswith(("agent", "pool"))]
@@ -69,10 +87,17 @@ def lockstep_rate(
         role = _role(name)
         by_role[role] = by_role.get(role, 0.0) + 1e3 * (t - c0.get(name, 0.0)) / max(k1 - k0, 1)
     by_role["messages"] = sum(out.sent.values()) / scenario.epochs  # published, every process
+    by_thread: dict[tuple[str, str], float] = {}
+    (_, t0), (_, t1) = sorted(threads.items())
+    for (name, thread), t in t1.items():
+        key = (_role(name), thread)
+        by_thread[key] = by_thread.get(key, 0.0) + 1e3 * (t - t0.get((name, thread), 0.0)) / max(
+            k1 - k0, 1
+        )
     sim_rate = simulator_rate(scenario)
     for p in runs.glob("*"):
         subprocess.run(["rm", "-rf", str(p)], check=False)
-    return rate, sim_rate, peak[0], by_role
+    return rate, sim_rate, peak[0], by_role, by_thread
 
 
 def simulator_rate(scenario: Scenario) -> float:
@@ -192,6 +217,7 @@ def main() -> None:
                 f"{messages:.0f} messages published an epoch",
                 flush=True,
             )
+            print(f"{'':28}   by thread (ms/epoch): {_by_thread(runs[-1][4])}", flush=True)
     direct, hop = netem_hop_latency()
     p50d, p99d, p50h, p99h = (
         float(np.percentile(a, q)) for a, q in ((direct, 50), (direct, 99), (hop, 50), (hop, 99))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 from pathlib import Path
 
 TICK_S = os.sysconf("SC_CLK_TCK")  # clock ticks per second of /proc/<pid>/stat
@@ -20,11 +21,20 @@ def cpu_s(pid: int) -> float | None:
 
 def thread_cpu_s(pid: int) -> float:
     """CPU time of ``pid``'s live threads so far [s], to the nanosecond (``schedstat``)."""
-    total = 0
+    return sum(thread_cpu_by_name(pid).values())
+
+
+def thread_cpu_by_name(pid: int) -> dict[str, float]:
+    """CPU time of ``pid``'s live threads so far [s], summed by name less its number: Zenoh's
+    runtimes (``rx-0`` and ``rx-1`` are ``rx``; ``tx``, ``acc``, ``app``, ``net``) and
+    ``python`` for the interpreter's own threads."""
+    by_name: dict[str, float] = {}
     for task in Path(f"/proc/{pid}/task").glob("*"):
         with contextlib.suppress(OSError, IndexError, ValueError):  # a thread that ended
-            total += int((task / "schedstat").read_text().split()[0])
-    return total / 1e9
+            name = re.sub(r"[-_]?\d+$", "", (task / "comm").read_text().strip())
+            ns = int((task / "schedstat").read_text().split()[0])
+            by_name[name] = by_name.get(name, 0.0) + ns / 1e9
+    return by_name
 
 
 def peak_rss_kib(pid: int) -> int:
@@ -38,4 +48,4 @@ def peak_rss_kib(pid: int) -> int:
     return 0
 
 
-__all__ = ["cpu_s", "peak_rss_kib", "thread_cpu_s"]
+__all__ = ["cpu_s", "peak_rss_kib", "thread_cpu_by_name", "thread_cpu_s"]
