@@ -40,11 +40,10 @@ def _role(name: str) -> str:
 def _by_thread(ms: dict[tuple[str, str], float]) -> str:
     """CPU ms by role and thread name, the largest first: Zenoh's runtimes (rx, tx, ...) beside
     the interpreter's threads (python); a handler on Zenoh's thread (a pool's) counts in rx."""
-    roles = sorted({role for role, _ in ms})
-    ranked = sorted(ms.items(), key=lambda item: -item[1])
+    shown = sorted((item for item in ms.items() if item[1] >= 0.5), key=lambda item: -item[1])
     return "; ".join(
-        role + " " + ", ".join(f"{t} {v:.1f}" for (r, t), v in ranked if r == role and v >= 0.5)
-        for role in roles
+        role + " " + ", ".join(f"{t} {v:.1f}" for (r, t), v in shown if r == role)
+        for role in sorted({role for (role, _), _ in shown})
     )
 
 
