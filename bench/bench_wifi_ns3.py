@@ -7,7 +7,8 @@ air model decides them here and ns-3 runs them in its own process, the whole bat
 (``testkit.ns3_air``, ns-3's defaults, which are the model's). Printed per case: the delivery
 ratio (receptions over addressed receivers) of each and their difference with twice the
 standard error of the mean per-phase difference, the mean latency (arrival less readiness)
-of each and their ratio, and the CPU time per phase of each and their ratio (ns-3's inside
+of each and their ratio, the attempts per frame of each (ns-3's data frames its PHYs sent),
+and the CPU time per phase of each and their ratio (ns-3's inside
 its process: building the phase and running it, without the import; the model's through
 ``decide_phase``, its compiled loop loaded before).
 
@@ -59,7 +60,7 @@ CASES = [
     Case("hidden pair, 1500 B", 3, msdu_bytes=1536, spread_ns=2_000_000, hidden_pair=True, phases=10),
     *(Case(f"unicast to a neighbour, {n} agents within 20 m", n, unicast=True) for n in (2, 10, 50)),
     Case("broadcast, 20 agents, 100 B", 20, msdu_bytes=136),
-    Case("broadcast, 20 agents, 1500 B", 20, msdu_bytes=1536),
+    Case("broadcast, 20 agents, 1500 B", 20, msdu_bytes=1536, phases=4),
     Case("broadcast, 20 agents, 1500 B, 54 Mb/s", 20, rate_mbps=54.0, msdu_bytes=1536),
     Case("broadcast, 20 agents, 100 B, 54 Mb/s", 20, rate_mbps=54.0, msdu_bytes=136),
     Case("unicast, 10 agents, 1500 B, 54 Mb/s", 10, unicast=True, rate_mbps=54.0, msdu_bytes=1536),
@@ -145,7 +146,8 @@ def main() -> None:
     )
     print(
         f"{'case':40} {'phases':>6} {'delivery model':>14} {'ns-3':>6} {'diff':>13} "
-        f"{'latency model µs':>16} {'ns-3':>7} {'ratio':>6} {'ms/phase model':>14} {'ns-3':>7} "
+        f"{'latency model µs':>16} {'ns-3':>7} {'ratio':>6} {'attempts model':>14} {'ns-3':>6} "
+        f"{'ms/phase model':>14} {'ns-3':>7} "
         f"{'ns-3 ÷ model':>12}"
     )
     index = 0
@@ -153,6 +155,7 @@ def main() -> None:
         config = AirConfig(phy=case.phy, rate_mbps=case.rate_mbps, error_model=args.error_model)  # type: ignore[arg-type]
         model_t = ns3_t = 0.0
         mine, theirs = np.zeros(3), np.zeros(3)
+        attempts = np.zeros(3)  # the model's, ns-3's, frames
         gaps = []
         for k, (positions, frames) in enumerate(plans[c]):
             t0 = time.process_time()
@@ -164,6 +167,7 @@ def main() -> None:
             reference = summary(ns3_arrival, to, frames.ready_ns)
             mine += ours
             theirs += reference
+            attempts += (out.attempts.sum(), ns3[index]["data_tx"], len(frames))
             gaps.append((ours[0] - reference[0]) / max(ours[1], 1))
             ns3_t += ns3[index]["seconds"]
             index += 1
@@ -176,6 +180,7 @@ def main() -> None:
             f"{case.name:40} {k:6d} {d_mine:14.3f} {d_theirs:6.3f} "
             f"{d_mine - d_theirs:+6.3f}±{spread:5.3f} "
             f"{l_mine:16.1f} {l_theirs:7.1f} {l_mine / max(l_theirs, 1e-9):6.3f} "
+            f"{attempts[0] / attempts[2]:14.3f} {attempts[1] / attempts[2]:6.3f} "
             f"{model_t / k * 1e3:14.2f} {ns3_t / k * 1e3:7.1f} {ns3_t / max(model_t, 1e-9):11.0f}×",
             flush=True,
         )

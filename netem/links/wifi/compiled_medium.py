@@ -55,7 +55,7 @@ def carrier_busy(
     st: Ints, log: Ints, on_air: Ints, power: Floats, levels: Floats, energy: Floats
 ) -> None:
     """Each station's ``CARRIER``: whether its carrier sense finds the medium busy, locked
-    onto a sensed frame or the sensed frames' energy above the energy-detection threshold.
+    onto a sensed frame or the sensed frames' energy above the carrier-sense threshold.
     ``energy`` (n,) is room for the sum."""
     n = st.shape[0]
     energy[:] = 0.0

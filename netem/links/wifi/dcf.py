@@ -6,6 +6,7 @@ for DIFS after the frame was queued (and after the medium's last busy time, EIFS
 frame received in error); one that finds it busy, and every frame after a
 transmission (the post-backoff), waits a backoff of ``U{0 .. CW}`` slots, counted down only
 while the medium is idle for DIFS and then slot by slot, frozen while it is busy (10.3.4.3).
+As in ns-3, a frame queued on an idle medium that turns busy within its DIFS draws no backoff.
 A unicast frame is acknowledged after SIFS at the control rate; without the ACK by
 ACKTimeout (or with an ACK received in error) its sender doubles CW (up to CWmax) and
 retries, up to ``retry_limit`` attempts; a broadcast is sent once, with CW at CWmin. Agents
