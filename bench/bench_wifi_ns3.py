@@ -31,6 +31,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from netem.links.wifi import BROADCAST, AirConfig, Frames, Key, decide_phase, load_compiled_loop
+from netem.links.wifi.saturation import (
+    UNREACHED_RETRY_LIMIT,
+    bianchi_throughput_bps,
+    saturated_phase,
+    throughput_bps,
+)
 from testkit.ns3_air import arrivals, phase_request, run_ns3
 
 SEED = 7
@@ -114,9 +120,15 @@ def main() -> None:
     parser.add_argument(
         "--error-model", choices=["chunks", "threshold"], default="chunks", help="the model's"
     )
+    parser.add_argument(
+        "--saturation", action="store_true", help="instead: saturation against Bianchi's, in both"
+    )
     args = parser.parse_args()
     if importlib.util.find_spec("ns") is None:
         print("ns-3 is not installed (pip install '.[ns3]'): nothing to compare")
+        return
+    if args.saturation:
+        saturation(args.seed)
         return
     base = 5 if args.quick else args.phases
     rng = np.random.default_rng(args.seed)
@@ -182,6 +194,50 @@ def main() -> None:
             f"{l_mine:16.1f} {l_theirs:7.1f} {l_mine / max(l_theirs, 1e-9):6.3f} "
             f"{attempts[0] / attempts[2]:14.3f} {attempts[1] / attempts[2]:6.3f} "
             f"{model_t / k * 1e3:14.2f} {ns3_t / k * 1e3:7.1f} {ns3_t / max(model_t, 1e-9):11.0f}×",
+            flush=True,
+        )
+
+
+def saturation(seed: int, frames: int = 3000, seeds: int = 3) -> None:
+    """The saturation throughput of the model and of ns-3 over Bianchi's, on the same phases."""
+    plans = [
+        (rate, n, s, *saturated_phase(n, 1500, max(30, frames // n)))
+        for rate in (6.0, 54.0)
+        for n in (5, 10, 20, 50)
+        for s in range(seed, seed + seeds)
+    ]
+    batch = [
+        phase_request(
+            "ofdm", rate, x, f.sender, f.receiver, f.payload_bytes, f.ready_ns, s, 1, True
+        )
+        for rate, _, s, x, f in plans
+    ]
+    ns3, ns3_s = run_ns3(batch)
+    print(
+        f"saturation, 802.11a, 1500 B unicast, stations within a metre, {frames} frames a run, "
+        f"seeds {seed}..{seed + seeds - 1} (ns-3's run 1); ns-3 3.44 (pip ns3): {ns3_s:.0f} s; "
+        "ratios to Bianchi's throughput, mean ± standard deviation over the seeds"
+    )
+    print(
+        f"{'rate':>5} {'n':>3} {'Bianchi Mb/s':>13} {'model':>13} {'ns-3':>13} {'attempts':>8} {'ns-3':>6}"
+    )
+    rows: dict[tuple[float, int], list[tuple[float, float, float, float]]] = {}
+    for (rate, n, s, x, f), reply in zip(plans, ns3, strict=True):
+        config = AirConfig(rate_mbps=rate, retry_limit=UNREACHED_RETRY_LIMIT)
+        out = decide_phase(config, x, f, Key(s, 0, 0))
+        to = np.arange(len(f)), f.receiver
+        expected = bianchi_throughput_bps(config, n, 1500)
+        model = throughput_bps(out.arrival_ns[to], f.sender, 1500) / expected
+        theirs = throughput_bps(arrivals(reply, len(f), n)[to], f.sender, 1500) / expected
+        tries = (out.attempts.sum() / len(f), reply["data_tx"] / len(f))
+        rows.setdefault((rate, n), []).append((model, theirs, *tries))
+    for (rate, n), values in rows.items():
+        v = np.array(values)
+        expected = bianchi_throughput_bps(AirConfig(rate_mbps=rate), n, 1500)
+        sd = v.std(axis=0, ddof=1)
+        print(
+            f"{rate:5g} {n:3d} {expected / 1e6:13.3f} {v[:, 0].mean():7.3f}±{sd[0]:5.3f} "
+            f"{v[:, 1].mean():7.3f}±{sd[1]:5.3f} {v[:, 2].mean():8.3f} {v[:, 3].mean():6.3f}",
             flush=True,
         )
 

@@ -32,6 +32,7 @@ import numpy.typing as npt
 
 START_NS = 1_000_000_000  # the phase's start in the ns-3 run
 RUN_NS = 2_000_000_000  # how long a phase may last
+SATURATED_RUN_NS = 60_000_000_000  # a saturated phase's
 
 CPP = r"""
 #include "ns3/core-module.h"
@@ -67,13 +68,16 @@ std::vector<int64_t> RunPhase(const std::vector<double>& x, const std::vector<do
     const std::vector<int>& sender, const std::vector<int>& receiver,
     const std::vector<int>& size, const std::vector<int64_t>& ready,
     uint32_t seed, uint32_t run, bool dsss, std::string data, std::string control,
-    int64_t start, int64_t span) {
+    int64_t start, int64_t span, bool saturated) {
   rx_log.clear();
   data_tx = ack_tx = 0;
   std::fill(drops.begin(), drops.end(), 0);
   RngSeedManager::SetSeed(seed);
   RngSeedManager::SetRun(run);
   Config::SetDefault("ns3::WifiRemoteStationManager::NonUnicastMode", StringValue(data));
+  // saturated: every frame queued at once waits as long as it takes, retried without limit
+  Config::SetDefault("ns3::WifiMacQueue::MaxDelay", TimeValue(saturated ? Seconds(1000) : MilliSeconds(500)));
+  Config::SetDefault("ns3::WifiMac::FrameRetryLimit", UintegerValue(saturated ? 65535 : 7));
   NodeContainer nodes;
   nodes.Create(x.size());
   first_node = nodes.Get(0)->GetId();
@@ -226,8 +230,11 @@ def phase_request(
     ready_ns: npt.NDArray[np.int64],
     seed: int,
     run: int,
+    saturated: bool = False,
 ) -> dict[str, Any]:
-    """One phase for ns-3: the agents' positions (n, 2) [m] and the frames, as the air model's."""
+    """One phase for ns-3: the agents' positions (n, 2) [m] and the frames, as the air model's.
+    ``saturated``: frames wait in ns-3's queue without its 500 ms lifetime and are retried
+    without limit, and the phase may last 60 s."""
     return {
         "phy": phy,
         "rate_mbps": rate_mbps,
@@ -239,6 +246,7 @@ def phase_request(
         "ready_ns": ready_ns.tolist(),
         "seed": seed,
         "run": run,
+        "saturated": saturated,
     }
 
 
@@ -294,7 +302,8 @@ def main() -> None:
             data,
             control,
             START_NS,
-            RUN_NS,
+            SATURATED_RUN_NS if p.get("saturated") else RUN_NS,
+            bool(p.get("saturated")),
         )
         seconds = time.process_time() - started
         values = [int(v) for v in flat]
