@@ -78,6 +78,7 @@ std::vector<int64_t> RunPhase(const std::vector<double>& x, const std::vector<do
   // saturated: every frame queued at once waits as long as it takes, retried without limit
   Config::SetDefault("ns3::WifiMacQueue::MaxDelay", TimeValue(saturated ? Seconds(1000) : MilliSeconds(500)));
   Config::SetDefault("ns3::WifiMac::FrameRetryLimit", UintegerValue(saturated ? 65535 : 7));
+  Config::SetDefault("ns3::WifiMacQueue::MaxSize", StringValue(saturated ? "100000p" : "500p"));
   NodeContainer nodes;
   nodes.Create(x.size());
   first_node = nodes.Get(0)->GetId();
@@ -233,8 +234,8 @@ def phase_request(
     saturated: bool = False,
 ) -> dict[str, Any]:
     """One phase for ns-3: the agents' positions (n, 2) [m] and the frames, as the air model's.
-    ``saturated``: frames wait in ns-3's queue without its 500 ms lifetime and are retried
-    without limit, and the phase may last 60 s."""
+    ``saturated``: frames wait in ns-3's queue without its 500 ms lifetime or 500 frames'
+    room and are retried without limit, and the phase may last 60 s."""
     return {
         "phy": phy,
         "rate_mbps": rate_mbps,
