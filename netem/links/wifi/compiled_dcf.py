@@ -181,12 +181,14 @@ def _sense(
         same = same and busy == (st[s, BUSY] != 0)
     if same:
         return
-    for s in range(n):  # freeze: keep the slots not counted yet
+    # freeze: keep the slots not counted yet; a frame that was waiting out its DIFS on an
+    # idle medium draws no backoff (ns-3)
+    for s in range(n):
         if st[s, SENSED_BUSY] and not st[s, BUSY]:
             start = st[s, IDLE_FROM] + (t[EIFS_NS] if st[s, EIFS] else t[DIFS])
             done = (now - start) // t[SLOT] if now > start else 0
             st[s, COUNTER] = max(st[s, COUNTER] - done, 0)
-            st[s, PLANNED] = NEVER  # a frame that waited DIFS only draws no backoff (ns-3)
+            st[s, PLANNED] = NEVER
     for s in range(n):
         if not st[s, SENSED_BUSY] and st[s, BUSY]:
             st[s, IDLE_FROM] = now
