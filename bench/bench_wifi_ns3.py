@@ -7,7 +7,8 @@ air model decides them here and ns-3 runs them in its own process, the whole bat
 (``testkit.ns3_air``, ns-3's defaults, which are the model's). Printed per case: the delivery
 ratio (receptions over addressed receivers) of each and their difference with twice the
 standard error of the mean per-phase difference, the mean latency (arrival less readiness)
-of each and their ratio, and the CPU time per phase of each and their ratio (ns-3's inside
+of each and their ratio, the attempts per frame of each (ns-3's data frames its PHYs sent),
+and the CPU time per phase of each and their ratio (ns-3's inside
 its process: building the phase and running it, without the import; the model's through
 ``decide_phase``, its compiled loop loaded before).
 
@@ -30,6 +31,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from netem.links.wifi import BROADCAST, AirConfig, Frames, Key, decide_phase, load_compiled_loop
+from netem.links.wifi.saturation import (
+    UNREACHED_RETRY_LIMIT,
+    bianchi_throughput_bps,
+    saturated_phase,
+    throughput_bps,
+)
 from testkit.ns3_air import arrivals, phase_request, run_ns3
 
 SEED = 7
@@ -59,7 +66,7 @@ CASES = [
     Case("hidden pair, 1500 B", 3, msdu_bytes=1536, spread_ns=2_000_000, hidden_pair=True, phases=10),
     *(Case(f"unicast to a neighbour, {n} agents within 20 m", n, unicast=True) for n in (2, 10, 50)),
     Case("broadcast, 20 agents, 100 B", 20, msdu_bytes=136),
-    Case("broadcast, 20 agents, 1500 B", 20, msdu_bytes=1536),
+    Case("broadcast, 20 agents, 1500 B", 20, msdu_bytes=1536, phases=4),
     Case("broadcast, 20 agents, 1500 B, 54 Mb/s", 20, rate_mbps=54.0, msdu_bytes=1536),
     Case("broadcast, 20 agents, 100 B, 54 Mb/s", 20, rate_mbps=54.0, msdu_bytes=136),
     Case("unicast, 10 agents, 1500 B, 54 Mb/s", 10, unicast=True, rate_mbps=54.0, msdu_bytes=1536),
@@ -113,9 +120,15 @@ def main() -> None:
     parser.add_argument(
         "--error-model", choices=["chunks", "threshold"], default="chunks", help="the model's"
     )
+    parser.add_argument(
+        "--saturation", action="store_true", help="instead: saturation against Bianchi's, in both"
+    )
     args = parser.parse_args()
     if importlib.util.find_spec("ns") is None:
         print("ns-3 is not installed (pip install '.[ns3]'): nothing to compare")
+        return
+    if args.saturation:
+        saturation(args.seed)
         return
     base = 5 if args.quick else args.phases
     rng = np.random.default_rng(args.seed)
@@ -145,7 +158,8 @@ def main() -> None:
     )
     print(
         f"{'case':40} {'phases':>6} {'delivery model':>14} {'ns-3':>6} {'diff':>13} "
-        f"{'latency model µs':>16} {'ns-3':>7} {'ratio':>6} {'ms/phase model':>14} {'ns-3':>7} "
+        f"{'latency model µs':>16} {'ns-3':>7} {'ratio':>6} {'attempts model':>14} {'ns-3':>6} "
+        f"{'ms/phase model':>14} {'ns-3':>7} "
         f"{'ns-3 ÷ model':>12}"
     )
     index = 0
@@ -153,6 +167,7 @@ def main() -> None:
         config = AirConfig(phy=case.phy, rate_mbps=case.rate_mbps, error_model=args.error_model)  # type: ignore[arg-type]
         model_t = ns3_t = 0.0
         mine, theirs = np.zeros(3), np.zeros(3)
+        attempts = np.zeros(3)  # the model's, ns-3's, frames
         gaps = []
         for k, (positions, frames) in enumerate(plans[c]):
             t0 = time.process_time()
@@ -164,6 +179,7 @@ def main() -> None:
             reference = summary(ns3_arrival, to, frames.ready_ns)
             mine += ours
             theirs += reference
+            attempts += (out.attempts.sum(), ns3[index]["data_tx"], len(frames))
             gaps.append((ours[0] - reference[0]) / max(ours[1], 1))
             ns3_t += ns3[index]["seconds"]
             index += 1
@@ -176,7 +192,52 @@ def main() -> None:
             f"{case.name:40} {k:6d} {d_mine:14.3f} {d_theirs:6.3f} "
             f"{d_mine - d_theirs:+6.3f}±{spread:5.3f} "
             f"{l_mine:16.1f} {l_theirs:7.1f} {l_mine / max(l_theirs, 1e-9):6.3f} "
+            f"{attempts[0] / attempts[2]:14.3f} {attempts[1] / attempts[2]:6.3f} "
             f"{model_t / k * 1e3:14.2f} {ns3_t / k * 1e3:7.1f} {ns3_t / max(model_t, 1e-9):11.0f}×",
+            flush=True,
+        )
+
+
+def saturation(seed: int, frames: int = 3000, seeds: int = 3) -> None:
+    """The saturation throughput of the model and of ns-3 over Bianchi's, on the same phases."""
+    plans = [
+        (rate, n, s, *saturated_phase(n, 1500, max(30, frames // n)))
+        for rate in (6.0, 54.0)
+        for n in (5, 10, 20, 50)
+        for s in range(seed, seed + seeds)
+    ]
+    batch = [
+        phase_request(
+            "ofdm", rate, x, f.sender, f.receiver, f.payload_bytes, f.ready_ns, s, 1, True
+        )
+        for rate, _, s, x, f in plans
+    ]
+    ns3, ns3_s = run_ns3(batch)
+    print(
+        f"saturation, 802.11a, 1500 B unicast, stations within a metre, {frames} frames a run, "
+        f"seeds {seed}..{seed + seeds - 1} (ns-3's run 1); ns-3 3.44 (pip ns3): {ns3_s:.0f} s; "
+        "ratios to Bianchi's throughput, mean ± standard deviation over the seeds"
+    )
+    print(
+        f"{'rate':>5} {'n':>3} {'Bianchi Mb/s':>13} {'model':>13} {'ns-3':>13} {'attempts':>8} {'ns-3':>6}"
+    )
+    rows: dict[tuple[float, int], list[tuple[float, float, float, float]]] = {}
+    for (rate, n, s, x, f), reply in zip(plans, ns3, strict=True):
+        config = AirConfig(rate_mbps=rate, retry_limit=UNREACHED_RETRY_LIMIT)
+        out = decide_phase(config, x, f, Key(s, 0, 0))
+        to = np.arange(len(f)), f.receiver
+        expected = bianchi_throughput_bps(config, n, 1500)
+        model = throughput_bps(out.arrival_ns[to], f.sender, 1500) / expected
+        theirs = throughput_bps(arrivals(reply, len(f), n)[to], f.sender, 1500) / expected
+        tries = (out.attempts.sum() / len(f), reply["data_tx"] / len(f))
+        rows.setdefault((rate, n), []).append((model, theirs, *tries))
+    for (rate, n), values in rows.items():
+        v = np.array(values)
+        expected = bianchi_throughput_bps(AirConfig(rate_mbps=rate), n, 1500)
+        sd = v.std(axis=0, ddof=1)
+        print(
+            f"{rate:5g} {n:3d} {expected / 1e6:13.3f} {v[:, 0].mean():7.3f}±{sd[0]:5.3f} "
+            f"{v[:, 1].mean():7.3f}±{sd[1]:5.3f} {v[:, 2].mean():8.3f} {v[:, 3].mean():6.3f}",
             flush=True,
         )
 

@@ -60,6 +60,7 @@ RADIO_FIELDS = (
     "preamble_detection_dbm",
     "preamble_detection_snr_db",
     "energy_detection_dbm",
+    "cca_sensitivity_dbm",
     "sinr_threshold_db",
     "retry_limit",
     "cw_min",
@@ -93,6 +94,7 @@ class Air(BaseModel):
     preamble_detection_dbm: float | None = None
     preamble_detection_snr_db: float | None = None
     energy_detection_dbm: float | None = None
+    cca_sensitivity_dbm: float | None = None
     sinr_threshold_db: float | None = None
     retry_limit: int | None = Field(None, ge=1)
     cw_min: int | None = Field(None, ge=1)

@@ -169,7 +169,6 @@ def _sense(
     power: Floats,
     levels: Floats,
     t: Ints,
-    backoff_state: np.uint64,
     energy: Floats,
 ) -> None:
     """Carrier sense at every agent; freeze or resume the backoffs that changed."""
@@ -182,16 +181,13 @@ def _sense(
         same = same and busy == (st[s, BUSY] != 0)
     if same:
         return
-    for s in range(n):  # freeze: keep the slots not counted yet
+    # freeze: keep the slots not counted yet; a frame that was waiting out its DIFS on an
+    # idle medium draws no backoff (ns-3)
+    for s in range(n):
         if st[s, SENSED_BUSY] and not st[s, BUSY]:
             start = st[s, IDLE_FROM] + (t[EIFS_NS] if st[s, EIFS] else t[DIFS])
             done = (now - start) // t[SLOT] if now > start else 0
             st[s, COUNTER] = max(st[s, COUNTER] - done, 0)
-    for s in range(n):  # a ready frame that did not find DIFS of idle medium waits a backoff
-        if st[s, SENSED_BUSY] and not st[s, BUSY]:
-            waiting = st[s, SENDING] < 0 and not st[s, AWAITING] and st[s, COUNTER] == 0
-            if waiting and st[s, HEAD_READY] <= now:
-                st[s, COUNTER] = _draw(st, s, backoff_state)
             st[s, PLANNED] = NEVER
     for s in range(n):
         if not st[s, SENSED_BUSY] and st[s, BUSY]:
@@ -343,7 +339,7 @@ def _run(
                     st[value, EIFS] = 0
                     _resolve(st, value, False, queue, frames, alone, out, t, backoff)
             elif kind == NAV_END:
-                _sense(st, now, log, on_air, power, levels, t, backoff, energy)
+                _sense(st, now, log, on_air, power, levels, t, energy)
             elif kind == READY:
                 s = frames[value, 0]
                 head = queue[st[s, QPOS]] if st[s, QPOS] < st[s, QEND] else -1
@@ -360,7 +356,7 @@ def _run(
                     count = 1
             else:  # SENSED
                 log[value, TX_SENSED] = 1
-                _sense(st, now, log, on_air, power, levels, t, backoff, energy)
+                _sense(st, now, log, on_air, power, levels, t, energy)
         elif send_at < NEVER:
             now = send_at
             first, count = logged, 0
@@ -382,11 +378,12 @@ def _run(
             for i in range(first, logged):
                 st[log[i, TX_SENDER], SENDING] = i
                 st[log[i, TX_SENDER], PLANNED] = NEVER
+                st[log[i, TX_SENDER], EIFS] = 0  # a transmission ends the EIFS
             put_on_air(st, log, first, count, on_air, power, levels)
             for i in range(first, logged):
                 ev = _push(ev, size, log[i, TX_START] + t[CCA], SENSED, i)
                 ev = _push(ev, size, log[i, TX_END], END, i)
-            _sense(st, now, log, on_air, power, levels, t, backoff, energy)
+            _sense(st, now, log, on_air, power, levels, t, energy)
     return out, extra, now
 
 
@@ -456,7 +453,7 @@ def _end(
                 ev = _push(ev, size, ack_end, NAV_END, 0)
         st[s, AWAITING] = 1
         ev = _push(ev, size, now + t[ACK_TIMEOUT], TIMEOUT, s)
-    _sense(st, now, log, on_air, power, levels, t, backoff, energy)
+    _sense(st, now, log, on_air, power, levels, t, energy)
     return ev
 
 

@@ -55,7 +55,7 @@ def carrier_busy(
     st: Ints, log: Ints, on_air: Ints, power: Floats, levels: Floats, energy: Floats
 ) -> None:
     """Each station's ``CARRIER``: whether its carrier sense finds the medium busy, locked
-    onto a sensed frame or the sensed frames' energy above the energy-detection threshold.
+    onto a sensed frame or the sensed frames' energy above the carrier-sense threshold.
     ``energy`` (n,) is room for the sum."""
     n = st.shape[0]
     energy[:] = 0.0
@@ -219,7 +219,7 @@ def levels_of(config: AirConfig) -> Floats:
         float(to_mw(config.preamble_detection_dbm)), float(to_mw(config.rx_sensitivity_dbm))
     )
     levels[DETECT_SNR] = to_mw(config.preamble_detection_snr_db)
-    levels[ENERGY] = to_mw(config.energy_detection_dbm)
+    levels[ENERGY] = to_mw(config.carrier_sense_dbm)
     levels[SINR] = to_mw(config.sinr_db)
     levels[ACK_SINR] = to_mw(phy.sinr_threshold_db(phy.control_rate_kbps(config.rate_kbps)))
     return levels

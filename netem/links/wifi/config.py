@@ -36,9 +36,10 @@ class AirConfig(BaseModel):
     # 17.3.10.6 (CCA: an OFDM start at -82 dBm); ns-3's MinimumRssi and Threshold
     preamble_detection_dbm: float = -82.0
     preamble_detection_snr_db: float = 4.0
-    energy_detection_dbm: float = (
-        -62.0
-    )  # 17.3.10.6: any signal 20 dB above -82 dBm; ns-3 CcaEdThreshold
+    energy_detection_dbm: float = -62.0  # 17.3.10.6: any signal 20 dB above -82 dBm; CcaEdThreshold
+    # ns-3 holds the medium busy for a frame it does not receive while the sensed energy
+    # reaches CcaSensitivity (PhyEntity::GetCcaThreshold), whether its preamble was caught or not
+    cca_sensitivity_dbm: float = -82.0
     # a locked frame is decoded by ns-3's chunk-wise error rates ("chunks") or when its SINR
     # over the largest interference reaches sinr_threshold_db ("threshold")
     error_model: Literal["chunks", "threshold"] = "chunks"
@@ -76,6 +77,11 @@ class AirConfig(BaseModel):
         if self.sinr_threshold_db is not None:
             return self.sinr_threshold_db
         return self.physical.sinr_threshold_db(self.rate_kbps)
+
+    @property
+    def carrier_sense_dbm(self) -> float:
+        """The sensed frames' summed power that holds the medium busy [dBm]."""
+        return min(self.energy_detection_dbm, self.cca_sensitivity_dbm)
 
     @property
     def noise_dbm(self) -> float:

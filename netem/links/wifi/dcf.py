@@ -6,6 +6,7 @@ for DIFS after the frame was queued (and after the medium's last busy time, EIFS
 frame received in error); one that finds it busy, and every frame after a
 transmission (the post-backoff), waits a backoff of ``U{0 .. CW}`` slots, counted down only
 while the medium is idle for DIFS and then slot by slot, frozen while it is busy (10.3.4.3).
+As in ns-3, a frame queued on an idle medium that turns busy within its DIFS draws no backoff.
 A unicast frame is acknowledged after SIFS at the control rate; without the ACK by
 ACKTimeout (or with an ACK received in error) its sender doubles CW (up to CWmax) and
 retries, up to ``retry_limit`` attempts; a broadcast is sent once, with CW at CWmin. Agents
@@ -159,7 +160,7 @@ class _Phase:
             power, noise, phy, config.error_model == "chunks", (key.seed, key.epoch, key.phase)
         )
         self.medium = Medium(
-            power, noise, detect, detect_snr, float(to_mw(config.energy_detection_dbm)), reception
+            power, noise, detect, detect_snr, float(to_mw(config.carrier_sense_dbm)), reception
         )
         # a frame the receiver cannot take even on a silent channel
         alone = (power >= detect) & (power >= max(detect_snr, self.sinr) * noise)
@@ -289,12 +290,9 @@ class _Phase:
         ifs = np.where(self.eifs[turned], self.eifs_ns, self.difs_ns)
         start = self.idle_from[turned] + ifs
         done = np.where(self.now > start, (self.now - start) // self.slot_ns, 0)
-        left = np.maximum(self.counter[turned] - done, 0)
-        self.counter[turned] = left
-        # a ready frame that did not find DIFS of idle medium waits a backoff
-        waiting = (self.sending[turned] < 0) & ~self.awaiting[turned] & (left == 0)
-        for s in turned[waiting & (self.head_ready[turned] <= self.now)]:
-            self.counter[s] = self.draw(int(s))
+        # a frame queued on an idle medium that turns busy within DIFS draws no backoff: it
+        # goes DIFS after the medium is idle again (ns-3's ChannelAccessManager)
+        self.counter[turned] = np.maximum(self.counter[turned] - done, 0)
 
     def sense(self) -> None:
         """Carrier sense at every agent; freeze or resume the backoffs that changed."""
@@ -330,6 +328,7 @@ class _Phase:
         for k, tx in enumerate(new):
             self.sending[tx.sender] = len(self.medium.log) + k
             self.planned[tx.sender] = NEVER
+            self.eifs[tx.sender] = False  # a transmission ends the EIFS (ns-3: NotifyTxStartNow)
         indices = self.medium.start(new, self.sending >= 0)
         for index, tx in zip(indices, new, strict=True):
             self.push(tx.start_ns + self.phy.cca_ns, SENSED, index)

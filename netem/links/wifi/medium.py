@@ -31,7 +31,7 @@ class Medium:
     noise_mw: float
     detect_mw: float  # the power a preamble needs to be detected and decoded
     detect_snr: float  # linear
-    energy_mw: float  # energy-detection threshold
+    energy_mw: float  # carrier sense: the sensed frames' summed power that holds it busy
     reception: Reception
     on_air: list[int] = field(default_factory=list)  # log indices
     lock: npt.NDArray[np.int64] = field(init=False)  # agent -> index in on_air's log, -1
@@ -104,7 +104,7 @@ class Medium:
 
     def carrier_busy(self) -> Bools:
         """Agents whose carrier sense finds the medium busy: locked onto a sensed frame, or
-        the sensed frames' energy above the energy-detection threshold."""
+        the sensed frames' energy above the carrier-sense threshold (``energy_mw``)."""
         if self._carrier is None:
             self._carrier = self._carrier_busy()
         return self._carrier

@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import numpy.typing as npt
 from scipy.optimize import brentq
 
 from netem.links.wifi.config import AirConfig
@@ -56,29 +57,49 @@ def bianchi_throughput_bps(config: AirConfig, n: int, payload_bytes: int) -> flo
     return p_s * p_tr * 8 * payload_bytes / slot_mean_ns * 1e9
 
 
-def simulated_throughput_bps(
-    config: AirConfig, n: int, payload_bytes: int, frames_per_station: int, seed: int
-) -> float:
-    """The air model's throughput of ``n`` saturated stations [bit/s].
-
-    The stations stand within a metre of each other (every pair hears the others at one
-    power: no frame outweighs another, though the chunk error model may still decode one at
-    0 dB), each with ``frames_per_station`` frames to its neighbour, all ready at once. Counted from the tenth of the frames delivered first to
-    the moment the first station has sent all its frames (beyond it, fewer contend).
-    """
+def saturated_phase(
+    n: int, payload_bytes: int, frames_per_station: int
+) -> tuple[npt.NDArray[np.float64], Frames]:
+    """``n`` saturated stations within a metre of each other (every pair hears the others at
+    one power: no frame outweighs another, though the chunk error model may still decode one
+    at 0 dB), each with ``frames_per_station`` frames to its neighbour, all ready at once:
+    positions (n, 2) [m] and frames."""
     angle = 2 * np.pi * np.arange(n) / n
     positions = 0.4 * np.column_stack([np.cos(angle), np.sin(angle)])
     sender = np.repeat(np.arange(n), frames_per_station)
-    receiver = (sender + 1) % n
-    unbounded = config.model_copy(update={"retry_limit": UNREACHED_RETRY_LIMIT})
-    outcome = decide_phase(
-        unbounded, positions, Frames.of(sender, receiver, payload_bytes, 0), Key(seed, 0, 0)
-    )
-    arrival = outcome.arrival_ns[np.arange(sender.shape[0]), receiver]
-    end = min(int(arrival[sender == s].max()) for s in range(n))
+    return positions, Frames.of(sender, (sender + 1) % n, payload_bytes, 0)
+
+
+def throughput_bps(
+    arrival_ns: npt.NDArray[np.int64], sender: npt.NDArray[np.int64], payload_bytes: int
+) -> float:
+    """The delivered frames' throughput [bit/s], from the tenth of them delivered first to the
+    moment the first station has all its frames delivered (beyond it, fewer contend).
+    ``arrival_ns`` (m,): each frame's arrival at its receiver, −1 if it was lost."""
+    got = arrival_ns >= 0
+    arrival, by = arrival_ns[got], sender[got]
+    end = min(int(arrival[by == s].max()) for s in np.unique(sender))
     start = int(np.sort(arrival)[arrival.shape[0] // 10])
     counted = int(((arrival > start) & (arrival <= end)).sum())
     return counted * 8 * payload_bytes / (end - start) * 1e9
 
 
-__all__ = ["bianchi_tau", "bianchi_throughput_bps", "simulated_throughput_bps"]
+def simulated_throughput_bps(
+    config: AirConfig, n: int, payload_bytes: int, frames_per_station: int, seed: int
+) -> float:
+    """The air model's throughput of ``n`` saturated stations [bit/s] (``saturated_phase``,
+    ``throughput_bps``)."""
+    positions, frames = saturated_phase(n, payload_bytes, frames_per_station)
+    unbounded = config.model_copy(update={"retry_limit": UNREACHED_RETRY_LIMIT})
+    outcome = decide_phase(unbounded, positions, frames, Key(seed, 0, 0))
+    arrival = outcome.arrival_ns[np.arange(len(frames)), frames.receiver]
+    return throughput_bps(arrival, frames.sender, payload_bytes)
+
+
+__all__ = [
+    "bianchi_tau",
+    "bianchi_throughput_bps",
+    "saturated_phase",
+    "simulated_throughput_bps",
+    "throughput_bps",
+]

@@ -2,7 +2,8 @@
 
 :func:`run_ns3` runs a batch (``python -m testkit.ns3_air`` with a JSON list of phases on
 stdin, each from :func:`phase_request`); prints one JSON line
-of receptions (and the seconds ns-3 took) per phase. With ``--error-rates`` it samples instead
+per phase: its receptions, the seconds ns-3 took, the data frames (attempts) and ACKs its PHYs
+sent, and the frames its PHYs dropped, by ns-3's reason. With ``--error-rates`` it samples instead
 ns-3's default error-rate model (``TableBasedErrorRateModel``) for each OFDM rate at the
 32 B and 1,458 B references every 0.05 dB and prints the cubic fits of
 ``ln(−ln(1 − PER))`` that ``netem/links/wifi/error_rate.py`` holds. Each phase is its own ns-3 simulation:
@@ -14,7 +15,8 @@ broadcast and ACKs. Frames go straight to the ``WifiNetDevice`` (no IP, no ARP) 
 into the run, after every initial backoff has ended on the idle medium; the device adds
 LLC/SNAP (8 B), so a packet of ``payload_bytes − 8`` makes the MSDU the air model is given. A
 C++ receive callback logs the time of each delivery, by frame (its first four bytes) and
-receiver.
+receiver. Every phase assigns the devices' random streams from 0, so its draws depend on its
+seed and run only, not on the phases before it in the batch.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ import numpy.typing as npt
 
 START_NS = 1_000_000_000  # the phase's start in the ns-3 run
 RUN_NS = 2_000_000_000  # how long a phase may last
+SATURATED_RUN_NS = 60_000_000_000  # a saturated phase's
 
 CPP = r"""
 #include "ns3/core-module.h"
@@ -41,6 +44,11 @@ namespace air {
 struct Rx { int64_t t; uint32_t node; uint32_t frame; };
 static std::vector<Rx> rx_log;
 static uint32_t first_node = 0;
+static int64_t data_tx = 0, ack_tx = 0;  // PPDUs sent: data frames (attempts) and ACKs
+static std::vector<int64_t> drops(32, 0);  // PhyRxDrop by WifiPhyRxfailureReason
+
+void OnTxBegin(Ptr<const Packet> p, double) { if (p->GetSize() > 14) ++data_tx; else ++ack_tx; }
+void OnRxDrop(Ptr<const Packet>, WifiPhyRxfailureReason why) { ++drops[uint32_t(why) % 32]; }
 
 bool OnRx(Ptr<NetDevice> dev, Ptr<const Packet> p, uint16_t, const Address&) {
   uint8_t b[4] = {0, 0, 0, 0};
@@ -60,11 +68,17 @@ std::vector<int64_t> RunPhase(const std::vector<double>& x, const std::vector<do
     const std::vector<int>& sender, const std::vector<int>& receiver,
     const std::vector<int>& size, const std::vector<int64_t>& ready,
     uint32_t seed, uint32_t run, bool dsss, std::string data, std::string control,
-    int64_t start, int64_t span) {
+    int64_t start, int64_t span, bool saturated) {
   rx_log.clear();
+  data_tx = ack_tx = 0;
+  std::fill(drops.begin(), drops.end(), 0);
   RngSeedManager::SetSeed(seed);
   RngSeedManager::SetRun(run);
   Config::SetDefault("ns3::WifiRemoteStationManager::NonUnicastMode", StringValue(data));
+  // saturated: every frame queued at once waits as long as it takes, retried without limit
+  Config::SetDefault("ns3::WifiMacQueue::MaxDelay", TimeValue(saturated ? Seconds(1000) : MilliSeconds(500)));
+  Config::SetDefault("ns3::WifiMac::FrameRetryLimit", UintegerValue(saturated ? 65535 : 7));
+  Config::SetDefault("ns3::WifiMacQueue::MaxSize", StringValue(saturated ? "100000p" : "500p"));
   NodeContainer nodes;
   nodes.Create(x.size());
   first_node = nodes.Get(0)->GetId();
@@ -84,7 +98,14 @@ std::vector<int64_t> RunPhase(const std::vector<double>& x, const std::vector<do
   WifiMacHelper mac;
   mac.SetType("ns3::AdhocWifiMac");
   NetDeviceContainer devices = wifi.Install(phy, mac, nodes);
-  for (uint32_t i = 0; i < devices.GetN(); ++i) devices.Get(i)->SetReceiveCallback(MakeCallback(&OnRx));
+  // streams from 0 in every phase: its draws depend on its seed and run, not on the batch
+  wifi.AssignStreams(devices, 0);
+  for (uint32_t i = 0; i < devices.GetN(); ++i) {
+    devices.Get(i)->SetReceiveCallback(MakeCallback(&OnRx));
+    Ptr<WifiPhy> phy = DynamicCast<WifiNetDevice>(devices.Get(i))->GetPhy();
+    phy->TraceConnectWithoutContext("PhyTxBegin", MakeCallback(&OnTxBegin));
+    phy->TraceConnectWithoutContext("PhyRxDrop", MakeCallback(&OnRxDrop));
+  }
   for (size_t k = 0; k < sender.size(); ++k) {
     Ptr<NetDevice> dev = devices.Get(sender[k]);
     Address dest = receiver[k] < 0 ? dev->GetBroadcast() : devices.Get(receiver[k])->GetAddress();
@@ -94,6 +115,9 @@ std::vector<int64_t> RunPhase(const std::vector<double>& x, const std::vector<do
   Simulator::Run();
   Simulator::Destroy();
   std::vector<int64_t> flat;
+  flat.push_back(data_tx);
+  flat.push_back(ack_tx);
+  flat.insert(flat.end(), drops.begin(), drops.end());
   for (const Rx& r : rx_log) { flat.push_back(r.t - start); flat.push_back(r.node); flat.push_back(r.frame); }
   return flat;
 }
@@ -120,6 +144,35 @@ std::vector<double> Sample(uint64_t kbps, const std::vector<double>& snr_db, uin
 }
 }
 """
+# ns-3.44's WifiPhyRxfailureReason, in its order (wifi-phy-common.h)
+DROP_REASONS = (
+    "unknown",
+    "unsupported_settings",
+    "channel_switching",
+    "rxing",
+    "txing",
+    "sleeping",
+    "powered_off",
+    "truncated_tx",
+    "busy_decoding_preamble",
+    "preamble_detect_failure",
+    "reception_aborted_by_tx",
+    "l_sig_failure",
+    "ht_sig_failure",
+    "sig_a_failure",
+    "sig_b_failure",
+    "u_sig_failure",
+    "eht_sig_failure",
+    "preamble_detection_packet_switch",
+    "frame_capture_packet_switch",
+    "obss_pd_cca_reset",
+    "ppdu_too_late",
+    "filtered",
+    "dmg_header_failure",
+    "dmg_allocation_ended",
+    "signal_detection_aborted_by_tx",
+)
+DROPS_AT = 2 + 32  # the reply's counts before its receptions
 OFDM_KBPS = (6000, 9000, 12000, 18000, 24000, 36000, 48000, 54000)
 
 
@@ -178,8 +231,11 @@ def phase_request(
     ready_ns: npt.NDArray[np.int64],
     seed: int,
     run: int,
+    saturated: bool = False,
 ) -> dict[str, Any]:
-    """One phase for ns-3: the agents' positions (n, 2) [m] and the frames, as the air model's."""
+    """One phase for ns-3: the agents' positions (n, 2) [m] and the frames, as the air model's.
+    ``saturated``: frames wait in ns-3's queue without its 500 ms lifetime or 500 frames'
+    room and are retried without limit, and the phase may last 60 s."""
     return {
         "phy": phy,
         "rate_mbps": rate_mbps,
@@ -191,6 +247,7 @@ def phase_request(
         "ready_ns": ready_ns.tolist(),
         "seed": seed,
         "run": run,
+        "saturated": saturated,
     }
 
 
@@ -246,12 +303,16 @@ def main() -> None:
             data,
             control,
             START_NS,
-            RUN_NS,
+            SATURATED_RUN_NS if p.get("saturated") else RUN_NS,
+            bool(p.get("saturated")),
         )
         seconds = time.process_time() - started
         values = [int(v) for v in flat]
+        (data_tx, ack_tx), drops, values = values[:2], values[2:DROPS_AT], values[DROPS_AT:]
         rx = [values[k : k + 3] for k in range(0, len(values), 3)]
-        print(json.dumps({"rx": rx, "seconds": seconds}), flush=True)
+        reasons = {DROP_REASONS[r]: c for r, c in enumerate(drops) if c and r < len(DROP_REASONS)}
+        reply = {"rx": rx, "seconds": seconds, "data_tx": data_tx, "ack_tx": ack_tx}
+        print(json.dumps(reply | {"drops": reasons}), flush=True)
 
 
 if __name__ == "__main__":

@@ -177,15 +177,54 @@ def test_a_frame_received_after_the_phase_is_late() -> None:
 
 
 def test_a_frame_received_in_error_makes_the_receiver_wait_eifs() -> None:
-    # 3 locks onto 0's 1000 B frame; 2's, hidden from 0 and 1.3 dB stronger at 3, ruins it: after
-    # 0's frame ends (34 + 1396 µs; 2's never locks 3) 3 counts its backoff from EIFS, not DIFS
+    # 3 locks onto 0's 1000 B frame; 2's 200 B, hidden from 0 and 1.3 dB stronger at 3, ruins
+    # it: after 0's frame ends (34 + 1396 µs, 2's long over) 3 counts its backoff from EIFS
     positions = np.array([[0.0, 0.0], [40.0, 0.0], [80.0, 0.0], [42.0, 5.0]])
-    frames = Frames.of([0, 2, 3], BROADCAST, 1000, [0, 100 * US, 50 * US])
+    frames = Frames.of([0, 2, 3], BROADCAST, [1000, 200, 1000], [0, 100 * US, 50 * US])
     out = decide_phase(DEFAULT, positions, frames, Key(1, 0, 0))
     assert out.at(0, 3) is Cause.COLLISION
     waited = out.first_start_ns[2] - (34 + 1396) * US
     slot, eifs = 9 * US, (16 + 34 + 44) * US
     assert waited >= eifs and (waited - eifs) % slot == 0
+
+
+def test_a_transmission_ends_the_eifs() -> None:
+    # as above, 3 with a second frame: its post-backoff after its own first frame counts from
+    # DIFS, as after any transmission (ns-3: NotifyTxStartNow), not from the earlier EIFS
+    positions = np.array([[0.0, 0.0], [40.0, 0.0], [80.0, 0.0], [42.0, 5.0]])
+    frames = Frames.of(
+        [0, 2, 3, 3], BROADCAST, [1000, 200, 1000, 200], np.array([0, 100, 50, 60]) * US
+    )
+    out = decide_phase(DEFAULT, positions, frames, Key(1, 0, 0))
+    waited = out.first_start_ns[3] - (out.first_start_ns[2] + 1396 * US)
+    slot, difs = 9 * US, 34 * US
+    assert waited >= difs and (waited - difs) % slot == 0
+
+
+def test_a_frame_not_received_holds_the_medium_busy_down_to_the_cca_sensitivity() -> None:
+    # 0 and 1, 15 m apart (-66 dBm, under energy detection's -62), start together; 1's 50 B
+    # frame ends first and 0's 1000 B frame, which 1 never locked onto, keeps 1 off its
+    # second frame until it ends (ns-3's CcaSensitivity, -82 dBm)
+    frames = Frames.of([0, 1, 1], BROADCAST, [1000, 50, 50], [0, 0, 1])
+    out = decide_phase(DEFAULT, on_a_line(0, 15), frames, Key(1, 0, 0))
+    assert out.first_start_ns[:2].tolist() == [34 * US, 34 * US]
+    assert out.first_start_ns[2] >= (34 + 1396 + 34) * US
+    deaf = AirConfig(cca_sensitivity_dbm=-62.0)
+    assert (
+        decide_phase(deaf, on_a_line(0, 15), frames, Key(1, 0, 0)).first_start_ns[2]
+        < (34 + 1396) * US
+    )
+
+
+def test_a_frame_queued_on_an_idle_medium_that_turns_busy_draws_no_backoff() -> None:
+    # 0 takes the air at 34 µs; the others queue theirs at 10 µs, on an idle medium, which
+    # turns busy before their DIFS ends: as in ns-3 (without ProactiveBackoff) they draw no
+    # backoff and all go DIFS after 0's frame, together
+    rng = np.random.default_rng(7)
+    ready = np.r_[0, np.full(11, 10 * US)]
+    frames = Frames.of(np.arange(12), BROADCAST, 200, ready)
+    out = decide_phase(DEFAULT, rng.uniform(0.0, 10.0, (12, 2)), frames, Key(1, 0, 0))
+    assert out.first_start_ns.tolist() == [34 * US] + [(34 + 328 + 34) * US] * 11
 
 
 def test_an_overheard_unicast_holds_its_neighbours_off_until_the_ack_ends() -> None:
@@ -205,7 +244,7 @@ def contention(key: Key, config: AirConfig = DEFAULT) -> PhaseOutcome:
     # agent 0 takes the air first; the others find it busy and draw backoffs
     rng = np.random.default_rng(7)
     positions = rng.uniform(0.0, 10.0, (12, 2))
-    ready = np.r_[0, np.full(11, 10 * US)]
+    ready = np.r_[0, np.full(11, 100 * US)]
     return decide_phase(config, positions, Frames.of(np.arange(12), BROADCAST, 200, ready), key)
 
 

@@ -1,8 +1,8 @@
 """Saturation throughput of the air model against Bianchi's analytical model (docs/model.md §10).
 
 At 54 Mb/s, where the model's mean over seeds is close enough to Bianchi's that one seed's run
-within 3 % is not luck; at 6 Mb/s the model runs above Bianchi from 20 stations (docs/model.md
-§10 says why; bench/bench_wifi.py prints both).
+within 3 % is not luck; at 6 Mb/s the model runs above Bianchi from 20 stations, as ns-3 does
+(docs/model.md §11; bench/bench_wifi.py prints both, bench/bench_wifi_ns3.py --saturation ns-3's).
 """
 
 from __future__ import annotations
