@@ -68,6 +68,12 @@ def inbox(run_id: str, receiver: int | str, phase: str) -> str:
     return f"{ROOT}/{run_id}/inbox/{receiver}/{phase}"
 
 
+def inbox_pool(run_id: str, pool: int | str, phase: str) -> str:
+    """netem's :class:`DeliveryBatch` to the receivers of pool ``pool`` (its first agent's id)
+    in ``phase``, lockstep: their deliveries of one epoch in one message."""
+    return f"{ROOT}/{run_id}/inbox/pool/{pool}/{phase}"
+
+
 # -- netem, clock, metrics, liveliness ---------------------------------------------------------
 def netem_decision(run_id: str) -> str:
     return f"{ROOT}/{run_id}/netem/decision"
@@ -86,6 +92,12 @@ def netem_rejoin(run_id: str) -> str:
     """Queryable of netem: a restarted sender asks from which epoch it takes part again, and
     (an agent) its body's last state as netem forwarded it (see netem.node)."""
     return f"{ROOT}/{run_id}/netem/rejoin"
+
+
+def netem_pool(run_id: str) -> str:
+    """Queryable of netem: a pool process declares its agents, whose deliveries then come
+    batched on :func:`inbox_pool` (see netem.node)."""
+    return f"{ROOT}/{run_id}/netem/pool"
 
 
 def netem_change(run_id: str) -> str:
@@ -184,10 +196,12 @@ _BUILDERS: tuple[tuple[Callable[..., str], int], ...] = (
     (link_report, 2),
     (link_estimate, 2),
     (inbox, 3),
+    (inbox_pool, 3),
     (netem_decision, 1),
     (netem_config, 1),
     (netem_final, 1),
     (netem_rejoin, 1),
+    (netem_pool, 1),
     (netem_change, 1),
     (status, 3),
     (metrics, 1),

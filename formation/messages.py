@@ -147,6 +147,17 @@ class Delivery(_Message):
     dead: list[int] = []
 
 
+class DeliveryBatch(_Message):
+    """netem to a pool process (lockstep): the pool's receivers' deliveries of ``phase`` and
+    ``epoch``, each as it would go alone, in one message (``pool``: the pool's first agent).
+    """
+
+    kind: Literal["delivery_batch"] = "delivery_batch"
+    pool: int
+    phase: Literal["state", "report", "estimate"]
+    deliveries: list[Delivery]
+
+
 class Decision(BaseModel):
     """One netem verdict on one packet (docs/architecture.md "Wire": every decision recorded)."""
 
@@ -223,6 +234,7 @@ Message = Annotated[
     | LeaderEstimate
     | AgentEstimate
     | Delivery
+    | DeliveryBatch
     | DecisionBatch
     | LinkChange
     | Status
@@ -236,6 +248,7 @@ ALL_MODELS: tuple[type[BaseModel], ...] = (
     LeaderEstimate,
     AgentEstimate,
     Delivery,
+    DeliveryBatch,
     DecisionBatch,
     LinkChange,
     Status,

@@ -1,7 +1,7 @@
 """The netem process: every message between services crosses it as a directed link.
 
-This is the transport shell: the bus's subscriptions, the ``clock``, ``netem/final`` and
-``netem/rejoin`` queryables (``netem/config`` is :mod:`netem.link_config`'s, the
+This is the transport shell: the bus's subscriptions, the ``clock``, ``netem/final``,
+``netem/rejoin`` and ``netem/pool`` queryables (``netem/config`` is :mod:`netem.link_config`'s, the
 publishers :mod:`netem.outbox`'s), liveliness and what each wake-up of its one
 loop (:mod:`netem.proxy.loop`) does in lockstep. The logic is elsewhere: lockstep in
 :mod:`netem.proxy.lockstep` (pure), realtime
@@ -93,6 +93,7 @@ class NetemNode:
         service.queryable(keys.clock(self.run_id), self._on_clock)
         service.queryable(keys.netem_final(self.run_id), self._on_final)
         service.queryable(keys.netem_rejoin(self.run_id), self._on_rejoin)
+        service.queryable(keys.netem_pool(self.run_id), self._on_pool)
         service.watch_alive()
 
     @property
@@ -298,6 +299,29 @@ class NetemNode:
                 self.team_changed(f"back {', '.join(names)}")
         query.reply(query.key_expr, orjson.dumps(answer))
 
+    def _on_pool(self, query: Query) -> None:
+        """A pool process declares its agents, ``{"pool": p, "agents": [ids]}`` (``p`` its
+        first agent): in lockstep their deliveries then come batched on
+        ``inbox/pool/<p>/<phase>`` (answer ``{"batched": true}``); realtime keeps each on its
+        receiver's key (``false``)."""
+        try:
+            ask = orjson.loads(query.payload.to_bytes()) if query.payload else {}
+            pool, ids = int(ask["pool"]), [int(i) for i in ask["agents"]]
+            if not ids or pool != ids[0] or any(i not in self.agents for i in ids):
+                raise ValueError("unknown agent")
+            taken = self.outbox.pool_of
+            if any(taken.get(i, pool) != pool for i in ids):
+                raise ValueError("an agent of another pool")
+        except (orjson.JSONDecodeError, AttributeError, KeyError, TypeError, ValueError):
+            self.service.malformed.counts[str(query.key_expr)] += 1
+            query.reply_err(b'expected {"pool": first id, "agents": [ids]}, ids of no other pool')
+            return
+        batched = self.scenario.runtime.mode != "realtime"
+        if batched:
+            with self.lock:
+                self.outbox.declare_pool(pool, ids)
+        query.reply(query.key_expr, orjson.dumps({"batched": batched}))
+
     def _clock_set(self, wait_s: float = 2.0) -> bool:
         """Realtime: whether the run's clock is set (the run began), waiting up to ``wait_s``."""
         end = time.monotonic() + wait_s
@@ -370,9 +394,11 @@ class NetemNode:
         return run_loop(self.service, timing, wakeups, self.everyone_up, check_dead, self.finished)
 
     def flush_all(self) -> None:
-        """Publish the records of every epoch closed (:meth:`LockstepCore.flush`)."""
+        """Publish the records of every epoch closed (:meth:`LockstepCore.flush`), and any
+        pool's deliveries still kept."""
         with self.lock:
             self.lockstep.flush()
+            self.outbox.flush_pools()
 
 
 class LockstepWakeups:

@@ -40,6 +40,7 @@ from formation.messages import (
     CoordinationState,
     DecisionBatch,
     Delivery,
+    DeliveryBatch,
     EpochMetrics,
     LeaderEstimate,
     LinkChange,
@@ -73,7 +74,8 @@ from recorder.recording.schemas import (
 )
 
 DERIVED = frozenset({"metrics", *FOXGLOVE})  # kinds only the recorder writes
-_REPEATED = frozenset({"status", "decision", "alive", "link_change"})  # many per epoch
+# many per epoch (a pool's batches: one per input netem handled)
+_REPEATED = frozenset({"status", "decision", "alive", "link_change", "delivery_batch"})
 
 Args = tuple[str, ...]  # the open chunks of a key, in order: keys.parse(topic).args
 
@@ -349,6 +351,19 @@ class Gate:
         self._epoch(msg.epoch, self._last_decided())
         for p in msg.packets:
             self._endpoint(p.source)
+
+    def _delivery_batch(self, msg: DeliveryBatch, args: Args) -> None:
+        """A pool's deliveries: on its pool's and phase's key, each one as if it came alone."""
+        self._sender(msg, "netem")
+        pool = self._key_id(args[0])
+        if msg.pool != pool or msg.phase != args[1]:
+            raise Skip(FORGED, f"a batch for pool {msg.pool}/{msg.phase} on {args[0]}/{args[1]}")
+        self._agent(pool)
+        self._epoch(msg.epoch, self._last_decided())
+        for d in msg.deliveries:
+            if d.receiver < pool:  # a pool is named by its first agent
+                raise Skip(FORGED, f"a delivery for {d.receiver} in pool {pool}'s batch")
+            self._delivery(d, (str(d.receiver), msg.phase))
 
     def _decision(self, msg: DecisionBatch, args: Args) -> None:
         self._sender(msg, "netem")

@@ -19,7 +19,7 @@ import pytest
 
 from formation import keys
 from formation.codec import encode
-from formation.messages import CoordinationState, DeliveredPacket, Delivery
+from formation.messages import CoordinationState, DeliveredPacket, Delivery, DeliveryBatch
 from recorder import read_run
 from recorder.playback.player import Replayer
 from recorder.reading.reader import describe
@@ -138,3 +138,28 @@ def test_pooled_agents_own_their_ids(paper: Any) -> None:
                                  agent=agent, position=[0.0, 0.0])  # fmt: skip
         got = Gate(paper).check(keys.agent_state("r", agent), encode(body))
         assert (got is not None) == ok, sender
+
+
+def test_a_pools_batch_is_checked_as_its_deliveries_and_may_come_several_times(
+    paper: Any,
+) -> None:
+    gate = Gate(paper)
+    key = keys.inbox_pool("r", 2, "state")
+
+    def batch(pool: int = 2, receivers: tuple[int, ...] = (2, 3), sender: str = "netem") -> bytes:
+        deliveries = [
+            Delivery(run_id="r", sender="netem", seq=0, epoch=3, stamp_ns=1, receiver=r,
+                     phase="state", packets=[], lost=[])
+            for r in receivers
+        ]  # fmt: skip
+        return encode(DeliveryBatch(run_id="r", sender=sender, seq=0, epoch=3, stamp_ns=1,
+                                    pool=pool, phase="state", deliveries=deliveries))  # fmt: skip
+
+    assert gate.check(key, batch()) is not None
+    assert gate.check(key, batch(receivers=(4,))) is not None  # netem's second batch of the epoch
+    assert gate.check(key, batch(pool=1)) is None  # another pool's
+    assert gate.check(key, batch(receivers=(1,))) is None  # an agent before the pool's first
+    assert gate.check(key, batch(receivers=(9,))) is None  # no such agent
+    assert gate.check(key, batch(sender="agent/2")) is None
+    assert gate.check(key, b'{"kind": "delivery_batch"}') is None
+    assert gate.skipped.by_reason() == {FORGED: 3, OUT_OF_RANGE: 1, INVALID: 1}
