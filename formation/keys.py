@@ -45,6 +45,12 @@ def leader_estimate_for(run_id: str, i: int | str) -> str:
     return f"{ROOT}/{run_id}/leader/estimate/{i}"
 
 
+def leader_estimates(run_id: str) -> str:
+    """Lockstep: every agent's part of the leader's estimate as one :class:`Bundle` (netem
+    forwards each part on its link ``0 → i`` as if it came on :func:`leader_estimate_for`)."""
+    return f"{ROOT}/{run_id}/leader/estimates"
+
+
 # -- what netem delivers: per link in realtime, per receiver and epoch in lockstep -------------
 def link_state(run_id: str, i: int | str, j: int | str) -> str:
     """Formation link ``i → j``: names its packets (counts, malformed ones); ``--passthrough``
@@ -192,6 +198,7 @@ _BUILDERS: tuple[tuple[Callable[..., str], int], ...] = (
     (agent_report, 2),
     (leader_estimate_out, 1),
     (leader_estimate_for, 2),
+    (leader_estimates, 1),
     (link_state, 3),
     (link_report, 2),
     (link_estimate, 2),

@@ -113,6 +113,26 @@ class AgentEstimate(_Message):
     v_ref: list[float]
 
 
+class BundlePart(BaseModel):
+    """One agent's message in a :class:`Bundle`: ``message`` exactly as it would have been
+    published on that agent's own key, with its ``seq`` there."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    agent: int  # the agent whose key it stands for: an estimate's receiver
+    seq: int = Field(ge=0)
+    message: str
+
+
+class Bundle(_Message):
+    """Several agents' messages of one ``phase`` and ``epoch`` from one sender, as one
+    message: netem takes each part as if it came alone on its agent's key."""
+
+    kind: Literal["bundle"] = "bundle"
+    phase: Literal["state", "report", "estimate"]
+    parts: list[BundlePart]
+
+
 class DeliveredPacket(BaseModel):
     """One packet netem delivers in a :class:`Delivery` (``sent_epoch < epoch`` when delayed).
 
@@ -233,6 +253,7 @@ Message = Annotated[
     | TokenReport
     | LeaderEstimate
     | AgentEstimate
+    | Bundle
     | Delivery
     | DeliveryBatch
     | DecisionBatch
@@ -247,6 +268,7 @@ ALL_MODELS: tuple[type[BaseModel], ...] = (
     TokenReport,
     LeaderEstimate,
     AgentEstimate,
+    Bundle,
     Delivery,
     DeliveryBatch,
     DecisionBatch,

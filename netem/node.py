@@ -21,6 +21,7 @@ import orjson
 from formation import keys
 from formation.codec import read_attachment
 from formation.keys import LEADER_ENDPOINT
+from formation.messages import Bundle
 from formation.scenario import Scenario
 from netem.link_config import LinkConfig
 from netem.outbox import ZenohOutbox
@@ -29,7 +30,7 @@ from netem.proxy.loop import Wakeups, run_loop
 from netem.proxy.progress import Progress
 from netem.proxy.realtime import RealtimeForwarder
 from netem.proxy.records import Ledger
-from netem.proxy.routes import Links, Routes, link_key
+from netem.proxy.routes import Links, Phase, Route, Routes, link_key
 from shell import Incoming, Query, Sample, Service, TimePolicy, settle_heap
 
 log = logging.getLogger("netem")
@@ -82,10 +83,12 @@ class NetemNode:
         )
         self.running = False  # lockstep: samples are handled on the bus's thread once True
         self.timing: TimePolicy | None = None  # set by run
+        self._bundles: dict[str, Phase] = {keys.leader_estimates(self.run_id): "estimate"}
         for key in (
             keys.agent_state(self.run_id, "*"),
             keys.agent_report(self.run_id, "*"),
             keys.leader_estimate_for(self.run_id, "*"),
+            *self._bundles,
         ):
             service.subscribe(key, self._on_sample)
         config = LinkConfig(service, self.links, self.progress, self.lockstep, self.lock)
@@ -207,6 +210,9 @@ class NetemNode:
 
     def handle_packet(self, key: str, payload: Any, att: Any) -> None:
         """A packet on ``key`` with its codec attachment (bytes or a sample's ``ZBytes``)."""
+        if key in self._bundles:
+            self.handle_bundle(key, payload)
+            return
         raw = att if att is None or isinstance(att, bytes) else att.to_bytes()
         meta = read_attachment(raw)
         route = self.routes.of(key)
@@ -221,6 +227,26 @@ class NetemNode:
         self.lockstep.packet(route, epoch, seq, payload)
         if self.lockstep.applied:
             self._announce_applied()
+
+    def handle_bundle(self, key: str, payload: Any) -> None:
+        """A :class:`~formation.messages.Bundle` on ``key``: each part handled as if it came
+        on its agent's own key; a bundle of another phase, or a part for no agent, is counted
+        on ``key`` and skipped."""
+        raw = payload if isinstance(payload, bytes) else payload.to_bytes()
+        bundle = self.service.malformed.read(key, raw, Bundle)
+        if bundle is None:
+            return
+        phase = self._bundles[key]
+        if bundle.phase != phase:
+            self.service.malformed.counts[key] += 1
+            return
+        agents, epoch = self.routes.agents, bundle.epoch
+        for part in bundle.parts:
+            if part.agent not in agents:
+                self.service.malformed.counts[key] += 1
+                continue
+            route: Route = (phase, LEADER_ENDPOINT, part.agent)
+            self.lockstep.packet(route, epoch, part.seq, part.message.encode())
 
     def _on_final(self, query: Query) -> None:
         """What netem still lacks of a sender's last messages: ``{"agents": [ids]}`` asks for

@@ -37,6 +37,7 @@ from pydantic import BaseModel, ValidationError
 from formation import keys
 from formation.messages import (
     AgentEstimate,
+    Bundle,
     CoordinationState,
     DecisionBatch,
     Delivery,
@@ -286,6 +287,21 @@ class Gate:
             if p is not None:
                 _finite(p, self._dim(), "estimate")
         _finite(msg.v_ref, self._dim(), "v_ref")
+
+    def _estimate_bundle(self, msg: Bundle, args: Args) -> None:
+        """The leader's parts in one message: each checked as if it came on its own key."""
+        self._sender(msg, "leader")
+        if msg.phase != "estimate":
+            raise Skip(FORGED, f"a bundle of {msg.phase}s on the leader's estimates' key")
+        for part in msg.parts:
+            try:
+                inner = AgentEstimate.model_validate_json(part.message)
+            except (ValidationError, ValueError) as exc:
+                detail = str(exc).splitlines()[0]
+                raise Skip(INVALID, f"agent {part.agent}'s part: {detail}") from None
+            if inner.seq != part.seq or inner.epoch != msg.epoch:
+                raise Skip(FORGED, f"agent {part.agent}'s part of another seq or epoch")
+            self._agent_part(inner, part.agent)
 
     def _last_decided(self) -> int | None:
         """The last epoch with decisions, reports and estimates (states go one further)."""

@@ -20,6 +20,7 @@ from pydantic import BaseModel, ConfigDict
 from formation import keys
 from formation.messages import (
     AgentEstimate,
+    Bundle,
     CoordinationState,
     DecisionBatch,
     Delivery,
@@ -63,6 +64,7 @@ _KINDS: dict[str, str] = {
     "agent_report": "agent_report",
     "leader_estimate_out": "leader_estimate",
     "leader_estimate_for": "agent_estimate",
+    "leader_estimates": "estimate_bundle",
     "link_state": "link_state",
     "link_report": "leader_report",
     "link_estimate": "link_estimate",
@@ -85,6 +87,7 @@ MESSAGE_MODELS: dict[str, type[BaseModel]] = {
     "leader_report": TokenReport,
     "leader_estimate": LeaderEstimate,
     "agent_estimate": AgentEstimate,
+    "estimate_bundle": Bundle,
     "link_estimate": AgentEstimate,
     "delivery": Delivery,
     "delivery_batch": DeliveryBatch,

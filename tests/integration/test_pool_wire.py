@@ -1,7 +1,8 @@
 """A pooled lockstep run over the batched wire: netem sends each pool one message per phase
-and epoch (``inbox/pool/<p>/<phase>``), the run equals the simulator to the bit, and the
-recording carries the batches with their schema, passes the trust gate and ``formation info
---validate``, and still gives every agent's states."""
+and epoch (``inbox/pool/<p>/<phase>``), the leader its agents' parts as one bundle an epoch,
+the run equals the simulator to the bit, and the recording carries the batches with their
+schemas, passes the trust gate and ``formation info --validate``, and still gives every
+agent's states."""
 
 from __future__ import annotations
 
@@ -34,11 +35,14 @@ def test_a_pooled_run_over_batched_deliveries_equals_the_simulator(
     assert alone == {keys.inbox(run, 0, "report")}  # the leader's, not pooled
     # one batch per pool, phase and epoch
     assert {outcome.sent[k] for k in batches} == {scenario.epochs}
+    assert outcome.sent[keys.leader_estimates(run)] == scenario.epochs
+    assert not [k for k in outcome.sent if keys.parse(k).kind == "leader_estimate_for"]
 
     mcap = outcome.run_dir / "run.mcap"
     info = describe(mcap)
     schemas = {c.topic: c.schema for c in info.channels}
     assert {schemas[k] for k in batches} == {"formation.DeliveryBatch"}
+    assert schemas[keys.leader_estimates(run)] == "formation.Bundle"
     assert info.skipped.total == 0
     assert cli.main(["info", str(mcap), "--validate"]) == 0
     recorded = read_run(mcap)

@@ -19,7 +19,14 @@ import pytest
 
 from formation import keys
 from formation.codec import encode
-from formation.messages import CoordinationState, DeliveredPacket, Delivery, DeliveryBatch
+from formation.messages import (
+    AgentEstimate,
+    Bundle,
+    CoordinationState,
+    DeliveredPacket,
+    Delivery,
+    DeliveryBatch,
+)
 from recorder import read_run
 from recorder.playback.player import Replayer
 from recorder.reading.reader import describe
@@ -163,3 +170,27 @@ def test_a_pools_batch_is_checked_as_its_deliveries_and_may_come_several_times(
     assert gate.check(key, batch(sender="agent/2")) is None
     assert gate.check(key, b'{"kind": "delivery_batch"}') is None
     assert gate.skipped.by_reason() == {FORGED: 3, OUT_OF_RANGE: 1, INVALID: 1}
+
+
+def test_the_leaders_bundle_is_checked_part_by_part(paper: Any) -> None:
+    gate = Gate(paper)
+    key = keys.leader_estimates("r")
+
+    def part(agent: int, seq: int = 0, epoch: int = 3, v_ref: float = 0.0) -> dict[str, Any]:
+        est = AgentEstimate(run_id="r", sender="leader", seq=seq, epoch=epoch, stamp_ns=1,
+                            agent=agent, neighbours=[], positions=[], v_ref=[v_ref, 0.0])  # fmt: skip
+        return {"agent": agent, "seq": 0, "message": est.model_dump_json()}
+
+    def bundle(*parts: dict[str, Any], epoch: int = 3, sender: str = "leader") -> bytes:
+        return encode(Bundle(run_id="r", sender=sender, seq=epoch, epoch=epoch, stamp_ns=1,
+                             phase="estimate", parts=parts))  # fmt: skip
+
+    assert gate.check(key, bundle(part(1), part(2))) is not None
+    assert gate.check(key, bundle(part(1), epoch=4, sender="agent/1")) is None
+    assert gate.check(key, bundle(part(1), part(2, seq=5), epoch=5)) is None  # seq not the part's
+    assert gate.check(key, bundle(part(1, epoch=3), epoch=6)) is None  # another epoch's part
+    assert gate.check(key, bundle(part(1), {**part(2), "agent": 3}, epoch=7)) is None
+    bad = {**part(1), "message": part(1)["message"].replace('"v_ref"', '"v"')}
+    assert gate.check(key, bundle(bad, epoch=8)) is None
+    assert gate.check(key, bundle(part(1, v_ref=float("nan"), epoch=9), epoch=9)) is None
+    assert gate.skipped.by_reason() == {FORGED: 4, INVALID: 2}
