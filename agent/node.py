@@ -134,6 +134,8 @@ class AgentNode:
         if self.batched:  # lockstep: netem batches a declared pool's deliveries
             for phase in ("state", "estimate"):
                 service.subscribe(keys.inbox_pool(self.run_id, ids[0], phase), direct=True)
+            service.declare_publishers([keys.pool_bundle(self.run_id, ids[0], "report")])
+        self.bundled = False  # the reports go as one bundle: netem took the declaration
         service.declare_publishers(
             key(self.run_id, i) for i in ids for key in (keys.agent_state, keys.agent_report)
         )
@@ -178,10 +180,11 @@ class AgentNode:
         pool also listens on each agent's own keys: without an answer they come one by one."""
         key, ask = keys.netem_pool(self.run_id), {"pool": self.ids[0], "agents": self.ids}
         deadline = time.monotonic() + DECLARE_POOL_S
-        while self.service.ask(key, ask) is None:
+        while (answer := self.service.ask(key, ask)) is None:
             if self.service.stopping.wait(0.05) or time.monotonic() > deadline:
-                log.warning("netem did not take this pool's declaration: deliveries one by one")
+                log.warning("netem did not take this pool's declaration: messages one by one")
                 return
+        self.bundled = answer.get("batched") is True  # netem takes this pool's bundles
 
     def rejoin(self) -> int:
         """Restarted into a running run: ask netem from which epoch these agents take part
@@ -245,12 +248,23 @@ class AgentNode:
             self.service.put(key, msg, attachment(k, head["seq"], i))
 
     def _publish_reports(self, packets: list[Packet]) -> None:
+        """Each agent's report, with its own key's header: on that key, or (a declared pool
+        in lockstep) all in one :class:`~formation.messages.Bundle`."""
         k, silent = self.runner.epoch, self._robot_silent("report")
+        service, bundle = self.service, []
         for i, report in self.runner.receive(packets).items():
             key = keys.agent_report(self.run_id, i)
-            head = self.service.header(key, k)
+            head = service.header(key, k)
             msg = report_message(head, i, report, silent)
-            self.service.put(key, msg, attachment(k, head["seq"], i))
+            if self.bundled:
+                bundle.append({"agent": i, "seq": head["seq"], "message": msg.decode()})
+            else:
+                service.put(key, msg, attachment(k, head["seq"], i))
+        if self.bundled:
+            key = keys.pool_bundle(self.run_id, self.ids[0], "report")
+            head = service.header(key, k)
+            msg = orjson.dumps({**head, "kind": "bundle", "phase": "report", "parts": bundle})
+            service.put(key, msg, attachment(k, head["seq"], self.ids[0]))
 
     def confirm_final(self, timeout_s: float = 10.0) -> bool:
         """Republish what netem says it lacks of our final states, until it has them all.

@@ -35,6 +35,13 @@ def agent_report(run_id: str, i: int | str) -> str:
     return f"{ROOT}/{run_id}/agent/{i}/report"
 
 
+def pool_bundle(run_id: str, pool: int | str, phase: str) -> str:
+    """Lockstep: the messages of ``phase`` (``report``) of every agent of pool ``pool`` (its
+    first agent's id) as one :class:`Bundle`; netem takes each part as if it came on
+    :func:`agent_report`."""
+    return f"{ROOT}/{run_id}/agent/pool/{pool}/{phase}"
+
+
 def leader_estimate_out(run_id: str) -> str:
     """The leader's whole estimate, for the recorder and observers (netem does not forward it)."""
     return f"{ROOT}/{run_id}/leader/estimate"
@@ -196,6 +203,7 @@ _ANY = "\x00"  # a chunk a template leaves open
 _BUILDERS: tuple[tuple[Callable[..., str], int], ...] = (
     (agent_state, 2),
     (agent_report, 2),
+    (pool_bundle, 3),
     (leader_estimate_out, 1),
     (leader_estimate_for, 2),
     (leader_estimates, 1),

@@ -119,7 +119,7 @@ class BundlePart(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    agent: int  # the agent whose key it stands for: an estimate's receiver
+    agent: int  # the agent whose key it stands for: a report's sender, an estimate's receiver
     seq: int = Field(ge=0)
     message: str
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 from functools import partial
 from typing import Any
 
@@ -30,7 +31,7 @@ from netem.proxy.loop import Wakeups, run_loop
 from netem.proxy.progress import Progress
 from netem.proxy.realtime import RealtimeForwarder
 from netem.proxy.records import Ledger
-from netem.proxy.routes import Links, Phase, Route, Routes, link_key
+from netem.proxy.routes import Links, Route, Routes, link_key
 from shell import Incoming, Query, Sample, Service, TimePolicy, settle_heap
 
 log = logging.getLogger("netem")
@@ -83,12 +84,13 @@ class NetemNode:
         )
         self.running = False  # lockstep: samples are handled on the bus's thread once True
         self.timing: TimePolicy | None = None  # set by run
-        self._bundles: dict[str, Phase] = {keys.leader_estimates(self.run_id): "estimate"}
+        self._estimates = keys.leader_estimates(self.run_id)
         for key in (
             keys.agent_state(self.run_id, "*"),
             keys.agent_report(self.run_id, "*"),
             keys.leader_estimate_for(self.run_id, "*"),
-            *self._bundles,
+            self._estimates,
+            keys.pool_bundle(self.run_id, "*", "report"),
         ):
             service.subscribe(key, self._on_sample)
         config = LinkConfig(service, self.links, self.progress, self.lockstep, self.lock)
@@ -210,7 +212,7 @@ class NetemNode:
 
     def handle_packet(self, key: str, payload: Any, att: Any) -> None:
         """A packet on ``key`` with its codec attachment (bytes or a sample's ``ZBytes``)."""
-        if key in self._bundles:
+        if key == self._estimates or "/agent/pool/" in key:
             self.handle_bundle(key, payload)
             return
         raw = att if att is None or isinstance(att, bytes) else att.to_bytes()
@@ -229,24 +231,43 @@ class NetemNode:
             self._announce_applied()
 
     def handle_bundle(self, key: str, payload: Any) -> None:
-        """A :class:`~formation.messages.Bundle` on ``key``: each part handled as if it came
-        on its agent's own key; a bundle of another phase, or a part for no agent, is counted
-        on ``key`` and skipped."""
+        """A :class:`~formation.messages.Bundle` on ``key`` (the leader's estimates, or a
+        declared pool's reports): each part handled as if it came on its agent's own key. A
+        bundle of another phase, or a part for an agent the key's sender does not hold, is
+        counted on ``key`` and skipped."""
         raw = payload if isinstance(payload, bytes) else payload.to_bytes()
         bundle = self.service.malformed.read(key, raw, Bundle)
         if bundle is None:
             return
-        phase = self._bundles[key]
-        if bundle.phase != phase:
+        holds = self._holder(key, bundle.phase)
+        if holds is None:
             self.service.malformed.counts[key] += 1
             return
-        agents, epoch = self.routes.agents, bundle.epoch
+        epoch, phase = bundle.epoch, bundle.phase
         for part in bundle.parts:
-            if part.agent not in agents:
+            if not holds(part.agent):
                 self.service.malformed.counts[key] += 1
                 continue
-            route: Route = (phase, LEADER_ENDPOINT, part.agent)
+            route: Route = (
+                (phase, LEADER_ENDPOINT, part.agent)
+                if phase == "estimate"
+                else (phase, part.agent, 0)
+            )
             self.lockstep.packet(route, epoch, part.seq, part.message.encode())
+        if self.lockstep.applied:
+            self._announce_applied()
+
+    def _holder(self, key: str, phase: str) -> Callable[[int], bool] | None:
+        """Which agents' parts a bundle of ``phase`` on ``key`` may carry: the leader's
+        estimates any agent's, a pool's reports its own agents'; None: no bundle of ``phase``
+        belongs on ``key``."""
+        if key == self._estimates:
+            return self.routes.agents.__contains__ if phase == "estimate" else None
+        parsed = keys.parse(key)
+        if parsed.kind != "pool_bundle" or parsed.args[1] != phase or phase != "report":
+            return None
+        pool, pool_of = parsed.args[0], self.outbox.pool_of
+        return lambda agent: str(pool_of.get(agent)) == pool
 
     def _on_final(self, query: Query) -> None:
         """What netem still lacks of a sender's last messages: ``{"agents": [ids]}`` asks for

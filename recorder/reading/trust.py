@@ -303,6 +303,23 @@ class Gate:
                 raise Skip(FORGED, f"agent {part.agent}'s part of another seq or epoch")
             self._agent_part(inner, part.agent)
 
+    def _pool_bundle(self, msg: Bundle, args: Args) -> None:
+        """A pool's reports in one message: each checked as if it came on its agent's key."""
+        pool = self._key_id(args[0])
+        if msg.phase != args[1] or msg.phase != "report":
+            raise Skip(FORGED, f"a bundle of {msg.phase}s on {args[1]}'s key of pool {pool}")
+        if msg.sender != f"pool/{pool}":
+            raise Skip(FORGED, f"sender {msg.sender!r} on a key of pool {pool}")
+        for part in msg.parts:
+            try:
+                inner = TokenReport.model_validate_json(part.message)
+            except (ValidationError, ValueError) as exc:
+                detail = str(exc).splitlines()[0]
+                raise Skip(INVALID, f"agent {part.agent}'s part: {detail}") from None
+            if inner.seq != part.seq or inner.epoch != msg.epoch or part.agent < pool:
+                raise Skip(FORGED, f"agent {part.agent}'s part of another seq, epoch or pool")
+            self._report(inner, part.agent)
+
     def _last_decided(self) -> int | None:
         """The last epoch with decisions, reports and estimates (states go one further)."""
         return None if self.scenario is None else self.epochs - 1

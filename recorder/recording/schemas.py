@@ -62,6 +62,7 @@ class LivelinessEvent(BaseModel):
 _KINDS: dict[str, str] = {
     "agent_state": "agent_state",
     "agent_report": "agent_report",
+    "pool_bundle": "pool_bundle",
     "leader_estimate_out": "leader_estimate",
     "leader_estimate_for": "agent_estimate",
     "leader_estimates": "estimate_bundle",
@@ -88,6 +89,7 @@ MESSAGE_MODELS: dict[str, type[BaseModel]] = {
     "leader_estimate": LeaderEstimate,
     "agent_estimate": AgentEstimate,
     "estimate_bundle": Bundle,
+    "pool_bundle": Bundle,
     "link_estimate": AgentEstimate,
     "delivery": Delivery,
     "delivery_batch": DeliveryBatch,

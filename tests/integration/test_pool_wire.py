@@ -1,5 +1,6 @@
 """A pooled lockstep run over the batched wire: netem sends each pool one message per phase
-and epoch (``inbox/pool/<p>/<phase>``), the leader its agents' parts as one bundle an epoch,
+and epoch (``inbox/pool/<p>/<phase>``), a pool its agents' reports and the leader its agents'
+parts as one bundle an epoch,
 the run equals the simulator to the bit, and the recording carries the batches with their
 schemas, passes the trust gate and ``formation info --validate``, and still gives every
 agent's states."""
@@ -36,13 +37,16 @@ def test_a_pooled_run_over_batched_deliveries_equals_the_simulator(
     # one batch per pool, phase and epoch
     assert {outcome.sent[k] for k in batches} == {scenario.epochs}
     assert outcome.sent[keys.leader_estimates(run)] == scenario.epochs
-    assert not [k for k in outcome.sent if keys.parse(k).kind == "leader_estimate_for"]
+    reports = {keys.pool_bundle(run, p, "report") for p in (1, 4)}
+    assert {outcome.sent[k] for k in reports} == {scenario.epochs}
+    one_each = {"leader_estimate_for", "agent_report"}
+    assert not [k for k in outcome.sent if keys.parse(k).kind in one_each]
 
     mcap = outcome.run_dir / "run.mcap"
     info = describe(mcap)
     schemas = {c.topic: c.schema for c in info.channels}
     assert {schemas[k] for k in batches} == {"formation.DeliveryBatch"}
-    assert schemas[keys.leader_estimates(run)] == "formation.Bundle"
+    assert {schemas[k] for k in {keys.leader_estimates(run), *reports}} == {"formation.Bundle"}
     assert info.skipped.total == 0
     assert cli.main(["info", str(mcap), "--validate"]) == 0
     recorded = read_run(mcap)

@@ -26,6 +26,7 @@ from formation.messages import (
     DeliveredPacket,
     Delivery,
     DeliveryBatch,
+    TokenReport,
 )
 from recorder import read_run
 from recorder.playback.player import Replayer
@@ -194,3 +195,24 @@ def test_the_leaders_bundle_is_checked_part_by_part(paper: Any) -> None:
     assert gate.check(key, bundle(bad, epoch=8)) is None
     assert gate.check(key, bundle(part(1, v_ref=float("nan"), epoch=9), epoch=9)) is None
     assert gate.skipped.by_reason() == {FORGED: 4, INVALID: 2}
+
+
+def test_a_pools_report_bundle_is_checked_part_by_part(paper: Any) -> None:
+    gate = Gate(paper)
+    key = keys.pool_bundle("r", 2, "report")
+
+    def part(agent: int, sender: str = "pool/2", epoch: int = 3) -> dict[str, Any]:
+        report = TokenReport(run_id="r", sender=sender, seq=0, epoch=epoch, stamp_ns=1,
+                             agent=agent, measurements=[])  # fmt: skip
+        return {"agent": agent, "seq": 0, "message": report.model_dump_json()}
+
+    def bundle(*parts: dict[str, Any], epoch: int = 3, sender: str = "pool/2") -> bytes:
+        return encode(Bundle(run_id="r", sender=sender, seq=epoch, epoch=epoch, stamp_ns=1,
+                             phase="report", parts=parts))  # fmt: skip
+
+    assert gate.check(key, bundle(part(2), part(3))) is not None
+    assert gate.check(key, bundle(part(2, epoch=4), epoch=4, sender="pool/1")) is None
+    assert gate.check(key, bundle(part(1, sender="pool/1", epoch=5), epoch=5)) is None
+    assert gate.check(key, bundle(part(2, epoch=6), part(9, epoch=6), epoch=6)) is None
+    assert gate.check(key, bundle(part(2, epoch=3), epoch=7)) is None  # another epoch's part
+    assert gate.skipped.by_reason() == {FORGED: 3, OUT_OF_RANGE: 1}
