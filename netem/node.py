@@ -212,12 +212,12 @@ class NetemNode:
 
     def handle_packet(self, key: str, payload: Any, att: Any) -> None:
         """A packet on ``key`` with its codec attachment (bytes or a sample's ``ZBytes``)."""
-        if key == self._estimates or "/agent/pool/" in key:
+        route = self.routes.of(key)
+        if route is None and (key == self._estimates or "/agent/pool/" in key):
             self.handle_bundle(key, payload)
             return
         raw = att if att is None or isinstance(att, bytes) else att.to_bytes()
         meta = read_attachment(raw)
-        route = self.routes.of(key)
         if meta is None or route is None or meta[2] != route[1]:
             self.service.malformed.counts[key] += 1
             return
