@@ -34,6 +34,7 @@ from shell import Loop, PhaseInbox, Service, TimePolicy
 
 log = logging.getLogger("agent")
 WATCH_S = 0.25  # how often the main thread looks for netem's liveliness and a signal
+DECLARE_POOL_S = 30.0  # how long a pool asks netem to batch its deliveries (netem may start late)
 
 
 def state_message(
@@ -123,13 +124,18 @@ class AgentNode:
         }
         # Realtime: queued, taken at each deadline (Service.take_by); lockstep: a pool handles
         # each delivery on Zenoh's thread.
-        direct = len(ids) > 1 and scenario.runtime.mode != "realtime"
+        direct = self.batched = len(ids) > 1 and scenario.runtime.mode != "realtime"
         for i in ids:
             # Exact keys, no wildcard: Zenoh finds an exact key's subscribers in its key
             # tree, while a wildcard is matched against every sample (a pool of 125 spent
             # a third of its CPU there).
             for phase in ("state", "estimate"):
                 service.subscribe(keys.inbox(self.run_id, i, phase), direct=direct)
+        if self.batched:  # lockstep: netem batches a declared pool's deliveries
+            for phase in ("state", "estimate"):
+                service.subscribe(keys.inbox_pool(self.run_id, ids[0], phase), direct=True)
+            service.declare_publishers([keys.pool_bundle(self.run_id, ids[0], "report")])
+        self.bundled = False  # the reports go as one bundle: netem took the declaration
         service.declare_publishers(
             key(self.run_id, i) for i in ids for key in (keys.agent_state, keys.agent_report)
         )
@@ -162,8 +168,23 @@ class AgentNode:
         return self.runner.ids
 
     def announce(self) -> None:
+        """Declare the pool's agents to netem (lockstep), then each agent alive: netem
+        starts the run once every agent is, so it knows every pool by then."""
+        if self.batched:
+            self.declare_pool()
         for i in self.ids:
             self.service.announce("agent", i)
+
+    def declare_pool(self) -> None:
+        """Ask netem to batch these agents' deliveries (``netem/pool``) until it answers. The
+        pool also listens on each agent's own keys: without an answer they come one by one."""
+        key, ask = keys.netem_pool(self.run_id), {"pool": self.ids[0], "agents": self.ids}
+        deadline = time.monotonic() + DECLARE_POOL_S
+        while (answer := self.service.ask(key, ask)) is None:
+            if self.service.stopping.wait(0.05) or time.monotonic() > deadline:
+                log.warning("netem did not take this pool's declaration: messages one by one")
+                return
+        self.bundled = answer.get("batched") is True  # netem takes this pool's bundles
 
     def rejoin(self) -> int:
         """Restarted into a running run: ask netem from which epoch these agents take part
@@ -227,12 +248,23 @@ class AgentNode:
             self.service.put(key, msg, attachment(k, head["seq"], i))
 
     def _publish_reports(self, packets: list[Packet]) -> None:
+        """Each agent's report, with its own key's header: on that key, or (a declared pool
+        in lockstep) all in one :class:`~formation.messages.Bundle`."""
         k, silent = self.runner.epoch, self._robot_silent("report")
+        service, bundle = self.service, []
         for i, report in self.runner.receive(packets).items():
             key = keys.agent_report(self.run_id, i)
-            head = self.service.header(key, k)
+            head = service.header(key, k)
             msg = report_message(head, i, report, silent)
-            self.service.put(key, msg, attachment(k, head["seq"], i))
+            if self.bundled:
+                bundle.append({"agent": i, "seq": head["seq"], "message": msg.decode()})
+            else:
+                service.put(key, msg, attachment(k, head["seq"], i))
+        if self.bundled:
+            key = keys.pool_bundle(self.run_id, self.ids[0], "report")
+            head = service.header(key, k)
+            msg = orjson.dumps({**head, "kind": "bundle", "phase": "report", "parts": bundle})
+            service.put(key, msg, attachment(k, head["seq"], self.ids[0]))
 
     def confirm_final(self, timeout_s: float = 10.0) -> bool:
         """Republish what netem says it lacks of our final states, until it has them all.

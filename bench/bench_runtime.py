@@ -6,6 +6,7 @@ throughput, a direct subscriber on the sender's key for the netem hop.
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import subprocess
@@ -178,7 +179,12 @@ def netem_hop_latency(packets: int = 2000) -> tuple[np.ndarray, np.ndarray]:
     return d, h
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--case", default="", help="only the cases whose name holds this text")
+    parser.add_argument("--epochs", type=int, help="epochs of each case (default: its own)")
+    parser.add_argument("--no-latency", action="store_true", help="skip the netem hop latency")
+    args = parser.parse_args(argv)
     print(
         f"seed {SEED}; lockstep runs, services as zenoh clients of a router on 127.0.0.1; baseline: the in-process simulator in steady state"
     )
@@ -192,6 +198,15 @@ def main() -> None:
         ("50 agent processes", henneberg_team(50, epochs=80), None),
         ("200 agents pooled in 4", henneberg_team(200, epochs=40), 4),
         ("1000 agents pooled in 8", henneberg_team(1000, epochs=12), 8),
+    ]
+    cases = [
+        (
+            name,
+            scenario if args.epochs is None else scenario.with_overrides(epochs=args.epochs),
+            pool,
+        )
+        for name, scenario, pool in cases
+        if args.case in name
     ]
     print(f"{'case':28} {'epochs/s':>9} {'sim ep/s':>9} {'ratio':>7} {'agent RSS MiB':>14}  runs")
     with tempfile.TemporaryDirectory() as tmp:
@@ -217,6 +232,8 @@ def main() -> None:
                 flush=True,
             )
             print(f"{'':28}   by thread (ms/epoch): {_by_thread(runs[-1][4])}", flush=True)
+    if args.no_latency:
+        return
     direct, hop = netem_hop_latency()
     p50d, p99d, p50h, p99h = (
         float(np.percentile(a, q)) for a, q in ((direct, 50), (direct, 99), (hop, 50), (hop, 99))

@@ -35,6 +35,13 @@ def agent_report(run_id: str, i: int | str) -> str:
     return f"{ROOT}/{run_id}/agent/{i}/report"
 
 
+def pool_bundle(run_id: str, pool: int | str, phase: str) -> str:
+    """Lockstep: the messages of ``phase`` (``report``) of every agent of pool ``pool`` (its
+    first agent's id) as one :class:`Bundle`; netem takes each part as if it came on
+    :func:`agent_report`."""
+    return f"{ROOT}/{run_id}/agent/pool/{pool}/{phase}"
+
+
 def leader_estimate_out(run_id: str) -> str:
     """The leader's whole estimate, for the recorder and observers (netem does not forward it)."""
     return f"{ROOT}/{run_id}/leader/estimate"
@@ -43,6 +50,12 @@ def leader_estimate_out(run_id: str) -> str:
 def leader_estimate_for(run_id: str, i: int | str) -> str:
     """What agent ``i`` uses of the estimate (before netem, which forwards it on link ``0 → i``)."""
     return f"{ROOT}/{run_id}/leader/estimate/{i}"
+
+
+def leader_estimates(run_id: str) -> str:
+    """Lockstep: every agent's part of the leader's estimate as one :class:`Bundle` (netem
+    forwards each part on its link ``0 → i`` as if it came on :func:`leader_estimate_for`)."""
+    return f"{ROOT}/{run_id}/leader/estimates"
 
 
 # -- what netem delivers: per link in realtime, per receiver and epoch in lockstep -------------
@@ -68,6 +81,12 @@ def inbox(run_id: str, receiver: int | str, phase: str) -> str:
     return f"{ROOT}/{run_id}/inbox/{receiver}/{phase}"
 
 
+def inbox_pool(run_id: str, pool: int | str, phase: str) -> str:
+    """netem's :class:`DeliveryBatch` to the receivers of pool ``pool`` (its first agent's id)
+    in ``phase``, lockstep: their deliveries of one epoch in one message."""
+    return f"{ROOT}/{run_id}/inbox/pool/{pool}/{phase}"
+
+
 # -- netem, clock, metrics, liveliness ---------------------------------------------------------
 def netem_decision(run_id: str) -> str:
     return f"{ROOT}/{run_id}/netem/decision"
@@ -86,6 +105,12 @@ def netem_rejoin(run_id: str) -> str:
     """Queryable of netem: a restarted sender asks from which epoch it takes part again, and
     (an agent) its body's last state as netem forwarded it (see netem.node)."""
     return f"{ROOT}/{run_id}/netem/rejoin"
+
+
+def netem_pool(run_id: str) -> str:
+    """Queryable of netem: a pool process declares its agents, whose deliveries then come
+    batched on :func:`inbox_pool` (see netem.node)."""
+    return f"{ROOT}/{run_id}/netem/pool"
 
 
 def netem_change(run_id: str) -> str:
@@ -178,16 +203,20 @@ _ANY = "\x00"  # a chunk a template leaves open
 _BUILDERS: tuple[tuple[Callable[..., str], int], ...] = (
     (agent_state, 2),
     (agent_report, 2),
+    (pool_bundle, 3),
     (leader_estimate_out, 1),
     (leader_estimate_for, 2),
+    (leader_estimates, 1),
     (link_state, 3),
     (link_report, 2),
     (link_estimate, 2),
     (inbox, 3),
+    (inbox_pool, 3),
     (netem_decision, 1),
     (netem_config, 1),
     (netem_final, 1),
     (netem_rejoin, 1),
+    (netem_pool, 1),
     (netem_change, 1),
     (status, 3),
     (metrics, 1),

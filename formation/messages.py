@@ -113,6 +113,26 @@ class AgentEstimate(_Message):
     v_ref: list[float]
 
 
+class BundlePart(BaseModel):
+    """One agent's message in a :class:`Bundle`: ``message`` exactly as it would have been
+    published on that agent's own key, with its ``seq`` there."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    agent: int  # the agent whose key it stands for: a report's sender, an estimate's receiver
+    seq: int = Field(ge=0)
+    message: str
+
+
+class Bundle(_Message):
+    """Several agents' messages of one ``phase`` and ``epoch`` from one sender, as one
+    message: netem takes each part as if it came alone on its agent's key."""
+
+    kind: Literal["bundle"] = "bundle"
+    phase: Literal["state", "report", "estimate"]
+    parts: list[BundlePart]
+
+
 class DeliveredPacket(BaseModel):
     """One packet netem delivers in a :class:`Delivery` (``sent_epoch < epoch`` when delayed).
 
@@ -145,6 +165,17 @@ class Delivery(_Message):
     packets: list[DeliveredPacket]
     lost: list[int]
     dead: list[int] = []
+
+
+class DeliveryBatch(_Message):
+    """netem to a pool process (lockstep): the pool's receivers' deliveries of ``phase`` and
+    ``epoch``, each as it would go alone, in one message (``pool``: the pool's first agent).
+    """
+
+    kind: Literal["delivery_batch"] = "delivery_batch"
+    pool: int
+    phase: Literal["state", "report", "estimate"]
+    deliveries: list[Delivery]
 
 
 class Decision(BaseModel):
@@ -222,7 +253,9 @@ Message = Annotated[
     | TokenReport
     | LeaderEstimate
     | AgentEstimate
+    | Bundle
     | Delivery
+    | DeliveryBatch
     | DecisionBatch
     | LinkChange
     | Status
@@ -235,7 +268,9 @@ ALL_MODELS: tuple[type[BaseModel], ...] = (
     TokenReport,
     LeaderEstimate,
     AgentEstimate,
+    Bundle,
     Delivery,
+    DeliveryBatch,
     DecisionBatch,
     LinkChange,
     Status,

@@ -147,9 +147,12 @@ class LeaderNode:
             ROBOT_SILENT: 0,
         }
         service.subscribe(keys.inbox(self.run_id, keys.LEADER_ENDPOINT, "report"))
+        # Lockstep: the agents' parts go as one bundle (netem splits it); realtime: one each.
+        self.bundled = scenario.runtime.mode != "realtime"
+        parts = [] if self.bundled else range(1, scenario.n + 1)
         service.declare_publishers(
-            [keys.leader_estimate_out(self.run_id)]
-            + [keys.leader_estimate_for(self.run_id, i) for i in range(1, scenario.n + 1)]
+            [keys.leader_estimate_out(self.run_id), keys.leader_estimates(self.run_id)]
+            + [keys.leader_estimate_for(self.run_id, i) for i in parts]
         )
         service.watch_alive()
 
@@ -182,11 +185,7 @@ class LeaderNode:
                 int((~lead.estimate.observable).sum()),
             )
         v_ref = [float(v) for v in self.ref_v[k]]
-        for i, fields in agent_estimates(self.scenario, lead, v_ref):
-            key = keys.leader_estimate_for(self.run_id, i)
-            head = self.service.header(key, k)
-            att = attachment(k, int(head["seq"]), keys.LEADER_ENDPOINT)
-            self.service.put(key, orjson.dumps({**head, **fields}), att)
+        self._send_parts(k, agent_estimates(self.scenario, lead, v_ref))
         if k % self.covariance_every == 0:
             blocks = self.leader.covariances(known[None], z[None], self.ref_x[k], batch)[0]
             lead = replace(lead, estimate=replace(lead.estimate, covariances=blocks))
@@ -202,6 +201,25 @@ class LeaderNode:
         )
         self.service.put(key, msg, attachment(k, int(head["seq"]), keys.LEADER_ENDPOINT))
         self.epoch = k + 1
+
+    def _send_parts(self, k: int, parts: Iterator[tuple[int, dict[str, Any]]]) -> None:
+        """Each agent's part of epoch ``k``'s estimate, each with its own key's header: on
+        that key (realtime), or all in one :class:`~formation.messages.Bundle` (lockstep)."""
+        service, run_id = self.service, self.run_id
+        bundle = []
+        for i, fields in parts:
+            key = keys.leader_estimate_for(run_id, i)
+            head = service.header(key, k)
+            msg = orjson.dumps({**head, **fields})
+            if self.bundled:
+                bundle.append({"agent": i, "seq": head["seq"], "message": msg.decode()})
+            else:
+                service.put(key, msg, attachment(k, int(head["seq"]), keys.LEADER_ENDPOINT))
+        if self.bundled:
+            key = keys.leader_estimates(run_id)
+            head = service.header(key, k)
+            msg = orjson.dumps({**head, "kind": "bundle", "phase": "estimate", "parts": bundle})
+            service.put(key, msg, attachment(k, int(head["seq"]), keys.LEADER_ENDPOINT))
 
     def confirm_last(self) -> None:
         """Before the session closes, wait until netem has the last epoch's estimates (it

@@ -1,7 +1,7 @@
 """The netem process: every message between services crosses it as a directed link.
 
-This is the transport shell: the bus's subscriptions, the ``clock``, ``netem/final`` and
-``netem/rejoin`` queryables (``netem/config`` is :mod:`netem.link_config`'s, the
+This is the transport shell: the bus's subscriptions, the ``clock``, ``netem/final``,
+``netem/rejoin`` and ``netem/pool`` queryables (``netem/config`` is :mod:`netem.link_config`'s, the
 publishers :mod:`netem.outbox`'s), liveliness and what each wake-up of its one
 loop (:mod:`netem.proxy.loop`) does in lockstep. The logic is elsewhere: lockstep in
 :mod:`netem.proxy.lockstep` (pure), realtime
@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 from functools import partial
 from typing import Any
 
@@ -21,6 +22,7 @@ import orjson
 from formation import keys
 from formation.codec import read_attachment
 from formation.keys import LEADER_ENDPOINT
+from formation.messages import Bundle
 from formation.scenario import Scenario
 from netem.link_config import LinkConfig
 from netem.outbox import ZenohOutbox
@@ -29,7 +31,7 @@ from netem.proxy.loop import Wakeups, run_loop
 from netem.proxy.progress import Progress
 from netem.proxy.realtime import RealtimeForwarder
 from netem.proxy.records import Ledger
-from netem.proxy.routes import Links, Routes, link_key
+from netem.proxy.routes import Links, Route, Routes, link_key
 from shell import Incoming, Query, Sample, Service, TimePolicy, settle_heap
 
 log = logging.getLogger("netem")
@@ -82,10 +84,13 @@ class NetemNode:
         )
         self.running = False  # lockstep: samples are handled on the bus's thread once True
         self.timing: TimePolicy | None = None  # set by run
+        self._estimates = keys.leader_estimates(self.run_id)
         for key in (
             keys.agent_state(self.run_id, "*"),
             keys.agent_report(self.run_id, "*"),
             keys.leader_estimate_for(self.run_id, "*"),
+            self._estimates,
+            keys.pool_bundle(self.run_id, "*", "report"),
         ):
             service.subscribe(key, self._on_sample)
         config = LinkConfig(service, self.links, self.progress, self.lockstep, self.lock)
@@ -93,6 +98,7 @@ class NetemNode:
         service.queryable(keys.clock(self.run_id), self._on_clock)
         service.queryable(keys.netem_final(self.run_id), self._on_final)
         service.queryable(keys.netem_rejoin(self.run_id), self._on_rejoin)
+        service.queryable(keys.netem_pool(self.run_id), self._on_pool)
         service.watch_alive()
 
     @property
@@ -206,9 +212,12 @@ class NetemNode:
 
     def handle_packet(self, key: str, payload: Any, att: Any) -> None:
         """A packet on ``key`` with its codec attachment (bytes or a sample's ``ZBytes``)."""
+        route = self.routes.of(key)
+        if route is None and (key == self._estimates or "/agent/pool/" in key):
+            self.handle_bundle(key, payload)
+            return
         raw = att if att is None or isinstance(att, bytes) else att.to_bytes()
         meta = read_attachment(raw)
-        route = self.routes.of(key)
         if meta is None or route is None or meta[2] != route[1]:
             self.service.malformed.counts[key] += 1
             return
@@ -220,6 +229,45 @@ class NetemNode:
         self.lockstep.packet(route, epoch, seq, payload)
         if self.lockstep.applied:
             self._announce_applied()
+
+    def handle_bundle(self, key: str, payload: Any) -> None:
+        """A :class:`~formation.messages.Bundle` on ``key`` (the leader's estimates, or a
+        declared pool's reports): each part handled as if it came on its agent's own key. A
+        bundle of another phase, or a part for an agent the key's sender does not hold, is
+        counted on ``key`` and skipped."""
+        raw = payload if isinstance(payload, bytes) else payload.to_bytes()
+        bundle = self.service.malformed.read(key, raw, Bundle)
+        if bundle is None:
+            return
+        holds = self._holder(key, bundle.phase)
+        if holds is None:
+            self.service.malformed.counts[key] += 1
+            return
+        epoch, phase = bundle.epoch, bundle.phase
+        for part in bundle.parts:
+            if not holds(part.agent):
+                self.service.malformed.counts[key] += 1
+                continue
+            route: Route = (
+                (phase, LEADER_ENDPOINT, part.agent)
+                if phase == "estimate"
+                else (phase, part.agent, 0)
+            )
+            self.lockstep.packet(route, epoch, part.seq, part.message.encode())
+        if self.lockstep.applied:
+            self._announce_applied()
+
+    def _holder(self, key: str, phase: str) -> Callable[[int], bool] | None:
+        """Which agents' parts a bundle of ``phase`` on ``key`` may carry: the leader's
+        estimates any agent's, a pool's reports its own agents'; None: no bundle of ``phase``
+        belongs on ``key``."""
+        if key == self._estimates:
+            return self.routes.agents.__contains__ if phase == "estimate" else None
+        parsed = keys.parse(key)
+        if parsed.kind != "pool_bundle" or parsed.args[1] != phase or phase != "report":
+            return None
+        pool, pool_of = parsed.args[0], self.outbox.pool_of
+        return lambda agent: str(pool_of.get(agent)) == pool
 
     def _on_final(self, query: Query) -> None:
         """What netem still lacks of a sender's last messages: ``{"agents": [ids]}`` asks for
@@ -298,6 +346,29 @@ class NetemNode:
                 self.team_changed(f"back {', '.join(names)}")
         query.reply(query.key_expr, orjson.dumps(answer))
 
+    def _on_pool(self, query: Query) -> None:
+        """A pool process declares its agents, ``{"pool": p, "agents": [ids]}`` (``p`` its
+        first agent): in lockstep their deliveries then come batched on
+        ``inbox/pool/<p>/<phase>`` (answer ``{"batched": true}``); realtime keeps each on its
+        receiver's key (``false``)."""
+        try:
+            ask = orjson.loads(query.payload.to_bytes()) if query.payload else {}
+            pool, ids = int(ask["pool"]), [int(i) for i in ask["agents"]]
+            if not ids or pool != ids[0] or any(i not in self.agents for i in ids):
+                raise ValueError("unknown agent")
+            taken = self.outbox.pool_of
+            if any(taken.get(i, pool) != pool for i in ids):
+                raise ValueError("an agent of another pool")
+        except (orjson.JSONDecodeError, AttributeError, KeyError, TypeError, ValueError):
+            self.service.malformed.counts[str(query.key_expr)] += 1
+            query.reply_err(b'expected {"pool": first id, "agents": [ids]}, ids of no other pool')
+            return
+        batched = self.scenario.runtime.mode != "realtime"
+        if batched:
+            with self.lock:
+                self.outbox.declare_pool(pool, ids)
+        query.reply(query.key_expr, orjson.dumps({"batched": batched}))
+
     def _clock_set(self, wait_s: float = 2.0) -> bool:
         """Realtime: whether the run's clock is set (the run began), waiting up to ``wait_s``."""
         end = time.monotonic() + wait_s
@@ -370,9 +441,11 @@ class NetemNode:
         return run_loop(self.service, timing, wakeups, self.everyone_up, check_dead, self.finished)
 
     def flush_all(self) -> None:
-        """Publish the records of every epoch closed (:meth:`LockstepCore.flush`)."""
+        """Publish the records of every epoch closed (:meth:`LockstepCore.flush`), and any
+        pool's deliveries still kept."""
         with self.lock:
             self.lockstep.flush()
+            self.outbox.flush_pools()
 
 
 class LockstepWakeups:

@@ -1,5 +1,6 @@
-"""What netem's lockstep core puts out, on the bus: deliveries on ``inbox/<receiver>/<phase>``,
-decision records on ``netem/decision``."""
+"""What netem's lockstep core puts out, on the bus: deliveries on ``inbox/<receiver>/<phase>``
+(a declared pool's batched on ``inbox/pool/<pool>/<phase>``), decision records on
+``netem/decision``."""
 
 from __future__ import annotations
 
@@ -19,7 +20,16 @@ from shell import Publisher, Service
 
 class ZenohOutbox:
     """Publishes the lockstep core's outputs: deliveries on ``inbox/<receiver>/<phase>``,
-    decision records on ``netem/decision``."""
+    decision records on ``netem/decision``.
+
+    A pool process that declared its agents (:meth:`declare_pool`) gets their deliveries
+    batched: each is kept as it would go alone until every agent of the pool has its
+    delivery of that phase and epoch, then all go as one
+    :class:`~formation.messages.DeliveryBatch`. A pool's agents live and die together (one
+    process; scenario events need one process per agent), so its receivers close an epoch
+    together; whatever is kept longer (a pool that died mid-epoch) goes out at the node's
+    next flush (:meth:`flush_pools`).
+    """
 
     def __init__(self, service: Service) -> None:
         self.service = service
@@ -27,6 +37,13 @@ class ZenohOutbox:
         self._inboxes: dict[tuple[Phase, int], tuple[str, Publisher, bytes]] = {}
         self._decision_key = keys.netem_decision(service.run_id)
         self._header = service.header_format()
+        self.pool_of: dict[int, int] = {}  # receiver → its pool (the pool's first agent)
+        self._size: dict[int, int] = {}  # pool → its agents
+        # (pool, phase) → key, publisher, the batch's fields before its deliveries
+        self._pools: dict[tuple[int, Phase], tuple[str, Publisher, bytes]] = {}
+        # (pool, phase, epoch) → deliveries kept, and how many of the epoch came in all
+        self._kept: dict[tuple[int, Phase, int], tuple[list[bytes], list[int]]] = {}
+        self._stale: set[tuple[int, Phase, int]] = set()  # kept at the last flush
 
     def declare(self, agents: list[int]) -> None:
         """Declare every inbox's publisher now, before the clock starts (as
@@ -45,6 +62,20 @@ class ZenohOutbox:
             out = self._inboxes[(phase, receiver)] = (key, self.service.publisher(key), head)
         return out
 
+    def declare_pool(self, pool: int, agents: list[int]) -> None:
+        """The receivers ``agents`` are one process's, pool ``pool``: batch their deliveries
+        of the agents' phases (state, estimate) from now on."""
+        for i in agents:
+            self.pool_of[i] = pool
+        self._size[pool] = len(agents)
+        for phase in ("state", "estimate"):
+            key = keys.inbox_pool(self.service.run_id, pool, phase)
+            head = self._header + b',"kind":"delivery_batch","pool":%d,"phase":"%s"' % (
+                pool,
+                phase.encode(),
+            )
+            self._pools[(pool, phase)] = (key, self.service.publisher(key), head)
+
     def deliver(
         self,
         phase: Phase,
@@ -57,7 +88,36 @@ class ZenohOutbox:
         service = self.service
         key, pub, head = self._inbox(phase, receiver)  # two thousand an epoch: spliced
         fields = head % (service.next_seq(key), epoch, now_ns())
-        pub.put(delivery_of(fields, packets, lost, dead))
+        pool = self.pool_of.get(receiver) if self.pool_of else None
+        if pool is None:
+            pub.put(delivery_of(fields, packets, lost, dead))
+            service.sent[key] += 1
+            return
+        at = (pool, phase, epoch)
+        kept = self._kept.get(at)
+        if kept is None:
+            kept = self._kept[at] = ([], [0])
+        kept[0].append(delivery_of(fields, packets, lost, dead))
+        kept[1][0] += 1
+        if kept[1][0] >= self._size[pool]:  # the pool's every agent: its batch goes
+            del self._kept[at]
+            self._publish(pool, phase, epoch, kept[0])
+
+    def flush_pools(self) -> None:
+        """Send a pool the deliveries kept for it since the last flush or before (one batch
+        per phase and epoch, as far as they came): a batch under way is left to complete."""
+        for at in self._stale & self._kept.keys():
+            batch = self._kept[at][0]
+            if batch:
+                self._publish(*at, batch[:])
+                batch.clear()
+        self._stale = set(self._kept)
+
+    def _publish(self, pool: int, phase: Phase, epoch: int, batch: list[bytes]) -> None:
+        service = self.service
+        key, pub, head = self._pools[(pool, phase)]
+        fields = head % (service.next_seq(key), epoch, now_ns())
+        pub.put(b'%s,"deliveries":[%s]}' % (fields, b",".join(batch)))
         service.sent[key] += 1
 
     def records(self, phase: Phase, epoch: int, records: list[Record]) -> None:

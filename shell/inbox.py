@@ -5,7 +5,8 @@ node files every message with :meth:`PhaseInbox.route` and takes a phase's input
 line, ``got = yield from inbox.take(phase, epoch)``; its time policy chose the form:
 
 - :class:`LockstepInbox`: netem's delivery of ``(receiver, phase, epoch)`` closes the phase;
-  the phase's inputs are its packets.
+  the phase's inputs are its packets. A pool's deliveries may come batched
+  (:class:`~formation.messages.DeliveryBatch`), each filed as if it came alone.
 - :class:`RealtimeInbox`: what netem forwarded, filed by epoch; the phase ends at its
   deadline, or once every receiver has a packet from ``expect`` senders. A packet of an
   epoch already taken missed its deadline: counted by cause (:mod:`formation.deadlines`),
@@ -36,6 +37,7 @@ from formation.messages import (
     CoordinationState,
     DeliveredPacket,
     Delivery,
+    DeliveryBatch,
     TokenReport,
 )
 from formation.realtime import Clock
@@ -127,20 +129,38 @@ class _Receivers:
         self._ours = set(self.receivers)  # a pool of hundreds looks each delivery up
         self.counts = counts  # the node's status counts: realtime writes into them
         decoder_of(Delivery)  # the decoders made now, before the run's clock starts
+        decoder_of(DeliveryBatch)
         for kind in KINDS.values():
             decoder_of(kind.model)
 
-    def _delivery(self, msg: Incoming) -> Any:
-        """netem's delivery (its fields, :meth:`~formation.codec.Malformed.read`), if it is for
-        one of these receivers on its own key."""
+    def _deliveries(self, msg: Incoming) -> list[Any]:
+        """netem's deliveries in ``msg`` (their fields, :meth:`~formation.codec.Malformed.read`)
+        that are for these receivers on their own key: one, or a pool's batch of them."""
+        if keys.parse(msg.key).kind == "inbox_pool":
+            return self._batch(msg)
         delivery = self.service.malformed.read(msg.key, msg.payload, Delivery)
         if delivery is None:
-            return None
+            return []
         receiver = delivery.receiver
         if receiver not in self._ours or not msg.key.endswith(f"/{receiver}/{delivery.phase}"):
             self.service.malformed.counts[msg.key] += 1  # another receiver's: unusable
-            return None
-        return delivery
+            return []
+        return [delivery]
+
+    def _batch(self, msg: Incoming) -> list[Any]:
+        """A pool's batch: its deliveries for these receivers of the batch's phase; one for
+        another receiver or phase is counted on the batch's key and skipped."""
+        malformed = self.service.malformed
+        batch = malformed.read(msg.key, msg.payload, DeliveryBatch)
+        if batch is None:
+            return []
+        if not msg.key.endswith(f"/pool/{batch.pool}/{batch.phase}"):
+            malformed.counts[msg.key] += 1  # another pool's or phase's: unusable
+            return []
+        ours = [d for d in batch.deliveries if d.receiver in self._ours and d.phase == batch.phase]
+        if len(ours) < len(batch.deliveries):
+            malformed.counts[msg.key] += len(batch.deliveries) - len(ours)
+        return ours
 
     def _decode(
         self, kind: Kind, receiver: int, packets: Iterable[DeliveredPacket]
@@ -167,14 +187,14 @@ class LockstepInbox(_Receivers):
         self.waiting: set[int] = set()  # its receivers without their delivery yet
 
     def route(self, msg: Incoming) -> None:
-        delivery = self._delivery(msg)
-        if delivery is None or delivery.epoch < self.floor.get(delivery.phase, 0):
-            return  # not ours, or a copy of one already used
-        receiver, phase = delivery.receiver, delivery.phase
-        self.deliveries[(receiver, phase, delivery.epoch)] = delivery
-        # only the receiver a delivery is for can become ready: a pool of hundreds checks one
-        if self.current == (phase, delivery.epoch):
-            self.waiting.discard(receiver)
+        for delivery in self._deliveries(msg):
+            if delivery.epoch < self.floor.get(delivery.phase, 0):
+                continue  # a copy of one already used
+            receiver, phase = delivery.receiver, delivery.phase
+            self.deliveries[(receiver, phase, delivery.epoch)] = delivery
+            # only the receiver a delivery is for can become ready: a pool of hundreds checks one
+            if self.current == (phase, delivery.epoch):
+                self.waiting.discard(receiver)
 
     def _all_in(self) -> bool:
         return not self.waiting
@@ -221,9 +241,10 @@ class RealtimeInbox(_Receivers):
         return clock
 
     def route(self, msg: Incoming) -> None:
-        delivery = self._delivery(msg)
-        if delivery is None:
-            return
+        for delivery in self._deliveries(msg):
+            self._file(delivery, msg.arrived_ns)
+
+    def _file(self, delivery: Any, arrived_ns: int) -> None:
         phase, r = delivery.phase, delivery.receiver
         kind = KINDS[phase]
         box = self.filed.setdefault(phase, {}).setdefault(r, {})
@@ -234,13 +255,11 @@ class RealtimeInbox(_Receivers):
             if epoch > taken:
                 box[kind.key(p, payload)] = (epoch, p, payload)
                 senders.setdefault((r, epoch), set()).add(p.source)
-            elif not (kind.copies and self._copy(phase, r, p, epoch, msg.arrived_ns)):
+            elif not (kind.copies and self._copy(phase, r, p, epoch, arrived_ns)):
                 # late, or stamped in time but queued after the deadline's take (scheduling)
                 self._count(kind.late)
                 silent = bool(getattr(payload, "robot_silent", False))  # states, reports
-                self._count(
-                    cause(self.clock, phase, epoch, payload.stamp_ns, msg.arrived_ns, silent)
-                )
+                self._count(cause(self.clock, phase, epoch, payload.stamp_ns, arrived_ns, silent))
 
     def _copy(self, phase: str, r: int, p: DeliveredPacket, epoch: int, arrived_ns: int) -> bool:
         """Whether a packet of an epoch taken is a copy of one used, in time."""

@@ -93,7 +93,7 @@ class Routes:
     """The route of each inbound key, parsed once per key."""
 
     def __init__(self, agents: list[int]) -> None:
-        self._agents = set(agents)
+        self.agents = frozenset(agents)
         self._routes: dict[str, Route | None] = {}
 
     def of(self, key: str) -> Route | None:
@@ -106,7 +106,7 @@ class Routes:
             kind, _, args = keys.parse(key)
             phase = INBOUND.get(kind)
             route: Route | None = None
-            if phase is not None and args[0].isdigit() and int(args[0]) in self._agents:
+            if phase is not None and args[0].isdigit() and int(args[0]) in self.agents:
                 agent = int(args[0])
                 route = (
                     ("estimate", LEADER_ENDPOINT, agent)

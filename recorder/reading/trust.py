@@ -37,9 +37,11 @@ from pydantic import BaseModel, ValidationError
 from formation import keys
 from formation.messages import (
     AgentEstimate,
+    Bundle,
     CoordinationState,
     DecisionBatch,
     Delivery,
+    DeliveryBatch,
     EpochMetrics,
     LeaderEstimate,
     LinkChange,
@@ -73,7 +75,8 @@ from recorder.recording.schemas import (
 )
 
 DERIVED = frozenset({"metrics", *FOXGLOVE})  # kinds only the recorder writes
-_REPEATED = frozenset({"status", "decision", "alive", "link_change"})  # many per epoch
+# many per epoch (a pool's batches: one per input netem handled)
+_REPEATED = frozenset({"status", "decision", "alive", "link_change", "delivery_batch"})
 
 Args = tuple[str, ...]  # the open chunks of a key, in order: keys.parse(topic).args
 
@@ -285,6 +288,38 @@ class Gate:
                 _finite(p, self._dim(), "estimate")
         _finite(msg.v_ref, self._dim(), "v_ref")
 
+    def _estimate_bundle(self, msg: Bundle, args: Args) -> None:
+        """The leader's parts in one message: each checked as if it came on its own key."""
+        self._sender(msg, "leader")
+        if msg.phase != "estimate":
+            raise Skip(FORGED, f"a bundle of {msg.phase}s on the leader's estimates' key")
+        for part in msg.parts:
+            try:
+                inner = AgentEstimate.model_validate_json(part.message)
+            except (ValidationError, ValueError) as exc:
+                detail = str(exc).splitlines()[0]
+                raise Skip(INVALID, f"agent {part.agent}'s part: {detail}") from None
+            if inner.seq != part.seq or inner.epoch != msg.epoch:
+                raise Skip(FORGED, f"agent {part.agent}'s part of another seq or epoch")
+            self._agent_part(inner, part.agent)
+
+    def _pool_bundle(self, msg: Bundle, args: Args) -> None:
+        """A pool's reports in one message: each checked as if it came on its agent's key."""
+        pool = self._key_id(args[0])
+        if msg.phase != args[1] or msg.phase != "report":
+            raise Skip(FORGED, f"a bundle of {msg.phase}s on {args[1]}'s key of pool {pool}")
+        if msg.sender != f"pool/{pool}":
+            raise Skip(FORGED, f"sender {msg.sender!r} on a key of pool {pool}")
+        for part in msg.parts:
+            try:
+                inner = TokenReport.model_validate_json(part.message)
+            except (ValidationError, ValueError) as exc:
+                detail = str(exc).splitlines()[0]
+                raise Skip(INVALID, f"agent {part.agent}'s part: {detail}") from None
+            if inner.seq != part.seq or inner.epoch != msg.epoch or part.agent < pool:
+                raise Skip(FORGED, f"agent {part.agent}'s part of another seq, epoch or pool")
+            self._report(inner, part.agent)
+
     def _last_decided(self) -> int | None:
         """The last epoch with decisions, reports and estimates (states go one further)."""
         return None if self.scenario is None else self.epochs - 1
@@ -349,6 +384,19 @@ class Gate:
         self._epoch(msg.epoch, self._last_decided())
         for p in msg.packets:
             self._endpoint(p.source)
+
+    def _delivery_batch(self, msg: DeliveryBatch, args: Args) -> None:
+        """A pool's deliveries: on its pool's and phase's key, each one as if it came alone."""
+        self._sender(msg, "netem")
+        pool = self._key_id(args[0])
+        if msg.pool != pool or msg.phase != args[1]:
+            raise Skip(FORGED, f"a batch for pool {msg.pool}/{msg.phase} on {args[0]}/{args[1]}")
+        self._agent(pool)
+        self._epoch(msg.epoch, self._last_decided())
+        for d in msg.deliveries:
+            if d.receiver < pool:  # a pool is named by its first agent
+                raise Skip(FORGED, f"a delivery for {d.receiver} in pool {pool}'s batch")
+            self._delivery(d, (str(d.receiver), msg.phase))
 
     def _decision(self, msg: DecisionBatch, args: Args) -> None:
         self._sender(msg, "netem")

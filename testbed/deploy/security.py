@@ -111,13 +111,19 @@ def principals(n_agents: int, body: Body | None = None) -> list[Principal]:
                 keys.status(r, "netem", 0),
             ),
             tokens=(keys.alive(r, "netem", 0), keys.start(r)),
-            queryables=(keys.netem_config(r), keys.clock(r), keys.netem_final(r)),
+            queryables=(
+                keys.netem_config(r),
+                keys.clock(r),
+                keys.netem_final(r),
+                keys.netem_pool(r),
+            ),
         ),
         Principal(
             "leader",
             publish=(
                 keys.leader_estimate_out(r),
                 keys.leader_estimate_for(r, "*"),
+                keys.leader_estimates(r),
                 keys.status(r, "leader", 0),
             ),
             tokens=(keys.alive(r, "leader", 0),),

@@ -61,9 +61,10 @@ class Observer:
         self.run_id = run_id
         self._subs = [
             session.declare_subscriber(keys.agent_state(run_id, "*"), self._on_state),
-            # Agent 1's part says the leader finished the epoch as well as the whole estimate
-            # does, at a thousandth of its size with 1,000 agents.
+            # Agent 1's part (realtime) or the parts' bundle (lockstep) says the leader
+            # finished the epoch as well as the whole estimate does, by its attachment alone.
             session.declare_subscriber(keys.leader_estimate_for(run_id, 1), self._on_estimate),
+            session.declare_subscriber(keys.leader_estimates(run_id), self._on_estimate),
             session.declare_subscriber(keys.netem_decision(run_id), self._on_decisions),
             session.declare_subscriber(keys.status_all(run_id), self._on_status),
             session.liveliness().declare_subscriber(

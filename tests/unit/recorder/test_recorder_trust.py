@@ -19,7 +19,15 @@ import pytest
 
 from formation import keys
 from formation.codec import encode
-from formation.messages import CoordinationState, DeliveredPacket, Delivery
+from formation.messages import (
+    AgentEstimate,
+    Bundle,
+    CoordinationState,
+    DeliveredPacket,
+    Delivery,
+    DeliveryBatch,
+    TokenReport,
+)
 from recorder import read_run
 from recorder.playback.player import Replayer
 from recorder.reading.reader import describe
@@ -138,3 +146,73 @@ def test_pooled_agents_own_their_ids(paper: Any) -> None:
                                  agent=agent, position=[0.0, 0.0])  # fmt: skip
         got = Gate(paper).check(keys.agent_state("r", agent), encode(body))
         assert (got is not None) == ok, sender
+
+
+def test_a_pools_batch_is_checked_as_its_deliveries_and_may_come_several_times(
+    paper: Any,
+) -> None:
+    gate = Gate(paper)
+    key = keys.inbox_pool("r", 2, "state")
+
+    def batch(pool: int = 2, receivers: tuple[int, ...] = (2, 3), sender: str = "netem") -> bytes:
+        deliveries = [
+            Delivery(run_id="r", sender="netem", seq=0, epoch=3, stamp_ns=1, receiver=r,
+                     phase="state", packets=[], lost=[])
+            for r in receivers
+        ]  # fmt: skip
+        return encode(DeliveryBatch(run_id="r", sender=sender, seq=0, epoch=3, stamp_ns=1,
+                                    pool=pool, phase="state", deliveries=deliveries))  # fmt: skip
+
+    assert gate.check(key, batch()) is not None
+    assert gate.check(key, batch(receivers=(4,))) is not None  # netem's second batch of the epoch
+    assert gate.check(key, batch(pool=1)) is None  # another pool's
+    assert gate.check(key, batch(receivers=(1,))) is None  # an agent before the pool's first
+    assert gate.check(key, batch(receivers=(9,))) is None  # no such agent
+    assert gate.check(key, batch(sender="agent/2")) is None
+    assert gate.check(key, b'{"kind": "delivery_batch"}') is None
+    assert gate.skipped.by_reason() == {FORGED: 3, OUT_OF_RANGE: 1, INVALID: 1}
+
+
+def test_the_leaders_bundle_is_checked_part_by_part(paper: Any) -> None:
+    gate = Gate(paper)
+    key = keys.leader_estimates("r")
+
+    def part(agent: int, seq: int = 0, epoch: int = 3, v_ref: float = 0.0) -> dict[str, Any]:
+        est = AgentEstimate(run_id="r", sender="leader", seq=seq, epoch=epoch, stamp_ns=1,
+                            agent=agent, neighbours=[], positions=[], v_ref=[v_ref, 0.0])  # fmt: skip
+        return {"agent": agent, "seq": 0, "message": est.model_dump_json()}
+
+    def bundle(*parts: dict[str, Any], epoch: int = 3, sender: str = "leader") -> bytes:
+        return encode(Bundle(run_id="r", sender=sender, seq=epoch, epoch=epoch, stamp_ns=1,
+                             phase="estimate", parts=parts))  # fmt: skip
+
+    assert gate.check(key, bundle(part(1), part(2))) is not None
+    assert gate.check(key, bundle(part(1), epoch=4, sender="agent/1")) is None
+    assert gate.check(key, bundle(part(1), part(2, seq=5), epoch=5)) is None  # seq not the part's
+    assert gate.check(key, bundle(part(1, epoch=3), epoch=6)) is None  # another epoch's part
+    assert gate.check(key, bundle(part(1), {**part(2), "agent": 3}, epoch=7)) is None
+    bad = {**part(1), "message": part(1)["message"].replace('"v_ref"', '"v"')}
+    assert gate.check(key, bundle(bad, epoch=8)) is None
+    assert gate.check(key, bundle(part(1, v_ref=float("nan"), epoch=9), epoch=9)) is None
+    assert gate.skipped.by_reason() == {FORGED: 4, INVALID: 2}
+
+
+def test_a_pools_report_bundle_is_checked_part_by_part(paper: Any) -> None:
+    gate = Gate(paper)
+    key = keys.pool_bundle("r", 2, "report")
+
+    def part(agent: int, sender: str = "pool/2", epoch: int = 3) -> dict[str, Any]:
+        report = TokenReport(run_id="r", sender=sender, seq=0, epoch=epoch, stamp_ns=1,
+                             agent=agent, measurements=[])  # fmt: skip
+        return {"agent": agent, "seq": 0, "message": report.model_dump_json()}
+
+    def bundle(*parts: dict[str, Any], epoch: int = 3, sender: str = "pool/2") -> bytes:
+        return encode(Bundle(run_id="r", sender=sender, seq=epoch, epoch=epoch, stamp_ns=1,
+                             phase="report", parts=parts))  # fmt: skip
+
+    assert gate.check(key, bundle(part(2), part(3))) is not None
+    assert gate.check(key, bundle(part(2, epoch=4), epoch=4, sender="pool/1")) is None
+    assert gate.check(key, bundle(part(1, sender="pool/1", epoch=5), epoch=5)) is None
+    assert gate.check(key, bundle(part(2, epoch=6), part(9, epoch=6), epoch=6)) is None
+    assert gate.check(key, bundle(part(2, epoch=3), epoch=7)) is None  # another epoch's part
+    assert gate.skipped.by_reason() == {FORGED: 3, OUT_OF_RANGE: 1}

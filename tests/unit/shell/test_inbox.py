@@ -9,7 +9,7 @@ from collections import Counter
 
 from formation import keys
 from formation.deadlines import CAUSES
-from formation.messages import AgentEstimate, DeliveredPacket, Delivery
+from formation.messages import AgentEstimate, DeliveredPacket, Delivery, DeliveryBatch
 from formation.realtime import ESTIMATE_DEADLINE, Clock
 from shell import Incoming, Lockstep, MemoryBus, Realtime, Service
 from shell.inbox import Inputs, Take
@@ -23,12 +23,13 @@ def _services() -> tuple[Service, Service]:
     return Service(bus, RUN, "netem", 0), Service(bus, RUN, "agent", 1)
 
 
-def _delivery(netem: Service, epoch: int, arrived_ns: int = 0) -> Incoming:
-    est = AgentEstimate(**netem.header(keys.leader_estimate_for(RUN, 1), epoch), agent=1,
-                        neighbours=[2], positions=[[1.0, 2.0]], v_ref=[0.0, 0.0])  # fmt: skip
+def _delivery(netem: Service, epoch: int, arrived_ns: int = 0, receiver: int = 1) -> Incoming:
+    est = AgentEstimate(**netem.header(keys.leader_estimate_for(RUN, receiver), epoch),
+                        agent=receiver, neighbours=[2], positions=[[1.0, 2.0]],
+                        v_ref=[0.0, 0.0])  # fmt: skip
     packet = DeliveredPacket(source=0, seq=epoch, sent_epoch=epoch, message=est.model_dump_json())
     msg = Delivery(
-        **netem.header(KEY, epoch), receiver=1, phase="estimate", packets=[packet], lost=[]
+        **netem.header(KEY, epoch), receiver=receiver, phase="estimate", packets=[packet], lost=[]
     )
     return Incoming(KEY, msg.model_dump_json().encode(), None, arrived_ns)
 
@@ -75,3 +76,41 @@ def test_realtime_counts_a_late_packet_by_cause_and_not_a_copy_of_one_used() -> 
     inbox.route(_delivery(netem, 0, time.time_ns()))  # after the deadline: a miss
     assert counts["late_estimates"] == 1
     assert sum(counts[c] for c in CAUSES) == 1
+
+
+def _batch(netem: Service, pool: int, receivers: list[int], phase: str = "estimate") -> bytes:
+    """A pool's batch of estimate deliveries of epoch 0 (``phase``: the batch's own)."""
+    deliveries = [
+        Delivery.model_validate_json(_delivery(netem, 0, receiver=r).payload) for r in receivers
+    ]
+    return DeliveryBatch(**netem.header(keys.inbox_pool(RUN, pool, phase), 0), pool=pool,
+                         phase=phase, deliveries=deliveries).model_dump_json().encode()  # fmt: skip
+
+
+def test_lockstep_files_each_delivery_of_a_pools_batch() -> None:
+    netem, svc = _services()
+    inbox = Lockstep().inbox(svc, [1, 2], Counter())
+    take = inbox.take("estimate", 0)
+    wait = next(take)
+    key = keys.inbox_pool(RUN, 1, "estimate")
+    inbox.route(Incoming(key, _batch(netem, 1, [1, 2]), None, 0))
+    assert wait.complete()
+    got = _finish(take)
+    assert {r: [est.agent for _, est in got[r]] for r in got} == {1: [1], 2: [2]}
+    assert not svc.malformed.counts
+
+
+def test_a_forged_or_malformed_batch_is_counted_and_skipped() -> None:
+    netem, svc = _services()
+    inbox = Lockstep().inbox(svc, [1, 2], Counter())
+    take = inbox.take("estimate", 0)
+    wait = next(take)
+    key = keys.inbox_pool(RUN, 1, "estimate")
+    inbox.route(Incoming(key, b'{"kind": "delivery_batch"', None, 0))  # not JSON
+    inbox.route(Incoming(key, _batch(netem, 5, [1, 2]), None, 0))  # another pool's
+    inbox.route(Incoming(key, _batch(netem, 1, [1, 2], "state"), None, 0))  # another phase's
+    assert svc.malformed.counts[key] == 3 and not inbox.deliveries  # nothing filed
+    inbox.route(Incoming(key, _batch(netem, 1, [1, 7]), None, 0))  # 7 is not this pool's
+    assert svc.malformed.counts[key] == 4 and not wait.complete()
+    inbox.route(Incoming(key, _batch(netem, 1, [2]), None, 0))
+    assert wait.complete()
