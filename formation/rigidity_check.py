@@ -22,7 +22,7 @@ from formation.rigidity_growth import (
     ordered_certificate,
     rank_beyond_cluster,
 )
-from formation.rigidity_outside import outside_held
+from formation.rigidity_outside import FREE, HELD, outside_held, outside_rank
 from formation.rigidity_stiffness import pinned_stiffness_definite
 
 
@@ -98,10 +98,45 @@ def rank_beyond_growth(
     if edges.shape[0] < need:
         return None, False
     if outside_stiffness and cluster.sum() > d:  # a body: only the agents outside it
-        rigid = outside_held(positions, edges, cluster)
+        bodies = further_bodies(positions, edges, cluster, half)
+        if bodies.max() > HELD:
+            rank = outside_rank(positions, edges, bodies, svd_max_columns)
+            if rank is not None:
+                return rank, rank == need
+        rigid = outside_held(positions, edges, bodies)
         return (need if rigid else None), rigid
     rigid = pinned_stiffness_definite(positions, edges)
     return (need if rigid else None), rigid
+
+
+def further_bodies(
+    positions: FloatArray, edges: IntArray, cluster: BoolArray, half: HalfEdges
+) -> IntArray:
+    """Body labels (:mod:`formation.rigidity_outside`): ``cluster`` :data:`HELD`, the rigid
+    clusters grown among the agents outside it ``1, 2, …``, the rest :data:`FREE`.
+
+    Each grows on the edges among the agents in no cluster yet, from one of ``SEED_TRIES``
+    of those edges spread over their list; a cluster of more than ``d`` agents spans the
+    space (it started from a simplex) and is kept. Disjoint, so each is rigid alone.
+    ``half``: the :class:`HalfEdges` of ``edges``.
+    """
+    d = positions.shape[1]
+    e0 = edges - 1
+    bodies = np.where(cluster, HELD, FREE)
+    misses = 0
+    while misses < SEED_TRIES:
+        free = bodies == FREE
+        among = free[e0[:, 0]] & free[e0[:, 1]]
+        count = int(among.sum())
+        if count < d * (d + 1) // 2:  # fewer edges than a simplex has
+            break
+        seed = (2 * misses + 1) * count // (2 * SEED_TRIES)
+        grown = growth_rounds(positions, edges[among], seed, half.kept(among)) >= 0
+        if grown.sum() > d:
+            bodies[grown] = bodies.max() + 1
+        else:
+            misses += 1
+    return bodies
 
 
 def rank_under_mask(
