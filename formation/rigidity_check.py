@@ -100,7 +100,7 @@ def rank_beyond_growth(
     if outside_stiffness and cluster.sum() > d:  # a body: only the agents outside it
         bodies = further_bodies(positions, edges, cluster, half)
         if bodies.max() > HELD:
-            rank = outside_rank(positions, edges, bodies, svd_max_columns)
+            rank = outside_rank(positions, edges, bodies, min(svd_max_columns, BODY_SVD_COLUMNS))
             if rank is not None:
                 return rank, rank == need
         rigid = outside_held(positions, edges, bodies)
@@ -109,13 +109,18 @@ def rank_beyond_growth(
     return (need if rigid else None), rigid
 
 
+BODY_SVD_COLUMNS = 120
+"""Components of ``R_B`` up to this many columns are ranked by the dense SVD where further
+clusters were grown; a larger one goes to the sparse check, which costs less per epoch."""
+
+
 def further_bodies(
     positions: FloatArray, edges: IntArray, cluster: BoolArray, half: HalfEdges
 ) -> IntArray:
     """Body labels (:mod:`formation.rigidity_outside`): ``cluster`` :data:`HELD`, the rigid
     clusters grown among the agents outside it ``1, 2, …``, the rest :data:`FREE`.
 
-    Each grows on the edges among the agents in no cluster yet, from one of ``SEED_TRIES``
+    ``SEED_TRIES`` growths, each on the edges among the agents in no cluster yet, from one
     of those edges spread over their list; a cluster of more than ``d`` agents spans the
     space (it started from a simplex) and is kept. Disjoint, so each is rigid alone.
     ``half``: the :class:`HalfEdges` of ``edges``.
@@ -123,19 +128,16 @@ def further_bodies(
     d = positions.shape[1]
     e0 = edges - 1
     bodies = np.where(cluster, HELD, FREE)
-    misses = 0
-    while misses < SEED_TRIES:
+    for attempt in range(SEED_TRIES):
         free = bodies == FREE
         among = free[e0[:, 0]] & free[e0[:, 1]]
         count = int(among.sum())
         if count < d * (d + 1) // 2:  # fewer edges than a simplex has
             break
-        seed = (2 * misses + 1) * count // (2 * SEED_TRIES)
+        seed = (2 * attempt + 1) * count // (2 * SEED_TRIES)
         grown = growth_rounds(positions, edges[among], seed, half.kept(among)) >= 0
         if grown.sum() > d:
             bodies[grown] = bodies.max() + 1
-        else:
-            misses += 1
     return bodies
 
 
