@@ -70,8 +70,10 @@ def rank_beyond_growth(
     they are rigid (:func:`rigid_prefix`), or from one of ``SEED_TRIES`` edges spread over
     the list) and
     :func:`rank_beyond_cluster` give it; otherwise only rigid or not. With
-    ``outside_stiffness`` the cluster decides that: the agents outside it are held iff
-    their matrix ``R_U`` has full column rank (:func:`outside_held`). Without (the
+    ``outside_stiffness`` the cluster decides that: where it holds fewer than half the
+    agents, rigid clusters grown among the others (:func:`further_bodies`) may rank them
+    (:func:`outside_rank`); else the agents outside it are held iff their matrix ``R_B``
+    has full column rank (:func:`outside_held`). Without (the
     benchmark's baseline), or where growth found no body, the whole framework's
     :func:`pinned_stiffness_definite` does. ``half``: the :class:`HalfEdges` of ``edges``,
     if known.
@@ -98,7 +100,9 @@ def rank_beyond_growth(
     if edges.shape[0] < need:
         return None, False
     if outside_stiffness and cluster.sum() > d:  # a body: only the agents outside it
-        bodies = further_bodies(positions, edges, cluster, half)
+        bodies = np.where(cluster, HELD, FREE)
+        if cluster.sum() * 2 < cluster.shape[0]:  # most agents outside: worth more bodies
+            bodies = further_bodies(positions, edges, cluster, half)
         if bodies.max() > HELD:
             rank = outside_rank(positions, edges, bodies, min(svd_max_columns, BODY_SVD_COLUMNS))
             if rank is not None:
