@@ -22,7 +22,7 @@ from formation.rigidity_growth import (
     ordered_certificate,
     rank_beyond_cluster,
 )
-from formation.rigidity_outside import outside_held
+from formation.rigidity_outside import FREE, HELD, outside_held, outside_rank
 from formation.rigidity_stiffness import pinned_stiffness_definite
 
 
@@ -70,8 +70,10 @@ def rank_beyond_growth(
     they are rigid (:func:`rigid_prefix`), or from one of ``SEED_TRIES`` edges spread over
     the list) and
     :func:`rank_beyond_cluster` give it; otherwise only rigid or not. With
-    ``outside_stiffness`` the cluster decides that: the agents outside it are held iff
-    their matrix ``R_U`` has full column rank (:func:`outside_held`). Without (the
+    ``outside_stiffness`` the cluster decides that: where it holds fewer than half the
+    agents, rigid clusters grown among the others (:func:`further_bodies`) may rank them
+    (:func:`outside_rank`); else the agents outside it are held iff their matrix ``R_B``
+    has full column rank (:func:`outside_held`). Without (the
     benchmark's baseline), or where growth found no body, the whole framework's
     :func:`pinned_stiffness_definite` does. ``half``: the :class:`HalfEdges` of ``edges``,
     if known.
@@ -98,10 +100,49 @@ def rank_beyond_growth(
     if edges.shape[0] < need:
         return None, False
     if outside_stiffness and cluster.sum() > d:  # a body: only the agents outside it
-        rigid = outside_held(positions, edges, cluster)
+        bodies = np.where(cluster, HELD, FREE)
+        if cluster.sum() * 2 < cluster.shape[0]:  # most agents outside: worth more bodies
+            bodies = further_bodies(positions, edges, cluster, half)
+        if bodies.max() > HELD:
+            rank = outside_rank(positions, edges, bodies, min(svd_max_columns, BODY_SVD_COLUMNS))
+            if rank is not None:
+                return rank, rank == need
+        rigid = outside_held(positions, edges, bodies)
         return (need if rigid else None), rigid
     rigid = pinned_stiffness_definite(positions, edges)
     return (need if rigid else None), rigid
+
+
+BODY_SVD_COLUMNS = 120
+"""Components of ``R_B`` up to this many columns are ranked by the dense SVD where further
+clusters were grown; a larger one goes to the sparse check, which costs less per epoch."""
+
+
+def further_bodies(
+    positions: FloatArray, edges: IntArray, cluster: BoolArray, half: HalfEdges
+) -> IntArray:
+    """Body labels (:mod:`formation.rigidity_outside`): ``cluster`` :data:`HELD`, the rigid
+    clusters grown among the agents outside it ``1, 2, …``, the rest :data:`FREE`.
+
+    ``SEED_TRIES`` growths, each on the edges among the agents in no cluster yet, from one
+    of those edges spread over their list; a cluster of more than ``d`` agents spans the
+    space (it started from a simplex) and is kept. Disjoint, so each is rigid alone.
+    ``half``: the :class:`HalfEdges` of ``edges``.
+    """
+    d = positions.shape[1]
+    e0 = edges - 1
+    bodies = np.where(cluster, HELD, FREE)
+    for attempt in range(SEED_TRIES):
+        free = bodies == FREE
+        among = free[e0[:, 0]] & free[e0[:, 1]]
+        count = int(among.sum())
+        if count < d * (d + 1) // 2:  # fewer edges than a simplex has
+            break
+        seed = (2 * attempt + 1) * count // (2 * SEED_TRIES)
+        grown = growth_rounds(positions, edges[among], seed, half.kept(among)) >= 0
+        if grown.sum() > d:
+            bodies[grown] = bodies.max() + 1
+    return bodies
 
 
 def rank_under_mask(

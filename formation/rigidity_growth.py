@@ -20,15 +20,14 @@ from formation.graph import (
     as_edge_array,
     as_edge_mask,
     as_positions,
-    component_labels,
 )
 from formation.rigidity import (
     RANK_RTOL,
     SVD_MAX_COLUMNS,
     batched_ranks,
     expected_rigidity_rank,
-    sparse_rigidity_matrix,
 )
+from formation.rigidity_outside import FREE, HELD, outside_rank
 
 
 def spans_without_any(positions: npt.ArrayLike) -> bool:
@@ -418,39 +417,6 @@ def rank_beyond_cluster(
     inside = as_edge_mask(cluster, n, "cluster")
     if inside.sum() <= d:
         return None
-    rest = np.flatnonzero(~inside)
-    if rest.size == 0:
+    if inside.all():
         return expected_rigidity_rank(n, d)
-    among = ~inside[e0[:, 0]] & ~inside[e0[:, 1]]
-    _, component, size = np.unique(
-        component_labels(n, e0 + 1, among)[rest], return_inverse=True, return_counts=True
-    )
-    if size.max() * d > max_columns:
-        return None
-    of_agent = np.full(n, -1, dtype=np.int64)  # component of each agent outside
-    of_agent[rest] = component
-    place = np.zeros(n, dtype=np.int64)  # an agent's place within its component
-    order = np.argsort(component, kind="stable")
-    place[rest[order]] = np.arange(rest.size) - np.searchsorted(component[order], component[order])
-    touching = ~(inside[e0[:, 0]] & inside[e0[:, 1]])
-    r = sparse_rigidity_matrix(x, e0[touching] + 1).tocoo()
-    agent = r.col // d
-    outside = of_agent[agent] >= 0  # entries in the columns of U
-    row, agent, col, value = r.row[outside], agent[outside], r.col[outside] % d, r.data[outside]
-    comp = of_agent[agent]
-    rank = 0
-    for k in np.unique(size):  # a dense stack per component size, one batched SVD each
-        chosen = size[comp] == k
-        if not chosen.any():
-            continue  # components without a kept edge: rank 0
-        slot = np.cumsum(size == k) - 1  # component → its index in the stack
-        c = slot[comp[chosen]]
-        # rows numbered within their component
-        key = c.astype(np.int64) * (r.shape[0] + 1) + row[chosen]
-        uniq, inverse = np.unique(key, return_inverse=True)
-        owner = uniq // (r.shape[0] + 1)
-        local = np.arange(uniq.size) - np.searchsorted(owner, owner)
-        stack = np.zeros((int((size == k).sum()), int(local.max()) + 1, int(k) * d))
-        stack[c, local[inverse], place[agent[chosen]] * d + col[chosen]] = value[chosen]
-        rank += int(batched_ranks(stack).sum())
-    return int(expected_rigidity_rank(n, d) - int(rest.size) * d + rank)
+    return outside_rank(x, e0 + 1, np.where(inside, HELD, FREE), max_columns)

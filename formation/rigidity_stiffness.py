@@ -72,7 +72,7 @@ def pinned_stiffness_definite(positions: npt.ArrayLike, edges: npt.ArrayLike) ->
     if pins is None:
         return False
     r = sparse_rigidity_matrix(x, edges)
-    return _least_motion_resisted(r, csr_matrix(pins), _rigid_motions(x))
+    return _least_motion_resisted(r, csr_matrix(pins), rigid_motions(x))
 
 
 def full_column_rank(r: csr_matrix) -> bool:
@@ -112,7 +112,7 @@ def _least_motion_resisted(r: csr_matrix, c: csr_matrix | None, motions: FloatAr
     return bool(weakest > RANK_RTOL * _largest_singular_value(r))
 
 
-def _rigid_motions(x: FloatArray) -> FloatArray:
+def rigid_motions(x: FloatArray) -> FloatArray:
     """The ``d(d+1)/2`` rigid motions ``(n·d, D)`` of agents at ``x``, independent if they span.
 
     The ``d`` translations and, for each plane ``(a, b)`` of coordinates, the rotation

@@ -12,14 +12,22 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from formation.rigidity import expected_rigidity_rank, rigidity_rank, sparse_rigidity_matrix
-from formation.rigidity_check import rank_under_mask
+from formation.rigidity_check import further_bodies, rank_under_mask
 from formation.rigidity_growth import (
     grown_cluster,
     growth_rounds,
+    half_edges,
     rank_beyond_cluster,
     spans_without_any,
 )
-from formation.rigidity_outside import outside_held, unbraced_outside
+from formation.rigidity_outside import (
+    FREE,
+    HELD,
+    outside_held,
+    outside_matrix,
+    outside_rank,
+    unbraced_outside,
+)
 from formation.rigidity_stiffness import full_column_rank
 from formation.scenario import Scenario
 from testbed.sim.team_generators import geometric_team, henneberg_team, rigid_team
@@ -58,8 +66,9 @@ def test_every_family_and_mask_answers_as_the_svd(
         assert rank in (svd, None)
         cluster = grown_cluster(x, edges[mask])
         if cluster.sum() > d and not cluster.all():  # a body, agents outside it
-            assert outside_held(x, edges[mask], cluster) == (svd == need)
-            if unbraced_outside(n, d, edges[mask], cluster):
+            bodies = np.where(cluster, HELD, FREE)
+            assert outside_held(x, edges[mask], bodies) == (svd == need)
+            if unbraced_outside(outside_matrix(x, edges[mask], bodies)):
                 assert svd < need
 
 
@@ -150,3 +159,45 @@ def test_henneberg_spare_edges_are_new_and_short() -> None:
     assert not base & set(added) and len(set(added)) == len(added)
     x = spare.offsets
     assert all(np.linalg.norm(x[a - 1] - x[b - 1]) <= 1.5 for a, b in added)
+
+
+def cut_at_the_seed(x: np.ndarray, edges: np.ndarray, rounds: np.ndarray) -> np.ndarray:
+    """A mask that leaves the agents next to the growth order's first simplex at most ``d − 1``
+    edges into it: growth from the seed stalls at the simplex, the rest is another body."""
+    d = x.shape[1]
+    first = rounds <= np.sort(rounds)[d]  # the simplex's d + 1 agents
+    into = first[edges[:, 0] - 1] != first[edges[:, 1] - 1]
+    outer = np.where(first[edges[:, 0] - 1], edges[:, 1], edges[:, 0])
+    mask = np.ones(len(edges), dtype=bool)
+    for agent in np.unique(outer[into]):
+        mine = np.flatnonzero(into & (outer == agent))
+        mask[mine[d - 1 :]] = False
+    return mask
+
+
+@pytest.mark.parametrize(
+    ("name", "d", "redundancy"),
+    [("geometric", 3, 0.5), ("rigid_team", 2, 0.5), ("henneberg", 2, 0.5)],
+)
+def test_a_second_cluster_ranks_what_the_first_left_out(
+    name: str, d: int, redundancy: float
+) -> None:
+    s = family(name, 150, d, redundancy, 3)
+    x, edges = s.offsets, s.edge_array
+    rounds = growth_rounds(x, edges)
+    mask = cut_at_the_seed(x, edges, rounds)
+    kept = edges[mask]
+    cluster = grown_cluster(x, kept)
+    assert cluster.sum() == d + 1  # stalled at the simplex
+    bodies = further_bodies(x, kept, cluster, half_edges(x, kept - 1))
+    assert np.bincount(bodies[bodies > HELD]).max() > 100  # a second body, most of the team
+    svd = rigidity_rank(x, kept)
+    assert rank_beyond_cluster(x, kept, cluster, 60) is None  # the agents outside: too many
+    assert outside_rank(x, kept, bodies, 60) == svd  # as bodies: a few columns
+    need = expected_rigidity_rank(*x.shape)
+    assert rank_under_mask(x, edges, rounds, mask, False, svd_max_columns=60) == (svd, svd == need)
+    assert outside_held(x, kept, bodies) == (svd == need)
+    lost = mask.copy()
+    lost[np.flatnonzero(mask)[-1]] = False  # one edge fewer
+    svd = rigidity_rank(x, edges[lost])
+    assert rank_under_mask(x, edges, rounds, lost, False, svd_max_columns=60)[0] in (svd, None)
