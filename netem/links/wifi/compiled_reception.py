@@ -32,6 +32,18 @@ CURVES = np.array(
     [[[low, high, *coef] for low, high, coef in OFDM_CURVES[int(r)]] for r in OFDM_RATES_KBPS],
     dtype=np.float64,
 )
+# [rate, reference] -> the SINR (linear) below which a chunk is surely lost, above which it
+# surely survives: ``_ofdm_chunk`` skips its logarithm there (a margin far above rounding)
+SURE = np.array(
+    [
+        [
+            [10.0 ** (low / 10.0) * (1.0 - 1e-9), 10.0 ** (high / 10.0) * (1.0 + 1e-9)]
+            for low, high, _ in OFDM_CURVES[int(r)]
+        ]
+        for r in OFDM_RATES_KBPS
+    ],
+    dtype=np.float64,
+)
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
 _LARGE = float(LARGE_CHUNK_BYTES)
 _SMALL = float(SMALL_CHUNK_BYTES)
@@ -70,10 +82,15 @@ def keyed_uniform_after(state: np.uint64, a: int, b: int) -> float:
 
 @jit
 def _ofdm_chunk(rate_kbps: int, snr: float, nbits: int) -> float:
-    snr_db = 10.0 * math.log10(max(snr, 1e-30))
     size = float(max(nbits // 8, 1))
     large = size >= LARGE_FROM_BYTES
-    curve = CURVES[np.searchsorted(OFDM_RATES_KBPS, rate_kbps), 1 if large else 0]
+    row, size_ref = np.searchsorted(OFDM_RATES_KBPS, rate_kbps), 1 if large else 0
+    if snr > SURE[row, size_ref, 1]:
+        return 1.0
+    if snr < SURE[row, size_ref, 0]:
+        return 0.0
+    snr_db = 10.0 * math.log10(max(snr, 1e-30))
+    curve = CURVES[row, size_ref]
     low, high = curve[0], curve[1]
     if snr_db < low:
         return 0.0  # 0 to a positive power
@@ -140,8 +157,8 @@ def chunk_success(ofdm: bool, rate_kbps: int, snr: float, nbits: int) -> float:
 @jit
 def frame_success(
     ofdm: bool,
-    header: npt.NDArray[np.int64],
-    payload: npt.NDArray[np.int64],
+    header: tuple[int, int, int],
+    payload: tuple[int, int, int],
     bounds: npt.NDArray[np.int64],
     pieces: int,
     snr: npt.NDArray[np.float64],
@@ -151,8 +168,7 @@ def frame_success(
     ``header`` and ``payload`` are (from, to [ns], rate [kb/s]); ``bounds[: pieces + 1]`` the
     times the interference changes; ``snr[: pieces]`` the SINR over each piece (linear)."""
     p = 1.0
-    for window in (header, payload):
-        lo, hi, rate = window[0], window[1], window[2]
+    for lo, hi, rate in (header, payload):
         product = 1.0
         counted = False
         for k in range(pieces):
