@@ -189,11 +189,14 @@ def _sense(
             if waiting and st[s, HEAD_READY] <= now:
                 st[s, COUNTER] = _draw(st, s, backoff_state)
             st[s, PLANNED] = NEVER
-    for s in range(n):
+    for s in range(n):  # the medium turned idle: ``_plan`` of each, written out (no call)
         if not st[s, SENSED_BUSY] and st[s, BUSY]:
             st[s, IDLE_FROM] = now
-            st[s, BUSY] = 0
-            _plan(st, s, t)
+            st[s, PLANNED] = NEVER
+            if not st[s, AWAITING] and st[s, HEAD_READY] < NEVER:  # and not sending: idle
+                ifs = t[EIFS_NS] if st[s, EIFS] else t[DIFS]
+                backoff_end = now + ifs + st[s, COUNTER] * t[SLOT]
+                st[s, PLANNED] = max(st[s, HEAD_READY] + t[DIFS], backoff_end)
         st[s, BUSY] = st[s, SENSED_BUSY]
 
 

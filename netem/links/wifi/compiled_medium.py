@@ -146,13 +146,17 @@ def decoded(
     rate = log[index, TX_RATE]
     ack = log[index, TX_FRAME] == ACK
     noise = levels[NOISE]
-    header = (start + t[HEADER_FROM], start + t[HEADER_TO], t[HEADER_RATE])
-    payload = (start + t[PREAMBLE_NS], end, rate)
-    snr = np.empty(pieces)
-    for j in range(st.shape[0]):
+    n = st.shape[0]
+    who = np.empty(n, dtype=np.int64)  # the agents locked onto the entry
+    locked = 0
+    for j in range(n):
         received[j] = 0
-        if st[j, LOCK] != index:
-            continue
+        if st[j, LOCK] == index:
+            who[locked] = j
+            locked += 1
+    snr = np.empty((locked, pieces))
+    for r in range(locked):
+        j = who[r]
         signal = power[sender, j]
         worst = 0.0
         for k in range(pieces):
@@ -164,13 +168,19 @@ def decoded(
                 if o_start <= bounds[k] < o_end:
                     interference += power[log[o, TX_SENDER], j]
             worst = max(worst, interference)
-            snr[k] = signal / (noise + interference)
+            snr[r, k] = signal / (noise + interference)
         if not t[CHUNKS]:
             received[j] = signal >= (levels[ACK_SINR] if ack else levels[SINR]) * (noise + worst)
-            continue
-        p = frame_success(t[OFDM] != 0, header, payload, bounds, pieces, snr)
+    if not t[CHUNKS] or locked == 0:
+        return
+    header = (start + t[HEADER_FROM], start + t[HEADER_TO], t[HEADER_RATE])
+    payload = (start + t[PREAMBLE_NS], end, rate)
+    success = np.empty(locked)
+    frame_success(t[OFDM] != 0, header, payload, bounds, pieces, snr, success)
+    for r in range(locked):
         # a uniform draw is below 1: a sure frame needs none
-        received[j] = p >= 1.0 or keyed_uniform_after(reception_state, index, j) < p
+        p = success[r]
+        received[who[r]] = p >= 1.0 or keyed_uniform_after(reception_state, index, who[r]) < p
 
 
 @jit

@@ -90,14 +90,19 @@ def _ofdm_chunk(rate_kbps: int, snr: float, nbits: int) -> float:
     if snr < SURE[row, size_ref, 0]:
         return 0.0
     snr_db = 10.0 * math.log10(max(snr, 1e-30))
-    curve = CURVES[row, size_ref]
-    low, high = curve[0], curve[1]
+    low, high = CURVES[row, size_ref, 0], CURVES[row, size_ref, 1]
     if snr_db < low:
         return 0.0  # 0 to a positive power
     if snr_db > high:
         return 1.0  # 1 to any power
     x = snr_db
-    reference = math.exp(-math.exp(((curve[2] * x + curve[3]) * x + curve[4]) * x + curve[5]))
+    c3, c2, c1, c0 = (
+        CURVES[row, size_ref, 2],
+        CURVES[row, size_ref, 3],
+        CURVES[row, size_ref, 4],
+        CURVES[row, size_ref, 5],
+    )
+    reference = math.exp(-math.exp(((c3 * x + c2) * x + c1) * x + c0))
     success = reference ** (size / (_LARGE if large else _SMALL))
     return 1.0 if 1.0 - success < NEGLIGIBLE_PER else success
 
@@ -162,23 +167,27 @@ def frame_success(
     bounds: npt.NDArray[np.int64],
     pieces: int,
     snr: npt.NDArray[np.float64],
-) -> float:
-    """The product of the chunk success rates over the header and the payload.
+    success: npt.NDArray[np.float64],
+) -> None:
+    """``success[r]``: the product of the chunk success rates over the header and the payload
+    at receiver ``r``.
 
     ``header`` and ``payload`` are (from, to [ns], rate [kb/s]); ``bounds[: pieces + 1]`` the
-    times the interference changes; ``snr[: pieces]`` the SINR over each piece (linear)."""
-    p = 1.0
-    for lo, hi, rate in (header, payload):
-        product = 1.0
-        counted = False
-        for k in range(pieces):
-            span = min(bounds[k + 1], hi) - max(bounds[k], lo)
-            if span > 0:
-                product = product * chunk_success(ofdm, rate, snr[k], span * rate // 1_000_000)
-                counted = True
-        if counted:
-            p = p * product
-    return p
+    times the interference changes; ``snr[r, : pieces]`` the SINR over each piece (linear)."""
+    for r in range(snr.shape[0]):
+        p = 1.0
+        for lo, hi, rate in (header, payload):
+            product = 1.0
+            counted = False
+            for k in range(pieces):
+                span = min(bounds[k + 1], hi) - max(bounds[k], lo)
+                if span > 0:
+                    nbits = span * rate // 1_000_000
+                    product = product * chunk_success(ofdm, rate, snr[r, k], nbits)
+                    counted = True
+            if counted:
+                p = p * product
+        success[r] = p
 
 
 __all__ = ["chunk_success", "frame_success", "keyed_state_of", "keyed_uniform_after"]
