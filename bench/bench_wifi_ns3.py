@@ -1,7 +1,7 @@
 """The air model (netem/links/wifi) against ns-3 on the same phases: delivery and arrival time.
 
-Run ``python -m bench wifi_ns3 [--phases K] [--seed S]`` with ns-3 installed (the optional extra
-``[ns3]``; without it the benchmark says so and stops). Each case draws ``K`` phases (times the
+Run ``python -m bench wifi_ns3 [--phases K] [--seed S] [--speed]`` with ns-3 installed (the
+optional extra ``[ns3]``; without it the benchmark says so and stops). Each case draws ``K`` phases (times the
 case's own factor) from the seed: positions, and each frame's readiness within the phase. The
 air model decides them here and ns-3 runs them in its own process, the whole batch at once
 (``testkit.ns3_air``, ns-3's defaults, which are the model's). Printed per case: the delivery
@@ -11,6 +11,13 @@ of each and their ratio, the attempts per frame of each (ns-3's data frames its 
 and the CPU time per phase of each and their ratio (ns-3's inside
 its process: building the phase and running it, without the import; the model's through
 ``decide_phase``, its compiled loop loaded before).
+
+``--speed`` times only what a phase costs, on broadcasts by 5, 20, 40 and 50 agents and unicast by
+50 (``K`` phases each, the best of three rounds on each side): CPU per phase on both sides
+(ns-3's inside its process, as above), and wall time per phase as a caller sees it, the model's
+call against ns-3 as a backend in its own process, its import done, a reply per phase (the gap
+between one phase's reply and the next's on the pipe; the requests are written ahead, so a
+phase's request costs ns-3 no wait).
 
 Cases (docs/model.md §11): broadcasts of 200 B over UDP/IP (236 B MSDU) at 6 Mb/s by 2 to 50
 agents within 20 m, each once in a 20 ms phase (a 50 Hz state); 20 agents spread over 60 m
@@ -24,9 +31,15 @@ carries the rate); broadcasts at 802.11b 11 Mb/s.
 from __future__ import annotations
 
 import argparse
+import importlib.metadata
 import importlib.util
+import json
+import subprocess
+import sys
+import tempfile
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -77,6 +90,12 @@ CASES = [
 ]  # fmt: skip
 
 
+SPEED_CASES = [
+    *(Case(f"broadcast, {n} agents within 20 m", n) for n in (5, 20, 40, 50)),
+    Case("unicast to a neighbour, 50 agents within 20 m", 50, unicast=True),
+]
+
+
 def phase(case: Case, rng: np.random.Generator) -> tuple[np.ndarray, Frames]:
     if case.hidden_pair:
         positions = np.array([[0.0, 0.0], [40.0, 0.0], [80.0, 0.0]])
@@ -112,6 +131,102 @@ def summary(arrival: np.ndarray, to: np.ndarray, ready: np.ndarray) -> tuple[int
     return int(got.sum()), int(to.sum()), float(latency.sum())
 
 
+def requests(
+    cases: list[Case], plans: list[list[tuple[np.ndarray, Frames]]], seed: int
+) -> list[dict[str, Any]]:
+    return [
+        phase_request(
+            case.phy,
+            case.rate_mbps,
+            positions,
+            frames.sender,
+            frames.receiver,
+            frames.payload_bytes,
+            frames.ready_ns,
+            seed,
+            c * 100_000 + k + 1,
+        )
+        for c, case in enumerate(cases)
+        for k, (positions, frames) in enumerate(plans[c])
+    ]
+
+
+def streamed_ns3(batch: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], np.ndarray]:
+    """ns-3's replies, and when each reached this process [s]: ns-3 as a backend."""
+    with tempfile.TemporaryFile("w+") as errors:
+        process = subprocess.Popen(
+            [sys.executable, "-m", "testkit.ns3_air"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=errors,
+            text=True,
+        )
+        assert process.stdin is not None and process.stdout is not None
+        process.stdin.write(json.dumps(batch))
+        process.stdin.close()
+        replies, times = [], []
+        for line in process.stdout:
+            if line.startswith("{"):
+                times.append(time.perf_counter())
+                replies.append(json.loads(line))
+        if process.wait() != 0:
+            errors.seek(0)
+            raise RuntimeError(f"ns-3 failed (exit {process.returncode}): {errors.read()[-2000:]}")
+    return replies, np.array(times)
+
+
+def speed(seed: int, phases: int, rounds: int = 3) -> None:
+    rng = np.random.default_rng(seed)
+    plans = [[phase(case, rng) for _ in range(phases)] for case in SPEED_CASES]
+    batch = requests(SPEED_CASES, plans, seed)
+    # one phase first, not counted: ns-3's first phase also compiles its C++ through cppyy
+    replies, came = streamed_ns3(batch[-1:] + batch * rounds)
+    replies, came = replies[1:], came[1:]
+    load_compiled_loop()
+    print(
+        f"what a phase costs, seed {seed}, {phases} phases a case, best of {rounds} rounds on "
+        f"each side, ns3 {ns3_version()}, numba {numba_version()}: CPU (ns-3's inside its "
+        "process) and wall as a caller sees it (ns-3 a backend process, its import done, the "
+        "gap between its replies, the first phase of each case left out)"
+    )
+    print(
+        f"{'case':46} {'CPU ms model':>12} {'ns-3':>7} {'ratio':>6} "
+        f"{'wall ms model':>13} {'ns-3':>7} {'ratio':>6}"
+    )
+    cases = len(SPEED_CASES)
+    model = np.full((cases, 2), np.inf)  # best CPU, wall [s] a phase
+    ns3 = np.full((cases, 2), np.inf)
+    for r in range(rounds):
+        for c, case in enumerate(SPEED_CASES):
+            config = AirConfig(phy=case.phy, rate_mbps=case.rate_mbps)  # type: ignore[arg-type]
+            cpu, wall = 0.0, 0.0
+            for k, (positions, frames) in enumerate(plans[c]):
+                t0, w0 = time.process_time(), time.perf_counter()
+                decide_phase(config, positions, frames, Key(seed, c, k))
+                cpu += time.process_time() - t0
+                wall += time.perf_counter() - w0
+            model[c] = np.minimum(model[c], [cpu / phases, wall / phases])
+            block = slice((r * cases + c) * phases, (r * cases + c + 1) * phases)
+            ns3_cpu = sum(reply["seconds"] for reply in replies[block]) / phases
+            ns3[c] = np.minimum(ns3[c], [ns3_cpu, float(np.diff(came[block]).mean())])
+    for c, case in enumerate(SPEED_CASES):
+        (model_cpu, model_wall), (ns3_cpu, ns3_wall) = model[c], ns3[c]
+        print(
+            f"{case.name:46} {model_cpu * 1e3:12.3f} {ns3_cpu * 1e3:7.2f} "
+            f"{ns3_cpu / model_cpu:5.0f}× {model_wall * 1e3:13.3f} {ns3_wall * 1e3:7.2f} "
+            f"{ns3_wall / model_wall:5.0f}×",
+            flush=True,
+        )
+
+
+def ns3_version() -> str:
+    return importlib.metadata.version("ns3")
+
+
+def numba_version() -> str:
+    return importlib.metadata.version("numba")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=SEED)
@@ -120,6 +235,7 @@ def main() -> None:
     parser.add_argument(
         "--error-model", choices=["chunks", "threshold"], default="chunks", help="the model's"
     )
+    parser.add_argument("--speed", action="store_true", help="only what a phase costs")
     parser.add_argument(
         "--saturation", action="store_true", help="instead: saturation against Bianchi's, in both"
     )
@@ -130,25 +246,13 @@ def main() -> None:
     if args.saturation:
         saturation(args.seed)
         return
+    if args.speed:
+        speed(args.seed, 5 if args.quick else args.phases)
+        return
     base = 5 if args.quick else args.phases
     rng = np.random.default_rng(args.seed)
     plans = [[phase(case, rng) for _ in range(base * case.phases)] for case in CASES]
-    batch = [
-        phase_request(
-            case.phy,
-            case.rate_mbps,
-            positions,
-            frames.sender,
-            frames.receiver,
-            frames.payload_bytes,
-            frames.ready_ns,
-            args.seed,
-            c * 100_000 + k + 1,
-        )
-        for c, case in enumerate(CASES)
-        for k, (positions, frames) in enumerate(plans[c])
-    ]
-    ns3, ns3_s = run_ns3(batch)
+    ns3, ns3_s = run_ns3(requests(CASES, plans, args.seed))
     load_compiled_loop()
     print(
         f"seed {args.seed} (ns-3 runs c·100000 + k + 1), {base} phases per case times its own; "

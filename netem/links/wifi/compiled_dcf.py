@@ -63,15 +63,11 @@ from netem.links.wifi.compiled_medium import (
     airtime_ns,
     carrier_busy,
     decoded,
-    levels_of,
     log_room,
     log_transmission,
     put_on_air,
-    timing,
 )
 from netem.links.wifi.compiled_reception import keyed_state_of, keyed_uniform_after
-from netem.links.wifi.config import AirConfig
-from netem.links.wifi.frames import Frames
 from netem.links.wifi.radio import AIR_STREAM
 from netem.links.wifi.reception import RECEPTION
 
@@ -189,11 +185,14 @@ def _sense(
             done = (now - start) // t[SLOT] if now > start else 0
             st[s, COUNTER] = max(st[s, COUNTER] - done, 0)
             st[s, PLANNED] = NEVER
-    for s in range(n):
+    for s in range(n):  # the medium turned idle: ``_plan`` of each, written out (no call)
         if not st[s, SENSED_BUSY] and st[s, BUSY]:
             st[s, IDLE_FROM] = now
-            st[s, BUSY] = 0
-            _plan(st, s, t)
+            st[s, PLANNED] = NEVER
+            if not st[s, AWAITING] and st[s, HEAD_READY] < NEVER:  # and not sending: idle
+                ifs = t[EIFS_NS] if st[s, EIFS] else t[DIFS]
+                backoff_end = now + ifs + st[s, COUNTER] * t[SLOT]
+                st[s, PLANNED] = max(st[s, HEAD_READY] + t[DIFS], backoff_end)
         st[s, BUSY] = st[s, SENSED_BUSY]
 
 
@@ -236,7 +235,7 @@ def _resolve(
 
 
 @jit
-def _run(
+def run(
     sender: Ints,
     receiver: Ints,
     payload_bytes: Ints,
@@ -269,6 +268,7 @@ def _run(
     reception = keyed_state_of(seed, AIR_STREAM, RECEPTION, epoch, phase)
     n = power.shape[0]
     energy = np.zeros(n)  # room for carrier sense's sum
+    received = np.zeros(n, dtype=np.int64)  # room for who decoded a frame
     ready = frames[:, 3].copy()
     out = np.full((2 * m, n), -1, dtype=np.int64)
     out[m:] = NOT_ADDRESSED
@@ -332,6 +332,7 @@ def _run(
                     backoff,
                     reception,
                     energy,
+                    received,
                 )
             elif kind == TIMEOUT:
                 if st[value, AWAITING] and not st[value, ACK_ON_AIR]:
@@ -379,7 +380,7 @@ def _run(
                 st[log[i, TX_SENDER], SENDING] = i
                 st[log[i, TX_SENDER], PLANNED] = NEVER
                 st[log[i, TX_SENDER], EIFS] = 0  # a transmission ends the EIFS
-            put_on_air(st, log, first, count, on_air, power, levels)
+            put_on_air(st, log, first, count, on_air, power, levels, energy)
             for i in range(first, logged):
                 ev = _push(ev, size, log[i, TX_START] + t[CCA], SENSED, i)
                 ev = _push(ev, size, log[i, TX_END], END, i)
@@ -407,6 +408,7 @@ def _end(
     backoff: np.uint64,
     reception: np.uint64,
     energy: Floats,
+    received: Ints,
 ) -> Ints:
     """Log entry ``index`` leaves the air: its receptions, then its sender's next step."""
     n, m = st.shape[0], frames.shape[0]
@@ -417,14 +419,11 @@ def _end(
         at += 1
     on_air[at : on_air[0]] = on_air[at + 1 : on_air[0] + 1]
     on_air[0] -= 1
-    receivers = np.flatnonzero(st[:, LOCK] == index)
-    received = np.zeros(n, dtype=np.int64)
-    if receivers.shape[0]:
-        got = decoded(index, receivers, log, logged, power, levels, t, reception)
-        received[receivers] = got
-    for j in receivers:
-        st[j, LOCK] = -1
-        st[j, EIFS] = not received[j]
+    decoded(index, st, log, logged, power, levels, t, reception, received)
+    for j in range(n):
+        if st[j, LOCK] == index:
+            st[j, LOCK] = -1
+            st[j, EIFS] = not received[j]
     if f == ACK:
         st[dest, ACK_ON_AIR] = 0
         if st[dest, AWAITING]:
@@ -457,33 +456,4 @@ def _end(
     return ev
 
 
-# -- the entry ------------------------------------------------------------------------------
-def decide(
-    config: AirConfig,
-    power_mw: Floats,
-    frames: Frames,
-    seed: int,
-    epoch: int,
-    phase: int,
-) -> tuple[Ints, npt.NDArray[np.int8], Ints, Ints, int]:
-    """The phase through the compiled loop: arrival [ns], cause, attempts, first start [ns]
-    and when the medium fell silent, as ``dcf._Phase`` gives them.
-
-    ``power_mw`` (n, n): what ``j`` receives from ``i``, 0 on the diagonal."""
-    out, extra, end_ns = _run(
-        frames.sender,
-        frames.receiver,
-        frames.payload_bytes,
-        frames.ready_ns,
-        power_mw,
-        levels_of(config),
-        timing(config),
-        seed,
-        epoch,
-        phase,
-    )
-    m = len(frames)
-    return out[:m], out[m:].astype(np.int8), extra[:, 0], extra[:, 1], int(end_ns)
-
-
-__all__ = ["decide"]
+__all__ = ["DELIVERED", "LATE", "run"]

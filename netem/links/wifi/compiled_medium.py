@@ -74,16 +74,23 @@ def carrier_busy(
 
 @jit
 def put_on_air(
-    st: Ints, log: Ints, first: int, count: int, on_air: Ints, power: Floats, levels: Floats
+    st: Ints,
+    log: Ints,
+    first: int,
+    count: int,
+    on_air: Ints,
+    power: Floats,
+    levels: Floats,
+    total: Floats,
 ) -> None:
     """Put log entries ``first .. first + count`` (starting together) on the air and lock
-    the free agents that detect one."""
+    the free agents that detect one. ``total`` (n,) is room for the power on the air."""
     n = st.shape[0]
     for k in range(count):
         on_air[on_air[0] + 1] = first + k
         on_air[0] += 1
         st[log[first + k, TX_SENDER], LOCK] = -1  # half duplex
-    total = np.zeros(n)
+    total[:] = 0.0
     for k in range(on_air[0]):
         total += power[log[on_air[k + 1], TX_SENDER]]
     noise, detect, detect_snr = levels[NOISE], levels[DETECT], levels[DETECT_SNR]
@@ -102,38 +109,54 @@ def put_on_air(
 @jit
 def decoded(
     index: int,
-    receivers: Ints,
+    st: Ints,
     log: Ints,
     size: int,
     power: Floats,
     levels: Floats,
     t: Ints,
     reception_state: np.uint64,
-) -> Ints:
-    """Which of ``receivers`` decode log entry ``index`` (``Reception.decoded``)."""
+    received: Ints,
+) -> None:
+    """``received[j]``: whether agent ``j``, locked onto log entry ``index``, decodes it
+    (``Reception.decoded``); 0 for the agents not locked onto it."""
     start, end, sender = log[index, TX_START], log[index, TX_END], log[index, TX_SENDER]
-    others = np.empty(size, dtype=np.int64)
+    count = 0
+    for o in range(size):
+        if o != index and log[o, TX_START] < end and log[o, TX_END] > start:
+            count += 1
+    # the overlapping entries, then the times the interference changes
+    work = np.empty(3 * count + 2, dtype=np.int64)
+    others, bounds = work[:count], work[count:]
     count = 0
     for o in range(size):
         if o != index and log[o, TX_START] < end and log[o, TX_END] > start:
             others[count] = o
             count += 1
-    bounds = np.empty(2 * count + 2, dtype=np.int64)
     bounds[0], bounds[1] = start, end
     for k in range(count):
         bounds[2 + 2 * k] = max(log[others[k], TX_START], start)
         bounds[3 + 2 * k] = min(log[others[k], TX_END], end)
-    bounds = np.unique(bounds)
-    pieces = bounds.shape[0] - 1
+    bounds.sort()
+    pieces = 0  # distinct bounds, in place
+    for k in range(1, bounds.shape[0]):
+        if bounds[k] != bounds[pieces]:
+            pieces += 1
+            bounds[pieces] = bounds[k]
     rate = log[index, TX_RATE]
     ack = log[index, TX_FRAME] == ACK
     noise = levels[NOISE]
-    header = np.array([start + t[HEADER_FROM], start + t[HEADER_TO], t[HEADER_RATE]])
-    payload = np.array([start + t[PREAMBLE_NS], end, rate])
-    out = np.zeros(receivers.shape[0], dtype=np.int64)
-    snr = np.empty(pieces)
-    for r in range(receivers.shape[0]):
-        j = receivers[r]
+    n = st.shape[0]
+    who = np.empty(n, dtype=np.int64)  # the agents locked onto the entry
+    locked = 0
+    for j in range(n):
+        received[j] = 0
+        if st[j, LOCK] == index:
+            who[locked] = j
+            locked += 1
+    snr = np.empty((locked, pieces))
+    for r in range(locked):
+        j = who[r]
         signal = power[sender, j]
         worst = 0.0
         for k in range(pieces):
@@ -145,13 +168,19 @@ def decoded(
                 if o_start <= bounds[k] < o_end:
                     interference += power[log[o, TX_SENDER], j]
             worst = max(worst, interference)
-            snr[k] = signal / (noise + interference)
+            snr[r, k] = signal / (noise + interference)
         if not t[CHUNKS]:
-            out[r] = signal >= (levels[ACK_SINR] if ack else levels[SINR]) * (noise + worst)
-            continue
-        p = frame_success(t[OFDM] != 0, header, payload, bounds, pieces, snr)
-        out[r] = keyed_uniform_after(reception_state, index, j) < p
-    return out
+            received[j] = signal >= (levels[ACK_SINR] if ack else levels[SINR]) * (noise + worst)
+    if not t[CHUNKS] or locked == 0:
+        return
+    header = (start + t[HEADER_FROM], start + t[HEADER_TO], t[HEADER_RATE])
+    payload = (start + t[PREAMBLE_NS], end, rate)
+    success = np.empty(locked)
+    frame_success(t[OFDM] != 0, header, payload, bounds, pieces, snr, success)
+    for r in range(locked):
+        # a uniform draw is below 1: a sure frame needs none
+        p = success[r]
+        received[who[r]] = p >= 1.0 or keyed_uniform_after(reception_state, index, who[r]) < p
 
 
 @jit

@@ -32,6 +32,18 @@ CURVES = np.array(
     [[[low, high, *coef] for low, high, coef in OFDM_CURVES[int(r)]] for r in OFDM_RATES_KBPS],
     dtype=np.float64,
 )
+# [rate, reference] -> the SINR (linear) below which a chunk is surely lost, above which it
+# surely survives: ``_ofdm_chunk`` skips its logarithm there (a margin far above rounding)
+SURE = np.array(
+    [
+        [
+            [10.0 ** (low / 10.0) * (1.0 - 1e-9), 10.0 ** (high / 10.0) * (1.0 + 1e-9)]
+            for low, high, _ in OFDM_CURVES[int(r)]
+        ]
+        for r in OFDM_RATES_KBPS
+    ],
+    dtype=np.float64,
+)
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
 _LARGE = float(LARGE_CHUNK_BYTES)
 _SMALL = float(SMALL_CHUNK_BYTES)
@@ -70,17 +82,27 @@ def keyed_uniform_after(state: np.uint64, a: int, b: int) -> float:
 
 @jit
 def _ofdm_chunk(rate_kbps: int, snr: float, nbits: int) -> float:
-    snr_db = 10.0 * math.log10(max(snr, 1e-30))
     size = float(max(nbits // 8, 1))
     large = size >= LARGE_FROM_BYTES
-    curve = CURVES[np.searchsorted(OFDM_RATES_KBPS, rate_kbps), 1 if large else 0]
-    low, high = curve[0], curve[1]
+    row, size_ref = np.searchsorted(OFDM_RATES_KBPS, rate_kbps), 1 if large else 0
+    if snr > SURE[row, size_ref, 1]:
+        return 1.0
+    if snr < SURE[row, size_ref, 0]:
+        return 0.0
+    snr_db = 10.0 * math.log10(max(snr, 1e-30))
+    low, high = CURVES[row, size_ref, 0], CURVES[row, size_ref, 1]
     if snr_db < low:
         return 0.0  # 0 to a positive power
     if snr_db > high:
         return 1.0  # 1 to any power
     x = snr_db
-    reference = math.exp(-math.exp(((curve[2] * x + curve[3]) * x + curve[4]) * x + curve[5]))
+    c3, c2, c1, c0 = (
+        CURVES[row, size_ref, 2],
+        CURVES[row, size_ref, 3],
+        CURVES[row, size_ref, 4],
+        CURVES[row, size_ref, 5],
+    )
+    reference = math.exp(-math.exp(((c3 * x + c2) * x + c1) * x + c0))
     success = reference ** (size / (_LARGE if large else _SMALL))
     return 1.0 if 1.0 - success < NEGLIGIBLE_PER else success
 
@@ -140,29 +162,32 @@ def chunk_success(ofdm: bool, rate_kbps: int, snr: float, nbits: int) -> float:
 @jit
 def frame_success(
     ofdm: bool,
-    header: npt.NDArray[np.int64],
-    payload: npt.NDArray[np.int64],
+    header: tuple[int, int, int],
+    payload: tuple[int, int, int],
     bounds: npt.NDArray[np.int64],
     pieces: int,
     snr: npt.NDArray[np.float64],
-) -> float:
-    """The product of the chunk success rates over the header and the payload.
+    success: npt.NDArray[np.float64],
+) -> None:
+    """``success[r]``: the product of the chunk success rates over the header and the payload
+    at receiver ``r``.
 
     ``header`` and ``payload`` are (from, to [ns], rate [kb/s]); ``bounds[: pieces + 1]`` the
-    times the interference changes; ``snr[: pieces]`` the SINR over each piece (linear)."""
-    p = 1.0
-    for window in (header, payload):
-        lo, hi, rate = window[0], window[1], window[2]
-        product = 1.0
-        counted = False
-        for k in range(pieces):
-            span = min(bounds[k + 1], hi) - max(bounds[k], lo)
-            if span > 0:
-                product = product * chunk_success(ofdm, rate, snr[k], span * rate // 1_000_000)
-                counted = True
-        if counted:
-            p = p * product
-    return p
+    times the interference changes; ``snr[r, : pieces]`` the SINR over each piece (linear)."""
+    for r in range(snr.shape[0]):
+        p = 1.0
+        for lo, hi, rate in (header, payload):
+            product = 1.0
+            counted = False
+            for k in range(pieces):
+                span = min(bounds[k + 1], hi) - max(bounds[k], lo)
+                if span > 0:
+                    nbits = span * rate // 1_000_000
+                    product = product * chunk_success(ofdm, rate, snr[r, k], nbits)
+                    counted = True
+            if counted:
+                p = p * product
+        success[r] = p
 
 
 __all__ = ["chunk_success", "frame_success", "keyed_state_of", "keyed_uniform_after"]

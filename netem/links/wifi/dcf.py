@@ -75,15 +75,10 @@ def decide_phase(
     phase_end_ns
         Frames received later are ``LATE``; ``None``: none is.
     """
-    positions = np.asarray(positions_m, dtype=np.float64)
-    frames.check(positions.shape[0])
     # numba takes about a second to load: only once a phase is decided
-    from netem.links.wifi.compiled_dcf import decide
+    from netem.links.wifi.compiled_phase import decide
 
-    arrival, cause, attempts, first_start, end_ns = decide(
-        config, _power_mw(config, positions, key), frames, key.seed, key.epoch, key.phase
-    )
-    return _outcome(arrival, cause, attempts, first_start, end_ns, phase_end_ns)
+    return decide(config, positions_m, frames, key.seed, key.epoch, key.phase, phase_end_ns)
 
 
 def load_compiled_loop() -> None:

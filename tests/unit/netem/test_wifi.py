@@ -283,6 +283,8 @@ def test_a_frame_from_outside_the_team_is_named() -> None:
         decide_phase(DEFAULT, on_a_line(0, 1, 2), Frames.of([0, 5], BROADCAST, 10, 0), Key(1, 0, 0))
     with pytest.raises(AirError, match=r"frames.receiver\[0\] = 0; expected another agent"):
         decide_phase(DEFAULT, on_a_line(0, 1, 2), Frames.of(0, 0, 10, 0), Key(1, 0, 0))
+    with pytest.raises(AirError, match=r"frames.payload_bytes\[0\] = -1; expected ≥ 0"):
+        decide_phase(DEFAULT, on_a_line(0, 1, 2), Frames.of(0, 1, -1, 0), Key(1, 0, 0))
     with pytest.raises(AirError, match=r"frames.ready_ns\[0\] = -1; expected ≥ 0"):
         decide_phase(DEFAULT, on_a_line(0, 1, 2), Frames.of(0, 1, 10, -1), Key(1, 0, 0))
 

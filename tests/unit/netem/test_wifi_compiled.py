@@ -1,6 +1,6 @@
 """The compiled event loop against the model in Python (``dcf.reference_phase``): the same
-decisions, causes, arrival times, attempts and first starts on random phases
-(docs/model.md §11)."""
+decisions, causes, arrival times, attempts and first starts on random phases, and the same
+received powers and chunk success rates to rounding (docs/model.md §11)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from netem.links.wifi import BROADCAST, PHYS, AirConfig, Frames, Key, PhaseOutcome, decide_phase
+from netem.links.wifi.compiled_phase import _arrays_of, _received_mw
 from netem.links.wifi.compiled_reception import chunk_success as compiled_chunk
-from netem.links.wifi.dcf import reference_phase
+from netem.links.wifi.dcf import _power_mw, reference_phase
 from netem.links.wifi.error_rate import chunk_success
 
 
@@ -89,3 +90,22 @@ def test_a_compiled_chunk_rate_is_the_reference_s_to_rounding(
     expected = chunk_success(PHYS[phy].ofdm, rate, np.array([snr]), np.array([nbits]))[0]
     got = compiled_chunk(PHYS[phy].ofdm, rate, snr, nbits)
     assert abs(got - expected) <= 1e-12 * max(1.0, abs(expected))
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    dims=st.sampled_from([2, 3]),
+    n=st.integers(2, 15),
+    sigma_db=st.sampled_from([0.0, 4.0]),
+    seed=st.integers(0, 2**31),
+)
+def test_compiled_received_power_is_the_radio_s_to_rounding(
+    dims: int, n: int, sigma_db: float, seed: int
+) -> None:
+    config = AirConfig(shadowing_sigma_db=sigma_db, reference_distance_m=2.0)
+    positions = np.random.default_rng(seed).uniform(0.0, 60.0, (n, dims))
+    positions[1] = positions[0] + 0.5  # closer than the reference distance
+    radio, _, _ = _arrays_of(config)
+    got = _received_mw(positions, radio, seed, 7)
+    expected = _power_mw(config, positions, Key(seed, 7, 0))
+    np.testing.assert_allclose(got, expected, rtol=1e-12, atol=0.0)
