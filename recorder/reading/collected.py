@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from analysis import Decisions, Substitutions
-from formation.messages import DecisionBatch
+from formation.messages import DecisionBatch, decision_rows
 from formation.plugin_api import PLUGIN_FAILED
 from recorder.reading.bodies import RecordedPoses
 from recorder.reading.bulk import decision_columns
@@ -65,7 +65,6 @@ class Collected:
             self._decisions(msg)
 
     def _decisions(self, batch: DecisionBatch) -> None:
-        decisions, count = batch.decisions, len(batch.decisions)
         if self.columns is None:
             self.decisions.extend(
                 (
@@ -84,10 +83,10 @@ class Collected:
                     c.queue_depth,
                     c.sojourn_ms,
                 )
-                for c in decisions
+                for c in decision_rows(batch)
             )
             return
-        if not count:
+        if not batch.records.source:
             return
         for name, column in decision_columns(batch).items():
             self.columns[name].append(column)

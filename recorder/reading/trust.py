@@ -25,7 +25,6 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Mapping, Sequence
-from operator import attrgetter
 from typing import Any
 
 import numpy as np
@@ -36,9 +35,11 @@ from pydantic import BaseModel, ValidationError
 
 from formation import keys
 from formation.messages import (
+    LINK_CLASS_OF,
     AgentEstimate,
     CoordinationState,
     DecisionBatch,
+    DecisionColumns,
     Delivery,
     EpochMetrics,
     LeaderEstimate,
@@ -78,7 +79,19 @@ _REPEATED = frozenset({"status", "decision", "alive", "link_change"})  # many pe
 Args = tuple[str, ...]  # the open chunks of a key, in order: keys.parse(topic).args
 
 
-_CLASSES = {"formation": 0, "report": 1, "estimate": 2}
+_COLUMNS = tuple(DecisionColumns.model_fields)
+
+
+def _judgements_known(index: Sequence[int], count: int) -> None:
+    """Every judgement index of a batch's records is one of its ``count`` judgements."""
+    try:
+        at = np.array(index, dtype=np.int64)
+        if not len(at) or (at.min() >= 0 and at.max() < count):
+            return
+    except OverflowError:
+        pass
+    r, bad = next((r, j) for r, j in enumerate(index) if not 0 <= j < count)
+    raise Skip(INVALID, f"record {r}: judgement {bad}, but the batch has {count} judgements")
 
 
 def _all_finite(rows: list[Any], shape: tuple[int | None, ...]) -> bool:
@@ -352,40 +365,43 @@ class Gate:
 
     def _decision(self, msg: DecisionBatch, args: Args) -> None:
         self._sender(msg, "netem")
-        if self.scenario is not None and self._decisions_fit(msg):
+        records = msg.records
+        lengths = [len(getattr(records, name)) for name in _COLUMNS]
+        if len(set(lengths)) > 1:
+            sizes = ", ".join(f"{n} {k}" for n, k in zip(_COLUMNS, lengths, strict=True))
+            raise Skip(INVALID, f"decision columns of unequal lengths: {sizes}")
+        _judgements_known(records.judgement, len(msg.judgements))
+        if self.scenario is None or self._decisions_fit(msg):
             return  # 44,000 decisions an epoch at 10,000 agents: checked as arrays
-        for dec in msg.decisions:
-            self._epoch(dec.epoch, self._last_decided())
-            self._endpoint(dec.source)
-            self._endpoint(dec.target)
-            if self.scenario is None:
-                continue
-            link = (dec.source, dec.target)
+        cls, last = LINK_CLASS_OF[msg.phase], self._last_decided()
+        for r, (src, dst, epoch) in enumerate(
+            zip(records.source, records.target, records.epoch, strict=True)
+        ):
+            try:  # the one at fault, named
+                self._epoch(epoch, last)
+                self._endpoint(src)
+                self._endpoint(dst)
+            except Skip as skip:
+                raise Skip(skip.reason, f"record {r}: {skip}") from None
             ok = {
-                "formation": link in self.links,
-                "report": dec.target == keys.LEADER_ENDPOINT and dec.source != keys.LEADER_ENDPOINT,
-                "estimate": dec.source == keys.LEADER_ENDPOINT
-                and dec.target != keys.LEADER_ENDPOINT,
-            }[dec.link_class]
+                "formation": (src, dst) in self.links,
+                "report": dst == keys.LEADER_ENDPOINT and src != keys.LEADER_ENDPOINT,
+                "estimate": src == keys.LEADER_ENDPOINT and dst != keys.LEADER_ENDPOINT,
+            }[cls]
             if not ok:
-                raise Skip(OUT_OF_RANGE, f"no {dec.link_class} link {link[0]}->{link[1]}")
+                raise Skip(OUT_OF_RANGE, f"record {r}: no {cls} link {src}->{dst}")
 
     def _decisions_fit(self, msg: DecisionBatch) -> bool:
-        """Whether every decision passes the checks of :meth:`_decision`, as arrays."""
-        count, decisions = len(msg.decisions), msg.decisions
+        """Whether every record passes the checks of :meth:`_decision`, as arrays."""
+        records = msg.records
         try:
             if self.plain_bulk:  # the reader keeps these columns
                 columns = decision_columns(msg)
                 epoch, source, target = columns["epoch"], columns["source"], columns["target"]
-                kind = np.select(
-                    [columns["link_class"] == c for c in _CLASSES], list(_CLASSES.values()), -1
-                )
             else:
-                epoch = np.fromiter(map(attrgetter("epoch"), decisions), np.int64, count)
-                source = np.fromiter(map(attrgetter("source"), decisions), np.int64, count)
-                target = np.fromiter(map(attrgetter("target"), decisions), np.int64, count)
-                classes = map(_CLASSES.__getitem__, map(attrgetter("link_class"), decisions))
-                kind = np.fromiter(classes, np.int8, count)
+                epoch = np.array(records.epoch, dtype=np.int64)
+                source = np.array(records.source, dtype=np.int64)
+                target = np.array(records.target, dtype=np.int64)
         except OverflowError:  # past 63 bits: checked one by one
             return False
         last = self._last_decided()
@@ -395,13 +411,12 @@ class Gate:
         if not ((ends >= 0) & (ends <= self.n)).all():
             return False
         leader = keys.LEADER_ENDPOINT
-        formation = kind == 0
-        codes = source[formation] * (self.n + 1) + target[formation]
-        return bool(
-            self.within_links(codes)
-            and ((target == leader) & (source != leader))[kind == 1].all()
-            and ((source == leader) & (target != leader))[kind == 2].all()
-        )
+        cls = LINK_CLASS_OF[msg.phase]
+        if cls == "formation":
+            return self.within_links(source * (self.n + 1) + target)
+        if cls == "report":
+            return bool(((target == leader) & (source != leader)).all())
+        return bool(((source == leader) & (target != leader)).all())
 
     def _edges_known(self, pairs: list[npt.NDArray[np.int64]]) -> bool:
         """Whether every pair of the (k, 2) arrays is an edge of the formation, in either

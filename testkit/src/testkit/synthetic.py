@@ -53,7 +53,7 @@ def traffic(result: Any) -> list[tuple[str, bytes, bytes | None, int]]:
                      verdict="pass" if result.delivered[k, c] else "drop")
             for c, (a, b) in enumerate(s.directed_links)
         ]  # fmt: skip
-        batch = DecisionBatch(**_header("netem", k, k), phase="state", decisions=decisions)
+        batch = DecisionBatch.of_rows(**_header("netem", k, k), phase="state", decisions=decisions)
         out.append((keys.netem_decision(RUN), encode(batch), None, t + 100))
         est, cov, obs = result.estimates[k], result.estimate_cov[k], result.observable[k]
         msg = LeaderEstimate(
