@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from analysis import Decisions, Substitutions
-from formation.messages import DecisionBatch, decision_rows
+from formation.messages import LINK_CLASS_OF, DecisionBatch, Judgement
 from formation.plugin_api import PLUGIN_FAILED
 from recorder.reading.bodies import RecordedPoses
 from recorder.reading.bulk import decision_columns
@@ -27,6 +27,7 @@ Array = npt.NDArray[np.float64]
 Ints = npt.NDArray[np.int64]
 ROBOT_COUNTS = "body_"  # the prefix of an agent's body counts in its status (agent.body)
 DECISION_COLUMNS = tuple(f.name for f in fields(Decisions))
+JUDGED = tuple(Judgement.model_fields)  # the last of DECISION_COLUMNS, in their order
 
 
 class Collected:
@@ -65,28 +66,23 @@ class Collected:
             self._decisions(msg)
 
     def _decisions(self, batch: DecisionBatch) -> None:
+        records = batch.records
         if self.columns is None:
+            head = (batch.phase, LINK_CLASS_OF[batch.phase])
+            judged = [tuple(getattr(j, name) for name in JUDGED) for j in batch.judgements]
             self.decisions.extend(
-                (
-                    c.epoch,
-                    batch.phase,
-                    c.link_class,
-                    c.source,
-                    c.target,
-                    c.seq,
-                    c.verdict,
-                    c.delay_epochs,
-                    c.delay_ms,
-                    c.model,
-                    c.state,
-                    c.queue,
-                    c.queue_depth,
-                    c.sojourn_ms,
+                (e, *head, s, t, q, *judged[j])  # in DECISION_COLUMNS' order
+                for s, t, e, q, j in zip(
+                    records.source,
+                    records.target,
+                    records.epoch,
+                    records.seq,
+                    records.judgement,
+                    strict=True,
                 )
-                for c in decision_rows(batch)
             )
             return
-        if not batch.records.source:
+        if not records.source:
             return
         for name, column in decision_columns(batch).items():
             self.columns[name].append(column)

@@ -5,7 +5,9 @@ agent can still put anything on its own keys. Everything that reads a recording 
 analysis (``formation report``, ``info``, ``replay``, the run's summary, the experiments,
 :func:`recorder.load_run`) goes through one :class:`Gate`, which passes a message only when
 
-- it validates against the pydantic model of its channel's kind (:data:`recorder.recording.schemas.MESSAGE_MODELS`),
+- it validates against the pydantic model of its channel's kind (:data:`recorder.recording.schemas.MESSAGE_MODELS`;
+  netem's decision batches of an older recording, as rows, are read into columns:
+  :mod:`recorder.reading.row_batches`),
   with finite numbers of the scenario's dimension; the recorder's Foxglove channels (scene,
   frames, log) decode as the SDK's protobuf message (:mod:`recorder.reading.decoder`);
 - its sender owns the key: ``agent/<i>/…`` and link ``i → j`` carry ``agent/<i>`` (or a pool
@@ -51,6 +53,7 @@ from formation.scenario import Scenario
 from recorder.reading.bulk import DECODERS, decision_columns, plain
 from recorder.reading.decoder import DecodeError, decode_cdr, decode_kind
 from recorder.reading.estimates import estimate_arrays
+from recorder.reading.row_batches import row_batch
 from recorder.reading.skips import (
     CONFLICT,
     FORGED,
@@ -195,7 +198,9 @@ class Gate:
             try:
                 msg = model.model_validate_json(data)
             except (ValidationError, ValueError, UnicodeDecodeError) as exc:
-                raise Skip(INVALID, f"{model.__name__}: {str(exc).splitlines()[0]}") from None
+                msg = row_batch(data) if kind == "decision" else None  # an older recording's
+                if msg is None:
+                    raise Skip(INVALID, f"{model.__name__}: {str(exc).splitlines()[0]}") from None
         check = getattr(self, f"_{kind}", None)
         if check is not None:
             check(msg, keys.parse(topic).args)

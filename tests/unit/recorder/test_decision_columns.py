@@ -121,3 +121,36 @@ def test_a_batch_not_from_netem_is_forged(paper: Scenario) -> None:
 def test_a_bad_value_is_invalid(paper: Scenario) -> None:
     reason, detail = _skip(paper, _batch(judgements=[{"verdict": "lost"}]))
     assert reason == INVALID and detail.startswith("DecisionBatch:")
+
+
+def _rows_batch(sender: str = "netem", link_class: str = "formation") -> bytes:
+    """A batch as recordings made before the columns hold it: a list of records."""
+    body = {
+        "run_id": RUN, "sender": sender, "seq": 0, "epoch": 3, "stamp_ns": 1,
+        "kind": "decisions", "phase": "state",
+        "decisions": [
+            {"source": 1, "target": 2, "link_class": link_class, "epoch": 3, "seq": 3,
+             "verdict": "pass"},
+            {"source": 2, "target": 1, "link_class": link_class, "epoch": 3, "seq": 3,
+             "verdict": "drop", "model": "bernoulli"},
+        ],
+    }  # fmt: skip
+    return json.dumps(body).encode()
+
+
+@pytest.mark.parametrize("plain_bulk", [False, True])
+def test_an_older_recording_s_rows_are_read_as_columns(paper: Scenario, plain_bulk: bool) -> None:
+    gate = Gate(paper, plain_bulk=plain_bulk)
+    batch = gate.check(TOPIC, _rows_batch(), "decision")
+    assert isinstance(batch, DecisionBatch) and not gate.skipped.total
+    assert decision_columns(batch)["verdict"].tolist() == ["pass", "drop"]
+    assert [(d.source, d.target, d.model) for d in decision_rows(batch)] == [
+        (1, 2, ""),
+        (2, 1, "bernoulli"),
+    ]
+    for data, reason in [
+        (_rows_batch(sender="agent/1"), FORGED),
+        (_rows_batch(link_class="report"), INVALID),  # not its phase's links
+    ]:
+        assert gate.check(TOPIC, data, "decision") is None
+        assert gate.skipped.by_reason()[reason] == 1
