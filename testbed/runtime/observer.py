@@ -135,9 +135,8 @@ class Observer:
 
     @property
     def decisions(self) -> list[Verdict]:
-        """Every decision received, in order."""
-        with self.lock:
-            batches = list(self._batches)
+        """Every decision received, in order (read under :attr:`lock`, as every field)."""
+        batches = list(self._batches)  # one copy: a batch may be appended meanwhile
         return [
             Verdict(s, t, link_class, e, q, *judged[j])
             for link_class, judged, columns in batches
