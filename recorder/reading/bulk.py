@@ -17,7 +17,6 @@ import numpy as np
 import numpy.typing as npt
 
 from formation.messages import (
-    LINK_CLASS_OF,
     CoordinationState,
     DecisionBatch,
     EpochMetrics,
@@ -35,34 +34,25 @@ DECODERS: dict[str, msgspec.json.Decoder[Any]] = {
 
 
 _JUDGED = tuple(Judgement.model_fields)
-_IDS = ("epoch", "source", "target", "seq")
+_INTS = ("epoch", "source", "target", "seq", "judgement")
 # the last batch whose columns were made, and them: one tuple, read once (threads share it)
-_last: list[tuple[Any, dict[str, npt.NDArray[Any]]]] = [(None, {})]
+_last: list[tuple[Any, dict[str, npt.NDArray[np.int64]]]] = [(None, {})]
 
 
-def decision_columns(batch: Any) -> dict[str, npt.NDArray[Any]]:
-    """A decision batch's columns as :class:`analysis.Decisions` holds them (``phase`` and
-    its link class repeated; None as −1 and NaN); made once for the batch the trust gate
-    checks and the reader then keeps (the last batch's are remembered).
+def decision_columns(batch: Any) -> dict[str, npt.NDArray[np.int64]]:
+    """A decision batch's record columns as arrays (``epoch``, ``source``, ``target``,
+    ``seq``, ``judgement``); made once for the batch the trust gate checks and the reader
+    then keeps (the last batch's are remembered).
 
-    The batch's columns must have one length and every judgement index be one of its
-    judgements' (:class:`recorder.reading.trust.Gate` checks); an id past 63 bits raises
-    ``OverflowError``.
+    The batch's columns must have one length (:class:`recorder.reading.trust.Gate`
+    checks); an id past 63 bits raises ``OverflowError``.
     """
     last = _last[0]
     if last[0] is batch:
         return last[1]
     records = batch.records
     count = len(records.source)
-    out: dict[str, npt.NDArray[Any]] = {
-        "phase": np.full(count, batch.phase, dtype=object),
-        "link_class": np.full(count, LINK_CLASS_OF[batch.phase], dtype=object),
-    }
-    for name in _IDS:
-        out[name] = np.array(getattr(records, name), dtype=np.int64).reshape(count)
-    index = np.array(records.judgement, dtype=np.int64).reshape(count)
-    for name, column in judgement_columns(batch.judgements).items():
-        out[name] = column[index]
+    out = {name: np.array(getattr(records, name), dtype=np.int64).reshape(count) for name in _INTS}
     _last[0] = (batch, out)
     return out
 

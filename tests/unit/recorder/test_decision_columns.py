@@ -13,7 +13,7 @@ import pytest
 from formation import keys
 from formation.messages import Decision, DecisionBatch, decision_rows
 from formation.scenario import Scenario
-from recorder.reading.bulk import decision_columns
+from recorder.reading.collected import Collected
 from recorder.reading.trust import FORGED, INVALID, OUT_OF_RANGE, Gate
 
 RUN = "r"
@@ -51,22 +51,33 @@ def _skip(paper: Scenario, body: dict[str, Any]) -> tuple[str, str]:
     return one
 
 
+def _table(batches: list[Any]) -> Any:
+    """The decisions table the reader makes of trusted ``batches`` (:class:`Collected`)."""
+    got = Collected(bulk=True, d=2)
+    for batch in batches:
+        got.add("decision", batch)
+    return got.decisions_of_run()
+
+
 @pytest.mark.parametrize("plain_bulk", [False, True])
 def test_a_batch_s_columns_are_its_rows(paper: Scenario, plain_bulk: bool) -> None:
     gate = Gate(paper, plain_bulk=plain_bulk)
-    batch = gate.check(TOPIC, json.dumps(_batch()).encode(), "decision")
-    assert batch is not None and not gate.skipped.total
-    columns = decision_columns(batch)
-    rows = decision_rows(batch)  # type: ignore[arg-type]
+    first = gate.check(TOPIC, json.dumps(_batch()).encode(), "decision")
+    report = _batch(phase="report", source=[1, 2, 3], target=[0, 0, 0], judgement=[2, 2, 1])
+    second = gate.check(TOPIC, json.dumps(report).encode(), "decision")
+    assert first is not None and second is not None and not gate.skipped.total
+    rows = decision_rows(first) + decision_rows(second)  # type: ignore[arg-type]
     assert rows[2] == Decision(source=1, target=2, link_class="formation", epoch=3, seq=4,
                                verdict="delayed", delay_epochs=2, queue="radio 1",
                                queue_depth=4, sojourn_ms=1.5)  # fmt: skip
+    table = _table([first, second])
     for name in ("source", "target", "epoch", "seq", "verdict", "delay_epochs", "model"):
-        assert columns[name].tolist() == [getattr(r, name) for r in rows], name
-    assert columns["link_class"].tolist() == ["formation"] * 3
-    assert columns["queue"].tolist() == [None, None, "radio 1"]
-    assert columns["queue_depth"].tolist() == [-1, -1, 4]
-    np.testing.assert_array_equal(columns["sojourn_ms"], [np.nan, np.nan, 1.5])
+        assert getattr(table, name).tolist() == [getattr(r, name) for r in rows], name
+    assert table.phase.tolist() == ["state"] * 3 + ["report"] * 3
+    assert table.link_class.tolist() == ["formation"] * 3 + ["report"] * 3
+    assert table.queue.tolist() == [None, None, "radio 1", "radio 1", "radio 1", None]
+    assert table.queue_depth.tolist() == [-1, -1, 4, 4, 4, -1]
+    np.testing.assert_array_equal(table.sojourn_ms, [np.nan, np.nan, 1.5, 1.5, 1.5, np.nan])
 
 
 def test_of_rows_keeps_each_judgement_once() -> None:
@@ -143,7 +154,7 @@ def test_an_older_recording_s_rows_are_read_as_columns(paper: Scenario, plain_bu
     gate = Gate(paper, plain_bulk=plain_bulk)
     batch = gate.check(TOPIC, _rows_batch(), "decision")
     assert isinstance(batch, DecisionBatch) and not gate.skipped.total
-    assert decision_columns(batch)["verdict"].tolist() == ["pass", "drop"]
+    assert _table([batch]).verdict.tolist() == ["pass", "drop"]
     assert [(d.source, d.target, d.model) for d in decision_rows(batch)] == [
         (1, 2, ""),
         (2, 1, "bernoulli"),
