@@ -220,11 +220,12 @@ class DecisionBatch(_Message):
     ) -> DecisionBatch:
         """A batch of ``decisions`` (each of ``phase``'s link class), ``header`` its
         message fields."""
-        judgements: dict[Judgement, int] = {}
-        index = []
-        for d in decisions:
-            j = Judgement(**d.model_dump(include=set(Judgement.model_fields)))
-            index.append(judgements.setdefault(j, len(judgements)))
+        names = tuple(Judgement.model_fields)
+        judged: dict[tuple[Any, ...], int] = {}  # a judgement's values → its index
+        index = [
+            judged.setdefault(tuple(getattr(d, name) for name in names), len(judged))
+            for d in decisions
+        ]
         columns = DecisionColumns(
             source=[d.source for d in decisions],
             target=[d.target for d in decisions],
@@ -232,7 +233,8 @@ class DecisionBatch(_Message):
             seq=[d.seq for d in decisions],
             judgement=index,
         )
-        return cls(phase=phase, judgements=list(judgements), records=columns, **header)
+        judgements = [Judgement(**dict(zip(names, values, strict=True))) for values in judged]
+        return cls(phase=phase, judgements=judgements, records=columns, **header)
 
 
 def decision_rows(batch: DecisionBatch) -> list[Decision]:
