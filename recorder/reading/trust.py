@@ -41,7 +41,6 @@ from formation.messages import (
     AgentEstimate,
     CoordinationState,
     DecisionBatch,
-    DecisionColumns,
     Delivery,
     EpochMetrics,
     LeaderEstimate,
@@ -51,6 +50,7 @@ from formation.messages import (
 )
 from formation.scenario import Scenario
 from recorder.reading.bulk import DECODERS, decision_columns, plain
+from recorder.reading.decision_shape import check_shape
 from recorder.reading.decoder import DecodeError, decode_cdr, decode_kind
 from recorder.reading.estimates import estimate_arrays
 from recorder.reading.row_batches import row_batch
@@ -80,21 +80,6 @@ DERIVED = frozenset({"metrics", *FOXGLOVE})  # kinds only the recorder writes
 _REPEATED = frozenset({"status", "decision", "alive", "link_change"})  # many per epoch
 
 Args = tuple[str, ...]  # the open chunks of a key, in order: keys.parse(topic).args
-
-
-_COLUMNS = tuple(DecisionColumns.model_fields)
-
-
-def _judgements_known(index: Sequence[int], count: int) -> None:
-    """Every judgement index of a batch's records is one of its ``count`` judgements."""
-    try:
-        at = np.array(index, dtype=np.int64)
-        if not len(at) or (at.min() >= 0 and at.max() < count):
-            return
-    except OverflowError:
-        pass
-    r, bad = next((r, j) for r, j in enumerate(index) if not 0 <= j < count)
-    raise Skip(INVALID, f"record {r}: judgement {bad}, but the batch has {count} judgements")
 
 
 def _all_finite(rows: list[Any], shape: tuple[int | None, ...]) -> bool:
@@ -370,12 +355,8 @@ class Gate:
 
     def _decision(self, msg: DecisionBatch, args: Args) -> None:
         self._sender(msg, "netem")
+        check_shape(msg)
         records = msg.records
-        lengths = [len(getattr(records, name)) for name in _COLUMNS]
-        if len(set(lengths)) > 1:
-            sizes = ", ".join(f"{n} {k}" for n, k in zip(_COLUMNS, lengths, strict=True))
-            raise Skip(INVALID, f"decision columns of unequal lengths: {sizes}")
-        _judgements_known(records.judgement, len(msg.judgements))
         if self.scenario is None or self._decisions_fit(msg):
             return  # 44,000 decisions an epoch at 10,000 agents: checked as arrays
         cls, last = LINK_CLASS_OF[msg.phase], self._last_decided()
