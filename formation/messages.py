@@ -9,7 +9,7 @@ the in-process simulator compute on the same numbers.
 from __future__ import annotations
 
 import operator
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -178,16 +178,11 @@ class DeliveryBatch(_Message):
     deliveries: list[Delivery]
 
 
-class Decision(BaseModel):
-    """One netem verdict on one packet (docs/architecture.md "Wire": every decision recorded)."""
+class Judgement(BaseModel):
+    """What netem decided on a packet, shared by the records of a batch decided alike."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    source: int
-    target: int
-    link_class: Literal["formation", "report", "estimate"]
-    epoch: int
-    seq: int
     verdict: Literal["pass", "drop", "duplicate", "delayed"]
     delay_epochs: int = 0
     delay_ms: float = 0.0
@@ -201,12 +196,92 @@ class Decision(BaseModel):
     sojourn_ms: float | None = None
 
 
+class Decision(Judgement):
+    """One netem verdict on one packet: a row of a :class:`DecisionBatch`."""
+
+    source: int
+    target: int
+    link_class: Literal["formation", "report", "estimate"]
+    epoch: int
+    seq: int
+
+
+class DecisionColumns(BaseModel):
+    """A batch's records as columns, entry ``r`` of each the ``r``-th record: its link's ends,
+    its packet's epoch and seq, and its decision (an index into the batch's ``judgements``).
+
+    The columns have one length and every index is a judgement's; the trust gate checks both
+    (``recorder.reading.trust``), naming the column or value at fault.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    source: list[int]
+    target: list[int]
+    epoch: list[int]
+    seq: list[int]
+    judgement: list[int]
+
+
+# Each link class belongs to one phase (docs/architecture.md "Wire"): a batch's records are
+# its phase's.
+LINK_CLASS_OF: dict[str, Literal["formation", "report", "estimate"]] = {
+    "state": "formation",
+    "report": "report",
+    "estimate": "estimate",
+}
+
+
 class DecisionBatch(_Message):
-    """Decisions netem took in one phase: of one epoch, or of several clean ones (each record has its epoch)."""
+    """Decisions netem took in one phase: of one epoch, or of several clean ones (each record
+    has its epoch), as columns (``records``) over the batch's distinct ``judgements``."""
 
     kind: Literal["decisions"] = "decisions"
     phase: Literal["state", "report", "estimate"]
-    decisions: list[Decision]
+    judgements: list[Judgement]
+    records: DecisionColumns
+
+    @classmethod
+    def of_rows(
+        cls,
+        *,
+        phase: Literal["state", "report", "estimate"],
+        decisions: list[Decision],
+        **header: Any,
+    ) -> DecisionBatch:
+        """A batch of ``decisions`` (each of ``phase``'s link class), ``header`` its
+        message fields."""
+        names = tuple(Judgement.model_fields)
+        judged: dict[tuple[Any, ...], int] = {}  # a judgement's values → its index
+        index = [
+            judged.setdefault(tuple(getattr(d, name) for name in names), len(judged))
+            for d in decisions
+        ]
+        columns = DecisionColumns(
+            source=[d.source for d in decisions],
+            target=[d.target for d in decisions],
+            epoch=[d.epoch for d in decisions],
+            seq=[d.seq for d in decisions],
+            judgement=index,
+        )
+        judgements = [Judgement(**dict(zip(names, values, strict=True))) for values in judged]
+        return cls(phase=phase, judgements=judgements, records=columns, **header)
+
+
+def decision_rows(batch: DecisionBatch) -> list[Decision]:
+    """A checked batch's records as rows (a struct of it too: attributes are read)."""
+    cls, r, judgements = LINK_CLASS_OF[batch.phase], batch.records, batch.judgements
+    return [
+        Decision(
+            source=s,
+            target=t,
+            link_class=cls,
+            epoch=e,
+            seq=q,
+            **{name: getattr(judgements[j], name) for name in Judgement.model_fields},
+        )
+        for s, t, e, q, j in zip(r.source, r.target, r.epoch, r.seq, r.judgement, strict=True)
+    ]
 
 
 class LinkChange(_Message):

@@ -124,7 +124,6 @@ class ZenohOutbox:
         key = self._decision_key
         self.service.put(key, decision_batch(self.service.header(key, epoch), phase, records))
 
-    def record_chunks(self, phase: Phase, last_epoch: int, chunks: list[bytes]) -> None:
+    def record_batch(self, phase: Phase, last_epoch: int, body: bytes) -> None:
         key = self._decision_key
-        header = self.service.header(key, last_epoch)
-        self.service.put(key, decision_batch_of(header, phase, chunks))
+        self.service.put(key, decision_batch_of(self.service.header(key, last_epoch), body))

@@ -10,7 +10,7 @@ receiver is decided, that receiver gets one delivery of the phase with the paylo
 unparsed: the delivery is also the epoch's close (:meth:`LockstepCore._close`, the one place).
 Epochs into a receiver close in order. Delays are whole epochs: a delayed packet is held and
 goes out with a later epoch's delivery. Once every live receiver of a phase's epoch is closed,
-its records (spliced from templates, :class:`RecordTemplates`) join the next batch
+its records (a stream's template, epoch and seq: :class:`RecordTemplates`) join the next batch
 (:meth:`LockstepCore.flush`). No network, clock or thread: the node calls the core under its
 lock and publishes what it hands to the :class:`Outbox`, in order.
 """
@@ -29,7 +29,7 @@ from netem.proxy.open_epochs import Delayed, OpenEpoch, Outbox, RecordBatches
 from netem.proxy.positions import Positions
 from netem.proxy.progress import Progress
 from netem.proxy.queued_phases import PHASES, queued_phases
-from netem.proxy.records import Ledger, Queued, RecordTemplates, packet_json, record_json
+from netem.proxy.records import Ledger, Queued, RecordTemplates, packet_json
 from netem.proxy.routes import Link, Links, Phase, Route
 from netem.proxy.team_plan import Attendance
 
@@ -59,7 +59,7 @@ class LockstepCore(Attendance):
             phase: RecordTemplates({sid: s.links for sid, s in rows.streams.items()})
             for phase, rows in self.rows.items()
         }
-        self.records = RecordBatches(outbox, epochs)
+        self.records = RecordBatches(outbox, epochs, self.templates)
         self.passed: Counter[tuple[Phase, int]] = Counter()  # packets every link passed as is
         self.positions = Positions(links)  # for distance models: read from the states
         self.last_report: dict[int, int] = {}  # agent → epoch of its last report handled
@@ -300,8 +300,9 @@ class LockstepCore(Attendance):
             if not usual or len(handled) >= counts[dst]:
                 boxes.append((dst, box))
         self.passed[(phase, stream)] += 1
-        template, width = self.templates[phase].row_template(stream, row.decisions)
-        self.records.add(phase, epoch, template % ((epoch, seq) * width))
+        self.records.add(
+            phase, epoch, self.templates[phase].row_template(stream, row.decisions), seq
+        )
         if boxes:
             self._close_complete(phase, epoch, boxes)
 
@@ -313,12 +314,12 @@ class LockstepCore(Attendance):
         seq: int,
         final: list[Outcome | Queued | None],
     ) -> None:
-        """The records of ``stream``'s packet as ``final`` decided it, spliced from a template."""
-        tails = self.templates[phase]
-        ids = tuple(-1 if v is None else tails.tail_id(v) for v in final)
-        template, width = tails.template(stream, ids)
-        if width:
-            self.records.add(phase, epoch, template % ((epoch, seq) * width))
+        """The records of ``stream``'s packet as ``final`` decided it, by a template."""
+        templates = self.templates[phase]
+        ids = tuple(-1 if v is None else templates.judgement_id(v) for v in final)
+        template = templates.template(stream, ids)
+        if template.source:
+            self.records.add(phase, epoch, template, seq)
 
     def _close_complete(self, phase: Phase, epoch: int, boxes: list[tuple[int, OpenEpoch]]) -> None:
         """Close the receivers whose open ``epoch`` got its last packet: at once in the usual
@@ -399,8 +400,8 @@ class LockstepCore(Attendance):
         ):
             return False
         for link, seq, payload, d in q.judge(phase, epoch):
-            cls, src, dst = link
-            self.records.add(phase, epoch, record_json((src, dst, cls, epoch, seq, d)))
+            _, src, dst = link
+            self.records.add(phase, epoch, self.templates[phase].single(src, dst, d), seq)
             self._apply(self.open[(phase, dst, epoch)], phase, link, epoch, seq, payload, d)
         for r in q.receivers(phase):  # those that waited for the queues, the caller's too
             self._try_close(phase, r)

@@ -6,7 +6,7 @@ from collections import defaultdict
 from dataclasses import dataclass
 from typing import Protocol
 
-from netem.proxy.records import Record
+from netem.proxy.records import Record, Recorded, RecordTemplates, Template, batch_body
 from netem.proxy.routes import Link, Phase
 
 FLUSH_CHUNKS = 64  # epochs' records per batch (at least one batch per 0.2 s wake-up)
@@ -29,8 +29,9 @@ class Outbox(Protocol):
     def records(self, phase: Phase, epoch: int, records: list[Record]) -> None:
         """The decision records of ``epoch`` of ``phase``, every receiver of it closed."""
 
-    def record_chunks(self, phase: Phase, last_epoch: int, chunks: list[bytes]) -> None:
-        """Records of closed epochs up to ``last_epoch``, encoded: one chunk an epoch."""
+    def record_batch(self, phase: Phase, last_epoch: int, body: bytes) -> None:
+        """Records of closed epochs up to ``last_epoch``: a batch's fields after its header
+        (:func:`~netem.proxy.records.batch_body`)."""
 
 
 @dataclass
@@ -54,18 +55,21 @@ class OpenEpoch:
 
 
 class RecordBatches:
-    """Each epoch's encoded records until every receiver of it closed, then its phase's batch
-    until it goes out: every :data:`FLUSH_CHUNKS` epochs, at the last epoch or when flushed.
-    An epoch that recorded nothing goes out at once, empty (records stay in epoch order)."""
+    """Each epoch's records until every receiver of it closed, then its phase's batch until it
+    goes out: every :data:`FLUSH_CHUNKS` epochs, at the last epoch or when flushed. An epoch
+    that recorded nothing goes out at once, empty (records stay in epoch order)."""
 
-    def __init__(self, outbox: Outbox, epochs: int) -> None:
-        self.outbox, self.epochs = outbox, epochs
-        self.pending: defaultdict[tuple[Phase, int], list[bytes]] = defaultdict(list)
-        self.batches: dict[Phase, tuple[int, list[bytes]]] = {}  # phase → (newest epoch, chunks)
+    def __init__(
+        self, outbox: Outbox, epochs: int, templates: dict[Phase, RecordTemplates]
+    ) -> None:
+        self.outbox, self.epochs, self.templates = outbox, epochs, templates
+        self.pending: defaultdict[tuple[Phase, int], list[Recorded]] = defaultdict(list)
+        # phase → (newest epoch, its epochs' records)
+        self.batches: dict[Phase, tuple[int, list[tuple[int, list[Recorded]]]]] = {}
 
-    def add(self, phase: Phase, epoch: int, records: bytes) -> None:
-        """Records of ``epoch`` (one or more, comma-joined)."""
-        self.pending[(phase, epoch)].append(records)
+    def add(self, phase: Phase, epoch: int, template: Template, seq: int) -> None:
+        """The records of a packet of ``epoch``: its ``template`` and ``seq``."""
+        self.pending[(phase, epoch)].append((template, seq))
 
     def close(self, phase: Phase, epoch: int) -> None:
         """Every receiver of ``epoch`` closed: its records join the phase's batch."""
@@ -74,18 +78,19 @@ class RecordBatches:
             self.flush(phase)
             self.outbox.records(phase, epoch, [])
             return
-        _, chunks = self.batches.get(phase, (-1, []))
-        chunks.append(b",".join(records))
-        self.batches[phase] = (epoch, chunks)
-        if len(chunks) >= FLUSH_CHUNKS or epoch >= self.epochs - 1:
+        _, epochs = self.batches.get(phase, (-1, []))
+        epochs.append((epoch, records))
+        self.batches[phase] = (epoch, epochs)
+        if len(epochs) >= FLUSH_CHUNKS or epoch >= self.epochs - 1:
             self.flush(phase)
 
     def flush(self, phase: Phase | None = None) -> None:
         """Hand out the batch of ``phase`` (None: of every phase)."""
         for p in [phase] if phase is not None else list(self.batches):
-            last, chunks = self.batches.get(p, (-1, []))
-            if chunks:
-                self.outbox.record_chunks(p, last, chunks)
+            last, epochs = self.batches.get(p, (-1, []))
+            if epochs:
+                body = batch_body(p, self.templates[p].judgements, epochs)
+                self.outbox.record_batch(p, last, body)
                 self.batches[p] = (last, [])
 
 

@@ -14,6 +14,7 @@ from collections import Counter, defaultdict
 from collections.abc import Iterable
 from typing import Any, NamedTuple
 
+import numpy as np
 import orjson
 
 from netem.links.layer_stack import Outcome
@@ -40,7 +41,7 @@ class Queued(NamedTuple):
 def queued(d: Outcome, reason: str, queue: str, depth: int, sojourn_ms: float) -> Queued:
     """The decision on a packet the model ``d`` passed, once its queues judged it.
 
-    Shared, as the models' decisions are (so :func:`record_tail` encodes each once): a link's
+    Shared, as the models' decisions are (so :func:`judgement_json` encodes each once): a link's
     sojourns take few values, those of its packet sizes rounded at each binade of the clock.
     """
     key = (id(d), reason, queue, depth, sojourn_ms)
@@ -76,8 +77,8 @@ class Ledger:
         self.forwarded: Counter[Link] = Counter()  # packets delivered per link
 
 
-def _decision_json(d: Outcome | Queued) -> bytes:
-    """The fields of a record that come from the decision, as JSON after ``"seq":N``."""
+def _judgement_json(d: Outcome | Queued) -> bytes:
+    """A decision as the batch's ``Judgement`` it is recorded by."""
     fields = {
         "verdict": d.verdict,
         "delay_epochs": d.delay_epochs,
@@ -87,114 +88,160 @@ def _decision_json(d: Outcome | Queued) -> bytes:
     }
     if isinstance(d, Queued):
         fields.update(queue=d.queue, queue_depth=d.queue_depth, sojourn_ms=d.sojourn_ms)
-    return orjson.dumps(fields).replace(b"{", b",", 1)
+    return orjson.dumps(fields)
 
 
-# A link's records differ only in epoch, seq and decision; decisions are shared objects
-# (a model memoises them per block), so both halves are encoded once and spliced.
-_LINK_JSON: dict[tuple[int, int, str], bytes] = {}
-_DECISION_JSON: dict[int, tuple[Outcome | Queued, bytes]] = {}  # by id; the entry keeps d alive
+_JUDGEMENT_JSON: dict[int, tuple[Outcome | Queued, bytes]] = {}  # by id; the entry keeps d alive
 
 
-def record_head(source: int, target: int, link_class: str) -> bytes:
-    """A record's JSON up to (not including) ``,"epoch":``."""
-    head = _LINK_JSON.get((source, target, link_class))
-    if head is None:
-        head = _LINK_JSON[(source, target, link_class)] = orjson.dumps(
-            {"source": source, "target": target, "link_class": link_class}
-        )[:-1]
-    return head
+def judgement_json(d: Outcome | Queued) -> bytes:
+    """A decision's ``Judgement``, encoded once (decisions are shared objects: a model
+    memoises them per block)."""
+    got = _JUDGEMENT_JSON.get(id(d))
+    if got is None or got[0] is not d:
+        if len(_JUDGEMENT_JSON) > 100_000:
+            _JUDGEMENT_JSON.clear()
+        got = _JUDGEMENT_JSON[id(d)] = (d, _judgement_json(d))
+    return got[1]
 
 
-def record_tail(d: Outcome | Queued) -> bytes:
-    """A record's JSON after ``"seq":N``: the fields that come from the decision."""
-    tail = _DECISION_JSON.get(id(d))
-    if tail is None or tail[0] is not d:
-        if len(_DECISION_JSON) > 100_000:
-            _DECISION_JSON.clear()
-        tail = _DECISION_JSON[id(d)] = (d, _decision_json(d))
-    return tail[1]
+class Template(NamedTuple):
+    """The records of a stream's packet but its epoch and seq: per link recorded, its ends and
+    its decision (an id of :meth:`RecordTemplates.judgement_id`)."""
+
+    source: tuple[int, ...]
+    target: tuple[int, ...]
+    judgement: tuple[int, ...]
 
 
 class RecordTemplates:
-    """The records of each stream's packet (one per link) as a ``%`` template of ``(epoch, seq)``
-    per link recorded: records that differ only in those are spliced, not encoded one by one.
+    """The records of each stream's packet (one per link) as a :class:`Template`: a packet's
+    records are its template, its epoch and its seq, not encoded one by one.
 
-    A decision's encoded fields (:func:`record_tail`) get an id (:meth:`tail_id`); a template is
-    one per stream and tuple of its links' ids.
+    A decision's judgement gets an id (:meth:`judgement_id`, its JSON in :attr:`judgements`);
+    a template is one per stream and tuple of its links' ids.
     """
 
     def __init__(self, streams: dict[int, tuple[Link, ...]]) -> None:
-        self._heads = {
-            sid: [record_head(src, dst, cls).replace(b"%", b"%%") for cls, src, dst in links]
-            for sid, links in streams.items()
-        }
-        self._tail_ids: dict[bytes, int] = {}
-        self._tails: list[bytes] = []
+        self._ends = {sid: [(src, dst) for _, src, dst in links] for sid, links in streams.items()}
+        self._ids: dict[bytes, int] = {}
+        self.judgements: list[bytes] = []  # by id: each judgement's JSON
         self._of: dict[int, tuple[Outcome | Queued, int]] = {}  # by id; the entry keeps d alive
-        self._templates: dict[tuple[int, tuple[int, ...]], tuple[bytes, int]] = {}
-        self._rows: dict[int, tuple[tuple[Outcome | Queued | None, ...], tuple[bytes, int]]] = {}
+        self._templates: dict[tuple[int, tuple[int, ...]], Template] = {}
+        self._rows: dict[int, tuple[tuple[Outcome | Queued | None, ...], Template]] = {}
 
-    def tail_id(self, d: Outcome | Queued) -> int:
-        """An id of a decision's encoded fields."""
+    def judgement_id(self, d: Outcome | Queued) -> int:
+        """An id of a decision's judgement."""
         known = self._of.get(id(d))
         if known is not None and known[0] is d:
             return known[1]
-        tail = record_tail(d)
-        got = self._tail_ids.get(tail)
+        encoded = judgement_json(d)
+        got = self._ids.get(encoded)
         if got is None:
-            got = self._tail_ids[tail] = len(self._tails)
-            self._tails.append(tail)
+            got = self._ids[encoded] = len(self.judgements)
+            self.judgements.append(encoded)
         if len(self._of) > 100_000:  # a backlog's sojourns are all different: kept few
             self._of.clear()
         self._of[id(d)] = (d, got)
         return got
 
-    def row_template(
-        self, stream: int, row: tuple[Outcome | Queued | None, ...]
-    ) -> tuple[bytes, int]:
+    def row_template(self, stream: int, row: tuple[Outcome | Queued | None, ...]) -> Template:
         """The template of ``stream``'s packet with every link recorded as ``row`` decides
         (:meth:`template`), kept by the row (rows are shared objects)."""
         known = self._rows.get(id(row))
         if known is not None and known[0] is row:
             return known[1]
-        got = self.template(stream, tuple(-1 if d is None else self.tail_id(d) for d in row))
+        got = self.template(stream, tuple(-1 if d is None else self.judgement_id(d) for d in row))
         if len(self._rows) > 100_000:
             self._rows.clear()
         self._rows[id(row)] = (row, got)  # the entry keeps the row alive: its id is not reused
         return got
 
-    def template(self, stream: int, tails: tuple[int, ...]) -> tuple[bytes, int]:
-        """The records of ``stream``'s packet, its links' decisions ``tails`` (ids; -1: a link
-        not recorded with it), and how many links it records."""
-        got = self._templates.get((stream, tails))
+    def template(self, stream: int, ids: tuple[int, ...]) -> Template:
+        """The records of ``stream``'s packet, its links' judgements ``ids`` (-1: a link not
+        recorded with it)."""
+        got = self._templates.get((stream, ids))
         if got is None:
             if len(self._templates) > 100_000:  # queues' sojourns make many: kept few
                 self._templates.clear()
-            parts = [
-                head + b',"epoch":%d,"seq":%d' + self._tails[t].replace(b"%", b"%%")
-                for head, t in zip(self._heads[stream], tails, strict=True)
-                if t >= 0
-            ]
-            got = self._templates[(stream, tails)] = (b",".join(parts), len(parts))
+            kept = [(end, j) for end, j in zip(self._ends[stream], ids, strict=True) if j >= 0]
+            got = self._templates[(stream, ids)] = Template(
+                tuple(src for (src, _), _ in kept),
+                tuple(dst for (_, dst), _ in kept),
+                tuple(j for _, j in kept),
+            )
         return got
 
+    def single(self, source: int, target: int, d: Outcome | Queued) -> Template:
+        """The template of one link's record."""
+        return Template((source,), (target,), (self.judgement_id(d),))
 
-def record_json(record: Record) -> bytes:
-    """One record, encoded."""
-    s, t, c, e, q, d = record
-    return b'%s,"epoch":%d,"seq":%d%s' % (record_head(s, t, c), e, q, record_tail(d))
+
+# A packet's records as a batch keeps them until it goes out: (template, seq).
+Recorded = tuple[Template, int]
+
+
+def batch_body(
+    phase: str, judgements: list[bytes], epochs: list[tuple[int, list[Recorded]]]
+) -> bytes:
+    """A ``DecisionBatch``'s fields after its header: the records of each ``(epoch, packets)``
+    as columns, their judgements (ids into ``judgements``) renumbered to the batch's own."""
+    source: list[int] = []
+    target: list[int] = []
+    ids: list[int] = []
+    epoch: list[int] = []
+    seq: list[int] = []
+    for k, packets in epochs:
+        start = len(source)
+        for t, q in packets:
+            source += t.source
+            target += t.target
+            ids += t.judgement
+            seq += (q,) * len(t.source)
+        epoch += (k,) * (len(source) - start)
+    used, index = np.unique(np.array(ids, dtype=np.int64), return_inverse=True)
+    return _body(phase, [judgements[j] for j in used], source, target, epoch, seq, index)
+
+
+def _body(
+    phase: str,
+    judgements: list[bytes],
+    source: Any,
+    target: Any,
+    epoch: Any,
+    seq: Any,
+    index: Any,
+) -> bytes:
+    columns = {"source": source, "target": target, "epoch": epoch, "seq": seq, "judgement": index}
+    return b'"kind":"decisions","phase":"%s","judgements":[%s],"records":%s}' % (
+        phase.encode(),
+        b",".join(judgements),
+        orjson.dumps(columns, option=orjson.OPT_SERIALIZE_NUMPY),
+    )
+
+
+def records_body(phase: str, records: Iterable[Record]) -> bytes:
+    """:func:`batch_body` of records one by one (realtime's, the queues' judged together)."""
+    ids: dict[bytes, int] = {}
+    source, target, epoch, seq, index = [], [], [], [], []
+    for s, t, _, e, q, d in records:
+        source.append(s)
+        target.append(t)
+        epoch.append(e)
+        seq.append(q)
+        encoded = judgement_json(d)
+        index.append(ids.setdefault(encoded, len(ids)))
+    return _body(phase, list(ids), source, target, epoch, seq, index)
 
 
 def decision_batch(header: dict[str, Any], phase: str, records: Iterable[Record]) -> bytes:
-    """A ``DecisionBatch`` payload: ``header`` from ``Service.header``, one entry per record."""
-    return decision_batch_of(header, phase, [record_json(r) for r in records])
+    """A ``DecisionBatch`` payload: ``header`` from ``Service.header``, one record each."""
+    return decision_batch_of(header, records_body(phase, records))
 
 
-def decision_batch_of(header: dict[str, Any], phase: str, records: list[bytes]) -> bytes:
-    """A ``DecisionBatch`` payload from records already encoded (comma-joined groups allowed)."""
-    head = orjson.dumps({**header, "kind": "decisions", "phase": phase})[:-1]
-    return b'%s,"decisions":[%s]}' % (head, b",".join(records))
+def decision_batch_of(header: dict[str, Any], body: bytes) -> bytes:
+    """A ``DecisionBatch`` payload from its fields after the header (:func:`batch_body`)."""
+    return b"%s,%s" % (orjson.dumps(header)[:-1], body)
 
 
 def packet_json(source: int, seq: int, sent_epoch: int, copies: int, payload: Any) -> bytes:

@@ -135,12 +135,18 @@ class EpochAssembler:
         batch = self.gate.check(key, payload, "decision")
         if not isinstance(batch, DecisionBatch):
             return []
-        for dec in batch.decisions:
-            if dec.link_class != "formation" or dec.epoch < self._next_scene:
+        if batch.phase != "state":
+            return self._scenes(stamp_ns)
+        lost = [j.verdict not in ("pass", "duplicate") or j.delay_epochs for j in batch.judgements]
+        records = batch.records
+        for s, t, k, j in zip(
+            records.source, records.target, records.epoch, records.judgement, strict=True
+        ):
+            if k < self._next_scene:
                 continue
-            self._decided[dec.epoch] += 1
-            if dec.verdict not in ("pass", "duplicate") or dec.delay_epochs:
-                self._lost.setdefault(dec.epoch, []).append((dec.source, dec.target))
+            self._decided[k] += 1
+            if lost[j]:
+                self._lost.setdefault(k, []).append((s, t))
         return self._scenes(stamp_ns)
 
     def on_status(self, key: str, payload: bytes, stamp_ns: int) -> list[Derived]:

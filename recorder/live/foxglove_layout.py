@@ -1,8 +1,8 @@
 """The Foxglove layout of the live view, built with the SDK's layouts API.
 
 A 3D panel on the scene in frame ``world`` (the agents' frames from ``/tf``), the formation
-and shape error plotted against sim time, netem's decisions of the last batch as a link
-table, the run's log lines, and the live view's counts. ``foxglove-layout/formation-layout.json`` at the top of the
+and shape error plotted against sim time, netem's decisions of the last batch as
+columns, the run's log lines, and the live view's counts. ``foxglove-layout/formation-layout.json`` at the top of the
 repository is :func:`layout_json` (a test keeps them equal); import it in Foxglove.
 """
 
@@ -42,8 +42,8 @@ def formation_layout() -> fl.Layout:
         ),
     )
     links = fl.TablePanel(
-        title="netem decisions (link, verdict, model)",
-        config=fl.TableConfig(topic_path=f"{DECISIONS_TOPIC}.decisions"),
+        title="netem decisions (each record's link, epoch, seq, judgement)",
+        config=fl.TableConfig(topic_path=f"{DECISIONS_TOPIC}.records"),
     )
     log = fl.LogPanel(title="log", config=fl.LogConfig(topic_to_render=LOG_TOPIC, show_name=True))
     counts = fl.RawMessagesPanel(

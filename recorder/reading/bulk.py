@@ -9,7 +9,7 @@ validates it with the model, the one rule of a message's shape.
 
 from __future__ import annotations
 
-from operator import attrgetter
+from collections.abc import Sequence
 from typing import Any
 
 import msgspec
@@ -18,9 +18,9 @@ import numpy.typing as npt
 
 from formation.messages import (
     CoordinationState,
-    Decision,
     DecisionBatch,
     EpochMetrics,
+    Judgement,
     LeaderEstimate,
 )
 from formation.structs import struct_of
@@ -33,47 +33,44 @@ DECODERS: dict[str, msgspec.json.Decoder[Any]] = {
 }
 
 
-_INTS = ("epoch", "source", "target", "seq", "delay_epochs")
-_DECISION_FIELDS = tuple(Decision.model_fields)
+_JUDGED = tuple(Judgement.model_fields)
+_INTS = ("epoch", "source", "target", "seq", "judgement")
 # the last batch whose columns were made, and them: one tuple, read once (threads share it)
-_last: list[tuple[Any, dict[str, npt.NDArray[Any]]]] = [(None, {})]
+_last: list[tuple[Any, dict[str, npt.NDArray[np.int64]]]] = [(None, {})]
 
 
-def decision_columns(batch: Any) -> dict[str, npt.NDArray[Any]]:
-    """A decision batch's columns as :class:`analysis.Decisions` holds them (``phase``
-    repeated; None as −1 and NaN); made once for the batch the trust gate checks and the
-    reader then keeps (the last batch's are remembered)."""
+def decision_columns(batch: Any) -> dict[str, npt.NDArray[np.int64]]:
+    """A decision batch's record columns as arrays (``epoch``, ``source``, ``target``,
+    ``seq``, ``judgement``); made once for the batch the trust gate checks and the reader
+    then keeps (the last batch's are remembered).
+
+    The batch's columns must have one length (:class:`recorder.reading.trust.Gate`
+    checks); an id past 63 bits raises ``OverflowError``.
+    """
     last = _last[0]
     if last[0] is batch:
         return last[1]
-    decisions, count = batch.decisions, len(batch.decisions)
-    out: dict[str, npt.NDArray[Any]] = {"phase": np.full(count, batch.phase, dtype=object)}
-    for name in _DECISION_FIELDS:
-        values = map(attrgetter(name), decisions)
-        if name in _INTS:
-            out[name] = np.fromiter(values, np.int64, count)
-        elif name == "delay_ms":
-            out[name] = np.fromiter(values, float, count)
-        else:
-            out[name] = _column(name, list(values))
+    records = batch.records
+    count = len(records.source)
+    out = {name: np.array(getattr(records, name), dtype=np.int64).reshape(count) for name in _INTS}
     _last[0] = (batch, out)
     return out
 
 
-def _column(name: str, values: list[Any]) -> npt.NDArray[Any]:
-    count = len(values)
-    none = values.count(None) == count  # no capacity queue: the usual batch, made at once
-    if name == "queue_depth":
-        if none:
-            return np.full(count, -1, dtype=np.int64)
-        return np.array([-1 if v is None else v for v in values], dtype=np.int64)
-    if name == "sojourn_ms":
-        return np.full(count, np.nan) if none else np.array(values, dtype=float).reshape(count)
-    if none:
-        return np.full(count, None, dtype=object)
-    column = np.empty(count, dtype=object)
-    column[:] = values
-    return column
+def judgement_columns(judgements: Sequence[Any]) -> dict[str, npt.NDArray[Any]]:
+    """A batch's judgements as one column per field (None as −1 and NaN)."""
+    count = len(judgements)
+    out: dict[str, npt.NDArray[Any]] = {}
+    for name in _JUDGED:
+        values = [getattr(j, name) for j in judgements]
+        if name in ("delay_epochs", "queue_depth"):
+            out[name] = np.array([-1 if v is None else v for v in values], np.int64).reshape(count)
+        elif name in ("delay_ms", "sojourn_ms"):
+            out[name] = np.array(values, dtype=float).reshape(count)  # None → NaN
+        else:
+            out[name] = np.empty(count, dtype=object)
+            out[name][:] = values
+    return out
 
 
 def plain(kind: str, data: bytes) -> msgspec.Struct | None:
@@ -85,4 +82,4 @@ def plain(kind: str, data: bytes) -> msgspec.Struct | None:
         return None
 
 
-__all__ = ["DECODERS", "decision_columns", "plain"]
+__all__ = ["DECODERS", "decision_columns", "judgement_columns", "plain"]

@@ -16,10 +16,10 @@ import numpy as np
 import numpy.typing as npt
 
 from analysis import Decisions, Substitutions
-from formation.messages import DecisionBatch
+from formation.messages import LINK_CLASS_OF, DecisionBatch, Judgement
 from formation.plugin_api import PLUGIN_FAILED
 from recorder.reading.bodies import RecordedPoses
-from recorder.reading.bulk import decision_columns
+from recorder.reading.bulk import decision_columns, judgement_columns
 from recorder.reading.estimates import EstimateArrays, estimate_arrays
 from recorder.reading.state_batch import StateBlock
 
@@ -27,6 +27,7 @@ Array = npt.NDArray[np.float64]
 Ints = npt.NDArray[np.int64]
 ROBOT_COUNTS = "body_"  # the prefix of an agent's body counts in its status (agent.body)
 DECISION_COLUMNS = tuple(f.name for f in fields(Decisions))
+JUDGED = tuple(Judgement.model_fields)  # the last of DECISION_COLUMNS, in their order
 
 
 class Collected:
@@ -35,8 +36,9 @@ class Collected:
 
     def __init__(self, bulk: bool, d: int) -> None:
         self.d = d
-        self.columns: dict[str, list[Any]] | None = (
-            {name: [] for name in DECISION_COLUMNS} if bulk else None
+        # with bulk: each batch's record columns, phase and judgements' columns
+        self.batches: list[tuple[dict[str, Ints], str, dict[str, Any]]] | None = (
+            [] if bulk else None
         )
         self.blocks: list[StateBlock] = []
         self.rows: list[Any] = []  # states one by one, a block at the end
@@ -65,39 +67,32 @@ class Collected:
             self._decisions(msg)
 
     def _decisions(self, batch: DecisionBatch) -> None:
-        decisions, count = batch.decisions, len(batch.decisions)
-        if self.columns is None:
+        records = batch.records
+        if self.batches is None:
+            head = (batch.phase, LINK_CLASS_OF[batch.phase])
+            judged = [tuple(getattr(j, name) for name in JUDGED) for j in batch.judgements]
             self.decisions.extend(
-                (
-                    c.epoch,
-                    batch.phase,
-                    c.link_class,
-                    c.source,
-                    c.target,
-                    c.seq,
-                    c.verdict,
-                    c.delay_epochs,
-                    c.delay_ms,
-                    c.model,
-                    c.state,
-                    c.queue,
-                    c.queue_depth,
-                    c.sojourn_ms,
+                (e, *head, s, t, q, *judged[j])  # in DECISION_COLUMNS' order
+                for s, t, e, q, j in zip(
+                    records.source,
+                    records.target,
+                    records.epoch,
+                    records.seq,
+                    records.judgement,
+                    strict=True,
                 )
-                for c in decisions
             )
             return
-        if not count:
-            return
-        for name, column in decision_columns(batch).items():
-            self.columns[name].append(column)
+        if records.source:
+            columns = decision_columns(batch)  # the gate's, kept
+            self.batches.append((columns, batch.phase, judgement_columns(batch.judgements)))
 
     def decisions_of_run(self) -> Decisions:
-        if self.columns is None:
+        if self.batches is None:
             return Decisions.of_rows(self.decisions)
-        if not self.columns["epoch"]:
+        if not self.batches:
             return Decisions.of_columns({name: [] for name in DECISION_COLUMNS})
-        return Decisions(**{name: np.concatenate(v) for name, v in self.columns.items()})
+        return _joined(self.batches)
 
     def _robot_counts(self, sender: str, detail: str) -> None:
         """An agent's realtime status: its ``body_`` counts, the newest kept."""
@@ -172,6 +167,27 @@ def substitutions(states: StateBlock, d: int) -> Substitutions:
         fallback=fallback[order],
         values=values[order].reshape(-1, d),
     )
+
+
+def _joined(batches: list[tuple[dict[str, Ints], str, dict[str, Any]]]) -> Decisions:
+    """Every batch's records as one table: their judgements' values taken once per record
+    from the batches' judgements joined (a batch holds few), not batch by batch."""
+    counts = [len(columns["epoch"]) for columns, _, _ in batches]
+    out: dict[str, Any] = {
+        name: np.concatenate([columns[name] for columns, _, _ in batches])
+        for name in ("epoch", "source", "target", "seq")
+    }
+    offsets = np.cumsum([0, *(len(judged["verdict"]) for _, _, judged in batches[:-1])])
+    index = np.concatenate(
+        [c["judgement"] + offset for (c, _, _), offset in zip(batches, offsets, strict=True)]
+    )
+    for name in JUDGED:
+        out[name] = np.concatenate([judged[name] for _, _, judged in batches])[index]
+    phases = sorted({phase for _, phase, _ in batches})
+    codes = np.repeat([phases.index(phase) for _, phase, _ in batches], counts)
+    out["phase"] = np.array(phases, dtype=object)[codes]
+    out["link_class"] = np.array([LINK_CLASS_OF[p] for p in phases], dtype=object)[codes]
+    return Decisions(**out)
 
 
 __all__ = ["Collected", "poses", "positions", "substitutions"]

@@ -21,7 +21,7 @@ from mcap.records import Channel, Message, Schema
 from mcap.summary import Summary
 
 from formation.errors import RecordingError, TestbedError
-from formation.messages import DecisionBatch
+from formation.messages import LINK_CLASS_OF, DecisionBatch
 from formation.scenario import Scenario
 from recorder.reading.chunks import Record, file_chunks, file_order
 from recorder.reading.decoder import DecodeError, decode, decode_cdr
@@ -164,6 +164,17 @@ def link_name(decision: dict[str, Any]) -> str:
     return f"{decision['link_class']} {decision['source']}->{decision['target']}"
 
 
+def _count_drops(batch: DecisionBatch, sent: Counter[str], drops: Counter[str]) -> None:
+    """Count a batch's records and drops per link (:func:`link_name`)."""
+    cls, records = LINK_CLASS_OF[batch.phase], batch.records
+    dropped = [j.verdict == "drop" for j in batch.judgements]
+    for s, t, j in zip(records.source, records.target, records.judgement, strict=True):
+        name = f"{cls} {s}->{t}"
+        sent[name] += 1
+        if dropped[j]:
+            drops[name] += 1
+
+
 def describe(path: Path) -> RecordingInfo:
     """Scenario, duration, channels with message counts, and netem's drops per link.
 
@@ -189,11 +200,7 @@ def describe(path: Path) -> RecordingInfo:
             kind = ch.metadata.get("kind", classify(ch.topic))
             checked = gate.check(ch.topic, msg.data, kind, ch.id)
             if kind == "decision" and isinstance(checked, DecisionBatch):
-                for d in checked.decisions:
-                    name = link_name(d.model_dump())
-                    sent[name] += 1
-                    if d.verdict == "drop":
-                        drops[name] += 1
+                _count_drops(checked, sent, drops)
         comp = {c.compression or "none" for c in summary.chunk_indexes}
         return RecordingInfo(
             path=path,

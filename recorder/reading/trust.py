@@ -5,7 +5,9 @@ agent can still put anything on its own keys. Everything that reads a recording 
 analysis (``formation report``, ``info``, ``replay``, the run's summary, the experiments,
 :func:`recorder.load_run`) goes through one :class:`Gate`, which passes a message only when
 
-- it validates against the pydantic model of its channel's kind (:data:`recorder.recording.schemas.MESSAGE_MODELS`),
+- it validates against the pydantic model of its channel's kind (:data:`recorder.recording.schemas.MESSAGE_MODELS`;
+  netem's decision batches of an older recording, as rows, are read into columns:
+  :mod:`recorder.reading.row_batches`),
   with finite numbers of the scenario's dimension; the recorder's Foxglove channels (scene,
   frames, log) decode as the SDK's protobuf message (:mod:`recorder.reading.decoder`);
 - its sender owns the key: ``agent/<i>/…`` and link ``i → j`` carry ``agent/<i>`` (or a pool
@@ -25,7 +27,6 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Mapping, Sequence
-from operator import attrgetter
 from typing import Any
 
 import numpy as np
@@ -36,6 +37,7 @@ from pydantic import BaseModel, ValidationError
 
 from formation import keys
 from formation.messages import (
+    LINK_CLASS_OF,
     AgentEstimate,
     Bundle,
     CoordinationState,
@@ -50,8 +52,10 @@ from formation.messages import (
 )
 from formation.scenario import Scenario
 from recorder.reading.bulk import DECODERS, decision_columns, plain
+from recorder.reading.decision_shape import check_shape
 from recorder.reading.decoder import DecodeError, decode_cdr, decode_kind
 from recorder.reading.estimates import estimate_arrays
+from recorder.reading.row_batches import row_batch
 from recorder.reading.skips import (
     CONFLICT,
     FORGED,
@@ -79,9 +83,6 @@ DERIVED = frozenset({"metrics", *FOXGLOVE})  # kinds only the recorder writes
 _REPEATED = frozenset({"status", "decision", "alive", "link_change", "delivery_batch"})
 
 Args = tuple[str, ...]  # the open chunks of a key, in order: keys.parse(topic).args
-
-
-_CLASSES = {"formation": 0, "report": 1, "estimate": 2}
 
 
 def _all_finite(rows: list[Any], shape: tuple[int | None, ...]) -> bool:
@@ -185,7 +186,9 @@ class Gate:
             try:
                 msg = model.model_validate_json(data)
             except (ValidationError, ValueError, UnicodeDecodeError) as exc:
-                raise Skip(INVALID, f"{model.__name__}: {str(exc).splitlines()[0]}") from None
+                msg = row_batch(data) if kind == "decision" else None  # an older recording's
+                if msg is None:
+                    raise Skip(INVALID, f"{model.__name__}: {str(exc).splitlines()[0]}") from None
         check = getattr(self, f"_{kind}", None)
         if check is not None:
             check(msg, keys.parse(topic).args)
@@ -400,40 +403,39 @@ class Gate:
 
     def _decision(self, msg: DecisionBatch, args: Args) -> None:
         self._sender(msg, "netem")
-        if self.scenario is not None and self._decisions_fit(msg):
+        check_shape(msg)
+        records = msg.records
+        if self.scenario is None or self._decisions_fit(msg):
             return  # 44,000 decisions an epoch at 10,000 agents: checked as arrays
-        for dec in msg.decisions:
-            self._epoch(dec.epoch, self._last_decided())
-            self._endpoint(dec.source)
-            self._endpoint(dec.target)
-            if self.scenario is None:
-                continue
-            link = (dec.source, dec.target)
+        cls, last = LINK_CLASS_OF[msg.phase], self._last_decided()
+        for r, (src, dst, epoch) in enumerate(
+            zip(records.source, records.target, records.epoch, strict=True)
+        ):
+            try:  # the one at fault, named
+                self._epoch(epoch, last)
+                self._endpoint(src)
+                self._endpoint(dst)
+            except Skip as skip:
+                raise Skip(skip.reason, f"record {r}: {skip}") from None
             ok = {
-                "formation": link in self.links,
-                "report": dec.target == keys.LEADER_ENDPOINT and dec.source != keys.LEADER_ENDPOINT,
-                "estimate": dec.source == keys.LEADER_ENDPOINT
-                and dec.target != keys.LEADER_ENDPOINT,
-            }[dec.link_class]
+                "formation": (src, dst) in self.links,
+                "report": dst == keys.LEADER_ENDPOINT and src != keys.LEADER_ENDPOINT,
+                "estimate": src == keys.LEADER_ENDPOINT and dst != keys.LEADER_ENDPOINT,
+            }[cls]
             if not ok:
-                raise Skip(OUT_OF_RANGE, f"no {dec.link_class} link {link[0]}->{link[1]}")
+                raise Skip(OUT_OF_RANGE, f"record {r}: no {cls} link {src}->{dst}")
 
     def _decisions_fit(self, msg: DecisionBatch) -> bool:
-        """Whether every decision passes the checks of :meth:`_decision`, as arrays."""
-        count, decisions = len(msg.decisions), msg.decisions
+        """Whether every record passes the checks of :meth:`_decision`, as arrays."""
+        records = msg.records
         try:
             if self.plain_bulk:  # the reader keeps these columns
                 columns = decision_columns(msg)
                 epoch, source, target = columns["epoch"], columns["source"], columns["target"]
-                kind = np.select(
-                    [columns["link_class"] == c for c in _CLASSES], list(_CLASSES.values()), -1
-                )
             else:
-                epoch = np.fromiter(map(attrgetter("epoch"), decisions), np.int64, count)
-                source = np.fromiter(map(attrgetter("source"), decisions), np.int64, count)
-                target = np.fromiter(map(attrgetter("target"), decisions), np.int64, count)
-                classes = map(_CLASSES.__getitem__, map(attrgetter("link_class"), decisions))
-                kind = np.fromiter(classes, np.int8, count)
+                epoch = np.array(records.epoch, dtype=np.int64)
+                source = np.array(records.source, dtype=np.int64)
+                target = np.array(records.target, dtype=np.int64)
         except OverflowError:  # past 63 bits: checked one by one
             return False
         last = self._last_decided()
@@ -443,13 +445,12 @@ class Gate:
         if not ((ends >= 0) & (ends <= self.n)).all():
             return False
         leader = keys.LEADER_ENDPOINT
-        formation = kind == 0
-        codes = source[formation] * (self.n + 1) + target[formation]
-        return bool(
-            self.within_links(codes)
-            and ((target == leader) & (source != leader))[kind == 1].all()
-            and ((source == leader) & (target != leader))[kind == 2].all()
-        )
+        cls = LINK_CLASS_OF[msg.phase]
+        if cls == "formation":
+            return self.within_links(source * (self.n + 1) + target)
+        if cls == "report":
+            return bool(((target == leader) & (source != leader)).all())
+        return bool(((source == leader) & (target != leader)).all())
 
     def _edges_known(self, pairs: list[npt.NDArray[np.int64]]) -> bool:
         """Whether every pair of the (k, 2) arrays is an edge of the formation, in either

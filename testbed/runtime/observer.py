@@ -14,8 +14,10 @@ import zenoh
 
 from formation import keys
 from formation.codec import Malformed, read_attachment
-from formation.messages import Status
+from formation.messages import LINK_CLASS_OF, Status
 from formation.scenario import Scenario
+
+_COLUMNS = ("source", "target", "epoch", "seq", "judgement")  # as Verdict takes them
 
 
 class Verdict(NamedTuple):
@@ -44,7 +46,8 @@ class Observer:
         e, n, d = scenario.epochs, scenario.n, scenario.dimension
         self.positions = np.full((e + 1, n, d), np.nan)
         self.estimated: set[int] = set()
-        self.decisions: list[Verdict] = []
+        # netem's decision batches as columns: (link class, [(verdict, model)], columns)
+        self._batches: list[tuple[str, list[tuple[str, str]], tuple[list[int], ...]]] = []
         self.substitutions: list[
             tuple[int, int, int, list[float]]
         ] = []  # (epoch, agent, neighbour, x̃)
@@ -113,24 +116,33 @@ class Observer:
 
     def _on_decisions(self, sample: zenoh.Sample) -> None:
         try:
-            rows = [
-                Verdict(
-                    d["source"],
-                    d["target"],
-                    d["link_class"],
-                    d["epoch"],
-                    d["seq"],
-                    d["verdict"],
-                    d.get("model", ""),
-                )
-                for d in orjson.loads(sample.payload.to_bytes())["decisions"]
-            ]
-        except (orjson.JSONDecodeError, KeyError, TypeError):
+            batch = orjson.loads(sample.payload.to_bytes())
+            judged = [(str(j["verdict"]), str(j.get("model", ""))) for j in batch["judgements"]]
+            records = batch["records"]
+            columns = tuple(records[name] for name in _COLUMNS)
+            link_class = LINK_CLASS_OF[batch["phase"]]
+            index = np.array(records["judgement"], dtype=np.int64)
+            ok = all(len(c) == len(index) for c in columns)
+            ok = ok and (not len(index) or 0 <= index.min() <= index.max() < len(judged))
+        except (orjson.JSONDecodeError, KeyError, TypeError, ValueError, OverflowError):
+            ok = False
+        if not ok:
             self.malformed.counts[str(sample.key_expr)] += 1
             return
-        with self.lock:
-            self.decisions.extend(rows)
-            self.drops += sum(d.verdict == "drop" for d in rows)
+        dropped = np.array([v == "drop" for v, _ in judged], dtype=bool)
+        with self.lock:  # rows only when the run is over (decisions): thousands an epoch
+            self._batches.append((link_class, judged, columns))
+            self.drops += int(dropped[index].sum()) if len(judged) else 0
+
+    @property
+    def decisions(self) -> list[Verdict]:
+        """Every decision received, in order (read under :attr:`lock`, as every field)."""
+        batches = list(self._batches)  # one copy: a batch may be appended meanwhile
+        return [
+            Verdict(s, t, link_class, e, q, *judged[j])
+            for link_class, judged, columns in batches
+            for s, t, e, q, j in zip(*columns, strict=True)
+        ]
 
     def _on_status(self, sample: zenoh.Sample) -> None:
         msg = self._decode(sample, Status)

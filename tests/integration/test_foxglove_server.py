@@ -42,7 +42,7 @@ def _metrics(paper: Scenario, epoch: int) -> bytes:
 def _decisions(sender: str, epoch: int) -> bytes:
     dec = Decision(source=1, target=2, link_class="formation", epoch=epoch, seq=0, verdict="drop")
     return encode(
-        DecisionBatch(run_id=RUN, sender=sender, seq=epoch, epoch=epoch, stamp_ns=1,
+        DecisionBatch.of_rows(run_id=RUN, sender=sender, seq=epoch, epoch=epoch, stamp_ns=1,
                       phase="state", decisions=[dec])
     )  # fmt: skip
 

@@ -96,7 +96,7 @@ def test_recorder_keeps_every_message_with_its_schema(
             put(
                 keys.netem_decision(run_id),
                 encode(
-                    DecisionBatch(
+                    DecisionBatch.of_rows(
                         run_id=run_id,
                         sender="netem",
                         seq=k,

@@ -38,13 +38,13 @@ def forgeries(run_id: str, s: Scenario, epoch: int = 7) -> list[tuple[str, bytes
         "reports_received": n,
     }  # fmt: skip
     a, b = (int(v) for v in s.directed_links[0])
+    every = [(e, int(i), int(j)) for e in range(s.epochs) for i, j in s.directed_links]
     decisions = {
         **_head(run_id, "agent/1", k), "kind": "decisions", "phase": "state",
-        "decisions": [
-            {"source": int(i), "target": int(j), "link_class": "formation", "epoch": e, "seq": e,
-             "verdict": "drop"}
-            for e in range(s.epochs) for i, j in s.directed_links
-        ],
+        "judgements": [{"verdict": "drop"}],
+        "records": {"source": [i for _, i, _ in every], "target": [j for _, _, j in every],
+                    "epoch": [e for e, _, _ in every], "seq": [e for e, _, _ in every],
+                    "judgement": [0] * len(every)},
     }  # fmt: skip
     metrics = {
         **_head(run_id, "recorder", k), "kind": "metrics", "formation_error_m": 99.0,

@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections import Counter
 from typing import Any
 
-from formation.messages import Decision, DecisionBatch, Delivery
+from formation.messages import Decision, DecisionBatch, Delivery, decision_rows
 from formation.scenario import Scenario
 from netem.proxy.records import Record, decision_batch, decision_batch_of, delivery
 from netem.proxy.routes import Phase
@@ -39,16 +39,14 @@ class Wire:
     def records(self, phase: Phase, epoch: int, records: list[Record]) -> None:
         self._batch(phase, decision_batch(header(epoch), phase, records))
 
-    def record_chunks(self, phase: Phase, last_epoch: int, chunks: list[bytes]) -> None:
-        self._batch(phase, decision_batch_of(header(last_epoch), phase, chunks))
+    def record_batch(self, phase: Phase, last_epoch: int, body: bytes) -> None:
+        self._batch(phase, decision_batch_of(header(last_epoch), body))
 
     def _batch(self, phase: Phase, wire: bytes) -> None:
-        batch = DecisionBatch.model_validate_json(wire)
+        rows = decision_rows(DecisionBatch.model_validate_json(wire))
         live = len(self.receivers[phase])
-        self.early += [
-            (phase, d.epoch) for d in batch.decisions if self.closed[(phase, d.epoch)] < live
-        ]
-        self.decisions += batch.decisions
+        self.early += [(phase, d.epoch) for d in rows if self.closed[(phase, d.epoch)] < live]
+        self.decisions += rows
 
 
 def receivers(scenario: Scenario) -> dict[Phase, list[int]]:

@@ -12,7 +12,13 @@ import numpy as np
 
 from formation import keys
 from formation.codec import attachment, encode
-from formation.messages import CoordinationState, Decision, DecisionBatch, LeaderEstimate
+from formation.messages import (
+    CoordinationState,
+    DecisionBatch,
+    DecisionColumns,
+    Judgement,
+    LeaderEstimate,
+)
 from formation.scenario import Scenario
 from recorder.live.epoch_assembly import TAPS, EpochAssembler
 from recorder.recording.stored_scenario import SCENARIO, scenario_metadata
@@ -48,12 +54,20 @@ def traffic(result: Any) -> list[tuple[str, bytes, bytes | None, int]]:
             out.append((keys.agent_state(RUN, i), encode(msg), attachment(k, k, i), t + i))
         if k >= len(result.estimates):
             continue
-        decisions = [
-            Decision(source=int(a), target=int(b), link_class="formation", epoch=k, seq=k,
-                     verdict="pass" if result.delivered[k, c] else "drop")
-            for c, (a, b) in enumerate(s.directed_links)
-        ]  # fmt: skip
-        batch = DecisionBatch(**_header("netem", k, k), phase="state", decisions=decisions)
+        dropped = ~np.asarray(result.delivered[k], dtype=bool)
+        records = DecisionColumns(
+            source=[int(a) for a, _ in s.directed_links],
+            target=[int(b) for _, b in s.directed_links],
+            epoch=[k] * len(dropped),
+            seq=[k] * len(dropped),
+            judgement=dropped.astype(int).tolist(),  # 0: passed, 1: dropped
+        )
+        batch = DecisionBatch(
+            **_header("netem", k, k),
+            phase="state",
+            judgements=[Judgement(verdict="pass"), Judgement(verdict="drop")],
+            records=records,
+        )
         out.append((keys.netem_decision(RUN), encode(batch), None, t + 100))
         est, cov, obs = result.estimates[k], result.estimate_cov[k], result.observable[k]
         msg = LeaderEstimate(

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from formation.capacity import Capacity
 from formation.codec import decode
 from formation.errors import LinkModelError
-from formation.messages import DecisionBatch
+from formation.messages import DecisionBatch, decision_rows
 from netem.links.capacity_network import CapacityNetwork, packet_kind
 from netem.links.capacity_plan import capacity_plan
 from netem.links.layer_stack import Outcome
@@ -116,7 +116,7 @@ def test_a_queued_decision_is_a_valid_record() -> None:
         "report",
         [(3, 0, "report", 2, 7, d)],
     )
-    (rec,) = decode(batch, DecisionBatch).decisions
+    (rec,) = decision_rows(decode(batch, DecisionBatch))
     assert (rec.verdict, rec.model, rec.queue, rec.queue_depth, rec.sojourn_ms) == (
         "drop",
         "queue_full",

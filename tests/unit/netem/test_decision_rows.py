@@ -1,14 +1,13 @@
 """A phase's rows of decisions, taken a block at a time, are each link's ``decide``; the
-records spliced from a row's template are the records encoded one by one."""
+columns built from a row's template are the records encoded one by one."""
 
 from __future__ import annotations
 
-import json
-
 from formation.linkmodels import Bernoulli, Delay, Duplicate, GilbertElliott, Range
+from formation.messages import DecisionBatch, decision_rows
 from netem.links.models import LinkModel
 from netem.proxy.decision_rows import DecisionRows, Stream
-from netem.proxy.records import RecordTemplates, record_json
+from netem.proxy.records import RecordTemplates, batch_body, decision_batch_of, records_body
 
 
 def streams(seed: int = 7) -> dict[int, Stream]:
@@ -53,20 +52,30 @@ def test_a_distance_models_row_is_before_its_layer_with_each_links_reach() -> No
         assert row.decisions[0] == model.decide(k, distance_m=1.0)  # within reach
 
 
-def test_spliced_records_are_those_encoded_one_by_one() -> None:
+def test_records_by_template_are_those_encoded_one_by_one() -> None:
     s = streams()
     rows = DecisionRows(s, block=64)
     templates = RecordTemplates({1: s[1].links})
+    by_template, one_by_one = [], []
     for k in range(200):
         row, _ = rows.row(1, k)
         decisions = [d for d in row.decisions if d is not None]
         skipped = k % 3  # a link not recorded with the others (its receiver out)
-        ids = tuple(-1 if i == skipped else templates.tail_id(d) for i, d in enumerate(decisions))
-        template, width = templates.template(1, ids)
-        spliced = json.loads(b"[" + template % ((k, 50 + k) * width) + b"]")
-        one_by_one = [
-            json.loads(record_json((src, dst, cls, k, 50 + k, d)))
+        ids = tuple(
+            -1 if i == skipped else templates.judgement_id(d) for i, d in enumerate(decisions)
+        )
+        by_template.append((k, [(templates.template(1, ids), 50 + k)]))
+        one_by_one += [
+            (src, dst, cls, k, 50 + k, d)
             for i, ((cls, src, dst), d) in enumerate(zip(s[1].links, decisions, strict=True))
             if i != skipped
         ]
-        assert spliced == one_by_one, k
+    header = {"run_id": "r", "sender": "netem", "seq": 0, "epoch": 199, "stamp_ns": 1}
+    got = DecisionBatch.model_validate_json(
+        decision_batch_of(header, batch_body("state", templates.judgements, by_template))
+    )
+    want = DecisionBatch.model_validate_json(
+        decision_batch_of(header, records_body("state", one_by_one))
+    )
+    assert decision_rows(got) == decision_rows(want)
+    assert len(got.judgements) == len(set(got.judgements))  # each judgement once

@@ -18,11 +18,18 @@ from typing import Any
 import numpy as np
 import pytest
 
+from formation.messages import DecisionBatch, decision_rows
 from formation.scenario import Scenario
 from netem.links.matrix import link_length
 from netem.proxy.lockstep import LockstepCore
 from netem.proxy.progress import Progress
-from netem.proxy.records import Ledger, Record, record_head, record_tail
+from netem.proxy.records import (
+    Ledger,
+    Record,
+    decision_batch,
+    decision_batch_of,
+    judgement_json,
+)
 from netem.proxy.routes import Links, Phase
 
 EPOCHS = 40
@@ -72,19 +79,17 @@ class Bytes:
         self.deliveries[(phase, receiver)].append((epoch, b",".join(packets), lost, dead))
 
     def records(self, phase: Phase, epoch: int, records: list[Record]) -> None:
-        for s, t, c, e, q, d in records:
-            self._add(b'%s,"epoch":%d,"seq":%d%s' % (record_head(s, t, c), e, q, record_tail(d)))
+        self._add(decision_batch(HEADER, phase, records))
 
-    def record_chunks(self, phase: Phase, last_epoch: int, chunks: list[bytes]) -> None:
-        for chunk in chunks:
-            for r in json.loads(b"[" + chunk + b"]"):
-                self.records_of[r["epoch"]].append(r)
+    def record_batch(self, phase: Phase, last_epoch: int, body: bytes) -> None:
+        self._add(decision_batch_of(HEADER, body))
 
-    def _add(self, record: bytes) -> None:
-        r = json.loads(record)
-        self.records_of[r["epoch"]].append(r)
+    def _add(self, batch: bytes) -> None:
+        for r in decision_rows(DecisionBatch.model_validate_json(batch)):
+            self.records_of[r.epoch].append(r.model_dump())
 
 
+HEADER = {"run_id": "r", "sender": "netem", "seq": 0, "epoch": 0, "stamp_ns": 1}
 Sent = dict[tuple[int, int], list[float] | None]  # (agent, epoch) → position sent, None: unreadable
 
 
@@ -130,7 +135,7 @@ def model_json(links: Links, link: tuple[str, int, int], epoch: int,
     a, b = sent.get((src, epoch)), sent.get((dst, epoch))
     length = math.inf if a is None or b is None else link_length(a, b)
     d = links.models[link].decide(epoch, distance_m=length)
-    return json.loads(b"{" + record_tail(d)[1:])  # type: ignore[no-any-return]
+    return json.loads(judgement_json(d))  # type: ignore[no-any-return]
 
 
 def counts(lock: LockstepCore) -> dict[Any, int]:

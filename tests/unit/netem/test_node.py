@@ -10,7 +10,7 @@ import orjson
 
 from formation import keys
 from formation.codec import attachment, encode, now_ns
-from formation.messages import CoordinationState, DecisionBatch, Delivery
+from formation.messages import CoordinationState, DecisionBatch, Delivery, decision_rows
 from formation.scenario import Scenario
 from netem.node import NetemNode
 from shell import MemoryBus, Sample, Service
@@ -65,6 +65,6 @@ def test_a_sender_dying_mid_epoch_closes_every_receiver_once() -> None:
         for p in d.packets:
             assert orjson.loads(p.message)["agent"] == p.source
     # One decision record per packet that came: every out-link of agents 1-4, exactly once.
-    rec = Counter((r.source, r.target) for b in records for r in b.decisions if r.epoch == 0)
+    rec = Counter((r.source, r.target) for b in records for r in decision_rows(b) if r.epoch == 0)
     want_links = {(int(a), int(b)) for a, b in scenario.directed_links if int(a) != 5}
     assert set(rec) == want_links and set(rec.values()) == {1}

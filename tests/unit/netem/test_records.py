@@ -6,7 +6,13 @@ import orjson
 from hypothesis import given
 from hypothesis import strategies as st
 
-from formation.messages import CoordinationState, DecisionBatch, Delivery
+from formation.messages import (
+    LINK_CLASS_OF,
+    CoordinationState,
+    DecisionBatch,
+    Delivery,
+    decision_rows,
+)
 from netem.links.layer_stack import Outcome
 from netem.proxy.records import (
     Record,
@@ -31,24 +37,34 @@ decisions = st.sampled_from(
 records = st.tuples(
     st.integers(0, 1000),
     st.integers(0, 1000),
-    st.sampled_from(["formation", "report", "estimate"]),
     st.integers(0, 10**6),
     st.integers(0, 10**6),
     decisions,
 )
+phases = st.sampled_from(["state", "report", "estimate"])
 
 
-@given(st.lists(records, max_size=20), st.sampled_from(["state", "report", "estimate"]))
-def test_decision_batch_validates_and_keeps_every_field(recs: list[Record], phase: str) -> None:
-    batch = DecisionBatch.model_validate_json(decision_batch(HEADER, phase, recs))
+def _records(phase: str, recs: list[tuple[int, int, int, int, Outcome]]) -> list[Record]:
+    """Records of ``phase``'s link class (each class belongs to one phase)."""
+    return [(s, t, LINK_CLASS_OF[phase], e, q, d) for s, t, e, q, d in recs]
+
+
+@given(st.lists(records, max_size=20), phases)
+def test_decision_batch_validates_and_keeps_every_field(
+    recs: list[tuple[int, int, int, int, Outcome]], phase: str
+) -> None:
+    batch = DecisionBatch.model_validate_json(decision_batch(HEADER, phase, _records(phase, recs)))
     assert batch.phase == phase and batch.epoch == 7 and batch.sender == "netem"
-    assert len(batch.decisions) == len(recs)
-    for got, r in zip(batch.decisions, recs, strict=True):
+    rows = decision_rows(batch)
+    assert len(rows) == len(recs)
+    for got, r in zip(rows, _records(phase, recs), strict=True):
         assert (got.source, got.target, got.link_class, got.epoch, got.seq) == r[:5]
         d = r[5]
         assert (got.verdict, got.delay_epochs, got.delay_ms, got.model, got.state) == (
             d.verdict, d.delay_epochs, d.delay_ms, d.model, d.state,
         )  # fmt: skip
+    # each decision once: as many judgements as distinct decisions
+    assert len(batch.judgements) == len({r[4] for r in recs})
 
 
 payloads = st.one_of(
@@ -98,17 +114,21 @@ def test_delivery_validates_sorted_with_every_payload(
 
 def _reference_batch(header: dict[str, object], phase: str, recs: list[Record]) -> bytes:
     """The batch as one orjson dump of plain dicts: what the spliced encoding must equal."""
-    return orjson.dumps({**header, "kind": "decisions", "phase": phase, "decisions": [
-        {"source": s, "target": t, "link_class": c, "epoch": e, "seq": q, "verdict": d.verdict,
-         "delay_epochs": d.delay_epochs, "delay_ms": float(d.delay_ms), "model": d.model,
-         "state": d.state}
-        for s, t, c, e, q, d in recs
-    ]})  # fmt: skip
+    judged = list(dict.fromkeys(r[5] for r in recs))
+    return orjson.dumps({**header, "kind": "decisions", "phase": phase, "judgements": [
+        {"verdict": d.verdict, "delay_epochs": d.delay_epochs, "delay_ms": float(d.delay_ms),
+         "model": d.model, "state": d.state} for d in judged
+    ], "records": {"source": [r[0] for r in recs], "target": [r[1] for r in recs],
+                   "epoch": [r[3] for r in recs], "seq": [r[4] for r in recs],
+                   "judgement": [judged.index(r[5]) for r in recs]}})  # fmt: skip
 
 
-@given(st.lists(records, max_size=20), st.sampled_from(["state", "report", "estimate"]))
-def test_decision_batch_is_byte_for_byte_one_json_dump(recs: list[Record], phase: str) -> None:
-    assert decision_batch(HEADER, phase, recs) == _reference_batch(HEADER, phase, recs)
+@given(st.lists(records, max_size=20), phases)
+def test_decision_batch_is_byte_for_byte_one_json_dump(
+    recs: list[tuple[int, int, int, int, Outcome]], phase: str
+) -> None:
+    batch = _records(phase, recs)
+    assert decision_batch(HEADER, phase, batch) == _reference_batch(HEADER, phase, batch)
 
 
 @given(

@@ -139,19 +139,28 @@ def states(draw: Any) -> bytes:
 
 @st.composite
 def batches(draw: Any) -> bytes:
-    def decision() -> dict[str, Any]:
+    def judgement() -> dict[str, Any]:
         good = {
-            "source": draw(st.integers(0, 4)),
-            "target": draw(st.integers(0, 4)),
-            "link_class": draw(st.sampled_from(["formation", "report", "estimate"])),
-            "epoch": draw(st.integers(-1, 60)),
-            "seq": 1,
             "verdict": draw(st.sampled_from(["pass", "drop", "delayed"])),
             "delay_ms": draw(st.floats(allow_nan=False, allow_infinity=False)),
             "queue": draw(st.one_of(st.none(), st.just("radio"))),
         }
         return _mutated(draw, good) if draw(st.integers(0, 4)) == 0 else good
 
+    judgements = [judgement() for _ in range(draw(st.integers(0, 3)))]
+    count = draw(st.integers(0, 4))
+    records = {
+        "source": draw(st.lists(st.integers(0, 4), min_size=count, max_size=count)),
+        "target": draw(st.lists(st.integers(0, 4), min_size=count, max_size=count)),
+        "epoch": draw(st.lists(st.integers(-1, 60), min_size=count, max_size=count)),
+        "seq": [1] * count,
+        # an index past the judgements now and then
+        "judgement": draw(
+            st.lists(st.integers(0, len(judgements)), min_size=count, max_size=count)
+        ),
+    }
+    if draw(st.integers(0, 4)) == 0:  # a column of another length
+        records[draw(st.sampled_from(sorted(records)))].append(0)
     good = {
         "run_id": RUN,
         "sender": draw(st.sampled_from(["netem", "agent/1"])),
@@ -159,8 +168,9 @@ def batches(draw: Any) -> bytes:
         "epoch": 3,
         "stamp_ns": 5,
         "kind": "decisions",
-        "phase": draw(st.sampled_from(["state", "report"])),
-        "decisions": [decision() for _ in range(draw(st.integers(0, 4)))],
+        "phase": draw(st.sampled_from(["state", "report", "estimate"])),
+        "judgements": judgements,
+        "records": _mutated(draw, records) if draw(st.integers(0, 4)) == 0 else records,
     }
     body = _mutated(draw, good) if draw(st.integers(0, 3)) == 0 else good
     return json.dumps(body, allow_nan=True).encode()

@@ -87,7 +87,7 @@ def decisions(s: Scenario, epochs: list[int], lost: set[tuple[int, int]]) -> byt
         for k in epochs for a, b in s.directed_links
     ]  # fmt: skip
     return encode(
-        DecisionBatch(run_id=RUN, sender="netem", seq=0, epoch=epochs[-1], stamp_ns=1,
+        DecisionBatch.of_rows(run_id=RUN, sender="netem", seq=0, epoch=epochs[-1], stamp_ns=1,
                       phase="state", decisions=rows)
     )  # fmt: skip
 

@@ -56,7 +56,7 @@ def decisions(s: Scenario, k: int, agents: set[int]) -> bytes:
         for a, b in s.directed_links if a in agents and b in agents
     ]  # fmt: skip
     return encode(
-        DecisionBatch(run_id=RUN, sender="netem", seq=k, epoch=k, stamp_ns=1, phase="state",
+        DecisionBatch.of_rows(run_id=RUN, sender="netem", seq=k, epoch=k, stamp_ns=1, phase="state",
                       decisions=rows)
     )  # fmt: skip
 

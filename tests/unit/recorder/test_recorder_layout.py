@@ -33,5 +33,5 @@ def test_it_opens_with_a_3d_panel_error_plots_and_a_link_table() -> None:
         f"{METRICS_TOPIC}.formation_error_m",
         f"{METRICS_TOPIC}.shape_error_m",
     ]
-    assert panels["Table"]["topicPath"] == f"{DECISIONS_TOPIC}.decisions"
+    assert panels["Table"]["topicPath"] == f"{DECISIONS_TOPIC}.records"
     assert panels["Log"]["topicToRender"] == LOG_TOPIC
