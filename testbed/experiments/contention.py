@@ -225,7 +225,7 @@ def answer(r: ContentionResult, strategy: StrategyName = "estimate") -> str:
             cost = (ratio[c] > 1 + MARGIN) & (ratio[c] > (1 + MARGIN) * ratio[OFF])
             kept = r.critical[(case_label(rate, c), strategy)]
             theirs = max(r.critical[(off, s)] or 0.0 for s in base) or None
-            where = "at no size" if not cost.any() else f"from {r.points[np.argmax(cost)]:g} agents"
+            where = _sizes_where(r.points, cost)
             verdicts.append(
                 f"{CHANNEL_WORDS[c]} at {rate:g} Mb/s {where} (kept up to "
                 f"{'no size' if kept is None else f'{kept:g}'} agents; they: "
@@ -243,6 +243,17 @@ def answer(r: ContentionResult, strategy: StrategyName = "estimate") -> str:
         + f" ({len(spec.seeds)} seeds, {spec.epochs} epochs; kept: final shape error under "
         + f"{spec.threshold_m:g} m in ≥ 95 % of the seeds)."
     )
+
+
+def _sizes_where(points: np.ndarray, cost: np.ndarray) -> str:
+    """The team sizes where ``cost`` holds, in words: "from 10 agents" when it holds at every
+    size from there up, else each size named (a cost that comes and goes is not a threshold)."""
+    if not cost.any():
+        return "at no size"
+    first = int(np.argmax(cost))
+    if cost[first:].all():
+        return f"from {points[first]:g} agents"
+    return "at " + ", ".join(f"{p:g}" for p in points[cost]) + " agents only"
 
 
 def contention_results_markdown(r: ContentionResult) -> str:

@@ -3,8 +3,11 @@ size, and the estimation traffic on the states' channel, on its own, or off the 
 
 from __future__ import annotations
 
+import numpy as np
+
 from testbed.experiments.contention import (
     ContentionSpec,
+    _sizes_where,
     answer,
     contention_variant,
     run_contention,
@@ -26,3 +29,10 @@ def test_the_estimation_traffic_costs_the_states_on_their_channel_and_not_off_it
     assert len({cell[(f"6 Mb/s, {c}", "hold", 20.0)]["final_error_m"] for c in spec.channels}) == 1
     assert contention_variant(spec, 20, 6.0, "off").network.air.links == "formation"  # type: ignore[union-attr]
     assert answer(r).startswith("**Does the estimation traffic cost `estimate` its advantage?**")
+
+
+def test_a_cost_that_comes_and_goes_names_its_sizes_instead_of_a_threshold() -> None:
+    points = np.array([5.0, 10.0, 15.0, 20.0])
+    assert _sizes_where(points, np.array([False] * 4)) == "at no size"
+    assert _sizes_where(points, np.array([False, True, True, True])) == "from 10 agents"
+    assert _sizes_where(points, np.array([False, True, True, False])) == "at 10, 15 agents only"
