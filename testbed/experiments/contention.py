@@ -23,7 +23,7 @@ Runs on the batch simulator (:func:`testbed.experiments.grid.run_grid`, one plan
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -245,9 +245,10 @@ def answer(r: ContentionResult, strategy: StrategyName = "estimate") -> str:
     )
 
 
-def _sizes_where(points: np.ndarray, cost: np.ndarray) -> str:
+def _sizes_where(points: Sequence[float] | np.ndarray, cost: np.ndarray) -> str:
     """The team sizes where ``cost`` holds, in words: "from 10 agents" when it holds at every
     size from there up, else each size named (a cost that comes and goes is not a threshold)."""
+    points, cost = np.asarray(points), np.asarray(cost, dtype=bool)
     if not cost.any():
         return "at no size"
     first = int(np.argmax(cost))
