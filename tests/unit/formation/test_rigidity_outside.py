@@ -8,9 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import example, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
+from formation.errors import ScenarioError
 from formation.rigidity import expected_rigidity_rank, rigidity_rank, sparse_rigidity_matrix
 from formation.rigidity_check import further_bodies, rank_under_mask
 from formation.rigidity_growth import (
@@ -36,8 +37,15 @@ from testbed.sim.team_generators import geometric_team, henneberg_team, rigid_te
 def family(name: str, n: int, d: int, redundancy: float, seed: int) -> Scenario:
     if name == "henneberg":
         return henneberg_team(n, seed=seed, redundancy=redundancy)
-    make = rigid_team if name == "rigid_team" else geometric_team
-    return make(n, d, redundancy, seed=seed)
+    if name == "rigid_team":
+        return rigid_team(n, d, redundancy, seed=seed)
+    try:
+        return geometric_team(n, d, redundancy, seed=seed)
+    except ScenarioError:
+        # without spare edges a geometric team of a hundred agents in space is sometimes
+        # flexible to rounding (its smallest singular value ~1e-10 of the largest): no team
+        assume(False)
+        raise
 
 
 @settings(max_examples=15, deadline=None)
