@@ -24,6 +24,7 @@ from formation.codec import read_attachment
 from formation.keys import LEADER_ENDPOINT
 from formation.messages import Bundle
 from formation.scenario import Scenario
+from netem.last_state import state_of
 from netem.link_config import LinkConfig
 from netem.outbox import ZenohOutbox
 from netem.proxy.lockstep import LockstepCore
@@ -337,7 +338,7 @@ class NetemNode:
             for i in ids:
                 epoch = self.lockstep.rejoin(i)
                 last = self.lockstep.state_of(i)
-                answer["agents"][str(i)] = {"from_epoch": epoch, "state": _state_of(last)}
+                answer["agents"][str(i)] = {"from_epoch": epoch, "state": state_of(last)}
             if leader:
                 answer["leader"] = {"from_epoch": self.lockstep.rejoin(LEADER_ENDPOINT)}
             self._announce_applied()  # a scheduled join or restart: named by the scenario
@@ -396,7 +397,7 @@ class NetemNode:
             last = self.realtime.last_state.get(i)
             answer["agents"][str(i)] = {
                 "from_epoch": min(epoch, self.epochs),
-                "state": _state_of(last),
+                "state": state_of(last),
             }
         return answer
 
@@ -484,19 +485,3 @@ class LockstepWakeups:
 
 def _sender_name(sender: int) -> str:
     return "the leader" if sender == LEADER_ENDPOINT else f"agent {sender}"
-
-
-def _state_of(last: tuple[int, Any] | None) -> dict[str, Any] | None:
-    """The epoch, position and (a unicycle's) heading of a state packet netem handled (its
-    payload, unparsed)."""
-    if last is None:
-        return None
-    epoch, payload = last
-    raw = payload if isinstance(payload, bytes) else payload.to_bytes()
-    try:
-        state = orjson.loads(raw)
-        position = [float(v) for v in state["position"]]
-        heading = None if state.get("heading") is None else float(state["heading"])
-    except (orjson.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError):
-        return None  # a malformed last packet: the agent starts from the scenario's position
-    return {"epoch": epoch, "position": position, "heading": heading}

@@ -37,8 +37,8 @@ from formation import codec, keys
 from formation.errors import TestbedError
 from recorder.live.server import LiveServer
 from recorder.reading.reader import iter_messages, metadata, open_recording, scenario_of
-from recorder.reading.trust import Gate, Skipped, derived_channels
-from recorder.recording.schemas import FOXGLOVE, classify, run_id_of
+from recorder.reading.trust import Gate, Skipped
+from recorder.recording.schemas import FOXGLOVE, classify, derived_channels, run_id_of
 from shell import open_session
 
 SKIP = frozenset({"alive"})  # channel kinds never replayed

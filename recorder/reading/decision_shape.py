@@ -1,11 +1,14 @@
-"""Whether a decision batch's columns fit together, before anything reads them as a table."""
+"""Whether a decision batch's columns fit together and lie within the scenario, before
+anything reads them as a table."""
 
 from __future__ import annotations
 
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
+from formation import keys
 from formation.messages import DecisionColumns
 from recorder.reading.skips import INVALID, Skip
 
@@ -31,4 +34,26 @@ def check_shape(batch: Any) -> None:
     raise Skip(INVALID, f"record {r}: judgement {bad}, but the batch has {count} judgements")
 
 
-__all__ = ["check_shape"]
+def records_in_range(
+    epoch: npt.NDArray[np.int64],
+    source: npt.NDArray[np.int64],
+    target: npt.NDArray[np.int64],
+    latest: int,
+    n: int,
+    link_class: str,
+) -> bool:
+    """Whether every record's epoch is in ``0..latest``, its ends in ``0..n`` and, for a
+    report or an estimate, its link one of the leader's control links of that direction
+    (a formation link's membership is the caller's: it keeps the scenario's links)."""
+    ends = np.concatenate([source, target])
+    if not ((epoch >= 0) & (epoch <= latest)).all() or not ((ends >= 0) & (ends <= n)).all():
+        return False
+    leader = keys.LEADER_ENDPOINT
+    if link_class == "report":
+        return bool(((target == leader) & (source != leader)).all())
+    if link_class == "estimate":
+        return bool(((source == leader) & (target != leader)).all())
+    return True
+
+
+__all__ = ["check_shape", "records_in_range"]

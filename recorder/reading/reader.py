@@ -25,8 +25,8 @@ from formation.messages import LINK_CLASS_OF, DecisionBatch
 from formation.scenario import Scenario
 from recorder.reading.chunks import Record, file_chunks, file_order
 from recorder.reading.decoder import DecodeError, decode, decode_cdr
-from recorder.reading.trust import Gate, Skipped, derived_channels
-from recorder.recording.schemas import PROTOBUF, ROS2MSG, classify
+from recorder.reading.trust import Gate, Skipped
+from recorder.recording.schemas import PROTOBUF, ROS2MSG, classify, derived_channels
 from recorder.recording.stored_scenario import scenario_of
 from recorder.recording.writer import MAGIC, rotated_path
 

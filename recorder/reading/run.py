@@ -36,8 +36,8 @@ from recorder.reading.reader import (
     scenario_of,
 )
 from recorder.reading.state_batch import judge_states
-from recorder.reading.trust import Gate, derived_channels
-from recorder.recording.schemas import ROS2, classify
+from recorder.reading.trust import Gate
+from recorder.recording.schemas import ROS2, classify, derived_channels
 
 Array = npt.NDArray[np.float64]
 Ints = npt.NDArray[np.int64]

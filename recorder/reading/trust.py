@@ -24,9 +24,7 @@ Every other message is skipped and counted per channel (topic) and reason
 
 from __future__ import annotations
 
-import math
 from collections import Counter
-from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -52,7 +50,7 @@ from formation.messages import (
 )
 from formation.scenario import Scenario
 from recorder.reading.bulk import DECODERS, decision_columns, plain
-from recorder.reading.decision_shape import check_shape
+from recorder.reading.decision_shape import check_shape, records_in_range
 from recorder.reading.decoder import DecodeError, decode_cdr, decode_kind
 from recorder.reading.estimates import estimate_arrays
 from recorder.reading.row_batches import row_batch
@@ -66,6 +64,7 @@ from recorder.reading.skips import (
     Skip,
     Skipped,
 )
+from recorder.reading.value_checks import all_finite, finite, within
 from recorder.recording.schemas import (
     FOXGLOVE,
     MESSAGE_MODELS,
@@ -85,42 +84,13 @@ _REPEATED = frozenset({"status", "decision", "alive", "link_change", "delivery_b
 Args = tuple[str, ...]  # the open chunks of a key, in order: keys.parse(topic).args
 
 
-def _all_finite(rows: list[Any], shape: tuple[int | None, ...]) -> bool:
-    """Whether ``rows`` are all of ``shape`` (None: any length) and finite, as one array."""
-    if not rows:
-        return True
-    try:
-        arr = np.array(rows, dtype=float)
-    except (ValueError, TypeError):
-        return False  # ragged
-    want = (len(rows), *shape)
-    fits = arr.ndim == len(want) and all(
-        w is None or w == a for w, a in zip(want, arr.shape, strict=True)
-    )
-    return bool(fits and np.isfinite(arr).all())
-
-
-def _within(values: npt.NDArray[np.int64], pool: npt.NDArray[np.int64]) -> bool:
-    """Whether every value is in ``pool`` (sorted), by a binary search."""
-    if not len(values):
-        return True
-    at = np.minimum(np.searchsorted(pool, values), max(len(pool) - 1, 0))
-    return bool(len(pool) and (pool[at] == values).all())
-
-
-def _finite(values: Sequence[float], d: int | None, what: str) -> None:
-    if d is not None and len(values) != d:
-        raise Skip(INVALID, f"{what} has {len(values)} components, expected {d}")
-    if not all(map(math.isfinite, values)):  # map: a million states a run at 10,000 agents
-        raise Skip(INVALID, f"{what} is not finite")
-
-
 class Gate:
     """Validates recorded messages and checks their owners against ``scenario``.
 
     Without a scenario (a recording that stores none) only the models and the key owners
     are checked. ``derived_channels``: ids of the channels the recorder marked as its own
-    (channel metadata ``origin = recorder``, :func:`derived_channels`); when given, metrics
+    (channel metadata ``origin = recorder``,
+    :func:`recorder.recording.schemas.derived_channels`); when given, metrics
     and scenes on other channels are counted as forged.
     """
 
@@ -260,14 +230,14 @@ class Gate:
         self._agent(i)
         self._epoch(msg.epoch)
         d = self._dim()
-        _finite(msg.position, d, "position")
+        finite(msg.position, d, "position")
         if msg.velocity is not None:
-            _finite(msg.velocity, d, "velocity")
+            finite(msg.velocity, d, "velocity")
         for s in msg.substituted:
             self._agent(s.neighbour, "neighbour")
             if self.scenario is not None and (s.neighbour, i) not in self.links:
                 raise Skip(OUT_OF_RANGE, f"no link {s.neighbour}->{i} to substitute")
-            _finite(s.value, d, "substituted value")
+            finite(s.value, d, "substituted value")
 
     def _report(self, msg: TokenReport, i: int) -> None:
         self._agent_sender(msg, i)
@@ -276,7 +246,7 @@ class Gate:
         for m in msg.measurements:
             self._agent(m.neighbour, "neighbour")
             if m.z is not None:
-                _finite(m.z, self._dim(), "measurement")
+                finite(m.z, self._dim(), "measurement")
 
     def _agent_part(self, msg: AgentEstimate, i: int) -> None:
         self._sender(msg, "leader")
@@ -288,8 +258,8 @@ class Gate:
             self._agent(j, "neighbour")
         for p in msg.positions:
             if p is not None:
-                _finite(p, self._dim(), "estimate")
-        _finite(msg.v_ref, self._dim(), "v_ref")
+                finite(p, self._dim(), "estimate")
+        finite(msg.v_ref, self._dim(), "v_ref")
 
     def _estimate_bundle(self, msg: Bundle, args: Args) -> None:
         """The leader's parts in one message: each checked as if it came on its own key."""
@@ -368,15 +338,15 @@ class Gate:
         ):  # the one at fault, named
             for p in msg.positions:
                 if p is not None:
-                    _finite(p, d, "estimate")
+                    finite(p, d, "estimate")
             for c in msg.covariances:
                 if c is not None:
                     if d is not None and len(c) != d:
                         raise Skip(INVALID, f"a covariance with {len(c)} rows, expected {d}")
                     for row in c:
-                        _finite(row, d, "covariance row")
-        _finite(msg.x_ref, d, "x_ref")
-        _finite(msg.v_ref, d, "v_ref")
+                        finite(row, d, "covariance row")
+        finite(msg.x_ref, d, "x_ref")
+        finite(msg.v_ref, d, "v_ref")
 
     def _delivery(self, msg: Delivery, args: Args) -> None:
         self._sender(msg, "netem")
@@ -439,18 +409,11 @@ class Gate:
         except OverflowError:  # past 63 bits: checked one by one
             return False
         last = self._last_decided()
-        ends = np.concatenate([source, target])
-        if not ((epoch >= 0) & (epoch <= (self.epochs if last is None else last))).all():
-            return False
-        if not ((ends >= 0) & (ends <= self.n)).all():
-            return False
-        leader = keys.LEADER_ENDPOINT
+        latest = self.epochs if last is None else last
         cls = LINK_CLASS_OF[msg.phase]
-        if cls == "formation":
-            return self.within_links(source * (self.n + 1) + target)
-        if cls == "report":
-            return bool(((target == leader) & (source != leader)).all())
-        return bool(((source == leader) & (target != leader)).all())
+        if not records_in_range(epoch, source, target, latest, self.n, cls):
+            return False
+        return cls != "formation" or self.within_links(source * (self.n + 1) + target)
 
     def _edges_known(self, pairs: list[npt.NDArray[np.int64]]) -> bool:
         """Whether every pair of the (k, 2) arrays is an edge of the formation, in either
@@ -462,13 +425,13 @@ class Gate:
         if self._edge_codes is None:
             edges = sorted(a * (self.n + 1) + b for a, b in self.edges)
             self._edge_codes = np.array(edges, dtype=np.int64)
-        return _within(low * (self.n + 1) + high, self._edge_codes)
+        return within(low * (self.n + 1) + high, self._edge_codes)
 
     def within_links(self, codes: npt.NDArray[np.int64]) -> bool:
         """Whether each ``source * (n + 1) + target`` is a formation link of the scenario."""
         if self._codes is None:
             self._codes = np.array(sorted(a * (self.n + 1) + b for a, b in self.links), np.int64)
-        return _within(codes, self._codes)
+        return within(codes, self._codes)
 
     def _link_change(self, msg: LinkChange, args: Args) -> None:
         self._sender(msg, "netem")
@@ -487,12 +450,12 @@ class Gate:
         self._sender(msg, RECORDER)
         self._epoch(msg.epoch)
         d = self._dim()
-        for p in [] if _all_finite(msg.positions, (d,)) else msg.positions:  # the one at fault
-            _finite(p, d, "position")
+        for p in [] if all_finite(msg.positions, (d,)) else msg.positions:  # the one at fault
+            finite(p, d, "position")
         if self.scenario is not None and len(msg.positions) != self.n:
             raise Skip(INVALID, f"{len(msg.positions)} positions, expected {self.n}")
         errors = (msg.formation_error_m, msg.shape_error_m)
-        _finite([e for e in errors if e is not None], None, "error")  # None: no edge in the team
+        finite([e for e in errors if e is not None], None, "error")  # None: no edge in the team
         for i in msg.out:
             self._endpoint(i)
 
@@ -514,13 +477,6 @@ class Gate:
         return msg
 
 
-def derived_channels(channels: Mapping[int, Any]) -> set[int] | None:
-    """Channel ids the recorder wrote itself, or None for a recording that does not mark them
-    (older recorders wrote metrics and scenes on the received key's channel)."""
-    marked = {cid for cid, ch in channels.items() if ch.metadata.get(ORIGIN) == RECORDER}
-    return marked or None
-
-
 __all__ = [
     "CONFLICT",
     "DERIVED",
@@ -534,5 +490,4 @@ __all__ = [
     "Gate",
     "Skip",
     "Skipped",
-    "derived_channels",
 ]

@@ -11,8 +11,10 @@ here, and a recording always carries the real schema.
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import cache
+from typing import Any
 
 from foxglove.messages import FrameTransforms, Log, SceneUpdate
 from pydantic import BaseModel, ConfigDict
@@ -181,6 +183,13 @@ def message_encoding(kind: str) -> str:
     return PROTOBUF if kind in FOXGLOVE else JSON
 
 
+def derived_channels(channels: Mapping[int, Any]) -> set[int] | None:
+    """Channel ids the recorder wrote itself, or None for a recording that does not mark them
+    (older recorders wrote metrics and scenes on the received key's channel)."""
+    marked = {cid for cid, ch in channels.items() if ch.metadata.get(ORIGIN) == RECORDER}
+    return marked or None
+
+
 __all__ = [
     "CDR",
     "FOXGLOVE",
@@ -196,6 +205,7 @@ __all__ = [
     "LivelinessEvent",
     "SchemaSpec",
     "classify",
+    "derived_channels",
     "foxglove_schema",
     "message_encoding",
     "model_schema",
