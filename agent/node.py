@@ -134,8 +134,13 @@ class AgentNode:
         if self.batched:  # lockstep: netem batches a declared pool's deliveries
             for phase in ("state", "estimate"):
                 service.subscribe(keys.inbox_pool(self.run_id, ids[0], phase), direct=True)
-            service.declare_publishers([keys.pool_bundle(self.run_id, ids[0], "report")])
-        self.bundled = False  # the reports go as one bundle: netem took the declaration
+            service.declare_publishers(
+                [
+                    keys.pool_states(self.run_id, ids[0]),
+                    keys.pool_bundle(self.run_id, ids[0], "report"),
+                ]
+            )
+        self.bundled = False  # states and reports go as bundles: netem took the declaration
         service.declare_publishers(
             key(self.run_id, i) for i in ids for key in (keys.agent_state, keys.agent_report)
         )
@@ -233,10 +238,15 @@ class AgentNode:
         return self.robot_waited
 
     def _publish_states(self, ids: list[int] | None = None) -> None:
+        """Each agent's state, with its own key's header: on that key, or (a declared pool in
+        lockstep, every agent) all in one :class:`~formation.messages.Bundle`; a republished
+        final state goes on its own key."""
         k, silent = self.runner.epoch, self._robot_silent("state")
+        service, bundled = self.service, self.bundled and ids is None
+        parts = []
         for i in self.ids if ids is None else ids:
             key = keys.agent_state(self.run_id, i)
-            head = self.service.header(key, k)
+            head = service.header(key, k)
             msg = state_message(
                 head,
                 i,
@@ -245,7 +255,12 @@ class AgentNode:
                 self.runner.pose(i),
                 silent,
             )
-            self.service.put(key, msg, attachment(k, head["seq"], i))
+            if bundled:
+                parts.append({"agent": i, "seq": head["seq"], "message": msg.decode()})
+            else:
+                service.put(key, msg, attachment(k, head["seq"], i))
+        if bundled:
+            self._put_bundle(keys.pool_states(self.run_id, self.ids[0]), "state", parts)
 
     def _publish_reports(self, packets: list[Packet]) -> None:
         """Each agent's report, with its own key's header: on that key, or (a declared pool
@@ -261,10 +276,13 @@ class AgentNode:
             else:
                 service.put(key, msg, attachment(k, head["seq"], i))
         if self.bundled:
-            key = keys.pool_bundle(self.run_id, self.ids[0], "report")
-            head = service.header(key, k)
-            msg = orjson.dumps({**head, "kind": "bundle", "phase": "report", "parts": bundle})
-            service.put(key, msg, attachment(k, head["seq"], self.ids[0]))
+            self._put_bundle(keys.pool_bundle(self.run_id, self.ids[0], "report"), "report", bundle)
+
+    def _put_bundle(self, key: str, phase: str, parts: list[dict[str, Any]]) -> None:
+        k = self.runner.epoch
+        head = self.service.header(key, k)
+        msg = orjson.dumps({**head, "kind": "bundle", "phase": phase, "parts": parts})
+        self.service.put(key, msg, attachment(k, head["seq"], self.ids[0]))
 
     def confirm_final(self, timeout_s: float = 10.0) -> bool:
         """Republish what netem says it lacks of our final states, until it has them all.

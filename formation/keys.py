@@ -42,6 +42,12 @@ def pool_bundle(run_id: str, pool: int | str, phase: str) -> str:
     return f"{ROOT}/{run_id}/agent/pool/{pool}/{phase}"
 
 
+def pool_states(run_id: str, pool: int | str) -> str:
+    """Lockstep: the states of every agent of pool ``pool`` (its first agent's id) as one
+    :class:`Bundle` an epoch; netem takes each part as if it came on :func:`agent_state`."""
+    return f"{ROOT}/{run_id}/agent/pool/{pool}/state"
+
+
 def leader_estimate_out(run_id: str) -> str:
     """The leader's whole estimate, for the recorder and observers (netem does not forward it)."""
     return f"{ROOT}/{run_id}/leader/estimate"
@@ -204,6 +210,7 @@ _BUILDERS: tuple[tuple[Callable[..., str], int], ...] = (
     (agent_state, 2),
     (agent_report, 2),
     (pool_bundle, 3),
+    (pool_states, 2),
     (leader_estimate_out, 1),
     (leader_estimate_for, 2),
     (leader_estimates, 1),

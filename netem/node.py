@@ -92,6 +92,7 @@ class NetemNode:
             keys.leader_estimate_for(self.run_id, "*"),
             self._estimates,
             keys.pool_bundle(self.run_id, "*", "report"),
+            keys.pool_states(self.run_id, "*"),
         ):
             service.subscribe(key, self._on_sample)
         config = LinkConfig(service, self.links, self.progress, self.lockstep, self.lock)
@@ -233,7 +234,7 @@ class NetemNode:
 
     def handle_bundle(self, key: str, payload: Any) -> None:
         """A :class:`~formation.messages.Bundle` on ``key`` (the leader's estimates, or a
-        declared pool's reports): each part handled as if it came on its agent's own key. A
+        declared pool's states or reports): each part handled as if it came on its agent's own key. A
         bundle of another phase, or a part for an agent the key's sender does not hold, is
         counted on ``key`` and skipped."""
         raw = payload if isinstance(payload, bytes) else payload.to_bytes()
@@ -260,12 +261,15 @@ class NetemNode:
 
     def _holder(self, key: str, phase: str) -> Callable[[int], bool] | None:
         """Which agents' parts a bundle of ``phase`` on ``key`` may carry: the leader's
-        estimates any agent's, a pool's reports its own agents'; None: no bundle of ``phase``
-        belongs on ``key``."""
+        estimates any agent's, a pool's states and reports its own agents'; None: no bundle of
+        ``phase`` belongs on ``key``."""
         if key == self._estimates:
             return self.routes.agents.__contains__ if phase == "estimate" else None
         parsed = keys.parse(key)
-        if parsed.kind != "pool_bundle" or parsed.args[1] != phase or phase != "report":
+        if not (
+            (parsed.kind == "pool_bundle" and parsed.args[1] == phase == "report")
+            or (parsed.kind == "pool_states" and phase == "state")
+        ):
             return None
         pool, pool_of = parsed.args[0], self.outbox.pool_of
         return lambda agent: str(pool_of.get(agent)) == pool

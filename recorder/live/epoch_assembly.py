@@ -41,13 +41,22 @@ from recorder.live.logs import change_log, status_log
 from recorder.live.robots import POSE_KINDS, LiveRobots
 from recorder.live.roster import Roster, team_detail
 from recorder.live.scene import frame_transforms, scene_update
+from recorder.reading.bundle_checks import StateParts
 from recorder.reading.trust import Gate
 
 Derived = tuple[str, bytes]
 CLOSE_AFTER = 2  # a state this many epochs later closes an epoch still missing some
 WAIT_EPOCHS = 256  # a scene waits this far behind for its epoch's estimate and decisions
 # The channel kinds the assembler reads.
-TAPS = ("agent_state", "leader_estimate", "decision", "status", "link_change", *POSE_KINDS)
+TAPS = (
+    "agent_state",
+    "state_bundle",
+    "leader_estimate",
+    "decision",
+    "status",
+    "link_change",
+    *POSE_KINDS,
+)
 
 
 @dataclass(frozen=True)
@@ -106,20 +115,35 @@ class EpochAssembler:
         """A ``CoordinationState`` from ``agent/<i>/state``; only one its agent sent about itself
         (:class:`recorder.reading.trust.Gate`), the first of its epoch."""
         state = self.gate.check(key, payload, "agent_state")
-        if not isinstance(state, CoordinationState) or state.epoch > self.scenario.epochs:
+        if not isinstance(state, CoordinationState) or not self._take_state(state):
             return []
+        return self._advance(stamp_ns)
+
+    def on_states(self, key: str, payload: bytes, stamp_ns: int) -> list[Derived]:
+        """A pool's states in one ``Bundle`` on ``agent/pool/<p>/state``: each part taken as
+        if it came alone (the trust gate passes only the parts it would pass so)."""
+        parts = self.gate.check(key, payload, "state_bundle")
+        if not isinstance(parts, StateParts):
+            return []
+        taken = [self._take_state(state) for state in parts.states]
+        return self._advance(stamp_ns) if any(taken) else []
+
+    def _take_state(self, state: CoordinationState) -> bool:
+        """Keep ``state`` if it is the first of its agent and epoch, of an epoch still open."""
+        if state.epoch > self.scenario.epochs:
+            return False
         if state.epoch < self._next_close:
             self.late += 1
-            return []
+            return False
         got = self._states.setdefault(state.epoch, {})
         if state.agent in got:
-            return []
+            return False
         got[state.agent] = state.position
         self.robots.on_state(state.agent, state.epoch, state.position)
         if state.heading is not None:
             self._headings.setdefault(state.epoch, {})[state.agent] = state.heading
         self._newest_state = max(self._newest_state, state.epoch)
-        return self._advance(stamp_ns)
+        return True
 
     def on_estimate(self, key: str, payload: bytes, stamp_ns: int) -> list[Derived]:
         """A ``LeaderEstimate`` from ``leader/estimate``: health, tree and BLUE of its epoch."""
@@ -184,6 +208,7 @@ class EpochAssembler:
     def _on(self) -> dict[str, Callable[[str, bytes, int], list[Derived]]]:
         return {
             "agent_state": self.on_state,
+            "state_bundle": self.on_states,
             "leader_estimate": self.on_estimate,
             "decision": self.on_decision,
             "status": self.on_status,

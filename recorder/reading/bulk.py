@@ -17,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from formation.messages import (
+    Bundle,
     CoordinationState,
     DecisionBatch,
     EpochMetrics,
@@ -27,6 +28,7 @@ from formation.structs import struct_of
 
 DECODERS: dict[str, msgspec.json.Decoder[Any]] = {
     "agent_state": msgspec.json.Decoder(struct_of(CoordinationState)),
+    "state_bundle": msgspec.json.Decoder(struct_of(Bundle)),
     "decision": msgspec.json.Decoder(struct_of(DecisionBatch)),
     "leader_estimate": msgspec.json.Decoder(struct_of(LeaderEstimate)),
     "metrics": msgspec.json.Decoder(struct_of(EpochMetrics)),

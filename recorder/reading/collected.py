@@ -53,6 +53,8 @@ class Collected:
     def add(self, kind: str, msg: Any) -> None:
         if kind == "agent_state":
             self.rows.append(msg)
+        elif kind == "state_bundle":
+            self.rows.extend(msg.states)  # the trusted parts
         elif kind == "leader_estimate":
             self.ests[msg.epoch] = msg
             self.est_arrays[msg.epoch] = estimate_arrays(msg, self.d)  # the gate's, kept

@@ -35,7 +35,7 @@ from recorder.reading.reader import (
     parts,
     scenario_of,
 )
-from recorder.reading.state_batch import judge_states
+from recorder.reading.state_batch import judge_bundles, judge_states
 from recorder.reading.trust import Gate
 from recorder.recording.schemas import ROS2, classify, derived_channels
 
@@ -43,8 +43,8 @@ Array = npt.NDArray[np.float64]
 Ints = npt.NDArray[np.int64]
 
 
-_STATE = "agent_state"
-_WANTED = frozenset({"agent_state", "leader_estimate", "decision", "metrics", "status"})
+_STATE, _BUNDLE = "agent_state", "state_bundle"
+_WANTED = frozenset({_STATE, _BUNDLE, "leader_estimate", "decision", "metrics", "status"})
 
 
 def iter_trusted(
@@ -133,7 +133,8 @@ def _read_by_chunk(
 ) -> None:
     """Every trusted message of the recording into ``held["got"]``, a chunk at a time: its
     agent states judged together (:func:`~recorder.reading.state_batch.judge_states`), the
-    rest, or every message of a chunk whose states are not plainly good, one by one."""
+    rest, or every message of a chunk whose states are not plainly good, one by one (the
+    pools' state bundles likewise, judged together apart from the states)."""
     gate: Gate | None = None
     for part in parts(path):
         with open_recording(part) as (reader, summary):
@@ -156,16 +157,17 @@ def _read_chunk(
     gate: Gate, got: Collected, summary: Summary, kinds: dict[int, str], records: list[Record]
 ) -> None:
     channels = summary.channels
-    of_kind = [kinds[r[0]] for r in records]
-    states = [r for r, kind in zip(records, of_kind, strict=True) if kind == _STATE]
-    block = (
-        judge_states(gate, [channels[r[0]].topic for r in states], [r[4] for r in states])
-        if states
-        else None
-    )
-    if block is not None:
-        got.blocks.append(block)
-        records = [r for r, kind in zip(records, of_kind, strict=True) if kind != _STATE]
+    for judged, judge in ((_STATE, judge_states), (_BUNDLE, judge_bundles)):
+        of_kind = [kinds[r[0]] for r in records]
+        states = [r for r, kind in zip(records, of_kind, strict=True) if kind == judged]
+        block = (
+            judge(gate, [channels[r[0]].topic for r in states], [r[4] for r in states])
+            if states
+            else None
+        )
+        if block is not None:
+            got.blocks.append(block)
+            records = [r for r, kind in zip(records, of_kind, strict=True) if kind != judged]
     for channel_id, sequence, log_time, publish_time, data in records:
         kind = kinds[channel_id]
         channel = channels[channel_id]

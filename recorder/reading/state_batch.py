@@ -111,9 +111,15 @@ def _finite_rows(rows: list[Any], d: int) -> Array | None:
     return arr
 
 
-def judge_states(gate: Gate, topics: list[str], datas: list[bytes]) -> StateBlock | None:
+def judge_states(
+    gate: Gate,
+    topics: list[str],
+    datas: list[bytes],
+    claims: tuple[list[int], list[int]] | None = None,
+) -> StateBlock | None:
     """The states ``datas`` on ``topics`` (agent state keys) as a block if the gate would pass
-    every one of them, counted as passed; else None, with nothing counted or remembered."""
+    every one of them, counted as passed; else None, with nothing counted or remembered.
+    ``claims``: the seq and epoch each state must carry (a bundle's part's)."""
     s, count = gate.scenario, len(datas)
     if s is None or not count:
         return None
@@ -126,6 +132,8 @@ def judge_states(gate: Gate, topics: list[str], datas: list[bytes]) -> StateBloc
     agent = _ints(map(attrgetter("agent"), msgs), count)
     epoch = _ints(map(attrgetter("epoch"), msgs), count)
     if agent is None or epoch is None:
+        return None
+    if claims is not None and not _as_claimed(msgs, epoch, claims):
         return None
     if not (((owner >= 1) & (owner <= n) & (agent == owner)).all() and epoch.max() <= gate.epochs):
         return None  # the model checks epoch ≥ −1; the gate wants ≥ 0 below
@@ -153,6 +161,49 @@ def judge_states(gate: Gate, topics: list[str], datas: list[bytes]) -> StateBloc
         else np.array([-1 if v is None else v for v in saturated], dtype=np.int64),
         *subs,
     )
+
+
+def judge_bundles(gate: Gate, topics: list[str], datas: list[bytes]) -> StateBlock | None:
+    """The parts of the pools' state bundles ``datas`` on ``topics`` (``agent/pool/<p>/state``)
+    as a block if the gate would pass each bundle and every part of it as if it came alone
+    (:func:`recorder.reading.bundle_checks.state_bundle`), counted as passed; else None, with
+    nothing counted or remembered."""
+    part_topics: list[str] = []
+    part_datas: list[bytes] = []
+    seqs: list[int] = []
+    epochs: list[int] = []
+    decode = DECODERS["state_bundle"].decode
+    for topic, data in zip(topics, datas, strict=True):
+        parsed = keys.parse(topic)
+        try:
+            bundle = decode(data)
+        except msgspec.DecodeError:
+            return None
+        pool = parsed.args[0]
+        if bundle.phase != "state" or bundle.sender != f"pool/{pool}" or not pool.isdigit():
+            return None
+        first = int(pool)
+        for part in bundle.parts:
+            if part.agent < first:
+                return None
+            part_topics.append(_state_key(parsed.run_id, part.agent))
+            part_datas.append(part.message.encode())
+            seqs.append(part.seq)
+            epochs.append(bundle.epoch)
+    block = judge_states(gate, part_topics, part_datas, (seqs, epochs))
+    if block is not None:
+        gate.passed["state_bundle"] += len(datas)
+    return block
+
+
+@lru_cache(maxsize=1 << 16)
+def _state_key(run_id: str, agent: int) -> str:
+    return keys.agent_state(run_id, agent)
+
+
+def _as_claimed(msgs: list[Any], epoch: Ints, claims: tuple[list[int], list[int]]) -> bool:
+    seq = _ints(map(attrgetter("seq"), msgs), len(msgs))
+    return seq is not None and seq.tolist() == claims[0] and epoch.tolist() == claims[1]
 
 
 def _owned(msgs: list[Any], owner: Ints) -> bool:
@@ -208,4 +259,4 @@ def _first(gate: Gate, topics: list[str], epoch: Ints, datas: list[bytes]) -> bo
     return True
 
 
-__all__ = ["StateBlock", "judge_states"]
+__all__ = ["StateBlock", "judge_bundles", "judge_states"]

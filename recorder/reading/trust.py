@@ -37,7 +37,6 @@ from formation import keys
 from formation.messages import (
     LINK_CLASS_OF,
     AgentEstimate,
-    Bundle,
     CoordinationState,
     DecisionBatch,
     Delivery,
@@ -50,6 +49,7 @@ from formation.messages import (
 )
 from formation.scenario import Scenario
 from recorder.reading.bulk import DECODERS, decision_columns, plain
+from recorder.reading.bundle_checks import BUNDLE_CHECKS
 from recorder.reading.decision_shape import check_shape, records_in_range
 from recorder.reading.decoder import DecodeError, decode_cdr, decode_kind
 from recorder.reading.estimates import estimate_arrays
@@ -159,8 +159,12 @@ class Gate:
                 msg = row_batch(data) if kind == "decision" else None  # an older recording's
                 if msg is None:
                     raise Skip(INVALID, f"{model.__name__}: {str(exc).splitlines()[0]}") from None
-        check = getattr(self, f"_{kind}", None)
-        if check is not None:
+        bundle = BUNDLE_CHECKS.get(kind)
+        if bundle is not None:
+            parts = bundle(self, msg, topic)  # type: ignore[arg-type]
+            if parts is not None:
+                return parts  # each part checked for contradictions as if it came alone
+        elif (check := getattr(self, f"_{kind}", None)) is not None:
             check(msg, keys.parse(topic).args)
         epoch = getattr(msg, "epoch", None)
         if self.conflicts and isinstance(epoch, int) and epoch >= 0 and kind not in self.repeated:
@@ -260,38 +264,6 @@ class Gate:
             if p is not None:
                 finite(p, self._dim(), "estimate")
         finite(msg.v_ref, self._dim(), "v_ref")
-
-    def _estimate_bundle(self, msg: Bundle, args: Args) -> None:
-        """The leader's parts in one message: each checked as if it came on its own key."""
-        self._sender(msg, "leader")
-        if msg.phase != "estimate":
-            raise Skip(FORGED, f"a bundle of {msg.phase}s on the leader's estimates' key")
-        for part in msg.parts:
-            try:
-                inner = AgentEstimate.model_validate_json(part.message)
-            except (ValidationError, ValueError) as exc:
-                detail = str(exc).splitlines()[0]
-                raise Skip(INVALID, f"agent {part.agent}'s part: {detail}") from None
-            if inner.seq != part.seq or inner.epoch != msg.epoch:
-                raise Skip(FORGED, f"agent {part.agent}'s part of another seq or epoch")
-            self._agent_part(inner, part.agent)
-
-    def _pool_bundle(self, msg: Bundle, args: Args) -> None:
-        """A pool's reports in one message: each checked as if it came on its agent's key."""
-        pool = self._key_id(args[0])
-        if msg.phase != args[1] or msg.phase != "report":
-            raise Skip(FORGED, f"a bundle of {msg.phase}s on {args[1]}'s key of pool {pool}")
-        if msg.sender != f"pool/{pool}":
-            raise Skip(FORGED, f"sender {msg.sender!r} on a key of pool {pool}")
-        for part in msg.parts:
-            try:
-                inner = TokenReport.model_validate_json(part.message)
-            except (ValidationError, ValueError) as exc:
-                detail = str(exc).splitlines()[0]
-                raise Skip(INVALID, f"agent {part.agent}'s part: {detail}") from None
-            if inner.seq != part.seq or inner.epoch != msg.epoch or part.agent < pool:
-                raise Skip(FORGED, f"agent {part.agent}'s part of another seq, epoch or pool")
-            self._report(inner, part.agent)
 
     def _last_decided(self) -> int | None:
         """The last epoch with decisions, reports and estimates (states go one further)."""

@@ -64,6 +64,7 @@ class Observer:
         self.run_id = run_id
         self._subs = [
             session.declare_subscriber(keys.agent_state(run_id, "*"), self._on_state),
+            session.declare_subscriber(keys.pool_states(run_id, "*"), self._on_states),
             # Agent 1's part (realtime) or the parts' bundle (lockstep) says the leader
             # finished the epoch as well as the whole estimate does, by its attachment alone.
             session.declare_subscriber(keys.leader_estimate_for(run_id, 1), self._on_estimate),
@@ -79,20 +80,39 @@ class Observer:
         return self.malformed.decode(str(sample.key_expr), sample.payload.to_bytes(), model)
 
     def _on_state(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        args = keys.parse(key).args  # its own key only
+        self._state(key, sample.payload.to_bytes(), args[0] if len(args) == 1 else "")
+
+    def _on_states(self, sample: zenoh.Sample) -> None:
+        """A pool's states in one bundle: each part as if it came alone, its pool's agents'."""
+        key = str(sample.key_expr)
         try:
-            msg = orjson.loads(sample.payload.to_bytes())
+            parts = orjson.loads(sample.payload.to_bytes())["parts"]
+            first = int(keys.parse(key).args[0])
+            messages = [(int(p["agent"]), str(p["message"]).encode()) for p in parts]
+        except (orjson.JSONDecodeError, KeyError, TypeError, ValueError):
+            self.malformed.counts[key] += 1
+            return
+        for agent, message in messages:
+            self._state(key, message, str(agent) if agent >= first else "")
+
+    def _state(self, key: str, payload: bytes, owner: str) -> None:
+        """A state on ``key``, counted there as malformed unless its agent is ``owner`` (the
+        id its key, or its part of a pool's bundle, stands for)."""
+        try:
+            msg = orjson.loads(payload)
             k, i, seq = int(msg["epoch"]), int(msg["agent"]), int(msg["seq"])
             position = [float(v) for v in msg["position"]]
             subs = [
                 (int(s["neighbour"]), [float(v) for v in s["value"]]) for s in msg["substituted"]
             ]
             ok = 0 <= k <= self.scenario.epochs and 1 <= i <= self.scenario.n
-            ok = ok and len(position) == self.scenario.dimension
-            ok = ok and keys.parse(str(sample.key_expr)).args == (str(i),)  # its own key only
+            ok = ok and len(position) == self.scenario.dimension and str(i) == owner
         except (orjson.JSONDecodeError, KeyError, TypeError, ValueError):
             ok = False
         if not ok:
-            self.malformed.counts[str(sample.key_expr)] += 1
+            self.malformed.counts[key] += 1
             return
         with self.lock:
             if seq == 0 or (k > 0 and np.isnan(self.positions[k - 1, i - 1, 0])):
