@@ -1,4 +1,4 @@
-"""Bundles (lockstep), the leader's parts and a declared pool's reports: netem takes each part
+"""Bundles (lockstep), the leader's parts and a declared pool's states and reports: netem takes each part
 of a ``Bundle`` as if it came on its agent's own key, and counts and skips a bundle or part it
 cannot take."""
 
@@ -10,7 +10,13 @@ import orjson
 
 from formation import keys
 from formation.codec import attachment, now_ns
-from formation.messages import AgentEstimate, Delivery, TokenReport
+from formation.messages import (
+    AgentEstimate,
+    CoordinationState,
+    Delivery,
+    DeliveryBatch,
+    TokenReport,
+)
 from formation.scenario import Scenario
 from netem.node import NetemNode
 from shell import MemoryBus, Sample, Service
@@ -107,3 +113,60 @@ def test_a_declared_pools_reports_reach_the_leader_and_no_other_agents_parts() -
     (delivery,) = got
     assert sorted(p.source for p in delivery.packets) == [1, 2, 3, 4, 5]
     assert delivery.lost == [] and delivery.epoch == 0
+
+
+def _state(sender: str, i: int, epoch: int) -> str:
+    return CoordinationState(run_id=RUN, sender=sender, seq=epoch, epoch=epoch,
+                             stamp_ns=now_ns(), agent=i, position=[float(i), 0.0],
+                             substituted=[]).model_dump_json()  # fmt: skip
+
+
+def _states(pool: int, epoch: int, agents: list[int]) -> bytes:
+    parts = [
+        {"agent": i, "seq": epoch, "message": _state(f"pool/{pool}", i, epoch)} for i in agents
+    ]
+    head = {"run_id": RUN, "sender": f"pool/{pool}", "seq": epoch, "epoch": epoch, "stamp_ns": 1}
+    return orjson.dumps({**head, "kind": "bundle", "phase": "state", "parts": parts})
+
+
+def test_a_declared_pools_states_go_on_each_agents_out_links_as_if_each_came_alone() -> None:
+    scenario = Scenario.from_file(ROOT / "scenarios/paper.toml").with_overrides(
+        epochs=10, network={}
+    )
+    bus = MemoryBus()
+    service = Service(bus, RUN, "netem", 0, start_timeout_s=5)
+    pool = Service(bus, RUN, "pool", 1, start_timeout_s=5)
+    got: list[Delivery] = []
+
+    def on_delivery(sample: Sample) -> None:
+        got.append(Delivery.model_validate_json(sample.payload.to_bytes()))
+
+    def on_batch(sample: Sample) -> None:
+        got.extend(DeliveryBatch.model_validate_json(sample.payload.to_bytes()).deliveries)
+
+    bus.declare_subscriber(keys.inbox(RUN, "*", "state"), on_delivery)
+    bus.declare_subscriber(keys.inbox_pool(RUN, "*", "state"), on_batch)
+    first, second = keys.pool_states(RUN, 1), keys.pool_states(RUN, 4)
+    try:
+        node = NetemNode(service, scenario, seed=1, wait_for_recorder=False)
+        with node.lock:
+            node.running = True
+        assert pool.ask(keys.netem_pool(RUN), {"pool": 1, "agents": [1, 2, 3]}) is not None
+        node.handle_packet(second, _states(4, 0, [4, 5]), None)  # pool 4 never declared
+        node.handle_packet(first, _states(1, 0, [1, 2, 4, 3]), None)  # 4 is not pool 1's
+        node.handle_packet(first, _states(1, 0, [1]).replace(b'"state"', b'"report"'), None)
+        assert service.malformed.counts == {second: 2, first: 2}
+        for i in (4, 5):  # on their own keys
+            state = _state(f"agent/{i}", i, 0).encode()
+            node.handle_packet(keys.agent_state(RUN, i), state, attachment(0, 0, i))
+        in_links = {j: sorted(node.links.in_links[j]) for j in node.agents}
+    finally:
+        pool.close()
+        service.close()
+    assert sorted(d.receiver for d in got) == [1, 2, 3, 4, 5]
+    for d in got:  # each receiver has each in-neighbour's state, exactly as it was sent
+        assert sorted(p.source for p in d.packets) == in_links[d.receiver]
+        for p in d.packets:
+            sender = "pool/1" if p.source <= 3 else f"agent/{p.source}"
+            state = CoordinationState.model_validate_json(p.message)
+            assert (state.agent, state.sender, state.epoch) == (p.source, sender, 0)
