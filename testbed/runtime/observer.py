@@ -32,6 +32,10 @@ class Verdict(NamedTuple):
     model: str = ""  # what dropped it: a link model, or a queue's reason (queue_full, ...)
 
 
+# a state as the observer keeps it: epoch, agent, seq, position, substitutions, fallbacks
+_State = tuple[int, int, int, list[float], list[tuple[int, list[float]]], int]
+
+
 class Observer:
     """The launcher's own Zenoh view of the run: progress, drops, states, statuses.
 
@@ -82,7 +86,10 @@ class Observer:
     def _on_state(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
         args = keys.parse(key).args  # its own key only
-        self._state(key, sample.payload.to_bytes(), args[0] if len(args) == 1 else "")
+        state = self._read_state(key, sample.payload.to_bytes(), args[0] if len(args) == 1 else "")
+        if state is not None:
+            with self.lock:
+                self._keep(*state)
 
     def _on_states(self, sample: zenoh.Sample) -> None:
         """A pool's states in one bundle: each part as if it came alone, its pool's agents'."""
@@ -90,16 +97,20 @@ class Observer:
         try:
             parts = orjson.loads(sample.payload.to_bytes())["parts"]
             first = int(keys.parse(key).args[0])
-            messages = [(int(p["agent"]), str(p["message"]).encode()) for p in parts]
+            messages = [(int(p["agent"]), str(p["message"])) for p in parts]
         except (orjson.JSONDecodeError, KeyError, TypeError, ValueError):
             self.malformed.counts[key] += 1
             return
-        for agent, message in messages:
-            self._state(key, message, str(agent) if agent >= first else "")
+        read = self._read_state
+        states = [read(key, message, str(i) if i >= first else "") for i, message in messages]
+        with self.lock:
+            for state in states:
+                if state is not None:
+                    self._keep(*state)
 
-    def _state(self, key: str, payload: bytes, owner: str) -> None:
-        """A state on ``key``, counted there as malformed unless its agent is ``owner`` (the
-        id its key, or its part of a pool's bundle, stands for)."""
+    def _read_state(self, key: str, payload: bytes | str, owner: str) -> _State | None:
+        """A state on ``key``; None, counted there as malformed, unless its agent is ``owner``
+        (the id its key, or its part of a pool's bundle, stands for)."""
         try:
             msg = orjson.loads(payload)
             k, i, seq = int(msg["epoch"]), int(msg["agent"]), int(msg["seq"])
@@ -107,23 +118,34 @@ class Observer:
             subs = [
                 (int(s["neighbour"]), [float(v) for v in s["value"]]) for s in msg["substituted"]
             ]
+            fell = sum(bool(s.get("fallback")) for s in msg["substituted"])
             ok = 0 <= k <= self.scenario.epochs and 1 <= i <= self.scenario.n
             ok = ok and len(position) == self.scenario.dimension and str(i) == owner
-        except (orjson.JSONDecodeError, KeyError, TypeError, ValueError):
+        except (orjson.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError):
             ok = False
         if not ok:
             self.malformed.counts[key] += 1
-            return
-        with self.lock:
-            if seq == 0 or (k > 0 and np.isnan(self.positions[k - 1, i - 1, 0])):
-                self.returns[i] = (k, time.monotonic())
-            self.positions[k, i - 1] = position
-            for j, value in subs:  # used at the previous epoch
-                self.substitutions.append((k - 1, i, j, value))
-            fell = sum(bool(s.get("fallback")) for s in msg["substituted"])
-            if fell:
-                self.fallbacks += fell
-                self.fallback_epochs[k - 1] += fell
+            return None
+        return k, i, seq, position, subs, fell
+
+    def _keep(
+        self,
+        k: int,
+        i: int,
+        seq: int,
+        position: list[float],
+        subs: list[tuple[int, list[float]]],
+        fell: int,
+    ) -> None:
+        """Agent ``i``'s state of epoch ``k`` (under :attr:`lock`)."""
+        if seq == 0 or (k > 0 and np.isnan(self.positions[k - 1, i - 1, 0])):
+            self.returns[i] = (k, time.monotonic())
+        self.positions[k, i - 1] = position
+        for j, value in subs:  # used at the previous epoch
+            self.substitutions.append((k - 1, i, j, value))
+        if fell:
+            self.fallbacks += fell
+            self.fallback_epochs[k - 1] += fell
 
     def _on_estimate(self, sample: zenoh.Sample) -> None:
         att = sample.attachment
