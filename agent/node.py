@@ -141,9 +141,11 @@ class AgentNode:
                 ]
             )
         self.bundled = False  # states and reports go as bundles: netem took the declaration
-        service.declare_publishers(
-            key(self.run_id, i) for i in ids for key in (keys.agent_state, keys.agent_report)
-        )
+        # each agent's state and report keys, built once: a pool puts hundreds an epoch
+        self.own_keys = {
+            i: (keys.agent_state(self.run_id, i), keys.agent_report(self.run_id, i)) for i in ids
+        }
+        service.declare_publishers(key for pair in self.own_keys.values() for key in pair)
         service.watch_alive()
 
     @property
@@ -245,7 +247,7 @@ class AgentNode:
         service, bundled = self.service, self.bundled and ids is None
         parts = []
         for i in self.ids if ids is None else ids:
-            key = keys.agent_state(self.run_id, i)
+            key = self.own_keys[i][0]
             head = service.header(key, k)
             msg = state_message(
                 head,
@@ -268,7 +270,7 @@ class AgentNode:
         k, silent = self.runner.epoch, self._robot_silent("report")
         service, bundle = self.service, []
         for i, report in self.runner.receive(packets).items():
-            key = keys.agent_report(self.run_id, i)
+            key = self.own_keys[i][1]
             head = service.header(key, k)
             msg = report_message(head, i, report, silent)
             if self.bundled:

@@ -271,8 +271,9 @@ class NetemNode:
             or (parsed.kind == "pool_states" and phase == "state")
         ):
             return None
-        pool, pool_of = parsed.args[0], self.outbox.pool_of
-        return lambda agent: str(pool_of.get(agent)) == pool
+        pool = int(parsed.args[0]) if parsed.args[0].isdigit() else -1  # -1: no pool's
+        pool_of = self.outbox.pool_of
+        return lambda agent: pool_of.get(agent, -2) == pool
 
     def _on_final(self, query: Query) -> None:
         """What netem still lacks of a sender's last messages: ``{"agents": [ids]}`` asks for
