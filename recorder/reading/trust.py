@@ -459,8 +459,10 @@ class Gate:
             raise Skip(INVALID, f"{len(msg.positions)} positions, expected {self.n}")
         errors = (msg.formation_error_m, msg.shape_error_m)
         finite([e for e in errors if e is not None], None, "error")  # None: no edge in the team
-        for i in msg.out:
-            self._endpoint(i)
+        out = msg.out
+        if self.scenario is not None and out and not 0 <= min(out) <= max(out) <= self.n:
+            for i in out:  # the one at fault, named
+                self._endpoint(i)
 
     def _alive(self, msg: LivelinessEvent, args: Args) -> None:
         claimed = keys.parse(msg.key)
