@@ -15,7 +15,8 @@ The same tables from a recording and from a simulation, column for column. Axes 
 ``decisions`` — netem's verdict on each packet: ``epoch``, ``phase``, ``link_class``
     (formation, report, estimate), ``source``, ``target``, ``link`` (``"1->2"``), ``seq``,
     ``verdict`` (pass, drop, duplicate, delayed), ``on_time`` (delivered in its epoch),
-    ``delay_epochs``, ``delay_ms``, ``model``, ``state`` (the link model's state).
+    ``delay_epochs``, ``delay_ms``, ``model``, ``state`` (the link model's state); the
+    text columns are categoricals of their sorted values (equal to strings when compared).
 ``metrics`` — one row per epoch with a state: ``epoch``, ``agents`` (how many took part),
     ``formation_error_m``, ``shape_error_m`` (over the edges between the agents that took
     part, :func:`analysis.membership.errors_of_team`; NaN when no edge is),
