@@ -144,6 +144,8 @@ def _read_by_chunk(
             kinds = _kinds(summary)
             for records in iter_chunks(part, f, summary):
                 _read_chunk(gate, held["got"], summary, kinds, records)
+    if gate is not None:  # a million keys and epochs, which the collector would walk next
+        gate.seen.clear()
 
 
 def _kinds(summary: Summary) -> dict[int, str]:
