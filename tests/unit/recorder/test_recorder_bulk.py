@@ -286,6 +286,17 @@ def test_a_record_past_its_chunk_is_refused() -> None:
         list(chunk_messages(bytes([5]) + (99).to_bytes(8, "little") + b"abc"))
 
 
+def test_a_short_message_or_a_cut_header_is_refused() -> None:
+    message = bytes([5]) + (24).to_bytes(8, "little") + bytes(24)  # 22 bytes of head, 2 of data
+    assert chunk_messages(message) == [(0, 0, 0, 0, b"\x00\x00")]
+    short = bytes([5]) + (3).to_bytes(8, "little") + b"abc"  # shorter than a message's head
+    for tail in (b"", message):
+        with pytest.raises(ChunkError, match="a message record of 3 bytes"):
+            chunk_messages(message + short + tail)
+    with pytest.raises(ChunkError, match="a record header cut at byte 33 of 37"):
+        chunk_messages(message + b"\x05abc")
+
+
 def test_delivery_keeps_the_last_record_of_a_link_and_epoch() -> None:
     links = np.array([[1, 2], [2, 1], [0, 1]])
     rows = [  # epoch, source, target, verdict: (1, 2) at 0 passes, then a later drop
