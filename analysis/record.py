@@ -85,7 +85,10 @@ class Decisions:
 
     phase, link_class, verdict, model, state : text; queue : the capacity queue's name or
     None; queue_depth : its length when the packet came, −1 without a queue [packets];
-    delay_ms, sojourn_ms : [ms], NaN where not known
+    delay_ms, sojourn_ms : [ms], NaN where not known; coded : text columns also as codes
+    into their few values, ``name → (codes (N,), values (k,))`` with ``values[codes]`` the
+    column, where their maker had them (a recording's reader), so that millions of rows
+    are not compared or factorized string by string
     """
 
     epoch: Ints
@@ -102,6 +105,9 @@ class Decisions:
     queue: Texts
     queue_depth: Ints
     sojourn_ms: Array
+    coded: Mapping[str, tuple[Ints, Texts]] = field(
+        default_factory=dict, compare=False, repr=False, kw_only=True
+    )
 
     @classmethod
     def of_rows(cls, rows: Sequence[tuple[Any, ...]]) -> Decisions:
@@ -137,15 +143,22 @@ class Decisions:
     @cached_property  # the tables and the delivery matrix each ask, of millions of rows
     def on_time(self) -> Bools:
         """Delivered in its own epoch (passed or duplicated, not delayed)."""
-        passed = (self.verdict == "pass") | (self.verdict == "duplicate")
+        passed = self.text_in("verdict", ("pass", "duplicate"))
         return np.asarray(passed & (self.delay_epochs == 0), dtype=bool)
+
+    def text_in(self, name: str, wanted: Sequence[str]) -> Bools:
+        """(N,) whether text column ``name`` holds one of ``wanted``."""
+        if name in self.coded:
+            codes, values = self.coded[name]
+            return np.isin(np.asarray(values, dtype=object), list(wanted))[codes]
+        return np.isin(getattr(self, name), np.asarray(wanted, dtype=object))
 
     def delivery(self, links: Ints, count: int) -> tuple[Bools, Bools]:
         """(count, L) formation link ``links[l]`` delivered in time at epoch ``k``, and
         whether that delivery is known (a record of it)."""
         delivered = np.zeros((count, len(links)), dtype=bool)
         decided = np.zeros_like(delivered)
-        rows = np.flatnonzero(self.link_class == "formation")
+        rows = np.flatnonzero(self.text_in("link_class", ("formation",)))
         links = np.asarray(links, dtype=np.int64).reshape(-1, 2)
         if not len(rows) or not len(links):
             return delivered, decided

@@ -15,7 +15,8 @@ The same tables from a recording and from a simulation, column for column. Axes 
 ``decisions`` — netem's verdict on each packet: ``epoch``, ``phase``, ``link_class``
     (formation, report, estimate), ``source``, ``target``, ``link`` (``"1->2"``), ``seq``,
     ``verdict`` (pass, drop, duplicate, delayed), ``on_time`` (delivered in its epoch),
-    ``delay_epochs``, ``delay_ms``, ``model``, ``state`` (the link model's state).
+    ``delay_epochs``, ``delay_ms``, ``model``, ``state`` (the link model's state); the
+    text columns are categoricals of their sorted values (equal to strings when compared).
 ``metrics`` — one row per epoch with a state: ``epoch``, ``agents`` (how many took part),
     ``formation_error_m``, ``shape_error_m`` (over the edges between the agents that took
     part, :func:`analysis.membership.errors_of_team`; NaN when no edge is),
@@ -159,10 +160,11 @@ def _estimates(run: RunData, axes: list[str]) -> pd.DataFrame:
 
 
 def _decisions(d: Decisions) -> pd.DataFrame:
-    # sorted by epoch, link class, source, target as a stable sort of the columns would
-    codes, classes = pd.factorize(d.link_class)
-    rank = np.argsort(np.argsort(np.asarray(classes, dtype=str), kind="stable"))
-    order = np.lexsort((d.target, d.source, rank[codes], d.epoch))
+    texts = {
+        name: d.coded.get(name) or _factorized(getattr(d, name))
+        for name in ("phase", "link_class", "verdict", "model", "state")
+    }
+    order = _decision_order(d, texts["link_class"])
     cols = {
         "epoch": d.epoch,
         "source": d.source,
@@ -172,21 +174,40 @@ def _decisions(d: Decisions) -> pd.DataFrame:
         "delay_epochs": d.delay_epochs,
         "delay_ms": d.delay_ms,
     }
-    texts = {"phase": d.phase, "verdict": d.verdict, "model": d.model, "state": d.state}
-    out = {name: _text(_factorized(v), order) for name, v in texts.items()}
-    out["link_class"] = _text((codes, classes), order)
-    out["link"] = _text(_link_names(d.source, d.target), order)
+    out = {name: _categorical(coded, order) for name, coded in texts.items()}
+    out["link"] = _categorical(_link_names(d.source, d.target), order)
     return pd.DataFrame(
         {name: out[name] if name in out else cols[name][order] for name in _DECISIONS}
     )
 
 
-def _text(factorized: tuple[npt.NDArray[np.intp], Any], order: npt.NDArray[np.intp]) -> Any:
-    """The text column ``values[codes]`` (``factorized``) in ``order``, made from its few
-    values: pandas turns each value of a column of millions into its string type, one at a
-    time, otherwise."""
-    codes, values = factorized
-    return pd.Series(np.asarray(values, dtype=object)).array.take(codes[order])
+def _decision_order(
+    d: Decisions, link_class: tuple[npt.NDArray[np.intp], Any]
+) -> npt.NDArray[np.intp]:
+    """The rows sorted by epoch, link class, source, target, as a stable sort of the
+    columns would: one sort of one key where the ids allow it."""
+    codes, classes = link_class
+    rank = np.argsort(np.argsort(np.asarray(classes, dtype=str), kind="stable"))[codes]
+    if not len(codes):
+        return np.zeros(0, dtype=np.intp)
+    low = min(int(d.epoch.min()), int(d.source.min()), int(d.target.min()))
+    span = max(int(d.epoch.max()), int(d.source.max()), int(d.target.max())) + 1
+    if low < 0 or span**3 * len(classes) >= 2**62:  # no one key: the columns sorted
+        return np.lexsort((d.target, d.source, rank, d.epoch))
+    key = ((d.epoch * len(classes) + rank) * span + d.source) * span + d.target
+    return np.argsort(key, kind="stable")
+
+
+def _categorical(coded: tuple[npt.NDArray[np.intp], Any], order: npt.NDArray[np.intp]) -> Any:
+    """The text column ``values[codes]`` (``coded``) in ``order``, as a categorical of its
+    values sorted (None missing): made from its few values, not string by string."""
+    codes, values = coded
+    values = np.asarray(values, dtype=object)
+    given = np.array([v is not None for v in values], dtype=bool)
+    names = np.array(sorted(values[given]), dtype=object)
+    remap = np.full(len(values), -1, dtype=np.int64)
+    remap[given] = np.searchsorted(names, values[given])
+    return pd.Categorical.from_codes(remap[codes[order]], categories=pd.Index(names, dtype=str))
 
 
 def _factorized(values: npt.NDArray[Any]) -> tuple[npt.NDArray[np.intp], Any]:
@@ -241,7 +262,7 @@ def _metrics(run: RunData, decisions: Decisions) -> pd.DataFrame:
     complete = np.flatnonzero(run.present.any(axis=1))  # every epoch with a state
     xs, team = run.positions[complete], run.present[complete]
     fe, se = errors_of_team(xs, team, s.edge_array, s.weights, s.offsets)
-    late = (decisions.link_class == "formation") & ~decisions.on_time
+    late = decisions.text_in("link_class", ("formation",)) & ~decisions.on_time
     drops = np.bincount(decisions.epoch[late], minlength=len(run.present))
     recorded = np.full(len(run.present), np.nan)
     if run.recorded is not None:

@@ -47,17 +47,18 @@ def chunk_messages(data: bytes) -> list[Record]:
     out: list[Record] = []
     add = out.append
     while pos < end:
-        if pos + head > end:
+        if pos + message_head <= end:  # a message's fields read with its header: one call
+            opcode, length, channel_id, sequence, log_time, publish_time = unpack_message(data, pos)
+        elif pos + head <= end:  # too short for a message: the message check below refuses it
+            opcode, length = unpack_record(data, pos)
+        else:
             raise ChunkError(f"a record header cut at byte {pos} of {end}")
-        opcode, length = unpack_record(data, pos)
         start, pos = pos, pos + head + length
         if pos > end:
             raise ChunkError(f"a record of {length} bytes at byte {start} of {end}")
         if opcode == message:
             if length < _MESSAGE_HEAD:
                 raise ChunkError(f"a message record of {length} bytes")
-            # the header read again with the message's fields: one call, not two
-            _, _, channel_id, sequence, log_time, publish_time = unpack_message(data, start)
             add((channel_id, sequence, log_time, publish_time, data[start + message_head : pos]))
     return out
 

@@ -26,7 +26,7 @@ from recorder.reading.state_batch import StateBlock
 Array = npt.NDArray[np.float64]
 Ints = npt.NDArray[np.int64]
 ROBOT_COUNTS = "body_"  # the prefix of an agent's body counts in its status (agent.body)
-DECISION_COLUMNS = tuple(f.name for f in fields(Decisions))
+DECISION_COLUMNS = tuple(f.name for f in fields(Decisions) if f.compare)
 JUDGED = tuple(Judgement.model_fields)  # the last of DECISION_COLUMNS, in their order
 
 
@@ -183,13 +183,30 @@ def _joined(batches: list[tuple[dict[str, Ints], str, dict[str, Any]]]) -> Decis
     index = np.concatenate(
         [c["judgement"] + offset for (c, _, _), offset in zip(batches, offsets, strict=True)]
     )
+    coded: dict[str, tuple[Ints, Any]] = {}
     for name in JUDGED:
-        out[name] = np.concatenate([judged[name] for _, _, judged in batches])[index]
+        values = np.concatenate([judged[name] for _, _, judged in batches])
+        if values.dtype == object:  # text: codes into the batches' few values
+            of_judgement, distinct = _factorized(values)
+            coded[name] = (of_judgement[index], distinct)
+            out[name] = distinct[coded[name][0]]
+        else:
+            out[name] = values[index]
     phases = sorted({phase for _, phase, _ in batches})
     codes = np.repeat([phases.index(phase) for _, phase, _ in batches], counts)
-    out["phase"] = np.array(phases, dtype=object)[codes]
-    out["link_class"] = np.array([LINK_CLASS_OF[p] for p in phases], dtype=object)[codes]
-    return Decisions(**out)
+    coded["phase"] = (codes, np.array(phases, dtype=object))
+    coded["link_class"] = (codes, np.array([LINK_CLASS_OF[p] for p in phases], dtype=object))
+    out["phase"], out["link_class"] = coded["phase"][1][codes], coded["link_class"][1][codes]
+    return Decisions(**out, coded=coded)
+
+
+def _factorized(values: npt.NDArray[Any]) -> tuple[Ints, npt.NDArray[Any]]:
+    """Codes into the distinct values (None among them) of a short object array."""
+    index: dict[Any, int] = {}
+    codes = np.fromiter((index.setdefault(v, len(index)) for v in values), np.int64, len(values))
+    distinct = np.empty(len(index), dtype=object)
+    distinct[:] = list(index)
+    return codes, distinct
 
 
 __all__ = ["Collected", "poses", "positions", "substitutions"]

@@ -47,6 +47,31 @@ def decode_kind(kind: str, payload: bytes) -> Message:
     return decode(spec.name, spec.data, payload)
 
 
+@cache
+def _scene_outline() -> type[Message]:
+    """``foxglove.SceneUpdate`` whose entities declare only their ``id``: their primitives
+    stay unknown fields, framed but not parsed."""
+    spec = foxglove_schema("scene")
+    files = descriptor_pb2.FileDescriptorSet.FromString(spec.data)
+    for proto in files.file:
+        for message in proto.message_type:
+            if message.name == "SceneEntity":
+                kept = [f for f in message.field if f.name == "id"]
+                del message.field[:]
+                message.field.extend(kept)
+    pool = descriptor_pool.DescriptorPool()
+    for proto in files.file:
+        pool.Add(proto)
+    cls: type[Message] = message_factory.GetMessageClass(pool.FindMessageTypeByName(spec.name))
+    return cls
+
+
+def scene_outline(payload: bytes) -> Message:
+    """A scene's outline: its wire format down to each entity's fields, and the entities'
+    ids; what the primitives hold is not parsed."""
+    return _scene_outline().FromString(payload)
+
+
 def decode_cdr(type_name: str, payload: bytes) -> object:
     """An agent's body traffic: ``payload`` as the ROS 2 message ``type_name`` in CDR, read by
     rosbags (the extra ``ros2``); raises :class:`DecodeError` if it does not parse or rosbags
@@ -70,4 +95,12 @@ def as_dict(message: Message) -> dict[str, Any]:
     return out
 
 
-__all__ = ["DecodeError", "as_dict", "decode", "decode_cdr", "decode_kind", "message_class"]
+__all__ = [
+    "DecodeError",
+    "as_dict",
+    "decode",
+    "decode_cdr",
+    "decode_kind",
+    "message_class",
+    "scene_outline",
+]

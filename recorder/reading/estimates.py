@@ -16,6 +16,7 @@ import numpy.typing as npt
 
 from analysis import edge_mask
 from formation.scenario import Scenario
+from recorder.reading.value_checks import rows_of
 
 Array = npt.NDArray[np.float64]
 Ints = npt.NDArray[np.int64]
@@ -62,11 +63,8 @@ def _given(values: list[Any], shape: tuple[int, ...]) -> tuple[Ints, Array] | No
     given = [i for i, v in enumerate(values) if v is not None]
     if not given:
         return np.zeros(0, dtype=np.int64), np.zeros((0, *shape))
-    try:
-        rows = np.array([values[i] for i in given], dtype=float)
-    except (ValueError, TypeError, OverflowError):  # ragged, or not numbers
-        return None
-    if rows.shape != (len(given), *shape):
+    rows = rows_of(values if len(given) == len(values) else [values[i] for i in given], shape)
+    if rows is None:  # ragged, or not numbers
         return None
     return np.array(given, dtype=np.int64), rows
 

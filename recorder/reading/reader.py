@@ -13,7 +13,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from jsonschema.validators import validator_for
 from mcap.reader import McapReader, make_reader
@@ -25,6 +25,7 @@ from formation.messages import LINK_CLASS_OF, DecisionBatch
 from formation.scenario import Scenario
 from recorder.reading.chunks import Record, file_chunks, file_order
 from recorder.reading.decoder import DecodeError, decode, decode_cdr
+from recorder.reading.summary import read_metadata, read_summary
 from recorder.reading.trust import Gate, Skipped
 from recorder.recording.schemas import PROTOBUF, ROS2MSG, classify, derived_channels
 from recorder.recording.stored_scenario import scenario_of
@@ -105,15 +106,33 @@ def iter_messages(
         raise RecordingError(str(path), f"unreadable data ({type(exc).__name__}: {exc})") from None
 
 
-def iter_chunks(path: Path, reader: McapReader) -> Iterator[list[Record]]:
-    """The message records of each chunk (:func:`~recorder.reading.chunks.file_chunks`), in
-    file order, with read failures turned into :class:`RecordingError`."""
+@contextmanager
+def open_whole(path: Path) -> Iterator[tuple[IO[bytes], Summary, dict[str, dict[str, str]]]]:
+    """The open file, summary and metadata of a complete recording to read whole, a chunk at
+    a time (its chunk indexes without their per-channel offsets:
+    :mod:`recorder.reading.summary`)."""
+    check_file(path)
+    with open(path, "rb") as f:
+        try:
+            summary = read_summary(f)
+            meta = None if summary is None else read_metadata(f, summary)
+        except READ_ERRORS as exc:
+            raise RecordingError(str(path), f"cannot read the MCAP summary ({exc})") from None
+        if summary is None or meta is None:
+            raise RecordingError(str(path), "the MCAP file has no summary section")
+        yield f, summary, meta
+
+
+def iter_chunks(path: Path, f: IO[bytes], summary: Summary) -> Iterator[list[Record]]:
+    """The message records of each chunk (:func:`~recorder.reading.chunks.file_chunks`) of
+    the recording open as ``f`` (:func:`open_whole`), in file order, with read failures
+    turned into :class:`RecordingError`."""
     try:
-        summary = reader.get_summary()
-        if summary is not None and summary.chunk_indexes:
+        if summary.chunk_indexes:
             yield from file_chunks(path, summary)
         else:  # no chunk index: the mcap reader's own loop, as records
-            for _, _, m in reader.iter_messages(log_time_order=False):
+            f.seek(0)
+            for _, _, m in make_reader(f).iter_messages(log_time_order=False):
                 yield [(m.channel_id, m.sequence, m.log_time, m.publish_time, m.data)]
     except READ_ERRORS as exc:
         if isinstance(exc, TestbedError):
@@ -282,6 +301,7 @@ __all__ = [
     "link_name",
     "metadata",
     "open_recording",
+    "open_whole",
     "parts",
     "scenario_of",
     "validate",

@@ -32,6 +32,7 @@ from recorder.reading.reader import (
     iter_messages,
     metadata,
     open_recording,
+    open_whole,
     parts,
     scenario_of,
 )
@@ -137,13 +138,15 @@ def _read_by_chunk(
     pools' state bundles likewise, judged together apart from the states)."""
     gate: Gate | None = None
     for part in parts(path):
-        with open_recording(part) as (reader, summary):
+        with open_whole(part) as (f, summary, meta):
             if gate is None:
-                gate = gate_of(metadata(reader))
+                gate = gate_of(meta)
             gate.derived_channels = derived_channels(summary.channels)
             kinds = _kinds(summary)
-            for records in iter_chunks(part, reader):
+            for records in iter_chunks(part, f, summary):
                 _read_chunk(gate, held["got"], summary, kinds, records)
+    if gate is not None:  # a million keys and epochs, which the collector would walk next
+        gate.seen.clear()
 
 
 def _kinds(summary: Summary) -> dict[int, str]:

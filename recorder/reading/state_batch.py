@@ -26,6 +26,7 @@ import numpy.typing as npt
 from formation import keys
 from recorder.reading.bulk import DECODERS
 from recorder.reading.trust import Gate
+from recorder.reading.value_checks import rows_of
 
 Array = npt.NDArray[np.float64]
 Ints = npt.NDArray[np.int64]
@@ -102,11 +103,8 @@ def _ints(values: Any, count: int) -> Ints | None:
 
 def _finite_rows(rows: list[Any], d: int) -> Array | None:
     """``rows`` as an (N, d) array if each has d finite components, else None."""
-    try:
-        arr = np.array(rows, dtype=float)
-    except (ValueError, TypeError):  # ragged
-        return None
-    if arr.shape != (len(rows), d) or not np.isfinite(arr).all():
+    arr = rows_of(rows, (d,))
+    if arr is None or not np.isfinite(arr).all():  # ragged, not numbers or not finite
         return None
     return arr
 

@@ -9,7 +9,8 @@ analysis (``formation report``, ``info``, ``replay``, the run's summary, the exp
   netem's decision batches of an older recording, as rows, are read into columns:
   :mod:`recorder.reading.row_batches`),
   with finite numbers of the scenario's dimension; the recorder's Foxglove channels (scene,
-  frames, log) decode as the SDK's protobuf message (:mod:`recorder.reading.decoder`);
+  frames, log) decode as the SDK's protobuf message (:mod:`recorder.reading.decoder`; read in
+  bulk, a scene on a channel the recorder marked as its own only down to its entities' ids);
 - its sender owns the key: ``agent/<i>/…`` and link ``i → j`` carry ``agent/<i>`` (or a pool
   ``pool/<a>`` with ``a ≤ i``) and ``agent = i``; the leader's keys ``leader``; netem's
   ``netem``; ``status/<role>/<id>`` its process; the recorder's own channels (metrics, scene,
@@ -51,7 +52,7 @@ from formation.scenario import Scenario
 from recorder.reading.bulk import DECODERS, decision_columns, plain
 from recorder.reading.bundle_checks import BUNDLE_CHECKS
 from recorder.reading.decision_shape import check_shape, records_in_range
-from recorder.reading.decoder import DecodeError, decode_cdr, decode_kind
+from recorder.reading.decoder import DecodeError, decode_cdr, decode_kind, scene_outline
 from recorder.reading.estimates import estimate_arrays
 from recorder.reading.row_batches import row_batch
 from recorder.reading.skips import (
@@ -104,7 +105,8 @@ class Gate:
         self.scenario = scenario
         self.derived_channels = derived_channels
         self.conflicts = conflicts  # remember each (key, epoch) to refuse a different second one
-        self.plain_bulk = plain_bulk  # the bulk kinds as msgspec structs (recorder.reading.bulk)
+        # the bulk kinds as msgspec structs (recorder.reading.bulk), the recorder's scenes outlined
+        self.plain_bulk = plain_bulk
         self.skipped = Skipped()
         self.passed: Counter[str] = Counter()
         self._codes: npt.NDArray[np.int64] | None = None  # formation links, as codes
@@ -126,7 +128,8 @@ class Gate:
     ) -> BaseModel | Message | Struct | None:
         """The validated message (a model; a decoded protobuf message for the Foxglove
         channels; with ``plain_bulk`` a state, decisions, an estimate or metrics as a struct of
-        :mod:`recorder.reading.bulk`), or None after counting the skip."""
+        :mod:`recorder.reading.bulk` and a scene the recorder marked as its own as its outline,
+        :func:`~recorder.reading.decoder.scene_outline`), or None after counting the skip."""
         kind = kind or classify(topic)
         try:
             msg = self._check(kind, topic, data, channel_id)
@@ -143,7 +146,7 @@ class Gate:
         if kind in DERIVED and derived is not None and channel_id not in derived:
             raise Skip(FORGED, f"{kind} not written by the recorder")
         if kind in FOXGLOVE:
-            return self._foxglove(kind, data)
+            return self._foxglove(kind, data, self.plain_bulk and derived is not None)
         if kind.startswith(ROS2):
             return self._cdr(kind.removeprefix(ROS2), topic, data)
         model = MESSAGE_MODELS.get(kind)
@@ -428,18 +431,21 @@ class Gate:
             raise Skip(INVALID, f"{len(msg.positions)} positions, expected {self.n}")
         errors = (msg.formation_error_m, msg.shape_error_m)
         finite([e for e in errors if e is not None], None, "error")  # None: no edge in the team
-        for i in msg.out:
-            self._endpoint(i)
+        out = msg.out
+        if self.scenario is not None and out and not 0 <= min(out) <= max(out) <= self.n:
+            for i in out:  # the one at fault, named
+                self._endpoint(i)
 
     def _alive(self, msg: LivelinessEvent, args: Args) -> None:
         claimed = keys.parse(msg.key)
         if (claimed.kind, claimed.args) != ("alive", args) or (msg.role, msg.ident) != args:
             raise Skip(FORGED, f"liveliness of {msg.key} on another key")
 
-    def _foxglove(self, kind: str, data: bytes) -> Message:
-        """A scene, frames or log line: the SDK's protobuf message; a scene's entities have ids."""
+    def _foxglove(self, kind: str, data: bytes, own: bool) -> Message:
+        """A scene, frames or log line: the SDK's protobuf message; a scene's entities have ids.
+        ``own``: on a channel the recorder marked as its own, a scene is only outlined."""
         try:
-            msg = decode_kind(kind, data)
+            msg = scene_outline(data) if own and kind == "scene" else decode_kind(kind, data)
         except DecodeError:
             raise Skip(
                 INVALID, f"a {kind} that is not a protobuf {FOXGLOVE[kind].__name__}"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -43,8 +44,11 @@ def _written_row_by_row(d: Decisions) -> pd.DataFrame:
         "model": d.model,
         "state": d.state,
     }
-    return pd.DataFrame(cols).sort_values(
-        ["epoch", "link_class", "source", "target"], kind="stable", ignore_index=True
+    texts = ("phase", "link_class", "link", "verdict", "model", "state")
+    return (
+        pd.DataFrame(cols)
+        .sort_values(["epoch", "link_class", "source", "target"], kind="stable", ignore_index=True)
+        .astype({t: pd.CategoricalDtype(pd.Index(sorted(set(cols[t])), dtype=str)) for t in texts})
     )
 
 
@@ -61,4 +65,13 @@ def _decisions_of(rows: list[tuple[Any, ...]]) -> Decisions:
 @given(rows=_ROWS)
 def test_the_decisions_table_is_the_row_by_row_table(rows: list[tuple[Any, ...]]) -> None:
     d = _decisions_of(rows)
-    pd.testing.assert_frame_equal(_decisions(d), _written_row_by_row(d))
+    expected = _written_row_by_row(d)
+    pd.testing.assert_frame_equal(_decisions(d), expected)
+    coded = {}  # the text columns as a reader gives them: codes into their values
+    for name in ("phase", "link_class", "verdict", "model", "state"):
+        values, codes = np.unique(getattr(d, name).astype(str), return_inverse=True)
+        coded[name] = (len(values) - 1 - codes, values[::-1].astype(object))  # not sorted
+    table = _decisions(dataclasses.replace(d, coded=coded))
+    pd.testing.assert_frame_equal(table, expected)
+    assert (table["verdict"] == "pass").tolist() == [v == "pass" for v in expected["verdict"]]
+    np.testing.assert_array_equal(d.on_time, dataclasses.replace(d, coded=coded).on_time)

@@ -15,6 +15,7 @@ from formation.scenario import Scenario
 from recorder.reading.estimates import estimate_arrays, estimates
 from recorder.reading.skips import INVALID, OUT_OF_RANGE
 from recorder.reading.trust import Gate
+from recorder.reading.value_checks import rows_of
 
 RUN = "r"
 
@@ -98,3 +99,18 @@ def test_the_run_arrays_are_the_estimates_agent_by_agent(paper: Scenario) -> Non
         np.testing.assert_array_equal(out["estimate_cov"][2, i], want)
     assert np.isnan(out["estimates"][:2]).all()
     assert out["tree"][2].sum() == 2 and out["healthy"][2].all()
+
+
+def test_rows_of_nested_lists_are_numpy_s_arrays_or_none() -> None:
+    rows = [[[1.0 + i, 0.1], [0.1, 2.0 * i]] for i in range(5)]
+    np.testing.assert_array_equal(rows_of(rows, (2, 2)), np.array(rows))
+    np.testing.assert_array_equal(rows_of([r[0] for r in rows], (2,)), np.array(rows)[:, 0])
+    assert rows_of([], (2,)).shape == (0, 2)  # type: ignore[union-attr]
+    for bad, shape in [
+        ([[1.0, 2.0], [3.0]], (2,)),  # ragged
+        ([[[1.0, 2.0], [3.0]]], (2, 2)),  # ragged inside
+        ([[1.0, 2.0], None], (2,)),  # not a row
+        ([[1.0, "x"]], (2,)),  # not a number
+        ([[1.0, 2.0]], (2, 2)),  # too shallow
+    ]:
+        assert rows_of(bad, shape) is None, bad

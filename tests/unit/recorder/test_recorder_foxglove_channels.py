@@ -20,7 +20,7 @@ from recorder.playback.player import Replayer
 from recorder.reading.decoder import as_dict, decode, decode_kind
 from recorder.reading.reader import validate
 from recorder.reading.recovery import recover
-from recorder.reading.trust import INVALID
+from recorder.reading.trust import INVALID, Gate
 from recorder.recording.schemas import foxglove_schema
 
 EPOCH_NS = 1_000_000_000
@@ -126,3 +126,23 @@ def test_a_recovered_recording_keeps_its_protobuf_channels(
         assert schema.data == foxglove_schema(kind).data
         assert payloads and all(decode(schema.name, schema.data, p) for p in payloads)
     assert load_run(result.target).skipped.total == 0
+
+
+def test_a_scene_the_recorder_marked_as_its_own_is_outlined_when_read_in_bulk(
+    paper: Any,
+) -> None:
+    # an entity with an id and a sphere (field 9) whose bytes do not parse as one
+    entity = b"\x1a\x01a" + b"\x4a\x02\xff\xff"
+    scene = b"\x12" + bytes([len(entity)]) + entity
+    topic = keys.scene("r")
+    own = Gate(paper, plain_bulk=True)
+    own.derived_channels = {7}
+    assert own.check(topic, scene, "scene", 7) is not None  # framed, with ids: not parsed further
+    for bad in (b"\xff\xff\xff", b"\x12\x00", b'{"entities": []}'):  # no frame, no id, JSON
+        assert own.check(topic, bad, "scene", 7) is None
+    assert own.skipped.by_reason() == {INVALID: 3}
+    assert own.check(topic, scene, "scene", 8) is None  # not the recorder's channel: forged
+    unmarked = Gate(paper, plain_bulk=True)  # an older recording marks no channel
+    for gate in (Gate(paper), unmarked):  # parsed whole: the sphere is refused
+        assert gate.check(topic, scene, "scene", 7) is None
+        assert gate.skipped.by_reason() == {INVALID: 1}
