@@ -47,6 +47,7 @@ from netem.links.wifi import BROADCAST, AirConfig, Frames, Key, decide_phase, lo
 from netem.links.wifi.saturation import (
     UNREACHED_RETRY_LIMIT,
     bianchi_throughput_bps,
+    refined_throughput_bps,
     saturated_phase,
     throughput_bps,
 )
@@ -320,10 +321,12 @@ def saturation(seed: int, frames: int = 3000, seeds: int = 3) -> None:
     print(
         f"saturation, 802.11a, 1500 B unicast, stations within a metre, {frames} frames a run, "
         f"seeds {seed}..{seed + seeds - 1} (ns-3's run 1); ns-3 3.44 (pip ns3): {ns3_s:.0f} s; "
-        "ratios to Bianchi's throughput, mean ± standard deviation over the seeds"
+        "ratios to Bianchi's throughput, mean ± standard deviation over the seeds; ns-3's to "
+        "the refined chain's (saturation.refined_throughput_bps)"
     )
     print(
-        f"{'rate':>5} {'n':>3} {'Bianchi Mb/s':>13} {'model':>13} {'ns-3':>13} {'attempts':>8} {'ns-3':>6}"
+        f"{'rate':>5} {'n':>3} {'Bianchi Mb/s':>13} {'model':>13} {'ns-3':>13} "
+        f"{'refined Mb/s':>12} {'ns-3/refined':>12} {'attempts':>8} {'ns-3':>6}"
     )
     rows: dict[tuple[float, int], list[tuple[float, float, float, float]]] = {}
     for (rate, n, s, x, f), reply in zip(plans, ns3, strict=True):
@@ -338,10 +341,13 @@ def saturation(seed: int, frames: int = 3000, seeds: int = 3) -> None:
     for (rate, n), values in rows.items():
         v = np.array(values)
         expected = bianchi_throughput_bps(AirConfig(rate_mbps=rate), n, 1500)
+        refined = refined_throughput_bps(AirConfig(rate_mbps=rate), n, 1500)
         sd = v.std(axis=0, ddof=1)
         print(
             f"{rate:5g} {n:3d} {expected / 1e6:13.3f} {v[:, 0].mean():7.3f}±{sd[0]:5.3f} "
-            f"{v[:, 1].mean():7.3f}±{sd[1]:5.3f} {v[:, 2].mean():8.3f} {v[:, 3].mean():6.3f}",
+            f"{v[:, 1].mean():7.3f}±{sd[1]:5.3f} {refined / 1e6:12.3f} "
+            f"{v[:, 1].mean() * expected / refined:12.3f} "
+            f"{v[:, 2].mean():8.3f} {v[:, 3].mean():6.3f}",
             flush=True,
         )
 
