@@ -13,7 +13,7 @@ slot with probability ``τ`` and a sent frame collides with probability ``p``:
 
 with ``T_s = DATA + SIFS + ACK + DIFS`` and ``T_c = DATA + DIFS`` (eq. 14, no propagation
 delay): the stations that did not send sense only energy during a collision and resume after
-DIFS. The model assumes no retry limit; :func:`simulated_throughput` sets one out of reach.
+DIFS. The model assumes no retry limit; :func:`saturated_run` sets one out of reach.
 
 Bianchi's chain lets a busy slot count down every waiting station's backoff, so a station
 left at 1 sends in the first slot after the busy period. Under the standard's rules (as in
@@ -22,15 +22,16 @@ only to its sender (if it draws 0), and the colliders wait ACKTimeout before the
 (I. Tinnirello, G. Bianchi, Y. Xiao, "Refinements on IEEE 802.11 distributed coordination
 function modeling approaches", IEEE Trans. Veh. Technol. 59(3), 2010).
 :func:`refined_throughput_bps` writes these rules into Bianchi's chain (docs/model.md §11):
-every busy slot is followed by that slot, ``σ`` longer; with ``q = 1 / W`` the sender of a
-success sends again in it (a success no one contends), and otherwise waits ``U{1 .. W − 1} − 1``
-slots; a collider waits ``d = ACKTimeout / σ − 1`` slots more than its window, so
+every busy period is followed by one slot ``σ`` no waiting station sends in; with ``q = 1 / W``
+the sender of a success sends again in it (a success no one contends), and otherwise waits
+``U{1 .. W − 1} − 1`` slots; a collider waits ``d = ACKTimeout / σ − 1`` slots more than its
+window, so
 
     τ = Σ p^i / Σ p^i (1 + B_i),  B_0 = (W − 2) / 2,  B_i = (W_i − 1) / 2 + d,
     S = P_s P_tr L / (1 − q) / ((1 − P_tr) σ + P_tr P_s (T_s / (1 − q) + σ) + P_tr (1 − P_s)(T_c + σ))
 
-with ``W_i = 2^min(i, m) W``; without the three rules (``q = 0``, ``d = 0``, no added ``σ``)
-these are eqs. 7 and 13.
+with ``W_i = 2^min(i, m) W``; without the rules (``q = 0``, ``d = 0``, ``B_0 = (W − 1) / 2``,
+no added ``σ``) these are eqs. 7 and 13.
 """
 
 from __future__ import annotations
