@@ -46,8 +46,8 @@ import numpy as np
 from netem.links.wifi import BROADCAST, AirConfig, Frames, Key, decide_phase, load_compiled_loop
 from netem.links.wifi.saturation import (
     UNREACHED_RETRY_LIMIT,
+    bianchi_ns3_reference_bps,
     bianchi_throughput_bps,
-    refined_throughput_bps,
     saturated_phase,
     throughput_bps,
 )
@@ -238,7 +238,9 @@ def main() -> None:
     )
     parser.add_argument("--speed", action="store_true", help="only what a phase costs")
     parser.add_argument(
-        "--saturation", action="store_true", help="instead: saturation against Bianchi's, in both"
+        "--saturation",
+        action="store_true",
+        help="instead: saturation against Bianchi's and ns-3's reference form, in both",
     )
     args = parser.parse_args()
     if importlib.util.find_spec("ns") is None:
@@ -304,7 +306,8 @@ def main() -> None:
 
 
 def saturation(seed: int, frames: int = 3000, seeds: int = 3) -> None:
-    """The saturation throughput of the model and of ns-3 over Bianchi's, on the same phases."""
+    """The saturation throughput of the model and of ns-3 over Bianchi's and over ns-3's
+    reference form, on the same phases."""
     plans = [
         (rate, n, s, *saturated_phase(n, 1500, max(30, frames // n)))
         for rate in (6.0, 54.0)
@@ -321,33 +324,35 @@ def saturation(seed: int, frames: int = 3000, seeds: int = 3) -> None:
     print(
         f"saturation, 802.11a, 1500 B unicast, stations within a metre, {frames} frames a run, "
         f"seeds {seed}..{seed + seeds - 1} (ns-3's run 1); ns-3 3.44 (pip ns3): {ns3_s:.0f} s; "
-        "ratios to Bianchi's throughput, mean ± standard deviation over the seeds; ns-3's to "
-        "the refined chain's (saturation.refined_throughput_bps)"
+        "throughput over Bianchi's and over ns-3's reference form "
+        "(saturation.bianchi_ns3_reference_bps), mean ± twice its standard error over the seeds"
     )
     print(
-        f"{'rate':>5} {'n':>3} {'Bianchi Mb/s':>13} {'model':>13} {'ns-3':>13} "
-        f"{'refined Mb/s':>12} {'ns-3/refined':>12} {'attempts':>8} {'ns-3':>6}"
+        f"{'rate':>5} {'n':>3} {'Bianchi Mb/s':>12} {'ns-3 ref':>8} {'model/Bianchi':>13} "
+        f"{'ns-3/Bianchi':>13} {'model/ref':>13} {'ns-3/ref':>13} {'attempts':>8} {'ns-3':>6}"
     )
     rows: dict[tuple[float, int], list[tuple[float, float, float, float]]] = {}
     for (rate, n, s, x, f), reply in zip(plans, ns3, strict=True):
         config = AirConfig(rate_mbps=rate, retry_limit=UNREACHED_RETRY_LIMIT)
         out = decide_phase(config, x, f, Key(s, 0, 0))
         to = np.arange(len(f)), f.receiver
-        expected = bianchi_throughput_bps(config, n, 1500)
-        model = throughput_bps(out.arrival_ns[to], f.sender, 1500) / expected
-        theirs = throughput_bps(arrivals(reply, len(f), n)[to], f.sender, 1500) / expected
+        model = throughput_bps(out.arrival_ns[to], f.sender, 1500)
+        theirs = throughput_bps(arrivals(reply, len(f), n)[to], f.sender, 1500)
         tries = (out.attempts.sum() / len(f), reply["data_tx"] / len(f))
         rows.setdefault((rate, n), []).append((model, theirs, *tries))
     for (rate, n), values in rows.items():
         v = np.array(values)
-        expected = bianchi_throughput_bps(AirConfig(rate_mbps=rate), n, 1500)
-        refined = refined_throughput_bps(AirConfig(rate_mbps=rate), n, 1500)
-        sd = v.std(axis=0, ddof=1)
+        mean, two_se = v.mean(axis=0), 2 * v.std(axis=0, ddof=1) / np.sqrt(len(v))
+        chain = bianchi_throughput_bps(AirConfig(rate_mbps=rate), n, 1500)
+        reference = bianchi_ns3_reference_bps(AirConfig(rate_mbps=rate), n, 1500)
+        ratios = " ".join(
+            f"{mean[k] / base:6.3f}±{two_se[k] / base:5.3f}"
+            for base in (chain, reference)
+            for k in (0, 1)
+        )
         print(
-            f"{rate:5g} {n:3d} {expected / 1e6:13.3f} {v[:, 0].mean():7.3f}±{sd[0]:5.3f} "
-            f"{v[:, 1].mean():7.3f}±{sd[1]:5.3f} {refined / 1e6:12.3f} "
-            f"{v[:, 1].mean() * expected / refined:12.3f} "
-            f"{v[:, 2].mean():8.3f} {v[:, 3].mean():6.3f}",
+            f"{rate:5g} {n:3d} {chain / 1e6:12.3f} {reference / 1e6:8.3f} {ratios} "
+            f"{mean[2]:8.3f} {mean[3]:6.3f}",
             flush=True,
         )
 

@@ -18,20 +18,8 @@ DIFS. The model assumes no retry limit; :func:`saturated_run` sets one out of re
 Bianchi's chain lets a busy slot count down every waiting station's backoff, so a station
 left at 1 sends in the first slot after the busy period. Under the standard's rules (as in
 ns-3 and the air model) a busy slot counts for no one: the first slot after a success is open
-only to its sender (if it draws 0), and the colliders wait ACKTimeout before they count again
-(I. Tinnirello, G. Bianchi, Y. Xiao, "Refinements on IEEE 802.11 distributed coordination
-function modeling approaches", IEEE Trans. Veh. Technol. 59(3), 2010).
-:func:`refined_throughput_bps` writes these rules into Bianchi's chain (docs/model.md §11):
-every busy period is followed by one slot ``σ`` no waiting station sends in; with ``q = 1 / W``
-the sender of a success sends again in it (a success no one contends), and otherwise waits
-``U{1 .. W − 1} − 1`` slots; a collider waits ``d = ACKTimeout / σ − 1`` slots more than its
-window, so
-
-    τ = Σ p^i / Σ p^i (1 + B_i),  B_0 = (W − 2) / 2,  B_i = (W_i − 1) / 2 + d,
-    S = P_s P_tr L / (1 − q) / ((1 − P_tr) σ + P_tr P_s (T_s / (1 − q) + σ) + P_tr (1 − P_s)(T_c + σ))
-
-with ``W_i = 2^min(i, m) W``; without the rules (``q = 0``, ``d = 0``, ``B_0 = (W − 1) / 2``,
-no added ``σ``) these are eqs. 7 and 13.
+only to its sender, if it draws 0. ns-3 validates its DCF against eq. 13 corrected for that
+rule (:func:`bianchi_ns3_reference_bps`, docs/model.md §11).
 """
 
 from __future__ import annotations
@@ -65,10 +53,15 @@ def bianchi_throughput_bps(config: AirConfig, n: int, payload_bytes: int) -> flo
     """Bianchi's saturation throughput of ``n`` stations [bit/s] (eq. 13)."""
     tau, _ = bianchi_tau(n, *backoff_stages(config))
     slot, t_s, t_c = _slot_times_ns(config, payload_bytes)
+    return _eq13_bps(n, tau, 8 * payload_bytes, slot, t_s, t_c)
+
+
+def _eq13_bps(n: int, tau: float, bits: float, slot: float, t_s: float, t_c: float) -> float:
+    """Eq. 13 [bit/s]: ``bits`` delivered a success; ``slot``, ``t_s``, ``t_c`` [ns]."""
     p_tr = 1.0 - (1.0 - tau) ** n
     p_s = n * tau * (1.0 - tau) ** (n - 1) / p_tr
     slot_mean_ns = (1 - p_tr) * slot + p_tr * p_s * t_s + p_tr * (1 - p_s) * t_c
-    return p_s * p_tr * 8 * payload_bytes / slot_mean_ns * 1e9
+    return p_s * p_tr * bits / slot_mean_ns * 1e9
 
 
 def _slot_times_ns(config: AirConfig, payload_bytes: int) -> tuple[int, int, int]:
@@ -85,51 +78,30 @@ def backoff_stages(config: AirConfig) -> tuple[int, int]:
     return w, round(math.log2((cw_max + 1) / w))
 
 
-def collider_wait_slots(config: AirConfig) -> float:
-    """``d``: the slots a collider counts no backoff for beyond the others, ACKTimeout less
-    the first slot after the busy period, which no one else uses either."""
-    phy = config.physical
-    return phy.ack_timeout_ns() / phy.slot_ns - 1
+def bianchi_ns3_reference_bps(
+    config: AirConfig, n: int, payload_bytes: int, tau: float | None = None
+) -> float:
+    """Bianchi's throughput as ns-3 validates its DCF against it [bit/s]: eq. 13 with the
+    slot after a success open only to its sender.
 
+    With ``B = 1 / W`` a success is followed by the same station's, no one contending, with
+    probability ``B``, and every success by one idle slot no other station sends in:
 
-def refined_tau(n: int, w: int, m: int, collider_wait_slots: float) -> tuple[float, float]:
-    """``(τ, p)`` of Bianchi's chain under the standard's access after a busy period (module
-    docstring): ``p`` counts the attempts that contend, not the first slot's free ones."""
+        E[P] = L / (1 − B),   T_S = T_s / (1 − B) + σ,   T_c = DATA + DIFS,
+        S = P_s P_tr E[P] / ((1 − P_tr) σ + P_tr P_s T_S + P_tr (1 − P_s) T_c)
 
-    def gap(tau: float) -> float:
-        p = 1.0 - (1.0 - tau) ** (n - 1)
-        # Σ p^i W_i, W_i = 2^min(i, m) W
-        windows = w * (sum((2.0 * p) ** i for i in range(m)) + (2.0 * p) ** m / (1 - p))
-        # Σ p^i (1 + B_i): the stage's mean backoff and its transmission slot
-        slots = (1 / (1 - p) + windows) / 2 - 0.5 + collider_wait_slots * p / (1 - p)
-        return tau - 1.0 / (1 - p) / slots
-
-    # above 1/2 no window can be: and (1 − τ)^(n − 1) would round to 0
-    tau = float(brentq(gap, 1e-12, 0.5, xtol=1e-15))
-    return tau, 1.0 - (1.0 - tau) ** (n - 1)
-
-
-def refined_p_per_attempt(n: int, w: int, m: int, collider_wait_slots: float) -> float:
-    """The refined chain's collided attempts over all attempts, the free ones counted: one in
-    ``W − 1`` successes is followed by a free attempt, and so on."""
-    p = refined_tau(n, w, m, collider_wait_slots)[1]
-    contended = 1 / (1 - p)  # attempts a frame, and per frame that many
-    free = 1 / (w - 1)  # free attempts per contended success: q / (1 − q), q = 1 / W
-    return (contended - 1) / (contended + free)
-
-
-def refined_throughput_bps(config: AirConfig, n: int, payload_bytes: int) -> float:
-    """The saturation throughput of ``n`` stations [bit/s] by Bianchi's chain with the
-    standard's access after a busy period (module docstring)."""
+    with ``τ`` Bianchi's fixed point (eqs. 7 and 9) unless given. Source: ns-3,
+    ``src/wifi/examples/reference/Bianchi11a.m`` (L. Lanante, H. Yin, S. Deronne, University
+    of Washington, 2020, BSD-3-Clause), "TC with DIFS", whose tables
+    ``src/wifi/examples/wifi-bianchi.cc`` compares ns-3's saturation throughput with; there
+    ``τ`` is the fixed point's nearest on a grid of 10^4 points in [0, 1].
+    """
     w, m = backoff_stages(config)
+    if tau is None:
+        tau, _ = bianchi_tau(n, w, m)
     slot, t_s, t_c = _slot_times_ns(config, payload_bytes)
-    tau, _ = refined_tau(n, w, m, collider_wait_slots(config))
-    free = 1.0 / w
-    p_tr = 1.0 - (1.0 - tau) ** n
-    p_s = n * tau * (1.0 - tau) ** (n - 1) / p_tr
-    success = t_s / (1 - free) + slot
-    slot_mean_ns = (1 - p_tr) * slot + p_tr * p_s * success + p_tr * (1 - p_s) * (t_c + slot)
-    return p_s * p_tr * 8 * payload_bytes / (1 - free) / slot_mean_ns * 1e9
+    b = 1.0 / w
+    return _eq13_bps(n, tau, 8 * payload_bytes / (1 - b), slot, t_s / (1 - b) + slot, t_c)
 
 
 def saturated_phase(
@@ -202,12 +174,9 @@ def simulated_throughput_bps(
 __all__ = [
     "SaturatedRun",
     "backoff_stages",
+    "bianchi_ns3_reference_bps",
     "bianchi_tau",
     "bianchi_throughput_bps",
-    "collider_wait_slots",
-    "refined_p_per_attempt",
-    "refined_tau",
-    "refined_throughput_bps",
     "saturated_phase",
     "saturated_run",
     "simulated_throughput_bps",
