@@ -56,11 +56,13 @@ def bianchi_throughput_bps(config: AirConfig, n: int, payload_bytes: int) -> flo
     return _eq13_bps(n, tau, 8 * payload_bytes, slot, t_s, t_c)
 
 
-def _eq13_bps(n: int, tau: float, bits: float, slot: float, t_s: float, t_c: float) -> float:
-    """Eq. 13 [bit/s]: ``bits`` delivered a success; ``slot``, ``t_s``, ``t_c`` [ns]."""
+def _eq13_bps(
+    n: int, tau: float, bits: float, slot_ns: float, t_s_ns: float, t_c_ns: float
+) -> float:
+    """Eq. 13 [bit/s], ``bits`` delivered a success."""
     p_tr = 1.0 - (1.0 - tau) ** n
     p_s = n * tau * (1.0 - tau) ** (n - 1) / p_tr
-    slot_mean_ns = (1 - p_tr) * slot + p_tr * p_s * t_s + p_tr * (1 - p_s) * t_c
+    slot_mean_ns = (1 - p_tr) * slot_ns + p_tr * p_s * t_s_ns + p_tr * (1 - p_s) * t_c_ns
     return p_s * p_tr * bits / slot_mean_ns * 1e9
 
 
@@ -90,11 +92,11 @@ def bianchi_ns3_reference_bps(
         E[P] = L / (1 − B),   T_S = T_s / (1 − B) + σ,   T_c = DATA + DIFS,
         S = P_s P_tr E[P] / ((1 − P_tr) σ + P_tr P_s T_S + P_tr (1 − P_s) T_c)
 
-    with ``τ`` Bianchi's fixed point (eqs. 7 and 9) unless given. Source: ns-3,
-    ``src/wifi/examples/reference/Bianchi11a.m`` (L. Lanante, H. Yin, S. Deronne, University
-    of Washington, 2020, BSD-3-Clause), "TC with DIFS", whose tables
+    with ``τ`` Bianchi's fixed point (eqs. 7 and 9) unless given (docs/model.md §11). Source:
+    ns-3, ``src/wifi/examples/reference/Bianchi11a.m`` (L. Lanante, H. Yin, S. Deronne,
+    University of Washington, 2020, BSD-3-Clause), "TC with DIFS", whose tables
     ``src/wifi/examples/wifi-bianchi.cc`` compares ns-3's saturation throughput with; there
-    ``τ`` is the fixed point's nearest on a grid of 10^4 points in [0, 1].
+    ``τ`` is eq. 7's value at the point of a grid of 10^4 on [0, 1] nearest the fixed point.
     """
     w, m = backoff_stages(config)
     if tau is None:
