@@ -1,8 +1,8 @@
 """The air model (netem/links/wifi) against ns-3 on the same phases: delivery and arrival time.
 
-Run ``python -m bench wifi_ns3 [--phases K] [--seed S] [--speed]`` with ns-3 installed (the
-optional extra ``[ns3]``; without it the benchmark says so and stops). Each case draws ``K`` phases (times the
-case's own factor) from the seed: positions, and each frame's readiness within the phase. The
+Run ``python -m bench wifi_ns3 [--phases K] [--seed S] [--speed | --saturation]`` with ns-3
+installed (the optional extra ``[ns3]``; without it the benchmark says so and stops). Each case
+draws ``K`` phases (times the case's own factor) from the seed: positions, and each frame's readiness within the phase. The
 air model decides them here and ns-3 runs them in its own process, the whole batch at once
 (``testkit.ns3_air``, ns-3's defaults, which are the model's). Printed per case: the delivery
 ratio (receptions over addressed receivers) of each and their difference with twice the
@@ -18,6 +18,11 @@ its process: building the phase and running it, without the import; the model's 
 call against ns-3 as a backend in its own process, its import done, a reply per phase (the gap
 between one phase's reply and the next's on the pipe; the requests are written ahead, so a
 phase's request costs ns-3 no wait).
+
+``--saturation`` runs ``saturation.saturated_phase`` (802.11a, 1,500 B, 5 to 50 stations at 6
+and 54 Mb/s, three seeds) in both, and prints each one's throughput over Bianchi's and over
+the form ns-3 validates its DCF with (``saturation.bianchi_ns3_reference_bps``), ± twice the
+standard error over the seeds.
 
 Cases (docs/model.md §11): broadcasts of 200 B over UDP/IP (236 B MSDU) at 6 Mb/s by 2 to 50
 agents within 20 m, each once in a 20 ms phase (a 50 Hz state); 20 agents spread over 60 m
