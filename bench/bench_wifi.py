@@ -1,11 +1,14 @@
 """The 802.11 air model (netem/links/wifi): saturation against Bianchi, and what a phase costs.
 
-Run ``python -m bench wifi [--quick] [--speed-only] [--seed S]``. Two measurements, each
-against a baseline computed or measured in the same run:
+Run ``python -m bench wifi [--quick] [--speed-only | --bianchi-only] [--seed S] [--seeds K]``.
+Two measurements, each against a baseline computed or measured in the same run:
 
 1. **Bianchi**: the model's saturation throughput (802.11a, 1,500 B, basic access, stations
-   within a metre) against Bianchi's analytical model at 6 and 54 Mb/s for n = 5 .. 50
-   (``netem.links.wifi.saturation``): the mean ratio over three seeds and its spread.
+   within a metre) against Bianchi's analytical model and against the form ns-3 validates its
+   DCF with (the slot after a success open only to its sender), at 6 and 54 Mb/s for
+   n = 5 .. 50 (``netem.links.wifi.saturation``): the mean ratio over the seeds, ± twice its
+   standard error, and the model's collision probability per attempt beside Bianchi's (the
+   reference form takes Bianchi's ``τ`` and ``p``).
 2. **Speed**: the CPU time of an epoch's three phases on the air for 5, 20 and 50 agents on a
    grid spaced 5 m (the states, each agent broadcasting 200 B at 6 Mb/s ready at a uniform
    offset in the first 2 ms; the n − 1 unicast reports to agent 0; agent 0's n − 1 unicast
@@ -32,7 +35,13 @@ from formation.scenario import Scenario
 from netem.links.models import LinkModel
 from netem.links.wifi import BROADCAST, AirConfig, Frames, Key, PhaseOutcome, decide_phase
 from netem.links.wifi.dcf import reference_phase
-from netem.links.wifi.saturation import bianchi_throughput_bps, simulated_throughput_bps
+from netem.links.wifi.saturation import (
+    backoff_stages,
+    bianchi_ns3_reference_bps,
+    bianchi_tau,
+    bianchi_throughput_bps,
+    saturated_run,
+)
 from testbed.sim.simulate import simulate
 
 Phase = Callable[[AirConfig, np.ndarray, Frames, Key], PhaseOutcome]
@@ -40,25 +49,34 @@ SEED = 42
 STATE_BYTES = 200 + 36  # a state's payload, UDP/IP and LLC/SNAP headers
 
 
-def bianchi(seed: int, quick: bool) -> None:
-    seeds = range(seed, seed + 3)
+def bianchi(seed: int, quick: bool, seeds: int) -> None:
+    runs = range(seed, seed + seeds)
     per = 1200 if quick else 3000
     print(
         f"1. saturation throughput, 802.11a, 1500 B, basic access, {per} frames a run, "
-        f"seeds {seeds.start}..{seeds.stop - 1}"
+        f"seeds {runs.start}..{runs.stop - 1}; ratios: mean ± 2 standard errors; "
+        "p: collided attempts ÷ attempts"
     )
-    print(f"   {'rate':>5} {'n':>3} {'Bianchi Mb/s':>13} {'model Mb/s':>11} {'ratio':>6} {'sd':>6}")
+    print(
+        f"   {'rate':>5} {'n':>3} {'Bianchi':>8} {'ns-3 ref':>8} {'model':>7} "
+        f"{'model/Bianchi':>15} {'model/ns-3 ref':>15} {'p model':>8} {'Bianchi':>8}"
+    )
     for rate in (6.0, 54.0):
         config = AirConfig(rate_mbps=rate)
+        w, m = backoff_stages(config)
         for n in (5, 10, 20, 50):
-            expected = bianchi_throughput_bps(config, n, 1500)
-            frames = max(30, per // n)
-            ratios = np.array(
-                [simulated_throughput_bps(config, n, 1500, frames, s) / expected for s in seeds]
-            )
+            chain = bianchi_throughput_bps(config, n, 1500)
+            reference = bianchi_ns3_reference_bps(config, n, 1500)
+            counts = [saturated_run(config, n, 1500, max(30, per // n), s) for s in runs]
+            measured = np.array([c.throughput_bps for c in counts])
+            collided = np.mean([c.p_collision for c in counts])
+            two_se = 2 * measured.std(ddof=1) / np.sqrt(len(runs))
             print(
-                f"   {rate:5g} {n:3d} {expected / 1e6:13.3f} "
-                f"{ratios.mean() * expected / 1e6:11.3f} {ratios.mean():6.3f} {ratios.std(ddof=1):6.3f}",
+                f"   {rate:5g} {n:3d} {chain / 1e6:8.3f} {reference / 1e6:8.3f} "
+                f"{measured.mean() / 1e6:7.3f} "
+                f"{measured.mean() / chain:7.3f} ± {two_se / chain:5.3f} "
+                f"{measured.mean() / reference:7.3f} ± {two_se / reference:5.3f} "
+                f"{collided:8.3f} {bianchi_tau(n, w, m)[1]:8.3f}",
                 flush=True,
             )
 
@@ -142,11 +160,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=SEED)
     parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--speed-only", action="store_true", help="skip the Bianchi table")
+    parser.add_argument("--seeds", type=int, default=3, help="runs per case of the Bianchi table")
+    only = parser.add_mutually_exclusive_group()
+    only.add_argument("--speed-only", action="store_true", help="skip the Bianchi table")
+    only.add_argument("--bianchi-only", action="store_true", help="skip the speed table")
     args = parser.parse_args()
     if not args.speed_only:
-        bianchi(args.seed, args.quick)
-    speed(args.seed, 20 if args.quick else 100)
+        bianchi(args.seed, args.quick, args.seeds)
+    if not args.bianchi_only:
+        speed(args.seed, 20 if args.quick else 100)
 
 
 if __name__ == "__main__":

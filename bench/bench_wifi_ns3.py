@@ -1,8 +1,8 @@
 """The air model (netem/links/wifi) against ns-3 on the same phases: delivery and arrival time.
 
-Run ``python -m bench wifi_ns3 [--phases K] [--seed S] [--speed]`` with ns-3 installed (the
-optional extra ``[ns3]``; without it the benchmark says so and stops). Each case draws ``K`` phases (times the
-case's own factor) from the seed: positions, and each frame's readiness within the phase. The
+Run ``python -m bench wifi_ns3 [--phases K] [--seed S] [--speed | --saturation]`` with ns-3
+installed (the optional extra ``[ns3]``; without it the benchmark says so and stops). Each case
+draws ``K`` phases (times the case's own factor) from the seed: positions, and each frame's readiness within the phase. The
 air model decides them here and ns-3 runs them in its own process, the whole batch at once
 (``testkit.ns3_air``, ns-3's defaults, which are the model's). Printed per case: the delivery
 ratio (receptions over addressed receivers) of each and their difference with twice the
@@ -18,6 +18,11 @@ its process: building the phase and running it, without the import; the model's 
 call against ns-3 as a backend in its own process, its import done, a reply per phase (the gap
 between one phase's reply and the next's on the pipe; the requests are written ahead, so a
 phase's request costs ns-3 no wait).
+
+``--saturation`` runs ``saturation.saturated_phase`` (802.11a, 1,500 B, 5 to 50 stations at 6
+and 54 Mb/s, three seeds) in both, and prints each one's throughput over Bianchi's and over
+the form ns-3 validates its DCF with (``saturation.bianchi_ns3_reference_bps``), ± twice the
+standard error over the seeds.
 
 Cases (docs/model.md §11): broadcasts of 200 B over UDP/IP (236 B MSDU) at 6 Mb/s by 2 to 50
 agents within 20 m, each once in a 20 ms phase (a 50 Hz state); 20 agents spread over 60 m
@@ -46,6 +51,7 @@ import numpy as np
 from netem.links.wifi import BROADCAST, AirConfig, Frames, Key, decide_phase, load_compiled_loop
 from netem.links.wifi.saturation import (
     UNREACHED_RETRY_LIMIT,
+    bianchi_ns3_reference_bps,
     bianchi_throughput_bps,
     saturated_phase,
     throughput_bps,
@@ -237,7 +243,9 @@ def main() -> None:
     )
     parser.add_argument("--speed", action="store_true", help="only what a phase costs")
     parser.add_argument(
-        "--saturation", action="store_true", help="instead: saturation against Bianchi's, in both"
+        "--saturation",
+        action="store_true",
+        help="instead: saturation against Bianchi's and ns-3's reference form, in both",
     )
     args = parser.parse_args()
     if importlib.util.find_spec("ns") is None:
@@ -303,7 +311,8 @@ def main() -> None:
 
 
 def saturation(seed: int, frames: int = 3000, seeds: int = 3) -> None:
-    """The saturation throughput of the model and of ns-3 over Bianchi's, on the same phases."""
+    """The saturation throughput of the model and of ns-3 over Bianchi's and over ns-3's
+    reference form, on the same phases."""
     plans = [
         (rate, n, s, *saturated_phase(n, 1500, max(30, frames // n)))
         for rate in (6.0, 54.0)
@@ -320,28 +329,35 @@ def saturation(seed: int, frames: int = 3000, seeds: int = 3) -> None:
     print(
         f"saturation, 802.11a, 1500 B unicast, stations within a metre, {frames} frames a run, "
         f"seeds {seed}..{seed + seeds - 1} (ns-3's run 1); ns-3 3.44 (pip ns3): {ns3_s:.0f} s; "
-        "ratios to Bianchi's throughput, mean ± standard deviation over the seeds"
+        "throughput over Bianchi's and over ns-3's reference form "
+        "(saturation.bianchi_ns3_reference_bps), mean ± twice its standard error over the seeds"
     )
     print(
-        f"{'rate':>5} {'n':>3} {'Bianchi Mb/s':>13} {'model':>13} {'ns-3':>13} {'attempts':>8} {'ns-3':>6}"
+        f"{'rate':>5} {'n':>3} {'Bianchi Mb/s':>12} {'ns-3 ref':>8} {'model/Bianchi':>13} "
+        f"{'ns-3/Bianchi':>13} {'model/ref':>13} {'ns-3/ref':>13} {'attempts':>8} {'ns-3':>6}"
     )
     rows: dict[tuple[float, int], list[tuple[float, float, float, float]]] = {}
     for (rate, n, s, x, f), reply in zip(plans, ns3, strict=True):
         config = AirConfig(rate_mbps=rate, retry_limit=UNREACHED_RETRY_LIMIT)
         out = decide_phase(config, x, f, Key(s, 0, 0))
         to = np.arange(len(f)), f.receiver
-        expected = bianchi_throughput_bps(config, n, 1500)
-        model = throughput_bps(out.arrival_ns[to], f.sender, 1500) / expected
-        theirs = throughput_bps(arrivals(reply, len(f), n)[to], f.sender, 1500) / expected
+        model = throughput_bps(out.arrival_ns[to], f.sender, 1500)
+        theirs = throughput_bps(arrivals(reply, len(f), n)[to], f.sender, 1500)
         tries = (out.attempts.sum() / len(f), reply["data_tx"] / len(f))
         rows.setdefault((rate, n), []).append((model, theirs, *tries))
     for (rate, n), values in rows.items():
         v = np.array(values)
-        expected = bianchi_throughput_bps(AirConfig(rate_mbps=rate), n, 1500)
-        sd = v.std(axis=0, ddof=1)
+        mean, two_se = v.mean(axis=0), 2 * v.std(axis=0, ddof=1) / np.sqrt(len(v))
+        chain = bianchi_throughput_bps(AirConfig(rate_mbps=rate), n, 1500)
+        reference = bianchi_ns3_reference_bps(AirConfig(rate_mbps=rate), n, 1500)
+        ratios = " ".join(
+            f"{mean[k] / base:6.3f}±{two_se[k] / base:5.3f}"
+            for base in (chain, reference)
+            for k in (0, 1)
+        )
         print(
-            f"{rate:5g} {n:3d} {expected / 1e6:13.3f} {v[:, 0].mean():7.3f}±{sd[0]:5.3f} "
-            f"{v[:, 1].mean():7.3f}±{sd[1]:5.3f} {v[:, 2].mean():8.3f} {v[:, 3].mean():6.3f}",
+            f"{rate:5g} {n:3d} {chain / 1e6:12.3f} {reference / 1e6:8.3f} {ratios} "
+            f"{mean[2]:8.3f} {mean[3]:6.3f}",
             flush=True,
         )
 
