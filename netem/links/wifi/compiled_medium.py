@@ -20,7 +20,11 @@ import numpy as np
 import numpy.typing as npt
 
 from formation.compiled import jit
-from netem.links.wifi.compiled_reception import frame_success, keyed_uniform_after
+from netem.links.wifi.compiled_reception import (
+    frame_success,
+    frame_success_alone,
+    keyed_uniform_after,
+)
 from netem.links.wifi.config import AirConfig
 from netem.links.wifi.radio import to_mw
 
@@ -114,6 +118,9 @@ def decoded(
     for o in range(size):
         if o != index and log[o, TX_START] < end and log[o, TX_END] > start:
             count += 1
+    if count == 0:
+        _decoded_alone(index, st, log, air, levels, t, reception_state)
+        return
     # the overlapping entries, then the times the interference changes
     work = np.empty(3 * count + 2, dtype=np.int64)
     others, bounds = work[:count], work[count:]
@@ -126,7 +133,12 @@ def decoded(
     for k in range(count):
         bounds[2 + 2 * k] = max(log[others[k], TX_START], start)
         bounds[3 + 2 * k] = min(log[others[k], TX_END], end)
-    bounds.sort()
+    for k in range(1, bounds.shape[0]):  # a few: insertion sort
+        v, i = bounds[k], k - 1
+        while i >= 0 and bounds[i] > v:
+            bounds[i + 1] = bounds[i]
+            i -= 1
+        bounds[i + 1] = v
     pieces = 0  # distinct bounds, in place
     for k in range(1, bounds.shape[0]):
         if bounds[k] != bounds[pieces]:
@@ -174,6 +186,34 @@ def decoded(
             p = success[r]
             st[j, RECEIVED] = p >= 1.0 or keyed_uniform_after(reception_state, index, j) < p
             r += 1
+
+
+@jit
+def _decoded_alone(
+    index: int,
+    st: Ints,
+    log: Ints,
+    air: Floats,
+    levels: Levels,
+    t: Timing,
+    reception_state: np.uint64,
+) -> None:
+    """``decoded`` for a transmission nothing overlaps: one piece, without arrays."""
+    start, end, sender = log[index, TX_START], log[index, TX_END], log[index, TX_SENDER]
+    noise = levels[NOISE]
+    threshold = levels[ACK_SINR] if log[index, TX_FRAME] == ACK else levels[SINR]
+    header = (start + t[HEADER_FROM], start + t[HEADER_TO], t[HEADER_RATE])
+    payload = (start + t[PREAMBLE_NS], end, log[index, TX_RATE])
+    for j in range(air.shape[1]):
+        st[j, RECEIVED] = 0
+        if st[j, LOCK] != index:
+            continue
+        signal = air[sender, j]
+        if not t[CHUNKS]:
+            st[j, RECEIVED] = signal >= threshold * noise
+            continue
+        p = frame_success_alone(t[OFDM] != 0, header, payload, start, end, signal / noise)
+        st[j, RECEIVED] = p >= 1.0 or keyed_uniform_after(reception_state, index, j) < p
 
 
 @jit
