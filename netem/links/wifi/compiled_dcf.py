@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 from numba.np.unsafe.ndarray import to_fixed_tuple
 
-from formation.compiled import jit
+from formation.compiled import jit, jit_inlined
 from netem.links.wifi.compiled_medium import (
     ACK,
     ACK_NS,
@@ -96,7 +96,7 @@ def _earlier(a0: int, a1: int, a2: int, b0: int, b1: int, b2: int) -> bool:
     return a2 < b2
 
 
-@jit
+@jit_inlined
 def _push(ev: Ints, time_ns: int, kind: int, value: int) -> None:
     """Push an event; the caller made room (``_heap_grown``)."""
     ev[0, 0] += 1
@@ -112,7 +112,7 @@ def _push(ev: Ints, time_ns: int, kind: int, value: int) -> None:
         i = up
 
 
-@jit
+@jit_inlined
 def _pop(ev: Ints) -> None:
     """Drop the heap's first row (read it before)."""
     last = ev[0, 0]
@@ -143,19 +143,19 @@ def _heap_grown(ev: Ints, more: int) -> Ints:
 
 
 # -- a station's DCF -----------------------------------------------------------------------
-@jit
+@jit_inlined
 def _draw(st: Timing, s: int, backoff_state: np.uint64) -> int:
     d = st[s, DRAWS]
     st[s, DRAWS] += 1
     return int(keyed_uniform_after(backoff_state, s, d) * (st[s, CW] + 1))
 
 
-@jit
+@jit_inlined
 def _set_head(st: Timing, s: int, queue: Ints, frames: Ints) -> None:
     st[s, HEAD_READY] = frames[queue[st[s, QPOS]], 3] if st[s, QPOS] < st[s, QEND] else NEVER
 
 
-@jit
+@jit_inlined
 def _plan(st: Timing, s: int, t: Timing) -> None:
     if st[s, BUSY] or st[s, SENDING] >= 0 or st[s, AWAITING] or st[s, HEAD_READY] >= NEVER:
         st[s, PLANNED] = NEVER
@@ -165,7 +165,7 @@ def _plan(st: Timing, s: int, t: Timing) -> None:
     st[s, PLANNED] = max(st[s, HEAD_READY] + t[DIFS], backoff_end)
 
 
-@jit
+@jit_inlined
 def _sense(
     st: Timing, now: int, log: Ints, on_air: Ints, air: Floats, t: Timing, busy_mw: float
 ) -> None:
@@ -213,7 +213,7 @@ def _sense(
 
 
 # -- the stations' events ------------------------------------------------------------------
-@jit
+@jit_inlined
 def _next_frame(
     st: Timing, s: int, queue: Ints, frames: Ints, t: Timing, backoff: np.uint64
 ) -> None:

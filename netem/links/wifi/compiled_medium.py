@@ -19,7 +19,7 @@ import functools
 import numpy as np
 import numpy.typing as npt
 
-from formation.compiled import jit
+from formation.compiled import jit, jit_inlined
 from netem.links.wifi.compiled_reception import (
     frame_success,
     frame_success_alone,
@@ -69,7 +69,7 @@ def alone_floor(levels: Levels) -> float:
     return max(levels[DETECT], max(levels[DETECT_SNR], levels[SINR]) * levels[NOISE])
 
 
-@jit
+@jit_inlined
 def put_on_air(
     st: Timing, log: Ints, first: int, count: int, on_air: Ints, air: Floats, levels: Levels
 ) -> None:
@@ -188,7 +188,7 @@ def decoded(
             r += 1
 
 
-@jit
+@jit_inlined
 def _decoded_alone(
     index: int,
     st: Ints,
@@ -216,7 +216,7 @@ def _decoded_alone(
         st[j, RECEIVED] = p >= 1.0 or keyed_uniform_after(reception_state, index, j) < p
 
 
-@jit
+@jit_inlined
 def log_transmission(
     log: Ints, i: int, sender: int, frame: int, dest: int, now: int, airtime: int, rate: int
 ) -> None:
