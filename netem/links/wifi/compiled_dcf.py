@@ -144,19 +144,19 @@ def _heap_grown(ev: Ints, more: int) -> Ints:
 
 # -- a station's DCF -----------------------------------------------------------------------
 @jit_inlined
-def _draw(st: Timing, s: int, backoff_state: np.uint64) -> int:
+def _draw(st: Ints, s: int, backoff_state: np.uint64) -> int:
     d = st[s, DRAWS]
     st[s, DRAWS] += 1
     return int(keyed_uniform_after(backoff_state, s, d) * (st[s, CW] + 1))
 
 
 @jit_inlined
-def _set_head(st: Timing, s: int, queue: Ints, frames: Ints) -> None:
+def _set_head(st: Ints, s: int, queue: Ints, frames: Ints) -> None:
     st[s, HEAD_READY] = frames[queue[st[s, QPOS]], 3] if st[s, QPOS] < st[s, QEND] else NEVER
 
 
 @jit_inlined
-def _plan(st: Timing, s: int, t: Timing) -> None:
+def _plan(st: Ints, s: int, t: Timing) -> None:
     if st[s, BUSY] or st[s, SENDING] >= 0 or st[s, AWAITING] or st[s, HEAD_READY] >= NEVER:
         st[s, PLANNED] = NEVER
         return
@@ -167,7 +167,7 @@ def _plan(st: Timing, s: int, t: Timing) -> None:
 
 @jit_inlined
 def _sense(
-    st: Timing, now: int, log: Ints, on_air: Ints, air: Floats, t: Timing, busy_mw: float
+    st: Ints, now: int, log: Ints, on_air: Ints, air: Floats, t: Timing, busy_mw: float
 ) -> None:
     """Carrier sense at every agent (locked onto a sensed frame, or the sensed frames' energy
     at least ``busy_mw``); freeze or resume the backoffs that changed."""
@@ -214,9 +214,7 @@ def _sense(
 
 # -- the stations' events ------------------------------------------------------------------
 @jit_inlined
-def _next_frame(
-    st: Timing, s: int, queue: Ints, frames: Ints, t: Timing, backoff: np.uint64
-) -> None:
+def _next_frame(st: Ints, s: int, queue: Ints, frames: Ints, t: Timing, backoff: np.uint64) -> None:
     """The head frame is done: the next one waits a post-backoff at CWmin."""
     st[s, QPOS] += 1
     _set_head(st, s, queue, frames)
@@ -227,14 +225,14 @@ def _next_frame(
 
 @jit
 def _resolve(
-    st: Timing,
+    st: Ints,
     s: int,
     acked: bool,
     queue: Ints,
     frames: Ints,
     air: Floats,
     levels: Levels,
-    out: Timing,
+    out: Ints,
     t: Timing,
     backoff: np.uint64,
 ) -> None:
@@ -272,7 +270,9 @@ def run(
     its cause in rows ``m .. 2m``; ``extra`` (m, 2): each frame's attempts and first start
     [ns]; and when the medium fell silent [ns]."""
     m, n = frames.shape[0], air.shape[1]
-    levels, t = to_fixed_tuple(level_mw, LEVEL_FIELDS), to_fixed_tuple(timing, TIMING_FIELDS)
+    # numba's intrinsic takes the typing context first: mypy sees one argument too few
+    levels: Levels = to_fixed_tuple(level_mw, LEVEL_FIELDS)  # type: ignore[call-arg]
+    t: Timing = to_fixed_tuple(timing, TIMING_FIELDS)
     backoff = keyed_state_of(seed, AIR_STREAM, BACKOFF, epoch, phase)
     reception = keyed_state_of(seed, AIR_STREAM, RECEPTION, epoch, phase)
     out = np.full((2 * m, n), -1, dtype=np.int64)
@@ -395,7 +395,7 @@ def run(
 
 @jit
 def _end(
-    st: Timing,
+    st: Ints,
     index: int,
     now: int,
     ev: Ints,
@@ -407,7 +407,7 @@ def _end(
     air: Floats,
     levels: Levels,
     t: Timing,
-    out: Timing,
+    out: Ints,
     backoff: np.uint64,
     reception: np.uint64,
 ) -> None:

@@ -71,7 +71,7 @@ def alone_floor(levels: Levels) -> float:
 
 @jit_inlined
 def put_on_air(
-    st: Timing, log: Ints, first: int, count: int, on_air: Ints, air: Floats, levels: Levels
+    st: Ints, log: Ints, first: int, count: int, on_air: Ints, air: Floats, levels: Levels
 ) -> None:
     """Put log entries ``first .. first + count`` (starting together) on the air and lock
     the free agents that detect one."""
@@ -103,7 +103,7 @@ def put_on_air(
 @jit
 def decoded(
     index: int,
-    st: Timing,
+    st: Ints,
     log: Ints,
     size: int,
     air: Floats,
