@@ -3,7 +3,8 @@ same keyed draws, over arrays instead of objects.
 
 ``dcf._Phase`` is the reference this loop is held to (tests/unit/netem/test_wifi_compiled.py):
 every station, event and transmission follows it line for line. What differs is storage:
-the event heap is an (events, 4) array, the medium's log an (transmissions, 7) array, and a
+the event heap is an (events, 4) array, the medium's log an (transmissions, 7) array, the
+stations an (agents, columns) array and the radio one float array (``compiled_medium``); a
 transmission's overlaps are the log entries whose time on the air meets its own (a frame
 that ends at an instant leaves the air before one starts at it, as in the reference), in
 log order. Compiled once per install (``cache=True``; docs/model.md §11).
@@ -13,8 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
+from numba.np.unsafe.ndarray import to_fixed_tuple
 
-from formation.compiled import jit
+from formation.compiled import jit, jit_inlined
 from netem.links.wifi.compiled_medium import (
     ACK,
     ACK_NS,
@@ -29,30 +31,30 @@ from netem.links.wifi.compiled_medium import (
     CW,
     CW_MAX,
     CW_MIN,
-    DETECT,
-    DETECT_SNR,
     DIFS,
     DRAWS,
     EIFS,
     EIFS_NS,
+    ENERGY,
     HEAD_READY,
     IDLE_FROM,
+    LEVEL_FIELDS,
     LOCK,
     NAV,
     NEVER,
-    NOISE,
     OVERHEAD,
     PLANNED,
     QEND,
     QPOS,
     RATE,
+    RECEIVED,
     RETRY,
     SENDING,
     SENSED_BUSY,
     SIFS,
-    SINR,
     SLOT,
     STATION_COLUMNS,
+    TIMING_FIELDS,
     TRIES,
     TX_DEST,
     TX_END,
@@ -60,10 +62,12 @@ from netem.links.wifi.compiled_medium import (
     TX_SENDER,
     TX_SENSED,
     TX_START,
+    Levels,
+    Timing,
     airtime_ns,
-    carrier_busy,
+    alone_floor,
     decoded,
-    log_room,
+    log_grown,
     log_transmission,
     put_on_air,
 )
@@ -78,76 +82,81 @@ LONG_AGO = -(1 << 40)  # [ns] the medium was idle since before the phase
 BROADCAST = -1
 END, TIMEOUT, NAV_END, READY, ACK_START, SEND, SENSED = range(7)
 DELIVERED, COLLISION, BELOW_SENSITIVITY, RETRY_LIMIT, LATE, NOT_ADDRESSED = range(6)
+PUSHES = 3  # the most events one event pushes, besides two per transmission it starts
 
 
-# -- the event heap: rows (time, kind, order, value), ordered as tuples --------------------
+# -- the event heap: rows (time, kind, order, value) from row 1, ordered as tuples; row 0
+# holds the rows in use and the events pushed so far -------------------------------------
 @jit
-def _before(ev: Ints, a: int, b: int) -> bool:
-    for c in range(3):
-        if ev[a, c] != ev[b, c]:
-            return bool(ev[a, c] < ev[b, c])
-    return False
+def _earlier(a0: int, a1: int, a2: int, b0: int, b1: int, b2: int) -> bool:
+    if a0 != b0:
+        return a0 < b0
+    if a1 != b1:
+        return a1 < b1
+    return a2 < b2
 
 
-@jit
-def _swap(ev: Ints, a: int, b: int) -> None:
-    for c in range(4):
-        ev[a, c], ev[b, c] = ev[b, c], ev[a, c]
-
-
-@jit
-def _push(ev: Ints, size: Ints, time_ns: int, kind: int, value: int) -> Ints:
-    if size[0] == ev.shape[0]:
-        grown = np.empty((2 * ev.shape[0], 4), dtype=np.int64)
-        grown[: ev.shape[0]] = ev
-        ev = grown
-    size[1] += 1
-    i = size[0]
-    ev[i, 0], ev[i, 1], ev[i, 2], ev[i, 3] = time_ns, kind, size[1], value
-    size[0] += 1
-    while i > 0:
-        parent = (i - 1) // 2
-        if not _before(ev, i, parent):
+@jit_inlined
+def _push(ev: Ints, time_ns: int, kind: int, value: int) -> None:
+    """Push an event; the caller made room (``_heap_grown``)."""
+    ev[0, 0] += 1
+    ev[0, 1] += 1
+    i = ev[0, 0]
+    ev[i, 0], ev[i, 1], ev[i, 2], ev[i, 3] = time_ns, kind, ev[0, 1], value
+    while i > 1:
+        up = i // 2
+        if not _earlier(ev[i, 0], ev[i, 1], ev[i, 2], ev[up, 0], ev[up, 1], ev[up, 2]):
             break
-        _swap(ev, i, parent)
-        i = parent
-    return ev
+        for c in range(4):  # a call taking ``ev`` would cost reference counts
+            ev[i, c], ev[up, c] = ev[up, c], ev[i, c]
+        i = up
 
 
-@jit
-def _pop(ev: Ints, size: Ints) -> None:
+@jit_inlined
+def _pop(ev: Ints) -> None:
     """Drop the heap's first row (read it before)."""
-    size[0] -= 1
-    last = size[0]
-    _swap(ev, 0, last)
-    i = 0
+    last = ev[0, 0]
+    ev[0, 0] -= 1
+    for c in range(4):
+        ev[1, c] = ev[last, c]
+    last -= 1
+    i = 1
     while True:
-        left, right, low = 2 * i + 1, 2 * i + 2, i
-        if left < last and _before(ev, left, low):
-            low = left
-        if right < last and _before(ev, right, low):
-            low = right
+        low = i
+        for child in (2 * i, 2 * i + 1):
+            if child <= last and _earlier(
+                ev[child, 0], ev[child, 1], ev[child, 2], ev[low, 0], ev[low, 1], ev[low, 2]
+            ):
+                low = child
         if low == i:
             return
-        _swap(ev, i, low)
+        for c in range(4):
+            ev[i, c], ev[low, c] = ev[low, c], ev[i, c]
         i = low
 
 
-# -- a station's DCF -----------------------------------------------------------------------
 @jit
+def _heap_grown(ev: Ints, more: int) -> Ints:
+    grown = np.empty((2 * ev.shape[0] + more, 4), dtype=np.int64)
+    grown[: ev.shape[0]] = ev
+    return grown
+
+
+# -- a station's DCF -----------------------------------------------------------------------
+@jit_inlined
 def _draw(st: Ints, s: int, backoff_state: np.uint64) -> int:
     d = st[s, DRAWS]
     st[s, DRAWS] += 1
     return int(keyed_uniform_after(backoff_state, s, d) * (st[s, CW] + 1))
 
 
-@jit
-def _set_head(st: Ints, s: int, queue: Ints, ready: Ints) -> None:
-    st[s, HEAD_READY] = ready[queue[st[s, QPOS]]] if st[s, QPOS] < st[s, QEND] else NEVER
+@jit_inlined
+def _set_head(st: Ints, s: int, queue: Ints, frames: Ints) -> None:
+    st[s, HEAD_READY] = frames[queue[st[s, QPOS]], 3] if st[s, QPOS] < st[s, QEND] else NEVER
 
 
-@jit
-def _plan(st: Ints, s: int, t: Ints) -> None:
+@jit_inlined
+def _plan(st: Ints, s: int, t: Timing) -> None:
     if st[s, BUSY] or st[s, SENDING] >= 0 or st[s, AWAITING] or st[s, HEAD_READY] >= NEVER:
         st[s, PLANNED] = NEVER
         return
@@ -156,20 +165,27 @@ def _plan(st: Ints, s: int, t: Ints) -> None:
     st[s, PLANNED] = max(st[s, HEAD_READY] + t[DIFS], backoff_end)
 
 
-@jit
+@jit_inlined
 def _sense(
-    st: Ints,
-    now: int,
-    log: Ints,
-    on_air: Ints,
-    power: Floats,
-    levels: Floats,
-    t: Ints,
-    energy: Floats,
+    st: Ints, now: int, log: Ints, on_air: Ints, air: Floats, t: Timing, busy_mw: float
 ) -> None:
-    """Carrier sense at every agent; freeze or resume the backoffs that changed."""
+    """Carrier sense at every agent (locked onto a sensed frame, or the sensed frames' energy
+    at least ``busy_mw``); freeze or resume the backoffs that changed."""
     n = st.shape[0]
-    carrier_busy(st, log, on_air, power, levels, energy)
+    for j in range(n):
+        air[n, j] = 0.0  # the sensed energy at each agent
+    sensed = False
+    for k in range(on_air[0]):
+        i = on_air[k + 1]
+        if log[i, TX_SENSED]:
+            sensed = True
+            sender = log[i, TX_SENDER]
+            for j in range(n):
+                air[n, j] += air[sender, j]
+    for j in range(n):
+        lock = st[j, LOCK]
+        locked = lock >= 0 and log[lock, TX_SENSED] != 0
+        st[j, CARRIER] = sensed and (air[n, j] >= busy_mw or locked)
     same = True
     for s in range(n):
         busy = st[s, SENDING] >= 0 or st[s, CARRIER] != 0 or st[s, NAV] > now
@@ -197,11 +213,11 @@ def _sense(
 
 
 # -- the stations' events ------------------------------------------------------------------
-@jit
-def _next_frame(st: Ints, s: int, queue: Ints, ready: Ints, t: Ints, backoff: np.uint64) -> None:
+@jit_inlined
+def _next_frame(st: Ints, s: int, queue: Ints, frames: Ints, t: Timing, backoff: np.uint64) -> None:
     """The head frame is done: the next one waits a post-backoff at CWmin."""
     st[s, QPOS] += 1
-    _set_head(st, s, queue, ready)
+    _set_head(st, s, queue, frames)
     st[s, TRIES] = 0
     st[s, CW] = t[CW_MIN]
     st[s, COUNTER] = _draw(st, s, backoff)
@@ -214,9 +230,10 @@ def _resolve(
     acked: bool,
     queue: Ints,
     frames: Ints,
-    alone: npt.NDArray[np.bool_],
+    air: Floats,
+    levels: Levels,
     out: Ints,
-    t: Ints,
+    t: Timing,
     backoff: np.uint64,
 ) -> None:
     """The end of a unicast attempt at its sender."""
@@ -226,8 +243,9 @@ def _resolve(
     m = frames.shape[0]
     if acked or st[s, TRIES] >= t[RETRY]:
         if out[f, d] < 0:
-            out[m + f, d] = RETRY_LIMIT if alone[s, d] else BELOW_SENSITIVITY
-        _next_frame(st, s, queue, frames[:, 3], t, backoff)
+            alone = air[s, d] >= alone_floor(levels)
+            out[m + f, d] = RETRY_LIMIT if alone else BELOW_SENSITIVITY
+        _next_frame(st, s, queue, frames, t, backoff)
     else:
         st[s, CW] = min(2 * st[s, CW] + 1, t[CW_MAX])
         st[s, COUNTER] = _draw(st, s, backoff)
@@ -236,46 +254,33 @@ def _resolve(
 
 @jit
 def run(
-    sender: Ints,
-    receiver: Ints,
-    payload_bytes: Ints,
-    ready_ns: Ints,
-    power: Floats,
-    levels: Floats,
-    t: Ints,
+    frames: Ints,
+    air: Floats,
+    level_mw: Floats,
+    timing: Ints,
     seed: int,
     epoch: int,
     phase: int,
 ) -> tuple[Ints, Ints, int]:
-    """The phase of the frames ``sender``, ``receiver``, ``payload_bytes`` [B] and
-    ``ready_ns`` [ns]; ``power`` (n, n) [mW], what ``j`` receives from ``i``.
+    """The phase of ``frames`` (m, 4): each frame's sender, receiver, payload [B] and
+    readiness [ns]; ``air`` (n + 2, n): rows ``0 .. n`` what ``j`` receives from ``i`` [mW],
+    then room (``compiled_medium``).
 
     Returns ``out`` (2m, n): each frame's arrival at each agent [ns] in rows ``0 .. m``,
     its cause in rows ``m .. 2m``; ``extra`` (m, 2): each frame's attempts and first start
     [ns]; and when the medium fell silent [ns]."""
-    m = sender.shape[0]
-    frames = np.empty((m, 4), dtype=np.int64)
-    frames[:, 0], frames[:, 1], frames[:, 2], frames[:, 3] = (
-        sender,
-        receiver,
-        payload_bytes,
-        ready_ns,
-    )
-    # a frame the receiver cannot take even on a silent channel
-    floor = max(levels[DETECT_SNR], levels[SINR]) * levels[NOISE]
-    alone = (power >= levels[DETECT]) & (power >= floor)
+    m, n = frames.shape[0], air.shape[1]
+    # numba's intrinsic takes the typing context first: mypy sees one argument too few
+    levels: Levels = to_fixed_tuple(level_mw, LEVEL_FIELDS)  # type: ignore[call-arg]
+    t: Timing = to_fixed_tuple(timing, TIMING_FIELDS)
     backoff = keyed_state_of(seed, AIR_STREAM, BACKOFF, epoch, phase)
     reception = keyed_state_of(seed, AIR_STREAM, RECEPTION, epoch, phase)
-    n = power.shape[0]
-    energy = np.zeros(n)  # room for carrier sense's sum
-    received = np.zeros(n, dtype=np.int64)  # room for who decoded a frame
-    ready = frames[:, 3].copy()
     out = np.full((2 * m, n), -1, dtype=np.int64)
     out[m:] = NOT_ADDRESSED
     extra = np.zeros((m, 2), dtype=np.int64)
     extra[:, 1] = -1
     # the stations' queues: frames by readiness, then index
-    order = np.argsort(ready, kind="mergesort")
+    order = np.argsort(frames[:, 3], kind="mergesort")
     queue = np.empty(m, dtype=np.int64)
     st = np.zeros((n, STATION_COLUMNS), dtype=np.int64)
     for f in range(m):
@@ -295,52 +300,50 @@ def run(
     st[:, CW] = t[CW_MIN]
     st[:, LOCK] = -1
     for s in range(n):
-        _set_head(st, s, queue, ready)
-    ev = np.empty((m + 8 * n + 16, 4), dtype=np.int64)
-    size = np.zeros(2, dtype=np.int64)  # rows in the heap, events pushed
+        _set_head(st, s, queue, frames)
+    ev = np.zeros((m + 8 * n + 16, 4), dtype=np.int64)
     log = np.zeros((2 * m + 16, 7), dtype=np.int64)
     logged = 0
     on_air = np.zeros(2 * n + 2, dtype=np.int64)  # count, then log indices in log order
     for f in range(m):
-        ev = _push(ev, size, ready[f], READY, f)
+        _push(ev, frames[f, 3], READY, f)
     now = 0
     while True:
+        if ev[0, 0] + 2 * n + PUSHES >= ev.shape[0]:
+            ev = _heap_grown(ev, 2 * n + PUSHES)
         send_at = NEVER
         for s in range(n):
             send_at = min(send_at, st[s, PLANNED])
-        if size[0] > 0 and (ev[0, 0] < send_at or (ev[0, 0] == send_at and ev[0, 1] < SEND)):
-            now, kind, value = ev[0, 0], ev[0, 1], ev[0, 3]
-            _pop(ev, size)
+        soonest = ev[1, 0] if ev[0, 0] > 0 else NEVER
+        if ev[0, 0] > 0 and (soonest < send_at or (soonest == send_at and ev[1, 1] < SEND)):
+            now, kind, value = soonest, ev[1, 1], ev[1, 3]
+            _pop(ev)
             first, count = logged, 0
             if kind == END:
-                ev = _end(
+                _end(
                     st,
                     value,
                     now,
                     ev,
-                    size,
                     log,
                     logged,
                     on_air,
                     queue,
                     frames,
-                    power,
-                    alone,
+                    air,
                     levels,
                     t,
                     out,
                     backoff,
                     reception,
-                    energy,
-                    received,
                 )
             elif kind == TIMEOUT:
                 if st[value, AWAITING] and not st[value, ACK_ON_AIR]:
                     st[value, IDLE_FROM] = max(st[value, IDLE_FROM], now)
                     st[value, EIFS] = 0
-                    _resolve(st, value, False, queue, frames, alone, out, t, backoff)
+                    _resolve(st, value, False, queue, frames, air, levels, out, t, backoff)
             elif kind == NAV_END:
-                _sense(st, now, log, on_air, power, levels, t, energy)
+                _sense(st, now, log, on_air, air, t, levels[ENERGY])
             elif kind == READY:
                 s = frames[value, 0]
                 head = queue[st[s, QPOS]] if st[s, QPOS] < st[s, QEND] else -1
@@ -352,12 +355,13 @@ def run(
                 acking, acked = value // n, value % n  # the data's receiver and sender
                 if st[acking, SENDING] < 0:
                     st[acked, ACK_ON_AIR] = 1
-                    log = log_room(log, logged + 1)
+                    if logged + 1 > log.shape[0]:
+                        log = log_grown(log)
                     log_transmission(log, logged, acking, ACK, acked, now, t[ACK_NS], t[ACK_RATE])
                     count = 1
             else:  # SENSED
                 log[value, TX_SENSED] = 1
-                _sense(st, now, log, on_air, power, levels, t, energy)
+                _sense(st, now, log, on_air, air, t, levels[ENERGY])
         elif send_at < NEVER:
             now = send_at
             first, count = logged, 0
@@ -369,7 +373,8 @@ def run(
                     if extra[f, 1] < 0:
                         extra[f, 1] = now
                     airtime = airtime_ns(t, frames[f, 2] + t[OVERHEAD], t[RATE])
-                    log = log_room(log, logged + count + 1)
+                    if logged + count + 1 > log.shape[0]:
+                        log = log_grown(log)
                     log_transmission(log, logged + count, s, f, frames[f, 1], now, airtime, t[RATE])
                     count += 1
         else:
@@ -380,11 +385,11 @@ def run(
                 st[log[i, TX_SENDER], SENDING] = i
                 st[log[i, TX_SENDER], PLANNED] = NEVER
                 st[log[i, TX_SENDER], EIFS] = 0  # a transmission ends the EIFS
-            put_on_air(st, log, first, count, on_air, power, levels, energy)
+            put_on_air(st, log, first, count, on_air, air, levels)
             for i in range(first, logged):
-                ev = _push(ev, size, log[i, TX_START] + t[CCA], SENSED, i)
-                ev = _push(ev, size, log[i, TX_END], END, i)
-            _sense(st, now, log, on_air, power, levels, t, energy)
+                _push(ev, log[i, TX_START] + t[CCA], SENSED, i)
+                _push(ev, log[i, TX_END], END, i)
+            _sense(st, now, log, on_air, air, t, levels[ENERGY])
     return out, extra, now
 
 
@@ -394,22 +399,18 @@ def _end(
     index: int,
     now: int,
     ev: Ints,
-    size: Ints,
     log: Ints,
     logged: int,
     on_air: Ints,
     queue: Ints,
     frames: Ints,
-    power: Floats,
-    alone: npt.NDArray[np.bool_],
-    levels: Floats,
-    t: Ints,
+    air: Floats,
+    levels: Levels,
+    t: Timing,
     out: Ints,
     backoff: np.uint64,
     reception: np.uint64,
-    energy: Floats,
-    received: Ints,
-) -> Ints:
+) -> None:
     """Log entry ``index`` leaves the air: its receptions, then its sender's next step."""
     n, m = st.shape[0], frames.shape[0]
     s, f, dest = log[index, TX_SENDER], log[index, TX_FRAME], log[index, TX_DEST]
@@ -417,43 +418,45 @@ def _end(
     at = 1
     while on_air[at] != index:
         at += 1
-    on_air[at : on_air[0]] = on_air[at + 1 : on_air[0] + 1]
+    for k in range(at, on_air[0]):
+        on_air[k] = on_air[k + 1]
     on_air[0] -= 1
-    decoded(index, st, log, logged, power, levels, t, reception, received)
+    decoded(index, st, log, logged, air, levels, t, reception)
     for j in range(n):
         if st[j, LOCK] == index:
             st[j, LOCK] = -1
-            st[j, EIFS] = not received[j]
+            st[j, EIFS] = not st[j, RECEIVED]
     if f == ACK:
         st[dest, ACK_ON_AIR] = 0
         if st[dest, AWAITING]:
-            _resolve(st, dest, received[dest] != 0, queue, frames, alone, out, t, backoff)
+            acked = st[dest, RECEIVED] != 0
+            _resolve(st, dest, acked, queue, frames, air, levels, out, t, backoff)
     elif dest == BROADCAST:
+        floor = alone_floor(levels)
         for r in range(n):
-            if received[r]:
+            if st[r, RECEIVED]:
                 out[f, r] = now
             if r != s:
-                lost = COLLISION if alone[s, r] else BELOW_SENSITIVITY
-                out[m + f, r] = DELIVERED if received[r] else lost
-        _next_frame(st, s, queue, frames[:, 3], t, backoff)
+                lost = COLLISION if air[s, r] >= floor else BELOW_SENSITIVITY
+                out[m + f, r] = DELIVERED if st[r, RECEIVED] else lost
+        _next_frame(st, s, queue, frames, t, backoff)
     else:
-        if received[dest]:
+        if st[dest, RECEIVED]:
             if out[f, dest] < 0:
                 out[f, dest] = now
             out[m + f, dest] = DELIVERED
-            ev = _push(ev, size, now + t[SIFS], ACK_START, dest * n + s)
+            _push(ev, now + t[SIFS], ACK_START, dest * n + s)
             ack_end = now + t[SIFS] + t[ACK_NS]
             overhearing = False
             for r in range(n):
-                if received[r] and r != dest:
+                if st[r, RECEIVED] and r != dest:
                     st[r, NAV] = max(st[r, NAV], ack_end)
                     overhearing = True
             if overhearing:
-                ev = _push(ev, size, ack_end, NAV_END, 0)
+                _push(ev, ack_end, NAV_END, 0)
         st[s, AWAITING] = 1
-        ev = _push(ev, size, now + t[ACK_TIMEOUT], TIMEOUT, s)
-    _sense(st, now, log, on_air, power, levels, t, energy)
-    return ev
+        _push(ev, now + t[ACK_TIMEOUT], TIMEOUT, s)
+    _sense(st, now, log, on_air, air, t, levels[ENERGY])
 
 
 __all__ = ["DELIVERED", "LATE", "run"]

@@ -2,10 +2,14 @@
 what is on the air, who locks onto which frame and who decodes it, as ``medium.py`` and
 ``reception.py`` decide them.
 
-A station is a row of an int64 array (its DCF state and its lock); a transmission a row of
-the log (sender, frame, destination, start, end, rate, sensed); a transmission's overlaps
-are the log entries whose time on the air meets its own, in log order (a frame that ends at
-an instant leaves the air before one starts at it, as in ``dcf.py``).
+A station is a row of an int64 array (its DCF state, its lock and whether it decoded the
+frame that just ended); a transmission a row of the log (sender, frame, destination, start,
+end, rate, sensed); a transmission's overlaps are the log entries whose time on the air meets
+its own, in log order (a frame that ends at an instant leaves the air before one starts at
+it, as in ``dcf.py``). The radio is one float array ``air`` (n + 2, n): row ``i < n`` what
+each agent receives from ``i`` [mW], then two rows of room, the energy each agent's carrier
+sense adds up and the power on the air at each. The loop's functions take these few arrays
+so that a call costs few reference counts.
 """
 
 from __future__ import annotations
@@ -15,20 +19,28 @@ import functools
 import numpy as np
 import numpy.typing as npt
 
-from formation.compiled import jit
-from netem.links.wifi.compiled_reception import frame_success, keyed_uniform_after
+from formation.compiled import jit, jit_inlined
+from netem.links.wifi.compiled_reception import (
+    frame_success,
+    frame_success_alone,
+    keyed_uniform_after,
+)
 from netem.links.wifi.config import AirConfig
 from netem.links.wifi.radio import to_mw
 
 Ints = npt.NDArray[np.int64]
 Floats = npt.NDArray[np.float64]
+# the phase's timing and the radio's levels as tuples: passed by value, without the
+# reference counts an array argument costs each call
+Timing = tuple[int, ...]
+Levels = tuple[float, ...]
 ACK = -1  # a transmission's frame when it is an ACK
 NEVER = 1 << 62  # [ns] a time that does not come
 
 # a station's columns
 HEAD_READY, SENDING, NAV, PLANNED, IDLE_FROM, COUNTER, CW, DRAWS, TRIES, QPOS, QEND = range(11)
-BUSY, EIFS, AWAITING, ACK_ON_AIR, LOCK, CARRIER, SENSED_BUSY = range(11, 18)
-STATION_COLUMNS = 18
+BUSY, EIFS, AWAITING, ACK_ON_AIR, LOCK, CARRIER, SENSED_BUSY, RECEIVED = range(11, 19)
+STATION_COLUMNS = 19
 # a transmission's columns
 TX_SENDER, TX_FRAME, TX_DEST, TX_START, TX_END, TX_RATE, TX_SENSED = range(7)
 # the scalars: phase timing and sizes
@@ -39,10 +51,11 @@ HEADER_FROM, HEADER_TO, HEADER_RATE, OVERHEAD, PREAMBLE_NS, SYMBOL_EXT, OFDM, CH
 TIMING_FIELDS = 20
 # the radio's levels [mW]
 NOISE, DETECT, DETECT_SNR, ENERGY, SINR, ACK_SINR = range(6)
+LEVEL_FIELDS = 6
 
 
 @jit
-def airtime_ns(t: Ints, frame_bytes: int, rate_kbps: int) -> int:
+def airtime_ns(t: Timing, frame_bytes: int, rate_kbps: int) -> int:
     if t[OFDM]:
         bits_per_symbol = rate_kbps * 4 // 1000
         symbols = -(-(16 + 8 * frame_bytes + 6) // bits_per_symbol)
@@ -51,56 +64,37 @@ def airtime_ns(t: Ints, frame_bytes: int, rate_kbps: int) -> int:
 
 
 @jit
-def carrier_busy(
-    st: Ints, log: Ints, on_air: Ints, power: Floats, levels: Floats, energy: Floats
-) -> None:
-    """Each station's ``CARRIER``: whether its carrier sense finds the medium busy, locked
-    onto a sensed frame or the sensed frames' energy above the carrier-sense threshold.
-    ``energy`` (n,) is room for the sum."""
-    n = st.shape[0]
-    energy[:] = 0.0
-    sensed = False
-    for k in range(on_air[0]):
-        i = on_air[k + 1]
-        if log[i, TX_SENSED]:
-            sensed = True
-            for j in range(n):
-                energy[j] += power[log[i, TX_SENDER], j]
-    for j in range(n):
-        lock = st[j, LOCK]
-        locked = lock >= 0 and log[lock, TX_SENSED] != 0
-        st[j, CARRIER] = sensed and (energy[j] >= levels[ENERGY] or locked)
+def alone_floor(levels: Levels) -> float:
+    """The least power [mW] at which a receiver would take a frame on a silent channel."""
+    return max(levels[DETECT], max(levels[DETECT_SNR], levels[SINR]) * levels[NOISE])
 
 
-@jit
+@jit_inlined
 def put_on_air(
-    st: Ints,
-    log: Ints,
-    first: int,
-    count: int,
-    on_air: Ints,
-    power: Floats,
-    levels: Floats,
-    total: Floats,
+    st: Ints, log: Ints, first: int, count: int, on_air: Ints, air: Floats, levels: Levels
 ) -> None:
     """Put log entries ``first .. first + count`` (starting together) on the air and lock
-    the free agents that detect one. ``total`` (n,) is room for the power on the air."""
-    n = st.shape[0]
+    the free agents that detect one."""
+    n = air.shape[1]
     for k in range(count):
         on_air[on_air[0] + 1] = first + k
         on_air[0] += 1
         st[log[first + k, TX_SENDER], LOCK] = -1  # half duplex
-    total[:] = 0.0
+    total = n + 1
+    for j in range(n):
+        air[total, j] = 0.0
     for k in range(on_air[0]):
-        total += power[log[on_air[k + 1], TX_SENDER]]
+        sender = log[on_air[k + 1], TX_SENDER]
+        for j in range(n):
+            air[total, j] += air[sender, j]
     noise, detect, detect_snr = levels[NOISE], levels[DETECT], levels[DETECT_SNR]
     for j in range(n):
         if st[j, LOCK] >= 0 or st[j, SENDING] >= 0:
             continue
         best, best_power = -1, -1.0
         for k in range(count):
-            p = power[log[first + k, TX_SENDER], j]
-            if p >= detect and p >= detect_snr * (noise + total[j] - p) and p > best_power:
+            p = air[log[first + k, TX_SENDER], j]
+            if p >= detect and p >= detect_snr * (noise + air[total, j] - p) and p > best_power:
                 best, best_power = k, p
         if best >= 0:
             st[j, LOCK] = first + best
@@ -112,19 +106,21 @@ def decoded(
     st: Ints,
     log: Ints,
     size: int,
-    power: Floats,
-    levels: Floats,
-    t: Ints,
+    air: Floats,
+    levels: Levels,
+    t: Timing,
     reception_state: np.uint64,
-    received: Ints,
 ) -> None:
-    """``received[j]``: whether agent ``j``, locked onto log entry ``index``, decodes it
+    """``st[j, RECEIVED]``: whether agent ``j``, locked onto log entry ``index``, decodes it
     (``Reception.decoded``); 0 for the agents not locked onto it."""
     start, end, sender = log[index, TX_START], log[index, TX_END], log[index, TX_SENDER]
     count = 0
     for o in range(size):
         if o != index and log[o, TX_START] < end and log[o, TX_END] > start:
             count += 1
+    if count == 0:
+        _decoded_alone(index, st, log, air, levels, t, reception_state)
+        return
     # the overlapping entries, then the times the interference changes
     work = np.empty(3 * count + 2, dtype=np.int64)
     others, bounds = work[:count], work[count:]
@@ -137,7 +133,12 @@ def decoded(
     for k in range(count):
         bounds[2 + 2 * k] = max(log[others[k], TX_START], start)
         bounds[3 + 2 * k] = min(log[others[k], TX_END], end)
-    bounds.sort()
+    for k in range(1, bounds.shape[0]):  # a few: insertion sort
+        v, i = bounds[k], k - 1
+        while i >= 0 and bounds[i] > v:
+            bounds[i + 1] = bounds[i]
+            i -= 1
+        bounds[i + 1] = v
     pieces = 0  # distinct bounds, in place
     for k in range(1, bounds.shape[0]):
         if bounds[k] != bounds[pieces]:
@@ -146,18 +147,17 @@ def decoded(
     rate = log[index, TX_RATE]
     ack = log[index, TX_FRAME] == ACK
     noise = levels[NOISE]
-    n = st.shape[0]
-    who = np.empty(n, dtype=np.int64)  # the agents locked onto the entry
+    n = air.shape[1]
     locked = 0
     for j in range(n):
-        received[j] = 0
-        if st[j, LOCK] == index:
-            who[locked] = j
-            locked += 1
+        st[j, RECEIVED] = 0
+        locked += st[j, LOCK] == index
     snr = np.empty((locked, pieces))
-    for r in range(locked):
-        j = who[r]
-        signal = power[sender, j]
+    r = 0
+    for j in range(n):
+        if st[j, LOCK] != index:
+            continue
+        signal = air[sender, j]
         worst = 0.0
         for k in range(pieces):
             interference = 0.0
@@ -166,24 +166,57 @@ def decoded(
                 o_start = max(log[o, TX_START], start)
                 o_end = min(log[o, TX_END], end)
                 if o_start <= bounds[k] < o_end:
-                    interference += power[log[o, TX_SENDER], j]
+                    interference += air[log[o, TX_SENDER], j]
             worst = max(worst, interference)
             snr[r, k] = signal / (noise + interference)
+        r += 1
         if not t[CHUNKS]:
-            received[j] = signal >= (levels[ACK_SINR] if ack else levels[SINR]) * (noise + worst)
+            threshold = levels[ACK_SINR] if ack else levels[SINR]
+            st[j, RECEIVED] = signal >= threshold * (noise + worst)
     if not t[CHUNKS] or locked == 0:
         return
     header = (start + t[HEADER_FROM], start + t[HEADER_TO], t[HEADER_RATE])
     payload = (start + t[PREAMBLE_NS], end, rate)
     success = np.empty(locked)
     frame_success(t[OFDM] != 0, header, payload, bounds, pieces, snr, success)
-    for r in range(locked):
-        # a uniform draw is below 1: a sure frame needs none
-        p = success[r]
-        received[who[r]] = p >= 1.0 or keyed_uniform_after(reception_state, index, who[r]) < p
+    r = 0
+    for j in range(n):
+        if st[j, LOCK] == index:
+            # a uniform draw is below 1: a sure frame needs none
+            p = success[r]
+            st[j, RECEIVED] = p >= 1.0 or keyed_uniform_after(reception_state, index, j) < p
+            r += 1
 
 
-@jit
+@jit_inlined
+def _decoded_alone(
+    index: int,
+    st: Ints,
+    log: Ints,
+    air: Floats,
+    levels: Levels,
+    t: Timing,
+    reception_state: np.uint64,
+) -> None:
+    """``decoded`` for a transmission nothing overlaps: one piece, without arrays."""
+    start, end, sender = log[index, TX_START], log[index, TX_END], log[index, TX_SENDER]
+    noise = levels[NOISE]
+    threshold = levels[ACK_SINR] if log[index, TX_FRAME] == ACK else levels[SINR]
+    header = (start + t[HEADER_FROM], start + t[HEADER_TO], t[HEADER_RATE])
+    payload = (start + t[PREAMBLE_NS], end, log[index, TX_RATE])
+    for j in range(air.shape[1]):
+        st[j, RECEIVED] = 0
+        if st[j, LOCK] != index:
+            continue
+        signal = air[sender, j]
+        if not t[CHUNKS]:
+            st[j, RECEIVED] = signal >= threshold * noise
+            continue
+        p = frame_success_alone(t[OFDM] != 0, header, payload, start, end, signal / noise)
+        st[j, RECEIVED] = p >= 1.0 or keyed_uniform_after(reception_state, index, j) < p
+
+
+@jit_inlined
 def log_transmission(
     log: Ints, i: int, sender: int, frame: int, dest: int, now: int, airtime: int, rate: int
 ) -> None:
@@ -197,9 +230,7 @@ def log_transmission(
 
 
 @jit
-def log_room(log: Ints, rows: int) -> Ints:
-    if rows <= log.shape[0]:
-        return log
+def log_grown(log: Ints) -> Ints:
     grown = np.zeros((2 * log.shape[0], 7), dtype=np.int64)
     grown[: log.shape[0]] = log
     return grown
@@ -242,7 +273,7 @@ def timing(config: AirConfig) -> Ints:
 @functools.lru_cache(maxsize=64)
 def levels_of(config: AirConfig) -> Floats:
     phy = config.physical
-    levels = np.zeros(6)
+    levels = np.zeros(LEVEL_FIELDS)
     levels[NOISE] = to_mw(config.noise_dbm)
     levels[DETECT] = max(
         float(to_mw(config.preamble_detection_dbm)), float(to_mw(config.rx_sensitivity_dbm))

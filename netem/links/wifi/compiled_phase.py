@@ -50,11 +50,12 @@ def _first_bad(sender: Ints, receiver: Ints, payload_bytes: Ints, ready_ns: Ints
 
 
 @jit
-def _received_mw(positions: Floats, radio: Floats, seed: int, epoch: int) -> Floats:
-    """(n, n) [i, j]: what ``j`` receives from ``i`` [mW], 0 on the diagonal
-    (``radio.received_dbm``, then to milliwatts)."""
+def _air(positions: Floats, radio: Floats, seed: int, epoch: int) -> Floats:
+    """The loop's radio array (n + 2, n): rows ``[i, j]`` what ``j`` receives from ``i``
+    [mW], 0 on the diagonal (``radio.received_dbm``, then to milliwatts), and two rows of
+    room (``compiled_medium``)."""
     n, dims = positions.shape
-    power = np.zeros((n, n))
+    power = np.zeros((n + 2, n))
     slope = 10.0 * radio[EXPONENT]
     d0 = radio[REFERENCE_M]
     shadowed = radio[SIGMA_DB] > 0.0
@@ -104,9 +105,12 @@ def _phase(
         empty = np.zeros((0, 0), dtype=np.int64)
         none = np.zeros(0, dtype=np.int64)
         return bad, empty == 0, empty, empty.astype(np.int8), none, none, 0
-    power = _received_mw(positions, radio, seed, epoch)
+    frames = np.empty((m, 4), dtype=np.int64)
+    for f in range(m):
+        frames[f, 0], frames[f, 1] = sender[f], receiver[f]
+        frames[f, 2], frames[f, 3] = payload_bytes[f], ready_ns[f]
     out, extra, silent = run(
-        sender, receiver, payload_bytes, ready_ns, power, levels, t, seed, epoch, phase
+        frames, _air(positions, radio, seed, epoch), levels, t, seed, epoch, phase
     )
     arrival = out[:m]
     cause = np.empty((m, n), dtype=np.int8)

@@ -190,4 +190,29 @@ def frame_success(
         success[r] = p
 
 
-__all__ = ["chunk_success", "frame_success", "keyed_state_of", "keyed_uniform_after"]
+@jit
+def frame_success_alone(
+    ofdm: bool,
+    header: tuple[int, int, int],
+    payload: tuple[int, int, int],
+    start: int,
+    end: int,
+    snr: float,
+) -> float:
+    """``frame_success`` of a frame alone on the air from ``start`` to ``end`` [ns] (one
+    piece at ``snr``), with the same products in the same order."""
+    p = 1.0
+    for lo, hi, rate in (header, payload):
+        span = min(end, hi) - max(start, lo)
+        if span > 0:
+            p = p * (1.0 * chunk_success(ofdm, rate, snr, span * rate // 1_000_000))
+    return p
+
+
+__all__ = [
+    "chunk_success",
+    "frame_success",
+    "frame_success_alone",
+    "keyed_state_of",
+    "keyed_uniform_after",
+]

@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from netem.links.wifi import BROADCAST, PHYS, AirConfig, Frames, Key, PhaseOutcome, decide_phase
-from netem.links.wifi.compiled_phase import _arrays_of, _received_mw
+from netem.links.wifi.compiled_phase import _air, _arrays_of
 from netem.links.wifi.compiled_reception import chunk_success as compiled_chunk
 from netem.links.wifi.dcf import _power_mw, reference_phase
 from netem.links.wifi.error_rate import chunk_success
@@ -106,6 +106,6 @@ def test_compiled_received_power_is_the_radio_s_to_rounding(
     positions = np.random.default_rng(seed).uniform(0.0, 60.0, (n, dims))
     positions[1] = positions[0] + 0.5  # closer than the reference distance
     radio, _, _ = _arrays_of(config)
-    got = _received_mw(positions, radio, seed, 7)
+    got = _air(positions, radio, seed, 7)[:n]
     expected = _power_mw(config, positions, Key(seed, 7, 0))
     np.testing.assert_allclose(got, expected, rtol=1e-12, atol=0.0)
