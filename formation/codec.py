@@ -117,8 +117,8 @@ def batched_deliveries(batch: Any) -> list[tuple[Any, list[Any]]] | None:
 
 __all__ = [
     "Malformed",
-    "batched_deliveries",
     "attachment",
+    "batched_deliveries",
     "decode",
     "encode",
     "now_ns",

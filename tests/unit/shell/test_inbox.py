@@ -159,7 +159,7 @@ def test_a_packet_a_batch_carries_once_is_each_receivers_and_decoded_once() -> N
             phase="state",
             packets=[],
             lost=[],
-        )  # fmt: skip
+        )
         for r in (1, 2, 3)
     ]
     key = keys.inbox_pool(RUN, 1, "state")
