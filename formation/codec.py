@@ -69,26 +69,56 @@ class Malformed:
         model: type[BaseModel],
         key_of: Callable[[DeliveredPacket], str],
         belongs: Callable[[DeliveredPacket, Any], bool],
+        memo: dict[int, tuple[DeliveredPacket, Any]] | None = None,
     ) -> Iterator[tuple[DeliveredPacket, Any]]:
         """The payloads of a delivery's packets with ``model``'s fields (as :meth:`read`),
         lazily. One that fails validation, or that ``belongs`` says its link cannot carry, is
-        counted on its link's key (``key_of``, built only then) and skipped."""
+        counted on its link's key (``key_of``, built only then) and skipped. ``memo``: packet
+        objects already decoded (a pool's batch shares one among its receivers), and theirs."""
         for p in packets:
-            msg = plain_of(model, p.message)
-            if msg is None:
-                try:
-                    msg = model.model_validate_json(p.message)
-                except (ValidationError, ValueError, UnicodeDecodeError):
-                    msg = None
+            known = memo.get(id(p)) if memo is not None else None
+            if known is not None and known[0] is p:  # the entry keeps p: its id is not reused
+                msg = known[1]
+            else:
+                msg = _payload(model, p.message)
+                if memo is not None:
+                    memo[id(p)] = (p, msg)
             if msg is not None and belongs(p, msg):
                 yield p, msg
             else:
                 self.counts[key_of(p)] += 1
 
 
+def _payload(model: type[BaseModel], message: str) -> Any:
+    msg = plain_of(model, message)
+    if msg is None:
+        try:
+            msg = model.model_validate_json(message)
+        except (ValidationError, ValueError, UnicodeDecodeError):
+            return None
+    return msg
+
+
+def batched_deliveries(batch: Any) -> list[tuple[Any, list[Any]]] | None:
+    """A :class:`~formation.messages.DeliveryBatch`'s deliveries (its fields), each with its
+    packets from the batch's table; a malformed one (packets of its own, an index outside
+    the table) is left out. None when its columns ``deliveries`` and ``carried`` differ in
+    length (no delivery's packets can be told)."""
+    table, deliveries, carried = batch.packets, batch.deliveries, batch.carried
+    if len(carried) != len(deliveries):
+        return None
+    size, out = len(table), []
+    for d, ids in zip(deliveries, carried, strict=True):
+        if d.packets or (ids and (min(ids) < 0 or max(ids) >= size)):
+            continue
+        out.append((d, [table[i] for i in ids]))
+    return out
+
+
 __all__ = [
     "Malformed",
     "attachment",
+    "batched_deliveries",
     "decode",
     "encode",
     "now_ns",

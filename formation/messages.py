@@ -169,13 +169,19 @@ class Delivery(_Message):
 
 class DeliveryBatch(_Message):
     """netem to a pool process (lockstep): the pool's receivers' deliveries of ``phase`` and
-    ``epoch``, each as it would go alone, in one message (``pool``: the pool's first agent).
+    ``epoch`` in one message (``pool``: the pool's first agent).
+
+    A packet goes to several of a pool's receivers, so each distinct one is in ``packets``
+    once: ``deliveries[k]``'s packets are ``packets[i]`` for ``i`` in ``carried[k]`` (its own
+    ``packets`` empty); otherwise each delivery is as it would go alone.
     """
 
     kind: Literal["delivery_batch"] = "delivery_batch"
     pool: int
     phase: Literal["state", "report", "estimate"]
+    packets: list[DeliveredPacket]
     deliveries: list[Delivery]
+    carried: list[list[int]]
 
 
 class Judgement(BaseModel):

@@ -4,6 +4,8 @@
 
 from __future__ import annotations
 
+from orjson import dumps
+
 from formation import keys
 from formation.codec import now_ns
 from formation.keys import LEADER_ENDPOINT
@@ -23,9 +25,9 @@ class ZenohOutbox:
     decision records on ``netem/decision``.
 
     A pool process that declared its agents (:meth:`declare_pool`) gets their deliveries
-    batched: each is kept as it would go alone until every agent of the pool has its
-    delivery of that phase and epoch, then all go as one
-    :class:`~formation.messages.DeliveryBatch`. A pool's agents live and die together (one
+    batched: each is kept until every agent of the pool has its delivery of that phase and
+    epoch, then all go as one :class:`~formation.messages.DeliveryBatch`, each distinct
+    packet in it once (most go to several of the pool's agents). A pool's agents live and die together (one
     process; scenario events need one process per agent), so its receivers close an epoch
     together; whatever is kept longer (a pool that died mid-epoch) goes out at the node's
     next flush (:meth:`flush_pools`).
@@ -41,8 +43,8 @@ class ZenohOutbox:
         self._size: dict[int, int] = {}  # pool → its agents
         # (pool, phase) → key, publisher, the batch's fields before its deliveries
         self._pools: dict[tuple[int, Phase], tuple[str, Publisher, bytes]] = {}
-        # (pool, phase, epoch) → deliveries kept, and how many of the epoch came in all
-        self._kept: dict[tuple[int, Phase, int], tuple[list[bytes], list[int]]] = {}
+        # (pool, phase, epoch) → the deliveries kept for its batch
+        self._kept: dict[tuple[int, Phase, int], _PoolBatch] = {}
         self._stale: set[tuple[int, Phase, int]] = set()  # kept at the last flush
 
     def declare(self, agents: list[int]) -> None:
@@ -96,28 +98,30 @@ class ZenohOutbox:
         at = (pool, phase, epoch)
         kept = self._kept.get(at)
         if kept is None:
-            kept = self._kept[at] = ([], [0])
-        kept[0].append(delivery_of(fields, packets, lost, dead))
-        kept[1][0] += 1
-        if kept[1][0] >= self._size[pool]:  # the pool's every agent: its batch goes
+            kept = self._kept[at] = _PoolBatch()
+        kept.add(delivery_of(fields, (), lost, dead), packets)
+        if kept.came >= self._size[pool]:  # the pool's every agent: its batch goes
             del self._kept[at]
-            self._publish(pool, phase, epoch, kept[0])
+            self._publish(pool, phase, epoch, kept)
 
     def flush_pools(self) -> None:
         """Send a pool the deliveries kept for it since the last flush or before (one batch
         per phase and epoch, as far as they came): a batch under way is left to complete."""
         for at in self._stale & self._kept.keys():
-            batch = self._kept[at][0]
-            if batch:
-                self._publish(*at, batch[:])
+            batch = self._kept[at]
+            if batch.deliveries:
+                self._publish(*at, batch)
                 batch.clear()
         self._stale = set(self._kept)
 
-    def _publish(self, pool: int, phase: Phase, epoch: int, batch: list[bytes]) -> None:
+    def _publish(self, pool: int, phase: Phase, epoch: int, batch: _PoolBatch) -> None:
         service = self.service
         key, pub, head = self._pools[(pool, phase)]
         fields = head % (service.next_seq(key), epoch, now_ns())
-        pub.put(b'%s,"deliveries":[%s]}' % (fields, b",".join(batch)))
+        pub.put(
+            b'%s,"packets":[%s],"deliveries":[%s],"carried":%s}'
+            % (fields, b",".join(batch.table), b",".join(batch.deliveries), dumps(batch.carried))
+        )
         service.sent[key] += 1
 
     def records(self, phase: Phase, epoch: int, records: list[Record]) -> None:
@@ -127,3 +131,33 @@ class ZenohOutbox:
     def record_batch(self, phase: Phase, last_epoch: int, body: bytes) -> None:
         key = self._decision_key
         self.service.put(key, decision_batch_of(self.service.header(key, last_epoch), body))
+
+
+class _PoolBatch:
+    """A pool's batch of one phase and epoch as it fills: each distinct packet once in
+    ``table`` (a packet is the same bytes object for all its receivers: hashed once), each
+    delivery without its packets and, in ``carried``, their indices in the table."""
+
+    __slots__ = ("came", "carried", "deliveries", "table")
+
+    def __init__(self) -> None:
+        self.table: dict[bytes, int] = {}  # packet → its index (in insertion order)
+        self.deliveries: list[bytes] = []
+        self.carried: list[list[int]] = []
+        self.came = 0  # the pool's deliveries of the epoch, those already sent too
+
+    def add(self, delivery: bytes, packets: list[bytes]) -> None:
+        table = self.table
+        ids = []
+        for p in packets:
+            i = table.get(p)
+            if i is None:
+                i = table[p] = len(table)
+            ids.append(i)
+        self.deliveries.append(delivery)
+        self.carried.append(ids)
+        self.came += 1
+
+    def clear(self) -> None:
+        """Sent: what comes next is a batch of its own (``came`` goes on counting)."""
+        self.table, self.deliveries, self.carried = {}, [], []

@@ -6,7 +6,8 @@ line, ``got = yield from inbox.take(phase, epoch)``; its time policy chose the f
 
 - :class:`LockstepInbox`: netem's delivery of ``(receiver, phase, epoch)`` closes the phase;
   the phase's inputs are its packets. A pool's deliveries may come batched
-  (:class:`~formation.messages.DeliveryBatch`), each filed as if it came alone.
+  (:class:`~formation.messages.DeliveryBatch`), each filed as if it came alone; a packet
+  the batch carries once is decoded once for all its receivers.
 - :class:`RealtimeInbox`: what netem forwarded, filed by epoch; the phase ends at its
   deadline, or once every receiver has a packet from ``expect`` senders. A packet of an
   epoch already taken missed its deadline: counted by cause (:mod:`formation.deadlines`),
@@ -31,6 +32,7 @@ from typing import Any, Protocol
 from pydantic import BaseModel
 
 from formation import keys
+from formation.codec import batched_deliveries
 from formation.deadlines import PHASES, USED_KEPT, cause
 from formation.messages import (
     AgentEstimate,
@@ -133,9 +135,10 @@ class _Receivers:
         for kind in KINDS.values():
             decoder_of(kind.model)
 
-    def _deliveries(self, msg: Incoming) -> list[Any]:
+    def _deliveries(self, msg: Incoming) -> list[tuple[Any, list[Any]]]:
         """netem's deliveries in ``msg`` (their fields, :meth:`~formation.codec.Malformed.read`)
-        that are for these receivers on their own key: one, or a pool's batch of them."""
+        that are for these receivers on their own key, each with its packets: one, or a pool's
+        batch of them."""
         if keys.parse(msg.key).kind == "inbox_pool":
             return self._batch(msg)
         delivery = self.service.malformed.read(msg.key, msg.payload, Delivery)
@@ -145,32 +148,39 @@ class _Receivers:
         if receiver not in self._ours or not msg.key.endswith(f"/{receiver}/{delivery.phase}"):
             self.service.malformed.counts[msg.key] += 1  # another receiver's: unusable
             return []
-        return [delivery]
+        return [(delivery, delivery.packets)]
 
-    def _batch(self, msg: Incoming) -> list[Any]:
+    def _batch(self, msg: Incoming) -> list[tuple[Any, list[Any]]]:
         """A pool's batch: its deliveries for these receivers of the batch's phase; one for
-        another receiver or phase is counted on the batch's key and skipped."""
+        another receiver or phase, or malformed, is counted on the batch's key and skipped."""
         malformed = self.service.malformed
         batch = malformed.read(msg.key, msg.payload, DeliveryBatch)
         if batch is None:
             return []
-        if not msg.key.endswith(f"/pool/{batch.pool}/{batch.phase}"):
-            malformed.counts[msg.key] += 1  # another pool's or phase's: unusable
+        unpacked = batched_deliveries(batch)
+        if unpacked is None or not msg.key.endswith(f"/pool/{batch.pool}/{batch.phase}"):
+            malformed.counts[msg.key] += 1  # another pool's or phase's, or unreadable: unusable
             return []
-        ours = [d for d in batch.deliveries if d.receiver in self._ours and d.phase == batch.phase]
+        ours = [x for x in unpacked if x[0].receiver in self._ours and x[0].phase == batch.phase]
         if len(ours) < len(batch.deliveries):
             malformed.counts[msg.key] += len(batch.deliveries) - len(ours)
         return ours
 
     def _decode(
-        self, kind: Kind, receiver: int, packets: Iterable[DeliveredPacket]
+        self,
+        kind: Kind,
+        receiver: int,
+        packets: Iterable[DeliveredPacket],
+        memo: dict[int, tuple[DeliveredPacket, Any]] | None = None,
     ) -> Iterator[tuple[DeliveredPacket, Any]]:
-        """The valid payloads; a malformed one is counted on its link's key and lost."""
+        """The valid payloads; a malformed one is counted on its link's key and lost.
+        ``memo``: the packets decoded for other receivers, shared among them."""
         return self.service.malformed.decode_packets(
             packets,
             kind.model,
             partial(kind.link, self.run_id, receiver),
             partial(kind.belongs, receiver),
+            memo,
         )
 
 
@@ -181,17 +191,18 @@ class LockstepInbox(_Receivers):
         self, service: Service, receivers: Iterable[int], counts: MutableMapping[str, int]
     ) -> None:
         super().__init__(service, receivers, counts)
-        self.deliveries: dict[tuple[int, str, int], Any] = {}  # Delivery's fields
+        # (receiver, phase, epoch) → a Delivery's fields and its packets
+        self.deliveries: dict[tuple[int, str, int], tuple[Any, list[Any]]] = {}
         self.floor: dict[str, int] = {}  # phase → the first epoch not yet taken
         self.current: tuple[str, int] | None = None  # the phase and epoch waited for
         self.waiting: set[int] = set()  # its receivers without their delivery yet
 
     def route(self, msg: Incoming) -> None:
-        for delivery in self._deliveries(msg):
+        for delivery, packets in self._deliveries(msg):
             if delivery.epoch < self.floor.get(delivery.phase, 0):
                 continue  # a copy of one already used
             receiver, phase = delivery.receiver, delivery.phase
-            self.deliveries[(receiver, phase, delivery.epoch)] = delivery
+            self.deliveries[(receiver, phase, delivery.epoch)] = (delivery, packets)
             # only the receiver a delivery is for can become ready: a pool of hundreds checks one
             if self.current == (phase, delivery.epoch):
                 self.waiting.discard(receiver)
@@ -206,10 +217,11 @@ class LockstepInbox(_Receivers):
         self.current, self.floor[phase] = None, epoch + 1
         kind = KINDS[phase]
         got: Inputs = {}
+        memo: dict[int, tuple[DeliveredPacket, Any]] = {}
         for r in self.receivers:
-            packets = self.deliveries.pop((r, phase, epoch)).packets
+            packets = self.deliveries.pop((r, phase, epoch))[1]
             current = packets if kind.delayed else [p for p in packets if p.sent_epoch == epoch]
-            got[r] = self._decode(kind, r, current)
+            got[r] = self._decode(kind, r, current, memo)
         return got
 
 
@@ -241,16 +253,16 @@ class RealtimeInbox(_Receivers):
         return clock
 
     def route(self, msg: Incoming) -> None:
-        for delivery in self._deliveries(msg):
-            self._file(delivery, msg.arrived_ns)
+        for delivery, packets in self._deliveries(msg):
+            self._file(delivery, packets, msg.arrived_ns)
 
-    def _file(self, delivery: Any, arrived_ns: int) -> None:
+    def _file(self, delivery: Any, packets: list[Any], arrived_ns: int) -> None:
         phase, r = delivery.phase, delivery.receiver
         kind = KINDS[phase]
         box = self.filed.setdefault(phase, {}).setdefault(r, {})
         senders = self.senders.setdefault(phase, {})
         taken = self.taken.get(phase, -1)
-        for p, payload in self._decode(kind, r, delivery.packets):
+        for p, payload in self._decode(kind, r, packets):
             epoch = kind.epoch(p, payload)
             if epoch > taken:
                 box[kind.key(p, payload)] = (epoch, p, payload)

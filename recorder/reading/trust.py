@@ -334,16 +334,29 @@ class Gate:
             self._endpoint(p.source)
 
     def _delivery_batch(self, msg: DeliveryBatch, args: Args) -> None:
-        """A pool's deliveries: on its pool's and phase's key, each one as if it came alone."""
+        """A pool's deliveries: on its pool's and phase's key, each one with its packets from the
+        batch's table as if it came alone."""
         self._sender(msg, "netem")
         pool = self._key_id(args[0])
         if msg.pool != pool or msg.phase != args[1]:
             raise Skip(FORGED, f"a batch for pool {msg.pool}/{msg.phase} on {args[0]}/{args[1]}")
         self._agent(pool)
         self._epoch(msg.epoch, self._last_decided())
-        for d in msg.deliveries:
+        if len(msg.carried) != len(msg.deliveries):
+            raise Skip(INVALID, f"{len(msg.deliveries)} deliveries, {len(msg.carried)} carried")
+        for p in msg.packets:
+            self._endpoint(p.source)
+        size = len(msg.packets)
+        for d, ids in zip(msg.deliveries, msg.carried, strict=True):
             if d.receiver < pool:  # a pool is named by its first agent
                 raise Skip(FORGED, f"a delivery for {d.receiver} in pool {pool}'s batch")
+            if d.packets:
+                raise Skip(INVALID, f"the delivery for {d.receiver} has packets of its own")
+            if ids and (min(ids) < 0 or max(ids) >= size):
+                raise Skip(
+                    OUT_OF_RANGE,
+                    f"the delivery for {d.receiver} carries {ids}; the batch has {size} packets",
+                )
             self._delivery(d, (str(d.receiver), msg.phase))
 
     def _decision(self, msg: DecisionBatch, args: Args) -> None:

@@ -142,7 +142,9 @@ def test_a_declared_pools_states_go_on_each_agents_out_links_as_if_each_came_alo
         got.append(Delivery.model_validate_json(sample.payload.to_bytes()))
 
     def on_batch(sample: Sample) -> None:
-        got.extend(DeliveryBatch.model_validate_json(sample.payload.to_bytes()).deliveries)
+        batch = DeliveryBatch.model_validate_json(sample.payload.to_bytes())
+        for d, ids in zip(batch.deliveries, batch.carried, strict=True):
+            got.append(d.model_copy(update={"packets": [batch.packets[i] for i in ids]}))
 
     bus.declare_subscriber(keys.inbox(RUN, "*", "state"), on_delivery)
     bus.declare_subscriber(keys.inbox_pool(RUN, "*", "state"), on_batch)

@@ -70,9 +70,14 @@ def test_a_pools_deliveries_go_as_one_batch_once_each_agent_has_its_own() -> Non
     (batch,) = rig.batches
     assert (batch.pool, batch.phase, batch.epoch, batch.sender) == (1, "state", 0, "netem")
     assert sorted(d.receiver for d in batch.deliveries) == [1, 2, 3]
-    for d in batch.deliveries:  # each as it would go alone: its own key's seq, every packet
-        assert (d.phase, d.epoch, d.seq, d.lost, d.dead) == ("state", 0, 0, [], [])
-        assert sorted(p.source for p in d.packets) == rig.senders[d.receiver - 1]
+    for d, ids in zip(batch.deliveries, batch.carried, strict=True):
+        # each as it would go alone: its own key's seq, every packet (from the batch's table)
+        assert (d.phase, d.epoch, d.seq, d.lost, d.dead, d.packets) == ("state", 0, 0, [], [], [])
+        assert sorted(batch.packets[i].source for i in ids) == rig.senders[d.receiver - 1]
+    # each distinct packet once, though several of the pool's agents get it
+    in_pool = {s for r in (1, 2, 3) for s in rig.senders[r - 1]}
+    assert sorted(p.source for p in batch.packets) == sorted(in_pool)
+    assert sum(len(ids) for ids in batch.carried) > len(in_pool)
 
 
 def test_what_a_stopped_pool_left_goes_out_at_the_second_flush() -> None:

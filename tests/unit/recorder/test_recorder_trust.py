@@ -154,14 +154,24 @@ def test_a_pools_batch_is_checked_as_its_deliveries_and_may_come_several_times(
     gate = Gate(paper)
     key = keys.inbox_pool("r", 2, "state")
 
-    def batch(pool: int = 2, receivers: tuple[int, ...] = (2, 3), sender: str = "netem") -> bytes:
+    def batch(
+        pool: int = 2,
+        receivers: tuple[int, ...] = (2, 3),
+        sender: str = "netem",
+        sources: tuple[int, ...] = (1, 4),
+        carried: list[list[int]] | None = None,
+        own: bool = False,
+    ) -> bytes:
+        table = [DeliveredPacket(source=s, seq=3, sent_epoch=3, message="{}") for s in sources]
         deliveries = [
             Delivery(run_id="r", sender="netem", seq=0, epoch=3, stamp_ns=1, receiver=r,
-                     phase="state", packets=[], lost=[])
+                     phase="state", packets=table[:1] if own else [], lost=[])
             for r in receivers
         ]  # fmt: skip
+        carried = [[0, 1]] * len(receivers) if carried is None else carried
         return encode(DeliveryBatch(run_id="r", sender=sender, seq=0, epoch=3, stamp_ns=1,
-                                    pool=pool, phase="state", deliveries=deliveries))  # fmt: skip
+                                    pool=pool, phase="state", packets=table,
+                                    deliveries=deliveries, carried=carried))  # fmt: skip
 
     assert gate.check(key, batch()) is not None
     assert gate.check(key, batch(receivers=(4,))) is not None  # netem's second batch of the epoch
@@ -171,6 +181,12 @@ def test_a_pools_batch_is_checked_as_its_deliveries_and_may_come_several_times(
     assert gate.check(key, batch(sender="agent/2")) is None
     assert gate.check(key, b'{"kind": "delivery_batch"}') is None
     assert gate.skipped.by_reason() == {FORGED: 3, OUT_OF_RANGE: 1, INVALID: 1}
+    assert gate.check(key, batch(sources=(1, 99))) is None  # a packet from no agent
+    assert gate.check(key, batch(carried=[[0, 2], [1]])) is None  # an index past the table
+    assert gate.check(key, batch(carried=[[-1], [1]])) is None
+    assert gate.check(key, batch(carried=[[0]])) is None  # a column shorter than the other
+    assert gate.check(key, batch(own=True)) is None  # packets outside the table
+    assert gate.skipped.by_reason() == {FORGED: 3, OUT_OF_RANGE: 4, INVALID: 3}
 
 
 def test_the_leaders_bundle_is_checked_part_by_part(paper: Any) -> None:

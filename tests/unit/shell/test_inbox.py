@@ -9,7 +9,13 @@ from collections import Counter
 
 from formation import keys
 from formation.deadlines import CAUSES
-from formation.messages import AgentEstimate, DeliveredPacket, Delivery, DeliveryBatch
+from formation.messages import (
+    AgentEstimate,
+    CoordinationState,
+    DeliveredPacket,
+    Delivery,
+    DeliveryBatch,
+)
 from formation.realtime import ESTIMATE_DEADLINE, Clock
 from shell import Incoming, Lockstep, MemoryBus, Realtime, Service
 from shell.inbox import Inputs, Take
@@ -78,13 +84,34 @@ def test_realtime_counts_a_late_packet_by_cause_and_not_a_copy_of_one_used() -> 
     assert sum(counts[c] for c in CAUSES) == 1
 
 
-def _batch(netem: Service, pool: int, receivers: list[int], phase: str = "estimate") -> bytes:
-    """A pool's batch of estimate deliveries of epoch 0 (``phase``: the batch's own)."""
-    deliveries = [
+def _batch(
+    netem: Service,
+    pool: int,
+    receivers: list[int],
+    phase: str = "estimate",
+    carried: list[list[int]] | None = None,
+) -> bytes:
+    """A pool's batch of estimate deliveries of epoch 0, each packet in its table (``phase``:
+    the batch's own; ``carried``: the deliveries' indices, if not the table's in order)."""
+    alone = [
         Delivery.model_validate_json(_delivery(netem, 0, receiver=r).payload) for r in receivers
     ]
+    table = [p for d in alone for p in d.packets]
+    return _batch_of(netem, pool, phase, table, alone, carried or [[i] for i in range(len(alone))])
+
+
+def _batch_of(
+    netem: Service,
+    pool: int,
+    phase: str,
+    table: list[DeliveredPacket],
+    alone: list[Delivery],
+    carried: list[list[int]],
+) -> bytes:
+    deliveries = [d.model_copy(update={"packets": []}) for d in alone]
     return DeliveryBatch(**netem.header(keys.inbox_pool(RUN, pool, phase), 0), pool=pool,
-                         phase=phase, deliveries=deliveries).model_dump_json().encode()  # fmt: skip
+                         phase=phase, packets=table, deliveries=deliveries,
+                         carried=carried).model_dump_json().encode()  # fmt: skip
 
 
 def test_lockstep_files_each_delivery_of_a_pools_batch() -> None:
@@ -114,3 +141,59 @@ def test_a_forged_or_malformed_batch_is_counted_and_skipped() -> None:
     assert svc.malformed.counts[key] == 4 and not wait.complete()
     inbox.route(Incoming(key, _batch(netem, 1, [2]), None, 0))
     assert wait.complete()
+
+
+def test_a_packet_a_batch_carries_once_is_each_receivers_and_decoded_once() -> None:
+    netem, svc = _services()
+    inbox = Lockstep().inbox(svc, [1, 2, 3], Counter())
+    take = inbox.take("state", 0)
+    wait = next(take)
+    state = CoordinationState(**netem.header(keys.agent_state(RUN, 4), 0), agent=4,
+                              position=[0.0, 1.0], velocity=[0.0, 0.0])  # fmt: skip
+    good = DeliveredPacket(source=4, seq=0, sent_epoch=0, message=state.model_dump_json())
+    bad = DeliveredPacket(source=5, seq=0, sent_epoch=0, message='{"kind": "agent_state"}')
+    alone = [
+        Delivery(
+            **netem.header(keys.inbox(RUN, r, "state"), 0),
+            receiver=r,
+            phase="state",
+            packets=[],
+            lost=[],
+        )
+        for r in (1, 2, 3)
+    ]
+    key = keys.inbox_pool(RUN, 1, "state")
+    batch = _batch_of(netem, 1, "state", [good, bad], alone, [[0, 1], [0], [1, 0]])
+    inbox.route(Incoming(key, batch, None, 0))
+    assert wait.complete()
+    got = {r: list(inputs) for r, inputs in _finish(take).items()}
+    assert {r: [m.agent for _, m in got[r]] for r in got} == {1: [4], 2: [4], 3: [4]}
+    assert got[1][0][1] is got[2][0][1] is got[3][0][1]  # one decoding for the three
+    # the malformed one counted on each link that carried it, as if it came alone
+    assert svc.malformed.counts == Counter(
+        {keys.link_state(RUN, 5, 1): 1, keys.link_state(RUN, 5, 3): 1}
+    )
+
+
+def test_a_batch_whose_columns_or_indices_do_not_fit_its_table_is_counted_and_skipped() -> None:
+    netem, svc = _services()
+    inbox = Lockstep().inbox(svc, [1, 2], Counter())
+    take = inbox.take("estimate", 0)
+    wait = next(take)
+    key = keys.inbox_pool(RUN, 1, "estimate")
+    inbox.route(Incoming(key, _batch(netem, 1, [1, 2], carried=[[0]]), None, 0))  # unequal
+    assert svc.malformed.counts[key] == 1 and not inbox.deliveries  # nothing filed
+    inbox.route(Incoming(key, _batch(netem, 1, [1, 2], carried=[[0], [2]]), None, 0))
+    inbox.route(Incoming(key, _batch(netem, 1, [1, 2], carried=[[0], [-1]]), None, 0))
+    assert svc.malformed.counts[key] == 3  # an index past the table, a negative one
+    assert not wait.complete()  # 1's delivery is in; 2's never was whole
+    alone = Delivery.model_validate_json(_delivery(netem, 0, receiver=2).payload)
+    own = DeliveryBatch.model_validate_json(_batch(netem, 1, [2])).model_copy(
+        update={"deliveries": [alone]}  # its packet in the table and its own too
+    )
+    inbox.route(Incoming(key, own.model_dump_json().encode(), None, 0))
+    assert svc.malformed.counts[key] == 4 and not wait.complete()
+    inbox.route(Incoming(key, _batch(netem, 1, [2]), None, 0))
+    assert wait.complete()
+    got = _finish(take)
+    assert {r: [est.agent for _, est in got[r]] for r in got} == {1: [1], 2: [2]}
