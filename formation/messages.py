@@ -173,15 +173,16 @@ class DeliveryBatch(_Message):
 
     A packet goes to several of a pool's receivers, so each distinct one is in ``packets``
     once: ``deliveries[k]``'s packets are ``packets[i]`` for ``i`` in ``carried[k]`` (its own
-    ``packets`` empty); otherwise each delivery is as it would go alone.
+    ``packets`` empty). A batch without ``packets`` and ``carried`` (as recorded before the
+    table) holds each delivery as it would go alone.
     """
 
     kind: Literal["delivery_batch"] = "delivery_batch"
     pool: int
     phase: Literal["state", "report", "estimate"]
-    packets: list[DeliveredPacket]
+    packets: list[DeliveredPacket] = Field(default_factory=list)
     deliveries: list[Delivery]
-    carried: list[list[int]]
+    carried: list[list[int]] = Field(default_factory=list)
 
 
 class Judgement(BaseModel):

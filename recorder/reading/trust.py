@@ -342,14 +342,16 @@ class Gate:
             raise Skip(FORGED, f"a batch for pool {msg.pool}/{msg.phase} on {args[0]}/{args[1]}")
         self._agent(pool)
         self._epoch(msg.epoch, self._last_decided())
+        if not msg.packets and not msg.carried:  # recorded before the table: each as alone
+            for d in msg.deliveries:
+                self._batched(d, pool, msg.phase)
+            return
         if len(msg.carried) != len(msg.deliveries):
             raise Skip(INVALID, f"{len(msg.deliveries)} deliveries, {len(msg.carried)} carried")
         for p in msg.packets:
             self._endpoint(p.source)
         size = len(msg.packets)
         for d, ids in zip(msg.deliveries, msg.carried, strict=True):
-            if d.receiver < pool:  # a pool is named by its first agent
-                raise Skip(FORGED, f"a delivery for {d.receiver} in pool {pool}'s batch")
             if d.packets:
                 raise Skip(INVALID, f"the delivery for {d.receiver} has packets of its own")
             if ids and (min(ids) < 0 or max(ids) >= size):
@@ -357,7 +359,13 @@ class Gate:
                     OUT_OF_RANGE,
                     f"the delivery for {d.receiver} carries {ids}; the batch has {size} packets",
                 )
-            self._delivery(d, (str(d.receiver), msg.phase))
+            self._batched(d, pool, msg.phase)
+
+    def _batched(self, d: Delivery, pool: int, phase: str) -> None:
+        """One delivery of pool ``pool``'s batch, as if it came alone on its receiver's key."""
+        if d.receiver < pool:  # a pool is named by its first agent
+            raise Skip(FORGED, f"a delivery for {d.receiver} in pool {pool}'s batch")
+        self._delivery(d, (str(d.receiver), phase))
 
     def _decision(self, msg: DecisionBatch, args: Args) -> None:
         self._sender(msg, "netem")

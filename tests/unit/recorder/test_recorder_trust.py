@@ -189,6 +189,26 @@ def test_a_pools_batch_is_checked_as_its_deliveries_and_may_come_several_times(
     assert gate.skipped.by_reason() == {FORGED: 3, OUT_OF_RANGE: 4, INVALID: 3}
 
 
+def test_a_pools_batch_recorded_before_its_packet_table_is_read_as_its_deliveries(
+    paper: Any,
+) -> None:
+    gate = Gate(paper)
+    key = keys.inbox_pool("r", 2, "state")
+
+    def batch(receiver: int) -> bytes:
+        packet = DeliveredPacket(source=1, seq=3, sent_epoch=3, message="{}")
+        delivery = Delivery(run_id="r", sender="netem", seq=0, epoch=3, stamp_ns=1,
+                            receiver=receiver, phase="state", packets=[packet], lost=[])  # fmt: skip
+        body = DeliveryBatch(run_id="r", sender="netem", seq=0, epoch=3, stamp_ns=1, pool=2,
+                             phase="state", deliveries=[delivery]).model_dump()  # fmt: skip
+        del body["packets"], body["carried"]
+        return json.dumps(body).encode()
+
+    assert gate.check(key, batch(2)) is not None
+    assert gate.check(key, batch(1)) is None  # an agent before the pool's first
+    assert gate.skipped.by_reason() == {FORGED: 1}
+
+
 def test_the_leaders_bundle_is_checked_part_by_part(paper: Any) -> None:
     gate = Gate(paper)
     key = keys.leader_estimates("r")
