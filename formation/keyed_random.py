@@ -8,6 +8,7 @@ key words, vectorised with numpy so whole schedules are drawn at once.
 
 from __future__ import annotations
 
+import math
 from enum import IntEnum
 
 import numpy as np
@@ -52,12 +53,23 @@ def _mix_int(z: int) -> int:
     return z ^ (z >> 31)
 
 
+COMPILED_FROM = 1 << 18
+"""Hashes in one chaining step (the keys broadcast) from which it runs compiled (:mod:`formation.compiled_keyed`):
+the same bits, a pass over the keys instead of a dozen."""
+
+
 def _chain(h: int | npt.NDArray[np.uint64], key: KeyLike) -> int | npt.NDArray[np.uint64]:
     """The hash state after one more key word: ``mix(h + G + mix(key + G))``."""
     if isinstance(h, int) and isinstance(key, (int, np.integer)):
         return _mix_int((h + _G + _mix_int((int(key) + _G) & _M64)) & _M64)
     a = np.asarray(key, dtype=np.int64).astype(np.uint64)
     state = np.uint64(h) if isinstance(h, int) else h
+    if math.prod(np.broadcast_shapes(a.shape, np.shape(state))) >= COMPILED_FROM:
+        # numba loads in about a second: only for draws this large (the simulator's plan,
+        # not an agent process's block of noise)
+        from formation.compiled_keyed import chain
+
+        return np.asarray(chain(state, a))
     with np.errstate(over="ignore"):
         return _mix(state + _GOLDEN + _mix(a + _GOLDEN))
 
