@@ -6,11 +6,12 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
-from formation.compiled_keyed import chain
+from formation.compiled_keyed import chain, uniform_after
 from formation.keyed_random import (
     _GOLDEN,
     COMPILED_FROM,
     _mix,
+    _uniform,
     keyed_bits,
     keyed_normal_vector,
     keyed_uniform,
@@ -55,6 +56,7 @@ def test_the_compiled_chain_gives_numpys_bits(states: list[int], keys: list[int]
     with np.errstate(over="ignore"):
         numpy_bits = _mix(h + _GOLDEN + _mix(key.astype(np.uint64) + _GOLDEN))
     assert np.array_equal(chain(h, key.astype(np.uint64)), numpy_bits)
+    assert np.array_equal(uniform_after(h, key.astype(np.uint64)), _uniform(numpy_bits))
 
 
 def test_draws_past_the_compiled_size_are_the_same_bits() -> None:
@@ -63,3 +65,5 @@ def test_draws_past_the_compiled_size_are_the_same_bits() -> None:
     large = keyed_uniform(7, 1, links, 3, epochs)  # one step past the size: compiled
     assert np.array_equal(large[5], keyed_uniform(7, 1, links[5], 3, epochs)[0])
     assert np.array_equal(large[-1], keyed_uniform(7, 1, links[-1], 3, epochs)[0])
+    normal = keyed_normal_vector(3, 7, links, epochs)  # (links, 64, 3): compiled
+    assert np.array_equal(normal[9], keyed_normal_vector(3, 7, links[9], epochs)[0])
