@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
-from agent.measurement import NoiseKeys, measurement_noise
+from agent.measurement import NoiseKeys, _correlate, measurement_noise
 
 
 @given(
@@ -53,3 +53,17 @@ def test_noise_of_a_noiseless_scenario_is_zero() -> None:
     keys = NoiseKeys(1, np.array([1, 2]), np.array([2, 1]))
     zero = np.zeros((2, 2))
     assert not np.any(measurement_noise(zero, 1, np.array([1, 2]), np.array([2, 1]), 5, keys))
+
+
+def test_zero_factors_skipped_leave_every_bit_of_the_full_sum() -> None:
+    """``L·std`` summed over every column of the Cholesky factor, zeros included, from +0.0:
+    the noise skips the zero factors and must keep those bits, signed zeros too."""
+    std = np.random.default_rng(2).standard_normal((50, 3))
+    std[0], std[1] = (-0.0, 0.0, -0.0), (1e-300, -1e-300, 5.0)
+    for cov in (np.diag([0.01, 0.02, 0.03]), np.array([[2.0, 0.5, 0], [0.5, 1, 0.1], [0, 0.1, 3]])):
+        chol = np.linalg.cholesky(cov)
+        full = np.zeros((50, 3))
+        for b in range(3):
+            full += std[:, b : b + 1] * chol[:, b]
+        got = _correlate(cov, lambda: std, (50,))
+        assert np.array_equal(got, full) and np.array_equal(np.signbit(got), np.signbit(full))
