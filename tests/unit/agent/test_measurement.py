@@ -7,6 +7,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from agent.measurement import NoiseKeys, _correlate, measurement_noise
+from formation.keyed_random import COMPILED_FROM
 
 
 @given(
@@ -67,3 +68,15 @@ def test_zero_factors_skipped_leave_every_bit_of_the_full_sum() -> None:
             full += std[:, b : b + 1] * chol[:, b]
         got = _correlate(cov, lambda: std, (50,))
         assert np.array_equal(got, full) and np.array_equal(np.signbit(got), np.signbit(full))
+
+
+def test_a_simulators_large_draw_is_an_agents_noise() -> None:
+    """The simulator draws every link's noise over many epochs at once (compiled past
+    ``COMPILED_FROM`` hashes); an agent draws its few links in numpy: the same bits."""
+    cov = np.diag([0.04, 0.09, 0.01])
+    links = np.arange(1, COMPILED_FROM // (3 * 64) + 2)
+    epochs = np.arange(64)[:, None]
+    everyone = measurement_noise(cov, 3, links[None, :] + 1, links[None, :], epochs)  # (64, L, 3)
+    few = NoiseKeys(3, links[[0, -1]] + 1, links[[0, -1]])
+    for k in (0, 63):
+        assert np.array_equal(few.noise(cov, k), everyone[k, [0, -1]])
