@@ -186,8 +186,7 @@ class Before:
         ) = self.saved
 
 
-NEVER = 1 << 62
-"""A size no draw, chain or batch reaches: the compiled paths left out."""
+NEVER = 1 << 62  # a size no draw, chain or batch reaches: the compiled paths left out
 
 
 def _pair_groups_by_unique(pair: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -198,14 +197,11 @@ def _correlate_every_factor(
     cov: np.ndarray, standard: Callable[[], np.ndarray], shape: tuple[int, ...]
 ) -> np.ndarray:
     """``L·std`` over every column of the Cholesky factor, its zeros too."""
-    d = cov.shape[0]
-    if not np.any(cov):
-        return np.zeros((*shape, d))
-    chol = np.linalg.cholesky(cov)
-    std = standard().reshape(*shape, d)
-    out = np.zeros((*shape, d))
-    for b in range(d):
-        out += std[..., b : b + 1] * chol[:, b]
+    out = np.zeros((*shape, cov.shape[0]))
+    if np.any(cov):
+        chol, std = np.linalg.cholesky(cov), standard().reshape(*out.shape)
+        for b in range(cov.shape[0]):
+            out += std[..., b : b + 1] * chol[:, b]
     return out
 
 
@@ -348,10 +344,9 @@ def exact_against_svd(sizes: tuple[int, ...], masks: int) -> None:
 
 def simulate_families(epochs: int) -> None:
     print(
-        f"formation simulate, 10,000 agents, 10 % and 50 % spare edges, 10 % loss per link, "
-        f"Bernoulli or in bursts (Gilbert-Elliott p 1/30, r 0.3), {epochs} epochs (and a "
-        "2-epoch run first), epochs per second of CPU; before and after alternate, their "
-        "positions equal to the bit"
+        f"formation simulate, 10,000 agents, 10 % and 50 % spare, 10 % loss per link, Bernoulli "
+        f"or bursty (Gilbert-Elliott p 1/30, r 0.3), {epochs} epochs (a 2-epoch run first), "
+        "epochs per second of CPU; before and after alternate, positions equal to the bit"
     )
     print(f"{'team':34} {'before /s':>9} {'after /s':>9} {'ratio':>6}")
     for family, d in teams():
