@@ -61,9 +61,11 @@ def _correlate(cov: Array, standard: Callable[[], Array], shape: tuple[int, ...]
     std = standard().reshape(*shape, d)
     # Elementwise, not a matrix product: BLAS kernels differ with batch size, and one agent
     # must get the same last bit as the whole team in the simulator.
+    # A zero factor adds ±0.0 to a sum begun at +0.0: the sum's bits unchanged, so it is skipped.
     out = np.zeros((*shape, d))
     for b in range(d):
-        out += std[..., b : b + 1] * chol[:, b]
+        for c in np.flatnonzero(chol[:, b]).tolist():
+            out[..., c] += std[..., b] * chol[c, b]
     return out
 
 

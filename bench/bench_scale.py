@@ -3,13 +3,16 @@
 Seed 1 throughout; teams from ``testbed.sim.team_generators.rigid_team`` (perturbed grid,
 vertex addition, ``redundancy`` spare edges), 10 % Bernoulli loss on every formation link,
 the tree estimator, ``hold``. The rigidity rows and ``formation simulate`` also on
-``henneberg_team`` and ``geometric_team``, in bursts of loss too, each against the paths
-as they were (``Before``: growth in rounds of numpy, its candidates all by SVD, forests
-by a Python union-find), the two alternating. Baselines measured in the same run: the load of the 2-D minimally
+``henneberg_team`` and ``geometric_team``, 10 % and 50 % spare edges, in bursts of loss
+too, each against the paths as they were (``Before``: growth in rounds of numpy, its
+candidates all by SVD, forests by a Python union-find, keyed draws and loss chains in
+numpy), the two alternating. Baselines measured in the same run: the load of the 2-D minimally
 rigid team; the simulator at 100 agents; the batched sweep at 100 agents.
 
     python -m bench.bench_scale [--quick] [--rigidity-only | --simulate-only | --exact-only]
                                 [--team henneberg-2]
+
+``--simulate-only --team rigid_team-3``: the 3-D ``rigid_team`` rows of ``formation simulate``.
 """
 
 from __future__ import annotations
@@ -32,16 +35,19 @@ from typing import Any
 import numpy as np
 
 import agent.control
+import agent.measurement
 import leader.mst
 import leader.rigidity
 import leader.tree
-from formation import rigidity_check, rigidity_growth
+from formation import keyed_random, rigidity_check, rigidity_growth
 from formation.rigidity import expected_rigidity_rank, rigidity_rank
 from formation.rigidity_check import rank_under_mask
 from formation.rigidity_growth import growth_rounds, spans_without_any
 from formation.rigidity_stiffness import pinned_stiffness_definite
 from formation.scenario import Scenario
 from leader import HealthyRigidity, Leader
+from netem.links import chains
+from netem.links.linkmodels import gilbert_elliott
 from recorder import load_run, write_report, write_report_from
 from recorder.live.scene import scene_update
 from testbed.sim.batch import run_batch
@@ -123,8 +129,9 @@ def teams() -> list[tuple[str, int]]:
 class Before:
     """The paths as they were: growth in rounds of numpy, every candidate's directions by
     SVD, half-edges sorted by 64-bit keys, the forests by a Python union-find, every covariance inverted,
-    sums per group and per agent by ``np.add.at``. Entered, it puts them back; left, it
-    restores today's."""
+    sums per group and per agent by ``np.add.at``, the fused pairs by ``np.unique``, keyed
+    draws and loss chains in numpy, the noise over every factor. Entered, it puts them
+    back; left, it restores today's."""
 
     def __enter__(self) -> None:
         self.saved = (
@@ -133,20 +140,31 @@ class Before:
             leader.rigidity.growth_rounds,
             rigidity_growth._surely_spanning,
             rigidity_growth._half_edges,
-            leader.mst._compiled_scan,
+            leader.mst._sparse_scan,
+            leader.mst.UNION_FIND_FROM,
             leader.tree._inverses,
             leader.tree._group_sums,
+            leader.tree.pair_groups,
             agent.control._per_agent,
+            agent.measurement._correlate,
+            keyed_random.COMPILED_FROM,
+            chains.COMPILED_FROM,
+            gilbert_elliott.COMPILED_FROM,
         )
         rigidity_growth.growth_rounds = rigidity_growth.reference_growth_rounds
         rigidity_check.growth_rounds = rigidity_growth.reference_growth_rounds
         leader.rigidity.growth_rounds = rigidity_growth.reference_growth_rounds
         rigidity_growth._surely_spanning = _never_sure
         rigidity_growth._half_edges = _half_edges_by_int64
-        leader.mst._compiled_scan = _union_find_forests
+        leader.mst._sparse_scan = _union_find_forests
+        leader.mst.UNION_FIND_FROM = NEVER
         leader.tree._inverses = np.linalg.inv
         leader.tree._group_sums = _group_sums_by_add_at
+        leader.tree.pair_groups = _pair_groups_by_unique
         agent.control._per_agent = _per_agent_by_add_at
+        agent.measurement._correlate = _correlate_every_factor
+        keyed_random.COMPILED_FROM = chains.COMPILED_FROM = NEVER
+        gilbert_elliott.COMPILED_FROM = NEVER
 
     def __exit__(self, *exc: object) -> None:
         (
@@ -155,11 +173,36 @@ class Before:
             leader.rigidity.growth_rounds,
             rigidity_growth._surely_spanning,
             rigidity_growth._half_edges,
-            leader.mst._compiled_scan,
+            leader.mst._sparse_scan,
+            leader.mst.UNION_FIND_FROM,
             leader.tree._inverses,
             leader.tree._group_sums,
+            leader.tree.pair_groups,
             agent.control._per_agent,
+            agent.measurement._correlate,
+            keyed_random.COMPILED_FROM,
+            chains.COMPILED_FROM,
+            gilbert_elliott.COMPILED_FROM,
         ) = self.saved
+
+
+NEVER = 1 << 62  # a size no draw, chain or batch reaches: the compiled paths left out
+
+
+def _pair_groups_by_unique(pair: np.ndarray) -> tuple[np.ndarray, ...]:
+    return tuple(np.unique(pair, return_index=True, return_inverse=True, return_counts=True))
+
+
+def _correlate_every_factor(
+    cov: np.ndarray, standard: Callable[[], np.ndarray], shape: tuple[int, ...]
+) -> np.ndarray:
+    """``L·std`` over every column of the Cholesky factor, its zeros too."""
+    out = np.zeros((*shape, cov.shape[0]))
+    if np.any(cov):
+        chol, std = np.linalg.cholesky(cov), standard().reshape(*out.shape)
+        for b in range(cov.shape[0]):
+            out += std[..., b : b + 1] * chol[:, b]
+    return out
 
 
 def _group_sums_by_add_at(group: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
@@ -301,23 +344,30 @@ def exact_against_svd(sizes: tuple[int, ...], masks: int) -> None:
 
 def simulate_families(epochs: int) -> None:
     print(
-        f"formation simulate, 10,000 agents, 10 % Bernoulli loss, 10 % spare edges, {epochs} "
-        "epochs (and a 2-epoch run first), epochs per second of CPU; before and after alternate"
+        f"formation simulate, 10,000 agents, 10 % and 50 % spare, 10 % loss per link, Bernoulli "
+        f"or bursty (Gilbert-Elliott p 1/30, r 0.3), {epochs} epochs (a 2-epoch run first), "
+        "epochs per second of CPU; before and after alternate, positions equal to the bit"
     )
-    print(f"{'team':20} {'before /s':>9} {'after /s':>9} {'ratio':>6}")
+    print(f"{'team':34} {'before /s':>9} {'after /s':>9} {'ratio':>6}")
     for family, d in teams():
-        s = family_team(family, d, 0.1, epochs)
-        simulate(s.with_overrides(epochs=2), seed=SEED)
-        rates = []
-        for path in (0, 1):
-            with Before() if path == 0 else contextlib.nullcontext():
-                start = time.process_time()
-                simulate(s, seed=SEED)
-                rates.append(epochs / (time.process_time() - start))
-        print(
-            f"{f'{family} {d}-D':20} {rates[0]:9.2f} {rates[1]:9.2f} {rates[1] / rates[0]:6.2f}",
-            flush=True,
-        )
+        for redundancy in (0.1, 0.5):
+            for loss, network in (("Bernoulli", LOSS), ("bursty", BURSTY)):
+                s = family_team(family, d, redundancy, epochs, network)
+                simulate(s.with_overrides(epochs=2), seed=SEED)
+                rates, positions = [], []
+                for path in (0, 1):
+                    with Before() if path == 0 else contextlib.nullcontext():
+                        start = time.process_time()
+                        result = simulate(s, seed=SEED)
+                        rates.append(epochs / (time.process_time() - start))
+                    positions.append(result.positions)
+                if not np.array_equal(*positions):
+                    raise SystemExit(f"{family} {d}-D: the two paths' positions differ")
+                print(
+                    f"{f'{family} {d}-D, {redundancy:.0%} spare, {loss}':34} {rates[0]:9.2f} "
+                    f"{rates[1]:9.2f} {rates[1] / rates[0]:6.2f}",
+                    flush=True,
+                )
 
 
 def simulate_rates(quick: bool) -> None:

@@ -8,6 +8,7 @@ key words, vectorised with numpy so whole schedules are drawn at once.
 
 from __future__ import annotations
 
+import math
 from enum import IntEnum
 
 import numpy as np
@@ -52,14 +53,48 @@ def _mix_int(z: int) -> int:
     return z ^ (z >> 31)
 
 
+COMPILED_FROM = 1 << 18
+"""Hashes in one chaining step (the keys broadcast) from which it runs compiled (:mod:`formation.compiled_keyed`):
+the same bits, a pass over the keys instead of a dozen."""
+
+
 def _chain(h: int | npt.NDArray[np.uint64], key: KeyLike) -> int | npt.NDArray[np.uint64]:
     """The hash state after one more key word: ``mix(h + G + mix(key + G))``."""
     if isinstance(h, int) and isinstance(key, (int, np.integer)):
         return _mix_int((h + _G + _mix_int((int(key) + _G) & _M64)) & _M64)
-    a = np.asarray(key, dtype=np.int64).astype(np.uint64)
-    state = np.uint64(h) if isinstance(h, int) else h
+    state, a = _words(h, key)
+    if _compiled(state, a):
+        from formation.compiled_keyed import chain
+
+        return np.asarray(chain(state, a))
     with np.errstate(over="ignore"):
         return _mix(state + _GOLDEN + _mix(a + _GOLDEN))
+
+
+def _uniform_after(h: int | npt.NDArray[np.uint64], key: KeyLike) -> npt.NDArray[np.float64]:
+    """``_uniform`` of the hash state after one more key word."""
+    if not (isinstance(h, int) and isinstance(key, (int, np.integer))):
+        state, a = _words(h, key)
+        if _compiled(state, a):
+            from formation.compiled_keyed import uniform_after
+
+            return np.atleast_1d(np.asarray(uniform_after(state, a), dtype=np.float64))
+    return _uniform(_as_bits(_chain(h, key)))
+
+
+def _words(
+    h: int | npt.NDArray[np.uint64], key: KeyLike
+) -> tuple[np.uint64 | npt.NDArray[np.uint64], npt.NDArray[np.uint64]]:
+    """The state and the key word as uint64, as the hash takes them."""
+    return (np.uint64(h) if isinstance(h, int) else h), np.asarray(key, dtype=np.int64).astype(
+        np.uint64
+    )
+
+
+def _compiled(state: np.uint64 | npt.NDArray[np.uint64], a: npt.NDArray[np.uint64]) -> bool:
+    """Whether a step this large runs compiled: numba loads in about a second, so only the
+    simulator's plans pay it, not an agent process's block of noise."""
+    return math.prod(np.broadcast_shapes(a.shape, np.shape(state))) >= COMPILED_FROM
 
 
 def _state(keys: tuple[KeyLike, ...]) -> int | npt.NDArray[np.uint64]:
@@ -84,7 +119,7 @@ def _uniform(bits: npt.NDArray[np.uint64]) -> npt.NDArray[np.float64]:
 
 def keyed_uniform(*keys: KeyLike) -> npt.NDArray[np.float64]:
     """Uniform draws in [0, 1), one per broadcast element of the keys."""
-    return _uniform(keyed_bits(*keys))
+    return _uniform_after(_state(keys[:-1]), keys[-1])
 
 
 def keyed_state(*keys: KeyLike) -> int | npt.NDArray[np.uint64]:
@@ -110,8 +145,8 @@ def keyed_normal(*keys: KeyLike) -> npt.NDArray[np.float64]:
 
 def _box_muller(h: int | npt.NDArray[np.uint64]) -> npt.NDArray[np.float64]:
     # h is shared by both uniforms, keyed (*keys, 0) and (*keys, 1)
-    u1 = _uniform(_as_bits(_chain(h, 0)))
-    u2 = _uniform(_as_bits(_chain(h, 1)))
+    u1 = _uniform_after(h, 0)
+    u2 = _uniform_after(h, 1)
     radius = np.sqrt(-2.0 * np.log1p(-u1))  # 1 - u1 in (0, 1]: log is finite
     return radius * np.cos(2.0 * np.pi * u2)
 

@@ -111,12 +111,14 @@ class KruskalGraph:
         of a disjoint union is the union of the members' forests, so one union-find scan
         gives each member exactly its own forest.
 
-        The scan is SciPy's compiled Kruskal (:func:`scipy.sparse.csgraph.minimum_spanning_tree`)
-        with each edge weighted by its place in the order: distinct weights have one minimum
-        forest, the one the scan in that order keeps. Many members of a small graph
-        (``m × LABEL_SWEEP_RATIO < B n``) are scanned edge by edge across the members
-        instead, with labels for the components (:func:`_label_sweep`). The same edges are
-        kept (``tests/unit/leader/test_mst.py`` holds both paths to
+        A batch of ``UNION_FIND_FROM`` nodes or more is scanned by a compiled union-find,
+        the edges in the order (:mod:`leader.compiled_forest`). A smaller one takes SciPy's
+        compiled Kruskal (:func:`scipy.sparse.csgraph.minimum_spanning_tree`) with each edge
+        weighted by its place in the order: distinct weights have one minimum forest, the
+        one the scan in that order keeps; or, many members of a small graph
+        (``m × LABEL_SWEEP_RATIO < B n``), it is scanned edge by edge across the members,
+        with labels for the components (:func:`_label_sweep`). The same edges are kept
+        (``tests/unit/leader/test_mst.py`` holds the three paths to
         :func:`minimum_spanning_forest`).
 
         Parameters
@@ -135,12 +137,30 @@ class KruskalGraph:
         size, m, count = healthy.shape[0], self.lo.size, self.n
         if healthy.shape != (size, m) or healthy.dtype != np.bool_:
             raise ShapeError("healthy", healthy.shape, f"(B, {m}) bool")
+        if size * count >= UNION_FIND_FROM:
+            return _union_find(count, self.lo, self.hi, self.order, healthy)
         if m * LABEL_SWEEP_RATIO < size * count:
             return _label_sweep(count, self.lo, self.hi, self.order, healthy)
-        return _compiled_scan(count, self.lo, self.hi, self.order, healthy)
+        return _sparse_scan(count, self.lo, self.hi, self.order, healthy)
 
 
-def _compiled_scan(
+UNION_FIND_FROM = 2048
+"""A batch of this many nodes (``B n``) or more is scanned by the compiled union-find: the
+edges in their fixed order, no sort per epoch. Smaller ones take SciPy or the label sweep
+rather than load numba (about a second) in a small leader's process."""
+
+
+def _union_find(
+    n: int, lo: IntArray, hi: IntArray, order: IntArray, healthy: BoolArray
+) -> tuple[BoolArray, IntArray]:
+    """Each member's Kruskal forest by the compiled union-find (:mod:`leader.compiled_forest`)."""
+    from leader.compiled_forest import kruskal_scan
+
+    tree, labels = kruskal_scan(n, lo, hi, order, np.ascontiguousarray(healthy))
+    return tree, labels.reshape(healthy.shape[0], n)
+
+
+def _sparse_scan(
     n: int, lo: IntArray, hi: IntArray, order: IntArray, healthy: BoolArray
 ) -> tuple[BoolArray, IntArray]:
     """Kruskal's forest of each member by SciPy, each edge weighted ``1 + its place in order``.

@@ -58,12 +58,9 @@ def fuse_parallel(
     """
     lo, hi = np.minimum(e[:, 0], e[:, 1]), np.maximum(e[:, 0], e[:, 1])
     pair = lo * n + hi
-    ordered = np.sort(pair)
-    if not np.any(ordered[1:] == ordered[:-1]):
+    keys, first, group, counts = pair_groups(pair)
+    if keys.size == pair.size:  # no pair measured twice
         return e, z, p
-    keys, first, group, counts = np.unique(
-        pair, return_index=True, return_inverse=True, return_counts=True
-    )
     rows = np.flatnonzero(counts[group] > 1)
     oriented = np.where((e[rows, 0] == lo[rows])[:, None], z[rows], -z[rows])  # x_lo − x_hi
     info = _inverses(p[rows])
@@ -78,6 +75,30 @@ def fuse_parallel(
     out_p[multi] = fused_p
     order = np.argsort(first)
     return out_e[order], out_z[order], out_p[order]
+
+
+def pair_groups(pair: IntArray) -> tuple[IntArray, IntArray, IntArray, IntArray]:
+    """``np.unique(pair, return_index=True, return_inverse=True, return_counts=True)`` of
+    non-negative keys, the same four arrays.
+
+    Each key made distinct by its row (``pair · k + row``) is one sort without the stable
+    sort's merge passes; where that could overflow, ``np.unique`` itself.
+    """
+    k = pair.size
+    if k == 0 or int(pair.max()) >= np.iinfo(np.int64).max // (2 * k):
+        out: tuple[IntArray, IntArray, IntArray, IntArray] = np.unique(
+            pair, return_index=True, return_inverse=True, return_counts=True
+        )
+        return out
+    perm = np.argsort(pair * k + np.arange(k))  # distinct keys: any sort is the stable one
+    aux = pair[perm]
+    new = np.empty(k, dtype=bool)
+    new[0] = True
+    np.not_equal(aux[1:], aux[:-1], out=new[1:])
+    group = np.empty(k, dtype=np.int64)
+    group[perm] = np.cumsum(new) - 1
+    starts = np.flatnonzero(new)
+    return aux[new], perm[new], group, np.diff(np.append(starts, k))
 
 
 def _group_sums(group: IntArray, values: FloatArray, size: int) -> FloatArray:

@@ -2,7 +2,7 @@
 
 ``run_chain`` and ``run_ar1`` step many links at once (docs/model.md §4); ``cesaro`` and
 ``ar1_uniform_cdf`` are the long-run quantities the closed forms are built from
-(docs/model.md §8). Pure numpy, no draws.
+(docs/model.md §8). Pure array work, no draws.
 """
 
 from __future__ import annotations
@@ -12,12 +12,16 @@ import math
 import numpy as np
 import numpy.typing as npt
 
+COMPILED_FROM = 1 << 18
+"""Link-epochs from which :func:`run_chain` runs compiled (:mod:`netem.links.compiled_chain`)."""
+
 
 def run_chain(table: npt.NDArray[np.int64], s0: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
     """Finite chain: ``out[:, k] = table[:, k, out[:, k-1]]`` with ``out[:, -1] = s0``.
 
     ``table`` is ``(L, n, S)``: the next state from each state at each step. One
-    link loops in Python over lists; several links loop over epochs with numpy.
+    link loops in Python over lists; several links loop over epochs with numpy, and
+    ``COMPILED_FROM`` link-epochs or more compiled, link by link.
     """
     n_links, n, _ = table.shape
     if n_links == 1:
@@ -28,6 +32,12 @@ def run_chain(table: npt.NDArray[np.int64], s0: npt.NDArray[np.int64]) -> npt.ND
             out.append(s)
         return np.asarray(out, dtype=np.int64).reshape(1, n)
     post = np.empty((n_links, n), dtype=np.int64)
+    if n_links * n >= COMPILED_FROM:
+        # numba loads in about a second: only for a simulator's many links
+        from netem.links.compiled_chain import step_chains
+
+        step_chains(table, s0.astype(np.int64), post)
+        return post
     rows = np.arange(n_links)
     s_vec = s0.astype(np.int64)
     for k in range(n):

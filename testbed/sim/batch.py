@@ -206,6 +206,7 @@ def run_batch(
     links = base.directed_links
     n_links = len(links)
     src, dst = links[:, 0], links[:, 1]
+    src0, dst0 = src - 1, dst - 1  # 0-based, once for every epoch's gathers
     ref_x = reference_positions(base.reference, d0[r - 1], base.control.period_s, n_epochs)
     ref_v = reference_velocities(ref_x, base.control.period_s)
     team = _team_links(InLinks.of(base, np.arange(1, n + 1)), size, n)
@@ -248,10 +249,11 @@ def run_batch(
         if landing is not None:
             memory = _receive_late(memory, landing, x, src, team_on, k)
         arrived = on_time[k]  # (B, L)
-        z = xk[:, dst - 1] - xk[:, src - 1] + plan.noise[plan.seed_row, k]
+        x_src = xk[:, src0]  # each sender's state, for the measurements and the agents
+        z = xk[:, dst0] - x_src + plan.noise[plan.seed_row, k]
 
         # Leader: the measurements whose report reached it → tree, BLUE, rigidity.
-        known = arrived & report_ok[k][:, dst - 1]
+        known = arrived & report_ok[k][:, dst0]
         with_cov = detail and k % base.estimator.covariance_every == 0  # as the leader's
         lead = leader.epochs(known, z, ref_x[k], covariances=with_cov)
         observable = lead.estimate.observable
@@ -260,7 +262,7 @@ def run_batch(
         got_est = estimate_ok[k] if team_on is None else estimate_ok[k] & team_on.present[k]
         v_prev = v_known.copy()
         v_known[got_est] = ref_v[k]
-        has_estimate = got_est[:, dst - 1] & observable[:, src - 1]
+        has_estimate = got_est[:, dst0] & observable[:, src0]
         # Links out of the graph leave the consensus; their memory waits for their return.
         sel = None if team_on is None else team_on.rows(k)
         links_k, memory_k, (got, received, measured, estimate, with_estimate, v_before) = _take(
@@ -269,11 +271,11 @@ def run_batch(
             memory,
             (
                 arrived.reshape(-1),
-                xk[:, src - 1].reshape(-1, d),
+                x_src.reshape(-1, d),
                 z.reshape(-1, d),
-                np.nan_to_num(lead.estimate.positions[:, src - 1]).reshape(-1, d),
+                np.nan_to_num(lead.estimate.positions[:, src0]).reshape(-1, d),
                 has_estimate.reshape(-1),
-                v_prev[:, dst - 1].reshape(-1, d),
+                v_prev[:, dst0].reshape(-1, d),
             ),
         )
         step = agent_epoch(

@@ -15,7 +15,7 @@ import numpy.typing as npt
 
 from formation.keyed_random import Stream
 from formation.linkmodels import GilbertElliott
-from netem.links.chains import run_chain
+from netem.links.chains import COMPILED_FROM, run_chain
 from netem.links.layer import Floats, Ints, Keys, Layer, LayerOutput
 
 
@@ -34,6 +34,15 @@ class GilbertElliottLayer(Layer[GilbertElliott]):
         u_move = keys.uniform(Stream.LOSS, self.kind, self.occ, epochs, 0)
         u_loss = keys.uniform(Stream.LOSS, self.kind, self.occ, epochs, 1)
         s0 = np.zeros(keys.n_links, np.int64) if carry is None else carry
+        if u_move.size >= COMPILED_FROM:  # the simulator's many links: one compiled pass
+            from netem.links.compiled_chain import gilbert_elliott_chains
+
+            entry = np.empty(u_move.shape, dtype=np.int8)
+            drop = np.empty(u_move.shape, dtype=np.bool_)
+            last = gilbert_elliott_chains(
+                u_move, u_loss, g.p, g.r, self.loss, s0.astype(np.int64), entry, drop
+            )
+            return LayerOutput(drop=drop, state=entry), last
         # next state from good (0): bad iff u < p; from bad (1): good iff u < r
         table = np.stack([u_move < g.p, u_move >= g.r], axis=-1).astype(np.int64)
         post = run_chain(table, s0)

@@ -6,7 +6,16 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
-from formation.keyed_random import keyed_bits, keyed_normal_vector, keyed_uniform
+from formation.compiled_keyed import chain, uniform_after
+from formation.keyed_random import (
+    _GOLDEN,
+    COMPILED_FROM,
+    _mix,
+    _uniform,
+    keyed_bits,
+    keyed_normal_vector,
+    keyed_uniform,
+)
 
 
 def test_draws_keep_their_values() -> None:
@@ -35,3 +44,26 @@ def test_one_element_equals_its_row_of_a_batch(seed: int, senders: list[int], ep
     for r, j in enumerate(senders):
         assert np.array_equal(keyed_normal_vector(3, seed, 3, j, epoch), batch[r])
         assert np.array_equal(keyed_bits(seed, j, epoch), keyed_bits(seed, np.array([j]), epoch))
+
+
+@given(
+    st.lists(st.integers(0, 2**64 - 1), min_size=1, max_size=8),
+    st.lists(st.integers(0, 2**63 - 1), min_size=1, max_size=8),
+)
+def test_the_compiled_chain_gives_numpys_bits(states: list[int], keys: list[int]) -> None:
+    h = np.array(states, dtype=np.uint64)[:, None]
+    key = np.array(keys, dtype=np.int64)[None, :]
+    with np.errstate(over="ignore"):
+        numpy_bits = _mix(h + _GOLDEN + _mix(key.astype(np.uint64) + _GOLDEN))
+    assert np.array_equal(chain(h, key.astype(np.uint64)), numpy_bits)
+    assert np.array_equal(uniform_after(h, key.astype(np.uint64)), _uniform(numpy_bits))
+
+
+def test_draws_past_the_compiled_size_are_the_same_bits() -> None:
+    links = np.arange(COMPILED_FROM // 64, dtype=np.int64)[:, None]
+    epochs = np.arange(64, dtype=np.int64)[None, :]
+    large = keyed_uniform(7, 1, links, 3, epochs)  # one step past the size: compiled
+    assert np.array_equal(large[5], keyed_uniform(7, 1, links[5], 3, epochs)[0])
+    assert np.array_equal(large[-1], keyed_uniform(7, 1, links[-1], 3, epochs)[0])
+    normal = keyed_normal_vector(3, 7, links, epochs)  # (links, 64, 3): compiled
+    assert np.array_equal(normal[9], keyed_normal_vector(3, 7, links[9], epochs)[0])

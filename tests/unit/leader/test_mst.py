@@ -176,13 +176,18 @@ def test_bad_inputs_say_expected_vs_actual() -> None:
         minimum_spanning_forest(3, edges, [1.0, 2.0], [0.5, 1.0])
 
 
-@pytest.mark.parametrize("sweep_ratio", [0, 10**9], ids=["label sweep", "compiled"])
+@pytest.mark.parametrize(
+    ("sweep_ratio", "union_find_from"),
+    [(0, 10**9), (10**9, 10**9), (0, 0)],
+    ids=["label sweep", "scipy", "union-find"],
+)
 def test_batch_forest_is_kruskals(
-    paper: Scenario, sweep_ratio: int, monkeypatch: pytest.MonkeyPatch
+    paper: Scenario, sweep_ratio: int, union_find_from: int, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Both scans of :meth:`KruskalGraph.forests` (forced by ``LABEL_SWEEP_RATIO``) keep
-    each member's Kruskal forest."""
+    """The three scans of :meth:`KruskalGraph.forests` (forced by ``LABEL_SWEEP_RATIO`` and
+    ``UNION_FIND_FROM``) keep each member's Kruskal forest."""
     monkeypatch.setattr(leader.mst, "LABEL_SWEEP_RATIO", sweep_ratio)
+    monkeypatch.setattr(leader.mst, "UNION_FIND_FROM", union_find_from)
     team = Scenario.from_file(SCENARIOS / "grid20.toml")
     rng = np.random.default_rng(5)
     for scen in (paper, team):
@@ -195,7 +200,11 @@ def test_batch_forest_is_kruskals(
             assert len(np.unique(labels[b])) == scen.n - want.sum()
 
 
-def test_batch_forest_of_an_edge_listed_twice_keeps_the_first_copy() -> None:
+@pytest.mark.parametrize("union_find_from", [10**9, 0], ids=["scipy", "union-find"])
+def test_batch_forest_of_an_edge_listed_twice_keeps_the_first_copy(
+    union_find_from: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(leader.mst, "UNION_FIND_FROM", union_find_from)
     edges = np.array([(1, 2), (2, 3), (1, 2), (1, 3)])
     weights = np.array([2.0, 1.0, 0.5, 3.0])
     healthy = np.array([[True, True, True, True], [True, True, False, True]])
@@ -206,3 +215,17 @@ def test_batch_forest_of_an_edge_listed_twice_keeps_the_first_copy() -> None:
         np.testing.assert_array_equal(tree[b], want)
     assert tree.tolist() == [[False, True, True, False], [True, True, False, False]]
     assert len(np.unique(labels)) == 2
+
+
+def test_the_union_find_gives_scipys_forest_and_labels(rng: np.random.Generator) -> None:
+    """On a large team the compiled union-find and SciPy's scan agree array for array, the
+    component labels too (numbered by each component's smallest agent)."""
+    n, m = 3000, 7000
+    edges = np.stack([rng.integers(1, n + 1, m), rng.integers(1, n + 1, m)], axis=1)
+    edges = edges[edges[:, 0] != edges[:, 1]]
+    graph = KruskalGraph.of(n, edges, rng.random(edges.shape[0]))
+    healthy = rng.random((3, edges.shape[0])) < 0.7
+    want = leader.mst._sparse_scan(n, graph.lo, graph.hi, graph.order, healthy)
+    got = graph.forests(healthy)  # 9,000 nodes: the union-find
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])

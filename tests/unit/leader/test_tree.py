@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+from hypothesis import given
+from hypothesis import strategies as st
 
-from leader.tree import _group_sums, _inverses, fuse_parallel
+from leader.tree import _group_sums, _inverses, fuse_parallel, pair_groups
 
 
 def test_inverses_of_a_stack_are_numpys_to_the_bit() -> None:
@@ -51,3 +53,12 @@ def test_a_fused_pair_is_the_information_weighted_sum_of_its_measurements() -> N
     np.testing.assert_allclose(fused_p[0], want_p)
     np.testing.assert_allclose(fused_z[0], want_p @ np.einsum("eab,eb->a", info, signed))
     np.testing.assert_array_equal(fused_z[1], z[3])
+
+
+@given(st.lists(st.integers(0, 40), max_size=60), st.booleans())
+def test_pair_groups_are_np_unique(pairs: list[int], huge: bool) -> None:
+    pair = np.array(pairs, dtype=np.int64) + (2**61 if huge else 0)  # huge: np.unique itself
+    want = np.unique(pair, return_index=True, return_inverse=True, return_counts=True)
+    for got, expected in zip(pair_groups(pair), want, strict=True):
+        assert got.dtype == expected.dtype
+        np.testing.assert_array_equal(got, expected)
