@@ -339,6 +339,8 @@ class LocalRun:
         )
         observer.netem_done()  # its last decisions are in the summary (no error: it has exited)
         if self.record and self._session is not None:
+            senders = ["/".join(n.split("-")[:2]) for n in self._agents if n not in gone]
+            self._await_statuses(senders)  # agent-4: agent/4; pool-1-125: pool/1
             flush_recorder(self._session, self.run_id, observer)
             rec = next(c for c in self.group.children if c.name == "recorder")
             code = self.group.stop(rec, timeout_s=30.0)
@@ -346,6 +348,17 @@ class LocalRun:
                 raise RuntimeFailure(
                     f"recorder (pid {rec.pid}) exited with code {code}:\n{rec.tail()}"
                 )
+
+    def _await_statuses(self, senders: list[str], timeout_s: float = 5.0) -> None:
+        """Until the observer has each agent process's last status (sent after its final state):
+        the recorder is flushed up to the statuses the observer has seen, so one still on its
+        way would miss the recording."""
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            with self.observer.lock:
+                if all(s in self.observer.statuses for s in senders):
+                    return
+            time.sleep(0.02)
 
     def _outcome(self, cpu_stolen: float | None) -> RunOutcome:
         observer = self.observer
