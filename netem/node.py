@@ -27,12 +27,13 @@ from formation.scenario import Scenario
 from netem.last_state import state_of
 from netem.link_config import LinkConfig
 from netem.outbox import ZenohOutbox
+from netem.proxy.bundle_pass import BundlePass
 from netem.proxy.lockstep import LockstepCore
 from netem.proxy.loop import Wakeups, run_loop
 from netem.proxy.progress import Progress
 from netem.proxy.realtime import RealtimeForwarder
 from netem.proxy.records import Ledger
-from netem.proxy.routes import Links, Route, Routes, link_key
+from netem.proxy.routes import Links, Routes, link_key
 from shell import Incoming, Query, Sample, Service, TimePolicy, settle_heap
 
 log = logging.getLogger("netem")
@@ -72,6 +73,7 @@ class NetemNode:
         self.lockstep = LockstepCore(
             self.links, self.epochs, self.progress, self.ledger, self.outbox
         )
+        self.bundles = BundlePass(self.lockstep)
         self.routes = Routes(self.agents)
         self.realtime = RealtimeForwarder(
             service,
@@ -245,17 +247,15 @@ class NetemNode:
         if holds is None:
             self.service.malformed.counts[key] += 1
             return
-        epoch, phase = bundle.epoch, bundle.phase
+        agents, seqs, payloads = [], [], []
         for part in bundle.parts:
             if not holds(part.agent):
                 self.service.malformed.counts[key] += 1
                 continue
-            route: Route = (
-                (phase, LEADER_ENDPOINT, part.agent)
-                if phase == "estimate"
-                else (phase, part.agent, 0)
-            )
-            self.lockstep.packet(route, epoch, part.seq, part.message.encode())
+            agents.append(part.agent)
+            seqs.append(part.seq)
+            payloads.append(part.message.encode())
+        self.bundles.bundle(bundle.phase, bundle.epoch, agents, seqs, payloads)
         if self.lockstep.applied:
             self._announce_applied()
 

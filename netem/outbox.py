@@ -104,6 +104,31 @@ class ZenohOutbox:
             del self._kept[at]
             self._publish(pool, phase, epoch, kept)
 
+    def deliver_many(
+        self, phase: Phase, epoch: int, ready: list[tuple[int, list[bytes], list[int]]]
+    ) -> None:
+        """:meth:`deliver` of each ``(receiver, packets, lost)`` in turn, none dead, stamped
+        alike."""
+        service, inboxes, pool_of, kept_of = self.service, self._inboxes, self.pool_of, self._kept
+        stamp = now_ns()
+        for receiver, packets, lost in ready:
+            got = inboxes.get((phase, receiver))
+            key, pub, head = self._inbox(phase, receiver) if got is None else got
+            fields = head % (service.next_seq(key), epoch, stamp)
+            pool = pool_of.get(receiver)
+            if pool is None:
+                pub.put(delivery_of(fields, packets, lost, ()))
+                service.sent[key] += 1
+                continue
+            at = (pool, phase, epoch)
+            kept = kept_of.get(at)
+            if kept is None:
+                kept = kept_of[at] = _PoolBatch()
+            kept.add(delivery_of(fields, (), lost, ()), packets)
+            if kept.came >= self._size[pool]:
+                del kept_of[at]
+                self._publish(pool, phase, epoch, kept)
+
     def flush_pools(self) -> None:
         """Send a pool the deliveries kept for it since the last flush or before (one batch
         per phase and epoch, as far as they came): a batch under way is left to complete."""

@@ -26,6 +26,11 @@ class Outbox(Protocol):
     ) -> None:
         """``receiver``'s delivery of ``phase`` and ``epoch`` (its close)."""
 
+    def deliver_many(
+        self, phase: Phase, epoch: int, ready: list[tuple[int, list[bytes], list[int]]]
+    ) -> None:
+        """:meth:`deliver` of each ``(receiver, packets, lost)`` in turn, none dead."""
+
     def records(self, phase: Phase, epoch: int, records: list[Record]) -> None:
         """The decision records of ``epoch`` of ``phase``, every receiver of it closed."""
 

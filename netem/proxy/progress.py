@@ -29,9 +29,10 @@ class Progress:
         self.final_states.add(agent)
         self.on_change()
 
-    def estimate_handled(self, epoch: int) -> None:
-        """The leader sends one estimate per agent: the epoch is done once all were handled."""
-        self._estimates_seen[epoch] += 1
+    def estimate_handled(self, epoch: int, count: int = 1) -> None:
+        """The leader sends one estimate per agent: the epoch is done once all were handled
+        (``count`` of them handled now)."""
+        self._estimates_seen[epoch] += count
         if self._estimates_seen[epoch] >= len(self.agents):
             del self._estimates_seen[epoch]
             self.estimates_done = max(self.estimates_done, epoch + 1)

@@ -36,6 +36,11 @@ class Wire:
         self.deliveries.append(Delivery.model_validate_json(wire))
         self.closed[(phase, epoch)] += 1
 
+    def deliver_many(self, phase: Phase, epoch: int,
+                     ready: list[tuple[int, list[bytes], list[int]]]) -> None:  # fmt: skip
+        for receiver, packets, lost in ready:
+            self.deliver(phase, receiver, epoch, packets, lost, [])
+
     def records(self, phase: Phase, epoch: int, records: list[Record]) -> None:
         self._batch(phase, decision_batch(header(epoch), phase, records))
 

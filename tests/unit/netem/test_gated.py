@@ -78,6 +78,11 @@ class Bytes:
                 lost: list[int], dead: list[int]) -> None:  # fmt: skip
         self.deliveries[(phase, receiver)].append((epoch, b",".join(packets), lost, dead))
 
+    def deliver_many(self, phase: Phase, epoch: int,
+                     ready: list[tuple[int, list[bytes], list[int]]]) -> None:  # fmt: skip
+        for receiver, packets, lost in ready:
+            self.deliver(phase, receiver, epoch, packets, lost, [])
+
     def records(self, phase: Phase, epoch: int, records: list[Record]) -> None:
         self._add(decision_batch(HEADER, phase, records))
 

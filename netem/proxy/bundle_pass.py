@@ -1,0 +1,163 @@
+"""A bundle's parts passed at once: netem's lockstep core in its usual case, a bundle at a time.
+
+A pool's states or reports and the leader's estimates come as one bundle of one phase and
+epoch. When every link of every part passes it as it is and nobody is down, out, away or
+queued (:meth:`BundlePass.take`), the bundle is handled in one loop: each part's packet goes
+into its receivers' open epochs, its records are its stream's template, and the receivers it
+completes close after the last part, in the order the parts completed them. That is what
+handling the parts one by one (:meth:`LockstepCore.packet`) does: a close touches only its
+receiver, so closing later changes no delivery, record or count. Anything else (a part netem
+must decide, a duplicate, a final state) leaves the whole bundle to the one-by-one path.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from formation.keys import LEADER_ENDPOINT
+from netem.proxy.lockstep import LockstepCore
+from netem.proxy.open_epochs import OpenEpoch
+from netem.proxy.records import packet_json
+from netem.proxy.routes import Phase, Route
+
+
+class BundlePass:
+    """The core's bundles in its usual case (:meth:`take`)."""
+
+    def __init__(self, core: LockstepCore) -> None:
+        self.core = core
+
+    def bundle(
+        self, phase: Phase, epoch: int, agents: list[int], seqs: list[int], payloads: list[Any]
+    ) -> None:
+        """A bundle's parts of ``phase`` and ``epoch``: ``agents[i]``'s packet ``payloads[i]``
+        with seq ``seqs[i]``, each as if it came alone (:meth:`LockstepCore.packet`), at once
+        where it can (:meth:`take`)."""
+        if self.take(phase, epoch, agents, seqs, payloads):
+            return
+        packet = self.core.packet
+        for agent, seq, payload in zip(agents, seqs, payloads, strict=True):
+            route: Route = (
+                (phase, LEADER_ENDPOINT, agent) if phase == "estimate" else (phase, agent, 0)
+            )
+            packet(route, epoch, seq, payload)
+
+    def usual(self) -> bool:
+        """Nobody down, out or away, no queue, no distance to wait for: every part passes alone."""
+        core = self.core
+        return not (core.dead or core.out or core.away or core.queued or core.positions.needed)
+
+    def take(
+        self, phase: Phase, epoch: int, agents: list[int], seqs: list[int], payloads: list[Any]
+    ) -> bool:
+        """Handle a bundle's parts (``agents[i]``'s packet ``payloads[i]`` with seq ``seqs[i]``)
+        at once; False, having changed nothing, where the parts must go one by one."""
+        core = self.core
+        if not self.usual() or len(set(agents)) != len(agents):
+            return False
+        rows = core.rows[phase]
+        streams = rows.streams
+        if phase == "state":
+            if epoch >= core.epochs:
+                return False  # final states: their senders' last
+            last = core.last_state
+            for a in agents:
+                prev = last.get(a)
+                if prev is not None and prev[0] >= epoch:
+                    return False  # a state netem has handled already
+        elif phase == "report":
+            last_report = core.last_report
+            if any(last_report.get(a, -1) >= epoch for a in agents):
+                return False
+        else:
+            next_close, open_ = core.next_close, core.open
+            for a in agents:
+                if next_close[(phase, a)] > epoch or (phase, a, epoch) in open_:
+                    return False  # this estimate came before
+        queues = core.queues[phase]
+        chosen = []  # (stream, its row, seq, payload)
+        for a, seq, payload in zip(agents, seqs, payloads, strict=True):
+            if a not in streams:
+                continue  # an agent without out-links: nothing to route
+            row, reach = rows.row(a, epoch)
+            if not row.plain or reach is not None or a in queues:
+                return False
+            chosen.append((a, row, seq, payload))
+        if phase == "state":
+            progress = core.progress
+            if epoch > progress.epoch_seen:
+                progress.epoch_seen = epoch
+            for a, payload in zip(agents, payloads, strict=True):
+                last[a] = (epoch, payload)
+        elif phase == "report":
+            for a in agents:
+                last_report[a] = epoch
+        self._pass(phase, epoch, chosen)
+        if phase == "estimate":
+            core.progress.estimate_handled(epoch, len(agents))
+        return True
+
+    def _pass(self, phase: Phase, epoch: int, chosen: list[tuple[int, Any, int, Any]]) -> None:
+        """:meth:`LockstepCore._pass` of each part, the closes after the last."""
+        core = self.core
+        streams = core.rows[phase].streams
+        open_, counts, passed = core.open, core._senders_count[phase], core.passed
+        row_template, add = core.templates[phase].row_template, core.records.add
+        boxes: list[tuple[int, OpenEpoch]] = []
+        for stream, row, seq, payload in chosen:
+            s = streams[stream]
+            src = s.links[0][1]
+            packet = packet_json(src, seq, epoch, 1, payload)
+            for dst in s.receivers:
+                key = (phase, dst, epoch)
+                box = open_.get(key)
+                if box is None:
+                    box = open_[key] = OpenEpoch()
+                handled = box.handled
+                handled.add(src)
+                box.packets.append(packet)
+                if len(handled) >= counts[dst]:
+                    boxes.append((dst, box))
+            passed[(phase, stream)] += 1
+            add(phase, epoch, row_template(stream, row.decisions), seq)
+        if boxes:
+            self._close(phase, epoch, boxes)
+
+    def _close(self, phase: Phase, epoch: int, boxes: list[tuple[int, OpenEpoch]]) -> None:
+        """:meth:`LockstepCore._close_complete` of ``boxes``: a receiver whose epoch is the
+        next to close and the last open one goes out with the others in one call to the
+        outbox, in turn; any other as the core closes it."""
+        core = self.core
+        if core.delayed:  # packets held for these epochs: the core adds them
+            core._close_complete(phase, epoch, boxes)
+            return
+        next_close, open_ = core.next_close, core.open
+        ready: list[tuple[int, list[bytes], list[int]]] = []
+        for dst, box in boxes:
+            at = (phase, dst)
+            if next_close[at] == epoch and (phase, dst, epoch + 1) not in open_:
+                del open_[(phase, dst, epoch)]
+                next_close[at] = epoch + 1
+                ready.append((dst, box.packets, box.lost))
+                continue
+            self._deliver(phase, epoch, ready)
+            ready = []
+            core._close_complete(phase, epoch, [(dst, box)])
+        self._deliver(phase, epoch, ready)
+
+    def _deliver(
+        self, phase: Phase, epoch: int, ready: list[tuple[int, list[bytes], list[int]]]
+    ) -> None:
+        """:meth:`LockstepCore._close` of receivers whose ``epoch`` is next and complete."""
+        if not ready:
+            return
+        core = self.core
+        core.outbox.deliver_many(phase, epoch, ready)
+        key = (phase, epoch)
+        closed = core.closed_count[key] = core.closed_count.get(key, 0) + len(ready)
+        if closed >= (1 if phase == "report" else len(core.links.agents)):
+            del core.closed_count[key]
+            core.records.close(phase, epoch)
+
+
+__all__ = ["BundlePass"]
