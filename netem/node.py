@@ -103,7 +103,8 @@ class NetemNode:
         service.queryable(keys.netem_final(self.run_id), self._on_final)
         service.queryable(keys.netem_rejoin(self.run_id), self._on_rejoin)
         service.queryable(keys.netem_pool(self.run_id), self._on_pool)
-        service.watch_alive()
+        self._unsure = set(self.agents)  # agents whose token was missing when last looked at
+        service.watch_alive(self._on_alive)
 
     @property
     def final_states(self) -> set[int]:
@@ -125,10 +126,20 @@ class NetemNode:
         return {link_key(self.run_id, link): n for link, n in self.lockstep.forwarded().items()}
 
     # -- liveliness ---------------------------------------------------------------------------
+    def _on_alive(self, role: str, ident: str, alive: bool) -> None:
+        if role == "agent" and not alive and ident.isdigit():
+            self._unsure.add(int(ident))  # looked at by the next _check_dead
+
     def _check_dead(self, grace_s: float = 3.0, leader: bool = True) -> None:
         """Senders whose liveliness token has been gone ``grace_s`` are no longer waited for
-        (the leader too: agents fall back on lost estimates until it comes back)."""
-        for i in self.agents:
+        (the leader too: agents fall back on lost estimates until it comes back). Only the
+        agents whose token went missing since they were last seen alive are looked at."""
+        for i in sorted(self._unsure.copy()):
+            self._unsure.discard(i)  # before looking: a token lost after is added again
+            if self.service.is_alive("agent", i):
+                self.service.gone_for("agent", i, grace_s)  # forgets when it went missing
+                continue
+            self._unsure.add(i)
             if (
                 not self.lockstep.is_down(i)
                 and i not in self.final_states

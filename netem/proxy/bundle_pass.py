@@ -20,6 +20,10 @@ from netem.proxy.open_epochs import OpenEpoch
 from netem.proxy.records import packet_json
 from netem.proxy.routes import Phase, Route
 
+# A receiver whose epoch a part completed: its open epoch (None: the part is all it gets), the
+# part's sender and packet.
+_Complete = tuple[int, OpenEpoch | None, int, bytes]
+
 
 class BundlePass:
     """The core's bundles in its usual case (:meth:`take`)."""
@@ -98,12 +102,14 @@ class BundlePass:
         return True
 
     def _pass(self, phase: Phase, epoch: int, chosen: list[tuple[int, Any, int, Any]]) -> None:
-        """:meth:`LockstepCore._pass` of each part, the closes after the last."""
+        """:meth:`LockstepCore._pass` of each part, the closes after the last. A receiver with
+        one sender gets no open epoch: its part is its delivery."""
         core = self.core
         streams = core.rows[phase].streams
-        open_, counts, passed = core.open, core._senders_count[phase], core.passed
-        row_template, add = core.templates[phase].row_template, core.records.add
-        boxes: list[tuple[int, OpenEpoch]] = []
+        open_, counts = core.open, core._senders_count[phase]
+        row_template = core.templates[phase].row_template
+        complete: list[_Complete] = []
+        recorded = []
         for stream, row, seq, payload in chosen:
             s = streams[stream]
             src = s.links[0][1]
@@ -112,36 +118,48 @@ class BundlePass:
                 key = (phase, dst, epoch)
                 box = open_.get(key)
                 if box is None:
+                    if counts[dst] == 1:
+                        complete.append((dst, None, src, packet))
+                        continue
                     box = open_[key] = OpenEpoch()
                 handled = box.handled
                 handled.add(src)
                 box.packets.append(packet)
                 if len(handled) >= counts[dst]:
-                    boxes.append((dst, box))
-            passed[(phase, stream)] += 1
-            add(phase, epoch, row_template(stream, row.decisions), seq)
-        if boxes:
-            self._close(phase, epoch, boxes)
+                    complete.append((dst, box, src, packet))
+            recorded.append((row_template(stream, row.decisions), seq))
+        core.passed.update([(phase, stream) for stream, _, _, _ in chosen])
+        core.records.add_many(phase, epoch, recorded)
+        if complete:
+            self._close(phase, epoch, complete)
 
-    def _close(self, phase: Phase, epoch: int, boxes: list[tuple[int, OpenEpoch]]) -> None:
-        """:meth:`LockstepCore._close_complete` of ``boxes``: a receiver whose epoch is the
-        next to close and the last open one goes out with the others in one call to the
-        outbox, in turn; any other as the core closes it."""
+    def _close(self, phase: Phase, epoch: int, complete: list[_Complete]) -> None:
+        """:meth:`LockstepCore._close_complete` of the receivers ``complete``: one whose epoch
+        is the next to close and the last open one goes out with the others in one call to
+        the outbox, in turn; any other as the core closes it."""
         core = self.core
-        if core.delayed:  # packets held for these epochs: the core adds them
-            core._close_complete(phase, epoch, boxes)
-            return
         next_close, open_ = core.next_close, core.open
         ready: list[tuple[int, list[bytes], list[int]]] = []
-        for dst, box in boxes:
+        for dst, box, src, packet in complete:
             at = (phase, dst)
-            if next_close[at] == epoch and (phase, dst, epoch + 1) not in open_:
-                del open_[(phase, dst, epoch)]
+            if (
+                not core.delayed
+                and next_close[at] == epoch
+                and (phase, dst, epoch + 1) not in open_
+            ):
                 next_close[at] = epoch + 1
-                ready.append((dst, box.packets, box.lost))
+                if box is None:
+                    ready.append((dst, [packet], []))
+                else:
+                    del open_[(phase, dst, epoch)]
+                    ready.append((dst, box.packets, box.lost))
                 continue
             self._deliver(phase, epoch, ready)
             ready = []
+            if box is None:  # as the core would have kept it
+                box = open_[(phase, dst, epoch)] = OpenEpoch()
+                box.handled.add(src)
+                box.packets.append(packet)
             core._close_complete(phase, epoch, [(dst, box)])
         self._deliver(phase, epoch, ready)
 

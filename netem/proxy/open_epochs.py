@@ -76,6 +76,10 @@ class RecordBatches:
         """The records of a packet of ``epoch``: its ``template`` and ``seq``."""
         self.pending[(phase, epoch)].append((template, seq))
 
+    def add_many(self, phase: Phase, epoch: int, recorded: list[Recorded]) -> None:
+        """:meth:`add` of each ``(template, seq)``."""
+        self.pending[(phase, epoch)] += recorded
+
     def close(self, phase: Phase, epoch: int) -> None:
         """Every receiver of ``epoch`` closed: its records join the phase's batch."""
         records = self.pending.pop((phase, epoch), None)

@@ -172,3 +172,29 @@ def test_a_declared_pools_states_go_on_each_agents_out_links_as_if_each_came_alo
             sender = "pool/1" if p.source <= 3 else f"agent/{p.source}"
             state = CoordinationState.model_validate_json(p.message)
             assert (state.agent, state.sender, state.epoch) == (p.source, sender, 0)
+
+
+def test_an_agent_is_lost_once_its_token_is_gone_past_the_grace_and_not_before() -> None:
+    """netem looks only at agents whose token went missing, yet decides as if it looked at all:
+    one back before the check is not lost, and a token lost again counts from that loss."""
+    scenario = Scenario.from_file(ROOT / "scenarios/paper.toml").with_overrides(epochs=10)
+    bus = MemoryBus()
+    service = Service(bus, RUN, "netem", 0, start_timeout_s=5)
+    try:
+        node = NetemNode(service, scenario, seed=1, wait_for_recorder=False)
+        tokens = {i: bus.declare_token(keys.alive(RUN, "agent", i)) for i in range(1, 6)}
+        leader = bus.declare_token(keys.alive(RUN, "leader", 0))
+        node._check_dead(grace_s=60)
+        tokens[2].undeclare()
+        node._check_dead(grace_s=60)  # 2 missing since now: within its grace
+        tokens[2] = bus.declare_token(keys.alive(RUN, "agent", 2))
+        node._check_dead(grace_s=60)  # back: its missing time forgotten
+        tokens[2].undeclare()
+        tokens[3].undeclare()
+        node._check_dead(grace_s=0)
+        assert node.dead == set()  # both missing from now, not from 2's first loss
+        node._check_dead(grace_s=0)  # any time later is past a grace of 0
+        assert node.dead == {2, 3}
+        leader.undeclare()
+    finally:
+        service.close()
