@@ -124,7 +124,9 @@ class ZenohOutbox:
             kept = kept_of.get(at)
             if kept is None:
                 kept = kept_of[at] = _PoolBatch()
-            kept.add(delivery_of(fields, (), lost, ()), packets)
+            kept.add(
+                fields + _NOTHING_ELSE if not lost else delivery_of(fields, (), lost, ()), packets
+            )
             if kept.came >= self._size[pool]:
                 del kept_of[at]
                 self._publish(pool, phase, epoch, kept)
@@ -158,6 +160,9 @@ class ZenohOutbox:
         self.service.put(key, decision_batch_of(self.service.header(key, last_epoch), body))
 
 
+_NOTHING_ELSE = delivery_of(b"", (), (), ())  # a delivery's fields after its head: none lost
+
+
 class _PoolBatch:
     """A pool's batch of one phase and epoch as it fills: each distinct packet once in
     ``table`` (a packet is the same bytes object for all its receivers: hashed once), each
@@ -173,14 +178,9 @@ class _PoolBatch:
 
     def add(self, delivery: bytes, packets: list[bytes]) -> None:
         table = self.table
-        ids = []
-        for p in packets:
-            i = table.get(p)
-            if i is None:
-                i = table[p] = len(table)
-            ids.append(i)
+        add = table.setdefault  # a new packet's index is the table's length before it
+        self.carried.append([add(p, len(table)) for p in packets])
         self.deliveries.append(delivery)
-        self.carried.append(ids)
         self.came += 1
 
     def clear(self) -> None:

@@ -14,10 +14,12 @@ from __future__ import annotations
 
 from typing import Any
 
+from orjson import dumps
+
 from formation.keys import LEADER_ENDPOINT
 from netem.proxy.lockstep import LockstepCore
 from netem.proxy.open_epochs import OpenEpoch
-from netem.proxy.records import packet_json
+from netem.proxy.records import packet_json_of
 from netem.proxy.routes import Phase, Route
 
 # A receiver whose epoch a part completed: its open epoch (None: the part is all it gets), the
@@ -32,7 +34,7 @@ class BundlePass:
         self.core = core
 
     def bundle(
-        self, phase: Phase, epoch: int, agents: list[int], seqs: list[int], payloads: list[Any]
+        self, phase: Phase, epoch: int, agents: list[int], seqs: list[int], payloads: list[bytes]
     ) -> None:
         """A bundle's parts of ``phase`` and ``epoch``: ``agents[i]``'s packet ``payloads[i]``
         with seq ``seqs[i]``, each as if it came alone (:meth:`LockstepCore.packet`), at once
@@ -52,7 +54,7 @@ class BundlePass:
         return not (core.dead or core.out or core.away or core.queued or core.positions.needed)
 
     def take(
-        self, phase: Phase, epoch: int, agents: list[int], seqs: list[int], payloads: list[Any]
+        self, phase: Phase, epoch: int, agents: list[int], seqs: list[int], payloads: list[bytes]
     ) -> bool:
         """Handle a bundle's parts (``agents[i]``'s packet ``payloads[i]`` with seq ``seqs[i]``)
         at once; False, having changed nothing, where the parts must go one by one."""
@@ -79,12 +81,14 @@ class BundlePass:
                 if next_close[(phase, a)] > epoch or (phase, a, epoch) in open_:
                     return False  # this estimate came before
         queues = core.queues[phase]
+        block, j = rows.at(epoch)
         chosen = []  # (stream, its row, seq, payload)
         for a, seq, payload in zip(agents, seqs, payloads, strict=True):
-            if a not in streams:
+            got = block.get(a)
+            if got is None:
                 continue  # an agent without out-links: nothing to route
-            row, reach = rows.row(a, epoch)
-            if not row.plain or reach is not None or a in queues:
+            row = got[0][j]
+            if not row.plain or got[1] is not None or a in queues:
                 return False
             chosen.append((a, row, seq, payload))
         if phase == "state":
@@ -113,7 +117,7 @@ class BundlePass:
         for stream, row, seq, payload in chosen:
             s = streams[stream]
             src = s.links[0][1]
-            packet = packet_json(src, seq, epoch, 1, payload)
+            packet = packet_json_of(src, seq, epoch, 1, dumps(payload.decode("utf-8", "replace")))
             for dst in s.receivers:
                 key = (phase, dst, epoch)
                 box = open_.get(key)

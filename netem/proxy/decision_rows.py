@@ -71,6 +71,15 @@ class DecisionRows:
         j = epoch - k * self._block
         return rows[j], None if reach is None else reach[j]
 
+    def at(self, epoch: int) -> tuple[_Block, int]:
+        """Every stream's rows and reach of ``epoch``'s block, and ``epoch``'s index in it
+        (:meth:`row` of many streams)."""
+        k = epoch // self._block
+        blk = self._blocks.get(k)
+        if blk is None:
+            blk = self._compute(k)
+        return blk, epoch - k * self._block
+
     def invalidate(self) -> None:
         """A link's model changed: decide again."""
         self._blocks.clear()
