@@ -62,7 +62,6 @@ class BundlePass:
         if not self.usual() or len(set(agents)) != len(agents):
             return False
         rows = core.rows[phase]
-        streams = rows.streams
         if phase == "state":
             if epoch >= core.epochs:
                 return False  # final states: their senders' last
