@@ -4,9 +4,9 @@ The messages of :mod:`bench.bench_runtime`'s largest case (henneberg_team(1000) 
 seed 1, lossless links) are built ahead: each pool's state and report bundle and the leader's
 estimates, an epoch's in the order the run sends them. netem runs on the in-memory bus (its
 outputs go to a subscriber that keeps their sizes), so only its own CPU is measured: the time
-of handling every bundle of an epoch and the loop's flushes. Run it from two trees to compare
-them (``PYTHONPATH=<tree> python bench/bench_netem_lockstep.py``); ``--profile`` prints the
-cProfile of the measured epochs.
+of handling every bundle of an epoch and the loop's flushes. The baseline, in the same run,
+takes each bundle's parts one by one (:class:`netem.proxy.bundle_pass.BundlePass` refusing
+every bundle); ``--profile`` prints the cProfile of the bundles' path.
 """
 
 from __future__ import annotations
@@ -25,11 +25,13 @@ from formation.codec import now_ns
 from formation.messages import AgentEstimate, CoordinationState, Measurement, TokenReport
 from formation.scenario import Scenario
 from netem.node import NetemNode
+from netem.proxy.bundle_pass import BundlePass
 from shell import MemoryBus, Sample, Service, settle_heap
 from testbed.sim.team_generators import henneberg_team
 
 RUN = "bench-netem-lockstep"
 SEED = 1
+WARM = 4  # epochs before the measured ones
 FLUSH_EVERY = 2  # epochs between the loop's flushes (its 0.2 s wake-up at ~10 epochs/s)
 
 
@@ -112,51 +114,84 @@ class _Rig:
             phase_s[phase] = phase_s.get(phase, 0.0) + time.process_time() - start
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--agents", type=int, default=1000)
-    parser.add_argument("--pools", type=int, default=8)
-    parser.add_argument("--epochs", type=int, default=40, help="measured (after 4 warm-up epochs)")
-    parser.add_argument("--profile", action="store_true")
-    args = parser.parse_args(argv)
-    warm = 4
-    scenario = henneberg_team(args.agents, epochs=warm + args.epochs)
-    pools = [list(map(int, a)) for a in np.array_split(np.arange(1, scenario.n + 1), args.pools)]
-    messages = [epoch_messages(scenario, pools, k) for k in range(scenario.epochs)]
+class _OneByOne(BundlePass):
+    """The baseline: every bundle's parts one by one, as if each came alone."""
+
+    def take(self, *_: Any) -> bool:
+        return False
+
+
+def measure(
+    scenario: Scenario,
+    pools: list[list[int]],
+    messages: list[list[tuple[str, bytes]]],
+    one_by_one: bool,
+    profile: cProfile.Profile | None = None,
+) -> tuple[float, dict[str, float], dict[str, int]]:
+    """netem's CPU [s] over the epochs after the first :data:`WARM`, the same by phase, and
+    what it sent."""
     rig = _Rig(scenario, pools)
+    if one_by_one:
+        rig.node.bundles = _OneByOne(rig.node.lockstep)
     try:
-        for k in range(warm):
+        for k in range(WARM):
             rig.feed(messages[k])
         rig.node.flush_all()
         settle_heap()  # as netem does at the start
         rig.phase_s.clear()
-        profile = cProfile.Profile() if args.profile else None
-        start_cpu, start = time.process_time(), time.perf_counter()
+        start = time.process_time()
         if profile is not None:
             profile.enable()
-        for k in range(warm, scenario.epochs):
+        for k in range(WARM, scenario.epochs):
             rig.feed(messages[k])
             if k % FLUSH_EVERY == 0:
                 rig.node.flush_all()
         rig.node.flush_all()
         if profile is not None:
             profile.disable()
-        cpu, wall = time.process_time() - start_cpu, time.perf_counter() - start
+        return time.process_time() - start, rig.phase_s, rig.sent
     finally:
         rig.service.close()
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--agents", type=int, default=1000)
+    parser.add_argument("--pools", type=int, default=8)
+    parser.add_argument("--epochs", type=int, default=40, help="measured, after the warm-up")
+    parser.add_argument("--rounds", type=int, default=2, help="baseline and bundles, alternating")
+    parser.add_argument("--profile", action="store_true", help="cProfile of the bundles' path")
+    args = parser.parse_args(argv)
+    scenario = henneberg_team(args.agents, epochs=WARM + args.epochs)
+    pools = [list(map(int, a)) for a in np.array_split(np.arange(1, scenario.n + 1), args.pools)]
+    messages = [epoch_messages(scenario, pools, k) for k in range(scenario.epochs)]
     print(
-        f"seed {SEED}, henneberg_team({args.agents}) in {args.pools} pools, {args.epochs} epochs: "
-        f"netem CPU {1e3 * cpu / args.epochs:.2f} ms an epoch (wall {1e3 * wall / args.epochs:.2f}); "
-        f"{rig.sent['messages'] / scenario.epochs:.1f} messages, "
-        f"{rig.sent['bytes'] / scenario.epochs / 1024:.0f} KiB sent an epoch"
+        f"seed {SEED}, henneberg_team({args.agents}) in {args.pools} pools, lossless, "
+        f"{args.epochs} epochs; netem in one process; CPU ms an epoch; baseline: each bundle's "
+        "parts one by one, in the same run"
     )
+    cpu: dict[bool, list[float]] = {True: [], False: []}
+    for _ in range(args.rounds):
+        for one_by_one in (True, False):
+            used, phase_s, sent = measure(scenario, pools, messages, one_by_one)
+            cpu[one_by_one].append(1e3 * used / args.epochs)
+            by_phase = ", ".join(
+                f"{p} {1e3 * s / args.epochs:.2f}" for p, s in sorted(phase_s.items())
+            )
+            print(
+                f"  {'one by one' if one_by_one else 'bundles':10} {cpu[one_by_one][-1]:6.2f} "
+                f"(by bundle: {by_phase}); {sent['messages'] / scenario.epochs:.1f} messages, "
+                f"{sent['bytes'] / scenario.epochs / 1024:.0f} KiB sent an epoch",
+                flush=True,
+            )
+    base, new = min(cpu[True]), min(cpu[False])
     print(
-        "  by bundle: "
-        + ", ".join(f"{p} {1e3 * s / args.epochs:.2f}" for p, s in sorted(rig.phase_s.items()))
-        + f"; the rest (flushes) {1e3 * (cpu - sum(rig.phase_s.values())) / args.epochs:.2f} ms"
+        f"best of {args.rounds}: one by one {base:.2f}, bundles {new:.2f}; ratio {new / base:.2f}"
     )
-    if profile is not None:
-        pstats.Stats(profile).sort_stats("cumulative").print_stats(40)
+    if args.profile:
+        profile = cProfile.Profile()
+        measure(scenario, pools, messages, False, profile)
+        pstats.Stats(profile).sort_stats("tottime").print_stats(30)
 
 
 if __name__ == "__main__":
