@@ -13,7 +13,6 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
 from functools import partial
 from typing import Any
 
@@ -258,24 +257,24 @@ class NetemNode:
         if holds is None:
             self.service.malformed.counts[key] += 1
             return
-        agents, seqs, payloads = [], [], []
-        for part in bundle.parts:
-            if not holds(part.agent):
-                self.service.malformed.counts[key] += 1
-                continue
-            agents.append(part.agent)
-            seqs.append(part.seq)
-            payloads.append(part.message.encode())
+        parts = bundle.parts
+        agents = [part.agent for part in parts]
+        if not holds.issuperset(agents):
+            parts = [part for part in parts if part.agent in holds]
+            self.service.malformed.counts[key] += len(agents) - len(parts)
+            agents = [part.agent for part in parts]
+        seqs = [part.seq for part in parts]
+        payloads = [part.message.encode() for part in parts]
         self.bundles.bundle(bundle.phase, bundle.epoch, agents, seqs, payloads)
         if self.lockstep.applied:
             self._announce_applied()
 
-    def _holder(self, key: str, phase: str) -> Callable[[int], bool] | None:
+    def _holder(self, key: str, phase: str) -> frozenset[int] | None:
         """Which agents' parts a bundle of ``phase`` on ``key`` may carry: the leader's
         estimates any agent's, a pool's states and reports its own agents'; None: no bundle of
         ``phase`` belongs on ``key``."""
         if key == self._estimates:
-            return self.routes.agents.__contains__ if phase == "estimate" else None
+            return self.routes.agents if phase == "estimate" else None
         parsed = keys.parse(key)
         if not (
             (parsed.kind == "pool_bundle" and parsed.args[1] == phase == "report")
@@ -283,8 +282,7 @@ class NetemNode:
         ):
             return None
         pool = int(parsed.args[0]) if parsed.args[0].isdigit() else -1  # -1: no pool's
-        pool_of = self.outbox.pool_of
-        return lambda agent: pool_of.get(agent, -2) == pool
+        return self.outbox.pools.get(pool, frozenset())
 
     def _on_final(self, query: Query) -> None:
         """What netem still lacks of a sender's last messages: ``{"agents": [ids]}`` asks for

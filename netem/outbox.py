@@ -40,6 +40,7 @@ class ZenohOutbox:
         self._decision_key = keys.netem_decision(service.run_id)
         self._header = service.header_format()
         self.pool_of: dict[int, int] = {}  # receiver → its pool (the pool's first agent)
+        self.pools: dict[int, frozenset[int]] = {}  # pool → its agents
         self._size: dict[int, int] = {}  # pool → its agents
         # (pool, phase) → key, publisher, the batch's fields before its deliveries
         self._pools: dict[tuple[int, Phase], tuple[str, Publisher, bytes]] = {}
@@ -69,6 +70,7 @@ class ZenohOutbox:
         of the agents' phases (state, estimate) from now on."""
         for i in agents:
             self.pool_of[i] = pool
+        self.pools[pool] = self.pools.get(pool, frozenset()) | set(agents)
         self._size[pool] = len(agents)
         for phase in ("state", "estimate"):
             key = keys.inbox_pool(self.service.run_id, pool, phase)
