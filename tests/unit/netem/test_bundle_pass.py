@@ -4,6 +4,7 @@ with pools of any size sending in any order, a sender dying or a state coming tw
 
 from __future__ import annotations
 
+from functools import cache
 from typing import Any
 
 from hypothesis import given, settings
@@ -25,6 +26,11 @@ NETWORKS: list[dict[str, Any]] = [
     {"formation_default": [{"model": "bernoulli", "p_loss": 0.3}]},
     {"formation_default": [{"model": "delay", "jitter_epochs": 1}]},
 ]
+
+
+@cache
+def _team(n: int, network: int) -> Scenario:
+    return henneberg_team(n, epochs=EPOCHS, network=NETWORKS[network])
 
 
 def _core(scenario: Scenario, seed: int) -> tuple[LockstepCore, Wire]:
@@ -72,7 +78,7 @@ def _run(scenario: Scenario, seed: int, bundles: list[tuple[Phase, int, list[int
     return deliveries, decisions, core.forwarded(), core.progress.estimates_done, core.finished()
 
 
-@settings(max_examples=25, deadline=None)
+@settings(max_examples=20, deadline=None)
 @given(
     n=st.integers(3, 9),
     pools=st.integers(1, 4),
@@ -85,7 +91,7 @@ def _run(scenario: Scenario, seed: int, bundles: list[tuple[Phase, int, list[int
 def test_a_bundle_at_once_equals_its_parts_one_by_one(
     n: int, pools: int, network: int, seed: int, order: Any, dies: Any, twice: int | None
 ) -> None:
-    scenario = henneberg_team(n, epochs=EPOCHS, network=NETWORKS[network])
+    scenario = _team(n, network)
     ids = list(range(1, n + 1))
     split = [ids[p::pools] for p in range(min(pools, n))]
     turn = list(range(len(split)))
