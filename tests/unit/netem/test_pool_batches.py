@@ -13,6 +13,7 @@ from formation.codec import attachment, encode, now_ns
 from formation.messages import CoordinationState, Delivery, DeliveryBatch
 from formation.scenario import Scenario
 from netem.node import NetemNode
+from netem.proxy.records import packet_json
 from shell import MemoryBus, Sample, Service
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -107,3 +108,21 @@ def test_a_declaration_netem_cannot_take_is_refused_and_counted() -> None:
     finally:
         rig.close()
     assert rig.netem.malformed.counts[keys.netem_pool(RUN)] == 4
+
+
+def test_deliveries_handed_over_at_once_go_as_those_handed_one_by_one() -> None:
+    rig = _Rig()
+    shared, own = (packet_json(s, 0, 0, 1, b"{}") for s in (1, 2))
+    ready = [(1, [shared], []), (2, [shared, own], [3]), (3, [], [])]
+    try:
+        rig.declare(1, [1, 2, 3])
+        for receiver, packets, lost in ready:
+            rig.node.outbox.deliver("state", receiver, 0, packets, lost, [])
+        rig.node.outbox.deliver_many("state", 1, ready)
+    finally:
+        rig.close()
+    one_by_one, at_once = (b.model_dump(exclude={"seq", "epoch", "stamp_ns"}) for b in rig.batches)
+    for d in [*one_by_one["deliveries"], *at_once["deliveries"]]:
+        d.pop("stamp_ns"), d.pop("epoch"), d.pop("seq")
+    assert at_once == one_by_one
+    assert at_once["carried"] == [[0], [0, 1], []]  # the shared packet once in the table
