@@ -57,9 +57,7 @@ class NetemNode:
         self.service, self.scenario, self.seed = service, scenario, seed
         self.run_id = service.run_id
         self.wait_for_recorder = wait_for_recorder
-        self.passthrough = (
-            passthrough  # benchmark baseline: forward everything, decide and record nothing
-        )
+        self.passthrough = passthrough  # the benchmarks' baseline: forward all, decide nothing
         self.lock = service.inline_lock  # the config queryable and the sample handler share it
         self.epochs = scenario.epochs
         self.links = Links(scenario, seed)
