@@ -283,12 +283,10 @@ class LocalRun:
         with observer.lock:
             if name == "leader":
                 return len(observer.estimated)
+            seen = np.isfinite(observer.positions[:, :, 0])  # (E + 1, n)
             if name == "netem":
-                return first_missing_epoch(np.isfinite(observer.positions[:, :, 0]).any(axis=1))
-            return min(
-                first_missing_epoch(np.isfinite(observer.positions[:, i - 1, 0]))
-                for i in agent_ids(name)
-            )
+                return first_missing_epoch(np.asarray(seen.any(axis=1)))
+            return min(first_missing_epoch(seen[:, i - 1]) for i in agent_ids(name))
 
     def _has_state(self, agent: int, epoch: int) -> bool:
         return bool(np.isfinite(self.observer.positions[epoch, agent - 1, 0]))
