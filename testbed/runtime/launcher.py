@@ -41,6 +41,9 @@ from testbed.runtime.priorities import favour_shared
 from testbed.runtime.processes import ProcessGroup, free_port, wait_for_port
 
 HOST = "127.0.0.1"
+# How often the launcher looks at its processes while a run goes [s]: polling each one is most
+# of what it does between epochs; a death is still noticed within this.
+CHECK_S = 0.1
 
 
 def _name_part(text: str) -> str:
@@ -300,9 +303,14 @@ class LocalRun:
         events played, a run with no epoch finished for ``epoch_timeout_s`` an error."""
         observer, supervisor = self.observer, self.supervisor
         last_progress, last_count = time.monotonic(), -1
-        while supervisor.running():
-            supervisor.check(self._first_missing)
-            supervisor.check_team(self._agents)
+        next_check = 0.0
+        while True:
+            if time.monotonic() >= next_check:  # the processes, less often than the progress
+                if not supervisor.running():
+                    break
+                supervisor.check(self._first_missing)
+                supervisor.check_team(self._agents)
+                next_check = time.monotonic() + CHECK_S
             with observer.lock:
                 count, drops = len(observer.estimated), observer.drops
             self._progress(count, drops)
