@@ -14,6 +14,7 @@ import orjson
 import pytest
 import zenoh
 
+import testbed.runtime.observer as observer_module
 from formation import keys
 from formation.codec import attachment
 from formation.scenario import Scenario
@@ -71,6 +72,22 @@ def test_states_are_read_when_asked_bad_parts_counted(paper: Scenario) -> None:
             assert observer.substitutions == [(0, 1, 2, [0.5, 0.5])]
             assert observer.fallbacks == 1 and observer.fallback_epochs == {0: 1}
             assert {i: k for i, (k, _) in observer.returns.items()} == {1: 0, 2: 0, 3: 0, 4: 1}
+        observer.close()
+    finally:
+        session.close()
+
+
+def test_states_past_the_bound_are_read_as_they_come(
+    paper: Scenario, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """What is kept unread stays bounded: past ``PENDING_BYTES`` the states are read at once."""
+    monkeypatch.setattr(observer_module, "PENDING_BYTES", 1)
+    session = zenoh.open(session_config("peer", None, None))
+    try:
+        observer = Observer(session, RUN, paper)
+        session.put(keys.pool_states(RUN, 1), _bundle({1: _state(1, 0), 2: _state(2, 0)}))
+        _until(lambda: np.isfinite(observer._positions[0, 1, 0]))  # nobody asked
+        assert not observer._pending
         observer.close()
     finally:
         session.close()
