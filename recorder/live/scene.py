@@ -75,6 +75,13 @@ def _point(p: npt.NDArray[np.float64]) -> Point3:
     return Point3(x=x, y=y, z=z)
 
 
+def _points(rows: npt.NDArray[np.float64]) -> list[Point3]:
+    """:func:`_point` of each row of ``rows`` (m, d)."""
+    if rows.shape[1] > 2:
+        return [Point3(x=x, y=y, z=z) for x, y, z in rows[:, :3].tolist()]
+    return [Point3(x=x, y=y, z=0.0) for x, y in rows.tolist()]
+
+
 def _color(c: RGBA) -> Color:
     return Color(r=c[0], g=c[1], b=c[2], a=c[3])
 
@@ -83,7 +90,9 @@ def _identity() -> Quaternion:
     return Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
 
 
-def _pose(p: npt.NDArray[np.float64] | None = None, yaw: float | None = None) -> Pose:
+def _pose(
+    p: npt.NDArray[np.float64] | Sequence[float] | None = None, yaw: float | None = None
+) -> Pose:
     """At ``p`` (the origin if None), turned by ``yaw`` [rad] about z (none if None)."""
     x, y, z = (0.0, 0.0, 0.0) if p is None else _xyz(p)
     turn = (
@@ -209,16 +218,18 @@ def scene_update(
         )
     colors = edge_colors(healthy, tree, edges.shape[0])
     groups: dict[RGBA, list[Point3]] = {}
-    for (i, j), color in zip(edges, colors, strict=True):
-        color = OUT if away[i - 1] or away[j - 1] else color
-        groups.setdefault(color, []).extend((_point(positions[i - 1]), _point(positions[j - 1])))
+    at, gone = _points(positions), away.tolist()
+    pairs = edges.tolist()
+    for (i, j), color in zip(pairs, colors, strict=True):
+        color = OUT if gone[i - 1] or gone[j - 1] else color
+        groups.setdefault(color, []).extend((at[i - 1], at[j - 1]))
     lines = [
         _lines(pts, c, 4.0 if c == TREE else 1.0 if c == OUT else 2.0) for c, pts in groups.items()
     ]
-    anchor = positions[leader - 1] - offsets[leader - 1]
+    shape = _points(positions[leader - 1] - offsets[leader - 1] + offsets)
     shape_pts: list[Point3] = []
-    for i, j in edges:
-        shape_pts += [_point(anchor + offsets[i - 1]), _point(anchor + offsets[j - 1])]
+    for i, j in pairs:
+        shape_pts += [shape[i - 1], shape[j - 1]]
     if shape_pts:
         lines.append(_lines(shape_pts, SHAPE, 1.0))
     half: list[Point3] = []
@@ -228,15 +239,16 @@ def scene_update(
     if half:
         lines.append(_lines(half, LOST, 3.0))
     e_size = Vector3(x=radius, y=radius, z=radius)
+    ringed: list[tuple[list[float], list[list[float]]]] = []
     for p, c in zip(estimates or [], covariances or [], strict=False):
         if p is None:
             continue
-        centre = np.asarray(p, dtype=float)
-        spheres.append(SpherePrimitive(pose=_pose(centre), size=e_size, color=_color(ESTIMATE)))
+        spheres.append(SpherePrimitive(pose=_pose(p), size=e_size, color=_color(ESTIMATE)))
         if c is not None:
-            ring = ellipse(centre, np.asarray(c, dtype=float))
-            if ring:
-                lines.append(_lines(ring, ESTIMATE, 1.0, LinePrimitiveLineType.LineLoop))
+            ringed.append((p, c))
+    for ring in _rings(ringed):
+        if ring:
+            lines.append(_lines(ring, ESTIMATE, 1.0, LinePrimitiveLineType.LineLoop))
     arrows = (
         []
         if headings is None
@@ -300,19 +312,42 @@ def heading_arrows(
 
 def ellipse(centre: npt.NDArray[np.float64], cov: npt.NDArray[np.float64]) -> list[Point3]:
     """Points of the ``SIGMAS``-σ ellipse of the x–y block of ``cov`` around ``centre``."""
-    block = cov[:2, :2]
-    if not np.isfinite(block).all():
-        return []
-    values, vectors = np.linalg.eigh((block + block.T) / 2)
-    axes = vectors * (SIGMAS * np.sqrt(np.clip(values, 0.0, None)))
+    return ellipses(centre[None], cov[None])[0]
+
+
+def ellipses(
+    centres: npt.NDArray[np.float64], covariances: npt.NDArray[np.float64]
+) -> list[list[Point3]]:
+    """:func:`ellipse` of each row: ``centres`` (m, d) [m], ``covariances`` (m, d, d) [m²];
+    no points where the x–y block is not finite."""
+    blocks = covariances[:, :2, :2]
+    finite = np.isfinite(blocks).all(axis=(1, 2))
+    out: list[list[Point3]] = [[] for _ in range(len(centres))]
+    if not finite.any():
+        return out
+    block = blocks[finite]
+    values, vectors = np.linalg.eigh((block + np.swapaxes(block, 1, 2)) / 2)
+    axes = vectors * (SIGMAS * np.sqrt(np.clip(values, 0.0, None)))[:, None, :]
     t = np.linspace(0.0, 2 * np.pi, ELLIPSE_POINTS, endpoint=False)
-    ring = (axes @ np.stack([np.cos(t), np.sin(t)])).T
-    out = []
-    for r in ring:
-        p = centre.copy()
-        p[:2] += r
-        out.append(_point(p))
+    rings = np.swapaxes(axes @ np.stack([np.cos(t), np.sin(t)]), 1, 2)  # (k, points, 2)
+    centre = centres[finite]
+    xy = (centre[:, None, :2] + rings).tolist()
+    zs = centre[:, 2].tolist() if centre.shape[1] > 2 else [0.0] * len(centre)
+    for r, ring, z in zip(np.flatnonzero(finite).tolist(), xy, zs, strict=True):
+        out[r] = [Point3(x=x, y=y, z=z) for x, y in ring]
     return out
+
+
+def _rings(ringed: list[tuple[list[float], list[list[float]]]]) -> list[list[Point3]]:
+    """The ellipses of (estimate, covariance) pairs, all at once where their shapes agree."""
+    if not ringed:
+        return []
+    try:
+        centres = np.array([p for p, _ in ringed], dtype=float)
+        covariances = np.array([c for _, c in ringed], dtype=float)
+    except ValueError:  # of different dimensions: one by one
+        return [ellipse(np.asarray(p, dtype=float), np.asarray(c, dtype=float)) for p, c in ringed]
+    return ellipses(centres, covariances)
 
 
 def agent_frame(i: int) -> str:
@@ -345,6 +380,7 @@ __all__ = [
     "agent_frame",
     "edge_colors",
     "ellipse",
+    "ellipses",
     "entity",
     "frame_transforms",
     "heading_arrows",
