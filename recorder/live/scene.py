@@ -75,11 +75,22 @@ def _point(p: npt.NDArray[np.float64]) -> Point3:
     return Point3(x=x, y=y, z=z)
 
 
+def _xyzs(rows: npt.NDArray[np.float64]) -> list[tuple[float, float, float]]:
+    """:func:`_xyz` of each row of ``rows`` (m, d)."""
+    if rows.shape[1] > 2:
+        return [(x, y, z) for x, y, z in rows[:, :3].tolist()]
+    return [(x, y, 0.0) for x, y in rows.tolist()]
+
+
 def _points(rows: npt.NDArray[np.float64]) -> list[Point3]:
     """:func:`_point` of each row of ``rows`` (m, d)."""
-    if rows.shape[1] > 2:
-        return [Point3(x=x, y=y, z=z) for x, y, z in rows[:, :3].tolist()]
-    return [Point3(x=x, y=y, z=0.0) for x, y in rows.tolist()]
+    return [Point3(x=x, y=y, z=z) for x, y, z in _xyzs(rows)]
+
+
+def _poses(rows: npt.NDArray[np.float64]) -> list[Pose]:
+    """:func:`_pose` of each row of ``rows`` (m, d), unturned."""
+    turn = _identity()
+    return [Pose(position=Vector3(x=x, y=y, z=z), orientation=turn) for x, y, z in _xyzs(rows)]
 
 
 def _color(c: RGBA) -> Color:
@@ -200,10 +211,12 @@ def scene_update(
     size = Vector3(x=2 * radius, y=2 * radius, z=2 * radius)
     spheres = []
     texts = []
-    for i in range(n):
-        color = OUT if away[i] else LEADER_COLOR if i + 1 == leader else AGENT_COLOR
-        spheres.append(SpherePrimitive(pose=_pose(positions[i]), size=size, color=_color(color)))
-        if n > LABELLED_MAX and not away[i] and i + 1 != leader:
+    gone = away.tolist()
+    paint = {c: _color(c) for c in (OUT, LEADER_COLOR, AGENT_COLOR)}  # shared, as ``size``
+    for i, pose in enumerate(_poses(positions)):
+        color = OUT if gone[i] else LEADER_COLOR if i + 1 == leader else AGENT_COLOR
+        spheres.append(SpherePrimitive(pose=pose, size=size, color=paint[color]))
+        if n > LABELLED_MAX and not gone[i] and i + 1 != leader:
             continue  # ten thousand labels are a smear: the leader and agents out only
         label = positions[i] + np.r_[radius, radius, 0.0][: positions.shape[1]]
         texts.append(
@@ -213,12 +226,12 @@ def scene_update(
                 font_size=14.0,
                 scale_invariant=True,
                 color=_color(LABEL),
-                text=f"{i + 1} out" if away[i] else str(i + 1),
+                text=f"{i + 1} out" if gone[i] else str(i + 1),
             )
         )
     colors = edge_colors(healthy, tree, edges.shape[0])
     groups: dict[RGBA, list[Point3]] = {}
-    at, gone = _points(positions), away.tolist()
+    at = _points(positions)
     pairs = edges.tolist()
     for (i, j), color in zip(pairs, colors, strict=True):
         color = OUT if gone[i - 1] or gone[j - 1] else color
