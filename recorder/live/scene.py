@@ -16,7 +16,7 @@ the SDK's messages (``foxglove.messages``) out; ``.encode()`` gives the recorded
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -75,11 +75,10 @@ def _point(p: npt.NDArray[np.float64]) -> Point3:
     return Point3(x=x, y=y, z=z)
 
 
-def _xyzs(rows: npt.NDArray[np.float64]) -> list[tuple[float, float, float]]:
-    """:func:`_xyz` of each row of ``rows`` (m, d)."""
-    if rows.shape[1] > 2:
-        return [(x, y, z) for x, y, z in rows[:, :3].tolist()]
-    return [(x, y, 0.0) for x, y in rows.tolist()]
+def _xyzs(rows: npt.NDArray[np.float64]) -> Iterator[tuple[float, float, float]]:
+    """:func:`_xyz` of each row of ``rows`` (m, d), from flat lists (see :func:`ellipses`)."""
+    z = rows[:, 2].tolist() if rows.shape[1] > 2 else [0.0] * len(rows)
+    return zip(rows[:, 0].tolist(), rows[:, 1].tolist(), z, strict=True)
 
 
 def _points(rows: npt.NDArray[np.float64]) -> list[Point3]:
@@ -344,10 +343,13 @@ def ellipses(
     t = np.linspace(0.0, 2 * np.pi, ELLIPSE_POINTS, endpoint=False)
     rings = np.swapaxes(axes @ np.stack([np.cos(t), np.sin(t)]), 1, 2)  # (k, points, 2)
     centre = centres[finite]
-    xy = (centre[:, None, :2] + rings).tolist()
-    zs = centre[:, 2].tolist() if centre.shape[1] > 2 else [0.0] * len(centre)
-    for r, ring, z in zip(np.flatnonzero(finite).tolist(), xy, zs, strict=True):
-        out[r] = [Point3(x=x, y=y, z=z) for x, y in ring]
+    xy = centre[:, None, :2] + rings
+    z = np.broadcast_to(centre[:, 2:3] if centre.shape[1] > 2 else 0.0, xy.shape[:2])
+    # flat lists of floats: nested ones are a list per point for the collector to walk
+    xs, ys, zs = (a.ravel().tolist() for a in (xy[..., 0], xy[..., 1], z))
+    points = [Point3(x=x, y=y, z=z) for x, y, z in zip(xs, ys, zs, strict=True)]
+    for k, r in enumerate(np.flatnonzero(finite).tolist()):
+        out[r] = points[k * ELLIPSE_POINTS : (k + 1) * ELLIPSE_POINTS]
     return out
 
 
