@@ -26,8 +26,8 @@ from testbed.runtime.observed_states import (
     read_state,
 )
 
-# Raw states kept until someone reads them, at most this many bytes (about 200 epochs of a
-# 1,000-agent team): decoding them as they come cost the run's cores more than the router did.
+# The states kept unread, at most this many bytes (about 200 epochs of 1,000 agents): past it
+# they are read at once, so a long run's memory stays bounded.
 PENDING_BYTES = 64 << 20
 
 
