@@ -49,7 +49,7 @@ def _by_thread(ms: dict[tuple[str, str], float]) -> str:
 
 
 def lockstep_rate(
-    scenario: Scenario, pool: int | None, runs: Path
+    scenario: Scenario, pool: int | None, runs: Path, record: bool = False
 ) -> tuple[float, float, int, dict[str, float], dict[tuple[str, str], float]]:
     """(distributed epochs/s, simulator epochs/s, peak RSS of an agent process in KiB,
     CPU ms per epoch by role, the same by role and thread name), the CPU between the same
@@ -76,7 +76,7 @@ def lockstep_rate(
             agents = [p for name, p in pids.items() if name.startswith(("agent", "pool"))]
             peak[0] = max(peak_rss_kib(p) for p in agents)
 
-    out = launch(scenario, seed=SEED, runs_dir=runs, record=False, pool=pool, progress=progress)
+    out = launch(scenario, seed=SEED, runs_dir=runs, record=record, pool=pool, progress=progress)
     seen = sorted(k for k in marks if first <= k <= last)
     rate = (seen[-1] - seen[0]) / (marks[seen[-1]] - marks[seen[0]])
     by_role: dict[str, float] = {}
@@ -184,9 +184,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--case", default="", help="only the cases whose name holds this text")
     parser.add_argument("--epochs", type=int, help="epochs of each case (default: its own)")
     parser.add_argument("--no-latency", action="store_true", help="skip the netem hop latency")
+    parser.add_argument(
+        "--record", action="store_true", help="record the runs (as `formation run` does)"
+    )
     args = parser.parse_args(argv)
     print(
-        f"seed {SEED}; lockstep runs, services as zenoh clients of a router on 127.0.0.1; baseline: the in-process simulator in steady state"
+        f"seed {SEED}; lockstep runs{', recorded' if args.record else ''}, services as zenoh clients of a router on 127.0.0.1; baseline: the in-process simulator in steady state"
     )
     cases = [
         (
@@ -213,7 +216,7 @@ def main(argv: list[str] | None = None) -> None:
         for name, scenario, pool in cases:
             # Small teams take seconds and vary by about 10 % from run to run: median of 3.
             repeats = 3 if scenario.n <= 20 else 1
-            runs = [lockstep_rate(scenario, pool, Path(tmp)) for _ in range(repeats)]
+            runs = [lockstep_rate(scenario, pool, Path(tmp), args.record) for _ in range(repeats)]
             rate, sim_rate, rss = (float(np.median([r[c] for r in runs])) for c in range(3))
             spread = ", ".join(f"{r[0]:.1f}" for r in runs)
             print(

@@ -16,7 +16,7 @@ the SDK's messages (``foxglove.messages``) out; ``.encode()`` gives the recorded
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -75,6 +75,23 @@ def _point(p: npt.NDArray[np.float64]) -> Point3:
     return Point3(x=x, y=y, z=z)
 
 
+def _xyzs(rows: npt.NDArray[np.float64]) -> Iterator[tuple[float, float, float]]:
+    """:func:`_xyz` of each row of ``rows`` (m, d), from flat lists (see :func:`ellipses`)."""
+    z = rows[:, 2].tolist() if rows.shape[1] > 2 else [0.0] * len(rows)
+    return zip(rows[:, 0].tolist(), rows[:, 1].tolist(), z, strict=True)
+
+
+def _points(rows: npt.NDArray[np.float64]) -> list[Point3]:
+    """:func:`_point` of each row of ``rows`` (m, d)."""
+    return [Point3(x=x, y=y, z=z) for x, y, z in _xyzs(rows)]
+
+
+def _poses(rows: npt.NDArray[np.float64]) -> list[Pose]:
+    """:func:`_pose` of each row of ``rows`` (m, d), unturned."""
+    turn = _identity()
+    return [Pose(position=Vector3(x=x, y=y, z=z), orientation=turn) for x, y, z in _xyzs(rows)]
+
+
 def _color(c: RGBA) -> Color:
     return Color(r=c[0], g=c[1], b=c[2], a=c[3])
 
@@ -83,7 +100,9 @@ def _identity() -> Quaternion:
     return Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
 
 
-def _pose(p: npt.NDArray[np.float64] | None = None, yaw: float | None = None) -> Pose:
+def _pose(
+    p: npt.NDArray[np.float64] | Sequence[float] | None = None, yaw: float | None = None
+) -> Pose:
     """At ``p`` (the origin if None), turned by ``yaw`` [rad] about z (none if None)."""
     x, y, z = (0.0, 0.0, 0.0) if p is None else _xyz(p)
     turn = (
@@ -191,10 +210,12 @@ def scene_update(
     size = Vector3(x=2 * radius, y=2 * radius, z=2 * radius)
     spheres = []
     texts = []
-    for i in range(n):
-        color = OUT if away[i] else LEADER_COLOR if i + 1 == leader else AGENT_COLOR
-        spheres.append(SpherePrimitive(pose=_pose(positions[i]), size=size, color=_color(color)))
-        if n > LABELLED_MAX and not away[i] and i + 1 != leader:
+    gone = away.tolist()
+    paint = {c: _color(c) for c in (OUT, LEADER_COLOR, AGENT_COLOR)}  # shared, as ``size``
+    for i, pose in enumerate(_poses(positions)):
+        color = OUT if gone[i] else LEADER_COLOR if i + 1 == leader else AGENT_COLOR
+        spheres.append(SpherePrimitive(pose=pose, size=size, color=paint[color]))
+        if n > LABELLED_MAX and not gone[i] and i + 1 != leader:
             continue  # ten thousand labels are a smear: the leader and agents out only
         label = positions[i] + np.r_[radius, radius, 0.0][: positions.shape[1]]
         texts.append(
@@ -204,21 +225,23 @@ def scene_update(
                 font_size=14.0,
                 scale_invariant=True,
                 color=_color(LABEL),
-                text=f"{i + 1} out" if away[i] else str(i + 1),
+                text=f"{i + 1} out" if gone[i] else str(i + 1),
             )
         )
     colors = edge_colors(healthy, tree, edges.shape[0])
     groups: dict[RGBA, list[Point3]] = {}
-    for (i, j), color in zip(edges, colors, strict=True):
-        color = OUT if away[i - 1] or away[j - 1] else color
-        groups.setdefault(color, []).extend((_point(positions[i - 1]), _point(positions[j - 1])))
+    at = _points(positions)
+    pairs = edges.tolist()
+    for (i, j), color in zip(pairs, colors, strict=True):
+        color = OUT if gone[i - 1] or gone[j - 1] else color
+        groups.setdefault(color, []).extend((at[i - 1], at[j - 1]))
     lines = [
         _lines(pts, c, 4.0 if c == TREE else 1.0 if c == OUT else 2.0) for c, pts in groups.items()
     ]
-    anchor = positions[leader - 1] - offsets[leader - 1]
+    shape = _points(positions[leader - 1] - offsets[leader - 1] + offsets)
     shape_pts: list[Point3] = []
-    for i, j in edges:
-        shape_pts += [_point(anchor + offsets[i - 1]), _point(anchor + offsets[j - 1])]
+    for i, j in pairs:
+        shape_pts += [shape[i - 1], shape[j - 1]]
     if shape_pts:
         lines.append(_lines(shape_pts, SHAPE, 1.0))
     half: list[Point3] = []
@@ -228,15 +251,16 @@ def scene_update(
     if half:
         lines.append(_lines(half, LOST, 3.0))
     e_size = Vector3(x=radius, y=radius, z=radius)
+    ringed: list[tuple[list[float], list[list[float]]]] = []
     for p, c in zip(estimates or [], covariances or [], strict=False):
         if p is None:
             continue
-        centre = np.asarray(p, dtype=float)
-        spheres.append(SpherePrimitive(pose=_pose(centre), size=e_size, color=_color(ESTIMATE)))
+        spheres.append(SpherePrimitive(pose=_pose(p), size=e_size, color=_color(ESTIMATE)))
         if c is not None:
-            ring = ellipse(centre, np.asarray(c, dtype=float))
-            if ring:
-                lines.append(_lines(ring, ESTIMATE, 1.0, LinePrimitiveLineType.LineLoop))
+            ringed.append((p, c))
+    for ring in _rings(ringed):
+        if ring:
+            lines.append(_lines(ring, ESTIMATE, 1.0, LinePrimitiveLineType.LineLoop))
     arrows = (
         []
         if headings is None
@@ -300,19 +324,45 @@ def heading_arrows(
 
 def ellipse(centre: npt.NDArray[np.float64], cov: npt.NDArray[np.float64]) -> list[Point3]:
     """Points of the ``SIGMAS``-σ ellipse of the x–y block of ``cov`` around ``centre``."""
-    block = cov[:2, :2]
-    if not np.isfinite(block).all():
-        return []
-    values, vectors = np.linalg.eigh((block + block.T) / 2)
-    axes = vectors * (SIGMAS * np.sqrt(np.clip(values, 0.0, None)))
+    return ellipses(centre[None], cov[None])[0]
+
+
+def ellipses(
+    centres: npt.NDArray[np.float64], covariances: npt.NDArray[np.float64]
+) -> list[list[Point3]]:
+    """:func:`ellipse` of each row: ``centres`` (m, d) [m], ``covariances`` (m, d, d) [m²];
+    no points where the x–y block is not finite."""
+    blocks = covariances[:, :2, :2]
+    finite = np.isfinite(blocks).all(axis=(1, 2))
+    out: list[list[Point3]] = [[] for _ in range(len(centres))]
+    if not finite.any():
+        return out
+    block = blocks[finite]
+    values, vectors = np.linalg.eigh((block + np.swapaxes(block, 1, 2)) / 2)
+    axes = vectors * (SIGMAS * np.sqrt(np.clip(values, 0.0, None)))[:, None, :]
     t = np.linspace(0.0, 2 * np.pi, ELLIPSE_POINTS, endpoint=False)
-    ring = (axes @ np.stack([np.cos(t), np.sin(t)])).T
-    out = []
-    for r in ring:
-        p = centre.copy()
-        p[:2] += r
-        out.append(_point(p))
+    rings = np.swapaxes(axes @ np.stack([np.cos(t), np.sin(t)]), 1, 2)  # (k, points, 2)
+    centre = centres[finite]
+    xy = centre[:, None, :2] + rings
+    z = np.broadcast_to(centre[:, 2:3] if centre.shape[1] > 2 else 0.0, xy.shape[:2])
+    # flat lists of floats: nested ones are a list per point for the collector to walk
+    xs, ys, zs = (a.ravel().tolist() for a in (xy[..., 0], xy[..., 1], z))
+    points = [Point3(x=x, y=y, z=z) for x, y, z in zip(xs, ys, zs, strict=True)]
+    for k, r in enumerate(np.flatnonzero(finite).tolist()):
+        out[r] = points[k * ELLIPSE_POINTS : (k + 1) * ELLIPSE_POINTS]
     return out
+
+
+def _rings(ringed: list[tuple[list[float], list[list[float]]]]) -> list[list[Point3]]:
+    """The ellipses of (estimate, covariance) pairs, all at once where their shapes agree."""
+    if not ringed:
+        return []
+    try:
+        centres = np.array([p for p, _ in ringed], dtype=float)
+        covariances = np.array([c for _, c in ringed], dtype=float)
+    except ValueError:  # of different dimensions: one by one
+        return [ellipse(np.asarray(p, dtype=float), np.asarray(c, dtype=float)) for p, c in ringed]
+    return ellipses(centres, covariances)
 
 
 def agent_frame(i: int) -> str:
@@ -345,6 +395,7 @@ __all__ = [
     "agent_frame",
     "edge_colors",
     "ellipse",
+    "ellipses",
     "entity",
     "frame_transforms",
     "heading_arrows",

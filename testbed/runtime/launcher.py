@@ -41,6 +41,9 @@ from testbed.runtime.priorities import favour_shared
 from testbed.runtime.processes import ProcessGroup, free_port, wait_for_port
 
 HOST = "127.0.0.1"
+# How often the launcher looks at its processes while a run goes [s]: polling each one is most
+# of what it does between epochs; a death is still noticed within this.
+CHECK_S = 0.1
 
 
 def _name_part(text: str) -> str:
@@ -283,12 +286,10 @@ class LocalRun:
         with observer.lock:
             if name == "leader":
                 return len(observer.estimated)
+            seen = np.isfinite(observer.positions[:, :, 0])  # (E + 1, n)
             if name == "netem":
-                return first_missing_epoch(np.isfinite(observer.positions[:, :, 0]).any(axis=1))
-            return min(
-                first_missing_epoch(np.isfinite(observer.positions[:, i - 1, 0]))
-                for i in agent_ids(name)
-            )
+                return first_missing_epoch(np.asarray(seen.any(axis=1)))
+            return min(first_missing_epoch(seen[:, i - 1]) for i in agent_ids(name))
 
     def _has_state(self, agent: int, epoch: int) -> bool:
         return bool(np.isfinite(self.observer.positions[epoch, agent - 1, 0]))
@@ -302,9 +303,14 @@ class LocalRun:
         events played, a run with no epoch finished for ``epoch_timeout_s`` an error."""
         observer, supervisor = self.observer, self.supervisor
         last_progress, last_count = time.monotonic(), -1
-        while supervisor.running():
-            supervisor.check(self._first_missing)
-            supervisor.check_team(self._agents)
+        next_check = 0.0
+        while True:
+            if time.monotonic() >= next_check:  # the processes, less often than the progress
+                if not supervisor.running():
+                    break
+                supervisor.check(self._first_missing)
+                supervisor.check_team(self._agents)
+                next_check = time.monotonic() + CHECK_S
             with observer.lock:
                 count, drops = len(observer.estimated), observer.drops
             self._progress(count, drops)

@@ -9,15 +9,26 @@ from collections import Counter
 from typing import Any, NamedTuple
 
 import numpy as np
-import orjson
+import numpy.typing as npt
 import zenoh
 
 from formation import keys
 from formation.codec import Malformed, read_attachment
-from formation.messages import LINK_CLASS_OF, Status
+from formation.messages import Status
 from formation.scenario import Scenario
+from testbed.runtime.observed_decisions import Judged, read_batch
+from testbed.runtime.observed_states import (
+    Bounds,
+    ObservedState,
+    StateRows,
+    read_bundle,
+    read_parts,
+    read_state,
+)
 
-_COLUMNS = ("source", "target", "epoch", "seq", "judgement")  # as Verdict takes them
+# The states kept unread, at most this many bytes (about 200 epochs of 1,000 agents): past it
+# they are read at once, so a long run's memory stays bounded.
+PENDING_BYTES = 64 << 20
 
 
 class Verdict(NamedTuple):
@@ -32,47 +43,61 @@ class Verdict(NamedTuple):
     model: str = ""  # what dropped it: a link model, or a queue's reason (queue_full, ...)
 
 
-# a state as the observer keeps it: epoch, agent, seq, position, substitutions, fallbacks
-_State = tuple[int, int, int, list[float], list[tuple[int, list[float]]], int]
+class _Raw(NamedTuple):
+    """A state, or a pool's bundle of them, as it came: read when the states are asked for."""
+
+    key: str
+    payload: bytes
+    owner: str  # a state: the agent its key stands for; a bundle: its pool's first agent
+    bundle: bool
+    arrived: float  # time.monotonic() [s]
 
 
 class Observer:
     """The launcher's own Zenoh view of the run: progress, drops, states, statuses.
 
-    It shares the machine with the run, so it reads only the fields it needs (orjson,
-    not the models: at 1,000 agents full validation cost it a tenth of the run's CPU).
+    It shares the machine with the run, so it reads only what it needs when it needs it:
+    a progress line needs the estimates' epochs and the drops, so the states are kept as they
+    came and read (in bulk, :mod:`testbed.runtime.observed_states`) once someone reads
+    :attr:`positions`, :attr:`returns`, :attr:`substitutions`, :attr:`fallbacks`,
+    :attr:`fallback_epochs` or :attr:`malformed`, or they pass ``PENDING_BYTES``.
     What it cannot read is counted as malformed.
     """
 
     def __init__(self, session: zenoh.Session, run_id: str, scenario: Scenario) -> None:
-        self.lock = threading.Lock()
+        self.lock = threading.RLock()  # reading the states settles them, under it
         self.scenario = scenario
         e, n, d = scenario.epochs, scenario.n, scenario.dimension
-        self.positions = np.full((e + 1, n, d), np.nan)
+        self.bounds = Bounds(e, n, d)
+        self._positions = np.full((e + 1, n, d), np.nan)
         self.estimated: set[int] = set()
-        # netem's decision batches as columns: (link class, [(verdict, model)], columns)
-        self._batches: list[tuple[str, list[tuple[str, str]], tuple[list[int], ...]]] = []
-        self.substitutions: list[
-            tuple[int, int, int, list[float]]
-        ] = []  # (epoch, agent, neighbour, x̃)
+        self._batches: list[Judged] = []  # netem's decision batches, records unread
+        # (epoch, agent, neighbour, x̃)
+        self._substitutions: list[tuple[int, int, int, list[float]]] = []
         self.statuses: dict[str, Status] = {}  # each process's last
         self.parts: list[Status] = []  # the last statuses of the parts before a restart
         self.alive: set[str] = set()
-        self.malformed = Malformed()
+        self._malformed = Malformed()
         self.drops = 0
-        self.fallbacks = 0  # substituted values that fell back (no estimate to use)
-        self.fallback_epochs: Counter[int] = Counter()  # epoch → those used at it
+        self._fallbacks = 0  # substituted values that fell back (no estimate to use)
+        self._fallback_epochs: Counter[int] = Counter()  # epoch → those used at it
         # agent → (epoch, t) of its newest process's first state (seq 0) or its first after a gap
-        self.returns: dict[int, tuple[int, float]] = {}
+        self._returns: dict[int, tuple[int, float]] = {}
+        self._pending: list[_Raw] = []
+        self._pending_bytes = 0
         self.team_events: list[tuple[float, str]] = []  # netem's running statuses (t, detail)
         self.run_id = run_id
+        # The leader finished an epoch: said by the attachment of agent 1's part (realtime) or
+        # of the whole estimate (lockstep: the parts' bundle is four times its size).
+        done = (
+            keys.leader_estimate_for(run_id, 1)
+            if scenario.runtime.mode == "realtime"
+            else keys.leader_estimate_out(run_id)
+        )
         self._subs = [
             session.declare_subscriber(keys.agent_state(run_id, "*"), self._on_state),
             session.declare_subscriber(keys.pool_states(run_id, "*"), self._on_states),
-            # Agent 1's part (realtime) or the parts' bundle (lockstep) says the leader
-            # finished the epoch as well as the whole estimate does, by its attachment alone.
-            session.declare_subscriber(keys.leader_estimate_for(run_id, 1), self._on_estimate),
-            session.declare_subscriber(keys.leader_estimates(run_id), self._on_estimate),
+            session.declare_subscriber(done, self._on_estimate),
             session.declare_subscriber(keys.netem_decision(run_id), self._on_decisions),
             session.declare_subscriber(keys.status_all(run_id), self._on_status),
             session.liveliness().declare_subscriber(
@@ -81,109 +106,164 @@ class Observer:
         ]
 
     def _decode(self, sample: zenoh.Sample, model: Any) -> Any:
-        return self.malformed.decode(str(sample.key_expr), sample.payload.to_bytes(), model)
+        return self._malformed.decode(str(sample.key_expr), sample.payload.to_bytes(), model)
 
     def _on_state(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
         args = keys.parse(key).args  # its own key only
-        state = self._read_state(key, sample.payload.to_bytes(), args[0] if len(args) == 1 else "")
-        if state is not None:
-            with self.lock:
-                self._keep(*state)
+        self._hold(
+            _Raw(
+                key,
+                sample.payload.to_bytes(),
+                args[0] if len(args) == 1 else "",
+                False,
+                time.monotonic(),
+            )
+        )
 
     def _on_states(self, sample: zenoh.Sample) -> None:
         """A pool's states in one bundle: each part as if it came alone, its pool's agents'."""
         key = str(sample.key_expr)
         try:
-            parts = orjson.loads(sample.payload.to_bytes())["parts"]
-            first = int(keys.parse(key).args[0])
-            messages = [(int(p["agent"]), str(p["message"])) for p in parts]
-        except (orjson.JSONDecodeError, KeyError, TypeError, ValueError):
-            self.malformed.counts[key] += 1
-            return
-        read = self._read_state
-        states = [read(key, message, str(i) if i >= first else "") for i, message in messages]
+            first = keys.parse(key).args[0]
+        except (KeyError, ValueError, IndexError):
+            first = ""  # counted when read
+        self._hold(_Raw(key, sample.payload.to_bytes(), first, True, time.monotonic()))
+
+    def _hold(self, raw: _Raw) -> None:
         with self.lock:
-            for state in states:
-                if state is not None:
-                    self._keep(*state)
+            self._pending.append(raw)
+            self._pending_bytes += len(raw.payload)
+            if self._pending_bytes > PENDING_BYTES:
+                self.settle()
 
-    def _read_state(self, key: str, payload: bytes | str, owner: str) -> _State | None:
-        """A state on ``key``; None, counted there as malformed, unless its agent is ``owner``
-        (the id its key, or its part of a pool's bundle, stands for)."""
+    def settle(self) -> None:
+        """Read every state kept as it came, in the order they came."""
+        with self.lock:
+            pending, self._pending, self._pending_bytes = self._pending, [], 0
+            for raw in pending:
+                if raw.bundle:
+                    self._read_bundle(raw)
+                    continue
+                state = read_state(raw.payload, raw.owner, self.bounds)
+                if state is None:
+                    self._malformed.counts[raw.key] += 1
+                else:
+                    self._keep(state, raw.arrived)
+
+    def _read_bundle(self, raw: _Raw) -> None:
         try:
-            msg = orjson.loads(payload)
-            k, i, seq = int(msg["epoch"]), int(msg["agent"]), int(msg["seq"])
-            position = [float(v) for v in msg["position"]]
-            subs = [
-                (int(s["neighbour"]), [float(v) for v in s["value"]]) for s in msg["substituted"]
-            ]
-            fell = sum(bool(s.get("fallback")) for s in msg["substituted"])
-            ok = 0 <= k <= self.scenario.epochs and 1 <= i <= self.scenario.n
-            ok = ok and len(position) == self.scenario.dimension and str(i) == owner
-        except (orjson.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError):
-            ok = False
-        if not ok:
-            self.malformed.counts[key] += 1
-            return None
-        return k, i, seq, position, subs, fell
+            first = int(raw.owner)
+        except ValueError:
+            self._malformed.counts[raw.key] += 1
+            return
+        rows = read_bundle(raw.payload, first, self.bounds)
+        if rows is not None:
+            self._keep_rows(rows, raw.arrived)
+            return
+        parts = read_parts(raw.payload, first)
+        if parts is None:
+            self._malformed.counts[raw.key] += 1
+            return
+        for i, message in parts:
+            state = read_state(message, str(i) if i >= first else "", self.bounds)
+            if state is None:
+                self._malformed.counts[raw.key] += 1
+            else:
+                self._keep(state, raw.arrived)
 
-    def _keep(
-        self,
-        k: int,
-        i: int,
-        seq: int,
-        position: list[float],
-        subs: list[tuple[int, list[float]]],
-        fell: int,
-    ) -> None:
-        """Agent ``i``'s state of epoch ``k`` (under :attr:`lock`)."""
-        if seq == 0 or (k > 0 and np.isnan(self.positions[k - 1, i - 1, 0])):
-            self.returns[i] = (k, time.monotonic())
-        self.positions[k, i - 1] = position
-        for j, value in subs:  # used at the previous epoch
-            self.substitutions.append((k - 1, i, j, value))
-        if fell:
-            self.fallbacks += fell
-            self.fallback_epochs[k - 1] += fell
+    def _keep(self, state: ObservedState, arrived: float) -> None:
+        """One agent's state (under :attr:`lock`)."""
+        k, i = state.epoch, state.agent
+        if state.seq == 0 or (k > 0 and np.isnan(self._positions[k - 1, i - 1, 0])):
+            self._returns[i] = (k, arrived)
+        self._positions[k, i - 1] = state.position
+        for j, value in state.substituted:  # used at the previous epoch
+            self._substitutions.append((k - 1, i, j, value))
+        if state.fell_back:
+            self._fallbacks += state.fell_back
+            self._fallback_epochs[k - 1] += state.fell_back
+
+    def _keep_rows(self, rows: StateRows, arrived: float) -> None:
+        """A bundle's states, each agent once, as :meth:`_keep` keeps them one by one."""
+        k, i = rows.epoch, rows.agent
+        gap = (k > 0) & np.isnan(self._positions[np.maximum(k - 1, 0), i - 1, 0])
+        for epoch, agent in zip(
+            k[(rows.seq == 0) | gap].tolist(), i[(rows.seq == 0) | gap].tolist(), strict=True
+        ):
+            self._returns[agent] = (epoch, arrived)
+        self._positions[k, i - 1] = rows.position
+        for r in np.flatnonzero([bool(s) for s in rows.substituted]).tolist():
+            e, a = int(k[r]) - 1, int(i[r])
+            self._substitutions.extend((e, a, j, value) for j, value in rows.substituted[r])
+        for r in np.flatnonzero(rows.fell_back).tolist():
+            self._fallbacks += int(rows.fell_back[r])
+            self._fallback_epochs[int(k[r]) - 1] += int(rows.fell_back[r])
+
+    @property
+    def positions(self) -> npt.NDArray[np.float64]:
+        """(E + 1, n, d) each agent's state at each epoch [m], NaN where none came."""
+        self.settle()
+        return self._positions
+
+    @property
+    def returns(self) -> dict[int, tuple[int, float]]:
+        """Agent → (epoch, monotonic time it came) of its newest process's first state (seq 0)
+        or its first after a gap."""
+        self.settle()
+        return self._returns
+
+    @property
+    def substitutions(self) -> list[tuple[int, int, int, list[float]]]:
+        """(epoch, agent, neighbour, x̃) of each value an agent used for a lost neighbour."""
+        self.settle()
+        return self._substitutions
+
+    @property
+    def fallbacks(self) -> int:
+        """Substituted values that fell back (no estimate to use)."""
+        self.settle()
+        return self._fallbacks
+
+    @property
+    def fallback_epochs(self) -> Counter[int]:
+        """Epoch → the substituted values that fell back at it."""
+        self.settle()
+        return self._fallback_epochs
+
+    @property
+    def malformed(self) -> Malformed:
+        """What could not be read, per key (the states read first)."""
+        self.settle()
+        return self._malformed
 
     def _on_estimate(self, sample: zenoh.Sample) -> None:
         att = sample.attachment
         meta = read_attachment(None if att is None else att.to_bytes())
         if meta is None:
-            self.malformed.counts[str(sample.key_expr)] += 1
+            with self.lock:
+                self._malformed.counts[str(sample.key_expr)] += 1
             return
         with self.lock:
             self.estimated.add(meta[0])
 
     def _on_decisions(self, sample: zenoh.Sample) -> None:
-        try:
-            batch = orjson.loads(sample.payload.to_bytes())
-            judged = [(str(j["verdict"]), str(j.get("model", ""))) for j in batch["judgements"]]
-            records = batch["records"]
-            columns = tuple(records[name] for name in _COLUMNS)
-            link_class = LINK_CLASS_OF[batch["phase"]]
-            index = np.array(records["judgement"], dtype=np.int64)
-            ok = all(len(c) == len(index) for c in columns)
-            ok = ok and (not len(index) or 0 <= index.min() <= index.max() < len(judged))
-        except (orjson.JSONDecodeError, KeyError, TypeError, ValueError, OverflowError):
-            ok = False
-        if not ok:
-            self.malformed.counts[str(sample.key_expr)] += 1
-            return
-        dropped = np.array([v == "drop" for v, _ in judged], dtype=bool)
+        batch = read_batch(sample.payload.to_bytes())
         with self.lock:  # rows only when the run is over (decisions): thousands an epoch
-            self._batches.append((link_class, judged, columns))
-            self.drops += int(dropped[index].sum()) if len(judged) else 0
+            if batch is None:
+                self._malformed.counts[str(sample.key_expr)] += 1
+                return
+            self._batches.append(batch)
+            self.drops += batch.drops
 
     @property
     def decisions(self) -> list[Verdict]:
         """Every decision received, in order (read under :attr:`lock`, as every field)."""
         batches = list(self._batches)  # one copy: a batch may be appended meanwhile
         return [
-            Verdict(s, t, link_class, e, q, *judged[j])
-            for link_class, judged, columns in batches
-            for s, t, e, q, j in zip(*columns, strict=True)
+            Verdict(s, t, batch.link_class, e, q, *batch.judged[j])
+            for batch in batches
+            for s, t, e, q, j in batch.records()
         ]
 
     def _on_status(self, sample: zenoh.Sample) -> None:
@@ -192,7 +272,8 @@ class Observer:
         if msg is not None and msg.sender != (
             f"{role}/{ident}" if role in ("agent", "pool") else role
         ):
-            self.malformed.counts[str(sample.key_expr)] += 1  # another process's status
+            with self.lock:
+                self._malformed.counts[str(sample.key_expr)] += 1  # another process's status
         elif msg is not None:
             with self.lock:
                 last = self.statuses.get(msg.sender)
@@ -264,4 +345,4 @@ def flush_recorder(session: zenoh.Session, run_id: str, observer: Observer) -> N
         time.sleep(0.02)
 
 
-__all__ = ["Observer", "Verdict", "all_final", "flush_recorder", "missing_final"]
+__all__ = ["PENDING_BYTES", "Observer", "Verdict", "all_final", "flush_recorder", "missing_final"]
