@@ -9,8 +9,9 @@ of that run is then replayed on an in-memory bus, epoch after epoch, as its proc
 it: each delivery filed by its inbox, the reports taken and estimated, the estimate and the
 agents' bundle built and put. What it puts is checked against what the run's leader put
 (every field but the times). Printed: the replay's CPU ms an epoch (best of ``R`` rounds)
-against the baseline in the same run, the leader's math alone (``Leader.epochs`` and its
-covariances on the same epochs' measurements): the rest is the wire's share.
+against the baseline in the same run, the leader's math alone (``Leader.epochs`` with its
+covariances, as the simulator runs it, on the same epochs' measurements): the rest is the
+wire's share.
 
 ``--base REV`` replays the same messages with the leader of commit ``REV`` too (its tree
 from ``git archive``), alternating with this tree round by round, and prints the ratio.
@@ -177,8 +178,7 @@ def replay(folder: Path, rounds: int, profile: bool) -> dict[str, Any]:
         start = time.process_time()
         for k in range(WARM_EPOCHS, len(reports)):
             known, z = inputs[k][0][None], inputs[k][1][None]
-            batch = leader.epochs(known, z, node.ref_x[k], covariances=False)
-            leader.covariances(known, z, node.ref_x[k], batch)
+            leader.epochs(known, z, node.ref_x[k])  # as the simulator runs it
         math_times.append((time.process_time() - start) / (len(reports) - WARM_EPOCHS))
         del node, service, bus
         gc.unfreeze()

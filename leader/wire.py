@@ -62,24 +62,26 @@ def reports_to_measurements(
     """
     links, d = scenario.directed_links, scenario.dimension
     index = LinkIndex(links, scenario.n) if index is None else index
-    taken = [
-        (m.neighbour, report.agent, m.z)
-        for report in reports
-        for m in report.measurements
-        if m.token == 1 and m.z is not None and len(m.z) == d
-    ]
+    senders: list[int] = []
+    receivers: list[int] = []
+    values: list[float] = []
+    for report in reports:
+        agent = report.agent
+        for m in report.measurements:
+            if m.token == 1 and m.z is not None and len(m.z) == d:
+                senders.append(m.neighbour)
+                receivers.append(agent)
+                values.extend(m.z)
     known = np.zeros(len(links), dtype=bool)
     z = np.zeros((len(links), d))
-    if not taken:
-        return known, z
-    senders, receivers, values = zip(*taken, strict=True)
     rows = index.rows(senders, receivers)
     on_link = np.flatnonzero(rows >= 0)
-    # the later of two measurements of one link wins: the last occurrence of each row
-    last = on_link.size - 1 - np.unique(rows[on_link][::-1], return_index=True)[1]
-    keep = on_link[last]
-    known[rows[keep]] = True
-    z[rows[keep]] = np.array(values, dtype=np.float64)[keep]
+    if on_link.size == 0:
+        return known, z
+    if np.bincount(rows[on_link]).max() > 1:  # the later of two for one link wins
+        on_link = on_link[on_link.size - 1 - np.unique(rows[on_link][::-1], return_index=True)[1]]
+    known[rows[on_link]] = True
+    z[rows[on_link]] = np.array(values, dtype=np.float64).reshape(-1, d)[on_link]
     return known, z
 
 
