@@ -131,11 +131,12 @@ class Leader:
         """Kruskal's forests of ``healthy``; the last epoch's again when its edges are the same
         (a team that lost no link keeps its forest)."""
         key = healthy.tobytes(), healthy.shape
-        if self._last_forests is None or self._last_forests[0] != key:
+        last = self._last_forests  # read once: replaced whole, never changed
+        if last is None or last[0] != key:
             tree, labels = self.forest.forests(healthy)
             tree.flags.writeable = labels.flags.writeable = False  # shared by later epochs
-            self._last_forests = key, tree, labels
-        return self._last_forests[1], self._last_forests[2]
+            last = self._last_forests = key, tree, labels
+        return last[1], last[2]
 
     def covariances(self, known: Mask, z: Array, x_ref: Array, epochs: LeaderEpochs) -> Array:
         """The covariance blocks of ``epochs`` (computed without them), after their estimates.
