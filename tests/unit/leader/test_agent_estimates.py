@@ -7,9 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
+from formation import keys
 from formation.messages import AgentEstimate, LeaderEstimate
 from formation.scenario import Scenario
 from leader.epoch import LeaderEpoch, leader_epoch
+from leader.node import LeaderNode
 from leader.wire import EstimateParts, estimate_message, position_rows
 from shell import MemoryBus, Service
 from testbed.sim.team_generators import henneberg_team
@@ -94,3 +96,27 @@ def _check_estimate(msg: LeaderEstimate, lead: LeaderEpoch, scenario: Scenario) 
         29,
         4,
     )
+
+
+def test_realtime_sends_each_part_on_its_agents_key_and_no_bundle() -> None:
+    scenario = Scenario.from_file(ROOT / "scenarios/paper.toml").with_overrides(
+        runtime={"mode": "realtime", "realtime_period_s": 0.05}
+    )
+    bus = MemoryBus()
+    node = LeaderNode(Service(bus, "run-2", "leader", 0), scenario)
+    got: dict[int, list[AgentEstimate]] = {i: [] for i in range(1, scenario.n + 1)}
+    for i in got:
+        bus.declare_subscriber(
+            keys.leader_estimate_for("run-2", i),
+            lambda s, mine=got[i]: mine.append(
+                AgentEstimate.model_validate_json(s.payload.to_bytes())
+            ),
+        )
+    known, z = _exact_measurements(scenario)
+    lead = leader_epoch(scenario, known, z, scenario.offsets[scenario.reference_agent - 1])
+    res = lead.estimate
+    for k in (0, 1):
+        node._send_parts(k, position_rows(res.positions, res.observable), [0.1, 0.2])
+    assert bus.puts[keys.leader_estimates("run-2")] == 0
+    for i, parts in got.items():
+        assert [(p.agent, p.epoch, p.seq) for p in parts] == [(i, 0, 0), (i, 1, 1)]
