@@ -1,9 +1,11 @@
 """The leader process's epoch on real messages: CPU per epoch against its math core, and old/new.
 
-``python -m bench.bench_leader_epoch [--capture DIR] [--rounds R] [--base REV] [--profile]``.
+``python -m bench.bench_leader_epoch [--loss P] [--capture DIR] [--rounds R] [--base REV]
+[--profile]``.
 
 The lockstep run of 1,000 agents pooled in 8 (``henneberg_team(1000)``, seed 1, the case of
-``bench/bench_runtime.py``) is recorded once into ``DIR`` (default ``runs/leader-epoch``):
+``bench/bench_runtime.py``; ``--loss``: every formation link drops that share, Bernoulli) is
+recorded once into ``DIR`` (default ``runs/leader-epoch``, or ``runs/leader-epoch-loss-P``):
 netem's report delivery to the leader each epoch, and the leader's two outputs. The leader
 of that run is then replayed on an in-memory bus, epoch after epoch, as its process runs
 it: each delivery filed by its inbox, the reports taken and estimated, the estimate and the
@@ -49,14 +51,23 @@ def _tail(topic: str) -> str:
     return topic.rsplit("/", 2)[-2] + "/" + topic.rsplit("/", 1)[-1]
 
 
-def capture(folder: Path) -> None:
+def _scenario(agents: int, epochs: int, p_loss: float) -> Any:
+    """The case: ``henneberg_team(agents)``, each formation link dropping ``p_loss`` (Bernoulli)."""
+    from testbed.sim.team_generators import henneberg_team
+
+    if not p_loss:
+        return henneberg_team(agents, epochs=epochs)
+    lossy = {"formation_default": [{"model": "bernoulli", "p_loss": p_loss}]}
+    return henneberg_team(agents, epochs=epochs, network=lossy)
+
+
+def capture(folder: Path, p_loss: float) -> None:
     """Run the lockstep case once, recorded, and keep what the leader took and put."""
     from mcap.reader import make_reader
 
     from testbed.runtime.launcher import launch
-    from testbed.sim.team_generators import henneberg_team
 
-    scenario = henneberg_team(AGENTS, epochs=CAPTURED_EPOCHS)
+    scenario = _scenario(AGENTS, CAPTURED_EPOCHS, p_loss)
     with tempfile.TemporaryDirectory() as tmp:
         out = launch(scenario, seed=SEED, runs_dir=Path(tmp), record=True, pool=POOLS)
         wanted = {"0/report": "reports", "leader/estimate": "estimate"}
@@ -71,6 +82,7 @@ def capture(folder: Path) -> None:
     for name, payloads in kept.items():
         (folder / f"{name}.jsonl").write_bytes(b"".join(p + b"\n" for p in payloads))
     meta = {"run_id": out.run_id, "agents": AGENTS, "epochs": CAPTURED_EPOCHS, "seed": SEED}
+    meta["p_loss"] = p_loss
     (folder / "meta.json").write_text(json.dumps(meta))
 
 
@@ -115,10 +127,9 @@ def replay(folder: Path, rounds: int, profile: bool) -> dict[str, Any]:
     from leader.node import LeaderNode
     from shell import Lockstep, MemoryBus, Service, settle_heap
     from shell.service import Incoming
-    from testbed.sim.team_generators import henneberg_team
 
     meta, captured = _load(folder)
-    scenario: Scenario = henneberg_team(meta["agents"], epochs=meta["epochs"])
+    scenario: Scenario = _scenario(meta["agents"], meta["epochs"], meta.get("p_loss", 0.0))
     run_id = meta["run_id"]
     inbox_key = keys.inbox(run_id, keys.LEADER_ENDPOINT, "report")
     reports = captured["reports"]
@@ -202,7 +213,8 @@ def _in_tree(tree: Path, folder: Path, rounds: int) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--capture", type=Path, default=ROOT / "runs/leader-epoch")
+    parser.add_argument("--capture", type=Path, help="default: runs/leader-epoch[-loss-P]")
+    parser.add_argument("--loss", type=float, default=0.0, help="Bernoulli loss of every link")
     parser.add_argument("--rounds", type=int, default=3, help="replays of each tree")
     parser.add_argument("--base", help="a commit whose leader is replayed too, alternating")
     parser.add_argument("--profile", action="store_true", help="cProfile of one round")
@@ -211,13 +223,16 @@ def main(argv: list[str] | None = None) -> None:
     if args.replay_only is not None:  # the child of _in_tree
         print(json.dumps(replay(args.replay_only, args.rounds, False)))
         return
+    if args.capture is None:
+        args.capture = ROOT / ("runs/leader-epoch" + (f"-loss-{args.loss:g}" if args.loss else ""))
     if not (args.capture / "meta.json").exists():
         print(f"recording the lockstep run into {args.capture} ...", flush=True)
-        capture(args.capture)
+        capture(args.capture, args.loss)
     meta = json.loads((args.capture / "meta.json").read_text())
     epochs = meta["epochs"] - WARM_EPOCHS
     print(
-        f"seed {meta['seed']}; henneberg_team({meta['agents']}) pooled in {POOLS}, lockstep; "
+        f"seed {meta['seed']}; henneberg_team({meta['agents']}) pooled in {POOLS}, lockstep, "
+        f"Bernoulli loss {meta.get('p_loss', 0.0):g}; "
         f"{epochs} epochs replayed per round, best of {args.rounds}; load {os.getloadavg()[0]:.1f}"
     )
     if args.profile:
