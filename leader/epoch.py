@@ -89,6 +89,7 @@ class Leader:
         self.scenario = scenario
         self.rigidity = rigidity
         self.forest = KruskalGraph.of(n, scenario.edge_array, scenario.weights)
+        self._last_forests: tuple[tuple[bytes, tuple[int, ...]], Mask, Ints] | None = None
         noise = scenario.noise_covariance
         self.exact = not np.any(noise)  # ideal sensors: any equal weighting is exact
         # (receiver i, sender j) of each link: z = x_i − x_j
@@ -114,7 +115,7 @@ class Leader:
         size, n = known.shape[0], self.scenario.n
         per_edge = known.reshape(size, -1, 2)  # links 2e and 2e + 1: the two directions of edge e
         healthy = np.asarray(per_edge.any(axis=2) if self.either else per_edge.all(axis=2))
-        tree, labels = self.forest.forests(healthy)
+        tree, labels = self._forests(healthy)
         estimate = self._estimate(known, z, x_ref, healthy, tree, labels, covariances)
         ranks, rigid = (None, None) if self.rigidity is None else self.rigidity.check(healthy)
         return LeaderEpochs(
@@ -125,6 +126,17 @@ class Leader:
             rigidity_rank=ranks,
             rigid=rigid,
         )
+
+    def _forests(self, healthy: Mask) -> tuple[Mask, Ints]:
+        """Kruskal's forests of ``healthy``; the last epoch's again when its edges are the same
+        (a team that lost no link keeps its forest)."""
+        key = healthy.tobytes(), healthy.shape
+        last = self._last_forests  # read once: replaced whole, never changed
+        if last is None or last[0] != key:
+            tree, labels = self.forest.forests(healthy)
+            tree.flags.writeable = labels.flags.writeable = False  # shared by later epochs
+            last = self._last_forests = key, tree, labels
+        return last[1], last[2]
 
     def covariances(self, known: Mask, z: Array, x_ref: Array, epochs: LeaderEpochs) -> Array:
         """The covariance blocks of ``epochs`` (computed without them), after their estimates.

@@ -3,120 +3,30 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator
 from dataclasses import replace
-from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 import orjson
 
 from formation import keys
-from formation.codec import attachment
+from formation.codec import attachment, now_ns
 from formation.deadlines import CAUSES, ROBOT_SILENT
 from formation.errors import RuntimeFailure
 from formation.messages import TokenReport
 from formation.reference import reference_positions, reference_velocities
 from formation.scenario import Scenario
-from leader.epoch import Leader, LeaderEpoch
+from leader.epoch import Leader
 from leader.rigidity import HealthyRigidity
+from leader.wire import (
+    EstimateParts,
+    LinkIndex,
+    estimate_message,
+    position_rows,
+    reports_to_measurements,
+)
 from shell import Loop, PhaseInbox, Service, TimePolicy
 
 log = logging.getLogger("leader")
-
-
-def link_rows(scenario: Scenario) -> dict[tuple[int, int], int]:
-    """``(sender, receiver)`` → row of the scenario's directed links."""
-    return {(a, b): row for row, (a, b) in enumerate(scenario.directed_links.tolist())}
-
-
-def reports_to_measurements(
-    scenario: Scenario,
-    reports: list[TokenReport],
-    index: dict[tuple[int, int], int] | None = None,
-) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.float64]]:
-    """Reports → ``known`` (L,) and ``z`` (L, d) in the scenario's directed-link order.
-
-    ``index``: :func:`link_rows` of the scenario, built once by a caller that asks every epoch.
-    """
-    links = scenario.directed_links
-    index = link_rows(scenario) if index is None else index
-    known = np.zeros(len(links), dtype=bool)
-    z = np.zeros((len(links), scenario.dimension))
-    for report in reports:
-        for m in report.measurements:
-            row = index.get((m.neighbour, report.agent))
-            if (
-                row is not None
-                and m.token == 1
-                and m.z is not None
-                and len(m.z) == scenario.dimension
-            ):
-                known[row], z[row] = True, m.z
-    return known, z
-
-
-def estimate_message(
-    head: dict[str, object],
-    lead: LeaderEpoch,
-    x_ref: list[float],
-    v_ref: list[float],
-    edges: npt.NDArray[np.int64],
-    reports: int,
-) -> bytes:
-    """The whole :class:`LeaderEstimate` as JSON, built with orjson (at 1,000 agents the
-    pydantic model cost 4 ms an epoch; a test checks the model validates every field).
-
-    An epoch computed without covariances (``estimator.covariance_every``) has ``None`` for
-    every agent's block."""
-    res = lead.estimate
-    observable = res.observable.tolist()
-    blocks = [None] * len(observable) if res.covariances is None else res.covariances.tolist()
-    return orjson.dumps(
-        {
-            **head,
-            "kind": "estimate",
-            "positions": [
-                p if ok else None for p, ok in zip(res.positions.tolist(), observable, strict=True)
-            ],
-            "covariances": [c if ok else None for c, ok in zip(blocks, observable, strict=True)],
-            "observable": observable,
-            "tree": edges[lead.tree].tolist(),
-            "healthy": edges[lead.healthy].tolist(),
-            "components": int(lead.components),
-            "rigidity_rank": int(lead.rigidity_rank),
-            "rigid": bool(lead.rigid),
-            "x_ref": x_ref,
-            "v_ref": v_ref,
-            "reports_received": reports,
-        }
-    )
-
-
-def agent_estimates(
-    scenario: Scenario, lead: LeaderEpoch, v_ref: list[float]
-) -> Iterator[tuple[int, dict[str, Any]]]:
-    """``(i, AgentEstimate fields)`` per agent: its in-neighbours' ``x̂`` and ``v_ref``.
-
-    Plain dicts, sent with orjson: at 1,000 agents the leader sends 1,000 of them an epoch.
-    The common header fields are the sender's to add.
-    """
-    res = lead.estimate
-    positions = [
-        p if ok else None
-        for p, ok in zip(res.positions.tolist(), res.observable.tolist(), strict=True)
-    ]
-    for i, neighbours in enumerate(scenario.in_neighbours, start=1):
-        yield (
-            i,
-            {
-                "kind": "agent_estimate",
-                "agent": i,
-                "neighbours": neighbours,
-                "positions": [positions[j - 1] for j in neighbours],
-                "v_ref": v_ref,
-            },
-        )
 
 
 class LeaderNode:
@@ -138,7 +48,11 @@ class LeaderNode:
         self.rigidity = HealthyRigidity(scenario.offsets, scenario.edge_array)
         self.leader = Leader(scenario, self.rigidity)
         self.covariance_every = scenario.estimator.covariance_every
-        self.link_rows = link_rows(scenario)
+        self.links = LinkIndex(scenario.directed_links, scenario.n)
+        self.parts = EstimateParts(scenario.in_neighbours, service.header_format())
+        self.part_keys = [
+            keys.leader_estimate_for(self.run_id, i) for i in range(1, scenario.n + 1)
+        ]
         # realtime: reports in time and missed by cause; estimates sent before the deadline
         self.deadline = {
             "in_time": 0,
@@ -174,9 +88,13 @@ class LeaderNode:
         return epoch
 
     def _estimate(self, k: int, reports: list[TokenReport]) -> None:
-        known, z = reports_to_measurements(self.scenario, reports, self.link_rows)
-        # the estimates go out before the covariances are computed: agents never wait for them
-        batch = self.leader.epochs(known[None], z[None], self.ref_x[k], covariances=False)
+        known, z = reports_to_measurements(self.scenario, reports, self.links)
+        # On the tree the covariances are path sums beside the positions' and cost little:
+        # computed with them. On a cyclic graph they come after the estimates have gone out,
+        # so that agents never wait for them.
+        due = k % self.covariance_every == 0
+        together = due and self.leader.on_tree
+        batch = self.leader.epochs(known[None], z[None], self.ref_x[k], covariances=together)
         lead = batch.member(0)
         if not lead.estimate.observable.all():
             log.info(
@@ -185,8 +103,9 @@ class LeaderNode:
                 int((~lead.estimate.observable).sum()),
             )
         v_ref = [float(v) for v in self.ref_v[k]]
-        self._send_parts(k, agent_estimates(self.scenario, lead, v_ref))
-        if k % self.covariance_every == 0:
+        rows = position_rows(lead.estimate.positions, lead.estimate.observable)
+        self._send_parts(k, rows, v_ref)
+        if due and not together:
             blocks = self.leader.covariances(known[None], z[None], self.ref_x[k], batch)[0]
             lead = replace(lead, estimate=replace(lead.estimate, covariances=blocks))
         key = keys.leader_estimate_out(self.run_id)
@@ -198,28 +117,29 @@ class LeaderNode:
             v_ref,
             self.scenario.edge_array,
             len(reports),
+            rows,
         )
         self.service.put(key, msg, attachment(k, int(head["seq"]), keys.LEADER_ENDPOINT))
         self.epoch = k + 1
 
-    def _send_parts(self, k: int, parts: Iterator[tuple[int, dict[str, Any]]]) -> None:
+    def _send_parts(self, k: int, rows: list[str], v_ref: list[float]) -> None:
         """Each agent's part of epoch ``k``'s estimate, each with its own key's header: on
         that key (realtime), or all in one :class:`~formation.messages.Bundle` (lockstep)."""
         service, run_id = self.service, self.run_id
-        bundle = []
-        for i, fields in parts:
-            key = keys.leader_estimate_for(run_id, i)
-            head = service.header(key, k)
-            msg = orjson.dumps({**head, **fields})
-            if self.bundled:
-                bundle.append({"agent": i, "seq": head["seq"], "message": msg.decode()})
-            else:
-                service.put(key, msg, attachment(k, int(head["seq"]), keys.LEADER_ENDPOINT))
-        if self.bundled:
-            key = keys.leader_estimates(run_id)
-            head = service.header(key, k)
-            msg = orjson.dumps({**head, "kind": "bundle", "phase": "estimate", "parts": bundle})
-            service.put(key, msg, attachment(k, int(head["seq"]), keys.LEADER_ENDPOINT))
+        seqs = [service.next_seq(key) for key in self.part_keys]
+        texts = self.parts.texts(rows, v_ref, k, now_ns(), seqs)
+        if not self.bundled:
+            for key, seq, text in zip(self.part_keys, seqs, texts, strict=True):
+                service.put(key, text.encode(), attachment(k, seq, keys.LEADER_ENDPOINT))
+            return
+        bundle = [
+            {"agent": i, "seq": seq, "message": text}
+            for i, seq, text in zip(range(1, len(texts) + 1), seqs, texts, strict=True)
+        ]
+        key = keys.leader_estimates(run_id)
+        head = service.header(key, k)
+        msg = orjson.dumps({**head, "kind": "bundle", "phase": "estimate", "parts": bundle})
+        service.put(key, msg, attachment(k, int(head["seq"]), keys.LEADER_ENDPOINT))
 
     def confirm_last(self) -> None:
         """Before the session closes, wait until netem has the last epoch's estimates (it
@@ -238,18 +158,15 @@ class LeaderNode:
         offsets = self.scenario.offsets
         known = np.ones(len(links), dtype=bool)
         z = offsets[links[:, 0] - 1] - offsets[links[:, 1] - 1]  # any formation will do
-        head = {
-            "run_id": self.run_id,
-            "sender": self.service.name,
-            "seq": 0,
-            "epoch": 0,
-            "stamp_ns": 0,
-        }
         v_ref = [float(v) for v in self.ref_v[0]]
+        seqs = [0] * self.scenario.n
         for _ in range(times):
             batch = self.leader.epochs(known[None], z[None], self.ref_x[0], covariances=False)
-            for _i, fields in agent_estimates(self.scenario, batch.member(0), v_ref):
-                orjson.dumps({**head, **fields})
+            res = batch.member(0).estimate
+            texts = self.parts.texts(
+                position_rows(res.positions, res.observable), v_ref, 0, 0, seqs
+            )
+            orjson.dumps({"parts": [{"agent": 1, "seq": 0, "message": t} for t in texts]})
         # epoch 0's covariances come right after its estimates, while the agents step
         self.leader.covariances(known[None], z[None], self.ref_x[0], batch)
 

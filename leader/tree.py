@@ -11,6 +11,9 @@ the same floats alone as beside others. ``leader.estimation`` chooses this solve
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 import numpy as np
 import numpy.typing as npt
 from scipy.sparse import coo_array, csr_array
@@ -56,25 +59,70 @@ def fuse_parallel(
         oriented ``(min, max)``. So every pair's row depends only on its own
         measurements, whatever else is in the arrays (a batch's other members).
     """
+    pairs = _pairs(n, e)
+    if pairs is None:  # no pair measured twice
+        return e, z, p
+    rows, group, size, multi = pairs.rows, pairs.group, pairs.size, pairs.multi
+    oriented = np.where(pairs.low_first[:, None], z[rows], -z[rows])  # x_lo − x_hi
+    info = _inverses(p[rows])
+    info_sum = _group_sums(group, info, size)
+    weighted = _group_sums(group, np.einsum("eab,eb->ea", info, oriented), size)
+    fused_p = _inverses(info_sum[multi])
+    fused_p = 0.5 * (fused_p + fused_p.transpose(0, 2, 1))
+    out_z, out_p = z[pairs.first], p[pairs.first]
+    out_z[multi] = np.einsum("eab,eb->ea", fused_p, weighted[multi])
+    out_p[multi] = fused_p
+    return pairs.fused, out_z[pairs.order], out_p[pairs.order]
+
+
+@dataclass(frozen=True, eq=False)
+class _Pairs:
+    """Which measurements :func:`fuse_parallel` merges: what depends on the pairs only.
+
+    rows : the measurements of a pair measured more than once; group : (len(rows),) their
+    pair; low_first : whether each is oriented ``(lo, hi)``; size : distinct pairs; multi :
+    the pairs measured more than once; first : (size,) where each pair first appears;
+    order : the pairs by first appearance; fused : the output's pairs (read-only)
+    """
+
+    rows: IntArray
+    group: IntArray
+    low_first: npt.NDArray[np.bool_]
+    size: int
+    multi: IntArray
+    first: IntArray
+    order: IntArray
+    fused: IntArray
+
+
+class _LastPairs:
+    """The last measured pairs grouped, with their key (as :class:`_LastWalk`)."""
+
+    slot: tuple[tuple[Any, ...], _Pairs | None] | None = None
+
+
+def _pairs(n: int, e: IntArray) -> _Pairs | None:
+    """The :class:`_Pairs` of ``e``, None when no pair is measured twice."""
+    key = (n, e.shape, e.dtype.str, np.ascontiguousarray(e).tobytes())
+    last = _LastPairs.slot
+    if last is not None and last[0] == key:
+        return last[1]
     lo, hi = np.minimum(e[:, 0], e[:, 1]), np.maximum(e[:, 0], e[:, 1])
     pair = lo * n + hi
     keys, first, group, counts = pair_groups(pair)
-    if keys.size == pair.size:  # no pair measured twice
-        return e, z, p
-    rows = np.flatnonzero(counts[group] > 1)
-    oriented = np.where((e[rows, 0] == lo[rows])[:, None], z[rows], -z[rows])  # x_lo − x_hi
-    info = _inverses(p[rows])
-    info_sum = _group_sums(group[rows], info, keys.size)
-    weighted = _group_sums(group[rows], np.einsum("eab,eb->ea", info, oriented), keys.size)
-    multi = np.flatnonzero(counts > 1)
-    fused_p = _inverses(info_sum[multi])
-    fused_p = 0.5 * (fused_p + fused_p.transpose(0, 2, 1))
-    out_e, out_z, out_p = e[first], z[first], p[first]
-    out_e[multi] = np.stack([keys[multi] // n, keys[multi] % n], axis=1)
-    out_z[multi] = np.einsum("eab,eb->ea", fused_p, weighted[multi])
-    out_p[multi] = fused_p
-    order = np.argsort(first)
-    return out_e[order], out_z[order], out_p[order]
+    found = None
+    if keys.size != pair.size:
+        rows = np.flatnonzero(counts[group] > 1)
+        multi = np.flatnonzero(counts > 1)
+        fused = e[first]
+        fused[multi] = np.stack([keys[multi] // n, keys[multi] % n], axis=1)
+        order = np.argsort(first)
+        fused = fused[order]
+        fused.flags.writeable = False  # the output of every call with these pairs
+        low_first = e[rows, 0] == lo[rows]
+        found = _Pairs(rows, group[rows], low_first, keys.size, multi, first, order, fused)
+    _LastPairs.slot = (key, found)
+    return found
 
 
 def pair_groups(pair: IntArray) -> tuple[IntArray, IntArray, IntArray, IntArray]:
@@ -127,6 +175,69 @@ def _inverses(m: FloatArray) -> FloatArray:
     return out
 
 
+@dataclass(frozen=True, eq=False)
+class _Walk:
+    """The path sums' structure on trees: what depends on the links and roots only.
+
+    nodes : (N,) the non-root nodes in BFS order; edge : (N,) the link joining each to its
+    parent; sign : (N,) +1 where the node is the link's ``i``; jumps : the ancestor arrays
+    of pointer jumping, one per round (``rel[v] += rel[anc[v]]``)
+    """
+
+    nodes: IntArray
+    edge: IntArray
+    sign: FloatArray
+    jumps: list[IntArray]
+
+
+class _LastWalk:
+    """The last trees walked, with their key: a leader whose used links repeat epoch after
+    epoch walks them once. Only the structure is kept, so the sums are the same floats
+    either way. One slot, replaced whole (threads read it once)."""
+
+    slot: tuple[tuple[Any, ...], _Walk] | None = None
+
+
+def _walk(n: int, e: IntArray, roots: IntArray, graph: csr_array | None) -> _Walk:
+    """The :class:`_Walk` of the trees ``e`` from ``roots`` (the last one again if the same)."""
+    key = (n, e.shape, e.dtype.str, np.ascontiguousarray(e).tobytes(), roots.tobytes())
+    last = _LastWalk.slot
+    if last is not None and last[0] == key:
+        return last[1]
+    if roots.size == 1:
+        source, skip = int(roots[0]), 1
+        if graph is None:
+            graph = adjacency(n, e)
+    else:
+        source, skip = n, 1 + roots.size  # one extra node joined to every root: one BFS
+        pairs = np.concatenate([e, np.stack([np.full(roots.size, n), roots], axis=1)])
+        graph = adjacency(n + 1, pairs)
+    order, pred = breadth_first_order(graph, source, directed=False, return_predecessors=True)
+    nodes: IntArray = order[skip:].astype(np.int64)  # the roots come first
+    parents: IntArray = pred[nodes].astype(np.int64)
+    # the tree link joining each node to its parent, by key lo·n + hi
+    lo, hi = np.minimum(e[:, 0], e[:, 1]), np.maximum(e[:, 0], e[:, 1])
+    keys = lo * n + hi
+    sort = np.argsort(keys)
+    want = np.minimum(nodes, parents) * n + np.maximum(nodes, parents)
+    edge = sort[np.searchsorted(keys[sort], want)]  # the sorted copy: no indirect search
+    # z_e = x_i − x_j, so x_node − x_parent = +z_e when the node is i, −z_e when it is j
+    sign = np.where(e[edge, 0] == nodes, 1.0, -1.0)
+    anc = np.arange(n)
+    anc[nodes] = parents
+    jumps = []
+    # pointer jumping: rel[v] = x_v − x_anc[v]; doubling the jump each round (a root adds 0)
+    while True:
+        up = anc[anc]
+        if np.array_equal(up, anc):
+            break
+        jumps.append(anc)
+        anc = up
+    walk = _Walk(nodes, edge, sign, jumps)
+    _LastWalk.slot = (key, walk)
+    return walk
+
+
 def tree_solve(
     n: int,
     e: IntArray,
@@ -162,42 +273,18 @@ def tree_solve(
         With one root: an adjacency whose root's component is its tree (the caller's,
         so none is built here).
     """
-    if roots.size == 1:
-        source, skip = int(roots[0]), 1
-        if graph is None:
-            graph = adjacency(n, e)
-    else:
-        source, skip = n, 1 + roots.size  # one extra node joined to every root: one BFS
-        pairs = np.concatenate([e, np.stack([np.full(roots.size, n), roots], axis=1)])
-        graph = adjacency(n + 1, pairs)
-    order, pred = breadth_first_order(graph, source, directed=False, return_predecessors=True)
-    nodes: IntArray = order[skip:].astype(np.int64)  # the roots come first
-    parents: IntArray = pred[nodes].astype(np.int64)
-    # the tree link joining each node to its parent, by key lo·n + hi
-    lo, hi = np.minimum(e[:, 0], e[:, 1]), np.maximum(e[:, 0], e[:, 1])
-    keys = lo * n + hi
-    sort = np.argsort(keys)
-    want = np.minimum(nodes, parents) * n + np.maximum(nodes, parents)
-    edge = sort[np.searchsorted(keys[sort], want)]  # the sorted copy: no indirect search
-    # z_e = x_i − x_j, so x_node − x_parent = +z_e when the node is i, −z_e when it is j
-    sign = np.where(e[edge, 0] == nodes, 1.0, -1.0)
-    anc = np.arange(n)
-    anc[nodes] = parents
+    walk = _walk(n, e, roots, graph)
+    nodes, edge = walk.nodes, walk.edge
     rel = np.zeros((n, z.shape[1]))
-    rel[nodes] = sign[:, None] * z[edge]
+    rel[nodes] = walk.sign[:, None] * z[edge]
     acc = None
     if blocks is not None:
         acc = np.zeros((n, *p.shape[1:]))
         acc[nodes] = p[edge]
-    # pointer jumping: rel[v] = x_v − x_anc[v]; doubling the jump each round (a root adds 0)
-    while True:
-        up = anc[anc]
-        if np.array_equal(up, anc):
-            break
+    for anc in walk.jumps:
         rel += rel[anc]  # the gather is a copy: every node adds its ancestor's old sum
         if acc is not None:
             acc += acc[anc]
-        anc = up
     positions[nodes] = x_r + rel[nodes]
     if blocks is not None and acc is not None:
         blocks[nodes] = acc[nodes]

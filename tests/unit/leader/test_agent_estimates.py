@@ -1,16 +1,19 @@
-"""Each agent gets its in-neighbours' part of the leader's estimate, and nothing else."""
+"""Each agent gets its in-neighbours' part of the leader's estimate, and nothing else; the
+whole estimate is a valid message with every field."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
-import orjson
 
+from formation import keys
 from formation.messages import AgentEstimate, LeaderEstimate
 from formation.scenario import Scenario
-from leader.epoch import leader_epoch
-from leader.node import agent_estimates, estimate_message
+from leader.epoch import LeaderEpoch, leader_epoch
+from leader.node import LeaderNode
+from leader.wire import EstimateParts, estimate_message, position_rows
+from shell import MemoryBus, Service
 from testbed.sim.team_generators import henneberg_team
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -30,19 +33,27 @@ def _exact_measurements(scenario: Scenario) -> tuple[np.ndarray, np.ndarray]:
 def test_every_agent_gets_its_in_neighbours_estimates() -> None:
     for scenario in (Scenario.from_file(ROOT / "scenarios/paper.toml"), henneberg_team(30)):
         known, z = _exact_measurements(scenario)
+        cut = scenario.directed_links[:, 1] == scenario.n  # the last agent: unobservable
+        cut |= scenario.directed_links[:, 0] == scenario.n
         x_ref = scenario.offsets[scenario.reference_agent - 1]
-        lead = leader_epoch(scenario, known, z, x_ref)
-        got = {
-            i: AgentEstimate.model_validate_json(orjson.dumps({**HEAD, **fields}))
-            for i, fields in agent_estimates(scenario, lead, [0.1, 0.2])
-        }
-        assert sorted(got) == list(range(1, scenario.n + 1))
+        lead = leader_epoch(scenario, known & ~cut, z, x_ref)
+        res = lead.estimate
+        service = Service(MemoryBus(), "run-1", "leader", 0)
+        parts = EstimateParts(scenario.in_neighbours, service.header_format())
+        seqs = [7 + i for i in range(scenario.n)]
+        texts = parts.texts(position_rows(res.positions, res.observable), [0.1, 0.2], 4, 99, seqs)
+        got = [AgentEstimate.model_validate_json(t) for t in texts]
         links = scenario.directed_links
-        for i, est in got.items():
-            assert est.agent == i and est.epoch == 4 and est.v_ref == [0.1, 0.2]
+        for i, est in enumerate(got, start=1):
+            assert (est.run_id, est.sender, est.seq, est.epoch, est.stamp_ns) == (
+                "run-1", "leader", 6 + i, 4, 99,
+            )  # fmt: skip
+            assert est.agent == i and est.v_ref == [0.1, 0.2]
             assert est.neighbours == sorted(int(j) for j, r in links if r == i)
             for j, p in zip(est.neighbours, est.positions, strict=True):
-                assert p == lead.estimate.positions[j - 1].tolist()
+                ok = bool(res.observable[j - 1])
+                assert p == (res.positions[j - 1].tolist() if ok else None)  # the same floats
+        assert any(None in est.positions for est in got)
 
 
 def test_whole_estimate_is_a_valid_message_with_every_field() -> None:
@@ -53,7 +64,19 @@ def test_whole_estimate_is_a_valid_message_with_every_field() -> None:
     lead = leader_epoch(scenario, known & ~cut, z, scenario.offsets[scenario.reference_agent - 1])
     assert not lead.estimate.observable.all()
     raw = estimate_message(HEAD, lead, [1.0, 2.0], [0.1, 0.2], scenario.edge_array, 29)
-    msg = LeaderEstimate.model_validate_json(raw)
+    _check_estimate(LeaderEstimate.model_validate_json(raw), lead, scenario)
+
+
+def test_an_estimate_of_every_agent_carries_every_block() -> None:
+    scenario = henneberg_team(30)
+    known, z = _exact_measurements(scenario)
+    lead = leader_epoch(scenario, known, z, scenario.offsets[scenario.reference_agent - 1])
+    assert lead.estimate.observable.all()
+    raw = estimate_message(HEAD, lead, [1.0, 2.0], [0.1, 0.2], scenario.edge_array, 29)
+    _check_estimate(LeaderEstimate.model_validate_json(raw), lead, scenario)
+
+
+def _check_estimate(msg: LeaderEstimate, lead: LeaderEpoch, scenario: Scenario) -> None:
     res = lead.estimate
     assert res.covariances is not None
     for i in range(scenario.n):
@@ -73,3 +96,27 @@ def test_whole_estimate_is_a_valid_message_with_every_field() -> None:
         29,
         4,
     )
+
+
+def test_realtime_sends_each_part_on_its_agents_key_and_no_bundle() -> None:
+    scenario = Scenario.from_file(ROOT / "scenarios/paper.toml").with_overrides(
+        runtime={"mode": "realtime", "realtime_period_s": 0.05}
+    )
+    bus = MemoryBus()
+    node = LeaderNode(Service(bus, "run-2", "leader", 0), scenario)
+    got: dict[int, list[AgentEstimate]] = {i: [] for i in range(1, scenario.n + 1)}
+    for i in got:
+        bus.declare_subscriber(
+            keys.leader_estimate_for("run-2", i),
+            lambda s, mine=got[i]: mine.append(
+                AgentEstimate.model_validate_json(s.payload.to_bytes())
+            ),
+        )
+    known, z = _exact_measurements(scenario)
+    lead = leader_epoch(scenario, known, z, scenario.offsets[scenario.reference_agent - 1])
+    res = lead.estimate
+    for k in (0, 1):
+        node._send_parts(k, position_rows(res.positions, res.observable), [0.1, 0.2])
+    assert bus.puts[keys.leader_estimates("run-2")] == 0
+    for i, parts in got.items():
+        assert [(p.agent, p.epoch, p.seq) for p in parts] == [(i, 0, 0), (i, 1, 1)]

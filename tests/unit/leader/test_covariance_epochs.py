@@ -12,8 +12,8 @@ from formation.errors import ScenarioError
 from formation.messages import LeaderEstimate
 from formation.scenario import Scenario, load_dict
 from leader.epoch import Leader
-from leader.node import estimate_message
 from leader.rigidity import HealthyRigidity
+from leader.wire import estimate_message
 from testbed.sim.simulate import simulate
 from testbed.sim.team_generators import henneberg_team
 

@@ -1,4 +1,5 @@
-"""The tree solver's fused measurements are the same floats however their inverses are taken."""
+"""The tree solver's fused measurements are the same floats however their inverses are taken,
+and its sums the same whether the structure of repeated links was kept or not."""
 
 from __future__ import annotations
 
@@ -6,7 +7,8 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
-from leader.tree import _group_sums, _inverses, fuse_parallel, pair_groups
+from leader import tree
+from leader.tree import _group_sums, _inverses, fuse_parallel, pair_groups, tree_solve
 
 
 def test_inverses_of_a_stack_are_numpys_to_the_bit() -> None:
@@ -62,3 +64,32 @@ def test_pair_groups_are_np_unique(pairs: list[int], huge: bool) -> None:
     for got, expected in zip(pair_groups(pair), want, strict=True):
         assert got.dtype == expected.dtype
         np.testing.assert_array_equal(got, expected)
+
+
+def _solve(n: int, e: np.ndarray, z: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    fe, fz, fp = fuse_parallel(n, e, z, p)
+    positions, blocks = np.full((n, 2), np.nan), np.full((n, 2, 2), np.nan)
+    tree_solve(n, fe, fz, fp, np.array([0]), np.array([0.5, -1.0]), positions, blocks)
+    return positions, blocks
+
+
+def test_repeated_links_are_walked_once_and_give_the_same_floats(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    n = 300
+    parent = np.array([int(rng.integers(0, v)) for v in range(1, n)])
+    e = np.stack([np.arange(1, n), parent], axis=1)
+    e = np.concatenate([e, e[::3, ::-1]])  # a third of the links measured both ways
+    a = rng.normal(size=(len(e), 2, 2))
+    p = a @ a.transpose(0, 2, 1) + np.eye(2)
+    z1, z2 = rng.normal(size=(2, len(e), 2))
+    tree._LastWalk.slot = tree._LastPairs.slot = None
+    cold = _solve(n, e, z2, p)
+    tree._LastWalk.slot = tree._LastPairs.slot = None
+    _solve(n, e, z1, p)
+    walk, pairs = tree._LastWalk.slot, tree._LastPairs.slot
+    warm = _solve(n, e, z2, p)
+    assert tree._LastWalk.slot is walk and tree._LastPairs.slot is pairs  # kept, not redone
+    assert warm[0].tobytes() == cold[0].tobytes() and warm[1].tobytes() == cold[1].tobytes()
+    cut = np.delete(np.arange(len(e)), 1)  # agent 2's one link gone: walked anew
+    other = _solve(n, e[cut], z2[cut], p[cut])
+    assert tree._LastWalk.slot is not walk and np.isnan(other[0][2]).all()
