@@ -13,7 +13,6 @@ import json
 import logging
 import threading
 import time
-from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -21,13 +20,15 @@ import orjson
 
 from agent.body import FIRST_POSE_S, RobotBodies
 from agent.control import body_velocity
-from agent.runner import AgentRunner, Estimate, Packet, Report
+from agent.incoming import delivered_estimates, delivered_states
+from agent.outgoing import report_message, state_message
+from agent.runner import AgentRunner
 from formation import keys
 from formation.body import BODY_LOST_EXIT
 from formation.codec import attachment
 from formation.deadlines import CAUSES, PHASES, ROBOT_SILENT, SLACK
 from formation.errors import BodyLost, RuntimeFailure
-from formation.messages import AgentEstimate, CoordinationState, DeliveredPacket, TokenReport
+from formation.messages import CoordinationState, TokenReport
 from formation.realtime import ESTIMATE_DEADLINE, STATE_DEADLINE
 from formation.scenario import Scenario, StrategyName
 from shell import Loop, PhaseInbox, Service, TimePolicy
@@ -35,55 +36,6 @@ from shell import Loop, PhaseInbox, Service, TimePolicy
 log = logging.getLogger("agent")
 WATCH_S = 0.25  # how often the main thread looks for netem's liveliness and a signal
 DECLARE_POOL_S = 30.0  # how long a pool asks netem to batch its deliveries (netem may start late)
-
-
-def state_message(
-    head: dict[str, Any],
-    agent: int,
-    position: list[float],
-    substituted: list[tuple[int, list[float], bool]],
-    pose: tuple[float, int] | None = None,
-    robot_silent: bool = False,
-) -> bytes:
-    """A :class:`CoordinationState` as JSON, built with orjson: a pool of hundreds sends one
-    per agent and epoch, and the pydantic model cost more than the rest of its step.
-    ``pose``: a unicycle's heading [rad] and saturated sub-steps (omitted for point agents);
-    ``robot_silent``: sent late as the agent waited for its robot's pose (else omitted)."""
-    msg = {
-        **head,
-        "kind": "state",
-        "agent": agent,
-        "position": position,
-        "velocity": None,
-        "substituted": [{"neighbour": j, "value": v, "fallback": f} for j, v, f in substituted],
-    }
-    if pose is not None:
-        msg["heading"], msg["saturated"] = pose
-    if robot_silent:
-        msg["robot_silent"] = True
-    return orjson.dumps(msg)
-
-
-def report_message(
-    head: dict[str, Any], agent: int, report: Report, robot_silent: bool = False
-) -> bytes:
-    """A :class:`TokenReport` as JSON, built with orjson (see :func:`state_message`)."""
-    msg = {
-        **head,
-        "kind": "report",
-        "agent": agent,
-        "measurements": [{"neighbour": j, "token": 1 if t else 0, "z": z} for j, t, z in report],
-    }
-    if robot_silent:
-        msg["robot_silent"] = True
-    return orjson.dumps(msg)
-
-
-def _estimate(delivered: Iterable[tuple[DeliveredPacket, AgentEstimate]]) -> Estimate | None:
-    """The first estimate delivered, if any (none: lost, or malformed)."""
-    for _, est in delivered:
-        return Estimate(dict(zip(est.neighbours, est.positions, strict=False)), est.v_ref)
-    return None
 
 
 class AgentNode:
@@ -264,12 +216,12 @@ class AgentNode:
         if bundled:
             self._put_bundle(keys.pool_states(self.run_id, self.ids[0]), "state", parts)
 
-    def _publish_reports(self, packets: list[Packet]) -> None:
+    def _publish_reports(self) -> None:
         """Each agent's report, with its own key's header: on that key, or (a declared pool
         in lockstep) all in one :class:`~formation.messages.Bundle`."""
         k, silent = self.runner.epoch, self._robot_silent("report")
         service, bundle = self.service, []
-        for i, report in self.runner.receive(packets).items():
+        for i, report in self.runner.reports().items():
             key = self.own_keys[i][1]
             head = service.header(key, k)
             msg = report_message(head, i, report, silent)
@@ -322,24 +274,18 @@ class AgentNode:
         while self.runner.epoch < self.end:
             k = self.runner.epoch
             self.deadline["overruns"] += timing.past(k, STATE_DEADLINE)
-            states = yield from inbox.take("state", k)
-            self._publish_reports(
-                [
-                    Packet(i, p.source, p.sent_epoch, tuple(s.position))
-                    for i in states
-                    for p, s in states[i]
-                ]
-            )
+            states = yield from inbox.take_columns("state", k)
+            self.runner.receive(*delivered_states(states, self.scenario.dimension))
+            self._publish_reports()
             # Realtime: stepping once every estimate here is in gives the step what the
             # deadline would (only epoch k's estimate counts) and the states more time: woken
             # at once at the deadline, 20 agents stepped one after another on 2 cores, the
             # last ones late.
-            estimates = yield from inbox.take("estimate", k, expect=1, early="early_steps")
-            got = {i: _estimate(estimates[i]) for i in self.ids}
+            estimates = yield from inbox.take_columns("estimate", k, expect=1, early="early_steps")
             before = None if self.bodies is None else self.runner.x.copy()
             if realtime and self.bodies is not None:
                 self._take_headings()  # a unicycle steps from where it faces now
-            self.runner.step(got)
+            self.runner.step(*delivered_estimates(estimates, self.runner))
             # x[k+1] is known now: out at once, so the states have the rest of this period
             # as well as the next one's first 0.2 to arrive. In realtime it does not depend on
             # the robots' poses, so a wait for a robot's pose never makes it late.
@@ -480,9 +426,6 @@ class AgentNode:
         """This process's own work of an epoch, on a copy of its agents, before the clock
         starts (:meth:`shell.TimePolicy.join`). Nothing is published; the copy is dropped."""
         runner = copy.deepcopy(self.runner)
-        in_links = list(
-            zip(runner.links.receiver.tolist(), runner.links.sender.tolist(), strict=True)
-        )
         head = {"run_id": self.run_id, "sender": self.service.name, "seq": 0, "stamp_ns": 0}
         for _ in range(times):
             k = runner.epoch
@@ -492,8 +435,15 @@ class AgentNode:
                 )
                 for i in self.ids
             }
-            # each in-neighbour's state, as this agent's own would read
-            packets = [Packet(i, j, k, tuple(read[i].position)) for i, j in in_links]
-            for i, report in runner.receive(packets).items():
+            # each in-link a state, as the receiver's own would read
+            links = runner.links
+            positions = np.array([read[i].position for i in links.receiver.tolist()]).reshape(
+                -1, self.scenario.dimension
+            )
+            runner.receive(links.receiver, links.sender, np.full(len(positions), k), positions)
+            for i, report in runner.reports().items():
                 TokenReport.model_validate_json(report_message({**head, "epoch": k}, i, report))
-            runner.step({i: None for i in self.ids})
+            a, d, n_links = len(self.ids), self.scenario.dimension, len(positions)
+            runner.step(
+                np.zeros((a, d)), np.zeros(a, bool), np.zeros((n_links, d)), np.zeros(n_links, bool)
+            )

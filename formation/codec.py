@@ -89,6 +89,12 @@ class Malformed:
                 self.counts[key_of(p)] += 1
 
 
+def payloads(model: type[BaseModel], packets: Iterable[DeliveredPacket]) -> list[Any]:
+    """Each packet's payload with ``model``'s fields (as :meth:`Malformed.read`), or None
+    where it fails validation: the caller counts it on its link's key."""
+    return [_payload(model, p.message) for p in packets]
+
+
 def _payload(model: type[BaseModel], message: str) -> Any:
     msg = plain_of(model, message)
     if msg is None:
@@ -99,19 +105,19 @@ def _payload(model: type[BaseModel], message: str) -> Any:
     return msg
 
 
-def batched_deliveries(batch: Any) -> list[tuple[Any, list[Any]]] | None:
-    """A :class:`~formation.messages.DeliveryBatch`'s deliveries (its fields), each with its
-    packets from the batch's table; a malformed one (packets of its own, an index outside
-    the table) is left out. None when its columns ``deliveries`` and ``carried`` differ in
-    length (no delivery's packets can be told)."""
-    table, deliveries, carried = batch.packets, batch.deliveries, batch.carried
+def batched_deliveries(batch: Any) -> list[tuple[Any, list[int]]] | None:
+    """A :class:`~formation.messages.DeliveryBatch`'s deliveries (its fields), each with the
+    indices of its packets in the batch's table (``batch.packets``); a malformed one (packets
+    of its own, an index outside the table) is left out. None when its columns
+    ``deliveries`` and ``carried`` differ in length (no delivery's packets can be told)."""
+    deliveries, carried = batch.deliveries, batch.carried
     if len(carried) != len(deliveries):
         return None
-    size, out = len(table), []
+    size, out = len(batch.packets), []
     for d, ids in zip(deliveries, carried, strict=True):
         if d.packets or (ids and (min(ids) < 0 or max(ids) >= size)):
             continue
-        out.append((d, [table[i] for i in ids]))
+        out.append((d, ids))
     return out
 
 
@@ -122,5 +128,6 @@ __all__ = [
     "decode",
     "encode",
     "now_ns",
+    "payloads",
     "read_attachment",
 ]

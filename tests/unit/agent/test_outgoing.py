@@ -5,7 +5,7 @@ from __future__ import annotations
 from hypothesis import given
 from hypothesis import strategies as st
 
-from agent.node import report_message, state_message
+from agent.outgoing import report_message, state_message
 from formation.messages import CoordinationState, TokenReport
 
 HEAD = {"run_id": "r", "sender": "agent/3", "seq": 5, "epoch": 9, "stamp_ns": 17}
