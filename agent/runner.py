@@ -12,7 +12,6 @@ import numpy.typing as npt
 from agent.control import body_velocity, reference_heading
 from agent.epoch import InLinks, agent_epoch
 from agent.measurement import NoiseKeys, relative_measurement
-from agent.outgoing import Report
 from agent.strategies import LinkMemory, state_width
 from formation.reference import reference_positions
 from formation.robots import initial_headings
@@ -124,6 +123,13 @@ class AgentRunner:
         r = self.row[agent]
         return float(self.heading[r]), int(self.saturated[r])
 
+    def poses(self, agents: list[int]) -> list[tuple[float, int]] | None:
+        """:meth:`pose` of each of ``agents`` (None: not unicycles)."""
+        if self.heading is None or self.saturated is None:
+            return None
+        rows = self.rows(np.array(agents, dtype=np.int64))
+        return list(zip(self.heading[rows].tolist(), self.saturated[rows].tolist(), strict=True))
+
     def position(self, agent: int) -> list[float]:
         if self._positions is None:
             self._positions = self.x.tolist()  # one conversion for the whole pool
@@ -195,15 +201,6 @@ class AgentRunner:
     def z(self) -> Array:
         """(L, d) each in-link's relative measurement ``z_ij`` [m] (meaningful where arrived)."""
         return self._z
-
-    def reports(self) -> dict[int, Report]:
-        """Each agent's report of this epoch: per in-link, the neighbour, its token and
-        ``z_ij`` where it arrived."""
-        reports: dict[int, Report] = {i: [] for i in self.ids}
-        z = self._z.tolist()
-        for (i, j), a, z_ij in zip(self.pairs, self._arrived.tolist(), z, strict=True):
-            reports[i].append((j, int(a), z_ij if a else None))
-        return reports
 
     def step(self, v_ref: Array, has_v_ref: Mask, estimate: Array, has_estimate: Mask) -> None:
         """Close epoch ``k`` with what the leader's messages gave: ``v_ref`` (a, d) [m/s] where
