@@ -7,7 +7,7 @@ A pool of hundreds takes hundreds of packets a phase; each distinct packet is re
 
 from __future__ import annotations
 
-from typing import Any
+from itertools import chain
 
 import numpy as np
 import numpy.typing as npt
@@ -45,19 +45,22 @@ def delivered_estimates(columns: Columns, runner: AgentRunner) -> tuple[Array, M
     rows = runner.rows(receivers)
     v_ref[rows] = np.array([m.v_ref for m in messages], dtype=float)
     has_v_ref[rows] = True
-    receiver: list[int] = []
-    neighbour: list[int] = []
-    position: list[Any] = []
-    for i, m in zip(receivers.tolist(), messages, strict=True):
-        count = min(len(m.neighbours), len(m.positions))
-        receiver += [i] * count
-        neighbour += m.neighbours[:count]
-        position += m.positions[:count]
-    link = runner.link_rows(np.array(receiver, dtype=np.int64), _ids(neighbour))
+    counts = [min(len(m.neighbours), len(m.positions)) for m in messages]
+    neighbour = list(
+        chain.from_iterable(m.neighbours[:c] for m, c in zip(messages, counts, strict=True))
+    )
+    position = list(
+        chain.from_iterable(m.positions[:c] for m, c in zip(messages, counts, strict=True))
+    )
+    link = runner.link_rows(np.repeat(receivers, counts), _ids(neighbour))
     last = _last_of_each(link)  # as a dict of the message's pairs holds them
     known = [i for i in last.tolist() if position[i] is not None]
     if known:
-        estimate[link[known]] = np.array([position[i] for i in known], dtype=float)
+        values = [position[i] for i in known]
+        if {len(v) for v in values} != {d}:
+            raise ValueError(f"an estimate's position is not of dimension {d}")
+        flat = np.fromiter(chain.from_iterable(values), dtype=float, count=len(values) * d)
+        estimate[link[known]] = flat.reshape(-1, d)
         has_estimate[link[known]] = True
     return v_ref, has_v_ref, estimate, has_estimate
 

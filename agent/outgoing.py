@@ -5,6 +5,7 @@ message. Each equals what its wire model (:mod:`formation.messages`) validates."
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 
 import numpy as np
@@ -18,11 +19,11 @@ _EMPTY = b"[]"
 
 
 def rows_json(values: Array) -> list[bytes]:
-    """Each row of ``values`` (a, d) as a JSON array, from one orjson call."""
+    """Each row of ``values`` (a, d) as the inside of a JSON array, from one orjson call."""
     text = orjson.dumps(np.ascontiguousarray(values), option=orjson.OPT_SERIALIZE_NUMPY)
     if text == _EMPTY:
         return []
-    return [b"[" + row + b"]" for row in text[2:-2].split(b"],[")]
+    return text[2:-2].split(b"],[")
 
 
 def state_messages(
@@ -51,7 +52,7 @@ def state_messages(
         pose = b"" if poses is None else b',"heading":%b,"saturated":%d' % _pose(poses[n])
         out.append(
             head % (seqs[n], epoch, stamp_ns)
-            + b',"kind":"state","agent":%d,"position":%b,"velocity":null,"substituted":%b%b%b'
+            + b',"kind":"state","agent":%d,"position":[%b],"velocity":null,"substituted":%b%b%b'
             % (i, position, listed, pose, tail)
         )
     return out
@@ -71,11 +72,15 @@ class Reports:
     def __init__(self, agents: Sequence[int], receivers: Sequence[int], senders: Sequence[int]):
         self.agents = list(agents)
         row = {i: r for r, i in enumerate(self.agents)}
-        self._links: list[list[int]] = [[] for _ in self.agents]  # each agent's in-links
-        for link, i in enumerate(receivers):
-            self._links[row[i]].append(link)
-        self._arrived = [b'{"neighbour":%d,"token":1,"z":' % j for j in senders]
-        self._lost = [b'{"neighbour":%d,"token":0,"z":null}' % j for j in senders]
+        # the links by agent (in link order within each): agent n's are order[ends[n - 1]:ends[n]]
+        self._order = sorted(range(len(receivers)), key=lambda link: row[receivers[link]])
+        counts = [0] * len(self.agents)
+        for i in receivers:
+            counts[row[i]] += 1
+        self._ends = list(itertools.accumulate(counts))
+        by_agent = [senders[link] for link in self._order]
+        self._arrived = [b'{"neighbour":%d,"token":1,"z":[' % j for j in by_agent]
+        self._lost = [b'{"neighbour":%d,"token":0,"z":null}' % j for j in by_agent]
 
     def messages(
         self,
@@ -89,18 +94,22 @@ class Reports:
     ) -> list[bytes]:
         """Each agent's :class:`~formation.messages.TokenReport`: per in-link the token and,
         where it ``arrived`` (L,), ``z_ij`` (L, d) [m]."""
-        zs = rows_json(z)
+        order = self._order
+        zs = rows_json(z[order])
         items = [
-            self._arrived[n] + zs[n] + b"}" if a else self._lost[n]
-            for n, a in enumerate(arrived.tolist())
+            self._arrived[n] + zs[n] + b"]}" if a else self._lost[n]
+            for n, a in enumerate(arrived[order].tolist())
         ]
         tail = b',"robot_silent":true}' if robot_silent else b"}"
-        return [
-            head % (seqs[n], epoch, stamp_ns)
-            + b',"kind":"report","agent":%d,"measurements":[%b]%b'
-            % (i, b",".join([items[link] for link in self._links[n]]), tail)
-            for n, i in enumerate(self.agents)
-        ]
+        out, start = [], 0
+        for n, (i, end) in enumerate(zip(self.agents, self._ends, strict=True)):
+            out.append(
+                head % (seqs[n], epoch, stamp_ns)
+                + b',"kind":"report","agent":%d,"measurements":[%b]%b'
+                % (i, b",".join(items[start:end]), tail)
+            )
+            start = end
+        return out
 
 
 def bundle_message(
@@ -114,16 +123,11 @@ def bundle_message(
     messages: Sequence[bytes],
 ) -> bytes:
     """A :class:`~formation.messages.Bundle` of ``phase``: each agent's message, with the seq
-    of its own key. A message (orjson's JSON: no raw control character) is a JSON string once
-    its backslashes and quotes are escaped."""
-    parts = b",".join(
-        [
-            b'{"agent":%d,"seq":%d,"message":"%b"}'
-            % (i, s, m.replace(b"\\", b"\\\\").replace(b'"', b'\\"'))
-            for i, s, m in zip(agents, seqs, messages, strict=True)
-        ]
-    )
-    return head % (seq, epoch, stamp_ns) + b',"kind":"bundle","phase":%b,"parts":[%b]}' % (
-        orjson.dumps(phase),
-        parts,
-    )
+    of its own key."""
+    parts = [
+        {"agent": i, "seq": s, "message": m.decode()}
+        for i, s, m in zip(agents, seqs, messages, strict=True)
+    ]
+    return head % (seq, epoch, stamp_ns) + orjson.dumps(
+        {"kind": "bundle", "phase": phase, "parts": parts}
+    ).replace(b"{", b",", 1)

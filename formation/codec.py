@@ -6,6 +6,7 @@ import struct
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
+from itertools import chain
 from typing import Any, TypeVar
 
 from pydantic import BaseModel, ValidationError
@@ -113,12 +114,17 @@ def batched_deliveries(batch: Any) -> list[tuple[Any, list[int]]] | None:
     deliveries, carried = batch.deliveries, batch.carried
     if len(carried) != len(deliveries):
         return None
-    size, out = len(batch.packets), []
-    for d, ids in zip(deliveries, carried, strict=True):
-        if d.packets or (ids and (min(ids) < 0 or max(ids) >= size)):
-            continue
-        out.append((d, ids))
-    return out
+    size = len(batch.packets)
+    rows = list(chain.from_iterable(carried))
+    if (not rows or (min(rows) >= 0 and max(rows) < size)) and not any(
+        d.packets for d in deliveries
+    ):
+        return list(zip(deliveries, carried, strict=True))  # every one whole: checked at once
+    return [
+        (d, ids)
+        for d, ids in zip(deliveries, carried, strict=True)
+        if not d.packets and not (ids and (min(ids) < 0 or max(ids) >= size))
+    ]
 
 
 __all__ = [

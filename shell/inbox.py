@@ -307,8 +307,8 @@ class LockstepInbox(_Receivers):
             else chain.from_iterable([i + offsets[id(t)] for i in ids] for _, t, ids in filed)
         )
         entry = np.fromiter(rows, dtype=np.int64, count=sum(counts))
-        source = np.fromiter((p.source for p in packets), dtype=np.int64, count=len(packets))
-        sent = np.fromiter((p.sent_epoch for p in packets), dtype=np.int64, count=len(packets))
+        ends = np.array([(p.source, p.sent_epoch) for p in packets], dtype=np.int64).reshape(-1, 2)
+        source, sent = ends[:, 0], ends[:, 1]
         if not kind.delayed:
             current = sent[entry] == epoch
             receiver, entry = receiver[current], entry[current]
