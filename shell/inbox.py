@@ -88,11 +88,6 @@ class Columns:
             np.array([p.sent_epoch for p in packets], dtype=np.int64),
         )
 
-    def of_receiver(self, receiver: int) -> list[tuple[DeliveredPacket, Any]]:
-        """One receiver's pairs, as :class:`Inputs` holds them."""
-        rows = np.flatnonzero(self.receiver == receiver).tolist()
-        return [(self.packets[e], self.payloads[e]) for e in self.entry[rows].tolist()]
-
 
 @dataclass(frozen=True)
 class Kind:
