@@ -76,5 +76,7 @@ def _ids(values: list[int]) -> Ids:
 def _last_of_each(link: Ids) -> Ids:
     """The positions of ``link`` (≥ 0 only) that hold the last occurrence of their value."""
     ours = np.flatnonzero(link >= 0)
+    if ours.size < 2 or np.bincount(link[ours]).max() < 2:  # no value twice: all of them
+        return ours
     _, last = np.unique(link[ours][::-1], return_index=True)
     return np.sort(ours[ours.size - 1 - last])

@@ -204,11 +204,12 @@ class AgentNode:
         rows = runner.rows(np.array(agents, dtype=np.int64))
         poses = runner.poses(agents)
         substituted = [runner.substituted[i] for i in agents]
-        stamp_ns = now_ns()
+        stamp_ns, bundled = now_ns(), self.bundled and ids is None
+        x = runner.x[rows]
         messages = state_messages(
-            self._head, seqs, k, stamp_ns, agents, runner.x[rows], substituted, poses, silent
+            self._head, seqs, k, stamp_ns, agents, x, substituted, poses, silent, bundled
         )
-        if self.bundled and ids is None:
+        if bundled:
             key = keys.pool_states(self.run_id, self.ids[0])
             self._put_bundle(key, "state", stamp_ns, seqs, messages)
         else:
@@ -222,7 +223,7 @@ class AgentNode:
         seqs = [self.service.next_seq(key) for key in report_keys]
         stamp_ns = now_ns()
         messages = self._reports.messages(
-            self._head, seqs, k, stamp_ns, runner.arrived, runner.z, silent
+            self._head, seqs, k, stamp_ns, runner.arrived, runner.z, silent, self.bundled
         )
         if self.bundled:
             key = keys.pool_bundle(self.run_id, self.ids[0], "report")

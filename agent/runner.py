@@ -281,7 +281,7 @@ class AgentRunner:
 
 def _last_per_row(rows: Ids, order: Ids) -> Ids:
     """The entries of ``order`` (indices into ``rows``) that are the last of their row in it."""
-    if order.size < 2:
+    if order.size < 2 or np.bincount(rows[order]).max() < 2:  # no row twice: all of them
         return order
     _, last = np.unique(rows[order][::-1], return_index=True)
     return order[order.size - 1 - last]

@@ -57,13 +57,31 @@ def test_reports_list_each_in_link_of_their_agent_in_link_order(
         ]
 
 
-@given(pairs)
-def test_a_bundle_carries_each_message_as_it_was_made(xy: list[tuple[float, float]]) -> None:
+@given(pairs, st.data(), st.booleans())
+def test_a_bundle_carries_each_message_as_it_would_go_alone(
+    xy: list[tuple[float, float]], data: st.DataObject, silent: bool
+) -> None:
     a = len(xy)
     agents, seqs = list(range(3, 3 + a)), list(range(10, 10 + a))
-    made = state_messages(HEAD, seqs, 4, 1, agents, np.array(xy), [[]] * a)
-    bundle = Bundle.model_validate_json(bundle_message(HEAD, 7, 4, 2, "state", agents, seqs, made))
-    assert (bundle.seq, bundle.epoch, bundle.phase) == (7, 4, "state")
-    assert [(p.agent, p.seq, p.message.encode()) for p in bundle.parts] == list(
-        zip(agents, seqs, made, strict=True)
+    subs = [data.draw(substitutes) for _ in agents]
+    poses = [(data.draw(floats), 2) for _ in agents]
+    made = {  # alone, and as a bundle's strings
+        quote: state_messages(HEAD, seqs, 4, 1, agents, np.array(xy), subs, poses, silent, quote)
+        for quote in (False, True)
+    }
+    bundle = Bundle.model_validate_json(
+        bundle_message(HEAD, 7, 4, 2, "state", agents, seqs, made[True])
     )
+    assert (bundle.sender, bundle.seq, bundle.epoch, bundle.phase) == ("pool/3", 7, 4, "state")
+    assert [(p.agent, p.seq, p.message.encode()) for p in bundle.parts] == list(
+        zip(agents, seqs, made[False], strict=True)
+    )
+    reports = Reports(agents, agents, [1] * a)
+    arrived, z = np.array([n % 2 == 0 for n in range(a)]), np.array(xy)
+    alone, quoted = (
+        reports.messages(HEAD, seqs, 4, 1, arrived, z, silent, q) for q in (False, True)
+    )
+    bundle = Bundle.model_validate_json(
+        bundle_message(HEAD, 8, 4, 2, "report", agents, seqs, quoted)
+    )
+    assert [p.message.encode() for p in bundle.parts] == alone
