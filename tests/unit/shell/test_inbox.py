@@ -254,3 +254,18 @@ def test_columns_of_an_estimate_leave_out_another_epochs_and_another_agents_part
     columns = _finish(take)  # type: ignore[arg-type]
     assert columns.receiver.tolist() == [2] and columns.entry.tolist() == [1]
     assert svc.malformed.counts == Counter({keys.link_estimate(RUN, 2): 1})
+
+
+def test_columns_of_deliveries_that_came_alone_number_their_packets_across_them() -> None:
+    netem, svc = _services()
+    inbox = Lockstep().inbox(svc, [1, 2], Counter())
+    take = inbox.take_columns("estimate", 0)
+    wait = next(take)
+    for r in (2, 1):  # each on its own key, in any order
+        inbox.route(
+            Incoming(keys.inbox(RUN, r, "estimate"), _delivery(netem, 0, 0, r).payload, None)
+        )
+    assert wait.complete()
+    columns = _finish(take)  # type: ignore[arg-type]
+    assert columns.receiver.tolist() == [1, 2] and columns.entry.tolist() == [0, 1]
+    assert [columns.payloads[e].agent for e in columns.entry.tolist()] == [1, 2]
