@@ -116,15 +116,9 @@ class AgentRunner:
                 self.saturated[self.row[i]] = count
         self._positions = None
 
-    def pose(self, agent: int) -> tuple[float, int] | None:
-        """A unicycle's heading ``θ_i[k]`` [rad] and its saturated sub-steps of epoch ``k − 1``."""
-        if self.heading is None or self.saturated is None:
-            return None
-        r = self.row[agent]
-        return float(self.heading[r]), int(self.saturated[r])
-
     def poses(self, agents: list[int]) -> list[tuple[float, int]] | None:
-        """:meth:`pose` of each of ``agents`` (None: not unicycles)."""
+        """Each unicycle's heading ``θ_i[k]`` [rad] and its saturated sub-steps of epoch
+        ``k − 1`` (None: not unicycles)."""
         if self.heading is None or self.saturated is None:
             return None
         rows = self.rows(np.array(agents, dtype=np.int64))
