@@ -13,21 +13,21 @@ import json
 import logging
 import threading
 import time
-from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
-import orjson
 
 from agent.body import FIRST_POSE_S, RobotBodies
 from agent.control import body_velocity
-from agent.runner import AgentRunner, Estimate, Packet, Report
+from agent.incoming import delivered_estimates, delivered_states
+from agent.outgoing import Reports, bundle_message, state_messages
+from agent.runner import AgentRunner
 from formation import keys
 from formation.body import BODY_LOST_EXIT
-from formation.codec import attachment
+from formation.codec import attachment, now_ns
 from formation.deadlines import CAUSES, PHASES, ROBOT_SILENT, SLACK
 from formation.errors import BodyLost, RuntimeFailure
-from formation.messages import AgentEstimate, CoordinationState, DeliveredPacket, TokenReport
+from formation.messages import CoordinationState, TokenReport
 from formation.realtime import ESTIMATE_DEADLINE, STATE_DEADLINE
 from formation.scenario import Scenario, StrategyName
 from shell import Loop, PhaseInbox, Service, TimePolicy
@@ -35,55 +35,6 @@ from shell import Loop, PhaseInbox, Service, TimePolicy
 log = logging.getLogger("agent")
 WATCH_S = 0.25  # how often the main thread looks for netem's liveliness and a signal
 DECLARE_POOL_S = 30.0  # how long a pool asks netem to batch its deliveries (netem may start late)
-
-
-def state_message(
-    head: dict[str, Any],
-    agent: int,
-    position: list[float],
-    substituted: list[tuple[int, list[float], bool]],
-    pose: tuple[float, int] | None = None,
-    robot_silent: bool = False,
-) -> bytes:
-    """A :class:`CoordinationState` as JSON, built with orjson: a pool of hundreds sends one
-    per agent and epoch, and the pydantic model cost more than the rest of its step.
-    ``pose``: a unicycle's heading [rad] and saturated sub-steps (omitted for point agents);
-    ``robot_silent``: sent late as the agent waited for its robot's pose (else omitted)."""
-    msg = {
-        **head,
-        "kind": "state",
-        "agent": agent,
-        "position": position,
-        "velocity": None,
-        "substituted": [{"neighbour": j, "value": v, "fallback": f} for j, v, f in substituted],
-    }
-    if pose is not None:
-        msg["heading"], msg["saturated"] = pose
-    if robot_silent:
-        msg["robot_silent"] = True
-    return orjson.dumps(msg)
-
-
-def report_message(
-    head: dict[str, Any], agent: int, report: Report, robot_silent: bool = False
-) -> bytes:
-    """A :class:`TokenReport` as JSON, built with orjson (see :func:`state_message`)."""
-    msg = {
-        **head,
-        "kind": "report",
-        "agent": agent,
-        "measurements": [{"neighbour": j, "token": 1 if t else 0, "z": z} for j, t, z in report],
-    }
-    if robot_silent:
-        msg["robot_silent"] = True
-    return orjson.dumps(msg)
-
-
-def _estimate(delivered: Iterable[tuple[DeliveredPacket, AgentEstimate]]) -> Estimate | None:
-    """The first estimate delivered, if any (none: lost, or malformed)."""
-    for _, est in delivered:
-        return Estimate(dict(zip(est.neighbours, est.positions, strict=False)), est.v_ref)
-    return None
 
 
 class AgentNode:
@@ -146,6 +97,9 @@ class AgentNode:
             i: (keys.agent_state(self.run_id, i), keys.agent_report(self.run_id, i)) for i in ids
         }
         service.declare_publishers(key for pair in self.own_keys.values() for key in pair)
+        self._head = service.header_format()
+        links = self.runner.links
+        self._reports = Reports(ids, links.receiver.tolist(), links.sender.tolist())
         service.watch_alive()
 
     @property
@@ -240,51 +194,56 @@ class AgentNode:
         return self.robot_waited
 
     def _publish_states(self, ids: list[int] | None = None) -> None:
-        """Each agent's state, with its own key's header: on that key, or (a declared pool in
+        """Each agent's state, with its own key's seq: on that key, or (a declared pool in
         lockstep, every agent) all in one :class:`~formation.messages.Bundle`; a republished
         final state goes on its own key."""
-        k, silent = self.runner.epoch, self._robot_silent("state")
-        service, bundled = self.service, self.bundled and ids is None
-        parts = []
-        for i in self.ids if ids is None else ids:
-            key = self.own_keys[i][0]
-            head = service.header(key, k)
-            msg = state_message(
-                head,
-                i,
-                self.runner.position(i),
-                self.runner.substituted[i],
-                self.runner.pose(i),
-                silent,
-            )
-            if bundled:
-                parts.append({"agent": i, "seq": head["seq"], "message": msg.decode()})
-            else:
-                service.put(key, msg, attachment(k, head["seq"], i))
+        runner, agents = self.runner, self.ids if ids is None else ids
+        k, silent = runner.epoch, self._robot_silent("state")
+        state_keys = [self.own_keys[i][0] for i in agents]
+        seqs = [self.service.next_seq(key) for key in state_keys]
+        rows = runner.rows(np.array(agents, dtype=np.int64))
+        poses = runner.poses(agents)
+        substituted = [runner.substituted[i] for i in agents]
+        stamp_ns, bundled = now_ns(), self.bundled and ids is None
+        x = runner.x[rows]
+        messages = state_messages(
+            self._head, seqs, k, stamp_ns, agents, x, substituted, poses, silent, bundled
+        )
         if bundled:
-            self._put_bundle(keys.pool_states(self.run_id, self.ids[0]), "state", parts)
+            key = keys.pool_states(self.run_id, self.ids[0])
+            self._put_bundle(key, "state", stamp_ns, seqs, messages)
+        else:
+            self._put_each(state_keys, seqs, agents, messages)
 
-    def _publish_reports(self, packets: list[Packet]) -> None:
-        """Each agent's report, with its own key's header: on that key, or (a declared pool
+    def _publish_reports(self) -> None:
+        """Each agent's report, with its own key's seq: on that key, or (a declared pool
         in lockstep) all in one :class:`~formation.messages.Bundle`."""
-        k, silent = self.runner.epoch, self._robot_silent("report")
-        service, bundle = self.service, []
-        for i, report in self.runner.receive(packets).items():
-            key = self.own_keys[i][1]
-            head = service.header(key, k)
-            msg = report_message(head, i, report, silent)
-            if self.bundled:
-                bundle.append({"agent": i, "seq": head["seq"], "message": msg.decode()})
-            else:
-                service.put(key, msg, attachment(k, head["seq"], i))
+        runner, k, silent = self.runner, self.runner.epoch, self._robot_silent("report")
+        report_keys = [self.own_keys[i][1] for i in self.ids]
+        seqs = [self.service.next_seq(key) for key in report_keys]
+        stamp_ns = now_ns()
+        messages = self._reports.messages(
+            self._head, seqs, k, stamp_ns, runner.arrived, runner.z, silent, self.bundled
+        )
         if self.bundled:
-            self._put_bundle(keys.pool_bundle(self.run_id, self.ids[0], "report"), "report", bundle)
+            key = keys.pool_bundle(self.run_id, self.ids[0], "report")
+            self._put_bundle(key, "report", stamp_ns, seqs, messages)
+        else:
+            self._put_each(report_keys, seqs, self.ids, messages)
 
-    def _put_bundle(self, key: str, phase: str, parts: list[dict[str, Any]]) -> None:
+    def _put_each(
+        self, own: list[str], seqs: list[int], agents: list[int], messages: list[bytes]
+    ) -> None:
         k = self.runner.epoch
-        head = self.service.header(key, k)
-        msg = orjson.dumps({**head, "kind": "bundle", "phase": phase, "parts": parts})
-        self.service.put(key, msg, attachment(k, head["seq"], self.ids[0]))
+        for key, seq, i, msg in zip(own, seqs, agents, messages, strict=True):
+            self.service.put(key, msg, attachment(k, seq, i))
+
+    def _put_bundle(
+        self, key: str, phase: str, stamp_ns: int, seqs: list[int], messages: list[bytes]
+    ) -> None:
+        k, seq = self.runner.epoch, self.service.next_seq(key)
+        msg = bundle_message(self._head, seq, k, stamp_ns, phase, self.ids, seqs, messages)
+        self.service.put(key, msg, attachment(k, seq, self.ids[0]))
 
     def confirm_final(self, timeout_s: float = 10.0) -> bool:
         """Republish what netem says it lacks of our final states, until it has them all.
@@ -322,24 +281,18 @@ class AgentNode:
         while self.runner.epoch < self.end:
             k = self.runner.epoch
             self.deadline["overruns"] += timing.past(k, STATE_DEADLINE)
-            states = yield from inbox.take("state", k)
-            self._publish_reports(
-                [
-                    Packet(i, p.source, p.sent_epoch, tuple(s.position))
-                    for i in states
-                    for p, s in states[i]
-                ]
-            )
+            states = yield from inbox.take_columns("state", k)
+            self.runner.receive(*delivered_states(states, self.scenario.dimension))
+            self._publish_reports()
             # Realtime: stepping once every estimate here is in gives the step what the
             # deadline would (only epoch k's estimate counts) and the states more time: woken
             # at once at the deadline, 20 agents stepped one after another on 2 cores, the
             # last ones late.
-            estimates = yield from inbox.take("estimate", k, expect=1, early="early_steps")
-            got = {i: _estimate(estimates[i]) for i in self.ids}
+            estimates = yield from inbox.take_columns("estimate", k, expect=1, early="early_steps")
             before = None if self.bodies is None else self.runner.x.copy()
             if realtime and self.bodies is not None:
                 self._take_headings()  # a unicycle steps from where it faces now
-            self.runner.step(got)
+            self.runner.step(*delivered_estimates(estimates, self.runner))
             # x[k+1] is known now: out at once, so the states have the rest of this period
             # as well as the next one's first 0.2 to arrive. In realtime it does not depend on
             # the robots' poses, so a wait for a robot's pose never makes it late.
@@ -480,20 +433,22 @@ class AgentNode:
         """This process's own work of an epoch, on a copy of its agents, before the clock
         starts (:meth:`shell.TimePolicy.join`). Nothing is published; the copy is dropped."""
         runner = copy.deepcopy(self.runner)
-        in_links = list(
-            zip(runner.links.receiver.tolist(), runner.links.sender.tolist(), strict=True)
-        )
-        head = {"run_id": self.run_id, "sender": self.service.name, "seq": 0, "stamp_ns": 0}
+        a, d, links = len(self.ids), self.scenario.dimension, runner.links
         for _ in range(times):
             k = runner.epoch
+            poses = runner.poses(self.ids)
+            states = state_messages(self._head, [0] * a, k, 0, self.ids, runner.x, [[]] * a, poses)
             read = {
-                i: CoordinationState.model_validate_json(
-                    state_message({**head, "epoch": k}, i, runner.position(i), [], runner.pose(i))
-                )
-                for i in self.ids
+                i: CoordinationState.model_validate_json(m)
+                for i, m in zip(self.ids, states, strict=True)
             }
-            # each in-neighbour's state, as this agent's own would read
-            packets = [Packet(i, j, k, tuple(read[i].position)) for i, j in in_links]
-            for i, report in runner.receive(packets).items():
-                TokenReport.model_validate_json(report_message({**head, "epoch": k}, i, report))
-            runner.step({i: None for i in self.ids})
+            # each in-link a state, as the receiver's own would read
+            positions = np.array([read[i].position for i in links.receiver.tolist()])
+            sent = np.full(len(links.index), k)
+            runner.receive(links.receiver, links.sender, sent, positions.reshape(-1, d))
+            for m in self._reports.messages(self._head, [0] * a, k, 0, runner.arrived, runner.z):
+                TokenReport.model_validate_json(m)
+            n_links = len(links.index)
+            runner.step(
+                np.zeros((a, d)), np.zeros(a, bool), np.zeros((n_links, d)), np.zeros(n_links, bool)
+            )

@@ -6,9 +6,6 @@ the simulator runs, on these agents and their in-links at once.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import NamedTuple
-
 import numpy as np
 import numpy.typing as npt
 
@@ -21,27 +18,8 @@ from formation.robots import initial_headings
 from formation.scenario import Scenario, StrategyName
 
 Array = npt.NDArray[np.float64]
-Report = list[tuple[int, int, list[float] | None]]  # (neighbour, token, z_ij) per in-link
-
-
-class Packet(NamedTuple):
-    """A coordination packet as delivered to ``receiver``: its source, sent epoch and ``x_j`` [m].
-
-    A tuple: a pool builds hundreds an epoch."""
-
-    receiver: int
-    source: int
-    sent_epoch: int
-    position: tuple[float, ...]
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """What the leader's epoch-``k`` message gave one agent: ``x̂_j`` per in-neighbour ``j``
-    (None: unobservable), and ``v_ref``."""
-
-    positions: dict[int, list[float] | None]
-    v_ref: list[float]
+Ids = npt.NDArray[np.int64]
+Mask = npt.NDArray[np.bool_]
 
 
 class AgentRunner:
@@ -59,11 +37,12 @@ class AgentRunner:
         self.row = {i: r for r, i in enumerate(self.ids)}
         self._agents = np.array(self.ids, dtype=np.int64)
         self.links = InLinks.of(scenario, np.array(self.ids))
-        self.link_of = {
-            (int(b), int(a)): r
-            for r, (a, b) in enumerate(zip(self.links.sender, self.links.receiver, strict=True))
-        }  # (receiver, sender) → in-link row
         n_links, d = len(self.links.index), scenario.dimension
+        # (receiver row, sender id) → in-link row, −1 where there is none
+        self._link_row = np.full((len(ids), scenario.n + 1), -1, dtype=np.int64)
+        self._link_row[self.links.receiver_row, self.links.sender] = np.arange(n_links)
+        self._row_of = np.full(scenario.n + 1, -1, dtype=np.int64)  # agent id → row, −1: not ours
+        self._row_of[self._agents] = np.arange(len(ids))
         rows = np.array(self.ids) - 1
         self.x = scenario.initial_positions(seed)[rows].copy()
         self.velocity = np.zeros((len(ids), d))
@@ -89,7 +68,7 @@ class AgentRunner:
         self._z = np.zeros((n_links, d))
         self.substituted: dict[int, list[tuple[int, list[float], bool]]] = {i: [] for i in ids}
         # Per in-link (receiver, sender) as Python ints: a pool walks them every epoch.
-        self._pairs = list(
+        self.pairs = list(
             zip(self.links.receiver.tolist(), self.links.sender.tolist(), strict=True)
         )
         self._positions: list[list[float]] | None = None
@@ -137,42 +116,65 @@ class AgentRunner:
                 self.saturated[self.row[i]] = count
         self._positions = None
 
-    def pose(self, agent: int) -> tuple[float, int] | None:
-        """A unicycle's heading ``θ_i[k]`` [rad] and its saturated sub-steps of epoch ``k − 1``."""
+    def poses(self, agents: list[int]) -> list[tuple[float, int]] | None:
+        """Each unicycle's heading ``θ_i[k]`` [rad] and its saturated sub-steps of epoch
+        ``k − 1`` (None: not unicycles)."""
         if self.heading is None or self.saturated is None:
             return None
-        r = self.row[agent]
-        return float(self.heading[r]), int(self.saturated[r])
+        rows = self.rows(np.array(agents, dtype=np.int64))
+        return list(zip(self.heading[rows].tolist(), self.saturated[rows].tolist(), strict=True))
 
     def position(self, agent: int) -> list[float]:
         if self._positions is None:
             self._positions = self.x.tolist()  # one conversion for the whole pool
         return self._positions[self.row[agent]]
 
-    def receive(self, packets: list[Packet]) -> dict[int, Report]:
-        """Epoch ``k``'s delivered packets → each agent's report.
+    def rows(self, agents: Ids) -> Ids:
+        """(m,) each agent's row (every one of ``agents`` is one of these)."""
+        return self._row_of[agents]
 
-        Packets sent before ``k`` (delayed) only refresh the held value.
+    def link_rows(self, receivers: Ids, senders: Ids) -> Ids:
+        """(m,) the in-link row of each ``senders[m] → receivers[m]``, −1 where none is ours."""
+        n = self.scenario.n
+        inside = (receivers >= 0) & (receivers <= n) & (senders >= 0) & (senders <= n)
+        rows = np.full(receivers.shape, -1, dtype=np.int64)
+        r = self._row_of[receivers[inside]]
+        found = np.full(r.shape, -1, dtype=np.int64)
+        ours = r >= 0
+        found[ours] = self._link_row[r[ours], senders[inside][ours]]
+        rows[inside] = found
+        return rows
+
+    def receive(self, receivers: Ids, sources: Ids, sent_epoch: Ids, positions: Array) -> None:
+        """Epoch ``k``'s delivered packets (m,), each ``x_j`` (m, d) [m], into the agents' links:
+        :attr:`arrived` and :attr:`z` are then each in-link's token and measurement.
+
+        Packets sent before ``k`` (delayed) only refresh the held value; where several reach
+        one link, the last one sent (and of those the last delivered) counts.
         """
-        k, n_links = self.epoch, len(self.links.index)
-        late = [p for p in packets if p.sent_epoch < k]
-        if late:
-            late.sort(key=lambda p: p.sent_epoch)
-            values = np.zeros((n_links, self.scenario.dimension))
+        k, n_links, d = self.epoch, len(self.links.index), self.scenario.dimension
+        if positions.shape != (receivers.shape[0], d):
+            raise ValueError(
+                f"positions have shape {positions.shape}; expected ({len(receivers)}, {d})"
+            )
+        rows = self.link_rows(receivers, sources)
+        late = np.flatnonzero((sent_epoch < k) & (rows >= 0))
+        if late.size:
+            late = _last_per_row(rows, late[np.argsort(sent_epoch[late], kind="stable")])
+            values = np.zeros((n_links, d))
             sent = np.full(n_links, -1, dtype=np.int64)
             mask = np.zeros(n_links, dtype=bool)
-            for p in late:
-                r = self.link_of.get((p.receiver, p.source))
-                if r is not None:
-                    values[r], sent[r], mask[r] = p.position, p.sent_epoch, True
+            values[rows[late]], sent[rows[late]], mask[rows[late]] = (
+                positions[late],
+                sent_epoch[late],
+                True,
+            )
             self.memory = self.memory.receive_late(values, sent, mask)
+        now = _last_per_row(rows, np.flatnonzero((sent_epoch == k) & (rows >= 0)))
         self._arrived[:] = False
         self._received[:] = 0.0
-        for p in packets:
-            r = self.link_of.get((p.receiver, p.source))
-            if p.sent_epoch == k and r is not None:
-                self._arrived[r] = True
-                self._received[r] = p.position
+        self._arrived[rows[now]] = True
+        self._received[rows[now]] = positions[now]
         self._z = relative_measurement(
             self.x[self.links.receiver_row],
             self._received,
@@ -183,26 +185,25 @@ class AgentRunner:
             k,
             self._noise,
         )
-        reports: dict[int, Report] = {i: [] for i in self.ids}
-        z = self._z.tolist()
-        for (i, j), a, z_ij in zip(self._pairs, self._arrived.tolist(), z, strict=True):
-            reports[i].append((j, int(a), z_ij if a else None))
-        return reports
 
-    def step(self, estimates: dict[int, Estimate | None]) -> None:
-        """Close epoch ``k`` with what each agent got from the leader (None if lost); ``x`` becomes ``x[k+1]``."""
-        k, n_links, d = self.epoch, len(self.links.index), self.scenario.dimension
+    @property
+    def arrived(self) -> Mask:
+        """(L,) each in-link's packet of this epoch arrived in time (its token)."""
+        return self._arrived
+
+    @property
+    def z(self) -> Array:
+        """(L, d) each in-link's relative measurement ``z_ij`` [m] (meaningful where arrived)."""
+        return self._z
+
+    def step(self, v_ref: Array, has_v_ref: Mask, estimate: Array, has_estimate: Mask) -> None:
+        """Close epoch ``k`` with what the leader's messages gave: ``v_ref`` (a, d) [m/s] where
+        ``has_v_ref`` (a,) (an agent's message came), and the in-links' ``x̂_j`` (L, d) [m]
+        where ``has_estimate`` (L,); ``x`` becomes ``x[k+1]``."""
+        k, n_links = self.epoch, len(self.links.index)
         v_prev = self.v_known.copy()
-        for i, e in estimates.items():
-            if e is not None:
-                self.v_known[self.row[i]] = e.v_ref
-        est = np.zeros((n_links, d))
-        has = np.zeros(n_links, dtype=bool)
-        for r, (i, j) in enumerate(self._pairs):
-            e = estimates.get(i)
-            value = None if e is None else e.positions.get(j)
-            if value is not None:
-                est[r], has[r] = value, True
+        self.v_known[has_v_ref] = v_ref[has_v_ref]
+        est, has = estimate, has_estimate
         v_before = v_prev[self.links.receiver_row]
         if self._in_graph is None or self._in_graph[k].all():
             result = agent_epoch(
@@ -265,8 +266,16 @@ class AgentRunner:
                 )
         self.substituted = {i: [] for i in self.ids}
         for row in np.flatnonzero(sub.substituted).tolist():
-            receiver, sender = self._pairs[row]
+            receiver, sender = self.pairs[row]
             self.substituted[receiver].append(
                 (sender, sub.values[row].tolist(), bool(sub.fallback[row]))
             )
         self.epoch = k + 1
+
+
+def _last_per_row(rows: Ids, order: Ids) -> Ids:
+    """The entries of ``order`` (indices into ``rows``) that are the last of their row in it."""
+    if order.size < 2 or np.bincount(rows[order]).max() < 2:  # no row twice: all of them
+        return order
+    _, last = np.unique(rows[order][::-1], return_index=True)
+    return order[order.size - 1 - last]

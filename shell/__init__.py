@@ -25,7 +25,7 @@ if TYPE_CHECKING:
         ZenohBus,
     )
     from shell.config_files import check_readable
-    from shell.inbox import PhaseInbox
+    from shell.inbox import Columns, PhaseInbox
     from shell.loop import Loop
     from shell.service import Incoming, Service, settle_heap
     from shell.serving import (
@@ -57,6 +57,7 @@ _HOMES = {
     "open_session": "shell.zenoh_config",
     "session_config": "shell.zenoh_config",
     "Bus": "shell.bus",
+    "Columns": "shell.inbox",
     "DUMP_SIGNAL": "shell.stack_dump",
     "Incoming": "shell.service",
     "Lockstep": "shell.timing",
@@ -91,6 +92,7 @@ __all__ = [
     "MEMBERS_FILE_ENV",
     "MEMBER_ENV",
     "Bus",
+    "Columns",
     "Incoming",
     "Lockstep",
     "Loop",

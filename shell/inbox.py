@@ -27,12 +27,15 @@ from collections.abc import (
 )
 from dataclasses import dataclass
 from functools import partial
-from typing import Any, Protocol
+from itertools import chain
+from typing import Any, Literal, Protocol
 
+import numpy as np
+import numpy.typing as npt
 from pydantic import BaseModel
 
 from formation import keys
-from formation.codec import batched_deliveries
+from formation.codec import batched_deliveries, payloads
 from formation.deadlines import PHASES, USED_KEPT, cause
 from formation.messages import (
     AgentEstimate,
@@ -49,6 +52,41 @@ from shell.service import Incoming, Service
 
 Inputs = dict[int, Iterable[tuple[DeliveredPacket, Any]]]  # receiver → (packet, payload)s
 Take = Generator[Wait, bool, Inputs]  # ``yield from`` it in a node's loop
+Filed = tuple[Any, list[Any], list[int]]  # a delivery's fields, a packet table, its packets' rows
+Ids = npt.NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class Columns:
+    """A phase's inputs as columns: each (receiver, packet) pair whose payload is valid and
+    its link's, in delivery order, and each distinct packet once (a pool's batch carries a
+    packet to several receivers).
+
+    receiver : (m,) the pair's receiver; entry : (m,) its packet's row in ``packets`` and
+    ``payloads`` (the message, decoded; None where invalid); source, sent_epoch : (e,) of
+    each packet.
+    """
+
+    receiver: Ids
+    entry: Ids
+    packets: list[DeliveredPacket]
+    payloads: list[Any]
+    source: Ids
+    sent_epoch: Ids
+
+    @classmethod
+    def of(cls, got: Inputs) -> Columns:
+        """The pairs of ``got`` (every one valid), each its own entry."""
+        pairs = [(r, p, m) for r, taken in got.items() for p, m in taken]
+        packets = [p for _, p, _ in pairs]
+        return cls(
+            np.array([r for r, _, _ in pairs], dtype=np.int64),
+            np.arange(len(pairs), dtype=np.int64),
+            packets,
+            [m for _, _, m in pairs],
+            np.array([p.source for p in packets], dtype=np.int64),
+            np.array([p.sent_epoch for p in packets], dtype=np.int64),
+        )
 
 
 @dataclass(frozen=True)
@@ -57,7 +95,7 @@ class Kind:
 
     model: type[BaseModel]
     link: Callable[[str, int, DeliveredPacket], str]  # (run, receiver, packet) → its link's key
-    belongs: Callable[[int, DeliveredPacket, Any], bool]  # whether that link can carry it
+    owner: Literal["source", "receiver"]  # the agent a payload must name for its link to carry it
     epoch: Callable[[DeliveredPacket, Any], int]  # the epoch it is an input of
     key: Callable[[DeliveredPacket, Any], Hashable]  # realtime: one filed per key (a copy replaces)
     delayed: bool  # lockstep: packets delayed from earlier epochs are inputs too
@@ -65,12 +103,16 @@ class Kind:
     taken: str | None  # the count of packets taken in time, if the node keeps one
     late: str | None  # the count of packets that missed the deadline, if kept
 
+    def belongs(self, receiver: int, p: DeliveredPacket, m: Any) -> bool:
+        """Whether the link of ``p`` into ``receiver`` can carry payload ``m``."""
+        return bool(m.agent == (p.source if self.owner == "source" else receiver))
+
 
 KINDS: Mapping[str, Kind] = {
     "state": Kind(
         CoordinationState,
         lambda run, i, p: keys.link_state(run, p.source, i),
-        lambda i, p, m: m.agent == p.source,
+        "source",
         lambda p, m: p.sent_epoch,
         lambda p, m: (p.source, p.seq),
         delayed=True,
@@ -81,7 +123,7 @@ KINDS: Mapping[str, Kind] = {
     "estimate": Kind(
         AgentEstimate,
         lambda run, i, p: keys.link_estimate(run, i),
-        lambda i, p, m: m.agent == i,  # another agent's part is unusable
+        "receiver",  # another agent's part is unusable
         lambda p, m: m.epoch,
         lambda p, m: m.epoch,
         delayed=False,
@@ -92,7 +134,7 @@ KINDS: Mapping[str, Kind] = {
     "report": Kind(
         TokenReport,
         lambda run, i, p: keys.link_report(run, p.source),
-        lambda i, p, m: m.agent == p.source,
+        "source",
         lambda p, m: m.epoch,
         lambda p, m: (m.agent, m.seq),
         delayed=False,
@@ -119,6 +161,12 @@ class PhaseInbox(Protocol):
         """
         ...
 
+    def take_columns(
+        self, phase: str, epoch: int, expect: int | None = None, early: str = ""
+    ) -> Generator[Wait, bool, Columns]:
+        """:meth:`take`'s inputs as :class:`Columns`."""
+        ...
+
 
 class _Receivers:
     """What both forms share: the receivers, their phases' kinds, the delivery check."""
@@ -135,10 +183,10 @@ class _Receivers:
         for kind in KINDS.values():
             decoder_of(kind.model)
 
-    def _deliveries(self, msg: Incoming) -> list[tuple[Any, list[Any]]]:
+    def _deliveries(self, msg: Incoming) -> list[Filed]:
         """netem's deliveries in ``msg`` (their fields, :meth:`~formation.codec.Malformed.read`)
-        that are for these receivers on their own key, each with its packets: one, or a pool's
-        batch of them."""
+        that are for these receivers on their own key, each with a packet table and its
+        packets' rows there: one, or a pool's batch of them (sharing the batch's table)."""
         if keys.parse(msg.key).kind == "inbox_pool":
             return self._batch(msg)
         delivery = self.service.malformed.read(msg.key, msg.payload, Delivery)
@@ -148,9 +196,9 @@ class _Receivers:
         if receiver not in self._ours or not msg.key.endswith(f"/{receiver}/{delivery.phase}"):
             self.service.malformed.counts[msg.key] += 1  # another receiver's: unusable
             return []
-        return [(delivery, delivery.packets)]
+        return [(delivery, delivery.packets, list(range(len(delivery.packets))))]
 
-    def _batch(self, msg: Incoming) -> list[tuple[Any, list[Any]]]:
+    def _batch(self, msg: Incoming) -> list[Filed]:
         """A pool's batch: its deliveries for these receivers of the batch's phase; one for
         another receiver or phase, or malformed, is counted on the batch's key and skipped."""
         malformed = self.service.malformed
@@ -161,7 +209,10 @@ class _Receivers:
         if unpacked is None or not msg.key.endswith(f"/pool/{batch.pool}/{batch.phase}"):
             malformed.counts[msg.key] += 1  # another pool's or phase's, or unreadable: unusable
             return []
-        ours = [x for x in unpacked if x[0].receiver in self._ours and x[0].phase == batch.phase]
+        table, phase = batch.packets, batch.phase
+        ours = [
+            (d, table, ids) for d, ids in unpacked if d.receiver in self._ours and d.phase == phase
+        ]
         if len(ours) < len(batch.deliveries):
             malformed.counts[msg.key] += len(batch.deliveries) - len(ours)
         return ours
@@ -191,18 +242,18 @@ class LockstepInbox(_Receivers):
         self, service: Service, receivers: Iterable[int], counts: MutableMapping[str, int]
     ) -> None:
         super().__init__(service, receivers, counts)
-        # (receiver, phase, epoch) → a Delivery's fields and its packets
-        self.deliveries: dict[tuple[int, str, int], tuple[Any, list[Any]]] = {}
+        # (receiver, phase, epoch) → a Delivery's fields, a packet table, its packets' rows
+        self.deliveries: dict[tuple[int, str, int], Filed] = {}
         self.floor: dict[str, int] = {}  # phase → the first epoch not yet taken
         self.current: tuple[str, int] | None = None  # the phase and epoch waited for
         self.waiting: set[int] = set()  # its receivers without their delivery yet
 
     def route(self, msg: Incoming) -> None:
-        for delivery, packets in self._deliveries(msg):
+        for delivery, table, ids in self._deliveries(msg):
             if delivery.epoch < self.floor.get(delivery.phase, 0):
                 continue  # a copy of one already used
             receiver, phase = delivery.receiver, delivery.phase
-            self.deliveries[(receiver, phase, delivery.epoch)] = (delivery, packets)
+            self.deliveries[(receiver, phase, delivery.epoch)] = (delivery, table, ids)
             # only the receiver a delivery is for can become ready: a pool of hundreds checks one
             if self.current == (phase, delivery.epoch):
                 self.waiting.discard(receiver)
@@ -210,19 +261,66 @@ class LockstepInbox(_Receivers):
     def _all_in(self) -> bool:
         return not self.waiting
 
-    def take(self, phase: str, epoch: int, expect: int | None = None, early: str = "") -> Take:
+    def _filed(self, phase: str, epoch: int) -> Generator[Wait, bool, list[Filed]]:
+        """Wait for each receiver's delivery of ``phase`` and ``epoch``; in receiver order."""
         self.current = (phase, epoch)
         self.waiting = {r for r in self.receivers if (r, phase, epoch) not in self.deliveries}
         yield Wait(epoch, PHASES[phase][1], self._all_in)
         self.current, self.floor[phase] = None, epoch + 1
+        return [self.deliveries.pop((r, phase, epoch)) for r in self.receivers]
+
+    def take(self, phase: str, epoch: int, expect: int | None = None, early: str = "") -> Take:
+        filed = yield from self._filed(phase, epoch)
         kind = KINDS[phase]
         got: Inputs = {}
         memo: dict[int, tuple[DeliveredPacket, Any]] = {}
-        for r in self.receivers:
-            packets = self.deliveries.pop((r, phase, epoch))[1]
+        for r, (_, table, ids) in zip(self.receivers, filed, strict=True):
+            packets = [table[i] for i in ids]
             current = packets if kind.delayed else [p for p in packets if p.sent_epoch == epoch]
             got[r] = self._decode(kind, r, current, memo)
         return got
+
+    def take_columns(
+        self, phase: str, epoch: int, expect: int | None = None, early: str = ""
+    ) -> Generator[Wait, bool, Columns]:
+        filed = yield from self._filed(phase, epoch)
+        return self._columns(KINDS[phase], epoch, filed)
+
+    def _columns(self, kind: Kind, epoch: int, filed: list[Filed]) -> Columns:
+        """The pairs of ``filed`` as columns, each distinct packet decoded once; a pair whose
+        payload is malformed or not its link's is counted on that link's key and left out."""
+        offsets: dict[int, int] = {}  # a table's first row among all the tables' packets
+        packets: list[DeliveredPacket] = []
+        for _, table, _ in filed:
+            if offsets.setdefault(id(table), len(packets)) == len(packets):
+                packets.extend(table)
+        counts = [len(ids) for _, _, ids in filed]
+        receiver = np.repeat(np.array(self.receivers, dtype=np.int64), counts)
+        rows = (
+            chain.from_iterable(ids for _, _, ids in filed)
+            if len(offsets) == 1  # a pool's batch: one table
+            else chain.from_iterable([i + offsets[id(t)] for i in ids] for _, t, ids in filed)
+        )
+        entry = np.fromiter(rows, dtype=np.int64, count=sum(counts))
+        ends = np.array([(p.source, p.sent_epoch) for p in packets], dtype=np.int64).reshape(-1, 2)
+        source, sent = ends[:, 0], ends[:, 1]
+        if not kind.delayed:
+            current = sent[entry] == epoch
+            receiver, entry = receiver[current], entry[current]
+        used = np.zeros(len(packets), dtype=bool)
+        used[entry] = True
+        decoded: list[Any] = [None] * len(packets)
+        wanted = np.flatnonzero(used).tolist()
+        for e, m in zip(wanted, payloads(kind.model, [packets[e] for e in wanted]), strict=True):
+            decoded[e] = m
+        agent = np.array([_named(m) for m in decoded], dtype=np.int64)
+        owner = source[entry] if kind.owner == "source" else receiver
+        valid = (agent[entry] == owner) & (agent[entry] >= 0)
+        if not valid.all():
+            for r, e in zip(receiver[~valid].tolist(), entry[~valid].tolist(), strict=True):
+                self.service.malformed.counts[kind.link(self.run_id, r, packets[e])] += 1
+            receiver, entry = receiver[valid], entry[valid]
+        return Columns(receiver, entry, packets, decoded, source, sent)
 
 
 class RealtimeInbox(_Receivers):
@@ -253,8 +351,8 @@ class RealtimeInbox(_Receivers):
         return clock
 
     def route(self, msg: Incoming) -> None:
-        for delivery, packets in self._deliveries(msg):
-            self._file(delivery, packets, msg.arrived_ns)
+        for delivery, table, ids in self._deliveries(msg):
+            self._file(delivery, [table[i] for i in ids], msg.arrived_ns)
 
     def _file(self, delivery: Any, packets: list[Any], arrived_ns: int) -> None:
         phase, r = delivery.phase, delivery.receiver
@@ -311,3 +409,18 @@ class RealtimeInbox(_Receivers):
             used[epoch] = fresh
             used.pop(epoch - USED_KEPT, None)
         return got
+
+    def take_columns(
+        self, phase: str, epoch: int, expect: int | None = None, early: str = ""
+    ) -> Generator[Wait, bool, Columns]:
+        return Columns.of((yield from self.take(phase, epoch, expect, early)))
+
+
+_TOP_ID = 2**62  # an agent id past it (Python ints have no bound) names no agent of ours
+
+
+def _named(payload: Any) -> int:
+    """The agent a decoded payload names, or −1 (none decoded, or an id past any agent's)."""
+    if payload is None or not 0 <= payload.agent < _TOP_ID:
+        return -1
+    return int(payload.agent)

@@ -8,10 +8,13 @@ import time
 from collections import Counter
 from pathlib import Path
 
+import numpy as np
 import orjson
 
-from agent.node import AgentNode, report_message, state_message
+from agent.node import AgentNode
+from agent.outgoing import Reports, state_messages
 from formation import keys
+from formation.codec import now_ns
 from formation.deadlines import ROBOT_SILENT
 from formation.messages import CoordinationState, DeliveredPacket, Delivery, TokenReport
 from formation.realtime import Clock
@@ -24,9 +27,9 @@ ROOT = Path(__file__).resolve().parents[3]
 
 def _late_state(sender: Service, netem: Service, robot_silent: bool) -> Incoming:
     """Agent 2's state of epoch 0, sent now (ten periods late), delivered to agent 1."""
-    head = sender.header(keys.agent_state(RUN, 2), 0)
-    state = state_message(head, 2, [1.0, 2.0], [], None, robot_silent)
-    packet = DeliveredPacket(source=2, seq=head["seq"], sent_epoch=0, message=state.decode())
+    seq = sender.next_seq(keys.agent_state(RUN, 2))
+    state = _state(sender.header_format(), seq, now_ns(), robot_silent)
+    packet = DeliveredPacket(source=2, seq=seq, sent_epoch=0, message=state.decode())
     key = keys.inbox(RUN, 1, "state")
     msg = Delivery(**netem.header(key, 0), receiver=1, phase="state", packets=[packet], lost=[])
     return Incoming(key, msg.model_dump_json().encode(), None, time.time_ns())
@@ -50,16 +53,24 @@ def test_a_late_state_marked_robot_silent_is_the_robots_and_an_unmarked_one_the_
     assert counts[ROBOT_SILENT] == 1 and counts["late_sender"] == 1
 
 
+def _state(head: bytes, seq: int, stamp_ns: int, robot_silent: bool) -> bytes:
+    """Agent 2's state of epoch 0 at (1, 2)."""
+    positions = np.array([[1.0, 2.0]])
+    return state_messages(head, [seq], 0, stamp_ns, [2], positions, [[]], None, robot_silent)[0]
+
+
+def _report(head: bytes, robot_silent: bool) -> bytes:
+    """Agent 2's report of epoch 0, with no in-link."""
+    reports = Reports([2], [], [])
+    return reports.messages(head, [0], 0, 1, np.zeros(0, bool), np.zeros((0, 2)), robot_silent)[0]
+
+
 def test_the_mark_is_on_the_wire_only_when_set_and_both_messages_carry_it() -> None:
-    head = {"run_id": RUN, "sender": "agent/2", "seq": 0, "epoch": 3, "stamp_ns": 1}
-    assert b"robot_silent" not in state_message(head, 2, [0.0, 0.0], [])
-    assert CoordinationState.model_validate_json(
-        state_message(head, 2, [0.0, 0.0], [], None, robot_silent=True)
-    ).robot_silent
-    assert TokenReport.model_validate_json(
-        report_message(head, 2, [], robot_silent=True)
-    ).robot_silent
-    assert not TokenReport.model_validate_json(report_message(head, 2, [])).robot_silent
+    head = Service(MemoryBus(), RUN, "agent", 2).header_format()
+    assert b"robot_silent" not in _state(head, 0, 1, robot_silent=False)
+    assert CoordinationState.model_validate_json(_state(head, 0, 1, robot_silent=True)).robot_silent
+    assert TokenReport.model_validate_json(_report(head, robot_silent=True)).robot_silent
+    assert not TokenReport.model_validate_json(_report(head, robot_silent=False)).robot_silent
 
 
 def test_an_agent_marks_what_it_sends_late_after_a_robot_wait_until_it_is_in_time_again() -> None:

@@ -197,3 +197,75 @@ def test_a_batch_whose_columns_or_indices_do_not_fit_its_table_is_counted_and_sk
     assert wait.complete()
     got = _finish(take)
     assert {r: [est.agent for _, est in got[r]] for r in got} == {1: [1], 2: [2]}
+
+
+def test_columns_hold_each_valid_pair_in_delivery_order_and_each_packet_once() -> None:
+    netem, svc = _services()
+    inbox = Lockstep().inbox(svc, [1, 2, 3], Counter())
+    take = inbox.take_columns("state", 0)
+    wait = next(take)
+    state = CoordinationState(**netem.header(keys.agent_state(RUN, 4), 0), agent=4,
+                              position=[0.0, 1.0])  # fmt: skip
+    good = DeliveredPacket(source=4, seq=0, sent_epoch=0, message=state.model_dump_json())
+    bad = DeliveredPacket(source=5, seq=0, sent_epoch=0, message='{"kind": "agent_state"}')
+    forged = DeliveredPacket(source=6, seq=0, sent_epoch=0, message=state.model_dump_json())
+    alone = [
+        Delivery(
+            **netem.header(keys.inbox(RUN, r, "state"), 0),
+            receiver=r,
+            phase="state",
+            packets=[],
+            lost=[],
+        )
+        for r in (1, 2, 3)
+    ]
+    key = keys.inbox_pool(RUN, 1, "state")
+    carried = [[0, 1], [2, 0], [1, 0]]
+    inbox.route(Incoming(key, _batch_of(netem, 1, "state", [good, bad, forged], alone, carried), None, 0))  # fmt: skip
+    assert wait.complete()
+    columns = _finish(take)  # type: ignore[arg-type]
+    assert columns.receiver.tolist() == [1, 2, 3] and columns.entry.tolist() == [0, 0, 0]
+    assert columns.source.tolist() == [4, 5, 6] and columns.sent_epoch.tolist() == [0, 0, 0]
+    assert columns.payloads[0].agent == 4  # decoded once for the three
+    # the malformed and the forged one (agent 4's state from 6) counted on each link's key
+    assert svc.malformed.counts == Counter(
+        {
+            keys.link_state(RUN, 5, 1): 1,
+            keys.link_state(RUN, 5, 3): 1,
+            keys.link_state(RUN, 6, 2): 1,
+        }
+    )
+
+
+def test_columns_of_an_estimate_leave_out_another_epochs_and_another_agents_part() -> None:
+    netem, svc = _services()
+    inbox = Lockstep().inbox(svc, [1, 2], Counter())
+    take = inbox.take_columns("estimate", 1)
+    next(take)
+    old = Delivery.model_validate_json(_delivery(netem, 0, receiver=1).payload)
+    now = Delivery.model_validate_json(_delivery(netem, 1, receiver=2).payload)
+    other = Delivery.model_validate_json(_delivery(netem, 1, receiver=1).payload)
+    table = [old.packets[0], now.packets[0], other.packets[0]]
+    alone = [d.model_copy(update={"epoch": 1}) for d in (old, now)]
+    key = keys.inbox_pool(RUN, 1, "estimate")
+    # receiver 1 gets epoch 0's estimate (not an input of epoch 1) and agent 1's part is 2's
+    batch = _batch_of(netem, 1, "estimate", table, alone, [[0], [1, 2]])
+    inbox.route(Incoming(key, batch, None, 0))
+    columns = _finish(take)  # type: ignore[arg-type]
+    assert columns.receiver.tolist() == [2] and columns.entry.tolist() == [1]
+    assert svc.malformed.counts == Counter({keys.link_estimate(RUN, 2): 1})
+
+
+def test_columns_of_deliveries_that_came_alone_number_their_packets_across_them() -> None:
+    netem, svc = _services()
+    inbox = Lockstep().inbox(svc, [1, 2], Counter())
+    take = inbox.take_columns("estimate", 0)
+    wait = next(take)
+    for r in (2, 1):  # each on its own key, in any order
+        inbox.route(
+            Incoming(keys.inbox(RUN, r, "estimate"), _delivery(netem, 0, 0, r).payload, None)
+        )
+    assert wait.complete()
+    columns = _finish(take)  # type: ignore[arg-type]
+    assert columns.receiver.tolist() == [1, 2] and columns.entry.tolist() == [0, 1]
+    assert [columns.payloads[e].agent for e in columns.entry.tolist()] == [1, 2]

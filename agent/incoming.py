@@ -1,0 +1,82 @@
+"""What a phase delivered to a set of agents, as the arrays :class:`~agent.runner.AgentRunner`
+steps with: the states' packets, and each agent's part of the leader's estimate.
+
+A pool of hundreds takes hundreds of packets a phase; each distinct packet is read once
+(the inbox's :class:`~shell.inbox.Columns`), and the rest is numpy.
+"""
+
+from __future__ import annotations
+
+from itertools import chain
+
+import numpy as np
+import numpy.typing as npt
+
+from agent.runner import AgentRunner
+from shell import Columns
+
+Array = npt.NDArray[np.float64]
+Ids = npt.NDArray[np.int64]
+Mask = npt.NDArray[np.bool_]
+
+
+def delivered_states(columns: Columns, dimension: int) -> tuple[Ids, Ids, Ids, Array]:
+    """Each (receiver, packet) pair of a state phase: receivers, sources, sent epochs (m,)
+    and the packets' positions ``x_j`` (m, d) [m]."""
+    used = np.unique(columns.entry)
+    table = np.zeros((len(columns.payloads), dimension))
+    if used.size:
+        table[used] = np.array([columns.payloads[e].position for e in used.tolist()], dtype=float)
+    entry = columns.entry
+    return columns.receiver, columns.source[entry], columns.sent_epoch[entry], table[entry]
+
+
+def delivered_estimates(columns: Columns, runner: AgentRunner) -> tuple[Array, Mask, Array, Mask]:
+    """Each agent's first estimate of the phase, as :meth:`AgentRunner.step` takes it:
+    ``v_ref`` (a, d) [m/s] and where it came (a,), each in-link's ``x̂_j`` (L, d) [m] and
+    where it is known (L,). An estimate naming a neighbour twice counts the last."""
+    a, d, n_links = len(runner.ids), runner.scenario.dimension, len(runner.links.index)
+    v_ref, has_v_ref = np.zeros((a, d)), np.zeros(a, dtype=bool)
+    estimate, has_estimate = np.zeros((n_links, d)), np.zeros(n_links, dtype=bool)
+    receivers, first = np.unique(columns.receiver, return_index=True)
+    if not receivers.size:
+        return v_ref, has_v_ref, estimate, has_estimate
+    messages = [columns.payloads[e] for e in columns.entry[first].tolist()]
+    rows = runner.rows(receivers)
+    v_ref[rows] = np.array([m.v_ref for m in messages], dtype=float)
+    has_v_ref[rows] = True
+    counts = [min(len(m.neighbours), len(m.positions)) for m in messages]
+    neighbour = list(
+        chain.from_iterable(m.neighbours[:c] for m, c in zip(messages, counts, strict=True))
+    )
+    position = list(
+        chain.from_iterable(m.positions[:c] for m, c in zip(messages, counts, strict=True))
+    )
+    link = runner.link_rows(np.repeat(receivers, counts), _ids(neighbour))
+    last = _last_of_each(link)  # as a dict of the message's pairs holds them
+    known = [i for i in last.tolist() if position[i] is not None]
+    if known:
+        values = [position[i] for i in known]
+        if {len(v) for v in values} != {d}:
+            raise ValueError(f"an estimate's position is not of dimension {d}")
+        flat = np.fromiter(chain.from_iterable(values), dtype=float, count=len(values) * d)
+        estimate[link[known]] = flat.reshape(-1, d)
+        has_estimate[link[known]] = True
+    return v_ref, has_v_ref, estimate, has_estimate
+
+
+def _ids(values: list[int]) -> Ids:
+    """Agent ids as an array; one past int64 (a forged message) names no agent: −1."""
+    try:
+        return np.array(values, dtype=np.int64)
+    except OverflowError:
+        return np.array([v if -1 <= v < 2**62 else -1 for v in values], dtype=np.int64)
+
+
+def _last_of_each(link: Ids) -> Ids:
+    """The positions of ``link`` (≥ 0 only) that hold the last occurrence of their value."""
+    ours = np.flatnonzero(link >= 0)
+    if ours.size < 2 or np.bincount(link[ours]).max() < 2:  # no value twice: all of them
+        return ours
+    _, last = np.unique(link[ours][::-1], return_index=True)
+    return np.sort(ours[ours.size - 1 - last])
