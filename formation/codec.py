@@ -13,7 +13,7 @@ import msgspec
 from pydantic import BaseModel, ValidationError
 
 from formation.messages import DeliveredPacket
-from formation.structs import plain_of, struct_of
+from formation.structs import decoder_of, plain_of
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -95,22 +95,13 @@ def payloads(model: type[BaseModel], packets: Iterable[DeliveredPacket]) -> list
     """Each packet's payload with ``model``'s fields (as :meth:`Malformed.read`), or None
     where it fails validation: the caller counts it on its link's key.
 
-    The messages are decoded as one JSON array (hundreds of calls cost a pool more than the
-    parsing); if that fails, or holds another number of values than messages, one by one."""
+    Each message is decoded on its own, never joined to the others: in one array a sender's
+    two malformed messages around another's could shift its slot to a value they wrote."""
     messages = [p.message for p in packets]
-    decoder = _ARRAYS.get(model)
-    if decoder is None:
-        decoder = _ARRAYS[model] = msgspec.json.Decoder(list[struct_of(model)])  # type: ignore[misc]
     try:
-        decoded: list[Any] = decoder.decode("[" + ",".join(messages) + "]")
+        return list(map(decoder_of(model).decode, messages))
     except msgspec.DecodeError:
-        decoded = []
-    if len(decoded) == len(messages):
-        return decoded
-    return [_payload(model, m) for m in messages]
-
-
-_ARRAYS: dict[type[BaseModel], msgspec.json.Decoder[Any]] = {}  # a model's, for a list of them
+        return [_payload(model, m) for m in messages]
 
 
 def _payload(model: type[BaseModel], message: str) -> Any:
