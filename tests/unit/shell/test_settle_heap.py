@@ -14,9 +14,8 @@ from shell.service import YOUNG_OBJECTS, settle_heap
 @pytest.fixture
 def restored_collector() -> Iterator[None]:
     threshold = gc.get_threshold()
-    gc.set_threshold(
-        700, 10, 10
-    )  # Python's default (a service started by an earlier test settled it)
+    # Python's default: a service started by an earlier test settled this process's heap
+    gc.set_threshold(700, 10, 10)
     yield
     gc.unfreeze()
     gc.set_threshold(*threshold)
