@@ -4,6 +4,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from orjson import dumps
 
 from formation import keys
@@ -89,10 +91,31 @@ class ZenohOutbox:
         lost: list[int],
         dead: list[int],
     ) -> None:
+        self._deliver(phase, receiver, epoch, now_ns(), packets, lost, dead)
+
+    def deliver_many(
+        self, phase: Phase, epoch: int, ready: list[tuple[int, list[bytes], list[int]]]
+    ) -> None:
+        """:meth:`deliver` of each ``(receiver, packets, lost)`` in turn, none dead, stamped
+        alike."""
+        stamp = now_ns()
+        for receiver, packets, lost in ready:
+            self._deliver(phase, receiver, epoch, stamp, packets, lost, ())
+
+    def _deliver(
+        self,
+        phase: Phase,
+        receiver: int,
+        epoch: int,
+        stamp: int,
+        packets: list[bytes],
+        lost: list[int],
+        dead: Sequence[int],
+    ) -> None:
         service = self.service
         key, pub, head = self._inbox(phase, receiver)  # two thousand an epoch: spliced
-        fields = head % (service.next_seq(key), epoch, now_ns())
-        pool = self.pool_of.get(receiver) if self.pool_of else None
+        fields = head % (service.next_seq(key), epoch, stamp)
+        pool = self.pool_of.get(receiver)
         if pool is None:
             pub.put(delivery_of(fields, packets, lost, dead))
             service.sent[key] += 1
@@ -101,37 +124,13 @@ class ZenohOutbox:
         kept = self._kept.get(at)
         if kept is None:
             kept = self._kept[at] = _PoolBatch()
-        kept.add(delivery_of(fields, (), lost, dead), packets)
+        if lost or dead:
+            kept.add(delivery_of(fields, (), lost, dead), packets)
+        else:
+            kept.add(fields + _NOTHING_ELSE, packets)
         if kept.came >= self._size[pool]:  # the pool's every agent: its batch goes
             del self._kept[at]
             self._publish(pool, phase, epoch, kept)
-
-    def deliver_many(
-        self, phase: Phase, epoch: int, ready: list[tuple[int, list[bytes], list[int]]]
-    ) -> None:
-        """:meth:`deliver` of each ``(receiver, packets, lost)`` in turn, none dead, stamped
-        alike."""
-        service, inboxes, pool_of, kept_of = self.service, self._inboxes, self.pool_of, self._kept
-        stamp = now_ns()
-        for receiver, packets, lost in ready:
-            got = inboxes.get((phase, receiver))
-            key, pub, head = self._inbox(phase, receiver) if got is None else got
-            fields = head % (service.next_seq(key), epoch, stamp)
-            pool = pool_of.get(receiver)
-            if pool is None:
-                pub.put(delivery_of(fields, packets, lost, ()))
-                service.sent[key] += 1
-                continue
-            at = (pool, phase, epoch)
-            kept = kept_of.get(at)
-            if kept is None:
-                kept = kept_of[at] = _PoolBatch()
-            kept.add(
-                fields + _NOTHING_ELSE if not lost else delivery_of(fields, (), lost, ()), packets
-            )
-            if kept.came >= self._size[pool]:
-                del kept_of[at]
-                self._publish(pool, phase, epoch, kept)
 
     def flush_pools(self) -> None:
         """Send a pool the deliveries kept for it since the last flush or before (one batch
