@@ -21,8 +21,8 @@ import orjson
 from formation import keys
 from formation.codec import read_attachment
 from formation.keys import LEADER_ENDPOINT
-from formation.messages import Bundle
 from formation.scenario import Scenario
+from netem.bundle_parts import payloads_of, read_bundle
 from netem.last_state import state_of
 from netem.link_config import LinkConfig
 from netem.outbox import ZenohOutbox
@@ -248,7 +248,7 @@ class NetemNode:
         bundle of another phase, or a part for an agent the key's sender does not hold, is
         counted on ``key`` and skipped."""
         raw = payload if isinstance(payload, bytes) else payload.to_bytes()
-        bundle = self.service.malformed.read(key, raw, Bundle)
+        bundle = read_bundle(self.service.malformed, key, raw)
         if bundle is None:
             return
         holds = self._holder(key, bundle.phase)
@@ -262,7 +262,7 @@ class NetemNode:
             self.service.malformed.counts[key] += len(agents) - len(parts)
             agents = [part.agent for part in parts]
         seqs = [part.seq for part in parts]
-        payloads = [part.message.encode() for part in parts]
+        payloads = payloads_of(parts)
         self.bundles.bundle(bundle.phase, bundle.epoch, agents, seqs, payloads)
         if self.lockstep.applied:
             self._announce_applied()

@@ -14,12 +14,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from orjson import dumps
-
 from formation.keys import LEADER_ENDPOINT
 from netem.proxy.lockstep import LockstepCore
 from netem.proxy.open_epochs import OpenEpoch
-from netem.proxy.records import packet_json_of
+from netem.proxy.records import message_json, packet_json_of
 from netem.proxy.routes import Phase, Route
 
 # A receiver whose epoch a part completed: its open epoch (None: the part is all it gets), the
@@ -116,7 +114,7 @@ class BundlePass:
         for stream, row, seq, payload in chosen:
             s = streams[stream]
             src = s.links[0][1]
-            packet = packet_json_of(src, seq, epoch, 1, dumps(payload.decode("utf-8", "replace")))
+            packet = packet_json_of(src, seq, epoch, 1, message_json(payload))
             for dst in s.receivers:
                 key = (phase, dst, epoch)
                 box = open_.get(key)

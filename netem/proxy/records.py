@@ -249,10 +249,27 @@ def packet_json(source: int, seq: int, sent_epoch: int, copies: int, payload: An
     return packet_json_of(source, seq, sent_epoch, copies, message_json(payload))
 
 
+class Escaped:
+    """A payload that came as the JSON string a ``DeliveredPacket``'s ``message`` holds
+    (a bundle's part, :mod:`netem.bundle_parts`): ``json`` is that string, as orjson writes it."""
+
+    __slots__ = ("json",)
+
+    def __init__(self, json: bytes) -> None:
+        self.json = json
+
+    def to_bytes(self) -> bytes:
+        """The payload itself (as a received ``ZBytes`` gives it)."""
+        text: str = orjson.loads(self.json)
+        return text.encode()
+
+
 def message_json(payload: Any) -> bytes:
     """A payload as the JSON string a ``DeliveredPacket``'s ``message`` holds; the last one is
     kept, as a state is delivered on each of its out-links in turn."""
     global _LAST_MESSAGE
+    if type(payload) is Escaped:
+        return payload.json
     last = _LAST_MESSAGE  # one read: another thread may replace it
     if last[0] is payload:  # it holds that payload: its id is not reused
         return last[1]
