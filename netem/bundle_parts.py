@@ -14,6 +14,7 @@ from __future__ import annotations
 from typing import Any
 
 import msgspec
+import numpy as np
 
 from formation.codec import Malformed
 from formation.messages import Bundle, BundlePart
@@ -36,44 +37,50 @@ _RAW_PART = _with(struct_of(BundlePart), "message", msgspec.Raw)
 _RAW_BUNDLE = msgspec.json.Decoder(_with(struct_of(Bundle), "parts", list[_RAW_PART]))  # type: ignore[valid-type]
 
 
-def raw_bundle(payload: bytes) -> Any:
-    """``payload`` as a bundle whose every part's ``message`` is its JSON string as orjson
-    writes it (an :class:`Escaped`), or None where only the model can read it."""
+def raw_bundle(payload: bytes) -> tuple[Any, list[Escaped]] | None:
+    """``payload`` as a bundle and its parts' payloads, each message the JSON string orjson
+    writes of it (an :class:`Escaped`); None where only the model can read it."""
     try:
         bundle = _RAW_BUNDLE.decode(payload)
     except msgspec.DecodeError:  # ValidationError too
         return None
-    for part in bundle.parts:
-        if as_written(bytes(part.message)) is None:
-            return None
-    return bundle
-
-
-def as_written(raw: bytes) -> bytes | None:
-    """``raw`` (a JSON value, syntax checked) if it is a string as orjson writes it: no
-    ``\\u`` or ``\\/`` escape (orjson writes a character as itself where it can), UTF-8."""
-    if raw[:1] != b'"' or b"\\u" in raw or b"\\/" in raw:
+    if not as_written(payload):
         return None
-    if not raw.isascii():
+    messages = [bytes(part.message) for part in bundle.parts]
+    if not all(m[0] == _QUOTE for m in messages):
+        return None  # a message that is not a string: the model names it
+    return bundle, list(map(Escaped, messages))
+
+
+_QUOTE, _BACKSLASH = ord('"'), ord("\\")
+
+
+def as_written(payload: bytes) -> bool:
+    """Whether every JSON string in ``payload`` (its syntax checked) is as orjson writes it:
+    UTF-8, and ``\\"`` its only escape (orjson writes ``/`` and a character it need not
+    escape as themselves; a message holds no control character)."""
+    if not payload.isascii():
         try:
-            raw.decode()
+            payload.decode()
         except UnicodeDecodeError:
-            return None
-    return raw
+            return False
+    text = np.frombuffer(payload, np.uint8)
+    after = np.flatnonzero(text == _BACKSLASH) + 1  # never past the end: inside a string
+    return bool((text[after] == _QUOTE).all())
 
 
-def read_bundle(malformed: Malformed, key: str, payload: bytes) -> Any:
-    """``payload`` as a bundle, its messages as written (:func:`raw_bundle`) or else as the
-    model reads them; None when it is malformed (counted on ``key``)."""
-    bundle = raw_bundle(payload)
-    return bundle if bundle is not None else malformed.read(key, payload, Bundle)
+def read_bundle(
+    malformed: Malformed, key: str, payload: bytes
+) -> tuple[Any, list[Escaped] | list[bytes]] | None:
+    """``payload`` as a bundle and its parts' payloads, as written (:func:`raw_bundle`) or
+    else as the model reads them; None when it is malformed (counted on ``key``)."""
+    got = raw_bundle(payload)
+    if got is not None:
+        return got
+    bundle = malformed.read(key, payload, Bundle)
+    if bundle is None:
+        return None
+    return bundle, [part.message.encode() for part in bundle.parts]
 
 
-def payloads_of(parts: list[Any]) -> list[Escaped] | list[bytes]:
-    """The payloads of a bundle's parts (of :func:`read_bundle`)."""
-    if parts and type(parts[0].message) is msgspec.Raw:
-        return [Escaped(bytes(part.message)) for part in parts]
-    return [part.message.encode() for part in parts]
-
-
-__all__ = ["as_written", "payloads_of", "raw_bundle", "read_bundle"]
+__all__ = ["as_written", "raw_bundle", "read_bundle"]

@@ -22,7 +22,7 @@ from formation import keys
 from formation.codec import read_attachment
 from formation.keys import LEADER_ENDPOINT
 from formation.scenario import Scenario
-from netem.bundle_parts import payloads_of, read_bundle
+from netem.bundle_parts import read_bundle
 from netem.last_state import state_of
 from netem.link_config import LinkConfig
 from netem.outbox import ZenohOutbox
@@ -248,9 +248,10 @@ class NetemNode:
         bundle of another phase, or a part for an agent the key's sender does not hold, is
         counted on ``key`` and skipped."""
         raw = payload if isinstance(payload, bytes) else payload.to_bytes()
-        bundle = read_bundle(self.service.malformed, key, raw)
-        if bundle is None:
+        read = read_bundle(self.service.malformed, key, raw)
+        if read is None:
             return
+        bundle, payloads = read
         holds = self._holder(key, bundle.phase)
         if holds is None:
             self.service.malformed.counts[key] += 1
@@ -258,12 +259,11 @@ class NetemNode:
         parts = bundle.parts
         agents = [part.agent for part in parts]
         if not holds.issuperset(agents):
-            parts = [part for part in parts if part.agent in holds]
-            self.service.malformed.counts[key] += len(agents) - len(parts)
+            kept = [i for i, a in enumerate(agents) if a in holds]
+            self.service.malformed.counts[key] += len(agents) - len(kept)
+            parts, payloads = [parts[i] for i in kept], [payloads[i] for i in kept]
             agents = [part.agent for part in parts]
-        seqs = [part.seq for part in parts]
-        payloads = payloads_of(parts)
-        self.bundles.bundle(bundle.phase, bundle.epoch, agents, seqs, payloads)
+        self.bundles.bundle(bundle.phase, bundle.epoch, agents, [p.seq for p in parts], payloads)
         if self.lockstep.applied:
             self._announce_applied()
 
