@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from collections import Counter, defaultdict
 from collections.abc import Iterable
+from itertools import chain
+from operator import itemgetter
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -112,6 +114,17 @@ class Template(NamedTuple):
     source: tuple[int, ...]
     target: tuple[int, ...]
     judgement: tuple[int, ...]
+    source_json: bytes  # ``source`` in a JSON array, without its brackets
+    target_json: bytes
+
+
+def template_of(
+    source: tuple[int, ...], target: tuple[int, ...], judgement: tuple[int, ...]
+) -> Template:
+    """A :class:`Template` of these records."""
+    return Template(
+        source, target, judgement, orjson.dumps(source)[1:-1], orjson.dumps(target)[1:-1]
+    )
 
 
 class RecordTemplates:
@@ -165,7 +178,7 @@ class RecordTemplates:
             if len(self._templates) > 100_000:  # queues' sojourns make many: kept few
                 self._templates.clear()
             kept = [(end, j) for end, j in zip(self._ends[stream], ids, strict=True) if j >= 0]
-            got = self._templates[(stream, ids)] = Template(
+            got = self._templates[(stream, ids)] = template_of(
                 tuple(src for (src, _), _ in kept),
                 tuple(dst for (_, dst), _ in kept),
                 tuple(j for _, j in kept),
@@ -174,7 +187,7 @@ class RecordTemplates:
 
     def single(self, source: int, target: int, d: Outcome | Queued) -> Template:
         """The template of one link's record."""
-        return Template((source,), (target,), (self.judgement_id(d),))
+        return template_of((source,), (target,), (self.judgement_id(d),))
 
 
 # A packet's records as a batch keeps them until it goes out: (template, seq).
@@ -186,21 +199,22 @@ def batch_body(
 ) -> bytes:
     """A ``DecisionBatch``'s fields after its header: the records of each ``(epoch, packets)``
     as columns, their judgements (ids into ``judgements``) renumbered to the batch's own."""
-    source: list[int] = []
-    target: list[int] = []
-    ids: list[int] = []
-    epoch: list[int] = []
-    seq: list[int] = []
-    for k, packets in epochs:
-        start = len(source)
-        for t, q in packets:
-            source += t.source
-            target += t.target
-            ids += t.judgement
-            seq += (q,) * len(t.source)
-        epoch += (k,) * (len(source) - start)
-    used, index = np.unique(np.array(ids, dtype=np.int64), return_inverse=True)
+    packets = list(chain.from_iterable(ps for _, ps in epochs))
+    templates = list(map(_TEMPLATE, packets))
+    counts = np.fromiter(map(len, map(_SOURCE, templates)), np.intp, len(templates))
+    per_epoch = np.fromiter((len(ps) for _, ps in epochs), np.intp, len(epochs))
+    epoch = np.repeat(np.repeat([k for k, _ in epochs], per_epoch), counts)
+    seq = np.repeat(np.fromiter(map(_SEQ, packets), np.int64, len(packets)), counts)
+    ids = np.fromiter(chain.from_iterable(map(_JUDGEMENT, templates)), np.int64, int(counts.sum()))
+    used, index = np.unique(ids, return_inverse=True)
+    source = orjson.Fragment(b"[%s]" % b",".join(map(_SOURCE_JSON, templates)))
+    target = orjson.Fragment(b"[%s]" % b",".join(map(_TARGET_JSON, templates)))
     return _body(phase, [judgements[j] for j in used], source, target, epoch, seq, index)
+
+
+_TEMPLATE, _SEQ = itemgetter(0), itemgetter(1)  # of a Recorded
+_SOURCE, _JUDGEMENT = itemgetter(0), itemgetter(2)  # of a Template
+_SOURCE_JSON, _TARGET_JSON = itemgetter(3), itemgetter(4)
 
 
 def _body(
