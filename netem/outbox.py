@@ -37,8 +37,7 @@ class ZenohOutbox:
 
     def __init__(self, service: Service) -> None:
         self.service = service
-        # (phase, receiver) → key, publisher, the delivery's fields before its packets
-        self._inboxes: dict[tuple[Phase, int], tuple[str, Publisher, bytes]] = {}
+        self._inboxes: dict[tuple[Phase, int], _Inbox] = {}  # (phase, receiver) → its inbox
         self._decision_key = keys.netem_decision(service.run_id)
         self._header = service.header_format()
         self.pool_of: dict[int, int] = {}  # receiver → its pool (the pool's first agent)
@@ -59,19 +58,24 @@ class ZenohOutbox:
         self._inbox("report", LEADER_ENDPOINT)
         self.service.publisher(self._decision_key)
 
-    def _inbox(self, phase: Phase, receiver: int) -> tuple[str, Publisher, bytes]:
-        out = self._inboxes.get((phase, receiver))
-        if out is None:
+    def _inbox(self, phase: Phase, receiver: int) -> _Inbox:
+        inbox = self._inboxes.get((phase, receiver))
+        if inbox is None:
             key = keys.inbox(self.service.run_id, receiver, phase)
             head = delivery_head(self._header, receiver, phase)
-            out = self._inboxes[(phase, receiver)] = (key, self.service.publisher(key), head)
-        return out
+            inbox = self._inboxes[(phase, receiver)] = _Inbox(
+                key, self.service.publisher(key), head
+            )
+            inbox.pool = self.pool_of.get(receiver)
+        return inbox
 
     def declare_pool(self, pool: int, agents: list[int]) -> None:
         """The receivers ``agents`` are one process's, pool ``pool``: batch their deliveries
         of the agents' phases (state, estimate) from now on."""
         for i in agents:
             self.pool_of[i] = pool
+            for phase in ("state", "estimate"):
+                self._inbox(phase, i).pool = pool
         self.pools[pool] = self.pools.get(pool, frozenset()) | set(agents)
         self._size[pool] = len(agents)
         for phase in ("state", "estimate"):
@@ -97,10 +101,33 @@ class ZenohOutbox:
         self, phase: Phase, epoch: int, ready: list[tuple[int, list[bytes], list[int]]]
     ) -> None:
         """:meth:`deliver` of each ``(receiver, packets, lost)`` in turn, none dead, stamped
-        alike."""
+        alike: a pool's receivers with nothing lost straight into its batch (the same bytes)."""
         stamp = now_ns()
+        inboxes, kept_by, size = self._inboxes, self._kept, self._size
+        at: tuple[int, Phase, int] | None = None
         for receiver, packets, lost in ready:
-            self._deliver(phase, receiver, epoch, stamp, packets, lost, ())
+            inbox = inboxes.get((phase, receiver))
+            pool = None if inbox is None or lost else inbox.pool
+            if pool is None:
+                self._deliver(phase, receiver, epoch, stamp, packets, lost, ())
+                at = None  # that may have sent the batch at hand
+                continue
+            if at is None or at[0] != pool:
+                at = (pool, phase, epoch)
+                kept = kept_by.get(at)
+                if kept is None:
+                    kept = kept_by[at] = _PoolBatch()
+                table, add = kept.table, kept.table.setdefault
+            seq = inbox.seq
+            inbox.seq = seq + 1
+            # as _PoolBatch.add: a new packet's index is the table's length before it
+            kept.carried.append([add(p, len(table)) for p in packets])
+            kept.deliveries.append(inbox.plain % (seq, epoch, stamp))
+            kept.came += 1
+            if kept.came >= size[pool]:  # the pool's every agent: its batch goes
+                del kept_by[at]
+                self._publish(pool, phase, epoch, kept)
+                at = None
 
     def _deliver(
         self,
@@ -112,22 +139,22 @@ class ZenohOutbox:
         lost: list[int],
         dead: Sequence[int],
     ) -> None:
-        service = self.service
-        key, pub, head = self._inbox(phase, receiver)  # two thousand an epoch: spliced
-        fields = head % (service.next_seq(key), epoch, stamp)
-        pool = self.pool_of.get(receiver)
+        inbox = self._inbox(phase, receiver)
+        seq = inbox.seq
+        inbox.seq = seq + 1
+        pool = inbox.pool
         if pool is None:
-            pub.put(delivery_of(fields, packets, lost, dead))
-            service.sent[key] += 1
+            inbox.pub.put(delivery_of(inbox.head % (seq, epoch, stamp), packets, lost, dead))
+            self.service.sent[inbox.key] += 1
             return
         at = (pool, phase, epoch)
         kept = self._kept.get(at)
         if kept is None:
             kept = self._kept[at] = _PoolBatch()
         if lost or dead:
-            kept.add(delivery_of(fields, (), lost, dead), packets)
+            kept.add(delivery_of(inbox.head % (seq, epoch, stamp), (), lost, dead), packets)
         else:
-            kept.add(fields + _NOTHING_ELSE, packets)
+            kept.add(inbox.plain % (seq, epoch, stamp), packets)
         if kept.came >= self._size[pool]:  # the pool's every agent: its batch goes
             del self._kept[at]
             self._publish(pool, phase, epoch, kept)
@@ -162,6 +189,20 @@ class ZenohOutbox:
 
 
 _NOTHING_ELSE = delivery_of(b"", (), (), ())  # a delivery's fields after its head: none lost
+
+
+class _Inbox:
+    """A receiver's key of a phase: its publisher, its delivery's fields before the packets
+    (``%d`` for seq, epoch and stamp_ns; ``plain``: with nothing after them), its next seq
+    and its pool (None: not batched)."""
+
+    __slots__ = ("head", "key", "plain", "pool", "pub", "seq")
+
+    def __init__(self, key: str, pub: Publisher, head: bytes) -> None:
+        self.key, self.pub, self.head = key, pub, head
+        self.plain = head + _NOTHING_ELSE
+        self.seq = 0
+        self.pool: int | None = None
 
 
 class _PoolBatch:
