@@ -17,7 +17,7 @@ from typing import Any
 from formation.keys import LEADER_ENDPOINT
 from netem.proxy.lockstep import LockstepCore
 from netem.proxy.open_epochs import OpenEpoch
-from netem.proxy.records import message_json, packet_json_of
+from netem.proxy.records import ONE_COPY, Escaped, message_json
 from netem.proxy.routes import Phase, Route
 
 # A receiver whose epoch a part completed: its open epoch (None: the part is all it gets), the
@@ -108,13 +108,14 @@ class BundlePass:
         core = self.core
         streams = core.rows[phase].streams
         open_, counts = core.open, core._senders_count[phase]
-        row_template = core.templates[phase].row_template
+        templates = core.templates[phase]
         complete: list[_Complete] = []
         recorded = []
         for stream, row, seq, payload in chosen:
             s = streams[stream]
             src = s.links[0][1]
-            packet = packet_json_of(src, seq, epoch, 1, message_json(payload))
+            message = payload.json if type(payload) is Escaped else message_json(payload)
+            packet = ONE_COPY % (src, seq, epoch, message)  # packet_json_of(.., 1, ..)
             for dst in s.receivers:
                 key = (phase, dst, epoch)
                 box = open_.get(key)
@@ -128,7 +129,7 @@ class BundlePass:
                 box.packets.append(packet)
                 if len(handled) >= counts[dst]:
                     complete.append((dst, box, src, packet))
-            recorded.append((row_template(stream, row.decisions), seq))
+            recorded.append((templates.row_template(stream, row.decisions), seq))
         core.passed.update([(phase, stream) for stream, _, _, _ in chosen])
         core.records.add_many(phase, epoch, recorded)
         if complete:

@@ -295,6 +295,11 @@ def message_json(payload: Any) -> bytes:
 _LAST_MESSAGE: tuple[Any, bytes] = (None, b"")
 
 
+# A packet of one copy (packet_json_of), ``%d`` for its source, seq and sent epoch, ``%s`` for
+# its message.
+ONE_COPY = b'{"source":%d,"seq":%d,"sent_epoch":%d,"copies":1,"message":%s}'
+
+
 def packet_json_of(source: int, seq: int, sent_epoch: int, copies: int, message: bytes) -> bytes:
     """:func:`packet_json` with the message already encoded (:func:`message_json`)."""
     return b'{"source":%d,"seq":%d,"sent_epoch":%d,"copies":%d,"message":%s}' % (
