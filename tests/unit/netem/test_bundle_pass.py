@@ -1,5 +1,6 @@
-"""A bundle handled at once (netem.proxy.bundle_pass) puts out what its parts one by one do:
-the same deliveries in the same order, the same records and counts, on clean and lossy links,
+"""A bundle handled at once (netem.proxy.bundle_pass), its messages as the escaped JSON strings
+they came in, puts out what its parts one by one do: the same deliveries in the same order,
+the same records, counts and last states, on clean and lossy links,
 with pools of any size sending in any order, a sender dying or a state coming twice."""
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from formation.scenario import Scenario
 from netem.proxy.bundle_pass import BundlePass
 from netem.proxy.lockstep import LockstepCore
 from netem.proxy.progress import Progress
-from netem.proxy.records import Ledger
+from netem.proxy.records import Escaped, Ledger, message_json
 from netem.proxy.routes import Links, Phase, Route
 from testbed.sim.team_generators import henneberg_team
 from testkit.lockstep_wire import Wire, receivers
@@ -66,8 +67,8 @@ def _run(scenario: Scenario, seed: int, bundles: list[tuple[Phase, int, list[int
         sent = agents if twice != b else [*agents, agents[0]]
         seqs = [epoch] * len(sent)
         payloads = [_payload(phase, a, epoch) for a in sent]
-        if at_once:
-            bundle(phase, epoch, sent, seqs, payloads)
+        if at_once:  # as the node reads a bundle: each message as the JSON string it came in
+            bundle(phase, epoch, sent, seqs, [Escaped(message_json(p)) for p in payloads])
             continue
         for a, seq, payload in zip(sent, seqs, payloads, strict=True):
             route: Route = (phase, LEADER_ENDPOINT, a) if phase == "estimate" else (phase, a, 0)
@@ -75,7 +76,11 @@ def _run(scenario: Scenario, seed: int, bundles: list[tuple[Phase, int, list[int
     core.flush()
     deliveries = [d.model_dump() for d in wire.deliveries]
     decisions = [d.model_dump() for d in wire.decisions]
-    return deliveries, decisions, core.forwarded(), core.progress.estimates_done, core.finished()
+    last = {
+        a: (k, p if type(p) is bytes else p.to_bytes()) for a, (k, p) in core.last_state.items()
+    }
+    done = core.progress.estimates_done
+    return deliveries, decisions, core.forwarded(), done, core.finished(), last
 
 
 @settings(max_examples=20, deadline=None)
