@@ -12,17 +12,21 @@ must decide, a duplicate, a final state) leaves the whole bundle to the one-by-o
 
 from __future__ import annotations
 
+from collections import defaultdict
+from itertools import repeat
+from operator import itemgetter
 from typing import Any
 
 from formation.keys import LEADER_ENDPOINT
 from netem.proxy.lockstep import LockstepCore
 from netem.proxy.open_epochs import OpenEpoch
-from netem.proxy.records import ONE_COPY, Escaped, message_json
+from netem.proxy.records import ONE_COPY, Escaped, Template, message_json
 from netem.proxy.routes import Phase, Route
 
 # A receiver whose epoch a part completed: its open epoch (None: the part is all it gets), the
 # part's sender and packet.
 _Complete = tuple[int, OpenEpoch | None, int, bytes]
+_STREAM = itemgetter(0)  # of a part chosen
 
 
 class BundlePass:
@@ -30,6 +34,19 @@ class BundlePass:
 
     def __init__(self, core: LockstepCore) -> None:
         self.core = core
+        # phase → the streams of the ends below, and each stream's source and receivers
+        self._streams: dict[Phase, tuple[object, dict[int, tuple[int, tuple[int, ...]]]]] = {}
+        # phase → each stream's last row and its records' template
+        self._templates: dict[Phase, dict[int, tuple[Any, Template]]] = defaultdict(dict)
+
+    def _ends(self, phase: Phase) -> dict[int, tuple[int, tuple[int, ...]]]:
+        """Each of ``phase``'s streams' source and receivers."""
+        streams = self.core.rows[phase].streams
+        got = self._streams.get(phase)
+        if got is None or got[0] is not streams:
+            ends = {sid: (s.links[0][1], s.receivers) for sid, s in streams.items()}
+            got = self._streams[phase] = (streams, ends)
+        return got[1]
 
     def bundle(
         self, phase: Phase, epoch: int, agents: list[int], seqs: list[int], payloads: list[bytes]
@@ -92,11 +109,9 @@ class BundlePass:
             progress = core.progress
             if epoch > progress.epoch_seen:
                 progress.epoch_seen = epoch
-            for a, payload in zip(agents, payloads, strict=True):
-                last[a] = (epoch, payload)
+            last.update(zip(agents, zip(repeat(epoch), payloads), strict=True))
         elif phase == "report":
-            for a in agents:
-                last_report[a] = epoch
+            last_report.update(zip(agents, repeat(epoch)))
         self._pass(phase, epoch, chosen)
         if phase == "estimate":
             core.progress.estimate_handled(epoch, len(agents))
@@ -106,17 +121,16 @@ class BundlePass:
         """:meth:`LockstepCore._pass` of each part, the closes after the last. A receiver with
         one sender gets no open epoch: its part is its delivery."""
         core = self.core
-        streams = core.rows[phase].streams
+        ends = self._ends(phase)
         open_, counts = core.open, core._senders_count[phase]
-        templates = core.templates[phase]
+        templates, known = core.templates[phase], self._templates[phase]
         complete: list[_Complete] = []
         recorded = []
         for stream, row, seq, payload in chosen:
-            s = streams[stream]
-            src = s.links[0][1]
+            src, receivers = ends[stream]
             message = payload.json if type(payload) is Escaped else message_json(payload)
             packet = ONE_COPY % (src, seq, epoch, message)  # packet_json_of(.., 1, ..)
-            for dst in s.receivers:
+            for dst in receivers:
                 key = (phase, dst, epoch)
                 box = open_.get(key)
                 if box is None:
@@ -129,8 +143,12 @@ class BundlePass:
                 box.packets.append(packet)
                 if len(handled) >= counts[dst]:
                     complete.append((dst, box, src, packet))
-            recorded.append((templates.row_template(stream, row.decisions), seq))
-        core.passed.update([(phase, stream) for stream, _, _, _ in chosen])
+            decisions = row.decisions  # rows are shared: its template is the last one's
+            template = known.get(stream)
+            if template is None or template[0] is not decisions:
+                template = known[stream] = (decisions, templates.row_template(stream, decisions))
+            recorded.append((template[1], seq))
+        core.passed_together[(phase, tuple(map(_STREAM, chosen)))] += 1
         core.records.add_many(phase, epoch, recorded)
         if complete:
             self._close(phase, epoch, complete)

@@ -61,6 +61,7 @@ class LockstepCore(Attendance):
         }
         self.records = RecordBatches(outbox, epochs, self.templates)
         self.passed: Counter[tuple[Phase, int]] = Counter()  # packets every link passed as is
+        self.passed_together: Counter[tuple[Phase, tuple[int, ...]]] = Counter()  # by bundle
         self.positions = Positions(links)  # for distance models: read from the states
         self.last_report: dict[int, int] = {}  # agent → epoch of its last report handled
         # Packets the models passed onto a capacity queue or the air, until their phase's are in.
@@ -214,7 +215,10 @@ class LockstepCore(Attendance):
     def forwarded(self) -> dict[Link, int]:
         """Delivered packets per link (for the final status)."""
         total = self.ledger.forwarded.copy()
-        for (phase, stream), n in self.passed.items():
+        passed = self.passed.copy()
+        for (phase, streams), n in self.passed_together.items():
+            passed.update(dict.fromkeys([(phase, stream) for stream in streams], n))
+        for (phase, stream), n in passed.items():
             total.update(dict.fromkeys(self.rows[phase].streams[stream].links, n))
         return dict(total)
 
