@@ -41,7 +41,7 @@ def raw_bundle(payload: bytes) -> tuple[Any, list[Escaped]] | None:
     """``payload`` as a bundle and its parts' payloads, each message the JSON string orjson
     writes of it (an :class:`Escaped`); None where only the model can read it."""
     try:
-        bundle = _RAW_BUNDLE.decode(payload)
+        bundle: Any = _RAW_BUNDLE.decode(payload)
     except msgspec.DecodeError:  # ValidationError too
         return None
     if not as_written(payload):
@@ -69,9 +69,7 @@ def as_written(payload: bytes) -> bool:
     return bool((text[after] == _QUOTE).all())
 
 
-def read_bundle(
-    malformed: Malformed, key: str, payload: bytes
-) -> tuple[Any, list[Escaped] | list[bytes]] | None:
+def read_bundle(malformed: Malformed, key: str, payload: bytes) -> tuple[Any, list[Any]] | None:
     """``payload`` as a bundle and its parts' payloads, as written (:func:`raw_bundle`) or
     else as the model reads them; None when it is malformed (counted on ``key``)."""
     got = raw_bundle(payload)

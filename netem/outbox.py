@@ -74,11 +74,11 @@ class ZenohOutbox:
         of the agents' phases (state, estimate) from now on."""
         for i in agents:
             self.pool_of[i] = pool
-            for phase in ("state", "estimate"):
+            for phase in _POOLED:
                 self._inbox(phase, i).pool = pool
         self.pools[pool] = self.pools.get(pool, frozenset()) | set(agents)
         self._size[pool] = len(agents)
-        for phase in ("state", "estimate"):
+        for phase in _POOLED:
             key = keys.inbox_pool(self.service.run_id, pool, phase)
             head = self._header + b',"kind":"delivery_batch","pool":%d,"phase":"%s"' % (
                 pool,
@@ -105,18 +105,18 @@ class ZenohOutbox:
         stamp = now_ns()
         inboxes, kept_by, size = self._inboxes, self._kept, self._size
         at: tuple[int, Phase, int] | None = None
+        kept = _PoolBatch()  # the batch of ``at``
         for receiver, packets, lost in ready:
             inbox = inboxes.get((phase, receiver))
-            pool = None if inbox is None or lost else inbox.pool
-            if pool is None:
+            if inbox is None or inbox.pool is None or lost:
                 self._deliver(phase, receiver, epoch, stamp, packets, lost, ())
                 at = None  # that may have sent the batch at hand
                 continue
+            pool = inbox.pool
             if at is None or at[0] != pool:
                 at = (pool, phase, epoch)
-                kept = kept_by.get(at)
-                if kept is None:
-                    kept = kept_by[at] = _PoolBatch()
+                got = kept_by.get(at)
+                kept = kept_by[at] = _PoolBatch() if got is None else got
                 table, add = kept.table, kept.table.setdefault
             seq = inbox.seq
             inbox.seq = seq + 1
@@ -188,6 +188,7 @@ class ZenohOutbox:
         self.service.put(key, decision_batch_of(self.service.header(key, last_epoch), body))
 
 
+_POOLED: tuple[Phase, ...] = ("state", "estimate")  # the phases a pool's deliveries are batched in
 _NOTHING_ELSE = delivery_of(b"", (), (), ())  # a delivery's fields after its head: none lost
 
 

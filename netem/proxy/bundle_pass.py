@@ -49,7 +49,7 @@ class BundlePass:
         return got[1]
 
     def bundle(
-        self, phase: Phase, epoch: int, agents: list[int], seqs: list[int], payloads: list[bytes]
+        self, phase: Phase, epoch: int, agents: list[int], seqs: list[int], payloads: list[Any]
     ) -> None:
         """A bundle's parts of ``phase`` and ``epoch``: ``agents[i]``'s packet ``payloads[i]``
         with seq ``seqs[i]``, each as if it came alone (:meth:`LockstepCore.packet`), at once
@@ -69,7 +69,7 @@ class BundlePass:
         return not (core.dead or core.out or core.away or core.queued or core.positions.needed)
 
     def take(
-        self, phase: Phase, epoch: int, agents: list[int], seqs: list[int], payloads: list[bytes]
+        self, phase: Phase, epoch: int, agents: list[int], seqs: list[int], payloads: list[Any]
     ) -> bool:
         """Handle a bundle's parts (``agents[i]``'s packet ``payloads[i]`` with seq ``seqs[i]``)
         at once; False, having changed nothing, where the parts must go one by one."""
