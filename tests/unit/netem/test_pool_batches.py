@@ -113,16 +113,23 @@ def test_a_declaration_netem_cannot_take_is_refused_and_counted() -> None:
 def test_deliveries_handed_over_at_once_go_as_those_handed_one_by_one() -> None:
     rig = _Rig()
     shared, own = (packet_json(s, 0, 0, 1, b"{}") for s in (1, 2))
-    ready = [(1, [shared], []), (2, [shared, own], [3]), (3, [], [])]
+    # 4 is not pooled: its delivery goes on its own key between the pool's
+    ready = [(1, [shared], []), (4, [own], []), (2, [shared, own], [3]), (3, [], [])]
     try:
         rig.declare(1, [1, 2, 3])
         for receiver, packets, lost in ready:
             rig.node.outbox.deliver("state", receiver, 0, packets, lost, [])
         rig.node.outbox.deliver_many("state", 1, ready)
+        rig.node.outbox.deliver_many("state", 2, ready)
     finally:
         rig.close()
-    one_by_one, at_once = (b.model_dump(exclude={"seq", "epoch", "stamp_ns"}) for b in rig.batches)
-    for d in [*one_by_one["deliveries"], *at_once["deliveries"]]:
+    # each delivery its own key's seq: the first on each key 0, then 1, 2
+    assert [(d.receiver, d.epoch, d.seq) for d in rig.alone] == [(4, k, k) for k in range(3)]
+    assert [[d.seq for d in b.deliveries] for b in rig.batches] == [[k] * 3 for k in range(3)]
+    one_by_one, at_once, again = (
+        b.model_dump(exclude={"seq", "epoch", "stamp_ns"}) for b in rig.batches
+    )
+    for d in [*one_by_one["deliveries"], *at_once["deliveries"], *again["deliveries"]]:
         d.pop("stamp_ns"), d.pop("epoch"), d.pop("seq")
-    assert at_once == one_by_one
+    assert at_once == one_by_one == again
     assert at_once["carried"] == [[0], [0, 1], []]  # the shared packet once in the table
