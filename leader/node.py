@@ -177,6 +177,9 @@ class LeaderNode:
             # more time.
             got = yield from inbox.take_columns("report", k, self.scenario.n, "early_estimates")
             self._estimate(k, [got.payloads[e] for e in got.entry.tolist()])
+            # freed now, after the estimates went out, rather than when the next epoch's
+            # reports come (a thousand reports are some twenty thousand objects)
+            del got
 
     def run(self, timing: TimePolicy) -> int:
         """Estimate every epoch of the run under ``timing``; returns an exit code.
