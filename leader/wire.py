@@ -120,8 +120,8 @@ class EstimateParts:
     estimates' :class:`~formation.messages.Bundle` (lockstep), each already escaped there.
 
     Both are joined from one table of pieces laid out once: an epoch's position rows, the
-    pieces fixed for the run (each agent's opening, plain and escaped) and four of the
-    epoch's own (its header and tail, plain and escaped). A part's bytes inside the bundle
+    pieces fixed for the run (each agent's opening, plain and escaped) and the epoch's
+    own (its header and tail, plain and escaped; the bundle's header). A part's bytes inside the bundle
     are its bytes alone, escaped: a row needs no escaping (numbers, ``null``).
 
     in_neighbours : per agent ``i`` (row ``i − 1``) the ids of its in-neighbours
@@ -137,7 +137,7 @@ class EstimateParts:
             for i, js in enumerate(in_neighbours, start=1)
         ]
         starts = [b'%b{"agent":%d,"seq":' % (b"," if i > 1 else b"", i) for i in range(1, n + 1)]
-        # the table: rows [0, n), then the fixed pieces, then the epoch's (_ROW_PIECES)
+        # the table: rows [0, n), the fixed pieces, then the epoch's own (:meth:`_table`)
         fixed = [b",", *opens, *map(_escaped, opens), *starts, b"]}"]
         comma, end = n, n + len(fixed) - 1
         plain_open, escaped_open, start = n + 1, n + 1 + n, n + 1 + 2 * n
