@@ -6,7 +6,6 @@ import logging
 from dataclasses import replace
 
 import numpy as np
-import orjson
 
 from formation import keys
 from formation.codec import attachment, now_ns
@@ -53,6 +52,7 @@ class LeaderNode:
         self.part_keys = [
             keys.leader_estimate_for(self.run_id, i) for i in range(1, scenario.n + 1)
         ]
+        self.part_seq = 0  # the seq of every agent's part key: they all move once an epoch
         # realtime: reports in time and missed by cause; estimates sent before the deadline
         self.deadline = {
             "in_time": 0,
@@ -122,23 +122,20 @@ class LeaderNode:
         self.service.put(key, msg, attachment(k, int(head["seq"]), keys.LEADER_ENDPOINT))
         self.epoch = k + 1
 
-    def _send_parts(self, k: int, rows: list[str], v_ref: list[float]) -> None:
+    def _send_parts(self, k: int, rows: list[bytes], v_ref: list[float]) -> None:
         """Each agent's part of epoch ``k``'s estimate, each with its own key's header: on
         that key (realtime), or all in one :class:`~formation.messages.Bundle` (lockstep)."""
-        service, run_id = self.service, self.run_id
-        seqs = [service.next_seq(key) for key in self.part_keys]
-        texts = self.parts.texts(rows, v_ref, k, now_ns(), seqs)
+        service, seq, stamp_ns = self.service, self.part_seq, now_ns()
+        self.part_seq += 1
         if not self.bundled:
-            for key, seq, text in zip(self.part_keys, seqs, texts, strict=True):
-                service.put(key, text.encode(), attachment(k, seq, keys.LEADER_ENDPOINT))
+            texts = self.parts.texts(rows, v_ref, k, stamp_ns, seq)
+            sent = attachment(k, seq, keys.LEADER_ENDPOINT)
+            for key, text in zip(self.part_keys, texts, strict=True):
+                service.put(key, text, sent)
             return
-        bundle = [
-            {"agent": i, "seq": seq, "message": text}
-            for i, seq, text in zip(range(1, len(texts) + 1), seqs, texts, strict=True)
-        ]
-        key = keys.leader_estimates(run_id)
+        key = keys.leader_estimates(self.run_id)
         head = service.header(key, k)
-        msg = orjson.dumps({**head, "kind": "bundle", "phase": "estimate", "parts": bundle})
+        msg = self.parts.bundle(head, rows, v_ref, k, stamp_ns, seq)
         service.put(key, msg, attachment(k, int(head["seq"]), keys.LEADER_ENDPOINT))
 
     def confirm_last(self) -> None:
@@ -159,14 +156,15 @@ class LeaderNode:
         known = np.ones(len(links), dtype=bool)
         z = offsets[links[:, 0] - 1] - offsets[links[:, 1] - 1]  # any formation will do
         v_ref = [float(v) for v in self.ref_v[0]]
-        seqs = [0] * self.scenario.n
+        head = {"run_id": self.run_id, "sender": self.service.name, "seq": 0, "epoch": 0}
         for _ in range(times):
             batch = self.leader.epochs(known[None], z[None], self.ref_x[0], covariances=False)
             res = batch.member(0).estimate
-            texts = self.parts.texts(
-                position_rows(res.positions, res.observable), v_ref, 0, 0, seqs
-            )
-            orjson.dumps({"parts": [{"agent": 1, "seq": 0, "message": t} for t in texts]})
+            rows = position_rows(res.positions, res.observable)
+            if self.bundled:
+                self.parts.bundle({**head, "stamp_ns": 0}, rows, v_ref, 0, 0, 0)
+            else:
+                self.parts.texts(rows, v_ref, 0, 0, 0)
         # epoch 0's covariances come right after its estimates, while the agents step
         self.leader.covariances(known[None], z[None], self.ref_x[0], batch)
 
@@ -177,8 +175,11 @@ class LeaderNode:
             # Realtime: once every agent's report is here nothing else of epoch k can come:
             # estimating then gives what the deadline would, and the agents and their states
             # more time.
-            reports = yield from inbox.take("report", k, self.scenario.n, "early_estimates")
-            self._estimate(k, [report for _, report in reports[keys.LEADER_ENDPOINT]])
+            got = yield from inbox.take_columns("report", k, self.scenario.n, "early_estimates")
+            self._estimate(k, [got.payloads[e] for e in got.entry.tolist()])
+            # freed now, after the estimates went out, rather than when the next epoch's
+            # reports come (a thousand reports are some twenty thousand objects)
+            del got
 
     def run(self, timing: TimePolicy) -> int:
         """Estimate every epoch of the run under ``timing``; returns an exit code.

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import orjson
 
 from formation import keys
 from formation.messages import AgentEstimate, LeaderEstimate
@@ -40,13 +41,12 @@ def test_every_agent_gets_its_in_neighbours_estimates() -> None:
         res = lead.estimate
         service = Service(MemoryBus(), "run-1", "leader", 0)
         parts = EstimateParts(scenario.in_neighbours, service.header_format())
-        seqs = [7 + i for i in range(scenario.n)]
-        texts = parts.texts(position_rows(res.positions, res.observable), [0.1, 0.2], 4, 99, seqs)
+        texts = parts.texts(position_rows(res.positions, res.observable), [0.1, 0.2], 4, 99, 7)
         got = [AgentEstimate.model_validate_json(t) for t in texts]
         links = scenario.directed_links
         for i, est in enumerate(got, start=1):
             assert (est.run_id, est.sender, est.seq, est.epoch, est.stamp_ns) == (
-                "run-1", "leader", 6 + i, 4, 99,
+                "run-1", "leader", 7, 4, 99,
             )  # fmt: skip
             assert est.agent == i and est.v_ref == [0.1, 0.2]
             assert est.neighbours == sorted(int(j) for j, r in links if r == i)
@@ -54,6 +54,38 @@ def test_every_agent_gets_its_in_neighbours_estimates() -> None:
                 ok = bool(res.observable[j - 1])
                 assert p == (res.positions[j - 1].tolist() if ok else None)  # the same floats
         assert any(None in est.positions for est in got)
+
+
+def test_the_bundle_is_what_orjson_writes_of_the_parts_each_escaped_there() -> None:
+    """The parts are joined into the bundle already escaped: the bytes orjson writes of the
+    bundle's fields, with a run id that needs escaping in a part and again in the bundle."""
+    scenario = henneberg_team(30)
+    known, z = _exact_measurements(scenario)
+    cut = scenario.directed_links[:, 1] == scenario.n  # an unobservable agent: null
+    cut |= scenario.directed_links[:, 0] == scenario.n
+    lead = leader_epoch(scenario, known & ~cut, z, scenario.offsets[scenario.reference_agent - 1])
+    service = Service(MemoryBus(), 'run "1" \\ é %d', "leader", 0)
+    parts = EstimateParts(scenario.in_neighbours, service.header_format())
+    rows = position_rows(lead.estimate.positions, lead.estimate.observable)
+    texts = parts.texts(rows, [0.1, -2e-7], 4, 99, 3)
+    head = {**HEAD, "run_id": service.run_id}
+    bundle = parts.bundle(head, rows, [0.1, -2e-7], 4, 99, 3)
+    fields = [{"agent": i, "seq": 3, "message": t.decode()} for i, t in enumerate(texts, start=1)]
+    assert bundle == orjson.dumps({**head, "kind": "bundle", "phase": "estimate", "parts": fields})
+    assert AgentEstimate.model_validate_json(texts[0]).run_id == service.run_id
+    assert b"null" in b"".join(texts)
+
+
+def test_position_rows_are_orjsons_text_of_each_row(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    for n, d in ((1, 2), (7, 1), (40, 2), (40, 3)):
+        positions = rng.standard_normal((n, d)) * 10.0 ** rng.integers(-20, 20, (n, d))
+        positions[0, 0] = -0.0
+        observable = rng.random(n) < 0.8
+        for x in (positions, positions[:, ::-1]):  # the array and a strided view of it
+            rows = zip(x.tolist(), observable.tolist(), strict=True)
+            want = [orjson.dumps(p) if ok else b"null" for p, ok in rows]
+            assert position_rows(x, observable) == want
 
 
 def test_whole_estimate_is_a_valid_message_with_every_field() -> None:

@@ -70,3 +70,13 @@ def test_the_columns_equal_the_rule_one_measurement_at_a_time(seed: int) -> None
         known, z = reports_to_measurements(scenario, reports, index)
         want_known, want_z = _one_by_one(scenario, reports)
         assert np.array_equal(known, want_known) and np.array_equal(z, want_z)
+
+
+def test_a_neighbour_past_64_bits_is_on_no_link() -> None:
+    """A valid report may name any integer (the model reads it): such a measurement counts
+    on no link, and the others of the report still count."""
+    scenario = henneberg_team(6)
+    j, i = (int(v) for v in scenario.directed_links[0])
+    report = _report(i, (2**70, 1, [9.0, 9.0]), (j, 1, [0.5, 0.25]), (-(2**70), 1, [9.0, 9.0]))
+    known, z = reports_to_measurements(scenario, [report])
+    assert np.flatnonzero(known).tolist() == [0] and z[0].tolist() == [0.5, 0.25]
