@@ -20,7 +20,7 @@ import numpy as np
 from agent.body import FIRST_POSE_S, RobotBodies
 from agent.control import body_velocity
 from agent.incoming import delivered_estimates, delivered_states
-from agent.outgoing import Reports, bundle_message, state_messages
+from agent.outgoing import Reports, state_messages, states_bundle
 from agent.runner import AgentRunner
 from formation import keys
 from formation.body import BODY_LOST_EXIT
@@ -204,15 +204,18 @@ class AgentNode:
         rows = runner.rows(np.array(agents, dtype=np.int64))
         poses = runner.poses(agents)
         substituted = [runner.substituted[i] for i in agents]
-        stamp_ns, bundled = now_ns(), self.bundled and ids is None
-        x = runner.x[rows]
-        messages = state_messages(
-            self._head, seqs, k, stamp_ns, agents, x, substituted, poses, silent, bundled
-        )
-        if bundled:
+        stamp_ns, x = now_ns(), runner.x[rows]
+        if self.bundled and ids is None:
             key = keys.pool_states(self.run_id, self.ids[0])
-            self._put_bundle(key, "state", stamp_ns, seqs, messages)
+            seq = self.service.next_seq(key)
+            msg = states_bundle(
+                self._head, seq, k, stamp_ns, agents, seqs, x, substituted, poses, silent
+            )
+            self.service.put(key, msg, attachment(k, seq, self.ids[0]))
         else:
+            messages = state_messages(
+                self._head, seqs, k, stamp_ns, agents, x, substituted, poses, silent
+            )
             self._put_each(state_keys, seqs, agents, messages)
 
     def _publish_reports(self) -> None:
@@ -221,14 +224,14 @@ class AgentNode:
         runner, k, silent = self.runner, self.runner.epoch, self._robot_silent("report")
         report_keys = [self.own_keys[i][1] for i in self.ids]
         seqs = [self.service.next_seq(key) for key in report_keys]
-        stamp_ns = now_ns()
-        messages = self._reports.messages(
-            self._head, seqs, k, stamp_ns, runner.arrived, runner.z, silent, self.bundled
-        )
+        stamp_ns, arrived, z = now_ns(), runner.arrived, runner.z
         if self.bundled:
             key = keys.pool_bundle(self.run_id, self.ids[0], "report")
-            self._put_bundle(key, "report", stamp_ns, seqs, messages)
+            seq = self.service.next_seq(key)
+            msg = self._reports.bundle(self._head, seq, k, stamp_ns, seqs, arrived, z, silent)
+            self.service.put(key, msg, attachment(k, seq, self.ids[0]))
         else:
+            messages = self._reports.messages(self._head, seqs, k, stamp_ns, arrived, z, silent)
             self._put_each(report_keys, seqs, self.ids, messages)
 
     def _put_each(
@@ -237,13 +240,6 @@ class AgentNode:
         k = self.runner.epoch
         for key, seq, i, msg in zip(own, seqs, agents, messages, strict=True):
             self.service.put(key, msg, attachment(k, seq, i))
-
-    def _put_bundle(
-        self, key: str, phase: str, stamp_ns: int, seqs: list[int], messages: list[bytes]
-    ) -> None:
-        k, seq = self.runner.epoch, self.service.next_seq(key)
-        msg = bundle_message(self._head, seq, k, stamp_ns, phase, self.ids, seqs, messages)
-        self.service.put(key, msg, attachment(k, seq, self.ids[0]))
 
     def confirm_final(self, timeout_s: float = 10.0) -> bool:
         """Republish what netem says it lacks of our final states, until it has them all.
