@@ -28,6 +28,7 @@ from collections.abc import (
 from dataclasses import dataclass
 from functools import partial
 from itertools import chain
+from operator import attrgetter, itemgetter
 from typing import Any, Literal, Protocol
 
 import numpy as np
@@ -289,31 +290,36 @@ class LockstepInbox(_Receivers):
     def _columns(self, kind: Kind, epoch: int, filed: list[Filed]) -> Columns:
         """The pairs of ``filed`` as columns, each distinct packet decoded once; a pair whose
         payload is malformed or not its link's is counted on that link's key and left out."""
-        offsets: dict[int, int] = {}  # a table's first row among all the tables' packets
-        packets: list[DeliveredPacket] = []
-        for _, table, _ in filed:
-            if offsets.setdefault(id(table), len(packets)) == len(packets):
-                packets.extend(table)
-        counts = [len(ids) for _, _, ids in filed]
+        tables, each = list(map(_TABLE, filed)), list(map(_ROWS, filed))
+        counts = list(map(len, each))
         receiver = np.repeat(np.array(self.receivers, dtype=np.int64), counts)
-        rows = (
-            chain.from_iterable(ids for _, _, ids in filed)
-            if len(offsets) == 1  # a pool's batch: one table
-            else chain.from_iterable([i + offsets[id(t)] for i in ids] for _, t, ids in filed)
-        )
+        if len(set(map(id, tables))) <= 1:  # a pool's batch: one table
+            packets, rows = (tables[0] if tables else []), chain.from_iterable(each)
+        else:
+            offsets: dict[int, int] = {}  # a table's first row among all the tables' packets
+            packets = []
+            for _, table, _ in filed:
+                if offsets.setdefault(id(table), len(packets)) == len(packets):
+                    packets.extend(table)
+            rows = chain.from_iterable([i + offsets[id(t)] for i in ids] for _, t, ids in filed)
         entry = np.fromiter(rows, dtype=np.int64, count=sum(counts))
-        ends = np.array([(p.source, p.sent_epoch) for p in packets], dtype=np.int64).reshape(-1, 2)
-        source, sent = ends[:, 0], ends[:, 1]
+        source = np.fromiter(map(_SOURCE, packets), dtype=np.int64, count=len(packets))
+        sent = np.fromiter(map(_SENT_EPOCH, packets), dtype=np.int64, count=len(packets))
         if not kind.delayed:
             current = sent[entry] == epoch
             receiver, entry = receiver[current], entry[current]
         used = np.zeros(len(packets), dtype=bool)
         used[entry] = True
-        decoded: list[Any] = [None] * len(packets)
-        wanted = np.flatnonzero(used).tolist()
-        for e, m in zip(wanted, payloads(kind.model, [packets[e] for e in wanted]), strict=True):
-            decoded[e] = m
-        agent = np.array([_named(m) for m in decoded], dtype=np.int64)
+        if used.all():
+            decoded = payloads(kind.model, packets)
+        else:  # only the packets some pair uses are read
+            decoded = [None] * len(packets)
+            wanted = np.flatnonzero(used).tolist()
+            for e, m in zip(
+                wanted, payloads(kind.model, [packets[e] for e in wanted]), strict=True
+            ):
+                decoded[e] = m
+        agent = _agents_named(decoded)
         owner = source[entry] if kind.owner == "source" else receiver
         valid = (agent[entry] == owner) & (agent[entry] >= 0)
         if not valid.all():
@@ -417,6 +423,22 @@ class RealtimeInbox(_Receivers):
 
 
 _TOP_ID = 2**62  # an agent id past it (Python ints have no bound) names no agent of ours
+_SOURCE, _SENT_EPOCH, _AGENT = attrgetter("source"), attrgetter("sent_epoch"), attrgetter("agent")
+_TABLE, _ROWS = itemgetter(1), itemgetter(2)  # of a Filed
+
+
+def _agents_named(payloads: list[Any]) -> Ids:
+    """(e,) the agent each decoded payload names, as :func:`_named`: at once where every one
+    was decoded and names an int64."""
+    if None not in payloads:
+        try:
+            agent = np.fromiter(map(_AGENT, payloads), dtype=np.int64, count=len(payloads))
+        except OverflowError:  # an id past int64: one by one
+            pass
+        else:
+            agent[(agent < 0) | (agent >= _TOP_ID)] = -1
+            return agent
+    return np.array([_named(m) for m in payloads], dtype=np.int64)
 
 
 def _named(payload: Any) -> int:
