@@ -277,15 +277,11 @@ def test_columns_count_a_state_naming_an_agent_past_any_int64_and_keep_the_other
     take = inbox.take_columns("state", 0)
     next(take)
     header = netem.header(keys.agent_state(RUN, 4), 0)
-    packets = [
-        DeliveredPacket(
-            source=j,
-            seq=0,
-            sent_epoch=0,
-            message=CoordinationState(**header, agent=agent, position=[0.0, 1.0]).model_dump_json(),
-        )  # fmt: skip
-        for j, agent in ((4, 4), (5, 2**70))  # read by the model: past what msgspec reads
+    states = [  # 2**70 is read by the model: past what msgspec reads
+        CoordinationState(**header, agent=agent, position=[0.0, 1.0]).model_dump_json()
+        for agent in (4, 2**70)
     ]
+    packets = [DeliveredPacket(source=j, seq=0, sent_epoch=0, message=m) for j, m in zip((4, 5), states, strict=True)]  # fmt: skip
     alone = [Delivery(**netem.header(keys.inbox(RUN, 1, "state"), 0), receiver=1, phase="state",
                       packets=[], lost=[])]  # fmt: skip
     key = keys.inbox_pool(RUN, 1, "state")
