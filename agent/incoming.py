@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from itertools import chain
 from operator import attrgetter
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -74,7 +75,7 @@ def delivered_estimates(columns: Columns, runner: AgentRunner) -> tuple[Array, M
 _NEIGHBOURS, _POSITIONS = attrgetter("neighbours"), attrgetter("positions")
 
 
-def _each_of_length(values: list[list[float] | None], d: int) -> bool:
+def _each_of_length(values: list[Any], d: int) -> bool:
     """Whether every value is a list of ``d`` numbers (None, an unknown estimate, is not)."""
     try:
         return set(map(len, values)) <= {d}
