@@ -25,10 +25,16 @@ Mask = npt.NDArray[np.bool_]
 def delivered_states(columns: Columns, dimension: int) -> tuple[Ids, Ids, Ids, Array]:
     """Each (receiver, packet) pair of a state phase: receivers, sources, sent epochs (m,)
     and the packets' positions ``x_j`` (m, d) [m]."""
-    used = np.unique(columns.entry)
-    table = np.zeros((len(columns.payloads), dimension))
-    if used.size:
-        table[used] = np.array([columns.payloads[e].position for e in used.tolist()], dtype=float)
+    payloads = columns.payloads
+    used = np.zeros(len(payloads), dtype=bool)
+    used[columns.entry] = True
+    table = np.zeros((len(payloads), dimension))
+    if used.all():  # the usual: every packet is some pair's
+        if payloads:
+            table[:] = np.array(list(map(_POSITION, payloads)), dtype=float)
+    elif used.any():
+        rows = np.flatnonzero(used)
+        table[rows] = np.array([payloads[e].position for e in rows.tolist()], dtype=float)
     entry = columns.entry
     return columns.receiver, columns.source[entry], columns.sent_epoch[entry], table[entry]
 
@@ -73,6 +79,7 @@ def delivered_estimates(columns: Columns, runner: AgentRunner) -> tuple[Array, M
 
 
 _NEIGHBOURS, _POSITIONS = attrgetter("neighbours"), attrgetter("positions")
+_POSITION = attrgetter("position")
 
 
 def _each_of_length(values: list[Any], d: int) -> bool:

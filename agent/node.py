@@ -97,6 +97,8 @@ class AgentNode:
             i: (keys.agent_state(self.run_id, i), keys.agent_report(self.run_id, i)) for i in ids
         }
         service.declare_publishers(key for pair in self.own_keys.values() for key in pair)
+        self._state_keys = [self.own_keys[i][0] for i in ids]  # in the agents' order
+        self._report_keys = [self.own_keys[i][1] for i in ids]
         self._head = service.header_format()
         links = self.runner.links
         self._reports = Reports(ids, links.receiver.tolist(), links.sender.tolist())
@@ -199,8 +201,8 @@ class AgentNode:
         final state goes on its own key."""
         runner, agents = self.runner, self.ids if ids is None else ids
         k, silent = runner.epoch, self._robot_silent("state")
-        state_keys = [self.own_keys[i][0] for i in agents]
-        seqs = [self.service.next_seq(key) for key in state_keys]
+        state_keys = self._state_keys if ids is None else [self.own_keys[i][0] for i in agents]
+        seqs = list(map(self.service.next_seq, state_keys))
         rows = runner.rows(np.array(agents, dtype=np.int64))
         poses = runner.poses(agents)
         substituted = [runner.substituted[i] for i in agents]
@@ -222,8 +224,8 @@ class AgentNode:
         """Each agent's report, with its own key's seq: on that key, or (a declared pool
         in lockstep) all in one :class:`~formation.messages.Bundle`."""
         runner, k, silent = self.runner, self.runner.epoch, self._robot_silent("report")
-        report_keys = [self.own_keys[i][1] for i in self.ids]
-        seqs = [self.service.next_seq(key) for key in report_keys]
+        report_keys = self._report_keys
+        seqs = list(map(self.service.next_seq, report_keys))
         stamp_ns, arrived, z = now_ns(), runner.arrived, runner.z
         if self.bundled:
             key = keys.pool_bundle(self.run_id, self.ids[0], "report")

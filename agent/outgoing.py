@@ -152,12 +152,14 @@ class Reports:
         self.agents = list(agents)
         row = {i: r for r, i in enumerate(self.agents)}
         # the links by agent (in link order within each): agent n's are order[ends[n - 1]:ends[n]]
-        self._order = sorted(range(len(receivers)), key=lambda link: row[receivers[link]])
+        self._order = np.array(
+            sorted(range(len(receivers)), key=lambda link: row[receivers[link]]), dtype=np.int64
+        )
         counts = [0] * len(self.agents)
         for i in receivers:
             counts[row[i]] += 1
         self._ends = list(itertools.accumulate(counts))
-        by_agent = [senders[link] for link in self._order]
+        by_agent = [senders[link] for link in self._order.tolist()]
         arrived = [b'{"neighbour":%d,"token":1,"z":[' % j for j in by_agent]
         lost = [b'{"neighbour":%d,"token":0,"z":null}' % j for j in by_agent]
         self._items = {  # each link's item before its z, and when lost; plain, quoted
