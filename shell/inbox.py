@@ -27,7 +27,7 @@ from collections.abc import (
 )
 from dataclasses import dataclass
 from functools import partial
-from itertools import chain
+from itertools import chain, filterfalse, repeat
 from operator import attrgetter, itemgetter
 from typing import Any, Literal, Protocol
 
@@ -211,9 +211,15 @@ class _Receivers:
             malformed.counts[msg.key] += 1  # another pool's or phase's, or unreadable: unusable
             return []
         table, phase = batch.packets, batch.phase
-        ours = [
-            (d, table, ids) for d, ids in unpacked if d.receiver in self._ours and d.phase == phase
-        ]
+        deliveries = [d for d, _ in unpacked]
+        if self._ours.issuperset(map(_RECEIVER, deliveries)) and set(map(_PHASE, deliveries)) <= {phase}:  # fmt: skip
+            ours = [(d, table, ids) for d, ids in unpacked]  # the usual: every one ours
+        else:
+            ours = [
+                (d, table, ids)
+                for d, ids in unpacked
+                if d.receiver in self._ours and d.phase == phase
+            ]
         if len(ours) < len(batch.deliveries):
             malformed.counts[msg.key] += len(batch.deliveries) - len(ours)
         return ours
@@ -250,7 +256,17 @@ class LockstepInbox(_Receivers):
         self.waiting: set[int] = set()  # its receivers without their delivery yet
 
     def route(self, msg: Incoming) -> None:
-        for delivery, table, ids in self._deliveries(msg):
+        filed = self._deliveries(msg)
+        deliveries = list(map(_DELIVERY, filed))
+        when = set(map(_PHASE_EPOCH, deliveries))
+        if len(when) == 1:  # a pool's batch, or one delivery: filed at once
+            ((phase, epoch),) = when
+            if epoch >= self.floor.get(phase, 0):
+                self.deliveries.update(zip(map(_WHERE, deliveries), filed, strict=True))
+                if self.current == (phase, epoch):
+                    self.waiting.difference_update(map(_RECEIVER, deliveries))
+            return
+        for delivery, table, ids in filed:
             if delivery.epoch < self.floor.get(delivery.phase, 0):
                 continue  # a copy of one already used
             receiver, phase = delivery.receiver, delivery.phase
@@ -265,10 +281,11 @@ class LockstepInbox(_Receivers):
     def _filed(self, phase: str, epoch: int) -> Generator[Wait, bool, list[Filed]]:
         """Wait for each receiver's delivery of ``phase`` and ``epoch``; in receiver order."""
         self.current = (phase, epoch)
-        self.waiting = {r for r in self.receivers if (r, phase, epoch) not in self.deliveries}
+        where = list(zip(self.receivers, repeat(phase), repeat(epoch), strict=False))
+        self.waiting = set(map(_FIRST, filterfalse(self.deliveries.__contains__, where)))
         yield Wait(epoch, PHASES[phase][1], self._all_in)
         self.current, self.floor[phase] = None, epoch + 1
-        return [self.deliveries.pop((r, phase, epoch)) for r in self.receivers]
+        return list(map(self.deliveries.pop, where))
 
     def take(self, phase: str, epoch: int, expect: int | None = None, early: str = "") -> Take:
         filed = yield from self._filed(phase, epoch)
@@ -424,7 +441,10 @@ class RealtimeInbox(_Receivers):
 
 _TOP_ID = 2**62  # an agent id past it (Python ints have no bound) names no agent of ours
 _SOURCE, _SENT_EPOCH, _AGENT = attrgetter("source"), attrgetter("sent_epoch"), attrgetter("agent")
-_TABLE, _ROWS = itemgetter(1), itemgetter(2)  # of a Filed
+_DELIVERY, _TABLE, _ROWS = itemgetter(0), itemgetter(1), itemgetter(2)  # of a Filed
+_FIRST = itemgetter(0)
+_RECEIVER, _PHASE = attrgetter("receiver"), attrgetter("phase")  # of a delivery
+_PHASE_EPOCH, _WHERE = attrgetter("phase", "epoch"), attrgetter("receiver", "phase", "epoch")
 
 
 def _agents_named(payloads: list[Any]) -> Ids:
