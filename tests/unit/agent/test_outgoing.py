@@ -4,7 +4,7 @@ the values they were made from, alone and in a pool's bundle."""
 from __future__ import annotations
 
 import numpy as np
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from agent.outgoing import Reports, bundle_message, state_messages, states_bundle
@@ -87,6 +87,7 @@ def test_a_bundle_carries_each_message_as_it_would_go_alone(
     assert [p.message.encode() for p in bundle.parts] == alone
 
 
+@settings(max_examples=40)
 @given(pairs, st.data(), st.booleans(), st.booleans())
 def test_a_bundle_made_at_once_has_the_bytes_of_its_messages_bundled(
     xy: list[tuple[float, float]], data: st.DataObject, silent: bool, unicycle: bool
