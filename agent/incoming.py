@@ -8,6 +8,8 @@ A pool of hundreds takes hundreds of packets a phase; each distinct packet is re
 from __future__ import annotations
 
 from itertools import chain
+from operator import attrgetter
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -23,10 +25,16 @@ Mask = npt.NDArray[np.bool_]
 def delivered_states(columns: Columns, dimension: int) -> tuple[Ids, Ids, Ids, Array]:
     """Each (receiver, packet) pair of a state phase: receivers, sources, sent epochs (m,)
     and the packets' positions ``x_j`` (m, d) [m]."""
-    used = np.unique(columns.entry)
-    table = np.zeros((len(columns.payloads), dimension))
-    if used.size:
-        table[used] = np.array([columns.payloads[e].position for e in used.tolist()], dtype=float)
+    payloads = columns.payloads
+    used = np.zeros(len(payloads), dtype=bool)
+    used[columns.entry] = True
+    table = np.zeros((len(payloads), dimension))
+    if used.all():  # the usual: every packet is some pair's
+        if payloads:
+            table[:] = np.array(list(map(_POSITION, payloads)), dtype=float)
+    elif used.any():
+        rows = np.flatnonzero(used)
+        table[rows] = np.array([payloads[e].position for e in rows.tolist()], dtype=float)
     entry = columns.entry
     return columns.receiver, columns.source[entry], columns.sent_epoch[entry], table[entry]
 
@@ -45,15 +53,20 @@ def delivered_estimates(columns: Columns, runner: AgentRunner) -> tuple[Array, M
     rows = runner.rows(receivers)
     v_ref[rows] = np.array([m.v_ref for m in messages], dtype=float)
     has_v_ref[rows] = True
-    counts = [min(len(m.neighbours), len(m.positions)) for m in messages]
-    neighbour = list(
-        chain.from_iterable(m.neighbours[:c] for m, c in zip(messages, counts, strict=True))
-    )
-    position = list(
-        chain.from_iterable(m.positions[:c] for m, c in zip(messages, counts, strict=True))
-    )
+    neighbours, positions = list(map(_NEIGHBOURS, messages)), list(map(_POSITIONS, messages))
+    counts = list(map(len, neighbours))
+    if counts != list(map(len, positions)):  # pairs as far as both lists go
+        counts = list(map(min, counts, map(len, positions)))
+        neighbours = [n[:c] for n, c in zip(neighbours, counts, strict=True)]
+        positions = [p[:c] for p, c in zip(positions, counts, strict=True)]
+    neighbour, position = list(chain.from_iterable(neighbours)), list(chain.from_iterable(positions))  # fmt: skip
     link = runner.link_rows(np.repeat(receivers, counts), _ids(neighbour))
     last = _last_of_each(link)  # as a dict of the message's pairs holds them
+    if last.size == len(position) and _each_of_length(position, d):  # the usual: all at once
+        flat = np.fromiter(chain.from_iterable(position), dtype=float, count=len(position) * d)
+        estimate[link] = flat.reshape(-1, d)
+        has_estimate[link] = True
+        return v_ref, has_v_ref, estimate, has_estimate
     known = [i for i in last.tolist() if position[i] is not None]
     if known:
         values = [position[i] for i in known]
@@ -63,6 +76,18 @@ def delivered_estimates(columns: Columns, runner: AgentRunner) -> tuple[Array, M
         estimate[link[known]] = flat.reshape(-1, d)
         has_estimate[link[known]] = True
     return v_ref, has_v_ref, estimate, has_estimate
+
+
+_NEIGHBOURS, _POSITIONS = attrgetter("neighbours"), attrgetter("positions")
+_POSITION = attrgetter("position")
+
+
+def _each_of_length(values: list[Any], d: int) -> bool:
+    """Whether every value is a list of ``d`` numbers (None, an unknown estimate, is not)."""
+    try:
+        return set(map(len, values)) <= {d}
+    except TypeError:  # a None
+        return False
 
 
 def _ids(values: list[int]) -> Ids:

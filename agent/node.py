@@ -20,7 +20,7 @@ import numpy as np
 from agent.body import FIRST_POSE_S, RobotBodies
 from agent.control import body_velocity
 from agent.incoming import delivered_estimates, delivered_states
-from agent.outgoing import Reports, bundle_message, state_messages
+from agent.outgoing import Reports, state_messages, states_bundle
 from agent.runner import AgentRunner
 from formation import keys
 from formation.body import BODY_LOST_EXIT
@@ -97,6 +97,8 @@ class AgentNode:
             i: (keys.agent_state(self.run_id, i), keys.agent_report(self.run_id, i)) for i in ids
         }
         service.declare_publishers(key for pair in self.own_keys.values() for key in pair)
+        self._state_keys = [self.own_keys[i][0] for i in ids]  # in the agents' order
+        self._report_keys = [self.own_keys[i][1] for i in ids]
         self._head = service.header_format()
         links = self.runner.links
         self._reports = Reports(ids, links.receiver.tolist(), links.sender.tolist())
@@ -199,36 +201,39 @@ class AgentNode:
         final state goes on its own key."""
         runner, agents = self.runner, self.ids if ids is None else ids
         k, silent = runner.epoch, self._robot_silent("state")
-        state_keys = [self.own_keys[i][0] for i in agents]
-        seqs = [self.service.next_seq(key) for key in state_keys]
+        state_keys = self._state_keys if ids is None else [self.own_keys[i][0] for i in agents]
+        seqs = list(map(self.service.next_seq, state_keys))
         rows = runner.rows(np.array(agents, dtype=np.int64))
         poses = runner.poses(agents)
         substituted = [runner.substituted[i] for i in agents]
-        stamp_ns, bundled = now_ns(), self.bundled and ids is None
-        x = runner.x[rows]
-        messages = state_messages(
-            self._head, seqs, k, stamp_ns, agents, x, substituted, poses, silent, bundled
-        )
-        if bundled:
+        stamp_ns, x = now_ns(), runner.x[rows]
+        if self.bundled and ids is None:
             key = keys.pool_states(self.run_id, self.ids[0])
-            self._put_bundle(key, "state", stamp_ns, seqs, messages)
+            seq = self.service.next_seq(key)
+            msg = states_bundle(
+                self._head, seq, k, stamp_ns, agents, seqs, x, substituted, poses, silent
+            )
+            self.service.put(key, msg, attachment(k, seq, self.ids[0]))
         else:
+            messages = state_messages(
+                self._head, seqs, k, stamp_ns, agents, x, substituted, poses, silent
+            )
             self._put_each(state_keys, seqs, agents, messages)
 
     def _publish_reports(self) -> None:
         """Each agent's report, with its own key's seq: on that key, or (a declared pool
         in lockstep) all in one :class:`~formation.messages.Bundle`."""
         runner, k, silent = self.runner, self.runner.epoch, self._robot_silent("report")
-        report_keys = [self.own_keys[i][1] for i in self.ids]
-        seqs = [self.service.next_seq(key) for key in report_keys]
-        stamp_ns = now_ns()
-        messages = self._reports.messages(
-            self._head, seqs, k, stamp_ns, runner.arrived, runner.z, silent, self.bundled
-        )
+        report_keys = self._report_keys
+        seqs = list(map(self.service.next_seq, report_keys))
+        stamp_ns, arrived, z = now_ns(), runner.arrived, runner.z
         if self.bundled:
             key = keys.pool_bundle(self.run_id, self.ids[0], "report")
-            self._put_bundle(key, "report", stamp_ns, seqs, messages)
+            seq = self.service.next_seq(key)
+            msg = self._reports.bundle(self._head, seq, k, stamp_ns, seqs, arrived, z, silent)
+            self.service.put(key, msg, attachment(k, seq, self.ids[0]))
         else:
+            messages = self._reports.messages(self._head, seqs, k, stamp_ns, arrived, z, silent)
             self._put_each(report_keys, seqs, self.ids, messages)
 
     def _put_each(
@@ -237,13 +242,6 @@ class AgentNode:
         k = self.runner.epoch
         for key, seq, i, msg in zip(own, seqs, agents, messages, strict=True):
             self.service.put(key, msg, attachment(k, seq, i))
-
-    def _put_bundle(
-        self, key: str, phase: str, stamp_ns: int, seqs: list[int], messages: list[bytes]
-    ) -> None:
-        k, seq = self.runner.epoch, self.service.next_seq(key)
-        msg = bundle_message(self._head, seq, k, stamp_ns, phase, self.ids, seqs, messages)
-        self.service.put(key, msg, attachment(k, seq, self.ids[0]))
 
     def confirm_final(self, timeout_s: float = 10.0) -> bool:
         """Republish what netem says it lacks of our final states, until it has them all.

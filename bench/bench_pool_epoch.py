@@ -17,7 +17,6 @@ import os
 os.environ["OPENBLAS_NUM_THREADS"] = "1"  # before numpy: one core, comparable numbers
 
 import argparse
-import gc
 import tempfile
 import time
 from collections import Counter
@@ -33,7 +32,7 @@ from agent.node import AgentNode
 from agent.runner import AgentRunner
 from formation import keys
 from formation.scenario import Scenario
-from shell import Incoming, Lockstep, MemoryBus, Service
+from shell import Incoming, Lockstep, MemoryBus, Service, settle_heap
 from shell.inbox import LockstepInbox
 from testbed.runtime.launcher import launch
 from testbed.sim.simulate import simulate
@@ -160,8 +159,7 @@ def main(argv: list[str] | None = None) -> None:
         recording = record(args.epochs, Path(tmp))
     scenario = recording[0]
     replay(recording, check=True)
-    gc.collect()
-    gc.freeze()  # as a service does once its run starts (shell.settle_heap)
+    settle_heap()  # as a service does once its run starts
     best, parts = float("inf"), Counter[str]()
     for _ in range(args.repeats):
         spent: Counter[str] = Counter()

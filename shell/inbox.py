@@ -27,7 +27,8 @@ from collections.abc import (
 )
 from dataclasses import dataclass
 from functools import partial
-from itertools import chain
+from itertools import chain, filterfalse, repeat
+from operator import attrgetter, itemgetter
 from typing import Any, Literal, Protocol
 
 import numpy as np
@@ -210,9 +211,15 @@ class _Receivers:
             malformed.counts[msg.key] += 1  # another pool's or phase's, or unreadable: unusable
             return []
         table, phase = batch.packets, batch.phase
-        ours = [
-            (d, table, ids) for d, ids in unpacked if d.receiver in self._ours and d.phase == phase
-        ]
+        deliveries = [d for d, _ in unpacked]
+        if self._ours.issuperset(map(_RECEIVER, deliveries)) and set(map(_PHASE, deliveries)) <= {phase}:  # fmt: skip
+            ours = [(d, table, ids) for d, ids in unpacked]  # the usual: every one ours
+        else:
+            ours = [
+                (d, table, ids)
+                for d, ids in unpacked
+                if d.receiver in self._ours and d.phase == phase
+            ]
         if len(ours) < len(batch.deliveries):
             malformed.counts[msg.key] += len(batch.deliveries) - len(ours)
         return ours
@@ -249,7 +256,17 @@ class LockstepInbox(_Receivers):
         self.waiting: set[int] = set()  # its receivers without their delivery yet
 
     def route(self, msg: Incoming) -> None:
-        for delivery, table, ids in self._deliveries(msg):
+        filed = self._deliveries(msg)
+        deliveries = list(map(_DELIVERY, filed))
+        when = set(map(_PHASE_EPOCH, deliveries))
+        if len(when) == 1:  # a pool's batch, or one delivery: filed at once
+            ((phase, epoch),) = when
+            if epoch >= self.floor.get(phase, 0):
+                self.deliveries.update(zip(map(_WHERE, deliveries), filed, strict=True))
+                if self.current == (phase, epoch):
+                    self.waiting.difference_update(map(_RECEIVER, deliveries))
+            return
+        for delivery, table, ids in filed:
             if delivery.epoch < self.floor.get(delivery.phase, 0):
                 continue  # a copy of one already used
             receiver, phase = delivery.receiver, delivery.phase
@@ -264,10 +281,11 @@ class LockstepInbox(_Receivers):
     def _filed(self, phase: str, epoch: int) -> Generator[Wait, bool, list[Filed]]:
         """Wait for each receiver's delivery of ``phase`` and ``epoch``; in receiver order."""
         self.current = (phase, epoch)
-        self.waiting = {r for r in self.receivers if (r, phase, epoch) not in self.deliveries}
+        where = list(zip(self.receivers, repeat(phase), repeat(epoch), strict=False))
+        self.waiting = set(map(_FIRST, filterfalse(self.deliveries.__contains__, where)))
         yield Wait(epoch, PHASES[phase][1], self._all_in)
         self.current, self.floor[phase] = None, epoch + 1
-        return [self.deliveries.pop((r, phase, epoch)) for r in self.receivers]
+        return list(map(self.deliveries.pop, where))
 
     def take(self, phase: str, epoch: int, expect: int | None = None, early: str = "") -> Take:
         filed = yield from self._filed(phase, epoch)
@@ -289,31 +307,36 @@ class LockstepInbox(_Receivers):
     def _columns(self, kind: Kind, epoch: int, filed: list[Filed]) -> Columns:
         """The pairs of ``filed`` as columns, each distinct packet decoded once; a pair whose
         payload is malformed or not its link's is counted on that link's key and left out."""
-        offsets: dict[int, int] = {}  # a table's first row among all the tables' packets
-        packets: list[DeliveredPacket] = []
-        for _, table, _ in filed:
-            if offsets.setdefault(id(table), len(packets)) == len(packets):
-                packets.extend(table)
-        counts = [len(ids) for _, _, ids in filed]
+        tables, each = list(map(_TABLE, filed)), list(map(_ROWS, filed))
+        counts = list(map(len, each))
         receiver = np.repeat(np.array(self.receivers, dtype=np.int64), counts)
-        rows = (
-            chain.from_iterable(ids for _, _, ids in filed)
-            if len(offsets) == 1  # a pool's batch: one table
-            else chain.from_iterable([i + offsets[id(t)] for i in ids] for _, t, ids in filed)
-        )
+        if len(set(map(id, tables))) <= 1:  # a pool's batch: one table
+            packets, rows = (tables[0] if tables else []), chain.from_iterable(each)
+        else:
+            offsets: dict[int, int] = {}  # a table's first row among all the tables' packets
+            packets = []
+            for _, table, _ in filed:
+                if offsets.setdefault(id(table), len(packets)) == len(packets):
+                    packets.extend(table)
+            rows = chain.from_iterable([i + offsets[id(t)] for i in ids] for _, t, ids in filed)
         entry = np.fromiter(rows, dtype=np.int64, count=sum(counts))
-        ends = np.array([(p.source, p.sent_epoch) for p in packets], dtype=np.int64).reshape(-1, 2)
-        source, sent = ends[:, 0], ends[:, 1]
+        source = np.fromiter(map(_SOURCE, packets), dtype=np.int64, count=len(packets))
+        sent = np.fromiter(map(_SENT_EPOCH, packets), dtype=np.int64, count=len(packets))
         if not kind.delayed:
             current = sent[entry] == epoch
             receiver, entry = receiver[current], entry[current]
         used = np.zeros(len(packets), dtype=bool)
         used[entry] = True
-        decoded: list[Any] = [None] * len(packets)
-        wanted = np.flatnonzero(used).tolist()
-        for e, m in zip(wanted, payloads(kind.model, [packets[e] for e in wanted]), strict=True):
-            decoded[e] = m
-        agent = np.array([_named(m) for m in decoded], dtype=np.int64)
+        if used.all():
+            decoded = payloads(kind.model, packets)
+        else:  # only the packets some pair uses are read
+            decoded = [None] * len(packets)
+            wanted = np.flatnonzero(used).tolist()
+            for e, m in zip(
+                wanted, payloads(kind.model, [packets[e] for e in wanted]), strict=True
+            ):
+                decoded[e] = m
+        agent = _agents_named(decoded)
         owner = source[entry] if kind.owner == "source" else receiver
         valid = (agent[entry] == owner) & (agent[entry] >= 0)
         if not valid.all():
@@ -417,6 +440,25 @@ class RealtimeInbox(_Receivers):
 
 
 _TOP_ID = 2**62  # an agent id past it (Python ints have no bound) names no agent of ours
+_SOURCE, _SENT_EPOCH, _AGENT = attrgetter("source"), attrgetter("sent_epoch"), attrgetter("agent")
+_DELIVERY, _TABLE, _ROWS = itemgetter(0), itemgetter(1), itemgetter(2)  # of a Filed
+_FIRST = itemgetter(0)
+_RECEIVER, _PHASE = attrgetter("receiver"), attrgetter("phase")  # of a delivery
+_PHASE_EPOCH, _WHERE = attrgetter("phase", "epoch"), attrgetter("receiver", "phase", "epoch")
+
+
+def _agents_named(payloads: list[Any]) -> Ids:
+    """(e,) the agent each decoded payload names, as :func:`_named`: at once where every one
+    was decoded and names an int64."""
+    if None not in payloads:
+        try:
+            agent = np.fromiter(map(_AGENT, payloads), dtype=np.int64, count=len(payloads))
+        except OverflowError:  # an id past int64: one by one
+            pass
+        else:
+            agent[(agent < 0) | (agent >= _TOP_ID)] = -1
+            return agent
+    return np.array([_named(m) for m in payloads], dtype=np.int64)
 
 
 def _named(payload: Any) -> int:

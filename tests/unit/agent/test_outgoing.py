@@ -4,10 +4,10 @@ the values they were made from, alone and in a pool's bundle."""
 from __future__ import annotations
 
 import numpy as np
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agent.outgoing import Reports, bundle_message, state_messages
+from agent.outgoing import Reports, bundle_message, state_messages, states_bundle
 from formation.messages import Bundle, CoordinationState, TokenReport
 from shell import MemoryBus, Service
 
@@ -85,3 +85,27 @@ def test_a_bundle_carries_each_message_as_it_would_go_alone(
         bundle_message(HEAD, 8, 4, 2, "report", agents, seqs, quoted)
     )
     assert [p.message.encode() for p in bundle.parts] == alone
+
+
+@settings(max_examples=40)
+@given(pairs, st.data(), st.booleans(), st.booleans())
+def test_a_bundle_made_at_once_has_the_bytes_of_its_messages_bundled(
+    xy: list[tuple[float, float]], data: st.DataObject, silent: bool, unicycle: bool
+) -> None:
+    a = len(xy)
+    agents, seqs = list(range(3, 3 + a)), data.draw(st.lists(st.integers(0, 99), min_size=a, max_size=a))  # fmt: skip
+    subs = [data.draw(substitutes) for _ in agents]
+    poses = [(data.draw(floats), 2) for _ in agents] if unicycle else None
+    quoted = state_messages(HEAD, seqs, 4, 1, agents, np.array(xy), subs, poses, silent, True)
+    assert states_bundle(HEAD, 7, 4, 1, agents, seqs, np.array(xy), subs, poses, silent) == (
+        bundle_message(HEAD, 7, 4, 1, "state", agents, seqs, quoted)
+    )
+    receivers = data.draw(st.lists(st.sampled_from(agents), max_size=3 * a))
+    arrived = np.array(data.draw(st.lists(st.booleans(), min_size=len(receivers), max_size=len(receivers))), dtype=bool)  # fmt: skip
+    z = np.array([data.draw(st.tuples(floats, floats)) for _ in receivers]).reshape(-1, 2)
+    reports = Reports(agents, receivers, [1 + n for n in range(len(receivers))])
+    for arrived_now in (arrived, np.ones_like(arrived)):  # some links lost, and none
+        quoted = reports.messages(HEAD, seqs, 4, 1, arrived_now, z, silent, True)
+        assert reports.bundle(HEAD, 8, 4, 1, seqs, arrived_now, z, silent) == (
+            bundle_message(HEAD, 8, 4, 1, "report", agents, seqs, quoted)
+        )

@@ -269,3 +269,23 @@ def test_columns_of_deliveries_that_came_alone_number_their_packets_across_them(
     columns = _finish(take)  # type: ignore[arg-type]
     assert columns.receiver.tolist() == [1, 2] and columns.entry.tolist() == [0, 1]
     assert [columns.payloads[e].agent for e in columns.entry.tolist()] == [1, 2]
+
+
+def test_columns_count_a_state_naming_an_agent_past_any_int64_and_keep_the_others() -> None:
+    netem, svc = _services()
+    inbox = Lockstep().inbox(svc, [1], Counter())
+    take = inbox.take_columns("state", 0)
+    next(take)
+    header = netem.header(keys.agent_state(RUN, 4), 0)
+    states = [  # 2**70 is read by the model: past what msgspec reads
+        CoordinationState(**header, agent=agent, position=[0.0, 1.0]).model_dump_json()
+        for agent in (4, 2**70)
+    ]
+    packets = [DeliveredPacket(source=j, seq=0, sent_epoch=0, message=m) for j, m in zip((4, 5), states, strict=True)]  # fmt: skip
+    alone = [Delivery(**netem.header(keys.inbox(RUN, 1, "state"), 0), receiver=1, phase="state",
+                      packets=[], lost=[])]  # fmt: skip
+    key = keys.inbox_pool(RUN, 1, "state")
+    inbox.route(Incoming(key, _batch_of(netem, 1, "state", packets, alone, [[0, 1]]), None, 0))
+    columns = _finish(take)  # type: ignore[arg-type]
+    assert columns.receiver.tolist() == [1] and columns.entry.tolist() == [0]
+    assert svc.malformed.counts == Counter({keys.link_state(RUN, 5, 1): 1})
