@@ -27,13 +27,17 @@ from netem.proxy.routes import Phase, Route
 # part's sender and packet.
 _Complete = tuple[int, OpenEpoch | None, int, bytes]
 _STREAM = itemgetter(0)  # of a part chosen
+# The leader's estimates are passed this many parts at a time: a pool's batch goes out once
+# its receivers are in, and the pool steps on the other core while netem passes the rest.
+ESTIMATES_AT_ONCE = 32
 
 
 class BundlePass:
     """The core's bundles in its usual case (:meth:`take`)."""
 
-    def __init__(self, core: LockstepCore) -> None:
+    def __init__(self, core: LockstepCore, estimates_at_once: int = ESTIMATES_AT_ONCE) -> None:
         self.core = core
+        self.estimates_at_once = estimates_at_once
         # phase → the streams of the ends below, and each stream's source and receivers
         self._streams: dict[Phase, tuple[object, dict[int, tuple[int, tuple[int, ...]]]]] = {}
         # phase → each stream's last row and its records' template
@@ -112,9 +116,13 @@ class BundlePass:
             last.update(zip(agents, zip(repeat(epoch), payloads), strict=True))
         elif phase == "report":
             last_report.update(zip(agents, repeat(epoch)))
-        self._pass(phase, epoch, chosen)
         if phase == "estimate":
+            step = self.estimates_at_once
+            for i in range(0, len(chosen), step):
+                self._pass(phase, epoch, chosen[i : i + step])
             core.progress.estimate_handled(epoch, len(agents))
+        else:
+            self._pass(phase, epoch, chosen)
         return True
 
     def _pass(self, phase: Phase, epoch: int, chosen: list[tuple[int, Any, int, Any]]) -> None:

@@ -58,9 +58,10 @@ def _bundles(
 
 
 def _run(scenario: Scenario, seed: int, bundles: list[tuple[Phase, int, list[int]]],
-         at_once: bool, dies: tuple[int, int] | None, twice: int | None) -> tuple[Any, ...]:  # fmt: skip
+         at_once: bool, dies: tuple[int, int] | None, twice: int | None,
+         estimates_at_once: int = 32) -> tuple[Any, ...]:  # fmt: skip
     core, wire = _core(scenario, seed)
-    bundle = BundlePass(core).bundle
+    bundle = BundlePass(core, estimates_at_once).bundle
     for b, (phase, epoch, agents) in enumerate(bundles):
         if dies is not None and dies[0] == b:
             core.sender_died(dies[1])
@@ -92,9 +93,17 @@ def _run(scenario: Scenario, seed: int, bundles: list[tuple[Phase, int, list[int
     order=st.randoms(use_true_random=False),
     dies=st.none() | st.tuples(st.integers(0, 20), st.integers(1, 3)),
     twice=st.none() | st.integers(0, 20),
+    estimates_at_once=st.integers(1, 10),
 )
 def test_a_bundle_at_once_equals_its_parts_one_by_one(
-    n: int, pools: int, network: int, seed: int, order: Any, dies: Any, twice: int | None
+    n: int,
+    pools: int,
+    network: int,
+    seed: int,
+    order: Any,
+    dies: Any,
+    twice: int | None,
+    estimates_at_once: int,
 ) -> None:
     scenario = _team(n, network)
     ids = list(range(1, n + 1))
@@ -103,7 +112,8 @@ def test_a_bundle_at_once_equals_its_parts_one_by_one(
     order.shuffle(turn)
     bundles = _bundles(split, n, turn)
     one_by_one = _run(scenario, seed, bundles, False, dies, twice)
-    assert _run(scenario, seed, bundles, True, dies, twice) == one_by_one
+    at_once = _run(scenario, seed, bundles, True, dies, twice, estimates_at_once)
+    assert at_once == one_by_one
 
 
 def test_a_clean_run_takes_every_bundle_at_once_and_a_duplicate_goes_one_by_one() -> None:
