@@ -59,7 +59,8 @@ def delivered_estimates(columns: Columns, runner: AgentRunner) -> tuple[Array, M
         counts = list(map(min, counts, map(len, positions)))
         neighbours = [n[:c] for n, c in zip(neighbours, counts, strict=True)]
         positions = [p[:c] for p, c in zip(positions, counts, strict=True)]
-    neighbour, position = list(chain.from_iterable(neighbours)), list(chain.from_iterable(positions))  # fmt: skip
+    neighbour = list(chain.from_iterable(neighbours))
+    position = list(chain.from_iterable(positions))
     link = runner.link_rows(np.repeat(receivers, counts), _ids(neighbour))
     last = _last_of_each(link)  # as a dict of the message's pairs holds them
     if last.size == len(position) and _each_of_length(position, d):  # the usual: all at once

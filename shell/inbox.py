@@ -211,15 +211,9 @@ class _Receivers:
             malformed.counts[msg.key] += 1  # another pool's or phase's, or unreadable: unusable
             return []
         table, phase = batch.packets, batch.phase
-        deliveries = [d for d, _ in unpacked]
-        if self._ours.issuperset(map(_RECEIVER, deliveries)) and set(map(_PHASE, deliveries)) <= {phase}:  # fmt: skip
-            ours = [(d, table, ids) for d, ids in unpacked]  # the usual: every one ours
-        else:
-            ours = [
-                (d, table, ids)
-                for d, ids in unpacked
-                if d.receiver in self._ours and d.phase == phase
-            ]
+        ours = [
+            (d, table, ids) for d, ids in unpacked if d.receiver in self._ours and d.phase == phase
+        ]
         if len(ours) < len(batch.deliveries):
             malformed.counts[msg.key] += len(batch.deliveries) - len(ours)
         return ours
@@ -443,7 +437,7 @@ _TOP_ID = 2**62  # an agent id past it (Python ints have no bound) names no agen
 _SOURCE, _SENT_EPOCH, _AGENT = attrgetter("source"), attrgetter("sent_epoch"), attrgetter("agent")
 _DELIVERY, _TABLE, _ROWS = itemgetter(0), itemgetter(1), itemgetter(2)  # of a Filed
 _FIRST = itemgetter(0)
-_RECEIVER, _PHASE = attrgetter("receiver"), attrgetter("phase")  # of a delivery
+_RECEIVER = attrgetter("receiver")  # of a delivery
 _PHASE_EPOCH, _WHERE = attrgetter("phase", "epoch"), attrgetter("receiver", "phase", "epoch")
 
 
