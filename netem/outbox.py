@@ -101,33 +101,10 @@ class ZenohOutbox:
         self, phase: Phase, epoch: int, ready: list[tuple[int, list[bytes], list[int]]]
     ) -> None:
         """:meth:`deliver` of each ``(receiver, packets, lost)`` in turn, none dead, stamped
-        alike: a pool's receivers with nothing lost straight into its batch (the same bytes)."""
+        alike."""
         stamp = now_ns()
-        inboxes, kept_by, size = self._inboxes, self._kept, self._size
-        at: tuple[int, Phase, int] | None = None
-        kept = _PoolBatch()  # the batch of ``at``
         for receiver, packets, lost in ready:
-            inbox = inboxes.get((phase, receiver))
-            if inbox is None or inbox.pool is None or lost:
-                self._deliver(phase, receiver, epoch, stamp, packets, lost, ())
-                at = None  # that may have sent the batch at hand
-                continue
-            pool = inbox.pool
-            if at is None or at[0] != pool:
-                at = (pool, phase, epoch)
-                got = kept_by.get(at)
-                kept = kept_by[at] = _PoolBatch() if got is None else got
-                table, add = kept.table, kept.table.setdefault
-            seq = inbox.seq
-            inbox.seq = seq + 1
-            # as _PoolBatch.add: a new packet's index is the table's length before it
-            kept.carried.append([add(p, len(table)) for p in packets])
-            kept.deliveries.append(inbox.plain % (seq, epoch, stamp))
-            kept.came += 1
-            if kept.came >= size[pool]:  # the pool's every agent: its batch goes
-                del kept_by[at]
-                self._publish(pool, phase, epoch, kept)
-                at = None
+            self._deliver(phase, receiver, epoch, stamp, packets, lost, ())
 
     def _deliver(
         self,
@@ -140,8 +117,7 @@ class ZenohOutbox:
         dead: Sequence[int],
     ) -> None:
         inbox = self._inbox(phase, receiver)
-        seq = inbox.seq
-        inbox.seq = seq + 1
+        seq = inbox.next_seq()
         pool = inbox.pool
         if pool is None:
             inbox.pub.put(delivery_of(inbox.head % (seq, epoch, stamp), packets, lost, dead))
@@ -204,6 +180,11 @@ class _Inbox:
         self.plain = head + _NOTHING_ELSE
         self.seq = 0
         self.pool: int | None = None
+
+    def next_seq(self) -> int:
+        seq = self.seq
+        self.seq = seq + 1
+        return seq
 
 
 class _PoolBatch:
