@@ -190,6 +190,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--epochs", type=int, help="epochs of each case (default: its own)")
     parser.add_argument("--no-latency", action="store_true", help="skip the netem hop latency")
     parser.add_argument(
+        "--repeat",
+        type=int,
+        help="runs of each case, their median printed (default: 3 for the teams of 20 or "
+        "fewer agents and the 1,000 pooled, 1 for the others)",
+    )
+    parser.add_argument(
         "--record", action="store_true", help="record the runs (as `formation run` does)"
     )
     args = parser.parse_args(argv)
@@ -205,7 +211,8 @@ def main(argv: list[str] | None = None) -> None:
         ("20 agent processes", henneberg_team(20, epochs=150), None),
         ("50 agent processes", henneberg_team(50, epochs=80), None),
         ("200 agents pooled in 4", henneberg_team(200, epochs=40), 4),
-        ("1000 agents pooled in 8", henneberg_team(1000, epochs=12), 8),
+        # issue 45's target (>= 25 epochs/s) is measured over 60 epochs, 3 runs
+        ("1000 agents pooled in 8", henneberg_team(1000, epochs=60), 8),
     ]
     cases = [
         (
@@ -219,8 +226,9 @@ def main(argv: list[str] | None = None) -> None:
     print(f"{'case':28} {'epochs/s':>9} {'sim ep/s':>9} {'ratio':>7} {'agent RSS MiB':>14}  runs")
     with tempfile.TemporaryDirectory() as tmp:
         for name, scenario, pool in cases:
-            # Small teams take seconds and vary by about 10 % from run to run: median of 3.
-            repeats = 3 if scenario.n <= 20 else 1
+            # Small teams take seconds and vary by about 10 % from run to run, the machine's
+            # speed by more over minutes: the median of 3 where a rate is a target or noisy.
+            repeats = args.repeat or (3 if scenario.n <= 20 or scenario.n >= 1000 else 1)
             runs = [lockstep_rate(scenario, pool, Path(tmp), args.record) for _ in range(repeats)]
             rate, sim_rate, rss = (float(np.median([r[c] for r in runs])) for c in range(3))
             spread = ", ".join(f"{r[0]:.1f}" for r in runs)
