@@ -117,8 +117,10 @@ class KruskalGraph:
         weighted by its place in the order: distinct weights have one minimum forest, the
         one the scan in that order keeps; or, many members of a small graph
         (``m × LABEL_SWEEP_RATIO < B n``), it is scanned edge by edge across the members,
-        with labels for the components (:func:`_label_sweep`). The same edges are kept
-        (``tests/unit/leader/test_mst.py`` holds the three paths to
+        with labels for the components (:func:`_label_sweep`); or, at most
+        ``SCAN_IN_PYTHON_UPTO`` edges in all (``B m``), by the union-find of
+        :func:`minimum_spanning_forest` in Python (:func:`_python_scan`). The same edges are
+        kept (``tests/unit/leader/test_mst.py`` holds the four paths to
         :func:`minimum_spanning_forest`).
 
         Parameters
@@ -141,6 +143,8 @@ class KruskalGraph:
             return _union_find(count, self.lo, self.hi, self.order, healthy)
         if m * LABEL_SWEEP_RATIO < size * count:
             return _label_sweep(count, self.lo, self.hi, self.order, healthy)
+        if size * m <= SCAN_IN_PYTHON_UPTO:
+            return _python_scan(count, self.lo, self.hi, self.order, healthy)
         return _sparse_scan(count, self.lo, self.hi, self.order, healthy)
 
 
@@ -148,6 +152,32 @@ UNION_FIND_FROM = 2048
 """A batch of this many nodes (``B n``) or more is scanned by the compiled union-find: the
 edges in their fixed order, no sort per epoch. Smaller ones take SciPy or the label sweep
 rather than load numba (about a second) in a small leader's process."""
+
+
+SCAN_IN_PYTHON_UPTO = 1024
+"""A batch of at most this many edges (``B m``, healthy or not) is scanned by
+:func:`_union_find_scan` in Python: SciPy's sparse matrices cost more to build than a small
+team's scan: a batch of 16 runs of the chapter's 5 agents took 0.48 ms an epoch by SciPy,
+0.05 ms by this scan, which stays ahead up to about a thousand edges."""
+
+
+def _python_scan(
+    n: int, lo: IntArray, hi: IntArray, order: IntArray, healthy: BoolArray
+) -> tuple[BoolArray, IntArray]:
+    """Each member's Kruskal forest by one :func:`_union_find_scan` of the members' disjoint
+    union, in the order of :meth:`KruskalGraph.forests`; labels as :func:`_sparse_scan`'s
+    (each component numbered in the order of its smallest node)."""
+    size = healthy.shape[0]
+    at, member = np.nonzero(healthy[:, order].T)  # for each edge in order, member after member
+    edge = order[at]
+    kept, parent = _union_find_scan(size * n, member * n + lo[edge], member * n + hi[edge])
+    tree = np.zeros(healthy.shape, dtype=bool)
+    tree[member[kept], edge[kept]] = True
+    roots = _roots(np.asarray(parent, dtype=np.int64))
+    _, first, component = np.unique(roots, return_index=True, return_inverse=True)
+    number = np.empty(first.size, dtype=np.int64)
+    number[np.argsort(first)] = np.arange(first.size)
+    return tree, number[component].reshape(size, n)
 
 
 def _union_find(

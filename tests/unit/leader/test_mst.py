@@ -177,17 +177,22 @@ def test_bad_inputs_say_expected_vs_actual() -> None:
 
 
 @pytest.mark.parametrize(
-    ("sweep_ratio", "union_find_from"),
-    [(0, 10**9), (10**9, 10**9), (0, 0)],
-    ids=["label sweep", "scipy", "union-find"],
+    ("sweep_ratio", "union_find_from", "in_python_upto"),
+    [(0, 10**9, 0), (10**9, 10**9, 0), (0, 0, 0), (10**9, 10**9, 10**9)],
+    ids=["label sweep", "scipy", "union-find", "python"],
 )
 def test_batch_forest_is_kruskals(
-    paper: Scenario, sweep_ratio: int, union_find_from: int, monkeypatch: pytest.MonkeyPatch
+    paper: Scenario,
+    sweep_ratio: int,
+    union_find_from: int,
+    in_python_upto: int,
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """The three scans of :meth:`KruskalGraph.forests` (forced by ``LABEL_SWEEP_RATIO`` and
-    ``UNION_FIND_FROM``) keep each member's Kruskal forest."""
+    """The four scans of :meth:`KruskalGraph.forests` (forced by ``LABEL_SWEEP_RATIO``,
+    ``UNION_FIND_FROM`` and ``SCAN_IN_PYTHON_UPTO``) keep each member's Kruskal forest."""
     monkeypatch.setattr(leader.mst, "LABEL_SWEEP_RATIO", sweep_ratio)
     monkeypatch.setattr(leader.mst, "UNION_FIND_FROM", union_find_from)
+    monkeypatch.setattr(leader.mst, "SCAN_IN_PYTHON_UPTO", in_python_upto)
     team = Scenario.from_file(SCENARIOS / "grid20.toml")
     rng = np.random.default_rng(5)
     for scen in (paper, team):
@@ -200,11 +205,16 @@ def test_batch_forest_is_kruskals(
             assert len(np.unique(labels[b])) == scen.n - want.sum()
 
 
-@pytest.mark.parametrize("union_find_from", [10**9, 0], ids=["scipy", "union-find"])
+@pytest.mark.parametrize(
+    ("union_find_from", "in_python_upto"),
+    [(10**9, 0), (0, 0), (10**9, 10**9)],
+    ids=["scipy", "union-find", "python"],
+)
 def test_batch_forest_of_an_edge_listed_twice_keeps_the_first_copy(
-    union_find_from: int, monkeypatch: pytest.MonkeyPatch
+    union_find_from: int, in_python_upto: int, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setattr(leader.mst, "UNION_FIND_FROM", union_find_from)
+    monkeypatch.setattr(leader.mst, "SCAN_IN_PYTHON_UPTO", in_python_upto)
     edges = np.array([(1, 2), (2, 3), (1, 2), (1, 3)])
     weights = np.array([2.0, 1.0, 0.5, 3.0])
     healthy = np.array([[True, True, True, True], [True, True, False, True]])
@@ -227,5 +237,24 @@ def test_the_union_find_gives_scipys_forest_and_labels(rng: np.random.Generator)
     healthy = rng.random((3, edges.shape[0])) < 0.7
     want = leader.mst._sparse_scan(n, graph.lo, graph.hi, graph.order, healthy)
     got = graph.forests(healthy)  # 9,000 nodes: the union-find
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+
+
+def test_a_small_batch_is_scanned_in_python_with_scipys_forest_and_labels(
+    rng: np.random.Generator,
+) -> None:
+    """A batch of a few hundred edges takes the Python scan, which keeps SciPy's forest and
+    gives its component labels array for array, members apart and edges listed twice too."""
+    n, m, members = 30, 70, 6
+    edges = np.stack([rng.integers(1, n + 1, m), rng.integers(1, n + 1, m)], axis=1)
+    edges = edges[edges[:, 0] != edges[:, 1]]
+    edges = np.concatenate([edges, edges[:5]])  # listed twice
+    graph = KruskalGraph.of(n, edges, rng.random(edges.shape[0]))
+    healthy = rng.random((members, edges.shape[0])) < 0.6
+    assert members * edges.shape[0] <= leader.mst.SCAN_IN_PYTHON_UPTO
+    assert edges.shape[0] * leader.mst.LABEL_SWEEP_RATIO >= members * n  # not the sweep's
+    want = leader.mst._sparse_scan(n, graph.lo, graph.hi, graph.order, healthy)
+    got = graph.forests(healthy)
     np.testing.assert_array_equal(got[0], want[0])
     np.testing.assert_array_equal(got[1], want[1])
