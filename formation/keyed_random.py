@@ -62,7 +62,13 @@ def _chain(h: int | npt.NDArray[np.uint64], key: KeyLike) -> int | npt.NDArray[n
     """The hash state after one more key word: ``mix(h + G + mix(key + G))``."""
     if isinstance(h, int) and isinstance(key, (int, np.integer)):
         return _mix_int((h + _G + _mix_int((int(key) + _G) & _M64)) & _M64)
-    state, a = _words(h, key)
+    return _chain_words(*_words(h, key))
+
+
+def _chain_words(
+    state: np.uint64 | npt.NDArray[np.uint64], a: npt.NDArray[np.uint64]
+) -> npt.NDArray[np.uint64]:
+    """:func:`_chain` of a state and a key word already as uint64 (:func:`_words`)."""
     if _compiled(state, a):
         from formation.compiled_keyed import chain
 
@@ -73,13 +79,14 @@ def _chain(h: int | npt.NDArray[np.uint64], key: KeyLike) -> int | npt.NDArray[n
 
 def _uniform_after(h: int | npt.NDArray[np.uint64], key: KeyLike) -> npt.NDArray[np.float64]:
     """``_uniform`` of the hash state after one more key word."""
-    if not (isinstance(h, int) and isinstance(key, (int, np.integer))):
-        state, a = _words(h, key)
-        if _compiled(state, a):
-            from formation.compiled_keyed import uniform_after
+    if isinstance(h, int) and isinstance(key, (int, np.integer)):
+        return _uniform(_as_bits(_chain(h, key)))
+    state, a = _words(h, key)
+    if _compiled(state, a):
+        from formation.compiled_keyed import uniform_after
 
-            return np.atleast_1d(np.asarray(uniform_after(state, a), dtype=np.float64))
-    return _uniform(_as_bits(_chain(h, key)))
+        return np.atleast_1d(np.asarray(uniform_after(state, a), dtype=np.float64))
+    return _uniform(_as_bits(_chain_words(state, a)))
 
 
 def _words(
@@ -94,6 +101,8 @@ def _words(
 def _compiled(state: np.uint64 | npt.NDArray[np.uint64], a: npt.NDArray[np.uint64]) -> bool:
     """Whether a step this large runs compiled: numba loads in about a second, so only the
     simulator's plans pay it, not an agent process's block of noise."""
+    if a.size * np.size(state) < COMPILED_FROM:  # bounds the broadcast's size: most steps stop here
+        return False
     return math.prod(np.broadcast_shapes(a.shape, np.shape(state))) >= COMPILED_FROM
 
 
