@@ -78,4 +78,6 @@ def test_large_frameworks_get_the_same_bound_by_lanczos() -> None:
         r[k, 2 * i : 2 * i + 2], r[k, 2 * j : 2 * j + 2] = x[i] - x[j], x[j] - x[i]
     dense = 1.0 / np.linalg.eigvalsh((r.T @ r)[2:, 2:])[-1]
     assert big == pytest.approx(dense, rel=1e-9)
-    assert small >= big  # fewer edges, a smaller Hessian
+    # fewer edges, a smaller Hessian: a bound no lower, equal where the top mode lies in the
+    # first 200 agents (here), so compared to rounding (dense and Lanczos differ by an ulp)
+    assert small >= big * (1 - 1e-12)
