@@ -20,10 +20,19 @@ def run_chain(table: npt.NDArray[np.int64], s0: npt.NDArray[np.int64]) -> npt.ND
     """Finite chain: ``out[:, k] = table[:, k, out[:, k-1]]`` with ``out[:, -1] = s0``.
 
     ``table`` is ``(L, n, S)``: the next state from each state at each step. One
-    link loops in Python over lists; several links loop over epochs with numpy, and
-    ``COMPILED_FROM`` link-epochs or more compiled, link by link.
+    link loops in Python over lists; several links loop over epochs with numpy; and
+    ``COMPILED_FROM`` link-epochs or more, one link or many, run compiled, link by link.
     """
     n_links, n, _ = table.shape
+    post = np.empty((n_links, n), dtype=np.int64)
+    if n_links * n >= COMPILED_FROM:
+        # numba loads in about a second: only for a simulator's many links or one link's
+        # long schedule (whose draws loaded it already; its Python loop made 2.5 million
+        # objects an epoch-block for the collector to walk past numba's)
+        from netem.links.compiled_chain import step_chains
+
+        step_chains(table, s0.astype(np.int64), post)
+        return post
     if n_links == 1:
         s = int(s0[0])
         out = []
@@ -31,13 +40,6 @@ def run_chain(table: npt.NDArray[np.int64], s0: npt.NDArray[np.int64]) -> npt.ND
             s = row[s]
             out.append(s)
         return np.asarray(out, dtype=np.int64).reshape(1, n)
-    post = np.empty((n_links, n), dtype=np.int64)
-    if n_links * n >= COMPILED_FROM:
-        # numba loads in about a second: only for a simulator's many links
-        from netem.links.compiled_chain import step_chains
-
-        step_chains(table, s0.astype(np.int64), post)
-        return post
     rows = np.arange(n_links)
     s_vec = s0.astype(np.int64)
     for k in range(n):

@@ -24,6 +24,28 @@ def test_the_compiled_chains_give_the_numpy_states(monkeypatch: pytest.MonkeyPat
     assert compiled[0].tolist() == run_chain(table[:1], s0[:1])[0].tolist()  # one link's loop
 
 
+def test_one_link_s_long_chain_runs_compiled_with_the_loop_s_states(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A schedule of one link over ``COMPILED_FROM`` epochs is stepped compiled (its Python
+    loop made an object per epoch), to the same states."""
+    import netem.links.compiled_chain
+
+    rng = np.random.default_rng(4)
+    table = rng.integers(0, 4, (1, COMPILED_FROM, 4))
+    s0 = np.array([2])
+    calls = []
+    step = netem.links.compiled_chain.step_chains
+    monkeypatch.setattr(
+        netem.links.compiled_chain, "step_chains", lambda *a: calls.append(1) or step(*a)
+    )
+    compiled = run_chain(table, s0)
+    assert calls == [1]
+    monkeypatch.setattr(netem.links.chains, "COMPILED_FROM", 1 << 62)
+    np.testing.assert_array_equal(compiled, run_chain(table, s0))
+    assert calls == [1]
+
+
 def test_the_compiled_gilbert_elliott_layer_gives_the_table_steps(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
