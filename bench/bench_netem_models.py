@@ -36,6 +36,7 @@ from formation.linkmodels import (
     Reorder,
 )
 from netem.links.models import LinkModel, delivery_matrix, schedule
+from shell import settle_heap
 
 SEED = 20240601
 N_LINKS = 100  # links of the delivery_matrix case
@@ -69,6 +70,10 @@ def best_of(fn: Callable[[], object], repeats: int = 3) -> float:
 
 
 def per_packet_rate(stack: list[LinkModelSpec], seed: int, n: int) -> float:
+    # netem decides with its heap settled (shell.settle_heap): what the long schedules above
+    # loaded (numba, for 2^18 draws or more) must not be walked by every collection here
+    settle_heap()
+
     def go() -> None:
         model = LinkModel(stack, seed, 1, 2)  # fresh: block computation is part of the cost
         decide = model.decide
