@@ -24,13 +24,13 @@ def run_chain(table: npt.NDArray[np.int64], s0: npt.NDArray[np.int64]) -> npt.ND
     ``COMPILED_FROM`` link-epochs or more, one link or many, run compiled, link by link.
     """
     n_links, n, _ = table.shape
-    post = np.empty((n_links, n), dtype=np.int64)
     if n_links * n >= COMPILED_FROM:
         # numba loads in about a second: only for a simulator's many links or one link's
-        # long schedule (whose draws loaded it already; its Python loop made 2.5 million
-        # objects an epoch-block for the collector to walk past numba's)
+        # long schedule (whose draws loaded it already; its Python loop made an object per
+        # epoch, each collection then walking numba's too)
         from netem.links.compiled_chain import step_chains
 
+        post = np.empty((n_links, n), dtype=np.int64)
         step_chains(table, s0.astype(np.int64), post)
         return post
     if n_links == 1:
@@ -40,6 +40,7 @@ def run_chain(table: npt.NDArray[np.int64], s0: npt.NDArray[np.int64]) -> npt.ND
             s = row[s]
             out.append(s)
         return np.asarray(out, dtype=np.int64).reshape(1, n)
+    post = np.empty((n_links, n), dtype=np.int64)
     rows = np.arange(n_links)
     s_vec = s0.astype(np.int64)
     for k in range(n):
